@@ -1,0 +1,1 @@
+"""Orchestration: configuration, plans, the runner, sessions and the command line."""
