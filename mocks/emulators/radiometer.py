@@ -1,0 +1,150 @@
+"""The measurement physics behind the spectroradiometer emulators.
+
+A spectroradiometer sees the source through a slit of finite bandwidth (a Gaussian of the stated
+FWHM), converts light to counts with a wavelength-dependent responsivity, chooses an integration time
+(adaptive exposure aims the brightest pixel at a fraction of full scale), subtracts a dark frame and
+divides by its calibration. Noise is shot noise on the signal plus read noise on the light and the
+dark frame, averaged over the requested cycles; the result therefore has realistic, wavelength-
+dependent signal-to-noise (poor in the deep blue, where silicon and the grating are weak), and can dip
+below zero where there is no light. All randomness comes from the seeded generator passed in.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Radiance source: spectral radiance (W/(sr·m²·nm)) at the given wavelengths (nm), shape ``(n,)``.
+RadianceSource = Callable[[NDArray[np.float64]], NDArray[np.float64]]
+
+ObservationStatus = Literal["ok", "overload", "weak_light"]
+
+
+@dataclass(frozen=True)
+class RadiometerOptics:
+    """What an instrument model is made of.
+
+    Parameters
+    ----------
+    wavelength_nm
+        The instrument's sampling grid, shape ``(n,)``.
+    bandwidth_nm
+        Full width at half maximum of the (Gaussian) slit function.
+    peak_responsivity
+        Counts per ms per W/(sr·m²·nm) at the most sensitive wavelength.
+    exposure_range_ms
+        Shortest and longest integration time.
+    full_scale_counts
+        Counts at which the detector saturates.
+    read_noise_counts
+        Standard deviation of one read.
+    adaptive_target
+        Fraction of full scale the adaptive exposure aims the peak at.
+    weak_light_counts
+        Peak counts below which adaptive exposure gives up ("weak light").
+    overhead_s
+        Fixed time per measurement (shutter, dark frame set-up, readout).
+    """
+
+    wavelength_nm: NDArray[np.float64]
+    bandwidth_nm: float
+    peak_responsivity: float
+    exposure_range_ms: tuple[float, float]
+    full_scale_counts: float = 60_000.0
+    read_noise_counts: float = 6.0
+    adaptive_target: float = 0.7
+    weak_light_counts: float = 300.0
+    overhead_s: float = 0.4
+
+    def responsivity(self) -> NDArray[np.float64]:
+        """Counts per ms per unit radiance on the sampling grid, shape ``(n,)``."""
+        shape = 0.12 + 0.88 * np.exp(-0.5 * ((self.wavelength_nm - 610.0) / 140.0) ** 2)
+        return np.asarray(self.peak_responsivity * shape, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Observation:
+    """The outcome of one measurement.
+
+    ``radiance`` (shape ``(n,)``, W/(sr·m²·nm)) is ``None`` unless ``status == "ok"``;
+    ``duration_s`` is the nominal time the instrument took (before any time scaling).
+    """
+
+    status: ObservationStatus
+    exposure_ms: float
+    duration_s: float
+    radiance: NDArray[np.float64] | None = None
+    peak_counts: float = 0.0
+
+
+class Radiometer:
+    """Measures a radiance source through :class:`RadiometerOptics`.
+
+    Parameters
+    ----------
+    optics
+        The instrument model.
+    source
+        Where the light comes from (e.g. :meth:`mocks.lamps.LampBank.radiance`).
+    rng
+        Seeded generator for the noise.
+    """
+
+    def __init__(
+        self, optics: RadiometerOptics, source: RadianceSource, rng: np.random.Generator
+    ) -> None:
+        self.optics = optics
+        self.source = source
+        self.rng = rng
+        grid = optics.wavelength_nm
+        sigma_nm = optics.bandwidth_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+        step_nm = min(0.5, optics.bandwidth_nm / 8.0)
+        reach_nm = 4.0 * sigma_nm
+        self._fine_nm = np.arange(grid[0] - reach_nm, grid[-1] + reach_nm + step_nm / 2, step_nm)
+        weights = np.exp(-0.5 * ((grid[:, None] - self._fine_nm[None, :]) / sigma_nm) ** 2)
+        self._weights = weights / weights.sum(axis=1, keepdims=True)
+        self._responsivity = optics.responsivity()
+
+    def band_radiance(self) -> NDArray[np.float64]:
+        """Noise-free radiance as the instrument's slit sees it, on its grid, shape ``(n,)``."""
+        fine = np.asarray(self.source(self._fine_nm), dtype=np.float64)
+        return np.asarray(self._weights @ fine, dtype=np.float64)
+
+    def observe(
+        self, exposure_ms: float | None, averages: int = 1, *, attenuation: float = 1.0
+    ) -> Observation:
+        """Take one measurement; ``exposure_ms=None`` chooses the exposure adaptively.
+
+        ``attenuation`` is a neutral-density filter in the light path (the detector sees
+        ``attenuation`` times the light; the reported radiance is corrected for it).
+        """
+        optics = self.optics
+        low_ms, high_ms = optics.exposure_range_ms
+        radiance = self.band_radiance() * attenuation
+        rate = radiance * self._responsivity  # counts per ms
+        peak_rate = float(np.max(rate, initial=0.0))
+        adaptive = exposure_ms is None
+        if exposure_ms is None:
+            wanted_ms = (
+                optics.adaptive_target * optics.full_scale_counts / peak_rate
+                if peak_rate > 0
+                else high_ms
+            )
+            exposure_ms = float(np.clip(np.round(wanted_ms), low_ms, high_ms))
+        duration_s = optics.overhead_s + 2.0 * exposure_ms * averages / 1000.0
+        if adaptive:
+            duration_s += optics.overhead_s + min(exposure_ms, 1000.0) / 1000.0
+        signal = rate * exposure_ms
+        peak_counts = float(np.max(signal, initial=0.0))
+        if peak_counts > optics.full_scale_counts:
+            return Observation("overload", exposure_ms, duration_s, peak_counts=peak_counts)
+        if adaptive and peak_counts < optics.weak_light_counts:
+            return Observation("weak_light", exposure_ms, duration_s, peak_counts=peak_counts)
+        variance = np.clip(signal, 0.0, None) + 2.0 * optics.read_noise_counts**2
+        noise = self.rng.standard_normal(signal.shape) * np.sqrt(variance / averages)
+        measured = (signal + noise) / (self._responsivity * exposure_ms * attenuation)
+        return Observation("ok", exposure_ms, duration_s, measured, peak_counts)
