@@ -511,3 +511,16 @@ def open_serial(
         f"{pacing.command_gap_s:g} s between commands)"
     )
     return transport
+
+
+def ask(
+    transport: ByteTransport, command: bytes, *, terminator: bytes, deadline: Deadline
+) -> bytes:
+    """Drop stale input, send ``command`` and return the reply up to and including ``terminator``.
+
+    Stale bytes (a late reply to an earlier command that timed out) are dropped first so they cannot
+    be taken for this command's reply; the transport records them in the transcript.
+    """
+    transport.discard_input()
+    transport.write(command)
+    return transport.read_until(terminator, deadline=deadline)

@@ -189,7 +189,8 @@ class PtySerialDevice:
         self.hang_up()
 
     def __enter__(self) -> Self:
-        return self.start()
+        """Start if not started yet (the ``start_*`` helpers return started devices)."""
+        return self if self._thread is not None else self.start()
 
     def __exit__(
         self,

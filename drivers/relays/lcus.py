@@ -1,0 +1,200 @@
+"""LCUS-type CH340 serial relay boards (LCUS-1/2/4/8, "LC Technology"), binary frames.
+
+The protocol (facts sheet ``protocols.md`` §2.2):
+
+- 9600 8N1, no flow control; the board appears as ``ttyUSB*`` (CH340, VID 0x1A86 / PID 0x7523);
+- a switch is the four bytes ``A0 <channel> <state> <checksum>`` (channel from 1, state 00 off /
+  01 on, checksum = low byte of the sum of the first three), and gets no reply; there is no "all"
+  frame, so :meth:`LcusRelayBoard.all_off` switches channel by channel;
+- the status query is the single byte ``FF``; the board answers one fixed-length line per channel,
+  ``CH1: ON \\r\\n`` or ``CH1: OFF\\r\\n``. The first answer is often stale, so the query is sent
+  :data:`STATUS_QUERY_REPEATS` times and the last answer is used;
+- frames are spaced by :data:`DEFAULT_PACING` (implementations use 50–100 ms).
+
+Every switch is verified by reading the state back (:func:`drivers.relays.verify_relay_state`). A
+board that does not answer the status query (many single-channel boards) cannot be verified and is
+refused when it is opened.
+"""
+
+from __future__ import annotations
+
+import re
+from types import TracebackType
+from typing import Self
+
+from drivers.base import DeviceIdentity, TranscriptSink
+from drivers.relays import verify_relay_state
+from drivers.replies import ReplyContext, decode_ascii
+from drivers.transport import ByteTransport, Deadline, Pacing, SerialSettings, open_serial
+
+SERIAL_SETTINGS = SerialSettings(baudrate=9600)
+DEFAULT_PACING = Pacing(command_gap_s=0.1)
+FRAME_START = 0xA0
+STATUS_QUERY = b"\xff"
+#: [?] bmrzycki/lcus_relay found the first answer stale and keeps the second.
+STATUS_QUERY_REPEATS = 2
+#: ``CH1: ON \r\n`` and ``CH1: OFF\r\n`` are both this long ("ON" is padded).
+STATUS_LINE_BYTES = 10
+DEFAULT_TIMEOUT_S = 1.0
+MAX_CHANNELS = 8
+
+
+def encode_switch_frame(channel: int, on: bool) -> bytes:
+    """The four-byte frame switching ``channel`` (from 1) on or off."""
+    if not 1 <= channel <= 0xFF:
+        raise ValueError(f"LCUS channel must be 1–255, got {channel}")
+    head = bytes([FRAME_START, channel, 1 if on else 0])
+    return head + bytes([sum(head) & 0xFF])
+
+
+def parse_status(reply: bytes, channels: int, context: ReplyContext) -> tuple[bool, ...]:
+    """Channel states (channel 1 first) from a status answer of ``channels`` lines.
+
+    Raises
+    ------
+    ProtocolError
+        Not ASCII, a line that is not ``CHn: ON`` / ``CHn: OFF``, or channels out of order.
+    """
+    text = decode_ascii(reply, context)
+    lines = text.split("\r\n")
+    if lines[-1] != "" or len(lines) != channels + 1:
+        raise context.error(f"status answer should be {channels} CR LF lines", reply)
+    states = []
+    for expected, line in enumerate(lines[:-1], start=1):
+        match = re.fullmatch(r"CH(\d+): (ON |OFF)", line)
+        if match is None or int(match.group(1)) != expected:
+            raise context.error(
+                f"status line {expected} is {line!r}, expected 'CH{expected}: …'", reply
+            )
+        states.append(match.group(2) == "ON ")
+    return tuple(states)
+
+
+class LcusRelayBoard:
+    """An LCUS board; implements :class:`drivers.base.RelayBoard`.
+
+    Parameters
+    ----------
+    transport
+        The byte link to the board.
+    channels
+        Number of relays (1–8).
+    timeout_s
+        Deadline of each status answer.
+    port
+        Where the board is connected (reported in its identity).
+    """
+
+    def __init__(
+        self,
+        transport: ByteTransport,
+        channels: int,
+        *,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
+        port: str | None = None,
+    ) -> None:
+        if not 1 <= channels <= MAX_CHANNELS:
+            raise ValueError(f"LCUS boards have 1–{MAX_CHANNELS} channels, got {channels}")
+        self._transport = transport
+        self._channels = channels
+        self.timeout_s = timeout_s
+        self.port = port
+        self._known: tuple[bool, ...] | None = None
+
+    @property
+    def channels(self) -> int:
+        return self._channels
+
+    @property
+    def device(self) -> str:
+        return self._transport.device
+
+    def identify(self) -> DeviceIdentity:
+        """The board reports nothing about itself; this is what the config says it is."""
+        return DeviceIdentity(kind="relay", model=f"LCUS-{self._channels}", port=self.port)
+
+    def _check_channel(self, channel: int) -> None:
+        if not 1 <= channel <= self._channels:
+            raise ValueError(f"{self.device}: channel {channel} is outside 1–{self._channels}")
+
+    def state(self) -> tuple[bool, ...]:
+        """Channel states as the board reports them (channel 1 first)."""
+        self._transport.discard_input()
+        reply = b""
+        for _ in range(STATUS_QUERY_REPEATS):
+            self._transport.write(STATUS_QUERY)
+            reply = self._transport.read_exact(
+                STATUS_LINE_BYTES * self._channels, deadline=Deadline(self.timeout_s)
+            )
+        self._known = parse_status(reply, self._channels, ReplyContext(self.device, STATUS_QUERY))
+        return self._known
+
+    def set(self, channel: int, on: bool) -> None:
+        """Switch ``channel`` and verify the whole board's state read back.
+
+        Raises
+        ------
+        StateMismatch
+            The board's state after switching is not the one asked for.
+        """
+        self._check_channel(channel)
+        expected = list(self._known if self._known is not None else self.state())
+        expected[channel - 1] = on
+        self._transport.write(encode_switch_frame(channel, on))
+        verify_relay_state(self.device, expected, self.state())
+
+    def all_off(self) -> None:
+        """Switch every channel off (one frame each) and verify."""
+        for channel in range(1, self._channels + 1):
+            self._transport.write(encode_switch_frame(channel, False))
+        verify_relay_state(self.device, [False] * self._channels, self.state())
+
+    def close(self) -> None:
+        """Close the port (the relays keep their state)."""
+        self._transport.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def open_lcus(
+    port: str,
+    channels: int,
+    *,
+    timeout_s: float = DEFAULT_TIMEOUT_S,
+    transcript: TranscriptSink | None = None,
+    pacing: Pacing = DEFAULT_PACING,
+) -> LcusRelayBoard:
+    """Open an LCUS board with ``channels`` relays on ``port`` and read its state.
+
+    Raises
+    ------
+    DeviceNotFound
+        No such port.
+    DeviceTimeout
+        The board does not answer the status query (then its switching cannot be verified).
+    """
+    if not 1 <= channels <= MAX_CHANNELS:
+        raise ValueError(f"LCUS boards have 1–{MAX_CHANNELS} channels, got {channels}")
+    transport = open_serial(
+        port,
+        SERIAL_SETTINGS,
+        device=f"LCUS-{channels} relay board on {port}",
+        transcript=transcript,
+        pacing=pacing,
+    )
+    board = LcusRelayBoard(transport, channels, timeout_s=timeout_s, port=port)
+    try:
+        board.state()
+    except BaseException:
+        board.close()
+        raise
+    return board

@@ -1,0 +1,95 @@
+"""Spectroradiometers with a serial command protocol: Photo Research PR-655/PR-670, Konica Minolta
+CS-2000/CS-2000A.
+
+:func:`open_spectrometer` is what the rig calls with the model and port from its config.
+"""
+
+from __future__ import annotations
+
+from drivers.base import Spectrometer, TranscriptSink
+from drivers.spectrometer import cs2000, pr6xx
+from drivers.spectrometer.cs2000 import Cs2000, open_cs2000
+from drivers.spectrometer.errors import MeasurementConditionError
+from drivers.spectrometer.pr6xx import Pr6xx, open_pr6xx
+
+__all__ = [
+    "MODELS",
+    "Cs2000",
+    "MeasurementConditionError",
+    "Pr6xx",
+    "open_spectrometer",
+]
+
+#: Model names accepted by :func:`open_spectrometer` (case and separators are ignored).
+MODELS = ("PR-655", "PR-670", "CS-2000", "CS-2000A")
+
+
+def canonical_model(model: str) -> str:
+    """``"pr655"``, ``"PR 655"``, ``"cs-2000a"`` … → the canonical name in :data:`MODELS`.
+
+    Raises
+    ------
+    ValueError
+        Not a supported model.
+    """
+    key = "".join(character for character in model.upper() if character.isalnum())
+    for name in MODELS:
+        if key == name.replace("-", ""):
+            return name
+    raise ValueError(f"unknown spectrometer model {model!r}; supported: {', '.join(MODELS)}")
+
+
+def open_spectrometer(
+    model: str,
+    port: str,
+    *,
+    timeout_s: float | None = None,
+    measure_timeout_s: float | None = None,
+    transcript: TranscriptSink | None = None,
+) -> Spectrometer:
+    """Open the spectrometer ``model`` on ``port`` (device path or pyserial URL), ready to measure.
+
+    Parameters
+    ----------
+    model
+        One of :data:`MODELS`.
+    port
+        ``/dev/ttyACM0``, ``COM3``, ``/dev/serial/by-id/…`` or a pyserial URL.
+    timeout_s
+        Deadline of each ordinary command; ``None`` takes the model's default (PR-6xx 10 s,
+        CS-2000 15 s, as their documentation recommends).
+    measure_timeout_s
+        The measurement allowance: for a PR-6xx the deadline of the whole measurement (default
+        60 s); for a CS-2000 the margin beyond the time the instrument announces (default 10 s).
+    transcript
+        Where every exchange is recorded.
+
+    Raises
+    ------
+    ValueError
+        Unknown model.
+    DeviceNotFound
+        No such port, or another model answers on it.
+    DeviceTimeout
+        The instrument does not answer.
+    """
+    name = canonical_model(model)
+    if name.startswith("PR-"):
+        return open_pr6xx(
+            name,
+            port,
+            timeout_s=pr6xx.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s,
+            measure_timeout_s=(
+                pr6xx.DEFAULT_MEASURE_TIMEOUT_S if measure_timeout_s is None else measure_timeout_s
+            ),
+            transcript=transcript,
+        )
+    return open_cs2000(
+        port,
+        model=name,
+        timeout_s=cs2000.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s,
+        completion_margin_s=(
+            cs2000.DEFAULT_COMPLETION_MARGIN_S if measure_timeout_s is None else measure_timeout_s
+        ),
+        transcript=transcript,
+    )
