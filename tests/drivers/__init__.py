@@ -1,0 +1,1 @@
+"""Tests of the device drivers, their emulators and the transport under them."""
