@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
@@ -83,7 +82,7 @@ def test_a_symlink_gives_a_stable_path_and_is_removed_on_stop(tmp_path: Path) ->
     device = PtySerialDevice(Echo(), symlink=link).start()
     try:
         assert device.path == str(link)
-        assert link.is_symlink() and os.readlink(link).startswith("/dev/")
+        assert link.is_symlink() and str(link.readlink()).startswith("/dev/")
         port = open_port(device.path)
         port.write(b"hi")
         assert port.read(2) == b"hi"
@@ -97,7 +96,7 @@ def test_a_stale_symlink_is_replaced_but_a_file_is_not(tmp_path: Path) -> None:
     link = tmp_path / "ttyFAKE0"
     link.symlink_to(tmp_path / "gone")
     with PtySerialDevice(Echo(), symlink=link) as device:
-        assert os.readlink(device.path).startswith("/dev/")
+        assert str(Path(device.path).readlink()).startswith("/dev/")
     occupied = tmp_path / "ttyFILE"
     occupied.write_text("not a tty")
     with pytest.raises(FileExistsError, match="not a symlink"):

@@ -8,6 +8,7 @@ import threading
 import time
 import tty
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import serial
@@ -286,9 +287,9 @@ def test_close_of_a_port_that_fails_to_close_does_not_raise() -> None:
     assert b"close failed" in transcript.entries[0].payload
 
 
-def test_opening_a_missing_port_says_which_and_what_to_do(tmp_path: os.PathLike[str]) -> None:
-    missing = os.path.join(tmp_path, "ttyACM9")
-    with pytest.raises(DeviceNotFound, match="ttyACM9.*does not exist.*rig devices"):
+def test_opening_a_missing_port_says_which_and_what_to_do(tmp_path: Path) -> None:
+    missing = str(tmp_path / "ttyACM9")
+    with pytest.raises(DeviceNotFound, match=r"ttyACM9.*does not exist.*rig devices"):
         open_serial(missing, SerialSettings(), device="PR-655 on ttyACM9")
 
 
