@@ -263,15 +263,19 @@ def parse_spectrum(
     return ParsedSpectrum(header, expected_nm, values)
 
 
-def parse_exposure_report(
-    fields: Sequence[str], context: ReplyContext, reply: bytes
-) -> float | None:
-    """The exposure in ms from a ``D13`` reply (``Normal,250 msec``); ``None`` if it names none."""
+def parse_exposure_report(fields: Sequence[str], context: ReplyContext, reply: bytes) -> float:
+    """The exposure in ms from the fields of a ``D13`` reply (``Normal,250 msec``).
+
+    Raises
+    ------
+    ProtocolError
+        No ``<n> msec`` field (e.g. a stale reply to another command was read instead).
+    """
     for text in reversed(fields):
         match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*msec\s*", text)
         if match:
             return parse_float(match.group(1), "exposure", context, reply)
-    return None
+    raise context.error("D13 reply names no exposure ('<n> msec')", reply)
 
 
 # --------------------------------------------------------------------------------- the driver
@@ -475,8 +479,8 @@ class Pr6xx:
         """The last measurement's spectrum again (``D5``), without measuring."""
         return self._reading(self._read_spectrum("D5"), "D5")
 
-    def last_exposure_ms(self) -> float | None:
-        """The integration time the last measurement used (``D13``); ``None`` if not reported."""
+    def last_exposure_ms(self) -> float:
+        """The integration time the last measurement used (``D13``), ms."""
         line = self._ask_line("D13", Deadline(self.timeout_s))
         context = self._context("D13")
         return parse_exposure_report(parse_status_reply(line, context), context, line)

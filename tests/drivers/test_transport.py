@@ -53,7 +53,7 @@ class FakePort:
     """A :class:`drivers.transport.SerialPort` stand-in that records writes and can fail."""
 
     def __init__(self, incoming: bytes = b"") -> None:
-        self.port = "fake0"
+        self.port: str | None = "fake0"
         self.timeout: float | None = None
         self.write_timeout: float | None = 1.0
         self.buffer = bytearray(incoming)
