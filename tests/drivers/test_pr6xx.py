@@ -69,9 +69,9 @@ def spectrum_reply(
 
 
 @contextmanager
-def connected(script: list[Exchange], model: str = "PR-655") -> Iterator[Pr6xx]:
+def connected(script: Sequence[Exchange], model: str = "PR-655") -> Iterator[Pr6xx]:
     """A connected driver on a scripted link; the rest of the script must be used in the block."""
-    with expected_exchange(connect_script(model) + script) as link:
+    with expected_exchange([*connect_script(model), *script]) as link:
         instrument = Pr6xx(link, model=model)
         instrument.connect()
         yield instrument
