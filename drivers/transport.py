@@ -38,6 +38,14 @@ from drivers.base import (
     TranscriptSink,
 )
 
+try:
+    import termios
+except ImportError:  # Windows
+    _PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError)
+else:
+    # pyserial lets termios.error (not an OSError) escape from flush() on a vanished device.
+    _PORT_ERRORS = (serial.SerialException, OSError, termios.error)
+
 #: A reply longer than this without its terminator is treated as garbage, not waited on.
 DEFAULT_MAX_REPLY_BYTES = 1 << 16
 
@@ -310,7 +318,7 @@ class SerialTransport:
                 command=data,
                 timeout_s=float(self._port.write_timeout or 0.0),
             ) from exc
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise self._disconnected("write", exc) from exc
         finally:
             self._last_write_end = self._clock()
@@ -322,7 +330,7 @@ class SerialTransport:
         try:
             self._port.timeout = wait_s
             chunk = self._port.read(max(1, self._port.in_waiting))
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise self._disconnected("read", exc) from exc
         self._pending.extend(chunk)
 
@@ -414,7 +422,7 @@ class SerialTransport:
                 self._port.timeout = 0
                 stale += self._port.read(waiting)
             self._port.reset_input_buffer()
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise self._disconnected("input flush", exc) from exc
         if stale:
             self._record("rx", stale)
@@ -430,7 +438,7 @@ class SerialTransport:
         self._closed = True
         try:
             self._port.close()
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             self.record_event(f"close failed: {exc}")
         self.record_event(f"closed {self.port_name}")
 

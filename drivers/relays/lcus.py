@@ -8,7 +8,7 @@ The protocol (facts sheet ``protocols.md`` §2.2):
   frame, so :meth:`LcusRelayBoard.all_off` switches channel by channel;
 - the status query is the single byte ``FF``; the board answers one fixed-length line per channel,
   ``CH1: ON \\r\\n`` or ``CH1: OFF\\r\\n``. The first answer is often stale, so the query is sent
-  :data:`STATUS_QUERY_REPEATS` times and the last answer is used;
+  :data:`STATUS_QUERY_REPEATS` times; every answer must be well formed, the last one is used;
 - frames are spaced by :data:`DEFAULT_PACING` (implementations use 50–100 ms).
 
 Every switch is verified by reading the state back (:func:`drivers.relays.verify_relay_state`). A
@@ -120,13 +120,15 @@ class LcusRelayBoard:
     def state(self) -> tuple[bool, ...]:
         """Channel states as the board reports them (channel 1 first)."""
         self._transport.discard_input()
-        reply = b""
+        context = ReplyContext(self.device, STATUS_QUERY)
         for _ in range(STATUS_QUERY_REPEATS):
             self._transport.write(STATUS_QUERY)
             reply = self._transport.read_exact(
                 STATUS_LINE_BYTES * self._channels, deadline=Deadline(self.timeout_s)
             )
-        self._known = parse_status(reply, self._channels, ReplyContext(self.device, STATUS_QUERY))
+            # Every answer must be well formed (line noise shows here); the last one counts.
+            self._known = parse_status(reply, self._channels, context)
+        assert self._known is not None
         return self._known
 
     def set(self, channel: int, on: bool) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import termios
 import threading
 import time
 import tty
@@ -263,6 +264,15 @@ def test_a_failing_write_is_a_disconnect() -> None:
     transport = SerialTransport(port, device="gone")
     with pytest.raises(Disconnected, match="during write"):
         transport.write(b"x")
+
+
+def test_a_flush_failing_with_a_termios_error_is_a_disconnect() -> None:
+    class VanishedTty(FakePort):
+        def flush(self) -> None:
+            raise termios.error(5, "Input/output error")
+
+    with pytest.raises(Disconnected, match="Input/output error"):
+        SerialTransport(VanishedTty(), device="vanished").write(b"\xa0\x02\x01\xa3")
 
 
 def test_close_is_idempotent_and_later_use_is_an_error(
