@@ -134,6 +134,9 @@ class LcusRelayBoard:
     def set(self, channel: int, on: bool) -> None:
         """Switch ``channel`` and verify the whole board's state read back.
 
+        The expected state is the last state read back with ``channel`` changed, so a relay that
+        did not follow and one that changed on its own both raise.
+
         Raises
         ------
         StateMismatch

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mocks.emulators.radiometer import RadianceSource, Radiometer, RadiometerOptics
 from mocks.emulators.serial_base import EmulatorBase, ReplyPart, measurement_rng
@@ -67,7 +68,7 @@ class PrModel:
         return (self.stop_nm - self.start_nm) // self.step_nm + 1
 
     @property
-    def wavelength_nm(self) -> np.ndarray:
+    def wavelength_nm(self) -> NDArray[np.float64]:
         return np.arange(self.start_nm, self.stop_nm + 1, self.step_nm, dtype=np.float64)
 
 
@@ -82,9 +83,9 @@ def code_line(code: int, *fields: str) -> bytes:
     return ",".join([f"{code:05d}", *fields]).encode("ascii") + CRLF
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Measurement:
-    radiance: np.ndarray
+    radiance: NDArray[np.float64]
     exposure_ms: float
 
 
