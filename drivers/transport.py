@@ -22,8 +22,7 @@ import errno
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Protocol, Self, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import serial
 
@@ -37,6 +36,7 @@ from drivers.base import (
     TranscriptEntry,
     TranscriptSink,
 )
+from drivers.lifecycle import ClosesOnExit
 
 try:
     import termios
@@ -195,7 +195,7 @@ class Pacing:
 NO_PACING = Pacing()
 
 
-class SerialTransport:
+class SerialTransport(ClosesOnExit):
     """A :class:`ByteTransport` over an open pyserial port.
 
     Use :func:`open_serial` to open one by path or URL. Not thread-safe: one driver, one thread.
@@ -441,17 +441,6 @@ class SerialTransport:
         except _PORT_ERRORS as exc:
             self.record_event(f"close failed: {exc}")
         self.record_event(f"closed {self.port_name}")
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 _NOT_FOUND_ERRNOS = {errno.ENOENT, errno.ENODEV, errno.ENXIO}

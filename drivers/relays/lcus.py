@@ -19,11 +19,11 @@ refused when it is opened.
 from __future__ import annotations
 
 import re
-from types import TracebackType
-from typing import Self
 
 from drivers.base import DeviceIdentity, TranscriptSink
+from drivers.lifecycle import connect_or_close
 from drivers.relays import verify_relay_state
+from drivers.relays.serial_board import SerialRelayBoard
 from drivers.replies import ReplyContext, decode_ascii
 from drivers.transport import ByteTransport, Deadline, Pacing, SerialSettings, open_serial
 
@@ -70,7 +70,7 @@ def parse_status(reply: bytes, channels: int, context: ReplyContext) -> tuple[bo
     return tuple(states)
 
 
-class LcusRelayBoard:
+class LcusRelayBoard(SerialRelayBoard):
     """An LCUS board; implements :class:`drivers.base.RelayBoard`.
 
     Parameters
@@ -95,27 +95,11 @@ class LcusRelayBoard:
     ) -> None:
         if not 1 <= channels <= MAX_CHANNELS:
             raise ValueError(f"LCUS boards have 1–{MAX_CHANNELS} channels, got {channels}")
-        self._transport = transport
-        self._channels = channels
-        self.timeout_s = timeout_s
-        self.port = port
-        self._known: tuple[bool, ...] | None = None
-
-    @property
-    def channels(self) -> int:
-        return self._channels
-
-    @property
-    def device(self) -> str:
-        return self._transport.device
+        super().__init__(transport, channels, timeout_s=timeout_s, port=port)
 
     def identify(self) -> DeviceIdentity:
         """The board reports nothing about itself; this is what the config says it is."""
         return DeviceIdentity(kind="relay", model=f"LCUS-{self._channels}", port=self.port)
-
-    def _check_channel(self, channel: int) -> None:
-        if not 1 <= channel <= self._channels:
-            raise ValueError(f"{self.device}: channel {channel} is outside 1–{self._channels}")
 
     def state(self) -> tuple[bool, ...]:
         """Channel states as the board reports them (channel 1 first)."""
@@ -131,43 +115,14 @@ class LcusRelayBoard:
         assert self._known is not None
         return self._known
 
-    def set(self, channel: int, on: bool) -> None:
-        """Switch ``channel`` and verify the whole board's state read back.
-
-        The expected state is the last state read back with ``channel`` changed, so a relay that
-        did not follow and one that changed on its own both raise.
-
-        Raises
-        ------
-        StateMismatch
-            The board's state after switching is not the one asked for.
-        """
-        self._check_channel(channel)
-        expected = list(self._known if self._known is not None else self.state())
-        expected[channel - 1] = on
+    def _switch(self, channel: int, on: bool) -> None:
         self._transport.write(encode_switch_frame(channel, on))
-        verify_relay_state(self.device, expected, self.state())
 
     def all_off(self) -> None:
         """Switch every channel off (one frame each) and verify."""
         for channel in range(1, self._channels + 1):
             self._transport.write(encode_switch_frame(channel, False))
         verify_relay_state(self.device, [False] * self._channels, self.state())
-
-    def close(self) -> None:
-        """Close the port (the relays keep their state)."""
-        self._transport.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def open_lcus(
@@ -197,9 +152,4 @@ def open_lcus(
         pacing=pacing,
     )
     board = LcusRelayBoard(transport, channels, timeout_s=timeout_s, port=port)
-    try:
-        board.state()
-    except BaseException:
-        board.close()
-        raise
-    return board
+    return connect_or_close(board, board.state)

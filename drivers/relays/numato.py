@@ -20,11 +20,11 @@ Every switch is verified by reading the state back (:func:`drivers.relays.verify
 from __future__ import annotations
 
 import re
-from types import TracebackType
-from typing import Self
 
 from drivers.base import DeviceIdentity, DeviceTimeout, ProtocolError, TranscriptSink
+from drivers.lifecycle import connect_or_close
 from drivers.relays import verify_relay_state
+from drivers.relays.serial_board import SerialRelayBoard
 from drivers.replies import ReplyContext, decode_ascii
 from drivers.transport import ByteTransport, Deadline, SerialSettings, ask, open_serial
 
@@ -88,7 +88,7 @@ def parse_relay_read(lines: list[str], context: ReplyContext) -> bool:
     return lines[0].lower() == "on"
 
 
-class NumatoRelayBoard:
+class NumatoRelayBoard(SerialRelayBoard):
     """A Numato relay module; implements :class:`drivers.base.RelayBoard`.
 
     Parameters
@@ -113,21 +113,9 @@ class NumatoRelayBoard:
     ) -> None:
         if channels not in CHANNEL_COUNTS:
             raise ValueError(f"Numato modules have {CHANNEL_COUNTS} relays, got {channels}")
-        self._transport = transport
-        self._channels = channels
-        self.timeout_s = timeout_s
-        self.port = port
+        super().__init__(transport, channels, timeout_s=timeout_s, port=port)
         self._in_sync = False
         self._identity: DeviceIdentity | None = None
-        self._known: tuple[bool, ...] | None = None
-
-    @property
-    def channels(self) -> int:
-        return self._channels
-
-    @property
-    def device(self) -> str:
-        return self._transport.device
 
     # ------------------------------------------------------------------------------ exchanges
 
@@ -194,10 +182,6 @@ class NumatoRelayBoard:
         text = f"relay read {relay_character(channel)}"
         return parse_relay_read(self.command(text), ReplyContext(self.device, text))
 
-    def _check_channel(self, channel: int) -> None:
-        if not 1 <= channel <= self._channels:
-            raise ValueError(f"{self.device}: channel {channel} is outside 1–{self._channels}")
-
     def _expect_no_result(self, text: str) -> None:
         lines = self.command(text)
         if lines:
@@ -205,22 +189,8 @@ class NumatoRelayBoard:
                 "switching command answered with a result line", " ".join(lines)
             )
 
-    def set(self, channel: int, on: bool) -> None:
-        """Switch ``channel`` and verify the state read back.
-
-        The expected state is the last state read back with ``channel`` changed, so a relay that
-        did not follow and one that changed on its own both raise.
-
-        Raises
-        ------
-        StateMismatch
-            The module's state after switching is not the one asked for.
-        """
-        self._check_channel(channel)
-        expected = list(self._known if self._known is not None else self.state())
-        expected[channel - 1] = on
+    def _switch(self, channel: int, on: bool) -> None:
         self._expect_no_result(f"relay {'on' if on else 'off'} {relay_character(channel)}")
-        verify_relay_state(self.device, expected, self.state())
 
     def all_off(self) -> None:
         """Switch every relay off at once (``relay writeall 00…``) and verify."""
@@ -229,21 +199,6 @@ class NumatoRelayBoard:
         else:
             self._expect_no_result(f"relay writeall {0:0{mask_digits(self._channels)}x}")
         verify_relay_state(self.device, [False] * self._channels, self.state())
-
-    def close(self) -> None:
-        """Close the port (the relays keep their state)."""
-        self._transport.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def open_numato(
@@ -272,11 +227,10 @@ def open_numato(
         transcript=transcript,
     )
     board = NumatoRelayBoard(transport, channels, timeout_s=timeout_s, port=port)
-    try:
+
+    def connect() -> None:
         board.resync()
         board.identify()
         board.state()
-    except BaseException:
-        board.close()
-        raise
-    return board
+
+    return connect_or_close(board, connect)

@@ -29,8 +29,7 @@ import re
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Literal, Self
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,6 +45,7 @@ from drivers.base import (
     StateMismatch,
     TranscriptSink,
 )
+from drivers.lifecycle import ClosesOnExit, connect_or_close, farewell_then_close
 from drivers.replies import ReplyContext, decode_ascii, parse_int
 from drivers.transport import ByteTransport, Deadline, SerialSettings, ask, open_serial
 
@@ -269,7 +269,7 @@ def _check_options(model: str, internal_nd: str) -> None:
         raise ValueError(f"internal_nd is 'off', 'on' or 'auto', got {internal_nd!r}")
 
 
-class Cs2000:
+class Cs2000(ClosesOnExit):
     """A CS-2000 or CS-2000A in remote mode; implements :class:`drivers.base.Spectrometer`.
 
     Build it with :func:`open_cs2000` (or :func:`drivers.spectrometer.open_spectrometer`). Not
@@ -470,25 +470,9 @@ class Cs2000:
 
     def close(self) -> None:
         """Leave remote mode (``RMTS,0``) and close the port; never raises for a device gone."""
-        try:
-            if self._remote:
-                self._query(REMOTE_OFF)
-        except DeviceError as exc:
-            _log.warning("%s: could not leave remote mode on close: %s", self.device, exc)
-        finally:
-            self._remote = False
-            self._transport.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
+        farewell = (lambda: self._query(REMOTE_OFF)) if self._remote else None
+        self._remote = False
+        farewell_then_close(self.device, farewell, self._transport)
 
 
 def open_cs2000(
@@ -521,9 +505,4 @@ def open_cs2000(
         internal_nd=internal_nd,
         port=port,
     )
-    try:
-        instrument.connect()
-    except BaseException:
-        instrument.close()
-        raise
-    return instrument
+    return connect_or_close(instrument, instrument.connect)

@@ -23,24 +23,21 @@ Every reply parser is a pure ``parse_*`` function that raises only typed device 
 
 from __future__ import annotations
 
-import logging
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Self
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivers.base import (
-    DeviceError,
     DeviceIdentity,
     DeviceNotFound,
     InstrumentError,
     SpectrumReading,
     TranscriptSink,
 )
+from drivers.lifecycle import ClosesOnExit, connect_or_close, farewell_then_close
 from drivers.replies import ReplyContext, decode_ascii, parse_float, parse_int
 from drivers.spectrometer.errors import MeasurementConditionError
 from drivers.transport import (
@@ -51,8 +48,6 @@ from drivers.transport import (
     ask,
     open_serial,
 )
-
-_log = logging.getLogger(__name__)
 
 SERIAL_SETTINGS = SerialSettings(baudrate=9600, rtscts=False)
 #: colour-specio's figures (10 ms per character, 50 ms between commands); Psychtoolbox uses 50 ms
@@ -281,7 +276,7 @@ def parse_exposure_report(fields: Sequence[str], context: ReplyContext, reply: b
 # --------------------------------------------------------------------------------- the driver
 
 
-class Pr6xx:
+class Pr6xx(ClosesOnExit):
     """A PR-655 or PR-670 in remote mode; implements :class:`drivers.base.Spectrometer`.
 
     Build it with :func:`open_pr6xx` (or :func:`drivers.spectrometer.open_spectrometer`), which opens
@@ -489,26 +484,13 @@ class Pr6xx:
 
     def close(self) -> None:
         """Leave remote mode (``Q``) and close the port; never raises for a device that is gone."""
-        try:
-            if self._remote:
-                self._transport.discard_input()
-                self._transport.write(QUIT_COMMAND)
-        except DeviceError as exc:
-            _log.warning("%s: could not leave remote mode on close: %s", self.device, exc)
-        finally:
-            self._remote = False
-            self._transport.close()
+        farewell = self._leave_remote_mode if self._remote else None
+        self._remote = False
+        farewell_then_close(self.device, farewell, self._transport)
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        self.close()
+    def _leave_remote_mode(self) -> None:
+        self._transport.discard_input()
+        self._transport.write(QUIT_COMMAND)
 
 
 def open_pr6xx(
@@ -541,9 +523,4 @@ def open_pr6xx(
         measure_timeout_s=measure_timeout_s,
         port=port,
     )
-    try:
-        instrument.connect()
-    except BaseException:
-        instrument.close()
-        raise
-    return instrument
+    return connect_or_close(instrument, instrument.connect)

@@ -35,14 +35,19 @@ import re
 import struct
 import time
 from dataclasses import dataclass
-from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, Unpack
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocks.emulators.radiometer import RadianceSource, Radiometer, RadiometerOptics
-from mocks.emulators.serial_base import EmulatorBase, LineSplitter, ReplyPart, measurement_rng
+from mocks.emulators.serial_base import (
+    EmulatorBase,
+    LineSplitter,
+    ReplyPart,
+    SpectrometerOptions,
+    measurement_rng,
+)
 from mocks.faults import Fault, FaultKind, FaultSchedule
 from mocks.pty_serial import PtySerialDevice, ScheduledOutput
 
@@ -299,17 +304,18 @@ class Cs2000Emulator(EmulatorBase):
 
 
 def start_cs2000(
-    source: RadianceSource,
-    *,
-    variation: int = 1,
-    seed: int | np.random.Generator | None = None,
-    faults: FaultSchedule | None = None,
-    time_scale: float = 1.0,
-    symlink: str | Path | None = None,
+    source: RadianceSource, *, variation: int = 1, **options: Unpack[SpectrometerOptions]
 ) -> PtySerialDevice:
-    """Start a CS-2000 emulator on a pty; open ``device.path`` with the real driver, then
-    ``device.stop()``."""
+    """Start a CS-2000 (``variation=1``) or CS-2000A (``2``) emulator on a pty; open
+    ``device.path`` with the real driver, then ``device.stop()``.
+
+    ``options``: ``seed``, ``faults``, ``time_scale`` (see :class:`Cs2000Emulator`) and ``symlink``.
+    """
     emulator = Cs2000Emulator(
-        source, variation=variation, seed=seed, faults=faults, time_scale=time_scale
+        source,
+        variation=variation,
+        seed=options.get("seed"),
+        faults=options.get("faults"),
+        time_scale=options.get("time_scale", 1.0),
     )
-    return PtySerialDevice(emulator, symlink=symlink).start()
+    return PtySerialDevice(emulator, symlink=options.get("symlink")).start()

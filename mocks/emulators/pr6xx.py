@@ -23,14 +23,18 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, Unpack
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocks.emulators.radiometer import RadianceSource, Radiometer, RadiometerOptics
-from mocks.emulators.serial_base import EmulatorBase, ReplyPart, measurement_rng
+from mocks.emulators.serial_base import (
+    EmulatorBase,
+    ReplyPart,
+    SpectrometerOptions,
+    measurement_rng,
+)
 from mocks.faults import Fault, FaultKind, FaultSchedule
 from mocks.pty_serial import PtySerialDevice
 
@@ -260,43 +264,29 @@ class Pr6xxEmulator(EmulatorBase):
 
 
 def start_pr6xx(
-    model: PrModel,
-    source: RadianceSource,
-    *,
-    seed: int | np.random.Generator | None = None,
-    faults: FaultSchedule | None = None,
-    time_scale: float = 1.0,
-    symlink: str | Path | None = None,
+    model: PrModel, source: RadianceSource, **options: Unpack[SpectrometerOptions]
 ) -> PtySerialDevice:
     """Start a PR-6xx emulator on a pty; open ``device.path`` with the real driver, then
-    ``device.stop()``."""
-    emulator = Pr6xxEmulator(model, source, seed=seed, faults=faults, time_scale=time_scale)
-    return PtySerialDevice(emulator, symlink=symlink).start()
+    ``device.stop()``.
+
+    ``options``: ``seed`` (noise), ``faults``, ``time_scale`` (see :class:`Pr6xxEmulator`) and
+    ``symlink`` (a stable device path, see :class:`mocks.pty_serial.PtySerialDevice`).
+    """
+    emulator = Pr6xxEmulator(
+        model,
+        source,
+        seed=options.get("seed"),
+        faults=options.get("faults"),
+        time_scale=options.get("time_scale", 1.0),
+    )
+    return PtySerialDevice(emulator, symlink=options.get("symlink")).start()
 
 
-def start_pr655(
-    source: RadianceSource,
-    *,
-    seed: int | np.random.Generator | None = None,
-    faults: FaultSchedule | None = None,
-    time_scale: float = 1.0,
-    symlink: str | Path | None = None,
-) -> PtySerialDevice:
+def start_pr655(source: RadianceSource, **options: Unpack[SpectrometerOptions]) -> PtySerialDevice:
     """A PR-655 on a pty (see :func:`start_pr6xx`)."""
-    return start_pr6xx(
-        PR655, source, seed=seed, faults=faults, time_scale=time_scale, symlink=symlink
-    )
+    return start_pr6xx(PR655, source, **options)
 
 
-def start_pr670(
-    source: RadianceSource,
-    *,
-    seed: int | np.random.Generator | None = None,
-    faults: FaultSchedule | None = None,
-    time_scale: float = 1.0,
-    symlink: str | Path | None = None,
-) -> PtySerialDevice:
+def start_pr670(source: RadianceSource, **options: Unpack[SpectrometerOptions]) -> PtySerialDevice:
     """A PR-670 on a pty (see :func:`start_pr6xx`)."""
-    return start_pr6xx(
-        PR670, source, seed=seed, faults=faults, time_scale=time_scale, symlink=symlink
-    )
+    return start_pr6xx(PR670, source, **options)

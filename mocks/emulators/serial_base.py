@@ -12,12 +12,23 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import ClassVar
+from pathlib import Path
+from typing import ClassVar, TypedDict
 
 import numpy as np
 
 from mocks.faults import Fault, FaultKind, FaultSchedule
 from mocks.pty_serial import DeviceLink, ScheduledOutput
+
+
+class SpectrometerOptions(TypedDict, total=False):
+    """Keyword options of the spectrometer emulators' ``start_*`` functions."""
+
+    seed: int | np.random.Generator | None
+    faults: FaultSchedule | None
+    time_scale: float
+    symlink: str | Path | None
+
 
 #: After a DISCONNECT fault's partial reply, the link drops this much later (lets the bytes land).
 HANG_UP_AFTER_PARTIAL_S = 0.05
