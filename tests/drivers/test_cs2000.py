@@ -324,8 +324,9 @@ def test_the_emulator_answers_with_the_delimiter_used_and_clears_data_once_read(
     bank: LampBank,
 ) -> None:
     bank.set_channel(1, True)
-    with start_cs2000(bank.radiance, time_scale=TIME_SCALE) as device:
-        port = serial.Serial(device.path, 115200, rtscts=True, timeout=1.0)
+    # Slow enough that the measurement is certainly still running when MEDR follows MEAS.
+    with start_cs2000(bank.radiance, time_scale=0.5) as device:
+        port = serial.Serial(device.path, 115200, rtscts=True, timeout=3.0)
         try:
             port.write(b"IDDR\r")
             assert port.read_until(b"\r") == b"ER00\r"  # not in remote mode yet

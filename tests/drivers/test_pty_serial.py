@@ -123,7 +123,9 @@ def test_an_emulator_that_raises_is_reported_at_stop() -> None:
     device = PtySerialDevice(Broken()).start()
     port = open_port(device.path)
     port.write(b"x")
-    time.sleep(0.05)
+    deadline = time.monotonic() + 2.0
+    while not device.errors and time.monotonic() < deadline:
+        time.sleep(0.005)
     port.close()
     with pytest.raises(EmulatorCrashed, match="broken emulator raised 1 error") as caught:
         device.stop()
