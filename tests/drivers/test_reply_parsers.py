@@ -103,7 +103,7 @@ def test_cs2000_parsers(reply: bytes, data_fields: list[str], block: int) -> Non
 @EXAMPLES
 @given(
     hex_fields=st.lists(
-        st.from_regex(r"[0-9A-Fa-f]{8}", fullmatch=True), min_size=100, max_size=100
+        st.integers(0, 2**32 - 1).map(lambda word: f"{word:08X}"), min_size=100, max_size=100
     )
 )
 def test_cs2000_blocks_of_any_hex(hex_fields: list[str]) -> None:
