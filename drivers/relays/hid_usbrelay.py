@@ -179,6 +179,8 @@ class HidRelayInfo:
     channels: int
     bus: int | None
     address: int | None
+    state_mask: int = 0
+    """Relay bitmask when the board was probed (bit n-1 = relay n)."""
 
     @property
     def port(self) -> str:
@@ -398,11 +400,11 @@ def _probe(
     try:
         langid = channel.first_langid()
         manufacturer = channel.read_string(usb_device.iManufacturer, langid)
+        if manufacturer != MANUFACTURER:
+            return f"{channel.label}: manufacturer {manufacturer!r} is not {MANUFACTURER!r}"
         product = channel.read_string(usb_device.iProduct, langid)
     except DeviceError as exc:
         return f"{channel.label}: cannot read its strings ({exc.message})"
-    if manufacturer != MANUFACTURER:
-        return f"{channel.label}: manufacturer {manufacturer!r} is not {MANUFACTURER!r}"
     try:
         channels = channel_count_from_product(product)
     except ValueError as exc:
@@ -419,6 +421,7 @@ def _probe(
         channels=channels,
         bus=getattr(usb_device, "bus", None),
         address=getattr(usb_device, "address", None),
+        state_mask=report.state_mask,
     )
     channel.label = _device_label(usb_device, info.serial)
     return info, channel
@@ -501,7 +504,9 @@ class HidUsbRelay:
         self._info = info
         self._io = channel
         self._closed = False
-        self._known_state = self.state()
+        self._known_state = FeatureReport(info.serial, info.state_mask).channel_states(
+            info.channels
+        )
         self._io.event("open", serial=info.serial, product=info.product, port=info.port)
 
     # ----------------------------------------------------------------------------- identity
