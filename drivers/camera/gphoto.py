@@ -367,6 +367,7 @@ class GphotoCamera:
         self._seen_files: set[CameraPath] = set()
         self._bulb_exposure_s: float | None = None
         self._reinit_count = 0
+        self._sessions_opened = 0
         try:
             self._model, self._port = self._locate(model, port)
             self.device = f"{self._model} on {self._port}"
@@ -738,12 +739,12 @@ class GphotoCamera:
     def _initialise(self) -> None:
         """(Re-)open the session with a new ``gp.Camera``; re-apply and verify our settings."""
         old, self._camera = self._camera, None
-        if old is not None:
+        if old is not None and not self._camera_stuck:
+            with contextlib.suppress(self._gp.GPhoto2Error, DeviceTimeout):
+                self._call("exit", old.exit)
+        if self._sessions_opened:
             self._reinit_count += 1
             self._record("event", {"event": "reinitialise", "count": self._reinit_count})
-            if not self._camera_stuck:
-                with contextlib.suppress(self._gp.GPhoto2Error, DeviceTimeout):
-                    self._call("exit", old.exit)
             self._relocate()
         self._camera_stuck = False
         gp = self._gp
@@ -758,6 +759,7 @@ class GphotoCamera:
         self._call("set_port_info", camera.set_port_info, port_list[port_index])
         self._call("init", camera.init, timeout_s=self._timeouts.init_s)
         self._camera = camera
+        self._sessions_opened += 1
         self._needs_init = False
         self._load_config()
         for widget_name, value in self._applied.items():

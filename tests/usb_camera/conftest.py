@@ -14,7 +14,7 @@ from mocks.lamps import SimulatedClock
 
 #: Short deadlines so that injected hangs end quickly; the fake answers in microseconds.
 FAST_TIMEOUTS = CameraTimeouts(
-    call_s=1.0, init_s=1.0, capture_overhead_s=1.0, download_s=1.0, event_poll_ms=10, drain_ms=1
+    call_s=0.5, init_s=0.5, capture_overhead_s=1.0, download_s=1.0, event_poll_ms=10, drain_ms=1
 )
 FAST_RECOVERY = RecoveryPolicy(max_attempts=3, busy_backoff_s=0.001, reinit_backoff_s=0.001)
 
