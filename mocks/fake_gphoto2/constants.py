@@ -65,17 +65,17 @@ ERROR_STRINGS: dict[int, str] = {
     GP_ERROR_IO_LOCK: "Could not lock the device",
     GP_ERROR_HAL: "libhal error",
     GP_ERROR_CORRUPTED_DATA: "Corrupted data",
-    GP_ERROR_FILE_EXISTS: "File already exists",
+    GP_ERROR_FILE_EXISTS: "File exists",
     GP_ERROR_MODEL_NOT_FOUND: "Unknown model",
     GP_ERROR_DIRECTORY_NOT_FOUND: "Directory not found",
     GP_ERROR_FILE_NOT_FOUND: "File not found",
     GP_ERROR_DIRECTORY_EXISTS: "Directory exists",
     GP_ERROR_CAMERA_BUSY: "I/O in progress",
     GP_ERROR_PATH_NOT_ABSOLUTE: "Path not absolute",
-    GP_ERROR_CANCEL: "Cancelled",
+    GP_ERROR_CANCEL: "Operation cancelled",
     GP_ERROR_CAMERA_ERROR: "Camera could not complete operation",
-    GP_ERROR_OS_FAILURE: "OS failure",
-    GP_ERROR_NO_SPACE: "Not enough space",
+    GP_ERROR_OS_FAILURE: "OS error in camera communication",
+    GP_ERROR_NO_SPACE: "Not enough free space",
 }
 
 GP_WIDGET_WINDOW = 0
