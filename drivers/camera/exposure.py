@@ -110,7 +110,8 @@ def format_exposure(seconds: float) -> str:
     if seconds <= 0 or not math.isfinite(seconds):
         return f"{seconds} s"
     if seconds < 0.3:
-        return f"1/{1.0 / seconds:.4g} s"
+        denominator = 1.0 / seconds
+        return f"1/{denominator:.0f} s" if denominator >= 10 else f"1/{denominator:.3g} s"
     return f"{seconds:.4g} s"
 
 
