@@ -16,7 +16,7 @@ from typing import Any, Literal
 import yaml
 
 from drivers.base import DeviceError
-from drivers.camera.gphoto import GphotoModule, list_cameras, load_gphoto2
+from drivers.camera.detect import GphotoModule, list_cameras, load_gphoto2
 from drivers.relays.hid_usbrelay import find_hid_relays
 
 __all__ = [

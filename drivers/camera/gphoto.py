@@ -32,11 +32,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import json
 import math
-import os
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Protocol, TypeVar
@@ -46,130 +44,46 @@ from drivers.base import (
     DeviceBusy,
     DeviceError,
     DeviceIdentity,
-    DeviceNotFound,
     DeviceTimeout,
     Disconnected,
     InstrumentError,
     ProtocolError,
     SettingInfo,
     StateMismatch,
-    TranscriptEntry,
     TranscriptSink,
 )
-from drivers.camera.choices import ChoiceKind, match_choice, normalise
-from drivers.camera.exposure import (
-    ExposureTable,
-    format_exposure,
-    is_bulb_choice,
-    parse_exposure_s,
+from drivers.camera.calls import LibraryCalls
+from drivers.camera.detect import GphotoModule, camera_list_pairs, load_gphoto2, select_camera
+from drivers.camera.errors import (
+    BUSY_ADVICE,
+    CLAIM_ADVICE,
+    GP_FILE_NOT_FOUND,
+    SettingValueError,
+    UnsupportedSetting,
+    classify_gphoto_error,
 )
-from drivers.camera.watchdog import CallTimedOut, CallWatchdog
+from drivers.camera.exposure import ExposureTable, format_exposure, is_bulb_choice, parse_exposure_s
+from drivers.camera.files import CameraPath, local_path, primary_file, write_atomically
+from drivers.camera.widgets import SETTING_WIDGETS, WidgetTable, same_value, value_text
 
 __all__ = [
     "BULB_MAX_EXPOSURE_S",
     "SETTING_WIDGETS",
     "CameraTimeouts",
+    "ExposureTimer",
     "GphotoCamera",
     "RecoveryPolicy",
-    "SettingValueError",
-    "UnsupportedSetting",
-    "classify_gphoto_error",
-    "list_cameras",
-    "load_gphoto2",
     "open_camera",
-    "select_camera",
 ]
 
-GphotoModule = Any
-"""The ``gphoto2`` module, or a stand-in with the same call surface (it is untyped C bindings)."""
 T = TypeVar("T")
-CameraPath = tuple[str, str]
-"""(folder, name) of a file on the camera."""
 CaptureTarget = Literal["sdram", "card"]
 
-SETTING_WIDGETS: dict[str, tuple[str, ...]] = {
-    "shutterspeed": ("shutterspeed", "shutterspeed2", "exposuretime"),
-    "aperture": ("aperture", "f-number", "fnumber"),
-    "iso": ("iso", "isospeed", "exposureindex"),
-    "whitebalance": ("whitebalance",),
-    "imageformat": ("imageformat", "imagequality"),
-    "capturetarget": ("capturetarget",),
-}
-"""Logical setting → widget names to try, in order (libgphoto2 ``camlibs/ptp2/config.c``)."""
-CHOICE_KINDS: dict[str, ChoiceKind] = {
-    "aperture": "aperture",
-    "iso": "iso",
-    "imageformat": "imageformat",
-    "capturetarget": "capturetarget",
-}
-IDENTITY_WIDGETS: dict[str, tuple[str, ...]] = {
-    "serial": ("serialnumber", "eosserialnumber"),
-    "firmware": ("deviceversion", "firmwareversion"),
-    "manufacturer": ("manufacturer",),
-}
-BULB_TOGGLE_WIDGET = "bulb"
-"""TOGGLE on Canon EOS, Nikon, Sony, Olympus, Fuji, Panasonic: 1 opens, 0 closes the shutter."""
-EOS_RELEASE_WIDGET = "eosremoterelease"
-EOS_PRESS_CHOICES = ("Press Full MF", "Press Full", "Press Full AF")
-"""Canon remote-release choices that open the shutter, preferred first (MF: no focus hunt → no
-busy). Their names changed in libgphoto2 2.5.34, so they are looked up in the widget's choices."""
-EOS_RELEASE_CHOICES = ("Release Full",)
 BULB_MAX_EXPOSURE_S = 3600.0
 """Longest bulb exposure the driver will time."""
-RAW_EXTENSIONS = frozenset(
-    {".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".dng", ".orf", ".raf"}
-    | {".rw2", ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".kdc", ".mrw"}
-)
 READBACK_ATTEMPTS = 3
 """Reads of a setting after writing it before a difference counts (bodies apply some late)."""
 READBACK_INTERVAL_S = 0.2
-
-_SETTLED_WIDGET_TYPES = ("GP_WIDGET_WINDOW", "GP_WIDGET_SECTION", "GP_WIDGET_BUTTON")
-
-ErrorClass = Literal["busy", "claim", "io", "timeout", "gone", "not_found", "fatal"]
-GP_BUSY_CODES = frozenset({-110})  # GP_ERROR_CAMERA_BUSY "I/O in progress" (PTP 0x2019 too)
-GP_CLAIM_CODES = frozenset({-53, -60})  # could not claim the USB device; I/O lock
-GP_IO_CODES = frozenset({-1, -7, -31, -34, -35, -37, -51, -113})
-GP_TIMEOUT_CODES = frozenset({-10})
-GP_GONE_CODES = frozenset({-52, -5, -105})  # USB find, unknown port, unknown model
-GP_FILE_NOT_FOUND = -108
-CLAIM_ADVICE = (
-    "another process holds the camera — usually the desktop's gvfs-gphoto2-volume-monitor / "
-    "gvfsd-gphoto2 (or KDE's kio): run `gio mount -s gphoto2`, stop those services, or replug"
-)
-BUSY_ADVICE = (
-    "the camera kept answering busy: autofocus may fail to lock (set the lens to MF), "
-    "mirror lock-up may be on, or undownloaded images fill its SDRAM"
-)
-
-
-def classify_gphoto_error(code: int) -> ErrorClass:
-    """Which recovery a libgphoto2 error code calls for."""
-    if code in GP_BUSY_CODES:
-        return "busy"
-    if code in GP_CLAIM_CODES:
-        return "claim"
-    if code in GP_TIMEOUT_CODES:
-        return "timeout"
-    if code in GP_IO_CODES:
-        return "io"
-    if code in GP_GONE_CODES:
-        return "gone"
-    if code == GP_FILE_NOT_FOUND:
-        return "not_found"
-    return "fatal"
-
-
-class UnsupportedSetting(DeviceError):
-    """The camera has no such widget, or it is read-only."""
-
-    reason = "unsupported_setting"
-
-
-class SettingValueError(DeviceError):
-    """The requested value matches none of the widget's choices, or is outside its range."""
-
-    reason = "bad_setting_value"
 
 
 @dataclass(frozen=True)
@@ -238,91 +152,6 @@ class _WallTimer:
         time.sleep(max(0.0, seconds))
 
 
-@dataclass
-class _Widget:
-    name: str
-    type_name: str
-    read_only: bool
-    value: str
-    choices: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class _BulbTrigger:
-    widget: str
-    press: int | str
-    release: int | str
-
-
-def load_gphoto2() -> GphotoModule:
-    """Import the real python-gphoto2, or explain how to get it."""
-    try:
-        import gphoto2
-    except ImportError as exc:
-        raise DeviceNotFound(
-            "gphoto2",
-            f"python-gphoto2 is not importable ({exc}); install it with `pip install gphoto2` "
-            "(wheels for Linux and macOS bundle libgphoto2)",
-        ) from exc
-    return gphoto2
-
-
-def select_camera(
-    detected: Sequence[tuple[str, str]], model: str | None, port: str | None
-) -> tuple[str, str]:
-    """Pick (model, port) among autodetected cameras.
-
-    ``model`` matches exactly (case-insensitive) or, failing that, as a unique substring; ``port``
-    matches exactly. Raises :class:`DeviceNotFound` naming what was found when nothing or more than
-    one camera fits.
-    """
-    found = ", ".join(f"{m!r} on {p}" for m, p in detected) or "none"
-    candidates = [d for d in detected if port is None or d[1] == port]
-    if model is not None:
-        exact = [d for d in candidates if d[0].casefold() == model.casefold()]
-        candidates = exact or [d for d in candidates if model.casefold() in d[0].casefold()]
-    wanted = " ".join(
-        part
-        for part in (f"model {model!r}" if model else "", f"port {port}" if port else "")
-        if part
-    )
-    if len(candidates) == 1:
-        return candidates[0]
-    if not candidates:
-        what = f"no camera with {wanted}" if wanted else "no camera detected"
-        raise DeviceNotFound(
-            "gphoto2 camera",
-            f"{what}; detected: {found} (is it on, in PTP mode, and not held by another program?)",
-        )
-    raise DeviceNotFound(
-        "gphoto2 camera",
-        f"{len(candidates)} cameras match{' ' + wanted if wanted else ''}: {found}; "
-        "set the model and/or port of the one to use",
-    )
-
-
-def _jsonable(value: object) -> object:
-    """A JSON-friendly summary of a libgphoto2 argument or result (no image bytes)."""
-    if value is None or isinstance(value, str | int | float | bool):
-        return value
-    if isinstance(value, tuple | list):
-        return [_jsonable(v) for v in value]
-    if hasattr(value, "folder") and hasattr(value, "name"):
-        return {"folder": str(value.folder), "name": str(value.name)}
-    if hasattr(value, "get_name") and hasattr(value, "get_type"):
-        widget: Any = value
-        summary: dict[str, object] = {"widget": str(widget.get_name())}
-        with contextlib.suppress(Exception):  # containers have no value
-            summary["value"] = _jsonable(widget.get_value())
-        return summary
-    if hasattr(value, "get_name") and hasattr(value, "get_value") and hasattr(value, "__len__"):
-        pairs: Any = value  # a CameraList (autodetect, folder listings)
-        return [[str(pairs.get_name(i)), pairs.get_value(i)] for i in range(len(pairs))]
-    if isinstance(value, bytes | bytearray | memoryview):
-        return {"bytes": len(value)}
-    return {"type": type(value).__name__}
-
-
 class GphotoCamera:
     """A camera driven through libgphoto2. Open it with :func:`open_camera`.
 
@@ -347,21 +176,24 @@ class GphotoCamera:
         exposure_timer: ExposureTimer | None = None,
     ) -> None:
         self._gp = gp
-        self._transcript = transcript
         self._timeouts = timeouts or CameraTimeouts()
         self._recovery = recovery or RecoveryPolicy()
         if self._recovery.max_attempts < 1:
             raise ValueError("RecoveryPolicy.max_attempts must be at least 1")
         self._delete_after_download = delete_after_download
         self._timer: ExposureTimer = exposure_timer or _WallTimer()
-        self._watchdog = CallWatchdog(f"gphoto2-{port or model or 'camera'}")
-        self.device = f"gphoto2 camera {model or ''} {port or ''}".strip()
+        self._lib = LibraryCalls(
+            f"gphoto2 camera {model or ''} {port or ''}".strip(),
+            gp.GPhoto2Error,
+            transcript,
+            self._timeouts.call_s,
+            on_timeout=self._session_stuck,
+        )
         self._camera: Any = None
         self._camera_stuck = False
-        self._stuck_sessions = 0
         self._needs_init = True
         self._closed = False
-        self._widgets: dict[str, _Widget] = {}
+        self._widgets = WidgetTable({})
         self._applied: dict[str, str] = {}
         """Widget values this driver set; re-applied after a re-init."""
         self._seen_files: set[CameraPath] = set()
@@ -370,13 +202,18 @@ class GphotoCamera:
         self._sessions_opened = 0
         try:
             self._model, self._port = self._locate(model, port)
-            self.device = f"{self._model} on {self._port}"
+            self._lib.device = f"{self._model} on {self._port}"
             self._with_recovery("init", lambda: None)
-            if capture_target is not None and self._find_widget("capturetarget") is not None:
+            if capture_target is not None and self._widgets.find("capturetarget") is not None:
                 self.set_setting("capturetarget", capture_target)
         except BaseException:
-            self._watchdog.close()
+            self._lib.close()
             raise
+
+    @property
+    def device(self) -> str:
+        """Label in errors and transcripts: ``"<model> on <port>"``."""
+        return self._lib.device
 
     # ==================================================================== Camera protocol
 
@@ -386,14 +223,14 @@ class GphotoCamera:
             "libgphoto2": self._library_version(),
             "reinitialisations": str(self._reinit_count),
         }
-        manufacturer = self._identity_value("manufacturer")
+        manufacturer = self._widgets.identity("manufacturer")
         if manufacturer:
             extra["manufacturer"] = manufacturer
         return DeviceIdentity(
             kind="camera",
             model=self._model,
-            serial=self._identity_value("serial"),
-            firmware=self._identity_value("firmware"),
+            serial=self._widgets.identity("serial"),
+            firmware=self._widgets.identity("firmware"),
             port=self._port,
             extra=extra,
         )
@@ -404,7 +241,7 @@ class GphotoCamera:
         self._with_recovery("get_config", self._load_config)
         return {
             name: SettingInfo(name, w.value, w.choices, w.read_only)
-            for name, w in self._widgets.items()
+            for name, w in self._widgets.widgets.items()
         }
 
     def get_setting(self, name: str) -> str:
@@ -434,9 +271,12 @@ class GphotoCamera:
         widget = self._widgets[widget_name]
         if widget.read_only:
             raise UnsupportedSetting(self.device, f"setting {widget_name!r} is read-only")
-        choice = self._choose(name, widget, str(value))
+        try:
+            choice = self._widgets.choose(name, widget_name, str(value))
+        except ValueError as exc:
+            raise SettingValueError(self.device, f"{widget_name}: {exc}") from exc
         read_back = self._write_verified(widget_name, choice)
-        if widget_name == self._find_widget("shutterspeed") and not is_bulb_choice(read_back):
+        if self._widgets.is_shutter(widget_name) and not is_bulb_choice(read_back):
             self._bulb_exposure_s = None
         return read_back
 
@@ -450,8 +290,8 @@ class GphotoCamera:
         """
         read_back: dict[str, str] = {}
         for name, value in settings.items():
-            if skip_unsupported and self._find_widget(name) is None:
-                self._record("event", {"event": "setting_not_offered", "setting": name})
+            if skip_unsupported and self._widgets.find(name) is None:
+                self._lib.record("event", {"event": "setting_not_offered", "setting": name})
                 continue
             read_back[name] = self.set_setting(name, value)
         return read_back
@@ -538,7 +378,7 @@ class GphotoCamera:
             produced = [p for p in [camera_path, *added] if p not in self._seen_files]
             if camera_path in self._seen_files:
                 repeated = camera_path
-                self._record(
+                self._lib.record(
                     "event",
                     {
                         "event": "same_file_returned",
@@ -548,14 +388,14 @@ class GphotoCamera:
                 )
             if not produced:
                 continue  # nothing new came out of this capture: take the frame again
-            primary = self._primary_file(produced)
-            local = self._local_path(destination, primary)
+            primary = primary_file(produced)
+            local = local_path(destination, primary)
             try:
                 self._with_recovery("download", functools.partial(self._download, primary, local))
             except InstrumentError as exc:
                 if exc.code != str(GP_FILE_NOT_FOUND):
                     raise
-                self._record("event", {"event": "file_vanished", "file": "/".join(primary)})
+                self._lib.record("event", {"event": "file_vanished", "file": "/".join(primary)})
                 continue  # lost in a re-init (SDRAM is cleared): take the frame again
             self._seen_files.update(produced)
             if self._delete_after_download:
@@ -589,8 +429,8 @@ class GphotoCamera:
         camera, self._camera = self._camera, None
         if camera is not None and not self._camera_stuck:
             with contextlib.suppress(self._gp.GPhoto2Error, DeviceTimeout):
-                self._call("exit", camera.exit)
-        self._watchdog.close()
+                self._lib.call("exit", camera.exit)
+        self._lib.close()
 
     def __enter__(self) -> GphotoCamera:
         return self
@@ -600,57 +440,10 @@ class GphotoCamera:
 
     # ==================================================================== library calls
 
-    def _record(self, direction: Literal["call", "return", "error", "event"], body: object) -> None:
-        if self._transcript is None:
-            return
-        payload = json.dumps(body, ensure_ascii=False, default=str).encode("utf-8")
-        self._transcript.record(TranscriptEntry(self.device, direction, payload, time.monotonic()))
-
-    def _call(
-        self,
-        name: str,
-        function: Callable[..., T],
-        *args: object,
-        timeout_s: float | None = None,
-    ) -> T:
-        """Run one libgphoto2 call on the watchdog thread, recording call/return/error."""
-        deadline_s = self._timeouts.call_s if timeout_s is None else timeout_s
-        self._record("call", {"call": name, "args": [_jsonable(a) for a in args]})
-        started = time.monotonic()
-        try:
-            result = self._watchdog.call(lambda: function(*args), timeout_s=deadline_s, name=name)
-        except CallTimedOut as exc:
-            self._camera_stuck = True
-            self._stuck_sessions += 1
-            self._needs_init = True
-            self._record("error", {"call": name, "timeout_s": exc.timeout_s})
-            raise DeviceTimeout(
-                self.device,
-                f"libgphoto2 {name} did not return within {exc.timeout_s:g} s; the camera "
-                "will be re-initialised before its next use",
-                command=name,
-                timeout_s=exc.timeout_s,
-            ) from None
-        except self._gp.GPhoto2Error as exc:
-            self._record(
-                "error",
-                {
-                    "call": name,
-                    "code": exc.code,
-                    "message": str(exc.string),
-                    "elapsed_s": round(time.monotonic() - started, 6),
-                },
-            )
-            raise
-        self._record(
-            "return",
-            {
-                "call": name,
-                "result": _jsonable(result),
-                "elapsed_s": round(time.monotonic() - started, 6),
-            },
-        )
-        return result
+    def _session_stuck(self) -> None:
+        """A call missed its deadline: never touch this session again; open a new one."""
+        self._camera_stuck = True
+        self._needs_init = True
 
     def _with_recovery(self, what: str, operation: Callable[[], T]) -> T:
         """Run ``operation`` (re-initialising first when needed), recovering per error class."""
@@ -667,7 +460,7 @@ class GphotoCamera:
                     raise self._typed_error(exc, what) from exc
                 if attempt == self._recovery.max_attempts:
                     break
-                self._record(
+                self._lib.record(
                     "event",
                     {"event": "retry", "operation": what, "attempt": attempt, "code": exc.code},
                 )
@@ -688,7 +481,7 @@ class GphotoCamera:
         if error_class == "busy":
             return DeviceBusy(self.device, f"{message}; {BUSY_ADVICE}")
         if error_class == "claim":
-            if self._stuck_sessions:
+            if self._lib.stuck_calls:
                 return DeviceBusy(
                     self.device,
                     f"{message}; a libgphoto2 call of this process is still stuck in an earlier "
@@ -706,11 +499,7 @@ class GphotoCamera:
     # ==================================================================== session
 
     def _autodetect(self) -> list[tuple[str, str]]:
-        camera_list = self._call("autodetect", self._gp.Camera.autodetect)
-        return [
-            (str(camera_list.get_name(i)), str(camera_list.get_value(i)))
-            for i in range(len(camera_list))
-        ]
+        return camera_list_pairs(self._lib.call("autodetect", self._gp.Camera.autodetect))
 
     def _locate(self, model: str | None, port: str | None) -> tuple[str, str]:
         try:
@@ -732,156 +521,67 @@ class GphotoCamera:
                 f"{', '.join(f'{m!r} on {p}' for m, p in detected) or 'none'}); "
                 "check the cable, power and battery",
             )
-        self._record("event", {"event": "port_changed", "old": self._port, "new": same_model[0][1]})
+        self._lib.record(
+            "event", {"event": "port_changed", "old": self._port, "new": same_model[0][1]}
+        )
         self._port = same_model[0][1]
-        self.device = f"{self._model} on {self._port}"
+        self._lib.device = f"{self._model} on {self._port}"
 
     def _initialise(self) -> None:
         """(Re-)open the session with a new ``gp.Camera``; re-apply and verify our settings."""
         old, self._camera = self._camera, None
         if old is not None and not self._camera_stuck:
             with contextlib.suppress(self._gp.GPhoto2Error, DeviceTimeout):
-                self._call("exit", old.exit)
+                self._lib.call("exit", old.exit)
         if self._sessions_opened:
             self._reinit_count += 1
-            self._record("event", {"event": "reinitialise", "count": self._reinit_count})
+            self._lib.record("event", {"event": "reinitialise", "count": self._reinit_count})
             self._relocate()
         self._camera_stuck = False
         gp = self._gp
-        camera = self._call("Camera", gp.Camera)
-        abilities_list = self._call("CameraAbilitiesList", gp.CameraAbilitiesList)
-        self._call("CameraAbilitiesList.load", abilities_list.load)
-        model_index = self._call("lookup_model", abilities_list.lookup_model, self._model)
-        self._call("set_abilities", camera.set_abilities, abilities_list[model_index])
-        port_list = self._call("PortInfoList", gp.PortInfoList)
-        self._call("PortInfoList.load", port_list.load)
-        port_index = self._call("lookup_path", port_list.lookup_path, self._port)
-        self._call("set_port_info", camera.set_port_info, port_list[port_index])
-        self._call("init", camera.init, timeout_s=self._timeouts.init_s)
+        camera = self._lib.call("Camera", gp.Camera)
+        abilities_list = self._lib.call("CameraAbilitiesList", gp.CameraAbilitiesList)
+        self._lib.call("CameraAbilitiesList.load", abilities_list.load)
+        model_index = self._lib.call("lookup_model", abilities_list.lookup_model, self._model)
+        self._lib.call("set_abilities", camera.set_abilities, abilities_list[model_index])
+        port_list = self._lib.call("PortInfoList", gp.PortInfoList)
+        self._lib.call("PortInfoList.load", port_list.load)
+        port_index = self._lib.call("lookup_path", port_list.lookup_path, self._port)
+        self._lib.call("set_port_info", camera.set_port_info, port_list[port_index])
+        self._lib.call("init", camera.init, timeout_s=self._timeouts.init_s)
         self._camera = camera
         self._sessions_opened += 1
         self._needs_init = False
         self._load_config()
+        # Re-apply what this driver set (a new session may start from defaults). Errors here
+        # belong to the enclosing recovery loop, so no nested retries.
         for widget_name, value in self._applied.items():
             self._write_widget(widget_name, value)
-            self._verify(widget_name, value)
+            self._verify(widget_name, value, recover=False)
 
     def _load_config(self) -> None:
-        root = self._call("get_config", self._camera.get_config)
-        widgets: dict[str, _Widget] = {}
-        skipped_types = {getattr(self._gp, name) for name in _SETTLED_WIDGET_TYPES}
-        radio_like = {self._gp.GP_WIDGET_RADIO, self._gp.GP_WIDGET_MENU}
-        for widget in self._walk(root):
-            widget_type = widget.get_type()
-            if widget_type in skipped_types:
-                continue
-            try:
-                value = widget.get_value()
-            except self._gp.GPhoto2Error:
-                value = ""
-            choices: tuple[str, ...] = ()
-            if widget_type in radio_like:
-                choices = tuple(str(widget.get_choice(i)) for i in range(widget.count_choices()))
-            widgets[str(widget.get_name())] = _Widget(
-                name=str(widget.get_name()),
-                type_name=self._type_name(widget_type),
-                read_only=bool(widget.get_readonly()),
-                value=_value_text(value),
-                choices=choices,
-            )
-        self._widgets = widgets
-
-    def _walk(self, widget: Any) -> Iterator[Any]:
-        yield widget
-        for i in range(widget.count_children()):
-            yield from self._walk(widget.get_child(i))
-
-    def _type_name(self, widget_type: int) -> str:
-        for name in ("TEXT", "RANGE", "TOGGLE", "RADIO", "MENU", "DATE"):
-            if widget_type == getattr(self._gp, f"GP_WIDGET_{name}"):
-                return name
-        return str(widget_type)
+        root = self._lib.call("get_config", self._camera.get_config)
+        self._widgets = WidgetTable.from_tree(root, self._gp)
 
     # ==================================================================== settings
 
-    def _find_widget(self, name: str) -> str | None:
-        for candidate in SETTING_WIDGETS.get(name, ()):
-            if candidate in self._widgets:
-                return candidate
-        return name if name in self._widgets else None
-
     def _resolve(self, name: str) -> str:
-        widget_name = self._find_widget(name)
+        widget_name = self._widgets.find(name)
         if widget_name is None:
-            tried = SETTING_WIDGETS.get(name, (name,))
-            writable = sorted(n for n, w in self._widgets.items() if not w.read_only)
-            raise UnsupportedSetting(
-                self.device,
-                f"the camera offers no {name!r} setting (widgets tried: {', '.join(tried)}); "
-                f"writable widgets: {', '.join(writable)}",
-            )
+            raise UnsupportedSetting(self.device, self._widgets.missing_message(name))
         return widget_name
 
-    def _choose(self, requested_name: str, widget: _Widget, value: str) -> str:
-        """The exact value to write for ``value`` on ``widget``."""
-        try:
-            if widget.type_name in ("RADIO", "MENU"):
-                if not widget.choices:
-                    return value
-                if widget.name == self._find_widget("shutterspeed"):
-                    return self._choose_exposure(value, widget.choices)
-                kind = next(
-                    (
-                        CHOICE_KINDS[logical]
-                        for logical, names in SETTING_WIDGETS.items()
-                        if logical in CHOICE_KINDS and widget.name in names
-                    ),
-                    CHOICE_KINDS.get(requested_name, "generic"),
-                )
-                return match_choice(kind, value, widget.choices)
-            if widget.type_name == "TOGGLE":
-                return _toggle_value(value)
-            if widget.type_name == "RANGE":
-                return self._range_value(widget.name, value)
-        except ValueError as exc:
-            raise SettingValueError(self.device, f"{widget.name}: {exc}") from exc
-        return value
-
-    def _choose_exposure(self, value: str, choices: Sequence[str]) -> str:
-        exact = [c for c in choices if normalise(c) == normalise(value)]
-        if exact:
-            return exact[0]
-        table = ExposureTable.from_choices(choices)
-        if is_bulb_choice(value):
-            if table.bulb_choice is None:
-                raise ValueError(f"no bulb choice among {list(choices)}")
-            return table.bulb_choice
-        return table.nearest(parse_exposure_s(value))[0]
-
-    def _range_value(self, widget_name: str, value: str) -> str:
-        widget = self._with_recovery(
-            f"read {widget_name}",
-            lambda: self._call("get_single_config", self._camera.get_single_config, widget_name),
-        )
-        low, high, step = (float(v) for v in widget.get_range())
-        number = float(value)
-        if not low - 1e-9 <= number <= high + 1e-9:
-            raise ValueError(f"{value} is outside {low:g} … {high:g}")
-        if step > 0:
-            number = low + round((number - low) / step) * step
-        return repr(min(max(number, low), high))
-
     def _read_value(self, widget_name: str) -> str:
-        widget = self._call("get_single_config", self._camera.get_single_config, widget_name)
-        value = _value_text(widget.get_value())
-        if widget_name in self._widgets:
+        widget = self._lib.call("get_single_config", self._camera.get_single_config, widget_name)
+        value = value_text(widget.get_value())
+        if widget_name in self._widgets.widgets:
             self._widgets[widget_name].value = value
         return value
 
     def _write_widget(self, widget_name: str, value: str) -> None:
-        widget = self._call("get_single_config", self._camera.get_single_config, widget_name)
-        self._call("CameraWidget.set_value", widget.set_value, self._typed_value(widget, value))
-        self._call("set_single_config", self._camera.set_single_config, widget_name, widget)
+        widget = self._lib.call("get_single_config", self._camera.get_single_config, widget_name)
+        self._lib.call("CameraWidget.set_value", widget.set_value, self._typed_value(widget, value))
+        self._lib.call("set_single_config", self._camera.set_single_config, widget_name, widget)
 
     def _typed_value(self, widget: Any, value: str) -> object:
         widget_type = widget.get_type()
@@ -897,18 +597,22 @@ class GphotoCamera:
         self._applied[widget_name] = value
         return read_back
 
-    def _verify(self, widget_name: str, value: str) -> str:
+    def _verify(self, widget_name: str, value: str, *, recover: bool = True) -> str:
+        """Read ``widget_name`` back until it equals ``value`` (a few tries), else StateMismatch."""
         read_back = ""
         for attempt in range(READBACK_ATTEMPTS):
             if attempt:
                 time.sleep(READBACK_INTERVAL_S)
-            read_back = self._with_recovery(
-                f"read {widget_name}", lambda: self._read_value(widget_name)
-            )
-            if _same_value(read_back, value):
+            if recover:
+                read_back = self._with_recovery(
+                    f"read {widget_name}", lambda: self._read_value(widget_name)
+                )
+            else:
+                read_back = self._read_value(widget_name)
+            if same_value(read_back, value):
                 return read_back
         hint = ""
-        if widget_name == self._find_widget("shutterspeed"):
+        if self._widgets.is_shutter(widget_name):
             hint = " (is the mode dial on M, or B for bulb?)"
         raise StateMismatch(
             self.device,
@@ -916,13 +620,6 @@ class GphotoCamera:
             expected=value,
             actual=read_back,
         )
-
-    def _identity_value(self, key: str) -> str | None:
-        for name in IDENTITY_WIDGETS[key]:
-            widget = self._widgets.get(name)
-            if widget is not None and widget.value:
-                return widget.value
-        return None
 
     def _library_version(self) -> str:
         try:
@@ -935,23 +632,11 @@ class GphotoCamera:
 
     def _exposure_table(self) -> ExposureTable:
         self._check_open()
-        shutter = self._widgets[self._resolve("shutterspeed")]
-        return ExposureTable.from_choices(shutter.choices)
+        self._resolve("shutterspeed")
+        return self._widgets.exposure_table()
 
     def _bulb_usable(self, table: ExposureTable) -> bool:
-        return table.bulb_choice is not None and self._bulb_trigger() is not None
-
-    def _bulb_trigger(self) -> _BulbTrigger | None:
-        toggle = self._widgets.get(BULB_TOGGLE_WIDGET)
-        if toggle is not None and toggle.type_name == "TOGGLE" and not toggle.read_only:
-            return _BulbTrigger(BULB_TOGGLE_WIDGET, 1, 0)
-        release = self._widgets.get(EOS_RELEASE_WIDGET)
-        if release is not None:
-            press = next((c for c in EOS_PRESS_CHOICES if c in release.choices), None)
-            stop = next((c for c in EOS_RELEASE_CHOICES if c in release.choices), None)
-            if press is not None and stop is not None:
-                return _BulbTrigger(EOS_RELEASE_WIDGET, press, stop)
-        return None
+        return table.bulb_choice is not None and self._widgets.bulb_trigger() is not None
 
     def _pending_exposure(self) -> tuple[float, bool]:
         """The exposure the next capture makes, and whether it is a bulb exposure."""
@@ -982,7 +667,7 @@ class GphotoCamera:
             "imageformat",
             "capturetarget",
         ):
-            name = self._find_widget(logical)
+            name = self._widgets.find(logical)
             if name is not None:
                 settings[name] = self._widgets[name].value
         if bulb and self._bulb_exposure_s is not None:
@@ -992,7 +677,7 @@ class GphotoCamera:
     # ==================================================================== capture
 
     def _timed_capture(self, exposure_s: float) -> CameraPath:
-        path = self._call(
+        path = self._lib.call(
             "capture",
             self._camera.capture,
             self._gp.GP_CAPTURE_IMAGE,
@@ -1001,12 +686,10 @@ class GphotoCamera:
         return (str(path.folder), str(path.name))
 
     def _bulb_capture(self, exposure_s: float) -> tuple[CameraPath, float]:
-        trigger = self._bulb_trigger()
+        trigger = self._widgets.bulb_trigger()
         if trigger is None:
             raise UnsupportedSetting(self.device, "no bulb control widget (bulb, eosremoterelease)")
-        self._with_recovery(
-            "bulb press", lambda: self._write_widget(trigger.widget, str(trigger.press))
-        )
+        self._with_recovery("bulb press", lambda: self._write_widget(trigger.widget, trigger.press))
         opened = self._timer.now()
         try:
             self._timer.sleep(exposure_s)
@@ -1014,14 +697,16 @@ class GphotoCamera:
             closing = self._timer.now()
             # Always close the shutter, even when interrupted.
             self._with_recovery(
-                "bulb release", lambda: self._write_widget(trigger.widget, str(trigger.release))
+                "bulb release", lambda: self._write_widget(trigger.widget, trigger.release)
             )
         measured_s = closing - opened
-        self._record("event", {"event": "bulb", "requested_s": exposure_s, "timed_s": measured_s})
+        self._lib.record(
+            "event", {"event": "bulb", "requested_s": exposure_s, "timed_s": measured_s}
+        )
         return self._wait_for_new_file(self._timeouts.capture_overhead_s), measured_s
 
     def _wait_for_event(self, timeout_ms: int) -> tuple[int, Any]:
-        event_type, data = self._call(
+        event_type, data = self._lib.call(
             "wait_for_event",
             self._camera.wait_for_event,
             timeout_ms,
@@ -1067,17 +752,6 @@ class GphotoCamera:
                 if event_type == self._gp.GP_EVENT_TIMEOUT:
                     return
 
-    @staticmethod
-    def _primary_file(files: Sequence[CameraPath]) -> CameraPath:
-        raws = [f for f in files if Path(f[1]).suffix.lower() in RAW_EXTENSIONS]
-        return raws[0] if raws else files[0]
-
-    @staticmethod
-    def _local_path(destination: Path, camera_file: CameraPath) -> Path:
-        if destination.suffix:
-            return destination
-        return destination.with_suffix(Path(camera_file[1]).suffix.lower())
-
     def _download(self, camera_file: CameraPath, local: Path) -> None:
         folder, name = camera_file
 
@@ -1085,7 +759,7 @@ class GphotoCamera:
             data = self._camera.file_get(folder, name, self._gp.GP_FILE_TYPE_NORMAL)
             return bytes(data.get_data_and_size())
 
-        data = self._call("file_get", fetch, timeout_s=self._timeouts.download_s)
+        data = self._lib.call("file_get", fetch, timeout_s=self._timeouts.download_s)
         if not data:
             raise ProtocolError(
                 self.device,
@@ -1093,8 +767,8 @@ class GphotoCamera:
                 command=f"file_get {folder}/{name}",
                 reply=b"",
             )
-        _write_atomically(local, data)
-        self._record(
+        write_atomically(local, data)
+        self._lib.record(
             "event",
             {
                 "event": "downloaded",
@@ -1109,7 +783,7 @@ class GphotoCamera:
         try:
             self._with_recovery(
                 "file_delete",
-                lambda: self._call("file_delete", self._camera.file_delete, folder, name),
+                lambda: self._lib.call("file_delete", self._camera.file_delete, folder, name),
             )
         except InstrumentError as exc:
             if exc.code != str(GP_FILE_NOT_FOUND):
@@ -1118,69 +792,6 @@ class GphotoCamera:
     def _check_open(self) -> None:
         if self._closed:
             raise Disconnected(self.device, "the camera driver was closed; open it again")
-
-
-def _value_text(value: object) -> str:
-    if isinstance(value, float):
-        return repr(value)
-    return "" if value is None else str(value)
-
-
-def _toggle_value(value: str) -> str:
-    folded = normalise(value)
-    if folded in ("1", "on", "true", "yes"):
-        return "1"
-    if folded in ("0", "off", "false", "no"):
-        return "0"
-    raise ValueError(f"{value!r} is not on/off (1/0)")
-
-
-def _same_value(read_back: str, written: str) -> bool:
-    if normalise(read_back) == normalise(written):
-        return True
-    try:
-        return math.isclose(float(read_back), float(written), rel_tol=1e-6, abs_tol=1e-9)
-    except ValueError:
-        return False
-
-
-def _write_atomically(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary name in the same directory, fsync, rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.partial")
-    with temporary.open("wb") as handle:
-        handle.write(data)
-        handle.flush()
-        os.fsync(handle.fileno())
-    temporary.replace(path)
-    directory = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
-
-
-def list_cameras(
-    gphoto2_module: GphotoModule | None = None, *, timeout_s: float = 10.0
-) -> list[tuple[str, str]]:
-    """(model, port) of every camera libgphoto2 autodetects, under a watchdog deadline."""
-    gp = gphoto2_module if gphoto2_module is not None else load_gphoto2()
-    watchdog = CallWatchdog("gphoto2-autodetect")
-    try:
-        camera_list = watchdog.call(gp.Camera.autodetect, timeout_s=timeout_s, name="autodetect")
-    except CallTimedOut as exc:
-        raise DeviceTimeout(
-            "gphoto2",
-            f"camera autodetection did not return within {timeout_s:g} s",
-            command="autodetect",
-            timeout_s=timeout_s,
-        ) from exc
-    finally:
-        watchdog.close()
-    return [
-        (str(camera_list.get_name(i)), str(camera_list.get_value(i)))
-        for i in range(len(camera_list))
-    ]
 
 
 def open_camera(

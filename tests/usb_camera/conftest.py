@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import pytest
 
 from drivers.base import ListTranscript
-from drivers.camera.gphoto import CameraTimeouts, GphotoCamera, RecoveryPolicy, open_camera
+from drivers.camera import CameraTimeouts, GphotoCamera, RecoveryPolicy, open_camera
 from mocks.fake_gphoto2 import FakeBody, FakeGphoto2, canon_eos_body
 from mocks.lamps import SimulatedClock
 

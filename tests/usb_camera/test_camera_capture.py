@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from drivers.base import DeviceBusy, ListTranscript
-from drivers.camera.gphoto import SettingValueError
+from drivers.camera import SettingValueError
 from mocks.fake_gphoto2 import FakeGphoto2, FrameRequest, canon_eos_body, nikon_body
 from mocks.lamps import SimulatedClock
 from tests.usb_camera.conftest import CameraRig, open_on

@@ -16,7 +16,7 @@ from drivers.base import (
     ListTranscript,
     ProtocolError,
 )
-from drivers.camera.gphoto import CameraTimeouts, classify_gphoto_error
+from drivers.camera import CameraTimeouts, classify_gphoto_error
 from mocks.fake_gphoto2 import CameraFault, FakeGphoto2, canon_eos_body
 from mocks.lamps import SimulatedClock
 from tests.usb_camera.conftest import FAST_TIMEOUTS, CameraRig, open_on

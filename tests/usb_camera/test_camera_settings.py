@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from drivers.base import Camera, DeviceNotFound, StateMismatch
-from drivers.camera.gphoto import SettingValueError, UnsupportedSetting, select_camera
+from drivers.camera import SettingValueError, UnsupportedSetting, select_camera
 from mocks.fake_gphoto2 import (
     CameraFault,
     FakeBody,

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from drivers.base import DeviceError, ListTranscript
-from drivers.camera.gphoto import CameraTimeouts, RecoveryPolicy, open_camera
+from drivers.camera import CameraTimeouts, RecoveryPolicy, open_camera
 from drivers.discovery import list_devices
 
 
