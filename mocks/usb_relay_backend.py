@@ -56,7 +56,9 @@ _LIBUSB_ERRORS: dict[str, tuple[int, int, str]] = {
     "busy": (-6, errno.EBUSY, "Resource busy"),
 }
 
-UsbFaultKind = Literal["timeout", "stall", "disconnect", "busy", "short_reply", "stuck_relay"]
+UsbFaultKind = Literal[
+    "timeout", "late", "stall", "disconnect", "busy", "short_reply", "garbled_reply", "stuck_relay"
+]
 UsbRequest = Literal["set_report", "get_report", "string", "open", "any"]
 
 
@@ -67,10 +69,12 @@ class UsbFault:
     Parameters
     ----------
     kind
-        ``timeout`` (no answer: the transfer times out), ``stall`` (endpoint 0 STALL), ``disconnect``
-        (the board vanishes; this and every later access fail with ENODEV), ``busy`` (EBUSY),
-        ``short_reply`` (a GET_REPORT returns only ``short_length`` bytes), ``stuck_relay`` (the
-        command is acknowledged but relay ``channel`` does not move).
+        ``timeout`` (no answer: the transfer times out), ``late`` (the answer comes after
+        ``delay_s``; a timeout if that exceeds the transfer's timeout), ``stall`` (endpoint 0
+        STALL), ``disconnect`` (the board vanishes; this and every later access fail with ENODEV),
+        ``busy`` (EBUSY), ``short_reply`` (a GET_REPORT returns only ``short_length`` bytes),
+        ``garbled_reply`` (a GET_REPORT with every bit of the report inverted), ``stuck_relay``
+        (the command is acknowledged but relay ``channel`` does not move).
     request
         Which requests trigger it: ``set_report``, ``get_report``, ``string`` (descriptor reads),
         ``open`` (opening the device), or ``any``.
@@ -88,10 +92,15 @@ class UsbFault:
     times: int | None = 1
     channel: int | None = None
     short_length: int = 5
+    delay_s: float = 0.0
     fired: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
-        implied: dict[str, UsbRequest] = {"stuck_relay": "set_report", "short_reply": "get_report"}
+        implied: dict[str, UsbRequest] = {
+            "stuck_relay": "set_report",
+            "short_reply": "get_report",
+            "garbled_reply": "get_report",
+        }
         if self.request == "any" and self.kind in implied:
             self.request = implied[self.kind]
 
@@ -354,6 +363,8 @@ class FakeUsbBackend(usb.backend.IBackend):  # type: ignore[misc]
                 report = board.feature_report()
                 if fault is not None and fault.kind == "short_reply":
                     report = report[: fault.short_length]
+                elif fault is not None and fault.kind == "garbled_reply":
+                    report = bytes(b ^ 0xFF for b in report)
                 return self._reply(data, report)
             if request == "set_report":
                 if len(data) != REPORT_LENGTH:
@@ -409,9 +420,13 @@ class FakeUsbBackend(usb.backend.IBackend):  # type: ignore[misc]
             if fault.kind == "disconnect":
                 board.plugged = False
                 raise _usb_error("disconnect")
-            if fault.kind == "timeout":
-                self.clock.sleep((timeout_ms or 1000) / 1000.0)
+            timeout_s = (timeout_ms or 1000) / 1000.0
+            if fault.kind == "timeout" or (fault.kind == "late" and fault.delay_s >= timeout_s):
+                self.clock.sleep(timeout_s)
                 raise _usb_error("timeout")
+            if fault.kind == "late":
+                self.clock.sleep(fault.delay_s)
+                return None
             if fault.kind in ("stall", "busy"):
                 raise _usb_error(fault.kind)
             return fault

@@ -106,6 +106,9 @@ REQUEST_TYPES: dict[RequestRecipient, tuple[int, int]] = {
 }
 DEFAULT_RECIPIENT: RequestRecipient = "device"
 
+READBACK_CONFIRMATIONS = 1
+"""Extra reads of the state after a mismatching one before :class:`StateMismatch` is raised: the
+report has no checksum, so one odd read is confirmed before a run is stopped."""
 DEFAULT_TIMEOUT_S = 1.0
 """Control-transfer timeout. The board answers in a few ms; pyusb's own default is 1000 ms."""
 
@@ -604,7 +607,13 @@ class HidUsbRelay:
     def _command(self, report: bytes, expected: Sequence[bool]) -> None:
         self._check_open()
         self._io.write_report(report)
-        verify_relay_state(self.device, expected, self.state())
+        actual = self.state()
+        for _ in range(READBACK_CONFIRMATIONS):
+            if actual == tuple(expected):
+                break
+            self._io.event("state_reread", expected=list(expected), actual=list(actual))
+            actual = self.state()
+        verify_relay_state(self.device, expected, actual)
 
     def _check_channel(self, channel: int) -> None:
         if isinstance(channel, bool) or not isinstance(channel, int):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import re
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -55,6 +56,7 @@ FaultKind = Literal[
     "same_file",
     "unplug",
     "hang",
+    "slow",
     "ignore_setting",
 ]
 #: The call each fault kind hits unless told otherwise.
@@ -67,6 +69,7 @@ DEFAULT_FAULT_CALL: dict[str, str] = {
     "same_file": "capture",
     "unplug": "capture",
     "hang": "capture",
+    "slow": "capture",
     "ignore_setting": "set_single_config",
 }
 _ERROR_CODES = {
@@ -92,7 +95,8 @@ class CameraFault:
         device", on ``init``), ``camera_error`` (-113), ``same_file`` (``capture`` returns the path
         of the previous capture again), ``unplug`` (the body disconnects during the call: -7 now,
         every later session call -7, ``init`` -52, absent from autodetect), ``hang`` (the call never
-        returns until :meth:`FakeBody.release_hangs`), ``ignore_setting`` (``set_single_config``
+        returns until :meth:`FakeBody.release_hangs`), ``slow`` (the call answers normally after
+        ``delay_s`` of wall time: a late reply), ``ignore_setting`` (``set_single_config``
         accepts the value but the body keeps the old one, like a dial not on M).
     call
         The libgphoto2 call it hits (``capture``, ``file_get``, ``file_delete``,
@@ -115,6 +119,7 @@ class CameraFault:
     times: int | None = 1
     new_file_event: bool = False
     widget: str | None = None
+    delay_s: float = 0.0
     fired: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
@@ -326,6 +331,10 @@ class FakeBody:
         if fault.kind == "hang":
             self._release.wait(MAX_HANG_S)
             raise GPhoto2Error(GP_ERROR_IO)
+        if fault.kind == "slow":
+            # Wall time, not the body clock: this is how long the library call itself takes.
+            time.sleep(fault.delay_s)
+            return None
         return fault
 
     def open_session(self) -> None:

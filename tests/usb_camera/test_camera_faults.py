@@ -197,6 +197,24 @@ def test_capture_that_never_returns_times_out(clock: SimulatedClock, tmp_path: P
     assert gp.calls_after_exit == []
 
 
+def test_late_answer_within_the_deadline_is_accepted(canon: CameraRig, tmp_path: Path) -> None:
+    canon.body.inject(CameraFault("slow", call="file_get", delay_s=0.2))
+    assert canon.camera.capture(tmp_path / "late").path.exists()
+    assert canon.camera.identify().extra["reinitialisations"] == "0"
+
+
+def test_answer_after_the_deadline_is_dropped_and_the_session_replaced(
+    canon: CameraRig, tmp_path: Path
+) -> None:
+    canon.body.inject(CameraFault("slow", call="get_single_config", delay_s=0.8))
+    with pytest.raises(DeviceTimeout):
+        canon.camera.get_setting("iso")
+    time.sleep(0.5)  # the late answer arrives into the abandoned call and is dropped
+    assert canon.camera.get_setting("iso") == "Auto"
+    assert canon.camera.capture(tmp_path / "after").path.exists()
+    assert canon.camera.identify().extra["reinitialisations"] == "1"
+
+
 def test_settings_read_that_hangs_times_out(canon: CameraRig) -> None:
     canon.body.inject(CameraFault("hang", call="get_single_config"))
     started = time.monotonic()

@@ -156,6 +156,32 @@ def test_no_reply_in_wall_time_ends_within_its_deadline() -> None:
     assert time.monotonic() - started < 2.0
 
 
+def test_late_reply_within_the_timeout_is_fine_beyond_it_times_out() -> None:
+    board = EmulatedRelayBoard()
+    clock = SimulatedClock()
+    relay = open_hid_relay(None, backend=FakeUsbBackend([board], clock=clock), timeout_s=0.5)
+    board.inject(UsbFault("late", request="set_report", delay_s=0.3))
+    relay.set(1, True)
+    assert clock.now() == pytest.approx(0.3)
+    board.inject(UsbFault("late", request="get_report", delay_s=2.0))
+    with pytest.raises(DeviceTimeout):
+        relay.state()
+    assert clock.now() == pytest.approx(0.8)
+
+
+def test_garbled_report_is_confirmed_by_a_second_read() -> None:
+    board = EmulatedRelayBoard("QAAMZ", 2)
+    transcript = ListTranscript()
+    relay = open_hid_relay(None, backend=FakeUsbBackend([board]), transcript=transcript)
+    board.inject(UsbFault("garbled_reply"))
+    relay.set(1, True)  # one odd read: the confirmation read is clean
+    assert b"state_reread" in transcript.entries[-3].payload
+    board.inject(UsbFault("garbled_reply", times=2))
+    with pytest.raises(StateMismatch) as caught:
+        relay.set(2, True)
+    assert caught.value.expected == "11" and caught.value.actual == "00"  # 0b11 inverted
+
+
 def test_stall_is_a_protocol_error() -> None:
     board = EmulatedRelayBoard()
     relay = open_hid_relay(None, backend=FakeUsbBackend([board]))

@@ -173,14 +173,23 @@ def test_close_is_idempotent_and_later_calls_raise() -> None:
 
 
 def test_relay_that_does_not_follow_raises_state_mismatch() -> None:
+    # The mismatching read is confirmed by one more read before the error.
     with expected_transfers(
-        [*open_script(), set_report("ff 02 00 00 00 00 00 00"), get_report(0b00)]
+        [*open_script(), set_report("ff 02 00 00 00 00 00 00"), get_report(0b00), get_report(0b00)]
     ) as backend:
         relay = open_hid_relay(None, backend=backend)
         with pytest.raises(StateMismatch) as caught:
             relay.set(2, True)
     assert caught.value.expected == "01" and caught.value.actual == "00"
     assert "QAAMZ" in str(caught.value)
+
+
+def test_one_odd_read_is_confirmed_then_accepted() -> None:
+    with expected_transfers(
+        [*open_script(), set_report("ff 01 00 00 00 00 00 00"), get_report(0b00), get_report(0b01)]
+    ) as backend:
+        relay = open_hid_relay(None, backend=backend)
+        relay.set(1, True)
 
 
 def test_short_feature_report_raises_protocol_error() -> None:
