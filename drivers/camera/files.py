@@ -6,7 +6,14 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["RAW_EXTENSIONS", "CameraPath", "local_path", "primary_file", "write_atomically"]
+__all__ = [
+    "RAW_EXTENSIONS",
+    "CameraPath",
+    "files_per_capture",
+    "local_path",
+    "primary_file",
+    "write_atomically",
+]
 
 CameraPath = tuple[str, str]
 """(folder, name) of a file on the camera."""
@@ -15,6 +22,12 @@ RAW_EXTENSIONS = frozenset(
     | {".rw2", ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".kdc", ".mrw"}
 )
 """Camera RAW file suffixes (lower case)."""
+
+
+def files_per_capture(image_format: str | None) -> int:
+    """Files one capture produces for an ``imageformat``/``imagequality`` value: 2 for RAW+JPEG
+    (``RAW + Large Fine JPEG``, ``NEF+Fine``), else 1."""
+    return 2 if image_format is not None and "+" in image_format else 1
 
 
 def primary_file(files: Sequence[CameraPath]) -> CameraPath:

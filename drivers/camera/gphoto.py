@@ -63,7 +63,13 @@ from drivers.camera.errors import (
     classify_gphoto_error,
 )
 from drivers.camera.exposure import ExposureTable, format_exposure, is_bulb_choice, parse_exposure_s
-from drivers.camera.files import CameraPath, local_path, primary_file, write_atomically
+from drivers.camera.files import (
+    CameraPath,
+    files_per_capture,
+    local_path,
+    primary_file,
+    write_atomically,
+)
 from drivers.camera.widgets import SETTING_WIDGETS, WidgetTable, same_value, value_text
 
 __all__ = [
@@ -101,9 +107,12 @@ class CameraTimeouts:
     download_s
         ``file_get`` of one file (a 60 MB RAW over USB 2 takes a few seconds).
     event_poll_ms
-        ``wait_for_event`` timeout while waiting for a bulb exposure's file.
+        ``wait_for_event`` timeout while waiting for a file (bulb, RAW+JPEG companion).
     drain_ms
-        ``wait_for_event`` timeout while collecting the events after a capture.
+        ``wait_for_event`` timeout while emptying the queue after a capture whose files have all
+        arrived, on bodies that do not signal capture-complete.
+    companion_wait_s
+        How long a RAW+JPEG capture waits for its second file.
     """
 
     call_s: float = 10.0
@@ -111,7 +120,8 @@ class CameraTimeouts:
     capture_overhead_s: float = 30.0
     download_s: float = 120.0
     event_poll_ms: int = 500
-    drain_ms: int = 200
+    drain_ms: int = 100
+    companion_wait_s: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -374,7 +384,7 @@ class GphotoCamera:
                 camera_path = self._with_recovery(
                     "capture", functools.partial(self._timed_capture, exposure_s)
                 )
-            added = self._collect_added_files()
+            added = self._collect_added_files(files_per_capture(self._image_format()))
             produced = [p for p in [camera_path, *added] if p not in self._seen_files]
             if camera_path in self._seen_files:
                 repeated = camera_path
@@ -729,18 +739,37 @@ class GphotoCamera:
             timeout_s=within_s,
         )
 
-    def _collect_added_files(self) -> list[CameraPath]:
-        """Read the events a capture left queued; return the files they announce."""
+    def _collect_added_files(self, expected_files: int) -> list[CameraPath]:
+        """Read the events a capture queued; return the further files they announce.
+
+        Stops as soon as the body signals capture-complete with every expected file seen;
+        otherwise at the first empty wait once the files are in, or when a missing companion
+        file (RAW+JPEG) has not come within ``companion_wait_s``.
+        """
         added: list[CameraPath] = []
+        complete = False
+        deadline = time.monotonic() + self._timeouts.companion_wait_s
         for _ in range(self._recovery.max_drain_events):
+            have_all = 1 + len(added) >= expected_files
+            if have_all and complete:
+                break
+            wait_ms = self._timeouts.drain_ms if have_all else self._timeouts.event_poll_ms
             event_type, data = self._with_recovery(
-                "wait_for_event", lambda: self._wait_for_event(self._timeouts.drain_ms)
+                "wait_for_event", functools.partial(self._wait_for_event, wait_ms)
             )
             if event_type == self._gp.GP_EVENT_FILE_ADDED:
                 added.append((str(data.folder), str(data.name)))
-            elif event_type == self._gp.GP_EVENT_TIMEOUT:
+            elif event_type == self._gp.GP_EVENT_CAPTURE_COMPLETE:
+                complete = True
+            elif event_type == self._gp.GP_EVENT_TIMEOUT and (
+                have_all or time.monotonic() > deadline
+            ):
                 break
         return added
+
+    def _image_format(self) -> str | None:
+        name = self._widgets.find("imageformat")
+        return None if name is None else self._widgets[name].value
 
     def _drain_events(self) -> None:
         """Empty the event queue after a busy answer (best effort, errors ignored)."""

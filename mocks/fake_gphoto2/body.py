@@ -236,6 +236,8 @@ class FakeBody:
         Widgets that return to their power-on value when a new session opens (Canon's
         ``capturetarget`` is a driver-side setting that does). SDRAM captures are always lost
         when a session opens.
+    signals_capture_complete
+        Whether a capture ends with a CAPTURE_COMPLETE event (not every camlib sends one).
     """
 
     def __init__(
@@ -249,6 +251,7 @@ class FakeBody:
         clock: Clock | None = None,
         sdram_capacity: int = 4,
         reset_on_init: Sequence[str] = (),
+        signals_capture_complete: bool = True,
     ) -> None:
         names = [w.name for w in widgets]
         if len(set(names)) != len(names):
@@ -265,6 +268,7 @@ class FakeBody:
         if unknown:
             raise ValueError(f"reset_on_init names unknown widgets: {sorted(unknown)}")
         self.reset_on_init = tuple(reset_on_init)
+        self.signals_capture_complete = signals_capture_complete
         self.plugged = True
         self.files: dict[tuple[str, str], bytes] = {}
         self.ram_files: set[tuple[str, str]] = set()
@@ -406,9 +410,13 @@ class FakeBody:
                 return self._last_capture
             files = self._expose(self._timed_exposure_s())
             self.events.extend((GP_EVENT_FILE_ADDED, f) for f in files[1:])
-            self.events.append((GP_EVENT_CAPTURE_COMPLETE, None))
+            self._complete()
             self._last_capture = files[0]
             return files[0]
+
+    def _complete(self) -> None:
+        if self.signals_capture_complete:
+            self.events.append((GP_EVENT_CAPTURE_COMPLETE, None))
 
     def next_event(self) -> tuple[int, object] | None:
         with self._lock:
@@ -462,7 +470,7 @@ class FakeBody:
         self._bulb_opened_at = None
         files = self._store(exposure_s)
         self.events.extend((GP_EVENT_FILE_ADDED, f) for f in files)
-        self.events.append((GP_EVENT_CAPTURE_COMPLETE, None))
+        self._complete()
         self._last_capture = files[0]
 
     def _expose(self, exposure_s: float) -> list[tuple[str, str]]:

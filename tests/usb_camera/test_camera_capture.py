@@ -181,3 +181,29 @@ def test_every_library_call_is_in_the_transcript(canon: CameraRig, tmp_path: Pat
     download = next(b for d, b in decoded if d == "event" and b.get("event") == "downloaded")
     assert download["bytes"] == 4096
     assert {e.device for e in entries} == {"Canon EOS 5D Mark III on usb:001,004"}
+
+
+# ------------------------------------------------------------------------------- event drain
+
+
+@pytest.mark.parametrize(
+    ("image_format", "signals_complete", "waits"),
+    [
+        ("RAW", True, 1),  # CAPTURE_COMPLETE with the one file in: stop at once
+        ("RAW", False, 1),  # no complete signal: one empty wait
+        ("RAW + Large Fine JPEG", True, 2),  # the JPEG's FILE_ADDED, then complete
+        ("RAW + Large Fine JPEG", False, 2),  # the JPEG's FILE_ADDED, then one empty wait
+    ],
+)
+def test_events_after_a_capture_are_read_without_idle_waits(
+    clock: SimulatedClock, tmp_path: Path, image_format: str, signals_complete: bool, waits: int
+) -> None:
+    body = canon_eos_body(clock=clock)
+    body.signals_capture_complete = signals_complete
+    with open_on(FakeGphoto2([body]), clock) as camera:
+        camera.set_setting("imageformat", image_format)
+        before = body.count("wait_for_event")
+        captured = camera.capture(tmp_path / "f")
+        assert body.count("wait_for_event") - before == waits
+    assert captured.path.suffix == ".cr2"
+    assert body.files == {}
