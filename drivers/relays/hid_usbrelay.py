@@ -499,7 +499,8 @@ class HidUsbRelay:
     -----
     After every switch the driver reads the Feature report back and raises
     :class:`~drivers.base.StateMismatch` unless the whole bitmask equals what it expects (the last
-    state read back, with the commanded change). Each control transfer has the timeout given at
+    state read back, with the commanded change); a mismatching read is confirmed by one more read
+    first (:data:`READBACK_CONFIRMATIONS`). Each control transfer has the timeout given at
     open; libusb enforces it, so no call here blocks longer.
     """
 
