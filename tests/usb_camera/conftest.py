@@ -1,0 +1,65 @@
+"""Fixtures for the camera tests: a fake gphoto2 world on a simulated clock, and fast policies."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import pytest
+
+from drivers.base import ListTranscript
+from drivers.camera import CameraTimeouts, GphotoCamera, RecoveryPolicy, open_camera
+from mocks.fake_gphoto2 import FakeBody, FakeGphoto2, canon_eos_body
+from mocks.lamps import SimulatedClock
+
+#: Short deadlines so that injected hangs end quickly; the fake answers in microseconds.
+FAST_TIMEOUTS = CameraTimeouts(
+    call_s=0.5, init_s=0.5, capture_overhead_s=1.0, download_s=1.0, event_poll_ms=10, drain_ms=1
+)
+FAST_RECOVERY = RecoveryPolicy(max_attempts=3, busy_backoff_s=0.001, reinit_backoff_s=0.001)
+
+
+@dataclass
+class CameraRig:
+    """A fake camera world and a driver opened on it."""
+
+    gp: FakeGphoto2
+    body: FakeBody
+    camera: GphotoCamera
+    clock: SimulatedClock
+    transcript: ListTranscript
+
+
+@pytest.fixture
+def clock() -> SimulatedClock:
+    return SimulatedClock()
+
+
+@pytest.fixture
+def canon(clock: SimulatedClock) -> Iterator[CameraRig]:
+    body = canon_eos_body(clock=clock)
+    gp = FakeGphoto2([body])
+    transcript = ListTranscript()
+    camera = open_camera(
+        gphoto2_module=gp,
+        transcript=transcript,
+        timeouts=FAST_TIMEOUTS,
+        recovery=FAST_RECOVERY,
+        exposure_timer=clock,
+    )
+    yield CameraRig(gp, body, camera, clock, transcript)
+    gp.release_hangs()
+    camera.close()
+    assert gp.calls_after_exit == [], "the driver used a gp.Camera after exit()"
+
+
+def open_on(gp: FakeGphoto2, clock: SimulatedClock, **kwargs: object) -> GphotoCamera:
+    """Open a camera on ``gp`` with the fast policies (keyword arguments override)."""
+    options: dict[str, object] = {
+        "gphoto2_module": gp,
+        "timeouts": FAST_TIMEOUTS,
+        "recovery": FAST_RECOVERY,
+        "exposure_timer": clock,
+    }
+    options.update(kwargs)
+    return open_camera(**options)  # type: ignore[arg-type]
