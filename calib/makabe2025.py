@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -117,6 +117,11 @@ def design_matrices(
     pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)
     centres_nm = mapping.wavelength_nm(system.observation.pixel)
     psi = hat_matrix(grid, centres_nm, clamp=True) @ efficiency_basis
+    # Pixels mapped off the grid are predicted dark: their residual is m·(constant term of η⁻¹), a
+    # fixed cost for light the model cannot explain (not η⁻¹ at the edge, which the fit could zero).
+    outside = (centres_nm < grid.start_nm) | (centres_nm > grid.stop_nm)
+    psi[outside] = 0.0
+    psi[outside, 0] = 1.0
     return pixel_matrix, psi
 
 
@@ -224,11 +229,22 @@ def mapping_residual(system: LampSystem, basis: CameraBasis, efficiency_basis: F
 
     The gauge is fixed by the constant term of ``η⁻¹`` (= 1), so no direct measurement is needed
     and the fluorescent lamp can be used too. Pixels mapped outside the grid are predicted dark, so
-    pushing signal out of the grid costs residual.
+    pushing signal out of the grid costs residual; a mapping whose pixels do not cover the whole grid
+    is penalised (the profile must hold the whole first order), otherwise the flexible η⁻¹ could
+    explain away a region of the grid that no pixel sees.
     """
     weights = 1.0 / system.profile_sigma
+    grid = system.operators.grid
+    ends_px = system.observation.pixel[[0, -1]]
+    # The penalty for a mapping that leaves part of the grid outside the profile: as many residual
+    # units per nm as the whole profile's signal-to-noise, so that no fit can pay for it.
+    coverage_weight = float(np.sqrt(np.sum((system.profile * weights) ** 2)))
 
     def residual(mapping: QuadraticMapping) -> FloatArray:
+        ends_nm = mapping.wavelength_nm(ends_px)
+        shortfall = np.array(
+            [max(ends_nm.min() - grid.start_nm, 0.0), max(grid.stop_nm - ends_nm.max(), 0.0)]
+        )
         pixel_matrix, psi = design_matrices(system, mapping, efficiency_basis)
         rows = _diffracted_rows(system, pixel_matrix, psi, basis, weights)
         fixed, free = rows[:, 0], rows[:, 1:]
@@ -238,9 +254,23 @@ def mapping_residual(system: LampSystem, basis: CameraBasis, efficiency_basis: F
             z = np.linalg.solve(normal / np.outer(scale, scale), -(free.T @ fixed) / scale) / scale
         except np.linalg.LinAlgError:
             z = np.linalg.lstsq(free, -fixed, rcond=None)[0]
-        return np.asarray(fixed + free @ z, dtype=np.float64)
+        return np.concatenate([fixed + free @ z, coverage_weight * shortfall])
 
     return residual
+
+
+#: Gaussian blurs (σ in nm) of the coarse-to-fine mapping refinement, before the unblurred stage.
+COARSE_TO_FINE_BLUR_NM: tuple[float, ...] = (6.0, 2.0)
+
+
+def _blurred(system: LampSystem, sigma_px: float) -> LampSystem:
+    """The same lamp with profile and model both blurred by a Gaussian of ``sigma_px``."""
+    extra = blur_kernel(0.0, sigma_px)
+    if extra is None:
+        return system
+    kernel = extra if system.kernel is None else np.convolve(system.kernel, extra)
+    observation = replace(system.observation, profile=apply_blur(system.observation.profile, extra))
+    return replace(system, observation=observation, kernel=kernel)
 
 
 def estimate_mapping(
@@ -278,9 +308,21 @@ def estimate_mapping(
             n_candidates=n_candidates,
         )
         method = "led-search+refined"
+    # Coarse to fine: first match blurred versions of profile and model (wide basins around sharp
+    # lines), then sharpen. The last stage is the unblurred residual.
+    dispersion = float(np.median(np.abs(starts[0].dispersion_nm_per_px(observation.pixel))))
+    spacing = float(np.median(np.diff(observation.pixel)))
+    stages = [
+        mapping_residual(
+            _blurred(mapping_system, blur_nm / dispersion / spacing), basis, efficiency_basis
+        )
+        for blur_nm in COARSE_TO_FINE_BLUR_NM
+    ] + [residual]
     best: tuple[float, QuadraticMapping] | None = None
     for start in starts:
-        refined, cost = refine_mapping(start, residual, pixel_range=pixel_range, method=method)
+        refined = start
+        for stage in stages:
+            refined, cost = refine_mapping(refined, stage, pixel_range=pixel_range, method=method)
         if best is None or cost < best[0]:
             best = (cost, refined)
     assert best is not None
@@ -309,13 +351,13 @@ def solve_noise_weighted(
     efficiency_basis: FloatArray,
     *,
     reweight: bool = False,
-    direct: Literal["exact", "weighted"] = "exact",
+    direct_constraint: Literal["exact", "weighted"] = "exact",
     scale_iterations: int = 6,
 ) -> tuple[FloatArray, FloatArray, FloatArray, dict[str, Any]]:
     """Solve for ``c_η`` and ``c_s`` over one or more lamps in measured units (see module docstring).
 
-    ``reweight`` adds a second pass weighted by ``1/(σ η̂⁻¹)`` (the rows' exact noise); ``direct``
-    chooses an exact direct constraint (default, as the paper) or weighted direct rows using the
+    ``reweight`` adds a second pass weighted by ``1/(σ η̂⁻¹)`` (the rows' exact noise);
+    ``direct_constraint`` chooses an exact direct constraint (default, as the paper) or weighted rows with
     observations' ``direct_sigma``. On the synthetic protocol the basis gap of real cameras, not the
     noise, dominates the residual, and the defaults (one pass, exact direct) are the most accurate.
 
@@ -345,7 +387,9 @@ def solve_noise_weighted(
                 )
             constraints.append(_direct_rows(system, basis, b_eta, scales[index]))
             targets.append(direct)
-            sigmas.append(system.observation.direct_sigma if direct == "weighted" else None)
+            sigmas.append(
+                system.observation.direct_sigma if direct_constraint == "weighted" else None
+            )
         if len(systems) > 1:
             # Several lamps: every direct measurement is a weighted row set (0.1 % when σ is unknown).
             sigmas = [
@@ -360,7 +404,7 @@ def solve_noise_weighted(
             # E‖rows x‖² carries + Σ (wσ)² (Ψ c_η)²; subtracting it removes the pull of η⁻¹ to zero.
             stacked = np.vstack(rows)
             normal = stacked.T @ stacked
-            for index, (system, (_, psi)) in enumerate(zip(systems, designs, strict=True)):
+            for index, (_, psi) in enumerate(designs):
                 noise_weight = 1.0 / _noise_scale(inverse_at_pixels[index]) ** 2
                 normal[:b_eta, :b_eta] -= 3 * psi.T @ (psi * noise_weight[:, None])
             solution, info = solve_constrained_normal(

@@ -346,17 +346,6 @@ class Peak:
     label: str | None = None
 
 
-def _refine_peak(values: FloatArray, index: int) -> float:
-    """Sub-sample vertex of the parabola through a sample and its neighbours (in samples)."""
-    if index <= 0 or index >= values.size - 1:
-        return float(index)
-    left, centre, right = values[index - 1], values[index], values[index + 1]
-    denominator = left - 2 * centre + right
-    if denominator >= 0:
-        return float(index)
-    return float(index + 0.5 * (left - right) / denominator)
-
-
 def _centroid_peak(values: FloatArray, index: int, half_width: int) -> float:
     """Centroid of the samples above half the peak's height, around ``index`` (in samples)."""
     lo = max(index - half_width, 0)
@@ -398,24 +387,28 @@ def lamp_lines(
 ) -> list[Peak]:
     """Emission lines in a lamp's measured spectrum (optionally weighted, e.g. by ŝ), strongest first.
 
-    Broad bands are removed first (a grey opening ``line_width_nm`` wide), so only lines narrower
-    than that remain. Positions come from the spectrum itself (parabolic sub-sample refinement at
-    its native sampling); lines within 2 nm of :data:`FLUORESCENT_LINES_NM` are labelled.
+    The spectrum is interpolated to 0.25 nm (as the renderer and the solve see it), broad bands are
+    removed (a grey opening ``line_width_nm`` wide) and each line's position is the centroid of its
+    upper half — the same procedure :func:`profile_peaks` applies in pixels, so both sides locate a
+    line the same way. Lines within 2 nm of :data:`FLUORESCENT_LINES_NM` are labelled.
     """
-    wavelength = lamp.wavelength_nm
-    values = lamp.values * (weight(wavelength) if weight is not None else 1.0)
-    inside = (wavelength >= range_nm[0]) & (wavelength <= range_nm[1])
-    values = np.where(inside, values, 0.0)
-    step = np.gradient(wavelength)
-    excess = _line_excess(values, int(np.ceil(line_width_nm / float(np.median(step)))))
-    if float(excess.max()) <= 0:
+    # Resample to a fine axis (linear interpolation, as the renderer and the solve do) so the line
+    # shapes, and hence their centroids, are those the profile shows.
+    step_nm = 0.25
+    wavelength = np.arange(
+        max(range_nm[0], lamp.range_nm[0]), min(range_nm[1], lamp.range_nm[1]), step_nm
+    )
+    values = lamp.at(wavelength) * (weight(wavelength) if weight is not None else 1.0)
+    excess = _line_excess(values, int(np.ceil(line_width_nm / step_nm)))
+    if wavelength.size < 3 or float(excess.max()) <= 0:
         raise EstimationError(f"lamp {lamp.name!r} shows no emission lines in {range_nm} nm")
     indices, properties = signal.find_peaks(excess, prominence=min_prominence * float(excess.max()))
     order = np.argsort(properties["prominences"])[::-1][:max_lines]
     peaks: list[Peak] = []
     for k in order:
         index = int(indices[k])
-        position = wavelength[index] + (_refine_peak(values, index) - index) * step[index]
+        half_width = int(np.ceil(line_width_nm / step_nm))
+        position = wavelength[0] + step_nm * _centroid_peak(excess, index, half_width)
         label = min(
             FLUORESCENT_LINES_NM, key=lambda name: abs(FLUORESCENT_LINES_NM[name] - position)
         )
@@ -488,13 +481,17 @@ def match_peaks(
     pixel_range: tuple[float, float],
     dispersion_range_nm_per_px: tuple[float, float] = (0.02, 20.0),
     tolerance_nm: float = 1.5,
+    allow_reversed: bool = False,
 ) -> tuple[QuadraticMapping, list[tuple[Peak, Peak]]]:
     """Robustly match lamp lines (nm) to profile peaks (px) and fit the quadratic mapping.
 
-    Every pair of lines × pair of peaks proposes a linear mapping (either direction); proposals are
-    scored by how many lines then land within a loose tolerance of a peak (monotonic, one-to-one),
-    the best is refitted as a quadratic on its inliers and re-matched with ``tolerance_nm``.
-    Spurious or missing peaks only reduce the inlier count.
+    Pairs and triples of the strongest lines matched to pairs and triples of the strongest peaks
+    propose linear and quadratic mappings; each admissible one (monotonic, dispersion in range) is
+    scored by a soft inlier count — every line weighted by its strength and by how close a peak lands
+    (τ = 2 nm); the best is refitted on its inliers with tolerances tightening to ``tolerance_nm``.
+    Spurious or missing peaks only reduce the inlier count. Wavelength increases with the pixel
+    coordinate unless ``allow_reversed`` (profiles from :mod:`calib.profiles` run away from the
+    direct spot, towards longer wavelengths).
 
     Returns
     -------
@@ -509,7 +506,7 @@ def match_peaks(
     line_nm = np.array([line.position for line in lines])
     peak_px = np.array([peak.position for peak in peaks])
     peak_weight = np.array([peak.prominence for peak in peaks])
-    span_px = pixel_range[1] - pixel_range[0]
+    pixel_range[1] - pixel_range[0]
 
     def inliers(mapping: QuadraticMapping, tolerance: float) -> list[tuple[int, int]]:
         predicted = mapping.wavelength_nm(peak_px)
@@ -523,38 +520,52 @@ def match_peaks(
                 used.add(j)
         return pairs
 
-    def score(pairs: list[tuple[int, int]]) -> tuple[int, float]:
-        return (len(pairs), float(sum(peak_weight[j] for _, j in pairs)))
+    line_weight = np.array([line.prominence for line in lines])
+    line_weight = line_weight / line_weight.max()
 
-    best: tuple[tuple[int, float], QuadraticMapping] | None = None
-    loose = max(4.0 * tolerance_nm, 6.0)
-    for i1, i2 in itertools.combinations(range(len(lines)), 2):
-        for j1, j2 in itertools.combinations(range(len(peaks)), 2):
-            dp = peak_px[j2] - peak_px[j1]
-            if dp == 0:
-                continue
-            slope = (line_nm[i2] - line_nm[i1]) / dp
-            if not dispersion_range_nm_per_px[0] <= abs(slope) <= dispersion_range_nm_per_px[1]:
-                continue
-            if (
-                abs(slope) * span_px < 100.0
-            ):  # the profile must span a good part of the visible range
-                continue
-            candidate = QuadraticMapping(
-                0.0, slope, line_nm[i1] - slope * peak_px[j1], pixel_range=pixel_range
-            )
-            pairs = inliers(candidate, loose)
-            if best is None or score(pairs) > best[0]:
-                best = (score(pairs), candidate)
-    if best is None or best[0][0] < 3:
+    def score(mapping: QuadraticMapping) -> float:
+        """Soft inlier count: each line counts by its strength and how close a peak lands (τ = 2 nm)."""
+        predicted = mapping.wavelength_nm(peak_px)
+        distance = np.min(np.abs(predicted[None, :] - line_nm[:, None]), axis=1)
+        return float(np.sum(line_weight * np.exp(-0.5 * (distance / 2.0) ** 2)))
+
+    def admissible(mapping: QuadraticMapping) -> bool:
+        probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+        slope = mapping.dispersion_nm_per_px(probe)
+        if np.any(slope <= 0) and not allow_reversed:
+            return False
+        low, high = dispersion_range_nm_per_px
+        return bool(np.all((np.abs(slope) >= low) & (np.abs(slope) <= high)))
+
+    best: tuple[float, QuadraticMapping] | None = None
+    strongest_lines = sorted(np.argsort(-line_weight)[:6].tolist(), key=lambda i: line_nm[i])
+    strongest_peaks = np.argsort(-peak_weight)[:10].tolist()
+    for size in (2, 3):
+        for line_set in itertools.combinations(strongest_lines, size):
+            if line_nm[line_set[-1]] - line_nm[line_set[0]] < 60.0:
+                continue  # too short a baseline to extrapolate from
+            for peak_set in itertools.permutations(strongest_peaks, size):
+                try:
+                    fitted = QuadraticMapping.fit(
+                        peak_px[list(peak_set)], line_nm[list(line_set)], degree=size - 1
+                    )
+                except EstimationError:
+                    continue
+                candidate = QuadraticMapping(fitted.a, fitted.b, fitted.c, pixel_range=pixel_range)
+                if not admissible(candidate):
+                    continue
+                value = score(candidate)
+                if best is None or value > best[0]:
+                    best = (value, candidate)
+    if best is None:
         raise EstimationError(
-            "could not match the lamp's lines to the profile's peaks (fewer than 3 consistent pairs); "
+            "could not match the lamp's lines to the profile's peaks (no consistent pair of lines); "
             "check the lamp spectrum and that the profile holds the first order"
         )
     mapping = best[1]
-    for tolerance in (loose, 2 * tolerance_nm, tolerance_nm):
+    for tolerance in (4 * tolerance_nm, 2 * tolerance_nm, tolerance_nm):
         pairs = inliers(mapping, tolerance)
-        if len(pairs) < 3:
+        if len(pairs) < 2:
             break
         mapping = QuadraticMapping.fit(
             peak_px[[j for _, j in pairs]],
@@ -563,8 +574,8 @@ def match_peaks(
             degree=2 if len(pairs) >= 4 else 1,
         ).with_details(pixel_range=list(pixel_range))
     pairs = inliers(mapping, tolerance_nm)
-    if len(pairs) < 3:
-        raise EstimationError("fewer than 3 lamp lines agree with one quadratic mapping")
+    if len(pairs) < 2:
+        raise EstimationError("fewer than 2 lamp lines agree with one mapping")
     matches = [(lines[i], peaks[j]) for i, j in pairs]
     details = {
         "matched": [
@@ -742,11 +753,13 @@ def refine_mapping(
     pixel_range: tuple[float, float],
     method: str,
     max_evaluations: int = 200,
+    step_nm: float = 0.02,
 ) -> tuple[QuadraticMapping, float]:
     """Least-squares refinement of ``(a, b, c)`` minimising ``‖residual(mapping)‖²``.
 
     The mapping is parameterised by its wavelengths at the two ends and the middle of
-    ``pixel_range`` (well conditioned, in nm). The covariance of ``(a, b, c)`` comes from the
+    ``pixel_range`` (well conditioned, in nm); derivatives are finite differences of ``step_nm``
+    (larger than the kinks that pixel edges crossing the fine axis' nodes put in the residual). The covariance of ``(a, b, c)`` comes from the
     Jacobian at the optimum scaled by the residual variance; it gives the mapping's error estimate.
 
     Returns
@@ -767,18 +780,19 @@ def refine_mapping(
     solution = optimize.least_squares(
         lambda theta: residual(build(theta)),
         start,
-        x_scale=np.array([1.0, 1.0, 1.0]),
-        diff_step=1e-4 / np.maximum(np.abs(start), 1.0),
+        x_scale=np.ones(3),
+        diff_step=step_nm / np.maximum(np.abs(start), 1.0),
         max_nfev=max_evaluations,
-        method="lm" if False else "trf",
     )
+    theta_to_anchor = np.eye(3)
     refined = build(solution.x)
     n_residuals = solution.fun.size
     cost = float(np.sum(solution.fun**2))
     variance = cost / max(n_residuals - 3, 1)
     try:
         theta_cov = np.linalg.inv(solution.jac.T @ solution.jac) * variance
-        covariance = to_coefficients @ theta_cov @ to_coefficients.T
+        anchor_cov = theta_to_anchor @ theta_cov @ theta_to_anchor.T
+        covariance = to_coefficients @ anchor_cov @ to_coefficients.T
         rms = wavelength_rms_from_covariance(covariance, pixel_range)
         covariance_list: list[list[float]] | None = covariance.tolist()
     except np.linalg.LinAlgError:
