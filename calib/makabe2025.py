@@ -281,12 +281,19 @@ def estimate_mapping(
     use_peaks: bool,
     initial: QuadraticMapping | None = None,
     n_candidates: int = 4,
+    refine_system: LampSystem | None = None,
 ) -> QuadraticMapping:
-    """Find the pixel→wavelength mapping from one lamp (see the module docstring)."""
+    """Find the pixel→wavelength mapping from one lamp (see the module docstring).
+
+    ``refine_system`` (default: the mapping lamp) is the lamp whose solve residual refines the
+    start: a broadband lamp gives a smooth objective, a line lamp a rough one whose basins are only
+    as wide as its lines, so the peak-matched start of a fluorescent lamp is refined with the LED.
+    """
     observation = mapping_system.observation
     grid = mapping_system.operators.grid
     pixel_range = (float(observation.pixel[0]), float(observation.pixel[-1]))
-    residual = mapping_residual(mapping_system, basis, efficiency_basis)
+    refine_with = refine_system or mapping_system
+    residual = mapping_residual(refine_with, basis, efficiency_basis)
     if initial is not None:
         starts = [initial]
         method = f"{initial.method}+refined"
@@ -314,7 +321,7 @@ def estimate_mapping(
     spacing = float(np.median(np.diff(observation.pixel)))
     stages = [
         mapping_residual(
-            _blurred(mapping_system, blur_nm / dispersion / spacing), basis, efficiency_basis
+            _blurred(refine_with, blur_nm / dispersion / spacing), basis, efficiency_basis
         )
         for blur_nm in COARSE_TO_FINE_BLUR_NM
     ] + [residual]
@@ -331,6 +338,7 @@ def estimate_mapping(
         details={
             **dict(mapping.details),
             "mapping_lamp": observation.name,
+            "refined_with": refine_with.observation.name,
             "n_starts": len(starts),
             "start": starts[0].to_dict() if len(starts) == 1 else [s.coefficients for s in starts],
         }
@@ -640,6 +648,7 @@ def estimate_makabe2025(
             use_peaks=mapping_observation.kind == "fluorescent",
             initial=initial,
             n_candidates=n_candidates,
+            refine_system=systems[0] if mapping_observation.kind == "fluorescent" else None,
         )
     timings["mapping_s"] = time.perf_counter() - step
 
