@@ -86,7 +86,7 @@ class CameraBasis:
 
     def channel(self, index: int) -> FloatArray:
         """Basis matrix ``B_s,c`` of shape ``(f, k)`` for channel ``index`` (0 = R, 1 = G, 2 = B)."""
-        return self.vectors[index]
+        return np.asarray(self.vectors[index], dtype=np.float64)
 
     def project(self, sensitivity: ArrayLike) -> FloatArray:
         """Least-squares fit of curves ``(f, 3)`` in the basis span; returns the fitted ``(f, 3)``."""

@@ -244,7 +244,7 @@ def blur_kernel(slit_width_px: float = 0.0, psf_sigma_px: float = 0.0) -> FloatA
     if psf_sigma_px > 1e-9:
         gaussian = np.exp(-0.5 * (offsets / psf_sigma_px) ** 2)
         kernel = np.convolve(kernel, gaussian / gaussian.sum(), mode="same")
-    return kernel / kernel.sum()
+    return np.asarray(kernel / kernel.sum(), dtype=np.float64)
 
 
 def apply_blur(values: FloatArray, kernel: FloatArray | None) -> FloatArray:

@@ -198,7 +198,9 @@ def solve_constrained_normal(
     if constraint_sigma is not None:
         weighted = constraint / constraint_sigma[:, None]
         system = normal + weighted.T @ weighted
-        solution = np.linalg.solve(system, weighted.T @ (target / constraint_sigma))
+        solution = np.asarray(
+            np.linalg.solve(system, weighted.T @ (target / constraint_sigma)), dtype=np.float64
+        )
         return solution, {"condition": float(np.linalg.cond(system))}
     particular, *_ = np.linalg.lstsq(constraint, target, rcond=None)
     _, singular, vt = np.linalg.svd(constraint)
@@ -253,7 +255,7 @@ def mapping_residual(system: LampSystem, basis: CameraBasis, efficiency_basis: F
         try:
             z = np.linalg.solve(normal / np.outer(scale, scale), -(free.T @ fixed) / scale) / scale
         except np.linalg.LinAlgError:
-            z = np.linalg.lstsq(free, -fixed, rcond=None)[0]
+            z = np.asarray(np.linalg.lstsq(free, -fixed, rcond=None)[0], dtype=np.float64)
         return np.concatenate([fixed + free @ z, coverage_weight * shortfall])
 
     return residual
@@ -404,8 +406,9 @@ def solve_noise_weighted(
                 s if s is not None else 1e-3 * np.abs(t) + 1e-300
                 for s, t in zip(sigmas, targets, strict=True)
             ]
-        constraint_sigma = (
-            None if any(s is None for s in sigmas) else np.concatenate(sigmas)  # type: ignore[arg-type]
+        known_sigmas = [s for s in sigmas if s is not None]
+        constraint_sigma: FloatArray | None = (
+            np.concatenate(known_sigmas) if len(known_sigmas) == len(sigmas) else None
         )
         if noise_known:
             # Errors-in-variables correction: the measured profile multiplies η⁻¹ in every row, so
@@ -456,7 +459,7 @@ def _update_scales(
             dsig = direct_sigma if direct_sigma is not None else 1e-3 * np.abs(direct) + 1e-300
             left = np.concatenate([left, direct / dsig])
             right = np.concatenate([right, model_direct / dsig])
-        updated[index] = float(left @ right / max(right @ right, 1e-300))
+        updated[index] = float(left @ right) / max(float(right @ right), 1e-300)
     return updated
 
 

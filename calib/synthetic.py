@@ -28,6 +28,7 @@ from calib.forward import PeakFractionNoise, RenderedObservation, render_observa
 from calib.makabe2025 import Weighting, estimate_makabe2025
 from calib.mapping import QuadraticMapping
 from calib.metrics import mapping_relative_error, relative_error
+from calib.observations import LampKind
 from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 
 FloatArray = NDArray[np.float64]
@@ -124,6 +125,10 @@ def render_scene(
     efficiency = random_efficiency(rng, grid)
     n = round(mapping.pixel_range[1]) + 1 if mapping.pixel_range else 800
     noise = PeakFractionNoise(noise_fraction) if noise_fraction > 0 else None
+    lamps: tuple[tuple[LampKind, Spectrum], ...] = (
+        ("led", broadband_lamp),
+        ("fluorescent", fluorescent_lamp),
+    )
     rendered = {
         kind: render_observation(
             lamp,
@@ -135,7 +140,7 @@ def render_scene(
             rng=rng,
             kind=kind,
         )
-        for kind, lamp in (("led", broadband_lamp), ("fluorescent", fluorescent_lamp))
+        for kind, lamp in lamps
     }
     truth = sensitivity.resample(grid, "interpolate", out_of_range="zero").values
     return SyntheticScene(
@@ -218,7 +223,7 @@ def evaluate_scene(
 
 def run_protocol(
     cameras: Sequence[tuple[str, MultiSpectrum]],
-    basis: CameraBasis,
+    basis: CameraBasis | Callable[[str], CameraBasis],
     *,
     grid: WavelengthGrid = DEFAULT_GRID,
     variants: Sequence[str] = VARIANTS,
@@ -237,7 +242,8 @@ def run_protocol(
     cameras
         ``(name, sensitivity)`` pairs, e.g. the 5 test cameras of :func:`calib.datasets.makabe2025_split`.
     basis
-        Camera basis (e.g. from the 44 training cameras), on ``grid``.
+        Camera basis (e.g. from the 44 training cameras) on ``grid``, or a function of the camera's
+        name giving one (e.g. the offline basis excluding that camera).
     seed
         Master seed; scene ``(camera i, noise j, repeat r)`` uses ``default_rng([seed, i, j, r])``.
     """
@@ -261,10 +267,11 @@ def run_protocol(
                     fluorescent_lamp=fluorescent,
                     noise_fraction=noise,
                 )
+                scene_basis = basis(name) if callable(basis) else basis
                 for variant in variants:
                     row = evaluate_scene(
                         scene,
-                        basis,
+                        scene_basis,
                         variant,
                         grid=grid,
                         weighting=weighting,
