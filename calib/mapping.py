@@ -563,6 +563,11 @@ def match_peaks(
             "check the lamp spectrum and that the profile holds the first order"
         )
     mapping = best[1]
+
+    def _span_nm(pairs: list[tuple[int, int]]) -> float:
+        matched = line_nm[[i for i, _ in pairs]]
+        return float(matched.max() - matched.min())
+
     for tolerance in (4 * tolerance_nm, 2 * tolerance_nm, tolerance_nm):
         pairs = inliers(mapping, tolerance)
         if len(pairs) < 2:
@@ -571,7 +576,7 @@ def match_peaks(
             peak_px[[j for _, j in pairs]],
             line_nm[[i for i, _ in pairs]],
             method="fluorescent-peaks",
-            degree=2 if len(pairs) >= 4 else 1,
+            degree=2 if len(pairs) >= 3 and _span_nm(pairs) >= 150.0 else 1,
         ).with_details(pixel_range=list(pixel_range))
     pairs = inliers(mapping, tolerance_nm)
     if len(pairs) < 2:

@@ -155,7 +155,10 @@ def register(app: typer.Typer) -> None:
         grid = WavelengthGrid()
         variants = variant or list(VARIANTS)
         if offline:
-            cameras = [(r.name, r.sensitivity) for r in colour_science_cameras()]
+            cameras = [
+                (r.name, r.sensitivity.resample(grid, "interpolate", out_of_range="zero"))
+                for r in colour_science_cameras()
+            ]
 
             def basis_for(name: str) -> CameraBasis:
                 return fallback_camera_basis(
