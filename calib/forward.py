@@ -79,30 +79,62 @@ def fine_axis(start_nm: float, stop_nm: float, step_nm: float = FINE_STEP_NM) ->
     return np.arange(first, last + 1, dtype=np.float64) * step_nm
 
 
-def cumulative_integral(density: FloatArray, step_nm: float) -> FloatArray:
-    """Trapezoid cumulative integral along axis 0 (first row 0), same shape as ``density``."""
-    out = np.zeros_like(density, dtype=np.float64)
-    out[1:] = np.cumsum(0.5 * (density[1:] + density[:-1]) * step_nm, axis=0)
-    return out
+@dataclass(frozen=True, eq=False)
+class PiecewiseLinearDensity:
+    """Spectral densities linear between the nodes of a uniform fine axis, integrated exactly.
 
+    The cumulative integral of a piecewise-linear density is piecewise quadratic and continuously
+    differentiable in the integration limits, so a pixel's signal varies smoothly with the mapping
+    (no kinks where a pixel edge crosses a node — the mapping refinement differentiates it).
 
-def integrate_pixels(
-    cumulative: FloatArray, axis_nm: FloatArray, edges_nm: FloatArray
-) -> FloatArray:
-    """Integral of the density between consecutive edge wavelengths, shape ``(n, ...)``.
-
-    The cumulative integral is interpolated linearly at the edges (constant beyond the axis, i.e. no
-    light outside it); the result is ``|C(λ_{k+1}) − C(λ_k)|`` so decreasing mappings work too.
+    Attributes
+    ----------
+    axis_nm
+        Uniform fine axis, shape ``(n_fine,)``.
+    density
+        Shape ``(n_fine,)`` or ``(n_fine, k)``: the density at the nodes (per nm).
+    cumulative
+        Same shape: ``∫_{axis[0]}^{axis[j]} density`` (trapezoid, exact for linear pieces).
     """
-    step = axis_nm[1] - axis_nm[0]
-    position = np.clip((edges_nm - axis_nm[0]) / step, 0.0, axis_nm.size - 1.0)
-    index = np.minimum(position.astype(np.intp), axis_nm.size - 2)
-    fraction = position - index
-    shape = (-1,) + (1,) * (cumulative.ndim - 1)
-    values = cumulative[index] + fraction.reshape(shape) * (
-        cumulative[index + 1] - cumulative[index]
-    )
-    return np.asarray(np.abs(np.diff(values, axis=0)), dtype=np.float64)
+
+    axis_nm: FloatArray
+    density: FloatArray
+    cumulative: FloatArray
+
+    @classmethod
+    def on_axis(cls, axis_nm: FloatArray, density: FloatArray) -> PiecewiseLinearDensity:
+        step = float(axis_nm[1] - axis_nm[0])
+        cumulative = np.zeros_like(density, dtype=np.float64)
+        cumulative[1:] = np.cumsum(0.5 * (density[1:] + density[:-1]) * step, axis=0)
+        return cls(axis_nm, np.asarray(density, dtype=np.float64), cumulative)
+
+    @property
+    def total(self) -> FloatArray:
+        """The integral over the whole axis, shape ``()`` or ``(k,)``."""
+        return np.asarray(self.cumulative[-1], dtype=np.float64)
+
+    def cumulative_at(self, wavelength_nm: FloatArray) -> FloatArray:
+        """Exact ``∫_{axis[0]}^{λ} density`` at each wavelength (constant beyond the axis)."""
+        step = float(self.axis_nm[1] - self.axis_nm[0])
+        last = self.axis_nm.size - 1
+        position = np.clip((np.asarray(wavelength_nm) - self.axis_nm[0]) / step, 0.0, float(last))
+        index = np.minimum(position.astype(np.intp), last - 1)
+        fraction = position - index
+        shape = (-1,) + (1,) * (self.density.ndim - 1)
+        t = fraction.reshape(shape)
+        low = self.density[index]
+        high = self.density[index + 1]
+        return np.asarray(
+            self.cumulative[index] + step * t * (low + 0.5 * (high - low) * t), dtype=np.float64
+        )
+
+    def integrate_pixels(self, edges_nm: FloatArray) -> FloatArray:
+        """Integral between consecutive edge wavelengths ``(n + 1,)``, shape ``(n, ...)``.
+
+        ``|C(λ_{k+1}) − C(λ_k)|``, so decreasing mappings work too; no light beyond the axis.
+        """
+        values = self.cumulative_at(np.asarray(edges_nm, dtype=np.float64))
+        return np.asarray(np.abs(np.diff(values, axis=0)), dtype=np.float64)
 
 
 def hat_matrix(
@@ -177,24 +209,23 @@ class LampOperators:
     ----------
     grid
         Working grid (``f`` nodes).
-    axis_nm
-        Fine axis, shape ``(n_fine,)``.
-    cumulative
-        Shape ``(n_fine, f)``: cumulative integral of ``e·φ_i`` for each node ``i``.
+    densities
+        ``e·φ_i`` for each node ``i`` on the fine axis, shape ``(n_fine, f)``.
     direct_row
         Shape ``(f,)``: ``∫ e φ_i dλ`` (the direct signal is ``direct_row @ s``).
     """
 
     grid: WavelengthGrid
-    axis_nm: FloatArray
-    cumulative: FloatArray
+    densities: PiecewiseLinearDensity
     direct_row: FloatArray
+
+    @property
+    def axis_nm(self) -> FloatArray:
+        return self.densities.axis_nm
 
     def pixel_matrix(self, edges_nm: ArrayLike) -> FloatArray:
         """``K`` of shape ``(n, f)``: ``K[p, i] = ∫_{pixel p} e φ_i dλ`` for pixel edges ``(n + 1,)``."""
-        return integrate_pixels(
-            self.cumulative, self.axis_nm, np.asarray(edges_nm, dtype=np.float64)
-        )
+        return self.densities.integrate_pixels(np.asarray(edges_nm, dtype=np.float64))
 
 
 def lamp_operators(
@@ -204,7 +235,7 @@ def lamp_operators(
 
     Raises
     ------
-    SpectrumError
+    InputError
         When the lamp spectrum does not cover the grid.
     """
     if not lamp.covers(grid):
@@ -215,9 +246,8 @@ def lamp_operators(
             source=lamp.name,
         )
     axis = fine_axis(grid.start_nm, grid.stop_nm, fine_step_nm)
-    density = lamp.at(axis)[:, None] * hat_matrix(grid, axis)
-    cumulative = cumulative_integral(density, fine_step_nm)
-    return LampOperators(grid, axis, cumulative, cumulative[-1].copy())
+    densities = PiecewiseLinearDensity.on_axis(axis, lamp.at(axis)[:, None] * hat_matrix(grid, axis))
+    return LampOperators(grid, densities, densities.total.copy())
 
 
 # ------------------------------------------------------------------------------------ blur
@@ -442,11 +472,11 @@ def render_observation(
     efficiency = _efficiency_on(grating_efficiency, axis)
     spectral_image = (lamp_values * efficiency)[:, None] * sensitivity
     edges_nm = np.asarray(mapping.wavelength_nm(pixel_edges(pixels)), dtype=np.float64)
-    unblurred = integrate_pixels(cumulative_integral(spectral_image, fine_step_nm), axis, edges_nm)
+    unblurred = PiecewiseLinearDensity.on_axis(axis, spectral_image).integrate_pixels(edges_nm)
     clean_profile = apply_blur(unblurred, blur_kernel(slit_width_px, psf_sigma_px))
     clean_direct = (
         direct_throughput
-        * cumulative_integral(lamp_values[:, None] * sensitivity, fine_step_nm)[-1]
+        * PiecewiseLinearDensity.on_axis(axis, lamp_values[:, None] * sensitivity).total
     )
     profile, direct = clean_profile, clean_direct
     profile_sigma: FloatArray | None = None
