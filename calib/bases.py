@@ -1,0 +1,417 @@
+"""Bases for the unknowns: per-channel SVD bases of camera sensitivities, a Fourier basis for 1/η.
+
+Makabe et al. (2025) write each channel's sensitivity as ``s_c = B_s,c c_s,c`` with ``B_s,c`` the
+leading right-singular vectors of the training cameras' channel-``c`` curves (each camera divided by
+its maximum over all channels, no mean-centring), and the inverse grating efficiency as
+``η⁻¹ = B_η c_η`` with a Fourier basis (Supp. E). The mean training sensitivity ``ŝ`` is used to find
+the pixel→wavelength mapping (§3.2).
+
+Bases are cheap to compute but the camera sets they come from are not, so a basis is cached on disk
+(``.npz``, loaded without pickle) under the user cache directory, keyed by a hash of its content.
+
+Without the measured camera collections, :func:`fallback_camera_basis` builds a basis from
+colour-science's built-in curves only (its cameras, CIE colour-matching functions and cone
+fundamentals turned into camera-like curves, and physically plausible perturbations of them), so the
+estimator works on a fresh clone. Results record which basis was used (:attr:`CameraBasis.source`).
+
+References
+----------
+Makabe et al. (2025), §3.1 and Supp. E; Jiang, Liu, Gu, Süsstrunk (2013), "What is the space of
+spectral sensitivity functions for digital color cameras?", WACV.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import platformdirs
+from numpy.typing import ArrayLike, NDArray
+
+from calib.errors import InputError
+from calib.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
+
+FloatArray = NDArray[np.float64]
+FourierConvention = Literal["paired", "paper"]
+
+#: Number of basis vectors per channel used by the paper (and by default here).
+DEFAULT_N_VECTORS = 7
+
+#: Bumped whenever the cached content's meaning changes.
+_CACHE_FORMAT = "camera-basis-v1"
+
+
+def default_cache_dir() -> Path:
+    """``platformdirs.user_cache_dir("spectral-rig")`` — never inside the repository."""
+    return Path(platformdirs.user_cache_dir("spectral-rig"))
+
+
+@dataclass(frozen=True, eq=False)
+class CameraBasis:
+    """A per-channel linear basis of camera sensitivities on one wavelength grid.
+
+    Attributes
+    ----------
+    grid
+        The working grid (``f`` wavelengths).
+    vectors
+        Shape ``(3, f, k)``: basis vectors per channel (R, G, B), orthonormal columns.
+    mean
+        Shape ``(f, 3)``: the mean (max-normalised) training sensitivity ``ŝ``.
+    singular_values
+        Shape ``(3, k)``.
+    source
+        Human-readable origin, e.g. ``"solomatov-akkaynak-2023 (Makabe 2025 train split, 44)"``.
+    camera_names
+        The training cameras.
+    content_hash
+        SHA-256 of the training curves, grid and ``k`` (the cache key).
+    """
+
+    grid: WavelengthGrid
+    vectors: FloatArray
+    mean: FloatArray
+    singular_values: FloatArray
+    source: str
+    camera_names: tuple[str, ...]
+    content_hash: str
+
+    @property
+    def n_vectors(self) -> int:
+        return int(self.vectors.shape[2])
+
+    def channel(self, index: int) -> FloatArray:
+        """Basis matrix ``B_s,c`` of shape ``(f, k)`` for channel ``index`` (0 = R, 1 = G, 2 = B)."""
+        return np.asarray(self.vectors[index], dtype=np.float64)
+
+    def project(self, sensitivity: ArrayLike) -> FloatArray:
+        """Least-squares fit of curves ``(f, 3)`` in the basis span; returns the fitted ``(f, 3)``."""
+        curves = np.asarray(sensitivity, dtype=np.float64)
+        if curves.shape != (self.grid.size, 3):
+            raise InputError(
+                f"expected shape ({self.grid.size}, 3) on grid {self.grid}, got {curves.shape}",
+                source="sensitivity",
+            )
+        fitted = [self.vectors[c] @ (self.vectors[c].T @ curves[:, c]) for c in range(3)]
+        return np.stack(fitted, axis=1)
+
+    def to_dict(self) -> dict[str, object]:
+        """A JSON-safe summary (not the vectors: they may derive from unlicensed data)."""
+        return {
+            "source": self.source,
+            "grid": str(self.grid),
+            "n_vectors": self.n_vectors,
+            "n_cameras": len(self.camera_names),
+            "cameras": list(self.camera_names),
+            "content_hash": self.content_hash,
+        }
+
+
+def _as_curve_stack(
+    cameras: Sequence[MultiSpectrum] | ArrayLike, grid: WavelengthGrid
+) -> FloatArray:
+    """Curves of shape ``(n_cameras, f, 3)`` on ``grid``, each divided by its overall maximum."""
+    if isinstance(cameras, Sequence) and cameras and isinstance(cameras[0], MultiSpectrum):
+        stack = np.stack(
+            [
+                camera.resample(grid, "interpolate", out_of_range="zero").values  # type: ignore[union-attr]
+                for camera in cameras
+            ]
+        )
+    else:
+        stack = np.array(cameras, dtype=np.float64)
+    if stack.ndim != 3 or stack.shape[1:] != (grid.size, 3):
+        raise InputError(
+            f"camera curves must have shape (n_cameras, {grid.size}, 3) on grid {grid}, "
+            f"got {stack.shape}",
+            source="basis cameras",
+        )
+    peaks = stack.reshape(stack.shape[0], -1).max(axis=1)
+    if np.any(peaks <= 0) or not np.all(np.isfinite(stack)):
+        raise InputError("a camera curve is all zero or not finite", source="basis cameras")
+    return np.asarray(stack / peaks[:, None, None], dtype=np.float64)
+
+
+def _content_hash(curves: FloatArray, grid: WavelengthGrid, n_vectors: int) -> str:
+    digest = hashlib.sha256()
+    digest.update(f"{_CACHE_FORMAT}|{grid}|{n_vectors}|{curves.shape}".encode())
+    digest.update(np.ascontiguousarray(curves, dtype="<f8").tobytes())
+    return digest.hexdigest()
+
+
+def _load_cached(path: Path) -> dict[str, FloatArray] | None:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: np.asarray(data[key]) for key in ("vectors", "mean", "singular_values")}
+    except (OSError, KeyError, ValueError):
+        return None  # a missing or damaged cache entry is recomputed
+
+
+def _store_cached(path: Path, arrays: dict[str, FloatArray]) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = path.with_name(f".{path.name}.{np.random.default_rng().integers(1 << 30)}.tmp")
+        with temporary.open("wb") as handle:
+            np.savez(handle, **arrays)  # type: ignore[arg-type]
+        temporary.replace(path)
+    except OSError:
+        pass  # a read-only cache only costs recomputation
+
+
+def camera_basis(
+    cameras: Sequence[MultiSpectrum] | ArrayLike,
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    n_vectors: int = DEFAULT_N_VECTORS,
+    source: str = "custom",
+    camera_names: Sequence[str] | None = None,
+    cache: bool = True,
+    cache_dir: Path | None = None,
+) -> CameraBasis:
+    """Per-channel SVD basis of a set of cameras (Makabe et al. 2025, §3.1).
+
+    Parameters
+    ----------
+    cameras
+        ``MultiSpectrum`` sensitivities (any grid, resampled with zero fill outside their range),
+        or an array ``(n_cameras, f, 3)`` already on ``grid``.
+    grid
+        The working grid.
+    n_vectors
+        Basis vectors per channel ``k`` (1 ≤ k ≤ min(n_cameras, f)).
+    source
+        Where the cameras come from (recorded in results).
+    camera_names
+        Names of the cameras (defaults to the spectra's names).
+    cache, cache_dir
+        Cache the result as ``<cache_dir>/bases/<hash>.npz`` (default: :func:`default_cache_dir`).
+
+    Returns
+    -------
+    CameraBasis
+    """
+    curves = _as_curve_stack(cameras, grid)
+    n_cameras = curves.shape[0]
+    if not 1 <= n_vectors <= min(n_cameras, grid.size):
+        raise InputError(
+            f"n_vectors must be between 1 and min(n_cameras={n_cameras}, f={grid.size}), "
+            f"got {n_vectors}",
+            source="n_vectors",
+        )
+    if camera_names is None:
+        camera_names = [
+            camera.name if isinstance(camera, MultiSpectrum) else f"camera {index}"
+            for index, camera in enumerate(
+                cameras if isinstance(cameras, Sequence) else range(n_cameras)
+            )
+        ]
+    key = _content_hash(curves, grid, n_vectors)
+    path = (cache_dir or default_cache_dir()) / "bases" / f"{key}.npz"
+    arrays = _load_cached(path) if cache else None
+    if arrays is None:
+        vectors = np.empty((3, grid.size, n_vectors))
+        singular_values = np.empty((3, n_vectors))
+        for channel in range(3):
+            _, sigma, vt = np.linalg.svd(curves[:, :, channel], full_matrices=False)
+            basis = vt[:n_vectors].T
+            # Deterministic signs: each vector's largest-magnitude entry is positive.
+            signs = np.sign(basis[np.argmax(np.abs(basis), axis=0), np.arange(n_vectors)])
+            vectors[channel] = basis * np.where(signs == 0, 1.0, signs)
+            singular_values[channel] = sigma[:n_vectors]
+        arrays = {
+            "vectors": vectors,
+            "mean": curves.mean(axis=0),
+            "singular_values": singular_values,
+        }
+        if cache:
+            _store_cached(path, arrays)
+    return CameraBasis(
+        grid=grid,
+        vectors=_frozen(arrays["vectors"]),
+        mean=_frozen(arrays["mean"]),
+        singular_values=_frozen(arrays["singular_values"]),
+        source=source,
+        camera_names=tuple(camera_names),
+        content_hash=key,
+    )
+
+
+def _frozen(array: FloatArray) -> FloatArray:
+    out = np.array(array, dtype=np.float64)
+    out.flags.writeable = False
+    return out
+
+
+def fourier_basis(
+    grid: WavelengthGrid = DEFAULT_GRID,
+    n_terms: int = DEFAULT_N_VECTORS,
+    *,
+    convention: FourierConvention = "paired",
+) -> FloatArray:
+    """Fourier basis ``B_η`` for the inverse grating efficiency (Makabe et al. 2025, Supp. E).
+
+    Parameters
+    ----------
+    grid
+        The working grid; ``t_i = (λ_i − λ_l) / (λ_u − λ_l)`` runs from 0 to 1 over it.
+    n_terms
+        Number of basis vectors ``b_η`` (≥ 1).
+    convention
+        ``"paired"`` (default): ``1, cos 2πt, sin 2πt, cos 4πt, sin 4πt, …`` — the usual real
+        Fourier series, a cosine and a sine per frequency. ``"paper"``: Supp. Eq. 7 as printed,
+        ``b_k = cos(2πk f_i)`` for odd k, ``sin(2πk f_i)`` for even k, with ``f_i = λ_i/(λ_u − λ_l)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(f, n_terms)``.
+    """
+    if n_terms < 1:
+        raise InputError(f"need at least one Fourier term, got {n_terms}", source="n_terms")
+    wavelength = grid.wavelength_nm
+    span = grid.stop_nm - grid.start_nm
+    columns = [np.ones_like(wavelength)]
+    if convention == "paired":
+        position = (wavelength - grid.start_nm) / span
+        for k in range(1, n_terms):
+            frequency = (k + 1) // 2
+            trig = np.cos if k % 2 == 1 else np.sin
+            columns.append(trig(2 * np.pi * frequency * position))
+    elif convention == "paper":
+        position = wavelength / span
+        for k in range(1, n_terms):
+            trig = np.cos if k % 2 == 1 else np.sin
+            columns.append(trig(2 * np.pi * k * position))
+    else:
+        raise InputError(f"unknown convention {convention!r}; use 'paired' or 'paper'")
+    return np.stack(columns, axis=1)
+
+
+# ------------------------------------------------------------------------- offline fallback basis
+
+
+def _colour_camera_like_curves() -> list[MultiSpectrum]:
+    """Camera-like RGB curves from data that ships inside colour-science (no download)."""
+    import colour  # deferred: importing colour costs ~1 s
+
+    from calib.datasets import colour_science_cameras
+
+    curves: list[MultiSpectrum] = [camera.sensitivity for camera in colour_science_cameras()]
+    cmfs = colour.MSDS_CMFS
+
+    def from_columns(key: str, name: str, transform: FloatArray | None = None) -> MultiSpectrum:
+        data = cmfs[key]
+        values = np.asarray(data.values, dtype=np.float64)
+        if transform is not None:
+            values = values @ transform.T
+        values = np.clip(values, 0.0, None)
+        return MultiSpectrum(np.asarray(data.wavelengths, dtype=np.float64), values, name=name)
+
+    # XYZ: drop x̄'s short-wavelength lobe so the "red" channel looks like a red filter.
+    for key, label in (
+        ("CIE 1931 2 Degree Standard Observer", "CIE 1931 XYZ camera-like"),
+        ("CIE 1964 10 Degree Standard Observer", "CIE 1964 XYZ camera-like"),
+        ("CIE 2015 2 Degree Standard Observer", "CIE 2015 2° XYZ camera-like"),
+    ):
+        data = cmfs[key]
+        wavelength = np.asarray(data.wavelengths, dtype=np.float64)
+        values = np.array(data.values, dtype=np.float64)
+        values[wavelength < 505, 0] = 0.0
+        curves.append(MultiSpectrum(wavelength, np.clip(values, 0, None), name=label))
+    for key, label in (
+        ("Stockman & Sharpe 2 Degree Cone Fundamentals", "LMS 2° camera-like"),
+        ("Stockman & Sharpe 10 Degree Cone Fundamentals", "LMS 10° camera-like"),
+        ("Smith & Pokorny 1975 Normal Trichromats", "Smith-Pokorny LMS camera-like"),
+    ):
+        # Sharpen L and M apart (cameras' R and G overlap far less than cones do).
+        sharpen = np.array([[1.6, -0.6, 0.0], [-0.35, 1.35, 0.0], [0.0, 0.0, 1.0]])
+        curves.append(from_columns(key, label, sharpen))
+    for key, label in (
+        ("Wright & Guild 1931 2 Degree RGB CMFs", "Wright-Guild RGB camera-like"),
+        ("Stiles & Burch 1955 2 Degree RGB CMFs", "Stiles-Burch 2° RGB camera-like"),
+        ("Stiles & Burch 1959 10 Degree RGB CMFs", "Stiles-Burch 10° RGB camera-like"),
+    ):
+        curves.append(from_columns(key, label))
+    return curves
+
+
+def _perturbed(camera: MultiSpectrum, grid: WavelengthGrid, rng: np.random.Generator) -> FloatArray:
+    """One plausible variant of a camera on ``grid``: shifted/stretched channels, filters, tilt."""
+    wavelength = grid.wavelength_nm
+    out = np.empty((grid.size, 3))
+    for channel in range(3):
+        curve = camera.values[:, channel]
+        peak_nm = camera.wavelength_nm[int(np.argmax(curve))]
+        shift_nm = rng.uniform(-10.0, 10.0)
+        stretch = rng.uniform(0.88, 1.12)
+        source_nm = peak_nm + (wavelength - peak_nm - shift_nm) / stretch
+        out[:, channel] = np.interp(source_nm, camera.wavelength_nm, curve, left=0.0, right=0.0)
+    ir_cut_nm = rng.uniform(630.0, 700.0)
+    uv_cut_nm = rng.uniform(385.0, 420.0)
+    ir = 1.0 / (1.0 + np.exp((wavelength - ir_cut_nm) / rng.uniform(6.0, 15.0)))
+    uv = 1.0 / (1.0 + np.exp(-(wavelength - uv_cut_nm) / rng.uniform(4.0, 10.0)))
+    tilt = 1.0 + rng.uniform(-0.3, 0.3) * (wavelength - 550.0) / 150.0
+    gains = rng.uniform(0.6, 1.0, size=3)
+    return np.clip(out * (ir * uv * np.clip(tilt, 0.2, None))[:, None] * gains[None, :], 0, None)
+
+
+def fallback_camera_basis(
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    n_vectors: int = DEFAULT_N_VECTORS,
+    exclude: Sequence[str] = (),
+    variants_per_curve: int = 12,
+    seed: int = 2025,
+    cache: bool = True,
+    cache_dir: Path | None = None,
+) -> CameraBasis:
+    """A camera basis from colour-science's built-in curves only (works offline, no dataset).
+
+    Parameters
+    ----------
+    grid, n_vectors
+        As for :func:`camera_basis`.
+    exclude
+        Names (case-insensitive substrings) of curves to leave out, e.g. the camera under test
+        (``"Nikon 5100"``), so that a test does not see its own answer in the basis.
+    variants_per_curve
+        Perturbed variants generated per base curve (shifts ±10 nm, width ±12 %, IR/UV cut-off
+        filters, a spectral tilt, channel gains), seeded.
+    seed
+        Seed of the perturbations.
+    """
+    excluded = [name.lower() for name in exclude]
+    bases = [
+        curve
+        for curve in _colour_camera_like_curves()
+        if not any(token in curve.name.lower() for token in excluded)
+    ]
+    if not bases:
+        raise InputError(f"exclude={list(exclude)} leaves no built-in curve", source="exclude")
+    rng = np.random.default_rng(seed)
+    stack: list[FloatArray] = []
+    names: list[str] = []
+    for camera in bases:
+        stack.append(camera.resample(grid, "interpolate", out_of_range="zero").values)
+        names.append(camera.name)
+        for index in range(variants_per_curve):
+            stack.append(_perturbed(camera, grid, rng))
+            names.append(f"{camera.name} variant {index + 1}")
+    label = (
+        f"colour-science built-ins + perturbations ({len(bases)} curves × {variants_per_curve + 1})"
+    )
+    if excluded:
+        label += f", excluding {', '.join(exclude)}"
+    return camera_basis(
+        np.stack(stack),
+        grid=grid,
+        n_vectors=n_vectors,
+        source=label,
+        camera_names=names,
+        cache=cache,
+        cache_dir=cache_dir,
+    )

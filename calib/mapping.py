@@ -1,0 +1,821 @@
+"""Pixel→wavelength mappings: the quadratic model, grating physics, and how to find the mapping.
+
+Types
+    :class:`QuadraticMapping` ``g(p) = a p² + b p + c`` (Makabe et al. 2025, Eq. 13) with its inverse,
+    how it was found and an estimate of its error; :class:`GratingGeometry`, the physical first order
+    at normal incidence (``sin θ = λ/d``, pixel offset ``f_px·tan θ``) with its quadratic
+    approximation. Both serialise with ``to_dict``/``from_dict``.
+
+Estimators
+    :func:`mapping_from_peaks` — a fluorescent lamp: emission lines found in the lamp's *measured*
+    spectrum (weighted by the mean camera ŝ), sub-pixel peaks in the profile, a robust monotonic match
+    (wrong or missing peaks are outliers), least squares. :func:`coarse_mapping_candidates` — any lamp:
+    a global search over dispersion and offset by normalised cross-correlation of the profile with
+    ``ŝ ⊙ e`` (the paper's Eq. 15 compares the same two curves with ICP from a flat start).
+    :func:`refine_mapping` — least squares on ``(a, b, c)`` of any residual function of the mapping,
+    used with the closed-form solve's own residual by :mod:`calib.makabe2025`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage, optimize, signal
+
+from calib.errors import EstimationError, InputError
+from calib.forward import fine_axis, hat_matrix
+from calib.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
+
+FloatArray = NDArray[np.float64]
+
+#: Known emission lines of fluorescent lamps (nm), used to label peaks found in a measured spectrum.
+FLUORESCENT_LINES_NM: Mapping[str, float] = {
+    "Hg 404.7": 404.66,
+    "Hg 435.8": 435.83,
+    "Tb 487.7": 487.7,
+    "Tb 542.4": 542.4,
+    "Hg 546.1": 546.07,
+    "Hg 577.0": 576.96,
+    "Hg 579.1": 579.07,
+    "Eu 611.6": 611.6,
+}
+
+
+# ---------------------------------------------------------------------------------------- types
+
+
+@dataclass(frozen=True)
+class QuadraticMapping:
+    """``λ = g(p) = a p² + b p + c`` (nm), Makabe et al. (2025) Eq. 13.
+
+    Attributes
+    ----------
+    a, b, c
+        Coefficients (nm/px², nm/px, nm).
+    method
+        How it was found (``"given"``, ``"fluorescent-peaks"``, ``"led-search"``, ``"geometry"`` …).
+    pixel_range
+        ``(p_min, p_max)`` over which it was fitted / is valid.
+    covariance
+        3×3 covariance of ``(a, b, c)`` from the fit, or ``None``.
+    wavelength_rms_nm
+        Estimated RMS wavelength error over ``pixel_range`` (from the covariance), or ``None``.
+    details
+        Diagnostics of the estimation (JSON-safe).
+    """
+
+    a: float
+    b: float
+    c: float
+    method: str = "given"
+    pixel_range: tuple[float, float] | None = None
+    covariance: tuple[tuple[float, float, float], ...] | None = None
+    wavelength_rms_nm: float | None = None
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not all(math.isfinite(v) for v in (self.a, self.b, self.c)):
+            raise InputError(
+                f"mapping coefficients must be finite, got {self.coefficients}", source="mapping"
+            )
+
+    @property
+    def coefficients(self) -> tuple[float, float, float]:
+        return (self.a, self.b, self.c)
+
+    def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
+        """``g(p)`` in nm."""
+        p = np.asarray(pixel, dtype=np.float64)
+        return np.asarray((self.a * p + self.b) * p + self.c, dtype=np.float64)
+
+    def dispersion_nm_per_px(self, pixel: ArrayLike) -> FloatArray:
+        """``g'(p)``."""
+        return np.asarray(
+            2 * self.a * np.asarray(pixel, dtype=np.float64) + self.b, dtype=np.float64
+        )
+
+    def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
+        """Inverse ``g⁻¹(λ)``: the root on the branch where ``g`` is monotonic over ``pixel_range``."""
+        wavelength = np.asarray(wavelength_nm, dtype=np.float64)
+        if abs(self.a) < 1e-15 * max(abs(self.b), 1e-300):
+            return np.asarray((wavelength - self.c) / self.b, dtype=np.float64)
+        reference = 0.0 if self.pixel_range is None else 0.5 * sum(self.pixel_range)
+        slope_sign = np.sign(2 * self.a * reference + self.b) or 1.0
+        discriminant = self.b**2 - 4 * self.a * (self.c - wavelength)
+        root = np.sqrt(np.clip(discriminant, 0.0, None))
+        # Stable form of (−b ± √D) / 2a choosing the branch with g' of the right sign.
+        return np.asarray((-self.b + slope_sign * root) / (2 * self.a), dtype=np.float64)
+
+    def with_details(self, **changes: Any) -> QuadraticMapping:
+        """A copy with fields replaced (``method``, ``covariance`` …)."""
+        values = {**self.to_dict(), **changes}
+        return QuadraticMapping.from_dict(values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "type": "quadratic",
+            "a": self.a,
+            "b": self.b,
+            "c": self.c,
+            "method": self.method,
+            "pixel_range": list(self.pixel_range) if self.pixel_range else None,
+            "covariance": [list(row) for row in self.covariance] if self.covariance else None,
+            "wavelength_rms_nm": self.wavelength_rms_nm,
+            "details": dict(self.details),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> QuadraticMapping:
+        try:
+            covariance = data.get("covariance")
+            pixel_range = data.get("pixel_range")
+            return cls(
+                a=float(data["a"]),
+                b=float(data["b"]),
+                c=float(data["c"]),
+                method=str(data.get("method", "given")),
+                pixel_range=(float(pixel_range[0]), float(pixel_range[1])) if pixel_range else None,
+                covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in covariance)
+                if covariance
+                else None,
+                wavelength_rms_nm=None
+                if data.get("wavelength_rms_nm") is None
+                else float(data["wavelength_rms_nm"]),
+                details=dict(data.get("details") or {}),
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(f"not a quadratic mapping record ({exc})", source="mapping") from None
+
+    @classmethod
+    def fit(
+        cls,
+        pixel: ArrayLike,
+        wavelength_nm: ArrayLike,
+        *,
+        weights: ArrayLike | None = None,
+        method: str = "fit",
+        degree: int = 2,
+    ) -> QuadraticMapping:
+        """Weighted least-squares quadratic (or line, ``degree=1``) through ``(pixel, wavelength)`` pairs.
+
+        Needs ``degree + 1`` points; the covariance of ``(a, b, c)`` is attached when there are more.
+        """
+        p = np.asarray(pixel, dtype=np.float64)
+        lam = np.asarray(wavelength_nm, dtype=np.float64)
+        if degree not in (1, 2) or p.size < degree + 1 or p.shape != lam.shape:
+            raise EstimationError(
+                f"a degree-{degree} mapping needs ≥ {degree + 1} matched points, got {p.size}"
+            )
+        w = np.ones_like(p) if weights is None else np.asarray(weights, dtype=np.float64)
+        design = np.stack([p**2, p, np.ones_like(p)], axis=1)
+        used = design[:, 2 - degree :]
+        partial, *_ = np.linalg.lstsq(used * w[:, None], lam * w, rcond=None)
+        coef = np.concatenate([np.zeros(2 - degree), partial])
+        residual = lam - design @ coef
+        dof = p.size - (degree + 1)
+        variance = float(np.sum((w * residual) ** 2) / dof) if dof > 0 else float("nan")
+        normal = used.T @ (used * (w**2)[:, None])
+        covariance = None
+        if dof > 0:
+            covariance = np.zeros((3, 3))
+            covariance[2 - degree :, 2 - degree :] = np.linalg.pinv(normal) * variance
+        span = (float(p.min()), float(p.max()))
+        mapping = cls(
+            float(coef[0]), float(coef[1]), float(coef[2]), method=method, pixel_range=span
+        )
+        if covariance is None:
+            return mapping
+        return mapping.with_details(
+            covariance=[list(row) for row in covariance],
+            wavelength_rms_nm=wavelength_rms_from_covariance(covariance, span),
+        )
+
+
+def wavelength_rms_from_covariance(
+    covariance: ArrayLike, pixel_range: tuple[float, float]
+) -> float:
+    """RMS over ``pixel_range`` of the standard deviation of ``g(p)`` given the covariance of (a, b, c)."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    p = np.linspace(pixel_range[0], pixel_range[1], 64)
+    design = np.stack([p**2, p, np.ones_like(p)], axis=1)
+    variance = np.einsum("ij,jk,ik->i", design, cov, design)
+    return float(np.sqrt(np.mean(np.clip(variance, 0, None))))
+
+
+@dataclass(frozen=True)
+class GratingGeometry:
+    """A transmission grating in front of the camera lens, first order, normal incidence.
+
+    ``sin θ = λ/d`` with ``d = 1/grooves_per_mm``; the image of direction θ lands at
+    ``p = direct_spot_px + f_px tan θ`` with ``f_px = focal_length_mm / pixel_pitch_mm`` (camera focused
+    on the slit, far away). The slit's image is ``slit_width_mm · focal_length_mm / slit_distance_mm``
+    wide on the sensor.
+
+    Attributes
+    ----------
+    grooves_per_mm
+        Grating line density (e.g. 500 or 1000).
+    focal_length_mm
+        Lens focal length.
+    pixel_pitch_um
+        Sensor pixel pitch (for a profile in CFA-plane pixels use twice the photosite pitch).
+    direct_spot_px
+        Pixel coordinate of the direct (0th-order) spot along the dispersion direction.
+    slit_distance_mm, slit_width_mm
+        Distance slit→grating and slit width, for the slit image width (optional).
+    """
+
+    grooves_per_mm: float
+    focal_length_mm: float
+    pixel_pitch_um: float
+    direct_spot_px: float = 0.0
+    slit_distance_mm: float | None = None
+    slit_width_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("grooves_per_mm", "focal_length_mm", "pixel_pitch_um"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(
+                    f"must be a positive number, got {value}", source=f"grating.{name}"
+                )
+
+    @property
+    def focal_length_px(self) -> float:
+        return self.focal_length_mm / (self.pixel_pitch_um * 1e-3)
+
+    @property
+    def slit_image_width_px(self) -> float | None:
+        if self.slit_distance_mm is None or self.slit_width_mm is None:
+            return None
+        return (
+            self.slit_width_mm
+            * self.focal_length_mm
+            / self.slit_distance_mm
+            / (self.pixel_pitch_um * 1e-3)
+        )
+
+    def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
+        """Exact pixel of each wavelength (first order)."""
+        sine = np.asarray(wavelength_nm, dtype=np.float64) * 1e-6 * self.grooves_per_mm
+        if np.any(np.abs(sine) >= 1):
+            raise InputError(
+                "a wavelength has no first order at this groove density (λ ≥ d)", source="grating"
+            )
+        return np.asarray(
+            self.direct_spot_px + self.focal_length_px * np.tan(np.arcsin(sine)), dtype=np.float64
+        )
+
+    def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
+        """Exact wavelength at each pixel (the inverse of :meth:`pixel_at`)."""
+        offset = (np.asarray(pixel, dtype=np.float64) - self.direct_spot_px) / self.focal_length_px
+        return np.asarray(
+            np.sin(np.arctan(offset)) / (self.grooves_per_mm * 1e-6), dtype=np.float64
+        )
+
+    def quadratic(
+        self, wavelength_range_nm: tuple[float, float] = (380.0, 720.0)
+    ) -> QuadraticMapping:
+        """Least-squares quadratic approximation over the pixels of ``wavelength_range_nm``."""
+        lo, hi = self.pixel_at(np.array(wavelength_range_nm))
+        pixels = np.linspace(min(lo, hi), max(lo, hi), 256)
+        fitted = QuadraticMapping.fit(pixels, self.wavelength_nm(pixels), method="geometry")
+        return QuadraticMapping(
+            fitted.a,
+            fitted.b,
+            fitted.c,
+            method="geometry",
+            pixel_range=fitted.pixel_range,
+            details={"geometry": self.to_dict()},
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "type": "grating",
+            "grooves_per_mm": self.grooves_per_mm,
+            "focal_length_mm": self.focal_length_mm,
+            "pixel_pitch_um": self.pixel_pitch_um,
+            "direct_spot_px": self.direct_spot_px,
+            "slit_distance_mm": self.slit_distance_mm,
+            "slit_width_mm": self.slit_width_mm,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> GratingGeometry:
+        try:
+            optional = {k: data.get(k) for k in ("slit_distance_mm", "slit_width_mm")}
+            return cls(
+                grooves_per_mm=float(data["grooves_per_mm"]),
+                focal_length_mm=float(data["focal_length_mm"]),
+                pixel_pitch_um=float(data["pixel_pitch_um"]),
+                direct_spot_px=float(data.get("direct_spot_px", 0.0)),
+                **{k: None if v is None else float(v) for k, v in optional.items()},
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"not a grating geometry record ({exc})", source="grating") from None
+
+
+def mapping_from_dict(data: Mapping[str, Any]) -> QuadraticMapping | GratingGeometry:
+    """Read either mapping type from its ``to_dict`` form."""
+    kind = data.get("type")
+    if kind == "quadratic":
+        return QuadraticMapping.from_dict(data)
+    if kind == "grating":
+        return GratingGeometry.from_dict(data)
+    raise InputError(
+        f"unknown mapping type {kind!r}; expected 'quadratic' or 'grating'", source="mapping"
+    )
+
+
+# ------------------------------------------------------------------------------ peak matching
+
+
+@dataclass(frozen=True)
+class Peak:
+    """A peak: position (nm or px), height and prominence, with a line label when known."""
+
+    position: float
+    height: float
+    prominence: float
+    label: str | None = None
+
+
+def _centroid_peak(values: FloatArray, index: int, half_width: int) -> float:
+    """Centroid of the samples above half the peak's height, around ``index`` (in samples)."""
+    lo = max(index - half_width, 0)
+    hi = min(index + half_width + 1, values.size)
+    window = values[lo:hi]
+    base = float(np.min(window))
+    level = base + 0.5 * (values[index] - base)
+    weights = np.clip(window - level, 0.0, None)
+    # Keep only the connected run around the maximum.
+    centre = index - lo
+    left = centre
+    while left > 0 and weights[left - 1] > 0:
+        left -= 1
+    right = centre
+    while right < weights.size - 1 and weights[right + 1] > 0:
+        right += 1
+    run = weights[left : right + 1]
+    if run.sum() <= 0:
+        return float(index)
+    return float(lo + left + np.sum(run * np.arange(run.size)) / run.sum())
+
+
+def _line_excess(values: FloatArray, window: int) -> FloatArray:
+    """What rises above a grey opening of ``window`` samples: narrow lines without broad bands."""
+    size = max(3, window | 1)
+    return np.asarray(
+        values - ndimage.grey_opening(values, size=size, mode="nearest"), dtype=np.float64
+    )
+
+
+def lamp_lines(
+    lamp: Spectrum,
+    weight: Callable[[FloatArray], FloatArray] | None = None,
+    *,
+    min_prominence: float = 0.02,
+    max_lines: int = 12,
+    range_nm: tuple[float, float] = (380.0, 720.0),
+    line_width_nm: float = 20.0,
+) -> list[Peak]:
+    """Emission lines in a lamp's measured spectrum (optionally weighted, e.g. by ŝ), strongest first.
+
+    The spectrum is interpolated to 0.25 nm (as the renderer and the solve see it), broad bands are
+    removed (a grey opening ``line_width_nm`` wide) and each line's position is the centroid of its
+    upper half — the same procedure :func:`profile_peaks` applies in pixels, so both sides locate a
+    line the same way. Lines within 2 nm of :data:`FLUORESCENT_LINES_NM` are labelled.
+    """
+    # Resample to a fine axis (linear interpolation, as the renderer and the solve do) so the line
+    # shapes, and hence their centroids, are those the profile shows.
+    step_nm = 0.25
+    wavelength = np.arange(
+        max(range_nm[0], lamp.range_nm[0]), min(range_nm[1], lamp.range_nm[1]), step_nm
+    )
+    values = lamp.at(wavelength) * (weight(wavelength) if weight is not None else 1.0)
+    excess = _line_excess(values, int(np.ceil(line_width_nm / step_nm)))
+    if wavelength.size < 3 or float(excess.max()) <= 0:
+        raise EstimationError(f"lamp {lamp.name!r} shows no emission lines in {range_nm} nm")
+    indices, properties = signal.find_peaks(excess, prominence=min_prominence * float(excess.max()))
+    order = np.argsort(properties["prominences"])[::-1][:max_lines]
+    peaks: list[Peak] = []
+    for k in order:
+        index = int(indices[k])
+        half_width = int(np.ceil(line_width_nm / step_nm))
+        position = wavelength[0] + step_nm * _centroid_peak(excess, index, half_width)
+        label = min(
+            FLUORESCENT_LINES_NM, key=lambda name: abs(FLUORESCENT_LINES_NM[name] - position)
+        )
+        known = abs(FLUORESCENT_LINES_NM[label] - position) <= 2.0
+        peaks.append(
+            Peak(
+                float(position),
+                float(excess[index]),
+                float(properties["prominences"][k]),
+                label if known else None,
+            )
+        )
+    return peaks
+
+
+def profile_peaks(
+    pixel: FloatArray,
+    profile: FloatArray,
+    *,
+    line_width_px: float,
+    min_prominence: float = 0.02,
+    max_peaks: int = 20,
+) -> list[Peak]:
+    """Sub-pixel line peaks of a profile ``(n, 3)`` (channels summed, broad bands removed).
+
+    ``line_width_px``: lines narrower than this many pixels are kept (≈ 20 nm at the dispersion).
+    """
+    combined = np.sum(profile, axis=1)
+    smoothing = max(line_width_px / 40.0, 0.5)
+    smooth = ndimage.gaussian_filter1d(combined, smoothing, mode="nearest")
+    excess = _line_excess(smooth, int(np.ceil(line_width_px)))
+    if float(excess.max()) <= 0:
+        return []
+    indices, properties = signal.find_peaks(excess, prominence=min_prominence * float(excess.max()))
+    order = np.argsort(properties["prominences"])[::-1][:max_peaks]
+    step = np.gradient(pixel)
+    peaks = []
+    for k in order:
+        index = int(indices[k])
+        half_width = max(int(line_width_px), 3)
+        position = pixel[index] + (_centroid_peak(excess, index, half_width) - index) * step[index]
+        peaks.append(
+            Peak(float(position), float(excess[index]), float(properties["prominences"][k]))
+        )
+    return peaks
+
+
+def nominal_dispersion(
+    pixel: FloatArray,
+    profile: FloatArray,
+    model_nm: FloatArray,
+    model: FloatArray,
+    level: float = 0.02,
+) -> float:
+    """nm per pixel-coordinate unit that makes the lit part of the model fit the lit part of the profile."""
+    profile_total = np.sum(np.clip(profile, 0, None), axis=1)
+    model_total = np.sum(model, axis=1) if model.ndim == 2 else model
+    lit = np.flatnonzero(profile_total > level * float(profile_total.max()))
+    model_lit = model_nm[model_total > level * float(model_total.max())]
+    if lit.size < 8 or model_lit.size < 2:
+        raise EstimationError("the profile or the lamp × camera model has too little signal to map")
+    support_px = float(pixel[lit[-1]] - pixel[lit[0]]) + float(np.median(np.diff(pixel)))
+    return float(model_lit[-1] - model_lit[0]) / support_px
+
+
+def match_peaks(
+    lines: Sequence[Peak],
+    peaks: Sequence[Peak],
+    *,
+    pixel_range: tuple[float, float],
+    dispersion_range_nm_per_px: tuple[float, float] = (0.02, 20.0),
+    tolerance_nm: float = 1.5,
+    allow_reversed: bool = False,
+) -> tuple[QuadraticMapping, list[tuple[Peak, Peak]]]:
+    """Robustly match lamp lines (nm) to profile peaks (px) and fit the quadratic mapping.
+
+    Pairs and triples of the strongest lines matched to pairs and triples of the strongest peaks
+    propose linear and quadratic mappings; each admissible one (monotonic, dispersion in range) is
+    scored by a soft inlier count — every line weighted by its strength and by how close a peak lands
+    (τ = 2 nm); the best is refitted on its inliers with tolerances tightening to ``tolerance_nm``.
+    Spurious or missing peaks only reduce the inlier count. Wavelength increases with the pixel
+    coordinate unless ``allow_reversed`` (profiles from :mod:`calib.profiles` run away from the
+    direct spot, towards longer wavelengths).
+
+    Returns
+    -------
+    (QuadraticMapping, matches)
+        The mapping (``method="fluorescent-peaks"``, covariance from the fit) and the matched pairs.
+    """
+    if len(lines) < 3 or len(peaks) < 3:
+        raise EstimationError(
+            f"need ≥ 3 lamp lines and ≥ 3 profile peaks to fit a mapping, found {len(lines)} lines and "
+            f"{len(peaks)} peaks; is this a fluorescent lamp, and is the first order in the profile?"
+        )
+    line_nm = np.array([line.position for line in lines])
+    peak_px = np.array([peak.position for peak in peaks])
+    peak_weight = np.array([peak.prominence for peak in peaks])
+    pixel_range[1] - pixel_range[0]
+
+    def inliers(mapping: QuadraticMapping, tolerance: float) -> list[tuple[int, int]]:
+        predicted = mapping.wavelength_nm(peak_px)
+        pairs: list[tuple[int, int]] = []
+        used: set[int] = set()
+        for i in np.argsort(line_nm):
+            distance = np.abs(predicted - line_nm[i])
+            j = int(np.argmin(distance))
+            if distance[j] <= tolerance and j not in used:
+                pairs.append((int(i), j))
+                used.add(j)
+        return pairs
+
+    line_weight = np.array([line.prominence for line in lines])
+    line_weight = line_weight / line_weight.max()
+
+    def score(mapping: QuadraticMapping) -> float:
+        """Soft inlier count: each line counts by its strength and how close a peak lands (τ = 2 nm)."""
+        predicted = mapping.wavelength_nm(peak_px)
+        distance = np.min(np.abs(predicted[None, :] - line_nm[:, None]), axis=1)
+        return float(np.sum(line_weight * np.exp(-0.5 * (distance / 2.0) ** 2)))
+
+    def admissible(mapping: QuadraticMapping) -> bool:
+        probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+        slope = mapping.dispersion_nm_per_px(probe)
+        if np.any(slope <= 0) and not allow_reversed:
+            return False
+        low, high = dispersion_range_nm_per_px
+        return bool(np.all((np.abs(slope) >= low) & (np.abs(slope) <= high)))
+
+    best: tuple[float, QuadraticMapping] | None = None
+    strongest_lines = sorted(np.argsort(-line_weight)[:6].tolist(), key=lambda i: line_nm[i])
+    strongest_peaks = np.argsort(-peak_weight)[:10].tolist()
+    for size in (2, 3):
+        for line_set in itertools.combinations(strongest_lines, size):
+            if line_nm[line_set[-1]] - line_nm[line_set[0]] < 60.0:
+                continue  # too short a baseline to extrapolate from
+            for peak_set in itertools.permutations(strongest_peaks, size):
+                try:
+                    fitted = QuadraticMapping.fit(
+                        peak_px[list(peak_set)], line_nm[list(line_set)], degree=size - 1
+                    )
+                except EstimationError:
+                    continue
+                candidate = QuadraticMapping(fitted.a, fitted.b, fitted.c, pixel_range=pixel_range)
+                if not admissible(candidate):
+                    continue
+                value = score(candidate)
+                if best is None or value > best[0]:
+                    best = (value, candidate)
+    if best is None:
+        raise EstimationError(
+            "could not match the lamp's lines to the profile's peaks (no consistent pair of lines); "
+            "check the lamp spectrum and that the profile holds the first order"
+        )
+    mapping = best[1]
+
+    def _span_nm(pairs: list[tuple[int, int]]) -> float:
+        matched = line_nm[[i for i, _ in pairs]]
+        return float(matched.max() - matched.min())
+
+    for tolerance in (4 * tolerance_nm, 2 * tolerance_nm, tolerance_nm):
+        pairs = inliers(mapping, tolerance)
+        if len(pairs) < 2:
+            break
+        mapping = QuadraticMapping.fit(
+            peak_px[[j for _, j in pairs]],
+            line_nm[[i for i, _ in pairs]],
+            method="fluorescent-peaks",
+            degree=2 if len(pairs) >= 3 and _span_nm(pairs) >= 150.0 else 1,
+        ).with_details(pixel_range=list(pixel_range))
+    pairs = inliers(mapping, tolerance_nm)
+    if len(pairs) < 2:
+        raise EstimationError("fewer than 2 lamp lines agree with one mapping")
+    matches = [(lines[i], peaks[j]) for i, j in pairs]
+    details = {
+        "matched": [
+            {"line_nm": line.position, "label": line.label, "pixel": peak.position}
+            for line, peak in matches
+        ],
+        "n_lines": len(lines),
+        "n_peaks": len(peaks),
+    }
+    return mapping.with_details(details=details), matches
+
+
+def mapping_from_peaks(
+    lamp: Spectrum,
+    pixel: FloatArray,
+    profile: FloatArray,
+    mean_sensitivity: FloatArray,
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    tolerance_nm: float = 1.5,
+) -> QuadraticMapping:
+    """Mapping from a fluorescent lamp: lines of ``ŝ ⊙ e`` matched to the profile's peaks.
+
+    Parameters
+    ----------
+    lamp
+        The lamp's measured spectrum (line positions are taken from it).
+    pixel, profile
+        Shapes ``(n,)`` and ``(n, 3)``.
+    mean_sensitivity
+        ``ŝ`` of shape ``(f, 3)`` on ``grid``, to weight the lines as a typical camera sees them and
+        to estimate the dispersion from the lit extent of the profile.
+    """
+    model_nm, model = model_curve_on_fine_axis(lamp, mean_sensitivity, grid)
+    dispersion = nominal_dispersion(pixel, profile, model_nm, model)
+    total = mean_sensitivity.sum(axis=1)
+
+    def weight(wavelength: FloatArray) -> FloatArray:
+        return np.asarray(
+            np.interp(wavelength, grid.wavelength_nm, total, 0.0, 0.0), dtype=np.float64
+        )
+
+    lines = lamp_lines(lamp, weight, range_nm=(grid.start_nm, grid.stop_nm))
+    peaks = profile_peaks(pixel, profile, line_width_px=20.0 / dispersion)
+    mapping, _ = match_peaks(
+        lines,
+        peaks,
+        pixel_range=(float(pixel[0]), float(pixel[-1])),
+        tolerance_nm=tolerance_nm,
+        dispersion_range_nm_per_px=(0.7 * dispersion, 1.4 * dispersion),
+    )
+    return mapping
+
+
+# ------------------------------------------------------------------------- broadband search
+
+
+def coarse_mapping_candidates(
+    pixel: FloatArray,
+    profile: FloatArray,
+    model_nm: FloatArray,
+    model: FloatArray,
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    n_dispersions: int = 48,
+    n_candidates: int = 4,
+    allow_reversed: bool = False,
+    min_model_fraction: float = 0.9,
+) -> list[QuadraticMapping]:
+    """Global search over linear mappings ``λ = b p + c`` by normalised cross-correlation.
+
+    The profile ``(n, 3)`` is compared, channel by channel, with the expected profile of a typical
+    camera, ``model`` ``(n_fine, 3)`` on ``model_nm`` (``ŝ ⊙ e`` per nm, zero outside the grid),
+    re-sampled at the trial dispersion; for each dispersion every integer pixel shift is scored at
+    once with FFTs. Dispersions span the range in which the model's support fits the profile's;
+    only placements that keep at least ``min_model_fraction`` of the model's energy inside the
+    profile count (the whole first order must be in the profile).
+
+    Returns
+    -------
+    list of QuadraticMapping
+        Up to ``n_candidates`` distinct linear mappings (``method="led-search"``), best first.
+    """
+    n = pixel.size
+    spacing = float(np.median(np.diff(pixel)))
+    nominal = nominal_dispersion(pixel, profile, model_nm, model)
+    dispersions = nominal * np.geomspace(0.6, 1.6, n_dispersions)
+    centred = profile - profile.mean(axis=0)
+    size = 1 << math.ceil(math.log2(4 * n))
+    profile_fft = np.fft.rfft(centred[::-1], size, axis=0)
+    profile_norm = np.linalg.norm(centred, axis=0)
+    signs = (1.0, -1.0) if allow_reversed else (1.0,)
+    scored: list[tuple[float, float, float]] = []
+    for sign in signs:
+        for dispersion in dispersions:
+            step_nm = dispersion * spacing
+            start_nm = grid.start_nm - n * step_nm
+            samples_nm = start_nm + step_nm * np.arange(
+                int((grid.stop_nm - start_nm) / step_nm) + n + 2
+            )
+            expected = np.stack(
+                [
+                    np.interp(samples_nm, model_nm, model[:, k], left=0.0, right=0.0)
+                    for k in range(3)
+                ],
+                axis=1,
+            )
+            if sign < 0:
+                expected = expected[::-1]
+            length = expected.shape[0]
+            if length + n > size:
+                continue
+            # corr[s] = Σ_p profile[p] · expected[p + s]
+            expected_fft = np.fft.rfft(expected, size, axis=0)
+            correlation = np.fft.irfft(expected_fft * profile_fft, size, axis=0)[
+                n - 1 : n - 1 + length - n + 1
+            ]
+            window_sum = np.fft.irfft(
+                np.fft.rfft(expected, size, axis=0) * np.fft.rfft(np.ones(n), size)[:, None],
+                size,
+                axis=0,
+            )
+            window_sq = np.fft.irfft(
+                np.fft.rfft(expected**2, size, axis=0) * np.fft.rfft(np.ones(n), size)[:, None],
+                size,
+                axis=0,
+            )
+            sums = window_sum[n - 1 : n - 1 + length - n + 1]
+            squares = window_sq[n - 1 : n - 1 + length - n + 1]
+            variance = np.clip(squares - sums**2 / n, 1e-300, None)
+            ncc = correlation / (np.sqrt(variance) * np.where(profile_norm > 0, profile_norm, 1.0))
+            # Only windows that hold (nearly) the whole modelled first order are admissible.
+            inside = squares >= min_model_fraction * np.sum(expected**2, axis=0)
+            total = np.where(np.all(inside, axis=1), ncc.mean(axis=1), -np.inf)
+            if not np.any(np.isfinite(total)):
+                continue
+            finite = np.where(np.isfinite(total), total, np.min(total[np.isfinite(total)]) - 1)
+            for shift in [*signal.argrelmax(finite, order=3)[0].tolist(), int(np.argmax(finite))]:
+                if not np.isfinite(total[shift]):
+                    continue
+                lam0 = samples_nm[shift] if sign > 0 else samples_nm[::-1][shift]
+                slope = sign * dispersion
+                offset = lam0 - slope * pixel[0]
+                scored.append((float(total[shift]), float(slope), float(offset)))
+    scored.sort(reverse=True)
+    candidates: list[QuadraticMapping] = []
+    pixel_range = (float(pixel[0]), float(pixel[-1]))
+    for value, slope, offset in scored:
+        mapping = QuadraticMapping(
+            0.0, slope, offset, method="led-search", pixel_range=pixel_range, details={"ncc": value}
+        )
+        probe = np.linspace(pixel_range[0], pixel_range[1], 16)
+        if any(
+            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) < 6.0
+            for other in candidates
+        ):
+            continue
+        candidates.append(mapping)
+        if len(candidates) == n_candidates:
+            break
+    if not candidates:
+        raise EstimationError("the broadband mapping search found no candidate")
+    return candidates
+
+
+# ------------------------------------------------------------------------------------ refine
+
+ResidualFunction = Callable[[QuadraticMapping], FloatArray]
+
+
+def refine_mapping(
+    mapping: QuadraticMapping,
+    residual: ResidualFunction,
+    *,
+    pixel_range: tuple[float, float],
+    method: str,
+    max_evaluations: int = 200,
+    step_nm: float = 0.02,
+) -> tuple[QuadraticMapping, float]:
+    """Least-squares refinement of ``(a, b, c)`` minimising ``‖residual(mapping)‖²``.
+
+    The mapping is parameterised by its wavelengths at the two ends and the middle of
+    ``pixel_range`` (well conditioned, in nm); derivatives are finite differences of ``step_nm``
+    (larger than the kinks that pixel edges crossing the fine axis' nodes put in the residual). The covariance of ``(a, b, c)`` comes from the
+    Jacobian at the optimum scaled by the residual variance; it gives the mapping's error estimate.
+
+    Returns
+    -------
+    (QuadraticMapping, float)
+        The refined mapping and the final cost ``‖residual‖²``.
+    """
+    anchors = np.array([pixel_range[0], 0.5 * (pixel_range[0] + pixel_range[1]), pixel_range[1]])
+    to_coefficients = np.linalg.inv(np.stack([anchors**2, anchors, np.ones(3)], axis=1))
+
+    def build(theta: FloatArray) -> QuadraticMapping:
+        a, b, c = to_coefficients @ theta
+        return QuadraticMapping(
+            float(a), float(b), float(c), method=method, pixel_range=pixel_range
+        )
+
+    start = mapping.wavelength_nm(anchors)
+    solution = optimize.least_squares(
+        lambda theta: residual(build(theta)),
+        start,
+        x_scale=np.ones(3),
+        diff_step=step_nm / np.maximum(np.abs(start), 1.0),
+        max_nfev=max_evaluations,
+    )
+    theta_to_anchor = np.eye(3)
+    refined = build(solution.x)
+    n_residuals = solution.fun.size
+    cost = float(np.sum(solution.fun**2))
+    variance = cost / max(n_residuals - 3, 1)
+    try:
+        theta_cov = np.linalg.inv(solution.jac.T @ solution.jac) * variance
+        anchor_cov = theta_to_anchor @ theta_cov @ theta_to_anchor.T
+        covariance = to_coefficients @ anchor_cov @ to_coefficients.T
+        rms = wavelength_rms_from_covariance(covariance, pixel_range)
+        covariance_list: list[list[float]] | None = covariance.tolist()
+    except np.linalg.LinAlgError:
+        covariance_list, rms = None, float("nan")
+    details = {
+        **dict(mapping.details),
+        "refined_from": list(mapping.coefficients),
+        "evaluations": int(solution.nfev),
+        "cost": cost,
+    }
+    return refined.with_details(
+        covariance=covariance_list, wavelength_rms_nm=rms, details=details
+    ), cost
+
+
+def model_curve_on_fine_axis(
+    lamp: Spectrum, mean_sensitivity: FloatArray, grid: WavelengthGrid, step_nm: float = 1.0
+) -> tuple[FloatArray, FloatArray]:
+    """``ŝ ⊙ e`` per nm on the grid's fine axis: shapes ``(n_fine,)`` and ``(n_fine, 3)``."""
+    axis = fine_axis(grid.start_nm, grid.stop_nm, step_nm)
+    return axis, lamp.at(axis)[:, None] * (hat_matrix(grid, axis) @ mean_sensitivity)

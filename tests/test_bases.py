@@ -1,0 +1,53 @@
+import numpy as np
+import pytest
+
+from calib.bases import camera_basis, fallback_camera_basis, fourier_basis
+from calib.errors import InputError
+from calib.spectra import DEFAULT_GRID
+from tests.synthetic_cameras import spanning_set
+
+
+def test_svd_basis_is_orthonormal_and_cached(tmp_path):
+    cameras = spanning_set()
+    basis = camera_basis(cameras, n_vectors=4, cache_dir=tmp_path)
+    for channel in range(3):
+        gram = basis.channel(channel).T @ basis.channel(channel)
+        np.testing.assert_allclose(gram, np.eye(4), atol=1e-12)
+    cached = list((tmp_path / "bases").glob("*.npz"))
+    assert len(cached) == 1 and basis.content_hash in cached[0].name
+    again = camera_basis(cameras, n_vectors=4, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again.vectors, basis.vectors)
+    peaks = cameras.reshape(7, -1).max(axis=1)[:, None, None]
+    np.testing.assert_allclose(basis.mean, (cameras / peaks).mean(axis=0), atol=1e-12)
+
+
+def test_basis_reconstructs_training_cameras_exactly_with_full_rank(tmp_path):
+    cameras = spanning_set()
+    basis = camera_basis(cameras, n_vectors=7, cache_dir=tmp_path)
+    normalised = cameras[2] / cameras[2].max()
+    np.testing.assert_allclose(basis.project(normalised), normalised, atol=1e-12)
+
+
+def test_basis_rejects_too_many_vectors(tmp_path):
+    with pytest.raises(InputError, match="n_vectors"):
+        camera_basis(spanning_set(), n_vectors=8, cache_dir=tmp_path)
+
+
+def test_fourier_basis_conventions():
+    paired = fourier_basis(DEFAULT_GRID, 7)
+    assert paired.shape == (31, 7)
+    np.testing.assert_allclose(paired[:, 0], 1.0)
+    t = (DEFAULT_GRID.wavelength_nm - 400) / 300
+    np.testing.assert_allclose(paired[:, 1], np.cos(2 * np.pi * t), atol=1e-12)
+    np.testing.assert_allclose(paired[:, 4], np.sin(4 * np.pi * t), atol=1e-12)
+    paper = fourier_basis(DEFAULT_GRID, 3, convention="paper")
+    np.testing.assert_allclose(
+        paper[:, 2], np.sin(4 * np.pi * DEFAULT_GRID.wavelength_nm / 300), atol=1e-12
+    )
+
+
+def test_fallback_basis_excludes_the_camera_under_test(tmp_path):
+    basis = fallback_camera_basis(exclude=["Nikon 5100"], cache_dir=tmp_path)
+    assert not any("nikon 5100" in name.lower() for name in basis.camera_names)
+    assert "excluding Nikon 5100" in basis.source
+    assert basis.vectors.shape == (3, 31, 7)

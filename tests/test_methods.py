@@ -1,0 +1,56 @@
+import numpy as np
+import pytest
+
+import calib
+from calib.errors import InputError
+from calib.methods import ESTIMATION_METHODS, register_method
+from calib.result import EstimateResult
+from calib.spectra import DEFAULT_GRID
+
+
+def test_front_function_dispatches_through_the_registry(monkeypatch):
+    calls = {}
+
+    def fake(observations, *, grid, basis, mapping, mapping_lamp, **options):
+        calls.update(options)
+        return EstimateResult("fake", grid.wavelength_nm, np.ones((grid.size, 3)))
+
+    monkeypatch.setitem(ESTIMATION_METHODS, "fake", fake)
+    result = calib.estimate([], method="FAKE", answer=42)
+    assert result.method == "fake" and calls == {"answer": 42}
+    assert result.to_dict()["sensitivity"]["r"][0] == 1.0
+
+
+def test_unknown_method_lists_the_known_ones():
+    with pytest.raises(InputError, match="makabe2025"):
+        calib.estimate([], method="nope")
+
+
+def test_registering_twice_needs_replace():
+    def first(*args, **kwargs):
+        raise AssertionError
+
+    register_method("temporary-test-method", first)
+    try:
+        with pytest.raises(InputError, match="already registered"):
+            register_method("temporary-test-method", lambda *a, **k: None)  # type: ignore[arg-type]
+    finally:
+        ESTIMATION_METHODS.pop("temporary-test-method")
+
+
+def test_result_to_dict_is_json_safe():
+    import json
+
+    grid = DEFAULT_GRID
+
+    sensitivity = np.ones((grid.size, 3))
+    efficiency = np.full(grid.size, np.nan)
+    result = EstimateResult(
+        "x",
+        grid.wavelength_nm,
+        sensitivity,
+        grating_efficiency=efficiency,
+        diagnostics={"a": np.float64(1.5)},
+    )
+    text = json.dumps(result.to_dict(), allow_nan=False)
+    assert '"a": 1.5' in text
