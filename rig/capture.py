@@ -42,6 +42,7 @@ def _record_unopened_station(
             devices={},
             clock="none",
         )
+        session.close_transcripts()
         info = error_info(error)
         session.write(
             StopRecord,
@@ -111,4 +112,4 @@ def run_capture(
         )
         return runner.run(standard_capture(args), plan_info, config_snapshot, estimate)
     finally:
-        station.close()
+        station.close()  # the runner has closed it already, unless it failed to start

@@ -5,7 +5,8 @@ For each step the runner calls the device in that device's worker thread under a
 and the error says a retry may succeed (``DeviceError.retryable``), stores files and spectra in the
 session, writes one log record, and sends the result back into the plan. Whatever happens — success,
 a device or plan failure, Ctrl-C, SIGTERM, a second Ctrl-C, a bug — the ``finally`` switches every
-lamp off (and reads the board back), then writes the stop record with a machine-readable reason.
+lamp off (and reads the board back), closes the devices, acknowledges the transcripts, and writes
+the stop record with a machine-readable reason as the run's last record.
 
 Time (timestamps, waits, backoff) comes from the station's clock, so on the digital twin a warm-up
 of minutes takes no wall time; device deadlines are wall-clock.
@@ -285,6 +286,7 @@ class Runner:
             lamps_off = self._switch_everything_off()
             with contextlib.suppress(Exception):
                 plan.close()
+            self.station.close(self._close_device)
             self._write_stop(status, reason, message, failed_key, failure, lamps_off)
             self.progress.finish()
             self._close_workers()
@@ -631,6 +633,7 @@ class Runner:
                     t_s=self._now_s(),
                     action=received.action,
                 )
+            session.close_transcripts()
             internal = failure is not None and not isinstance(failure, DeviceError | RigError)
             session.write(
                 StopRecord,
@@ -648,6 +651,9 @@ class Runner:
             self.progress.message(f"WARNING: the stop record could not be written: {exc}")
         finally:
             session.close()
+
+    def _close_device(self, role: DeviceRole, close: Callable[[], None]) -> None:
+        self._call(role, "close", close, self._timeout(role))
 
     def _close_workers(self) -> None:
         for worker in self._workers.values():

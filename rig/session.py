@@ -209,7 +209,7 @@ class SessionWriter:
             path.mkdir(parents=False, exist_ok=False)
             for name in DATA_DIRS:
                 (path / name).mkdir()
-            self._log_fd = os.open(
+            self._log_fd: int | None = os.open(
                 path / LOG_NAME, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_EXCL, 0o644
             )
             _sync_directory(path)
@@ -247,12 +247,15 @@ class SessionWriter:
         """Append one record (``seq`` and ``run`` filled in), flushed and synced before returning."""
         if self._broken is not None:
             raise SessionWriteError(f"{self.path}: an earlier write failed ({self._broken})")
+        if self._log_fd is None:
+            raise SessionWriteError(f"{self.path}: the session is closed")
         record = record_type(seq=self._seq, run=self.run, **fields)
         line = (record.model_dump_json() + "\n").encode("utf-8")
+        log_fd = self._log_fd
         with self.guard():
             try:
-                _write_all(self._log_fd, line)
-                _sync(self._log_fd)
+                _write_all(log_fd, line)
+                _sync(log_fd)
             except OSError as exc:
                 raise self._fail(f"appending to {LOG_NAME}", exc) from exc
             self._seq += 1
@@ -350,26 +353,32 @@ class SessionWriter:
             raise self._fail(f"writing {relative}", exc) from exc
         return self.commit_file(temporary, relative, key=key, role="spectrum", units=units)
 
-    def close(self) -> None:
-        """Close the transcripts (acknowledging each with a ``file`` record) and the log."""
+    def close_transcripts(self) -> None:
+        """Close the transcripts, acknowledging each with a ``file`` record (before the stop record)."""
         for role, transcript in self._transcripts.items():
             try:
                 size, sha256 = transcript.close()
             except OSError as exc:
                 self._broken = self._broken or f"closing {transcript.relative}: {exc}"
                 continue
-            if self._broken is None:
-                with contextlib.suppress(SessionWriteError):
-                    self.write(
-                        FileRecord,
-                        key=f"transcripts/{role}",
-                        role="transcript",
-                        path=transcript.relative,
-                        size=size,
-                        sha256=sha256,
-                    )
-        with contextlib.suppress(OSError):
-            os.close(self._log_fd)
+            self.write(
+                FileRecord,
+                key=f"transcripts/{role}",
+                role="transcript",
+                path=transcript.relative,
+                size=size,
+                sha256=sha256,
+            )
+
+    def close(self) -> None:
+        """Close any transcript still open (without records) and the log; safe to call twice."""
+        for transcript in self._transcripts.values():
+            with contextlib.suppress(OSError):
+                transcript.close()
+        if self._log_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._log_fd)
+            self._log_fd = None
 
 
 # ----------------------------------------------------------------------------------------- reader

@@ -25,6 +25,11 @@ from rig.steps import DeviceRole
 TranscriptFactory = Callable[[DeviceRole], TranscriptSink]
 """Gives the transcript sink for a device role; the session's ``transcripts/<role>.jsonl``."""
 
+DeviceCall = Callable[[DeviceRole, Callable[[], None]], object]
+"""Runs a device's method on behalf of the station (the runner passes its deadline-guarded call)."""
+
+CLOSE_ORDER: tuple[DeviceRole, ...] = ("camera", "spectrometer", "relays")
+
 
 @dataclass
 class Station:
@@ -39,6 +44,7 @@ class Station:
     clock: Clock
     analyzer: FrameAnalyzer
     on_close: list[Callable[[], None]] = field(default_factory=list)
+    closed: bool = False
 
     def device(self, role: DeviceRole) -> Spectrometer | Camera | RelayBoard:
         match role:
@@ -49,11 +55,21 @@ class Station:
             case "relays":
                 return self.relays
 
-    def close(self) -> None:
-        """Close every device and run the close hooks; errors on the way are suppressed."""
-        for device in (self.camera, self.spectrometer, self.relays):
+    def close(self, call: DeviceCall | None = None) -> None:
+        """Close every device (through ``call`` if given), then run the close hooks; once only.
+
+        Errors on the way are suppressed: closing must not stop the others from closing.
+        """
+        if self.closed:
+            return
+        self.closed = True
+        for role in CLOSE_ORDER:
+            close = self.device(role).close
             with contextlib.suppress(Exception):
-                device.close()
+                if call is None:
+                    close()
+                else:
+                    call(role, close)
         for hook in self.on_close:
             with contextlib.suppress(Exception):
                 hook()
