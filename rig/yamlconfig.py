@@ -171,6 +171,24 @@ def _show(value: object) -> str:
 _BOUND_WORDS = {"gt": ">", "ge": "≥", "lt": "<", "le": "≤"}
 
 
+def _field_bounds(
+    model: type[BaseModel] | None, data_path: Sequence[str | int]
+) -> dict[str, float]:
+    """All numeric bounds declared on the field at the end of ``data_path`` (``{"gt": 0, "le": 6}``)."""
+    if model is None or not data_path or not isinstance(data_path[-1], str):
+        return {}
+    field = model.model_fields.get(data_path[-1])
+    if field is None:
+        return {}
+    bounds: dict[str, float] = {}
+    for constraint in field.metadata:
+        for name in _BOUND_WORDS:
+            bound = getattr(constraint, name, None)
+            if isinstance(bound, int | float):
+                bounds[name] = float(bound)
+    return bounds
+
+
 def _message(error: Mapping[str, Any], location: _Location, parent: _Location) -> str:
     """One readable sentence for one pydantic error."""
     kind = error["type"]
@@ -198,8 +216,11 @@ def _message(error: Mapping[str, Any], location: _Location, parent: _Location) -
         choices = [c.strip().strip("'") for c in re.split(r",| or ", expected) if c.strip()]
         return f"{_show(value)} is not allowed{_did_you_mean(value, choices)}; allowed: {expected}"
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
-        bounds = [f"{_BOUND_WORDS[k]} {v}" for k, v in ctx.items() if k in _BOUND_WORDS]
-        return f"{_show(value)} is out of range; must be {' and '.join(bounds)}"
+        bounds = _field_bounds(parent.model, location.data_path) or {
+            k: float(v) for k, v in ctx.items() if k in _BOUND_WORDS
+        }
+        shown = " and ".join(f"{_BOUND_WORDS[k]} {v:g}" for k, v in bounds.items())
+        return f"{_show(value)} is out of range; must be {shown}"
     if kind in ("too_short", "too_long"):
         return f"{error['msg']} (got {_show(value)})"
     if kind == "string_pattern_mismatch":
