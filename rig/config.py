@@ -25,7 +25,8 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 from calib.observations import LampKind
-from rig.yamlconfig import ConfigError, ConfigIssue, parse_yaml_model
+from rig.yamlconfig import ConfigError as ConfigError
+from rig.yamlconfig import ConfigIssue, parse_yaml_model
 
 # ---------------------------------------------------------------------------------------- values
 

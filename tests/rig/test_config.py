@@ -27,7 +27,7 @@ def test_the_shipped_config_loads_and_uses_the_twin() -> None:
     assert config.devices.simulated
     assert {lamp.kind for lamp in config.lamps} == {"led", "fluorescent"}
     assert config.hdr.start_exposure_s == pytest.approx(1 / 60)
-    assert config.camera.exposure_range_s == (pytest.approx(1 / 8000), 30.0)
+    assert config.camera.exposure_range_s == pytest.approx((1 / 8000, 30.0))
     assert config.output_dir == ROOT / "sessions"  # relative to the file, not the working directory
 
 
