@@ -31,7 +31,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from calib.errors import SpectrumError
-from calib.spectra import Spectrum
+from calib.spectra import Spectrum, read_spectrum_csv
 from drivers.base import DeviceError, DeviceIdentity
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport
@@ -88,6 +88,8 @@ T = TypeVar("T")
 
 #: Longest single sleep while waiting, so a stop request ends a wait promptly.
 WAIT_SLICE_S = 0.25
+#: How long closing a device may wait after a second interrupt (it is queued behind any exchange).
+HALT_CLOSE_TIMEOUT_S = 0.2
 _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,8}$")
 DEVICE_ROLES: tuple[DeviceRole, ...] = ("relays", "camera", "spectrometer")
 
@@ -379,8 +381,6 @@ class Runner:
                     continue
                 self._record_failure(step, exc, attempt, started_s)
                 raise
-            except SessionWriteError:
-                raise
             except RigError as exc:
                 self._record_failure(step, exc, attempt, started_s)
                 raise
@@ -500,11 +500,14 @@ class Runner:
         relative = f"spectra/{step.lamp}/{step.purpose}-{step.index:03d}.csv"
         record = self.session.write_spectrum(relative, spectrum, key=step.key, units=reading.units)
         self._counts["spectra"] += 1
+        # The plan gets the spectrum as stored (CSV precision), so a plan re-driven from the session
+        # (resume, replay) sees exactly the numbers this run saw and takes the same branches.
+        stored = read_spectrum_csv(self.session.path / record.path)
         return SpectrumMeasured(
             self._now_s(),
             record.path,
-            spectrum.wavelength_nm,
-            spectrum.values,
+            stored.wavelength_nm,
+            stored.values,
             reading.units,
             reading.exposure_ms,
             negative,
@@ -653,7 +656,10 @@ class Runner:
             session.close()
 
     def _close_device(self, role: DeviceRole, close: Callable[[], None]) -> None:
-        self._call(role, "close", close, self._timeout(role))
+        # After a second interrupt, do not wait for a device still busy with an abandoned exchange:
+        # its close stays queued behind that exchange and runs when it returns.
+        timeout_s = HALT_CLOSE_TIMEOUT_S if self.interrupts.halted else self._timeout(role)
+        self._call(role, "close", close, timeout_s)
 
     def _close_workers(self) -> None:
         for worker in self._workers.values():

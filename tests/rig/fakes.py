@@ -7,7 +7,7 @@ recording the exposure and which lamps were lit; :class:`FakeAnalyzer` turns tha
 automatic bracketing sees realistic saturation and SNR.
 
 Faults: every fake has ``faults[method]``, a list of exceptions raised (first to last) by the next
-calls of that method, and ``delay_s[method]``, a real sleep inside the call (to test deadlines and
+calls of that method (``None`` in the list lets one call through), and ``delay_s[method]``, a real sleep inside the call (to test deadlines and
 interrupts). ``events`` records ``("begin"|"end", device, method)`` in order across all fakes.
 """
 
@@ -60,7 +60,7 @@ class FaultInjector:
 
     def __init__(self, name: str, events: list[tuple[str, str, str]]) -> None:
         self.name = name
-        self.faults: dict[str, list[BaseException]] = defaultdict(list)
+        self.faults: dict[str, list[BaseException | None]] = defaultdict(list)
         self.delay_s: dict[str, float] = {}
         self.calls: dict[str, int] = defaultdict(int)
         self.events = events
@@ -73,8 +73,8 @@ class FaultInjector:
         delay = self.delay_s.get(method, 0.0)
         if delay:
             time.sleep(delay)
-        if self.faults[method]:
-            error = self.faults[method].pop(0)
+        error = self.faults[method].pop(0) if self.faults[method] else None
+        if error is not None:
             self.events.append(("end", self.name, method))
             self._record("error", f"{method}: {error}")
             raise error
