@@ -32,7 +32,7 @@ import numpy as np
 
 from calib.errors import SpectrumError
 from calib.spectra import Spectrum, read_spectrum_csv
-from drivers.base import DeviceError, DeviceIdentity
+from drivers.base import DeviceError, DeviceIdentity, StateMismatch
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport
 from rig.errors import (
@@ -384,38 +384,42 @@ class Runner:
             except RigError as exc:
                 self._record_failure(step, exc, attempt, started_s)
                 raise
-        self.session.sync_transcripts()
-        self.session.write(
-            StepRecord,
-            key=key,
-            action=type(step).__name__,
-            params=step.params(),
-            status="done",
-            attempts=attempt,
-            started_s=started_s,
-            duration_s=max(0.0, self._now_s() - started_s),
-            result=result.to_json(),
-        )
+        self._write_step(step, attempt, started_s, result=result)
         self._counts["steps"] += 1
         self.progress.step_done(step, result)
         return result
 
+    def _write_step(
+        self,
+        step: Step,
+        attempts: int,
+        started_s: float,
+        *,
+        result: StepResult | None = None,
+        error: BaseException | None = None,
+    ) -> None:
+        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), transcripts synced first."""
+        self.session.sync_transcripts()
+        self.session.write(
+            StepRecord,
+            key=step.key,
+            action=type(step).__name__,
+            params=step.params(),
+            status="done" if error is None else "failed",
+            attempts=attempts,
+            started_s=started_s,
+            duration_s=max(0.0, self._now_s() - started_s),
+            result=result.to_json() if result is not None else None,
+            error=error_info(error) if error is not None else None,
+        )
+
     def _record_failure(
         self, step: Step, exc: BaseException, attempts: int, started_s: float
     ) -> None:
-        with contextlib.suppress(SessionWriteError):
-            self.session.sync_transcripts()
-            self.session.write(
-                StepRecord,
-                key=step.key,
-                action=type(step).__name__,
-                params=step.params(),
-                status="failed",
-                attempts=attempts,
-                started_s=started_s,
-                duration_s=max(0.0, self._now_s() - started_s),
-                error=error_info(exc),
-            )
+        """A ``failed`` step record, unless the session itself can no longer be written."""
+        if self.session.broken is None:
+            with contextlib.suppress(SessionWriteError):
+                self._write_step(step, attempts, started_s, error=exc)
 
     def _dispatch(self, step: Step) -> StepResult:
         station = self.station
@@ -432,7 +436,17 @@ class Runner:
                     lambda: station.relays.set(step.channel, step.on),
                     self.timeouts.relays_s,
                 )
-                return self._relay_state()
+                state = self._relay_state()
+                if not 1 <= step.channel <= len(state.channels) or (
+                    state.channels[step.channel - 1] != step.on
+                ):
+                    raise StateMismatch(
+                        self._workers["relays"].device,
+                        f"relay channel {step.channel} ({step.lamp}) did not follow",
+                        expected="on" if step.on else "off",
+                        actual="".join("1" if on else "0" for on in state.channels),
+                    )
+                return state
             case ConfigureCamera():
                 return self._configure_camera(step)
             case ConfigureSpectrometer():

@@ -92,7 +92,11 @@ class FaultInjector:
 
 
 class FakeRelayBoard:
-    """A relay board on the lamp bank; optionally mirrors its state to ``state_file`` (``"0100"``)."""
+    """A relay board on the lamp bank; optionally mirrors its state to ``state_file`` (``"0100"``).
+
+    Channels in ``stuck_on`` always read as on; channels in ``dead`` ignore commands (and, unlike a
+    real driver, the fake does not verify: the runner's own read-back must catch it).
+    """
 
     def __init__(
         self, bank: LampBank, events: list[tuple[str, str, str]], state_file: Path | None = None
@@ -101,6 +105,7 @@ class FakeRelayBoard:
         self.io = FaultInjector("relays", events)
         self.state_file = state_file
         self.stuck_on: set[int] = set()
+        self.dead: set[int] = set()
         self._write_state()
 
     @property
@@ -122,7 +127,8 @@ class FakeRelayBoard:
 
     def set(self, channel: int, on: bool) -> None:
         self.io.enter("set")
-        self.bank.set_channel(channel, on)
+        if channel not in self.dead:
+            self.bank.set_channel(channel, on)
         self._write_state()
         self.io.leave("set")
 

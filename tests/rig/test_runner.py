@@ -269,14 +269,26 @@ class TestFailures:
 
     def test_a_lamp_left_on_before_a_dark_frame(self, tmp_path: Path) -> None:
         rig = make_fake_rig()
-        rig.relays.stuck_on = {1}
+        rig.relays.stuck_on = {2}
         outcome, session, rig = capture(tmp_path, rig)
         assert outcome.reason == "lamps_not_off"
         assert outcome.failed_key == "lamp/LED-B3/dark/000"
-        assert "relay channel(s) 1 read as on before a dark frame" in outcome.message
-        # the board still reads channel 1 as on: the run says so instead of claiming success
+        assert "relay channel(s) 2 read as on before a dark frame" in outcome.message
+        # the board still reads channel 2 as on: the run says so instead of claiming success
         assert not outcome.lamps_off
         assert session.stop is not None and not session.stop.lamps_off
+
+    def test_a_relay_that_does_not_follow_is_caught_before_any_frame(self, tmp_path: Path) -> None:
+        rig = make_fake_rig()
+        rig.relays.dead = {1}
+        outcome, session, rig = capture(tmp_path, rig)
+        assert (outcome.reason, outcome.failed_key) == ("state_mismatch", "lamp/LED-B3/switch-on")
+        assert (
+            "relay channel 1 (LED-B3) did not follow: expected 'on', read back '00'"
+            in outcome.message
+        )
+        assert rig.camera.captured == 0 and rig.spectrometer.io.calls["measure"] == 0
+        assert_lamps_off_and_log_valid(outcome, session, rig)
 
     def test_cleanup_falls_back_to_switching_each_channel(self, tmp_path: Path) -> None:
         rig = make_fake_rig()
