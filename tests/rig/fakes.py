@@ -204,6 +204,8 @@ class FakeCamera:
         self.captured = 0
         self.capture_started = threading.Event()
         self.marker_file: Path | None = None
+        #: When set, each capture takes exposure + this many seconds of real time (a download).
+        self.real_time_download_s: float | None = None
 
     def identify(self) -> DeviceIdentity:
         self.io.enter("identify")
@@ -240,6 +242,8 @@ class FakeCamera:
         if self.marker_file is not None:
             self.marker_file.write_text(str(self.captured + 1))
         self.io.enter("capture")
+        if self.real_time_download_s is not None:
+            time.sleep(self.exposure_s + self.real_time_download_s)
         self.captured += 1
         lit = self.bank.lit()
         frame = {
