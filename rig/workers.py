@@ -24,6 +24,9 @@ from rig.errors import StepTimeout
 
 T = TypeVar("T")
 
+#: Longest uninterrupted wait of the calling thread for a device call, in seconds.
+WAKE_UP_S = 0.05
+
 
 @dataclass
 class _Job:
@@ -74,12 +77,19 @@ class DeviceWorker:
             )
         future: Future[T] = Future()
         self._jobs.put(_Job(what, function, future))
-        try:
-            return future.result(timeout=timeout_s)
-        except FutureTimeout:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            # Wait in short slices: a signal may be delivered to another thread, and the main
+            # thread only runs its Python handler when it wakes up.
+            remaining = deadline - time.monotonic()
+            try:
+                return future.result(timeout=max(0.0, min(remaining, WAKE_UP_S)))
+            except FutureTimeout:
+                if remaining > WAKE_UP_S:
+                    continue
             with self._lock:
                 if not future.done():
-                    self._hung = (what, time.monotonic() - timeout_s)
+                    self._hung = (what, deadline - timeout_s)
             if future.done():
                 return future.result()
             raise StepTimeout(

@@ -71,15 +71,25 @@ def signal_sender() -> Iterator[list[threading.Thread]]:
 
 
 def send_signals_when(
-    threads: list[threading.Thread], event: threading.Event, signals: list[int]
+    threads: list[threading.Thread],
+    event: threading.Event,
+    signals: list[signal.Signals],
+    interrupts: InterruptController,
 ) -> None:
-    """Send ``signals`` to this process, 50 ms apart, once ``event`` is set."""
+    """Once ``event`` is set, send ``signals`` to this process one at a time.
+
+    Each signal is sent only after ``interrupts`` has registered the previous one: the OS
+    coalesces a signal that arrives before the handler of the same signal has run.
+    """
 
     def fire() -> None:
-        if event.wait(10):
-            for signum in signals:
-                os.kill(os.getpid(), signum)
-                time.sleep(0.05)
+        if not event.wait(10):
+            return
+        for number, signum in enumerate(signals):
+            os.kill(os.getpid(), signum)
+            deadline = time.monotonic() + 5
+            while len(interrupts.received) <= number and time.monotonic() < deadline:
+                time.sleep(0.005)
 
     thread = threading.Thread(target=fire, daemon=True)
     thread.start()
@@ -358,8 +368,9 @@ class TestInterrupts:
     ) -> None:
         rig = make_fake_rig()
         rig.camera.io.delay_s["capture"] = 0.3
-        send_signals_when(signal_sender, rig.camera.capture_started, [signal.SIGINT])
-        outcome, session, rig = capture(tmp_path, rig)
+        interrupts = InterruptController()
+        send_signals_when(signal_sender, rig.camera.capture_started, [signal.SIGINT], interrupts)
+        outcome, session, rig = capture(tmp_path, rig, interrupts=interrupts)
         assert (outcome.exit_status, outcome.reason, outcome.exit_code) == (
             "abort",
             "interrupted",
@@ -379,8 +390,9 @@ class TestInterrupts:
     ) -> None:
         rig = make_fake_rig()
         rig.camera.io.delay_s["capture"] = 0.3
-        send_signals_when(signal_sender, rig.camera.capture_started, [signal.SIGTERM])
-        outcome, session, rig = capture(tmp_path, rig)
+        interrupts = InterruptController()
+        send_signals_when(signal_sender, rig.camera.capture_started, [signal.SIGTERM], interrupts)
+        outcome, session, rig = capture(tmp_path, rig, interrupts=interrupts)
         assert (outcome.reason, outcome.exit_code) == ("interrupted", 143)
         assert_lamps_off_and_log_valid(outcome, session, rig)
 
@@ -389,9 +401,11 @@ class TestInterrupts:
     ) -> None:
         rig = make_fake_rig()
         rig.camera.io.delay_s["capture"] = 3.0
-        send_signals_when(signal_sender, rig.camera.capture_started, [signal.SIGINT, signal.SIGINT])
+        interrupts = InterruptController()
+        twice = [signal.SIGINT, signal.SIGINT]
+        send_signals_when(signal_sender, rig.camera.capture_started, twice, interrupts)
         began = time.monotonic()
-        outcome, session, rig = capture(tmp_path, rig)
+        outcome, session, rig = capture(tmp_path, rig, interrupts=interrupts)
         assert time.monotonic() - began < 2.5  # did not wait for the 3 s capture
         assert (outcome.reason, outcome.exit_code) == ("halted", 130)
         actions = [r.action for r in session.records if isinstance(r, InterruptionRecord)]
@@ -414,8 +428,9 @@ class TestInterrupts:
             original_set(channel, on)
 
         rig.relays.set = set_and_flag  # type: ignore[method-assign]
-        send_signals_when(signal_sender, started, [signal.SIGINT, signal.SIGINT])
-        outcome, _, rig = capture(tmp_path, rig)
+        interrupts = InterruptController()
+        send_signals_when(signal_sender, started, [signal.SIGINT, signal.SIGINT], interrupts)
+        outcome, _, rig = capture(tmp_path, rig, interrupts=interrupts)
         assert outcome.reason == "halted"
         relay_events = [(kind, method) for kind, device, method in rig.events if device == "relays"]
         set_end = relay_events.index(("end", "set"))
