@@ -460,8 +460,10 @@ class Runner:
             case MeasureSpectrum():
                 return self._measure(step)
             case Wait():
+                began_s = self._now_s()
                 completed = self._sleep(step.seconds)
-                return Waited(self._now_s(), step.seconds if completed else 0.0, completed)
+                ended_s = self._now_s()
+                return Waited(ended_s, ended_s - began_s, completed)
             case SetExposure():
                 actual = self._call(
                     "camera",

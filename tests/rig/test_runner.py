@@ -15,6 +15,7 @@ import pytest
 from calib.spectra import read_spectrum_csv
 from drivers.base import DeviceBusy, DeviceTimeout, Disconnected
 from rig.capture import run_capture
+from rig.clock import MonotonicClock
 from rig.config import RigConfig
 from rig.errors import LimitsExceeded, SessionWriteError
 from rig.interrupts import HaltRequested, InterruptController
@@ -384,6 +385,40 @@ class TestInterrupts:
         assert session.status == "interrupted"
         assert_lamps_off_and_log_valid(outcome, session, rig)
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+    def test_a_wait_is_cut_short(self, tmp_path: Path) -> None:
+        """On the wall clock, a stop request during a 5 s warm-up wait ends it within a slice."""
+        rig = make_fake_rig(clock=MonotonicClock())
+        interrupts = InterruptController()
+        waiting = threading.Event()
+        original_measure = rig.spectrometer.measure
+
+        def measure() -> Any:
+            reading = original_measure()
+            waiting.set()  # the wait follows the first warm-up spectrum
+            return reading
+
+        rig.spectrometer.measure = measure  # type: ignore[method-assign]
+
+        def interrupt_during_the_wait() -> None:
+            if waiting.wait(10):
+                time.sleep(0.3)
+                os.kill(os.getpid(), signal.SIGINT)
+
+        thread = threading.Thread(target=interrupt_during_the_wait, daemon=True)
+        thread.start()
+        data = fake_config_data(tmp_path / "sessions")
+        data["lamps"][0]["warmup"]["interval_s"] = 5
+        began = time.monotonic()
+        outcome, session, rig = capture(tmp_path, rig, RigConfig.model_validate(data), interrupts)
+        thread.join(5)
+        assert time.monotonic() - began < 2.0
+        assert outcome.reason == "interrupted"
+        wait = steps_of(session)[-1]
+        assert wait.key == "lamp/LED-B3/warmup/001/wait" and wait.result is not None
+        assert wait.result["completed"] is False
+        assert 0.2 < wait.result["waited_s"] < 1.0
+        assert_lamps_off_and_log_valid(outcome, session, rig)
 
     def test_sigterm_is_a_clean_stop(
         self, tmp_path: Path, signal_sender: list[threading.Thread]
