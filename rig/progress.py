@@ -36,7 +36,7 @@ class ProgressReporter(Protocol):
 
     def message(self, text: str) -> None: ...
 
-    def finish(self) -> None: ...
+    def finish(self, completed: bool) -> None: ...
 
 
 class SilentProgress:
@@ -54,7 +54,7 @@ class SilentProgress:
     def message(self, text: str) -> None:
         """Nothing."""
 
-    def finish(self) -> None:
+    def finish(self, completed: bool) -> None:
         """Nothing."""
 
 
@@ -111,7 +111,11 @@ class RichProgress:
     def message(self, text: str) -> None:
         self._progress.console.print(text, markup=False, highlight=False)
 
-    def finish(self) -> None:
+    def finish(self, completed: bool) -> None:
+        """Stop the bar: full when the plan completed, where it stopped otherwise."""
         if self._task is not None:
-            self._progress.update(self._task, description="done")
+            if completed:
+                self._progress.update(self._task, description="done", completed=self._total_s)
+            else:
+                self._progress.update(self._task, description="stopped")
         self._progress.stop()

@@ -290,7 +290,7 @@ class Runner:
                 plan.close()
             self.station.close(self._close_device)
             self._write_stop(status, reason, message, failed_key, failure, lamps_off)
-            self.progress.finish()
+            self.progress.finish(status == "success")
             self._close_workers()
             self.interrupts.uninstall()
         return RunOutcome(
