@@ -1,8 +1,24 @@
-"""The ``rig`` command: capture sessions on the rig (or its digital twin) and hand them to calib."""
+"""The ``rig`` command: capture sessions on the rig (or its digital twin) and hand them to calib.
+
+Exit codes: 0 success; 1 a device or internal failure; 2 bad input (configuration, limits, a path
+that is not a session); 130/143 when a capture was interrupted by Ctrl-C/SIGTERM. Errors are one line
+each on stderr, ``rig: error: …``, never a traceback.
+"""
 
 from __future__ import annotations
 
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
 import typer
+from rich.console import Console
+from rich.table import Table
+
+from calib.errors import CalibError, InputError
+from drivers.base import DeviceError
+from rig.errors import RigError
 
 app = typer.Typer(
     name="rig",
@@ -11,6 +27,17 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+DEFAULT_CONFIG = Path("config.yaml")
+ConfigOption = Annotated[Path, typer.Option("--config", "-c", help="The rig's configuration file.")]
+
+
+def _duration(seconds: float) -> str:
+    minutes, secs = divmod(round(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    if hours:
+        return f"{hours} h {minutes:02d} min"
+    return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
 
 
 @app.command()
@@ -21,6 +48,138 @@ def version() -> None:
     typer.echo(dist_version("spectral-rig"))
 
 
+@app.command()
+def capture(
+    config: ConfigOption = DEFAULT_CONFIG,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out", "-o", help="Directory to create the session in (default: output_dir)."
+        ),
+    ] = None,
+    quiet: Annotated[
+        bool, typer.Option("--quiet", "-q", help="No progress bar; only the result.")
+    ] = False,
+) -> None:
+    """Run the standard capture: every lamp warmed up, measured, bracketed, with dark frames."""
+    from rig.capture import run_capture
+    from rig.config import load_config
+    from rig.dryrun import StepCostModel
+    from rig.progress import ProgressReporter, RichProgress, SilentProgress
+
+    rig_config = load_config(config)
+    progress: ProgressReporter = (
+        SilentProgress() if quiet else RichProgress(StepCostModel(rig_config.dry_run))
+    )
+    outcome = run_capture(rig_config, out_dir=out, progress=progress)
+    status = {"success": "complete", "abort": "interrupted", "fail": "failed"}[outcome.exit_status]
+    typer.echo(f"session: {outcome.session}")
+    typer.echo(f"status: {status} ({outcome.reason}): {outcome.message}")
+    if not outcome.lamps_off:
+        typer.echo("WARNING: the lamps could not be confirmed off; check them by hand", err=True)
+    raise typer.Exit(outcome.exit_code)
+
+
+@app.command("dry-run")
+def dry_run_command(
+    config: ConfigOption = DEFAULT_CONFIG,
+    steps: Annotated[
+        bool, typer.Option("--steps/--summary", help="List every step, or only the summary.")
+    ] = True,
+) -> None:
+    """Walk the capture plan with modelled readings: steps, estimated duration, limit violations."""
+    from rig.config import load_config
+    from rig.dryrun import dry_run
+    from rig.steps import Capture, DarkFrame, MeasureSpectrum
+
+    rig_config = load_config(config)
+    report = dry_run(rig_config)
+    console = Console(highlight=False, soft_wrap=True)
+    if steps:
+        key_width = max((len(p.step.key) for p in report.steps), default=3)
+        console.print(f"{'#':>4}  {'at':>12}  {'takes':>9}  {'key':<{key_width}}  step")
+        for number, planned in enumerate(report.steps, start=1):
+            console.print(
+                f"{number:>4}  {_duration(planned.start_s):>12}  {planned.duration_s:>7.2f} s  "
+                f"{planned.step.key:<{key_width}}  {planned.step.describe()}"
+            )
+    frames = report.frames_per_lamp()
+    console.print(
+        f"{len(report.steps)} steps for {len(rig_config.lamps)} lamps: "
+        f"{report.count(Capture)} bracket frames "
+        f"({', '.join(f'{lamp} {n}' for lamp, n in frames.items())}), "
+        f"{report.count(DarkFrame)} dark frames, {report.count(MeasureSpectrum)} spectra"
+    )
+    console.print(
+        f"estimated duration: {_duration(report.duration_s)} (modelled readings from dry_run in {config})"
+    )
+    if report.failure is not None:
+        console.print(
+            f"the plan fails with the modelled readings ({report.failure.reason}): {report.failure}"
+        )
+    if report.violations:
+        console.print(f"{len(report.violations)} limit violation(s):")
+        for violation in report.violations:
+            console.print(f"  {violation}")
+    else:
+        console.print("limit violations: none")
+    if not report.ok:
+        raise typer.Exit(2)
+
+
+@app.command()
+def sessions(
+    directory: Annotated[
+        Path | None,
+        typer.Argument(
+            help="Directory holding sessions (default: output_dir of the configuration)."
+        ),
+    ] = None,
+    config: ConfigOption = DEFAULT_CONFIG,
+) -> None:
+    """List the sessions in a directory with their status: complete, interrupted or failed."""
+    from rig.config import load_config
+    from rig.session import find_sessions, summarise
+
+    if directory is not None and not directory.is_dir():
+        raise InputError(f"{directory} is not a directory", source="rig sessions")
+    if directory is None:
+        directory = load_config(config).output_dir if config.exists() else Path("sessions")
+    console = Console(highlight=False, soft_wrap=True)
+    found = [summarise(path) for path in find_sessions(directory)]
+    if not found:
+        console.print(f"no sessions in {directory}")
+        return
+    table = Table(
+        "session", "status", "started (UTC)", "frames", "reason", box=None, pad_edge=False
+    )
+    for summary in found:
+        started = f"{summary.started:%Y-%m-%d %H:%M:%S}" if summary.started else "-"
+        table.add_row(
+            summary.path.name, summary.status, started, str(summary.frames), summary.reason
+        )
+    console.print(table)
+
+
+def _fail(message: str, code: int) -> None:
+    for line in message.splitlines() or [""]:
+        print(f"rig: error: {line}", file=sys.stderr)
+    sys.exit(code)
+
+
 def main() -> None:
-    """Console entry point."""
-    app()
+    """Console entry point: errors become one line each on stderr and an exit code."""
+    try:
+        app(standalone_mode=True)
+    except InputError as exc:
+        _fail(str(exc), 2)
+    except RigError as exc:
+        _fail(f"{exc} [{exc.reason}]", exc.exit_code)
+    except DeviceError as exc:
+        _fail(f"{exc} [{exc.reason}]", 1)
+    except CalibError as exc:
+        _fail(str(exc), 1)
+    except Exception as exc:
+        if os.environ.get("RIG_DEBUG"):
+            raise
+        _fail(f"internal error: {type(exc).__name__}: {exc} (set RIG_DEBUG=1 for the traceback)", 1)

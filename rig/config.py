@@ -1,0 +1,400 @@
+"""The rig's configuration: pydantic models of ``config.yaml``, and a loader whose errors a person can act on.
+
+Every model forbids unknown keys. :func:`load_config` reads YAML with the safe loader only (duplicate
+keys are an error, not "last one wins"), validates, and turns every problem into a
+:class:`rig.yamlconfig.ConfigError` that names the file, the line, the field path (``lamps[1].warmup.interval_s``),
+the value found and what is allowed, with the closest valid key suggested for a typo.
+
+Exposure times may be written as seconds (``0.01``), fractions (``"1/125"``) or with a unit
+(``"2.5s"``, ``"40ms"``). Relative paths (``output_dir``) are resolved against the directory of the
+configuration file, so a rig behaves the same whatever the working directory.
+
+The device ``kind`` selects a driver: ``pr655``/``pr670``/``cs2000`` spectroradiometers, ``lcus``/
+``numato``/``hid_usbrelay`` relay boards, a ``gphoto2`` camera, or ``twin`` for the simulated bench
+(all three devices must then be ``twin``). :mod:`rig.station` turns a :class:`DevicesConfig` into
+device objects.
+"""
+
+from __future__ import annotations
+
+import re
+from fractions import Fraction
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+
+from calib.observations import LampKind
+from rig.yamlconfig import ConfigError as ConfigError
+from rig.yamlconfig import ConfigIssue, parse_yaml_model
+
+# ---------------------------------------------------------------------------------------- values
+
+_EXPOSURE_PATTERN = re.compile(
+    r"^\s*(?P<number>\d+(?:\.\d*)?|\.\d+)(?:\s*/\s*(?P<denominator>\d+(?:\.\d*)?))?\s*(?P<unit>s|ms|us|µs)?\s*$"
+)
+_UNIT_TO_SECONDS = {None: 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
+
+
+def parse_exposure_s(value: object) -> object:
+    """Exposure in seconds from ``0.01``, ``"1/125"``, ``"2.5s"`` or ``"40ms"``; other input passes through.
+
+    Returning non-strings unchanged lets pydantic report the type error itself.
+    """
+    if not isinstance(value, str):
+        return value
+    match = _EXPOSURE_PATTERN.match(value)
+    if match is None:
+        raise ValueError(
+            f"{value!r} is not an exposure time; write seconds like 0.01, a fraction like '1/125' "
+            "or a value with a unit like '2.5s' or '40ms'"
+        )
+    number = Fraction(match["number"])
+    if match["denominator"] is not None:
+        denominator = Fraction(match["denominator"])
+        if denominator == 0:
+            raise ValueError(f"{value!r} divides by zero")
+        number /= denominator
+    return float(number) * _UNIT_TO_SECONDS[match["unit"]]
+
+
+def _parse_f_number(value: object) -> object:
+    """``8``, ``"8"``, ``"f/8"`` or ``"F8"`` → 8.0; other input passes through."""
+    if isinstance(value, str):
+        text = value.strip().lower().removeprefix("f/").removeprefix("f")
+        try:
+            return float(text)
+        except ValueError:
+            raise ValueError(f"{value!r} is not an f-number; write it like 8 or 'f/8'") from None
+    return value
+
+
+def _lower(value: object) -> object:
+    return value.strip().lower() if isinstance(value, str) else value
+
+
+ExposureSeconds = Annotated[float, BeforeValidator(parse_exposure_s), Field(gt=0, le=3600)]
+"""An exposure time in seconds (> 0, at most an hour)."""
+
+LAMP_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,63}$"
+"""Lamp names become parts of step keys and file names: letters, digits, ``._+-``, at most 64."""
+
+
+class StrictModel(BaseModel):
+    """Base of every configuration model: unknown keys are errors and values are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, str_strip_whitespace=True)
+
+
+# --------------------------------------------------------------------------------------- devices
+
+SpectrometerModel = Literal["pr655", "pr670", "cs2000"]
+RelayModel = Literal["hid_usbrelay", "lcus", "numato"]
+
+
+class SerialSpectrometerConfig(StrictModel):
+    """A spectroradiometer on a serial (USB CDC) port."""
+
+    kind: SpectrometerModel
+    port: str = Field(min_length=1, description="serial device, e.g. /dev/ttyACM0 or COM3")
+    baud: int | None = Field(
+        None, gt=0, description="line speed; default: the instrument's own (9600 PR, 115200 CS)"
+    )
+    timeout_s: float = Field(35.0, gt=0, le=600, description="deadline for one command")
+
+
+class TwinSpectrometerConfig(StrictModel):
+    """The simulated bench's spectrometer: the real driver talking to the byte-level emulator."""
+
+    kind: Literal["twin"]
+    emulate: SpectrometerModel = "pr655"
+    timeout_s: float = Field(35.0, gt=0, le=600)
+
+
+class LcusRelayConfig(StrictModel):
+    """An LCUS/CH340 serial relay board (binary frames)."""
+
+    kind: Literal["lcus"]
+    port: str = Field(min_length=1)
+    channels: Literal[1, 2, 4, 8]
+    baud: int = Field(9600, gt=0)
+    timeout_s: float = Field(2.0, gt=0, le=60)
+
+
+class NumatoRelayConfig(StrictModel):
+    """A Numato Lab USB relay module (ASCII commands over CDC-ACM)."""
+
+    kind: Literal["numato"]
+    port: str = Field(min_length=1)
+    channels: Literal[1, 2, 4, 8, 16, 32]
+    baud: int = Field(19200, gt=0)
+    timeout_s: float = Field(2.0, gt=0, le=60)
+
+
+class HidRelayConfig(StrictModel):
+    """A dcttech "USBRelayN" HID board over pyusb; ``serial`` picks one when several are plugged in."""
+
+    kind: Literal["hid_usbrelay"]
+    serial: str | None = Field(None, min_length=1, max_length=5)
+    channels: Literal[1, 2, 4, 8]
+    timeout_s: float = Field(2.0, gt=0, le=60)
+
+
+class TwinRelayConfig(StrictModel):
+    """The simulated bench's relay board: the real driver talking to the emulator."""
+
+    kind: Literal["twin"]
+    emulate: RelayModel = "hid_usbrelay"
+    channels: Literal[1, 2, 4, 8] = 2
+    timeout_s: float = Field(2.0, gt=0, le=60)
+
+
+class Gphoto2CameraConfig(StrictModel):
+    """A camera tethered through libgphoto2; ``port`` (``usb:001,004``) and ``model`` pick one."""
+
+    kind: Literal["gphoto2"]
+    port: str | None = Field(None, min_length=1)
+    model: str | None = Field(None, min_length=1)
+    timeout_s: float = Field(10.0, gt=0, le=600, description="deadline for a settings call")
+    download_timeout_s: float = Field(
+        60.0, gt=0, le=3600, description="deadline for capture + download, added to the exposure"
+    )
+
+
+class TwinCameraConfig(StrictModel):
+    """The simulated bench's camera, writing real DNG files."""
+
+    kind: Literal["twin"]
+    timeout_s: float = Field(10.0, gt=0, le=600)
+    download_timeout_s: float = Field(60.0, gt=0, le=3600)
+
+
+SpectrometerConfig = Annotated[
+    SerialSpectrometerConfig | TwinSpectrometerConfig, Field(discriminator="kind")
+]
+RelayConfig = Annotated[
+    LcusRelayConfig | NumatoRelayConfig | HidRelayConfig | TwinRelayConfig,
+    Field(discriminator="kind"),
+]
+CameraConfig = Annotated[Gphoto2CameraConfig | TwinCameraConfig, Field(discriminator="kind")]
+
+
+class DevicesConfig(StrictModel):
+    """The three instruments of the rig."""
+
+    spectrometer: SpectrometerConfig
+    relays: RelayConfig
+    camera: CameraConfig
+
+    @model_validator(mode="after")
+    def _twin_is_all_or_nothing(self) -> DevicesConfig:
+        kinds = {
+            "spectrometer": self.spectrometer.kind,
+            "relays": self.relays.kind,
+            "camera": self.camera.kind,
+        }
+        twins = sorted(role for role, kind in kinds.items() if kind == "twin")
+        if twins and len(twins) != len(kinds):
+            listed = ", ".join(f"{role} is {kind!r}" for role, kind in kinds.items())
+            raise ValueError(
+                "the simulated bench ('twin') must be used for all three devices or none "
+                f"({listed})"
+            )
+        return self
+
+    @property
+    def simulated(self) -> bool:
+        """Whether the devices are the digital twin."""
+        return self.spectrometer.kind == "twin"
+
+
+# ----------------------------------------------------------------------------------------- lamps
+
+
+class WarmupPolicy(StrictModel):
+    """When a lamp counts as warmed up.
+
+    The lamp is stable once ``stable_pairs`` consecutive pairs of spectra, measured ``interval_s``
+    apart, differ by less than ``tolerance`` (relative L2 change). It fails when that has not
+    happened ``timeout_s`` after switch-on.
+    """
+
+    tolerance: float = Field(0.005, gt=0, lt=1, description="relative change between spectra")
+    interval_s: float = Field(10.0, gt=0, le=3600)
+    timeout_s: float = Field(600.0, gt=0, le=86400)
+    stable_pairs: int = Field(2, ge=1, le=20)
+
+    @model_validator(mode="after")
+    def _timeout_allows_enough_spectra(self) -> WarmupPolicy:
+        needed_s = self.interval_s * self.stable_pairs
+        if self.timeout_s < needed_s:
+            raise ValueError(
+                f"timeout_s = {self.timeout_s:g} is shorter than stable_pairs × interval_s = "
+                f"{needed_s:g} s, so no lamp could ever count as stable"
+            )
+        return self
+
+
+class LampConfig(StrictModel):
+    """A lamp on a relay channel."""
+
+    name: str = Field(pattern=LAMP_NAME_PATTERN)
+    channel: int = Field(ge=1, le=32, description="relay channel, numbered from 1 as on the board")
+    kind: Annotated[LampKind, BeforeValidator(_lower)]
+    warmup: WarmupPolicy = WarmupPolicy()
+
+
+# ------------------------------------------------------------------------------- capture policy
+
+
+class CameraSettings(StrictModel):
+    """Settings applied to the camera before the first frame.
+
+    ``exposure_range_s`` is what the camera is declared to support; ``rig dry-run`` checks the HDR
+    policy against it, and a capture reads the camera's own range instead.
+    """
+
+    iso: int | None = Field(100, ge=25, le=409600)
+    aperture: Annotated[float | None, BeforeValidator(_parse_f_number)] = Field(8.0, ge=0.5, le=128)
+    image_format: str = Field("RAW", min_length=1)
+    require_raw: bool = Field(True, description="refuse frames that arrive as JPEG")
+    widgets: dict[str, str] = Field(
+        default_factory=dict, description="further camera widgets by their gphoto2 name"
+    )
+    exposure_range_s: tuple[ExposureSeconds, ExposureSeconds] = (1 / 8000, 30.0)
+
+    @field_validator("exposure_range_s")
+    @classmethod
+    def _range_is_ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if value[0] >= value[1]:
+            raise ValueError(
+                f"shortest exposure {value[0]:g} s is not below longest {value[1]:g} s"
+            )
+        return value
+
+    def setting_items(self) -> tuple[tuple[str, str], ...]:
+        """The widgets to set, in order, as ``(name, value)`` strings."""
+        items: list[tuple[str, str]] = [("imageformat", self.image_format)]
+        if self.iso is not None:
+            items.append(("iso", str(self.iso)))
+        if self.aperture is not None:
+            items.append(("aperture", f"{self.aperture:g}"))
+        items.extend(sorted(self.widgets.items()))
+        return tuple(items)
+
+
+class HdrPolicy(StrictModel):
+    """Automatic bracketing: how far the bracket may extend and when it is good enough.
+
+    The bracket starts at ``start_exposure_s`` (default: the geometric mean of the allowed range)
+    and grows by at most ``step_stops`` at a time until its shortest frame leaves at most
+    ``max_direct_saturated_fraction`` of the direct spot saturated and its longest frame reaches
+    ``min_band_snr`` on the first-order band.
+    """
+
+    min_exposure_s: ExposureSeconds = 1 / 4000
+    max_exposure_s: ExposureSeconds = 8.0
+    start_exposure_s: ExposureSeconds | None = None
+    step_stops: float = Field(2.0, gt=0, le=6)
+    max_direct_saturated_fraction: float = Field(0.001, ge=0, lt=1)
+    min_band_snr: float = Field(50.0, gt=0, le=100000)
+    max_frames: int = Field(8, ge=1, le=30)
+
+    @model_validator(mode="after")
+    def _range_is_consistent(self) -> HdrPolicy:
+        if self.min_exposure_s >= self.max_exposure_s:
+            raise ValueError(
+                f"min_exposure_s = {self.min_exposure_s:g} s is not below max_exposure_s = "
+                f"{self.max_exposure_s:g} s"
+            )
+        start = self.start_exposure_s
+        if start is not None and not self.min_exposure_s <= start <= self.max_exposure_s:
+            raise ValueError(
+                f"start_exposure_s = {start:g} s lies outside min_exposure_s..max_exposure_s = "
+                f"{self.min_exposure_s:g}..{self.max_exposure_s:g} s"
+            )
+        return self
+
+
+class SpectrumPolicy(StrictModel):
+    """Reference spectra per lamp, after warm-up."""
+
+    repeats: int = Field(3, ge=1, le=100)
+    exposure_ms: float | None = Field(
+        None, gt=0, le=60000, description="integration time; null = the instrument's adaptive mode"
+    )
+
+
+class DryRunModel(StrictModel):
+    """What ``rig dry-run`` assumes about the bench, to model readings and durations."""
+
+    direct_saturates_at_s: ExposureSeconds = 0.02
+    band_snr_at_direct_saturation: float = Field(8.0, gt=0)
+    lamp_settles_s: float = Field(60.0, ge=0)
+    spectrum_measure_s: float = Field(5.0, ge=0)
+    frame_download_s: float = Field(1.0, ge=0)
+    relay_switch_s: float = Field(0.05, ge=0)
+
+
+class RigConfig(StrictModel):
+    """The whole ``config.yaml``."""
+
+    schema_version: Literal[1] = 1
+    seed: int = Field(0, ge=0, description="seeds the twin's noise and any randomised choice")
+    output_dir: Path = Field(Path("sessions"), description="sessions are created inside it")
+    devices: DevicesConfig
+    camera: CameraSettings = CameraSettings()
+    lamps: list[LampConfig] = Field(min_length=1, max_length=32)
+    spectrum: SpectrumPolicy = SpectrumPolicy()
+    hdr: HdrPolicy = HdrPolicy()
+    dark_frames: int = Field(2, ge=0, le=50, description="dark frames per bracket exposure")
+    dry_run: DryRunModel = DryRunModel()
+
+    @field_validator("lamps")
+    @classmethod
+    def _lamp_names_are_unique(cls, lamps: list[LampConfig]) -> list[LampConfig]:
+        seen: dict[str, int] = {}
+        for index, lamp in enumerate(lamps):
+            folded = lamp.name.casefold()
+            if folded in seen:
+                raise ValueError(
+                    f"lamps[{index}].name {lamp.name!r} repeats lamps[{seen[folded]}].name; "
+                    "lamp names must be unique (ignoring case)"
+                )
+            seen[folded] = index
+        return lamps
+
+    def lamp(self, name: str) -> LampConfig:
+        """The lamp called ``name``."""
+        for lamp in self.lamps:
+            if lamp.name == name:
+                return lamp
+        raise KeyError(name)
+
+
+def parse_config(text: str, source: str = "<config>", base_dir: Path | None = None) -> RigConfig:
+    """Validate YAML ``text`` as a :class:`RigConfig`; relative paths resolve against ``base_dir``.
+
+    Raises
+    ------
+    ConfigError
+        For YAML syntax errors, duplicate keys, or any validation problem (all reported at once).
+    """
+    config = parse_yaml_model(text, RigConfig, source)
+    if base_dir is not None and not config.output_dir.is_absolute():
+        config = config.model_copy(update={"output_dir": base_dir / config.output_dir})
+    return config
+
+
+def load_config(path: str | Path) -> RigConfig:
+    """Read and validate a configuration file (see :func:`parse_config`)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(
+            str(path), [ConfigIssue("", "file not found; pass --config PATH")]
+        ) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(str(path), [ConfigIssue("", f"cannot read the file: {exc}")]) from None
+    return parse_config(text, source=str(path), base_dir=path.resolve().parent)

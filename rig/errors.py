@@ -1,0 +1,124 @@
+"""Typed errors of the orchestration layer, each with a machine-readable ``reason`` for the session log.
+
+Device errors come from :mod:`drivers.base` (``DeviceError`` and its subclasses) and keep their own
+``reason``. The errors here are the rig's: a plan that cannot go on (a lamp that never settles, a
+bracket that cannot satisfy the policy, limits the hardware cannot meet), a session that cannot be
+written, a step that overran its deadline. ``exit_code`` is what the ``rig`` command returns: 2 when
+the user's input (configuration, limits) must change, 1 for a failure of the rig.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from drivers.base import DeviceError
+
+
+class RigError(Exception):
+    """Base of the rig's own errors."""
+
+    reason: ClassVar[str] = "rig_error"
+    exit_code: ClassVar[int] = 1
+
+
+class PlanFailure(RigError):
+    """A plan decided, from the readings it received, that the measurement cannot succeed."""
+
+    reason = "plan_failure"
+
+    def __init__(self, message: str, *, key: str | None = None) -> None:
+        self.key = key
+        super().__init__(message)
+
+
+class LampNotStable(PlanFailure):
+    """A lamp's spectrum kept changing beyond the tolerance until the warm-up timeout."""
+
+    reason = "lamp_not_stable"
+
+
+class LampDark(PlanFailure):
+    """A lamp that was switched on gives no light (an all-zero spectrum)."""
+
+    reason = "lamp_dark"
+
+
+class BracketImpossible(PlanFailure):
+    """Automatic bracketing cannot meet the HDR policy within the exposure range or frame budget."""
+
+    reason = "bracket_impossible"
+
+
+class WrongFrameFormat(PlanFailure):
+    """The camera delivered a frame in a format the measurement cannot use (JPEG instead of RAW)."""
+
+    reason = "wrong_frame_format"
+
+
+class LimitsExceeded(PlanFailure):
+    """The plan asks for something the hardware cannot do (exposure range, relay channels)."""
+
+    reason = "limits"
+    exit_code = 2
+
+
+class PlanProtocolError(RigError):
+    """A plan broke the step protocol (a repeated key, an unexpected result type): a bug in the plan."""
+
+    reason = "plan_protocol"
+
+
+class FrameAnalysisError(RigError):
+    """A frame could not be analysed (no direct spot or first-order band found, unreadable RAW)."""
+
+    reason = "frame_analysis"
+
+    def __init__(self, frame: str, message: str) -> None:
+        self.frame = frame
+        super().__init__(f"{frame}: {message}")
+
+
+class SessionWriteError(RigError):
+    """The session could not be written (disk full, I/O error): the run stops rather than go on unrecorded."""
+
+    reason = "session_write"
+
+
+class SessionFormatError(RigError):
+    """A session directory or its log is not valid (bad record, unsafe path, missing file)."""
+
+    reason = "session_format"
+    exit_code = 2
+
+
+class StationUnavailable(RigError):
+    """No driver is available for a configured device kind in this installation."""
+
+    reason = "station_unavailable"
+
+
+class StepTimeout(DeviceError):
+    """A device call overran the step's deadline; the device is left in an unknown state.
+
+    Not retryable: the call may still be running in its worker thread, so the same device cannot be
+    used again until it returns.
+    """
+
+    reason = "step_timeout"
+    retryable = False
+
+    def __init__(self, device: str, message: str, *, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        super().__init__(device, message)
+
+
+class LampsNotOff(DeviceError):
+    """A relay channel reads as on where every lamp must be off (before a dark frame)."""
+
+    reason = "lamps_not_off"
+
+
+class InvalidReading(DeviceError):
+    """A device returned a reading that is not a valid measurement (e.g. a malformed spectrum)."""
+
+    reason = "invalid_reading"

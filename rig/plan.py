@@ -1,0 +1,370 @@
+"""Plans: generators of steps that describe a capture, and branch on the readings sent back.
+
+A plan never touches a device (and never imports a driver). It yields :mod:`rig.steps` steps; whoever
+walks it — the runner with real devices, the dry run with modelled readings, a test with scripted
+ones — sends each step's result back with ``plan.send(result)``::
+
+    plan = standard_capture(args)
+    step = next(plan)
+    while True:
+        result = execute(step)
+        step = plan.send(result)   # StopIteration when the plan is done
+
+The standard plan, per lamp: switch on; measure spectra every ``interval_s`` until consecutive spectra
+differ by less than the tolerance (or fail at the warm-up timeout); measure ``repeats`` reference
+spectra; capture an automatically extended HDR bracket of the direct + diffracted scene; switch off;
+take dark frames at the bracket's exposures. A plan fails by raising a :class:`rig.errors.PlanFailure`
+with a reason a person can act on.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Generator
+from typing import Any, TypeVar
+
+import numpy as np
+from pydantic import Field
+
+from rig.config import (
+    CameraSettings,
+    HdrPolicy,
+    LampConfig,
+    RigConfig,
+    SpectrumPolicy,
+    StrictModel,
+)
+from rig.errors import (
+    BracketImpossible,
+    LampDark,
+    LampNotStable,
+    LimitsExceeded,
+    PlanProtocolError,
+    WrongFrameFormat,
+)
+from rig.steps import (
+    AllLampsOff,
+    CameraReady,
+    Capture,
+    ConfigureCamera,
+    ConfigureSpectrometer,
+    DarkFrame,
+    ExposureSet,
+    FrameCaptured,
+    JsonDict,
+    MeasureSpectrum,
+    RelayState,
+    SetExposure,
+    SpectrometerReady,
+    SpectrumMeasured,
+    Step,
+    StepResult,
+    SwitchLamp,
+    Wait,
+    Waited,
+    format_exposure,
+)
+
+Plan = Generator[Step, StepResult, None]
+"""A plan: yields steps, receives each step's result, returns nothing."""
+
+ResultT = TypeVar("ResultT", bound=StepResult)
+
+#: Relative tolerance within which two exposure times count as the same camera setting.
+SAME_EXPOSURE_RTOL = 0.01
+
+#: Frame suffixes that are not RAW data.
+NOT_RAW_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic")
+
+#: Safety margin on the exposure predicted to reach the band SNR target.
+SNR_PREDICTION_MARGIN = 1.25
+
+
+def run_step(step: Step, expected: type[ResultT]) -> Generator[Step, StepResult, ResultT]:
+    """Yield ``step`` and return its result, checked to be of the ``expected`` type."""
+    result = yield step
+    if not isinstance(result, expected):
+        raise PlanProtocolError(
+            f"{step.key}: expected a {expected.__name__} back, got {type(result).__name__}"
+        )
+    return result
+
+
+def relative_change(previous: SpectrumMeasured, current: SpectrumMeasured) -> float:
+    """Relative L2 change between two spectra, ``‖current − previous‖ / ‖current‖`` (dimensionless).
+
+    ``previous`` is interpolated onto ``current``'s wavelengths when the axes differ; an all-zero
+    ``current`` gives ``inf``.
+    """
+    before = previous.values
+    if previous.wavelength_nm.shape != current.wavelength_nm.shape or not np.allclose(
+        previous.wavelength_nm, current.wavelength_nm
+    ):
+        before = np.interp(current.wavelength_nm, previous.wavelength_nm, previous.values)
+    norm = float(np.linalg.norm(current.values))
+    if norm == 0.0:
+        return math.inf
+    return float(np.linalg.norm(current.values - before)) / norm
+
+
+# ----------------------------------------------------------------------------------- plan pieces
+
+
+def check_relay_channels(lamps: list[LampConfig], state: RelayState) -> None:
+    """Raise :class:`LimitsExceeded` when a lamp's channel is not on the board that answered."""
+    n_channels = len(state.channels)
+    missing = [
+        f"{lamp.name} on channel {lamp.channel}" for lamp in lamps if lamp.channel > n_channels
+    ]
+    if missing:
+        raise LimitsExceeded(
+            f"the relay board has {n_channels} channels, but {', '.join(missing)}; "
+            "fix lamps[].channel or use a larger board",
+            key="start/all-lamps-off",
+        )
+
+
+def exposure_limits(hdr: HdrPolicy, camera: CameraReady) -> tuple[float, float]:
+    """The bracket's allowed exposure range, after checking the HDR policy against the camera's range."""
+    low, high = camera.exposure_range_s
+    problems = []
+    if hdr.min_exposure_s < low * (1 - SAME_EXPOSURE_RTOL):
+        problems.append(
+            f"hdr.min_exposure_s = {format_exposure(hdr.min_exposure_s)} is shorter than the "
+            f"camera's shortest {format_exposure(low)}"
+        )
+    if hdr.max_exposure_s > high * (1 + SAME_EXPOSURE_RTOL):
+        problems.append(
+            f"hdr.max_exposure_s = {format_exposure(hdr.max_exposure_s)} is longer than the "
+            f"camera's longest {format_exposure(high)}"
+        )
+    if problems:
+        raise LimitsExceeded("; ".join(problems), key="start/camera")
+    return max(hdr.min_exposure_s, low), min(hdr.max_exposure_s, high)
+
+
+def wait_until_stable(lamp: LampConfig, switched_on_s: float) -> Generator[Step, StepResult, None]:
+    """Measure spectra ``interval_s`` apart until ``stable_pairs`` consecutive changes are below tolerance.
+
+    Raises
+    ------
+    LampDark
+        When the first spectrum is all zeros (the lamp did not light).
+    LampNotStable
+        When the lamp is not stable ``timeout_s`` after ``switched_on_s``.
+    """
+    policy = lamp.warmup
+    index = 0
+    previous = yield from run_step(MeasureSpectrum(lamp.name, "warmup", index), SpectrumMeasured)
+    if not np.any(previous.values > 0):
+        raise LampDark(
+            f"{lamp.name} gives no light after switching relay channel {lamp.channel} on (the "
+            "spectrum is all zeros): check the lamp, its power supply and the relay wiring",
+            key=MeasureSpectrum(lamp.name, "warmup", index).key,
+        )
+    stable_in_a_row = 0
+    changes: list[float] = []
+    while True:
+        elapsed_s = previous.time_s - switched_on_s
+        if elapsed_s + policy.interval_s > policy.timeout_s:
+            shown = ", ".join(f"{c:.2%}" for c in changes[-3:]) or "none measured"
+            raise LampNotStable(
+                f"{lamp.name} did not settle within warmup.timeout_s = {policy.timeout_s:g} s: "
+                f"the last changes between spectra {policy.interval_s:g} s apart were {shown}, "
+                f"tolerance {policy.tolerance:.2%} for {policy.stable_pairs} in a row; check the "
+                "lamp, or raise lamps[].warmup.timeout_s or .tolerance",
+                key=MeasureSpectrum(lamp.name, "warmup", index).key,
+            )
+        index += 1
+        yield from run_step(Wait(lamp.name, index, policy.interval_s), Waited)
+        current = yield from run_step(MeasureSpectrum(lamp.name, "warmup", index), SpectrumMeasured)
+        change = relative_change(previous, current)
+        changes.append(change)
+        stable_in_a_row = stable_in_a_row + 1 if change < policy.tolerance else 0
+        if stable_in_a_row >= policy.stable_pairs:
+            return
+        previous = current
+
+
+def _check_raw(frame: FrameCaptured, camera: CameraSettings, key: str) -> None:
+    if camera.require_raw and frame.file.lower().endswith(NOT_RAW_SUFFIXES):
+        raise WrongFrameFormat(
+            f"the camera delivered {frame.camera_path!r}, not a RAW file: set camera.image_format "
+            "to the camera's RAW choice (or camera.require_raw: false to accept it)",
+            key=key,
+        )
+
+
+def _next_exposure(
+    frames: list[FrameCaptured], hdr: HdrPolicy, limits: tuple[float, float], lamp: str
+) -> float | None:
+    """The next exposure to extend the bracket with, or ``None`` when the bracket is complete."""
+    low, high = limits
+    by_exposure = sorted(frames, key=lambda f: f.exposure_s)
+    shortest, longest = by_exposure[0], by_exposure[-1]
+    assert shortest.stats is not None and longest.stats is not None
+    saturated = shortest.stats.direct_saturated_fraction
+    snr = longest.stats.band_snr
+    need_shorter = saturated > hdr.max_direct_saturated_fraction
+    need_longer = snr < hdr.min_band_snr
+    if not need_shorter and not need_longer:
+        return None
+    if len(frames) >= hdr.max_frames:
+        raise BracketImpossible(
+            f"{lamp}: the bracket needs more than hdr.max_frames = {hdr.max_frames} frames "
+            f"(shortest {format_exposure(shortest.exposure_s)}: {saturated:.2%} of the direct spot "
+            f"saturated; longest {format_exposure(longest.exposure_s)}: band SNR {snr:.3g}); "
+            "raise hdr.max_frames or hdr.step_stops"
+        )
+    step_factor: float = 2.0**hdr.step_stops
+    if need_shorter:
+        if shortest.exposure_s <= low * (1 + SAME_EXPOSURE_RTOL):
+            raise BracketImpossible(
+                f"{lamp}: {saturated:.2%} of the direct spot is saturated even at the shortest "
+                f"allowed exposure {format_exposure(low)} (allowed: "
+                f"{hdr.max_direct_saturated_fraction:.2%}); dim the lamp, stop the aperture down, "
+                "narrow the slit or add a neutral-density filter"
+            )
+        return max(low, shortest.exposure_s / step_factor)
+    if longest.exposure_s >= high * (1 - SAME_EXPOSURE_RTOL):
+        raise BracketImpossible(
+            f"{lamp}: the first-order band reaches SNR {snr:.3g} at the longest allowed exposure "
+            f"{format_exposure(high)}, below hdr.min_band_snr = {hdr.min_band_snr:g}; raise "
+            "hdr.max_exposure_s, open the aperture, widen the slit or raise the ISO"
+        )
+    # SNR grows at least as √exposure (shot-noise limit), so (target/snr)² is enough; never jump
+    # more than one bracket step (the HDR merge needs overlapping frames) or less than a quarter step.
+    predicted = (hdr.min_band_snr / snr) ** 2 * SNR_PREDICTION_MARGIN if snr > 0 else math.inf
+    quarter_step: float = step_factor**0.25
+    factor = min(step_factor, max(predicted, quarter_step))
+    return min(high, longest.exposure_s * factor)
+
+
+def auto_bracket(
+    lamp: LampConfig, hdr: HdrPolicy, limits: tuple[float, float], camera: CameraSettings
+) -> Generator[Step, StepResult, list[FrameCaptured]]:
+    """Capture frames until the bracket satisfies the HDR policy; return them by increasing exposure.
+
+    Starts at ``hdr.start_exposure_s`` (default: the geometric mean of ``limits``). While the shortest
+    frame saturates the direct spot beyond ``hdr.max_direct_saturated_fraction`` it adds a frame
+    ``hdr.step_stops`` shorter; then, while the longest frame's band SNR is below
+    ``hdr.min_band_snr``, a longer one (the exposure predicted to reach the target, at most one step
+    longer). Bounded by ``limits`` (s) and ``hdr.max_frames``.
+
+    Raises
+    ------
+    BracketImpossible
+        When a limit or the frame budget is reached first, or the camera cannot set an exposure
+        beyond the bracket's current end.
+    """
+    low, high = limits
+    start = hdr.start_exposure_s if hdr.start_exposure_s is not None else math.sqrt(low * high)
+    request: float | None = min(high, max(low, start))
+    frames: list[FrameCaptured] = []
+    while request is not None:
+        index = len(frames)
+        exposure = yield from run_step(SetExposure(lamp.name, "scene", index, request), ExposureSet)
+        actual = exposure.actual_s
+        repeated = [
+            f for f in frames if math.isclose(f.exposure_s, actual, rel_tol=SAME_EXPOSURE_RTOL)
+        ]
+        if repeated:
+            raise BracketImpossible(
+                f"{lamp.name}: asked the camera for {format_exposure(request)} to extend the "
+                f"bracket, but it set {format_exposure(actual)}, which the bracket already has; "
+                "the camera offers no exposure between them: raise hdr.step_stops"
+            )
+        capture = Capture(lamp.name, index, actual)
+        frame = yield from run_step(capture, FrameCaptured)
+        _check_raw(frame, camera, capture.key)
+        if frame.stats is None:
+            raise PlanProtocolError(f"{capture.key}: a scene frame came back without statistics")
+        frames.append(frame)
+        request = _next_exposure(frames, hdr, limits, lamp.name)
+    return sorted(frames, key=lambda f: f.exposure_s)
+
+
+def dark_frames(
+    lamp: LampConfig, exposures_s: list[float], per_exposure: int
+) -> Generator[Step, StepResult, None]:
+    """``per_exposure`` dark frames at each exposure of the bracket (lamps off), shortest first."""
+    count = len(exposures_s) * per_exposure
+    index = 0
+    for exposure_s in exposures_s:
+        actual = exposure_s
+        for repeat in range(per_exposure):
+            if repeat == 0:
+                exposure = yield from run_step(
+                    SetExposure(lamp.name, "dark", index, exposure_s), ExposureSet
+                )
+                actual = exposure.actual_s
+            yield from run_step(DarkFrame(lamp.name, index, count, actual), FrameCaptured)
+            index += 1
+
+
+# ---------------------------------------------------------------------------------- standard plan
+
+
+class StandardCaptureArgs(StrictModel):
+    """The arguments of :func:`standard_capture`, recorded in the session's start record."""
+
+    lamps: list[LampConfig] = Field(min_length=1)
+    camera: CameraSettings
+    spectrum: SpectrumPolicy
+    hdr: HdrPolicy
+    dark_frames: int = Field(ge=0)
+
+    @classmethod
+    def from_config(cls, config: RigConfig) -> StandardCaptureArgs:
+        return cls(
+            lamps=config.lamps,
+            camera=config.camera,
+            spectrum=config.spectrum,
+            hdr=config.hdr,
+            dark_frames=config.dark_frames,
+        )
+
+
+def standard_capture(args: StandardCaptureArgs) -> Plan:
+    """The standard measurement: every lamp in turn, warmed up, measured and bracketed, then darks.
+
+    Raises
+    ------
+    LimitsExceeded
+        Before any lamp is switched on, when a lamp's relay channel is not on the board or the HDR
+        range exceeds the camera's.
+    LampDark, LampNotStable, BracketImpossible, WrongFrameFormat
+        When the readings show the measurement cannot succeed.
+    """
+    relays = yield from run_step(AllLampsOff(), RelayState)
+    check_relay_channels(args.lamps, relays)
+    camera = yield from run_step(ConfigureCamera(args.camera.setting_items()), CameraReady)
+    limits = exposure_limits(args.hdr, camera)
+    yield from run_step(ConfigureSpectrometer(args.spectrum.exposure_ms), SpectrometerReady)
+    for lamp in args.lamps:
+        switched = yield from run_step(SwitchLamp(lamp.name, lamp.channel, True), RelayState)
+        yield from wait_until_stable(lamp, switched.time_s)
+        for repeat in range(args.spectrum.repeats):
+            yield from run_step(MeasureSpectrum(lamp.name, "reference", repeat), SpectrumMeasured)
+        bracket = yield from auto_bracket(lamp, args.hdr, limits, args.camera)
+        yield from run_step(SwitchLamp(lamp.name, lamp.channel, False), RelayState)
+        yield from dark_frames(lamp, [f.exposure_s for f in bracket], args.dark_frames)
+
+
+PlanFactory = Callable[[JsonDict], Plan]
+
+
+def _standard_capture_from_json(args: JsonDict) -> Plan:
+    return standard_capture(StandardCaptureArgs.model_validate(args))
+
+
+PLANS: dict[str, PlanFactory] = {"standard_capture": _standard_capture_from_json}
+"""Plans by the name recorded in a session's start record; each rebuilds from its recorded args."""
+
+
+def build_plan(name: str, args: dict[str, Any]) -> Plan:
+    """Rebuild a recorded plan from its name and JSON arguments (resume, replay)."""
+    factory = PLANS.get(name)
+    if factory is None:
+        raise PlanProtocolError(f"unknown plan {name!r}; known plans: {', '.join(sorted(PLANS))}")
+    return factory(args)

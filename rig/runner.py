@@ -1,0 +1,682 @@
+"""The runner: the only code that touches devices. It executes a plan's steps and records everything.
+
+For each step the runner calls the device in that device's worker thread under a deadline
+(:mod:`rig.workers`), retries with bounded exponential backoff when both the step is safe to repeat
+and the error says a retry may succeed (``DeviceError.retryable``), stores files and spectra in the
+session, writes one log record, and sends the result back into the plan. Whatever happens — success,
+a device or plan failure, Ctrl-C, SIGTERM, a second Ctrl-C, a bug — the ``finally`` switches every
+lamp off (and reads the board back), closes the devices, acknowledges the transcripts, and writes
+the stop record with a machine-readable reason as the run's last record.
+
+Time (timestamps, waits, backoff) comes from the station's clock, so on the digital twin a warm-up
+of minutes takes no wall time; device deadlines are wall-clock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import platform
+import re
+import sys
+import traceback
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as distribution_version
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from calib.errors import SpectrumError
+from calib.spectra import Spectrum, read_spectrum_csv
+from drivers.base import DeviceError, DeviceIdentity, StateMismatch
+from rig.config import RigConfig
+from rig.dryrun import DryRunReport
+from rig.errors import (
+    FrameAnalysisError,
+    InvalidReading,
+    LampsNotOff,
+    PlanProtocolError,
+    RigError,
+    SessionWriteError,
+)
+from rig.interrupts import HaltRequested, InterruptController
+from rig.plan import Plan
+from rig.progress import ProgressReporter, SilentProgress
+from rig.records import (
+    DeviceRecord,
+    ErrorInfo,
+    ExitStatus,
+    InterruptionRecord,
+    PlanInfo,
+    RetryRecord,
+    SoftwareInfo,
+    StartRecord,
+    StepRecord,
+    StopRecord,
+)
+from rig.session import SessionWriter
+from rig.station import Station
+from rig.steps import (
+    AllLampsOff,
+    CameraReady,
+    Capture,
+    ConfigureCamera,
+    ConfigureSpectrometer,
+    DarkFrame,
+    DeviceRole,
+    ExposureSet,
+    FrameCaptured,
+    MeasureSpectrum,
+    RelayState,
+    SetExposure,
+    SettingReadBack,
+    SpectrometerReady,
+    SpectrumMeasured,
+    Step,
+    StepResult,
+    SwitchLamp,
+    Wait,
+    Waited,
+)
+from rig.workers import DeviceWorker
+
+T = TypeVar("T")
+
+#: Longest single sleep while waiting, so a stop request ends a wait promptly.
+WAIT_SLICE_S = 0.25
+#: How long closing a device may wait after a second interrupt (it is queued behind any exchange).
+HALT_CLOSE_TIMEOUT_S = 0.2
+_SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,8}$")
+DEVICE_ROLES: tuple[DeviceRole, ...] = ("relays", "camera", "spectrometer")
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """Bounded exponential backoff: ``initial_s``, ×``factor`` per attempt, at most ``max_s``."""
+
+    max_attempts: int = 3
+    initial_s: float = 0.5
+    factor: float = 2.0
+    max_s: float = 5.0
+
+    def backoff_s(self, attempt: int) -> float:
+        """The pause after failed attempt number ``attempt`` (from 1)."""
+        return float(min(self.max_s, self.initial_s * self.factor ** (attempt - 1)))
+
+
+@dataclass(frozen=True)
+class StepTimeouts:
+    """Wall-clock deadlines (s) of device calls; a capture gets its exposure time on top."""
+
+    relays_s: float
+    spectrometer_s: float
+    camera_s: float
+    capture_extra_s: float
+
+    @classmethod
+    def from_config(cls, config: RigConfig) -> StepTimeouts:
+        # A driver enforces its own per-exchange deadline; the runner's covers a whole call, which
+        # may be several exchanges (switch + read back), so it allows a few of them plus a margin.
+        devices = config.devices
+        return cls(
+            relays_s=4 * devices.relays.timeout_s + 1.0,
+            spectrometer_s=2 * devices.spectrometer.timeout_s + 1.0,
+            camera_s=2 * devices.camera.timeout_s + 1.0,
+            capture_extra_s=devices.camera.download_timeout_s + devices.camera.timeout_s,
+        )
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """How a run ended.
+
+    ``exit_code`` follows the ``rig`` command's convention: 0 success, 1 device/internal failure,
+    2 a limit or input problem, 128 + signal number when interrupted (130 Ctrl-C, 143 SIGTERM).
+    """
+
+    session: Path
+    exit_status: ExitStatus
+    reason: str
+    message: str
+    lamps_off: bool
+    failed_key: str | None = None
+    signal: str | None = None
+    error_exit_code: int = 1
+
+    @property
+    def exit_code(self) -> int:
+        if self.exit_status == "success":
+            return 0
+        if self.exit_status == "abort":
+            return {"SIGINT": 130, "SIGTERM": 143, "SIGHUP": 129}.get(self.signal or "", 130)
+        return self.error_exit_code
+
+
+class StopRequested(Exception):
+    """Raised between steps after a first interrupt."""
+
+    def __init__(self, signal_name: str) -> None:
+        self.signal_name = signal_name
+        super().__init__(f"stopped after the current step ({signal_name})")
+
+
+def software_info() -> SoftwareInfo:
+    """This software's name and version, and the Python and platform it runs on."""
+    try:
+        version = distribution_version("spectral-rig")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        version = "unknown"
+    return SoftwareInfo(
+        name="spectral-rig",
+        version=version,
+        python=sys.version.split()[0],
+        platform=platform.platform(),
+    )
+
+
+def error_info(exc: BaseException, *, with_traceback: bool = False) -> ErrorInfo:
+    """An exception as a log record's error: its ``reason`` (or ``internal``), type and message."""
+    reason = getattr(exc, "reason", None)
+    if not isinstance(reason, str) or not re.match(r"^[a-z][a-z0-9_]*$", reason):
+        reason = "internal"
+    return ErrorInfo(
+        reason=reason,
+        type=f"{type(exc).__module__}.{type(exc).__qualname__}",
+        message=str(exc),
+        device=getattr(exc, "device", None) if isinstance(exc, DeviceError) else None,
+        retryable=bool(getattr(exc, "retryable", False)),
+        traceback="".join(traceback.format_exception(exc)) if with_traceback else None,
+    )
+
+
+class Runner:
+    """Executes plans on a station, recording into a session.
+
+    Parameters
+    ----------
+    station
+        Open devices, their clock and the frame analyser.
+    session
+        Where everything is recorded; the runner makes its writes interrupt-safe.
+    timeouts
+        Deadlines of device calls.
+    retry
+        Backoff for retryable errors of retry-safe steps.
+    progress
+        Where progress goes (silent by default).
+    interrupts
+        The signal handling (a fresh controller by default; installed only in the main thread).
+    """
+
+    def __init__(
+        self,
+        station: Station,
+        session: SessionWriter,
+        *,
+        timeouts: StepTimeouts,
+        retry: RetryPolicy | None = None,
+        progress: ProgressReporter | None = None,
+        interrupts: InterruptController | None = None,
+    ) -> None:
+        self.station = station
+        self.session = session
+        self.timeouts = timeouts
+        self.retry = retry or RetryPolicy()
+        self.progress: ProgressReporter = progress or SilentProgress()
+        self.interrupts = interrupts or InterruptController()
+        self.session.guard = self.interrupts.critical
+        self.clock = station.clock
+        self._workers = {role: DeviceWorker(role, role) for role in DEVICE_ROLES}
+        self._t0 = self.clock.now()
+        self._seen_keys: set[str] = set()
+        self._counts = {"steps": 0, "retries": 0, "frames": 0, "dark_frames": 0, "spectra": 0}
+        self._started = False
+        self._identities: dict[str, DeviceIdentity] = {}
+        self._plan_info = PlanInfo(name="unknown", args={})
+        self._config: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------------------ the run
+
+    def run(
+        self,
+        plan: Plan,
+        plan_info: PlanInfo,
+        config: dict[str, Any],
+        estimate: DryRunReport | None = None,
+    ) -> RunOutcome:
+        """Run ``plan`` to the end, to a failure or to an interrupt; lamps end off in every case."""
+        self.interrupts.install()
+        self._t0 = self.clock.now()
+        self._plan_info, self._config = plan_info, config
+        status: ExitStatus = "success"
+        reason, message = "completed", "the plan completed"
+        failure: BaseException | None = None
+        failed_key: str | None = None
+        signal_name: str | None = None
+        current: Step | None = None
+        try:
+            try:
+                self._identify()
+                self._write_start()
+                self.progress.start(estimate)
+                current = next(plan)
+                while True:
+                    self._check_stop()
+                    result = self._execute(current)
+                    current = plan.send(result)
+            except StopIteration:
+                current = None
+            except StopRequested as exc:
+                status, reason, message = "abort", "interrupted", str(exc)
+                signal_name = exc.signal_name
+            except (DeviceError, RigError) as exc:
+                status, reason, message, failure = "fail", error_info(exc).reason, str(exc), exc
+                failed_key = getattr(exc, "key", None) or (current.key if current else None)
+            except Exception as exc:
+                status, reason, failure = "fail", "internal", exc
+                message = f"internal error: {type(exc).__name__}: {exc}"
+                failed_key = current.key if current else None
+        except HaltRequested as exc:  # a second signal, during a step or while handling the first
+            status, reason, message = "abort", "halted", str(exc)
+            signal_name = self.interrupts.stop_requested or exc.signal_name
+        finally:
+            self.interrupts.enter_cleanup()
+            lamps_off = self._switch_everything_off()
+            with contextlib.suppress(Exception):
+                plan.close()
+            self.station.close(self._close_device)
+            self._write_stop(status, reason, message, failed_key, failure, lamps_off)
+            self.progress.finish(status == "success")
+            self._close_workers()
+            self.interrupts.uninstall()
+        return RunOutcome(
+            session=self.session.path,
+            exit_status=status,
+            reason=reason,
+            message=message,
+            lamps_off=lamps_off,
+            failed_key=failed_key,
+            signal=signal_name,
+            error_exit_code=getattr(failure, "exit_code", 1),
+        )
+
+    def _check_stop(self) -> None:
+        signal_name = self.interrupts.stop_requested
+        if signal_name is not None:
+            raise StopRequested(signal_name)
+
+    def _now_s(self) -> float:
+        return self.clock.now() - self._t0
+
+    def _call(self, role: DeviceRole, what: str, function: Callable[[], T], timeout_s: float) -> T:
+        return self._workers[role].call(what, function, timeout_s)
+
+    def _identify(self) -> None:
+        for role in DEVICE_ROLES:
+            device = self.station.device(role)
+            identity = self._call(role, "identify", device.identify, self._timeout(role))
+            self._identities[role] = identity
+            self._workers[role].device = identity.describe()
+
+    def _timeout(self, role: DeviceRole) -> float:
+        return {
+            "relays": self.timeouts.relays_s,
+            "spectrometer": self.timeouts.spectrometer_s,
+            "camera": self.timeouts.camera_s,
+        }[role]
+
+    def _write_start(self) -> None:
+        """The start record: config, software, plan and the devices identified so far."""
+        self.session.write(
+            StartRecord,
+            session_id=self.session.session_id,
+            wall_time=datetime.now(UTC),
+            software=software_info(),
+            plan=self._plan_info,
+            config=self._config,
+            devices={role: DeviceRecord(**asdict(i)) for role, i in self._identities.items()},
+            clock=type(self.clock).__name__,
+        )
+        self._started = True
+
+    # ------------------------------------------------------------------------------ one step
+
+    def _execute(self, step: Step) -> StepResult:
+        key = step.key
+        if key in self._seen_keys:
+            raise PlanProtocolError(f"the plan yielded the step key {key!r} twice")
+        self._seen_keys.add(key)
+        self.progress.step_started(step)
+        started_s = self._now_s()
+        attempt = 1
+        while True:
+            try:
+                result = self._dispatch(step)
+                break
+            except DeviceError as exc:
+                if (
+                    step.retry_safe
+                    and exc.retryable
+                    and attempt < self.retry.max_attempts
+                    and self.interrupts.stop_requested is None
+                ):
+                    backoff_s = self.retry.backoff_s(attempt)
+                    self.session.write(
+                        RetryRecord,
+                        key=key,
+                        attempt=attempt,
+                        error=error_info(exc),
+                        backoff_s=backoff_s,
+                    )
+                    self._counts["retries"] += 1
+                    self.progress.message(
+                        f"{key}: {exc} — attempt {attempt} failed, retrying in {backoff_s:g} s"
+                    )
+                    self._sleep(backoff_s)
+                    attempt += 1
+                    continue
+                self._record_failure(step, exc, attempt, started_s)
+                raise
+            except RigError as exc:
+                self._record_failure(step, exc, attempt, started_s)
+                raise
+        self._write_step(step, attempt, started_s, result=result)
+        self._counts["steps"] += 1
+        self.progress.step_done(step, result)
+        return result
+
+    def _write_step(
+        self,
+        step: Step,
+        attempts: int,
+        started_s: float,
+        *,
+        result: StepResult | None = None,
+        error: BaseException | None = None,
+    ) -> None:
+        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), transcripts synced first."""
+        self.session.sync_transcripts()
+        self.session.write(
+            StepRecord,
+            key=step.key,
+            action=type(step).__name__,
+            params=step.params(),
+            status="done" if error is None else "failed",
+            attempts=attempts,
+            started_s=started_s,
+            duration_s=max(0.0, self._now_s() - started_s),
+            result=result.to_json() if result is not None else None,
+            error=error_info(error) if error is not None else None,
+        )
+
+    def _record_failure(
+        self, step: Step, exc: BaseException, attempts: int, started_s: float
+    ) -> None:
+        """A ``failed`` step record, unless the session itself can no longer be written."""
+        if self.session.broken is None:
+            with contextlib.suppress(SessionWriteError):
+                self._write_step(step, attempts, started_s, error=exc)
+
+    def _dispatch(self, step: Step) -> StepResult:
+        station = self.station
+        match step:
+            case AllLampsOff():
+                self._call(
+                    "relays", "switch all off", station.relays.all_off, self.timeouts.relays_s
+                )
+                return self._relay_state()
+            case SwitchLamp():
+                self._call(
+                    "relays",
+                    f"switch channel {step.channel} {'on' if step.on else 'off'}",
+                    lambda: station.relays.set(step.channel, step.on),
+                    self.timeouts.relays_s,
+                )
+                state = self._relay_state()
+                if not 1 <= step.channel <= len(state.channels) or (
+                    state.channels[step.channel - 1] != step.on
+                ):
+                    raise StateMismatch(
+                        self._workers["relays"].device,
+                        f"relay channel {step.channel} ({step.lamp}) did not follow",
+                        expected="on" if step.on else "off",
+                        actual="".join("1" if on else "0" for on in state.channels),
+                    )
+                return state
+            case ConfigureCamera():
+                return self._configure_camera(step)
+            case ConfigureSpectrometer():
+                self._call(
+                    "spectrometer",
+                    "set exposure",
+                    lambda: station.spectrometer.set_exposure(step.exposure_ms),
+                    self.timeouts.spectrometer_s,
+                )
+                return SpectrometerReady(step.exposure_ms)
+            case MeasureSpectrum():
+                return self._measure(step)
+            case Wait():
+                began_s = self._now_s()
+                completed = self._sleep(step.seconds)
+                ended_s = self._now_s()
+                return Waited(ended_s, ended_s - began_s, completed)
+            case SetExposure():
+                actual = self._call(
+                    "camera",
+                    f"set exposure {step.exposure_s:g} s",
+                    lambda: station.camera.set_exposure(step.exposure_s),
+                    self.timeouts.camera_s,
+                )
+                return ExposureSet(step.exposure_s, float(actual))
+            case Capture() | DarkFrame():
+                return self._capture(step)
+        raise PlanProtocolError(f"the runner has no handler for {type(step).__name__}")
+
+    def _relay_state(self) -> RelayState:
+        state = self._call(
+            "relays", "read state", self.station.relays.state, self.timeouts.relays_s
+        )
+        return RelayState(self._now_s(), tuple(bool(s) for s in state))
+
+    def _configure_camera(self, step: ConfigureCamera) -> CameraReady:
+        camera = self.station.camera
+        read_back = []
+        for name, value in step.settings:
+            actual = self._call(
+                "camera",
+                f"set {name}",
+                functools.partial(camera.set_setting, name, value),
+                self.timeouts.camera_s,
+            )
+            read_back.append(SettingReadBack(name, value, str(actual)))
+        low, high = self._call(
+            "camera", "read exposure range", camera.exposure_range_s, self.timeouts.camera_s
+        )
+        return CameraReady(tuple(read_back), (float(low), float(high)))
+
+    def _measure(self, step: MeasureSpectrum) -> SpectrumMeasured:
+        reading = self._call(
+            "spectrometer",
+            "measure",
+            self.station.spectrometer.measure,
+            self.timeouts.spectrometer_s,
+        )
+        values = np.asarray(reading.values, dtype=np.float64)
+        try:
+            spectrum = Spectrum(reading.wavelength_nm, values, name=step.key, negative="clip")
+        except SpectrumError as exc:
+            raise InvalidReading(
+                self._workers["spectrometer"].device, f"invalid spectrum: {exc}"
+            ) from None
+        negative = int(np.count_nonzero(values < 0))
+        relative = f"spectra/{step.lamp}/{step.purpose}-{step.index:03d}.csv"
+        record = self.session.write_spectrum(relative, spectrum, key=step.key, units=reading.units)
+        self._counts["spectra"] += 1
+        # The plan gets the spectrum as stored (CSV precision), so a plan re-driven from the session
+        # (resume, replay) sees exactly the numbers this run saw and takes the same branches.
+        stored = read_spectrum_csv(self.session.path / record.path)
+        return SpectrumMeasured(
+            self._now_s(),
+            record.path,
+            stored.wavelength_nm,
+            stored.values,
+            reading.units,
+            reading.exposure_ms,
+            negative,
+        )
+
+    def _capture(self, step: Capture | DarkFrame) -> FrameCaptured:
+        dark = isinstance(step, DarkFrame)
+        if dark:
+            state = self._relay_state()
+            lit = [str(i + 1) for i, on in enumerate(state.channels) if on]
+            if lit:
+                raise LampsNotOff(
+                    self._workers["relays"].device,
+                    f"relay channel(s) {', '.join(lit)} read as on before a dark frame",
+                )
+        temporary = self.session.incoming_path()
+        camera = self.station.camera
+        try:
+            captured = self._call(
+                "camera",
+                f"capture {step.exposure_s:g} s",
+                lambda: camera.capture(temporary),
+                step.exposure_s + self.timeouts.capture_extra_s,
+            )
+        except BaseException:
+            with contextlib.suppress(OSError):
+                temporary.unlink(missing_ok=True)
+            raise
+        source = Path(captured.path)
+        if not source.is_file():
+            raise InvalidReading(
+                self._workers["camera"].device,
+                f"the driver reported a download to {source}, but there is no file there",
+            )
+        suffix = Path(captured.camera_path).suffix.lower()
+        stream = "dark" if dark else "scene"
+        relative = f"frames/{step.lamp}/{stream}-{step.index:03d}{suffix if _SUFFIX.match(suffix) else '.raw'}"
+        record = self.session.commit_file(
+            source, relative, key=step.key, role="dark" if dark else "frame"
+        )
+        stats = None
+        if dark:
+            self._counts["dark_frames"] += 1
+        else:
+            self._counts["frames"] += 1
+            try:
+                stats = self.station.analyzer.analyse(self.session.path / record.path)
+            except FrameAnalysisError:
+                raise
+            except Exception as exc:
+                raise FrameAnalysisError(record.path, f"{type(exc).__name__}: {exc}") from exc
+        return FrameCaptured(
+            self._now_s(),
+            record.path,
+            step.exposure_s,
+            float(captured.exposure_s),
+            captured.camera_path,
+            stats,
+        )
+
+    def _sleep(self, seconds: float) -> bool:
+        """Let ``seconds`` pass on the clock, in slices; ``False`` if a stop request cut it short."""
+        end = self.clock.now() + seconds
+        while (remaining := end - self.clock.now()) > 0:
+            if self.interrupts.stop_requested is not None:
+                return False
+            self.clock.sleep(min(remaining, WAIT_SLICE_S))
+        return True
+
+    # ------------------------------------------------------------------------------ cleanup
+
+    def _switch_everything_off(self) -> bool:
+        """Switch every relay channel off and read the board back; ``True`` when confirmed off."""
+        relays = self.station.relays
+        worker = self._workers["relays"]
+        problems = []
+        try:
+            worker.call("switch all off", relays.all_off, self.timeouts.relays_s)
+        except Exception as exc:
+            problems.append(f"all off failed: {exc}")
+            n_channels = 0
+            with contextlib.suppress(Exception):
+                n_channels = int(relays.channels)
+            for channel in range(1, n_channels + 1):
+                try:
+                    worker.call(
+                        f"switch channel {channel} off",
+                        functools.partial(relays.set, channel, False),
+                        self.timeouts.relays_s,
+                    )
+                except Exception as channel_exc:
+                    problems.append(f"channel {channel}: {channel_exc}")
+        try:
+            state = worker.call("read state", relays.state, self.timeouts.relays_s)
+        except Exception as exc:
+            problems.append(f"reading the board back failed: {exc}")
+            state = None
+        confirmed = state is not None and not any(state)
+        if not confirmed:
+            self.progress.message(
+                "WARNING: could not confirm that every lamp is off"
+                + (f" ({'; '.join(problems)})" if problems else f" (board reads {state})")
+                + ": switch them off by hand"
+            )
+        return confirmed
+
+    def _write_stop(
+        self,
+        status: ExitStatus,
+        reason: str,
+        message: str,
+        failed_key: str | None,
+        failure: BaseException | None,
+        lamps_off: bool,
+    ) -> None:
+        session = self.session
+        if session.broken is not None:
+            return
+        try:
+            if not self._started:
+                self._write_start()
+            for received in self.interrupts.received:
+                session.write(
+                    InterruptionRecord,
+                    signal=received.name,
+                    t_s=self._now_s(),
+                    action=received.action,
+                )
+            session.close_transcripts()
+            internal = failure is not None and not isinstance(failure, DeviceError | RigError)
+            session.write(
+                StopRecord,
+                exit_status=status,
+                reason=reason,
+                message=message,
+                wall_time=datetime.now(UTC),
+                t_s=self._now_s(),
+                failed_key=failed_key,
+                error=error_info(failure, with_traceback=internal) if failure else None,
+                lamps_off=lamps_off,
+                counts=dict(self._counts),
+            )
+        except SessionWriteError as exc:
+            self.progress.message(f"WARNING: the stop record could not be written: {exc}")
+        finally:
+            session.close()
+
+    def _close_device(self, role: DeviceRole, close: Callable[[], None]) -> None:
+        # After a second interrupt, do not wait for a device still busy with an abandoned exchange:
+        # its close stays queued behind that exchange and runs when it returns.
+        timeout_s = HALT_CLOSE_TIMEOUT_S if self.interrupts.halted else self._timeout(role)
+        self._call(role, "close", close, timeout_s)
+
+    def _close_workers(self) -> None:
+        for worker in self._workers.values():
+            worker.close(timeout_s=0.1)

@@ -1,0 +1,601 @@
+"""A session is a directory: an append-only ``log.jsonl`` plus the files it acknowledges.
+
+::
+
+    <session>/
+      log.jsonl            one JSON record per line (rig.records), flushed and synced per record
+      frames/<lamp>/       RAW files exactly as downloaded: scene-000.dng, dark-003.dng, …
+      spectra/<lamp>/      spectra as CSV (calib.spectra.write_csv): warmup-002.csv, reference-000.csv
+      transcripts/         every device exchange, one JSONL file per device role
+
+Writing (:class:`SessionWriter`): a file is written under a temporary name, hashed (sha256) while
+it is read for syncing, synced, renamed into place, its directory synced, and only then acknowledged
+by a ``file`` record. Each record is one ``write`` of one line followed by one ``fdatasync``; after
+any write error the writer refuses further writes, so a torn line can only ever be the last one.
+
+Reading (:func:`read_session`): every record is validated; a torn last line (a crash mid-write) is
+reported, not fatal; paths are never trusted — they must be plain relative names inside the data
+directories, and a file is opened only if no component of its path is a symlink.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import hashlib
+import json
+import os
+import stat
+import threading
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+from pydantic import TypeAdapter, ValidationError
+
+from calib.spectra import Spectrum, write_csv
+from drivers.base import TranscriptEntry
+from rig.errors import SessionFormatError, SessionWriteError
+from rig.records import (
+    DATA_DIRS,
+    FRAMES_DIR,
+    LOG_NAME,
+    TRANSCRIPTS_DIR,
+    AnyRecord,
+    FileRecord,
+    Record,
+    StartRecord,
+    StepRecord,
+    StopRecord,
+    check_session_path,
+)
+
+RecordT = TypeVar("RecordT", bound=Record)
+SessionStatus = Literal["complete", "interrupted", "failed"]
+Guard = Callable[[], AbstractContextManager[object]]
+
+_CHUNK_BYTES = 1 << 20
+_RECORD_ADAPTER: TypeAdapter[AnyRecord] = TypeAdapter(AnyRecord)
+
+
+def _sync(fd: int) -> None:
+    """Make a file's data durable (``fdatasync`` where the OS has it)."""
+    if hasattr(os, "fdatasync"):
+        os.fdatasync(fd)
+    else:  # pragma: no cover - macOS, Windows
+        os.fsync(fd)
+
+
+def _sync_directory(path: Path) -> None:
+    """Make a rename or creation inside ``path`` durable (a no-op where directories cannot be opened)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - Windows
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        written = os.write(fd, view)
+        view = view[written:]
+
+
+def new_session_name(now: datetime, session_id: str) -> str:
+    """``20251121T122800Z-3fa9c2``: sortable by start time, unique by id."""
+    return f"{now.astimezone(UTC):%Y%m%dT%H%M%SZ}-{session_id[:6]}"
+
+
+# ------------------------------------------------------------------------------------ transcripts
+
+
+def encode_transcript_entry(entry: TranscriptEntry) -> dict[str, object]:
+    """A transcript entry as JSON: bytes as hex (``tx``/``rx``), text as UTF-8 or else base64."""
+    payload = entry.payload
+    if entry.direction in ("tx", "rx"):
+        encoding, data = "hex", payload.hex()
+    else:
+        try:
+            encoding, data = "utf-8", payload.decode("utf-8")
+        except UnicodeDecodeError:
+            encoding, data = "base64", base64.b64encode(payload).decode("ascii")
+    return {
+        "t_s": entry.monotonic_s,
+        "device": entry.device,
+        "dir": entry.direction,
+        "enc": encoding,
+        "data": data,
+    }
+
+
+def decode_transcript_line(line: str) -> TranscriptEntry:
+    """Inverse of :func:`encode_transcript_entry` for one JSONL line."""
+    item = json.loads(line)
+    data = str(item["data"])
+    match item["enc"]:
+        case "hex":
+            payload = bytes.fromhex(data)
+        case "utf-8":
+            payload = data.encode("utf-8")
+        case "base64":
+            payload = base64.b64decode(data, validate=True)
+        case other:
+            raise ValueError(f"unknown transcript encoding {other!r}")
+    return TranscriptEntry(str(item["device"]), item["dir"], payload, float(item["t_s"]))
+
+
+class TranscriptFile:
+    """A :class:`drivers.base.TranscriptSink` appending to ``transcripts/<role>.jsonl``.
+
+    Thread-safe (drivers run in worker threads). Each entry is written at once (no user-space buffer
+    to lose); :meth:`sync` makes everything written so far durable; the sha256 is kept up to date
+    while writing.
+    """
+
+    def __init__(self, path: Path, relative: str) -> None:
+        self.path = path
+        self.relative = relative
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_EXCL, 0o644)
+        self._hash = hashlib.sha256()
+        self._size = 0
+        self._dirty = False
+        self._lock = threading.Lock()
+        self._closed = False
+
+    def record(self, entry: TranscriptEntry) -> None:
+        line = (json.dumps(encode_transcript_entry(entry), ensure_ascii=False) + "\n").encode()
+        with self._lock:
+            if self._closed:
+                raise SessionWriteError(f"{self.path}: transcript already closed")
+            try:
+                _write_all(self._fd, line)
+            except OSError as exc:
+                raise SessionWriteError(f"cannot write {self.path}: {exc}") from exc
+            self._hash.update(line)
+            self._size += len(line)
+            self._dirty = True
+
+    def sync(self) -> None:
+        """Make the entries written so far durable (only if anything was written since)."""
+        with self._lock:
+            if self._dirty and not self._closed:
+                _sync(self._fd)
+                self._dirty = False
+
+    def close(self) -> tuple[int, str]:
+        """Sync and close; return the file's size and sha256."""
+        with self._lock:
+            if not self._closed:
+                if self._dirty:
+                    _sync(self._fd)
+                os.close(self._fd)
+                self._closed = True
+            return self._size, self._hash.hexdigest()
+
+
+# ----------------------------------------------------------------------------------------- writer
+
+
+class SessionWriter:
+    """Creates a session directory and appends to it; the only code that writes a session.
+
+    Parameters
+    ----------
+    path
+        The session directory (created; must not exist).
+    guard
+        Context manager factory wrapped around every log write and file commit, so an interrupt
+        cannot tear them (the runner passes its deferred-interrupt section).
+    """
+
+    def __init__(self, path: Path, *, session_id: str | None = None, guard: Guard | None = None):
+        self.path = path
+        self.session_id = session_id or uuid.uuid4().hex
+        self.guard: Guard = guard or contextlib.nullcontext
+        self.run = 1
+        self._seq = 0
+        self._broken: str | None = None
+        self._transcripts: dict[str, TranscriptFile] = {}
+        self._incoming = 0
+        try:
+            path.mkdir(parents=False, exist_ok=False)
+            for name in DATA_DIRS:
+                (path / name).mkdir()
+            self._log_fd: int | None = os.open(
+                path / LOG_NAME, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_EXCL, 0o644
+            )
+            _sync_directory(path)
+            _sync_directory(path.parent)
+        except FileExistsError:
+            raise SessionWriteError(f"session directory {path} already exists") from None
+        except OSError as exc:
+            raise SessionWriteError(f"cannot create session directory {path}: {exc}") from exc
+
+    @classmethod
+    def create(cls, parent: Path, *, guard: Guard | None = None) -> SessionWriter:
+        """A new session in ``parent`` (created if needed), named by start time and id."""
+        session_id = uuid.uuid4().hex
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SessionWriteError(f"cannot create output directory {parent}: {exc}") from exc
+        name = new_session_name(datetime.now(UTC), session_id)
+        return cls(parent / name, session_id=session_id, guard=guard)
+
+    @property
+    def records_written(self) -> int:
+        return self._seq
+
+    @property
+    def broken(self) -> str | None:
+        """Why the writer refuses to write, after a failed write; ``None`` while healthy."""
+        return self._broken
+
+    def _fail(self, what: str, exc: OSError) -> SessionWriteError:
+        self._broken = f"{what}: {exc}"
+        return SessionWriteError(f"cannot write the session in {self.path}: {what}: {exc}")
+
+    def write(self, record_type: type[RecordT], **fields: Any) -> RecordT:
+        """Append one record (``seq`` and ``run`` filled in), flushed and synced before returning."""
+        if self._broken is not None:
+            raise SessionWriteError(f"{self.path}: an earlier write failed ({self._broken})")
+        if self._log_fd is None:
+            raise SessionWriteError(f"{self.path}: the session is closed")
+        record = record_type(seq=self._seq, run=self.run, **fields)
+        line = (record.model_dump_json() + "\n").encode("utf-8")
+        log_fd = self._log_fd
+        with self.guard():
+            try:
+                _write_all(log_fd, line)
+                _sync(log_fd)
+            except OSError as exc:
+                raise self._fail(f"appending to {LOG_NAME}", exc) from exc
+            self._seq += 1
+        return record
+
+    def transcript_sink(self, role: str) -> TranscriptFile:
+        """The transcript file for a device role (``spectrometer``, ``camera``, ``relays``)."""
+        if role not in self._transcripts:
+            relative = check_session_path(f"{TRANSCRIPTS_DIR}/{role}.jsonl")
+            try:
+                self._transcripts[role] = TranscriptFile(self.path / relative, relative)
+            except OSError as exc:
+                raise self._fail(f"creating {relative}", exc) from exc
+        return self._transcripts[role]
+
+    def sync_transcripts(self) -> None:
+        """Make every transcript entry so far durable (before a step record acknowledges it)."""
+        for transcript in self._transcripts.values():
+            try:
+                transcript.sync()
+            except OSError as exc:
+                raise self._fail(f"syncing {transcript.relative}", exc) from exc
+
+    def incoming_path(self, directory: str = FRAMES_DIR) -> Path:
+        """A fresh temporary path in a data directory for a download (never acknowledged as is).
+
+        The leading dot keeps it out of what a file record may name.
+        """
+        self._incoming += 1
+        return self.path / directory / f".incoming-{self.run}-{self._incoming:05d}.part"
+
+    def _free_name(self, relative: str) -> str:
+        """``relative``, or ``stem.2.ext``, ``stem.3.ext``… if taken (acknowledged files are never replaced)."""
+        candidate = relative
+        stem, dot, suffix = relative.rpartition(".")
+        if not dot or "/" in suffix:
+            stem, suffix = relative, ""
+        number = 1
+        while (self.path / candidate).exists():
+            number += 1
+            candidate = f"{stem}.{number}" + (f".{suffix}" if suffix else "")
+        return candidate
+
+    def commit_file(
+        self,
+        temporary: Path,
+        relative: str,
+        *,
+        key: str,
+        role: Literal["frame", "dark", "spectrum"],
+        units: str | None = None,
+    ) -> FileRecord:
+        """Sync ``temporary``, rename it to ``relative`` and acknowledge it with a ``file`` record.
+
+        The file is read once, for the sha256, through the descriptor that is then synced. Returns
+        the record (its ``path`` may carry a ``.2`` suffix when ``relative`` was already taken).
+        """
+        relative = self._free_name(check_session_path(relative))
+        final = self.path / relative
+        digest = hashlib.sha256()
+        with self.guard():
+            try:
+                final.parent.mkdir(parents=True, exist_ok=True)
+                fd = os.open(temporary, os.O_RDONLY)
+                try:
+                    size = 0
+                    while chunk := os.read(fd, _CHUNK_BYTES):
+                        digest.update(chunk)
+                        size += len(chunk)
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
+                temporary.replace(final)
+                _sync_directory(final.parent)
+            except OSError as exc:
+                raise self._fail(f"storing {relative}", exc) from exc
+        return self.write(
+            FileRecord,
+            key=key,
+            role=role,
+            path=relative,
+            size=size,
+            sha256=digest.hexdigest(),
+            units=units,
+        )
+
+    def write_spectrum(
+        self, relative: str, spectrum: Spectrum, *, key: str, units: str
+    ) -> FileRecord:
+        """Store a spectrum as CSV (``wavelength_nm,value``) and acknowledge it; ``units`` of ``value``."""
+        temporary = self.incoming_path(relative.split("/")[0])
+        try:
+            write_csv(temporary, spectrum)
+        except OSError as exc:
+            raise self._fail(f"writing {relative}", exc) from exc
+        return self.commit_file(temporary, relative, key=key, role="spectrum", units=units)
+
+    def close_transcripts(self) -> None:
+        """Close the transcripts, acknowledging each with a ``file`` record (before the stop record)."""
+        for role, transcript in self._transcripts.items():
+            try:
+                size, sha256 = transcript.close()
+            except OSError as exc:
+                self._broken = self._broken or f"closing {transcript.relative}: {exc}"
+                continue
+            self.write(
+                FileRecord,
+                key=f"transcripts/{role}",
+                role="transcript",
+                path=transcript.relative,
+                size=size,
+                sha256=sha256,
+            )
+
+    def close(self) -> None:
+        """Close any transcript still open (without records) and the log; safe to call twice."""
+        for transcript in self._transcripts.values():
+            with contextlib.suppress(OSError):
+                transcript.close()
+        if self._log_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._log_fd)
+            self._log_fd = None
+
+
+# ----------------------------------------------------------------------------------------- reader
+
+
+@dataclass(frozen=True)
+class TornLine:
+    """The incomplete last line of a log (a crash mid-write): where, and how many bytes."""
+
+    line: int
+    size: int
+
+
+@dataclass(frozen=True)
+class FileProblem:
+    """An acknowledged file that is missing, unsafe, or differs from its record."""
+
+    path: str
+    problem: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.problem}"
+
+
+@dataclass
+class Session:
+    """A session as read from disk: validated records, the torn tail if any, and derived views."""
+
+    path: Path
+    records: list[Record] = field(default_factory=list)
+    torn: TornLine | None = None
+
+    @property
+    def start(self) -> StartRecord | None:
+        """The first run's start record."""
+        first = self.records[0] if self.records else None
+        return first if isinstance(first, StartRecord) else None
+
+    @property
+    def stop(self) -> StopRecord | None:
+        """The last run's stop record, if it has one."""
+        for record in reversed(self.records):
+            if isinstance(record, StartRecord):
+                return None
+            if isinstance(record, StopRecord):
+                return record
+        return None
+
+    @property
+    def status(self) -> SessionStatus:
+        """``complete``, ``failed``, or ``interrupted`` (stopped by a signal, or no stop record)."""
+        stop = self.stop
+        if stop is None or stop.exit_status == "abort":
+            return "interrupted"
+        return "complete" if stop.exit_status == "success" else "failed"
+
+    def done_steps(self) -> dict[str, StepRecord]:
+        """The last ``done`` record of every step key."""
+        return {r.key: r for r in self.records if isinstance(r, StepRecord) and r.status == "done"}
+
+    def files(self) -> list[FileRecord]:
+        return [r for r in self.records if isinstance(r, FileRecord)]
+
+    def file_path(self, relative: str) -> Path:
+        """The on-disk path of a session-relative file, refusing anything that could leave the session.
+
+        Raises
+        ------
+        SessionFormatError
+            When the path is not a safe relative name, or any component is a symlink or missing, or
+            the file is not a regular file.
+        """
+        try:
+            check_session_path(relative)
+        except ValueError as exc:
+            raise SessionFormatError(f"{self.path}: {exc}") from None
+        current = self.path
+        for part in relative.split("/"):
+            current = current / part
+            try:
+                mode = current.lstat().st_mode
+            except FileNotFoundError:
+                raise SessionFormatError(f"{self.path}: {relative} does not exist") from None
+            if stat.S_ISLNK(mode):
+                raise SessionFormatError(
+                    f"{self.path}: {relative} goes through a symlink ({current.name}); refused"
+                )
+        if not stat.S_ISREG(current.lstat().st_mode):
+            raise SessionFormatError(f"{self.path}: {relative} is not a regular file")
+        return current
+
+    def verify_files(self) -> list[FileProblem]:
+        """Check every acknowledged file's size and sha256; return the problems (empty when all verify)."""
+        problems = []
+        for record in self.files():
+            try:
+                path = self.file_path(record.path)
+            except SessionFormatError as exc:
+                problems.append(FileProblem(record.path, str(exc).split(": ", 1)[-1]))
+                continue
+            digest = hashlib.sha256()
+            size = 0
+            with path.open("rb") as stream:
+                while chunk := stream.read(_CHUNK_BYTES):
+                    digest.update(chunk)
+                    size += len(chunk)
+            if size != record.size:
+                problems.append(FileProblem(record.path, f"{size} bytes, log says {record.size}"))
+            elif digest.hexdigest() != record.sha256:
+                problems.append(FileProblem(record.path, "sha256 differs from the log"))
+        return problems
+
+
+def _validate_sequence(records: list[Record], log: Path) -> None:
+    for index, record in enumerate(records):
+        if record.seq != index:
+            raise SessionFormatError(
+                f"{log}: line {index + 1} has seq {record.seq}, expected {index} "
+                "(records lost, reordered or duplicated)"
+            )
+    if records and not isinstance(records[0], StartRecord):
+        raise SessionFormatError(
+            f"{log}: line 1 is a {type(records[0]).__name__}, not a start record"
+        )
+    run = 0
+    for index, record in enumerate(records):
+        if isinstance(record, StartRecord):
+            if record.run != run + 1:
+                raise SessionFormatError(
+                    f"{log}: line {index + 1} starts run {record.run}, expected {run + 1}"
+                )
+            run = record.run
+        elif record.run != run:
+            raise SessionFormatError(
+                f"{log}: line {index + 1} belongs to run {record.run} inside run {run}"
+            )
+
+
+def read_session(path: str | Path) -> Session:
+    """Read and validate a session directory's log.
+
+    Raises
+    ------
+    SessionFormatError
+        When ``path`` is not a session (no regular ``log.jsonl``), or a complete line is not a valid
+        record, or the records are out of sequence. A torn *last* line is reported in
+        :attr:`Session.torn` instead.
+    """
+    directory = Path(path)
+    log = directory / LOG_NAME
+    try:
+        mode = log.lstat().st_mode
+    except FileNotFoundError:
+        raise SessionFormatError(f"{directory}: not a session (no {LOG_NAME})") from None
+    if not stat.S_ISREG(mode):
+        raise SessionFormatError(f"{log}: not a regular file")
+    data = log.read_bytes()
+    lines = data.split(b"\n")
+    tail = lines.pop()  # empty when the log ends with a newline
+    session = Session(directory)
+    for number, raw in enumerate(lines, start=1):
+        session.records.append(_parse_line(raw, number, log))
+    if tail:
+        session.torn = TornLine(len(lines) + 1, len(tail))
+    _validate_sequence(session.records, log)
+    return session
+
+
+def _parse_line(raw: bytes, number: int, log: Path) -> Record:
+    try:
+        record = _RECORD_ADAPTER.validate_json(raw)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "record"
+        raise SessionFormatError(f"{log}: line {number}: {where}: {first['msg']}") from None
+    assert isinstance(record, Record)
+    return record
+
+
+@dataclass(frozen=True)
+class SessionSummary:
+    """One line of ``rig sessions``."""
+
+    path: Path
+    status: SessionStatus | Literal["invalid"]
+    started: datetime | None = None
+    plan: str | None = None
+    frames: int = 0
+    reason: str = ""
+
+
+def summarise(path: Path) -> SessionSummary:
+    """A session's status and headline numbers; ``invalid`` (with the reason) when it cannot be read."""
+    try:
+        session = read_session(path)
+    except (SessionFormatError, OSError) as exc:
+        return SessionSummary(path, "invalid", reason=str(exc))
+    start = session.start
+    stop = session.stop
+    frames = sum(1 for f in session.files() if f.role in ("frame", "dark"))
+    reason = stop.reason if stop is not None else "no stop record (crashed or killed)"
+    if session.torn is not None:
+        reason += f"; torn last line {session.torn.line}"
+    return SessionSummary(
+        path,
+        session.status,
+        start.wall_time if start else None,
+        start.plan.name if start else None,
+        frames,
+        reason,
+    )
+
+
+def find_sessions(parent: Path) -> Iterator[Path]:
+    """Session directories directly inside ``parent`` (those with a ``log.jsonl``), by name."""
+    if not parent.is_dir():
+        return
+    for child in sorted(parent.iterdir()):
+        if child.is_dir() and not child.is_symlink() and (child / LOG_NAME).exists():
+            yield child

@@ -1,0 +1,459 @@
+"""The vocabulary of plans: small frozen steps, and the typed results the runner sends back.
+
+A plan (:mod:`rig.plan`) yields steps; the runner (:mod:`rig.runner`) executes each on the devices and
+sends the result back into the plan, which may branch on it (warm-up, automatic bracketing). A dry
+run (:mod:`rig.dryrun`) sends modelled results instead.
+
+Every step has a stable, idempotent :attr:`Step.key` — the same plan with the same readings yields the
+same keys — so a resumed session can tell which steps are done. Keys are ``/``-separated, built only
+from lamp names (restricted by :data:`rig.config.LAMP_NAME_PATTERN`), fixed words and zero-padded
+indices: ``lamp/LED-B3/scene/002``.
+
+Results serialise to JSON for the session log (:meth:`StepResult.to_json`) and come back from it
+(``from_json``) with everything the plan needs, so a plan can be re-driven from a log (resume, replay).
+Spectrum values live in the session's CSV files, not in the log; ``from_json`` takes a loader for them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rig.analysis import FrameStats
+
+FloatArray = NDArray[np.float64]
+JsonDict = dict[str, Any]
+DeviceRole = Literal["spectrometer", "camera", "relays"]
+SpectrumPurpose = Literal["warmup", "reference"]
+SpectrumLoader = Callable[[str], tuple[FloatArray, FloatArray]]
+"""Reads a session-relative spectrum file into ``(wavelength_nm, values)``, both ``(n,)``."""
+
+
+# --------------------------------------------------------------------------------------- results
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What executing a step produced; sent back into the plan."""
+
+    def to_json(self) -> JsonDict:
+        """The result as JSON-able data for the step's log record."""
+        return {
+            field.name: _jsonable(getattr(self, field.name))
+            for field in dataclasses.fields(self)
+            if not isinstance(getattr(self, field.name), np.ndarray)
+        }
+
+
+def _jsonable(value: object) -> object:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, tuple | list):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True)
+class RelayState(StepResult):
+    """The relay board's channels (1..n) as read back after switching, at ``time_s`` (runner clock)."""
+
+    time_s: float
+    channels: tuple[bool, ...]
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> RelayState:
+        return cls(float(data["time_s"]), tuple(bool(c) for c in data["channels"]))
+
+
+@dataclass(frozen=True)
+class SettingReadBack:
+    """A camera setting: what was asked and what the camera reports afterwards."""
+
+    name: str
+    requested: str
+    read_back: str
+
+
+@dataclass(frozen=True)
+class CameraReady(StepResult):
+    """The camera after configuration: settings read back and its exposure range in seconds."""
+
+    settings: tuple[SettingReadBack, ...]
+    exposure_range_s: tuple[float, float]
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> CameraReady:
+        low, high = data["exposure_range_s"]
+        return cls(
+            tuple(SettingReadBack(**item) for item in data["settings"]),
+            (float(low), float(high)),
+        )
+
+
+@dataclass(frozen=True)
+class SpectrometerReady(StepResult):
+    """The spectrometer's integration time in ms (``None``: adaptive)."""
+
+    exposure_ms: float | None
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> SpectrometerReady:
+        value = data["exposure_ms"]
+        return cls(None if value is None else float(value))
+
+
+@dataclass(frozen=True, eq=False)
+class SpectrumMeasured(StepResult):
+    """One spectrum, stored in the session at ``file``.
+
+    Parameters
+    ----------
+    time_s
+        Runner-clock time at the end of the measurement.
+    file
+        Session-relative path of the CSV file.
+    wavelength_nm, values
+        Shape ``(n,)``: the spectrum as stored (negative values clipped to zero, see
+        ``negative_clipped``).
+    units
+        The instrument's unit of ``values``.
+    exposure_ms
+        Integration time the instrument reports having used, if it says.
+    negative_clipped
+        How many values were negative (noise below zero) and stored as zero.
+    """
+
+    time_s: float
+    file: str
+    wavelength_nm: FloatArray
+    values: FloatArray
+    units: str
+    exposure_ms: float | None
+    negative_clipped: int = 0
+
+    @classmethod
+    def from_json(cls, data: JsonDict, load_spectrum: SpectrumLoader) -> SpectrumMeasured:
+        wavelength_nm, values = load_spectrum(str(data["file"]))
+        exposure = data.get("exposure_ms")
+        return cls(
+            float(data["time_s"]),
+            str(data["file"]),
+            wavelength_nm,
+            values,
+            str(data["units"]),
+            None if exposure is None else float(exposure),
+            int(data.get("negative_clipped", 0)),
+        )
+
+
+@dataclass(frozen=True)
+class Waited(StepResult):
+    """A wait that ended at ``time_s``; ``completed`` is false when a stop request cut it short."""
+
+    time_s: float
+    waited_s: float
+    completed: bool = True
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> Waited:
+        return cls(float(data["time_s"]), float(data["waited_s"]), bool(data["completed"]))
+
+
+@dataclass(frozen=True)
+class ExposureSet(StepResult):
+    """The camera's exposure: what was asked and the nearest available value it read back (s)."""
+
+    requested_s: float
+    actual_s: float
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> ExposureSet:
+        return cls(float(data["requested_s"]), float(data["actual_s"]))
+
+
+@dataclass(frozen=True)
+class FrameCaptured(StepResult):
+    """A frame stored in the session at ``file``.
+
+    ``exposure_s`` is the exposure the step asked for (as set and read back before the capture);
+    ``reported_exposure_s`` is what the camera driver reports for the file. ``stats`` is ``None`` for
+    dark frames, which are not analysed.
+    """
+
+    time_s: float
+    file: str
+    exposure_s: float
+    reported_exposure_s: float
+    camera_path: str
+    stats: FrameStats | None = None
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> FrameCaptured:
+        stats = data.get("stats")
+        return cls(
+            float(data["time_s"]),
+            str(data["file"]),
+            float(data["exposure_s"]),
+            float(data["reported_exposure_s"]),
+            str(data["camera_path"]),
+            None if stats is None else FrameStats(**stats),
+        )
+
+
+# ----------------------------------------------------------------------------------------- steps
+
+
+@dataclass(frozen=True)
+class Step:
+    """One thing for the runner to do.
+
+    Class attributes
+    ----------------
+    device
+        The device the step talks to (``None``: no device, e.g. a wait).
+    retry_safe
+        Whether repeating the step after a *retryable* device error is harmless.
+    result_type
+        The :class:`StepResult` subclass the runner sends back.
+    """
+
+    device: ClassVar[DeviceRole | None] = None
+    retry_safe: ClassVar[bool] = True
+    result_type: ClassVar[type[StepResult]] = StepResult
+
+    @property
+    def key(self) -> str:
+        """Stable, idempotent identifier of this step within a plan."""
+        raise NotImplementedError
+
+    @property
+    def lamp_name(self) -> str | None:
+        """The lamp this step belongs to, if any."""
+        return getattr(self, "lamp", None)
+
+    def describe(self) -> str:
+        """A short human-readable description."""
+        raise NotImplementedError
+
+    def params(self) -> JsonDict:
+        """The step's fields as JSON-able data for the log."""
+        return {f.name: _jsonable(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+@dataclass(frozen=True)
+class AllLampsOff(Step):
+    """Switch every relay channel off and read the board back."""
+
+    device = "relays"
+    result_type = RelayState
+    stage: Literal["start"] = "start"
+
+    @property
+    def key(self) -> str:
+        return f"{self.stage}/all-lamps-off"
+
+    def describe(self) -> str:
+        return "switch every lamp off"
+
+
+@dataclass(frozen=True)
+class ConfigureCamera(Step):
+    """Apply camera settings (``(widget, value)`` pairs) and read back the exposure range."""
+
+    device = "camera"
+    result_type = CameraReady
+    settings: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def key(self) -> str:
+        return "start/camera"
+
+    def describe(self) -> str:
+        shown = ", ".join(f"{name}={value}" for name, value in self.settings)
+        return f"configure the camera ({shown or 'no settings'})"
+
+
+@dataclass(frozen=True)
+class ConfigureSpectrometer(Step):
+    """Set the spectrometer's integration time (``None``: adaptive)."""
+
+    device = "spectrometer"
+    result_type = SpectrometerReady
+    exposure_ms: float | None = None
+
+    @property
+    def key(self) -> str:
+        return "start/spectrometer"
+
+    def describe(self) -> str:
+        shown = "adaptive" if self.exposure_ms is None else f"{self.exposure_ms:g} ms"
+        return f"configure the spectrometer (integration {shown})"
+
+
+@dataclass(frozen=True)
+class SwitchLamp(Step):
+    """Switch one lamp's relay channel on or off and read the board back."""
+
+    device = "relays"
+    result_type = RelayState
+    lamp: str
+    channel: int
+    on: bool
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/switch-{'on' if self.on else 'off'}"
+
+    def describe(self) -> str:
+        return f"switch {self.lamp} {'on' if self.on else 'off'} (relay channel {self.channel})"
+
+
+@dataclass(frozen=True)
+class MeasureSpectrum(Step):
+    """Measure the lit lamp's spectrum (during warm-up, or as a reference after it)."""
+
+    device = "spectrometer"
+    result_type = SpectrumMeasured
+    lamp: str
+    purpose: SpectrumPurpose
+    index: int
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/{self.purpose}/{self.index:03d}"
+
+    def describe(self) -> str:
+        what = "warm-up spectrum" if self.purpose == "warmup" else "reference spectrum"
+        return f"{self.lamp}: {what} {self.index + 1}"
+
+
+@dataclass(frozen=True)
+class Wait(Step):
+    """Let ``seconds`` pass before the warm-up spectrum with the same index."""
+
+    result_type = Waited
+    lamp: str
+    index: int
+    seconds: float
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/warmup/{self.index:03d}/wait"
+
+    def describe(self) -> str:
+        return f"{self.lamp}: wait {self.seconds:g} s for the lamp to settle"
+
+
+@dataclass(frozen=True)
+class SetExposure(Step):
+    """Set the camera's exposure before frame ``index`` of a scene bracket or of the dark frames."""
+
+    device = "camera"
+    result_type = ExposureSet
+    lamp: str
+    stream: Literal["scene", "dark"]
+    index: int
+    exposure_s: float
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/{self.stream}/{self.index:03d}/exposure"
+
+    def describe(self) -> str:
+        return f"{self.lamp}: set exposure {format_exposure(self.exposure_s)}"
+
+
+@dataclass(frozen=True)
+class Capture(Step):
+    """Capture frame ``index`` of a lamp's HDR bracket (direct spot + first-order band) and analyse it."""
+
+    device = "camera"
+    result_type = FrameCaptured
+    lamp: str
+    index: int
+    exposure_s: float
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/scene/{self.index:03d}"
+
+    def describe(self) -> str:
+        return f"{self.lamp}: bracket frame {self.index + 1} at {format_exposure(self.exposure_s)}"
+
+
+@dataclass(frozen=True)
+class DarkFrame(Step):
+    """Capture dark frame ``index`` of ``count`` for a lamp's bracket, after checking every lamp is off."""
+
+    device = "camera"
+    result_type = FrameCaptured
+    lamp: str
+    index: int
+    count: int
+    exposure_s: float
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/dark/{self.index:03d}"
+
+    def describe(self) -> str:
+        return (
+            f"{self.lamp}: dark frame {self.index + 1} of {self.count} at "
+            f"{format_exposure(self.exposure_s)}"
+        )
+
+
+STEP_TYPES: dict[str, type[Step]] = {
+    cls.__name__: cls
+    for cls in (
+        AllLampsOff,
+        ConfigureCamera,
+        ConfigureSpectrometer,
+        SwitchLamp,
+        MeasureSpectrum,
+        Wait,
+        SetExposure,
+        Capture,
+        DarkFrame,
+    )
+}
+"""Every step type by its class name, as written in the log's ``action`` field."""
+
+
+def step_from_record(action: str, params: JsonDict) -> Step:
+    """Rebuild a step from its log record's ``action`` and ``params``."""
+    step_type = STEP_TYPES.get(action)
+    if step_type is None:
+        raise ValueError(f"unknown step action {action!r}; known: {', '.join(sorted(STEP_TYPES))}")
+    values = {
+        key: tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        if isinstance(value, list)
+        else value
+        for key, value in params.items()
+    }
+    return step_type(**values)
+
+
+def result_from_json(
+    step: Step, data: JsonDict, load_spectrum: SpectrumLoader | None = None
+) -> StepResult:
+    """Rebuild the result of ``step`` from its log record (``load_spectrum`` reads spectrum files)."""
+    result_type = step.result_type
+    if result_type is SpectrumMeasured:
+        if load_spectrum is None:
+            raise ValueError(f"{step.key}: a spectrum loader is needed to rebuild its result")
+        return SpectrumMeasured.from_json(data, load_spectrum)
+    from_json: Callable[[JsonDict], StepResult] = getattr(result_type, "from_json")  # noqa: B009
+    return from_json(data)
+
+
+def format_exposure(exposure_s: float) -> str:
+    """``1/125 s`` below a tenth of a second, ``0.25 s`` or ``2.5 s`` above."""
+    if exposure_s < 0.1:
+        return f"1/{1 / exposure_s:.4g} s"
+    return f"{exposure_s:.4g} s"

@@ -1,0 +1,106 @@
+"""Real signals to a real ``rig capture`` process: lamps end off and the log stays valid."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from rig.records import InterruptionRecord, StepRecord
+from rig.session import Session, find_sessions, read_session
+from tests.rig.fakes import fake_config_data, wait_for, write_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def start_capture(
+    tmp_path: Path, capture_delay_s: float
+) -> tuple[subprocess.Popen[str], Path, Path]:
+    data = fake_config_data(tmp_path / "sessions")
+    for lamp in data["lamps"]:
+        lamp["warmup"] = {"tolerance": 0.01, "interval_s": 0.05, "timeout_s": 10, "stable_pairs": 2}
+    config = write_config(tmp_path / "rig.yaml", data)
+    state, marker = tmp_path / "relays.state", tmp_path / "capturing"
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tests.rig.capture_process",
+            str(config),
+            str(state),
+            str(marker),
+            str(capture_delay_s),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_for(marker.exists, timeout_s=60, what="the first capture to begin")
+    except AssertionError:
+        process.kill()
+        out, err = process.communicate(timeout=10)
+        raise AssertionError(f"the capture never began:\n{out}\n{err}") from None
+    assert state.read_text() == "10"  # LED-B3 is on while its bracket is captured
+    return process, state, tmp_path / "sessions"
+
+
+def finish(process: subprocess.Popen[str]) -> tuple[int, str, str]:
+    try:
+        out, err = process.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        out, err = process.communicate(timeout=10)
+        raise AssertionError(f"the capture did not stop:\n{out}\n{err}") from None
+    return process.returncode, out, err
+
+
+def the_session(parent: Path) -> Session:
+    (path,) = find_sessions(parent)
+    session = read_session(path)
+    assert session.torn is None
+    assert session.verify_files() == []
+    assert session.stop is not None and session.stop.lamps_off
+    assert session.records[-1] == session.stop
+    return session
+
+
+@pytest.mark.parametrize(("signum", "exit_code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_one_signal_finishes_the_step_and_switches_the_lamps_off(
+    tmp_path: Path, signum: signal.Signals, exit_code: int
+) -> None:
+    process, state, sessions = start_capture(tmp_path, capture_delay_s=0.5)
+    process.send_signal(signum)
+    code, out, err = finish(process)
+    assert code == exit_code, err
+    assert state.read_text() == "00"
+    assert "status: interrupted (interrupted)" in out
+    session = the_session(sessions)
+    assert session.status == "interrupted"
+    last = [r for r in session.records if isinstance(r, StepRecord)][-1]
+    assert (last.key, last.status) == ("lamp/LED-B3/scene/000", "done")
+    (interruption,) = [r for r in session.records if isinstance(r, InterruptionRecord)]
+    assert interruption.signal == signum.name
+
+
+def test_a_second_ctrl_c_stops_at_once(tmp_path: Path) -> None:
+    process, state, sessions = start_capture(tmp_path, capture_delay_s=30.0)
+    process.send_signal(signal.SIGINT)
+    time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    began = time.monotonic()
+    code, _, err = finish(process)
+    assert time.monotonic() - began < 10.0  # not the 30 s the capture would take
+    assert code == 130, err
+    assert state.read_text() == "00"
+    session = the_session(sessions)
+    assert session.stop is not None and session.stop.reason == "halted"
+    assert [r.action for r in session.records if isinstance(r, InterruptionRecord)] == [
+        "finish-step",
+        "stop-now",
+    ]
