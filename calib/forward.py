@@ -246,7 +246,9 @@ def lamp_operators(
             source=lamp.name,
         )
     axis = fine_axis(grid.start_nm, grid.stop_nm, fine_step_nm)
-    densities = PiecewiseLinearDensity.on_axis(axis, lamp.at(axis)[:, None] * hat_matrix(grid, axis))
+    densities = PiecewiseLinearDensity.on_axis(
+        axis, lamp.at(axis)[:, None] * hat_matrix(grid, axis)
+    )
     return LampOperators(grid, densities, densities.total.copy())
 
 
