@@ -23,7 +23,7 @@ out of their noise. A sample is excluded when
   exposure of the bracket is predicted to measure it below clipping.
 
 Where no frame has a usable sample the pixel is flagged ``saturated`` and holds the shortest frame's
-(clipped, hence lower-bound) rate with infinite variance.
+rate (a lower bound where it clipped) with infinite variance.
 
 Frames are streamed: one is decoded (in a background thread) while the previous one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
@@ -31,9 +31,10 @@ Optional dark frames are matched to the light frames by exposure time (and avera
 All frames must come from one camera at one ISO, size and aperture; the first file that differs is
 named in the error.
 
-The noise model is given, or estimated: the gain and read noise from the longest frame's two green
-sites per 2×2 cell (their difference has variance ``2 (g μ + σ²)``: a photon-transfer fit over the
-frame's range of levels), and the read noise per channel from the dark frames when there are any.
+The noise model (:mod:`calib.sensor_noise`) is given, or estimated: the gain and read noise from the
+two green sites per 2×2 cell of the first two decoded frames (their difference has variance
+``2 (g μ + σ²)``: a photon-transfer fit over the frames' range of levels), and the read noise per
+channel from the dark frames when there are any.
 
 Examples
 --------
@@ -53,7 +54,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from calib.errors import EstimationError, InputError
 from calib.raw import (
@@ -64,6 +64,16 @@ from calib.raw import (
     read_raw,
     read_raw_metadata,
 )
+from calib.sensor_noise import (
+    QUANTISATION_VARIANCE_DN2,
+    SITES_PER_SAMPLE,
+    DarkSpread,
+    NoiseModel,
+    dark_read_noise,
+    fit_noise_model,
+    green_pair_statistics,
+    leave_one_out_mean,
+)
 
 Float32Array = NDArray[np.float32]
 FloatArray = NDArray[np.float64]
@@ -72,54 +82,10 @@ PathLike = str | os.PathLike[str]
 #: ``progress(frames_done, frames_total, path_just_merged)``
 ProgressCallback = Callable[[int, int, Path], None]
 
-#: Raw sites averaged into one plane sample: R, G (two greens), B.
-SITES_PER_SAMPLE = np.array([1.0, 2.0, 1.0])
-#: Rounding to integer DN adds this variance (DN²).
-QUANTISATION_VARIANCE_DN2 = 1.0 / 12.0
-#: Side of the neighbourhood (plane samples) whose mean, without the centre, predicts a sample.
-PREDICTOR_WINDOW = 5
+#: Frames whose green pairs are pooled for the noise model (each is held until the fit is done).
+NOISE_POOL_FRAMES = 2
 #: Relative difference within which two exposure times count as the same (dark-frame matching).
 EXPOSURE_MATCH_TOLERANCE = 0.02
-_MAD_TO_SIGMA = 1.4826
-
-
-@dataclass(frozen=True)
-class NoiseModel:
-    """Noise of one raw pixel: shot noise through the conversion gain plus read noise.
-
-    Parameters
-    ----------
-    gain_dn_per_electron
-        Conversion gain ``g``: a signal of ``μ`` DN has shot-noise variance ``g · μ`` DN².
-    read_noise_dn
-        Shape ``(3,)``: read-noise standard deviation per raw pixel (R, G, B), DN.
-    source
-        How the values were obtained (``"given"``, ``"green pairs of <file>"``, ``"dark frames"``).
-    """
-
-    gain_dn_per_electron: float
-    read_noise_dn: tuple[float, float, float]
-    source: str = "given"
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.gain_dn_per_electron) and self.gain_dn_per_electron > 0):
-            raise InputError(
-                f"gain must be > 0 DN/electron, got {self.gain_dn_per_electron}",
-                source="noise model",
-            )
-        if len(self.read_noise_dn) != 3 or not all(
-            math.isfinite(s) and s >= 0 for s in self.read_noise_dn
-        ):
-            raise InputError(
-                f"read noise must be three values ≥ 0 DN, got {self.read_noise_dn}",
-                source="noise model",
-            )
-
-    def sample_variance_dn2(self, channel: int, level_dn: FloatArray | float) -> FloatArray:
-        """Variance (DN²) of one plane sample of ``channel`` at expected level ``level_dn``."""
-        read = self.read_noise_dn[channel] ** 2 + QUANTISATION_VARIANCE_DN2
-        level = np.maximum(np.asarray(level_dn, dtype=np.float64), 0.0)
-        return (self.gain_dn_per_electron * level + read) / SITES_PER_SAMPLE[channel]  # type: ignore[no-any-return]
 
 
 @dataclass(frozen=True)
@@ -213,29 +179,32 @@ class HdrImage:
 # Consistency of a bracket
 
 
-def _same(a: float | None, b: float | None) -> bool:
+def _differ(a: object, b: object) -> bool:
+    """Both known and different (an unknown value is no evidence of a different setting)."""
     if a is None or b is None:
-        return a is b
-    return math.isclose(a, b, rel_tol=1e-3)
+        return False
+    if isinstance(a, float) and isinstance(b, float):
+        return not math.isclose(a, b, rel_tol=1e-3)
+    return a != b
 
 
 def _check_metadata(reference: RawMetadata, other: RawMetadata, *, check_aperture: bool) -> None:
     """Raise naming ``other`` when it was not taken by the same camera with the same settings."""
-    first = f"{reference.path.name} (first frame)"
-    if (reference.make, reference.model) != (other.make, other.model):
+    first = f"{reference.path.name} (reference frame)"
+    if _differ(reference.make, other.make) or _differ(reference.model, other.model):
         raise InputError(
             f"taken with {other.camera}, but {first} with {reference.camera}; "
             "a bracket must come from one camera",
             source=str(other.path),
         )
-    if not _same(reference.iso, other.iso):
+    if _differ(reference.iso, other.iso):
         raise InputError(
-            f"ISO {other.iso} differs from ISO {reference.iso} of {first}; keep the ISO fixed",
+            f"ISO {other.iso:g} differs from ISO {reference.iso:g} of {first}; keep the ISO fixed",
             source=str(other.path),
         )
-    if check_aperture and not _same(reference.f_number, other.f_number):
+    if check_aperture and _differ(reference.f_number, other.f_number):
         raise InputError(
-            f"aperture f/{other.f_number} differs from f/{reference.f_number} of {first}; "
+            f"aperture f/{other.f_number:g} differs from f/{reference.f_number:g} of {first}; "
             "keep the aperture fixed",
             source=str(other.path),
         )
@@ -263,7 +232,7 @@ class _PlaneLayout:
 
 
 def _check_planes(reference: _PlaneLayout, other: RawPlanes) -> None:
-    first = f"{reference.path.name} (first frame)"
+    first = f"{reference.path.name} (first decoded frame)"
     if other.plane_shape != reference.plane_shape:
         raise InputError(
             f"sensor area {other.sensor_shape_px} differs from {reference.sensor_shape_px} of "
@@ -276,182 +245,6 @@ def _check_planes(reference: _PlaneLayout, other: RawPlanes) -> None:
             f"{first}",
             source=str(other.metadata.path),
         )
-
-
-# --------------------------------------------------------------------------------------------------
-# Noise model estimation
-
-
-def _robust_variance(values: FloatArray, clip_sigma: float = 5.0) -> float:
-    """Variance of the bulk of ``values``, ignoring outliers beyond ``clip_sigma`` robust sigmas.
-
-    The median absolute deviation only seeds the clipping: on integer DN values it moves in whole
-    steps, which biases it by tens of per cent at read-noise levels; the variance of the clipped set
-    does not (a 5-sigma clip removes 6e-7 of a normal distribution's samples).
-    """
-    centre = float(np.median(values))
-    spread = _MAD_TO_SIGMA * float(np.median(np.abs(values - centre)))
-    if spread <= 0:
-        spread = float(np.std(values))
-    if spread <= 0:
-        return 0.0
-    kept = values[np.abs(values - centre) <= clip_sigma * max(spread, 1.0)]
-    return float(np.var(kept))
-
-
-def _green_pair_statistics(
-    planes: RawPlanes, max_samples: int
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Predicted level, slope-corrected green difference and local slope of usable samples.
-
-    The two greens of a cell sit one pixel apart diagonally, so a slope in the scene shifts their
-    difference by the slope times that offset; it is removed with the slope of the smoothed green
-    plane (the curvature terms cancel between the two symmetric sites).
-    """
-    difference = planes.green_difference_dn
-    if difference is None:
-        raise ValueError("read the frame with keep_green_difference=True")
-    green = planes.signal_dn[1]
-    window = PREDICTOR_WINDOW
-    smooth = ndimage.uniform_filter(green, size=window, mode="reflect")
-    slope_rows, slope_columns = np.gradient(smooth)
-    (first_row, first_column), (second_row, second_column) = planes.green_sites_px
-    # site offset in plane samples (2 sensor pixels each)
-    offset_rows, offset_columns = (
-        (first_row - second_row) / 2.0,
-        (first_column - second_column) / 2.0,
-    )
-    corrected = difference - (offset_rows * slope_rows + offset_columns * slope_columns)
-    predicted = (smooth * np.float32(window * window) - green) / np.float32(window * window - 1)
-    near_clip = ndimage.maximum_filter(planes.saturated[1], size=window)
-    step = max(1, int(green.size // max_samples))
-    usable = ~near_clip[::step]
-    return (
-        predicted[::step][usable].astype(np.float64),
-        corrected[::step][usable].astype(np.float64),
-        np.hypot(slope_rows[::step], slope_columns[::step])[usable].astype(np.float64),
-    )
-
-
-def estimate_noise_from_green_pairs(
-    planes: RawPlanes, *, max_samples: int = 4_000_000, min_bin_samples: int = 200
-) -> NoiseModel:
-    """Fit ``Var(G1 − G2) / 2 = g μ + σ²`` over the levels of one frame (photon transfer).
-
-    Samples are binned by their level predicted from the neighbours (not by their own value, which
-    would select on the noise); in each bin the flatter half of the samples (smallest local slope)
-    is used, as edges inflate the difference beyond the noise. Bins that still sit far above the
-    fitted line are dropped and the line refitted.
-
-    Parameters
-    ----------
-    planes
-        A frame read with ``keep_green_difference=True``; it needs a range of levels (a lit scene).
-    max_samples
-        Rows are subsampled to about this many green pairs.
-    min_bin_samples
-        Level bins with fewer pairs are ignored.
-
-    Returns
-    -------
-    NoiseModel
-        Gain and read noise (the same read noise for R, G and B).
-
-    Raises
-    ------
-    EstimationError
-        Too little signal range for a fit, or a non-physical result.
-    """
-    level, difference, slope = _green_pair_statistics(planes, max_samples)
-    clip = planes.clip_level_dn[1]
-    edges = np.concatenate([[-np.inf], np.geomspace(max(clip * 1e-4, 1.0), clip, 40)])
-    bin_of = np.digitize(level, edges) - 1
-    means: list[float] = []
-    variances: list[float] = []
-    counts: list[int] = []
-    for bin_index in range(edges.size):
-        members = np.flatnonzero(bin_of == bin_index)
-        if members.size < 2 * min_bin_samples:
-            continue
-        flattest = members[np.argsort(slope[members])[: members.size // 2]]
-        means.append(float(level[flattest].mean()))
-        variances.append(_robust_variance(difference[flattest]) / 2.0)
-        counts.append(int(flattest.size))
-    path = planes.metadata.path
-    if len(means) < 3 or max(means) < 50 * max(min(means), 1.0):
-        raise EstimationError(
-            f"cannot estimate the noise model from {path}: too narrow a range of signal levels; "
-            "give a NoiseModel (gain, read noise) explicitly"
-        )
-    gain, read_variance = _fit_photon_transfer(
-        np.array(means), np.array(variances), np.array(counts, dtype=np.float64)
-    )
-    if not (gain > 0 and math.isfinite(gain)):
-        raise EstimationError(
-            f"photon-transfer fit on {path} gave a gain of {gain:.3g} DN/electron; "
-            "give a NoiseModel explicitly"
-        )
-    read_noise = math.sqrt(max(read_variance - QUANTISATION_VARIANCE_DN2, 0.0))
-    return NoiseModel(
-        gain, (read_noise, read_noise, read_noise), source=f"green pairs of {path.name}"
-    )
-
-
-def _fit_photon_transfer(
-    level: FloatArray, variance: FloatArray, count: FloatArray, *, iterations: int = 6
-) -> tuple[float, float]:
-    """Weighted line ``variance = gain · level + read_variance``, dropping bins far above it.
-
-    Contamination (edges, hot pixels) only ever adds variance, so bins more than 3 standard errors
-    above the line are outliers while bins below it are kept.
-    """
-    keep = np.ones(level.size, dtype=bool)
-    expected = variance.copy()
-    gain, read_variance = 0.0, float(np.min(variance))
-    for _ in range(iterations):
-        weights = np.sqrt(count[keep] / 2.0) / np.maximum(expected[keep], 1e-9)
-        design = np.stack([level[keep], np.ones(int(keep.sum()))], axis=1) * weights[:, None]
-        solution, *_ = np.linalg.lstsq(design, variance[keep] * weights, rcond=None)
-        gain, read_variance = float(solution[0]), float(solution[1])
-        expected = np.maximum(gain * level + read_variance, 1e-9)
-        standard_error = expected * np.sqrt(2.0 / count)
-        new_keep = (variance - expected) < 3.0 * standard_error
-        if new_keep.sum() < 3 or np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
-    return gain, read_variance
-
-
-@dataclass(frozen=True)
-class _DarkSpread:
-    """Robust spread and level of one dark frame, per channel (plane samples, DN², DN)."""
-
-    variance_dn2: tuple[float, float, float]
-    level_dn: tuple[float, float, float]
-
-    @classmethod
-    def of(cls, dark: RawPlanes) -> _DarkSpread:
-        variances, levels = [], []
-        for channel in range(3):
-            plane = dark.signal_dn[channel]
-            sample = plane[:: max(1, plane.shape[0] // 512)].ravel().astype(np.float64)
-            variances.append(_robust_variance(sample))
-            levels.append(float(np.median(sample)))
-        return cls((variances[0], variances[1], variances[2]), (levels[0], levels[1], levels[2]))
-
-
-def _dark_read_noise(spreads: Sequence[_DarkSpread], gain: float) -> tuple[float, float, float]:
-    """Per-channel read noise per raw pixel from single dark frames (dark shot noise removed)."""
-    estimates = np.empty((len(spreads), 3))
-    for row, spread in enumerate(spreads):
-        for channel in range(3):
-            per_pixel = spread.variance_dn2[channel] * SITES_PER_SAMPLE[channel]
-            shot = gain * max(spread.level_dn[channel], 0.0)
-            estimates[row, channel] = math.sqrt(
-                max(per_pixel - shot - QUANTISATION_VARIANCE_DN2, 0.0)
-            )
-    median = np.median(estimates, axis=0)
-    return (float(median[0]), float(median[1]), float(median[2]))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -509,17 +302,6 @@ class _MasterDark:
 # The merge
 
 
-def _predicted_level(signal: Float32Array, out: Float32Array) -> Float32Array:
-    """Mean of each sample's 5×5 neighbourhood without the sample itself (per channel)."""
-    window = PREDICTOR_WINDOW
-    for channel in range(signal.shape[0]):
-        ndimage.uniform_filter(signal[channel], size=window, output=out[channel], mode="reflect")
-    out *= np.float32(window * window)
-    out -= signal
-    out *= np.float32(1.0 / (window * window - 1))
-    return out
-
-
 @dataclass
 class _Accumulator:
     """Running sums of the merge, float32 ``(3, h, w)`` each."""
@@ -558,7 +340,7 @@ def _merge_frame(
 ) -> None:
     """Add one frame's usable samples to the running sums (``planes`` is consumed)."""
     exposure = planes.metadata.exposure_s
-    predicted = _predicted_level(planes.signal_dn, scratch)
+    predicted = leave_one_out_mean(planes.signal_dn, out=scratch)
     next_longer = settings.next_longer(exposure)
     gain = noise.gain_dn_per_electron
     for channel in range(3):
@@ -671,6 +453,13 @@ def merge_bracket(
     progress
         Called after each merged frame with ``(done, total, path)``.
 
+    Notes
+    -----
+    Frames are decoded longest exposure first, except that without a ``noise_model`` the
+    second-longest frame comes first: the green pairs of the first two decoded frames estimate the
+    noise model (the longest frame often clips much of the band). Should they not span enough
+    levels, further frames are held and pooled until the fit succeeds.
+
     Returns
     -------
     HdrImage
@@ -688,109 +477,200 @@ def merge_bracket(
         raise InputError("no frames to merge", source="bracket")
     if not 0.0 < prediction_fraction <= 1.0:
         raise ValueError(f"prediction_fraction must be in (0, 1], got {prediction_fraction}")
-    light_paths = [Path(p) for p in frames]
-    dark_paths = [Path(p) for p in darks]
-    light_meta = [
-        read_raw_metadata(path, exposure_s=override)
-        for path, override in zip(
-            light_paths, _overrides(light_paths, exposure_s, "frames"), strict=True
-        )
-    ]
-    dark_meta = [
-        read_raw_metadata(path, exposure_s=override)
-        for path, override in zip(
-            dark_paths, _overrides(dark_paths, dark_exposure_s, "dark frames"), strict=True
-        )
-    ]
+    light_meta = _scan(frames, exposure_s, "frames")
+    dark_meta = _scan(darks, dark_exposure_s, "dark frames")
     reference = light_meta[0]
     for meta in light_meta[1:]:
         _check_metadata(reference, meta, check_aperture=True)
     for meta in dark_meta:
         _check_metadata(reference, meta, check_aperture=False)
-    dark_groups = _group_darks(dark_meta)
     ordered = sorted(light_meta, key=lambda m: -m.exposure_s)
-    matched = [_matching_dark(dark_groups, meta) for meta in ordered] if dark_groups else []
-
-    # Decode order, longest exposure first: a dark group's frames right before its first light
-    # frame, so only one master dark is held at a time.
-    schedule: list[tuple[Path, float, bool]] = []
-    roles: list[tuple[str, int]] = []  # ("dark", group index) or ("light", index in `ordered`)
-    for position, meta in enumerate(ordered):
-        if matched and (position == 0 or matched[position] is not matched[position - 1]):
-            group_index = dark_groups.index(matched[position])
-            for dark_meta_item in matched[position].metadata:
-                schedule.append((dark_meta_item.path, dark_meta_item.exposure_s, False))
-                roles.append(("dark", group_index))
-        schedule.append((meta.path, meta.exposure_s, position == 0 and noise_model is None))
-        roles.append(("light", position))
-
+    plan = _DecodePlan.build(ordered, _group_darks(dark_meta), estimate_noise=noise_model is None)
     settings = _MergeSettings(
         prediction_fraction=prediction_fraction,
         near_black_sigma=near_black_sigma,
         exposures_s=tuple(m.exposure_s for m in ordered),
     )
-    state: _Accumulator | None = None
-    scratch: Float32Array | None = None
-    reference_planes: _PlaneLayout | None = None
-    master: _MasterDark | None = None
-    dark_sum: Float32Array | None = None
-    dark_count = 0
-    dark_spreads: list[_DarkSpread] = []
-    records: list[FrameRecord] = []
-    noise = noise_model
-    for planes, (role, index) in zip(_prefetch(schedule, saturation_fraction), roles, strict=True):
-        if reference_planes is None:
-            reference_planes = _PlaneLayout.of(planes)
-        _check_planes(reference_planes, planes)
+    merger = _Merger(ordered, plan, settings, noise_model, progress)
+    for planes, (role, index) in zip(
+        _prefetch(plan.schedule, saturation_fraction), plan.roles, strict=True
+    ):
         if role == "dark":
-            group = dark_groups[index]
-            if dark_count == 0:
-                master, dark_sum = None, planes.signal_dn  # reuse the first dark's buffer
-            else:
-                assert dark_sum is not None
-                dark_sum += planes.signal_dn
-            dark_count += 1
-            dark_spreads.append(_DarkSpread.of(planes))
-            if dark_count == len(group.metadata):
-                assert dark_sum is not None
-                dark_sum *= np.float32(1.0 / dark_count)
-                master = _MasterDark(dark_sum, dark_count, group.paths)
-                dark_sum, dark_count = None, 0
-            continue
-        meta = ordered[index]
-        if noise is None:
-            noise = estimate_noise_from_green_pairs(planes)
-            if dark_spreads:
-                noise = NoiseModel(
-                    noise.gain_dn_per_electron,
-                    _dark_read_noise(dark_spreads, noise.gain_dn_per_electron),
-                    source=f"{noise.source}; read noise from {len(dark_spreads)} dark frame(s)",
-                )
-        if state is None:
-            state = _Accumulator.zeros(planes.signal_dn.shape)
-            scratch = np.empty_like(planes.signal_dn)
-        assert scratch is not None
-        saturated_fraction = planes.saturated.mean(axis=(1, 2))
-        _merge_frame(
-            planes, master, noise, settings, state, scratch, is_shortest=index == len(ordered) - 1
+            merger.add_dark(planes, index)
+        else:
+            merger.add_light(planes, index)
+    return merger.finish(reference)
+
+
+def _scan(
+    paths: Sequence[PathLike], exposure_s: Sequence[float] | None, what: str
+) -> list[RawMetadata]:
+    files = [Path(p) for p in paths]
+    return [
+        read_raw_metadata(path, exposure_s=override)
+        for path, override in zip(files, _overrides(files, exposure_s, what), strict=True)
+    ]
+
+
+@dataclass(frozen=True)
+class _DecodePlan:
+    """In which order to decode what: each dark group right before its first light frame."""
+
+    schedule: tuple[tuple[Path, float, bool], ...]  # (path, exposure, keep green difference)
+    roles: tuple[tuple[str, int], ...]  # ("dark", group) or ("light", index into ordered)
+    groups: tuple[_DarkGroup, ...]
+    group_of_light: tuple[int | None, ...]  # per index into ordered
+
+    @classmethod
+    def build(
+        cls, ordered: Sequence[RawMetadata], groups: Sequence[_DarkGroup], *, estimate_noise: bool
+    ) -> _DecodePlan:
+        group_of_light = tuple(
+            groups.index(_matching_dark(groups, meta)) if groups else None for meta in ordered
         )
-        records.append(
-            FrameRecord(
-                path=meta.path,
-                exposure_s=meta.exposure_s,
-                dark_paths=master.paths if master is not None else (),
-                saturated_fraction=(
-                    float(saturated_fraction[0]),
-                    float(saturated_fraction[1]),
-                    float(saturated_fraction[2]),
-                ),
+        order = list(range(len(ordered)))
+        if estimate_noise and len(order) > 1:
+            order.insert(0, order.pop(1))
+        schedule: list[tuple[Path, float, bool]] = []
+        roles: list[tuple[str, int]] = []
+        scheduled_groups: set[int] = set()
+        for index in order:
+            group = group_of_light[index]
+            if group is not None and group not in scheduled_groups:
+                scheduled_groups.add(group)
+                for dark in groups[group].metadata:
+                    schedule.append((dark.path, dark.exposure_s, False))
+                    roles.append(("dark", group))
+            schedule.append((ordered[index].path, ordered[index].exposure_s, estimate_noise))
+            roles.append(("light", index))
+        return cls(tuple(schedule), tuple(roles), tuple(groups), group_of_light)
+
+
+class _Merger:
+    """The merge's state while frames arrive in the plan's order."""
+
+    def __init__(
+        self,
+        ordered: Sequence[RawMetadata],
+        plan: _DecodePlan,
+        settings: _MergeSettings,
+        noise_model: NoiseModel | None,
+        progress: ProgressCallback | None,
+    ) -> None:
+        self.ordered = ordered
+        self.plan = plan
+        self.settings = settings
+        self.noise = noise_model
+        self.progress = progress
+        self.layout: _PlaneLayout | None = None
+        self.reference: RawMetadata | None = None
+        self.state: _Accumulator | None = None
+        self.scratch: Float32Array | None = None
+        self.masters: dict[int, _MasterDark] = {}
+        self.building: dict[int, tuple[Float32Array, int]] = {}
+        self.remaining = {
+            group: plan.group_of_light.count(group) for group in set(plan.group_of_light)
+        }
+        self.dark_spreads: list[DarkSpread] = []
+        self.held: list[tuple[RawPlanes, int]] = []
+        self.pair_statistics: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+        self.records: dict[int, FrameRecord] = {}
+
+    def _check(self, planes: RawPlanes, *, light: bool) -> None:
+        if self.layout is None:
+            self.layout = _PlaneLayout.of(planes)
+        _check_planes(self.layout, planes)
+        if light and self.reference is None:
+            self.reference = planes.metadata
+        elif self.reference is not None:
+            _check_metadata(self.reference, planes.metadata, check_aperture=light)
+
+    def add_dark(self, planes: RawPlanes, group: int) -> None:
+        self._check(planes, light=False)
+        self.dark_spreads.append(DarkSpread.of(planes))
+        total, count = self.building.get(group, (planes.signal_dn, 0))
+        if count:
+            total += planes.signal_dn
+        count += 1
+        expected = len(self.plan.groups[group].metadata)
+        if count < expected:
+            self.building[group] = (total, count)
+            return
+        self.building.pop(group, None)
+        total *= np.float32(1.0 / count)
+        self.masters[group] = _MasterDark(total, count, self.plan.groups[group].paths)
+
+    def add_light(self, planes: RawPlanes, index: int) -> None:
+        self._check(planes, light=True)
+        if self.noise is not None:
+            self._merge(planes, index)
+            return
+        self.held.append((planes, index))
+        self.pair_statistics.append(green_pair_statistics(planes))
+        if len(self.held) < min(NOISE_POOL_FRAMES, len(self.ordered)):
+            return
+        try:
+            noise = fit_noise_model(
+                self.pair_statistics,
+                planes.clip_level_dn[1],
+                ", ".join(held.metadata.path.name for held, _ in self.held),
             )
+        except EstimationError:
+            if len(self.held) + len(self.records) < len(self.ordered):
+                return  # pool with the next frame
+            raise
+        if self.dark_spreads:
+            noise = NoiseModel(
+                noise.gain_dn_per_electron,
+                dark_read_noise(self.dark_spreads, noise.gain_dn_per_electron),
+                source=f"{noise.source}; read noise from {len(self.dark_spreads)} dark frame(s)",
+            )
+        self.noise = noise
+        self.pair_statistics.clear()
+        held, self.held = self.held, []
+        for held_planes, held_index in held:
+            self._merge(held_planes, held_index)
+
+    def _merge(self, planes: RawPlanes, index: int) -> None:
+        assert self.noise is not None
+        if self.state is None:
+            self.state = _Accumulator.zeros(planes.signal_dn.shape)
+            self.scratch = np.empty_like(planes.signal_dn)
+        assert self.scratch is not None
+        group = self.plan.group_of_light[index]
+        master = self.masters[group] if group is not None else None
+        saturated_fraction = planes.saturated.mean(axis=(1, 2))
+        meta = self.ordered[index]
+        _merge_frame(
+            planes,
+            master,
+            self.noise,
+            self.settings,
+            self.state,
+            self.scratch,
+            is_shortest=index == len(self.ordered) - 1,
         )
-        del planes
-        if progress is not None:
-            progress(len(records), len(ordered), meta.path)
-    assert state is not None and noise is not None and reference_planes is not None
-    return _finish(state, noise, reference_planes, reference, tuple(records))
+        self.records[index] = FrameRecord(
+            path=meta.path,
+            exposure_s=meta.exposure_s,
+            dark_paths=master.paths if master is not None else (),
+            saturated_fraction=(
+                float(saturated_fraction[0]),
+                float(saturated_fraction[1]),
+                float(saturated_fraction[2]),
+            ),
+        )
+        if group is not None:
+            self.remaining[group] -= 1
+            if self.remaining[group] == 0:
+                del self.masters[group]  # no later frame needs it: free its memory
+        if self.progress is not None:
+            self.progress(len(self.records), len(self.ordered), meta.path)
+
+    def finish(self, reference: RawMetadata) -> HdrImage:
+        assert self.state is not None and self.noise is not None and self.layout is not None
+        records = tuple(self.records[index] for index in sorted(self.records))
+        return _finish(self.state, self.noise, self.layout, self.reference or reference, records)
 
 
 def _finish(

@@ -13,7 +13,7 @@ The file is written under a temporary name and renamed, so a reader never sees h
 Examples
 --------
 >>> import numpy as np, tempfile, pathlib
->>> cfa = np.full((4, 6), 600, dtype=np.uint16)
+>>> cfa = np.full((24, 32), 600, dtype=np.uint16)
 >>> path = pathlib.Path(tempfile.mkdtemp()) / "frame.dng"
 >>> write_dng(path, cfa, DngMetadata(exposure_s=1 / 250, iso=200)).name
 'frame.dng'
@@ -48,6 +48,9 @@ DEFAULT_COLOR_MATRIX1: tuple[tuple[float, float, float], ...] = (
     (-0.0908, 0.2162, 0.5668),
 )
 
+#: LibRaw refuses images with a side shorter than this.
+MIN_SIDE_PX = 22
+
 _PLACEHOLDER_TAG = 34664  # sorts directly before ExifIFD (34665), unknown to readers
 _EXIF_IFD_TAG = 34665
 _TIFF_TYPE_CODES = {"BYTE": 1, "ASCII": 2, "SHORT": 3, "LONG": 4, "RATIONAL": 5, "UNDEFINED": 7}
@@ -67,7 +70,8 @@ class DngMetadata:
     Parameters
     ----------
     exposure_s
-        Exposure time in seconds (ExposureTime, IFD0 and EXIF IFD).
+        Exposure time in seconds (ExposureTime, IFD0 and EXIF IFD), or ``None`` to leave it out
+        (to test readers on files without one).
     iso
         ISO speed (ISOSpeedRatings in the EXIF IFD), or ``None`` to leave it out.
     f_number
@@ -93,7 +97,7 @@ class DngMetadata:
         ``None`` for all of it; the rest is masked border that readers drop.
     """
 
-    exposure_s: float
+    exposure_s: float | None
     iso: int | None = 100
     f_number: float | None = 5.6
     make: str = "spectral-rig"
@@ -108,7 +112,9 @@ class DngMetadata:
     active_area: tuple[int, int, int, int] | None = None
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.exposure_s) and self.exposure_s > 0):
+        if self.exposure_s is not None and not (
+            np.isfinite(self.exposure_s) and self.exposure_s > 0
+        ):
             raise DngWriteError(f"exposure_s must be a positive number, got {self.exposure_s}")
         if self.cfa_pattern not in CFA_PATTERN_CODES:
             raise DngWriteError(
@@ -188,10 +194,9 @@ def _exif_entries(metadata: DngMetadata, byteorder: str) -> list[_IfdEntry]:
     def short(value: int) -> bytes:
         return struct.pack(byteorder + "H", value)
 
-    entries = [
-        _IfdEntry(33434, "RATIONAL", 1, rational(metadata.exposure_s)),
-        _IfdEntry(36864, "UNDEFINED", 4, b"0231"),
-    ]
+    entries = [_IfdEntry(36864, "UNDEFINED", 4, b"0231")]
+    if metadata.exposure_s is not None:
+        entries.append(_IfdEntry(33434, "RATIONAL", 1, rational(metadata.exposure_s)))
     if metadata.f_number is not None:
         entries.append(_IfdEntry(33437, "RATIONAL", 1, rational(metadata.f_number)))
     if metadata.iso is not None:
@@ -213,7 +218,6 @@ def _ifd0_extratags(metadata: DngMetadata) -> list[tuple[int, str, int, object, 
         (272, "s", 0, metadata.model, True),
         (33421, "H", 2, (2, 2), True),
         (33422, "B", 4, CFA_PATTERN_CODES[metadata.cfa_pattern], True),
-        (33434, "2I", 1, _rational(metadata.exposure_s), True),
         (_PLACEHOLDER_TAG, "I", 1, 0, True),
         (50706, "B", 4, (1, 4, 0, 0), True),
         (50707, "B", 4, (1, 1, 0, 0), True),
@@ -227,6 +231,8 @@ def _ifd0_extratags(metadata: DngMetadata) -> list[tuple[int, str, int, object, 
         (50728, "2I", 3, neutral, True),
         (50778, "H", 1, _ILLUMINANT_D65, True),
     ]
+    if metadata.exposure_s is not None:
+        tags.append((33434, "2I", 1, _rational(metadata.exposure_s), True))
     if metadata.f_number is not None:
         tags.append((33437, "2I", 1, _rational(metadata.f_number), True))
     if metadata.capture_time is not None:
@@ -238,9 +244,10 @@ def _ifd0_extratags(metadata: DngMetadata) -> list[tuple[int, str, int, object, 
 
 def _as_cfa_array(cfa: ArrayLike) -> NDArray[np.uint16]:
     array = np.asarray(cfa)
-    if array.ndim != 2 or min(array.shape) < 2:
+    if array.ndim != 2 or min(array.shape) < MIN_SIDE_PX:
         raise DngWriteError(
-            f"CFA data must be a 2-D array of at least 2×2, got shape {array.shape}"
+            f"CFA data must be a 2-D array of at least {MIN_SIDE_PX}×{MIN_SIDE_PX} (LibRaw rejects "
+            f"smaller images), got shape {array.shape}"
         )
     if array.dtype == np.uint16:
         return np.ascontiguousarray(array)

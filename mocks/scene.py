@@ -25,12 +25,16 @@ random numbers from the caller's seeded generator. Both are vectorised and work 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from dataclasses import dataclass
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from mocks.dng import DngMetadata, write_dng
 
 FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
@@ -345,3 +349,130 @@ def expose(
         np.clip(np.rint(signal_dn + sensor.black_level_dn), 0, sensor.white_level_dn, out=signal_dn)
         raw[rows] = signal_dn
     return raw
+
+
+def smooth_signal(
+    *,
+    start_px: float = 150.0,
+    stop_px: float = 800.0,
+    peak_dn_per_s: tuple[float, float, float] = (2000.0, 2000.0, 2000.0),
+    direct_rgb: tuple[float, float, float] = (3.0e7, 5.0e7, 2.0e7),
+    step_px: float = 0.5,
+) -> SceneSignal:
+    """A smooth stand-in for a broadband lamp seen through a grating (until ``calib.forward``).
+
+    Three Gaussian channel responses along a linear wavelength axis (400 nm at ``start_px + 50``,
+    0.5 nm per pixel when the band spans 650 px), tapered to zero at both ends.
+
+    Parameters
+    ----------
+    start_px, stop_px
+        Where the first-order profile is defined (zero outside), sensor pixels from the spot.
+    peak_dn_per_s
+        Peak radiance of each channel on the band's centre line.
+    direct_rgb
+        The direct spot's total per channel (DN/s summed over pixels).
+    step_px
+        Sampling of the returned profile.
+    """
+    pixel = np.arange(start_px, stop_px + step_px / 2, step_px)
+    fraction = (pixel - start_px) / (stop_px - start_px)
+    wavelength_nm = 375.0 + 350.0 * fraction
+    taper = np.sin(np.pi * fraction) ** 2
+    centres_nm, widths_nm = (600.0, 530.0, 460.0), (40.0, 40.0, 30.0)
+    profile = np.stack(
+        [
+            peak * np.exp(-0.5 * ((wavelength_nm - centre) / width) ** 2) * taper
+            for peak, centre, width in zip(peak_dn_per_s, centres_nm, widths_nm, strict=True)
+        ],
+        axis=1,
+    )
+    return SceneSignal(direct_rgb=np.array(direct_rgb), pixel=pixel, profile=profile)
+
+
+def dng_metadata(sensor: SensorModel, exposure_s: float | None, **fields: object) -> DngMetadata:
+    """DNG metadata of a frame from ``sensor`` (CFA layout, levels), with extra ``fields``."""
+    template = DngMetadata(
+        exposure_s=exposure_s,
+        cfa_pattern=sensor.cfa_pattern,
+        black_level_dn=sensor.black_level_dn,
+        white_level_dn=sensor.white_level_dn,
+    )
+    return replace(template, **fields)  # type: ignore[arg-type]
+
+
+def write_bracket(
+    directory: str | os.PathLike[str],
+    mosaic_radiance: ArrayLike,
+    sensor: SensorModel,
+    exposures_s: Sequence[float],
+    rng: np.random.Generator,
+    *,
+    prefix: str = "frame",
+    shot_noise: ShotNoise = "poisson",
+    **fields: object,
+) -> list[Path]:
+    """Expose the scene at each exposure time and write the frames as DNG files.
+
+    Parameters
+    ----------
+    directory
+        Existing directory for the files ``{prefix}_{index:04d}.dng``.
+    mosaic_radiance
+        Shape ``(height_px, width_px)``: from :func:`render_mosaic_radiance` (zeros for darks).
+    sensor
+        The sensor (noise, levels, CFA).
+    exposures_s
+        One frame per exposure time.
+    rng
+        Seeded generator.
+    prefix
+        File name prefix.
+    shot_noise
+        See :func:`expose`.
+    **fields
+        Extra :class:`mocks.dng.DngMetadata` fields (``iso``, ``model`` …).
+
+    Returns
+    -------
+    list of Path
+        The files, in the order of ``exposures_s``.
+    """
+    folder = Path(directory)
+    paths = []
+    for index, exposure in enumerate(exposures_s):
+        raw = expose(mosaic_radiance, exposure, sensor, rng, shot_noise=shot_noise)
+        paths.append(
+            write_dng(
+                folder / f"{prefix}_{index:04d}.dng", raw, dng_metadata(sensor, exposure, **fields)
+            )
+        )
+    return paths
+
+
+def channel_planes(mosaic: ArrayLike, cfa_pattern: str) -> FloatArray:
+    """The R, G (mean of both greens), B planes of a mosaic, as :func:`calib.raw.read_raw` lays them out.
+
+    Parameters
+    ----------
+    mosaic
+        Shape ``(height_px, width_px)`` (even), e.g. the noiseless radiance of
+        :func:`render_mosaic_radiance`.
+    cfa_pattern
+        Colours of the top-left 2×2 cell.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(3, height_px // 2, width_px // 2)``, float64.
+    """
+    array = np.asarray(mosaic, dtype=np.float64)
+    sites = BAYER_SITES[cfa_pattern]
+
+    def plane(site: tuple[int, int]) -> FloatArray:
+        return array[site[0] :: 2, site[1] :: 2]
+
+    (red,) = sites["R"]
+    (blue,) = sites["B"]
+    first, second = sites["G"]
+    return np.stack([plane(red), 0.5 * (plane(first) + plane(second)), plane(blue)])
