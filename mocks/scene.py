@@ -476,3 +476,16 @@ def channel_planes(mosaic: ArrayLike, cfa_pattern: str) -> FloatArray:
     (blue,) = sites["B"]
     first, second = sites["G"]
     return np.stack([plane(red), 0.5 * (plane(first) + plane(second)), plane(blue)])
+
+
+def channel_origins(cfa_pattern: str) -> tuple[tuple[float, float], ...]:
+    """``(row, column)`` of R, G (mean of both greens) and B inside the 2×2 cell, as in calib.raw."""
+    sites = BAYER_SITES[cfa_pattern]
+    (red,) = sites["R"]
+    (blue,) = sites["B"]
+    first, second = sites["G"]
+    return (
+        (float(red[0]), float(red[1])),
+        ((first[0] + second[0]) / 2.0, (first[1] + second[1]) / 2.0),
+        (float(blue[0]), float(blue[1])),
+    )

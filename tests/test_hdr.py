@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from calib.errors import EstimationError, InputError
-from calib.hdr import HdrImage, NoiseModel, merge_bracket
+from calib.hdr import HdrImage, merge_bracket
 from calib.raw import RawFileError
+from calib.sensor_noise import NoiseModel
 from mocks.dng import write_dng
 from mocks.scene import (
     SceneLayout,
@@ -60,7 +62,7 @@ def merged(bracket: list[Path]) -> HdrImage:
 
 def _normalised_residuals(image: HdrImage, truth: np.ndarray) -> np.ndarray:
     usable = ~image.saturated
-    return ((image.radiance - truth) / np.sqrt(image.variance))[usable]
+    return np.asarray(((image.radiance - truth) / np.sqrt(image.variance))[usable])
 
 
 def test_merge_is_unbiased_and_its_variance_calibrated(merged: HdrImage, scene: np.ndarray) -> None:
@@ -178,7 +180,7 @@ def test_a_light_frame_without_a_matching_dark_is_named(tmp_path: Path, scene: n
     ],
 )
 def test_mixed_brackets_are_rejected_naming_the_file(
-    tmp_path: Path, scene: np.ndarray, fields: dict[str, object], message: str
+    tmp_path: Path, scene: np.ndarray, fields: dict[str, Any], message: str
 ) -> None:
     rng = np.random.default_rng(9)
     good = write_bracket(tmp_path, scene, SENSOR, (0.016, 0.064), rng)
@@ -200,7 +202,9 @@ def test_frames_of_another_size_are_rejected(tmp_path: Path, scene: np.ndarray) 
 def test_darks_at_another_iso_are_rejected(tmp_path: Path, scene: np.ndarray) -> None:
     rng = np.random.default_rng(9)
     lights = write_bracket(tmp_path, scene, SENSOR, (0.016,), rng)
-    darks = write_bracket(tmp_path, np.zeros_like(scene), SENSOR, (0.016,), rng, prefix="d", iso=800)
+    darks = write_bracket(
+        tmp_path, np.zeros_like(scene), SENSOR, (0.016,), rng, prefix="d", iso=800
+    )
     with pytest.raises(InputError, match="ISO 800") as caught:
         merge_bracket(lights, darks=darks)
     assert caught.value.source == str(darks[0])
@@ -230,7 +234,11 @@ def test_missing_exposure_is_named_and_can_be_given(tmp_path: Path, scene: np.nd
 
 def test_noise_model_needs_signal(tmp_path: Path) -> None:
     dark = write_bracket(
-        tmp_path, np.zeros((SENSOR.height_px, SENSOR.width_px)), SENSOR, (0.01,), np.random.default_rng(1)
+        tmp_path,
+        np.zeros((SENSOR.height_px, SENSOR.width_px)),
+        SENSOR,
+        (0.01,),
+        np.random.default_rng(1),
     )
     with pytest.raises(EstimationError, match="NoiseModel"):
         merge_bracket(dark)

@@ -48,18 +48,19 @@ def test_planes_are_the_black_subtracted_cfa_sites(
     np.testing.assert_array_equal(planes.signal_dn[0], site(red))
     np.testing.assert_array_equal(planes.signal_dn[2], site(blue))
     np.testing.assert_allclose(planes.signal_dn[1], (site(first) + site(second)) / 2, atol=1e-3)
+    assert planes.green_difference_dn is not None
     np.testing.assert_allclose(planes.green_difference_dn, site(first) - site(second), atol=1e-3)
     assert planes.black_level_dn == (
-        blacks[red],
+        float(blacks[red]),
         (blacks[first] + blacks[second]) / 2,
-        blacks[blue],
+        float(blacks[blue]),
     )
     expected_origin = ((float(red[0]), float(red[1])), (0.5, 0.5), (float(blue[0]), float(blue[1])))
     assert planes.channel_origin_px == expected_origin
     assert planes.clip_level_dn == (
-        4095 - blacks[red],
-        4095 - max(blacks[first], blacks[second]),
-        4095 - blacks[blue],
+        float(4095 - blacks[red]),
+        float(4095 - max(blacks[first], blacks[second])),
+        float(4095 - blacks[blue]),
     )
     assert planes.sensor_shape_px == (48, 64)
 
