@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -59,6 +60,7 @@ from calib.errors import EstimationError, InputError
 from calib.raw import (
     CHANNELS,
     DEFAULT_SATURATION_FRACTION,
+    PlaneBuffers,
     RawMetadata,
     RawPlanes,
     read_raw,
@@ -69,6 +71,7 @@ from calib.sensor_noise import (
     SITES_PER_SAMPLE,
     DarkSpread,
     NoiseModel,
+    PairStatistics,
     dark_read_noise,
     fit_noise_model,
     green_pair_statistics,
@@ -287,11 +290,15 @@ def _matching_dark(groups: Sequence[_DarkGroup], frame: RawMetadata) -> _DarkGro
 
 @dataclass
 class _MasterDark:
-    """The mean of the dark frames of one exposure time."""
+    """The mean of the dark frames of one exposure time (in the first dark's buffers)."""
 
-    signal_dn: Float32Array  # (3, h, w)
+    buffers: PlaneBuffers
     count: int
     paths: tuple[Path, ...]
+
+    @property
+    def signal_dn(self) -> Float32Array:
+        return self.buffers.signal_dn
 
     def level_dn(self, channel: int) -> float:
         plane = self.signal_dn[channel]
@@ -304,16 +311,32 @@ class _MasterDark:
 
 @dataclass
 class _Accumulator:
-    """Running sums of the merge, float32 ``(3, h, w)`` each."""
+    """Running sums of the merge (float32 ``(3, h, w)``) and per-plane work buffers (``(h, w)``).
+
+    The buffers are allocated once: fresh arrays of this size cost page faults every frame.
+    """
 
     weight: Float32Array
     weighted_rate: Float32Array
     shortest_rate: Float32Array
+    level: Float32Array
+    work: Float32Array
+    scratch: Float32Array
+    usable: BoolArray
+    condition: BoolArray
 
     @classmethod
-    def zeros(cls, shape: tuple[int, ...]) -> _Accumulator:
+    def zeros(cls, shape: tuple[int, int, int]) -> _Accumulator:
+        plane = shape[1:]
         return cls(
-            np.zeros(shape, np.float32), np.zeros(shape, np.float32), np.zeros(shape, np.float32)
+            weight=np.zeros(shape, np.float32),
+            weighted_rate=np.zeros(shape, np.float32),
+            shortest_rate=np.zeros(shape, np.float32),
+            level=np.empty(plane, np.float32),
+            work=np.empty(plane, np.float32),
+            scratch=np.empty(plane, np.float32),
+            usable=np.empty(plane, np.bool_),
+            condition=np.empty(plane, np.bool_),
         )
 
 
@@ -334,73 +357,91 @@ def _merge_frame(
     noise: NoiseModel,
     settings: _MergeSettings,
     state: _Accumulator,
-    scratch: Float32Array,
     *,
     is_shortest: bool,
 ) -> None:
     """Add one frame's usable samples to the running sums (``planes`` is consumed)."""
     exposure = planes.metadata.exposure_s
-    predicted = leave_one_out_mean(planes.signal_dn, out=scratch)
     next_longer = settings.next_longer(exposure)
     gain = noise.gain_dn_per_electron
+    level, weight, usable, condition = state.level, state.work, state.usable, state.condition
     for channel in range(3):
-        level = predicted[channel]
-        ceiling = np.float32(settings.prediction_fraction * planes.clip_level_dn[channel])
+        signal = planes.signal_dn[channel]
+        leave_one_out_mean(signal, out=level, scratch=state.scratch)
+        ceiling = settings.prediction_fraction * planes.clip_level_dn[channel]
         read_variance = noise.read_noise_dn[channel] ** 2 + QUANTISATION_VARIANCE_DN2
         dark_variance = 0.0
         if dark is not None:
             dark_variance = (gain * max(dark.level_dn(channel), 0.0) + read_variance) / dark.count
-        # Var(rate) = (g·μ + σ² + Var(dark)) / (n t²), with μ predicted from the neighbours only
-        variance = np.maximum(level, np.float32(0.0))
-        variance *= np.float32(gain)
-        variance += np.float32(read_variance + dark_variance)
-        variance *= np.float32(1.0 / (exposure * exposure * SITES_PER_SAMPLE[channel]))
-        usable = ~planes.saturated[channel]
-        usable &= level <= ceiling
+        # weight = 1 / Var(rate) = n t² / (g·μ + σ² + Var(dark)), μ predicted from the neighbours
+        scale = 1.0 / (exposure * exposure * SITES_PER_SAMPLE[channel])
+        np.maximum(level, np.float32(0.0), out=weight)
+        weight *= np.float32(gain * scale)
+        weight += np.float32((read_variance + dark_variance) * scale)
+        np.reciprocal(weight, out=weight)
+        # usable: not saturated, predicted at most `ceiling`, and not near black where a longer
+        # exposure will measure it (both conditions on the predicted level reduce to one range)
+        np.logical_not(planes.saturated[channel], out=usable)
+        np.less_equal(level, np.float32(ceiling), out=condition)
+        usable &= condition
         if next_longer is not None:
-            near_black = level < np.float32(settings.near_black_sigma * math.sqrt(read_variance))
-            near_black &= level <= ceiling * np.float32(exposure / next_longer)
-            usable &= ~near_black
-        rate = planes.signal_dn[channel]
+            near_black = settings.near_black_sigma * math.sqrt(read_variance)
+            lowest = min(near_black, ceiling * exposure / next_longer)
+            np.greater_equal(level, np.float32(lowest), out=condition)
+            usable &= condition
+        weight *= usable
+        rate = signal
         if dark is not None:
             rate -= dark.signal_dn[channel]
         rate *= np.float32(1.0 / exposure)
         if is_shortest:
             state.shortest_rate[channel] = rate
-        weight = np.divide(np.float32(1.0), variance, out=variance)
-        weight *= usable
         state.weight[channel] += weight
         weight *= rate
         state.weighted_rate[channel] += weight
 
 
+class _BufferPool:
+    """Plane arrays handed back after a frame is merged, for the next decode (thread-safe)."""
+
+    def __init__(self) -> None:
+        self._free: list[PlaneBuffers] = []
+        self._lock = threading.Lock()
+
+    def take(self) -> PlaneBuffers | None:
+        with self._lock:
+            return self._free.pop() if self._free else None
+
+    def give(self, signal_dn: Float32Array, saturated: BoolArray) -> None:
+        with self._lock:
+            self._free.append(PlaneBuffers(signal_dn, saturated))
+
+
 def _prefetch(
-    paths_and_overrides: Sequence[tuple[Path, float, bool]], saturation_fraction: float
+    schedule: Sequence[tuple[Path, float, bool]], saturation_fraction: float, pool: _BufferPool
 ) -> Iterator[RawPlanes]:
     """Decode the frames in order, one ahead of the consumer (LibRaw releases the GIL)."""
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-decode") as pool:
 
-        def submit(item: tuple[Path, float, bool]) -> Future[RawPlanes]:
-            path, exposure, keep_difference = item
-            return pool.submit(
-                read_raw,
-                path,
-                exposure_s=exposure,
-                saturation_fraction=saturation_fraction,
-                keep_green_difference=keep_difference,
-            )
-
-        pending: Future[RawPlanes] | None = (
-            submit(paths_and_overrides[0]) if paths_and_overrides else None
+    def decode(item: tuple[Path, float, bool]) -> RawPlanes:
+        path, exposure, keep_difference = item
+        return read_raw(
+            path,
+            exposure_s=exposure,
+            saturation_fraction=saturation_fraction,
+            keep_green_difference=keep_difference,
+            buffers=pool.take(),
         )
-        for position in range(len(paths_and_overrides)):
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-decode") as executor:
+        pending: Future[RawPlanes] | None = (
+            executor.submit(decode, schedule[0]) if schedule else None
+        )
+        for position in range(len(schedule)):
             assert pending is not None
             current = pending.result()
             following = position + 1
             pending = (
-                submit(paths_and_overrides[following])
-                if following < len(paths_and_overrides)
-                else None
+                executor.submit(decode, schedule[following]) if following < len(schedule) else None
             )
             yield current
 
@@ -491,9 +532,10 @@ def merge_bracket(
         near_black_sigma=near_black_sigma,
         exposures_s=tuple(m.exposure_s for m in ordered),
     )
-    merger = _Merger(ordered, plan, settings, noise_model, progress)
+    pool = _BufferPool()
+    merger = _Merger(ordered, plan, settings, noise_model, progress, pool)
     for planes, (role, index) in zip(
-        _prefetch(plan.schedule, saturation_fraction), plan.roles, strict=True
+        _prefetch(plan.schedule, saturation_fraction, pool), plan.roles, strict=True
     ):
         if role == "dark":
             merger.add_dark(planes, index)
@@ -556,7 +598,9 @@ class _Merger:
         settings: _MergeSettings,
         noise_model: NoiseModel | None,
         progress: ProgressCallback | None,
+        pool: _BufferPool,
     ) -> None:
+        self.pool = pool
         self.ordered = ordered
         self.plan = plan
         self.settings = settings
@@ -565,15 +609,14 @@ class _Merger:
         self.layout: _PlaneLayout | None = None
         self.reference: RawMetadata | None = None
         self.state: _Accumulator | None = None
-        self.scratch: Float32Array | None = None
         self.masters: dict[int, _MasterDark] = {}
-        self.building: dict[int, tuple[Float32Array, int]] = {}
+        self.building: dict[int, tuple[PlaneBuffers, int]] = {}
         self.remaining = {
             group: plan.group_of_light.count(group) for group in set(plan.group_of_light)
         }
         self.dark_spreads: list[DarkSpread] = []
         self.held: list[tuple[RawPlanes, int]] = []
-        self.pair_statistics: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+        self.pair_statistics: list[PairStatistics] = []
         self.records: dict[int, FrameRecord] = {}
 
     def _check(self, planes: RawPlanes, *, light: bool) -> None:
@@ -588,17 +631,19 @@ class _Merger:
     def add_dark(self, planes: RawPlanes, group: int) -> None:
         self._check(planes, light=False)
         self.dark_spreads.append(DarkSpread.of(planes))
-        total, count = self.building.get(group, (planes.signal_dn, 0))
-        if count:
-            total += planes.signal_dn
+        if group in self.building:
+            buffers, count = self.building[group]
+            np.add(buffers.signal_dn, planes.signal_dn, out=buffers.signal_dn)
+            self.pool.give(planes.signal_dn, planes.saturated)
+        else:  # the group's first dark frame holds the running sum
+            buffers, count = PlaneBuffers(planes.signal_dn, planes.saturated), 0
         count += 1
-        expected = len(self.plan.groups[group].metadata)
-        if count < expected:
-            self.building[group] = (total, count)
+        if count < len(self.plan.groups[group].metadata):
+            self.building[group] = (buffers, count)
             return
         self.building.pop(group, None)
-        total *= np.float32(1.0 / count)
-        self.masters[group] = _MasterDark(total, count, self.plan.groups[group].paths)
+        np.multiply(buffers.signal_dn, np.float32(1.0 / count), out=buffers.signal_dn)
+        self.masters[group] = _MasterDark(buffers, count, self.plan.groups[group].paths)
 
     def add_light(self, planes: RawPlanes, index: int) -> None:
         self._check(planes, light=True)
@@ -635,8 +680,6 @@ class _Merger:
         assert self.noise is not None
         if self.state is None:
             self.state = _Accumulator.zeros(planes.signal_dn.shape)
-            self.scratch = np.empty_like(planes.signal_dn)
-        assert self.scratch is not None
         group = self.plan.group_of_light[index]
         master = self.masters[group] if group is not None else None
         saturated_fraction = planes.saturated.mean(axis=(1, 2))
@@ -647,9 +690,9 @@ class _Merger:
             self.noise,
             self.settings,
             self.state,
-            self.scratch,
             is_shortest=index == len(self.ordered) - 1,
         )
+        self.pool.give(planes.signal_dn, planes.saturated)
         self.records[index] = FrameRecord(
             path=meta.path,
             exposure_s=meta.exposure_s,
@@ -662,8 +705,9 @@ class _Merger:
         )
         if group is not None:
             self.remaining[group] -= 1
-            if self.remaining[group] == 0:
-                del self.masters[group]  # no later frame needs it: free its memory
+            if self.remaining[group] == 0:  # no later frame needs this master dark
+                done = self.masters.pop(group)
+                self.pool.give(done.buffers.signal_dn, done.buffers.saturated)
         if self.progress is not None:
             self.progress(len(self.records), len(self.ordered), meta.path)
 

@@ -161,6 +161,22 @@ class RawPlanes:
         return (2 * height, 2 * width)
 
 
+@dataclass(frozen=True, eq=False)
+class PlaneBuffers:
+    """Arrays :func:`read_raw` may fill instead of allocating (a stream of frames reuses them).
+
+    Parameters
+    ----------
+    signal_dn
+        Shape ``(3, h, w)``, float32.
+    saturated
+        Shape ``(3, h, w)``, bool.
+    """
+
+    signal_dn: Float32Array
+    saturated: BoolArray
+
+
 @dataclass(frozen=True)
 class _CfaLayout:
     """Where each colour sits in the 2×2 cell: ``(row, column)`` per site."""
@@ -419,15 +435,18 @@ def _cfa_layout(raw: Any, path: Path) -> _CfaLayout:
 
 def _saturation_threshold(
     site: NDArray[np.uint16], black: float, white: float, fraction: float
-) -> float:
-    """Raw DN from which a site counts as saturated, lowered to a clipping plateau if one shows."""
+) -> np.uint16:
+    """Raw DN from which a site counts as saturated, lowered to a clipping plateau if one shows.
+
+    Raw values are integers, so the threshold is rounded up and compared in the raw's own type.
+    """
     threshold = black + fraction * (white - black)
     peak = float(site.max()) if site.size else 0.0
     if black + _PLATEAU_MIN_FRACTION * (white - black) < peak < threshold:
         at_peak = int(np.count_nonzero(site == peak))
         if at_peak >= _PLATEAU_MIN_COUNT:
             threshold = black + fraction * (peak - black)
-    return threshold
+    return np.uint16(min(math.ceil(threshold), 65535))
 
 
 def read_raw(
@@ -436,6 +455,7 @@ def read_raw(
     exposure_s: float | None = None,
     saturation_fraction: float = DEFAULT_SATURATION_FRACTION,
     keep_green_difference: bool = False,
+    buffers: PlaneBuffers | None = None,
 ) -> RawPlanes:
     """Decode a RAW file into black-subtracted R, G, B planes at half resolution.
 
@@ -450,6 +470,8 @@ def read_raw(
         fraction of a clipping plateau found below the nominal white level.
     keep_green_difference
         Also return the difference of the two green sites (for noise estimation).
+    buffers
+        Arrays to fill instead of allocating new ones (used when their shape fits).
 
     Returns
     -------
@@ -494,8 +516,11 @@ def read_raw(
             return black_per_colour[index], white
 
         plane_shape = (height // 2, width // 2)
-        signal = np.empty((3, *plane_shape), dtype=np.float32)
-        saturated = np.empty((3, *plane_shape), dtype=np.bool_)
+        if buffers is not None and buffers.signal_dn.shape == (3, *plane_shape):
+            signal, saturated = buffers.signal_dn, buffers.saturated
+        else:
+            signal = np.empty((3, *plane_shape), dtype=np.float32)
+            saturated = np.empty((3, *plane_shape), dtype=np.bool_)
         blacks: list[float] = []
         clips: list[float] = []
         for channel, site in ((0, layout.red), (2, layout.blue)):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,15 +26,19 @@ from calib.raw import RawPlanes
 Float32Array = NDArray[np.float32]
 FloatArray = NDArray[np.float64]
 #: Per-sample level, slope-corrected green difference and local slope (see green_pair_statistics).
-PairStatistics = tuple[FloatArray, FloatArray, FloatArray]
+PairStatistics = tuple[
+    NDArray[np.floating[Any]], NDArray[np.floating[Any]], NDArray[np.floating[Any]]
+]
 
 #: Raw sites averaged into one plane sample: R, G (two greens), B.
 SITES_PER_SAMPLE = np.array([1.0, 2.0, 1.0])
 #: Rounding to integer DN adds this variance (DN²).
 QUANTISATION_VARIANCE_DN2 = 1.0 / 12.0
-#: Side of the neighbourhood (plane samples) whose mean, without the centre, predicts a sample.
-PREDICTOR_WINDOW = 5
+#: Side of the window (plane samples) that smooths the green plane for the photon-transfer fit.
+SMOOTHING_WINDOW = 5
 _MAD_TO_SIGMA = 1.4826
+#: Level bins of the photon-transfer fit are thinned to about this many green pairs.
+_MAX_BIN_SAMPLES = 200_000
 
 
 @dataclass(frozen=True)
@@ -75,14 +80,46 @@ class NoiseModel:
         return (self.gain_dn_per_electron * level + read) / SITES_PER_SAMPLE[channel]  # type: ignore[no-any-return]
 
 
-def leave_one_out_mean(signal: Float32Array, *, out: Float32Array) -> Float32Array:
-    """Mean of each sample's 5×5 neighbourhood without the sample itself (per channel)."""
-    window = PREDICTOR_WINDOW
-    for channel in range(signal.shape[0]):
-        ndimage.uniform_filter(signal[channel], size=window, output=out[channel], mode="reflect")
-    out *= np.float32(window * window)
+def leave_one_out_mean(
+    signal: Float32Array, *, out: Float32Array, scratch: Float32Array | None = None
+) -> Float32Array:
+    """Mean of each sample's 3×3 neighbourhood without the sample itself (the 8 neighbours).
+
+    Parameters
+    ----------
+    signal
+        Shape ``(..., h, w)``: planes (float32), each smoothed on its own.
+    out
+        Same shape: receives the result.
+    scratch
+        Same shape, reused between calls to avoid fresh allocations (optional).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``out``. Edge samples average the neighbours that exist.
+    """
+    rows = scratch if scratch is not None else np.empty_like(signal)
+    # separable 3×3 box sum (zero padding) by shifted additions: fewer passes than a filter
+    np.add(signal[..., :-2, :], signal[..., 1:-1, :], out=rows[..., 1:-1, :])
+    rows[..., 1:-1, :] += signal[..., 2:, :]
+    np.add(signal[..., 0, :], signal[..., 1, :], out=rows[..., 0, :])
+    np.add(signal[..., -2, :], signal[..., -1, :], out=rows[..., -1, :])
+    np.add(rows[..., :, :-2], rows[..., :, 1:-1], out=out[..., :, 1:-1])
+    out[..., :, 1:-1] += rows[..., :, 2:]
+    np.add(rows[..., :, 0], rows[..., :, 1], out=out[..., :, 0])
+    np.add(rows[..., :, -2], rows[..., :, -1], out=out[..., :, -1])
     out -= signal
-    out *= np.float32(1.0 / (window * window - 1))
+    out *= np.float32(1.0 / 8.0)
+    # edges have fewer neighbours: 5 along a side, 3 in a corner
+    height, width = signal.shape[-2:]
+    count_rows = np.full(height, 3.0)
+    count_rows[[0, -1]] = 2.0
+    count_columns = np.full(width, 3.0)
+    count_columns[[0, -1]] = 2.0
+    for edge in (0, -1):
+        out[..., edge, :] *= (8.0 / (count_rows[edge] * count_columns - 1.0)).astype(np.float32)
+        out[..., 1:-1, edge] *= np.float32(8.0 / (count_columns[edge] * 3.0 - 1.0))
     return out
 
 
@@ -103,7 +140,7 @@ def robust_variance(values: FloatArray, clip_sigma: float = 5.0) -> float:
     return float(np.var(kept))
 
 
-def green_pair_statistics(planes: RawPlanes, max_samples: int = 4_000_000) -> PairStatistics:
+def green_pair_statistics(planes: RawPlanes, max_samples: int = 1_000_000) -> PairStatistics:
     """Predicted level, slope-corrected green difference and local slope of usable green pairs.
 
     The two greens of a cell sit one pixel apart diagonally, so a slope in the scene shifts their
@@ -114,7 +151,7 @@ def green_pair_statistics(planes: RawPlanes, max_samples: int = 4_000_000) -> Pa
     if difference is None:
         raise ValueError("read the frame with keep_green_difference=True")
     green = planes.signal_dn[1]
-    window = PREDICTOR_WINDOW
+    window = SMOOTHING_WINDOW
     smooth = ndimage.uniform_filter(green, size=window, mode="reflect")
     slope_rows, slope_columns = np.gradient(smooth)
     (first_row, first_column), (second_row, second_column) = planes.green_sites_px
@@ -126,12 +163,12 @@ def green_pair_statistics(planes: RawPlanes, max_samples: int = 4_000_000) -> Pa
     corrected = difference - (offset_rows * slope_rows + offset_columns * slope_columns)
     predicted = (smooth * np.float32(window * window) - green) / np.float32(window * window - 1)
     near_clip = ndimage.maximum_filter(planes.saturated[1], size=window)
-    step = max(1, int(green.size // max_samples))
+    step = max(1, math.ceil(green.size / max_samples))  # every step-th row
     usable = ~near_clip[::step]
     return (
-        predicted[::step][usable].astype(np.float64),
-        corrected[::step][usable].astype(np.float64),
-        np.hypot(slope_rows[::step], slope_columns[::step])[usable].astype(np.float64),
+        predicted[::step][usable],
+        corrected[::step][usable],
+        np.hypot(slope_rows[::step], slope_columns[::step])[usable],
     )
 
 
@@ -170,8 +207,8 @@ def fit_noise_model(
     EstimationError
         Too little signal range for a fit, or a non-physical result.
     """
-    level = np.concatenate([frame[0] for frame in statistics])
-    difference = np.concatenate([frame[1] for frame in statistics])
+    level = np.concatenate([frame[0] for frame in statistics]).astype(np.float64)
+    difference = np.concatenate([frame[1] for frame in statistics]).astype(np.float64)
     slope = np.concatenate([frame[2] for frame in statistics])
     edges = np.concatenate(
         [[-np.inf], np.geomspace(max(clip_level_dn * 1e-4, 1.0), clip_level_dn, 40)]
@@ -184,7 +221,9 @@ def fit_noise_model(
         members = np.flatnonzero(bin_of == bin_index)
         if members.size < 2 * min_bin_samples:
             continue
-        flattest = members[np.argsort(slope[members])[: members.size // 2]]
+        members = members[:: max(1, members.size // _MAX_BIN_SAMPLES)]
+        half = members.size // 2
+        flattest = members[np.argpartition(slope[members], half)[:half]]
         means.append(float(level[flattest].mean()))
         variances.append(robust_variance(difference[flattest]) / 2.0)
         counts.append(int(flattest.size))

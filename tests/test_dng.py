@@ -52,7 +52,12 @@ def test_pixels_and_levels_round_trip_through_rawpy(
             for row in (0, 1)
             for column in (0, 1)
         }
-        assert [by_position[(0, 0)], by_position[(0, 1)], by_position[(1, 0)], by_position[(1, 1)]] == [60, 61, 62, 63]
+        assert [
+            by_position[(0, 0)],
+            by_position[(0, 1)],
+            by_position[(1, 0)],
+            by_position[(1, 1)],
+        ] == [60, 61, 62, 63]
         assert raw.white_level == 4095
         assert raw.other.iso_speed == 400
         assert raw.other.shutter_speed == pytest.approx(1 / 250, rel=1e-6)
@@ -114,7 +119,9 @@ def test_full_16_bit_range_round_trips(tmp_path: Path, rng: np.random.Generator)
     data = _random_cfa(rng, (48, 48), 65535)
     data[0, :4] = (0, 1, 65534, 65535)
     path = write_dng(
-        tmp_path / "full.dng", data, DngMetadata(exposure_s=1.0, black_level_dn=0, white_level_dn=65535)
+        tmp_path / "full.dng",
+        data,
+        DngMetadata(exposure_s=1.0, black_level_dn=0, white_level_dn=65535),
     )
     with rawpy.imread(str(path)) as raw:
         assert np.array_equal(raw.raw_image_visible, data)
@@ -158,7 +165,11 @@ def test_writing_is_atomic_and_replaces(tmp_path: Path) -> None:
         (np.zeros((32, 32), np.float32), DngMetadata(exposure_s=0.1), "integers"),
         (np.zeros((10, 32), np.uint16), DngMetadata(exposure_s=0.1), "at least 22"),
         (np.zeros((32,), np.uint16), DngMetadata(exposure_s=0.1), "2-D"),
-        (np.full((32, 32), 5000, np.uint16), DngMetadata(exposure_s=0.1, white_level_dn=4095), "exceed"),
+        (
+            np.full((32, 32), 5000, np.uint16),
+            DngMetadata(exposure_s=0.1, white_level_dn=4095),
+            "exceed",
+        ),
         (np.full((32, 32), -1, np.int32), DngMetadata(exposure_s=0.1), "0..65535"),
         (
             np.zeros((40, 40), np.uint16),

@@ -304,53 +304,51 @@ def _error(image: HdrImage) -> DetectionError:
 
 
 def test_no_spot_in_pure_noise() -> None:
-    sensor = SensorModel(height_px=400, width_px=600)
     image = _noisy_image(np.zeros((400, 600)), "RGGB", np.random.default_rng(13))
     error = _error(image)
     assert error.reason == "no_spot" and "no direct spot" in str(error)
-    del sensor
 
 
-def test_no_band_when_only_the_spot_is_there() -> None:
-    sensor = SensorModel(height_px=800, width_px=1000)
-    layout = _layout_through_centre(sensor, 0.0, along_shift_px=0.0, plus_first_strength=0.0)
-    image = _noisy_image(
-        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(14)
-    )
-    error = _error(image)
-    assert error.reason == "no_band" and "no first-order band" in str(error)
+def _spot_only(sensor: SensorModel) -> SceneLayout:
+    return _layout_through_centre(sensor, 0.0, along_shift_px=0.0, plus_first_strength=0.0)
 
 
-def test_band_running_off_the_end_of_the_frame() -> None:
-    sensor = SensorModel(height_px=800, width_px=1000)
-    layout = _layout_through_centre(sensor, 0.0, along_shift_px=100.0)
-    image = _noisy_image(
-        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(15)
-    )
-    error = _error(image)
-    assert error.reason == "band_off_frame" and "runs off the frame" in str(error)
+def _band_past_the_end(sensor: SensorModel) -> SceneLayout:
+    return _layout_through_centre(sensor, 0.0, along_shift_px=100.0)
 
 
-def test_band_running_off_the_side_of_the_frame() -> None:
-    sensor = SensorModel(height_px=400, width_px=1400)
-    layout = _layout_through_centre(
+def _band_past_the_side(sensor: SensorModel) -> SceneLayout:
+    return _layout_through_centre(
         sensor, 0.0, band_half_width_px=230.0, spot_half_size_px=(6.0, 60.0)
     )
-    image = _noisy_image(
-        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(16)
-    )
-    assert _error(image).reason == "band_off_frame"
 
 
-def test_spot_on_the_edge_of_the_frame() -> None:
-    sensor = SensorModel(height_px=1000, width_px=1400)
-    layout = SceneLayout(
-        spot_centre_px=(2.0, 500.0), spot_half_size_px=(6.0, 80.0), band_half_width_px=80.0
+def _spot_on_the_edge(sensor: SensorModel) -> SceneLayout:
+    return SceneLayout(
+        spot_centre_px=(2.0, sensor.height_px / 2),
+        spot_half_size_px=(6.0, 80.0),
+        band_half_width_px=80.0,
     )
-    image = _noisy_image(
-        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(17)
-    )
-    assert _error(image).reason == "spot_off_frame"
+
+
+@pytest.mark.parametrize(
+    ("make_layout", "size", "reason", "message"),
+    [
+        (_spot_only, (800, 1000), "no_band", "no first-order band"),
+        (_band_past_the_end, (800, 1000), "band_off_frame", "runs off the frame"),
+        (_band_past_the_side, (400, 1400), "band_off_frame", "runs off the frame sideways"),
+        (_spot_on_the_edge, (1000, 1400), "spot_off_frame", "touches the edge"),
+    ],
+)
+def test_scenes_that_cannot_be_measured_are_refused(
+    make_layout: object, size: tuple[int, int], reason: str, message: str
+) -> None:
+    sensor = SensorModel(height_px=size[0], width_px=size[1])
+    layout = make_layout(sensor)  # type: ignore[operator]
+    mosaic = render_mosaic_radiance(layout, SIGNAL, sensor)
+    error = _error(_noisy_image(mosaic, "RGGB", np.random.default_rng(14)))
+    assert error.reason == reason
+    assert message in str(error)
 
 
 def test_saturated_band_and_spot_are_refused_or_flagged() -> None:

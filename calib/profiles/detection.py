@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -206,36 +207,77 @@ def _angle_difference(a_deg: float, b_deg: float) -> float:
     return (a_deg - b_deg + 180.0) % 360.0 - 180.0
 
 
+@dataclass
+class _CentroidSums:
+    """Per along-bin sums of weight, weight × across and weight × along."""
+
+    weight: FloatArray
+    across: FloatArray
+    along: FloatArray
+
+    @classmethod
+    def zeros(cls, n_bins: int) -> _CentroidSums:
+        return cls(np.zeros(n_bins), np.zeros(n_bins), np.zeros(n_bins))
+
+    def add(
+        self, bins: NDArray[np.int64], weights: FloatArray, u: FloatArray, v: FloatArray
+    ) -> None:
+        size = self.weight.size
+        self.weight += np.bincount(bins, weights, minlength=size)[:size]
+        self.across += np.bincount(bins, weights * v, minlength=size)[:size]
+        self.along += np.bincount(bins, weights * u, minlength=size)[:size]
+
+    def line(self) -> tuple[float, float] | None:
+        """Tilt (radians) and intercept of the weighted line through the bins' centroids."""
+        filled = self.weight > 0.05 * self.weight.max()
+        if filled.sum() < 3:
+            return None
+        along = self.along[filled] / self.weight[filled]
+        across = self.across[filled] / self.weight[filled]
+        slope, intercept = np.polyfit(along, across, 1, w=np.sqrt(self.weight[filled]))
+        return math.atan(slope), float(intercept)
+
+
+def _iterate_axis(
+    angle_deg: float,
+    offset_px: float,
+    sums_for: Callable[[float, float], _CentroidSums | None],
+    *,
+    iterations: int = 3,
+    tolerance_rad: float = 1e-6,
+) -> tuple[float, float]:
+    """Rotate the axis by the tilt of the centroids' line until it lies along the band."""
+    for _ in range(iterations):
+        sums = sums_for(angle_deg, offset_px)
+        fitted = sums.line() if sums is not None else None
+        if fitted is None:
+            break
+        tilt, intercept = fitted
+        angle_deg += math.degrees(tilt)
+        offset_px = intercept * math.cos(tilt)
+        if abs(tilt) < tolerance_rad:
+            break
+    return angle_deg, offset_px
+
+
 def _refine_axis(
     small: _Downsampled, centre: tuple[float, float], candidate: _Candidate
 ) -> tuple[float, float]:
     """Angle and across-offset of the band's centre line from its across-centroids along it."""
-    angle, offset = candidate.angle_deg, 0.0
     excess = np.maximum(small.luminance - small.background, 0.0)
-    region = ndimage.binary_dilation(candidate.mask, iterations=2)
-    for _ in range(3):
-        u, v = small.grid_uv(centre, angle)
-        weights = np.where(region, excess, 0.0)
-        bins = np.floor(u / small.pitch_px).astype(np.int64)
-        valid = weights > 0
-        if valid.sum() < 10:
-            break
-        bin_index = bins[valid] - bins[valid].min()
-        weight_sum = np.bincount(bin_index, weights[valid])
-        across_sum = np.bincount(bin_index, weights[valid] * v[valid])
-        along_sum = np.bincount(bin_index, weights[valid] * u[valid])
-        filled = weight_sum > 0.05 * weight_sum.max()
-        if filled.sum() < 3:
-            break
-        along = along_sum[filled] / weight_sum[filled]
-        across = across_sum[filled] / weight_sum[filled]
-        slope, intercept = np.polyfit(along, across, 1, w=np.sqrt(weight_sum[filled]))
-        tilt = math.degrees(math.atan(slope))
-        angle += tilt
-        offset = float(intercept) * math.cos(math.radians(tilt))
-        if abs(tilt) < 1e-3:
-            break
-    return angle, offset
+    region = ndimage.binary_dilation(candidate.mask, iterations=2) & (excess > 0)
+    if region.sum() < 10:
+        return candidate.angle_deg, 0.0
+
+    def sums_for(angle_deg: float, _offset_px: float) -> _CentroidSums:
+        u, v = small.grid_uv(centre, angle_deg)
+        bins = np.floor(u[region] / small.pitch_px).astype(np.int64)
+        bins -= bins.min()
+        sums = _CentroidSums.zeros(int(bins.max()) + 1)
+        sums.add(bins, excess[region], u[region], v[region])
+        return sums
+
+    return _iterate_axis(candidate.angle_deg, 0.0, sums_for)
 
 
 def _refine_axis_exact(
@@ -245,8 +287,6 @@ def _refine_axis_exact(
     offset_px: float,
     half_width_px: float,
     u_range: tuple[float, float],
-    *,
-    iterations: int = 3,
 ) -> tuple[float, float]:
     """Refit the band's centre line on the full-resolution planes, every sample at its position.
 
@@ -254,54 +294,27 @@ def _refine_axis_exact(
     to a pixel apart; as the band's colour changes along it, that would tilt the fitted line. Here
     each channel's samples keep their own sensor coordinates, in a window symmetric about the line.
     """
-    angle, offset = angle_deg, offset_px
     bin_px = max(8.0, (u_range[1] - u_range[0]) / 64.0)
     n_bins = max(int((u_range[1] - u_range[0]) / bin_px), 1)
-    for _ in range(iterations):
+
+    def sums_for(angle: float, offset: float) -> _CentroidSums | None:
         window = rectangle_window(
             image, centre, angle, u_range, (offset - half_width_px, offset + half_width_px)
         )
         if window is None:
-            break
-        weight_sum = np.zeros(n_bins)
-        across_sum = np.zeros(n_bins)
-        along_sum = np.zeros(n_bins)
+            return None
+        sums = _CentroidSums.zeros(n_bins)
         for channel in range(3):
             y, x = sample_positions(image, channel, *window)
             u, v = to_uv(x, y, centre, angle)
             values = image.radiance[channel][window].astype(np.float64)
             bins = np.floor((u - u_range[0]) / bin_px).astype(np.int64)
-            inside = (
-                (np.abs(v - offset) <= half_width_px)
-                & (bins >= 0)
-                & (bins < n_bins)
-                & np.isfinite(values)
-            )
-            weights = values[inside]
-            weight_sum += np.bincount(bins[inside], weights, minlength=n_bins)
-            across_sum += np.bincount(bins[inside], weights * v[inside], minlength=n_bins)
-            along_sum += np.bincount(bins[inside], weights * u[inside], minlength=n_bins)
-        filled = weight_sum > 0.05 * weight_sum.max()
-        if filled.sum() < 3:
-            break
-        along = along_sum[filled] / weight_sum[filled]
-        across = across_sum[filled] / weight_sum[filled]
-        slope, intercept = np.polyfit(along, across, 1, w=np.sqrt(weight_sum[filled]))
-        tilt = math.atan(slope)
-        angle += math.degrees(tilt)
-        offset = float(intercept) * math.cos(tilt)
-        if abs(tilt) < 1e-6:
-            break
-    return angle, offset
+            inside = (np.abs(v - offset) <= half_width_px) & (bins >= 0) & (bins < n_bins)
+            inside &= np.isfinite(values)
+            sums.add(bins[inside], values[inside], u[inside], v[inside])
+        return sums
 
-
-@dataclass(frozen=True)
-class _Profiles:
-    along_centres: FloatArray
-    along: FloatArray  # mean excess per along bin (NaN where the strip leaves the frame)
-    coverage: FloatArray
-    across_centres: FloatArray
-    across: FloatArray
+    return _iterate_axis(angle_deg, offset_px, sums_for)
 
 
 def _bin_means(sums: NDArray[Any], counts: NDArray[Any]) -> FloatArray:
