@@ -11,9 +11,8 @@ of channel ``c`` sits at sensor pixel ``(2 i + dy_c, 2 j + dx_c)`` (row, column)
 is that colour's place in the 2×2 cell (``channel_origin_px``; green is the mean of its two sites,
 ``(0.5, 0.5)``).
 
-Metadata (exposure time, ISO, aperture, make, model, capture time) is read from the EXIF / DNG tags with
-exifread (exact rationals, IFD0 or the EXIF IFD), falling back to what LibRaw reports, so formats
-exifread does not parse (CR3) still get exposure, ISO and aperture. An ``exposure_s`` override wins over
+Metadata (exposure time, ISO, aperture, make, model, capture time) comes from the EXIF / DNG tags
+(:mod:`calib.raw_metadata`), falling back to what LibRaw reports. An ``exposure_s`` override wins over
 both; a file without an exposure time and no override is rejected with its name.
 
 Examples
@@ -25,25 +24,39 @@ Examples
 
 from __future__ import annotations
 
-import logging
 import math
 import os
-from collections.abc import Mapping
 from dataclasses import dataclass
-from datetime import datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-import exifread
 import numpy as np
 import rawpy
 from numpy.typing import NDArray
 
 from calib.errors import InputError
+from calib.raw_metadata import (
+    ExposureSource,
+    RawMetadata,
+    build_metadata,
+    exif_exposure_s,
+    exif_tags,
+)
+
+__all__ = [
+    "CHANNELS",
+    "DEFAULT_SATURATION_FRACTION",
+    "ExposureSource",
+    "PlaneBuffers",
+    "RawFileError",
+    "RawMetadata",
+    "RawPlanes",
+    "read_raw",
+    "read_raw_metadata",
+]
 
 Float32Array = NDArray[np.float32]
 BoolArray = NDArray[np.bool_]
-ExposureSource = Literal["exif", "libraw", "override"]
 
 #: Names of the three planes, in order.
 CHANNELS: tuple[str, str, str] = ("R", "G", "B")
@@ -58,58 +71,9 @@ _PLATEAU_MIN_COUNT = 16
 #: …and only when that plateau lies above this fraction of the black-to-white range.
 _PLATEAU_MIN_FRACTION = 0.8
 
-_EXIF_EXPOSURE_KEYS = ("EXIF ExposureTime", "Image ExposureTime")
-_EXIF_FNUMBER_KEYS = ("EXIF FNumber", "Image FNumber")
-_EXIF_ISO_KEYS = (
-    "EXIF ISOSpeedRatings",
-    "EXIF PhotographicSensitivity",
-    "EXIF RecommendedExposureIndex",
-    "Image ISOSpeedRatings",
-)
-_EXIF_TIME_KEYS = ("EXIF DateTimeOriginal", "Image DateTimeOriginal", "Image DateTime")
-_EXIF_UNIQUE_MODEL_KEYS = ("Image UniqueCameraModel", "Image Tag 0xC614")
-
 
 class RawFileError(InputError):
     """A file is missing, not a RAW file, corrupt or truncated, or has an unsupported sensor layout."""
-
-
-@dataclass(frozen=True)
-class RawMetadata:
-    """What a RAW file says about its capture.
-
-    Parameters
-    ----------
-    path
-        The file.
-    exposure_s
-        Exposure time in seconds.
-    exposure_source
-        Where ``exposure_s`` came from: the EXIF/DNG tags, LibRaw, or the caller's override.
-    iso
-        ISO speed, or ``None`` when the file does not say.
-    f_number
-        Aperture (f-number), or ``None``.
-    make, model
-        Camera maker and model (IFD0 tags; DNG UniqueCameraModel when Make/Model are absent).
-    capture_time
-        DateTimeOriginal (or DateTime), or ``None``.
-    """
-
-    path: Path
-    exposure_s: float
-    exposure_source: ExposureSource
-    iso: float | None
-    f_number: float | None
-    make: str | None
-    model: str | None
-    capture_time: datetime | None
-
-    @property
-    def camera(self) -> str:
-        """``"Make Model"`` for messages, ``"unknown camera"`` when neither is known."""
-        parts = [part for part in (self.make, self.model) if part]
-        return " ".join(parts) if parts else "unknown camera"
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,114 +169,6 @@ def _check_file(path: Path) -> None:
         raise RawFileError("file is empty (0 bytes): not a RAW file", source=str(path))
 
 
-def _exif_number(tags: Mapping[str, Any], keys: tuple[str, ...]) -> float | None:
-    for key in keys:
-        tag = tags.get(key)
-        if tag is None:
-            continue
-        values = getattr(tag, "values", None)
-        first: Any = values[0] if isinstance(values, list) and values else values
-        try:
-            number = float(first)
-        except (TypeError, ValueError, ZeroDivisionError):
-            continue
-        if math.isfinite(number) and number > 0:
-            return number
-    return None
-
-
-def _exif_text(tags: Mapping[str, Any], keys: tuple[str, ...]) -> str | None:
-    for key in keys:
-        tag = tags.get(key)
-        if tag is None:
-            continue
-        values = getattr(tag, "values", tag)
-        text = (values if isinstance(values, str) else str(values)).strip().strip("\0").strip()
-        if text:
-            return text
-    return None
-
-
-def _exif_time(tags: Mapping[str, Any]) -> datetime | None:
-    text = _exif_text(tags, _EXIF_TIME_KEYS)
-    if text is None:
-        return None
-    try:
-        return datetime.strptime(text[:19], "%Y:%m:%d %H:%M:%S")
-    except ValueError:
-        return None
-
-
-def _read_exif(path: Path) -> dict[str, Any]:
-    """exifread's tags of ``path``; empty when it does not recognise the format (e.g. CR3)."""
-    exif_logger = logging.getLogger("exifread")
-    previous_level = exif_logger.level
-    exif_logger.setLevel(logging.ERROR)  # "format not recognized" is expected for some RAWs
-    try:
-        with path.open("rb") as handle:
-            return dict(exifread.process_file(handle, details=False, extract_thumbnail=False))
-    except Exception:  # exifread raises many kinds on odd files; LibRaw has the final word
-        return {}
-    finally:
-        exif_logger.setLevel(previous_level)
-
-
-def _positive(value: float) -> float | None:
-    return float(value) if math.isfinite(value) and value > 0 else None
-
-
-def _libraw_time(value: datetime | None) -> datetime | None:
-    if value is None or value.year <= 1970:  # LibRaw reports the epoch when the tag is absent
-        return None
-    return value
-
-
-def _build_metadata(
-    path: Path,
-    exif: Mapping[str, Any],
-    libraw_other: Any | None,
-    exposure_s: float | None,
-) -> RawMetadata:
-    if exposure_s is not None and not (math.isfinite(exposure_s) and exposure_s > 0):
-        raise InputError(f"exposure override must be > 0 s, got {exposure_s}", source=str(path))
-    exif_exposure = _exif_number(exif, _EXIF_EXPOSURE_KEYS)
-    libraw_exposure = _positive(libraw_other.shutter_speed) if libraw_other is not None else None
-    source: ExposureSource
-    if exposure_s is not None:
-        exposure, source = float(exposure_s), "override"
-    elif exif_exposure is not None:
-        exposure, source = exif_exposure, "exif"
-    elif libraw_exposure is not None:
-        exposure, source = libraw_exposure, "libraw"
-    else:
-        raise InputError(
-            "no exposure time in the file's metadata (EXIF ExposureTime, LibRaw shutter speed); "
-            "give it explicitly (exposure_s=…, or --exposure on the command line)",
-            source=str(path),
-        )
-    iso = _exif_number(exif, _EXIF_ISO_KEYS)
-    f_number = _exif_number(exif, _EXIF_FNUMBER_KEYS)
-    capture_time = _exif_time(exif)
-    if libraw_other is not None:
-        iso = iso if iso is not None else _positive(libraw_other.iso_speed)
-        f_number = f_number if f_number is not None else _positive(libraw_other.aperture)
-        capture_time = capture_time or _libraw_time(libraw_other.timestamp)
-    make = _exif_text(exif, ("Image Make",))
-    model = _exif_text(exif, ("Image Model",))
-    if make is None and model is None:
-        model = _exif_text(exif, _EXIF_UNIQUE_MODEL_KEYS)
-    return RawMetadata(
-        path=path,
-        exposure_s=exposure,
-        exposure_source=source,
-        iso=iso,
-        f_number=f_number,
-        make=make,
-        model=model,
-        capture_time=capture_time,
-    )
-
-
 def _open_raw(path: Path) -> Any:
     try:
         return rawpy.imread(str(path))
@@ -360,12 +216,12 @@ def read_raw_metadata(
     """
     file = Path(path)
     _check_file(file)
-    exif = _read_exif(file)
-    if exposure_s is not None or _exif_number(exif, _EXIF_EXPOSURE_KEYS) is not None:
-        return _build_metadata(file, exif, None, exposure_s)
+    exif = exif_tags(file)
+    if exposure_s is not None or exif_exposure_s(exif) is not None:
+        return build_metadata(file, exif, None, exposure_s)
     with _open_raw(file) as raw:
         other = _unpacked(raw, file, lambda r: r.other)
-    return _build_metadata(file, exif, other, exposure_s)
+    return build_metadata(file, exif, other, exposure_s)
 
 
 def _unpacked(raw: Any, path: Path, read: Any) -> Any:
@@ -490,11 +346,11 @@ def read_raw(
         raise ValueError(f"saturation_fraction must be in (0, 1], got {saturation_fraction}")
     file = Path(path)
     _check_file(file)
-    exif = _read_exif(file)
+    exif = exif_tags(file)
     with _open_raw(file) as raw:
         visible = _unpacked(raw, file, lambda r: r.raw_image_visible)
         layout = _cfa_layout(raw, file)
-        metadata = _build_metadata(file, exif, raw.other, exposure_s)
+        metadata = build_metadata(file, exif, raw.other, exposure_s)
         colour_index = _visible_colour_indices(raw)
         black_per_colour = [float(b) for b in raw.black_level_per_channel]
         white_per_colour = raw.camera_white_level_per_channel

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import io
+import struct
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 import pytest
 import tifffile
+from PIL import Image
+from PIL.TiffImagePlugin import IFDRational
 
 from calib.errors import InputError
 from calib.raw import RawFileError, read_raw, read_raw_metadata
@@ -199,3 +203,74 @@ def test_saturation_fraction_is_validated(tmp_path: Path) -> None:
     path = _write(tmp_path / "f.dng", np.full((32, 32), 700, np.uint16))
     with pytest.raises(ValueError, match="saturation_fraction"):
         read_raw(path, saturation_fraction=1.5)
+
+
+# --------------------------------------------------------------------------------------------------
+# Metadata of containers exifread does not open by itself (built to the formats' layout)
+
+
+def _tiff_with_tags(tags: list[tuple[int, str, int, object, bool]]) -> bytes:
+    buffer = io.BytesIO()
+    tifffile.imwrite(buffer, np.zeros((1, 1), np.uint8), metadata=None, extratags=tags)
+    return buffer.getvalue()
+
+
+def _box(kind: bytes, payload: bytes) -> bytes:
+    return struct.pack(">I4s", 8 + len(payload), kind) + payload
+
+
+def test_cr3_metadata_comes_from_its_cmt_boxes(tmp_path: Path) -> None:
+    ifd0 = _tiff_with_tags([(271, "s", 0, "Canon", True), (272, "s", 0, "Canon EOS R5", True)])
+    exif = _tiff_with_tags(
+        [
+            (33434, "2I", 1, (1, 60), True),
+            (33437, "2I", 1, (4, 1), True),
+            (34855, "H", 1, 200, True),
+        ]
+    )
+    uuid = bytes.fromhex("85c0b687820f11e08111f4ce462b6a48")
+    metadata_box = _box(
+        b"uuid",
+        uuid
+        + _box(b"CNCV", b"CanonCR3_001/00.10.00/00.00.00")
+        + _box(b"CMT1", ifd0)
+        + _box(b"CMT2", exif),
+    )
+    content = (
+        _box(b"ftyp", b"crx \x00\x00\x00\x01crx isom")
+        + _box(b"moov", metadata_box)
+        + _box(b"mdat", b"\0" * 64)
+    )
+    path = tmp_path / "IMG_0001.CR3"
+    path.write_bytes(content)
+    metadata = read_raw_metadata(path)
+    assert (metadata.make, metadata.model) == ("Canon", "Canon EOS R5")
+    assert (metadata.exposure_s, metadata.iso, metadata.f_number) == (1 / 60, 200, 4.0)
+    assert metadata.exposure_source == "exif"
+
+
+def test_raf_metadata_comes_from_its_jpeg_preview(tmp_path: Path) -> None:
+    exif = Image.Exif()
+    exif[0x010F], exif[0x0110] = "FUJIFILM", "X-T3"
+    sub_ifd = exif.get_ifd(0x8769)
+    sub_ifd[0x829A], sub_ifd[0x829D], sub_ifd[0x8827] = (
+        IFDRational(1, 125),
+        IFDRational(28, 10),
+        640,
+    )
+    preview = io.BytesIO()
+    Image.new("RGB", (8, 8)).save(preview, "JPEG", exif=exif.tobytes())
+    jpeg = preview.getvalue()
+    header = b"FUJIFILMCCD-RAW 0201FF383501".ljust(84, b"\0") + struct.pack(">II", 100, len(jpeg))
+    path = tmp_path / "DSCF0001.RAF"
+    path.write_bytes(header.ljust(100, b"\0") + jpeg)
+    metadata = read_raw_metadata(path)
+    assert (metadata.make, metadata.model) == ("FUJIFILM", "X-T3")
+    assert (metadata.exposure_s, metadata.iso, metadata.f_number) == (1 / 125, 640, 2.8)
+
+
+def test_unknown_containers_fall_back_to_libraw(tmp_path: Path) -> None:
+    path = tmp_path / "strange.raw"
+    path.write_bytes(b"\x00\x01" * 200)
+    with pytest.raises(RawFileError, match="not a RAW file"):
+        read_raw_metadata(path)
