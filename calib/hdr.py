@@ -12,7 +12,7 @@ the read noise per raw pixel and ``n`` the number of raw sites averaged into the
 green).
 
 Weights, exclusions and variances never use a sample's own value: ``μ`` is predicted from the mean of
-the sample's neighbours in the same frame (a 5×5 window without its centre). A weighted mean whose
+the sample's neighbours in the same frame (its 8 neighbours in the 3×3 window). A weighted mean whose
 weights or inclusion depend on the noise of the values it averages is biased (low near the clipping
 level, high near black), and the profiles average hundreds of pixels, so such a bias would stand far
 out of their noise. A sample is excluded when

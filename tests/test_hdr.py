@@ -246,6 +246,16 @@ def test_noise_model_needs_signal(tmp_path: Path) -> None:
     assert abs(float(image.radiance.mean())) < 50.0
 
 
+def test_noise_model_variance_of_a_plane_sample() -> None:
+    model = NoiseModel(0.5, (2.0, 2.5, 3.0))
+    read = np.array([2.0, 2.5, 3.0]) ** 2 + 1 / 12
+    for channel, sites in enumerate((1, 2, 1)):
+        np.testing.assert_allclose(
+            model.sample_variance_dn2(channel, np.array([-5.0, 0.0, 100.0])),
+            (0.5 * np.array([0.0, 0.0, 100.0]) + read[channel]) / sites,
+        )
+
+
 def test_invalid_arguments() -> None:
     with pytest.raises(InputError, match="no frames"):
         merge_bracket([])

@@ -19,7 +19,6 @@ from calib.profiles import (
     extract,
     write_geometry_png,
 )
-from calib.sensor_noise import NoiseModel
 from calib.spectra import Spectrum
 from mocks.scene import (
     SceneLayout,
@@ -393,11 +392,3 @@ def test_geometry_from_another_sensor_size_is_refused() -> None:
     with pytest.raises(DetectionError, match="geometry was detected on") as caught:
         extract(cropped, geometry)
     assert caught.value.reason == "mismatch"
-
-
-def test_noise_model_of_the_test_images_matches_the_merge() -> None:
-    """The helper's variance is the merge's model: a guard for the tests above."""
-    model = NoiseModel(0.5, (2.5, 2.5, 2.5))
-    np.testing.assert_allclose(
-        model.sample_variance_dn2(1, 100.0), (0.5 * 100 + 2.5**2 + 1 / 12) / 2
-    )
