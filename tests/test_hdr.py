@@ -1,0 +1,265 @@
+"""calib.hdr: merging DNG brackets into calibrated radiance with a per-pixel variance."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from calib.errors import EstimationError, InputError
+from calib.hdr import HdrImage, merge_bracket
+from calib.raw import RawFileError
+from calib.sensor_noise import NoiseModel
+from mocks.dng import write_dng
+from mocks.scene import (
+    SceneLayout,
+    SensorModel,
+    channel_planes,
+    dng_metadata,
+    expose,
+    render_mosaic_radiance,
+    smooth_signal,
+    write_bracket,
+)
+
+SENSOR = SensorModel(
+    height_px=480, width_px=720, gain_dn_per_electron=0.5, read_noise_dn=2.5, cfa_pattern="GRBG"
+)
+EXPOSURES_S = (0.004, 0.016, 0.064, 0.256)
+TRUE_NOISE = NoiseModel(0.5, (2.5, 2.5, 2.5))
+
+
+def _scene(sensor: SensorModel = SENSOR, **layout_fields: object) -> np.ndarray:
+    layout = SceneLayout(
+        spot_centre_px=(100.0, 240.0),
+        dispersion_angle_deg=3.0,
+        spot_half_size_px=(5.0, 60.0),
+        band_half_width_px=60.0,
+        **layout_fields,  # type: ignore[arg-type]
+    )
+    signal = smooth_signal(start_px=80, stop_px=560, peak_dn_per_s=(60_000, 80_000, 50_000))
+    return render_mosaic_radiance(layout, signal, sensor)
+
+
+@pytest.fixture(scope="module")
+def scene() -> np.ndarray:
+    return _scene()
+
+
+@pytest.fixture(scope="module")
+def bracket(tmp_path_factory: pytest.TempPathFactory, scene: np.ndarray) -> list[Path]:
+    directory = tmp_path_factory.mktemp("bracket")
+    return write_bracket(directory, scene, SENSOR, EXPOSURES_S, np.random.default_rng(7))
+
+
+@pytest.fixture(scope="module")
+def merged(bracket: list[Path]) -> HdrImage:
+    return merge_bracket(bracket)
+
+
+def _normalised_residuals(image: HdrImage, truth: np.ndarray) -> np.ndarray:
+    usable = ~image.saturated
+    return np.asarray(((image.radiance - truth) / np.sqrt(image.variance))[usable])
+
+
+def test_merge_is_unbiased_and_its_variance_calibrated(merged: HdrImage, scene: np.ndarray) -> None:
+    truth = channel_planes(scene, SENSOR.cfa_pattern)
+    assert not merged.saturated.any()
+    assert merged.radiance.dtype == np.float32 and merged.variance.dtype == np.float32
+    for name, selection in {
+        "dark": truth < 1.0,
+        "dim": (truth >= 1.0) & (truth < 2_000),
+        "bright": truth >= 2_000,
+    }.items():
+        z = ((merged.radiance - truth) / np.sqrt(merged.variance))[selection]
+        assert z.size > 1000, name
+        assert abs(z.mean()) < 0.05, name
+        assert 0.9 < z.var() < 1.1, name
+
+
+def test_direct_spot_saturated_in_long_exposures_is_recovered(
+    merged: HdrImage, scene: np.ndarray
+) -> None:
+    truth = channel_planes(scene, SENSOR.cfa_pattern)
+    spot = truth > 0.5 * truth.max()
+    assert merged.frames[0].saturated_fraction[1] > 0  # the longest frame clips the spot
+    relative = (merged.radiance[spot] - truth[spot]) / truth[spot]
+    assert abs(relative.mean()) < 2e-3
+    assert not merged.saturated[spot].any()
+
+
+def test_estimated_noise_model_is_close_to_the_sensor(merged: HdrImage) -> None:
+    noise = merged.noise_model
+    assert noise is not None and "green pairs" in noise.source
+    assert noise.gain_dn_per_electron == pytest.approx(SENSOR.gain_dn_per_electron, rel=0.08)
+    assert noise.read_noise_dn[1] == pytest.approx(SENSOR.read_noise_dn, rel=0.06)
+
+
+def test_records_and_metadata(merged: HdrImage, bracket: list[Path]) -> None:
+    assert [record.exposure_s for record in merged.frames] == sorted(EXPOSURES_S, reverse=True)
+    assert {record.path for record in merged.frames} == set(bracket)
+    assert merged.cfa_pattern == "GRBG"
+    assert merged.sensor_shape_px == (SENSOR.height_px, SENSOR.width_px)
+    assert merged.channel_origin_px == ((0.0, 1.0), (0.5, 0.5), (1.0, 0.0))
+    assert merged.camera == "spectral-rig SimCam" and merged.iso == 100
+
+
+def test_frame_order_does_not_matter(bracket: list[Path], merged: HdrImage) -> None:
+    shuffled = merge_bracket([bracket[2], bracket[0], bracket[3], bracket[1]])
+    np.testing.assert_array_equal(shuffled.radiance, merged.radiance)
+    np.testing.assert_array_equal(shuffled.variance, merged.variance)
+
+
+def test_given_noise_model_and_progress(bracket: list[Path], scene: np.ndarray) -> None:
+    calls: list[tuple[int, int, Path]] = []
+    image = merge_bracket(
+        bracket, noise_model=TRUE_NOISE, progress=lambda d, t, p: calls.append((d, t, p))
+    )
+    assert image.noise_model == TRUE_NOISE
+    assert [(done, total) for done, total, _ in calls] == [(i, 4) for i in range(1, 5)]
+    z = _normalised_residuals(image, channel_planes(scene, SENSOR.cfa_pattern))
+    assert 0.93 < z.var() < 1.07
+
+
+def test_pixels_saturated_in_every_frame_are_flagged(tmp_path: Path, scene: np.ndarray) -> None:
+    paths = write_bracket(tmp_path, scene, SENSOR, (0.256, 1.0), np.random.default_rng(3))
+    image = merge_bracket(paths, noise_model=TRUE_NOISE)
+    truth = channel_planes(scene, SENSOR.cfa_pattern)
+    clipped = truth * 0.256 > SENSOR.white_level_dn
+    assert image.saturated[clipped].all()
+    assert np.isinf(image.variance[image.saturated]).all()
+    assert (image.radiance[clipped] < truth[clipped]).all()  # the shortest frame's clipped rate
+    assert (image.radiance[clipped] > 0.95 * (SENSOR.white_level_dn - 512) / 0.256).all()
+    assert not image.saturated[truth * 0.256 < 0.8 * (SENSOR.white_level_dn - 512)].any()
+
+
+def test_dark_frames_remove_dark_current(tmp_path: Path) -> None:
+    sensor = SensorModel(
+        height_px=480,
+        width_px=720,
+        cfa_pattern="RGGB",
+        dark_current_dn_per_s=40.0,
+        read_noise_dn=2.5,
+    )
+    scene = _scene(sensor)
+    rng = np.random.default_rng(11)
+    exposures = (0.064, 0.256, 1.024)
+    lights = write_bracket(tmp_path, scene, sensor, exposures, rng)
+    darks = write_bracket(tmp_path, np.zeros_like(scene), sensor, exposures * 2, rng, prefix="dark")
+    truth = channel_planes(scene, "RGGB")
+    background = truth < 1.0
+    without = merge_bracket(lights)
+    assert without.radiance[background].mean() == pytest.approx(40.0, rel=0.05)
+    with_darks = merge_bracket(lights, darks=darks)
+    z = ((with_darks.radiance - truth) / np.sqrt(with_darks.variance))[~with_darks.saturated]
+    assert abs(z.mean()) < 0.05
+    assert 0.9 < z.var() < 1.1
+    assert all(len(record.dark_paths) == 2 for record in with_darks.frames)
+    noise = with_darks.noise_model
+    assert noise is not None and "dark frame" in noise.source
+    np.testing.assert_allclose(noise.read_noise_dn, 2.5, rtol=0.06)
+
+
+def test_a_light_frame_without_a_matching_dark_is_named(tmp_path: Path, scene: np.ndarray) -> None:
+    rng = np.random.default_rng(5)
+    lights = write_bracket(tmp_path, scene, SENSOR, (0.016, 0.064), rng)
+    darks = write_bracket(tmp_path, np.zeros_like(scene), SENSOR, (0.064,), rng, prefix="dark")
+    with pytest.raises(InputError, match=r"frame_0000\.dng.*0\.016 s.*0\.064 s"):
+        merge_bracket(lights, darks=darks)
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"model": "Other Body"}, "taken with spectral-rig Other Body"),
+        ({"iso": 400}, "ISO 400"),
+        ({"f_number": 8.0}, "aperture f/8"),
+    ],
+)
+def test_mixed_brackets_are_rejected_naming_the_file(
+    tmp_path: Path, scene: np.ndarray, fields: dict[str, Any], message: str
+) -> None:
+    rng = np.random.default_rng(9)
+    good = write_bracket(tmp_path, scene, SENSOR, (0.016, 0.064), rng)
+    odd = write_bracket(tmp_path, scene, SENSOR, (0.256,), rng, prefix="odd", **fields)
+    with pytest.raises(InputError, match=message) as caught:
+        merge_bracket([*good, *odd])
+    assert caught.value.source == str(odd[0])
+
+
+def test_frames_of_another_size_are_rejected(tmp_path: Path, scene: np.ndarray) -> None:
+    rng = np.random.default_rng(9)
+    good = write_bracket(tmp_path, scene, SENSOR, (0.016,), rng)
+    small = SensorModel(height_px=240, width_px=720, cfa_pattern=SENSOR.cfa_pattern)
+    other = write_bracket(tmp_path, np.zeros((240, 720)), small, (0.004,), rng, prefix="small")
+    with pytest.raises(InputError, match=r"small_0000\.dng.*sensor area \(240, 720\)"):
+        merge_bracket([*good, *other], noise_model=TRUE_NOISE)
+
+
+def test_darks_at_another_iso_are_rejected(tmp_path: Path, scene: np.ndarray) -> None:
+    rng = np.random.default_rng(9)
+    lights = write_bracket(tmp_path, scene, SENSOR, (0.016,), rng)
+    darks = write_bracket(
+        tmp_path, np.zeros_like(scene), SENSOR, (0.016,), rng, prefix="d", iso=800
+    )
+    with pytest.raises(InputError, match="ISO 800") as caught:
+        merge_bracket(lights, darks=darks)
+    assert caught.value.source == str(darks[0])
+
+
+def test_corrupt_frame_is_named(tmp_path: Path, bracket: list[Path]) -> None:
+    copies = [Path(shutil.copy(path, tmp_path / path.name)) for path in bracket]
+    content = copies[1].read_bytes()
+    copies[1].write_bytes(content[: len(content) // 3])
+    with pytest.raises(RawFileError, match="corrupt or truncated") as caught:
+        merge_bracket(copies)
+    assert caught.value.source == str(copies[1])
+
+
+def test_missing_exposure_is_named_and_can_be_given(tmp_path: Path, scene: np.ndarray) -> None:
+    rng = np.random.default_rng(2)
+    timed = write_bracket(tmp_path, scene, SENSOR, (0.064,), rng)
+    untimed = tmp_path / "untimed.dng"
+    write_dng(untimed, expose(scene, 0.016, SENSOR, rng), dng_metadata(SENSOR, None))
+    with pytest.raises(InputError, match=r"untimed\.dng.*no exposure time"):
+        merge_bracket([*timed, untimed], noise_model=TRUE_NOISE)
+    image = merge_bracket([*timed, untimed], exposure_s=[0.064, 0.016], noise_model=TRUE_NOISE)
+    assert [record.exposure_s for record in image.frames] == [0.064, 0.016]
+    with pytest.raises(InputError, match="2 frames"):
+        merge_bracket([*timed, untimed], exposure_s=[0.064])
+
+
+def test_noise_model_needs_signal(tmp_path: Path) -> None:
+    dark = write_bracket(
+        tmp_path,
+        np.zeros((SENSOR.height_px, SENSOR.width_px)),
+        SENSOR,
+        (0.01,),
+        np.random.default_rng(1),
+    )
+    with pytest.raises(EstimationError, match="NoiseModel"):
+        merge_bracket(dark)
+    image = merge_bracket(dark, noise_model=TRUE_NOISE)
+    assert abs(float(image.radiance.mean())) < 50.0
+
+
+def test_noise_model_variance_of_a_plane_sample() -> None:
+    model = NoiseModel(0.5, (2.0, 2.5, 3.0))
+    read = np.array([2.0, 2.5, 3.0]) ** 2 + 1 / 12
+    for channel, sites in enumerate((1, 2, 1)):
+        np.testing.assert_allclose(
+            model.sample_variance_dn2(channel, np.array([-5.0, 0.0, 100.0])),
+            (0.5 * np.array([0.0, 0.0, 100.0]) + read[channel]) / sites,
+        )
+
+
+def test_invalid_arguments() -> None:
+    with pytest.raises(InputError, match="no frames"):
+        merge_bracket([])
+    with pytest.raises(InputError, match="gain"):
+        NoiseModel(0.0, (1.0, 1.0, 1.0))
+    with pytest.raises(InputError, match="read noise"):
+        NoiseModel(1.0, (1.0, -1.0, 1.0))

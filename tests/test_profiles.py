@@ -1,0 +1,394 @@
+"""calib.profiles: automatic spot/band detection and profile extraction against rendered truth."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.hdr import HdrImage, merge_bracket
+from calib.observations import LampObservation
+from calib.profiles import (
+    DetectionError,
+    DiffractionGeometry,
+    Extraction,
+    detect_geometry,
+    extract,
+    write_geometry_png,
+)
+from calib.spectra import Spectrum
+from mocks.scene import (
+    SceneLayout,
+    SceneSignal,
+    SensorModel,
+    channel_origins,
+    channel_planes,
+    render_mosaic_radiance,
+    smooth_signal,
+    write_bracket,
+)
+
+SIGNAL = smooth_signal(start_px=150, stop_px=800, peak_dn_per_s=(2000, 2000, 2000))
+BAND_MIDDLE_PX = 475.0
+
+
+def _layout_through_centre(
+    sensor: SensorModel,
+    angle_deg: float,
+    *,
+    along_shift_px: float = BAND_MIDDLE_PX,
+    **fields: object,
+) -> SceneLayout:
+    """A layout whose band middle (or, with shift 0, whose spot) sits at the sensor's centre."""
+    angle = math.radians(angle_deg)
+    centre = (
+        sensor.width_px / 2 - along_shift_px * math.cos(angle),
+        sensor.height_px / 2 - along_shift_px * math.sin(angle),
+    )
+    defaults: dict[str, object] = {"spot_half_size_px": (6.0, 80.0), "band_half_width_px": 80.0}
+    defaults.update(fields)
+    return SceneLayout(spot_centre_px=centre, dispersion_angle_deg=angle_deg, **defaults)  # type: ignore[arg-type]
+
+
+def _noisy_image(
+    mosaic: np.ndarray,
+    cfa_pattern: str,
+    rng: np.random.Generator,
+    *,
+    gain: float = 0.5,
+    read_noise_dn: float = 2.5,
+    exposure_s: float = 1.0,
+) -> HdrImage:
+    """An HdrImage as one exposure of ``mosaic`` would give it (Gaussian noise, exact variance)."""
+    truth = channel_planes(mosaic, cfa_pattern)
+    sites = np.array([1.0, 2.0, 1.0])[:, None, None]
+    variance = (gain * truth * exposure_s + read_noise_dn**2) / (sites * exposure_s**2)
+    radiance = truth + rng.standard_normal(truth.shape) * np.sqrt(variance)
+    return HdrImage(
+        radiance=radiance.astype(np.float32),
+        variance=variance.astype(np.float32),
+        saturated=np.zeros(truth.shape, dtype=bool),
+        channel_origin_px=channel_origins(cfa_pattern),
+        cfa_pattern=cfa_pattern,
+    )
+
+
+def _truth_at(signal: SceneSignal, pixel: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    return scale * np.stack(
+        [np.interp(pixel, signal.pixel, signal.profile[:, c], left=0, right=0) for c in range(3)],
+        axis=1,
+    )
+
+
+def _angle_error(measured_deg: float, expected_deg: float) -> float:
+    return abs((measured_deg - expected_deg + 180.0) % 360.0 - 180.0)
+
+
+def _assert_agrees(extraction: Extraction, truth: np.ndarray, *, direct: np.ndarray | None) -> None:
+    """The profile (and direct RGB) agree with the truth within their own noise estimate."""
+    z = (extraction.profile - truth) / extraction.profile_sigma
+    assert np.all(np.abs(z.mean(axis=0)) < 0.25), z.mean(axis=0)
+    assert np.all((z.var(axis=0) > 0.75) & (z.var(axis=0) < 1.3)), z.var(axis=0)
+    if direct is not None:
+        assert extraction.direct_rgb is not None and extraction.direct_sigma is not None
+        assert np.all(np.abs(extraction.direct_rgb - direct) < 4 * extraction.direct_sigma)
+
+
+@pytest.mark.parametrize(
+    ("angle_deg", "pattern"),
+    [
+        (0.0, "RGGB"),
+        (33.0, "BGGR"),
+        (90.0, "GRBG"),
+        (180.0, "GBRG"),
+        (247.0, "RGGB"),
+        (-60.0, "GRBG"),
+    ],
+)
+def test_detects_and_extracts_at_any_angle(angle_deg: float, pattern: str) -> None:
+    sensor = SensorModel(height_px=1300, width_px=1300, cfa_pattern=pattern)
+    layout = _layout_through_centre(sensor, angle_deg)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), pattern, np.random.default_rng(1)
+    )
+    geometry = detect_geometry(image)
+    assert len(geometry.orders) == 1
+    band = geometry.primary
+    assert geometry.spot_centre_px == pytest.approx(layout.spot_centre_px, abs=0.05)
+    assert _angle_error(band.angle_deg, angle_deg) < 0.05
+    assert abs(band.centre_offset_px) < 0.3
+    assert band.band_half_width_px == pytest.approx(80.0, abs=4.0)
+    # the extent covers wherever the band exceeds 1 % of its maximum, with a margin
+    luminance = SIGNAL.profile.sum(axis=1)
+    significant = SIGNAL.pixel[luminance > 0.01 * luminance.max()]
+    assert significant[0] - 40 < band.start_px < significant[0]
+    assert significant[-1] < band.stop_px < significant[-1] + 40
+    extraction = extract(image, geometry)
+    assert np.all(np.diff(extraction.pixel) == pytest.approx(geometry.bin_px))
+    assert extraction.profile.shape == extraction.profile_sigma.shape == (extraction.pixel.size, 3)
+    _assert_agrees(extraction, _truth_at(SIGNAL, extraction.pixel), direct=SIGNAL.direct_rgb)
+
+
+def test_full_pipeline_with_a_saturated_spot(tmp_path: Path) -> None:
+    sensor = SensorModel(height_px=1000, width_px=1400, cfa_pattern="BGGR")
+    layout = _layout_through_centre(sensor, 25.0)
+    mosaic = render_mosaic_radiance(layout, SIGNAL, sensor)
+    frames = write_bracket(
+        tmp_path, mosaic, sensor, (0.002, 0.02, 0.2, 2.0), np.random.default_rng(4)
+    )
+    image = merge_bracket(frames)
+    assert image.frames[0].saturated_fraction[1] > 0  # the spot clips in the long frames
+    assert not image.saturated.any()
+    geometry = detect_geometry(image)
+    extraction = extract(image, geometry)
+    _assert_agrees(extraction, _truth_at(SIGNAL, extraction.pixel), direct=SIGNAL.direct_rgb)
+    assert extraction.frames == tuple(str(record.path) for record in image.frames)
+
+
+def test_both_first_orders_are_found_and_the_stronger_leads() -> None:
+    sensor = SensorModel(height_px=700, width_px=2000, cfa_pattern="RGGB")
+    rng = np.random.default_rng(2)
+    layout = _layout_through_centre(sensor, 8.0, along_shift_px=0.0, minus_first_strength=0.4)
+    image = _noisy_image(render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", rng)
+    geometry = detect_geometry(image)
+    assert [order.side for order in geometry.orders] == [1, -1]
+    plus, minus = geometry.orders
+    assert _angle_error(plus.angle_deg, 8.0) < 0.05
+    assert _angle_error(minus.angle_deg, 188.0) < 0.05
+    assert minus.relative_flux == pytest.approx(0.4, rel=0.05)
+    weaker = extract(image, geometry, side=-1)
+    _assert_agrees(weaker, _truth_at(SIGNAL, weaker.pixel, 0.4), direct=SIGNAL.direct_rgb)
+
+    swapped = _layout_through_centre(
+        sensor, 8.0, along_shift_px=0.0, plus_first_strength=0.5, minus_first_strength=1.0
+    )
+    image = _noisy_image(render_mosaic_radiance(swapped, SIGNAL, sensor), "RGGB", rng)
+    geometry = detect_geometry(image)
+    assert _angle_error(geometry.primary.angle_deg, 188.0) < 0.05
+    assert _angle_error(geometry.order(-1).angle_deg, 8.0) < 0.05
+
+
+def test_an_other_order_leaving_the_frame_is_noted_not_fatal() -> None:
+    sensor = SensorModel(height_px=700, width_px=1500, cfa_pattern="RGGB")
+    layout = _layout_through_centre(sensor, 0.0, along_shift_px=300.0, minus_first_strength=0.5)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(3)
+    )
+    geometry = detect_geometry(image)
+    assert [order.side for order in geometry.orders] == [1]
+    assert any("side -1" in note and "runs off" in note for note in geometry.notes)
+    with pytest.raises(DetectionError, match="no first order on side -1") as caught:
+        extract(image, geometry, side=-1)
+    assert caught.value.reason == "no_band"
+
+
+def test_the_band_stops_before_the_second_order() -> None:
+    signal = smooth_signal(start_px=380, stop_px=720)  # pixel ∝ wavelength: 2nd order from 760
+    sensor = SensorModel(height_px=600, width_px=1700, cfa_pattern="GBRG")
+    layout = _layout_through_centre(sensor, 0.0, along_shift_px=600.0, second_order_strength=0.5)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, signal, sensor), "GBRG", np.random.default_rng(5)
+    )
+    geometry = detect_geometry(image)
+    assert geometry.primary.stop_px < 760.0
+    extraction = extract(image, geometry)
+    _assert_agrees(extraction, _truth_at(signal, extraction.pixel), direct=signal.direct_rgb)
+
+
+def test_one_geometry_serves_every_lamp() -> None:
+    sensor = SensorModel(height_px=1000, width_px=1400, cfa_pattern="RGGB")
+    layout = _layout_through_centre(sensor, -20.0)
+    rng = np.random.default_rng(6)
+    broadband = _noisy_image(render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", rng)
+    geometry = detect_geometry(broadband)
+    narrow = smooth_signal(
+        start_px=150, stop_px=800, peak_dn_per_s=(0.0, 900.0, 40.0), direct_rgb=(1e5, 2e7, 1e6)
+    )
+    other = _noisy_image(render_mosaic_radiance(layout, narrow, sensor), "RGGB", rng)
+    first, second = extract(broadband, geometry), extract(other, geometry)
+    np.testing.assert_array_equal(first.pixel, second.pixel)
+    _assert_agrees(second, _truth_at(narrow, second.pixel), direct=narrow.direct_rgb)
+
+
+def test_stray_light_is_subtracted() -> None:
+    sensor = SensorModel(height_px=1000, width_px=1400, cfa_pattern="GRBG")
+    background = (30.0, 50.0, 20.0)
+    layout = _layout_through_centre(sensor, 15.0, background_dn_per_s=background)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), "GRBG", np.random.default_rng(8)
+    )
+    extraction = extract(image, detect_geometry(image))
+    np.testing.assert_allclose(extraction.background_rgb, background, atol=1.0)
+    np.testing.assert_allclose(extraction.direct_background_rgb, background, atol=1.5)
+    z = (extraction.profile - _truth_at(SIGNAL, extraction.pixel)) / extraction.profile_sigma
+    assert np.all(np.abs(z.mean(axis=0)) < 0.4)
+    assert extraction.direct_rgb is not None
+    np.testing.assert_allclose(extraction.direct_rgb, SIGNAL.direct_rgb, rtol=2e-3)
+
+
+def test_geometry_round_trips_through_json() -> None:
+    sensor = SensorModel(height_px=700, width_px=2000, cfa_pattern="RGGB")
+    layout = _layout_through_centre(sensor, 8.0, along_shift_px=0.0, minus_first_strength=0.4)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(9)
+    )
+    geometry = detect_geometry(image)
+    restored = DiffractionGeometry.from_dict(json.loads(json.dumps(geometry.to_dict())))
+    assert restored == geometry
+    np.testing.assert_array_equal(
+        extract(image, restored).profile, extract(image, geometry).profile
+    )
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"format_version": 99}, "version 99"),
+        ({"orders": []}, "at least one order"),
+        ({"spot_centre_px": "here"}, "malformed"),
+        ({"orders": [{"side": 1}]}, "malformed"),
+    ],
+)
+def test_malformed_geometry_is_rejected(data: dict[str, object], message: str) -> None:
+    base = {
+        "sensor_shape_px": [10, 10],
+        "spot_centre_px": [1.0, 2.0],
+        "spot_half_size_px": [1.0, 1.0],
+        "orders": [],
+    }
+    with pytest.raises(Exception, match=message):
+        DiffractionGeometry.from_dict({**base, **data})
+
+
+def test_observation_for_the_estimators() -> None:
+    sensor = SensorModel(height_px=1000, width_px=1400, cfa_pattern="RGGB")
+    layout = _layout_through_centre(sensor, 0.0)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(10)
+    )
+    extraction = extract(image, detect_geometry(image))
+    spectrum = Spectrum(np.arange(380.0, 781.0, 5.0), np.ones(81))
+    observation = extraction.to_observation("LED 1", spectrum, kind="led", metadata={"lamp": 3})
+    assert isinstance(observation, LampObservation)
+    assert observation.n_pixels == extraction.pixel.size
+    np.testing.assert_array_equal(observation.profile, extraction.profile)
+    assert observation.profile_sigma is not None and observation.direct_sigma is not None
+    assert observation.kind == "led"
+    assert observation.metadata["lamp"] == 3
+    assert observation.metadata["geometry"] == extraction.geometry.to_dict()
+
+
+def test_geometry_png(tmp_path: Path) -> None:
+    sensor = SensorModel(height_px=700, width_px=2000, cfa_pattern="RGGB")
+    layout = _layout_through_centre(sensor, 8.0, along_shift_px=0.0, minus_first_strength=0.4)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(12)
+    )
+    path = write_geometry_png(tmp_path / "geometry.png", image, detect_geometry(image))
+    content = path.read_bytes()
+    assert content[:8] == b"\x89PNG\r\n\x1a\n" and len(content) > 20_000
+
+
+# --------------------------------------------------------------------------------------------------
+# What detection refuses
+
+
+def _error(image: HdrImage) -> DetectionError:
+    with pytest.raises(DetectionError) as caught:
+        extract(image, detect_geometry(image))
+    return caught.value
+
+
+def test_no_spot_in_pure_noise() -> None:
+    image = _noisy_image(np.zeros((400, 600)), "RGGB", np.random.default_rng(13))
+    error = _error(image)
+    assert error.reason == "no_spot" and "no direct spot" in str(error)
+
+
+def _spot_only(sensor: SensorModel) -> SceneLayout:
+    return _layout_through_centre(sensor, 0.0, along_shift_px=0.0, plus_first_strength=0.0)
+
+
+def _band_past_the_end(sensor: SensorModel) -> SceneLayout:
+    return _layout_through_centre(sensor, 0.0, along_shift_px=100.0)
+
+
+def _band_past_the_side(sensor: SensorModel) -> SceneLayout:
+    return _layout_through_centre(
+        sensor, 0.0, band_half_width_px=230.0, spot_half_size_px=(6.0, 60.0)
+    )
+
+
+def _spot_on_the_edge(sensor: SensorModel) -> SceneLayout:
+    return SceneLayout(
+        spot_centre_px=(2.0, sensor.height_px / 2),
+        spot_half_size_px=(6.0, 80.0),
+        band_half_width_px=80.0,
+    )
+
+
+@pytest.mark.parametrize(
+    ("make_layout", "size", "reason", "message"),
+    [
+        (_spot_only, (800, 1000), "no_band", "no first-order band"),
+        (_band_past_the_end, (800, 1000), "band_off_frame", "runs off the frame"),
+        (_band_past_the_side, (400, 1400), "band_off_frame", "runs off the frame sideways"),
+        (_spot_on_the_edge, (1000, 1400), "spot_off_frame", "touches the edge"),
+    ],
+)
+def test_scenes_that_cannot_be_measured_are_refused(
+    make_layout: object, size: tuple[int, int], reason: str, message: str
+) -> None:
+    sensor = SensorModel(height_px=size[0], width_px=size[1])
+    layout = make_layout(sensor)  # type: ignore[operator]
+    mosaic = render_mosaic_radiance(layout, SIGNAL, sensor)
+    error = _error(_noisy_image(mosaic, "RGGB", np.random.default_rng(14)))
+    assert error.reason == reason
+    assert message in str(error)
+
+
+def test_saturated_band_and_spot_are_refused_or_flagged() -> None:
+    sensor = SensorModel(height_px=1000, width_px=1400)
+    layout = _layout_through_centre(sensor, 0.0)
+    mosaic = render_mosaic_radiance(layout, SIGNAL, sensor)
+    image = _noisy_image(mosaic, "RGGB", np.random.default_rng(18))
+    geometry = detect_geometry(image)
+    truth = channel_planes(mosaic, "RGGB")
+    spot_saturated = HdrImage(
+        radiance=image.radiance,
+        variance=image.variance,
+        saturated=truth > 0.5 * truth.max(),
+        channel_origin_px=image.channel_origin_px,
+    )
+    with pytest.raises(DetectionError, match="direct spot is saturated") as caught:
+        extract(spot_saturated, geometry)
+    assert caught.value.reason == "saturated"
+    assert extract(spot_saturated, geometry, allow_saturated_direct=True).direct_rgb is None
+    band_saturated = HdrImage(
+        radiance=image.radiance,
+        variance=image.variance,
+        saturated=(truth > 1900) & (truth < 2100),
+        channel_origin_px=image.channel_origin_px,
+    )
+    with pytest.raises(DetectionError, match=r"band \(side \+1\) is saturated.*px from the spot"):
+        extract(band_saturated, geometry)
+
+
+def test_geometry_from_another_sensor_size_is_refused() -> None:
+    sensor = SensorModel(height_px=1000, width_px=1400)
+    layout = _layout_through_centre(sensor, 0.0)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(19)
+    )
+    geometry = detect_geometry(image)
+    cropped = HdrImage(
+        radiance=image.radiance[:, :400],
+        variance=image.variance[:, :400],
+        saturated=image.saturated[:, :400],
+    )
+    with pytest.raises(DetectionError, match="geometry was detected on") as caught:
+        extract(cropped, geometry)
+    assert caught.value.reason == "mismatch"
