@@ -42,7 +42,7 @@ FourierConvention = Literal["paired", "paper"]
 DEFAULT_N_VECTORS = 7
 
 #: Bumped whenever the cached content's meaning changes.
-_CACHE_FORMAT = "camera-basis-v1"
+_CACHE_FORMAT = "camera-basis-v2"
 
 
 def default_cache_dir() -> Path:
@@ -70,6 +70,11 @@ class CameraBasis:
         The training cameras.
     content_hash
         SHA-256 of the training curves, grid and ``k`` (the cache key).
+    covariance
+        Shape ``(3, f, f)``: sample covariance of each channel's (max-normalised) training curves.
+    ledoit_wolf_shrinkage
+        Shape ``(3,)``: Ledoit & Wolf's (2004) optimal shrinkage of each covariance toward a scaled
+        identity, for reference (:meth:`prior` takes the shrinkage as a parameter).
     """
 
     grid: WavelengthGrid
@@ -79,6 +84,8 @@ class CameraBasis:
     source: str
     camera_names: tuple[str, ...]
     content_hash: str
+    covariance: FloatArray
+    ledoit_wolf_shrinkage: FloatArray
 
     @property
     def n_vectors(self) -> int:
@@ -99,6 +106,34 @@ class CameraBasis:
         fitted = [self.vectors[c] @ (self.vectors[c].T @ curves[:, c]) for c in range(3)]
         return np.stack(fitted, axis=1)
 
+    def prior(self, shrinkage: float | None = None) -> CameraPrior:
+        """The Gaussian camera prior of these curves: mean ŝ and a shrunk covariance per channel.
+
+        ``shrinkage`` ∈ [0, 1] blends each channel's sample covariance with ``tr(Σ)/f · I``;
+        ``None`` (default) uses each channel's Ledoit–Wolf intensity — on the 44 training cameras of
+        the synthetic protocol, leave-one-camera-out agrees (``bench/tune_prior.py``).
+        """
+        if shrinkage is None:
+            weights = np.asarray(self.ledoit_wolf_shrinkage, dtype=np.float64)
+        else:
+            weights = np.full(3, float(shrinkage))
+        if np.any((weights < 0.0) | (weights > 1.0)):
+            raise InputError(f"shrinkage must be in [0, 1], got {shrinkage}", source="shrinkage")
+        size = self.grid.size
+        identity = np.eye(size)
+        shrunk = np.stack(
+            [
+                (1.0 - weights[c]) * self.covariance[c]
+                + weights[c] * float(np.trace(self.covariance[c])) / size * identity
+                for c in range(3)
+            ]
+        )
+        # A floor keeps the precision finite where every training curve is zero (e.g. a grid edge).
+        floor = 1e-6 * float(np.max(np.trace(self.covariance, axis1=1, axis2=2))) / size
+        return CameraPrior(
+            self.grid, self.mean, _frozen(shrunk + floor * identity[None]), _frozen(weights)
+        )
+
     def to_dict(self) -> dict[str, object]:
         """A JSON-safe summary (not the vectors: they may derive from unlicensed data)."""
         return {
@@ -109,6 +144,58 @@ class CameraBasis:
             "cameras": list(self.camera_names),
             "content_hash": self.content_hash,
         }
+
+
+@dataclass(frozen=True, eq=False)
+class CameraPrior:
+    """A Gaussian prior on a camera's (normalised) sensitivity, per channel, on one grid.
+
+    ``s_c ~ N(α ŝ_c, α² Σ_c)`` with ``α`` the camera's unknown overall scale.
+
+    Attributes
+    ----------
+    grid
+        The working grid (``f`` wavelengths).
+    mean
+        ``ŝ``, shape ``(f, 3)``.
+    covariance
+        ``Σ_c``, shape ``(3, f, f)``, positive definite.
+    shrinkage
+        The shrinkage used to build each channel's covariance, shape ``(3,)``.
+    """
+
+    grid: WavelengthGrid
+    mean: FloatArray
+    covariance: FloatArray
+    shrinkage: FloatArray
+
+    def precision_factor(self) -> FloatArray:
+        """``L_c`` with ``L_cᵀ L_c = Σ_c⁻¹``, shape ``(3, f, f)`` (see :func:`whitening`)."""
+        return np.stack([whitening(self.covariance[c]) for c in range(3)])
+
+
+def whitening(covariance: FloatArray, relative_floor: float = 1e-10) -> FloatArray:
+    """Symmetric ``Σ^{-1/2}`` (so ``Lᵀ L = Σ⁻¹``), eigenvalues floored at ``relative_floor · max``.
+
+    Robust where a Cholesky factorisation of ``Σ⁻¹`` is not: covariances built from a few curves or
+    smooth kernels are numerically rank-deficient.
+    """
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    floor = relative_floor * max(float(values.max()), 1e-300)
+    return np.asarray((vectors / np.sqrt(np.maximum(values, floor))) @ vectors.T, dtype=np.float64)
+
+
+def ledoit_wolf_shrinkage(samples: FloatArray) -> float:
+    """Ledoit & Wolf (2004) shrinkage intensity toward ``tr(S)/p · I`` for samples ``(n, p)``."""
+    centred = samples - samples.mean(axis=0)
+    n, p = centred.shape
+    sample_cov = centred.T @ centred / n
+    target = float(np.trace(sample_cov)) / p
+    dispersion = float(np.sum((sample_cov - target * np.eye(p)) ** 2)) / p
+    if dispersion <= 0:
+        return 1.0
+    spread = sum(float(np.sum((np.outer(x, x) - sample_cov) ** 2)) for x in centred) / n**2 / p
+    return float(min(spread, dispersion) / dispersion)
 
 
 def _as_curve_stack(
@@ -146,7 +233,10 @@ def _content_hash(curves: FloatArray, grid: WavelengthGrid, n_vectors: int) -> s
 def _load_cached(path: Path) -> dict[str, FloatArray] | None:
     try:
         with np.load(path, allow_pickle=False) as data:
-            return {key: np.asarray(data[key]) for key in ("vectors", "mean", "singular_values")}
+            return {
+                key: np.asarray(data[key])
+                for key in ("vectors", "mean", "singular_values", "covariance", "shrinkage")
+            }
     except (OSError, KeyError, ValueError):
         return None  # a missing or damaged cache entry is recomputed
 
@@ -226,6 +316,14 @@ def camera_basis(
             "vectors": vectors,
             "mean": curves.mean(axis=0),
             "singular_values": singular_values,
+            "covariance": np.stack(
+                [np.atleast_2d(np.cov(curves[:, :, c].T)) for c in range(3)]
+                if n_cameras > 1
+                else [np.zeros((grid.size, grid.size))] * 3
+            ),
+            "shrinkage": np.array(
+                [ledoit_wolf_shrinkage(curves[:, :, c]) if n_cameras > 1 else 1.0 for c in range(3)]
+            ),
         }
         if cache:
             _store_cached(path, arrays)
@@ -237,6 +335,8 @@ def camera_basis(
         source=source,
         camera_names=tuple(camera_names),
         content_hash=key,
+        covariance=_frozen(arrays["covariance"]),
+        ledoit_wolf_shrinkage=_frozen(arrays["shrinkage"]),
     )
 
 

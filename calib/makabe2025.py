@@ -1,28 +1,25 @@
-"""Closed-form joint estimate of camera sensitivity and grating efficiency (Makabe et al. 2025).
+"""Joint estimate of camera sensitivity and grating efficiency from lamps seen through a grating.
 
-Model (§3.1): ``s_c = B_s,c c_s,c`` per channel and ``η⁻¹ = B_η c_η`` (Fourier), a direct constraint
-``m_dir,c = e·s_c`` and a diffracted constraint per pixel. Two ways to write the diffracted constraint:
+Makabe et al. (2025): a lamp with a measured spectrum, seen through an uncalibrated grating, gives the
+direct (0th-order) RGB and a first-order profile; with the pixel→wavelength mapping known, both are
+linear in the camera sensitivity ``s_c`` and the inverse grating efficiency ``η⁻¹``, and the joint
+estimate has a closed form. Three solvers share the model (``solver=``):
 
-``weighting="paper"`` — the paper as printed (Eq. 9–12, Supp. F): ``a_c = diag(e⁻¹) W† m_c`` with
-    ``W`` the linear-interpolation weights of Eq. 14 at the pixel centres and ``e`` on the grid; the
-    homogeneous system ``diag(a_c) B_η c_η − B_s,c c_s,c = 0`` (``3f`` rows) minimised subject to the
-    direct constraint through its Lagrange (KKT) system.
+``"prior"`` (default) — :mod:`calib.prior_solve`: ``s`` free at every grid wavelength with a Gaussian
+    camera prior learnt from measured cameras, rows in measured units weighted by their noise.
+``"basis"`` — the paper's model (``s_c = B_s,c c_s,c``, 7-vector SVD basis; ``η⁻¹ = B_η c_η``,
+    Fourier) with rows in measured-profile units, one per pixel and channel:
+    ``m_c(p) · (Ψ c_η)(p) − (K B_s,c c_s,c)(p) = 0``, ``K[p, i] = ∫_pixel e φ_i dλ`` (the *measured*
+    lamp at 1 nm over each pixel's wavelength interval). Several lamps may be solved jointly (each
+    lamp's brightness by alternation).
+``"paper"`` — the paper as printed (Eq. 9–12, Supp. F): ``a_c = diag(e⁻¹) W† m_c`` with ``W`` the
+    linear-interpolation weights of Eq. 14, the homogeneous system
+    ``diag(a_c) B_η c_η − B_s,c c_s,c = 0`` (``3f`` rows) minimised subject to the direct constraint
+    through its Lagrange (KKT) system. Kept to reproduce the paper.
 
-``weighting="noise"`` (default) — in measured-profile units, one row per pixel and channel:
-    ``m_c(p) · (Ψ c_η)(p) − (K B_s,c c_s,c)(p) = 0`` where ``Ψ`` interpolates ``B_η`` at ``g(p)`` and
-    ``K[p, i] = ∫_pixel e φ_i dλ`` integrates the *measured* lamp spectrum at 1 nm over each pixel's
-    wavelength interval (so spiky lamps and the pixel's own width are modelled, see
-    :class:`calib.forward.LampOperators`). It follows from ``m = K diag(η) s`` with η smooth over a
-    pixel. Each row is weighted by ``1/(σ_c(p) · η̂⁻¹(g(p)))`` — the noise of that row — after a first
-    pass with ``1/σ``; the direct constraint is exact, or a weighted row set when its σ is known. The
-    paper's division by ``e`` amplifies noise where the lamp is dim; these rows do not.
-
-Several lamps may be solved jointly (each lamp's unknown brightness is estimated by alternation).
-
-The mapping (§3.2) comes from a fluorescent lamp's lines (:func:`calib.mapping.mapping_from_peaks`)
-or, with broadband lamps only, from a global correlation search; either is then refined by minimising
-this solve's own weighted residual over ``(a, b, c)`` (variable projection), which also gives the
-mapping's covariance.
+The mapping (§3.2) comes from :func:`calib.mapping_search.find_mapping` (fluorescent lines or a
+broadband search, then a fit of the whole profile), from a given mapping, or — to reproduce the paper
+— from its point-to-plane ICP (:func:`calib.mapping.icp_mapping`, ``mapping_method="icp"``).
 
 References
 ----------
@@ -34,95 +31,32 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from calib.bases import CameraBasis, FourierConvention, fourier_basis
+from calib.bases import CameraBasis, CameraPrior, FourierConvention, fourier_basis
 from calib.errors import EstimationError, InputError
-from calib.forward import (
-    LampOperators,
-    WavelengthMapping,
-    apply_blur,
-    blur_kernel,
-    hat_matrix,
-    lamp_operators,
-    pixel_edges,
+from calib.forward import WavelengthMapping, apply_blur, hat_matrix
+from calib.linear_model import (
+    LampSystem,
+    design_matrices,
+    prepare_lamp,
+    solve_constrained,
+    solve_constrained_normal,
 )
-from calib.mapping import (
-    GratingGeometry,
-    QuadraticMapping,
-    coarse_mapping_candidates,
-    mapping_from_peaks,
-    model_curve_on_fine_axis,
-    refine_mapping,
-)
+from calib.mapping import GratingGeometry, QuadraticMapping
+from calib.mapping_search import find_mapping
 from calib.observations import LampObservation
+from calib.prior_solve import solve_with_prior
 from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, WavelengthGrid
 
 FloatArray = NDArray[np.float64]
-Weighting = Literal["noise", "paper"]
-
-
-@dataclass(frozen=True, eq=False)
-class LampSystem:
-    """One lamp's data prepared for the solver (everything that does not depend on the mapping)."""
-
-    observation: LampObservation
-    operators: LampOperators
-    edges_px: FloatArray
-    profile_sigma: FloatArray
-    kernel: FloatArray | None
-
-    @property
-    def profile(self) -> FloatArray:
-        return self.observation.profile
-
-
-def prepare_lamp(
-    observation: LampObservation,
-    grid: WavelengthGrid,
-    *,
-    slit_width_px: float = 0.0,
-    psf_sigma_px: float = 0.0,
-) -> LampSystem:
-    """Precompute a lamp's operators; a missing profile σ becomes 1 % of the profile's peak."""
-    sigma = observation.profile_sigma
-    if sigma is None:
-        sigma = np.full(
-            observation.profile.shape, 0.01 * max(float(np.max(observation.profile)), 1e-300)
-        )
-    elif np.any(sigma <= 0):
-        raise InputError(
-            "profile sigma must be > 0 everywhere", source=f"lamp {observation.name!r}"
-        )
-    return LampSystem(
-        observation=observation,
-        operators=lamp_operators(observation.spectrum, grid),
-        edges_px=pixel_edges(observation.pixel),
-        profile_sigma=np.asarray(sigma, dtype=np.float64),
-        kernel=blur_kernel(slit_width_px, psf_sigma_px),
-    )
-
-
-def design_matrices(
-    system: LampSystem, mapping: WavelengthMapping, efficiency_basis: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """``K`` ``(n, f)`` (lamp × hat integrated per pixel, blurred) and ``Ψ`` ``(n, b_η)``."""
-    grid = system.operators.grid
-    edges_nm = mapping.wavelength_nm(system.edges_px)
-    pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)
-    centres_nm = mapping.wavelength_nm(system.observation.pixel)
-    psi = hat_matrix(grid, centres_nm, clamp=True) @ efficiency_basis
-    # Pixels mapped off the grid are predicted dark: their residual is m·(constant term of η⁻¹), a
-    # fixed cost for light the model cannot explain (not η⁻¹ at the edge, which the fit could zero).
-    outside = (centres_nm < grid.start_nm) | (centres_nm > grid.stop_nm)
-    psi[outside] = 0.0
-    psi[outside, 0] = 1.0
-    return pixel_matrix, psi
+Solver = Literal["prior", "basis", "paper"]
+MappingMethod = Literal["search", "icp"]
+SOLVERS: tuple[Solver, ...] = ("prior", "basis", "paper")
 
 
 def _diffracted_rows(
@@ -160,60 +94,6 @@ def _direct_rows(
     return rows
 
 
-def solve_constrained(
-    rows: FloatArray,
-    constraint: FloatArray,
-    target: FloatArray,
-    constraint_sigma: FloatArray | None = None,
-) -> tuple[FloatArray, dict[str, float]]:
-    """``argmin ‖rows x‖²`` s.t. ``constraint x = target`` (or weighted rows when σ is given).
-
-    The equality case uses the null space of the constraint (numerically stabler than the KKT system,
-    same solution). Returns the solution and condition numbers.
-    """
-    if constraint_sigma is not None:
-        stacked = np.vstack([rows, constraint / constraint_sigma[:, None]])
-        rhs = np.concatenate([np.zeros(rows.shape[0]), target / constraint_sigma])
-        solution, *_ = np.linalg.lstsq(stacked, rhs, rcond=None)
-        return solution, {"condition": float(np.linalg.cond(stacked))}
-    particular, *_ = np.linalg.lstsq(constraint, target, rcond=None)
-    _, singular, vt = np.linalg.svd(constraint)
-    rank = int(np.sum(singular > singular[0] * 1e-12))
-    null_space = vt[rank:].T
-    reduced = rows @ null_space
-    coefficients, *_ = np.linalg.lstsq(reduced, -rows @ particular, rcond=None)
-    return particular + null_space @ coefficients, {
-        "condition": float(np.linalg.cond(reduced)),
-        "constraint_condition": float(singular[0] / singular[rank - 1]),
-    }
-
-
-def solve_constrained_normal(
-    normal: FloatArray,
-    constraint: FloatArray,
-    target: FloatArray,
-    constraint_sigma: FloatArray | None = None,
-) -> tuple[FloatArray, dict[str, float]]:
-    """As :func:`solve_constrained` for the quadratic form ``xᵀ N x`` given by its matrix ``N``."""
-    if constraint_sigma is not None:
-        weighted = constraint / constraint_sigma[:, None]
-        system = normal + weighted.T @ weighted
-        solution = np.asarray(
-            np.linalg.solve(system, weighted.T @ (target / constraint_sigma)), dtype=np.float64
-        )
-        return solution, {"condition": float(np.linalg.cond(system))}
-    particular, *_ = np.linalg.lstsq(constraint, target, rcond=None)
-    _, singular, vt = np.linalg.svd(constraint)
-    rank = int(np.sum(singular > singular[0] * 1e-12))
-    null_space = vt[rank:].T
-    reduced = null_space.T @ normal @ null_space
-    coefficients = np.linalg.solve(reduced, -null_space.T @ (normal @ particular))
-    return particular + null_space @ coefficients, {
-        "condition": float(np.sqrt(max(np.linalg.cond(reduced), 1.0))),
-        "constraint_condition": float(singular[0] / singular[rank - 1]),
-    }
-
-
 def _split(
     solution: FloatArray, basis: CameraBasis, efficiency_basis: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -224,127 +104,6 @@ def _split(
         [basis.channel(c) @ solution[b_eta + c * k : b_eta + (c + 1) * k] for c in range(3)], axis=1
     )
     return sensitivity, inverse_efficiency
-
-
-def mapping_residual(system: LampSystem, basis: CameraBasis, efficiency_basis: FloatArray) -> Any:
-    """The closed-form solve's weighted residual as a function of the mapping (for refinement).
-
-    The gauge is fixed by the constant term of ``η⁻¹`` (= 1), so no direct measurement is needed
-    and the fluorescent lamp can be used too. Pixels mapped outside the grid are predicted dark, so
-    pushing signal out of the grid costs residual; a mapping whose pixels do not cover the whole grid
-    is penalised (the profile must hold the whole first order), otherwise the flexible η⁻¹ could
-    explain away a region of the grid that no pixel sees.
-    """
-    weights = 1.0 / system.profile_sigma
-    grid = system.operators.grid
-    ends_px = system.observation.pixel[[0, -1]]
-    # The penalty for a mapping that leaves part of the grid outside the profile: as many residual
-    # units per nm as the whole profile's signal-to-noise, so that no fit can pay for it.
-    coverage_weight = float(np.sqrt(np.sum((system.profile * weights) ** 2)))
-
-    def residual(mapping: QuadraticMapping) -> FloatArray:
-        ends_nm = mapping.wavelength_nm(ends_px)
-        shortfall = np.array(
-            [max(ends_nm.min() - grid.start_nm, 0.0), max(grid.stop_nm - ends_nm.max(), 0.0)]
-        )
-        pixel_matrix, psi = design_matrices(system, mapping, efficiency_basis)
-        rows = _diffracted_rows(system, pixel_matrix, psi, basis, weights)
-        fixed, free = rows[:, 0], rows[:, 1:]
-        normal = free.T @ free
-        scale = np.sqrt(np.clip(np.diag(normal), 1e-300, None))
-        try:
-            z = np.linalg.solve(normal / np.outer(scale, scale), -(free.T @ fixed) / scale) / scale
-        except np.linalg.LinAlgError:
-            z = np.asarray(np.linalg.lstsq(free, -fixed, rcond=None)[0], dtype=np.float64)
-        return np.concatenate([fixed + free @ z, coverage_weight * shortfall])
-
-    return residual
-
-
-#: Gaussian blurs (σ in nm) of the coarse-to-fine mapping refinement, before the unblurred stage.
-COARSE_TO_FINE_BLUR_NM: tuple[float, ...] = (6.0, 2.0)
-
-
-def _blurred(system: LampSystem, sigma_px: float) -> LampSystem:
-    """The same lamp with profile and model both blurred by a Gaussian of ``sigma_px``."""
-    extra = blur_kernel(0.0, sigma_px)
-    if extra is None:
-        return system
-    kernel = extra if system.kernel is None else np.convolve(system.kernel, extra)
-    observation = replace(system.observation, profile=apply_blur(system.observation.profile, extra))
-    return replace(system, observation=observation, kernel=kernel)
-
-
-def estimate_mapping(
-    mapping_system: LampSystem,
-    basis: CameraBasis,
-    efficiency_basis: FloatArray,
-    *,
-    use_peaks: bool,
-    initial: QuadraticMapping | None = None,
-    n_candidates: int = 4,
-    refine_system: LampSystem | None = None,
-) -> QuadraticMapping:
-    """Find the pixel→wavelength mapping from one lamp (see the module docstring).
-
-    ``refine_system`` (default: the mapping lamp) is the lamp whose solve residual refines the
-    start: a broadband lamp gives a smooth objective, a line lamp a rough one whose basins are only
-    as wide as its lines, so the peak-matched start of a fluorescent lamp is refined with the LED.
-    """
-    observation = mapping_system.observation
-    grid = mapping_system.operators.grid
-    pixel_range = (float(observation.pixel[0]), float(observation.pixel[-1]))
-    refine_with = refine_system or mapping_system
-    residual = mapping_residual(refine_with, basis, efficiency_basis)
-    if initial is not None:
-        starts = [initial]
-        method = f"{initial.method}+refined"
-    elif use_peaks:
-        starts = [
-            mapping_from_peaks(
-                observation.spectrum, observation.pixel, observation.profile, basis.mean, grid=grid
-            )
-        ]
-        method = "fluorescent-peaks+refined"
-    else:
-        axis, model = model_curve_on_fine_axis(observation.spectrum, basis.mean, grid)
-        starts = coarse_mapping_candidates(
-            observation.pixel,
-            observation.profile,
-            axis,
-            model,
-            grid=grid,
-            n_candidates=n_candidates,
-        )
-        method = "led-search+refined"
-    # Coarse to fine: first match blurred versions of profile and model (wide basins around sharp
-    # lines), then sharpen. The last stage is the unblurred residual.
-    dispersion = float(np.median(np.abs(starts[0].dispersion_nm_per_px(observation.pixel))))
-    spacing = float(np.median(np.diff(observation.pixel)))
-    stages = [
-        mapping_residual(
-            _blurred(refine_with, blur_nm / dispersion / spacing), basis, efficiency_basis
-        )
-        for blur_nm in COARSE_TO_FINE_BLUR_NM
-    ] + [residual]
-    best: tuple[float, QuadraticMapping] | None = None
-    for start in starts:
-        refined = start
-        for stage in stages:
-            refined, cost = refine_mapping(refined, stage, pixel_range=pixel_range, method=method)
-        if best is None or cost < best[0]:
-            best = (cost, refined)
-    assert best is not None
-    cost, mapping = best
-    return mapping.with_details(
-        details={
-            **dict(mapping.details),
-            "mapping_lamp": observation.name,
-            "refined_with": refine_with.observation.name,
-            "n_starts": len(starts),
-            "start": starts[0].to_dict() if len(starts) == 1 else [s.coefficients for s in starts],
-        }
-    )
 
 
 def _noise_scale(inverse_efficiency: FloatArray) -> FloatArray:
@@ -541,6 +300,42 @@ def _profile_model(
     return np.where(np.isfinite(model), model, 0.0)
 
 
+def _choose_solve_lamps(
+    observations: Sequence[LampObservation], solve_lamps: Sequence[str] | None
+) -> list[LampObservation]:
+    by_name = {obs.name: obs for obs in observations}
+    if solve_lamps is None:
+        chosen = [o for o in observations if o.direct_rgb is not None and o.kind != "fluorescent"]
+        chosen = chosen or [o for o in observations if o.direct_rgb is not None]
+    else:
+        missing = [name for name in solve_lamps if name not in by_name]
+        if missing:
+            raise InputError(
+                f"unknown solve lamps {missing}; lamps are {list(by_name)}", source="solve_lamps"
+            )
+        chosen = [by_name[name] for name in solve_lamps]
+    if not chosen:
+        raise InputError(
+            "no lamp has a direct (0th-order) measurement to solve with", source="observations"
+        )
+    return chosen
+
+
+def _mapping_lamps(
+    observations: Sequence[LampObservation], mapping_lamp: str | None
+) -> list[LampObservation]:
+    """The lamps the mapping is found with: the named one, else every lamp (they share one frame)."""
+    if mapping_lamp is None:
+        return list(observations)
+    chosen = [o for o in observations if o.name == mapping_lamp]
+    if not chosen:
+        raise InputError(
+            f"no lamp named {mapping_lamp!r}; lamps are {[o.name for o in observations]}",
+            source="mapping_lamp",
+        )
+    return chosen
+
+
 def estimate_makabe2025(
     observations: Sequence[LampObservation],
     *,
@@ -548,14 +343,15 @@ def estimate_makabe2025(
     grid: WavelengthGrid = DEFAULT_GRID,
     mapping: QuadraticMapping | GratingGeometry | None = None,
     mapping_lamp: str | None = None,
-    weighting: Weighting = "noise",
+    solver: Solver = "prior",
+    mapping_method: MappingMethod = "search",
+    prior_shrinkage: float | None = None,
     efficiency_terms: int = 7,
     fourier_convention: FourierConvention = "paired",
     solve_lamps: Sequence[str] | None = None,
     refine_given_mapping: bool = False,
     slit_width_px: float = 0.0,
     psf_sigma_px: float = 0.0,
-    n_candidates: int = 4,
 ) -> EstimateResult:
     """Estimate sensitivity, grating efficiency and mapping from lamp observations.
 
@@ -564,27 +360,33 @@ def estimate_makabe2025(
     observations
         One or more lamps (direct RGB + first-order profile + measured spectrum), all in one geometry.
     basis
-        Camera basis on ``grid`` (``k`` vectors per channel).
+        Camera basis on ``grid``: its vectors (``solver="basis"``/``"paper"``) or its prior (mean ŝ
+        and covariance, ``solver="prior"`` and the mapping search).
     grid
         Working grid.
     mapping
-        A known mapping (used as is unless ``refine_given_mapping``); ``None`` estimates it.
+        A known mapping (used as is unless ``refine_given_mapping``, then it only seeds the search);
+        ``None`` finds it.
     mapping_lamp
-        Name of the observation to find the mapping with. Default: the first fluorescent lamp (peak
-        matching, "LED+Flu"), else the first solve lamp (broadband search, "LED only").
-    weighting
-        ``"noise"`` (measured units, noise-weighted) or ``"paper"`` (Eq. 9–12 as printed).
+        Find the mapping with this lamp only. Default: every lamp jointly (fluorescent lines, if any,
+        start the search).
+    solver
+        ``"prior"``, ``"basis"`` or ``"paper"`` (see the module docstring).
+    mapping_method
+        ``"search"`` (:func:`calib.mapping_search.find_mapping`) or ``"icp"`` (the paper's
+        point-to-plane ICP from a flat start, for reproduction).
+    prior_shrinkage
+        Shrinkage of the camera prior's covariance (default: Ledoit–Wolf, see
+        :meth:`calib.bases.CameraBasis.prior`).
     efficiency_terms, fourier_convention
         The Fourier basis for ``η⁻¹`` (Supp. E).
     solve_lamps
         Names of the lamps that enter the solve. Default: every non-fluorescent lamp with a direct
         measurement (the paper uses the LED only), else every lamp with one.
     refine_given_mapping
-        Refine a given mapping by the solve's residual.
+        Treat ``mapping`` as a start for the search rather than the answer.
     slit_width_px, psf_sigma_px
-        Blur of the profile along dispersion, modelled in the solve (``"noise"`` weighting).
-    n_candidates
-        Starting points kept from the broadband search.
+        Blur of the profile along dispersion, modelled in the mapping search and the solve.
 
     Returns
     -------
@@ -597,24 +399,13 @@ def estimate_makabe2025(
         raise InputError(
             f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
         )
+    if solver not in SOLVERS:
+        raise InputError(f"unknown solver {solver!r}; choose from {SOLVERS}", source="solver")
     names = [obs.name for obs in observations]
     if len(set(names)) != len(names):
         raise InputError(f"lamp names must be unique, got {names}", source="observations")
-    by_name = {obs.name: obs for obs in observations}
-    if solve_lamps is None:
-        chosen = [o for o in observations if o.direct_rgb is not None and o.kind != "fluorescent"]
-        chosen = chosen or [o for o in observations if o.direct_rgb is not None]
-    else:
-        missing = [name for name in solve_lamps if name not in by_name]
-        if missing:
-            raise InputError(
-                f"unknown solve lamps {missing}; lamps are {names}", source="solve_lamps"
-            )
-        chosen = [by_name[name] for name in solve_lamps]
-    if not chosen:
-        raise InputError(
-            "no lamp has a direct (0th-order) measurement to solve with", source="observations"
-        )
+    chosen = _choose_solve_lamps(observations, solve_lamps)
+    prior: CameraPrior = basis.prior(prior_shrinkage)
     efficiency_basis = fourier_basis(grid, efficiency_terms, convention=fourier_convention)
     blur = {"slit_width_px": slit_width_px, "psf_sigma_px": psf_sigma_px}
     systems = [prepare_lamp(obs, grid, **blur) for obs in chosen]
@@ -625,53 +416,56 @@ def estimate_makabe2025(
     if mapping is not None and not refine_given_mapping:
         used_mapping = mapping
     else:
-        if mapping_lamp is not None:
-            if mapping_lamp not in by_name:
-                raise InputError(
-                    f"no lamp named {mapping_lamp!r}; lamps are {names}", source="mapping_lamp"
+        lamps = _mapping_lamps(observations, mapping_lamp)
+        if mapping_method == "icp":
+            from calib.mapping import icp_mapping
+
+            used_mapping = icp_mapping(lamps[0], prior.mean, grid)
+        elif mapping_method == "search":
+            starts = None
+            if mapping is not None:
+                start = (
+                    mapping
+                    if isinstance(mapping, QuadraticMapping)
+                    else mapping.quadratic((grid.start_nm, grid.stop_nm))
                 )
-            mapping_observation = by_name[mapping_lamp]
+                starts = [start]
+            used_mapping = find_mapping(lamps, prior, grid, starts=starts, kernel=systems[0].kernel)
         else:
-            fluorescent = [o for o in observations if o.kind == "fluorescent"]
-            mapping_observation = fluorescent[0] if fluorescent else chosen[0]
-        mapping_system = next(
-            (s for s in systems if s.observation is mapping_observation), None
-        ) or prepare_lamp(mapping_observation, grid, **blur)
-        initial = None
-        if mapping is not None:
-            initial = (
-                mapping
-                if isinstance(mapping, QuadraticMapping)
-                else mapping.quadratic((grid.start_nm, grid.stop_nm))
+            raise InputError(
+                f"unknown mapping method {mapping_method!r}; use 'search' or 'icp'",
+                source="mapping_method",
             )
-        used_mapping = estimate_mapping(
-            mapping_system,
-            basis,
-            efficiency_basis,
-            use_peaks=mapping_observation.kind == "fluorescent",
-            initial=initial,
-            n_candidates=n_candidates,
-            refine_system=systems[0] if mapping_observation.kind == "fluorescent" else None,
-        )
     timings["mapping_s"] = time.perf_counter() - step
 
     step = time.perf_counter()
-    if weighting == "paper":
+    sensitivity_sigma: FloatArray | None = None
+    if solver == "prior":
+        # Every other lamp with a direct measurement constrains η (its brightness cancels).
+        companions = [
+            prepare_lamp(obs, grid, **blur)
+            for obs in observations
+            if obs is not chosen[0] and obs.direct_rgb is not None
+        ]
+        solution = solve_with_prior(
+            systems[0], used_mapping, prior, efficiency_basis, companions=companions
+        )
+        systems = systems[:1]
+        sensitivity, inverse_efficiency = solution.sensitivity, solution.inverse_efficiency
+        sensitivity_sigma = solution.sensitivity_sigma
+        info: dict[str, Any] = {**solution.info, "lamp_scales": [1.0]}
+    elif solver == "paper":
         if len(systems) != 1:
             raise InputError(
-                "weighting='paper' solves one lamp; pass solve_lamps=[NAME]", source="weighting"
+                "solver='paper' solves one lamp; pass solve_lamps=[NAME]", source="solver"
             )
         _, sensitivity, inverse_efficiency, info = solve_paper(
             systems[0], used_mapping, basis, efficiency_basis
         )
         info["lamp_scales"] = [1.0]
-    elif weighting == "noise":
+    else:
         _, sensitivity, inverse_efficiency, info = solve_noise_weighted(
             systems, used_mapping, basis, efficiency_basis
-        )
-    else:
-        raise InputError(
-            f"unknown weighting {weighting!r}; use 'noise' or 'paper'", source="weighting"
         )
     timings["solve_s"] = time.perf_counter() - step
 
@@ -706,12 +500,13 @@ def estimate_makabe2025(
     timings["total_s"] = time.perf_counter() - started
     diagnostics = {
         "basis": basis.to_dict(),
+        "solver": solver,
+        "mapping_method": mapping_method if mapping is None or refine_given_mapping else "given",
         "efficiency_basis": {"terms": efficiency_terms, "convention": fourier_convention},
-        "weighting": weighting,
         "solve_lamps": [s.observation.name for s in systems],
         "negative_efficiency_nodes": int(np.sum(inverse_efficiency <= 0)),
         "sensitivity_scale": peak,
-        "reduced_chi2": chi2 / max(count - efficiency_basis.shape[1] - 3 * basis.n_vectors, 1),
+        "reduced_chi2": chi2 / max(count, 1),
         "timings": timings,
         **{key: value for key, value in info.items() if key != "passes"},
     }
@@ -719,6 +514,7 @@ def estimate_makabe2025(
         method="makabe2025",
         wavelength_nm=grid.wavelength_nm,
         sensitivity=sensitivity / peak,
+        sensitivity_sigma=None if sensitivity_sigma is None else sensitivity_sigma / peak,
         grating_efficiency=efficiency / efficiency_peak
         if np.isfinite(efficiency_peak)
         else efficiency,

@@ -435,14 +435,21 @@ def profile_peaks(
     """Sub-pixel line peaks of a profile ``(n, 3)`` (channels summed, broad bands removed).
 
     ``line_width_px``: lines narrower than this many pixels are kept (≈ 20 nm at the dispersion).
+    A peak must stand out by ``min_prominence`` of the strongest line and by 5 noise σ (estimated
+    from the profile's second differences after the same smoothing), so noise makes no peaks.
     """
     combined = np.sum(profile, axis=1)
-    smoothing = max(line_width_px / 40.0, 0.5)
+    smoothing = max(line_width_px / 16.0, 0.5)
     smooth = ndimage.gaussian_filter1d(combined, smoothing, mode="nearest")
     excess = _line_excess(smooth, int(np.ceil(line_width_px)))
     if float(excess.max()) <= 0:
         return []
-    indices, properties = signal.find_peaks(excess, prominence=min_prominence * float(excess.max()))
+    second = np.diff(smooth, n=2)
+    noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0)
+    # Smoothing correlates neighbours; the second differences understate σ by about the kernel width.
+    noise *= math.sqrt(max(2.0 * math.sqrt(math.pi) * smoothing, 1.0))
+    threshold = max(min_prominence * float(excess.max()), 5.0 * noise)
+    indices, properties = signal.find_peaks(excess, prominence=threshold)
     order = np.argsort(properties["prominences"])[::-1][:max_peaks]
     step = np.gradient(pixel)
     peaks = []
@@ -461,10 +468,17 @@ def nominal_dispersion(
     profile: FloatArray,
     model_nm: FloatArray,
     model: FloatArray,
-    level: float = 0.02,
+    level: float = 0.05,
 ) -> float:
-    """nm per pixel-coordinate unit that makes the lit part of the model fit the lit part of the profile."""
+    """nm per pixel-coordinate unit that makes the lit part of the model fit the lit part of the profile.
+
+    The profile is smoothed first (over ~1 % of its length) so that noise does not widen its lit
+    extent; "lit" is above ``level`` of the maximum for both curves.
+    """
     profile_total = np.sum(np.clip(profile, 0, None), axis=1)
+    profile_total = ndimage.gaussian_filter1d(
+        profile_total, max(profile_total.size / 100.0, 1.0), mode="nearest"
+    )
     model_total = np.sum(model, axis=1) if model.ndim == 2 else model
     lit = np.flatnonzero(profile_total > level * float(profile_total.max()))
     model_lit = model_nm[model_total > level * float(model_total.max())]
@@ -472,6 +486,122 @@ def nominal_dispersion(
         raise EstimationError("the profile or the lamp × camera model has too little signal to map")
     support_px = float(pixel[lit[-1]] - pixel[lit[0]]) + float(np.median(np.diff(pixel)))
     return float(model_lit[-1] - model_lit[0]) / support_px
+
+
+def match_peak_hypotheses(
+    lines: Sequence[Peak],
+    peaks: Sequence[Peak],
+    *,
+    pixel_range: tuple[float, float],
+    dispersion_range_nm_per_px: tuple[float, float] = (0.02, 20.0),
+    tolerance_nm: float = 1.5,
+    allow_reversed: bool = False,
+    n_hypotheses: int = 6,
+) -> list[QuadraticMapping]:
+    """Several distinct line↔peak mappings, best scored first (see :func:`match_peaks`).
+
+    Each hypothesis comes from a pair or triple of lines matched to peaks, scored by a soft inlier
+    count, then refitted on its inliers with tightening tolerances. Distinct hypotheses (differing by
+    more than 3 nm somewhere over ``pixel_range``) let a later fit of the whole profile choose.
+    """
+    if len(lines) < 2 or len(peaks) < 2:
+        raise EstimationError(
+            f"need ≥ 2 lamp lines and ≥ 2 profile peaks to match, found {len(lines)} lines and "
+            f"{len(peaks)} peaks; is this a fluorescent lamp, and is the first order in the profile?"
+        )
+    line_nm = np.array([line.position for line in lines])
+    peak_px = np.array([peak.position for peak in peaks])
+    peak_weight = np.array([peak.prominence for peak in peaks])
+    line_weight = np.array([line.prominence for line in lines])
+    line_weight = line_weight / line_weight.max()
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+
+    def inliers(mapping: QuadraticMapping, tolerance: float) -> list[tuple[int, int]]:
+        predicted = mapping.wavelength_nm(peak_px)
+        pairs: list[tuple[int, int]] = []
+        used: set[int] = set()
+        for i in np.argsort(line_nm):
+            distance = np.abs(predicted - line_nm[i])
+            j = int(np.argmin(distance))
+            if distance[j] <= tolerance and j not in used:
+                pairs.append((int(i), j))
+                used.add(j)
+        return pairs
+
+    def score(mapping: QuadraticMapping) -> float:
+        """Soft inlier count: each line counts by its strength and how close a peak lands (τ = 2 nm)."""
+        predicted = mapping.wavelength_nm(peak_px)
+        distance = np.min(np.abs(predicted[None, :] - line_nm[:, None]), axis=1)
+        return float(np.sum(line_weight * np.exp(-0.5 * (distance / 2.0) ** 2)))
+
+    def admissible(mapping: QuadraticMapping) -> bool:
+        slope = mapping.dispersion_nm_per_px(probe)
+        if np.any(slope <= 0) and not allow_reversed:
+            return False
+        low, high = dispersion_range_nm_per_px
+        return bool(np.all((np.abs(slope) >= low) & (np.abs(slope) <= high)))
+
+    def span_nm(pairs: list[tuple[int, int]]) -> float:
+        matched = line_nm[[i for i, _ in pairs]]
+        return float(matched.max() - matched.min())
+
+    def polish(mapping: QuadraticMapping) -> QuadraticMapping:
+        for tolerance in (4 * tolerance_nm, 2 * tolerance_nm, tolerance_nm):
+            pairs = inliers(mapping, tolerance)
+            if len(pairs) < 2:
+                break
+            refitted = QuadraticMapping.fit(
+                peak_px[[j for _, j in pairs]],
+                line_nm[[i for i, _ in pairs]],
+                method="fluorescent-peaks",
+                degree=2 if len(pairs) >= 3 and span_nm(pairs) >= 150.0 else 1,
+            )
+            if not admissible(refitted):
+                break
+            mapping = refitted.with_details(pixel_range=list(pixel_range))
+        matched = [
+            {"line_nm": float(line_nm[i]), "label": lines[i].label, "pixel": float(peak_px[j])}
+            for i, j in inliers(mapping, tolerance_nm)
+        ]
+        return mapping.with_details(
+            details={"matched": matched, "n_lines": len(lines), "n_peaks": len(peaks)}
+        )
+
+    scored: list[tuple[float, QuadraticMapping]] = []
+    strongest_lines = sorted(np.argsort(-line_weight)[:6].tolist(), key=lambda i: line_nm[i])
+    strongest_peaks = np.argsort(-peak_weight)[:10].tolist()
+    for size in (2, 3):
+        for line_set in itertools.combinations(strongest_lines, size):
+            if line_nm[line_set[-1]] - line_nm[line_set[0]] < 60.0:
+                continue  # too short a baseline to extrapolate from
+            for peak_set in itertools.permutations(strongest_peaks, size):
+                try:
+                    fitted = QuadraticMapping.fit(
+                        peak_px[list(peak_set)], line_nm[list(line_set)], degree=size - 1
+                    )
+                except EstimationError:
+                    continue
+                candidate = QuadraticMapping(fitted.a, fitted.b, fitted.c, pixel_range=pixel_range)
+                if admissible(candidate):
+                    scored.append((score(candidate), candidate))
+    if not scored:
+        raise EstimationError(
+            "could not match the lamp's lines to the profile's peaks (no consistent pair of lines); "
+            "check the lamp spectrum and that the profile holds the first order"
+        )
+    scored.sort(key=lambda item: -item[0])
+    hypotheses: list[QuadraticMapping] = []
+    for _, candidate in scored:
+        polished = polish(candidate)
+        if any(
+            np.max(np.abs(polished.wavelength_nm(probe) - other.wavelength_nm(probe))) < 3.0
+            for other in hypotheses
+        ):
+            continue
+        hypotheses.append(polished)
+        if len(hypotheses) == n_hypotheses:
+            break
+    return hypotheses
 
 
 def match_peaks(
@@ -498,99 +628,24 @@ def match_peaks(
     (QuadraticMapping, matches)
         The mapping (``method="fluorescent-peaks"``, covariance from the fit) and the matched pairs.
     """
-    if len(lines) < 3 or len(peaks) < 3:
-        raise EstimationError(
-            f"need ≥ 3 lamp lines and ≥ 3 profile peaks to fit a mapping, found {len(lines)} lines and "
-            f"{len(peaks)} peaks; is this a fluorescent lamp, and is the first order in the profile?"
-        )
-    line_nm = np.array([line.position for line in lines])
-    peak_px = np.array([peak.position for peak in peaks])
-    peak_weight = np.array([peak.prominence for peak in peaks])
-    pixel_range[1] - pixel_range[0]
-
-    def inliers(mapping: QuadraticMapping, tolerance: float) -> list[tuple[int, int]]:
-        predicted = mapping.wavelength_nm(peak_px)
-        pairs: list[tuple[int, int]] = []
-        used: set[int] = set()
-        for i in np.argsort(line_nm):
-            distance = np.abs(predicted - line_nm[i])
-            j = int(np.argmin(distance))
-            if distance[j] <= tolerance and j not in used:
-                pairs.append((int(i), j))
-                used.add(j)
-        return pairs
-
-    line_weight = np.array([line.prominence for line in lines])
-    line_weight = line_weight / line_weight.max()
-
-    def score(mapping: QuadraticMapping) -> float:
-        """Soft inlier count: each line counts by its strength and how close a peak lands (τ = 2 nm)."""
-        predicted = mapping.wavelength_nm(peak_px)
-        distance = np.min(np.abs(predicted[None, :] - line_nm[:, None]), axis=1)
-        return float(np.sum(line_weight * np.exp(-0.5 * (distance / 2.0) ** 2)))
-
-    def admissible(mapping: QuadraticMapping) -> bool:
-        probe = np.linspace(pixel_range[0], pixel_range[1], 9)
-        slope = mapping.dispersion_nm_per_px(probe)
-        if np.any(slope <= 0) and not allow_reversed:
-            return False
-        low, high = dispersion_range_nm_per_px
-        return bool(np.all((np.abs(slope) >= low) & (np.abs(slope) <= high)))
-
-    best: tuple[float, QuadraticMapping] | None = None
-    strongest_lines = sorted(np.argsort(-line_weight)[:6].tolist(), key=lambda i: line_nm[i])
-    strongest_peaks = np.argsort(-peak_weight)[:10].tolist()
-    for size in (2, 3):
-        for line_set in itertools.combinations(strongest_lines, size):
-            if line_nm[line_set[-1]] - line_nm[line_set[0]] < 60.0:
-                continue  # too short a baseline to extrapolate from
-            for peak_set in itertools.permutations(strongest_peaks, size):
-                try:
-                    fitted = QuadraticMapping.fit(
-                        peak_px[list(peak_set)], line_nm[list(line_set)], degree=size - 1
-                    )
-                except EstimationError:
-                    continue
-                candidate = QuadraticMapping(fitted.a, fitted.b, fitted.c, pixel_range=pixel_range)
-                if not admissible(candidate):
-                    continue
-                value = score(candidate)
-                if best is None or value > best[0]:
-                    best = (value, candidate)
-    if best is None:
-        raise EstimationError(
-            "could not match the lamp's lines to the profile's peaks (no consistent pair of lines); "
-            "check the lamp spectrum and that the profile holds the first order"
-        )
-    mapping = best[1]
-
-    def _span_nm(pairs: list[tuple[int, int]]) -> float:
-        matched = line_nm[[i for i, _ in pairs]]
-        return float(matched.max() - matched.min())
-
-    for tolerance in (4 * tolerance_nm, 2 * tolerance_nm, tolerance_nm):
-        pairs = inliers(mapping, tolerance)
-        if len(pairs) < 2:
-            break
-        mapping = QuadraticMapping.fit(
-            peak_px[[j for _, j in pairs]],
-            line_nm[[i for i, _ in pairs]],
-            method="fluorescent-peaks",
-            degree=2 if len(pairs) >= 3 and _span_nm(pairs) >= 150.0 else 1,
-        ).with_details(pixel_range=list(pixel_range))
-    pairs = inliers(mapping, tolerance_nm)
-    if len(pairs) < 2:
+    best = match_peak_hypotheses(
+        lines,
+        peaks,
+        pixel_range=pixel_range,
+        dispersion_range_nm_per_px=dispersion_range_nm_per_px,
+        tolerance_nm=tolerance_nm,
+        allow_reversed=allow_reversed,
+        n_hypotheses=1,
+    )[0]
+    matched = best.details.get("matched", [])
+    if len(matched) < 2:
         raise EstimationError("fewer than 2 lamp lines agree with one mapping")
-    matches = [(lines[i], peaks[j]) for i, j in pairs]
-    details = {
-        "matched": [
-            {"line_nm": line.position, "label": line.label, "pixel": peak.position}
-            for line, peak in matches
-        ],
-        "n_lines": len(lines),
-        "n_peaks": len(peaks),
-    }
-    return mapping.with_details(details=details), matches
+    by_line = {round(line.position, 9): line for line in lines}
+    by_peak = {round(peak.position, 9): peak for peak in peaks}
+    matches = [
+        (by_line[round(item["line_nm"], 9)], by_peak[round(item["pixel"], 9)]) for item in matched
+    ]
+    return best, matches
 
 
 def mapping_from_peaks(
@@ -759,13 +814,16 @@ def refine_mapping(
     method: str,
     max_evaluations: int = 200,
     step_nm: float = 0.02,
+    tolerance: float = 1e-8,
 ) -> tuple[QuadraticMapping, float]:
     """Least-squares refinement of ``(a, b, c)`` minimising ``‖residual(mapping)‖²``.
 
     The mapping is parameterised by its wavelengths at the two ends and the middle of
     ``pixel_range`` (well conditioned, in nm); derivatives are finite differences of ``step_nm``
-    (larger than the kinks that pixel edges crossing the fine axis' nodes put in the residual). The covariance of ``(a, b, c)`` comes from the
-    Jacobian at the optimum scaled by the residual variance; it gives the mapping's error estimate.
+    (larger than the kinks that pixel edges crossing the fine axis' nodes put in the residual);
+    ``tolerance`` is least squares' ``ftol``/``xtol``/``gtol`` (looser for intermediate stages). The
+    covariance of ``(a, b, c)`` comes from the Jacobian at the optimum scaled by the residual
+    variance; it gives the mapping's error estimate.
 
     Returns
     -------
@@ -788,6 +846,9 @@ def refine_mapping(
         x_scale=np.ones(3),
         diff_step=step_nm / np.maximum(np.abs(start), 1.0),
         max_nfev=max_evaluations,
+        ftol=tolerance,
+        xtol=tolerance,
+        gtol=tolerance,
     )
     theta_to_anchor = np.eye(3)
     refined = build(solution.x)
@@ -819,3 +880,80 @@ def model_curve_on_fine_axis(
     """``ŝ ⊙ e`` per nm on the grid's fine axis: shapes ``(n_fine,)`` and ``(n_fine, 3)``."""
     axis = fine_axis(grid.start_nm, grid.stop_nm, step_nm)
     return axis, lamp.at(axis)[:, None] * (hat_matrix(grid, axis) @ mean_sensitivity)
+
+
+def icp_mapping(
+    observation: Any,
+    mean_sensitivity: FloatArray,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    *,
+    iterations: int = 500,
+) -> QuadraticMapping:
+    """The paper's LED-only mapping: point-to-plane ICP of the profile onto ``ŝ ⊙ e`` (Eq. 15).
+
+    Makabe et al. (2025) §3.2 as printed: ``u = ν(m_dif)`` per channel and ``v = ν(e ⊙ ŝ)`` on the grid
+    (``ν`` the L2 normalisation), points ``[g(p_i), u(p_i)]`` against the polyline ``[λ_j, v(λ_j)]``
+    with normals from consecutive samples, ``g`` quadratic, 500 iterations from ``a = 0, b = f/n,
+    c = 0`` — in grid-index units, as that start implies. One change so the two plots share a vertical
+    scale: ``u`` is multiplied by ``√(n/f)`` (``ν`` leaves vectors of different lengths at different
+    amplitudes). Kept to reproduce the paper's numbers; :func:`calib.mapping_search.find_mapping` is
+    the estimator to use.
+
+    Parameters
+    ----------
+    observation
+        A :class:`calib.observations.LampObservation` (its spectrum, pixels and profile).
+    mean_sensitivity
+        ``ŝ`` ``(f, 3)`` on ``grid``.
+
+    Returns
+    -------
+    QuadraticMapping
+        In nanometres, ``method="icp"``.
+    """
+    pixel = np.asarray(observation.pixel, dtype=np.float64)
+    profile = np.asarray(observation.profile, dtype=np.float64)
+    n, f = pixel.size, grid.size
+    lamp = observation.spectrum.resample(grid, "integrate").values
+    index = np.arange(f, dtype=np.float64)
+    p = pixel - pixel[0]
+    design = np.stack([p**2, p, np.ones_like(p)], axis=1)
+    coefficients = np.array([0.0, f / n, 0.0])
+    targets = []
+    for c in range(3):
+        v = lamp * mean_sensitivity[:, c]
+        u = profile[:, c]
+        if np.linalg.norm(v) <= 0 or np.linalg.norm(u) <= 0:
+            continue
+        v = v / np.linalg.norm(v)
+        u = u / np.linalg.norm(u) * math.sqrt(n / f)
+        tangent = np.stack([np.diff(index), np.diff(v)], axis=1)
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.vstack([normal, normal[-1:]])  # the last point takes its segment's normal
+        targets.append((u, v, normal))
+    if not targets:
+        raise EstimationError("the profile or the lamp × mean camera is all zero")
+    for _ in range(iterations):
+        x = design @ coefficients
+        rows, rhs = [], []
+        for u, v, normal in targets:
+            distance = (x[:, None] - index[None, :]) ** 2 + (u[:, None] - v[None, :]) ** 2
+            nearest = np.argmin(distance, axis=1)
+            nx, ny = normal[nearest, 0], normal[nearest, 1]
+            # ((x − λ_j) n_x + (u − v_j) n_y) with x = design @ coefficients
+            rows.append(design * nx[:, None])
+            rhs.append(index[nearest] * nx - (u - v[nearest]) * ny)
+        update, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
+        if np.allclose(update, coefficients, rtol=1e-12, atol=1e-12):
+            break
+        coefficients = update
+    a_idx, b_idx, c_idx = coefficients
+    # index → nm: λ = start + step·x, and p = pixel − pixel[0].
+    step, start, offset = grid.step_nm, grid.start_nm, pixel[0]
+    a = step * a_idx
+    b = step * (b_idx - 2 * a_idx * offset)
+    c = start + step * (a_idx * offset**2 - b_idx * offset + c_idx)
+    return QuadraticMapping(
+        float(a), float(b), float(c), method="icp", pixel_range=(float(pixel[0]), float(pixel[-1]))
+    )

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from calib.bases import CameraBasis, fourier_basis
 from calib.errors import EstimationError, InputError
 from calib.forward import PeakFractionNoise, RenderedObservation, render_observation
-from calib.makabe2025 import Weighting, estimate_makabe2025
+from calib.makabe2025 import Solver, estimate_makabe2025
 from calib.mapping import QuadraticMapping
 from calib.metrics import mapping_relative_error, relative_error
 from calib.observations import LampKind
@@ -33,7 +33,7 @@ from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 
 FloatArray = NDArray[np.float64]
 
-VARIANTS: tuple[str, ...] = ("true mapping", "LED+Flu", "LED only")
+VARIANTS: tuple[str, ...] = ("true mapping", "LED+Flu", "LED only", "LED only (paper ICP)")
 NOISE_LEVELS: tuple[float, ...] = (0.0, 0.003, 0.01, 0.03)
 BROADBAND_LAMPS: tuple[str, ...] = ("D65", "LED-B3")
 FLUORESCENT_LAMP = "FL2"
@@ -169,7 +169,7 @@ def evaluate_scene(
     variant: str,
     *,
     grid: WavelengthGrid = DEFAULT_GRID,
-    weighting: Weighting = "noise",
+    solver: Solver = "prior",
     noise: float = 0.0,
     repeat: int = 0,
 ) -> SyntheticRow:
@@ -183,7 +183,8 @@ def evaluate_scene(
             basis=basis,
             grid=grid,
             mapping=scene.mapping if variant == "true mapping" else None,
-            weighting=weighting,
+            solver=solver,
+            mapping_method="icp" if variant == "LED only (paper ICP)" else "search",
             solve_lamps=[led.name],
         )
     except EstimationError as exc:
@@ -230,7 +231,7 @@ def run_protocol(
     noise_levels: Sequence[float] = NOISE_LEVELS,
     broadband_lamp: str = "D65",
     fluorescent_lamp: str = FLUORESCENT_LAMP,
-    weighting: Weighting = "noise",
+    solver: Solver = "prior",
     repeats: int = 1,
     seed: int = 0,
     progress: Callable[[SyntheticRow], None] | None = None,
@@ -274,7 +275,7 @@ def run_protocol(
                         scene_basis,
                         variant,
                         grid=grid,
-                        weighting=weighting,
+                        solver=solver,
                         noise=noise,
                         repeat=repeat,
                     )

@@ -8,13 +8,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-#: ``../shared/data/camera_sensitivities`` next to the checkout, or ``$SPECTRAL_RIG_SHARED_DATA``.
-SHARED_CAMERA_DATA = Path(
-    os.environ.get(
-        "SPECTRAL_RIG_SHARED_DATA",
-        Path(__file__).resolve().parents[2] / "shared" / "data" / "camera_sensitivities",
-    )
-)
+
+def _find_shared_data() -> Path:
+    """``$SPECTRAL_RIG_SHARED_DATA``, else ``shared/data/camera_sensitivities`` beside the checkout
+    or beside any folder above it (a worktree may sit a level deeper than the main checkout)."""
+    if "SPECTRAL_RIG_SHARED_DATA" in os.environ:
+        return Path(os.environ["SPECTRAL_RIG_SHARED_DATA"])
+    checkout = Path(__file__).resolve().parents[1]
+    for folder in checkout.parents:
+        candidate = folder / "shared" / "data" / "camera_sensitivities"
+        if candidate.is_dir():
+            return candidate
+    return checkout.parent / "shared" / "data" / "camera_sensitivities"
+
+
+#: The measured camera collections, when present (tests that need them skip otherwise).
+SHARED_CAMERA_DATA = _find_shared_data()
 
 
 @pytest.fixture

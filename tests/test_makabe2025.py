@@ -37,10 +37,29 @@ def _observation(camera_values, lamp=LAMP, efficiency=None, **kwargs) -> LampObs
 def test_camera_in_the_basis_span_is_recovered_to_rounding(basis_and_cameras):
     basis, cameras = basis_and_cameras
     truth = 0.6 * cameras[1] + 0.4 * cameras[4]
-    result = estimate_makabe2025([_observation(truth)], basis=basis, mapping=MAPPING)
+    result = estimate_makabe2025(
+        [_observation(truth)], basis=basis, mapping=MAPPING, solver="basis"
+    )
     assert relative_error(result.sensitivity, truth) < 1e-8
     assert result.grating_efficiency is not None
     np.testing.assert_allclose(result.grating_efficiency, 1.0, atol=1e-7)
+
+
+def test_prior_solver_recovers_the_prior_mean_camera_and_a_smooth_grating(basis_and_cameras):
+    """With s = α ŝ the prior costs nothing, so only the data speak: near-exact recovery."""
+    basis, _ = basis_and_cameras
+    truth = 2.5 * basis.mean
+
+    def efficiency(wavelength_nm):
+        return 0.8 + 0.2 * np.sin(2 * np.pi * (wavelength_nm - 400) / 300)
+
+    result = estimate_makabe2025(
+        [_observation(truth, efficiency=efficiency)], basis=basis, mapping=MAPPING
+    )
+    assert result.diagnostics["solver"] == "prior"
+    assert relative_error(result.sensitivity, truth) < 2e-3
+    assert result.sensitivity_sigma is not None
+    assert np.all(result.sensitivity_sigma >= 0)
 
 
 def test_smooth_grating_efficiency_is_recovered(basis_and_cameras):
@@ -51,7 +70,7 @@ def test_smooth_grating_efficiency_is_recovered(basis_and_cameras):
         return 0.7 + 0.3 * np.cos(2 * np.pi * (wavelength_nm - 400) / 300)
 
     result = estimate_makabe2025(
-        [_observation(truth, efficiency=efficiency)], basis=basis, mapping=MAPPING
+        [_observation(truth, efficiency=efficiency)], basis=basis, mapping=MAPPING, solver="basis"
     )
     # Not exact: η varies within each pixel's wavelength interval, which the linear rows ignore.
     assert relative_error(result.sensitivity, truth) < 5e-3
@@ -63,11 +82,11 @@ def test_smooth_grating_efficiency_is_recovered(basis_and_cameras):
 def test_paper_variant_runs_and_is_close_without_noise(basis_and_cameras):
     basis, cameras = basis_and_cameras
     result = estimate_makabe2025(
-        [_observation(cameras[0])], basis=basis, mapping=MAPPING, weighting="paper"
+        [_observation(cameras[0])], basis=basis, mapping=MAPPING, solver="paper"
     )
     # The paper's point-sampled W and grid-sampled lamp are approximations of the renderer.
     assert relative_error(result.sensitivity, cameras[0]) < 0.06
-    assert result.diagnostics["weighting"] == "paper"
+    assert result.diagnostics["solver"] == "paper"
     assert result.diagnostics["kkt_condition"] > 1
 
 
@@ -81,7 +100,7 @@ def test_mapping_is_found_from_the_broadband_lamp_alone(basis_and_cameras):
     error = result.mapping.wavelength_nm(pixels[inside]) - MAPPING.wavelength_nm(pixels[inside])
     assert np.sqrt(np.mean(error**2)) < 1.5
     assert relative_error(result.sensitivity, truth) < 0.02
-    assert result.to_dict()["mapping"]["method"] == "led-search+refined"
+    assert result.to_dict()["mapping"]["method"] == "correlation search on led+profile fit"
 
 
 def test_missing_direct_is_a_clear_error(basis_and_cameras):

@@ -17,7 +17,7 @@ from rich.table import Table
 from calib.bases import CameraBasis, fallback_camera_basis
 from calib.datasets import colour_science_cameras, makabe2025_split
 from calib.errors import InputError
-from calib.makabe2025 import Weighting
+from calib.makabe2025 import SOLVERS, Solver
 from calib.methods import default_camera_basis
 from calib.spectra import MultiSpectrum, WavelengthGrid
 from calib.synthetic import NOISE_LEVELS, VARIANTS, SyntheticRow, run_protocol
@@ -126,11 +126,18 @@ def register(app: typer.Typer) -> None:
         ] = ",".join(f"{n:g}" for n in NOISE_LEVELS),
         variant: Annotated[
             list[str] | None,
-            typer.Option(help="Variants (repeatable): 'true mapping', LED+Flu, 'LED only'."),
+            typer.Option(
+                help="Variants (repeatable): 'true mapping', LED+Flu, 'LED only', "
+                "'LED only (paper ICP)'."
+            ),
         ] = None,
-        weighting: Annotated[
-            str, typer.Option(help="noise (measured units, weighted) or paper (as printed).")
-        ] = "noise",
+        solver: Annotated[
+            str,
+            typer.Option(
+                help="prior (camera prior, default), basis (the paper's 7-vector model in measured "
+                "units) or paper (Eq. 12 as printed)."
+            ),
+        ] = "prior",
         repeats: Annotated[
             int, typer.Option(min=1, help="Random scenes per camera and noise level.")
         ] = 1,
@@ -147,11 +154,9 @@ def register(app: typer.Typer) -> None:
         ] = Path("synthetic.csv"),
     ) -> None:
         """Reproduce the paper's synthetic experiment (§4.1): RE per camera × variant × noise."""
-        if weighting not in ("noise", "paper"):
-            raise InputError(
-                f"weighting must be 'noise' or 'paper', got {weighting!r}", source="--weighting"
-            )
-        chosen: Weighting = "paper" if weighting == "paper" else "noise"
+        if solver not in SOLVERS:
+            raise InputError(f"solver must be one of {SOLVERS}, got {solver!r}", source="--solver")
+        chosen: Solver = solver
         grid = WavelengthGrid()
         variants = variant or list(VARIANTS)
         if offline:
@@ -188,7 +193,7 @@ def register(app: typer.Typer) -> None:
         console.print(
             summary_table(
                 rows,
-                f"Makabe 2025 §4.1 — lamp {lamp}, weighting {weighting}, basis: {basis_source}",
+                f"Makabe 2025 §4.1 — lamp {lamp}, solver {solver}, basis: {basis_source}",
             )
         )
         write_rows_csv(csv_path, rows)
@@ -202,7 +207,7 @@ def _run(
     variants: list[str],
     noise: str,
     lamp: str,
-    weighting: Weighting,
+    solver: Solver,
     repeats: int,
     seed: int,
 ) -> list[SyntheticRow]:
@@ -215,7 +220,7 @@ def _run(
             variants=variants,
             noise_levels=_parse_noise(noise),
             broadband_lamp=lamp,
-            weighting=weighting,
+            solver=solver,
             repeats=repeats,
             seed=seed,
             progress=lambda row: status.update(

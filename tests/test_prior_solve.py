@@ -1,0 +1,110 @@
+"""calib.prior_solve: the camera-prior solve, its companions and its uncertainty."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib.bases import CameraBasis, fallback_camera_basis, fourier_basis
+from calib.datasets import colour_science_cameras, find_camera
+from calib.errors import InputError
+from calib.forward import PeakFractionNoise, render_observation
+from calib.linear_model import prepare_lamp
+from calib.makabe2025 import estimate_makabe2025
+from calib.mapping import QuadraticMapping
+from calib.metrics import relative_error
+from calib.observations import LampObservation
+from calib.prior_solve import fit_response, solve_with_prior
+from calib.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.synthetic import colour_lamp, random_efficiency
+
+MAPPING = QuadraticMapping(1.5e-5, 0.40, 385.0, pixel_range=(0.0, 849.0))
+
+
+@pytest.fixture(scope="module")
+def basis() -> CameraBasis:
+    return fallback_camera_basis(exclude=["Canon EOS 5D Mark II"])
+
+
+@pytest.fixture(scope="module")
+def camera() -> MultiSpectrum:
+    return find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+
+
+def _render(
+    lamp: str, camera: MultiSpectrum, noise: float, seed: int, kind: str = "led"
+) -> LampObservation:
+    return render_observation(
+        colour_lamp(lamp),
+        camera,
+        mapping=MAPPING,
+        pixel=850,
+        grating_efficiency=random_efficiency(np.random.default_rng(5)),
+        noise=PeakFractionNoise(noise) if noise else None,
+        rng=np.random.default_rng(seed),
+        kind=kind,  # type: ignore[arg-type]
+    ).observation
+
+
+def _truth(camera: MultiSpectrum) -> np.ndarray:
+    values = np.asarray(camera.resample(DEFAULT_GRID).values)
+    return np.asarray(values / values.max())
+
+
+def test_the_response_fit_reproduces_a_noise_free_profile(basis, camera):
+    observation = _render("LED-B3", camera, 0.0, 1)
+    estimate = fit_response(prepare_lamp(observation, DEFAULT_GRID), MAPPING)
+    assert estimate.used_pixels.sum() > 600
+    # The response η·s at the grid nodes; its shape follows the camera times a smooth η.
+    assert np.all(np.isfinite(estimate.response))
+    assert estimate.covariance.shape == (3, DEFAULT_GRID.size, DEFAULT_GRID.size)
+
+
+def test_a_companion_lamp_constrains_the_efficiency(basis, camera):
+    """The fluorescent lamp's own direct signal adds three equations on η⁻¹: errors go down."""
+    led_errors, joint_errors = [], []
+    for seed in range(3):
+        led = _render("LED-B3", camera, 0.005, seed)
+        fluorescent = _render("FL2", camera, 0.005, 100 + seed, kind="fluorescent")
+        alone = estimate_makabe2025([led], basis=basis, mapping=MAPPING)
+        joint = estimate_makabe2025([led, fluorescent], basis=basis, mapping=MAPPING)
+        assert joint.diagnostics["efficiency_lamps"] == ["LED-B3", "FL2"]
+        led_errors.append(relative_error(alone.sensitivity, _truth(camera)))
+        joint_errors.append(relative_error(joint.sensitivity, _truth(camera)))
+    assert np.mean(joint_errors) < np.mean(led_errors)
+
+
+def test_uncertainty_grows_with_the_noise(basis, camera):
+    sigmas = []
+    for noise in (0.003, 0.03):
+        result = estimate_makabe2025(
+            [_render("D65", camera, noise, 2)], basis=basis, mapping=MAPPING
+        )
+        assert result.sensitivity_sigma is not None
+        assert np.all(np.isfinite(result.sensitivity_sigma)) and np.all(
+            result.sensitivity_sigma >= 0
+        )
+        sigmas.append(float(np.median(result.sensitivity_sigma)))
+    assert sigmas[1] > 2 * sigmas[0]
+
+
+def test_the_direct_measurement_is_required(basis, camera):
+    observation = _render("D65", camera, 0.0, 0)
+    without = LampObservation(
+        observation.name, observation.spectrum, observation.pixel, observation.profile
+    )
+    with pytest.raises(InputError, match="direct"):
+        solve_with_prior(
+            prepare_lamp(without, DEFAULT_GRID), MAPPING, basis.prior(), fourier_basis(DEFAULT_GRID)
+        )
+
+
+def test_the_result_honours_the_direct_measurement(basis, camera):
+    """The solve's sensitivity reproduces the measured direct RGB (it is an exact constraint)."""
+    observation = _render("D65", camera, 0.01, 4)
+    system = prepare_lamp(observation, DEFAULT_GRID)
+    solution = solve_with_prior(system, MAPPING, basis.prior(), fourier_basis(DEFAULT_GRID))
+    assert observation.direct_rgb is not None
+    np.testing.assert_allclose(
+        system.operators.direct_row @ solution.sensitivity, observation.direct_rgb, rtol=1e-9
+    )
