@@ -1,0 +1,74 @@
+"""Estimate and write every output file: the function both command lines call."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from calib.offline.inputs import LampInput
+from calib.offline.pipeline import (
+    OfflineEstimate,
+    OfflineProgress,
+    OfflineSettings,
+    estimate_offline,
+)
+from calib.offline.provenance import InputFile
+
+
+@dataclass(frozen=True, eq=False)
+class OfflineOutcome:
+    """An estimate and the files written for it (``sensitivity``, ``result``, ``report`` …)."""
+
+    estimate: OfflineEstimate
+    files: Mapping[str, Path]
+    timings: Mapping[str, float]
+
+
+def run_offline(
+    lamps: Sequence[LampInput],
+    out_dir: Path,
+    settings: OfflineSettings | None = None,
+    *,
+    progress: OfflineProgress | None = None,
+    known_inputs: Sequence[InputFile] = (),
+    report: bool = True,
+) -> OfflineOutcome:
+    """Run :func:`calib.offline.estimate_offline` and write its outputs into ``out_dir``.
+
+    Parameters
+    ----------
+    lamps, settings, progress, known_inputs
+        As for :func:`calib.offline.estimate_offline`.
+    out_dir
+        Created if missing.
+    report
+        Also write ``report.html`` with its plots.
+
+    Returns
+    -------
+    OfflineOutcome
+    """
+    from calib.outputs import write_outputs
+
+    started = time.perf_counter()
+    estimate = estimate_offline(
+        lamps, settings or OfflineSettings(), progress=progress, known_inputs=known_inputs
+    )
+    if progress is not None:
+        progress.stage("writing the results")
+    step = time.perf_counter()
+    files = dict(write_outputs(out_dir, estimate))
+    timings = dict(estimate.timings)
+    timings["outputs_s"] = time.perf_counter() - step
+    if report:
+        from calib.report import write_report
+
+        if progress is not None:
+            progress.stage("writing the report")
+        step = time.perf_counter()
+        files.update(write_report(out_dir, estimate, files))
+        timings["report_s"] = time.perf_counter() - step
+    timings["total_s"] = time.perf_counter() - started
+    return OfflineOutcome(estimate, files, timings)
