@@ -24,46 +24,6 @@ from calib.errors import CalibError, InputError
 _RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
 
 
-class RichFrameProgress:
-    """A rich progress bar on stderr: frames decoded and merged, then the stages."""
-
-    def __init__(self, stream: TextIO) -> None:
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-        )
-
-        self._progress = Progress(
-            TextColumn("{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            console=Console(file=stream),
-            transient=False,
-        )
-        self._task = self._progress.add_task("checking inputs", total=None)
-
-    def __enter__(self) -> RichFrameProgress:
-        self._progress.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._progress.stop()
-
-    def start(self, total_frames: int) -> None:
-        self._progress.update(self._task, total=total_frames or None, completed=0)
-
-    def frame_done(self, lamp: str, path: Path) -> None:
-        self._progress.update(self._task, advance=1, description=f"{lamp}: merged {path.name}")
-
-    def stage(self, description: str) -> None:
-        self._progress.update(self._task, description=description)
-
-
 def _check_out_dir(out_dir: Path, force: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("exists and is not a directory", source=f"--out {out_dir}")
@@ -162,6 +122,7 @@ def run(argv: Sequence[str], *, stdout: TextIO | None = None, stderr: TextIO | N
 
 def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO) -> Any:
     from calib.offline import OfflineSettings, run_offline
+    from calib.offline.progress import RichFrameProgress
 
     assert arguments.out_dir is not None
     _check_out_dir(arguments.out_dir, arguments.force)

@@ -16,13 +16,8 @@ PosixPath('out/sensitivity.csv')
 """
 
 from calib.offline.inputs import LampImages, LampInput, LampProfile
-from calib.offline.pipeline import (
-    NoProgress,
-    OfflineEstimate,
-    OfflineProgress,
-    OfflineSettings,
-    estimate_offline,
-)
+from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
+from calib.offline.progress import NoProgress, OfflineProgress, RichFrameProgress
 from calib.offline.provenance import InputFile, Provenance
 from calib.offline.run import OfflineOutcome, run_offline
 
@@ -37,6 +32,7 @@ __all__ = [
     "OfflineProgress",
     "OfflineSettings",
     "Provenance",
+    "RichFrameProgress",
     "estimate_offline",
     "run_offline",
 ]

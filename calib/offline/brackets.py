@@ -32,7 +32,14 @@ from numpy.typing import NDArray
 from calib.errors import InputError
 from calib.hdr import HdrImage, merge_bracket
 from calib.offline.inputs import LampImages
-from calib.profiles import DetectionError, DiffractionGeometry, Extraction, detect_geometry, extract
+from calib.profiles import (
+    DetectionError,
+    DiffractionGeometry,
+    Extraction,
+    OrderBand,
+    detect_geometry,
+    extract,
+)
 from calib.profiles.geometry import rectangle_corners
 from calib.raw import PlaneRegion, RawPlanes
 
@@ -48,6 +55,9 @@ COARSE_MAX_SIZE = 512
 REGION_MAX_FRACTION = 0.6
 #: Kinds of lamp whose smooth spectra make good geometry (and band-brightness) references.
 BROADBAND_KINDS = ("led", "halogen", "other")
+#: Each end of a first order is extended by this fraction of its detected length (see
+#: :func:`extend_orders`).
+EXTENSION_FRACTION = 0.15
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,6 +152,74 @@ def _rectangles(
     return rectangles
 
 
+def _fits(
+    geometry: DiffractionGeometry,
+    band: OrderBand,
+    start: float,
+    stop: float,
+    shape: tuple[int, int],
+) -> bool:
+    """The band from ``start`` to ``stop`` (with its background strips) lies inside ``shape``."""
+    reach = band.band_half_width_px + geometry.background_gap_px + geometry.background_width_px
+    offset = band.centre_offset_px
+    corners = rectangle_corners(
+        geometry.spot_centre_px, band.angle_deg, (start, stop), (offset - reach, offset + reach)
+    )
+    height, width = shape
+    return bool(
+        corners[:, 0].min() >= 0
+        and corners[:, 1].min() >= 0
+        and corners[:, 0].max() <= width - 1
+        and corners[:, 1].max() <= height - 1
+    )
+
+
+def extend_orders(
+    geometry: DiffractionGeometry, shape_px: tuple[int, int], fraction: float = EXTENSION_FRACTION
+) -> tuple[DiffractionGeometry, list[str]]:
+    """Extend each first order beyond its detected (lit) extent, where the image allows.
+
+    Detection ends a band where its light falls below 1 % of the maximum, which for many lamps lies
+    inside the working grid (no LED emits at 400 nm). A profile that stops there leaves the ends of
+    the wavelength range unconstrained, and the mapping refinement drifts by nanometres; with dark
+    pixels beyond the grid's ends in the profile it does not. Each end moves out by ``fraction`` of
+    the band's length, but not into the direct spot, not beyond 1.9 × the band's start (where a 2nd
+    order may begin) and not so far that the band or its background strips leave ``shape_px``.
+
+    Returns
+    -------
+    (DiffractionGeometry, list of str)
+        The extended geometry (same coordinates) and a note per extended order.
+    """
+    orders = []
+    notes = []
+    along, _ = geometry.spot_half_size_px
+    floor = along + geometry.background_gap_px
+    for band in geometry.orders:
+        length = band.stop_px - band.start_px
+        wanted_start = max(band.start_px - fraction * length, floor, 0.0)
+        wanted_stop = band.stop_px + fraction * length
+        if band.start_px > 0:
+            wanted_stop = min(wanted_stop, max(1.9 * band.start_px, band.stop_px))
+        start, stop = band.start_px, band.stop_px
+        for _ in range(24):  # bisect towards the largest extension that fits
+            if _fits(geometry, band, wanted_start, wanted_stop, shape_px):
+                start, stop = wanted_start, wanted_stop
+                break
+            if not _fits(geometry, band, wanted_start, band.stop_px, shape_px):
+                wanted_start = 0.5 * (wanted_start + band.start_px)
+            if not _fits(geometry, band, band.start_px, wanted_stop, shape_px):
+                wanted_stop = 0.5 * (wanted_stop + band.stop_px)
+        if (start, stop) != (band.start_px, band.stop_px):
+            notes.append(
+                f"order {band.side:+d} extended from {band.start_px:.0f}–{band.stop_px:.0f} px to "
+                f"{start:.0f}–{stop:.0f} px beyond its lit extent, so the profile covers the "
+                "working grid's ends"
+            )
+        orders.append(replace(band, start_px=start, stop_px=stop))
+    return replace(geometry, orders=tuple(orders)), notes
+
+
 def region_for(
     geometry: DiffractionGeometry, plane_shape: tuple[int, int], *, coarse_pitch_px: float
 ) -> PlaneRegion | None:
@@ -155,7 +233,10 @@ def region_for(
     margin = max(4.0 * coarse_pitch_px, 48.0)
     for angle, (u0, u1), (v0, v1) in _rectangles(geometry):
         length = u1 - u0
-        extra_along = margin + (0.15 * length if length > 4 * margin else 0.0)
+        # room for the coarse geometry's error, the band's faint ends and extend_orders
+        extra_along = margin + (
+            (0.15 + EXTENSION_FRACTION) * length if length > 4 * margin else 0.0
+        )
         half_across = 0.5 * (v1 - v0)
         extra_across = margin + 0.75 * half_across
         corners = rectangle_corners(
@@ -394,6 +475,12 @@ def bracket_profiles(
                 )
             else:
                 geometry, geometry_lamp = better, brightest
+    reference = merged[geometry_lamp].image
+    extended, extension_notes = extend_orders(
+        shift_geometry(geometry, reference), reference.sensor_shape_px
+    )
+    geometry = to_sensor(extended, reference)
+    notes.extend(extension_notes)
     extractions = tuple(
         LampExtraction(
             merged[lamp.name],

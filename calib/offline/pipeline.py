@@ -20,7 +20,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -40,44 +40,17 @@ from calib.offline.inputs import (
     read_profile_csv,
 )
 from calib.offline.known_grating import estimate_with_known_grating
+from calib.offline.progress import NoProgress, OfflineProgress
 from calib.offline.provenance import FileHasher, InputFile, Provenance
 from calib.raw import read_raw_metadata
 from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 
 __all__ = [
-    "NoProgress",
     "OfflineEstimate",
-    "OfflineProgress",
     "OfflineSettings",
     "estimate_offline",
 ]
-
-
-class OfflineProgress(Protocol):
-    """Receives the pipeline's progress (a progress bar, a log, a test)."""
-
-    def start(self, total_frames: int) -> None:
-        """The pipeline will merge ``total_frames`` RAW frames (0 for profile input)."""
-
-    def frame_done(self, lamp: str, path: Path) -> None:
-        """One frame of ``lamp`` is decoded and merged."""
-
-    def stage(self, description: str) -> None:
-        """A new stage begins (``"detecting the geometry on LED-B3"``, ``"estimating"`` …)."""
-
-
-class NoProgress:
-    """An :class:`OfflineProgress` that shows nothing."""
-
-    def start(self, total_frames: int) -> None:
-        pass
-
-    def frame_done(self, lamp: str, path: Path) -> None:
-        pass
-
-    def stage(self, description: str) -> None:
-        pass
 
 
 @dataclass(frozen=True)
@@ -103,6 +76,8 @@ class OfflineSettings:
         Merge RAW frames over a region of interest: ``None`` decides by frame size.
     command_line
         The command as typed, recorded in the result.
+    warnings, notes
+        The caller's own warnings and notes (an incomplete session …), recorded with the result.
     """
 
     method: str = "makabe2025"
@@ -113,6 +88,8 @@ class OfflineSettings:
     grating: Path | GratingEfficiency | None = None
     use_region: bool | None = None
     command_line: tuple[str, ...] | None = None
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -326,8 +303,8 @@ def estimate_offline(
     timings: dict[str, float] = {}
     started = time.perf_counter()
     checked = _check_inputs(lamps, settings)
-    warnings = list(checked.warnings)
-    notes: list[str] = []
+    warnings = [*settings.warnings, *checked.warnings]
+    notes = list(settings.notes)
     timings["checks_s"] = time.perf_counter() - started
     known = {record.path for record in known_inputs}
     with FileHasher() as hasher:

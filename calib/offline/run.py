@@ -8,12 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from calib.offline.inputs import LampInput
-from calib.offline.pipeline import (
-    OfflineEstimate,
-    OfflineProgress,
-    OfflineSettings,
-    estimate_offline,
-)
+from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
+from calib.offline.progress import OfflineProgress
 from calib.offline.provenance import InputFile
 
 

@@ -1,0 +1,74 @@
+"""Progress of the offline pipeline: the protocol it reports to, and a rich progress bar."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol, TextIO
+
+
+class OfflineProgress(Protocol):
+    """Receives the pipeline's progress (a progress bar, a log, a test)."""
+
+    def start(self, total_frames: int) -> None:
+        """The pipeline will merge ``total_frames`` RAW frames (0 for profile input)."""
+
+    def frame_done(self, lamp: str, path: Path) -> None:
+        """One frame of ``lamp`` is decoded and merged."""
+
+    def stage(self, description: str) -> None:
+        """A new stage begins (``"detecting the geometry on LED-B3"``, ``"estimating"`` …)."""
+
+
+class NoProgress:
+    """An :class:`OfflineProgress` that shows nothing."""
+
+    def start(self, total_frames: int) -> None:
+        pass
+
+    def frame_done(self, lamp: str, path: Path) -> None:
+        pass
+
+    def stage(self, description: str) -> None:
+        pass
+
+
+class RichFrameProgress:
+    """A rich progress bar (on ``stream``, e.g. stderr): frames merged, then the stages.
+
+    Use as a context manager; it implements :class:`OfflineProgress`.
+    """
+
+    def __init__(self, stream: TextIO) -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+        )
+
+        self._progress = Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=Console(file=stream),
+        )
+        self._task = self._progress.add_task("checking inputs", total=None)
+
+    def __enter__(self) -> RichFrameProgress:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._progress.stop()
+
+    def start(self, total_frames: int) -> None:
+        self._progress.update(self._task, total=total_frames or None, completed=0)
+
+    def frame_done(self, lamp: str, path: Path) -> None:
+        self._progress.update(self._task, advance=1, description=f"{lamp}: merged {path.name}")
+
+    def stage(self, description: str) -> None:
+        self._progress.update(self._task, description=description)
