@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from calib.errors import InputError
+from calib.errors import EstimationError, InputError
 from calib.hdr import HdrImage, merge_bracket
 from calib.offline.inputs import LampImages
 from calib.profiles import (
@@ -335,14 +335,20 @@ def merge_lamp(
         if frame_done is not None:
             frame_done(lamp.name, path)
 
-    return merge_bracket(
-        lamp.images,
-        darks=lamp.darks,
-        exposure_s=lamp.exposure_s,
-        dark_exposure_s=lamp.dark_exposure_s if lamp.darks else None,
-        progress=progress,
-        region=region,
-    )
+    try:
+        return merge_bracket(
+            lamp.images,
+            darks=lamp.darks,
+            exposure_s=lamp.exposure_s,
+            dark_exposure_s=lamp.dark_exposure_s if lamp.darks else None,
+            progress=progress,
+            region=region,
+        )
+    except EstimationError as exc:  # the frames hold too little signal to measure their noise
+        raise InputError(
+            f"{exc}; is the lamp on and the first order in the frames?",
+            source=f"lamp {lamp.name!r}",
+        ) from exc
 
 
 def band_snr(extraction: Extraction) -> float:
