@@ -182,7 +182,7 @@ def estimate(
     from rig.estimate import estimate_session
 
     command_line = ("rig", "estimate", *sys.argv[2:])
-    if quiet:
+    if quiet or not RichFrameProgress.wanted(sys.stderr):
         outcome = estimate_session(
             session, out, method=method, data_dir=data_dir, command_line=command_line
         )

@@ -134,7 +134,7 @@ def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: 
         grating=arguments.grating,
         command_line=command_line,
     )
-    if arguments.quiet or (arguments.json_output and not err.isatty()):
+    if arguments.quiet or not RichFrameProgress.wanted(err):
         return run_offline(arguments.lamps, arguments.out_dir, settings)
     with RichFrameProgress(err) as progress:
         return run_offline(arguments.lamps, arguments.out_dir, settings, progress=progress)

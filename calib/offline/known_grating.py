@@ -17,9 +17,9 @@ The mapping is given (e.g. a profile already in wavelength), or found from a flu
 weighted residual over the mapping (variable projection, :func:`calib.mapping.refine_mapping`), which
 also estimates the mapping's error.
 
-The sensitivity's standard deviation comes from the weighted least-squares covariance (scaled by the
-reduced χ² when it exceeds 1), for the mapping found; the efficiency's uncertainty is not propagated
-(it is reported as given).
+The sensitivity's standard deviation combines the weighted least-squares covariance (scaled by the
+reduced χ² when it exceeds 1) with what the found mapping's covariance adds (first order, by central
+differences); a given efficiency's uncertainty is reported as given, not propagated.
 """
 
 from __future__ import annotations
@@ -188,45 +188,95 @@ def _weighted_residual(lamps: Sequence[_LampRows], basis: CameraBasis) -> Any:
 
 def _find_mapping(
     mapping_lamp: _LampRows,
-    solve_lamps: Sequence[_LampRows],
+    all_lamps: Sequence[_LampRows],
     basis: CameraBasis,
     grid: WavelengthGrid,
     efficiency: GratingEfficiency | None,
 ) -> QuadraticMapping:
+    """Starts from the mapping lamp (its lines, or the broadband search), refined on every lamp.
+
+    With η known, every lamp — fluorescent ones included — follows the same linear model, so the
+    refinement minimises the joint weighted residual of all lamps (each with its own brightness);
+    the lowest cost over all starts wins (the residual has local minima a few nm apart).
+    """
     observation = mapping_lamp.observation
     pixel, profile = observation.pixel, observation.profile
     pixel_range = (float(pixel[0]), float(pixel[-1]))
+    through_grating = _lamp_through_grating(observation, efficiency, grid)
+    starts: list[QuadraticMapping] = []
+    method = "broadband-search+refined"
     if observation.kind == "fluorescent":
-        start = mapping_from_peaks(
-            _lamp_through_grating(observation, efficiency, grid),
-            pixel,
-            profile,
-            basis.mean,
-            grid=grid,
-        )
-        starts = [start]
-        # the lines give the start; the broadband solve lamps' residual refines it (as makabe2025)
-        refine_lamps: Sequence[_LampRows] = solve_lamps
+        starts.append(mapping_from_peaks(through_grating, pixel, profile, basis.mean, grid=grid))
         method = "fluorescent-peaks+refined"
-    else:
-        model_nm, model = model_curve_on_fine_axis(
-            _lamp_through_grating(observation, efficiency, grid), basis.mean, grid
+    broadband = next((lamp for lamp in all_lamps if lamp.observation.kind != "fluorescent"), None)
+    search = broadband or mapping_lamp
+    model_nm, model = model_curve_on_fine_axis(
+        _lamp_through_grating(search.observation, efficiency, grid), basis.mean, grid
+    )
+    try:
+        starts.extend(
+            coarse_mapping_candidates(
+                search.observation.pixel, search.observation.profile, model_nm, model, grid=grid
+            )
         )
-        starts = coarse_mapping_candidates(pixel, profile, model_nm, model, grid=grid)
-        refine_lamps = [mapping_lamp]
-        method = "broadband-search+refined"
-    best: tuple[float, QuadraticMapping] | None = None
-    for start in starts:
-        refined, cost = refine_mapping(
-            start, _weighted_residual(refine_lamps, basis), pixel_range=pixel_range, method=method
-        )
+    except EstimationError:
+        if not starts:
+            raise
+    residual = _weighted_residual(all_lamps, basis)
+    best: tuple[float, QuadraticMapping, int] | None = None
+    for index, start in enumerate(starts):
+        refined, cost = refine_mapping(start, residual, pixel_range=pixel_range, method=method)
         if best is None or cost < best[0]:
-            best = (cost, refined)
+            best = (cost, refined, index)
     if best is None:
         raise EstimationError(f"no mapping found with lamp {observation.name!r}")
-    return best[1].with_details(
-        details={**dict(best[1].details), "mapping_lamp": observation.name, "n_starts": len(starts)}
+    cost, found, index = best
+    if observation.kind == "fluorescent" and index > 0:
+        found = found.with_details(method="broadband-search+refined")
+    return found.with_details(
+        details={
+            **dict(found.details),
+            "mapping_lamp": observation.name,
+            "n_starts": len(starts),
+            "refined_with": [lamp.observation.name for lamp in all_lamps],
+        }
     )
+
+
+def _mapping_variance(
+    lamps: Sequence[_LampRows], mapping: QuadraticMapping, basis: CameraBasis
+) -> FloatArray:
+    """Variance ``(f, 3)`` the mapping's covariance adds to the sensitivity (first order).
+
+    ``∂s/∂θ`` by central differences over the mapping's three anchor wavelengths (0.05 nm).
+    """
+    if mapping.covariance is None or mapping.pixel_range is None:
+        return np.zeros((basis.grid.size, 3))
+    low, high = mapping.pixel_range
+    anchors = np.array([low, 0.5 * (low + high), high])
+    to_coefficients = np.linalg.inv(np.stack([anchors**2, anchors, np.ones(3)], axis=1))
+    covariance = np.asarray(mapping.covariance, dtype=np.float64)
+    # covariance of the anchor wavelengths from that of (a, b, c)
+    design = np.stack([anchors**2, anchors, np.ones(3)], axis=1)
+    anchor_covariance = design @ covariance @ design.T
+    step = 0.05
+    base = mapping.wavelength_nm(anchors)
+    derivatives = []
+    for k in range(3):
+        curves = []
+        for sign in (1.0, -1.0):
+            moved = base.copy()
+            moved[k] += sign * step
+            a, b, c = to_coefficients @ moved
+            solution = _solve(lamps, QuadraticMapping(float(a), float(b), float(c)), basis)
+            curves.append(_sensitivity(solution, basis))
+        derivatives.append((curves[0] - curves[1]) / (2 * step))
+    jacobian = np.stack(derivatives, axis=-1)  # (f, 3, 3 anchors)
+    return np.asarray(np.einsum("fca,ab,fcb->fc", jacobian, anchor_covariance, jacobian))
+
+
+def _sensitivity(solution: _Solution, basis: CameraBasis) -> FloatArray:
+    return np.stack([basis.channel(c) @ solution.coefficients[c] for c in range(3)], axis=1)
 
 
 def estimate_with_known_grating(
@@ -303,12 +353,14 @@ def estimate_with_known_grating(
         if mapping_lamp is None:
             fluorescent = [o.name for o in observations if o.kind == "fluorescent"]
             mapping_lamp = fluorescent[0] if fluorescent else solve[0].observation.name
-        used_mapping = _find_mapping(prepared[mapping_lamp], solve, basis, grid, efficiency)
+        used_mapping = _find_mapping(
+            prepared[mapping_lamp], list(prepared.values()), basis, grid, efficiency
+        )
     timings["mapping_s"] = time.perf_counter() - step
     step = time.perf_counter()
     solution = _solve(solve, used_mapping, basis)
     timings["solve_s"] = time.perf_counter() - step
-    sensitivity = np.stack([basis.channel(c) @ solution.coefficients[c] for c in range(3)], axis=1)
+    sensitivity = _sensitivity(solution, basis)
     reduced_chi2 = solution.chi2 / solution.dof
     variance = np.stack(
         [
@@ -317,6 +369,8 @@ def estimate_with_known_grating(
         ],
         axis=1,
     ) * max(reduced_chi2, 1.0)
+    if mapping is None and isinstance(used_mapping, QuadraticMapping):
+        variance = variance + _mapping_variance(solve, used_mapping, basis)
     peak = float(np.max(sensitivity))
     if not np.isfinite(peak) or peak <= 0:
         raise EstimationError(

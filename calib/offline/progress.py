@@ -61,8 +61,16 @@ class RichFrameProgress:
         self._progress.start()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        if kind is not None:  # the error message follows; leave no half-filled bar above it
+            self._progress.update(self._task, visible=False)
         self._progress.stop()
+
+    @staticmethod
+    def wanted(stream: TextIO) -> bool:
+        """Whether ``stream`` is a terminal (a progress bar in a log file is only noise)."""
+        isatty = getattr(stream, "isatty", None)
+        return bool(isatty is not None and isatty())
 
     def start(self, total_frames: int) -> None:
         self._progress.update(self._task, total=total_frames or None, completed=0)
