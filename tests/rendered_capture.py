@@ -12,6 +12,7 @@ import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -149,6 +150,6 @@ def render_capture(
         pixel_range_px=ORDER_RANGE_PX,
         direct_throughput=direct_throughput,
         dark_frames=dark_frames,
-        **dng_fields,
+        **cast(dict[str, Any], dng_fields),
     )
     return Capture(rendered, truth / truth.max(), basis, layout, sensor)

@@ -200,7 +200,10 @@ def test_console_script_exit_codes(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=60, check=False,
     )  # fmt: skip
     assert done.returncode == 2, done.stderr
-    assert done.stderr.strip().startswith("calib estimate: error:") and "none.dng: file not found" in done.stderr
+    assert (
+        done.stderr.strip().startswith("calib estimate: error:")
+        and "none.dng: file not found" in done.stderr
+    )
     assert done.stderr.count("\n") == 1
     help_text = subprocess.run(
         [str(script), "estimate", "--help"], capture_output=True, text=True, timeout=60, check=False

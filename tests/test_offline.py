@@ -15,11 +15,18 @@ import pytest
 
 from calib.errors import InputError
 from calib.mapping import QuadraticMapping
-from calib.offline import LampImages, OfflineSettings, estimate_offline
-from calib.offline.brackets import extend_orders, shift_geometry
+from calib.offline import LampImages, OfflineEstimate, OfflineSettings, estimate_offline
+from calib.offline.brackets import BracketProfiles, extend_orders, shift_geometry
 from tests.rendered_capture import GRATING, Capture, render_capture
 
 RE_TARGET = 0.05
+
+
+def _profiles(estimate: OfflineEstimate) -> BracketProfiles:
+    assert estimate.profiles is not None
+    return estimate.profiles
+
+
 MAPPING_RE_TARGET = 0.006
 
 
@@ -47,11 +54,13 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Capture:
 
 
 @pytest.fixture(scope="module")
-def estimate(capture: Capture):  # type: ignore[no-untyped-def]
+def estimate(capture: Capture) -> OfflineEstimate:
     return estimate_offline(_inputs(capture), OfflineSettings(basis=capture.basis))
 
 
-def test_round_trip_matches_the_renderers_truth(capture: Capture, estimate) -> None:  # type: ignore[no-untyped-def]
+def test_round_trip_matches_the_renderers_truth(
+    capture: Capture, estimate: OfflineEstimate
+) -> None:
     result = estimate.result
     pixel = estimate.observations[0].pixel
     relative, mapping = capture.errors(result, pixel)
@@ -64,19 +73,21 @@ def test_round_trip_matches_the_renderers_truth(capture: Capture, estimate) -> N
     assert mapping / 4 < result.mapping_re_estimate < mapping * 4
     # both lamps share one pixel axis: distance from the spot in sensor pixels
     np.testing.assert_array_equal(estimate.observations[0].pixel, estimate.observations[1].pixel)
-    geometry = estimate.profiles.geometry
+    geometry = _profiles(estimate).geometry
     assert geometry.spot_centre_px == pytest.approx(capture.layout.spot_centre_px, abs=0.1)
     assert geometry.primary.angle_deg == pytest.approx(3.0, abs=0.05)
 
 
-def test_the_profile_covers_the_grid_beyond_the_lit_band(capture: Capture, estimate) -> None:  # type: ignore[no-untyped-def]
+def test_the_profile_covers_the_grid_beyond_the_lit_band(
+    capture: Capture, estimate: OfflineEstimate
+) -> None:
     pixel = estimate.observations[0].pixel
     wavelength = GRATING.wavelength_nm(pixel)
     assert wavelength[0] < 395 and wavelength[-1] > 705
     assert any("extended" in note for note in estimate.provenance.notes)
 
 
-def test_dark_frames_are_matched_and_recorded(capture: Capture, estimate) -> None:  # type: ignore[no-untyped-def]
+def test_dark_frames_are_matched_and_recorded(capture: Capture, estimate: OfflineEstimate) -> None:
     lamps = {lamp["name"]: lamp for lamp in estimate.provenance.lamps}
     for frame in lamps["LED"]["frames"]:
         assert len(frame["dark_frames"]) == 1
@@ -88,17 +99,19 @@ def test_dark_frames_are_matched_and_recorded(capture: Capture, estimate) -> Non
 
 def test_profiles_and_direct_agree_with_the_renderer_within_their_noise(
     capture: Capture,
-    estimate,  # type: ignore[no-untyped-def]
+    estimate: OfflineEstimate,
 ) -> None:
     for observation in estimate.observations:
         clean, clean_direct = capture.clean_profile(observation.name, observation.pixel)
         peak = int(np.argmax(clean[:, 1]))
         scale = float(np.sum(observation.profile[:, 1] * clean[:, 1]) / np.sum(clean[:, 1] ** 2))
+        assert observation.profile_sigma is not None
         z = (observation.profile - scale * clean) / observation.profile_sigma
         assert np.all(np.abs(z.mean(axis=0)) < 0.2), z.mean(axis=0)
         assert np.all((z.var(axis=0) > 0.7) & (z.var(axis=0) < 1.3)), z.var(axis=0)
         assert observation.profile[peak, 1] > 100 * observation.profile_sigma[peak, 1]
         # the direct RGB has the same colour as the truth (its scale is the 0th-order throughput)
+        assert observation.direct_rgb is not None and observation.direct_sigma is not None
         ratio = observation.direct_rgb / clean_direct
         sigma = observation.direct_sigma / clean_direct
         assert np.all(np.abs(ratio - ratio.mean()) < 5 * sigma + 2e-3 * ratio.mean()), ratio
@@ -109,11 +122,12 @@ def test_a_spot_clipped_in_long_frames_comes_from_the_short_ones(tmp_path: Path)
         tmp_path / "capture", tmp_path / "basis", lamps=("LED",), direct_throughput=5.0, seed=4
     )
     result = estimate_offline(_inputs(capture), OfflineSettings(basis=capture.basis))
-    led = result.profiles.extractions[0]
+    led = _profiles(result).extractions[0]
     longest = max(led.merged.image.frames, key=lambda record: record.exposure_s)
     assert max(longest.saturated_fraction) > 0  # the spot clipped in the longest frame
     observation = result.observations[0]
     _, clean_direct = capture.clean_profile("LED", observation.pixel)
+    assert observation.direct_rgb is not None
     ratio = observation.direct_rgb / clean_direct
     assert np.ptp(ratio) < 3e-3 * ratio.mean(), ratio
     assert result.warnings == ()
@@ -127,19 +141,23 @@ def test_region_of_interest_merge_agrees_with_the_whole_frame(tmp_path: Path) ->
     whole = estimate_offline(lamps, OfflineSettings(basis=capture.basis, use_region=False))
     region = estimate_offline(lamps, OfflineSettings(basis=capture.basis, use_region=True))
     assert whole.profiles is not None and region.profiles is not None
-    assert whole.profiles.region_origin_px is None
-    assert region.profiles.region_origin_px is not None
-    height, width = region.profiles.region_shape_px
+    assert _profiles(whole).region_origin_px is None
+    assert _profiles(region).region_origin_px is not None
+    shape = _profiles(region).region_shape_px
+    assert shape is not None
+    height, width = shape
     assert height * width < 0.6 * capture.sensor.height_px * capture.sensor.width_px
-    a, b = whole.profiles.geometry, region.profiles.geometry
+    a, b = _profiles(whole).geometry, _profiles(region).geometry
     assert a.spot_centre_px == pytest.approx(b.spot_centre_px, abs=0.05)
     assert a.primary.angle_deg == pytest.approx(b.primary.angle_deg, abs=0.02)
     first, second = whole.observations[0], region.observations[0]
     for observation in (first, second):  # both agree with the truth within their noise
         clean, _ = capture.clean_profile("LED", observation.pixel)
         scale = float(np.sum(observation.profile * clean) / np.sum(clean**2))
+        assert observation.profile_sigma is not None
         z = (observation.profile - scale * clean) / observation.profile_sigma
         assert np.all(np.abs(z.mean(axis=0)) < 0.2) and np.all(z.var(axis=0) < 1.3)
+    assert first.direct_rgb is not None and second.direct_rgb is not None
     np.testing.assert_allclose(first.direct_rgb, second.direct_rgb, rtol=2e-3)
 
 
@@ -160,7 +178,7 @@ def test_rotated_and_mirrored_geometry(tmp_path: Path, angle_deg: float, pattern
     )
     relative, mapping = capture.errors(result.result, result.observations[0].pixel)
     assert relative < RE_TARGET and mapping < MAPPING_RE_TARGET, (relative, mapping)
-    detected = result.profiles.geometry.primary.angle_deg
+    detected = _profiles(result).geometry.primary.angle_deg
     assert abs((detected - angle_deg + 180) % 360 - 180) < 0.1
 
 
@@ -169,7 +187,7 @@ def test_both_first_orders_in_frame_use_the_stronger(tmp_path: Path) -> None:
         tmp_path / "capture", tmp_path / "basis", lamps=("LED",), minus_first_strength=0.4, seed=8
     )
     result = estimate_offline(_inputs(capture), OfflineSettings(basis=capture.basis))
-    geometry = result.profiles.geometry
+    geometry = _profiles(result).geometry
     assert [band.side for band in geometry.orders] == [1, -1]
     assert geometry.primary.angle_deg == pytest.approx(3.0, abs=0.1)
     relative, mapping = capture.errors(result.result, result.observations[0].pixel)
@@ -289,13 +307,15 @@ def test_input_mistakes_are_named(tmp_path: Path, capture: Capture) -> None:
         )
 
 
-def test_extension_stops_at_the_frame_and_before_a_second_order(capture: Capture, estimate) -> None:  # type: ignore[no-untyped-def]
-    image, geometry = estimate.profiles.geometry_image()
+def test_extension_stops_at_the_frame_and_before_a_second_order(
+    capture: Capture, estimate: OfflineEstimate
+) -> None:
+    image, geometry = _profiles(estimate).geometry_image()
     band = geometry.primary
     tight = (image.sensor_shape_px[0], int(geometry.spot_centre_px[0] + band.stop_px + 60))
     extended, _ = extend_orders(geometry, tight)
     assert band.stop_px <= extended.primary.stop_px <= band.stop_px + 60
-    second = shift_geometry(estimate.profiles.geometry, image)
+    second = shift_geometry(_profiles(estimate).geometry, image)
     far, _ = extend_orders(second, (10_000, 10_000), fraction=5.0)
     limit = max(1.9 * second.primary.start_px, second.primary.stop_px)
     assert far.primary.stop_px <= limit + 1e-9
