@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.mapping import QuadraticMapping
+from calib.offline.brackets import BracketProfiles
 from calib.offline.pipeline import OfflineEstimate
 from calib.outputs import physical_sensitivity
 
@@ -198,13 +199,19 @@ def plot_fit(path: Path, estimate: OfflineEstimate, lamp: str) -> Path | None:
     return _save(figure, path)
 
 
-def plot_geometry(path: Path, estimate: OfflineEstimate) -> Path | None:
-    if estimate.profiles is None:
-        return None
+def plot_geometry(path: Path, profiles: BracketProfiles) -> Path:
+    """The detected geometry on the geometry lamp's image (:func:`calib.profiles.write_geometry_png`)."""
     from calib.profiles import write_geometry_png
 
-    image, geometry = estimate.profiles.geometry_image()
+    image, geometry = profiles.geometry_image()
+    path.parent.mkdir(parents=True, exist_ok=True)
     return write_geometry_png(path, image, geometry)
+
+
+def import_plotting() -> None:
+    """Import matplotlib's Agg canvas (about a second), e.g. in a thread while frames decode."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
 
 
 # ---------------------------------------------------------------------------------------- HTML
@@ -300,9 +307,15 @@ def _summary_rows(estimate: OfflineEstimate) -> list[tuple[str, object]]:
 
 
 def write_report(
-    out_dir: Path, estimate: OfflineEstimate, files: Mapping[str, Path] | None = None
+    out_dir: Path,
+    estimate: OfflineEstimate,
+    files: Mapping[str, Path] | None = None,
+    *,
+    prepared: Mapping[str, Path] | None = None,
 ) -> dict[str, Path]:
     """Write the plots (``plots/*.png``) and ``report.html`` into ``out_dir``.
+
+    ``prepared`` holds plots already drawn (``{"plot:geometry": path}``), which are reused.
 
     Returns
     -------
@@ -333,9 +346,12 @@ def write_report(
             plot_fit(plots_dir / f"fit-{stem}.png", estimate, observation.name),
             f"{observation.name}: profile vs. model",
         )
+    geometry = (prepared or {}).get("plot:geometry")
+    if geometry is None and estimate.profiles is not None:
+        geometry = plot_geometry(plots_dir / "geometry.png", estimate.profiles)
     add(
         "geometry",
-        plot_geometry(plots_dir / "geometry.png", estimate),
+        geometry,
         "detected geometry (direct spot, first order, background strips)",
     )
 

@@ -107,7 +107,10 @@ def test_profiles_and_direct_agree_with_the_renderer_within_their_noise(
         scale = float(np.sum(observation.profile[:, 1] * clean[:, 1]) / np.sum(clean[:, 1] ** 2))
         assert observation.profile_sigma is not None
         z = (observation.profile - scale * clean) / observation.profile_sigma
-        assert np.all(np.abs(z.mean(axis=0)) < 0.2), z.mean(axis=0)
+        # 0.3 σ, not less: calib.profiles takes the background as the median of the strips beside
+        # the band, and dark-subtracted values of one long frame lie on a lattice (1 DN / t), so
+        # the median can be off by up to half a step (a few DN/s; measured −0.2 σ in B for FL)
+        assert np.all(np.abs(z.mean(axis=0)) < 0.3), z.mean(axis=0)
         assert np.all((z.var(axis=0) > 0.7) & (z.var(axis=0) < 1.3)), z.var(axis=0)
         assert observation.profile[peak, 1] > 100 * observation.profile_sigma[peak, 1]
         # the direct RGB has the same colour as the truth (its scale is the 0th-order throughput)

@@ -41,7 +41,8 @@ from calib.profiles import (
     extract,
 )
 from calib.profiles.geometry import rectangle_corners
-from calib.raw import PlaneRegion, RawPlanes
+from calib.raw import PlaneRegion, RawPlanes, read_raw_metadata
+from calib.sensor_noise import NoiseModel
 
 FloatArray = NDArray[np.float64]
 #: ``frame_done(lamp_name, path)``: one frame of a lamp's bracket is merged.
@@ -53,6 +54,9 @@ REGION_MIN_SAMPLES = 2_000_000
 COARSE_MAX_SIZE = 512
 #: A region larger than this fraction of the frame is not worth it: the whole frame is merged.
 REGION_MAX_FRACTION = 0.6
+#: At most this fraction of the region may be lit (spot and bands): detection takes the
+#: background as the region's median.
+MAX_LIT_FRACTION = 0.35
 #: Kinds of lamp whose smooth spectra make good geometry (and band-brightness) references.
 BROADBAND_KINDS = ("led", "halogen", "other")
 #: Each end of a first order is extended by this fraction of its detected length (see
@@ -226,36 +230,53 @@ def region_for(
     """A plane-sample region holding everything extraction reads, with margins; ``None`` if large.
 
     The margins cover the coarse geometry's error (a few coarse samples), the band's faint ends
-    (15 % of its length beyond each end) and make the region mostly background across the band.
+    and :func:`extend_orders` (along), and make the region mostly background: detection estimates
+    the background as a median, so the lit area (spot and bands) is kept below
+    :data:`MAX_LIT_FRACTION` of the region by widening it across the bands where needed.
     """
-    xs: list[float] = []
-    ys: list[float] = []
     margin = max(4.0 * coarse_pitch_px, 48.0)
-    for angle, (u0, u1), (v0, v1) in _rectangles(geometry):
-        length = u1 - u0
-        # room for the coarse geometry's error, the band's faint ends and extend_orders
-        extra_along = margin + (
-            (0.15 + EXTENSION_FRACTION) * length if length > 4 * margin else 0.0
-        )
-        half_across = 0.5 * (v1 - v0)
-        extra_across = margin + 0.75 * half_across
-        corners = rectangle_corners(
-            geometry.spot_centre_px,
-            angle,
-            (u0 - extra_along, u1 + extra_along),
-            (v0 - extra_across, v1 + extra_across),
-        )
-        xs.extend(corners[:, 0])
-        ys.extend(corners[:, 1])
+    rectangles = _rectangles(geometry)
+    lit = 4.0 * float(np.prod(geometry.spot_half_size_px)) + sum(
+        2.0 * band.band_half_width_px * (band.stop_px - band.start_px) for band in geometry.orders
+    )
+
+    def bounds(extra_across: float) -> tuple[slice, slice]:
+        xs: list[float] = []
+        ys: list[float] = []
+        for angle, (u0, u1), (v0, v1) in rectangles:
+            length = u1 - u0
+            extra_along = margin + (
+                (0.15 + EXTENSION_FRACTION) * length if length > 4 * margin else 0.0
+            )
+            corners = rectangle_corners(
+                geometry.spot_centre_px,
+                angle,
+                (u0 - extra_along, u1 + extra_along),
+                (v0 - extra_across, v1 + extra_across),
+            )
+            xs.extend(corners[:, 0])
+            ys.extend(corners[:, 1])
+        height, width = plane_shape
+        rows = slice(max(math.floor(min(ys) / 2), 0), min(math.ceil(max(ys) / 2) + 1, height))
+        columns = slice(max(math.floor(min(xs) / 2), 0), min(math.ceil(max(xs) / 2) + 1, width))
+        return rows, columns
+
+    def area_px(region: tuple[slice, slice]) -> float:
+        rows, columns = region
+        return 4.0 * float(max(rows.stop - rows.start, 0) * max(columns.stop - columns.start, 0))
+
+    extra_across = margin
+    region = bounds(extra_across)
+    while lit > MAX_LIT_FRACTION * area_px(region) and extra_across < 8 * margin + 2000:
+        extra_across *= 1.5
+        widened = bounds(extra_across)
+        if area_px(widened) <= area_px(region):  # the frame's edges stop it
+            break
+        region = widened
     height, width = plane_shape
-    rows = slice(max(math.floor(min(ys) / 2), 0), min(math.ceil(max(ys) / 2) + 1, height))
-    columns = slice(max(math.floor(min(xs) / 2), 0), min(math.ceil(max(xs) / 2) + 1, width))
-    area = (rows.stop - rows.start) * (columns.stop - columns.start)
-    if rows.stop <= rows.start or columns.stop <= columns.start:
+    if area_px(region) <= 0 or area_px(region) > REGION_MAX_FRACTION * 4.0 * height * width:
         return None
-    if area > REGION_MAX_FRACTION * height * width:
-        return None
-    return rows, columns
+    return region
 
 
 def coarse_image(planes: RawPlanes, max_size: int = COARSE_MAX_SIZE) -> HdrImage:
@@ -328,8 +349,13 @@ def merge_lamp(
     lamp: LampImages,
     region: PlaneRegion | RegionChoice | None,
     frame_done: FrameCallback | None = None,
+    noise_model: NoiseModel | None = None,
 ) -> HdrImage:
-    """Merge one lamp's bracket (darks subtracted), over ``region`` when given."""
+    """Merge one lamp's bracket (darks subtracted), over ``region`` when given.
+
+    ``noise_model``: the camera's gain and read noise when already known (else estimated from
+    the bracket's green pairs).
+    """
 
     def progress(done: int, total: int, path: Path) -> None:
         if frame_done is not None:
@@ -343,6 +369,7 @@ def merge_lamp(
             dark_exposure_s=lamp.dark_exposure_s if lamp.darks else None,
             progress=progress,
             region=region,
+            noise_model=noise_model,
         )
     except EstimationError as exc:  # the frames hold too little signal to measure their noise
         raise InputError(
@@ -456,7 +483,9 @@ def bracket_profiles(
     for index in order[1:]:
         lamp = lamps[index]
         announce(f"merging {lamp.name}")
-        merged[lamp.name] = MergedLamp(lamp, merge_lamp(lamp, region, frame_done))
+        merged[lamp.name] = MergedLamp(
+            lamp, merge_lamp(lamp, region, frame_done, _same_camera_noise(image, lamp))
+        )
     _check_same_sensor(list(merged.values()))
     announce("extracting the profiles")
     geometry_lamp = first.name
@@ -509,6 +538,26 @@ def bracket_profiles(
         region_origin_px=origin,
         region_shape_px=shape,
         notes=tuple(notes),
+    )
+
+
+def _same_camera_noise(reference: HdrImage, lamp: LampImages) -> NoiseModel | None:
+    """The first lamp's noise model when ``lamp`` was taken by the same camera at the same ISO.
+
+    Gain and read noise belong to the camera and its ISO, not to the scene: estimating them once
+    saves a photon-transfer fit per lamp. (Dark frames still subtract per lamp.)
+    """
+    if reference.noise_model is None or not lamp.images:
+        return None
+    metadata = read_raw_metadata(lamp.images[0])
+    same_camera = reference.camera == metadata.camera != "unknown camera"
+    same_iso = reference.iso is not None and reference.iso == metadata.iso
+    if not (same_camera and same_iso):
+        return None
+    return NoiseModel(
+        reference.noise_model.gain_dn_per_electron,
+        reference.noise_model.read_noise_dn,
+        source=f"{reference.noise_model.source} (camera and ISO shared with another lamp)",
     )
 
 

@@ -17,7 +17,7 @@ Writing the files is :func:`calib.offline.run.run_offline`.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -272,6 +272,7 @@ def estimate_offline(
     *,
     progress: OfflineProgress | None = None,
     known_inputs: Sequence[InputFile] = (),
+    on_profiles: Callable[[BracketProfiles], object] | None = None,
 ) -> OfflineEstimate:
     """Run the pipeline from files to an estimate (see the module docstring).
 
@@ -286,6 +287,9 @@ def estimate_offline(
     known_inputs
         Files already hashed and verified by the caller (a session): not read again for the
         provenance.
+    on_profiles
+        Called with the RAW part's result as soon as the profiles are extracted (before the
+        estimate), e.g. to draw the geometry while the estimate runs.
 
     Returns
     -------
@@ -339,6 +343,8 @@ def estimate_offline(
                 frame_done=report.frame_done,
                 stage=report.stage,
             )
+            if on_profiles is not None:
+                on_profiles(profiles)
             notes.extend(profiles.notes)
             notes.append(f"geometry detected on {profiles.geometry_lamp}")
             for item in profiles.extractions:

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from calib.offline.brackets import BracketProfiles
 from calib.offline.inputs import LampInput
 from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
 from calib.offline.progress import OfflineProgress
@@ -47,24 +49,40 @@ def run_offline(
     OfflineOutcome
     """
     from calib.outputs import write_outputs
+    from calib.report import PLOTS_DIR, import_plotting, plot_geometry, write_report
 
     started = time.perf_counter()
-    estimate = estimate_offline(
-        lamps, settings or OfflineSettings(), progress=progress, known_inputs=known_inputs
-    )
-    if progress is not None:
-        progress.stage("writing the results")
-    step = time.perf_counter()
-    files = dict(write_outputs(out_dir, estimate))
-    timings = dict(estimate.timings)
-    timings["outputs_s"] = time.perf_counter() - step
-    if report:
-        from calib.report import write_report
+    # The report's plotting library is imported, and the geometry drawn, in a background thread
+    # while frames decode and the estimate runs (both mostly release the GIL).
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="report") as background:
+        drawn: dict[str, Future[Path]] = {}
 
+        def draw_geometry(profiles: BracketProfiles) -> None:
+            drawn["plot:geometry"] = background.submit(
+                plot_geometry, out_dir / PLOTS_DIR / "geometry.png", profiles
+            )
+
+        if report:
+            background.submit(import_plotting)
+        estimate = estimate_offline(
+            lamps,
+            settings or OfflineSettings(),
+            progress=progress,
+            known_inputs=known_inputs,
+            on_profiles=draw_geometry if report else None,
+        )
         if progress is not None:
-            progress.stage("writing the report")
+            progress.stage("writing the results")
         step = time.perf_counter()
-        files.update(write_report(out_dir, estimate, files))
-        timings["report_s"] = time.perf_counter() - step
+        files = dict(write_outputs(out_dir, estimate))
+        timings = dict(estimate.timings)
+        timings["outputs_s"] = time.perf_counter() - step
+        if report:
+            if progress is not None:
+                progress.stage("writing the report")
+            step = time.perf_counter()
+            prepared = {key: future.result() for key, future in drawn.items()}
+            files.update(write_report(out_dir, estimate, files, prepared=prepared))
+            timings["report_s"] = time.perf_counter() - step
     timings["total_s"] = time.perf_counter() - started
     return OfflineOutcome(estimate, files, timings)
