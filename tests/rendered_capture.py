@@ -8,8 +8,11 @@ basis. The lamps are colour-science's LED-B3 and FL2, as on the digital twin.
 
 from __future__ import annotations
 
+import atexit
 import functools
 import math
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
@@ -153,3 +156,25 @@ def render_capture(
         **cast(dict[str, Any], dng_fields),
     )
     return Capture(rendered, truth / truth.max(), basis, layout, sensor)
+
+
+_SHARED_DIRECTORY: list[Path] = []
+
+
+def _shared_directory() -> Path:
+    """A temporary directory for this test process, removed when it exits."""
+    if not _SHARED_DIRECTORY:
+        path = Path(tempfile.mkdtemp(prefix="spectral-rig-capture-"))
+        atexit.register(shutil.rmtree, path, ignore_errors=True)
+        _SHARED_DIRECTORY.append(path)
+    return _SHARED_DIRECTORY[0]
+
+
+@functools.cache
+def shared_capture() -> Capture:
+    """The standard capture (LED + FL, 5-frame brackets, dark frames, dark current 300 DN/s),
+    rendered once per test process and shared by the test modules that only read it."""
+    root = _shared_directory()
+    return render_capture(
+        root / "capture", root / "basis", dark_frames=True, dark_current_dn_per_s=300.0
+    )

@@ -19,13 +19,19 @@ from calib.grating_file import GratingEfficiency, write_grating_file
 from calib.metrics import relative_error
 from calib.offline import LampImages, LampProfile
 from calib.spectra import write_csv
-from tests.rendered_capture import GRATING, Capture, colour_lamps, efficiency, render_capture
+from tests.rendered_capture import (
+    GRATING,
+    Capture,
+    colour_lamps,
+    efficiency,
+    shared_capture,
+)
 from tests.synthetic_cameras import as_spectrum
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory: pytest.TempPathFactory) -> Capture:
-    return render_capture(tmp_path_factory.mktemp("capture"), tmp_path_factory.mktemp("basis"))
+def capture() -> Capture:
+    return shared_capture()
 
 
 @pytest.fixture(autouse=True)

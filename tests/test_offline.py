@@ -17,7 +17,7 @@ from calib.errors import InputError
 from calib.mapping import QuadraticMapping
 from calib.offline import LampImages, OfflineEstimate, OfflineSettings, estimate_offline
 from calib.offline.brackets import BracketProfiles, extend_orders, shift_geometry
-from tests.rendered_capture import GRATING, Capture, render_capture
+from tests.rendered_capture import GRATING, Capture, render_capture, shared_capture
 
 RE_TARGET = 0.05
 
@@ -44,13 +44,8 @@ def _inputs(capture: Capture, *, darks: bool = True) -> list[LampImages]:
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory: pytest.TempPathFactory) -> Capture:
-    return render_capture(
-        tmp_path_factory.mktemp("capture"),
-        tmp_path_factory.mktemp("basis"),
-        dark_frames=True,
-        dark_current_dn_per_s=300.0,
-    )
+def capture() -> Capture:
+    return shared_capture()
 
 
 @pytest.fixture(scope="module")

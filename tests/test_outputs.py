@@ -22,12 +22,12 @@ from calib.grating_file import (
 from calib.offline import LampImages, OfflineSettings, run_offline
 from calib.offline.run import OfflineOutcome
 from calib.spectra import DEFAULT_GRID, WavelengthGrid
-from tests.rendered_capture import Capture, render_capture
+from tests.rendered_capture import Capture, shared_capture
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory: pytest.TempPathFactory) -> Capture:
-    return render_capture(tmp_path_factory.mktemp("capture"), tmp_path_factory.mktemp("basis"))
+def capture() -> Capture:
+    return shared_capture()
 
 
 @pytest.fixture(scope="module")

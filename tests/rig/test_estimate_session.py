@@ -22,7 +22,7 @@ from rig.errors import SessionFormatError
 from rig.estimate import estimate_session
 from rig.records import PlanInfo, SoftwareInfo, StartRecord, StepRecord, StopRecord
 from rig.session import SessionWriter
-from tests.rendered_capture import BRACKET_S, Capture, colour_lamps, render_capture
+from tests.rendered_capture import BRACKET_S, Capture, colour_lamps, shared_capture
 
 LAMP_CONFIG = [
     {"name": "LED", "channel": 1, "kind": "led"},
@@ -135,13 +135,8 @@ def write_session(
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory: pytest.TempPathFactory) -> Capture:
-    return render_capture(
-        tmp_path_factory.mktemp("capture"),
-        tmp_path_factory.mktemp("basis"),
-        dark_frames=True,
-        dark_current_dn_per_s=200.0,
-    )
+def capture() -> Capture:
+    return shared_capture()
 
 
 @pytest.fixture(scope="module")
