@@ -118,7 +118,14 @@ def main() -> int:
         )
         command = [str(calib), "estimate"]
         for lamp in scene["lamps"]:
-            command += ["--lamp", lamp.name, "--kind", lamp.kind, "--images", *map(str, lamp.frames)]
+            command += [
+                "--lamp",
+                lamp.name,
+                "--kind",
+                lamp.kind,
+                "--images",
+                *map(str, lamp.frames),
+            ]
             command += ["--spectrum", str(lamp.spectrum_csv)]
         if arguments.data_dir is not None:
             command += ["--data-dir", str(arguments.data_dir)]
@@ -159,7 +166,9 @@ def main() -> int:
         f"  without start-up, imports and report: "
         f"{(inside - timings.get('report_s', 0)) / decode_loop:.2f} of the decode loop"
     )
-    print(f"peak memory ≤ {MEMORY_LIMIT_MB:.0f} MB: {'OK' if memory <= MEMORY_LIMIT_MB else 'OVER'}")
+    print(
+        f"peak memory ≤ {MEMORY_LIMIT_MB:.0f} MB: {'OK' if memory <= MEMORY_LIMIT_MB else 'OVER'}"
+    )
     print(
         f"RE against the rendering camera {scene['camera'].name}: {relative:.4f} (mapping RE "
         f"estimate {summary['mapping_re_estimate']:.2e}; basis: {'--data-dir' if arguments.data_dir else 'default'})"
@@ -171,7 +180,9 @@ def estimated_grid(curves: Any) -> Any:
     from calib.spectra import WavelengthGrid
 
     wavelength = curves.wavelength_nm
-    return WavelengthGrid(float(wavelength[0]), float(wavelength[-1]), float(wavelength[1] - wavelength[0]))
+    return WavelengthGrid(
+        float(wavelength[0]), float(wavelength[-1]), float(wavelength[1] - wavelength[0])
+    )
 
 
 if __name__ == "__main__":

@@ -292,6 +292,8 @@ def test_input_mistakes_are_named(tmp_path: Path, capture: Capture) -> None:
     settings = OfflineSettings(basis=capture.basis)
     with pytest.raises(InputError, match="given twice"):
         estimate_offline([good, good], settings)
+    with pytest.raises(InputError, match="unknown method 'paper2099'"):
+        estimate_offline([good], OfflineSettings(basis=capture.basis, method="paper2099"))
     with pytest.raises(InputError, match="no lamp named 'X'"):
         estimate_offline([good], OfflineSettings(basis=capture.basis, mapping_lamp="X"))
     with pytest.raises(InputError, match="file not found"):

@@ -28,7 +28,7 @@ from calib.bases import CameraBasis
 from calib.errors import InputError
 from calib.grating_file import GratingEfficiency, read_grating_file
 from calib.mapping import GratingGeometry, QuadraticMapping
-from calib.methods import default_camera_basis, estimate
+from calib.methods import ESTIMATION_METHODS, default_camera_basis, estimate
 from calib.observations import LampObservation
 from calib.offline.brackets import BracketProfiles, bracket_profiles
 from calib.offline.inputs import (
@@ -144,6 +144,11 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         raise InputError(f"lamp {duplicates[0]!r} is given twice", source="--lamp")
+    if settings.method.lower() not in ESTIMATION_METHODS:
+        raise InputError(
+            f"unknown method {settings.method!r}; available: {', '.join(sorted(ESTIMATION_METHODS))}",
+            source="--method",
+        )
     if settings.mapping_lamp is not None and settings.mapping_lamp not in names:
         raise InputError(
             f"no lamp named {settings.mapping_lamp!r}; lamps are {', '.join(names)}",
