@@ -25,7 +25,7 @@ out of their noise. A sample is excluded when
 Where no frame has a usable sample the pixel is flagged ``saturated`` and holds the shortest frame's
 rate (a lower bound where it clipped) with infinite variance.
 
-Frames are streamed: one is decoded (in a background thread) while the previous one is merged, so the
+Frames are streamed: the next ones are decoded (in a background thread) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
 Optional dark frames are matched to the light frames by exposure time (and averaged per exposure).
 All frames must come from one camera at one ISO, size and aperture; the first file that differs is
@@ -48,6 +48,7 @@ from __future__ import annotations
 import math
 import os
 import threading
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -90,6 +91,8 @@ RegionChooser = Callable[[RawPlanes], PlaneRegion | None]
 
 #: Frames whose green pairs are pooled for the noise model (each is held until the fit is done).
 NOISE_POOL_FRAMES = 2
+#: Frames decoded ahead of the merge (each holds its planes until merged).
+PREFETCH_FRAMES = 2
 #: Relative difference within which two exposure times count as the same (dark-frame matching).
 EXPOSURE_MATCH_TOLERANCE = 0.02
 
@@ -463,7 +466,8 @@ def _prefetch(
     pool: _BufferPool,
     holder: _RegionHolder,
 ) -> Iterator[RawPlanes]:
-    """Decode the frames in order, one ahead of the consumer (LibRaw releases the GIL)."""
+    """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer (LibRaw releases
+    the GIL), so the decoder keeps going while a frame takes the merge longer than usual."""
 
     def decode(item: tuple[Path, float, bool]) -> RawPlanes:
         path, exposure, keep_difference = item
@@ -477,16 +481,14 @@ def _prefetch(
         )
 
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-decode") as executor:
-        pending: Future[RawPlanes] | None = (
-            executor.submit(decode, schedule[0]) if schedule else None
+        pending: deque[Future[RawPlanes]] = deque(
+            executor.submit(decode, item) for item in schedule[:PREFETCH_FRAMES]
         )
         for position in range(len(schedule)):
-            assert pending is not None
-            current = pending.result()
-            following = position + 1
-            pending = (
-                executor.submit(decode, schedule[following]) if following < len(schedule) else None
-            )
+            current = pending.popleft().result()
+            following = position + PREFETCH_FRAMES
+            if following < len(schedule):
+                pending.append(executor.submit(decode, schedule[following]))
             yield current
 
 
