@@ -45,8 +45,23 @@ print(time.perf_counter() - start)
 """
 
 
-def _run(command: list[str]) -> tuple[float, float, str]:
-    """``(wall s, peak RSS MB, stdout)`` of one child process (its own rusage, via wait4)."""
+_PROFILES = """
+import sys, time
+from pathlib import Path
+from calib.offline.brackets import bracket_profiles
+from calib.offline.inputs import LampImages
+lamps = []
+for group in sys.argv[1:]:
+    name, kind, *files = group.split("|")
+    lamps.append(LampImages(name, kind, Path("unused.csv"), tuple(Path(f) for f in files)))
+start = time.perf_counter()
+bracket_profiles(lamps)
+print(time.perf_counter() - start)
+"""
+
+
+def _run(command: list[str]) -> tuple[float, float, str, float]:
+    """``(wall s, peak RSS MB, stdout, CPU s)`` of one child process (its own rusage, via wait4)."""
     start = time.perf_counter()
     with tempfile.TemporaryFile() as output:
         process = subprocess.Popen(command, stdout=output, stderr=subprocess.PIPE)
@@ -58,7 +73,7 @@ def _run(command: list[str]) -> tuple[float, float, str]:
         stdout = output.read().decode()
     if process.returncode != 0:
         raise RuntimeError(f"{command[:3]} failed ({process.returncode}): {stderr.strip()}")
-    return wall, usage.ru_maxrss / 1024.0, stdout
+    return wall, usage.ru_maxrss / 1024.0, stdout, usage.ru_utime + usage.ru_stime
 
 
 def _render(directory: Path, frames: int, width: int, height: int) -> dict[str, Any]:
@@ -137,9 +152,17 @@ def main() -> int:
             out = directory / f"out-{repeat}"
             estimate_runs.append(_run([*command, "--out", str(out), "--json"]))
         estimate_runs = estimate_runs[1:]  # the first run fills the basis cache
+        groups = [
+            "|".join([lamp.name, lamp.kind, *map(str, lamp.frames)]) for lamp in scene["lamps"]
+        ]
+        profiles_s = min(
+            float(_run([str(executable), "-c", _PROFILES, *groups])[2].strip())
+            for _ in range(arguments.repeats)
+        )
         decode_wall = min(run[0] for run in decode_runs)
         decode_loop = min(float(run[2].strip()) for run in decode_runs)
-        wall, memory, stdout = min(estimate_runs, key=lambda run: run[0])
+        wall, memory, stdout, cpu = min(estimate_runs, key=lambda run: run[0])
+        decode_cpu = min(run[3] for run in decode_runs)
         summary = json.loads(stdout)
         from calib.metrics import relative_error
         from calib.spectra import read_multispectrum_csv
@@ -163,8 +186,17 @@ def main() -> int:
     ratio = wall / decode_wall
     print(f"ratio calib estimate / bare decoding: {ratio:.2f} (target ≤ {RATIO_TARGET})")
     print(
+        f"  CPU time: calib estimate {cpu:.2f} s, bare decoding {decode_cpu:.2f} s "
+        f"(ratio {cpu / decode_cpu:.2f}); load average now {os.getloadavg()[0]:.1f} on "
+        f"{os.cpu_count()} cores"
+    )
+    print(
         f"  without start-up, imports and report: "
         f"{(inside - timings.get('report_s', 0)) / decode_loop:.2f} of the decode loop"
+    )
+    print(
+        f"  decode + HDR merge + detection + extraction alone (no hashing, no estimate): "
+        f"{profiles_s:.2f} s = {profiles_s / decode_loop:.2f} of the decode loop"
     )
     print(
         f"peak memory ≤ {MEMORY_LIMIT_MB:.0f} MB: {'OK' if memory <= MEMORY_LIMIT_MB else 'OVER'}"
