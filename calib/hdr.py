@@ -25,7 +25,7 @@ out of their noise. A sample is excluded when
 Where no frame has a usable sample the pixel is flagged ``saturated`` and holds the shortest frame's
 rate (a lower bound where it clipped) with infinite variance.
 
-Frames are streamed: one is decoded (in a background thread) while the previous one is merged, so the
+Frames are streamed: the next ones are decoded (in a background thread) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
 Optional dark frames are matched to the light frames by exposure time (and averaged per exposure).
 All frames must come from one camera at one ISO, size and aperture; the first file that differs is
@@ -48,6 +48,7 @@ from __future__ import annotations
 import math
 import os
 import threading
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -61,6 +62,7 @@ from calib.raw import (
     CHANNELS,
     DEFAULT_SATURATION_FRACTION,
     PlaneBuffers,
+    PlaneRegion,
     RawMetadata,
     RawPlanes,
     read_raw,
@@ -84,9 +86,13 @@ BoolArray = NDArray[np.bool_]
 PathLike = str | os.PathLike[str]
 #: ``progress(frames_done, frames_total, path_just_merged)``
 ProgressCallback = Callable[[int, int, Path], None]
+#: Chooses the region to merge from the first decoded light frame (full planes), or ``None``.
+RegionChooser = Callable[[RawPlanes], PlaneRegion | None]
 
 #: Frames whose green pairs are pooled for the noise model (each is held until the fit is done).
 NOISE_POOL_FRAMES = 2
+#: Frames decoded ahead of the merge (each holds its planes until merged).
+PREFETCH_FRAMES = 2
 #: Relative difference within which two exposure times count as the same (dark-frame matching).
 EXPOSURE_MATCH_TOLERANCE = 0.02
 
@@ -138,6 +144,12 @@ class HdrImage:
         The light frames, longest exposure first.
     noise_model
         The model used for weights and variances.
+    region_origin_px
+        ``(row, column)`` in sensor pixels of the covered area's first 2×2 cell: ``(0, 0)`` for a
+        whole frame, else where the merged region starts (add it to positions in this image to
+        get positions on the sensor).
+    full_sensor_shape_px
+        ``(height, width)`` of the whole sensor area of the frames (``None``: the image's own).
     """
 
     radiance: Float32Array
@@ -152,6 +164,8 @@ class HdrImage:
     frames: tuple[FrameRecord, ...] = ()
     noise_model: NoiseModel | None = None
     metadata: dict[str, object] = field(default_factory=dict)
+    region_origin_px: tuple[int, int] = (0, 0)
+    full_sensor_shape_px: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         shape = self.radiance.shape
@@ -225,10 +239,11 @@ class _PlaneLayout:
 
     @classmethod
     def of(cls, planes: RawPlanes) -> _PlaneLayout:
+        height, width = planes.full_shape
         return cls(
             planes.metadata.path,
-            planes.plane_shape,
-            planes.sensor_shape_px,
+            planes.full_shape,
+            (2 * height, 2 * width),
             planes.cfa_pattern,
             planes.channel_origin_px,
         )
@@ -236,9 +251,10 @@ class _PlaneLayout:
 
 def _check_planes(reference: _PlaneLayout, other: RawPlanes) -> None:
     first = f"{reference.path.name} (first decoded frame)"
-    if other.plane_shape != reference.plane_shape:
+    if other.full_shape != reference.plane_shape:
+        height, width = other.full_shape
         raise InputError(
-            f"sensor area {other.sensor_shape_px} differs from {reference.sensor_shape_px} of "
+            f"sensor area {(2 * height, 2 * width)} differs from {reference.sensor_shape_px} of "
             f"{first}; frames must have the same size",
             source=str(other.metadata.path),
         )
@@ -296,6 +312,8 @@ class _MasterDark:
     count: int
     paths: tuple[Path, ...]
 
+    region_origin: tuple[int, int] = (0, 0)
+
     @property
     def signal_dn(self) -> Float32Array:
         return self.buffers.signal_dn
@@ -303,6 +321,23 @@ class _MasterDark:
     def level_dn(self, channel: int) -> float:
         plane = self.signal_dn[channel]
         return float(np.median(plane[:: max(1, plane.shape[0] // 256)]))
+
+    def matching(self, planes: RawPlanes) -> _MasterDark:
+        """This master dark over the same samples as ``planes`` (a view when it covers more)."""
+        if self.region_origin == planes.region_origin and self.signal_dn.shape[1:] == (
+            planes.plane_shape
+        ):
+            return self
+        row0 = planes.region_origin[0] - self.region_origin[0]
+        column0 = planes.region_origin[1] - self.region_origin[1]
+        height, width = planes.plane_shape
+        window = (slice(None), slice(row0, row0 + height), slice(column0, column0 + width))
+        return _MasterDark(
+            PlaneBuffers(self.buffers.signal_dn[window], self.buffers.saturated[window]),
+            self.count,
+            self.paths,
+            planes.region_origin,
+        )
 
 
 # --------------------------------------------------------------------------------------------------
@@ -417,10 +452,22 @@ class _BufferPool:
             self._free.append(PlaneBuffers(signal_dn, saturated))
 
 
+@dataclass
+class _RegionHolder:
+    """The region to decode, once chosen (read by the decoding thread at each frame)."""
+
+    region: PlaneRegion | None = None
+    chooser: RegionChooser | None = None
+
+
 def _prefetch(
-    schedule: Sequence[tuple[Path, float, bool]], saturation_fraction: float, pool: _BufferPool
+    schedule: Sequence[tuple[Path, float, bool]],
+    saturation_fraction: float,
+    pool: _BufferPool,
+    holder: _RegionHolder,
 ) -> Iterator[RawPlanes]:
-    """Decode the frames in order, one ahead of the consumer (LibRaw releases the GIL)."""
+    """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer (LibRaw releases
+    the GIL), so the decoder keeps going while a frame takes the merge longer than usual."""
 
     def decode(item: tuple[Path, float, bool]) -> RawPlanes:
         path, exposure, keep_difference = item
@@ -430,19 +477,18 @@ def _prefetch(
             saturation_fraction=saturation_fraction,
             keep_green_difference=keep_difference,
             buffers=pool.take(),
+            region=holder.region,
         )
 
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-decode") as executor:
-        pending: Future[RawPlanes] | None = (
-            executor.submit(decode, schedule[0]) if schedule else None
+        pending: deque[Future[RawPlanes]] = deque(
+            executor.submit(decode, item) for item in schedule[:PREFETCH_FRAMES]
         )
         for position in range(len(schedule)):
-            assert pending is not None
-            current = pending.result()
-            following = position + 1
-            pending = (
-                executor.submit(decode, schedule[following]) if following < len(schedule) else None
-            )
+            current = pending.popleft().result()
+            following = position + PREFETCH_FRAMES
+            if following < len(schedule):
+                pending.append(executor.submit(decode, schedule[following]))
             yield current
 
 
@@ -469,6 +515,7 @@ def merge_bracket(
     prediction_fraction: float = 0.9,
     near_black_sigma: float = 3.0,
     progress: ProgressCallback | None = None,
+    region: PlaneRegion | RegionChooser | None = None,
 ) -> HdrImage:
     """Merge RAW frames of one scene at different exposure times into an :class:`HdrImage`.
 
@@ -493,6 +540,11 @@ def merge_bracket(
         covers it.
     progress
         Called after each merged frame with ``(done, total, path)``.
+    region
+        Merge only these plane samples (``(rows, columns)`` of the full planes), or a function
+        that chooses them from the first decoded light frame (full planes; ``None`` = all). The
+        merge then costs the region, not the frame (LibRaw still unpacks every file); the image
+        records where the region lies (``region_origin_px``, ``full_sensor_shape_px``).
 
     Notes
     -----
@@ -533,15 +585,36 @@ def merge_bracket(
         exposures_s=tuple(m.exposure_s for m in ordered),
     )
     pool = _BufferPool()
-    merger = _Merger(ordered, plan, settings, noise_model, progress, pool)
+    holder = (
+        _RegionHolder(chooser=region)
+        if callable(region)
+        else _RegionHolder(region=_checked_region(region))
+    )
+    merger = _Merger(ordered, plan, settings, noise_model, progress, pool, holder)
     for planes, (role, index) in zip(
-        _prefetch(plan.schedule, saturation_fraction, pool), plan.roles, strict=True
+        _prefetch(plan.schedule, saturation_fraction, pool, holder), plan.roles, strict=True
     ):
         if role == "dark":
             merger.add_dark(planes, index)
         else:
             merger.add_light(planes, index)
     return merger.finish(reference)
+
+
+def _checked_region(region: PlaneRegion | None) -> PlaneRegion | None:
+    if region is None:
+        return None
+    rows, columns = region
+    for part in (rows.start, rows.stop, columns.start, columns.stop):
+        if not isinstance(part, int | np.integer):
+            raise ValueError(f"a region needs integer start and stop, got {region}")
+    if (
+        rows.stop <= rows.start
+        or columns.stop <= columns.start
+        or min(rows.start, columns.start) < 0
+    ):
+        raise ValueError(f"empty or negative region {region}")
+    return (slice(int(rows.start), int(rows.stop)), slice(int(columns.start), int(columns.stop)))
 
 
 def _scan(
@@ -599,8 +672,10 @@ class _Merger:
         noise_model: NoiseModel | None,
         progress: ProgressCallback | None,
         pool: _BufferPool,
+        holder: _RegionHolder,
     ) -> None:
         self.pool = pool
+        self.holder = holder
         self.ordered = ordered
         self.plan = plan
         self.settings = settings
@@ -610,7 +685,7 @@ class _Merger:
         self.reference: RawMetadata | None = None
         self.state: _Accumulator | None = None
         self.masters: dict[int, _MasterDark] = {}
-        self.building: dict[int, tuple[PlaneBuffers, int]] = {}
+        self.building: dict[int, _MasterDark] = {}
         self.remaining = {
             group: plan.group_of_light.count(group) for group in set(plan.group_of_light)
         }
@@ -628,25 +703,51 @@ class _Merger:
         elif self.reference is not None:
             _check_metadata(self.reference, planes.metadata, check_aperture=light)
 
+    def _in_region(self, planes: RawPlanes) -> RawPlanes:
+        region = self.holder.region
+        if region is None or (
+            planes.region_origin == (region[0].start, region[1].start)
+            and planes.plane_shape
+            == (region[0].stop - region[0].start, region[1].stop - region[1].start)
+        ):
+            return planes
+        return planes.cropped(region)
+
     def add_dark(self, planes: RawPlanes, group: int) -> None:
         self._check(planes, light=False)
+        planes = self._in_region(planes)
         self.dark_spreads.append(DarkSpread.of(planes))
         if group in self.building:
-            buffers, count = self.building[group]
-            np.add(buffers.signal_dn, planes.signal_dn, out=buffers.signal_dn)
+            # the running sum may predate the region's choice: use its view of the region
+            total = self.building[group].matching(planes)
+            np.add(total.signal_dn, planes.signal_dn, out=total.signal_dn)
             self.pool.give(planes.signal_dn, planes.saturated)
         else:  # the group's first dark frame holds the running sum
-            buffers, count = PlaneBuffers(planes.signal_dn, planes.saturated), 0
-        count += 1
-        if count < len(self.plan.groups[group].metadata):
-            self.building[group] = (buffers, count)
+            total = _MasterDark(
+                PlaneBuffers(planes.signal_dn, planes.saturated),
+                0,
+                self.plan.groups[group].paths,
+                planes.region_origin,
+            )
+        total.count += 1
+        if total.count < len(self.plan.groups[group].metadata):
+            self.building[group] = total
             return
         self.building.pop(group, None)
-        np.multiply(buffers.signal_dn, np.float32(1.0 / count), out=buffers.signal_dn)
-        self.masters[group] = _MasterDark(buffers, count, self.plan.groups[group].paths)
+        np.multiply(total.signal_dn, np.float32(1.0 / total.count), out=total.signal_dn)
+        self.masters[group] = total
 
     def add_light(self, planes: RawPlanes, index: int) -> None:
         self._check(planes, light=True)
+        if self.holder.chooser is not None:
+            chooser, self.holder.chooser = self.holder.chooser, None
+            chosen = _checked_region(chooser(planes))
+            if chosen is not None:
+                height, width = planes.full_shape
+                rows = slice(min(chosen[0].start, height), min(chosen[0].stop, height))
+                columns = slice(min(chosen[1].start, width), min(chosen[1].stop, width))
+                self.holder.region = _checked_region((rows, columns))
+        planes = self._in_region(planes)
         if self.noise is not None:
             self._merge(planes, index)
             return
@@ -681,7 +782,7 @@ class _Merger:
         if self.state is None:
             self.state = _Accumulator.zeros(planes.signal_dn.shape)
         group = self.plan.group_of_light[index]
-        master = self.masters[group] if group is not None else None
+        master = self.masters[group].matching(planes) if group is not None else None
         saturated_fraction = planes.saturated.mean(axis=(1, 2))
         meta = self.ordered[index]
         _merge_frame(
@@ -714,7 +815,11 @@ class _Merger:
     def finish(self, reference: RawMetadata) -> HdrImage:
         assert self.state is not None and self.noise is not None and self.layout is not None
         records = tuple(self.records[index] for index in sorted(self.records))
-        return _finish(self.state, self.noise, self.layout, self.reference or reference, records)
+        region = self.holder.region
+        origin = (0, 0) if region is None else (2 * region[0].start, 2 * region[1].start)
+        return _finish(
+            self.state, self.noise, self.layout, self.reference or reference, records, origin
+        )
 
 
 def _finish(
@@ -723,6 +828,7 @@ def _finish(
     reference_planes: _PlaneLayout,
     reference: RawMetadata,
     records: tuple[FrameRecord, ...],
+    region_origin_px: tuple[int, int] = (0, 0),
 ) -> HdrImage:
     saturated = state.weight <= 0
     radiance = state.weighted_rate
@@ -744,4 +850,6 @@ def _finish(
         frames=records,
         noise_model=noise,
         metadata={"channels": CHANNELS},
+        region_origin_px=region_origin_px,
+        full_sensor_shape_px=reference_planes.sensor_shape_px,
     )

@@ -48,6 +48,7 @@ __all__ = [
     "DEFAULT_SATURATION_FRACTION",
     "ExposureSource",
     "PlaneBuffers",
+    "PlaneRegion",
     "RawFileError",
     "RawMetadata",
     "RawPlanes",
@@ -57,6 +58,8 @@ __all__ = [
 
 Float32Array = NDArray[np.float32]
 BoolArray = NDArray[np.bool_]
+#: A window of plane samples, ``(rows, columns)`` with explicit integer ``start``/``stop``.
+PlaneRegion = tuple[slice, slice]
 
 #: Names of the three planes, in order.
 CHANNELS: tuple[str, str, str] = ("R", "G", "B")
@@ -101,6 +104,11 @@ class RawPlanes:
         unless requested.
     green_sites_px
         ``(row, column)`` of the first and the second green site inside the 2×2 cell.
+    region_origin
+        ``(row, column)`` of the planes' first sample in the full planes (``(0, 0)`` unless only a
+        region was read); sensor pixel = ``2 · (origin + index) + channel_origin_px``.
+    full_plane_shape
+        ``(h, w)`` of the full planes (the planes' own shape unless only a region was read).
     """
 
     metadata: RawMetadata
@@ -112,11 +120,55 @@ class RawPlanes:
     channel_origin_px: tuple[tuple[float, float], ...]
     green_difference_dn: Float32Array | None = None
     green_sites_px: tuple[tuple[int, int], tuple[int, int]] = ((0, 1), (1, 0))
+    region_origin: tuple[int, int] = (0, 0)
+    full_plane_shape: tuple[int, int] | None = None
 
     @property
     def plane_shape(self) -> tuple[int, int]:
         """``(h, w)`` of each plane."""
         return (int(self.signal_dn.shape[1]), int(self.signal_dn.shape[2]))
+
+    @property
+    def full_shape(self) -> tuple[int, int]:
+        """``(h, w)`` of the full planes of the frame (whatever region was read)."""
+        return self.full_plane_shape or self.plane_shape
+
+    def cropped(self, region: PlaneRegion) -> RawPlanes:
+        """The planes inside ``region`` (indices of the full planes), as views of these arrays.
+
+        Raises
+        ------
+        ValueError
+            When these planes do not cover the region.
+        """
+        rows, columns = region
+        row0, column0 = self.region_origin
+        local = (
+            slice(rows.start - row0, rows.stop - row0),
+            slice(columns.start - column0, columns.stop - column0),
+        )
+        height, width = self.plane_shape
+        if not (0 <= local[0].start < local[0].stop <= height) or not (
+            0 <= local[1].start < local[1].stop <= width
+        ):
+            raise ValueError(
+                f"region {region} is not inside these planes (origin {self.region_origin})"
+            )
+        return RawPlanes(
+            metadata=self.metadata,
+            signal_dn=self.signal_dn[:, local[0], local[1]],
+            saturated=self.saturated[:, local[0], local[1]],
+            cfa_pattern=self.cfa_pattern,
+            black_level_dn=self.black_level_dn,
+            clip_level_dn=self.clip_level_dn,
+            channel_origin_px=self.channel_origin_px,
+            green_difference_dn=None
+            if self.green_difference_dn is None
+            else self.green_difference_dn[local[0], local[1]],
+            green_sites_px=self.green_sites_px,
+            region_origin=(rows.start, columns.start),
+            full_plane_shape=self.full_shape,
+        )
 
     @property
     def sensor_shape_px(self) -> tuple[int, int]:
@@ -312,6 +364,7 @@ def read_raw(
     saturation_fraction: float = DEFAULT_SATURATION_FRACTION,
     keep_green_difference: bool = False,
     buffers: PlaneBuffers | None = None,
+    region: PlaneRegion | None = None,
 ) -> RawPlanes:
     """Decode a RAW file into black-subtracted R, G, B planes at half resolution.
 
@@ -328,12 +381,16 @@ def read_raw(
         Also return the difference of the two green sites (for noise estimation).
     buffers
         Arrays to fill instead of allocating new ones (used when their shape fits).
+    region
+        Only these plane samples (rows, columns of the full planes; clipped to them): LibRaw still
+        unpacks the whole file, but black subtraction and saturation flags cost only the region.
+        A clipping plateau is then looked for inside the region.
 
     Returns
     -------
     RawPlanes
         Planes of shape ``(3, height // 2, width // 2)`` of the visible sensor area (an odd last
-        row or column is dropped).
+        row or column is dropped), or of the region.
 
     Raises
     ------
@@ -361,8 +418,18 @@ def read_raw(
                 f"visible sensor area {visible.shape} is too small", source=str(file)
             )
 
+        full_plane_shape = (height // 2, width // 2)
+        row0, row1, column0, column1 = 0, height // 2, 0, width // 2
+        if region is not None:
+            row0, row1 = max(region[0].start, 0), min(region[0].stop, row1)
+            column0, column1 = max(region[1].start, 0), min(region[1].stop, column1)
+            if row1 <= row0 or column1 <= column0:
+                raise ValueError(f"region {region} is outside the planes {full_plane_shape}")
+
         def site_view(site: tuple[int, int]) -> NDArray[np.uint16]:
-            return visible[site[0] : height : 2, site[1] : width : 2]  # type: ignore[no-any-return]
+            return visible[  # type: ignore[no-any-return]
+                2 * row0 + site[0] : 2 * row1 : 2, 2 * column0 + site[1] : 2 * column1 : 2
+            ]
 
         def levels(site: tuple[int, int]) -> tuple[float, float]:
             index = int(colour_index[site])
@@ -371,7 +438,7 @@ def read_raw(
                 white = float(white_per_colour[index])
             return black_per_colour[index], white
 
-        plane_shape = (height // 2, width // 2)
+        plane_shape = (row1 - row0, column1 - column0)
         if buffers is not None and buffers.signal_dn.shape == (3, *plane_shape):
             signal, saturated = buffers.signal_dn, buffers.saturated
         else:
@@ -415,4 +482,6 @@ def read_raw(
         channel_origin_px=layout.channel_origin_px,
         green_difference_dn=green_difference,
         green_sites_px=layout.greens,
+        region_origin=(row0, column0),
+        full_plane_shape=full_plane_shape,
     )

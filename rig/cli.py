@@ -161,6 +161,52 @@ def sessions(
     console.print(table)
 
 
+@app.command()
+def estimate(
+    session: Annotated[Path, typer.Argument(help="The session directory (with log.jsonl).")],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output directory (default: SESSION/estimate)."),
+    ] = None,
+    method: Annotated[str, typer.Option(help="Estimation method.")] = "makabe2025",
+    data_dir: Annotated[
+        Path | None,
+        typer.Option(help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."),
+    ] = None,
+    quiet: Annotated[
+        bool, typer.Option("--quiet", "-q", help="No progress bar; only where the report is.")
+    ] = False,
+) -> None:
+    """Estimate the camera from a session (every file verified against the log) and write the report."""
+    from calib.offline import RichFrameProgress
+    from rig.estimate import estimate_session
+
+    command_line = ("rig", "estimate", *sys.argv[2:])
+    if quiet or not RichFrameProgress.wanted(sys.stderr):
+        outcome = estimate_session(
+            session, out, method=method, data_dir=data_dir, command_line=command_line
+        )
+    else:
+        with RichFrameProgress(sys.stderr) as progress:
+            outcome = estimate_session(
+                session,
+                out,
+                method=method,
+                data_dir=data_dir,
+                progress=progress,
+                command_line=command_line,
+            )
+    result = outcome.estimate.result
+    for warning in outcome.estimate.warnings:
+        typer.echo(f"rig: warning: {warning}", err=True)
+    typer.echo(f"report: {outcome.files['report']}")
+    typer.echo(f"sensitivity: {outcome.files['sensitivity']}")
+    if result.mapping_re_estimate is not None:
+        typer.echo(f"method: {result.method}, mapping RE estimate {result.mapping_re_estimate:.2e}")
+    else:
+        typer.echo(f"method: {result.method}")
+
+
 def _fail(message: str, code: int) -> None:
     for line in message.splitlines() or [""]:
         print(f"rig: error: {line}", file=sys.stderr)

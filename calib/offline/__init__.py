@@ -1,0 +1,38 @@
+"""Offline estimation from files: RAW brackets or 1-D profiles plus lamp spectra → estimate + report.
+
+The one pipeline behind ``calib estimate`` and ``rig estimate``:
+
+* :func:`estimate_offline` — inputs (:class:`LampImages` or :class:`LampProfile` per lamp) to an
+  :class:`OfflineEstimate` (see :mod:`calib.offline.pipeline`);
+* :func:`run_offline` — the same, then the output files (:mod:`calib.outputs`, :mod:`calib.report`).
+
+Examples
+--------
+>>> from pathlib import Path                                                    # doctest: +SKIP
+>>> lamp = LampImages("LED-B3", "led", Path("led.csv"), (Path("f1.dng"), Path("f2.dng")))  # doctest: +SKIP
+>>> outcome = run_offline([lamp], Path("out"))                                  # doctest: +SKIP
+>>> outcome.files["sensitivity"]                                                # doctest: +SKIP
+PosixPath('out/sensitivity.csv')
+"""
+
+from calib.offline.inputs import LampImages, LampInput, LampProfile
+from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
+from calib.offline.progress import NoProgress, OfflineProgress, RichFrameProgress
+from calib.offline.provenance import InputFile, Provenance
+from calib.offline.run import OfflineOutcome, run_offline
+
+__all__ = [
+    "InputFile",
+    "LampImages",
+    "LampInput",
+    "LampProfile",
+    "NoProgress",
+    "OfflineEstimate",
+    "OfflineOutcome",
+    "OfflineProgress",
+    "OfflineSettings",
+    "Provenance",
+    "RichFrameProgress",
+    "estimate_offline",
+    "run_offline",
+]

@@ -1,0 +1,168 @@
+"""What produced an estimate: the input files with their sha256, the software, the command line.
+
+Hashing every RAW file of a bracket reads hundreds of MB; :class:`FileHasher` does it in a background
+thread (``hashlib`` releases the GIL on large buffers) while the frames are decoded and merged, and a
+file already hashed elsewhere (a session's verified record) is not read again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+import sys
+from collections.abc import Iterable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Literal
+
+InputRole = Literal["frame", "dark", "spectrum", "profile", "grating"]
+
+_CHUNK_BYTES = 1 << 20
+
+
+@dataclass(frozen=True)
+class InputFile:
+    """One file the estimate read.
+
+    Parameters
+    ----------
+    path
+        The file (as given, or its place in a session).
+    role
+        ``frame``, ``dark``, ``spectrum``, ``profile`` or ``grating``.
+    lamp
+        The lamp it belongs to (``None`` for a grating file).
+    size
+        Size in bytes.
+    sha256
+        Hex digest of its content.
+    """
+
+    path: str
+    role: InputRole
+    lamp: str | None
+    size: int
+    sha256: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "path": self.path,
+            "role": self.role,
+            "lamp": self.lamp,
+            "size": self.size,
+            "sha256": self.sha256,
+        }
+
+
+def file_sha256(path: Path) -> tuple[int, str]:
+    """``(size, sha256 hex)`` of a file, read in 1 MiB chunks."""
+    digest = hashlib.sha256()
+    size = 0
+    with path.open("rb") as stream:
+        while chunk := stream.read(_CHUNK_BYTES):
+            digest.update(chunk)
+            size += len(chunk)
+    return size, digest.hexdigest()
+
+
+class FileHasher:
+    """Hash files in a background thread; :meth:`results` waits for them.
+
+    Use as a context manager so the thread ends even when the estimate fails.
+    """
+
+    def __init__(self) -> None:
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256")
+        self._pending: list[tuple[Path, InputRole, str | None, Future[tuple[int, str]]]] = []
+        self._known: list[InputFile] = []
+
+    def __enter__(self) -> FileHasher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._executor.shutdown(wait=True, cancel_futures=True)
+
+    def add(self, path: Path, role: InputRole, lamp: str | None) -> None:
+        """Hash ``path`` in the background."""
+        self._pending.append((path, role, lamp, self._executor.submit(file_sha256, path)))
+
+    def add_known(self, record: InputFile) -> None:
+        """A file whose hash is already known (and verified) elsewhere."""
+        self._known.append(record)
+
+    def results(self) -> tuple[InputFile, ...]:
+        """Every file, in the order added (known hashes first)."""
+        hashed = []
+        for path, role, lamp, future in self._pending:
+            size, digest = future.result()
+            hashed.append(InputFile(str(path), role, lamp, size, digest))
+        return (*self._known, *hashed)
+
+
+def software_info() -> dict[str, str]:
+    """Name and version of the installed distribution, Python and platform."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        installed = version("spectral-rig")
+    except PackageNotFoundError:  # running from a source tree without installing
+        installed = "unknown"
+    return {
+        "name": "spectral-rig",
+        "version": installed,
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+    }
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Everything recorded about how an estimate was produced.
+
+    Parameters
+    ----------
+    inputs
+        Every file read, with its hash.
+    command_line
+        The command as typed (``None`` when called from Python).
+    lamps
+        Per lamp: name, kind, how it was given (images or profile), frames and exposures.
+    camera
+        Make, model, CFA pattern, ISO, aperture of the RAW files (empty for profile input).
+    warnings
+        What a user must know about this result (also printed by the command lines).
+    notes
+        What was decided along the way (region of interest, geometry lamp …).
+    created
+        When the estimate was made (UTC).
+    software
+        :func:`software_info`.
+    """
+
+    inputs: tuple[InputFile, ...] = ()
+    command_line: tuple[str, ...] | None = None
+    lamps: tuple[Mapping[str, Any], ...] = ()
+    camera: Mapping[str, Any] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    created: datetime = field(default_factory=lambda: datetime.now(UTC))
+    software: Mapping[str, str] = field(default_factory=software_info)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "created": self.created.isoformat(timespec="seconds"),
+            "software": dict(self.software),
+            "command_line": None if self.command_line is None else list(self.command_line),
+            "camera": dict(self.camera),
+            "lamps": [dict(lamp) for lamp in self.lamps],
+            "inputs": [record.to_dict() for record in self.inputs],
+            "warnings": list(self.warnings),
+            "notes": list(self.notes),
+        }
+
+
+def input_paths(records: Iterable[InputFile], role: InputRole) -> list[str]:
+    """Paths of the inputs with ``role``."""
+    return [record.path for record in records if record.role == role]

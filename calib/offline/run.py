@@ -1,0 +1,88 @@
+"""Estimate and write every output file: the function both command lines call."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+from calib.offline.brackets import BracketProfiles
+from calib.offline.inputs import LampInput
+from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
+from calib.offline.progress import OfflineProgress
+from calib.offline.provenance import InputFile
+
+
+@dataclass(frozen=True, eq=False)
+class OfflineOutcome:
+    """An estimate and the files written for it (``sensitivity``, ``result``, ``report`` …)."""
+
+    estimate: OfflineEstimate
+    files: Mapping[str, Path]
+    timings: Mapping[str, float]
+
+
+def run_offline(
+    lamps: Sequence[LampInput],
+    out_dir: Path,
+    settings: OfflineSettings | None = None,
+    *,
+    progress: OfflineProgress | None = None,
+    known_inputs: Sequence[InputFile] = (),
+    report: bool = True,
+) -> OfflineOutcome:
+    """Run :func:`calib.offline.estimate_offline` and write its outputs into ``out_dir``.
+
+    Parameters
+    ----------
+    lamps, settings, progress, known_inputs
+        As for :func:`calib.offline.estimate_offline`.
+    out_dir
+        Created if missing.
+    report
+        Also write ``report.html`` with its plots.
+
+    Returns
+    -------
+    OfflineOutcome
+    """
+    from calib.outputs import write_outputs
+    from calib.report import PLOTS_DIR, import_plotting, plot_geometry, write_report
+
+    started = time.perf_counter()
+    # The report's plotting library is imported, and the geometry drawn, in a background thread
+    # while frames decode and the estimate runs (both mostly release the GIL).
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="report") as background:
+        drawn: dict[str, Future[Path]] = {}
+
+        def draw_geometry(profiles: BracketProfiles) -> None:
+            drawn["plot:geometry"] = background.submit(
+                plot_geometry, out_dir / PLOTS_DIR / "geometry.png", profiles
+            )
+
+        if report:
+            background.submit(import_plotting)
+        estimate = estimate_offline(
+            lamps,
+            settings or OfflineSettings(),
+            progress=progress,
+            known_inputs=known_inputs,
+            on_profiles=draw_geometry if report else None,
+        )
+        if progress is not None:
+            progress.stage("writing the results")
+        step = time.perf_counter()
+        files = dict(write_outputs(out_dir, estimate))
+        timings = dict(estimate.timings)
+        timings["outputs_s"] = time.perf_counter() - step
+        if report:
+            if progress is not None:
+                progress.stage("writing the report")
+            step = time.perf_counter()
+            prepared = {key: future.result() for key, future in drawn.items()}
+            files.update(write_report(out_dir, estimate, files, prepared=prepared))
+            timings["report_s"] = time.perf_counter() - step
+    timings["total_s"] = time.perf_counter() - started
+    return OfflineOutcome(estimate, files, timings)

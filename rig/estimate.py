@@ -1,0 +1,291 @@
+"""Estimate the camera from a captured session: the session's files through ``calib``'s pipeline.
+
+:func:`estimate_session` reads a session with :mod:`rig.session` and trusts none of it: every file it
+uses is opened through :meth:`rig.session.Session.file_path` (plain relative names inside the session,
+no symlinks) and its size and sha256 are checked against the log before it is read. Per lamp of the
+recorded configuration it takes
+
+* the bracket: the files of the ``done`` capture steps ``lamp/<name>/scene/NNN`` (the last record of a
+  step wins, as after a resume);
+* the dark frames ``lamp/<name>/dark/NNN``, when there is one for every exposure of the bracket;
+* the spectrum: the mean of the reference spectra ``lamp/<name>/reference/NNN``;
+
+and hands them to :func:`calib.offline.run_offline`, which writes ``sensitivity.csv``,
+``result.json``, ``report.html``, the rawtoaces camera JSON and ``grating.json`` (by default into
+``<session>/estimate``). An interrupted or failed session is estimated from the lamps whose bracket
+and spectra are complete, with a warning in the result.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calib.errors import InputError, SpectrumError
+from calib.observations import LAMP_KINDS, LampKind
+from calib.offline import (
+    InputFile,
+    LampImages,
+    OfflineOutcome,
+    OfflineProgress,
+    OfflineSettings,
+    run_offline,
+)
+from calib.offline.provenance import file_sha256
+from calib.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
+from rig.config import LAMP_NAME_PATTERN
+from rig.errors import SessionFormatError
+from rig.records import FileRecord
+from rig.session import Session, read_session
+
+#: Where ``rig estimate`` writes by default, inside the session directory.
+DEFAULT_OUT_NAME = "estimate"
+#: Relative difference within which a dark frame's exposure matches a scene frame's.
+_EXPOSURE_RTOL = 0.02
+_KEY = re.compile(r"^lamp/(?P<lamp>[^/]+)/(?P<stream>scene|dark|reference)/(?P<index>\d+)$")
+
+
+@dataclass(frozen=True)
+class _SessionFile:
+    """A verified file of the session: its record and its path on disk."""
+
+    record: FileRecord
+    path: Path
+    index: int
+
+
+@dataclass
+class _LampFiles:
+    scene: list[_SessionFile]
+    dark: list[_SessionFile]
+    reference: list[_SessionFile]
+
+
+def _recorded_lamps(session: Session) -> list[tuple[str, LampKind]]:
+    """``(name, kind)`` of every lamp in the session's configuration snapshot, validated."""
+    start = session.start
+    if start is None:
+        raise SessionFormatError(f"{session.path}: the log has no start record")
+    lamps = start.config.get("lamps")
+    if not isinstance(lamps, list) or not lamps:
+        raise SessionFormatError(f"{session.path}: the start record's config has no lamps")
+    recorded: list[tuple[str, LampKind]] = []
+    for position, lamp in enumerate(lamps):
+        name = lamp.get("name") if isinstance(lamp, Mapping) else None
+        kind = str(lamp.get("kind", "other")).lower() if isinstance(lamp, Mapping) else ""
+        if not isinstance(name, str) or not re.match(LAMP_NAME_PATTERN, name):
+            raise SessionFormatError(
+                f"{session.path}: config lamps[{position}].name {name!r} is not a plain lamp name"
+            )
+        if kind not in LAMP_KINDS:
+            raise SessionFormatError(
+                f"{session.path}: config lamps[{position}].kind {kind!r} is not one of {LAMP_KINDS}"
+            )
+        recorded.append((name, kind))
+    return recorded
+
+
+def _done_files(session: Session) -> dict[str, FileRecord]:
+    """The last file record of every key whose step is done (later records win, as after resume)."""
+    done = set(session.done_steps())
+    latest: dict[str, FileRecord] = {}
+    for record in session.files():
+        if record.key in done and record.role in ("frame", "dark", "spectrum"):
+            latest[record.key] = record
+    return latest
+
+
+def _verify(session: Session, record: FileRecord) -> Path:
+    """The file's path once its size and sha256 match the log (a :class:`SessionFormatError` if not)."""
+    path = session.file_path(record.path)
+    size, digest = file_sha256(path)
+    if size != record.size or digest != record.sha256:
+        what = f"{size} bytes, log says {record.size}" if size != record.size else "sha256 differs"
+        raise SessionFormatError(
+            f"{session.path}: {record.path}: {what} from the log; the file changed after capture"
+        )
+    return path
+
+
+def _collect(session: Session, lamps: Sequence[str]) -> dict[str, _LampFiles]:
+    records = _done_files(session)
+    selected: list[tuple[str, str, int, FileRecord]] = []
+    for key, record in records.items():
+        match = _KEY.match(key)
+        if match is None or match["lamp"] not in lamps:
+            continue
+        selected.append((match["lamp"], match["stream"], int(match["index"]), record))
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="verify") as pool:
+        paths = list(pool.map(lambda item: _verify(session, item[3]), selected))
+    files = {name: _LampFiles([], [], []) for name in lamps}
+    for (lamp, stream, index, record), path in zip(selected, paths, strict=True):
+        getattr(files[lamp], stream).append(_SessionFile(record, path, index))
+    for entry in files.values():
+        for items in (entry.scene, entry.dark, entry.reference):
+            items.sort(key=lambda item: item.index)
+    return files
+
+
+def _mean_spectrum(name: str, references: Sequence[_SessionFile]) -> Spectrum:
+    """The mean of a lamp's reference spectra (on the first one's wavelengths)."""
+    spectra = []
+    for item in references:
+        try:
+            spectra.append(read_spectrum_csv(item.path, name=name, negative="clip"))
+        except SpectrumError as exc:
+            raise SessionFormatError(f"{item.record.path}: {exc}") from None
+    axis = spectra[0].wavelength_nm
+    values = np.mean([np.interp(axis, s.wavelength_nm, s.values) for s in spectra], axis=0)
+    return Spectrum(axis, values, name=f"{name} (mean of {len(spectra)} reference spectra)")
+
+
+def _step_exposures(session: Session, keys: Sequence[str]) -> list[float | None]:
+    """The exposure each step asked for (``params.exposure_s``), from its done record."""
+    done = session.done_steps()
+    exposures: list[float | None] = []
+    for key in keys:
+        value = done[key].params.get("exposure_s") if key in done else None
+        exposures.append(float(value) if isinstance(value, int | float) else None)
+    return exposures
+
+
+def _darks_cover(session: Session, files: _LampFiles) -> bool:
+    """Every scene exposure has a dark frame at the same exposure (as the HDR merge needs)."""
+    scene = _step_exposures(session, [f.record.key for f in files.scene])
+    dark = [t for t in _step_exposures(session, [f.record.key for f in files.dark]) if t]
+    return all(
+        t is not None and any(math.isclose(t, d, rel_tol=_EXPOSURE_RTOL) for d in dark)
+        for t in scene
+    )
+
+
+def session_lamps(session: Session) -> tuple[list[LampImages], list[InputFile], list[str]]:
+    """The session's lamps as pipeline inputs, their verified files, and warnings.
+
+    Raises
+    ------
+    SessionFormatError
+        Unsafe paths, files that differ from the log, an invalid configuration snapshot.
+    InputError
+        No lamp has a complete bracket and spectrum.
+    """
+    recorded = _recorded_lamps(session)
+    files = _collect(session, [name for name, _ in recorded])
+    warnings: list[str] = []
+    if session.status != "complete":
+        stop = session.stop
+        reason = stop.reason if stop is not None else "no stop record"
+        warnings.append(
+            f"the session is {session.status} ({reason}); estimated from the lamps whose bracket "
+            "and spectra were captured"
+        )
+    lamps: list[LampImages] = []
+    known: list[InputFile] = []
+    for name, kind in recorded:
+        entry = files[name]
+        if not entry.scene or not entry.reference:
+            missing = "bracket" if not entry.scene else "reference spectra"
+            warnings.append(f"lamp {name!r} left out: the session has no {missing} for it")
+            continue
+        darks = entry.dark
+        if darks and not _darks_cover(session, entry):
+            warnings.append(
+                f"lamp {name!r}: dark frames left out (not one for every exposure of the bracket)"
+            )
+            darks = []
+        lamps.append(
+            LampImages(
+                name=name,
+                kind=kind,
+                spectrum=_mean_spectrum(name, entry.reference),
+                images=tuple(item.path for item in entry.scene),
+                darks=tuple(item.path for item in darks),
+            )
+        )
+        for role, items in (("frame", entry.scene), ("dark", darks), ("spectrum", entry.reference)):
+            known.extend(
+                InputFile(str(item.path), role, name, item.record.size, item.record.sha256)  # type: ignore[arg-type]
+                for item in items
+            )
+    if not lamps:
+        raise InputError(
+            "no lamp of the session has a captured bracket and reference spectra",
+            source=str(session.path),
+        )
+    return lamps, known, warnings
+
+
+def estimate_session(
+    session_dir: str | Path,
+    out_dir: str | Path | None = None,
+    *,
+    method: str = "makabe2025",
+    data_dir: str | Path | None = None,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    mapping_lamp: str | None = None,
+    progress: OfflineProgress | None = None,
+    command_line: Sequence[str] | None = None,
+    settings: Mapping[str, Any] | None = None,
+) -> OfflineOutcome:
+    """Estimate the camera from a session and write the outputs.
+
+    Parameters
+    ----------
+    session_dir
+        The session directory (with ``log.jsonl``).
+    out_dir
+        Where to write (default ``<session>/estimate``).
+    method
+        Estimation method (:func:`calib.estimate`).
+    data_dir
+        Camera data directory for the basis.
+    grid
+        Working wavelength grid.
+    mapping_lamp
+        The lamp for the pixel→wavelength mapping (default: the estimator's choice).
+    progress
+        Receives frame and stage events (e.g. :class:`calib.offline.RichFrameProgress`).
+    command_line
+        The command as typed, recorded in the result.
+    settings
+        Further :class:`calib.offline.OfflineSettings` fields (``basis``, ``use_region`` …).
+
+    Returns
+    -------
+    calib.offline.OfflineOutcome
+        The estimate and the files written.
+
+    Raises
+    ------
+    SessionFormatError
+        Not a session, an invalid log, unsafe paths, files that differ from the log.
+    InputError
+        No usable lamp; any input problem the pipeline finds.
+    """
+    session_path = Path(session_dir)
+    session = read_session(session_path)
+    lamps, known, warnings = session_lamps(session)
+    start = session.start
+    assert start is not None
+    notes = (f"session {start.session_id} ({session_path.name}), status {session.status}",)
+    options: dict[str, Any] = {
+        "method": method,
+        "grid": grid,
+        "mapping_lamp": mapping_lamp,
+        "data_dir": None if data_dir is None else Path(data_dir),
+        "command_line": None if command_line is None else tuple(command_line),
+        "warnings": tuple(warnings),
+        "notes": notes,
+        **dict(settings or {}),
+    }
+    destination = Path(out_dir) if out_dir is not None else session_path / DEFAULT_OUT_NAME
+    return run_offline(
+        lamps, destination, OfflineSettings(**options), progress=progress, known_inputs=known
+    )

@@ -1,0 +1,268 @@
+"""rig.estimate: a session (rendered DNG brackets, spectra, log) through calib's offline pipeline."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from calib.errors import InputError
+from calib.mapping import QuadraticMapping
+from calib.metrics import relative_error
+from calib.offline.run import OfflineOutcome
+from calib.spectra import read_spectrum_csv
+from rig.cli import app, main
+from rig.errors import SessionFormatError
+from rig.estimate import estimate_session
+from rig.records import PlanInfo, SoftwareInfo, StartRecord, StepRecord, StopRecord
+from rig.session import SessionWriter
+from tests.rendered_capture import BRACKET_S, Capture, colour_lamps, shared_capture
+
+LAMP_CONFIG = [
+    {"name": "LED", "channel": 1, "kind": "led"},
+    {"name": "FL", "channel": 2, "kind": "fluorescent"},
+]
+
+
+def _step(writer: SessionWriter, key: str, action: str, params: dict, result: dict) -> None:  # type: ignore[type-arg]
+    writer.write(
+        StepRecord,
+        key=key,
+        action=action,
+        params=params,
+        status="done",
+        attempts=1,
+        started_s=0.0,
+        duration_s=0.1,
+        result=result,
+    )
+
+
+def _frame(
+    writer: SessionWriter, lamp: str, stream: str, index: int, source: Path, exposure_s: float
+) -> None:
+    key = f"lamp/{lamp}/{stream}/{index:03d}"
+    temporary = writer.incoming_path()
+    shutil.copyfile(source, temporary)
+    record = writer.commit_file(
+        temporary,
+        f"frames/{lamp}/{stream}-{index:03d}.dng",
+        key=key,
+        role="dark" if stream == "dark" else "frame",
+    )
+    params = {"lamp": lamp, "index": index, "exposure_s": exposure_s}
+    if stream == "dark":
+        params["count"] = len(BRACKET_S)
+    result = {
+        "time_s": 1.0,
+        "file": record.path,
+        "exposure_s": exposure_s,
+        "reported_exposure_s": exposure_s,
+        "camera_path": f"/store/DCIM/{index:04d}.dng",
+        "stats": None,
+    }
+    _step(writer, key, "DarkFrame" if stream == "dark" else "Capture", params, result)
+
+
+def write_session(
+    parent: Path,
+    capture: Capture,
+    *,
+    lamps: tuple[str, ...] = ("LED", "FL"),
+    darks: bool = True,
+    complete: bool = True,
+    spectra: int = 2,
+) -> Path:
+    """A session as the runner writes it: start, spectra, bracket and dark steps with files, stop."""
+    writer = SessionWriter.create(parent)
+    writer.write(
+        StartRecord,
+        session_id=writer.session_id,
+        wall_time=datetime(2025, 11, 21, 12, 0, tzinfo=UTC),
+        software=SoftwareInfo(name="spectral-rig", version="0", python="3.11", platform="test"),
+        plan=PlanInfo(name="standard_capture", args={}),
+        config={"lamps": LAMP_CONFIG, "dark_frames": 1},
+        devices={},
+        clock="SimulatedClock",
+    )
+    for name in lamps:
+        lamp = capture.lamp(name)
+        spectrum = colour_lamps()[name][1]
+        for repeat in range(spectra):
+            key = f"lamp/{name}/reference/{repeat:03d}"
+            record = writer.write_spectrum(
+                f"spectra/{name}/reference-{repeat:03d}.csv",
+                spectrum,
+                key=key,
+                units="W/(sr m² nm)",
+            )
+            result = {
+                "time_s": 1.0,
+                "file": record.path,
+                "units": "W/(sr m² nm)",
+                "exposure_ms": 100.0,
+            }
+            _step(
+                writer,
+                key,
+                "MeasureSpectrum",
+                {"lamp": name, "purpose": "reference", "index": repeat},
+                result,
+            )
+        for index, (frame, exposure) in enumerate(zip(lamp.frames, BRACKET_S, strict=True)):
+            _frame(writer, name, "scene", index, frame, exposure)
+        if darks:
+            for index, (frame, exposure) in enumerate(zip(lamp.darks, BRACKET_S, strict=True)):
+                _frame(writer, name, "dark", index, frame, exposure)
+    if complete:
+        writer.write(
+            StopRecord,
+            exit_status="success",
+            reason="completed",
+            message="done",
+            wall_time=datetime(2025, 11, 21, 12, 5, tzinfo=UTC),
+            t_s=300.0,
+            lamps_off=True,
+        )
+    writer.close()
+    return writer.path
+
+
+@pytest.fixture(scope="module")
+def capture() -> Capture:
+    return shared_capture()
+
+
+@pytest.fixture(scope="module")
+def session(capture: Capture, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_session(tmp_path_factory.mktemp("sessions"), capture)
+
+
+@pytest.fixture(scope="module")
+def outcome(session: Path, capture: Capture) -> OfflineOutcome:
+    return estimate_session(session, settings={"basis": capture.basis})
+
+
+def test_a_complete_session_gives_the_outputs_and_the_truth(
+    outcome: OfflineOutcome, session: Path, capture: Capture
+) -> None:
+    assert outcome.files["report"] == session / "estimate" / "report.html"
+    for key in ("sensitivity", "result", "camera_json", "grating"):
+        assert outcome.files[key].is_file()
+    result = outcome.estimate.result
+    assert relative_error(result.sensitivity, capture.truth) < 0.05
+    assert isinstance(result.mapping, QuadraticMapping)
+    assert result.mapping.method.startswith("fluorescent-peaks")
+    assert outcome.estimate.warnings == ()
+    document = json.loads(outcome.files["result"].read_text())
+    notes = document["provenance"]["notes"]
+    assert any(note.startswith("session ") and "status complete" in note for note in notes)
+
+
+def test_every_used_file_is_recorded_with_the_logs_hash(
+    outcome: OfflineOutcome, session: Path
+) -> None:
+    inputs = outcome.estimate.provenance.inputs
+    roles = sorted({record.role for record in inputs})
+    assert roles == ["dark", "frame", "spectrum"]
+    assert sum(record.role == "frame" for record in inputs) == 2 * len(BRACKET_S)
+    log = [json.loads(line) for line in (session / "log.jsonl").read_text().splitlines()]
+    logged = {str(session / r["path"]): r["sha256"] for r in log if r["type"] == "file"}
+    for record in inputs:
+        assert logged[record.path] == record.sha256
+
+
+def test_the_spectrum_is_the_mean_of_the_reference_spectra(
+    outcome: OfflineOutcome, session: Path
+) -> None:
+    observation = next(obs for obs in outcome.estimate.observations if obs.name == "LED")
+    stored = read_spectrum_csv(session / "spectra" / "LED" / "reference-000.csv")
+    np.testing.assert_allclose(observation.spectrum.values, stored.values)
+    assert "mean of 2 reference spectra" in observation.spectrum.name
+
+
+def test_a_changed_frame_is_refused(capture: Capture, tmp_path: Path) -> None:
+    session = write_session(tmp_path, capture, lamps=("LED",), darks=False)
+    frame = session / "frames" / "LED" / "scene-002.dng"
+    data = bytearray(frame.read_bytes())
+    data[-100] ^= 0xFF
+    frame.write_bytes(bytes(data))
+    with pytest.raises(SessionFormatError, match=r"scene-002\.dng: sha256 differs"):
+        estimate_session(session, settings={"basis": capture.basis})
+
+
+def test_a_symlinked_frame_is_refused(capture: Capture, tmp_path: Path) -> None:
+    session = write_session(tmp_path, capture, lamps=("LED",), darks=False)
+    frame = session / "frames" / "LED" / "scene-001.dng"
+    outside = tmp_path / "elsewhere.dng"
+    frame.rename(outside)
+    frame.symlink_to(outside)
+    with pytest.raises(SessionFormatError, match="symlink"):
+        estimate_session(session, settings={"basis": capture.basis})
+
+
+def test_an_interrupted_session_uses_the_lamps_it_has(capture: Capture, tmp_path: Path) -> None:
+    session = write_session(tmp_path, capture, lamps=("LED",), darks=False, complete=False)
+    outcome = estimate_session(session, tmp_path / "out", settings={"basis": capture.basis})
+    warnings = outcome.estimate.warnings
+    assert any("session is interrupted" in w for w in warnings)
+    assert any("lamp 'FL' left out" in w for w in warnings)
+    assert [obs.name for obs in outcome.estimate.observations] == ["LED"]
+    # LED only: the mapping comes from the broadband search (RE 0.06 measured on this scene)
+    mapping = outcome.estimate.result.mapping
+    assert isinstance(mapping, QuadraticMapping) and mapping.method.startswith("led-search")
+    assert relative_error(outcome.estimate.result.sensitivity, capture.truth) < 0.1
+
+
+def test_incomplete_dark_frames_are_left_out(capture: Capture, tmp_path: Path) -> None:
+    session = write_session(tmp_path, capture, lamps=("LED",), darks=True)
+    log = session / "log.jsonl"
+    lines = log.read_text().splitlines()
+    # drop the last dark frame's step record and its file record (a run cut short)
+    kept = [line for line in lines if "lamp/LED/dark/004" not in line]
+    for seq, line in enumerate(kept):
+        record = json.loads(line)
+        record["seq"] = seq
+        kept[seq] = json.dumps(record)
+    log.write_text("\n".join(kept) + "\n")
+    outcome = estimate_session(session, tmp_path / "out", settings={"basis": capture.basis})
+    assert any("dark frames left out" in w for w in outcome.estimate.warnings)
+    assert all(not frame["dark_frames"] for frame in outcome.estimate.provenance.lamps[0]["frames"])
+
+
+def test_a_session_without_brackets_is_an_input_error(capture: Capture, tmp_path: Path) -> None:
+    session = write_session(tmp_path, capture, lamps=(), complete=False)
+    with pytest.raises(InputError, match=r"no lamp of the session has a captured bracket"):
+        estimate_session(session, settings={"basis": capture.basis})
+
+
+def test_rig_estimate_command(
+    session: Path, capture: Capture, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(
+        "calib.offline.pipeline.default_camera_basis", lambda *a, **k: capture.basis
+    )
+    result = CliRunner().invoke(
+        app, ["estimate", str(session), "--out", str(tmp_path / "out"), "-q"]
+    )
+    assert result.exit_code == 0, result.output
+    assert f"report: {tmp_path / 'out' / 'report.html'}" in result.output
+    assert "mapping RE estimate" in result.output
+
+
+def test_rig_estimate_of_a_non_session_exits_2(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(sys, "argv", ["rig", "estimate", str(tmp_path)])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert error.startswith("rig: error:") and "not a session" in error
+    assert error.count("\n") == 1
