@@ -1,0 +1,110 @@
+"""The twin's lamps: colour-science spectral distributions behind relay channels, with warm-up drift.
+
+A lamp's settled spectrum is a colour-science illuminant (CIE LED series ``LED-B3`` …, fluorescent
+``FL2`` …, ``A``, ``D65``, high-pressure ``HP1`` …) scaled to the configured radiance; the drift
+after switch-on is :class:`mocks.lamps.VirtualLamp`'s.
+
+The camera renders a lamp's light once per *spectral component*: the drifting spectrum
+``settled · (1 + g·d) · (1 + k·d·(λ − 550)/100)`` is, at every moment, a combination of two fixed
+spectra, ``settled · (λ_max − λ)/(λ_max − λ_min)`` and ``settled · (λ − λ_min)/(λ_max − λ_min)``
+(a tilt is linear in λ). :func:`drift_coefficients` finds that combination from the lamp's
+radiance itself and says when it does not hold, so the camera falls back to rendering the
+spectrum directly rather than trusting a model of the drift.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calib.observations import LAMP_KINDS, LampKind
+from calib.spectra import Spectrum
+from mocks.bench.spec import LampSpec, TwinSpecError
+from mocks.lamps import VirtualLamp
+
+FloatArray = NDArray[np.float64]
+
+#: Wavelength range over which a lamp's radiance is normalised to the configured mean.
+NORMALISATION_RANGE_NM = (400.0, 700.0)
+#: Relative residual above which a lamp's spectrum is not a mix of its two components.
+COMPONENT_TOLERANCE = 1e-9
+
+
+def illuminant_names() -> list[str]:
+    """The colour-science illuminants a twin lamp may take its spectrum from."""
+    import colour  # deferred: importing colour costs about a second
+
+    return sorted(str(name) for name in colour.SDS_ILLUMINANTS)
+
+
+def settled_spectrum(lamp: LampSpec) -> Spectrum:
+    """The lamp's settled spectral radiance, W/(sr·m²·nm), on the illuminant's own sampling.
+
+    Raises
+    ------
+    TwinSpecError
+        The illuminant is unknown, or has no light in 400–700 nm.
+    """
+    import colour
+
+    distribution = colour.SDS_ILLUMINANTS.get(lamp.spd)
+    if distribution is None:
+        shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
+        raise TwinSpecError(
+            f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
+            f"illuminant; name the lamp after one or set spd to one of: {shown}"
+        )
+    spectrum = Spectrum.from_colour(distribution, name=lamp.name)
+    low, high = NORMALISATION_RANGE_NM
+    axis = np.arange(low, high + 0.5, 1.0)
+    mean = float(np.mean(spectrum.at(axis)))
+    if mean <= 0:
+        raise TwinSpecError(
+            f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} has no light in {low:g}–{high:g} nm"
+        )
+    return spectrum.scaled(lamp.radiance_w_sr_m2_nm / mean)
+
+
+def virtual_lamp(lamp: LampSpec) -> VirtualLamp:
+    """The lamp as the lamp bank holds it."""
+    kind: LampKind = next((k for k in LAMP_KINDS if k == lamp.kind), "other")
+    return VirtualLamp(
+        name=lamp.name,
+        channel=lamp.channel,
+        spectrum=settled_spectrum(lamp),
+        kind=kind,
+        warmup_tau_s=lamp.drift.tau_s,
+        warmup_gain=lamp.drift.gain,
+        warmup_tilt=lamp.drift.tilt,
+    )
+
+
+def spectral_components(lamp: VirtualLamp) -> tuple[Spectrum, Spectrum]:
+    """The two fixed spectra whose mix is the lamp at any time: settled × falling/rising ramp."""
+    settled = lamp.spectrum
+    low, high = settled.range_nm
+    rising = (settled.wavelength_nm - low) / (high - low)
+    return (
+        Spectrum(settled.wavelength_nm, settled.values * (1.0 - rising), name=f"{lamp.name}-blue"),
+        Spectrum(settled.wavelength_nm, settled.values * rising, name=f"{lamp.name}-red"),
+    )
+
+
+def drift_coefficients(
+    lamp: VirtualLamp, components: Sequence[Spectrum], seconds_on: float
+) -> FloatArray | None:
+    """Weights ``(k,)`` of ``components`` that make the lamp's radiance after ``seconds_on``.
+
+    Returns ``None`` when no mix reproduces the radiance to :data:`COMPONENT_TOLERANCE` (the lamp
+    drifts in a way the components do not span).
+    """
+    axis = lamp.spectrum.wavelength_nm
+    radiance = lamp.radiance(axis, seconds_on)
+    basis = np.stack([component.at(axis) for component in components], axis=1)
+    weights, *_ = np.linalg.lstsq(basis, radiance, rcond=None)
+    residual = float(np.linalg.norm(basis @ weights - radiance))
+    if residual > COMPONENT_TOLERANCE * max(float(np.linalg.norm(radiance)), 1e-300):
+        return None
+    return np.asarray(weights, dtype=np.float64)
