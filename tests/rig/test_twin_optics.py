@@ -14,6 +14,7 @@ from calib.spectra import Spectrum
 from mocks.bench import TwinOptics, TwinSpec, TwinSpecError, open_twin
 from mocks.bench.camera import ExposureSettings, FrameRenderer
 from mocks.bench.lamps import drift_coefficients, spectral_components, virtual_lamp
+from mocks.bench.spec import RelayModel, SpectrometerModel
 from mocks.fake_gphoto2 import FrameRequest
 from mocks.lamps import LampBank, SimulatedClock, VirtualLamp
 from mocks.scene import (
@@ -232,7 +233,9 @@ def test_specs_that_cannot_be_simulated_say_which_field() -> None:
 @pytest.mark.parametrize(
     ("spectrometer", "relays"), [("pr670", "lcus"), ("cs2000", "numato"), ("pr655", "hid_usbrelay")]
 )
-def test_every_emulated_model_serves_the_real_driver(spectrometer: str, relays: str) -> None:
+def test_every_emulated_model_serves_the_real_driver(
+    spectrometer: SpectrometerModel, relays: RelayModel
+) -> None:
     spec = dataclasses.replace(
         twin_spec(),
         spectrometer_model=spectrometer,
