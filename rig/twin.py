@@ -50,7 +50,7 @@ def twin_spec(config: RigConfig) -> Any:
 
     Raises
     ------
-    rig.config.ConfigError
+    TwinConfigError
         When the configuration cannot be simulated (unknown camera or illuminant, a layout that
         does not fit the sensor); the message names the field.
     """
@@ -61,11 +61,16 @@ def twin_spec(config: RigConfig) -> Any:
         raise _config_error(exc) from None
 
 
-def _config_error(exc: Exception) -> Exception:
-    from rig.yamlconfig import ConfigError, ConfigIssue
+class TwinConfigError(StationUnavailable):
+    """The configuration cannot be simulated (unknown camera or illuminant, a layout that does not
+    fit the sensor): the user must change a field, named in the message."""
 
-    field, _, message = str(exc).partition(": ")
-    return ConfigError("configuration", [ConfigIssue(field, message or str(exc))])
+    reason = "twin_config"
+    exit_code = 2
+
+
+def _config_error(exc: Exception) -> TwinConfigError:
+    return TwinConfigError(f"the digital twin cannot be built: {exc}")
 
 
 def open_twin_bench(
