@@ -108,7 +108,7 @@ def test_frames_that_cannot_be_measured_say_why(camera: Camera, tmp_path: Path) 
         analyzer.analyse(camera.frame(None, 1 / 60))
     jpeg = tmp_path / "frames" / "LED-B3" / "scene-009.jpg"
     jpeg.write_bytes(b"\xff\xd8\xff\xe0 not a raw file")
-    with pytest.raises(FrameAnalysisError, match="scene-009.jpg: cannot be decoded as a RAW"):
+    with pytest.raises(FrameAnalysisError, match=r"scene-009\.jpg: cannot be decoded as a RAW"):
         analyzer.analyse(jpeg)
 
 
@@ -119,7 +119,7 @@ def test_a_band_off_the_frame_is_a_setup_problem(tmp_path: Path) -> None:
     )
     camera = Camera(tmp_path, shifted)
     try:
-        with pytest.raises(FrameAnalysisError, match="right edge|leaves the frame|off"):
+        with pytest.raises(FrameAnalysisError, match=r"band runs off the frame"):
             RawFrameAnalyzer().analyse(camera.frame("LED-B3", 1 / 60))
     finally:
         camera.renderer.close()
