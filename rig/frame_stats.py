@@ -4,8 +4,8 @@ Automatic bracketing needs, after every scene frame, how much of the direct spot
 much signal the first-order band has (:class:`rig.analysis.FrameStats`). :class:`RawFrameAnalyzer`
 decodes the frame with :func:`calib.raw.read_raw` (black-subtracted R, G, B planes at half
 resolution, with a saturation mask) and measures in the geometry :func:`calib.profiles.detect_geometry`
-finds — once per lamp: the first frame of a lamp in which the band is detected fixes the geometry
-for that lamp's later frames. Frames are grouped by their directory, which the session layout
+finds — once per lamp, on the frame binned to at most 400 plane samples a side: the first frame of
+a lamp in which the band is detected fixes the geometry for that lamp's later frames. Frames are grouped by their directory, which the session layout
 (``frames/<lamp>/scene-000.dng``) makes the lamp.
 
 What is measured, per 2×2 cell of the sensor (one plane sample of each channel):
@@ -55,6 +55,8 @@ MIN_NOISE_PAIRS = 20
 _MAD_TO_SIGMA = 1.4826
 #: The frame's peak must stand this many noise sigmas above its median to count as a spot.
 MIN_SPOT_SNR = 20.0
+#: Frames are binned for detection until their planes are at most this many samples long.
+DETECTION_SIZE = 400
 #: Detection failures that mean "expose longer", not "the set-up is wrong".
 _BAND_TOO_DIM = ("no_band",)
 
@@ -96,6 +98,37 @@ def _decode(path: Path, saturation_fraction: float) -> _Frame:
     )
     mean_dn = planes.signal_dn.mean(axis=0, dtype=np.float32)
     return _Frame(planes, image, mean_dn, saturated)
+
+
+def _detection_image(image: HdrImage) -> HdrImage:
+    """``image`` binned 2×2 (plane samples) while its long side exceeds :data:`DETECTION_SIZE`.
+
+    Detection only needs where the spot and the band are; on a binned image it is several times
+    faster, and the geometry stays in sensor pixels (pitch and channel origins follow the binning).
+    """
+    while max(image.plane_shape) > DETECTION_SIZE:
+        height, width = (size // 2 * 2 for size in image.plane_shape)
+        shape = (3, height // 2, 2, width // 2, 2)
+        radiance = (
+            image.radiance[:, :height, :width].reshape(shape).mean(axis=(2, 4), dtype=np.float32)
+        )
+        saturated: BoolArray = np.any(
+            image.saturated[:, :height, :width].reshape(shape), axis=(2, 4)
+        )
+        pitch = image.pixel_pitch_px
+        image = HdrImage(
+            radiance=radiance,
+            variance=np.broadcast_to(np.float32(1.0), radiance.shape),
+            saturated=saturated,
+            # A binned sample is the mean of two samples a pitch apart in each direction.
+            channel_origin_px=tuple(
+                (row + pitch / 2, column + pitch / 2) for row, column in image.channel_origin_px
+            ),
+            pixel_pitch_px=2 * pitch,
+            cfa_pattern=image.cfa_pattern,
+            frames=image.frames,
+        )
+    return image
 
 
 def _three(values: FloatArray) -> tuple[float, float, float]:
@@ -246,7 +279,7 @@ class RawFrameAnalyzer:
         geometry = self.geometries.get(lamp)
         if geometry is None:
             try:
-                geometry = detect_geometry(decoded.image)
+                geometry = detect_geometry(_detection_image(decoded.image))
             except DetectionError as exc:
                 if exc.reason in _BAND_TOO_DIM:
                     return _spot_only_stats(decoded)

@@ -7,7 +7,8 @@
 2. the relay board: a HID USBRelay board on the fake pyusb backend, or an LCUS/Numato emulator on a
    pty — each switching the bank's channels — opened with the real driver;
 3. the spectrometer: the PR-655/670 or CS-2000 firmware emulator on a pty, measuring the bank's
-   radiance, opened with the real driver;
+   radiance, opened with the real driver (without the PR-6xx's character pacing, which the real
+   instrument's USB link needs and the emulator does not);
 4. the camera: a fake gphoto2 body whose frames :class:`mocks.bench.camera.FrameRenderer` renders,
    opened with the real gphoto2 driver (bulb exposures timed on the twin's clock).
 
@@ -32,6 +33,8 @@ from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import open_lcus
 from drivers.relays.numato import open_numato
 from drivers.spectrometer import open_spectrometer
+from drivers.spectrometer.pr6xx import open_pr6xx
+from drivers.transport import NO_PACING
 from mocks.bench.camera import FrameRenderer, twin_body
 from mocks.bench.lamps import virtual_lamp
 from mocks.bench.optics import TwinOptics
@@ -220,12 +223,23 @@ def open_twin(
             time_scale=spec.spectrometer_time_scale,
         )
         opened.add(spectrometer_port.stop)
-        spectrometer = open_spectrometer(
-            SPECTROMETER_NAMES[spec.spectrometer_model],
-            spectrometer_port.path,
-            timeout_s=spec.spectrometer_timeout_s,
-            transcript=sink("spectrometer"),
-        )
+        if spec.spectrometer_model == "cs2000":
+            spectrometer = open_spectrometer(
+                "CS-2000",
+                spectrometer_port.path,
+                timeout_s=spec.spectrometer_timeout_s,
+                transcript=sink("spectrometer"),
+            )
+        else:
+            # The PR-6xx driver paces characters for the real instrument's USB link; the emulator
+            # takes whole commands, so the twin drops the pauses (same bytes, no waiting).
+            spectrometer = open_pr6xx(
+                SPECTROMETER_NAMES[spec.spectrometer_model],
+                spectrometer_port.path,
+                timeout_s=spec.spectrometer_timeout_s,
+                transcript=sink("spectrometer"),
+                pacing=NO_PACING,
+            )
         opened.add(spectrometer.close)
 
         body = twin_body(renderer, clock, TWIN_CAMERA_SERIAL)
