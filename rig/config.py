@@ -6,9 +6,9 @@ keys are an error, not "last one wins"), validates, and turns every problem into
 the value found and what is allowed, with the closest valid key suggested for a typo.
 
 Exposure times may be written as seconds (``0.01``), fractions (``"1/125"``) or with a unit
-(``"2.5s"``, ``"40ms"``). Relative paths (``output_dir``, the twin camera's ``data_dir``) are resolved
-against the directory of the configuration file, so a rig behaves the same whatever the working
-directory.
+(``"2.5s"``, ``"40ms"``). Relative paths (``output_dir``, the twin's ``data_dir`` and
+``state_file``) are resolved against the directory of the configuration file, so a rig behaves the
+same whatever the working directory.
 
 The device ``kind`` selects a driver: ``pr655``/``pr670``/``cs2000`` spectroradiometers, ``lcus``/
 ``numato``/``hid_usbrelay`` relay boards, a ``gphoto2`` camera, or ``twin`` for the simulated bench
@@ -167,7 +167,9 @@ class TwinRelayConfig(StrictModel):
     """The simulated bench's relay board: the real driver talking to the emulator.
 
     ``lamps`` describes the simulated lamps by their ``lamps[].name``; lamps not listed get the
-    defaults of their kind.
+    defaults of their kind. With ``state_file`` the simulated relays keep their state between
+    processes, as a real board does when the rig dies (a capture killed with a lamp on leaves it
+    on for the next one); without it every twin starts with its relays off.
     """
 
     kind: Literal["twin"]
@@ -175,6 +177,7 @@ class TwinRelayConfig(StrictModel):
     channels: Literal[1, 2, 4, 8] = 2
     timeout_s: float = Field(2.0, gt=0, le=60)
     lamps: dict[str, TwinLampConfig] = Field(default_factory=dict)
+    state_file: Path | None = None
 
 
 class Gphoto2CameraConfig(StrictModel):
@@ -491,13 +494,14 @@ def parse_config(text: str, source: str = "<config>", base_dir: Path | None = No
         return config
     if not config.output_dir.is_absolute():
         config = config.model_copy(update={"output_dir": base_dir / config.output_dir})
-    camera = config.devices.camera
-    data_dir = camera.data_dir if isinstance(camera, TwinCameraConfig) else None
-    if data_dir is not None and not data_dir.is_absolute():
-        camera = camera.model_copy(update={"data_dir": base_dir / data_dir})
-        devices = config.devices.model_copy(update={"camera": camera})
-        config = config.model_copy(update={"devices": devices})
-    return config
+    devices = config.devices
+    camera, relays = devices.camera, devices.relays
+    if isinstance(camera, TwinCameraConfig) and camera.data_dir is not None:
+        camera = camera.model_copy(update={"data_dir": base_dir / camera.data_dir})
+    if isinstance(relays, TwinRelayConfig) and relays.state_file is not None:
+        relays = relays.model_copy(update={"state_file": base_dir / relays.state_file})
+    devices = devices.model_copy(update={"camera": camera, "relays": relays})
+    return config.model_copy(update={"devices": devices})
 
 
 def load_config(path: str | Path) -> RigConfig:

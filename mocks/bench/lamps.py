@@ -15,6 +15,7 @@ spectrum directly rather than trusting a model of the drift.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +23,7 @@ from numpy.typing import NDArray
 from calib.observations import LAMP_KINDS, LampKind
 from calib.spectra import Spectrum
 from mocks.bench.spec import LampSpec, TwinSpecError
-from mocks.lamps import VirtualLamp
+from mocks.lamps import Clock, LampBank, VirtualLamp
 
 FloatArray = NDArray[np.float64]
 
@@ -108,3 +109,58 @@ def drift_coefficients(
     if residual > COMPONENT_TOLERANCE * max(float(np.linalg.norm(radiance)), 1e-300):
         return None
     return np.asarray(weights, dtype=np.float64)
+
+
+class PersistentLampBank(LampBank):
+    """A lamp bank whose relay channels outlive the process, like a real board's relays.
+
+    Every switch writes the channels to ``state_file`` (``"0100"``: channel 1 first), replacing it
+    atomically; :meth:`saved_channels` reads what a previous process left.
+
+    Parameters
+    ----------
+    lamps, n_channels, clock
+        As for :class:`mocks.lamps.LampBank`.
+    state_file
+        The file; its directory must exist.
+    """
+
+    def __init__(
+        self,
+        lamps: Sequence[VirtualLamp],
+        n_channels: int,
+        clock: Clock,
+        state_file: Path,
+    ) -> None:
+        super().__init__(lamps, n_channels, clock)
+        self.state_file = state_file
+
+    def saved_channels(self) -> tuple[bool, ...]:
+        """The channels a previous process left (all off when there is no file).
+
+        Raises
+        ------
+        TwinSpecError
+            The file holds something else than one ``0``/``1`` per channel.
+        """
+        try:
+            text = self.state_file.read_text(encoding="ascii").strip()
+        except FileNotFoundError:
+            return (False,) * self.n_channels
+        except (OSError, UnicodeDecodeError) as exc:
+            raise TwinSpecError(
+                f"devices.relays.state_file: cannot read {self.state_file}: {exc}"
+            ) from None
+        if len(text) != self.n_channels or set(text) - {"0", "1"}:
+            raise TwinSpecError(
+                f"devices.relays.state_file: {self.state_file} holds {text[:40]!r}, not one 0/1 per "
+                f"relay channel ({self.n_channels}); delete it to start with every relay off"
+            )
+        return tuple(character == "1" for character in text)
+
+    def set_channel(self, channel: int, on: bool) -> None:
+        super().set_channel(channel, on)
+        text = "".join("1" if state else "0" for state in self.channel_states())
+        temporary = self.state_file.with_name(f".{self.state_file.name}.part")
+        temporary.write_text(text + "\n", encoding="ascii")
+        temporary.replace(self.state_file)

@@ -153,6 +153,8 @@ class TwinSpec:
         wall time, and the driver's command deadline.
     relay_model, relay_channels, relay_timeout_s
         Which relay board is emulated, its size and the driver's deadline.
+    relay_state_file
+        Where the relays' state survives the process (``None``: every twin starts all off).
     """
 
     seed: int
@@ -164,6 +166,7 @@ class TwinSpec:
     relay_model: RelayModel
     relay_channels: int
     relay_timeout_s: float
+    relay_state_file: Path | None = None
 
     def __post_init__(self) -> None:
         if self.spectrometer_model not in SPECTROMETER_MODELS:
@@ -224,6 +227,7 @@ class TwinSpec:
                 f"({', '.join(names)})"
             )
         spectrometer_model = spectrometer.text("emulate")
+        state_file = relays.value("state_file")
         relay_model = relays.text("emulate")
         return cls(
             seed=root.integer("seed"),
@@ -238,6 +242,7 @@ class TwinSpec:
             relay_model=relay_model,  # type: ignore[arg-type]  # checked on init
             relay_channels=relays.integer("channels"),
             relay_timeout_s=relays.number("timeout_s"),
+            relay_state_file=None if state_file is None else Path(str(state_file)),
         )
 
 

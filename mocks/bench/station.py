@@ -3,7 +3,8 @@
 :func:`open_twin` builds, in order:
 
 1. a :class:`mocks.lamps.SimulatedClock` and a :class:`mocks.lamps.LampBank` with the configured
-   lamps (colour-science spectra, warm-up drift);
+   lamps (colour-science spectra, warm-up drift) — persistent when the spec names a relay state
+   file, so relays left on by a killed process are on again in the next;
 2. the relay board: a HID USBRelay board on the fake pyusb backend, or an LCUS/Numato emulator on a
    pty — each switching the bank's channels — opened with the real driver;
 3. the spectrometer: the PR-655/670 or CS-2000 firmware emulator on a pty, measuring the bank's
@@ -36,7 +37,7 @@ from drivers.spectrometer import open_spectrometer
 from drivers.spectrometer.pr6xx import open_pr6xx
 from drivers.transport import NO_PACING
 from mocks.bench.camera import FrameRenderer, twin_body
-from mocks.bench.lamps import virtual_lamp
+from mocks.bench.lamps import PersistentLampBank, virtual_lamp
 from mocks.bench.optics import TwinOptics
 from mocks.bench.spec import TwinSpec
 from mocks.bench.truth import TwinTruth
@@ -168,9 +169,14 @@ def open_twin(
 
     optics = TwinOptics.build(spec.camera)
     clock = SimulatedClock()
-    bank = LampBank(
-        [virtual_lamp(lamp) for lamp in spec.lamps], n_channels=spec.relay_channels, clock=clock
-    )
+    lamps = [virtual_lamp(lamp) for lamp in spec.lamps]
+    bank: LampBank
+    saved = (False,) * spec.relay_channels
+    if spec.relay_state_file is None:
+        bank = LampBank(lamps, n_channels=spec.relay_channels, clock=clock)
+    else:
+        bank = PersistentLampBank(lamps, spec.relay_channels, clock, spec.relay_state_file)
+        saved = bank.saved_channels()
     renderer = FrameRenderer(
         optics,
         bank,
@@ -190,6 +196,7 @@ def open_twin(
         relays: RelayBoard
         if spec.relay_model == "hid_usbrelay":
             relay_board = EmulatedRelayBoard(TWIN_RELAY_SERIAL, spec.relay_channels, lamp_bank=bank)
+            relay_board.state_mask = sum(1 << index for index, on in enumerate(saved) if on)
             for usb_fault in faults.usb_relays:
                 relay_board.inject(usb_fault)
             usb_backend = FakeUsbBackend([relay_board], clock=clock)
@@ -203,6 +210,7 @@ def open_twin(
             start = start_lcus if spec.relay_model == "lcus" else start_numato
             relay_port = start(spec.relay_channels, bank, faults=faults.serial_relays)
             opened.add(relay_port.stop)
+            relay_port.emulator.states = list(saved)  # type: ignore[attr-defined]
             opener = open_lcus if spec.relay_model == "lcus" else open_numato
             relays = opener(
                 relay_port.path,
@@ -211,6 +219,10 @@ def open_twin(
                 transcript=sink("relays"),
             )
         opened.add(relays.close)
+        # Relays left on by a previous process light their lamps again (warming up from now).
+        for channel, on in enumerate(saved, start=1):
+            if on:
+                bank.set_channel(channel, True)
 
         noise = np.random.default_rng(
             np.random.SeedSequence([spec.seed, SPECTROMETER_NOISE_STREAM])

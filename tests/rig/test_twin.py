@@ -21,8 +21,8 @@ from rig.config import RigConfig
 from rig.records import FileRecord, RetryRecord, StepRecord
 from rig.runner import RetryPolicy, RunOutcome
 from rig.session import Session, read_session
-from rig.twin import TwinConfigError, twin_station_builder
-from tests.rig.twin_setup import twin_config
+from rig.twin import TwinConfigError, open_twin_bench, twin_station_builder
+from tests.rig.twin_setup import twin_config, twin_config_data
 
 FAST_RETRY = RetryPolicy(max_attempts=3, initial_s=0.01, max_s=0.01)
 
@@ -157,3 +157,30 @@ def test_a_configuration_the_twin_cannot_simulate_fails_before_any_device(tmp_pa
     session = read_session(next((tmp_path / "sessions").iterdir()))
     assert session.status == "failed"  # the session says why it has no frames
     assert session.stop is not None and session.stop.reason == "twin_config"
+
+
+@pytest.mark.parametrize("emulate", ["hid_usbrelay", "numato"])
+def test_relays_left_on_by_a_dead_process_are_on_for_the_next(tmp_path: Path, emulate: str) -> None:
+    state_file = tmp_path / "relays.state"
+    data = twin_config_data(tmp_path / "sessions")
+    data["devices"]["relays"] |= {"emulate": emulate, "state_file": str(state_file)}
+    config = RigConfig.model_validate(data)
+    first = open_twin_bench(config)
+    first.relays.set(1, True)
+    # The process dies: nothing switches the relay off, the emulators just stop.
+    first.close()
+    assert state_file.read_text().strip() == "10"
+    second = open_twin_bench(config)
+    try:
+        assert second.relays.state() == (True, False)
+        assert [lamp.name for lamp, _ in second.bank.lit()] == ["LED-B3"]
+    finally:
+        for device in (second.camera, second.spectrometer, second.relays):
+            device.close()
+        second.close()
+    # A capture switches every lamp off first, and leaves them off.
+    outcome, _ = _capture(tmp_path, config=config)
+    assert outcome.exit_status == "success" and state_file.read_text().strip() == "00"
+    state_file.write_text("1x\n")
+    with pytest.raises(TwinConfigError, match=r"state_file: .* holds '1x', not one 0/1"):
+        open_twin_bench(config)
