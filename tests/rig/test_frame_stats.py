@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from calib.hdr import HdrImage
+from calib.profiles import DiffractionGeometry, detect_geometry
 from mocks.bench import TwinOptics
 from mocks.bench.camera import FrameRenderer
 from mocks.bench.lamps import virtual_lamp
@@ -68,12 +70,11 @@ def test_longer_frames_saturate_the_spot_and_raise_the_band(camera: Camera) -> N
 def test_the_geometry_is_detected_once_per_lamp(
     camera: Camera, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    calls: list[Path] = []
-    detect = frame_stats.detect_geometry
+    calls: list[HdrImage] = []
 
-    def counting(image: object) -> object:
-        calls.append(image)  # type: ignore[arg-type]
-        return detect(image)  # type: ignore[arg-type]
+    def counting(image: HdrImage) -> DiffractionGeometry:
+        calls.append(image)
+        return detect_geometry(image)
 
     monkeypatch.setattr(frame_stats, "detect_geometry", counting)
     analyzer = RawFrameAnalyzer()
