@@ -10,11 +10,11 @@ order is the pixel integrals convolved with the slit's along-profile and spread 
 length.
 
 :meth:`TwinOptics.first_order` renders a lamp's 1-D first order with
-:func:`calib.forward.render_observation` at 1 nm, takes its spectral density ``e·η·s`` and turns it
-into the cumulative integral along ``u`` on a fine axis (1/32 px), blurs it with the slit profile and
-hands it to :class:`mocks.scene.PixelIntegratedSignal`, so that every sensor pixel of the 2-D frame
-receives the exact integral over its own footprint — for an unblurred slit, the numbers
-``calib.forward`` gives for its 1-D profile.
+:func:`calib.forward.render_observation` (at 0.2 nm, fine enough for narrow lines), takes its
+spectral density ``e·η·s`` and turns it into the cumulative integral along ``u`` on a fine axis
+(1/64 px), blurs it with the slit profile and hands it to :class:`mocks.scene.PixelIntegratedSignal`,
+so that every sensor pixel of the 2-D frame receives the exact integral over its own footprint —
+for an unblurred slit, the numbers ``calib.forward`` gives for its 1-D profile.
 
 Units: lamps in W/(sr·m²·nm), sensitivities peaking at 1, and ``throughput_e_per_s`` turning their
 wavelength integral into photo-electrons per second at f/8; the renderer works in DN/s at ISO 100
@@ -43,7 +43,10 @@ from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_bo
 FloatArray = NDArray[np.float64]
 
 #: Step of the fine axis along the dispersion on which the first order's cumulative is tabulated.
-FINE_STEP_PX = 1.0 / 32.0
+FINE_STEP_PX = 1.0 / 64.0
+#: Spectral step of the 1-D rendering: fine enough for the narrow lines of fluorescent lamps
+#: (:data:`mocks.bench.lamps.LINE_STEP_NM`), so their spectra are integrated exactly.
+SPECTRAL_STEP_NM = 0.2
 #: Aperture the throughput refers to.
 REFERENCE_F_NUMBER = 8.0
 #: ISO at which the sensor's gain is given.
@@ -242,6 +245,7 @@ class TwinOptics:
             grating_efficiency=self.efficiency,
             direct_throughput=self.zeroth_order_efficiency,
             name=lamp.name,
+            fine_step_nm=SPECTRAL_STEP_NM,
         )
         offsets, weights = self.slit_profile() if blur else (np.zeros(1), np.ones(1))
         reach = float(offsets[-1]) + FINE_STEP_PX
