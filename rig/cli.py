@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -19,6 +19,10 @@ from rich.table import Table
 from calib.errors import CalibError, InputError
 from drivers.base import DeviceError
 from rig.errors import RigError
+
+if TYPE_CHECKING:
+    from rig.config import RigConfig
+    from rig.progress import ProgressReporter
 
 app = typer.Typer(
     name="rig",
@@ -38,6 +42,14 @@ def _duration(seconds: float) -> str:
     if hours:
         return f"{hours} h {minutes:02d} min"
     return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
+
+
+def _capture_progress(config: RigConfig, quiet: bool) -> ProgressReporter:
+    """A progress bar timed by the dry-run model of ``config``, or silence with ``--quiet``."""
+    from rig.dryrun import StepCostModel
+    from rig.progress import RichProgress, SilentProgress
+
+    return SilentProgress() if quiet else RichProgress(StepCostModel(config.dry_run))
 
 
 @app.command()
@@ -64,14 +76,9 @@ def capture(
     """Run the standard capture: every lamp warmed up, measured, bracketed, with dark frames."""
     from rig.capture import run_capture
     from rig.config import load_config
-    from rig.dryrun import StepCostModel
-    from rig.progress import ProgressReporter, RichProgress, SilentProgress
 
     rig_config = load_config(config)
-    progress: ProgressReporter = (
-        SilentProgress() if quiet else RichProgress(StepCostModel(rig_config.dry_run))
-    )
-    outcome = run_capture(rig_config, out_dir=out, progress=progress)
+    outcome = run_capture(rig_config, out_dir=out, progress=_capture_progress(rig_config, quiet))
     status = {"success": "complete", "abort": "interrupted", "fail": "failed"}[outcome.exit_status]
     typer.echo(f"session: {outcome.session}")
     typer.echo(f"status: {status} ({outcome.reason}): {outcome.message}")
@@ -255,14 +262,9 @@ def demo(
     """Capture on the digital twin, estimate, and report the error against the twin's true camera."""
     from rig.config import load_config
     from rig.demo import run_demo
-    from rig.dryrun import StepCostModel
-    from rig.progress import ProgressReporter, RichProgress, SilentProgress
 
     rig_config = load_config(config)
-    progress: ProgressReporter = (
-        SilentProgress() if quiet else RichProgress(StepCostModel(rig_config.dry_run))
-    )
-    result = run_demo(rig_config, out, progress=progress)
+    result = run_demo(rig_config, out, progress=_capture_progress(rig_config, quiet))
     capture = result.capture
     typer.echo(f"session: {capture.session} (capture {result.capture_s:.1f} s)")
     if capture.exit_status != "success":

@@ -72,16 +72,9 @@ def open_relays(
                     f"devices.relays.channels = {config.channels}",
                 )
             return board
-        case LcusRelayConfig():
-            return open_lcus(
-                config.port,
-                config.channels,
-                timeout_s=config.timeout_s,
-                transcript=transcript,
-                baud=config.baud,
-            )
-        case NumatoRelayConfig():
-            return open_numato(
+        case LcusRelayConfig() | NumatoRelayConfig():
+            opener = open_lcus if isinstance(config, LcusRelayConfig) else open_numato
+            return opener(
                 config.port,
                 config.channels,
                 timeout_s=config.timeout_s,

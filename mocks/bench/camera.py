@@ -1,7 +1,7 @@
 """The twin's camera: a fake gphoto2 body whose frames are rendered from the lamps that are on.
 
 The real camera driver (``drivers.camera``) talks to a :class:`mocks.fake_gphoto2.FakeBody` with a
-Canon-like widget set that stores DNG files; :class:`FrameRenderer` is the body's frame source. For
+Canon EOS widget set that stores DNG files; :class:`FrameRenderer` is the body's frame source. For
 each frame it
 
 1. mixes the noiseless radiance of the lit lamps from a cache (each lamp's two spectral components,
@@ -37,14 +37,8 @@ from calib.spectra import Spectrum
 from mocks.bench.lamps import drift_coefficients, spectral_components
 from mocks.bench.optics import REFERENCE_F_NUMBER, REFERENCE_ISO, TwinOptics
 from mocks.dng import DngMetadata, write_dng
-from mocks.fake_gphoto2 import FakeBody, FrameRequest, StorageLayout, WidgetSpec
-from mocks.fake_gphoto2.bodies import (
-    CANON_APERTURE_CHOICES,
-    CANON_ISO_CHOICES,
-    CANON_SHUTTER_CHOICES,
-)
+from mocks.fake_gphoto2 import FakeBody, FrameRequest, StorageLayout, canon_eos_body
 from mocks.fake_gphoto2.body import placeholder_frame
-from mocks.fake_gphoto2.constants import GP_WIDGET_RADIO, GP_WIDGET_TEXT, GP_WIDGET_TOGGLE
 from mocks.lamps import LampBank, SimulatedClock, VirtualLamp
 from mocks.scene import expose, render_mosaic_radiance
 
@@ -57,7 +51,6 @@ TWIN_EPOCH = datetime(2025, 11, 21, 9, 0, 0)
 TWIN_MAKE = "spectral-rig"
 TWIN_MODEL = "TwinCam"
 TWIN_PORT = "usb:001,009"
-TWIN_IMAGE_FORMATS = ("Large Fine JPEG", "RAW + Large Fine JPEG", "RAW")
 
 
 @dataclass(frozen=True)
@@ -232,39 +225,19 @@ class FrameRenderer:
 
 
 def twin_body(renderer: FrameRenderer, clock: SimulatedClock, serial: str) -> FakeBody:
-    """The twin's camera body: Canon-like shutter, aperture and ISO tables, RAW as DNG, bulb."""
-
-    def radio(
-        name: str, label: str, section: str, value: str, choices: tuple[str, ...]
-    ) -> WidgetSpec:
-        return WidgetSpec(name, label, GP_WIDGET_RADIO, section, value, choices)
-
-    def status(name: str, label: str, value: str) -> WidgetSpec:
-        return WidgetSpec(name, label, GP_WIDGET_TEXT, "status", value, read_only=True)
-
-    widgets = [
-        radio("capturetarget", "Capture Target", "settings", "Internal RAM",
-              ("Internal RAM", "Memory card")),
-        status("serialnumber", "Serial Number", serial),
-        status("manufacturer", "Camera Manufacturer", TWIN_MAKE),
-        status("cameramodel", "Camera Model", TWIN_MODEL),
-        status("deviceversion", "Device Version", "1.0"),
-        radio("imageformat", "Image Format", "imgsettings", TWIN_IMAGE_FORMATS[0],
-              TWIN_IMAGE_FORMATS),
-        radio("iso", "ISO Speed", "imgsettings", "100", CANON_ISO_CHOICES),
-        radio("shutterspeed", "Shutter Speed", "capturesettings", "1/125", CANON_SHUTTER_CHOICES),
-        radio("aperture", "Aperture", "capturesettings", "8", CANON_APERTURE_CHOICES),
-        WidgetSpec("bulb", "Bulb Mode", GP_WIDGET_TOGGLE, "actions", 0),
-    ]  # fmt: skip
-    return FakeBody(
-        f"{TWIN_MAKE} {TWIN_MODEL}",
-        TWIN_PORT,
-        widgets,
-        layout=StorageLayout(
-            card_folder="/store_00010001/DCIM/100TWIN",
-            card_name="TWIN{index:04d}",
-            raw_extension=".DNG",
-        ),
+    """The twin's camera body: a Canon-like body (third-stop shutter table 30 s…1/8000 s and bulb,
+    apertures, ISO, image formats with RAW) that stores its RAW frames as DNG files."""
+    body = canon_eos_body(
+        port=TWIN_PORT,
+        model=f"{TWIN_MAKE} {TWIN_MODEL}",
+        serial=serial,
         frame_source=renderer,
         clock=clock,
     )
+    body.values["manufacturer"] = TWIN_MAKE
+    body.layout = StorageLayout(
+        card_folder="/store_00010001/DCIM/100TWIN",
+        card_name="TWIN{index:04d}",
+        raw_extension=".DNG",
+    )
+    return body
