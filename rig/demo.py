@@ -27,7 +27,7 @@ from calib.metrics import relative_error
 from calib.spectra import read_multispectrum_csv
 from rig.capture import run_capture
 from rig.config import RigConfig
-from rig.errors import StationUnavailable
+from rig.errors import RigError
 from rig.progress import ProgressReporter
 from rig.runner import RunOutcome
 from rig.twin import bench_module, write_twin_truth
@@ -39,6 +39,12 @@ REPORT_FILE = "report.html"
 
 SessionEstimator = Callable[[Path, Path], object]
 """Estimates a session into an output directory (writes ``sensitivity.csv``, ``report.html`` …)."""
+
+
+class EstimatorUnavailable(RigError):
+    """This installation has no session estimator (``rig.estimate``)."""
+
+    reason = "estimator_unavailable"
 
 
 @dataclass(frozen=True)
@@ -75,14 +81,14 @@ def default_estimator() -> SessionEstimator:
 
     Raises
     ------
-    StationUnavailable
+    EstimatorUnavailable
         When this installation has no session estimator.
     """
     try:
         module = importlib.import_module("rig.estimate")
     except ModuleNotFoundError as exc:
         if exc.name is not None and "rig.estimate".startswith(exc.name):
-            raise StationUnavailable(
+            raise EstimatorUnavailable(
                 "the estimate step (rig.estimate) is not part of this installation"
             ) from None
         raise
