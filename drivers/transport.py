@@ -18,6 +18,7 @@ transcript all satisfy it. The rules it enforces are the lessons of the pyserial
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import time
 from collections.abc import Callable
@@ -165,6 +166,14 @@ class SerialSettings:
     xonxoff: bool = False
     write_timeout_s: float = DEFAULT_WRITE_TIMEOUT_S
     exclusive: bool = True
+
+    def with_baud(self, baudrate: int | None) -> SerialSettings:
+        """These settings at another line speed (``None``: unchanged)."""
+        if baudrate is None:
+            return self
+        if baudrate <= 0:
+            raise ValueError(f"baud rate must be positive, got {baudrate}")
+        return dataclasses.replace(self, baudrate=baudrate)
 
     def describe(self) -> str:
         flow = "rtscts" if self.rtscts else "xonxoff" if self.xonxoff else "no flow control"

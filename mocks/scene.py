@@ -16,6 +16,13 @@ pixel of the given colour would collect above black:
 * optionally the −1 order (mirror image at ``u < 0``, scaled) and the 2nd order (``profile(u/2)/2``,
   twice as dispersed, scaled).
 
+A :class:`SceneSignal` gives the first order as per-pixel values at sample positions, which are
+interpolated at each pixel's centre. A :class:`PixelIntegratedSignal` gives it as the cumulative
+integral of its density along ``u`` instead, and every pixel receives the exact integral of that
+density over its own footprint (the unit square, turned by the dispersion angle, projected onto
+``u``): the same per-pixel integrals ``calib.forward`` computes for its 1-D profiles, at any angle
+and sub-pixel spot position.
+
 :func:`render_mosaic_radiance` samples that field at every sensor pixel for the pixel's own colour
 (any of RGGB, BGGR, GRBG, GBRG); :func:`expose` turns it into a raw frame: exposure time, dark
 current, shot noise (Poisson in electrons), read noise, black level, quantisation and clipping, all
@@ -25,6 +32,7 @@ random numbers from the caller's seeded generator. Both are vectorised and work 
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -168,9 +176,133 @@ class SceneSignal:
         object.__setattr__(self, "pixel", pixel)
         object.__setattr__(self, "profile", profile)
 
+    @property
+    def reach_px(self) -> float:
+        """Distance from the spot beyond which the first order is dark."""
+        return float(self.pixel[-1])
 
-def _soft_box(distance: FloatArray, half_size: float, edge: float) -> FloatArray:
-    """1 inside ``|d| ≤ half − edge/2``, 0 beyond ``half + edge/2``, raised cosine between."""
+    def first_order(
+        self, channel: int, u: FloatArray, footprint: PixelFootprint, stretch: float = 1.0
+    ) -> FloatArray:
+        """Per-pixel radiance of the order at distances ``u`` (the pixel centres), DN/s.
+
+        The profile is interpolated at ``u / stretch`` and divided by ``stretch`` (a 2nd order is the
+        first order stretched twice as far); ``footprint`` is not used (point sampling).
+        """
+        values = np.interp(u / stretch, self.pixel, self.profile[:, channel], left=0.0, right=0.0)
+        return np.asarray(values / stretch, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class PixelFootprint:
+    """A unit pixel projected onto the dispersion axis: the sum of two centred uniform widths.
+
+    A pixel turned by ``θ`` against the dispersion covers ``u`` with the density of
+    ``U₁ + U₂``, ``U₁`` uniform over ``|cos θ|`` and ``U₂`` over ``|sin θ|`` (a trapezoid).
+    """
+
+    wide_px: float
+    narrow_px: float
+
+    @classmethod
+    def at_angle(cls, angle_deg: float) -> PixelFootprint:
+        cos, sin = abs(math.cos(math.radians(angle_deg))), abs(math.sin(math.radians(angle_deg)))
+        return cls(max(cos, sin), min(cos, sin))
+
+
+#: Gauss–Legendre nodes and weights on [−½, ½] for averaging over the footprint's narrow side.
+_NARROW_NODES, _NARROW_WEIGHTS = (array / 2.0 for array in np.polynomial.legendre.leggauss(4))
+#: Below this narrow width (pixels) the footprint is a plain box.
+_BOX_FOOTPRINT_PX = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class PixelIntegratedSignal:
+    """The light of one lamp as a cumulative integral along the dispersion, integrated per pixel.
+
+    Parameters
+    ----------
+    direct_rgb
+        Shape ``(3,)``: the direct spot's radiance summed over all sensor pixels (DN/s).
+    position_px
+        Shape ``(m,)``: distances from the spot centre along the dispersion (sensor pixels),
+        increasing; finely spaced (a tenth of a pixel or less), since the density is taken as
+        constant between them.
+    cumulative
+        Shape ``(m, 3)``: ``C(u) = ∫_{position[0]}^{u} f(x) dx`` of the first order's density
+        ``f`` on the band's centre line (DN/s per pixel area), non-decreasing; the order is dark
+        before ``position[0]`` and beyond ``position[-1]``.
+
+    Notes
+    -----
+    A pixel whose centre lies at ``u`` receives the mean of ``f`` over its footprint
+    (:class:`PixelFootprint`): ``E[C(u + U₂ + a/2) − C(u + U₂ − a/2)] / a``, exact in ``U₁`` and
+    a four-node Gauss–Legendre mean over the narrow side ``U₂``. Along the axis (``θ = 0``) that is
+    ``C(u + ½) − C(u − ½)``: the per-pixel integral of ``calib.forward``.
+    """
+
+    direct_rgb: FloatArray
+    position_px: FloatArray
+    cumulative: FloatArray
+
+    def __post_init__(self) -> None:
+        direct = np.asarray(self.direct_rgb, dtype=np.float64)
+        position = np.asarray(self.position_px, dtype=np.float64)
+        cumulative = np.asarray(self.cumulative, dtype=np.float64)
+        if direct.shape != (3,) or cumulative.shape != (position.size, 3) or position.size < 2:
+            raise ValueError("need direct_rgb (3,), position_px (m ≥ 2,) and cumulative (m, 3)")
+        if not np.all(np.diff(position) > 0):
+            raise ValueError("positions must increase")
+        if (direct < 0).any() or (np.diff(cumulative, axis=0) < 0).any():
+            raise ValueError("radiance must be non-negative (cumulative non-decreasing)")
+        object.__setattr__(self, "direct_rgb", direct)
+        object.__setattr__(self, "position_px", position)
+        object.__setattr__(self, "cumulative", cumulative - cumulative[0])
+
+    @property
+    def reach_px(self) -> float:
+        return float(self.position_px[-1])
+
+    def per_pixel(self, pixel: ArrayLike) -> FloatArray:
+        """Shape ``(n, 3)``: the per-pixel integrals of axis-aligned pixels centred at ``pixel``."""
+        centres = np.asarray(pixel, dtype=np.float64)
+        footprint = PixelFootprint(1.0, 0.0)
+        return np.stack([self.first_order(c, centres, footprint) for c in range(3)], axis=1)
+
+    def first_order(
+        self, channel: int, u: FloatArray, footprint: PixelFootprint, stretch: float = 1.0
+    ) -> FloatArray:
+        """Mean density of the order over each pixel's footprint centred at ``u``, DN/s.
+
+        ``stretch`` spreads the order ``stretch`` times as far (``C(u / stretch)``), keeping its
+        total.
+        """
+        column = self.cumulative[:, channel]
+        last = float(column[-1])
+
+        def cumulative_at(x: FloatArray) -> FloatArray:
+            return np.interp(x / stretch, self.position_px, column, left=0.0, right=last)
+
+        half = footprint.wide_px / 2.0
+        if footprint.narrow_px < _BOX_FOOTPRINT_PX:
+            nodes, weights = np.zeros(1), np.ones(1)
+        else:
+            nodes, weights = _NARROW_NODES * footprint.narrow_px, _NARROW_WEIGHTS
+        total = np.zeros(np.shape(u), dtype=np.float64)
+        for node, weight in zip(nodes, weights, strict=True):
+            total += weight * (cumulative_at(u + node + half) - cumulative_at(u + node - half))
+        return total / footprint.wide_px
+
+
+FirstOrderSignal = SceneSignal | PixelIntegratedSignal
+"""Either form of a lamp's light (both have ``direct_rgb``, ``reach_px`` and ``first_order``)."""
+
+
+def soft_box(distance: FloatArray, half_size: float, edge: float) -> FloatArray:
+    """1 inside ``|d| ≤ half − edge/2``, 0 beyond ``half + edge/2``, raised cosine between.
+
+    The shape of the slit's image along and across (its integral over ``d`` is ``2 · half_size``).
+    """
     if edge <= 0:
         return (np.abs(distance) <= half_size).astype(np.float64)
     ramp = np.clip((np.abs(distance) - (half_size - edge / 2.0)) / edge, 0.0, 1.0)
@@ -193,7 +325,7 @@ def _spot_normaliser(layout: SceneLayout, sensor: SensorModel) -> float:
         return 0.0
     u, v = _site_coordinates(layout, rows, columns)
     along, across = layout.spot_half_size_px
-    return float((_soft_box(u, along, layout.edge_px) * _soft_box(v, across, layout.edge_px)).sum())
+    return float((soft_box(u, along, layout.edge_px) * soft_box(v, across, layout.edge_px)).sum())
 
 
 def _bounding_rows_columns(
@@ -222,7 +354,7 @@ def _bounding_rows_columns(
 
 def _field(
     layout: SceneLayout,
-    signal: SceneSignal,
+    signal: FirstOrderSignal,
     channel: int,
     u: FloatArray,
     v: FloatArray,
@@ -230,25 +362,21 @@ def _field(
 ) -> FloatArray:
     """Radiance of one channel at coordinates ``(u, v)`` (no background)."""
     along, across = layout.spot_half_size_px
-    value = spot_scale * _soft_box(u, along, layout.edge_px) * _soft_box(v, across, layout.edge_px)
-    band = _soft_box(v, layout.band_half_width_px, layout.edge_px)
-    profile = signal.profile[:, channel]
-
-    def order(distance: FloatArray) -> FloatArray:
-        return np.interp(distance, signal.pixel, profile, left=0.0, right=0.0)
-
+    value = spot_scale * soft_box(u, along, layout.edge_px) * soft_box(v, across, layout.edge_px)
+    band = soft_box(v, layout.band_half_width_px, layout.edge_px)
+    footprint = PixelFootprint.at_angle(layout.dispersion_angle_deg)
     orders = np.zeros_like(u)
     if layout.plus_first_strength:
-        orders += layout.plus_first_strength * order(u)
+        orders += layout.plus_first_strength * signal.first_order(channel, u, footprint)
     if layout.minus_first_strength:
-        orders += layout.minus_first_strength * order(-u)
+        orders += layout.minus_first_strength * signal.first_order(channel, -u, footprint)
     if layout.second_order_strength:
-        orders += layout.second_order_strength * 0.5 * order(u / 2.0)
+        orders += layout.second_order_strength * signal.first_order(channel, u, footprint, 2.0)
     return value + orders * band
 
 
 def render_mosaic_radiance(
-    layout: SceneLayout, signal: SceneSignal, sensor: SensorModel
+    layout: SceneLayout, signal: FirstOrderSignal, sensor: SensorModel
 ) -> Float32Array:
     """Radiance each sensor pixel sees through its own colour filter.
 
@@ -257,7 +385,7 @@ def render_mosaic_radiance(
     layout
         Spot position, dispersion angle, band width, which orders are present.
     signal
-        The lamp's direct total and first-order profile.
+        The lamp's direct total and first-order profile (point-sampled or pixel-integrated).
     sensor
         Size and CFA layout.
 
@@ -266,7 +394,7 @@ def render_mosaic_radiance(
     numpy.ndarray
         Shape ``(height_px, width_px)``, float32, DN/s.
     """
-    reach = float(signal.pixel[-1]) * (2.0 if layout.second_order_strength else 1.0)
+    reach = signal.reach_px * (2.0 if layout.second_order_strength else 1.0) + 1.0
     rows, columns = _bounding_rows_columns(layout, sensor, spot_only=False, reach_px=reach)
     normaliser = _spot_normaliser(layout, sensor)
     mosaic = np.empty((sensor.height_px, sensor.width_px), dtype=np.float32)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -19,6 +19,10 @@ from rich.table import Table
 from calib.errors import CalibError, InputError
 from drivers.base import DeviceError
 from rig.errors import RigError
+
+if TYPE_CHECKING:
+    from rig.config import RigConfig
+    from rig.progress import ProgressReporter
 
 app = typer.Typer(
     name="rig",
@@ -38,6 +42,14 @@ def _duration(seconds: float) -> str:
     if hours:
         return f"{hours} h {minutes:02d} min"
     return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
+
+
+def _capture_progress(config: RigConfig, quiet: bool) -> ProgressReporter:
+    """A progress bar timed by the dry-run model of ``config``, or silence with ``--quiet``."""
+    from rig.dryrun import StepCostModel
+    from rig.progress import RichProgress, SilentProgress
+
+    return SilentProgress() if quiet else RichProgress(StepCostModel(config.dry_run))
 
 
 @app.command()
@@ -64,14 +76,9 @@ def capture(
     """Run the standard capture: every lamp warmed up, measured, bracketed, with dark frames."""
     from rig.capture import run_capture
     from rig.config import load_config
-    from rig.dryrun import StepCostModel
-    from rig.progress import ProgressReporter, RichProgress, SilentProgress
 
     rig_config = load_config(config)
-    progress: ProgressReporter = (
-        SilentProgress() if quiet else RichProgress(StepCostModel(rig_config.dry_run))
-    )
-    outcome = run_capture(rig_config, out_dir=out, progress=progress)
+    outcome = run_capture(rig_config, out_dir=out, progress=_capture_progress(rig_config, quiet))
     status = {"success": "complete", "abort": "interrupted", "fail": "failed"}[outcome.exit_status]
     typer.echo(f"session: {outcome.session}")
     typer.echo(f"status: {status} ({outcome.reason}): {outcome.message}")
@@ -205,6 +212,121 @@ def estimate(
         typer.echo(f"method: {result.method}, mapping RE estimate {result.mapping_re_estimate:.2e}")
     else:
         typer.echo(f"method: {result.method}")
+
+
+@app.command()
+def devices(
+    serial: Annotated[bool, typer.Option("--serial/--no-serial", help="List serial ports.")] = True,
+    usb: Annotated[
+        bool, typer.Option("--usb/--no-usb", help="Probe HID relay boards on the USB bus.")
+    ] = True,
+    cameras: Annotated[
+        bool, typer.Option("--cameras/--no-cameras", help="Autodetect gphoto2 cameras.")
+    ] = True,
+    timeout_s: Annotated[
+        float,
+        typer.Option(
+            "--timeout", min=0.1, help="Deadline of each USB probe and of autodetection, s."
+        ),
+    ] = 5.0,
+) -> None:
+    """List the serial ports, HID relay boards and cameras present, with config snippets for each."""
+    from drivers.discovery import list_devices, render_text
+
+    report = list_devices(
+        include_serial=serial,
+        include_usb_relays=usb,
+        include_cameras=cameras,
+        timeout_s=timeout_s,
+    )
+    typer.echo(render_text(report), nl=False)
+
+
+data_app = typer.Typer(
+    help="Reference camera sensitivity data (downloaded, never shipped).", no_args_is_help=True
+)
+app.add_typer(data_app, name="data")
+
+
+@data_app.command("fetch")
+def data_fetch(
+    dest: Annotated[
+        Path | None,
+        typer.Option(
+            "--dest", help="Data directory to fill (default: $SPECTRAL_RIG_DATA or the user cache)."
+        ),
+    ] = None,
+    collection: Annotated[
+        list[str] | None,
+        typer.Option("--collection", help="A collection to fetch (repeatable; default: all)."),
+    ] = None,
+    base_url: Annotated[
+        str | None,
+        typer.Option(
+            "--base-url", help="Mirror root, {base}/{repository}/{commit}/{path}; file:// works."
+        ),
+    ] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Download the pinned camera collections and verify every file's size and SHA-256."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from calib.datasets import fetch_datasets, pinned_files
+
+    files = pinned_files(collection)
+    progress = Progress(
+        TextColumn("fetching"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.description}"),
+        console=Console(stderr=True),
+        disable=quiet,
+    )
+    with progress:
+        task = progress.add_task("", total=len(files))
+
+        def advance(done: int, total: int, path: str) -> None:
+            progress.update(task, completed=done, total=total, description=path)
+
+        report = fetch_datasets(dest, collections=collection, base_url=base_url, progress=advance)
+    typer.echo(
+        f"{len(report.downloaded)} downloaded, {len(report.already_present)} already present "
+        f"and valid, in {report.destination}"
+    )
+
+
+@app.command()
+def demo(
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Directory for the session, estimate and report.")
+    ] = Path("demo-output"),
+    config: ConfigOption = DEFAULT_CONFIG,
+    quiet: Annotated[
+        bool, typer.Option("--quiet", "-q", help="No progress bar; only the result.")
+    ] = False,
+) -> None:
+    """Capture on the digital twin, estimate, and report the error against the twin's true camera."""
+    from rig.config import load_config
+    from rig.demo import run_demo
+
+    rig_config = load_config(config)
+    result = run_demo(rig_config, out, progress=_capture_progress(rig_config, quiet))
+    capture = result.capture
+    typer.echo(f"session: {capture.session} (capture {result.capture_s:.1f} s)")
+    if capture.exit_status != "success":
+        typer.echo(f"the capture did not complete ({capture.reason}): {capture.message}", err=True)
+        raise typer.Exit(capture.exit_code)
+    typer.echo(f"twin truth: {result.truth}")
+    typer.echo(f"estimate: {result.estimate_dir} ({result.estimate_s:.1f} s)")
+    if result.report is not None:
+        typer.echo(f"report: {result.report}")
+    if result.relative_error is None:
+        typer.echo("the estimate wrote no sensitivity.csv: no error to report", err=True)
+        raise typer.Exit(1)
+    typer.echo(
+        f"RE against the twin's camera: {result.relative_error:.4f} "
+        "(Makabe et al. 2025 Eq. 16, curves normalised to their maximum)"
+    )
 
 
 def _fail(message: str, code: int) -> None:

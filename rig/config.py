@@ -6,8 +6,9 @@ keys are an error, not "last one wins"), validates, and turns every problem into
 the value found and what is allowed, with the closest valid key suggested for a typo.
 
 Exposure times may be written as seconds (``0.01``), fractions (``"1/125"``) or with a unit
-(``"2.5s"``, ``"40ms"``). Relative paths (``output_dir``) are resolved against the directory of the
-configuration file, so a rig behaves the same whatever the working directory.
+(``"2.5s"``, ``"40ms"``). Relative paths (``output_dir``, the twin's ``data_dir`` and
+``state_file``) are resolved against the directory of the configuration file, so a rig behaves the
+same whatever the working directory.
 
 The device ``kind`` selects a driver: ``pr655``/``pr670``/``cs2000`` spectroradiometers, ``lcus``/
 ``numato``/``hid_usbrelay`` relay boards, a ``gphoto2`` camera, or ``twin`` for the simulated bench
@@ -104,11 +105,16 @@ class SerialSpectrometerConfig(StrictModel):
 
 
 class TwinSpectrometerConfig(StrictModel):
-    """The simulated bench's spectrometer: the real driver talking to the byte-level emulator."""
+    """The simulated bench's spectrometer: the real driver talking to the byte-level emulator.
+
+    ``time_scale`` is the fraction of the instrument's modelled measuring time (seconds for an
+    adaptive exposure) that passes in wall time; the twin's clock does not wait for it.
+    """
 
     kind: Literal["twin"]
     emulate: SpectrometerModel = "pr655"
     timeout_s: float = Field(35.0, gt=0, le=600)
+    time_scale: float = Field(0.001, gt=0, le=1)
 
 
 class LcusRelayConfig(StrictModel):
@@ -140,13 +146,38 @@ class HidRelayConfig(StrictModel):
     timeout_s: float = Field(2.0, gt=0, le=60)
 
 
+class TwinLampConfig(StrictModel):
+    """A simulated lamp behind the twin's relay board (every field has a default per lamp kind).
+
+    ``spd`` names a colour-science illuminant (``LED-B3``, ``FL2``, ``A``, ``D65`` …; default: the
+    lamp's own name). The settled spectrum is scaled so that its mean over 400–700 nm is
+    ``radiance_w_sr_m2_nm`` (default 0.01). After switch-on the output and the spectral tilt drift
+    exponentially (time constant ``warmup_tau_s``) from ``1 + warmup_gain`` and ``warmup_tilt`` per
+    100 nm to their settled values.
+    """
+
+    spd: str | None = Field(None, min_length=1)
+    radiance_w_sr_m2_nm: float | None = Field(None, gt=0, le=1e4)
+    warmup_tau_s: float | None = Field(None, ge=0, le=86400)
+    warmup_gain: float | None = Field(None, gt=-1, lt=10)
+    warmup_tilt: float | None = Field(None, gt=-0.5, lt=0.5)
+
+
 class TwinRelayConfig(StrictModel):
-    """The simulated bench's relay board: the real driver talking to the emulator."""
+    """The simulated bench's relay board: the real driver talking to the emulator.
+
+    ``lamps`` describes the simulated lamps by their ``lamps[].name``; lamps not listed get the
+    defaults of their kind. With ``state_file`` the simulated relays keep their state between
+    processes, as a real board does when the rig dies (a capture killed with a lamp on leaves it
+    on for the next one); without it every twin starts with its relays off.
+    """
 
     kind: Literal["twin"]
     emulate: RelayModel = "hid_usbrelay"
     channels: Literal[1, 2, 4, 8] = 2
     timeout_s: float = Field(2.0, gt=0, le=60)
+    lamps: dict[str, TwinLampConfig] = Field(default_factory=dict)
+    state_file: Path | None = None
 
 
 class Gphoto2CameraConfig(StrictModel):
@@ -161,12 +192,90 @@ class Gphoto2CameraConfig(StrictModel):
     )
 
 
+CfaPattern = Literal["RGGB", "BGGR", "GRBG", "GBRG"]
+
+
+class TwinSensorConfig(StrictModel):
+    """The twin camera's Bayer sensor (levels and noise at ISO 100; the gain scales with ISO)."""
+
+    width_px: int = Field(1200, ge=64, le=12000, description="sensor width (even)")
+    height_px: int = Field(800, ge=64, le=8000, description="sensor height (even)")
+    pixel_pitch_um: float = Field(4.8, gt=0, le=50)
+    cfa_pattern: CfaPattern = "RGGB"
+    black_level_dn: int = Field(512, ge=0, le=60000)
+    white_level_dn: int = Field(16383, ge=1, le=65535)
+    gain_dn_per_electron: float = Field(0.5, gt=0, le=100, description="at ISO 100")
+    read_noise_dn: float = Field(2.5, ge=0, le=1000)
+    dark_current_dn_per_s: float = Field(0.5, ge=0, le=1e5)
+
+    @model_validator(mode="after")
+    def _even_and_ordered(self) -> TwinSensorConfig:
+        odd = [
+            f"{name} = {value}"
+            for name, value in (("width_px", self.width_px), ("height_px", self.height_px))
+            if value % 2
+        ]
+        if odd:
+            raise ValueError(f"{' and '.join(odd)}: a Bayer sensor has even sides")
+        if self.black_level_dn >= self.white_level_dn:
+            raise ValueError(
+                f"black_level_dn = {self.black_level_dn} is not below white_level_dn = "
+                f"{self.white_level_dn}"
+            )
+        return self
+
+
+class TwinGratingConfig(StrictModel):
+    """The twin's transmission grating in front of the lens (first-order efficiency: scalar blaze)."""
+
+    grooves_per_mm: float = Field(500.0, gt=0, le=3000)
+    blaze_nm: float = Field(500.0, ge=200, le=2000)
+    first_order_peak_efficiency: float = Field(0.3, gt=0, le=1)
+    zeroth_order_efficiency: float = Field(0.1, gt=0, le=1)
+    dispersion_angle_deg: float = Field(
+        0.8, ge=-180, le=180, description="direction of the first order on the sensor, from +x"
+    )
+
+
+class TwinOpticsConfig(StrictModel):
+    """Lens, slit and light level of the twin.
+
+    The slit's image on the sensor is ``slit_width_px`` along the dispersion and
+    ``slit_length_px`` across, with raised-cosine edges ``edge_px`` wide (the lens blur).
+    ``spot_position_px`` places the direct spot (default: left of centre so the first order from
+    380 to 780 nm fits). ``throughput_e_per_s`` converts radiance (W/(sr·m²·nm)) times a sensitivity
+    that peaks at 1, integrated over wavelength (nm), into photo-electrons per second at f/8.
+    """
+
+    focal_length_mm: float = Field(12.0, gt=0, le=2000)
+    slit_width_px: float = Field(4.0, gt=0, le=500)
+    slit_length_px: float = Field(300.0, gt=0, le=8000)
+    edge_px: float = Field(2.0, ge=0, le=100)
+    spot_position_px: tuple[float, float] | None = None
+    throughput_e_per_s: float = Field(3.0e10, gt=0, le=1e16)
+
+
 class TwinCameraConfig(StrictModel):
-    """The simulated bench's camera, writing real DNG files."""
+    """The simulated bench's camera: the real gphoto2 driver on a fake body writing real DNG files.
+
+    ``sensitivity`` names the camera whose spectral sensitivity the twin has: one of
+    colour-science's cameras (``sensitivity_collection: colour-science``, the default), or a camera
+    of a downloaded collection (``rig data fetch``; ``data_dir`` as for calib). Each frame costs
+    its exposure plus ``download_s`` on the twin's clock; with ``realtime: true`` they also pass in
+    wall time (to measure the rig's own overhead).
+    """
 
     kind: Literal["twin"]
     timeout_s: float = Field(10.0, gt=0, le=600)
     download_timeout_s: float = Field(60.0, gt=0, le=3600)
+    sensitivity: str = Field("Nikon 5100 (NPL)", min_length=1)
+    sensitivity_collection: str = Field("colour-science", min_length=1)
+    data_dir: Path | None = None
+    sensor: TwinSensorConfig = TwinSensorConfig()
+    grating: TwinGratingConfig = TwinGratingConfig()
+    optics: TwinOpticsConfig = TwinOpticsConfig()
+    download_s: float = Field(0.5, ge=0, le=600, description="simulated download time per frame")
+    realtime: bool = False
 
 
 SpectrometerConfig = Annotated[
@@ -381,9 +490,18 @@ def parse_config(text: str, source: str = "<config>", base_dir: Path | None = No
         For YAML syntax errors, duplicate keys, or any validation problem (all reported at once).
     """
     config = parse_yaml_model(text, RigConfig, source)
-    if base_dir is not None and not config.output_dir.is_absolute():
+    if base_dir is None:
+        return config
+    if not config.output_dir.is_absolute():
         config = config.model_copy(update={"output_dir": base_dir / config.output_dir})
-    return config
+    devices = config.devices
+    camera, relays = devices.camera, devices.relays
+    if isinstance(camera, TwinCameraConfig) and camera.data_dir is not None:
+        camera = camera.model_copy(update={"data_dir": base_dir / camera.data_dir})
+    if isinstance(relays, TwinRelayConfig) and relays.state_file is not None:
+        relays = relays.model_copy(update={"state_file": base_dir / relays.state_file})
+    devices = devices.model_copy(update={"camera": camera, "relays": relays})
+    return config.model_copy(update={"devices": devices})
 
 
 def load_config(path: str | Path) -> RigConfig:

@@ -79,7 +79,7 @@ StationBuilder = Callable[[RigConfig, TranscriptFactory], Station]
 
 STATION_BUILDERS: dict[str, StationBuilder | str] = {
     "hardware": "rig.hardware:open_hardware_station",
-    "twin": "mocks.bench:open_twin_station",
+    "twin": "rig.twin:open_twin_station",
 }
 """Builders by station kind: a callable, or ``"module:function"`` imported on first use."""
 

@@ -132,8 +132,11 @@ def open_lcus(
     timeout_s: float = DEFAULT_TIMEOUT_S,
     transcript: TranscriptSink | None = None,
     pacing: Pacing = DEFAULT_PACING,
+    baud: int | None = None,
 ) -> LcusRelayBoard:
     """Open an LCUS board with ``channels`` relays on ``port`` and read its state.
+
+    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS`.
 
     Raises
     ------
@@ -146,7 +149,7 @@ def open_lcus(
         raise ValueError(f"LCUS boards have 1–{MAX_CHANNELS} channels, got {channels}")
     transport = open_serial(
         port,
-        SERIAL_SETTINGS,
+        SERIAL_SETTINGS.with_baud(baud),
         device=f"LCUS-{channels} relay board on {port}",
         transcript=transcript,
         pacing=pacing,

@@ -207,8 +207,11 @@ def open_numato(
     *,
     timeout_s: float = DEFAULT_TIMEOUT_S,
     transcript: TranscriptSink | None = None,
+    baud: int | None = None,
 ) -> NumatoRelayBoard:
     """Open a Numato module with ``channels`` relays on ``port``, resynchronise and identify it.
+
+    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS`.
 
     Raises
     ------
@@ -222,7 +225,7 @@ def open_numato(
         raise ValueError(f"Numato modules have {CHANNEL_COUNTS} relays, got {channels}")
     transport = open_serial(
         port,
-        SERIAL_SETTINGS,
+        SERIAL_SETTINGS.with_baud(baud),
         device=f"Numato {channels}-relay module on {port}",
         transcript=transcript,
     )

@@ -46,6 +46,7 @@ def open_spectrometer(
     timeout_s: float | None = None,
     measure_timeout_s: float | None = None,
     transcript: TranscriptSink | None = None,
+    baud: int | None = None,
 ) -> Spectrometer:
     """Open the spectrometer ``model`` on ``port`` (device path or pyserial URL), ready to measure.
 
@@ -63,6 +64,8 @@ def open_spectrometer(
         60 s); for a CS-2000 the margin beyond the time the instrument announces (default 10 s).
     transcript
         Where every exchange is recorded.
+    baud
+        Line speed; ``None`` takes the instrument's own (PR-6xx 9600, CS-2000 115200).
 
     Raises
     ------
@@ -83,6 +86,7 @@ def open_spectrometer(
                 pr6xx.DEFAULT_MEASURE_TIMEOUT_S if measure_timeout_s is None else measure_timeout_s
             ),
             transcript=transcript,
+            baud=baud,
         )
     return open_cs2000(
         port,
@@ -92,4 +96,5 @@ def open_spectrometer(
             cs2000.DEFAULT_COMPLETION_MARGIN_S if measure_timeout_s is None else measure_timeout_s
         ),
         transcript=transcript,
+        baud=baud,
     )

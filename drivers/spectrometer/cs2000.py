@@ -483,8 +483,11 @@ def open_cs2000(
     completion_margin_s: float = DEFAULT_COMPLETION_MARGIN_S,
     internal_nd: InternalNd = "auto",
     transcript: TranscriptSink | None = None,
+    baud: int | None = None,
 ) -> Cs2000:
     """Open a CS-2000/CS-2000A on ``port`` (path or pyserial URL), enter remote mode, identify it.
+
+    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS`.
 
     Raises
     ------
@@ -495,7 +498,7 @@ def open_cs2000(
     """
     _check_options(model, internal_nd)
     transport = open_serial(
-        port, SERIAL_SETTINGS, device=f"{model} on {port}", transcript=transcript
+        port, SERIAL_SETTINGS.with_baud(baud), device=f"{model} on {port}", transcript=transcript
     )
     instrument = Cs2000(
         transport,

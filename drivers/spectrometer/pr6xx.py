@@ -501,8 +501,11 @@ def open_pr6xx(
     measure_timeout_s: float = DEFAULT_MEASURE_TIMEOUT_S,
     transcript: TranscriptSink | None = None,
     pacing: Pacing = DEFAULT_PACING,
+    baud: int | None = None,
 ) -> Pr6xx:
     """Open a PR-655/PR-670 on ``port`` (path or pyserial URL), enter remote mode and identify it.
+
+    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS` (the legacy RS-232 port).
 
     Raises
     ------
@@ -514,7 +517,11 @@ def open_pr6xx(
     if model not in MODELS:
         raise ValueError(f"unknown Photo Research model {model!r}; known: {sorted(MODELS)}")
     transport = open_serial(
-        port, SERIAL_SETTINGS, device=f"{model} on {port}", transcript=transcript, pacing=pacing
+        port,
+        SERIAL_SETTINGS.with_baud(baud),
+        device=f"{model} on {port}",
+        transcript=transcript,
+        pacing=pacing,
     )
     instrument = Pr6xx(
         transport,

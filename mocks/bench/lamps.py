@@ -1,0 +1,212 @@
+"""The twin's lamps: colour-science spectral distributions behind relay channels, with warm-up drift.
+
+A lamp's settled spectrum is a colour-science illuminant (CIE LED series ``LED-B3`` …, fluorescent
+``FL2`` …, ``A``, ``D65``, high-pressure ``HP1`` …) scaled to the configured radiance; the drift
+after switch-on is :class:`mocks.lamps.VirtualLamp`'s. The CIE fluorescent tables hold each mercury
+line's power in its 5 nm bin; a fluorescent lamp gets its lines back as narrow peaks at their true
+wavelengths (:func:`with_narrow_lines`), as the camera and the spectrometer of a real rig see them —
+the pixel→wavelength mapping is found from them.
+
+The camera renders a lamp's light once per *spectral component*: the drifting spectrum
+``settled · (1 + g·d) · (1 + k·d·(λ − 550)/100)`` is, at every moment, a combination of two fixed
+spectra, ``settled · (λ_max − λ)/(λ_max − λ_min)`` and ``settled · (λ − λ_min)/(λ_max − λ_min)``
+(a tilt is linear in λ). :func:`drift_coefficients` finds that combination from the lamp's
+radiance itself and says when it does not hold, so the camera falls back to rendering the
+spectrum directly rather than trusting a model of the drift.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calib.observations import LAMP_KINDS, LampKind
+from calib.spectra import Spectrum
+from mocks.bench.spec import LampSpec, TwinSpecError
+from mocks.lamps import Clock, LampBank, VirtualLamp
+
+FloatArray = NDArray[np.float64]
+
+#: Wavelength range over which a lamp's radiance is normalised to the configured mean.
+NORMALISATION_RANGE_NM = (400.0, 700.0)
+#: Mercury lines of fluorescent lamps (nm, in air): 404.7, 435.8, 546.1 and the 577/579 doublet.
+MERCURY_LINES_NM = (404.656, 435.833, 546.074, 576.960, 579.066)
+#: Width the twin gives a lamp's lines (far below what the camera's slit image and the
+#: spectrometer's bandwidth resolve), and the sampling of a spectrum with lines.
+LINE_FWHM_NM = 1.0
+LINE_STEP_NM = 0.2
+#: Relative residual above which a lamp's spectrum is not a mix of its two components.
+COMPONENT_TOLERANCE = 1e-9
+
+
+def illuminant_names() -> list[str]:
+    """The colour-science illuminants a twin lamp may take its spectrum from."""
+    import colour  # deferred: importing colour costs about a second
+
+    return sorted(str(name) for name in colour.SDS_ILLUMINANTS)
+
+
+def settled_spectrum(lamp: LampSpec) -> Spectrum:
+    """The lamp's settled spectral radiance, W/(sr·m²·nm), on the illuminant's own sampling.
+
+    Raises
+    ------
+    TwinSpecError
+        The illuminant is unknown, or has no light in 400–700 nm.
+    """
+    import colour
+
+    distribution = colour.SDS_ILLUMINANTS.get(lamp.spd)
+    if distribution is None:
+        shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
+        raise TwinSpecError(
+            f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
+            f"illuminant; name the lamp after one or set spd to one of: {shown}"
+        )
+    spectrum = Spectrum.from_colour(distribution, name=lamp.name)
+    low, high = NORMALISATION_RANGE_NM
+    axis = np.arange(low, high + 0.5, 1.0)
+    mean = float(np.mean(spectrum.at(axis)))
+    if mean <= 0:
+        raise TwinSpecError(
+            f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} has no light in {low:g}–{high:g} nm"
+        )
+    return spectrum.scaled(lamp.radiance_w_sr_m2_nm / mean)
+
+
+def with_narrow_lines(
+    spectrum: Spectrum,
+    lines_nm: Sequence[float] = MERCURY_LINES_NM,
+    *,
+    fwhm_nm: float = LINE_FWHM_NM,
+    step_nm: float = LINE_STEP_NM,
+) -> Spectrum:
+    """A binned line spectrum (CIE tables: each line's power added to its 5 nm bin) with its lines
+    restored as narrow Gaussians at their true wavelengths.
+
+    The bins holding a line are replaced by the continuum interpolated from the nearest bins
+    without one; each line gets its bin's excess power (value above that continuum × bin width),
+    shared equally by the lines of one bin. Lines outside the table or without an excess are left
+    out. The result, on a ``step_nm`` axis, has the table's total power.
+    """
+    axis = spectrum.wavelength_nm
+    values = spectrum.values
+    widths = np.gradient(axis)
+    line_bins: dict[int, list[float]] = {}
+    for line in lines_nm:
+        index = int(np.argmin(np.abs(axis - line)))
+        if abs(axis[index] - line) <= widths[index] / 2:
+            line_bins.setdefault(index, []).append(line)
+    clear = np.array([index not in line_bins for index in range(axis.size)])
+    continuum = np.interp(axis, axis[clear], values[clear])
+    fine = np.arange(axis[0], axis[-1] + step_nm / 2, step_nm)
+    result = np.interp(fine, axis, continuum)
+    sigma = fwhm_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    for index, lines in line_bins.items():
+        power = (values[index] - continuum[index]) * widths[index]
+        for line in lines if power > 0 else ():
+            profile = np.exp(-0.5 * ((fine - line) / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi))
+            result += power / len(lines) * profile
+    return Spectrum(fine, result, name=spectrum.name)
+
+
+def virtual_lamp(lamp: LampSpec) -> VirtualLamp:
+    """The lamp as the lamp bank holds it (a fluorescent lamp with narrow mercury lines)."""
+    kind: LampKind = next((k for k in LAMP_KINDS if k == lamp.kind), "other")
+    settled = settled_spectrum(lamp)
+    return VirtualLamp(
+        name=lamp.name,
+        channel=lamp.channel,
+        spectrum=with_narrow_lines(settled) if kind == "fluorescent" else settled,
+        kind=kind,
+        warmup_tau_s=lamp.drift.tau_s,
+        warmup_gain=lamp.drift.gain,
+        warmup_tilt=lamp.drift.tilt,
+    )
+
+
+def spectral_components(lamp: VirtualLamp) -> tuple[Spectrum, Spectrum]:
+    """The two fixed spectra whose mix is the lamp at any time: settled × falling/rising ramp."""
+    settled = lamp.spectrum
+    low, high = settled.range_nm
+    rising = (settled.wavelength_nm - low) / (high - low)
+    return (
+        Spectrum(settled.wavelength_nm, settled.values * (1.0 - rising), name=f"{lamp.name}-blue"),
+        Spectrum(settled.wavelength_nm, settled.values * rising, name=f"{lamp.name}-red"),
+    )
+
+
+def drift_coefficients(
+    lamp: VirtualLamp, components: Sequence[Spectrum], seconds_on: float
+) -> FloatArray | None:
+    """Weights ``(k,)`` of ``components`` that make the lamp's radiance after ``seconds_on``.
+
+    Returns ``None`` when no mix reproduces the radiance to :data:`COMPONENT_TOLERANCE` (the lamp
+    drifts in a way the components do not span).
+    """
+    axis = lamp.spectrum.wavelength_nm
+    radiance = lamp.radiance(axis, seconds_on)
+    basis = np.stack([component.at(axis) for component in components], axis=1)
+    weights, *_ = np.linalg.lstsq(basis, radiance, rcond=None)
+    residual = float(np.linalg.norm(basis @ weights - radiance))
+    if residual > COMPONENT_TOLERANCE * max(float(np.linalg.norm(radiance)), 1e-300):
+        return None
+    return np.asarray(weights, dtype=np.float64)
+
+
+class PersistentLampBank(LampBank):
+    """A lamp bank whose relay channels outlive the process, like a real board's relays.
+
+    Every switch writes the channels to ``state_file`` (``"0100"``: channel 1 first), replacing it
+    atomically; :meth:`saved_channels` reads what a previous process left.
+
+    Parameters
+    ----------
+    lamps, n_channels, clock
+        As for :class:`mocks.lamps.LampBank`.
+    state_file
+        The file; its directory must exist.
+    """
+
+    def __init__(
+        self,
+        lamps: Sequence[VirtualLamp],
+        n_channels: int,
+        clock: Clock,
+        state_file: Path,
+    ) -> None:
+        super().__init__(lamps, n_channels, clock)
+        self.state_file = state_file
+
+    def saved_channels(self) -> tuple[bool, ...]:
+        """The channels a previous process left (all off when there is no file).
+
+        Raises
+        ------
+        TwinSpecError
+            The file holds something else than one ``0``/``1`` per channel.
+        """
+        try:
+            text = self.state_file.read_text(encoding="ascii").strip()
+        except FileNotFoundError:
+            return (False,) * self.n_channels
+        except (OSError, UnicodeDecodeError) as exc:
+            raise TwinSpecError(
+                f"devices.relays.state_file: cannot read {self.state_file}: {exc}"
+            ) from None
+        if len(text) != self.n_channels or set(text) - {"0", "1"}:
+            raise TwinSpecError(
+                f"devices.relays.state_file: {self.state_file} holds {text[:40]!r}, not one 0/1 per "
+                f"relay channel ({self.n_channels}); delete it to start with every relay off"
+            )
+        return tuple(character == "1" for character in text)
+
+    def set_channel(self, channel: int, on: bool) -> None:
+        super().set_channel(channel, on)
+        text = "".join("1" if state else "0" for state in self.channel_states())
+        temporary = self.state_file.with_name(f".{self.state_file.name}.part")
+        temporary.write_text(text + "\n", encoding="ascii")
+        temporary.replace(self.state_file)

@@ -1,0 +1,288 @@
+"""Open the digital twin: lamps on a simulated clock, emulators on ptys and USB, the real drivers on top.
+
+:func:`open_twin` builds, in order:
+
+1. a :class:`mocks.lamps.SimulatedClock` and a :class:`mocks.lamps.LampBank` with the configured
+   lamps (colour-science spectra, warm-up drift) — persistent when the spec names a relay state
+   file, so relays left on by a killed process are on again in the next;
+2. the relay board: a HID USBRelay board on the fake pyusb backend, or an LCUS/Numato emulator on a
+   pty — each switching the bank's channels — opened with the real driver;
+3. the spectrometer: the PR-655/670 or CS-2000 firmware emulator on a pty, measuring the bank's
+   radiance, opened with the real driver (without the PR-6xx's character pacing, which the real
+   instrument's USB link needs and the emulator does not);
+4. the camera: a fake gphoto2 body whose frames :class:`mocks.bench.camera.FrameRenderer` renders,
+   opened with the real gphoto2 driver (bulb exposures timed on the twin's clock).
+
+Everything random is seeded from the spec's seed. Faults can be injected from the start
+(:class:`TwinFaults`) or later through the handles on :class:`TwinBench` (``camera_body.inject``,
+``relay_board.inject``, ``spectrometer_port.emulator.faults``).
+
+If any step fails, what was opened so far is closed again before the error propagates.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptSink
+from drivers.camera import CameraTimeouts, open_camera
+from drivers.relays.hid_usbrelay import open_hid_relay
+from drivers.relays.lcus import open_lcus
+from drivers.relays.numato import open_numato
+from drivers.spectrometer import open_spectrometer
+from drivers.spectrometer.pr6xx import open_pr6xx
+from drivers.transport import NO_PACING
+from mocks.bench.camera import FrameRenderer, twin_body
+from mocks.bench.lamps import PersistentLampBank, virtual_lamp
+from mocks.bench.optics import TwinOptics
+from mocks.bench.spec import TwinSpec
+from mocks.bench.truth import TwinTruth
+from mocks.emulators import start_cs2000, start_lcus, start_numato, start_pr655, start_pr670
+from mocks.fake_gphoto2 import CameraFault, FakeBody, FakeGphoto2
+from mocks.faults import FaultSchedule
+from mocks.lamps import LampBank, SimulatedClock
+from mocks.pty_serial import PtySerialDevice
+from mocks.usb_relay_backend import EmulatedRelayBoard, FakeUsbBackend, UsbFault
+
+TranscriptFactory = Callable[[str], TranscriptSink]
+"""The transcript sink for a device role (``"spectrometer"``, ``"relays"``, ``"camera"``)."""
+
+#: Random stream of the spectrometer's noise, mixed with the seed.
+SPECTROMETER_NOISE_STREAM = 1
+#: The twin's relay board ID and camera serial number.
+TWIN_RELAY_SERIAL = "TWIN1"
+TWIN_CAMERA_SERIAL = "TW0000000001"
+
+SPECTROMETER_NAMES = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
+
+
+@dataclass
+class TwinFaults:
+    """Faults armed when the twin opens.
+
+    Attributes
+    ----------
+    spectrometer
+        Schedule of the spectrometer emulator (labels: its commands, ``"M5"``, ``"MEAS,1"`` …).
+    serial_relays
+        Schedule of an LCUS or Numato emulator.
+    usb_relays
+        Faults of the HID board (see :class:`mocks.usb_relay_backend.UsbFault`).
+    camera
+        Faults of the camera body (see :class:`mocks.fake_gphoto2.CameraFault`).
+    """
+
+    spectrometer: FaultSchedule | None = None
+    serial_relays: FaultSchedule | None = None
+    usb_relays: Sequence[UsbFault] = ()
+    camera: Sequence[CameraFault] = ()
+
+
+@dataclass(eq=False)
+class TwinBench:
+    """The open twin: the drivers the rig uses, and the simulated hardware behind them."""
+
+    spec: TwinSpec
+    optics: TwinOptics
+    clock: SimulatedClock
+    bank: LampBank
+    renderer: FrameRenderer
+    spectrometer_port: PtySerialDevice
+    spectrometer: Spectrometer
+    relays: RelayBoard
+    camera: Camera
+    camera_body: FakeBody
+    gphoto2: FakeGphoto2
+    relay_port: PtySerialDevice | None = None
+    relay_board: EmulatedRelayBoard | None = None
+    usb_backend: FakeUsbBackend | None = None
+    closed: bool = field(default=False, init=False)
+
+    @property
+    def truth(self) -> TwinTruth:
+        """What an estimate from this twin's frames should find."""
+        return TwinTruth.of(self.optics, self.spec.seed)
+
+    def close(self) -> None:
+        """Stop the emulators and remove scratch files (the drivers are closed by their owner)."""
+        if self.closed:
+            return
+        self.closed = True
+        self.gphoto2.release_hangs()
+        for port in (self.spectrometer_port, self.relay_port):
+            if port is not None:
+                with contextlib.suppress(Exception):
+                    port.stop()
+        self.renderer.close()
+
+
+class _Opened:
+    """What has been opened so far, closed in reverse order if opening the rest fails."""
+
+    def __init__(self) -> None:
+        self._closers: list[Callable[[], object]] = []
+
+    def add(self, closer: Callable[[], object]) -> None:
+        self._closers.append(closer)
+
+    def close_all(self) -> None:
+        for closer in reversed(self._closers):
+            with contextlib.suppress(Exception):
+                closer()
+
+
+def open_twin(
+    spec: TwinSpec,
+    transcripts: TranscriptFactory | None = None,
+    *,
+    faults: TwinFaults | None = None,
+    prepare: bool = True,
+) -> TwinBench:
+    """Open the simulated bench described by ``spec``.
+
+    Parameters
+    ----------
+    spec
+        The bench.
+    transcripts
+        Gives each device's transcript sink by role (default: none recorded).
+    faults
+        Faults armed from the start.
+    prepare
+        Render every lamp's noiseless image now (otherwise at its first frame).
+
+    Raises
+    ------
+    mocks.bench.spec.TwinSpecError
+        The spec cannot be built (unknown camera or illuminant, a layout that does not fit).
+    drivers.base.DeviceError
+        A driver fails to open its emulated device (e.g. an injected fault at open).
+    """
+    faults = faults or TwinFaults()
+
+    def sink(role: str) -> TranscriptSink | None:
+        return transcripts(role) if transcripts is not None else None
+
+    optics = TwinOptics.build(spec.camera)
+    clock = SimulatedClock()
+    lamps = [virtual_lamp(lamp) for lamp in spec.lamps]
+    bank: LampBank
+    saved = (False,) * spec.relay_channels
+    if spec.relay_state_file is None:
+        bank = LampBank(lamps, n_channels=spec.relay_channels, clock=clock)
+    else:
+        bank = PersistentLampBank(lamps, spec.relay_channels, clock, spec.relay_state_file)
+        saved = bank.saved_channels()
+    renderer = FrameRenderer(
+        optics,
+        bank,
+        clock,
+        seed=spec.seed,
+        download_s=spec.camera.download_s,
+        realtime=spec.camera.realtime,
+    )
+    opened = _Opened()
+    opened.add(renderer.close)
+    try:
+        if prepare:
+            renderer.prepare()
+        relay_port: PtySerialDevice | None = None
+        relay_board: EmulatedRelayBoard | None = None
+        usb_backend: FakeUsbBackend | None = None
+        relays: RelayBoard
+        if spec.relay_model == "hid_usbrelay":
+            relay_board = EmulatedRelayBoard(TWIN_RELAY_SERIAL, spec.relay_channels, lamp_bank=bank)
+            relay_board.state_mask = sum(1 << index for index, on in enumerate(saved) if on)
+            for usb_fault in faults.usb_relays:
+                relay_board.inject(usb_fault)
+            usb_backend = FakeUsbBackend([relay_board], clock=clock)
+            relays = open_hid_relay(
+                TWIN_RELAY_SERIAL,
+                backend=usb_backend,
+                transcript=sink("relays"),
+                timeout_s=spec.relay_timeout_s,
+            )
+        else:
+            start = start_lcus if spec.relay_model == "lcus" else start_numato
+            relay_port = start(spec.relay_channels, bank, faults=faults.serial_relays)
+            opened.add(relay_port.stop)
+            relay_port.emulator.states = list(saved)  # type: ignore[attr-defined]
+            opener = open_lcus if spec.relay_model == "lcus" else open_numato
+            relays = opener(
+                relay_port.path,
+                spec.relay_channels,
+                timeout_s=spec.relay_timeout_s,
+                transcript=sink("relays"),
+            )
+        opened.add(relays.close)
+        # Relays left on by a previous process light their lamps again (warming up from now).
+        for channel, on in enumerate(saved, start=1):
+            if on:
+                bank.set_channel(channel, True)
+
+        noise = np.random.default_rng(
+            np.random.SeedSequence([spec.seed, SPECTROMETER_NOISE_STREAM])
+        )
+        starter = {"pr655": start_pr655, "pr670": start_pr670, "cs2000": start_cs2000}
+        spectrometer_port = starter[spec.spectrometer_model](
+            bank.radiance,
+            seed=noise,
+            faults=faults.spectrometer,
+            time_scale=spec.spectrometer_time_scale,
+        )
+        opened.add(spectrometer_port.stop)
+        if spec.spectrometer_model == "cs2000":
+            spectrometer = open_spectrometer(
+                "CS-2000",
+                spectrometer_port.path,
+                timeout_s=spec.spectrometer_timeout_s,
+                transcript=sink("spectrometer"),
+            )
+        else:
+            # The PR-6xx driver paces characters for the real instrument's USB link; the emulator
+            # takes whole commands, so the twin drops the pauses (same bytes, no waiting).
+            spectrometer = open_pr6xx(
+                SPECTROMETER_NAMES[spec.spectrometer_model],
+                spectrometer_port.path,
+                timeout_s=spec.spectrometer_timeout_s,
+                transcript=sink("spectrometer"),
+                pacing=NO_PACING,
+            )
+        opened.add(spectrometer.close)
+
+        body = twin_body(renderer, clock, TWIN_CAMERA_SERIAL)
+        for camera_fault in faults.camera:
+            body.inject(camera_fault)
+        gphoto2 = FakeGphoto2([body])
+        opened.add(gphoto2.release_hangs)
+        camera = open_camera(
+            gphoto2_module=gphoto2,
+            transcript=sink("camera"),
+            timeouts=CameraTimeouts(
+                call_s=spec.camera.timeout_s, download_s=spec.camera.download_timeout_s
+            ),
+            exposure_timer=clock,
+        )
+    except BaseException:
+        opened.close_all()
+        raise
+    return TwinBench(
+        spec=spec,
+        optics=optics,
+        clock=clock,
+        bank=bank,
+        renderer=renderer,
+        spectrometer_port=spectrometer_port,
+        spectrometer=spectrometer,
+        relays=relays,
+        camera=camera,
+        camera_body=body,
+        gphoto2=gphoto2,
+        relay_port=relay_port,
+        relay_board=relay_board,
+        usb_backend=usb_backend,
+    )

@@ -1,0 +1,175 @@
+"""``rig demo``: a whole measurement on the digital twin — capture, estimate, report, and the error.
+
+1. Capture with the given configuration (the shipped ``config.yaml``: every device the twin) into
+   ``<out>/sessions/`` — the real runner, plan and drivers, on simulated hardware.
+2. Write the twin's truth (``twin-truth.json``: the camera it really has, its grating and mapping)
+   into the session directory. The session's log does not acknowledge it, so it is never one of the
+   session's trusted files.
+3. Estimate from the session (``rig.estimate.estimate_session``: HDR merge, profiles, the
+   estimator, ``sensitivity.csv``, ``result.json``, ``report.html``) into
+   ``<out>/estimate/<session>/``.
+4. Compare ``sensitivity.csv`` with the truth: RE (Makabe et al. 2025, Eq. 16) on the estimate's
+   own wavelengths, both normalised to their maximum.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calib.errors import InputError
+from calib.metrics import relative_error
+from calib.spectra import read_multispectrum_csv
+from rig.capture import run_capture
+from rig.config import RigConfig
+from rig.errors import RigError
+from rig.progress import ProgressReporter
+from rig.runner import RunOutcome
+from rig.twin import bench_module, write_twin_truth
+
+SESSIONS_DIR = "sessions"
+ESTIMATE_DIR = "estimate"
+SENSITIVITY_FILE = "sensitivity.csv"
+REPORT_FILE = "report.html"
+
+SessionEstimator = Callable[[Path, Path], object]
+"""Estimates a session into an output directory (writes ``sensitivity.csv``, ``report.html`` …)."""
+
+
+class EstimatorUnavailable(RigError):
+    """This installation has no session estimator (``rig.estimate``)."""
+
+    reason = "estimator_unavailable"
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """What the demo produced.
+
+    Attributes
+    ----------
+    capture
+        How the capture ended (with the session's path).
+    truth
+        The twin's ``twin-truth.json``.
+    estimate_dir
+        Where the estimate's files are (``None`` when the capture failed).
+    report
+        The HTML report, when the estimate wrote one.
+    relative_error
+        RE of the estimated sensitivity against the twin's camera.
+    capture_s, estimate_s
+        Wall time of the two stages.
+    """
+
+    capture: RunOutcome
+    truth: Path
+    estimate_dir: Path | None = None
+    report: Path | None = None
+    relative_error: float | None = None
+    capture_s: float = 0.0
+    estimate_s: float = 0.0
+
+
+def default_estimator() -> SessionEstimator:
+    """``rig.estimate.estimate_session``, imported now.
+
+    Raises
+    ------
+    EstimatorUnavailable
+        When this installation has no session estimator.
+    """
+    try:
+        module = importlib.import_module("rig.estimate")
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and "rig.estimate".startswith(exc.name):
+            raise EstimatorUnavailable(
+                "the estimate step (rig.estimate) is not part of this installation"
+            ) from None
+        raise
+    estimator: SessionEstimator = module.estimate_session
+    return estimator
+
+
+def sensitivity_error(estimate_csv: Path, truth_json: Path) -> float:
+    """RE of the sensitivity in ``estimate_csv`` against the twin's truth, on the estimate's grid.
+
+    Raises
+    ------
+    InputError
+        When the estimate lies outside the truth's wavelength range.
+    """
+    estimated = read_multispectrum_csv(estimate_csv)
+    truth = bench_module().TwinTruth.read(truth_json).sensitivity
+    low, high = truth.range_nm
+    wavelength = estimated.wavelength_nm
+    if wavelength[0] < low or wavelength[-1] > high:
+        raise InputError(
+            f"the estimate covers {wavelength[0]:g}–{wavelength[-1]:g} nm, the twin's camera "
+            f"{low:g}–{high:g} nm",
+            source=str(estimate_csv),
+        )
+    reference = np.stack(
+        [np.interp(wavelength, truth.wavelength_nm, truth.values[:, k]) for k in range(3)], axis=1
+    )
+    return relative_error(estimated.values, reference)
+
+
+def run_demo(
+    config: RigConfig,
+    out_dir: Path,
+    *,
+    progress: ProgressReporter | None = None,
+    estimator: SessionEstimator | None = None,
+) -> DemoResult:
+    """Capture on the twin, estimate, and measure the estimate against the twin's camera.
+
+    Parameters
+    ----------
+    config
+        A configuration whose devices are the twin.
+    out_dir
+        Receives ``sessions/<session>/`` and ``estimate/<session>/``.
+    progress
+        Progress of the capture.
+    estimator
+        The estimate step (default :func:`default_estimator`).
+
+    Raises
+    ------
+    InputError
+        When the configuration's devices are not the twin.
+    """
+    if not config.devices.simulated:
+        raise InputError(
+            "rig demo runs on the digital twin: set every device's kind to 'twin' (as the "
+            "shipped config.yaml does), or use `rig capture` on real hardware",
+            source="devices",
+        )
+    estimate = estimator or default_estimator()
+    started = time.perf_counter()
+    outcome = run_capture(config, out_dir=out_dir / SESSIONS_DIR, progress=progress)
+    capture_s = time.perf_counter() - started
+    truth = write_twin_truth(config, outcome.session)
+    if outcome.exit_status != "success":
+        return DemoResult(outcome, truth, capture_s=capture_s)
+    estimate_dir = out_dir / ESTIMATE_DIR / outcome.session.name
+    started = time.perf_counter()
+    estimate(outcome.session, estimate_dir)
+    estimate_s = time.perf_counter() - started
+    sensitivity = estimate_dir / SENSITIVITY_FILE
+    report = estimate_dir / REPORT_FILE
+    return DemoResult(
+        capture=outcome,
+        truth=truth,
+        estimate_dir=estimate_dir,
+        report=report if report.is_file() else None,
+        relative_error=sensitivity_error(sensitivity, truth) if sensitivity.is_file() else None,
+        capture_s=capture_s,
+        estimate_s=estimate_s,
+    )

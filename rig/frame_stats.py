@@ -1,0 +1,294 @@
+"""The real frame analyser: what a RAW frame shows of the direct spot and the first-order band.
+
+Automatic bracketing needs, after every scene frame, how much of the direct spot is saturated and how
+much signal the first-order band has (:class:`rig.analysis.FrameStats`). :class:`RawFrameAnalyzer`
+decodes the frame with :func:`calib.raw.read_raw` (black-subtracted R, G, B planes at half
+resolution, with a saturation mask) and measures in the geometry :func:`calib.profiles.detect_geometry`
+finds — once per lamp, on the frame binned to at most 400 plane samples a side: the first frame of
+a lamp in which the band is detected fixes the geometry for that lamp's later frames. Frames are grouped by their directory, which the session layout
+(``frames/<lamp>/scene-000.dng``) makes the lamp.
+
+What is measured, per 2×2 cell of the sensor (one plane sample of each channel):
+
+* **direct saturated fraction** — of the cells in the spot's rectangle, those saturated in any
+  channel;
+* **band signal** — the channel mean above black, minus the median of strips beside the band,
+  averaged over the band's bright part (bins along the band at least a quarter of its 98th
+  percentile; a lamp's dim ends do not dilute it);
+* **band SNR** — that signal over the noise of one cell, measured on the frame itself from the
+  differences of neighbouring cells across the band (robust MAD; no noise model needed);
+* **band saturated fraction** — of the band's cells, those saturated in any channel.
+
+A frame whose band cannot be found (an exposure too short to show it) gets a band SNR of 0 and its
+spot found as the region above half the frame's peak, so bracketing extends towards longer
+exposures; a frame without a spot, or whose spot or band leaves the sensor, cannot be measured and
+raises :class:`rig.errors.FrameAnalysisError` with what to change at the rig.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from calib.errors import InputError
+from calib.hdr import FrameRecord, HdrImage
+from calib.profiles import DetectionError, DiffractionGeometry, detect_geometry
+from calib.profiles.geometry import rectangle_window, sample_positions, to_uv
+from calib.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw
+from rig.analysis import FrameStats
+from rig.errors import FrameAnalysisError
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+#: Bins along the band are this many sensor pixels long.
+BAND_BIN_PX = 4.0
+#: A bin belongs to the band's bright part from this fraction of the 98th-percentile bin.
+BRIGHT_FRACTION = 0.25
+#: Fewest neighbour pairs for a noise estimate from the frame itself.
+MIN_NOISE_PAIRS = 20
+_MAD_TO_SIGMA = 1.4826
+#: The frame's peak must stand this many noise sigmas above its median to count as a spot.
+MIN_SPOT_SNR = 20.0
+#: Frames are binned for detection until their planes are at most this many samples long.
+DETECTION_SIZE = 400
+#: Detection failures that mean "expose longer", not "the set-up is wrong".
+_BAND_TOO_DIM = ("no_band",)
+
+
+@dataclass(frozen=True, eq=False)
+class _Frame:
+    """A decoded frame: its planes, the channel mean per cell, and the any-channel saturation."""
+
+    planes: RawPlanes
+    image: HdrImage
+    mean_dn: NDArray[np.float32]
+    saturated: BoolArray
+
+
+def _decode(path: Path, saturation_fraction: float) -> _Frame:
+    try:
+        planes = read_raw(path, saturation_fraction=saturation_fraction)
+    except InputError as exc:
+        raise FrameAnalysisError(
+            str(path), f"cannot be decoded as a RAW frame ({exc}); the camera must deliver RAW"
+        ) from None
+    saturated: BoolArray = np.any(planes.saturated, axis=0)
+    image = HdrImage(
+        radiance=planes.signal_dn,
+        # Detection reads the radiance and the saturation only; a unit variance keeps the type.
+        variance=np.broadcast_to(np.float32(1.0), planes.signal_dn.shape),
+        saturated=planes.saturated,
+        channel_origin_px=planes.channel_origin_px,
+        pixel_pitch_px=2.0,
+        cfa_pattern=planes.cfa_pattern,
+        frames=(
+            FrameRecord(
+                path,
+                float(planes.metadata.exposure_s),
+                (),
+                _three(planes.saturated.mean(axis=(1, 2))),
+            ),
+        ),
+    )
+    mean_dn = planes.signal_dn.mean(axis=0, dtype=np.float32)
+    return _Frame(planes, image, mean_dn, saturated)
+
+
+def _detection_image(image: HdrImage) -> HdrImage:
+    """``image`` binned 2×2 (plane samples) while its long side exceeds :data:`DETECTION_SIZE`.
+
+    Detection only needs where the spot and the band are; on a binned image it is several times
+    faster, and the geometry stays in sensor pixels (pitch and channel origins follow the binning).
+    """
+    while max(image.plane_shape) > DETECTION_SIZE:
+        height, width = (size // 2 * 2 for size in image.plane_shape)
+        shape = (3, height // 2, 2, width // 2, 2)
+        radiance = (
+            image.radiance[:, :height, :width].reshape(shape).mean(axis=(2, 4), dtype=np.float32)
+        )
+        saturated: BoolArray = np.any(
+            image.saturated[:, :height, :width].reshape(shape), axis=(2, 4)
+        )
+        pitch = image.pixel_pitch_px
+        image = HdrImage(
+            radiance=radiance,
+            variance=np.broadcast_to(np.float32(1.0), radiance.shape),
+            saturated=saturated,
+            # A binned sample is the mean of two samples a pitch apart in each direction.
+            channel_origin_px=tuple(
+                (row + pitch / 2, column + pitch / 2) for row, column in image.channel_origin_px
+            ),
+            pixel_pitch_px=2 * pitch,
+            cfa_pattern=image.cfa_pattern,
+            frames=image.frames,
+        )
+    return image
+
+
+def _three(values: FloatArray) -> tuple[float, float, float]:
+    first, second, third = (float(value) for value in values)
+    return first, second, third
+
+
+def _cells_in(
+    frame: _Frame,
+    centre: tuple[float, float],
+    angle_deg: float,
+    u_range: tuple[float, float],
+    v_range: tuple[float, float],
+) -> tuple[tuple[slice, slice], FloatArray, FloatArray, BoolArray] | None:
+    """Window of cells around a ``(u, v)`` rectangle, their cell-centre ``u``, ``v`` and the inside mask."""
+    window = rectangle_window(frame.image, centre, angle_deg, u_range, v_range)
+    if window is None:
+        return None
+    # The green sample sits at the centre of its 2×2 cell.
+    y, x = sample_positions(frame.image, 1, *window)
+    u, v = to_uv(x, y, centre, angle_deg)
+    inside = (u >= u_range[0]) & (u <= u_range[1]) & (v >= v_range[0]) & (v <= v_range[1])
+    return window, u, v, inside
+
+
+def _robust_sigma(values: FloatArray) -> float:
+    return _MAD_TO_SIGMA * float(np.median(np.abs(values - np.median(values))))
+
+
+def _direct_saturated_fraction(frame: _Frame, geometry: DiffractionGeometry) -> float:
+    along, across = geometry.spot_half_size_px
+    cells = _cells_in(
+        frame,
+        geometry.spot_centre_px,
+        geometry.primary.angle_deg,
+        (-along, along),
+        (-across, across),
+    )
+    if cells is None:
+        raise FrameAnalysisError(
+            str(frame.planes.metadata.path), "the direct spot is off the frame"
+        )
+    window, _, _, inside = cells
+    count = int(inside.sum())
+    return float(frame.saturated[window][inside].sum()) / count if count else 0.0
+
+
+def _band_stats(frame: _Frame, geometry: DiffractionGeometry) -> tuple[float, float, float]:
+    """``(signal_dn, snr, saturated_fraction)`` of the primary first order."""
+    band = geometry.primary
+    centre, angle = geometry.spot_centre_px, band.angle_deg
+    offset = band.centre_offset_px
+    inner = band.band_half_width_px + geometry.background_gap_px
+    outer = inner + geometry.background_width_px
+    cells = _cells_in(
+        frame, centre, angle, (band.start_px, band.stop_px), (offset - outer, offset + outer)
+    )
+    if cells is None:
+        return 0.0, 0.0, 0.0
+    window, u, v, along_band = cells
+    values = frame.mean_dn[window].astype(np.float64)
+    saturated = frame.saturated[window]
+    across = np.abs(v - offset)
+    in_band = along_band & (across <= band.half_width_px)
+    in_strips = along_band & (across >= inner) & ~saturated
+    if not in_band.any():
+        return 0.0, 0.0, 0.0
+    background = float(np.median(values[in_strips])) if in_strips.any() else 0.0
+    net = values - background
+    bins = np.floor((u - band.start_px) / BAND_BIN_PX).astype(np.int64)
+    n_bins = int(bins[in_band].max()) + 1
+    sums = np.bincount(bins[in_band], weights=net[in_band], minlength=n_bins)
+    counts = np.bincount(bins[in_band], minlength=n_bins)
+    means = np.divide(sums, counts, out=np.zeros(n_bins), where=counts > 0)
+    top = float(np.percentile(means[counts > 0], 98))
+    bright_bins = means >= BRIGHT_FRACTION * top if top > 0 else counts > 0
+    bright = in_band & bright_bins[np.clip(bins, 0, n_bins - 1)]
+    signal = float(net[bright].mean())
+    saturated_fraction = float(saturated[in_band].mean())
+    return signal, _snr(net, bright & ~saturated, signal, angle), saturated_fraction
+
+
+def _snr(net: FloatArray, usable: BoolArray, signal: float, angle_deg: float) -> float:
+    """Signal over the noise of one cell, from the differences of neighbours across the band."""
+    if signal <= 0:
+        return 0.0
+    # Neighbours across a mostly horizontal band are the cells above/below, else left/right.
+    axis = (
+        0 if abs(math.cos(math.radians(angle_deg))) >= abs(math.sin(math.radians(angle_deg))) else 1
+    )
+    first = [slice(None), slice(None)]
+    second = [slice(None), slice(None)]
+    first[axis], second[axis] = slice(None, -1), slice(1, None)
+    pairs = usable[tuple(first)] & usable[tuple(second)]
+    differences = (net[tuple(second)] - net[tuple(first)])[pairs]
+    if differences.size < MIN_NOISE_PAIRS:
+        # Too few unsaturated pairs (a band clipped almost everywhere): shot noise at one
+        # electron per DN bounds the noise from below, so this SNR is an upper bound.
+        return math.sqrt(signal)
+    sigma = _robust_sigma(differences) / math.sqrt(2.0)
+    return signal / sigma if sigma > 0 else math.sqrt(signal)
+
+
+def _spot_only_stats(frame: _Frame) -> FrameStats:
+    """Stats of a frame without a detectable band: the spot is the region above half the peak."""
+    values = frame.mean_dn
+    background = float(np.median(values))
+    sample = values.ravel()[:: max(1, values.size // 200_000)].astype(np.float64)
+    noise = max(_robust_sigma(sample), 1e-6)
+    peak_index = np.unravel_index(int(np.argmax(values)), values.shape)
+    peak = float(values[peak_index])
+    if peak - background < MIN_SPOT_SNR * noise:
+        raise FrameAnalysisError(
+            str(frame.planes.metadata.path),
+            f"no direct spot: the brightest cell is only {(peak - background) / noise:.1f} noise "
+            "sigmas above the background; check that the lamp is on and the slit is in view",
+        )
+    labels, _ = ndimage.label(values >= background + 0.5 * (peak - background))
+    spot = labels == labels[peak_index]
+    return FrameStats(
+        direct_saturated_fraction=float(frame.saturated[spot].mean()),
+        band_snr=0.0,
+        band_signal_dn=0.0,
+        band_saturated_fraction=0.0,
+    )
+
+
+class RawFrameAnalyzer:
+    """:class:`rig.analysis.FrameAnalyzer` for RAW frames (any format LibRaw reads).
+
+    Parameters
+    ----------
+    saturation_fraction
+        A sample is saturated from this fraction of the way from black to the clipping level
+        (:func:`calib.raw.read_raw`).
+    """
+
+    def __init__(self, *, saturation_fraction: float = DEFAULT_SATURATION_FRACTION) -> None:
+        self.saturation_fraction = saturation_fraction
+        self.geometries: dict[str, DiffractionGeometry] = {}
+        """The geometry used for each lamp (frame directory), once detected."""
+
+    def analyse(self, frame: Path) -> FrameStats:
+        """The frame's statistics; :class:`FrameAnalysisError` when it cannot be measured."""
+        path = Path(frame)
+        decoded = _decode(path, self.saturation_fraction)
+        lamp = path.parent.name
+        geometry = self.geometries.get(lamp)
+        if geometry is None:
+            try:
+                geometry = detect_geometry(_detection_image(decoded.image))
+            except DetectionError as exc:
+                if exc.reason in _BAND_TOO_DIM:
+                    return _spot_only_stats(decoded)
+                raise FrameAnalysisError(str(path), str(exc)) from None
+            self.geometries[lamp] = geometry
+        signal, snr, band_saturated = _band_stats(decoded, geometry)
+        return FrameStats(
+            direct_saturated_fraction=_direct_saturated_fraction(decoded, geometry),
+            band_snr=max(snr, 0.0),
+            band_signal_dn=signal,
+            band_saturated_fraction=band_saturated,
+        )
