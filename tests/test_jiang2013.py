@@ -189,7 +189,7 @@ def test_estimate_from_an_image_equals_the_estimate_from_patch_values(
     observed = chart_observation_from_planes(
         image, CORNERS, checker, d65, layout=ChartLayout(window_fraction=0.3), name="photo"
     )
-    assert observed.metadata["window_px"] == 4  # 0.3 × the ~15 px pitch
+    assert observed.metadata["window_px"] == 8  # 0.3 × the ~29 px pitch
     result = calib.estimate([observed], method="jiang2013", basis=basis)
     np.testing.assert_allclose(result.sensitivity, truth, atol=1e-9)
 
