@@ -436,20 +436,13 @@ def run_scene(scene: CompareScene, adapter: SyntheticAdapter, grid: WavelengthGr
     """Run one adapter on one scene, timing only the estimate call."""
     observations, options = adapter.build(scene)
     started = time.perf_counter()
+    failure: str | None = None
+    curves: FloatArray | None = None
     try:
         result: EstimateResult = estimate(observations, method=adapter.method, grid=grid, **options)
+        curves = np.asarray(result.sensitivity)
     except CalibError as exc:
-        return CompareRow(
-            scene.camera,
-            adapter.label,
-            adapter.method,
-            scene.noise,
-            scene.repeat,
-            float("nan"),
-            time.perf_counter() - started,
-            failure=str(exc),
-            truth=scene.truth,
-        )
+        failure = str(exc)
     elapsed = time.perf_counter() - started
     return CompareRow(
         scene.camera,
@@ -457,9 +450,10 @@ def run_scene(scene: CompareScene, adapter: SyntheticAdapter, grid: WavelengthGr
         adapter.method,
         scene.noise,
         scene.repeat,
-        relative_error(result.sensitivity, scene.truth),
+        float("nan") if curves is None else relative_error(curves, scene.truth),
         elapsed,
-        estimate=np.asarray(result.sensitivity),
+        failure=failure,
+        estimate=curves,
         truth=scene.truth,
     )
 

@@ -40,7 +40,13 @@ from calib.charts import stimulus_rows
 from calib.errors import InputError
 from calib.inequality_lstsq import lstsq_inequality
 from calib.mapping import GratingGeometry, QuadraticMapping
-from calib.method_inputs import method_basis, normalised_curves, split_observations
+from calib.method_inputs import (
+    check_basis,
+    check_weight,
+    method_basis,
+    normalised_curves,
+    split_observations,
+)
 from calib.observations import ChartObservation
 from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, WavelengthGrid
@@ -99,17 +105,8 @@ def estimate_jiang2013(
     started = time.perf_counter()
     if not charts:
         raise InputError("jiang2013 needs at least one colour-chart observation", source="charts")
-    if basis.grid != grid:
-        raise InputError(
-            f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
-        )
-    if not 1 <= n_vectors <= basis.n_vectors:
-        raise InputError(
-            f"n_vectors must be between 1 and the basis' {basis.n_vectors}, got {n_vectors}",
-            source="n_vectors",
-        )
-    if ridge < 0 or not np.isfinite(ridge):
-        raise InputError(f"ridge must be >= 0, got {ridge}", source="ridge")
+    check_basis(basis, grid, n_vectors)
+    check_weight(ridge, "ridge")
     rows, rgb, sigma = _stacked_system(charts, grid)
     n_patches = rows.shape[0]
     if n_patches < n_vectors:
@@ -193,5 +190,5 @@ def jiang2013_method(
 ) -> EstimateResult:
     """Registry entry ``"jiang2013"``: chart observations only; mapping arguments are unused."""
     charts = split_observations(observations, "jiang2013", {"charts": ChartObservation})["charts"]
-    chosen = method_basis(basis, grid, n_vectors=n_vectors, data_dir=data_dir, method="jiang2013")
+    chosen = method_basis(basis, grid, n_vectors=n_vectors, data_dir=data_dir)
     return estimate_jiang2013(charts, basis=chosen, grid=grid, n_vectors=n_vectors, **options)

@@ -59,13 +59,31 @@ def split_observations(
     return groups
 
 
+def check_basis(basis: CameraBasis, grid: WavelengthGrid, n_vectors: int) -> None:
+    """Raise :class:`InputError` unless ``basis`` is on ``grid`` and has ``n_vectors`` (≥ 1) vectors."""
+    if basis.grid != grid:
+        raise InputError(
+            f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
+        )
+    if not 1 <= n_vectors <= basis.n_vectors:
+        raise InputError(
+            f"n_vectors must be between 1 and the basis' {basis.n_vectors}, got {n_vectors}",
+            source="n_vectors",
+        )
+
+
+def check_weight(value: float, name: str) -> None:
+    """Raise :class:`InputError` unless a regularisation weight is finite and ``>= 0``."""
+    if not (np.isfinite(value) and value >= 0):
+        raise InputError(f"{name} must be a finite number >= 0, got {value}", source=name)
+
+
 def method_basis(
     basis: CameraBasis | None,
     grid: WavelengthGrid,
     *,
     n_vectors: int,
     data_dir: str | Path | None,
-    method: str,
 ) -> CameraBasis:
     """The basis to use: the caller's (checked against the grid and ``n_vectors``) or the default.
 
@@ -76,16 +94,7 @@ def method_basis(
         from calib.methods import default_camera_basis
 
         return default_camera_basis(grid, n_vectors=n_vectors, data_dir=data_dir)
-    if basis.grid != grid:
-        raise InputError(
-            f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
-        )
-    if basis.n_vectors < n_vectors:
-        raise InputError(
-            f"{method} asks for {n_vectors} basis vectors per channel but the basis has "
-            f"{basis.n_vectors}",
-            source="basis",
-        )
+    check_basis(basis, grid, n_vectors)
     return basis
 
 

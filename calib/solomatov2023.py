@@ -54,7 +54,13 @@ from calib.charts import (
 from calib.errors import InputError
 from calib.inequality_lstsq import lstsq_inequality
 from calib.mapping import GratingGeometry, QuadraticMapping
-from calib.method_inputs import method_basis, normalised_curves, split_observations
+from calib.method_inputs import (
+    check_basis,
+    check_weight,
+    method_basis,
+    normalised_curves,
+    split_observations,
+)
 from calib.observations import ChartObservation, ColorMatrixObservation
 from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
@@ -435,17 +441,8 @@ def estimate_solomatov2023(
     EstimateResult
     """
     started = time.perf_counter()
-    if basis.grid != grid:
-        raise InputError(
-            f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
-        )
-    if not 1 <= n_vectors <= basis.n_vectors:
-        raise InputError(
-            f"n_vectors must be between 1 and the basis' {basis.n_vectors}, got {n_vectors}",
-            source="n_vectors",
-        )
-    if ridge < 0 or not np.isfinite(ridge):
-        raise InputError(f"ridge must be >= 0, got {ridge}", source="ridge")
+    check_basis(basis, grid, n_vectors)
+    check_weight(ridge, "ridge")
     if white_balance not in ("diagonal", "full", "none"):
         raise InputError(
             f"white_balance must be 'diagonal', 'full' or 'none', got {white_balance!r}",
@@ -539,9 +536,7 @@ def solomatov2023_method(
             f"calib.solomatov2023.read_color_matrices), got {len(groups['matrices'])}",
             source="observations",
         )
-    chosen = method_basis(
-        basis, grid, n_vectors=n_vectors, data_dir=data_dir, method="solomatov2023"
-    )
+    chosen = method_basis(basis, grid, n_vectors=n_vectors, data_dir=data_dir)
     return estimate_solomatov2023(
         groups["matrices"][0],
         groups["charts"],

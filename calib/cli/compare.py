@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shlex
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -75,6 +76,7 @@ def register(app: typer.Typer) -> None:
                     f"no measured camera data ({exc}); using the offline colour-science cameras"
                 )
                 fallback_used = True
+        basis: CameraBasis | Callable[[str], CameraBasis]
         if fallback_used:
             cameras = [
                 (r.name, r.sensitivity.resample(grid, "interpolate", out_of_range="zero"))
@@ -84,31 +86,25 @@ def register(app: typer.Typer) -> None:
             def basis_for(name: str) -> CameraBasis:
                 return fallback_camera_basis(grid=grid, exclude=[name.split(" (")[0]])
 
-            source = SyntheticSource(
-                cameras,
-                basis_for,
-                noise_levels=_parse_noise(noise),
-                repeats=repeats,
-                seed=seed,
-                broadband_lamp=lamp,
-                n_patches=patches,
-                grid=grid,
-                basis_description="colour-science built-ins (offline), each camera excluded "
-                "from its own basis",
+            basis = basis_for
+            basis_description = (
+                "colour-science built-ins (offline), each camera excluded from its own basis"
             )
         else:
-            basis = default_camera_basis(grid, data_dir=data_dir, exclude=[r.name for r in test])
-            source = SyntheticSource(
-                [(r.camera, r.sensitivity) for r in test],
-                basis,
-                noise_levels=_parse_noise(noise),
-                repeats=repeats,
-                seed=seed,
-                broadband_lamp=lamp,
-                n_patches=patches,
-                grid=grid,
-                basis_description=basis.source,
-            )
+            cameras = [(r.camera, r.sensitivity) for r in test]
+            measured = default_camera_basis(grid, data_dir=data_dir, exclude=[r.name for r in test])
+            basis, basis_description = measured, measured.source
+        source = SyntheticSource(
+            cameras,
+            basis,
+            noise_levels=_parse_noise(noise),
+            repeats=repeats,
+            seed=seed,
+            broadband_lamp=lamp,
+            n_patches=patches,
+            grid=grid,
+            basis_description=basis_description,
+        )
         toivonen: dict[str, Any] = {}
         if ensemble is not None:
             toivonen["ensemble_size"] = ensemble
