@@ -68,7 +68,7 @@ from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 FloatArray = NDArray[np.float64]
 WhiteBalance = Literal["diagonal", "full", "none"]
 
-#: Basis vectors per channel and ridge weight (chosen by leave-one-out over the 44 training
+#: Basis vectors per channel and ridge weight (chosen by leave-one-out over 22 of the 44 training
 #: cameras of Makabe et al.'s split with simulated matrices; docs/decisions/0009).
 SOLOMATOV2023_N_VECTORS = 5
 SOLOMATOV2023_RIDGE = 0.1

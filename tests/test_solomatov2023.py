@@ -112,6 +112,26 @@ def test_unknown_calibration_illuminants_need_an_override(tmp_path):
         read_color_matrices(missing)
 
 
+def test_non_dng_raw_files_fall_back_to_libraw_s_matrix(tmp_path, monkeypatch):
+    import rawpy
+
+    import calib.solomatov2023 as module
+
+    path = write_dng(
+        tmp_path / "canon.dng",
+        np.full((24, 32), 600, dtype=np.uint16),
+        DngMetadata(exposure_s=0.01, make="Canon", model="Canon EOS 5D Mark III"),
+    )
+    with rawpy.imread(str(path)) as raw:
+        expected = np.array(raw.rgb_xyz_matrix[:3])
+    # As for a CR2 or NEF: no DNG tags to read, so LibRaw's matrix for the camera is used.
+    monkeypatch.setattr(module, "_dng_matrices", lambda file: None)
+    observation = read_color_matrices(path)
+    np.testing.assert_allclose(observation.matrices[0], expected)
+    assert observation.illuminants == ("D65",)
+    assert "LibRaw built-in matrix" in observation.source
+
+
 def test_files_without_a_matrix_are_refused(tmp_path):
     plain = _tiff_with_tags(tmp_path / "plain.tif", [])
     with pytest.raises(InputError, match=r"no colour matrix.*Adobe DNG Converter"):
