@@ -238,7 +238,8 @@ def monochromatic_profile(
     else:
         raise InputError(
             "toivonen2020 needs the profile's pixel→wavelength mapping (Toivonen & Klami use two "
-            "laser lines): pass mapping=..., or include a fluorescent lamp so it can be estimated",
+            "laser lines): pass mapping=..., or call calib.estimate(..., method='toivonen2020'), "
+            "which finds it as makabe2025 does",
             source=f"lamp {observation.name!r}",
         )
     width_nm = np.abs(np.diff(edges))
@@ -322,7 +323,10 @@ def build_problem(
             raise InputError("every patch value is <= 0", source="patches")
         patch_rgb = patch_rgb / brightest
         if lamps:
-            grating_only = monochromatic[0] / spectra[0][:, None]
+            lit = spectra[0] > 1e-6  # nodes where the lamp gives light (an LED has none at 400 nm)
+            grating_only = np.where(
+                lit[:, None], monochromatic[0] / np.where(lit, spectra[0], 1.0)[:, None], 0.0
+            )
             predicted = float(np.max(patch_rows @ grating_only))
             if predicted > 0:
                 patch_rows = patch_rows / predicted

@@ -221,6 +221,31 @@ def test_one_patch_is_unstable_many_patches_are_stable_full_ensemble():
     _assert_one_patch_unstable_many_stable(results)
 
 
+def test_without_a_mapping_the_front_function_finds_it_as_makabe2025_does():
+    from calib.bases import fallback_camera_basis
+
+    record = colour_science_cameras()[0]
+    scene = render_scene(
+        record.name,
+        record.sensitivity,
+        np.random.default_rng(4),
+        broadband_lamp=colour_lamp("D65"),
+        fluorescent_lamp=colour_lamp("FL2"),
+    )
+    lamps = [scene.broadband.observation, scene.fluorescent.observation]
+    basis = fallback_camera_basis(exclude=[record.camera])
+    result = calib.estimate(lamps, method="toivonen2020", basis=basis, ensemble_size=2, epochs=200)
+    assert result.diagnostics["mapping_source"] == "makabe2025"
+    expected = calib.estimate(lamps, method="makabe2025", basis=basis).mapping
+    assert isinstance(result.mapping, QuadraticMapping)
+    assert isinstance(expected, QuadraticMapping)
+    assert result.mapping.coefficients == expected.coefficients
+    # The fluorescent lamp gave the mapping; only the broadband profile enters L_mon, and both
+    # lamps' direct light are patches.
+    assert result.diagnostics["lamps_profiled"] == ["D65"]
+    assert result.diagnostics["n_patches"] == 2
+
+
 # ----------------------------------------------------------------------------- bad input
 
 
