@@ -72,6 +72,10 @@ class CompareScene:
     ----------
     camera
         Camera name.
+    sensitivity
+        The camera's measured curves as given (for adapters that render data of their own).
+    grid
+        The working grid.
     truth
         Shape ``(f, 3)``: the true sensitivity on the grid, maximum 1.
     basis
@@ -89,10 +93,13 @@ class CompareScene:
     noise
         Noise fraction of the scene; ``repeat`` its repeat index.
     seed
-        An integer seed derived from the scene's, for methods with random starts.
+        An integer seed derived from the scene's, for methods with random starts (and for adapters
+        that draw data of their own).
     """
 
     camera: str
+    sensitivity: MultiSpectrum
+    grid: WavelengthGrid
     truth: FloatArray
     basis: CameraBasis
     broadband: LampObservation
@@ -385,6 +392,8 @@ class SyntheticSource:
                     )
                     yield CompareScene(
                         camera=name,
+                        sensitivity=sensitivity,
+                        grid=self.grid,
                         truth=rendered.truth,
                         basis=scene_basis,
                         broadband=rendered.broadband.observation,
