@@ -15,6 +15,7 @@ Examples
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -23,7 +24,7 @@ from calib.bases import DEFAULT_N_VECTORS, CameraBasis, camera_basis, fallback_c
 from calib.datasets import SOLOMATOV, load_collection
 from calib.errors import InputError
 from calib.mapping import GratingGeometry, QuadraticMapping
-from calib.observations import LampObservation
+from calib.observations import LampObservation, Observation
 from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, WavelengthGrid
 
@@ -33,7 +34,7 @@ class EstimationMethod(Protocol):
 
     def __call__(
         self,
-        observations: Sequence[LampObservation],
+        observations: Sequence[Any],
         *,
         grid: WavelengthGrid,
         basis: CameraBasis | None,
@@ -92,7 +93,7 @@ def default_camera_basis(
 
 
 def estimate(
-    observations: Sequence[LampObservation],
+    observations: Sequence[Observation],
     method: str = "makabe2025",
     *,
     grid: WavelengthGrid = DEFAULT_GRID,
@@ -106,7 +107,9 @@ def estimate(
     Parameters
     ----------
     observations
-        The lamps seen through the grating (see :class:`calib.observations.LampObservation`).
+        The lamps seen through the grating (see :class:`calib.observations.LampObservation`), or
+        whatever else the method uses (:data:`calib.observations.Observation`: colour charts,
+        colour matrices); each method takes the kinds it understands.
     method
         A registered method name (see :data:`ESTIMATION_METHODS`); default ``"makabe2025"``.
     grid
@@ -155,6 +158,33 @@ def _makabe2025(
 
 
 register_method("makabe2025", _makabe2025)
+
+
+def lazy_method(module: str, function: str) -> EstimationMethod:
+    """A registry entry that imports ``module`` only when the method is first used.
+
+    Keeps ``import calib`` cheap: a baseline's module (and whatever it imports) loads on demand.
+    """
+
+    def run(observations: Sequence[Any], **arguments: Any) -> EstimateResult:
+        implementation = getattr(importlib.import_module(module), function)
+        return implementation(observations, **arguments)  # type: ignore[no-any-return]
+
+    run.__name__ = function
+    run.__qualname__ = function
+    run.__doc__ = f"Lazily imported ``{module}.{function}``."
+    return run
+
+
+#: Baselines behind the front function, imported on first use: name → (module, function).
+LAZY_METHODS: dict[str, tuple[str, str]] = {
+    "jiang2013": ("calib.jiang2013", "jiang2013_method"),
+    "solomatov2023": ("calib.solomatov2023", "solomatov2023_method"),
+    "toivonen2020": ("calib.toivonen2020", "toivonen2020_method"),
+}
+
+for _name, (_module, _function) in LAZY_METHODS.items():
+    register_method(_name, lazy_method(_module, _function))
 
 #: Type of a registered method, for other modules' annotations.
 MethodFunction = Callable[..., EstimateResult]

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calib.errors import InputError
-from calib.spectra import Spectrum
+from calib.spectra import MultiSpectrum, Spectrum
 
 FloatArray = NDArray[np.float64]
 LampKind = Literal["led", "fluorescent", "halogen", "narrowband", "other"]
@@ -122,3 +122,138 @@ class LampObservation:
     @property
     def n_pixels(self) -> int:
         return int(self.pixel.size)
+
+
+# ------------------------------------------------------------------------- colour-patch observations
+
+ChartKind = Literal["reflective", "transmissive", "emissive"]
+CHART_KINDS: tuple[ChartKind, ...] = ("reflective", "transmissive", "emissive")
+
+
+@dataclass(frozen=True, eq=False)
+class ChartObservation:
+    """Colour patches of known spectra as the camera records them (the colour-chart methods' input).
+
+    A patch ``j`` sends the camera the radiance ``e(λ) ρ_j(λ)``: the illuminant times the patch's
+    reflectance (a ColorChecker), transmittance (filters in front of a lamp, Toivonen & Klami 2020
+    §3.3) — or, with ``illuminant=None``, ``ρ_j`` is that radiance itself, measured patch by patch.
+
+    Parameters
+    ----------
+    name
+        What was photographed (``"ColorChecker under D65"``).
+    patch_rgb
+        Shape ``(n_patches, 3)``: linear camera R, G, B of each patch (e.g. the mean of a window of
+        black-subtracted RAW samples), all in one unit and exposure.
+    patch_spectra
+        One column per patch (``n_patches`` channels, named after the patches): reflectance or
+        transmittance factors, or radiances when ``illuminant`` is ``None``. Any wavelength axis
+        covering the working grid.
+    illuminant
+        The light on (or through) the chart, or ``None`` (see ``patch_spectra``).
+    patch_sigma
+        Shape ``(n_patches, 3)``: standard deviation of each value in ``patch_rgb``, or ``None``.
+    kind
+        ``"reflective"``, ``"transmissive"`` or ``"emissive"`` (radiances given directly).
+    metadata
+        Free-form provenance (image file, patch centres, chart data source).
+    """
+
+    name: str
+    patch_rgb: FloatArray
+    patch_spectra: MultiSpectrum
+    illuminant: Spectrum | None = None
+    patch_sigma: FloatArray | None = None
+    kind: ChartKind = "reflective"
+    metadata: dict[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        label = f"chart {self.name!r}"
+        rgb = _readonly_float(self.patch_rgb, "patch RGB (n_patches, 3)", label, 2)
+        n_patches = self.patch_spectra.values.shape[1]
+        if rgb.shape != (n_patches, 3):
+            raise InputError(
+                f"patch RGB has shape {rgb.shape}, expected ({n_patches}, 3): one row per patch "
+                f"spectrum ({n_patches} given)",
+                source=label,
+            )
+        object.__setattr__(self, "patch_rgb", rgb)
+        if self.patch_sigma is not None:
+            sigma = _readonly_float(self.patch_sigma, "patch sigma (n_patches, 3)", label, 2)
+            if sigma.shape != rgb.shape:
+                raise InputError(
+                    f"patch sigma has shape {sigma.shape}, expected {rgb.shape}", source=label
+                )
+            if np.any(sigma <= 0):
+                raise InputError("patch sigma must be > 0 everywhere", source=label)
+            object.__setattr__(self, "patch_sigma", sigma)
+        if self.kind not in CHART_KINDS:
+            raise InputError(f"kind {self.kind!r} is not one of {CHART_KINDS}", source=label)
+        if self.illuminant is None and self.kind != "emissive":
+            raise InputError(
+                f"a {self.kind} chart needs the illuminant it was lit with (or kind='emissive' "
+                "when the patch spectra are the measured radiances)",
+                source=label,
+            )
+
+    @property
+    def n_patches(self) -> int:
+        return int(self.patch_rgb.shape[0])
+
+    @property
+    def patch_names(self) -> tuple[str, ...]:
+        return self.patch_spectra.channels
+
+
+@dataclass(frozen=True, eq=False)
+class ColorMatrixObservation:
+    """A camera's XYZ→camera colour matrices, as its DNG files carry them (ColorMatrix1/2).
+
+    ``camera_rgb ∝ M_k · XYZ`` for a surface lit by calibration illuminant ``k``, each row of ``M_k``
+    up to its own scale (the white balance the matrices leave open).
+
+    Parameters
+    ----------
+    name
+        The camera (DNG UniqueCameraModel, or Make + Model).
+    matrices
+        Shape ``(n_matrices, 3, 3)``: rows R, G, B; columns X, Y, Z. One or two matrices.
+    illuminants
+        The calibration illuminant of each matrix: a colour-science illuminant name (``"A"``,
+        ``"D65"``) or a measured :class:`Spectrum`.
+    source
+        Where the matrices were read (file and tags, or ``"simulated"``).
+    """
+
+    name: str
+    matrices: FloatArray
+    illuminants: tuple[str | Spectrum, ...]
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        label = f"colour matrices of {self.name!r}"
+        matrices = np.array(self.matrices, dtype=np.float64)
+        if matrices.ndim == 2:
+            matrices = matrices[None]
+        if matrices.ndim != 3 or matrices.shape[1:] != (3, 3) or matrices.shape[0] < 1:
+            raise InputError(
+                f"expected one or more 3×3 matrices, got shape {np.shape(self.matrices)}",
+                source=label,
+            )
+        if not np.all(np.isfinite(matrices)):
+            raise InputError("matrices contain NaN or infinite values", source=label)
+        if len(self.illuminants) != matrices.shape[0]:
+            raise InputError(
+                f"{matrices.shape[0]} matrices but {len(self.illuminants)} illuminants",
+                source=label,
+            )
+        for index, matrix in enumerate(matrices):
+            if np.linalg.matrix_rank(matrix) < 3:
+                raise InputError(f"matrix {index + 1} is singular: {matrix.tolist()}", source=label)
+        matrices.flags.writeable = False
+        object.__setattr__(self, "matrices", matrices)
+        object.__setattr__(self, "illuminants", tuple(self.illuminants))
+
+
+#: Everything :func:`calib.estimate` accepts; each method takes the kinds it needs.
+Observation = LampObservation | ChartObservation | ColorMatrixObservation

@@ -14,7 +14,12 @@ import typer
 from calib.errors import CalibError, InputError
 
 #: Modules that contribute sub-commands, each exposing ``register(app: typer.Typer) -> None``.
-COMMAND_MODULES: tuple[str, ...] = ("calib.cli.synthetic", "calib.cli.data", "calib.cli.estimate")
+COMMAND_MODULES: tuple[str, ...] = (
+    "calib.cli.synthetic",
+    "calib.cli.data",
+    "calib.cli.estimate",
+    "calib.cli.compare",
+)
 
 app = typer.Typer(
     name="calib",
