@@ -542,10 +542,11 @@ def refine_mapping_on_lamp(
 
         return residual
 
+    method = mapping.method if mapping.method.endswith("+refined") else f"{mapping.method}+refined"
     refined = mapping
     for blur_nm in REFINE_BLUR_NM:
         refined, cost = refine_mapping(
-            refined, stage(blur_nm), pixel_range=pixel_range, method=f"{mapping.method}+refined"
+            refined, stage(blur_nm), pixel_range=pixel_range, method=method
         )
     n_residuals = profile.profile.size
     return refined.with_details(

@@ -14,7 +14,7 @@ import typer
 from calib.errors import CalibError, InputError
 
 #: Modules that contribute sub-commands, each exposing ``register(app: typer.Typer) -> None``.
-COMMAND_MODULES: tuple[str, ...] = ("calib.cli.synthetic", "calib.cli.data")
+COMMAND_MODULES: tuple[str, ...] = ("calib.cli.synthetic", "calib.cli.data", "calib.cli.spd")
 
 app = typer.Typer(
     name="calib",
