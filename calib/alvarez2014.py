@@ -30,7 +30,8 @@ Steps, in order:
 Deliberate departures, each because the paper's literal choice is wrong for a measurement: the
 Laplacian is not circular (a circular kernel ties 400 nm to 700 nm); ``ω`` is clipped to ``[0, 1]``
 (Eq. 8 turns negative for ``|v| > 1``, which noise makes possible); ``P_c`` is the maximum of the
-median-filtered quotient (a single noisy sample would otherwise set it).
+median-filtered quotient (a single noisy sample would otherwise set it); ``w_s`` keeps its meaning
+in nm whatever the sampling (it is the paper's at 0.333 nm per sample, rescaled by ``(h₀/h)⁴``).
 
 Recognising the source, its CCT and white-balance gains are in :mod:`calib.light_sources`.
 
@@ -82,6 +83,8 @@ Weighting = Literal["noise", "paper"]
 
 #: Weight of the smoothness term (the paper's ``w_s``, "works well across sources").
 DEFAULT_SMOOTHNESS = 50.0
+#: The paper's sampling (0.333 nm per pixel), at which ``w_s`` is defined.
+PAPER_SAMPLE_NM = 1.0 / 3.0
 #: Responses below this fraction of the maximum are left out (the paper's 0.02).
 DEFAULT_THRESHOLD = 0.02
 #: The paper's ``α``: slope of the median-distance weights, per kind of source.
@@ -615,21 +618,22 @@ def _dispersion_nm_per_px(mapping: WavelengthMapping, pixel: FloatArray) -> Floa
 def richardson_lucy(
     values: ArrayLike, kernel: ArrayLike, *, iterations: int = DEFAULT_RL_ITERATIONS
 ) -> FloatArray:
-    """Richardson–Lucy deconvolution of a 1-D non-negative signal (Richardson 1972, Lucy 1974).
+    """Richardson–Lucy deconvolution along axis 0 (Richardson 1972, Lucy 1974).
 
     Parameters
     ----------
     values
-        Shape ``(n,)``: the blurred signal; negative values (noise around zero) are set to zero.
+        Shape ``(n,)`` or ``(n, k)``: blurred non-negative signal(s), each column on its own;
+        negative values (noise around zero) are set to zero.
     kernel
-        Shape ``(k,)``, odd, centred: the blur (normalised here to sum 1).
+        Shape ``(m,)``, odd, centred: the blur (normalised here to sum 1).
     iterations
         Number of multiplicative updates (more sharpens more, and amplifies more noise).
 
     Returns
     -------
     numpy.ndarray
-        Shape ``(n,)``: the deconvolved signal, ``>= 0``, with the same total as the input.
+        Same shape as ``values``: deconvolved, ``>= 0``, each column with its input's total.
     """
     observed = np.clip(np.asarray(values, dtype=np.float64), 0.0, None)
     psf = np.asarray(kernel, dtype=np.float64)
@@ -637,17 +641,22 @@ def richardson_lucy(
         raise InputError("RL needs an odd, non-negative 1-D kernel and iterations >= 0")
     psf = psf / psf.sum()
     mirrored = psf[::-1]
+
+    def blur(signal: FloatArray, weights: FloatArray) -> FloatArray:
+        return np.asarray(ndimage.convolve1d(signal, weights, axis=0, mode="constant"), float)
+
     # Edge-normalised: near the ends part of the kernel falls outside; dividing by the covered part
     # keeps flux there instead of darkening the ends.
-    coverage = np.convolve(np.ones_like(observed), mirrored, mode="same")
-    estimate = np.full_like(observed, max(float(observed.mean()), 1e-300))
+    coverage = blur(np.ones_like(observed), mirrored)
+    estimate = np.empty_like(observed)
+    estimate[...] = np.maximum(observed.mean(axis=0), 1e-300)
     tiny = 1e-12 * max(float(observed.max()), 1e-300)
     for _ in range(iterations):
-        blurred = np.convolve(estimate, psf, mode="same")
-        ratio = observed / np.maximum(blurred, tiny)
-        estimate = estimate * np.convolve(ratio, mirrored, mode="same") / coverage
-    total = float(estimate.sum())
-    return estimate * (float(observed.sum()) / total) if total > 0 else estimate
+        ratio = observed / np.maximum(blur(estimate, psf), tiny)
+        estimate = estimate * blur(ratio, mirrored) / coverage
+    totals = estimate.sum(axis=0)
+    scale = np.where(totals > 0, observed.sum(axis=0) / np.where(totals > 0, totals, 1.0), 1.0)
+    return np.asarray(estimate * scale, dtype=np.float64)
 
 
 def source_kernel_from_image(
@@ -682,7 +691,9 @@ def source_kernel_from_image(
     angle = geometry.primary.angle_deg
     along, across = geometry.spot_half_size_px
     step = geometry.bin_px
-    half_bins = math.ceil((1.5 * along + 2 * step) / step)
+    # Look well beyond the detected aperture (a wide source's tails): up to half-way to the order.
+    reach_px = max(1.5 * along + 2 * step, 0.5 * geometry.primary.start_px)
+    half_bins = math.ceil(reach_px / step)
     reach = (half_bins + 0.5) * step
     window = rectangle_window(image, centre, angle, (-reach, reach), (-across, across))
     if window is None:
@@ -798,7 +809,8 @@ class SpdRecovery:
                 f"and the profile reaches); choose a grid inside it, not {grid}",
                 source="grid",
             )
-        return native.resample(grid, "integrate", out_of_range="zero")
+        # Within the range, so end nodes are projected on the covered part of their hat.
+        return native.resample(grid, "integrate")
 
 
 def _second_difference_banded(n: int) -> FloatArray:
@@ -881,7 +893,8 @@ def recover_spd_alvarez2014(
         source kernel, α = 2; ``"auto"``: finite when a kernel is attached and wider (FWHM) than
         1.5 samples.
     smoothness
-        ``w_s`` (Eq. 6).
+        ``w_s`` (Eq. 6) as the paper means it, at 0.333 nm per sample; rescaled to the profile's
+        sampling so that it smooths the same in nm.
     alpha
         Slope of the weights; ``None``: with ``weighting="paper"`` the paper's value for the source
         kind (0.09 point, 2 finite), else 0.09.
@@ -933,10 +946,7 @@ def recover_spd_alvarez2014(
         alpha_used = ALPHA_POINT
     signal = profile.profile
     if finite and kernel is not None:
-        signal = np.stack(
-            [richardson_lucy(signal[:, k], kernel, iterations=rl_iterations) for k in range(3)],
-            axis=1,
-        )
+        signal = richardson_lucy(signal, kernel, iterations=rl_iterations)
     sigma = profile.profile_sigma
     if weighting == "noise" and sigma is None:
         notes.append("the profile has no σ: the paper's weights were used alone")
@@ -975,7 +985,12 @@ def recover_spd_alvarez2014(
     data_weight = np.where(valid, data_weight, 0.0)
     totals = data_weight.sum(axis=1)
     right = np.sum(data_weight * np.nan_to_num(quotients), axis=1)
-    banded = smoothness * _second_difference_banded(wavelength.size)
+    # w_s is the paper's, at its 0.333 nm per sample: a discrete Laplacian of samples h nm apart
+    # is h² times the curvature, summed over 1/h samples per nm, against 1/h data terms per nm,
+    # so the same smoothing in nm needs w_s (h₀/h)⁴.
+    sample_nm = float(np.median(np.diff(wavelength)))
+    effective_smoothness = smoothness * (PAPER_SAMPLE_NM / sample_nm) ** 4
+    banded = effective_smoothness * _second_difference_banded(wavelength.size)
     banded[2] += totals
     if np.count_nonzero(totals) < 2:
         raise EstimationError("fewer than two wavelengths carry weight; nothing to recover")
@@ -1003,6 +1018,8 @@ def recover_spd_alvarez2014(
         source="finite" if finite else "point",
         settings={
             "smoothness": smoothness,
+            "smoothness_per_sample": effective_smoothness,
+            "sample_nm": sample_nm,
             "alpha": alpha_used,
             "threshold": threshold,
             "weighting": weighting if sigma is not None else "paper",
@@ -1091,7 +1108,7 @@ def spd_rms_error(
     so only the shape counts.
     """
     grid = comparison_grid(estimated, range_nm, step_nm)
-    estimate = estimated.resample(grid, "integrate", out_of_range="zero").values
+    estimate = estimated.resample(grid, "integrate").values
     reference = truth.resample(grid, "integrate", out_of_range="zero").values
     reference = reference / float(reference.max())
     denominator = float(estimate @ estimate)

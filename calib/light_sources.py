@@ -234,6 +234,22 @@ class _Candidate:
     distance: float
 
 
+def _scored(
+    entry: LibraryEntry,
+    seen: Spectrum,
+    covered: NDArray[np.bool_],
+    grid: WavelengthGrid,
+    measured: FloatArray,
+    weights: FloatArray,
+    metric: Metric,
+) -> _Candidate:
+    values = seen.resample(
+        grid, "integrate", out_of_range="error" if seen.covers(grid) else "zero"
+    ).values
+    distance = _distance(measured[covered], values[covered], weights[covered], metric)
+    return _Candidate(entry, values, covered, distance)
+
+
 def recognise_light_source(
     spd: Spectrum,
     library: LightSourceLibrary | None = None,
@@ -241,6 +257,7 @@ def recognise_light_source(
     sigma: Spectrum | None = None,
     metric: Metric = "weighted",
     view: Callable[[Spectrum], Spectrum] | None = None,
+    view_top: int = 16,
     range_nm: tuple[float, float] = (380.0, 730.0),
     step_nm: float = 5.0,
     top: int = 5,
@@ -263,6 +280,8 @@ def recognise_light_source(
         How the instrument would report a library spectrum (e.g.
         :func:`calib.alvarez2014.instrument_view` bound to the measurement); ``None`` compares the
         library spectra as they are (the paper).
+    view_top
+        With ``view``: the entries nearest as they are that are compared again through the view.
     range_nm, step_nm
         Compared on the ``step_nm`` grid over ``range_nm`` ∩ the SPD's range ∩ the entry's range;
         both sides are projected on it with hat functions (fair to line spectra).
@@ -278,7 +297,8 @@ def recognise_light_source(
     chosen = library if library is not None else colour_library()
     grid = comparison_grid(spd, range_nm, step_nm)
     nodes = grid.wavelength_nm
-    measured = spd.resample(grid, "integrate", out_of_range="zero").values
+    # The grid lies inside the SPD's range: end nodes use the covered part of their hat.
+    measured = spd.resample(grid, "integrate").values
     if float(measured.max()) <= 0:
         raise InputError("the SPD is zero over the compared range", source=spd.name)
     noise = np.zeros_like(measured)
@@ -292,14 +312,19 @@ def recognise_light_source(
         covered = (nodes >= lo - 1e-9) & (nodes <= hi + 1e-9)
         if covered.sum() < 3:
             continue
-        seen = view(entry.spectrum) if view is not None else entry.spectrum
-        reference = seen.resample(grid, "integrate", out_of_range="zero").values
-        distance = _distance(measured[covered], reference[covered], weights[covered], metric)
-        candidates.append(_Candidate(entry, reference, covered, distance))
+        candidates.append(_scored(entry, entry.spectrum, covered, grid, measured, weights, metric))
     if not candidates:
         raise InputError(
             f"no library source covers {grid.start_nm:g}–{grid.stop_nm:g} nm", source="library"
         )
+    if view is not None:
+        # The instrument's view changes distances by the blur and the ends of the range, not the
+        # order of far-off entries: only the nearest ones are looked at through it.
+        candidates.sort(key=lambda candidate: candidate.distance)
+        candidates = [
+            _scored(c.entry, view(c.entry.spectrum), c.covered, grid, measured, weights, metric)
+            for c in candidates[:view_top]
+        ]
     candidates.sort(key=lambda candidate: candidate.distance)
     best = candidates[0]
     equivalents: list[str] = []

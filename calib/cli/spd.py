@@ -93,6 +93,7 @@ class SpdRequest:
     smoothness: float = 50.0
     metric: Metric = "weighted"
     grid: WavelengthGrid | None = None
+    plots: bool = True
     command_line: tuple[str, ...] = ()
 
 
@@ -342,7 +343,7 @@ def measure_spd(
             },
             "srgb_gains_from_cct": {
                 "cct_k": best_cct,
-                "gains": srgb_white_balance_from_cct(best_cct).tolist(),
+                **_srgb_gains(best_cct),
                 "meaning": "the paper's Eq. 14: linear sRGB, blackbody at the CCT vs. D65 white",
             },
         },
@@ -356,9 +357,21 @@ def measure_spd(
         "direct_check": _direct_check(profile, completed, camera),
         "inputs": _inputs(request),
     }
-    files = _write_outputs(request.out, on_grid, recovery, recognition, match, summary)
-    files["geometry.png"] = write_geometry_png(request.out / "geometry.png", target, wide)
+    files = _write_outputs(request.out, on_grid, summary)
+    if request.plots:
+        files["spd.png"] = _plot(
+            request.out / "spd.png", recovery, recognition, match, request.name
+        )
+        files["geometry.png"] = write_geometry_png(request.out / "geometry.png", target, wide)
     return SpdMeasurement(recovery, spd, sigma, recognition, summary, wide, target, files)
+
+
+def _srgb_gains(cct_k: float) -> dict[str, Any]:
+    """The paper's sRGB gains, or why there are none (a very warm CCT leaves the sRGB gamut)."""
+    try:
+        return {"gains": srgb_white_balance_from_cct(cct_k).tolist()}
+    except InputError as exc:
+        return {"gains": None, "reason": str(exc)}
 
 
 def _output_grid(recovery: SpdRecovery, step_nm: float = 1.0) -> WavelengthGrid:
@@ -409,20 +422,12 @@ def _inputs(request: SpdRequest) -> dict[str, Any]:
     }
 
 
-def _write_outputs(
-    out: Path,
-    on_grid: Spectrum,
-    recovery: SpdRecovery,
-    recognition: Recognition,
-    match: Spectrum,
-    summary: dict[str, Any],
-) -> dict[str, Path]:
+def _write_outputs(out: Path, on_grid: Spectrum, summary: dict[str, Any]) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
     csv_path = write_csv(out / "spd.csv", on_grid)
     json_path = out / "spd.json"
     json_path.write_text(json.dumps(json_safe(summary), indent=2) + "\n", encoding="utf-8")
-    png_path = _plot(out / "spd.png", recovery, recognition, match, str(summary["name"]))
-    return {"spd.csv": csv_path, "spd.json": json_path, "spd.png": png_path}
+    return {"spd.csv": csv_path, "spd.json": json_path}
 
 
 def _plot(
@@ -580,6 +585,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="wavelengths of spd.csv in nm (default: 1 nm over the recovered range)",
     )
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
+    parser.add_argument("--no-plots", action="store_true", help="skip spd.png and geometry.png")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
     parser.add_argument("--json", action="store_true", help="print spd.json to stdout")
     return parser
@@ -609,6 +615,7 @@ def request_from_args(arguments: Sequence[str]) -> tuple[SpdRequest, argparse.Na
         smoothness=options.smoothness,
         metric=options.metric,
         grid=options.grid,
+        plots=not options.no_plots,
         command_line=("calib", "spd", *arguments),
     )
     return request, options
