@@ -1081,9 +1081,14 @@ def instrument_view(
 def comparison_grid(
     spectrum: Spectrum, range_nm: tuple[float, float] = (400.0, 700.0), step_nm: float = 5.0
 ) -> WavelengthGrid:
-    """The ``step_nm`` grid over ``range_nm`` ∩ the spectrum's own range (rounded inwards)."""
-    lo = math.ceil(max(range_nm[0], spectrum.range_nm[0]) / step_nm - 1e-9) * step_nm
-    hi = math.floor(min(range_nm[1], spectrum.range_nm[1]) / step_nm + 1e-9) * step_nm
+    """The ``step_nm`` grid over ``range_nm`` whose nodes' hats lie inside the spectrum's range.
+
+    A node ``λ`` of the hat-function projection averages ``[λ − step, λ + step]``; keeping every
+    such interval inside the measured range makes a measured spectrum and a reference comparable
+    at every node (no half-covered ends).
+    """
+    lo = math.ceil(max(range_nm[0], spectrum.range_nm[0] + step_nm) / step_nm - 1e-9) * step_nm
+    hi = math.floor(min(range_nm[1], spectrum.range_nm[1] - step_nm) / step_nm + 1e-9) * step_nm
     if hi - lo < 2 * step_nm:
         raise InputError(
             f"{spectrum.name} covers {spectrum.range_nm[0]:g}–{spectrum.range_nm[1]:g} nm, too "
@@ -1103,7 +1108,8 @@ def spd_rms_error(
     """RMS difference of two SPDs' shapes, as a fraction of the true maximum.
 
     Both are projected (hat functions, fair to line spectra) onto the ``step_nm`` grid over
-    ``range_nm`` ∩ the estimate's range — a spectrometer is judged where it measures. The truth
+    ``range_nm`` ∩ the estimate's range (:func:`comparison_grid`) — a spectrometer is judged where
+    it measures. The truth
     is divided by its maximum there and the estimate scaled by the least-squares factor onto it,
     so only the shape counts.
     """

@@ -428,11 +428,11 @@ def camera_white_balance(spd: Spectrum, camera: MultiSpectrum) -> FloatArray:
         raise InputError(
             f"the camera needs 3 channels, has {camera.values.shape[1]}", source=camera.name
         )
-    wavelength = np.arange(
-        max(spd.range_nm[0], camera.range_nm[0]), min(spd.range_nm[1], camera.range_nm[1]), 0.5
-    )
-    if wavelength.size < 2:
+    lo = max(spd.range_nm[0], camera.range_nm[0])
+    hi = min(spd.range_nm[1], camera.range_nm[1])
+    if hi <= lo:
         raise InputError("the SPD and the camera do not overlap in wavelength", source=spd.name)
+    wavelength = np.linspace(lo, hi, int(np.ceil((hi - lo) / 0.5)) + 1)
     rgb = np.array(
         [
             np.trapezoid(

@@ -232,7 +232,8 @@ def test_the_response_includes_the_grating() -> None:
 def test_comparison_grid_is_where_both_are_defined() -> None:
     spd = Spectrum([413.2, 500.0, 676.1], [1.0, 1.0, 1.0])
     grid = comparison_grid(spd)
-    assert (grid.start_nm, grid.stop_nm, grid.step_nm) == (415.0, 675.0, 5.0)
+    # Nodes whose hats [λ − 5, λ + 5] lie inside 413.2–676.1 nm.
+    assert (grid.start_nm, grid.stop_nm, grid.step_nm) == (420.0, 670.0, 5.0)
     with pytest.raises(InputError, match="too little"):
         comparison_grid(Spectrum([300.0, 398.0], [1.0, 1.0]))
 
