@@ -48,7 +48,7 @@ def test_a_library_spectrum_recognises_itself(name: str, metric: str) -> None:
 def test_sources_closer_than_the_instrument_can_tell_are_equivalent() -> None:
     wavelength = np.arange(380.0, 731.0, 5.0)
     base = 1.0 + 0.5 * np.sin(wavelength / 40.0)
-    tilt = 1.0 + 0.004 * (wavelength - 555.0) / 175.0  # a 0.4 % tilt: below the threshold
+    tilt = 1.0 + 0.8 * EQUIVALENT_DISTANCE * (wavelength - 555.0) / 175.0  # below the threshold
     library = LightSourceLibrary.from_spectra(
         [
             ("one", "test", Spectrum(wavelength, base)),
