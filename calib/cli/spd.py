@@ -491,7 +491,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _grid(text: str) -> WavelengthGrid:
-    return WavelengthGrid.parse(text)
+    try:
+        return WavelengthGrid.parse(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
