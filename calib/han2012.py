@@ -64,6 +64,8 @@ DEFAULT_REFLECTANCE_VECTORS = 8
 DEFAULT_FOURIER_TERMS = 9
 #: Smoothness weights (R, G, B) in this module's units (see the module docstring).
 DEFAULT_SMOOTHNESS = (0.01, 0.01, 0.004)
+#: Patches fluorescing for less of their signal than this are left out.
+MIN_FLUORESCENT_FRACTION = 0.02
 #: The reference chart of the paper: a ColorChecker (colour-science's BabelColor average).
 REFERENCE_CHART = "BabelColor Average"
 
@@ -254,8 +256,11 @@ class Separation:
 
     @property
     def usable(self) -> NDArray[np.bool_]:
-        """Shape ``(P,)``: patches whose fluorescent part is positive in every channel."""
-        return np.asarray(np.all(self.fluorescent_rgb > 0, axis=1))
+        """Shape ``(P,)``: patches that fluoresce in every channel and for at least
+        :data:`MIN_FLUORESCENT_FRACTION` of their signal (below, the separation's error is the
+        chromaticity)."""
+        positive = np.all(self.fluorescent_rgb > 0, axis=1)
+        return np.asarray(positive & (self.fluorescent_fraction >= MIN_FLUORESCENT_FRACTION))
 
 
 def separate_fluorescence(
@@ -597,8 +602,9 @@ def estimate_han2012(
     usable = separation.usable
     if usable.sum() < 2:
         raise EstimationError(
-            f"only {int(usable.sum())} of {chart.n_paints} fluorescent patches still fluoresce in "
-            "every channel once their reflection is removed; the light lacks the short "
+            f"only {int(usable.sum())} of {chart.n_paints} fluorescent patches still fluoresce "
+            f"(in every channel, for ≥ {MIN_FLUORESCENT_FRACTION:.0%} of their signal) once their "
+            "reflection is removed; the light lacks the short "
             "wavelengths the paints absorb (daylight, especially skylight, works best)"
         )
     integrals = functions.emission_integrals(chart.emission)[:, usable]
