@@ -76,6 +76,7 @@ from calib.mapping import (
 from calib.profiles import DiffractionGeometry, Extraction
 from calib.profiles.geometry import rectangle_window, sample_positions, to_uv
 from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
+from calib.validation import checked_array
 
 FloatArray = NDArray[np.float64]
 SourceMode = Literal["point", "finite", "auto"]
@@ -111,16 +112,6 @@ REFERENCE_FLUORESCENT_LINES_NM: Mapping[float, float] = {
 
 
 # ------------------------------------------------------------------------------------------ input
-
-
-def _frozen(value: ArrayLike, shape: tuple[int, ...], name: str, source: str) -> FloatArray:
-    array = np.array(value, dtype=np.float64)
-    if array.shape != shape:
-        raise InputError(f"{name} has shape {array.shape}, expected {shape}", source=source)
-    if not np.all(np.isfinite(array)):
-        raise InputError(f"{name} contains NaN or infinite values", source=source)
-    array.flags.writeable = False
-    return array
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,8 +156,8 @@ class DiffractedProfile:
         if not np.all(steps > 0) or np.ptp(steps) > 1e-6 * max(float(steps.mean()), 1.0):
             raise InputError("pixel coordinates must increase in equal steps", source=label)
         n = pixel.size
-        object.__setattr__(self, "pixel", _frozen(pixel, (n,), "pixel", label))
-        object.__setattr__(self, "profile", _frozen(self.profile, (n, 3), "profile", label))
+        object.__setattr__(self, "pixel", checked_array(pixel, (n,), "pixel", label))
+        object.__setattr__(self, "profile", checked_array(self.profile, (n, 3), "profile", label))
         for name, shape in (
             ("profile_sigma", (n, 3)),
             ("direct_rgb", (3,)),
@@ -174,7 +165,7 @@ class DiffractedProfile:
         ):
             value = getattr(self, name)
             if value is not None:
-                object.__setattr__(self, name, _frozen(value, shape, name, label))
+                object.__setattr__(self, name, checked_array(value, shape, name, label))
         if self.source_kernel is not None:
             kernel = np.array(self.source_kernel, dtype=np.float64)
             if kernel.ndim != 1 or kernel.size % 2 == 0 or np.any(kernel < 0) or kernel.sum() <= 0:
@@ -185,7 +176,7 @@ class DiffractedProfile:
             object.__setattr__(
                 self,
                 "source_kernel",
-                _frozen(kernel / kernel.sum(), kernel.shape, "source kernel", label),
+                checked_array(kernel / kernel.sum(), kernel.shape, "source kernel", label),
             )
 
     @property

@@ -45,7 +45,7 @@ from functools import lru_cache
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 from scipy import linalg
 
 from calib.bases import CameraBasis, fourier_basis
@@ -53,6 +53,7 @@ from calib.errors import EstimationError, InputError
 from calib.forward import hat_matrix
 from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
+from calib.validation import checked_array
 
 FloatArray = NDArray[np.float64]
 Normalisation = Literal["brightness", "unit"]
@@ -71,16 +72,6 @@ REFERENCE_CHART = "BabelColor Average"
 
 
 # ------------------------------------------------------------------------------------------ input
-
-
-def _array(value: ArrayLike, shape: tuple[int, ...], name: str, source: str) -> FloatArray:
-    array = np.array(value, dtype=np.float64)
-    if array.shape != shape:
-        raise InputError(f"{name} has shape {array.shape}, expected {shape}", source=source)
-    if not np.all(np.isfinite(array)):
-        raise InputError(f"{name} contains NaN or infinite values", source=source)
-    array.flags.writeable = False
-    return array
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,12 +120,12 @@ class FluorescentChart:
         object.__setattr__(
             self,
             "fluorescent_rgb",
-            _array(self.fluorescent_rgb, (n_paints, 3), "fluorescent RGB", source),
+            checked_array(self.fluorescent_rgb, (n_paints, 3), "fluorescent RGB", source),
         )
         object.__setattr__(
             self,
             "reference_rgb",
-            _array(self.reference_rgb, (n_reference, 3), "reference RGB", source),
+            checked_array(self.reference_rgb, (n_reference, 3), "reference RGB", source),
         )
         for name, shape in (
             ("fluorescent_sigma", (n_paints, 3)),
@@ -142,7 +133,7 @@ class FluorescentChart:
         ):
             value = getattr(self, name)
             if value is not None:
-                object.__setattr__(self, name, _array(value, shape, name, source))
+                object.__setattr__(self, name, checked_array(value, shape, name, source))
 
     @property
     def n_paints(self) -> int:

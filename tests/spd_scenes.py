@@ -22,8 +22,8 @@ from calib.forward import render_observation
 from calib.hdr import merge_bracket
 from calib.mapping import GratingGeometry
 from calib.profiles import DiffractionGeometry, detect_geometry, extract
-from calib.spectra import MultiSpectrum, Spectrum
-from calib.synthetic import random_efficiency
+from calib.spectra import MultiSpectrum, Spectrum, write_csv
+from calib.synthetic import colour_lamp, random_efficiency
 from mocks.scene import SceneLayout, SceneSignal, SensorModel, render_mosaic_radiance, write_bracket
 
 FloatArray = NDArray[np.float64]
@@ -149,3 +149,42 @@ def triphosphor_lamp() -> Spectrum:
     for centre, fwhm, height in components:
         values += height * np.exp(-4 * np.log(2) * ((wavelength - centre) / fwhm) ** 2)
     return Spectrum(wavelength, values + 0.005, name="tri-phosphor fluorescent")
+
+
+def render_twin_lamp(
+    directory: Path, lamp: Spectrum, *, seed: int, slit_px: float = 12.0, prefix: str = "lamp"
+) -> list[Path]:
+    """:func:`render_lamp` with the twin's camera and grating, seeded."""
+    return render_lamp(
+        directory,
+        lamp,
+        camera=nikon_camera(),
+        efficiency=efficiency_spectrum(),
+        rng=np.random.default_rng(seed),
+        slit_px=slit_px,
+        prefix=prefix,
+    ).frames
+
+
+@dataclass(frozen=True)
+class CalibratedRig:
+    """A calibrated set-up as files: camera, grating efficiency, and a fluorescent mapping lamp."""
+
+    root: Path
+    camera: Path
+    efficiency: Path
+    mapping_frames: tuple[Path, ...]
+    mapping_spectrum: Path
+
+
+def calibrated_rig(root: Path, *, seed: int = 11) -> CalibratedRig:
+    """Write the Nikon's sensitivity, the grating's efficiency and an FL2 bracket into ``root``."""
+    fluorescent = colour_lamp("FL2")
+    frames = render_twin_lamp(root / "fl2", fluorescent, seed=seed, prefix="fl2")
+    return CalibratedRig(
+        root,
+        write_csv(root / "camera.csv", nikon_camera()),
+        write_csv(root / "efficiency.csv", efficiency_spectrum()),
+        tuple(frames),
+        write_csv(root / "fl2.csv", fluorescent),
+    )

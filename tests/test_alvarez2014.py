@@ -36,10 +36,11 @@ from calib.light_sources import (
 )
 from calib.mapping import QuadraticMapping
 from calib.profiles import detect_geometry, extract
-from calib.spectra import MultiSpectrum, Spectrum, write_csv
+from calib.spectra import MultiSpectrum, Spectrum
 from calib.synthetic import colour_lamp
 from tests.spd_scenes import (
     GRATING,
+    calibrated_rig,
     efficiency_spectrum,
     nikon_camera,
     read_profile,
@@ -280,20 +281,8 @@ class TwinRig:
 
 @pytest.fixture(scope="module")
 def twin(tmp_path_factory: pytest.TempPathFactory) -> TwinRig:
-    root = tmp_path_factory.mktemp("twin")
-    camera = write_csv(root / "camera.csv", nikon_camera())
-    efficiency = write_csv(root / "efficiency.csv", efficiency_spectrum())
-    fluorescent = colour_lamp("FL2")
-    mapping = render_lamp(
-        root / "fl2",
-        fluorescent,
-        camera=nikon_camera(),
-        efficiency=efficiency_spectrum(),
-        rng=np.random.default_rng(11),
-        prefix="fl2",
-    )
-    spectrum = write_csv(root / "fl2.csv", fluorescent)
-    return TwinRig(root, camera, efficiency, tuple(mapping.frames), spectrum)
+    rig = calibrated_rig(tmp_path_factory.mktemp("twin"))
+    return TwinRig(rig.root, rig.camera, rig.efficiency, rig.mapping_frames, rig.mapping_spectrum)
 
 
 def test_mapping_from_the_fluorescent_lamp_is_sub_nanometre(tmp_path: Path) -> None:

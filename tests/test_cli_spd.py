@@ -12,38 +12,28 @@ import pytest
 from calib.cli import main
 from calib.spectra import WavelengthGrid, read_spectrum_csv, write_csv
 from calib.synthetic import colour_lamp
-from tests.spd_scenes import efficiency_spectrum, nikon_camera, render_lamp
+from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
 
 
 @dataclass(frozen=True)
 class Scene:
-    root: Path
-    camera: Path
-    efficiency: Path
+    rig: CalibratedRig
     lamp: list[Path]
-    fluorescent: list[Path]
-    fluorescent_spectrum: Path
+
+    @property
+    def camera(self) -> Path:
+        return self.rig.camera
+
+    @property
+    def fluorescent_spectrum(self) -> Path:
+        return self.rig.mapping_spectrum
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory: pytest.TempPathFactory) -> Scene:
     root = tmp_path_factory.mktemp("spd-cli")
-    camera, efficiency = nikon_camera(), efficiency_spectrum()
-    rng = np.random.default_rng(21)
-    lamp = render_lamp(
-        root / "led", colour_lamp("LED-B3"), camera=camera, efficiency=efficiency, rng=rng
-    )
-    fl2 = render_lamp(
-        root / "fl2", colour_lamp("FL2"), camera=camera, efficiency=efficiency, rng=rng
-    )
-    return Scene(
-        root,
-        write_csv(root / "camera.csv", camera),
-        write_csv(root / "efficiency.csv", efficiency),
-        lamp.frames,
-        fl2.frames,
-        write_csv(root / "fl2.csv", colour_lamp("FL2")),
-    )
+    rig = calibrated_rig(root, seed=21)
+    return Scene(rig, render_twin_lamp(root / "led", colour_lamp("LED-B3"), seed=22))
 
 
 def run_cli(
@@ -70,7 +60,7 @@ def base_arguments(scene: Scene, out: Path) -> list[str]:
         "--camera",
         str(scene.camera),
         "--grating-efficiency",
-        str(scene.efficiency),
+        str(scene.rig.efficiency),
         "--out",
         str(out),
     ]
@@ -80,7 +70,7 @@ def with_mapping_lamp(scene: Scene, out: Path) -> list[str]:
     return [
         *base_arguments(scene, out),
         "--mapping-lamp-images",
-        *_paths(scene.fluorescent),
+        *_paths(list(scene.rig.mapping_frames)),
         "--mapping-lamp-spectrum",
         str(scene.fluorescent_spectrum),
     ]
@@ -225,17 +215,9 @@ def test_a_lamp_without_a_mapping_exits_2(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    broadband = render_lamp(
-        tmp_path / "a",
-        colour_lamp("A"),
-        camera=nikon_camera(),
-        efficiency=efficiency_spectrum(),
-        rng=np.random.default_rng(5),
-    )
+    broadband = render_twin_lamp(tmp_path / "a", colour_lamp("A"), seed=5)
     arguments = base_arguments(scene, tmp_path / "out")
-    arguments[arguments.index("--images") + 1 : arguments.index("--camera")] = _paths(
-        broadband.frames
-    )
+    arguments[arguments.index("--images") + 1 : arguments.index("--camera")] = _paths(broadband)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and "no pixel→wavelength mapping" in stderr
 
@@ -247,17 +229,11 @@ def test_a_mapping_lamp_without_lines_exits_1(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     """A halogen lamp given as the mapping lamp: no lines, the data cannot deliver a mapping."""
-    halogen = render_lamp(
-        tmp_path / "a",
-        colour_lamp("A"),
-        camera=nikon_camera(),
-        efficiency=efficiency_spectrum(),
-        rng=np.random.default_rng(6),
-    )
+    halogen = render_twin_lamp(tmp_path / "a", colour_lamp("A"), seed=6)
     arguments = [
         *base_arguments(scene, tmp_path / "out"),
         "--mapping-lamp-images",
-        *_paths(halogen.frames),
+        *_paths(halogen),
         "--mapping-lamp-spectrum",
         str(write_csv(tmp_path / "a.csv", colour_lamp("A"))),
     ]
