@@ -3,7 +3,8 @@
 In the style of colour-science's ``method=`` front functions: each method is a function
 ``(observations, *, grid, basis, mapping, mapping_lamp, **options) -> EstimateResult`` registered
 under its paper's name with :func:`register_method`. Later methods (``multilamp``, ``jiang2013``,
-``toivonen2020``, ``han2012``, ``solomatov2023`` …) register themselves the same way.
+``toivonen2020``, ``han2012``, ``solomatov2023`` …) register themselves the same way, importing
+their module only when called so that ``import calib`` stays cheap.
 
 Examples
 --------
@@ -185,6 +186,31 @@ LAZY_METHODS: dict[str, tuple[str, str]] = {
 
 for _name, (_module, _function) in LAZY_METHODS.items():
     register_method(_name, lazy_method(_module, _function))
+
+
+def _han2012(
+    observations: Sequence[LampObservation],
+    *,
+    grid: WavelengthGrid,
+    basis: CameraBasis | None,
+    mapping: QuadraticMapping | GratingGeometry | None,
+    mapping_lamp: str | None,
+    **options: Any,
+) -> EstimateResult:
+    from calib.han2012 import FluorescentChart, estimate_han2012
+
+    chart = options.pop("chart", None)
+    if not isinstance(chart, FluorescentChart) or observations or mapping or mapping_lamp:
+        raise InputError(
+            "han2012 works from one image of a fluorescent and a reference chart: call "
+            "estimate([], method='han2012', chart=FluorescentChart(...)); it uses no lamp "
+            "observations and no mapping",
+            source="method",
+        )
+    return estimate_han2012(chart, grid=grid, basis=basis, **options).to_estimate_result()
+
+
+register_method("han2012", _han2012)
 
 #: Type of a registered method, for other modules' annotations.
 MethodFunction = Callable[..., EstimateResult]

@@ -19,6 +19,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "calib.cli.data",
     "calib.cli.estimate",
     "calib.cli.compare",
+    "calib.cli.spd",
 )
 
 app = typer.Typer(

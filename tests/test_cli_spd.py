@@ -1,0 +1,243 @@
+"""``calib spd`` end to end on twin-rendered DNG brackets: outputs, exit codes, one-line reasons."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.cli import main
+from calib.spectra import WavelengthGrid, read_spectrum_csv, write_csv
+from calib.synthetic import colour_lamp
+from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
+
+
+@dataclass(frozen=True)
+class Scene:
+    rig: CalibratedRig
+    lamp: list[Path]
+
+    @property
+    def camera(self) -> Path:
+        return self.rig.camera
+
+    @property
+    def fluorescent_spectrum(self) -> Path:
+        return self.rig.mapping_spectrum
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Scene:
+    root = tmp_path_factory.mktemp("spd-cli")
+    rig = calibrated_rig(root, seed=21)
+    return Scene(rig, render_twin_lamp(root / "led", colour_lamp("LED-B3"), seed=22))
+
+
+def run_cli(
+    arguments: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> tuple[int, str, str]:
+    """Run ``calib`` as the console script does; return (exit code, stdout, stderr)."""
+    monkeypatch.setattr("sys.argv", ["calib", *arguments])
+    with pytest.raises(SystemExit) as exited:
+        main()
+    captured = capsys.readouterr()
+    code = exited.value.code
+    return (code if isinstance(code, int) else 1), captured.out, captured.err
+
+
+def _paths(paths: list[Path]) -> list[str]:
+    return [str(path) for path in paths]
+
+
+def base_arguments(scene: Scene, out: Path) -> list[str]:
+    return [
+        "spd",
+        "--images",
+        *_paths(scene.lamp),
+        "--camera",
+        str(scene.camera),
+        "--grating-efficiency",
+        str(scene.rig.efficiency),
+        "--out",
+        str(out),
+    ]
+
+
+def with_mapping_lamp(scene: Scene, out: Path) -> list[str]:
+    return [
+        *base_arguments(scene, out),
+        "--mapping-lamp-images",
+        *_paths(list(scene.rig.mapping_frames)),
+        "--mapping-lamp-spectrum",
+        str(scene.fluorescent_spectrum),
+    ]
+
+
+def test_spd_writes_csv_json_and_plots(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    out = tmp_path / "out"
+    code, stdout, stderr = run_cli(
+        [*with_mapping_lamp(scene, out), "--name", "desk LED", "--json"], monkeypatch, capsys
+    )
+    assert code == 0, stderr
+    printed = json.loads(stdout)
+    stored = json.loads((out / "spd.json").read_text())
+    assert printed == stored
+    assert stored["name"] == "desk LED"
+    assert stored["recognition"]["name"] == "LED-B3"
+    assert stored["recognition"]["instrument_view"] is True
+    assert set(stored["cct"]["library match (paper)"]["cct_k"]) == {
+        "McCamy 1992",
+        "Hernandez 1999",
+        "Robertson 1968",
+        "Ohno 2013",
+    }
+    assert stored["cct"]["recovered (completed with the match)"]["cct_k"][
+        "Ohno 2013"
+    ] == pytest.approx(4102.5, abs=50.0)
+    gains = stored["white_balance"]["camera_raw_gains"]["recovered"]
+    assert gains[1] == 1.0 and len(gains) == 3
+    assert len(stored["white_balance"]["srgb_gains_from_cct"]["gains"]) == 3
+    assert stored["mapping"]["origin"] == "mapping lamp"
+    assert stored["mapping"]["details"]["lines"] == "measured spectrum"
+    assert stored["direct_check"]["angular_error_deg"] < 0.5
+    assert [entry["sha256"] for entry in stored["inputs"]["images"]] and stored["inputs"]["camera"][
+        "path"
+    ] == str(scene.camera)
+    spd = read_spectrum_csv(out / "spd.csv")
+    assert spd.values.max() == pytest.approx(1.0, abs=0.02)
+    assert np.all(np.diff(spd.wavelength_nm) == 1.0)
+    lo, hi = stored["spd"]["recovered_range_nm"]
+    assert lo <= spd.wavelength_nm[0] and spd.wavelength_nm[-1] <= hi
+    for png in ("spd.png", "geometry.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "library match" in stderr and "LED-B3" in stderr
+
+
+def test_a_known_mapping_and_a_grid_can_be_given(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    first = tmp_path / "first"
+    code, _, stderr = run_cli(
+        [*with_mapping_lamp(scene, first), "--quiet", "--no-plots"], monkeypatch, capsys
+    )
+    assert code == 0 and stderr == ""
+    again = tmp_path / "again"
+    arguments = [*base_arguments(scene, again), "--mapping", str(first / "spd.json")]
+    code, _, stderr = run_cli(
+        [*arguments, "--grid", "450:650:5", "--quiet", "--no-plots"], monkeypatch, capsys
+    )
+    assert code == 0, stderr
+    stored = json.loads((again / "spd.json").read_text())
+    assert stored["mapping"]["origin"].startswith("file")
+    assert stored["spd"]["grid"] == str(WavelengthGrid(450, 650, 5))
+    spd = read_spectrum_csv(again / "spd.csv")
+    assert spd.wavelength_nm[0] == 450.0 and spd.wavelength_nm[-1] == 650.0
+    assert not (again / "spd.png").exists()
+
+
+def test_help_lists_the_options(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, stdout, _ = run_cli(["spd", "--help"], monkeypatch, capsys)
+    assert code == 0
+    for option in ("--images", "--camera", "--mapping-lamp-images", "--grating-efficiency"):
+        assert option in stdout
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda a, s: [x for x in a if x != "--camera" and x != str(s.camera)], "--camera"),
+        (lambda a, s: [*a, "--frobnicate"], "unrecognized arguments: --frobnicate"),
+        (lambda a, s: [*a, "--source", "huge"], "invalid choice: 'huge'"),
+        (lambda a, s: [*a, "--grid", "700:400:10"], "stop (400.0 nm) must be greater"),
+        (lambda a, s: [*a, "--smoothness", "-1"], "--smoothness: must be >= 0"),
+        (
+            lambda a, s: [*a, "--mapping-lamp-spectrum", str(s.fluorescent_spectrum)],
+            "needs that lamp's images",
+        ),
+        (
+            lambda a, s: [*a, "--mapping", "m.json", "--mapping-lamp-images", str(s.lamp[0])],
+            "either --mapping or --mapping-lamp-images",
+        ),
+        (lambda a, s: [*a, "--mapping", str(s.camera)], "not a readable JSON file"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    change: object,
+    message: str,
+) -> None:
+    arguments = change(base_arguments(scene, tmp_path / "out"), scene)  # type: ignore[operator]
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 2
+    lines = [line for line in stderr.splitlines() if line.startswith("calib:")]
+    assert len(lines) == 1 and message in lines[0], stderr
+
+
+def test_bad_files_are_named(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    two_columns = tmp_path / "camera.csv"
+    two_columns.write_text("wavelength_nm,r,g\n400,0.1,0.2\n500,0.5,0.9\n700,0.2,0.1\n")
+    arguments = base_arguments(scene, tmp_path / "out")
+    arguments[arguments.index("--camera") + 1] = str(two_columns)
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 2 and str(two_columns) in stderr and "3 sensitivity columns" in stderr
+    not_raw = tmp_path / "frame.dng"
+    not_raw.write_text("not a raw file")
+    arguments = base_arguments(scene, tmp_path / "out")
+    arguments[arguments.index("--images") + 1] = str(not_raw)
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 2 and "frame.dng" in stderr
+
+
+def test_a_lamp_without_a_mapping_exits_2(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    broadband = render_twin_lamp(tmp_path / "a", colour_lamp("A"), seed=5)
+    arguments = base_arguments(scene, tmp_path / "out")
+    arguments[arguments.index("--images") + 1 : arguments.index("--camera")] = _paths(broadband)
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 2 and "no pixel→wavelength mapping" in stderr
+
+
+def test_a_mapping_lamp_without_lines_exits_1(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A halogen lamp given as the mapping lamp: no lines, the data cannot deliver a mapping."""
+    halogen = render_twin_lamp(tmp_path / "a", colour_lamp("A"), seed=6)
+    arguments = [
+        *base_arguments(scene, tmp_path / "out"),
+        "--mapping-lamp-images",
+        *_paths(halogen),
+        "--mapping-lamp-spectrum",
+        str(write_csv(tmp_path / "a.csv", colour_lamp("A"))),
+    ]
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 1
+    lines = [line for line in stderr.splitlines() if line.startswith("calib:")]
+    assert len(lines) == 1 and "mapping from the fluorescent lamp failed" in lines[0], stderr
