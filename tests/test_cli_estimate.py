@@ -131,7 +131,7 @@ def test_images_end_to_end_with_json_summary(capture: Capture, tmp_path: Path) -
     assert code == 0, stderr
     summary = json.loads(stdout)
     assert summary["status"] == "ok" and summary["method"] == "makabe2025"
-    assert summary["mapping"]["method"].startswith("fluorescent-peaks")
+    assert summary["mapping"]["method"].startswith("lines of")
     assert 0 < summary["mapping_re_estimate"] < 0.01
     assert [lamp["name"] for lamp in summary["lamps"]] == ["LED", "FL"]
     for key in ("sensitivity", "result", "report", "camera_json", "grating"):

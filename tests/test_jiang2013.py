@@ -129,8 +129,12 @@ def test_colour_checker_is_noisier_than_the_grating():
                 )
                 for level in (0.0, noise)
             ]
+            # The paper's grating method (its 7-vector basis, here in measured units): the finding
+            # is about that method; the default camera-prior solve follows the data more closely.
             clean, noisy = (
-                calib.estimate([s.broadband.observation], basis=basis, mapping=s.mapping)
+                calib.estimate(
+                    [s.broadband.observation], basis=basis, mapping=s.mapping, solver="basis"
+                )
                 for s in scenes
             )
             chart = render_chart(

@@ -62,7 +62,7 @@ def test_round_trip_matches_the_renderers_truth(
     assert relative < RE_TARGET, relative
     assert mapping < MAPPING_RE_TARGET, mapping
     assert isinstance(result.mapping, QuadraticMapping)
-    assert result.mapping.method.startswith("fluorescent-peaks")
+    assert result.mapping.method.startswith("lines of")
     # the mapping's own error estimate is honest to a factor of a few
     assert result.mapping_re_estimate is not None
     assert mapping / 4 < result.mapping_re_estimate < mapping * 4

@@ -62,8 +62,9 @@ def test_result_json_records_everything(outcome: OfflineOutcome, capture: Captur
     assert document["schema"] == "spectral-rig/estimate-result"
     assert document["method"] == "makabe2025"
     assert set(document["sensitivity"]) == {"r", "g", "b"}
-    assert document["sensitivity_sigma"] is None
-    assert "does not estimate" in document["sensitivity_sigma_note"]
+    sigma = document["sensitivity_sigma"]
+    assert set(sigma) == {"r", "g", "b"}
+    assert all(len(sigma[c]) == 31 and min(sigma[c]) >= 0 for c in "rgb")
     mapping = document["mapping"]
     assert set(mapping["coefficients_nm"]) == {"a_nm_per_px2", "b_nm_per_px", "c_nm"}
     assert mapping["covariance"] is not None

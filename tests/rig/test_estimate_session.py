@@ -158,7 +158,7 @@ def test_a_complete_session_gives_the_outputs_and_the_truth(
     result = outcome.estimate.result
     assert relative_error(result.sensitivity, capture.truth) < 0.05
     assert isinstance(result.mapping, QuadraticMapping)
-    assert result.mapping.method.startswith("fluorescent-peaks")
+    assert result.mapping.method.startswith("lines of")
     assert outcome.estimate.warnings == ()
     document = json.loads(outcome.files["result"].read_text())
     notes = document["provenance"]["notes"]
@@ -216,7 +216,7 @@ def test_an_interrupted_session_uses_the_lamps_it_has(capture: Capture, tmp_path
     assert [obs.name for obs in outcome.estimate.observations] == ["LED"]
     # LED only: the mapping comes from the broadband search (RE 0.06 measured on this scene)
     mapping = outcome.estimate.result.mapping
-    assert isinstance(mapping, QuadraticMapping) and mapping.method.startswith("led-search")
+    assert isinstance(mapping, QuadraticMapping) and mapping.method.startswith("correlation search")
     assert relative_error(outcome.estimate.result.sensitivity, capture.truth) < 0.1
 
 
