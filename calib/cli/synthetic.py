@@ -43,8 +43,16 @@ def _format(value: float | None, scale: float, digits: int) -> str:
     return f"{value * scale:.{digits}f}"
 
 
+def _short_camera(name: str) -> str:
+    """``"Canon 600D (Jiang-et-al-2013)"`` → ``"Canon 600D"`` (table headers must stay narrow)."""
+    return name.split(" (")[0]
+
+
 def summary_table(rows: list[SyntheticRow], title: str) -> Table:
-    """Rich table: one row per camera (+ mean), a column per variant × noise (RE ×10⁻², mapping RE %)."""
+    """Rich table: one row per variant × noise, a column per camera and the mean.
+
+    Cells are RE ×10⁻²; the mean column adds the mean mapping RE in % when the mapping was estimated.
+    """
     keys = sorted(
         {(row.variant, row.noise) for row in rows}, key=lambda k: (VARIANTS.index(k[0]), k[1])
     )
@@ -52,28 +60,31 @@ def summary_table(rows: list[SyntheticRow], title: str) -> Table:
     cells: dict[tuple[str, str, float], list[SyntheticRow]] = defaultdict(list)
     for row in rows:
         cells[(row.camera, row.variant, row.noise)].append(row)
-    table = Table(title=title, caption="RE ×10⁻² (mapping RE %)")
-    table.add_column("camera")
-    for variant, noise in keys:
-        table.add_column(f"{variant}\nnoise {noise * 100:g} %", justify="right")
+    table = Table(title=title, caption="RE ×10⁻² per camera; mean RE (mean mapping RE %)")
+    table.add_column("variant")
+    table.add_column("noise", justify="right")
+    for camera in cameras:
+        table.add_column(_short_camera(camera), justify="right")
+    table.add_column("mean", justify="right")
 
-    def cell(selected: list[SyntheticRow]) -> str:
+    def mean_error(selected: list[SyntheticRow]) -> str:
         errors = [r.relative_error for r in selected]
+        return _format(float(np.mean(errors)) if errors else None, 100, 2)
+
+    for variant, noise in keys:
+        selected = [r for r in rows if (r.variant, r.noise) == (variant, noise)]
         mapping = [
             r.mapping_relative_error for r in selected if r.mapping_relative_error is not None
         ]
-        text = _format(float(np.mean(errors)) if errors else None, 100, 2)
+        mean = mean_error(selected)
         if mapping:
-            text += f" ({_format(float(np.mean(mapping)), 100, 3)})"
-        return text
-
-    for camera in cameras:
-        table.add_row(camera, *(cell(cells[(camera, v, n)]) for v, n in keys))
-    table.add_row(
-        "[bold]mean[/bold]",
-        *(cell([r for r in rows if (r.variant, r.noise) == key]) for key in keys),
-        end_section=True,
-    )
+            mean += f" ({_format(float(np.mean(mapping)), 100, 3)})"
+        table.add_row(
+            variant,
+            f"{noise * 100:g} %",
+            *(mean_error(cells[(camera, variant, noise)]) for camera in cameras),
+            mean,
+        )
     return table
 
 
