@@ -52,15 +52,20 @@ def prepare_lamp(
     *,
     slit_width_px: float = 0.0,
     psf_sigma_px: float = 0.0,
+    kernel: FloatArray | None = None,
 ) -> LampSystem:
-    """Precompute a lamp's operators; a missing profile σ is estimated from the profile itself."""
+    """Precompute a lamp's operators; a missing profile σ is estimated from the profile itself.
+
+    ``kernel`` is the camera's line spread in profile samples (see :mod:`calib.resolution`); without
+    it, a box of ``slit_width_px`` convolved with a Gaussian of ``psf_sigma_px`` is used.
+    """
     sigma = profile_sigma(observation)
     return LampSystem(
         observation=observation,
         operators=lamp_operators(observation.spectrum, grid),
         edges_px=pixel_edges(observation.pixel),
         profile_sigma=np.asarray(sigma, dtype=np.float64),
-        kernel=blur_kernel(slit_width_px, psf_sigma_px),
+        kernel=kernel if kernel is not None else blur_kernel(slit_width_px, psf_sigma_px),
     )
 
 

@@ -50,6 +50,7 @@ from calib.mapping import GratingGeometry, QuadraticMapping
 from calib.mapping_search import find_mapping
 from calib.observations import LampObservation
 from calib.prior_solve import solve_with_prior
+from calib.resolution import camera_kernel, match_spectrometer
 from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, WavelengthGrid
 
@@ -300,6 +301,11 @@ def _profile_model(
     return np.where(np.isfinite(model), model, 0.0)
 
 
+def _dispersion(mapping: WavelengthMapping, pixel: FloatArray) -> FloatArray:
+    """nm per pixel-coordinate unit at each pixel (finite difference: works for any mapping)."""
+    return np.asarray(np.gradient(mapping.wavelength_nm(pixel), pixel), dtype=np.float64)
+
+
 def _choose_solve_lamps(
     observations: Sequence[LampObservation], solve_lamps: Sequence[str] | None
 ) -> list[LampObservation]:
@@ -407,8 +413,7 @@ def estimate_makabe2025(
     chosen = _choose_solve_lamps(observations, solve_lamps)
     prior: CameraPrior = basis.prior(prior_shrinkage)
     efficiency_basis = fourier_basis(grid, efficiency_terms, convention=fourier_convention)
-    blur = {"slit_width_px": slit_width_px, "psf_sigma_px": psf_sigma_px}
-    systems = [prepare_lamp(obs, grid, **blur) for obs in chosen]
+    kernel = camera_kernel(observations, slit_width_px, psf_sigma_px)
     timings: dict[str, float] = {"prepare_s": time.perf_counter() - started}
 
     step = time.perf_counter()
@@ -430,7 +435,7 @@ def estimate_makabe2025(
                     else mapping.quadratic((grid.start_nm, grid.stop_nm))
                 )
                 starts = [start]
-            used_mapping = find_mapping(lamps, prior, grid, starts=starts, kernel=systems[0].kernel)
+            used_mapping = find_mapping(lamps, prior, grid, starts=starts, kernel=kernel)
         else:
             raise InputError(
                 f"unknown mapping method {mapping_method!r}; use 'search' or 'icp'",
@@ -439,11 +444,21 @@ def estimate_makabe2025(
     timings["mapping_s"] = time.perf_counter() - step
 
     step = time.perf_counter()
+
+    # Profiles measured against a broader spectrometer are blurred to its resolution (through the
+    # mapping's dispersion), then every lamp is prepared with the camera's line spread.
+    def prepared(observation: LampObservation) -> LampSystem:
+        spacing = float(np.median(np.diff(observation.pixel)))
+        dispersion = float(np.median(np.abs(_dispersion(used_mapping, observation.pixel))))
+        matched = match_spectrometer(observation, dispersion * spacing)
+        return prepare_lamp(matched, grid, kernel=kernel)
+
+    systems = [prepared(obs) for obs in chosen]
     sensitivity_sigma: FloatArray | None = None
     if solver == "prior":
         # Every other lamp with a direct measurement constrains η (its brightness cancels).
         companions = [
-            prepare_lamp(obs, grid, **blur)
+            prepared(obs)
             for obs in observations
             if obs is not chosen[0] and obs.direct_rgb is not None
         ]

@@ -321,6 +321,66 @@ class GratingGeometry:
             raise InputError(f"not a grating geometry record ({exc})", source="grating") from None
 
 
+@dataclass(frozen=True)
+class TiltedGrating:
+    """The first order of a transmission grating, pixels measured from the 0th-order spot.
+
+    ``λ(p) = d [sin(θ + atan(p / F)) − sin θ]`` with ``d`` the groove spacing, ``F`` the focal length
+    in pixels and ``θ`` the angle of incidence on the grating (the 0th order continues at ``θ``, the
+    first order leaves at ``θ'`` with ``sin θ' − sin θ = λ/d``). ``λ(0) = 0`` exactly: the 0th order
+    is where the undiffracted light lands — the constraint an arbitrary quadratic lacks.
+    :class:`GratingGeometry` is the special case ``θ = 0`` with ``d`` and ``F`` from the rig's
+    parts; here they are fitted.
+
+    Attributes
+    ----------
+    dispersion_nm_per_px
+        ``d / F``: wavelength per pixel near the spot at normal incidence.
+    focal_length_px
+        ``F``.
+    incidence_deg
+        ``θ``.
+    """
+
+    dispersion_nm_per_px: float
+    focal_length_px: float
+    incidence_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (self.dispersion_nm_per_px > 0 and self.focal_length_px > 0):
+            raise InputError(
+                f"dispersion and focal length must be > 0, got {self.dispersion_nm_per_px}, "
+                f"{self.focal_length_px}",
+                source="mapping",
+            )
+
+    def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
+        """``λ(p)`` in nm."""
+        theta = math.radians(self.incidence_deg)
+        spacing = self.dispersion_nm_per_px * self.focal_length_px
+        angle = np.arctan(np.asarray(pixel, dtype=np.float64) / self.focal_length_px)
+        return np.asarray(spacing * (np.sin(theta + angle) - math.sin(theta)), dtype=np.float64)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "type": "tilted_grating",
+            "dispersion_nm_per_px": self.dispersion_nm_per_px,
+            "focal_length_px": self.focal_length_px,
+            "incidence_deg": self.incidence_deg,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TiltedGrating:
+        try:
+            return cls(
+                float(data["dispersion_nm_per_px"]),
+                float(data["focal_length_px"]),
+                float(data.get("incidence_deg", 0.0)),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"not a tilted-grating record ({exc})", source="mapping") from None
+
+
 def mapping_from_dict(data: Mapping[str, Any]) -> QuadraticMapping | GratingGeometry:
     """Read either mapping type from its ``to_dict`` form."""
     kind = data.get("type")

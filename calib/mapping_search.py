@@ -29,8 +29,10 @@ only on 400–700 nm is zero beyond; a real one is not: both are representable).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,6 +43,7 @@ from calib.forward import PiecewiseLinearDensity, apply_blur, fine_axis, pixel_e
 from calib.mapping import (
     GratingGeometry,
     QuadraticMapping,
+    TiltedGrating,
     coarse_mapping_candidates,
     lamp_lines,
     match_peak_hypotheses,
@@ -48,12 +51,14 @@ from calib.mapping import (
     nominal_dispersion,
     profile_peaks,
     refine_mapping,
+    wavelength_rms_from_covariance,
 )
 from calib.observations import LampObservation
+from calib.resolution import camera_kernel, match_spectrometer
 from calib.spectra import WavelengthGrid
 
 FloatArray = NDArray[np.float64]
-Mapping = QuadraticMapping | GratingGeometry
+Mapping = QuadraticMapping | GratingGeometry | TiltedGrating
 
 #: Node spacing (nm) of the response in the global and first local stage, and in the last stage.
 COARSE_NODES_NM = 10.0
@@ -532,7 +537,9 @@ def find_mapping(
     starts
         Starting mappings to use instead of the first stage (e.g. from the grating's geometry).
     kernel
-        Blur of the profiles along the pixels (slit image), modelled in every fit.
+        The camera's line spread in profile samples, modelled in every fit; default: the lamps'
+        measured one (:func:`calib.resolution.camera_kernel`). Profiles measured with a spectrometer
+        broader than the camera are blurred to match (:func:`calib.resolution.match_spectrometer`).
 
     Returns
     -------
@@ -589,9 +596,14 @@ def find_mapping(
             )
         )
 
-    # Global stage: binned profiles, a grid of the ends' wavelengths around every start.
+    # Global stage: binned profiles, a grid of the ends' wavelengths around every start. Profiles
+    # are first brought to their spectrometer's resolution (through the starts' dispersion).
     spacing = float(np.median(np.diff(lead.pixel)))
     dispersion = float(np.median(np.abs(candidates[0].dispersion_nm_per_px(lead.pixel))))
+    if kernel is None:
+        kernel = camera_kernel(lamps)
+    lamps = [match_spectrometer(lamp, dispersion * spacing) for lamp in lamps]
+    lead = next((lamp for lamp in lamps if lamp.kind == "fluorescent"), lamps[0])
     factor = max(1, int(GLOBAL_BIN_NM / max(dispersion * spacing, 1e-9)))
     global_fit = joint_fit(
         factor,
@@ -599,6 +611,10 @@ def find_mapping(
         None if kernel is None else _binned_kernel(kernel, factor),
         GLOBAL_SIGMA_FLOOR,
     )
+    if lead.pixel_origin == "direct_spot" and not starts:
+        return _physical_search(
+            lamps, candidates, global_fit, joint_fit, kernel, pixel_range, grid, origin
+        )
     # The scan looks at each start's own lamp only (half the cost with two lamps); the refinement
     # of its best points uses every lamp.
     points: list[tuple[float, QuadraticMapping]] = []
@@ -674,3 +690,178 @@ def _binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
     values = np.interp(coarse, offsets, kernel, left=0.0, right=0.0)
     total = float(values.sum())
     return None if total <= 0 else np.asarray(values / total, dtype=np.float64)
+
+
+# ------------------------------------------------------------------------- grating physics
+
+
+#: Relative range and number of the dispersions scanned around the start's, and the focal lengths
+#: (pixels: wide-angle to telephoto at typical pitches) that set the physical curvature.
+PHYSICAL_DISPERSION_RANGE = (0.75, 1.33)
+PHYSICAL_DISPERSION_STEPS = 57
+PHYSICAL_FOCAL_LENGTHS_PX = (1500.0, 4000.0, 15000.0)
+#: Bound on the angle of incidence on the grating, and the spread of its (Gaussian) prior, degrees:
+#: set-ups align the grating sheet roughly parallel to the sensor (Makabe et al. 2025, §4.2).
+MAX_INCIDENCE_DEG = 40.0
+INCIDENCE_SIGMA_DEG = 5.0
+
+
+def _physical(parameters: FloatArray) -> TiltedGrating:
+    log_dispersion, log_focal, incidence = parameters
+    return TiltedGrating(float(np.exp(log_dispersion)), float(np.exp(log_focal)), float(incidence))
+
+
+def _refine_physical(
+    start: TiltedGrating, fit: JointFit, max_evaluations: int, *, final: bool = False
+) -> tuple[TiltedGrating, float, FloatArray | None]:
+    """Least squares over ``(log d/F, log F, θ)``; returns the grating, the cost and ``cov(θ)``."""
+    from scipy import optimize
+
+    x0 = np.array(
+        [math.log(start.dispersion_nm_per_px), math.log(start.focal_length_px), start.incidence_deg]
+    )
+    tolerance = FINAL_TOLERANCE if final else INTERMEDIATE_TOLERANCE
+    solution = optimize.least_squares(
+        # A soft prior on the angle of incidence: rigs align the grating roughly square to the lens.
+        lambda x: np.append(fit.residual(_physical(x)), x[2] / INCIDENCE_SIGMA_DEG),
+        x0,
+        diff_step=np.array([1e-6, 1e-4, 1e-4]),
+        bounds=(
+            [-np.inf, math.log(200.0), -MAX_INCIDENCE_DEG],
+            [np.inf, math.log(1e6), MAX_INCIDENCE_DEG],
+        ),
+        max_nfev=max_evaluations,
+        ftol=tolerance,
+        xtol=tolerance,
+        gtol=tolerance,
+    )
+    cost = float(np.sum(solution.fun**2))
+    covariance = None
+    if final:
+        dof = max(solution.fun.size - 3, 1)
+        covariance = np.linalg.pinv(solution.jac.T @ solution.jac) * cost / dof
+    return _physical(solution.x), cost, covariance
+
+
+def _physical_search(
+    lamps: Sequence[LampObservation],
+    candidates: Sequence[QuadraticMapping],
+    global_fit: JointFit,
+    joint_fit: Any,
+    kernel: FloatArray | None,
+    pixel_range: tuple[float, float],
+    grid: WavelengthGrid,
+    origin: str,
+) -> QuadraticMapping:
+    """The mapping within the grating's physical family, for pixels measured from the 0th order.
+
+    ``λ(p) = d [sin(θ + atan(p/F)) − sin θ]`` (:class:`calib.mapping.TiltedGrating`) has ``λ(0) = 0``:
+    only the dispersion and a small curvature are free, so a shift of the whole rainbow — which a
+    camera unlike the prior can otherwise trade against the response's shape — is ruled out.
+    A scan over the dispersion (and a few focal lengths) on binned profiles, refinement of the best
+    points, then the local stages, all in that family; the result is returned as its quadratic over
+    the profile (the difference is a small fraction of a nanometre).
+    """
+    middle = 0.5 * (pixel_range[0] + pixel_range[1])
+    nominal = float(
+        np.median([c.wavelength_nm(np.array([middle]))[0] / middle for c in candidates])
+    )
+    scale = nominal * np.geomspace(*PHYSICAL_DISPERSION_RANGE, PHYSICAL_DISPERSION_STEPS)
+    points: list[tuple[float, TiltedGrating]] = []
+    for focal in PHYSICAL_FOCAL_LENGTHS_PX:
+        costs = []
+        for dispersion in scale:
+            # At this focal length, the dispersion that puts the profile's middle where the
+            # small-angle guess does (so the scan is over wavelengths, whatever the curvature).
+            trial = TiltedGrating(float(dispersion), focal)
+            correction = (
+                dispersion * middle / max(float(trial.wavelength_nm(np.array([middle]))[0]), 1e-9)
+            )
+            trial = TiltedGrating(float(dispersion * correction), focal)
+            costs.append((global_fit.cost(trial), trial))
+        values = np.array([c for c, _ in costs])
+        for index in range(values.size):
+            window = values[max(index - 1, 0) : index + 2]
+            if values[index] <= window.min():
+                points.append(costs[index])
+    points.sort(key=lambda item: item[0])
+    refined = [
+        _refine_physical(point, global_fit, max_evaluations=40)[:2]
+        for _, point in points[:REFINED_POINTS]
+    ]
+    refined.sort(key=lambda item: item[1])
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+    finalists: list[TiltedGrating] = []
+    for mapping, _ in refined:
+        if all(
+            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) > 1.0
+            for other in finalists
+        ):
+            finalists.append(mapping)
+        if len(finalists) == LOCAL_FINALISTS:
+            break
+    coarse_fit = joint_fit(1, COARSE_NODES_NM, kernel)
+    outcomes = [_refine_physical(finalist, coarse_fit, 100)[:2] for finalist in finalists]
+    best, _ = min(outcomes, key=lambda item: item[1])
+    best, cost, covariance = _refine_physical(
+        best, joint_fit(1, FINE_NODES_NM, kernel), 100, final=True
+    )
+    pixels = np.linspace(pixel_range[0], pixel_range[1], 256)
+    fitted = QuadraticMapping.fit(
+        pixels, best.wavelength_nm(pixels), method=f"{origin}+grating fit"
+    )
+    rms = None
+    coefficient_covariance = None
+    if covariance is not None:
+        # λ at the fitted pixels is linear in the physical parameters near the optimum, and the
+        # quadratic's coefficients are linear in λ: propagate the fit's covariance through both.
+        x = np.array(
+            [
+                math.log(best.dispersion_nm_per_px),
+                math.log(best.focal_length_px),
+                best.incidence_deg,
+            ]
+        )
+        steps = np.array([1e-6, 1e-4, 1e-3])
+        jacobian = np.stack(
+            [
+                (_physical(x + step * unit).wavelength_nm(pixels) - best.wavelength_nm(pixels))
+                / step
+                for step, unit in zip(steps, np.eye(3), strict=True)
+            ],
+            axis=1,
+        )
+        design = np.stack([pixels**2, pixels, np.ones_like(pixels)], axis=1)
+        projection = np.linalg.pinv(design)
+        coefficient_covariance = projection @ jacobian @ covariance @ jacobian.T @ projection.T
+        rms = wavelength_rms_from_covariance(coefficient_covariance, pixel_range)
+    covers = best.wavelength_nm(np.array(pixel_range))
+    tolerance = 0.5 * grid.step_nm
+    if covers.min() > grid.start_nm + tolerance or covers.max() < grid.stop_nm - tolerance:
+        raise EstimationError(
+            f"the best mapping puts the profile at {covers.min():.0f}–{covers.max():.0f} nm, not "
+            f"covering the grid {grid.start_nm:g}–{grid.stop_nm:g} nm: does the profile hold the "
+            "whole first order?"
+        )
+    return QuadraticMapping(
+        fitted.a,
+        fitted.b,
+        fitted.c,
+        method=f"{origin}+grating fit",
+        pixel_range=pixel_range,
+        covariance=None
+        if coefficient_covariance is None
+        else tuple((float(r[0]), float(r[1]), float(r[2])) for r in coefficient_covariance),
+        wavelength_rms_nm=rms,
+        details={
+            "mapping_lamps": [lamp.name for lamp in lamps],
+            "origin": origin,
+            "family": "tilted grating (pixels from the 0th order)",
+            "grating": best.to_dict(),
+            "quadratic_max_error_nm": float(
+                np.max(np.abs(fitted.wavelength_nm(pixels) - best.wavelength_nm(pixels)))
+            ),
+            "final_cost": cost,
+            "flexibility": FLEXIBILITY,
+        },
+    )

@@ -58,6 +58,19 @@ class LampObservation:
         What kind of lamp it is; fluorescent lamps are used for the peak-based mapping.
     profile_wavelength_nm
         Shape ``(n_pixels,)`` when the profile is already mapped to wavelength, else ``None``.
+    spectrum_bandwidth_nm
+        Full width at half maximum of the spectrometer's slit function that measured ``spectrum``
+        (PR-655 8 nm, CS-2000 5 nm …), or ``None`` when the spectrum is at least as sharp as the
+        profile. A spectrum broader than what the camera resolves blurs every line of the model;
+        the estimators then blur the profile to match (:mod:`calib.resolution`).
+    line_spread
+        The camera's line spread along the dispersion direction, sampled at the profile's pixel
+        spacing (odd length, centred, sum 1) — the direct spot's cross-section: the slit's image
+        and the lens' blur. ``None`` when unknown.
+    pixel_origin
+        ``"direct_spot"`` when ``pixel`` is the distance from the 0th-order spot along the first
+        order (as :mod:`calib.profiles` measures it): the 0th order is where λ = 0, which pins the
+        mapping's grating physics. ``"arbitrary"`` otherwise.
     """
 
     name: str
@@ -70,6 +83,9 @@ class LampObservation:
     kind: LampKind = "other"
     profile_wavelength_nm: FloatArray | None = None
     metadata: dict[str, object] = field(default_factory=dict)
+    spectrum_bandwidth_nm: float | None = None
+    line_spread: FloatArray | None = None
+    pixel_origin: Literal["arbitrary", "direct_spot"] = "arbitrary"
 
     def __post_init__(self) -> None:
         label = f"lamp {self.name!r}"
@@ -116,6 +132,28 @@ class LampObservation:
                     source=label,
                 )
             object.__setattr__(self, "profile_wavelength_nm", mapped)
+        if self.spectrum_bandwidth_nm is not None and not (
+            np.isfinite(self.spectrum_bandwidth_nm) and self.spectrum_bandwidth_nm > 0
+        ):
+            raise InputError(
+                f"spectrum bandwidth must be a positive number of nm, got "
+                f"{self.spectrum_bandwidth_nm}",
+                source=label,
+            )
+        if self.line_spread is not None:
+            spread = _readonly_float(self.line_spread, "line spread (odd length,)", label, 1)
+            if spread.size % 2 != 1 or np.any(spread < 0) or float(spread.sum()) <= 0:
+                raise InputError(
+                    "line spread must have an odd length and non-negative values", source=label
+                )
+            normalised = spread / float(spread.sum())
+            normalised.flags.writeable = False
+            object.__setattr__(self, "line_spread", normalised)
+        if self.pixel_origin not in ("arbitrary", "direct_spot"):
+            raise InputError(
+                f"pixel_origin {self.pixel_origin!r} is not 'arbitrary' or 'direct_spot'",
+                source=label,
+            )
         if self.kind not in LAMP_KINDS:
             raise InputError(f"kind {self.kind!r} is not one of {LAMP_KINDS}", source=label)
 

@@ -143,7 +143,8 @@ class SpectrumReading:
 
     ``wavelength_nm`` and ``values`` have shape ``(n,)``; ``units`` is the instrument's own unit
     (e.g. ``"W/(sr·m²·nm)"``); ``exposure_ms`` is the integration time actually used (adaptive
-    exposure reports what it chose), ``None`` when the instrument does not say.
+    exposure reports what it chose), ``None`` when the instrument does not say; ``bandwidth_nm``
+    is the FWHM of the instrument's slit function (its spectral resolution), when known.
     """
 
     wavelength_nm: NDArray[np.float64]
@@ -151,6 +152,7 @@ class SpectrumReading:
     units: str
     exposure_ms: float | None = None
     extra: dict[str, str] = field(default_factory=dict)
+    bandwidth_nm: float | None = None
 
 
 @dataclass(frozen=True)

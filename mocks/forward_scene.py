@@ -54,6 +54,7 @@ def first_order_signal(
     pixel_range_px: tuple[float, float],
     step_px: float = 0.25,
     slit_length_px: float,
+    slit_width_px: float = 0.0,
     dn_per_s: float = 1.0,
     direct_throughput: float = 1.0,
 ) -> SceneSignal:
@@ -71,6 +72,10 @@ def first_order_signal(
     slit_length_px
         Length of the slit's image across the dispersion (sensor pixels). Every row of the band
         receives the density of one slit row, so the direct spot sums the light of this many rows.
+    slit_width_px
+        Width of the slit's image along the dispersion (sensor pixels): the first order is the
+        per-pixel integrals convolved with this box — the same image the direct spot is, as
+        physics has it (0: an infinitely narrow slit).
     step_px
         Cell width of the sampled density (sensor pixels).
     dn_per_s
@@ -96,6 +101,13 @@ def first_order_signal(
     cumulative = density.cumulative_at(edges_nm)
     # |Δ cumulative| / Δpixel: the mapping may run towards shorter wavelengths
     per_pixel = np.abs(np.diff(cumulative, axis=0)) / step_px
+    cells = round(slit_width_px / step_px)
+    if cells > 1:
+        box = np.full(cells, 1.0 / cells)
+        per_pixel = np.stack(
+            [np.convolve(per_pixel[:, c], box, mode="same") for c in range(per_pixel.shape[1])],
+            axis=1,
+        )
     centres_px = 0.5 * (edges_px[1:] + edges_px[:-1])
     return SceneSignal(
         direct_rgb=dn_per_s
@@ -174,12 +186,18 @@ def write_capture(
     """
     written = []
     slit_length_px = 2.0 * layout.spot_half_size_px[1]
+    # The direct spot is the slit's image; the first order is blurred by the same image.
+    slit_width_px = 2.0 * layout.spot_half_size_px[0]
     for name, kind, spectrum in lamps:
         rendered = render_observation(
             spectrum, camera, mapping=mapping, pixel=2, grating_efficiency=grating_efficiency
         )
         unit = first_order_signal(
-            rendered, mapping, pixel_range_px=pixel_range_px, slit_length_px=slit_length_px
+            rendered,
+            mapping,
+            pixel_range_px=pixel_range_px,
+            slit_length_px=slit_length_px,
+            slit_width_px=slit_width_px,
         )
         scale = band_peak_dn_per_s / float(unit.profile.max())
         signal = first_order_signal(
@@ -187,6 +205,7 @@ def write_capture(
             mapping,
             pixel_range_px=pixel_range_px,
             slit_length_px=slit_length_px,
+            slit_width_px=slit_width_px,
             dn_per_s=scale,
             direct_throughput=direct_throughput,
         )

@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -96,6 +97,34 @@ def default_estimator() -> SessionEstimator:
     return estimator
 
 
+def related_camera_names(camera: str) -> list[str]:
+    """Names under which the twin's camera may appear in a camera collection.
+
+    ``"Nikon 5100 (NPL)"`` → ``["Nikon 5100", "Nikon D5100"]`` (collections name Nikon DSLRs with
+    and without the ``D``); matching is by case-insensitive substring.
+    """
+    base = camera.split(" (")[0].strip()
+    names = [base]
+    parts = base.split(" ", 1)
+    if len(parts) == 2 and parts[1][:1].isdigit():
+        names.append(f"{parts[0]} D{parts[1]}")
+    return names
+
+
+def estimate_without_camera(session: Path, out_dir: Path, camera: str) -> object:
+    """:func:`rig.estimate.estimate_session` with a camera prior that leaves ``camera`` out."""
+    from calib.methods import default_camera_basis
+
+    basis = default_camera_basis(exclude=related_camera_names(camera))
+    return default_estimator_module().estimate_session(session, out_dir, settings={"basis": basis})
+
+
+def default_estimator_module() -> Any:
+    """The ``rig.estimate`` module (see :func:`default_estimator`)."""
+    default_estimator()
+    return importlib.import_module("rig.estimate")
+
+
 def sensitivity_error(estimate_csv: Path, truth_json: Path) -> float:
     """RE of the sensitivity in ``estimate_csv`` against the twin's truth, on the estimate's grid.
 
@@ -160,7 +189,12 @@ def run_demo(
         return DemoResult(outcome, truth, capture_s=capture_s)
     estimate_dir = out_dir / ESTIMATE_DIR / outcome.session.name
     started = time.perf_counter()
-    estimate(outcome.session, estimate_dir)
+    if estimator is None:
+        # The camera prior must not contain the twin's own camera: the RE would flatter us.
+        camera = bench_module().TwinTruth.read(truth).camera
+        estimate_without_camera(outcome.session, estimate_dir, camera)
+    else:
+        estimate(outcome.session, estimate_dir)
     estimate_s = time.perf_counter() - started
     sensitivity = estimate_dir / SENSITIVITY_FILE
     report = estimate_dir / REPORT_FILE

@@ -133,6 +133,12 @@ def _collect(session: Session, lamps: Sequence[str]) -> dict[str, _LampFiles]:
     return files
 
 
+def _bandwidth(references: Sequence[_SessionFile]) -> float | None:
+    """The spectrometer bandwidth the reference spectra were recorded with (the largest, if any)."""
+    values = [item.record.bandwidth_nm for item in references if item.record.bandwidth_nm]
+    return max(values) if values else None
+
+
 def _mean_spectrum(name: str, references: Sequence[_SessionFile]) -> Spectrum:
     """The mean of a lamp's reference spectra (on the first one's wavelengths)."""
     spectra = []
@@ -207,6 +213,7 @@ def session_lamps(session: Session) -> tuple[list[LampImages], list[InputFile], 
                 spectrum=_mean_spectrum(name, entry.reference),
                 images=tuple(item.path for item in entry.scene),
                 darks=tuple(item.path for item in darks),
+                spectrum_bandwidth_nm=_bandwidth(entry.reference),
             )
         )
         for role, items in (("frame", entry.scene), ("dark", darks), ("spectrum", entry.reference)):

@@ -167,6 +167,8 @@ class FileRecord(Record):
     size: int = Field(ge=0)
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
     units: str | None = None
+    #: A spectrum's instrument bandwidth (FWHM, nm), when the spectrometer reports one.
+    bandwidth_nm: float | None = Field(default=None, gt=0)
 
 
 class InterruptionRecord(Record):

@@ -514,7 +514,13 @@ class Runner:
             ) from None
         negative = int(np.count_nonzero(values < 0))
         relative = f"spectra/{step.lamp}/{step.purpose}-{step.index:03d}.csv"
-        record = self.session.write_spectrum(relative, spectrum, key=step.key, units=reading.units)
+        record = self.session.write_spectrum(
+            relative,
+            spectrum,
+            key=step.key,
+            units=reading.units,
+            bandwidth_nm=reading.bandwidth_nm,
+        )
         self._counts["spectra"] += 1
         # The plan gets the spectrum as stored (CSV precision), so a plan re-driven from the session
         # (resume, replay) sees exactly the numbers this run saw and takes the same branches.

@@ -307,6 +307,7 @@ class SessionWriter:
         key: str,
         role: Literal["frame", "dark", "spectrum"],
         units: str | None = None,
+        bandwidth_nm: float | None = None,
     ) -> FileRecord:
         """Sync ``temporary``, rename it to ``relative`` and acknowledge it with a ``file`` record.
 
@@ -340,18 +341,30 @@ class SessionWriter:
             size=size,
             sha256=digest.hexdigest(),
             units=units,
+            bandwidth_nm=bandwidth_nm,
         )
 
     def write_spectrum(
-        self, relative: str, spectrum: Spectrum, *, key: str, units: str
+        self,
+        relative: str,
+        spectrum: Spectrum,
+        *,
+        key: str,
+        units: str,
+        bandwidth_nm: float | None = None,
     ) -> FileRecord:
-        """Store a spectrum as CSV (``wavelength_nm,value``) and acknowledge it; ``units`` of ``value``."""
+        """Store a spectrum as CSV (``wavelength_nm,value``) and acknowledge it.
+
+        ``units`` of ``value`` and the instrument's ``bandwidth_nm`` go into the file record.
+        """
         temporary = self.incoming_path(relative.split("/")[0])
         try:
             write_csv(temporary, spectrum)
         except OSError as exc:
             raise self._fail(f"writing {relative}", exc) from exc
-        return self.commit_file(temporary, relative, key=key, role="spectrum", units=units)
+        return self.commit_file(
+            temporary, relative, key=key, role="spectrum", units=units, bandwidth_nm=bandwidth_nm
+        )
 
     def close_transcripts(self) -> None:
         """Close the transcripts, acknowledging each with a ``file`` record (before the stop record)."""

@@ -67,12 +67,16 @@ class Capture:
     def clean_profile(self, lamp: str, pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The renderer's noise-free profile ``(n, 3)`` at ``pixel`` (integrals over the pixels'
         wavelength intervals, in forward units) and its direct RGB ``(3,)``."""
+        # The first order is blurred by the slit's image (the direct spot, a box along the
+        # dispersion); ``render_observation`` takes its width in profile samples.
+        spacing = float(np.median(np.diff(pixel)))
         rendered = render_observation(
             colour_lamps()[lamp][1],
             as_spectrum(self.truth),
             mapping=GRATING,
             pixel=pixel,
             grating_efficiency=efficiency,
+            slit_width_px=2.0 * self.layout.spot_half_size_px[0] / spacing,
         )
         return rendered.clean_profile, rendered.clean_direct
 

@@ -24,6 +24,7 @@ USAGE = """\
 Usage: calib estimate --lamp NAME (--images PATH [PATH ...] | --profile CSV) --spectrum CSV
                       [--kind led|fluorescent|halogen|narrowband|other] [--dark PATH ...]
                       [--exposure S ...] [--dark-exposure S ...] [--direct R,G,B]
+                      [--bandwidth NM]
                       [--lamp NAME … for every further lamp]
                       --out DIR [--method makabe2025|…] [--mapping-lamp NAME] [--grid 400:700:10]
                       [--data-dir DIR] [--grating FILE] [--force] [--quiet] [--json]
@@ -42,6 +43,8 @@ Per lamp (after --lamp NAME; repeat the group for every lamp):
   --profile CSV          instead of images: a 1-D profile pixel,r,g,b or wavelength_nm,r,g,b
                          (optional r_sigma,g_sigma,b_sigma columns)
   --direct R,G,B         with --profile: the direct (0th-order) RGB in the profile's units
+  --bandwidth NM         the spectrometer's bandwidth (FWHM of its slit function) when it is
+                         broader than the camera resolves, e.g. 8 for a PR-655, 5 for a CS-2000
 
 Global:
   --out DIR              where to write sensitivity.csv, result.json, report.html, the
@@ -62,7 +65,7 @@ Exit codes: 0 ok, 2 bad input (the reason on one line), 1 internal error.
 """
 
 _LAMP_MULTI = ("--images", "--dark", "--exposure", "--dark-exposure")
-_LAMP_SINGLE = ("--spectrum", "--kind", "--profile", "--direct")
+_LAMP_SINGLE = ("--spectrum", "--kind", "--profile", "--direct", "--bandwidth")
 _GLOBAL_SINGLE = ("--out", "--method", "--mapping-lamp", "--grid", "--data-dir", "--grating")
 _FLAGS = {"--quiet": "--quiet", "-q": "--quiet", "--json": "--json", "--force": "--force"}
 _HELP = ("--help", "-h")
@@ -123,16 +126,21 @@ def _is_number(token: str) -> bool:
     return True
 
 
-def _positive_seconds(text: str, option: str, lamp: str) -> float:
+def _positive_number(text: str, option: str, lamp: str, unit: str) -> float:
+    """``text`` as a finite number > 0, else an :class:`InputError` naming the lamp and option."""
     try:
         value = float(text)
     except ValueError:
         raise InputError(
-            f"{text!r} is not a number of seconds", source=f"lamp {lamp!r} {option}"
+            f"{text!r} is not a number of {unit}", source=f"lamp {lamp!r} {option}"
         ) from None
     if not (math.isfinite(value) and value > 0):
-        raise InputError(f"exposure must be > 0 s, got {text}", source=f"lamp {lamp!r} {option}")
+        raise InputError(f"must be > 0 {unit}, got {text}", source=f"lamp {lamp!r} {option}")
     return value
+
+
+def _positive_seconds(text: str, option: str, lamp: str) -> float:
+    return _positive_number(text, option, lamp, "s")
 
 
 def _split_tokens(argv: Sequence[str]) -> list[tuple[str, list[str]]]:
@@ -240,6 +248,11 @@ def _lamp_input(group: _LampGroup) -> LampInput:
         raise InputError("--spectrum CSV is required for every lamp", source=where)
     kind = check_kind(group.values.get("--kind", "other"), f"{where} --kind")
     spectrum = Path(group.values["--spectrum"])
+    bandwidth = (
+        None
+        if "--bandwidth" not in group.values
+        else _positive_number(group.values["--bandwidth"], "--bandwidth", group.name, "nm")
+    )
     has_images = "--images" in group.lists
     has_profile = "--profile" in group.values
     if has_images == has_profile:
@@ -259,6 +272,7 @@ def _lamp_input(group: _LampGroup) -> LampInput:
             spectrum=spectrum,
             profile=Path(group.values["--profile"]),
             direct_rgb=None if direct is None else parse_direct(direct, f"{where} --direct"),
+            spectrum_bandwidth_nm=bandwidth,
         )
     if "--direct" in group.values:
         raise InputError(
@@ -281,4 +295,5 @@ def _lamp_input(group: _LampGroup) -> LampInput:
         dark_exposure_s=None
         if dark_exposures is None
         else tuple(_positive_seconds(v, "--dark-exposure", group.name) for v in dark_exposures),
+        spectrum_bandwidth_nm=bandwidth,
     )

@@ -53,6 +53,9 @@ class LampImages:
         Exposure times overriding the files' metadata, one per image (or ``None``).
     dark_exposure_s
         The same for the dark frames.
+    spectrum_bandwidth_nm
+        FWHM of the spectrometer's slit function that measured ``spectrum`` (see
+        :attr:`calib.observations.LampObservation.spectrum_bandwidth_nm`), or ``None``.
     """
 
     name: str
@@ -62,6 +65,7 @@ class LampImages:
     darks: tuple[Path, ...] = ()
     exposure_s: tuple[float, ...] | None = None
     dark_exposure_s: tuple[float, ...] | None = None
+    spectrum_bandwidth_nm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -77,6 +81,8 @@ class LampProfile:
         ``r_sigma,g_sigma,b_sigma``).
     direct_rgb
         The direct (0th-order) RGB in the profile's units times pixels, or ``None``.
+    spectrum_bandwidth_nm
+        As for :class:`LampImages`.
     """
 
     name: str
@@ -84,6 +90,7 @@ class LampProfile:
     spectrum: Path | Spectrum
     profile: Path
     direct_rgb: tuple[float, float, float] | None = None
+    spectrum_bandwidth_nm: float | None = None
 
 
 LampInput = LampImages | LampProfile

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -355,14 +355,17 @@ def estimate_offline(
             for item in profiles.extractions:
                 lamp = item.merged.lamp
                 extraction = item.extraction
-                observation = extraction.to_observation(
-                    lamp.name,
-                    checked.spectra[lamp.name],
-                    kind=lamp.kind,
-                    metadata={
-                        "geometry": profiles.geometry.to_dict(),
-                        "geometry_lamp": profiles.geometry_lamp,
-                    },
+                observation = replace(
+                    extraction.to_observation(
+                        lamp.name,
+                        checked.spectra[lamp.name],
+                        kind=lamp.kind,
+                        metadata={
+                            "geometry": profiles.geometry.to_dict(),
+                            "geometry_lamp": profiles.geometry_lamp,
+                        },
+                    ),
+                    spectrum_bandwidth_nm=lamp.spectrum_bandwidth_nm,
                 )
                 observations.append(observation)
                 if extraction.direct_rgb is None:
@@ -377,7 +380,12 @@ def estimate_offline(
             for given in lamps:
                 assert isinstance(given, LampProfile)
                 table = checked.profiles[given.name]
-                observations.append(_profile_observation(given, checked.spectra[given.name], table))
+                observations.append(
+                    replace(
+                        _profile_observation(given, checked.spectra[given.name], table),
+                        spectrum_bandwidth_nm=given.spectrum_bandwidth_nm,
+                    )
+                )
                 lamp_records.append(
                     {
                         "name": given.name,

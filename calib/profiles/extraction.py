@@ -58,6 +58,9 @@ class Extraction:
         Shape ``(3,)``: per-sample background subtracted from the profile / the direct spot, DN/s.
     samples_per_pixel
         Shape ``(n, 3)``: HDR plane samples averaged into each profile sample (before resampling).
+    line_spread
+        The direct spot's cross-section along the dispersion direction at the profile's sampling
+        (odd length, sum 1): the camera's line spread; ``None`` when the spot was saturated.
     geometry
         The geometry used.
     source
@@ -76,6 +79,7 @@ class Extraction:
     geometry: DiffractionGeometry
     source: str = "image"
     frames: tuple[str, ...] = field(default_factory=tuple)
+    line_spread: FloatArray | None = None
 
     def to_observation(
         self,
@@ -119,6 +123,8 @@ class Extraction:
             direct_sigma=self.direct_sigma,
             kind=kind,
             metadata=record,
+            line_spread=self.line_spread,
+            pixel_origin="direct_spot",
         )
 
 
@@ -276,7 +282,8 @@ def _extract_direct(
     allow_saturated: bool,
     source: str,
     subtract_background: bool,
-) -> tuple[FloatArray | None, FloatArray | None, FloatArray]:
+) -> tuple[FloatArray | None, FloatArray | None, FloatArray, FloatArray | None]:
+    """Direct RGB, its σ, the spot's background and its line spread (see :func:`_line_spread`)."""
     centre = geometry.spot_centre_px
     angle = geometry.primary.angle_deg
     along, across = geometry.spot_half_size_px
@@ -299,12 +306,14 @@ def _extract_direct(
     area = image.pixel_pitch_px**2
     direct = np.empty(3)
     variance = np.empty(3)
+    positions: list[FloatArray] = []
+    weights: list[FloatArray] = []
     for channel in range(3):
         u, v = _channel_uv(image, channel, window, centre, angle)
         inside = (np.abs(u) <= along) & (np.abs(v) <= across)
         if image.saturated[channel][window][inside].any():
             if allow_saturated:
-                return None, None, background
+                return None, None, background, None
             raise DetectionError(
                 f"the direct spot is saturated in every frame of the bracket "
                 f"({CHANNEL_NAMES[channel]} channel); add a shorter exposure",
@@ -316,7 +325,33 @@ def _extract_direct(
         variance[channel] = area**2 * float(
             image.variance[channel][window][inside].astype(np.float64).sum()
         )
-    return direct, np.sqrt(variance), background
+        positions.append(u[inside])
+        weights.append((values - background[channel]) / max(float(direct[channel]), 1e-300))
+    spread = _line_spread(
+        np.concatenate(positions), np.concatenate(weights), geometry.bin_px, along
+    )
+    return direct, np.sqrt(variance), background, spread
+
+
+def _line_spread(
+    along_px: FloatArray, weights: FloatArray, step_px: float, half_size_px: float
+) -> FloatArray | None:
+    """The spot's cross-section along the dispersion direction in profile samples (odd, sum 1).
+
+    The 0th order is the slit's image through the same optics as the first order, so its
+    cross-section is the camera's line spread at the profile's sampling. Samples below 1 % of the
+    peak at the tails are cut; ``None`` if nothing is left.
+    """
+    half = max(1, math.ceil(half_size_px / step_px))
+    edges = (np.arange(-half, half + 2, dtype=np.float64) - 0.5) * step_px
+    histogram, _ = np.histogram(along_px, bins=edges, weights=weights)
+    histogram = np.clip(histogram, 0.0, None)
+    if float(histogram.max()) <= 0:
+        return None
+    significant = np.flatnonzero(histogram >= 0.01 * float(histogram.max()))
+    reach = int(max(abs(significant[0] - half), abs(significant[-1] - half)))
+    kernel = histogram[half - reach : half + reach + 1]
+    return np.asarray(kernel / kernel.sum(), dtype=np.float64)
 
 
 def extract(
@@ -373,7 +408,7 @@ def extract(
             geometry.background_width_px,
         )
     pixel, profile, sigma, counts = _extract_profile(image, geometry, band, background, source)
-    direct, direct_sigma, direct_background = _extract_direct(
+    direct, direct_sigma, direct_background, line_spread = _extract_direct(
         image, geometry, allow_saturated_direct, source, subtract_background
     )
     return Extraction(
@@ -389,4 +424,5 @@ def extract(
         geometry=geometry,
         source=source,
         frames=tuple(str(record.path) for record in image.frames),
+        line_spread=line_spread,
     )

@@ -102,6 +102,9 @@ ERROR_MEANINGS: dict[str, str] = {
     "ER99": "program abnormality",
 }
 
+#: Spectral bandwidth (FWHM) of the CS-2000/2000A: "5 nm or less" in Konica Minolta's specification.
+BANDWIDTH_NM = 5.0
+
 
 @dataclass(frozen=True)
 class SpeedSetting:
@@ -459,6 +462,7 @@ class Cs2000(ClosesOnExit):
             values=np.concatenate(blocks),
             units=SPECTRAL_UNITS,
             exposure_ms=conditions.integration_us / 1000.0,
+            bandwidth_nm=BANDWIDTH_NM,
             extra={
                 "speed_mode": SPEED_MODES.get(conditions.speed_mode, str(conditions.speed_mode)),
                 "internal_nd": str(conditions.internal_nd),

@@ -113,6 +113,12 @@ STATUS_MEANINGS: dict[int, str] = {
 TRANSIENT_CODES = frozenset({-1, -3, -4, -9, -10, -12})
 
 
+#: Spectral bandwidth (FWHM of the slit function) by model, from Photo Research's data sheets
+#: (PR-655: 8 nm; PR-670: 5 nm with its standard aperture). [?] Confirm on the instrument: the
+#: estimator blurs profiles to this resolution before comparing them with the measured spectrum.
+BANDWIDTH_NM: dict[str, float] = {"PR-655": 8.0, "PR-670": 5.0}
+
+
 @dataclass(frozen=True)
 class SpectralGrid:
     """The instrument's wavelength sampling, as ``D120`` reports it."""
@@ -447,6 +453,7 @@ class Pr6xx(ClosesOnExit):
             values=spectrum.values,
             units=SPECTRAL_UNITS,
             exposure_ms=exposure_ms,
+            bandwidth_nm=BANDWIDTH_NM.get(self.model),
             extra={
                 "command": command,
                 "units_code": header.units_code,
