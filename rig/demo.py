@@ -19,11 +19,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from calib.errors import InputError
+from calib.methods import default_camera_basis
 from calib.metrics import relative_error
 from calib.spectra import read_multispectrum_csv
 from rig.capture import run_capture
@@ -78,7 +78,8 @@ class DemoResult:
 
 
 def default_estimator() -> SessionEstimator:
-    """``rig.estimate.estimate_session``, imported now.
+    """``rig.estimate.estimate_session``, imported now, with a camera prior that leaves the twin's
+    own camera out (read from the session's truth file).
 
     Raises
     ------
@@ -93,8 +94,15 @@ def default_estimator() -> SessionEstimator:
                 "the estimate step (rig.estimate) is not part of this installation"
             ) from None
         raise
-    estimator: SessionEstimator = module.estimate_session
-    return estimator
+    estimate_session = module.estimate_session
+
+    def estimate(session: Path, out_dir: Path) -> object:
+        # The camera prior must not contain the twin's own camera: the RE would flatter us.
+        camera = bench_module().TwinTruth.read(session / bench_module().TRUTH_FILE_NAME).camera
+        basis = default_camera_basis(exclude=related_camera_names(camera))
+        return estimate_session(session, out_dir, settings={"basis": basis})
+
+    return estimate
 
 
 def related_camera_names(camera: str) -> list[str]:
@@ -109,20 +117,6 @@ def related_camera_names(camera: str) -> list[str]:
     if len(parts) == 2 and parts[1][:1].isdigit():
         names.append(f"{parts[0]} D{parts[1]}")
     return names
-
-
-def estimate_without_camera(session: Path, out_dir: Path, camera: str) -> object:
-    """:func:`rig.estimate.estimate_session` with a camera prior that leaves ``camera`` out."""
-    from calib.methods import default_camera_basis
-
-    basis = default_camera_basis(exclude=related_camera_names(camera))
-    return default_estimator_module().estimate_session(session, out_dir, settings={"basis": basis})
-
-
-def default_estimator_module() -> Any:
-    """The ``rig.estimate`` module (see :func:`default_estimator`)."""
-    default_estimator()
-    return importlib.import_module("rig.estimate")
 
 
 def sensitivity_error(estimate_csv: Path, truth_json: Path) -> float:
@@ -189,12 +183,7 @@ def run_demo(
         return DemoResult(outcome, truth, capture_s=capture_s)
     estimate_dir = out_dir / ESTIMATE_DIR / outcome.session.name
     started = time.perf_counter()
-    if estimator is None:
-        # The camera prior must not contain the twin's own camera: the RE would flatter us.
-        camera = bench_module().TwinTruth.read(truth).camera
-        estimate_without_camera(outcome.session, estimate_dir, camera)
-    else:
-        estimate(outcome.session, estimate_dir)
+    estimate(outcome.session, estimate_dir)
     estimate_s = time.perf_counter() - started
     sensitivity = estimate_dir / SENSITIVITY_FILE
     report = estimate_dir / REPORT_FILE
