@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.bases import CameraBasis, CameraPrior, FourierConvention, fourier_basis
+from calib.blas import one_blas_thread
 from calib.errors import EstimationError, InputError
 from calib.forward import WavelengthMapping, apply_blur, hat_matrix
 from calib.linear_model import (
@@ -342,6 +343,7 @@ def _mapping_lamps(
     return chosen
 
 
+@one_blas_thread
 def estimate_makabe2025(
     observations: Sequence[LampObservation],
     *,

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.bases import CameraPrior, whitening
+from calib.blas import one_blas_thread
 from calib.errors import EstimationError, InputError
 from calib.forward import PiecewiseLinearDensity, apply_blur, fine_axis, pixel_edges
 from calib.mapping import (
@@ -514,6 +515,7 @@ def _refine(
     )
 
 
+@one_blas_thread
 def find_mapping(
     observations: LampObservation | Sequence[LampObservation],
     prior: CameraPrior,

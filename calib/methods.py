@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from calib.bases import DEFAULT_N_VECTORS, CameraBasis, camera_basis, fallback_camera_basis
+from calib.blas import one_blas_thread
 from calib.datasets import SOLOMATOV, load_collection
 from calib.errors import InputError
 from calib.mapping import GratingGeometry, QuadraticMapping
@@ -93,6 +94,7 @@ def default_camera_basis(
     )
 
 
+@one_blas_thread
 def estimate(
     observations: Sequence[Observation],
     method: str = "makabe2025",
