@@ -79,8 +79,11 @@ def test_chart_methods_are_skipped_with_their_reason(monkeypatch: pytest.MonkeyP
         assert reasons[method] == GRATING_SKIP_REASONS[method]
     assert "transmissive" in reasons["toivonen2020 (12 patches)"]
 
-    monkeypatch.setitem(ESTIMATION_METHODS, "multilamp", lambda observations, **kwargs: None)
-    monkeypatch.setitem(ESTIMATION_METHODS, "newmethod", lambda observations, **kwargs: None)
+    def unused(observations, **kwargs):
+        raise AssertionError
+
+    monkeypatch.setitem(ESTIMATION_METHODS, "multilamp", unused)
+    monkeypatch.setitem(ESTIMATION_METHODS, "newmethod", unused)
     chosen, skipped = active_grating_adapters(grating_adapters())
     assert "multilamp" in [adapter.label for adapter in chosen]
     assert ("newmethod", "no adapter for captured sessions") in skipped
@@ -95,7 +98,7 @@ def test_rows_report_and_plot(
 ) -> None:
     received: list[list[str]] = []
 
-    def multilamp(observations, *, grid, **kwargs):  # type: ignore[no-untyped-def]
+    def multilamp(observations, *, grid, **kwargs):
         received.append([lamp.name for lamp in observations])
         if len(received) > 1:
             raise EstimationError("the joint solve diverged")
