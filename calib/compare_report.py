@@ -15,7 +15,7 @@ from __future__ import annotations
 import csv
 import math
 from collections import defaultdict
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -80,15 +80,26 @@ def _table_lines(
     return lines
 
 
-def _columns_and_failures(
+def _heading(title: str, description: str, command: str | None) -> list[str]:
+    """The title, what the data are, and the command that reproduces the report."""
+    lines = [title, "", description, ""]
+    if command:
+        lines += ["Reproduce with:", "", f"    {command}", ""]
+    return lines
+
+
+def _legend(
+    caption: str,
     rows: Sequence[CompareRow],
-    labels: Sequence[str],
-    notes: Mapping[str, str],
+    adapters: Sequence[SyntheticAdapter | GratingAdapter],
     where: Callable[[CompareRow], str],
 ) -> list[str]:
-    """The column notes, then every failure (``where`` names its row)."""
-    lines = ["Columns:", ""]
-    lines += [f"- **{label}**: {notes.get(label, '')}" for label in labels]
+    """What the numbers are, the columns' notes, then every failure (``where`` names its row)."""
+    notes = {adapter.label: adapter.note for adapter in adapters}
+    lines = [caption, "", "Columns:", ""]
+    lines += [
+        f"- **{label}**: {notes.get(label, '')}" for label in _ordered([r.label for r in rows])
+    ]
     failures = [row for row in rows if row.failure]
     if failures:
         lines += ["", "Failures:", ""]
@@ -108,22 +119,16 @@ def markdown_report(
     labels = _ordered([row.label for row in rows])
     cameras = _ordered([row.camera for row in rows])
     noises = sorted({row.noise for row in rows})
-    lines = ["# Method comparison", "", description, ""]
-    if command:
-        lines += ["Reproduce with:", "", f"    {command}", ""]
+    lines = _heading("# Method comparison", description, command)
     for noise in noises:
         lines += [f"## Noise {_noise_label(noise)} of the peak", ""]
         lines += _table_lines([row for row in rows if row.noise == noise], labels, cameras)
         lines.append("")
-    lines += [
+    lines += _legend(
         "RE ×10⁻² (Makabe et al. 2025, Eq. 16; mean over repeats); time: median wall time of one "
         "estimate call.",
-        "",
-    ]
-    lines += _columns_and_failures(
         rows,
-        labels,
-        {adapter.label: adapter.note for adapter in adapters},
+        adapters,
         lambda row: f"{row.label}, {row.camera}, noise {_noise_label(row.noise)}",
     )
     if skipped:
@@ -162,20 +167,14 @@ def sessions_markdown_report(
     """
     labels = _ordered([row.label for row in rows])
     cameras = _ordered([row.camera for row in rows])
-    lines = ["# Method comparison on captured sessions", "", description, ""]
-    if command:
-        lines += ["Reproduce with:", "", f"    {command}", ""]
+    lines = _heading("# Method comparison on captured sessions", description, command)
     lines += _table_lines(rows, labels, cameras)
-    lines += [
-        "",
+    lines.append("")
+    lines += _legend(
         "RE ×10⁻² (Makabe et al. 2025, Eq. 16) against the twin's true camera; time: median wall "
         "time of one estimate call.",
-        "",
-    ]
-    lines += _columns_and_failures(
         rows,
-        labels,
-        {adapter.label: adapter.note for adapter in adapters},
+        adapters,
         lambda row: f"{row.label}, {row.camera}",
     )
     if skipped:
