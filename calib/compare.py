@@ -613,7 +613,8 @@ def grating_adapters(*, toivonen: dict[str, Any] | None = None) -> tuple[Grating
             "makabe2025 (true mapping)",
             "makabe2025",
             _session_true_mapping,
-            "the closed-form solve alone on the broadband lamp, given the twin's true mapping",
+            "the closed-form solve alone on one lamp (the broadband one when its direct spot "
+            "was measured), given the twin's true mapping",
         ),
         GratingAdapter(
             "multilamp", "multilamp", _session_all_lamps, "every lamp of the session solved jointly"
@@ -622,7 +623,7 @@ def grating_adapters(*, toivonen: dict[str, Any] | None = None) -> tuple[Grating
             "toivonen2020 (1 patch)",
             "toivonen2020",
             _session_toivonen(dict(toivonen or {})),
-            "broadband profile, its direct light as the only patch, the twin's true mapping",
+            "the same lamp's profile, its direct light as the only patch, the twin's true mapping",
         ),
     )
 
