@@ -159,7 +159,7 @@ class TwinSessionSource:
     data_dir: Path | None = None
     basis_for: Callable[[str], CameraBasis] | None = None
     notes: list[str] = field(default_factory=list)
-    _bases: list[str] = field(default_factory=list)
+    _bases: list[str] = field(default_factory=list, init=False, repr=False)
 
     @property
     def description(self) -> str:
