@@ -21,9 +21,12 @@ observations, which options) and under which column label. A method runs when it
 providing ``synthetic_observations(scene: CompareScene) -> (observations, options)`` in its module
 (:func:`module_adapter`). Registered methods without either are listed in the report as skipped.
 
-A second data source (twin sessions: :mod:`mocks` renders RAW captures, :mod:`calib.profiles` extracts
-them) plugs in as another :class:`SceneSource` yielding :class:`CompareScene` records; it is not
-implemented here.
+Captured sessions (the digital twin's, whose truth file says which camera it really has) hold only
+the lamps seen through the grating: no chart, no colour matrices. They come as :class:`GratingScene`
+records (``rig.compare`` reads the sessions: ``calib`` imports nothing of ``rig``), run through
+:data:`grating_adapters`' columns; :func:`active_grating_adapters` lists the methods and columns
+that need data a grating capture does not hold (:data:`GRATING_SKIP_REASONS`) as skipped, with the
+reason.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from numpy.typing import NDArray
 from calib.bases import CameraBasis
 from calib.charts import colorchecker, gaussian_filters, render_chart
 from calib.errors import CalibError, InputError
-from calib.mapping import QuadraticMapping
+from calib.mapping import GratingGeometry, QuadraticMapping
 from calib.methods import ESTIMATION_METHODS, LAZY_METHODS, estimate
 from calib.metrics import relative_error
 from calib.observations import (
@@ -246,6 +249,18 @@ def module_adapter(method: str) -> SyntheticAdapter | None:
     return SyntheticAdapter(method, method, builder, f"inputs from {module_name}")
 
 
+def _wanted_methods(methods: Sequence[str] | None) -> list[str]:
+    """Registry names asked for (default: all registered), refusing unknown ones."""
+    registered = sorted(ESTIMATION_METHODS)
+    wanted = registered if methods is None else [m.lower() for m in methods]
+    unknown = [m for m in wanted if m not in ESTIMATION_METHODS]
+    if unknown:
+        raise InputError(
+            f"unknown methods {unknown}; registered: {', '.join(registered)}", source="--method"
+        )
+    return wanted
+
+
 def active_adapters(
     adapters: Sequence[SyntheticAdapter], methods: Sequence[str] | None = None
 ) -> tuple[list[SyntheticAdapter], list[str]]:
@@ -258,13 +273,7 @@ def active_adapters(
     methods
         Restrict to these registry names (default: every registered method).
     """
-    registered = sorted(ESTIMATION_METHODS)
-    wanted = registered if methods is None else [m.lower() for m in methods]
-    unknown = [m for m in wanted if m not in ESTIMATION_METHODS]
-    if unknown:
-        raise InputError(
-            f"unknown methods {unknown}; registered: {', '.join(registered)}", source="--method"
-        )
+    wanted = _wanted_methods(methods)
     chosen = [adapter for adapter in adapters if adapter.method in wanted]
     covered = {adapter.method for adapter in adapters}
     skipped: list[str] = []
@@ -444,15 +453,7 @@ class CompareRow:
 def run_scene(scene: CompareScene, adapter: SyntheticAdapter, grid: WavelengthGrid) -> CompareRow:
     """Run one adapter on one scene, timing only the estimate call."""
     observations, options = adapter.build(scene)
-    started = time.perf_counter()
-    failure: str | None = None
-    curves: FloatArray | None = None
-    try:
-        result: EstimateResult = estimate(observations, method=adapter.method, grid=grid, **options)
-        curves = np.asarray(result.sensitivity)
-    except CalibError as exc:
-        failure = str(exc)
-    elapsed = time.perf_counter() - started
+    curves, elapsed, failure = _timed_estimate(observations, adapter.method, grid, options)
     return CompareRow(
         scene.camera,
         adapter.label,
@@ -467,6 +468,21 @@ def run_scene(scene: CompareScene, adapter: SyntheticAdapter, grid: WavelengthGr
     )
 
 
+def _timed_estimate(
+    observations: Sequence[Observation], method: str, grid: WavelengthGrid, options: dict[str, Any]
+) -> tuple[FloatArray | None, float, str | None]:
+    """The estimated curves (``None`` on failure), the call's wall time and the failure message."""
+    started = time.perf_counter()
+    failure: str | None = None
+    curves: FloatArray | None = None
+    try:
+        result: EstimateResult = estimate(observations, method=method, grid=grid, **options)
+        curves = np.asarray(result.sensitivity)
+    except CalibError as exc:
+        failure = str(exc)
+    return curves, time.perf_counter() - started, failure
+
+
 def run_comparison(
     source: SceneSource,
     adapters: Sequence[SyntheticAdapter],
@@ -479,6 +495,223 @@ def run_comparison(
     for scene in source.scenes():
         for adapter in adapters:
             row = run_scene(scene, adapter, grid)
+            rows.append(row)
+            if progress is not None:
+                progress(row)
+    return rows
+
+
+# ---------------------------------------------------------------------------------- captured sessions
+
+
+@dataclass(frozen=True, eq=False)
+class GratingScene:
+    """One captured session's data: the lamps seen through the grating, and the true camera.
+
+    Attributes
+    ----------
+    camera
+        The true camera's name.
+    session
+        The session's name (its directory), to tell scenes of one camera apart.
+    grid
+        The working grid.
+    truth
+        Shape ``(f, 3)``: the true sensitivity on the grid, maximum 1.
+    basis
+        The camera basis (trained without the true camera).
+    lamps
+        Every lamp as the offline pipeline extracted it (profile, direct RGB, spectrum).
+    mapping
+        The true pixel→wavelength mapping on the profiles' axis, or ``None`` when unknown.
+    seed
+        An integer seed for methods with random starts.
+    """
+
+    camera: str
+    session: str
+    grid: WavelengthGrid
+    truth: FloatArray
+    basis: CameraBasis
+    lamps: tuple[LampObservation, ...]
+    mapping: QuadraticMapping | GratingGeometry | None
+    seed: int = 0
+
+    @property
+    def label(self) -> str:
+        """The scene's row in the table: camera and session."""
+        return f"{self.camera} · {self.session}"
+
+    @property
+    def solve_lamp(self) -> LampObservation:
+        """The lamp the single-lamp columns use: the first non-fluorescent lamp with a direct
+        measurement, else the first lamp with one, else the first lamp."""
+        direct = [lamp for lamp in self.lamps if lamp.direct_rgb is not None]
+        broadband = [lamp for lamp in direct if lamp.kind != "fluorescent"]
+        return (broadband or direct or list(self.lamps))[0]
+
+
+#: How a grating scene becomes a method's input: ``(observations, options for calib.estimate)``.
+GratingSceneBuilder = Callable[[GratingScene], tuple[list[Observation], dict[str, Any]]]
+
+
+@dataclass(frozen=True)
+class GratingAdapter:
+    """One column of a comparison on captured sessions (see :class:`SyntheticAdapter`)."""
+
+    label: str
+    method: str
+    build: GratingSceneBuilder
+    note: str = ""
+
+
+#: Methods that need data a grating capture does not hold: registry name → why it is skipped.
+GRATING_SKIP_REASONS: dict[str, str] = {
+    "jiang2013": "needs a ColorChecker image under a known illuminant; a grating session has none",
+    "solomatov2023": (
+        "needs the camera's colour matrices and a ColorChecker image; a grating session has neither"
+    ),
+    "han2012": "needs an image of a fluorescent chart and a reference chart; a grating session "
+    "has none",
+}
+
+
+def _session_all_lamps(scene: GratingScene) -> tuple[list[Observation], dict[str, Any]]:
+    return list(scene.lamps), {"basis": scene.basis}
+
+
+def _session_true_mapping(scene: GratingScene) -> tuple[list[Observation], dict[str, Any]]:
+    return [scene.solve_lamp], {"basis": scene.basis, "mapping": scene.mapping}
+
+
+def _session_toivonen(
+    settings: dict[str, Any],
+) -> Callable[[GratingScene], tuple[list[Observation], dict[str, Any]]]:
+    def build(scene: GratingScene) -> tuple[list[Observation], dict[str, Any]]:
+        options = {"mapping": scene.mapping, "seed": scene.seed, "direct_as_patch": True}
+        return [scene.solve_lamp], {**options, **settings}
+
+    return build
+
+
+def grating_adapters(*, toivonen: dict[str, Any] | None = None) -> tuple[GratingAdapter, ...]:
+    """The columns a grating capture can feed, in table order.
+
+    Parameters
+    ----------
+    toivonen
+        Options for the Toivonen column (``ensemble_size``, ``epochs`` …).
+    """
+    return (
+        GratingAdapter(
+            "makabe2025 (all lamps)",
+            "makabe2025",
+            _session_all_lamps,
+            "every lamp of the session, as `rig estimate` runs it (the estimator finds the mapping)",
+        ),
+        GratingAdapter(
+            "makabe2025 (true mapping)",
+            "makabe2025",
+            _session_true_mapping,
+            "the closed-form solve alone on one lamp (the broadband one when its direct spot "
+            "was measured), given the twin's true mapping",
+        ),
+        GratingAdapter(
+            "multilamp", "multilamp", _session_all_lamps, "every lamp of the session solved jointly"
+        ),
+        GratingAdapter(
+            "toivonen2020 (1 patch)",
+            "toivonen2020",
+            _session_toivonen(dict(toivonen or {})),
+            "the same lamp's profile, its direct light as the only patch, the twin's true mapping",
+        ),
+    )
+
+
+def active_grating_adapters(
+    adapters: Sequence[GratingAdapter],
+    methods: Sequence[str] | None = None,
+    *,
+    n_patches: int = DEFAULT_TRANSMISSIVE_PATCHES,
+) -> tuple[list[GratingAdapter], list[tuple[str, str]]]:
+    """The columns to run on captured sessions, and the skipped ones with the reason.
+
+    Parameters
+    ----------
+    adapters
+        The adapter table (:func:`grating_adapters`).
+    methods
+        Restrict to these registry names (default: every registered method).
+    n_patches
+        The synthetic comparison's many-patch Toivonen column, named as skipped.
+
+    Returns
+    -------
+    tuple
+        The adapters to run, and ``(column or method, reason)`` for everything skipped.
+    """
+    wanted = _wanted_methods(methods)
+    chosen = [adapter for adapter in adapters if adapter.method in wanted]
+    covered = {adapter.method for adapter in adapters}
+    skipped: list[tuple[str, str]] = []
+    for method in wanted:
+        if method == "toivonen2020":
+            skipped.append(
+                (
+                    f"toivonen2020 ({n_patches} patches)",
+                    "needs transmissive filter patches in front of the broadband lamp; a grating "
+                    "session holds only the direct light as a patch",
+                )
+            )
+        elif method not in covered:
+            skipped.append(
+                (method, GRATING_SKIP_REASONS.get(method, "no adapter for captured sessions"))
+            )
+    return chosen, skipped
+
+
+class GratingSceneSource(Protocol):
+    """Where grating scenes come from (``rig.compare``: captured twin sessions)."""
+
+    @property
+    def description(self) -> str:
+        """One line for the report (what the data are, which basis)."""
+        ...
+
+    def scenes(self) -> Iterator[GratingScene]:
+        """Every scene, in a fixed order."""
+        ...
+
+
+def run_grating_comparison(
+    source: GratingSceneSource,
+    adapters: Sequence[GratingAdapter],
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    progress: Callable[[CompareRow], None] | None = None,
+) -> list[CompareRow]:
+    """Every adapter on every grating scene, in order (scene-major).
+
+    The rows' ``camera`` is the scene's :attr:`GratingScene.label`; ``noise`` is NaN (a capture's
+    noise is whatever the sensor gave, not a protocol parameter) and ``repeat`` 0.
+    """
+    rows: list[CompareRow] = []
+    for scene in source.scenes():
+        for adapter in adapters:
+            observations, options = adapter.build(scene)
+            curves, elapsed, failure = _timed_estimate(observations, adapter.method, grid, options)
+            row = CompareRow(
+                scene.label,
+                adapter.label,
+                adapter.method,
+                float("nan"),
+                0,
+                float("nan") if curves is None else relative_error(curves, scene.truth),
+                elapsed,
+                failure=failure,
+                estimate=curves,
+                truth=scene.truth,
+            )
             rows.append(row)
             if progress is not None:
                 progress(row)

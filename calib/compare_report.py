@@ -5,6 +5,9 @@ per camera (mean over repeats) and a column per method with RE ×10⁻², then t
 the median wall time of one estimate per method. The CSV has one line per estimate. The plots show,
 per noise level, each camera (rows) × method (columns): estimated (solid) and true (dotted) R, G, B
 curves, normalised to a maximum of 1, with the RE in the panel.
+
+Captured sessions (:func:`sessions_markdown_report`, :func:`plot_panels`) give one table and one grid,
+a row per session, and list the columns they cannot feed with the reason.
 """
 
 from __future__ import annotations
@@ -12,12 +15,12 @@ from __future__ import annotations
 import csv
 import math
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from calib.compare import CompareRow, SyntheticAdapter
+from calib.compare import CompareRow, GratingAdapter, SyntheticAdapter
 from calib.spectra import DEFAULT_GRID, WavelengthGrid
 
 _CHANNEL_COLOURS = ("tab:red", "tab:green", "tab:blue")
@@ -55,6 +58,55 @@ def _time_cell(rows: Sequence[CompareRow]) -> str:
     return f"{median:.3f} s" if median < 10 else f"{median:.1f} s"
 
 
+def _table_lines(
+    rows: Sequence[CompareRow], labels: Sequence[str], cameras: Sequence[str]
+) -> list[str]:
+    """A camera × column table of ``rows`` (one noise level) with the mean and time lines."""
+    cells: dict[tuple[str, str], list[CompareRow]] = defaultdict(list)
+    for row in rows:
+        cells[(row.camera, row.label)].append(row)
+    lines = ["| camera | " + " | ".join(labels) + " |", "|---|" + "---:|" * len(labels)]
+    for camera in cameras:
+        lines.append(
+            f"| {camera} | " + " | ".join(_cell(cells[(camera, label)]) for label in labels) + " |"
+        )
+    by_label = {label: [r for r in rows if r.label == label] for label in labels}
+    lines.append(
+        "| **mean** | " + " | ".join(f"**{_cell(by_label[label])}**" for label in labels) + " |"
+    )
+    lines.append(
+        "| time / estimate | " + " | ".join(_time_cell(by_label[label]) for label in labels) + " |"
+    )
+    return lines
+
+
+def _heading(title: str, description: str, command: str | None) -> list[str]:
+    """The title, what the data are, and the command that reproduces the report."""
+    lines = [title, "", description, ""]
+    if command:
+        lines += ["Reproduce with:", "", f"    {command}", ""]
+    return lines
+
+
+def _legend(
+    caption: str,
+    rows: Sequence[CompareRow],
+    adapters: Sequence[SyntheticAdapter | GratingAdapter],
+    where: Callable[[CompareRow], str],
+) -> list[str]:
+    """What the numbers are, the columns' notes, then every failure (``where`` names its row)."""
+    notes = {adapter.label: adapter.note for adapter in adapters}
+    lines = [caption, "", "Columns:", ""]
+    lines += [
+        f"- **{label}**: {notes.get(label, '')}" for label in _ordered([r.label for r in rows])
+    ]
+    failures = [row for row in rows if row.failure]
+    if failures:
+        lines += ["", "Failures:", ""]
+        lines += [f"- {where(row)}: {row.failure}" for row in failures]
+    return lines
+
+
 def markdown_report(
     rows: Sequence[CompareRow],
     adapters: Sequence[SyntheticAdapter],
@@ -67,55 +119,70 @@ def markdown_report(
     labels = _ordered([row.label for row in rows])
     cameras = _ordered([row.camera for row in rows])
     noises = sorted({row.noise for row in rows})
-    cells: dict[tuple[str, str, float], list[CompareRow]] = defaultdict(list)
-    for row in rows:
-        cells[(row.camera, row.label, row.noise)].append(row)
-    lines = ["# Method comparison", "", description, ""]
-    if command:
-        lines += ["Reproduce with:", "", f"    {command}", ""]
+    lines = _heading("# Method comparison", description, command)
     for noise in noises:
         lines += [f"## Noise {_noise_label(noise)} of the peak", ""]
-        lines.append("| camera | " + " | ".join(labels) + " |")
-        lines.append("|---|" + "---:|" * len(labels))
-        for camera in cameras:
-            lines.append(
-                f"| {camera} | "
-                + " | ".join(_cell(cells[(camera, label, noise)]) for label in labels)
-                + " |"
-            )
-        by_label = {
-            label: [r for r in rows if r.label == label and r.noise == noise] for label in labels
-        }
-        lines.append(
-            "| **mean** | " + " | ".join(f"**{_cell(by_label[label])}**" for label in labels) + " |"
-        )
-        lines.append(
-            "| time / estimate | "
-            + " | ".join(_time_cell(by_label[label]) for label in labels)
-            + " |"
-        )
+        lines += _table_lines([row for row in rows if row.noise == noise], labels, cameras)
         lines.append("")
-    lines += [
+    lines += _legend(
         "RE ×10⁻² (Makabe et al. 2025, Eq. 16; mean over repeats); time: median wall time of one "
         "estimate call.",
-        "",
-        "Columns:",
-        "",
-    ]
-    notes = {adapter.label: adapter.note for adapter in adapters}
-    lines += [f"- **{label}**: {notes.get(label, '')}" for label in labels]
-    failures = [row for row in rows if row.failure]
-    if failures:
-        lines += ["", "Failures:", ""]
-        lines += [
-            f"- {row.label}, {row.camera}, noise {_noise_label(row.noise)}: {row.failure}"
-            for row in failures
-        ]
+        rows,
+        adapters,
+        lambda row: f"{row.label}, {row.camera}, noise {_noise_label(row.noise)}",
+    )
     if skipped:
         lines += [
             "",
             "Registered but not run (no synthetic adapter): " + ", ".join(skipped) + ".",
         ]
+    return "\n".join(lines) + "\n"
+
+
+def sessions_markdown_report(
+    rows: Sequence[CompareRow],
+    adapters: Sequence[GratingAdapter],
+    *,
+    description: str,
+    skipped: Sequence[tuple[str, str]] = (),
+    session_notes: Sequence[str] = (),
+    command: str | None = None,
+) -> str:
+    """A comparison on captured sessions as Markdown: one table, a row per session.
+
+    Parameters
+    ----------
+    rows
+        :func:`calib.compare.run_grating_comparison`'s rows.
+    adapters
+        The columns run (for their notes).
+    description
+        What the data are.
+    skipped
+        ``(column or method, reason)`` of everything not run.
+    session_notes
+        Per-session lines (the pipeline's warnings …), listed under the table.
+    command
+        The command that reproduces the report.
+    """
+    labels = _ordered([row.label for row in rows])
+    cameras = _ordered([row.camera for row in rows])
+    lines = _heading("# Method comparison on captured sessions", description, command)
+    lines += _table_lines(rows, labels, cameras)
+    lines.append("")
+    lines += _legend(
+        "RE ×10⁻² (Makabe et al. 2025, Eq. 16) against the twin's true camera; time: median wall "
+        "time of one estimate call.",
+        rows,
+        adapters,
+        lambda row: f"{row.label}, {row.camera}",
+    )
+    if skipped:
+        lines += ["", "Skipped (need data a grating session does not hold):", ""]
+        lines += [f"- **{label}**: {reason}" for label, reason in skipped]
+    if session_notes:
+        lines += ["", "Sessions:", ""]
+        lines += [f"- {note}" for note in session_notes]
     return "\n".join(lines) + "\n"
 
 
@@ -160,16 +227,29 @@ def plot_grid(
     grid: WavelengthGrid = DEFAULT_GRID,
 ) -> Path:
     """Cameras × methods panels of estimated (solid) vs true (dotted) curves at one noise level."""
+    chosen = [row for row in rows if row.noise == noise and row.repeat == 0]
+    if not chosen:
+        raise ValueError(f"no rows at noise {noise}")
+    title = f"estimated (solid) vs true (dotted), noise {_noise_label(noise)}; RE ×10⁻²"
+    return plot_panels(path, chosen, title, grid=grid)
+
+
+def plot_panels(
+    path: Path,
+    rows: Sequence[CompareRow],
+    title: str,
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+) -> Path:
+    """Cameras × columns panels of estimated (solid) vs true (dotted) curves, one row each."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    chosen = [row for row in rows if row.noise == noise and row.repeat == 0]
+    chosen = list(rows)
     labels = _ordered([row.label for row in chosen])
     cameras = _ordered([row.camera for row in chosen])
-    if not chosen:
-        raise ValueError(f"no rows at noise {noise}")
     by_key = {(row.camera, row.label): row for row in chosen}
     wavelength = grid.wavelength_nm
     figure, axes = plt.subplots(
@@ -199,9 +279,7 @@ def plot_grid(
                 axis.set_title(label, fontsize=7)
             if j == 0:
                 axis.set_ylabel(camera, fontsize=7)
-    figure.suptitle(
-        f"estimated (solid) vs true (dotted), noise {_noise_label(noise)}; RE ×10⁻²", fontsize=9
-    )
+    figure.suptitle(title, fontsize=9)
     figure.supxlabel("wavelength (nm)", fontsize=8)
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

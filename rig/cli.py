@@ -215,6 +215,57 @@ def estimate(
 
 
 @app.command()
+def compare(
+    sessions: Annotated[
+        list[Path], typer.Argument(help="Digital-twin session directories (with twin-truth.json).")
+    ],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Directory for compare.md, compare.csv, the plot.")
+    ] = Path("compare"),
+    method: Annotated[
+        list[str] | None,
+        typer.Option(help="Registered methods to run (repeatable); default: all."),
+    ] = None,
+    data_dir: Annotated[
+        Path | None,
+        typer.Option(help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."),
+    ] = None,
+    ensemble: Annotated[
+        int | None, typer.Option(min=1, help="Toivonen ensemble size (default 16).")
+    ] = None,
+    epochs: Annotated[
+        int | None, typer.Option(min=1, help="Toivonen Adam epochs (default 5000).")
+    ] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only where the files are.")] = False,
+) -> None:
+    """Compare every grating method on twin sessions against the twin's true camera (RE table)."""
+    import shlex
+    from contextlib import nullcontext
+
+    from rich.markdown import Markdown
+
+    from rig.compare import compare_sessions
+
+    toivonen = {
+        key: value for key, value in (("ensemble_size", ensemble), ("epochs", epochs)) if value
+    }
+    status = Console(stderr=True).status("comparing…")
+    with nullcontext() if quiet else status:
+        comparison = compare_sessions(
+            sessions,
+            out,
+            methods=method,
+            data_dir=data_dir,
+            toivonen=toivonen,
+            command=" ".join(["rig", *(shlex.quote(arg) for arg in sys.argv[1:])]),
+            progress=None if quiet else lambda row: status.update(f"{row.camera} · {row.label}"),
+        )
+    if not quiet:
+        Console().print(Markdown(comparison.report))
+    typer.echo("wrote " + ", ".join(str(path) for path in comparison.files.values()))
+
+
+@app.command()
 def devices(
     serial: Annotated[bool, typer.Option("--serial/--no-serial", help="List serial ports.")] = True,
     usb: Annotated[
