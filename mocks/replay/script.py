@@ -27,6 +27,7 @@ __all__ = [
     "Mismatches",
     "ReplayMismatch",
     "ReplayScript",
+    "comparable",
     "describe_payload",
 ]
 
@@ -118,7 +119,7 @@ class Mismatches:
             return self.found[0] if self.found else None
 
 
-def _comparable(entry: TranscriptEntry) -> object:
+def comparable(entry: TranscriptEntry) -> object:
     """What must be equal between a recorded and a sent entry.
 
     Bytes compare as bytes. A libgphoto2 call compares by name and arguments, with opaque handles
@@ -212,7 +213,7 @@ class ReplayScript:
             if index is None:
                 raise self.fail("the rig sent more than the recording has", index=None, sent=sent)
             expected = self.entries[index]
-            if expected.direction != sent.direction or _comparable(expected) != _comparable(sent):
+            if expected.direction != sent.direction or comparable(expected) != comparable(sent):
                 raise self.fail(
                     "the rig sent a different command",
                     index=index + 1,

@@ -1,0 +1,317 @@
+"""``rig replay``: a twin session replayed on its own transcripts; divergence, tampering, hostility.
+
+The twin records real transcripts (real drivers on emulators), so a twin session is a faithful
+recording to replay. Replays run the real runner, plan and drivers on the stand-ins of
+:mod:`mocks.replay`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from drivers.relays import hid_usbrelay
+from mocks.bench import TwinFaults
+from mocks.faults import Fault, FaultKind, FaultRule, FaultSchedule
+from mocks.replay.script import comparable
+from rig.capture import run_capture
+from rig.records import RetryRecord
+from rig.replay import ReplayRefused, compare_logs, load_recording, replay_session
+from rig.runner import RetryPolicy
+from rig.session import decode_transcript_line, read_session
+from rig.twin import twin_station_builder
+from tests.rig.test_cli import run_cli
+from tests.rig.twin_setup import twin_config
+
+FAST_RETRY = RetryPolicy(max_attempts=3, initial_s=0.01, max_s=0.01)
+
+
+def _twin_session(directory: Path, **options: object) -> Path:
+    outcome = run_capture(twin_config(directory), retry=FAST_RETRY, **options)  # type: ignore[arg-type]
+    assert outcome.exit_status == "success", outcome
+    return outcome.session
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _twin_session(tmp_path_factory.mktemp("recorded"))
+
+
+@pytest.fixture
+def session_copy(recorded: Path, tmp_path: Path) -> Path:
+    """A copy of the recorded session that a test may tamper with."""
+    copy = tmp_path / "copy" / recorded.name
+    shutil.copytree(recorded, copy, symlinks=True)
+    return copy
+
+
+def _data_files(session: Path) -> dict[str, str]:
+    return {
+        path.relative_to(session).as_posix(): hashlib.sha256(path.read_bytes()).hexdigest()
+        for directory in ("frames", "spectra")
+        for path in sorted((session / directory).rglob("*"))
+        if path.is_file()
+    }
+
+
+def _sent(session: Path, role: str) -> list[object]:
+    """What the rig sent to a device, as replay compares it (opaque handles as handles)."""
+    lines = (session / "transcripts" / f"{role}.jsonl").read_text().splitlines()
+    entries = [decode_transcript_line(line) for line in lines]
+    return [comparable(e) for e in entries if e.direction in ("tx", "call")]
+
+
+def _rewrite_log(session: Path, edit: object) -> None:
+    """Apply ``edit(record_dict)`` to every log record (a forged but self-consistent log)."""
+    log = session / "log.jsonl"
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    log.write_text("".join(json.dumps(edit(r)) + "\n" for r in records))  # type: ignore[operator]
+
+
+def _acknowledge(session: Path, relative: str) -> None:
+    """Make the log's record of ``relative`` match the file as it now is (a consistent forgery)."""
+    data = (session / relative).read_bytes()
+
+    def edit(record: dict[str, object]) -> dict[str, object]:
+        if record.get("path") == relative:
+            record |= {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        return record
+
+    _rewrite_log(session, edit)
+
+
+# ------------------------------------------------------------------------------- faithful
+
+
+def test_a_twin_session_replays_identically(recorded: Path, tmp_path: Path) -> None:
+    outcome = replay_session(recorded, tmp_path / "replay")
+    assert outcome.mismatch is None and outcome.difference is None, outcome
+    assert outcome.identical and outcome.run.exit_status == "success"
+    replay = outcome.run.session
+    assert _data_files(replay) == _data_files(recorded)  # frames as served, spectra re-parsed
+    for role in ("relays", "spectrometer", "camera"):
+        assert _sent(replay, role) == _sent(recorded, role)
+    assert read_session(replay).verify_files() == []
+
+
+def test_the_comparison_finds_a_changed_record(recorded: Path, tmp_path: Path) -> None:
+    replay = replay_session(recorded, tmp_path / "replay").run.session
+
+    def bump(record: dict[str, object]) -> dict[str, object]:
+        if record.get("key") == "start/camera" and record.get("type") == "step":
+            record["attempts"] = 2
+        return record
+
+    _rewrite_log(replay, bump)
+    difference = compare_logs(read_session(recorded), read_session(replay))
+    assert difference is not None and '"attempts": 2' in difference
+
+
+def test_a_session_with_runner_retries_replays_identically(tmp_path: Path) -> None:
+    schedule = FaultSchedule([FaultRule(Fault(FaultKind.GARBLED_REPLY), match="M5", nth=2)])
+    faults = TwinFaults(spectrometer=schedule)
+    source = _twin_session(tmp_path / "faulty", builder=twin_station_builder(faults=faults))
+    assert any(isinstance(r, RetryRecord) for r in read_session(source).records)
+    outcome = replay_session(source, tmp_path / "replay")
+    assert outcome.identical, outcome
+
+
+def test_rig_replay_command(
+    recorded: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    out = tmp_path / "replayed"
+    assert run_cli(["replay", str(recorded), "--out", str(out)], monkeypatch) == 0
+    printed = capsys.readouterr().out
+    assert f"replay: {out}" in printed
+    assert "log: identical to the recording (times and ids masked)" in printed
+
+
+def test_the_default_output_is_next_to_the_session(
+    session_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert run_cli(["replay", str(session_copy)], monkeypatch) == 0
+    assert (session_copy.parent / f"{session_copy.name}-replay" / "log.jsonl").is_file()
+    assert sorted(p.name for p in session_copy.parent.iterdir()) == [
+        session_copy.name,
+        f"{session_copy.name}-replay",
+    ]
+
+
+# ------------------------------------------------------------------------------- divergence
+
+
+def test_a_different_command_fails_with_a_diff(
+    recorded: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # The rig of today switches everything off with another command than the recording's.
+    monkeypatch.setattr(hid_usbrelay, "CMD_ALL_OFF", 0xFE)
+    out = tmp_path / "replayed"
+    assert run_cli(["replay", str(recorded), "--out", str(out)], monkeypatch) == 1
+    err = capsys.readouterr().err
+    assert "the rig diverged from the recording" in err
+    assert "step start/all-lamps-off: relays: the rig sent a different command" in err
+    assert "at transcripts/relays.jsonl line" in err
+    assert "expected: tx 20 09 00 03 00 00 08 00 fc" in err
+    assert "sent:     tx 20 09 00 03 00 00 08 00 fe" in err
+    assert all(line.startswith("rig: error: ") for line in err.splitlines())
+
+
+def test_a_recorded_command_left_unused_fails(session_copy: Path, tmp_path: Path) -> None:
+    transcript = session_copy / "transcripts" / "spectrometer.jsonl"
+    lines = transcript.read_text().splitlines()
+    extra = json.loads(next(line for line in reversed(lines) if '"dir": "tx"' in line))
+    transcript.write_text("\n".join([*lines, json.dumps(extra)]) + "\n")
+    _acknowledge(session_copy, "transcripts/spectrometer.jsonl")
+    outcome = replay_session(session_copy, tmp_path / "replay")
+    assert outcome.mismatch is not None
+    assert "spectrometer: a recorded command was never sent" in outcome.mismatch
+    assert f"line {len(lines) + 1}" in outcome.mismatch
+
+
+def test_an_edited_reply_changes_the_log(session_copy: Path, tmp_path: Path) -> None:
+    # A consistent forgery of the relay board's answer: the replay reads what the forger wrote.
+    transcript = session_copy / "transcripts" / "relays.jsonl"
+    lines = transcript.read_text().splitlines()
+    index = max(i for i, line in enumerate(lines) if '"dir": "rx"' in line)
+    forged = json.loads(lines[index])
+    forged["data"] = forged["data"][:-2] + "01"  # relay 1 reads as on at the end
+    lines[index] = json.dumps(forged)
+    transcript.write_text("\n".join(lines) + "\n")
+    _acknowledge(session_copy, "transcripts/relays.jsonl")
+    outcome = replay_session(session_copy, tmp_path / "replay")
+    assert not outcome.identical
+    assert outcome.difference is not None and '"lamps_off"' in outcome.difference
+
+
+# ------------------------------------------------------------------------------- untrusted input
+
+
+def _refused(
+    session: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> str:
+    out = tmp_path / "replayed"
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    assert run_cli(["replay", str(session), "--out", str(out)], monkeypatch) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and err.startswith("rig: error: ")
+    assert not out.exists()
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+    return err
+
+
+def test_a_transcript_path_leaving_the_session_is_refused(
+    session_copy: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    def escape(record: dict[str, object]) -> dict[str, object]:
+        if record.get("path") == "transcripts/relays.jsonl":
+            record["path"] = "../../etc/passwd"
+        return record
+
+    _rewrite_log(session_copy, escape)
+    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    assert "../../etc/passwd" in err and "[session_format]" in err
+
+
+def test_a_symlinked_frame_is_refused(
+    session_copy: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    frame = next((session_copy / "frames").rglob("scene-000.dng"))
+    outside = tmp_path / "outside.dng"
+    frame.rename(outside)
+    frame.symlink_to(outside)
+    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    assert "symlink" in err and "[replay_refused]" in err
+
+
+def test_a_tampered_transcript_is_refused(
+    session_copy: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    transcript = session_copy / "transcripts" / "spectrometer.jsonl"
+    transcript.write_text(transcript.read_text().replace("50484f544f", "50484f544e", 1))
+    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    assert "transcripts/spectrometer.jsonl: sha256 differs from the log" in err
+
+
+def test_a_missing_transcript_is_refused(
+    session_copy: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    (session_copy / "transcripts" / "camera.jsonl").unlink()
+    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    assert "transcripts/camera.jsonl does not exist" in err
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "shown"),
+    [
+        ("payload", "!!python/object/apply:os.system ['touch /tmp/pwned']", "config.payload"),
+        ("seed", {"__reduce__": "os.system"}, "config.seed"),
+    ],
+)
+def test_a_hostile_configuration_is_refused(
+    session_copy: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    field: str,
+    value: object,
+    shown: str,
+) -> None:
+    def poison(record: dict[str, object]) -> dict[str, object]:
+        if record.get("type") == "start":
+            record["config"][field] = value  # type: ignore[index]
+        return record
+
+    _rewrite_log(session_copy, poison)
+    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    assert "the recorded configuration or plan is invalid" in err and shown.split(".")[1] in err
+
+
+def test_a_resumed_session_is_refused(session_copy: Path) -> None:
+    log = session_copy / "log.jsonl"
+    lines = log.read_text().splitlines()
+    second = json.loads(lines[0]) | {"seq": len(lines), "run": 2}
+    log.write_text("\n".join([*lines, json.dumps(second)]) + "\n")
+    with pytest.raises(ReplayRefused, match="has 2 runs"):
+        load_recording(session_copy)
+
+
+@pytest.mark.slow
+def test_rig_estimate_of_the_replay_gives_the_identical_result(
+    recorded: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    replay = tmp_path / "replayed"
+    assert run_cli(["replay", str(recorded), "--out", str(replay)], monkeypatch) == 0
+    sensitivities = []
+    for session in (recorded, replay):
+        out = tmp_path / f"estimate-{session.name}"
+        assert run_cli(["estimate", str(session), "--out", str(out), "--quiet"], monkeypatch) == 0
+        sensitivities.append((out / "sensitivity.csv").read_bytes())
+    assert sensitivities[0] == sensitivities[1]
