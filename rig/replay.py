@@ -27,11 +27,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import Any, get_args
 
 from pydantic import ValidationError
 
-from drivers.base import DeviceError, TranscriptEntry
+from drivers.base import DeviceError, TranscriptDirection, TranscriptEntry
 from rig.capture import _record_unopened_station
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport
@@ -65,6 +65,7 @@ MASKED_KEYS = frozenset(
     }
 )
 MASK = "<masked>"
+TRANSCRIPT_DIRECTIONS = frozenset(get_args(TranscriptDirection))
 
 
 class ReplayRefused(RigError):
@@ -129,16 +130,31 @@ def _first_validation_error(exc: ValidationError) -> str:
     return f"{where}: {first['msg']}"
 
 
-def _read_transcript(session: Session, record: FileRecord) -> list[TranscriptEntry]:
-    path = session.file_path(record.path)
+def parse_transcript(data: bytes, where: str) -> list[TranscriptEntry]:
+    """The entries of a transcript file's bytes (JSONL, :func:`rig.session.encode_transcript_entry`).
+
+    Raises
+    ------
+    ReplayRefused
+        For the first line that is not UTF-8 or not a transcript entry (``where`` names the file).
+    """
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ReplayRefused(f"{where} is not UTF-8 ({exc.reason} at byte {exc.start})") from None
     entries = []
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for number, line in enumerate(text.split("\n"), start=1):
+        if not line:
+            continue
         try:
-            entries.append(decode_transcript_line(line))
-        except (ValueError, KeyError, TypeError) as exc:
+            entry = decode_transcript_line(line)
+        except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
             raise ReplayRefused(
-                f"{session.path}: {record.path} line {number} is not a transcript entry ({exc})"
+                f"{where} line {number} is not a transcript entry ({exc!r})"
             ) from None
+        if not isinstance(entry.direction, str) or entry.direction not in TRANSCRIPT_DIRECTIONS:
+            raise ReplayRefused(f"{where} line {number} has no valid direction")
+        entries.append(entry)
     return entries
 
 
@@ -188,7 +204,8 @@ def load_recording(path: Path) -> Recording:
         role = next((r for r in ROLES if record.path == f"transcripts/{r}.jsonl"), None)
         if role is None:
             raise ReplayRefused(f"{path}: unexpected transcript {record.path}")
-        transcripts[role] = _read_transcript(session, record)
+        data = session.file_path(record.path).read_bytes()
+        transcripts[role] = parse_transcript(data, f"{path}: {record.path}")
     absent = [role for role in ROLES if role not in transcripts]
     if absent:
         raise ReplayRefused(
