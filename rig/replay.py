@@ -21,7 +21,6 @@ rebuilt by name from a registry, and nothing is written outside the new session 
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -35,7 +34,7 @@ from drivers.base import DeviceError, TranscriptDirection, TranscriptEntry
 from rig.capture import _record_unopened_station
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport
-from rig.errors import RigError, SessionFormatError, StationUnavailable
+from rig.errors import RigError, SessionFormatError
 from rig.frame_stats import RawFrameAnalyzer
 from rig.interrupts import InterruptController
 from rig.plan import build_plan
@@ -43,7 +42,7 @@ from rig.progress import ProgressReporter, SilentProgress
 from rig.records import FileRecord, Record, StartRecord, StepRecord
 from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts
 from rig.session import Session, SessionWriter, decode_transcript_line, read_session
-from rig.station import Station, TranscriptFactory
+from rig.station import Station, TranscriptFactory, optional_module
 from rig.steps import DeviceRole, Step, StepResult, Wait
 
 REPLAY_MODULE = "mocks.replay"
@@ -111,17 +110,6 @@ class ReplayOutcome:
 
 
 # ------------------------------------------------------------------------------------ reading
-
-
-def _replay_module() -> ModuleType:
-    try:
-        return importlib.import_module(REPLAY_MODULE)
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and REPLAY_MODULE.startswith(exc.name):
-            raise StationUnavailable(
-                f"session replay ({REPLAY_MODULE}) is not part of this installation"
-            ) from None
-        raise
 
 
 def _first_validation_error(exc: ValidationError) -> str:
@@ -312,18 +300,10 @@ def _mismatch_text(mismatch: Any, step_key: str) -> str:
             f"  at transcripts/{mismatch.role}.jsonl line {mismatch.index}"
             if mismatch.index is not None
             else "  after the last recorded entry",
-            f"  expected: {_describe(mismatch.expected)}",
-            f"  sent:     {_describe(mismatch.sent)}",
+            f"  expected: {mismatch.describe(mismatch.expected)}",
+            f"  sent:     {mismatch.describe(mismatch.sent)}",
         ]
     )
-
-
-def _describe(entry: TranscriptEntry | None) -> str:
-    if entry is None:
-        return "nothing"
-    if entry.direction in ("tx", "rx"):
-        return f"{entry.direction} {entry.payload.hex(' ')}  {entry.payload!r}"
-    return f"{entry.direction} {entry.payload.decode('utf-8', errors='replace')}"
 
 
 def default_replay_dir(source: Path) -> Path:
@@ -358,7 +338,7 @@ def replay_session(
         ``out`` exists or cannot be created.
     """
     recording = load_recording(source)
-    module = _replay_module()
+    module = optional_module(REPLAY_MODULE, f"session replay ({REPLAY_MODULE})")
     target = out if out is not None else default_replay_dir(source)
     interrupts = interrupts or InterruptController()
     timeline: _Timeline | None = None

@@ -28,22 +28,12 @@ __all__ = [
     "ReplayMismatch",
     "ReplayScript",
     "comparable",
-    "describe_payload",
 ]
 
 OUTGOING = ("tx", "call")
 """Directions the rig sends: checked against the recording."""
 INCOMING = ("rx", "return", "error")
 """Directions the device answers: served from the recording."""
-
-
-def describe_payload(entry: TranscriptEntry | None) -> str:
-    """An entry as a person reads it: ``tx 443131300d  b'D110\\r'`` or ``call {...}``."""
-    if entry is None:
-        return "nothing"
-    if entry.direction in ("tx", "rx"):
-        return f"{entry.direction} {entry.payload.hex()}  {entry.payload!r}"
-    return f"{entry.direction} {entry.payload.decode('utf-8', errors='replace')}"
 
 
 class ReplayMismatch(DeviceError):
@@ -82,9 +72,17 @@ class ReplayMismatch(DeviceError):
         )
         super().__init__(
             f"replay of {role}",
-            f"{problem} at {where}: expected {describe_payload(expected)}; "
-            f"sent {describe_payload(sent)}",
+            f"{problem} at {where}: expected {self.describe(expected)}; sent {self.describe(sent)}",
         )
+
+    @staticmethod
+    def describe(entry: TranscriptEntry | None) -> str:
+        """An entry as a person reads it: ``tx 44 31 31 30 0d  b'D110\\r'`` or ``call {...}``."""
+        if entry is None:
+            return "nothing"
+        if entry.direction in ("tx", "rx"):
+            return f"{entry.direction} {entry.payload.hex(' ')}  {entry.payload!r}"
+        return f"{entry.direction} {entry.payload.decode('utf-8', errors='replace')}"
 
 
 class Mismatches:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -196,27 +197,28 @@ def test_an_edited_reply_changes_the_log(session_copy: Path, tmp_path: Path) -> 
 # ------------------------------------------------------------------------------- untrusted input
 
 
-def _refused(
-    session: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
-) -> str:
-    out = tmp_path / "replayed"
-    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
-    assert run_cli(["replay", str(session), "--out", str(out)], monkeypatch) == 2
-    err = capsys.readouterr().err
-    assert len(err.splitlines()) == 1 and err.startswith("rig: error: ")
-    assert not out.exists()
-    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
-    return err
+@pytest.fixture
+def refuse(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> Callable[[Path], str]:
+    """``rig replay`` of a session that must be refused: exit 2, one line, nothing written."""
+
+    def replay(session: Path) -> str:
+        out = tmp_path / "replayed"
+        before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+        assert run_cli(["replay", str(session), "--out", str(out)], monkeypatch) == 2
+        err = capsys.readouterr().err
+        assert len(err.splitlines()) == 1 and err.startswith("rig: error: ")
+        assert not out.exists()
+        assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+        return err
+
+    return replay
 
 
 def test_a_transcript_path_leaving_the_session_is_refused(
     session_copy: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    refuse: Callable[[Path], str],
 ) -> None:
     def escape(record: dict[str, object]) -> dict[str, object]:
         if record.get("path") == "transcripts/relays.jsonl":
@@ -224,44 +226,37 @@ def test_a_transcript_path_leaving_the_session_is_refused(
         return record
 
     _rewrite_log(session_copy, escape)
-    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    err = refuse(session_copy)
     assert "../../etc/passwd" in err and "[session_format]" in err
 
 
 def test_a_symlinked_frame_is_refused(
-    session_copy: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    session_copy: Path, tmp_path: Path, refuse: Callable[[Path], str]
 ) -> None:
     frame = next((session_copy / "frames").rglob("scene-000.dng"))
     outside = tmp_path / "outside.dng"
     frame.rename(outside)
     frame.symlink_to(outside)
-    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    err = refuse(session_copy)
     assert "symlink" in err and "[replay_refused]" in err
 
 
 def test_a_tampered_transcript_is_refused(
     session_copy: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    refuse: Callable[[Path], str],
 ) -> None:
     transcript = session_copy / "transcripts" / "spectrometer.jsonl"
     transcript.write_text(transcript.read_text().replace("50484f544f", "50484f544e", 1))
-    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    err = refuse(session_copy)
     assert "transcripts/spectrometer.jsonl: sha256 differs from the log" in err
 
 
 def test_a_missing_transcript_is_refused(
     session_copy: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    refuse: Callable[[Path], str],
 ) -> None:
     (session_copy / "transcripts" / "camera.jsonl").unlink()
-    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    err = refuse(session_copy)
     assert "transcripts/camera.jsonl does not exist" in err
 
 
@@ -274,9 +269,7 @@ def test_a_missing_transcript_is_refused(
 )
 def test_a_hostile_configuration_is_refused(
     session_copy: Path,
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    refuse: Callable[[Path], str],
     field: str,
     value: object,
     shown: str,
@@ -287,7 +280,7 @@ def test_a_hostile_configuration_is_refused(
         return record
 
     _rewrite_log(session_copy, poison)
-    err = _refused(session_copy, tmp_path, monkeypatch, capsys)
+    err = refuse(session_copy)
     assert "the recorded configuration or plan is invalid" in err and shown.split(".")[1] in err
 
 
