@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,10 +37,10 @@ from rig.config import RigConfig
 from rig.dryrun import DryRunReport
 from rig.errors import RigError, SessionFormatError
 from rig.frame_stats import RawFrameAnalyzer
-from rig.interrupts import InterruptController
+from rig.interrupts import InterruptController, ReceivedSignal
 from rig.plan import build_plan
 from rig.progress import ProgressReporter, SilentProgress
-from rig.records import FileRecord, Record, StartRecord, StepRecord
+from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord
 from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts
 from rig.session import Session, SessionWriter, decode_transcript_line, read_session
 from rig.station import Station, TranscriptFactory, optional_module
@@ -169,6 +170,14 @@ def load_recording(path: Path) -> Recording:
         raise ReplayRefused(
             f"{path}: the session has {runs} runs (it was resumed); replay takes one-run sessions"
         )
+    if any(
+        isinstance(record, InterruptionRecord) and record.action == "stop-now"
+        for record in session.records
+    ):
+        raise ReplayRefused(
+            f"{path}: a second signal stopped the run in the middle of a step; such a run cannot "
+            "be reproduced exchange by exchange"
+        )
     problems = session.verify_files()
     if problems:
         raise ReplayRefused(f"{path}: {problems[0]} ({len(problems)} file problem(s))")
@@ -208,26 +217,47 @@ def load_recording(path: Path) -> Recording:
 
 
 class _Timeline:
-    """Keeps the replay's simulated clock on the recorded timeline, step by step.
+    """Keeps the replay on the recorded timeline, step by step: its clock and its interruption.
 
     When a step starts, the clock jumps to where the recording says the step *ended* (a wait: where
     it started; the wait itself advances it), so every time a plan sees (a spectrum's, a switch's)
     is as recorded and time-dependent branches go the same way. The clock never goes back.
+
+    A run that was stopped by a signal (one Ctrl-C: finish the step, then stop) receives the same
+    signal during its last recorded step: after it, or at its start when it was a wait that the
+    signal cut short.
     """
 
-    def __init__(self, inner: ProgressReporter, clock: Any, recording: Recording) -> None:
+    def __init__(
+        self,
+        inner: ProgressReporter,
+        clock: Any,
+        recording: Recording,
+        interrupts: InterruptController,
+    ) -> None:
         self.inner = inner
         self.clock = clock
         self.current_key = "(opening the devices)"
         self._t0 = clock.now()
-        self._steps: dict[str, StepRecord] = {
-            record.key: record
-            for record in recording.session.records
-            if isinstance(record, StepRecord)
-        }
+        records = recording.session.records
+        self._steps = {r.key: r for r in records if isinstance(r, StepRecord)}
+        self._interrupts = interrupts
+        signals = [r.signal for r in records if isinstance(r, InterruptionRecord)]
+        self._signal = signals[0] if signals else None
+        last = next((r for r in reversed(records) if isinstance(r, StepRecord)), None)
+        self._last_key = last.key if last is not None else None
+        self._cut_short = last is not None and (last.result or {}).get("completed") is False
+
+    def _receive_signal(self) -> None:
+        assert self._signal is not None
+        self._interrupts.received.append(
+            ReceivedSignal(self._signal, time.monotonic(), "finish-step")
+        )
 
     def start(self, estimate: DryRunReport | None) -> None:
         self.current_key = "(identifying the devices)"
+        if self._signal is not None and self._last_key is None:
+            self._receive_signal()
         self.inner.start(estimate)
 
     def step_started(self, step: Step) -> None:
@@ -240,9 +270,13 @@ class _Timeline:
             ahead_s = target - self.clock.now()
             if ahead_s > 0:
                 self.clock.advance(ahead_s)
+        if self._signal is not None and step.key == self._last_key and self._cut_short:
+            self._receive_signal()
         self.inner.step_started(step)
 
     def step_done(self, step: Step, result: StepResult) -> None:
+        if self._signal is not None and step.key == self._last_key and not self._cut_short:
+            self._receive_signal()
         self.inner.step_done(step, result)
 
     def message(self, text: str) -> None:
@@ -349,7 +383,7 @@ def replay_session(
         bench = module.open_replay(
             _recorded_devices(recording, module), transcripts, _frame_source(recording)
         )
-        timeline = _Timeline(progress or SilentProgress(), bench.clock, recording)
+        timeline = _Timeline(progress or SilentProgress(), bench.clock, recording, interrupts)
         return Station(
             bench.spectrometer,
             bench.camera,

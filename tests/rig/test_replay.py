@@ -20,10 +20,13 @@ from mocks.bench import TwinFaults
 from mocks.faults import Fault, FaultKind, FaultRule, FaultSchedule
 from mocks.replay.script import comparable
 from rig.capture import run_capture
+from rig.interrupts import InterruptController, ReceivedSignal
+from rig.progress import SilentProgress
 from rig.records import RetryRecord
 from rig.replay import ReplayRefused, compare_logs, load_recording, replay_session
 from rig.runner import RetryPolicy
 from rig.session import decode_transcript_line, read_session
+from rig.steps import Step, StepResult
 from rig.twin import twin_station_builder
 from tests.rig.test_cli import run_cli
 from tests.rig.twin_setup import twin_config
@@ -119,6 +122,41 @@ def test_a_session_with_runner_retries_replays_identically(tmp_path: Path) -> No
     assert any(isinstance(r, RetryRecord) for r in read_session(source).records)
     outcome = replay_session(source, tmp_path / "replay")
     assert outcome.identical, outcome
+
+
+class _SignalAt(SilentProgress):
+    """Delivers one Ctrl-C (as the signal handler notes it) when a step starts or ends."""
+
+    def __init__(self, interrupts: InterruptController, key: str, when: str) -> None:
+        self.interrupts, self.key, self.when = interrupts, key, when
+
+    def _deliver(self, step: Step, when: str) -> None:
+        if step.key == self.key and when == self.when:
+            self.interrupts.received.append(ReceivedSignal("SIGINT", 0.0, "finish-step"))
+
+    def step_started(self, step: Step) -> None:
+        self._deliver(step, "start")
+
+    def step_done(self, step: Step, result: StepResult) -> None:
+        self._deliver(step, "done")
+
+
+@pytest.mark.parametrize(
+    ("key", "when"),
+    [("lamp/LED-B3/reference/000", "done"), ("lamp/LED-B3/warmup/001/wait", "start")],
+)
+def test_an_interrupted_session_replays_identically(tmp_path: Path, key: str, when: str) -> None:
+    interrupts = InterruptController()
+    outcome = run_capture(
+        twin_config(tmp_path / "sessions"),
+        retry=FAST_RETRY,
+        interrupts=interrupts,
+        progress=_SignalAt(interrupts, key, when),
+    )
+    assert outcome.exit_status == "abort" and outcome.signal == "SIGINT", outcome
+    replay = replay_session(outcome.session, tmp_path / "replay")
+    assert replay.identical, replay
+    assert replay.run.exit_status == "abort" and replay.run.exit_code == 130
 
 
 def test_rig_replay_command(
