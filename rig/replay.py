@@ -43,7 +43,7 @@ from rig.progress import ProgressReporter, SilentProgress
 from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord
 from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts
 from rig.session import Session, SessionWriter, decode_transcript_line, read_session
-from rig.station import Station, TranscriptFactory, optional_module
+from rig.station import Station, optional_module
 from rig.steps import DeviceRole, Step, StepResult, Wait
 
 REPLAY_MODULE = "mocks.replay"
@@ -375,36 +375,27 @@ def replay_session(
     module = optional_module(REPLAY_MODULE, f"session replay ({REPLAY_MODULE})")
     target = out if out is not None else default_replay_dir(source)
     interrupts = interrupts or InterruptController()
-    timeline: _Timeline | None = None
-    bench: Any = None
-
-    def build(config: RigConfig, transcripts: TranscriptFactory) -> Station:
-        nonlocal bench, timeline
-        bench = module.open_replay(
-            _recorded_devices(recording, module), transcripts, _frame_source(recording)
-        )
-        timeline = _Timeline(progress or SilentProgress(), bench.clock, recording, interrupts)
-        return Station(
-            bench.spectrometer,
-            bench.camera,
-            bench.relays,
-            bench.clock,
-            RawFrameAnalyzer(),
-            on_close=[bench.close],
-        )
-
     session = SessionWriter(target, guard=interrupts.critical)
     snapshot = recording.config.model_dump(mode="json")
     try:
-        station = build(recording.config, session.transcript_sink)
+        bench = module.open_replay(
+            _recorded_devices(recording, module), session.transcript_sink, _frame_source(recording)
+        )
     except (DeviceError, RigError, ValueError) as exc:
         _record_unopened_station(session, recording.start.plan, snapshot, exc)
         if isinstance(exc, module.ReplayMismatch):
             raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
         raise ReplayRefused(f"the recorded devices cannot be opened for replay: {exc}") from None
-    assert timeline is not None and bench is not None
-    step_of = timeline
-    bench.mismatches.context = lambda: step_of.current_key
+    station = Station(
+        bench.spectrometer,
+        bench.camera,
+        bench.relays,
+        bench.clock,
+        RawFrameAnalyzer(),
+        on_close=[bench.close],
+    )
+    timeline = _Timeline(progress or SilentProgress(), bench.clock, recording, interrupts)
+    bench.mismatches.context = lambda: timeline.current_key
     runner = Runner(
         station,
         session,

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from drivers.relays import hid_usbrelay
+from drivers.spectrometer import pr6xx
 from mocks.bench import TwinFaults
 from mocks.faults import Fault, FaultKind, FaultRule, FaultSchedule
 from mocks.replay.script import comparable
@@ -23,7 +24,13 @@ from rig.capture import run_capture
 from rig.interrupts import InterruptController, ReceivedSignal
 from rig.progress import SilentProgress
 from rig.records import RetryRecord
-from rig.replay import ReplayRefused, compare_logs, load_recording, replay_session
+from rig.replay import (
+    ReplayDiverged,
+    ReplayRefused,
+    compare_logs,
+    load_recording,
+    replay_session,
+)
 from rig.runner import RetryPolicy
 from rig.session import decode_transcript_line, read_session
 from rig.steps import Step, StepResult
@@ -203,6 +210,19 @@ def test_a_different_command_fails_with_a_diff(
     assert "expected: tx 20 09 00 03 00 00 08 00 fc" in err
     assert "sent:     tx 20 09 00 03 00 00 08 00 fe" in err
     assert all(line.startswith("rig: error: ") for line in err.splitlines())
+
+
+def test_a_different_command_while_opening_fails_with_a_diff(
+    recorded: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(pr6xx, "REMOTE_MODE_COMMAND", b"PHOTO\r")
+    with pytest.raises(ReplayDiverged) as diverged:
+        replay_session(recorded, tmp_path / "replay")
+    message = str(diverged.value)
+    assert message.startswith("step (opening the devices): spectrometer: the rig sent a different")
+    assert "expected: tx 50 48 4f 54 4f  b'PHOTO'" in message
+    assert "sent:     tx 50 48 4f 54 4f 0d  b'PHOTO\\r'" in message
+    assert read_session(tmp_path / "replay").status == "failed"  # the replay records why
 
 
 def test_a_recorded_command_left_unused_fails(session_copy: Path, tmp_path: Path) -> None:
