@@ -14,7 +14,9 @@ answered, and only a serial timeout among them is served (as silence).
 from __future__ import annotations
 
 import json
+import math
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -172,6 +174,8 @@ class ReplayScript:
         self.mismatches = mismatches
         self._next = 0
         self._last_sent: TranscriptEntry | None = None
+        self._sent_index: int | None = None
+        self._sent_at: float | None = None
         self._lock = threading.RLock()
 
     # ----------------------------------------------------------------------------- sending
@@ -220,6 +224,8 @@ class ReplayScript:
                 )
             self._next = index + 1
             self._last_sent = sent
+            self._sent_index = index
+            self._sent_at = time.monotonic()
 
     # ----------------------------------------------------------------------------- answering
 
@@ -232,6 +238,20 @@ class ReplayScript:
             ):
                 return Served(self.entries[self._next], self._next + 1)
             return None
+
+    def wait_before(self, served: Served) -> float:
+        """Seconds to wait now so that ``served`` comes as long after the last command as recorded.
+
+        Recorded times are the transcript's monotonic timestamps; the replay's own send time of
+        that command is the reference (0 when nothing was sent yet).
+        """
+        with self._lock:
+            if self._sent_at is None or self._sent_index is None:
+                return 0.0
+            recorded_s = served.entry.monotonic_s - self.entries[self._sent_index].monotonic_s
+            if not math.isfinite(recorded_s):
+                return 0.0
+            return max(0.0, self._sent_at + recorded_s - time.monotonic())
 
     def skip(self) -> None:
         """Pass over the entry :meth:`peek` returned."""

@@ -5,19 +5,23 @@ transport writes was already checked by the transcript sink (:class:`mocks.repla
 the port answers with the recorded ``rx`` entries, one recorded read at a time, so replies arrive in
 the pieces the driver saw. Recorded failures come back as pyserial raised them: a read that timed
 out waits out its deadline and returns nothing, a write timeout raises ``SerialTimeoutException``,
-a vanished port ``SerialException``.
+a vanished port ``SerialException`` (as long after the last command as it was recorded, or when the
+replay's bench closes, whichever comes first).
 """
 
 from __future__ import annotations
 
+import threading
 import time
 
 import serial
 
-from mocks.replay.script import ReplayScript
+from mocks.replay.script import ReplayScript, Served
 
 __all__ = ["ReplaySerialPort"]
 
+#: After the recorded moment of a port failure (see ``_raise_recorded_failure``).
+_FAILURE_MARGIN_S = 0.1
 #: Past the transport's deadline, so a recorded timeout is a timeout again (and no later bytes leak).
 _TIMEOUT_MARGIN_S = 0.01
 
@@ -25,14 +29,17 @@ _TIMEOUT_MARGIN_S = 0.01
 class ReplaySerialPort:
     """Satisfies :class:`drivers.transport.SerialPort`; ``port`` is the recorded device path."""
 
-    def __init__(self, script: ReplayScript, port: str) -> None:
+    def __init__(
+        self, script: ReplayScript, port: str, released: threading.Event | None = None
+    ) -> None:
         self._script = script
+        self._released = released or threading.Event()
         self.port: str | None = port
         self.timeout: float | None = 0.0
         self.write_timeout: float | None = None
         self._buffer = bytearray()
 
-    def _recorded_event(self, prefix: bytes) -> bool:
+    def _recorded_event(self, prefix: bytes) -> Served | None:
         """Take the next entry if it is an event starting with ``prefix``."""
         served = self._script.peek()
         if (
@@ -41,11 +48,17 @@ class ReplaySerialPort:
             and served.entry.payload.startswith(prefix)
         ):
             self._script.skip()
-            return True
-        return False
+            return served
+        return None
 
     def _raise_recorded_failure(self, action: str) -> None:
-        if self._recorded_event(f"disconnected during {action}".encode()):
+        served = self._recorded_event(f"disconnected during {action}".encode())
+        if served is not None:
+            # The port fails as long after the last command as it did then (a read that hung
+            # until the rig gave up and the device was closed), unless the bench closes first.
+            # The margin keeps the order of a failure that followed the runner's own deadline:
+            # the runner notices a deadline up to one wait slice (50 ms) late.
+            self._released.wait(self._script.wait_before(served) + _FAILURE_MARGIN_S)
             raise serial.SerialException(f"replayed: the port failed during {action}")
 
     def _refill(self) -> bool:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -86,16 +87,20 @@ def _channels(model: str) -> int:
 
 
 def _serial_transport(
-    script: ReplayScript, sink: TranscriptSink, label: str, port: str
+    script: ReplayScript, sink: TranscriptSink, label: str, port: str, released: threading.Event
 ) -> SerialTransport:
     transport = SerialTransport(
-        ReplaySerialPort(script, port), device=label, transcript=CheckingSink(script, sink)
+        ReplaySerialPort(script, port, released),
+        device=label,
+        transcript=CheckingSink(script, sink),
     )
     transport.record_event(f"opened {port} (replay)")
     return transport
 
 
-def _open_relays(device: RecordedDevice, script: ReplayScript, sink: TranscriptSink) -> RelayBoard:
+def _open_relays(
+    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, released: threading.Event
+) -> RelayBoard:
     model = str(device.identity.get("model", ""))
     port = str(device.identity.get("port") or "")
     extra = device.identity.get("extra") or {}
@@ -112,12 +117,14 @@ def _open_relays(device: RecordedDevice, script: ReplayScript, sink: TranscriptS
         )
     channels = _channels(model)
     if model.startswith("LCUS-"):
-        transport = _serial_transport(script, sink, f"LCUS-{channels} relay board on {port}", port)
+        transport = _serial_transport(
+            script, sink, f"LCUS-{channels} relay board on {port}", port, released
+        )
         lcus = LcusRelayBoard(transport, channels, timeout_s=device.timeout_s, port=port)
         return connect_or_close(lcus, lcus.state)
     if model.startswith("Numato "):
         transport = _serial_transport(
-            script, sink, f"Numato {channels}-relay module on {port}", port
+            script, sink, f"Numato {channels}-relay module on {port}", port, released
         )
         numato = NumatoRelayBoard(transport, channels, timeout_s=device.timeout_s, port=port)
 
@@ -131,11 +138,11 @@ def _open_relays(device: RecordedDevice, script: ReplayScript, sink: TranscriptS
 
 
 def _open_spectrometer(
-    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink
+    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, released: threading.Event
 ) -> Spectrometer:
     model = str(device.identity.get("model", ""))
     port = str(device.identity.get("port") or "")
-    transport = _serial_transport(script, sink, f"{model} on {port}", port)
+    transport = _serial_transport(script, sink, f"{model} on {port}", port, released)
     instrument: Pr6xx | Cs2000
     if model in PR6XX_MODELS:
         instrument = Pr6xx(transport, model=model, timeout_s=device.timeout_s, port=port)
@@ -174,12 +181,13 @@ def open_replay(
         role: ReplayScript(role, device.entries, mismatches) for role, device in devices.items()
     }
     clock = SimulatedClock()
-    opened: list[Callable[[], object]] = []
+    released = threading.Event()
+    opened: list[Callable[[], object]] = [released.set]
     try:
-        relays = _open_relays(devices["relays"], scripts["relays"], transcripts("relays"))
+        relays = _open_relays(devices["relays"], scripts["relays"], transcripts("relays"), released)
         opened.append(relays.close)
         spectrometer = _open_spectrometer(
-            devices["spectrometer"], scripts["spectrometer"], transcripts("spectrometer")
+            devices["spectrometer"], scripts["spectrometer"], transcripts("spectrometer"), released
         )
         opened.append(spectrometer.close)
         camera_device = devices["camera"]
@@ -201,4 +209,6 @@ def open_replay(
             with contextlib.suppress(Exception):
                 closer()
         raise
-    return ReplayBench(relays, spectrometer, camera, clock, scripts, mismatches)
+    return ReplayBench(
+        relays, spectrometer, camera, clock, scripts, mismatches, closers=[released.set]
+    )

@@ -18,12 +18,13 @@ import pytest
 from drivers.relays import hid_usbrelay
 from drivers.spectrometer import pr6xx
 from mocks.bench import TwinFaults
+from mocks.fake_gphoto2 import CameraFault
 from mocks.faults import Fault, FaultKind, FaultRule, FaultSchedule
 from mocks.replay.script import comparable
+from mocks.usb_relay_backend import UsbFault
 from rig.capture import run_capture
 from rig.interrupts import InterruptController, ReceivedSignal
 from rig.progress import SilentProgress
-from rig.records import RetryRecord
 from rig.replay import (
     ReplayDiverged,
     ReplayRefused,
@@ -122,13 +123,48 @@ def test_the_comparison_finds_a_changed_record(recorded: Path, tmp_path: Path) -
     assert difference is not None and '"attempts": 2' in difference
 
 
-def test_a_session_with_runner_retries_replays_identically(tmp_path: Path) -> None:
-    schedule = FaultSchedule([FaultRule(Fault(FaultKind.GARBLED_REPLY), match="M5", nth=2)])
-    faults = TwinFaults(spectrometer=schedule)
-    source = _twin_session(tmp_path / "faulty", builder=twin_station_builder(faults=faults))
-    assert any(isinstance(r, RetryRecord) for r in read_session(source).records)
+GARBLED_SPECTRUM = FaultRule(Fault(FaultKind.GARBLED_REPLY), match="M5", nth=2)
+HUNG_SPECTROMETER = FaultRule(Fault(FaultKind.NO_REPLY), match="M5", nth=3)
+FAULTS = {
+    "garbled spectrum, retried by the runner": TwinFaults(
+        spectrometer=FaultSchedule([GARBLED_SPECTRUM])
+    ),
+    "relay board stalls, retried": TwinFaults(usb_relays=[UsbFault("stall", "get_report", 3)]),
+    "relay state garbled: the run fails": TwinFaults(
+        usb_relays=[UsbFault("garbled_reply", skip=4)]
+    ),
+    "camera unplugged and found again": TwinFaults(camera=[CameraFault("unplug", skip=40)]),
+    "camera busy, recovered by its driver": TwinFaults(
+        camera=[CameraFault("busy", skip=1, times=2)]
+    ),
+}
+SLOW_FAULTS = {
+    "spectrometer hangs: the step times out": TwinFaults(
+        spectrometer=FaultSchedule([HUNG_SPECTROMETER])
+    ),
+}
+
+
+def _replays_identically(tmp_path: Path, faults: TwinFaults) -> None:
+    source = run_capture(
+        twin_config(tmp_path / "faulty"),
+        retry=FAST_RETRY,
+        builder=twin_station_builder(faults=faults),
+    ).session
     outcome = replay_session(source, tmp_path / "replay")
     assert outcome.identical, outcome
+
+
+@pytest.mark.parametrize("faults", FAULTS.values(), ids=FAULTS.keys())
+def test_a_session_with_faults_replays_identically(tmp_path: Path, faults: TwinFaults) -> None:
+    _replays_identically(tmp_path, faults)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("faults", SLOW_FAULTS.values(), ids=SLOW_FAULTS.keys())
+def test_a_session_with_slow_faults_replays_identically(tmp_path: Path, faults: TwinFaults) -> None:
+    """Slow because the replay waits as long as the recording did (a hung read: the step deadline)."""
+    _replays_identically(tmp_path, faults)
 
 
 class _SignalAt(SilentProgress):
