@@ -23,6 +23,7 @@ from mocks.faults import Fault, FaultKind, FaultRule, FaultSchedule
 from mocks.replay.script import comparable
 from mocks.usb_relay_backend import UsbFault
 from rig.capture import run_capture
+from rig.config import RigConfig
 from rig.interrupts import InterruptController, ReceivedSignal
 from rig.progress import SilentProgress
 from rig.replay import (
@@ -37,7 +38,7 @@ from rig.session import decode_transcript_line, read_session
 from rig.steps import Step, StepResult
 from rig.twin import twin_station_builder
 from tests.rig.test_cli import run_cli
-from tests.rig.twin_setup import twin_config
+from tests.rig.twin_setup import twin_config, twin_config_data
 
 FAST_RETRY = RetryPolicy(max_attempts=3, initial_s=0.01, max_s=0.01)
 
@@ -121,6 +122,19 @@ def test_the_comparison_finds_a_changed_record(recorded: Path, tmp_path: Path) -
     _rewrite_log(replay, bump)
     difference = compare_logs(read_session(recorded), read_session(replay))
     assert difference is not None and '"attempts": 2' in difference
+
+
+@pytest.mark.parametrize(("spectrometer", "relays"), [("cs2000", "lcus"), ("pr670", "numato")])
+def test_every_driver_family_replays_identically(
+    tmp_path: Path, spectrometer: str, relays: str
+) -> None:
+    data = twin_config_data(tmp_path / "sessions")
+    data["devices"]["spectrometer"]["emulate"] = spectrometer
+    data["devices"]["relays"]["emulate"] = relays
+    config = RigConfig.model_validate(data)
+    source = run_capture(config, retry=FAST_RETRY).session
+    outcome = replay_session(source, tmp_path / "replay")
+    assert outcome.identical and outcome.run.exit_status == "success", outcome
 
 
 GARBLED_SPECTRUM = FaultRule(Fault(FaultKind.GARBLED_REPLY), match="M5", nth=2)
