@@ -372,8 +372,12 @@ def replay_session(
         ``out`` exists or cannot be created.
     """
     recording = load_recording(source)
-    module = optional_module(REPLAY_MODULE, f"session replay ({REPLAY_MODULE})")
     target = out if out is not None else default_replay_dir(source)
+    if target.resolve().is_relative_to(source.resolve()):
+        raise ReplayRefused(
+            f"{target} lies inside the recorded session {source}; replay never writes there"
+        )
+    module = optional_module(REPLAY_MODULE, f"session replay ({REPLAY_MODULE})")
     interrupts = interrupts or InterruptController()
     session = SessionWriter(target, guard=interrupts.critical)
     snapshot = recording.config.model_dump(mode="json")

@@ -392,6 +392,15 @@ def test_a_hostile_configuration_is_refused(
     assert "the recorded configuration or plan is invalid" in err and shown.split(".")[1] in err
 
 
+def test_a_replay_into_the_recorded_session_is_refused(
+    session_copy: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = session_copy / "frames" / "replay"
+    assert run_cli(["replay", str(session_copy), "--out", str(out)], monkeypatch) == 2
+    assert "replay never writes there [replay_refused]" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_a_resumed_session_is_refused(session_copy: Path) -> None:
     log = session_copy / "log.jsonl"
     lines = log.read_text().splitlines()
