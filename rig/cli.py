@@ -266,6 +266,31 @@ def compare(
 
 
 @app.command()
+def replay(
+    session: Annotated[Path, typer.Argument(help="The recorded session directory.")],
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out", "-o", help="The replay's new session directory (default: SESSION-replay)."
+        ),
+    ] = None,
+) -> None:
+    """Run a session's plan again on drivers that serve its recordings; fail on any other command."""
+    from rig.replay import ReplayDiverged, replay_session
+
+    outcome = replay_session(session, out)
+    run = outcome.run
+    status = {"success": "complete", "abort": "interrupted", "fail": "failed"}[run.exit_status]
+    typer.echo(f"replay: {run.session}")
+    typer.echo(f"status: {status} ({run.reason}): {run.message}")
+    if outcome.mismatch is not None:
+        raise ReplayDiverged(f"the rig diverged from the recording:\n{outcome.mismatch}")
+    if outcome.difference is not None:
+        raise ReplayDiverged(f"the replay's log differs from the recording: {outcome.difference}")
+    typer.echo("log: identical to the recording (times and ids masked)")
+
+
+@app.command()
 def devices(
     serial: Annotated[bool, typer.Option("--serial/--no-serial", help="List serial ports.")] = True,
     usb: Annotated[

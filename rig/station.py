@@ -14,6 +14,7 @@ import contextlib
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from types import ModuleType
 
 from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptSink
 from rig.analysis import FrameAnalyzer
@@ -89,6 +90,23 @@ def station_kind(config: RigConfig) -> str:
     return "twin" if config.devices.simulated else "hardware"
 
 
+def optional_module(name: str, what: str, hint: str = "") -> ModuleType:
+    """Import ``name``, an optional part of the installation (the twin, replay).
+
+    Raises
+    ------
+    StationUnavailable
+        When the module (or its package) is not installed: "<what> is not part of this
+        installation<hint>". An import error inside it propagates.
+    """
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and name.startswith(exc.name):
+            raise StationUnavailable(f"{what} is not part of this installation{hint}") from None
+        raise
+
+
 def resolve_builder(kind: str) -> StationBuilder:
     """The builder registered for ``kind``, importing it if given by name."""
     entry = STATION_BUILDERS.get(kind)
@@ -99,14 +117,7 @@ def resolve_builder(kind: str) -> StationBuilder:
     if callable(entry):
         return entry
     module_name, _, function_name = entry.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and module_name.startswith(exc.name):
-            raise StationUnavailable(
-                f"the {kind} station ({entry}) is not part of this installation"
-            ) from None
-        raise
+    module = optional_module(module_name, f"the {kind} station ({entry})")
     builder = getattr(module, function_name, None)
     if not callable(builder):
         raise StationUnavailable(f"{module_name} has no station builder {function_name!r}")

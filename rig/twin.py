@@ -12,7 +12,6 @@ open, and a callback that receives the open bench for later injections).
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -21,7 +20,7 @@ from typing import Any
 from rig.config import RigConfig
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
-from rig.station import Station, StationBuilder, TranscriptFactory
+from rig.station import Station, StationBuilder, TranscriptFactory, optional_module
 
 BENCH_MODULE = "mocks.bench"
 
@@ -34,15 +33,11 @@ def bench_module() -> ModuleType:
     StationUnavailable
         When this installation has no ``mocks`` package.
     """
-    try:
-        return importlib.import_module(BENCH_MODULE)
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and BENCH_MODULE.startswith(exc.name):
-            raise StationUnavailable(
-                f"the digital twin ({BENCH_MODULE}) is not part of this installation; configure "
-                "real devices instead of kind: twin"
-            ) from None
-        raise
+    return optional_module(
+        BENCH_MODULE,
+        f"the digital twin ({BENCH_MODULE})",
+        "; configure real devices instead of kind: twin",
+    )
 
 
 def twin_spec(config: RigConfig) -> Any:

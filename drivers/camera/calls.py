@@ -1,7 +1,8 @@
 """The libgphoto2 call boundary: every call on the watchdog thread, recorded in the transcript.
 
 gphoto2 is a C library, not a byte stream, so the camera's transcript records it at its API: one
-``call`` entry (name and arguments), then a ``return`` (a summary of the result, never image bytes)
+``call`` entry (name and arguments), then a ``return`` (a summary of the result, never image bytes:
+their size and sha256; a configuration tree in full, so that replay can rebuild it)
 or an ``error`` (libgphoto2 code and text, or the deadline that passed), each a UTF-8 JSON object
 with the elapsed time. This is what session replay reads back.
 """
@@ -9,6 +10,7 @@ with the elapsed time. This is what session replay reads back.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import time
 from collections.abc import Callable
@@ -35,13 +37,51 @@ def summarise(value: object) -> object:
         summary: dict[str, object] = {"widget": str(widget.get_name())}
         with contextlib.suppress(Exception):  # containers have no value
             summary["value"] = summarise(widget.get_value())
+        if _count_children(widget):
+            summary["tree"] = [_describe_widget(child) for child in _children(widget)]
         return summary
     if hasattr(value, "get_name") and hasattr(value, "get_value") and hasattr(value, "__len__"):
         pairs: Any = value  # a CameraList (autodetect, folder listings)
         return [[str(pairs.get_name(i)), pairs.get_value(i)] for i in range(len(pairs))]
     if isinstance(value, bytes | bytearray | memoryview):
-        return {"bytes": len(value)}
+        return {"bytes": len(value), "sha256": hashlib.sha256(value).hexdigest()}
     return {"type": type(value).__name__}
+
+
+def _count_children(widget: Any) -> int:
+    try:
+        return int(widget.count_children())
+    except Exception:  # not a widget container (port info), or the bindings refuse
+        return 0
+
+
+def _children(widget: Any) -> list[Any]:
+    return [widget.get_child(index) for index in range(_count_children(widget))]
+
+
+def _describe_widget(widget: Any) -> dict[str, object]:
+    """A configuration (sub)tree in full: what session replay needs to rebuild it.
+
+    Name, type code, read-only flag, value, choices or range, and the children; a ``get_config``
+    result is recorded this way so that replay can hand the driver the same tree.
+    """
+    node: dict[str, object] = {
+        "widget": str(widget.get_name()),
+        "type": int(widget.get_type()),
+        "readonly": bool(widget.get_readonly()),
+    }
+    with contextlib.suppress(Exception):  # containers have no value
+        node["value"] = summarise(widget.get_value())
+    with contextlib.suppress(Exception):  # only RADIO and MENU widgets have choices
+        count = int(widget.count_choices())
+        if count:
+            node["choices"] = [str(widget.get_choice(index)) for index in range(count)]
+    with contextlib.suppress(Exception):  # only RANGE widgets have a range
+        node["range"] = [float(bound) for bound in widget.get_range()]
+    children = _children(widget)
+    if children:
+        node["children"] = [_describe_widget(child) for child in children]
+    return node
 
 
 class LibraryCalls:

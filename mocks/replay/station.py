@@ -1,0 +1,214 @@
+"""Open the real drivers on the replay stand-ins, one device per recorded transcript.
+
+The rig hands over plain data (:class:`RecordedDevice`: the identity recorded in the session's
+start record, the decoded transcript, the configured timeouts) and gets back the opened drivers.
+Which driver runs is read from the recorded identity (``PR-655`` → the PR-6xx driver, ``dcttech
+USBRelay2`` → the HID relay driver …), and each is opened as its ``open_*`` function opens it, with
+the recorded port as its name, so identities and labels come out as recorded.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import threading
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptEntry, TranscriptSink
+from drivers.camera import CameraTimeouts, open_camera
+from drivers.lifecycle import connect_or_close
+from drivers.relays.hid_usbrelay import open_hid_relay
+from drivers.relays.lcus import LcusRelayBoard
+from drivers.relays.numato import NumatoRelayBoard
+from drivers.spectrometer.cs2000 import Cs2000
+from drivers.spectrometer.pr6xx import MODELS as PR6XX_MODELS
+from drivers.spectrometer.pr6xx import Pr6xx
+from drivers.transport import SerialTransport
+from mocks.lamps import SimulatedClock
+from mocks.replay.gphoto2 import FrameSource, ReplayGphoto2, ReplayUnsupported
+from mocks.replay.script import CheckingSink, Mismatches, ReplayScript
+from mocks.replay.serial_port import ReplaySerialPort
+from mocks.replay.usb_backend import ReplayUsbBackend
+
+__all__ = ["RecordedDevice", "ReplayBench", "ReplayUnsupported", "open_replay"]
+
+TranscriptFactory = Callable[[str], TranscriptSink]
+_CHANNELS = re.compile(r"(\d+)")
+
+
+@dataclass(frozen=True)
+class RecordedDevice:
+    """One device of a recorded session.
+
+    Attributes
+    ----------
+    identity
+        The ``devices.<role>`` fields of the start record (``kind``, ``model``, ``port`` …).
+    entries
+        Its decoded transcript.
+    timeout_s
+        The configured per-exchange deadline (``devices.<role>.timeout_s``).
+    download_timeout_s
+        The camera's download deadline.
+    """
+
+    identity: Mapping[str, Any]
+    entries: Sequence[TranscriptEntry]
+    timeout_s: float
+    download_timeout_s: float = 120.0
+
+
+@dataclass(eq=False)
+class ReplayBench:
+    """The opened drivers, the scripts they consume, and the simulated clock of the run."""
+
+    relays: RelayBoard
+    spectrometer: Spectrometer
+    camera: Camera
+    clock: SimulatedClock
+    scripts: dict[str, ReplayScript]
+    mismatches: Mismatches
+    closers: list[Callable[[], object]] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Close what is still open (the runner closes the drivers itself)."""
+        for closer in reversed(self.closers):
+            with contextlib.suppress(Exception):
+                closer()
+
+
+def _channels(model: str) -> int:
+    found = _CHANNELS.search(model)
+    if found is None:
+        raise ReplayUnsupported(f"cannot tell the relay count from the recorded model {model!r}")
+    return int(found.group(1))
+
+
+def _serial_transport(
+    script: ReplayScript, sink: TranscriptSink, label: str, port: str, released: threading.Event
+) -> SerialTransport:
+    transport = SerialTransport(
+        ReplaySerialPort(script, port, released),
+        device=label,
+        transcript=CheckingSink(script, sink),
+    )
+    transport.record_event(f"opened {port} (replay)")
+    return transport
+
+
+def _open_relays(
+    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, released: threading.Event
+) -> RelayBoard:
+    model = str(device.identity.get("model", ""))
+    port = str(device.identity.get("port") or "")
+    extra = device.identity.get("extra") or {}
+    if model.startswith("dcttech USBRelay"):
+        recipient = extra.get("request_recipient", "device")
+        if recipient not in ("device", "interface"):
+            raise ReplayUnsupported(f"unknown HID request recipient {recipient!r}")
+        return open_hid_relay(
+            device.identity.get("serial"),
+            backend=ReplayUsbBackend(script, port),
+            transcript=CheckingSink(script, sink),
+            timeout_s=device.timeout_s,
+            recipient=recipient,
+        )
+    channels = _channels(model)
+    if model.startswith("LCUS-"):
+        transport = _serial_transport(
+            script, sink, f"LCUS-{channels} relay board on {port}", port, released
+        )
+        lcus = LcusRelayBoard(transport, channels, timeout_s=device.timeout_s, port=port)
+        return connect_or_close(lcus, lcus.state)
+    if model.startswith("Numato "):
+        transport = _serial_transport(
+            script, sink, f"Numato {channels}-relay module on {port}", port, released
+        )
+        numato = NumatoRelayBoard(transport, channels, timeout_s=device.timeout_s, port=port)
+
+        def connect() -> None:
+            numato.resync()
+            numato.identify()
+            numato.state()
+
+        return connect_or_close(numato, connect)
+    raise ReplayUnsupported(f"no replay for the relay board {model!r}")
+
+
+def _open_spectrometer(
+    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, released: threading.Event
+) -> Spectrometer:
+    model = str(device.identity.get("model", ""))
+    port = str(device.identity.get("port") or "")
+    transport = _serial_transport(script, sink, f"{model} on {port}", port, released)
+    instrument: Pr6xx | Cs2000
+    if model in PR6XX_MODELS:
+        instrument = Pr6xx(transport, model=model, timeout_s=device.timeout_s, port=port)
+    elif model.startswith("CS-2000"):
+        instrument = Cs2000(transport, model=model, timeout_s=device.timeout_s, port=port)
+    else:
+        raise ReplayUnsupported(f"no replay for the spectrometer {model!r}")
+    return connect_or_close(instrument, instrument.connect)
+
+
+def open_replay(
+    devices: Mapping[str, RecordedDevice],
+    transcripts: TranscriptFactory,
+    frames: FrameSource,
+) -> ReplayBench:
+    """Open the relays, the spectrometer and the camera of a recording on their stand-ins.
+
+    Parameters
+    ----------
+    devices
+        ``relays``, ``spectrometer`` and ``camera``.
+    transcripts
+        The new session's transcript sink per role (everything the replay exchanges is written).
+    frames
+        Serves the recorded frames to the camera's downloads.
+
+    Raises
+    ------
+    ReplayUnsupported
+        A recorded device has no replay.
+    mocks.replay.script.ReplayMismatch
+        Opening a driver already sends something the recording did not.
+    """
+    mismatches = Mismatches()
+    scripts = {
+        role: ReplayScript(role, device.entries, mismatches) for role, device in devices.items()
+    }
+    clock = SimulatedClock()
+    released = threading.Event()
+    opened: list[Callable[[], object]] = [released.set]
+    try:
+        relays = _open_relays(devices["relays"], scripts["relays"], transcripts("relays"), released)
+        opened.append(relays.close)
+        spectrometer = _open_spectrometer(
+            devices["spectrometer"], scripts["spectrometer"], transcripts("spectrometer"), released
+        )
+        opened.append(spectrometer.close)
+        camera_device = devices["camera"]
+        extra = camera_device.identity.get("extra") or {}
+        camera = open_camera(
+            str(camera_device.identity.get("model", "")) or None,
+            str(camera_device.identity.get("port") or "") or None,
+            gphoto2_module=ReplayGphoto2(
+                scripts["camera"], frames, str(extra.get("libgphoto2", "unknown"))
+            ),
+            transcript=CheckingSink(scripts["camera"], transcripts("camera")),
+            timeouts=CameraTimeouts(
+                call_s=camera_device.timeout_s, download_s=camera_device.download_timeout_s
+            ),
+            exposure_timer=clock,
+        )
+    except BaseException:
+        for closer in reversed(opened):
+            with contextlib.suppress(Exception):
+                closer()
+        raise
+    return ReplayBench(
+        relays, spectrometer, camera, clock, scripts, mismatches, closers=[released.set]
+    )

@@ -1,0 +1,480 @@
+"""``rig replay``: run a recorded session's plan again, on drivers that serve its own recordings.
+
+The recorded plan (:func:`rig.plan.build_plan` from the start record) runs on the real runner,
+session writer and drivers. Only the layer below the drivers is replaced (:mod:`mocks.replay`): a
+pyserial port, a pyusb backend and a ``gphoto2`` module that check each command against the
+session's transcripts and answer with what the devices answered, and serve the session's frames to
+the camera's downloads. Waits take no time: the clock is simulated and follows the recorded
+timeline, so branches that depend on time (a warm-up timeout) go as they went.
+
+The result is a new session directory. The replay fails with :class:`ReplayDiverged` — naming the
+step, the device, the transcript line, and the expected and sent bytes or call — when the rig sends
+anything else, or leaves a recorded exchange unused; otherwise its log is compared with the
+original's with times and ids masked (:func:`compare_logs`).
+
+The session is untrusted input: it is read with :func:`rig.session.read_session` (validated records,
+safe relative paths, no symlinks), every acknowledged file is verified against its sha256 before
+anything runs, the configuration snapshot is validated by pydantic (never executed), the plan is
+rebuilt by name from a registry, and nothing is written outside the new session directory.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any, get_args
+
+from pydantic import ValidationError
+
+from drivers.base import DeviceError, TranscriptDirection, TranscriptEntry
+from rig.capture import _record_unopened_station
+from rig.config import RigConfig
+from rig.dryrun import DryRunReport
+from rig.errors import RigError, SessionFormatError
+from rig.frame_stats import RawFrameAnalyzer
+from rig.interrupts import InterruptController, ReceivedSignal
+from rig.plan import build_plan
+from rig.progress import ProgressReporter, SilentProgress
+from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord
+from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts
+from rig.session import Session, SessionWriter, decode_transcript_line, read_session
+from rig.station import Station, optional_module
+from rig.steps import DeviceRole, Step, StepResult, Wait
+
+REPLAY_MODULE = "mocks.replay"
+ROLES: tuple[DeviceRole, ...] = ("relays", "spectrometer", "camera")
+#: Keys masked wherever they occur when logs are compared: times, ids and wall clocks.
+MASKED_KEYS = frozenset(
+    {
+        "session_id",
+        "wall_time",
+        "software",
+        "clock",
+        "t_s",
+        "time_s",
+        "started_s",
+        "duration_s",
+        "waited_s",
+        "backoff_s",
+        "traceback",
+    }
+)
+MASK = "<masked>"
+TRANSCRIPT_DIRECTIONS = frozenset(get_args(TranscriptDirection))
+
+
+class ReplayRefused(RigError):
+    """The session cannot be replayed as it is (invalid, tampered, unsafe, or not supported)."""
+
+    reason = "replay_refused"
+    exit_code = 2
+
+
+class ReplayDiverged(RigError):
+    """The rig sent something other than the recording, or left a recorded exchange unused."""
+
+    reason = "replay_mismatch"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A verified session, ready to replay."""
+
+    session: Session
+    start: StartRecord
+    config: RigConfig
+    transcripts: dict[DeviceRole, list[TranscriptEntry]]
+    frames: list[FileRecord]
+
+
+@dataclass(frozen=True)
+class ReplayOutcome:
+    """How a replay went.
+
+    ``mismatch`` is the diff when the rig diverged from the recording (``None`` when it did not);
+    ``difference`` the first record where the logs differ after masking (``None``: identical).
+    """
+
+    source: Path
+    run: RunOutcome
+    mismatch: str | None
+    difference: str | None
+
+    @property
+    def identical(self) -> bool:
+        return self.mismatch is None and self.difference is None
+
+
+# ------------------------------------------------------------------------------------ reading
+
+
+def _first_validation_error(exc: ValidationError) -> str:
+    first = exc.errors()[0]
+    where = ".".join(str(part) for part in first["loc"]) or "config"
+    return f"{where}: {first['msg']}"
+
+
+def parse_transcript(data: bytes, where: str) -> list[TranscriptEntry]:
+    """The entries of a transcript file's bytes (JSONL, :func:`rig.session.encode_transcript_entry`).
+
+    Raises
+    ------
+    ReplayRefused
+        For the first line that is not UTF-8 or not a transcript entry (``where`` names the file).
+    """
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ReplayRefused(f"{where} is not UTF-8 ({exc.reason} at byte {exc.start})") from None
+    entries = []
+    for number, line in enumerate(text.split("\n"), start=1):
+        if not line:
+            continue
+        try:
+            entry = decode_transcript_line(line)
+        except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+            raise ReplayRefused(
+                f"{where} line {number} is not a transcript entry ({exc!r})"
+            ) from None
+        if not isinstance(entry.direction, str) or entry.direction not in TRANSCRIPT_DIRECTIONS:
+            raise ReplayRefused(f"{where} line {number} has no valid direction")
+        entries.append(entry)
+    return entries
+
+
+def load_recording(path: Path) -> Recording:
+    """Read, validate and verify a session for replay.
+
+    Raises
+    ------
+    SessionFormatError
+        The directory is not a valid session (bad record, unsafe path).
+    ReplayRefused
+        A file differs from its record, the configuration or plan is invalid, a transcript is
+        missing or unreadable, or the session has more than one run.
+    """
+    try:
+        session = read_session(path)
+    except UnicodeDecodeError:
+        raise SessionFormatError(f"{path}: the log is not UTF-8") from None
+    start = session.start
+    if start is None:
+        raise ReplayRefused(f"{path}: the log has no start record")
+    runs = sum(isinstance(record, StartRecord) for record in session.records)
+    if runs > 1:
+        raise ReplayRefused(
+            f"{path}: the session has {runs} runs (it was resumed); replay takes one-run sessions"
+        )
+    if any(
+        isinstance(record, InterruptionRecord) and record.action == "stop-now"
+        for record in session.records
+    ):
+        raise ReplayRefused(
+            f"{path}: a second signal stopped the run in the middle of a step; such a run cannot "
+            "be reproduced exchange by exchange"
+        )
+    problems = session.verify_files()
+    if problems:
+        raise ReplayRefused(f"{path}: {problems[0]} ({len(problems)} file problem(s))")
+    try:
+        config = RigConfig.model_validate(start.config)
+        build_plan(start.plan.name, start.plan.args).close()
+    except ValidationError as exc:
+        raise ReplayRefused(
+            f"{path}: the recorded configuration or plan is invalid: {_first_validation_error(exc)}"
+        ) from None
+    missing = [role for role in ROLES if role not in start.devices]
+    if missing:
+        raise ReplayRefused(
+            f"{path}: the start record identifies no {', '.join(missing)} (the devices never "
+            "opened); there is nothing to replay"
+        )
+    transcripts: dict[DeviceRole, list[TranscriptEntry]] = {}
+    for record in session.files():
+        if record.role != "transcript":
+            continue
+        role = next((r for r in ROLES if record.path == f"transcripts/{r}.jsonl"), None)
+        if role is None:
+            raise ReplayRefused(f"{path}: unexpected transcript {record.path}")
+        data = session.file_path(record.path).read_bytes()
+        transcripts[role] = parse_transcript(data, f"{path}: {record.path}")
+    absent = [role for role in ROLES if role not in transcripts]
+    if absent:
+        raise ReplayRefused(
+            f"{path}: no acknowledged transcript for {', '.join(absent)} (a crashed run's "
+            "transcripts are not acknowledged); cannot replay"
+        )
+    frames = [record for record in session.files() if record.role in ("frame", "dark")]
+    return Recording(session, start, config, transcripts, frames)
+
+
+# ------------------------------------------------------------------------------------ running
+
+
+class _Timeline:
+    """Keeps the replay on the recorded timeline, step by step: its clock and its interruption.
+
+    When a step starts, the clock jumps to where the recording says the step *ended* (a wait: where
+    it started; the wait itself advances it), so every time a plan sees (a spectrum's, a switch's)
+    is as recorded and time-dependent branches go the same way. The clock never goes back.
+
+    A run that was stopped by a signal (one Ctrl-C: finish the step, then stop) receives the same
+    signal during its last recorded step: after it, or at its start when it was a wait that the
+    signal cut short.
+    """
+
+    def __init__(
+        self,
+        inner: ProgressReporter,
+        clock: Any,
+        recording: Recording,
+        interrupts: InterruptController,
+    ) -> None:
+        self.inner = inner
+        self.clock = clock
+        self.current_key = "(opening the devices)"
+        self._t0 = clock.now()
+        records = recording.session.records
+        self._steps = {r.key: r for r in records if isinstance(r, StepRecord)}
+        self._interrupts = interrupts
+        signals = [r.signal for r in records if isinstance(r, InterruptionRecord)]
+        self._signal = signals[0] if signals else None
+        last = next((r for r in reversed(records) if isinstance(r, StepRecord)), None)
+        self._last_key = last.key if last is not None else None
+        self._cut_short = last is not None and (last.result or {}).get("completed") is False
+
+    def _receive_signal(self) -> None:
+        assert self._signal is not None
+        self._interrupts.received.append(
+            ReceivedSignal(self._signal, time.monotonic(), "finish-step")
+        )
+
+    def start(self, estimate: DryRunReport | None) -> None:
+        self.current_key = "(identifying the devices)"
+        if self._signal is not None and self._last_key is None:
+            self._receive_signal()
+        self.inner.start(estimate)
+
+    def step_started(self, step: Step) -> None:
+        self.current_key = step.key
+        recorded = self._steps.get(step.key)
+        if recorded is not None:
+            target = self._t0 + recorded.started_s
+            if not isinstance(step, Wait):
+                target += recorded.duration_s
+            ahead_s = target - self.clock.now()
+            if ahead_s > 0:
+                self.clock.advance(ahead_s)
+        if self._signal is not None and step.key == self._last_key and self._cut_short:
+            self._receive_signal()
+        self.inner.step_started(step)
+
+    def step_done(self, step: Step, result: StepResult) -> None:
+        if self._signal is not None and step.key == self._last_key and not self._cut_short:
+            self._receive_signal()
+        self.inner.step_done(step, result)
+
+    def message(self, text: str) -> None:
+        self.inner.message(text)
+
+    def finish(self, completed: bool) -> None:
+        self.current_key = "(closing the devices)"
+        self.inner.finish(completed)
+
+
+def _frame_source(recording: Recording) -> Callable[[int, int, str | None], bytes]:
+    """Serves the n-th download from the session's frame files (by sha256 when recorded)."""
+    by_sha256 = {record.sha256: record for record in recording.frames}
+
+    def frame(number: int, size: int, sha256: str | None) -> bytes:
+        if sha256 is not None:
+            record = by_sha256.get(sha256)
+        else:
+            record = recording.frames[number] if number < len(recording.frames) else None
+        if record is None or record.size != size:
+            raise ReplayDiverged(
+                f"download {number + 1} of the camera ({size} bytes, sha256 {sha256}) is not a "
+                "frame the session acknowledges"
+            )
+        data = recording.session.file_path(record.path).read_bytes()
+        if hashlib.sha256(data).hexdigest() != record.sha256:
+            raise ReplayRefused(f"{record.path} changed while it was replayed")
+        return data
+
+    return frame
+
+
+def _recorded_devices(recording: Recording, module: ModuleType) -> dict[str, Any]:
+    devices = recording.config.devices
+    timeouts = {
+        "relays": devices.relays.timeout_s,
+        "spectrometer": devices.spectrometer.timeout_s,
+        "camera": devices.camera.timeout_s,
+    }
+    return {
+        role: module.RecordedDevice(
+            identity=recording.start.devices[role].model_dump(),
+            entries=recording.transcripts[role],
+            timeout_s=timeouts[role],
+            download_timeout_s=devices.camera.download_timeout_s,
+        )
+        for role in ROLES
+    }
+
+
+def _mismatch_text(mismatch: Any, step_key: str) -> str:
+    return "\n".join(
+        [
+            f"step {step_key}: {mismatch.role}: {mismatch.problem}",
+            f"  at transcripts/{mismatch.role}.jsonl line {mismatch.index}"
+            if mismatch.index is not None
+            else "  after the last recorded entry",
+            f"  expected: {mismatch.describe(mismatch.expected)}",
+            f"  sent:     {mismatch.describe(mismatch.sent)}",
+        ]
+    )
+
+
+def default_replay_dir(source: Path) -> Path:
+    """``<session>-replay`` next to the session."""
+    resolved = source.resolve()
+    return resolved.parent / f"{resolved.name}-replay"
+
+
+def replay_session(
+    source: Path,
+    out: Path | None = None,
+    *,
+    progress: ProgressReporter | None = None,
+    interrupts: InterruptController | None = None,
+) -> ReplayOutcome:
+    """Replay the session at ``source`` into the new session directory ``out``.
+
+    Parameters
+    ----------
+    source
+        The recorded session.
+    out
+        The replay's session directory (must not exist; default :func:`default_replay_dir`).
+    progress, interrupts
+        Passed to the runner.
+
+    Raises
+    ------
+    SessionFormatError, ReplayRefused
+        The session cannot be replayed (see :func:`load_recording`); nothing is written.
+    rig.errors.SessionWriteError
+        ``out`` exists or cannot be created.
+    """
+    recording = load_recording(source)
+    target = out if out is not None else default_replay_dir(source)
+    if target.resolve().is_relative_to(source.resolve()):
+        raise ReplayRefused(
+            f"{target} lies inside the recorded session {source}; replay never writes there"
+        )
+    module = optional_module(REPLAY_MODULE, f"session replay ({REPLAY_MODULE})")
+    interrupts = interrupts or InterruptController()
+    session = SessionWriter(target, guard=interrupts.critical)
+    snapshot = recording.config.model_dump(mode="json")
+    try:
+        bench = module.open_replay(
+            _recorded_devices(recording, module), session.transcript_sink, _frame_source(recording)
+        )
+    except (DeviceError, RigError, ValueError) as exc:
+        _record_unopened_station(session, recording.start.plan, snapshot, exc)
+        if isinstance(exc, module.ReplayMismatch):
+            raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
+        raise ReplayRefused(f"the recorded devices cannot be opened for replay: {exc}") from None
+    station = Station(
+        bench.spectrometer,
+        bench.camera,
+        bench.relays,
+        bench.clock,
+        RawFrameAnalyzer(),
+        on_close=[bench.close],
+    )
+    timeline = _Timeline(progress or SilentProgress(), bench.clock, recording, interrupts)
+    bench.mismatches.context = lambda: timeline.current_key
+    runner = Runner(
+        station,
+        session,
+        timeouts=StepTimeouts.from_config(recording.config),
+        retry=RetryPolicy(),
+        progress=timeline,
+        interrupts=interrupts,
+    )
+    try:
+        run = runner.run(
+            build_plan(recording.start.plan.name, recording.start.plan.args),
+            recording.start.plan,
+            snapshot,
+        )
+    finally:
+        station.close()
+    for role in ROLES:
+        bench.scripts[role].finish()
+    first = bench.mismatches.first
+    mismatch = None if first is None else _mismatch_text(first, bench.mismatches.where(first))
+    difference = None
+    if mismatch is None:
+        difference = compare_logs(recording.session, read_session(run.session))
+    return ReplayOutcome(source, run, mismatch, difference)
+
+
+# ------------------------------------------------------------------------------------ comparing
+
+
+def _masked(value: object, paths: tuple[str, ...]) -> object:
+    if isinstance(value, dict):
+        return {
+            key: MASK if key in MASKED_KEYS else _masked(item, paths) for key, item in value.items()
+        }
+    if isinstance(value, list):
+        return [_masked(item, paths) for item in value]
+    if isinstance(value, str):
+        for path in paths:
+            value = value.replace(path, "<session>")
+    return value
+
+
+def masked_record(record: Record, session_path: Path) -> dict[str, Any]:
+    """A record as compared: times, ids, wall clocks and the session's own path masked.
+
+    A transcript's size and sha256 are masked too: its entries carry wall-clock timestamps.
+    """
+    data = json.loads(record.model_dump_json())
+    if isinstance(record, FileRecord) and record.role == "transcript":
+        data["size"] = data["sha256"] = MASK
+    paths = (str(session_path.resolve()), str(session_path))
+    masked = _masked(data, paths)
+    assert isinstance(masked, dict)
+    return masked
+
+
+def compare_logs(original: Session, replay: Session) -> str | None:
+    """The first record where the two logs differ after masking, described; ``None`` if identical."""
+    for index in range(max(len(original.records), len(replay.records))):
+        left = (
+            masked_record(original.records[index], original.path)
+            if index < len(original.records)
+            else None
+        )
+        right = (
+            masked_record(replay.records[index], replay.path)
+            if index < len(replay.records)
+            else None
+        )
+        if left != right:
+            return "\n".join(
+                [
+                    f"record {index} (line {index + 1}) differs:",
+                    f"  original: {json.dumps(left, sort_keys=True)}",
+                    f"  replay:   {json.dumps(right, sort_keys=True)}",
+                ]
+            )
+    return None
