@@ -20,7 +20,7 @@ from typing import Any
 
 from rig.config import RigConfig
 from rig.errors import StationUnavailable
-from rig.frame_stats import RawFrameAnalyzer
+from rig.frame_stats import RawFrameAnalyzer, frame_exposure_s
 from rig.station import Station, StationBuilder, TranscriptFactory
 
 BENCH_MODULE = "mocks.bench"
@@ -94,6 +94,8 @@ def station_of(twin: Any) -> Station:
         twin.clock,
         RawFrameAnalyzer(),
         on_close=[twin.close],
+        frame_exposure=frame_exposure_s,
+        step_hook=twin.begin_step,
     )
 
 
