@@ -313,6 +313,14 @@ def _remove_incoming(session: Session) -> None:
                 leftover.unlink()
 
 
+def recorded_config(path: Path) -> RigConfig:
+    """The configuration a session was captured with (its start record's snapshot)."""
+    start = read_session(path).start
+    if start is None:
+        raise NotResumable(f"{path}: the log has no start record; there is nothing to resume")
+    return RigConfig.model_validate(start.config)
+
+
 def run_resume(
     path: Path,
     *,
@@ -360,7 +368,9 @@ def run_resume(
             interrupts=interrupts,
         )
         runner.frame_digests.update(
-            record.sha256 for record in session.files() if record.role in ("frame", "dark")
+            (record.sha256, record.key)
+            for record in session.files()
+            if record.role in ("frame", "dark")
         )
         plan = resumed_plan(plan_of(session), point, session, writer.run)
         return runner.run(

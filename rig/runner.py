@@ -255,8 +255,9 @@ class Runner:
         self._config: dict[str, Any] = {}
         #: Relay channels (from 1) that read as on when the run opened the board.
         self.relays_found_on: tuple[int, ...] = ()
-        #: sha256 of every frame acknowledged so far: a copy of one is never a new frame.
-        self.frame_digests: set[str] = set()
+        #: The step of every frame acknowledged so far, by sha256: a copy of another step's frame
+        #: is never a new frame (the same step taken again may give the same bytes on the twin).
+        self.frame_digests: dict[str, str] = {}
         # The first reading after a settings change is checked against the new setting.
         self._camera_changed = True
         self._spectrometer_exposure_ms: float | None = None
@@ -623,7 +624,7 @@ class Runner:
         for _ in range(STALE_READING_ATTEMPTS):
             captured, record = self._capture_once(step, dark)
             problem = self._stale_frame(step, record)
-            self.frame_digests.add(record.sha256)
+            self.frame_digests.setdefault(record.sha256, step.key)
             if problem is None:
                 break
             self._discard_stale(step.key, record.path, problem)
@@ -689,8 +690,9 @@ class Runner:
         A copy of a frame the session already holds is never a new frame. The first frame after a
         settings change must also show, in its own metadata, the exposure the camera was set to.
         """
-        if record.sha256 in self.frame_digests:
-            return "it is a byte-for-byte copy of an earlier frame of this session"
+        earlier = self.frame_digests.get(record.sha256, step.key)
+        if earlier != step.key:
+            return f"it is a byte-for-byte copy of the frame of {earlier}"
         read_exposure = self.station.frame_exposure
         if not self._camera_changed or read_exposure is None:
             return None

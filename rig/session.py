@@ -662,6 +662,12 @@ class SessionSummary:
     plan: str | None = None
     frames: int = 0
     reason: str = ""
+    runs: int = 0
+
+    @property
+    def resumable(self) -> bool:
+        """``rig resume`` continues interrupted and failed sessions (not complete or invalid ones)."""
+        return self.status in ("interrupted", "failed") and self.started is not None
 
 
 def summarise(path: Path) -> SessionSummary:
@@ -676,6 +682,9 @@ def summarise(path: Path) -> SessionSummary:
     reason = stop.reason if stop is not None else "no stop record (crashed or killed)"
     if session.torn is not None:
         reason += f"; torn last line {session.torn.line}"
+    runs = session.records[-1].run if session.records else 0
+    if runs > 1:
+        reason += f" (run {runs})"
     return SessionSummary(
         path,
         session.status,
@@ -683,6 +692,7 @@ def summarise(path: Path) -> SessionSummary:
         start.plan.name if start else None,
         frames,
         reason,
+        runs,
     )
 
 
