@@ -180,16 +180,11 @@ def sessions(
     if not found:
         console.print(f"no sessions in {directory}")
         return
-    table = Table(
-        "session",
-        "status",
-        "resumable",
-        "started (UTC)",
-        "frames",
-        "reason",
-        box=None,
-        pad_edge=False,
-    )
+    table = Table(box=None, pad_edge=False)
+    # Session names are what the other commands take: never shortened (the reason wraps instead).
+    table.add_column("session", no_wrap=True, min_width=max(len(f.path.name) for f in found))
+    for heading in ("status", "resumable", "started (UTC)", "frames", "reason"):
+        table.add_column(heading)
     for summary in found:
         started = f"{summary.started:%Y-%m-%d %H:%M:%S}" if summary.started else "-"
         table.add_row(

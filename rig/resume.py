@@ -46,7 +46,7 @@ from rig.errors import NotResumable, ResumeMismatch, RigError
 from rig.interrupts import InterruptController
 from rig.plan import Plan, build_plan
 from rig.progress import ProgressReporter
-from rig.records import DiscardRecord, ResumeRecord, StepRecord
+from rig.records import DiscardRecord, ResumeRecord, StartRecord, StepRecord
 from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts
 from rig.session import FileProblem, Session, SessionWriter, read_session
 from rig.station import StationBuilder, resolve_builder, station_kind
@@ -146,13 +146,16 @@ def reusable_steps(session: Session, unverified: list[FileProblem]) -> dict[str,
     return reusable
 
 
+def start_of(session: Session) -> StartRecord:
+    """The session's first start record (:class:`NotResumable` when there is none)."""
+    if session.start is None:
+        raise NotResumable(f"{session.path}: the log has no start record; nothing to resume")
+    return session.start
+
+
 def plan_of(session: Session) -> Plan:
     """The session's plan, rebuilt from its start record."""
-    start = session.start
-    if start is None:
-        raise NotResumable(
-            f"{session.path}: the log has no start record; there is nothing to resume"
-        )
+    start = start_of(session)
     return build_plan(start.plan.name, start.plan.args)
 
 
@@ -205,6 +208,8 @@ def resumed_plan(plan: Plan, point: ResumePoint, session: Session, run: int) -> 
         record = None
         if not executing and step.key != point.resume_key:
             record = point.reusable.get(step.key)
+            if record is not None and not _same_params(step, record):
+                record = None  # the plan took another branch than the recorded run
         result: StepResult
         if record is not None and not point.must_redo(step):
             assert record.result is not None
@@ -315,10 +320,7 @@ def _remove_incoming(session: Session) -> None:
 
 def recorded_config(path: Path) -> RigConfig:
     """The configuration a session was captured with (its start record's snapshot)."""
-    start = read_session(path).start
-    if start is None:
-        raise NotResumable(f"{path}: the log has no start record; there is nothing to resume")
-    return RigConfig.model_validate(start.config)
+    return RigConfig.model_validate(start_of(read_session(path)).config)
 
 
 def run_resume(
@@ -339,9 +341,7 @@ def run_resume(
         ``path`` is not a valid session.
     """
     session = read_session(path)
-    start = session.start
-    if start is None:
-        raise NotResumable(f"{path}: the log has no start record; there is nothing to resume")
+    start = start_of(session)
     if session.status == "complete":
         raise NotResumable(
             f"{path} is complete; there is nothing to resume (estimate it with rig estimate)"

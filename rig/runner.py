@@ -550,6 +550,12 @@ class Runner:
         self._counts["discarded"] += 1
         self.progress.message(f"{key}: discarded {path}: {problem}; taking it again")
 
+    def _still_stale(self, role: DeviceRole, what: str) -> StaleReading:
+        return StaleReading(
+            self._workers[role].device,
+            f"{STALE_READING_ATTEMPTS} readings in a row after a settings change {what}",
+        )
+
     def _measure(self, step: MeasureSpectrum) -> SpectrumMeasured:
         configured_ms = self._spectrometer_exposure_ms
         for _ in range(STALE_READING_ATTEMPTS):
@@ -590,10 +596,8 @@ class Runner:
                 f"it was set to {configured_ms:g} ms",
             )
         else:
-            raise StaleReading(
-                self._workers["spectrometer"].device,
-                f"{STALE_READING_ATTEMPTS} spectra in a row did not use the integration time it "
-                f"was set to ({configured_ms:g} ms)",
+            raise self._still_stale(
+                "spectrometer", f"did not use the integration time ({configured_ms:g} ms)"
             )
         # Checked: later readings need no check until the next settings change.
         self._spectrometer_exposure_ms = None
@@ -629,11 +633,7 @@ class Runner:
                 break
             self._discard_stale(step.key, record.path, problem)
         else:
-            raise StaleReading(
-                self._workers["camera"].device,
-                f"{STALE_READING_ATTEMPTS} frames in a row were stale after setting the exposure "
-                f"to {step.exposure_s:g} s",
-            )
+            raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
         self._camera_changed = False
         stats = None
         if dark:

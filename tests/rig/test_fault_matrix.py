@@ -47,6 +47,7 @@ from rig.steps import FloatArray
 from rig.twin import twin_station_builder
 from tests.rig.fakes import wait_for, write_config
 from tests.rig.test_cli import run_cli
+from tests.rig.test_signals import finish
 from tests.rig.twin_setup import twin_config_data
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -264,16 +265,6 @@ def start_twin_capture(directory: Path, slow_capture_s: float) -> subprocess.Pop
     return process
 
 
-def finish(process: subprocess.Popen[str]) -> tuple[int, str]:
-    try:
-        out, err = process.communicate(timeout=60)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        out, err = process.communicate(timeout=10)
-        raise AssertionError(f"the capture did not stop:\n{out}\n{err}") from None
-    return process.returncode, err
-
-
 def the_session(directory: Path) -> Path:
     (path,) = find_sessions(directory / "sessions")
     return path
@@ -300,7 +291,7 @@ def test_signals(
         if number:
             time.sleep(0.2)  # let the first be handled (a 30 s capture is still going on)
         process.send_signal(signum)
-    code, err = finish(process)
+    code, _, err = finish(process)
     assert code == exit_code, err
     path = the_session(tmp_path)
     stop = read_session(path).stop
