@@ -39,17 +39,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.spectra import read_spectrum_csv
-from drivers.base import DeviceError
-from rig.capture import _record_unopened_station
+from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
 from rig.errors import NotResumable, ResumeMismatch, RigError
 from rig.interrupts import InterruptController
 from rig.plan import Plan, build_plan
 from rig.progress import ProgressReporter
 from rig.records import DiscardRecord, ResumeRecord, StartRecord, StepRecord
-from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts
+from rig.runner import RetryPolicy, Runner, RunOutcome
 from rig.session import FileProblem, Session, SessionWriter, read_session
-from rig.station import StationBuilder, resolve_builder, station_kind
+from rig.station import StationBuilder
 from rig.steps import (
     AllLampsOff,
     Capture,
@@ -262,13 +261,6 @@ def _set_exposure_again(step: SetExposure, record: StepRecord) -> Generator[Step
         )
 
 
-def _after_start(
-    writer: SessionWriter, runner: Runner, session: Session, point: ResumePoint
-) -> None:
-    _write_resume_records(writer, runner, session, point)
-    _reanalyse_reused_frames(runner, session, point)
-
-
 def _write_resume_records(
     writer: SessionWriter, runner: Runner, session: Session, point: ResumePoint
 ) -> None:
@@ -352,32 +344,21 @@ def run_resume(
     interrupts = interrupts or InterruptController()
     writer = SessionWriter.append(session, guard=interrupts.critical)
     _remove_incoming(session)
-    open_builder = builder or resolve_builder(station_kind(config))
-    try:
-        station = open_builder(config, writer.transcript_sink)
-    except (DeviceError, RigError) as exc:
-        _record_unopened_station(writer, start.plan, start.config, exc)
-        raise
-    try:
-        runner = Runner(
-            station,
-            writer,
-            timeouts=StepTimeouts.from_config(config),
-            retry=retry,
-            progress=progress,
-            interrupts=interrupts,
-        )
+
+    def after_start(runner: Runner) -> None:
         runner.frame_digests.update(
             (record.sha256, record.key)
             for record in session.files()
             if record.role in ("frame", "dark")
         )
-        plan = resumed_plan(plan_of(session), point, session, writer.run)
-        return runner.run(
-            plan,
-            start.plan,
-            start.config,
-            after_start=lambda: _after_start(writer, runner, session, point),
-        )
-    finally:
-        station.close()
+        _write_resume_records(writer, runner, session, point)
+        _reanalyse_reused_frames(runner, session, point)
+
+    return run_on_station(
+        config,
+        writer,
+        resumed_plan(plan_of(session), point, session, writer.run),
+        start.plan,
+        RunOptions(progress, interrupts, retry, builder),
+        after_start=after_start,
+    )
