@@ -95,6 +95,7 @@ def run_capture(
     args = StandardCaptureArgs.from_config(config)
     plan_info = PlanInfo(name=PLAN_NAME, args=args.model_dump(mode="json"))
     estimate = walk(standard_capture(args), ModelledBench(config))
+    builder = builder or resolve_builder(station_kind(config))  # before anything is created
     interrupts = interrupts or InterruptController()
     session = SessionWriter.create(out_dir or config.output_dir, guard=interrupts.critical)
     return run_on_station(

@@ -48,7 +48,7 @@ from rig.progress import ProgressReporter
 from rig.records import DiscardRecord, ResumeRecord, StartRecord, StepRecord
 from rig.runner import RetryPolicy, Runner, RunOutcome
 from rig.session import FileProblem, Session, SessionWriter, read_session
-from rig.station import StationBuilder
+from rig.station import StationBuilder, resolve_builder, station_kind
 from rig.steps import (
     AllLampsOff,
     Capture,
@@ -341,6 +341,7 @@ def run_resume(
     config = RigConfig.model_validate(start.config)
     unverified = session.verify_files()
     point = find_resume_point(session, unverified)
+    builder = builder or resolve_builder(station_kind(config))  # before the log is touched
     interrupts = interrupts or InterruptController()
     writer = SessionWriter.append(session, guard=interrupts.critical)
     _remove_incoming(session)
