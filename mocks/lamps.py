@@ -115,10 +115,19 @@ class LampBank:
         Number of relay channels on the board.
     clock
         Time source for warm-up.
+    time_resolution_s
+        How long a lamp has been on is rounded to this (0: not rounded). The twin rounds to 1 µs so
+        that a lamp's timeline rebuilt in another process (resume) gives the same light to the bit,
+        whatever the float rounding of the absolute clock values.
     """
 
     def __init__(
-        self, lamps: Sequence[VirtualLamp], n_channels: int, clock: Clock | None = None
+        self,
+        lamps: Sequence[VirtualLamp],
+        n_channels: int,
+        clock: Clock | None = None,
+        *,
+        time_resolution_s: float = 0.0,
     ) -> None:
         channels = [lamp.channel for lamp in lamps]
         if len(set(channels)) != len(channels):
@@ -128,6 +137,7 @@ class LampBank:
         self.lamps = tuple(lamps)
         self.n_channels = n_channels
         self.clock: Clock = clock or WallClock()
+        self.time_resolution_s = time_resolution_s
         self._switched_on_at: dict[int, float] = {}
         self._lock = threading.Lock()
 
@@ -149,7 +159,17 @@ class LampBank:
         now = self.clock.now()
         with self._lock:
             on = dict(self._switched_on_at)
-        return [(lamp, now - on[lamp.channel]) for lamp in self.lamps if lamp.channel in on]
+        resolution = self.time_resolution_s
+        return [
+            (
+                lamp,
+                round((now - on[lamp.channel]) / resolution) * resolution
+                if resolution
+                else now - on[lamp.channel],
+            )
+            for lamp in self.lamps
+            if lamp.channel in on
+        ]
 
     def radiance(self, wavelength_nm: ArrayLike) -> NDArray[np.float64]:
         """Total spectral radiance of the lit lamps at ``wavelength_nm`` (zeros when all are off)."""

@@ -9,15 +9,18 @@ record saying why.
 from __future__ import annotations
 
 import contextlib
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 from drivers.base import DeviceError
 from rig.config import RigConfig
-from rig.dryrun import ModelledBench, check_limits, walk
+from rig.dryrun import DryRunReport, ModelledBench, check_limits, walk
 from rig.errors import LimitsExceeded, RigError
 from rig.interrupts import InterruptController
-from rig.plan import StandardCaptureArgs, standard_capture
+from rig.plan import Plan, StandardCaptureArgs, standard_capture
 from rig.progress import ProgressReporter
 from rig.records import PlanInfo, StartRecord, StopRecord
 from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts, error_info, software_info
@@ -91,11 +94,48 @@ def run_capture(
         raise LimitsExceeded("; ".join(str(v) for v in violations))
     args = StandardCaptureArgs.from_config(config)
     plan_info = PlanInfo(name=PLAN_NAME, args=args.model_dump(mode="json"))
-    config_snapshot = config.model_dump(mode="json")
     estimate = walk(standard_capture(args), ModelledBench(config))
-    open_builder = builder or resolve_builder(station_kind(config))
+    builder = builder or resolve_builder(station_kind(config))  # before anything is created
     interrupts = interrupts or InterruptController()
     session = SessionWriter.create(out_dir or config.output_dir, guard=interrupts.critical)
+    return run_on_station(
+        config,
+        session,
+        standard_capture(args),
+        plan_info,
+        RunOptions(progress, interrupts, retry, builder),
+        estimate=estimate,
+    )
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run is done: progress, signal handling, retries, and the station builder (default:
+    the one registered for the configured device kinds)."""
+
+    progress: ProgressReporter | None = None
+    interrupts: InterruptController | None = None
+    retry: RetryPolicy | None = None
+    builder: StationBuilder | None = None
+
+
+def run_on_station(
+    config: RigConfig,
+    session: SessionWriter,
+    plan: Plan,
+    plan_info: PlanInfo,
+    options: RunOptions,
+    *,
+    estimate: DryRunReport | None = None,
+    after_start: Callable[[Runner], None] | None = None,
+) -> RunOutcome:
+    """Open the station recording into ``session``, run ``plan`` on it, and close it.
+
+    A station that cannot be opened still leaves a start and a stop record saying why.
+    ``after_start`` is called with the runner right after the run's start record.
+    """
+    config_snapshot = config.model_dump(mode="json")
+    open_builder = options.builder or resolve_builder(station_kind(config))
     try:
         station = open_builder(config, session.transcript_sink)
     except (DeviceError, RigError) as exc:
@@ -106,10 +146,11 @@ def run_capture(
             station,
             session,
             timeouts=StepTimeouts.from_config(config),
-            retry=retry,
-            progress=progress,
-            interrupts=interrupts,
+            retry=options.retry,
+            progress=options.progress,
+            interrupts=options.interrupts,
         )
-        return runner.run(standard_capture(args), plan_info, config_snapshot, estimate)
+        hook = None if after_start is None else functools.partial(after_start, runner)
+        return runner.run(plan, plan_info, config_snapshot, estimate, after_start=hook)
     finally:
         station.close()  # the runner has closed it already, unless it failed to start

@@ -23,6 +23,7 @@ from rig.errors import RigError
 if TYPE_CHECKING:
     from rig.config import RigConfig
     from rig.progress import ProgressReporter
+    from rig.runner import RunOutcome
 
 app = typer.Typer(
     name="rig",
@@ -79,12 +80,32 @@ def capture(
 
     rig_config = load_config(config)
     outcome = run_capture(rig_config, out_dir=out, progress=_capture_progress(rig_config, quiet))
+    _report_run(outcome)
+
+
+def _report_run(outcome: RunOutcome) -> None:
+    """Print how a capture or resume ended and exit with its code."""
     status = {"success": "complete", "abort": "interrupted", "fail": "failed"}[outcome.exit_status]
     typer.echo(f"session: {outcome.session}")
     typer.echo(f"status: {status} ({outcome.reason}): {outcome.message}")
     if not outcome.lamps_off:
         typer.echo("WARNING: the lamps could not be confirmed off; check them by hand", err=True)
     raise typer.Exit(outcome.exit_code)
+
+
+@app.command()
+def resume(
+    session: Annotated[Path, typer.Argument(help="The session directory (with log.jsonl).")],
+    quiet: Annotated[
+        bool, typer.Option("--quiet", "-q", help="No progress bar; only the result.")
+    ] = False,
+) -> None:
+    """Continue an interrupted or failed session in a new run: lamps off first, devices set up again,
+    every file verified, the lit lamp warmed up and measured again, done steps skipped."""
+    from rig.resume import recorded_config, run_resume
+
+    rig_config = recorded_config(session)
+    _report_run(run_resume(session, progress=_capture_progress(rig_config, quiet)))
 
 
 @app.command("dry-run")
@@ -144,7 +165,9 @@ def sessions(
     ] = None,
     config: ConfigOption = DEFAULT_CONFIG,
 ) -> None:
-    """List the sessions in a directory with their status: complete, interrupted or failed."""
+    """List the sessions in a directory with their status: complete, interrupted or failed.
+
+    Interrupted and failed sessions can be continued with ``rig resume``."""
     from rig.config import load_config
     from rig.session import find_sessions, summarise
 
@@ -157,13 +180,20 @@ def sessions(
     if not found:
         console.print(f"no sessions in {directory}")
         return
-    table = Table(
-        "session", "status", "started (UTC)", "frames", "reason", box=None, pad_edge=False
-    )
+    table = Table(box=None, pad_edge=False)
+    # Session names are what the other commands take: never shortened (the reason wraps instead).
+    table.add_column("session", no_wrap=True, min_width=max(len(f.path.name) for f in found))
+    for heading in ("status", "resumable", "started (UTC)", "frames", "reason"):
+        table.add_column(heading)
     for summary in found:
         started = f"{summary.started:%Y-%m-%d %H:%M:%S}" if summary.started else "-"
         table.add_row(
-            summary.path.name, summary.status, started, str(summary.frames), summary.reason
+            summary.path.name,
+            summary.status,
+            "yes" if summary.resumable else "no",
+            started,
+            str(summary.frames),
+            summary.reason,
         )
     console.print(table)
 

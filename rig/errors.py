@@ -122,3 +122,22 @@ class InvalidReading(DeviceError):
     """A device returned a reading that is not a valid measurement (e.g. a malformed spectrum)."""
 
     reason = "invalid_reading"
+
+
+class StaleReading(DeviceError):
+    """The first readings after a settings change kept showing the old setting (or an old frame)."""
+
+    reason = "stale_reading"
+
+
+class NotResumable(RigError):
+    """``rig resume`` was given a session it cannot continue (complete, or without a start record)."""
+
+    reason = "not_resumable"
+    exit_code = 2
+
+
+class ResumeMismatch(RigError):
+    """A resumed run found the devices answering differently from the recorded run."""
+
+    reason = "resume_mismatch"

@@ -39,7 +39,7 @@ from calib.errors import InputError
 from calib.hdr import FrameRecord, HdrImage
 from calib.profiles import DetectionError, DiffractionGeometry, detect_geometry
 from calib.profiles.geometry import rectangle_window, sample_positions, to_uv
-from calib.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw
+from calib.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw, read_raw_metadata
 from rig.analysis import FrameStats
 from rig.errors import FrameAnalysisError
 
@@ -254,6 +254,14 @@ def _spot_only_stats(frame: _Frame) -> FrameStats:
         band_signal_dn=0.0,
         band_saturated_fraction=0.0,
     )
+
+
+def frame_exposure_s(frame: Path) -> float | None:
+    """The exposure (s) a RAW frame's own metadata records; ``None`` when it cannot be read."""
+    try:
+        return float(read_raw_metadata(frame).exposure_s)
+    except (InputError, OSError, ValueError):
+        return None
 
 
 class RawFrameAnalyzer:

@@ -15,7 +15,8 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 SCHEMA_NAME: Literal["spectral-rig/session"] = "spectral-rig/session"
-SCHEMA_VERSION: Literal[1] = 1
+#: Version 2 adds the ``discard`` and ``resume`` records (issue 6); version 1 logs still read.
+SCHEMA_VERSION: Literal[2] = 2
 LOG_NAME = "log.jsonl"
 FRAMES_DIR = "frames"
 SPECTRA_DIR = "spectra"
@@ -114,7 +115,7 @@ class StartRecord(Record):
 
     type: Literal["start"] = "start"
     schema_name: Literal["spectral-rig/session"] = SCHEMA_NAME
-    schema_version: Literal[1] = SCHEMA_VERSION
+    schema_version: Literal[1, 2] = SCHEMA_VERSION
     session_id: str = Field(pattern=r"^[0-9a-f]{32}$")
     wall_time: datetime
     software: SoftwareInfo
@@ -171,6 +172,55 @@ class FileRecord(Record):
     bandwidth_nm: float | None = Field(default=None, gt=0)
 
 
+class DiscardRecord(Record):
+    """An acknowledged file that must not be used: a stale reading, or a file that no longer verifies.
+
+    ``stale``: the first reading after a settings change did not match the new setting (a frame whose
+    metadata shows the old exposure, or a copy of an earlier frame); the step took the reading again.
+    ``unverified``: at resume, the file was missing or its size or sha256 differed from its ``file``
+    record; its step is done again.
+    """
+
+    type: Literal["discard"] = "discard"
+    key: StepKey
+    path: SessionPath
+    reason: Literal["stale", "unverified"]
+    message: str
+
+
+class ResumeRecord(Record):
+    """Second record of a resumed run: what the previous runs left and what this run does about it.
+
+    Parameters
+    ----------
+    previous_status, previous_reason
+        The session's status before this run (``interrupted`` or ``failed``) and the last stop's
+        reason, or ``no_stop_record`` after a crash, ``kill -9`` or a power loss.
+    previous_run
+        The run being continued.
+    relays_found_on
+        Relay channels (from 1) that read as on when this run opened the board; switched off before
+        anything else.
+    torn_line
+        Where a torn last line of the log was moved (``log.torn-<n>``), if there was one.
+    skipped, redo
+        How many recorded steps are reused without touching a device, and the keys of recorded
+        steps done again (device set-up, and the warm-up and spectra of the lamp that was on).
+    resume_key
+        The first step that was not done (``None``: every step was, only the stop was missing).
+    """
+
+    type: Literal["resume"] = "resume"
+    previous_status: Literal["interrupted", "failed"]
+    previous_reason: Reason
+    previous_run: int = Field(ge=1)
+    relays_found_on: list[int] = Field(default_factory=list)
+    torn_line: str | None = None
+    skipped: int = Field(ge=0)
+    redo: list[StepKey] = Field(default_factory=list)
+    resume_key: StepKey | None = None
+
+
 class InterruptionRecord(Record):
     """A signal the run received, and what it did about it."""
 
@@ -196,6 +246,13 @@ class StopRecord(Record):
 
 
 AnyRecord = Annotated[
-    StartRecord | StepRecord | RetryRecord | FileRecord | InterruptionRecord | StopRecord,
+    StartRecord
+    | StepRecord
+    | RetryRecord
+    | FileRecord
+    | DiscardRecord
+    | ResumeRecord
+    | InterruptionRecord
+    | StopRecord,
     Field(discriminator="type"),
 ]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import platform
 import re
 import sys
@@ -42,14 +43,17 @@ from rig.errors import (
     PlanProtocolError,
     RigError,
     SessionWriteError,
+    StaleReading,
 )
 from rig.interrupts import HaltRequested, InterruptController
 from rig.plan import Plan
 from rig.progress import ProgressReporter, SilentProgress
 from rig.records import (
     DeviceRecord,
+    DiscardRecord,
     ErrorInfo,
     ExitStatus,
+    FileRecord,
     InterruptionRecord,
     PlanInfo,
     RetryRecord,
@@ -92,6 +96,10 @@ WAIT_SLICE_S = 0.25
 HALT_CLOSE_TIMEOUT_S = 0.2
 _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,8}$")
 DEVICE_ROLES: tuple[DeviceRole, ...] = ("relays", "camera", "spectrometer")
+#: Readings a step takes at most while the first reading after a settings change is stale.
+STALE_READING_ATTEMPTS = 3
+#: Relative difference above which a reading's own exposure shows a setting other than the new one.
+STALE_EXPOSURE_RTOL = 0.02
 
 
 @dataclass(frozen=True)
@@ -233,11 +241,26 @@ class Runner:
         self._workers = {role: DeviceWorker(role, role) for role in DEVICE_ROLES}
         self._t0 = self.clock.now()
         self._seen_keys: set[str] = set()
-        self._counts = {"steps": 0, "retries": 0, "frames": 0, "dark_frames": 0, "spectra": 0}
+        self._counts = {
+            "steps": 0,
+            "retries": 0,
+            "frames": 0,
+            "dark_frames": 0,
+            "spectra": 0,
+            "discarded": 0,
+        }
         self._started = False
         self._identities: dict[str, DeviceIdentity] = {}
         self._plan_info = PlanInfo(name="unknown", args={})
         self._config: dict[str, Any] = {}
+        #: Relay channels (from 1) that read as on when the run opened the board.
+        self.relays_found_on: tuple[int, ...] = ()
+        #: The step of every frame acknowledged so far, by sha256: a copy of another step's frame
+        #: is never a new frame (the same step taken again may give the same bytes on the twin).
+        self.frame_digests: dict[str, str] = {}
+        # The first reading after a settings change is checked against the new setting.
+        self._camera_changed = True
+        self._spectrometer_exposure_ms: float | None = None
 
     # ------------------------------------------------------------------------------ the run
 
@@ -247,8 +270,15 @@ class Runner:
         plan_info: PlanInfo,
         config: dict[str, Any],
         estimate: DryRunReport | None = None,
+        *,
+        after_start: Callable[[], None] | None = None,
     ) -> RunOutcome:
-        """Run ``plan`` to the end, to a failure or to an interrupt; lamps end off in every case."""
+        """Run ``plan`` to the end, to a failure or to an interrupt; lamps end off in every case.
+
+        Before anything else the relays are read and switched off (a lamp left on by a killed
+        process goes off first). ``after_start`` writes records that follow the start record (the
+        resume record).
+        """
         self.interrupts.install()
         self._t0 = self.clock.now()
         self._plan_info, self._config = plan_info, config
@@ -260,8 +290,11 @@ class Runner:
         current: Step | None = None
         try:
             try:
+                self._lamps_off_first()
                 self._identify()
                 self._write_start()
+                if after_start is not None:
+                    after_start()
                 self.progress.start(estimate)
                 current = next(plan)
                 while True:
@@ -315,6 +348,14 @@ class Runner:
     def _call(self, role: DeviceRole, what: str, function: Callable[[], T], timeout_s: float) -> T:
         return self._workers[role].call(what, function, timeout_s)
 
+    def _lamps_off_first(self) -> None:
+        """Read which relays are on (a lamp a killed run left on), then switch them all off."""
+        relays = self.station.relays
+        with contextlib.suppress(DeviceError):
+            state = self._call("relays", "read state", relays.state, self.timeouts.relays_s)
+            self.relays_found_on = tuple(i + 1 for i, on in enumerate(state) if on)
+        self._call("relays", "switch all off", relays.all_off, self.timeouts.relays_s)
+
     def _identify(self) -> None:
         for role in DEVICE_ROLES:
             device = self.station.device(role)
@@ -355,6 +396,8 @@ class Runner:
         attempt = 1
         while True:
             try:
+                if self.station.step_hook is not None:
+                    self.station.step_hook(key)
                 result = self._dispatch(step)
                 break
             except DeviceError as exc:
@@ -448,8 +491,10 @@ class Runner:
                     )
                 return state
             case ConfigureCamera():
+                self._camera_changed = True
                 return self._configure_camera(step)
             case ConfigureSpectrometer():
+                self._spectrometer_exposure_ms = step.exposure_ms
                 self._call(
                     "spectrometer",
                     "set exposure",
@@ -465,6 +510,7 @@ class Runner:
                 ended_s = self._now_s()
                 return Waited(ended_s, ended_s - began_s, completed)
             case SetExposure():
+                self._camera_changed = True
                 actual = self._call(
                     "camera",
                     f"set exposure {step.exposure_s:g} s",
@@ -498,29 +544,63 @@ class Runner:
         )
         return CameraReady(tuple(read_back), (float(low), float(high)))
 
+    def _discard_stale(self, key: str, path: str, problem: str) -> None:
+        """Record that a reading was stale; the step takes it again."""
+        self.session.write(DiscardRecord, key=key, path=path, reason="stale", message=problem)
+        self._counts["discarded"] += 1
+        self.progress.message(f"{key}: discarded {path}: {problem}; taking it again")
+
+    def _still_stale(self, role: DeviceRole, what: str) -> StaleReading:
+        return StaleReading(
+            self._workers[role].device,
+            f"{STALE_READING_ATTEMPTS} readings in a row after a settings change {what}",
+        )
+
     def _measure(self, step: MeasureSpectrum) -> SpectrumMeasured:
-        reading = self._call(
-            "spectrometer",
-            "measure",
-            self.station.spectrometer.measure,
-            self.timeouts.spectrometer_s,
-        )
-        values = np.asarray(reading.values, dtype=np.float64)
-        try:
-            spectrum = Spectrum(reading.wavelength_nm, values, name=step.key, negative="clip")
-        except SpectrumError as exc:
-            raise InvalidReading(
-                self._workers["spectrometer"].device, f"invalid spectrum: {exc}"
-            ) from None
-        negative = int(np.count_nonzero(values < 0))
-        relative = f"spectra/{step.lamp}/{step.purpose}-{step.index:03d}.csv"
-        record = self.session.write_spectrum(
-            relative,
-            spectrum,
-            key=step.key,
-            units=reading.units,
-            bandwidth_nm=reading.bandwidth_nm,
-        )
+        configured_ms = self._spectrometer_exposure_ms
+        for _ in range(STALE_READING_ATTEMPTS):
+            reading = self._call(
+                "spectrometer",
+                "measure",
+                self.station.spectrometer.measure,
+                self.timeouts.spectrometer_s,
+            )
+            values = np.asarray(reading.values, dtype=np.float64)
+            try:
+                spectrum = Spectrum(reading.wavelength_nm, values, name=step.key, negative="clip")
+            except SpectrumError as exc:
+                raise InvalidReading(
+                    self._workers["spectrometer"].device, f"invalid spectrum: {exc}"
+                ) from None
+            relative = f"spectra/{step.lamp}/{step.purpose}-{step.index:03d}.csv"
+            record = self.session.write_spectrum(
+                relative,
+                spectrum,
+                key=step.key,
+                units=reading.units,
+                bandwidth_nm=reading.bandwidth_nm,
+            )
+            stale = (
+                configured_ms is not None
+                and reading.exposure_ms is not None
+                and not math.isclose(
+                    reading.exposure_ms, configured_ms, rel_tol=STALE_EXPOSURE_RTOL
+                )
+            )
+            if not stale:
+                break
+            self._discard_stale(
+                step.key,
+                record.path,
+                f"the spectrometer reports {reading.exposure_ms:g} ms of integration, "
+                f"it was set to {configured_ms:g} ms",
+            )
+        else:
+            raise self._still_stale(
+                "spectrometer", f"did not use the integration time ({configured_ms:g} ms)"
+            )
+        # Checked: later readings need no check until the next settings change.
+        self._spectrometer_exposure_ms = None
         self._counts["spectra"] += 1
         # The plan gets the spectrum as stored (CSV precision), so a plan re-driven from the session
         # (resume, replay) sees exactly the numbers this run saw and takes the same branches.
@@ -532,7 +612,7 @@ class Runner:
             stored.values,
             reading.units,
             reading.exposure_ms,
-            negative,
+            int(np.count_nonzero(values < 0)),
         )
 
     def _capture(self, step: Capture | DarkFrame) -> FrameCaptured:
@@ -545,6 +625,38 @@ class Runner:
                     self._workers["relays"].device,
                     f"relay channel(s) {', '.join(lit)} read as on before a dark frame",
                 )
+        for _ in range(STALE_READING_ATTEMPTS):
+            captured, record = self._capture_once(step, dark)
+            problem = self._stale_frame(step, record)
+            self.frame_digests.setdefault(record.sha256, step.key)
+            if problem is None:
+                break
+            self._discard_stale(step.key, record.path, problem)
+        else:
+            raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
+        self._camera_changed = False
+        stats = None
+        if dark:
+            self._counts["dark_frames"] += 1
+        else:
+            self._counts["frames"] += 1
+            try:
+                stats = self.station.analyzer.analyse(self.session.path / record.path)
+            except FrameAnalysisError:
+                raise
+            except Exception as exc:
+                raise FrameAnalysisError(record.path, f"{type(exc).__name__}: {exc}") from exc
+        return FrameCaptured(
+            self._now_s(),
+            record.path,
+            step.exposure_s,
+            float(captured.exposure_s),
+            captured.camera_path,
+            stats,
+        )
+
+    def _capture_once(self, step: Capture | DarkFrame, dark: bool) -> tuple[Any, FileRecord]:
+        """Capture, download and acknowledge one frame for ``step``."""
         temporary = self.session.incoming_path()
         camera = self.station.camera
         try:
@@ -570,24 +682,28 @@ class Runner:
         record = self.session.commit_file(
             source, relative, key=step.key, role="dark" if dark else "frame"
         )
-        stats = None
-        if dark:
-            self._counts["dark_frames"] += 1
-        else:
-            self._counts["frames"] += 1
-            try:
-                stats = self.station.analyzer.analyse(self.session.path / record.path)
-            except FrameAnalysisError:
-                raise
-            except Exception as exc:
-                raise FrameAnalysisError(record.path, f"{type(exc).__name__}: {exc}") from exc
-        return FrameCaptured(
-            self._now_s(),
-            record.path,
-            step.exposure_s,
-            float(captured.exposure_s),
-            captured.camera_path,
-            stats,
+        return captured, record
+
+    def _stale_frame(self, step: Capture | DarkFrame, record: FileRecord) -> str | None:
+        """Why a just-acknowledged frame is stale, or ``None``.
+
+        A copy of a frame the session already holds is never a new frame. The first frame after a
+        settings change must also show, in its own metadata, the exposure the camera was set to.
+        """
+        earlier = self.frame_digests.get(record.sha256, step.key)
+        if earlier != step.key:
+            return f"it is a byte-for-byte copy of the frame of {earlier}"
+        read_exposure = self.station.frame_exposure
+        if not self._camera_changed or read_exposure is None:
+            return None
+        recorded_s = read_exposure(self.session.path / record.path)
+        if recorded_s is None or math.isclose(
+            recorded_s, step.exposure_s, rel_tol=STALE_EXPOSURE_RTOL
+        ):
+            return None
+        return (
+            f"its metadata says {recorded_s:g} s of exposure, the camera was set to "
+            f"{step.exposure_s:g} s (a frame taken before the new setting)"
         )
 
     def _sleep(self, seconds: float) -> bool:

@@ -46,6 +46,7 @@ from rig.records import (
     LOG_NAME,
     TRANSCRIPTS_DIR,
     AnyRecord,
+    DiscardRecord,
     FileRecord,
     Record,
     StartRecord,
@@ -87,6 +88,32 @@ def _write_all(fd: int, data: bytes) -> None:
     while view:
         written = os.write(fd, view)
         view = view[written:]
+
+
+def _move_torn_tail(log: Path, torn_bytes: int) -> str:
+    """Copy the log's torn last ``torn_bytes`` to ``log.torn-<n>`` (synced), then cut them off the log."""
+    number = 1
+    while (log.parent / f"{LOG_NAME}.torn-{number}").exists():
+        number += 1
+    aside = log.parent / f"{LOG_NAME}.torn-{number}"
+    size = log.stat().st_size
+    with log.open("rb") as stream:
+        stream.seek(size - torn_bytes)
+        tail = stream.read()
+    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    try:
+        _write_all(fd, tail)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    _sync_directory(log.parent)
+    fd = os.open(log, os.O_WRONLY)
+    try:
+        os.ftruncate(fd, size - torn_bytes)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    return aside.name
 
 
 def new_session_name(now: datetime, session_id: str) -> str:
@@ -205,6 +232,7 @@ class SessionWriter:
         self._broken: str | None = None
         self._transcripts: dict[str, TranscriptFile] = {}
         self._incoming = 0
+        self.torn_moved_to: str | None = None
         try:
             path.mkdir(parents=False, exist_ok=False)
             for name in DATA_DIRS:
@@ -218,6 +246,42 @@ class SessionWriter:
             raise SessionWriteError(f"session directory {path} already exists") from None
         except OSError as exc:
             raise SessionWriteError(f"cannot create session directory {path}: {exc}") from exc
+
+    @classmethod
+    def append(cls, session: Session, *, guard: Guard | None = None) -> SessionWriter:
+        """Continue ``session`` in a new run (resume): records go on from its last ``seq``.
+
+        A torn last line is first moved aside to ``log.torn-<n>`` (copied, synced, then cut off the
+        log): the only change ever made to existing log bytes. :attr:`torn_moved_to` names the copy.
+
+        Raises
+        ------
+        SessionWriteError
+            When the log cannot be opened, or the torn line cannot be moved aside.
+        """
+        start = session.start
+        if start is None:
+            raise SessionWriteError(f"{session.path}: the log has no start record to continue")
+        writer = cls.__new__(cls)
+        writer.path = session.path
+        writer.session_id = start.session_id
+        writer.guard = guard or contextlib.nullcontext
+        writer.run = session.records[-1].run + 1
+        writer._seq = len(session.records)
+        writer._broken = None
+        writer._transcripts = {}
+        writer._incoming = 0
+        writer.torn_moved_to = None
+        log = session.path / LOG_NAME
+        try:
+            if session.torn is not None:
+                writer.torn_moved_to = _move_torn_tail(log, session.torn.size)
+            writer._log_fd = os.open(log, os.O_WRONLY | os.O_APPEND)
+        except OSError as exc:
+            raise SessionWriteError(
+                f"cannot continue the session in {session.path}: {exc}"
+            ) from exc
+        return writer
 
     @classmethod
     def create(cls, parent: Path, *, guard: Guard | None = None) -> SessionWriter:
@@ -264,7 +328,9 @@ class SessionWriter:
     def transcript_sink(self, role: str) -> TranscriptFile:
         """The transcript file for a device role (``spectrometer``, ``camera``, ``relays``)."""
         if role not in self._transcripts:
-            relative = check_session_path(f"{TRANSCRIPTS_DIR}/{role}.jsonl")
+            # A resumed run keeps the earlier runs' transcripts and starts its own.
+            name = role if self.run == 1 else f"{role}.run{self.run}"
+            relative = check_session_path(f"{TRANSCRIPTS_DIR}/{name}.jsonl")
             try:
                 self._transcripts[role] = TranscriptFile(self.path / relative, relative)
             except OSError as exc:
@@ -452,8 +518,23 @@ class Session:
         """The last ``done`` record of every step key."""
         return {r.key: r for r in self.records if isinstance(r, StepRecord) and r.status == "done"}
 
+    def discarded(self) -> list[DiscardRecord]:
+        """Files the log acknowledged and later set aside (stale readings, files that failed to verify)."""
+        return [r for r in self.records if isinstance(r, DiscardRecord)]
+
     def files(self) -> list[FileRecord]:
-        return [r for r in self.records if isinstance(r, FileRecord)]
+        """Every acknowledged file that was not discarded afterwards."""
+        discarded = {r.path: r.seq for r in self.discarded()}
+        return [
+            r
+            for r in self.records
+            if isinstance(r, FileRecord) and discarded.get(r.path, -1) < r.seq
+        ]
+
+    @property
+    def resumable(self) -> bool:
+        """Whether ``rig resume`` continues it: it has a start record and did not complete."""
+        return self.start is not None and self.status != "complete"
 
     def file_path(self, relative: str) -> Path:
         """The on-disk path of a session-relative file, refusing anything that could leave the session.
@@ -581,6 +662,12 @@ class SessionSummary:
     plan: str | None = None
     frames: int = 0
     reason: str = ""
+    runs: int = 0
+
+    @property
+    def resumable(self) -> bool:
+        """``rig resume`` continues interrupted and failed sessions (not complete or invalid ones)."""
+        return self.status in ("interrupted", "failed") and self.started is not None
 
 
 def summarise(path: Path) -> SessionSummary:
@@ -595,6 +682,9 @@ def summarise(path: Path) -> SessionSummary:
     reason = stop.reason if stop is not None else "no stop record (crashed or killed)"
     if session.torn is not None:
         reason += f"; torn last line {session.torn.line}"
+    runs = session.records[-1].run if session.records else 0
+    if runs > 1:
+        reason += f" (run {runs})"
     return SessionSummary(
         path,
         session.status,
@@ -602,6 +692,7 @@ def summarise(path: Path) -> SessionSummary:
         start.plan.name if start else None,
         frames,
         reason,
+        runs,
     )
 
 

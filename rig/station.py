@@ -14,6 +14,7 @@ import contextlib
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import ModuleType
 
 from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptSink
@@ -37,6 +38,9 @@ class Station:
     """Open devices, their clock and the frame analyser.
 
     ``on_close`` callables run after the devices are closed (e.g. the twin stops its emulators).
+    ``frame_exposure`` reads the exposure a frame file's own metadata records (``None`` when it
+    cannot tell), for the stale-frame check. ``step_hook`` is told the key of every step attempt
+    before it touches a device (the twin keys its noise by it; real hardware needs nothing).
     """
 
     spectrometer: Spectrometer
@@ -45,6 +49,8 @@ class Station:
     clock: Clock
     analyzer: FrameAnalyzer
     on_close: list[Callable[[], None]] = field(default_factory=list)
+    frame_exposure: Callable[[Path], float | None] | None = None
+    step_hook: Callable[[str], None] | None = None
     closed: bool = False
 
     def device(self, role: DeviceRole) -> Spectrometer | Camera | RelayBoard:

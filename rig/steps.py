@@ -350,6 +350,22 @@ class Wait(Step):
 
 
 @dataclass(frozen=True)
+class KeepLampTimeline(Wait):
+    """On resume: let the time of the reused steps pass, so the re-lit lamp is as old as it was.
+
+    ``index`` is the run number. The lamp was switched on and warmed up again; the reused frames of
+    its bracket were taken that much later after switch-on, and the next frame must be too.
+    """
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/resume/{self.index:03d}/wait"
+
+    def describe(self) -> str:
+        return f"{self.lamp}: wait {self.seconds:g} s, the time the reused frames took"
+
+
+@dataclass(frozen=True)
 class SetExposure(Step):
     """Set the camera's exposure before frame ``index`` of a scene bracket or of the dark frames."""
 
@@ -417,6 +433,7 @@ STEP_TYPES: dict[str, type[Step]] = {
         SwitchLamp,
         MeasureSpectrum,
         Wait,
+        KeepLampTimeline,
         SetExposure,
         Capture,
         DarkFrame,

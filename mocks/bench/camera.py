@@ -8,8 +8,9 @@ each frame it
    rendered once: :func:`mocks.bench.lamps.drift_coefficients` gives the mix at the current
    warm-up state), scaled by ISO and aperture;
 2. exposes it with shot noise (Poisson in electrons), read noise, dark current, black level and
-   clipping (:func:`mocks.scene.expose`), from a generator seeded by the twin's seed and the frame's
-   number, so the same sequence of captures gives the same bytes;
+   clipping (:func:`mocks.scene.expose`), from a generator seeded by the twin's seed and the rig's
+   step (the frame's number when no step was announced), so a step gives the same frame in any
+   process, retried or resumed;
 3. writes a DNG (:func:`mocks.dng.write_dng`: ExposureTime in IFD0, ISO in the EXIF IFD) and hands
    back its bytes;
 4. lets the download time pass on the twin's clock (the exposure itself already has: the body
@@ -121,6 +122,9 @@ class FrameRenderer:
         self.seed = seed
         self.download_s = download_s
         self.realtime = realtime
+        self.noise_entropy: tuple[int, ...] | None = None
+        """When set (the rig's step, :meth:`mocks.bench.TwinBench.begin_step`), a frame's noise is
+        drawn from it instead of from the body's frame number."""
         self.rendered_frames = 0
         self.render_s = 0.0
         """Wall time spent rendering and encoding frames (the rest of a frame's time is waiting)."""
@@ -202,8 +206,9 @@ class FrameRenderer:
             gain_dn_per_electron=base.gain_dn_per_electron * scale,
             dark_current_dn_per_s=base.dark_current_dn_per_s * scale,
         )
+        frame = (request.index,) if self.noise_entropy is None else self.noise_entropy
         rng = np.random.default_rng(
-            np.random.SeedSequence([self.seed, CAMERA_NOISE_STREAM, request.index])
+            np.random.SeedSequence([self.seed, CAMERA_NOISE_STREAM, *frame])
         )
         raw = expose(self.noiseless(settings), request.exposure_s, sensor, rng)
         metadata = DngMetadata(

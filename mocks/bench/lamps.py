@@ -177,8 +177,10 @@ class PersistentLampBank(LampBank):
         n_channels: int,
         clock: Clock,
         state_file: Path,
+        *,
+        time_resolution_s: float = 0.0,
     ) -> None:
-        super().__init__(lamps, n_channels, clock)
+        super().__init__(lamps, n_channels, clock, time_resolution_s=time_resolution_s)
         self.state_file = state_file
 
     def saved_channels(self) -> tuple[bool, ...]:

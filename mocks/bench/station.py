@@ -23,6 +23,7 @@ If any step fails, what was opened so far is closed again before the error propa
 from __future__ import annotations
 
 import contextlib
+import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -58,6 +59,14 @@ TWIN_RELAY_SERIAL = "TWIN1"
 TWIN_CAMERA_SERIAL = "TW0000000001"
 
 SPECTROMETER_NAMES = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
+#: The lamps' time since switch-on is kept to this resolution (see :class:`mocks.lamps.LampBank`).
+LAMP_TIME_RESOLUTION_S = 1e-6
+
+
+def step_entropy(key: str) -> tuple[int, ...]:
+    """A step key as seed entropy: four 32-bit words of its sha256."""
+    digest = hashlib.sha256(key.encode("utf-8")).digest()
+    return tuple(int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4))
 
 
 @dataclass
@@ -101,6 +110,19 @@ class TwinBench:
     relay_board: EmulatedRelayBoard | None = None
     usb_backend: FakeUsbBackend | None = None
     closed: bool = field(default=False, init=False)
+
+    def begin_step(self, key: str) -> None:
+        """The rig is about to do step ``key``: its readings draw their noise from it.
+
+        The camera's frames and the spectrometer's spectra are then a function of the seed, the
+        step and the light, not of how many readings came before, so a retried step or a step done
+        in a resumed process reads the same as in an uninterrupted run.
+        """
+        entropy = step_entropy(key)
+        self.renderer.noise_entropy = entropy
+        sequence = np.random.SeedSequence([self.spec.seed, SPECTROMETER_NOISE_STREAM, *entropy])
+        radiometer = self.spectrometer_port.emulator.radiometer  # type: ignore[attr-defined]
+        radiometer.rng_per_observation = lambda: np.random.default_rng(sequence)
 
     @property
     def truth(self) -> TwinTruth:
@@ -173,9 +195,20 @@ def open_twin(
     bank: LampBank
     saved = (False,) * spec.relay_channels
     if spec.relay_state_file is None:
-        bank = LampBank(lamps, n_channels=spec.relay_channels, clock=clock)
+        bank = LampBank(
+            lamps,
+            n_channels=spec.relay_channels,
+            clock=clock,
+            time_resolution_s=LAMP_TIME_RESOLUTION_S,
+        )
     else:
-        bank = PersistentLampBank(lamps, spec.relay_channels, clock, spec.relay_state_file)
+        bank = PersistentLampBank(
+            lamps,
+            spec.relay_channels,
+            clock,
+            spec.relay_state_file,
+            time_resolution_s=LAMP_TIME_RESOLUTION_S,
+        )
         saved = bank.saved_channels()
     renderer = FrameRenderer(
         optics,

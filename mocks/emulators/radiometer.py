@@ -100,6 +100,9 @@ class Radiometer:
         self.optics = optics
         self.source = source
         self.rng = rng
+        #: When set, every observation draws its noise from a fresh generator it returns (the twin
+        #: keys the noise by the rig's step, so a repeated or resumed step measures the same).
+        self.rng_per_observation: Callable[[], np.random.Generator] | None = None
         grid = optics.wavelength_nm
         sigma_nm = optics.bandwidth_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
         step_nm = min(0.5, optics.bandwidth_nm / 8.0)
@@ -145,6 +148,7 @@ class Radiometer:
         if adaptive and peak_counts < optics.weak_light_counts:
             return Observation("weak_light", exposure_ms, duration_s, peak_counts=peak_counts)
         variance = np.clip(signal, 0.0, None) + 2.0 * optics.read_noise_counts**2
-        noise = self.rng.standard_normal(signal.shape) * np.sqrt(variance / averages)
+        rng = self.rng if self.rng_per_observation is None else self.rng_per_observation()
+        noise = rng.standard_normal(signal.shape) * np.sqrt(variance / averages)
         measured = (signal + noise) / (self._responsivity * exposure_ms * attenuation)
         return Observation("ok", exposure_ms, duration_s, measured, peak_counts)

@@ -54,6 +54,7 @@ FaultKind = Literal[
     "claim",
     "camera_error",
     "same_file",
+    "stale_frame",
     "unplug",
     "hang",
     "slow",
@@ -67,6 +68,7 @@ DEFAULT_FAULT_CALL: dict[str, str] = {
     "claim": "init",
     "camera_error": "capture",
     "same_file": "capture",
+    "stale_frame": "capture",
     "unplug": "capture",
     "hang": "capture",
     "slow": "capture",
@@ -93,7 +95,9 @@ class CameraFault:
         ``busy`` (-110 "I/O in progress": PTP Device Busy on capture, or I/O in progress on any
         call), ``io_error`` (-7), ``timeout`` (-10), ``claim`` (-53 "Could not claim the USB
         device", on ``init``), ``camera_error`` (-113), ``same_file`` (``capture`` returns the path
-        of the previous capture again), ``unplug`` (the body disconnects during the call: -7 now,
+        of the previous capture again), ``stale_frame`` (``capture`` stores a new file, but exposed
+        with the previous capture's shutter time: a frame taken before a new setting took
+        effect), ``unplug`` (the body disconnects during the call: -7 now,
         every later session call -7, ``init`` -52, absent from autodetect), ``hang`` (the call never
         returns until :meth:`FakeBody.release_hangs`), ``slow`` (the call answers normally after
         ``delay_s`` of wall time: a late reply), ``ignore_setting`` (``set_single_config``
@@ -280,6 +284,7 @@ class FakeBody:
         self.session_generation = 0
         self._file_counter = 0
         self._last_capture: tuple[str, str] | None = None
+        self._last_exposure_s: float | None = None
         self._bulb_opened_at: float | None = None
         self._lock = threading.RLock()
         self._release = threading.Event()
@@ -408,7 +413,10 @@ class FakeBody:
                     files = self._expose(self._timed_exposure_s())
                     self.events.extend((GP_EVENT_FILE_ADDED, f) for f in files)
                 return self._last_capture
-            files = self._expose(self._timed_exposure_s())
+            exposure_s = self._timed_exposure_s()
+            if fault is not None and fault.kind == "stale_frame" and self._last_exposure_s:
+                exposure_s = self._last_exposure_s
+            files = self._expose(exposure_s)
             self.events.extend((GP_EVENT_FILE_ADDED, f) for f in files[1:])
             self._complete()
             self._last_capture = files[0]
@@ -484,6 +492,7 @@ class FakeBody:
         return "ram" in str(self.values.get("capturetarget", "Internal RAM")).casefold()
 
     def _store(self, exposure_s: float) -> list[tuple[str, str]]:
+        self._last_exposure_s = exposure_s
         in_ram = self._target_is_ram()
         layout = self.layout
         image_format = str(self.values.get("imageformat", self.values.get("imagequality", "RAW")))

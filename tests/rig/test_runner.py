@@ -305,7 +305,8 @@ class TestFailures:
         rig = make_fake_rig()
         rig.spectrometer.io.faults["measure"] = [Disconnected("FakeSpectro", "gone")]
         rig.relays.io.faults["all_off"] = [
-            None,
+            None,  # the all-off before anything else
+            None,  # the plan's
             DeviceTimeout("FakeRelay", "no reply", timeout_s=1),
         ]
         outcome, session, rig = capture(tmp_path, rig)
