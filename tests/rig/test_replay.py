@@ -255,7 +255,8 @@ def test_a_different_command_fails_with_a_diff(
     assert run_cli(["replay", str(recorded), "--out", str(out)], monkeypatch) == 1
     err = capsys.readouterr().err
     assert "the rig diverged from the recording" in err
-    assert "step start/all-lamps-off: relays: the rig sent a different command" in err
+    # Every run switches the lamps off while opening the devices, before the plan starts.
+    assert "step (opening the devices): relays: the rig sent a different command" in err
     assert "at transcripts/relays.jsonl line" in err
     assert "expected: tx 20 09 00 03 00 00 08 00 fc" in err
     assert "sent:     tx 20 09 00 03 00 00 08 00 fe" in err
