@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from calib.errors import EstimationError, InputError
 from calib.raw import RawPlanes
@@ -147,6 +146,8 @@ def green_pair_statistics(planes: RawPlanes, max_samples: int = 1_000_000) -> Pa
     difference by the slope times that offset; it is removed with the slope of the smoothed green
     plane (the curvature terms cancel between the two symmetric sites).
     """
+    from scipy import ndimage
+
     difference = planes.green_difference_dn
     if difference is None:
         raise ValueError("read the frame with keep_green_difference=True")

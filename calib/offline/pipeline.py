@@ -227,6 +227,16 @@ def _profile_observation(
     )
 
 
+def import_estimation() -> None:
+    """Import what the merge's noise fit, the detection and the estimate use (scipy, the estimator:
+    about a second), e.g. in a thread while the first frames decode (LibRaw releases the GIL)."""
+    import scipy.ndimage
+    import scipy.optimize
+    import scipy.signal  # noqa: F401
+
+    import calib.makabe2025  # noqa: F401
+
+
 def _image_lamp_record(lamp: LampImages, extraction_frames: Sequence[Any]) -> dict[str, Any]:
     return {
         "name": lamp.name,

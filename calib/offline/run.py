@@ -10,7 +10,12 @@ from pathlib import Path
 
 from calib.offline.brackets import BracketProfiles
 from calib.offline.inputs import LampInput
-from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
+from calib.offline.pipeline import (
+    OfflineEstimate,
+    OfflineSettings,
+    estimate_offline,
+    import_estimation,
+)
 from calib.offline.progress import OfflineProgress
 from calib.offline.provenance import InputFile
 
@@ -52,8 +57,8 @@ def run_offline(
     from calib.report import PLOTS_DIR, import_plotting, plot_geometry, write_report
 
     started = time.perf_counter()
-    # The report's plotting library is imported, and the geometry drawn, in a background thread
-    # while frames decode and the estimate runs (both mostly release the GIL).
+    # The estimator's and the report's libraries are imported, and the geometry drawn, in a
+    # background thread while frames decode and the estimate runs (both mostly release the GIL).
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="report") as background:
         drawn: dict[str, Future[Path]] = {}
 
@@ -62,6 +67,7 @@ def run_offline(
                 plot_geometry, out_dir / PLOTS_DIR / "geometry.png", profiles
             )
 
+        background.submit(import_estimation)
         if report:
             background.submit(import_plotting)
         estimate = estimate_offline(

@@ -6,9 +6,6 @@ import os
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Polygon
 
 from calib.hdr import HdrImage
 from calib.profiles.extraction import extract
@@ -57,6 +54,11 @@ def write_geometry_png(
     Path
         ``path``.
     """
+    # matplotlib (≈ 0.3 s to import) only when a picture is drawn
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Polygon
+
     display, block_px = _display_image(image)
     height, width = image.sensor_shape_px
     figure = Figure(figsize=(12, 5.5), layout="constrained")
