@@ -25,7 +25,7 @@ out of their noise. A sample is excluded when
 Where no frame has a usable sample the pixel is flagged ``saturated`` and holds the shortest frame's
 rate (a lower bound where it clipped) with infinite variance.
 
-Frames are streamed: the next ones are decoded (in a background thread) while one is merged, so the
+Frames are streamed: the next ones are decoded (in background threads) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
 Optional dark frames are matched to the light frames by exposure time (and averaged per exposure).
 All frames must come from one camera at one ISO, size and aperture; the first file that differs is
@@ -93,6 +93,9 @@ RegionChooser = Callable[[RawPlanes], PlaneRegion | None]
 NOISE_POOL_FRAMES = 2
 #: Frames decoded ahead of the merge (each holds its planes until merged).
 PREFETCH_FRAMES = 2
+#: Threads decoding them: LibRaw releases the GIL while it unpacks, so two files decode at once
+#: (10 uncompressed 24 MP DNGs: 1.0 s → 0.7 s on two cores).
+DECODE_THREADS = max(1, min(PREFETCH_FRAMES, os.cpu_count() or 1))
 #: Relative difference within which two exposure times count as the same (dark-frame matching).
 EXPOSURE_MATCH_TOLERANCE = 0.02
 
@@ -466,8 +469,9 @@ def _prefetch(
     pool: _BufferPool,
     holder: _RegionHolder,
 ) -> Iterator[RawPlanes]:
-    """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer (LibRaw releases
-    the GIL), so the decoder keeps going while a frame takes the merge longer than usual."""
+    """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer, on
+    :data:`DECODE_THREADS` threads (LibRaw releases the GIL), so the decoders keep going while a
+    frame takes the merge longer than usual."""
 
     def decode(item: tuple[Path, float, bool]) -> RawPlanes:
         path, exposure, keep_difference = item
@@ -480,7 +484,9 @@ def _prefetch(
             region=holder.region,
         )
 
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-decode") as executor:
+    with ThreadPoolExecutor(
+        max_workers=DECODE_THREADS, thread_name_prefix="raw-decode"
+    ) as executor:
         pending: deque[Future[RawPlanes]] = deque(
             executor.submit(decode, item) for item in schedule[:PREFETCH_FRAMES]
         )
