@@ -67,6 +67,7 @@ from calib.raw import (
     RawPlanes,
     read_raw,
     read_raw_metadata,
+    unpack_raw,
 )
 from calib.sensor_noise import (
     QUANTISATION_VARIANCE_DN2,
@@ -457,24 +458,38 @@ class _BufferPool:
 
 @dataclass
 class _RegionHolder:
-    """The region to decode, once chosen (read by the decoding thread at each frame)."""
+    """The region to decode, once chosen (read by the decoding threads at each frame).
+
+    ``chosen`` is set once the chooser has seen the first light frame (at once without a chooser):
+    later frames are unpacked meanwhile, but cut into planes of the region only.
+    """
 
     region: PlaneRegion | None = None
     chooser: RegionChooser | None = None
+    chosen: threading.Event = field(default_factory=threading.Event)
+
+    def __post_init__(self) -> None:
+        if self.chooser is None:
+            self.chosen.set()
 
 
 def _prefetch(
     schedule: Sequence[tuple[Path, float, bool]],
+    first_light: int,
     saturation_fraction: float,
     pool: _BufferPool,
     holder: _RegionHolder,
 ) -> Iterator[RawPlanes]:
     """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer, on
     :data:`DECODE_THREADS` threads (LibRaw releases the GIL), so the decoders keep going while a
-    frame takes the merge longer than usual."""
+    frame takes the merge longer than usual. Frames after ``first_light`` (the schedule's first
+    light frame, which chooses the region) wait for the region before they are cut into planes."""
 
-    def decode(item: tuple[Path, float, bool]) -> RawPlanes:
-        path, exposure, keep_difference = item
+    def decode(position: int) -> RawPlanes:
+        path, exposure, keep_difference = schedule[position]
+        unpacked = unpack_raw(path)
+        if position > first_light:
+            holder.chosen.wait()
         return read_raw(
             path,
             exposure_s=exposure,
@@ -482,20 +497,25 @@ def _prefetch(
             keep_green_difference=keep_difference,
             buffers=pool.take(),
             region=holder.region,
+            unpacked=unpacked,
         )
 
     with ThreadPoolExecutor(
         max_workers=DECODE_THREADS, thread_name_prefix="raw-decode"
     ) as executor:
-        pending: deque[Future[RawPlanes]] = deque(
-            executor.submit(decode, item) for item in schedule[:PREFETCH_FRAMES]
-        )
-        for position in range(len(schedule)):
-            current = pending.popleft().result()
-            following = position + PREFETCH_FRAMES
-            if following < len(schedule):
-                pending.append(executor.submit(decode, schedule[following]))
-            yield current
+        try:
+            pending: deque[Future[RawPlanes]] = deque(
+                executor.submit(decode, position)
+                for position in range(min(PREFETCH_FRAMES, len(schedule)))
+            )
+            for position in range(len(schedule)):
+                current = pending.popleft().result()
+                following = position + PREFETCH_FRAMES
+                if following < len(schedule):
+                    pending.append(executor.submit(decode, following))
+                yield current
+        finally:  # the merge failed or stopped early: no frame may wait for the region any more
+            holder.chosen.set()
 
 
 def _overrides(
@@ -598,7 +618,9 @@ def merge_bracket(
     )
     merger = _Merger(ordered, plan, settings, noise_model, progress, pool, holder)
     for planes, (role, index) in zip(
-        _prefetch(plan.schedule, saturation_fraction, pool, holder), plan.roles, strict=True
+        _prefetch(plan.schedule, plan.first_light, saturation_fraction, pool, holder),
+        plan.roles,
+        strict=True,
     ):
         if role == "dark":
             merger.add_dark(planes, index)
@@ -665,6 +687,11 @@ class _DecodePlan:
             schedule.append((ordered[index].path, ordered[index].exposure_s, estimate_noise))
             roles.append(("light", index))
         return cls(tuple(schedule), tuple(roles), tuple(groups), group_of_light)
+
+    @property
+    def first_light(self) -> int:
+        """Position in the schedule of the first light frame (the one that chooses the region)."""
+        return next(i for i, (role, _) in enumerate(self.roles) if role == "light")
 
 
 class _Merger:
@@ -753,6 +780,7 @@ class _Merger:
                 rows = slice(min(chosen[0].start, height), min(chosen[0].stop, height))
                 columns = slice(min(chosen[1].start, width), min(chosen[1].stop, width))
                 self.holder.region = _checked_region((rows, columns))
+            self.holder.chosen.set()
         planes = self._in_region(planes)
         if self.noise is not None:
             self._merge(planes, index)
