@@ -127,7 +127,7 @@ def write_geometry_png(
             arrowprops={"arrowstyle": "->", "color": colour},
         )
     picture.legend(loc="upper right", fontsize=7)
-    picture.set_title(f"{image_source(image)}: log radiance", fontsize=9)
+    picture.set_title(f"{image_source(image)}: log radiance", fontsize=9, y=1.0)
     picture.set_xlabel("sensor column (px)")
     picture.set_ylabel("sensor row (px)")
     for band in geometry.orders:
@@ -156,7 +156,7 @@ def write_geometry_png(
     profiles.set_xlabel("distance from the direct spot (sensor px)")
     profiles.set_ylabel("mean radiance across the band (DN/s)")
     profiles.legend(fontsize=7)
-    profiles.set_title("first-order profiles", fontsize=9)
+    profiles.set_title("first-order profiles", fontsize=9, y=1.0)
     destination = Path(path)
     figure.savefig(destination, dpi=110)
     return destination
