@@ -49,7 +49,7 @@ import math
 import os
 import threading
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -65,6 +65,7 @@ from calib.raw import (
     PlaneRegion,
     RawMetadata,
     RawPlanes,
+    UnpackedRaw,
     read_raw,
     read_raw_metadata,
     unpack_raw,
@@ -473,13 +474,69 @@ class _RegionHolder:
             self.chosen.set()
 
 
+class Unpacker:
+    """Unpacks RAW files (:func:`calib.raw.unpack_raw`) in a given order, ``ahead`` files ahead of
+    the files taken, on :data:`DECODE_THREADS` threads; each file is handed out once.
+
+    One unpacker shared by several brackets (the lamps of a capture) keeps LibRaw busy across
+    their boundaries. A file taken out of order, or again, is unpacked when taken. Use as a context
+    manager: files never taken are closed at the end.
+    """
+
+    def __init__(self, paths: Sequence[PathLike], ahead: int = PREFETCH_FRAMES) -> None:
+        self._order = deque(Path(p) for p in paths)
+        self._ahead = ahead
+        self._executor = ThreadPoolExecutor(
+            max_workers=DECODE_THREADS, thread_name_prefix="raw-unpack"
+        )
+        self._scheduled: dict[Path, Future[UnpackedRaw]] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        with self._lock:
+            self._schedule_locked()
+
+    def _schedule_locked(self) -> None:
+        while self._order and len(self._scheduled) < self._ahead and not self._closed:
+            path = self._order.popleft()
+            if path not in self._scheduled:
+                self._scheduled[path] = self._executor.submit(unpack_raw, path)
+
+    def take(self, path: PathLike) -> UnpackedRaw:
+        """``path`` unpacked (waits for it, or unpacks it now); the caller closes it."""
+        file = Path(path)
+        with self._lock:
+            future = self._scheduled.pop(file, None)
+            if future is None and file in self._order:
+                self._order.remove(file)
+            self._schedule_locked()
+        return future.result() if future is not None else unpack_raw(file)
+
+    def __enter__(self) -> Unpacker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop unpacking; close the files unpacked but never taken."""
+        with self._lock:
+            self._closed = True
+            left = list(self._scheduled.values())
+            self._scheduled.clear()
+        self._executor.shutdown(wait=True, cancel_futures=True)
+        for future in left:
+            if not future.cancelled() and future.exception() is None:
+                future.result().close()
+
+
 def _prefetch(
     schedule: Sequence[tuple[Path, float, bool]],
     first_light: int,
     saturation_fraction: float,
     pool: _BufferPool,
     holder: _RegionHolder,
-) -> Iterator[RawPlanes]:
+    unpacker: Unpacker,
+) -> Generator[RawPlanes, None, None]:
     """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer, on
     :data:`DECODE_THREADS` threads (LibRaw releases the GIL), so the decoders keep going while a
     frame takes the merge longer than usual. Frames after ``first_light`` (the schedule's first
@@ -487,7 +544,7 @@ def _prefetch(
 
     def decode(position: int) -> RawPlanes:
         path, exposure, keep_difference = schedule[position]
-        unpacked = unpack_raw(path)
+        unpacked = unpacker.take(path)
         if position > first_light:
             holder.chosen.wait()
         return read_raw(
@@ -542,6 +599,7 @@ def merge_bracket(
     near_black_sigma: float = 3.0,
     progress: ProgressCallback | None = None,
     region: PlaneRegion | RegionChooser | None = None,
+    unpacker: Unpacker | None = None,
 ) -> HdrImage:
     """Merge RAW frames of one scene at different exposure times into an :class:`HdrImage`.
 
@@ -571,6 +629,9 @@ def merge_bracket(
         that chooses them from the first decoded light frame (full planes; ``None`` = all). The
         merge then costs the region, not the frame (LibRaw still unpacks every file); the image
         records where the region lies (``region_origin_px``, ``full_sensor_shape_px``).
+    unpacker
+        Unpacks the files ahead, shared with other brackets (:func:`decode_order` gives this
+        bracket's order); by default one of the bracket's own.
 
     Notes
     -----
@@ -617,16 +678,37 @@ def merge_bracket(
         else _RegionHolder(region=_checked_region(region))
     )
     merger = _Merger(ordered, plan, settings, noise_model, progress, pool, holder)
-    for planes, (role, index) in zip(
-        _prefetch(plan.schedule, plan.first_light, saturation_fraction, pool, holder),
-        plan.roles,
-        strict=True,
-    ):
-        if role == "dark":
-            merger.add_dark(planes, index)
-        else:
-            merger.add_light(planes, index)
+    source = unpacker or Unpacker([path for path, _, _ in plan.schedule])
+    decoded = _prefetch(plan.schedule, plan.first_light, saturation_fraction, pool, holder, source)
+    try:
+        for planes, (role, index) in zip(decoded, plan.roles, strict=True):
+            if role == "dark":
+                merger.add_dark(planes, index)
+            else:
+                merger.add_light(planes, index)
+    finally:  # stop the decoders, then the unpacker if it is ours
+        decoded.close()
+        if source is not unpacker:
+            source.close()
     return merger.finish(reference)
+
+
+def decode_order(
+    frames: Sequence[PathLike],
+    *,
+    darks: Sequence[PathLike] = (),
+    exposure_s: Sequence[float] | None = None,
+    dark_exposure_s: Sequence[float] | None = None,
+    estimate_noise: bool = True,
+) -> list[Path]:
+    """The order in which :func:`merge_bracket` decodes these files (to unpack them ahead).
+
+    ``estimate_noise``: no noise model will be given.
+    """
+    ordered = sorted(_scan(frames, exposure_s, "frames"), key=lambda m: -m.exposure_s)
+    groups = _group_darks(_scan(darks, dark_exposure_s, "dark frames"))
+    plan = _DecodePlan.build(ordered, groups, estimate_noise=estimate_noise)
+    return [path for path, _, _ in plan.schedule]
 
 
 def _checked_region(region: PlaneRegion | None) -> PlaneRegion | None:

@@ -468,7 +468,7 @@ def read_raw(
                 raise ValueError(f"region {region} is outside the planes {full_plane_shape}")
 
         def site_view(site: tuple[int, int]) -> NDArray[np.uint16]:
-            return visible[  # type: ignore[no-any-return]
+            return visible[
                 2 * row0 + site[0] : 2 * row1 : 2, 2 * column0 + site[1] : 2 * column1 : 2
             ]
 
