@@ -326,7 +326,9 @@ def estimate_offline(
     notes = list(settings.notes)
     timings["checks_s"] = time.perf_counter() - started
     known = {record.path for record in known_inputs}
-    with FileHasher() as hasher:
+    image_lamps = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
+    # RAW files are hashed once decoded, while the estimate (one thread) leaves a core idle
+    with FileHasher(paused=bool(image_lamps)) as hasher:
         for record in known_inputs:
             hasher.add_known(record)
         for lamp in lamps:
@@ -344,7 +346,6 @@ def estimate_offline(
         if isinstance(settings.grating, Path):
             hasher.add(settings.grating, "grating", None)
 
-        image_lamps = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
         report.start(sum(len(lamp.images) for lamp in image_lamps))
         profiles: BracketProfiles | None = None
         observations: list[LampObservation] = []
@@ -358,6 +359,7 @@ def estimate_offline(
                 frame_done=report.frame_done,
                 stage=report.stage,
             )
+            hasher.start()
             if on_profiles is not None:
                 on_profiles(profiles)
             notes.extend(profiles.notes)
