@@ -121,9 +121,7 @@ def test_a_shared_unpacker_gives_the_same_merge(bracket: list[Path], merged: Hdr
     for image in (first, again):
         np.testing.assert_array_equal(image.radiance, merged.radiance)
         np.testing.assert_array_equal(image.variance, merged.variance)
-    assert decode_order(bracket, estimate_noise=False) == [
-        record.path for record in merged.frames
-    ]
+    assert decode_order(bracket, estimate_noise=False) == [record.path for record in merged.frames]
 
 
 def test_frames_after_the_first_are_cut_to_the_chosen_region(bracket: list[Path]) -> None:
