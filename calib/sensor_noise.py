@@ -215,11 +215,14 @@ def fit_noise_model(
         [[-np.inf], np.geomspace(max(clip_level_dn * 1e-4, 1.0), clip_level_dn, 40)]
     )
     bin_of = np.digitize(level, edges) - 1
+    # every bin's members in increasing order, from one stable (radix) sort of the small bin numbers
+    by_bin = np.argsort(bin_of.astype(np.uint8), kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(bin_of, minlength=edges.size))])
     means: list[float] = []
     variances: list[float] = []
     counts: list[int] = []
     for bin_index in range(edges.size):
-        members = np.flatnonzero(bin_of == bin_index)
+        members = by_bin[bounds[bin_index] : bounds[bin_index + 1]]
         if members.size < 2 * min_bin_samples:
             continue
         members = members[:: max(1, members.size // _MAX_BIN_SAMPLES)]
