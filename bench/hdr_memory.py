@@ -150,7 +150,7 @@ def main() -> int:
         )
     print(
         f"merge / decode: wall {merge['wall_s'] / decode['wall_s']:.2f}, "
-        f"CPU {merge['cpu_s'] / decode['cpu_s']:.2f} (the merge decodes in a second thread)"
+        f"CPU {merge['cpu_s'] / decode['cpu_s']:.2f} (the merge decodes on background threads)"
     )
     verdict = "OK" if merge["peak_rss_mb"] <= MEMORY_LIMIT_MB else "OVER"
     print(f"peak memory target ≤ {MEMORY_LIMIT_MB:.0f} MB: {verdict}")

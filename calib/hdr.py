@@ -25,7 +25,7 @@ out of their noise. A sample is excluded when
 Where no frame has a usable sample the pixel is flagged ``saturated`` and holds the shortest frame's
 rate (a lower bound where it clipped) with infinite variance.
 
-Frames are streamed: the next ones are decoded (in a background thread) while one is merged, so the
+Frames are streamed: the next ones are decoded (in background threads) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
 Optional dark frames are matched to the light frames by exposure time (and averaged per exposure).
 All frames must come from one camera at one ISO, size and aperture; the first file that differs is
@@ -49,7 +49,7 @@ import math
 import os
 import threading
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -65,8 +65,10 @@ from calib.raw import (
     PlaneRegion,
     RawMetadata,
     RawPlanes,
+    UnpackedRaw,
     read_raw,
     read_raw_metadata,
+    unpack_raw,
 )
 from calib.sensor_noise import (
     QUANTISATION_VARIANCE_DN2,
@@ -93,6 +95,9 @@ RegionChooser = Callable[[RawPlanes], PlaneRegion | None]
 NOISE_POOL_FRAMES = 2
 #: Frames decoded ahead of the merge (each holds its planes until merged).
 PREFETCH_FRAMES = 2
+#: Threads decoding them: LibRaw releases the GIL while it unpacks, so two files decode at once
+#: (10 uncompressed 24 MP DNGs: 1.0 s → 0.7 s on two cores).
+DECODE_THREADS = max(1, min(PREFETCH_FRAMES, os.cpu_count() or 1))
 #: Relative difference within which two exposure times count as the same (dark-frame matching).
 EXPOSURE_MATCH_TOLERANCE = 0.02
 
@@ -454,23 +459,94 @@ class _BufferPool:
 
 @dataclass
 class _RegionHolder:
-    """The region to decode, once chosen (read by the decoding thread at each frame)."""
+    """The region to decode, once chosen (read by the decoding threads at each frame).
+
+    ``chosen`` is set once the chooser has seen the first light frame (at once without a chooser):
+    later frames are unpacked meanwhile, but cut into planes of the region only.
+    """
 
     region: PlaneRegion | None = None
     chooser: RegionChooser | None = None
+    chosen: threading.Event = field(default_factory=threading.Event)
+
+    def __post_init__(self) -> None:
+        if self.chooser is None:
+            self.chosen.set()
+
+
+class Unpacker:
+    """Unpacks RAW files (:func:`calib.raw.unpack_raw`) in a given order, ``ahead`` files ahead of
+    the files taken, on :data:`DECODE_THREADS` threads; each file is handed out once.
+
+    One unpacker shared by several brackets (the lamps of a capture) keeps LibRaw busy across
+    their boundaries. A file taken out of order, or again, is unpacked when taken. Use as a context
+    manager: files never taken are closed at the end.
+    """
+
+    def __init__(self, paths: Sequence[PathLike], ahead: int = PREFETCH_FRAMES) -> None:
+        self._order = deque(Path(p) for p in paths)
+        self._ahead = ahead
+        self._executor = ThreadPoolExecutor(
+            max_workers=DECODE_THREADS, thread_name_prefix="raw-unpack"
+        )
+        self._scheduled: dict[Path, Future[UnpackedRaw]] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        with self._lock:
+            self._schedule_locked()
+
+    def _schedule_locked(self) -> None:
+        while self._order and len(self._scheduled) < self._ahead and not self._closed:
+            path = self._order.popleft()
+            if path not in self._scheduled:
+                self._scheduled[path] = self._executor.submit(unpack_raw, path)
+
+    def take(self, path: PathLike) -> UnpackedRaw:
+        """``path`` unpacked (waits for it, or unpacks it now); the caller closes it."""
+        file = Path(path)
+        with self._lock:
+            future = self._scheduled.pop(file, None)
+            if future is None and file in self._order:
+                self._order.remove(file)
+            self._schedule_locked()
+        return future.result() if future is not None else unpack_raw(file)
+
+    def __enter__(self) -> Unpacker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop unpacking; close the files unpacked but never taken."""
+        with self._lock:
+            self._closed = True
+            left = list(self._scheduled.values())
+            self._scheduled.clear()
+        self._executor.shutdown(wait=True, cancel_futures=True)
+        for future in left:
+            if not future.cancelled() and future.exception() is None:
+                future.result().close()
 
 
 def _prefetch(
     schedule: Sequence[tuple[Path, float, bool]],
+    first_light: int,
     saturation_fraction: float,
     pool: _BufferPool,
     holder: _RegionHolder,
-) -> Iterator[RawPlanes]:
-    """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer (LibRaw releases
-    the GIL), so the decoder keeps going while a frame takes the merge longer than usual."""
+    unpacker: Unpacker,
+) -> Generator[RawPlanes, None, None]:
+    """Decode the frames in order, :data:`PREFETCH_FRAMES` ahead of the consumer, on
+    :data:`DECODE_THREADS` threads (LibRaw releases the GIL), so the decoders keep going while a
+    frame takes the merge longer than usual. Frames after ``first_light`` (the schedule's first
+    light frame, which chooses the region) wait for the region before they are cut into planes."""
 
-    def decode(item: tuple[Path, float, bool]) -> RawPlanes:
-        path, exposure, keep_difference = item
+    def decode(position: int) -> RawPlanes:
+        path, exposure, keep_difference = schedule[position]
+        unpacked = unpacker.take(path)
+        if position > first_light:
+            holder.chosen.wait()
         return read_raw(
             path,
             exposure_s=exposure,
@@ -478,18 +554,25 @@ def _prefetch(
             keep_green_difference=keep_difference,
             buffers=pool.take(),
             region=holder.region,
+            unpacked=unpacked,
         )
 
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="raw-decode") as executor:
-        pending: deque[Future[RawPlanes]] = deque(
-            executor.submit(decode, item) for item in schedule[:PREFETCH_FRAMES]
-        )
-        for position in range(len(schedule)):
-            current = pending.popleft().result()
-            following = position + PREFETCH_FRAMES
-            if following < len(schedule):
-                pending.append(executor.submit(decode, schedule[following]))
-            yield current
+    with ThreadPoolExecutor(
+        max_workers=DECODE_THREADS, thread_name_prefix="raw-decode"
+    ) as executor:
+        try:
+            pending: deque[Future[RawPlanes]] = deque(
+                executor.submit(decode, position)
+                for position in range(min(PREFETCH_FRAMES, len(schedule)))
+            )
+            for position in range(len(schedule)):
+                current = pending.popleft().result()
+                following = position + PREFETCH_FRAMES
+                if following < len(schedule):
+                    pending.append(executor.submit(decode, following))
+                yield current
+        finally:  # the merge failed or stopped early: no frame may wait for the region any more
+            holder.chosen.set()
 
 
 def _overrides(
@@ -516,6 +599,7 @@ def merge_bracket(
     near_black_sigma: float = 3.0,
     progress: ProgressCallback | None = None,
     region: PlaneRegion | RegionChooser | None = None,
+    unpacker: Unpacker | None = None,
 ) -> HdrImage:
     """Merge RAW frames of one scene at different exposure times into an :class:`HdrImage`.
 
@@ -545,6 +629,9 @@ def merge_bracket(
         that chooses them from the first decoded light frame (full planes; ``None`` = all). The
         merge then costs the region, not the frame (LibRaw still unpacks every file); the image
         records where the region lies (``region_origin_px``, ``full_sensor_shape_px``).
+    unpacker
+        Unpacks the files ahead, shared with other brackets (:func:`decode_order` gives this
+        bracket's order); by default one of the bracket's own.
 
     Notes
     -----
@@ -591,14 +678,37 @@ def merge_bracket(
         else _RegionHolder(region=_checked_region(region))
     )
     merger = _Merger(ordered, plan, settings, noise_model, progress, pool, holder)
-    for planes, (role, index) in zip(
-        _prefetch(plan.schedule, saturation_fraction, pool, holder), plan.roles, strict=True
-    ):
-        if role == "dark":
-            merger.add_dark(planes, index)
-        else:
-            merger.add_light(planes, index)
+    source = unpacker or Unpacker([path for path, _, _ in plan.schedule])
+    decoded = _prefetch(plan.schedule, plan.first_light, saturation_fraction, pool, holder, source)
+    try:
+        for planes, (role, index) in zip(decoded, plan.roles, strict=True):
+            if role == "dark":
+                merger.add_dark(planes, index)
+            else:
+                merger.add_light(planes, index)
+    finally:  # stop the decoders, then the unpacker if it is ours
+        decoded.close()
+        if source is not unpacker:
+            source.close()
     return merger.finish(reference)
+
+
+def decode_order(
+    frames: Sequence[PathLike],
+    *,
+    darks: Sequence[PathLike] = (),
+    exposure_s: Sequence[float] | None = None,
+    dark_exposure_s: Sequence[float] | None = None,
+    estimate_noise: bool = True,
+) -> list[Path]:
+    """The order in which :func:`merge_bracket` decodes these files (to unpack them ahead).
+
+    ``estimate_noise``: no noise model will be given.
+    """
+    ordered = sorted(_scan(frames, exposure_s, "frames"), key=lambda m: -m.exposure_s)
+    groups = _group_darks(_scan(darks, dark_exposure_s, "dark frames"))
+    plan = _DecodePlan.build(ordered, groups, estimate_noise=estimate_noise)
+    return [path for path, _, _ in plan.schedule]
 
 
 def _checked_region(region: PlaneRegion | None) -> PlaneRegion | None:
@@ -659,6 +769,11 @@ class _DecodePlan:
             schedule.append((ordered[index].path, ordered[index].exposure_s, estimate_noise))
             roles.append(("light", index))
         return cls(tuple(schedule), tuple(roles), tuple(groups), group_of_light)
+
+    @property
+    def first_light(self) -> int:
+        """Position in the schedule of the first light frame (the one that chooses the region)."""
+        return next(i for i, (role, _) in enumerate(self.roles) if role == "light")
 
 
 class _Merger:
@@ -747,6 +862,7 @@ class _Merger:
                 rows = slice(min(chosen[0].start, height), min(chosen[0].stop, height))
                 columns = slice(min(chosen[1].start, width), min(chosen[1].stop, width))
                 self.holder.region = _checked_region((rows, columns))
+            self.holder.chosen.set()
         planes = self._in_region(planes)
         if self.noise is not None:
             self._merge(planes, index)

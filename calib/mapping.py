@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage, optimize, signal
 
 from calib.errors import EstimationError, InputError
 from calib.forward import fine_axis, hat_matrix
@@ -430,6 +429,8 @@ def _centroid_peak(values: FloatArray, index: int, half_width: int) -> float:
 
 def _line_excess(values: FloatArray, window: int) -> FloatArray:
     """What rises above a grey opening of ``window`` samples: narrow lines without broad bands."""
+    from scipy import ndimage
+
     size = max(3, window | 1)
     return np.asarray(
         values - ndimage.grey_opening(values, size=size, mode="nearest"), dtype=np.float64
@@ -452,6 +453,8 @@ def lamp_lines(
     upper half — the same procedure :func:`profile_peaks` applies in pixels, so both sides locate a
     line the same way. Lines within 2 nm of :data:`FLUORESCENT_LINES_NM` are labelled.
     """
+    from scipy import signal
+
     # Resample to a fine axis (linear interpolation, as the renderer and the solve do) so the line
     # shapes, and hence their centroids, are those the profile shows.
     step_nm = 0.25
@@ -498,6 +501,8 @@ def profile_peaks(
     A peak must stand out by ``min_prominence`` of the strongest line and by 5 noise σ (estimated
     from the profile's second differences after the same smoothing), so noise makes no peaks.
     """
+    from scipy import ndimage, signal
+
     combined = np.sum(profile, axis=1)
     smoothing = max(line_width_px / 16.0, 0.5)
     smooth = ndimage.gaussian_filter1d(combined, smoothing, mode="nearest")
@@ -535,6 +540,8 @@ def nominal_dispersion(
     The profile is smoothed first (over ~1 % of its length) so that noise does not widen its lit
     extent; "lit" is above ``level`` of the maximum for both curves.
     """
+    from scipy import ndimage
+
     profile_total = np.sum(np.clip(profile, 0, None), axis=1)
     profile_total = ndimage.gaussian_filter1d(
         profile_total, max(profile_total.size / 100.0, 1.0), mode="nearest"
@@ -779,6 +786,8 @@ def coarse_mapping_candidates(
     list of QuadraticMapping
         Up to ``n_candidates`` distinct linear mappings (``method="led-search"``), best first.
     """
+    from scipy import signal
+
     n = pixel.size
     spacing = float(np.median(np.diff(pixel)))
     nominal = nominal_dispersion(pixel, profile, model_nm, model)
@@ -890,6 +899,8 @@ def refine_mapping(
     (QuadraticMapping, float)
         The refined mapping and the final cost ``‖residual‖²``.
     """
+    from scipy import optimize
+
     anchors = np.array([pixel_range[0], 0.5 * (pixel_range[0] + pixel_range[1]), pixel_range[1]])
     to_coefficients = np.linalg.inv(np.stack([anchors**2, anchors, np.ones(3)], axis=1))
 

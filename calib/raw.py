@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,8 +53,10 @@ __all__ = [
     "RawFileError",
     "RawMetadata",
     "RawPlanes",
+    "UnpackedRaw",
     "read_raw",
     "read_raw_metadata",
+    "unpack_raw",
 ]
 
 Float32Array = NDArray[np.float32]
@@ -286,6 +289,42 @@ def _unpacked(raw: Any, path: Path, read: Any) -> Any:
         ) from exc
 
 
+@dataclass(eq=False)
+class UnpackedRaw:
+    """A RAW file opened and unpacked by LibRaw, with its EXIF tags: :func:`read_raw` then cuts it
+    into planes (of a region chosen meanwhile). Unpacking is most of the decoding, and LibRaw
+    releases the GIL while it runs. Holds LibRaw's copy of the pixels until closed.
+    """
+
+    path: Path
+    raw: Any
+    exif: Mapping[str, Any]
+    visible: NDArray[np.uint16]
+
+    def close(self) -> None:
+        self.raw.close()
+
+    def __enter__(self) -> UnpackedRaw:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def unpack_raw(path: str | os.PathLike[str]) -> UnpackedRaw:
+    """Open ``path`` with LibRaw and unpack its pixels (see :func:`read_raw` for the errors)."""
+    file = Path(path)
+    _check_file(file)
+    exif = exif_tags(file)
+    raw = _open_raw(file)
+    try:
+        visible = _unpacked(raw, file, lambda r: r.raw_image_visible)
+    except BaseException:
+        raw.close()
+        raise
+    return UnpackedRaw(file, raw, exif, visible)
+
+
 def _visible_colour_indices(raw: Any) -> NDArray[np.int64]:
     """Colour indices of the top-left 2×2 cell of the visible area (without rawpy's full map)."""
     sizes = raw.sizes
@@ -365,6 +404,7 @@ def read_raw(
     keep_green_difference: bool = False,
     buffers: PlaneBuffers | None = None,
     region: PlaneRegion | None = None,
+    unpacked: UnpackedRaw | None = None,
 ) -> RawPlanes:
     """Decode a RAW file into black-subtracted R, G, B planes at half resolution.
 
@@ -385,6 +425,8 @@ def read_raw(
         Only these plane samples (rows, columns of the full planes; clipped to them): LibRaw still
         unpacks the whole file, but black subtraction and saturation flags cost only the region.
         A clipping plateau is then looked for inside the region.
+    unpacked
+        ``path`` already unpacked (:func:`unpack_raw`); closed by this call.
 
     Returns
     -------
@@ -401,11 +443,10 @@ def read_raw(
     """
     if not 0.0 < saturation_fraction <= 1.0:
         raise ValueError(f"saturation_fraction must be in (0, 1], got {saturation_fraction}")
-    file = Path(path)
-    _check_file(file)
-    exif = exif_tags(file)
-    with _open_raw(file) as raw:
-        visible = _unpacked(raw, file, lambda r: r.raw_image_visible)
+    source = unpacked if unpacked is not None else unpack_raw(path)
+    file, exif, visible = source.path, source.exif, source.visible
+    with source:
+        raw = source.raw
         layout = _cfa_layout(raw, file)
         metadata = build_metadata(file, exif, raw.other, exposure_s)
         colour_index = _visible_colour_indices(raw)
@@ -427,7 +468,7 @@ def read_raw(
                 raise ValueError(f"region {region} is outside the planes {full_plane_shape}")
 
         def site_view(site: tuple[int, int]) -> NDArray[np.uint16]:
-            return visible[  # type: ignore[no-any-return]
+            return visible[
                 2 * row0 + site[0] : 2 * row1 : 2, 2 * column0 + site[1] : 2 * column1 : 2
             ]
 

@@ -72,7 +72,7 @@ def plot_sensitivity(path: Path, estimate: OfflineEstimate) -> Path:
                 linewidth=0,
             )
     band = "±2σ band" if result.sensitivity_sigma is not None else "no uncertainty estimate"
-    axes.set_title(f"camera sensitivity ({result.method}; {band})", fontsize=10)
+    axes.set_title(f"camera sensitivity ({result.method}; {band})", fontsize=10, y=1.0)
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("relative sensitivity")
     axes.legend(fontsize=8)
@@ -100,7 +100,7 @@ def plot_efficiency(path: Path, estimate: OfflineEstimate) -> Path | None:
     origin = "given" if estimate.grating is not None else "estimated"
     if estimate.grating is None and result.method == "known-grating":
         origin = "assumed flat"
-    axes.set_title(f"first-order grating efficiency ({origin}, maximum 1)", fontsize=10)
+    axes.set_title(f"first-order grating efficiency ({origin}, maximum 1)", fontsize=10, y=1.0)
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("relative efficiency")
     axes.grid(alpha=0.3)
@@ -139,14 +139,14 @@ def plot_mapping(path: Path, estimate: OfflineEstimate) -> Path | None:
     axes.axhspan(float(grid[0]), float(grid[-1]), color="blue", alpha=0.06, label="working grid")
     axes.set_xlabel("pixel")
     axes.set_ylabel("wavelength (nm)")
-    axes.set_title(f"mapping ({getattr(mapping, 'method', 'given')})", fontsize=10)
+    axes.set_title(f"mapping ({getattr(mapping, 'method', 'given')})", fontsize=10, y=1.0)
     axes.legend(fontsize=8)
     axes.grid(alpha=0.3)
     dispersion = np.gradient(wavelength, pixel)
     dispersion_axes.plot(pixel, dispersion, color="black")
     dispersion_axes.set_xlabel("pixel")
     dispersion_axes.set_ylabel("nm per pixel")
-    dispersion_axes.set_title("dispersion", fontsize=10)
+    dispersion_axes.set_title("dispersion", fontsize=10, y=1.0)
     dispersion_axes.grid(alpha=0.3)
     return _save(figure, path)
 
@@ -185,7 +185,7 @@ def plot_fit(path: Path, estimate: OfflineEstimate, lamp: str) -> Path | None:
             label=f"{name} model",
         )
     top.set_ylabel("profile")
-    top.set_title(f"{lamp}: profile and model", fontsize=10)
+    top.set_title(f"{lamp}: profile and model", fontsize=10, y=1.0)
     top.legend(fontsize=7, ncol=3)
     top.grid(alpha=0.3)
     normalised = residuals.get("profile_normalised")

@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from calib.errors import EstimationError, InputError
 from calib.raw import RawPlanes
@@ -147,6 +146,8 @@ def green_pair_statistics(planes: RawPlanes, max_samples: int = 1_000_000) -> Pa
     difference by the slope times that offset; it is removed with the slope of the smoothed green
     plane (the curvature terms cancel between the two symmetric sites).
     """
+    from scipy import ndimage
+
     difference = planes.green_difference_dn
     if difference is None:
         raise ValueError("read the frame with keep_green_difference=True")
@@ -214,11 +215,14 @@ def fit_noise_model(
         [[-np.inf], np.geomspace(max(clip_level_dn * 1e-4, 1.0), clip_level_dn, 40)]
     )
     bin_of = np.digitize(level, edges) - 1
+    # every bin's members in increasing order, from one stable (radix) sort of the small bin numbers
+    by_bin = np.argsort(bin_of.astype(np.uint8), kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(bin_of, minlength=edges.size))])
     means: list[float] = []
     variances: list[float] = []
     counts: list[int] = []
     for bin_index in range(edges.size):
-        members = np.flatnonzero(bin_of == bin_index)
+        members = by_bin[bounds[bin_index] : bounds[bin_index + 1]]
         if members.size < 2 * min_bin_samples:
             continue
         members = members[:: max(1, members.size // _MAX_BIN_SAMPLES)]

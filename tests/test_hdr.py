@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from calib.errors import EstimationError, InputError
-from calib.hdr import HdrImage, merge_bracket
-from calib.raw import RawFileError
+from calib.hdr import HdrImage, Unpacker, decode_order, merge_bracket
+from calib.raw import RawFileError, RawPlanes
 from calib.sensor_noise import NoiseModel
 from mocks.dng import write_dng
 from mocks.scene import (
@@ -111,6 +111,40 @@ def test_frame_order_does_not_matter(bracket: list[Path], merged: HdrImage) -> N
     shuffled = merge_bracket([bracket[2], bracket[0], bracket[3], bracket[1]])
     np.testing.assert_array_equal(shuffled.radiance, merged.radiance)
     np.testing.assert_array_equal(shuffled.variance, merged.variance)
+
+
+def test_a_shared_unpacker_gives_the_same_merge(bracket: list[Path], merged: HdrImage) -> None:
+    # the unpacker's order need not be the merge's: files out of order are unpacked when taken
+    with Unpacker([*reversed(bracket), *decode_order(bracket)]) as unpacker:
+        first = merge_bracket(bracket, unpacker=unpacker)
+        again = merge_bracket(bracket, unpacker=unpacker)
+    for image in (first, again):
+        np.testing.assert_array_equal(image.radiance, merged.radiance)
+        np.testing.assert_array_equal(image.variance, merged.variance)
+    assert decode_order(bracket, estimate_noise=False) == [record.path for record in merged.frames]
+
+
+def test_frames_after_the_first_are_cut_to_the_chosen_region(bracket: list[Path]) -> None:
+    region = (slice(10, 40), slice(20, 70))
+    shapes: list[tuple[int, int]] = []
+
+    def choose(planes: RawPlanes) -> tuple[slice, slice]:
+        shapes.append(planes.plane_shape)
+        return region
+
+    chosen = merge_bracket(bracket, region=choose, noise_model=TRUE_NOISE)
+    fixed = merge_bracket(bracket, region=region, noise_model=TRUE_NOISE)
+    assert shapes == [(SENSOR.height_px // 2, SENSOR.width_px // 2)]
+    np.testing.assert_array_equal(chosen.radiance, fixed.radiance)
+    np.testing.assert_array_equal(chosen.variance, fixed.variance)
+
+
+def test_a_failing_region_chooser_does_not_hang_the_decoders(bracket: list[Path]) -> None:
+    def choose(planes: RawPlanes) -> tuple[slice, slice]:
+        raise RuntimeError("no region")
+
+    with pytest.raises(RuntimeError, match="no region"):
+        merge_bracket(bracket, region=choose, noise_model=TRUE_NOISE)
 
 
 def test_given_noise_model_and_progress(bracket: list[Path], scene: np.ndarray) -> None:

@@ -212,3 +212,22 @@ def test_grating_file_not_json_or_missing(tmp_path: Path) -> None:
     path.write_text(json.dumps({"schema": "spectral-rig/grating-efficiency", "format_version": 1}))
     with pytest.raises(GratingFileError, match="missing"):
         read_grating_file(path)
+
+
+def test_a_paused_hasher_hashes_once_started_or_when_asked(tmp_path: Path) -> None:
+    from calib.offline.provenance import FileHasher
+
+    files = [tmp_path / f"{name}.bin" for name in ("a", "b")]
+    for index, path in enumerate(files):
+        path.write_bytes(bytes(range(index, index + 100)) * 1000)
+    expected = [hashlib.sha256(path.read_bytes()).hexdigest() for path in files]
+    with FileHasher(paused=True) as hasher:
+        hasher.add(files[0], "frame", "A")
+        hasher.start()
+        hasher.add(files[1], "frame", "A")
+        assert [record.sha256 for record in hasher.results()] == expected
+    with FileHasher(paused=True) as hasher:  # results() does not wait for a start() never made
+        hasher.add(files[1], "dark", "A")
+        assert [record.sha256 for record in hasher.results()] == expected[1:]
+    with FileHasher(paused=True) as hasher:  # nor does leaving the block
+        hasher.add(files[0], "frame", "A")

@@ -15,11 +15,28 @@ Examples
 PosixPath('out/sensitivity.csv')
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from calib.offline.inputs import LampImages, LampInput, LampProfile
-from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
 from calib.offline.progress import NoProgress, OfflineProgress, RichFrameProgress
 from calib.offline.provenance import InputFile, Provenance
-from calib.offline.run import OfflineOutcome, run_offline
+
+if TYPE_CHECKING:
+    from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
+    from calib.offline.run import OfflineOutcome, run_offline
+
+#: Imported on first use: the pipeline pulls in the estimators (scipy), which ``calib estimate``
+#: imports while the first frames decode (:mod:`calib.offline.warmup`).
+_LAZY = {
+    "OfflineEstimate": "calib.offline.pipeline",
+    "OfflineSettings": "calib.offline.pipeline",
+    "estimate_offline": "calib.offline.pipeline",
+    "OfflineOutcome": "calib.offline.run",
+    "run_offline": "calib.offline.run",
+}
 
 __all__ = [
     "InputFile",
@@ -36,3 +53,9 @@ __all__ = [
     "estimate_offline",
     "run_offline",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'calib.offline' has no attribute {name!r}")

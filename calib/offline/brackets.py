@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.errors import EstimationError, InputError
-from calib.hdr import HdrImage, merge_bracket
+from calib.hdr import HdrImage, Unpacker, decode_order, merge_bracket
 from calib.offline.inputs import LampImages
 from calib.profiles import (
     DetectionError,
@@ -350,11 +350,13 @@ def merge_lamp(
     region: PlaneRegion | RegionChoice | None,
     frame_done: FrameCallback | None = None,
     noise_model: NoiseModel | None = None,
+    unpacker: Unpacker | None = None,
 ) -> HdrImage:
     """Merge one lamp's bracket (darks subtracted), over ``region`` when given.
 
     ``noise_model``: the camera's gain and read noise when already known (else estimated from
-    the bracket's green pairs).
+    the bracket's green pairs). ``unpacker``: shared with the other lamps (see
+    :func:`calib.hdr.merge_bracket`).
     """
 
     def progress(done: int, total: int, path: Path) -> None:
@@ -370,6 +372,7 @@ def merge_lamp(
             progress=progress,
             region=region,
             noise_model=noise_model,
+            unpacker=unpacker,
         )
     except EstimationError as exc:  # the frames hold too little signal to measure their noise
         raise InputError(
@@ -454,38 +457,42 @@ def bracket_profiles(
         if stage is not None:
             stage(text)
 
-    announce(f"merging {first.name}")
-    image = merge_lamp(first, chooser, frame_done)
-    region = chooser.region if chooser is not None else None
-    if chooser is not None and chooser.note:
-        notes.append(chooser.note)
-    geometry: DiffractionGeometry | None = None
-    announce(f"detecting the geometry on {first.name}")
-    try:
-        geometry = _detect(image)
-        if region is not None and not _inside_region(geometry, image):
-            raise DetectionError(
-                "the detected band reaches the edge of the region of interest",
-                reason="band_off_frame",
+    # LibRaw unpacks the next lamp's first frames while one lamp's last frames merge and its
+    # geometry is detected (the order assumes the lamps share the first lamp's noise model)
+    with Unpacker(_decode_order([lamps[index] for index in order])) as unpacker:
+        announce(f"merging {first.name}")
+        image = merge_lamp(first, chooser, frame_done, unpacker=unpacker)
+        region = chooser.region if chooser is not None else None
+        if chooser is not None and chooser.note:
+            notes.append(chooser.note)
+        geometry: DiffractionGeometry | None = None
+        announce(f"detecting the geometry on {first.name}")
+        try:
+            geometry = _detect(image)
+            if region is not None and not _inside_region(geometry, image):
+                raise DetectionError(
+                    "the detected band reaches the edge of the region of interest",
+                    reason="band_off_frame",
+                )
+        except DetectionError as exc:
+            if region is None:
+                raise
+            notes.append(
+                f"whole frames merged: detection in the region of interest failed ({exc}); "
+                f"{first.name} merged again over the whole frame"
             )
-    except DetectionError as exc:
-        if region is None:
-            raise
-        notes.append(
-            f"whole frames merged: detection in the region of interest failed ({exc}); "
-            f"{first.name} merged again over the whole frame"
-        )
-        region = None
-        announce(f"merging {first.name} again (whole frames)")
-        image = merge_lamp(first, None, None)
-        geometry = _detect(image)
-    merged[first.name] = MergedLamp(first, image)
-    for index in order[1:]:
-        lamp = lamps[index]
-        announce(f"merging {lamp.name}")
-        merged[lamp.name] = MergedLamp(
-            lamp, merge_lamp(lamp, region, frame_done, _same_camera_noise(image, lamp))
-        )
+            region = None
+            announce(f"merging {first.name} again (whole frames)")
+            image = merge_lamp(first, None, None)
+            geometry = _detect(image)
+        merged[first.name] = MergedLamp(first, image)
+        for index in order[1:]:
+            lamp = lamps[index]
+            announce(f"merging {lamp.name}")
+            merged[lamp.name] = MergedLamp(
+                lamp,
+                merge_lamp(lamp, region, frame_done, _same_camera_noise(image, lamp), unpacker),
+            )
     _check_same_sensor(list(merged.values()))
     announce("extracting the profiles")
     geometry_lamp = first.name
@@ -539,6 +546,21 @@ def bracket_profiles(
         region_shape_px=shape,
         notes=tuple(notes),
     )
+
+
+def _decode_order(lamps: Sequence[LampImages]) -> list[Path]:
+    """Every lamp's files in the order :func:`bracket_profiles` will decode them."""
+    return [
+        path
+        for position, lamp in enumerate(lamps)
+        for path in decode_order(
+            lamp.images,
+            darks=lamp.darks,
+            exposure_s=lamp.exposure_s,
+            dark_exposure_s=lamp.dark_exposure_s if lamp.darks else None,
+            estimate_noise=position == 0,
+        )
+    ]
 
 
 def _same_camera_noise(reference: HdrImage, lamp: LampImages) -> NoiseModel | None:

@@ -227,6 +227,16 @@ def _profile_observation(
     )
 
 
+def import_estimation() -> None:
+    """Import what the merge's noise fit, the detection and the estimate use (scipy, the estimator:
+    about a second), e.g. in a thread while the first frames decode (LibRaw releases the GIL)."""
+    import scipy.ndimage
+    import scipy.optimize
+    import scipy.signal  # noqa: F401
+
+    import calib.makabe2025  # noqa: F401
+
+
 def _image_lamp_record(lamp: LampImages, extraction_frames: Sequence[Any]) -> dict[str, Any]:
     return {
         "name": lamp.name,
@@ -316,7 +326,9 @@ def estimate_offline(
     notes = list(settings.notes)
     timings["checks_s"] = time.perf_counter() - started
     known = {record.path for record in known_inputs}
-    with FileHasher() as hasher:
+    image_lamps = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
+    # RAW files are hashed once decoded, while the estimate (one thread) leaves a core idle
+    with FileHasher(paused=bool(image_lamps)) as hasher:
         for record in known_inputs:
             hasher.add_known(record)
         for lamp in lamps:
@@ -334,7 +346,6 @@ def estimate_offline(
         if isinstance(settings.grating, Path):
             hasher.add(settings.grating, "grating", None)
 
-        image_lamps = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
         report.start(sum(len(lamp.images) for lamp in image_lamps))
         profiles: BracketProfiles | None = None
         observations: list[LampObservation] = []
@@ -348,6 +359,7 @@ def estimate_offline(
                 frame_done=report.frame_done,
                 stage=report.stage,
             )
+            hasher.start()
             if on_profiles is not None:
                 on_profiles(profiles)
             notes.extend(profiles.notes)

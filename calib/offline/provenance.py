@@ -1,8 +1,8 @@
 """What produced an estimate: the input files with their sha256, the software, the command line.
 
 Hashing every RAW file of a bracket reads hundreds of MB; :class:`FileHasher` does it in a background
-thread (``hashlib`` releases the GIL on large buffers) while the frames are decoded and merged, and a
-file already hashed elsewhere (a session's verified record) is not read again.
+thread (``hashlib`` releases the GIL on large buffers) while the estimate runs, and a file already
+hashed elsewhere (a session's verified record) is not read again.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import platform
 import sys
+import threading
 from collections.abc import Iterable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -70,23 +71,37 @@ def file_sha256(path: Path) -> tuple[int, str]:
 class FileHasher:
     """Hash files in a background thread; :meth:`results` waits for them.
 
-    Use as a context manager so the thread ends even when the estimate fails.
+    Use as a context manager so the thread ends even when the estimate fails. ``paused``: hash
+    nothing before :meth:`start` (e.g. while other threads decode: hash during the estimate, which
+    leaves a core idle).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, *, paused: bool = False) -> None:
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sha256")
         self._pending: list[tuple[Path, InputRole, str | None, Future[tuple[int, str]]]] = []
         self._known: list[InputFile] = []
+        self._started = threading.Event()
+        if not paused:
+            self._started.set()
 
     def __enter__(self) -> FileHasher:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self._started.set()
         self._executor.shutdown(wait=True, cancel_futures=True)
+
+    def start(self) -> None:
+        """Start hashing (when created ``paused``)."""
+        self._started.set()
+
+    def _hash(self, path: Path) -> tuple[int, str]:
+        self._started.wait()
+        return file_sha256(path)
 
     def add(self, path: Path, role: InputRole, lamp: str | None) -> None:
         """Hash ``path`` in the background."""
-        self._pending.append((path, role, lamp, self._executor.submit(file_sha256, path)))
+        self._pending.append((path, role, lamp, self._executor.submit(self._hash, path)))
 
     def add_known(self, record: InputFile) -> None:
         """A file whose hash is already known (and verified) elsewhere."""
@@ -94,6 +109,7 @@ class FileHasher:
 
     def results(self) -> tuple[InputFile, ...]:
         """Every file, in the order added (known hashes first)."""
+        self._started.set()
         hashed = []
         for path, role, lamp, future in self._pending:
             size, digest = future.result()

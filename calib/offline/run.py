@@ -9,8 +9,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from calib.offline.brackets import BracketProfiles
-from calib.offline.inputs import LampInput
-from calib.offline.pipeline import OfflineEstimate, OfflineSettings, estimate_offline
+from calib.offline.inputs import LampImages, LampInput
+from calib.offline.pipeline import (
+    OfflineEstimate,
+    OfflineSettings,
+    estimate_offline,
+    import_estimation,
+)
 from calib.offline.progress import OfflineProgress
 from calib.offline.provenance import InputFile
 
@@ -52,15 +57,26 @@ def run_offline(
     from calib.report import PLOTS_DIR, import_plotting, plot_geometry, write_report
 
     started = time.perf_counter()
-    # The report's plotting library is imported, and the geometry drawn, in a background thread
-    # while frames decode and the estimate runs (both mostly release the GIL).
+    # The estimator's and the report's libraries are imported, and the geometry drawn, in a
+    # background thread while frames decode and the estimate runs (both mostly release the GIL).
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="report") as background:
         drawn: dict[str, Future[Path]] = {}
+        # with RAW input only: there is nothing to overlap the imports with otherwise
+        imported = (
+            background.submit(import_estimation)
+            if any(isinstance(lamp, LampImages) for lamp in lamps)
+            else None
+        )
 
-        def draw_geometry(profiles: BracketProfiles) -> None:
-            drawn["plot:geometry"] = background.submit(
-                plot_geometry, out_dir / PLOTS_DIR / "geometry.png", profiles
-            )
+        def profiles_done(profiles: BracketProfiles) -> None:
+            # The estimate starts once the thread has imported its modules: no module is then
+            # imported by two threads at once.
+            if imported is not None:
+                imported.result()
+            if report:
+                drawn["plot:geometry"] = background.submit(
+                    plot_geometry, out_dir / PLOTS_DIR / "geometry.png", profiles
+                )
 
         if report:
             background.submit(import_plotting)
@@ -69,7 +85,7 @@ def run_offline(
             settings or OfflineSettings(),
             progress=progress,
             known_inputs=known_inputs,
-            on_profiles=draw_geometry if report else None,
+            on_profiles=profiles_done,
         )
         if progress is not None:
             progress.stage("writing the results")

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from calib.hdr import HdrImage
 from calib.profiles.geometry import (
@@ -111,6 +110,8 @@ class _Spot:
 
 
 def _find_spot(image: HdrImage, small: _Downsampled, source: str) -> _Spot:
+    from scipy import ndimage
+
     smooth = ndimage.gaussian_filter(small.luminance, 1.0)
     peak_index = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
     peak = float(smooth[peak_index])
@@ -178,6 +179,8 @@ class _Candidate:
 
 
 def _band_candidates(small: _Downsampled, spot: _Spot) -> list[_Candidate]:
+    from scipy import ndimage
+
     smooth = ndimage.gaussian_filter(small.luminance, 1.0)
     significant = (smooth > small.background + _BAND_SNR * small.noise) & ~spot.zone
     labels, count = ndimage.label(significant)
@@ -264,6 +267,8 @@ def _refine_axis(
     small: _Downsampled, centre: tuple[float, float], candidate: _Candidate
 ) -> tuple[float, float]:
     """Angle and across-offset of the band's centre line from its across-centroids along it."""
+    from scipy import ndimage
+
     excess = np.maximum(small.luminance - small.background, 0.0)
     region = ndimage.binary_dilation(candidate.mask, iterations=2) & (excess > 0)
     if region.sum() < 10:
@@ -511,6 +516,8 @@ def _along_extent(
     source: str,
 ) -> tuple[float, float]:
     """Start and stop (along distance) of the run above ``extent_fraction`` of the band maximum."""
+    from scipy import ndimage
+
     spot_edge = _zone_reach(small, spot.zone, centre, angle_deg)
     usable = (centres > spot_edge) & np.isfinite(along) & (coverage >= 0.5)
     values = np.where(usable, along, -np.inf)

@@ -6,9 +6,6 @@ import os
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Polygon
 
 from calib.hdr import HdrImage
 from calib.profiles.extraction import extract
@@ -57,6 +54,11 @@ def write_geometry_png(
     Path
         ``path``.
     """
+    # matplotlib (≈ 0.3 s to import) only when a picture is drawn
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Polygon
+
     display, block_px = _display_image(image)
     height, width = image.sensor_shape_px
     figure = Figure(figsize=(12, 5.5), layout="constrained")
@@ -125,7 +127,7 @@ def write_geometry_png(
             arrowprops={"arrowstyle": "->", "color": colour},
         )
     picture.legend(loc="upper right", fontsize=7)
-    picture.set_title(f"{image_source(image)}: log radiance", fontsize=9)
+    picture.set_title(f"{image_source(image)}: log radiance", fontsize=9, y=1.0)
     picture.set_xlabel("sensor column (px)")
     picture.set_ylabel("sensor row (px)")
     for band in geometry.orders:
@@ -154,7 +156,7 @@ def write_geometry_png(
     profiles.set_xlabel("distance from the direct spot (sensor px)")
     profiles.set_ylabel("mean radiance across the band (DN/s)")
     profiles.legend(fontsize=7)
-    profiles.set_title("first-order profiles", fontsize=9)
+    profiles.set_title("first-order profiles", fontsize=9, y=1.0)
     destination = Path(path)
     figure.savefig(destination, dpi=110)
     return destination
