@@ -48,6 +48,11 @@ DEFAULT_COLOR_MATRIX1: tuple[tuple[float, float, float], ...] = (
     (-0.0908, 0.2162, 0.5668),
 )
 
+#: How :func:`write_dng` can store the raw data (see :class:`DngMetadata`).
+DNG_COMPRESSIONS = ("none", "lossless-jpeg")
+#: Tile side of lossless-JPEG DNGs (Adobe's DNG Converter writes 256 × 256 tiles).
+LOSSLESS_JPEG_TILE_PX = 256
+
 #: LibRaw refuses images with a side shorter than this.
 MIN_SIDE_PX = 22
 
@@ -95,6 +100,11 @@ class DngMetadata:
     active_area
         ``(top, left, bottom, right)`` of the visible area inside the array (DNG ActiveArea), or
         ``None`` for all of it; the rest is masked border that readers drop.
+    compression
+        ``"none"``: one uncompressed strip (fast to write; LibRaw copies it). ``"lossless-jpeg"``:
+        256 × 256 tiles of lossless JPEG (Compression 7, predictor 1; one strip for frames smaller
+        than a tile), as cameras and Adobe's DNG Converter store raw data: the same pixels, about 40 % smaller, and as costly to decode as a
+        camera's own files.
     """
 
     exposure_s: float | None
@@ -110,8 +120,13 @@ class DngMetadata:
     color_matrix1: tuple[tuple[float, float, float], ...] = field(default=DEFAULT_COLOR_MATRIX1)
     capture_time: datetime | None = None
     active_area: tuple[int, int, int, int] | None = None
+    compression: str = "none"
 
     def __post_init__(self) -> None:
+        if self.compression not in DNG_COMPRESSIONS:
+            raise DngWriteError(
+                f"compression {self.compression!r} is not one of {sorted(DNG_COMPRESSIONS)}"
+            )
         if self.exposure_s is not None and not (
             np.isfinite(self.exposure_s) and self.exposure_s > 0
         ):
@@ -261,7 +276,7 @@ def _as_cfa_array(cfa: ArrayLike) -> NDArray[np.uint16]:
 
 
 def write_dng(path: str | os.PathLike[str], cfa: ArrayLike, metadata: DngMetadata) -> Path:
-    """Write ``cfa`` as an uncompressed DNG with the capture ``metadata``.
+    """Write ``cfa`` as a DNG with the capture ``metadata`` (uncompressed or lossless JPEG).
 
     Parameters
     ----------
@@ -297,22 +312,59 @@ def write_dng(path: str | os.PathLike[str], cfa: ArrayLike, metadata: DngMetadat
     destination = Path(path)
     temporary = destination.with_name(f".{destination.name}.{os.getpid()}.part")
     try:
-        tifffile.imwrite(
-            temporary,
-            data,
-            photometric=32803,
-            planarconfig=1,
-            compression=None,
-            subfiletype=0,
-            metadata=None,
-            software=False,
-            extratags=_ifd0_extratags(metadata),
-        )
+        common: dict[str, object] = {
+            "photometric": 32803,
+            "planarconfig": 1,
+            "subfiletype": 0,
+            "metadata": None,
+            "software": False,
+            "extratags": _ifd0_extratags(metadata),
+        }
+        if metadata.compression == "lossless-jpeg":
+            side = LOSSLESS_JPEG_TILE_PX
+            # LibRaw reads a single tile larger than the image wrongly: small frames get one strip.
+            tiled = min(data.shape) >= side
+            layout: dict[str, object] = (
+                {"tile": (side, side)} if tiled else {"rowsperstrip": data.shape[0]}
+            )
+            tifffile.imwrite(
+                temporary,
+                data=iter(_lossless_jpeg_blocks(data, metadata.white_level_dn, tiled)),
+                shape=data.shape,
+                dtype=np.uint16,
+                compression=7,
+                **layout,
+                **common,
+            )
+        else:
+            tifffile.imwrite(temporary, data, compression=None, **common)
         _attach_exif_ifd(temporary, metadata)
         temporary.replace(destination)
     finally:
         temporary.unlink(missing_ok=True)
     return destination
+
+
+def _lossless_jpeg_blocks(
+    data: NDArray[np.uint16], white_level_dn: int, tiled: bool
+) -> list[bytes]:
+    """``data`` as lossless JPEG: 256 × 256 tiles in raster order, edge tiles padded with zeros
+    (DNG 1.4 §6), or one strip of the whole image."""
+    import imagecodecs  # deferred: only lossless-JPEG frames need it
+
+    bits = max(int(white_level_dn).bit_length(), 2)
+    if not tiled:
+        return [bytes(imagecodecs.ljpeg_encode(data, bitspersample=bits))]
+    side = LOSSLESS_JPEG_TILE_PX
+    height, width = data.shape
+    tiles = []
+    for top in range(0, height, side):
+        for left in range(0, width, side):
+            tile = np.zeros((side, side), dtype=np.uint16)
+            part = data[top : top + side, left : left + side]
+            tile[: part.shape[0], : part.shape[1]] = part
+            tiles.append(bytes(imagecodecs.ljpeg_encode(tile, bitspersample=bits)))
+    return tiles
 
 
 def _attach_exif_ifd(path: Path, metadata: DngMetadata) -> None:

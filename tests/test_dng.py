@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 
@@ -206,3 +207,46 @@ def test_unwritable_input_is_rejected(
 def test_invalid_metadata_is_rejected(fields: dict[str, object], message: str) -> None:
     with pytest.raises(DngWriteError, match=message):
         DngMetadata(**fields)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("shape", "white", "active_area"),
+    [((300, 520), 16383, None), ((64, 96), 4095, (2, 4, 62, 90)), ((22, 22), 65535, None)],
+)
+def test_lossless_jpeg_tiles_round_trip_exactly(
+    tmp_path: Path,
+    rng: np.random.Generator,
+    shape: tuple[int, int],
+    white: int,
+    active_area: tuple[int, int, int, int] | None,
+) -> None:
+    data = _random_cfa(rng, shape, white)
+    metadata = DngMetadata(
+        exposure_s=1 / 60, iso=200, white_level_dn=white, black_level_dn=0, active_area=active_area
+    )
+    path = write_dng(tmp_path / "frame.dng", data, replace(metadata, compression="lossless-jpeg"))
+    with tifffile.TiffFile(path) as tiff:
+        page = tiff.pages[0]
+        assert page.compression == 7
+        assert page.is_tiled == (min(shape) >= 256)
+    with rawpy.imread(str(path)) as raw:
+        top, left, bottom, right = active_area or (0, 0, *shape)
+        assert np.array_equal(raw.raw_image_visible, data[top:bottom, left:right])
+    with path.open("rb") as handle:
+        tags = exifread.process_file(handle, details=False)
+    assert str(tags["EXIF ISOSpeedRatings"]) == "200"
+
+
+def test_lossless_jpeg_is_smaller_for_a_smooth_scene(tmp_path: Path) -> None:
+    rows, columns = np.mgrid[0:256, 0:512]
+    data = (600 + 2 * columns + rows).astype(np.uint16)
+    plain = write_dng(tmp_path / "plain.dng", data, DngMetadata(exposure_s=0.01))
+    packed = write_dng(
+        tmp_path / "packed.dng", data, DngMetadata(exposure_s=0.01, compression="lossless-jpeg")
+    )
+    assert packed.stat().st_size < 0.5 * plain.stat().st_size
+
+
+def test_unknown_compression_is_refused() -> None:
+    with pytest.raises(DngWriteError, match="compression 'zip' is not one of"):
+        DngMetadata(exposure_s=0.01, compression="zip")
