@@ -5,6 +5,7 @@ from calib.errors import InputError
 from calib.forward import (
     PeakFractionNoise,
     ShotReadNoise,
+    apply_blur,
     blur_kernel,
     lamp_operators,
     pixel_edges,
@@ -86,3 +87,15 @@ def test_blur_kernel_is_normalised_and_conserves_light():
         blurred.clean_profile.sum(axis=0), sharp.clean_profile.sum(axis=0), rtol=1e-6
     )
     assert blur_kernel(0.0, 0.0) is None
+
+
+@pytest.mark.parametrize("kernel_length", [1, 2, 3, 4, 7, 8])
+def test_blur_is_numpys_same_convolution_of_every_column(kernel_length: int) -> None:
+    rng = np.random.default_rng(kernel_length)
+    values = rng.normal(size=(40, 3, 2))
+    kernel = rng.random(kernel_length)
+    columns = values.reshape(40, -1)
+    expected = np.stack(
+        [np.convolve(columns[:, k], kernel, mode="same") for k in range(columns.shape[1])], axis=1
+    ).reshape(values.shape)
+    np.testing.assert_allclose(apply_blur(values, kernel), expected, rtol=0, atol=1e-12)
