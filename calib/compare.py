@@ -157,6 +157,22 @@ def _colour_checker(scene: CompareScene) -> tuple[list[Observation], dict[str, A
     return [scene.chart], {"basis": scene.basis}
 
 
+def _fluorescent_chart(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
+    from calib.han2012 import colorchecker_reflectances, render_chart, synthetic_fluorescent_paints
+
+    rng = np.random.default_rng([scene.seed, 2012])
+    chart = render_chart(
+        synthetic_fluorescent_paints(rng),
+        colorchecker_reflectances(),
+        scene.sensitivity,
+        colour_lamp(scene.broadband.name),
+        rng=rng,
+        noise_fraction=scene.noise,
+    )
+    # The paper's Fourier basis: the method is about needing neither the light nor measured cameras.
+    return [], {"chart": chart, "basis": None}
+
+
 def _matrices_and_checker(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
     return [scene.color_matrices, scene.chart], {"basis": scene.basis}
 
@@ -211,6 +227,13 @@ def synthetic_adapters(
         ),
         SyntheticAdapter(
             "jiang2013 (CC)", "jiang2013", _colour_checker, "ColorChecker under the broadband lamp"
+        ),
+        SyntheticAdapter(
+            "han2012 (fluorescent chart)",
+            "han2012",
+            _fluorescent_chart,
+            "16 synthetic fluorescent paints + a ColorChecker under the broadband lamp, which the "
+            "method is not told; the paper's Fourier basis",
         ),
         SyntheticAdapter(
             "solomatov2023 (Exif+CC)",
