@@ -182,6 +182,7 @@ LAZY_METHODS: dict[str, tuple[str, str]] = {
     "jiang2013": ("calib.jiang2013", "jiang2013_method"),
     "solomatov2023": ("calib.solomatov2023", "solomatov2023_method"),
     "toivonen2020": ("calib.toivonen2020", "toivonen2020_method"),
+    "multilamp": ("calib.multilamp", "multilamp_method"),
 }
 
 for _name, (_module, _function) in LAZY_METHODS.items():

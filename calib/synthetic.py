@@ -38,7 +38,8 @@ from numpy.typing import NDArray
 from calib.bases import CameraBasis, fourier_basis
 from calib.errors import EstimationError, InputError
 from calib.forward import PeakFractionNoise, RenderedObservation, render_observation
-from calib.lamp_specs import colour_lamp, lamp_from_spec
+from calib.lamp_specs import colour_lamp as colour_lamp  # re-exported: many callers import it here
+from calib.lamp_specs import lamp_from_spec
 from calib.makabe2025 import Solver, estimate_makabe2025
 from calib.mapping import QuadraticMapping
 from calib.metrics import mapping_relative_error, relative_error
@@ -182,10 +183,11 @@ def render_lamps(
     efficiency: Callable[[FloatArray], FloatArray],
     rng: np.random.Generator,
     noise_fraction: float,
+    direct_noise_fraction: float | None = None,
 ) -> tuple[LampObservation, ...]:
     """One camera's observations of lamps (specs) through one grating and mapping."""
     n = round(mapping.pixel_range[1]) + 1 if mapping.pixel_range else 800
-    noise = PeakFractionNoise(noise_fraction) if noise_fraction > 0 else None
+    noise = PeakFractionNoise(noise_fraction, direct_noise_fraction) if noise_fraction > 0 else None
     return tuple(
         render_observation(
             lamp_from_spec(spec),
@@ -213,11 +215,14 @@ def render_scene(
     noise_fraction: float = 0.0,
     lamp_sets: Sequence[str] = (),
     calibration_cameras: Sequence[MultiSpectrum] = (),
+    direct_noise_fraction: float | None = None,
 ) -> SyntheticScene:
     """Render the broadband and fluorescent observations of one camera (see module docstring).
 
     ``lamp_sets`` (keys of :data:`LAMP_SETS`) and ``calibration_cameras`` (other cameras seen
     through the same grating under the 5 lamps) are rendered afterwards from the same generator.
+    ``direct_noise_fraction`` sets their direct measurement's noise apart from the profile's (the
+    direct spot sums many pixels); ``None`` keeps the protocol's (the same fraction).
     """
     mapping = random_mapping(rng, grid)
     efficiency = random_efficiency(rng, grid)
@@ -242,11 +247,27 @@ def render_scene(
     }
     truth = sensitivity.resample(grid, "interpolate", out_of_range="zero").values
     sets = {
-        name: render_lamps(LAMP_SETS[name], sensitivity, mapping, efficiency, rng, noise_fraction)
+        name: render_lamps(
+            LAMP_SETS[name],
+            sensitivity,
+            mapping,
+            efficiency,
+            rng,
+            noise_fraction,
+            direct_noise_fraction,
+        )
         for name in lamp_sets
     }
     calibration = tuple(
-        render_lamps(LAMP_SETS["5 lamps"], camera, mapping, efficiency, rng, noise_fraction)
+        render_lamps(
+            LAMP_SETS["5 lamps"],
+            camera,
+            mapping,
+            efficiency,
+            rng,
+            noise_fraction,
+            direct_noise_fraction,
+        )
         for camera in calibration_cameras
     )
     return SyntheticScene(
@@ -391,6 +412,7 @@ def run_protocol(
     repeats: int = 1,
     seed: int = 0,
     progress: Callable[[SyntheticRow], None] | None = None,
+    direct_noise: float | None = None,
 ) -> list[SyntheticRow]:
     """Run the protocol over cameras × noise levels × repeats × variants (see module docstring).
 
@@ -404,8 +426,10 @@ def run_protocol(
     seed
         Master seed; scene ``(camera i, noise j, repeat r)`` uses ``default_rng([seed, i, j, r])``.
 
-    The multi-lamp variants render their lamp sets after the paper's lamps; the grating-file variant
-    calibrates the grating with every *other* camera of ``cameras`` under the 5 lamps.
+    The multi-lamp variants render their lamp sets after the paper's lamps, their direct
+    measurements with noise ``direct_noise`` (fraction of the peak; ``None``: the profile's); the
+    grating-file variant calibrates the grating with every *other* camera of ``cameras`` under the
+    5 lamps.
     """
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
@@ -439,6 +463,7 @@ def run_protocol(
                     ]
                     if grating_variant
                     else (),
+                    direct_noise_fraction=direct_noise,
                 )
                 scene_basis = basis(name) if callable(basis) else basis
                 for variant in variants:

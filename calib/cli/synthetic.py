@@ -185,6 +185,13 @@ def register(app: typer.Typer) -> None:
                 "Foveon) and the first test camera behind a blue colour filter."
             ),
         ] = False,
+        direct_noise: Annotated[
+            float | None,
+            typer.Option(
+                help="Direct-signal noise of the multi-lamp variants' lamps (fraction of the "
+                "peak); default: the profile's level, as in the paper's variants."
+            ),
+        ] = None,
         csv_path: Annotated[
             Path, typer.Option("--csv", help="Where to write every estimate as CSV.")
         ] = Path("synthetic.csv"),
@@ -207,7 +214,9 @@ def register(app: typer.Typer) -> None:
                 )
 
             basis_source = "colour-science built-ins, each camera excluded from its own basis"
-            rows = _run(cameras, basis_for, grid, variants, noise, lamp, chosen, repeats, seed)
+            rows = _run(
+                cameras, basis_for, grid, variants, noise, lamp, chosen, repeats, seed, direct_noise
+            )
         else:
             _train, test = makabe2025_split(data_dir)
             basis = default_camera_basis(
@@ -227,6 +236,7 @@ def register(app: typer.Typer) -> None:
                 chosen,
                 repeats,
                 seed,
+                direct_noise,
             )
         console = Console()
         console.print(
@@ -264,6 +274,7 @@ def _run(
     solver: Solver,
     repeats: int,
     seed: int,
+    direct_noise: float | None = None,
 ) -> list[SyntheticRow]:
     console = Console(stderr=True)
     with console.status("estimating…") as status:
@@ -277,6 +288,7 @@ def _run(
             solver=solver,
             repeats=repeats,
             seed=seed,
+            direct_noise=direct_noise,
             progress=lambda row: status.update(
                 f"{row.camera} · {row.variant} · noise {row.noise:g}"
             ),
