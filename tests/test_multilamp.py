@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +45,9 @@ def basis(tmp_path_factory: pytest.TempPathFactory) -> CameraBasis:
 
 def _scene(
     seed: int, lamp_set: str = "5 lamps", noise: float = 0.01
-) -> tuple[np.ndarray, QuadraticMapping, tuple[LampObservation, ...], object]:
+) -> tuple[
+    np.ndarray, QuadraticMapping, tuple[LampObservation, ...], Callable[[np.ndarray], np.ndarray]
+]:
     """A smooth camera near (not in) the basis' span, a random grating and mapping, the lamps."""
     rng = np.random.default_rng([99, seed])
     camera = gaussian_camera(
