@@ -15,7 +15,7 @@ lamps ``η`` is determined by the data. The solve:
 2. Efficiency. ``η⁻¹ = B_η c_η`` (Fourier, Supp. E) from the rows
    ``(d_l ⊙ q̂_lc)ᵀ B_η c_η = m_dir,lc``, each whitened by its noise (the direct σ plus the response's
    propagated covariance plus a 0.1 % model floor), and the camera prior ``s_c ~ N(α ŝ_c, α² Σ_c)``
-   applied to ``q̂_ref ⊙ η⁻¹`` as a penalty of weight ``λ``. ``λ`` is chosen by the unbiased
+   applied to ``Q ⊙ η⁻¹`` (``Q``: the lamps' pooled response, step 3) as a penalty of weight ``λ``. ``λ`` is chosen by the unbiased
    predictive risk estimator (UPRE, Mallows' C_L: the rows are whitened, so the noise level is
    known): ``‖A x_λ − b‖² + 2 tr H_λ`` over a logarithmic grid. With few lamps the data cannot pin
    ``η`` and ``λ`` is large (the prior decides what they leave open); with many it falls.
@@ -161,7 +161,10 @@ def prior_rows(
     inverse_efficiency: FloatArray,
     scale: float,
 ) -> FloatArray:
-    """Whitened ``q̂_ref,c ⊙ B_η c_η − α ŝ_c`` for the unknowns ``(c_η, α)``: shape ``(3f, b + 1)``."""
+    """Whitened ``Q_c ⊙ B_η c_η − α ŝ_c`` for the unknowns ``(c_η, α)``: shape ``(3f, b + 1)``.
+
+    ``reference`` is the response ``Q`` the prior judges (e.g. the lamps' pooled response).
+    """
     size, b_eta = efficiency_basis.shape
     blocks = []
     for c in range(3):
@@ -202,6 +205,7 @@ def solve_efficiency(
     efficiency_basis: FloatArray,
     *,
     prior_weight: float | None = None,
+    prior_lamps: Sequence[LampData] | None = None,
 ) -> EfficiencySolution:
     """Step 2: ``η⁻¹`` from every lamp's direct equations, under the camera prior weighted by UPRE.
 
@@ -211,17 +215,22 @@ def solve_efficiency(
         Responses and direct measurements (any number, from one or several cameras: the rows do not
         involve the camera).
     prior
-        The camera prior; applied to the first lamp's response (only its weight matters once the
-        lamps determine ``η``).
+        The camera prior, applied to ``s = Q ⊙ η⁻¹`` (``Q`` pooled over ``prior_lamps``).
     efficiency_basis
         ``B_η`` ``(f, b)``.
     prior_weight
         A fixed ``λ`` instead of UPRE's.
+    prior_lamps
+        The lamps of the one camera whose pooled response the prior judges (default: ``lamps``;
+        with several cameras, the first camera's).
     """
     if not lamps:
         raise InputError("no lamps with a direct measurement", source="observations")
     size, b_eta = efficiency_basis.shape
     reference = lamps[0]
+    # The prior judges s = Q ⊙ η⁻¹, Q pooled over every lamp (in the first lamp's units): the
+    # same s the solve returns, and less noisy than any one lamp's response.
+    pooled, _, _ = pool_responses([lamp.response for lamp in prior_lamps or lamps])
     predicted = float(np.sum(reference.direct_row @ reference.response.response))
     if predicted <= 0 or float(np.sum(reference.direct)) <= 0:
         raise EstimationError("the direct signal or the fitted first-order response is zero")
@@ -238,7 +247,7 @@ def solve_efficiency(
     for _ in range(EFFICIENCY_PASSES):
         rows, target = direct_rows(lamps, efficiency_basis, inverse)
         data = np.hstack([rows, np.zeros((rows.shape[0], 1))])
-        penalty = prior_rows(reference.response, prior, efficiency_basis, inverse, scale)
+        penalty = prior_rows(pooled, prior, efficiency_basis, inverse, scale)
         if prior_weight is None:
             weight, scores = choose_prior_weight(data, target, penalty)
         assert weight is not None
@@ -303,20 +312,13 @@ class SensitivitySolution:
         return self.sensitivity / peak, sigma.reshape(3, size).T
 
 
-def combine_responses(
-    responses: Sequence[ResponseEstimate],
-    inverse_efficiency: FloatArray,
-    efficiency_basis: FloatArray,
-    coefficient_covariance: FloatArray,
-    *,
-    iterations: int = 4,
-    with_covariance: bool = True,
-) -> SensitivitySolution:
-    """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q_c`` the inverse-variance mean of ``q̂_lc / E_l``.
+def pool_responses(
+    responses: Sequence[ResponseEstimate], *, iterations: int = 4
+) -> tuple[ResponseEstimate, FloatArray, FloatArray]:
+    """``Q`` ``(f, 3)``: the inverse-variance mean of the lamps' ``q̂_lc / E_l``, with its covariance.
 
     The relative brightness ``E_l`` (first lamp = 1) is fitted by weighted least squares against the
-    running combination. ``η⁻¹ = B_η c_η`` with ``c_η``'s covariance propagated along ``Q_c ⊙ B_η``
-    (``B_η`` may be the identity, for an efficiency known node by node).
+    running combination. Returns the pooled response, ``E`` ``(L,)`` and the weights ``(L, f, 3)``.
     """
     stacked = np.stack([response.response for response in responses])  # (L, f, 3)
     variances = np.stack(
@@ -342,6 +344,32 @@ def combine_responses(
     weights = scales[:, None, None] ** 2 / variances
     weights = weights / np.sum(weights, axis=0)
     combined = np.sum(weights * stacked / scales[:, None, None], axis=0)
+    size = combined.shape[0]
+    covariance = np.zeros((3, size, size))
+    for c in range(3):
+        for index, response in enumerate(responses):
+            factor = weights[index, :, c] / scales[index]
+            covariance[c] += factor[:, None] * response.covariance[c] * factor[None, :]
+    used = np.any(np.stack([response.used_pixels for response in responses]), axis=0)
+    chi2 = float(sum(response.chi2 for response in responses))
+    return ResponseEstimate(combined, covariance, used, chi2), scales, weights
+
+
+def combine_responses(
+    responses: Sequence[ResponseEstimate],
+    inverse_efficiency: FloatArray,
+    efficiency_basis: FloatArray,
+    coefficient_covariance: FloatArray,
+    *,
+    with_covariance: bool = True,
+) -> SensitivitySolution:
+    """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q`` from :func:`pool_responses`.
+
+    ``η⁻¹ = B_η c_η`` with ``c_η``'s covariance propagated along ``Q_c ⊙ B_η`` (``B_η`` may be the
+    identity, for an efficiency known node by node).
+    """
+    pooled, scales, _ = pool_responses(responses)
+    combined = pooled.response
     size = inverse_efficiency.size
     sensitivity = combined * inverse_efficiency[:, None]
     if not with_covariance:
@@ -349,12 +377,37 @@ def combine_responses(
     covariance = np.zeros((3 * size, 3 * size))
     for c in range(3):
         block = slice(c * size, (c + 1) * size)
-        for index, response in enumerate(responses):
-            factor = inverse_efficiency * weights[index, :, c] / scales[index]
-            covariance[block, block] += factor[:, None] * response.covariance[c] * factor[None, :]
+        covariance[block, block] = (
+            inverse_efficiency[:, None] * pooled.covariance[c] * inverse_efficiency[None, :]
+        )
     jacobian = np.concatenate([combined[:, c][:, None] * efficiency_basis for c in range(3)])
     covariance += jacobian @ coefficient_covariance @ jacobian.T
     return SensitivitySolution(sensitivity, covariance, scales)
+
+
+def blend_with_prior(solution: SensitivitySolution, prior: CameraPrior) -> SensitivitySolution:
+    """The data's ``s`` combined with the camera prior ``N(α ŝ, α² Σ)`` (product of Gaussians).
+
+    Where the lamp is bright the data dominate; where it is dim (σ far above the prior's spread) the
+    prior fills in instead of amplified noise. ``α`` is fitted to the data. Used where η is known
+    (a grating file): the prior then enters once, here.
+    """
+    if solution.covariance is None:
+        return solution
+    size = prior.grid.size
+    data = solution.sensitivity.T.ravel()
+    mean = prior.mean.T.ravel()
+    scale = float(data @ mean) / max(float(mean @ mean), 1e-300)
+    prior_precision = np.zeros((3 * size, 3 * size))
+    for c in range(3):
+        block = slice(c * size, (c + 1) * size)
+        prior_precision[block, block] = np.linalg.inv(scale**2 * prior.covariance[c])
+    data_precision = np.linalg.pinv(solution.covariance, hermitian=True)
+    covariance = np.linalg.inv(data_precision + prior_precision)
+    blended = covariance @ (data_precision @ data + prior_precision @ (scale * mean))
+    return SensitivitySolution(
+        blended.reshape(3, size).T, 0.5 * (covariance + covariance.T), solution.lamp_scales
+    )
 
 
 def _prepared_systems(
@@ -476,9 +529,8 @@ def calibrate_lamps(
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
     refine_given_mapping: bool = False,
     kernel: FloatArray | None = None,
-    extra_lamps: Sequence[LampData] = (),
 ) -> CalibratedLamps:
-    """Steps 1–2 for one camera's lamps (plus ``extra_lamps`` from other cameras, same grating)."""
+    """Steps 1–2 for one camera's lamps."""
     _check_inputs(observations, basis, grid)
     prior = basis.prior(prior_shrinkage)
     used_mapping, systems, mapping_s = _lamps_with_mapping(
@@ -493,9 +545,7 @@ def calibrate_lamps(
     )
     lamps = tuple(lamp_data(system, used_mapping) for system in systems)
     efficiency_basis = fourier_basis(grid, efficiency_terms)
-    efficiency = solve_efficiency(
-        [*lamps, *extra_lamps], prior, efficiency_basis, prior_weight=prior_weight
-    )
+    efficiency = solve_efficiency(lamps, prior, efficiency_basis, prior_weight=prior_weight)
     return CalibratedLamps(grid, used_mapping, lamps, efficiency, efficiency_basis, mapping_s)
 
 
@@ -633,7 +683,8 @@ def estimate_with_grating(
     """The camera through a grating of known efficiency: ``s_c = q̂_c / η`` at full resolution.
 
     One lamp suffices (a direct measurement is not needed); several are combined by SNR. The
-    grating's σ (if the file has one) is propagated node by node.
+    grating's σ (if the file has one) is propagated node by node. Where every lamp is dim the data's
+    σ is large and the camera prior (:func:`blend_with_prior`, natural weight) takes over.
 
     Raises
     ------
@@ -671,6 +722,9 @@ def estimate_with_grating(
     solution = combine_responses(
         responses, inverse, np.eye(inverse.size), np.diag(inverse_sigma**2)
     )
+    # The profile of one lamp says little where the lamp is dim: the camera prior fills in there
+    # (η is known, so the prior enters only here).
+    solution = blend_with_prior(solution, prior)
     lamps = tuple(
         LampData(
             system.observation.name,
@@ -783,7 +837,11 @@ def refine_grating(
     ]
     pooled = [lamp for calibrated in each for lamp in calibrated.lamps]
     efficiency = solve_efficiency(
-        pooled, basis.prior(), each[0].efficiency_basis, prior_weight=prior_weight
+        pooled,
+        basis.prior(),
+        each[0].efficiency_basis,
+        prior_weight=prior_weight,
+        prior_lamps=each[0].lamps,
     )
     eta_pair = _efficiency_with_sigma(efficiency, each[0].efficiency_basis)
     results = []
