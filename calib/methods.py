@@ -140,6 +140,14 @@ def estimate(
     )
 
 
+def resolve_basis(
+    basis: CameraBasis | None, grid: WavelengthGrid, options: dict[str, Any]
+) -> CameraBasis:
+    """``basis``, else :func:`default_camera_basis` (popping a ``data_dir`` option to find it)."""
+    data_dir = options.pop("data_dir", None)
+    return basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
+
+
 def _makabe2025(
     observations: Sequence[LampObservation],
     *,
@@ -151,8 +159,7 @@ def _makabe2025(
 ) -> EstimateResult:
     from calib.makabe2025 import estimate_makabe2025
 
-    data_dir = options.pop("data_dir", None)
-    chosen = basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
+    chosen = resolve_basis(basis, grid, options)
     return estimate_makabe2025(
         observations, basis=chosen, grid=grid, mapping=mapping, mapping_lamp=mapping_lamp, **options
     )

@@ -918,12 +918,15 @@ def multilamp_method(
 
     Options: those of :func:`estimate_multilamp`, and ``data_dir`` for the default camera basis.
     """
-    from calib.methods import default_camera_basis
+    from calib.methods import resolve_basis
 
-    data_dir = options.pop("data_dir", None)
-    chosen = basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
     return estimate_multilamp(
-        observations, basis=chosen, grid=grid, mapping=mapping, mapping_lamp=mapping_lamp, **options
+        observations,
+        basis=resolve_basis(basis, grid, options),
+        grid=grid,
+        mapping=mapping,
+        mapping_lamp=mapping_lamp,
+        **options,
     )
 
 

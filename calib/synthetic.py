@@ -186,21 +186,35 @@ def render_lamps(
     direct_noise_fraction: float | None = None,
 ) -> tuple[LampObservation, ...]:
     """One camera's observations of lamps (specs) through one grating and mapping."""
-    n = round(mapping.pixel_range[1]) + 1 if mapping.pixel_range else 800
     noise = PeakFractionNoise(noise_fraction, direct_noise_fraction) if noise_fraction > 0 else None
     return tuple(
-        render_observation(
-            lamp_from_spec(spec),
-            sensitivity,
-            mapping=mapping,
-            pixel=n,
-            grating_efficiency=efficiency,
-            noise=noise,
-            rng=rng,
-            kind=lamp_kind(spec),
-            name=spec,
+        _render(
+            lamp_from_spec(spec), lamp_kind(spec), sensitivity, mapping, efficiency, noise, rng
         ).observation
         for spec in specs
+    )
+
+
+def _render(
+    lamp: Spectrum,
+    kind: LampKind,
+    sensitivity: MultiSpectrum,
+    mapping: QuadraticMapping,
+    efficiency: Callable[[FloatArray], FloatArray],
+    noise: PeakFractionNoise | None,
+    rng: np.random.Generator,
+) -> RenderedObservation:
+    """One lamp through the scene's grating, on the mapping's pixels."""
+    n = round(mapping.pixel_range[1]) + 1 if mapping.pixel_range else 800
+    return render_observation(
+        lamp,
+        sensitivity,
+        mapping=mapping,
+        pixel=n,
+        grating_efficiency=efficiency,
+        noise=noise,
+        rng=rng,
+        kind=kind,
     )
 
 
@@ -226,23 +240,13 @@ def render_scene(
     """
     mapping = random_mapping(rng, grid)
     efficiency = random_efficiency(rng, grid)
-    n = round(mapping.pixel_range[1]) + 1 if mapping.pixel_range else 800
     noise = PeakFractionNoise(noise_fraction) if noise_fraction > 0 else None
     lamps: tuple[tuple[LampKind, Spectrum], ...] = (
         ("led", broadband_lamp),
         ("fluorescent", fluorescent_lamp),
     )
     rendered = {
-        kind: render_observation(
-            lamp,
-            sensitivity,
-            mapping=mapping,
-            pixel=n,
-            grating_efficiency=efficiency,
-            noise=noise,
-            rng=rng,
-            kind=kind,
-        )
+        kind: _render(lamp, kind, sensitivity, mapping, efficiency, noise, rng)
         for kind, lamp in lamps
     }
     truth = sensitivity.resample(grid, "interpolate", out_of_range="zero").values
