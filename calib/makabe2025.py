@@ -307,6 +307,23 @@ def _dispersion(mapping: WavelengthMapping, pixel: FloatArray) -> FloatArray:
     return np.asarray(np.gradient(mapping.wavelength_nm(pixel), pixel), dtype=np.float64)
 
 
+def prepare_matched_lamp(
+    observation: LampObservation,
+    mapping: WavelengthMapping,
+    grid: WavelengthGrid,
+    kernel: FloatArray | None,
+) -> LampSystem:
+    """A lamp prepared for the solvers, its profile matched to the spectrometer's resolution.
+
+    Profiles measured against a broader spectrometer are blurred to its resolution (through the
+    mapping's dispersion), then the lamp is prepared with the camera's line spread ``kernel``.
+    """
+    spacing = float(np.median(np.diff(observation.pixel)))
+    dispersion = float(np.median(np.abs(_dispersion(mapping, observation.pixel))))
+    matched = match_spectrometer(observation, dispersion * spacing)
+    return prepare_lamp(matched, grid, kernel=kernel)
+
+
 def _choose_solve_lamps(
     observations: Sequence[LampObservation], solve_lamps: Sequence[str] | None
 ) -> list[LampObservation]:
@@ -447,13 +464,8 @@ def estimate_makabe2025(
 
     step = time.perf_counter()
 
-    # Profiles measured against a broader spectrometer are blurred to its resolution (through the
-    # mapping's dispersion), then every lamp is prepared with the camera's line spread.
     def prepared(observation: LampObservation) -> LampSystem:
-        spacing = float(np.median(np.diff(observation.pixel)))
-        dispersion = float(np.median(np.abs(_dispersion(used_mapping, observation.pixel))))
-        matched = match_spectrometer(observation, dispersion * spacing)
-        return prepare_lamp(matched, grid, kernel=kernel)
+        return prepare_matched_lamp(observation, used_mapping, grid, kernel)
 
     systems = [prepared(obs) for obs in chosen]
     sensitivity_sigma: FloatArray | None = None

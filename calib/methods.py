@@ -142,6 +142,14 @@ def estimate(
     )
 
 
+def resolve_basis(
+    basis: CameraBasis | None, grid: WavelengthGrid, options: dict[str, Any]
+) -> CameraBasis:
+    """``basis``, else :func:`default_camera_basis` (popping a ``data_dir`` option to find it)."""
+    data_dir = options.pop("data_dir", None)
+    return basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
+
+
 def _makabe2025(
     observations: Sequence[LampObservation],
     *,
@@ -153,8 +161,7 @@ def _makabe2025(
 ) -> EstimateResult:
     from calib.makabe2025 import estimate_makabe2025
 
-    data_dir = options.pop("data_dir", None)
-    chosen = basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
+    chosen = resolve_basis(basis, grid, options)
     return estimate_makabe2025(
         observations, basis=chosen, grid=grid, mapping=mapping, mapping_lamp=mapping_lamp, **options
     )
@@ -184,6 +191,7 @@ LAZY_METHODS: dict[str, tuple[str, str]] = {
     "jiang2013": ("calib.jiang2013", "jiang2013_method"),
     "solomatov2023": ("calib.solomatov2023", "solomatov2023_method"),
     "toivonen2020": ("calib.toivonen2020", "toivonen2020_method"),
+    "multilamp": ("calib.multilamp", "multilamp_method"),
 }
 
 for _name, (_module, _function) in LAZY_METHODS.items():

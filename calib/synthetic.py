@@ -11,13 +11,26 @@ Fourier terms); add Gaussian noise of a fraction of each profile's peak; estimat
 
 and report RE (Eq. 16) and mapping RE (Supp. Eq. 1). Every random draw comes from one seeded
 ``numpy.random.Generator`` per (camera, noise level, repeat), so all variants see the same scene.
+
+Beyond the paper (:mod:`calib.multilamp`, opt-in variants): the same scene also seen under the lamp
+sets of :data:`LAMP_SETS` (rendered after the paper's two lamps, so their draws are unchanged),
+
+``multilamp: 5 lamps``             LED-B1, LED-B3, LED-B5, FL2, A jointly, mapping estimated,
+``multilamp: 3 lamps + RGB LEDs``  LED-B3, FL2, A and three narrow-band (Gaussian) LEDs,
+``multilamp: 5 lamps, true mapping``,
+``grating file: 1 LED``            η calibrated with the 5 lamps on the *other* cameras through the same
+                                   grating (jointly, :func:`calib.multilamp.refine_grating`), then this
+                                   camera from one LED-B3 shot (:func:`calib.multilamp.estimate_with_grating`).
+
+Out-of-basis cameras (:func:`out_of_basis_cameras`): colour-science's Sigma SDMerill (NPL, a Foveon
+sensor) and a camera behind a colour filter (:func:`colour_filter`).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,30 +38,35 @@ from numpy.typing import NDArray
 from calib.bases import CameraBasis, fourier_basis
 from calib.errors import EstimationError, InputError
 from calib.forward import PeakFractionNoise, RenderedObservation, render_observation
+from calib.lamp_specs import colour_lamp as colour_lamp  # re-exported: many callers import it here
+from calib.lamp_specs import lamp_from_spec
 from calib.makabe2025 import Solver, estimate_makabe2025
 from calib.mapping import QuadraticMapping
 from calib.metrics import mapping_relative_error, relative_error
-from calib.observations import LampKind
+from calib.observations import LampKind, LampObservation
+from calib.result import EstimateResult
 from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 
 FloatArray = NDArray[np.float64]
 
-VARIANTS: tuple[str, ...] = ("true mapping", "LED+Flu", "LED only", "LED only (paper ICP)")
+PAPER_VARIANTS: tuple[str, ...] = ("true mapping", "LED+Flu", "LED only", "LED only (paper ICP)")
+#: Lamp sets of the multi-lamp variants (lamp specs of :func:`calib.lamp_specs.lamp_from_spec`).
+LAMP_SETS: dict[str, tuple[str, ...]] = {
+    "5 lamps": ("LED-B1", "LED-B3", "LED-B5", "FL2", "A"),
+    "3 lamps + RGB LEDs": ("LED-B3", "FL2", "A", "gauss:455:25", "gauss:530:35", "gauss:630:20"),
+}
+#: The lamp a new camera is shot with once the grating is known.
+GRATING_FILE_LAMP = "LED-B3"
+MULTILAMP_VARIANTS: tuple[str, ...] = (
+    "multilamp: 5 lamps, true mapping",
+    "multilamp: 5 lamps",
+    "multilamp: 3 lamps + RGB LEDs",
+    "grating file: 1 LED",
+)
+VARIANTS: tuple[str, ...] = PAPER_VARIANTS + MULTILAMP_VARIANTS
 NOISE_LEVELS: tuple[float, ...] = (0.0, 0.003, 0.01, 0.03)
 BROADBAND_LAMPS: tuple[str, ...] = ("D65", "LED-B3")
 FLUORESCENT_LAMP = "FL2"
-
-
-def colour_lamp(name: str) -> Spectrum:
-    """A colour-science illuminant (``SDS_ILLUMINANTS``) or light source (``SDS_LIGHT_SOURCES``)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    for table in (colour.SDS_ILLUMINANTS, colour.SDS_LIGHT_SOURCES):
-        if name in table:
-            return Spectrum.from_colour(table[name], name=name)
-    raise InputError(
-        f"colour-science has no illuminant or light source named {name!r}", source="lamp"
-    )
 
 
 def random_mapping(
@@ -108,6 +126,96 @@ class SyntheticScene:
     mapping: QuadraticMapping
     broadband: RenderedObservation
     fluorescent: RenderedObservation
+    lamp_sets: dict[str, tuple[LampObservation, ...]] = field(default_factory=dict)
+    calibration: tuple[tuple[LampObservation, ...], ...] = ()
+
+
+def lamp_kind(spec: str) -> LampKind:
+    """The kind a lamp spec stands for (fluorescent lines start the mapping search)."""
+    if spec.startswith("FL"):
+        return "fluorescent"
+    if spec.lower().startswith("gauss:"):
+        return "narrowband"
+    return "halogen" if spec == "A" else "led"
+
+
+def colour_filter(grid_nm: FloatArray | None = None) -> Spectrum:
+    """A blue (cooling, Wratten-80-like) colour filter's transmission, modelled as a smooth step.
+
+    ``T(λ) = 0.12 + 0.8 / (1 + exp((λ − 560 nm) / 25 nm))``: passes blue and green, cuts most red.
+    """
+    axis = np.arange(360.0, 831.0) if grid_nm is None else np.asarray(grid_nm, dtype=np.float64)
+    values = 0.12 + 0.8 / (1.0 + np.exp((axis - 560.0) / 25.0))
+    return Spectrum(axis, values, name="blue colour filter")
+
+
+def behind_filter(camera: MultiSpectrum, transmission: Spectrum) -> MultiSpectrum:
+    """A camera behind a filter: its sensitivity times the filter's transmission."""
+    axis = camera.wavelength_nm
+    return MultiSpectrum(
+        axis,
+        camera.values * transmission.at(axis)[:, None],
+        name=f"{camera.name} behind a {transmission.name}",
+    )
+
+
+#: colour-science's Foveon camera (three stacked photodiodes: broad, overlapping curves).
+FOVEON_CAMERA = "Sigma SDMerill (NPL)"
+
+
+def out_of_basis_cameras(
+    filtered_name: str, filtered: MultiSpectrum
+) -> list[tuple[str, MultiSpectrum]]:
+    """Cameras unlike any basis: the Foveon camera and ``filtered`` behind :func:`colour_filter`."""
+    from calib.datasets import colour_science_cameras
+
+    (foveon,) = (r.sensitivity for r in colour_science_cameras() if r.name == FOVEON_CAMERA)
+    return [
+        (FOVEON_CAMERA, foveon),
+        (f"{filtered_name} + blue filter", behind_filter(filtered, colour_filter())),
+    ]
+
+
+def render_lamps(
+    specs: Sequence[str],
+    sensitivity: MultiSpectrum,
+    mapping: QuadraticMapping,
+    efficiency: Callable[[FloatArray], FloatArray],
+    rng: np.random.Generator,
+    noise_fraction: float,
+    direct_noise_fraction: float | None = None,
+) -> tuple[LampObservation, ...]:
+    """One camera's observations of lamps (specs) through one grating and mapping."""
+    noise = PeakFractionNoise(noise_fraction, direct_noise_fraction) if noise_fraction > 0 else None
+    return tuple(
+        _render(
+            lamp_from_spec(spec), lamp_kind(spec), sensitivity, mapping, efficiency, noise, rng
+        ).observation
+        for spec in specs
+    )
+
+
+def _render(
+    lamp: Spectrum,
+    kind: LampKind,
+    sensitivity: MultiSpectrum,
+    mapping: QuadraticMapping,
+    efficiency: Callable[[FloatArray], FloatArray],
+    noise: PeakFractionNoise | None,
+    rng: np.random.Generator,
+) -> RenderedObservation:
+    """One lamp through the scene's grating, on the mapping's pixels."""
+    n = round(mapping.pixel_range[1]) + 1 if mapping.pixel_range else 800
+    return render_observation(
+        lamp,
+        sensitivity,
+        mapping=mapping,
+        pixel=n,
+        grating_efficiency=efficiency,
+        noise=noise,
+        rng=rng,
+        kind=kind,
+    )
 
 
 def render_scene(
@@ -119,32 +227,61 @@ def render_scene(
     broadband_lamp: Spectrum,
     fluorescent_lamp: Spectrum,
     noise_fraction: float = 0.0,
+    lamp_sets: Sequence[str] = (),
+    calibration_cameras: Sequence[MultiSpectrum] = (),
+    direct_noise_fraction: float | None = None,
 ) -> SyntheticScene:
-    """Render the broadband and fluorescent observations of one camera (see module docstring)."""
+    """Render the broadband and fluorescent observations of one camera (see module docstring).
+
+    ``lamp_sets`` (keys of :data:`LAMP_SETS`) and ``calibration_cameras`` (other cameras seen
+    through the same grating under the 5 lamps) are rendered afterwards from the same generator.
+    ``direct_noise_fraction`` sets their direct measurement's noise apart from the profile's (the
+    direct spot sums many pixels); ``None`` keeps the protocol's (the same fraction).
+    """
     mapping = random_mapping(rng, grid)
     efficiency = random_efficiency(rng, grid)
-    n = round(mapping.pixel_range[1]) + 1 if mapping.pixel_range else 800
     noise = PeakFractionNoise(noise_fraction) if noise_fraction > 0 else None
     lamps: tuple[tuple[LampKind, Spectrum], ...] = (
         ("led", broadband_lamp),
         ("fluorescent", fluorescent_lamp),
     )
     rendered = {
-        kind: render_observation(
-            lamp,
-            sensitivity,
-            mapping=mapping,
-            pixel=n,
-            grating_efficiency=efficiency,
-            noise=noise,
-            rng=rng,
-            kind=kind,
-        )
+        kind: _render(lamp, kind, sensitivity, mapping, efficiency, noise, rng)
         for kind, lamp in lamps
     }
     truth = sensitivity.resample(grid, "interpolate", out_of_range="zero").values
+    sets = {
+        name: render_lamps(
+            LAMP_SETS[name],
+            sensitivity,
+            mapping,
+            efficiency,
+            rng,
+            noise_fraction,
+            direct_noise_fraction,
+        )
+        for name in lamp_sets
+    }
+    calibration = tuple(
+        render_lamps(
+            LAMP_SETS["5 lamps"],
+            camera,
+            mapping,
+            efficiency,
+            rng,
+            noise_fraction,
+            direct_noise_fraction,
+        )
+        for camera in calibration_cameras
+    )
     return SyntheticScene(
-        camera_name, truth / truth.max(), mapping, rendered["led"], rendered["fluorescent"]
+        camera_name,
+        truth / truth.max(),
+        mapping,
+        rendered["led"],
+        rendered["fluorescent"],
+        sets,
+        calibration,
     )
 
 
@@ -161,6 +298,7 @@ class SyntheticRow:
     time_s: float
     repeat: int = 0
     failure: str | None = None
+    coverage: float | None = None
 
 
 def evaluate_scene(
@@ -176,17 +314,8 @@ def evaluate_scene(
     """Estimate one variant on a rendered scene and score it against the truth."""
     started = time.perf_counter()
     led = scene.broadband.observation
-    observations = [led] if variant != "LED+Flu" else [led, scene.fluorescent.observation]
     try:
-        result = estimate_makabe2025(
-            observations,
-            basis=basis,
-            grid=grid,
-            mapping=scene.mapping if variant == "true mapping" else None,
-            solver=solver,
-            mapping_method="icp" if variant == "LED only (paper ICP)" else "search",
-            solve_lamps=[led.name],
-        )
+        result = _estimate_variant(scene, basis, variant, grid=grid, solver=solver)
     except EstimationError as exc:
         return SyntheticRow(
             scene.camera,
@@ -201,7 +330,8 @@ def evaluate_scene(
         )
     elapsed = time.perf_counter() - started
     mapping_re = None
-    if variant != "true mapping" and result.mapping is not None:
+    true_mapping = variant in ("true mapping", "multilamp: 5 lamps, true mapping")
+    if not true_mapping and result.mapping is not None:
         pixels = led.pixel
         true_nm = scene.mapping.wavelength_nm(pixels)
         inside = (true_nm >= grid.start_nm) & (true_nm <= grid.stop_nm)
@@ -216,9 +346,60 @@ def evaluate_scene(
         noise,
         relative_error(result.sensitivity, scene.truth),
         mapping_re,
-        result.mapping_re_estimate if variant != "true mapping" else None,
+        None if true_mapping else result.mapping_re_estimate,
         elapsed,
         repeat,
+        coverage=None if result.sensitivity_sigma is None else band_coverage(result, scene.truth),
+    )
+
+
+def band_coverage(result: EstimateResult, truth: FloatArray, *, width: float = 2.0) -> float:
+    """Fraction of (wavelength, channel) cells whose true value lies within ±``width`` σ.
+
+    ``truth`` ``(f, 3)`` is normalised like the estimate (maximum 1).
+    """
+    if result.sensitivity_sigma is None:
+        raise InputError("the estimate carries no σ", source=result.method)
+    inside = np.abs(result.sensitivity - truth) <= width * result.sensitivity_sigma
+    return float(np.mean(inside))
+
+
+def _estimate_variant(
+    scene: SyntheticScene,
+    basis: CameraBasis,
+    variant: str,
+    *,
+    grid: WavelengthGrid,
+    solver: Solver,
+) -> EstimateResult:
+    from calib.multilamp import estimate_multilamp, estimate_with_grating, refine_grating
+
+    led = scene.broadband.observation
+    if variant in PAPER_VARIANTS:
+        return estimate_makabe2025(
+            [led] if variant != "LED+Flu" else [led, scene.fluorescent.observation],
+            basis=basis,
+            grid=grid,
+            mapping=scene.mapping if variant == "true mapping" else None,
+            solver=solver,
+            mapping_method="icp" if variant == "LED only (paper ICP)" else "search",
+            solve_lamps=[led.name],
+        )
+    if variant == "grating file: 1 LED":
+        if not scene.calibration:
+            raise InputError(
+                "the grating-file variant needs calibration cameras in the scene",
+                source="variant",
+            )
+        grating, _ = refine_grating(scene.calibration, basis=basis, grid=grid)
+        (single,) = (obs for obs in scene.lamp_sets["5 lamps"] if obs.name == GRATING_FILE_LAMP)
+        return estimate_with_grating([single], grating, basis=basis, grid=grid)
+    set_name = variant.removeprefix("multilamp: ").removesuffix(", true mapping")
+    return estimate_multilamp(
+        scene.lamp_sets[set_name],
+        basis=basis,
+        grid=grid,
+        mapping=scene.mapping if variant.endswith("true mapping") else None,
     )
 
 
@@ -227,7 +408,7 @@ def run_protocol(
     basis: CameraBasis | Callable[[str], CameraBasis],
     *,
     grid: WavelengthGrid = DEFAULT_GRID,
-    variants: Sequence[str] = VARIANTS,
+    variants: Sequence[str] = PAPER_VARIANTS,
     noise_levels: Sequence[float] = NOISE_LEVELS,
     broadband_lamp: str = "D65",
     fluorescent_lamp: str = FLUORESCENT_LAMP,
@@ -235,6 +416,7 @@ def run_protocol(
     repeats: int = 1,
     seed: int = 0,
     progress: Callable[[SyntheticRow], None] | None = None,
+    direct_noise: float | None = None,
 ) -> list[SyntheticRow]:
     """Run the protocol over cameras × noise levels × repeats × variants (see module docstring).
 
@@ -247,6 +429,11 @@ def run_protocol(
         name giving one (e.g. the offline basis excluding that camera).
     seed
         Master seed; scene ``(camera i, noise j, repeat r)`` uses ``default_rng([seed, i, j, r])``.
+
+    The multi-lamp variants render their lamp sets after the paper's lamps, their direct
+    measurements with noise ``direct_noise`` (fraction of the peak; ``None``: the profile's); the
+    grating-file variant calibrates the grating with every *other* camera of ``cameras`` under the
+    5 lamps.
     """
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
@@ -254,6 +441,13 @@ def run_protocol(
     broadband = colour_lamp(broadband_lamp)
     fluorescent = colour_lamp(fluorescent_lamp)
     _ = fourier_basis(grid)  # validates the grid early
+    grating_variant = "grating file: 1 LED" in variants
+    lamp_sets = [
+        name
+        for name in LAMP_SETS
+        if any(v.startswith(f"multilamp: {name}") for v in variants)
+        or (grating_variant and name == "5 lamps")
+    ]
     rows: list[SyntheticRow] = []
     for camera_index, (name, sensitivity) in enumerate(cameras):
         for noise_index, noise in enumerate(noise_levels):
@@ -267,6 +461,13 @@ def run_protocol(
                     broadband_lamp=broadband,
                     fluorescent_lamp=fluorescent,
                     noise_fraction=noise,
+                    lamp_sets=lamp_sets,
+                    calibration_cameras=[
+                        other for index, (_, other) in enumerate(cameras) if index != camera_index
+                    ]
+                    if grating_variant
+                    else (),
+                    direct_noise_fraction=direct_noise,
                 )
                 scene_basis = basis(name) if callable(basis) else basis
                 for variant in variants:

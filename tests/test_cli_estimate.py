@@ -15,7 +15,7 @@ from calib.cli.estimate import run
 from calib.cli.estimate_args import parse_estimate_arguments
 from calib.errors import EstimationError, InputError
 from calib.forward import PeakFractionNoise, render_observation
-from calib.grating_file import GratingEfficiency, write_grating_file
+from calib.grating_file import GratingEfficiency, read_grating_file, write_grating_file
 from calib.metrics import relative_error
 from calib.offline import LampImages, LampProfile
 from calib.spectra import write_csv
@@ -364,3 +364,27 @@ def test_images_and_profiles_do_not_mix(capture: Capture, tmp_path: Path) -> Non
     argv += ["--lamp", "FL", "--profile", str(profile), "--spectrum", str(spectrum)]
     code, _, stderr = _call([*argv, "--out", str(tmp_path / "out")])
     assert code == 2 and "every lamp as RAW images or every lamp as a profile" in stderr
+
+
+def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
+    capture: Capture, tmp_path: Path
+) -> None:
+    first = tmp_path / "first"
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--method", "multilamp"]
+    code, stdout, stderr = _call([*argv, "--out", str(first), "--json"])
+    assert code == 0, stderr
+    assert json.loads(stdout)["method"] == "multilamp"
+    document = json.loads((first / "result.json").read_text())
+    assert document["sensitivity_sigma"] is not None
+    assert document["diagnostics"]["prior_weight_rule"] == "UPRE"
+    grating = read_grating_file(first / "grating.json")
+    assert grating.efficiency_sigma is not None
+    # The next camera (here: the same one) from profiles alone, through the saved grating.
+    second = tmp_path / "second"
+    argv = [*_profile_args(tmp_path, capture, direct=False), "--method", "multilamp"]
+    argv += ["--grating", str(first / "grating.json")]
+    code, stdout, stderr = _call([*argv, "--out", str(second), "--json"])
+    assert code == 0, stderr
+    assert json.loads(stdout)["method"] == "multilamp"
+    values = np.loadtxt(second / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    assert relative_error(values, capture.truth) < 0.05

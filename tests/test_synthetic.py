@@ -58,3 +58,29 @@ def test_cli_offline_writes_csv(tmp_path):
     # The offline basis is far coarser than the 44 measured cameras (RE ~0.12 here vs ~0.04).
     assert errors["Nikon 5100 (NPL)"] < 0.15 and errors["Canon EOS 5D Mark II (rawtoaces)"] < 0.15
     assert "mean" in result.output
+
+
+def test_multilamp_variants_see_the_same_scene_and_report_coverage(tmp_path):
+    basis, cameras = exact_basis(tmp_path)
+    from tests.synthetic_cameras import as_spectrum
+
+    camera = [("smooth", as_spectrum(cameras[1]))]
+    paper_only = run_protocol(camera, basis, variants=["true mapping"], noise_levels=[0.01])
+    rows = run_protocol(
+        camera,
+        basis,
+        variants=["true mapping", "multilamp: 5 lamps, true mapping"],
+        noise_levels=[0.01],
+    )
+    # Rendering the extra lamps after the paper's two leaves the paper's variants unchanged.
+    assert rows[0].relative_error == paper_only[0].relative_error
+    multi = rows[1]
+    assert multi.coverage is not None and 0.0 <= multi.coverage <= 1.0
+    assert multi.mapping_relative_error is None and np.isfinite(multi.relative_error)
+
+
+def test_cli_rejects_an_unknown_variant():
+    result = CliRunner().invoke(
+        build_app(), ["synthetic", "--offline", "--variant", "multilamp: 9 lamps"]
+    )
+    assert result.exit_code != 0

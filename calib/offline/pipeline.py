@@ -470,6 +470,18 @@ def _estimate(
     basis = settings.basis or default_camera_basis(grid, data_dir=settings.data_dir)
     mapping: QuadraticMapping | GratingGeometry | None = _wavelength_mapping(observations)
     with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
+    if settings.method.lower() == "multilamp" and checked.grating is not None:
+        # The grating library: η from an earlier multi-lamp calibration, s = q̂ / η.
+        result = estimate(
+            observations,
+            "multilamp",
+            grid=grid,
+            basis=basis,
+            mapping=mapping,
+            mapping_lamp=settings.mapping_lamp,
+            grating=checked.grating,
+        )
+        return result, checked.grating
     if with_direct:
         if checked.grating is not None:
             notes.append(

@@ -1,0 +1,114 @@
+"""``calib plan-lamps``: which of your lamps to use, and which extra lamp would help most."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from calib.errors import InputError
+from calib.lamp_planning import (
+    DEFAULT_NOISE_FRACTION,
+    SubsetScore,
+    best_additions,
+    rank_subsets,
+)
+from calib.lamp_specs import lamp_from_spec
+from calib.methods import default_camera_basis
+from calib.multilamp import DEFAULT_EFFICIENCY_TERMS
+from calib.spectra import Spectrum, WavelengthGrid
+
+#: Narrow-band LEDs suggested as extra lamps when none are given.
+DEFAULT_CANDIDATES: tuple[str, ...] = ("gauss:455:25", "gauss:530:35", "gauss:630:20")
+
+
+def _lamps(specs: list[str], option: str) -> list[Spectrum]:
+    lamps = []
+    for spec in specs:
+        try:
+            lamps.append(lamp_from_spec(spec))
+        except InputError as exc:
+            raise InputError(str(exc), source=f"{option} {spec}") from None
+    return lamps
+
+
+def _table(title: str, scores: list[SubsetScore]) -> Table:
+    table = Table(title=title, caption="σ(η): predicted RMS relative σ of the efficiency's shape")
+    table.add_column("rank", justify="right")
+    table.add_column("lamps")
+    table.add_column("σ(η) %", justify="right")
+    table.add_column("condition", justify="right")
+    for rank, score in enumerate(scores, start=1):
+        condition = f"{score.condition:.3g}" if math.isfinite(score.condition) else "∞ (< terms)"
+        table.add_row(
+            str(rank), ", ".join(score.lamps), f"{score.efficiency_sigma * 100:.2f}", condition
+        )
+    return table
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("plan-lamps")
+    def plan_lamps(
+        lamp: Annotated[
+            list[str],
+            typer.Option(
+                help="A lamp you have (repeatable): a spectrum CSV, a colour-science name "
+                "(LED-B3, FL2, A) or a Gaussian LED gauss:CENTRE_NM:FWHM_NM."
+            ),
+        ],
+        candidate: Annotated[
+            list[str] | None,
+            typer.Option(
+                help="An extra lamp you could add (repeatable; default: blue, green and red "
+                "narrow-band LEDs)."
+            ),
+        ] = None,
+        noise: Annotated[
+            float, typer.Option(help="Direct noise, fraction of the brightest channel.")
+        ] = DEFAULT_NOISE_FRACTION,
+        top: Annotated[int, typer.Option(min=1, help="Subsets to list.")] = 10,
+        terms: Annotated[
+            int, typer.Option(min=1, help="Fourier terms of the grating efficiency.")
+        ] = DEFAULT_EFFICIENCY_TERMS,
+        data_dir: Annotated[
+            Path | None,
+            typer.Option(help="Camera data directory for the prior (else the offline basis)."),
+        ] = None,
+        as_json: Annotated[
+            bool, typer.Option("--json", help="Print JSON instead of tables.")
+        ] = False,
+    ) -> None:
+        """Rank lamp subsets by how well they determine the grating efficiency (multilamp)."""
+        if not math.isfinite(noise) or noise <= 0:
+            raise InputError(f"must be a fraction > 0, got {noise}", source="--noise")
+        owned = _lamps(lamp, "--lamp")
+        extra = _lamps(list(candidate or DEFAULT_CANDIDATES), "--candidate")
+        prior = default_camera_basis(WavelengthGrid(), data_dir=data_dir).prior()
+        ranked = rank_subsets(owned, prior, noise_fraction=noise, efficiency_terms=terms)
+        additions = best_additions(
+            owned, extra, prior, noise_fraction=noise, efficiency_terms=terms
+        )
+        if as_json:
+            typer.echo(
+                json.dumps(
+                    {
+                        "subsets": [score.to_dict() for score in ranked[:top]],
+                        "additions": [score.to_dict() for score in additions],
+                    },
+                    indent=2,
+                )
+            )
+            return
+        console = Console()
+        console.print(_table("Your lamps: best subsets", ranked[:top]))
+        console.print(_table("All your lamps plus one more", additions))
+        best = additions[0]
+        console.print(
+            f"adding {best.lamps[-1]} helps most: σ(η) {ranked[0].efficiency_sigma * 100:.2f} % → "
+            f"{best.efficiency_sigma * 100:.2f} %"
+        )

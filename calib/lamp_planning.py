@@ -1,0 +1,166 @@
+"""Which lamps to buy: rank lamp subsets by how well they pin the grating efficiency down.
+
+For a set of lamps the multi-lamp solve (:mod:`calib.multilamp`) determines ``η⁻¹ = B_η c_η`` from
+the direct equations ``Σ_λ p_lc(λ) η⁻¹(λ) = m_dir,lc``. Before any capture they can be predicted for a
+typical camera (the camera prior's mean ``ŝ``) behind a flat grating: ``p_lc = e_l ŝ_c`` (integrated
+over the grid's hats), each equation with the noise of the synthetic protocol (a fraction of the
+brightest direct channel, plus the model floor). A subset is scored by
+
+* the condition number of its whitened data rows alone (∞ when it has fewer equations than ``c_η``
+  has terms: the camera prior must decide the rest), and
+* the predicted σ of ``η``'s shape (relative, RMS over the grid) from the posterior with the camera prior at
+  its natural weight, which is what the estimate's own uncertainty will be for a camera like ``ŝ``.
+
+Subsets are ranked by the predicted σ; :func:`best_additions` says which extra lamp (e.g. a red,
+green or blue LED) lowers it most.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calib.bases import CameraPrior, fourier_basis
+from calib.errors import InputError
+from calib.forward import lamp_operators
+from calib.multilamp import DEFAULT_EFFICIENCY_TERMS, MODEL_FLOOR, prior_rows
+from calib.prior_solve import ResponseEstimate
+from calib.spectra import Spectrum
+
+FloatArray = NDArray[np.float64]
+
+#: Direct noise of the prediction (fraction of the brightest channel), as in ``calib synthetic``.
+DEFAULT_NOISE_FRACTION = 0.01
+#: Most lamps :func:`rank_subsets` enumerates every subset of (2^n − 1 subsets).
+MAX_LAMPS = 12
+
+
+@dataclass(frozen=True)
+class SubsetScore:
+    """One lamp subset's predicted quality.
+
+    Attributes
+    ----------
+    lamps
+        The lamps' names.
+    condition
+        Condition number of the whitened direct equations alone (``inf`` when underdetermined).
+    efficiency_sigma
+        Predicted RMS relative σ of ``η`` over the grid (0.01 = 1 %), camera prior included.
+    """
+
+    lamps: tuple[str, ...]
+    condition: float
+    efficiency_sigma: float
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "lamps": list(self.lamps),
+            "condition": self.condition if math.isfinite(self.condition) else None,
+            "efficiency_sigma": self.efficiency_sigma,
+        }
+
+
+def _lamp_rows(
+    lamp: Spectrum, prior: CameraPrior, efficiency_basis: FloatArray, noise_fraction: float
+) -> FloatArray:
+    """Whitened predicted direct equations of one lamp: ``(3, b)``."""
+    direct_row = lamp_operators(lamp, prior.grid).direct_row
+    direct = direct_row @ prior.mean
+    sigma = (
+        np.sqrt((noise_fraction * float(np.max(direct))) ** 2 + (MODEL_FLOOR * direct) ** 2)
+        + 1e-300
+    )
+    return np.stack(
+        [(direct_row * prior.mean[:, c]) @ efficiency_basis / sigma[c] for c in range(3)]
+    )
+
+
+def score_subset(
+    rows: Sequence[FloatArray],
+    names: Sequence[str],
+    penalty: FloatArray,
+    efficiency_basis: FloatArray,
+) -> SubsetScore:
+    """Score a subset from its lamps' whitened rows and the prior's rows (see module docstring)."""
+    data = np.vstack(rows)
+    b_eta = data.shape[1]
+    singular = np.linalg.svd(data, compute_uv=False)
+    condition = (
+        float(singular[0] / max(singular[-1], 1e-300)) if data.shape[0] >= b_eta else math.inf
+    )
+    padded = np.hstack([data, np.zeros((data.shape[0], 1))])
+    posterior = np.linalg.pinv(padded.T @ padded + penalty.T @ penalty, hermitian=True)
+    # η's overall scale does not matter (results are normalised): the σ of its shape, η⁻¹ minus its
+    # mean. A flat grating has η⁻¹ = 1 in this gauge: the relative σ of η⁻¹ is that of η.
+    shape = efficiency_basis - efficiency_basis.mean(axis=0)
+    variance = np.einsum("ij,jk,ik->i", shape, posterior[:b_eta, :b_eta], shape)
+    sigma = float(np.sqrt(np.mean(np.clip(variance, 0.0, None))))
+    return SubsetScore(tuple(names), condition, sigma)
+
+
+def rank_subsets(
+    lamps: Sequence[Spectrum],
+    prior: CameraPrior,
+    *,
+    noise_fraction: float = DEFAULT_NOISE_FRACTION,
+    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+    min_size: int = 1,
+) -> list[SubsetScore]:
+    """Every subset of ``lamps`` (at least ``min_size``), best (smallest predicted σ) first.
+
+    Raises
+    ------
+    InputError
+        No lamps, too many, duplicate names, or a spectrum that does not cover the prior's grid.
+    """
+    if not lamps:
+        raise InputError("no lamps given", source="lamps")
+    if len(lamps) > MAX_LAMPS:
+        raise InputError(
+            f"{len(lamps)} lamps give {2 ** len(lamps) - 1} subsets; give at most {MAX_LAMPS}",
+            source="lamps",
+        )
+    names = [lamp.name for lamp in lamps]
+    if len(set(names)) != len(names):
+        raise InputError(f"lamp names must be unique, got {names}", source="lamps")
+    if noise_fraction <= 0 or not math.isfinite(noise_fraction):
+        raise InputError(f"the noise fraction must be > 0, got {noise_fraction}", source="noise")
+    efficiency_basis = fourier_basis(prior.grid, efficiency_terms)
+    rows = {lamp.name: _lamp_rows(lamp, prior, efficiency_basis, noise_fraction) for lamp in lamps}
+    flat = np.ones(prior.grid.size)
+    typical = ResponseEstimate(prior.mean, np.zeros((3, prior.grid.size, prior.grid.size)), flat, 0)
+    penalty = prior_rows(typical, prior, efficiency_basis, flat, 1.0)
+    scores = [
+        score_subset([rows[name] for name in subset], subset, penalty, efficiency_basis)
+        for size in range(max(min_size, 1), len(lamps) + 1)
+        for subset in itertools.combinations(names, size)
+    ]
+    return sorted(scores, key=lambda score: (score.efficiency_sigma, len(score.lamps)))
+
+
+def best_additions(
+    lamps: Sequence[Spectrum],
+    candidates: Sequence[Spectrum],
+    prior: CameraPrior,
+    *,
+    noise_fraction: float = DEFAULT_NOISE_FRACTION,
+    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+) -> list[SubsetScore]:
+    """All of ``lamps`` plus each candidate in turn, best first (the first is the one to buy)."""
+    scored = []
+    for candidate in candidates:
+        ranked = rank_subsets(
+            [*lamps, candidate],
+            prior,
+            noise_fraction=noise_fraction,
+            efficiency_terms=efficiency_terms,
+            min_size=len(lamps) + 1,
+        )
+        scored.append(ranked[0])
+    return sorted(scored, key=lambda score: score.efficiency_sigma)

@@ -1,0 +1,93 @@
+"""calib.lamp_planning, calib.lamp_specs and ``calib plan-lamps``."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from calib.bases import CameraPrior, fallback_camera_basis
+from calib.cli import build_app, main
+from calib.errors import InputError
+from calib.lamp_planning import best_additions, rank_subsets
+from calib.lamp_specs import gaussian_lamp, lamp_from_spec
+from calib.spectra import write_csv
+
+
+@pytest.fixture(scope="module")
+def prior() -> CameraPrior:
+    return fallback_camera_basis().prior()
+
+
+def test_a_gaussian_led_has_its_width_at_half_maximum():
+    lamp = gaussian_lamp(630.0, 20.0)
+    peak, half = lamp.at(np.array([630.0, 640.0]))
+    assert half / peak == pytest.approx(0.5, abs=1e-3)
+    assert lamp_from_spec("gauss:630:20").name == "gauss:630:20"
+
+
+@pytest.mark.parametrize("spec", ["gauss:630", "gauss:x:20", "gauss:630:0", "no-such-lamp"])
+def test_bad_lamp_specs_are_named(spec):
+    with pytest.raises(InputError):
+        lamp_from_spec(spec)
+
+
+def test_subsets_rank_by_predicted_sigma_and_more_spectrally_different_lamps_win(prior):
+    lamps = [lamp_from_spec(spec) for spec in ("LED-B3", "FL2", "A", "gauss:630:20")]
+    ranked = rank_subsets(lamps, prior)
+    assert len(ranked) == 2**4 - 1
+    sigmas = [score.efficiency_sigma for score in ranked]
+    assert sigmas == sorted(sigmas)
+    by_lamps = {score.lamps: score for score in ranked}
+    # Fewer equations than Fourier terms: no data-only conditioning.
+    assert math.isinf(by_lamps[("LED-B3",)].condition)
+    # Adding a lamp never makes the prediction worse (the posterior only gains information).
+    assert (
+        by_lamps[("LED-B3", "FL2", "A", "gauss:630:20")].efficiency_sigma
+        <= by_lamps[("LED-B3", "FL2", "A")].efficiency_sigma
+    )
+
+
+def test_the_suggested_extra_lamp_is_the_one_that_lowers_sigma_most(prior):
+    owned = [lamp_from_spec(spec) for spec in ("LED-B1", "LED-B3", "LED-B5")]
+    candidates = [lamp_from_spec(spec) for spec in ("LED-B2", "gauss:630:20")]
+    additions = best_additions(owned, candidates, prior)
+    assert additions[0].efficiency_sigma <= additions[1].efficiency_sigma
+    # A red LED differs from three white LEDs far more than a fourth white LED does.
+    assert additions[0].lamps[-1] == "gauss:630:20"
+
+
+def test_cli_prints_a_ranked_table_and_json(tmp_path):
+    csv_path = write_csv(tmp_path / "halogen.csv", lamp_from_spec("A"))
+    runner = CliRunner()
+    arguments = ["plan-lamps", "--lamp", "LED-B3", "--lamp", "FL2", "--lamp", str(csv_path)]
+    result = runner.invoke(build_app(), arguments)
+    assert result.exit_code == 0, result.output
+    assert "best subsets" in result.output and "helps most" in result.output
+    result = runner.invoke(build_app(), [*arguments, "--json", "--top", "3"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    assert len(data["subsets"]) == 3 and len(data["additions"]) == 3
+    assert data["subsets"][0]["efficiency_sigma"] <= data["subsets"][-1]["efficiency_sigma"]
+
+
+@pytest.mark.parametrize(
+    ("arguments", "named"),
+    [
+        (["--lamp", "missing.csv"], "missing.csv"),
+        (["--lamp", "A", "--candidate", "gauss:630"], "--candidate gauss:630"),
+        (["--lamp", "A", "--noise", "-1"], "--noise"),
+    ],
+)
+def test_cli_exit_code_2_names_the_bad_input(arguments, named, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", ["calib", "plan-lamps", *arguments])
+    with pytest.raises(SystemExit) as exited:
+        main()
+    assert exited.value.code == 2
+    stderr = capsys.readouterr().err
+    assert named in stderr and len(stderr.strip().splitlines()) == 1

@@ -1,0 +1,222 @@
+"""calib.multilamp: several lamps jointly, the σ band (calibration, bootstrap), the grating library."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.bases import CameraBasis, fallback_camera_basis
+from calib.datasets import colour_science_cameras, find_camera
+from calib.errors import InputError
+from calib.grating_file import read_grating_file, write_grating_file
+from calib.makabe2025 import estimate_makabe2025
+from calib.mapping import QuadraticMapping
+from calib.methods import ESTIMATION_METHODS, estimate
+from calib.metrics import relative_error
+from calib.multilamp import (
+    bootstrap_sigma,
+    calibrate_lamps,
+    estimate_multilamp,
+    estimate_with_grating,
+    grating_file_from,
+    mapping_lamps,
+    refine_grating,
+)
+from calib.observations import LampObservation
+from calib.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.synthetic import (
+    LAMP_SETS,
+    band_coverage,
+    random_efficiency,
+    random_mapping,
+    render_lamps,
+)
+from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
+
+
+@pytest.fixture(scope="module")
+def basis(tmp_path_factory: pytest.TempPathFactory) -> CameraBasis:
+    return exact_basis(tmp_path_factory.mktemp("basis"))[0]
+
+
+def _scene(
+    seed: int, lamp_set: str = "5 lamps", noise: float = 0.01
+) -> tuple[
+    np.ndarray, QuadraticMapping, tuple[LampObservation, ...], Callable[[np.ndarray], np.ndarray]
+]:
+    """A smooth camera near (not in) the basis' span, a random grating and mapping, the lamps."""
+    rng = np.random.default_rng([99, seed])
+    camera = gaussian_camera(
+        (rng.uniform(575, 625), rng.uniform(515, 565), rng.uniform(435, 485)),
+        (rng.uniform(28, 52), rng.uniform(33, 57), rng.uniform(23, 42)),
+    )
+    mapping = random_mapping(rng)
+    efficiency = random_efficiency(rng)
+    observations = render_lamps(
+        LAMP_SETS[lamp_set], as_spectrum(camera), mapping, efficiency, rng, noise
+    )
+    return camera / camera.max(), mapping, observations, efficiency
+
+
+def test_multilamp_is_registered_and_reachable_through_estimate(basis):
+    truth, mapping, observations, _ = _scene(0, noise=0.0)
+    assert "multilamp" in ESTIMATION_METHODS
+    result = estimate(observations, method="multilamp", basis=basis, mapping=mapping)
+    assert result.method == "multilamp"
+    assert result.sensitivity_sigma is not None
+    assert result.grating_efficiency_sigma is not None
+    assert result.diagnostics["prior_weight_rule"] == "UPRE"
+    assert result.diagnostics["direct_equations"] == 3 * len(observations)
+    assert relative_error(result.sensitivity, truth) < 0.02
+
+
+def test_noise_free_lamps_recover_the_efficiency_and_the_camera(basis):
+    truth, mapping, observations, efficiency = _scene(1, noise=0.0)
+    result = estimate_multilamp(observations, basis=basis, mapping=mapping)
+    true_eta = efficiency(DEFAULT_GRID.wavelength_nm)
+    assert result.grating_efficiency is not None
+    np.testing.assert_allclose(result.grating_efficiency, true_eta / true_eta.max(), atol=0.03)
+    assert relative_error(result.sensitivity, truth) < 0.015
+
+
+def test_the_sigma_band_is_calibrated_pooled_over_scenes(basis):
+    """The true curve inside ±2σ at 90–98 % of (wavelength, channel) cells, 1 % noise, 6 scenes."""
+    coverage = []
+    for seed in range(6):
+        truth, mapping, observations, _ = _scene(seed)
+        result = estimate_multilamp(observations, basis=basis, mapping=mapping)
+        coverage.append(band_coverage(result, truth))
+    assert 0.90 <= float(np.mean(coverage)) <= 0.98
+
+
+def test_the_analytic_noise_sigma_agrees_with_a_bootstrap_over_the_noise_model(basis):
+    _, mapping, observations, _ = _scene(0)
+    analytic = estimate_multilamp(observations, basis=basis, mapping=mapping, uncertainty="noise")
+    bootstrap = bootstrap_sigma(
+        observations,
+        basis=basis,
+        mapping=mapping,
+        rng=np.random.default_rng(1),
+        draws=20,
+        prior_weight=analytic.diagnostics["prior_weight"],
+    )
+    assert analytic.sensitivity_sigma is not None
+    bright = analytic.sensitivity > 0.05
+    ratio = analytic.sensitivity_sigma[bright] / bootstrap[bright]
+    assert 0.8 <= float(np.median(ratio)) <= 1.25
+    # The posterior also carries the prior's uncertainty: never narrower than the noise alone.
+    posterior = estimate_multilamp(observations, basis=basis, mapping=mapping)
+    assert posterior.sensitivity_sigma is not None
+    assert np.all(posterior.sensitivity_sigma >= analytic.sensitivity_sigma - 1e-9)
+
+
+def test_the_prior_weight_falls_as_lamps_are_added(basis):
+    _, mapping, observations, _ = _scene(2)
+    one = estimate_multilamp(observations[:1], basis=basis, mapping=mapping)
+    all_lamps = estimate_multilamp(observations, basis=basis, mapping=mapping)
+    assert all_lamps.diagnostics["prior_weight"] < one.diagnostics["prior_weight"]
+
+
+def test_more_lamps_beat_the_single_lamp_prior_solve_on_a_camera_outside_the_basis():
+    """Sigma SDMerill (Foveon) against a basis of the other colour-science cameras."""
+    prior_basis = fallback_camera_basis(exclude=["Sigma SDMerill"])
+    camera = find_camera(colour_science_cameras(), "Sigma SDMerill").sensitivity
+    rng = np.random.default_rng(3)
+    mapping = random_mapping(rng)
+    observations = render_lamps(
+        LAMP_SETS["3 lamps + RGB LEDs"], camera, mapping, random_efficiency(rng), rng, 0.01
+    )
+    truth = camera.resample(DEFAULT_GRID, "interpolate", out_of_range="zero").values
+    truth = truth / truth.max()
+    multi = estimate_multilamp(observations, basis=prior_basis, mapping=mapping)
+    single = estimate_makabe2025(
+        observations, basis=prior_basis, mapping=mapping, solve_lamps=[observations[0].name]
+    )
+    assert relative_error(multi.sensitivity, truth) < 0.75 * relative_error(
+        single.sensitivity, truth
+    )
+
+
+def test_a_grating_file_lets_one_led_shot_estimate_a_new_camera(basis, tmp_path: Path):
+    _, mapping, observations, efficiency = _scene(4, noise=0.003)
+    calibrated = calibrate_lamps(observations, basis=basis, mapping=mapping)
+    path = write_grating_file(
+        tmp_path / "grating.json", grating_file_from(calibrated, description="bench A")
+    )
+    grating = read_grating_file(path)
+    assert grating.efficiency_sigma is not None
+    assert grating.geometry["description"] == "bench A"
+    assert json.loads(path.read_text())["provenance"]["method"] == "multilamp"
+    # Another camera behind the same grating, one LED, no direct measurement needed.
+    rng = np.random.default_rng(11)
+    other = gaussian_camera((605, 530, 455), (35, 45, 28))
+    (led,) = render_lamps(("LED-B3",), as_spectrum(other), mapping, efficiency, rng, 0.003)
+    led = LampObservation(
+        name=led.name,
+        spectrum=led.spectrum,
+        pixel=led.pixel,
+        profile=led.profile,
+        profile_sigma=led.profile_sigma,
+        kind="led",
+    )
+    result = estimate_with_grating([led], grating, basis=basis, mapping=mapping)
+    assert result.sensitivity_sigma is not None
+    assert relative_error(result.sensitivity, other / other.max()) < 0.04
+
+
+def test_cameras_through_one_grating_share_and_refine_it(basis):
+    scenes = [_scene(seed) for seed in (5, 6)]
+    # One grating for both: re-render the second camera through the first scene's.
+    _, mapping, first, efficiency = scenes[0]
+    rng = np.random.default_rng(12)
+    second = render_lamps(
+        LAMP_SETS["5 lamps"],
+        as_spectrum(gaussian_camera((610, 545, 450), (40, 40, 30))),
+        mapping,
+        efficiency,
+        rng,
+        0.01,
+    )
+    alone = calibrate_lamps(first, basis=basis, mapping=mapping)
+    grating, results = refine_grating([first, second], basis=basis, mappings=[mapping, mapping])
+    assert len(results) == 2
+    assert grating.efficiency_sigma is not None
+    alone_sigma = grating_file_from(alone).efficiency_sigma
+    assert alone_sigma is not None
+    assert float(np.mean(grating.efficiency_sigma)) < float(np.mean(alone_sigma))
+
+
+def test_the_mapping_is_searched_with_the_fluorescent_lamp_and_one_other():
+    _, _, observations, _ = _scene(0, noise=0.0)
+    fluorescent = [o for o in observations if o.kind == "fluorescent"]
+    chosen = mapping_lamps(observations)
+    assert chosen[: len(fluorescent)] == fluorescent
+    assert len(chosen) == len(fluorescent) + 1
+
+
+def test_bad_inputs_are_named(basis):
+    _, mapping, observations, _ = _scene(0, noise=0.0)
+    with pytest.raises(InputError, match="unique"):
+        estimate_multilamp([observations[0], observations[0]], basis=basis, mapping=mapping)
+    with pytest.raises(InputError, match="uncertainty"):
+        estimate_multilamp(observations, basis=basis, mapping=mapping, uncertainty="maybe")  # type: ignore[arg-type]
+    no_direct = LampObservation(
+        name="bare",
+        spectrum=observations[0].spectrum,
+        pixel=observations[0].pixel,
+        profile=observations[0].profile,
+    )
+    with pytest.raises(InputError, match="direct"):
+        estimate_multilamp([no_direct], basis=basis, mapping=mapping)
+
+
+def test_a_camera_behind_a_filter_is_a_different_camera():
+    from calib.synthetic import behind_filter, colour_filter
+
+    camera = MultiSpectrum(DEFAULT_GRID.wavelength_nm, np.ones((DEFAULT_GRID.size, 3)))
+    filtered = behind_filter(camera, colour_filter())
+    assert filtered.values[0, 0] > 0.8 and filtered.values[-1, 0] < 0.15
