@@ -291,9 +291,10 @@ def apply_blur(values: FloatArray, kernel: FloatArray | None) -> FloatArray:
     # search blurs a model per trial mapping, and a Python loop of np.convolve per column cost it
     # a third of its time.
     origin = -1 if weights.size % 2 == 0 else 0
-    return convolve1d(
+    blurred: FloatArray = convolve1d(
         np.asarray(values, dtype=np.float64), weights, axis=0, mode="constant", origin=origin
     )
+    return blurred
 
 
 # ------------------------------------------------------------------------------------ noise
