@@ -25,6 +25,10 @@ bend:
    structure (lines, the blue LED peak, D65's absorption features) pins the mapping. Then 5 nm
    nodes (with the global stage's prior) refine it. All three channels share one mapping.
 
+A broadband lamp's profile has aliases (see :data:`LOCAL_FLEXIBILITY`): when the local costs of
+competing basins are close, the mapping's error estimate includes their spread
+(:func:`basin_spread_nm`) as well as the final fit's covariance.
+
 The response lives on the working range plus margins beyond it that are separate pieces (a camera known
 only on 400–700 nm is zero beyond; a real one is not: both are representable).
 """
@@ -668,6 +672,7 @@ def find_mapping(
         100,
         final=True,
     )
+    spread_nm = basin_spread_nm(best, outcomes, pixel_range)
     covers = best.wavelength_nm(np.array(pixel_range))
     tolerance = (
         0.5 * grid.step_nm
@@ -688,9 +693,13 @@ def find_mapping(
             "global_cost": global_cost,
             "final_cost": cost,
             "finalist_costs": [c for _, c in outcomes],
+            "basin_spread_nm": spread_nm,
             "flexibility": FLEXIBILITY,
             "local_flexibility": LOCAL_FLEXIBILITY,
-        }
+        },
+        wavelength_rms_nm=None
+        if best.wavelength_rms_nm is None
+        else math.hypot(best.wavelength_rms_nm, spread_nm),
     )
 
 
@@ -709,6 +718,30 @@ def _distinct(
         if len(chosen) == count:
             break
     return chosen
+
+
+def basin_spread_nm(
+    best: QuadraticMapping,
+    outcomes: Sequence[tuple[QuadraticMapping, float]],
+    pixel_range: tuple[float, float],
+) -> float:
+    """RMS wavelength distance (nm) of ``best`` from competing basins, weighted by their evidence.
+
+    ``outcomes`` are the local stage's ``(mapping, cost)``; the cost is a χ², so a basin whose cost
+    exceeds the lowest by ``Δ`` carries a relative weight ``exp(−Δ/2)``. The weighted mean squared
+    distance of ``g(p)`` from ``best`` over ``pixel_range`` is the error that a choice between
+    near-equal basins adds to the covariance's local one: near zero when one basin is clearly
+    best, the basins' separation when the profile cannot tell them apart.
+    """
+    if not outcomes:
+        return 0.0
+    costs = np.array([cost for _, cost in outcomes])
+    weights = np.exp(-0.5 * (costs - costs.min()))
+    pixels = np.linspace(pixel_range[0], pixel_range[1], 64)
+    squared = np.array(
+        [np.mean((m.wavelength_nm(pixels) - best.wavelength_nm(pixels)) ** 2) for m, _ in outcomes]
+    )
+    return float(np.sqrt(np.sum(weights * squared) / np.sum(weights)))
 
 
 def _binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:

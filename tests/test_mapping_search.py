@@ -14,6 +14,7 @@ from calib.forward import PeakFractionNoise, render_observation
 from calib.mapping import QuadraticMapping, icp_mapping
 from calib.mapping_search import (
     ResponseFit,
+    basin_spread_nm,
     bin_pixels,
     find_mapping,
     robust_noise_sigma,
@@ -134,6 +135,18 @@ def test_paper_icp_reproduces_its_error_level_and_ours_beats_it(prior, camera):
     ours = _mapping_re(find_mapping([observation], prior, DEFAULT_GRID))
     assert 2e-3 < paper < 6e-2
     assert ours < paper / 10
+
+
+def test_basin_spread_weighs_competing_basins_by_their_evidence():
+    best = QuadraticMapping(0.0, 0.4, 380.0, pixel_range=(0.0, 799.0))
+    alias = QuadraticMapping(0.0, 0.4, 390.0, pixel_range=(0.0, 799.0))
+    # Equal costs: the profile cannot tell the basins apart, half the weight sits 10 nm away.
+    tied = basin_spread_nm(best, [(best, 100.0), (alias, 100.0)], (0.0, 799.0))
+    assert tied == pytest.approx(10.0 / np.sqrt(2.0))
+    # A χ² difference of 40: the alias carries e⁻²⁰ of the weight.
+    clear = basin_spread_nm(best, [(best, 100.0), (alias, 140.0)], (0.0, 799.0))
+    assert clear < 1e-3
+    assert basin_spread_nm(best, [(best, 100.0)], (0.0, 799.0)) == 0.0
 
 
 @pytest.mark.slow
