@@ -16,12 +16,18 @@ bend:
    (several hypotheses); a broadband lamp's normalised cross-correlation with ``ŝ ⊙ e`` over linear
    mappings; or starts given by the caller (e.g. from the grating's geometry).
 2. Global: the response follows a Gaussian camera prior (:class:`calib.bases.CameraPrior`, widened by
-   a smooth grating efficiency); on a binned profile, the wavelengths at both ends are scanned on a grid
-   around each start and the best grid points refined. The prior gives the cost a clear global minimum
-   where a free response would absorb a wrong mapping.
-3. Local: a free smooth response (second-difference penalty) on 10 nm and then 5 nm nodes, so a camera
-   outside the prior's span does not bias the result; the lamp's fine structure (lines, the blue LED
-   peak, D65's absorption features) pins the mapping. All three channels share one mapping.
+   a smooth grating efficiency and a small smooth deviation); on a binned profile, the wavelengths at
+   both ends are scanned on a grid around each start and the best grid points refined. The prior
+   gives the cost a clear global minimum where a free response would absorb a wrong mapping.
+3. Local: on the full profile, 10 nm nodes and a response whose smooth deviation from the prior may
+   be as large as the channel itself: the global stage's distinct minima are refined and the lowest
+   cost wins, so a camera outside the prior's span does not pick the basin; the lamp's fine
+   structure (lines, the blue LED peak, D65's absorption features) pins the mapping. Then 5 nm
+   nodes (with the global stage's prior) refine it. All three channels share one mapping.
+
+A broadband lamp's profile has aliases (see :data:`LOCAL_FLEXIBILITY`): when the local costs of
+competing basins are close, the mapping's error estimate includes their spread
+(:func:`basin_spread_nm`) as well as the final fit's covariance.
 
 The response lives on the working range plus margins beyond it that are separate pieces (a camera known
 only on 400–700 nm is zero beyond; a real one is not: both are representable).
@@ -32,7 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -60,6 +66,7 @@ from calib.spectra import WavelengthGrid
 
 FloatArray = NDArray[np.float64]
 Mapping = QuadraticMapping | GratingGeometry | TiltedGrating
+AnyMapping = TypeVar("AnyMapping", QuadraticMapping, TiltedGrating)
 
 #: Node spacing (nm) of the response in the global and first local stage, and in the last stage.
 COARSE_NODES_NM = 10.0
@@ -75,6 +82,17 @@ EFFICIENCY_CORRELATION_NM = 80.0
 #: correlation length of that smooth deviation.
 FLEXIBILITY = 0.05
 FLEX_CORRELATION_NM = 25.0
+#: Flexibility of the response in the first local stage, which chooses between the global stage's
+#: basins. A broadband lamp's profile has aliases: moving (part of) the spectrum by the spacing of
+#: the lamp's structure (D65 is tabulated at 10 nm and interpolated linearly) changes the profile
+#: only by what a response on nodes of that spacing absorbs. Under the stiff prior, a camera unlike
+#: the training set can fit an alias better (its response there looks more like the mean camera's)
+#: and the mapping lands a whole alias spacing off. Letting the response deviate smoothly by as much
+#: as the channel itself hands that choice to the lamp's structure; the prior's covariance still
+#: sets how rough the response may be. The last stage, within the chosen basin, keeps the stiff
+#: prior (it converges in fewer evaluations). Leave-one-camera-out on the 44 training cameras
+#: (``bench/tune_mapping.py``, 1 % noise) finds 0.05 and 2 equally good for cameras like the others.
+LOCAL_FLEXIBILITY = 2.0
 #: Relative error of the profile model itself (lamp spectrum calibration, η within a pixel, the
 #: response between nodes), added in quadrature to the noise: clean data do not make the model's
 #: own approximations decisive.
@@ -93,7 +111,7 @@ REFINED_POINTS = 3
 #: Least-squares tolerances of the intermediate stages and of the final one.
 INTERMEDIATE_TOLERANCE = 1e-6
 FINAL_TOLERANCE = 1e-9
-#: Distinct global minima carried into the local (free-response) stages.
+#: Distinct global minima carried into the local stages.
 LOCAL_FINALISTS = 2
 
 
@@ -582,6 +600,7 @@ def find_mapping(
         node_step_nm: float,
         stage_kernel: FloatArray | None,
         sigma_floor: float = 0.0,
+        flexibility: float = FLEXIBILITY,
     ) -> JointFit:
         return JointFit(
             tuple(
@@ -590,7 +609,7 @@ def find_mapping(
                     grid,
                     node_step_nm=node_step_nm,
                     prior=prior,
-                    flexibility=FLEXIBILITY,
+                    flexibility=flexibility,
                     kernel=stage_kernel,
                     sigma_floor=sigma_floor,
                 )
@@ -637,28 +656,25 @@ def find_mapping(
     ]
     refined.sort(key=lambda item: item[1])
     global_cost = refined[0][1]
-    finalists: list[QuadraticMapping] = []
-    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
-    for mapping, _ in refined:
-        if all(
-            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) > 1.0
-            for other in finalists
-        ):
-            finalists.append(mapping)
-        if len(finalists) == LOCAL_FINALISTS:
-            break
+    finalists = _distinct([mapping for mapping, _ in refined], pixel_range, LOCAL_FINALISTS)
 
-    # Local stages on the full profiles: 10 nm nodes choose between the finalists, 5 nm nodes
-    # remove the coarse representation's bias.
-    coarse_fit = joint_fit(1, COARSE_NODES_NM, kernel)
+    # Local stages on the full profiles: 10 nm nodes and a flexible response choose between the
+    # finalists, 5 nm nodes remove the coarse representation's bias.
+    coarse_fit = joint_fit(1, COARSE_NODES_NM, kernel, flexibility=LOCAL_FLEXIBILITY)
     outcomes = [
         _refine(finalist, coarse_fit, pixel_range, method, max_evaluations=100)
         for finalist in finalists
     ]
     best, _ = min(outcomes, key=lambda item: item[1])
     best, cost = _refine(
-        best, joint_fit(1, FINE_NODES_NM, kernel), pixel_range, method, 100, final=True
+        best,
+        joint_fit(1, FINE_NODES_NM, kernel),
+        pixel_range,
+        method,
+        100,
+        final=True,
     )
+    spread_nm = basin_spread_nm(best, outcomes, pixel_range)
     covers = best.wavelength_nm(np.array(pixel_range))
     tolerance = (
         0.5 * grid.step_nm
@@ -679,9 +695,55 @@ def find_mapping(
             "global_cost": global_cost,
             "final_cost": cost,
             "finalist_costs": [c for _, c in outcomes],
+            "basin_spread_nm": spread_nm,
             "flexibility": FLEXIBILITY,
-        }
+            "local_flexibility": LOCAL_FLEXIBILITY,
+        },
+        wavelength_rms_nm=None
+        if best.wavelength_rms_nm is None
+        else math.hypot(best.wavelength_rms_nm, spread_nm),
     )
+
+
+def _distinct(
+    mappings: Sequence[AnyMapping], pixel_range: tuple[float, float], count: int
+) -> list[AnyMapping]:
+    """The first ``count`` of ``mappings`` that differ from every earlier one by > 1 nm somewhere."""
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+    chosen: list[AnyMapping] = []
+    for mapping in mappings:
+        if all(
+            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) > 1.0
+            for other in chosen
+        ):
+            chosen.append(mapping)
+        if len(chosen) == count:
+            break
+    return chosen
+
+
+def basin_spread_nm(
+    best: QuadraticMapping,
+    outcomes: Sequence[tuple[QuadraticMapping, float]],
+    pixel_range: tuple[float, float],
+) -> float:
+    """RMS wavelength distance (nm) of ``best`` from competing basins, weighted by their evidence.
+
+    ``outcomes`` are the local stage's ``(mapping, cost)``; the cost is a χ², so a basin whose cost
+    exceeds the lowest by ``Δ`` carries a relative weight ``exp(−Δ/2)``. The weighted mean squared
+    distance of ``g(p)`` from ``best`` over ``pixel_range`` is the error that a choice between
+    near-equal basins adds to the covariance's local one: near zero when one basin is clearly
+    best, the basins' separation when the profile cannot tell them apart.
+    """
+    if not outcomes:
+        return 0.0
+    costs = np.array([cost for _, cost in outcomes])
+    weights = np.exp(-0.5 * (costs - costs.min()))
+    pixels = np.linspace(pixel_range[0], pixel_range[1], 64)
+    squared = np.array(
+        [np.mean((m.wavelength_nm(pixels) - best.wavelength_nm(pixels)) ** 2) for m, _ in outcomes]
+    )
+    return float(np.sqrt(np.sum(weights * squared) / np.sum(weights)))
 
 
 def _binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
@@ -792,16 +854,7 @@ def _physical_search(
         for _, point in points[:REFINED_POINTS]
     ]
     refined.sort(key=lambda item: item[1])
-    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
-    finalists: list[TiltedGrating] = []
-    for mapping, _ in refined:
-        if all(
-            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) > 1.0
-            for other in finalists
-        ):
-            finalists.append(mapping)
-        if len(finalists) == LOCAL_FINALISTS:
-            break
+    finalists = _distinct([mapping for mapping, _ in refined], pixel_range, LOCAL_FINALISTS)
     coarse_fit = joint_fit(1, COARSE_NODES_NM, kernel)
     outcomes = [_refine_physical(finalist, coarse_fit, 100)[:2] for finalist in finalists]
     best, _ = min(outcomes, key=lambda item: item[1])
