@@ -19,7 +19,9 @@ from calib.offline import LampImages, OfflineEstimate, OfflineSettings, estimate
 from calib.offline.brackets import BracketProfiles, extend_orders, shift_geometry
 from tests.rendered_capture import GRATING, Capture, render_capture, shared_capture
 
-RE_TARGET = 0.05
+#: The estimator's own target at 1 % noise with the mapping estimated (issue 2: LED+Flu ≤ 3.5 ×10⁻²);
+#: measured here 0.9 ×10⁻².
+RE_TARGET = 0.035
 
 
 def _profiles(estimate: OfflineEstimate) -> BracketProfiles:
@@ -27,7 +29,10 @@ def _profiles(estimate: OfflineEstimate) -> BracketProfiles:
     return estimate.profiles
 
 
-MAPPING_RE_TARGET = 0.006
+#: Measured 0.08 % on these shot-noise DNGs (the synthetic protocol's LED+Flu at 1 % noise: 0.07 %).
+MAPPING_RE_TARGET = 0.002
+#: An LED alone: issue 2's LED-only mapping target (0.5 %); measured 0.1–0.3 % on these scenes.
+LED_MAPPING_RE_TARGET = 0.005
 
 
 def _inputs(capture: Capture, *, darks: bool = True) -> list[LampImages]:
@@ -175,7 +180,7 @@ def test_rotated_and_mirrored_geometry(tmp_path: Path, angle_deg: float, pattern
         _inputs(capture), OfflineSettings(basis=capture.basis, use_region=True)
     )
     relative, mapping = capture.errors(result.result, result.observations[0].pixel)
-    assert relative < RE_TARGET and mapping < MAPPING_RE_TARGET, (relative, mapping)
+    assert relative < RE_TARGET and mapping < LED_MAPPING_RE_TARGET, (relative, mapping)
     detected = _profiles(result).geometry.primary.angle_deg
     assert abs((detected - angle_deg + 180) % 360 - 180) < 0.1
 
