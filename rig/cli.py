@@ -16,6 +16,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.options import EnsembleOption, EpochsOption
 from calib.errors import CalibError, InputError
 from drivers.base import DeviceError
 from rig.errors import RigError
@@ -260,12 +261,8 @@ def compare(
         Path | None,
         typer.Option(help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."),
     ] = None,
-    ensemble: Annotated[
-        int | None, typer.Option(min=1, help="Toivonen ensemble size (default 16).")
-    ] = None,
-    epochs: Annotated[
-        int | None, typer.Option(min=1, help="Toivonen Adam epochs (default 5000).")
-    ] = None,
+    ensemble: EnsembleOption = None,
+    epochs: EpochsOption = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only where the files are.")] = False,
 ) -> None:
     """Compare every grating method on twin sessions against the twin's true camera (RE table)."""

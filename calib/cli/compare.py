@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.markdown import Markdown
 
 from calib.bases import CameraBasis, fallback_camera_basis
+from calib.cli.options import EnsembleOption, EpochsOption
 from calib.cli.synthetic import _parse_noise
 from calib.compare import (
     DEFAULT_NOISE_LEVELS,
@@ -56,12 +57,8 @@ def register(app: typer.Typer) -> None:
         patches: Annotated[
             int, typer.Option(min=2, help="Gaussian transmissive filters (Toivonen, many-patch).")
         ] = DEFAULT_TRANSMISSIVE_PATCHES,
-        ensemble: Annotated[
-            int | None, typer.Option(min=1, help="Toivonen ensemble size (default 16).")
-        ] = None,
-        epochs: Annotated[
-            int | None, typer.Option(min=1, help="Toivonen Adam epochs (default 5000).")
-        ] = None,
+        ensemble: EnsembleOption = None,
+        epochs: EpochsOption = None,
     ) -> None:
         """Compare every registered method on the synthetic protocol (RE per camera × method)."""
         grid = WavelengthGrid()
