@@ -214,9 +214,13 @@ def resumes(session: Session) -> list[ResumeRecord]:
 
 @dataclass(frozen=True)
 class Row:
-    """A fault injected at open, and the first run's stop reason it leads to."""
+    """A fault injected at open, and the first run's stop reason it leads to.
 
-    faults: TwinFaults
+    ``faults`` makes a fresh set per test: schedules and injected faults count down as they fire,
+    so one set shared by two tests (a row and its ``+estimate`` twin) would fire only once.
+    """
+
+    faults: Callable[[], TwinFaults]
     reason: str
 
 
@@ -227,21 +231,27 @@ def _spectrometer(kind: FaultKind, nth: int = 4, **fault: Any) -> TwinFaults:
 
 ROWS: dict[str, Row] = {
     "camera-unplugged-mid-bracket": Row(
-        TwinFaults(camera=[CameraFault("unplug", skip=1)]), "disconnected"
+        lambda: TwinFaults(camera=[CameraFault("unplug", skip=1)]), "disconnected"
     ),
-    "ptp-busy-on-capture": Row(TwinFaults(camera=[CameraFault("busy", times=2)]), "completed"),
+    "ptp-busy-on-capture": Row(
+        lambda: TwinFaults(camera=[CameraFault("busy", times=2)]), "completed"
+    ),
     "same-file-returned-twice": Row(
-        TwinFaults(camera=[CameraFault("same_file", skip=1)]), "completed"
+        lambda: TwinFaults(camera=[CameraFault("same_file", skip=1)]), "completed"
     ),
     "stale-frame-after-exposure-change": Row(
-        TwinFaults(camera=[CameraFault("stale_frame", skip=1)]), "completed"
+        lambda: TwinFaults(camera=[CameraFault("stale_frame", skip=1)]), "completed"
     ),
-    "spectrometer-timeout": Row(_spectrometer(FaultKind.NO_REPLY), "step_timeout"),
-    "spectrometer-garbled-reply": Row(_spectrometer(FaultKind.GARBLED_REPLY), "completed"),
-    "spectrometer-truncated-reply": Row(_spectrometer(FaultKind.TRUNCATED_REPLY), "step_timeout"),
-    "spectrometer-error-code": Row(_spectrometer(FaultKind.ERROR_CODE), "instrument_error"),
+    "spectrometer-timeout": Row(lambda: _spectrometer(FaultKind.NO_REPLY), "step_timeout"),
+    "spectrometer-garbled-reply": Row(lambda: _spectrometer(FaultKind.GARBLED_REPLY), "completed"),
+    "spectrometer-truncated-reply": Row(
+        lambda: _spectrometer(FaultKind.TRUNCATED_REPLY), "step_timeout"
+    ),
+    "spectrometer-error-code": Row(lambda: _spectrometer(FaultKind.ERROR_CODE), "instrument_error"),
     "relay-read-back-mismatch": Row(
-        TwinFaults(usb_relays=[UsbFault("stuck_relay", request="set_report", skip=2, channel=1)]),
+        lambda: TwinFaults(
+            usb_relays=[UsbFault("stuck_relay", request="set_report", skip=2, channel=1)]
+        ),
         "state_mismatch",
     ),
 }
@@ -250,7 +260,7 @@ ROWS: dict[str, Row] = {
 @pytest.mark.parametrize(("row", "estimate"), with_estimate(ROWS, {"camera-unplugged-mid-bracket"}))
 def test_fault(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterrupted) -> None:
     expected = ROWS[row]
-    reason, path = capture_then_resume(tmp_path, twin_station_builder(faults=expected.faults))
+    reason, path = capture_then_resume(tmp_path, twin_station_builder(faults=expected.faults()))
     assert reason == expected.reason
     session = assert_invariants(path, tmp_path, uninterrupted, estimate)
     if row == "stale-frame-after-exposure-change":
