@@ -24,6 +24,7 @@ from calib.multilamp import (
     estimate_with_grating,
     grating_file_from,
     mapping_lamps,
+    pooled_efficiency_terms,
     refine_grating,
 )
 from calib.observations import LampObservation
@@ -220,3 +221,10 @@ def test_a_camera_behind_a_filter_is_a_different_camera():
     camera = MultiSpectrum(DEFAULT_GRID.wavelength_nm, np.ones((DEFAULT_GRID.size, 3)))
     filtered = behind_filter(camera, colour_filter())
     assert filtered.values[0, 0] > 0.8 and filtered.values[-1, 0] < 0.15
+
+
+@pytest.mark.parametrize(
+    ("equations", "terms"), [(3, 7), (15, 7), (30, 7), (44, 11), (45, 11), (60, 15), (600, 15)]
+)
+def test_pooled_equations_afford_more_efficiency_terms(equations: int, terms: int) -> None:
+    assert pooled_efficiency_terms(equations) == terms
