@@ -524,6 +524,42 @@ def _lamps_with_mapping(
     return used_mapping, _prepared_systems(chosen, used_mapping, grid, kernel), mapping_s
 
 
+@dataclass(frozen=True, eq=False)
+class PreparedLamps:
+    """Step 1 for one camera's lamps: the mapping, and each lamp's response and direct measurement."""
+
+    mapping: QuadraticMapping | GratingGeometry
+    lamps: tuple[LampData, ...]
+    mapping_s: float
+
+
+def prepare_lamps(
+    observations: Sequence[LampObservation],
+    *,
+    basis: CameraBasis,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    mapping: QuadraticMapping | GratingGeometry | None = None,
+    mapping_lamp: str | None = None,
+    prior_shrinkage: float | None = None,
+    refine_given_mapping: bool = False,
+    kernel: FloatArray | None = None,
+) -> PreparedLamps:
+    """Step 1 for one camera's lamps (the mapping found with the prior when not given)."""
+    _check_inputs(observations, basis, grid)
+    used_mapping, systems, mapping_s = _lamps_with_mapping(
+        observations,
+        basis.prior(prior_shrinkage),
+        grid,
+        mapping,
+        mapping_lamp,
+        refine_given_mapping,
+        kernel,
+        need_direct=True,
+    )
+    lamps = tuple(lamp_data(system, used_mapping) for system in systems)
+    return PreparedLamps(used_mapping, lamps, mapping_s)
+
+
 def calibrate_lamps(
     observations: Sequence[LampObservation],
     *,
@@ -538,22 +574,26 @@ def calibrate_lamps(
     kernel: FloatArray | None = None,
 ) -> CalibratedLamps:
     """Steps 1–2 for one camera's lamps."""
-    _check_inputs(observations, basis, grid)
-    prior = basis.prior(prior_shrinkage)
-    used_mapping, systems, mapping_s = _lamps_with_mapping(
+    prepared = prepare_lamps(
         observations,
-        prior,
-        grid,
-        mapping,
-        mapping_lamp,
-        refine_given_mapping,
-        kernel,
-        need_direct=True,
+        basis=basis,
+        grid=grid,
+        mapping=mapping,
+        mapping_lamp=mapping_lamp,
+        prior_shrinkage=prior_shrinkage,
+        refine_given_mapping=refine_given_mapping,
+        kernel=kernel,
     )
-    lamps = tuple(lamp_data(system, used_mapping) for system in systems)
     efficiency_basis = fourier_basis(grid, efficiency_terms)
-    efficiency = solve_efficiency(lamps, prior, efficiency_basis, prior_weight=prior_weight)
-    return CalibratedLamps(grid, used_mapping, lamps, efficiency, efficiency_basis, mapping_s)
+    efficiency = solve_efficiency(
+        prepared.lamps,
+        basis.prior(prior_shrinkage),
+        efficiency_basis,
+        prior_weight=prior_weight,
+    )
+    return CalibratedLamps(
+        grid, prepared.mapping, prepared.lamps, efficiency, efficiency_basis, prepared.mapping_s
+    )
 
 
 def estimate_multilamp(
@@ -618,6 +658,11 @@ def estimate_multilamp(
     >>> result.diagnostics["prior_weight"]                                  # doctest: +SKIP
     1e-06
     """
+    if uncertainty not in UNCERTAINTIES:
+        raise InputError(
+            f"unknown uncertainty {uncertainty!r}; choose from {UNCERTAINTIES}",
+            source="uncertainty",
+        )
     kernel = camera_kernel(observations, slit_width_px, psf_sigma_px)
     if grating is not None:
         return estimate_with_grating(
@@ -644,11 +689,6 @@ def estimate_multilamp(
         kernel=kernel,
     )
     efficiency = calibrated.efficiency
-    if uncertainty not in UNCERTAINTIES:
-        raise InputError(
-            f"unknown uncertainty {uncertainty!r}; choose from {UNCERTAINTIES}",
-            source="uncertainty",
-        )
     solution = combine_responses(
         [lamp.response for lamp in calibrated.lamps],
         efficiency.inverse_efficiency,
@@ -840,13 +880,13 @@ def refine_grating(
     known = list(mappings) if mappings is not None else [None] * len(cameras)
     if len(known) != len(cameras):
         raise InputError(f"{len(known)} mappings for {len(cameras)} cameras", source="mappings")
+    # Step 1 per camera; step 2 once, over every camera's direct equations.
     each = [
-        calibrate_lamps(
+        prepare_lamps(
             observations,
             basis=basis,
             grid=grid,
             mapping=mapping,
-            prior_weight=prior_weight,
             kernel=camera_kernel(observations),
         )
         for observations, mapping in zip(cameras, known, strict=True)
