@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from typing import Any, cast
+
 import numpy as np
+import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from calib.blas import one_blas_thread
-from calib.makabe2025 import estimate_makabe2025
-from calib.mapping_search import find_mapping
-from calib.methods import estimate
+from calib.methods import ESTIMATION_METHODS, estimate
 
 
 def _blas_threads() -> list[int]:
@@ -31,6 +32,14 @@ def test_one_blas_thread_inside_and_the_callers_setting_after() -> None:
     assert seen and all(threads == [1] * len(threads) for threads in seen)
 
 
-def test_the_public_estimators_are_limited() -> None:
-    for function in (estimate, estimate_makabe2025, find_mapping):
-        assert getattr(function, "__wrapped__", None) is not None, function.__name__
+def test_every_registered_method_runs_on_one_blas_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[list[int]] = []
+
+    def probe(observations: object, **options: object) -> Any:
+        seen.append(_blas_threads())
+        return "probed"
+
+    monkeypatch.setitem(ESTIMATION_METHODS, "probe", cast(Any, probe))
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert cast(Any, estimate([], method="probe")) == "probed"
+    assert seen and all(threads == [1] * len(threads) for threads in seen)

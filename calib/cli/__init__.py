@@ -7,7 +7,6 @@ them and maps errors to exit codes: 0 ok, 2 bad input (the reason on one line), 
 from __future__ import annotations
 
 import importlib
-import os
 import sys
 
 import typer
@@ -45,9 +44,6 @@ def build_app() -> typer.Typer:
 def main() -> None:
     """Console entry point."""
     if sys.argv[1:2] == ["estimate"]:  # parses its own arguments: skip the other commands' imports
-        # Its linear algebra is on small matrices, where BLAS threads only cost (and stall on a
-        # loaded machine: 2.4 s → 10 s): one, unless set by the user, before numpy loads BLAS.
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         from calib.cli.estimate import run
 
         sys.exit(run(sys.argv[2:]))

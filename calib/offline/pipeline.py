@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from calib.bases import CameraBasis
+from calib.blas import one_blas_thread
 from calib.errors import InputError
 from calib.grating_file import GratingEfficiency, read_grating_file
 from calib.mapping import GratingGeometry, QuadraticMapping
@@ -281,6 +282,7 @@ def _camera_record(profiles: BracketProfiles) -> dict[str, Any]:
     }
 
 
+@one_blas_thread
 def estimate_offline(
     lamps: Sequence[LampInput],
     settings: OfflineSettings = OfflineSettings(),
