@@ -12,19 +12,23 @@ lamps ``η`` is determined by the data. The solve:
 1. Responses. Each lamp's profile gives ``q_lc = E_l η s_c`` on the grid by weighted least squares
    (:func:`calib.prior_solve.fit_response`: the measured lamp is inside the design matrix, nothing is
    divided by a spectrum), with its covariance ``C_lc``.
-2. Efficiency. ``η⁻¹ = B_η c_η`` (Fourier, Supp. E) from the rows
-   ``(d_l ⊙ q̂_lc)ᵀ B_η c_η = m_dir,lc``, each whitened by its noise (the direct σ plus the response's
-   propagated covariance plus a 0.1 % model floor), and the camera prior ``s_c ~ N(α ŝ_c, α² Σ_c)``
-   applied to ``Q ⊙ η⁻¹`` (``Q``: the lamps' pooled response, step 3) as a penalty of weight ``λ``. ``λ`` is chosen by the unbiased
-   predictive risk estimator (UPRE, Mallows' C_L: the rows are whitened, so the noise level is
-   known): ``‖A x_λ − b‖² + 2 tr H_λ`` over a logarithmic grid. With few lamps the data cannot pin
-   ``η`` and ``λ`` is large (the prior decides what they leave open); with many it falls.
+2. Efficiency. ``η = B_η c_η`` (Fourier, Supp. E; a grating's efficiency is smooth and positive,
+   its inverse over a 3:1 range is not) from the rows ``(d_l ⊙ q̂_lc)ᵀ η⁻¹ = m_dir,lc``, each
+   whitened by its noise (the direct σ plus the response's propagated covariance plus a 0.1 % model
+   floor), and the camera prior ``s_c ~ N(α ŝ_c, α² Σ_c)`` applied to ``Q ⊙ η⁻¹`` (``Q``: the
+   lamps' pooled response, step 3; with several cameras, each camera's own ``Q`` and ``α``) as a
+   penalty of weight ``λ``. The rows are linear in ``η⁻¹``, not in ``c_η``: Gauss–Newton solves it
+   (the paper's linear model ``η⁻¹ = B_η c_η`` stays available, ``efficiency_model="inverse"``).
+   ``λ`` is chosen by the unbiased predictive risk estimator (UPRE, Mallows' C_L: the rows are
+   whitened, so the noise level is known): ``‖A x_λ − b‖² + 2 tr H_λ`` on the linearisation, over
+   a logarithmic grid. With few lamps the data cannot pin ``η`` and ``λ`` is large (the prior
+   decides what they leave open); with many it falls.
 3. Sensitivity. ``s_c = Q_c ⊙ η⁻¹`` where ``Q_c`` combines the lamps' responses, each divided by its
    brightness relative to the first lamp (fitted), with inverse-variance weights per wavelength: at
    full grid resolution, not confined to a basis' span. Negative values are clipped (positivity).
 
 Uncertainty: the covariance of ``s`` (noise of every response, plus ``η⁻¹``'s posterior covariance
-propagated along ``Q_c ⊙ B_η``), then of its normalisation by the peak (first order), gives σ per
+propagated along ``Q_c ⊙ ∂η⁻¹/∂c_η``), then of its normalisation by the peak (first order), gives σ per
 wavelength and channel; :func:`bootstrap_sigma` cross-checks it by re-drawing the noise model.
 
 With a grating file (:mod:`calib.grating_file`) ``η`` is known and a single lamp suffices:
@@ -58,13 +62,25 @@ from calib.spectra import DEFAULT_GRID, WavelengthGrid
 FloatArray = NDArray[np.float64]
 Uncertainty = Literal["posterior", "noise", "none"]
 UNCERTAINTIES: tuple[Uncertainty, ...] = ("posterior", "noise", "none")
+EfficiencyModel = Literal["efficiency", "inverse"]
+#: How the grating efficiency is parametrised: ``"efficiency"``, ``η = B c`` (a grating's
+#: efficiency is a smooth, positive curve; its inverse over a 3:1 range is not, and 7 terms of it
+#: miss the protocol's η by 4.5 % at the median worst wavelength), or ``"inverse"``, the paper's
+#: ``η⁻¹ = B c`` (linear, closed form).
+EFFICIENCY_MODELS: tuple[EfficiencyModel, ...] = ("efficiency", "inverse")
+DEFAULT_EFFICIENCY_MODEL: EfficiencyModel = "efficiency"
+#: Gauss–Newton iterations per prior weight (``"efficiency"`` model; it converges in a few).
+GAUSS_NEWTON_ITERATIONS = 30
 
 #: Registry name.
 MULTILAMP_METHOD = "multilamp"
-#: Fourier terms of ``η⁻¹`` by default: the paper's 7 (9 fit the lamps' equations more loosely and
-#: lose on the synthetic protocol at 1 % noise: the direct equations do not pin 9 terms down).
+#: Fourier terms of the efficiency by default: the paper's 7. With the ``"efficiency"`` model, 5 or 9
+#: terms lose both on the protocol's η and on a blazed grating's sinc² (5 lamps, 1 % profile and
+#: 0.1 % direct noise, true mapping, 5 test cameras: mean RE 3.12 / 0.98 / 1.42 and
+#: 1.12 / 0.96 / 1.56 ×10⁻² for 5 / 7 / 9 terms).
 DEFAULT_EFFICIENCY_TERMS = 7
-#: Pooled over several cameras (:func:`refine_grating`), the direct equations afford more terms: the
+#: The ``"inverse"`` model pooled over several cameras (:func:`refine_grating`): the direct
+#: equations afford more terms of ``η⁻¹``: the
 #: protocol's η (7 Fourier terms *in η*, 0.3–1) has an inverse that 7 terms miss by 4.5 % at the median
 #: worst wavelength, 15 terms by 0.1 %. One term per this many equations, odd, at most
 #: :data:`MAX_POOLED_EFFICIENCY_TERMS` (measured with 4 cameras × 5 lamps at 1 % noise, one-LED
@@ -95,6 +111,9 @@ class EfficiencySolution:
         prior's uncertainty).
     prior_weight
         ``λ`` chosen by UPRE.
+    inverse_jacobian
+        ``∂η⁻¹/∂c`` ``(f, b)`` at the solution (the basis itself for the ``"inverse"`` model): what
+        propagates the coefficients' covariance to ``η⁻¹`` and to the sensitivity.
     info
         Condition number of the data rows alone, χ² of the data rows, UPRE curve.
     """
@@ -104,6 +123,7 @@ class EfficiencySolution:
     coefficient_covariance: FloatArray
     noise_covariance: FloatArray
     prior_weight: float
+    inverse_jacobian: FloatArray
     info: dict[str, Any] = field(default_factory=dict)
 
 
@@ -206,15 +226,141 @@ def choose_prior_weight(
     return float(weights[int(np.argmin(scores))]), scores
 
 
+def _linear_efficiency(
+    data_nodes: FloatArray,
+    target: FloatArray,
+    penalty_nodes: FloatArray,
+    efficiency_basis: FloatArray,
+    prior_weight: float | None,
+) -> tuple[FloatArray, FloatArray, FloatArray, float, FloatArray]:
+    """``η⁻¹ = B c`` (the paper's model, linear): ``x = (c, α…)``, its ``(J_d, J_p)``, ``λ``, UPRE."""
+    size = efficiency_basis.shape[0]
+    n_scales = penalty_nodes.shape[1] - size
+    data = np.hstack([data_nodes @ efficiency_basis, np.zeros((data_nodes.shape[0], n_scales))])
+    penalty = np.hstack([penalty_nodes[:, :size] @ efficiency_basis, penalty_nodes[:, size:]])
+    scores = np.zeros(0)
+    weight = prior_weight
+    if weight is None:
+        weight, scores = choose_prior_weight(data, target, penalty)
+    normal = data.T @ data + weight * penalty.T @ penalty
+    solution = np.linalg.pinv(normal, hermitian=True) @ (data.T @ target)
+    return solution, data, penalty, weight, scores
+
+
+def _efficiency_jacobians(
+    data_nodes: FloatArray,
+    penalty_nodes: FloatArray,
+    efficiency_basis: FloatArray,
+    inverse: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """``(J_d, J_p)`` of the data and prior residuals in ``x = (c, α…)`` where ``η = B c``."""
+    size = efficiency_basis.shape[0]
+    n_scales = penalty_nodes.shape[1] - size
+    inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis  # ∂η⁻¹/∂c
+    data_jac = np.hstack([data_nodes @ inverse_jacobian, np.zeros((data_nodes.shape[0], n_scales))])
+    penalty_jac = np.hstack([penalty_nodes[:, :size] @ inverse_jacobian, penalty_nodes[:, size:]])
+    return data_jac, penalty_jac
+
+
+def _efficiency_terms_solve(
+    data_nodes: FloatArray,
+    target: FloatArray,
+    penalty_nodes: FloatArray,
+    efficiency_basis: FloatArray,
+    start: FloatArray,
+    weight: float,
+) -> FloatArray:
+    """``min ‖D η⁻¹ − t‖² + λ‖P (η⁻¹, α…)‖²`` over ``x = (c, α…)``, ``η = B c`` (Gauss–Newton).
+
+    Levenberg-damped steps that keep ``η`` positive on the grid and lower the cost.
+    """
+    size, b_eta = efficiency_basis.shape
+
+    def cost_of(x: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        inverse = 1.0 / (efficiency_basis @ x[:b_eta])
+        data_residual = data_nodes @ inverse - target
+        penalty_residual = penalty_nodes[:, :size] @ inverse + penalty_nodes[:, size:] @ x[b_eta:]
+        cost = float(data_residual @ data_residual) + weight * float(
+            penalty_residual @ penalty_residual
+        )
+        return cost, inverse, data_residual, penalty_residual
+
+    x = start.copy()
+    cost, inverse, data_residual, penalty_residual = cost_of(x)
+    damping = 1e-6
+    for _ in range(GAUSS_NEWTON_ITERATIONS):
+        data_jac, penalty_jac = _efficiency_jacobians(
+            data_nodes, penalty_nodes, efficiency_basis, inverse
+        )
+        normal = data_jac.T @ data_jac + weight * penalty_jac.T @ penalty_jac
+        gradient = data_jac.T @ data_residual + weight * penalty_jac.T @ penalty_residual
+        diagonal = np.diag(np.maximum(np.diag(normal), 1e-300))
+        accepted = None
+        while damping < 1e12:
+            trial = x + np.linalg.solve(normal + damping * diagonal, -gradient)
+            if np.all(efficiency_basis @ trial[:b_eta] > 0):
+                trial_cost = cost_of(trial)
+                if trial_cost[0] <= cost:
+                    accepted = trial, trial_cost
+                    break
+            damping *= 10.0
+        if accepted is None:
+            break
+        previous = cost
+        x, (cost, inverse, data_residual, penalty_residual) = accepted
+        damping = max(damping / 10.0, 1e-12)
+        if previous - cost <= 1e-12 * previous:
+            break
+    return x
+
+
+def _nonlinear_efficiency(
+    data_nodes: FloatArray,
+    target: FloatArray,
+    penalty_nodes: FloatArray,
+    efficiency_basis: FloatArray,
+    start: FloatArray,
+    prior_weight: float | None,
+) -> tuple[FloatArray, FloatArray, FloatArray, float, FloatArray]:
+    """``η = B c`` (smooth and positive; ``η⁻¹`` is not): ``λ`` by UPRE on the linearisation.
+
+    Solved at every weight of :data:`PRIOR_WEIGHTS` from the largest down, each from the previous
+    solution; UPRE ``‖r_d‖² + 2 tr H`` uses the Jacobians at each solution.
+    """
+    weights = PRIOR_WEIGHTS[::-1] if prior_weight is None else np.array([prior_weight])
+    scores = np.empty(weights.size)
+    solutions = []
+    x = start
+    for index, weight in enumerate(weights):
+        x = _efficiency_terms_solve(
+            data_nodes, target, penalty_nodes, efficiency_basis, x, float(weight)
+        )
+        inverse = 1.0 / (efficiency_basis @ x[: efficiency_basis.shape[1]])
+        data_jac, penalty_jac = _efficiency_jacobians(
+            data_nodes, penalty_nodes, efficiency_basis, inverse
+        )
+        normal_data = data_jac.T @ data_jac
+        normal = normal_data + weight * penalty_jac.T @ penalty_jac
+        residual = data_nodes @ inverse - target
+        scores[index] = float(residual @ residual) + 2.0 * float(
+            np.trace(np.linalg.pinv(normal, hermitian=True) @ normal_data)
+        )
+        solutions.append((x, data_jac, penalty_jac))
+    best = int(np.argmin(scores))
+    x, data_jac, penalty_jac = solutions[best]
+    return x, data_jac, penalty_jac, float(weights[best]), scores[::-1]
+
+
 def solve_efficiency(
     lamps: Sequence[LampData],
     prior: CameraPrior,
     efficiency_basis: FloatArray,
     *,
     prior_weight: float | None = None,
-    prior_lamps: Sequence[LampData] | None = None,
+    prior_groups: Sequence[Sequence[LampData]] | None = None,
+    model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
 ) -> EfficiencySolution:
-    """Step 2: ``η⁻¹`` from every lamp's direct equations, under the camera prior weighted by UPRE.
+    """Step 2: ``η`` from every lamp's direct equations, under the camera prior weighted by UPRE.
 
     Parameters
     ----------
@@ -222,58 +368,87 @@ def solve_efficiency(
         Responses and direct measurements (any number, from one or several cameras: the rows do not
         involve the camera).
     prior
-        The camera prior, applied to ``s = Q ⊙ η⁻¹`` (``Q`` pooled over ``prior_lamps``).
+        The camera prior, applied to each camera's ``s_k = Q_k ⊙ η⁻¹`` with its own scale ``α_k``.
     efficiency_basis
-        ``B_η`` ``(f, b)``.
+        ``B`` ``(f, b)``.
     prior_weight
         A fixed ``λ`` instead of UPRE's.
-    prior_lamps
-        The lamps of the one camera whose pooled response the prior judges (default: ``lamps``;
-        with several cameras, the first camera's).
+    prior_groups
+        The lamps of each camera (``Q_k`` is pooled over a camera's lamps); default: ``lamps`` are
+        one camera's.
+    model
+        ``"efficiency"`` (default): ``η = B c``, solved by Gauss–Newton; ``"inverse"``: the paper's
+        ``η⁻¹ = B c``, linear (see :data:`EFFICIENCY_MODELS`).
     """
     if not lamps:
         raise InputError("no lamps with a direct measurement", source="observations")
+    if model not in EFFICIENCY_MODELS:
+        raise InputError(
+            f"unknown efficiency model {model!r}; choose from {EFFICIENCY_MODELS}", source="model"
+        )
     size, b_eta = efficiency_basis.shape
     reference = lamps[0]
-    # The prior judges s = Q ⊙ η⁻¹, Q pooled over every lamp (in the first lamp's units): the
-    # same s the solve returns, and less noisy than any one lamp's response.
-    pooled, _, _ = pool_responses([lamp.response for lamp in prior_lamps or lamps])
+    # The prior judges s = Q ⊙ η⁻¹, Q pooled over a camera's lamps (in its first lamp's units):
+    # the same s the solve returns, and less noisy than any one lamp's response.
+    groups = [
+        pool_responses([lamp.response for lamp in group])[0] for group in prior_groups or [lamps]
+    ]
     predicted = float(np.sum(reference.direct_row @ reference.response.response))
     if predicted <= 0 or float(np.sum(reference.direct)) <= 0:
         raise EstimationError("the direct signal or the fitted first-order response is zero")
     inverse = np.full(size, float(np.sum(reference.direct)) / predicted)
-    scale = float(np.sum(reference.response.response * inverse[:, None])) / max(
-        float(np.sum(prior.mean)), 1e-300
+    scales = np.array(
+        [
+            float(np.sum(group.response * inverse[:, None]))
+            / max(float(np.sum(prior.mean)), 1e-300)
+            for group in groups
+        ]
     )
-    weight = prior_weight
+    identity = np.eye(size)
+    x = np.concatenate(
+        [np.linalg.lstsq(efficiency_basis, 1.0 / inverse, rcond=None)[0], scales]
+        if model == "efficiency"
+        else [np.zeros(b_eta), scales]
+    )
+    weight = 0.0
     scores = np.zeros(0)
-    solution = np.zeros(b_eta + 1)
-    posterior = np.eye(b_eta + 1)
-    data = np.zeros((0, b_eta + 1))
+    data = penalty = np.zeros((0, b_eta + len(groups)))
+    data_nodes = np.zeros((0, size))
     target = np.zeros(0)
+    inverse_jacobian = efficiency_basis
     for _ in range(EFFICIENCY_PASSES):
-        rows, target = direct_rows(lamps, efficiency_basis, inverse)
-        data = np.hstack([rows, np.zeros((rows.shape[0], 1))])
-        penalty = prior_rows(pooled, prior, efficiency_basis, inverse, scale)
-        if prior_weight is None:
-            weight, scores = choose_prior_weight(data, target, penalty)
-        assert weight is not None
-        normal = data.T @ data + weight * penalty.T @ penalty
-        posterior = np.linalg.pinv(normal, hermitian=True)
-        solution = posterior @ (data.T @ target)
-        inverse = efficiency_basis @ solution[:b_eta]
-        scale = abs(float(solution[-1])) or scale
-    residual = data @ solution - target
+        # Rows on the grid's nodes of η⁻¹ (and every α_k), whitened at the current η⁻¹.
+        data_nodes, target = direct_rows(lamps, identity, inverse)
+        penalty_nodes = _stacked_prior_rows(groups, prior, inverse, x[b_eta:])
+        if model == "inverse":
+            x, data, penalty, weight, scores = _linear_efficiency(
+                data_nodes, target, penalty_nodes, efficiency_basis, prior_weight
+            )
+            inverse = efficiency_basis @ x[:b_eta]
+        else:
+            x, data, penalty, weight, scores = _nonlinear_efficiency(
+                data_nodes, target, penalty_nodes, efficiency_basis, x, prior_weight
+            )
+            inverse = 1.0 / (efficiency_basis @ x[:b_eta])
+            inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis
+        x[b_eta:] = np.where(np.abs(x[b_eta:]) > 0, np.abs(x[b_eta:]), scales)
+    posterior = np.asarray(
+        np.linalg.pinv(data.T @ data + weight * penalty.T @ penalty, hermitian=True),
+        dtype=np.float64,
+    )
+    residual = data_nodes @ inverse - target
     singular = np.linalg.svd(data[:, :b_eta], compute_uv=False)
     return EfficiencySolution(
         inverse_efficiency=inverse,
-        coefficients=solution[:b_eta],
+        coefficients=x[:b_eta],
         coefficient_covariance=posterior[:b_eta, :b_eta],
         noise_covariance=(posterior @ data.T @ data @ posterior)[:b_eta, :b_eta],
-        prior_weight=float(weight if weight is not None else 0.0),
+        prior_weight=float(weight),
+        inverse_jacobian=inverse_jacobian,
         info={
-            "prior_weight": float(weight if weight is not None else 0.0),
+            "prior_weight": float(weight),
             "prior_weight_rule": "fixed" if prior_weight is not None else "UPRE",
+            "efficiency_model": model,
             "direct_chi2": float(residual @ residual),
             "direct_equations": int(data.shape[0]),
             "efficiency_terms": b_eta,
@@ -281,6 +456,24 @@ def solve_efficiency(
             "upre": scores.tolist(),
         },
     )
+
+
+def _stacked_prior_rows(
+    groups: Sequence[ResponseEstimate],
+    prior: CameraPrior,
+    inverse: FloatArray,
+    scales: FloatArray,
+) -> FloatArray:
+    """Every camera's whitened prior rows on the nodes of ``η⁻¹`` and its own ``α_k``: ``(3fK, f + K)``."""
+    size = inverse.size
+    identity = np.eye(size)
+    rows = np.zeros((3 * size * len(groups), size + len(groups)))
+    for index, (group, scale) in enumerate(zip(groups, scales, strict=True)):
+        block = prior_rows(group, prior, identity, inverse, float(scale))
+        band = slice(3 * size * index, 3 * size * (index + 1))
+        rows[band, :size] = block[:, :size]
+        rows[band, size + index] = block[:, -1]
+    return rows
 
 
 @dataclass(frozen=True, eq=False)
@@ -570,6 +763,7 @@ def calibrate_lamps(
     prior_shrinkage: float | None = None,
     prior_weight: float | None = None,
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
     refine_given_mapping: bool = False,
     kernel: FloatArray | None = None,
 ) -> CalibratedLamps:
@@ -590,6 +784,7 @@ def calibrate_lamps(
         basis.prior(prior_shrinkage),
         efficiency_basis,
         prior_weight=prior_weight,
+        model=efficiency_model,
     )
     return CalibratedLamps(
         grid, prepared.mapping, prepared.lamps, efficiency, efficiency_basis, prepared.mapping_s
@@ -606,6 +801,7 @@ def estimate_multilamp(
     prior_shrinkage: float | None = None,
     prior_weight: float | None = None,
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
     grating: GratingEfficiency | None = None,
     uncertainty: Uncertainty = "posterior",
     refine_given_mapping: bool = False,
@@ -632,7 +828,9 @@ def estimate_multilamp(
     prior_weight
         Fix the prior's weight ``λ`` instead of choosing it by UPRE.
     efficiency_terms
-        Fourier terms of ``η⁻¹``.
+        Fourier terms of ``η`` (or of ``η⁻¹``, by ``efficiency_model``).
+    efficiency_model
+        ``"efficiency"`` (``η`` in the Fourier basis, default) or ``"inverse"`` (``η⁻¹``, the paper's).
     grating
         A known grating efficiency (:mod:`calib.grating_file`): then ``η`` is not estimated and one
         lamp, with or without a direct measurement, suffices (:func:`estimate_with_grating`).
@@ -663,6 +861,11 @@ def estimate_multilamp(
             f"unknown uncertainty {uncertainty!r}; choose from {UNCERTAINTIES}",
             source="uncertainty",
         )
+    if efficiency_model not in EFFICIENCY_MODELS:
+        raise InputError(
+            f"unknown efficiency model {efficiency_model!r}; choose from {EFFICIENCY_MODELS}",
+            source="efficiency_model",
+        )
     kernel = camera_kernel(observations, slit_width_px, psf_sigma_px)
     if grating is not None:
         return estimate_with_grating(
@@ -685,6 +888,7 @@ def estimate_multilamp(
         prior_shrinkage=prior_shrinkage,
         prior_weight=prior_weight,
         efficiency_terms=efficiency_terms,
+        efficiency_model=efficiency_model,
         refine_given_mapping=refine_given_mapping,
         kernel=kernel,
     )
@@ -692,13 +896,13 @@ def estimate_multilamp(
     solution = combine_responses(
         [lamp.response for lamp in calibrated.lamps],
         efficiency.inverse_efficiency,
-        calibrated.efficiency_basis,
+        efficiency.inverse_jacobian,
         efficiency.noise_covariance
         if uncertainty == "noise"
         else efficiency.coefficient_covariance,
         with_covariance=uncertainty != "none",
     )
-    eta, eta_sigma = _efficiency_with_sigma(efficiency, calibrated.efficiency_basis)
+    eta, eta_sigma = _efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
     return _result(
         calibrated.lamps,
@@ -799,7 +1003,7 @@ def grating_file_from(
     calibrated: CalibratedLamps, *, description: str = "", cameras: Sequence[str] = ()
 ) -> GratingEfficiency:
     """The estimated ``η`` with its σ and geometry, ready for :func:`calib.grating_file.write_grating_file`."""
-    eta, eta_sigma = _efficiency_with_sigma(calibrated.efficiency, calibrated.efficiency_basis)
+    eta, eta_sigma = _efficiency_with_sigma(calibrated.efficiency)
     return GratingEfficiency(
         wavelength_nm=calibrated.grid.wavelength_nm,
         efficiency=eta,
@@ -819,15 +1023,16 @@ def grating_file_from(
     )
 
 
-def _efficiency_with_sigma(
-    efficiency: EfficiencySolution, efficiency_basis: FloatArray
-) -> tuple[FloatArray, FloatArray]:
+def _efficiency_with_sigma(efficiency: EfficiencySolution) -> tuple[FloatArray, FloatArray]:
     """``η`` (maximum 1) and its σ, from ``η⁻¹``'s covariance (first order, ``δη = −η² δη⁻¹``)."""
     inverse = efficiency.inverse_efficiency
     inverse_sigma = np.sqrt(
         np.clip(
             np.einsum(
-                "ij,jk,ik->i", efficiency_basis, efficiency.coefficient_covariance, efficiency_basis
+                "ij,jk,ik->i",
+                efficiency.inverse_jacobian,
+                efficiency.coefficient_covariance,
+                efficiency.inverse_jacobian,
             ),
             0.0,
             None,
@@ -854,6 +1059,7 @@ def refine_grating(
     mappings: Sequence[QuadraticMapping | GratingGeometry | None] | None = None,
     efficiency_terms: int | None = None,
     prior_weight: float | None = None,
+    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
 ) -> tuple[GratingEfficiency, list[EstimateResult]]:
     """``η`` shared by several cameras seen through one grating, and each camera's sensitivity.
 
@@ -867,8 +1073,9 @@ def refine_grating(
     mappings
         Per camera, a known mapping or ``None`` (found from its lamps).
     efficiency_terms
-        Fourier terms of the shared ``η⁻¹``; ``None``: :func:`pooled_efficiency_terms` of the number
-        of direct equations.
+        Fourier terms of the shared efficiency; ``None``: :data:`DEFAULT_EFFICIENCY_TERMS` of ``η``,
+        or for the ``"inverse"`` model :func:`pooled_efficiency_terms` of the number of direct
+        equations (``η⁻¹`` needs more terms than ``η``; more equations afford them).
 
     Returns
     -------
@@ -892,24 +1099,29 @@ def refine_grating(
         for observations, mapping in zip(cameras, known, strict=True)
     ]
     pooled = [lamp for calibrated in each for lamp in calibrated.lamps]
-    terms = (
-        pooled_efficiency_terms(3 * len(pooled)) if efficiency_terms is None else efficiency_terms
-    )
+    terms = efficiency_terms
+    if terms is None:
+        terms = (
+            pooled_efficiency_terms(3 * len(pooled))
+            if efficiency_model == "inverse"
+            else DEFAULT_EFFICIENCY_TERMS
+        )
     efficiency_basis = fourier_basis(grid, terms)
     efficiency = solve_efficiency(
         pooled,
         basis.prior(),
         efficiency_basis,
         prior_weight=prior_weight,
-        prior_lamps=each[0].lamps,
+        prior_groups=[calibrated.lamps for calibrated in each],
+        model=efficiency_model,
     )
-    eta_pair = _efficiency_with_sigma(efficiency, efficiency_basis)
+    eta_pair = _efficiency_with_sigma(efficiency)
     results = []
     for calibrated in each:
         solution = combine_responses(
             [lamp.response for lamp in calibrated.lamps],
             efficiency.inverse_efficiency,
-            efficiency_basis,
+            efficiency.inverse_jacobian,
             efficiency.coefficient_covariance,
         )
         results.append(
@@ -1000,6 +1212,7 @@ def bootstrap_sigma(
     grid: WavelengthGrid = DEFAULT_GRID,
     prior_weight: float | None = None,
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
 ) -> FloatArray:
     """σ ``(f, 3)`` of the normalised sensitivity by a parametric bootstrap over the noise model.
 
@@ -1027,6 +1240,7 @@ def bootstrap_sigma(
             mapping=mapping,
             prior_weight=prior_weight,
             efficiency_terms=efficiency_terms,
+            efficiency_model=efficiency_model,
             uncertainty="none",
         )
         samples.append(result.sensitivity)

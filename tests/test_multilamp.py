@@ -84,6 +84,39 @@ def test_noise_free_lamps_recover_the_efficiency_and_the_camera(basis):
     assert relative_error(result.sensitivity, truth) < 0.015
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_efficiency_model_fits_a_grating_the_inverse_model_cannot(basis, seed: int):
+    """The protocol's η is smooth in η; its inverse over a 3:1 range is not (noise-free lamps)."""
+    truth, mapping, observations, efficiency = _scene(seed, noise=0.0)
+    true_eta = efficiency(DEFAULT_GRID.wavelength_nm)
+    direct = estimate_multilamp(observations, basis=basis, mapping=mapping, uncertainty="none")
+    inverse = estimate_multilamp(
+        observations,
+        basis=basis,
+        mapping=mapping,
+        efficiency_model="inverse",
+        uncertainty="none",
+    )
+    assert direct.diagnostics["efficiency_model"] == "efficiency"
+    assert inverse.diagnostics["efficiency_model"] == "inverse"
+    assert direct.grating_efficiency is not None
+    np.testing.assert_allclose(direct.grating_efficiency, true_eta / true_eta.max(), atol=0.02)
+    direct_re = relative_error(direct.sensitivity, truth)
+    assert direct_re < 0.005
+    assert relative_error(inverse.sensitivity, truth) > 2 * direct_re
+
+
+def test_an_unknown_efficiency_model_is_named(basis):
+    _, mapping, observations, _ = _scene(0, noise=0.0)
+    with pytest.raises(InputError, match="efficiency model"):
+        estimate_multilamp(
+            observations,
+            basis=basis,
+            mapping=mapping,
+            efficiency_model="spline",  # type: ignore[arg-type]
+        )
+
+
 def test_the_sigma_band_is_calibrated_pooled_over_scenes(basis):
     """The true curve inside ±2σ at 90–98 % of (wavelength, channel) cells, 1 % noise, 6 scenes."""
     coverage = []
@@ -189,6 +222,24 @@ def test_cameras_through_one_grating_share_and_refine_it(basis):
     alone_sigma = grating_file_from(alone).efficiency_sigma
     assert alone_sigma is not None
     assert float(np.mean(grating.efficiency_sigma)) < float(np.mean(alone_sigma))
+
+
+def test_each_camera_of_a_pooled_solve_has_its_own_prior_scale(basis):
+    from calib.multilamp import _stacked_prior_rows, pool_responses, prepare_lamps
+
+    groups = []
+    for seed in (5, 6):
+        _, mapping, observations, _ = _scene(seed)
+        lamps = prepare_lamps(observations, basis=basis, mapping=mapping).lamps
+        groups.append(pool_responses([lamp.response for lamp in lamps])[0])
+    size = DEFAULT_GRID.size
+    rows = _stacked_prior_rows(groups, basis.prior(), np.ones(size), np.array([1.0, 2.0]))
+    assert rows.shape == (2 * 3 * size, size + 2)
+    first, second = rows[: 3 * size], rows[3 * size :]
+    assert np.all(first[:, size + 1] == 0) and np.any(first[:, size] != 0)
+    assert np.all(second[:, size] == 0) and np.any(second[:, size + 1] != 0)
+    # Each block judges its own camera's pooled response.
+    assert not np.allclose(first[:, :size], second[:, :size])
 
 
 def test_the_mapping_is_searched_with_the_fluorescent_lamp_and_one_other():
