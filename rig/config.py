@@ -93,6 +93,12 @@ SpectrometerModel = Literal["pr655", "pr670", "cs2000"]
 RelayModel = Literal["hid_usbrelay", "lcus", "numato"]
 
 
+MEASURE_TIMEOUT_HELP = (
+    "measurement allowance: PR-6xx the whole measurement (default 60 s), CS-2000 the margin "
+    "beyond the time the instrument announces (default 10 s)"
+)
+
+
 class SerialSpectrometerConfig(StrictModel):
     """A spectroradiometer on a serial (USB CDC) port."""
 
@@ -102,6 +108,7 @@ class SerialSpectrometerConfig(StrictModel):
         None, gt=0, description="line speed; default: the instrument's own (9600 PR, 115200 CS)"
     )
     timeout_s: float = Field(35.0, gt=0, le=600, description="deadline for one command")
+    measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
 
 
 class TwinSpectrometerConfig(StrictModel):
@@ -114,6 +121,7 @@ class TwinSpectrometerConfig(StrictModel):
     kind: Literal["twin"]
     emulate: SpectrometerModel = "pr655"
     timeout_s: float = Field(35.0, gt=0, le=600)
+    measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
     time_scale: float = Field(0.001, gt=0, le=1)
 
 

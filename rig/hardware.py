@@ -94,6 +94,7 @@ def open_configured_spectrometer(
         SPECTROMETER_MODELS[config.kind],
         config.port,
         timeout_s=config.timeout_s,
+        measure_timeout_s=config.measure_timeout_s,
         transcript=transcript,
         baud=config.baud,
     )

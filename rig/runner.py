@@ -34,7 +34,8 @@ import numpy as np
 from calib.errors import SpectrumError
 from calib.spectra import Spectrum, read_spectrum_csv
 from drivers.base import DeviceError, DeviceIdentity, StateMismatch
-from rig.config import RigConfig
+from drivers.spectrometer import longest_measure_s
+from rig.config import RigConfig, TwinSpectrometerConfig
 from rig.dryrun import DryRunReport
 from rig.errors import (
     FrameAnalysisError,
@@ -129,10 +130,23 @@ class StepTimeouts:
     def from_config(cls, config: RigConfig) -> StepTimeouts:
         # A driver enforces its own per-exchange deadline; the runner's covers a whole call, which
         # may be several exchanges (switch + read back), so it allows a few of them plus a margin.
+        # A measurement is the spectrometer's longest call: its deadline is the driver's own worst
+        # case, so a silent instrument ends in the driver's retryable timeout, not here.
         devices = config.devices
+        spectrometer = devices.spectrometer
+        model = (
+            spectrometer.emulate
+            if isinstance(spectrometer, TwinSpectrometerConfig)
+            else (spectrometer.kind)
+        )
+        longest = longest_measure_s(
+            model,
+            timeout_s=spectrometer.timeout_s,
+            measure_timeout_s=spectrometer.measure_timeout_s,
+        )
         return cls(
             relays_s=4 * devices.relays.timeout_s + 1.0,
-            spectrometer_s=2 * devices.spectrometer.timeout_s + 1.0,
+            spectrometer_s=max(2 * spectrometer.timeout_s, longest) + 1.0,
             camera_s=2 * devices.camera.timeout_s + 1.0,
             capture_extra_s=devices.camera.download_timeout_s + devices.camera.timeout_s,
         )

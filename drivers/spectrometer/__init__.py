@@ -17,6 +17,7 @@ __all__ = [
     "Cs2000",
     "MeasurementConditionError",
     "Pr6xx",
+    "longest_measure_s",
     "open_spectrometer",
 ]
 
@@ -37,6 +38,32 @@ def canonical_model(model: str) -> str:
         if key == name.replace("-", ""):
             return name
     raise ValueError(f"unknown spectrometer model {model!r}; supported: {', '.join(MODELS)}")
+
+
+def longest_measure_s(
+    model: str, *, timeout_s: float | None = None, measure_timeout_s: float | None = None
+) -> float:
+    """The longest a ``measure()`` call may take before the driver's own deadlines give up.
+
+    What a caller's watchdog around the call must allow, so that a silent instrument ends in the
+    driver's (retryable) :class:`drivers.base.DeviceTimeout` rather than in the watchdog. Parameters
+    as for :func:`open_spectrometer` (``None``: the model's defaults).
+
+    - PR-6xx: ``M5`` (the measurement allowance), then ``D13`` (one ordinary command).
+    - CS-2000: ``MEAS,1``'s acknowledgement (one command, the 1–10 s pre-measurement inside it), the
+      longest time the instrument can announce (:data:`cs2000.LONGEST_ANNOUNCED_S`) plus the margin,
+      then ``MEDR`` for the conditions and the four spectral blocks (five commands).
+    """
+    name = canonical_model(model)
+    if name.startswith("PR-"):
+        command = pr6xx.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
+        allowance = (
+            pr6xx.DEFAULT_MEASURE_TIMEOUT_S if measure_timeout_s is None else measure_timeout_s
+        )
+        return allowance + command
+    command = cs2000.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
+    margin = cs2000.DEFAULT_COMPLETION_MARGIN_S if measure_timeout_s is None else measure_timeout_s
+    return command + cs2000.LONGEST_ANNOUNCED_S + margin + 5 * command
 
 
 def open_spectrometer(

@@ -41,6 +41,7 @@ from drivers.base import (
     DeviceNotFound,
     DeviceTimeout,
     InstrumentError,
+    ProtocolError,
     SpectrumReading,
     StateMismatch,
     TranscriptSink,
@@ -62,6 +63,8 @@ REMOTE_OFF = "RMTS,0"
 DEFAULT_TIMEOUT_S = 15.0
 #: Allowance beyond the measurement time the instrument announces.
 DEFAULT_COMPLETION_MARGIN_S = 10.0
+#: The longest remaining measurement time ``MEAS,1`` can announce (``OK00,ttt``: 002–242 s).
+LONGEST_ANNOUNCED_S = 242.0
 #: [?] The manual says "spectral irradiance"; the instrument measures radiance.
 SPECTRAL_UNITS = "W/(sr·m²·nm)"
 
@@ -190,7 +193,13 @@ def parse_measurement_time(fields: Sequence[str], context: ReplyContext, line: b
     _field_count(fields, 1, "MEAS acknowledgement", context, line)
     if not re.fullmatch(r"\d{1,3}", fields[0]):
         raise context.error(f"measurement time {fields[0]!r} is not 1–3 digits", line)
-    return int(fields[0])
+    seconds = int(fields[0])
+    if seconds > LONGEST_ANNOUNCED_S:
+        raise context.error(
+            f"measurement time {seconds} s is beyond the instrument's {LONGEST_ANNOUNCED_S:g} s",
+            line,
+        )
+    return seconds
 
 
 def parse_conditions(
@@ -441,7 +450,11 @@ class Cs2000(ClosesOnExit):
         command = "MEAS,1"
         context = self._context(command)
         ack, ack_line = self._query(command)
-        measurement_s = parse_measurement_time(ack, context, ack_line)
+        try:
+            measurement_s = parse_measurement_time(ack, context, ack_line)
+        except ProtocolError:
+            self._cancel_measurement()  # whatever it announced, it may be measuring
+            raise
         completion = Deadline(measurement_s + self.completion_margin_s)
         try:
             done = self._transport.read_until(COMMAND_TERMINATOR, deadline=completion)

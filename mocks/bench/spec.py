@@ -151,6 +151,8 @@ class TwinSpec:
     spectrometer_model, spectrometer_time_scale, spectrometer_timeout_s
         Which emulator serves the spectrometer, the fraction of its measuring time that passes in
         wall time, and the driver's command deadline.
+    spectrometer_measure_timeout_s
+        The driver's measurement allowance (``None``: the model's default).
     relay_model, relay_channels, relay_timeout_s
         Which relay board is emulated, its size and the driver's deadline.
     relay_state_file
@@ -167,6 +169,7 @@ class TwinSpec:
     relay_channels: int
     relay_timeout_s: float
     relay_state_file: Path | None = None
+    spectrometer_measure_timeout_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.spectrometer_model not in SPECTROMETER_MODELS:
@@ -239,6 +242,11 @@ class TwinSpec:
             spectrometer_model=spectrometer_model,  # type: ignore[arg-type]  # checked on init
             spectrometer_time_scale=spectrometer.number("time_scale"),
             spectrometer_timeout_s=spectrometer.number("timeout_s"),
+            spectrometer_measure_timeout_s=(
+                None
+                if spectrometer.optional("measure_timeout_s") is None
+                else spectrometer.number("measure_timeout_s")
+            ),
             relay_model=relay_model,  # type: ignore[arg-type]  # checked on init
             relay_channels=relays.integer("channels"),
             relay_timeout_s=relays.number("timeout_s"),

@@ -23,7 +23,7 @@ from drivers.base import (
     Spectrometer,
     StateMismatch,
 )
-from drivers.spectrometer import open_spectrometer
+from drivers.spectrometer import longest_measure_s, open_spectrometer
 from drivers.spectrometer.cs2000 import Cs2000, SpeedSetting, open_cs2000
 from drivers.transport import ReplyTimeout
 from mocks.emulators import start_cs2000
@@ -191,6 +191,30 @@ def test_a_lost_completion_cancels_the_measurement_then_raises() -> None:
     with connected(script) as instrument, pytest.raises(DeviceTimeout) as caught:
         instrument.measure()
     assert caught.value.timeout_s == 3 + instrument.completion_margin_s
+
+
+def test_an_announced_time_beyond_the_instrument_s_range_is_refused_and_cancelled() -> None:
+    script = [(b"MEAS,1\n", b"OK00,999\n"), (b"MEAS,0\n", b"OK00\n")]
+    with (
+        connected(script) as instrument,
+        pytest.raises(ProtocolError, match="beyond the instrument's 242 s"),
+    ):
+        instrument.measure()
+
+
+@pytest.mark.parametrize(
+    ("model", "options", "longest"),
+    [
+        ("PR-655", {}, 60.0 + 10.0),
+        ("pr670", {"timeout_s": 2.0, "measure_timeout_s": 5.0}, 7.0),
+        ("CS-2000", {}, 15.0 + 242.0 + 10.0 + 5 * 15.0),
+        ("cs2000a", {"timeout_s": 1.0, "measure_timeout_s": 2.0}, 1.0 + 242.0 + 2.0 + 5.0),
+    ],
+)
+def test_the_longest_measurement_covers_every_deadline_of_the_call(
+    model: str, options: dict[str, float], longest: float
+) -> None:
+    assert longest_measure_s(model, **options) == pytest.approx(longest)
 
 
 def test_a_failed_cancel_does_not_hide_the_timeout(caplog: pytest.LogCaptureFixture) -> None:

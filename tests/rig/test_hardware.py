@@ -23,6 +23,7 @@ from rig.config import RigConfig
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
 from rig.hardware import open_hardware_station, open_relays
+from rig.runner import StepTimeouts
 from tests.rig.fakes import fake_config_data
 
 LAMPS = [{"name": "LED-B3", "channel": 1, "kind": "led"}]
@@ -152,3 +153,34 @@ def test_twin_devices_are_not_hardware(tmp_path: Path) -> None:
     data = fake_config_data(tmp_path)
     with pytest.raises(StationUnavailable, match=r"devices\.relays\.kind is 'twin'"):
         open_hardware_station(RigConfig.model_validate(data), Transcripts())
+
+
+@pytest.mark.parametrize(
+    ("spectrometer", "driver_worst_s"),
+    [
+        ({"kind": "pr655", "port": "/dev/ttyACM0", "timeout_s": 10}, 60.0 + 10.0),
+        (
+            {"kind": "pr670", "port": "/dev/ttyACM0", "timeout_s": 0.5, "measure_timeout_s": 1},
+            1.5,
+        ),
+        ({"kind": "cs2000", "port": "/dev/ttyACM0", "timeout_s": 15}, 15 + 242 + 10 + 75.0),
+    ],
+)
+def test_the_spectrometer_watchdog_outlasts_the_driver_s_own_deadlines(
+    spectrometer: dict[str, Any], driver_worst_s: float
+) -> None:
+    """A silent instrument must end in the driver's retryable timeout, not the runner's watchdog."""
+    timeouts = StepTimeouts.from_config(hardware_config(spectrometer=spectrometer))
+    assert driver_worst_s < timeouts.spectrometer_s <= driver_worst_s + 1.0
+
+
+def test_the_twin_spectrometer_watchdog_follows_the_emulated_model() -> None:
+    data = fake_config_data()
+    data["devices"]["spectrometer"] = {
+        "kind": "twin",
+        "emulate": "cs2000",
+        "timeout_s": 0.5,
+        "measure_timeout_s": 1,
+    }
+    timeouts = StepTimeouts.from_config(RigConfig.model_validate(data))
+    assert timeouts.spectrometer_s == pytest.approx(0.5 + 242 + 1 + 5 * 0.5 + 1.0)
