@@ -13,7 +13,9 @@ Resuming
    recorded results (:func:`find_resume_point`): the *resume point* is the first step that is not
    ``done``, whose file does not verify, or whose parameters differ from the record;
 3. opens the devices in a new run (``run`` + 1, its own transcripts): the runner reads the relays
-   and switches every lamp off before anything else, then writes the start record and a
+   and switches every lamp off before anything else, checks that every device is the instrument
+   the session was captured with (model and serial; another port is fine, another camera body or
+   spectrometer is refused as ``resume_mismatch``), then writes the start record and a
    ``resume`` record (what the previous run left: status, reason, relays found on, torn line,
    steps reused and redone);
 4. drives the plan again (:func:`resumed_plan`): recorded results are sent back into the plan
@@ -34,18 +36,19 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-from collections.abc import Generator
+from collections.abc import Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.spectra import read_spectrum_csv
+from drivers.base import DeviceIdentity
 from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
 from rig.errors import NotResumable, ResumeMismatch, RigError
 from rig.interrupts import InterruptController
 from rig.plan import Plan, build_plan
 from rig.progress import ProgressReporter
-from rig.records import DiscardRecord, ResumeRecord, StartRecord, StepRecord
+from rig.records import DeviceRecord, DiscardRecord, ResumeRecord, StartRecord, StepRecord
 from rig.runner import RetryPolicy, Runner, RunOutcome
 from rig.session import FileProblem, Session, SessionWriter, read_session
 from rig.station import StationBuilder, resolve_builder, station_kind
@@ -261,6 +264,38 @@ def _set_exposure_again(step: SetExposure, record: StepRecord) -> Generator[Step
         )
 
 
+def check_same_devices(session: Session, identities: Mapping[str, DeviceIdentity]) -> None:
+    """The devices this run opened must be the instruments earlier runs recorded.
+
+    Model and serial number are compared (the port may change: a device replugged elsewhere is the
+    same device). Frames of two cameras, or spectra of two spectrometers, in one session would be
+    estimated as one instrument's.
+
+    Raises
+    ------
+    ResumeMismatch
+        A device answers as another model or serial number than the first run recorded for its role.
+    """
+    recorded: dict[str, DeviceRecord] = {}
+    for record in session.records:  # the first run to record a role decides (a refused run too
+        if isinstance(record, StartRecord):  # writes a start record, with the wrong instrument)
+            recorded = record.devices | recorded
+    for role, identity in identities.items():
+        before = recorded.get(role)
+        if before is None:
+            continue
+        other_model = identity.model != before.model
+        other_serial = (
+            None not in (identity.serial, before.serial) and identity.serial != before.serial
+        )
+        if other_model or other_serial:
+            raise ResumeMismatch(
+                f"the {role} is {identity.describe()}, but the session was captured with "
+                f"{before.model}{f' (serial {before.serial})' if before.serial else ''}: connect "
+                "that instrument again and resume, or start a new session with rig capture"
+            )
+
+
 def _write_resume_records(
     writer: SessionWriter, runner: Runner, session: Session, point: ResumePoint
 ) -> None:
@@ -347,6 +382,7 @@ def run_resume(
     _remove_incoming(session)
 
     def after_start(runner: Runner) -> None:
+        check_same_devices(session, runner.identities)
         runner.frame_digests.update(
             (record.sha256, record.key)
             for record in session.files()

@@ -21,12 +21,13 @@ import platform
 import re
 import sys
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as distribution_version
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, TypeVar
 
 import numpy as np
@@ -376,6 +377,11 @@ class Runner:
             identity = self._call(role, "identify", device.identify, self._timeout(role))
             self._identities[role] = identity
             self._workers[role].device = identity.describe()
+
+    @property
+    def identities(self) -> Mapping[str, DeviceIdentity]:
+        """Who each device said it was when this run opened it (filled before the start record)."""
+        return MappingProxyType(self._identities)
 
     def _timeout(self, role: DeviceRole) -> float:
         return {

@@ -206,11 +206,13 @@ class FakeCamera:
         self.marker_file: Path | None = None
         #: When set, each capture takes exposure + this many seconds of real time (a download).
         self.real_time_download_s: float | None = None
+        #: The serial number the body reports (another body: another serial).
+        self.serial = "C1"
 
     def identify(self) -> DeviceIdentity:
         self.io.enter("identify")
         self.io.leave("identify")
-        return DeviceIdentity("camera", "FakeCam", serial="C1", port="fake:usb")
+        return DeviceIdentity("camera", "FakeCam", serial=self.serial, port="fake:usb")
 
     def list_settings(self) -> dict[str, SettingInfo]:
         return {name: SettingInfo(name, value) for name, value in self.settings.items()}

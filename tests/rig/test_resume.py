@@ -59,6 +59,26 @@ def test_a_failed_session_continues_where_it_stopped(tmp_path: Path) -> None:
     assert (failed.session / "transcripts" / "camera.run2.jsonl").exists()
 
 
+def test_another_camera_body_is_refused_and_the_session_stays_resumable(tmp_path: Path) -> None:
+    failed = failed_mid_bracket(tmp_path)
+    other = make_fake_rig()
+    other.camera.serial = "C2"
+    outcome = run_resume(failed.session, builder=other.builder, retry=NO_BACKOFF)
+    assert (outcome.exit_status, outcome.reason) == ("fail", "resume_mismatch")
+    assert "FakeCam (serial C2)" in outcome.message and "serial C1" in outcome.message
+    assert outcome.lamps_off and other.relays.state() == (False, False)
+    assert other.camera.captured == 0
+    session = read_session(failed.session)
+    assert session.status == "failed" and not any(
+        isinstance(r, ResumeRecord) for r in session.records
+    )
+    # A replug on another port is the same camera; with the original body it goes on.
+    again = make_fake_rig()
+    assert run_resume(failed.session, builder=again.builder, retry=NO_BACKOFF).exit_status == (
+        "success"
+    )
+
+
 def test_a_frame_that_no_longer_verifies_is_discarded_and_taken_again(tmp_path: Path) -> None:
     failed = failed_mid_bracket(tmp_path)
     frame = failed.session / "frames" / "LED-B3" / "scene-000.dng"
