@@ -100,13 +100,31 @@ def resume(
     quiet: Annotated[
         bool, typer.Option("--quiet", "-q", help="No progress bar; only the result.")
     ] = False,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            "--config",
+            "-c",
+            help="A configuration to resume with instead of the recorded one; it may change only "
+            "how the devices are reached (ports, serials, timeouts).",
+        ),
+    ] = None,
 ) -> None:
     """Continue an interrupted or failed session in a new run: lamps off first, devices set up again,
     every file verified, the lit lamp warmed up and measured again, done steps skipped."""
-    from rig.resume import recorded_config, run_resume
+    from rig.config import load_config
+    from rig.resume import config_for_resume, recorded_config, run_resume
 
     rig_config = recorded_config(session)
-    _report_run(run_resume(session, progress=_capture_progress(rig_config, quiet)))
+    if config is not None:
+        rig_config = config_for_resume(rig_config, load_config(config))
+    _report_run(
+        run_resume(
+            session,
+            progress=_capture_progress(rig_config, quiet),
+            config=None if config is None else rig_config,
+        )
+    )
 
 
 @app.command("dry-run")

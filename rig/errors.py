@@ -130,6 +130,13 @@ class StaleReading(DeviceError):
     reason = "stale_reading"
 
 
+class ResumeConfigRefused(RigError):
+    """``rig resume --config`` was given a configuration that changes what the session measures."""
+
+    reason = "resume_config"
+    exit_code = 2
+
+
 class NotResumable(RigError):
     """``rig resume`` was given a session it cannot continue (complete, or without a start record)."""
 

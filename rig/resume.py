@@ -44,7 +44,7 @@ from calib.spectra import read_spectrum_csv
 from drivers.base import DeviceIdentity
 from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
-from rig.errors import NotResumable, ResumeMismatch, RigError
+from rig.errors import NotResumable, ResumeConfigRefused, ResumeMismatch, RigError
 from rig.interrupts import InterruptController
 from rig.plan import Plan, build_plan
 from rig.progress import ProgressReporter
@@ -350,6 +350,57 @@ def recorded_config(path: Path) -> RigConfig:
     return RigConfig.model_validate(start_of(read_session(path)).config)
 
 
+#: What a configuration given to ``rig resume --config`` may change: how each device is reached
+#: (``devices.<role>.<field>``), never what is measured or with which kind of device.
+CONNECTION_FIELDS = frozenset(
+    {"port", "serial", "model", "baud", "timeout_s", "measure_timeout_s", "download_timeout_s"}
+)
+
+
+def config_for_resume(recorded: RigConfig, new: RigConfig) -> RigConfig:
+    """``new`` when it differs from ``recorded`` only in :data:`CONNECTION_FIELDS` (and where new
+    sessions go, ``output_dir``): e.g. a spectrometer that came back on another serial port.
+
+    Raises
+    ------
+    ResumeConfigRefused
+        ``new`` changes anything else (lamps, plan, camera settings, a device's kind …), named.
+    """
+    changed = _changed_fields(
+        recorded.model_dump(mode="json"), new.model_dump(mode="json"), prefix=""
+    )
+    refused = [field for field in changed if not _may_change(field)]
+    if refused:
+        raise ResumeConfigRefused(
+            f"the configuration changes {', '.join(refused)}; a resumed session measures as it "
+            "was recorded, so only how the devices are reached may change (devices.<role>."
+            f"{{{', '.join(sorted(CONNECTION_FIELDS))}}}): start a new session with rig capture "
+            "for the rest"
+        )
+    return new
+
+
+def _may_change(field: str) -> bool:
+    parts = field.split(".")
+    return field == "output_dir" or (
+        len(parts) == 3 and parts[0] == "devices" and parts[2] in CONNECTION_FIELDS
+    )
+
+
+def _changed_fields(before: object, after: object, *, prefix: str) -> list[str]:
+    """Dotted paths where two JSON documents differ (lists compared whole)."""
+    if isinstance(before, dict) and isinstance(after, dict):
+        changed = []
+        for key in sorted(set(before) | set(after), key=str):
+            path = f"{prefix}{key}"
+            if key not in before or key not in after:
+                changed.append(path)
+            else:
+                changed.extend(_changed_fields(before[key], after[key], prefix=f"{path}."))
+        return changed
+    return [] if before == after else [prefix.rstrip(".")]
+
+
 def run_resume(
     path: Path,
     *,
@@ -357,13 +408,19 @@ def run_resume(
     interrupts: InterruptController | None = None,
     retry: RetryPolicy | None = None,
     builder: StationBuilder | None = None,
+    config: RigConfig | None = None,
 ) -> RunOutcome:
     """Continue the session at ``path`` in a new run; return how the run ended.
+
+    ``config`` replaces the recorded configuration for this run where :func:`config_for_resume`
+    allows it (how the devices are reached); the new run's start record keeps what it used.
 
     Raises
     ------
     NotResumable
         The session is complete, or has no start record.
+    ResumeConfigRefused
+        ``config`` changes what the session measures.
     rig.errors.SessionFormatError
         ``path`` is not a valid session.
     """
@@ -373,7 +430,8 @@ def run_resume(
         raise NotResumable(
             f"{path} is complete; there is nothing to resume (estimate it with rig estimate)"
         )
-    config = RigConfig.model_validate(start.config)
+    recorded = RigConfig.model_validate(start.config)
+    config = recorded if config is None else config_for_resume(recorded, config)
     unverified = session.verify_files()
     point = find_resume_point(session, unverified)
     builder = builder or resolve_builder(station_kind(config))  # before the log is touched

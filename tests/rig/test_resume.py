@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from drivers.base import Disconnected, SpectrumReading
 from rig.capture import run_capture
 from rig.config import RigConfig
-from rig.errors import NotResumable
+from rig.errors import NotResumable, ResumeConfigRefused
 from rig.records import DiscardRecord, ResumeRecord, StartRecord, StepRecord
 from rig.resume import run_resume
 from rig.runner import RetryPolicy, RunOutcome
 from rig.session import SessionWriter, read_session
-from tests.rig.fakes import FakeRig, fake_config, fake_config_data, make_fake_rig
+from tests.rig.fakes import FakeRig, fake_config, fake_config_data, make_fake_rig, write_config
 from tests.rig.test_cli import run_cli
 
 NO_BACKOFF = RetryPolicy(max_attempts=3, initial_s=0.0, max_s=0.0)
@@ -94,6 +97,49 @@ def test_a_frame_that_no_longer_verifies_is_discarded_and_taken_again(tmp_path: 
         **(session.done_steps()["lamp/LED-B3/scene/000"].result or {}),
         "file": "frames/LED-B3/scene-000.2.dng",
     }
+
+
+def test_a_new_configuration_may_change_how_devices_are_reached(tmp_path: Path) -> None:
+    failed = failed_mid_bracket(tmp_path)
+    data = fake_config_data(tmp_path / "sessions")
+    data["devices"]["spectrometer"]["timeout_s"] = 7
+    data["devices"]["camera"]["download_timeout_s"] = 9
+    outcome = run_resume(
+        failed.session,
+        builder=make_fake_rig().builder,
+        retry=NO_BACKOFF,
+        config=RigConfig.model_validate(data),
+    )
+    assert outcome.exit_status == "success", outcome
+    starts = [r for r in read_session(failed.session).records if isinstance(r, StartRecord)]
+    assert [s.config["devices"]["spectrometer"]["timeout_s"] for s in starts] == [5, 7]
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        (lambda data: data["camera"].update(iso=200), "camera.iso"),
+        (lambda data: data["lamps"].pop(), "lamps"),
+        (lambda data: data["devices"]["relays"].update(channels=4), "devices.relays.channels"),
+    ],
+)
+def test_a_new_configuration_that_changes_the_measurement_is_refused(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    change: Callable[[dict[str, Any]], object],
+    named: str,
+) -> None:
+    failed = failed_mid_bracket(tmp_path)
+    data = fake_config_data(tmp_path / "sessions")
+    change(data)
+    with pytest.raises(ResumeConfigRefused, match=re.escape(named)):
+        run_resume(failed.session, config=RigConfig.model_validate(data))
+    config_file = write_config(tmp_path / "changed.yaml", data)
+    args = ["resume", str(failed.session), "--config", str(config_file)]
+    assert run_cli(args, monkeypatch) == 2
+    assert named in capsys.readouterr().err
+    assert read_session(failed.session).status == "failed"  # nothing was written
 
 
 def test_a_complete_session_is_refused(tmp_path: Path) -> None:
