@@ -62,7 +62,7 @@ def main() -> None:
             times.append(time.perf_counter() - started)
         print(
             f"{label:9s} mapping + estimate: median {statistics.median(times):.3f} s "
-            f"(min {min(times):.3f} s, {args.repeats} runs); RE {100 * relative_error(result.sensitivity, scene.truth):.2f}×10⁻²"
+            f"(min {min(times):.3f} s, {args.repeats} runs); RE {100 * relative_error(result.physical_sensitivity(), scene.truth):.2f}×10⁻²"
         )
 
 

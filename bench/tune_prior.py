@@ -57,7 +57,7 @@ def main() -> None:
                     mapping=scene.mapping,
                     prior_shrinkage=shrinkage,
                 )
-                errors[shrinkage].append(relative_error(result.sensitivity, scene.truth))
+                errors[shrinkage].append(relative_error(result.physical_sensitivity(), scene.truth))
     print(
         f"leave-one-out over {len(train)} training cameras × lamps {args.lamps}, noise {args.noise}"
     )

@@ -500,7 +500,7 @@ def _timed_estimate(
     curves: FloatArray | None = None
     try:
         result: EstimateResult = estimate(observations, method=method, grid=grid, **options)
-        curves = np.asarray(result.sensitivity)
+        curves = result.physical_sensitivity()  # what `calib estimate` writes
     except CalibError as exc:
         failure = str(exc)
     return curves, time.perf_counter() - started, failure

@@ -56,9 +56,7 @@ def _wavelength_key(wavelength_nm: float) -> str:
 
 def physical_sensitivity(result: EstimateResult) -> FloatArray:
     """The sensitivity with negative values set to zero and the maximum over channels 1."""
-    curves = np.clip(np.asarray(result.sensitivity, dtype=np.float64), 0.0, None)
-    peak = float(curves.max())
-    return curves / peak if peak > 0 else curves
+    return result.physical_sensitivity()
 
 
 def write_sensitivity_csv(path: Path, result: EstimateResult) -> Path:

@@ -101,6 +101,13 @@ class EstimateResult:
         span = float(self.wavelength_nm[-1] - self.wavelength_nm[0])
         return self.mapping.wavelength_rms_nm / span
 
+    def physical_sensitivity(self) -> FloatArray:
+        """What ``sensitivity.csv`` holds, and what RE is scored on: negative values (a solve's
+        ringing at a dim grid edge) set to zero, then the maximum over all channels 1."""
+        curves = np.clip(np.asarray(self.sensitivity, dtype=np.float64), 0.0, None)
+        peak = float(curves.max())
+        return curves / peak if peak > 0 else curves
+
     def sensitivity_spectrum(self, name: str = "estimated sensitivity") -> MultiSpectrum:
         return MultiSpectrum(self.wavelength_nm, np.clip(self.sensitivity, 0, None), name=name)
 

@@ -344,7 +344,7 @@ def evaluate_scene(
         scene.camera,
         variant,
         noise,
-        relative_error(result.sensitivity, scene.truth),
+        relative_error(result.physical_sensitivity(), scene.truth),
         mapping_re,
         None if true_mapping else result.mapping_re_estimate,
         elapsed,

@@ -205,7 +205,7 @@ class TwinSessionSource:
             self.notes.append(
                 f"{scene.label}: lamps {lamps}; single-lamp columns use {scene.solve_lamp.name}; "
                 f"`rig estimate`'s own result RE "
-                f"{relative_error(extracted.result.sensitivity, truth) * 100:.2f} ×10⁻²"
+                f"{relative_error(extracted.result.physical_sensitivity(), truth) * 100:.2f} ×10⁻²"
             )
             self.notes.extend(f"{scene.label}: {warning}" for warning in extracted.warnings)
             yield scene

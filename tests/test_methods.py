@@ -54,3 +54,25 @@ def test_result_to_dict_is_json_safe():
     )
     text = json.dumps(result.to_dict(), allow_nan=False)
     assert '"a": 1.5' in text
+
+
+def test_comparisons_score_the_curve_calib_estimate_writes(monkeypatch):
+    """Negative ringing at a grid edge is clipped in sensitivity.csv; `calib compare`, `rig compare`
+    and `calib synthetic` score that same curve, not the solver's raw one."""
+    from calib.compare import _timed_estimate
+    from calib.outputs import physical_sensitivity
+
+    grid = DEFAULT_GRID
+    raw = np.ones((grid.size, 3))
+    raw[0] = [-0.3, 0.2, -0.1]  # ringing at the first grid wavelength
+    raw[5, 1] = 2.0
+
+    def ringing(observations, *, grid, basis, mapping, mapping_lamp, **options):
+        return EstimateResult("ringing", grid.wavelength_nm, raw)
+
+    monkeypatch.setitem(ESTIMATION_METHODS, "ringing", ringing)
+    curves, _, failure = _timed_estimate([], "ringing", grid, {})
+    assert failure is None and curves is not None
+    written = physical_sensitivity(EstimateResult("ringing", grid.wavelength_nm, raw))
+    np.testing.assert_array_equal(curves, written)
+    assert curves.min() == 0.0 and curves.max() == 1.0

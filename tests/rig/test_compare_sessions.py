@@ -86,6 +86,21 @@ def test_compare_runs_every_grating_column_and_matches_rig_estimate(
     assert f"`rig estimate`'s own result RE {all_lamps:.2f} ×10⁻²" in report
 
 
+def test_compare_scores_the_curve_rig_demo_scores(
+    twin_session: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Both judge what `sensitivity.csv` holds (negatives clipped), so they give one RE."""
+    from rig.compare import twin_basis
+    from rig.demo import sensitivity_error
+    from rig.estimate import estimate_session
+
+    rows, _ = _compare([twin_session], tmp_path / "cmp", monkeypatch, "--method", "makabe2025")
+    basis = twin_basis("Nikon 5100 (NPL)")
+    estimate_session(twin_session, tmp_path / "est", settings={"basis": basis})
+    demo = sensitivity_error(tmp_path / "est" / "sensitivity.csv", twin_session / TRUTH_FILE_NAME)
+    assert float(rows["makabe2025 (all lamps)"]["relative_error"]) == pytest.approx(demo, rel=1e-5)
+
+
 def test_a_session_without_the_twins_truth_is_refused(
     twin_session: Path,
     tmp_path: Path,
