@@ -86,7 +86,9 @@ def main() -> None:
                                 flush=True,
                             )
                         result = estimate_makabe2025([observation], basis=basis, mapping=found)
-                        errors[flexibility].append(relative_error(result.physical_sensitivity(), scene.truth))
+                        errors[flexibility].append(
+                            relative_error(result.physical_sensitivity(), scene.truth)
+                        )
             for flexibility in flexibilities:
                 values = 100 * np.array(mapping_errors[flexibility])
                 print(
