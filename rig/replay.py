@@ -322,6 +322,9 @@ def _recorded_devices(recording: Recording, module: ModuleType) -> dict[str, Any
             entries=recording.transcripts[role],
             timeout_s=timeouts[role],
             download_timeout_s=devices.camera.download_timeout_s,
+            measure_timeout_s=(
+                devices.spectrometer.measure_timeout_s if role == "spectrometer" else None
+            ),
         )
         for role in ROLES
     }

@@ -22,7 +22,9 @@ from drivers.lifecycle import connect_or_close
 from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import LcusRelayBoard
 from drivers.relays.numato import NumatoRelayBoard
+from drivers.spectrometer.cs2000 import DEFAULT_COMPLETION_MARGIN_S as CS2000_MARGIN_S
 from drivers.spectrometer.cs2000 import Cs2000
+from drivers.spectrometer.pr6xx import DEFAULT_MEASURE_TIMEOUT_S as PR6XX_MEASURE_S
 from drivers.spectrometer.pr6xx import MODELS as PR6XX_MODELS
 from drivers.spectrometer.pr6xx import Pr6xx
 from drivers.transport import SerialTransport
@@ -52,12 +54,16 @@ class RecordedDevice:
         The configured per-exchange deadline (``devices.<role>.timeout_s``).
     download_timeout_s
         The camera's download deadline.
+    measure_timeout_s
+        The spectrometer's measurement allowance (``devices.spectrometer.measure_timeout_s``;
+        ``None``: the model's default).
     """
 
     identity: Mapping[str, Any]
     entries: Sequence[TranscriptEntry]
     timeout_s: float
     download_timeout_s: float = 120.0
+    measure_timeout_s: float | None = None
 
 
 @dataclass(eq=False)
@@ -144,10 +150,23 @@ def _open_spectrometer(
     port = str(device.identity.get("port") or "")
     transport = _serial_transport(script, sink, f"{model} on {port}", port, released)
     instrument: Pr6xx | Cs2000
+    allowance = device.measure_timeout_s
     if model in PR6XX_MODELS:
-        instrument = Pr6xx(transport, model=model, timeout_s=device.timeout_s, port=port)
+        instrument = Pr6xx(
+            transport,
+            model=model,
+            timeout_s=device.timeout_s,
+            measure_timeout_s=PR6XX_MEASURE_S if allowance is None else allowance,
+            port=port,
+        )
     elif model.startswith("CS-2000"):
-        instrument = Cs2000(transport, model=model, timeout_s=device.timeout_s, port=port)
+        instrument = Cs2000(
+            transport,
+            model=model,
+            timeout_s=device.timeout_s,
+            completion_margin_s=CS2000_MARGIN_S if allowance is None else allowance,
+            port=port,
+        )
     else:
         raise ReplayUnsupported(f"no replay for the spectrometer {model!r}")
     return connect_or_close(instrument, instrument.connect)

@@ -29,7 +29,8 @@ def twin_config_data(output_dir: Path | str = "sessions", **camera: Any) -> dict
     """Configuration data of the small twin; ``camera`` entries update ``devices.camera``."""
     data = fake_config_data(output_dir)
     data["devices"]["camera"] = copy.deepcopy(SMALL_CAMERA) | camera
-    data["devices"]["spectrometer"] = {"kind": "twin", "timeout_s": 5}
+    # A silent measurement ends in the driver's timeout after 2 s (the twin measures in ms).
+    data["devices"]["spectrometer"] = {"kind": "twin", "timeout_s": 5, "measure_timeout_s": 2}
     for lamp in data["lamps"]:
         lamp["warmup"]["tolerance"] = 0.02
     return data
