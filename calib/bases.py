@@ -23,8 +23,9 @@ spectral sensitivity functions for digital color cameras?", WACV.
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -42,7 +43,7 @@ FourierConvention = Literal["paired", "paper"]
 DEFAULT_N_VECTORS = 7
 
 #: Bumped whenever the cached content's meaning changes.
-_CACHE_FORMAT = "camera-basis-v2"
+_CACHE_FORMAT = "camera-basis-v4"
 
 
 def default_cache_dir() -> Path:
@@ -75,6 +76,10 @@ class CameraBasis:
     ledoit_wolf_shrinkage
         Shape ``(3,)``: Ledoit & Wolf's (2004) optimal shrinkage of each covariance toward a scaled
         identity, for reference (:meth:`prior` takes the shrinkage as a parameter).
+    typical_distance
+        The median over the training cameras of each one's :func:`prior_distance` from the
+        default prior of the others (leave one out): how far a camera of this population lies
+        from the prior; NaN with fewer than 3 cameras.
     """
 
     grid: WavelengthGrid
@@ -86,6 +91,7 @@ class CameraBasis:
     content_hash: str
     covariance: FloatArray
     ledoit_wolf_shrinkage: FloatArray
+    typical_distance: float = float("nan")
 
     @property
     def n_vectors(self) -> int:
@@ -119,20 +125,10 @@ class CameraBasis:
             weights = np.full(3, float(shrinkage))
         if np.any((weights < 0.0) | (weights > 1.0)):
             raise InputError(f"shrinkage must be in [0, 1], got {shrinkage}", source="shrinkage")
-        size = self.grid.size
-        identity = np.eye(size)
-        shrunk = np.stack(
-            [
-                (1.0 - weights[c]) * self.covariance[c]
-                + weights[c] * float(np.trace(self.covariance[c])) / size * identity
-                for c in range(3)
-            ]
-        )
-        # A floor keeps the precision finite where every training curve is zero (e.g. a grid edge).
-        floor = 1e-6 * float(np.max(np.trace(self.covariance, axis1=1, axis2=2))) / size
-        return CameraPrior(
-            self.grid, self.mean, _frozen(shrunk + floor * identity[None]), _frozen(weights)
-        )
+        prior = shrunk_prior(self.grid, self.mean, self.covariance, weights)
+        if shrinkage is None and np.isfinite(self.typical_distance):
+            prior = replace(prior, typical_distance=float(self.typical_distance))
+        return prior
 
     def to_dict(self) -> dict[str, object]:
         """A JSON-safe summary (not the vectors: they may derive from unlicensed data)."""
@@ -162,16 +158,79 @@ class CameraPrior:
         ``Σ_c``, shape ``(3, f, f)``, positive definite.
     shrinkage
         The shrinkage used to build each channel's covariance, shape ``(3,)``.
+    typical_distance
+        :attr:`CameraBasis.typical_distance` (the default shrinkage only; else ``None``).
     """
 
     grid: WavelengthGrid
     mean: FloatArray
     covariance: FloatArray
     shrinkage: FloatArray
+    typical_distance: float | None = None
 
     def precision_factor(self) -> FloatArray:
         """``L_c`` with ``L_cᵀ L_c = Σ_c⁻¹``, shape ``(3, f, f)`` (see :func:`whitening`)."""
         return np.stack([whitening(self.covariance[c]) for c in range(3)])
+
+
+def shrunk_prior(
+    grid: WavelengthGrid, mean: FloatArray, covariance: FloatArray, weights: FloatArray
+) -> CameraPrior:
+    """Each channel's covariance blended with ``tr(Σ)/f · I`` by ``weights`` ``(3,)``, floored."""
+    size = grid.size
+    identity = np.eye(size)
+    shrunk = np.stack(
+        [
+            (1.0 - weights[c]) * covariance[c]
+            + weights[c] * float(np.trace(covariance[c])) / size * identity
+            for c in range(3)
+        ]
+    )
+    # A floor keeps the precision finite where every training curve is zero (e.g. a grid edge).
+    floor = 1e-6 * float(np.max(np.trace(covariance, axis1=1, axis2=2))) / size
+    return CameraPrior(grid, mean, _frozen(shrunk + floor * identity[None]), _frozen(weights))
+
+
+def prior_distance(prior: CameraPrior, sensitivity: FloatArray) -> float:
+    """Squared Mahalanobis distance of a camera ``(f, 3)`` from the prior, at its best scale.
+
+    ``min_β Σ_c ‖L_c (β s_c − ŝ_c)‖²`` with ``L_cᵀ L_c = Σ_c⁻¹`` (the prior's covariance alone, not
+    the measurement's noise): the camera's overall scale does not count.
+    """
+    factors = prior.precision_factor()
+    curves = np.asarray(sensitivity, dtype=np.float64)
+    whitened = np.concatenate([factors[c] @ curves[:, c] for c in range(3)])
+    target = np.concatenate([factors[c] @ prior.mean[:, c] for c in range(3)])
+    norm = float(whitened @ whitened)
+    scale = float(whitened @ target) / norm if norm > 0 else 0.0
+    residual = scale * whitened - target
+    return float(residual @ residual)
+
+
+def typical_distance(
+    curves: FloatArray, weights: FloatArray, grid: WavelengthGrid, groups: Sequence[str]
+) -> float:
+    """Median leave-one-camera-out :func:`prior_distance` of ``curves`` ``(n, f, 3)``.
+
+    Each curve against the prior of the other cameras, shrunk by ``weights`` (the full set's). Curves
+    with the same ``groups`` label (a camera and its perturbed variants) are left out together.
+    NaN with fewer than 3 cameras.
+    """
+    labels = [_VARIANT_SUFFIX.sub("", name) for name in groups]
+    if len(set(labels)) < 3:
+        return float("nan")
+    distances: list[float] = []
+    for label in dict.fromkeys(labels):
+        inside = np.array([other == label for other in labels])
+        others = curves[~inside]
+        covariance = np.stack([np.atleast_2d(np.cov(others[:, :, c].T)) for c in range(3)])
+        prior = shrunk_prior(grid, others.mean(axis=0), covariance, weights)
+        distances.extend(prior_distance(prior, curve) for curve in curves[inside])
+    return float(np.median(distances))
+
+
+#: A perturbed copy's name suffix (:func:`fallback_camera_basis`): the copy is the same camera.
+_VARIANT_SUFFIX = re.compile(r" variant \d+$")
 
 
 def whitening(covariance: FloatArray, relative_floor: float = 1e-10) -> FloatArray:
@@ -235,7 +294,14 @@ def _load_cached(path: Path) -> dict[str, FloatArray] | None:
         with np.load(path, allow_pickle=False) as data:
             return {
                 key: np.asarray(data[key])
-                for key in ("vectors", "mean", "singular_values", "covariance", "shrinkage")
+                for key in (
+                    "vectors",
+                    "mean",
+                    "singular_values",
+                    "covariance",
+                    "shrinkage",
+                    "typical_distance",
+                )
             }
     except (OSError, KeyError, ValueError):
         return None  # a missing or damaged cache entry is recomputed
@@ -325,6 +391,9 @@ def camera_basis(
                 [ledoit_wolf_shrinkage(curves[:, :, c]) if n_cameras > 1 else 1.0 for c in range(3)]
             ),
         }
+        arrays["typical_distance"] = np.array(
+            typical_distance(curves, arrays["shrinkage"], grid, camera_names)
+        )
         if cache:
             _store_cached(path, arrays)
     return CameraBasis(
@@ -337,6 +406,7 @@ def camera_basis(
         content_hash=key,
         covariance=_frozen(arrays["covariance"]),
         ledoit_wolf_shrinkage=_frozen(arrays["shrinkage"]),
+        typical_distance=float(arrays["typical_distance"]),
     )
 
 

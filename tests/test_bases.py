@@ -51,3 +51,31 @@ def test_fallback_basis_excludes_the_camera_under_test(tmp_path):
     assert not any("nikon 5100" in name.lower() for name in basis.camera_names)
     assert "excluding Nikon 5100" in basis.source
     assert basis.vectors.shape == (3, 31, 7)
+
+
+def test_the_prior_distance_ignores_scale_and_is_zero_at_the_mean(tmp_path):
+    from calib.bases import prior_distance
+    from tests.synthetic_cameras import exact_basis
+
+    basis, cameras = exact_basis(tmp_path)
+    prior = basis.prior()
+    assert prior_distance(prior, 3.0 * prior.mean) == pytest.approx(0.0, abs=1e-9)
+    assert prior_distance(prior, 2.0 * cameras[0]) == pytest.approx(
+        prior_distance(prior, cameras[0])
+    )
+    assert np.isfinite(basis.typical_distance) and basis.typical_distance > 0
+
+
+def test_a_camera_s_perturbed_variants_are_left_out_with_it():
+    from calib.bases import ledoit_wolf_shrinkage, typical_distance
+
+    rng = np.random.default_rng(0)
+    grid = DEFAULT_GRID
+    cameras = rng.uniform(0.1, 1.0, size=(6, grid.size, 3))
+    twins = np.concatenate([cameras, cameras + rng.normal(0, 1e-3, cameras.shape)])
+    names = [f"camera {i}" for i in range(6)] + [f"camera {i} variant 1" for i in range(6)]
+    weights = np.array([ledoit_wolf_shrinkage(twins[:, :, c]) for c in range(3)])
+    grouped = typical_distance(twins, weights, grid, names)
+    apart = typical_distance(twins, weights, grid, [f"{n} (own)" for n in names])
+    # Left out alone, each curve still has its near-copy in the prior: it looks typical.
+    assert grouped > 3 * apart

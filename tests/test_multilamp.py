@@ -179,6 +179,35 @@ def test_the_prior_weight_falls_as_lamps_are_added(basis):
     assert all_lamps.diagnostics["prior_weight"] < one.diagnostics["prior_weight"]
 
 
+def test_the_prior_s_share_of_the_posterior_falls_as_lamps_are_added(basis):
+    _, mapping, observations, _ = _scene(2)
+    one = estimate_multilamp(observations[:1], basis=basis, mapping=mapping)
+    all_lamps = estimate_multilamp(observations, basis=basis, mapping=mapping)
+    assert 0 < all_lamps.diagnostics["prior_share"] < one.diagnostics["prior_share"] <= 1
+
+
+def test_the_typicality_rule_widens_the_prior_of_an_unusual_camera(basis):
+    """λ_k = d₀ / D²_k: a camera near the training set keeps a strong prior, a Foveon does not."""
+    assert basis.prior().typical_distance == pytest.approx(basis.typical_distance)
+    _, mapping, typical, efficiency = _scene(0)
+    foveon = find_camera(colour_science_cameras(), "Sigma SDMerill").sensitivity
+    unusual = render_lamps(
+        LAMP_SETS["5 lamps"], foveon, mapping, efficiency, np.random.default_rng(5), 0.01
+    )
+    weights = {}
+    for name, observations in (("typical", typical), ("unusual", unusual)):
+        result = estimate_multilamp(
+            observations, basis=basis, mapping=mapping, weight_rule="typicality"
+        )
+        diagnostics = result.diagnostics
+        assert diagnostics["prior_weight_rule"] == "typicality"
+        assert diagnostics["typical_distance"] == pytest.approx(basis.typical_distance)
+        weights[name] = diagnostics["prior_weight"]
+    assert weights["unusual"] < 0.1 * weights["typical"]
+    with pytest.raises(InputError, match="prior weight rule"):
+        estimate_multilamp(typical, basis=basis, mapping=mapping, weight_rule="guess")  # type: ignore[arg-type]
+
+
 def test_more_lamps_beat_the_single_lamp_prior_solve_on_a_camera_outside_the_basis():
     """Sigma SDMerill (Foveon) against a basis of the other colour-science cameras."""
     prior_basis = fallback_camera_basis(exclude=["Sigma SDMerill"])
