@@ -29,8 +29,9 @@ sensor) and a camera behind a colour filter (:func:`colour_filter`).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -310,12 +311,15 @@ def evaluate_scene(
     solver: Solver = "prior",
     noise: float = 0.0,
     repeat: int = 0,
+    multilamp_options: Mapping[str, Any] | None = None,
 ) -> SyntheticRow:
     """Estimate one variant on a rendered scene and score it against the truth."""
     started = time.perf_counter()
     led = scene.broadband.observation
     try:
-        result = _estimate_variant(scene, basis, variant, grid=grid, solver=solver)
+        result = _estimate_variant(
+            scene, basis, variant, grid=grid, solver=solver, options=multilamp_options or {}
+        )
     except EstimationError as exc:
         return SyntheticRow(
             scene.camera,
@@ -371,6 +375,7 @@ def _estimate_variant(
     *,
     grid: WavelengthGrid,
     solver: Solver,
+    options: Mapping[str, Any],
 ) -> EstimateResult:
     from calib.multilamp import estimate_multilamp, estimate_with_grating, refine_grating
 
@@ -391,7 +396,7 @@ def _estimate_variant(
                 "the grating-file variant needs calibration cameras in the scene",
                 source="variant",
             )
-        grating, _ = refine_grating(scene.calibration, basis=basis, grid=grid)
+        grating, _ = refine_grating(scene.calibration, basis=basis, grid=grid, **options)
         (single,) = (obs for obs in scene.lamp_sets["5 lamps"] if obs.name == GRATING_FILE_LAMP)
         return estimate_with_grating([single], grating, basis=basis, grid=grid)
     set_name = variant.removeprefix("multilamp: ").removesuffix(", true mapping")
@@ -400,6 +405,7 @@ def _estimate_variant(
         basis=basis,
         grid=grid,
         mapping=scene.mapping if variant.endswith("true mapping") else None,
+        **options,
     )
 
 
@@ -417,6 +423,7 @@ def run_protocol(
     seed: int = 0,
     progress: Callable[[SyntheticRow], None] | None = None,
     direct_noise: float | None = None,
+    multilamp_options: Mapping[str, Any] | None = None,
 ) -> list[SyntheticRow]:
     """Run the protocol over cameras × noise levels × repeats × variants (see module docstring).
 
@@ -433,7 +440,7 @@ def run_protocol(
     The multi-lamp variants render their lamp sets after the paper's lamps, their direct
     measurements with noise ``direct_noise`` (fraction of the peak; ``None``: the profile's); the
     grating-file variant calibrates the grating with every *other* camera of ``cameras`` under the
-    5 lamps.
+    5 lamps. ``multilamp_options`` go to the multi-lamp solves (e.g. ``weight_rule``).
     """
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
@@ -479,6 +486,7 @@ def run_protocol(
                         solver=solver,
                         noise=noise,
                         repeat=repeat,
+                        multilamp_options=multilamp_options,
                     )
                     rows.append(row)
                     if progress is not None:

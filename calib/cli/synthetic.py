@@ -193,6 +193,13 @@ def register(app: typer.Typer) -> None:
                 "captures have it 2.3× below the profile's (bench/direct_noise.py)."
             ),
         ] = None,
+        weight_rule: Annotated[
+            str,
+            typer.Option(
+                help="How the multi-lamp variants weight the camera prior: upre (default) or "
+                "typicality (calib.multilamp.PRIOR_WEIGHT_RULES)."
+            ),
+        ] = "upre",
         csv_path: Annotated[
             Path, typer.Option("--csv", help="Where to write every estimate as CSV.")
         ] = Path("synthetic.csv"),
@@ -216,7 +223,17 @@ def register(app: typer.Typer) -> None:
 
             basis_source = "colour-science built-ins, each camera excluded from its own basis"
             rows = _run(
-                cameras, basis_for, grid, variants, noise, lamp, chosen, repeats, seed, direct_noise
+                cameras,
+                basis_for,
+                grid,
+                variants,
+                noise,
+                lamp,
+                chosen,
+                repeats,
+                seed,
+                direct_noise,
+                weight_rule,
             )
         else:
             _train, test = makabe2025_split(data_dir)
@@ -238,6 +255,7 @@ def register(app: typer.Typer) -> None:
                 repeats,
                 seed,
                 direct_noise,
+                weight_rule,
             )
         console = Console()
         console.print(
@@ -276,7 +294,15 @@ def _run(
     repeats: int,
     seed: int,
     direct_noise: float | None = None,
+    weight_rule: str = "upre",
 ) -> list[SyntheticRow]:
+    from calib.multilamp import PRIOR_WEIGHT_RULES
+
+    if weight_rule not in PRIOR_WEIGHT_RULES:
+        raise InputError(
+            f"unknown weight rule {weight_rule!r}; choose from {', '.join(PRIOR_WEIGHT_RULES)}",
+            source="--weight-rule",
+        )
     console = Console(stderr=True)
     with console.status("estimating…") as status:
         return run_protocol(
@@ -290,6 +316,7 @@ def _run(
             repeats=repeats,
             seed=seed,
             direct_noise=direct_noise,
+            multilamp_options={"weight_rule": weight_rule},
             progress=lambda row: status.update(
                 f"{row.camera} · {row.variant} · noise {row.noise:g}"
             ),
