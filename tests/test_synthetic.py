@@ -84,3 +84,12 @@ def test_cli_rejects_an_unknown_variant():
         build_app(), ["synthetic", "--offline", "--variant", "multilamp: 9 lamps"]
     )
     assert result.exit_code != 0
+
+
+def test_cli_rejects_an_unknown_weight_rule():
+    result = CliRunner().invoke(
+        build_app(),
+        ["synthetic", "--offline", "--variant", "multilamp: 5 lamps", "--weight-rule", "guess"],
+    )
+    assert result.exit_code != 0
+    assert "--weight-rule" in str(result.output) + str(result.exception)
