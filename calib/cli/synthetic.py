@@ -222,19 +222,7 @@ def register(app: typer.Typer) -> None:
                 )
 
             basis_source = "colour-science built-ins, each camera excluded from its own basis"
-            rows = _run(
-                cameras,
-                basis_for,
-                grid,
-                variants,
-                noise,
-                lamp,
-                chosen,
-                repeats,
-                seed,
-                direct_noise,
-                weight_rule,
-            )
+            basis_choice: CameraBasis | Callable[[str], CameraBasis] = basis_for
         else:
             _train, test = makabe2025_split(data_dir)
             basis = default_camera_basis(
@@ -244,19 +232,20 @@ def register(app: typer.Typer) -> None:
             cameras = [(r.camera, r.sensitivity) for r in test]
             if out_of_basis:
                 cameras = out_of_basis_cameras(test[0].camera, test[0].sensitivity)
-            rows = _run(
-                cameras,
-                basis,
-                grid,
-                variants,
-                noise,
-                lamp,
-                chosen,
-                repeats,
-                seed,
-                direct_noise,
-                weight_rule,
-            )
+            basis_choice = basis
+        rows = _run(
+            cameras,
+            basis_choice,
+            grid,
+            variants,
+            noise,
+            lamp,
+            chosen,
+            repeats,
+            seed,
+            direct_noise,
+            weight_rule,
+        )
         console = Console()
         console.print(
             summary_table(
