@@ -366,6 +366,21 @@ def test_images_and_profiles_do_not_mix(capture: Capture, tmp_path: Path) -> Non
     assert code == 2 and "every lamp as RAW images or every lamp as a profile" in stderr
 
 
+def test_the_prior_weight_rule_is_chosen_on_the_command_line(
+    capture: Capture, tmp_path: Path
+) -> None:
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--method", "multilamp"]
+    code, _, stderr = _call([*argv, "--weight-rule", "typicality", "--out", str(tmp_path / "t")])
+    assert code == 0, stderr
+    diagnostics = json.loads((tmp_path / "t" / "result.json").read_text())["diagnostics"]
+    assert diagnostics["prior_weight_rule"] == "typicality"
+    code, _, stderr = _call([*argv, "--weight-rule", "guess", "--out", str(tmp_path / "g")])
+    assert code == 2 and "--weight-rule" in stderr and "typicality" in stderr
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--weight-rule", "upre"]
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "m")])
+    assert code == 2 and "applies to --method multilamp only" in stderr
+
+
 def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     capture: Capture, tmp_path: Path
 ) -> None:

@@ -128,6 +128,9 @@ def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: 
     _check_out_dir(arguments.out_dir, arguments.force)
     settings = OfflineSettings(
         method=arguments.method,
+        method_options=(
+            {} if arguments.weight_rule is None else {"weight_rule": arguments.weight_rule}
+        ),
         grid=arguments.grid,
         mapping_lamp=arguments.mapping_lamp,
         data_dir=arguments.data_dir,

@@ -26,7 +26,8 @@ Usage: calib estimate --lamp NAME (--images PATH [PATH ...] | --profile CSV) --s
                       [--exposure S ...] [--dark-exposure S ...] [--direct R,G,B]
                       [--bandwidth NM]
                       [--lamp NAME … for every further lamp]
-                      --out DIR [--method makabe2025|…] [--mapping-lamp NAME] [--grid 400:700:10]
+                      --out DIR [--method makabe2025|…] [--weight-rule upre|typicality]
+                      [--mapping-lamp NAME] [--grid 400:700:10]
                       [--data-dir DIR] [--grating FILE] [--force] [--quiet] [--json]
 
 Estimate a camera's RGB spectral sensitivity from RAW brackets (or 1-D profiles) of lamps seen
@@ -50,6 +51,8 @@ Global:
   --out DIR              where to write sensitivity.csv, result.json, report.html, the
                          rawtoaces camera JSON and grating.json (created if missing)
   --method NAME          estimation method (default makabe2025)
+  --weight-rule RULE     with --method multilamp: how the camera prior is weighted, upre (default)
+                         or typicality (better for cameras like the basis, worse for unusual ones)
   --mapping-lamp NAME    the lamp that gives the pixel→wavelength mapping
   --grid START:STOP:STEP working wavelength grid in nm (default 400:700:10)
   --data-dir DIR         camera data for the basis (default $SPECTRAL_RIG_DATA or the user cache;
@@ -66,7 +69,15 @@ Exit codes: 0 ok, 2 bad input (the reason on one line), 1 internal error.
 
 _LAMP_MULTI = ("--images", "--dark", "--exposure", "--dark-exposure")
 _LAMP_SINGLE = ("--spectrum", "--kind", "--profile", "--direct", "--bandwidth")
-_GLOBAL_SINGLE = ("--out", "--method", "--mapping-lamp", "--grid", "--data-dir", "--grating")
+_GLOBAL_SINGLE = (
+    "--out",
+    "--method",
+    "--weight-rule",
+    "--mapping-lamp",
+    "--grid",
+    "--data-dir",
+    "--grating",
+)
 _FLAGS = {"--quiet": "--quiet", "-q": "--quiet", "--json": "--json", "--force": "--force"}
 _HELP = ("--help", "-h")
 _KNOWN = ("--lamp", *_LAMP_MULTI, *_LAMP_SINGLE, *_GLOBAL_SINGLE, *_FLAGS, *_HELP)
@@ -89,7 +100,7 @@ class EstimateArguments:
         One input per ``--lamp`` group, in order.
     out_dir
         ``--out``.
-    method, mapping_lamp, grid, data_dir, grating
+    method, weight_rule, mapping_lamp, grid, data_dir, grating
         The global options (``None`` when not given).
     force, quiet, json_output, show_help
         The flags.
@@ -98,6 +109,7 @@ class EstimateArguments:
     lamps: tuple[LampInput, ...]
     out_dir: Path | None
     method: str = "makabe2025"
+    weight_rule: str | None = None
     mapping_lamp: str | None = None
     grid: WavelengthGrid = DEFAULT_GRID
     data_dir: Path | None = None
@@ -228,10 +240,26 @@ def parse_estimate_arguments(argv: Sequence[str]) -> EstimateArguments:
         except InputError as exc:
             message = str(exc).removeprefix(f"{exc.source}: ")
             raise InputError(message, source="--grid") from None
+    method = globals_.get("--method", "makabe2025")
+    weight_rule = globals_.get("--weight-rule")
+    if weight_rule is not None:
+        from calib.multilamp import MULTILAMP_METHOD, PRIOR_WEIGHT_RULES
+
+        if method.lower() != MULTILAMP_METHOD:
+            raise InputError(
+                f"applies to --method {MULTILAMP_METHOD} only (the method is {method!r})",
+                source="--weight-rule",
+            )
+        if weight_rule not in PRIOR_WEIGHT_RULES:
+            raise InputError(
+                f"{weight_rule!r} is not a rule; choose from {', '.join(PRIOR_WEIGHT_RULES)}",
+                source="--weight-rule",
+            )
     return EstimateArguments(
         lamps=tuple(_lamp_input(group) for group in groups),
         out_dir=Path(globals_["--out"]),
-        method=globals_.get("--method", "makabe2025"),
+        method=method,
+        weight_rule=weight_rule,
         mapping_lamp=globals_.get("--mapping-lamp"),
         grid=grid,
         data_dir=Path(globals_["--data-dir"]) if "--data-dir" in globals_ else None,

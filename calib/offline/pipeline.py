@@ -62,6 +62,8 @@ class OfflineSettings:
     ----------
     method
         Estimation method for lamps with a direct measurement (see :func:`calib.estimate`).
+    method_options
+        Further keyword options of that method (e.g. ``{"weight_rule": "typicality"}``).
     grid
         Working wavelength grid.
     mapping_lamp
@@ -82,6 +84,7 @@ class OfflineSettings:
     """
 
     method: str = "makabe2025"
+    method_options: Mapping[str, Any] = field(default_factory=dict)
     grid: WavelengthGrid = DEFAULT_GRID
     mapping_lamp: str | None = None
     data_dir: Path | None = None
@@ -498,6 +501,7 @@ def _estimate(
                 basis=basis,
                 mapping=mapping,
                 mapping_lamp=settings.mapping_lamp,
+                **settings.method_options,
             ),
             None,
         )
