@@ -101,8 +101,11 @@ def is_bulb_choice(text: str) -> bool:
 
 
 def stops_between(a_s: float, b_s: float) -> float:
-    """Signed distance in stops from exposure ``a_s`` to ``b_s`` (log₂ of their ratio)."""
-    return math.log2(b_s / a_s)
+    """Signed distance in stops from exposure ``a_s`` to ``b_s`` (log₂ of their ratio).
+
+    A difference of logarithms: the ratio of a denormal and an ordinary exposure underflows to 0.
+    """
+    return math.log2(b_s) - math.log2(a_s)
 
 
 def format_exposure(seconds: float) -> str:

@@ -214,3 +214,8 @@ def test_watchdog_refuses_bad_timeouts() -> None:
     with pytest.raises(ValueError, match="positive"):
         watchdog.call(lambda: None, timeout_s=0, name="x")
     watchdog.close()
+
+
+def test_a_denormal_exposure_is_a_distance_not_a_crash() -> None:
+    """Found by the slow fuzz run: 5e-324 s against a 2 s choice underflowed log₂'s argument."""
+    assert stops_between(2.0, 5e-324) == -1075.0
