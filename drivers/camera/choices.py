@@ -74,14 +74,16 @@ def _nearest_in_stops(
     parsed: list[tuple[str, float]] = []
     for choice in choices:
         try:
-            parsed.append((choice, parse(choice)))
+            number = parse(choice)
         except ValueError:
             continue
-    if not parsed:
+        if number > 0 and math.isfinite(number):  # a log scale has no room for 0 or ∞
+            parsed.append((choice, number))
+    if not parsed or not (value > 0 and math.isfinite(value)):
         raise _refuse(what, requested, choices)
 
     def stops(a: float, b: float) -> float:
-        return stops_per_doubling * math.log2(b / a)
+        return stops_per_doubling * (math.log2(b) - math.log2(a))  # no underflowing ratio
 
     low = min(v for _, v in parsed)
     high = max(v for _, v in parsed)
