@@ -1256,6 +1256,29 @@ def _result(
     )
 
 
+def weight_rule_option(method: str, weight_rule: str | None) -> dict[str, Any]:
+    """The estimator options a command line's ``--weight-rule`` stands for (``{}`` when absent).
+
+    Raises
+    ------
+    InputError
+        The rule is unknown, or the method is not ``multilamp`` (source ``--weight-rule``).
+    """
+    if weight_rule is None:
+        return {}
+    if method.lower() != MULTILAMP_METHOD:
+        raise InputError(
+            f"applies to --method {MULTILAMP_METHOD} only (the method is {method!r})",
+            source="--weight-rule",
+        )
+    if weight_rule not in PRIOR_WEIGHT_RULES:
+        raise InputError(
+            f"{weight_rule!r} is not a rule; choose from {', '.join(PRIOR_WEIGHT_RULES)}",
+            source="--weight-rule",
+        )
+    return {"weight_rule": weight_rule}
+
+
 def multilamp_method(
     observations: Sequence[LampObservation],
     *,

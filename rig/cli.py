@@ -229,18 +229,32 @@ def estimate(
         Path | None,
         typer.Option(help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."),
     ] = None,
+    weight_rule: Annotated[
+        str | None,
+        typer.Option(
+            help="With --method multilamp: how the camera prior is weighted, upre (default) or "
+            "typicality (better for cameras like the basis, worse for unusual ones)."
+        ),
+    ] = None,
     quiet: Annotated[
         bool, typer.Option("--quiet", "-q", help="No progress bar; only where the report is.")
     ] = False,
 ) -> None:
     """Estimate the camera from a session (every file verified against the log) and write the report."""
+    from calib.multilamp import weight_rule_option
     from calib.offline import RichFrameProgress
     from rig.estimate import estimate_session
 
     command_line = ("rig", "estimate", *sys.argv[2:])
+    settings = {"method_options": weight_rule_option(method, weight_rule)}
     if quiet or not RichFrameProgress.wanted(sys.stderr):
         outcome = estimate_session(
-            session, out, method=method, data_dir=data_dir, command_line=command_line
+            session,
+            out,
+            method=method,
+            data_dir=data_dir,
+            command_line=command_line,
+            settings=settings,
         )
     else:
         with RichFrameProgress(sys.stderr) as progress:
@@ -251,6 +265,7 @@ def estimate(
                 data_dir=data_dir,
                 progress=progress,
                 command_line=command_line,
+                settings=settings,
             )
     result = outcome.estimate.result
     for warning in outcome.estimate.warnings:

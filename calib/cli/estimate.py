@@ -121,6 +121,7 @@ def run(argv: Sequence[str], *, stdout: TextIO | None = None, stderr: TextIO | N
 
 
 def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO) -> Any:
+    from calib.multilamp import weight_rule_option
     from calib.offline import OfflineSettings, run_offline
     from calib.offline.progress import RichFrameProgress
 
@@ -128,9 +129,7 @@ def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: 
     _check_out_dir(arguments.out_dir, arguments.force)
     settings = OfflineSettings(
         method=arguments.method,
-        method_options=(
-            {} if arguments.weight_rule is None else {"weight_rule": arguments.weight_rule}
-        ),
+        method_options=weight_rule_option(arguments.method, arguments.weight_rule),
         grid=arguments.grid,
         mapping_lamp=arguments.mapping_lamp,
         data_dir=arguments.data_dir,

@@ -243,18 +243,9 @@ def parse_estimate_arguments(argv: Sequence[str]) -> EstimateArguments:
     method = globals_.get("--method", "makabe2025")
     weight_rule = globals_.get("--weight-rule")
     if weight_rule is not None:
-        from calib.multilamp import MULTILAMP_METHOD, PRIOR_WEIGHT_RULES
+        from calib.multilamp import weight_rule_option
 
-        if method.lower() != MULTILAMP_METHOD:
-            raise InputError(
-                f"applies to --method {MULTILAMP_METHOD} only (the method is {method!r})",
-                source="--weight-rule",
-            )
-        if weight_rule not in PRIOR_WEIGHT_RULES:
-            raise InputError(
-                f"{weight_rule!r} is not a rule; choose from {', '.join(PRIOR_WEIGHT_RULES)}",
-                source="--weight-rule",
-            )
+        weight_rule_option(method, weight_rule)  # checked with the other arguments
     return EstimateArguments(
         lamps=tuple(_lamp_input(group) for group in groups),
         out_dir=Path(globals_["--out"]),

@@ -266,3 +266,26 @@ def test_rig_estimate_of_a_non_session_exits_2(
     error = capsys.readouterr().err
     assert error.startswith("rig: error:") and "not a session" in error
     assert error.count("\n") == 1
+
+
+def test_rig_estimate_takes_the_multilamp_weight_rule(
+    session: Path,
+    capture: Capture,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setattr(
+        "calib.offline.pipeline.default_camera_basis", lambda *a, **k: capture.basis
+    )
+    out = tmp_path / "out"
+    arguments = ["estimate", str(session), "--out", str(out), "-q", "--weight-rule", "typicality"]
+    result = CliRunner().invoke(app, [*arguments, "--method", "multilamp"])
+    assert result.exit_code == 0, result.output
+    diagnostics = json.loads((out / "result.json").read_text())["diagnostics"]
+    assert diagnostics["prior_weight_rule"] == "typicality"
+    monkeypatch.setattr(sys, "argv", ["rig", *arguments])  # the default method, makabe2025
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    assert "--weight-rule: applies to --method multilamp only" in capsys.readouterr().err
