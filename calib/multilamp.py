@@ -138,7 +138,8 @@ class EfficiencySolution:
         bootstrap over the noise model sees; smaller than the posterior, which also carries the
         prior's uncertainty).
     prior_weight
-        ``λ`` chosen by UPRE.
+        ``λ`` as chosen (UPRE, or the first camera's under the typicality rule; ``info`` has every
+        camera's).
     inverse_jacobian
         ``∂η⁻¹/∂c`` ``(f, b)`` at the solution (the basis itself for the ``"inverse"`` model): what
         propagates the coefficients' covariance to ``η⁻¹`` and to the sensitivity.
