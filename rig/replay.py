@@ -7,6 +7,13 @@ session's transcripts and answer with what the devices answered, and serve the s
 the camera's downloads. Waits take no time: the clock is simulated and follows the recorded
 timeline, so branches that depend on time (a warm-up timeout) go as they went.
 
+A resumed session replays run by run: run 1 as above, then each later run as ``rig resume`` of
+the replay itself (:func:`rig.resume.run_resume`, a fresh interrupt controller as a new process
+has), on a station serving that run's transcripts. The resume decides from the replay's own log
+what to reuse, as it decided from the original's. Each step takes its recorded time on the
+simulated clock (the station's step hook moves the clock from the step's recorded start to its
+end), because a resume waits out the reused steps' durations.
+
 The result is a new session directory. The replay fails with :class:`ReplayDiverged` — naming the
 step, the device, the transcript line, and the expected and sent bytes or call — when the rig sends
 anything else, or leaves a recorded exchange unused; otherwise its log is compared with the
@@ -23,7 +30,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -82,14 +89,31 @@ class ReplayDiverged(RigError):
 
 
 @dataclass(frozen=True)
-class Recording:
-    """A verified session, ready to replay."""
+class RecordedRun:
+    """One run of a session (a capture, or a resume of it): its start, records and transcripts."""
 
-    session: Session
+    number: int
     start: StartRecord
     config: RigConfig
+    records: list[Record]
     transcripts: dict[DeviceRole, list[TranscriptEntry]]
     frames: list[FileRecord]
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A verified session, ready to replay: its runs in order (more than one once resumed)."""
+
+    session: Session
+    runs: list[RecordedRun]
+
+    @property
+    def start(self) -> StartRecord:
+        return self.runs[0].start
+
+    @property
+    def config(self) -> RigConfig:
+        return self.runs[0].config
 
 
 @dataclass(frozen=True)
@@ -155,8 +179,8 @@ def load_recording(path: Path) -> Recording:
     SessionFormatError
         The directory is not a valid session (bad record, unsafe path).
     ReplayRefused
-        A file differs from its record, the configuration or plan is invalid, a transcript is
-        missing or unreadable, or the session has more than one run.
+        A file differs from its record, the configuration or plan is invalid, or a run's
+        transcript is missing or unreadable.
     """
     try:
         session = read_session(path)
@@ -165,11 +189,6 @@ def load_recording(path: Path) -> Recording:
     start = session.start
     if start is None:
         raise ReplayRefused(f"{path}: the log has no start record")
-    runs = sum(isinstance(record, StartRecord) for record in session.records)
-    if runs > 1:
-        raise ReplayRefused(
-            f"{path}: the session has {runs} runs (it was resumed); replay takes one-run sessions"
-        )
     if any(
         isinstance(record, InterruptionRecord) and record.action == "stop-now"
         for record in session.records
@@ -182,8 +201,25 @@ def load_recording(path: Path) -> Recording:
     if problems:
         raise ReplayRefused(f"{path}: {problems[0]} ({len(problems)} file problem(s))")
     try:
-        config = RigConfig.model_validate(start.config)
         build_plan(start.plan.name, start.plan.args).close()
+    except ValidationError as exc:
+        raise ReplayRefused(
+            f"{path}: the recorded configuration or plan is invalid: {_first_validation_error(exc)}"
+        ) from None
+    numbers = sorted({record.run for record in session.records})
+    runs = [_recorded_run(path, session, number) for number in numbers]
+    return Recording(session, runs)
+
+
+def _recorded_run(path: Path, session: Session, number: int) -> RecordedRun:
+    """Run ``number``'s start, records, transcripts and frames (:class:`ReplayRefused` if any is
+    missing: a run whose devices never opened, or a crashed run, cannot be replayed)."""
+    records = [record for record in session.records if record.run == number]
+    start = records[0] if records else None
+    if not isinstance(start, StartRecord):
+        raise ReplayRefused(f"{path}: run {number} has no start record")
+    try:
+        config = RigConfig.model_validate(start.config)
     except ValidationError as exc:
         raise ReplayRefused(
             f"{path}: the recorded configuration or plan is invalid: {_first_validation_error(exc)}"
@@ -191,14 +227,20 @@ def load_recording(path: Path) -> Recording:
     missing = [role for role in ROLES if role not in start.devices]
     if missing:
         raise ReplayRefused(
-            f"{path}: the start record identifies no {', '.join(missing)} (the devices never "
-            "opened); there is nothing to replay"
+            f"{path}: run {number}'s start record identifies no {', '.join(missing)} (the devices "
+            "never opened); there is nothing to replay"
         )
+    names = {
+        f"transcripts/{role}.jsonl"
+        if number == 1
+        else f"transcripts/{role}.run{number}.jsonl": role
+        for role in ROLES
+    }
     transcripts: dict[DeviceRole, list[TranscriptEntry]] = {}
     for record in session.files():
-        if record.role != "transcript":
+        if record.role != "transcript" or record.run != number:
             continue
-        role = next((r for r in ROLES if record.path == f"transcripts/{r}.jsonl"), None)
+        role = names.get(record.path)
         if role is None:
             raise ReplayRefused(f"{path}: unexpected transcript {record.path}")
         data = session.file_path(record.path).read_bytes()
@@ -206,11 +248,17 @@ def load_recording(path: Path) -> Recording:
     absent = [role for role in ROLES if role not in transcripts]
     if absent:
         raise ReplayRefused(
-            f"{path}: no acknowledged transcript for {', '.join(absent)} (a crashed run's "
-            "transcripts are not acknowledged); cannot replay"
+            f"{path}: no acknowledged transcript of run {number} for {', '.join(absent)} (a "
+            "crashed run's transcripts are not acknowledged); cannot replay"
         )
-    frames = [record for record in session.files() if record.role in ("frame", "dark")]
-    return Recording(session, start, config, transcripts, frames)
+    # Every frame the run downloaded, discarded ones too (a stale frame was downloaded before
+    # the rig saw it was stale); each is checked against its sha256 when it is served.
+    frames = [
+        record
+        for record in records
+        if isinstance(record, FileRecord) and record.role in ("frame", "dark")
+    ]
+    return RecordedRun(number, start, config, records, transcripts, frames)
 
 
 # ------------------------------------------------------------------------------------ running
@@ -232,14 +280,14 @@ class _Timeline:
         self,
         inner: ProgressReporter,
         clock: Any,
-        recording: Recording,
+        records: Sequence[Record],
         interrupts: InterruptController,
     ) -> None:
         self.inner = inner
         self.clock = clock
         self.current_key = "(opening the devices)"
-        self._t0 = clock.now()
-        records = recording.session.records
+        self._t0 = clock.now() if clock is not None else 0.0
+        self._current: Step | None = None
         self._steps = {r.key: r for r in records if isinstance(r, StepRecord)}
         self._interrupts = interrupts
         signals = [r.signal for r in records if isinstance(r, InterruptionRecord)]
@@ -247,6 +295,11 @@ class _Timeline:
         last = next((r for r in reversed(records) if isinstance(r, StepRecord)), None)
         self._last_key = last.key if last is not None else None
         self._cut_short = last is not None and (last.result or {}).get("completed") is False
+
+    def attach(self, clock: Any) -> None:
+        """The clock of a station opened after this timeline was made (a resumed run)."""
+        self.clock = clock
+        self._t0 = clock.now()
 
     def _receive_signal(self) -> None:
         assert self._signal is not None
@@ -262,17 +315,26 @@ class _Timeline:
 
     def step_started(self, step: Step) -> None:
         self.current_key = step.key
+        self._current = step
         recorded = self._steps.get(step.key)
-        if recorded is not None:
-            target = self._t0 + recorded.started_s
-            if not isinstance(step, Wait):
-                target += recorded.duration_s
-            ahead_s = target - self.clock.now()
-            if ahead_s > 0:
-                self.clock.advance(ahead_s)
+        if recorded is not None:  # the runner reads the step's start after this
+            self._advance_to(self._t0 + recorded.started_s)
         if self._signal is not None and step.key == self._last_key and self._cut_short:
             self._receive_signal()
         self.inner.step_started(step)
+
+    def step_hook(self, key: str) -> None:
+        """The station's hook, called once the runner has the step's start: on to its recorded end
+        (a wait advances the clock itself), so the step takes its recorded time and the devices
+        answer at the times they did. The next run's resume reads those durations."""
+        recorded = self._steps.get(key)
+        if recorded is not None and not isinstance(self._current, Wait):
+            self._advance_to(self._t0 + recorded.started_s + recorded.duration_s)
+
+    def _advance_to(self, target: float) -> None:
+        ahead_s = target - self.clock.now()
+        if ahead_s > 0:
+            self.clock.advance(ahead_s)
 
     def step_done(self, step: Step, result: StepResult) -> None:
         if self._signal is not None and step.key == self._last_key and not self._cut_short:
@@ -287,15 +349,17 @@ class _Timeline:
         self.inner.finish(completed)
 
 
-def _frame_source(recording: Recording) -> Callable[[int, int, str | None], bytes]:
-    """Serves the n-th download from the session's frame files (by sha256 when recorded)."""
-    by_sha256 = {record.sha256: record for record in recording.frames}
+def _frame_source(
+    recording: Recording, run: RecordedRun
+) -> Callable[[int, int, str | None], bytes]:
+    """Serves the run's n-th download from the session's frame files (by sha256 when recorded)."""
+    by_sha256 = {record.sha256: record for each in recording.runs for record in each.frames}
 
     def frame(number: int, size: int, sha256: str | None) -> bytes:
         if sha256 is not None:
             record = by_sha256.get(sha256)
         else:
-            record = recording.frames[number] if number < len(recording.frames) else None
+            record = run.frames[number] if number < len(run.frames) else None
         if record is None or record.size != size:
             raise ReplayDiverged(
                 f"download {number + 1} of the camera ({size} bytes, sha256 {sha256}) is not a "
@@ -309,8 +373,8 @@ def _frame_source(recording: Recording) -> Callable[[int, int, str | None], byte
     return frame
 
 
-def _recorded_devices(recording: Recording, module: ModuleType) -> dict[str, Any]:
-    devices = recording.config.devices
+def _recorded_devices(run: RecordedRun, module: ModuleType) -> dict[str, Any]:
+    devices = run.config.devices
     timeouts = {
         "relays": devices.relays.timeout_s,
         "spectrometer": devices.spectrometer.timeout_s,
@@ -318,8 +382,8 @@ def _recorded_devices(recording: Recording, module: ModuleType) -> dict[str, Any
     }
     return {
         role: module.RecordedDevice(
-            identity=recording.start.devices[role].model_dump(),
-            entries=recording.transcripts[role],
+            identity=run.start.devices[role].model_dump(),
+            entries=run.transcripts[role],
             timeout_s=timeouts[role],
             download_timeout_s=devices.camera.download_timeout_s,
             measure_timeout_s=(
@@ -382,51 +446,122 @@ def replay_session(
         )
     module = optional_module(REPLAY_MODULE, f"session replay ({REPLAY_MODULE})")
     interrupts = interrupts or InterruptController()
-    session = SessionWriter(target, guard=interrupts.critical)
-    snapshot = recording.config.model_dump(mode="json")
-    try:
-        bench = module.open_replay(
-            _recorded_devices(recording, module), session.transcript_sink, _frame_source(recording)
-        )
-    except (DeviceError, RigError, ValueError) as exc:
-        _record_unopened_station(session, recording.start.plan, snapshot, exc)
-        if isinstance(exc, module.ReplayMismatch):
-            raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
-        raise ReplayRefused(f"the recorded devices cannot be opened for replay: {exc}") from None
-    station = Station(
+    progress = progress or SilentProgress()
+    first, *resumed = recording.runs
+    run, mismatch = _replay_first_run(recording, first, target, module, progress, interrupts)
+    for later in resumed:
+        if mismatch is not None:
+            break
+        # A resume is a new process: a signal the previous run received is not its own.
+        fresh = InterruptController()
+        run, mismatch = _replay_resume(recording, later, target, module, progress, fresh)
+    difference = None
+    if mismatch is None:
+        difference = compare_logs(recording.session, read_session(run.session))
+    return ReplayOutcome(source, run, mismatch, difference)
+
+
+def _station(bench: Any, timeline: _Timeline) -> Station:
+    return Station(
         bench.spectrometer,
         bench.camera,
         bench.relays,
         bench.clock,
         RawFrameAnalyzer(),
         on_close=[bench.close],
+        step_hook=timeline.step_hook,
     )
-    timeline = _Timeline(progress or SilentProgress(), bench.clock, recording, interrupts)
+
+
+def _mismatch_of(bench: Any) -> str | None:
+    for role in ROLES:
+        bench.scripts[role].finish()
+    first = bench.mismatches.first
+    return None if first is None else _mismatch_text(first, bench.mismatches.where(first))
+
+
+def _replay_first_run(
+    recording: Recording,
+    run: RecordedRun,
+    target: Path,
+    module: ModuleType,
+    progress: ProgressReporter,
+    interrupts: InterruptController,
+) -> tuple[RunOutcome, str | None]:
+    """Run 1: the recorded plan on the replay station, into the new session ``target``."""
+    session = SessionWriter(target, guard=interrupts.critical)
+    snapshot = run.config.model_dump(mode="json")
+    try:
+        bench = module.open_replay(
+            _recorded_devices(run, module),
+            session.transcript_sink,
+            _frame_source(recording, run),
+        )
+    except (DeviceError, RigError, ValueError) as exc:
+        _record_unopened_station(session, run.start.plan, snapshot, exc)
+        if isinstance(exc, module.ReplayMismatch):
+            raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
+        raise ReplayRefused(f"the recorded devices cannot be opened for replay: {exc}") from None
+    timeline = _Timeline(progress, bench.clock, run.records, interrupts)
+    station = _station(bench, timeline)
     bench.mismatches.context = lambda: timeline.current_key
     runner = Runner(
         station,
         session,
-        timeouts=StepTimeouts.from_config(recording.config),
+        timeouts=StepTimeouts.from_config(run.config),
         retry=RetryPolicy(),
         progress=timeline,
         interrupts=interrupts,
     )
     try:
-        run = runner.run(
-            build_plan(recording.start.plan.name, recording.start.plan.args),
-            recording.start.plan,
-            snapshot,
+        outcome = runner.run(
+            build_plan(run.start.plan.name, run.start.plan.args), run.start.plan, snapshot
         )
     finally:
         station.close()
-    for role in ROLES:
-        bench.scripts[role].finish()
-    first = bench.mismatches.first
-    mismatch = None if first is None else _mismatch_text(first, bench.mismatches.where(first))
-    difference = None
-    if mismatch is None:
-        difference = compare_logs(recording.session, read_session(run.session))
-    return ReplayOutcome(source, run, mismatch, difference)
+    return outcome, _mismatch_of(bench)
+
+
+def _replay_resume(
+    recording: Recording,
+    run: RecordedRun,
+    target: Path,
+    module: ModuleType,
+    progress: ProgressReporter,
+    interrupts: InterruptController,
+) -> tuple[RunOutcome, str | None]:
+    """A later run: ``rig resume`` of the replayed session, on a station serving that run's
+    transcripts (the resume decides what to reuse from the replay's own log, as it did)."""
+    from rig.resume import run_resume
+
+    benches: list[Any] = []
+    timeline = _Timeline(progress, None, run.records, interrupts)
+
+    def builder(config: RigConfig, transcripts: Any) -> Station:
+        try:
+            bench = module.open_replay(
+                _recorded_devices(run, module), transcripts, _frame_source(recording, run)
+            )
+        except module.ReplayMismatch as exc:
+            raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
+        except ValueError as exc:
+            raise ReplayRefused(
+                f"the recorded devices cannot be opened for replay: {exc}"
+            ) from None
+        benches.append(bench)
+        timeline.attach(bench.clock)
+        bench.mismatches.context = lambda: timeline.current_key
+        return _station(bench, timeline)
+
+    outcome = run_resume(
+        target,
+        progress=timeline,
+        interrupts=interrupts,
+        retry=RetryPolicy(),
+        builder=builder,
+        config=run.config,
+    )
+    return outcome, _mismatch_of(benches[0]) if benches else None
 
 
 # ------------------------------------------------------------------------------------ comparing

@@ -26,6 +26,7 @@ from rig.capture import run_capture
 from rig.config import RigConfig
 from rig.interrupts import InterruptController, ReceivedSignal
 from rig.progress import SilentProgress
+from rig.records import StartRecord
 from rig.replay import (
     ReplayDiverged,
     ReplayRefused,
@@ -33,6 +34,7 @@ from rig.replay import (
     load_recording,
     replay_session,
 )
+from rig.resume import run_resume
 from rig.runner import RetryPolicy
 from rig.session import decode_transcript_line, read_session
 from rig.steps import Step, StepResult
@@ -395,12 +397,36 @@ def test_a_replay_into_the_recorded_session_is_refused(
     assert not out.exists()
 
 
-def test_a_resumed_session_is_refused(session_copy: Path) -> None:
+@pytest.mark.parametrize("first_run", ["camera unplugged", "interrupted by a signal"])
+def test_a_resumed_session_replays_run_by_run(tmp_path: Path, first_run: str) -> None:
+    """Run 1 on its transcripts, then `rig resume` of the replay on run 2's: one identical log."""
+    config = twin_config(tmp_path / "sessions")
+    if first_run == "camera unplugged":
+        builder = twin_station_builder(faults=TwinFaults(camera=[CameraFault("unplug", skip=1)]))
+        first = run_capture(config, retry=FAST_RETRY, builder=builder)
+        assert first.reason == "disconnected", first
+    else:
+        interrupts = InterruptController()
+        progress = _SignalAt(interrupts, "lamp/LED-B3/reference/000", "done")
+        first = run_capture(config, retry=FAST_RETRY, interrupts=interrupts, progress=progress)
+        assert first.exit_status == "abort", first
+    assert run_resume(first.session, retry=FAST_RETRY).exit_status == "success"
+    starts = [r for r in read_session(first.session).records if isinstance(r, StartRecord)]
+    assert [s.run for s in starts] == [1, 2]
+    replay = replay_session(first.session, tmp_path / "replay")
+    assert replay.identical, replay
+    assert replay.run.exit_status == "success"
+    replayed = read_session(tmp_path / "replay")
+    assert [r.run for r in replayed.records if isinstance(r, StartRecord)] == [1, 2]
+    assert (tmp_path / "replay" / "transcripts" / "camera.run2.jsonl").exists()
+
+
+def test_a_resumed_run_without_its_transcripts_is_refused(session_copy: Path) -> None:
     log = session_copy / "log.jsonl"
     lines = log.read_text().splitlines()
     second = json.loads(lines[0]) | {"seq": len(lines), "run": 2}
     log.write_text("\n".join([*lines, json.dumps(second)]) + "\n")
-    with pytest.raises(ReplayRefused, match="has 2 runs"):
+    with pytest.raises(ReplayRefused, match="no acknowledged transcript of run 2"):
         load_recording(session_copy)
 
 
