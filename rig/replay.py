@@ -39,7 +39,7 @@ from typing import Any, get_args
 from pydantic import ValidationError
 
 from drivers.base import DeviceError, TranscriptDirection, TranscriptEntry
-from rig.capture import _record_unopened_station
+from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport
 from rig.errors import RigError, SessionFormatError
@@ -48,7 +48,7 @@ from rig.interrupts import InterruptController, ReceivedSignal
 from rig.plan import build_plan
 from rig.progress import ProgressReporter, SilentProgress
 from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord
-from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts
+from rig.runner import RetryPolicy, RunOutcome
 from rig.session import Session, SessionWriter, decode_transcript_line, read_session
 from rig.station import Station, optional_module
 from rig.steps import DeviceRole, Step, StepResult, Wait
@@ -448,13 +448,13 @@ def replay_session(
     interrupts = interrupts or InterruptController()
     progress = progress or SilentProgress()
     first, *resumed = recording.runs
-    run, mismatch = _replay_first_run(recording, first, target, module, progress, interrupts)
+    run, mismatch = _replay_run(recording, first, target, module, progress, interrupts)
     for later in resumed:
         if mismatch is not None:
             break
         # A resume is a new process: a signal the previous run received is not its own.
         fresh = InterruptController()
-        run, mismatch = _replay_resume(recording, later, target, module, progress, fresh)
+        run, mismatch = _replay_run(recording, later, target, module, progress, fresh)
     difference = None
     if mismatch is None:
         difference = compare_logs(recording.session, read_session(run.session))
@@ -480,7 +480,7 @@ def _mismatch_of(bench: Any) -> str | None:
     return None if first is None else _mismatch_text(first, bench.mismatches.where(first))
 
 
-def _replay_first_run(
+def _replay_run(
     recording: Recording,
     run: RecordedRun,
     target: Path,
@@ -488,50 +488,12 @@ def _replay_first_run(
     progress: ProgressReporter,
     interrupts: InterruptController,
 ) -> tuple[RunOutcome, str | None]:
-    """Run 1: the recorded plan on the replay station, into the new session ``target``."""
-    session = SessionWriter(target, guard=interrupts.critical)
-    snapshot = run.config.model_dump(mode="json")
-    try:
-        bench = module.open_replay(
-            _recorded_devices(run, module),
-            session.transcript_sink,
-            _frame_source(recording, run),
-        )
-    except (DeviceError, RigError, ValueError) as exc:
-        _record_unopened_station(session, run.start.plan, snapshot, exc)
-        if isinstance(exc, module.ReplayMismatch):
-            raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
-        raise ReplayRefused(f"the recorded devices cannot be opened for replay: {exc}") from None
-    timeline = _Timeline(progress, bench.clock, run.records, interrupts)
-    station = _station(bench, timeline)
-    bench.mismatches.context = lambda: timeline.current_key
-    runner = Runner(
-        station,
-        session,
-        timeouts=StepTimeouts.from_config(run.config),
-        retry=RetryPolicy(),
-        progress=timeline,
-        interrupts=interrupts,
-    )
-    try:
-        outcome = runner.run(
-            build_plan(run.start.plan.name, run.start.plan.args), run.start.plan, snapshot
-        )
-    finally:
-        station.close()
-    return outcome, _mismatch_of(bench)
+    """One run on a station serving that run's transcripts, into the new session ``target``.
 
-
-def _replay_resume(
-    recording: Recording,
-    run: RecordedRun,
-    target: Path,
-    module: ModuleType,
-    progress: ProgressReporter,
-    interrupts: InterruptController,
-) -> tuple[RunOutcome, str | None]:
-    """A later run: ``rig resume`` of the replayed session, on a station serving that run's
-    transcripts (the resume decides what to reuse from the replay's own log, as it did)."""
+    Run 1 drives the recorded plan (:func:`rig.capture.run_on_station`); a later run is
+    ``rig resume`` of the replay (:func:`rig.resume.run_resume`), which decides from the replay's
+    own log what to reuse, as it decided from the original's.
+    """
     from rig.resume import run_resume
 
     benches: list[Any] = []
@@ -544,7 +506,7 @@ def _replay_resume(
             )
         except module.ReplayMismatch as exc:
             raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
-        except ValueError as exc:
+        except (DeviceError, ValueError) as exc:
             raise ReplayRefused(
                 f"the recorded devices cannot be opened for replay: {exc}"
             ) from None
@@ -553,14 +515,24 @@ def _replay_resume(
         bench.mismatches.context = lambda: timeline.current_key
         return _station(bench, timeline)
 
-    outcome = run_resume(
-        target,
-        progress=timeline,
-        interrupts=interrupts,
-        retry=RetryPolicy(),
-        builder=builder,
-        config=run.config,
-    )
+    options = RunOptions(timeline, interrupts, RetryPolicy(), builder)
+    if run.number == 1:
+        outcome = run_on_station(
+            run.config,
+            SessionWriter(target, guard=interrupts.critical),
+            build_plan(run.start.plan.name, run.start.plan.args),
+            run.start.plan,
+            options,
+        )
+    else:
+        outcome = run_resume(
+            target,
+            progress=timeline,
+            interrupts=interrupts,
+            retry=RetryPolicy(),
+            builder=builder,
+            config=run.config,
+        )
     return outcome, _mismatch_of(benches[0]) if benches else None
 
 
