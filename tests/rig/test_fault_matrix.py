@@ -231,10 +231,6 @@ def _spectrometer(kind: FaultKind, nth: int = 4, **fault: Any) -> TwinFaults:
     return TwinFaults(spectrometer=FaultSchedule.once(rule_fault, "M5", nth=nth))
 
 
-#: Rows whose session `rig replay` does not yet reproduce: after the stale frame is discarded the
-#: replayed rig sets the exposure again where the recorded one captured at once.
-NOT_REPLAYABLE = frozenset({"stale-frame-after-exposure-change"})
-
 ROWS: dict[str, Row] = {
     "camera-unplugged-mid-bracket": Row(
         lambda: TwinFaults(camera=[CameraFault("unplug", skip=1)]), "disconnected"
@@ -280,9 +276,8 @@ def test_fault(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterr
     if reason != "completed":
         (resume,) = resumes(session)
         assert resume.previous_status == "failed" and resume.previous_reason == reason
-    if row not in NOT_REPLAYABLE:  # one run or two, the whole session replays identically
-        replay = replay_session(path, tmp_path / "replay")
-        assert replay.identical, replay
+    replay = replay_session(path, tmp_path / "replay")  # one run or two: replays identically
+    assert replay.identical, replay
 
 
 @dataclass(frozen=True)
