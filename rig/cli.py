@@ -113,16 +113,15 @@ def resume(
     """Continue an interrupted or failed session in a new run: lamps off first, devices set up again,
     every file verified, the lit lamp warmed up and measured again, done steps skipped."""
     from rig.config import load_config
-    from rig.resume import config_for_resume, recorded_config, run_resume
+    from rig.resume import recorded_config, run_resume
 
-    rig_config = recorded_config(session)
-    if config is not None:
-        rig_config = config_for_resume(rig_config, load_config(config))
+    # The recorded configuration drives the progress display: a new one may only change how the
+    # devices are reached, which run_resume checks before it touches the log.
     _report_run(
         run_resume(
             session,
-            progress=_capture_progress(rig_config, quiet),
-            config=None if config is None else rig_config,
+            progress=_capture_progress(recorded_config(session), quiet),
+            config=None if config is None else load_config(config),
         )
     )
 
