@@ -187,9 +187,10 @@ def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
 
 
 def direct_rows(
-    lamps: Sequence[LampData], efficiency_basis: FloatArray, inverse_efficiency: FloatArray
+    lamps: Sequence[LampData], inverse_efficiency: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ B_η c_η = m_dir,lc``: rows ``(3L, b)``, targets ``(3L,)``.
+    """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ η⁻¹ = m_dir,lc`` on the grid's nodes of ``η⁻¹``:
+    rows ``(3L, f)``, targets ``(3L,)``.
 
     Each row's σ² is the direct measurement's variance, the response's covariance propagated through
     the current ``η⁻¹`` and the model floor.
@@ -205,7 +206,7 @@ def direct_rows(
                 + (MODEL_FLOOR * float(lamp.direct[c])) ** 2
             )
             sigma = np.sqrt(max(variance, 1e-300))
-            rows.append((lamp.direct_row * lamp.response.response[:, c]) @ efficiency_basis / sigma)
+            rows.append(lamp.direct_row * lamp.response.response[:, c] / sigma)
             targets.append(float(lamp.direct[c]) / sigma)
     return np.asarray(rows), np.asarray(targets)
 
@@ -380,15 +381,48 @@ def _nonlinear_efficiency(
     return x, data_jac, penalty_jac, float(weights[best]), scores[::-1]
 
 
+@dataclass(frozen=True)
+class EfficiencySettings:
+    """How step 2 solves for the efficiency (checked on construction).
+
+    Attributes
+    ----------
+    terms
+        Fourier terms of ``η`` (or of ``η⁻¹``, by ``model``).
+    model
+        ``"efficiency"``: ``η = B c``, by Gauss–Newton; ``"inverse"``: the paper's ``η⁻¹ = B c``,
+        linear (:data:`EFFICIENCY_MODELS`).
+    prior_weight
+        A fixed ``λ`` instead of the rule's.
+    weight_rule
+        How ``λ`` is chosen: ``"upre"`` or ``"typicality"`` (:data:`PRIOR_WEIGHT_RULES`; UPRE when
+        the prior carries no typical distance).
+    """
+
+    terms: int = DEFAULT_EFFICIENCY_TERMS
+    model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL
+    prior_weight: float | None = None
+    weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
+
+    def __post_init__(self) -> None:
+        if self.model not in EFFICIENCY_MODELS:
+            raise InputError(
+                f"unknown efficiency model {self.model!r}; choose from {EFFICIENCY_MODELS}",
+                source="efficiency_model",
+            )
+        if self.weight_rule not in PRIOR_WEIGHT_RULES:
+            raise InputError(
+                f"unknown prior weight rule {self.weight_rule!r}; choose from {PRIOR_WEIGHT_RULES}",
+                source="weight_rule",
+            )
+
+
 def solve_efficiency(
     lamps: Sequence[LampData],
     prior: CameraPrior,
-    efficiency_basis: FloatArray,
+    settings: EfficiencySettings = EfficiencySettings(),
     *,
-    prior_weight: float | None = None,
     prior_groups: Sequence[Sequence[LampData]] | None = None,
-    model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
-    weight_rule: WeightRule = DEFAULT_WEIGHT_RULE,
 ) -> EfficiencySolution:
     """Step 2: ``η`` from every lamp's direct equations, under the camera prior.
 
@@ -399,31 +433,16 @@ def solve_efficiency(
         involve the camera).
     prior
         The camera prior, applied to each camera's ``s_k = Q_k ⊙ η⁻¹`` with its own scale ``α_k``.
-    efficiency_basis
-        ``B`` ``(f, b)``.
-    prior_weight
-        A fixed ``λ`` instead of the rule's.
+    settings
+        Terms, model and prior weight (:class:`EfficiencySettings`).
     prior_groups
         The lamps of each camera (``Q_k`` is pooled over a camera's lamps); default: ``lamps`` are
         one camera's.
-    model
-        ``"efficiency"`` (default): ``η = B c``, solved by Gauss–Newton; ``"inverse"``: the paper's
-        ``η⁻¹ = B c``, linear (see :data:`EFFICIENCY_MODELS`).
-    weight_rule
-        How ``λ`` is chosen (see :data:`PRIOR_WEIGHT_RULES`): ``"upre"`` (default) or
-        ``"typicality"`` (UPRE when the prior carries no typical distance).
     """
     if not lamps:
         raise InputError("no lamps with a direct measurement", source="observations")
-    if model not in EFFICIENCY_MODELS:
-        raise InputError(
-            f"unknown efficiency model {model!r}; choose from {EFFICIENCY_MODELS}", source="model"
-        )
-    if weight_rule not in PRIOR_WEIGHT_RULES:
-        raise InputError(
-            f"unknown prior weight rule {weight_rule!r}; choose from {PRIOR_WEIGHT_RULES}",
-            source="weight_rule",
-        )
+    model, prior_weight = settings.model, settings.prior_weight
+    efficiency_basis = fourier_basis(prior.grid, settings.terms)
     size, b_eta = efficiency_basis.shape
     reference = lamps[0]
     # The prior judges s = Q ⊙ η⁻¹, Q pooled over a camera's lamps (in its first lamp's units):
@@ -442,7 +461,6 @@ def solve_efficiency(
             for group in groups
         ]
     )
-    identity = np.eye(size)
     x = np.concatenate(
         [np.linalg.lstsq(efficiency_basis, 1.0 / inverse, rcond=None)[0], scales]
         if model == "efficiency"
@@ -457,7 +475,7 @@ def solve_efficiency(
     typical = prior.typical_distance
     by_typicality = (
         prior_weight is None
-        and weight_rule == "typicality"
+        and settings.weight_rule == "typicality"
         and typical is not None
         and np.isfinite(typical)
     )
@@ -466,9 +484,9 @@ def solve_efficiency(
     # pass, sets it to typical / D²_k from that pass's sensitivity (see PRIOR_WEIGHT_RULES).
     group_weights = np.ones(len(groups))
     distances = np.full(len(groups), np.nan)
-    for _ in range(EFFICIENCY_PASSES):
+    for index in range(EFFICIENCY_PASSES):
         # Rows on the grid's nodes of η⁻¹ (and every α_k), whitened at the current η⁻¹.
-        data_nodes, target = direct_rows(lamps, identity, inverse)
+        data_nodes, target = direct_rows(lamps, inverse)
         penalty_nodes = _stacked_prior_rows(groups, prior, inverse, x[b_eta:])
         fixed = prior_weight
         used_weights = group_weights
@@ -487,6 +505,8 @@ def solve_efficiency(
             inverse = 1.0 / (efficiency_basis @ x[:b_eta])
             inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis
         x[b_eta:] = np.where(np.abs(x[b_eta:]) > 0, np.abs(x[b_eta:]), scales)
+        if not by_typicality and index < EFFICIENCY_PASSES - 1:
+            continue  # UPRE does not need the distances; the diagnostics take the last pass's
         distances = np.array(
             [prior_distance(prior, group.response * inverse[:, None]) for group in groups]
         )
@@ -758,7 +778,6 @@ class CalibratedLamps:
     mapping: QuadraticMapping | GratingGeometry
     lamps: tuple[LampData, ...]
     efficiency: EfficiencySolution
-    efficiency_basis: FloatArray
     mapping_s: float
 
 
@@ -832,10 +851,7 @@ def calibrate_lamps(
     mapping: QuadraticMapping | GratingGeometry | None = None,
     mapping_lamp: str | None = None,
     prior_shrinkage: float | None = None,
-    prior_weight: float | None = None,
-    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
-    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
-    weight_rule: WeightRule = DEFAULT_WEIGHT_RULE,
+    settings: EfficiencySettings = EfficiencySettings(),
     refine_given_mapping: bool = False,
     kernel: FloatArray | None = None,
 ) -> CalibratedLamps:
@@ -850,18 +866,8 @@ def calibrate_lamps(
         refine_given_mapping=refine_given_mapping,
         kernel=kernel,
     )
-    efficiency_basis = fourier_basis(grid, efficiency_terms)
-    efficiency = solve_efficiency(
-        prepared.lamps,
-        basis.prior(prior_shrinkage),
-        efficiency_basis,
-        prior_weight=prior_weight,
-        model=efficiency_model,
-        weight_rule=weight_rule,
-    )
-    return CalibratedLamps(
-        grid, prepared.mapping, prepared.lamps, efficiency, efficiency_basis, prepared.mapping_s
-    )
+    efficiency = solve_efficiency(prepared.lamps, basis.prior(prior_shrinkage), settings)
+    return CalibratedLamps(grid, prepared.mapping, prepared.lamps, efficiency, prepared.mapping_s)
 
 
 def estimate_multilamp(
@@ -938,11 +944,7 @@ def estimate_multilamp(
             f"unknown uncertainty {uncertainty!r}; choose from {UNCERTAINTIES}",
             source="uncertainty",
         )
-    if efficiency_model not in EFFICIENCY_MODELS:
-        raise InputError(
-            f"unknown efficiency model {efficiency_model!r}; choose from {EFFICIENCY_MODELS}",
-            source="efficiency_model",
-        )
+    settings = EfficiencySettings(efficiency_terms, efficiency_model, prior_weight, weight_rule)
     kernel = camera_kernel(observations, slit_width_px, psf_sigma_px)
     if grating is not None:
         return estimate_with_grating(
@@ -963,10 +965,7 @@ def estimate_multilamp(
         mapping=mapping,
         mapping_lamp=mapping_lamp,
         prior_shrinkage=prior_shrinkage,
-        prior_weight=prior_weight,
-        efficiency_terms=efficiency_terms,
-        efficiency_model=efficiency_model,
-        weight_rule=weight_rule,
+        settings=settings,
         refine_given_mapping=refine_given_mapping,
         kernel=kernel,
     )
@@ -1185,15 +1184,9 @@ def refine_grating(
             if efficiency_model == "inverse"
             else DEFAULT_EFFICIENCY_TERMS
         )
-    efficiency_basis = fourier_basis(grid, terms)
+    settings = EfficiencySettings(terms, efficiency_model, prior_weight, weight_rule)
     efficiency = solve_efficiency(
-        pooled,
-        basis.prior(),
-        efficiency_basis,
-        prior_weight=prior_weight,
-        prior_groups=[calibrated.lamps for calibrated in each],
-        model=efficiency_model,
-        weight_rule=weight_rule,
+        pooled, basis.prior(), settings, prior_groups=[calibrated.lamps for calibrated in each]
     )
     eta_pair = _efficiency_with_sigma(efficiency)
     results = []
@@ -1215,9 +1208,7 @@ def refine_grating(
                 {"mapping_s": calibrated.mapping_s},
             )
         )
-    shared = CalibratedLamps(
-        grid, each[0].mapping, tuple(pooled), efficiency, efficiency_basis, 0.0
-    )
+    shared = CalibratedLamps(grid, each[0].mapping, tuple(pooled), efficiency, 0.0)
     return grating_file_from(
         shared, description=f"refined jointly over {len(cameras)} cameras"
     ), results

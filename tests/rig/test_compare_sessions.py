@@ -89,7 +89,11 @@ def test_compare_runs_every_grating_column_and_matches_rig_estimate(
 def test_compare_scores_the_curve_rig_demo_scores(
     twin_session: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Both judge what `sensitivity.csv` holds (negatives clipped), so they give one RE."""
+    """`rig compare`'s all-lamps column and `rig demo`'s RE are one number for one session.
+
+    (This small twin's estimate has no negative values, so the clipping itself is tested in
+    tests/test_methods.py; here a divergence of basis, inputs or scoring would show.)
+    """
     from rig.compare import twin_basis
     from rig.demo import sensitivity_error
     from rig.estimate import estimate_session
