@@ -229,7 +229,9 @@ def typical_distance(
     return float(np.median(distances))
 
 
-#: A perturbed copy's name suffix (:func:`fallback_camera_basis`): the copy is the same camera.
+#: How :func:`fallback_camera_basis` names a perturbed copy, and how it is recognised (the copy
+#: is the same camera).
+_VARIANT_NAME = "{camera} variant {index}"
 _VARIANT_SUFFIX = re.compile(r" variant \d+$")
 
 
@@ -570,7 +572,7 @@ def fallback_camera_basis(
         names.append(camera.name)
         for index in range(variants_per_curve):
             stack.append(_perturbed(camera, grid, rng))
-            names.append(f"{camera.name} variant {index + 1}")
+            names.append(_VARIANT_NAME.format(camera=camera.name, index=index + 1))
     label = (
         f"colour-science built-ins + perturbations ({len(bases)} curves × {variants_per_curve + 1})"
     )
