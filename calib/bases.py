@@ -284,9 +284,14 @@ def _as_curve_stack(
     return np.asarray(stack / peaks[:, None, None], dtype=np.float64)
 
 
-def _content_hash(curves: FloatArray, grid: WavelengthGrid, n_vectors: int) -> str:
+def _content_hash(
+    curves: FloatArray, grid: WavelengthGrid, n_vectors: int, groups: Sequence[str]
+) -> str:
     digest = hashlib.sha256()
     digest.update(f"{_CACHE_FORMAT}|{grid}|{n_vectors}|{curves.shape}".encode())
+    # Which curves are one camera decides the typical distance (leave-one-camera-out).
+    labels = [_VARIANT_SUFFIX.sub("", name) for name in groups]
+    digest.update("|".join(str(labels.index(label)) for label in labels).encode())
     digest.update(np.ascontiguousarray(curves, dtype="<f8").tobytes())
     return digest.hexdigest()
 
@@ -367,7 +372,7 @@ def camera_basis(
                 cameras if isinstance(cameras, Sequence) else range(n_cameras)
             )
         ]
-    key = _content_hash(curves, grid, n_vectors)
+    key = _content_hash(curves, grid, n_vectors, camera_names)
     path = (cache_dir or default_cache_dir()) / "bases" / f"{key}.npz"
     arrays = _load_cached(path) if cache else None
     if arrays is None:
