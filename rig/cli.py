@@ -231,8 +231,9 @@ def estimate(
     weight_rule: Annotated[
         str | None,
         typer.Option(
-            help="With --method multilamp: how the camera prior is weighted, upre (default) or "
-            "typicality (better for cameras like the basis, worse for unusual ones)."
+            help="With --method multilamp: how the camera prior is weighted, upre (default), "
+            "typicality (better for cameras like the basis, worse for unusual ones) or evidence "
+            "(the marginal likelihood)."
         ),
     ] = None,
     quiet: Annotated[

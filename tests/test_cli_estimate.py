@@ -374,6 +374,10 @@ def test_the_prior_weight_rule_is_chosen_on_the_command_line(
     assert code == 0, stderr
     diagnostics = json.loads((tmp_path / "t" / "result.json").read_text())["diagnostics"]
     assert diagnostics["prior_weight_rule"] == "typicality"
+    code, _, stderr = _call([*argv, "--weight-rule", "evidence", "--out", str(tmp_path / "e")])
+    assert code == 0, stderr
+    diagnostics = json.loads((tmp_path / "e" / "result.json").read_text())["diagnostics"]
+    assert diagnostics["prior_weight_rule"] == "evidence"
     code, _, stderr = _call([*argv, "--weight-rule", "guess", "--out", str(tmp_path / "g")])
     assert code == 2 and "--weight-rule" in stderr and "typicality" in stderr
     argv = [*_profile_args(tmp_path, capture, direct=True), "--weight-rule", "upre"]

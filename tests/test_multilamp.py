@@ -20,6 +20,7 @@ from calib.metrics import relative_error
 from calib.multilamp import (
     bootstrap_sigma,
     calibrate_lamps,
+    choose_prior_weight,
     estimate_multilamp,
     estimate_with_grating,
     grating_file_from,
@@ -206,6 +207,44 @@ def test_the_typicality_rule_widens_the_prior_of_an_unusual_camera(basis):
     assert weights["unusual"] < 0.1 * weights["typical"]
     with pytest.raises(InputError, match="prior weight rule"):
         estimate_multilamp(typical, basis=basis, mapping=mapping, weight_rule="guess")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("rule", ["evidence", "upre"])
+def test_a_rule_recovers_the_prior_weight_of_a_well_specified_linear_model(rule: str) -> None:
+    """x ~ N(0, I/λ), b = A x + unit noise: both rules find λ = 4 on the grid (within a factor 1.6)."""
+    chosen = []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        design = 0.3 * rng.standard_normal((300, 150))
+        truth = rng.standard_normal(150) / 2.0
+        target = design @ truth + rng.standard_normal(300)
+        weight, curve = choose_prior_weight(
+            design,
+            target,
+            np.eye(150),
+            np.logspace(-3, 3, 61),
+            rule=rule,  # type: ignore[arg-type]
+        )
+        assert curve.shape == (61,) and weight == np.logspace(-3, 3, 61)[np.argmin(curve)]
+        chosen.append(weight)
+    assert min(chosen) > 4.0 / 1.6 and max(chosen) < 4.0 * 1.6
+
+
+def test_the_evidence_rule_widens_the_prior_of_an_unusual_camera(basis):
+    """The marginal likelihood asks how well the prior at each weight explains the camera."""
+    _, mapping, typical, efficiency = _scene(0)
+    foveon = find_camera(colour_science_cameras(), "Sigma SDMerill").sensitivity
+    unusual = render_lamps(
+        LAMP_SETS["5 lamps"], foveon, mapping, efficiency, np.random.default_rng(5), 0.01
+    )
+    weights = {}
+    for name, observations in (("typical", typical), ("unusual", unusual)):
+        result = estimate_multilamp(
+            observations, basis=basis, mapping=mapping, weight_rule="evidence"
+        )
+        assert result.diagnostics["prior_weight_rule"] == "evidence"
+        weights[name] = result.diagnostics["prior_weight"]
+    assert weights["unusual"] < 0.1 * weights["typical"]
 
 
 def test_more_lamps_beat_the_single_lamp_prior_solve_on_a_camera_outside_the_basis():

@@ -26,7 +26,7 @@ Usage: calib estimate --lamp NAME (--images PATH [PATH ...] | --profile CSV) --s
                       [--exposure S ...] [--dark-exposure S ...] [--direct R,G,B]
                       [--bandwidth NM]
                       [--lamp NAME … for every further lamp]
-                      --out DIR [--method makabe2025|…] [--weight-rule upre|typicality]
+                      --out DIR [--method makabe2025|…] [--weight-rule upre|typicality|evidence]
                       [--mapping-lamp NAME] [--grid 400:700:10]
                       [--data-dir DIR] [--grating FILE] [--force] [--quiet] [--json]
 
@@ -51,8 +51,9 @@ Global:
   --out DIR              where to write sensitivity.csv, result.json, report.html, the
                          rawtoaces camera JSON and grating.json (created if missing)
   --method NAME          estimation method (default makabe2025)
-  --weight-rule RULE     with --method multilamp: how the camera prior is weighted, upre (default)
-                         or typicality (better for cameras like the basis, worse for unusual ones)
+  --weight-rule RULE     with --method multilamp: how the camera prior is weighted, upre (default),
+                         typicality (better for cameras like the basis, worse for unusual ones)
+                         or evidence (the marginal likelihood)
   --mapping-lamp NAME    the lamp that gives the pixel→wavelength mapping
   --grid START:STOP:STEP working wavelength grid in nm (default 400:700:10)
   --data-dir DIR         camera data for the basis (default $SPECTRAL_RIG_DATA or the user cache;

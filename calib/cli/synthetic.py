@@ -196,8 +196,8 @@ def register(app: typer.Typer) -> None:
         weight_rule: Annotated[
             str,
             typer.Option(
-                help="How the multi-lamp variants weight the camera prior: upre (default) or "
-                "typicality (calib.multilamp.PRIOR_WEIGHT_RULES)."
+                help="How the multi-lamp variants weight the camera prior: upre (default), "
+                "typicality or evidence (calib.multilamp.PRIOR_WEIGHT_RULES)."
             ),
         ] = "upre",
         csv_path: Annotated[
