@@ -104,7 +104,7 @@ WeightRule = Literal["evidence", "typicality", "upre"]
 #: Evidence, measured with the package (``calib synthetic … --weight-rule evidence``, seed 0; UPRE
 #: and typicality in brackets): 5 lamps 1.81 (1.95, 1.45), 3 lamps + RGB LEDs 1.45 (2.04, 1.49),
 #: grating file 2.10 (1.86, 1.40); over 4 draws 1.89 / 1.49 / 2.33; out of the basis 5.15 / 3.61
-#: (6.30 / 3.37, 6.83 / 4.24). Its posterior is narrower than the error: ±2σ coverage 82–88 %.
+#: (6.30 / 3.37, 6.83 / 4.24). Its posterior is narrower than the error: ±2σ coverage 80–91 %.
 #:
 #: UPRE stays the default: the only rule whose band holds 90–98 % on the test cameras, and it
 #: never fails the way typicality can. Typicality trusts the prior's geometry, and a prior built from
