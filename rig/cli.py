@@ -279,6 +279,53 @@ def estimate(
 
 
 @app.command()
+def grating(
+    sessions: Annotated[
+        list[Path],
+        typer.Argument(help="Session directories: one or more cameras through the same grating."),
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The grating file to write (JSON).")],
+    data_dir: Annotated[
+        Path | None,
+        typer.Option(help="Camera data for the prior (default: $SPECTRAL_RIG_DATA or the cache)."),
+    ] = None,
+    weight_rule: Annotated[
+        str | None,
+        typer.Option(
+            help="How the camera prior is weighted: upre (default), typicality or evidence."
+        ),
+    ] = None,
+    description: Annotated[
+        str, typer.Option(help="What the grating is (sheet, slit), recorded in the file.")
+    ] = "",
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing file.")] = False,
+) -> None:
+    """One grating file from sessions of several cameras through the same grating (η shared).
+
+    The next camera then needs a single LED shot: calib estimate --grating FILE.
+    """
+    from calib.multilamp import MULTILAMP_METHOD, weight_rule_option
+    from rig.grating import median_relative_sigma, refine_session_grating
+
+    rule = weight_rule_option(MULTILAMP_METHOD, weight_rule).get("weight_rule")
+    outcome = refine_session_grating(
+        sessions,
+        out,
+        data_dir=data_dir,
+        weight_rule=rule,
+        description=description,
+        force=force,
+    )
+    for warning in outcome.warnings:
+        typer.echo(f"rig: warning: {warning}", err=True)
+    for camera in outcome.cameras:
+        typer.echo(f"{camera.session}: camera {camera.camera}, lamps {', '.join(camera.lamps)}")
+    spread = median_relative_sigma(outcome.grating)
+    shown = "" if spread is None else f" (median σ {spread:.1%} of η)"
+    typer.echo(f"grating: {outcome.path}{shown}")
+
+
+@app.command()
 def compare(
     sessions: Annotated[
         list[Path], typer.Argument(help="Digital-twin session directories (with twin-truth.json).")

@@ -92,9 +92,15 @@ class Capture:
         return relative_error(result.sensitivity, self.truth), mapping_error
 
 
-def truth_camera(cache_dir: Path) -> tuple[CameraBasis, np.ndarray]:
+#: The rendered camera: a mixture of the exact basis' cameras, ``(index, weight)`` pairs.
+CAMERA_MIX: tuple[tuple[int, float], ...] = ((1, 0.6), (4, 0.4))
+
+
+def truth_camera(
+    cache_dir: Path, mix: tuple[tuple[int, float], ...] = CAMERA_MIX
+) -> tuple[CameraBasis, np.ndarray]:
     basis, cameras = exact_basis(cache_dir)
-    return basis, 0.6 * cameras[1] + 0.4 * cameras[4]
+    return basis, sum((weight * cameras[index] for index, weight in mix), np.zeros_like(cameras[0]))
 
 
 def render_capture(
@@ -111,6 +117,7 @@ def render_capture(
     direct_throughput: float = 0.5,
     padding_px: int = 0,
     seed: int = 2025,
+    camera_mix: tuple[tuple[int, float], ...] = CAMERA_MIX,
     **dng_fields: str | int | float | None,
 ) -> Capture:
     """Render ``lamps`` at ``angle_deg`` on a sensor just large enough, and write the DNGs.
@@ -143,7 +150,7 @@ def render_capture(
         band_half_width_px=40.0,
         minus_first_strength=minus_first_strength,
     )
-    basis, truth = truth_camera(cache_dir)
+    basis, truth = truth_camera(cache_dir, camera_mix)
     rendered = write_capture(
         directory,
         [(name, *colour_lamps()[name]) for name in lamps],
