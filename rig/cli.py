@@ -236,6 +236,13 @@ def estimate(
             "(the marginal likelihood)."
         ),
     ] = None,
+    grating: Annotated[
+        Path | None,
+        typer.Option(
+            help="A grating file (rig grating, or grating.json of an earlier estimate): with "
+            "--method multilamp the sensitivity comes from it and the profiles, s = q / η."
+        ),
+    ] = None,
     quiet: Annotated[
         bool, typer.Option("--quiet", "-q", help="No progress bar; only where the report is.")
     ] = False,
@@ -246,7 +253,9 @@ def estimate(
     from rig.estimate import estimate_session
 
     command_line = ("rig", "estimate", *sys.argv[2:])
-    settings = {"method_options": weight_rule_option(method, weight_rule)}
+    settings: dict[str, object] = {"method_options": weight_rule_option(method, weight_rule)}
+    if grating is not None:
+        settings["grating"] = grating
     if quiet or not RichFrameProgress.wanted(sys.stderr):
         outcome = estimate_session(
             session,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from calib.grating_file import read_grating_file
+from calib.metrics import relative_error
 from calib.spectra import DEFAULT_GRID
 from rig.cli import app, main
 from rig.grating import GratingOutcome, median_relative_sigma, refine_session_grating
@@ -23,10 +25,10 @@ def capture() -> Capture:
 
 
 @pytest.fixture(scope="module")
-def sessions(capture: Capture, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """The shared capture's camera and another camera (another mix of the basis), one grating."""
+def other(capture: Capture, tmp_path_factory: pytest.TempPathFactory) -> Capture:
+    """Another camera (another mix of the basis) through the shared capture's grating."""
     root = tmp_path_factory.mktemp("two-cameras")
-    other = render_capture(
+    rendered = render_capture(
         root / "capture",
         root / "basis",
         dark_frames=True,
@@ -34,8 +36,16 @@ def sessions(capture: Capture, tmp_path_factory: pytest.TempPathFactory) -> tupl
         camera_mix=((0, 0.5), (3, 0.5)),
         seed=7,
     )
-    assert not np.allclose(other.truth, capture.truth)
-    return write_session(root / "sessions", capture), write_session(root / "sessions", other)
+    assert not np.allclose(rendered.truth, capture.truth)
+    return rendered
+
+
+@pytest.fixture(scope="module")
+def sessions(
+    capture: Capture, other: Capture, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, Path]:
+    root = tmp_path_factory.mktemp("sessions")
+    return write_session(root, capture), write_session(root, other)
 
 
 def _efficiency_error(outcome: GratingOutcome) -> float:
@@ -75,11 +85,13 @@ def test_two_cameras_refine_one_grating(
 def test_rig_grating_command(
     sessions: tuple[Path, Path],
     capture: Capture,
+    other: Capture,
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    monkeypatch.setattr("rig.grating.default_camera_basis", lambda *a, **k: capture.basis)
+    for module in ("rig.grating", "calib.offline.pipeline"):
+        monkeypatch.setattr(f"{module}.default_camera_basis", lambda *a, **k: capture.basis)
     out = tmp_path / "sheet.json"
     arguments = ["grating", *map(str, sessions), "--out", str(out)]
     result = CliRunner().invoke(app, arguments)
@@ -87,6 +99,17 @@ def test_rig_grating_command(
     assert f"grating: {out} (median σ" in result.output
     assert f"{sessions[1].name}: camera unknown, lamps LED, FL" in result.output
     before = out.read_bytes()
+    # The file is what rig estimate --grating takes: the sensitivity from the profiles and η.
+    estimated = tmp_path / "estimate"
+    arguments_estimate = ["estimate", str(sessions[1]), "--method", "multilamp", "-q"]
+    result = CliRunner().invoke(
+        app, [*arguments_estimate, "--grating", str(out), "--out", str(estimated)]
+    )
+    assert result.exit_code == 0, result.output
+    document = json.loads((estimated / "result.json").read_text())
+    assert document["diagnostics"]["grating"]["source"] == str(out)
+    curves = np.loadtxt(estimated / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:4]
+    assert relative_error(curves, other.truth) < 0.015  # measured 0.65 ×10⁻²
     for argv, message in (
         (arguments, f"{out}: exists; pass --force to replace it"),
         (
