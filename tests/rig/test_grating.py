@@ -4,19 +4,23 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from calib.errors import InputError
 from calib.grating_file import read_grating_file
 from calib.metrics import relative_error
 from calib.spectra import DEFAULT_GRID
+from calib.synthetic import random_efficiency, random_mapping, render_lamps
 from rig.cli import app, main
-from rig.grating import GratingOutcome, median_relative_sigma, refine_session_grating
+from rig.grating import GratingOutcome, _with_direct, median_relative_sigma, refine_session_grating
 from tests.rendered_capture import Capture, efficiency, render_capture, shared_capture
 from tests.rig.test_estimate_session import write_session
+from tests.synthetic_cameras import as_spectrum
 
 
 @pytest.fixture(scope="module")
@@ -117,6 +121,10 @@ def test_rig_grating_command(
             "the same session as",
         ),
         (["grating", str(tmp_path), "--out", str(tmp_path / "y.json")], "not a session"),
+        (
+            ["grating", str(sessions[0]), "--out", str(tmp_path / "z.json"), "--weight-rule", "x"],
+            "--weight-rule",
+        ),
     ):
         monkeypatch.setattr(sys, "argv", ["rig", *argv])
         with pytest.raises(SystemExit) as exit_info:
@@ -126,3 +134,18 @@ def test_rig_grating_command(
         assert error.startswith("rig: error:") and message in error, error
     assert out.read_bytes() == before
     assert not (tmp_path / "x.json").exists()
+
+
+def test_lamps_without_a_direct_measurement_are_left_out_and_named() -> None:
+    rng = np.random.default_rng(0)
+    mapping = random_mapping(rng)
+    camera = shared_capture().truth
+    lamps = render_lamps(
+        ("LED-B3", "FL2"), as_spectrum(camera), mapping, random_efficiency(rng), rng, 0.01
+    )
+    saturated = replace(lamps[1], direct_rgb=None, direct_sigma=None)
+    warnings: list[str] = []
+    assert _with_direct("S1", [lamps[0], saturated], warnings) == [lamps[0]]
+    assert warnings == ["S1: lamp 'FL2' left out (its direct spot is saturated in every frame)"]
+    with pytest.raises(InputError, match="S2: no lamp has a direct"):
+        _with_direct("S2", [saturated], [])
