@@ -152,13 +152,14 @@ class EfficiencySolution:
         bootstrap over the noise model sees; smaller than the posterior, which also carries the
         prior's uncertainty).
     prior_weight
-        ``λ`` as chosen (UPRE, or the first camera's under the typicality rule; ``info`` has every
-        camera's).
+        ``λ`` as chosen (by the rule, or the first camera's under the typicality rule; ``info`` has
+        every camera's).
     inverse_jacobian
         ``∂η⁻¹/∂c`` ``(f, b)`` at the solution (the basis itself for the ``"inverse"`` model): what
         propagates the coefficients' covariance to ``η⁻¹`` and to the sensitivity.
     info
-        Condition number of the data rows alone, χ² of the data rows, UPRE curve.
+        Condition number of the data rows alone, χ² of the data rows, the rule's curve over
+        :data:`PRIOR_WEIGHTS` (``weight_curve``).
     """
 
     inverse_efficiency: FloatArray
@@ -267,7 +268,9 @@ def weight_score(
     normal = normal_data + weight * penalty_jacobian.T @ penalty_jacobian
     misfit = float(data_residual @ data_residual)
     if rule == "evidence":
-        _, log_det = np.linalg.slogdet(normal)
+        sign, log_det = np.linalg.slogdet(normal)
+        if sign <= 0:
+            return float("inf")  # no curvature in some direction: no Laplace approximation
         return (
             misfit
             + weight * float(penalty_residual @ penalty_residual)
@@ -604,7 +607,7 @@ def solve_efficiency(
             "direct_equations": int(data.shape[0]),
             "efficiency_terms": b_eta,
             "data_condition": float(singular[0] / max(singular[-1], 1e-300)),
-            "upre": scores.tolist(),
+            "weight_curve": scores.tolist(),
         },
     )
 
@@ -1302,7 +1305,7 @@ def _result(
             "basis": basis.to_dict(),
             "solve_lamps": [lamp.name for lamp in lamps],
             "lamp_scales": solution.lamp_scales.tolist(),
-            **{key: value for key, value in info.items() if key != "upre"},
+            **{key: value for key, value in info.items() if key != "weight_curve"},
             "timings": timings,
         },
     )
