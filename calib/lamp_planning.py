@@ -7,9 +7,11 @@ over the grid's hats), each equation with the noise of the synthetic protocol (a
 brightest direct channel, plus the model floor). A subset is scored by
 
 * the condition number of its whitened data rows alone (∞ when it has fewer equations than ``c_η``
-  has terms: the camera prior must decide the rest), and
+  has terms: the camera prior must decide the rest),
 * the predicted σ of ``η``'s shape (relative, RMS over the grid) from the posterior with the camera prior at
-  its natural weight, which is what the estimate's own uncertainty will be for a camera like ``ŝ``.
+  its natural weight, which is what the estimate's own uncertainty will be for a camera like ``ŝ``;
+* the same σ from the direct equations alone (the Cramér–Rao bound: what the lamps pin down by
+  themselves, for a camera the prior does not describe; ∞ when they cannot).
 
 Subsets are ranked by the predicted σ; :func:`best_additions` says which extra lamp (e.g. a red,
 green or blue LED) lowers it most.
@@ -38,6 +40,8 @@ FloatArray = NDArray[np.float64]
 DEFAULT_NOISE_FRACTION = 0.01
 #: Most lamps :func:`rank_subsets` enumerates every subset of (2^n − 1 subsets).
 MAX_LAMPS = 12
+#: Above this condition number the direct equations alone leave a direction of ``η`` open.
+MAX_CONDITION = 1e10
 
 
 @dataclass(frozen=True)
@@ -52,17 +56,21 @@ class SubsetScore:
         Condition number of the whitened direct equations alone (``inf`` when underdetermined).
     efficiency_sigma
         Predicted RMS relative σ of ``η`` over the grid (0.01 = 1 %), camera prior included.
+    data_sigma
+        The same from the direct equations alone (``inf`` when they leave a direction open).
     """
 
     lamps: tuple[str, ...]
     condition: float
     efficiency_sigma: float
+    data_sigma: float = math.inf
 
     def to_dict(self) -> dict[str, object]:
         return {
             "lamps": list(self.lamps),
             "condition": self.condition if math.isfinite(self.condition) else None,
             "efficiency_sigma": self.efficiency_sigma,
+            "data_sigma": self.data_sigma if math.isfinite(self.data_sigma) else None,
         }
 
 
@@ -96,12 +104,28 @@ def score_subset(
     )
     padded = np.hstack([data, np.zeros((data.shape[0], 1))])
     posterior = np.linalg.pinv(padded.T @ padded + penalty.T @ penalty, hermitian=True)
-    # η's overall scale does not matter (results are normalised): the σ of its shape, η⁻¹ minus its
-    # mean. A flat grating has η⁻¹ = 1 in this gauge: the relative σ of η⁻¹ is that of η.
+    data_sigma = (
+        _shape_sigma(np.linalg.inv(data.T @ data), efficiency_basis)
+        if condition < MAX_CONDITION
+        else math.inf
+    )
+    return SubsetScore(
+        tuple(names),
+        condition,
+        _shape_sigma(posterior[:b_eta, :b_eta], efficiency_basis),
+        data_sigma,
+    )
+
+
+def _shape_sigma(covariance: NDArray[np.floating], efficiency_basis: FloatArray) -> float:
+    """RMS σ of ``η``'s shape over the grid from the covariance of ``c_η``.
+
+    η's overall scale does not matter (results are normalised): the σ of its shape, η⁻¹ minus its
+    mean. A flat grating has η⁻¹ = 1 in this gauge: the relative σ of η⁻¹ is that of η.
+    """
     shape = efficiency_basis - efficiency_basis.mean(axis=0)
-    variance = np.einsum("ij,jk,ik->i", shape, posterior[:b_eta, :b_eta], shape)
-    sigma = float(np.sqrt(np.mean(np.clip(variance, 0.0, None))))
-    return SubsetScore(tuple(names), condition, sigma)
+    variance = np.einsum("ij,jk,ik->i", shape, covariance, shape)
+    return float(np.sqrt(np.mean(np.clip(variance, 0.0, None))))
 
 
 def rank_subsets(
@@ -152,9 +176,13 @@ def best_additions(
     noise_fraction: float = DEFAULT_NOISE_FRACTION,
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
 ) -> list[SubsetScore]:
-    """All of ``lamps`` plus each candidate in turn, best first (the first is the one to buy)."""
+    """All of ``lamps`` plus each candidate in turn, best first (the first is the one to buy).
+
+    Candidates named like one of ``lamps`` are already there and are not tried again.
+    """
+    owned = {lamp.name for lamp in lamps}
     scored = []
-    for candidate in candidates:
+    for candidate in (c for c in candidates if c.name not in owned):
         ranked = rank_subsets(
             [*lamps, candidate],
             prior,

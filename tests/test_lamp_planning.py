@@ -50,6 +50,24 @@ def test_subsets_rank_by_predicted_sigma_and_more_spectrally_different_lamps_win
         by_lamps[("LED-B3", "FL2", "A", "gauss:630:20")].efficiency_sigma
         <= by_lamps[("LED-B3", "FL2", "A")].efficiency_sigma
     )
+    # The direct equations alone: nothing for a lamp's 3 equations on 7 terms, and never better
+    # than with the prior as well.
+    assert math.isinf(by_lamps[("LED-B3",)].data_sigma)
+    assert by_lamps[("LED-B3",)].to_dict()["data_sigma"] is None
+    full = by_lamps[("LED-B3", "FL2", "A", "gauss:630:20")]
+    assert full.efficiency_sigma < full.data_sigma < math.inf
+    assert all(score.data_sigma >= score.efficiency_sigma for score in ranked)
+
+
+def test_a_candidate_already_owned_is_not_suggested_again(prior):
+    owned = [lamp_from_spec(spec) for spec in ("LED-B3", "gauss:630:20")]
+    candidates = [lamp_from_spec(spec) for spec in ("gauss:630:20", "gauss:455:25")]
+    additions = best_additions(owned, candidates, prior)
+    assert [score.lamps[-1] for score in additions] == ["gauss:455:25"]
+    arguments = ["plan-lamps", "--lamp", "LED-B3", "--lamp", "A", "--candidate", "A"]
+    result = CliRunner().invoke(build_app(), arguments)
+    assert result.exit_code == 0, result.output
+    assert "every candidate lamp is already among yours" in result.output
 
 
 def test_the_suggested_extra_lamp_is_the_one_that_lowers_sigma_most(prior):

@@ -38,15 +38,25 @@ def _lamps(specs: list[str], option: str) -> list[Spectrum]:
 
 
 def _table(title: str, scores: list[SubsetScore]) -> Table:
-    table = Table(title=title, caption="σ(η): predicted RMS relative σ of the efficiency's shape")
+    table = Table(
+        title=title,
+        caption="σ(η): predicted RMS relative σ of the efficiency's shape, with the camera prior "
+        "and from the lamps' direct equations alone",
+    )
     table.add_column("rank", justify="right")
     table.add_column("lamps")
     table.add_column("σ(η) %", justify="right")
+    table.add_column("alone %", justify="right")
     table.add_column("condition", justify="right")
     for rank, score in enumerate(scores, start=1):
         condition = f"{score.condition:.3g}" if math.isfinite(score.condition) else "∞ (< terms)"
+        alone = f"{score.data_sigma * 100:.2f}" if math.isfinite(score.data_sigma) else "∞"
         table.add_row(
-            str(rank), ", ".join(score.lamps), f"{score.efficiency_sigma * 100:.2f}", condition
+            str(rank),
+            ", ".join(score.lamps),
+            f"{score.efficiency_sigma * 100:.2f}",
+            alone,
+            condition,
         )
     return table
 
@@ -106,6 +116,9 @@ def register(app: typer.Typer) -> None:
             return
         console = Console()
         console.print(_table("Your lamps: best subsets", ranked[:top]))
+        if not additions:
+            console.print("every candidate lamp is already among yours")
+            return
         console.print(_table("All your lamps plus one more", additions))
         best = additions[0]
         console.print(
