@@ -262,7 +262,17 @@ def read_grating_file(path: str | os.PathLike[str]) -> GratingEfficiency:
 
 
 def write_grating_file(path: str | os.PathLike[str], grating: GratingEfficiency) -> Path:
-    """Write ``grating`` as JSON (efficiency normalised to a maximum of 1); returns the path."""
+    """Write ``grating`` as JSON (efficiency normalised to a maximum of 1); returns the path.
+
+    Written to a temporary file beside ``path`` and renamed over it: a reader never sees half a
+    file, and an interrupted write leaves an earlier file as it was.
+    """
     file = Path(path)
-    file.write_text(json.dumps(grating.to_dict(), indent=2, allow_nan=False) + "\n")
+    text = json.dumps(grating.to_dict(), indent=2, allow_nan=False) + "\n"
+    temporary = file.with_name(f".{file.name}.{os.getpid()}.tmp")
+    try:
+        temporary.write_text(text)
+        temporary.replace(file)
+    finally:
+        temporary.unlink(missing_ok=True)
     return file

@@ -94,23 +94,12 @@ WeightRule = Literal["evidence", "typicality", "upre"]
 #: It asks how well the prior *at that weight* explains the camera, so a camera unlike the training
 #: set widens it, and a typical one keeps it near its natural weight.
 #:
-#: Measured, mean RE ×10⁻² over 3 draws × 5 cameras (exploratory re-implementation of the solve,
-#: 1 % profile noise, the 44-camera prior), UPRE → typicality:
-#:
-#: - protocol's 1 % direct noise: 5 lamps 2.30 → 1.88, 3 lamps + RGB LEDs 1.46 → 1.41;
-#: - out of the basis: 6.15 → 4.46 and 3.01 → 2.76;
-#: - at 0.4 % direct noise: 1.63 → 1.48, 0.99 → 1.00, 2.89 → 2.82, 1.78 → 1.81.
-#:
-#: Evidence, measured with the package (``calib synthetic … --weight-rule evidence``, seed 0; UPRE
-#: and typicality in brackets): 5 lamps 1.81 (1.95, 1.45), 3 lamps + RGB LEDs 1.45 (2.04, 1.49),
-#: grating file 2.10 (1.86, 1.40); over 4 draws 1.89 / 1.49 / 2.33; out of the basis 5.15 / 3.61
-#: (6.30 / 3.37, 6.83 / 4.24). Its posterior is narrower than the error: ±2σ coverage 80–91 %.
-#:
-#: UPRE stays the default: the only rule whose band holds 90–98 % on the test cameras, and it
+#: UPRE is the default: the only rule whose ±2σ band holds 90–98 % on the test cameras, and it
 #: never fails the way typicality can. Typicality trusts the prior's geometry, and a prior built from
 #: perturbed copies of 11 cameras (the offline basis) does not see a Foveon as far. Its D² is 42
-#: against a typical 17, so λ = 0.4 and RE 41.5, where UPRE picks λ = 0.001 and gets 9.8
-#: (``tests/test_multilamp.py``).
+#: against a typical 17, so λ = 0.4 and RE 41.5, where UPRE picks λ = 0.001 and gets 9.8. The
+#: evidence's band is too narrow (80–91 %). Each rule's figures on the synthetic protocol: decision
+#: 0015, addenda 3 and 4.
 PRIOR_WEIGHT_RULES: tuple[WeightRule, ...] = ("evidence", "typicality", "upre")
 DEFAULT_WEIGHT_RULE: WeightRule = "upre"
 
@@ -907,30 +896,13 @@ def prepare_lamps(
 
 
 def calibrate_lamps(
-    observations: Sequence[LampObservation],
-    *,
-    basis: CameraBasis,
-    grid: WavelengthGrid = DEFAULT_GRID,
-    mapping: QuadraticMapping | GratingGeometry | None = None,
-    mapping_lamp: str | None = None,
-    prior_shrinkage: float | None = None,
-    settings: EfficiencySettings = EfficiencySettings(),
-    refine_given_mapping: bool = False,
-    kernel: FloatArray | None = None,
+    prepared: PreparedLamps, prior: CameraPrior, settings: EfficiencySettings = EfficiencySettings()
 ) -> CalibratedLamps:
-    """Steps 1–2 for one camera's lamps."""
-    prepared = prepare_lamps(
-        observations,
-        basis=basis,
-        grid=grid,
-        mapping=mapping,
-        mapping_lamp=mapping_lamp,
-        prior_shrinkage=prior_shrinkage,
-        refine_given_mapping=refine_given_mapping,
-        kernel=kernel,
+    """Step 2 for one camera's prepared lamps (:func:`prepare_lamps`)."""
+    efficiency = solve_efficiency(prepared.lamps, prior, settings)
+    return CalibratedLamps(
+        prior.grid, prepared.mapping, prepared.lamps, efficiency, prepared.mapping_s
     )
-    efficiency = solve_efficiency(prepared.lamps, basis.prior(prior_shrinkage), settings)
-    return CalibratedLamps(grid, prepared.mapping, prepared.lamps, efficiency, prepared.mapping_s)
 
 
 def estimate_multilamp(
@@ -1021,17 +993,17 @@ def estimate_multilamp(
             kernel=kernel,
         )
     started = time.perf_counter()
-    calibrated = calibrate_lamps(
+    prepared = prepare_lamps(
         observations,
         basis=basis,
         grid=grid,
         mapping=mapping,
         mapping_lamp=mapping_lamp,
         prior_shrinkage=prior_shrinkage,
-        settings=settings,
         refine_given_mapping=refine_given_mapping,
         kernel=kernel,
     )
+    calibrated = calibrate_lamps(prepared, basis.prior(prior_shrinkage), settings)
     efficiency = calibrated.efficiency
     solution = combine_responses(
         [lamp.response for lamp in calibrated.lamps],
@@ -1139,9 +1111,7 @@ def estimate_with_grating(
     )
 
 
-def grating_file_from(
-    calibrated: CalibratedLamps, *, description: str = "", cameras: Sequence[str] = ()
-) -> GratingEfficiency:
+def grating_file_from(calibrated: CalibratedLamps, *, description: str = "") -> GratingEfficiency:
     """The estimated ``η`` with its σ and geometry, ready for :func:`calib.grating_file.write_grating_file`."""
     eta, eta_sigma = _efficiency_with_sigma(calibrated.efficiency)
     return GratingEfficiency(
@@ -1156,7 +1126,6 @@ def grating_file_from(
         provenance={
             "method": MULTILAMP_METHOD,
             "lamps": [lamp.name for lamp in calibrated.lamps],
-            "cameras": list(cameras),
             "prior_weight": calibrated.efficiency.prior_weight,
         },
         source="multilamp calibration",

@@ -313,15 +313,13 @@ def grating(
 
     The next camera then needs a single LED shot: calib estimate --grating FILE.
     """
-    from calib.multilamp import MULTILAMP_METHOD, weight_rule_option
     from rig.grating import median_relative_sigma, refine_session_grating
 
-    rule = weight_rule_option(MULTILAMP_METHOD, weight_rule).get("weight_rule")
     outcome = refine_session_grating(
         sessions,
         out,
         data_dir=data_dir,
-        weight_rule=rule,
+        weight_rule=weight_rule,
         description=description,
         force=force,
     )

@@ -15,7 +15,6 @@ records which sessions, cameras and lamps it came from.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
@@ -67,9 +66,7 @@ def _camera_of(session: Session) -> str:
     """The session's camera as its start record names it (model and serial), or ``"unknown"``."""
     start = session.start
     record = None if start is None else start.devices.get("camera")
-    if record is None:
-        return "unknown"
-    return f"{record.model}{f' (serial {record.serial})' if record.serial else ''}"
+    return "unknown" if record is None else record.describe()
 
 
 def _with_direct(
@@ -90,27 +87,13 @@ def _with_direct(
     return usable
 
 
-def _write_new(path: Path, grating: GratingEfficiency, force: bool) -> Path:
-    """Write through a temporary file beside ``path`` and rename: never half a file."""
-    if path.exists() and not force:
-        raise InputError("exists; pass --force to replace it", source=str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        write_grating_file(temporary, grating)
-        temporary.replace(path)
-    finally:
-        temporary.unlink(missing_ok=True)
-    return path
-
-
 def refine_session_grating(
     sessions: Sequence[str | Path],
     out_file: str | Path,
     *,
     data_dir: str | Path | None = None,
     grid: WavelengthGrid = DEFAULT_GRID,
-    weight_rule: WeightRule | None = None,
+    weight_rule: str | None = None,
     basis: CameraBasis | None = None,
     description: str = "",
     force: bool = False,
@@ -149,27 +132,30 @@ def refine_session_grating(
     if out.exists() and not force:
         raise InputError("exists; pass --force to replace it", source=str(out))
     options: dict[str, Any] = weight_rule_option(MULTILAMP_METHOD, weight_rule)
+    rule: WeightRule = options.get("weight_rule", DEFAULT_WEIGHT_RULE)
     # Every session is verified before anything is estimated.
     checked = []
     seen: dict[str, str] = {}
     for path in map(Path, sessions):
         session = read_session(path)
+        inputs = session_lamps(session)  # checks the start record, verifies every file
         start = session.start
-        if start is None:
-            raise SessionFormatError(f"{path}: the log has no start record")
+        assert start is not None
         if start.session_id in seen:
             raise SessionFormatError(
                 f"{path}: the same session as {seen[start.session_id]}; give each session once"
             )
         seen[start.session_id] = str(path)
-        checked.append((path, session, session_lamps(session)))
+        checked.append((path, start.session_id, _camera_of(session), inputs))
     chosen = basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
     warnings: list[str] = []
     cameras: list[list[LampObservation]] = []
     mappings = []
     summaries = []
-    for path, session, (lamps, known, session_warnings) in checked:
+    software: dict[str, str] = {}
+    for path, session_id, camera, (lamps, known, session_warnings) in checked:
         warnings.extend(f"{path.name}: {warning}" for warning in session_warnings)
+        # The pipeline of rig estimate: its own estimate gives this camera's mapping.
         extracted = estimate_offline(
             lamps,
             OfflineSettings(
@@ -177,22 +163,15 @@ def refine_session_grating(
             ),
             known_inputs=known,
         )
+        software = dict(extracted.provenance.software)
         usable = _with_direct(path.name, extracted.observations, warnings)
         cameras.append(usable)
         mappings.append(extracted.result.mapping)
-        start = session.start
-        assert start is not None
         summaries.append(
-            SessionCamera(
-                path.name, start.session_id, _camera_of(session), tuple(o.name for o in usable)
-            )
+            SessionCamera(path.name, session_id, camera, tuple(o.name for o in usable))
         )
     grating, _ = refine_grating(
-        cameras,
-        basis=chosen,
-        grid=grid,
-        mappings=mappings,
-        weight_rule=weight_rule or DEFAULT_WEIGHT_RULE,
+        cameras, basis=chosen, grid=grid, mappings=mappings, weight_rule=rule
     )
     grating = replace(
         grating,
@@ -202,10 +181,11 @@ def refine_session_grating(
             "mappings": [None if m is None else m.to_dict() for m in mappings],
         },
         provenance={
-            **grating.provenance,
+            "method": MULTILAMP_METHOD,
+            "prior_weight": grating.provenance["prior_weight"],
+            "weight_rule": rule,
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
-            "weight_rule": weight_rule or DEFAULT_WEIGHT_RULE,
-            "cameras": [summary.camera for summary in summaries],
+            "software": software,
             "sessions": [
                 {
                     "directory": summary.session,
@@ -219,8 +199,9 @@ def refine_session_grating(
         },
         source=str(out),
     )
+    out.parent.mkdir(parents=True, exist_ok=True)
     return GratingOutcome(
-        grating, _write_new(out, grating, force), tuple(summaries), tuple(warnings)
+        grating, write_grating_file(out, grating), tuple(summaries), tuple(warnings)
     )
 
 

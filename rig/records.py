@@ -91,6 +91,10 @@ class DeviceRecord(_Model):
     port: str | None = None
     extra: dict[str, str] = Field(default_factory=dict)
 
+    def describe(self) -> str:
+        """Model and serial number: the instrument, wherever it was plugged in."""
+        return f"{self.model}{f' (serial {self.serial})' if self.serial else ''}"
+
 
 class PlanInfo(_Model):
     """The plan that drove the session, by registered name, with its JSON arguments."""

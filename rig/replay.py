@@ -107,14 +107,6 @@ class Recording:
     session: Session
     runs: list[RecordedRun]
 
-    @property
-    def start(self) -> StartRecord:
-        return self.runs[0].start
-
-    @property
-    def config(self) -> RigConfig:
-        return self.runs[0].config
-
 
 @dataclass(frozen=True)
 class ReplayOutcome:
@@ -277,16 +269,12 @@ class _Timeline:
     """
 
     def __init__(
-        self,
-        inner: ProgressReporter,
-        clock: Any,
-        records: Sequence[Record],
-        interrupts: InterruptController,
+        self, inner: ProgressReporter, records: Sequence[Record], interrupts: InterruptController
     ) -> None:
         self.inner = inner
-        self.clock = clock
+        self.clock: Any = None  # the station's, once it is opened (attach)
         self.current_key = "(opening the devices)"
-        self._t0 = clock.now() if clock is not None else 0.0
+        self._t0 = 0.0
         self._current: Step | None = None
         self._steps = {r.key: r for r in records if isinstance(r, StepRecord)}
         self._interrupts = interrupts
@@ -297,7 +285,7 @@ class _Timeline:
         self._cut_short = last is not None and (last.result or {}).get("completed") is False
 
     def attach(self, clock: Any) -> None:
-        """The clock of a station opened after this timeline was made (a resumed run)."""
+        """The clock of the station, opened after this timeline was made."""
         self.clock = clock
         self._t0 = clock.now()
 
@@ -498,7 +486,7 @@ def _replay_run(
     from rig.resume import run_resume
 
     benches: list[Any] = []
-    timeline = _Timeline(progress, None, run.records, interrupts)
+    timeline = _Timeline(progress, run.records, interrupts)
 
     def builder(config: RigConfig, transcripts: Any) -> Station:
         try:

@@ -291,7 +291,7 @@ def check_same_devices(session: Session, identities: Mapping[str, DeviceIdentity
         if other_model or other_serial:
             raise ResumeMismatch(
                 f"the {role} is {identity.describe()}, but the session was captured with "
-                f"{before.model}{f' (serial {before.serial})' if before.serial else ''}: connect "
+                f"{before.describe()}: connect "
                 "that instrument again and resume, or start a new session with rig capture"
             )
 

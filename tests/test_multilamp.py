@@ -26,6 +26,7 @@ from calib.multilamp import (
     grating_file_from,
     mapping_lamps,
     pooled_efficiency_terms,
+    prepare_lamps,
     refine_grating,
 )
 from calib.observations import LampObservation
@@ -257,7 +258,9 @@ def test_more_lamps_beat_the_single_lamp_prior_solve_on_a_camera_outside_the_bas
 
 def test_a_grating_file_lets_one_led_shot_estimate_a_new_camera(basis, tmp_path: Path):
     _, mapping, observations, efficiency = _scene(4, noise=0.003)
-    calibrated = calibrate_lamps(observations, basis=basis, mapping=mapping)
+    calibrated = calibrate_lamps(
+        prepare_lamps(observations, basis=basis, mapping=mapping), basis.prior()
+    )
     path = write_grating_file(
         tmp_path / "grating.json", grating_file_from(calibrated, description="bench A")
     )
@@ -295,7 +298,7 @@ def test_cameras_through_one_grating_share_and_refine_it(basis):
         rng,
         0.01,
     )
-    alone = calibrate_lamps(first, basis=basis, mapping=mapping)
+    alone = calibrate_lamps(prepare_lamps(first, basis=basis, mapping=mapping), basis.prior())
     grating, results = refine_grating([first, second], basis=basis, mappings=[mapping, mapping])
     assert len(results) == 2
     assert grating.efficiency_sigma is not None
@@ -305,7 +308,7 @@ def test_cameras_through_one_grating_share_and_refine_it(basis):
 
 
 def test_each_camera_of_a_pooled_solve_has_its_own_prior_scale(basis):
-    from calib.multilamp import _stacked_prior_rows, pool_responses, prepare_lamps
+    from calib.multilamp import _stacked_prior_rows, pool_responses
 
     groups = []
     for seed in (5, 6):
