@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from calib.bases import CameraPrior, fourier_basis
 from calib.errors import InputError
 from calib.forward import lamp_operators
-from calib.multilamp import DEFAULT_EFFICIENCY_TERMS, MODEL_FLOOR, prior_rows
+from calib.multilamp import DEFAULT_EFFICIENCY_TERMS, LampData, direct_rows, prior_rows
 from calib.prior_solve import ResponseEstimate
 from calib.spectra import Spectrum
 
@@ -74,19 +74,55 @@ class SubsetScore:
         }
 
 
-def _lamp_rows(
-    lamp: Spectrum, prior: CameraPrior, efficiency_basis: FloatArray, noise_fraction: float
-) -> FloatArray:
-    """Whitened predicted direct equations of one lamp: ``(3, b)``."""
-    direct_row = lamp_operators(lamp, prior.grid).direct_row
-    direct = direct_row @ prior.mean
-    sigma = (
-        np.sqrt((noise_fraction * float(np.max(direct))) ** 2 + (MODEL_FLOOR * direct) ** 2)
-        + 1e-300
-    )
-    return np.stack(
-        [(direct_row * prior.mean[:, c]) @ efficiency_basis / sigma[c] for c in range(3)]
-    )
+@dataclass(frozen=True, eq=False)
+class _Planner:
+    """What every subset's score shares: the efficiency basis, the prior's rows, the noise."""
+
+    prior: CameraPrior
+    efficiency_basis: FloatArray
+    penalty: FloatArray
+    noise_fraction: float
+
+    @classmethod
+    def of(cls, prior: CameraPrior, noise_fraction: float, efficiency_terms: int) -> _Planner:
+        if noise_fraction <= 0 or not math.isfinite(noise_fraction):
+            raise InputError(
+                f"the noise fraction must be > 0, got {noise_fraction}", source="noise"
+            )
+        efficiency_basis = fourier_basis(prior.grid, efficiency_terms)
+        size = prior.grid.size
+        flat = np.ones(size)
+        typical = ResponseEstimate(prior.mean, np.zeros((3, size, size)), flat, 0)
+        penalty = prior_rows(typical, prior, efficiency_basis, flat, 1.0)
+        return cls(prior, efficiency_basis, penalty, noise_fraction)
+
+    def rows(self, lamp: Spectrum) -> FloatArray:
+        """The lamp's whitened direct equations on ``c_η`` for a camera like ``ŝ`` behind a flat
+        grating, weighted as the solve weights them (:func:`calib.multilamp.direct_rows`): ``(3, b)``."""
+        size = self.prior.grid.size
+        direct_row = lamp_operators(lamp, self.prior.grid).direct_row
+        direct = direct_row @ self.prior.mean
+        predicted = LampData(
+            lamp.name,
+            direct_row,
+            ResponseEstimate(self.prior.mean, np.zeros((3, size, size)), np.ones(size, bool), 0),
+            direct,
+            np.full(3, self.noise_fraction * float(np.max(direct))),
+        )
+        nodes, _ = direct_rows([predicted], np.ones(size))
+        return np.asarray(nodes @ self.efficiency_basis, dtype=np.float64)
+
+    def score(self, rows: Mapping[str, FloatArray], names: Sequence[str]) -> SubsetScore:
+        return score_subset(
+            [rows[name] for name in names], names, self.penalty, self.efficiency_basis
+        )
+
+
+def _unique_names(lamps: Sequence[Spectrum]) -> list[str]:
+    names = [lamp.name for lamp in lamps]
+    if len(set(names)) != len(names):
+        raise InputError(f"lamp names must be unique, got {names}", source="lamps")
+    return names
 
 
 def score_subset(
@@ -134,9 +170,8 @@ def rank_subsets(
     *,
     noise_fraction: float = DEFAULT_NOISE_FRACTION,
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
-    min_size: int = 1,
 ) -> list[SubsetScore]:
-    """Every subset of ``lamps`` (at least ``min_size``), best (smallest predicted σ) first.
+    """Every subset of ``lamps``, best (smallest predicted σ) first.
 
     Raises
     ------
@@ -150,19 +185,12 @@ def rank_subsets(
             f"{len(lamps)} lamps give {2 ** len(lamps) - 1} subsets; give at most {MAX_LAMPS}",
             source="lamps",
         )
-    names = [lamp.name for lamp in lamps]
-    if len(set(names)) != len(names):
-        raise InputError(f"lamp names must be unique, got {names}", source="lamps")
-    if noise_fraction <= 0 or not math.isfinite(noise_fraction):
-        raise InputError(f"the noise fraction must be > 0, got {noise_fraction}", source="noise")
-    efficiency_basis = fourier_basis(prior.grid, efficiency_terms)
-    rows = {lamp.name: _lamp_rows(lamp, prior, efficiency_basis, noise_fraction) for lamp in lamps}
-    flat = np.ones(prior.grid.size)
-    typical = ResponseEstimate(prior.mean, np.zeros((3, prior.grid.size, prior.grid.size)), flat, 0)
-    penalty = prior_rows(typical, prior, efficiency_basis, flat, 1.0)
+    names = _unique_names(lamps)
+    planner = _Planner.of(prior, noise_fraction, efficiency_terms)
+    rows = {lamp.name: planner.rows(lamp) for lamp in lamps}
     scores = [
-        score_subset([rows[name] for name in subset], subset, penalty, efficiency_basis)
-        for size in range(max(min_size, 1), len(lamps) + 1)
+        planner.score(rows, subset)
+        for size in range(1, len(lamps) + 1)
         for subset in itertools.combinations(names, size)
     ]
     return sorted(scores, key=lambda score: (score.efficiency_sigma, len(score.lamps)))
@@ -180,15 +208,14 @@ def best_additions(
 
     Candidates named like one of ``lamps`` are already there and are not tried again.
     """
-    owned = {lamp.name for lamp in lamps}
+    names = _unique_names(lamps)
+    planner = _Planner.of(prior, noise_fraction, efficiency_terms)
+    rows = {lamp.name: planner.rows(lamp) for lamp in lamps}
     scored = []
-    for candidate in (c for c in candidates if c.name not in owned):
-        ranked = rank_subsets(
-            [*lamps, candidate],
-            prior,
-            noise_fraction=noise_fraction,
-            efficiency_terms=efficiency_terms,
-            min_size=len(lamps) + 1,
+    for candidate in (c for c in candidates if c.name not in rows):
+        scored.append(
+            planner.score(
+                {**rows, candidate.name: planner.rows(candidate)}, [*names, candidate.name]
+            )
         )
-        scored.append(ranked[0])
     return sorted(scored, key=lambda score: score.efficiency_sigma)

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from calib.bases import CameraPrior, fallback_camera_basis
 from calib.cli import build_app, main
 from calib.errors import InputError
-from calib.lamp_planning import best_additions, rank_subsets
+from calib.lamp_planning import MAX_LAMPS, best_additions, rank_subsets
 from calib.lamp_specs import gaussian_lamp, lamp_from_spec
 from calib.spectra import write_csv
 
@@ -57,6 +57,13 @@ def test_subsets_rank_by_predicted_sigma_and_more_spectrally_different_lamps_win
     full = by_lamps[("LED-B3", "FL2", "A", "gauss:630:20")]
     assert full.efficiency_sigma < full.data_sigma < math.inf
     assert all(score.data_sigma >= score.efficiency_sigma for score in ranked)
+
+
+def test_a_full_set_of_lamps_can_still_be_given_one_more(prior):
+    """Adding to MAX_LAMPS lamps scores one set per candidate; it enumerates no subsets."""
+    owned = [lamp_from_spec(f"gauss:{400 + 25 * index}:30") for index in range(MAX_LAMPS)]
+    additions = best_additions(owned, [lamp_from_spec("A")], prior)
+    assert [len(score.lamps) for score in additions] == [MAX_LAMPS + 1]
 
 
 def test_a_candidate_already_owned_is_not_suggested_again(prior):
