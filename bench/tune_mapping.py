@@ -67,9 +67,12 @@ def main() -> None:
                     true_nm = scene.mapping.wavelength_nm(observation.pixel)
                     inside = (true_nm >= grid.start_nm) & (true_nm <= grid.stop_nm)
                     for flexibility in flexibilities:
-                        mapping_search.LOCAL_FLEXIBILITY = flexibility
                         found = mapping_search.find_mapping(
-                            [observation], prior, grid, kernel=camera_kernel([observation])
+                            [observation],
+                            prior,
+                            grid,
+                            kernel=camera_kernel([observation]),
+                            local_flexibility=flexibility,
                         )
                         mapping_errors[flexibility].append(
                             mapping_relative_error(

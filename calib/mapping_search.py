@@ -19,11 +19,12 @@ bend:
    a smooth grating efficiency and a small smooth deviation); on a binned profile, the wavelengths at
    both ends are scanned on a grid around each start and the best grid points refined. The prior
    gives the cost a clear global minimum where a free response would absorb a wrong mapping.
-3. Local: on the full profile, 10 nm nodes and a response whose smooth deviation from the prior may
-   be as large as the channel itself: the global stage's distinct minima are refined and the lowest
-   cost wins, so a camera outside the prior's span does not pick the basin; the lamp's fine
-   structure (lines, the blue LED peak, D65's absorption features) pins the mapping. Then 5 nm
-   nodes (with the global stage's prior) refine it. All three channels share one mapping.
+3. Local: on the full profile, 10 nm nodes and a response whose smooth deviation from the prior has
+   a σ of twice the channel's peak (:data:`LOCAL_FLEXIBILITY`): the global stage's distinct
+   minima are refined and the lowest cost wins, so a camera outside the prior's span does not pick
+   the basin; the lamp's fine structure (lines, the blue LED peak, D65's absorption features) pins
+   the mapping. Then 5 nm nodes (with the global stage's prior) refine it. All three channels share
+   one mapping.
 
 A broadband lamp's profile has aliases (see :data:`LOCAL_FLEXIBILITY`): when the local costs of
 competing basins are close, the mapping's error estimate includes their spread
@@ -87,8 +88,9 @@ FLEX_CORRELATION_NM = 25.0
 #: the lamp's structure (D65 is tabulated at 10 nm and interpolated linearly) changes the profile
 #: only by what a response on nodes of that spacing absorbs. Under the stiff prior, a camera unlike
 #: the training set can fit an alias better (its response there looks more like the mean camera's)
-#: and the mapping lands a whole alias spacing off. Letting the response deviate smoothly by as much
-#: as the channel itself hands that choice to the lamp's structure; the prior's covariance still
+#: and the mapping lands a whole alias spacing off. Letting the response deviate smoothly (σ: this
+#: fraction of the channel's peak, so well beyond the channel itself) hands that choice to the
+#: lamp's structure; the prior's covariance still
 #: sets how rough the response may be. The last stage, within the chosen basin, keeps the stiff
 #: prior (it converges in fewer evaluations). Leave-one-camera-out on the 44 training cameras
 #: (``bench/tune_mapping.py``, 1 % noise) finds 0.05 and 2 equally good for cameras like the others.
@@ -541,6 +543,7 @@ def find_mapping(
     *,
     starts: Sequence[QuadraticMapping] | None = None,
     kernel: FloatArray | None = None,
+    local_flexibility: float = LOCAL_FLEXIBILITY,
 ) -> QuadraticMapping:
     """The pixel→wavelength mapping shared by one or more lamps' profiles (see the module docstring).
 
@@ -560,6 +563,9 @@ def find_mapping(
         The camera's line spread in profile samples, modelled in every fit; default: the lamps'
         measured one (:func:`calib.resolution.camera_kernel`). Profiles measured with a spectrometer
         broader than the camera are blurred to match (:func:`calib.resolution.match_spectrometer`).
+    local_flexibility
+        The first local stage's response flexibility (:data:`LOCAL_FLEXIBILITY`;
+        ``bench/tune_mapping.py`` compares values).
 
     Returns
     -------
@@ -660,7 +666,7 @@ def find_mapping(
 
     # Local stages on the full profiles: 10 nm nodes and a flexible response choose between the
     # finalists, 5 nm nodes remove the coarse representation's bias.
-    coarse_fit = joint_fit(1, COARSE_NODES_NM, kernel, flexibility=LOCAL_FLEXIBILITY)
+    coarse_fit = joint_fit(1, COARSE_NODES_NM, kernel, flexibility=local_flexibility)
     outcomes = [
         _refine(finalist, coarse_fit, pixel_range, method, max_evaluations=100)
         for finalist in finalists
@@ -697,7 +703,7 @@ def find_mapping(
             "finalist_costs": [c for _, c in outcomes],
             "basin_spread_nm": spread_nm,
             "flexibility": FLEXIBILITY,
-            "local_flexibility": LOCAL_FLEXIBILITY,
+            "local_flexibility": local_flexibility,
         },
         wavelength_rms_nm=None
         if best.wavelength_rms_nm is None
