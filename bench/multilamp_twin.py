@@ -18,17 +18,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from calib.synthetic import FIVE_LAMPS, LAMP_SETS, lamp_kind
 from rig.compare import compare_sessions
 from rig.config import RigConfig, load_config
 from rig.demo import run_demo
 
-LAMPS = (
-    ("LED-B1", "led"),
-    ("LED-B3", "led"),
-    ("LED-B5", "led"),
-    ("FL2", "fluorescent"),
-    ("A", "halogen"),
-)
+LAMPS = tuple((spec, lamp_kind(spec)) for spec in LAMP_SETS[FIVE_LAMPS])
 
 
 def five_lamp_config(config: RigConfig) -> RigConfig:

@@ -20,6 +20,9 @@ GAUSSIAN_RANGE_NM = (360.0, 830.0)
 #: A Gaussian LED's floor relative to its peak: real LEDs leak a little light everywhere (and the
 #: response fit needs some light at every wavelength to say anything there).
 GAUSSIAN_FLOOR = 1e-4
+#: Blue, green and red narrow-band LEDs (Gaussians): the synthetic protocol's coloured LEDs and
+#: ``calib plan-lamps``'s default candidates.
+RGB_LEDS: tuple[str, ...] = ("gauss:455:25", "gauss:530:35", "gauss:630:20")
 
 
 def gaussian_lamp(centre_nm: float, fwhm_nm: float, *, name: str | None = None) -> Spectrum:

@@ -39,8 +39,8 @@ from numpy.typing import NDArray
 from calib.bases import CameraBasis, fourier_basis
 from calib.errors import EstimationError, InputError
 from calib.forward import PeakFractionNoise, RenderedObservation, render_observation
+from calib.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.lamp_specs import colour_lamp as colour_lamp  # re-exported: many callers import it here
-from calib.lamp_specs import lamp_from_spec
 from calib.makabe2025 import Solver, estimate_makabe2025
 from calib.mapping import QuadraticMapping
 from calib.metrics import mapping_relative_error, relative_error
@@ -52,9 +52,10 @@ FloatArray = NDArray[np.float64]
 
 PAPER_VARIANTS: tuple[str, ...] = ("true mapping", "LED+Flu", "LED only", "LED only (paper ICP)")
 #: Lamp sets of the multi-lamp variants (lamp specs of :func:`calib.lamp_specs.lamp_from_spec`).
+FIVE_LAMPS = "5 lamps"
 LAMP_SETS: dict[str, tuple[str, ...]] = {
-    "5 lamps": ("LED-B1", "LED-B3", "LED-B5", "FL2", "A"),
-    "3 lamps + RGB LEDs": ("LED-B3", "FL2", "A", "gauss:455:25", "gauss:530:35", "gauss:630:20"),
+    FIVE_LAMPS: ("LED-B1", "LED-B3", "LED-B5", "FL2", "A"),
+    "3 lamps + RGB LEDs": ("LED-B3", "FL2", "A", *RGB_LEDS),
 }
 #: The lamp a new camera is shot with once the grating is known.
 GRATING_FILE_LAMP = "LED-B3"
@@ -265,7 +266,7 @@ def render_scene(
     }
     calibration = tuple(
         render_lamps(
-            LAMP_SETS["5 lamps"],
+            LAMP_SETS[FIVE_LAMPS],
             camera,
             mapping,
             efficiency,
@@ -302,6 +303,11 @@ class SyntheticRow:
     coverage: float | None = None
 
 
+def _uses_true_mapping(variant: str) -> bool:
+    """``true mapping`` and ``multilamp: … , true mapping`` are given the scene's mapping."""
+    return variant == "true mapping" or variant.endswith(", true mapping")
+
+
 def evaluate_scene(
     scene: SyntheticScene,
     basis: CameraBasis,
@@ -334,7 +340,7 @@ def evaluate_scene(
         )
     elapsed = time.perf_counter() - started
     mapping_re = None
-    true_mapping = variant in ("true mapping", "multilamp: 5 lamps, true mapping")
+    true_mapping = _uses_true_mapping(variant)
     if not true_mapping and result.mapping is not None:
         pixels = led.pixel
         true_nm = scene.mapping.wavelength_nm(pixels)
@@ -385,7 +391,7 @@ def _estimate_variant(
             [led] if variant != "LED+Flu" else [led, scene.fluorescent.observation],
             basis=basis,
             grid=grid,
-            mapping=scene.mapping if variant == "true mapping" else None,
+            mapping=scene.mapping if _uses_true_mapping(variant) else None,
             solver=solver,
             mapping_method="icp" if variant == "LED only (paper ICP)" else "search",
             solve_lamps=[led.name],
@@ -397,14 +403,14 @@ def _estimate_variant(
                 source="variant",
             )
         grating, _ = refine_grating(scene.calibration, basis=basis, grid=grid, **options)
-        (single,) = (obs for obs in scene.lamp_sets["5 lamps"] if obs.name == GRATING_FILE_LAMP)
+        (single,) = (obs for obs in scene.lamp_sets[FIVE_LAMPS] if obs.name == GRATING_FILE_LAMP)
         return estimate_with_grating([single], grating, basis=basis, grid=grid)
     set_name = variant.removeprefix("multilamp: ").removesuffix(", true mapping")
     return estimate_multilamp(
         scene.lamp_sets[set_name],
         basis=basis,
         grid=grid,
-        mapping=scene.mapping if variant.endswith("true mapping") else None,
+        mapping=scene.mapping if _uses_true_mapping(variant) else None,
         **options,
     )
 
@@ -453,7 +459,7 @@ def run_protocol(
         name
         for name in LAMP_SETS
         if any(v.startswith(f"multilamp: {name}") for v in variants)
-        or (grating_variant and name == "5 lamps")
+        or (grating_variant and name == FIVE_LAMPS)
     ]
     rows: list[SyntheticRow] = []
     for camera_index, (name, sensitivity) in enumerate(cameras):

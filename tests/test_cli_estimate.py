@@ -407,3 +407,9 @@ def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     assert json.loads(stdout)["method"] == "multilamp"
     values = np.loadtxt(second / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
     assert relative_error(values, capture.truth) < 0.05
+    assert "weight-rule" not in stderr
+    # η is known: a rule for the prior's weight in the η solve has nothing to choose, and says so.
+    argv += ["--weight-rule", "typicality", "--out", str(tmp_path / "third")]
+    code, _, stderr = _call(argv)
+    assert code == 0, stderr
+    assert "--weight-rule has no effect with a grating file" in stderr

@@ -121,7 +121,6 @@ def run(argv: Sequence[str], *, stdout: TextIO | None = None, stderr: TextIO | N
 
 
 def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO) -> Any:
-    from calib.multilamp import weight_rule_option
     from calib.offline import OfflineSettings, run_offline
     from calib.offline.progress import RichFrameProgress
 
@@ -129,7 +128,7 @@ def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: 
     _check_out_dir(arguments.out_dir, arguments.force)
     settings = OfflineSettings(
         method=arguments.method,
-        method_options=weight_rule_option(arguments.method, arguments.weight_rule),
+        method_options=arguments.method_options,
         grid=arguments.grid,
         mapping_lamp=arguments.mapping_lamp,
         data_dir=arguments.data_dir,

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from calib.errors import InputError
 from calib.offline.inputs import LampImages, LampInput, LampProfile, check_kind, parse_direct
@@ -101,8 +102,10 @@ class EstimateArguments:
         One input per ``--lamp`` group, in order.
     out_dir
         ``--out``.
-    method, weight_rule, mapping_lamp, grid, data_dir, grating
+    method, mapping_lamp, grid, data_dir, grating
         The global options (``None`` when not given).
+    method_options
+        What ``--weight-rule`` stands for (:func:`calib.multilamp.weight_rule_option`), checked.
     force, quiet, json_output, show_help
         The flags.
     """
@@ -110,7 +113,7 @@ class EstimateArguments:
     lamps: tuple[LampInput, ...]
     out_dir: Path | None
     method: str = "makabe2025"
-    weight_rule: str | None = None
+    method_options: Mapping[str, Any] = field(default_factory=dict)
     mapping_lamp: str | None = None
     grid: WavelengthGrid = DEFAULT_GRID
     data_dir: Path | None = None
@@ -242,16 +245,16 @@ def parse_estimate_arguments(argv: Sequence[str]) -> EstimateArguments:
             message = str(exc).removeprefix(f"{exc.source}: ")
             raise InputError(message, source="--grid") from None
     method = globals_.get("--method", "makabe2025")
-    weight_rule = globals_.get("--weight-rule")
-    if weight_rule is not None:
+    method_options: dict[str, Any] = {}
+    if "--weight-rule" in globals_:
         from calib.multilamp import weight_rule_option
 
-        weight_rule_option(method, weight_rule)  # checked with the other arguments
+        method_options = weight_rule_option(method, globals_["--weight-rule"])
     return EstimateArguments(
         lamps=tuple(_lamp_input(group) for group in groups),
         out_dir=Path(globals_["--out"]),
         method=method,
-        weight_rule=weight_rule,
+        method_options=method_options,
         mapping_lamp=globals_.get("--mapping-lamp"),
         grid=grid,
         data_dir=Path(globals_["--data-dir"]) if "--data-dir" in globals_ else None,

@@ -18,13 +18,13 @@ from calib.lamp_planning import (
     best_additions,
     rank_subsets,
 )
-from calib.lamp_specs import lamp_from_spec
+from calib.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.methods import default_camera_basis
 from calib.multilamp import DEFAULT_EFFICIENCY_TERMS
 from calib.spectra import Spectrum, WavelengthGrid
 
 #: Narrow-band LEDs suggested as extra lamps when none are given.
-DEFAULT_CANDIDATES: tuple[str, ...] = ("gauss:455:25", "gauss:530:35", "gauss:630:20")
+DEFAULT_CANDIDATES: tuple[str, ...] = RGB_LEDS
 
 
 def _lamps(specs: list[str], option: str) -> list[Spectrum]:

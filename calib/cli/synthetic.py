@@ -194,12 +194,12 @@ def register(app: typer.Typer) -> None:
             ),
         ] = None,
         weight_rule: Annotated[
-            str,
+            str | None,
             typer.Option(
                 help="How the multi-lamp variants weight the camera prior: upre (default), "
                 "typicality or evidence (calib.multilamp.PRIOR_WEIGHT_RULES)."
             ),
-        ] = "upre",
+        ] = None,
         csv_path: Annotated[
             Path, typer.Option("--csv", help="Where to write every estimate as CSV.")
         ] = Path("synthetic.csv"),
@@ -215,6 +215,8 @@ def register(app: typer.Typer) -> None:
                 (r.name, r.sensitivity.resample(grid, "interpolate", out_of_range="zero"))
                 for r in colour_science_cameras()
             ]
+            if out_of_basis:
+                cameras = out_of_basis_cameras(*cameras[0])
 
             def basis_for(name: str) -> CameraBasis:
                 return fallback_camera_basis(
@@ -283,15 +285,11 @@ def _run(
     repeats: int,
     seed: int,
     direct_noise: float | None = None,
-    weight_rule: str = "upre",
+    weight_rule: str | None = None,
 ) -> list[SyntheticRow]:
-    from calib.multilamp import PRIOR_WEIGHT_RULES
+    from calib.multilamp import MULTILAMP_METHOD, weight_rule_option
 
-    if weight_rule not in PRIOR_WEIGHT_RULES:
-        raise InputError(
-            f"unknown weight rule {weight_rule!r}; choose from {', '.join(PRIOR_WEIGHT_RULES)}",
-            source="--weight-rule",
-        )
+    options = weight_rule_option(MULTILAMP_METHOD, weight_rule)
     console = Console(stderr=True)
     with console.status("estimating…") as status:
         return run_protocol(
@@ -305,7 +303,7 @@ def _run(
             repeats=repeats,
             seed=seed,
             direct_noise=direct_noise,
-            multilamp_options={"weight_rule": weight_rule},
+            multilamp_options=options,
             progress=lambda row: status.update(
                 f"{row.camera} · {row.variant} · noise {row.noise:g}"
             ),

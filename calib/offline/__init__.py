@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from calib.offline.run import OfflineOutcome, run_offline
 
 #: Imported on first use: the pipeline pulls in the estimators (scipy), which ``calib estimate``
-#: imports while the first frames decode (:mod:`calib.offline.warmup`).
+#: imports while the first frames decode (:func:`calib.offline.pipeline.import_estimation`).
 _LAZY = {
     "OfflineEstimate": "calib.offline.pipeline",
     "OfflineSettings": "calib.offline.pipeline",

@@ -475,36 +475,32 @@ def _estimate(
     basis = settings.basis or default_camera_basis(grid, data_dir=settings.data_dir)
     mapping: QuadraticMapping | GratingGeometry | None = _wavelength_mapping(observations)
     with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
-    if settings.method.lower() == "multilamp" and checked.grating is not None:
-        # The grating library: η from an earlier multi-lamp calibration, s = q̂ / η.
-        result = estimate(
-            observations,
-            "multilamp",
-            grid=grid,
-            basis=basis,
-            mapping=mapping,
-            mapping_lamp=settings.mapping_lamp,
-            grating=checked.grating,
-        )
-        return result, checked.grating
-    if with_direct:
-        if checked.grating is not None:
+    # The grating library: multilamp through an earlier calibration's η, s = q̂ / η.
+    known_grating = settings.method.lower() == "multilamp" and checked.grating is not None
+    if known_grating or with_direct:
+        options = dict(settings.method_options)
+        if known_grating:
+            if options.pop("weight_rule", None) is not None:
+                warnings.append(
+                    "--weight-rule has no effect with a grating file: the grating efficiency is "
+                    "not estimated"
+                )
+            options["grating"] = checked.grating
+        elif checked.grating is not None:
             notes.append(
                 f"grating file {checked.grating.source} not used: the direct measurement of "
                 f"{', '.join(with_direct)} determines the grating efficiency"
             )
-        return (
-            estimate(
-                observations,
-                settings.method,
-                grid=grid,
-                basis=basis,
-                mapping=mapping,
-                mapping_lamp=settings.mapping_lamp,
-                **settings.method_options,
-            ),
-            None,
+        result = estimate(
+            observations,
+            settings.method,
+            grid=grid,
+            basis=basis,
+            mapping=mapping,
+            mapping_lamp=settings.mapping_lamp,
+            **options,
         )
+        return result, checked.grating if known_grating else None
     if image_input and checked.grating is None:
         raise InputError(
             "no lamp has a direct (0th-order) measurement: the direct spot is saturated in every "
