@@ -54,14 +54,9 @@ def _wavelength_key(wavelength_nm: float) -> str:
     return str(round(wavelength_nm)) if float(wavelength_nm).is_integer() else repr(wavelength_nm)
 
 
-def physical_sensitivity(result: EstimateResult) -> FloatArray:
-    """The sensitivity with negative values set to zero and the maximum over channels 1."""
-    return result.physical_sensitivity()
-
-
 def write_sensitivity_csv(path: Path, result: EstimateResult) -> Path:
     """``wavelength_nm,r,g,b`` on the result's grid (maximum over all channels = 1)."""
-    curves = physical_sensitivity(result)
+    curves = result.physical_sensitivity()
     with path.open("w", newline="") as stream:
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(["wavelength_nm", "r", "g", "b"])
@@ -203,7 +198,7 @@ def camera_document(estimate: OfflineEstimate) -> dict[str, Any]:
     result = estimate.result
     make, model = camera_names(estimate)
     software = estimate.provenance.software
-    curves = physical_sensitivity(result)
+    curves = result.physical_sensitivity()
     mapping_re = result.mapping_re_estimate
     comments = (
         f"estimated by spectral-rig ({result.method}) from a diffraction grating; "

@@ -25,7 +25,6 @@ from numpy.typing import NDArray
 from calib.mapping import QuadraticMapping
 from calib.offline.brackets import BracketProfiles
 from calib.offline.pipeline import OfflineEstimate
-from calib.outputs import physical_sensitivity
 
 FloatArray = NDArray[np.float64]
 
@@ -55,7 +54,7 @@ def plot_sensitivity(path: Path, estimate: OfflineEstimate) -> Path:
     result = estimate.result
     figure = _figure()
     axes = figure.subplots()
-    curves = physical_sensitivity(result)
+    curves = result.physical_sensitivity()
     scale = float(np.max(result.sensitivity)) or 1.0
     for channel, name in enumerate(_CHANNELS):
         axes.plot(

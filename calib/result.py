@@ -36,6 +36,14 @@ def json_safe(value: Any) -> Any:
     return str(value)
 
 
+def physical_curves(sensitivity: Any) -> FloatArray:
+    """Sensitivity curves ``(f, 3)`` as delivered: negative values (a solve's ringing at a dim grid
+    edge) set to zero, then the maximum over all channels 1."""
+    curves = np.clip(np.asarray(sensitivity, dtype=np.float64), 0.0, None)
+    peak = float(curves.max())
+    return curves / peak if peak > 0 else curves
+
+
 def _frozen(array: Any, shape: tuple[int, ...], name: str) -> FloatArray:
     out = np.array(array, dtype=np.float64)
     if out.shape != shape:
@@ -102,11 +110,8 @@ class EstimateResult:
         return self.mapping.wavelength_rms_nm / span
 
     def physical_sensitivity(self) -> FloatArray:
-        """What ``sensitivity.csv`` holds, and what RE is scored on: negative values (a solve's
-        ringing at a dim grid edge) set to zero, then the maximum over all channels 1."""
-        curves = np.clip(np.asarray(self.sensitivity, dtype=np.float64), 0.0, None)
-        peak = float(curves.max())
-        return curves / peak if peak > 0 else curves
+        """What ``sensitivity.csv`` holds, and what RE is scored on (:func:`physical_curves`)."""
+        return physical_curves(self.sensitivity)
 
     def sensitivity_spectrum(self, name: str = "estimated sensitivity") -> MultiSpectrum:
         return MultiSpectrum(self.wavelength_nm, np.clip(self.sensitivity, 0, None), name=name)

@@ -56,11 +56,11 @@ def test_result_to_dict_is_json_safe():
     assert '"a": 1.5' in text
 
 
-def test_comparisons_score_the_curve_calib_estimate_writes(monkeypatch):
+def test_comparisons_score_the_curve_calib_estimate_writes(monkeypatch, tmp_path):
     """Negative ringing at a grid edge is clipped in sensitivity.csv; `calib compare`, `rig compare`
     and `calib synthetic` score that same curve, not the solver's raw one."""
     from calib.compare import _timed_estimate
-    from calib.outputs import physical_sensitivity
+    from calib.outputs import write_sensitivity_csv
 
     grid = DEFAULT_GRID
     raw = np.ones((grid.size, 3))
@@ -73,6 +73,9 @@ def test_comparisons_score_the_curve_calib_estimate_writes(monkeypatch):
     monkeypatch.setitem(ESTIMATION_METHODS, "ringing", ringing)
     curves, _, failure = _timed_estimate([], "ringing", grid, {})
     assert failure is None and curves is not None
-    written = physical_sensitivity(EstimateResult("ringing", grid.wavelength_nm, raw))
-    np.testing.assert_array_equal(curves, written)
+    path = write_sensitivity_csv(
+        tmp_path / "sensitivity.csv", EstimateResult("ringing", grid.wavelength_nm, raw)
+    )
+    written = np.loadtxt(path, delimiter=",", skiprows=1)[:, 1:]
+    np.testing.assert_allclose(curves, written, rtol=1e-9)
     assert curves.min() == 0.0 and curves.max() == 1.0
