@@ -110,13 +110,13 @@ def run_capture(
 
 @dataclass(frozen=True)
 class RunOptions:
-    """How a run is done: progress, signal handling, retries, and the station builder (default:
-    the one registered for the configured device kinds)."""
+    """How a run is done: progress, signal handling, retries (``None``: the runner's defaults), and
+    the station builder (callers resolve it before they create or touch the session)."""
 
-    progress: ProgressReporter | None = None
-    interrupts: InterruptController | None = None
-    retry: RetryPolicy | None = None
-    builder: StationBuilder | None = None
+    progress: ProgressReporter | None
+    interrupts: InterruptController | None
+    retry: RetryPolicy | None
+    builder: StationBuilder
 
 
 def run_on_station(
@@ -135,9 +135,8 @@ def run_on_station(
     ``after_start`` is called with the runner right after the run's start record.
     """
     config_snapshot = config.model_dump(mode="json")
-    open_builder = options.builder or resolve_builder(station_kind(config))
     try:
-        station = open_builder(config, session.transcript_sink)
+        station = options.builder(config, session.transcript_sink)
     except (DeviceError, RigError) as exc:
         _record_unopened_station(session, plan_info, config_snapshot, exc)
         raise

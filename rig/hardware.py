@@ -35,7 +35,7 @@ from rig.config import (
     SpectrometerConfig,
 )
 from rig.errors import StationUnavailable
-from rig.frame_stats import RawFrameAnalyzer, frame_exposure_s
+from rig.frame_stats import RawFrameAnalyzer
 from rig.station import Station, TranscriptFactory
 
 SPECTROMETER_MODELS = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
@@ -161,5 +161,4 @@ def open_hardware_station(
         relays,
         MonotonicClock(),
         RawFrameAnalyzer(),
-        frame_exposure=frame_exposure_s,
     )

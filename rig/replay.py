@@ -43,7 +43,7 @@ from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport
 from rig.errors import RigError, SessionFormatError
-from rig.frame_stats import RawFrameAnalyzer, frame_exposure_s
+from rig.frame_stats import RawFrameAnalyzer
 from rig.interrupts import InterruptController, ReceivedSignal
 from rig.plan import build_plan
 from rig.progress import ProgressReporter, SilentProgress
@@ -457,7 +457,6 @@ def _station(bench: Any, timeline: _Timeline) -> Station:
         bench.clock,
         RawFrameAnalyzer(),
         on_close=[bench.close],
-        frame_exposure=frame_exposure_s,  # as every real station: the stale-frame check reads it
         step_hook=timeline.step_hook,
     )
 

@@ -425,8 +425,8 @@ def run_resume(
         ``path`` is not a valid session.
     """
     session = read_session(path)
-    start = start_of(session)
-    if session.status == "complete":
+    start = start_of(session)  # NotResumable without a start record
+    if not session.resumable:
         raise NotResumable(
             f"{path} is complete; there is nothing to resume (estimate it with rig estimate)"
         )

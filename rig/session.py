@@ -224,15 +224,7 @@ class SessionWriter:
     """
 
     def __init__(self, path: Path, *, session_id: str | None = None, guard: Guard | None = None):
-        self.path = path
-        self.session_id = session_id or uuid.uuid4().hex
-        self.guard: Guard = guard or contextlib.nullcontext
-        self.run = 1
-        self._seq = 0
-        self._broken: str | None = None
-        self._transcripts: dict[str, TranscriptFile] = {}
-        self._incoming = 0
-        self.torn_moved_to: str | None = None
+        self._init_state(path, session_id or uuid.uuid4().hex, guard, run=1, seq=0)
         try:
             path.mkdir(parents=False, exist_ok=False)
             for name in DATA_DIRS:
@@ -246,6 +238,22 @@ class SessionWriter:
             raise SessionWriteError(f"session directory {path} already exists") from None
         except OSError as exc:
             raise SessionWriteError(f"cannot create session directory {path}: {exc}") from exc
+
+    def _init_state(
+        self, path: Path, session_id: str, guard: Guard | None, *, run: int, seq: int
+    ) -> None:
+        """Every attribute, for a new session (:meth:`__init__`) and a continued one
+        (:meth:`append`); the caller opens the log."""
+        self.path = path
+        self.session_id = session_id
+        self.guard: Guard = guard or contextlib.nullcontext
+        self.run = run
+        self._seq = seq
+        self._broken: str | None = None
+        self._transcripts: dict[str, TranscriptFile] = {}
+        self._incoming = 0
+        self.torn_moved_to: str | None = None
+        self._log_fd = None
 
     @classmethod
     def append(cls, session: Session, *, guard: Guard | None = None) -> SessionWriter:
@@ -263,15 +271,13 @@ class SessionWriter:
         if start is None:
             raise SessionWriteError(f"{session.path}: the log has no start record to continue")
         writer = cls.__new__(cls)
-        writer.path = session.path
-        writer.session_id = start.session_id
-        writer.guard = guard or contextlib.nullcontext
-        writer.run = session.records[-1].run + 1
-        writer._seq = len(session.records)
-        writer._broken = None
-        writer._transcripts = {}
-        writer._incoming = 0
-        writer.torn_moved_to = None
+        writer._init_state(
+            session.path,
+            start.session_id,
+            guard,
+            run=session.records[-1].run + 1,
+            seq=len(session.records),
+        )
         log = session.path / LOG_NAME
         try:
             if session.torn is not None:
@@ -654,7 +660,8 @@ def _parse_line(raw: bytes, number: int, log: Path) -> Record:
 
 @dataclass(frozen=True)
 class SessionSummary:
-    """One line of ``rig sessions``."""
+    """One line of ``rig sessions``; ``resumable`` is :attr:`Session.resumable` (never for an
+    invalid session)."""
 
     path: Path
     status: SessionStatus | Literal["invalid"]
@@ -662,12 +669,7 @@ class SessionSummary:
     plan: str | None = None
     frames: int = 0
     reason: str = ""
-    runs: int = 0
-
-    @property
-    def resumable(self) -> bool:
-        """``rig resume`` continues interrupted and failed sessions (not complete or invalid ones)."""
-        return self.status in ("interrupted", "failed") and self.started is not None
+    resumable: bool = False
 
 
 def summarise(path: Path) -> SessionSummary:
@@ -692,7 +694,7 @@ def summarise(path: Path) -> SessionSummary:
         start.plan.name if start else None,
         frames,
         reason,
-        runs,
+        session.resumable,
     )
 
 

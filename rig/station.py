@@ -22,6 +22,7 @@ from rig.analysis import FrameAnalyzer
 from rig.clock import Clock
 from rig.config import RigConfig
 from rig.errors import StationUnavailable
+from rig.frame_stats import frame_exposure_s
 from rig.steps import DeviceRole
 
 TranscriptFactory = Callable[[DeviceRole], TranscriptSink]
@@ -39,8 +40,10 @@ class Station:
 
     ``on_close`` callables run after the devices are closed (e.g. the twin stops its emulators).
     ``frame_exposure`` reads the exposure a frame file's own metadata records (``None`` when it
-    cannot tell), for the stale-frame check. ``step_hook`` is told the key of every step attempt
-    before it touches a device (the twin keys its noise by it; real hardware needs nothing).
+    cannot tell), for the stale-frame check; the default reads RAW metadata
+    (:func:`rig.frame_stats.frame_exposure_s`), ``None`` skips the check. ``step_hook`` is told the
+    key of every step attempt before it touches a device (the twin keys its noise by it; real
+    hardware needs nothing).
     """
 
     spectrometer: Spectrometer
@@ -49,7 +52,7 @@ class Station:
     clock: Clock
     analyzer: FrameAnalyzer
     on_close: list[Callable[[], None]] = field(default_factory=list)
-    frame_exposure: Callable[[Path], float | None] | None = None
+    frame_exposure: Callable[[Path], float | None] | None = frame_exposure_s
     step_hook: Callable[[str], None] | None = None
     closed: bool = False
 

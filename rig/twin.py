@@ -19,7 +19,7 @@ from typing import Any
 
 from rig.config import RigConfig
 from rig.errors import StationUnavailable
-from rig.frame_stats import RawFrameAnalyzer, frame_exposure_s
+from rig.frame_stats import RawFrameAnalyzer
 from rig.station import Station, StationBuilder, TranscriptFactory, optional_module
 
 BENCH_MODULE = "mocks.bench"
@@ -89,7 +89,6 @@ def station_of(twin: Any) -> Station:
         twin.clock,
         RawFrameAnalyzer(),
         on_close=[twin.close],
-        frame_exposure=frame_exposure_s,
         step_hook=twin.begin_step,
     )
 

@@ -47,23 +47,13 @@ def longest_measure_s(
 
     What a caller's watchdog around the call must allow, so that a silent instrument ends in the
     driver's (retryable) :class:`drivers.base.DeviceTimeout` rather than in the watchdog. Parameters
-    as for :func:`open_spectrometer` (``None``: the model's defaults).
-
-    - PR-6xx: ``M5`` (the measurement allowance), then ``D13`` (one ordinary command).
-    - CS-2000: ``MEAS,1``'s acknowledgement (one command, the 1–10 s pre-measurement inside it), the
-      longest time the instrument can announce (:data:`cs2000.LONGEST_ANNOUNCED_S`) plus the margin,
-      then ``MEDR`` for the conditions and the four spectral blocks (five commands).
+    as for :func:`open_spectrometer` (``None``: the model's defaults); each driver adds up its own
+    deadlines (:func:`pr6xx.longest_measure_s`, :func:`cs2000.longest_measure_s`).
     """
     name = canonical_model(model)
     if name.startswith("PR-"):
-        command = pr6xx.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
-        allowance = (
-            pr6xx.DEFAULT_MEASURE_TIMEOUT_S if measure_timeout_s is None else measure_timeout_s
-        )
-        return allowance + command
-    command = cs2000.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
-    margin = cs2000.DEFAULT_COMPLETION_MARGIN_S if measure_timeout_s is None else measure_timeout_s
-    return command + cs2000.LONGEST_ANNOUNCED_S + margin + 5 * command
+        return pr6xx.longest_measure_s(timeout_s, measure_timeout_s)
+    return cs2000.longest_measure_s(timeout_s, measure_timeout_s)
 
 
 def open_spectrometer(
@@ -108,20 +98,16 @@ def open_spectrometer(
         return open_pr6xx(
             name,
             port,
-            timeout_s=pr6xx.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s,
-            measure_timeout_s=(
-                pr6xx.DEFAULT_MEASURE_TIMEOUT_S if measure_timeout_s is None else measure_timeout_s
-            ),
+            timeout_s=timeout_s,
+            measure_timeout_s=measure_timeout_s,
             transcript=transcript,
             baud=baud,
         )
     return open_cs2000(
         port,
         model=name,
-        timeout_s=cs2000.DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s,
-        completion_margin_s=(
-            cs2000.DEFAULT_COMPLETION_MARGIN_S if measure_timeout_s is None else measure_timeout_s
-        ),
+        timeout_s=timeout_s,
+        completion_margin_s=measure_timeout_s,
         transcript=transcript,
         baud=baud,
     )

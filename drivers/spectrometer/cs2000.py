@@ -295,9 +295,10 @@ class Cs2000(ClosesOnExit):
         ``"CS-2000"`` or ``"CS-2000A"``; the instrument must report the same variation.
     timeout_s
         Deadline of each command (and of the ``MEAS`` acknowledgement, which follows the
-        pre-measurement).
+        pre-measurement); ``None``: :data:`DEFAULT_TIMEOUT_S`.
     completion_margin_s
-        Allowance beyond the announced measurement time for the completion line.
+        Allowance beyond the announced measurement time for the completion line; ``None``:
+        :data:`DEFAULT_COMPLETION_MARGIN_S`.
     internal_nd
         Internal ND filter for every measurement: ``"off"``, ``"on"`` or ``"auto"``.
     port
@@ -309,8 +310,8 @@ class Cs2000(ClosesOnExit):
         transport: ByteTransport,
         *,
         model: str = "CS-2000",
-        timeout_s: float = DEFAULT_TIMEOUT_S,
-        completion_margin_s: float = DEFAULT_COMPLETION_MARGIN_S,
+        timeout_s: float | None = None,
+        completion_margin_s: float | None = None,
         internal_nd: InternalNd = "auto",
         port: str | None = None,
     ) -> None:
@@ -318,8 +319,10 @@ class Cs2000(ClosesOnExit):
         self._transport = transport
         self.model = model
         self.port = port
-        self.timeout_s = timeout_s
-        self.completion_margin_s = completion_margin_s
+        self.timeout_s = DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
+        self.completion_margin_s = (
+            DEFAULT_COMPLETION_MARGIN_S if completion_margin_s is None else completion_margin_s
+        )
         self.internal_nd = internal_nd
         self._remote = False
         self._identity: DeviceIdentity | None = None
@@ -492,19 +495,33 @@ class Cs2000(ClosesOnExit):
         farewell_then_close(self.device, farewell, self._transport)
 
 
+def longest_measure_s(
+    timeout_s: float | None = None, completion_margin_s: float | None = None
+) -> float:
+    """The longest :meth:`Cs2000.measure` may take: ``MEAS,1``'s acknowledgement (one command, the
+    1–10 s pre-measurement inside it), the longest time the instrument can announce
+    (:data:`LONGEST_ANNOUNCED_S`) plus the margin, then ``MEDR`` for the conditions and the four
+    spectral blocks (five commands). Timeouts as for :class:`Cs2000` (``None``: the defaults).
+    """
+    command = DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
+    margin = DEFAULT_COMPLETION_MARGIN_S if completion_margin_s is None else completion_margin_s
+    return command + LONGEST_ANNOUNCED_S + margin + 5 * command
+
+
 def open_cs2000(
     port: str,
     *,
     model: str = "CS-2000",
-    timeout_s: float = DEFAULT_TIMEOUT_S,
-    completion_margin_s: float = DEFAULT_COMPLETION_MARGIN_S,
+    timeout_s: float | None = None,
+    completion_margin_s: float | None = None,
     internal_nd: InternalNd = "auto",
     transcript: TranscriptSink | None = None,
     baud: int | None = None,
 ) -> Cs2000:
     """Open a CS-2000/CS-2000A on ``port`` (path or pyserial URL), enter remote mode, identify it.
 
-    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS`.
+    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS`; the timeouts are as for
+    :class:`Cs2000` (``None``: the defaults).
 
     Raises
     ------

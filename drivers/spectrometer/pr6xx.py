@@ -295,9 +295,10 @@ class Pr6xx(ClosesOnExit):
     model
         ``"PR-655"`` or ``"PR-670"``; the instrument must say the same in ``D111``.
     timeout_s
-        Deadline of each command other than a measurement.
+        Deadline of each command other than a measurement; ``None``: :data:`DEFAULT_TIMEOUT_S`.
     measure_timeout_s
-        Deadline of a whole measurement, spectral reply included.
+        Deadline of a whole measurement, spectral reply included; ``None``:
+        :data:`DEFAULT_MEASURE_TIMEOUT_S`.
     port
         Where the instrument is connected (reported in its identity).
     """
@@ -307,8 +308,8 @@ class Pr6xx(ClosesOnExit):
         transport: ByteTransport,
         *,
         model: str,
-        timeout_s: float = DEFAULT_TIMEOUT_S,
-        measure_timeout_s: float = DEFAULT_MEASURE_TIMEOUT_S,
+        timeout_s: float | None = None,
+        measure_timeout_s: float | None = None,
         port: str | None = None,
     ) -> None:
         if model not in MODELS:
@@ -317,8 +318,10 @@ class Pr6xx(ClosesOnExit):
         self.model = model
         self.port = port
         self.limits = MODELS[model]
-        self.timeout_s = timeout_s
-        self.measure_timeout_s = measure_timeout_s
+        self.timeout_s = DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
+        self.measure_timeout_s = (
+            DEFAULT_MEASURE_TIMEOUT_S if measure_timeout_s is None else measure_timeout_s
+        )
         self.averages = 1
         self._remote = False
         self._identity: DeviceIdentity | None = None
@@ -500,19 +503,31 @@ class Pr6xx(ClosesOnExit):
         self._transport.write(QUIT_COMMAND)
 
 
+def longest_measure_s(
+    timeout_s: float | None = None, measure_timeout_s: float | None = None
+) -> float:
+    """The longest :meth:`Pr6xx.measure` may take: ``M5`` (the measurement allowance), then ``D13``
+    (one ordinary command). Timeouts as for :class:`Pr6xx` (``None``: the defaults).
+    """
+    command = DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s
+    allowance = DEFAULT_MEASURE_TIMEOUT_S if measure_timeout_s is None else measure_timeout_s
+    return allowance + command
+
+
 def open_pr6xx(
     model: str,
     port: str,
     *,
-    timeout_s: float = DEFAULT_TIMEOUT_S,
-    measure_timeout_s: float = DEFAULT_MEASURE_TIMEOUT_S,
+    timeout_s: float | None = None,
+    measure_timeout_s: float | None = None,
     transcript: TranscriptSink | None = None,
     pacing: Pacing = DEFAULT_PACING,
     baud: int | None = None,
 ) -> Pr6xx:
     """Open a PR-655/PR-670 on ``port`` (path or pyserial URL), enter remote mode and identify it.
 
-    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS` (the legacy RS-232 port).
+    ``baud`` overrides the line speed of :data:`SERIAL_SETTINGS` (the legacy RS-232 port); the
+    timeouts are as for :class:`Pr6xx` (``None``: the defaults).
 
     Raises
     ------

@@ -35,7 +35,7 @@ from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import open_lcus
 from drivers.relays.numato import open_numato
 from drivers.spectrometer import open_spectrometer
-from drivers.spectrometer.pr6xx import DEFAULT_MEASURE_TIMEOUT_S, open_pr6xx
+from drivers.spectrometer.pr6xx import open_pr6xx
 from drivers.transport import NO_PACING
 from mocks.bench.camera import FrameRenderer, twin_body
 from mocks.bench.lamps import PersistentLampBank, virtual_lamp
@@ -283,11 +283,7 @@ def open_twin(
                 SPECTROMETER_NAMES[spec.spectrometer_model],
                 spectrometer_port.path,
                 timeout_s=spec.spectrometer_timeout_s,
-                measure_timeout_s=(
-                    DEFAULT_MEASURE_TIMEOUT_S
-                    if spec.spectrometer_measure_timeout_s is None
-                    else spec.spectrometer_measure_timeout_s
-                ),
+                measure_timeout_s=spec.spectrometer_measure_timeout_s,
                 transcript=sink("spectrometer"),
                 pacing=NO_PACING,
             )

@@ -22,9 +22,7 @@ from drivers.lifecycle import connect_or_close
 from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import LcusRelayBoard
 from drivers.relays.numato import NumatoRelayBoard
-from drivers.spectrometer.cs2000 import DEFAULT_COMPLETION_MARGIN_S as CS2000_MARGIN_S
 from drivers.spectrometer.cs2000 import Cs2000
-from drivers.spectrometer.pr6xx import DEFAULT_MEASURE_TIMEOUT_S as PR6XX_MEASURE_S
 from drivers.spectrometer.pr6xx import MODELS as PR6XX_MODELS
 from drivers.spectrometer.pr6xx import Pr6xx
 from drivers.transport import SerialTransport
@@ -150,13 +148,12 @@ def _open_spectrometer(
     port = str(device.identity.get("port") or "")
     transport = _serial_transport(script, sink, f"{model} on {port}", port, released)
     instrument: Pr6xx | Cs2000
-    allowance = device.measure_timeout_s
     if model in PR6XX_MODELS:
         instrument = Pr6xx(
             transport,
             model=model,
             timeout_s=device.timeout_s,
-            measure_timeout_s=PR6XX_MEASURE_S if allowance is None else allowance,
+            measure_timeout_s=device.measure_timeout_s,
             port=port,
         )
     elif model.startswith("CS-2000"):
@@ -164,7 +161,7 @@ def _open_spectrometer(
             transport,
             model=model,
             timeout_s=device.timeout_s,
-            completion_margin_s=CS2000_MARGIN_S if allowance is None else allowance,
+            completion_margin_s=device.measure_timeout_s,
             port=port,
         )
     else:

@@ -208,11 +208,13 @@ class FakeCamera:
         self.real_time_download_s: float | None = None
         #: The serial number the body reports (another body: another serial).
         self.serial = "C1"
+        #: Where the body reports it is connected (a replug elsewhere: another port).
+        self.port = "fake:usb"
 
     def identify(self) -> DeviceIdentity:
         self.io.enter("identify")
         self.io.leave("identify")
-        return DeviceIdentity("camera", "FakeCam", serial=self.serial, port="fake:usb")
+        return DeviceIdentity("camera", "FakeCam", serial=self.serial, port=self.port)
 
     def list_settings(self) -> dict[str, SettingInfo]:
         return {name: SettingInfo(name, value) for name, value in self.settings.items()}

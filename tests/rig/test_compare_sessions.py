@@ -8,6 +8,7 @@ import math
 import re
 import shutil
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 
@@ -120,6 +121,10 @@ def test_a_session_without_the_twins_truth_is_refused(
     assert len(error.splitlines()) == 1 and not out.exists()
 
 
+def _no_estimate(*args: object, **kwargs: object) -> NoReturn:
+    raise AssertionError("a session was estimated before every session was checked")
+
+
 def test_a_tampered_frame_or_a_foreign_truth_is_refused(
     twin_session: Path,
     tmp_path: Path,
@@ -133,6 +138,7 @@ def test_a_tampered_frame_or_a_foreign_truth_is_refused(
     (session / frame).write_bytes(bytes(data))
     out = tmp_path / "cmp"
     # The good session first: every session is checked before anything is estimated.
+    monkeypatch.setattr("rig.compare.estimate_offline", _no_estimate)
     arguments = ["compare", str(twin_session), str(session), "--out", str(out), "-q"]
     assert run_cli(arguments, monkeypatch) == 2
     error = capsys.readouterr().err

@@ -208,6 +208,7 @@ class TestStatus:
             ("c-garbage", "invalid"),
         ]
         assert summaries[0].frames == 1 and summaries[0].plan == "standard_capture"
+        assert [s.resumable for s in summaries] == [False, True, False]
         assert summaries[1].reason == "no stop record (crashed or killed)"
         assert "line 1" in summaries[2].reason
 

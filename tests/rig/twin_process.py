@@ -1,9 +1,9 @@
-"""A ``rig`` command in a child process on the digital twin, with a slow capture to interrupt.
+"""``rig capture`` in a child process on the digital twin, with a slow capture to interrupt.
 
-Usage: ``python -m tests.rig.twin_process CONFIG SLOW_CAPTURE_S [RIG ARGUMENTS…]``. The twin's second
-capture takes SLOW_CAPTURE_S of wall time (a ``slow`` camera fault), so a test that sees the first
-bracket frame in the log can interrupt the run while a lamp is on. The relays keep their state in
-the configuration's ``devices.relays.state_file``. Without RIG ARGUMENTS it runs ``rig capture``.
+Usage: ``python -m tests.rig.twin_process CONFIG SLOW_CAPTURE_S``. The twin's second capture takes
+SLOW_CAPTURE_S of wall time (a ``slow`` camera fault), so a test that sees the first bracket frame
+in the log can interrupt the run while a lamp is on. The relays keep their state in the
+configuration's ``devices.relays.state_file``.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from rig.twin import twin_station_builder
 
 
 def main() -> None:
-    config, slow_capture_s, *arguments = sys.argv[1:]
+    config, slow_capture_s = sys.argv[1:]
     slow = CameraFault("slow", call="capture", skip=1, delay_s=float(slow_capture_s))
     station.STATION_BUILDERS["twin"] = twin_station_builder(faults=TwinFaults(camera=[slow]))
-    sys.argv = ["rig", *(arguments or ["capture"]), "--config", config, "--quiet"]
+    sys.argv = ["rig", "capture", "--config", config, "--quiet"]
     cli.main()
 
 
