@@ -23,7 +23,6 @@ spectral sensitivity functions for digital color cameras?", WACV.
 from __future__ import annotations
 
 import hashlib
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -216,12 +215,11 @@ def typical_distance(
     with the same ``groups`` label (a camera and its perturbed variants) are left out together.
     NaN with fewer than 3 cameras.
     """
-    labels = [_VARIANT_SUFFIX.sub("", name) for name in groups]
-    if len(set(labels)) < 3:
+    if len(set(groups)) < 3:
         return float("nan")
     distances: list[float] = []
-    for label in dict.fromkeys(labels):
-        inside = np.array([other == label for other in labels])
+    for label in dict.fromkeys(groups):
+        inside = np.array([other == label for other in groups])
         others = curves[~inside]
         covariance = np.stack([np.atleast_2d(np.cov(others[:, :, c].T)) for c in range(3)])
         prior = shrunk_prior(grid, others.mean(axis=0), covariance, weights)
@@ -229,10 +227,8 @@ def typical_distance(
     return float(np.median(distances))
 
 
-#: How :func:`fallback_camera_basis` names a perturbed copy, and how it is recognised (the copy
-#: is the same camera).
+#: How :func:`fallback_camera_basis` names a perturbed copy (of the same camera: same group).
 _VARIANT_NAME = "{camera} variant {index}"
-_VARIANT_SUFFIX = re.compile(r" variant \d+$")
 
 
 def whitening(covariance: FloatArray, relative_floor: float = 1e-10) -> FloatArray:
@@ -290,8 +286,7 @@ def _content_hash(
     digest = hashlib.sha256()
     digest.update(f"{_CACHE_FORMAT}|{grid}|{n_vectors}|{curves.shape}".encode())
     # Which curves are one camera decides the typical distance (leave-one-camera-out).
-    labels = [_VARIANT_SUFFIX.sub("", name) for name in groups]
-    digest.update("|".join(str(labels.index(label)) for label in labels).encode())
+    digest.update("|".join(str(groups.index(label)) for label in groups).encode())
     digest.update(np.ascontiguousarray(curves, dtype="<f8").tobytes())
     return digest.hexdigest()
 
@@ -332,6 +327,7 @@ def camera_basis(
     n_vectors: int = DEFAULT_N_VECTORS,
     source: str = "custom",
     camera_names: Sequence[str] | None = None,
+    groups: Sequence[str] | None = None,
     cache: bool = True,
     cache_dir: Path | None = None,
 ) -> CameraBasis:
@@ -350,6 +346,10 @@ def camera_basis(
         Where the cameras come from (recorded in results).
     camera_names
         Names of the cameras (defaults to the spectra's names).
+    groups
+        Which camera each curve belongs to, one label per curve: curves with the same label (a
+        camera and its perturbed variants) are left out together for
+        :attr:`CameraBasis.typical_distance`. Defaults to ``camera_names``.
     cache, cache_dir
         Cache the result as ``<cache_dir>/bases/<hash>.npz`` (default: :func:`default_cache_dir`).
 
@@ -372,7 +372,11 @@ def camera_basis(
                 cameras if isinstance(cameras, Sequence) else range(n_cameras)
             )
         ]
-    key = _content_hash(curves, grid, n_vectors, camera_names)
+    labels = list(camera_names if groups is None else groups)
+    if len(labels) != n_cameras:
+        what = "camera names" if groups is None else "group labels"
+        raise InputError(f"{len(labels)} {what} for {n_cameras} cameras", source="basis cameras")
+    key = _content_hash(curves, grid, n_vectors, labels)
     path = (cache_dir or default_cache_dir()) / "bases" / f"{key}.npz"
     arrays = _load_cached(path) if cache else None
     if arrays is None:
@@ -399,7 +403,7 @@ def camera_basis(
             ),
         }
         arrays["typical_distance"] = np.array(
-            typical_distance(curves, arrays["shrinkage"], grid, camera_names)
+            typical_distance(curves, arrays["shrinkage"], grid, labels)
         )
         if cache:
             _store_cached(path, arrays)
@@ -572,12 +576,14 @@ def fallback_camera_basis(
     rng = np.random.default_rng(seed)
     stack: list[FloatArray] = []
     names: list[str] = []
+    groups: list[str] = []
     for camera in bases:
         stack.append(camera.resample(grid, "interpolate", out_of_range="zero").values)
         names.append(camera.name)
         for index in range(variants_per_curve):
             stack.append(_perturbed(camera, grid, rng))
             names.append(_VARIANT_NAME.format(camera=camera.name, index=index + 1))
+        groups.extend([camera.name] * (variants_per_curve + 1))
     label = (
         f"colour-science built-ins + perturbations ({len(bases)} curves × {variants_per_curve + 1})"
     )
@@ -589,6 +595,7 @@ def fallback_camera_basis(
         n_vectors=n_vectors,
         source=label,
         camera_names=names,
+        groups=groups,
         cache=cache,
         cache_dir=cache_dir,
     )

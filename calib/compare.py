@@ -475,19 +475,34 @@ class CompareRow:
 
 def run_scene(scene: CompareScene, adapter: SyntheticAdapter, grid: WavelengthGrid) -> CompareRow:
     """Run one adapter on one scene, timing only the estimate call."""
-    observations, options = adapter.build(scene)
+    return _run_adapter(
+        adapter, adapter.build(scene), grid, scene.camera, scene.noise, scene.repeat, scene.truth
+    )
+
+
+def _run_adapter(
+    adapter: SyntheticAdapter | GratingAdapter,
+    inputs: tuple[list[Observation], dict[str, Any]],
+    grid: WavelengthGrid,
+    camera: str,
+    noise: float,
+    repeat: int,
+    truth: FloatArray,
+) -> CompareRow:
+    """The row of one adapter on its built ``inputs`` (the scene's ``truth`` scores it)."""
+    observations, options = inputs
     curves, elapsed, failure = _timed_estimate(observations, adapter.method, grid, options)
     return CompareRow(
-        scene.camera,
+        camera,
         adapter.label,
         adapter.method,
-        scene.noise,
-        scene.repeat,
-        float("nan") if curves is None else relative_error(curves, scene.truth),
+        noise,
+        repeat,
+        float("nan") if curves is None else relative_error(curves, truth),
         elapsed,
         failure=failure,
         estimate=curves,
-        truth=scene.truth,
+        truth=truth,
     )
 
 
@@ -721,19 +736,8 @@ def run_grating_comparison(
     rows: list[CompareRow] = []
     for scene in source.scenes():
         for adapter in adapters:
-            observations, options = adapter.build(scene)
-            curves, elapsed, failure = _timed_estimate(observations, adapter.method, grid, options)
-            row = CompareRow(
-                scene.label,
-                adapter.label,
-                adapter.method,
-                float("nan"),
-                0,
-                float("nan") if curves is None else relative_error(curves, scene.truth),
-                elapsed,
-                failure=failure,
-                estimate=curves,
-                truth=scene.truth,
+            row = _run_adapter(
+                adapter, adapter.build(scene), grid, scene.label, float("nan"), 0, scene.truth
             )
             rows.append(row)
             if progress is not None:

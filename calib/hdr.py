@@ -600,6 +600,7 @@ def merge_bracket(
     progress: ProgressCallback | None = None,
     region: PlaneRegion | RegionChooser | None = None,
     unpacker: Unpacker | None = None,
+    plan: DecodePlan | None = None,
 ) -> HdrImage:
     """Merge RAW frames of one scene at different exposure times into an :class:`HdrImage`.
 
@@ -630,8 +631,11 @@ def merge_bracket(
         merge then costs the region, not the frame (LibRaw still unpacks every file); the image
         records where the region lies (``region_origin_px``, ``full_sensor_shape_px``).
     unpacker
-        Unpacks the files ahead, shared with other brackets (:func:`decode_order` gives this
-        bracket's order); by default one of the bracket's own.
+        Unpacks the files ahead, shared with other brackets (the :attr:`DecodePlan.paths` of
+        :func:`decode_order` are this bracket's order); by default one of the bracket's own.
+    plan
+        These files' metadata and decode order from :func:`decode_order` (called with the same
+        files and exposure times), so that the metadata is not read again; read here when ``None``.
 
     Notes
     -----
@@ -657,15 +661,22 @@ def merge_bracket(
         raise InputError("no frames to merge", source="bracket")
     if not 0.0 < prediction_fraction <= 1.0:
         raise ValueError(f"prediction_fraction must be in (0, 1], got {prediction_fraction}")
-    light_meta = _scan(frames, exposure_s, "frames")
-    dark_meta = _scan(darks, dark_exposure_s, "dark frames")
-    reference = light_meta[0]
-    for meta in light_meta[1:]:
-        _check_metadata(reference, meta, check_aperture=True)
-    for meta in dark_meta:
-        _check_metadata(reference, meta, check_aperture=False)
-    ordered = sorted(light_meta, key=lambda m: -m.exposure_s)
-    plan = _DecodePlan.build(ordered, _group_darks(dark_meta), estimate_noise=noise_model is None)
+    estimate_noise = noise_model is None
+    if plan is None:
+        plan = decode_order(
+            frames,
+            darks=darks,
+            exposure_s=exposure_s,
+            dark_exposure_s=dark_exposure_s,
+            estimate_noise=estimate_noise,
+        )
+    elif [m.path for m in plan.frames] != [Path(p) for p in frames] or [
+        m.path for m in plan.darks
+    ] != [Path(p) for p in darks]:
+        raise ValueError("the decode plan was made for other files than these frames and darks")
+    plan = plan.replanned(estimate_noise=estimate_noise)
+    reference = plan.frames[0]
+    ordered = plan.ordered
     settings = _MergeSettings(
         prediction_fraction=prediction_fraction,
         near_black_sigma=near_black_sigma,
@@ -678,7 +689,7 @@ def merge_bracket(
         else _RegionHolder(region=_checked_region(region))
     )
     merger = _Merger(ordered, plan, settings, noise_model, progress, pool, holder)
-    source = unpacker or Unpacker([path for path, _, _ in plan.schedule])
+    source = unpacker or Unpacker(plan.paths)
     decoded = _prefetch(plan.schedule, plan.first_light, saturation_fraction, pool, holder, source)
     try:
         for planes, (role, index) in zip(decoded, plan.roles, strict=True):
@@ -700,15 +711,18 @@ def decode_order(
     exposure_s: Sequence[float] | None = None,
     dark_exposure_s: Sequence[float] | None = None,
     estimate_noise: bool = True,
-) -> list[Path]:
-    """The order in which :func:`merge_bracket` decodes these files (to unpack them ahead).
+) -> DecodePlan:
+    """The order in which :func:`merge_bracket` decodes these files (to unpack them ahead), with
+    their metadata: pass it to :func:`merge_bracket` (``plan=``) so that it is read once.
 
-    ``estimate_noise``: no noise model will be given.
+    ``estimate_noise``: no noise model will be given. The arguments are those of
+    :func:`merge_bracket`.
     """
-    ordered = sorted(_scan(frames, exposure_s, "frames"), key=lambda m: -m.exposure_s)
-    groups = _group_darks(_scan(darks, dark_exposure_s, "dark frames"))
-    plan = _DecodePlan.build(ordered, groups, estimate_noise=estimate_noise)
-    return [path for path, _, _ in plan.schedule]
+    return DecodePlan.build(
+        _scan(frames, exposure_s, "frames"),
+        _scan(darks, dark_exposure_s, "dark frames"),
+        estimate_noise=estimate_noise,
+    )
 
 
 def _checked_region(region: PlaneRegion | None) -> PlaneRegion | None:
@@ -738,9 +752,23 @@ def _scan(
 
 
 @dataclass(frozen=True)
-class _DecodePlan:
-    """In which order to decode what: each dark group right before its first light frame."""
+class DecodePlan:
+    """A bracket's files with their metadata (read once), and in which order
+    :func:`merge_bracket` decodes them: longest exposure first (the second-longest first when the
+    noise model is estimated), each dark group right before its first light frame.
 
+    Attributes
+    ----------
+    frames, darks
+        The light and dark frames' metadata, in the order given.
+    estimate_noise
+        Whether the merge estimates the noise model (keeps the green pairs' difference).
+    """
+
+    frames: tuple[RawMetadata, ...]
+    darks: tuple[RawMetadata, ...]
+    estimate_noise: bool
+    ordered: tuple[RawMetadata, ...]  # the light frames, longest exposure first
     schedule: tuple[tuple[Path, float, bool], ...]  # (path, exposure, keep green difference)
     roles: tuple[tuple[str, int], ...]  # ("dark", group) or ("light", index into ordered)
     groups: tuple[_DarkGroup, ...]
@@ -748,8 +776,16 @@ class _DecodePlan:
 
     @classmethod
     def build(
-        cls, ordered: Sequence[RawMetadata], groups: Sequence[_DarkGroup], *, estimate_noise: bool
-    ) -> _DecodePlan:
+        cls, frames: Sequence[RawMetadata], darks: Sequence[RawMetadata], *, estimate_noise: bool
+    ) -> DecodePlan:
+        """The plan of these files; raises :class:`InputError` as :func:`merge_bracket` does
+        when they are not from one camera with the same settings or a dark frame is missing."""
+        for meta in frames[1:]:
+            _check_metadata(frames[0], meta, check_aperture=True)
+        for meta in darks if frames else ():
+            _check_metadata(frames[0], meta, check_aperture=False)
+        ordered = sorted(frames, key=lambda m: -m.exposure_s)
+        groups = _group_darks(darks)
         group_of_light = tuple(
             groups.index(_matching_dark(groups, meta)) if groups else None for meta in ordered
         )
@@ -768,7 +804,27 @@ class _DecodePlan:
                     roles.append(("dark", group))
             schedule.append((ordered[index].path, ordered[index].exposure_s, estimate_noise))
             roles.append(("light", index))
-        return cls(tuple(schedule), tuple(roles), tuple(groups), group_of_light)
+        return cls(
+            tuple(frames),
+            tuple(darks),
+            estimate_noise,
+            tuple(ordered),
+            tuple(schedule),
+            tuple(roles),
+            tuple(groups),
+            group_of_light,
+        )
+
+    def replanned(self, *, estimate_noise: bool) -> DecodePlan:
+        """The plan of the same files for a merge that estimates the noise model, or not."""
+        if estimate_noise == self.estimate_noise:
+            return self
+        return DecodePlan.build(self.frames, self.darks, estimate_noise=estimate_noise)
+
+    @property
+    def paths(self) -> list[Path]:
+        """Every file in decode order (for an :class:`Unpacker`)."""
+        return [path for path, _, _ in self.schedule]
 
     @property
     def first_light(self) -> int:
@@ -782,7 +838,7 @@ class _Merger:
     def __init__(
         self,
         ordered: Sequence[RawMetadata],
-        plan: _DecodePlan,
+        plan: DecodePlan,
         settings: _MergeSettings,
         noise_model: NoiseModel | None,
         progress: ProgressCallback | None,

@@ -73,9 +73,45 @@ def test_a_camera_s_perturbed_variants_are_left_out_with_it():
     grid = DEFAULT_GRID
     cameras = rng.uniform(0.1, 1.0, size=(6, grid.size, 3))
     twins = np.concatenate([cameras, cameras + rng.normal(0, 1e-3, cameras.shape)])
-    names = [f"camera {i}" for i in range(6)] + [f"camera {i} variant 1" for i in range(6)]
+    groups = [f"camera {i}" for i in range(6)] * 2
     weights = np.array([ledoit_wolf_shrinkage(twins[:, :, c]) for c in range(3)])
-    grouped = typical_distance(twins, weights, grid, names)
-    apart = typical_distance(twins, weights, grid, [f"{n} (own)" for n in names])
+    grouped = typical_distance(twins, weights, grid, groups)
+    apart = typical_distance(twins, weights, grid, [f"curve {i}" for i in range(12)])
     # Left out alone, each curve still has its near-copy in the prior: it looks typical.
     assert grouped > 3 * apart
+
+
+def test_camera_groups_come_from_the_basis_not_from_names(tmp_path):
+    rng = np.random.default_rng(1)
+    grid = DEFAULT_GRID
+    cameras = rng.uniform(0.1, 1.0, size=(6, grid.size, 3))
+    twins = np.concatenate([cameras, cameras + rng.normal(0, 1e-3, cameras.shape)])
+    # real cameras whose names merely end like a fallback variant's stay apart
+    names = [f"camera {i}" for i in range(6)] + [f"camera {i} variant 1" for i in range(6)]
+    by_name = camera_basis(twins, n_vectors=4, camera_names=names, cache_dir=tmp_path)
+    apart = camera_basis(twins, n_vectors=4, camera_names=[f"c{i}" for i in range(12)], cache=False)
+    assert by_name.typical_distance == pytest.approx(apart.typical_distance)
+    grouped = camera_basis(
+        twins, n_vectors=4, camera_names=names, groups=names[:6] * 2, cache_dir=tmp_path
+    )
+    assert grouped.content_hash != by_name.content_hash
+    assert grouped.typical_distance > 3 * by_name.typical_distance
+    with pytest.raises(InputError, match="5 group labels for 12 cameras"):
+        camera_basis(twins, n_vectors=4, groups=names[:5], cache=False)
+
+
+def test_fallback_variants_are_grouped_with_their_camera(monkeypatch):
+    import calib.bases
+
+    seen = []
+    original = calib.bases.typical_distance
+
+    def spy(curves, weights, grid, groups):
+        seen.append(list(groups))
+        return original(curves, weights, grid, groups)
+
+    monkeypatch.setattr(calib.bases, "typical_distance", spy)
+    basis = fallback_camera_basis(variants_per_curve=2, cache=False)
+    (groups,) = seen
+    assert groups == [name.split(" variant ")[0] for name in basis.camera_names]
+    assert len(set(groups)) * 3 == len(groups)

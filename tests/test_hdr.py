@@ -115,13 +115,37 @@ def test_frame_order_does_not_matter(bracket: list[Path], merged: HdrImage) -> N
 
 def test_a_shared_unpacker_gives_the_same_merge(bracket: list[Path], merged: HdrImage) -> None:
     # the unpacker's order need not be the merge's: files out of order are unpacked when taken
-    with Unpacker([*reversed(bracket), *decode_order(bracket)]) as unpacker:
+    with Unpacker([*reversed(bracket), *decode_order(bracket).paths]) as unpacker:
         first = merge_bracket(bracket, unpacker=unpacker)
         again = merge_bracket(bracket, unpacker=unpacker)
     for image in (first, again):
         np.testing.assert_array_equal(image.radiance, merged.radiance)
         np.testing.assert_array_equal(image.variance, merged.variance)
-    assert decode_order(bracket, estimate_noise=False) == [record.path for record in merged.frames]
+    order = decode_order(bracket, estimate_noise=False).paths
+    assert order == [record.path for record in merged.frames]
+
+
+def test_a_plan_reads_each_file_s_metadata_once(
+    bracket: list[Path], merged: HdrImage, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from calib.raw import read_raw_metadata
+
+    read: list[Path] = []
+
+    def counting(path: Any, **kwargs: Any) -> Any:
+        read.append(Path(path))
+        return read_raw_metadata(path, **kwargs)
+
+    monkeypatch.setattr("calib.hdr.read_raw_metadata", counting)
+    # planned for a given noise model, merged without one: the plan is rebuilt, not re-read
+    plan = decode_order(bracket, estimate_noise=False)
+    with Unpacker(plan.paths) as unpacker:
+        image = merge_bracket(bracket, unpacker=unpacker, plan=plan)
+    assert sorted(read) == sorted(bracket)
+    np.testing.assert_array_equal(image.radiance, merged.radiance)
+    np.testing.assert_array_equal(image.variance, merged.variance)
+    with pytest.raises(ValueError, match="other files"):
+        merge_bracket(bracket[:2], plan=plan)
 
 
 def test_frames_after_the_first_are_cut_to_the_chosen_region(bracket: list[Path]) -> None:

@@ -16,7 +16,13 @@ import pytest
 from calib.errors import InputError
 from calib.mapping import QuadraticMapping
 from calib.offline import LampImages, OfflineEstimate, OfflineSettings, estimate_offline
-from calib.offline.brackets import BracketProfiles, extend_orders, shift_geometry
+from calib.offline.brackets import (
+    BROADBAND_KINDS,
+    BracketProfiles,
+    _decode_plans,
+    extend_orders,
+    shift_geometry,
+)
 from tests.rendered_capture import GRATING, Capture, render_capture, shared_capture
 
 #: The estimator's own target at 1 % noise with the mapping estimated (issue 2: LED+Flu ≤ 3.5 ×10⁻²);
@@ -95,6 +101,22 @@ def test_dark_frames_are_matched_and_recorded(capture: Capture, estimate: Offlin
     roles = {record.role for record in estimate.provenance.inputs}
     assert roles == {"frame", "dark", "spectrum"}
     assert all(len(record.sha256) == 64 for record in estimate.provenance.inputs)
+
+
+def test_lamps_of_one_camera_share_the_noise_model_they_are_planned_to_share(
+    capture: Capture, estimate: OfflineEstimate
+) -> None:
+    # the decode order and the merge agree on which lamps estimate their own noise model (the
+    # first lamp given is broadband, so it is merged first)
+    assert capture.lamps[0].kind in BROADBAND_KINDS
+    plans = _decode_plans(_inputs(capture))
+    assert [plan.estimate_noise for plan in plans] == [True] + [False] * (len(plans) - 1)
+    sources = []
+    for extraction in _profiles(estimate).extractions:
+        noise = extraction.merged.image.noise_model
+        assert noise is not None
+        sources.append("shared with another lamp" in noise.source)
+    assert sources == [False] + [True] * (len(sources) - 1)
 
 
 def test_profiles_and_direct_agree_with_the_renderer_within_their_noise(

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.errors import EstimationError, InputError
-from calib.hdr import HdrImage, Unpacker, decode_order, merge_bracket
+from calib.hdr import DecodePlan, HdrImage, Unpacker, decode_order, merge_bracket
 from calib.offline.inputs import LampImages
 from calib.profiles import (
     DetectionError,
@@ -41,7 +41,7 @@ from calib.profiles import (
     extract,
 )
 from calib.profiles.geometry import rectangle_corners
-from calib.raw import PlaneRegion, RawPlanes, read_raw_metadata
+from calib.raw import PlaneRegion, RawPlanes
 from calib.sensor_noise import NoiseModel
 
 FloatArray = NDArray[np.float64]
@@ -351,12 +351,13 @@ def merge_lamp(
     frame_done: FrameCallback | None = None,
     noise_model: NoiseModel | None = None,
     unpacker: Unpacker | None = None,
+    plan: DecodePlan | None = None,
 ) -> HdrImage:
     """Merge one lamp's bracket (darks subtracted), over ``region`` when given.
 
     ``noise_model``: the camera's gain and read noise when already known (else estimated from
-    the bracket's green pairs). ``unpacker``: shared with the other lamps (see
-    :func:`calib.hdr.merge_bracket`).
+    the bracket's green pairs). ``unpacker``: shared with the other lamps; ``plan``: the lamp's
+    files read ahead (see :func:`calib.hdr.merge_bracket`).
     """
 
     def progress(done: int, total: int, path: Path) -> None:
@@ -373,6 +374,7 @@ def merge_lamp(
             region=region,
             noise_model=noise_model,
             unpacker=unpacker,
+            plan=plan,
         )
     except EstimationError as exc:  # the frames hold too little signal to measure their noise
         raise InputError(
@@ -458,10 +460,11 @@ def bracket_profiles(
             stage(text)
 
     # LibRaw unpacks the next lamp's first frames while one lamp's last frames merge and its
-    # geometry is detected (the order assumes the lamps share the first lamp's noise model)
-    with Unpacker(_decode_order([lamps[index] for index in order])) as unpacker:
+    # geometry is detected
+    plans = _decode_plans([lamps[index] for index in order])
+    with Unpacker([path for plan in plans for path in plan.paths]) as unpacker:
         announce(f"merging {first.name}")
-        image = merge_lamp(first, chooser, frame_done, unpacker=unpacker)
+        image = merge_lamp(first, chooser, frame_done, unpacker=unpacker, plan=plans[0])
         region = chooser.region if chooser is not None else None
         if chooser is not None and chooser.note:
             notes.append(chooser.note)
@@ -483,15 +486,15 @@ def bracket_profiles(
             )
             region = None
             announce(f"merging {first.name} again (whole frames)")
-            image = merge_lamp(first, None, None)
+            image = merge_lamp(first, None, None, plan=plans[0])
             geometry = _detect(image)
         merged[first.name] = MergedLamp(first, image)
-        for index in order[1:]:
+        for index, plan in zip(order[1:], plans[1:], strict=True):
             lamp = lamps[index]
             announce(f"merging {lamp.name}")
             merged[lamp.name] = MergedLamp(
                 lamp,
-                merge_lamp(lamp, region, frame_done, _same_camera_noise(image, lamp), unpacker),
+                merge_lamp(lamp, region, frame_done, _shared_noise(image, plan), unpacker, plan),
             )
     _check_same_sensor(list(merged.values()))
     announce("extracting the profiles")
@@ -548,33 +551,43 @@ def bracket_profiles(
     )
 
 
-def _decode_order(lamps: Sequence[LampImages]) -> list[Path]:
-    """Every lamp's files in the order :func:`bracket_profiles` will decode them."""
-    return [
-        path
-        for position, lamp in enumerate(lamps)
-        for path in decode_order(
+def _decode_plans(lamps: Sequence[LampImages]) -> list[DecodePlan]:
+    """Every lamp's files (their metadata read once) in the order :func:`bracket_profiles` will
+    decode them: the first lamp estimates the noise model, and every other lamp taken with the same
+    camera at the same ISO shares it (:func:`_shared_noise`); the others estimate their own.
+    """
+    plans = [
+        decode_order(
             lamp.images,
             darks=lamp.darks,
             exposure_s=lamp.exposure_s,
             dark_exposure_s=lamp.dark_exposure_s if lamp.darks else None,
-            estimate_noise=position == 0,
         )
+        for lamp in lamps
+    ]
+    return [
+        plans[0],
+        *(plan.replanned(estimate_noise=not _same_camera(plans[0], plan)) for plan in plans[1:]),
     ]
 
 
-def _same_camera_noise(reference: HdrImage, lamp: LampImages) -> NoiseModel | None:
-    """The first lamp's noise model when ``lamp`` was taken by the same camera at the same ISO.
+def _same_camera(reference: DecodePlan, plan: DecodePlan) -> bool:
+    """Both brackets were taken by one known camera at one known ISO.
 
     Gain and read noise belong to the camera and its ISO, not to the scene: estimating them once
     saves a photon-transfer fit per lamp. (Dark frames still subtract per lamp.)
     """
-    if reference.noise_model is None or not lamp.images:
-        return None
-    metadata = read_raw_metadata(lamp.images[0])
-    same_camera = reference.camera == metadata.camera != "unknown camera"
-    same_iso = reference.iso is not None and reference.iso == metadata.iso
-    if not (same_camera and same_iso):
+    if not reference.frames or not plan.frames:
+        return False
+    first, other = reference.frames[0], plan.frames[0]
+    same_camera = first.camera == other.camera != "unknown camera"
+    same_iso = first.iso is not None and first.iso == other.iso
+    return same_camera and same_iso
+
+
+def _shared_noise(reference: HdrImage, plan: DecodePlan) -> NoiseModel | None:
+    """The first lamp's noise model for a lamp planned to share it (:func:`_decode_plans`)."""
+    if plan.estimate_noise or reference.noise_model is None:
         return None
     return NoiseModel(
         reference.noise_model.gain_dn_per_electron,
