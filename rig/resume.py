@@ -40,7 +40,7 @@ from collections.abc import Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calib.spectra import read_spectrum_csv
+from calib.core.spectra import read_spectrum_csv
 from drivers.base import DeviceIdentity
 from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig

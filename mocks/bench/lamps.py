@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from calib.observations import LAMP_KINDS, LampKind
-from calib.spectra import Spectrum
+from calib.core.observations import LAMP_KINDS, LampKind
+from calib.core.spectra import Spectrum
 from mocks.bench.spec import LampSpec, TwinSpecError
 from mocks.lamps import Clock, LampBank, VirtualLamp
 
