@@ -86,8 +86,8 @@ def _render(
     directory: Path, frames: int, width: int, height: int, compression: str
 ) -> dict[str, Any]:
     from calib.core.datasets import colour_science_cameras, find_camera
+    from calib.core.lamp_specs import colour_lamp
     from calib.core.mapping import GratingGeometry
-    from calib.evaluation.synthetic import colour_lamp
     from mocks.forward_scene import write_capture
     from mocks.scene import SceneLayout, SensorModel
 

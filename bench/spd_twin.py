@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from calib.cli.spd import SpdRequest, measure_spd
+from calib.core.lamp_specs import colour_lamp
 from calib.core.spectra import Spectrum, write_csv
-from calib.evaluation.synthetic import colour_lamp
 from calib.spd.alvarez2014 import spd_rms_error
 from calib.spd.light_sources import colour_library, correlated_colour_temperature
 

@@ -15,9 +15,10 @@ import argparse
 import numpy as np
 
 from calib.core.datasets import makabe2025_split
+from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID
-from calib.evaluation.synthetic import colour_lamp, render_scene
+from calib.evaluation.synthetic import render_scene
 from calib.methods.makabe2025 import estimate_makabe2025
 from calib.model.bases import camera_basis
 

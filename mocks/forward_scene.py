@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
-from numpy.typing import NDArray
 
 from calib.core.observations import LampKind
 from calib.core.spectra import MultiSpectrum, Spectrum, write_csv
@@ -43,8 +42,6 @@ from mocks.scene import (
     render_mosaic_radiance,
     write_bracket,
 )
-
-FloatArray = NDArray[np.float64]
 
 
 def first_order_signal(

@@ -42,9 +42,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from calib.core.arrays import FloatArray
 from mocks.dng import DngMetadata, write_dng
 
-FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
 ShotNoise = Literal["poisson", "gaussian", "none"]
 

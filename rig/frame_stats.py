@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from calib.core.arrays import BoolArray, FloatArray
 from calib.core.errors import InputError
 from calib.image.hdr import FrameRecord, HdrImage
 from calib.image.profiles import DetectionError, DiffractionGeometry, detect_geometry
@@ -42,9 +43,6 @@ from calib.image.profiles.geometry import rectangle_window, sample_positions, to
 from calib.image.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw, read_raw_metadata
 from rig.analysis import FrameStats
 from rig.errors import FrameAnalysisError
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: Bins along the band are this many sensor pixels long.
 BAND_BIN_PX = 4.0

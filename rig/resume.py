@@ -40,6 +40,7 @@ from collections.abc import Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from calib.core.arrays import FloatArray
 from calib.core.spectra import read_spectrum_csv
 from drivers.base import DeviceIdentity
 from rig.capture import RunOptions, run_on_station
@@ -59,7 +60,6 @@ from rig.steps import (
     ConfigureSpectrometer,
     DarkFrame,
     ExposureSet,
-    FloatArray,
     KeepLampTimeline,
     MeasureSpectrum,
     SetExposure,

@@ -19,12 +19,12 @@ from typing import Any, cast
 
 import numpy as np
 
+from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import GratingGeometry
 from calib.core.metrics import mapping_relative_error, relative_error
 from calib.core.observations import LampKind
 from calib.core.result import EstimateResult
 from calib.core.spectra import Spectrum
-from calib.evaluation.synthetic import colour_lamp
 from calib.model.bases import CameraBasis
 from calib.model.forward import render_observation
 from mocks.forward_scene import RenderedLamp, write_capture

@@ -15,18 +15,17 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
+from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import GratingGeometry
 from calib.core.spectra import MultiSpectrum, Spectrum, write_csv
-from calib.evaluation.synthetic import colour_lamp, random_efficiency
+from calib.evaluation.synthetic import random_efficiency
 from calib.image.hdr import merge_bracket
 from calib.image.profiles import DiffractionGeometry, detect_geometry, extract
 from calib.model.forward import render_observation
 from calib.spd.alvarez2014 import DiffractedProfile, source_kernel_from_image
 from mocks.scene import SceneLayout, SceneSignal, SensorModel, render_mosaic_radiance, write_bracket
-
-FloatArray = NDArray[np.float64]
 
 #: 500 lines/mm in front of a 14 mm lens on 4 µm pixels: 400–700 nm span ~600 px (0.5 nm/px).
 GRATING = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=14.0, pixel_pitch_um=4.0)

@@ -16,9 +16,9 @@ import pytest
 
 from calib.cli.spd import SpdMeasurement, SpdRequest, measure_spd
 from calib.core.errors import EstimationError, InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import QuadraticMapping
 from calib.core.spectra import MultiSpectrum, Spectrum
-from calib.evaluation.synthetic import colour_lamp
 from calib.image.hdr import merge_bracket
 from calib.image.profiles import detect_geometry, extract
 from calib.model.forward import blur_kernel, render_observation

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.spectra import MultiSpectrum, Spectrum
-from calib.evaluation.synthetic import colour_lamp
 from calib.spd.light_sources import (
     EQUIVALENT_DISTANCE,
     LightSourceLibrary,

@@ -16,9 +16,9 @@ import pytest
 
 from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
 from calib.core.errors import EstimationError, InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
-from calib.evaluation.synthetic import colour_lamp
 from calib.methods import default_camera_basis, estimate
 from calib.methods.baselines.han2012 import (
     FluorescentPaints,

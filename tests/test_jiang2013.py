@@ -7,10 +7,10 @@ import pytest
 
 import calib.methods
 from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.observations import ChartObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
-from calib.evaluation.synthetic import colour_lamp
 from calib.image.chart_image import (
     ChartLayout,
     chart_observation_from_planes,

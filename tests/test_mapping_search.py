@@ -9,11 +9,12 @@ import pytest
 
 from calib.core.datasets import colour_science_cameras, find_camera
 from calib.core.errors import EstimationError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import mapping_relative_error
-from calib.core.observations import LampObservation
+from calib.core.observations import LampObservation, robust_noise_sigma
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
-from calib.evaluation.synthetic import colour_lamp, random_efficiency
+from calib.evaluation.synthetic import random_efficiency
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.wavelength.peaks import icp_mapping
@@ -22,7 +23,6 @@ from calib.wavelength.search import (
     basin_spread_nm,
     bin_pixels,
     find_mapping,
-    robust_noise_sigma,
 )
 
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))

@@ -7,11 +7,12 @@ import pytest
 
 from calib.core.datasets import colour_science_cameras, find_camera
 from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import relative_error
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
-from calib.evaluation.synthetic import colour_lamp, random_efficiency
+from calib.evaluation.synthetic import random_efficiency
 from calib.methods.makabe2025 import estimate_makabe2025
 from calib.methods.prior_solve import fit_response, solve_with_prior
 from calib.model.bases import CameraBasis, fallback_camera_basis, fourier_basis

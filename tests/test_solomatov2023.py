@@ -11,10 +11,10 @@ import tifffile
 import calib.methods
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.observations import ColorMatrixObservation
 from calib.core.spectra import DEFAULT_GRID
-from calib.evaluation.synthetic import colour_lamp
 from calib.methods.baselines.solomatov2023 import (
     estimate_solomatov2023,
     read_color_matrices,

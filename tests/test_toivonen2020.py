@@ -10,11 +10,12 @@ import pytest
 import calib.methods
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import relative_error
 from calib.core.observations import ColorMatrixObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
-from calib.evaluation.synthetic import colour_lamp, render_scene
+from calib.evaluation.synthetic import render_scene
 from calib.methods.baselines.toivonen2020 import (
     ToivonenProblem,
     ToivonenSettings,

@@ -1,4 +1,4 @@
-"""Checked, read-only float arrays for the estimators' input types (one error message for all)."""
+"""Array types every module shares, and checked read-only float arrays for the estimators' inputs."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from numpy.typing import ArrayLike, NDArray
 from calib.core.errors import InputError
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
 
 
 def checked_array(value: ArrayLike, shape: tuple[int, ...], name: str, source: str) -> FloatArray:

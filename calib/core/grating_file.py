@@ -37,12 +37,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.spectra import Spectrum, WavelengthGrid
-
-FloatArray = NDArray[np.float64]
 
 GRATING_SCHEMA = "spectral-rig/grating-efficiency"
 GRATING_FORMAT_VERSION = 1

@@ -15,12 +15,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
-
-FloatArray = NDArray[np.float64]
-
 
 # ---------------------------------------------------------------------------------------- types
 

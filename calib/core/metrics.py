@@ -9,11 +9,10 @@ Solomatov & Akkaynak (2023) (angular RGB error).
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
-
-FloatArray = NDArray[np.float64]
 
 
 def _curves(values: ArrayLike, name: str) -> FloatArray:

@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.spectra import MultiSpectrum, Spectrum
 
-FloatArray = NDArray[np.float64]
 LampKind = Literal["led", "fluorescent", "halogen", "narrowband", "other"]
 LAMP_KINDS: tuple[LampKind, ...] = ("led", "fluorescent", "halogen", "narrowband", "other")
 
@@ -295,3 +295,30 @@ class ColorMatrixObservation:
 
 #: Everything :func:`calib.estimate` accepts; each method takes the kinds it needs.
 Observation = LampObservation | ChartObservation | ColorMatrixObservation
+
+
+def robust_noise_sigma(profile: FloatArray) -> FloatArray:
+    """Per-channel noise σ ``(3,)`` of a profile ``(n, 3)`` from the MAD of its second differences."""
+    second = np.diff(profile, n=2, axis=0)
+    mad = np.median(np.abs(second - np.median(second, axis=0)), axis=0)
+    # A second difference of white noise has variance 6σ²; MAD → σ for a Gaussian is ×1.4826.
+    sigma = 1.4826 * mad / np.sqrt(6.0)
+    floor = 1e-4 * np.max(np.abs(profile), axis=0) + 1e-300
+    return np.asarray(np.maximum(sigma, floor), dtype=np.float64)
+
+
+def profile_sigma(observation: LampObservation) -> FloatArray:
+    """σ per pixel and channel ``(n, 3)``: the observation's own, else a robust estimate.
+
+    The fallback is one σ for every pixel and channel (the largest channel's robust estimate): a
+    profile without a noise model is weighted evenly rather than by estimates that, on clean data,
+    measure the signal's own curvature.
+    """
+    if observation.profile_sigma is not None:
+        if np.any(observation.profile_sigma <= 0):
+            raise InputError(
+                "profile sigma must be > 0 everywhere", source=f"lamp {observation.name!r}"
+            )
+        return np.asarray(observation.profile_sigma, dtype=np.float64)
+    sigma = float(np.max(robust_noise_sigma(observation.profile)))
+    return np.full(observation.profile.shape, sigma)

@@ -8,13 +8,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.spectra import MultiSpectrum, Spectrum
-
-FloatArray = NDArray[np.float64]
 
 
 def json_safe(value: Any) -> Any:

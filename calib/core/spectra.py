@@ -34,11 +34,11 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import SpectrumError
 
-FloatArray = NDArray[np.float64]
 ResampleMethod = Literal["interpolate", "integrate"]
 OutOfRange = Literal["error", "zero"]
 NegativePolicy = Literal["error", "clip"]

@@ -38,9 +38,10 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import CalibError, InputError
+from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.metrics import relative_error
 from calib.core.observations import (
@@ -51,13 +52,11 @@ from calib.core.observations import (
 )
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
-from calib.evaluation.synthetic import FLUORESCENT_LAMP, colour_lamp, render_scene
+from calib.evaluation.synthetic import FLUORESCENT_LAMP, render_scene
 from calib.methods import ESTIMATION_METHODS, LAZY_METHODS, estimate
 from calib.methods.baselines.solomatov2023 import simulate_color_matrix
 from calib.model.bases import CameraBasis
 from calib.model.charts import colorchecker, gaussian_filters, render_chart
-
-FloatArray = NDArray[np.float64]
 
 #: Noise levels of the comparison by default (fractions of the peak): ideal data, and 1 %.
 DEFAULT_NOISE_LEVELS: tuple[float, ...] = (0.0, 0.01)

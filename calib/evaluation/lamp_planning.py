@@ -27,14 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.spectra import Spectrum
 from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS, LampData, direct_rows, prior_rows
 from calib.methods.prior_solve import ResponseEstimate
 from calib.model.bases import CameraPrior, fourier_basis
 from calib.model.forward import lamp_operators
-
-FloatArray = NDArray[np.float64]
 
 #: Direct noise of the prediction (fraction of the brightest channel), as in ``calib synthetic``.
 DEFAULT_NOISE_FRACTION = 0.01

@@ -34,13 +34,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
-from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
-from calib.core.lamp_specs import (
-    colour_lamp as colour_lamp,
-)  # re-exported: many callers import it here
+from calib.core.lamp_specs import RGB_LEDS, colour_lamp, lamp_from_spec
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import mapping_relative_error, relative_error
 from calib.core.observations import LampKind, LampObservation
@@ -49,8 +46,6 @@ from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, Wavelength
 from calib.methods.makabe2025 import Solver, estimate_makabe2025
 from calib.model.bases import CameraBasis, fourier_basis
 from calib.model.forward import PeakFractionNoise, RenderedObservation, render_observation
-
-FloatArray = NDArray[np.float64]
 
 PAPER_VARIANTS: tuple[str, ...] = ("true mapping", "LED+Flu", "LED only", "LED only (paper ICP)")
 #: Lamp sets of the multi-lamp variants (lamp specs of :func:`calib.core.lamp_specs.lamp_from_spec`).

@@ -26,13 +26,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.observations import ChartKind, ChartObservation
 from calib.core.spectra import MultiSpectrum, Spectrum
-
-FloatArray = NDArray[np.float64]
 
 #: Fewest samples per window and channel for a mean and a standard error.
 MIN_WINDOW_SAMPLES = 4

@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.core.arrays import BoolArray
 from calib.core.errors import EstimationError, InputError
 from calib.image.raw import (
     CHANNELS,
@@ -83,8 +84,6 @@ from calib.image.sensor_noise import (
 )
 
 Float32Array = NDArray[np.float32]
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 PathLike = str | os.PathLike[str]
 #: ``progress(frames_done, frames_total, path_just_merged)``
 ProgressCallback = Callable[[int, int, Path], None]

@@ -35,6 +35,7 @@ import numpy as np
 import rawpy
 from numpy.typing import NDArray
 
+from calib.core.arrays import BoolArray
 from calib.core.errors import InputError
 from calib.image.raw_metadata import (
     ExposureSource,
@@ -60,7 +61,6 @@ __all__ = [
 ]
 
 Float32Array = NDArray[np.float32]
-BoolArray = NDArray[np.bool_]
 #: A window of plane samples, ``(rows, columns)`` with explicit integer ``start``/``stop``.
 PlaneRegion = tuple[slice, slice]
 

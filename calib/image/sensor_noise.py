@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.image.raw import RawPlanes
 
 Float32Array = NDArray[np.float32]
-FloatArray = NDArray[np.float64]
 #: Per-sample level, slope-corrected green difference and local slope (see green_pair_statistics).
 PairStatistics = tuple[
     NDArray[np.floating[Any]], NDArray[np.floating[Any]], NDArray[np.floating[Any]]

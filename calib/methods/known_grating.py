@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
@@ -46,8 +46,6 @@ from calib.wavelength.peaks import (
     model_curve_on_fine_axis,
     refine_mapping,
 )
-
-FloatArray = NDArray[np.float64]
 
 #: Registry-style name of this method, recorded in results.
 KNOWN_GRATING_METHOD = "known-grating"

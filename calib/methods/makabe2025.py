@@ -34,8 +34,8 @@ from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
@@ -55,7 +55,6 @@ from calib.model.linear_model import (
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.search import find_mapping
 
-FloatArray = NDArray[np.float64]
 Solver = Literal["prior", "basis", "paper"]
 MappingMethod = Literal["search", "icp"]
 SOLVERS: tuple[Solver, ...] = ("prior", "basis", "paper")

@@ -47,8 +47,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
@@ -62,7 +62,6 @@ from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
 from calib.wavelength.search import find_mapping
 
-FloatArray = NDArray[np.float64]
 Uncertainty = Literal["posterior", "noise", "none"]
 UNCERTAINTIES: tuple[Uncertainty, ...] = ("posterior", "noise", "none")
 EfficiencyModel = Literal["efficiency", "inverse"]

@@ -29,14 +29,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.model.bases import CameraPrior, whitening
 from calib.model.forward import WavelengthMapping, apply_blur
 from calib.model.linear_model import LampSystem
-
-FloatArray = NDArray[np.float64]
 
 #: Second-difference penalty of the response fit, relative to the data's scale (stabilises grid
 #: nodes that few pixels see without shaping the curve).

@@ -30,12 +30,12 @@ from typing import Literal
 
 import numpy as np
 import platformdirs
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
 
-FloatArray = NDArray[np.float64]
 FourierConvention = Literal["paired", "paper"]
 
 #: Number of basis vectors per channel used by the paper (and by default here).

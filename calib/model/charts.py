@@ -23,14 +23,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.observations import ChartKind, ChartObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 from calib.model.forward import FINE_STEP_NM, fine_axis, hat_matrix
-
-FloatArray = NDArray[np.float64]
 
 #: The ColorChecker data used unless another is named (colour-science key).
 DEFAULT_COLORCHECKER = "BabelColor Average"

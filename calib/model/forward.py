@@ -30,13 +30,13 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.observations import LampKind, LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 
-FloatArray = NDArray[np.float64]
 EfficiencyLike = Spectrum | Callable[[FloatArray], FloatArray] | None
 
 #: Internal spectral resolution of rendering and of the solvers' operators.

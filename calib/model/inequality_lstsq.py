@@ -13,11 +13,10 @@ systems here.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
-
-FloatArray = NDArray[np.float64]
 
 
 def lstsq_inequality(

@@ -13,9 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-from calib.core.observations import LampObservation
+from calib.core.arrays import FloatArray
+from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import WavelengthGrid
 from calib.model.forward import (
     LampOperators,
@@ -26,9 +26,6 @@ from calib.model.forward import (
     lamp_operators,
     pixel_edges,
 )
-from calib.wavelength.search import profile_sigma
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,12 +21,10 @@ from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.observations import LampObservation
 from calib.model.forward import apply_blur, blur_kernel
-
-FloatArray = NDArray[np.float64]
 
 _FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 

@@ -44,7 +44,6 @@ from calib.image.raw import PlaneRegion, RawPlanes
 from calib.image.sensor_noise import NoiseModel
 from calib.pipeline.inputs import LampImages
 
-FloatArray = NDArray[np.float64]
 #: ``frame_done(lamp_name, path)``: one frame of a lamp's bracket is merged.
 FrameCallback = Callable[[str, Path], None]
 

@@ -15,13 +15,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import Spectrum, WavelengthGrid, read_spectrum_csv, read_table
-
-FloatArray = NDArray[np.float64]
 
 #: Negative spectrum values (dark-subtraction noise) up to this fraction of the maximum are set to
 #: zero with a warning; larger ones mean a broken measurement and are refused.

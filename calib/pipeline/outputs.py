@@ -27,13 +27,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from calib.core.grating_file import GratingEfficiency, write_grating_file
 from calib.core.result import EstimateResult, json_safe
 from calib.pipeline.estimate import OfflineEstimate
-
-FloatArray = NDArray[np.float64]
 
 RESULT_SCHEMA = "spectral-rig/estimate-result"
 RESULT_FORMAT_VERSION = 1

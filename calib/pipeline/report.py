@@ -20,13 +20,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.mapping import QuadraticMapping
 from calib.pipeline.brackets import BracketProfiles
 from calib.pipeline.estimate import OfflineEstimate
-
-FloatArray = NDArray[np.float64]
 
 REPORT_FILE = "report.html"
 PLOTS_DIR = "plots"

@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import linalg, ndimage
 
-from calib.core.arrays import checked_array
+from calib.core.arrays import FloatArray, checked_array
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
@@ -77,7 +77,6 @@ from calib.wavelength.peaks import (
     refine_mapping,
 )
 
-FloatArray = NDArray[np.float64]
 SourceMode = Literal["point", "finite", "auto"]
 Weighting = Literal["noise", "paper"]
 

@@ -34,11 +34,11 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
 from calib.spd.alvarez2014 import comparison_grid
 
-FloatArray = NDArray[np.float64]
 Metric = Literal["l2", "weighted"]
 
 #: CCT methods reported, in the order of the paper's (McCamy) then colour-science's better ones.

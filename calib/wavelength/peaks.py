@@ -18,15 +18,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError
 from calib.core.mapping import QuadraticMapping, wavelength_rms_from_covariance
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.model.forward import fine_axis, hat_matrix
-
-FloatArray = NDArray[np.float64]
-
 
 #: Known emission lines of fluorescent lamps (nm), used to label peaks found in a measured spectrum.
 FLUORESCENT_LINES_NM: Mapping[str, float] = {

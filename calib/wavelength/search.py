@@ -44,6 +44,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import (
@@ -52,7 +53,7 @@ from calib.core.mapping import (
     TiltedGrating,
     wavelength_rms_from_covariance,
 )
-from calib.core.observations import LampObservation
+from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior, whitening
 from calib.model.forward import PiecewiseLinearDensity, apply_blur, fine_axis, pixel_edges
@@ -67,7 +68,6 @@ from calib.wavelength.peaks import (
     refine_mapping,
 )
 
-FloatArray = NDArray[np.float64]
 Mapping = QuadraticMapping | GratingGeometry | TiltedGrating
 AnyMapping = TypeVar("AnyMapping", QuadraticMapping, TiltedGrating)
 
@@ -117,33 +117,6 @@ INTERMEDIATE_TOLERANCE = 1e-6
 FINAL_TOLERANCE = 1e-9
 #: Distinct global minima carried into the local stages.
 LOCAL_FINALISTS = 2
-
-
-def robust_noise_sigma(profile: FloatArray) -> FloatArray:
-    """Per-channel noise σ ``(3,)`` of a profile ``(n, 3)`` from the MAD of its second differences."""
-    second = np.diff(profile, n=2, axis=0)
-    mad = np.median(np.abs(second - np.median(second, axis=0)), axis=0)
-    # A second difference of white noise has variance 6σ²; MAD → σ for a Gaussian is ×1.4826.
-    sigma = 1.4826 * mad / np.sqrt(6.0)
-    floor = 1e-4 * np.max(np.abs(profile), axis=0) + 1e-300
-    return np.asarray(np.maximum(sigma, floor), dtype=np.float64)
-
-
-def profile_sigma(observation: LampObservation) -> FloatArray:
-    """σ per pixel and channel ``(n, 3)``: the observation's own, else a robust estimate.
-
-    The fallback is one σ for every pixel and channel (the largest channel's robust estimate): a
-    profile without a noise model is weighted evenly rather than by estimates that, on clean data,
-    measure the signal's own curvature.
-    """
-    if observation.profile_sigma is not None:
-        if np.any(observation.profile_sigma <= 0):
-            raise InputError(
-                "profile sigma must be > 0 everywhere", source=f"lamp {observation.name!r}"
-            )
-        return np.asarray(observation.profile_sigma, dtype=np.float64)
-    sigma = float(np.max(robust_noise_sigma(observation.profile)))
-    return np.full(observation.profile.shape, sigma)
 
 
 def bin_pixels(observation: LampObservation, factor: int) -> LampObservation:

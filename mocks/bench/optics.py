@@ -30,8 +30,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.datasets import COLOUR_SCIENCE, find_camera, load_collection
 from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry
@@ -39,8 +39,6 @@ from calib.core.spectra import MultiSpectrum, Spectrum
 from calib.model.forward import PiecewiseLinearDensity, RenderedObservation, render_observation
 from mocks.bench.spec import CameraSpec, TwinSpecError
 from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_box
-
-FloatArray = NDArray[np.float64]
 
 #: Step of the fine axis along the dispersion on which the first order's cumulative is tabulated.
 FINE_STEP_PX = 1.0 / 64.0

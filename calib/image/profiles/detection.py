@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.core.arrays import BoolArray, FloatArray
 from calib.image.hdr import HdrImage
 from calib.image.profiles.geometry import (
     DetectionError,
@@ -32,9 +33,6 @@ from calib.image.profiles.geometry import (
     sample_positions,
     to_uv,
 )
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: Detection works on a block-averaged luminance image at most this many samples across.
 _DETECTION_MAX_SIZE = 800

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.observations import LampKind, LampObservation
 from calib.core.spectra import Spectrum
 from calib.image.hdr import HdrImage
@@ -31,8 +32,6 @@ from calib.image.profiles.geometry import (
     sample_positions,
     to_uv,
 )
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,12 +15,11 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.image.hdr import HdrImage
 
-FloatArray = NDArray[np.float64]
 Side = Literal[1, -1]
 DetectionReason = Literal[
     "no_spot", "spot_off_frame", "no_band", "band_off_frame", "saturated", "mismatch"

@@ -48,14 +48,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import linalg
 
-from calib.core.arrays import checked_array
+from calib.core.arrays import FloatArray, checked_array
 from calib.core.errors import EstimationError, InputError
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 from calib.model.bases import CameraBasis, fourier_basis
 from calib.model.forward import hat_matrix
 
-FloatArray = NDArray[np.float64]
 Normalisation = Literal["brightness", "unit"]
 RowWeighting = Literal["fraction", "paper"]
 

@@ -12,13 +12,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraBasis
-
-FloatArray = NDArray[np.float64]
 
 
 def split_observations(

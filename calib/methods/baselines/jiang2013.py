@@ -33,8 +33,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import ChartObservation
@@ -50,8 +50,6 @@ from calib.methods.baselines.inputs import (
 from calib.model.bases import CameraBasis
 from calib.model.charts import stimulus_rows
 from calib.model.inequality_lstsq import lstsq_inequality
-
-FloatArray = NDArray[np.float64]
 
 #: Basis vectors per channel (Jiang et al. 2013; Makabe et al. 2025 §4).
 JIANG2013_N_VECTORS = 2

@@ -41,8 +41,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import ChartObservation, ColorMatrixObservation
@@ -65,7 +66,6 @@ from calib.model.charts import (
 )
 from calib.model.inequality_lstsq import lstsq_inequality
 
-FloatArray = NDArray[np.float64]
 WhiteBalance = Literal["diagonal", "full", "none"]
 
 #: Basis vectors per channel and ridge weight (chosen by leave-one-out over 22 of the 44 training
@@ -244,7 +244,7 @@ def calibration_illuminant(value: str | Spectrum) -> Spectrum:
     """A calibration illuminant as a spectrum (colour-science name, or a given spectrum)."""
     if isinstance(value, Spectrum):
         return value
-    from calib.evaluation.synthetic import colour_lamp
+    from calib.core.lamp_specs import colour_lamp
 
     return colour_lamp(value)
 

@@ -49,8 +49,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import ChartObservation, LampObservation
@@ -60,8 +60,6 @@ from calib.methods.baselines.inputs import normalised_curves, split_observations
 from calib.model.bases import CameraBasis
 from calib.model.charts import stimulus_rows
 from calib.model.forward import hat_matrix, lamp_operators, pixel_edges
-
-FloatArray = NDArray[np.float64]
 
 #: Wavelength at which monochromatic data and lamp spectra are normalised (§3.4).
 NORMALISATION_NM = 550.0
