@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 import platformdirs
 
+from calib.core.colour_data import camera_sensitivities, rawtoaces_sensitivity_path
 from calib.core.errors import CalibError, InputError, SpectrumError
 from calib.core.spectra import MultiSpectrum, read_table
 
@@ -305,32 +306,17 @@ def read_rawtoaces_json(path: str | Path) -> MultiSpectrum:
 
 def colour_science_cameras() -> list[CameraRecord]:
     """The cameras inside colour-science: two NPL measurements and the rawtoaces Canon 5D Mk II."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    records: list[CameraRecord] = []
-    for key, data in colour.MSDS_CAMERA_SENSITIVITIES.items():
-        curves = MultiSpectrum(
-            np.asarray(data.wavelengths, dtype=np.float64),
-            np.asarray(data.values, dtype=np.float64),
-            name=str(key),
-            negative="clip",
+    records = [
+        CameraRecord(
+            key,
+            key.split(" (")[0],
+            COLOUR_SCIENCE,
+            _normalised(curves, key),
+            f"colour.MSDS_CAMERA_SENSITIVITIES[{key!r}]",
         )
-        records.append(
-            CameraRecord(
-                str(key),
-                str(key).split(" (")[0],
-                COLOUR_SCIENCE,
-                _normalised(curves, str(key)),
-                f"colour.MSDS_CAMERA_SENSITIVITIES[{key!r}]",
-            )
-        )
-    canon = (
-        Path(colour.__file__).parent
-        / "characterisation"
-        / "datasets"
-        / "rawtoaces"
-        / "CANON_EOS_5DMark_II_RGB_Sensitivities.csv"
-    )
+        for key, curves in camera_sensitivities().items()
+    ]
+    canon = rawtoaces_sensitivity_path("CANON_EOS_5DMark_II_RGB_Sensitivities.csv")
     if canon.is_file():
         name = "Canon EOS 5D Mark II (rawtoaces)"
         records.append(
