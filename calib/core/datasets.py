@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 import platformdirs
 
+from calib.core.checksums import file_sha256
 from calib.core.colour_data import camera_sensitivities, rawtoaces_sensitivity_path
 from calib.core.errors import CalibError, InputError, SpectrumError
 from calib.core.spectra import MultiSpectrum, read_table
@@ -484,7 +485,7 @@ def _file_is_valid(path: Path, pinned: PinnedFile) -> bool:
     try:
         if path.stat().st_size != pinned.size_bytes:
             return False
-        return hashlib.sha256(path.read_bytes()).hexdigest() == pinned.sha256
+        return file_sha256(path) == (pinned.size_bytes, pinned.sha256)
     except OSError:
         return False
 
