@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from calib.cli import main
+from calib.core.checksums import file_sha256
 from calib.core.lamp_specs import colour_lamp
+from calib.core.software import current_software
 from calib.core.spectra import WavelengthGrid, read_spectrum_csv, write_csv
 from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
 
@@ -108,9 +110,11 @@ def test_spd_writes_csv_json_and_plots(
     assert stored["mapping"]["origin"] == "mapping lamp"
     assert stored["mapping"]["details"]["lines"] == "measured spectrum"
     assert stored["direct_check"]["angular_error_deg"] < 0.5
-    assert [entry["sha256"] for entry in stored["inputs"]["images"]] and stored["inputs"]["camera"][
-        "path"
-    ] == str(scene.camera)
+    assert [entry["sha256"] for entry in stored["inputs"]["images"]] == [
+        file_sha256(path)[1] for path in scene.lamp
+    ]
+    assert stored["inputs"]["camera"]["path"] == str(scene.camera)
+    assert stored["software"] == current_software().to_dict()  # as result.json's provenance
     spd = read_spectrum_csv(out / "spd.csv")
     assert spd.values.max() == pytest.approx(1.0, abs=0.02)
     assert np.all(np.diff(spd.wavelength_nm) == 1.0)
