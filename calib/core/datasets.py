@@ -35,9 +35,7 @@ import hashlib
 import json
 import os
 import re
-import urllib.error
 import urllib.parse
-import urllib.request
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -491,6 +489,9 @@ def _file_is_valid(path: Path, pinned: PinnedFile) -> bool:
 
 
 def _download(url: str, timeout_s: float) -> bytes:
+    # Deferred: urllib.request pulls in http, ssl and email (~25 ms), needed only to download.
+    import urllib.request
+
     request = urllib.request.Request(url, headers={"User-Agent": "spectral-rig data fetch"})
     with urllib.request.urlopen(request, timeout=timeout_s) as response:
         return bytes(response.read())
@@ -555,7 +556,7 @@ def fetch_datasets(
                 temporary.write_bytes(payload)
                 temporary.replace(target)
                 report.downloaded.append(pinned.local_path)
-            except (urllib.error.URLError, OSError, ValueError) as exc:
+            except (OSError, ValueError) as exc:  # urllib's URLError is an OSError
                 reason = getattr(exc, "reason", None) or str(exc)
                 report.failed.append((pinned.local_path, f"{url}: {reason}"))
         if progress is not None:

@@ -26,6 +26,7 @@ import numpy as np
 
 from calib.core.checksums import file_sha256
 from calib.core.errors import EstimationError, InputError
+from calib.core.figures import agg_figure
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
 from calib.core.software import current_software
@@ -414,13 +415,9 @@ def _write_outputs(out: Path, on_grid: Spectrum, summary: dict[str, Any]) -> dic
 def _plot(
     path: Path, recovery: SpdRecovery, recognition: Recognition, match: Spectrum, name: str
 ) -> Path:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     spd = recovery.spectrum(name=name)
     sigma = recovery.sigma_spectrum()
-    figure = Figure(figsize=(9, 5), layout="constrained")
-    FigureCanvasAgg(figure)
+    figure = agg_figure(9, 5, layout="constrained")
     axes = figure.subplots()
     wavelength = spd.wavelength_nm
     if sigma is not None:

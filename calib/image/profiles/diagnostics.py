@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.core.figures import agg_figure, polygon
 from calib.image.hdr import HdrImage
 from calib.image.profiles.extraction import extract
 from calib.image.profiles.geometry import (
@@ -54,15 +55,9 @@ def write_geometry_png(
     Path
         ``path``.
     """
-    # matplotlib (≈ 0.3 s to import) only when a picture is drawn
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Polygon
-
     display, block_px = _display_image(image)
     height, width = image.sensor_shape_px
-    figure = Figure(figsize=(12, 5.5), layout="constrained")
-    FigureCanvasAgg(figure)
+    figure = agg_figure(12, 5.5, layout="constrained")
     picture, profiles = figure.subplots(1, 2, width_ratios=(1.4, 1))
     picture.imshow(
         display,
@@ -76,7 +71,7 @@ def write_geometry_png(
     along, across = geometry.spot_half_size_px
     primary_angle = geometry.primary.angle_deg
     picture.add_patch(
-        Polygon(
+        polygon(
             rectangle_corners(centre, primary_angle, (-along, along), (-across, across)),
             fill=False,
             edgecolor="yellow",
@@ -89,7 +84,7 @@ def write_geometry_png(
         colour = "cyan" if band.side == 1 else "magenta"
         offset, half = band.centre_offset_px, band.half_width_px
         picture.add_patch(
-            Polygon(
+            polygon(
                 rectangle_corners(
                     centre,
                     band.angle_deg,
@@ -108,7 +103,7 @@ def write_geometry_png(
             (offset + inner, offset + inner + geometry.background_width_px),
         ):
             picture.add_patch(
-                Polygon(
+                polygon(
                     rectangle_corners(
                         centre, band.angle_deg, (band.start_px, band.stop_px), (low, high)
                     ),
