@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import NoReturn
 
 import typer
+from rich.console import Console
+from rich.table import Table
 
 from calib.core.errors import CalibError, InputError
 from calib.core.result import json_safe
@@ -169,9 +171,6 @@ def request_from_args(arguments: Sequence[str]) -> tuple[SpdRequest, argparse.Na
 
 
 def _print_summary(measurement: SpdMeasurement, out: Path) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
     summary = measurement.summary
     recognition = measurement.recognition
     table = Table(title=f"SPD of {summary['name']}", show_header=False)

@@ -24,6 +24,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.figures import agg_figure, import_matplotlib
 from calib.core.mapping import QuadraticMapping
+from calib.image.profiles import write_geometry_png
 from calib.pipeline.brackets import BracketProfiles
 from calib.pipeline.estimate import OfflineEstimate
 
@@ -195,8 +196,6 @@ def plot_fit(path: Path, estimate: OfflineEstimate, lamp: str) -> Path | None:
 
 def plot_geometry(path: Path, profiles: BracketProfiles) -> Path:
     """The detected geometry on the geometry lamp's image (:func:`calib.image.profiles.write_geometry_png`)."""
-    from calib.image.profiles import write_geometry_png
-
     image, geometry = profiles.geometry_image()
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_geometry_png(path, image, geometry)
