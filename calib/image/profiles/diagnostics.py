@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.figures import agg_figure, polygon
+from calib.image.blocks import block_factor, block_mean
 from calib.image.hdr import HdrImage
 from calib.image.profiles.extraction import extract
 from calib.image.profiles.geometry import (
@@ -27,10 +28,8 @@ def _display_image(image: HdrImage) -> tuple[np.ndarray, float]:
     """Log10 of the channel-summed radiance, block-averaged; and the block size in sensor pixels."""
     luminance = image.radiance.sum(axis=0, dtype=np.float64)
     luminance[~np.isfinite(luminance)] = 0.0
-    height, width = luminance.shape
-    factor = max(1, -(-max(height, width) // _DISPLAY_MAX_SIZE))
-    blocks = luminance[: height // factor * factor, : width // factor * factor]
-    small = blocks.reshape(height // factor, factor, width // factor, factor).mean(axis=(1, 3))
+    factor = block_factor(luminance.shape, _DISPLAY_MAX_SIZE)
+    small = block_mean(luminance, factor)
     positive = small[small > 0]
     floor = float(np.percentile(positive, 50)) if positive.size else 1.0
     return np.log10(np.maximum(small, floor)), factor * image.pixel_pitch_px
