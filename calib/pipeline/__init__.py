@@ -1,6 +1,8 @@
-"""Offline estimation from files: RAW brackets or 1-D profiles plus lamp spectra → estimate + report.
+"""Stage 7, offline estimation from files: RAW brackets or 1-D profiles plus lamp spectra → estimate + report.
 
-The one pipeline behind ``calib estimate`` and ``rig estimate``:
+The one pipeline behind ``calib estimate`` and ``rig estimate`` (inputs, brackets, provenance, the
+output writers, the report); ``calib.pipeline`` imports the stages before it (:mod:`calib.core` to
+:mod:`calib.spd`), never :mod:`calib.evaluation` or the command line:
 
 * :func:`estimate_offline` — inputs (:class:`LampImages` or :class:`LampProfile` per lamp) to an
   :class:`OfflineEstimate` (see :mod:`calib.pipeline.estimate`);
