@@ -82,8 +82,8 @@ def test_an_unknown_colorchecker_names_the_known_ones() -> None:
         colour_data.colorchecker("Macbeth 1976")
 
 
-def test_test_colour_samples_are_interpolated_to_their_common_range() -> None:
-    samples = colour_data.test_colour_samples("CIE 2024")
+def test_cie_test_colour_samples_are_interpolated_to_their_common_range() -> None:
+    samples = colour_data.cie_test_colour_samples("CIE 2024")
     # TCS15 starts at 380 nm, the others at 360 nm: the set is cut to what all of them cover.
     assert samples.range_nm == (380.0, 780.0)
     assert samples.values.shape[1] == len(colour.quality.datasets.SDS_TCS["CIE 2024"])

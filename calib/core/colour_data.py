@@ -10,7 +10,7 @@ Data: the CIE illuminants and light sources (:func:`illuminants`, :func:`light_s
 name is :func:`calib.core.lamp_specs.colour_lamp`), CIE daylight at a CCT (:func:`cie_daylight`) and its basis
 (:func:`cie_daylight_basis`), camera sensitivities (:func:`camera_sensitivities`,
 :func:`rawtoaces_sensitivity_path`), ColorChecker reflectances (:func:`colorchecker`), the CIE test
-colour samples (:func:`test_colour_samples`), rawtoaces' training reflectances
+colour samples (:func:`cie_test_colour_samples`), rawtoaces' training reflectances
 (:func:`training_reflectances`) and colour-matching functions (:func:`colour_matching_functions`).
 
 Colorimetry: CIE 1931 ``XYZ`` of an emission spectrum (:func:`emission_xyz`), CCT by colour-science's
@@ -46,6 +46,16 @@ def _colour() -> Any:
     import colour
 
     return colour
+
+
+def _entry(table: Mapping[str, Any], name: str, what: str, source: str) -> Any:
+    """``table[name]``, or an :class:`InputError` listing the names colour-science has."""
+    if name not in table:
+        raise InputError(
+            f"colour-science has no {what} {name!r}; choose from {', '.join(sorted(table))}",
+            source=source,
+        )
+    return table[name]
 
 
 # ------------------------------------------------------------------------------------ light sources
@@ -183,30 +193,16 @@ def colorchecker(name: str = DEFAULT_COLORCHECKER) -> MultiSpectrum:
     >>> chart.values.shape, chart.channels[0], chart.range_nm
     ((36, 24), 'dark skin', (380.0, 730.0))
     """
-    checkers = _colour().SDS_COLOURCHECKERS
-    if name not in checkers:
-        raise InputError(
-            f"colour-science has no colour checker {name!r}; choose from "
-            f"{', '.join(sorted(checkers))}",
-            source="chart",
-        )
-    patches = checkers[name]
+    patches = _entry(_colour().SDS_COLOURCHECKERS, name, "colour checker", "chart")
     return _patch_set(patches, tuple(patches), f"ColorChecker ({name})")
 
 
-def test_colour_samples(name: str = "CIE 1995") -> MultiSpectrum:
+def cie_test_colour_samples(name: str = "CIE 1995") -> MultiSpectrum:
     """The CIE test colour samples (``colour.quality.datasets.SDS_TCS[name]``).
 
     ``"CIE 1995"`` has the 14 samples of CIE 13.3 (colour rendering index); ``"CIE 2024"`` 15.
     """
-    samples_by_name = _colour().quality.datasets.SDS_TCS
-    if name not in samples_by_name:
-        raise InputError(
-            f"colour-science has no test colour samples {name!r}; choose from "
-            f"{', '.join(sorted(samples_by_name))}",
-            source="chart",
-        )
-    samples = samples_by_name[name]
+    samples = _entry(_colour().quality.datasets.SDS_TCS, name, "test colour samples", "chart")
     return _patch_set(
         samples, tuple(f"{name} {key}" for key in samples), f"test colour samples ({name})"
     )
@@ -229,10 +225,7 @@ def colour_matching_functions(name: str = CIE_1931_2_DEGREE) -> tuple[FloatArray
 
     Shapes ``(n,)`` and ``(n, 3)``; RGB colour-matching functions have negative lobes, kept as they are.
     """
-    table = _colour().MSDS_CMFS
-    if name not in table:
-        raise InputError(f"colour-science has no colour-matching functions {name!r}", source="cmfs")
-    data = table[name]
+    data = _entry(_colour().MSDS_CMFS, name, "colour-matching functions", "cmfs")
     # Copies: a caller may edit its arrays without touching colour-science's tables.
     return np.array(data.wavelengths, dtype=np.float64), np.array(data.values, dtype=np.float64)
 

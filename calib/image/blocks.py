@@ -44,9 +44,8 @@ def block_mean(values: NDArray[np.generic], factor: int) -> FloatArray:
 
     Examples
     --------
-    >>> block_mean(np.arange(16.0).reshape(4, 4), 2)
-    array([[ 2.5,  4.5],
-           [10.5, 12.5]])
+    >>> block_mean(np.arange(16.0).reshape(4, 4), 2).tolist()
+    [[2.5, 4.5], [10.5, 12.5]]
     """
     rows, columns = values.shape[-2] // factor, values.shape[-1] // factor
     blocks = values[..., : rows * factor, : columns * factor].reshape(

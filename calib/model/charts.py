@@ -8,7 +8,7 @@ given on the grid, rendered with :func:`render_chart`, is reproduced to rounding
 
 Charts provided (colour-science's ColorChecker reflectances and CIE test colour samples, used by
 the "CC" and "Exif+CC" baselines of Makabe et al. (2025) §4, are
-:func:`calib.core.colour_data.colorchecker` and :func:`calib.core.colour_data.test_colour_samples`):
+:func:`calib.core.colour_data.colorchecker` and :func:`calib.core.colour_data.cie_test_colour_samples`):
 
 ``gaussian_filters`` N transmissive band filters with Gaussian transmittance whose centres tile the
                      range evenly (Makabe et al. 2025, Supp. G / Fig. S6: "shifted Gaussian

@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
-from calib.core.colour_data import colorchecker, colour_matching_functions, test_colour_samples
+from calib.core.colour_data import cie_test_colour_samples, colorchecker, colour_matching_functions
 from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import ChartObservation, ColorMatrixObservation
@@ -252,7 +252,7 @@ def _cmfs_on_grid(grid: WavelengthGrid) -> FloatArray:
 
 def default_training_reflectances(grid: WavelengthGrid = DEFAULT_GRID) -> MultiSpectrum:
     """BabelColor's ColorChecker (24) and the CIE 1995 test colour samples (14), on a 1 nm axis."""
-    return combined([colorchecker(), test_colour_samples("CIE 1995")], grid)
+    return combined([colorchecker(), cie_test_colour_samples("CIE 1995")], grid)
 
 
 def simulate_color_matrix(
@@ -290,7 +290,7 @@ def simulate_color_matrix(
             source="sensitivity",
         )
     patches = reflectances or combined(
-        [colorchecker("ColorChecker N Ohta"), test_colour_samples("CIE 2024")], grid
+        [colorchecker("ColorChecker N Ohta"), cie_test_colour_samples("CIE 2024")], grid
     )
     light = calibration_illuminant(illuminant)
     rows = radiance_rows(patches, light, grid)
