@@ -205,6 +205,11 @@ def test_bad_files_are_named(
     arguments[arguments.index("--camera") + 1] = str(two_columns)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and str(two_columns) in stderr and "3 sensitivity columns" in stderr
+    dark = tmp_path / "dark_camera.csv"
+    dark.write_text("wavelength_nm,r,g,b\n400,0,0,0\n700,0,0,0\n")
+    arguments[arguments.index("--camera") + 1] = str(dark)
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 2 and "dark_camera.csv" in stderr and "all-zero" in stderr
     not_raw = tmp_path / "frame.dng"
     not_raw.write_text("not a raw file")
     arguments = base_arguments(scene, tmp_path / "out")

@@ -182,14 +182,21 @@ _SOLOMATOV_NAME = re.compile(
 def read_rgb_csv(path: str | Path, *, name: str | None = None) -> MultiSpectrum:
     """Read a ``wavelength,r,g,b`` CSV (header optional, ``#`` comments skipped), normalised.
 
-    Used for the Solomatov/Akkaynak and butcherg files and the colour-science rawtoaces CSV.
+    Used for the Solomatov/Akkaynak and butcherg files, the colour-science rawtoaces CSV and the
+    calibrated camera of ``calib spd`` (:func:`calib.spd.pipeline.measure_spd`).
+
+    Raises
+    ------
+    SpectrumError
+        Not 4 columns, a malformed axis or value, or curves that are zero everywhere (the file is
+        named).
     """
     path = Path(path)
     table = read_table(path)
     if table.rows.shape[1] != 4:
         raise SpectrumError(
-            f"expected 4 columns (wavelength, r, g, b), found {table.rows.shape[1]}: "
-            f"{table.columns}",
+            f"expected 4 columns (wavelength and 3 sensitivity columns R, G, B), found "
+            f"{table.rows.shape[1]}: {table.columns}",
             source=str(path),
         )
     label = name or path.stem

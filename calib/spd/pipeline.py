@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.checksums import file_sha256
+from calib.core.datasets import read_rgb_csv
 from calib.core.errors import EstimationError, InputError
 from calib.core.figures import agg_figure
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
@@ -34,7 +35,6 @@ from calib.core.spectra import (
     MultiSpectrum,
     Spectrum,
     WavelengthGrid,
-    read_multispectrum_csv,
     read_spectrum_csv,
     write_csv,
 )
@@ -109,20 +109,6 @@ class SpdMeasurement:
 
 
 # -------------------------------------------------------------------------------------- inputs
-
-
-def read_camera(path: Path) -> MultiSpectrum:
-    """A ``wavelength_nm,r,g,b`` sensitivity CSV (any header names; three value columns)."""
-    camera = read_multispectrum_csv(path, name=path.name, negative="clip")
-    if camera.values.shape[1] != 3:
-        raise InputError(
-            f"expected 3 sensitivity columns (R, G, B), found {camera.values.shape[1]} "
-            f"{camera.channels}",
-            source=str(path),
-        )
-    if float(camera.values.max()) <= 0:
-        raise InputError("the sensitivities are zero everywhere", source=str(path))
-    return camera.normalised()
 
 
 def _read_mapping_file(path: Path) -> QuadraticMapping | GratingGeometry:
@@ -247,7 +233,7 @@ def measure_spd(
         The mapping or the recovery failed on the data.
     """
     say = progress or (lambda message: None)
-    camera = read_camera(request.camera)
+    camera = read_rgb_csv(request.camera, name=request.camera.name)
     efficiency = (
         read_spectrum_csv(request.grating_efficiency, negative="clip")
         if request.grating_efficiency is not None
