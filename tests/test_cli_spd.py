@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cli import main
+from calib.cli.app import main
 from calib.core.checksums import file_sha256
 from calib.core.lamp_specs import colour_lamp
 from calib.core.software import current_software

@@ -14,8 +14,8 @@ HEAVY = ("scipy", "matplotlib", "colour")
 def test_the_calib_command_imports_no_heavy_library() -> None:
     code = (
         "import sys\n"
-        "import calib.cli\n"
-        "app = calib.cli.build_app()\n"
+        "import calib.cli.app\n"
+        "app = calib.cli.app.build_app()\n"
         f"print(sorted({{name.split('.')[0] for name in sys.modules}} & set({HEAVY!r})))\n"
     )
     shown = subprocess.run(
@@ -28,7 +28,7 @@ def test_every_command_is_registered() -> None:
     import typer
     from typer.core import TyperGroup
 
-    from calib.cli import build_app
+    from calib.cli.app import build_app
 
     command = typer.main.get_command(build_app())
     assert isinstance(command, TyperGroup)
@@ -40,3 +40,16 @@ def test_every_command_is_registered() -> None:
         "spd",
         "plan-lamps",
     }
+
+
+def test_the_shared_options_do_not_load_the_calib_commands() -> None:
+    # rig's command line imports calib.cli.options; it must not pay for every calib command.
+    code = (
+        "import sys\n"
+        "import calib.cli.options\n"
+        "print(sorted(name for name in sys.modules if name.startswith('calib.')))\n"
+    )
+    shown = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    assert shown.stdout.strip() == "['calib.cli', 'calib.cli.options']"

@@ -11,7 +11,6 @@ import platform
 import sys
 from dataclasses import asdict, dataclass
 from functools import lru_cache
-from importlib.metadata import PackageNotFoundError, version
 
 #: The distribution whose version is recorded.
 DISTRIBUTION = "spectral-rig"
@@ -37,6 +36,9 @@ class SoftwareInfo:
 @lru_cache(maxsize=1)
 def current_software() -> SoftwareInfo:
     """This process's :class:`SoftwareInfo` (read once: the installed version cannot change under it)."""
+    # Deferred: importlib.metadata (email, zipfile, csv …) costs ~15 ms that `rig --help` need not pay.
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
         installed = version(DISTRIBUTION)
     except PackageNotFoundError:  # running from a source tree without installing
