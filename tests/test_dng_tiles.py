@@ -21,7 +21,7 @@ import rawpy
 import tifffile
 
 from calib.image.dng_tiles import NotDng, UnsupportedDng, open_dng
-from calib.image.raw import RawPlanes, read_raw
+from calib.image.raw import RawFileError, RawPlanes, read_raw
 from mocks.dng import DngMetadata, write_dng
 from mocks.scene import BAYER_SITES
 
@@ -298,16 +298,22 @@ def test_other_files_are_not_dngs(tmp_path: Path) -> None:
             open_dng(path)
 
 
-def test_a_truncated_tile_names_the_file(tmp_path: Path, rng: np.random.Generator) -> None:
+def test_a_corrupt_or_truncated_tile_names_the_file(
+    tmp_path: Path, rng: np.random.Generator
+) -> None:
     path = _write(tmp_path / "f.dng", _data(rng), compression="lossless-jpeg", tile_px=(64, 64))
-    tiles = open_dng(path)
+    start = open_dng(path).offsets[3] + 10
     content = path.read_bytes()
-    path.write_bytes(
-        content[: tiles.offsets[3] + 10] + b"\0" * (len(content) - tiles.offsets[3] - 10)
-    )
-    with pytest.raises(Exception, match=r"corrupt or truncated RAW file .*tile 3") as caught:
+    path.write_bytes(content[:start] + b"\0" * (len(content) - start))  # tile 3 zeroed
+    with pytest.raises(RawFileError, match=r"corrupt or truncated RAW file .*tile 3") as caught:
         read_raw(path, decoder="tiles")
-    assert str(path) in str(caught.value)
+    assert str(caught.value).startswith(f"{path}: ")
+    strip = _write(tmp_path / "strip.dng", _data(rng))
+    tiles = open_dng(strip)
+    strip.write_bytes(strip.read_bytes()[: tiles.offsets[0] + tiles.byte_counts[0] // 2])
+    with pytest.raises(RawFileError, match=r"corrupt or truncated RAW file") as caught:
+        read_raw(strip, decoder="tiles", exposure_s=0.01)
+    assert str(caught.value).startswith(f"{strip}: ")
 
 
 def test_only_the_tiles_meeting_the_window_are_read(

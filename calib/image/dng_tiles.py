@@ -225,11 +225,11 @@ class DngTiles:
                         min(block_rows, raw_height - block_top),
                         min(block_columns, raw_width - block_left),
                     )
-                    block = self._block(descriptor, index, held)
                     r0, r1 = max(row0, block_top), min(row1, block_top + held[0])
                     c0, c1 = max(column0, block_left), min(column1, block_left + held[1])
+                    block = self._block(descriptor, index, held, (r0 - block_top, r1 - block_top))
                     window[r0 - row0 : r1 - row0, c0 - column0 : c1 - column0] = block[
-                        r0 - block_top : r1 - block_top, c0 - block_left : c1 - block_left
+                        :, c0 - block_left : c1 - block_left
                     ]
         finally:
             os.close(descriptor)
@@ -237,28 +237,34 @@ class DngTiles:
             return np.take(self.linearization, window)
         return window
 
-    def _block(self, descriptor: int, index: int, held: tuple[int, int]) -> NDArray[Any]:
-        """Tile (strip) ``index`` as an array of at least ``held`` rows × columns."""
+    def _block(
+        self, descriptor: int, index: int, held: tuple[int, int], rows: tuple[int, int]
+    ) -> NDArray[Any]:
+        """Rows ``rows[0]:rows[1]`` of tile (strip) ``index``, which holds image data in its first
+        ``held`` rows × columns. Uncompressed rows are read alone; a JPEG tile is decoded whole."""
+        block_rows, block_columns = self.block_shape
         count = self.byte_counts[index]
+        if self.compression == _COMPRESSION_NONE:
+            row_bytes = block_columns * self.dtype.itemsize
+            start, length = rows[0] * row_bytes, (rows[1] - rows[0]) * row_bytes
+            if start + length > count:
+                raise CorruptDng(
+                    f"corrupt DNG: tile {index} holds {count} bytes, rows up to {rows[1]} need "
+                    f"{start + length}",
+                    source=str(self.path),
+                )
+            data = os.pread(descriptor, length, self.offsets[index] + start)
+            if len(data) < length:
+                raise CorruptDng(
+                    f"truncated DNG: tile {index} ends {length - len(data)} bytes early",
+                    source=str(self.path),
+                )
+            return np.frombuffer(data, self.dtype).reshape(rows[1] - rows[0], block_columns)
         data = os.pread(descriptor, count, self.offsets[index])
         if len(data) < count:
             raise CorruptDng(
                 f"truncated DNG: tile {index} holds {len(data)} of {count} bytes",
                 source=str(self.path),
-            )
-        block_rows, block_columns = self.block_shape
-        strips = block_columns == self.raw_shape[1]
-        if self.compression == _COMPRESSION_NONE:
-            # a strip may stop at the image's last row; a tile is always whole
-            rows = held[0] if strips else block_rows
-            needed = rows * block_columns * self.dtype.itemsize
-            if len(data) < needed:
-                raise CorruptDng(
-                    f"corrupt DNG: tile {index} holds {len(data)} bytes, {needed} expected",
-                    source=str(self.path),
-                )
-            return np.frombuffer(data, self.dtype, rows * block_columns).reshape(
-                rows, block_columns
             )
         import imagecodecs  # deferred: only lossless-JPEG DNGs need it
 
@@ -277,7 +283,7 @@ class DngTiles:
                 f"not the tile's {block_rows}×{block_columns}; LibRaw decodes this file",
                 source=str(self.path),
             )
-        return decoded
+        return decoded[rows[0] : rows[1]]
 
     def black_dn(self, rows: slice, columns: slice) -> Float64Array:
         """Black level of every pixel of the window ``(rows, columns)``: the BlackLevel pattern

@@ -27,6 +27,7 @@ rate (a lower bound where it clipped) with infinite variance.
 
 Frames are streamed: the next ones are decoded (in background threads) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
+Over a region of interest, DNG frames decode only the tiles that meet it (:mod:`calib.image.dng_tiles`).
 Optional dark frames are matched to the light frames by exposure time (and averaged per exposure).
 All frames must come from one camera at one ISO, size and aperture; the first file that differs is
 named in the error.

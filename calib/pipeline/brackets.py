@@ -11,7 +11,8 @@ often a tenth of the frame. So, for frames of :data:`REGION_MIN_SAMPLES` plane s
    background dominates it (detection estimates the background as a median);
 2. every frame of every lamp is merged over that region only (:func:`calib.image.hdr.merge_bracket`
    ``region=``), and the geometry detected at full resolution on the merged region of the brightest
-   broadband lamp;
+   broadband lamp; DNG frames are decoded only where they meet the region (the tiles of
+   :mod:`calib.image.dng_tiles`; other formats are unpacked whole by LibRaw);
 3. if anything of that fails (no coarse detection, the band reaches the region's edge), the lamp is
    merged over the whole frame instead: the region is an optimisation, never a source of error.
 
