@@ -6,6 +6,10 @@ array is split into three planes without demosaicing: R, G (the mean of the two 
 (LibRaw's ``black_level_per_channel`` is indexed by colour index, not raster position), and a
 saturation mask marks samples at or near the clipping level.
 
+DNGs whose layout the tile decoder (:mod:`calib.image.dng_tiles`) reads exactly are decoded there,
+and only the tiles that meet a requested region are decoded; LibRaw decodes every other file (and a
+DNG the tile decoder refuses, saying why in :attr:`RawPlanes.decoding`). See :data:`RawDecoder`.
+
 Coordinates stay in the sensor's frame (LibRaw's ``flip`` is not applied). A plane sample ``(i, j)``
 of channel ``c`` sits at sensor pixel ``(2 i + dy_c, 2 j + dx_c)`` (row, column), where ``(dy_c, dx_c)``
 is that colour's place in the 2×2 cell (``channel_origin_px``; green is the mean of its two sites,
