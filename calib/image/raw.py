@@ -338,6 +338,16 @@ class UnpackedRaw:
         self.close()
 
 
+#: exifread's names of the DNGVersion tag (older versions know it only by number).
+_DNG_VERSION_KEYS = ("Image DNGVersion", "Image Tag 0xC612")
+
+
+def _may_be_dng(exif: Mapping[str, Any]) -> bool:
+    """A DNG, or a file exifread could not parse (tifffile then decides): other TIFF-based RAWs
+    (NEF, CR2, ARW …) are not parsed twice."""
+    return not exif or any(key in exif for key in _DNG_VERSION_KEYS)
+
+
 def unpack_raw(path: str | os.PathLike[str], decoder: RawDecoder = "auto") -> UnpackedRaw:
     """Open ``path`` for :func:`read_raw`: a DNG the tile decoder reads is only opened (tags and
     tile offsets), anything else is unpacked by LibRaw (see :data:`RawDecoder` and, for the errors,
@@ -354,7 +364,7 @@ def unpack_raw(path: str | os.PathLike[str], decoder: RawDecoder = "auto") -> Un
     _check_file(file)
     exif = exif_tags(file)
     fallback: str | None = None
-    if decoder != "libraw":
+    if decoder == "tiles" or (decoder == "auto" and _may_be_dng(exif)):
         try:
             return UnpackedRaw(file, exif, tiles=open_dng(file), strict=decoder == "tiles")
         except NotDng:
