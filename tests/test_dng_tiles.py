@@ -235,7 +235,7 @@ def test_black_level_follows_the_dng_specification(
     np.testing.assert_allclose(tiles.green_difference_dn, site(first) - site(second), atol=1e-3)
     if libraw_tolerance is not None:  # LibRaw subtracts a truncated black: never more
         difference = libraw.signal_dn - tiles.signal_dn
-        assert -1e-3 <= difference.min() and difference.max() <= libraw_tolerance
+        assert difference.min() >= -1e-3 and difference.max() <= libraw_tolerance
     else:  # LibRaw's model is coarser: the difference is the specification's detail
         assert np.abs(libraw.signal_dn - tiles.signal_dn).max() > 1.0
 
