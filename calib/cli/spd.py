@@ -31,13 +31,13 @@ import numpy as np
 import typer
 
 from calib.core.errors import CalibError, EstimationError, InputError
+from calib.core.formats import read_camera as read_camera_file
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
 from calib.core.spectra import (
     MultiSpectrum,
     Spectrum,
     WavelengthGrid,
-    read_multispectrum_csv,
     read_spectrum_csv,
     write_csv,
 )
@@ -115,14 +115,8 @@ class SpdMeasurement:
 
 
 def read_camera(path: Path) -> MultiSpectrum:
-    """A ``wavelength_nm,r,g,b`` sensitivity CSV (any header names; three value columns)."""
-    camera = read_multispectrum_csv(path, name=path.name, negative="clip")
-    if camera.values.shape[1] != 3:
-        raise InputError(
-            f"expected 3 sensitivity columns (R, G, B), found {camera.values.shape[1]} "
-            f"{camera.channels}",
-            source=str(path),
-        )
+    """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`)."""
+    camera = read_camera_file(path).to_multispectrum()
     if float(camera.values.max()) <= 0:
         raise InputError("the sensitivities are zero everywhere", source=str(path))
     return camera.normalised()
@@ -524,7 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         required=True,
         metavar="CSV",
-        help="the camera's sensitivity: wavelength_nm,r,g,b",
+        help="the camera's sensitivity: a CSV with columns wavelength_nm,R,G,B by name, a camera JSON, or an estimate's output directory",
     )
     parser.add_argument(
         "--grating-efficiency",
