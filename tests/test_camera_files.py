@@ -55,7 +55,7 @@ def _header(**changes: str) -> AmpasHeader:
         "license": "CC0-1.0",
     }
     fields.update(changes)
-    return AmpasHeader(**fields)  # type: ignore[arg-type]
+    return AmpasHeader(**fields)
 
 
 # ------------------------------------------------------------------------------ readers by name
