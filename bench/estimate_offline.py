@@ -177,10 +177,10 @@ def main() -> int:
         wall, memory, stdout, cpu = min(estimate_runs, key=lambda run: run[0])
         decode_cpu = min(run[3] for run in decode_runs)
         summary = json.loads(stdout)
+        from calib.core.formats.rgb_csv import read_camera_csv
         from calib.core.metrics import relative_error
-        from calib.core.spectra import read_multispectrum_csv
 
-        estimated = read_multispectrum_csv(Path(summary["files"]["sensitivity"]))
+        estimated = read_camera_csv(Path(summary["files"]["sensitivity"]))
         truth = scene["camera"].sensitivity.resample(estimated_grid(estimated)).values
         relative = relative_error(estimated.values, truth)
     timings = summary["timings_s"]
