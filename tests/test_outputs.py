@@ -331,3 +331,20 @@ def test_a_paused_hasher_hashes_once_started_or_when_asked(tmp_path: Path) -> No
         assert [record.sha256 for record in hasher.results()] == expected[1:]
     with FileHasher(paused=True) as hasher:  # nor does leaving the block
         hasher.add(files[0], "frame", "A")
+
+
+def test_dcp_and_icc_are_made_when_dcamprof_is_installed(
+    outcome: OfflineOutcome, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from calib.pipeline.outputs import write_outputs
+    from tests import fake_dcamprof
+
+    assert "not installed" in json.loads(outcome.files["result"].read_text())["dcamprof"]
+    assert "dcp" not in outcome.files
+    assert "DCP and ICC profiles: not made here" in outcome.files["report"].read_text()
+    fake_dcamprof.install(tmp_path / "bin")
+    monkeypatch.setenv("PATH", f"{tmp_path / 'bin'}:/usr/bin:/bin")
+    files = write_outputs(tmp_path / "out", outcome.estimate)
+    assert files["dcp"].name == "spectral-rig SimCam.dcp" and files["dcp"].parent.name == "dcamprof"
+    assert files["icc"].read_bytes()[36:40] == b"acsp"
+    assert json.loads(files["result"].read_text())["dcamprof"].startswith("made by")

@@ -28,6 +28,9 @@ On 380–780 nm at 5 nm, the estimate extended honestly beyond its measured rang
     (:mod:`calib.core.formats.dcamprof`); ``calib profile`` runs dcamprof with it.
 ``<Make>_<Model>.txt``
     vkdt's ``λ R G B`` text for ``vkdt-mkclut`` (:mod:`calib.core.formats.vkdt`).
+``dcamprof/<Make> <Model>.dcp``, ``dcamprof/<Make> <Model>.icc``
+    Dual-illuminant DCP and ICC profiles, when dcamprof is installed (:mod:`calib.use.dcamprof`);
+    without it ``result.json`` says so and ``calib profile DIR`` makes them later.
 """
 
 from __future__ import annotations
@@ -57,10 +60,12 @@ from calib.model.extension import Extension, extend
 from calib.pipeline.camera_identity import CameraIdentity, camera_identity
 from calib.pipeline.estimate import OfflineEstimate
 from calib.use import CameraUses, camera_uses
+from calib.use.dcamprof import DcamprofError, find_dcamprof, make_profiles
 
 SENSITIVITY_FILE = "sensitivity.csv"
 RESULT_FILE = "result.json"
 GRATING_FILE = "grating.json"
+DCAMPROF_DIR = "dcamprof"
 #: The camera files carry a licence (the schema requires one); the measurement's owner decides it.
 CAMERA_FILE_LICENSE = "unspecified: set by whoever measured the camera before sharing the file"
 MEASUREMENT_EQUIPMENT = (
@@ -277,9 +282,12 @@ def write_result_json(
     estimate: OfflineEstimate,
     files: Mapping[str, Path] | None = None,
     delivered: DeliveredCamera | None = None,
+    *,
+    dcamprof_note: str | None = None,
 ) -> Path:
     """Write :func:`result_document` as indented JSON (NaN and infinities as ``null``)."""
     document = json_safe(result_document(estimate, files, delivered))
+    document["dcamprof"] = dcamprof_note
     path.write_text(json.dumps(document, indent=1, allow_nan=False) + "\n")
     return path
 
@@ -343,8 +351,9 @@ def write_outputs(
     Returns
     -------
     dict
-        ``{"sensitivity", "camera_json", "dcamprof", "vkdt", "grating", "result"}`` → path
-        (``grating`` only when the efficiency was estimated).
+        ``{"sensitivity", "camera_json", "dcamprof", "vkdt", "dcp", "icc", "grating", "result"}``
+        → path (``dcp``/``icc`` only with dcamprof installed, ``grating`` only when the efficiency
+        was estimated).
     """
     delivered = delivered or deliver(estimate)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -363,9 +372,25 @@ def write_outputs(
         "dcamprof": write_ssf_json(out_dir / f"{stem}_ssf.json", extended, delivered.identity.name),
         "vkdt": write_vkdt_txt(out_dir / f"{stem}.txt", extended),
     }
+    profiles, note = dcamprof_profiles(files["dcamprof"], delivered, out_dir / DCAMPROF_DIR)
+    files.update(profiles)
     grating = grating_from_result(estimate)
     if grating is not None:
         files["grating"] = write_grating_file(out_dir / GRATING_FILE, grating)
     files["result"] = out_dir / RESULT_FILE
-    write_result_json(files["result"], estimate, files, delivered)
+    write_result_json(files["result"], estimate, files, delivered, dcamprof_note=note)
     return files
+
+
+def dcamprof_profiles(
+    ssf_json: Path, delivered: DeliveredCamera, out_dir: Path
+) -> tuple[dict[str, Path], str]:
+    """DCP and ICC through dcamprof when it is on ``PATH``; otherwise nothing, and why."""
+    program = find_dcamprof()
+    if program is None:
+        return {}, "dcamprof is not installed: no DCP/ICC (calib profile DIR makes them later)"
+    try:
+        made = make_profiles(ssf_json, delivered.identity.name, out_dir, executable=program)
+    except DcamprofError as exc:
+        return {}, f"no DCP/ICC: {exc}"
+    return {"dcp": made.dcp, "icc": made.icc}, f"made by {program}"

@@ -51,6 +51,8 @@ FILE_USES = {
     "camera_json": "rawtoaces: put it in a directory on RAWTOACES_DATA_PATH, under camera/",
     "dcamprof": "dcamprof make-target / make-profile -c (calib profile runs them: DCP, ICC)",
     "vkdt": "vkdt-mkclut: writes the .lut that vkdt's colour module reads",
+    "dcp": "Adobe Camera Raw / Lightroom, RawTherapee: a dual-illuminant (A, D65) camera profile",
+    "icc": "raw converters taking ICC input profiles (darktable, RawTherapee)",
     "grating": "a later calib estimate / rig estimate --grating without a direct measurement",
     "result": "everything above; calib idt, calib ccm and calib raw-to-raw read it",
 }
@@ -320,7 +322,9 @@ def _lines_section(lines: list[dict[str, Any]] | None) -> list[str]:
     parts.append("<table><tr>" + "".join(f"<th>{_escape(c)}</th>" for c in columns) + "</tr>")
     for line in lines:
         parts.append(
-            "<tr>" + "".join(f"<td>{_escape(_format(line.get(c), 7))}</td>" for c in columns) + "</tr>"
+            "<tr>"
+            + "".join(f"<td>{_escape(_format(line.get(c), 7))}</td>" for c in columns)
+            + "</tr>"
         )
     parts.append("</table>")
     return parts
@@ -337,6 +341,12 @@ def _files_section(files: Mapping[str, Path], out_dir: Path) -> list[str]:
             f"<td>{_escape(FILE_USES.get(key, ''))}</td></tr>"
         )
     parts.append("</table>")
+    if "dcp" not in files:
+        parts.append(
+            "<p>DCP and ICC profiles: not made here (dcamprof was not found on PATH, or failed: "
+            "result.json's <code>dcamprof</code> entry says which); <code>calib profile "
+            "DIR</code> makes them with dcamprof installed.</p>"
+        )
     return parts
 
 

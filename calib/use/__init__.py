@@ -15,9 +15,14 @@ pipeline's outputs and report use it):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+from calib.core.camera_curves import CameraCurves
 from calib.core.colour_bridge import ILLUMINANTS
+from calib.core.formats import read_camera
+from calib.core.formats.ampas import RAWTOACES_GRID, read_camera_json
+from calib.model.extension import extend
 from calib.use.colour_correction import (
     REPORT_ILLUMINANTS,
     ColourCorrection,
@@ -27,7 +32,7 @@ from calib.use.colour_correction import (
 )
 from calib.use.idt import IDT_ILLUMINANTS, AcesIdt, aces_idt
 
-__all__ = ["CameraUses", "camera_uses"]
+__all__ = ["CameraUses", "camera_for_uses", "camera_uses"]
 
 
 @dataclass(frozen=True)
@@ -61,3 +66,22 @@ def camera_uses(camera: Any, *, truth: Any = None) -> CameraUses:
         if truth is None
         else tuple(compare_with_truth(camera, truth, name) for name in REPORT_ILLUMINANTS),
     )
+
+
+def camera_for_uses(source: Any) -> tuple[CameraCurves, str]:
+    """A camera on 380–780 nm / 5 nm for the uses, and a sentence saying where it comes from.
+
+    An estimate's output directory gives its camera JSON (already extended, see
+    :mod:`calib.model.extension`); any other camera (file or object,
+    :func:`calib.core.formats.read_camera`) is extended when it does not cover 380–780 nm.
+    """
+    if isinstance(source, str | Path) and Path(source).is_dir():
+        found = sorted(Path(source).glob("*_380_780_5.json"))
+        if len(found) == 1:
+            return read_camera_json(found[0]).curves, f"{found[0].name} (380–780 nm / 5 nm)"
+    curves = read_camera(source)
+    low, high = curves.range_nm
+    if low <= RAWTOACES_GRID.start_nm and high >= RAWTOACES_GRID.stop_nm:
+        return curves, f"{curves.name} ({low:g}–{high:g} nm)"
+    extension = extend(curves)
+    return extension.curves, f"{curves.name}: {extension.describe()}"
