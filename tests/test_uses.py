@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cli import main
 from calib.core.camera_curves import CameraCurves, as_camera
 from calib.core.formats.dcamprof import write_ssf_json
 from calib.core.spectra import WavelengthGrid
@@ -18,6 +17,7 @@ from calib.use.dcamprof import DcamprofError, find_dcamprof, make_profiles
 from calib.use.idt import aces_idt
 from calib.use.raw_to_raw import raw_to_raw
 from tests import fake_dcamprof
+from tests.test_cli_spd import run_cli
 
 
 @pytest.fixture(scope="module")
@@ -160,17 +160,6 @@ def test_dcamprof_absent_is_skipped_cleanly(
 # ------------------------------------------------------------------------------- commands
 
 
-def _run(
-    arguments: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> tuple[int, str, str]:
-    monkeypatch.setattr("sys.argv", ["calib", *arguments])
-    with pytest.raises(SystemExit) as exited:
-        main()
-    captured = capsys.readouterr()
-    code = exited.value.code
-    return (code if isinstance(code, int) else 1), captured.out, captured.err
-
-
 def test_the_commands_read_any_camera_file(
     nikon: CameraCurves,
     tmp_path: Path,
@@ -181,25 +170,27 @@ def test_the_commands_read_any_camera_file(
     from calib.core.formats.rgb_csv import write_camera_csv
 
     camera = write_camera_csv(tmp_path / "nikon.csv", nikon)
-    code, out, err = _run(["idt", str(camera), "--illuminant", "A", "--json"], monkeypatch, capsys)
+    code, out, err = run_cli(
+        ["idt", str(camera), "--illuminant", "A", "--json"], monkeypatch, capsys
+    )
     assert code == 0, err
     record = json.loads(out)
     np.testing.assert_allclose(
         record["matrix_camera_rgb_to_aces2065_1"], aces_idt(nikon, "A").matrix
     )
-    code, out, err = _run(["ccm", str(camera)], monkeypatch, capsys)
+    code, out, err = run_cli(["ccm", str(camera)], monkeypatch, capsys)
     assert code == 0 and "ColorChecker ΔE2000: mean" in out
-    code, out, err = _run(["raw-to-raw", str(camera), str(camera)], monkeypatch, capsys)
+    code, out, err = run_cli(["raw-to-raw", str(camera), str(camera)], monkeypatch, capsys)
     assert code == 0 and "median 0.00 %" in out
-    code, out, err = _run(["idt", str(camera), "--illuminant", "F11"], monkeypatch, capsys)
+    code, out, err = run_cli(["idt", str(camera), "--illuminant", "F11"], monkeypatch, capsys)
     assert code == 2 and "unknown illuminant 'F11'" in err and err.count("\n") == 1
-    code, out, err = _run(["profile", str(camera)], monkeypatch, capsys)
+    code, out, err = run_cli(["profile", str(camera)], monkeypatch, capsys)
     assert code == 2 and "--name" in err
     arguments = ["profile", str(camera), "--out", str(tmp_path / "p"), "--name", "Nikon D5100"]
-    code, out, err = _run(arguments, monkeypatch, capsys)
+    code, out, err = run_cli(arguments, monkeypatch, capsys)
     assert code == 0, err
     assert (tmp_path / "p" / "Nikon D5100.dcp").read_bytes()[:4] == b"IIRC"
     assert f"DCP: {tmp_path / 'p' / 'Nikon D5100.dcp'}" in out
     monkeypatch.setenv("PATH", str(tmp_path / "empty"))
-    code, out, err = _run(arguments, monkeypatch, capsys)
+    code, out, err = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and "dcamprof is not installed" in err

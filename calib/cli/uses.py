@@ -27,6 +27,16 @@ def _matrix_lines(matrix: Any) -> list[str]:
     return ["  " + "  ".join(f"{value:+.6f}" for value in row) for row in matrix]
 
 
+def _balanced_matrix(origin: str, heading: str, matrix: Any, white_balance: Any) -> list[str]:
+    """The lines of a matrix applied to white-balanced camera RGB, and the white balance."""
+    return [
+        f"camera: {origin}",
+        heading,
+        *_matrix_lines(matrix),
+        "white balance R, G, B: " + ", ".join(f"{v:.6f}" for v in white_balance),
+    ]
+
+
 def _print(record: dict[str, Any], lines: list[str], as_json: bool) -> None:
     if as_json:
         typer.echo(json.dumps(record, indent=1, ensure_ascii=False))
@@ -45,12 +55,8 @@ def register(app: typer.Typer) -> None:
 
         curves, origin = camera_for_uses(camera)
         result = aces_idt(curves, illuminant)
-        lines = [
-            f"camera: {origin}",
-            f"ACES IDT under {illuminant} (white-balanced camera RGB → ACES2065-1):",
-            *_matrix_lines(result.matrix),
-            "white balance R, G, B: " + ", ".join(f"{v:.6f}" for v in result.white_balance),
-        ]
+        heading = f"ACES IDT under {illuminant} (white-balanced camera RGB → ACES2065-1):"
+        lines = _balanced_matrix(origin, heading, result.matrix, result.white_balance)
         _print({"camera": origin, **result.to_dict()}, lines, as_json)
 
     @app.command("ccm")
@@ -63,11 +69,11 @@ def register(app: typer.Typer) -> None:
 
         curves, origin = camera_for_uses(camera)
         result = fit_colour_correction(curves, illuminant)
+        heading = (
+            f"colour-correction matrix under {illuminant} (white-balanced camera RGB → CIE XYZ):"
+        )
         lines = [
-            f"camera: {origin}",
-            f"colour-correction matrix under {illuminant} (white-balanced camera RGB → CIE XYZ):",
-            *_matrix_lines(result.matrix),
-            "white balance R, G, B: " + ", ".join(f"{v:.6f}" for v in result.white_balance),
+            *_balanced_matrix(origin, heading, result.matrix, result.white_balance),
             f"ColorChecker ΔE2000: mean {result.delta_e.mean:.2f}, max {result.delta_e.max:.2f} "
             f"({result.delta_e.worst})",
         ]

@@ -5,7 +5,6 @@ them (and colour-science objects, through :func:`calib.core.camera_curves.as_cam
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +12,7 @@ from calib.core.camera_curves import CameraCurves, as_camera
 from calib.core.errors import InputError
 from calib.core.formats.ampas import read_camera_json
 from calib.core.formats.dcamprof import read_ssf_json
+from calib.core.formats.json_file import read_json
 from calib.core.formats.result_json import RESULT_SCHEMA, read_result_camera
 from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.formats.vkdt import read_vkdt_txt
@@ -21,14 +21,7 @@ RESULT_FILE = "result.json"
 
 
 def _json_kind(path: Path) -> str:
-    from calib.core.formats.dcamprof import strip_comments
-
-    try:
-        document = json.loads(strip_comments(path.read_text(encoding="utf-8")))
-    except FileNotFoundError:
-        raise InputError("file not found", source=str(path)) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"not readable JSON ({exc})", source=str(path)) from None
+    document = read_json(path, comments=True)
     if isinstance(document, dict):
         if document.get("schema") == RESULT_SCHEMA:
             return "result"

@@ -34,6 +34,7 @@ import numpy as np
 
 from calib.core.camera_curves import CHANNEL_LABELS, CameraCurves, channel_order
 from calib.core.errors import InputError
+from calib.core.formats.json_file import read_json
 from calib.core.spectra import WavelengthGrid
 
 #: The bundled copy of rawtoaces-data (LICENSE, NOTICE, SOURCE_COMMIT beside the files).
@@ -224,14 +225,7 @@ def read_camera_json(path: str | Path) -> AmpasCamera:
         not name R, G, B (the file is named).
     """
     path = Path(path)
-    try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise AmpasFormatError("file not found", source=str(path)) from None
-    except OSError as exc:
-        raise AmpasFormatError(f"cannot read: {exc.strerror}", source=str(path)) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise AmpasFormatError(f"not valid JSON ({exc})", source=str(path)) from None
+    document = read_json(path, error=AmpasFormatError)
     try:
         main = document["spectral_data"]["data"]["main"]
         labels = document["spectral_data"].get("index", {}).get("main", list(CHANNEL_LABELS))

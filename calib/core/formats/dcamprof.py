@@ -13,7 +13,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import re
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +20,7 @@ import numpy as np
 
 from calib.core.camera_curves import CameraCurves
 from calib.core.errors import InputError
+from calib.core.formats.json_file import read_json
 
 _FIELDS = ("red_ssf", "green_ssf", "blue_ssf")
 
@@ -96,14 +96,6 @@ def write_ssf_json(path: Path, curves: CameraCurves, camera_name: str) -> Path:
     return path
 
 
-_COMMENT = re.compile(r'"(?:\\.|[^"\\])*"|//[^\n]*')
-
-
-def strip_comments(text: str) -> str:
-    """dcamprof's ``//`` comments removed (never inside a string)."""
-    return _COMMENT.sub(lambda m: m.group(0) if m.group(0).startswith('"') else "", text)
-
-
 def read_ssf_json(path: str | Path) -> CameraCurves:
     """Read a dcamprof SSF file (strict JSON or with dcamprof's ``//`` comments).
 
@@ -113,12 +105,7 @@ def read_ssf_json(path: str | Path) -> CameraCurves:
         Not JSON, or a rule of :func:`ssf_problems` broken (the file and field are named).
     """
     path = Path(path)
-    try:
-        document = json.loads(strip_comments(path.read_text(encoding="utf-8")))
-    except FileNotFoundError:
-        raise DcamprofFormatError("file not found", source=str(path)) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DcamprofFormatError(f"not readable JSON ({exc})", source=str(path)) from None
+    document = read_json(path, comments=True, error=DcamprofFormatError)
     problems = ssf_problems(document)
     if problems:
         raise DcamprofFormatError(problems[0], source=str(path))

@@ -7,7 +7,6 @@ same keys, or ``null``. Format version 1 used the keys ``r, g, b``; both are rea
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +14,7 @@ import numpy as np
 
 from calib.core.camera_curves import CHANNEL_LABELS, CameraCurves
 from calib.core.errors import InputError
+from calib.core.formats.json_file import read_json
 
 RESULT_SCHEMA = "spectral-rig/estimate-result"
 RESULT_FORMAT_VERSION = 2
@@ -36,12 +36,7 @@ def read_result_camera(path: str | Path) -> CameraCurves:
         Not JSON, not a spectral-rig result, a newer format, or missing fields (the file is named).
     """
     path = Path(path)
-    try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError("file not found", source=str(path)) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"not readable JSON ({exc})", source=str(path)) from None
+    document = read_json(path)
     if not isinstance(document, dict) or document.get("schema") != RESULT_SCHEMA:
         raise InputError(f"not a {RESULT_SCHEMA} document", source=str(path))
     version = document.get("format_version")
