@@ -280,3 +280,23 @@ def test_read_camera_refuses_what_is_not_a_camera(tmp_path: Path) -> None:
         read_camera(path)
     with pytest.raises(InputError, match=r"no result\.json"):
         read_camera(tmp_path)
+
+
+def test_colour_spectra_and_cameras_are_accepted_by_the_pipeline_and_the_basis() -> None:
+    import colour
+
+    from calib.core.spectra import DEFAULT_GRID, as_spectrum
+    from calib.model.bases import camera_basis
+    from calib.pipeline.inputs import load_spectrum
+
+    fl2 = colour.SDS_ILLUMINANTS["FL2"]
+    loaded = load_spectrum(fl2, "FL2", DEFAULT_GRID)
+    np.testing.assert_array_equal(loaded.spectrum.values, fl2.values)
+    with pytest.raises(SpectrumError, match="not a spectrum"):
+        as_spectrum([1, 2, 3], "lamp")
+    cameras = list(colour.MSDS_CAMERA_SENSITIVITIES.values())
+    from_colour = camera_basis(cameras, n_vectors=2, cache=False)
+    from_spectra = camera_basis(
+        [MultiSpectrum.from_colour(camera) for camera in cameras], n_vectors=2, cache=False
+    )
+    np.testing.assert_allclose(from_colour.mean, from_spectra.mean)

@@ -354,6 +354,28 @@ class Spectrum:
         )
 
 
+def as_spectrum(spectrum: object, name: str | None = None) -> Spectrum:
+    """Any spectrum-like object as a :class:`Spectrum`: a :class:`Spectrum`, or a colour-science
+    ``SpectralDistribution`` (read through its ``wavelengths`` and ``values``; colour itself is
+    not imported).
+
+    Raises
+    ------
+    SpectrumError
+        Not a spectrum (names what was given), or invalid values.
+    """
+    if isinstance(spectrum, Spectrum):
+        return spectrum
+    values = getattr(spectrum, "values", None)
+    if getattr(spectrum, "wavelengths", None) is None or values is None or np.ndim(values) != 1:
+        raise SpectrumError(
+            f"{type(spectrum).__name__} is not a spectrum: expected a Spectrum or colour's "
+            "SpectralDistribution",
+            source=name or "spectrum",
+        )
+    return Spectrum.from_colour(spectrum, name=name)
+
+
 @dataclass(frozen=True, eq=False, init=False)
 class MultiSpectrum:
     """Several curves on one wavelength axis, e.g. a camera's R, G, B sensitivities.

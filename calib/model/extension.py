@@ -46,6 +46,9 @@ N_NEIGHBOURS = 8
 #: A reference camera closer than this RE to a known truth is the same camera (left out).
 SAME_CAMERA_RE = 0.02
 _MISFIT_FLOOR = 1e-3
+#: No extended sample is certain: σ is at least the references' own resolution (their files print
+#: about 10⁻⁵ of the peak; several store what they could not resolve as exact zeros).
+SIGMA_FLOOR = 1e-5
 
 
 @dataclass(frozen=True)
@@ -154,7 +157,9 @@ def _predict_end(
             if fitted > 0:
                 relative = absolute / fitted
         values[:, c] = mean
-        sigma[:, c] = np.sqrt(spread + (mean * relative) ** 2 + (absolute * fade) ** 2)
+        sigma[:, c] = np.sqrt(
+            spread + (mean * relative) ** 2 + (absolute * fade) ** 2 + SIGMA_FLOOR**2
+        )
     return values, sigma
 
 
