@@ -199,6 +199,8 @@ def test_demo_end_to_end_with_the_session_estimator(
     # The report shows the truth beside the estimate and the ColorChecker's ΔE2000 under D65 and A.
     page = report.read_text()
     assert "RE against the truth" in page and "twin-truth.json" in page
+    assert (report.parent / "plots" / "warmup.png").is_file()  # from the session's warm-up records
+    assert "Lamp warm-up: not recorded" not in page
     for illuminant in ("D65", "A"):
         key = next(
             k
