@@ -55,6 +55,11 @@ def test_sensitivity_csv_is_on_the_grid_with_maximum_one(outcome: OfflineOutcome
     np.testing.assert_allclose(values[:, 4:], result.sensitivity_sigma, rtol=1e-12)
     text = outcome.files["sensitivity"].read_text()
     assert "# units: relative; normalisation: maximum over all channels = 1" in text
+    import colour  # an independent reader: colour-science's own CSV reader, by column name
+
+    sds = colour.io.read_sds_from_csv_file(outcome.files["sensitivity"])
+    np.testing.assert_allclose(sds["G"].values, values[:, 2], atol=1e-15)
+    np.testing.assert_allclose(sds["B_sigma"].values, values[:, 6], atol=1e-15)
 
 
 def _sha256(path: Path) -> str:
