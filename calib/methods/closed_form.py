@@ -35,47 +35,63 @@ SEARCH_METHODS: tuple[SearchMethod, ...] = ("search", "icp")
 
 
 @dataclass(frozen=True)
-class ClosedFormOptions:
-    """Options every closed-form solve takes (checked on construction).
+class GratingMethodOptions:
+    """What every grating method's options hold: how the lamps are read and the mapping found.
 
     Attributes
     ----------
-    mapping_method
-        ``"search"`` (fit the whole profile under the camera prior) or ``"icp"`` (the paper's
-        point-to-plane ICP from a flat start, for reproduction).
     prior_shrinkage
         Shrinkage of the camera prior's covariance (``None``: Ledoit–Wolf,
         :meth:`calib.model.bases.CameraBasis.prior`); the prior steers the mapping search, and the
-        prior solve.
-    efficiency_terms, fourier_convention
-        The Fourier basis of ``η⁻¹`` (Supp. E).
-    solve_lamps
-        Names of the lamps that enter the solve. ``None``: every non-fluorescent lamp with a direct
-        measurement (the paper uses the LED only), else every lamp with one.
+        solves that lean on it.
     refine_given_mapping
         Treat a given mapping as a start for the search rather than the answer.
     slit_width_px, psf_sigma_px
         Blur of the profile along dispersion (when the observations carry no line spread).
     """
 
-    mapping_method: SearchMethod = "search"
     prior_shrinkage: float | None = None
-    efficiency_terms: int = 7
-    fourier_convention: FourierConvention = "paired"
-    solve_lamps: tuple[str, ...] | None = None
     refine_given_mapping: bool = False
     slit_width_px: float = 0.0
     psf_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.prior_shrinkage is not None and not 0.0 <= self.prior_shrinkage <= 1.0:
+            raise InputError(
+                f"must be in [0, 1], got {self.prior_shrinkage}", source="prior_shrinkage"
+            )
+        if self.slit_width_px < 0 or self.psf_sigma_px < 0:
+            raise InputError("slit width and PSF sigma must be >= 0 px", source="blur")
+
+
+@dataclass(frozen=True)
+class ClosedFormOptions(GratingMethodOptions):
+    """Options every closed-form solve takes (checked on construction), besides
+    :class:`GratingMethodOptions`'.
+
+    Attributes
+    ----------
+    mapping_method
+        ``"search"`` (fit the whole profile under the camera prior) or ``"icp"`` (the paper's
+        point-to-plane ICP from a flat start, for reproduction).
+    efficiency_terms, fourier_convention
+        The Fourier basis of ``η⁻¹`` (Supp. E).
+    solve_lamps
+        Names of the lamps that enter the solve. ``None``: every non-fluorescent lamp with a direct
+        measurement (the paper uses the LED only), else every lamp with one.
+    """
+
+    mapping_method: SearchMethod = "search"
+    efficiency_terms: int = 7
+    fourier_convention: FourierConvention = "paired"
+    solve_lamps: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
         if self.mapping_method not in SEARCH_METHODS:
             raise InputError(
                 f"unknown mapping method {self.mapping_method!r}; use 'search' or 'icp'",
                 source="mapping_method",
-            )
-        if self.prior_shrinkage is not None and not 0.0 <= self.prior_shrinkage <= 1.0:
-            raise InputError(
-                f"must be in [0, 1], got {self.prior_shrinkage}", source="prior_shrinkage"
             )
         if self.efficiency_terms < 1:
             raise InputError(

@@ -39,7 +39,7 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods.closed_form import check_lamps
+from calib.methods.closed_form import GratingMethodOptions, check_lamps
 from calib.methods.multilamp import (
     LampData,
     blend_with_prior,
@@ -56,30 +56,10 @@ KNOWN_GRATING_METHOD = "known-grating"
 
 
 @dataclass(frozen=True)
-class KnownGratingOptions:
-    """Options of :func:`estimate_known_grating` (checked on construction).
-
-    Attributes
-    ----------
-    prior_shrinkage
-        Shrinkage of the camera prior's covariance (``None``: Ledoit–Wolf): the prior that steers
-        the mapping search and fills in where the lamps are dim.
-    refine_given_mapping
-        Treat a given mapping as a start for the search.
-    slit_width_px, psf_sigma_px
-        Blur of the profile along dispersion (when the observations carry no line spread).
-    """
-
-    prior_shrinkage: float | None = None
-    refine_given_mapping: bool = False
-    slit_width_px: float = 0.0
-    psf_sigma_px: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.prior_shrinkage is not None and not 0.0 <= self.prior_shrinkage <= 1.0:
-            raise InputError(
-                f"must be in [0, 1], got {self.prior_shrinkage}", source="prior_shrinkage"
-            )
+class KnownGratingOptions(GratingMethodOptions):
+    """Options of :func:`estimate_known_grating`: those of every grating method
+    (:class:`calib.methods.closed_form.GratingMethodOptions`); ``prior_shrinkage`` shapes the
+    prior that steers the mapping search and fills in where the lamps are dim."""
 
 
 @one_blas_thread

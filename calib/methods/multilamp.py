@@ -56,7 +56,7 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods.closed_form import check_lamps, prepare_matched_lamp
+from calib.methods.closed_form import GratingMethodOptions, check_lamps, prepare_matched_lamp
 from calib.methods.prior_solve import ResponseEstimate, fit_response
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
 from calib.model.forward import WavelengthMapping
@@ -880,13 +880,13 @@ def calibrate_lamps(
 
 
 @dataclass(frozen=True)
-class MultilampOptions:
-    """Options of :func:`estimate_multilamp` (checked on construction).
+class MultilampOptions(GratingMethodOptions):
+    """Options of :func:`estimate_multilamp` (checked on construction), besides those of every
+    grating method (:class:`calib.methods.closed_form.GratingMethodOptions`: ``prior_shrinkage``,
+    ``refine_given_mapping``, the profile's blur).
 
     Attributes
     ----------
-    prior_shrinkage
-        Shrinkage of the camera prior's covariance (``None``: Ledoit–Wolf).
     prior_weight
         Fix the prior's weight ``λ`` instead of choosing it by ``weight_rule``.
     efficiency_terms
@@ -900,31 +900,20 @@ class MultilampOptions:
         ``"posterior"`` (default: the σ band, the camera prior's own uncertainty included),
         ``"noise"`` (the measurements' noise propagated alone, what :func:`bootstrap_sigma` checks)
         or ``"none"`` (no σ, for timing).
-    refine_given_mapping
-        Treat a given mapping as a start for the search.
-    slit_width_px, psf_sigma_px
-        Blur of the profile along dispersion (when the observations carry no line spread).
     """
 
-    prior_shrinkage: float | None = None
     prior_weight: float | None = None
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS
     efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL
     weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
     uncertainty: Uncertainty = "posterior"
-    refine_given_mapping: bool = False
-    slit_width_px: float = 0.0
-    psf_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.uncertainty not in UNCERTAINTIES:
             raise InputError(
                 f"unknown uncertainty {self.uncertainty!r}; choose from {UNCERTAINTIES}",
                 source="uncertainty",
-            )
-        if self.prior_shrinkage is not None and not 0.0 <= self.prior_shrinkage <= 1.0:
-            raise InputError(
-                f"must be in [0, 1], got {self.prior_shrinkage}", source="prior_shrinkage"
             )
         self.efficiency_settings()  # checks the model and the rule
 

@@ -466,6 +466,7 @@ def _known_grating_options(
     (none is lost on the way), the others, when set, are named in a warning."""
     if options is None:
         return KnownGratingOptions()
+    # Every grating method's options share these (GratingMethodOptions).
     kept = KnownGratingOptions(
         prior_shrinkage=options.prior_shrinkage,
         refine_given_mapping=options.refine_given_mapping,
