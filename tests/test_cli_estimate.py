@@ -276,6 +276,9 @@ def test_profile_input_with_direct_measurement(capture: Capture, tmp_path: Path)
     assert code == 0, stderr
     summary = json.loads(stdout)
     assert summary["method"] == "prior" and summary["warnings"] == []
+    # Two lamps measured directly: auto chose the prior solve and says why.
+    assert summary["method_choice"]["requested"] == "auto"
+    assert "multilamp needs at least 3" in summary["method_choice"]["reason"]
     values = np.loadtxt(tmp_path / "out" / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
     assert relative_error(values, capture.truth) < 0.05
 

@@ -55,6 +55,7 @@ def summary(outcome: OfflineOutcome) -> dict[str, Any]:
         {
             "status": "ok",
             "method": result.method,
+            "method_choice": result.diagnostics.get("method_choice"),
             "out_dir": str(outcome.files["result"].parent),
             "files": {key: str(path) for key, path in outcome.files.items() if ":" not in key},
             "camera": estimate.provenance.camera.get("camera"),
@@ -74,6 +75,11 @@ def _print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
     record = summary(outcome)
     lamps = ", ".join(f"{lamp['name']} ({lamp['kind']})" for lamp in record["lamps"])
     print(f"estimate: {record['method']} from {lamps}", file=stream)
+    if record["method_choice"]:
+        print(
+            f"method: auto chose {record['method']}: {record['method_choice']['reason']}",
+            file=stream,
+        )
     if record["camera"]:
         print(f"camera: {record['camera']}", file=stream)
     mapping = record["mapping"]
