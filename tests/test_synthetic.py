@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.cli import build_app
+from calib.cli.app import build_app
 from calib.cli.synthetic import paper_solve
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import InputError

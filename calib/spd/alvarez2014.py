@@ -51,7 +51,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import linalg, ndimage
 
 from calib.core.arrays import FloatArray, checked_array
 from calib.core.errors import EstimationError, InputError
@@ -252,6 +251,8 @@ def richardson_lucy(
     mirrored = psf[::-1]
 
     def blur(signal: FloatArray, weights: FloatArray) -> FloatArray:
+        from scipy import ndimage  # deferred: scipy costs ~0.3 s; calib's CLI imports this module
+
         return np.asarray(ndimage.convolve1d(signal, weights, axis=0, mode="constant"), float)
 
     # Edge-normalised: near the ends part of the kernel falls outside; dividing by the covered part
@@ -439,6 +440,8 @@ def _second_difference_banded(n: int) -> FloatArray:
 
 
 def _robust_peak(values: FloatArray) -> float:
+    from scipy import ndimage  # deferred: scipy costs ~0.3 s; calib's CLI imports this module
+
     finite = np.where(np.isfinite(values), values, 0.0)
     return float(np.max(ndimage.median_filter(finite, size=5, mode="nearest")))
 
@@ -603,6 +606,8 @@ def recover_spd_alvarez2014(
     banded[2] += totals
     if np.count_nonzero(totals) < 2:
         raise EstimationError("fewer than two wavelengths carry weight; nothing to recover")
+    from scipy import linalg  # deferred: scipy costs ~0.3 s; calib's CLI imports this module
+
     try:
         estimate = linalg.solveh_banded(banded, right)
     except linalg.LinAlgError as exc:

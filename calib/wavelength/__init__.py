@@ -1,4 +1,6 @@
-"""Every way to find the pixel→wavelength mapping, behind one front function :func:`find_mapping`.
+"""Stage 4, the pixel→wavelength mapping: every way to find it, and nowhere else, behind one front
+function :func:`find_mapping`. ``calib.wavelength`` imports only :mod:`calib.core` and
+:mod:`calib.model`.
 
 The strategies, by what is known about the camera:
 
