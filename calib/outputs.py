@@ -20,7 +20,9 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import re
+import tempfile
 import uuid
 from collections.abc import Mapping
 from pathlib import Path
@@ -29,6 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.errors import InputError
 from calib.grating_file import GratingEfficiency, write_grating_file
 from calib.offline.pipeline import OfflineEstimate
 from calib.result import EstimateResult, json_safe
@@ -276,6 +279,45 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
         provenance=provenance,
         source="estimated grating efficiency",
     )
+
+
+#: Files of an earlier estimate that ``--force`` allows to overwrite.
+RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
+
+
+def check_out_dir(out_dir: Path, force: bool) -> None:
+    """Check, before any work, that the results can be written into ``out_dir``.
+
+    It must be a directory or not exist yet, hold no results of an earlier estimate unless
+    ``force`` (``--force``), and be writable (a file is created in it and removed again; a missing
+    directory is checked through its nearest existing parent).
+
+    Raises
+    ------
+    InputError
+        Naming ``--out`` and what to do.
+    """
+    source = f"--out {out_dir}"
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("exists and is not a directory", source=source)
+    existing = [name for name in RESULT_MARKERS if (out_dir / name).exists()]
+    if existing and not force:
+        raise InputError(
+            f"already holds the results of an estimate ({', '.join(existing)}); choose another "
+            "--out or add --force to overwrite them",
+            source=source,
+        )
+    probe_dir = out_dir
+    while not probe_dir.exists() and probe_dir != probe_dir.parent:
+        probe_dir = probe_dir.parent
+    try:
+        descriptor, probe = tempfile.mkstemp(prefix=".write-check-", dir=probe_dir)
+    except OSError as exc:
+        raise InputError(
+            f"cannot be written ({exc.strerror or exc}); choose another --out", source=source
+        ) from None
+    os.close(descriptor)
+    Path(probe).unlink()
 
 
 def write_outputs(out_dir: Path, estimate: OfflineEstimate) -> dict[str, Path]:

@@ -9,6 +9,8 @@ the user's input (configuration, limits) must change, 1 for a failure of the rig
 
 from __future__ import annotations
 
+import signal
+from collections.abc import Mapping
 from typing import ClassVar
 
 from drivers.base import DeviceError
@@ -89,6 +91,53 @@ class SessionFormatError(RigError):
 
     reason = "session_format"
     exit_code = 2
+
+
+class StationOpenFailed(RigError):
+    """Devices could not be opened. Every device was tried, and every failure is named; a capture
+    creates no session and a resume writes nothing.
+
+    Attributes
+    ----------
+    failures
+        The error of each device that failed, by role (``relays``, ``spectrometer``, ``camera``).
+    lamps_off
+        Whether the relay board was opened and read back all off (``False``: it could not be
+        opened or confirmed, so a lamp a killed run left on may still be on).
+    """
+
+    reason = "devices_unavailable"
+
+    def __init__(self, failures: Mapping[str, BaseException], *, lamps_off: bool) -> None:
+        self.failures = dict(failures)
+        self.lamps_off = lamps_off
+        listed = "; ".join(str(error) for error in self.failures.values())
+        count = len(self.failures)
+        super().__init__(
+            f"{count} device{'s' if count != 1 else ''} could not be opened, nothing was recorded: "
+            f"{listed}"
+        )
+
+
+class OpeningInterrupted(RigError):
+    """A signal (Ctrl-C, SIGTERM) arrived while the devices were being opened: the run stopped
+    before anything was recorded, with the lamps switched off as far as the relay board opened."""
+
+    reason = "interrupted"
+
+    def __init__(self, signal_name: str, *, lamps_off: bool) -> None:
+        self.signal_name = signal_name
+        self.lamps_off = lamps_off
+        lamps = "every lamp switched off" if lamps_off else "the lamps could not be confirmed off"
+        super().__init__(
+            f"{signal_name} while the devices were being opened: stopped before anything was "
+            f"recorded ({lamps})"
+        )
+
+    @property
+    def signal_exit_code(self) -> int:
+        """128 + the signal's number, as a shell reports a process stopped by it (130 for SIGINT)."""
+        return 128 + int(signal.Signals[self.signal_name])
 
 
 class StationUnavailable(RigError):

@@ -19,6 +19,7 @@ and spectra are complete, with a warning in the result.
 from __future__ import annotations
 
 import math
+import os
 import re
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -39,7 +40,9 @@ from calib.offline import (
     run_offline,
 )
 from calib.offline.provenance import file_sha256
+from calib.outputs import check_out_dir
 from calib.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
+from drivers.local_files import UnsafeLocalPath, checked_directory, describe_entry
 from rig.config import LAMP_NAME_PATTERN
 from rig.errors import SessionFormatError
 from rig.records import FileRecord
@@ -227,6 +230,56 @@ def session_lamps(session: Session) -> tuple[list[LampImages], list[InputFile], 
             source=str(session.path),
         )
     return lamps, known, warnings
+
+
+def check_estimate_out(session_dir: Path, out_dir: Path | None, *, force: bool) -> Path:
+    """The directory ``rig estimate`` writes to, checked before any work is done.
+
+    ``out_dir`` defaults to ``<session>/estimate``. The session may come from anyone, so where the
+    directory lies inside it every directory on the way must be a real directory, and nothing in an
+    existing one may be a symbolic link: the outputs are never written through a link planted
+    there. Results of an earlier estimate are replaced only with ``force`` (as ``calib estimate
+    --force``), and the directory must be writable.
+
+    Raises
+    ------
+    SessionFormatError
+        A link or special file is planted on the way or in the directory (named).
+    calib.errors.InputError
+        Earlier results without ``force``; a directory that cannot be written.
+    """
+    target = out_dir if out_dir is not None else Path(session_dir) / DEFAULT_OUT_NAME
+    # Compared by name, never resolved: resolving would follow the very link to be refused.
+    session_root = Path(os.path.normpath(Path(session_dir).absolute()))
+    absolute = Path(os.path.normpath(target.absolute()))
+    try:
+        if absolute != session_root and absolute.is_relative_to(session_root):
+            checked_directory(session_root, str(absolute.relative_to(session_root)), create=False)
+        if target.is_dir():
+            for entry in _entries(target):
+                if entry.is_symlink() or not (entry.is_file() or entry.is_dir()):
+                    raise UnsafeLocalPath(entry, describe_entry(entry))
+    except UnsafeLocalPath as exc:
+        raise SessionFormatError(
+            f"--out {target}: {exc.path} is {exc.problem}; the estimate is never written through "
+            "it: remove it, or choose another --out"
+        ) from None
+    except FileNotFoundError:
+        pass  # created by the estimate
+    check_out_dir(target, force)
+    return target
+
+
+def _entries(directory: Path) -> list[Path]:
+    """What ``directory`` holds, its subdirectories' too (``plots/``), never following links."""
+    found: list[Path] = []
+    pending = [directory]
+    while pending:
+        for entry in pending.pop().iterdir():
+            found.append(entry)
+            if entry.is_dir() and not entry.is_symlink():
+                pending.append(entry)
+    return found
 
 
 def estimate_session(

@@ -12,28 +12,12 @@ import os
 import sys
 import traceback
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any, TextIO
 
 import typer
 
 from calib.cli.estimate_args import USAGE, EstimateArguments, parse_estimate_arguments
 from calib.errors import CalibError, InputError
-
-#: Files of an earlier estimate that ``--force`` allows to overwrite.
-_RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
-
-
-def _check_out_dir(out_dir: Path, force: bool) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("exists and is not a directory", source=f"--out {out_dir}")
-    existing = [name for name in _RESULT_MARKERS if (out_dir / name).exists()]
-    if existing and not force:
-        raise InputError(
-            f"already holds the results of an estimate ({', '.join(existing)}); choose another "
-            "--out or add --force to overwrite them",
-            source=f"--out {out_dir}",
-        )
 
 
 def summary(outcome: Any) -> dict[str, Any]:
@@ -123,9 +107,10 @@ def run(argv: Sequence[str], *, stdout: TextIO | None = None, stderr: TextIO | N
 def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO) -> Any:
     from calib.offline import OfflineSettings, run_offline
     from calib.offline.progress import RichFrameProgress
+    from calib.outputs import check_out_dir
 
     assert arguments.out_dir is not None
-    _check_out_dir(arguments.out_dir, arguments.force)
+    check_out_dir(arguments.out_dir, arguments.force)
     settings = OfflineSettings(
         method=arguments.method,
         method_options=arguments.method_options,

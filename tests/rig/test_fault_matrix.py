@@ -33,12 +33,13 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pytest
 import rawpy
 
+import drivers.local_files as local_files
 import rig.session as session_module
 from drivers.relays.hid_usbrelay import CMD_ALL_OFF
 from mocks.bench import TwinFaults
@@ -202,7 +203,7 @@ def capture_then_resume(directory: Path, builder: Any = None) -> tuple[str, Path
     """
     outcome = run_capture(matrix_config(directory), retry=NO_BACKOFF, builder=builder)
     if outcome.exit_status != "success":
-        resumed = run_resume(outcome.session, retry=NO_BACKOFF)
+        resumed = run_resume(outcome.session, matrix_config(directory), retry=NO_BACKOFF)
         assert resumed.exit_status == "success", resumed
     return outcome.reason, outcome.session
 
@@ -282,16 +283,61 @@ def test_fault(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterr
 
 @dataclass(frozen=True)
 class DiskFull:
-    """``ENOSPC`` on the ``nth`` log record: half of it written (``write``), or its ``fdatasync``."""
+    """``ENOSPC`` on the ``nth`` write of a kind: half of it written first (``write``), or on its
+    ``fdatasync`` (``fsync``). ``target`` is what is written: a log record, a transcript entry, or
+    the frame the camera driver stores."""
 
-    call: str
+    target: Literal["log", "transcript", "frame"]
+    call: Literal["write", "fsync"]
     nth: int
 
 
-DISK_FULL = {"write": DiskFull("write", 40), "fsync": DiskFull("fsync", 40)}
+DISK_FULL = {
+    "log-write": DiskFull("log", "write", 40),
+    "log-fsync": DiskFull("log", "fsync", 40),
+    "transcript-append": DiskFull("transcript", "write", 60),
+    "frame-download": DiskFull("frame", "write", 2),
+}
 
 
-@pytest.mark.parametrize(("row", "estimate"), with_estimate(DISK_FULL, {"write"}))
+def leftovers(session: Path) -> list[str]:
+    """Temporaries left in a session (downloads, spectra, the camera's, the reserved room)."""
+    return sorted(
+        str(path.relative_to(session))
+        for path in session.rglob("*")
+        if path.name.startswith((".incoming-", "..incoming-", ".reserve"))
+    )
+
+
+def _fill_the_disk(fault: DiskFull, patch: pytest.MonkeyPatch) -> None:
+    calls = 0
+
+    def counts(data: bytes) -> bool:
+        if fault.target == "log":
+            return data.startswith(b'{"seq":')
+        if fault.target == "transcript":
+            return data.startswith(b'{"t_s":')
+        return True
+
+    def full(real: Callable[..., None]) -> Callable[..., None]:
+        def call(fd: int, *data: bytes) -> None:
+            nonlocal calls
+            hit = fault.call == "fsync" or counts(data[0])
+            calls += hit
+            if hit and calls == fault.nth:
+                if data:
+                    os.write(fd, data[0][: len(data[0]) // 2])  # the disk fills mid-write
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            real(fd, *data)
+
+        return call
+
+    module: Any = local_files if fault.target == "frame" else session_module
+    name = "_sync" if fault.call == "fsync" else "write_all"
+    patch.setattr(module, name, full(getattr(module, name)))
+
+
+@pytest.mark.parametrize(("row", "estimate"), with_estimate(DISK_FULL, {"frame-download"}))
 def test_disk_full(
     row: str,
     estimate: bool,
@@ -300,35 +346,22 @@ def test_disk_full(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     fault = DISK_FULL[row]
-    calls = 0
-
-    def full(real: Callable[..., None]) -> Callable[..., None]:
-        def call(fd: int, *data: bytes) -> None:
-            nonlocal calls
-            is_record = fault.call == "fsync" or data[0].startswith(b'{"seq":')
-            calls += is_record
-            if is_record and calls == fault.nth:
-                if data:
-                    os.write(fd, data[0][: len(data[0]) // 2])  # the disk fills mid-line
-                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-            real(fd, *data)
-
-        return call
-
-    name = "_write_all" if fault.call == "write" else "_sync"
     with monkeypatch.context() as patch:
-        patch.setattr(session_module, name, full(getattr(session_module, name)))
+        _fill_the_disk(fault, patch)
         outcome = run_capture(matrix_config(tmp_path), retry=NO_BACKOFF)
-    assert outcome.reason == "session_write" and outcome.lamps_off
-    interrupted = read_session(outcome.session)
-    assert interrupted.status == "interrupted" and interrupted.stop is None
-    assert (interrupted.torn is not None) == (fault.call == "write")
-    resumed = run_resume(outcome.session, retry=NO_BACKOFF)
+    assert (outcome.reason, outcome.lamps_off) == ("session_write", True)
+    failed = read_session(outcome.session)
+    # The log says why and that the lamps are off: its last records fit in the reserved room.
+    assert failed.torn is None and failed.status == "failed"
+    assert failed.stop is not None and failed.stop.reason == "session_write"
+    assert failed.stop.lamps_off and "No space left on device" in failed.stop.message
+    assert failed.verify_files() == []  # a transcript cut at a whole entry still verifies
+    assert leftovers(outcome.session) == []
+    resumed = run_resume(outcome.session, matrix_config(tmp_path), retry=NO_BACKOFF)
     assert resumed.exit_status == "success", resumed
     session = assert_invariants(outcome.session, tmp_path, uninterrupted, estimate)
     (resume,) = resumes(session)
-    assert resume.previous_reason == "no_stop_record"
-    assert (resume.torn_line is not None) == (fault.call == "write")
+    assert (resume.previous_status, resume.previous_reason) == ("failed", "session_write")
 
 
 # ----------------------------------------------------------------------------- real processes
@@ -385,7 +418,7 @@ def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninte
     path = the_session(tmp_path)
     stop = read_session(path).stop
     assert stop is not None and (stop.reason, stop.lamps_off) == (reason, True)
-    resumed = run_resume(path, retry=NO_BACKOFF)
+    resumed = run_resume(path, matrix_config(tmp_path), retry=NO_BACKOFF)
     assert resumed.exit_status == "success", resumed
     session = assert_invariants(path, tmp_path, uninterrupted, estimate)
     (resume,) = resumes(session)
@@ -404,7 +437,7 @@ def test_kill_9_then_rig_resume(
     path = the_session(tmp_path)
     assert read_session(path).stop is None
     monkeypatch.chdir(tmp_path)
-    assert run_cli(["resume", str(path), "--quiet"], monkeypatch) == 0
+    assert run_cli(["resume", str(path), "--quiet", "--config", "rig.yaml"], monkeypatch) == 0
     session = assert_invariants(path, tmp_path, uninterrupted, estimate=True)
     (resume,) = resumes(session)
     assert resume.previous_reason == "no_stop_record"
@@ -417,11 +450,18 @@ def test_kill_9_then_rig_resume(
     first_set = next(i for i, data in enumerate(sent) if data.startswith(SET_REPORT))
     assert sent[first_set][16:18] == f"{CMD_ALL_OFF:02x}"
     assert all(data.startswith((GET_DESCRIPTOR, GET_REPORT)) for data in sent[:first_set])
+    # The resume acknowledged the killed run's transcripts: the session replays run by run.
+    acknowledged = {r.path: r.run for r in session.files() if r.role == "transcript"}
+    assert acknowledged["transcripts/camera.jsonl"] == 2
+    replay = replay_session(path, tmp_path / "replay")
+    assert replay.identical, replay
 
 
 def test_a_complete_session_is_not_resumed(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    outcome = run_capture(matrix_config(tmp_path), retry=NO_BACKOFF)
-    assert run_cli(["resume", str(outcome.session)], monkeypatch) == 2
+    config = matrix_config(tmp_path)
+    outcome = run_capture(config, retry=NO_BACKOFF)
+    config_file = write_config(tmp_path / "rig.yaml", config.model_dump(mode="json"))
+    assert run_cli(["resume", str(outcome.session), "-c", str(config_file)], monkeypatch) == 2
     assert "is complete; there is nothing to resume" in capsys.readouterr().err

@@ -268,7 +268,7 @@ def test_a_different_command_while_opening_fails_with_a_diff(
     assert message.startswith("step (opening the devices): spectrometer: the rig sent a different")
     assert "expected: tx 50 48 4f 54 4f  b'PHOTO'" in message
     assert "sent:     tx 50 48 4f 54 4f 0d  b'PHOTO\\r'" in message
-    assert read_session(tmp_path / "replay").status == "failed"  # the replay records why
+    assert not (tmp_path / "replay").exists()  # devices that do not open leave no session
 
 
 def test_a_recorded_command_left_unused_fails(session_copy: Path, tmp_path: Path) -> None:
@@ -410,7 +410,7 @@ def test_a_resumed_session_replays_run_by_run(tmp_path: Path, first_run: str) ->
         progress = _SignalAt(interrupts, "lamp/LED-B3/reference/000", "done")
         first = run_capture(config, retry=FAST_RETRY, interrupts=interrupts, progress=progress)
         assert first.exit_status == "abort", first
-    assert run_resume(first.session, retry=FAST_RETRY).exit_status == "success"
+    assert run_resume(first.session, config, retry=FAST_RETRY).exit_status == "success"
     starts = [r for r in read_session(first.session).records if isinstance(r, StartRecord)]
     assert [s.run for s in starts] == [1, 2]
     replay = replay_session(first.session, tmp_path / "replay")

@@ -27,8 +27,8 @@ from rig.records import (
     StepRecord,
     StopRecord,
 )
-from rig.replay import load_recording, parse_transcript
-from rig.session import read_session, summarise
+from rig.replay import load_recording
+from rig.session import parse_transcript, read_session, summarise
 from tests.fuzzing import fuzz
 
 FRAME = b"not really a raw frame"
