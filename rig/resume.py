@@ -62,8 +62,9 @@ from typing import Literal
 
 from pydantic import ValidationError
 
-from calib.errors import SpectrumError
-from calib.spectra import read_spectrum_csv
+from calib.core.arrays import FloatArray
+from calib.core.errors import SpectrumError
+from calib.core.spectra import read_spectrum_csv
 from drivers.base import DeviceIdentity
 from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
@@ -107,7 +108,6 @@ from rig.steps import (
     ConfigureSpectrometer,
     DarkFrame,
     ExposureSet,
-    FloatArray,
     FrameCaptured,
     KeepLampTimeline,
     MeasureSpectrum,

@@ -33,8 +33,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from calib.errors import SpectrumError
-from calib.spectra import Spectrum, read_spectrum_csv
+from calib.core.errors import SpectrumError
+from calib.core.spectra import Spectrum, read_spectrum_csv
 from drivers.base import DeviceError, DeviceIdentity, RelayBoard, StateMismatch
 from drivers.local_files import NO_SPACE_ERRNOS, UnsafeLocalPath
 from drivers.spectrometer import longest_measure_s

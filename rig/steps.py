@@ -22,12 +22,11 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal, Never, Protocol, TypeVar, get_args
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from rig.analysis import FrameStats
 from rig.errors import PlanProtocolError
 
-FloatArray = NDArray[np.float64]
 JsonDict = dict[str, Any]
 DeviceRole = Literal["spectrometer", "camera", "relays"]
 SpectrumPurpose = Literal["warmup", "reference"]
