@@ -83,7 +83,7 @@ def _recorded_lamps(session: Session) -> list[tuple[str, LampKind]]:
     for position, lamp in enumerate(lamps):
         name = lamp.get("name") if isinstance(lamp, Mapping) else None
         kind = str(lamp.get("kind", "other")).lower() if isinstance(lamp, Mapping) else ""
-        if not isinstance(name, str) or not re.match(LAMP_NAME_PATTERN, name):
+        if not isinstance(name, str) or not re.fullmatch(LAMP_NAME_PATTERN, name):
             raise SessionFormatError(
                 f"{session.path}: config lamps[{position}].name {name!r} is not a plain lamp name"
             )
@@ -121,7 +121,7 @@ def _collect(session: Session, lamps: Sequence[str]) -> dict[str, _LampFiles]:
     records = _done_files(session)
     selected: list[tuple[str, str, int, FileRecord]] = []
     for key, record in records.items():
-        match = _KEY.match(key)
+        match = _KEY.fullmatch(key)
         if match is None or match["lamp"] not in lamps:
             continue
         selected.append((match["lamp"], match["stream"], int(match["index"]), record))

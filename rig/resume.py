@@ -605,10 +605,16 @@ def config_for_resume(recorded: RigConfig, new: RigConfig) -> RigConfig:
     ResumeConfigRefused
         ``new`` changes anything else (lamps, plan, camera settings, a device's kind …), named.
     """
-    changed = _changed_fields(
-        recorded.model_dump(mode="json"), new.model_dump(mode="json"), prefix=""
-    )
+    before, after = recorded.model_dump(mode="json"), new.model_dump(mode="json")
+    changed = _changed_fields(before, after, prefix="")
     refused = [field for field in changed if not _may_change(field)]
+    # Another kind of device: say that, not every field the two kinds do not share.
+    for role, device in before["devices"].items():
+        kind, new_kind = device["kind"], after["devices"][role]["kind"]
+        if kind != new_kind:
+            within = f"devices.{role}."
+            refused = [field for field in refused if not field.startswith(within)]
+            refused.append(f"devices.{role}.kind ({kind} → {new_kind})")
     if refused:
         raise ResumeConfigRefused(
             f"the configuration changes {', '.join(refused)}; a resumed session measures as it "

@@ -238,7 +238,7 @@ def as_session_error(exc: Exception) -> Exception:
 def error_info(exc: BaseException, *, with_traceback: bool = False) -> ErrorInfo:
     """An exception as a log record's error: its ``reason`` (or ``internal``), type and message."""
     reason = getattr(exc, "reason", None)
-    if not isinstance(reason, str) or not re.match(r"^[a-z][a-z0-9_]*$", reason):
+    if not isinstance(reason, str) or not re.fullmatch(r"[a-z][a-z0-9_]*", reason):
         reason = "internal"
     return ErrorInfo(
         reason=reason,
@@ -787,7 +787,7 @@ class Runner(StepHandlers[StepResult]):
             )
         suffix = Path(captured.camera_path).suffix.lower()
         stream = "dark" if dark else "scene"
-        relative = f"frames/{step.lamp}/{stream}-{step.index:03d}{suffix if _SUFFIX.match(suffix) else '.raw'}"
+        relative = f"frames/{step.lamp}/{stream}-{step.index:03d}{suffix if _SUFFIX.fullmatch(suffix) else '.raw'}"
         record = self.session.commit_file(
             source, relative, key=step.key, role="dark" if dark else "frame"
         )
