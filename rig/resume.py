@@ -420,7 +420,10 @@ def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
             yield from _keep_lamp_timeline(relit, skipped, run)
             skipped = []
             if reapply and pending_exposure is not None:
-                yield from _set_exposure_again(*pending_exposure)
+                exposure_step, exposure_record = pending_exposure
+                recorded = point.results[exposure_step.key]
+                assert isinstance(recorded, ExposureSet)
+                yield from _set_exposure_again(exposure_step, recorded)
             if rule.exposure is not None or rule.frame is not None:
                 pending_exposure = None
             result = yield step
@@ -446,11 +449,9 @@ def _keep_lamp_timeline(
 
 
 def _set_exposure_again(
-    step: SetExposure, record: StepRecord
+    step: SetExposure, recorded: ExposureSet
 ) -> Generator[AnyStep, StepResult, None]:
     """A reused exposure setting, applied again before a new frame (a new process starts unset)."""
-    assert record.result is not None
-    recorded = ExposureSet.from_json(record.result)
     again = yield step
     if not isinstance(again, ExposureSet) or not math.isclose(
         again.actual_s, recorded.actual_s, rel_tol=EXPOSURE_RTOL
