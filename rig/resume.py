@@ -420,7 +420,7 @@ def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
             yield from _keep_lamp_timeline(relit, skipped, run)
             skipped = []
             if reapply and pending_exposure is not None:
-                exposure_step, exposure_record = pending_exposure
+                exposure_step = pending_exposure[0]
                 recorded = point.results[exposure_step.key]
                 assert isinstance(recorded, ExposureSet)
                 yield from _set_exposure_again(exposure_step, recorded)

@@ -222,7 +222,7 @@ class TranscriptFile:
         self._dirty = False
         self._lock = threading.Lock()
         self._closed = False
-        self.failed: str | None = None
+        self.failed: OSError | None = None
         """Why the transcript stopped taking entries (a write failed), or ``None``."""
 
     def record(self, entry: TranscriptEntry) -> None:
@@ -233,7 +233,7 @@ class TranscriptFile:
             try:
                 write_all(self._fd, line)
             except OSError as exc:
-                self.failed = f"appending to {self.relative}: {exc}"
+                self.failed = exc
                 with contextlib.suppress(OSError):  # cut the partial entry back off
                     os.ftruncate(self._fd, self._size)
                 return
@@ -251,7 +251,9 @@ class TranscriptFile:
         """
         with self._lock:
             if self.failed is not None:
-                raise OSError(errno.EIO, self.failed)
+                raise OSError(
+                    self.failed.errno, f"appending to {self.relative}: {self.failed.strerror}"
+                )
             if self._dirty and not self._closed:
                 _sync(self._fd)
                 self._dirty = False
