@@ -367,11 +367,14 @@ def test_disk_full(
 # ----------------------------------------------------------------------------- real processes
 
 
-def start_twin_capture(directory: Path, slow_capture_s: float) -> subprocess.Popen[str]:
-    """``rig capture`` on the twin in a child process, stopped in its second (slow) capture."""
+def start_twin_capture(
+    directory: Path, slow_capture_s: float, call: str = "capture"
+) -> subprocess.Popen[str]:
+    """``rig capture`` on the twin in a child process, stopped in its second (slow) capture, or
+    in the second download of a frame from the camera (``call="file_get"``)."""
     config = write_config(directory / "rig.yaml", matrix_config(directory).model_dump(mode="json"))
     process = subprocess.Popen(
-        [sys.executable, "-m", "tests.rig.twin_process", str(config), str(slow_capture_s)],
+        [sys.executable, "-m", "tests.rig.twin_process", str(config), str(slow_capture_s), call],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -386,10 +389,10 @@ def start_twin_capture(directory: Path, slow_capture_s: float) -> subprocess.Pop
             return False
         lines = transcripts[0].read_text().splitlines()
         calls = [json.loads(line)["data"] for line in lines if '"dir": "call"' in line]
-        return sum('"call": "capture"' in call for call in calls) >= 2
+        return sum(f'"call": "{call}"' in entry for entry in calls) >= 2
 
     # The second capture is slow: interrupted there, the run has LED-B3 on and a frame done.
-    wait_for(in_second_capture, timeout_s=120, what="the second capture")
+    wait_for(in_second_capture, timeout_s=120, what=f"the second {call}")
     return process
 
 
@@ -425,10 +428,11 @@ def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninte
     assert (resume.previous_status, resume.previous_reason) == ("interrupted", reason)
 
 
+@pytest.mark.parametrize("during", ["capture", "file_get"], ids=["in-a-capture", "in-a-download"])
 def test_kill_9_then_rig_resume(
-    tmp_path: Path, uninterrupted: Uninterrupted, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, uninterrupted: Uninterrupted, monkeypatch: pytest.MonkeyPatch, during: str
 ) -> None:
-    process = start_twin_capture(tmp_path, slow_capture_s=60.0)
+    process = start_twin_capture(tmp_path, slow_capture_s=60.0, call=during)
     state = tmp_path / "relays.state"
     assert state.read_text().strip() == "10"  # LED-B3 is on for its bracket
     process.kill()
@@ -438,7 +442,8 @@ def test_kill_9_then_rig_resume(
     assert read_session(path).stop is None
     monkeypatch.chdir(tmp_path)
     assert run_cli(["resume", str(path), "--quiet", "--config", "rig.yaml"], monkeypatch) == 0
-    session = assert_invariants(path, tmp_path, uninterrupted, estimate=True)
+    # One kill runs the estimator; the other compares what it reads (identical inputs).
+    session = assert_invariants(path, tmp_path, uninterrupted, estimate=during == "capture")
     (resume,) = resumes(session)
     assert resume.previous_reason == "no_stop_record"
     assert resume.relays_found_on == [1]  # the lamp the killed run left on was seen on …
@@ -453,6 +458,7 @@ def test_kill_9_then_rig_resume(
     # The resume acknowledged the killed run's transcripts: the session replays run by run.
     acknowledged = {r.path: r.run for r in session.files() if r.role == "transcript"}
     assert acknowledged["transcripts/camera.jsonl"] == 2
+    assert leftovers(path) == []
     replay = replay_session(path, tmp_path / "replay")
     assert replay.identical, replay
 
