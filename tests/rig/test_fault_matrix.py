@@ -47,6 +47,7 @@ from mocks.bench import TwinFaults
 from mocks.fake_gphoto2 import CameraFault
 from mocks.faults import Fault, FaultKind, FaultSchedule
 from mocks.usb_relay_backend import UsbFault
+from rig import station
 from rig.capture import run_capture
 from rig.config import RigConfig
 from rig.estimate import estimate_session
@@ -471,3 +472,62 @@ def test_a_complete_session_is_not_resumed(
     config_file = write_config(tmp_path / "rig.yaml", config.model_dump(mode="json"))
     assert run_cli(["resume", str(outcome.session), "-c", str(config_file)], monkeypatch) == 2
     assert "is complete; there is nothing to resume" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ lamps that cannot be switched
+
+
+def test_a_board_lost_with_a_lamp_on_says_so_and_the_resume_switches_it_off(
+    tmp_path: Path,
+    uninterrupted: Uninterrupted,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The relay board vanishes as LED-B3 is to go off: the stop record says ``lamps_off: false``
+    and the command warns to switch them off by hand; the resume finds the lamp on, switches it
+    off first, and completes."""
+    lost = TwinFaults(usb_relays=[UsbFault("disconnect", request="set_report", skip=3, times=None)])
+    monkeypatch.setitem(station.STATION_BUILDERS, "twin", twin_station_builder(faults=lost))
+    config = matrix_config(tmp_path)
+    config_file = write_config(tmp_path / "rig.yaml", config.model_dump(mode="json"))
+    assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
+    captured = capsys.readouterr()
+    assert "WARNING: the lamps could not be confirmed off; check them by hand" in captured.err
+    assert (tmp_path / "relays.state").read_text().strip() == "10"  # LED-B3 is still on
+    path = the_session(tmp_path)
+    failed = read_session(path)
+    assert failed.stop is not None and not failed.stop.lamps_off
+    assert (failed.stop.reason, failed.stop.failed_key) == (
+        "disconnected",
+        "lamp/LED-B3/switch-off",
+    )
+    monkeypatch.setitem(station.STATION_BUILDERS, "twin", twin_station_builder())
+    assert run_cli(["resume", str(path), "-q", "-c", str(config_file)], monkeypatch) == 0
+    assert "WARNING" not in capsys.readouterr().err
+    session = read_session(path)
+    (resume,) = resumes(session)
+    assert resume.relays_found_on == [1]
+    stops = [r for r in session.records if isinstance(r, StopRecord)]
+    assert [stop.lamps_off for stop in stops] == [False, True]
+    assert (tmp_path / "relays.state").read_text().strip() == "00"
+    assert session.status == "complete" and session.verify_files() == []
+    assert estimate_inputs(session) == uninterrupted.inputs
+
+
+def test_a_board_missing_at_opening_with_a_lamp_on_warns_and_leaves_no_session(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "relays.state").write_text("10\n")  # a lamp a killed run left on
+    missing = TwinFaults(usb_relays=[UsbFault("disconnect", request="open", times=None)])
+    monkeypatch.setitem(station.STATION_BUILDERS, "twin", twin_station_builder(faults=missing))
+    config_file = write_config(
+        tmp_path / "rig.yaml", matrix_config(tmp_path).model_dump(mode="json")
+    )
+    assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
+    err = capsys.readouterr().err
+    assert (
+        "rig: warning: the lamps could not be confirmed off" in err and "check them by hand" in err
+    )
+    assert "could not be opened, nothing was recorded" in err
+    assert not (tmp_path / "sessions").exists()  # no session that could never be resumed
+    assert (tmp_path / "relays.state").read_text().strip() == "10"
