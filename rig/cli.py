@@ -247,11 +247,10 @@ def estimate(
     """Estimate the camera from a session (every file verified against the log) and write the report."""
     from calib.methods.multilamp import weight_rule_option
     from calib.pipeline import RichFrameProgress
-    from rig.estimate import check_estimate_out, estimate_session
+    from rig.estimate import estimate_session
 
     command_line = ("rig", "estimate", *sys.argv[2:])
     settings: dict[str, object] = {"method_options": weight_rule_option(method, weight_rule)}
-    check_estimate_out(session, out, force=force)
     if grating is not None:
         settings["grating"] = grating
     if quiet or not RichFrameProgress.wanted(sys.stderr):
@@ -262,6 +261,7 @@ def estimate(
             data_dir=data_dir,
             command_line=command_line,
             settings=settings,
+            force=force,
         )
     else:
         with RichFrameProgress(sys.stderr) as progress:
@@ -273,6 +273,7 @@ def estimate(
                 progress=progress,
                 command_line=command_line,
                 settings=settings,
+                force=force,
             )
     result = outcome.estimate.result
     for warning in outcome.estimate.warnings:

@@ -293,8 +293,11 @@ def estimate_session(
     progress: OfflineProgress | None = None,
     command_line: Sequence[str] | None = None,
     settings: Mapping[str, Any] | None = None,
+    force: bool = False,
 ) -> OfflineOutcome:
     """Estimate the camera from a session and write the outputs.
+
+    Where it writes is checked first (:func:`check_estimate_out`), before any work.
 
     Parameters
     ----------
@@ -325,11 +328,16 @@ def estimate_session(
     Raises
     ------
     SessionFormatError
-        Not a session, an invalid log, unsafe paths, files that differ from the log.
+        Not a session, an invalid log, unsafe paths (a link planted where the estimate is written
+        too), files that differ from the log.
     InputError
-        No usable lamp; any input problem the pipeline finds.
+        No usable lamp; any input problem the pipeline finds; earlier results without ``force``;
+        an output directory that cannot be written.
     """
     session_path = Path(session_dir)
+    destination = check_estimate_out(
+        session_path, None if out_dir is None else Path(out_dir), force=force
+    )
     session = read_session(session_path)
     lamps, known, warnings = session_lamps(session)
     start = session.start
@@ -345,7 +353,6 @@ def estimate_session(
         "notes": notes,
         **dict(settings or {}),
     }
-    destination = Path(out_dir) if out_dir is not None else session_path / DEFAULT_OUT_NAME
     return run_offline(
         lamps, destination, OfflineSettings(**options), progress=progress, known_inputs=known
     )

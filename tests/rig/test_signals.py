@@ -117,8 +117,12 @@ def test_a_signal_while_the_devices_open_switches_off_what_opened_and_records_no
     config = write_config(tmp_path / "rig.yaml", fake_config_data(tmp_path / "sessions"))
     state, marker = tmp_path / "relays.state", tmp_path / "capturing"
     process = subprocess.Popen(
-        [sys.executable, "-m", "tests.rig.capture_process"]
-        + [str(config), str(state), str(marker), "0", "1.5"],
+        [
+            sys.executable,
+            "-m",
+            "tests.rig.capture_process",
+            *(str(config), str(state), str(marker), "0", "1.5"),
+        ],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -130,7 +134,7 @@ def test_a_signal_while_the_devices_open_switches_off_what_opened_and_records_no
         if number:
             time.sleep(0.1)
         process.send_signal(signum)
-    code, out, err = finish(process)
+    code, _, err = finish(process)
     assert code == exit_code, err
     assert state.read_text() == "00"  # switched off, as far as the devices had opened
     assert err == (
