@@ -11,7 +11,8 @@ often a tenth of the frame. So, for frames of :data:`REGION_MIN_SAMPLES` plane s
    background dominates it (detection estimates the background as a median);
 2. every frame of every lamp is merged over that region only (:func:`calib.image.hdr.merge_bracket`
    ``region=``), and the geometry detected at full resolution on the merged region of the brightest
-   broadband lamp;
+   broadband lamp; DNG frames are decoded only where they meet the region (the tiles of
+   :mod:`calib.image.dng_tiles`; other formats are unpacked whole by LibRaw);
 3. if anything of that fails (no coarse detection, the band reaches the region's edge), the lamp is
    merged over the whole frame instead: the region is an optimisation, never a source of error.
 
@@ -22,7 +23,7 @@ region), so the pixel axes of all lamps agree exactly.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -40,7 +41,7 @@ from calib.image.profiles import (
     extract,
 )
 from calib.image.profiles.geometry import rectangle_corners
-from calib.image.raw import PlaneRegion, RawPlanes
+from calib.image.raw import PlaneRegion, RawDecoder, RawPlanes
 from calib.image.sensor_noise import NoiseModel
 from calib.pipeline.inputs import LampImages
 
@@ -351,6 +352,7 @@ def merge_lamp(
     noise_model: NoiseModel | None = None,
     unpacker: Unpacker | None = None,
     plan: DecodePlan | None = None,
+    decoder: RawDecoder = "auto",
 ) -> HdrImage:
     """Merge one lamp's bracket (darks subtracted), over ``region`` when given.
 
@@ -374,6 +376,7 @@ def merge_lamp(
             noise_model=noise_model,
             unpacker=unpacker,
             plan=plan,
+            decoder=decoder,
         )
     except EstimationError as exc:  # the frames hold too little signal to measure their noise
         raise InputError(
@@ -418,6 +421,7 @@ def bracket_profiles(
     use_region: bool | None = None,
     frame_done: FrameCallback | None = None,
     stage: Callable[[str], None] | None = None,
+    decoder: RawDecoder = "auto",
 ) -> BracketProfiles:
     """Merge every lamp's bracket, detect the geometry once, extract every lamp with it.
 
@@ -432,6 +436,9 @@ def bracket_profiles(
         Called after every merged frame with the lamp's name and the file.
     stage
         Called with a short description when a new stage starts.
+    decoder
+        Which decoder reads the pixels (:data:`calib.image.raw.RawDecoder`): by default DNGs go
+        through the tile decoder, which decodes only the tiles that meet the region.
 
     Returns
     -------
@@ -461,7 +468,7 @@ def bracket_profiles(
     # LibRaw unpacks the next lamp's first frames while one lamp's last frames merge and its
     # geometry is detected
     plans = _decode_plans([lamps[index] for index in order])
-    with Unpacker([path for plan in plans for path in plan.paths]) as unpacker:
+    with Unpacker([path for plan in plans for path in plan.paths], decoder=decoder) as unpacker:
         announce(f"merging {first.name}")
         image = merge_lamp(first, chooser, frame_done, unpacker=unpacker, plan=plans[0])
         region = chooser.region if chooser is not None else None
@@ -485,7 +492,7 @@ def bracket_profiles(
             )
             region = None
             announce(f"merging {first.name} again (whole frames)")
-            image = merge_lamp(first, None, None, plan=plans[0])
+            image = merge_lamp(first, None, None, plan=plans[0], decoder=decoder)
             geometry = _detect(image)
         merged[first.name] = MergedLamp(first, image)
         for index, plan in zip(order[1:], plans[1:], strict=True):
@@ -496,6 +503,7 @@ def bracket_profiles(
                 merge_lamp(lamp, region, frame_done, _shared_noise(image, plan), unpacker, plan),
             )
     _check_same_sensor(list(merged.values()))
+    notes.extend(_decoder_notes(merged.values()))
     announce("extracting the profiles")
     geometry_lamp = first.name
     candidates = [m for m in merged.values() if m.lamp.kind in BROADBAND_KINDS]
@@ -548,6 +556,23 @@ def bracket_profiles(
         region_shape_px=shape,
         notes=tuple(notes),
     )
+
+
+def _decoder_notes(merged: Iterable[MergedLamp]) -> list[str]:
+    """A note per reason the tile decoder left DNG frames to LibRaw (one per reason, not per frame)."""
+    reasons: dict[str, list[str]] = {}
+    for item in merged:
+        for record in item.image.frames:
+            if record.decoding.startswith("LibRaw ("):
+                reason = record.decoding.removeprefix("LibRaw (").removesuffix(")")
+                reasons.setdefault(reason.removesuffix("; LibRaw decodes it"), []).append(
+                    record.path.name
+                )
+    return [
+        f"{len(names)} DNG frame(s) decoded whole by LibRaw, not the tile decoder "
+        f"({', '.join(names[:3])}{', …' if len(names) > 3 else ''}): {reason}"
+        for reason, names in reasons.items()
+    ]
 
 
 def _decode_plans(lamps: Sequence[LampImages]) -> list[DecodePlan]:
