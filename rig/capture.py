@@ -27,10 +27,9 @@ from rig.interrupts import HaltRequested, InterruptController
 from rig.plan import Plan, StandardCaptureArgs, standard_capture
 from rig.progress import ProgressReporter
 from rig.records import PlanInfo
-from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts, switch_everything_off
+from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts, switch_off_now
 from rig.session import PendingTranscripts, SessionWriter
 from rig.station import Station, StationBuilder, resolve_builder, station_kind
-from rig.workers import DeviceWorker
 
 PLAN_NAME = "standard_capture"
 
@@ -200,13 +199,8 @@ def open_station(
 def release_station(station: Station, config: RigConfig) -> bool:
     """Switch every lamp of an opened station off, read the board back, close the station;
     return whether the lamps are confirmed off. Nothing of it may raise."""
-    worker = DeviceWorker("relays", "relay board")
     try:
-        lamps_off, _ = switch_everything_off(
-            station.relays, worker, StepTimeouts.from_config(config).relays_s
-        )
+        return switch_off_now(station.relays, StepTimeouts.from_config(config).relays_s)
     finally:
-        worker.close(timeout_s=0.1)
         with contextlib.suppress(Exception):
             station.close()
-    return lamps_off

@@ -45,6 +45,7 @@ from rig.config import (
 )
 from rig.errors import StationOpenFailed, StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
+from rig.runner import StepTimeouts, switch_off_now
 from rig.station import Station, TranscriptFactory
 
 DeviceT = TypeVar("DeviceT", Spectrometer, Camera, RelayBoard)
@@ -184,19 +185,11 @@ def open_hardware_station(
         _close_all(opened)
         raise
     if relays is None or spectrometer is None or camera is None:
-        lamps_off = relays is not None and _lamps_confirmed_off(relays)
+        timeout_s = StepTimeouts.from_config(config).relays_s
+        lamps_off = relays is not None and switch_off_now(relays, timeout_s)
         _close_all(opened)
         raise StationOpenFailed(failures, lamps_off=lamps_off)
     return Station(spectrometer, camera, relays, MonotonicClock(), RawFrameAnalyzer())
-
-
-def _lamps_confirmed_off(relays: RelayBoard) -> bool:
-    """Switch every lamp off and read the board back (a lamp a killed run left on goes off)."""
-    try:
-        relays.all_off()
-        return not any(relays.state())
-    except Exception:
-        return False
 
 
 def _close_all(opened: list[Spectrometer | Camera | RelayBoard]) -> None:

@@ -286,6 +286,16 @@ def switch_everything_off(
     return False, "; ".join(problems) if problems else f"board reads {state}"
 
 
+def switch_off_now(relays: RelayBoard, timeout_s: float) -> bool:
+    """:func:`switch_everything_off` outside a run (while the devices open), on a worker of its
+    own; ``True`` when the board read back all off. Never raises."""
+    worker = DeviceWorker("relays", "relay board")
+    try:
+        return switch_everything_off(relays, worker, timeout_s)[0]
+    finally:
+        worker.close(timeout_s=0.1)
+
+
 class Runner(StepHandlers[StepResult]):
     """Executes plans on a station, recording into a session.
 
