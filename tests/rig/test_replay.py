@@ -39,6 +39,7 @@ from rig.runner import RetryPolicy
 from rig.session import decode_transcript_line, read_session
 from rig.steps import Step, StepResult
 from rig.twin import twin_station_builder
+from tests.rig.hostile import watching
 from tests.rig.test_cli import run_cli
 from tests.rig.twin_setup import twin_config, twin_config_data
 
@@ -445,3 +446,27 @@ def test_rig_estimate_of_the_replay_gives_the_identical_result(
         assert run_cli(["estimate", str(session), "--out", str(out), "--quiet"], monkeypatch) == 0
         sensitivities.append((out / "sensitivity.csv").read_bytes())
     assert sensitivities[0] == sensitivities[1]
+
+
+def test_ports_and_files_the_snapshot_names_are_never_opened_by_a_replay(
+    session_copy: Path, tmp_path: Path
+) -> None:
+    """Replay drives stand-ins: the recorded configuration's ports and state file are data."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim").write_bytes(b"the user's own file")
+    url = f"spy://loop://?file={outside / 'victim'}"
+
+    def hostile(record: dict[str, object]) -> dict[str, object]:
+        if record.get("type") == "start":
+            devices = record["config"]["devices"]  # type: ignore[index]
+            devices["spectrometer"] = {"kind": "pr655", "port": url}
+            devices["relays"] = {"kind": "lcus", "port": "socket://127.0.0.1:9", "channels": 2}
+            devices["camera"] = {"kind": "gphoto2", "port": "usb:001,002"}
+        return record
+
+    _rewrite_log(session_copy, hostile)
+    with watching(outside) as watch:
+        outcome = replay_session(session_copy, tmp_path / "replay")
+    assert watch.touches == [] and watch.connections == []
+    assert outcome.mismatch is None  # the recorded exchanges, as recorded
