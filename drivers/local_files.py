@@ -11,6 +11,7 @@ through these functions:
   creates what is missing;
 * :func:`create_new_file` opens a file that must not exist yet (``O_CREAT | O_EXCL | O_NOFOLLOW``):
   a leftover or a planted entry under a temporary name is refused, never written through;
+* :func:`entries_below` walks a directory without following links, to find what was planted;
 * :func:`write_atomically` writes a file's bytes to a new temporary name in the same directory
   (opened relative to the directory's own descriptor, itself opened with ``O_NOFOLLOW``), syncs and
   renames it into place; a failure removes the temporary.
@@ -25,6 +26,7 @@ import contextlib
 import errno
 import os
 import stat
+from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = [
@@ -33,6 +35,8 @@ __all__ = [
     "checked_directory",
     "create_new_file",
     "describe_entry",
+    "entries_below",
+    "is_plain",
     "write_all",
     "write_atomically",
 ]
@@ -82,6 +86,23 @@ def describe_entry(path: Path) -> str:
     if stat.S_ISREG(mode):
         return "a file that is already there"
     return "a special file (FIFO, socket or device)"
+
+
+def entries_below(directory: Path) -> Iterator[os.DirEntry[str]]:
+    """Every entry below ``directory``, never following a link: a link (or a special file) is
+    yielded as itself and never entered, so a planted link cannot lead the walk elsewhere."""
+    pending = [directory]
+    while pending:
+        with os.scandir(pending.pop()) as entries:
+            for entry in entries:
+                yield entry
+                if entry.is_dir(follow_symlinks=False):
+                    pending.append(Path(entry.path))
+
+
+def is_plain(entry: os.DirEntry[str]) -> bool:
+    """A real directory or a regular file: not a link, FIFO, socket or device."""
+    return entry.is_dir(follow_symlinks=False) or entry.is_file(follow_symlinks=False)
 
 
 def checked_directory(root: Path, relative: str, *, create: bool = True) -> Path:

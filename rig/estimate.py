@@ -42,7 +42,13 @@ from calib.pipeline import (
 )
 from calib.pipeline.outputs import check_out_dir
 from calib.pipeline.provenance import file_sha256
-from drivers.local_files import UnsafeLocalPath, checked_directory, describe_entry
+from drivers.local_files import (
+    UnsafeLocalPath,
+    checked_directory,
+    describe_entry,
+    entries_below,
+    is_plain,
+)
 from rig.config import LAMP_NAME_PATTERN
 from rig.errors import SessionFormatError
 from rig.records import FileRecord
@@ -256,9 +262,9 @@ def check_estimate_out(session_dir: Path, out_dir: Path | None, *, force: bool) 
         if absolute != session_root and absolute.is_relative_to(session_root):
             checked_directory(session_root, str(absolute.relative_to(session_root)), create=False)
         if target.is_dir():
-            for entry in _entries(target):
-                if entry.is_symlink() or not (entry.is_file() or entry.is_dir()):
-                    raise UnsafeLocalPath(entry, describe_entry(entry))
+            for entry in entries_below(target):
+                if not is_plain(entry):
+                    raise UnsafeLocalPath(Path(entry.path), describe_entry(Path(entry.path)))
     except UnsafeLocalPath as exc:
         raise SessionFormatError(
             f"--out {target}: {exc.path} is {exc.problem}; the estimate is never written through "
@@ -268,18 +274,6 @@ def check_estimate_out(session_dir: Path, out_dir: Path | None, *, force: bool) 
         pass  # created by the estimate
     check_out_dir(target, force)
     return target
-
-
-def _entries(directory: Path) -> list[Path]:
-    """What ``directory`` holds, its subdirectories' too (``plots/``), never following links."""
-    found: list[Path] = []
-    pending = [directory]
-    while pending:
-        for entry in pending.pop().iterdir():
-            found.append(entry)
-            if entry.is_dir() and not entry.is_symlink():
-                pending.append(entry)
-    return found
 
 
 def estimate_session(

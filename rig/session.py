@@ -45,6 +45,8 @@ from drivers.local_files import (
     checked_directory,
     create_new_file,
     describe_entry,
+    entries_below,
+    is_plain,
     write_all,
 )
 from rig.errors import SessionFormatError, SessionWriteError
@@ -879,20 +881,12 @@ def check_before_writing(session: Session) -> list[Path]:
             continue
         if not stat.S_ISDIR(top.lstat().st_mode):
             raise _planted(session, top)
-        pending = [top]
-        while pending:
-            directory = pending.pop()
-            with os.scandir(directory) as entries:
-                for entry in entries:
-                    path = Path(entry.path)
-                    if entry.is_symlink():
-                        raise _planted(session, path)
-                    if entry.is_dir(follow_symlinks=False):
-                        pending.append(path)
-                    elif not entry.is_file(follow_symlinks=False):
-                        raise _planted(session, path)
-                    elif _is_leftover(entry.name):
-                        leftovers.append(path)
+        for entry in entries_below(top):
+            path = Path(entry.path)
+            if not is_plain(entry):
+                raise _planted(session, path)
+            if entry.is_file(follow_symlinks=False) and _is_leftover(entry.name):
+                leftovers.append(path)
     return sorted(leftovers)
 
 
