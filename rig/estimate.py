@@ -267,8 +267,8 @@ def check_estimate_out(session_dir: Path, out_dir: Path | None, *, force: bool) 
                     raise UnsafeLocalPath(Path(entry.path), describe_entry(Path(entry.path)))
     except UnsafeLocalPath as exc:
         raise SessionFormatError(
-            f"--out {target}: {exc.path} is {exc.problem}; the estimate is never written through "
-            "it: remove it, or choose another --out"
+            f"{exc.path} is {exc.problem}; the estimate is never written through it: remove it, "
+            "or choose another --out"
         ) from None
     except FileNotFoundError:
         pass  # created by the estimate
