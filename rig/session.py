@@ -7,11 +7,15 @@
       frames/<lamp>/       RAW files exactly as downloaded: scene-000.dng, dark-003.dng, …
       spectra/<lamp>/      spectra as CSV (calib.core.spectra.write_csv): warmup-002.csv, reference-000.csv
       transcripts/         every device exchange, one JSONL file per device role
+      .reserve             room for the run's last records, while a run is active
 
 Writing (:class:`SessionWriter`): a file is written under a temporary name, hashed (sha256) while
 it is read for syncing, synced, renamed into place, its directory synced, and only then acknowledged
-by a ``file`` record. Each record is one ``write`` of one line followed by one ``fdatasync``; after
-any write error the writer refuses further writes, so a torn line can only ever be the last one.
+by a ``file`` record. Each record is one ``write`` of one line followed by one ``fdatasync``. Every
+path is checked on the way (:mod:`drivers.local_files`): nothing is written through a link or
+special file planted in the session. A write that fails part-way (a full disk) is cut back off, so
+log and transcripts end with whole records; the writer then refuses further records except the
+run's last ones, written in the room reserved for them (decision 0016).
 
 Reading (:func:`read_session`): every record is validated; a torn last line (a crash mid-write) is
 reported, not fatal; paths are never trusted — they must be plain relative names inside the data
