@@ -4,8 +4,10 @@ Usage: ``unshare --mount --propagation private python -m tests.rig.disk_full_pro
 FILL_AFTER_KEY COPY_TO RESULT``. Run in its own mount namespace, the process mounts a 16 MiB tmpfs on
 MOUNT (the configuration's ``output_dir`` lies in it), runs the capture, and once the step
 FILL_AFTER_KEY is done fills the tmpfs to its last page with a file of its own, so the very next
-write that needs room fails as on a full disk. The session is then copied to COPY_TO (the tmpfs
-disappears with the namespace) and the outcome written to RESULT as JSON.
+write that needs room fails as on a full disk. As the run ends it fills the disk again (whatever
+the failed write freed, a partial download removed, is taken as another process would take it): the
+run's last records then have only the room the session reserved. The session is then copied to
+COPY_TO (the tmpfs disappears with the namespace) and the outcome written to RESULT as JSON.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from rig.config import load_config
 from rig.dryrun import DryRunReport
 from rig.progress import SilentProgress
 from rig.runner import RetryPolicy
+from rig.session import SessionWriter
 from rig.steps import AnyStep, StepResult
 
 TMPFS_SIZE = "16m"
@@ -38,9 +41,12 @@ class FillAfter(SilentProgress):
         self.filled_bytes = 0
 
     def step_done(self, step: AnyStep, result: StepResult) -> None:
-        if step.key != self.key:
-            return
-        fd = os.open(self.filler, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        if step.key == self.key:
+            self.fill()
+
+    def fill(self) -> None:
+        """Write to the filler until the disk is full."""
+        fd = os.open(self.filler, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
         chunk = b"\0" * 4096
         try:
             while True:
@@ -60,6 +66,14 @@ def main() -> None:
     subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={TMPFS_SIZE}", "tmpfs", mount], check=True)
     config = load_config(config_path)
     progress = FillAfter(key, Path(mount) / "filler")
+    release_room = SessionWriter.finish
+
+    def finish_on_a_disk_still_full(self: SessionWriter) -> bool:
+        if progress.filled_bytes:
+            progress.fill()
+        return release_room(self)
+
+    SessionWriter.finish = finish_on_a_disk_still_full  # type: ignore[method-assign]
     outcome = run_capture(
         config, progress=progress, retry=RetryPolicy(max_attempts=3, initial_s=0.0, max_s=0.0)
     )
