@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.core.checksums import file_sha256
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
@@ -41,7 +42,6 @@ from calib.pipeline import (
     run_offline,
 )
 from calib.pipeline.outputs import check_out_dir
-from calib.pipeline.provenance import file_sha256
 from drivers.local_files import (
     UnsafeLocalPath,
     checked_directory,

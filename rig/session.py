@@ -42,6 +42,7 @@ from typing import Any, Literal, TypeVar, get_args
 
 from pydantic import TypeAdapter, ValidationError
 
+from calib.core.checksums import CHUNK_BYTES, file_sha256
 from calib.core.spectra import Spectrum, write_csv
 from drivers.base import TranscriptDirection, TranscriptEntry, TranscriptSink
 from drivers.local_files import (
@@ -74,7 +75,6 @@ TRANSCRIPT_DIRECTIONS = frozenset(get_args(TranscriptDirection))
 SessionStatus = Literal["complete", "interrupted", "failed"]
 Guard = Callable[[], AbstractContextManager[object]]
 
-_CHUNK_BYTES = 1 << 20
 _RECORD_ADAPTER: TypeAdapter[AnyRecord] = TypeAdapter(AnyRecord)
 
 
@@ -113,7 +113,7 @@ def move_tail_aside(path: Path, keep_bytes: int) -> str:
     try:
         os.lseek(fd, keep_bytes, os.SEEK_SET)
         tail = b""
-        while chunk := os.read(fd, _CHUNK_BYTES):
+        while chunk := os.read(fd, CHUNK_BYTES):
             tail += chunk
         copy = create_new_file(aside)
         try:
@@ -624,23 +624,14 @@ class SessionWriter:
             The disk is full or failing.
         """
         directory, _, _ = check_session_path(relative).rpartition("/")
-        digest = hashlib.sha256()
         with self.guard():
             try:
                 checked_directory(self.path, directory)
                 relative = self._free_name(relative)
                 final = self.path / relative
-                fd = os.open(temporary, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
-                try:
-                    if not stat.S_ISREG(os.fstat(fd).st_mode):
-                        raise UnsafeLocalPath(temporary, describe_entry(temporary))
-                    size = 0
-                    while chunk := os.read(fd, _CHUNK_BYTES):
-                        digest.update(chunk)
-                        size += len(chunk)
-                    os.fsync(fd)
-                finally:
-                    os.close(fd)
+                if not stat.S_ISREG(temporary.lstat().st_mode):
+                    raise UnsafeLocalPath(temporary, describe_entry(temporary))
+                size, sha256 = file_sha256(temporary, sync=True)
                 temporary.replace(final)
                 _sync_directory(final.parent)
             except UnsafeLocalPath as exc:
@@ -655,7 +646,7 @@ class SessionWriter:
             role=role,
             path=relative,
             size=size,
-            sha256=digest.hexdigest(),
+            sha256=sha256,
             units=units,
             bandwidth_nm=bandwidth_nm,
         )
@@ -841,15 +832,10 @@ class Session:
             except SessionFormatError as exc:
                 problems.append(FileProblem(record.path, str(exc).split(": ", 1)[-1]))
                 continue
-            digest = hashlib.sha256()
-            size = 0
-            with path.open("rb") as stream:
-                while chunk := stream.read(_CHUNK_BYTES):
-                    digest.update(chunk)
-                    size += len(chunk)
+            size, sha256 = file_sha256(path)
             if size != record.size:
                 problems.append(FileProblem(record.path, f"{size} bytes, log says {record.size}"))
-            elif digest.hexdigest() != record.sha256:
+            elif sha256 != record.sha256:
                 problems.append(FileProblem(record.path, "sha256 differs from the log"))
         return problems
 

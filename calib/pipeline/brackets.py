@@ -4,8 +4,9 @@ Merging a bracket costs several passes over every plane sample of every frame, b
 only the direct spot, the first-order band(s) and their background strips: a region of interest that is
 often a tenth of the frame. So, for frames of :data:`REGION_MIN_SAMPLES` plane samples or more:
 
-1. the first decoded frame of the first lamp (full planes) is block-averaged to at most
-   :data:`COARSE_MAX_SIZE` samples across and the geometry detected on that coarse image
+1. the first decoded frame of the first lamp (full planes) is block-averaged to detection's own
+   working size (:data:`calib.image.blocks.DETECTION_MAX_SIZE` blocks across, :func:`coarse_image`)
+   and the geometry detected on that coarse image
    (:func:`calib.image.profiles.detect_geometry`); the region is every rectangle the extraction will read
    (spot, bands, background strips) with generous margins, extended across the band so that
    background dominates it (detection estimates the background as a median);
@@ -28,9 +29,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from calib.core.errors import EstimationError, InputError
+from calib.image.blocks import DETECTION_MAX_SIZE, block_any, block_factor, block_mean
 from calib.image.hdr import DecodePlan, HdrImage, Unpacker, decode_order, merge_bracket
 from calib.image.profiles import (
     DetectionError,
@@ -50,8 +51,6 @@ FrameCallback = Callable[[str, Path], None]
 
 #: Frames with at least this many plane samples per channel are merged over a region of interest.
 REGION_MIN_SAMPLES = 2_000_000
-#: The coarse image for the region's detection is at most this many samples across.
-COARSE_MAX_SIZE = 512
 #: A region larger than this fraction of the frame is not worth it: the whole frame is merged.
 REGION_MAX_FRACTION = 0.6
 #: At most this fraction of the region may be lit (spot and bands): detection takes the
@@ -279,25 +278,18 @@ def region_for(
     return region
 
 
-def coarse_image(planes: RawPlanes, max_size: int = COARSE_MAX_SIZE) -> HdrImage:
-    """A block-averaged rate image of one frame (for a first, coarse detection).
+def coarse_image(planes: RawPlanes) -> HdrImage:
+    """A block-averaged rate image of one frame, at detection's working size (a first detection).
 
-    Blocks of ``b × b`` plane samples (``b`` so that the image is at most ``max_size`` across) are
+    Blocks of ``b × b`` plane samples (``b`` so that the image is at most
+    :data:`calib.image.blocks.DETECTION_MAX_SIZE` across, so that detection uses it as it is) are
     averaged per channel and divided by the exposure time; a block with any saturated sample is
     flagged saturated. The variance is a rough shot + read estimate (detection does not use it).
     """
-    height, width = planes.plane_shape
-    factor = max(1, math.ceil(max(height, width) / max_size))
-    rows, columns = height // factor, width // factor
+    factor = block_factor(planes.plane_shape, DETECTION_MAX_SIZE)
     exposure = planes.metadata.exposure_s
-
-    def blocks(array: NDArray[np.generic]) -> NDArray[np.generic]:
-        return array[:, : rows * factor, : columns * factor].reshape(
-            3, rows, factor, columns, factor
-        )
-
-    radiance = blocks(planes.signal_dn).mean(axis=(2, 4), dtype=np.float64) / exposure
-    saturated = np.asarray(blocks(planes.saturated).any(axis=(2, 4)), dtype=np.bool_)
+    radiance = block_mean(planes.signal_dn, factor) / exposure
+    saturated = block_any(planes.saturated, factor)
     variance = (np.abs(radiance) * exposure + 10.0) / (factor * factor * exposure**2)
     origins = tuple(
         (float(factor - 1) + origin_row, float(factor - 1) + origin_column)
