@@ -16,12 +16,13 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.exits import say_interrupted
 from calib.cli.options import EnsembleOption, EpochsOption
 from calib.core.errors import CalibError, InputError
 from calib.core.metrics import format_re
 from calib.core.software import current_software
 from drivers.base import DeviceError
-from rig.errors import RigError
+from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
 
 if TYPE_CHECKING:
     from rig.config import RigConfig
@@ -101,29 +102,23 @@ def resume(
         bool, typer.Option("--quiet", "-q", help="No progress bar; only the result.")
     ] = False,
     config: Annotated[
-        Path | None,
+        Path,
         typer.Option(
             "--config",
             "-c",
-            help="A configuration to resume with instead of the recorded one; it may change only "
-            "how the devices are reached (ports, serials, timeouts).",
+            help="The rig's configuration: the devices are opened as it says, and the session's "
+            "recorded configuration must match it except in how the devices are reached (ports, "
+            "serials, timeouts). The session's own snapshot is never used to open anything.",
         ),
-    ] = None,
+    ] = DEFAULT_CONFIG,
 ) -> None:
     """Continue an interrupted or failed session in a new run: lamps off first, devices set up again,
     every file verified, the lit lamp warmed up and measured again, done steps skipped."""
     from rig.config import load_config
-    from rig.resume import recorded_config, run_resume
+    from rig.resume import run_resume
 
-    # The recorded configuration drives the progress display: a new one may only change how the
-    # devices are reached, which run_resume checks before it touches the log.
-    _report_run(
-        run_resume(
-            session,
-            progress=_capture_progress(recorded_config(session), quiet),
-            config=None if config is None else load_config(config),
-        )
-    )
+    rig_config = load_config(config)
+    _report_run(run_resume(session, rig_config, progress=_capture_progress(rig_config, quiet)))
 
 
 @app.command("dry-run")
@@ -249,6 +244,9 @@ def estimate(
     quiet: Annotated[
         bool, typer.Option("--quiet", "-q", help="No progress bar; only where the report is.")
     ] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Overwrite the results of an earlier estimate in --out.")
+    ] = False,
 ) -> None:
     """Estimate the camera from a session (every file verified against the log) and write the report."""
     from calib.methods.multilamp import weight_rule_option
@@ -267,6 +265,7 @@ def estimate(
             data_dir=data_dir,
             command_line=command_line,
             settings=settings,
+            force=force,
         )
     else:
         with RichFrameProgress(sys.stderr) as progress:
@@ -278,6 +277,7 @@ def estimate(
                 progress=progress,
                 command_line=command_line,
                 settings=settings,
+                force=force,
             )
     result = outcome.estimate.result
     for warning in outcome.estimate.warnings:
@@ -535,18 +535,42 @@ def _fail(message: str, code: int) -> None:
     sys.exit(code)
 
 
+def _warn_lamps(exc: BaseException) -> None:
+    """After an opening that failed or was interrupted: say when the lamps are not confirmed off."""
+    if isinstance(exc, StationOpenFailed | OpeningInterrupted) and not exc.lamps_off:
+        print(
+            "rig: warning: the lamps could not be confirmed off (the relay board did not open or "
+            "answer): check them by hand",
+            file=sys.stderr,
+        )
+
+
 def main() -> None:
     """Console entry point: errors become one line each on stderr and an exit code."""
     try:
         app(standalone_mode=True)
+    except SystemExit as exit_:
+        say_interrupted(exit_, "rig")
+        raise
+    except KeyboardInterrupt:
+        print("rig: interrupted", file=sys.stderr)
+        sys.exit(130)
     except InputError as exc:
         _fail(str(exc), 2)
+    except OpeningInterrupted as exc:
+        _warn_lamps(exc)
+        _fail(f"{exc} [{exc.reason}]", exc.signal_exit_code)
     except RigError as exc:
+        _warn_lamps(exc)
         _fail(f"{exc} [{exc.reason}]", exc.exit_code)
     except DeviceError as exc:
         _fail(f"{exc} [{exc.reason}]", 1)
     except CalibError as exc:
         _fail(str(exc), 1)
+    except OSError as exc:
+        if os.environ.get("RIG_DEBUG"):
+            raise
+        _fail(f"cannot read or write a file: {exc}", 1)
     except Exception as exc:
         if os.environ.get("RIG_DEBUG"):
             raise

@@ -2,8 +2,9 @@
 
 :func:`open_hardware_station` opens, in this order, the relay board (first, so the runner's first
 step can switch every lamp off as early as possible, e.g. after a crash left one on), the
-spectroradiometer and the camera, each recording its exchanges in the session's transcript; if any
-fails to open, those already open are closed again and the error propagates. Devices that are not
+spectroradiometer and the camera, each recording its exchanges in the session's transcript. Every
+device is tried even after one failed; if any failed, the board switches every lamp off, the
+opened devices are closed again and :class:`rig.errors.StationOpenFailed` names every failure. Devices that are not
 there raise :class:`drivers.base.DeviceNotFound` naming the port, serial number or model that was
 asked for and what was found instead.
 
@@ -14,9 +15,17 @@ The clock is the wall clock; frames are measured by the real frame analyser
 from __future__ import annotations
 
 import contextlib
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
-from drivers.base import Camera, DeviceNotFound, RelayBoard, Spectrometer, TranscriptSink
+from drivers.base import (
+    Camera,
+    DeviceError,
+    DeviceNotFound,
+    RelayBoard,
+    Spectrometer,
+    TranscriptSink,
+)
 from drivers.camera import CameraTimeouts, open_camera
 from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import open_lcus
@@ -34,10 +43,12 @@ from rig.config import (
     SerialSpectrometerConfig,
     SpectrometerConfig,
 )
-from rig.errors import StationUnavailable
+from rig.errors import StationOpenFailed, StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
+from rig.runner import StepTimeouts, switch_off_now
 from rig.station import Station, TranscriptFactory
 
+DeviceT = TypeVar("DeviceT", Spectrometer, Camera, RelayBoard)
 SPECTROMETER_MODELS = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
 
 
@@ -127,38 +138,61 @@ def open_hardware_station(
 ) -> Station:
     """Open the real devices of ``config`` (relays, spectrometer, camera) as a station.
 
+    Every device is tried, even after one failed, so a single attempt names every problem. When any
+    fails, the relay board (if it opened) switches every lamp off and is read back, and every device
+    that opened is closed again.
+
     ``usb_backend`` and ``gphoto2_module`` replace libusb and python-gphoto2 (for tests).
 
     Raises
     ------
-    drivers.base.DeviceNotFound
-        A port, board serial or camera is not there (the message says which and what was found).
-    drivers.base.DeviceError
-        A device is there but does not answer as expected.
+    rig.errors.StationOpenFailed
+        One or more devices are not there or do not answer: each failure (a
+        :class:`drivers.base.DeviceNotFound` naming the port, serial or model asked for and what was
+        found, or another device error) by role, and whether the lamps are confirmed off.
     StationUnavailable
         A device is configured as ``twin`` (the twin is all or nothing).
     """
     devices = config.devices
+    failures: dict[str, DeviceError] = {}
     opened: list[Spectrometer | Camera | RelayBoard] = []
+
+    def attempt(role: str, open_device: Callable[[], DeviceT]) -> DeviceT | None:
+        try:
+            device = open_device()
+        except DeviceError as exc:
+            failures[role] = exc
+            return None
+        opened.append(device)
+        return device
+
     try:
-        relays = open_relays(devices.relays, transcripts("relays"), usb_backend=usb_backend)
-        opened.append(relays)
-        spectrometer = open_configured_spectrometer(
-            devices.spectrometer, transcripts("spectrometer")
+        relays = attempt(
+            "relays",
+            lambda: open_relays(devices.relays, transcripts("relays"), usb_backend=usb_backend),
         )
-        opened.append(spectrometer)
-        camera = open_configured_camera(
-            devices.camera, transcripts("camera"), gphoto2_module=gphoto2_module
+        spectrometer = attempt(
+            "spectrometer",
+            lambda: open_configured_spectrometer(devices.spectrometer, transcripts("spectrometer")),
+        )
+        camera = attempt(
+            "camera",
+            lambda: open_configured_camera(
+                devices.camera, transcripts("camera"), gphoto2_module=gphoto2_module
+            ),
         )
     except BaseException:
-        for device in reversed(opened):
-            with contextlib.suppress(Exception):
-                device.close()
+        _close_all(opened)
         raise
-    return Station(
-        spectrometer,
-        camera,
-        relays,
-        MonotonicClock(),
-        RawFrameAnalyzer(),
-    )
+    if relays is None or spectrometer is None or camera is None:
+        timeout_s = StepTimeouts.from_config(config).relays_s
+        lamps_off = relays is not None and switch_off_now(relays, timeout_s)
+        _close_all(opened)
+        raise StationOpenFailed(failures, lamps_off=lamps_off)
+    return Station(spectrometer, camera, relays, MonotonicClock(), RawFrameAnalyzer())
+
+
+def _close_all(opened: list[Spectrometer | Camera | RelayBoard]) -> None:
+    for device in reversed(opened):
+        with contextlib.suppress(Exception):
+            device.close()

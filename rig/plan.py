@@ -44,6 +44,7 @@ from rig.errors import (
 )
 from rig.steps import (
     AllLampsOff,
+    AnyStep,
     CameraReady,
     Capture,
     ConfigureCamera,
@@ -57,7 +58,6 @@ from rig.steps import (
     SetExposure,
     SpectrometerReady,
     SpectrumMeasured,
-    Step,
     StepResult,
     SwitchLamp,
     Wait,
@@ -65,7 +65,7 @@ from rig.steps import (
     format_exposure,
 )
 
-Plan = Generator[Step, StepResult, None]
+Plan = Generator[AnyStep, StepResult, None]
 """A plan: yields steps, receives each step's result, returns nothing."""
 
 ResultT = TypeVar("ResultT", bound=StepResult)
@@ -80,7 +80,7 @@ NOT_RAW_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic")
 SNR_PREDICTION_MARGIN = 1.25
 
 
-def run_step(step: Step, expected: type[ResultT]) -> Generator[Step, StepResult, ResultT]:
+def run_step(step: AnyStep, expected: type[ResultT]) -> Generator[AnyStep, StepResult, ResultT]:
     """Yield ``step`` and return its result, checked to be of the ``expected`` type."""
     result = yield step
     if not isinstance(result, expected):
@@ -143,7 +143,9 @@ def exposure_limits(hdr: HdrPolicy, camera: CameraReady) -> tuple[float, float]:
     return max(hdr.min_exposure_s, low), min(hdr.max_exposure_s, high)
 
 
-def wait_until_stable(lamp: LampConfig, switched_on_s: float) -> Generator[Step, StepResult, None]:
+def wait_until_stable(
+    lamp: LampConfig, switched_on_s: float
+) -> Generator[AnyStep, StepResult, None]:
     """Measure spectra ``interval_s`` apart until ``stable_pairs`` consecutive changes are below tolerance.
 
     Raises
@@ -242,7 +244,7 @@ def _next_exposure(
 
 def auto_bracket(
     lamp: LampConfig, hdr: HdrPolicy, limits: tuple[float, float], camera: CameraSettings
-) -> Generator[Step, StepResult, list[FrameCaptured]]:
+) -> Generator[AnyStep, StepResult, list[FrameCaptured]]:
     """Capture frames until the bracket satisfies the HDR policy; return them by increasing exposure.
 
     Starts at ``hdr.start_exposure_s`` (default: the geometric mean of ``limits``). While the shortest
@@ -286,7 +288,7 @@ def auto_bracket(
 
 def dark_frames(
     lamp: LampConfig, exposures_s: list[float], per_exposure: int
-) -> Generator[Step, StepResult, None]:
+) -> Generator[AnyStep, StepResult, None]:
     """``per_exposure`` dark frames at each exposure of the bracket (lamps off), shortest first."""
     count = len(exposures_s) * per_exposure
     index = 0

@@ -28,11 +28,17 @@ from drivers.spectrometer.pr6xx import Pr6xx
 from drivers.transport import SerialTransport
 from mocks.lamps import SimulatedClock
 from mocks.replay.gphoto2 import FrameSource, ReplayGphoto2, ReplayUnsupported
-from mocks.replay.script import CheckingSink, Mismatches, ReplayScript
+from mocks.replay.script import CheckingSink, Mismatches, ReplayMismatch, ReplayScript
 from mocks.replay.serial_port import ReplaySerialPort
 from mocks.replay.usb_backend import ReplayUsbBackend
 
-__all__ = ["RecordedDevice", "ReplayBench", "ReplayUnsupported", "open_replay"]
+__all__ = [
+    "RecordedDevice",
+    "RecordingServer",
+    "ReplayBench",
+    "ReplayUnsupported",
+    "open_replay",
+]
 
 TranscriptFactory = Callable[[str], TranscriptSink]
 _CHANNELS = re.compile(r"(\d+)")
@@ -81,6 +87,11 @@ class ReplayBench:
         for closer in reversed(self.closers):
             with contextlib.suppress(Exception):
                 closer()
+
+    def finish(self) -> None:
+        """After the run: note, as mismatches, every recorded entry left unused."""
+        for script in self.scripts.values():
+            script.finish()
 
 
 def _channels(model: str) -> int:
@@ -228,3 +239,28 @@ def open_replay(
     return ReplayBench(
         relays, spectrometer, camera, clock, scripts, mismatches, closers=[released.set]
     )
+
+
+class RecordingServer:
+    """This package as ``rig replay``'s backend: the ``spectral_rig.replay`` entry point.
+
+    The rig reaches it only through that entry point and its typed protocol
+    (:class:`rig.replay.ReplayBackend`), never by importing ``mocks``.
+    """
+
+    def open_recording(
+        self,
+        devices: Mapping[str, Mapping[str, Any]],
+        transcripts: TranscriptFactory,
+        frames: FrameSource,
+    ) -> ReplayBench:
+        """:func:`open_replay` of plain data: per role, the :class:`RecordedDevice` fields."""
+        return open_replay(
+            {role: RecordedDevice(**fields) for role, fields in devices.items()},
+            transcripts,
+            frames,
+        )
+
+    def mismatch_of(self, error: BaseException) -> ReplayMismatch | None:
+        """``error`` when it is a replay mismatch (the rig sent what the recording did not)."""
+        return error if isinstance(error, ReplayMismatch) else None

@@ -79,7 +79,7 @@ def test_a_missing_station_is_one_line_and_exit_1(
     assert not (config_file.parent / "sessions").exists()
 
 
-def test_a_device_that_cannot_be_opened_leaves_a_valid_log(
+def test_a_device_that_cannot_be_opened_leaves_no_session(
     config_file: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from drivers.base import DeviceNotFound
@@ -89,11 +89,16 @@ def test_a_device_that_cannot_be_opened_leaves_a_valid_log(
 
     monkeypatch.setitem(station.STATION_BUILDERS, "twin", builder)
     assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
-    assert "rig: error: PR-655 on /dev/ttyACM0: no such port [not_found]" in capsys.readouterr().err
-    (session_path,) = (config_file.parent / "sessions").iterdir()
-    session = read_session(session_path)
-    assert session.status == "failed"
-    assert session.stop is not None and session.stop.reason == "not_found"
+    err = capsys.readouterr().err
+    assert (
+        "rig: error: 1 device could not be opened, nothing was recorded: PR-655 on /dev/ttyACM0: "
+        "no such port [devices_unavailable]"
+    ) in err
+    assert "the lamps could not be confirmed off" in err  # no relay board opened to say so
+    assert "Traceback" not in err
+    assert not (config_file.parent / "sessions").exists() or not any(
+        (config_file.parent / "sessions").iterdir()
+    )
 
 
 def test_limits_are_bad_input(

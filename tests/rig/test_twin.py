@@ -154,9 +154,7 @@ def test_a_configuration_the_twin_cannot_simulate_fails_before_any_device(tmp_pa
     ) as error:
         run_capture(config)
     assert error.value.exit_code == 2
-    session = read_session(next((tmp_path / "sessions").iterdir()))
-    assert session.status == "failed"  # the session says why it has no frames
-    assert session.stop is not None and session.stop.reason == "twin_config"
+    assert not (tmp_path / "sessions").exists()  # nothing opened, so no session either
 
 
 @pytest.mark.parametrize("emulate", ["hid_usbrelay", "numato"])
