@@ -51,6 +51,7 @@ def _port_errors() -> tuple[type[BaseException], ...]:
     """What a failing port raises (pyserial is imported by then: a transport has a port)."""
     return (pyserial().SerialException, *_OS_PORT_ERRORS)
 
+
 #: A reply longer than this without its terminator is treated as garbage, not waited on.
 DEFAULT_MAX_REPLY_BYTES = 1 << 16
 

@@ -134,6 +134,18 @@ class RecordingBackend:
         self._record("rx", bulk_payload(ep, data))
         return count
 
+    def intr_write(self, dev_handle: Any, ep: int, intf: int, data: Any, timeout: int) -> int:
+        return int(self.inner.intr_write(dev_handle, ep, intf, data, timeout))
+
+    def intr_read(self, dev_handle: Any, ep: int, intf: int, buff: Any, timeout: int) -> int:
+        return int(self.inner.intr_read(dev_handle, ep, intf, buff, timeout))
+
+    def iso_write(self, dev_handle: Any, ep: int, intf: int, data: Any, timeout: int) -> int:
+        return int(self.inner.iso_write(dev_handle, ep, intf, data, timeout))
+
+    def iso_read(self, dev_handle: Any, ep: int, intf: int, buff: Any, timeout: int) -> int:
+        return int(self.inner.iso_read(dev_handle, ep, intf, buff, timeout))
+
     # ------------------------------------------------------------------------------ the rest
 
     def enumerate_devices(self) -> Any:

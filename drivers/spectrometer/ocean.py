@@ -617,7 +617,9 @@ class OceanSpectrometer(ClosesOnExit):
         return float(np.max(signal[self._active]))
 
     def _saturated(self, raw: FloatArray) -> bool:
-        return bool(np.max(raw[self._active]) >= self.settings.saturation_fraction * self.max_counts)
+        return bool(
+            np.max(raw[self._active]) >= self.settings.saturation_fraction * self.max_counts
+        )
 
     def measure(self) -> SpectrumReading:
         """Range (or take the fixed integration time), average, correct and calibrate a spectrum.
@@ -785,7 +787,9 @@ def open_ocean(
         if not found:
             message = f"no Ocean Optics spectrometer found on USB{others}"
         elif serial is None:
-            message = f"{len(found)} spectrometers found ({listed}); set devices.spectrometer.serial"
+            message = (
+                f"{len(found)} spectrometers found ({listed}); set devices.spectrometer.serial"
+            )
         else:
             message = f"no spectrometer with serial {serial!r}; found {listed}{others}"
         raise DeviceNotFound("Ocean spectrometer", message)
