@@ -21,8 +21,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drivers.spectrometer.ocean import integration_ladder_ms
 from rig.analysis import FrameStats
-from rig.config import DryRunModel, RigConfig
+from rig.config import DryRunModel, RigConfig, SeabreezeSpectrometerConfig
 from rig.errors import PlanFailure, PlanProtocolError
 from rig.plan import Plan, StandardCaptureArgs, standard_capture
 from rig.steps import (
@@ -32,8 +33,10 @@ from rig.steps import (
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
+    DarkMeasured,
     ExposureSet,
     FrameCaptured,
+    MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
@@ -112,11 +115,30 @@ def check_limits(config: RigConfig) -> list[LimitViolation]:
     return violations
 
 
-class StepCostModel:
-    """Estimated duration of each step in seconds, from ``config.dry_run``."""
+def dark_duration_s(config: RigConfig) -> float:
+    """How long the spectrometer's dark takes: every rung of its integration ladder (a fixed
+    ``spectrum.exposure_ms`` alone), each averaged, plus the stale scan after each change."""
+    spectrometer = config.devices.spectrometer
+    if not isinstance(spectrometer, SeabreezeSpectrometerConfig):
+        return config.dry_run.spectrum_measure_s
+    fixed_ms = config.spectrum.exposure_ms
+    rungs = (
+        (fixed_ms,)
+        if fixed_ms is not None
+        else integration_ladder_ms(spectrometer.integration_min_ms, spectrometer.integration_max_ms)
+    )
+    return math.fsum(rungs) * (spectrometer.averages + 1) / 1000.0
 
-    def __init__(self, model: DryRunModel) -> None:
+
+class StepCostModel:
+    """Estimated duration of each step in seconds, from ``config.dry_run``.
+
+    ``dark_s`` is the duration of the spectrometer's dark (:func:`dark_duration_s`).
+    """
+
+    def __init__(self, model: DryRunModel, dark_s: float | None = None) -> None:
         self.model = model
+        self.dark_s = model.spectrum_measure_s if dark_s is None else dark_s
 
     def duration_s(self, step: Step) -> float:
         match step:
@@ -126,6 +148,8 @@ class StepCostModel:
                 return SETTINGS_S
             case MeasureSpectrum():
                 return self.model.spectrum_measure_s
+            case MeasureDark():
+                return self.dark_s
             case Wait():
                 return step.seconds
             case SetExposure():
@@ -143,7 +167,7 @@ class ModelledBench:
 
     def __init__(self, config: RigConfig) -> None:
         self.config = config
-        self.cost = StepCostModel(config.dry_run)
+        self.cost = StepCostModel(config.dry_run, dark_duration_s(config))
         self.time_s = 0.0
         self._switched_on_s: dict[str, float] = {}
         self._n_channels = config.devices.relays.channels
@@ -201,6 +225,8 @@ class ModelledBench:
                 return SpectrometerReady(step.exposure_ms)
             case MeasureSpectrum():
                 return self._spectrum(step)
+            case MeasureDark():
+                return DarkMeasured(self.time_s, "spectra/dark.csv", ())
             case Wait():
                 return Waited(self.time_s, step.seconds)
             case SetExposure():

@@ -61,6 +61,7 @@ from rig.steps import (
     ExposureSet,
     FloatArray,
     KeepLampTimeline,
+    MeasureDark,
     MeasureSpectrum,
     SetExposure,
     SpectrumLoader,
@@ -72,7 +73,7 @@ from rig.steps import (
 )
 
 #: The set-up steps every run does again: a new process must re-initialise its devices.
-SETUP_STEPS = (AllLampsOff, ConfigureCamera, ConfigureSpectrometer)
+SETUP_STEPS = (AllLampsOff, ConfigureCamera, ConfigureSpectrometer, MeasureDark)
 #: Relative difference within which a re-applied exposure matches the recorded one.
 EXPOSURE_RTOL = 0.01
 

@@ -152,6 +152,26 @@ class SpectrumMeasured(StepResult):
 
 
 @dataclass(frozen=True)
+class DarkMeasured(StepResult):
+    """The spectrometer's dark spectra (lamps off), one per integration time, stored at ``file``.
+
+    ``integration_ms`` lists the integration times, in the order of the file's value columns.
+    """
+
+    time_s: float
+    file: str
+    integration_ms: tuple[float, ...]
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> DarkMeasured:
+        return cls(
+            float(data["time_s"]),
+            str(data["file"]),
+            tuple(float(value) for value in data["integration_ms"]),
+        )
+
+
+@dataclass(frozen=True)
 class Waited(StepResult):
     """A wait that ended at ``time_s``; ``completed`` is false when a stop request cut it short."""
 
@@ -296,6 +316,25 @@ class ConfigureSpectrometer(Step):
 
 
 @dataclass(frozen=True)
+class MeasureDark(Step):
+    """Measure the spectrometer's dark spectra with every lamp off (the runner checks the board).
+
+    Only for spectrometers that subtract a dark of their own measuring (an Ocean spectrometer);
+    set-up: a resumed run measures it again before its first spectrum.
+    """
+
+    device = "spectrometer"
+    result_type = DarkMeasured
+
+    @property
+    def key(self) -> str:
+        return "start/spectrometer-dark"
+
+    def describe(self) -> str:
+        return "measure the spectrometer's dark spectrum (every lamp off)"
+
+
+@dataclass(frozen=True)
 class SwitchLamp(Step):
     """Switch one lamp's relay channel on or off and read the board back."""
 
@@ -430,6 +469,7 @@ STEP_TYPES: dict[str, type[Step]] = {
         AllLampsOff,
         ConfigureCamera,
         ConfigureSpectrometer,
+        MeasureDark,
         SwitchLamp,
         MeasureSpectrum,
         Wait,

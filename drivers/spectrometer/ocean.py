@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.base import (
+    DarkReading,
     DeviceBusy,
     DeviceError,
     DeviceIdentity,
@@ -323,19 +324,6 @@ def corrected_counts(
 
 
 # ------------------------------------------------------------------------------- readings
-
-
-@dataclass(frozen=True, eq=False)
-class DarkReading:
-    """The dark spectra measured with the lamps off, one per integration time.
-
-    ``counts`` has shape ``(len(integration_ms), n_pixels)``: raw counts averaged over the scans,
-    on the instrument's pixel wavelengths ``wavelength_nm`` (shape ``(n_pixels,)``).
-    """
-
-    wavelength_nm: FloatArray
-    integration_ms: tuple[float, ...]
-    counts: FloatArray
 
 
 @dataclass(frozen=True)
