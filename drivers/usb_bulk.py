@@ -221,7 +221,8 @@ class RecordingBackend:
         self.inner.clear_halt(dev_handle, ep)
 
     def reset_device(self, dev_handle: Any) -> None:
-        self.event("reset")
+        # Not recorded: pyseabreeze also resets a device when its handle is garbage-collected,
+        # at no fixed point of the exchange.
         self.inner.reset_device(dev_handle)
 
     def is_kernel_driver_active(self, dev_handle: Any, intf: int) -> bool:

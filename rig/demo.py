@@ -168,7 +168,7 @@ def run_demo(
     InputError
         When the configuration's devices are not the twin.
     """
-    if not config.devices.simulated:
+    if len(config.devices.twin_roles()) != 3:
         raise InputError(
             "rig demo runs on the digital twin: set every device's kind to 'twin' (as the "
             "shipped config.yaml does), or use `rig capture` on real hardware",

@@ -14,14 +14,18 @@ The clock is the wall clock; frames are measured by the real frame analyser
 from __future__ import annotations
 
 import contextlib
+from pathlib import Path
 from typing import Any
 
+from calib.errors import SpectrumError
+from calib.spectra import read_spectrum_csv, read_table
 from drivers.base import Camera, DeviceNotFound, RelayBoard, Spectrometer, TranscriptSink
 from drivers.camera import CameraTimeouts, open_camera
 from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import open_lcus
 from drivers.relays.numato import open_numato
 from drivers.spectrometer import open_spectrometer
+from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from rig.clock import MonotonicClock
 from rig.config import (
     CameraConfig,
@@ -31,6 +35,7 @@ from rig.config import (
     NumatoRelayConfig,
     RelayConfig,
     RigConfig,
+    SeabreezeSpectrometerConfig,
     SerialSpectrometerConfig,
     SpectrometerConfig,
 )
@@ -84,10 +89,59 @@ def open_relays(
     raise _not_hardware("relays", config.kind)
 
 
+def load_irradiance_calibration(path: Path) -> IrradianceCalibration:
+    """An Ocean spectrometer's relative irradiance calibration from a CSV file (``wavelength_nm``,
+    ``factor``; a two-column file without a header is read as those).
+
+    Raises
+    ------
+    calib.errors.SpectrumError
+        The file is missing, unreadable, or its values are not a calibration (names the file).
+    """
+    table = read_table(path)
+    column = "factor" if "factor" in table.columns else None
+    spectrum = read_spectrum_csv(path, column=column)
+    try:
+        return IrradianceCalibration(spectrum.wavelength_nm, spectrum.values, source=str(path))
+    except ValueError as exc:
+        raise SpectrumError(str(exc), source=str(path)) from None
+
+
+def ocean_settings(
+    config: SeabreezeSpectrometerConfig, calibration: IrradianceCalibration | None
+) -> OceanSettings:
+    """The Ocean driver's settings from the configuration."""
+    return OceanSettings(
+        integration_range_ms=(config.integration_min_ms, config.integration_max_ms),
+        averages=config.averages,
+        electric_dark=config.electric_dark,
+        nonlinearity=config.nonlinearity,
+        calibration=calibration,
+        allow_uncalibrated=config.allow_uncalibrated,
+        bandwidth_nm=config.bandwidth_nm,
+        timeout_ms=round(config.timeout_s * 1000),
+    )
+
+
 def open_configured_spectrometer(
-    config: SpectrometerConfig, transcript: TranscriptSink
+    config: SpectrometerConfig, transcript: TranscriptSink, *, usb_backend: Any = None
 ) -> Spectrometer:
-    """Open the configured spectroradiometer on its serial port."""
+    """Open the configured spectrometer: on its serial port, on USB (Ocean) or through spotread.
+
+    ``usb_backend`` is the pyusb backend for an Ocean spectrometer (default: libusb).
+    """
+    if isinstance(config, SeabreezeSpectrometerConfig):
+        calibration = (
+            None
+            if config.calibration_file is None
+            else load_irradiance_calibration(config.calibration_file)
+        )
+        return open_ocean(
+            config.serial,
+            ocean_settings(config, calibration),
+            backend=usb_backend,
+            transcript=transcript,
+        )
     if not isinstance(config, SerialSpectrometerConfig):
         raise _not_hardware("spectrometer", config.kind)
     return open_spectrometer(
@@ -144,7 +198,7 @@ def open_hardware_station(
         relays = open_relays(devices.relays, transcripts("relays"), usb_backend=usb_backend)
         opened.append(relays)
         spectrometer = open_configured_spectrometer(
-            devices.spectrometer, transcripts("spectrometer")
+            devices.spectrometer, transcripts("spectrometer"), usb_backend=usb_backend
         )
         opened.append(spectrometer)
         camera = open_configured_camera(

@@ -12,6 +12,7 @@ open, and a callback that receives the open bench for later injections).
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -20,6 +21,7 @@ from typing import Any
 from rig.config import RigConfig
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
+from rig.hardware import open_configured_camera, open_configured_spectrometer
 from rig.station import Station, StationBuilder, TranscriptFactory, optional_module
 
 BENCH_MODULE = "mocks.bench"
@@ -80,11 +82,30 @@ def open_twin_bench(
         raise _config_error(exc) from None
 
 
-def station_of(twin: Any) -> Station:
-    """Wrap an open bench into a station with the real frame analyser."""
+def station_of(twin: Any, config: RigConfig, transcripts: TranscriptFactory) -> Station:
+    """Wrap an open bench into a station with the real frame analyser; the roles the twin does
+    not play (a real camera, a real spectrometer) are opened on their hardware
+    (:mod:`rig.hardware`). If one fails to open, the bench and what was opened are closed."""
+    opened: list[Any] = []
+    try:
+        spectrometer = twin.spectrometer
+        if spectrometer is None:
+            spectrometer = open_configured_spectrometer(
+                config.devices.spectrometer, transcripts("spectrometer")
+            )
+            opened.append(spectrometer)
+        camera = twin.camera
+        if camera is None:
+            camera = open_configured_camera(config.devices.camera, transcripts("camera"))
+    except BaseException:
+        for device in (*opened, twin.relays):
+            with contextlib.suppress(Exception):
+                device.close()
+        twin.close()
+        raise
     return Station(
-        twin.spectrometer,
-        twin.camera,
+        spectrometer,
+        camera,
         twin.relays,
         twin.clock,
         RawFrameAnalyzer(),
@@ -94,8 +115,10 @@ def station_of(twin: Any) -> Station:
 
 
 def open_twin_station(config: RigConfig, transcripts: TranscriptFactory) -> Station:
-    """The station builder for ``devices.*.kind: twin`` (see :data:`rig.station.STATION_BUILDERS`)."""
-    return station_of(open_twin_bench(config, transcripts))
+    """The station builder for a configuration with twin devices (see
+    :data:`rig.station.STATION_BUILDERS`): the twin's lamps, and its spectrometer and camera
+    where the configuration says ``twin``."""
+    return station_of(open_twin_bench(config, transcripts), config, transcripts)
 
 
 def twin_station_builder(
@@ -108,7 +131,7 @@ def twin_station_builder(
         twin = open_twin_bench(config, transcripts, faults=faults)
         if on_open is not None:
             on_open(twin)
-        return station_of(twin)
+        return station_of(twin, config, transcripts)
 
     return build
 

@@ -673,6 +673,7 @@ class OceanSpectrometer(ClosesOnExit):
         with contextlib.suppress(Exception):
             self._device.close()
         self._backend.event("close")
+        self._backend.transcript = None  # the session closes its transcripts after this
 
 
 @dataclass
