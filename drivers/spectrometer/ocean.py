@@ -512,7 +512,10 @@ class OceanSpectrometer(ClosesOnExit):
             "electric_dark": "on" if self.dark_pixels else "off",
             "nonlinearity": "on" if self.nonlinearity else "off",
             "calibration": calibration.source if calibration else "none (counts per ms)",
+            "timeout_ms": str(settings.timeout_ms),
         }
+        if settings.bandwidth_nm is not None:
+            extra["bandwidth_nm"] = f"{settings.bandwidth_nm:g}"
         if calibration is not None:
             extra["calibration_sha256"] = calibration.sha256
         return DeviceIdentity(

@@ -291,9 +291,14 @@ def _open_relays(
 
 def twin_ocean_settings(model: str, timeout_s: float) -> OceanSettings:
     """The Ocean driver's settings on the twin: the emulated model's exact calibration."""
-    wavelength_nm, factor = ocean_calibration(OCEAN_MODELS[model])
+    emulated = OCEAN_MODELS[model]
+    wavelength_nm, factor = ocean_calibration(emulated)
     calibration = IrradianceCalibration(wavelength_nm, factor, source=f"twin {model}")
-    return OceanSettings(calibration=calibration, timeout_ms=max(1, round(timeout_s * 1000)))
+    return OceanSettings(
+        calibration=calibration,
+        bandwidth_nm=emulated.bandwidth_nm,
+        timeout_ms=max(1, round(timeout_s * 1000)),
+    )
 
 
 def _open_spectrometer(

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from calib.spectra import read_spectrum_csv
 from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptEntry, TranscriptSink
 from drivers.camera import CameraTimeouts, open_camera
 from drivers.lifecycle import connect_or_close
@@ -23,14 +24,17 @@ from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import LcusRelayBoard
 from drivers.relays.numato import NumatoRelayBoard
 from drivers.spectrometer.cs2000 import Cs2000
+from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from drivers.spectrometer.pr6xx import MODELS as PR6XX_MODELS
 from drivers.spectrometer.pr6xx import Pr6xx
 from drivers.transport import SerialTransport
+from mocks.bench.station import twin_ocean_settings
 from mocks.lamps import SimulatedClock
+from mocks.ocean_backend import OCEAN_MODELS
 from mocks.replay.gphoto2 import FrameSource, ReplayGphoto2, ReplayUnsupported
 from mocks.replay.script import CheckingSink, Mismatches, ReplayScript
 from mocks.replay.serial_port import ReplaySerialPort
-from mocks.replay.usb_backend import ReplayUsbBackend
+from mocks.replay.usb_backend import ReplayOceanBackend, ReplayUsbBackend
 
 __all__ = ["RecordedDevice", "ReplayBench", "ReplayUnsupported", "open_replay"]
 
@@ -141,11 +145,53 @@ def _open_relays(
     raise ReplayUnsupported(f"no replay for the relay board {model!r}")
 
 
+def _ocean_settings(device: RecordedDevice) -> OceanSettings:
+    """The Ocean driver's settings as the recorded identity says the run used them."""
+    extra = device.identity.get("extra") or {}
+    model = str(device.identity.get("model", ""))
+    source = str(extra.get("calibration", ""))
+    timeout_s = int(extra.get("timeout_ms", 5000)) / 1000.0
+    if source == f"twin {model}":
+        return twin_ocean_settings(model, timeout_s)
+    ladder = [float(v) for v in str(extra.get("integration_ladder_ms", "")).split(",") if v]
+    if len(ladder) < 2:
+        raise ReplayUnsupported(f"the recorded {model} names no integration ladder")
+    calibration = None
+    if extra.get("calibration_sha256"):
+        table = read_spectrum_csv(source, column="factor")
+        calibration = IrradianceCalibration(table.wavelength_nm, table.values, source=source)
+        if calibration.sha256 != extra["calibration_sha256"]:
+            raise ReplayUnsupported(
+                f"the calibration file {source} changed since the session was recorded"
+            )
+    bandwidth = extra.get("bandwidth_nm")
+    return OceanSettings(
+        integration_range_ms=(ladder[0], ladder[-1]),
+        averages=int(extra.get("averages", 1)),
+        electric_dark="on" if extra.get("electric_dark") == "on" else "off",
+        nonlinearity="on" if extra.get("nonlinearity") == "on" else "off",
+        calibration=calibration,
+        allow_uncalibrated=calibration is None,
+        bandwidth_nm=None if bandwidth is None else float(bandwidth),
+        timeout_ms=round(timeout_s * 1000),
+    )
+
+
 def _open_spectrometer(
     device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, released: threading.Event
 ) -> Spectrometer:
     model = str(device.identity.get("model", ""))
     port = str(device.identity.get("port") or "")
+    extra = device.identity.get("extra") or {}
+    if extra.get("driver") == "seabreeze":
+        if model not in OCEAN_MODELS:
+            raise ReplayUnsupported(f"no replay for the Ocean spectrometer {model!r}")
+        return open_ocean(
+            device.identity.get("serial"),
+            _ocean_settings(device),
+            backend=ReplayOceanBackend(script, model, port),
+            transcript=CheckingSink(script, sink),
+        )
     transport = _serial_transport(script, sink, f"{model} on {port}", port, released)
     instrument: Pr6xx | Cs2000
     if model in PR6XX_MODELS:
