@@ -402,7 +402,10 @@ class DevicesConfig(StrictModel):
             return self
         blind = [
             role
-            for role, kind in (("spectrometer", self.spectrometer.kind), ("camera", self.camera.kind))
+            for role, kind in (
+                ("spectrometer", self.spectrometer.kind),
+                ("camera", self.camera.kind),
+            )
             if kind == "twin"
         ]
         if blind:

@@ -215,6 +215,13 @@ class TwinSpec:
                 f"{self.relay_channels}-channel relay board; raise devices.relays.channels"
             )
 
+    @property
+    def twin_camera(self) -> CameraSpec:
+        """The twin camera (:class:`TwinSpecError` when the rig's camera is real)."""
+        if self.camera is None:
+            raise TwinSpecError("devices.camera is real: the twin has no camera")
+        return self.camera
+
     # ------------------------------------------------------------------------ from config data
 
     @classmethod

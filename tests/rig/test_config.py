@@ -109,7 +109,10 @@ class TestReadableErrors:
         data = fake_config_data()
         data["devices"]["relays"] = {"kind": "lcus", "port": "/dev/ttyUSB0", "channels": 2}
         (issue,) = issues_for(data)
-        assert "devices.spectrometer and devices.camera are 'twin' but devices.relays is 'lcus'" in issue
+        assert (
+            "devices.spectrometer and devices.camera are 'twin' but devices.relays is 'lcus'"
+            in issue
+        )
         assert "sees only the twin's lamps" in issue
 
     def test_an_ocean_spectrometer_needs_its_calibration(self) -> None:

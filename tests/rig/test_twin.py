@@ -123,6 +123,7 @@ def test_a_busy_camera_is_recovered_by_its_driver(tmp_path: Path) -> None:
     outcome, session = _capture(tmp_path, builder=builder)
     assert outcome.exit_status == "success", outcome
     body = opened[0].camera_body
+    assert body is not None
     frames = len(_done(session, "Capture")) + len(_done(session, "DarkFrame"))
     assert [fault.fired for fault in body.faults] == [2]
     assert body.count("capture") == frames + 2  # two busy answers, retried inside the driver
