@@ -465,6 +465,7 @@ class OceanSpectrometer(ClosesOnExit):
         active = np.ones(self.wavelength_nm.shape, dtype=bool)
         active[list(self.dark_pixels)] = False
         self._active = active
+        self._in_range &= active  # the optically masked pixels are not part of the spectrum
 
     # ------------------------------------------------------------------------------ plumbing
 
