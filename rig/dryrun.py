@@ -21,9 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.spectrometer.ocean import integration_ladder_ms
 from rig.analysis import FrameStats
-from rig.config import DryRunModel, RigConfig, SeabreezeSpectrometerConfig
+from rig.config import DryRunModel, RigConfig
 from rig.errors import PlanFailure, PlanProtocolError
 from rig.plan import Plan, StandardCaptureArgs, standard_capture
 from rig.steps import (
@@ -115,30 +114,13 @@ def check_limits(config: RigConfig) -> list[LimitViolation]:
     return violations
 
 
-def dark_duration_s(config: RigConfig) -> float:
-    """How long the spectrometer's dark takes: every rung of its integration ladder (a fixed
-    ``spectrum.exposure_ms`` alone), each averaged, plus the stale scan after each change."""
-    spectrometer = config.devices.spectrometer
-    if not isinstance(spectrometer, SeabreezeSpectrometerConfig):
-        return config.dry_run.spectrum_measure_s
-    fixed_ms = config.spectrum.exposure_ms
-    rungs = (
-        (fixed_ms,)
-        if fixed_ms is not None
-        else integration_ladder_ms(spectrometer.integration_min_ms, spectrometer.integration_max_ms)
-    )
-    return math.fsum(rungs) * (spectrometer.averages + 1) / 1000.0
-
-
 class StepCostModel:
-    """Estimated duration of each step in seconds, from ``config.dry_run``.
-
-    ``dark_s`` is the duration of the spectrometer's dark (:func:`dark_duration_s`).
+    """Estimated duration of each step in seconds, from ``config.dry_run`` (the spectrometer's dark
+    counts as one spectrum measurement: plans and the dry run know no driver's integration ladder).
     """
 
-    def __init__(self, model: DryRunModel, dark_s: float | None = None) -> None:
+    def __init__(self, model: DryRunModel) -> None:
         self.model = model
-        self.dark_s = model.spectrum_measure_s if dark_s is None else dark_s
 
     def duration_s(self, step: Step) -> float:
         match step:
@@ -149,7 +131,7 @@ class StepCostModel:
             case MeasureSpectrum():
                 return self.model.spectrum_measure_s
             case MeasureDark():
-                return self.dark_s
+                return self.model.spectrum_measure_s
             case Wait():
                 return step.seconds
             case SetExposure():
@@ -167,7 +149,7 @@ class ModelledBench:
 
     def __init__(self, config: RigConfig) -> None:
         self.config = config
-        self.cost = StepCostModel(config.dry_run, dark_duration_s(config))
+        self.cost = StepCostModel(config.dry_run)
         self.time_s = 0.0
         self._switched_on_s: dict[str, float] = {}
         self._n_channels = config.devices.relays.channels

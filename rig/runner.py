@@ -36,8 +36,9 @@ from calib.errors import SpectrumError
 from calib.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
 from drivers.base import DarkCorrecting, DeviceError, DeviceIdentity, StateMismatch
 from drivers.spectrometer import longest_measure_s
-from rig.config import RigConfig
-from rig.dryrun import DryRunReport, dark_duration_s
+from drivers.spectrometer.ocean import integration_ladder_ms
+from rig.config import RigConfig, SeabreezeSpectrometerConfig
+from rig.dryrun import DryRunReport
 from rig.errors import (
     FrameAnalysisError,
     InvalidReading,
@@ -104,6 +105,21 @@ DEVICE_ROLES: tuple[DeviceRole, ...] = ("relays", "camera", "spectrometer")
 STALE_READING_ATTEMPTS = 3
 #: Relative difference above which a reading's own exposure shows a setting other than the new one.
 STALE_EXPOSURE_RTOL = 0.02
+
+
+def dark_duration_s(config: RigConfig) -> float:
+    """How long the spectrometer's dark takes: every rung of its integration ladder (a fixed
+    ``spectrum.exposure_ms`` alone), each averaged, plus the stale scan after each change."""
+    spectrometer = config.devices.spectrometer
+    if not isinstance(spectrometer, SeabreezeSpectrometerConfig):
+        return config.dry_run.spectrum_measure_s
+    fixed_ms = config.spectrum.exposure_ms
+    rungs = (
+        (fixed_ms,)
+        if fixed_ms is not None
+        else integration_ladder_ms(spectrometer.integration_min_ms, spectrometer.integration_max_ms)
+    )
+    return math.fsum(rungs) * (spectrometer.averages + 1) / 1000.0
 
 
 @dataclass(frozen=True)
