@@ -19,12 +19,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from calib import estimate
-from calib.bases import camera_basis, fallback_camera_basis
-from calib.datasets import colour_science_cameras, find_camera, makabe2025_split
-from calib.metrics import relative_error
-from calib.spectra import DEFAULT_GRID
-from calib.synthetic import colour_lamp, render_scene
+from calib.core.datasets import colour_science_cameras, find_camera, makabe2025_split
+from calib.core.lamp_specs import colour_lamp
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import render_scene
+from calib.methods import estimate
+from calib.model.bases import camera_basis, fallback_camera_basis
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Wall time of ``calib estimate`` on 2 lamps × 5-frame brackets of 24 MP DNGs, against bare decoding.
 
-Renders the rig's scene with :mod:`calib.forward` (LED-B3 and FL2 through a 300 l/mm grating, 0.3 nm
+Renders the rig's scene with :mod:`calib.model.forward` (LED-B3 and FL2 through a 300 l/mm grating, 0.3 nm
 per sensor pixel, colour-science's Canon 5D Mark II as the camera) into 6000 × 4000 Bayer DNG brackets
 (:mod:`mocks.forward_scene`, :mod:`mocks.scene`, :mod:`mocks.dng`), then measures in fresh processes,
 each twice after a warm-up (page cache), the best of the two:
@@ -54,8 +54,8 @@ print(time.perf_counter() - start)
 _PROFILES = """
 import sys, time
 from pathlib import Path
-from calib.offline.brackets import bracket_profiles
-from calib.offline.inputs import LampImages
+from calib.pipeline.brackets import bracket_profiles
+from calib.pipeline.inputs import LampImages
 lamps = []
 for group in sys.argv[1:]:
     name, kind, *files = group.split("|")
@@ -85,9 +85,9 @@ def _run(command: list[str]) -> tuple[float, float, str, float]:
 def _render(
     directory: Path, frames: int, width: int, height: int, compression: str
 ) -> dict[str, Any]:
-    from calib.datasets import colour_science_cameras, find_camera
-    from calib.mapping import GratingGeometry
-    from calib.synthetic import colour_lamp
+    from calib.core.datasets import colour_science_cameras, find_camera
+    from calib.core.lamp_specs import colour_lamp
+    from calib.core.mapping import GratingGeometry
     from mocks.forward_scene import write_capture
     from mocks.scene import SceneLayout, SensorModel
 
@@ -177,8 +177,8 @@ def main() -> int:
         wall, memory, stdout, cpu = min(estimate_runs, key=lambda run: run[0])
         decode_cpu = min(run[3] for run in decode_runs)
         summary = json.loads(stdout)
-        from calib.metrics import relative_error
-        from calib.spectra import read_multispectrum_csv
+        from calib.core.metrics import relative_error
+        from calib.core.spectra import read_multispectrum_csv
 
         estimated = read_multispectrum_csv(Path(summary["files"]["sensitivity"]))
         truth = scene["camera"].sensitivity.resample(estimated_grid(estimated)).values
@@ -222,7 +222,7 @@ def main() -> int:
 
 
 def estimated_grid(curves: Any) -> Any:
-    from calib.spectra import WavelengthGrid
+    from calib.core.spectra import WavelengthGrid
 
     wavelength = curves.wavelength_nm
     return WavelengthGrid(

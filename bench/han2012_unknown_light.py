@@ -17,20 +17,20 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.bases import CameraBasis
-from calib.datasets import SOLOMATOV, colour_science_cameras, load_collection
-from calib.han2012 import (
+from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
+from calib.core.lamp_specs import colour_lamp
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
+from calib.methods import default_camera_basis
+from calib.methods.baselines.han2012 import (
     cie_daylight,
     colorchecker_reflectances,
     estimate_han2012,
     render_chart,
     synthetic_fluorescent_paints,
 )
-from calib.light_sources import correlated_colour_temperature
-from calib.methods import default_camera_basis
-from calib.metrics import relative_error
-from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
-from calib.synthetic import colour_lamp
+from calib.model.bases import CameraBasis
+from calib.spd.light_sources import correlated_colour_temperature
 
 DAYLIGHTS_K = (4500.0, 5500.0, 6500.0, 8000.0, 12000.0, 20000.0)
 OTHER_LIGHTS = ("FL2", "LED-B3", "A")

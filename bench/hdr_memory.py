@@ -5,7 +5,7 @@ bracket of DNG files to a temporary directory, then measures in fresh processes 
 belongs to one job):
 
 * bare decoding: ``rawpy.imread`` and a copy of ``raw_image_visible`` for every file;
-* the merge: :func:`calib.hdr.merge_bracket` on the same files (noise model estimated).
+* the merge: :func:`calib.image.hdr.merge_bracket` on the same files (noise model estimated).
 
 Target (issue 4): peak RSS of the merge ≤ 1.5 GB. Exit status 1 when it is missed.
 
@@ -62,7 +62,7 @@ def _decode(files: list[Path]) -> dict[str, float]:
 
 
 def _merge(files: list[Path]) -> dict[str, float]:
-    from calib.hdr import merge_bracket
+    from calib.image.hdr import merge_bracket
 
     baseline, cpu = _peak_rss_mb(), _cpu_s()
     start = time.perf_counter()

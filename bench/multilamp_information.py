@@ -28,20 +28,20 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from calib.bases import camera_basis, fourier_basis
-from calib.datasets import makabe2025_split
-from calib.errors import InputError
-from calib.metrics import relative_error
-from calib.multilamp import direct_rows, pool_responses, prepare_lamps
-from calib.result import physical_curves
-from calib.spectra import DEFAULT_GRID
-from calib.synthetic import (
+from calib.core.datasets import makabe2025_split
+from calib.core.errors import InputError
+from calib.core.metrics import relative_error
+from calib.core.result import physical_curves
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import (
     LAMP_SETS,
     out_of_basis_cameras,
     random_efficiency,
     random_mapping,
     render_lamps,
 )
+from calib.methods.multilamp import direct_rows, pool_responses, prepare_lamps
+from calib.model.bases import camera_basis, fourier_basis
 
 MONTE_CARLO = 400
 

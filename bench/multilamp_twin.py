@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from calib.synthetic import FIVE_LAMPS, LAMP_SETS, lamp_kind
+from calib.evaluation.synthetic import FIVE_LAMPS, LAMP_SETS, lamp_kind
 from rig.compare import compare_sessions
 from rig.config import RigConfig, load_config
 from rig.demo import run_demo

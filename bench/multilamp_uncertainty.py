@@ -2,7 +2,7 @@
 
 Renders the 5-lamp scene (LED-B1, LED-B3, LED-B5, FL2, A; 1 % noise) for one camera — colour-science's
 Nikon 5100 with the offline basis (excluding it), or with ``--data-dir`` the Canon 600D with the
-44-camera basis — and times :func:`calib.multilamp.estimate_multilamp` with the true mapping (the
+44-camera basis — and times :func:`calib.methods.multilamp.estimate_multilamp` with the true mapping (the
 mapping search does not depend on the uncertainty) with ``uncertainty="posterior"`` and ``"none"``:
 medians of repeats after a warm-up, on one core. Also prints the share of the truth inside ±2σ.
 
@@ -21,17 +21,17 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from calib.bases import camera_basis, fallback_camera_basis
-from calib.datasets import colour_science_cameras, find_camera, makabe2025_split
-from calib.multilamp import Uncertainty, estimate_multilamp
-from calib.spectra import DEFAULT_GRID
-from calib.synthetic import (
+from calib.core.datasets import colour_science_cameras, find_camera, makabe2025_split
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import (
     LAMP_SETS,
     band_coverage,
     random_efficiency,
     random_mapping,
     render_lamps,
 )
+from calib.methods.multilamp import Uncertainty, estimate_multilamp
+from calib.model.bases import camera_basis, fallback_camera_basis
 
 
 def main() -> None:

@@ -3,7 +3,7 @@
 For each of the 44 training cameras of Makabe et al. (2025) §4.1: the prior is built from the other
 43, the camera is rendered through a random grating and mapping (the synthetic protocol), and the
 mapping is found from the broadband lamp alone ("LED only") for every candidate
-:data:`calib.mapping_search.LOCAL_FLEXIBILITY`; the sensitivity is then solved with that mapping.
+:data:`calib.wavelength.search.LOCAL_FLEXIBILITY`; the sensitivity is then solved with that mapping.
 Prints, per lamp, noise level and flexibility, the mean and worst mapping RE, the number of cameras
 whose mapping RE exceeds 1 % and the mean RE. The five test cameras are never used.
 
@@ -20,14 +20,15 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from calib import mapping_search
-from calib.bases import camera_basis
-from calib.datasets import makabe2025_split
-from calib.makabe2025 import estimate_makabe2025
-from calib.metrics import mapping_relative_error, relative_error
-from calib.resolution import camera_kernel
-from calib.spectra import DEFAULT_GRID
-from calib.synthetic import colour_lamp, render_scene
+from calib.core.datasets import makabe2025_split
+from calib.core.lamp_specs import colour_lamp
+from calib.core.metrics import mapping_relative_error, relative_error
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import render_scene
+from calib.methods.makabe2025 import estimate_makabe2025
+from calib.model.bases import camera_basis
+from calib.model.resolution import camera_kernel
+from calib.wavelength import search as mapping_search
 
 
 def main() -> None:

@@ -14,12 +14,13 @@ import argparse
 
 import numpy as np
 
-from calib.bases import camera_basis
-from calib.datasets import makabe2025_split
-from calib.makabe2025 import estimate_makabe2025
-from calib.metrics import relative_error
-from calib.spectra import DEFAULT_GRID
-from calib.synthetic import colour_lamp, render_scene
+from calib.core.datasets import makabe2025_split
+from calib.core.lamp_specs import colour_lamp
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import render_scene
+from calib.methods.makabe2025 import estimate_makabe2025
+from calib.model.bases import camera_basis
 
 
 def main() -> None:

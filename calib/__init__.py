@@ -1,23 +1,10 @@
 """Estimation of camera spectral sensitivity: pure numpy/scipy, no hardware imports.
 
-See :mod:`calib.spectra` for spectra and grids, :mod:`calib.observations` for the estimator's input
-and :func:`calib.estimate` (the front function over every registered method) for the estimate.
+The packages follow the data: :mod:`calib.core` (the shared types: spectra, observations, results,
+errors, metrics, datasets, grating files, mapping types) → :mod:`calib.model` (the image formation
+model, bases, linear models) → :mod:`calib.image` (RAW → HDR → profiles) → :mod:`calib.wavelength`
+(the pixel→wavelength mapping) → :mod:`calib.methods` (the estimators and the front function
+:func:`calib.methods.estimate`) → :mod:`calib.spd` (the rig as a spectrometer) →
+:mod:`calib.pipeline` (files in → estimate → files out) → :mod:`calib.evaluation` (synthetic
+protocol, comparison, lamp planning) → :mod:`calib.cli`. Each imports only the ones before it.
 """
-
-from __future__ import annotations
-
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    from calib.methods import estimate, register_method
-
-__all__ = ["estimate", "register_method"]
-
-
-def __getattr__(name: str) -> Any:
-    # The estimators pull in scipy (≈ 1 s): imported on first use, not with every ``calib.*`` module.
-    if name in __all__:
-        import calib.methods
-
-        return getattr(calib.methods, name)
-    raise AttributeError(f"module 'calib' has no attribute {name!r}")

@@ -1,6 +1,6 @@
-"""Feed :mod:`mocks.scene` with the image formation model of :mod:`calib.forward`.
+"""Feed :mod:`mocks.scene` with the image formation model of :mod:`calib.model.forward`.
 
-:func:`calib.forward.render_observation` gives the first order as a spectral density ``e·η·s`` per nm
+:func:`calib.model.forward.render_observation` gives the first order as a spectral density ``e·η·s`` per nm
 on a fine axis (1 nm), and its ``profile`` as *integrals* over pixel intervals. :class:`mocks.scene.
 SceneSignal` wants a radiance *density* per sensor pixel along the dispersion, which the scene samples
 at every sensor pixel's centre by linear interpolation. Handing it the per-pixel integrals would
@@ -12,7 +12,7 @@ those cell means is then exact to second order in ``step_px``, also for fluoresc
 
 Examples
 --------
->>> from calib.forward import render_observation                     # doctest: +SKIP
+>>> from calib.model.forward import render_observation                     # doctest: +SKIP
 >>> rendered = render_observation(lamp, camera, mapping=mapping, pixel=2)  # doctest: +SKIP
 >>> signal = first_order_signal(rendered, mapping, pixel_range_px=(200, 1000))  # doctest: +SKIP
 """
@@ -25,17 +25,16 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
-from numpy.typing import NDArray
 
-from calib.forward import (
+from calib.core.observations import LampKind
+from calib.core.spectra import MultiSpectrum, Spectrum, write_csv
+from calib.model.forward import (
     EfficiencyLike,
     PiecewiseLinearDensity,
     RenderedObservation,
     WavelengthMapping,
     render_observation,
 )
-from calib.observations import LampKind
-from calib.spectra import MultiSpectrum, Spectrum, write_csv
 from mocks.scene import (
     SceneLayout,
     SceneSignal,
@@ -43,8 +42,6 @@ from mocks.scene import (
     render_mosaic_radiance,
     write_bracket,
 )
-
-FloatArray = NDArray[np.float64]
 
 
 def first_order_signal(
@@ -63,7 +60,7 @@ def first_order_signal(
     Parameters
     ----------
     rendered
-        From :func:`calib.forward.render_observation` (its ``spectral_image`` and ``clean_direct``
+        From :func:`calib.model.forward.render_observation` (its ``spectral_image`` and ``clean_direct``
         are used; its pixel sampling is not).
     mapping
         Sensor-pixel distance from the direct spot's centre along the dispersion → wavelength (nm).
@@ -148,7 +145,7 @@ def write_capture(
     dark_frames: bool = False,
     **dng_fields: str | int | float | None,
 ) -> list[RenderedLamp]:
-    """Render every lamp through :mod:`calib.forward` and write its bracket as DNG files.
+    """Render every lamp through :mod:`calib.model.forward` and write its bracket as DNG files.
 
     Each lamp gets ``directory/<name>/scene_NNNN.dng`` at ``exposures_s`` (brightest first-order
     sample at ``band_peak_dn_per_s``), its spectrum as ``directory/<name>.csv`` and, with

@@ -18,8 +18,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from calib.observations import LampKind
-from calib.spectra import Spectrum
+from calib.core.observations import LampKind
+from calib.core.spectra import Spectrum
 
 
 class Clock(Protocol):

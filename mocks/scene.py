@@ -20,7 +20,7 @@ A :class:`SceneSignal` gives the first order as per-pixel values at sample posit
 interpolated at each pixel's centre. A :class:`PixelIntegratedSignal` gives it as the cumulative
 integral of its density along ``u`` instead, and every pixel receives the exact integral of that
 density over its own footprint (the unit square, turned by the dispersion angle, projected onto
-``u``): the same per-pixel integrals ``calib.forward`` computes for its 1-D profiles, at any angle
+``u``): the same per-pixel integrals ``calib.model.forward`` computes for its 1-D profiles, at any angle
 and sub-pixel spot position.
 
 :func:`render_mosaic_radiance` samples that field at every sensor pixel for the pixel's own colour
@@ -42,9 +42,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from calib.core.arrays import FloatArray
 from mocks.dng import DngMetadata, write_dng
 
-FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
 ShotNoise = Literal["poisson", "gaussian", "none"]
 
@@ -238,7 +238,7 @@ class PixelIntegratedSignal:
     A pixel whose centre lies at ``u`` receives the mean of ``f`` over its footprint
     (:class:`PixelFootprint`): ``E[C(u + U₂ + a/2) − C(u + U₂ − a/2)] / a``, exact in ``U₁`` and
     a four-node Gauss–Legendre mean over the narrow side ``U₂``. Along the axis (``θ = 0``) that is
-    ``C(u + ½) − C(u − ½)``: the per-pixel integral of ``calib.forward``.
+    ``C(u + ½) − C(u − ½)``: the per-pixel integral of ``calib.model.forward``.
     """
 
     direct_rgb: FloatArray
@@ -487,7 +487,7 @@ def smooth_signal(
     direct_rgb: tuple[float, float, float] = (3.0e7, 5.0e7, 2.0e7),
     step_px: float = 0.5,
 ) -> SceneSignal:
-    """A smooth stand-in for a broadband lamp seen through a grating (until ``calib.forward``).
+    """A smooth stand-in for a broadband lamp seen through a grating (until ``calib.model.forward``).
 
     Three Gaussian channel responses along a linear wavelength axis (400 nm at ``start_px + 50``,
     0.5 nm per pixel when the band spans 650 px), tapered to zero at both ends.
@@ -579,7 +579,7 @@ def write_bracket(
 
 
 def channel_planes(mosaic: ArrayLike, cfa_pattern: str) -> FloatArray:
-    """The R, G (mean of both greens), B planes of a mosaic, as :func:`calib.raw.read_raw` lays them out.
+    """The R, G (mean of both greens), B planes of a mosaic, as :func:`calib.image.raw.read_raw` lays them out.
 
     Parameters
     ----------
@@ -607,7 +607,7 @@ def channel_planes(mosaic: ArrayLike, cfa_pattern: str) -> FloatArray:
 
 
 def channel_origins(cfa_pattern: str) -> tuple[tuple[float, float], ...]:
-    """``(row, column)`` of R, G (mean of both greens) and B inside the 2×2 cell, as in calib.raw."""
+    """``(row, column)`` of R, G (mean of both greens) and B inside the 2×2 cell, as in calib.image.raw."""
     sites = BAYER_SITES[cfa_pattern]
     (red,) = sites["R"]
     (blue,) = sites["B"]

@@ -3,8 +3,8 @@
 After each scene frame the runner asks a :class:`FrameAnalyzer` for the frame's :class:`FrameStats`
 and sends them to the plan, which extends the bracket until its shortest frame leaves the direct
 (0th-order) spot unsaturated and its longest frame gives the first-order band enough signal. The
-real analyser decodes the RAW file and finds the spot and the band (``calib.raw``,
-``calib.profiles``); tests and the dry run use modelled statistics.
+real analyser decodes the RAW file and finds the spot and the band (``calib.image.raw``,
+``calib.image.profiles``); tests and the dry run use modelled statistics.
 """
 
 from __future__ import annotations

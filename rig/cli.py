@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from calib.cli.options import EnsembleOption, EpochsOption
-from calib.errors import CalibError, InputError
+from calib.core.errors import CalibError, InputError
 from drivers.base import DeviceError
 from rig.errors import RigError
 
@@ -248,8 +248,8 @@ def estimate(
     ] = False,
 ) -> None:
     """Estimate the camera from a session (every file verified against the log) and write the report."""
-    from calib.multilamp import weight_rule_option
-    from calib.offline import RichFrameProgress
+    from calib.methods.multilamp import weight_rule_option
+    from calib.pipeline import RichFrameProgress
     from rig.estimate import estimate_session
 
     command_line = ("rig", "estimate", *sys.argv[2:])
@@ -461,7 +461,7 @@ def data_fetch(
     """Download the pinned camera collections and verify every file's size and SHA-256."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    from calib.datasets import fetch_datasets, pinned_files
+    from calib.core.datasets import fetch_datasets, pinned_files
 
     files = pinned_files(collection)
     progress = Progress(

@@ -12,10 +12,10 @@ estimated, and trusted no more than ``rig estimate`` trusts it:
    (:func:`rig.demo.related_camera_names`).
 
 Then per session the lamps go through the offline pipeline ``rig estimate`` runs
-(:func:`calib.offline.estimate_offline`: HDR merge, geometry, profiles, direct RGB) and the
-observations it extracted become a :class:`calib.compare.GratingScene`; the columns are
-:func:`calib.compare.grating_adapters`, the rows :func:`calib.compare.run_grating_comparison`, the
-files (``compare.md``, ``compare.csv``, ``compare_sessions.png``) :mod:`calib.compare_report`'s.
+(:func:`calib.pipeline.estimate_offline`: HDR merge, geometry, profiles, direct RGB) and the
+observations it extracted become a :class:`calib.evaluation.compare.GratingScene`; the columns are
+:func:`calib.evaluation.compare.grating_adapters`, the rows :func:`calib.evaluation.compare.run_grating_comparison`, the
+files (``compare.md``, ``compare.csv``, ``compare_sessions.png``) :mod:`calib.evaluation.compare_report`'s.
 """
 
 from __future__ import annotations
@@ -28,20 +28,20 @@ from typing import Any
 
 import numpy as np
 
-from calib.bases import CameraBasis
-from calib.compare import (
+from calib.core.errors import InputError
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.evaluation.compare import (
     CompareRow,
     GratingScene,
     active_grating_adapters,
     grating_adapters,
     run_grating_comparison,
 )
-from calib.compare_report import plot_panels, sessions_markdown_report, write_csv
-from calib.errors import InputError
+from calib.evaluation.compare_report import plot_panels, sessions_markdown_report, write_csv
 from calib.methods import default_camera_basis
-from calib.metrics import relative_error
-from calib.offline import InputFile, LampImages, OfflineSettings, estimate_offline
-from calib.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.model.bases import CameraBasis
+from calib.pipeline import InputFile, LampImages, OfflineSettings, estimate_offline
 from rig.demo import related_camera_names
 from rig.errors import SessionFormatError
 from rig.estimate import session_lamps
@@ -138,7 +138,7 @@ def twin_basis(
 
 @dataclass(eq=False)
 class TwinSessionSource:
-    """Captured twin sessions as :class:`calib.compare.GratingScene` records.
+    """Captured twin sessions as :class:`calib.evaluation.compare.GratingScene` records.
 
     Attributes
     ----------

@@ -28,7 +28,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
-from calib.observations import LampKind
+from calib.core.observations import LampKind
 from rig.yamlconfig import ConfigError as ConfigError
 from rig.yamlconfig import ConfigIssue, parse_yaml_model
 

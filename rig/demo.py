@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import InputError
+from calib.core.errors import InputError
+from calib.core.metrics import relative_error
+from calib.core.spectra import read_multispectrum_csv
 from calib.methods import default_camera_basis
-from calib.metrics import relative_error
-from calib.spectra import read_multispectrum_csv
 from rig.capture import run_capture
 from rig.config import RigConfig
 from rig.errors import RigError

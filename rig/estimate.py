@@ -10,7 +10,7 @@ recorded configuration it takes
 * the dark frames ``lamp/<name>/dark/NNN``, when there is one for every exposure of the bracket;
 * the spectrum: the mean of the reference spectra ``lamp/<name>/reference/NNN``;
 
-and hands them to :func:`calib.offline.run_offline`, which writes ``sensitivity.csv``,
+and hands them to :func:`calib.pipeline.run_offline`, which writes ``sensitivity.csv``,
 ``result.json``, ``report.html``, the rawtoaces camera JSON and ``grating.json`` (by default into
 ``<session>/estimate``). An interrupted or failed session is estimated from the lamps whose bracket
 and spectra are complete, with a warning in the result.
@@ -28,9 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from calib.errors import InputError, SpectrumError
-from calib.observations import LAMP_KINDS, LampKind
-from calib.offline import (
+from calib.core.errors import InputError, SpectrumError
+from calib.core.observations import LAMP_KINDS, LampKind
+from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
+from calib.pipeline import (
     InputFile,
     LampImages,
     OfflineOutcome,
@@ -38,8 +39,7 @@ from calib.offline import (
     OfflineSettings,
     run_offline,
 )
-from calib.offline.provenance import file_sha256
-from calib.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
+from calib.pipeline.provenance import file_sha256
 from rig.config import LAMP_NAME_PATTERN
 from rig.errors import SessionFormatError
 from rig.records import FileRecord
@@ -258,15 +258,15 @@ def estimate_session(
     mapping_lamp
         The lamp for the pixel→wavelength mapping (default: the estimator's choice).
     progress
-        Receives frame and stage events (e.g. :class:`calib.offline.RichFrameProgress`).
+        Receives frame and stage events (e.g. :class:`calib.pipeline.RichFrameProgress`).
     command_line
         The command as typed, recorded in the result.
     settings
-        Further :class:`calib.offline.OfflineSettings` fields (``basis``, ``use_region`` …).
+        Further :class:`calib.pipeline.OfflineSettings` fields (``basis``, ``use_region`` …).
 
     Returns
     -------
-    calib.offline.OfflineOutcome
+    calib.pipeline.OfflineOutcome
         The estimate and the files written.
 
     Raises

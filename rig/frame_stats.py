@@ -2,8 +2,8 @@
 
 Automatic bracketing needs, after every scene frame, how much of the direct spot is saturated and how
 much signal the first-order band has (:class:`rig.analysis.FrameStats`). :class:`RawFrameAnalyzer`
-decodes the frame with :func:`calib.raw.read_raw` (black-subtracted R, G, B planes at half
-resolution, with a saturation mask) and measures in the geometry :func:`calib.profiles.detect_geometry`
+decodes the frame with :func:`calib.image.raw.read_raw` (black-subtracted R, G, B planes at half
+resolution, with a saturation mask) and measures in the geometry :func:`calib.image.profiles.detect_geometry`
 finds — once per lamp, on the frame binned to at most 400 plane samples a side: the first frame of
 a lamp in which the band is detected fixes the geometry for that lamp's later frames. Frames are grouped by their directory, which the session layout
 (``frames/<lamp>/scene-000.dng``) makes the lamp.
@@ -35,16 +35,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from calib.errors import InputError
-from calib.hdr import FrameRecord, HdrImage
-from calib.profiles import DetectionError, DiffractionGeometry, detect_geometry
-from calib.profiles.geometry import rectangle_window, sample_positions, to_uv
-from calib.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw, read_raw_metadata
+from calib.core.arrays import BoolArray, FloatArray
+from calib.core.errors import InputError
+from calib.image.hdr import FrameRecord, HdrImage
+from calib.image.profiles import DetectionError, DiffractionGeometry, detect_geometry
+from calib.image.profiles.geometry import rectangle_window, sample_positions, to_uv
+from calib.image.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw, read_raw_metadata
 from rig.analysis import FrameStats
 from rig.errors import FrameAnalysisError
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: Bins along the band are this many sensor pixels long.
 BAND_BIN_PX = 4.0
@@ -271,7 +269,7 @@ class RawFrameAnalyzer:
     ----------
     saturation_fraction
         A sample is saturated from this fraction of the way from black to the clipping level
-        (:func:`calib.raw.read_raw`).
+        (:func:`calib.image.raw.read_raw`).
     """
 
     def __init__(self, *, saturation_fraction: float = DEFAULT_SATURATION_FRACTION) -> None:

@@ -2,7 +2,7 @@
 
 A grating sheet's efficiency η does not depend on the camera behind it, and every lamp's direct
 equations constrain η alone, so sessions of several cameras through one grating (same sheet, same
-slit and lamps) refine it together (:func:`calib.multilamp.refine_grating`: η shared, one
+slit and lamps) refine it together (:func:`calib.methods.multilamp.refine_grating`: η shared, one
 sensitivity per camera). The file this writes is what ``calib estimate --grating FILE`` and
 ``OfflineSettings.grating`` take: the next camera then needs a single LED shot.
 
@@ -23,20 +23,20 @@ from typing import Any
 
 import numpy as np
 
-from calib.bases import CameraBasis
-from calib.errors import InputError
-from calib.grating_file import GratingEfficiency, write_grating_file
+from calib.core.errors import InputError
+from calib.core.grating_file import GratingEfficiency, write_grating_file
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods import default_camera_basis
-from calib.multilamp import (
+from calib.methods.multilamp import (
     DEFAULT_WEIGHT_RULE,
     MULTILAMP_METHOD,
     WeightRule,
     refine_grating,
     weight_rule_option,
 )
-from calib.observations import LampObservation
-from calib.offline import OfflineSettings, estimate_offline
-from calib.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.model.bases import CameraBasis
+from calib.pipeline import OfflineSettings, estimate_offline
 from rig.errors import SessionFormatError
 from rig.estimate import session_lamps
 from rig.session import Session, read_session
@@ -112,7 +112,7 @@ def refine_session_grating(
     grid
         Working wavelength grid.
     weight_rule
-        How the camera prior is weighted (:data:`calib.multilamp.PRIOR_WEIGHT_RULES`).
+        How the camera prior is weighted (:data:`calib.methods.multilamp.PRIOR_WEIGHT_RULES`).
     description
         Free text recorded in the file's geometry (e.g. the sheet and slit).
     force

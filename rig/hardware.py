@@ -17,8 +17,8 @@ import contextlib
 from pathlib import Path
 from typing import Any
 
-from calib.errors import SpectrumError
-from calib.spectra import read_spectrum_csv, read_table
+from calib.core.errors import SpectrumError
+from calib.core.spectra import read_spectrum_csv, read_table
 from drivers.base import Camera, DeviceNotFound, RelayBoard, Spectrometer, TranscriptSink
 from drivers.camera import CameraTimeouts, open_camera
 from drivers.relays.hid_usbrelay import open_hid_relay

@@ -40,7 +40,8 @@ from collections.abc import Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calib.spectra import read_spectrum_csv
+from calib.core.arrays import FloatArray
+from calib.core.spectra import read_spectrum_csv
 from drivers.base import DeviceIdentity
 from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
@@ -59,7 +60,6 @@ from rig.steps import (
     ConfigureSpectrometer,
     DarkFrame,
     ExposureSet,
-    FloatArray,
     KeepLampTimeline,
     MeasureDark,
     MeasureSpectrum,

@@ -32,8 +32,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from calib.errors import SpectrumError
-from calib.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
+from calib.core.errors import SpectrumError
+from calib.core.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
 from drivers.base import DarkCorrecting, DeviceError, DeviceIdentity, StateMismatch
 from drivers.spectrometer import longest_measure_s
 from drivers.spectrometer.ocean import integration_ladder_ms

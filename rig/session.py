@@ -5,7 +5,7 @@
     <session>/
       log.jsonl            one JSON record per line (rig.records), flushed and synced per record
       frames/<lamp>/       RAW files exactly as downloaded: scene-000.dng, dark-003.dng, …
-      spectra/<lamp>/      spectra as CSV (calib.spectra.write_csv): warmup-002.csv, reference-000.csv
+      spectra/<lamp>/      spectra as CSV (calib.core.spectra.write_csv): warmup-002.csv, reference-000.csv
       transcripts/         every device exchange, one JSONL file per device role
 
 Writing (:class:`SessionWriter`): a file is written under a temporary name, hashed (sha256) while
@@ -37,7 +37,7 @@ from typing import Any, Literal, TypeVar
 
 from pydantic import TypeAdapter, ValidationError
 
-from calib.spectra import Spectrum, write_csv
+from calib.core.spectra import Spectrum, write_csv
 from drivers.base import TranscriptEntry
 from rig.errors import SessionFormatError, SessionWriteError
 from rig.records import (

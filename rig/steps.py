@@ -22,11 +22,10 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from rig.analysis import FrameStats
 
-FloatArray = NDArray[np.float64]
 JsonDict = dict[str, Any]
 DeviceRole = Literal["spectrometer", "camera", "relays"]
 SpectrumPurpose = Literal["warmup", "reference"]

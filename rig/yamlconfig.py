@@ -20,7 +20,7 @@ from typing import Annotated, Any, TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from calib.errors import InputError
+from calib.core.errors import InputError
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
 

@@ -1,4 +1,4 @@
-"""A small rig capture rendered through calib.forward into real DNG brackets (shared by tests).
+"""A small rig capture rendered through calib.model.forward into real DNG brackets (shared by tests).
 
 A physical grating (300 grooves/mm, 17.8 mm lens, 4 µm pixels: about 0.75 nm per sensor pixel, 400 nm
 at 537 px and 700 nm at 955 px from the direct spot) and a camera inside an exact 7-vector basis, so
@@ -19,14 +19,14 @@ from typing import Any, cast
 
 import numpy as np
 
-from calib.bases import CameraBasis
-from calib.forward import render_observation
-from calib.mapping import GratingGeometry
-from calib.metrics import mapping_relative_error, relative_error
-from calib.observations import LampKind
-from calib.result import EstimateResult
-from calib.spectra import Spectrum
-from calib.synthetic import colour_lamp
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import GratingGeometry
+from calib.core.metrics import mapping_relative_error, relative_error
+from calib.core.observations import LampKind
+from calib.core.result import EstimateResult
+from calib.core.spectra import Spectrum
+from calib.model.bases import CameraBasis
+from calib.model.forward import render_observation
 from mocks.forward_scene import RenderedLamp, write_capture
 from mocks.scene import SceneLayout, SensorModel
 from tests.synthetic_cameras import as_spectrum, exact_basis

@@ -1,10 +1,10 @@
 """Diffraction images of lamps rendered the way the digital twin renders them, for the SPD tests.
 
-The first order is rendered at 1 nm by :func:`calib.forward.render_observation` through a physical
-grating (:class:`calib.mapping.GratingGeometry`, sensor pixels from the spot), the 2-D frame by
+The first order is rendered at 1 nm by :func:`calib.model.forward.render_observation` through a physical
+grating (:class:`calib.core.mapping.GratingGeometry`, sensor pixels from the spot), the 2-D frame by
 :mod:`mocks.scene` (slit image, band, Bayer sensor with shot and read noise) and each exposure of a
-bracket written as a real DNG by :mod:`mocks.dng`. The reading side is the real one: ``calib.hdr`` →
-``calib.profiles`` → :class:`calib.alvarez2014.DiffractedProfile`.
+bracket written as a real DNG by :mod:`mocks.dng`. The reading side is the real one: ``calib.image.hdr`` →
+``calib.image.profiles`` → :class:`calib.spd.alvarez2014.DiffractedProfile`.
 """
 
 from __future__ import annotations
@@ -15,18 +15,17 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
-from calib.alvarez2014 import DiffractedProfile, source_kernel_from_image
-from calib.forward import render_observation
-from calib.hdr import merge_bracket
-from calib.mapping import GratingGeometry
-from calib.profiles import DiffractionGeometry, detect_geometry, extract
-from calib.spectra import MultiSpectrum, Spectrum, write_csv
-from calib.synthetic import colour_lamp, random_efficiency
+from calib.core.arrays import FloatArray
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import GratingGeometry
+from calib.core.spectra import MultiSpectrum, Spectrum, write_csv
+from calib.evaluation.synthetic import random_efficiency
+from calib.image.hdr import merge_bracket
+from calib.image.profiles import DiffractionGeometry, detect_geometry, extract
+from calib.model.forward import render_observation
+from calib.spd.alvarez2014 import DiffractedProfile, source_kernel_from_image
 from mocks.scene import SceneLayout, SceneSignal, SensorModel, render_mosaic_radiance, write_bracket
-
-FloatArray = NDArray[np.float64]
 
 #: 500 lines/mm in front of a 14 mm lens on 4 µm pixels: 400–700 nm span ~600 px (0.5 nm/px).
 GRATING = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=14.0, pixel_pitch_um=4.0)
@@ -49,7 +48,7 @@ def nikon_camera() -> MultiSpectrum:
 
 
 def efficiency_spectrum(seed: int = 3) -> Spectrum:
-    """A smooth grating efficiency (0.3…1) as :mod:`calib.synthetic` draws them, as a Spectrum."""
+    """A smooth grating efficiency (0.3…1) as :mod:`calib.evaluation.synthetic` draws them, as a Spectrum."""
     function: Callable[[FloatArray], FloatArray] = random_efficiency(np.random.default_rng(seed))
     wavelength = np.arange(360.0, 781.0, 1.0)
     return Spectrum(wavelength, function(wavelength), name="grating efficiency")

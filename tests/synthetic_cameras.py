@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.bases import CameraBasis, camera_basis
-from calib.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.model.bases import CameraBasis, camera_basis
 
 
 def gaussian_camera(

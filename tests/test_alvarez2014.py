@@ -1,6 +1,6 @@
-"""calib.alvarez2014 (the rig as a spectrometer) and calib.light_sources, against rendered truth.
+"""calib.spd.alvarez2014 (the rig as a spectrometer) and calib.spd.light_sources, against rendered truth.
 
-Profile-level tests use :func:`calib.forward.render_observation`; the targets of issue 8 are checked
+Profile-level tests use :func:`calib.model.forward.render_observation`; the targets of issue 8 are checked
 on twin-rendered DNG brackets (:mod:`tests.spd_scenes`) through the same pipeline ``calib spd``
 runs (:func:`calib.cli.spd.measure_spd`).
 """
@@ -14,7 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.alvarez2014 import (
+from calib.cli.spd import SpdMeasurement, SpdRequest, measure_spd
+from calib.core.errors import EstimationError, InputError
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import QuadraticMapping
+from calib.core.spectra import MultiSpectrum, Spectrum
+from calib.image.hdr import merge_bracket
+from calib.image.profiles import detect_geometry, extract
+from calib.model.forward import blur_kernel, render_observation
+from calib.spd.alvarez2014 import (
     DiffractedProfile,
     comparison_grid,
     find_mapping,
@@ -26,18 +34,10 @@ from calib.alvarez2014 import (
     system_response,
     widened_geometry,
 )
-from calib.cli.spd import SpdMeasurement, SpdRequest, measure_spd
-from calib.errors import EstimationError, InputError
-from calib.forward import blur_kernel, render_observation
-from calib.hdr import merge_bracket
-from calib.light_sources import (
+from calib.spd.light_sources import (
     colour_library,
     correlated_colour_temperature,
 )
-from calib.mapping import QuadraticMapping
-from calib.profiles import detect_geometry, extract
-from calib.spectra import MultiSpectrum, Spectrum
-from calib.synthetic import colour_lamp
 from tests.spd_scenes import (
     GRATING,
     calibrated_rig,

@@ -1,12 +1,14 @@
-"""calib.light_sources: the library, recognition, CCT and white-balance gains."""
+"""calib.spd.light_sources: the library, recognition, CCT and white-balance gains."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calib.errors import InputError
-from calib.light_sources import (
+from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
+from calib.core.spectra import MultiSpectrum, Spectrum
+from calib.spd.light_sources import (
     EQUIVALENT_DISTANCE,
     LightSourceLibrary,
     camera_white_balance,
@@ -16,8 +18,6 @@ from calib.light_sources import (
     recognise_light_source,
     srgb_white_balance_from_cct,
 )
-from calib.spectra import MultiSpectrum, Spectrum
-from calib.synthetic import colour_lamp
 from tests.spd_scenes import nikon_camera
 
 

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from calib.bases import camera_basis, fallback_camera_basis, fourier_basis
-from calib.errors import InputError
-from calib.spectra import DEFAULT_GRID
+from calib.core.errors import InputError
+from calib.core.spectra import DEFAULT_GRID
+from calib.model.bases import camera_basis, fallback_camera_basis, fourier_basis
 from tests.synthetic_cameras import spanning_set
 
 
@@ -54,7 +54,7 @@ def test_fallback_basis_excludes_the_camera_under_test(tmp_path):
 
 
 def test_the_prior_distance_ignores_scale_and_is_zero_at_the_mean(tmp_path):
-    from calib.bases import prior_distance
+    from calib.model.bases import prior_distance
     from tests.synthetic_cameras import exact_basis
 
     basis, cameras = exact_basis(tmp_path)
@@ -67,7 +67,7 @@ def test_the_prior_distance_ignores_scale_and_is_zero_at_the_mean(tmp_path):
 
 
 def test_a_camera_s_perturbed_variants_are_left_out_with_it():
-    from calib.bases import ledoit_wolf_shrinkage, typical_distance
+    from calib.model.bases import ledoit_wolf_shrinkage, typical_distance
 
     rng = np.random.default_rng(0)
     grid = DEFAULT_GRID
@@ -101,16 +101,16 @@ def test_camera_groups_come_from_the_basis_not_from_names(tmp_path):
 
 
 def test_fallback_variants_are_grouped_with_their_camera(monkeypatch):
-    import calib.bases
+    import calib.model.bases
 
     seen = []
-    original = calib.bases.typical_distance
+    original = calib.model.bases.typical_distance
 
     def spy(curves, weights, grid, groups):
         seen.append(list(groups))
         return original(curves, weights, grid, groups)
 
-    monkeypatch.setattr(calib.bases, "typical_distance", spy)
+    monkeypatch.setattr(calib.model.bases, "typical_distance", spy)
     basis = fallback_camera_basis(variants_per_curve=2, cache=False)
     (groups,) = seen
     assert groups == [name.split(" variant ")[0] for name in basis.camera_names]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from calib.blas import one_blas_thread
+from calib.core.blas import one_blas_thread
 from calib.methods import ESTIMATION_METHODS, estimate
 
 

@@ -13,12 +13,12 @@ import pytest
 
 from calib.cli.estimate import run
 from calib.cli.estimate_args import parse_estimate_arguments
-from calib.errors import EstimationError, InputError
-from calib.forward import PeakFractionNoise, render_observation
-from calib.grating_file import GratingEfficiency, read_grating_file, write_grating_file
-from calib.metrics import relative_error
-from calib.offline import LampImages, LampProfile
-from calib.spectra import write_csv
+from calib.core.errors import EstimationError, InputError
+from calib.core.grating_file import GratingEfficiency, read_grating_file, write_grating_file
+from calib.core.metrics import relative_error
+from calib.core.spectra import write_csv
+from calib.model.forward import PeakFractionNoise, render_observation
+from calib.pipeline import LampImages, LampProfile
 from tests.rendered_capture import (
     GRATING,
     Capture,
@@ -38,7 +38,7 @@ def capture() -> Capture:
 def exact_basis(monkeypatch: pytest.MonkeyPatch, capture: Capture) -> None:
     """The command uses the test's exact basis (no data directory lookups)."""
     monkeypatch.setattr(
-        "calib.offline.pipeline.default_camera_basis", lambda *a, **k: capture.basis
+        "calib.pipeline.estimate.default_camera_basis", lambda *a, **k: capture.basis
     )
 
 
@@ -179,7 +179,7 @@ def test_estimation_failure_exits_1(
     def fail(*args: object, **kwargs: object) -> None:
         raise EstimationError("the solve produced no positive sensitivity")
 
-    monkeypatch.setattr("calib.offline.pipeline.estimate", fail)
+    monkeypatch.setattr("calib.pipeline.estimate.estimate", fail)
     code, _, stderr = _call([*_image_args(capture), "--out", str(tmp_path / "out")])
     assert code == 1 and "calib estimate: failed: the solve produced" in stderr
 
@@ -190,7 +190,7 @@ def test_internal_error_exits_1_without_traceback(
     def crash(*args: object, **kwargs: object) -> None:
         raise ZeroDivisionError("float division by zero")
 
-    monkeypatch.setattr("calib.offline.run.estimate_offline", crash)
+    monkeypatch.setattr("calib.pipeline.run.estimate_offline", crash)
     monkeypatch.delenv("CALIB_DEBUG", raising=False)
     code, stdout, stderr = _call([*_image_args(capture), "--out", str(tmp_path / "o"), "--json"])
     assert code == 1

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from calib.cli import main
-from calib.spectra import WavelengthGrid, read_spectrum_csv, write_csv
-from calib.synthetic import colour_lamp
+from calib.core.lamp_specs import colour_lamp
+from calib.core.spectra import WavelengthGrid, read_spectrum_csv, write_csv
 from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
 
 

@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.bases import fallback_camera_basis
 from calib.cli import build_app
-from calib.compare import (
+from calib.core.datasets import colour_science_cameras
+from calib.core.errors import EstimationError, InputError
+from calib.core.result import EstimateResult
+from calib.evaluation.compare import (
     CompareScene,
     SyntheticAdapter,
     SyntheticSource,
@@ -20,11 +22,9 @@ from calib.compare import (
     run_comparison,
     synthetic_adapters,
 )
-from calib.compare_report import markdown_report, plot_grid, write_csv
-from calib.datasets import colour_science_cameras
-from calib.errors import EstimationError, InputError
+from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
 from calib.methods import ESTIMATION_METHODS, LAZY_METHODS
-from calib.result import EstimateResult
+from calib.model.bases import fallback_camera_basis
 
 #: Toivonen options small enough for plumbing tests (not for accuracy).
 TINY_TOIVONEN = {"ensemble_size": 2, "epochs": 200}

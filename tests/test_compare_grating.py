@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.bases import fallback_camera_basis
-from calib.compare import (
+from calib.core.datasets import colour_science_cameras
+from calib.core.errors import EstimationError, InputError
+from calib.core.result import EstimateResult
+from calib.evaluation.compare import (
     GRATING_SKIP_REASONS,
     GratingScene,
     SyntheticSource,
@@ -18,11 +20,9 @@ from calib.compare import (
     grating_adapters,
     run_grating_comparison,
 )
-from calib.compare_report import plot_panels, sessions_markdown_report
-from calib.datasets import colour_science_cameras
-from calib.errors import EstimationError, InputError
+from calib.evaluation.compare_report import plot_panels, sessions_markdown_report
 from calib.methods import ESTIMATION_METHODS
-from calib.result import EstimateResult
+from calib.model.bases import fallback_camera_basis
 
 #: Toivonen options small enough for plumbing tests (not for accuracy).
 TINY_TOIVONEN = {"ensemble_size": 2, "epochs": 200}

@@ -6,8 +6,8 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 import numpy as np
 import pytest
 
-from calib import datasets
-from calib.datasets import (
+from calib.core import datasets
+from calib.core.datasets import (
     CAMSPEC,
     DatasetFetchError,
     PinnedFile,
@@ -19,7 +19,7 @@ from calib.datasets import (
     read_rgb_csv,
     resolve_data_dir,
 )
-from calib.errors import InputError
+from calib.core.errors import InputError
 
 
 def test_readers_normalise_each_camera(tmp_path):

@@ -1,8 +1,10 @@
 import numpy as np
 import pytest
 
-from calib.errors import InputError
-from calib.forward import (
+from calib.core.errors import InputError
+from calib.core.mapping import QuadraticMapping
+from calib.core.spectra import DEFAULT_GRID, Spectrum
+from calib.model.forward import (
     PeakFractionNoise,
     ShotReadNoise,
     apply_blur,
@@ -11,8 +13,6 @@ from calib.forward import (
     pixel_edges,
     render_observation,
 )
-from calib.mapping import QuadraticMapping
-from calib.spectra import DEFAULT_GRID, Spectrum
 from tests.synthetic_cameras import as_spectrum, gaussian_camera
 
 MAPPING = QuadraticMapping(-2e-5, 0.5, 380.0)

@@ -1,4 +1,4 @@
-"""calib.han2012: each step against synthetic truth, and the paper's finding under unknown light.
+"""calib.methods.baselines.han2012: each step against synthetic truth, and the paper's finding under unknown light.
 
 Synthetic protocol: 16 seeded fluorescent paints (:func:`synthetic_fluorescent_paints`) and a
 ColorChecker, seen by a camera under a light the estimator is not told about. Cameras: colour-science's
@@ -14,11 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib import estimate
-from calib.bases import fourier_basis
-from calib.datasets import SOLOMATOV, colour_science_cameras, load_collection
-from calib.errors import EstimationError, InputError
-from calib.han2012 import (
+from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
+from calib.core.errors import EstimationError, InputError
+from calib.core.lamp_specs import colour_lamp
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
+from calib.methods import default_camera_basis, estimate
+from calib.methods.baselines.han2012 import (
     FluorescentPaints,
     SensitivityBasis,
     chromaticity_system,
@@ -32,11 +34,8 @@ from calib.han2012 import (
     solve_sensitivity,
     synthetic_fluorescent_paints,
 )
-from calib.light_sources import correlated_colour_temperature
-from calib.methods import default_camera_basis
-from calib.metrics import relative_error
-from calib.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
-from calib.synthetic import colour_lamp
+from calib.model.bases import fourier_basis
+from calib.spd.light_sources import correlated_colour_temperature
 
 #: Daylights the estimator is not told about (CCT in K).
 UNKNOWN_DAYLIGHTS_K = (4500.0, 5500.0, 6500.0, 8000.0, 12000.0)

@@ -1,4 +1,4 @@
-"""calib.hdr: merging DNG brackets into calibrated radiance with a per-pixel variance."""
+"""calib.image.hdr: merging DNG brackets into calibrated radiance with a per-pixel variance."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from calib.errors import EstimationError, InputError
-from calib.hdr import HdrImage, Unpacker, decode_order, merge_bracket
-from calib.raw import RawFileError, RawPlanes
-from calib.sensor_noise import NoiseModel
+from calib.core.errors import EstimationError, InputError
+from calib.image.hdr import HdrImage, Unpacker, decode_order, merge_bracket
+from calib.image.raw import RawFileError, RawPlanes
+from calib.image.sensor_noise import NoiseModel
 from mocks.dng import write_dng
 from mocks.scene import (
     SceneLayout,
@@ -128,7 +128,7 @@ def test_a_shared_unpacker_gives_the_same_merge(bracket: list[Path], merged: Hdr
 def test_a_plan_reads_each_file_s_metadata_once(
     bracket: list[Path], merged: HdrImage, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from calib.raw import read_raw_metadata
+    from calib.image.raw import read_raw_metadata
 
     read: list[Path] = []
 
@@ -136,7 +136,7 @@ def test_a_plan_reads_each_file_s_metadata_once(
         read.append(Path(path))
         return read_raw_metadata(path, **kwargs)
 
-    monkeypatch.setattr("calib.hdr.read_raw_metadata", counting)
+    monkeypatch.setattr("calib.image.hdr.read_raw_metadata", counting)
     # planned for a given noise model, merged without one: the plan is rebuilt, not re-read
     plan = decode_order(bracket, estimate_noise=False)
     with Unpacker(plan.paths) as unpacker:

@@ -1,4 +1,4 @@
-"""calib.lamp_planning, calib.lamp_specs and ``calib plan-lamps``."""
+"""calib.evaluation.lamp_planning, calib.core.lamp_specs and ``calib plan-lamps``."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.bases import CameraPrior, fallback_camera_basis
 from calib.cli import build_app, main
-from calib.errors import InputError
-from calib.lamp_planning import MAX_LAMPS, best_additions, rank_subsets
-from calib.lamp_specs import gaussian_lamp, lamp_from_spec
-from calib.spectra import write_csv
+from calib.core.errors import InputError
+from calib.core.lamp_specs import gaussian_lamp, lamp_from_spec
+from calib.core.spectra import write_csv
+from calib.evaluation.lamp_planning import MAX_LAMPS, best_additions, rank_subsets
+from calib.model.bases import CameraPrior, fallback_camera_basis
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import colour
 import numpy as np
 import pytest
 
-from calib.spectra import Spectrum
+from calib.core.spectra import Spectrum
 from drivers.base import StateMismatch
 from drivers.relays import verify_relay_state
 from mocks.lamps import LampBank, SimulatedClock, VirtualLamp

@@ -3,13 +3,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calib.errors import InputError
-from calib.forward import render_observation
-from calib.makabe2025 import estimate_makabe2025
-from calib.mapping import QuadraticMapping
-from calib.metrics import relative_error
-from calib.observations import LampObservation
-from calib.spectra import DEFAULT_GRID, Spectrum
+from calib.core.errors import InputError
+from calib.core.mapping import QuadraticMapping
+from calib.core.metrics import relative_error
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, Spectrum
+from calib.methods.makabe2025 import estimate_makabe2025
+from calib.model.forward import render_observation
 from tests.synthetic_cameras import as_spectrum, exact_basis
 
 MAPPING = QuadraticMapping(-1.5e-5, 0.47, 382.0, pixel_range=(0.0, 719.0))

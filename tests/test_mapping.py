@@ -1,17 +1,11 @@
 import numpy as np
 import pytest
 
-from calib.bases import camera_basis
-from calib.forward import render_observation
-from calib.mapping import (
-    GratingGeometry,
-    Peak,
-    QuadraticMapping,
-    mapping_from_dict,
-    mapping_from_peaks,
-    match_peaks,
-)
-from calib.spectra import DEFAULT_GRID, Spectrum
+from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
+from calib.core.spectra import DEFAULT_GRID, Spectrum
+from calib.model.bases import camera_basis
+from calib.model.forward import render_observation
+from calib.wavelength.peaks import Peak, mapping_from_peaks, match_peaks
 from tests.synthetic_cameras import as_spectrum, gaussian_camera, spanning_set
 
 

@@ -1,4 +1,4 @@
-"""calib.mapping_search: the pixel→wavelength mapping from fluorescent lines and broadband lamps."""
+"""calib.wavelength.search: the pixel→wavelength mapping from fluorescent lines and broadband lamps."""
 
 from __future__ import annotations
 
@@ -7,22 +7,23 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib.bases import CameraPrior, fallback_camera_basis
-from calib.datasets import colour_science_cameras, find_camera
-from calib.errors import EstimationError
-from calib.forward import PeakFractionNoise, render_observation
-from calib.mapping import QuadraticMapping, icp_mapping
-from calib.mapping_search import (
+from calib.core.datasets import colour_science_cameras, find_camera
+from calib.core.errors import EstimationError
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import QuadraticMapping
+from calib.core.metrics import mapping_relative_error
+from calib.core.observations import LampObservation, robust_noise_sigma
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.evaluation.synthetic import random_efficiency
+from calib.model.bases import CameraPrior, fallback_camera_basis
+from calib.model.forward import PeakFractionNoise, render_observation
+from calib.wavelength.peaks import icp_mapping
+from calib.wavelength.search import (
     ResponseFit,
     basin_spread_nm,
     bin_pixels,
     find_mapping,
-    robust_noise_sigma,
 )
-from calib.metrics import mapping_relative_error
-from calib.observations import LampObservation
-from calib.spectra import DEFAULT_GRID, MultiSpectrum
-from calib.synthetic import colour_lamp, random_efficiency
 
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
 
@@ -158,9 +159,9 @@ def test_a_camera_unlike_the_prior_does_not_pull_the_led_mapping_to_an_alias(sha
     spacing), where the response looks more like the training cameras': mapping RE 3.4 %, with an
     error estimate of 0.04 %.
     """
-    from calib.datasets import makabe2025_split
+    from calib.core.datasets import makabe2025_split
+    from calib.evaluation.synthetic import render_scene
     from calib.methods import default_camera_basis
-    from calib.synthetic import render_scene
 
     _train, test = makabe2025_split(shared_camera_data)
     basis = default_camera_basis(data_dir=shared_camera_data, exclude=[r.name for r in test])

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-import calib
-from calib.errors import InputError
+import calib.methods
+from calib.core.errors import InputError
+from calib.core.result import EstimateResult
+from calib.core.spectra import DEFAULT_GRID
 from calib.methods import ESTIMATION_METHODS, register_method
-from calib.result import EstimateResult
-from calib.spectra import DEFAULT_GRID
 
 
 def test_front_function_dispatches_through_the_registry(monkeypatch):
@@ -16,14 +16,14 @@ def test_front_function_dispatches_through_the_registry(monkeypatch):
         return EstimateResult("fake", grid.wavelength_nm, np.ones((grid.size, 3)))
 
     monkeypatch.setitem(ESTIMATION_METHODS, "fake", fake)
-    result = calib.estimate([], method="FAKE", answer=42)
+    result = calib.methods.estimate([], method="FAKE", answer=42)
     assert result.method == "fake" and calls == {"answer": 42}
     assert result.to_dict()["sensitivity"]["r"][0] == 1.0
 
 
 def test_unknown_method_lists_the_known_ones():
     with pytest.raises(InputError, match="makabe2025"):
-        calib.estimate([], method="nope")
+        calib.methods.estimate([], method="nope")
 
 
 def test_registering_twice_needs_replace():
@@ -59,8 +59,8 @@ def test_result_to_dict_is_json_safe():
 def test_comparisons_score_the_curve_calib_estimate_writes(monkeypatch, tmp_path):
     """Negative ringing at a grid edge is clipped in sensitivity.csv; `calib compare`, `rig compare`
     and `calib synthetic` score that same curve, not the solver's raw one."""
-    from calib.compare import _timed_estimate
-    from calib.outputs import write_sensitivity_csv
+    from calib.evaluation.compare import _timed_estimate
+    from calib.pipeline.outputs import write_sensitivity_csv
 
     grid = DEFAULT_GRID
     raw = np.ones((grid.size, 3))

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from calib.errors import InputError
-from calib.metrics import angular_error_deg, mapping_relative_error, relative_error
+from calib.core.errors import InputError
+from calib.core.metrics import angular_error_deg, mapping_relative_error, relative_error
 
 
 def test_relative_error_ignores_overall_scale_and_matches_definition():

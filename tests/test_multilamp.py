@@ -1,4 +1,4 @@
-"""calib.multilamp: several lamps jointly, the σ band (calibration, bootstrap), the grating library."""
+"""calib.methods.multilamp: several lamps jointly, the σ band (calibration, bootstrap), the grating library."""
 
 from __future__ import annotations
 
@@ -9,15 +9,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.bases import CameraBasis, fallback_camera_basis
-from calib.datasets import colour_science_cameras, find_camera
-from calib.errors import InputError
-from calib.grating_file import read_grating_file, write_grating_file
-from calib.makabe2025 import estimate_makabe2025
-from calib.mapping import QuadraticMapping
+from calib.core.datasets import colour_science_cameras, find_camera
+from calib.core.errors import InputError
+from calib.core.grating_file import read_grating_file, write_grating_file
+from calib.core.mapping import QuadraticMapping
+from calib.core.metrics import relative_error
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.evaluation.synthetic import (
+    LAMP_SETS,
+    band_coverage,
+    random_efficiency,
+    random_mapping,
+    render_lamps,
+)
 from calib.methods import ESTIMATION_METHODS, estimate
-from calib.metrics import relative_error
-from calib.multilamp import (
+from calib.methods.makabe2025 import estimate_makabe2025
+from calib.methods.multilamp import (
     bootstrap_sigma,
     calibrate_lamps,
     choose_prior_weight,
@@ -29,15 +37,7 @@ from calib.multilamp import (
     prepare_lamps,
     refine_grating,
 )
-from calib.observations import LampObservation
-from calib.spectra import DEFAULT_GRID, MultiSpectrum
-from calib.synthetic import (
-    LAMP_SETS,
-    band_coverage,
-    random_efficiency,
-    random_mapping,
-    render_lamps,
-)
+from calib.model.bases import CameraBasis, fallback_camera_basis
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 
 
@@ -308,7 +308,7 @@ def test_cameras_through_one_grating_share_and_refine_it(basis):
 
 
 def test_each_camera_of_a_pooled_solve_has_its_own_prior_scale(basis):
-    from calib.multilamp import _stacked_prior_rows, pool_responses
+    from calib.methods.multilamp import _stacked_prior_rows, pool_responses
 
     groups = []
     for seed in (5, 6):
@@ -350,7 +350,7 @@ def test_bad_inputs_are_named(basis):
 
 
 def test_a_camera_behind_a_filter_is_a_different_camera():
-    from calib.synthetic import behind_filter, colour_filter
+    from calib.evaluation.synthetic import behind_filter, colour_filter
 
     camera = MultiSpectrum(DEFAULT_GRID.wavelength_nm, np.ones((DEFAULT_GRID.size, 3)))
     filtered = behind_filter(camera, colour_filter())

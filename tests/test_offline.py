@@ -1,4 +1,4 @@
-"""calib.offline: RAW brackets rendered through calib.forward → estimate, against the renderer's truth.
+"""calib.pipeline: RAW brackets rendered through calib.model.forward → estimate, against the renderer's truth.
 
 Measured on these scenes (exact basis, 0.35 MP frames, 5-frame brackets, shot + read noise) with the
 makabe2025 solver of this branch: RE ≈ 0.017 and mapping RE ≈ 5e-4 (LED + fluorescent), the mapping
@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.errors import InputError
-from calib.mapping import QuadraticMapping
-from calib.offline import LampImages, OfflineEstimate, OfflineSettings, estimate_offline
-from calib.offline.brackets import (
+from calib.core.errors import InputError
+from calib.core.mapping import QuadraticMapping
+from calib.pipeline import LampImages, OfflineEstimate, OfflineSettings, estimate_offline
+from calib.pipeline.brackets import (
     BROADBAND_KINDS,
     BracketProfiles,
     _decode_plans,
@@ -129,7 +129,7 @@ def test_profiles_and_direct_agree_with_the_renderer_within_their_noise(
         scale = float(np.sum(observation.profile[:, 1] * clean[:, 1]) / np.sum(clean[:, 1] ** 2))
         assert observation.profile_sigma is not None
         z = (observation.profile - scale * clean) / observation.profile_sigma
-        # 0.3 σ, not less: calib.profiles takes the background as the median of the strips beside
+        # 0.3 σ, not less: calib.image.profiles takes the background as the median of the strips beside
         # the band, and dark-subtracted values of one long frame lie on a lattice (1 DN / t), so
         # the median can be off by up to half a step (a few DN/s; measured −0.2 σ in B for FL)
         assert np.all(np.abs(z.mean(axis=0)) < 0.3), z.mean(axis=0)

@@ -1,4 +1,4 @@
-"""calib.outputs, calib.report and calib.grating_file: the files an estimate leaves, read back."""
+"""calib.pipeline.outputs, calib.pipeline.report and calib.core.grating_file: the files an estimate leaves, read back."""
 
 from __future__ import annotations
 
@@ -11,17 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.datasets import read_rawtoaces_json
-from calib.grating_file import (
+from calib.core.datasets import read_rawtoaces_json
+from calib.core.grating_file import (
     GRATING_FORMAT_VERSION,
     GratingEfficiency,
     GratingFileError,
     read_grating_file,
     write_grating_file,
 )
-from calib.offline import LampImages, OfflineSettings, run_offline
-from calib.offline.run import OfflineOutcome
-from calib.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.pipeline import LampImages, OfflineSettings, run_offline
+from calib.pipeline.run import OfflineOutcome
 from tests.rendered_capture import Capture, shared_capture
 
 
@@ -135,7 +135,7 @@ def test_report_is_one_self_contained_page_with_every_plot(outcome: OfflineOutco
 def test_report_shows_warnings_first(outcome: OfflineOutcome, tmp_path: Path) -> None:
     from dataclasses import replace
 
-    from calib.report import write_report
+    from calib.pipeline.report import write_report
 
     warned = replace(
         outcome.estimate,
@@ -215,7 +215,7 @@ def test_grating_file_not_json_or_missing(tmp_path: Path) -> None:
 
 
 def test_a_paused_hasher_hashes_once_started_or_when_asked(tmp_path: Path) -> None:
-    from calib.offline.provenance import FileHasher
+    from calib.pipeline.provenance import FileHasher
 
     files = [tmp_path / f"{name}.bin" for name in ("a", "b")]
     for index, path in enumerate(files):

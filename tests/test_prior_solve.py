@@ -1,22 +1,23 @@
-"""calib.prior_solve: the camera-prior solve, its companions and its uncertainty."""
+"""calib.methods.prior_solve: the camera-prior solve, its companions and its uncertainty."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from calib.bases import CameraBasis, fallback_camera_basis, fourier_basis
-from calib.datasets import colour_science_cameras, find_camera
-from calib.errors import InputError
-from calib.forward import PeakFractionNoise, render_observation
-from calib.linear_model import prepare_lamp
-from calib.makabe2025 import estimate_makabe2025
-from calib.mapping import QuadraticMapping
-from calib.metrics import relative_error
-from calib.observations import LampObservation
-from calib.prior_solve import fit_response, solve_with_prior
-from calib.spectra import DEFAULT_GRID, MultiSpectrum
-from calib.synthetic import colour_lamp, random_efficiency
+from calib.core.datasets import colour_science_cameras, find_camera
+from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import QuadraticMapping
+from calib.core.metrics import relative_error
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.evaluation.synthetic import random_efficiency
+from calib.methods.makabe2025 import estimate_makabe2025
+from calib.methods.prior_solve import fit_response, solve_with_prior
+from calib.model.bases import CameraBasis, fallback_camera_basis, fourier_basis
+from calib.model.forward import PeakFractionNoise, render_observation
+from calib.model.linear_model import prepare_lamp
 
 MAPPING = QuadraticMapping(1.5e-5, 0.40, 385.0, pixel_range=(0.0, 849.0))
 

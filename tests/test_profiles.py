@@ -1,4 +1,4 @@
-"""calib.profiles: automatic spot/band detection and profile extraction against rendered truth."""
+"""calib.image.profiles: automatic spot/band detection and profile extraction against rendered truth."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.hdr import HdrImage, merge_bracket
-from calib.observations import LampObservation
-from calib.profiles import (
+from calib.core.observations import LampObservation
+from calib.core.spectra import Spectrum
+from calib.image.hdr import HdrImage, merge_bracket
+from calib.image.profiles import (
     DetectionError,
     DiffractionGeometry,
     Extraction,
@@ -19,7 +20,6 @@ from calib.profiles import (
     extract,
     write_geometry_png,
 )
-from calib.spectra import Spectrum
 from mocks.scene import (
     SceneLayout,
     SceneSignal,

@@ -1,4 +1,4 @@
-"""calib.raw: RAW files → black-subtracted R, G, B planes, saturation, metadata, clear errors."""
+"""calib.image.raw: RAW files → black-subtracted R, G, B planes, saturation, metadata, clear errors."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import tifffile
 from PIL import Image
 from PIL.TiffImagePlugin import IFDRational
 
-from calib.errors import InputError
-from calib.raw import RawFileError, read_raw, read_raw_metadata
+from calib.core.errors import InputError
+from calib.image.raw import RawFileError, read_raw, read_raw_metadata
 from mocks.dng import CFA_PATTERN_CODES, DngMetadata, write_dng
 from mocks.scene import BAYER_SITES
 

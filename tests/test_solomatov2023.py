@@ -8,20 +8,20 @@ import numpy as np
 import pytest
 import tifffile
 
-import calib
-from calib.bases import fallback_camera_basis
-from calib.charts import colorchecker, render_chart
-from calib.datasets import colour_science_cameras
-from calib.errors import InputError
-from calib.metrics import relative_error
-from calib.observations import ColorMatrixObservation
-from calib.solomatov2023 import (
+import calib.methods
+from calib.core.datasets import colour_science_cameras
+from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
+from calib.core.metrics import relative_error
+from calib.core.observations import ColorMatrixObservation
+from calib.core.spectra import DEFAULT_GRID
+from calib.methods.baselines.solomatov2023 import (
     estimate_solomatov2023,
     read_color_matrices,
     simulate_color_matrix,
 )
-from calib.spectra import DEFAULT_GRID
-from calib.synthetic import colour_lamp
+from calib.model.bases import fallback_camera_basis
+from calib.model.charts import colorchecker, render_chart
 from mocks.dng import DngMetadata, write_dng
 from tests.synthetic_cameras import as_spectrum
 
@@ -115,7 +115,7 @@ def test_unknown_calibration_illuminants_need_an_override(tmp_path):
 def test_non_dng_raw_files_fall_back_to_libraw_s_matrix(tmp_path, monkeypatch):
     import rawpy
 
-    import calib.solomatov2023 as module
+    import calib.methods.baselines.solomatov2023 as module
 
     path = write_dng(
         tmp_path / "canon.dng",
@@ -157,8 +157,8 @@ def test_matrix_observation_validates():
 
 
 def test_simulated_matrix_maps_xyz_to_the_camera_for_patches(offline_camera):
-    from calib.charts import radiance_rows
-    from calib.solomatov2023 import _cmfs_on_grid
+    from calib.methods.baselines.solomatov2023 import _cmfs_on_grid
+    from calib.model.charts import radiance_rows
 
     _, truth = offline_camera
     matrix = simulate_color_matrix(truth, "D65")
@@ -174,7 +174,9 @@ def test_simulated_matrix_maps_xyz_to_the_camera_for_patches(offline_camera):
 def test_matrices_and_a_chart_give_a_close_estimate(offline_camera, offline_basis):
     _, truth = offline_camera
     chart = render_chart(colorchecker(), colour_lamp("D65"), as_spectrum(truth))
-    result = calib.estimate([_matrices(truth), chart], method="solomatov2023", basis=offline_basis)
+    result = calib.methods.estimate(
+        [_matrices(truth), chart], method="solomatov2023", basis=offline_basis
+    )
     assert result.method == "solomatov2023"
     # The offline basis (colour-science curves, this camera left out) limits every basis method
     # here: the colour checker alone (jiang2013) reaches RE 0.109 on this camera.
@@ -214,7 +216,7 @@ def test_bad_inputs_say_what_is_wrong(offline_camera, offline_basis):
     with pytest.raises(InputError, match="white_balance must be"):
         estimate_solomatov2023(matrices, [chart], basis=offline_basis, white_balance="grey")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="needs exactly one ColorMatrixObservation"):
-        calib.estimate([chart], method="solomatov2023", basis=offline_basis)
+        calib.methods.estimate([chart], method="solomatov2023", basis=offline_basis)
     with pytest.raises(InputError, match="ridge"):
         estimate_solomatov2023(matrices, [chart], basis=offline_basis, ridge=-0.5)
     with pytest.raises(InputError, match="n_vectors"):

@@ -1,4 +1,4 @@
-"""calib.spectra: grids, validation, resampling and CSV input/output."""
+"""calib.core.spectra: grids, validation, resampling and CSV input/output."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calib.errors import SpectrumError
-from calib.spectra import (
+from calib.core.errors import SpectrumError
+from calib.core.spectra import (
     DEFAULT_GRID,
     MultiSpectrum,
     Spectrum,

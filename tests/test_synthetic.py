@@ -5,8 +5,8 @@ import pytest
 from typer.testing import CliRunner
 
 from calib.cli import build_app
-from calib.datasets import colour_science_cameras
-from calib.synthetic import random_efficiency, random_mapping, run_protocol
+from calib.core.datasets import colour_science_cameras
+from calib.evaluation.synthetic import random_efficiency, random_mapping, run_protocol
 from tests.synthetic_cameras import exact_basis
 
 

@@ -7,17 +7,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import calib
-from calib.charts import gaussian_filters, render_chart
-from calib.datasets import colour_science_cameras
-from calib.errors import InputError
-from calib.forward import render_observation
-from calib.mapping import QuadraticMapping
-from calib.metrics import relative_error
-from calib.observations import ColorMatrixObservation
-from calib.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
-from calib.synthetic import colour_lamp, render_scene
-from calib.toivonen2020 import (
+import calib.methods
+from calib.core.datasets import colour_science_cameras
+from calib.core.errors import InputError
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import QuadraticMapping
+from calib.core.metrics import relative_error
+from calib.core.observations import ColorMatrixObservation
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
+from calib.evaluation.synthetic import render_scene
+from calib.methods.baselines.toivonen2020 import (
     ToivonenProblem,
     ToivonenSettings,
     _loss_and_gradients,
@@ -25,6 +24,8 @@ from calib.toivonen2020 import (
     estimate_toivonen2020,
     monochromatic_profile,
 )
+from calib.model.charts import gaussian_filters, render_chart
+from calib.model.forward import render_observation
 from tests.synthetic_cameras import as_spectrum, gaussian_camera
 
 MAPPING = QuadraticMapping(2e-5, 0.36, 385.0, pixel_range=(0.0, 899.0))
@@ -48,7 +49,7 @@ def d65():
 
 
 def _lamp(d65, camera, *, noise=0.0, seed=0, efficiency=quadratic_efficiency):
-    from calib.forward import PeakFractionNoise
+    from calib.model.forward import PeakFractionNoise
 
     return render_observation(
         d65,
@@ -124,7 +125,7 @@ def test_profile_on_the_grid_is_the_spectral_density(d65, camera):
 def test_many_patches_recover_a_camera_through_a_quadratic_grating(d65, camera):
     lamp = _lamp(d65, camera)
     chart = render_chart(gaussian_filters(16), d65, camera, kind="transmissive")
-    result = calib.estimate(
+    result = calib.methods.estimate(
         [lamp, chart], method="toivonen2020", mapping=MAPPING, ensemble_size=4, seed=0,
         direct_as_patch=False,
     )  # fmt: skip
@@ -222,7 +223,7 @@ def test_one_patch_is_unstable_many_patches_are_stable_full_ensemble():
 
 
 def test_without_a_mapping_the_front_function_finds_it_as_makabe2025_does():
-    from calib.bases import fallback_camera_basis
+    from calib.model.bases import fallback_camera_basis
 
     record = colour_science_cameras()[0]
     scene = render_scene(
@@ -234,9 +235,11 @@ def test_without_a_mapping_the_front_function_finds_it_as_makabe2025_does():
     )
     lamps = [scene.broadband.observation, scene.fluorescent.observation]
     basis = fallback_camera_basis(exclude=[record.camera])
-    result = calib.estimate(lamps, method="toivonen2020", basis=basis, ensemble_size=2, epochs=200)
+    result = calib.methods.estimate(
+        lamps, method="toivonen2020", basis=basis, ensemble_size=2, epochs=200
+    )
     assert result.diagnostics["mapping_source"] == "makabe2025"
-    expected = calib.estimate(lamps, method="makabe2025", basis=basis).mapping
+    expected = calib.methods.estimate(lamps, method="makabe2025", basis=basis).mapping
     assert isinstance(result.mapping, QuadraticMapping)
     assert isinstance(expected, QuadraticMapping)
     assert result.mapping.coefficients == expected.coefficients
@@ -262,7 +265,7 @@ def test_bad_inputs_say_what_is_wrong(d65, camera):
         build_problem([lamp], [], MAPPING, patch_lamps=[without_direct])
     matrices = ColorMatrixObservation("cam", np.eye(3), ("D65",))
     with pytest.raises(InputError, match="toivonen2020 uses LampObservation, ChartObservation"):
-        calib.estimate([lamp, matrices], method="toivonen2020", mapping=MAPPING)
+        calib.methods.estimate([lamp, matrices], method="toivonen2020", mapping=MAPPING)
     with pytest.raises(InputError, match="unknown lamps"):
         estimate_toivonen2020([lamp], mapping=MAPPING, lamps_for_profiles=["nope"])
     no_green = gaussian_camera((600, 540, 460), (35, 40, 30))

@@ -11,7 +11,7 @@ import sys
 
 import typer
 
-from calib.errors import CalibError, InputError
+from calib.core.errors import CalibError, InputError
 
 #: Modules that contribute sub-commands, each exposing ``register(app: typer.Typer) -> None``.
 COMMAND_MODULES: tuple[str, ...] = (

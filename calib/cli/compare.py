@@ -12,10 +12,12 @@ import typer
 from rich.console import Console
 from rich.markdown import Markdown
 
-from calib.bases import CameraBasis, fallback_camera_basis
 from calib.cli.options import EnsembleOption, EpochsOption
 from calib.cli.synthetic import _parse_noise
-from calib.compare import (
+from calib.core.datasets import colour_science_cameras, makabe2025_split
+from calib.core.errors import InputError
+from calib.core.spectra import WavelengthGrid
+from calib.evaluation.compare import (
     DEFAULT_NOISE_LEVELS,
     DEFAULT_TRANSMISSIVE_PATCHES,
     SyntheticSource,
@@ -23,11 +25,9 @@ from calib.compare import (
     run_comparison,
     synthetic_adapters,
 )
-from calib.compare_report import markdown_report, plot_grid, write_csv
-from calib.datasets import colour_science_cameras, makabe2025_split
-from calib.errors import InputError
+from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
 from calib.methods import default_camera_basis
-from calib.spectra import WavelengthGrid
+from calib.model.bases import CameraBasis, fallback_camera_basis
 
 
 def register(app: typer.Typer) -> None:

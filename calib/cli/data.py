@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from calib.datasets import (
+from calib.core.datasets import (
     DATA_DIR_ENV,
     collection_status,
     default_data_dir,

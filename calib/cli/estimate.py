@@ -18,7 +18,7 @@ from typing import Any, TextIO
 import typer
 
 from calib.cli.estimate_args import USAGE, EstimateArguments, parse_estimate_arguments
-from calib.errors import CalibError, InputError
+from calib.core.errors import CalibError, InputError
 
 #: Files of an earlier estimate that ``--force`` allows to overwrite.
 _RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
@@ -37,9 +37,9 @@ def _check_out_dir(out_dir: Path, force: bool) -> None:
 
 
 def summary(outcome: Any) -> dict[str, Any]:
-    """The ``--json`` summary of an :class:`calib.offline.OfflineOutcome`."""
-    from calib.mapping import QuadraticMapping
-    from calib.result import json_safe
+    """The ``--json`` summary of an :class:`calib.pipeline.OfflineOutcome`."""
+    from calib.core.mapping import QuadraticMapping
+    from calib.core.result import json_safe
 
     estimate = outcome.estimate
     result = estimate.result
@@ -121,8 +121,8 @@ def run(argv: Sequence[str], *, stdout: TextIO | None = None, stderr: TextIO | N
 
 
 def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO) -> Any:
-    from calib.offline import OfflineSettings, run_offline
-    from calib.offline.progress import RichFrameProgress
+    from calib.pipeline import OfflineSettings, run_offline
+    from calib.pipeline.progress import RichFrameProgress
 
     assert arguments.out_dir is not None
     _check_out_dir(arguments.out_dir, arguments.force)

@@ -5,7 +5,7 @@ typer/click do not group options, so the argument list is parsed here. A lamp gr
 next ``--lamp``. Global options may stand anywhere. Options take their value(s) as the next
 argument(s) or after ``=`` (``--grid=400:700:5``); list options (``--images``, ``--dark``,
 ``--exposure``, ``--dark-exposure``) take every argument up to the next option. Every mistake raises
-:class:`calib.errors.InputError` naming the option (and lamp) and what was expected.
+:class:`calib.core.errors.InputError` naming the option (and lamp) and what was expected.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from calib.errors import InputError
-from calib.offline.inputs import LampImages, LampInput, LampProfile, check_kind, parse_direct
-from calib.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.core.errors import InputError
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.pipeline.inputs import LampImages, LampInput, LampProfile, check_kind, parse_direct
 
 USAGE = """\
 Usage: calib estimate --lamp NAME (--images PATH [PATH ...] | --profile CSV) --spectrum CSV
@@ -105,7 +105,7 @@ class EstimateArguments:
     method, mapping_lamp, grid, data_dir, grating
         The global options (``None`` when not given).
     method_options
-        What ``--weight-rule`` stands for (:func:`calib.multilamp.weight_rule_option`), checked.
+        What ``--weight-rule`` stands for (:func:`calib.methods.multilamp.weight_rule_option`), checked.
     force, quiet, json_output, show_help
         The flags.
     """
@@ -247,7 +247,7 @@ def parse_estimate_arguments(argv: Sequence[str]) -> EstimateArguments:
     method = globals_.get("--method", "makabe2025")
     method_options: dict[str, Any] = {}
     if "--weight-rule" in globals_:
-        from calib.multilamp import weight_rule_option
+        from calib.methods.multilamp import weight_rule_option
 
         method_options = weight_rule_option(method, globals_["--weight-rule"])
     return EstimateArguments(

@@ -11,17 +11,17 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from calib.errors import InputError
-from calib.lamp_planning import (
+from calib.core.errors import InputError
+from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
+from calib.core.spectra import Spectrum, WavelengthGrid
+from calib.evaluation.lamp_planning import (
     DEFAULT_NOISE_FRACTION,
     SubsetScore,
     best_additions,
     rank_subsets,
 )
-from calib.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.methods import default_camera_basis
-from calib.multilamp import DEFAULT_EFFICIENCY_TERMS
-from calib.spectra import Spectrum, WavelengthGrid
+from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS
 
 #: Narrow-band LEDs suggested as extra lamps when none are given.
 DEFAULT_CANDIDATES: tuple[str, ...] = RGB_LEDS

@@ -1,10 +1,10 @@
 """``calib spd``: the rig as a spectrometer — a lamp's SPD from its diffraction image.
 
 With a calibrated camera (its sensitivity CSV, and the grating's efficiency when known), the lamp's
-HDR bracket is merged (:mod:`calib.hdr`), the direct spot and first order found once
-(:mod:`calib.profiles`) and reused for every image, the pixel→wavelength mapping found from a
+HDR bracket is merged (:mod:`calib.image.hdr`), the direct spot and first order found once
+(:mod:`calib.image.profiles`) and reused for every image, the pixel→wavelength mapping found from a
 fluorescent lamp's lines, and the SPD recovered, recognised, and summarised by CCT and
-white-balance gains (:mod:`calib.alvarez2014`, :mod:`calib.light_sources`).
+white-balance gains (:mod:`calib.spd.alvarez2014`, :mod:`calib.spd.light_sources`).
 
 Outputs in ``--out``: ``spd.csv`` (``wavelength_nm,value``, maximum 1), ``spd.json`` (library
 match and distance, CCT by each method, white-balance gains, mapping, settings, provenance),
@@ -30,7 +30,21 @@ from typing import Any, NoReturn
 import numpy as np
 import typer
 
-from calib.alvarez2014 import (
+from calib.core.errors import CalibError, EstimationError, InputError
+from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
+from calib.core.result import json_safe
+from calib.core.spectra import (
+    MultiSpectrum,
+    Spectrum,
+    WavelengthGrid,
+    read_multispectrum_csv,
+    read_spectrum_csv,
+    write_csv,
+)
+from calib.image.hdr import HdrImage, merge_bracket
+from calib.image.profiles import DiffractionGeometry, detect_geometry, extract, write_geometry_png
+from calib.image.profiles.geometry import DetectionError
+from calib.spd.alvarez2014 import (
     DiffractedProfile,
     SourceMode,
     SpdRecovery,
@@ -41,9 +55,7 @@ from calib.alvarez2014 import (
     source_kernel_from_image,
     widened_geometry,
 )
-from calib.errors import CalibError, EstimationError, InputError
-from calib.hdr import HdrImage, merge_bracket
-from calib.light_sources import (
+from calib.spd.light_sources import (
     CCT_METHODS,
     Metric,
     Recognition,
@@ -53,18 +65,6 @@ from calib.light_sources import (
     correlated_colour_temperature,
     recognise_light_source,
     srgb_white_balance_from_cct,
-)
-from calib.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
-from calib.profiles import DiffractionGeometry, detect_geometry, extract, write_geometry_png
-from calib.profiles.geometry import DetectionError
-from calib.result import json_safe
-from calib.spectra import (
-    MultiSpectrum,
-    Spectrum,
-    WavelengthGrid,
-    read_multispectrum_csv,
-    read_spectrum_csv,
-    write_csv,
 )
 
 #: The recovered SPD is computed over this range (further limited to where the camera responds).

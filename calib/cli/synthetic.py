@@ -14,13 +14,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from calib.bases import CameraBasis, fallback_camera_basis
-from calib.datasets import colour_science_cameras, makabe2025_split
-from calib.errors import InputError
-from calib.makabe2025 import SOLVERS, Solver
-from calib.methods import default_camera_basis
-from calib.spectra import MultiSpectrum, WavelengthGrid
-from calib.synthetic import (
+from calib.core.datasets import colour_science_cameras, makabe2025_split
+from calib.core.errors import InputError
+from calib.core.spectra import MultiSpectrum, WavelengthGrid
+from calib.evaluation.synthetic import (
     MULTILAMP_VARIANTS,
     NOISE_LEVELS,
     PAPER_VARIANTS,
@@ -29,6 +26,9 @@ from calib.synthetic import (
     out_of_basis_cameras,
     run_protocol,
 )
+from calib.methods import default_camera_basis
+from calib.methods.makabe2025 import SOLVERS, Solver
+from calib.model.bases import CameraBasis, fallback_camera_basis
 
 
 def _parse_noise(text: str) -> list[float]:
@@ -197,7 +197,7 @@ def register(app: typer.Typer) -> None:
             str | None,
             typer.Option(
                 help="How the multi-lamp variants weight the camera prior: upre (default), "
-                "typicality or evidence (calib.multilamp.PRIOR_WEIGHT_RULES)."
+                "typicality or evidence (calib.methods.multilamp.PRIOR_WEIGHT_RULES)."
             ),
         ] = None,
         csv_path: Annotated[
@@ -287,7 +287,7 @@ def _run(
     direct_noise: float | None = None,
     weight_rule: str | None = None,
 ) -> list[SyntheticRow]:
-    from calib.multilamp import MULTILAMP_METHOD, weight_rule_option
+    from calib.methods.multilamp import MULTILAMP_METHOD, weight_rule_option
 
     options = weight_rule_option(MULTILAMP_METHOD, weight_rule)
     console = Console(stderr=True)

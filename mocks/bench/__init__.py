@@ -13,7 +13,7 @@ Time runs on a simulated clock: warm-ups of minutes take no wall time.
 into its station.
 
 Modules: :mod:`.spec` (what the twin is made of), :mod:`.lamps`, :mod:`.optics` (image formation via
-``calib.forward``), :mod:`.camera` (frames), :mod:`.truth` (what an estimate is judged against),
+``calib.model.forward``), :mod:`.camera` (frames), :mod:`.truth` (what an estimate is judged against),
 :mod:`.station` (opening it all).
 """
 

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from calib.spectra import Spectrum
+from calib.core.spectra import Spectrum
 from mocks.bench.lamps import drift_coefficients, spectral_components
 from mocks.bench.optics import REFERENCE_F_NUMBER, REFERENCE_ISO, TwinOptics
 from mocks.dng import DngMetadata, write_dng

@@ -21,14 +21,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
-from calib.observations import LAMP_KINDS, LampKind
-from calib.spectra import Spectrum
+from calib.core.arrays import FloatArray
+from calib.core.observations import LAMP_KINDS, LampKind
+from calib.core.spectra import Spectrum
 from mocks.bench.spec import LampSpec, TwinSpecError
 from mocks.lamps import Clock, LampBank, VirtualLamp
-
-FloatArray = NDArray[np.float64]
 
 #: Wavelength range over which a lamp's radiance is normalised to the configured mean.
 NORMALISATION_RANGE_NM = (400.0, 700.0)

@@ -1,8 +1,8 @@
 """The twin's optics: slit, grating, lens and camera sensitivity, from a lamp spectrum to the sensor.
 
-Image formation follows ``calib.forward`` (Makabe et al. 2025, Eq. 2–3): the first order spreads
+Image formation follows ``calib.model.forward`` (Makabe et al. 2025, Eq. 2–3): the first order spreads
 the light so that wavelength ``λ`` lands at ``u = f_px tan(asin(λ/d))`` sensor pixels from the direct
-spot (:class:`calib.mapping.GratingGeometry`); a pixel collects the integral of ``e·η·s_c`` over
+spot (:class:`calib.core.mapping.GratingGeometry`); a pixel collects the integral of ``e·η·s_c`` over
 its wavelength interval; the direct spot collects ``η₀ ∫ e·s_c``. The slit's image (``slit_width``
 along the dispersion, ``slit_length`` across, raised-cosine edges ``edge``: the lens blur) is the
 shape of the direct spot, and every wavelength of the first order is such an image, so the first
@@ -10,11 +10,11 @@ order is the pixel integrals convolved with the slit's along-profile and spread 
 length.
 
 :meth:`TwinOptics.first_order` renders a lamp's 1-D first order with
-:func:`calib.forward.render_observation` (at 0.2 nm, fine enough for narrow lines), takes its
+:func:`calib.model.forward.render_observation` (at 0.2 nm, fine enough for narrow lines), takes its
 spectral density ``e·η·s`` and turns it into the cumulative integral along ``u`` on a fine axis
 (1/64 px), blurs it with the slit profile and hands it to :class:`mocks.scene.PixelIntegratedSignal`,
 so that every sensor pixel of the 2-D frame receives the exact integral over its own footprint —
-for an unblurred slit, the numbers ``calib.forward`` gives for its 1-D profile.
+for an unblurred slit, the numbers ``calib.model.forward`` gives for its 1-D profile.
 
 Units: lamps in W/(sr·m²·nm), sensitivities peaking at 1, and ``throughput_e_per_s`` turning their
 wavelength integral into photo-electrons per second at f/8; the renderer works in DN/s at ISO 100
@@ -30,17 +30,15 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-from calib.datasets import COLOUR_SCIENCE, find_camera, load_collection
-from calib.errors import InputError
-from calib.forward import PiecewiseLinearDensity, RenderedObservation, render_observation
-from calib.mapping import GratingGeometry
-from calib.spectra import MultiSpectrum, Spectrum
+from calib.core.arrays import FloatArray
+from calib.core.datasets import COLOUR_SCIENCE, find_camera, load_collection
+from calib.core.errors import InputError
+from calib.core.mapping import GratingGeometry
+from calib.core.spectra import MultiSpectrum, Spectrum
+from calib.model.forward import PiecewiseLinearDensity, RenderedObservation, render_observation
 from mocks.bench.spec import CameraSpec, TwinSpecError
 from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_box
-
-FloatArray = NDArray[np.float64]
 
 #: Step of the fine axis along the dispersion on which the first order's cumulative is tabulated.
 FINE_STEP_PX = 1.0 / 64.0
@@ -99,10 +97,10 @@ class FirstOrderRendering:
     signal
         The direct total and the first order's cumulative along ``u``, DN/s at ISO 100 and f/8.
     observation
-        What ``calib.forward`` rendered (unscaled; its ``clean_profile`` holds the unblurred
+        What ``calib.model.forward`` rendered (unscaled; its ``clean_profile`` holds the unblurred
         per-pixel integrals at integer ``u`` over the band).
     scale_dn_per_s
-        DN/s per unit of ``calib.forward``'s output for the direct total (the band is this over
+        DN/s per unit of ``calib.model.forward``'s output for the direct total (the band is this over
         the slit's length).
     """
 
@@ -233,7 +231,7 @@ class TwinOptics:
             Spectral radiance, W/(sr·m²·nm).
         blur
             Convolve the first order with the slit's image (off: the bare per-pixel integrals of
-            ``calib.forward``, for checks).
+            ``calib.model.forward``, for checks).
         """
         start, stop = self.band_range_px
         coarse = np.arange(math.floor(start), math.ceil(stop) + 1, dtype=np.float64)

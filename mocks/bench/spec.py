@@ -115,7 +115,7 @@ class CameraSpec:
     Parameters
     ----------
     sensitivity, sensitivity_collection, data_dir
-        The true camera: a name in a ``calib.datasets`` collection.
+        The true camera: a name in a ``calib.core.datasets`` collection.
     sensor
         Size, CFA, levels and noise (at ISO 100).
     pixel_pitch_um

@@ -5,8 +5,8 @@ its log, so it is never one of the session's trusted files) so that the demo can
 estimate's error against the camera the twin really has.
 
 The JSON holds the camera sensitivity (maximum 1) and the grating's first-order efficiency on 1 nm
-axes, the pixel→wavelength mapping as a ``calib.mapping.GratingGeometry`` record (sensor pixels from
-the direct spot's centre along the dispersion — the axis of ``calib.profiles``' profiles), and the
+axes, the pixel→wavelength mapping as a ``calib.core.mapping.GratingGeometry`` record (sensor pixels from
+the direct spot's centre along the dispersion — the axis of ``calib.image.profiles``' profiles), and the
 slit image and layout.
 """
 
@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from calib.mapping import GratingGeometry
-from calib.spectra import MultiSpectrum, Spectrum, WavelengthGrid
+from calib.core.mapping import GratingGeometry
+from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
 from mocks.bench.optics import TwinOptics
 
 TRUTH_FORMAT = "spectral-rig/twin-truth"

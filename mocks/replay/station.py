@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from calib.spectra import read_spectrum_csv
+from calib.core.spectra import read_spectrum_csv
 from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptEntry, TranscriptSink
 from drivers.camera import CameraTimeouts, open_camera
 from drivers.lifecycle import connect_or_close

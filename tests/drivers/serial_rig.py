@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.spectra import Spectrum
+from calib.core.spectra import Spectrum
 from mocks.lamps import LampBank, VirtualLamp
 
 #: Emulated durations are multiplied by this.

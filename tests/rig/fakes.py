@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from calib.spectra import Spectrum
+from calib.core.spectra import Spectrum
 from drivers.base import (
     CapturedFile,
     DeviceIdentity,

@@ -11,10 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from calib import datasets
-from calib.datasets import PinnedFile
-from calib.metrics import relative_error
-from calib.spectra import DEFAULT_GRID, MultiSpectrum, write_csv
+from calib.core import datasets
+from calib.core.datasets import PinnedFile
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, write_csv
 from drivers import discovery
 from mocks.bench import TRUTH_FILE_NAME, TwinTruth
 from mocks.fake_gphoto2 import FakeGphoto2, nikon_body

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.errors import InputError
-from calib.mapping import QuadraticMapping
-from calib.metrics import relative_error
-from calib.offline.run import OfflineOutcome
-from calib.spectra import read_spectrum_csv
+from calib.core.errors import InputError
+from calib.core.mapping import QuadraticMapping
+from calib.core.metrics import relative_error
+from calib.core.spectra import read_spectrum_csv
+from calib.pipeline.run import OfflineOutcome
 from rig.cli import app, main
 from rig.errors import SessionFormatError
 from rig.estimate import estimate_session
@@ -246,7 +246,7 @@ def test_rig_estimate_command(
     session: Path, capture: Capture, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(
-        "calib.offline.pipeline.default_camera_basis", lambda *a, **k: capture.basis
+        "calib.pipeline.estimate.default_camera_basis", lambda *a, **k: capture.basis
     )
     result = CliRunner().invoke(
         app, ["estimate", str(session), "--out", str(tmp_path / "out"), "-q"]
@@ -276,7 +276,7 @@ def test_rig_estimate_takes_the_multilamp_weight_rule(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     monkeypatch.setattr(
-        "calib.offline.pipeline.default_camera_basis", lambda *a, **k: capture.basis
+        "calib.pipeline.estimate.default_camera_basis", lambda *a, **k: capture.basis
     )
     out = tmp_path / "out"
     arguments = ["estimate", str(session), "--out", str(out), "-q", "--weight-rule", "typicality"]

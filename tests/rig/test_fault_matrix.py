@@ -40,6 +40,7 @@ import pytest
 import rawpy
 
 import rig.session as session_module
+from calib.core.arrays import FloatArray
 from drivers.relays.hid_usbrelay import CMD_ALL_OFF
 from mocks.bench import TwinFaults
 from mocks.fake_gphoto2 import CameraFault
@@ -54,7 +55,6 @@ from rig.replay import replay_session
 from rig.resume import run_resume
 from rig.runner import RetryPolicy
 from rig.session import Session, find_sessions, read_session
-from rig.steps import FloatArray
 from rig.twin import twin_station_builder
 from tests.rig.fakes import wait_for, write_config
 from tests.rig.test_cli import run_cli

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from calib.hdr import HdrImage
-from calib.profiles import DiffractionGeometry, detect_geometry
+from calib.image.hdr import HdrImage
+from calib.image.profiles import DiffractionGeometry, detect_geometry
 from mocks.bench import TwinOptics
 from mocks.bench.camera import FrameRenderer
 from mocks.bench.lamps import virtual_lamp

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.errors import InputError
-from calib.grating_file import read_grating_file
-from calib.metrics import relative_error
-from calib.spectra import DEFAULT_GRID
-from calib.synthetic import random_efficiency, random_mapping, render_lamps
+from calib.core.errors import InputError
+from calib.core.grating_file import read_grating_file
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import random_efficiency, random_mapping, render_lamps
 from rig.cli import app, main
 from rig.grating import GratingOutcome, _with_direct, median_relative_sigma, refine_session_grating
 from tests.rendered_capture import Capture, efficiency, render_capture, shared_capture
@@ -94,7 +94,7 @@ def test_rig_grating_command(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    for module in ("rig.grating", "calib.offline.pipeline"):
+    for module in ("rig.grating", "calib.pipeline.estimate"):
         monkeypatch.setattr(f"{module}.default_camera_basis", lambda *a, **k: capture.basis)
     out = tmp_path / "sheet.json"
     arguments = ["grating", *map(str, sessions), "--out", str(out)]

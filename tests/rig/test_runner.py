@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from calib.spectra import read_spectrum_csv
+from calib.core.spectra import read_spectrum_csv
 from drivers.base import DeviceBusy, DeviceTimeout, Disconnected
 from rig.capture import run_capture
 from rig.clock import MonotonicClock

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from calib.spectra import Spectrum, read_spectrum_csv
+from calib.core.spectra import Spectrum, read_spectrum_csv
 from drivers.base import TranscriptEntry
 from rig.errors import SessionFormatError, SessionWriteError
 from rig.records import (

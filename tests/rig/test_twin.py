@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from calib.raw import read_raw_metadata
+from calib.image.raw import read_raw_metadata
 from mocks.bench import TwinBench, TwinFaults
 from mocks.fake_gphoto2 import CameraFault
 from mocks.faults import Fault, FaultKind, FaultRule, FaultSchedule

@@ -1,4 +1,4 @@
-"""The twin's physics: lamps, per-pixel integration consistent with calib.forward, frames, emulated models."""
+"""The twin's physics: lamps, per-pixel integration consistent with calib.model.forward, frames, emulated models."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from calib.forward import render_observation
-from calib.raw import read_raw, read_raw_metadata
-from calib.spectra import Spectrum
+from calib.core.spectra import Spectrum
+from calib.image.raw import read_raw, read_raw_metadata
+from calib.model.forward import render_observation
 from mocks.bench import TwinOptics, TwinSpec, TwinSpecError, open_twin
 from mocks.bench.camera import ExposureSettings, FrameRenderer
 from mocks.bench.lamps import drift_coefficients, spectral_components, virtual_lamp
@@ -40,7 +40,7 @@ def fluorescent(spec: TwinSpec) -> VirtualLamp:
 
 
 def _forward_per_pixel(optics: TwinOptics, lamp: Spectrum, pixel: np.ndarray) -> np.ndarray:
-    """calib.forward's unblurred per-pixel integrals, scaled as the twin scales the band."""
+    """calib.model.forward's unblurred per-pixel integrals, scaled as the twin scales the band."""
     rendered = render_observation(
         lamp,
         optics.sensitivity,

@@ -7,7 +7,7 @@ import time
 import colour
 import pytest
 
-from calib.spectra import Spectrum
+from calib.core.spectra import Spectrum
 from drivers.base import (
     DeviceBusy,
     DeviceNotFound,

@@ -1,0 +1,277 @@
+"""A grating's first-order efficiency η(λ) as a small JSON file, to reuse a calibration later.
+
+An estimate with a direct (0th-order) measurement finds η along with the camera; a later estimate of a
+camera seen through the same grating, but with no direct measurement (a 1-D profile from a DIY
+spectroscope, a line-scan tool), needs η given. ``calib estimate`` writes ``grating.json`` next to its
+results, and reads one with ``--grating FILE``.
+
+Format (``format_version`` 1)::
+
+    {
+      "schema": "spectral-rig/grating-efficiency",
+      "format_version": 1,
+      "wavelength_nm": [400.0, 410.0, …],          strictly increasing, nm
+      "efficiency": [0.81, 0.84, …],               relative (maximum 1), finite, ≥ 0
+      "efficiency_sigma": [0.01, …] | null,        standard deviation on the same scale
+      "geometry": {                                how it was measured (all optional)
+        "mapping": {…} | null,                     pixel → wavelength (calib.core.mapping to_dict)
+        "diffraction": {…} | null,                 spot/band geometry (calib.image.profiles to_dict)
+        "order": 1,                                the diffraction order
+        "description": "…"                         free text (incidence angle, sheet, …)
+      },
+      "provenance": {"created": "…", "software": "…", "method": "…", "source": "…", …}
+    }
+
+Unknown keys are kept in ``provenance``/``geometry`` and otherwise ignored, so later versions can add
+fields without breaking readers; a larger ``format_version`` is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import InputError
+from calib.core.spectra import Spectrum, WavelengthGrid
+
+GRATING_SCHEMA = "spectral-rig/grating-efficiency"
+GRATING_FORMAT_VERSION = 1
+
+__all__ = [
+    "GRATING_FORMAT_VERSION",
+    "GRATING_SCHEMA",
+    "GratingEfficiency",
+    "GratingFileError",
+    "read_grating_file",
+    "write_grating_file",
+]
+
+
+class GratingFileError(InputError):
+    """A grating file is missing, not JSON, or does not follow the schema (the field is named)."""
+
+
+def _array(values: Any, field_name: str, source: str) -> FloatArray:
+    try:
+        array = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GratingFileError(
+            f"{field_name} must be a list of numbers", source=f"{source}: {field_name}"
+        ) from None
+    if array.ndim != 1:
+        raise GratingFileError(
+            f"{field_name} must be a flat list of numbers, got shape {array.shape}",
+            source=f"{source}: {field_name}",
+        )
+    if not np.all(np.isfinite(array)):
+        bad = int(np.flatnonzero(~np.isfinite(array))[0])
+        raise GratingFileError(
+            f"entry {bad} is not a finite number (NaN, infinity or null)",
+            source=f"{source}: {field_name}",
+        )
+    array.flags.writeable = False
+    return array
+
+
+@dataclass(frozen=True, eq=False)
+class GratingEfficiency:
+    """Relative first-order efficiency of a grating, with its uncertainty and provenance.
+
+    Parameters
+    ----------
+    wavelength_nm
+        Shape ``(n,)``, strictly increasing (nm), ``n ≥ 2``.
+    efficiency
+        Shape ``(n,)``: relative efficiency, finite and ≥ 0 (any scale; only its shape matters).
+    efficiency_sigma
+        Shape ``(n,)``: standard deviation on the same scale, or ``None``.
+    geometry
+        How it was measured (see the module docstring); JSON data.
+    provenance
+        Who made it, when, from what; JSON data.
+    source
+        Where it was read from (for messages).
+    """
+
+    wavelength_nm: FloatArray
+    efficiency: FloatArray
+    efficiency_sigma: FloatArray | None = None
+    geometry: Mapping[str, Any] = field(default_factory=dict)
+    provenance: Mapping[str, Any] = field(default_factory=dict)
+    source: str = "grating efficiency"
+
+    def __post_init__(self) -> None:
+        wavelength = _array(self.wavelength_nm, "wavelength_nm", self.source)
+        efficiency = _array(self.efficiency, "efficiency", self.source)
+        if wavelength.size < 2:
+            raise GratingFileError(
+                "needs at least two wavelengths", source=f"{self.source}: wavelength_nm"
+            )
+        if not np.all(np.diff(wavelength) > 0):
+            raise GratingFileError(
+                "wavelengths must be strictly increasing", source=f"{self.source}: wavelength_nm"
+            )
+        if efficiency.shape != wavelength.shape:
+            raise GratingFileError(
+                f"{efficiency.size} values for {wavelength.size} wavelengths",
+                source=f"{self.source}: efficiency",
+            )
+        if np.any(efficiency < 0) or not np.any(efficiency > 0):
+            raise GratingFileError(
+                "efficiencies must be ≥ 0 and not all zero", source=f"{self.source}: efficiency"
+            )
+        object.__setattr__(self, "wavelength_nm", wavelength)
+        object.__setattr__(self, "efficiency", efficiency)
+        if self.efficiency_sigma is not None:
+            sigma = _array(self.efficiency_sigma, "efficiency_sigma", self.source)
+            if sigma.shape != wavelength.shape or np.any(sigma < 0):
+                raise GratingFileError(
+                    f"needs {wavelength.size} values ≥ 0, one per wavelength",
+                    source=f"{self.source}: efficiency_sigma",
+                )
+            object.__setattr__(self, "efficiency_sigma", sigma)
+
+    @property
+    def range_nm(self) -> tuple[float, float]:
+        return float(self.wavelength_nm[0]), float(self.wavelength_nm[-1])
+
+    def covers(self, grid: WavelengthGrid) -> bool:
+        """Whether the efficiency is known over the whole working grid."""
+        lo, hi = self.range_nm
+        return lo <= grid.start_nm + 1e-6 and hi >= grid.stop_nm - 1e-6
+
+    def at(self, wavelength_nm: ArrayLike) -> FloatArray:
+        """Linear interpolation at ``wavelength_nm`` (the end values beyond the range)."""
+        return np.interp(
+            np.asarray(wavelength_nm, dtype=np.float64), self.wavelength_nm, self.efficiency
+        )
+
+    def sigma_at(self, wavelength_nm: ArrayLike) -> FloatArray | None:
+        """Linear interpolation of the standard deviation, or ``None`` when unknown."""
+        if self.efficiency_sigma is None:
+            return None
+        return np.interp(
+            np.asarray(wavelength_nm, dtype=np.float64), self.wavelength_nm, self.efficiency_sigma
+        )
+
+    def spectrum(self) -> Spectrum:
+        """The efficiency as a :class:`calib.core.spectra.Spectrum` (maximum 1)."""
+        return Spectrum(
+            self.wavelength_nm, self.efficiency / float(self.efficiency.max()), name=self.source
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON document (see the module docstring)."""
+        peak = float(self.efficiency.max())
+        return {
+            "schema": GRATING_SCHEMA,
+            "format_version": GRATING_FORMAT_VERSION,
+            "wavelength_nm": self.wavelength_nm.tolist(),
+            "efficiency": (self.efficiency / peak).tolist(),
+            "efficiency_sigma": None
+            if self.efficiency_sigma is None
+            else (self.efficiency_sigma / peak).tolist(),
+            "geometry": dict(self.geometry),
+            "provenance": dict(self.provenance),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any, *, source: str = "grating file") -> GratingEfficiency:
+        """Validate a parsed document.
+
+        Raises
+        ------
+        GratingFileError
+            Not an object, a different schema, a newer format version, or a missing or malformed
+            field (named in the message).
+        """
+        if not isinstance(data, Mapping):
+            raise GratingFileError(
+                f"expected a JSON object, got {type(data).__name__}", source=source
+            )
+        schema = data.get("schema")
+        if schema != GRATING_SCHEMA:
+            raise GratingFileError(
+                f"schema is {schema!r}, expected {GRATING_SCHEMA!r} (is this a grating file "
+                "written by calib estimate?)",
+                source=f"{source}: schema",
+            )
+        version = data.get("format_version")
+        if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+            raise GratingFileError(
+                f"format_version must be a positive integer, got {version!r}",
+                source=f"{source}: format_version",
+            )
+        if version > GRATING_FORMAT_VERSION:
+            raise GratingFileError(
+                f"format version {version} is newer than this software reads "
+                f"({GRATING_FORMAT_VERSION}); update spectral-rig",
+                source=f"{source}: format_version",
+            )
+        for required in ("wavelength_nm", "efficiency"):
+            if required not in data:
+                raise GratingFileError("missing", source=f"{source}: {required}")
+        for optional in ("geometry", "provenance"):
+            value = data.get(optional)
+            if value is not None and not isinstance(value, Mapping):
+                raise GratingFileError(
+                    f"must be an object, got {type(value).__name__}", source=f"{source}: {optional}"
+                )
+        return cls(
+            wavelength_nm=data["wavelength_nm"],
+            efficiency=data["efficiency"],
+            efficiency_sigma=data.get("efficiency_sigma"),
+            geometry=dict(data.get("geometry") or {}),
+            provenance=dict(data.get("provenance") or {}),
+            source=source,
+        )
+
+
+def read_grating_file(path: str | os.PathLike[str]) -> GratingEfficiency:
+    """Read and validate a grating efficiency file.
+
+    Raises
+    ------
+    GratingFileError
+        Missing or unreadable file, invalid JSON (with the line), or a schema violation.
+    """
+    file = Path(path)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise GratingFileError("file not found", source=str(file)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise GratingFileError(f"cannot read: {exc}", source=str(file)) from None
+    try:
+        data = json.loads(text, parse_constant=lambda name: math.nan)
+    except json.JSONDecodeError as exc:
+        raise GratingFileError(
+            f"not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})", source=str(file)
+        ) from None
+    return GratingEfficiency.from_dict(data, source=str(file))
+
+
+def write_grating_file(path: str | os.PathLike[str], grating: GratingEfficiency) -> Path:
+    """Write ``grating`` as JSON (efficiency normalised to a maximum of 1); returns the path.
+
+    Written to a temporary file beside ``path`` and renamed over it: a reader never sees half a
+    file, and an interrupted write leaves an earlier file as it was.
+    """
+    file = Path(path)
+    text = json.dumps(grating.to_dict(), indent=2, allow_nan=False) + "\n"
+    temporary = file.with_name(f".{file.name}.{os.getpid()}.tmp")
+    try:
+        temporary.write_text(text)
+        temporary.replace(file)
+    finally:
+        temporary.unlink(missing_ok=True)
+    return file

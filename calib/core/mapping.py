@@ -1,0 +1,366 @@
+"""Pixel→wavelength mapping types: the quadratic model and grating physics.
+
+:class:`QuadraticMapping` ``g(p) = a p² + b p + c`` (Makabe et al. 2025, Eq. 13) with its inverse, how
+it was found and an estimate of its error; :class:`GratingGeometry`, the physical first order at normal
+incidence (``sin θ = λ/d``, pixel offset ``f_px·tan θ``) with its quadratic approximation;
+:class:`TiltedGrating`. They serialise with ``to_dict``/``from_dict``. How a mapping is *found* lives
+in :mod:`calib.wavelength`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+
+# ---------------------------------------------------------------------------------------- types
+
+
+@dataclass(frozen=True)
+class QuadraticMapping:
+    """``λ = g(p) = a p² + b p + c`` (nm), Makabe et al. (2025) Eq. 13.
+
+    Attributes
+    ----------
+    a, b, c
+        Coefficients (nm/px², nm/px, nm).
+    method
+        How it was found (``"given"``, ``"fluorescent-peaks"``, ``"led-search"``, ``"geometry"`` …).
+    pixel_range
+        ``(p_min, p_max)`` over which it was fitted / is valid.
+    covariance
+        3×3 covariance of ``(a, b, c)`` from the fit, or ``None``.
+    wavelength_rms_nm
+        Estimated RMS wavelength error over ``pixel_range`` (from the covariance), or ``None``.
+    details
+        Diagnostics of the estimation (JSON-safe).
+    """
+
+    a: float
+    b: float
+    c: float
+    method: str = "given"
+    pixel_range: tuple[float, float] | None = None
+    covariance: tuple[tuple[float, float, float], ...] | None = None
+    wavelength_rms_nm: float | None = None
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not all(math.isfinite(v) for v in (self.a, self.b, self.c)):
+            raise InputError(
+                f"mapping coefficients must be finite, got {self.coefficients}", source="mapping"
+            )
+
+    @property
+    def coefficients(self) -> tuple[float, float, float]:
+        return (self.a, self.b, self.c)
+
+    def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
+        """``g(p)`` in nm."""
+        p = np.asarray(pixel, dtype=np.float64)
+        return np.asarray((self.a * p + self.b) * p + self.c, dtype=np.float64)
+
+    def dispersion_nm_per_px(self, pixel: ArrayLike) -> FloatArray:
+        """``g'(p)``."""
+        return np.asarray(
+            2 * self.a * np.asarray(pixel, dtype=np.float64) + self.b, dtype=np.float64
+        )
+
+    def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
+        """Inverse ``g⁻¹(λ)``: the root on the branch where ``g`` is monotonic over ``pixel_range``."""
+        wavelength = np.asarray(wavelength_nm, dtype=np.float64)
+        if abs(self.a) < 1e-15 * max(abs(self.b), 1e-300):
+            return np.asarray((wavelength - self.c) / self.b, dtype=np.float64)
+        reference = 0.0 if self.pixel_range is None else 0.5 * sum(self.pixel_range)
+        slope_sign = np.sign(2 * self.a * reference + self.b) or 1.0
+        discriminant = self.b**2 - 4 * self.a * (self.c - wavelength)
+        root = np.sqrt(np.clip(discriminant, 0.0, None))
+        # Stable form of (−b ± √D) / 2a choosing the branch with g' of the right sign.
+        return np.asarray((-self.b + slope_sign * root) / (2 * self.a), dtype=np.float64)
+
+    def with_details(self, **changes: Any) -> QuadraticMapping:
+        """A copy with fields replaced (``method``, ``covariance`` …)."""
+        values = {**self.to_dict(), **changes}
+        return QuadraticMapping.from_dict(values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "type": "quadratic",
+            "a": self.a,
+            "b": self.b,
+            "c": self.c,
+            "method": self.method,
+            "pixel_range": list(self.pixel_range) if self.pixel_range else None,
+            "covariance": [list(row) for row in self.covariance] if self.covariance else None,
+            "wavelength_rms_nm": self.wavelength_rms_nm,
+            "details": dict(self.details),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> QuadraticMapping:
+        try:
+            covariance = data.get("covariance")
+            pixel_range = data.get("pixel_range")
+            return cls(
+                a=float(data["a"]),
+                b=float(data["b"]),
+                c=float(data["c"]),
+                method=str(data.get("method", "given")),
+                pixel_range=(float(pixel_range[0]), float(pixel_range[1])) if pixel_range else None,
+                covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in covariance)
+                if covariance
+                else None,
+                wavelength_rms_nm=None
+                if data.get("wavelength_rms_nm") is None
+                else float(data["wavelength_rms_nm"]),
+                details=dict(data.get("details") or {}),
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(f"not a quadratic mapping record ({exc})", source="mapping") from None
+
+    @classmethod
+    def fit(
+        cls,
+        pixel: ArrayLike,
+        wavelength_nm: ArrayLike,
+        *,
+        weights: ArrayLike | None = None,
+        method: str = "fit",
+        degree: int = 2,
+    ) -> QuadraticMapping:
+        """Weighted least-squares quadratic (or line, ``degree=1``) through ``(pixel, wavelength)`` pairs.
+
+        Needs ``degree + 1`` points; the covariance of ``(a, b, c)`` is attached when there are more.
+        """
+        p = np.asarray(pixel, dtype=np.float64)
+        lam = np.asarray(wavelength_nm, dtype=np.float64)
+        if degree not in (1, 2) or p.size < degree + 1 or p.shape != lam.shape:
+            raise EstimationError(
+                f"a degree-{degree} mapping needs ≥ {degree + 1} matched points, got {p.size}"
+            )
+        w = np.ones_like(p) if weights is None else np.asarray(weights, dtype=np.float64)
+        design = np.stack([p**2, p, np.ones_like(p)], axis=1)
+        used = design[:, 2 - degree :]
+        partial, *_ = np.linalg.lstsq(used * w[:, None], lam * w, rcond=None)
+        coef = np.concatenate([np.zeros(2 - degree), partial])
+        residual = lam - design @ coef
+        dof = p.size - (degree + 1)
+        variance = float(np.sum((w * residual) ** 2) / dof) if dof > 0 else float("nan")
+        normal = used.T @ (used * (w**2)[:, None])
+        covariance = None
+        if dof > 0:
+            covariance = np.zeros((3, 3))
+            covariance[2 - degree :, 2 - degree :] = np.linalg.pinv(normal) * variance
+        span = (float(p.min()), float(p.max()))
+        mapping = cls(
+            float(coef[0]), float(coef[1]), float(coef[2]), method=method, pixel_range=span
+        )
+        if covariance is None:
+            return mapping
+        return mapping.with_details(
+            covariance=[list(row) for row in covariance],
+            wavelength_rms_nm=wavelength_rms_from_covariance(covariance, span),
+        )
+
+
+def wavelength_rms_from_covariance(
+    covariance: ArrayLike, pixel_range: tuple[float, float]
+) -> float:
+    """RMS over ``pixel_range`` of the standard deviation of ``g(p)`` given the covariance of (a, b, c)."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    p = np.linspace(pixel_range[0], pixel_range[1], 64)
+    design = np.stack([p**2, p, np.ones_like(p)], axis=1)
+    variance = np.einsum("ij,jk,ik->i", design, cov, design)
+    return float(np.sqrt(np.mean(np.clip(variance, 0, None))))
+
+
+@dataclass(frozen=True)
+class GratingGeometry:
+    """A transmission grating in front of the camera lens, first order, normal incidence.
+
+    ``sin θ = λ/d`` with ``d = 1/grooves_per_mm``; the image of direction θ lands at
+    ``p = direct_spot_px + f_px tan θ`` with ``f_px = focal_length_mm / pixel_pitch_mm`` (camera focused
+    on the slit, far away). The slit's image is ``slit_width_mm · focal_length_mm / slit_distance_mm``
+    wide on the sensor.
+
+    Attributes
+    ----------
+    grooves_per_mm
+        Grating line density (e.g. 500 or 1000).
+    focal_length_mm
+        Lens focal length.
+    pixel_pitch_um
+        Sensor pixel pitch (for a profile in CFA-plane pixels use twice the photosite pitch).
+    direct_spot_px
+        Pixel coordinate of the direct (0th-order) spot along the dispersion direction.
+    slit_distance_mm, slit_width_mm
+        Distance slit→grating and slit width, for the slit image width (optional).
+    """
+
+    grooves_per_mm: float
+    focal_length_mm: float
+    pixel_pitch_um: float
+    direct_spot_px: float = 0.0
+    slit_distance_mm: float | None = None
+    slit_width_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("grooves_per_mm", "focal_length_mm", "pixel_pitch_um"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(
+                    f"must be a positive number, got {value}", source=f"grating.{name}"
+                )
+
+    @property
+    def focal_length_px(self) -> float:
+        return self.focal_length_mm / (self.pixel_pitch_um * 1e-3)
+
+    @property
+    def slit_image_width_px(self) -> float | None:
+        if self.slit_distance_mm is None or self.slit_width_mm is None:
+            return None
+        return (
+            self.slit_width_mm
+            * self.focal_length_mm
+            / self.slit_distance_mm
+            / (self.pixel_pitch_um * 1e-3)
+        )
+
+    def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
+        """Exact pixel of each wavelength (first order)."""
+        sine = np.asarray(wavelength_nm, dtype=np.float64) * 1e-6 * self.grooves_per_mm
+        if np.any(np.abs(sine) >= 1):
+            raise InputError(
+                "a wavelength has no first order at this groove density (λ ≥ d)", source="grating"
+            )
+        return np.asarray(
+            self.direct_spot_px + self.focal_length_px * np.tan(np.arcsin(sine)), dtype=np.float64
+        )
+
+    def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
+        """Exact wavelength at each pixel (the inverse of :meth:`pixel_at`)."""
+        offset = (np.asarray(pixel, dtype=np.float64) - self.direct_spot_px) / self.focal_length_px
+        return np.asarray(
+            np.sin(np.arctan(offset)) / (self.grooves_per_mm * 1e-6), dtype=np.float64
+        )
+
+    def quadratic(
+        self, wavelength_range_nm: tuple[float, float] = (380.0, 720.0)
+    ) -> QuadraticMapping:
+        """Least-squares quadratic approximation over the pixels of ``wavelength_range_nm``."""
+        lo, hi = self.pixel_at(np.array(wavelength_range_nm))
+        pixels = np.linspace(min(lo, hi), max(lo, hi), 256)
+        fitted = QuadraticMapping.fit(pixels, self.wavelength_nm(pixels), method="geometry")
+        return QuadraticMapping(
+            fitted.a,
+            fitted.b,
+            fitted.c,
+            method="geometry",
+            pixel_range=fitted.pixel_range,
+            details={"geometry": self.to_dict()},
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "type": "grating",
+            "grooves_per_mm": self.grooves_per_mm,
+            "focal_length_mm": self.focal_length_mm,
+            "pixel_pitch_um": self.pixel_pitch_um,
+            "direct_spot_px": self.direct_spot_px,
+            "slit_distance_mm": self.slit_distance_mm,
+            "slit_width_mm": self.slit_width_mm,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> GratingGeometry:
+        try:
+            optional = {k: data.get(k) for k in ("slit_distance_mm", "slit_width_mm")}
+            return cls(
+                grooves_per_mm=float(data["grooves_per_mm"]),
+                focal_length_mm=float(data["focal_length_mm"]),
+                pixel_pitch_um=float(data["pixel_pitch_um"]),
+                direct_spot_px=float(data.get("direct_spot_px", 0.0)),
+                **{k: None if v is None else float(v) for k, v in optional.items()},
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"not a grating geometry record ({exc})", source="grating") from None
+
+
+@dataclass(frozen=True)
+class TiltedGrating:
+    """The first order of a transmission grating, pixels measured from the 0th-order spot.
+
+    ``λ(p) = d [sin(θ + atan(p / F)) − sin θ]`` with ``d`` the groove spacing, ``F`` the focal length
+    in pixels and ``θ`` the angle of incidence on the grating (the 0th order continues at ``θ``, the
+    first order leaves at ``θ'`` with ``sin θ' − sin θ = λ/d``). ``λ(0) = 0`` exactly: the 0th order
+    is where the undiffracted light lands — the constraint an arbitrary quadratic lacks.
+    :class:`GratingGeometry` is the special case ``θ = 0`` with ``d`` and ``F`` from the rig's
+    parts; here they are fitted.
+
+    Attributes
+    ----------
+    dispersion_nm_per_px
+        ``d / F``: wavelength per pixel near the spot at normal incidence.
+    focal_length_px
+        ``F``.
+    incidence_deg
+        ``θ``.
+    """
+
+    dispersion_nm_per_px: float
+    focal_length_px: float
+    incidence_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (self.dispersion_nm_per_px > 0 and self.focal_length_px > 0):
+            raise InputError(
+                f"dispersion and focal length must be > 0, got {self.dispersion_nm_per_px}, "
+                f"{self.focal_length_px}",
+                source="mapping",
+            )
+
+    def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
+        """``λ(p)`` in nm."""
+        theta = math.radians(self.incidence_deg)
+        spacing = self.dispersion_nm_per_px * self.focal_length_px
+        angle = np.arctan(np.asarray(pixel, dtype=np.float64) / self.focal_length_px)
+        return np.asarray(spacing * (np.sin(theta + angle) - math.sin(theta)), dtype=np.float64)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "type": "tilted_grating",
+            "dispersion_nm_per_px": self.dispersion_nm_per_px,
+            "focal_length_px": self.focal_length_px,
+            "incidence_deg": self.incidence_deg,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TiltedGrating:
+        try:
+            return cls(
+                float(data["dispersion_nm_per_px"]),
+                float(data["focal_length_px"]),
+                float(data.get("incidence_deg", 0.0)),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"not a tilted-grating record ({exc})", source="mapping") from None
+
+
+def mapping_from_dict(data: Mapping[str, Any]) -> QuadraticMapping | GratingGeometry:
+    """Read either mapping type from its ``to_dict`` form."""
+    kind = data.get("type")
+    if kind == "quadratic":
+        return QuadraticMapping.from_dict(data)
+    if kind == "grating":
+        return GratingGeometry.from_dict(data)
+    raise InputError(
+        f"unknown mapping type {kind!r}; expected 'quadratic' or 'grating'", source="mapping"
+    )

@@ -1,0 +1,143 @@
+"""The result every estimation method returns: :class:`EstimateResult`."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import InputError
+from calib.core.mapping import GratingGeometry, QuadraticMapping
+from calib.core.spectra import MultiSpectrum, Spectrum
+
+
+def json_safe(value: Any) -> Any:
+    """Plain JSON data: arrays → lists, NaN/inf → ``None``, mappings/sequences recursively."""
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, np.generic):
+        return json_safe(value.item())
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    if hasattr(value, "to_dict"):
+        return json_safe(value.to_dict())
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    return str(value)
+
+
+def physical_curves(sensitivity: Any) -> FloatArray:
+    """Sensitivity curves ``(f, 3)`` as delivered: negative values (a solve's ringing at a dim grid
+    edge) set to zero, then the maximum over all channels 1."""
+    curves = np.clip(np.asarray(sensitivity, dtype=np.float64), 0.0, None)
+    peak = float(curves.max())
+    return curves / peak if peak > 0 else curves
+
+
+def _frozen(array: Any, shape: tuple[int, ...], name: str) -> FloatArray:
+    out = np.array(array, dtype=np.float64)
+    if out.shape != shape:
+        raise InputError(f"expected shape {shape}, got {out.shape}", source=name)
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class EstimateResult:
+    """A camera sensitivity estimate and everything needed to judge it.
+
+    Attributes
+    ----------
+    method
+        Registry name of the method (``"makabe2025"`` …).
+    wavelength_nm
+        Shape ``(f,)``: the working grid.
+    sensitivity
+        Shape ``(f, 3)``: R, G, B, maximum over all channels = 1.
+    sensitivity_sigma
+        Shape ``(f, 3)`` standard deviation (same scale), or ``None`` when not estimated.
+    grating_efficiency, grating_efficiency_sigma
+        Shape ``(f,)``: relative first-order efficiency (maximum 1) and its σ, or ``None``.
+    mapping
+        The pixel→wavelength mapping used (with how it was found and its error estimate), or ``None``
+        for methods that need none.
+    residuals
+        Fit residuals (e.g. ``"profile"`` ``(n, 3)`` measured − model, ``"direct"`` ``(3,)``).
+    diagnostics
+        Condition numbers, the basis used, timings (s), per-step details.
+    """
+
+    method: str
+    wavelength_nm: FloatArray
+    sensitivity: FloatArray
+    sensitivity_sigma: FloatArray | None = None
+    grating_efficiency: FloatArray | None = None
+    grating_efficiency_sigma: FloatArray | None = None
+    mapping: QuadraticMapping | GratingGeometry | None = None
+    residuals: Mapping[str, Any] = field(default_factory=dict)
+    diagnostics: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        wavelength = np.array(self.wavelength_nm, dtype=np.float64)
+        f = wavelength.size
+        object.__setattr__(self, "wavelength_nm", _frozen(wavelength, (f,), "wavelength_nm"))
+        object.__setattr__(self, "sensitivity", _frozen(self.sensitivity, (f, 3), "sensitivity"))
+        for name, shape in (
+            ("sensitivity_sigma", (f, 3)),
+            ("grating_efficiency", (f,)),
+            ("grating_efficiency_sigma", (f,)),
+        ):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, _frozen(value, shape, name))
+
+    @property
+    def mapping_re_estimate(self) -> float | None:
+        """Estimated mapping RE (Supp. Eq. 1) from the mapping fit's covariance, when known."""
+        if not isinstance(self.mapping, QuadraticMapping) or self.mapping.wavelength_rms_nm is None:
+            return None
+        span = float(self.wavelength_nm[-1] - self.wavelength_nm[0])
+        return self.mapping.wavelength_rms_nm / span
+
+    def physical_sensitivity(self) -> FloatArray:
+        """What ``sensitivity.csv`` holds, and what RE is scored on (:func:`physical_curves`)."""
+        return physical_curves(self.sensitivity)
+
+    def sensitivity_spectrum(self, name: str = "estimated sensitivity") -> MultiSpectrum:
+        return MultiSpectrum(self.wavelength_nm, np.clip(self.sensitivity, 0, None), name=name)
+
+    def efficiency_spectrum(self) -> Spectrum | None:
+        if self.grating_efficiency is None or not np.all(np.isfinite(self.grating_efficiency)):
+            return None
+        return Spectrum(
+            self.wavelength_nm, np.clip(self.grating_efficiency, 0, None), name="grating efficiency"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-safe data (lists, floats, strings; NaN → ``None``)."""
+        return {
+            "method": self.method,
+            "wavelength_nm": json_safe(self.wavelength_nm),
+            "sensitivity": {
+                channel: json_safe(self.sensitivity[:, k]) for k, channel in enumerate("rgb")
+            },
+            "sensitivity_sigma": None
+            if self.sensitivity_sigma is None
+            else {
+                channel: json_safe(self.sensitivity_sigma[:, k]) for k, channel in enumerate("rgb")
+            },
+            "grating_efficiency": json_safe(self.grating_efficiency),
+            "grating_efficiency_sigma": json_safe(self.grating_efficiency_sigma),
+            "mapping": json_safe(self.mapping),
+            "mapping_re_estimate": json_safe(self.mapping_re_estimate),
+            "residuals": json_safe(self.residuals),
+            "diagnostics": json_safe(self.diagnostics),
+        }

@@ -1,0 +1,220 @@
+"""Which lamps to buy: rank lamp subsets by how well they pin the grating efficiency down.
+
+For a set of lamps the multi-lamp solve (:mod:`calib.methods.multilamp`) determines ``η⁻¹ = B_η c_η`` from
+the direct equations ``Σ_λ p_lc(λ) η⁻¹(λ) = m_dir,lc``. Before any capture they can be predicted for a
+typical camera (the camera prior's mean ``ŝ``) behind a flat grating: ``p_lc = e_l ŝ_c`` (integrated
+over the grid's hats), each equation with the noise of the synthetic protocol (a fraction of the
+brightest direct channel, plus the model floor). A subset is scored by
+
+* the condition number of its whitened data rows alone (∞ when it has fewer equations than ``c_η``
+  has terms: the camera prior must decide the rest),
+* the predicted σ of ``η``'s shape (relative, RMS over the grid) from the posterior with the camera prior at
+  its natural weight, which is what the estimate's own uncertainty will be for a camera like ``ŝ``;
+* the same σ from the direct equations alone (the Cramér–Rao bound: what the lamps pin down by
+  themselves, for a camera the prior does not describe; ∞ when they cannot).
+
+Subsets are ranked by the predicted σ; :func:`best_additions` says which extra lamp (e.g. a red,
+green or blue LED) lowers it most.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import InputError
+from calib.core.spectra import Spectrum
+from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS, LampData, direct_rows, prior_rows
+from calib.methods.prior_solve import ResponseEstimate
+from calib.model.bases import CameraPrior, fourier_basis
+from calib.model.forward import lamp_operators
+
+#: Direct noise of the prediction (fraction of the brightest channel), as in ``calib synthetic``.
+DEFAULT_NOISE_FRACTION = 0.01
+#: Most lamps :func:`rank_subsets` enumerates every subset of (2^n − 1 subsets).
+MAX_LAMPS = 12
+#: Above this condition number the direct equations alone leave a direction of ``η`` open.
+MAX_CONDITION = 1e10
+
+
+@dataclass(frozen=True)
+class SubsetScore:
+    """One lamp subset's predicted quality.
+
+    Attributes
+    ----------
+    lamps
+        The lamps' names.
+    condition
+        Condition number of the whitened direct equations alone (``inf`` when underdetermined).
+    efficiency_sigma
+        Predicted RMS relative σ of ``η`` over the grid (0.01 = 1 %), camera prior included.
+    data_sigma
+        The same from the direct equations alone (``inf`` when they leave a direction open).
+    """
+
+    lamps: tuple[str, ...]
+    condition: float
+    efficiency_sigma: float
+    data_sigma: float = math.inf
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "lamps": list(self.lamps),
+            "condition": self.condition if math.isfinite(self.condition) else None,
+            "efficiency_sigma": self.efficiency_sigma,
+            "data_sigma": self.data_sigma if math.isfinite(self.data_sigma) else None,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class _Planner:
+    """What every subset's score shares: the efficiency basis, the prior's rows, the noise."""
+
+    prior: CameraPrior
+    efficiency_basis: FloatArray
+    penalty: FloatArray
+    noise_fraction: float
+
+    @classmethod
+    def of(cls, prior: CameraPrior, noise_fraction: float, efficiency_terms: int) -> _Planner:
+        if noise_fraction <= 0 or not math.isfinite(noise_fraction):
+            raise InputError(
+                f"the noise fraction must be > 0, got {noise_fraction}", source="noise"
+            )
+        efficiency_basis = fourier_basis(prior.grid, efficiency_terms)
+        size = prior.grid.size
+        flat = np.ones(size)
+        typical = ResponseEstimate(prior.mean, np.zeros((3, size, size)), flat, 0)
+        penalty = prior_rows(typical, prior, efficiency_basis, flat, 1.0)
+        return cls(prior, efficiency_basis, penalty, noise_fraction)
+
+    def rows(self, lamp: Spectrum) -> FloatArray:
+        """The lamp's whitened direct equations on ``c_η`` for a camera like ``ŝ`` behind a flat
+        grating, weighted as the solve weights them (:func:`calib.methods.multilamp.direct_rows`): ``(3, b)``."""
+        size = self.prior.grid.size
+        direct_row = lamp_operators(lamp, self.prior.grid).direct_row
+        direct = direct_row @ self.prior.mean
+        predicted = LampData(
+            lamp.name,
+            direct_row,
+            ResponseEstimate(self.prior.mean, np.zeros((3, size, size)), np.ones(size, bool), 0),
+            direct,
+            np.full(3, self.noise_fraction * float(np.max(direct))),
+        )
+        nodes, _ = direct_rows([predicted], np.ones(size))
+        return np.asarray(nodes @ self.efficiency_basis, dtype=np.float64)
+
+    def score(self, rows: Mapping[str, FloatArray], names: Sequence[str]) -> SubsetScore:
+        return score_subset(
+            [rows[name] for name in names], names, self.penalty, self.efficiency_basis
+        )
+
+
+def _unique_names(lamps: Sequence[Spectrum]) -> list[str]:
+    names = [lamp.name for lamp in lamps]
+    if len(set(names)) != len(names):
+        raise InputError(f"lamp names must be unique, got {names}", source="lamps")
+    return names
+
+
+def score_subset(
+    rows: Sequence[FloatArray],
+    names: Sequence[str],
+    penalty: FloatArray,
+    efficiency_basis: FloatArray,
+) -> SubsetScore:
+    """Score a subset from its lamps' whitened rows and the prior's rows (see module docstring)."""
+    data = np.vstack(rows)
+    b_eta = data.shape[1]
+    singular = np.linalg.svd(data, compute_uv=False)
+    condition = (
+        float(singular[0] / max(singular[-1], 1e-300)) if data.shape[0] >= b_eta else math.inf
+    )
+    padded = np.hstack([data, np.zeros((data.shape[0], 1))])
+    posterior = np.linalg.pinv(padded.T @ padded + penalty.T @ penalty, hermitian=True)
+    data_sigma = (
+        _shape_sigma(np.linalg.inv(data.T @ data), efficiency_basis)
+        if condition < MAX_CONDITION
+        else math.inf
+    )
+    return SubsetScore(
+        tuple(names),
+        condition,
+        _shape_sigma(posterior[:b_eta, :b_eta], efficiency_basis),
+        data_sigma,
+    )
+
+
+def _shape_sigma(covariance: NDArray[np.floating], efficiency_basis: FloatArray) -> float:
+    """RMS σ of ``η``'s shape over the grid from the covariance of ``c_η``.
+
+    η's overall scale does not matter (results are normalised): the σ of its shape, η⁻¹ minus its
+    mean. A flat grating has η⁻¹ = 1 in this gauge: the relative σ of η⁻¹ is that of η.
+    """
+    shape = efficiency_basis - efficiency_basis.mean(axis=0)
+    variance = np.einsum("ij,jk,ik->i", shape, covariance, shape)
+    return float(np.sqrt(np.mean(np.clip(variance, 0.0, None))))
+
+
+def rank_subsets(
+    lamps: Sequence[Spectrum],
+    prior: CameraPrior,
+    *,
+    noise_fraction: float = DEFAULT_NOISE_FRACTION,
+    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+) -> list[SubsetScore]:
+    """Every subset of ``lamps``, best (smallest predicted σ) first.
+
+    Raises
+    ------
+    InputError
+        No lamps, too many, duplicate names, or a spectrum that does not cover the prior's grid.
+    """
+    if not lamps:
+        raise InputError("no lamps given", source="lamps")
+    if len(lamps) > MAX_LAMPS:
+        raise InputError(
+            f"{len(lamps)} lamps give {2 ** len(lamps) - 1} subsets; give at most {MAX_LAMPS}",
+            source="lamps",
+        )
+    names = _unique_names(lamps)
+    planner = _Planner.of(prior, noise_fraction, efficiency_terms)
+    rows = {lamp.name: planner.rows(lamp) for lamp in lamps}
+    scores = [
+        planner.score(rows, subset)
+        for size in range(1, len(lamps) + 1)
+        for subset in itertools.combinations(names, size)
+    ]
+    return sorted(scores, key=lambda score: (score.efficiency_sigma, len(score.lamps)))
+
+
+def best_additions(
+    lamps: Sequence[Spectrum],
+    candidates: Sequence[Spectrum],
+    prior: CameraPrior,
+    *,
+    noise_fraction: float = DEFAULT_NOISE_FRACTION,
+    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+) -> list[SubsetScore]:
+    """All of ``lamps`` plus each candidate in turn, best first (the first is the one to buy).
+
+    Candidates named like one of ``lamps`` are already there and are not tried again.
+    """
+    names = _unique_names(lamps)
+    planner = _Planner.of(prior, noise_fraction, efficiency_terms)
+    rows = {lamp.name: planner.rows(lamp) for lamp in lamps}
+    scored = []
+    for candidate in (c for c in candidates if c.name not in rows):
+        scored.append(
+            planner.score(
+                {**rows, candidate.name: planner.rows(candidate)}, [*names, candidate.name]
+            )
+        )
+    return sorted(scored, key=lambda score: score.efficiency_sigma)

@@ -1,0 +1,427 @@
+"""Direct RGB and first-order profiles of an HDR image in a fixed geometry.
+
+The direct RGB is the background-subtracted radiance summed over the spot's aperture (times the plane
+pitch squared: DN/s integrated over sensor pixels). The profile is the mean across the central part of
+the band in bins of ``bin_px`` along it; every channel's samples are placed at their true sensor
+position (R, G and B sit at different places of the 2×2 cell), binned, and resampled linearly to one
+common ``pixel`` axis, the distance from the spot centre. Standard deviations are propagated from the
+HDR variance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calib.core.arrays import FloatArray
+from calib.core.observations import LampKind, LampObservation
+from calib.core.spectra import Spectrum
+from calib.image.hdr import HdrImage
+from calib.image.profiles.geometry import (
+    CHANNEL_NAMES,
+    DetectionError,
+    DiffractionGeometry,
+    OrderBand,
+    Side,
+    image_source,
+    rectangle_window,
+    sample_positions,
+    to_uv,
+)
+
+
+@dataclass(frozen=True, eq=False)
+class Extraction:
+    """Direct RGB and first-order profile of one image in one geometry.
+
+    Parameters
+    ----------
+    side
+        Which first order the profile comes from (``+1`` = the stronger).
+    pixel
+        Shape ``(n,)``: distance of each profile sample from the spot centre along the order, in
+        sensor pixels, increasing away from the spot.
+    profile
+        Shape ``(n, 3)``: mean radiance across the band (R, G, B), background subtracted, DN/s.
+    profile_sigma
+        Shape ``(n, 3)``: its standard deviation (neighbouring samples share HDR samples through
+        the resampling to the common axis, so their errors are mildly correlated).
+    direct_rgb, direct_sigma
+        Shape ``(3,)``: the direct spot's radiance summed over its aperture in DN/s · pixel², and its
+        standard deviation; ``None`` when the spot was saturated and that was allowed.
+    background_rgb, direct_background_rgb
+        Shape ``(3,)``: per-sample background subtracted from the profile / the direct spot, DN/s.
+    samples_per_pixel
+        Shape ``(n, 3)``: HDR plane samples averaged into each profile sample (before resampling).
+    line_spread
+        The direct spot's cross-section along the dispersion direction at the profile's sampling
+        (odd length, sum 1): the camera's line spread; ``None`` when the spot was saturated.
+    geometry
+        The geometry used.
+    source
+        The image's frames, for messages and records.
+    """
+
+    side: Side
+    pixel: FloatArray
+    profile: FloatArray
+    profile_sigma: FloatArray
+    direct_rgb: FloatArray | None
+    direct_sigma: FloatArray | None
+    background_rgb: FloatArray
+    direct_background_rgb: FloatArray
+    samples_per_pixel: NDArray[np.int64]
+    geometry: DiffractionGeometry
+    source: str = "image"
+    frames: tuple[str, ...] = field(default_factory=tuple)
+    line_spread: FloatArray | None = None
+
+    def to_observation(
+        self,
+        name: str,
+        spectrum: Spectrum,
+        *,
+        kind: LampKind = "other",
+        metadata: Mapping[str, object] | None = None,
+    ) -> LampObservation:
+        """The estimators' input for this lamp: spectrum, profile, direct RGB and their sigmas.
+
+        Parameters
+        ----------
+        name
+            Lamp name.
+        spectrum
+            The lamp's measured spectrum.
+        kind
+            Lamp kind (fluorescent lamps serve the peak-based mapping).
+        metadata
+            Extra entries for the observation's metadata (the geometry, side, frames and
+            backgrounds are recorded anyway).
+        """
+        record: dict[str, object] = {
+            "geometry": self.geometry.to_dict(),
+            "side": self.side,
+            "frames": list(self.frames),
+            "background_rgb": self.background_rgb.tolist(),
+            "direct_background_rgb": self.direct_background_rgb.tolist(),
+            "pixel_unit": "sensor pixels from the direct spot centre",
+            "radiance_unit": "DN/s (direct: DN/s summed over sensor pixels)",
+        }
+        record.update(metadata or {})
+        return LampObservation(
+            name=name,
+            spectrum=spectrum,
+            pixel=self.pixel,
+            profile=self.profile,
+            direct_rgb=self.direct_rgb,
+            profile_sigma=self.profile_sigma,
+            direct_sigma=self.direct_sigma,
+            kind=kind,
+            metadata=record,
+            line_spread=self.line_spread,
+            pixel_origin="direct_spot",
+        )
+
+
+def _channel_uv(
+    image: HdrImage,
+    channel: int,
+    window: tuple[slice, slice],
+    centre: tuple[float, float],
+    angle_deg: float,
+) -> tuple[FloatArray, FloatArray]:
+    y, x = sample_positions(image, channel, *window)
+    return to_uv(x, y, centre, angle_deg)
+
+
+def _strip_background(
+    image: HdrImage,
+    centre: tuple[float, float],
+    angle_deg: float,
+    u_range: tuple[float, float],
+    v_inner: tuple[float, float],
+    width: float,
+) -> FloatArray:
+    """Per-channel median of the strips ``v ∈ [v_inner[0] − width, v_inner[0]]`` and
+    ``[v_inner[1], v_inner[1] + width]`` over ``u_range`` (zero where no strip is on the sensor)."""
+    background = np.zeros(3)
+    window = rectangle_window(
+        image, centre, angle_deg, u_range, (v_inner[0] - width, v_inner[1] + width)
+    )
+    if window is None:
+        return background
+    for channel in range(3):
+        u, v = _channel_uv(image, channel, window, centre, angle_deg)
+        in_strip = (u >= u_range[0]) & (u <= u_range[1])
+        in_strip &= ((v >= v_inner[0] - width) & (v <= v_inner[0])) | (
+            (v >= v_inner[1]) & (v <= v_inner[1] + width)
+        )
+        values = image.radiance[channel][window][in_strip & ~image.saturated[channel][window]]
+        values = values[np.isfinite(values)]
+        if values.size:
+            background[channel] = float(np.median(values))
+    return background
+
+
+def _binned_profile(
+    image: HdrImage,
+    channel: int,
+    geometry: DiffractionGeometry,
+    band: OrderBand,
+    first_edge: float,
+    n_bins: int,
+    window: tuple[slice, slice],
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Per bin: sum of values, sum of positions, count, sum of variances, saturated count."""
+    u, v = _channel_uv(image, channel, window, geometry.spot_centre_px, band.angle_deg)
+    bins = np.floor((u - first_edge) / geometry.bin_px).astype(np.int64)
+    inside = (
+        (np.abs(v - band.centre_offset_px) <= band.half_width_px) & (bins >= 0) & (bins < n_bins)
+    )
+    index = bins[inside]
+    values = image.radiance[channel][window][inside].astype(np.float64)
+    variances = image.variance[channel][window][inside].astype(np.float64)
+    saturated = image.saturated[channel][window][inside]
+
+    def total(weights: FloatArray | None) -> FloatArray:
+        return np.bincount(index, weights, minlength=n_bins).astype(np.float64)
+
+    usable = ~saturated & np.isfinite(values) & np.isfinite(variances)
+    return (
+        total(np.where(usable, values, 0.0)),
+        total(np.where(usable, u[inside], 0.0)),
+        total(usable.astype(np.float64)),
+        total(np.where(usable, variances, 0.0)),
+        total(saturated.astype(np.float64)),
+    )
+
+
+def _resample(
+    centres: FloatArray, means: FloatArray, variances: FloatArray, grid: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Linear interpolation of bin means (at their mean positions) onto ``grid``, with variance."""
+    upper = np.clip(np.searchsorted(centres, grid), 1, centres.size - 1)
+    lower = upper - 1
+    fraction = (grid - centres[lower]) / (centres[upper] - centres[lower])
+    values = (1 - fraction) * means[lower] + fraction * means[upper]
+    variance = (1 - fraction) ** 2 * variances[lower] + fraction**2 * variances[upper]
+    return values, variance
+
+
+def _extract_profile(
+    image: HdrImage,
+    geometry: DiffractionGeometry,
+    band: OrderBand,
+    background: FloatArray,
+    source: str,
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64]]:
+    step = geometry.bin_px
+    n_samples = math.floor((band.stop_px - band.start_px) / step)
+    if n_samples < 2:
+        raise DetectionError(
+            f"the band (side {band.side:+d}) is shorter than two {step} px samples",
+            reason="no_band",
+            source=source,
+        )
+    first_edge = band.start_px - step  # one extra bin on each side for the resampling
+    n_bins = n_samples + 2
+    grid: FloatArray = band.start_px + (np.arange(n_samples, dtype=np.float64) + 0.5) * step
+    window = rectangle_window(
+        image,
+        geometry.spot_centre_px,
+        band.angle_deg,
+        (first_edge, first_edge + n_bins * step),
+        (band.centre_offset_px - band.half_width_px, band.centre_offset_px + band.half_width_px),
+    )
+    if window is None:
+        raise DetectionError(
+            "the band is outside the image", reason="band_off_frame", source=source
+        )
+    profile = np.empty((n_samples, 3))
+    variance = np.empty((n_samples, 3))
+    counts = np.empty((n_samples, 3), dtype=np.int64)
+    for channel in range(3):
+        sums, positions, count, variance_sums, saturated = _binned_profile(
+            image, channel, geometry, band, first_edge, n_bins, window
+        )
+        if saturated[1:-1].any():
+            hit = np.flatnonzero(saturated[1:-1])
+            raise DetectionError(
+                f"the first-order band (side {band.side:+d}) is saturated in every frame of the "
+                f"bracket at {grid[hit[0]]:.0f}–{grid[hit[-1]]:.0f} px from the spot "
+                f"({CHANNEL_NAMES[channel]} channel); add a shorter exposure",
+                reason="saturated",
+                source=source,
+            )
+        filled = count > 0
+        if filled.sum() < 2 or not (filled[0] or filled[1]) or not (filled[-1] or filled[-2]):
+            raise DetectionError(
+                f"the band (side {band.side:+d}) has no {CHANNEL_NAMES[channel]} samples at its "
+                "ends; it leaves the frame",
+                reason="band_off_frame",
+                source=source,
+            )
+        mean_positions = np.asarray(positions[filled] / count[filled], dtype=np.float64)
+        means = np.asarray(sums[filled] / count[filled] - background[channel], dtype=np.float64)
+        mean_variances = np.asarray(variance_sums[filled] / count[filled] ** 2, dtype=np.float64)
+        profile[:, channel], variance[:, channel] = _resample(
+            mean_positions, means, mean_variances, grid
+        )
+        counts[:, channel] = count[1:-1].astype(np.int64)
+    return grid, profile, np.sqrt(variance), counts
+
+
+def _extract_direct(
+    image: HdrImage,
+    geometry: DiffractionGeometry,
+    allow_saturated: bool,
+    source: str,
+    subtract_background: bool,
+) -> tuple[FloatArray | None, FloatArray | None, FloatArray, FloatArray | None]:
+    """Direct RGB, its σ, the spot's background and its line spread (see :func:`_line_spread`)."""
+    centre = geometry.spot_centre_px
+    angle = geometry.primary.angle_deg
+    along, across = geometry.spot_half_size_px
+    background = np.zeros(3)
+    if subtract_background:
+        gap = geometry.background_gap_px
+        background = _strip_background(
+            image,
+            centre,
+            angle,
+            (-along, along),
+            (-across - gap, across + gap),
+            geometry.background_width_px,
+        )
+    window = rectangle_window(image, centre, angle, (-along, along), (-across, across))
+    if window is None:
+        raise DetectionError(
+            "the direct spot is outside the image", reason="no_spot", source=source
+        )
+    area = image.pixel_pitch_px**2
+    direct = np.empty(3)
+    variance = np.empty(3)
+    positions: list[FloatArray] = []
+    weights: list[FloatArray] = []
+    for channel in range(3):
+        u, v = _channel_uv(image, channel, window, centre, angle)
+        inside = (np.abs(u) <= along) & (np.abs(v) <= across)
+        if image.saturated[channel][window][inside].any():
+            if allow_saturated:
+                return None, None, background, None
+            raise DetectionError(
+                f"the direct spot is saturated in every frame of the bracket "
+                f"({CHANNEL_NAMES[channel]} channel); add a shorter exposure",
+                reason="saturated",
+                source=source,
+            )
+        values = image.radiance[channel][window][inside].astype(np.float64)
+        direct[channel] = area * float((values - background[channel]).sum())
+        variance[channel] = area**2 * float(
+            image.variance[channel][window][inside].astype(np.float64).sum()
+        )
+        positions.append(u[inside])
+        weights.append((values - background[channel]) / max(float(direct[channel]), 1e-300))
+    spread = _line_spread(
+        np.concatenate(positions), np.concatenate(weights), geometry.bin_px, along
+    )
+    return direct, np.sqrt(variance), background, spread
+
+
+def _line_spread(
+    along_px: FloatArray, weights: FloatArray, step_px: float, half_size_px: float
+) -> FloatArray | None:
+    """The spot's cross-section along the dispersion direction in profile samples (odd, sum 1).
+
+    The 0th order is the slit's image through the same optics as the first order, so its
+    cross-section is the camera's line spread at the profile's sampling. Samples below 1 % of the
+    peak at the tails are cut; ``None`` if nothing is left.
+    """
+    half = max(1, math.ceil(half_size_px / step_px))
+    edges = (np.arange(-half, half + 2, dtype=np.float64) - 0.5) * step_px
+    histogram, _ = np.histogram(along_px, bins=edges, weights=weights)
+    histogram = np.clip(histogram, 0.0, None)
+    if float(histogram.max()) <= 0:
+        return None
+    significant = np.flatnonzero(histogram >= 0.01 * float(histogram.max()))
+    reach = int(max(abs(significant[0] - half), abs(significant[-1] - half)))
+    kernel = histogram[half - reach : half + reach + 1]
+    return np.asarray(kernel / kernel.sum(), dtype=np.float64)
+
+
+def extract(
+    image: HdrImage,
+    geometry: DiffractionGeometry,
+    *,
+    side: Side = 1,
+    subtract_background: bool = True,
+    allow_saturated_direct: bool = False,
+) -> Extraction:
+    """Direct RGB and first-order profile of ``image`` in a fixed ``geometry``.
+
+    Parameters
+    ----------
+    image
+        Any lamp's merged bracket, taken in the set-up the geometry was detected in.
+    geometry
+        From :func:`detect_geometry` (typically on the brightest broadband lamp).
+    side
+        Which first order to extract: ``+1`` (the stronger) or ``-1``.
+    subtract_background
+        Subtract the per-channel median of strips beside the band / the spot.
+    allow_saturated_direct
+        Return ``direct_rgb = None`` instead of raising when the spot is saturated in every frame.
+
+    Returns
+    -------
+    Extraction
+
+    Raises
+    ------
+    DetectionError
+        Image size differs from the geometry's; the band or spot is saturated in every frame; the
+        band leaves the frame; the order is not in the geometry.
+    """
+    source = image_source(image)
+    if image.sensor_shape_px != geometry.sensor_shape_px:
+        raise DetectionError(
+            f"image covers {image.sensor_shape_px} sensor pixels, the geometry was detected on "
+            f"{geometry.sensor_shape_px}; use a geometry from the same camera set-up",
+            reason="mismatch",
+            source=source,
+        )
+    band = geometry.order(side)
+    background = np.zeros(3)
+    if subtract_background:
+        inner = band.band_half_width_px + geometry.background_gap_px
+        background = _strip_background(
+            image,
+            geometry.spot_centre_px,
+            band.angle_deg,
+            (band.start_px, band.stop_px),
+            (band.centre_offset_px - inner, band.centre_offset_px + inner),
+            geometry.background_width_px,
+        )
+    pixel, profile, sigma, counts = _extract_profile(image, geometry, band, background, source)
+    direct, direct_sigma, direct_background, line_spread = _extract_direct(
+        image, geometry, allow_saturated_direct, source, subtract_background
+    )
+    return Extraction(
+        side=side,
+        pixel=pixel,
+        profile=profile,
+        profile_sigma=sigma,
+        direct_rgb=direct,
+        direct_sigma=direct_sigma,
+        background_rgb=background,
+        direct_background_rgb=direct_background,
+        samples_per_pixel=counts,
+        geometry=geometry,
+        source=source,
+        frames=tuple(str(record.path) for record in image.frames),
+        line_spread=line_spread,
+    )

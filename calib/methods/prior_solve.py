@@ -1,0 +1,330 @@
+"""The joint estimate of sensitivity and grating efficiency with a Gaussian camera prior (closed form).
+
+Makabe et al. (2025) write each channel's sensitivity in a 7-vector basis learnt from measured cameras
+and the inverse grating efficiency ``η⁻¹ = B_η c_η`` in a Fourier basis (Eq. 12). A camera outside the
+basis' span cannot be represented, and the fit bends η to compensate. Here the profile decides the
+sensitivity's shape at every grid wavelength, and the measured cameras enter as a Gaussian prior
+``s_c ~ N(α ŝ_c, α² Σ_c)`` (:class:`calib.model.bases.CameraPrior`) that settles only what one lamp cannot:
+the smooth factor shared by ``η`` and ``s``.
+
+1. Response. The profile is linear in the response ``q_c = η s_c`` on the grid: ``m_c = K q_c`` with
+   ``K[p, i] = ∫_pixel e φ_i dλ`` (the measured lamp at 1 nm; pixels wholly inside the grid). Weighted
+   least squares with a slight second-difference penalty gives ``q̂_c`` and its covariance ``C_c``.
+2. Efficiency. ``s_c = q_c ⊙ η⁻¹``: ``c_η`` and the scale ``α`` minimise
+   ``Σ_c ‖V_c^{-1/2} (diag(q̂_c) B_η c_η − α ŝ_c)‖²`` subject to the direct measurement
+   ``d · (q̂_c ⊙ B_η c_η) = m_dir,c``, with ``V_c = α̂² Σ_c + diag(η̂⁻¹) C_c diag(η̂⁻¹)`` (prior spread
+   plus the response's noise); two passes refine ``α̂, η̂⁻¹``. A linear problem: closed form.
+3. Sensitivity. With ``η⁻¹`` fixed, the data's ``s_c ~ N(η̂⁻¹ ⊙ q̂_c, diag(η̂⁻¹) C_c diag(η̂⁻¹))`` and the
+   prior are combined (product of Gaussians) and conditioned on the direct measurement; the posterior
+   covariance, plus the propagated uncertainty of ``c_η``, gives the sensitivity's σ.
+
+Noise is handled where it enters: in step 1 the measured profile is only ever on the right-hand side
+(no errors-in-variables bias), and the paper's division by ``e`` never happens (``K`` carries the lamp).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+from calib.model.bases import CameraPrior, whitening
+from calib.model.forward import WavelengthMapping, apply_blur
+from calib.model.linear_model import LampSystem
+
+#: Second-difference penalty of the response fit, relative to the data's scale (stabilises grid
+#: nodes that few pixels see without shaping the curve).
+RESPONSE_SMOOTHNESS = 1e-4
+#: Passes of step 2 (re-weighting by the previous η̂⁻¹ and α̂).
+EFFICIENCY_PASSES = 3
+
+
+@dataclass(frozen=True, eq=False)
+class PriorSolution:
+    """The solve's results.
+
+    Attributes
+    ----------
+    sensitivity, sensitivity_sigma
+        Shape ``(f, 3)`` in the direct measurement's units (not normalised), and its posterior σ.
+    inverse_efficiency, inverse_efficiency_sigma
+        ``η⁻¹`` on the grid ``(f,)`` (same gauge) and its σ.
+    response
+        ``q̂`` ``(f, 3)``: the fitted ``η s_c``.
+    scale
+        ``α``: the camera's scale relative to the prior mean.
+    used_pixels
+        Boolean mask ``(n,)`` of the profile pixels that entered.
+    info
+        Condition numbers, χ² values, passes.
+    """
+
+    sensitivity: FloatArray
+    sensitivity_sigma: FloatArray
+    inverse_efficiency: FloatArray
+    inverse_efficiency_sigma: FloatArray
+    response: FloatArray
+    scale: float
+    used_pixels: FloatArray
+    info: dict[str, Any]
+
+
+def pixels_inside(edges_nm: FloatArray, start_nm: float, stop_nm: float) -> FloatArray:
+    """Pixels whose whole wavelength interval lies in ``[start_nm, stop_nm]``: mask ``(n,)``."""
+    low = np.minimum(edges_nm[:-1], edges_nm[1:])
+    high = np.maximum(edges_nm[:-1], edges_nm[1:])
+    return np.asarray((low >= start_nm - 1e-9) & (high <= stop_nm + 1e-9))
+
+
+def _second_differences(size: int) -> FloatArray:
+    matrix = np.zeros((size - 2, size))
+    for row in range(size - 2):
+        matrix[row, row : row + 3] = (1.0, -2.0, 1.0)
+    return matrix
+
+
+@dataclass(frozen=True, eq=False)
+class ResponseEstimate:
+    """Step 1: ``q̂`` ``(f, 3)``, its covariance ``(3, f, f)`` and the pixels used ``(n,)``."""
+
+    response: FloatArray
+    covariance: FloatArray
+    used_pixels: FloatArray
+    chi2: float
+
+
+def fit_response(system: LampSystem, mapping: WavelengthMapping) -> ResponseEstimate:
+    """Step 1: weighted least squares for ``q_c = η s_c`` on the grid from the profile."""
+    grid = system.operators.grid
+    size = grid.size
+    edges_nm = mapping.wavelength_nm(system.edges_px)
+    inside = pixels_inside(edges_nm, grid.start_nm, grid.stop_nm)
+    if int(inside.sum()) < size:
+        raise EstimationError(
+            f"only {int(inside.sum())} profile pixels map inside {grid.start_nm:g}–{grid.stop_nm:g} "
+            f"nm; need at least {size} (one per grid wavelength)"
+        )
+    pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)[inside]
+    profile = system.observation.profile[inside]
+    weights = 1.0 / system.profile_sigma[inside]
+    difference = _second_differences(size)
+    penalty = difference.T @ difference
+    responses = np.empty((size, 3))
+    covariances = np.empty((3, size, size))
+    chi2 = 0.0
+    for c in range(3):
+        weighted = pixel_matrix * weights[:, c][:, None]
+        normal = weighted.T @ weighted
+        normal = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
+        covariances[c] = np.linalg.pinv(normal, hermitian=True)
+        responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
+        chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
+    return ResponseEstimate(responses, covariances, inside, chi2)
+
+
+def solve_with_prior(
+    system: LampSystem,
+    mapping: WavelengthMapping,
+    prior: CameraPrior,
+    efficiency_basis: FloatArray,
+    *,
+    companions: Sequence[LampSystem] = (),
+) -> PriorSolution:
+    """MAP estimate of sensitivity and η⁻¹ (see the module docstring).
+
+    Parameters
+    ----------
+    system
+        The reference lamp (profile, σ, spectrum operators, blur), with a direct measurement: the
+        sensitivity's shape comes from its response.
+    mapping
+        Pixel→wavelength mapping (shared by every lamp: one geometry).
+    prior
+        Camera prior on the system's grid.
+    efficiency_basis
+        ``B_η`` of shape ``(f, b_η)``.
+    companions
+        Other lamps with a direct measurement (e.g. the fluorescent lamp used for the mapping). Each
+        adds three equations on ``η⁻¹`` alone, ``d_l · (q̂_l ⊙ η⁻¹) = m_dir,l`` — its own response
+        against its own direct signal, so its brightness cancels.
+
+    Raises
+    ------
+    InputError
+        Without a direct measurement, or a prior on another grid.
+    EstimationError
+        When too few pixels fall inside the grid or the data are degenerate.
+    """
+    observation = system.observation
+    grid = system.operators.grid
+    if prior.grid != grid:
+        raise InputError(f"the camera prior is on grid {prior.grid}, not {grid}", source="prior")
+    if observation.direct_rgb is None:
+        raise InputError(
+            "the solve needs the direct (0th-order) RGB", source=f"lamp {observation.name!r}"
+        )
+    direct = np.asarray(observation.direct_rgb, dtype=np.float64)
+    direct_row = system.operators.direct_row
+    mean = prior.mean
+    size = grid.size
+    b_eta = efficiency_basis.shape[1]
+    estimate = fit_response(system, mapping)
+    response, response_cov = estimate.response, estimate.covariance
+
+    # Step 2: c_η and α under the prior, constrained by the direct measurement.
+    predicted = float(np.sum(direct_row @ response))
+    if predicted <= 0 or float(np.sum(direct)) <= 0:
+        raise EstimationError("the direct signal or the fitted first-order response is zero")
+    inverse_hat = np.full(size, float(np.sum(direct)) / predicted)
+    scale_hat = float(np.sum(direct)) / max(float(np.sum(direct_row @ mean)), 1e-300)
+    n_unknowns = b_eta + 1
+    constraint = np.zeros((3, n_unknowns))
+    for c in range(3):
+        constraint[c, :b_eta] = (direct_row * response[:, c]) @ efficiency_basis
+    # Companions' equations are rows weighted by their own noise (their responses are noisy where
+    # their lamp is dim — between a fluorescent lamp's lines — so they must not be exact).
+    companion_terms = []
+    for companion in companions:
+        if companion.observation.direct_rgb is None:
+            raise InputError(
+                "a companion lamp needs a direct measurement",
+                source=f"lamp {companion.observation.name!r}",
+            )
+        fitted = fit_response(companion, mapping)
+        companion_terms.append(
+            (
+                companion.operators.direct_row,
+                fitted,
+                np.asarray(companion.observation.direct_rgb, dtype=np.float64),
+                companion.observation.direct_sigma,
+            )
+        )
+    solution = np.zeros(n_unknowns)
+    rows = np.zeros((0, n_unknowns))
+    for _ in range(EFFICIENCY_PASSES):
+        blocks = []
+        for c in range(3):
+            spread = scale_hat**2 * prior.covariance[c] + (
+                inverse_hat[:, None] * response_cov[c] * inverse_hat[None, :]
+            )
+            whitening_factor = whitening(spread)
+            block = np.zeros((size, n_unknowns))
+            block[:, :b_eta] = whitening_factor @ (response[:, c][:, None] * efficiency_basis)
+            block[:, -1] = -(whitening_factor @ mean[:, c])
+            blocks.append(block)
+        for companion_row, fitted, companion_direct, companion_sigma in companion_terms:
+            for c in range(3):
+                weighted = companion_row * fitted.response[:, c]
+                spread = companion_row * inverse_hat
+                variance = float(spread @ fitted.covariance[c] @ spread)
+                if companion_sigma is not None:
+                    variance += float(companion_sigma[c]) ** 2
+                # A floor: the lamp's spectrum and the model are known to ~0.1 %, not better.
+                variance += (1e-3 * companion_direct[c]) ** 2
+                block = np.zeros((1, n_unknowns))
+                block[0, :b_eta] = (weighted @ efficiency_basis) / np.sqrt(variance)
+                blocks.append(block)
+        target_rows = np.concatenate(
+            [np.zeros(3 * size)]
+            + [
+                companion_direct
+                / np.sqrt(
+                    np.array(
+                        [
+                            float(
+                                (companion_row * inverse_hat)
+                                @ fitted.covariance[c]
+                                @ (companion_row * inverse_hat)
+                            )
+                            + (0.0 if companion_sigma is None else float(companion_sigma[c]) ** 2)
+                            + (1e-3 * companion_direct[c]) ** 2
+                            for c in range(3)
+                        ]
+                    )
+                )
+                for companion_row, fitted, companion_direct, companion_sigma in companion_terms
+            ]
+        )
+        rows = np.vstack(blocks)
+        solution = _constrained_lstsq(rows, constraint, direct, target_rows)
+        inverse_hat = efficiency_basis @ solution[:b_eta]
+        scale_hat = abs(float(solution[-1])) or scale_hat
+    c_eta_cov = _constrained_covariance(rows, constraint)[:b_eta, :b_eta]
+    inverse_efficiency = efficiency_basis @ solution[:b_eta]
+    inverse_sigma = np.sqrt(
+        np.clip(np.einsum("ij,jk,ik->i", efficiency_basis, c_eta_cov, efficiency_basis), 0, None)
+    )
+
+    # Step 3: combine the data's s = η⁻¹ ⊙ q̂ with the prior, conditioned on the direct signal.
+    sensitivity = np.empty((size, 3))
+    sensitivity_sigma = np.empty((size, 3))
+    for c in range(3):
+        data_mean = inverse_efficiency * response[:, c]
+        data_cov = inverse_efficiency[:, None] * response_cov[c] * inverse_efficiency[None, :]
+        prior_cov = scale_hat**2 * prior.covariance[c]
+        prior_mean = scale_hat * mean[:, c]
+        data_precision = np.linalg.pinv(data_cov, hermitian=True)
+        prior_precision = np.linalg.inv(prior_cov)
+        posterior_cov = np.linalg.inv(data_precision + prior_precision)
+        posterior_mean = posterior_cov @ (data_precision @ data_mean + prior_precision @ prior_mean)
+        gain = posterior_cov @ direct_row / float(direct_row @ posterior_cov @ direct_row)
+        sensitivity[:, c] = posterior_mean + gain * (direct[c] - float(direct_row @ posterior_mean))
+        conditioned = posterior_cov - np.outer(gain, direct_row @ posterior_cov)
+        # η's own uncertainty moves s_c along q̂_c ⊙ B_η (a smooth common factor).
+        jacobian = response[:, c][:, None] * efficiency_basis
+        total = conditioned + jacobian @ c_eta_cov @ jacobian.T
+        sensitivity_sigma[:, c] = np.sqrt(np.clip(np.diag(total), 0.0, None))
+
+    singular = np.linalg.svd(rows, compute_uv=False)
+    return PriorSolution(
+        sensitivity=sensitivity,
+        sensitivity_sigma=sensitivity_sigma,
+        inverse_efficiency=inverse_efficiency,
+        inverse_efficiency_sigma=inverse_sigma,
+        response=response,
+        scale=float(solution[-1]),
+        used_pixels=estimate.used_pixels,
+        info={
+            "pixels_used": int(estimate.used_pixels.sum()),
+            "response_chi2": estimate.chi2,
+            "prior_chi2": float(np.sum((rows @ solution) ** 2)),
+            "efficiency_condition": float(singular[0] / max(singular[-1], 1e-300)),
+            "prior_shrinkage": prior.shrinkage.tolist(),
+            "camera_scale": float(solution[-1]),
+            "efficiency_lamps": [system.observation.name]
+            + [companion.observation.name for companion in companions],
+        },
+    )
+
+
+def _null_space(constraint: FloatArray) -> FloatArray:
+    _, singular, vt = np.linalg.svd(constraint)
+    rank = int(np.sum(singular > singular[0] * 1e-12))
+    return np.asarray(vt[rank:].T, dtype=np.float64)
+
+
+def _constrained_lstsq(
+    rows: FloatArray,
+    constraint: FloatArray,
+    target: FloatArray,
+    row_target: FloatArray | None = None,
+) -> FloatArray:
+    """``argmin ‖rows x − row_target‖²`` s.t. ``constraint x = target`` (through its null space)."""
+    particular, *_ = np.linalg.lstsq(constraint, target, rcond=None)
+    null_space = _null_space(constraint)
+    offset = rows @ particular - (0.0 if row_target is None else row_target)
+    coefficients, *_ = np.linalg.lstsq(rows @ null_space, -offset, rcond=None)
+    return np.asarray(particular + null_space @ coefficients, dtype=np.float64)
+
+
+def _constrained_covariance(rows: FloatArray, constraint: FloatArray) -> FloatArray:
+    """Covariance of that solution for unit-variance rows and an exact constraint."""
+    null_space = _null_space(constraint)
+    reduced = rows @ null_space
+    return np.asarray(
+        null_space @ np.linalg.pinv(reduced.T @ reduced) @ null_space.T, dtype=np.float64
+    )

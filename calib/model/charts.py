@@ -1,0 +1,361 @@
+"""Colour charts for the chart-based methods: patch spectra, the linear model of a patch, rendering.
+
+A patch ``j`` lit by ``e(λ)`` gives the camera ``m_jc = ∫ e(λ) ρ_j(λ) s_c(λ) dλ``. With the camera
+linear between the working grid's nodes (``s_c = Σ_i φ_i s_ci``, hat functions ``φ_i``), this is
+``m_j = A s`` with the *stimulus rows* ``A[j, i] = ∫ e ρ_j φ_i dλ`` (:func:`stimulus_rows`),
+integrated on a 1 nm axis exactly like :mod:`calib.model.forward` integrates lamp spectra — so a camera
+given on the grid, rendered with :func:`render_chart`, is reproduced to rounding error.
+
+Charts provided:
+
+``colorchecker``     the 24 ColorChecker Classic reflectances shipped with colour-science
+                     (``SDS_COLOURCHECKERS``; BabelColor's average by default), as in Makabe et al.
+                     (2025) §4 for the "CC" and "Exif+CC" baselines.
+``gaussian_filters`` N transmissive band filters with Gaussian transmittance whose centres tile the
+                     range evenly (Makabe et al. 2025, Supp. G / Fig. S6: "shifted Gaussian
+                     distributions, ensuring that the visible wavelength range was always fully
+                     covered by the N filters"), the synthetic stand-in for Toivonen & Klami's
+                     transmissive patches.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import InputError
+from calib.core.observations import ChartKind, ChartObservation
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
+from calib.model.forward import FINE_STEP_NM, fine_axis, hat_matrix
+
+#: The ColorChecker data used unless another is named (colour-science key).
+DEFAULT_COLORCHECKER = "BabelColor Average"
+
+#: FWHM of each Gaussian filter as a multiple of the spacing of the centres (neighbours cross at
+#: half maximum, so the sum of the set is flat to a few per cent inside the range).
+GAUSSIAN_FWHM_PER_SPACING = 1.0
+
+_FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+
+
+def _patch_set(sds: object, channel_names: tuple[str, ...], name: str) -> MultiSpectrum:
+    """colour-science spectral distributions as one :class:`MultiSpectrum` on their common range.
+
+    Sets whose members are sampled differently are interpolated to the finest step of the set.
+    """
+    members = list(sds.values())  # type: ignore[attr-defined]
+    axes = [np.asarray(sd.wavelengths, dtype=np.float64) for sd in members]
+    if all(axis.shape == axes[0].shape and np.allclose(axis, axes[0]) for axis in axes):
+        wavelength = axes[0]
+        values = np.stack([np.asarray(sd.values, dtype=np.float64) for sd in members], axis=1)
+    else:
+        step = min(float(np.min(np.diff(axis))) for axis in axes)
+        start = max(float(axis[0]) for axis in axes)
+        stop = min(float(axis[-1]) for axis in axes)
+        wavelength = np.arange(start, stop + step / 2, step)
+        values = np.stack(
+            [
+                np.interp(wavelength, axis, np.asarray(sd.values, dtype=np.float64))
+                for axis, sd in zip(axes, members, strict=True)
+            ],
+            axis=1,
+        )
+    return MultiSpectrum(wavelength, values, channels=channel_names, name=name, negative="clip")
+
+
+def colorchecker(name: str = DEFAULT_COLORCHECKER) -> MultiSpectrum:
+    """The 24 ColorChecker reflectances of colour-science's ``SDS_COLOURCHECKERS[name]``.
+
+    Parameters
+    ----------
+    name
+        A key of ``colour.SDS_COLOURCHECKERS`` (``"BabelColor Average"``, ``"ColorChecker N Ohta"``,
+        ``"ISO 17321-1"`` …).
+
+    Returns
+    -------
+    MultiSpectrum
+        Reflectance factors (0–1), one channel per patch in the chart's reading order (dark skin,
+        light skin, blue sky, …, black), on the data's own wavelengths.
+    """
+    import colour  # deferred: importing colour costs ~1 s
+
+    if name not in colour.SDS_COLOURCHECKERS:
+        raise InputError(
+            f"colour-science has no colour checker {name!r}; choose from "
+            f"{', '.join(sorted(colour.SDS_COLOURCHECKERS))}",
+            source="chart",
+        )
+    patches = colour.SDS_COLOURCHECKERS[name]
+    return _patch_set(patches, tuple(patches), f"ColorChecker ({name})")
+
+
+def gaussian_filters(
+    n_filters: int,
+    *,
+    range_nm: tuple[float, float] = (DEFAULT_GRID.start_nm, DEFAULT_GRID.stop_nm),
+    peak_transmittance: float = 1.0,
+    margin_nm: float = 50.0,
+    step_nm: float = FINE_STEP_NM,
+) -> MultiSpectrum:
+    """``n_filters`` Gaussian band-pass transmittances tiling ``range_nm`` (Makabe et al. Supp. G).
+
+    Filter ``k`` is centred at ``λ_lo + (k + ½)·Δ`` with ``Δ = (λ_hi − λ_lo)/n`` and has a FWHM of
+    ``Δ`` (:data:`GAUSSIAN_FWHM_PER_SPACING`), so neighbours cross at half maximum and together the
+    filters cover the whole range. One filter is a single broad band over the range.
+
+    Parameters
+    ----------
+    n_filters
+        Number of filters (≥ 1).
+    range_nm
+        ``(λ_lo, λ_hi)`` the filters tile.
+    peak_transmittance
+        Transmittance at each filter's centre (0 < t ≤ 1).
+    margin_nm, step_nm
+        The curves are sampled every ``step_nm`` from ``λ_lo − margin`` to ``λ_hi + margin``.
+
+    Returns
+    -------
+    MultiSpectrum
+        Transmittances, channels ``"gauss 1 (425 nm)"`` …
+    """
+    if n_filters < 1:
+        raise InputError(f"need at least one filter, got {n_filters}", source="n_filters")
+    low, high = range_nm
+    if not high > low:
+        raise InputError(f"range {range_nm} must increase", source="range_nm")
+    if not 0 < peak_transmittance <= 1:
+        raise InputError(
+            f"peak transmittance must be in (0, 1], got {peak_transmittance}",
+            source="peak_transmittance",
+        )
+    spacing = (high - low) / n_filters
+    centres = low + (np.arange(n_filters) + 0.5) * spacing
+    sigma = GAUSSIAN_FWHM_PER_SPACING * spacing / _FWHM_PER_SIGMA
+    axis = np.arange(low - margin_nm, high + margin_nm + step_nm / 2, step_nm)
+    values = peak_transmittance * np.exp(-0.5 * ((axis[:, None] - centres[None, :]) / sigma) ** 2)
+    names = tuple(f"gauss {k + 1} ({centre:.0f} nm)" for k, centre in enumerate(centres))
+    return MultiSpectrum(axis, values, channels=names, name=f"{n_filters} Gaussian filters")
+
+
+def _radiance_on_axis(
+    patch_spectra: MultiSpectrum, illuminant: Spectrum | None, axis_nm: FloatArray
+) -> FloatArray:
+    """``e(λ) ρ_j(λ)`` on ``axis_nm``, shape ``(n_fine, n_patches)`` (zero outside the data)."""
+    patches = np.stack(
+        [
+            np.interp(axis_nm, patch_spectra.wavelength_nm, column, left=0.0, right=0.0)
+            for column in patch_spectra.values.T
+        ],
+        axis=1,
+    )
+    if illuminant is None:
+        return patches
+    return np.asarray(illuminant.at(axis_nm)[:, None] * patches, dtype=np.float64)
+
+
+def _check_coverage(
+    patch_spectra: MultiSpectrum, illuminant: Spectrum | None, grid: WavelengthGrid, label: str
+) -> None:
+    lo, hi = patch_spectra.range_nm
+    if lo > grid.start_nm + 1e-6 or hi < grid.stop_nm - 1e-6:
+        raise InputError(
+            f"patch spectra cover {lo:g}–{hi:g} nm but the grid needs {grid.start_nm:g}–"
+            f"{grid.stop_nm:g} nm; give wider data or a narrower grid",
+            source=label,
+        )
+    if illuminant is not None and not illuminant.covers(grid):
+        lo, hi = illuminant.range_nm
+        raise InputError(
+            f"the illuminant {illuminant.name!r} covers {lo:g}–{hi:g} nm but the grid needs "
+            f"{grid.start_nm:g}–{grid.stop_nm:g} nm",
+            source=label,
+        )
+
+
+def _trapezoid_weights(axis_nm: FloatArray) -> FloatArray:
+    step = float(axis_nm[1] - axis_nm[0])
+    weights = np.full(axis_nm.size, step)
+    weights[[0, -1]] = 0.5 * step
+    return weights
+
+
+def radiance_rows(
+    patch_spectra: MultiSpectrum,
+    illuminant: Spectrum | None,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    *,
+    fine_step_nm: float = FINE_STEP_NM,
+    label: str = "chart",
+) -> FloatArray:
+    """Stimulus rows ``A[j, i] = ∫ e ρ_j φ_i dλ`` for patch spectra under an illuminant.
+
+    Parameters
+    ----------
+    patch_spectra
+        Reflectances/transmittances (or radiances with ``illuminant=None``), one channel per patch.
+    illuminant
+        The light, or ``None``.
+    grid
+        Working grid (``f`` nodes); the hats are cut at its ends (no light modelled outside).
+    fine_step_nm
+        Integration step.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(n_patches, f)``: ``patch RGB = A @ sensitivity`` for a sensitivity ``(f, 3)``.
+    """
+    _check_coverage(patch_spectra, illuminant, grid, label)
+    axis = fine_axis(grid.start_nm, grid.stop_nm, fine_step_nm)
+    radiance = _radiance_on_axis(patch_spectra, illuminant, axis)
+    weighted = radiance * _trapezoid_weights(axis)[:, None]
+    return np.asarray(weighted.T @ hat_matrix(grid, axis), dtype=np.float64)
+
+
+def stimulus_rows(
+    chart: ChartObservation,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    *,
+    fine_step_nm: float = FINE_STEP_NM,
+) -> FloatArray:
+    """:func:`radiance_rows` of a :class:`ChartObservation`, shape ``(n_patches, f)``."""
+    return radiance_rows(
+        chart.patch_spectra,
+        chart.illuminant,
+        grid,
+        fine_step_nm=fine_step_nm,
+        label=f"chart {chart.name!r}",
+    )
+
+
+def render_chart(
+    patch_spectra: MultiSpectrum,
+    illuminant: Spectrum | None,
+    camera: MultiSpectrum,
+    *,
+    name: str | None = None,
+    kind: ChartKind = "reflective",
+    noise_fraction: float = 0.0,
+    rng: np.random.Generator | None = None,
+    gain: float = 1.0,
+    fine_step_nm: float = FINE_STEP_NM,
+) -> ChartObservation:
+    """The patch RGBs a camera records of a chart: ``∫ e ρ_j s_c dλ`` on a 1 nm axis, plus noise.
+
+    Parameters
+    ----------
+    patch_spectra, illuminant
+        As for :func:`radiance_rows`.
+    camera
+        Sensitivity with 3 channels (linear between its samples, zero outside them).
+    name, kind
+        Stored on the observation.
+    noise_fraction
+        Gaussian noise of σ = ``noise_fraction × max(patch RGB)`` on every value (the same
+        convention as :class:`calib.model.forward.PeakFractionNoise` for profiles); 0 = noise-free.
+    rng
+        Required when ``noise_fraction > 0``: the seeded generator that draws the noise.
+    gain
+        Overall exposure factor.
+
+    Returns
+    -------
+    ChartObservation
+        With ``patch_sigma`` when noise was added; ``metadata["clean_rgb"]`` holds the noise-free
+        values.
+    """
+    if noise_fraction < 0 or not math.isfinite(noise_fraction):
+        raise InputError(f"noise fraction must be >= 0, got {noise_fraction}", source="noise")
+    if noise_fraction > 0 and rng is None:
+        raise InputError("noise needs an explicit seeded numpy Generator (rng=)", source="rng")
+    if camera.values.ndim != 2 or camera.values.shape[1] != 3:
+        raise InputError(
+            f"camera needs 3 channels, has {camera.values.shape[1]}", source=camera.name
+        )
+    lo = max(float(camera.wavelength_nm[0]), patch_spectra.range_nm[0])
+    hi = min(float(camera.wavelength_nm[-1]), patch_spectra.range_nm[1])
+    if illuminant is not None:
+        lo, hi = max(lo, illuminant.range_nm[0]), min(hi, illuminant.range_nm[1])
+    axis = fine_axis(lo, hi, fine_step_nm)
+    radiance = _radiance_on_axis(patch_spectra, illuminant, axis)
+    sensitivity = np.stack(
+        [
+            np.interp(axis, camera.wavelength_nm, camera.values[:, k], left=0.0, right=0.0)
+            for k in range(3)
+        ],
+        axis=1,
+    )
+    clean = gain * (radiance * _trapezoid_weights(axis)[:, None]).T @ sensitivity
+    rgb, sigma = clean, None
+    if noise_fraction > 0 and rng is not None:
+        sigma = np.full(clean.shape, noise_fraction * float(np.max(clean)))
+        rgb = clean + rng.standard_normal(clean.shape) * sigma
+    label = name or (
+        patch_spectra.name
+        if illuminant is None
+        else f"{patch_spectra.name} under {illuminant.name}"
+    )
+    return ChartObservation(
+        name=label,
+        patch_rgb=rgb,
+        patch_spectra=patch_spectra,
+        illuminant=illuminant,
+        patch_sigma=sigma,
+        kind=kind,
+        metadata={"rendered": True, "camera": camera.name, "clean_rgb": clean},
+    )
+
+
+def cie_test_colour_samples(name: str = "CIE 1995") -> MultiSpectrum:
+    """The CIE test colour samples of colour-science (``colour.quality.datasets.SDS_TCS[name]``).
+
+    ``"CIE 1995"`` has the 14 samples of CIE 13.3 (colour rendering index); ``"CIE 2024"`` 15.
+    """
+    from colour.quality.datasets import SDS_TCS
+
+    if name not in SDS_TCS:
+        raise InputError(
+            f"colour-science has no test colour samples {name!r}; choose from "
+            f"{', '.join(sorted(SDS_TCS))}",
+            source="chart",
+        )
+    samples = SDS_TCS[name]
+    return _patch_set(
+        samples, tuple(f"{name} {key}" for key in samples), f"test colour samples ({name})"
+    )
+
+
+def combined(sets: list[MultiSpectrum], grid: WavelengthGrid = DEFAULT_GRID) -> MultiSpectrum:
+    """Several patch sets as one, on a 1 nm axis spanning ``grid`` (linear interpolation).
+
+    Raises
+    ------
+    InputError
+        When a set does not cover the grid.
+    """
+    if not sets:
+        raise InputError("no patch sets to combine", source="chart")
+    axis = fine_axis(grid.start_nm, grid.stop_nm, FINE_STEP_NM)
+    columns: list[FloatArray] = []
+    names: list[str] = []
+    for patches in sets:
+        lo, hi = patches.range_nm
+        if lo > grid.start_nm + 1e-6 or hi < grid.stop_nm - 1e-6:
+            raise InputError(
+                f"covers {lo:g}–{hi:g} nm, the grid needs {grid.start_nm:g}–{grid.stop_nm:g} nm",
+                source=patches.name,
+            )
+        columns.extend(
+            np.interp(axis, patches.wavelength_nm, column) for column in patches.values.T
+        )
+        names.extend(patches.channels)
+    return MultiSpectrum(
+        axis,
+        np.stack(columns, axis=1),
+        channels=tuple(names),
+        name=" + ".join(patches.name for patches in sets),
+    )

@@ -1,0 +1,529 @@
+"""The one pipeline from files to an estimate, shared by ``calib estimate`` and ``rig estimate``.
+
+1. Check every input before decoding anything: lamp names, kinds, spectra (readable, cover the grid),
+   profile CSVs, the grating file.
+2. RAW lamps: merge each bracket (streamed, darks subtracted), detect the geometry once on the
+   brightest broadband lamp and extract every lamp with it (:mod:`calib.pipeline.brackets`).
+   Profile lamps: read the profile CSV (the same :class:`~calib.core.observations.LampObservation` follows).
+3. Estimate: with a direct (0th-order) measurement, :func:`calib.estimate` with the chosen method;
+   without one, the known-grating solve (:mod:`calib.methods.known_grating`) with the grating file
+   given, or a flat grating and a warning.
+4. Record what produced it (:class:`~calib.pipeline.provenance.Provenance`): input hashes, software,
+   command line, camera, warnings.
+
+Writing the files is :func:`calib.pipeline.run.run_offline`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calib.core.blas import one_blas_thread
+from calib.core.errors import InputError
+from calib.core.grating_file import GratingEfficiency, read_grating_file
+from calib.core.mapping import GratingGeometry, QuadraticMapping
+from calib.core.observations import LampObservation
+from calib.core.result import EstimateResult
+from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
+from calib.image.raw import read_raw_metadata
+from calib.methods import ESTIMATION_METHODS, default_camera_basis, estimate
+from calib.methods.known_grating import estimate_with_known_grating
+from calib.model.bases import CameraBasis
+from calib.pipeline.brackets import BracketProfiles, bracket_profiles
+from calib.pipeline.inputs import (
+    LampImages,
+    LampInput,
+    LampProfile,
+    ProfileTable,
+    load_spectrum,
+    read_profile_csv,
+)
+from calib.pipeline.progress import NoProgress, OfflineProgress
+from calib.pipeline.provenance import FileHasher, InputFile, Provenance
+
+__all__ = [
+    "OfflineEstimate",
+    "OfflineSettings",
+    "estimate_offline",
+]
+
+
+@dataclass(frozen=True)
+class OfflineSettings:
+    """How to estimate.
+
+    Parameters
+    ----------
+    method
+        Estimation method for lamps with a direct measurement (see :func:`calib.estimate`).
+    method_options
+        Further keyword options of that method (e.g. ``{"weight_rule": "typicality"}``).
+    grid
+        Working wavelength grid.
+    mapping_lamp
+        The lamp the pixel→wavelength mapping is found with (default: the estimator's choice).
+    data_dir
+        Camera data directory for the basis (default: ``$SPECTRAL_RIG_DATA`` or the user cache;
+        the offline colour-science basis when none is found).
+    basis
+        A camera basis to use instead (on ``grid``).
+    grating
+        A grating efficiency (file or object) for lamps without a direct measurement.
+    use_region
+        Merge RAW frames over a region of interest: ``None`` decides by frame size.
+    command_line
+        The command as typed, recorded in the result.
+    warnings, notes
+        The caller's own warnings and notes (an incomplete session …), recorded with the result.
+    """
+
+    method: str = "makabe2025"
+    method_options: Mapping[str, Any] = field(default_factory=dict)
+    grid: WavelengthGrid = DEFAULT_GRID
+    mapping_lamp: str | None = None
+    data_dir: Path | None = None
+    basis: CameraBasis | None = None
+    grating: Path | GratingEfficiency | None = None
+    use_region: bool | None = None
+    command_line: tuple[str, ...] | None = None
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class OfflineEstimate:
+    """An estimate with everything needed to write and judge it.
+
+    Attributes
+    ----------
+    result
+        The estimator's result.
+    observations
+        The lamps as the estimator saw them (profiles, direct RGB, spectra).
+    profiles
+        The RAW part (geometry, extractions, merged images), or ``None`` for profile input.
+    provenance
+        Inputs with hashes, software, command line, camera, warnings, notes.
+    grating
+        The grating efficiency used (known-grating solve), or ``None``.
+    timings
+        Wall time per stage (s).
+    """
+
+    result: EstimateResult
+    observations: tuple[LampObservation, ...]
+    profiles: BracketProfiles | None
+    provenance: Provenance
+    grating: GratingEfficiency | None = None
+    timings: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        return self.provenance.warnings
+
+
+@dataclass
+class _Checked:
+    """Inputs after the up-front checks."""
+
+    spectra: dict[str, Spectrum]
+    profiles: dict[str, ProfileTable]
+    grating: GratingEfficiency | None
+    warnings: list[str]
+
+
+def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Checked:
+    if not lamps:
+        raise InputError("no lamps given; give at least one --lamp", source="lamps")
+    names = [lamp.name for lamp in lamps]
+    for name in names:
+        if not name.strip():
+            raise InputError("a lamp name is empty", source="--lamp")
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise InputError(f"lamp {duplicates[0]!r} is given twice", source="--lamp")
+    if settings.method.lower() not in ESTIMATION_METHODS:
+        raise InputError(
+            f"unknown method {settings.method!r}; available: {', '.join(sorted(ESTIMATION_METHODS))}",
+            source="--method",
+        )
+    if settings.mapping_lamp is not None and settings.mapping_lamp not in names:
+        raise InputError(
+            f"no lamp named {settings.mapping_lamp!r}; lamps are {', '.join(names)}",
+            source="--mapping-lamp",
+        )
+    with_images = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
+    if with_images and len(with_images) != len(lamps):
+        raise InputError(
+            "give every lamp as RAW images or every lamp as a profile: a profile's pixel axis is "
+            "not the images' (distance from the direct spot in sensor pixels)",
+            source="lamps",
+        )
+    for lamp in with_images:
+        if not lamp.images:
+            raise InputError("no images", source=f"lamp {lamp.name!r}")
+        if lamp.exposure_s is not None and len(lamp.exposure_s) != len(lamp.images):
+            raise InputError(
+                f"{len(lamp.exposure_s)} exposure times for {len(lamp.images)} images; give one "
+                "per image, in the same order",
+                source=f"lamp {lamp.name!r} --exposure",
+            )
+        if lamp.dark_exposure_s is not None and len(lamp.dark_exposure_s) != len(lamp.darks):
+            raise InputError(
+                f"{len(lamp.dark_exposure_s)} exposure times for {len(lamp.darks)} dark frames",
+                source=f"lamp {lamp.name!r} --dark-exposure",
+            )
+        for path in (*lamp.images, *lamp.darks):
+            if not path.is_file():
+                raise InputError(
+                    "file not found" if not path.exists() else "not a file", source=str(path)
+                )
+    warnings: list[str] = []
+    spectra: dict[str, Spectrum] = {}
+    for given in lamps:
+        loaded = load_spectrum(given.spectrum, given.name, settings.grid)
+        spectra[given.name] = loaded.spectrum
+        warnings.extend(loaded.warnings)
+    profiles = {
+        lamp.name: read_profile_csv(lamp.profile) for lamp in lamps if isinstance(lamp, LampProfile)
+    }
+    axes = {table.in_wavelength for table in profiles.values()}
+    if len(axes) > 1:
+        raise InputError(
+            "some profiles are in pixels and some in wavelength_nm; give all lamps on one axis",
+            source="--profile",
+        )
+    grating = settings.grating
+    if isinstance(grating, Path):
+        grating = read_grating_file(grating)
+    if grating is not None and not grating.covers(settings.grid):
+        lo, hi = grating.range_nm
+        raise InputError(
+            f"the grating efficiency covers {lo:g}–{hi:g} nm, the grid needs "
+            f"{settings.grid.start_nm:g}–{settings.grid.stop_nm:g} nm",
+            source=grating.source,
+        )
+    return _Checked(spectra, profiles, grating, warnings)
+
+
+def _profile_observation(
+    lamp: LampProfile, spectrum: Spectrum, table: ProfileTable
+) -> LampObservation:
+    return LampObservation(
+        name=lamp.name,
+        spectrum=spectrum,
+        pixel=table.axis,
+        profile=table.profile,
+        direct_rgb=None if lamp.direct_rgb is None else np.array(lamp.direct_rgb),
+        profile_sigma=table.profile_sigma,
+        kind=lamp.kind,
+        profile_wavelength_nm=table.axis if table.in_wavelength else None,
+        metadata={
+            "profile_file": str(lamp.profile),
+            "axis": "wavelength_nm" if table.in_wavelength else "pixel",
+        },
+    )
+
+
+def import_estimation() -> None:
+    """Import what the merge's noise fit, the detection and the estimate use (scipy, the estimator:
+    about a second), e.g. in a thread while the first frames decode (LibRaw releases the GIL)."""
+    import scipy.ndimage
+    import scipy.optimize
+    import scipy.signal  # noqa: F401
+
+    import calib.methods.makabe2025  # noqa: F401
+
+
+def _image_lamp_record(lamp: LampImages, extraction_frames: Sequence[Any]) -> dict[str, Any]:
+    return {
+        "name": lamp.name,
+        "kind": lamp.kind,
+        "input": "images",
+        "spectrum": str(lamp.spectrum) if isinstance(lamp.spectrum, Path) else lamp.spectrum.name,
+        "frames": [
+            {
+                "path": str(record.path),
+                "exposure_s": record.exposure_s,
+                "dark_frames": [str(dark) for dark in record.dark_paths],
+                "saturated_fraction": list(record.saturated_fraction),
+            }
+            for record in extraction_frames
+        ],
+    }
+
+
+def _camera_record(profiles: BracketProfiles) -> dict[str, Any]:
+    image = profiles.extractions[0].merged.image
+    first = image.frames[0].path if image.frames else None
+    make = model = None
+    if first is not None:
+        metadata = read_raw_metadata(first, exposure_s=image.frames[0].exposure_s)
+        make, model = metadata.make, metadata.model
+    return {
+        "camera": image.camera,
+        "make": make,
+        "model": model,
+        "cfa_pattern": image.cfa_pattern,
+        "iso": image.iso,
+        "f_number": image.f_number,
+        "sensor_shape_px": list(image.full_sensor_shape_px or image.sensor_shape_px),
+        "noise_model": None
+        if image.noise_model is None
+        else {
+            "gain_dn_per_electron": image.noise_model.gain_dn_per_electron,
+            "read_noise_dn": list(image.noise_model.read_noise_dn),
+            "source": image.noise_model.source,
+        },
+        "first_frame": None if first is None else str(first),
+    }
+
+
+@one_blas_thread
+def estimate_offline(
+    lamps: Sequence[LampInput],
+    settings: OfflineSettings = OfflineSettings(),
+    *,
+    progress: OfflineProgress | None = None,
+    known_inputs: Sequence[InputFile] = (),
+    on_profiles: Callable[[BracketProfiles], object] | None = None,
+) -> OfflineEstimate:
+    """Run the pipeline from files to an estimate (see the module docstring).
+
+    Parameters
+    ----------
+    lamps
+        :class:`LampImages` (all lamps) or :class:`LampProfile` (all lamps).
+    settings
+        Method, grid, mapping lamp, basis, grating, region of interest, command line.
+    progress
+        Receives frame and stage events.
+    known_inputs
+        Files already hashed and verified by the caller (a session): not read again for the
+        provenance.
+    on_profiles
+        Called with the RAW part's result as soon as the profiles are extracted (before the
+        estimate), e.g. to draw the geometry while the estimate runs.
+
+    Returns
+    -------
+    OfflineEstimate
+
+    Raises
+    ------
+    InputError
+        Any unusable input (named: file, field, lamp), including a direct spot saturated in every
+        frame when no grating file allows estimating without it.
+    EstimationError
+        The estimator cannot produce a trustworthy result.
+    """
+    report = progress or NoProgress()
+    timings: dict[str, float] = {}
+    started = time.perf_counter()
+    checked = _check_inputs(lamps, settings)
+    warnings = [*settings.warnings, *checked.warnings]
+    notes = list(settings.notes)
+    timings["checks_s"] = time.perf_counter() - started
+    known = {record.path for record in known_inputs}
+    image_lamps = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
+    # RAW files are hashed once decoded, while the estimate (one thread) leaves a core idle
+    with FileHasher(paused=bool(image_lamps)) as hasher:
+        for record in known_inputs:
+            hasher.add_known(record)
+        for lamp in lamps:
+            if isinstance(lamp, LampImages):
+                for path in lamp.images:
+                    if str(path) not in known:
+                        hasher.add(path, "frame", lamp.name)
+                for path in lamp.darks:
+                    if str(path) not in known:
+                        hasher.add(path, "dark", lamp.name)
+            else:
+                hasher.add(lamp.profile, "profile", lamp.name)
+            if isinstance(lamp.spectrum, Path) and str(lamp.spectrum) not in known:
+                hasher.add(lamp.spectrum, "spectrum", lamp.name)
+        if isinstance(settings.grating, Path):
+            hasher.add(settings.grating, "grating", None)
+
+        report.start(sum(len(lamp.images) for lamp in image_lamps))
+        profiles: BracketProfiles | None = None
+        observations: list[LampObservation] = []
+        lamp_records: list[dict[str, Any]] = []
+        camera: dict[str, Any] = {}
+        step = time.perf_counter()
+        if image_lamps:
+            profiles = bracket_profiles(
+                image_lamps,
+                use_region=settings.use_region,
+                frame_done=report.frame_done,
+                stage=report.stage,
+            )
+            hasher.start()
+            if on_profiles is not None:
+                on_profiles(profiles)
+            notes.extend(profiles.notes)
+            notes.append(f"geometry detected on {profiles.geometry_lamp}")
+            for item in profiles.extractions:
+                lamp = item.merged.lamp
+                extraction = item.extraction
+                observation = replace(
+                    extraction.to_observation(
+                        lamp.name,
+                        checked.spectra[lamp.name],
+                        kind=lamp.kind,
+                        metadata={
+                            "geometry": profiles.geometry.to_dict(),
+                            "geometry_lamp": profiles.geometry_lamp,
+                        },
+                    ),
+                    spectrum_bandwidth_nm=lamp.spectrum_bandwidth_nm,
+                )
+                observations.append(observation)
+                if extraction.direct_rgb is None:
+                    warnings.append(
+                        f"lamp {lamp.name!r}: the direct spot is saturated in every frame; this "
+                        "lamp has no direct measurement (add a shorter exposure)"
+                    )
+                lamp_records.append(_image_lamp_record(lamp, item.merged.image.frames))
+            camera = _camera_record(profiles)
+            timings["profiles_s"] = time.perf_counter() - step
+        else:
+            for given in lamps:
+                assert isinstance(given, LampProfile)
+                table = checked.profiles[given.name]
+                observations.append(
+                    replace(
+                        _profile_observation(given, checked.spectra[given.name], table),
+                        spectrum_bandwidth_nm=given.spectrum_bandwidth_nm,
+                    )
+                )
+                lamp_records.append(
+                    {
+                        "name": given.name,
+                        "kind": given.kind,
+                        "input": "profile",
+                        "profile": str(given.profile),
+                        "axis": "wavelength_nm" if table.in_wavelength else "pixel",
+                        "direct_rgb": None if given.direct_rgb is None else list(given.direct_rgb),
+                        "spectrum": str(given.spectrum)
+                        if isinstance(given.spectrum, Path)
+                        else given.spectrum.name,
+                    }
+                )
+        report.stage("estimating")
+        step = time.perf_counter()
+        result, grating_used = _estimate(
+            observations,
+            settings,
+            checked,
+            image_input=bool(image_lamps),
+            warnings=warnings,
+            notes=notes,
+        )
+        timings["estimate_s"] = time.perf_counter() - step
+        inputs = hasher.results()
+    timings["total_s"] = time.perf_counter() - started
+    provenance = Provenance(
+        inputs=inputs,
+        command_line=settings.command_line,
+        lamps=tuple(lamp_records),
+        camera=camera,
+        warnings=tuple(warnings),
+        notes=tuple(notes),
+    )
+    return OfflineEstimate(
+        result=result,
+        observations=tuple(observations),
+        profiles=profiles,
+        provenance=provenance,
+        grating=grating_used,
+        timings=timings,
+    )
+
+
+def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMapping | None:
+    """The identity mapping when the profiles are already in wavelength."""
+    if not observations or observations[0].profile_wavelength_nm is None:
+        return None
+    lows = [float(obs.pixel[0]) for obs in observations]
+    highs = [float(obs.pixel[-1]) for obs in observations]
+    return QuadraticMapping(
+        0.0,
+        1.0,
+        0.0,
+        method="given: profiles in wavelength_nm",
+        pixel_range=(min(lows), max(highs)),
+    )
+
+
+def _estimate(
+    observations: Sequence[LampObservation],
+    settings: OfflineSettings,
+    checked: _Checked,
+    *,
+    image_input: bool,
+    warnings: list[str],
+    notes: list[str],
+) -> tuple[EstimateResult, GratingEfficiency | None]:
+    grid = settings.grid
+    basis = settings.basis or default_camera_basis(grid, data_dir=settings.data_dir)
+    mapping: QuadraticMapping | GratingGeometry | None = _wavelength_mapping(observations)
+    with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
+    # The grating library: multilamp through an earlier calibration's η, s = q̂ / η.
+    known_grating = settings.method.lower() == "multilamp" and checked.grating is not None
+    if known_grating or with_direct:
+        options = dict(settings.method_options)
+        if known_grating:
+            if options.pop("weight_rule", None) is not None:
+                warnings.append(
+                    "--weight-rule has no effect with a grating file: the grating efficiency is "
+                    "not estimated"
+                )
+            options["grating"] = checked.grating
+        elif checked.grating is not None:
+            notes.append(
+                f"grating file {checked.grating.source} not used: the direct measurement of "
+                f"{', '.join(with_direct)} determines the grating efficiency"
+            )
+        result = estimate(
+            observations,
+            settings.method,
+            grid=grid,
+            basis=basis,
+            mapping=mapping,
+            mapping_lamp=settings.mapping_lamp,
+            **options,
+        )
+        return result, checked.grating if known_grating else None
+    if image_input and checked.grating is None:
+        raise InputError(
+            "no lamp has a direct (0th-order) measurement: the direct spot is saturated in every "
+            "frame of every lamp; add a shorter exposure to the brackets, or give the grating's "
+            "efficiency from an earlier calibration with --grating FILE",
+            source="lamps",
+        )
+    if checked.grating is None:
+        warnings.append(
+            "no direct measurement and no --grating: a flat grating efficiency was assumed, so the "
+            "sensitivity carries the grating's own spectral efficiency as an error; measure the "
+            "direct RGB (--direct R,G,B) or give --grating FILE from an earlier calibration"
+        )
+    if settings.method.lower() != "makabe2025":
+        notes.append(
+            f"method {settings.method!r} needs a direct measurement; used the known-grating solve"
+        )
+    result = estimate_with_known_grating(
+        observations,
+        checked.grating,
+        basis=basis,
+        grid=grid,
+        mapping=mapping,
+        mapping_lamp=settings.mapping_lamp,
+    )
+    return result, checked.grating

@@ -1,0 +1,285 @@
+"""What the offline estimate is given, per lamp: RAW brackets or a 1-D profile, and a spectrum.
+
+:class:`LampImages` is a lamp seen in RAW files (a bracket, optional dark frames); :class:`LampProfile`
+is a lamp whose first-order profile was already extracted by other means (a CSV ``pixel,r,g,b`` or
+``wavelength_nm,r,g,b``, optionally with ``r_sigma,g_sigma,b_sigma``, and an optional direct RGB).
+Both name the lamp's measured spectrum: a CSV ``wavelength_nm,value`` or a :class:`Spectrum`.
+
+Everything here is checked before any RAW file is decoded, so a typo costs a second, not a minute.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import InputError, SpectrumError
+from calib.core.observations import LAMP_KINDS, LampKind
+from calib.core.spectra import Spectrum, WavelengthGrid, read_spectrum_csv, read_table
+
+#: Negative spectrum values (dark-subtraction noise) up to this fraction of the maximum are set to
+#: zero with a warning; larger ones mean a broken measurement and are refused.
+NEGATIVE_SPECTRUM_TOLERANCE = 0.05
+
+_PIXEL_COLUMNS = ("pixel", "pixels", "px", "position_px", "pixel_px")
+_WAVELENGTH_COLUMNS = ("wavelength_nm", "wavelength", "nm", "lambda_nm")
+_CHANNEL_COLUMNS = ("r", "g", "b")
+_SIGMA_COLUMNS = (("r_sigma", "sigma_r"), ("g_sigma", "sigma_g"), ("b_sigma", "sigma_b"))
+
+
+@dataclass(frozen=True)
+class LampImages:
+    """A lamp captured as RAW files.
+
+    Parameters
+    ----------
+    name
+        Lamp name (unique among the lamps).
+    kind
+        ``led``, ``fluorescent``, ``halogen``, ``narrowband`` or ``other``.
+    spectrum
+        The lamp's measured spectrum: a CSV path or a :class:`Spectrum`.
+    images
+        The bracket's RAW files.
+    darks
+        Dark frames at the bracket's exposure times (optional).
+    exposure_s
+        Exposure times overriding the files' metadata, one per image (or ``None``).
+    dark_exposure_s
+        The same for the dark frames.
+    spectrum_bandwidth_nm
+        FWHM of the spectrometer's slit function that measured ``spectrum`` (see
+        :attr:`calib.core.observations.LampObservation.spectrum_bandwidth_nm`), or ``None``.
+    """
+
+    name: str
+    kind: LampKind
+    spectrum: Path | Spectrum
+    images: tuple[Path, ...]
+    darks: tuple[Path, ...] = ()
+    exposure_s: tuple[float, ...] | None = None
+    dark_exposure_s: tuple[float, ...] | None = None
+    spectrum_bandwidth_nm: float | None = None
+
+
+@dataclass(frozen=True)
+class LampProfile:
+    """A lamp given as a 1-D first-order profile (no images).
+
+    Parameters
+    ----------
+    name, kind, spectrum
+        As for :class:`LampImages`.
+    profile
+        CSV ``pixel,r,g,b`` or ``wavelength_nm,r,g,b`` (header required; optional
+        ``r_sigma,g_sigma,b_sigma``).
+    direct_rgb
+        The direct (0th-order) RGB in the profile's units times pixels, or ``None``.
+    spectrum_bandwidth_nm
+        As for :class:`LampImages`.
+    """
+
+    name: str
+    kind: LampKind
+    spectrum: Path | Spectrum
+    profile: Path
+    direct_rgb: tuple[float, float, float] | None = None
+    spectrum_bandwidth_nm: float | None = None
+
+
+LampInput = LampImages | LampProfile
+
+
+@dataclass(frozen=True, eq=False)
+class ProfileTable:
+    """A profile read from CSV.
+
+    Parameters
+    ----------
+    axis
+        Shape ``(n,)``, increasing: pixel positions, or wavelengths when ``in_wavelength``.
+    profile, profile_sigma
+        Shape ``(n, 3)``; ``profile_sigma`` is ``None`` when the file has no sigma columns.
+    in_wavelength
+        The first column was ``wavelength_nm``: the profile is already mapped.
+    """
+
+    axis: FloatArray
+    profile: FloatArray
+    profile_sigma: FloatArray | None
+    in_wavelength: bool
+
+
+@dataclass
+class LoadedSpectrum:
+    """A lamp spectrum and what was done to it on reading."""
+
+    spectrum: Spectrum
+    warnings: list[str] = field(default_factory=list)
+
+
+def check_kind(kind: str, source: str) -> LampKind:
+    """``kind`` lower-cased if it is a known lamp kind, else :class:`InputError`."""
+    lowered = kind.lower()
+    if lowered not in LAMP_KINDS:
+        raise InputError(
+            f"unknown lamp kind {kind!r}; use one of {', '.join(LAMP_KINDS)}", source=source
+        )
+    return lowered
+
+
+def load_spectrum(source: Path | Spectrum, lamp: str, grid: WavelengthGrid) -> LoadedSpectrum:
+    """Read a lamp spectrum and check that it covers ``grid``.
+
+    Small negative values (noise after dark subtraction, at most
+    :data:`NEGATIVE_SPECTRUM_TOLERANCE` of the maximum) are set to zero with a warning.
+
+    Raises
+    ------
+    SpectrumError
+        Missing file, text in a data row, NaN, non-monotonic wavelengths, large negative values,
+        an all-zero spectrum, or a range that does not cover the grid (the file is named).
+    """
+    warnings: list[str] = []
+    if isinstance(source, Spectrum):
+        spectrum, where = source, f"spectrum of lamp {lamp!r}"
+    else:
+        where = str(source)
+        table = read_table(source)
+        if len(table.columns) != 2:
+            raise SpectrumError(
+                f"expected two columns wavelength_nm,value, found {len(table.columns)} "
+                f"({', '.join(table.columns)})",
+                source=where,
+            )
+        values = table.rows[:, 1]
+        finite = values[np.isfinite(values)]
+        peak = float(finite.max()) if finite.size else 0.0
+        negative = values < 0
+        if negative.any() and np.all(values[negative] >= -NEGATIVE_SPECTRUM_TOLERANCE * peak):
+            warnings.append(
+                f"{source.name}: {int(negative.sum())} small negative value(s) set to zero"
+            )
+            spectrum = read_spectrum_csv(source, name=lamp, negative="clip")
+        else:
+            spectrum = read_spectrum_csv(source, name=lamp)
+    if not np.any(spectrum.values > 0):
+        raise SpectrumError("the spectrum is zero everywhere", source=where)
+    if not spectrum.covers(grid):
+        lo, hi = spectrum.range_nm
+        raise SpectrumError(
+            f"covers {lo:g}–{hi:g} nm, too narrow for the working grid {grid.start_nm:g}–"
+            f"{grid.stop_nm:g} nm; measure a wider range or choose a narrower --grid",
+            source=where,
+        )
+    return LoadedSpectrum(spectrum, warnings)
+
+
+def _column(columns: tuple[str, ...], names: tuple[str, ...]) -> int | None:
+    for name in names:
+        if name in columns:
+            return columns.index(name)
+    return None
+
+
+def read_profile_csv(path: Path) -> ProfileTable:
+    """Read a 1-D profile ``pixel,r,g,b`` or ``wavelength_nm,r,g,b`` (+ optional sigma columns).
+
+    Rows may come in any order (they are sorted); the axis must not repeat a value.
+
+    Raises
+    ------
+    InputError
+        Missing file or header, unknown columns, text or NaN in a row, repeated positions,
+        non-positive sigma, too few rows (the file and line or column are named).
+    """
+    try:
+        table = read_table(path)
+    except SpectrumError as exc:
+        raise InputError(str(exc).removeprefix(f"{exc.source}: "), source=exc.source) from None
+    where = str(path)
+    if not table.had_header:
+        raise InputError(
+            "the profile CSV needs a header: pixel,r,g,b (positions in pixels) or "
+            "wavelength_nm,r,g,b (already mapped)",
+            source=where,
+        )
+    columns = table.columns
+    pixel_index = _column(columns[:1], _PIXEL_COLUMNS)
+    wavelength_index = _column(columns[:1], _WAVELENGTH_COLUMNS)
+    if pixel_index is None and wavelength_index is None:
+        raise InputError(
+            f"first column is {columns[0]!r}; expected 'pixel' or 'wavelength_nm'", source=where
+        )
+    channel_indices = [_column(columns, (name,)) for name in _CHANNEL_COLUMNS]
+    if any(index is None for index in channel_indices):
+        missing = [n for n, i in zip(_CHANNEL_COLUMNS, channel_indices, strict=True) if i is None]
+        raise InputError(
+            f"missing column(s) {', '.join(missing)}; the header must name r, g and b "
+            f"(found {', '.join(columns)})",
+            source=where,
+        )
+    sigma_indices = [_column(columns, names) for names in _SIGMA_COLUMNS]
+    if any(i is not None for i in sigma_indices) and any(i is None for i in sigma_indices):
+        raise InputError(
+            "give sigma columns for all three channels (r_sigma,g_sigma,b_sigma) or none",
+            source=where,
+        )
+    known = {0, *[i for i in channel_indices if i is not None]}
+    known |= {i for i in sigma_indices if i is not None}
+    extra = [columns[i] for i in range(len(columns)) if i not in known]
+    if extra:
+        raise InputError(
+            f"unknown column(s) {', '.join(extra)}; allowed: pixel|wavelength_nm, r, g, b, "
+            "r_sigma, g_sigma, b_sigma",
+            source=where,
+        )
+    rows = table.rows
+    bad = ~np.isfinite(rows)
+    if bad.any():
+        row, column = (int(v) for v in np.argwhere(bad)[0])
+        raise InputError(
+            f"row {row + 1} column {columns[column]!r} is not a finite number (NaN or infinite)",
+            source=where,
+        )
+    if rows.shape[0] < 8:
+        raise InputError(f"only {rows.shape[0]} rows; a profile needs at least 8", source=where)
+    order = np.argsort(rows[:, 0], kind="stable")
+    rows = rows[order]
+    axis = rows[:, 0]
+    if not np.all(np.diff(axis) > 0):
+        repeated = float(axis[np.flatnonzero(np.diff(axis) <= 0)[0]])
+        raise InputError(f"position {repeated:g} appears twice in {columns[0]!r}", source=where)
+    profile = rows[:, [i for i in channel_indices if i is not None]]
+    sigma = None
+    if sigma_indices[0] is not None:
+        sigma = rows[:, [i for i in sigma_indices if i is not None]]
+        if np.any(sigma <= 0):
+            raise InputError("sigma columns must be > 0 everywhere", source=where)
+    in_wavelength = wavelength_index is not None
+    if in_wavelength and (axis[0] < 100 or axis[-1] > 3000):
+        raise InputError(
+            f"wavelengths run from {axis[0]:g} to {axis[-1]:g}: is the first column in nm?",
+            source=where,
+        )
+    return ProfileTable(axis, profile, sigma, in_wavelength)
+
+
+def parse_direct(text: str, source: str = "--direct") -> tuple[float, float, float]:
+    """``"R,G,B"`` → three finite numbers ≥ 0, not all zero."""
+    parts = [part.strip() for part in text.split(",")]
+    try:
+        values = tuple(float(part) for part in parts)
+    except ValueError:
+        raise InputError(f"expected three numbers R,G,B, got {text!r}", source=source) from None
+    if len(values) != 3:
+        raise InputError(f"expected three numbers R,G,B, got {len(values)}", source=source)
+    if not all(math.isfinite(v) and v >= 0 for v in values) or not any(values):
+        raise InputError(
+            f"direct RGB must be finite, ≥ 0 and not all zero, got {text!r}", source=source
+        )
+    return (values[0], values[1], values[2])
