@@ -172,7 +172,12 @@ class ArgyllSpectrometerConfig(StrictModel):
     executable: str = Field("spotread", min_length=1, description="spotread, or its full path")
     instrument: int = Field(1, ge=1, le=32, description="spotread -c: which instrument")
     high_resolution: bool = Field(False, description="spotread -H (3.3 nm, if the model has it)")
-    bandwidth_nm: float | None = Field(None, gt=0, le=100)
+    bandwidth_nm: float | None = Field(
+        None,
+        gt=0,
+        le=100,
+        description="optical resolution (FWHM); null: an i1Pro's, 25 nm (15 with -H)",
+    )
     timeout_s: float = Field(60.0, gt=0, le=600, description="deadline of one spotread run")
     measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
 
@@ -588,6 +593,17 @@ class RigConfig(StrictModel):
     hdr: HdrPolicy = HdrPolicy()
     dark_frames: int = Field(2, ge=0, le=50, description="dark frames per bracket exposure")
     dry_run: DryRunModel = DryRunModel()
+
+    @model_validator(mode="after")
+    def _exposure_is_the_spectrometers_to_choose(self) -> RigConfig:
+        model = self.devices.spectrometer_model
+        if model in ("argyll", "files") and self.spectrum.exposure_ms is not None:
+            who = "spotread chooses its own" if model == "argyll" else "files have no"
+            raise ValueError(
+                f"spectrum.exposure_ms = {self.spectrum.exposure_ms:g}: {who} integration "
+                f"time (devices.spectrometer is {model!r}); set it to null"
+            )
+        return self
 
     @field_validator("lamps")
     @classmethod

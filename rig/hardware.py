@@ -25,9 +25,11 @@ from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import open_lcus
 from drivers.relays.numato import open_numato
 from drivers.spectrometer import open_spectrometer
+from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
 from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from rig.clock import MonotonicClock
 from rig.config import (
+    ArgyllSpectrometerConfig,
     CameraConfig,
     Gphoto2CameraConfig,
     HidRelayConfig,
@@ -140,6 +142,17 @@ def open_configured_spectrometer(
             config.serial,
             ocean_settings(config, calibration),
             backend=usb_backend,
+            transcript=transcript,
+        )
+    if isinstance(config, ArgyllSpectrometerConfig):
+        return open_argyll(
+            ArgyllSettings(
+                executable=config.executable,
+                instrument=config.instrument,
+                high_resolution=config.high_resolution,
+                timeout_s=config.timeout_s,
+                bandwidth_nm=config.bandwidth_nm,
+            ),
             transcript=transcript,
         )
     if not isinstance(config, SerialSpectrometerConfig):

@@ -35,6 +35,7 @@ from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import open_lcus
 from drivers.relays.numato import open_numato
 from drivers.spectrometer import open_spectrometer
+from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
 from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from drivers.spectrometer.pr6xx import open_pr6xx
 from drivers.transport import NO_PACING
@@ -44,11 +45,13 @@ from mocks.bench.optics import TwinOptics
 from mocks.bench.spec import TwinSpec, TwinSpecError
 from mocks.bench.truth import TwinTruth
 from mocks.emulators import start_cs2000, start_lcus, start_numato, start_pr655, start_pr670
+from mocks.emulators.radiometer import Radiometer, RadiometerOptics
 from mocks.fake_gphoto2 import CameraFault, FakeBody, FakeGphoto2
-from mocks.faults import FaultSchedule
+from mocks.faults import FaultKind, FaultSchedule
 from mocks.lamps import LampBank, SimulatedClock
 from mocks.ocean_backend import OCEAN_MODELS, EmulatedOcean, OceanBackend, ocean_calibration
 from mocks.pty_serial import PtySerialDevice
+from mocks.spotread_launcher import FakeSpotreadLauncher
 from mocks.usb_relay_backend import EmulatedRelayBoard, FakeUsbBackend, UsbFault
 
 TranscriptFactory = Callable[[str], TranscriptSink]
@@ -110,6 +113,7 @@ class TwinBench:
     spectrometer: Spectrometer | None = None
     spectrometer_port: PtySerialDevice | None = None
     ocean: EmulatedOcean | None = None
+    spotread: TwinSpotread | None = None
     camera: Camera | None = None
     camera_body: FakeBody | None = None
     gphoto2: FakeGphoto2 | None = None
@@ -131,6 +135,8 @@ class TwinBench:
         sequence = np.random.SeedSequence([self.spec.seed, SPECTROMETER_NOISE_STREAM, *entropy])
         if self.ocean is not None:
             self.ocean.rng = np.random.default_rng(sequence)
+        elif self.spotread is not None:
+            self.spotread.key_noise(sequence)
         elif self.spectrometer_port is not None:
             radiometer = self.spectrometer_port.emulator.radiometer  # type: ignore[attr-defined]
             radiometer.rng_per_observation = lambda: np.random.default_rng(sequence)
@@ -153,6 +159,8 @@ class TwinBench:
             if port is not None:
                 with contextlib.suppress(Exception):
                     port.stop()
+        if self.spotread is not None:
+            self.spotread.launcher.close()
         if self.renderer is not None:
             self.renderer.close()
 
@@ -289,6 +297,90 @@ def _open_relays(
     )
 
 
+#: The i1Pro's bands in ArgyllCMS's standard (10 nm) and high-resolution (3.3 nm) modes, 380–730 nm.
+I1PRO_BANDS = {"standard": 36, "high_resolution": 106}
+#: Its optical resolution (FWHM) in each mode (see :data:`drivers.spectrometer.argyll.I1PRO_BANDWIDTH_NM`).
+I1PRO_FWHM_NM = {"standard": 25.0, "high_resolution": 15.0}
+#: Radiance (W/(sr·m²·nm)) to the ambient reading spotread reports (mW/(m²·nm)) of a uniform field.
+AMBIENT_MW_PER_RADIANCE = 1000.0 * np.pi
+#: How the twin's spectrometer faults look on spotread (label ``"spotread"``); ``ERROR_CODE``
+#: takes the fake's fault name from its code (default ``misread``).
+SPOTREAD_FAULTS = {
+    FaultKind.NO_REPLY: "hang",
+    FaultKind.DISCONNECT: "no_instrument",
+    FaultKind.BUSY: "comms",
+    FaultKind.GARBLED_REPLY: "garbled_file",
+    FaultKind.TRUNCATED_REPLY: "garbled_file",
+}
+
+
+class TwinSpotread:
+    """What the fake spotread reads on the twin: an i1Pro-like instrument looking at the lamps.
+
+    Each run's scene holds the reading in both resolutions (each through its own slit function
+    and noise), or the fault the schedule injects (label ``"spotread"``).
+    """
+
+    def __init__(
+        self,
+        bank: LampBank,
+        noise: np.random.Generator,
+        faults: FaultSchedule | None,
+        time_scale: float,
+    ) -> None:
+        self.faults = faults or FaultSchedule()
+        self.time_scale = time_scale
+        self.radiometers = {
+            mode: Radiometer(
+                RadiometerOptics(
+                    wavelength_nm=np.linspace(380.0, 730.0, bands),
+                    bandwidth_nm=I1PRO_FWHM_NM[mode],
+                    peak_responsivity=5.0e3,
+                    exposure_range_ms=(2.0, 8000.0),
+                    read_noise_counts=8.0,
+                    overhead_s=1.5,
+                ),
+                bank.radiance,
+                noise,
+            )
+            for mode, bands in I1PRO_BANDS.items()
+        }
+        self.launcher = FakeSpotreadLauncher(self.scene)
+
+    def key_noise(self, sequence: np.random.SeedSequence) -> None:
+        """Draw the next readings' noise from ``sequence`` (one stream per resolution)."""
+        for index, radiometer in enumerate(self.radiometers.values()):
+            child = np.random.SeedSequence(sequence.entropy, spawn_key=(index,))
+            radiometer.rng_per_observation = lambda child=child: np.random.default_rng(child)
+
+    def scene(self) -> dict[str, object]:
+        """The fake spotread's scene of the next run."""
+        fault = self.faults.next_fault("spotread")
+        name: str | None = None
+        delay_s = 0.0
+        if fault is not None:
+            if fault.kind is FaultKind.ERROR_CODE:
+                name = fault.code or "misread"
+            elif fault.kind is FaultKind.LATE_REPLY:
+                delay_s = fault.delay_s
+            else:
+                name = SPOTREAD_FAULTS[fault.kind]
+        spectra: dict[str, object] = {}
+        for mode, radiometer in self.radiometers.items():
+            observation = radiometer.observe(None)
+            if observation.radiance is None:
+                name = name or "misread"
+                continue
+            delay_s = max(delay_s, observation.duration_s * self.time_scale)
+            grid = radiometer.optics.wavelength_nm
+            spectra[mode] = {
+                "start_nm": float(grid[0]),
+                "end_nm": float(grid[-1]),
+                "values": [float(v) for v in observation.radiance * AMBIENT_MW_PER_RADIANCE],
+            }
+        return {"instruments": 1, "fault": name, "delay_s": delay_s, "spectra": spectra}
+
+
 def twin_ocean_settings(model: str, timeout_s: float) -> OceanSettings:
     """The Ocean driver's settings on the twin: the emulated model's exact calibration."""
     emulated = OCEAN_MODELS[model]
@@ -328,7 +420,19 @@ def _open_spectrometer(
         opened.add(bench.spectrometer.close)
         return
     if model == "argyll":
-        raise TwinSpecError("devices.spectrometer.emulate: 'argyll' is not available yet")
+        spotread = TwinSpotread(
+            bench.bank, noise, faults.spectrometer, spec.spectrometer_time_scale
+        )
+        bench.spotread = spotread
+        opened.add(spotread.launcher.close)
+        bench.spectrometer = open_argyll(
+            ArgyllSettings(timeout_s=spec.spectrometer_timeout_s),
+            launcher=spotread.launcher,
+            transcript=transcript,
+            resolve=False,
+        )
+        opened.add(bench.spectrometer.close)
+        return
     starter = {"pr655": start_pr655, "pr670": start_pr670, "cs2000": start_cs2000}
     port = starter[model](
         bench.bank.radiance,

@@ -23,6 +23,7 @@ from drivers.lifecycle import connect_or_close
 from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import LcusRelayBoard
 from drivers.relays.numato import NumatoRelayBoard
+from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
 from drivers.spectrometer.cs2000 import Cs2000
 from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from drivers.spectrometer.pr6xx import MODELS as PR6XX_MODELS
@@ -34,6 +35,7 @@ from mocks.ocean_backend import OCEAN_MODELS
 from mocks.replay.gphoto2 import FrameSource, ReplayGphoto2, ReplayUnsupported
 from mocks.replay.script import CheckingSink, Mismatches, ReplayScript
 from mocks.replay.serial_port import ReplaySerialPort
+from mocks.replay.spotread import ReplaySpotreadLauncher
 from mocks.replay.usb_backend import ReplayOceanBackend, ReplayUsbBackend
 
 __all__ = ["RecordedDevice", "ReplayBench", "ReplayUnsupported", "open_replay"]
@@ -191,6 +193,19 @@ def _open_spectrometer(
             _ocean_settings(device),
             backend=ReplayOceanBackend(script, model, port),
             transcript=CheckingSink(script, sink),
+        )
+    if extra.get("driver") == "argyll":
+        return open_argyll(
+            ArgyllSettings(
+                executable=str(extra.get("executable", "spotread")),
+                instrument=int(extra.get("instrument", 1)),
+                high_resolution=extra.get("high_resolution") == "on",
+                timeout_s=float(extra.get("timeout_s", device.timeout_s)),
+                bandwidth_nm=float(extra["bandwidth_nm"]) if "bandwidth_nm" in extra else None,
+            ),
+            launcher=ReplaySpotreadLauncher(script),
+            transcript=CheckingSink(script, sink),
+            resolve=False,
         )
     transport = _serial_transport(script, sink, f"{model} on {port}", port, released)
     instrument: Pr6xx | Cs2000
