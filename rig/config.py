@@ -182,18 +182,24 @@ class ArgyllSpectrometerConfig(StrictModel):
     measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
 
 
+SpectrumFileFormat = Literal["auto", "argyll", "csv", "ies", "xrite", "sekonic", "uprtek"]
+
+
 class FilesSpectrometerConfig(StrictModel):
     """Spectra measured once, elsewhere: one file per lamp in ``directory``.
 
-    ``lamps`` maps each lamp name to its file: a CGATS ``.sp`` (ArgyllCMS), a CSV with a
+    ``lamps`` maps every lamp name to its file: an ArgyllCMS CGATS ``.sp``, a CSV with a
     ``wavelength_nm`` column and the values in the column ``column`` (default: the only other one;
-    ``# units:`` and ``# bandwidth_nm:`` comment lines are read), or an X-Rite file
-    colour-science reads. Every "measurement" of a lamp returns its file.
+    ``# units:`` and ``# bandwidth_nm:`` comment lines say what it holds), an IES TM-27-14 ``.spdx``,
+    or an X-Rite, Sekonic or UPRtek export (``format``; ``auto`` goes by the suffix). ``units`` and
+    ``bandwidth_nm`` stand for files that do not say. A "measurement" returns the file of the lamp
+    that is lit (see :mod:`rig.spectrum_files`).
     """
 
     kind: Literal["files"]
     directory: Path
     lamps: dict[str, str] = Field(min_length=1)
+    format: SpectrumFileFormat = "auto"
     column: str | None = Field(None, min_length=1)
     units: str = Field("relative spectral power", min_length=1)
     bandwidth_nm: float | None = Field(None, gt=0, le=100)
@@ -593,6 +599,23 @@ class RigConfig(StrictModel):
     hdr: HdrPolicy = HdrPolicy()
     dark_frames: int = Field(2, ge=0, le=50, description="dark frames per bracket exposure")
     dry_run: DryRunModel = DryRunModel()
+
+    @model_validator(mode="after")
+    def _every_lamp_has_its_file(self) -> RigConfig:
+        spectrometer = self.devices.spectrometer
+        if not isinstance(spectrometer, FilesSpectrometerConfig):
+            return self
+        names = [lamp.name for lamp in self.lamps]
+        missing = [name for name in names if name not in spectrometer.lamps]
+        unknown = [name for name in spectrometer.lamps if name not in names]
+        if missing or unknown:
+            parts = [f"no file for {', '.join(map(repr, missing))}"] if missing else []
+            if unknown:
+                parts.append(f"{', '.join(map(repr, unknown))} is not a lamp of lamps[]")
+            raise ValueError(
+                f"devices.spectrometer.lamps: {'; '.join(parts)} (lamps: {', '.join(names)})"
+            )
+        return self
 
     @model_validator(mode="after")
     def _exposure_is_the_spectrometers_to_choose(self) -> RigConfig:

@@ -14,6 +14,7 @@ The clock is the wall clock; frames are measured by the real frame analyser
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,13 +27,16 @@ from drivers.relays.lcus import open_lcus
 from drivers.relays.numato import open_numato
 from drivers.spectrometer import open_spectrometer
 from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
+from drivers.spectrometer.files import SwitchedRelays
 from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from rig.clock import MonotonicClock
 from rig.config import (
     ArgyllSpectrometerConfig,
     CameraConfig,
+    FilesSpectrometerConfig,
     Gphoto2CameraConfig,
     HidRelayConfig,
+    LampConfig,
     LcusRelayConfig,
     NumatoRelayConfig,
     RelayConfig,
@@ -43,6 +47,7 @@ from rig.config import (
 )
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
+from rig.spectrum_files import open_spectrum_files
 from rig.station import Station, TranscriptFactory
 
 SPECTROMETER_MODELS = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
@@ -125,13 +130,32 @@ def ocean_settings(
     )
 
 
-def open_configured_spectrometer(
-    config: SpectrometerConfig, transcript: TranscriptSink, *, usb_backend: Any = None
-) -> Spectrometer:
-    """Open the configured spectrometer: on its serial port, on USB (Ocean) or through spotread.
+def watched_relays(config: RigConfig, relays: RelayBoard) -> RelayBoard:
+    """The relay board as the station hands it to the runner: watched when the spectrometer is
+    measured files (they stand for whichever lamp the rig switched on)."""
+    if isinstance(config.devices.spectrometer, FilesSpectrometerConfig):
+        return SwitchedRelays(relays)
+    return relays
 
-    ``usb_backend`` is the pyusb backend for an Ocean spectrometer (default: libusb).
+
+def open_configured_spectrometer(
+    config: SpectrometerConfig,
+    transcript: TranscriptSink,
+    *,
+    usb_backend: Any = None,
+    relays: RelayBoard | None = None,
+    lamps: Sequence[LampConfig] = (),
+) -> Spectrometer:
+    """Open the configured spectrometer: on its serial port, on USB (Ocean), through spotread, or
+    measured files.
+
+    ``usb_backend`` is the pyusb backend for an Ocean spectrometer (default: libusb); ``relays``
+    (from :func:`watched_relays`) and ``lamps`` are what a files device watches.
     """
+    if isinstance(config, FilesSpectrometerConfig):
+        if not isinstance(relays, SwitchedRelays):
+            raise StationUnavailable("a files spectrometer needs the relays from watched_relays()")
+        return open_spectrum_files(config, list(lamps), relays, transcript)[0]
     if isinstance(config, SeabreezeSpectrometerConfig):
         calibration = (
             None
@@ -210,8 +234,13 @@ def open_hardware_station(
     try:
         relays = open_relays(devices.relays, transcripts("relays"), usb_backend=usb_backend)
         opened.append(relays)
+        relays = watched_relays(config, relays)
         spectrometer = open_configured_spectrometer(
-            devices.spectrometer, transcripts("spectrometer"), usb_backend=usb_backend
+            devices.spectrometer,
+            transcripts("spectrometer"),
+            usb_backend=usb_backend,
+            relays=relays,
+            lamps=config.lamps,
         )
         opened.append(spectrometer)
         camera = open_configured_camera(

@@ -21,7 +21,7 @@ from typing import Any
 from rig.config import RigConfig
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
-from rig.hardware import open_configured_camera, open_configured_spectrometer
+from rig.hardware import open_configured_camera, open_configured_spectrometer, watched_relays
 from rig.station import Station, StationBuilder, TranscriptFactory, optional_module
 
 BENCH_MODULE = "mocks.bench"
@@ -87,11 +87,15 @@ def station_of(twin: Any, config: RigConfig, transcripts: TranscriptFactory) -> 
     not play (a real camera, a real spectrometer) are opened on their hardware
     (:mod:`rig.hardware`). If one fails to open, the bench and what was opened are closed."""
     opened: list[Any] = []
+    relays = watched_relays(config, twin.relays)
     try:
         spectrometer = twin.spectrometer
         if spectrometer is None:
             spectrometer = open_configured_spectrometer(
-                config.devices.spectrometer, transcripts("spectrometer")
+                config.devices.spectrometer,
+                transcripts("spectrometer"),
+                relays=relays,
+                lamps=config.lamps,
             )
             opened.append(spectrometer)
         camera = twin.camera
@@ -106,7 +110,7 @@ def station_of(twin: Any, config: RigConfig, transcripts: TranscriptFactory) -> 
     return Station(
         spectrometer,
         camera,
-        twin.relays,
+        relays,
         twin.clock,
         RawFrameAnalyzer(),
         on_close=[twin.close],

@@ -10,14 +10,23 @@ the recorded port as its name, so identities and labels come out as recorded.
 from __future__ import annotations
 
 import contextlib
+import json
 import re
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from calib.core.spectra import read_spectrum_csv
-from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptEntry, TranscriptSink
+from drivers.base import (
+    Camera,
+    RelayBoard,
+    Spectrometer,
+    SpectrumReading,
+    TranscriptEntry,
+    TranscriptSink,
+)
 from drivers.camera import CameraTimeouts, open_camera
 from drivers.lifecycle import connect_or_close
 from drivers.relays.hid_usbrelay import open_hid_relay
@@ -25,6 +34,12 @@ from drivers.relays.lcus import LcusRelayBoard
 from drivers.relays.numato import NumatoRelayBoard
 from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
 from drivers.spectrometer.cs2000 import Cs2000
+from drivers.spectrometer.files import (
+    FilesSpectrometer,
+    LampFile,
+    SwitchedRelays,
+    reading_from_json,
+)
 from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from drivers.spectrometer.pr6xx import MODELS as PR6XX_MODELS
 from drivers.spectrometer.pr6xx import Pr6xx
@@ -179,12 +194,47 @@ def _ocean_settings(device: RecordedDevice) -> OceanSettings:
     )
 
 
+def _open_files(
+    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, relays: SwitchedRelays
+) -> FilesSpectrometer:
+    """The files device as recorded: its reads at open are served from the transcript."""
+    extra = device.identity.get("extra") or {}
+    directory = Path(str(device.identity.get("port") or "."))
+    try:
+        listed = json.loads(str(extra.get("lamps")))
+        lamps = [
+            LampFile(name, int(item["channel"]), directory / str(item["file"]))
+            for name, item in listed.items()
+        ]
+        digests = {name: str(item["sha256"]) for name, item in listed.items()}
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise ReplayUnsupported("the recorded spectrum files are not listed readably") from None
+
+    def served(path: Path) -> SpectrumReading:
+        answer = script.take(f"the spectrum of {path.name}")
+        if answer.entry.direction == "error":
+            raise ValueError(json.loads(answer.entry.payload).get("error", "unreadable"))
+        return reading_from_json(json.loads(answer.entry.payload))
+
+    return FilesSpectrometer(
+        directory, lamps, served, relays, CheckingSink(script, sink), digests=digests
+    )
+
+
 def _open_spectrometer(
-    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, released: threading.Event
+    device: RecordedDevice,
+    script: ReplayScript,
+    sink: TranscriptSink,
+    released: threading.Event,
+    relays: RelayBoard,
 ) -> Spectrometer:
     model = str(device.identity.get("model", ""))
     port = str(device.identity.get("port") or "")
     extra = device.identity.get("extra") or {}
+    if extra.get("driver") == "files":
+        if not isinstance(relays, SwitchedRelays):
+            raise ReplayUnsupported("a files spectrometer needs the switched relays")
+        return _open_files(device, script, sink, relays)
     if extra.get("driver") == "seabreeze":
         if model not in OCEAN_MODELS:
             raise ReplayUnsupported(f"no replay for the Ocean spectrometer {model!r}")
@@ -263,8 +313,15 @@ def open_replay(
     try:
         relays = _open_relays(devices["relays"], scripts["relays"], transcripts("relays"), released)
         opened.append(relays.close)
+        spectrometer_extra = devices["spectrometer"].identity.get("extra") or {}
+        if spectrometer_extra.get("driver") == "files":
+            relays = SwitchedRelays(relays)
         spectrometer = _open_spectrometer(
-            devices["spectrometer"], scripts["spectrometer"], transcripts("spectrometer"), released
+            devices["spectrometer"],
+            scripts["spectrometer"],
+            transcripts("spectrometer"),
+            released,
+            relays,
         )
         opened.append(spectrometer.close)
         camera_device = devices["camera"]
