@@ -408,7 +408,10 @@ def replay(
 def devices(
     serial: Annotated[bool, typer.Option("--serial/--no-serial", help="List serial ports.")] = True,
     usb: Annotated[
-        bool, typer.Option("--usb/--no-usb", help="Probe HID relay boards on the USB bus.")
+        bool,
+        typer.Option(
+            "--usb/--no-usb", help="Probe HID relay boards and Ocean spectrometers on the USB bus."
+        ),
     ] = True,
     cameras: Annotated[
         bool, typer.Option("--cameras/--no-cameras", help="Autodetect gphoto2 cameras.")
@@ -420,12 +423,14 @@ def devices(
         ),
     ] = 5.0,
 ) -> None:
-    """List the serial ports, HID relay boards and cameras present, with config snippets for each."""
+    """List the serial ports, HID relay boards, Ocean spectrometers and cameras present, with
+    config snippets for each."""
     from drivers.discovery import list_devices, render_text
 
     report = list_devices(
         include_serial=serial,
         include_usb_relays=usb,
+        include_ocean=usb,
         include_cameras=cameras,
         timeout_s=timeout_s,
     )
