@@ -120,14 +120,20 @@ def test_camera_autodetection_that_fails_or_hangs() -> None:
         raise gp.GPhoto2Error(-7)
 
     gp.Camera.autodetect = staticmethod(failing)  # type: ignore[method-assign,assignment]
-    report = list_devices(include_serial=False, include_usb_relays=False, gphoto2_module=gp)
+    report = list_devices(
+        include_serial=False, include_usb_relays=False, include_ocean=False, gphoto2_module=gp
+    )
     assert report.notes == ("gphoto2 cameras: autodetection failed ([-7] I/O problem)",)
 
     release = threading.Event()
     gp.Camera.autodetect = staticmethod(lambda: release.wait(10))  # type: ignore[method-assign,assignment]
     try:
         report = list_devices(
-            include_serial=False, include_usb_relays=False, gphoto2_module=gp, timeout_s=0.1
+            include_serial=False,
+            include_usb_relays=False,
+            include_ocean=False,
+            gphoto2_module=gp,
+            timeout_s=0.1,
         )
     finally:
         release.set()
