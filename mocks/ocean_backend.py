@@ -293,7 +293,8 @@ class EmulatedOcean:
         self._radiometer.rng = self.rng
         light = self._radiometer.band_radiance() * self.responsivity * integration_ms
         above = light + self.dark_rate * integration_ms
-        above = self._compress(above)
+        # A pixel fills up at full scale: far beyond it the compression model would turn over.
+        above = self._compress(np.minimum(above, 2.0 * model.max_counts))
         variance = np.clip(above, 0.0, None) + model.read_noise_counts**2
         noise = self.rng.standard_normal(model.pixels) * np.sqrt(variance)
         wobble = self.rng.normal(0.0, 3.0)  # common-mode baseline drift, seen by masked pixels too

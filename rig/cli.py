@@ -437,6 +437,51 @@ def devices(
     typer.echo(render_text(report), nl=False)
 
 
+@app.command("calibrate-spectrometer")
+def calibrate_spectrometer_command(
+    lamp: Annotated[
+        str,
+        typer.Option(
+            "--lamp",
+            help="The reference lamp's known spectrum: a colour-science illuminant name (A for a "
+            "tungsten-halogen lamp) or a CSV (wavelength_nm, value).",
+        ),
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The calibration file to write.")],
+    config: ConfigOption = DEFAULT_CONFIG,
+    channel: Annotated[
+        int | None,
+        typer.Option(
+            "--channel", min=1, help="Relay channel of the lamp (default: the lamp of that name)."
+        ),
+    ] = None,
+    warmup_s: Annotated[
+        float, typer.Option("--warmup", min=0.0, help="Seconds the lamp burns before measuring.")
+    ] = 120.0,
+    repeats: Annotated[int, typer.Option("--repeats", min=1, help="Spectra averaged.")] = 3,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing file.")] = False,
+) -> None:
+    """Make an Ocean spectrometer's relative irradiance calibration against a lamp of known
+    spectrum (the file devices.spectrometer.calibration_file loads)."""
+    from calib.core.lamp_specs import lamp_from_spec
+    from rig.calibrate import calibrate_spectrometer
+    from rig.config import load_config
+
+    if out.exists() and not force:
+        raise InputError(f"{out} exists; pass --force to replace it", source="--out")
+    rig_config = load_config(config)
+    known = lamp_from_spec(lamp)
+    outcome = calibrate_spectrometer(
+        rig_config, known, out, channel=channel, warmup_s=warmup_s, repeats=repeats, source=lamp
+    )
+    typer.echo(f"calibration: {outcome.path}")
+    typer.echo(
+        f"range: {outcome.wavelength_nm[0]:g}-{outcome.wavelength_nm[-1]:g} nm, integration "
+        f"{outcome.integration_ms:g} ms, spread between spectra {outcome.spread:.2%}"
+    )
+    typer.echo(f"use it: devices.spectrometer.calibration_file: {outcome.path}")
+
+
 data_app = typer.Typer(
     help="Reference camera sensitivity data (downloaded, never shipped).", no_args_is_help=True
 )

@@ -616,6 +616,8 @@ class OceanSpectrometer(ClosesOnExit):
     def measure(self) -> SpectrumReading:
         """Range (or take the fixed integration time), average, correct and calibrate a spectrum.
 
+        The spectrum covers the calibration's wavelength range (no optically masked pixels).
+
         Raises
         ------
         DarkMissing
@@ -626,6 +628,39 @@ class OceanSpectrometer(ClosesOnExit):
         DeviceTimeout, ProtocolError, Disconnected
             USB trouble.
         """
+        integration_ms, rate, peak = self._measure_rate()
+        settings = self.settings
+        calibration = settings.calibration
+        wavelength = self.wavelength_nm[self._in_range]
+        values = rate[self._in_range]
+        units = "counts/ms (uncalibrated)"
+        if calibration is not None:
+            values = values * calibration.factors_at(wavelength)
+            units = calibration.units
+        return SpectrumReading(
+            wavelength_nm=wavelength,
+            values=np.asarray(values, dtype=np.float64),
+            units=units,
+            exposure_ms=integration_ms,
+            bandwidth_nm=settings.bandwidth_nm,
+            extra={"averages": str(settings.averages), "peak_counts": f"{peak:.0f}"},
+        )
+
+    def measure_counts_per_ms(self) -> SpectrumReading:
+        """A spectrum as :meth:`measure` takes it, without the calibration: corrected counts per
+        ms on every active pixel (what a calibration against a known lamp divides into)."""
+        integration_ms, rate, peak = self._measure_rate()
+        return SpectrumReading(
+            wavelength_nm=self.wavelength_nm[self._active],
+            values=rate[self._active],
+            units="counts/ms (uncalibrated)",
+            exposure_ms=integration_ms,
+            bandwidth_nm=self.settings.bandwidth_nm,
+            extra={"averages": str(self.settings.averages), "peak_counts": f"{peak:.0f}"},
+        )
+
+    def _measure_rate(self) -> tuple[float, FloatArray, float]:
+        """Integration time, corrected counts per ms on every pixel, and the raw peak."""
         settings = self.settings
         if self._fixed_ms is not None:
             integration_ms = self._fixed_ms
@@ -648,24 +683,7 @@ class OceanSpectrometer(ClosesOnExit):
                 command=f"scan at {integration_ms:g} ms",
             )
         rate = corrected_counts(raw, dark, self.dark_pixels, self.nonlinearity) / integration_ms
-        calibration = settings.calibration
-        wavelength = self.wavelength_nm[self._in_range]
-        values = rate[self._in_range]
-        units = "counts/ms (uncalibrated)"
-        if calibration is not None:
-            values = values * calibration.factors_at(wavelength)
-            units = calibration.units
-        return SpectrumReading(
-            wavelength_nm=wavelength,
-            values=np.asarray(values, dtype=np.float64),
-            units=units,
-            exposure_ms=integration_ms,
-            bandwidth_nm=settings.bandwidth_nm,
-            extra={
-                "averages": str(settings.averages),
-                "peak_counts": f"{float(np.max(raw[self._active])):.0f}",
-            },
-        )
+        return integration_ms, rate, float(np.max(raw[self._active]))
 
     # ------------------------------------------------------------------------------ closing
 
