@@ -30,7 +30,6 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -43,6 +42,7 @@ from rig.clock import Clock, MonotonicClock
 from rig.config import RigConfig, SeabreezeSpectrometerConfig, TwinSpectrometerConfig
 from rig.errors import RigError
 from rig.hardware import open_configured_spectrometer, open_relays
+from rig.twin import open_twin_bench
 
 __all__ = [
     "CalibrationOutcome",
@@ -167,9 +167,7 @@ def _open(config: RigConfig) -> _Devices:
         )
     transcript = ListTranscript()
     if config.devices.relays.kind == "twin":
-        from rig.twin import open_twin_bench
-
-        bench: Any = open_twin_bench(config, lambda role: transcript)
+        bench = open_twin_bench(config, lambda role: transcript, prepare=False)
         spectrometer = bench.spectrometer
         relays: RelayBoard = bench.relays
         closers: list[Callable[[], object]] = [bench.close]

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import importlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,10 +27,10 @@ from calib.core.spectra import read_multispectrum_csv
 from calib.methods import default_camera_basis
 from rig.capture import run_capture
 from rig.config import RigConfig
-from rig.errors import RigError
+from rig.estimate import estimate_session
 from rig.progress import ProgressReporter
 from rig.runner import RunOutcome
-from rig.twin import bench_module, write_twin_truth
+from rig.twin import digital_twin, read_twin_truth, write_twin_truth
 
 SESSIONS_DIR = "sessions"
 ESTIMATE_DIR = "estimate"
@@ -40,12 +39,6 @@ REPORT_FILE = "report.html"
 
 SessionEstimator = Callable[[Path, Path], object]
 """Estimates a session into an output directory (writes ``sensitivity.csv``, ``report.html`` …)."""
-
-
-class EstimatorUnavailable(RigError):
-    """This installation has no session estimator (``rig.estimate``)."""
-
-    reason = "estimator_unavailable"
 
 
 @dataclass(frozen=True)
@@ -78,27 +71,12 @@ class DemoResult:
 
 
 def default_estimator() -> SessionEstimator:
-    """``rig.estimate.estimate_session``, imported now, with a camera prior that leaves the twin's
-    own camera out (read from the session's truth file).
-
-    Raises
-    ------
-    EstimatorUnavailable
-        When this installation has no session estimator.
-    """
-    try:
-        module = importlib.import_module("rig.estimate")
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and "rig.estimate".startswith(exc.name):
-            raise EstimatorUnavailable(
-                "the estimate step (rig.estimate) is not part of this installation"
-            ) from None
-        raise
-    estimate_session = module.estimate_session
+    """:func:`rig.estimate.estimate_session` with a camera prior that leaves the twin's own camera
+    out (read from the session's truth file)."""
 
     def estimate(session: Path, out_dir: Path) -> object:
         # The camera prior must not contain the twin's own camera: the RE would flatter us.
-        camera = bench_module().TwinTruth.read(session / bench_module().TRUTH_FILE_NAME).camera
+        camera = read_twin_truth(session / digital_twin().truth_file_name).camera
         basis = default_camera_basis(exclude=related_camera_names(camera))
         return estimate_session(session, out_dir, settings={"basis": basis})
 
@@ -128,7 +106,7 @@ def sensitivity_error(estimate_csv: Path, truth_json: Path) -> float:
         When the estimate lies outside the truth's wavelength range.
     """
     estimated = read_multispectrum_csv(estimate_csv)
-    truth = bench_module().TwinTruth.read(truth_json).sensitivity
+    truth = read_twin_truth(truth_json).sensitivity
     low, high = truth.range_nm
     wavelength = estimated.wavelength_nm
     if wavelength[0] < low or wavelength[-1] > high:

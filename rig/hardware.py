@@ -48,7 +48,7 @@ from rig.config import (
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
 from rig.spectrum_files import open_spectrum_files
-from rig.station import Station, TranscriptFactory
+from rig.station_devices import Station, TranscriptFactory
 
 SPECTROMETER_MODELS = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
 

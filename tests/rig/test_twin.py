@@ -171,7 +171,7 @@ def test_relays_left_on_by_a_dead_process_are_on_for_the_next(tmp_path: Path, em
     # The process dies: nothing switches the relay off, the emulators just stop.
     first.close()
     assert state_file.read_text().strip() == "10"
-    second = open_twin_bench(config)
+    second: Any = open_twin_bench(config)  # the bench itself (mocks.bench.TwinBench)
     try:
         assert second.relays.state() == (True, False)
         assert [lamp.name for lamp, _ in second.bank.lit()] == ["LED-B3"]
