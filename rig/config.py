@@ -213,7 +213,8 @@ class TwinSpectrometerConfig(StrictModel):
     ``emulate`` picks the instrument: the PR-655/670 or CS-2000 firmware on a pty, an Ocean
     spectrometer on an emulated USB bus (``seabreeze``; ``ocean_model`` USB2000+ or STS), or a fake
     ``spotread`` (``argyll``). ``time_scale`` is the fraction of the instrument's modelled measuring
-    time that passes in wall time; the twin's clock does not wait for it.
+    time that passes in wall time; the twin's clock does not wait for it. Sessions that differ only
+    in ``noise_draw`` differ only in the spectrometer's noise (its repeatability, measured).
     """
 
     kind: Literal["twin"]
@@ -222,6 +223,11 @@ class TwinSpectrometerConfig(StrictModel):
     timeout_s: float = Field(35.0, gt=0, le=600)
     measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
     time_scale: float = Field(0.001, gt=0, le=1)
+    noise_draw: int = Field(
+        0,
+        ge=0,
+        description="which draw of the spectrometer's noise (the rest of the twin unchanged)",
+    )
 
 
 class LcusRelayConfig(StrictModel):

@@ -161,6 +161,8 @@ class TwinSpec:
         deadline.
     ocean_model
         The Ocean spectrometer emulated for ``seabreeze`` (``USB2000PLUS`` or ``STS``).
+    spectrometer_noise_draw
+        Which draw of the spectrometer's noise (0: the seed's own; others leave the rest alone).
     spectrometer_measure_timeout_s
         The driver's measurement allowance (``None``: the model's default).
     relay_model, relay_channels, relay_timeout_s
@@ -181,6 +183,7 @@ class TwinSpec:
     relay_state_file: Path | None = None
     spectrometer_measure_timeout_s: float | None = None
     ocean_model: str = "USB2000PLUS"
+    spectrometer_noise_draw: int = 0
 
     def __post_init__(self) -> None:
         if self.ocean_model not in OCEAN_MODELS:
@@ -271,6 +274,7 @@ class TwinSpec:
             spectrometer_time_scale=spectrometer.number("time_scale") if twin_spectrometer else 1.0,
             spectrometer_timeout_s=spectrometer.number("timeout_s"),
             ocean_model=str(spectrometer.optional("ocean_model") or "USB2000PLUS"),
+            spectrometer_noise_draw=int(spectrometer.optional("noise_draw") or 0),
             spectrometer_measure_timeout_s=(
                 None
                 if spectrometer.optional("measure_timeout_s") is None

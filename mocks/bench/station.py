@@ -68,6 +68,13 @@ SPECTROMETER_NAMES = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
 LAMP_TIME_RESOLUTION_S = 1e-6
 
 
+def spectrometer_noise_key(spec: TwinSpec) -> list[int]:
+    """Seed entropy of the spectrometer's noise: the twin's seed, the stream, and the draw (a draw
+    other than 0 changes the spectrometer's noise and nothing else)."""
+    key = [spec.seed, SPECTROMETER_NOISE_STREAM]
+    return key if spec.spectrometer_noise_draw == 0 else [*key, spec.spectrometer_noise_draw]
+
+
 def step_entropy(key: str) -> tuple[int, ...]:
     """A step key as seed entropy: four 32-bit words of its sha256."""
     digest = hashlib.sha256(key.encode("utf-8")).digest()
@@ -132,7 +139,7 @@ class TwinBench:
         entropy = step_entropy(key)
         if self.renderer is not None:
             self.renderer.noise_entropy = entropy
-        sequence = np.random.SeedSequence([self.spec.seed, SPECTROMETER_NOISE_STREAM, *entropy])
+        sequence = np.random.SeedSequence([*spectrometer_noise_key(self.spec), *entropy])
         if self.ocean is not None:
             self.ocean.rng = np.random.default_rng(sequence)
         elif self.spotread is not None:
@@ -401,7 +408,7 @@ def _open_spectrometer(
     model = spec.spectrometer_model
     if model is None:
         return
-    noise = np.random.default_rng(np.random.SeedSequence([spec.seed, SPECTROMETER_NOISE_STREAM]))
+    noise = np.random.default_rng(np.random.SeedSequence(spectrometer_noise_key(spec)))
     if model == "seabreeze":
         ocean = EmulatedOcean(
             OCEAN_MODELS[spec.ocean_model],
