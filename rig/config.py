@@ -228,6 +228,7 @@ class TwinSpectrometerConfig(StrictModel):
         ge=0,
         description="which draw of the spectrometer's noise (the rest of the twin unchanged)",
     )
+    high_resolution: bool = Field(False, description="argyll: spotread -H (3.3 nm bands)")
 
 
 class LcusRelayConfig(StrictModel):

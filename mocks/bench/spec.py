@@ -163,6 +163,8 @@ class TwinSpec:
         The Ocean spectrometer emulated for ``seabreeze`` (``USB2000PLUS`` or ``STS``).
     spectrometer_noise_draw
         Which draw of the spectrometer's noise (0: the seed's own; others leave the rest alone).
+    spectrometer_high_resolution
+        ``argyll``: spotread runs with ``-H`` (3.3 nm bands).
     spectrometer_measure_timeout_s
         The driver's measurement allowance (``None``: the model's default).
     relay_model, relay_channels, relay_timeout_s
@@ -184,6 +186,7 @@ class TwinSpec:
     spectrometer_measure_timeout_s: float | None = None
     ocean_model: str = "USB2000PLUS"
     spectrometer_noise_draw: int = 0
+    spectrometer_high_resolution: bool = False
 
     def __post_init__(self) -> None:
         if self.ocean_model not in OCEAN_MODELS:
@@ -275,6 +278,7 @@ class TwinSpec:
             spectrometer_timeout_s=spectrometer.number("timeout_s"),
             ocean_model=str(spectrometer.optional("ocean_model") or "USB2000PLUS"),
             spectrometer_noise_draw=int(spectrometer.optional("noise_draw") or 0),
+            spectrometer_high_resolution=bool(spectrometer.optional("high_resolution")),
             spectrometer_measure_timeout_s=(
                 None
                 if spectrometer.optional("measure_timeout_s") is None

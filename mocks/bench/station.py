@@ -433,7 +433,10 @@ def _open_spectrometer(
         bench.spotread = spotread
         opened.add(spotread.launcher.close)
         bench.spectrometer = open_argyll(
-            ArgyllSettings(timeout_s=spec.spectrometer_timeout_s),
+            ArgyllSettings(
+                timeout_s=spec.spectrometer_timeout_s,
+                high_resolution=spec.spectrometer_high_resolution,
+            ),
             launcher=spotread.launcher,
             transcript=transcript,
             resolve=False,
