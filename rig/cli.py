@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -60,6 +61,80 @@ def version() -> None:
     from importlib.metadata import version as dist_version
 
     typer.echo(dist_version("spectral-rig"))
+
+
+class SpectrometerKind(StrEnum):
+    twin = "twin"
+    pr655 = "pr655"
+    pr670 = "pr670"
+    cs2000 = "cs2000"
+    seabreeze = "seabreeze"
+    argyll = "argyll"
+    files = "files"
+
+
+class RelayKind(StrEnum):
+    twin = "twin"
+    hid_usbrelay = "hid_usbrelay"
+    lcus = "lcus"
+    numato = "numato"
+
+
+class CameraKind(StrEnum):
+    twin = "twin"
+    gphoto2 = "gphoto2"
+
+
+@app.command()
+def init(
+    twin: Annotated[
+        bool,
+        typer.Option(
+            "--twin",
+            help="The digital twin for every device not named (the default when none is named).",
+        ),
+    ] = False,
+    spectrometer: Annotated[
+        SpectrometerKind | None, typer.Option("--spectrometer", help="The spectrometer's kind.")
+    ] = None,
+    relays: Annotated[
+        RelayKind | None, typer.Option("--relays", help="The relay board's kind.")
+    ] = None,
+    camera: Annotated[
+        CameraKind | None, typer.Option("--camera", help="The camera's kind.")
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="The file to write.")] = DEFAULT_CONFIG,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing file.")] = False,
+) -> None:
+    """Write a commented configuration: real instruments (--spectrometer, --relays, --camera; the
+    others PR-655, HID relays, gphoto2) or the digital twin (--twin), each device on its own."""
+    from rig.init_config import HARDWARE_DEFAULTS, TWIN, write_new_config
+
+    named = {"spectrometer": spectrometer, "relays": relays, "camera": camera}
+    everything_twin = twin or all(kind is None for kind in named.values())
+    kinds = {
+        role: kind.value
+        if kind is not None
+        else TWIN
+        if everything_twin
+        else HARDWARE_DEFAULTS[role]
+        for role, kind in named.items()
+    }
+    try:
+        write_new_config(out, force=force, **kinds)
+    except FileExistsError as exc:
+        raise InputError(str(exc), source="--out") from None
+    typer.echo(
+        f"wrote {out}: spectrometer {kinds['spectrometer']}, relays {kinds['relays']}, "
+        f"camera {kinds['camera']}"
+    )
+    if all(kind == TWIN for kind in kinds.values()):
+        typer.echo(f"next: rig demo -c {out}   (capture on the twin, estimate, report)")
+    else:
+        typer.echo(
+            f"next: edit the ports and lamps in {out} (`rig devices` lists what is plugged in), "
+            f"then rig dry-run -c {out} and rig capture -c {out}"
+        )
 
 
 @app.command()

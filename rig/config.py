@@ -698,7 +698,14 @@ def load_config(path: str | Path) -> RigConfig:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(
-            str(path), [ConfigIssue("", "file not found; pass --config PATH")]
+            str(path),
+            [
+                ConfigIssue(
+                    "",
+                    "file not found; pass --config PATH, or write one with `rig init` "
+                    "(`rig init --twin` for the digital twin)",
+                )
+            ],
         ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(str(path), [ConfigIssue("", f"cannot read the file: {exc}")]) from None
