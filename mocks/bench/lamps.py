@@ -25,6 +25,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import Spectrum
+from mocks.bench.colour_cache import cached_table
 from mocks.bench.spec import LampSpec, TwinSpecError
 from mocks.lamps import Clock, LampBank, VirtualLamp
 
@@ -55,16 +56,23 @@ def settled_spectrum(lamp: LampSpec) -> Spectrum:
     TwinSpecError
         The illuminant is unknown, or has no light in 400–700 nm.
     """
-    import colour
 
-    distribution = colour.SDS_ILLUMINANTS.get(lamp.spd)
-    if distribution is None:
-        shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
-        raise TwinSpecError(
-            f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
-            f"illuminant; name the lamp after one or set spd to one of: {shown}"
-        )
-    spectrum = Spectrum.from_colour(distribution, name=lamp.name)
+
+    def from_colour() -> tuple[FloatArray, FloatArray]:
+        import colour  # deferred: importing colour costs about a second (once: then cached)
+
+        distribution = colour.SDS_ILLUMINANTS.get(lamp.spd)
+        if distribution is None:
+            shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
+            raise TwinSpecError(
+                f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
+                f"illuminant; name the lamp after one or set spd to one of: {shown}"
+            )
+        table = Spectrum.from_colour(distribution)
+        return table.wavelength_nm, table.values
+
+    wavelength_nm, values = cached_table(f"illuminant {lamp.spd}", from_colour)
+    spectrum = Spectrum(wavelength_nm, values, name=lamp.name)
     low, high = NORMALISATION_RANGE_NM
     axis = np.arange(low, high + 0.5, 1.0)
     mean = float(np.mean(spectrum.at(axis)))
