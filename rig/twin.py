@@ -144,7 +144,12 @@ def digital_twin() -> DigitalTwin:
             f"{name!r}: install the package with `pip install 'spectral-rig[sim]'`), or "
             "configure real devices instead of kind: twin"
         )
-    twin: DigitalTwin = found[0].load()
+    try:
+        twin: DigitalTwin = found[0].load()
+    except ImportError as exc:
+        raise StationUnavailable(
+            f"the digital twin needs the simulation extra: `pip install 'spectral-rig[sim]'` ({exc})"
+        ) from None
     return twin
 
 
