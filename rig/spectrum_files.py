@@ -2,7 +2,7 @@
 
 The device is :class:`drivers.spectrometer.files.FilesSpectrometer`; this module gives it its
 reader, which lives in the rig because it uses ``calib``'s readers (``drivers`` import nothing of
-the project) and colour-science's (through :meth:`calib.core.spectra.Spectrum.from_colour`):
+the project), colour-science's among them (through ``calib.core.colour_data.spectral_file``):
 
 ============  ======================================================================================
 format        files
@@ -26,12 +26,13 @@ zero, as the rig does with every spectrum it records.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Literal
 
 import numpy as np
 
+from calib.core.colour_data import spectral_file
 from calib.core.errors import SpectrumError
-from calib.core.spectra import Spectrum, read_spectrum_csv
+from calib.core.spectra import read_spectrum_csv
 from drivers.base import RelayBoard, SpectrumReading, TranscriptSink
 from drivers.spectrometer.cgats import CgatsError, parse_sp, units_of
 from drivers.spectrometer.files import FilesSpectrometer, LampFile, SwitchedRelays
@@ -40,8 +41,10 @@ from rig.config import SpectrumFileFormat as FileFormat
 
 __all__ = ["FileFormat", "detect_format", "open_spectrum_files", "read_measured_spectrum"]
 
+KnownFormat = Literal["argyll", "csv", "ies", "xrite", "sekonic", "uprtek"]
 
-def detect_format(path: Path) -> FileFormat:
+
+def detect_format(path: Path) -> KnownFormat:
     """The format of ``path`` by its suffix (and, for ``.txt``, its content)."""
     suffix = path.suffix.lower()
     if suffix == ".sp":
@@ -84,34 +87,6 @@ def _positive(text: str, what: str) -> float:
     return value
 
 
-def _from_colour(distribution: Any, name: str) -> Spectrum:
-    spectrum = Spectrum.from_colour(distribution, name=name)
-    values = np.clip(spectrum.values, 0.0, None)
-    return Spectrum(spectrum.wavelength_nm, values, name=name)
-
-
-def _colour_distribution(path: Path, file_format: FileFormat, column: str | None) -> Any:
-    import colour  # deferred: importing colour costs about a second
-
-    if file_format == "ies":
-        return colour.SpectralDistribution_IESTM2714(str(path)).read()
-    if file_format == "sekonic":
-        return colour.io.SpectralDistribution_Sekonic(str(path)).read()
-    if file_format == "uprtek":
-        return colour.io.SpectralDistribution_UPRTek(str(path)).read()
-    distributions = colour.io.read_sds_from_xrite_file(str(path))
-    if column is None:
-        if len(distributions) != 1:
-            raise SpectrumError(
-                f"{len(distributions)} samples ({', '.join(distributions)}); choose one with "
-                "devices.spectrometer.column"
-            )
-        return next(iter(distributions.values()))
-    if column not in distributions:
-        raise SpectrumError(f"no sample {column!r}; samples are {', '.join(distributions)}")
-    return distributions[column]
-
-
 def read_measured_spectrum(
     path: Path,
     *,
@@ -127,7 +102,7 @@ def read_measured_spectrum(
     calib.core.errors.SpectrumError
         Missing, unreadable, not in the format, no such column, bad header values (named).
     """
-    chosen = detect_format(path) if file_format == "auto" else file_format
+    chosen: KnownFormat = detect_format(path) if file_format == "auto" else file_format
     if not path.is_file():
         raise SpectrumError("file not found", source=str(path))
     if chosen == "argyll":
@@ -152,21 +127,14 @@ def read_measured_spectrum(
             {},
             _positive(bandwidth, f"{path}: # bandwidth_nm") if bandwidth else bandwidth_nm,
         )
-    try:
-        distribution = _colour_distribution(path, chosen, column)
-    except SpectrumError as exc:
-        raise SpectrumError(str(exc), source=str(path)) from None
-    except (ValueError, KeyError, IndexError, OSError) as exc:
-        raise SpectrumError(f"not a readable {chosen} file: {exc}", source=str(path)) from None
-    spectrum = _from_colour(distribution, path.name)
-    file_units, file_bandwidth = units, bandwidth_nm
-    if chosen == "ies":
-        quantity = getattr(distribution, "spectral_quantity", None)
-        file_units = str(quantity) if quantity else units
-        fwhm = getattr(distribution, "bandwidth_FWHM", None)
-        file_bandwidth = float(fwhm) if fwhm else bandwidth_nm
+    read = spectral_file(path, chosen, column)
     return SpectrumReading(
-        spectrum.wavelength_nm, spectrum.values, file_units, None, {}, file_bandwidth
+        read.spectrum.wavelength_nm,
+        read.spectrum.values,
+        read.quantity or units,
+        None,
+        {},
+        read.bandwidth_nm if read.bandwidth_nm is not None else bandwidth_nm,
     )
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from calib.core.mapping import GratingGeometry
-from calib.core.spectra import MultiSpectrum
+from calib.core.spectra import MultiSpectrum, Spectrum
 from drivers.base import Camera, RelayBoard, Spectrometer
 from rig.clock import Clock
 from rig.config import RigConfig
@@ -87,6 +87,9 @@ class TwinTruthRecord(Protocol):
 
     @property
     def sensitivity(self) -> MultiSpectrum: ...
+
+    @property
+    def grating_efficiency(self) -> Spectrum: ...
 
     @property
     def mapping(self) -> GratingGeometry: ...

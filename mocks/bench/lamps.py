@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.colour_data import illuminants
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import Spectrum
 from mocks.bench.colour_cache import cached_table
@@ -43,9 +44,7 @@ COMPONENT_TOLERANCE = 1e-9
 
 def illuminant_names() -> list[str]:
     """The colour-science illuminants a twin lamp may take its spectrum from."""
-    import colour  # deferred: importing colour costs about a second
-
-    return sorted(str(name) for name in colour.SDS_ILLUMINANTS)
+    return sorted(illuminants())
 
 
 def settled_spectrum(lamp: LampSpec) -> Spectrum:
@@ -57,19 +56,15 @@ def settled_spectrum(lamp: LampSpec) -> Spectrum:
         The illuminant is unknown, or has no light in 400–700 nm.
     """
 
-
     def from_colour() -> tuple[FloatArray, FloatArray]:
-        import colour  # deferred: importing colour costs about a second (once: then cached)
-
-        distribution = colour.SDS_ILLUMINANTS.get(lamp.spd)
-        if distribution is None:
+        illuminant = illuminants().get(lamp.spd)  # importing colour costs a second: then cached
+        if illuminant is None:
             shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
             raise TwinSpecError(
                 f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
                 f"illuminant; name the lamp after one or set spd to one of: {shown}"
             )
-        table = Spectrum.from_colour(distribution)
-        return table.wavelength_nm, table.values
+        return illuminant.wavelength_nm, illuminant.values
 
     wavelength_nm, values = cached_table(f"illuminant {lamp.spd}", from_colour)
     spectrum = Spectrum(wavelength_nm, values, name=lamp.name)
