@@ -265,13 +265,68 @@ def spotread_argv(settings: ArgyllSettings, executable: str) -> list[str]:
 
 # --------------------------------------------------------------------------------- errors
 
-_FATAL = re.compile(r"Got fatal error '([^']*)' \(([^)]*)\)")
-_MISREAD = re.compile(r"Spot read failed due to misread \(([^)]*)\)")
-_NO_PORT = re.compile(r"No instrument at port (\d+)")
-_INIT_FAILED = re.compile(r"Instrument initialisation failed with '([^']*)' \(([^)]*)\)")
-_COMMS = re.compile(
-    r"Failed to initialise communications with instrument[^(]*\('([^']*)' \+ '([^']*)'\)"
+_CALIBRATE = (
+    "calibrate it once, with the ambient diffuser in place as spotread asks: run `spotread -a -O` "
+    "in a terminal, then continue the session with `rig resume`"
 )
+#: What spotread prints, in the order it is looked for: (pattern, error class, code, message; the
+#: message's ``{0}``, ``{1}`` are the pattern's groups).
+SPOTREAD_REPORTS: tuple[tuple[str, type[DeviceError], str, str], ...] = (
+    (
+        r"No instrument at port (\d+)", DeviceNotFound, "",
+        "spotread finds no instrument at port {0} (devices.spectrometer.instrument); `spotread -?` "
+        "lists what it finds. Check the cable, and that no other program (DisplayCAL, a colorimeter "
+        "daemon) holds it",
+    ),
+    (
+        r"no instrument detected", DeviceNotFound, "",
+        "spotread detects no instrument it supports; plug it in, check `spotread -?` and, on "
+        "Linux, ArgyllCMS's udev rule (usb/55-Argyll.rules)",
+    ),
+    (
+        r"Failed to initialise communications with instrument[^(]*\('([^']*)' \+ '([^']*)'\)",
+        Disconnected, "",
+        "spotread cannot talk to the instrument ({0}: {1}); replug it and make sure no other "
+        "program uses it",
+    ),
+    (
+        r"Instrument initialisation failed with '([^']*)' \(([^)]*)\)", InstrumentError,
+        "init_failed", "the instrument failed to initialise ({1}); replug it",
+    ),
+    (
+        r"needs a calibration|instruments needs calibration", InstrumentError,
+        "calibration_needed", f"the instrument needs a calibration: {_CALIBRATE}",
+    ),
+    (
+        r"wrong position", InstrumentError, "sensor_position",
+        "the instrument's sensor is in the wrong position: set it to ambient measurement (the "
+        "diffuser over the aperture; ColorMunki: turn the dial to the ambient position)",
+    ),
+    (
+        r"ambient light capability", InstrumentError, "no_ambient_mode",
+        "this instrument does not measure ambient light; fit its ambient head, or use a spectral "
+        "instrument with a diffuser (i1Pro, i1Studio, ColorMunki)",
+    ),
+    (
+        r"didn't return spectral data", InstrumentError, "not_spectral",
+        "the instrument returns no spectrum (a colorimeter); the rig needs a spectral instrument",
+    ),
+    (
+        r"Spot read failed due to misread \(([^)]*)\)", MeasurementConditionError, "misread",
+        "the instrument misread the light ({0})",
+    ),
+    (
+        r"communication problem", ProtocolError, "",
+        "spotread lost the instrument's communication",
+    ),
+    (
+        r"Got fatal error '([^']*)' \(([^)]*)\)", InstrumentError, "fatal", "spotread: {0} ({1})",
+    ),
+    (
+        r"abort or error from calibrat", InstrumentError, "calibration_failed",
+        f"the instrument's calibration failed: {_CALIBRATE}",
+    ),
+)  # fmt: skip
 
 
 def spotread_error(label: str, output: str, command: str) -> DeviceError | None:
@@ -280,83 +335,16 @@ def spotread_error(label: str, output: str, command: str) -> DeviceError | None:
     >>> spotread_error("i1", "spotread: Error - No instrument at port 1", "spotread").reason
     'not_found'
     """
-    calibrate = (
-        "calibrate it once, with the ambient diffuser in place as spotread asks: run "
-        "`spotread -a -O` in a terminal, then continue the session with `rig resume`"
-    )
-    if found := _NO_PORT.search(output):
-        return DeviceNotFound(
-            label,
-            f"spotread finds no instrument at port {found.group(1)} "
-            "(devices.spectrometer.instrument); `spotread -?` lists what it finds. Check the "
-            "cable, and that no other program (DisplayCAL, a colorimeter daemon) holds it",
-        )
-    if "no instrument detected" in output:
-        return DeviceNotFound(
-            label,
-            "spotread detects no instrument it supports; plug it in, check `spotread -?` and, "
-            "on Linux, ArgyllCMS's udev rule (usb/55-Argyll.rules)",
-        )
-    if found := _COMMS.search(output):
-        return Disconnected(
-            label,
-            f"spotread cannot talk to the instrument ({found.group(1)}: {found.group(2)}); "
-            "replug it and make sure no other program uses it",
-        )
-    if found := _INIT_FAILED.search(output):
-        return InstrumentError(
-            label,
-            f"the instrument failed to initialise ({found.group(2)}); replug it",
-            code="init_failed",
-            command=command,
-        )
-    if "needs a calibration" in output or "instruments needs calibration" in output:
-        return InstrumentError(
-            label, f"the instrument needs a calibration: {calibrate}", code="calibration_needed",
-            command=command,
-        )  # fmt: skip
-    if "wrong position" in output:
-        return InstrumentError(
-            label,
-            "the instrument's sensor is in the wrong position: set it to ambient measurement "
-            "(the diffuser over the aperture; ColorMunki: turn the dial to the ambient position)",
-            code="sensor_position",
-            command=command,
-        )
-    if "ambient light capability" in output:
-        return InstrumentError(
-            label,
-            "this instrument does not measure ambient light; fit its ambient head, or use a "
-            "spectral instrument with a diffuser (i1Pro, i1Studio, ColorMunki)",
-            code="no_ambient_mode",
-            command=command,
-        )
-    if "didn't return spectral data" in output:
-        return InstrumentError(
-            label,
-            "the instrument returns no spectrum (a colorimeter); the rig needs a spectral "
-            "instrument",
-            code="not_spectral",
-            command=command,
-        )
-    if found := _MISREAD.search(output):
-        return MeasurementConditionError(
-            label, f"the instrument misread the light ({found.group(1)})", code="misread",
-            command=command,
-        )  # fmt: skip
-    if "communication problem" in output:
-        return ProtocolError(
-            label, "spotread lost the instrument's communication", command=command, reply=None
-        )
-    if found := _FATAL.search(output):
-        return InstrumentError(
-            label, f"spotread: {found.group(1)} ({found.group(2)})", code="fatal", command=command
-        )
-    if "calibration" in output and "abort" in output:
-        return InstrumentError(
-            label, f"the instrument's calibration failed: {calibrate}", code="calibration_failed",
-            command=command,
-        )  # fmt: skip
+    for pattern, error, code, message in SPOTREAD_REPORTS:
+        found = re.search(pattern, output)
+        if found is None:
+            continue
+        text = message.format(*found.groups())
+        if issubclass(error, InstrumentError):
+            return error(label, text, code=code, command=command)
+        if error is ProtocolError:
+            return ProtocolError(label, text, command=command, reply=None)
+        return error(label, text)
     return None
 
 

@@ -21,10 +21,7 @@ class _ReplayedRun:
         self._file: str | None = None
 
     def _next(self) -> str | None:
-        served = self._script.peek()
-        while served is not None and served.entry.direction == "event":
-            self._script.skip()
-            served = self._script.peek()
+        served = self._script.peek_answer()
         return None if served is None else served.entry.direction
 
     def read(self, timeout_s: float) -> bytes | None:

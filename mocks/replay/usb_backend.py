@@ -110,10 +110,7 @@ class ReplayUsbBackend(usb.backend.IBackend):  # type: ignore[misc]
         data: array.array[int],
         timeout: int,
     ) -> int:
-        served = self._script.peek()
-        while served is not None and served.entry.direction == "event":
-            self._script.skip()
-            served = self._script.peek()
+        served = self._script.peek_answer()
         if served is not None and served.entry.direction == "error":
             self._script.take("an error")
             raise _recorded_error(served.entry.payload)
@@ -166,10 +163,7 @@ class ReplayOceanBackend(OceanBackend):
         return len(data)
 
     def bulk_read(self, dev_handle: Any, ep: int, intf: int, buff: Any, timeout: int) -> int:
-        served = self._script.peek()
-        while served is not None and served.entry.direction == "event":
-            self._script.skip()
-            served = self._script.peek()
+        served = self._script.peek_answer()
         if served is not None and served.entry.direction == "error":
             self._script.take("an error")
             raise _recorded_error(served.entry.payload)
