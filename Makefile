@@ -7,16 +7,25 @@ DEMO_DIR ?= demo-output
 
 .PHONY: install demo test test-all lint typecheck format bench clean
 
+SIM_STAMP := $(VENV)/.sim-stamp
+
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+# The demo needs the twin's libraries ([sim]), not the development tools.
+$(SIM_STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[sim]'
+	touch $(SIM_STAMP)
+
 install: $(STAMP)
 
 ## A full simulated capture on the digital twin, then the estimate and its report.
-demo: $(STAMP)
+demo: $(SIM_STAMP)
 	$(BIN)/rig demo --out $(DEMO_DIR)
 
 lint: $(STAMP)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -61,6 +62,80 @@ def _capture_progress(config: RigConfig, quiet: bool) -> ProgressReporter:
 def version() -> None:
     """Print the software version."""
     typer.echo(current_software().version)
+
+
+class SpectrometerKind(StrEnum):
+    twin = "twin"
+    pr655 = "pr655"
+    pr670 = "pr670"
+    cs2000 = "cs2000"
+    seabreeze = "seabreeze"
+    argyll = "argyll"
+    files = "files"
+
+
+class RelayKind(StrEnum):
+    twin = "twin"
+    hid_usbrelay = "hid_usbrelay"
+    lcus = "lcus"
+    numato = "numato"
+
+
+class CameraKind(StrEnum):
+    twin = "twin"
+    gphoto2 = "gphoto2"
+
+
+@app.command()
+def init(
+    twin: Annotated[
+        bool,
+        typer.Option(
+            "--twin",
+            help="The digital twin for every device not named (the default when none is named).",
+        ),
+    ] = False,
+    spectrometer: Annotated[
+        SpectrometerKind | None, typer.Option("--spectrometer", help="The spectrometer's kind.")
+    ] = None,
+    relays: Annotated[
+        RelayKind | None, typer.Option("--relays", help="The relay board's kind.")
+    ] = None,
+    camera: Annotated[
+        CameraKind | None, typer.Option("--camera", help="The camera's kind.")
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="The file to write.")] = DEFAULT_CONFIG,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing file.")] = False,
+) -> None:
+    """Write a commented configuration: real instruments (--spectrometer, --relays, --camera; the
+    others PR-655, HID relays, gphoto2) or the digital twin (--twin), each device on its own."""
+    from rig.init_config import HARDWARE_DEFAULTS, TWIN, write_new_config
+
+    named = {"spectrometer": spectrometer, "relays": relays, "camera": camera}
+    everything_twin = twin or all(kind is None for kind in named.values())
+    kinds = {
+        role: kind.value
+        if kind is not None
+        else TWIN
+        if everything_twin
+        else HARDWARE_DEFAULTS[role]
+        for role, kind in named.items()
+    }
+    try:
+        write_new_config(out, force=force, **kinds)
+    except FileExistsError as exc:
+        raise InputError(str(exc), source="--out") from None
+    typer.echo(
+        f"wrote {out}: spectrometer {kinds['spectrometer']}, relays {kinds['relays']}, "
+        f"camera {kinds['camera']}"
+    )
+    if all(kind == TWIN for kind in kinds.values()):
+        typer.echo(f"next: rig demo -c {out}   (capture on the twin, estimate, report)")
+    else:
+        typer.echo(
+            f"next: edit the ports and lamps in {out} (`rig devices` lists what is plugged in), "
+            f"then rig dry-run -c {out} and rig capture -c {out}"
+        )
 
 
 @app.command()
@@ -413,7 +488,10 @@ def replay(
 def devices(
     serial: Annotated[bool, typer.Option("--serial/--no-serial", help="List serial ports.")] = True,
     usb: Annotated[
-        bool, typer.Option("--usb/--no-usb", help="Probe HID relay boards on the USB bus.")
+        bool,
+        typer.Option(
+            "--usb/--no-usb", help="Probe HID relay boards and Ocean spectrometers on the USB bus."
+        ),
     ] = True,
     cameras: Annotated[
         bool, typer.Option("--cameras/--no-cameras", help="Autodetect gphoto2 cameras.")
@@ -425,16 +503,63 @@ def devices(
         ),
     ] = 5.0,
 ) -> None:
-    """List the serial ports, HID relay boards and cameras present, with config snippets for each."""
+    """List the serial ports, HID relay boards, Ocean spectrometers and cameras present, with
+    config snippets for each."""
     from drivers.discovery import list_devices, render_text
 
     report = list_devices(
         include_serial=serial,
         include_usb_relays=usb,
+        include_ocean=usb,
         include_cameras=cameras,
         timeout_s=timeout_s,
     )
     typer.echo(render_text(report), nl=False)
+
+
+@app.command("calibrate-spectrometer")
+def calibrate_spectrometer_command(
+    lamp: Annotated[
+        str,
+        typer.Option(
+            "--lamp",
+            help="The reference lamp's known spectrum: a colour-science illuminant name (A for a "
+            "tungsten-halogen lamp) or a CSV (wavelength_nm, value).",
+        ),
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The calibration file to write.")],
+    config: ConfigOption = DEFAULT_CONFIG,
+    channel: Annotated[
+        int | None,
+        typer.Option(
+            "--channel", min=1, help="Relay channel of the lamp (default: the lamp of that name)."
+        ),
+    ] = None,
+    warmup_s: Annotated[
+        float, typer.Option("--warmup", min=0.0, help="Seconds the lamp burns before measuring.")
+    ] = 120.0,
+    repeats: Annotated[int, typer.Option("--repeats", min=1, help="Spectra averaged.")] = 3,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing file.")] = False,
+) -> None:
+    """Make an Ocean spectrometer's relative irradiance calibration against a lamp of known
+    spectrum (the file devices.spectrometer.calibration_file loads)."""
+    from calib.core.lamp_specs import lamp_from_spec
+    from rig.calibrate import calibrate_spectrometer
+    from rig.config import load_config
+
+    if out.exists() and not force:
+        raise InputError(f"{out} exists; pass --force to replace it", source="--out")
+    rig_config = load_config(config)
+    known = lamp_from_spec(lamp)
+    outcome = calibrate_spectrometer(
+        rig_config, known, out, channel=channel, warmup_s=warmup_s, repeats=repeats, source=lamp
+    )
+    typer.echo(f"calibration: {outcome.path}")
+    typer.echo(
+        f"range: {outcome.wavelength_nm[0]:g}-{outcome.wavelength_nm[-1]:g} nm, integration "
+        f"{outcome.integration_ms:g} ms, spread between spectra {outcome.spread:.2%}"
+    )
+    typer.echo(f"use it: devices.spectrometer.calibration_file: {outcome.path}")
 
 
 data_app = typer.Typer(

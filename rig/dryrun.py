@@ -33,9 +33,11 @@ from rig.steps import (
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
+    DarkMeasured,
     ExposureSet,
     FrameCaptured,
     KeepLampTimeline,
+    MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
@@ -117,7 +119,9 @@ def check_limits(config: RigConfig) -> list[LimitViolation]:
 
 
 class StepCostModel(StepHandlers[float]):
-    """Estimated duration of each step in seconds, from ``config.dry_run``."""
+    """Estimated duration of each step in seconds, from ``config.dry_run`` (the spectrometer's dark
+    counts as one spectrum measurement: plans and the dry run know no driver's integration ladder).
+    """
 
     def __init__(self, model: DryRunModel) -> None:
         self.model = model
@@ -139,6 +143,9 @@ class StepCostModel(StepHandlers[float]):
         return SETTINGS_S
 
     def measure_spectrum(self, step: MeasureSpectrum) -> float:
+        return self.model.spectrum_measure_s
+
+    def measure_dark(self, step: MeasureDark) -> float:
         return self.model.spectrum_measure_s
 
     def wait(self, step: Wait) -> float:
@@ -213,6 +220,9 @@ class ModelledBench(StepHandlers[StepResult]):
         return SpectrumMeasured(
             self.time_s, file, self.WAVELENGTH_NM, shape * tilt, "W/(sr·m²·nm)", None
         )
+
+    def measure_dark(self, step: MeasureDark) -> DarkMeasured:
+        return DarkMeasured(self.time_s, "spectra/dark.csv", ())
 
     def wait(self, step: Wait) -> Waited:
         return Waited(self.time_s, step.seconds)

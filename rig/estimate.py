@@ -58,7 +58,7 @@ from rig.plan import relative_change
 from rig.records import FileRecord
 from rig.session import Session, read_session
 from rig.steps import SpectrumMeasured
-from rig.twin import bench_module
+from rig.twin import read_twin_truth
 
 #: What ``rig demo`` writes beside a twin session (``mocks.bench.TRUTH_FILE_NAME``).
 TWIN_TRUTH_FILE = "twin-truth.json"
@@ -292,7 +292,7 @@ def _twin_truth(session_path: Path, warnings: list[str]) -> GroundTruth | None:
     if not path.is_file():
         return None
     try:
-        truth = bench_module().TwinTruth.read(path)
+        truth = read_twin_truth(path)
     except (ValueError, RigError) as exc:
         warnings.append(f"{path.name} not used: {exc}")
         return None

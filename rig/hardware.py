@@ -15,9 +15,12 @@ The clock is the wall clock; frames are measured by the real frame analyser
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, TypeVar
 
+from calib.core.errors import SpectrumError
+from calib.core.spectra import read_spectrum_csv, read_table
 from drivers.base import (
     Camera,
     DeviceError,
@@ -31,22 +34,30 @@ from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import open_lcus
 from drivers.relays.numato import open_numato
 from drivers.spectrometer import open_spectrometer
+from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
+from drivers.spectrometer.files import SwitchedRelays
+from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from rig.clock import MonotonicClock
 from rig.config import (
+    ArgyllSpectrometerConfig,
     CameraConfig,
+    FilesSpectrometerConfig,
     Gphoto2CameraConfig,
     HidRelayConfig,
+    LampConfig,
     LcusRelayConfig,
     NumatoRelayConfig,
     RelayConfig,
     RigConfig,
+    SeabreezeSpectrometerConfig,
     SerialSpectrometerConfig,
     SpectrometerConfig,
 )
 from rig.errors import StationOpenFailed, StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
 from rig.runner import StepTimeouts, switch_off_now
-from rig.station import Station, TranscriptFactory
+from rig.spectrum_files import open_spectrum_files
+from rig.station_devices import Station, TranscriptFactory
 
 DeviceT = TypeVar("DeviceT", Spectrometer, Camera, RelayBoard)
 SPECTROMETER_MODELS = {"pr655": "PR-655", "pr670": "PR-670", "cs2000": "CS-2000"}
@@ -95,10 +106,89 @@ def open_relays(
     raise _not_hardware("relays", config.kind)
 
 
+def load_irradiance_calibration(path: Path) -> IrradianceCalibration:
+    """An Ocean spectrometer's relative irradiance calibration from a CSV file (``wavelength_nm``,
+    ``factor``; a two-column file without a header is read as those).
+
+    Raises
+    ------
+    calib.errors.SpectrumError
+        The file is missing, unreadable, or its values are not a calibration (names the file).
+    """
+    table = read_table(path)
+    column = "factor" if "factor" in table.columns else None
+    spectrum = read_spectrum_csv(path, column=column)
+    try:
+        return IrradianceCalibration(spectrum.wavelength_nm, spectrum.values, source=str(path))
+    except ValueError as exc:
+        raise SpectrumError(str(exc), source=str(path)) from None
+
+
+def ocean_settings(
+    config: SeabreezeSpectrometerConfig, calibration: IrradianceCalibration | None
+) -> OceanSettings:
+    """The Ocean driver's settings from the configuration."""
+    return OceanSettings(
+        integration_range_ms=(config.integration_min_ms, config.integration_max_ms),
+        averages=config.averages,
+        electric_dark=config.electric_dark,
+        nonlinearity=config.nonlinearity,
+        calibration=calibration,
+        allow_uncalibrated=config.allow_uncalibrated,
+        bandwidth_nm=config.bandwidth_nm,
+        timeout_ms=round(config.timeout_s * 1000),
+    )
+
+
+def watched_relays(config: RigConfig, relays: RelayBoard) -> RelayBoard:
+    """The relay board as the station hands it to the runner: watched when the spectrometer is
+    measured files (they stand for whichever lamp the rig switched on)."""
+    if isinstance(config.devices.spectrometer, FilesSpectrometerConfig):
+        return SwitchedRelays(relays)
+    return relays
+
+
 def open_configured_spectrometer(
-    config: SpectrometerConfig, transcript: TranscriptSink
+    config: SpectrometerConfig,
+    transcript: TranscriptSink,
+    *,
+    usb_backend: Any = None,
+    relays: RelayBoard | None = None,
+    lamps: Sequence[LampConfig] = (),
 ) -> Spectrometer:
-    """Open the configured spectroradiometer on its serial port."""
+    """Open the configured spectrometer: on its serial port, on USB (Ocean), through spotread, or
+    measured files.
+
+    ``usb_backend`` is the pyusb backend for an Ocean spectrometer (default: libusb); ``relays``
+    (from :func:`watched_relays`) and ``lamps`` are what a files device watches.
+    """
+    if isinstance(config, FilesSpectrometerConfig):
+        if not isinstance(relays, SwitchedRelays):
+            raise StationUnavailable("a files spectrometer needs the relays from watched_relays()")
+        return open_spectrum_files(config, list(lamps), relays, transcript)[0]
+    if isinstance(config, SeabreezeSpectrometerConfig):
+        calibration = (
+            None
+            if config.calibration_file is None
+            else load_irradiance_calibration(config.calibration_file)
+        )
+        return open_ocean(
+            config.serial,
+            ocean_settings(config, calibration),
+            backend=usb_backend,
+            transcript=transcript,
+        )
+    if isinstance(config, ArgyllSpectrometerConfig):
+        return open_argyll(
+            ArgyllSettings(
+                executable=config.executable,
+                instrument=config.instrument,
+                high_resolution=config.high_resolution,
+                timeout_s=config.timeout_s,
+                bandwidth_nm=config.bandwidth_nm,
+            ),
+            transcript=transcript,
+        )
     if not isinstance(config, SerialSpectrometerConfig):
         raise _not_hardware("spectrometer", config.kind)
     return open_spectrometer(
@@ -171,9 +261,17 @@ def open_hardware_station(
             "relays",
             lambda: open_relays(devices.relays, transcripts("relays"), usb_backend=usb_backend),
         )
+        if relays is not None:
+            relays = watched_relays(config, relays)
         spectrometer = attempt(
             "spectrometer",
-            lambda: open_configured_spectrometer(devices.spectrometer, transcripts("spectrometer")),
+            lambda: open_configured_spectrometer(
+                devices.spectrometer,
+                transcripts("spectrometer"),
+                usb_backend=usb_backend,
+                relays=relays,
+                lamps=config.lamps,
+            ),
         )
         camera = attempt(
             "camera",

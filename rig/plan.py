@@ -10,7 +10,8 @@ ones — sends each step's result back with ``plan.send(result)``::
         result = execute(step)
         step = plan.send(result)   # StopIteration when the plan is done
 
-The standard plan, per lamp: switch on; measure spectra every ``interval_s`` until consecutive spectra
+The standard plan: every lamp off, camera and spectrometer set up (and, for a spectrometer that
+subtracts its own dark, its dark spectrum measured with the lamps off); then per lamp: switch on; measure spectra every ``interval_s`` until consecutive spectra
 differ by less than the tolerance (or fail at the warm-up timeout); measure ``repeats`` reference
 spectra; capture an automatically extended HDR bracket of the direct + diffracted scene; switch off;
 take dark frames at the bracket's exposures. A plan fails by raising a :class:`rig.errors.PlanFailure`
@@ -50,9 +51,11 @@ from rig.steps import (
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
+    DarkMeasured,
     ExposureSet,
     FrameCaptured,
     JsonDict,
+    MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
@@ -315,6 +318,7 @@ class StandardCaptureArgs(StrictModel):
     spectrum: SpectrumPolicy
     hdr: HdrPolicy
     dark_frames: int = Field(ge=0)
+    spectrometer_dark: bool = False
 
     @classmethod
     def from_config(cls, config: RigConfig) -> StandardCaptureArgs:
@@ -324,6 +328,7 @@ class StandardCaptureArgs(StrictModel):
             spectrum=config.spectrum,
             hdr=config.hdr,
             dark_frames=config.dark_frames,
+            spectrometer_dark=config.devices.spectrometer_takes_dark,
         )
 
 
@@ -343,6 +348,8 @@ def standard_capture(args: StandardCaptureArgs) -> Plan:
     camera = yield from run_step(ConfigureCamera(args.camera.setting_items()), CameraReady)
     limits = exposure_limits(args.hdr, camera)
     yield from run_step(ConfigureSpectrometer(args.spectrum.exposure_ms), SpectrometerReady)
+    if args.spectrometer_dark:
+        yield from run_step(MeasureDark(), DarkMeasured)
     for lamp in args.lamps:
         switched = yield from run_step(SwitchLamp(lamp.name, lamp.channel, True), RelayState)
         yield from wait_until_stable(lamp, switched.time_s)

@@ -111,6 +111,7 @@ from rig.steps import (
     ExposureSet,
     FrameCaptured,
     KeepLampTimeline,
+    MeasureDark,
     MeasureSpectrum,
     SetExposure,
     SpectrumLoader,
@@ -172,6 +173,9 @@ class ResumeRules(StepHandlers[StepOnResume]):
 
     def measure_spectrum(self, step: MeasureSpectrum) -> StepOnResume:
         return StepOnResume(warmup_lamp=step.lamp)
+
+    def measure_dark(self, step: MeasureDark) -> StepOnResume:
+        return StepOnResume(setup=True)  # a new process measures its spectrometer's dark again
 
     def wait(self, step: Wait) -> StepOnResume:
         return StepOnResume(warmup_lamp=step.lamp)

@@ -31,11 +31,12 @@ import numpy as np
 
 from calib.core.errors import SpectrumError
 from calib.core.software import current_software
-from calib.core.spectra import Spectrum, read_spectrum_csv
-from drivers.base import DeviceError, DeviceIdentity, RelayBoard, StateMismatch
+from calib.core.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
+from drivers.base import DarkCorrecting, DeviceError, DeviceIdentity, RelayBoard, StateMismatch
 from drivers.local_files import NO_SPACE_ERRNOS, UnsafeLocalPath
 from drivers.spectrometer import longest_measure_s
-from rig.config import RigConfig, TwinSpectrometerConfig
+from drivers.spectrometer.ocean import integration_ladder_ms
+from rig.config import RigConfig, SeabreezeSpectrometerConfig
 from rig.dryrun import DryRunReport
 from rig.errors import (
     FrameAnalysisError,
@@ -73,10 +74,12 @@ from rig.steps import (
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
+    DarkMeasured,
     DeviceRole,
     ExposureSet,
     FrameCaptured,
     KeepLampTimeline,
+    MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
@@ -109,6 +112,21 @@ STALE_READING_ATTEMPTS = 3
 STALE_EXPOSURE_RTOL = 0.02
 
 
+def dark_duration_s(config: RigConfig) -> float:
+    """How long the spectrometer's dark takes: every rung of its integration ladder (a fixed
+    ``spectrum.exposure_ms`` alone), each averaged, plus the stale scan after each change."""
+    spectrometer = config.devices.spectrometer
+    if not isinstance(spectrometer, SeabreezeSpectrometerConfig):
+        return config.dry_run.spectrum_measure_s
+    fixed_ms = config.spectrum.exposure_ms
+    rungs = (
+        (fixed_ms,)
+        if fixed_ms is not None
+        else integration_ladder_ms(spectrometer.integration_min_ms, spectrometer.integration_max_ms)
+    )
+    return math.fsum(rungs) * (spectrometer.averages + 1) / 1000.0
+
+
 @dataclass(frozen=True)
 class RetryPolicy:
     """Bounded exponential backoff: ``initial_s``, ×``factor`` per attempt, at most ``max_s``."""
@@ -131,6 +149,7 @@ class StepTimeouts:
     spectrometer_s: float
     camera_s: float
     capture_extra_s: float
+    dark_s: float = 0.0
 
     @classmethod
     def from_config(cls, config: RigConfig) -> StepTimeouts:
@@ -140,21 +159,19 @@ class StepTimeouts:
         # case, so a silent instrument ends in the driver's retryable timeout, not here.
         devices = config.devices
         spectrometer = devices.spectrometer
-        model = (
-            spectrometer.emulate
-            if isinstance(spectrometer, TwinSpectrometerConfig)
-            else (spectrometer.kind)
-        )
+        model = devices.spectrometer_model
         longest = longest_measure_s(
             model,
             timeout_s=spectrometer.timeout_s,
             measure_timeout_s=spectrometer.measure_timeout_s,
         )
+        dark_s = dark_duration_s(config) * 2.0 + 10.0 * spectrometer.timeout_s
         return cls(
             relays_s=4 * devices.relays.timeout_s + 1.0,
             spectrometer_s=max(2 * spectrometer.timeout_s, longest) + 1.0,
             camera_s=2 * devices.camera.timeout_s + 1.0,
             capture_extra_s=devices.camera.download_timeout_s + devices.camera.timeout_s,
+            dark_s=max(longest, dark_s) + 1.0,
         )
 
 
@@ -613,6 +630,9 @@ class Runner(StepHandlers[StepResult]):
         )
         return SpectrometerReady(step.exposure_ms)
 
+    def measure_dark(self, step: MeasureDark) -> DarkMeasured:
+        return self._measure_dark(step)
+
     def measure_spectrum(self, step: MeasureSpectrum) -> SpectrumMeasured:
         return self._measure(step)
 
@@ -718,16 +738,47 @@ class Runner(StepHandlers[StepResult]):
             int(np.count_nonzero(values < 0)),
         )
 
+    def _check_lamps_off(self, before: str) -> None:
+        state = self._relay_state()
+        lit = [str(i + 1) for i, on in enumerate(state.channels) if on]
+        if lit:
+            raise LampsNotOff(
+                self._workers["relays"].device,
+                f"relay channel(s) {', '.join(lit)} read as on before {before}",
+            )
+
+    def _measure_dark(self, step: MeasureDark) -> DarkMeasured:
+        """The spectrometer's dark spectra, lamps checked off first, stored as one CSV file
+        (``wavelength_nm`` and a ``dark_<t>ms`` column of raw counts per integration time)."""
+        spectrometer = self.station.spectrometer
+        device = self._workers["spectrometer"].device
+        if not isinstance(spectrometer, DarkCorrecting):
+            raise PlanProtocolError(f"{step.key}: {device} measures no dark of its own")
+        self._check_lamps_off("the spectrometer's dark")
+        reading = self._call(
+            "spectrometer", "measure the dark", spectrometer.measure_dark, self.timeouts.dark_s
+        )
+        try:
+            darks = MultiSpectrum(
+                reading.wavelength_nm,
+                np.asarray(reading.counts, dtype=np.float64).T,
+                channels=tuple(f"dark_{t:g}ms" for t in reading.integration_ms),
+                name=step.key,
+                negative="clip",
+            )
+        except SpectrumError as exc:
+            raise InvalidReading(device, f"invalid dark spectrum: {exc}") from None
+        temporary = self.session.incoming_path("spectra")
+        write_csv(temporary, darks)
+        record = self.session.commit_file(
+            temporary, "spectra/dark.csv", key=step.key, role="spectrum", units="counts"
+        )
+        return DarkMeasured(self._now_s(), record.path, tuple(reading.integration_ms))
+
     def _capture(self, step: Capture | DarkFrame) -> FrameCaptured:
         dark = isinstance(step, DarkFrame)
         if dark:
-            state = self._relay_state()
-            lit = [str(i + 1) for i, on in enumerate(state.channels) if on]
-            if lit:
-                raise LampsNotOff(
-                    self._workers["relays"].device,
-                    f"relay channel(s) {', '.join(lit)} read as on before a dark frame",
-                )
+            self._check_lamps_off("a dark frame")
         for _ in range(STALE_READING_ATTEMPTS):
             captured, record = self._capture_once(step, dark)
             problem = self._stale_frame(step, record)

@@ -152,6 +152,26 @@ class SpectrumMeasured(StepResult):
 
 
 @dataclass(frozen=True)
+class DarkMeasured(StepResult):
+    """The spectrometer's dark spectra (lamps off), one per integration time, stored at ``file``.
+
+    ``integration_ms`` lists the integration times, in the order of the file's value columns.
+    """
+
+    time_s: float
+    file: str
+    integration_ms: tuple[float, ...]
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> DarkMeasured:
+        return cls(
+            float(data["time_s"]),
+            str(data["file"]),
+            tuple(float(value) for value in data["integration_ms"]),
+        )
+
+
+@dataclass(frozen=True)
 class Waited(StepResult):
     """A wait that ended at ``time_s``; ``completed`` is false when a stop request cut it short."""
 
@@ -296,6 +316,25 @@ class ConfigureSpectrometer(Step):
 
 
 @dataclass(frozen=True)
+class MeasureDark(Step):
+    """Measure the spectrometer's dark spectra with every lamp off (the runner checks the board).
+
+    Only for spectrometers that subtract a dark of their own measuring (an Ocean spectrometer);
+    set-up: a resumed run measures it again before its first spectrum.
+    """
+
+    device = "spectrometer"
+    result_type = DarkMeasured
+
+    @property
+    def key(self) -> str:
+        return "start/spectrometer-dark"
+
+    def describe(self) -> str:
+        return "measure the spectrometer's dark spectrum (every lamp off)"
+
+
+@dataclass(frozen=True)
 class SwitchLamp(Step):
     """Switch one lamp's relay channel on or off and read the board back."""
 
@@ -430,6 +469,7 @@ AnyStep = (
     | ConfigureSpectrometer
     | SwitchLamp
     | MeasureSpectrum
+    | MeasureDark
     | Wait
     | KeepLampTimeline
     | SetExposure
@@ -469,6 +509,8 @@ class StepHandlers(Protocol[ResultT_co]):
 
     def measure_spectrum(self, step: MeasureSpectrum) -> ResultT_co: ...
 
+    def measure_dark(self, step: MeasureDark) -> ResultT_co: ...
+
     def wait(self, step: Wait) -> ResultT_co: ...
 
     def keep_lamp_timeline(self, step: KeepLampTimeline) -> ResultT_co: ...
@@ -502,6 +544,8 @@ def interpret(step: AnyStep, handlers: StepHandlers[ResultT]) -> ResultT:
             return handlers.switch_lamp(step)
         case MeasureSpectrum():
             return handlers.measure_spectrum(step)
+        case MeasureDark():
+            return handlers.measure_dark(step)
         case KeepLampTimeline():  # before Wait, its base class
             return handlers.keep_lamp_timeline(step)
         case Wait():

@@ -81,12 +81,22 @@ SAME_RUN_TOLERANCE = 0.02
 ESTIMATE_INPUT = re.compile(r"^lamp/[^/]+/(scene|dark|reference)/\d+$")
 
 
-def matrix_config(directory: Path) -> RigConfig:
-    """The small twin, its relays persisted in ``directory/relays.state``, short serial timeouts."""
+#: The twin's spectrometers in the matrix: the PR-655 (serial), an Ocean USB2000+ through
+#: pyseabreeze, an i1Pro through ArgyllCMS's spotread (the fake, one process per reading).
+EMULATED = ("pr655", "seabreeze", "argyll")
+
+
+def matrix_config(directory: Path, emulate: str = "pr655") -> RigConfig:
+    """The small twin, its relays persisted in ``directory/relays.state``, short deadlines.
+
+    A spotread run (a process start) gets 5 s; the serial and USB exchanges 0.5 s.
+    """
     data = twin_config_data(directory / "sessions")
     data["devices"]["relays"]["state_file"] = str(directory / "relays.state")
-    data["devices"]["spectrometer"]["timeout_s"] = 0.5
-    data["devices"]["spectrometer"]["measure_timeout_s"] = 1.0
+    spectrometer = data["devices"]["spectrometer"]
+    spectrometer["emulate"] = emulate
+    spectrometer["timeout_s"] = 5.0 if emulate == "argyll" else 0.5
+    spectrometer["measure_timeout_s"] = 10.0 if emulate == "argyll" else 1.0
     return RigConfig.model_validate(data)
 
 
@@ -143,12 +153,31 @@ class Uninterrupted:
         return self._sensitivity
 
 
+class UninterruptedRuns:
+    """Uninterrupted captures with the matrix's seed, one per emulated spectrometer, made once."""
+
+    def __init__(self, factory: pytest.TempPathFactory) -> None:
+        self._factory = factory
+        self._runs: dict[str, Uninterrupted] = {}
+
+    def __call__(self, emulate: str = "pr655") -> Uninterrupted:
+        if emulate not in self._runs:
+            directory = self._factory.mktemp(f"uninterrupted-{emulate}")
+            outcome = run_capture(matrix_config(directory, emulate), retry=NO_BACKOFF)
+            assert outcome.exit_status == "success", outcome
+            inputs = estimate_inputs(read_session(outcome.session))
+            self._runs[emulate] = Uninterrupted(outcome.session, inputs)
+        return self._runs[emulate]
+
+
 @pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Uninterrupted:
-    directory = tmp_path_factory.mktemp("uninterrupted")
-    outcome = run_capture(matrix_config(directory), retry=NO_BACKOFF)
-    assert outcome.exit_status == "success", outcome
-    return Uninterrupted(outcome.session, estimate_inputs(read_session(outcome.session)))
+def uninterrupted_runs(tmp_path_factory: pytest.TempPathFactory) -> UninterruptedRuns:
+    return UninterruptedRuns(tmp_path_factory)
+
+
+@pytest.fixture
+def uninterrupted(uninterrupted_runs: UninterruptedRuns) -> Uninterrupted:
+    return uninterrupted_runs("pr655")
 
 
 def with_estimate(rows: Iterable[str], always: set[str]) -> list[Any]:
@@ -203,12 +232,14 @@ def assert_invariants(
     return session
 
 
-def capture_then_resume(directory: Path, builder: Any = None) -> tuple[str, Path]:
+def capture_then_resume(
+    directory: Path, builder: Any = None, emulate: str = "pr655"
+) -> tuple[str, Path]:
     """Capture with ``builder`` (faults); resume without faults if it did not complete.
 
     Returns the first run's stop reason and the session.
     """
-    outcome = run_capture(matrix_config(directory), retry=NO_BACKOFF, builder=builder)
+    outcome = run_capture(matrix_config(directory, emulate), retry=NO_BACKOFF, builder=builder)
     if outcome.exit_status != "success":
         resumed = run_resume(outcome.session, matrix_config(directory), retry=NO_BACKOFF)
         assert resumed.exit_status == "success", resumed
@@ -232,11 +263,22 @@ class Row:
 
     faults: Callable[[], TwinFaults]
     reason: str
+    emulate: str = "pr655"
 
 
-def _spectrometer(kind: FaultKind, nth: int = 4, **fault: Any) -> TwinFaults:
+def _spectrometer(kind: FaultKind, nth: int = 4, match: str = "M5", **fault: Any) -> TwinFaults:
     rule_fault = Fault(kind, **fault)
-    return TwinFaults(spectrometer=FaultSchedule.once(rule_fault, "M5", nth=nth))
+    return TwinFaults(spectrometer=FaultSchedule.once(rule_fault, match, nth=nth))
+
+
+def _ocean(kind: FaultKind) -> TwinFaults:
+    """A fault on the 12th spectrum transfer of the emulated USB2000+ (inside the warm-up)."""
+    return _spectrometer(kind, nth=12, match="spectrum")
+
+
+def _spotread(kind: FaultKind, code: str | None = None) -> TwinFaults:
+    """A fault on the 3rd spotread run (the fake's scene: ``mocks.bench.station.SPOTREAD_FAULTS``)."""
+    return _spectrometer(kind, nth=3, match="spotread", code=code)
 
 
 ROWS: dict[str, Row] = {
@@ -266,19 +308,68 @@ ROWS: dict[str, Row] = {
         ),
         "state_mismatch",
     ),
+    # Ocean (pyseabreeze on the emulated USB bus): a lost transfer is a USB timeout, a stall and
+    # a spectrum without its sync byte protocol errors, all retried; an unplugged spectrometer
+    # fails the run, and the resume (it is back) completes it.
+    "seabreeze-usb-timeout": Row(lambda: _ocean(FaultKind.NO_REPLY), "completed", "seabreeze"),
+    "seabreeze-stall": Row(lambda: _ocean(FaultKind.ERROR_CODE), "completed", "seabreeze"),
+    "seabreeze-bad-sync-byte": Row(
+        lambda: _ocean(FaultKind.GARBLED_REPLY), "completed", "seabreeze"
+    ),
+    "seabreeze-busy": Row(lambda: _ocean(FaultKind.BUSY), "completed", "seabreeze"),
+    "seabreeze-unplugged": Row(lambda: _ocean(FaultKind.DISCONNECT), "disconnected", "seabreeze"),
+    # ArgyllCMS (the fake spotread): a silent run is killed at its deadline and a misread retried;
+    # a calibration the instrument needs, or an instrument gone, fails the run for a person.
+    "argyll-silent": Row(lambda: _spotread(FaultKind.NO_REPLY), "completed", "argyll"),
+    "argyll-misread": Row(
+        lambda: _spotread(FaultKind.ERROR_CODE, "misread"), "completed", "argyll"
+    ),
+    "argyll-garbled-file": Row(lambda: _spotread(FaultKind.GARBLED_REPLY), "completed", "argyll"),
+    "argyll-needs-calibration": Row(
+        lambda: _spotread(FaultKind.ERROR_CODE, "needs_calibration"), "instrument_error", "argyll"
+    ),
+    "argyll-instrument-gone": Row(lambda: _spotread(FaultKind.DISCONNECT), "not_found", "argyll"),
 }
+#: Rows of the default suite (the others run in ``make test-all``); those in :data:`ALWAYS`
+#: run the estimator there too.
+DEFAULT_ROWS = {
+    *(row for row, spec in ROWS.items() if spec.emulate == "pr655"),
+    "seabreeze-usb-timeout",
+    "seabreeze-unplugged",
+    "argyll-silent",
+    "argyll-needs-calibration",
+}
+ALWAYS = {"camera-unplugged-mid-bracket", "seabreeze-unplugged"}
 
 
-@pytest.mark.parametrize(("row", "estimate"), with_estimate(ROWS, {"camera-unplugged-mid-bracket"}))
-def test_fault(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterrupted) -> None:
+def matrix_rows() -> list[Any]:
+    return [
+        param
+        if param.id.removesuffix("+estimate") in DEFAULT_ROWS
+        else pytest.param(*param.values, id=param.id, marks=pytest.mark.slow)
+        for param in with_estimate(ROWS, ALWAYS)
+    ]
+
+
+@pytest.mark.parametrize(("row", "estimate"), matrix_rows())
+def test_fault(
+    row: str, estimate: bool, tmp_path: Path, uninterrupted_runs: UninterruptedRuns
+) -> None:
     expected = ROWS[row]
-    reason, path = capture_then_resume(tmp_path, twin_station_builder(faults=expected.faults()))
+    builder = twin_station_builder(faults=expected.faults())
+    reason, path = capture_then_resume(tmp_path, builder, expected.emulate)
     assert reason == expected.reason
+    uninterrupted = uninterrupted_runs(expected.emulate)
     session = assert_invariants(path, tmp_path, uninterrupted, estimate)
     if row == "stale-frame-after-exposure-change":
         (discarded,) = [r for r in session.records if isinstance(r, DiscardRecord)]
         assert discarded.reason == "stale" and "metadata says" in discarded.message
-    if row in ("spectrometer-timeout", "spectrometer-truncated-reply"):
+    if row in (
+        "spectrometer-timeout",
+        "spectrometer-truncated-reply",
+        "seabreeze-usb-timeout",
+        "argyll-silent",
+    ):
         (retry,) = [r for r in session.records if isinstance(r, RetryRecord)]
         assert retry.error.reason == "timeout" and retry.error.retryable
     if reason != "completed":
@@ -375,11 +466,14 @@ def test_disk_full(
 
 
 def start_twin_capture(
-    directory: Path, slow_capture_s: float, call: str = "capture"
+    directory: Path, slow_capture_s: float, call: str = "capture", emulate: str = "pr655"
 ) -> subprocess.Popen[str]:
-    """``rig capture`` on the twin in a child process, stopped in its second (slow) capture, or
-    in the second download of a frame from the camera (``call="file_get"``)."""
-    config = write_config(directory / "rig.yaml", matrix_config(directory).model_dump(mode="json"))
+    """``rig capture`` on the twin (its spectrometer emulating ``emulate``) in a child process,
+    stopped in its second (slow) capture, or in the second download of a frame from the camera
+    (``call="file_get"``)."""
+    config = write_config(
+        directory / "rig.yaml", matrix_config(directory, emulate).model_dump(mode="json")
+    )
     process = subprocess.Popen(
         [sys.executable, "-m", "tests.rig.twin_process", str(config), str(slow_capture_s), call],
         cwd=ROOT,
@@ -435,11 +529,25 @@ def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninte
     assert (resume.previous_status, resume.previous_reason) == ("interrupted", reason)
 
 
-@pytest.mark.parametrize("during", ["capture", "file_get"], ids=["in-a-capture", "in-a-download"])
+@pytest.mark.parametrize(
+    ("emulate", "during"),
+    [
+        ("pr655", "capture"),
+        ("pr655", "file_get"),
+        ("seabreeze", "capture"),
+        pytest.param("argyll", "capture", marks=pytest.mark.slow),
+    ],
+    ids=["in-a-capture", "in-a-download", "seabreeze", "argyll"],
+)
 def test_kill_9_then_rig_resume(
-    tmp_path: Path, uninterrupted: Uninterrupted, monkeypatch: pytest.MonkeyPatch, during: str
+    emulate: str,
+    during: str,
+    tmp_path: Path,
+    uninterrupted_runs: UninterruptedRuns,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    process = start_twin_capture(tmp_path, slow_capture_s=60.0, call=during)
+    uninterrupted = uninterrupted_runs(emulate)
+    process = start_twin_capture(tmp_path, slow_capture_s=60.0, call=during, emulate=emulate)
     state = tmp_path / "relays.state"
     assert state.read_text().strip() == "10"  # LED-B3 is on for its bracket
     process.kill()
