@@ -37,7 +37,8 @@ def _decisions(docs_dir: Path) -> list[tuple[str, str, str]]:
 def on_config(config: MkDocsConfig, **kwargs: Any) -> MkDocsConfig:
     """Expand the ``Design decisions`` entry of the navigation into the index and every decision."""
     entries = [{"Index": INDEX}] + [
-        {f"{number} {title}": path} for number, title, path in _decisions(Path(config.docs_dir))
+        {f"{number} {title.replace('`', '')}": path}
+        for number, title, path in _decisions(Path(config.docs_dir))
     ]
     for item in config.nav or []:
         if isinstance(item, dict) and SECTION in item:
