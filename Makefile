@@ -28,7 +28,7 @@ typecheck: $(STAMP)
 
 ## The documentation site (mkdocs.yml) into build/site; any warning fails the build. Offline.
 docs: $(STAMP)
-	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 ## The default suite: lint, types, the docs build, and every test not marked slow.
 test: lint typecheck docs
