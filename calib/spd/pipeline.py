@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from calib.core.checksums import file_sha256
-from calib.core.datasets import read_rgb_csv
 from calib.core.errors import EstimationError, InputError
 from calib.core.figures import agg_figure
+from calib.core.formats import read_camera as read_camera_file
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
 from calib.core.software import current_software
@@ -46,7 +46,6 @@ from calib.spd.alvarez2014 import (
     SourceMode,
     SpdRecovery,
     Weighting,
-    find_mapping,
     instrument_view,
     recover_spd_alvarez2014,
     source_kernel_from_image,
@@ -63,6 +62,7 @@ from calib.spd.light_sources import (
     recognise_light_source,
     srgb_white_balance_from_cct,
 )
+from calib.wavelength import CalibratedCamera, find_mapping
 
 #: The recovered SPD is computed over this range (further limited to where the camera responds).
 RECOVERY_RANGE_NM = (380.0, 730.0)
@@ -193,8 +193,7 @@ def _find_mapping(
     try:
         mapping = find_mapping(
             _profile(source_image, geometry, "mapping lamp"),
-            camera,
-            grating_efficiency=efficiency,
+            camera=CalibratedCamera(camera, efficiency),
             lamp_spectrum=lamp_spectrum,
         )
         wide = widened_geometry(geometry, mapping, RECOVERY_RANGE_NM)
@@ -202,10 +201,9 @@ def _find_mapping(
             # Refine again over the whole range, which the detected extent may not have covered.
             mapping = find_mapping(
                 _profile(source_image, wide, "mapping lamp"),
-                camera,
-                grating_efficiency=efficiency,
+                camera=CalibratedCamera(camera, efficiency),
                 lamp_spectrum=lamp_spectrum,
-                initial=mapping,
+                start=mapping,
             )
             wide = widened_geometry(geometry, mapping, RECOVERY_RANGE_NM)
     except EstimationError as exc:
@@ -218,6 +216,14 @@ def _find_mapping(
             ) from None
         raise EstimationError(f"mapping from the fluorescent lamp failed: {exc}") from None
     return mapping, wide, origin
+
+
+def read_camera(path: Path) -> MultiSpectrum:
+    """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`)."""
+    camera = read_camera_file(path).to_multispectrum()
+    if float(camera.values.max()) <= 0:
+        raise InputError("the sensitivities are all-zero", source=str(path))
+    return camera.normalised()
 
 
 def measure_spd(
@@ -233,7 +239,7 @@ def measure_spd(
         The mapping or the recovery failed on the data.
     """
     say = progress or (lambda message: None)
-    camera = read_rgb_csv(request.camera, name=request.camera.name)
+    camera = read_camera(request.camera)
     efficiency = (
         read_spectrum_csv(request.grating_efficiency, negative="clip")
         if request.grating_efficiency is not None
