@@ -16,6 +16,10 @@ Collections (the layout of a data directory; ``--data-dir`` may point at any suc
     Glenn Butcher's CSVs (``#`` comment header with ``#Camera:``, rows ``wl,r,g,b``).
 ``rawtoaces/``
     AMPAS rawtoaces camera JSON (spectral-data schema 0.1.0): ``spectral_data.data.main["<nm>"]``.
+``rawtoaces-data/``
+    The Academy's rawtoaces-data collection (52 cameras, ``data/camera/*.json``, schema 0.1.0 or
+    1.0.0 with the same ``spectral_data.data.main``; Apache-2.0), and its ``data/aliases.json``
+    (:func:`calib.core.camera_bodies.read_rawtoaces_aliases`). Read when present; not pinned.
 ``colour-science`` (built in, no files)
     ``colour.MSDS_CAMERA_SENSITIVITIES`` and the rawtoaces Canon EOS 5D Mark II CSV inside the
     colour package.
@@ -56,6 +60,7 @@ SOLOMATOV_PREDICTIONS = "solomatov-akkaynak-2023-predictions"
 CAMSPEC = "jiang-2013-camspec"
 BUTCHERG = "butcherg-ssf-data"
 RAWTOACES = "rawtoaces"
+RAWTOACES_DATA = "rawtoaces-data"
 COLOUR_SCIENCE = "colour-science"
 
 #: Every collection name :func:`load_collection` accepts.
@@ -65,6 +70,7 @@ COLLECTIONS: tuple[str, ...] = (
     CAMSPEC,
     BUTCHERG,
     RAWTOACES,
+    RAWTOACES_DATA,
     COLOUR_SCIENCE,
 )
 
@@ -396,7 +402,7 @@ def load_collection(collection: str, data_dir: str | Path | None = None) -> list
         else:
             curves = read_rawtoaces_json(path)
             camera = curves.name
-            name = f"{camera} (rawtoaces)"
+            name = f"{camera} ({collection})"
         records.append(CameraRecord(name, camera, collection, curves, relative))
     if not records:
         raise InputError(
