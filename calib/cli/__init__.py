@@ -21,6 +21,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "calib.cli.compare",
     "calib.cli.spd",
     "calib.cli.plan_lamps",
+    "calib.cli.validate",
 )
 
 app = typer.Typer(
