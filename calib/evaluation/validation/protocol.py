@@ -49,6 +49,7 @@ from calib.evaluation.validation.rig_errors import RigErrors
 from calib.evaluation.validation.scenes import (
     GeometryRanges,
     RenderedScene,
+    ScenePlan,
     draw_scene_plan,
     render_scene,
 )
@@ -260,28 +261,100 @@ class Task:
     settings: ProtocolSettings
 
 
-def render_task_scene(task: Task) -> RenderedScene:
-    """The task's scene, drawn and rendered (a function of the task's seed alone)."""
+def draw_task_plan(task: Task) -> tuple[ScenePlan, np.random.Generator]:
+    """The task's scene plan and the generator its noise comes from (both from its seed alone).
+
+    The 1-D renderer here and the twin's 2-D one (``bench/validate_twin.py``) share it.
+    """
     settings = task.settings
     plan_seed, noise_seed = scene_seed(settings.seed, task.camera, task.scene).spawn(2)
-    lamps = scene_lamps(settings.variants)
     plan = draw_scene_plan(
         np.random.default_rng(plan_seed),
-        lamps,
+        scene_lamps(settings.variants),
         grating_kinds=settings.grating_kinds,
         catalogue=settings.catalogue,
         errors=settings.errors,
         geometry=settings.geometry,
         grid=settings.grid,
     )
-    scene = render_scene(plan, task.camera.sensitivity, lamps, np.random.default_rng(noise_seed))
-    if settings.pixel_origin == "direct_spot":
+    return plan, np.random.default_rng(noise_seed)
+
+
+def render_task_scene(task: Task) -> RenderedScene:
+    """The task's scene, drawn and rendered (a function of the task's seed alone)."""
+    plan, noise = draw_task_plan(task)
+    scene = render_scene(plan, task.camera.sensitivity, scene_lamps(task.settings.variants), noise)
+    if task.settings.pixel_origin == "direct_spot":
         return scene
     observations = {
-        name: replace(obs, pixel_origin=settings.pixel_origin)
+        name: replace(obs, pixel_origin=task.settings.pixel_origin)
         for name, obs in scene.observations.items()
     }
     return replace(scene, observations=observations)
+
+
+def row_identity(
+    task: Task, variant: MethodVariant, scene_record: str = "", split: str | None = None
+) -> dict[str, Any]:
+    """The fields of a :class:`ValidationRow` that say what was estimated."""
+    camera = task.camera
+    return {
+        "split": split or task.split,
+        "camera": camera.name,
+        "body": camera.body,
+        "group": camera.group,
+        "collection": camera.collection,
+        "scene": task.scene,
+        "variant": variant.label,
+        "method": variant.method,
+        "scene_record": scene_record,
+    }
+
+
+def scored_row(
+    identity: dict[str, Any],
+    result: EstimateResult,
+    truth: FloatArray,
+    pixel: FloatArray,
+    true_nm: FloatArray,
+    started: float,
+) -> ValidationRow:
+    """A row scoring ``result`` against the true curves ``(f, 3)`` and the true wavelength at
+    each profile ``pixel`` (module docstring); ``started`` the estimate's ``perf_counter``."""
+    grid = WavelengthGrid(
+        float(result.wavelength_nm[0]),
+        float(result.wavelength_nm[-1]),
+        float(result.wavelength_nm[1] - result.wavelength_nm[0]),
+    )
+    channel_re, coverage, ratio = sensitivity_scores(result, truth)
+    mapping = mapping_scores(result, pixel, true_nm, grid)
+    return ValidationRow(
+        **identity,
+        channel_re=_triple(channel_re),
+        coverage=_triple(coverage),
+        sigma_ratio=_triple(ratio),
+        mapping_mean_abs_nm=mapping[0],
+        mapping_re=mapping[1],
+        mapping_coverage=mapping[2],
+        mapping_sigma_ratio=mapping[3],
+        time_s=time.perf_counter() - started,
+    )
+
+
+def failed_row(identity: dict[str, Any], error: Exception, started: float) -> ValidationRow:
+    """A row for an estimate that raised: its type and first line."""
+    return ValidationRow(
+        **identity,
+        channel_re=None,
+        coverage=None,
+        sigma_ratio=None,
+        mapping_mean_abs_nm=None,
+        mapping_re=None,
+        mapping_coverage=None,
+        mapping_sigma_ratio=None,
+        time_s=time.perf_counter() - started,
+        failure=f"{type(error).__name__}: {error}".splitlines()[0],
+    )
 
 
 def evaluate_task(task: Task) -> list[ValidationRow]:
@@ -294,22 +367,11 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
     settings = task.settings
     scene = render_task_scene(task)
     record = json.dumps(scene.plan.to_dict(), default=float)
-    camera = task.camera
     rows: list[ValidationRow] = []
     for variant in settings.variants:
         observations = [scene.observations[lamp] for lamp in variant.lamps]
         started = time.perf_counter()
-        common: dict[str, Any] = {
-            "split": task.split,
-            "camera": camera.name,
-            "body": camera.body,
-            "group": camera.group,
-            "collection": camera.collection,
-            "scene": task.scene,
-            "variant": variant.label,
-            "method": variant.method,
-            "scene_record": record,
-        }
+        identity = row_identity(task, variant, record)
         try:
             result = estimate(
                 observations,
@@ -318,40 +380,12 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
                 basis=task.basis,
                 **dict(variant.options),
             )
-            channel_re, coverage, ratio = sensitivity_scores(result, scene.truth)
-            mapping = mapping_scores(
-                result, observations[0].pixel, scene.true_wavelength_nm, settings.grid
+            pixel = observations[0].pixel
+            rows.append(
+                scored_row(identity, result, scene.truth, pixel, scene.true_wavelength_nm, started)
             )
         except Exception as exc:  # a method's failure is a result, not the end of the run
-            message = f"{type(exc).__name__}: {exc}".splitlines()[0]
-            rows.append(
-                ValidationRow(
-                    **common,
-                    channel_re=None,
-                    coverage=None,
-                    sigma_ratio=None,
-                    mapping_mean_abs_nm=None,
-                    mapping_re=None,
-                    mapping_coverage=None,
-                    mapping_sigma_ratio=None,
-                    time_s=time.perf_counter() - started,
-                    failure=message,
-                )
-            )
-            continue
-        rows.append(
-            ValidationRow(
-                **common,
-                channel_re=_triple(channel_re),
-                coverage=_triple(coverage),
-                sigma_ratio=_triple(ratio),
-                mapping_mean_abs_nm=mapping[0],
-                mapping_re=mapping[1],
-                mapping_coverage=mapping[2],
-                mapping_sigma_ratio=mapping[3],
-                time_s=time.perf_counter() - started,
-            )
-        )
+            rows.append(failed_row(identity, exc, started))
     return rows
 
 

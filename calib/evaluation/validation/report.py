@@ -168,7 +168,8 @@ def markdown_report(
     *,
     command: str = "",
 ) -> str:
-    """The report: for each split, its composition, then the tables and the failures."""
+    """The report: for each split in ``rows``, its composition (when ``splits`` has it), then the
+    tables and the failures."""
     summary = summarise(rows)
     out = ["# Validation protocol", ""]
     if command:
@@ -183,11 +184,12 @@ def markdown_report(
         ),
         "",
     ]
-    for split in splits:
-        in_split = [row for row in summary if row.split == split.role]
-        if not in_split:
-            continue
-        out += [f"## Split: {split.role}", "", *split.describe(), ""]
+    described = {split.role: split for split in splits}
+    for role in dict.fromkeys(row.split for row in summary):
+        in_split = [row for row in summary if row.split == role]
+        out += [f"## Split: {role}", ""]
+        if role in described:
+            out += [*described[role].describe(), ""]
         for table, keys in (
             ("sensitivity by channel", ("method", "registry", "channel")),
             ("sensitivity by group", ("method", "group")),
@@ -195,10 +197,10 @@ def markdown_report(
         ):
             chosen = [row for row in in_split if row.table == table]
             if chosen:
-                out += [f"### {split.role}: {table}", "", *_markdown_table(chosen, keys), ""]
-        failures = [row for row in rows if row.split == split.role and row.failure is not None]
+                out += [f"### {role}: {table}", "", *_markdown_table(chosen, keys), ""]
+        failures = [row for row in rows if row.split == role and row.failure is not None]
         if failures:
-            out += [f"### {split.role}: failed estimates", ""]
+            out += [f"### {role}: failed estimates", ""]
             out += [
                 f"- {row.variant} on {row.camera} (scene {row.scene}): {row.failure}"
                 for row in failures

@@ -155,14 +155,16 @@ class Split:
                 + "): "
                 + "; ".join(c.name for c in members)
             )
-        if self.notes:
-            reasons = Counter(note.reason.split(" (")[0] for note in self.notes)
+        by_reason: dict[str, list[SplitNote]] = {}
+        for note in self.notes:
+            by_reason.setdefault(note.reason.split(" (")[0], []).append(note)
+        for reason, notes in by_reason.items():
             lines.append(
-                "- left out: "
-                + "; ".join(f"{count} {reason}" for reason, count in reasons.items())
-                + " — "
+                f"- left out, {reason} ({len(notes)}): "
                 + "; ".join(
-                    f"{note.camera} [{note.collection}]: {note.reason}" for note in self.notes
+                    note.camera
+                    + (f" ({note.reason.split(' (', 1)[1]}" if " (" in note.reason else "")
+                    for note in notes
                 )
             )
         return lines
