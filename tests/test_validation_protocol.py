@@ -317,6 +317,36 @@ def test_the_photon_budget_states_its_noise_honestly(rng: np.random.Generator) -
     )
 
 
+def test_a_band_brighter_than_the_spot_starts_the_bracket(rng: np.random.Generator) -> None:
+    # A narrow blue LED through a sheet near its optimum phase: η₀ ≪ η₁, the band outshines the spot.
+    budget = PhotonBudget()
+    sensor = SensorDraw(20000.0, 3.0, 20)
+    profile = np.outer(np.exp(-0.5 * ((np.arange(300) - 150) / 8.0) ** 2), [0.1, 0.3, 5.0])
+    direct = np.array([0.5, 1.0, 20.0])
+    gain, factors = budget.bracket(profile, direct, sensor, 4 * 20, 0.9)
+    brightest = gain * float(profile.max()) / sensor.band_rows
+    assert brightest == pytest.approx(0.9 * budget.clip_fraction * sensor.full_well_e)
+    merged = budget.merge(profile, 20, sensor, gain, factors, np.zeros(8), rng)
+    assert np.all(np.isfinite(merged.sigma))
+
+
+def test_a_scene_that_cannot_be_rendered_fails_its_rows_not_the_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import calib.evaluation.validation.protocol as protocol
+
+    def broken(task: object) -> None:
+        raise ValueError("no light")
+
+    monkeypatch.setattr(protocol, "render_task_scene", broken)
+    splits = _splits()
+    (task,) = split_tasks(
+        replace(splits.test, cameras=splits.test.cameras[:1]), _tiny_settings(), cache_dir=tmp_path
+    )
+    (row,) = evaluate_task(task)
+    assert row.failure == "ValueError: no light" and row.channel_re is None
+
+
 def test_the_spectrometer_shifts_and_broadens_a_line() -> None:
     line = gaussian_lamp(550.0, 2.0)
     reading = SpectrometerReading(offset_nm=0.4, bandwidth_nm=6.0, step_nm=1.0)

@@ -170,17 +170,6 @@ def register(app: typer.Typer) -> None:
         console = Console(stderr=True)
         for note in missing:
             console.print(f"[yellow]note:[/] collection not used — {note}")
-        rows: list[ValidationRow] = []
-        with console.status("estimating…") as status:
-            for part in chosen:
-                rows += run_split(
-                    part,
-                    settings,
-                    jobs=jobs,
-                    progress=lambda row: status.update(
-                        f"{row.split} · {row.camera} · {row.variant}"
-                    ),
-                )
         # Every choice spelled out (defaults too): the line reproduces the tables.
         arguments = [
             "validate",
@@ -197,10 +186,23 @@ def register(app: typer.Typer) -> None:
             *([f"--data-dir={data_dir}"] if data_dir is not None else []),
         ]
         command = "calib " + " ".join(shlex.quote(arg) for arg in arguments)
-        report = markdown_report(chosen, rows, settings, command=command)
+        rows: list[ValidationRow] = []
+        report = ""
         out.mkdir(parents=True, exist_ok=True)
-        (out / "report.md").write_text(report + "\n", encoding="utf-8")
-        write_summary_csv(out / "summary.csv", rows)
-        write_rows_csv(out / "rows.csv", rows)
+        with console.status("estimating…") as status:
+            for part in chosen:
+                rows += run_split(
+                    part,
+                    settings,
+                    jobs=jobs,
+                    progress=lambda row: status.update(
+                        f"{row.split} · {row.camera} · {row.variant}"
+                    ),
+                )
+                # Written after each split: an interrupted run keeps what it finished.
+                report = markdown_report(chosen, rows, settings, command=command)
+                (out / "report.md").write_text(report + "\n", encoding="utf-8")
+                write_summary_csv(out / "summary.csv", rows)
+                write_rows_csv(out / "rows.csv", rows)
         typer.echo(report)
         console.print(f"wrote {out / 'report.md'}, {out / 'summary.csv'}, {out / 'rows.csv'}")

@@ -365,7 +365,11 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
     from calib.methods import estimate
 
     settings = task.settings
-    scene = render_task_scene(task)
+    started = time.perf_counter()
+    try:
+        scene = render_task_scene(task)
+    except Exception as exc:  # a scene that cannot be rendered fails its estimates, not the run
+        return [failed_row(row_identity(task, v), exc, started) for v in settings.variants]
     record = json.dumps(scene.plan.to_dict(), default=float)
     rows: list[ValidationRow] = []
     for variant in settings.variants:

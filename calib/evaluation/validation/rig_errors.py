@@ -29,8 +29,10 @@ source may be switched off (``None``). The defaults and why:
     fixed fraction of the peak: full well 8 000–60 000 e⁻ (phone to full-frame pixels, log-uniform),
     read noise 1.5–6 e⁻, the band summed over 20–200 sensor rows (the slit image's length), dark
     frames subtracted (``dark_frames`` per exposure, adding their read noise). The bracket follows
-    ``config.yaml``'s ``hdr`` policy: the shortest frame puts the direct spot's brightest pixel at
-    25–98 % of the clipping level (the policy stops once it is unsaturated, and steps are 2 stops), frames
+    ``config.yaml``'s ``hdr`` policy: the shortest frame puts the brightest pixel at 25–98 % of the
+    clipping level (the policy stops once it is unsaturated, and steps are 2 stops) — the spot's, or
+    the band's where a weak 0th order makes the band brighter (the rig's policy looks at the spot
+    only, and would leave such a band clipped in every frame), frames
     grow by ``step_stops`` until the band's median SNR reaches ``min_band_snr`` (at most
     ``max_frames``), and every pixel is the inverse-variance mean of the frames where it is below
     ``clip_fraction`` of full well (:mod:`calib.image.hdr`).
@@ -276,13 +278,18 @@ class PhotonBudget:
     ) -> tuple[float, list[float]]:
         """Electrons per signal unit of the shortest frame and the frames' nominal exposure factors.
 
-        The shortest frame puts the spot's brightest pixel at ``spot_fill`` of full well; frames
+        The shortest frame puts the brightest pixel (spot or band) at ``spot_fill`` of the clipping
+        level; frames
         ``× 2^step_stops`` are added while the last one's median band SNR (summed channels, over
         the band's extent, unsaturated pixels) is below ``min_band_snr``.
         """
-        peak_per_pixel = float(np.max(direct)) / spot_px
+        # The brightest pixel is the spot's, or the band's where a weak 0th order makes the band
+        # brighter (a narrow LED through a sheet near its optimum phase).
+        peak_per_pixel = max(
+            float(np.max(direct)) / spot_px, float(np.max(profile)) / sensor.band_rows
+        )
         if peak_per_pixel <= 0:
-            raise InputError("the direct spot is dark", source="photon budget")
+            raise InputError("the direct spot and the band are dark", source="photon budget")
         gain = spot_fill * self.clip_fraction * sensor.full_well_e / peak_per_pixel
         summed = profile.sum(axis=1)
         extent = summed >= self.band_extent_fraction * float(summed.max())
