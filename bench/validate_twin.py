@@ -179,7 +179,7 @@ def evaluate_2d(task: Task, directory: Path) -> list[ValidationRow]:
                 [lamps[spec] for spec in variant.lamps],
                 OfflineSettings(
                     method=variant.method,
-                    method_options=dict(variant.options),
+                    method_options=variant.options,
                     grid=plan.grid,
                     basis=task.basis,
                 ),

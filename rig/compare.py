@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.errors import InputError
-from calib.core.metrics import relative_error
+from calib.core.metrics import format_re, relative_error
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.evaluation.compare import (
     CompareRow,
@@ -39,8 +39,7 @@ from calib.evaluation.compare import (
     run_grating_comparison,
 )
 from calib.evaluation.compare_report import plot_panels, sessions_markdown_report, write_csv
-from calib.methods import default_camera_basis
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, default_camera_basis
 from calib.pipeline import InputFile, LampImages, OfflineSettings, estimate_offline
 from rig.demo import related_camera_names
 from rig.errors import SessionFormatError
@@ -205,7 +204,7 @@ class TwinSessionSource:
             self.notes.append(
                 f"{scene.label}: lamps {lamps}; single-lamp columns use {scene.solve_lamp.name}; "
                 f"`rig estimate`'s own result RE "
-                f"{relative_error(extracted.result.physical_sensitivity(), truth) * 100:.2f} ×10⁻²"
+                f"{format_re(relative_error(extracted.result.physical_sensitivity(), truth))}"
             )
             self.notes.extend(f"{scene.label}: {warning}" for warning in extracted.warnings)
             yield scene

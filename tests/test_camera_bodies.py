@@ -90,6 +90,14 @@ def test_channel_relative_errors_average_to_the_relative_error(rng: np.random.Ge
     assert float(np.mean(per_channel)) == pytest.approx(relative_error(estimate, truth), rel=1e-12)
 
 
+def test_rawtoaces_data_comes_bundled(tmp_path: Path) -> None:
+    # A data directory without its own copy reads the one bundled with spectral-rig.
+    records = load_collection(RAWTOACES_DATA, tmp_path)
+    assert len(records) == 52 and records[0].collection == RAWTOACES_DATA
+    index = BodyIndex(read_rawtoaces_aliases())
+    assert index.body("Canon Kiss X5") == index.body("Canon EOS 600D")
+
+
 @pytest.mark.shared_data
 def test_rawtoaces_data_is_a_collection(shared_camera_data: Path) -> None:
     records = load_collection(RAWTOACES_DATA, shared_camera_data)

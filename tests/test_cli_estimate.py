@@ -14,6 +14,7 @@ import pytest
 from calib.cli.estimate import run
 from calib.cli.estimate_args import parse_estimate_arguments
 from calib.core.errors import EstimationError, InputError
+from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.grating_file import GratingEfficiency, read_grating_file, write_grating_file
 from calib.core.metrics import relative_error
 from calib.core.spectra import write_csv
@@ -130,7 +131,7 @@ def test_images_end_to_end_with_json_summary(capture: Capture, tmp_path: Path) -
     code, stdout, stderr = _call([*_image_args(capture), "--out", str(out_dir), "--json"])
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["status"] == "ok" and summary["method"] == "makabe2025"
+    assert summary["status"] == "ok" and summary["method"] == "prior"
     assert summary["mapping"]["method"].startswith("lines of")
     assert 0 < summary["mapping_re_estimate"] < 0.01
     assert [lamp["name"] for lamp in summary["lamps"]] == ["LED", "FL"]
@@ -138,7 +139,7 @@ def test_images_end_to_end_with_json_summary(capture: Capture, tmp_path: Path) -
         assert Path(summary["files"][key]).is_file()
     document = json.loads((out_dir / "result.json").read_text())
     assert document["provenance"]["command_line"][:4] == ["calib", "estimate", "--lamp", "LED"]
-    values = np.loadtxt(out_dir / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    values = read_camera_csv(out_dir / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
 
 
@@ -152,7 +153,7 @@ def test_an_existing_result_needs_force(capture: Capture, tmp_path: Path) -> Non
         [*_image_args(capture), "--out", str(out_dir), "--quiet", "--force"]
     )
     assert code == 0 and stdout == "", stderr
-    assert json.loads((out_dir / "result.json").read_text())["method"] == "makabe2025"
+    assert json.loads((out_dir / "result.json").read_text())["method"] == "prior"
 
 
 def test_bad_input_exits_2_with_one_line_naming_the_file(capture: Capture, tmp_path: Path) -> None:
@@ -275,8 +276,11 @@ def test_profile_input_with_direct_measurement(capture: Capture, tmp_path: Path)
     code, stdout, stderr = _call(argv)
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["method"] == "makabe2025" and summary["warnings"] == []
-    values = np.loadtxt(tmp_path / "out" / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    assert summary["method"] == "prior" and summary["warnings"] == []
+    # Two lamps measured directly: auto chose the prior solve and says why.
+    assert summary["method_choice"]["requested"] == "auto"
+    assert "multilamp needs at least 3" in summary["method_choice"]["reason"]
+    values = read_camera_csv(tmp_path / "out" / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
 
 
@@ -294,8 +298,8 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     assert summary["uncertainty"] is True
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     truth = capture.truth
-    estimated = np.column_stack([document["sensitivity"][c] for c in "rgb"])
-    sigma = np.column_stack([document["sensitivity_sigma"][c] for c in "rgb"])
+    estimated = np.column_stack([document["sensitivity"][c] for c in "RGB"])
+    sigma = np.column_stack([document["sensitivity_sigma"][c] for c in "RGB"])
     assert relative_error(estimated, truth) < 0.02
     # the per-wavelength uncertainty is honest: errors mostly within 3 σ
     assert np.mean(np.abs(estimated - truth) <= 3 * sigma + 1e-3) > 0.9
@@ -323,7 +327,7 @@ def test_profile_in_wavelength_uses_the_identity_mapping(capture: Capture, tmp_p
     assert code == 0, stderr
     mapping = json.loads(stdout)["mapping"]
     assert (mapping["a"], mapping["b"], mapping["c"]) == (0.0, 1.0, 0.0)
-    values = np.loadtxt(tmp_path / "out" / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    values = read_camera_csv(tmp_path / "out" / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
 
 
@@ -404,8 +408,8 @@ def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     argv += ["--grating", str(first / "grating.json")]
     code, stdout, stderr = _call([*argv, "--out", str(second), "--json"])
     assert code == 0, stderr
-    assert json.loads(stdout)["method"] == "multilamp"
-    values = np.loadtxt(second / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    assert json.loads(stdout)["method"] == "known-grating"  # s = q̂ / η through the file
+    values = read_camera_csv(second / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
     assert "weight-rule" not in stderr
     # η is known: a rule for the prior's weight in the η solve has nothing to choose, and says so.

@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cli import main
+from calib.cli.app import main
+from calib.core.checksums import file_sha256
 from calib.core.lamp_specs import colour_lamp
+from calib.core.software import current_software
 from calib.core.spectra import WavelengthGrid, read_spectrum_csv, write_csv
 from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
 
@@ -108,9 +110,11 @@ def test_spd_writes_csv_json_and_plots(
     assert stored["mapping"]["origin"] == "mapping lamp"
     assert stored["mapping"]["details"]["lines"] == "measured spectrum"
     assert stored["direct_check"]["angular_error_deg"] < 0.5
-    assert [entry["sha256"] for entry in stored["inputs"]["images"]] and stored["inputs"]["camera"][
-        "path"
-    ] == str(scene.camera)
+    assert [entry["sha256"] for entry in stored["inputs"]["images"]] == [
+        file_sha256(path)[1] for path in scene.lamp
+    ]
+    assert stored["inputs"]["camera"]["path"] == str(scene.camera)
+    assert stored["software"] == current_software().to_dict()  # as result.json's provenance
     spd = read_spectrum_csv(out / "spd.csv")
     assert spd.values.max() == pytest.approx(1.0, abs=0.02)
     assert np.all(np.diff(spd.wavelength_nm) == 1.0)
@@ -200,13 +204,49 @@ def test_bad_files_are_named(
     arguments = base_arguments(scene, tmp_path / "out")
     arguments[arguments.index("--camera") + 1] = str(two_columns)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
-    assert code == 2 and str(two_columns) in stderr and "3 sensitivity columns" in stderr
+    assert code == 2 and str(two_columns) in stderr and "no column for blue" in stderr
+    dark = tmp_path / "dark_camera.csv"
+    dark.write_text("wavelength_nm,r,g,b\n400,0,0,0\n700,0,0,0\n")
+    arguments[arguments.index("--camera") + 1] = str(dark)
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 2 and "dark_camera.csv" in stderr and "all-zero" in stderr
     not_raw = tmp_path / "frame.dng"
     not_raw.write_text("not a raw file")
     arguments = base_arguments(scene, tmp_path / "out")
     arguments[arguments.index("--images") + 1] = str(not_raw)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and "frame.dng" in stderr
+
+
+def test_a_camera_csv_in_another_column_order_gives_the_same_spd(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """colour-science's own CSV writer, channels in the order blue, green, red: read by name."""
+    import colour
+
+    from tests.spd_scenes import nikon_camera
+
+    camera = nikon_camera()
+    reordered = tmp_path / "camera-bgr.csv"
+    colour.write_sds_to_csv_file(
+        {
+            name: colour.SpectralDistribution(camera.channel(name).values, camera.wavelength_nm)
+            for name in ("blue", "green", "red")
+        },
+        reordered,
+    )
+    assert reordered.read_text().splitlines()[0].split(",")[1:] == ["blue", "green", "red"]
+    spds = []
+    for name, path in (("as given", scene.camera), ("reordered", reordered)):
+        arguments = base_arguments(scene, tmp_path / name)
+        arguments[arguments.index("--camera") + 1] = str(path)
+        code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+        assert code == 0, stderr
+        spds.append(read_spectrum_csv(tmp_path / name / "spd.csv").values)
+    np.testing.assert_allclose(spds[1], spds[0], rtol=1e-9, atol=1e-12)
 
 
 def test_a_lamp_without_a_mapping_exits_2(

@@ -14,27 +14,29 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calib.core.colour_data import cie_daylight, colorchecker
 from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
 from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
-from calib.methods import default_camera_basis, estimate
+from calib.methods import estimate
 from calib.methods.baselines.han2012 import (
+    FOURIER,
     FluorescentPaints,
+    Han2012Options,
     SensitivityBasis,
     chromaticity_system,
-    cie_daylight,
-    colorchecker_reflectances,
     estimate_han2012,
     recover_daylight,
+    recover_han2012,
     reflectance_basis,
-    render_chart,
+    render_fluorescent_chart,
     separate_fluorescence,
     solve_sensitivity,
     synthetic_fluorescent_paints,
 )
-from calib.model.bases import fourier_basis
+from calib.model.bases import CameraBasis, default_camera_basis, fourier_basis
 from calib.spd.light_sources import correlated_colour_temperature
 
 #: Daylights the estimator is not told about (CCT in K).
@@ -79,7 +81,7 @@ def test_paints_are_seeded_and_physical() -> None:
 def test_the_reflectance_basis_spans_a_colorchecker() -> None:
     basis = reflectance_basis(DEFAULT_GRID, 8)
     np.testing.assert_allclose(basis.T @ basis, np.eye(8), atol=1e-10)
-    chart = colorchecker_reflectances().resample(DEFAULT_GRID).values
+    chart = colorchecker().resample(DEFAULT_GRID).values
     fitted = basis @ (basis.T @ chart)
     assert float(np.sqrt(np.mean((fitted - chart) ** 2))) < 0.02  # the chart is not in its data
 
@@ -88,9 +90,9 @@ def test_separation_recovers_the_fluorescent_part() -> None:
     camera = colour_science_cameras()[0].sensitivity
     paints = synthetic_fluorescent_paints(np.random.default_rng(2))
     light = cie_daylight(6500.0)
-    reference = colorchecker_reflectances()
-    chart = render_chart(paints, reference, camera, light)
-    pure = render_chart(without_reflection(paints), reference, camera, light)
+    reference = colorchecker()
+    chart = render_fluorescent_chart(paints, reference, camera, light)
+    pure = render_fluorescent_chart(without_reflection(paints), reference, camera, light)
     separation = separate_fluorescence(chart)
     np.testing.assert_allclose(
         separation.fluorescent_rgb + separation.reflective_rgb, chart.fluorescent_rgb
@@ -110,8 +112,8 @@ def test_a_camera_inside_the_basis_is_recovered_exactly() -> None:
     # On the grid's nodes, linear between them: exactly what the estimator assumes.
     camera = MultiSpectrum(DEFAULT_GRID.wavelength_nm, curves)
     paints = synthetic_fluorescent_paints(np.random.default_rng(3))
-    pure = render_chart(
-        without_reflection(paints), colorchecker_reflectances(), camera, cie_daylight(6500)
+    pure = render_fluorescent_chart(
+        without_reflection(paints), colorchecker(), camera, cie_daylight(6500)
     )
     basis = SensitivityBasis.fourier(DEFAULT_GRID, 9)
     integrals = basis.emission_integrals(paints.emission)
@@ -137,10 +139,10 @@ def test_a_camera_inside_the_basis_is_recovered_exactly() -> None:
 
 def test_daylight_is_recovered_with_the_true_camera() -> None:
     camera = colour_science_cameras()[0].sensitivity
-    reference = colorchecker_reflectances()
+    reference = colorchecker()
     for cct_k in UNKNOWN_DAYLIGHTS_K[:4]:
         light = cie_daylight(cct_k)
-        chart = render_chart(
+        chart = render_fluorescent_chart(
             synthetic_fluorescent_paints(np.random.default_rng(4)), reference, camera, light
         )
         daylight = recover_daylight(chart.reference_rgb, reference, truth_on_grid(camera))
@@ -149,9 +151,9 @@ def test_daylight_is_recovered_with_the_true_camera() -> None:
 
 def test_chart_validation_and_refusals() -> None:
     paints = synthetic_fluorescent_paints(np.random.default_rng(5))
-    reference = colorchecker_reflectances()
+    reference = colorchecker()
     camera = colour_science_cameras()[0].sensitivity
-    chart = render_chart(paints, reference, camera, cie_daylight(6500))
+    chart = render_fluorescent_chart(paints, reference, camera, cie_daylight(6500))
     with pytest.raises(InputError, match=r"fluorescent RGB has shape \(15, 3\)"):
         dataclasses.replace(chart, fluorescent_rgb=chart.fluorescent_rgb[:15])
     small = dataclasses.replace(
@@ -162,13 +164,13 @@ def test_chart_validation_and_refusals() -> None:
         ),
     )
     with pytest.raises(InputError, match="5 reference patches cannot fix 8"):
-        estimate_han2012(small)
+        recover_han2012(small)
     with pytest.raises(InputError, match="smoothness"):
-        estimate_han2012(chart, smoothness=(1.0, -1.0, 0.0))
+        Han2012Options(smoothness=(1.0, -1.0, 0.0))
     with pytest.raises(InputError, match="normalisation"):
-        estimate_han2012(chart, normalisation="none")  # type: ignore[arg-type]
+        Han2012Options(normalisation="none")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="noise needs"):
-        render_chart(paints, reference, camera, cie_daylight(6500), noise_fraction=0.01)
+        render_fluorescent_chart(paints, reference, camera, cie_daylight(6500), noise_fraction=0.01)
     with pytest.raises(InputError, match="4000–25000 K"):
         cie_daylight(3000.0)
     # Paints that only reflect (all signal explained by their reflectance): said, not guessed.
@@ -176,42 +178,47 @@ def test_chart_validation_and_refusals() -> None:
         chart, fluorescent_rgb=separate_fluorescence(chart).reflective_rgb
     )
     with pytest.raises(EstimationError, match="lacks the short wavelengths"):
-        estimate_han2012(reflective_only)
+        recover_han2012(reflective_only)
 
 
 def test_registered_behind_the_front_function() -> None:
     camera = colour_science_cameras()[0].sensitivity
     rng = np.random.default_rng(6)
-    chart = render_chart(
+    chart = render_fluorescent_chart(
         synthetic_fluorescent_paints(rng),
-        colorchecker_reflectances(),
+        colorchecker(),
         camera,
         cie_daylight(6500),
         rng=rng,
         noise_fraction=0.001,
     )
-    result = estimate([], method="han2012", chart=chart)
+    result = estimate([chart], method="han2012")
     assert result.method == "han2012" and result.sensitivity.shape == (31, 3)
     assert float(np.abs(result.sensitivity).max()) == pytest.approx(1.0)
     assert result.diagnostics["illuminant"] is not None
     assert result.to_dict()["diagnostics"]["basis"] == "Fourier, 9 terms"
     with pytest.raises(InputError, match="fluorescent and a reference chart"):
         estimate([], method="han2012")
+    assert estimate_han2012([chart]).to_dict() == result.to_dict()
 
 
 # ---------------------------------------------------------------------- the paper's finding
 
 
 def _run(
-    camera: MultiSpectrum, light: Spectrum, seed: int, **options: object
+    camera: MultiSpectrum,
+    light: Spectrum,
+    seed: int,
+    basis: CameraBasis | None = None,
+    options: Han2012Options = Han2012Options(),
 ) -> tuple[float, float | None]:
     """RE of the sensitivity and CCT error of the recovered daylight (None for non-daylights)."""
     rng = np.random.default_rng(seed)
     paints = synthetic_fluorescent_paints(np.random.default_rng(seed // 100))  # one chart
-    chart = render_chart(
-        paints, colorchecker_reflectances(), camera, light, rng=rng, noise_fraction=0.001
+    chart = render_fluorescent_chart(
+        paints, colorchecker(), camera, light, rng=rng, noise_fraction=0.001
     )
-    result = estimate_han2012(chart, **options)  # type: ignore[arg-type]
+    result = recover_han2012(chart, basis=FOURIER if basis is None else basis, options=options)
     error = relative_error(result.sensitivity, truth_on_grid(camera))
     cct_error = None
     if result.illuminant is not None and light.name.startswith("D"):
@@ -242,7 +249,13 @@ def test_with_a_camera_basis_it_works_under_any_light(shared_camera_data: Path) 
             DEFAULT_GRID, data_dir=shared_camera_data, exclude=[record.name]
         )
         results = [
-            _run(record.sensitivity, light, 1000 + k, basis=basis, smoothness=(0.03, 0.03, 0.01))
+            _run(
+                record.sensitivity,
+                light,
+                1000 + k,
+                basis=basis,
+                options=Han2012Options(smoothness=(0.03, 0.03, 0.01)),
+            )
             for k, light in enumerate(lights)
         ]
         errors = [error for error, _ in results]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.cli import build_app
+from calib.cli.app import build_app
 from calib.core.datasets import CameraRecord
 from calib.core.lamp_specs import gaussian_lamp
 from calib.core.mapping import QuadraticMapping, wavelength_rms_from_covariance

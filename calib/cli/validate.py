@@ -17,6 +17,7 @@ from rich.console import Console
 from calib.core.errors import InputError
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
+    EXTRA_VARIANTS,
     PixelOrigin,
     ProtocolSettings,
     ValidationRow,
@@ -89,8 +90,8 @@ def register(app: typer.Typer) -> None:
         variant: Annotated[
             list[str] | None,
             typer.Option(
-                help="Method variants to run (repeatable; default all): "
-                + ", ".join(f"'{v.label}'" for v in DEFAULT_VARIANTS)
+                help="Method variants to run (repeatable; default the first four): "
+                + ", ".join(f"'{v.label}'" for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS))
             ),
         ] = None,
         predictions: Annotated[
@@ -146,7 +147,7 @@ def register(app: typer.Typer) -> None:
                     source="--grating",
                 )
         labels = list(variant or (QUICK_VARIANTS if quick else [v.label for v in DEFAULT_VARIANTS]))
-        known = {v.label: v for v in DEFAULT_VARIANTS}
+        known = {v.label: v for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)}
         unknown = [label for label in labels if label not in known]
         if unknown:
             raise InputError(

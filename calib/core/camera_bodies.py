@@ -20,13 +20,14 @@ True
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.core.errors import InputError
+from calib.core.formats.ampas import ALIASES_FILE
+from calib.core.formats.json_file import read_json
 
 #: Market names of one Canon body (Americas "Rebel", Japan "Kiss", elsewhere "NNND"): the names
 #: under which bodies of the measured collections appear.
@@ -71,8 +72,9 @@ class BodyAlias:
     comment: str = ""
 
 
-def read_rawtoaces_aliases(path: str | Path) -> list[BodyAlias]:
-    """The camera aliases of rawtoaces-data's ``data/aliases.json``.
+def read_rawtoaces_aliases(path: str | Path | None = None) -> list[BodyAlias]:
+    """The camera aliases of rawtoaces-data's ``data/aliases.json`` (default: the bundled copy,
+    :data:`calib.core.formats.ampas.ALIASES_FILE`).
 
     ``"same model, alternative name"`` and ``"updated model, same sensor"`` entries name one body;
     ``"different model, same sensor"`` entries are sensor siblings (``same_model=False``).
@@ -82,9 +84,9 @@ def read_rawtoaces_aliases(path: str | Path) -> list[BodyAlias]:
     InputError
         The file is missing, not JSON, or lacks ``data.camera.model``.
     """
-    path = Path(path)
+    path = ALIASES_FILE if path is None else Path(path)
+    document = read_json(path)
     try:
-        document = json.loads(path.read_text(encoding="utf-8"))
         models = document["data"]["camera"]["model"]
         aliases = []
         for make, entries in models.items():
@@ -98,9 +100,7 @@ def read_rawtoaces_aliases(path: str | Path) -> list[BodyAlias]:
                         comment=comment,
                     )
                 )
-    except FileNotFoundError:
-        raise InputError("alias file not found", source=str(path)) from None
-    except (OSError, json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
+    except (KeyError, TypeError, AttributeError) as exc:
         raise InputError(
             f"not a rawtoaces-data alias file (data.camera.model expected): {exc}",
             source=str(path),

@@ -19,7 +19,8 @@ Collections (the layout of a data directory; ``--data-dir`` may point at any suc
 ``rawtoaces-data/``
     The Academy's rawtoaces-data collection (52 cameras, ``data/camera/*.json``, schema 0.1.0 or
     1.0.0 with the same ``spectral_data.data.main``; Apache-2.0), and its ``data/aliases.json``
-    (:func:`calib.core.camera_bodies.read_rawtoaces_aliases`). Read when present; not pinned.
+    (:func:`calib.core.camera_bodies.read_rawtoaces_aliases`). The copy bundled with spectral-rig
+    (:data:`calib.core.formats.ampas.RAWTOACES_DATA`) is read when the data directory has none.
 ``colour-science`` (built in, no files)
     ``colour.MSDS_CAMERA_SENSITIVITIES`` and the rawtoaces Canon EOS 5D Mark II CSV inside the
     colour package.
@@ -36,12 +37,9 @@ and checks its SHA-256.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import re
-import urllib.error
 import urllib.parse
-import urllib.request
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,8 +47,13 @@ from pathlib import Path
 import numpy as np
 import platformdirs
 
+from calib.core.checksums import file_sha256
+from calib.core.colour_data import camera_sensitivities, rawtoaces_sensitivity_path
 from calib.core.errors import CalibError, InputError, SpectrumError
-from calib.core.spectra import MultiSpectrum, read_table
+from calib.core.formats.ampas import RAWTOACES_DATA as BUNDLED_RAWTOACES_DATA
+from calib.core.formats.ampas import read_camera_json
+from calib.core.formats.rgb_csv import read_camera_csv
+from calib.core.spectra import MultiSpectrum
 
 #: Environment variable naming a data directory.
 DATA_DIR_ENV = "SPECTRAL_RIG_DATA"
@@ -168,6 +171,13 @@ def resolve_data_dir(data_dir: str | Path | None = None) -> Path:
 
 
 def _collection_dir(data_dir: str | Path | None, collection: str) -> Path:
+    if collection == RAWTOACES_DATA:
+        # Bundled with spectral-rig (Apache-2.0); a data directory's own copy wins.
+        try:
+            local = resolve_data_dir(data_dir) / RAWTOACES_DATA
+        except InputError:
+            return BUNDLED_RAWTOACES_DATA
+        return local if local.is_dir() else BUNDLED_RAWTOACES_DATA
     root = resolve_data_dir(data_dir)
     folder = root / (SOLOMATOV if collection == SOLOMATOV_PREDICTIONS else collection)
     if not folder.is_dir():
@@ -185,22 +195,18 @@ _SOLOMATOV_NAME = re.compile(
 )
 
 
-def read_rgb_csv(path: str | Path, *, name: str | None = None) -> MultiSpectrum:
-    """Read a ``wavelength,r,g,b`` CSV (header optional, ``#`` comments skipped), normalised.
+def read_rgb_csv(
+    path: str | Path, *, name: str | None = None, channels_in_order: bool = False
+) -> MultiSpectrum:
+    """Read a camera CSV by column name (``wavelength,red,green,blue`` in any order), normalised.
 
-    Used for the Solomatov/Akkaynak and butcherg files and the colour-science rawtoaces CSV.
+    Used for the Solomatov/Akkaynak files and the colour-science rawtoaces CSV; butcherg's CSVs have
+    no header line and are read with ``channels_in_order=True`` (their documented ``wl,r,g,b``).
     """
     path = Path(path)
-    table = read_table(path)
-    if table.rows.shape[1] != 4:
-        raise SpectrumError(
-            f"expected 4 columns (wavelength, r, g, b), found {table.rows.shape[1]}: "
-            f"{table.columns}",
-            source=str(path),
-        )
     label = name or path.stem
-    curves = MultiSpectrum(table.rows[:, 0], table.rows[:, 1:], name=label, negative="clip")
-    return _normalised(curves, label)
+    curves = read_camera_csv(path, name=label, channels_in_order=channels_in_order)
+    return _normalised(curves.to_multispectrum(), label)
 
 
 def solomatov_camera_name(path: str | Path) -> tuple[str, str]:
@@ -280,63 +286,24 @@ def butcherg_camera_name(path: str | Path) -> str:
 
 
 def read_rawtoaces_json(path: str | Path) -> MultiSpectrum:
-    """Read an AMPAS spectral-data JSON camera file (``spectral_data.data.main["<nm>"] = [R, G, B]``)."""
-    path = Path(path)
-    try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror}", source=str(path)) from None
-    except json.JSONDecodeError as exc:
-        raise InputError(
-            f"not valid JSON ({exc.msg} at line {exc.lineno})", source=str(path)
-        ) from None
-    try:
-        main = document["spectral_data"]["data"]["main"]
-        header = document.get("header", {})
-        items = sorted((float(key), [float(v) for v in value]) for key, value in main.items())
-    except (KeyError, TypeError, ValueError, AttributeError):
-        raise InputError(
-            "not an AMPAS camera file: expected spectral_data.data.main = {nm: [R, G, B]}",
-            source=str(path),
-        ) from None
-    name = " ".join(str(header.get(key, "")) for key in ("manufacturer", "model")).strip()
-    values = np.array([rgb for _, rgb in items], dtype=np.float64)
-    if values.ndim != 2 or values.shape[1] != 3:
-        raise InputError(
-            f"each wavelength needs 3 values [R, G, B], got shape {values.shape}", source=str(path)
-        )
-    curves = MultiSpectrum([nm for nm, _ in items], values, name=name or path.stem, negative="clip")
-    return _normalised(curves, curves.name)
+    """Read an AMPAS spectral-data JSON camera file (:func:`calib.core.formats.ampas.read_camera_json`)."""
+    curves = read_camera_json(path).curves
+    return _normalised(curves.to_multispectrum(), curves.name)
 
 
 def colour_science_cameras() -> list[CameraRecord]:
     """The cameras inside colour-science: two NPL measurements and the rawtoaces Canon 5D Mk II."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    records: list[CameraRecord] = []
-    for key, data in colour.MSDS_CAMERA_SENSITIVITIES.items():
-        curves = MultiSpectrum(
-            np.asarray(data.wavelengths, dtype=np.float64),
-            np.asarray(data.values, dtype=np.float64),
-            name=str(key),
-            negative="clip",
+    records = [
+        CameraRecord(
+            key,
+            key.split(" (")[0],
+            COLOUR_SCIENCE,
+            _normalised(curves, key),
+            f"colour.MSDS_CAMERA_SENSITIVITIES[{key!r}]",
         )
-        records.append(
-            CameraRecord(
-                str(key),
-                str(key).split(" (")[0],
-                COLOUR_SCIENCE,
-                _normalised(curves, str(key)),
-                f"colour.MSDS_CAMERA_SENSITIVITIES[{key!r}]",
-            )
-        )
-    canon = (
-        Path(colour.__file__).parent
-        / "characterisation"
-        / "datasets"
-        / "rawtoaces"
-        / "CANON_EOS_5DMark_II_RGB_Sensitivities.csv"
-    )
+        for key, curves in camera_sensitivities().items()
+    ]
+    canon = rawtoaces_sensitivity_path("CANON_EOS_5DMark_II_RGB_Sensitivities.csv")
     if canon.is_file():
         name = "Canon EOS 5D Mark II (rawtoaces)"
         records.append(
@@ -398,7 +365,7 @@ def load_collection(collection: str, data_dir: str | Path | None = None) -> list
             camera = butcherg_camera_name(path)
             kind = "spectroscope" if "spectroscope" in path.parts else "camspec"
             name = f"{camera} (butcherg {kind})"
-            curves = read_rgb_csv(path, name=name)
+            curves = read_rgb_csv(path, name=name, channels_in_order=True)
         else:
             curves = read_rawtoaces_json(path)
             camera = curves.name
@@ -504,12 +471,15 @@ def _file_is_valid(path: Path, pinned: PinnedFile) -> bool:
     try:
         if path.stat().st_size != pinned.size_bytes:
             return False
-        return hashlib.sha256(path.read_bytes()).hexdigest() == pinned.sha256
+        return file_sha256(path) == (pinned.size_bytes, pinned.sha256)
     except OSError:
         return False
 
 
 def _download(url: str, timeout_s: float) -> bytes:
+    # Deferred: urllib.request pulls in http, ssl and email (~25 ms), needed only to download.
+    import urllib.request
+
     request = urllib.request.Request(url, headers={"User-Agent": "spectral-rig data fetch"})
     with urllib.request.urlopen(request, timeout=timeout_s) as response:
         return bytes(response.read())
@@ -574,7 +544,7 @@ def fetch_datasets(
                 temporary.write_bytes(payload)
                 temporary.replace(target)
                 report.downloaded.append(pinned.local_path)
-            except (urllib.error.URLError, OSError, ValueError) as exc:
+            except (OSError, ValueError) as exc:  # urllib's URLError is an OSError
                 reason = getattr(exc, "reason", None) or str(exc)
                 report.failed.append((pinned.local_path, f"{url}: {reason}"))
         if progress is not None:

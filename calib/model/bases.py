@@ -33,6 +33,9 @@ import platformdirs
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
+from calib.core.camera_curves import as_camera
+from calib.core.colour_data import colour_matching_functions
+from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
 from calib.core.errors import InputError
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
 
@@ -259,13 +262,14 @@ def _as_curve_stack(
     cameras: Sequence[MultiSpectrum] | ArrayLike, grid: WavelengthGrid
 ) -> FloatArray:
     """Curves of shape ``(n_cameras, f, 3)`` on ``grid``, each divided by its overall maximum."""
-    if isinstance(cameras, Sequence) and cameras and isinstance(cameras[0], MultiSpectrum):
-        stack = np.stack(
-            [
-                camera.resample(grid, "interpolate", out_of_range="zero").values  # type: ignore[union-attr]
-                for camera in cameras
-            ]
-        )
+    if (
+        isinstance(cameras, Sequence)
+        and cameras
+        and not np.isscalar(cameras[0])
+        and (isinstance(cameras[0], MultiSpectrum) or hasattr(cameras[0], "wavelengths"))
+    ):
+        # MultiSpectrum or colour-science cameras: R, G, B by channel name
+        stack = np.stack([as_camera(camera).at(grid.wavelength_nm) for camera in cameras])
     else:
         stack = np.array(cameras, dtype=np.float64)
     if stack.ndim != 3 or stack.shape[1:] != (grid.size, 3):
@@ -477,20 +481,14 @@ def fourier_basis(
 
 def _colour_camera_like_curves() -> list[MultiSpectrum]:
     """Camera-like RGB curves from data that ships inside colour-science (no download)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    from calib.core.datasets import colour_science_cameras
-
     curves: list[MultiSpectrum] = [camera.sensitivity for camera in colour_science_cameras()]
-    cmfs = colour.MSDS_CMFS
 
     def from_columns(key: str, name: str, transform: FloatArray | None = None) -> MultiSpectrum:
-        data = cmfs[key]
-        values = np.asarray(data.values, dtype=np.float64)
+        wavelength, values = colour_matching_functions(key)
         if transform is not None:
             values = values @ transform.T
         values = np.clip(values, 0.0, None)
-        return MultiSpectrum(np.asarray(data.wavelengths, dtype=np.float64), values, name=name)
+        return MultiSpectrum(wavelength, values, name=name)
 
     # XYZ: drop x̄'s short-wavelength lobe so the "red" channel looks like a red filter.
     for key, label in (
@@ -498,9 +496,7 @@ def _colour_camera_like_curves() -> list[MultiSpectrum]:
         ("CIE 1964 10 Degree Standard Observer", "CIE 1964 XYZ camera-like"),
         ("CIE 2015 2 Degree Standard Observer", "CIE 2015 2° XYZ camera-like"),
     ):
-        data = cmfs[key]
-        wavelength = np.asarray(data.wavelengths, dtype=np.float64)
-        values = np.array(data.values, dtype=np.float64)
+        wavelength, values = colour_matching_functions(key)
         values[wavelength < 505, 0] = 0.0
         curves.append(MultiSpectrum(wavelength, np.clip(values, 0, None), name=label))
     for key, label in (
@@ -598,4 +594,48 @@ def fallback_camera_basis(
         groups=groups,
         cache=cache,
         cache_dir=cache_dir,
+    )
+
+
+def default_camera_basis(
+    grid: WavelengthGrid = DEFAULT_GRID,
+    *,
+    n_vectors: int = DEFAULT_N_VECTORS,
+    data_dir: str | Path | None = None,
+    exclude: Sequence[str] = (),
+) -> CameraBasis:
+    """The measured-camera basis when the data is available, else the colour-science fallback.
+
+    Uses every Solomatov/Akkaynak ground truth (49) not matching ``exclude``; when the data directory
+    cannot be found (and none was named), :func:`fallback_camera_basis` (offline). The basis'
+    ``source`` says which was used.
+
+    Parameters
+    ----------
+    grid, n_vectors
+        As for :func:`camera_basis`.
+    data_dir
+        The camera data directory; ``None`` looks in ``$SPECTRAL_RIG_DATA`` and the user cache.
+    exclude
+        Names (case-insensitive substrings) of cameras to leave out.
+
+    Raises
+    ------
+    InputError
+        A named ``data_dir`` without the data.
+    """
+    try:
+        records = load_collection(SOLOMATOV, data_dir)
+    except InputError:
+        if data_dir is not None:
+            raise
+        return fallback_camera_basis(grid=grid, n_vectors=n_vectors, exclude=exclude)
+    excluded = [token.lower() for token in exclude]
+    kept = [r for r in records if not any(token in r.name.lower() for token in excluded)]
+    return camera_basis(
+        [r.sensitivity for r in kept],
+        grid=grid,
+        n_vectors=n_vectors,
+        source=f"{SOLOMATOV} ground truths ({len(kept)})",
+        camera_names=[r.name for r in kept],
     )

@@ -19,7 +19,13 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
-from calib.core.spectra import Spectrum, WavelengthGrid, read_spectrum_csv, read_table
+from calib.core.spectra import (
+    Spectrum,
+    WavelengthGrid,
+    as_spectrum,
+    read_spectrum_csv,
+    read_table,
+)
 
 #: Negative spectrum values (dark-subtraction noise) up to this fraction of the maximum are set to
 #: zero with a warning; larger ones mean a broken measurement and are refused.
@@ -145,8 +151,8 @@ def load_spectrum(source: Path | Spectrum, lamp: str, grid: WavelengthGrid) -> L
         an all-zero spectrum, or a range that does not cover the grid (the file is named).
     """
     warnings: list[str] = []
-    if isinstance(source, Spectrum):
-        spectrum, where = source, f"spectrum of lamp {lamp!r}"
+    if not isinstance(source, str | Path):  # a Spectrum, or colour's SpectralDistribution
+        spectrum, where = as_spectrum(source, lamp), f"spectrum of lamp {lamp!r}"
     else:
         where = str(source)
         table = read_table(source)

@@ -31,7 +31,7 @@ import json
 import math
 import multiprocessing
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -59,13 +59,16 @@ from calib.evaluation.validation.splits import (
     ValidationSplit,
     require_validation,
 )
+from calib.methods import MethodOptions
 from calib.model.bases import DEFAULT_N_VECTORS, CameraBasis, camera_basis
 from calib.model.gratings import CatalogueGrating, GratingKind
 
-#: Registry names the variants run. The registry is being renamed (issue 15, item 4: today's
-#: default solve becomes ``prior``, ``makabe2025`` the paper's own): change them here, once.
-TWO_LAMP_METHOD = "makabe2025"
+#: Registry names the variants run (what ``auto`` chooses for their lamps: the prior solve below
+#: three lamps with a direct measurement, multilamp from three); a rename is a change here, once.
+TWO_LAMP_METHOD = "prior"
 MULTILAMP_METHOD = "multilamp"
+#: The paper's own solve (Makabe et al. 2025, Eq. 12), for comparison.
+PAPER_METHOD = "makabe2025"
 PixelOrigin = Literal["direct_spot", "arbitrary"]
 CHANNELS = ("r", "g", "b")
 
@@ -83,13 +86,13 @@ class MethodVariant:
     lamps
         Lamp specs (:func:`calib.core.lamp_specs.lamp_from_spec`) it is given, from one scene.
     options
-        Keyword options for the method.
+        The method's typed options (:data:`calib.methods.MethodOptions`), ``None`` for its defaults.
     """
 
     label: str
     method: str
     lamps: tuple[str, ...]
-    options: Mapping[str, Any] = field(default_factory=dict)
+    options: MethodOptions | None = None
 
 
 FIVE_LAMPS: tuple[str, ...] = ("LED-B1", "LED-B3", "LED-B5", "FL2", "A")
@@ -98,6 +101,12 @@ DEFAULT_VARIANTS: tuple[MethodVariant, ...] = (
     MethodVariant("LED only", TWO_LAMP_METHOD, ("LED-B3",)),
     MethodVariant("5 lamps", MULTILAMP_METHOD, FIVE_LAMPS),
     MethodVariant("3 lamps + RGB LEDs", MULTILAMP_METHOD, ("LED-B3", "FL2", "A", *RGB_LEDS)),
+)
+
+
+#: Variants a run may ask for besides the defaults.
+EXTRA_VARIANTS: tuple[MethodVariant, ...] = (
+    MethodVariant("LED+FL, paper's solve", PAPER_METHOD, ("LED-B3", "FL2")),
 )
 
 
@@ -377,12 +386,9 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
         started = time.perf_counter()
         identity = row_identity(task, variant, record)
         try:
+            extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
             result = estimate(
-                observations,
-                method=variant.method,
-                grid=settings.grid,
-                basis=task.basis,
-                **dict(variant.options),
+                observations, method=variant.method, grid=settings.grid, basis=task.basis, **extra
             )
             pixel = observations[0].pixel
             rows.append(

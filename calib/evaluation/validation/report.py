@@ -179,7 +179,7 @@ def markdown_report(
         "Methods: "
         + "; ".join(
             f"{v.label} = `{v.method}` with {', '.join(v.lamps)}"
-            + (f" ({dict(v.options)})" if v.options else "")
+            + (f" ({v.options})" if v.options is not None else "")
             for v in settings.variants
         ),
         "",

@@ -35,7 +35,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from calib.core.camera_bodies import BodyAlias, BodyIndex, read_rawtoaces_aliases
+from calib.core.camera_bodies import BodyIndex, read_rawtoaces_aliases
 from calib.core.datasets import (
     BUTCHERG,
     CAMSPEC,
@@ -319,10 +319,8 @@ def load_splits(
             others.extend(load_collection(collection, root))
         except InputError as exc:
             missing.append(f"{collection}: {exc}")
-    aliases: list[BodyAlias] = []
     alias_file = root / RAWTOACES_DATA / "data" / "aliases.json"
-    if alias_file.is_file():
-        aliases = read_rawtoaces_aliases(alias_file)
+    aliases = read_rawtoaces_aliases(alias_file if alias_file.is_file() else None)
     predicted: list[CameraRecord] = []
     if predictions > 0:
         pool = load_collection(SOLOMATOV_PREDICTIONS, root)

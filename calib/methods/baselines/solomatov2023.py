@@ -44,26 +44,21 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import one_blas_thread
+from calib.core.colour_data import cie_test_colour_samples, colorchecker, colour_matching_functions
 from calib.core.errors import InputError
-from calib.core.mapping import GratingGeometry, QuadraticMapping
-from calib.core.observations import ChartObservation, ColorMatrixObservation
+from calib.core.lamp_specs import colour_lamp
+from calib.core.observations import ChartObservation, ColorMatrixObservation, Observation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 from calib.methods.baselines.inputs import (
     check_basis,
     check_weight,
-    method_basis,
     normalised_curves,
     split_observations,
 )
 from calib.model.bases import CameraBasis
-from calib.model.charts import (
-    cie_test_colour_samples,
-    colorchecker,
-    combined,
-    radiance_rows,
-    stimulus_rows,
-)
+from calib.model.charts import combined, radiance_rows, stimulus_rows
 from calib.model.inequality_lstsq import lstsq_inequality
 
 WhiteBalance = Literal["diagonal", "full", "none"]
@@ -244,22 +239,13 @@ def calibration_illuminant(value: str | Spectrum) -> Spectrum:
     """A calibration illuminant as a spectrum (colour-science name, or a given spectrum)."""
     if isinstance(value, Spectrum):
         return value
-    from calib.core.lamp_specs import colour_lamp
-
     return colour_lamp(value)
 
 
 def _cmfs_on_grid(grid: WavelengthGrid) -> FloatArray:
-    import colour
-
-    data = colour.MSDS_CMFS[_CMFS]
-    cmfs = MultiSpectrum(
-        np.asarray(data.wavelengths, dtype=np.float64),
-        np.asarray(data.values, dtype=np.float64),
-        channels=("x", "y", "z"),
-        name=_CMFS,
-    )
-    return cmfs.resample(grid, "interpolate").values
+    wavelength, values = colour_matching_functions(_CMFS)
+    curves = MultiSpectrum(wavelength, values, channels=("x", "y", "z"), name=_CMFS)
+    return curves.resample(grid, "interpolate").values
 
 
 def default_training_reflectances(grid: WavelengthGrid = DEFAULT_GRID) -> MultiSpectrum:
@@ -401,9 +387,9 @@ def _white_balance(
     return sensitivity @ transform, transform
 
 
+@one_blas_thread
 def estimate_solomatov2023(
-    matrices: ColorMatrixObservation,
-    charts: Sequence[ChartObservation],
+    observations: Sequence[Observation],
     *,
     basis: CameraBasis,
     grid: WavelengthGrid = DEFAULT_GRID,
@@ -416,11 +402,11 @@ def estimate_solomatov2023(
 
     Parameters
     ----------
-    matrices
-        The camera's ColorMatrix1 (and 2) with their calibration illuminants.
-    charts
-        Colour-chart observations resolving the channel scales (not needed with
-        ``white_balance="none"``).
+    observations
+        Exactly one :class:`~calib.core.observations.ColorMatrixObservation` (the camera's
+        ColorMatrix1, and 2, with their calibration illuminants; read one with
+        :func:`read_color_matrices`) and the colour-chart observations resolving the channel scales
+        (not needed with ``white_balance="none"``).
     basis
         Per-channel camera basis on ``grid`` (leading ``n_vectors`` used; its mean is the prior).
     grid
@@ -441,6 +427,20 @@ def estimate_solomatov2023(
     EstimateResult
     """
     started = time.perf_counter()
+    groups = split_observations(
+        observations,
+        "solomatov2023",
+        {"matrices": ColorMatrixObservation, "charts": ChartObservation},
+    )
+    if len(groups["matrices"]) != 1:
+        raise InputError(
+            f"solomatov2023 needs exactly one ColorMatrixObservation (read one with "
+            f"calib.methods.baselines.solomatov2023.read_color_matrices), got "
+            f"{len(groups['matrices'])}",
+            source="observations",
+        )
+    matrices: ColorMatrixObservation = groups["matrices"][0]
+    charts: list[ChartObservation] = groups["charts"]
     check_basis(basis, grid, n_vectors)
     check_weight(ridge, "ridge")
     if white_balance not in ("diagonal", "full", "none"):
@@ -510,38 +510,4 @@ def estimate_solomatov2023(
         sensitivity=curves,
         residuals=residuals,
         diagnostics=diagnostics,
-    )
-
-
-def solomatov2023_method(
-    observations: Sequence[Any],
-    *,
-    grid: WavelengthGrid,
-    basis: CameraBasis | None,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    n_vectors: int = SOLOMATOV2023_N_VECTORS,
-    data_dir: str | Path | None = None,
-    **options: Any,
-) -> EstimateResult:
-    """Registry entry ``"solomatov2023"``: one :class:`ColorMatrixObservation` + chart observations."""
-    groups = split_observations(
-        observations,
-        "solomatov2023",
-        {"matrices": ColorMatrixObservation, "charts": ChartObservation},
-    )
-    if len(groups["matrices"]) != 1:
-        raise InputError(
-            f"solomatov2023 needs exactly one ColorMatrixObservation (read one with "
-            f"calib.methods.baselines.solomatov2023.read_color_matrices), got {len(groups['matrices'])}",
-            source="observations",
-        )
-    chosen = method_basis(basis, grid, n_vectors=n_vectors, data_dir=data_dir)
-    return estimate_solomatov2023(
-        groups["matrices"][0],
-        groups["charts"],
-        basis=chosen,
-        grid=grid,
-        n_vectors=n_vectors,
-        **options,
     )
