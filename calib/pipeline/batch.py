@@ -117,6 +117,16 @@ def _died(job: BatchJob) -> BatchRow:
     )
 
 
+def _never_started(job: BatchJob) -> BatchRow:
+    return BatchRow(
+        job.name,
+        str(job.path),
+        "failed",
+        error="the worker processes died while starting, before any estimate (importing the "
+        "pipeline or resolving the camera basis); run with --jobs 1 to see why",
+    )
+
+
 def _run_pool(
     jobs: Sequence[BatchJob], plan: BatchPlan, workers: int, progress: BatchProgress
 ) -> BatchOutcome:
@@ -143,6 +153,14 @@ def _run_pool(
         while broken and not started.empty():
             ran.add(started.get()[0])
         started.close()
+        if broken and not ran and not alone:
+            # No job started: the workers died while starting (their initializer), and would
+            # again in a new pool.
+            for index in unfinished:
+                rows[index] = _never_started(jobs[index])
+                progress.done(rows[index])
+            waiting = []
+            continue
         if alone:
             for index in unfinished:
                 rows[index] = _died(jobs[index])

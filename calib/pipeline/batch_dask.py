@@ -3,9 +3,9 @@
 Each input set is one task running :func:`calib.pipeline.batch_jobs.estimate_job` on a worker, which
 writes the outputs itself and sends back only the summary's row. The paths are absolute and must
 mean the same files on every worker (one machine, or a shared file system), and every worker must
-run this version of spectral-rig: it is checked before anything is submitted. A worker keeps its
-imports and the camera basis (:func:`calib.pipeline.batch_jobs.worker_settings`) for every later task:
-its first task pays them, as a local worker's initializer does. A task whose worker dies is
+run this version of spectral-rig: it is checked before anything is submitted. Every worker then
+imports the pipeline and resolves the camera basis once (:func:`calib.pipeline.batch_jobs.prepare_worker`,
+a local worker's initializer) and keeps them for all its tasks. A task whose worker dies is
 rescheduled by Dask; one that kills its workers repeatedly (``KilledWorker``) is a failed row.
 """
 
@@ -24,6 +24,7 @@ from calib.pipeline.batch_jobs import (
     BatchRow,
     estimate_job,
     not_run,
+    prepare_worker,
 )
 
 #: How long to wait for the scheduler to answer, and for it to have a worker (s).
@@ -112,13 +113,16 @@ def run_on_dask(
     client = _connect(address)
     try:
         _check_workers(client, address)
+        # Every worker imports the pipeline and resolves the basis before the first task, as a
+        # local worker's initializer does (a worker joining later does it in its first task).
+        client.run(prepare_worker, plan, local=False)
         futures = {
             client.submit(estimate_job, job, plan, pure=False): index
             for index, job in enumerate(jobs)
         }
         rows: dict[int, BatchRow] = {}
         try:
-            for future in distributed.as_completed(list(futures)):
+            for future in distributed.as_completed(list(futures), loop=client.loop):
                 index = futures[future]
                 try:
                     rows[index] = future.result()

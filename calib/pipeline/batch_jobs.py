@@ -10,6 +10,7 @@ row's one-line reason; the batch goes on.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import signal
@@ -150,10 +151,12 @@ def prepare_worker(
     local: bool = True,
     started: SimpleQueue[tuple[int, int]] | None = None,
 ) -> None:
-    """A worker's initializer: import the pipeline and the report's libraries, resolve the basis.
+    """A worker's initializer: import the pipeline (and the report's libraries when reports are
+    written), resolve the basis.
 
     A local worker also runs its BLAS on one thread (one worker per core) and leaves Ctrl-C to
-    the parent (which stops the batch between jobs).
+    the parent (which stops the batch between jobs). The basis is resolved here for the first
+    job's sake only: if that fails (a ``--data-dir`` without data), every job says why.
     """
     global _STARTED
     if local:
@@ -166,8 +169,10 @@ def prepare_worker(
     from calib.pipeline.report import import_plotting
 
     import_estimation()
-    import_plotting()
-    worker_settings(plan.settings)
+    if plan.report:
+        import_plotting()
+    with contextlib.suppress(Exception):  # the job resolves it again and reports the error
+        worker_settings(plan.settings)
 
 
 def _one_line(exc: BaseException) -> str:
