@@ -17,7 +17,8 @@ Steps:
      session, 2 at a time (``--parallel``), as ``xargs -P2`` would;
    * ``python bench/batch_estimate.py pool DIR`` — ``rig estimate SESSION… --jobs 2``;
    * ``python bench/batch_estimate.py dask DIR`` — a ``LocalCluster`` of 2 single-threaded worker
-     processes and ``rig estimate SESSION… --scheduler ADDRESS`` (needs the ``dask`` extra).
+     processes and ``rig estimate SESSION… --scheduler ADDRESS`` (needs the ``dask`` extra;
+     ``--no-profile`` turns the workers' statistical profiler off).
 
    ``--limit N`` takes the first N sessions (wall linear in N: time ``--limit 10`` against
    ``--limit 20``); ``--no-report`` passes ``--no-report`` to ``rig estimate``.
@@ -86,15 +87,23 @@ def batch(sessions: Sequence[Path], out: Path, report: bool, where: Sequence[str
 
 
 @contextmanager
-def local_cluster(workers: int) -> Iterator[str]:
+def local_cluster(workers: int, *, profile: bool = True) -> Iterator[str]:
     """A ``LocalCluster`` of ``workers`` single-threaded worker processes (this process's
-    children, so their CPU time counts in this process's)."""
+    children, so their CPU time counts in this process's).
+
+    With ``profile=False`` the workers do not sample their task threads' stacks (every 10 ms by
+    default: ``distributed.worker.profile``), which costs CPU on a loaded machine.
+    """
+    import dask
     import distributed
 
     cluster_type: Any = distributed.LocalCluster  # untyped
-    with cluster_type(
-        n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
-    ) as cluster:
+    with (
+        dask.config.set({"distributed.worker.profile.enabled": profile}),
+        cluster_type(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+    ):
         yield str(cluster.scheduler_address)
 
 
@@ -108,6 +117,12 @@ def main() -> None:
     parser.add_argument("--parallel", type=int, default=2, help="separate: processes at a time")
     parser.add_argument("--workers", type=int, default=2, help="pool/dask: worker processes")
     parser.add_argument("--no-report", dest="report", action="store_false")
+    parser.add_argument(
+        "--no-profile",
+        dest="profile",
+        action="store_false",
+        help="dask: the workers' statistical profiler off",
+    )
     arguments = parser.parse_args()
     if arguments.mode == "capture":
         capture(arguments.directory, arguments.sessions, arguments.config)
@@ -121,7 +136,7 @@ def main() -> None:
         elif arguments.mode == "pool":
             batch(sessions, out, arguments.report, ["--jobs", str(arguments.workers)])
         else:
-            with local_cluster(arguments.workers) as address:
+            with local_cluster(arguments.workers, profile=arguments.profile) as address:
                 batch(sessions, out, arguments.report, ["--scheduler", address])
     wall_s = time.perf_counter() - started
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
