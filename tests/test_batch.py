@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 from rich.console import Console
+from typer.testing import CliRunner
 
+from calib.cli.app import build_app
 from calib.core.errors import InputError
 from calib.model.bases import CameraBasis
 from calib.pipeline.batch import run_batch
@@ -163,3 +165,9 @@ def test_an_unreachable_scheduler_is_named(tmp_path: Path, monkeypatch: pytest.M
     jobs = [BatchJob(tmp_path / "a", CRASHING_READER)]
     with pytest.raises(InputError, match=r"cannot reach a Dask scheduler at tcp://127.0.0.1:9"):
         run_batch(jobs, BatchPlan(OfflineSettings()), scheduler="tcp://127.0.0.1:9")
+
+
+def test_the_help_names_the_extra_a_cluster_needs() -> None:
+    result = CliRunner().invoke(build_app(), ["batch", "--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    assert "pip install 'spectral-rig[dask]'" in result.output

@@ -35,7 +35,7 @@ SchedulerOption = Annotated[
     typer.Option(
         help="Run on the Dask cluster whose scheduler is at this address (tcp://host:8786) "
         "instead of local workers; paths must mean the same files on every worker. Needs "
-        "spectral-rig[dask].",
+        "the dask extra (pip install 'spectral-rig\\[dask]').",
     ),
 ]
 #: ``--summary``: where the summary table is written.
