@@ -18,7 +18,14 @@ from rich.console import Console
 from rich.table import Table
 
 from calib.cli.exits import say_interrupted
-from calib.cli.options import EnsembleOption, EpochsOption
+from calib.cli.options import (
+    EnsembleOption,
+    EpochsOption,
+    JobsOption,
+    ReportOption,
+    SchedulerOption,
+    SummaryOption,
+)
 from calib.core.errors import CalibError, InputError
 from calib.core.metrics import format_re
 from calib.core.software import current_software
@@ -288,10 +295,21 @@ def sessions(
 
 @app.command()
 def estimate(
-    session: Annotated[Path, typer.Argument(help="The session directory (with log.jsonl).")],
+    sessions: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Session directories (with log.jsonl); several are estimated as a batch.",
+            show_default=False,
+        ),
+    ],
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output directory (default: SESSION/estimate)."),
+        typer.Option(
+            "--out",
+            "-o",
+            help="Output directory (default: SESSION/estimate); with several sessions, "
+            "OUT/<session>/ for each and the summary in OUT.",
+        ),
     ] = None,
     method: Annotated[
         str,
@@ -322,16 +340,41 @@ def estimate(
     force: Annotated[
         bool, typer.Option("--force", help="Overwrite the results of an earlier estimate in --out.")
     ] = False,
+    report: ReportOption = True,
+    jobs: JobsOption = None,
+    scheduler: SchedulerOption = None,
+    summary: SummaryOption = None,
 ) -> None:
-    """Estimate the camera from a session (every file verified against the log) and write the report."""
+    """Estimate the camera from a session (every file verified against the log) and write the
+    report; several sessions run as a batch (local workers or a Dask cluster) with a summary."""
+    from calib.cli.batch import run_batch_command
     from calib.methods.multilamp import weight_rule_option
     from calib.pipeline import RichFrameProgress
-    from rig.estimate import estimate_session
+    from rig.estimate import SESSION_INPUTS, estimate_session, session_settings
 
     command_line = ("rig", "estimate", *sys.argv[2:])
     settings: dict[str, object] = {"method_options": weight_rule_option(method, weight_rule)}
     if grating is not None:
         settings["grating"] = grating
+    if len(sessions) > 1 or scheduler is not None:
+        offline = session_settings(
+            method=method, data_dir=data_dir, command_line=command_line, settings=settings
+        )
+        code = run_batch_command(
+            sessions,
+            [SESSION_INPUTS],
+            offline,
+            program="rig",
+            out=out,
+            jobs=jobs,
+            scheduler=scheduler,
+            report=report,
+            force=force,
+            quiet=quiet,
+            summary=summary,
+        )
+        raise typer.Exit(code)
+    session = sessions[0]
     if quiet or not RichFrameProgress.wanted(sys.stderr):
         outcome = estimate_session(
             session,
@@ -341,6 +384,7 @@ def estimate(
             command_line=command_line,
             settings=settings,
             force=force,
+            report=report,
         )
     else:
         with RichFrameProgress(sys.stderr) as progress:
@@ -353,11 +397,13 @@ def estimate(
                 command_line=command_line,
                 settings=settings,
                 force=force,
+                report=report,
             )
     result = outcome.estimate.result
     for warning in outcome.estimate.warnings:
         typer.echo(f"rig: warning: {warning}", err=True)
-    typer.echo(f"report: {outcome.files['report']}")
+    if "report" in outcome.files:
+        typer.echo(f"report: {outcome.files['report']}")
     typer.echo(f"sensitivity: {outcome.files['sensitivity']}")
     if result.mapping_re_estimate is not None:
         typer.echo(

@@ -41,9 +41,9 @@ from calib.pipeline import (
     OfflineOutcome,
     OfflineProgress,
     OfflineSettings,
-    run_offline,
 )
 from calib.pipeline.context import EstimateContext, WarmupTrace
+from calib.pipeline.input_sets import InputSet
 from calib.pipeline.outputs import check_out_dir
 from drivers.local_files import (
     UnsafeLocalPath,
@@ -55,7 +55,7 @@ from drivers.local_files import (
 from rig.config import LAMP_NAME_PATTERN
 from rig.errors import RigError, SessionFormatError
 from rig.plan import relative_change
-from rig.records import FileRecord
+from rig.records import LOG_NAME, FileRecord
 from rig.session import Session, read_session
 from rig.steps import SpectrumMeasured
 from rig.twin import read_twin_truth
@@ -342,6 +342,76 @@ def check_estimate_out(session_dir: Path, out_dir: Path | None, *, force: bool) 
     return target
 
 
+class SessionInputs:
+    """Session directories as batch input sets (:class:`calib.pipeline.input_sets.InputSetReader`;
+    the ``spectral_rig.inputs`` entry point ``session``)."""
+
+    kind = "session"
+    description = "a session directory (with log.jsonl)"
+
+    def recognises(self, path: Path) -> bool:
+        """A directory holding a ``log.jsonl``."""
+        return (Path(path) / LOG_NAME).is_file()
+
+    def default_out_name(self, path: Path) -> str:
+        return Path(path).name
+
+    def read(self, path: Path, out_dir: Path | None, *, force: bool) -> InputSet:
+        """The session's verified lamps, its warnings and notes, the twin's truth and the lamps'
+        warm-up; where the estimate goes checked first (:func:`check_estimate_out`).
+
+        Raises
+        ------
+        SessionFormatError
+            Not a session, an invalid log, unsafe paths (a link planted where the estimate is
+            written too), files that differ from the log.
+        InputError
+            No usable lamp; earlier results without ``force``; an output directory that cannot be
+            written.
+        """
+        session_path = Path(path)
+        destination = check_estimate_out(session_path, out_dir, force=force)
+        session = read_session(session_path)
+        lamps, known, warnings = session_lamps(session)
+        context = EstimateContext(_twin_truth(session_path, warnings), _warmup_traces(session))
+        start = session.start
+        assert start is not None
+        return InputSet(
+            name=session_path.name,
+            lamps=tuple(lamps),
+            out_dir=destination,
+            known_inputs=tuple(known),
+            warnings=tuple(warnings),
+            notes=(f"session {start.session_id} ({session_path.name}), status {session.status}",),
+            context=context,
+        )
+
+
+#: The reader of session directories (the ``spectral_rig.inputs`` entry point ``session``).
+SESSION_INPUTS = SessionInputs()
+
+
+def session_settings(
+    *,
+    method: str = "auto",
+    data_dir: str | Path | None = None,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    mapping_lamp: str | None = None,
+    command_line: Sequence[str] | None = None,
+    settings: Mapping[str, Any] | None = None,
+) -> OfflineSettings:
+    """The :class:`calib.pipeline.OfflineSettings` of ``rig estimate`` (one session or many)."""
+    options: dict[str, Any] = {
+        "method": method,
+        "grid": grid,
+        "mapping_lamp": mapping_lamp,
+        "data_dir": None if data_dir is None else Path(data_dir),
+        "command_line": None if command_line is None else tuple(command_line),
+        **dict(settings or {}),
+    }
+    return OfflineSettings(**options)
+
+
 def estimate_session(
     session_dir: str | Path,
     out_dir: str | Path | None = None,
@@ -354,6 +424,7 @@ def estimate_session(
     command_line: Sequence[str] | None = None,
     settings: Mapping[str, Any] | None = None,
     force: bool = False,
+    report: bool = True,
 ) -> OfflineOutcome:
     """Estimate the camera from a session and write the outputs.
 
@@ -379,6 +450,8 @@ def estimate_session(
         The command as typed, recorded in the result.
     settings
         Further :class:`calib.pipeline.OfflineSettings` fields (``basis``, ``use_region`` …).
+    report
+        Also write ``report.html``.
 
     Returns
     -------
@@ -394,31 +467,15 @@ def estimate_session(
         No usable lamp; any input problem the pipeline finds; earlier results without ``force``;
         an output directory that cannot be written.
     """
-    session_path = Path(session_dir)
-    destination = check_estimate_out(
-        session_path, None if out_dir is None else Path(out_dir), force=force
+    inputs = SESSION_INPUTS.read(
+        Path(session_dir), None if out_dir is None else Path(out_dir), force=force
     )
-    session = read_session(session_path)
-    lamps, known, warnings = session_lamps(session)
-    context = EstimateContext(_twin_truth(session_path, warnings), _warmup_traces(session))
-    start = session.start
-    assert start is not None
-    notes = (f"session {start.session_id} ({session_path.name}), status {session.status}",)
-    options: dict[str, Any] = {
-        "method": method,
-        "grid": grid,
-        "mapping_lamp": mapping_lamp,
-        "data_dir": None if data_dir is None else Path(data_dir),
-        "command_line": None if command_line is None else tuple(command_line),
-        "warnings": tuple(warnings),
-        "notes": notes,
-        **dict(settings or {}),
-    }
-    return run_offline(
-        lamps,
-        destination,
-        OfflineSettings(**options),
-        progress=progress,
-        known_inputs=known,
-        context=context,
+    offline = session_settings(
+        method=method,
+        data_dir=data_dir,
+        grid=grid,
+        mapping_lamp=mapping_lamp,
+        command_line=command_line,
+        settings=settings,
     )
+    return inputs.run(offline, progress=progress, report=report)

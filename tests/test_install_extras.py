@@ -72,6 +72,9 @@ def test_the_core_dependencies_hold_no_hardware_library() -> None:
     assert any(requirement.startswith("gphoto2") for requirement in extras["rig"])
     (self_extra,) = [r for r in extras["dev"] if r.startswith("spectral-rig[")]
     assert {"rig", "sim"} <= set(self_extra.removeprefix("spectral-rig[").rstrip("]").split(","))
+    # the batch's Dask test runs in `make test`: dev installs the dask extra
+    assert "dask" in self_extra.removeprefix("spectral-rig[").rstrip("]").split(",")
+    assert any(requirement.startswith("dask[distributed]") for requirement in extras["dask"])
 
 
 def test_the_twin_without_its_extra_says_which_to_install() -> None:

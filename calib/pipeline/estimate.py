@@ -18,7 +18,7 @@ Writing the files is :func:`calib.pipeline.run.run_offline`.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -52,7 +52,9 @@ from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeate
 __all__ = [
     "OfflineEstimate",
     "OfflineSettings",
+    "basis_key",
     "estimate_offline",
+    "resolve_basis",
 ]
 
 
@@ -452,6 +454,18 @@ def estimate_offline(
     )
 
 
+def resolve_basis(settings: OfflineSettings) -> CameraBasis:
+    """The camera basis an estimate with ``settings`` uses: the settings' own, else the default
+    basis for their grid and data directory (:func:`basis_key` names what that depends on)."""
+    return settings.basis or default_camera_basis(settings.grid, data_dir=settings.data_dir)
+
+
+def basis_key(settings: OfflineSettings) -> Hashable:
+    """What :func:`resolve_basis` reads of ``settings`` without a basis of their own: equal keys
+    give the same basis (a batch worker resolves it once per key)."""
+    return (settings.grid, settings.data_dir)
+
+
 def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMapping | None:
     """The identity mapping when the profiles are already in wavelength."""
     if not observations or observations[0].profile_wavelength_nm is None:
@@ -506,7 +520,7 @@ def _estimate(
     notes: list[str],
 ) -> tuple[EstimateResult, GratingEfficiency | None]:
     grid = settings.grid
-    basis = settings.basis or default_camera_basis(grid, data_dir=settings.data_dir)
+    basis = resolve_basis(settings)
     method = check_method(settings.method, source="--method")
     where: dict[str, Any] = {}
     mapping = _wavelength_mapping(observations)

@@ -55,7 +55,7 @@ from calib.core.formats.result_json import RESULT_FORMAT_VERSION, RESULT_SCHEMA
 from calib.core.formats.rgb_csv import write_camera_csv
 from calib.core.formats.vkdt import write_vkdt_txt
 from calib.core.grating_file import GratingEfficiency, write_grating_file
-from calib.core.metrics import format_re
+from calib.core.metrics import format_re, relative_error
 from calib.core.result import EstimateResult, json_safe
 from calib.core.truth import GroundTruth
 from calib.model.extension import Extension, extend
@@ -105,6 +105,12 @@ class DeliveredCamera:
     uses: CameraUses | None
     uses_error: str | None
     truth: GroundTruth | None
+
+    def truth_relative_error(self) -> float | None:
+        """RE (Eq. 16) of the curves against the known truth on the estimate's grid, or ``None``."""
+        if self.truth is None:
+            return None
+        return relative_error(self.curves.values, self.truth.camera.at(self.curves.wavelength_nm))
 
     @property
     def stem(self) -> str:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.mapping import QuadraticMapping
-from calib.core.metrics import format_re, mapping_relative_error, relative_error
+from calib.core.metrics import format_re, mapping_relative_error
 from calib.pipeline.context import EstimateContext
 from calib.pipeline.estimate import OfflineEstimate
 from calib.pipeline.outputs import DeliveredCamera, deliver
@@ -140,11 +140,10 @@ def _summary_rows(
     rows.append(("mapping RE estimate", format_re(result.mapping_re_estimate)))
     truth = delivered.truth
     if truth is not None:
-        true_curves = truth.camera.at(result.wavelength_nm)
         rows.append(
             (
                 "RE against the truth (Eq. 16, estimate's grid)",
-                format_re(relative_error(delivered.curves.values, true_curves)),
+                format_re(delivered.truth_relative_error()),
             )
         )
         if truth.mapping is not None and mapping is not None and estimate.observations:

@@ -23,11 +23,13 @@ from calib.pipeline.provenance import InputFile
 
 @dataclass(frozen=True, eq=False)
 class OfflineOutcome:
-    """An estimate and the files written for it (``sensitivity``, ``result``, ``report`` …)."""
+    """An estimate and the files written for it (``sensitivity``, ``result``, ``report`` …), and
+    its RE against the truth when one was known."""
 
     estimate: OfflineEstimate
     files: Mapping[str, Path]
     timings: Mapping[str, float]
+    truth_relative_error: float | None = None
 
 
 def run_offline(
@@ -116,4 +118,4 @@ def run_offline(
             )
             timings["report_s"] = time.perf_counter() - step
     timings["total_s"] = time.perf_counter() - started
-    return OfflineOutcome(estimate, files, timings)
+    return OfflineOutcome(estimate, files, timings, delivered.truth_relative_error())

@@ -308,7 +308,7 @@ def estimate_cli(
         reached.append(out_dir)
         raise InputError("stopped by the test", source="stub")
 
-    monkeypatch.setattr("rig.estimate.run_offline", estimate_stub)
+    monkeypatch.setattr("calib.pipeline.input_sets.run_offline", estimate_stub)
 
     def run(*arguments: str) -> tuple[int, str, list[Path]]:
         monkeypatch.setattr(sys, "argv", ["rig", "estimate", *arguments, "-q"])

@@ -1,0 +1,153 @@
+"""Batch estimation of twin sessions: one batch against one ``rig estimate`` process per session.
+
+Issue 19's targets: N twin sessions estimated on 2 cores as one batch cost ≤ 55 % of the CPU of N
+separate ``rig estimate`` processes, both cores busy, the wall time linear in N; the same through a
+Dask ``LocalCluster`` of 2 workers. Every mode runs the ``rig`` command of this environment as a
+child process, so a timer of the whole process (``/usr/bin/time``, or any harness that reads the
+children's rusage) sees all the CPU: the batch's parent, its spawned workers, a cluster's workers.
+
+Steps:
+
+1. ``python bench/batch_estimate.py capture DIR --sessions 20`` captures 20 twin sessions into
+   ``DIR`` (``rig capture`` on the packaged twin configuration; ``--config`` for another).
+2. Time the modes side by side on the same sessions (outputs go to a temporary directory that is
+   removed afterwards; each mode prints its N, wall time and CPU time):
+
+   * ``python bench/batch_estimate.py separate DIR`` — one ``rig estimate SESSION`` process per
+     session, 2 at a time (``--parallel``), as ``xargs -P2`` would;
+   * ``python bench/batch_estimate.py pool DIR`` — ``rig estimate SESSION… --jobs 2``;
+   * ``python bench/batch_estimate.py dask DIR`` — a ``LocalCluster`` of 2 single-threaded worker
+     processes and ``rig estimate SESSION… --scheduler ADDRESS`` (needs the ``dask`` extra;
+     ``--no-profile`` turns the workers' statistical profiler off).
+
+   ``--limit N`` takes the first N sessions (wall linear in N: time ``--limit 10`` against
+   ``--limit 20``); ``--no-report`` passes ``--no-report`` to ``rig estimate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+RIG = str(Path(sys.executable).with_name("rig"))
+
+
+def sessions_in(directory: Path, limit: int | None) -> list[Path]:
+    """The session directories (with ``log.jsonl``) directly in ``directory``, by name."""
+    found = sorted(path for path in directory.iterdir() if (path / "log.jsonl").is_file())
+    if not found:
+        raise SystemExit(f"{directory}: no session directory inside (run the capture step first)")
+    if limit is not None:
+        if limit > len(found):
+            raise SystemExit(f"{directory}: {len(found)} sessions, fewer than --limit {limit}")
+        found = found[:limit]
+    return found
+
+
+def capture(directory: Path, sessions: int, config: Path) -> None:
+    directory.mkdir(parents=True, exist_ok=True)
+    for number in range(sessions):
+        command = [RIG, "capture", "--config", str(config), "--out", str(directory), "-q"]
+        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+        print(f"captured {number + 1}/{sessions}", flush=True)
+
+
+def _estimate_options(report: bool) -> list[str]:
+    return ["-q", "--force"] + ([] if report else ["--no-report"])
+
+
+def separate(sessions: Sequence[Path], out: Path, parallel: int, report: bool) -> None:
+    """One ``rig estimate`` process per session, ``parallel`` at a time."""
+    running: list[subprocess.Popen[bytes]] = []
+    for session in sessions:
+        while len(running) >= parallel:
+            running.pop(0).wait()
+        command = [RIG, "estimate", str(session), "--out", str(out / session.name)]
+        running.append(
+            subprocess.Popen([*command, *_estimate_options(report)], stdout=subprocess.DEVNULL)
+        )
+    failed = [process.args for process in running if process.wait() != 0]
+    if failed:
+        raise SystemExit(f"rig estimate failed: {failed}")
+
+
+def batch(sessions: Sequence[Path], out: Path, report: bool, where: Sequence[str]) -> None:
+    """One ``rig estimate`` process for all sessions (``where``: ``--jobs`` or ``--scheduler``)."""
+    command = [RIG, "estimate", *map(str, sessions), "--out", str(out), *where]
+    subprocess.run([*command, *_estimate_options(report)], check=True, stdout=subprocess.DEVNULL)
+
+
+@contextmanager
+def local_cluster(workers: int, *, profile: bool = True) -> Iterator[str]:
+    """A ``LocalCluster`` of ``workers`` single-threaded worker processes (this process's
+    children, so their CPU time counts in this process's).
+
+    With ``profile=False`` the workers do not sample their task threads' stacks (every 10 ms by
+    default: ``distributed.worker.profile``), which costs CPU on a loaded machine.
+    """
+    import dask
+    import distributed
+
+    cluster_type: Any = distributed.LocalCluster  # untyped
+    with (
+        dask.config.set({"distributed.worker.profile.enabled": profile}),
+        cluster_type(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+    ):
+        yield str(cluster.scheduler_address)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("mode", choices=("capture", "separate", "pool", "dask"))
+    parser.add_argument("directory", type=Path, help="the twin sessions")
+    parser.add_argument("--sessions", type=int, default=20, help="capture: how many")
+    parser.add_argument("--config", type=Path, default=Path("config.yaml"), help="capture: twin")
+    parser.add_argument("--limit", type=int, default=None, help="the first N sessions only")
+    parser.add_argument("--parallel", type=int, default=2, help="separate: processes at a time")
+    parser.add_argument("--workers", type=int, default=2, help="pool/dask: worker processes")
+    parser.add_argument("--no-report", dest="report", action="store_false")
+    parser.add_argument(
+        "--no-profile",
+        dest="profile",
+        action="store_false",
+        help="dask: the workers' statistical profiler off",
+    )
+    arguments = parser.parse_args()
+    if arguments.mode == "capture":
+        capture(arguments.directory, arguments.sessions, arguments.config)
+        return
+    sessions = sessions_in(arguments.directory, arguments.limit)
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="batch-bench-") as directory:
+        out = Path(directory)
+        if arguments.mode == "separate":
+            separate(sessions, out, arguments.parallel, arguments.report)
+        elif arguments.mode == "pool":
+            batch(sessions, out, arguments.report, ["--jobs", str(arguments.workers)])
+        else:
+            with local_cluster(arguments.workers, profile=arguments.profile) as address:
+                batch(sessions, out, arguments.report, ["--scheduler", address])
+    wall_s = time.perf_counter() - started
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    cpu_s = children.ru_utime + children.ru_stime + own.ru_utime + own.ru_stime
+    print(
+        f"{arguments.mode}: {len(sessions)} sessions, wall {wall_s:.1f} s, CPU {cpu_s:.1f} s "
+        f"({cpu_s / len(sessions):.2f} s a session, {cpu_s / wall_s:.2f} cores busy on average; "
+        f"{os.cpu_count()} CPUs)"
+    )
+
+
+if __name__ == "__main__":
+    main()
