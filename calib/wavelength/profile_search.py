@@ -60,7 +60,7 @@ Orientation = Literal["auto", "rising", "falling"]
 
 #: Width (nm) of a binned pixel in the scan, the refinement of its minima, the basin-deciding and
 #: the final stage (a bin is never narrower than the profile's own pixels).
-SCAN_BIN_NM = 10.0
+SCAN_BIN_NM = 5.0
 GLOBAL_BIN_NM = 5.0
 REFINE_BIN_NM = 2.5
 FINAL_BIN_NM = 0.5
@@ -68,7 +68,7 @@ FINAL_BIN_NM = 0.5
 #: and step (nm) around each start (the middle follows): the correlation search's linear starts are
 #: 2–25 nm off at the ends on the training cameras (a camera unlike the mean, the mapping's
 #: curvature). At most this many starts per direction, at least a step apart, are scanned.
-QUADRATIC_SCAN = (32.0, 8.0)
+QUADRATIC_SCAN = (24.0, 4.0)
 MAX_STARTS = 2
 #: Grating family: the same end grid, for the prior's focal length (±1σ when it is loose) or,
 #: without one, for each of these (px).
@@ -362,6 +362,50 @@ def _grating_points(
     return np.where(valid[:, None], points, np.nan), (len(focals), shifts.size, shifts.size)
 
 
+#: Scan of a grating seen from its 0th order with no rig knowledge: the wavelength at the
+#: profile's first pixel (nm) and the incidence (degrees); the focal lengths are
+#: :data:`UNKNOWN_FOCAL_LENGTHS_PX` (or the prior's).
+SPOT_FIRST_NM = tuple(float(v) for v in np.arange(300.0, 441.0, 10.0))
+SPOT_INCIDENCE_DEG = (-6.0, 0.0, 6.0)
+
+
+def _spot_points(
+    family: GratingFamily, pixel_range: tuple[float, float]
+) -> tuple[FloatArray, tuple[int, ...]]:
+    """Gratings for every (focal length, incidence, wavelength at the first pixel): with the 0th
+    order pinned, those fix the groove spacing (``d = λ₁ / (sin(θ + a₁) − sin θ)``)."""
+    soft = family.prior.soft()
+    fixed = family.prior.fixed()
+    if "log_focal" in soft:
+        mean, sigma = soft["log_focal"]
+        focals = [math.exp(mean + k * sigma) for k in (-1.0, 0.0, 1.0)]
+    elif "log_focal" in fixed:
+        focals = [math.exp(fixed["log_focal"])]
+    else:
+        focals = list(UNKNOWN_FOCAL_LENGTHS_PX)
+    incidences = [fixed["incidence_deg"]] if "incidence_deg" in fixed else list(SPOT_INCIDENCE_DEG)
+    p0 = fixed["zero_order_px"]
+    offset = family.axis_offset_px
+    first_px = pixel_range[0] if family.orientation > 0 else pixel_range[1]
+    rows = []
+    for focal in focals:
+        along = family.orientation * (first_px - p0) + offset
+        angle = math.atan(along / focal) - math.atan(offset / focal)
+        for incidence in incidences:
+            theta = math.radians(incidence)
+            sine = math.sin(theta + angle) - math.sin(theta)
+            for first_nm in SPOT_FIRST_NM:
+                spacing = first_nm / sine if sine > 0 else float("nan")
+                full = {
+                    "zero_order_px": p0,
+                    "log_spacing": math.log(spacing) if spacing > 0 else float("nan"),
+                    "log_focal": math.log(focal),
+                    "incidence_deg": incidence,
+                }
+                rows.append([full[name] for name in family.names])
+    return np.array(rows), (len(focals), len(incidences), len(SPOT_FIRST_NM))
+
+
 def _rig_known(family: GratingFamily) -> bool:
     """Whether the prior gives the groove spacing, focal length and incidence."""
     return all(
@@ -538,6 +582,11 @@ def search_mapping(
             grids = [
                 _grating_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
             ]
+            if "zero_order_px" in family.prior.fixed():
+                # The 0th order is at a known pixel: the physics leaves the wavelength at the
+                # profile's start, the focal length and the incidence to scan, whatever the
+                # correlation search said.
+                grids.append(_spot_points(family, pixel_range))
         for points, shape in grids:
             costs = scan.costs(points)
             evaluations += points.shape[0]

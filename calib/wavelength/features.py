@@ -1,0 +1,666 @@
+"""The mapping from spectral features: emission lines and absorption dips found in a profile, matched to
+a line list, each fitted where it lies, and the mapping fitted through them.
+
+1. **Signal.** Emission: the channels summed, less a baseline that follows everything broader than a
+   line (a grey opening). Absorption: the channels summed and divided by their upper envelope (a grey
+   closing, smoothed) — the continuum-normalised depth, in which a Fraunhofer line is a dip whatever
+   the camera and the source's colour.
+2. **Peaks** of that signal above 5 noise σ (noise from the second differences).
+3. **Match** the strongest peaks to the list's features at the camera's resolution (:func:`blends`
+   of :mod:`calib.core.line_lists`) with the robust pair/triple hypotheses of
+   :func:`calib.wavelength.peaks.match_peak_hypotheses` (spurious or missing peaks only lower a
+   hypothesis' score), unless a start mapping is given.
+4. **Fit every feature where it lies**: the signal in a window around the predicted pixel is a
+   linear background plus one Gaussian per component line, the components placed at their
+   wavelengths through the current mapping, with a shared width, free heights and one free shift
+   per feature — so a blend the camera half-resolves (Tb 542.4 + Hg 546.1, Na D1 + D2, the Mg b
+   triplet) is modelled as what it is, not as one line at a wrong centre. Features whose windows
+   overlap are fitted together.
+5. **Fit the mapping** (its family: the grating equation or the quadratic) through the features'
+   pixels by weighted least squares — each weighted by its position's σ (through the local
+   dispersion) and its wavelength's uncertainty — rejecting outliers beyond 4σ, and repeat 4–5 with
+   the new mapping.
+
+The result carries the matched-line table (:meth:`FeatureMatch.row`): line, wavelength, pixel, the
+mapping's wavelength there and the residual, for the report.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+from calib.core.line_lists import Blend, Line, LineKind, blends
+from calib.core.mapping import QuadraticMapping, TiltedGrating
+from calib.wavelength.families import GratingFamily, QuadraticFamily
+from calib.wavelength.least_squares import levenberg_marquardt
+
+Family = QuadraticFamily | GratingFamily
+ExactMapping = QuadraticMapping | TiltedGrating
+
+#: Peaks must stand this many noise σ above their surroundings.
+PEAK_SIGMA = 5.0
+#: A peak broader than this many line widths (at half its prominence) is not a line.
+MAX_PEAK_WIDTH = 4.0
+#: Strongest peaks and features considered when matching without a start.
+MATCH_PEAKS = 14
+#: A feature's fit window reaches this many FWHM beyond its outermost components.
+WINDOW_FWHM = 2.0
+#: Position error (nm) the mapping fit adds to every feature (the line model's own approximation).
+MODEL_ERROR_NM = 0.01
+#: Normalised residual beyond which a feature is an outlier.
+OUTLIER_SIGMA = 4.0
+#: Line-match hypotheses carried through the feature fits.
+HYPOTHESES = 6
+#: Refinement rounds (fit features → fit mapping).
+ROUNDS = 3
+
+
+@dataclass(frozen=True)
+class FeatureMatch:
+    """One list feature fitted in the profile.
+
+    Attributes
+    ----------
+    blend
+        The feature's component lines; ``reference`` is the strongest, whose pixel is reported.
+    pixel, pixel_sigma
+        Where the reference line lies, and its σ (profile coordinates).
+    fitted_nm
+        The mapping's wavelength at ``pixel``.
+    sigma_nm
+        The feature's total σ in the mapping fit (position through the dispersion, the line's own
+        uncertainty, the model error).
+    used
+        Kept by the mapping fit (not an outlier).
+    """
+
+    blend: Blend
+    pixel: float
+    pixel_sigma: float
+    fitted_nm: float
+    sigma_nm: float
+    used: bool = True
+    amplitude: float = 0.0
+
+    @property
+    def reference(self) -> Line:
+        return max(self.blend.lines, key=lambda line: line.strength)
+
+    @property
+    def residual_nm(self) -> float:
+        return self.fitted_nm - self.reference.wavelength_nm
+
+    def row(self) -> dict[str, Any]:
+        """The matched-line table's row: ``{line, wavelength_nm, pixel, fitted_nm, residual_nm,
+        weight}`` (``weight`` is ``1/σ²`` in nm⁻², 0 for a rejected feature)."""
+        return {
+            "line": self.blend.label,
+            "wavelength_nm": self.reference.wavelength_nm,
+            "pixel": self.pixel,
+            "fitted_nm": self.fitted_nm,
+            "residual_nm": self.residual_nm,
+            "weight": 1.0 / self.sigma_nm**2 if self.used else 0.0,
+        }
+
+
+@dataclass(frozen=True)
+class FeatureMapping:
+    """The mapping through a profile's features.
+
+    Attributes
+    ----------
+    mapping
+        Report form (:class:`calib.core.mapping.QuadraticMapping` over the profile) with the fit's
+        covariance and ``wavelength_rms_nm``.
+    exact
+        The mapping in its family.
+    matches
+        Every feature fitted, by wavelength.
+    details
+        How it was found (JSON-safe).
+    """
+
+    mapping: QuadraticMapping
+    exact: ExactMapping
+    matches: tuple[FeatureMatch, ...]
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def table(self) -> list[dict[str, Any]]:
+        """The matched-line table (see :meth:`FeatureMatch.row`)."""
+        return [match.row() for match in self.matches]
+
+
+# --------------------------------------------------------------------------------- the signal
+
+
+def feature_signal(
+    profile: FloatArray, kind: LineKind, width_px: float
+) -> tuple[FloatArray, float]:
+    """The signal in which features are peaks ``(n,)``, and its noise σ (same units).
+
+    The channels are summed. Emission: less a grey opening ``6·width_px`` wide (what rises above
+    everything broader than a line). Absorption: an upper envelope less the profile, so a dip
+    counts by its depth times the light around it (where the camera barely sees, a relative dip
+    is noise); the envelope is smoothed iteratively over ``3·width_px`` keeping the larger of it
+    and the profile, which bridges dips narrower than that and follows the camera's broad shape.
+    """
+    from scipy import ndimage
+
+    total = np.sum(np.asarray(profile, dtype=np.float64), axis=1)
+    second = np.diff(total, n=2)
+    noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0)
+    noise = max(noise, 1e-12 * float(np.max(np.abs(total))))
+    if kind == "emission":
+        size = max(3, int(6 * width_px) | 1)
+        signal = total - ndimage.grey_opening(total, size=size, mode="nearest")
+    else:
+        envelope = total.copy()
+        for _ in range(8):
+            envelope = ndimage.gaussian_filter1d(
+                np.maximum(envelope, total), 3.0 * max(width_px, 1.0), mode="nearest"
+            )
+        signal = envelope - total
+    return np.asarray(signal, dtype=np.float64), noise
+
+
+def signal_peaks(
+    pixel: FloatArray, signal: FloatArray, noise: float, width_px: float
+) -> list[tuple[float, float]]:
+    """``(pixel, prominence)`` of the signal's peaks above :data:`PEAK_SIGMA` noise, strongest first."""
+    from scipy import ndimage
+    from scipy import signal as sp_signal
+
+    smooth = ndimage.gaussian_filter1d(signal, max(width_px / 4.0, 0.5), mode="nearest")
+    indices, properties = sp_signal.find_peaks(
+        smooth, prominence=PEAK_SIGMA * noise, distance=max(1, int(width_px / 2))
+    )
+    order = np.argsort(properties["prominences"])[::-1]
+    out = []
+    for k in order:
+        i = int(indices[k])
+        if 0 < i < signal.size - 1:
+            # Parabola through the three samples around the maximum.
+            left, centre, right = smooth[i - 1], smooth[i], smooth[i + 1]
+            curvature = left - 2 * centre + right
+            offset = 0.5 * (left - right) / curvature if curvature < 0 else 0.0
+            position = float(np.interp(i + np.clip(offset, -1, 1), np.arange(pixel.size), pixel))
+        else:
+            position = float(pixel[i])
+        out.append((position, float(properties["prominences"][k])))
+    return out
+
+
+# ------------------------------------------------------------------------------- feature fits
+
+
+@dataclass
+class _Fitted:
+    blend: Blend
+    pixel: float
+    sigma: float
+    amplitude: float
+
+
+def _fit_group(
+    pixel: FloatArray,
+    signal: FloatArray,
+    noise: float,
+    group: Sequence[Blend],
+    mapping: ExactMapping,
+    fwhm_px: float,
+) -> list[_Fitted]:
+    """Fit overlapping features together (see the module docstring, step 4)."""
+    from scipy import optimize
+
+    sigma_px = fwhm_px / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    placed = []
+    for blend in group:
+        reference = max(blend.lines, key=lambda line: line.strength)
+        at = _pixel_of(mapping, np.array([line.wavelength_nm for line in blend.lines]))
+        ref_px = float(_pixel_of(mapping, np.array([reference.wavelength_nm]))[0])
+        placed.append((blend, ref_px, at - ref_px))
+    lo = min(r + float(o.min()) for _, r, o in placed) - WINDOW_FWHM * fwhm_px
+    hi = max(r + float(o.max()) for _, r, o in placed) + WINDOW_FWHM * fwhm_px
+    inside = (pixel >= lo) & (pixel <= hi)
+    if np.count_nonzero(inside) < 6:
+        return []
+    x = pixel[inside]
+    y = signal[inside]
+    centre = 0.5 * (lo + hi)
+    n_lines = sum(len(blend.lines) for blend, _, _ in placed)
+    n_blends = len(placed)
+
+    def model(params: FloatArray) -> FloatArray:
+        base = params[0] + params[1] * (x - centre)
+        width = abs(params[2])
+        out = base.copy()
+        k = 3 + n_blends
+        for b, (_, ref_px, offsets) in enumerate(placed):
+            for offset in offsets:
+                out += params[k] * np.exp(
+                    -0.5 * ((x - ref_px - params[3 + b] - offset) / width) ** 2
+                )
+                k += 1
+        return np.asarray(out, dtype=np.float64)
+
+    heights = []
+    for _, ref_px, offsets in placed:
+        for offset in offsets:
+            heights.append(max(float(np.interp(ref_px + offset, x, y)), 0.0))
+    start = np.concatenate([[float(np.min(y)), 0.0, sigma_px], np.zeros(n_blends), heights])
+    lower = np.concatenate(
+        [[-np.inf, -np.inf, 0.3 * sigma_px], np.full(n_blends, -2.0 * fwhm_px), np.zeros(n_lines)]
+    )
+    upper = np.concatenate(
+        [
+            [np.inf, np.inf, 3.0 * sigma_px],
+            np.full(n_blends, 2.0 * fwhm_px),
+            np.full(n_lines, np.inf),
+        ]
+    )
+    start = np.clip(start, lower, upper)
+    try:
+        solution = optimize.least_squares(
+            lambda p: (model(p) - y) / noise, start, bounds=(lower, upper), x_scale="jac"
+        )
+    except ValueError:
+        return []
+    jacobian = solution.jac
+    dof = max(y.size - start.size, 1)
+    variance_scale = max(float(np.sum(solution.fun**2)) / dof, 1.0)
+    try:
+        covariance = np.linalg.pinv(jacobian.T @ jacobian) * variance_scale
+    except np.linalg.LinAlgError:
+        return []
+    out = []
+    k = 3 + n_blends
+    for b, (blend, ref_px, offsets) in enumerate(placed):
+        amplitude = float(np.sum(solution.x[k : k + offsets.size]))
+        k += offsets.size
+        shift_sigma = float(np.sqrt(max(covariance[3 + b, 3 + b], 0.0)))
+        at_bound = abs(abs(solution.x[3 + b]) - 2.0 * fwhm_px) < 1e-6 * fwhm_px
+        if amplitude <= 0 or at_bound or not math.isfinite(shift_sigma):
+            continue
+        # A feature must stand out: its strongest component above 3 noise σ.
+        if float(np.max(solution.x[k - offsets.size : k])) < 3.0 * noise:
+            continue
+        out.append(_Fitted(blend, ref_px + float(solution.x[3 + b]), shift_sigma, amplitude))
+    return out
+
+
+#: What the lit part of a profile spans, for a first guess of the dispersion: a camera's response
+#: (and most lamps' light) from the violet to the deep red.
+LIT_RANGE_NM = (400.0, 680.0)
+
+
+def lit_dispersion(pixel: FloatArray, profile: FloatArray) -> float:
+    """nm per profile sample if the lit part (above 5 % of the summed profile's peak, smoothed)
+    spans :data:`LIT_RANGE_NM`."""
+    from scipy import ndimage
+
+    total = ndimage.gaussian_filter1d(
+        np.sum(np.clip(profile, 0.0, None), axis=1), max(pixel.size / 200.0, 1.0)
+    )
+    lit = np.flatnonzero(total > 0.05 * float(total.max()))
+    if lit.size < 2:
+        raise EstimationError("the profile has too little signal to find features in")
+    return (LIT_RANGE_NM[1] - LIT_RANGE_NM[0]) / float(lit[-1] - lit[0])
+
+
+def _agreement(
+    mapping: QuadraticMapping,
+    peaks: Sequence[tuple[float, float]],
+    features: Sequence[Blend],
+    tolerance_nm: float,
+) -> float:
+    """How well a hypothesis explains both sides: every feature by a peak near its wavelength and
+    every peak by a feature near its mapped wavelength, each weighted by its relative strength
+    (Gaussian in the distance, σ ``tolerance_nm``). A hypothesis that leaves the strongest peaks
+    unexplained loses, however many weak lines it matches."""
+    if not peaks or not features:
+        return 0.0
+    peak_nm = mapping.wavelength_nm(np.array([p for p, _ in peaks]))
+    peak_weight = np.array([h for _, h in peaks])
+    feature_nm = np.array([b.wavelength_nm for b in features])
+    feature_weight = np.array([b.strength for b in features])
+    distance = np.abs(peak_nm[:, None] - feature_nm[None, :])
+    closeness = np.exp(-0.5 * (distance / tolerance_nm) ** 2)
+    explained_peaks = float(np.sum(peak_weight / peak_weight.sum() * closeness.max(axis=1)))
+    explained_features = float(
+        np.sum(feature_weight / feature_weight.sum() * closeness.max(axis=0))
+    )
+    return explained_peaks + explained_features
+
+
+def _pixel_of(mapping: ExactMapping, wavelength_nm: FloatArray) -> FloatArray:
+    return np.asarray(mapping.pixel_at(wavelength_nm), dtype=np.float64)
+
+
+def fit_features(
+    pixel: FloatArray,
+    signal: FloatArray,
+    noise: float,
+    features: Sequence[Blend],
+    mapping: ExactMapping,
+    fwhm_px: float,
+) -> list[_Fitted]:
+    """Every feature the mapping puts inside the profile, fitted (overlapping ones together)."""
+    lo, hi = float(pixel[0]), float(pixel[-1])
+    located = []
+    for blend in features:
+        try:
+            at = _pixel_of(mapping, np.array([line.wavelength_nm for line in blend.lines]))
+        except InputError:
+            continue
+        if np.all((at > lo + fwhm_px) & (at < hi - fwhm_px)):
+            located.append((float(at.min()), float(at.max()), blend))
+    located.sort(key=lambda item: item[0])
+    groups: list[list[tuple[float, float, Blend]]] = []
+    for item in located:
+        if groups and item[0] - groups[-1][-1][1] < 2 * WINDOW_FWHM * fwhm_px:
+            groups[-1].append(item)
+        else:
+            groups.append([item])
+    out: list[_Fitted] = []
+    for group in groups:
+        out += _fit_group(pixel, signal, noise, [b for _, _, b in group], mapping, fwhm_px)
+    return out
+
+
+# ------------------------------------------------------------------------------ mapping fit
+
+
+def fit_mapping_to_points(
+    family: Family,
+    x0: FloatArray,
+    pixels: FloatArray,
+    wavelengths_nm: FloatArray,
+    sigma_nm: FloatArray,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Weighted least squares of a family through ``(pixel, λ ± σ)`` points (and its prior rows).
+
+    Returns the parameters, their covariance (scaled by the reduced χ² when it exceeds 1) and χ².
+    """
+
+    def function(x: FloatArray, with_jacobian: bool) -> tuple[FloatArray, FloatArray | None] | None:
+        if isinstance(family, GratingFamily):
+            if not family.valid(x, (float(pixels.min()), float(pixels.max())))[0]:
+                return None
+            rows, row_jacobian = family.prior_rows(x)
+        else:
+            rows, row_jacobian = np.zeros(0), np.zeros((0, x.size))
+        residual = np.concatenate(
+            [(family.wavelengths(pixels, x) - wavelengths_nm) / sigma_nm, rows]
+        )
+        if not with_jacobian:
+            return residual, None
+        jacobian = np.vstack([family.jacobian(pixels, x) / sigma_nm[:, None], row_jacobian])
+        return residual, jacobian
+
+    solution = levenberg_marquardt(function, x0, max_iterations=50, tolerance=1e-12)
+    data_rows = pixels.size
+    chi2 = float(np.sum(solution.residual[:data_rows] ** 2))
+    dof = max(data_rows - x0.size, 1)
+    covariance = solution.covariance(scale_by_fit=False) * max(chi2 / dof, 1.0)
+    return solution.x, covariance, chi2
+
+
+def _initial_parameters(family: Family, mapping: ExactMapping, pixels: FloatArray) -> FloatArray:
+    """Family parameters that reproduce ``mapping`` over ``pixels`` (a least-squares fit)."""
+    if isinstance(family, QuadraticFamily):
+        return family.parameters(mapping)
+    if isinstance(mapping, TiltedGrating) and mapping.orientation == family.orientation:
+        return family.parameters(mapping)
+    targets = mapping.wavelength_nm(pixels)
+    means = {name: value[0] for name, value in family.prior.values.items()}
+    # Start from the prior (or a generic grating) and fit the family to the mapping's wavelengths.
+    guess = {
+        "zero_order_px": means.get("zero_order_px", float(pixels[0]) - family.orientation * 0.0),
+        "log_spacing": means.get("log_spacing", math.log(1e6 / 600.0)),
+        "log_focal": means.get("log_focal", math.log(5000.0)),
+        "incidence_deg": means.get("incidence_deg", 0.0),
+    }
+    if "zero_order_px" not in family.prior.fixed():
+        slope = float(np.polyfit(pixels, targets, 1)[0])
+        guess["zero_order_px"] = float(pixels[0] - targets[0] / slope)
+        spacing = math.exp(guess["log_spacing"])
+        guess["log_focal"] = math.log(max(abs(spacing / slope), 10.0))
+    x0 = np.array([guess[name] for name in family.names])
+    x, _, _ = fit_mapping_to_points(family, x0, pixels, targets, np.full(pixels.size, 0.1))
+    return x
+
+
+def map_features(
+    pixel: FloatArray,
+    profile: FloatArray,
+    lines: Sequence[Line],
+    *,
+    family: Family,
+    fwhm_px: float,
+    start: ExactMapping | None = None,
+    nominal_dispersion: float | None = None,
+    allow_reversed: bool = False,
+    kind: LineKind | None = None,
+    range_nm: tuple[float, float] = (380.0, 720.0),
+) -> FeatureMapping:
+    """The mapping through a profile's features (see the module docstring).
+
+    Parameters
+    ----------
+    pixel, profile
+        ``(n,)`` and ``(n, 3)``.
+    lines
+        The list to match (emission or absorption, not mixed).
+    family
+        The mapping family the features are fitted with.
+    fwhm_px
+        The camera's line width in profile samples (the line spread's FWHM).
+    start
+        A mapping to start from (skips the matching step).
+    nominal_dispersion
+        A rough nm per profile sample (bounds the matching's hypotheses to ×0.4–2.5 of it);
+        default: the profile's lit extent taken as :data:`LIT_RANGE_NM`.
+    allow_reversed
+        Let the matching try wavelengths falling with the pixel.
+    kind
+        Emission or absorption (default: the lines').
+    range_nm
+        Only features in this range are matched (the camera's and the working grid's).
+    """
+    from calib.wavelength.peaks import Peak, match_peak_hypotheses
+
+    if not lines:
+        raise InputError("no lines to match", source="line list")
+    kind = kind or lines[0].kind
+    spacing = float(np.median(np.diff(pixel)))
+    # Dispersion in nm per pixel unit (not per sample), from the start or the lit extent.
+    if start is not None:
+        ends = start.wavelength_nm(np.array([pixel[0], pixel[-1]]))
+        dispersion_guess = abs(float(ends[1] - ends[0])) / max(float(pixel[-1] - pixel[0]), 1e-9)
+    else:
+        dispersion_guess = nominal_dispersion or lit_dispersion(pixel, profile) / spacing
+    resolution_nm = fwhm_px * dispersion_guess
+    chosen = [
+        line
+        for line in lines
+        if line.kind == kind and range_nm[0] <= line.wavelength_nm <= range_nm[1]
+    ]
+    features = blends(chosen, 0.5 * resolution_nm)
+    signal, noise = feature_signal(profile, kind, fwhm_px / spacing)
+    pixel_range = (float(pixel[0]), float(pixel[-1]))
+    hypotheses: list[ExactMapping]
+    if start is None:
+        peaks = signal_peaks(pixel, signal, noise, fwhm_px / spacing)[:MATCH_PEAKS]
+        list_peaks = [
+            Peak(b.wavelength_nm, b.strength, b.strength, b.label)
+            for b in sorted(features, key=lambda b: -b.strength)[:MATCH_PEAKS]
+        ]
+        # The lit extent is a rough guess (a line lamp lights less than a camera sees).
+        low, high = 0.4 * dispersion_guess, 2.5 * dispersion_guess
+        # Hypotheses are judged where the peaks are: a quadratic through three lines need not stay
+        # monotonic far beyond them (the physical family takes over after the match).
+        found = np.array([p for p, _ in peaks])
+        if found.size < 2:
+            raise EstimationError(
+                f"found {found.size} {kind} feature(s) in the profile; the mapping needs several "
+                "(is the lamp the one named, and the first order whole?)"
+            )
+        margin = 0.1 * float(np.ptp(found))
+        hypotheses = list(
+            match_peak_hypotheses(
+                list_peaks,
+                [Peak(p, h, h) for p, h in peaks],
+                pixel_range=(float(found.min()) - margin, float(found.max()) + margin),
+                dispersion_range_nm_per_px=(low, high),
+                tolerance_nm=max(1.5, 0.6 * resolution_nm),
+                allow_reversed=allow_reversed,
+                n_hypotheses=HYPOTHESES,
+            )
+        )
+    else:
+        hypotheses = [start]
+    # Every hypothesis is carried through the feature fits; the one whose mapping explains the
+    # most (and strongest) features wins — a match by peaks alone is fooled by a camera's own
+    # narrow structure, which a feature fit through the list does not line up with.
+    outcomes = []
+    for hypothesis in hypotheses:
+        try:
+            outcomes.append(
+                _refine(family, hypothesis, pixel, signal, noise, features, fwhm_px, pixel_range)
+            )
+        except (EstimationError, ValueError, np.linalg.LinAlgError):
+            continue
+    if not outcomes:
+        raise EstimationError(
+            f"none of {len(hypotheses)} line matches held when the {kind} features were fitted "
+            "(is the lamp the one named, and the first order whole?)"
+        )
+    x, covariance, fitted, sigma, used = max(outcomes, key=_support)
+    exact = family.mapping(x)
+    matches = tuple(
+        FeatureMatch(
+            f.blend,
+            f.pixel,
+            f.sigma,
+            float(exact.wavelength_nm(np.array([f.pixel]))[0]),
+            float(s),
+            bool(u),
+            f.amplitude,
+        )
+        for f, s, u in zip(fitted, sigma, used, strict=True)
+    )
+    report = _report(exact, family, x, covariance, pixel_range)
+    kept = [m for m in matches if m.used]
+    residuals = np.array([m.residual_nm for m in kept])
+    details: dict[str, Any] = {
+        "origin": f"{kind} features",
+        "family": "grating" if isinstance(family, GratingFamily) else "quadratic",
+        "n_features": len(matches),
+        "n_used": len(kept),
+        "residual_rms_nm": float(np.sqrt(np.mean(residuals**2))) if kept else None,
+        "matched_lines": [m.row() for m in matches],
+    }
+    if isinstance(exact, TiltedGrating):
+        details["grating"] = exact.to_dict()
+    mapping_out = report.with_details(details={**dict(report.details), **details})
+    return FeatureMapping(mapping_out, exact, matches, details)
+
+
+_Outcome = tuple[FloatArray, FloatArray, list[_Fitted], FloatArray, FloatArray]
+
+
+def _support(outcome: _Outcome) -> float:
+    """Summed strength of the features a mapping keeps (the list's relative strengths)."""
+    _, _, fitted, _, used = outcome
+    strength = sum(f.blend.strength for f, u in zip(fitted, used, strict=True) if u)
+    return float(strength)
+
+
+def _refine(
+    family: Family,
+    mapping: ExactMapping,
+    pixel: FloatArray,
+    signal: FloatArray,
+    noise: float,
+    features: Sequence[Blend],
+    fwhm_px: float,
+    pixel_range: tuple[float, float],
+) -> _Outcome:
+    """Fit the features where ``mapping`` puts them, the mapping through them; :data:`ROUNDS`."""
+    x = _initial_parameters(family, mapping, np.linspace(*pixel_range, 64))
+    covariance = np.zeros((x.size, x.size))
+    fitted: list[_Fitted] = []
+    sigma = np.zeros(0)
+    used = np.zeros(0, dtype=bool)
+    for _ in range(ROUNDS):
+        current = family.mapping(x)
+        fitted = fit_features(pixel, signal, noise, features, current, fwhm_px)
+        if len(fitted) < x.size + 1:
+            raise EstimationError(
+                f"only {len(fitted)} of the list's features were found in the profile; the mapping "
+                f"needs at least {x.size + 1} (is the lamp the one named, and the first order whole?)"
+            )
+        pixels = np.array([f.pixel for f in fitted])
+        references = np.array(
+            [max(f.blend.lines, key=lambda line: line.strength).wavelength_nm for f in fitted]
+        )
+        sigma = np.sqrt(
+            (np.array([f.sigma for f in fitted]) * _slope(current, pixels)) ** 2
+            + np.array([f.blend.uncertainty_nm for f in fitted]) ** 2
+            + MODEL_ERROR_NM**2
+        )
+        used = np.ones(len(fitted), dtype=bool)
+        while True:
+            x, covariance, _ = fit_mapping_to_points(
+                family, x, pixels[used], references[used], sigma[used]
+            )
+            normalised = np.abs(family.wavelengths(pixels, x) - references) / sigma
+            worst = int(np.argmax(np.where(used, normalised, -1.0)))
+            if normalised[worst] <= OUTLIER_SIGMA or used.sum() <= x.size + 1:
+                break
+            used[worst] = False
+    return x, covariance, fitted, sigma, used
+
+
+def _slope(mapping: ExactMapping, pixels: FloatArray) -> FloatArray:
+    if isinstance(mapping, TiltedGrating):
+        return np.abs(mapping.dispersion_at(pixels))
+    return np.abs(mapping.dispersion_nm_per_px(pixels))
+
+
+def _report(
+    exact: ExactMapping,
+    family: Family,
+    x: FloatArray,
+    covariance: FloatArray,
+    pixel_range: tuple[float, float],
+) -> QuadraticMapping:
+    pixels = np.linspace(pixel_range[0], pixel_range[1], 256)
+    fitted = QuadraticMapping.fit(pixels, exact.wavelength_nm(pixels))
+    jacobian = family.jacobian(pixels, x)
+    design = np.stack([pixels**2, pixels, np.ones_like(pixels)], axis=1)
+    projection = np.linalg.pinv(design)
+    coefficient_covariance = projection @ jacobian @ covariance @ jacobian.T @ projection.T
+    variance = np.einsum("ij,jk,ik->i", jacobian, covariance, jacobian)
+    details: dict[str, Any] = {}
+    if isinstance(exact, TiltedGrating):
+        details["quadratic_max_error_nm"] = float(
+            np.max(np.abs(fitted.wavelength_nm(pixels) - exact.wavelength_nm(pixels)))
+        )
+    return QuadraticMapping(
+        fitted.a,
+        fitted.b,
+        fitted.c,
+        method="features",
+        pixel_range=pixel_range,
+        covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in coefficient_covariance),
+        wavelength_rms_nm=float(np.sqrt(np.mean(np.clip(variance, 0.0, None)))),
+        details=details,
+    )
