@@ -2,7 +2,7 @@
 
 For each of the 44 training cameras of Makabe et al. (2025) §4.1 (Solomatov/Akkaynak; the paper's
 5 test cameras are never used), the camera prior is built from the other 43, one lamp is rendered
-through a random grating and mapping, and :func:`calib.wavelength.profile_search.search_mapping`
+through a random grating and mapping, and :func:`calib.wavelength.profile_search.search_profiles`
 finds the mapping from that lamp alone. Scenarios:
 
 ``paper``  the paper's protocol: a random quadratic mapping, arbitrary pixel origin, no rig knowledge;
@@ -42,10 +42,10 @@ from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency, render_scene
-from calib.model.bases import camera_basis
+from calib.model.bases import CameraPrior, camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.wavelength.families import GratingPrior, grating_prior
-from calib.wavelength.profile_search import search_mapping
+from calib.wavelength.profile_search import Candidate, MappingSearch, search_profiles
 
 #: Rigs drawn for the physical scenarios: grooves per mm, and pixel pitch (µm) of the profile.
 GROOVES = (300.0, 600.0, 1000.0)
@@ -92,6 +92,20 @@ def physical_scene(
     return observation, truth, prior
 
 
+def _old_search(observation: LampObservation, prior: CameraPrior) -> MappingSearch:
+    """The search as it was (``calib.wavelength.search.find_mapping``), in the new result's shape."""
+    from calib.wavelength.search import find_mapping
+
+    mapping = find_mapping([observation], prior, DEFAULT_GRID)
+    return MappingSearch(
+        mapping=mapping,
+        exact=mapping,
+        candidates=(Candidate(mapping, 0.0, 0.0, 1.0, 0.0),),
+        ambiguous=False,
+        details={"local_rms_nm": mapping.wavelength_rms_nm, "temper": 1.0},
+    )
+
+
 def failed_row(name: str) -> dict[str, object]:
     return {
         "camera": name,
@@ -116,6 +130,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument("--cameras", default=None, help="comma-separated indices (default all)")
     parser.add_argument("--csv", default=None)
+    parser.add_argument(
+        "--engine",
+        choices=("new", "old"),
+        default="new",
+        help="old: calib.wavelength.search.find_mapping, for comparison",
+    )
     args = parser.parse_args()
     train, _test = makabe2025_split(args.data_dir)
     indices = (
@@ -145,7 +165,10 @@ def main() -> None:
             )
         started = time.process_time()
         try:
-            found = search_mapping([observation], prior, DEFAULT_GRID, geometry=geometry)
+            if args.engine == "old":
+                found = _old_search(observation, prior)
+            else:
+                found = search_profiles([observation], prior, DEFAULT_GRID, geometry=geometry)
         except EstimationError as exc:
             print(f"{held_out.name[:34]:34s} FAILED: {exc}", flush=True)
             rows.append(failed_row(held_out.name))

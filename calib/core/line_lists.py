@@ -315,6 +315,11 @@ class Blend:
         return " + ".join(line.label for line in self.lines)
 
     @property
+    def reference(self) -> Line:
+        """The component whose position a fit reports: the best known, the strongest of those."""
+        return min(self.lines, key=lambda line: (line.uncertainty_nm, -line.strength))
+
+    @property
     def kind(self) -> LineKind:
         return self.lines[0].kind
 

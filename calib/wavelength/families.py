@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -55,7 +56,7 @@ class QuadraticFamily:
     pixel_range: tuple[float, float]
     names: tuple[str, ...] = ("left_nm", "middle_nm", "right_nm")
 
-    @property
+    @cached_property
     def _to_coefficients(self) -> FloatArray:
         anchors = _anchors(self.pixel_range)
         return np.asarray(

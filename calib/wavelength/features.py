@@ -7,9 +7,9 @@ a line list, each fitted where it lies, and the mapping fitted through them.
    the camera and the source's colour.
 2. **Peaks** of that signal above 5 noise σ (noise from the second differences).
 3. **Match** the strongest peaks to the list's features at the camera's resolution (:func:`blends`
-   of :mod:`calib.core.line_lists`) with the robust pair/triple hypotheses of
-   :func:`calib.wavelength.peaks.match_peak_hypotheses` (spurious or missing peaks only lower a
-   hypothesis' score), unless a start mapping is given.
+   of :mod:`calib.core.line_lists`): every pair of peaks against every pair of features proposes a
+   line, scored by how much of the peaks' strength it explains (:func:`match_lines`; spurious or
+   missing peaks only lower a hypothesis' score), unless a start mapping is given.
 4. **Fit every feature where it lies**: the signal in a window around the predicted pixel is a
    linear background plus one Gaussian per component line, the components placed at their
    wavelengths through the current mapping, with a shared width, free heights and one free shift
@@ -44,16 +44,26 @@ from calib.wavelength.least_squares import levenberg_marquardt
 Family = QuadraticFamily | GratingFamily
 ExactMapping = QuadraticMapping | TiltedGrating
 
+#: A channel "sees" an absorption feature where its envelope is at least this fraction of the
+#: brightest channel's there (:func:`feature_signal`).
+SEEN_FRACTION = 0.15
 #: Peaks must stand this many noise σ above their surroundings.
 PEAK_SIGMA = 5.0
 #: A peak broader than this many line widths (at half its prominence) is not a line.
 MAX_PEAK_WIDTH = 4.0
+#: Peaks and features whose triples are matched (every triple against every triple).
+MATCH_TRIPLE_PEAKS = 10
+MATCH_TRIPLE_FEATURES = 12
 #: Strongest peaks and features considered when matching without a start.
 MATCH_PEAKS = 14
 #: A feature's fit window reaches this many FWHM beyond its outermost components.
 WINDOW_FWHM = 2.0
 #: Position error (nm) the mapping fit adds to every feature (the line model's own approximation).
 MODEL_ERROR_NM = 0.01
+#: A feature this much weaker than a close neighbour is not fitted (:func:`_measurable`).
+WEAK_NEIGHBOUR = 0.15
+#: At most this many features are fitted together (a longer chain is cut).
+MAX_GROUP = 4
 #: Normalised residual beyond which a feature is an outlier.
 OUTLIER_SIGMA = 4.0
 #: Line-match hypotheses carried through the feature fits.
@@ -91,7 +101,7 @@ class FeatureMatch:
 
     @property
     def reference(self) -> Line:
-        return max(self.blend.lines, key=lambda line: line.strength)
+        return self.blend.reference
 
     @property
     def residual_nm(self) -> float:
@@ -145,15 +155,17 @@ def feature_signal(
 ) -> tuple[FloatArray, float]:
     """The signal in which features are peaks ``(n,)``, and its noise σ (same units).
 
-    The channels are summed. Emission: less a grey opening ``6·width_px`` wide (what rises above
-    everything broader than a line). Absorption: an upper envelope less the profile, so a dip
-    counts by its depth times the light around it (where the camera barely sees, a relative dip
-    is noise); the envelope is smoothed iteratively over ``3·width_px`` keeping the larger of it
-    and the profile, which bridges dips narrower than that and follows the camera's broad shape.
+    Emission: the summed channels less a grey opening ``6·width_px`` wide (what rises above
+    everything broader than a line). Absorption: each channel's upper envelope less the channel,
+    summed, so a dip counts by its depth times the light around it (where the camera barely sees,
+    a relative dip is noise); an envelope is smoothed iteratively over ``3·width_px`` keeping the
+    larger of it and the channel, which bridges dips narrower than that and follows the camera's
+    broad shape.
     """
     from scipy import ndimage
 
-    total = np.sum(np.asarray(profile, dtype=np.float64), axis=1)
+    channels = np.asarray(profile, dtype=np.float64)
+    total = np.sum(channels, axis=1)
     second = np.diff(total, n=2)
     noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0)
     noise = max(noise, 1e-12 * float(np.max(np.abs(total))))
@@ -161,12 +173,20 @@ def feature_signal(
         size = max(3, int(6 * width_px) | 1)
         signal = total - ndimage.grey_opening(total, size=size, mode="nearest")
     else:
-        envelope = total.copy()
+        # Each channel under its own envelope: where two channels cross, their sum dips although
+        # neither does — a camera's shape, not the light's.
+        envelope = channels.copy()
         for _ in range(8):
             envelope = ndimage.gaussian_filter1d(
-                np.maximum(envelope, total), 3.0 * max(width_px, 1.0), mode="nearest"
+                np.maximum(envelope, channels), 3.0 * max(width_px, 1.0), axis=0, mode="nearest"
             )
-        signal = envelope - total
+        # A dip in the light has the same relative depth in every channel that sees it; a dip in
+        # one channel's sensitivity has none in the others. The smallest relative depth among the
+        # channels with a fair share of the light keeps the first and drops the second.
+        relative = (envelope - channels) / np.maximum(envelope, 1e-300)
+        seen = envelope >= SEEN_FRACTION * np.max(envelope, axis=1, keepdims=True)
+        depth = np.min(np.where(seen, relative, np.inf), axis=1)
+        signal = np.where(np.isfinite(depth), depth, 0.0) * np.sum(envelope, axis=1)
     return np.asarray(signal, dtype=np.float64), noise
 
 
@@ -216,82 +236,74 @@ def _fit_group(
     mapping: ExactMapping,
     fwhm_px: float,
 ) -> list[_Fitted]:
-    """Fit overlapping features together (see the module docstring, step 4)."""
+    """Fit overlapping features together (see the module docstring, step 4).
+
+    For given shifts (one per feature) and a shared width the model is linear in the background
+    and the components' heights, which are solved for; the shifts and width are refined by least
+    squares on that reduced problem (each shift within one FWHM of the prediction, the width
+    within ×0.5–2 of the camera's).
+    """
     from scipy import optimize
 
     sigma_px = fwhm_px / (2.0 * math.sqrt(2.0 * math.log(2.0)))
     placed = []
     for blend in group:
-        reference = max(blend.lines, key=lambda line: line.strength)
         at = _pixel_of(mapping, np.array([line.wavelength_nm for line in blend.lines]))
-        ref_px = float(_pixel_of(mapping, np.array([reference.wavelength_nm]))[0])
+        ref_px = float(_pixel_of(mapping, np.array([blend.reference.wavelength_nm]))[0])
         placed.append((blend, ref_px, at - ref_px))
     lo = min(r + float(o.min()) for _, r, o in placed) - WINDOW_FWHM * fwhm_px
     hi = max(r + float(o.max()) for _, r, o in placed) + WINDOW_FWHM * fwhm_px
     inside = (pixel >= lo) & (pixel <= hi)
-    if np.count_nonzero(inside) < 6:
+    n_blends = len(placed)
+    n_lines = sum(offsets.size for _, _, offsets in placed)
+    if np.count_nonzero(inside) < n_lines + n_blends + 4:
         return []
     x = pixel[inside]
     y = signal[inside]
     centre = 0.5 * (lo + hi)
-    n_lines = sum(len(blend.lines) for blend, _, _ in placed)
-    n_blends = len(placed)
+    owner = np.concatenate([np.full(o.size, b) for b, (_, _, o) in enumerate(placed)])
+    positions = np.concatenate([ref + offsets for _, ref, offsets in placed])
 
-    def model(params: FloatArray) -> FloatArray:
-        base = params[0] + params[1] * (x - centre)
-        width = abs(params[2])
-        out = base.copy()
-        k = 3 + n_blends
-        for b, (_, ref_px, offsets) in enumerate(placed):
-            for offset in offsets:
-                out += params[k] * np.exp(
-                    -0.5 * ((x - ref_px - params[3 + b] - offset) / width) ** 2
-                )
-                k += 1
-        return np.asarray(out, dtype=np.float64)
+    def design(params: FloatArray) -> FloatArray:
+        shifts, width = params[:n_blends], params[n_blends]
+        centres = positions + shifts[owner]
+        gaussians = np.exp(-0.5 * ((x[:, None] - centres[None, :]) / width) ** 2)
+        return np.hstack([np.ones((x.size, 1)), (x - centre)[:, None] / fwhm_px, gaussians])
 
-    heights = []
-    for _, ref_px, offsets in placed:
-        for offset in offsets:
-            heights.append(max(float(np.interp(ref_px + offset, x, y)), 0.0))
-    start = np.concatenate([[float(np.min(y)), 0.0, sigma_px], np.zeros(n_blends), heights])
-    lower = np.concatenate(
-        [[-np.inf, -np.inf, 0.3 * sigma_px], np.full(n_blends, -2.0 * fwhm_px), np.zeros(n_lines)]
-    )
-    upper = np.concatenate(
-        [
-            [np.inf, np.inf, 3.0 * sigma_px],
-            np.full(n_blends, 2.0 * fwhm_px),
-            np.full(n_lines, np.inf),
-        ]
-    )
-    start = np.clip(start, lower, upper)
+    def residual(params: FloatArray) -> FloatArray:
+        matrix = design(params)
+        coefficients, *_ = np.linalg.lstsq(matrix, y, rcond=None)
+        return np.asarray((matrix @ coefficients - y) / noise, dtype=np.float64)
+
+    start = np.concatenate([np.zeros(n_blends), [sigma_px]])
+    lower = np.concatenate([np.full(n_blends, -fwhm_px), [0.5 * sigma_px]])
+    upper = np.concatenate([np.full(n_blends, fwhm_px), [2.0 * sigma_px]])
     try:
         solution = optimize.least_squares(
-            lambda p: (model(p) - y) / noise, start, bounds=(lower, upper), x_scale="jac"
+            residual, start, bounds=(lower, upper), max_nfev=40, diff_step=1e-3
         )
-    except ValueError:
+    except (ValueError, np.linalg.LinAlgError):
         return []
-    jacobian = solution.jac
-    dof = max(y.size - start.size, 1)
+    coefficients, *_ = np.linalg.lstsq(design(solution.x), y, rcond=None)
+    heights = coefficients[2:]
+    dof = max(y.size - start.size - coefficients.size, 1)
     variance_scale = max(float(np.sum(solution.fun**2)) / dof, 1.0)
     try:
-        covariance = np.linalg.pinv(jacobian.T @ jacobian) * variance_scale
+        covariance = np.linalg.pinv(solution.jac.T @ solution.jac) * variance_scale
     except np.linalg.LinAlgError:
         return []
     out = []
-    k = 3 + n_blends
-    for b, (blend, ref_px, offsets) in enumerate(placed):
-        amplitude = float(np.sum(solution.x[k : k + offsets.size]))
-        k += offsets.size
-        shift_sigma = float(np.sqrt(max(covariance[3 + b, 3 + b], 0.0)))
-        at_bound = abs(abs(solution.x[3 + b]) - 2.0 * fwhm_px) < 1e-6 * fwhm_px
-        if amplitude <= 0 or at_bound or not math.isfinite(shift_sigma):
+    for b, (blend, ref_px, _) in enumerate(placed):
+        mine = heights[owner == b]
+        shift = float(solution.x[b])
+        shift_sigma = float(np.sqrt(max(covariance[b, b], 0.0)))
+        at_bound = abs(abs(shift) - fwhm_px) < 1e-3 * fwhm_px
+        # A feature must stand out: positive, its strongest component above 3 noise σ.
+        if at_bound or not math.isfinite(shift_sigma) or float(np.max(mine)) < 3.0 * noise:
             continue
-        # A feature must stand out: its strongest component above 3 noise σ.
-        if float(np.max(solution.x[k - offsets.size : k])) < 3.0 * noise:
+        if float(np.sum(mine)) <= 0:
             continue
-        out.append(_Fitted(blend, ref_px + float(solution.x[3 + b]), shift_sigma, amplitude))
+        out.append(_Fitted(blend, ref_px + shift, shift_sigma, float(np.sum(mine))))
     return out
 
 
@@ -312,6 +324,138 @@ def lit_dispersion(pixel: FloatArray, profile: FloatArray) -> float:
     if lit.size < 2:
         raise EstimationError("the profile has too little signal to find features in")
     return (LIT_RANGE_NM[1] - LIT_RANGE_NM[0]) / float(lit[-1] - lit[0])
+
+
+def match_lines(
+    peaks: Sequence[tuple[float, float]],
+    features: Sequence[Blend],
+    *,
+    dispersion_range: tuple[float, float],
+    tolerance_nm: float,
+    allow_reversed: bool,
+    count: int,
+) -> list[QuadraticMapping]:
+    """Line ↔ peak hypotheses, best first.
+
+    Every triple of the strongest peaks assigned to every triple of the strongest features (in
+    order: wavelength rising with the pixel, or falling when allowed) proposes a quadratic — a
+    linear guess from two far-apart lines misses a strongly curved first order by more than a
+    line's width. Each admissible one (monotonic with a dispersion in range over the peaks' span)
+    is scored by how much of the peaks' strength it explains (each peak within a Gaussian
+    ``tolerance_nm`` of a feature, weighted by the square root of its prominence); the best are
+    refitted through their inliers and scored again (:func:`_agreement`), distinct ones kept.
+
+    All triples are scored at once (vectorised), so the strongest peaks need not be the lines the
+    list calls strongest — a real lamp's ratios differ from any list's — and a spurious peak only
+    fails to be explained.
+    """
+    import itertools
+
+    position = np.array([p for p, _ in peaks])[:MATCH_TRIPLE_PEAKS]
+    strength = np.sqrt(np.array([h for _, h in peaks]))[:MATCH_TRIPLE_PEAKS]
+    strength = strength / strength.sum()
+    strongest = sorted(features, key=lambda b: -b.strength)[:MATCH_TRIPLE_FEATURES]
+    line_nm = np.sort(np.array([b.wavelength_nm for b in strongest]))
+    all_nm = np.array([b.wavelength_nm for b in features])
+    peak_triples = np.array(list(itertools.combinations(np.argsort(position), 3)))
+    line_triples = np.array(list(itertools.combinations(range(line_nm.size), 3)))
+    if peak_triples.size == 0 or line_triples.size == 0:
+        raise EstimationError("too few peaks or lines to match")
+    nodes = position[peak_triples]  # (T, 3), ascending
+    # Lagrange basis of each peak triple at every peak and its derivative at the span's ends.
+    span = np.array([position.min(), position.max()])
+    basis = _lagrange(nodes, position)  # (T, n, 3)
+    slope_basis = _lagrange_slope(nodes, span)  # (T, 2, 3)
+    orders = [line_triples] + ([line_triples[:, ::-1]] if allow_reversed else [])
+    candidates: list[tuple[float, QuadraticMapping]] = []
+    probe = np.linspace(span[0], span[1], 9)
+    for assignment in orders:
+        values = line_nm[assignment]  # (L, 3)
+        predicted = np.einsum("tnm,lm->tln", basis, values)  # (T, L, n)
+        slopes = np.einsum("tem,lm->tle", slope_basis, values)  # (T, L, 2)
+        magnitude = np.abs(slopes)
+        same_sign = np.sign(slopes[..., 0]) == np.sign(slopes[..., 1])
+        admissible = (
+            same_sign
+            & np.all(magnitude >= dispersion_range[0], axis=-1)
+            & np.all(magnitude <= dispersion_range[1], axis=-1)
+        )
+        distance = np.min(np.abs(predicted[..., None] - all_nm), axis=-1)  # (T, L, n)
+        scores = np.where(
+            admissible, (np.exp(-0.5 * (distance / tolerance_nm) ** 2) * strength).sum(-1), -1.0
+        )
+        best = np.argsort(-scores, axis=None)[: 20 * count]
+        for flat in best:
+            t, line = np.unravel_index(flat, scores.shape)
+            if scores[t, line] <= 0:
+                break
+            try:
+                start = QuadraticMapping.fit(nodes[t], values[line], degree=2)
+            except EstimationError:
+                continue
+            refined = _refit_through_inliers(start, position, all_nm, tolerance_nm)
+            if refined is None:
+                continue
+            candidates.append((_agreement(refined, peaks, features, tolerance_nm), refined))
+    candidates.sort(key=lambda item: -item[0])
+    out: list[QuadraticMapping] = []
+    for _, mapping in candidates:
+        if all(
+            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) >= 3.0
+            for other in out
+        ):
+            out.append(mapping)
+        if len(out) == count:
+            break
+    if not out:
+        raise EstimationError("no line ↔ peak match is monotonic with a plausible dispersion")
+    return out
+
+
+def _lagrange(nodes: FloatArray, at: FloatArray) -> FloatArray:
+    """Quadratic Lagrange basis of node triples ``(T, 3)`` at points ``(n,)``: ``(T, n, 3)``."""
+    x = at[None, :, None]
+    n = nodes[:, None, :]
+    out = np.ones((nodes.shape[0], at.size, 3))
+    for m in range(3):
+        for k in range(3):
+            if k != m:
+                out[..., m] *= (x[..., 0] - n[..., k]) / (n[..., m] - n[..., k])
+    return out
+
+
+def _lagrange_slope(nodes: FloatArray, at: FloatArray) -> FloatArray:
+    """Derivative of :func:`_lagrange`'s basis: ``(T, n, 3)``."""
+    x = at[None, :]
+    out = np.zeros((nodes.shape[0], at.size, 3))
+    for m in range(3):
+        others = [k for k in range(3) if k != m]
+        denominator = (nodes[:, m] - nodes[:, others[0]]) * (nodes[:, m] - nodes[:, others[1]])
+        out[..., m] = (2 * x - nodes[:, others[0], None] - nodes[:, others[1], None]) / denominator[
+            :, None
+        ]
+    return out
+
+
+def _refit_through_inliers(
+    mapping: QuadraticMapping, position: FloatArray, line_nm: FloatArray, tolerance_nm: float
+) -> QuadraticMapping | None:
+    """The mapping refitted (twice) through the peaks within ``tolerance_nm`` of a line."""
+    for _ in range(2):
+        predicted = mapping.wavelength_nm(position)
+        nearest = np.argmin(np.abs(predicted[:, None] - line_nm[None, :]), axis=1)
+        close = np.abs(predicted - line_nm[nearest]) <= tolerance_nm
+        if np.count_nonzero(close) < 2:
+            return None
+        degree = 2 if np.count_nonzero(close) >= 4 else 1
+        try:
+            mapping = QuadraticMapping.fit(position[close], line_nm[nearest[close]], degree=degree)
+        except EstimationError:
+            return None
+    slopes = mapping.dispersion_nm_per_px(np.linspace(position.min(), position.max(), 9))
+    if not (np.all(slopes > 0) or np.all(slopes < 0)):
+        return None
+    return mapping
 
 
 def _agreement(
@@ -343,6 +487,36 @@ def _pixel_of(mapping: ExactMapping, wavelength_nm: FloatArray) -> FloatArray:
     return np.asarray(mapping.pixel_at(wavelength_nm), dtype=np.float64)
 
 
+def _features_at(
+    lines: Sequence[Line],
+    mapping: ExactMapping,
+    fwhm_px: float,
+    pixel_range: tuple[float, float],
+) -> list[Blend]:
+    """The list's features at the resolution a mapping implies (the camera's FWHM times its
+    dispersion in the middle of the profile): what blends and what stands alone."""
+    middle = 0.5 * (pixel_range[0] + pixel_range[1])
+    resolution_nm = fwhm_px * float(_slope(mapping, np.array([middle]))[0])
+    return _measurable(blends(lines, resolution_nm), resolution_nm)
+
+
+def _measurable(features: Sequence[Blend], resolution_nm: float) -> list[Blend]:
+    """Features a camera can locate on their own: one weaker than :data:`WEAK_NEIGHBOUR` of a
+    neighbour within 1.5 resolutions is left out (its peak is the neighbour's shoulder, and fitting
+    it would let it take the neighbour's place)."""
+    kept = []
+    for blend in features:
+        crowded = any(
+            other is not blend
+            and abs(other.wavelength_nm - blend.wavelength_nm) < 1.5 * resolution_nm
+            and blend.strength < WEAK_NEIGHBOUR * other.strength
+            for other in features
+        )
+        if not crowded:
+            kept.append(blend)
+    return kept
+
+
 def fit_features(
     pixel: FloatArray,
     signal: FloatArray,
@@ -364,7 +538,8 @@ def fit_features(
     located.sort(key=lambda item: item[0])
     groups: list[list[tuple[float, float, Blend]]] = []
     for item in located:
-        if groups and item[0] - groups[-1][-1][1] < 2 * WINDOW_FWHM * fwhm_px:
+        near = groups and item[0] - groups[-1][-1][1] < 2 * WINDOW_FWHM * fwhm_px
+        if near and len(groups[-1]) < MAX_GROUP:
             groups[-1].append(item)
         else:
             groups.append([item])
@@ -474,8 +649,6 @@ def map_features(
     range_nm
         Only features in this range are matched (the camera's and the working grid's).
     """
-    from calib.wavelength.peaks import Peak, match_peak_hypotheses
-
     if not lines:
         raise InputError("no lines to match", source="line list")
     kind = kind or lines[0].kind
@@ -492,36 +665,26 @@ def map_features(
         for line in lines
         if line.kind == kind and range_nm[0] <= line.wavelength_nm <= range_nm[1]
     ]
-    features = blends(chosen, 0.5 * resolution_nm)
+    features = _measurable(blends(chosen, resolution_nm), resolution_nm)
     signal, noise = feature_signal(profile, kind, fwhm_px / spacing)
     pixel_range = (float(pixel[0]), float(pixel[-1]))
     hypotheses: list[ExactMapping]
     if start is None:
         peaks = signal_peaks(pixel, signal, noise, fwhm_px / spacing)[:MATCH_PEAKS]
-        list_peaks = [
-            Peak(b.wavelength_nm, b.strength, b.strength, b.label)
-            for b in sorted(features, key=lambda b: -b.strength)[:MATCH_PEAKS]
-        ]
-        # The lit extent is a rough guess (a line lamp lights less than a camera sees).
-        low, high = 0.4 * dispersion_guess, 2.5 * dispersion_guess
-        # Hypotheses are judged where the peaks are: a quadratic through three lines need not stay
-        # monotonic far beyond them (the physical family takes over after the match).
-        found = np.array([p for p, _ in peaks])
-        if found.size < 2:
+        if len(peaks) < 3:
             raise EstimationError(
-                f"found {found.size} {kind} feature(s) in the profile; the mapping needs several "
+                f"found {len(peaks)} {kind} feature(s) in the profile; the mapping needs several "
                 "(is the lamp the one named, and the first order whole?)"
             )
-        margin = 0.1 * float(np.ptp(found))
+        # The lit extent is a rough guess (a line lamp lights less than a camera sees).
         hypotheses = list(
-            match_peak_hypotheses(
-                list_peaks,
-                [Peak(p, h, h) for p, h in peaks],
-                pixel_range=(float(found.min()) - margin, float(found.max()) + margin),
-                dispersion_range_nm_per_px=(low, high),
-                tolerance_nm=max(1.5, 0.6 * resolution_nm),
+            match_lines(
+                peaks,
+                features,
+                dispersion_range=(0.4 * dispersion_guess, 2.5 * dispersion_guess),
+                tolerance_nm=max(2.0, 0.5 * resolution_nm),
                 allow_reversed=allow_reversed,
-                n_hypotheses=HYPOTHESES,
+                count=HYPOTHESES,
             )
         )
     else:
@@ -533,7 +696,16 @@ def map_features(
     for hypothesis in hypotheses:
         try:
             outcomes.append(
-                _refine(family, hypothesis, pixel, signal, noise, features, fwhm_px, pixel_range)
+                _refine(
+                    family,
+                    hypothesis,
+                    pixel,
+                    signal,
+                    noise,
+                    _features_at(chosen, hypothesis, fwhm_px, pixel_range),
+                    fwhm_px,
+                    pixel_range,
+                )
             )
         except (EstimationError, ValueError, np.linalg.LinAlgError):
             continue
@@ -542,7 +714,7 @@ def map_features(
             f"none of {len(hypotheses)} line matches held when the {kind} features were fitted "
             "(is the lamp the one named, and the first order whole?)"
         )
-    x, covariance, fitted, sigma, used = max(outcomes, key=_support)
+    x, covariance, fitted, sigma, used, _ = max(outcomes, key=_support)
     exact = family.mapping(x)
     matches = tuple(
         FeatureMatch(
@@ -573,14 +745,17 @@ def map_features(
     return FeatureMapping(mapping_out, exact, matches, details)
 
 
-_Outcome = tuple[FloatArray, FloatArray, list[_Fitted], FloatArray, FloatArray]
+_Outcome = tuple[FloatArray, FloatArray, list[_Fitted], FloatArray, FloatArray, float]
 
 
 def _support(outcome: _Outcome) -> float:
-    """Summed strength of the features a mapping keeps (the list's relative strengths)."""
-    _, _, fitted, _, used = outcome
-    strength = sum(f.blend.strength for f, u in zip(fitted, used, strict=True) if u)
-    return float(strength)
+    """Summed strength of the features a mapping keeps, less half the strength of those it puts
+    inside the profile but could not fit or rejected (the list's relative strengths): a mapping
+    that predicts strong lines where there are none loses."""
+    _, _, fitted, _, used = outcome[:5]
+    expected = outcome[5]
+    kept = sum(f.blend.strength for f, u in zip(fitted, used, strict=True) if u)
+    return float(kept - 0.5 * (expected - kept))
 
 
 def _refine(
@@ -594,7 +769,18 @@ def _refine(
     pixel_range: tuple[float, float],
 ) -> _Outcome:
     """Fit the features where ``mapping`` puts them, the mapping through them; :data:`ROUNDS`."""
-    x = _initial_parameters(family, mapping, np.linspace(*pixel_range, 64))
+    # The family starts where the hypothesis is supported (between the features it predicts
+    # inside the profile): a quadratic through a few lines says little beyond them.
+    inside = []
+    for blend in features:
+        try:
+            at = float(_pixel_of(mapping, np.array([blend.wavelength_nm]))[0])
+        except InputError:
+            continue
+        if pixel_range[0] <= at <= pixel_range[1]:
+            inside.append(at)
+    span = (min(inside), max(inside)) if len(inside) >= 2 else pixel_range
+    x = _initial_parameters(family, mapping, np.linspace(*span, 64))
     covariance = np.zeros((x.size, x.size))
     fitted: list[_Fitted] = []
     sigma = np.zeros(0)
@@ -608,9 +794,7 @@ def _refine(
                 f"needs at least {x.size + 1} (is the lamp the one named, and the first order whole?)"
             )
         pixels = np.array([f.pixel for f in fitted])
-        references = np.array(
-            [max(f.blend.lines, key=lambda line: line.strength).wavelength_nm for f in fitted]
-        )
+        references = np.array([f.blend.reference.wavelength_nm for f in fitted])
         sigma = np.sqrt(
             (np.array([f.sigma for f in fitted]) * _slope(current, pixels)) ** 2
             + np.array([f.blend.uncertainty_nm for f in fitted]) ** 2
@@ -626,7 +810,16 @@ def _refine(
             if normalised[worst] <= OUTLIER_SIGMA or used.sum() <= x.size + 1:
                 break
             used[worst] = False
-    return x, covariance, fitted, sigma, used
+    final = family.mapping(x)
+    expected = 0.0
+    for blend in features:
+        try:
+            where = float(_pixel_of(final, np.array([blend.wavelength_nm]))[0])
+        except InputError:
+            continue
+        if pixel_range[0] + fwhm_px < where < pixel_range[1] - fwhm_px:
+            expected += blend.strength
+    return x, covariance, fitted, sigma, used, expected
 
 
 def _slope(mapping: ExactMapping, pixels: FloatArray) -> FloatArray:

@@ -444,7 +444,7 @@ def _covers(mapping: ExactMapping, pixel_range: tuple[float, float], grid: Wavel
 
 
 @one_blas_thread
-def search_mapping(
+def search_profiles(
     observations: LampObservation | Sequence[LampObservation],
     prior: CameraPrior,
     grid: WavelengthGrid,

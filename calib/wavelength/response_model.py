@@ -213,21 +213,25 @@ class LampColumns:
         self, wavelength_nm: FloatArray, column: IntArray, *, derivative: bool = False
     ) -> tuple[FloatArray, FloatArray | None]:
         """``C_j(λ)`` (and ``∂C_j/∂λ = e φ_j (λ)``) for broadcast arrays of wavelengths and columns."""
-        last = self.density.shape[0] - 1
+        count, size = self.density.shape
+        last = count - 1
         position = np.clip((wavelength_nm - self.start_nm) / self.step_nm, 0.0, float(last))
         index = np.minimum(position.astype(np.intp), last - 1)
         t = position - index
-        low = self.density[index, column]
-        high = self.density[index + 1, column]
-        value = self.cumulative[index, column] + self.step_nm * t * (low + 0.5 * (high - low) * t)
-        slope = low + (high - low) * t if derivative else None
-        if slope is not None:
-            # Beyond the axis the cumulative is constant.
-            beyond = (wavelength_nm <= self.start_nm) | (
-                wavelength_nm >= self.start_nm + last * self.step_nm
-            )
-            slope = np.where(beyond, 0.0, slope)
-        return value, slope
+        flat = index * size + column
+        density = self.density.ravel()
+        low = density.take(flat)
+        high = density.take(flat + size)
+        value = self.cumulative.ravel().take(flat) + self.step_nm * t * (
+            low + 0.5 * (high - low) * t
+        )
+        if not derivative:
+            return value, None
+        # Beyond the axis the cumulative is constant.
+        inside = (wavelength_nm > self.start_nm) & (
+            wavelength_nm < self.start_nm + last * self.step_nm
+        )
+        return value, (low + (high - low) * t) * inside
 
 
 # -------------------------------------------------------------------------------- the model
