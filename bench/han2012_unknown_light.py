@@ -17,16 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.core.colour_data import cie_daylight, colorchecker
 from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
 from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
 from calib.methods import default_camera_basis
 from calib.methods.baselines.han2012 import (
-    cie_daylight,
-    colorchecker_reflectances,
     estimate_han2012,
-    render_chart,
+    render_fluorescent_chart,
     synthetic_fluorescent_paints,
 )
 from calib.model.bases import CameraBasis
@@ -51,8 +50,8 @@ def run_camera(
     errors, cct_errors, cells = [], [], []
     for index, light in enumerate(lights):
         rng = np.random.default_rng([seed, index])
-        chart = render_chart(
-            paints, colorchecker_reflectances(), camera, light, rng=rng, noise_fraction=noise
+        chart = render_fluorescent_chart(
+            paints, colorchecker(), camera, light, rng=rng, noise_fraction=noise
         )
         smoothness = (0.03, 0.03, 0.01) if basis is not None else (0.01, 0.01, 0.004)
         try:

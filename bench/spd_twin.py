@@ -3,7 +3,7 @@
 Renders (as the digital twin does: ``calib.model.forward`` at 1 nm → ``mocks.scene`` → ``mocks.dng``, with
 shot and read noise) a fluorescent mapping lamp (FL2, its spectrum measured) and then every source of
 the colour-science library plus two halogen lamps (Planckian at 3000 and 3200 K), each as its own
-HDR bracket, and runs ``calib spd``'s pipeline (:func:`calib.cli.spd.measure_spd`) on each. Prints
+HDR bracket, and runs ``calib spd``'s pipeline (:func:`calib.spd.pipeline.measure_spd`) on each. Prints
 one line per source and the issue-8 targets: RMS of the normalised SPD (LED and halogen ≤ 5 %),
 recognition (every library source), CCT within 50 K of the true SPD's (Ohno 2013).
 
@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.cli.spd import SpdRequest, measure_spd
 from calib.core.lamp_specs import colour_lamp
 from calib.core.spectra import Spectrum, write_csv
 from calib.spd.alvarez2014 import spd_rms_error
 from calib.spd.light_sources import colour_library, correlated_colour_temperature
+from calib.spd.pipeline import SpdRequest, measure_spd
 
 # The twin-rendering helpers live with the tests (tests/spd_scenes.py): run from the checkout.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

@@ -50,6 +50,8 @@ DEFAULT_COLOR_MATRIX1: tuple[tuple[float, float, float], ...] = (
 
 #: How :func:`write_dng` can store the raw data (see :class:`DngMetadata`).
 DNG_COMPRESSIONS = ("none", "lossless-jpeg")
+#: TIFF tile sides must be multiples of this.
+TILE_MULTIPLE_PX = 16
 #: Tile side of lossless-JPEG DNGs (Adobe's DNG Converter writes 256 × 256 tiles).
 LOSSLESS_JPEG_TILE_PX = 256
 
@@ -88,9 +90,17 @@ class DngMetadata:
     cfa_pattern
         ``"RGGB"``, ``"BGGR"``, ``"GRBG"`` or ``"GBRG"``: colours of the top-left 2×2 cell.
     black_level_dn
-        One black level, or four in raster order over the 2×2 cell (integers, DN).
+        One black level, four in raster order over the 2×2 cell, or ``rows × columns`` of
+        ``black_repeat`` in raster order (DN; integers are written as LONG, fractions as RATIONAL).
+    black_repeat
+        BlackLevelRepeatDim ``(rows, columns)``; ``None``: (2, 2) for four values, else (1, 1).
+    black_delta_v_dn, black_delta_h_dn
+        BlackLevelDeltaV (one per active-area row) and BlackLevelDeltaH (one per active-area
+        column), written as SRATIONAL, or ``None``.
+    linearization_table
+        LinearizationTable: the CFA values written are indices into it, ``None`` for none.
     white_level_dn
-        The clipping level in DN.
+        The clipping level in DN (after linearisation).
     as_shot_neutral
         Camera-space neutral (R, G, B), e.g. ``(0.5, 1, 0.6667)``.
     color_matrix1
@@ -100,11 +110,25 @@ class DngMetadata:
     active_area
         ``(top, left, bottom, right)`` of the visible area inside the array (DNG ActiveArea), or
         ``None`` for all of it; the rest is masked border that readers drop.
+    default_crop
+        DefaultCropOrigin and DefaultCropSize ``(x, y, width, height)`` in active-area pixels, or
+        ``None``.
     compression
         ``"none"``: one uncompressed strip (fast to write; LibRaw copies it). ``"lossless-jpeg"``:
         256 × 256 tiles of lossless JPEG (Compression 7, predictor 1; one strip for frames smaller
-        than a tile), as cameras and Adobe's DNG Converter store raw data: the same pixels, about 40 % smaller, and as costly to decode as a
-        camera's own files.
+        than a tile), as cameras and Adobe's DNG Converter store raw data: the same pixels, about
+        40 % smaller, and as costly to decode as a camera's own files.
+    tile_px
+        ``(rows, columns)`` of the tiles instead (multiples of 16; either compression), or ``None``.
+    rows_per_strip
+        Strips of this many rows instead (either compression), or ``None``.
+    extra_tags
+        Further IFD0 tags ``(code, tifffile type, count, value)`` written as given: DNG features
+        this writer does not model (opcode lists, masked areas, odd active areas), to test
+        readers on them.
+    jpeg_components
+        Components of each lossless-JPEG tile: 1, or 2 as Adobe's DNG Converter writes them
+        (a tile ``w`` wide is a JPEG ``w / 2`` wide whose two components interleave along the row).
     """
 
     exposure_s: float | None
@@ -114,13 +138,22 @@ class DngMetadata:
     model: str = "SimCam"
     unique_camera_model: str | None = None
     cfa_pattern: str = "RGGB"
-    black_level_dn: int | tuple[int, int, int, int] = 512
+    black_level_dn: float | tuple[float, ...] = 512
+    black_repeat: tuple[int, int] | None = None
+    black_delta_v_dn: tuple[float, ...] | None = None
+    black_delta_h_dn: tuple[float, ...] | None = None
+    linearization_table: tuple[int, ...] | None = None
     white_level_dn: int = 16383
     as_shot_neutral: tuple[float, float, float] = (0.5, 1.0, 0.6667)
     color_matrix1: tuple[tuple[float, float, float], ...] = field(default=DEFAULT_COLOR_MATRIX1)
     capture_time: datetime | None = None
     active_area: tuple[int, int, int, int] | None = None
+    default_crop: tuple[int, int, int, int] | None = None
     compression: str = "none"
+    tile_px: tuple[int, int] | None = None
+    rows_per_strip: int | None = None
+    jpeg_components: int = 1
+    extra_tags: tuple[tuple[int, str, int, object], ...] = ()
 
     def __post_init__(self) -> None:
         if self.compression not in DNG_COMPRESSIONS:
@@ -141,22 +174,45 @@ class DngMetadata:
             raise DngWriteError(f"f_number must be > 0, got {self.f_number}")
         if not 0 < self.white_level_dn <= 65535:
             raise DngWriteError(f"white_level_dn must be in 1..65535, got {self.white_level_dn}")
-        blacks = self.black_levels_dn
-        if any(not 0 <= b < self.white_level_dn for b in blacks):
+        blacks = self.black_pattern_dn
+        if any(not 0 <= b < self.white_level_dn for b in blacks.ravel()):
             raise DngWriteError(
-                f"black levels {blacks} must be integers in 0..white level ({self.white_level_dn})"
+                f"black levels {blacks.ravel().tolist()} must lie in 0..white level "
+                f"({self.white_level_dn})"
             )
+        if self.tile_px is not None and self.rows_per_strip is not None:
+            raise DngWriteError("give tile_px or rows_per_strip, not both")
+        if self.tile_px is not None and (
+            len(self.tile_px) != 2
+            or any(side <= 0 or side % TILE_MULTIPLE_PX for side in self.tile_px)
+        ):
+            raise DngWriteError(
+                f"tile_px {self.tile_px} must be two multiples of {TILE_MULTIPLE_PX}"
+            )
+        if self.jpeg_components not in (1, 2):
+            raise DngWriteError(f"jpeg_components must be 1 or 2, got {self.jpeg_components}")
+        if self.rows_per_strip is not None and self.rows_per_strip < 1:
+            raise DngWriteError(f"rows_per_strip must be ≥ 1, got {self.rows_per_strip}")
+        if self.linearization_table is not None and (
+            not self.linearization_table
+            or max(self.linearization_table) > self.white_level_dn
+            or min(self.linearization_table) < 0
+        ):
+            raise DngWriteError("linearization_table must map into 0..white level")
         if np.shape(self.color_matrix1) != (3, 3):
             raise DngWriteError(f"color_matrix1 must be 3×3, got {np.shape(self.color_matrix1)}")
 
     @property
-    def black_levels_dn(self) -> tuple[int, int, int, int]:
-        """The four black levels in raster order over the 2×2 CFA cell."""
+    def black_pattern_dn(self) -> NDArray[np.float64]:
+        """BlackLevel as a ``black_repeat`` array (rows, columns from the active area's corner)."""
         value = self.black_level_dn
-        levels = (value,) * 4 if isinstance(value, int | np.integer) else tuple(value)
-        if len(levels) != 4 or any(int(b) != b for b in levels):
-            raise DngWriteError(f"black_level_dn must be one integer or four, got {value!r}")
-        return (int(levels[0]), int(levels[1]), int(levels[2]), int(levels[3]))
+        levels = np.atleast_1d(np.asarray(value, dtype=np.float64))
+        repeat = self.black_repeat or ((2, 2) if levels.size == 4 else (1, 1))
+        if len(repeat) != 2 or min(repeat) < 1 or levels.size != repeat[0] * repeat[1]:
+            raise DngWriteError(
+                f"black_level_dn needs {repeat} = rows × columns values, got {value!r}"
+            )
+        return levels.reshape(repeat)
 
 
 def _rational(value: float) -> tuple[int, int]:
@@ -223,8 +279,19 @@ def _exif_entries(metadata: DngMetadata, byteorder: str) -> list[_IfdEntry]:
     return entries
 
 
+def _reals_tag(
+    code: int, values: NDArray[np.float64], signed: bool
+) -> tuple[int, str, int, object, bool]:
+    """LONG when every value is a whole number (and none is negative), else (S)RATIONAL."""
+    flat = values.ravel()
+    if not signed and np.all(flat == np.round(flat)):
+        return (code, "I", flat.size, tuple(int(v) for v in flat), True)
+    parts = [part for v in flat for part in (_srational(v) if signed else _rational(v))]
+    return (code, "2i" if signed else "2I", flat.size, parts, True)
+
+
 def _ifd0_extratags(metadata: DngMetadata) -> list[tuple[int, str, int, object, bool]]:
-    blacks = metadata.black_levels_dn
+    blacks = metadata.black_pattern_dn
     unique = metadata.unique_camera_model or f"{metadata.make} {metadata.model}"
     matrix = [part for value in np.ravel(metadata.color_matrix1) for part in _srational(value)]
     neutral = [part for value in metadata.as_shot_neutral for part in _rational(value)]
@@ -239,8 +306,8 @@ def _ifd0_extratags(metadata: DngMetadata) -> list[tuple[int, str, int, object, 
         (50708, "s", 0, unique, True),
         (50710, "B", 3, (0, 1, 2), True),
         (50711, "H", 1, 1, True),
-        (50713, "H", 2, (2, 2), True),
-        (50714, "I", 4, blacks, True),
+        (50713, "H", 2, blacks.shape, True),
+        _reals_tag(50714, blacks, signed=False),
         (50717, "I", 1, metadata.white_level_dn, True),
         (50721, "2i", 9, matrix, True),
         (50728, "2I", 3, neutral, True),
@@ -254,6 +321,20 @@ def _ifd0_extratags(metadata: DngMetadata) -> list[tuple[int, str, int, object, 
         tags.append((306, "s", 0, _tiff_datetime(metadata.capture_time), True))
     if metadata.active_area is not None:
         tags.append((50829, "I", 4, metadata.active_area, True))
+    if metadata.black_delta_h_dn is not None:
+        tags.append(_reals_tag(50715, np.asarray(metadata.black_delta_h_dn, float), signed=True))
+    if metadata.black_delta_v_dn is not None:
+        tags.append(_reals_tag(50716, np.asarray(metadata.black_delta_v_dn, float), signed=True))
+    if metadata.linearization_table is not None:
+        table = metadata.linearization_table
+        tags.append((50712, "H", len(table), tuple(table), True))
+    if metadata.default_crop is not None:
+        x, y, width, height = metadata.default_crop
+        tags.append((50719, "I", 2, (x, y), True))
+        tags.append((50720, "I", 2, (width, height), True))
+    tags.extend(
+        (code, kind, count, value, True) for code, kind, count, value in metadata.extra_tags
+    )
     return tags
 
 
@@ -293,10 +374,13 @@ def write_dng(path: str | os.PathLike[str], cfa: ArrayLike, metadata: DngMetadat
         ``path``.
     """
     data = _as_cfa_array(cfa)
-    if (data > metadata.white_level_dn).any():
+    table = metadata.linearization_table
+    if table is None and (data > metadata.white_level_dn).any():
         raise DngWriteError(
             f"CFA values exceed the white level {metadata.white_level_dn}; clip before writing"
         )
+    if table is not None and data.size and int(data.max()) >= len(table):
+        raise DngWriteError(f"CFA values index past the linearization table ({len(table)} entries)")
     if metadata.active_area is not None:
         top, left, bottom, right = metadata.active_area
         if not (0 <= top < bottom <= data.shape[0] and 0 <= left < right <= data.shape[1]):
@@ -320,24 +404,36 @@ def write_dng(path: str | os.PathLike[str], cfa: ArrayLike, metadata: DngMetadat
             "software": False,
             "extratags": _ifd0_extratags(metadata),
         }
+        height, width = data.shape
+        if metadata.tile_px is not None:
+            block = metadata.tile_px
+        elif metadata.rows_per_strip is not None:
+            block = (min(metadata.rows_per_strip, height), width)
+        elif metadata.compression == "lossless-jpeg" and min(data.shape) >= LOSSLESS_JPEG_TILE_PX:
+            block = (LOSSLESS_JPEG_TILE_PX, LOSSLESS_JPEG_TILE_PX)
+        else:
+            # LibRaw reads a single tile larger than the image wrongly: small frames get one strip
+            block = (height, width)
+        strips = block[1] == width and metadata.tile_px is None
+        layout: dict[str, object] = {"rowsperstrip": block[0]} if strips else {"tile": block}
         if metadata.compression == "lossless-jpeg":
-            side = LOSSLESS_JPEG_TILE_PX
-            # LibRaw reads a single tile larger than the image wrongly: small frames get one strip.
-            tiled = min(data.shape) >= side
-            layout: dict[str, object] = (
-                {"tile": (side, side)} if tiled else {"rowsperstrip": data.shape[0]}
+            bits = max(
+                int(metadata.white_level_dn if table is None else data.max()).bit_length(), 2
             )
             tifffile.imwrite(
                 temporary,
-                data=iter(_lossless_jpeg_blocks(data, metadata.white_level_dn, tiled)),
+                data=iter(
+                    _lossless_jpeg_blocks(data, bits, block, strips, metadata.jpeg_components)
+                ),
                 shape=data.shape,
                 dtype=np.uint16,
                 compression=7,
+                bitspersample=bits,
                 **layout,
                 **common,
             )
         else:
-            tifffile.imwrite(temporary, data, compression=None, **common)
+            tifffile.imwrite(temporary, data, compression=None, **layout, **common)
         _attach_exif_ifd(temporary, metadata)
         temporary.replace(destination)
     finally:
@@ -346,25 +442,27 @@ def write_dng(path: str | os.PathLike[str], cfa: ArrayLike, metadata: DngMetadat
 
 
 def _lossless_jpeg_blocks(
-    data: NDArray[np.uint16], white_level_dn: int, tiled: bool
+    data: NDArray[np.uint16], bits: int, block: tuple[int, int], strips: bool, components: int
 ) -> list[bytes]:
-    """``data`` as lossless JPEG: 256 × 256 tiles in raster order, edge tiles padded with zeros
-    (DNG 1.4 §6), or one strip of the whole image."""
+    """``data`` as lossless JPEG blocks in raster order: tiles of ``block`` with the edge tiles
+    padded with zeros (DNG 1.4 §6), or strips of ``block[0]`` rows (the last one shorter); with
+    2 components, each row's pairs of samples are one pixel of a JPEG half as wide."""
     import imagecodecs  # deferred: only lossless-JPEG frames need it
 
-    bits = max(int(white_level_dn).bit_length(), 2)
-    if not tiled:
-        return [bytes(imagecodecs.ljpeg_encode(data, bitspersample=bits))]
-    side = LOSSLESS_JPEG_TILE_PX
     height, width = data.shape
-    tiles = []
-    for top in range(0, height, side):
-        for left in range(0, width, side):
-            tile = np.zeros((side, side), dtype=np.uint16)
-            part = data[top : top + side, left : left + side]
-            tile[: part.shape[0], : part.shape[1]] = part
-            tiles.append(bytes(imagecodecs.ljpeg_encode(tile, bitspersample=bits)))
-    return tiles
+    rows, columns = block
+    encoded = []
+    for top in range(0, height, rows):
+        for left in range(0, width, columns):
+            part = data[top : top + rows, left : left + columns]
+            if not strips:
+                tile = np.zeros((rows, columns), dtype=np.uint16)
+                tile[: part.shape[0], : part.shape[1]] = part
+                part = tile
+            encoded.append(
+                bytes(imagecodecs.ljpeg_encode(np.ascontiguousarray(part), bitspersample=bits))
+            )
+    return encoded
 
 
 def _attach_exif_ifd(path: Path, metadata: DngMetadata) -> None:

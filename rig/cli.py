@@ -18,6 +18,7 @@ from rich.table import Table
 
 from calib.cli.options import EnsembleOption, EpochsOption
 from calib.core.errors import CalibError, InputError
+from calib.core.software import current_software
 from drivers.base import DeviceError
 from rig.errors import RigError
 
@@ -57,9 +58,7 @@ def _capture_progress(config: RigConfig, quiet: bool) -> ProgressReporter:
 @app.command()
 def version() -> None:
     """Print the software version."""
-    from importlib.metadata import version as dist_version
-
-    typer.echo(dist_version("spectral-rig"))
+    typer.echo(current_software().version)
 
 
 @app.command()

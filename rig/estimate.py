@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.core.checksums import file_sha256
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
@@ -39,7 +40,6 @@ from calib.pipeline import (
     OfflineSettings,
     run_offline,
 )
-from calib.pipeline.provenance import file_sha256
 from rig.config import LAMP_NAME_PATTERN
 from rig.errors import SessionFormatError
 from rig.records import FileRecord

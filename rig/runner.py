@@ -17,15 +17,11 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-import platform
 import re
-import sys
 import traceback
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
-from importlib.metadata import PackageNotFoundError
-from importlib.metadata import version as distribution_version
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, TypeVar
@@ -33,6 +29,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from calib.core.errors import SpectrumError
+from calib.core.software import current_software
 from calib.core.spectra import Spectrum, read_spectrum_csv
 from drivers.base import DeviceError, DeviceIdentity, StateMismatch
 from drivers.spectrometer import longest_measure_s
@@ -188,17 +185,8 @@ class StopRequested(Exception):
 
 
 def software_info() -> SoftwareInfo:
-    """This software's name and version, and the Python and platform it runs on."""
-    try:
-        version = distribution_version("spectral-rig")
-    except PackageNotFoundError:  # pragma: no cover - running from a source tree
-        version = "unknown"
-    return SoftwareInfo(
-        name="spectral-rig",
-        version=version,
-        python=sys.version.split()[0],
-        platform=platform.platform(),
-    )
+    """:func:`calib.core.software.current_software` as the start record's ``software``."""
+    return SoftwareInfo(**current_software().to_dict())
 
 
 def error_info(exc: BaseException, *, with_traceback: bool = False) -> ErrorInfo:

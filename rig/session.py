@@ -37,6 +37,7 @@ from typing import Any, Literal, TypeVar
 
 from pydantic import TypeAdapter, ValidationError
 
+from calib.core.checksums import file_sha256
 from calib.core.spectra import Spectrum, write_csv
 from drivers.base import TranscriptEntry
 from rig.errors import SessionFormatError, SessionWriteError
@@ -59,7 +60,6 @@ RecordT = TypeVar("RecordT", bound=Record)
 SessionStatus = Literal["complete", "interrupted", "failed"]
 Guard = Callable[[], AbstractContextManager[object]]
 
-_CHUNK_BYTES = 1 << 20
 _RECORD_ADAPTER: TypeAdapter[AnyRecord] = TypeAdapter(AnyRecord)
 
 
@@ -388,19 +388,10 @@ class SessionWriter:
         """
         relative = self._free_name(check_session_path(relative))
         final = self.path / relative
-        digest = hashlib.sha256()
         with self.guard():
             try:
                 final.parent.mkdir(parents=True, exist_ok=True)
-                fd = os.open(temporary, os.O_RDONLY)
-                try:
-                    size = 0
-                    while chunk := os.read(fd, _CHUNK_BYTES):
-                        digest.update(chunk)
-                        size += len(chunk)
-                    os.fsync(fd)
-                finally:
-                    os.close(fd)
+                size, sha256 = file_sha256(temporary, sync=True)
                 temporary.replace(final)
                 _sync_directory(final.parent)
             except OSError as exc:
@@ -411,7 +402,7 @@ class SessionWriter:
             role=role,
             path=relative,
             size=size,
-            sha256=digest.hexdigest(),
+            sha256=sha256,
             units=units,
             bandwidth_nm=bandwidth_nm,
         )
@@ -579,15 +570,10 @@ class Session:
             except SessionFormatError as exc:
                 problems.append(FileProblem(record.path, str(exc).split(": ", 1)[-1]))
                 continue
-            digest = hashlib.sha256()
-            size = 0
-            with path.open("rb") as stream:
-                while chunk := stream.read(_CHUNK_BYTES):
-                    digest.update(chunk)
-                    size += len(chunk)
+            size, sha256 = file_sha256(path)
             if size != record.size:
                 problems.append(FileProblem(record.path, f"{size} bytes, log says {record.size}"))
-            elif digest.hexdigest() != record.sha256:
+            elif sha256 != record.sha256:
                 problems.append(FileProblem(record.path, "sha256 differs from the log"))
         return problems
 

@@ -2,7 +2,7 @@
 
 Profile-level tests use :func:`calib.model.forward.render_observation`; the targets of issue 8 are checked
 on twin-rendered DNG brackets (:mod:`tests.spd_scenes`) through the same pipeline ``calib spd``
-runs (:func:`calib.cli.spd.measure_spd`).
+runs (:func:`calib.spd.pipeline.measure_spd`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cli.spd import SpdMeasurement, SpdRequest, measure_spd
 from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import QuadraticMapping
@@ -38,6 +37,7 @@ from calib.spd.light_sources import (
     colour_library,
     correlated_colour_temperature,
 )
+from calib.spd.pipeline import SpdMeasurement, SpdRequest, measure_spd
 from tests.spd_scenes import (
     GRATING,
     calibrated_rig,

@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cli import main
+from calib.cli.app import main
+from calib.core.checksums import file_sha256
 from calib.core.lamp_specs import colour_lamp
+from calib.core.software import current_software
 from calib.core.spectra import WavelengthGrid, read_spectrum_csv, write_csv
 from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
 
@@ -108,9 +110,11 @@ def test_spd_writes_csv_json_and_plots(
     assert stored["mapping"]["origin"] == "mapping lamp"
     assert stored["mapping"]["details"]["lines"] == "measured spectrum"
     assert stored["direct_check"]["angular_error_deg"] < 0.5
-    assert [entry["sha256"] for entry in stored["inputs"]["images"]] and stored["inputs"]["camera"][
-        "path"
-    ] == str(scene.camera)
+    assert [entry["sha256"] for entry in stored["inputs"]["images"]] == [
+        file_sha256(path)[1] for path in scene.lamp
+    ]
+    assert stored["inputs"]["camera"]["path"] == str(scene.camera)
+    assert stored["software"] == current_software().to_dict()  # as result.json's provenance
     spd = read_spectrum_csv(out / "spd.csv")
     assert spd.values.max() == pytest.approx(1.0, abs=0.02)
     assert np.all(np.diff(spd.wavelength_nm) == 1.0)
@@ -201,6 +205,11 @@ def test_bad_files_are_named(
     arguments[arguments.index("--camera") + 1] = str(two_columns)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and str(two_columns) in stderr and "3 sensitivity columns" in stderr
+    dark = tmp_path / "dark_camera.csv"
+    dark.write_text("wavelength_nm,r,g,b\n400,0,0,0\n700,0,0,0\n")
+    arguments[arguments.index("--camera") + 1] = str(dark)
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 2 and "dark_camera.csv" in stderr and "all-zero" in stderr
     not_raw = tmp_path / "frame.dng"
     not_raw.write_text("not a raw file")
     arguments = base_arguments(scene, tmp_path / "out")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.cli import build_app
+from calib.cli.app import build_app
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import EstimationError, InputError
 from calib.core.result import EstimateResult

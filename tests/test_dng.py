@@ -200,7 +200,9 @@ def test_unwritable_input_is_rejected(
         ({"exposure_s": 0.1, "cfa_pattern": "RGBW"}, "cfa_pattern"),
         ({"exposure_s": 0.1, "iso": 0}, "iso"),
         ({"exposure_s": 0.1, "black_level_dn": 5000, "white_level_dn": 4095}, "black"),
-        ({"exposure_s": 0.1, "black_level_dn": (1, 2, 3)}, "four"),
+        ({"exposure_s": 0.1, "black_level_dn": (1, 2, 3)}, r"rows × columns values"),
+        ({"exposure_s": 0.1, "tile_px": (100, 128)}, "multiples of 16"),
+        ({"exposure_s": 0.1, "tile_px": (128, 128), "rows_per_strip": 8}, "not both"),
         ({"exposure_s": 0.1, "color_matrix1": ((1.0, 0.0), (0.0, 1.0))}, "3×3"),
     ],
 )

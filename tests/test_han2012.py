@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calib.core.colour_data import cie_daylight, colorchecker
 from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
 from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import colour_lamp
@@ -24,12 +25,10 @@ from calib.methods.baselines.han2012 import (
     FluorescentPaints,
     SensitivityBasis,
     chromaticity_system,
-    cie_daylight,
-    colorchecker_reflectances,
     estimate_han2012,
     recover_daylight,
     reflectance_basis,
-    render_chart,
+    render_fluorescent_chart,
     separate_fluorescence,
     solve_sensitivity,
     synthetic_fluorescent_paints,
@@ -79,7 +78,7 @@ def test_paints_are_seeded_and_physical() -> None:
 def test_the_reflectance_basis_spans_a_colorchecker() -> None:
     basis = reflectance_basis(DEFAULT_GRID, 8)
     np.testing.assert_allclose(basis.T @ basis, np.eye(8), atol=1e-10)
-    chart = colorchecker_reflectances().resample(DEFAULT_GRID).values
+    chart = colorchecker().resample(DEFAULT_GRID).values
     fitted = basis @ (basis.T @ chart)
     assert float(np.sqrt(np.mean((fitted - chart) ** 2))) < 0.02  # the chart is not in its data
 
@@ -88,9 +87,9 @@ def test_separation_recovers_the_fluorescent_part() -> None:
     camera = colour_science_cameras()[0].sensitivity
     paints = synthetic_fluorescent_paints(np.random.default_rng(2))
     light = cie_daylight(6500.0)
-    reference = colorchecker_reflectances()
-    chart = render_chart(paints, reference, camera, light)
-    pure = render_chart(without_reflection(paints), reference, camera, light)
+    reference = colorchecker()
+    chart = render_fluorescent_chart(paints, reference, camera, light)
+    pure = render_fluorescent_chart(without_reflection(paints), reference, camera, light)
     separation = separate_fluorescence(chart)
     np.testing.assert_allclose(
         separation.fluorescent_rgb + separation.reflective_rgb, chart.fluorescent_rgb
@@ -110,8 +109,8 @@ def test_a_camera_inside_the_basis_is_recovered_exactly() -> None:
     # On the grid's nodes, linear between them: exactly what the estimator assumes.
     camera = MultiSpectrum(DEFAULT_GRID.wavelength_nm, curves)
     paints = synthetic_fluorescent_paints(np.random.default_rng(3))
-    pure = render_chart(
-        without_reflection(paints), colorchecker_reflectances(), camera, cie_daylight(6500)
+    pure = render_fluorescent_chart(
+        without_reflection(paints), colorchecker(), camera, cie_daylight(6500)
     )
     basis = SensitivityBasis.fourier(DEFAULT_GRID, 9)
     integrals = basis.emission_integrals(paints.emission)
@@ -137,10 +136,10 @@ def test_a_camera_inside_the_basis_is_recovered_exactly() -> None:
 
 def test_daylight_is_recovered_with_the_true_camera() -> None:
     camera = colour_science_cameras()[0].sensitivity
-    reference = colorchecker_reflectances()
+    reference = colorchecker()
     for cct_k in UNKNOWN_DAYLIGHTS_K[:4]:
         light = cie_daylight(cct_k)
-        chart = render_chart(
+        chart = render_fluorescent_chart(
             synthetic_fluorescent_paints(np.random.default_rng(4)), reference, camera, light
         )
         daylight = recover_daylight(chart.reference_rgb, reference, truth_on_grid(camera))
@@ -149,9 +148,9 @@ def test_daylight_is_recovered_with_the_true_camera() -> None:
 
 def test_chart_validation_and_refusals() -> None:
     paints = synthetic_fluorescent_paints(np.random.default_rng(5))
-    reference = colorchecker_reflectances()
+    reference = colorchecker()
     camera = colour_science_cameras()[0].sensitivity
-    chart = render_chart(paints, reference, camera, cie_daylight(6500))
+    chart = render_fluorescent_chart(paints, reference, camera, cie_daylight(6500))
     with pytest.raises(InputError, match=r"fluorescent RGB has shape \(15, 3\)"):
         dataclasses.replace(chart, fluorescent_rgb=chart.fluorescent_rgb[:15])
     small = dataclasses.replace(
@@ -168,7 +167,7 @@ def test_chart_validation_and_refusals() -> None:
     with pytest.raises(InputError, match="normalisation"):
         estimate_han2012(chart, normalisation="none")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="noise needs"):
-        render_chart(paints, reference, camera, cie_daylight(6500), noise_fraction=0.01)
+        render_fluorescent_chart(paints, reference, camera, cie_daylight(6500), noise_fraction=0.01)
     with pytest.raises(InputError, match="4000–25000 K"):
         cie_daylight(3000.0)
     # Paints that only reflect (all signal explained by their reflectance): said, not guessed.
@@ -182,9 +181,9 @@ def test_chart_validation_and_refusals() -> None:
 def test_registered_behind_the_front_function() -> None:
     camera = colour_science_cameras()[0].sensitivity
     rng = np.random.default_rng(6)
-    chart = render_chart(
+    chart = render_fluorescent_chart(
         synthetic_fluorescent_paints(rng),
-        colorchecker_reflectances(),
+        colorchecker(),
         camera,
         cie_daylight(6500),
         rng=rng,
@@ -208,8 +207,8 @@ def _run(
     """RE of the sensitivity and CCT error of the recovered daylight (None for non-daylights)."""
     rng = np.random.default_rng(seed)
     paints = synthetic_fluorescent_paints(np.random.default_rng(seed // 100))  # one chart
-    chart = render_chart(
-        paints, colorchecker_reflectances(), camera, light, rng=rng, noise_fraction=0.001
+    chart = render_fluorescent_chart(
+        paints, colorchecker(), camera, light, rng=rng, noise_fraction=0.001
     )
     result = estimate_han2012(chart, **options)  # type: ignore[arg-type]
     error = relative_error(result.sensitivity, truth_on_grid(camera))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import calib.methods
+from calib.core.colour_data import colorchecker
 from calib.core.errors import InputError
 from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
@@ -19,7 +20,7 @@ from calib.image.chart_image import (
 )
 from calib.methods.baselines.jiang2013 import estimate_jiang2013
 from calib.model.bases import camera_basis
-from calib.model.charts import colorchecker, render_chart, stimulus_rows
+from calib.model.charts import render_chart, stimulus_rows
 from tests.synthetic_cameras import as_spectrum, spanning_set
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.cli import build_app, main
+from calib.cli.app import build_app, main
 from calib.core.errors import InputError
 from calib.core.lamp_specs import gaussian_lamp, lamp_from_spec
 from calib.core.spectra import write_csv

@@ -9,6 +9,7 @@ import pytest
 import tifffile
 
 import calib.methods
+from calib.core.colour_data import colorchecker
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import InputError
 from calib.core.lamp_specs import colour_lamp
@@ -21,7 +22,7 @@ from calib.methods.baselines.solomatov2023 import (
     simulate_color_matrix,
 )
 from calib.model.bases import fallback_camera_basis
-from calib.model.charts import colorchecker, render_chart
+from calib.model.charts import render_chart
 from mocks.dng import DngMetadata, write_dng
 from tests.synthetic_cameras import as_spectrum
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from calib.cli import build_app
+from calib.cli.app import build_app
 from calib.core.datasets import colour_science_cameras
 from calib.evaluation.synthetic import random_efficiency, random_mapping, run_protocol
 from tests.synthetic_cameras import exact_basis

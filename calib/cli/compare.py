@@ -10,7 +10,6 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.markdown import Markdown
 
 from calib.cli.options import EnsembleOption, EpochsOption
 from calib.cli.synthetic import _parse_noise
@@ -131,6 +130,8 @@ def register(app: typer.Typer) -> None:
             plot_grid(out / f"compare_noise-{level:g}.png", rows, level, grid=grid)
             for level in sorted({row.noise for row in rows})
         ]
+        from rich.markdown import Markdown  # deferred: markdown-it and pygments, ~60 ms
+
         Console().print(Markdown(report))
         console.print(
             f"wrote {out / 'compare.md'}, {out / 'compare.csv'}, "

@@ -35,9 +35,7 @@ import hashlib
 import json
 import os
 import re
-import urllib.error
 import urllib.parse
-import urllib.request
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +43,8 @@ from pathlib import Path
 import numpy as np
 import platformdirs
 
+from calib.core.checksums import file_sha256
+from calib.core.colour_data import camera_sensitivities, rawtoaces_sensitivity_path
 from calib.core.errors import CalibError, InputError, SpectrumError
 from calib.core.spectra import MultiSpectrum, read_table
 
@@ -182,14 +182,21 @@ _SOLOMATOV_NAME = re.compile(
 def read_rgb_csv(path: str | Path, *, name: str | None = None) -> MultiSpectrum:
     """Read a ``wavelength,r,g,b`` CSV (header optional, ``#`` comments skipped), normalised.
 
-    Used for the Solomatov/Akkaynak and butcherg files and the colour-science rawtoaces CSV.
+    Used for the Solomatov/Akkaynak and butcherg files, the colour-science rawtoaces CSV and the
+    calibrated camera of ``calib spd`` (:func:`calib.spd.pipeline.measure_spd`).
+
+    Raises
+    ------
+    SpectrumError
+        Not 4 columns, a malformed axis or value, or curves that are zero everywhere (the file is
+        named).
     """
     path = Path(path)
     table = read_table(path)
     if table.rows.shape[1] != 4:
         raise SpectrumError(
-            f"expected 4 columns (wavelength, r, g, b), found {table.rows.shape[1]}: "
-            f"{table.columns}",
+            f"expected 4 columns (wavelength and 3 sensitivity columns R, G, B), found "
+            f"{table.rows.shape[1]}: {table.columns}",
             source=str(path),
         )
     label = name or path.stem
@@ -305,32 +312,17 @@ def read_rawtoaces_json(path: str | Path) -> MultiSpectrum:
 
 def colour_science_cameras() -> list[CameraRecord]:
     """The cameras inside colour-science: two NPL measurements and the rawtoaces Canon 5D Mk II."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    records: list[CameraRecord] = []
-    for key, data in colour.MSDS_CAMERA_SENSITIVITIES.items():
-        curves = MultiSpectrum(
-            np.asarray(data.wavelengths, dtype=np.float64),
-            np.asarray(data.values, dtype=np.float64),
-            name=str(key),
-            negative="clip",
+    records = [
+        CameraRecord(
+            key,
+            key.split(" (")[0],
+            COLOUR_SCIENCE,
+            _normalised(curves, key),
+            f"colour.MSDS_CAMERA_SENSITIVITIES[{key!r}]",
         )
-        records.append(
-            CameraRecord(
-                str(key),
-                str(key).split(" (")[0],
-                COLOUR_SCIENCE,
-                _normalised(curves, str(key)),
-                f"colour.MSDS_CAMERA_SENSITIVITIES[{key!r}]",
-            )
-        )
-    canon = (
-        Path(colour.__file__).parent
-        / "characterisation"
-        / "datasets"
-        / "rawtoaces"
-        / "CANON_EOS_5DMark_II_RGB_Sensitivities.csv"
-    )
+        for key, curves in camera_sensitivities().items()
+    ]
+    canon = rawtoaces_sensitivity_path("CANON_EOS_5DMark_II_RGB_Sensitivities.csv")
     if canon.is_file():
         name = "Canon EOS 5D Mark II (rawtoaces)"
         records.append(
@@ -498,12 +490,15 @@ def _file_is_valid(path: Path, pinned: PinnedFile) -> bool:
     try:
         if path.stat().st_size != pinned.size_bytes:
             return False
-        return hashlib.sha256(path.read_bytes()).hexdigest() == pinned.sha256
+        return file_sha256(path) == (pinned.size_bytes, pinned.sha256)
     except OSError:
         return False
 
 
 def _download(url: str, timeout_s: float) -> bytes:
+    # Deferred: urllib.request pulls in http, ssl and email (~25 ms), needed only to download.
+    import urllib.request
+
     request = urllib.request.Request(url, headers={"User-Agent": "spectral-rig data fetch"})
     with urllib.request.urlopen(request, timeout=timeout_s) as response:
         return bytes(response.read())
@@ -568,7 +563,7 @@ def fetch_datasets(
                 temporary.write_bytes(payload)
                 temporary.replace(target)
                 report.downloaded.append(pinned.local_path)
-            except (urllib.error.URLError, OSError, ValueError) as exc:
+            except (OSError, ValueError) as exc:  # urllib's URLError is an OSError
                 reason = getattr(exc, "reason", None) or str(exc)
                 report.failed.append((pinned.local_path, f"{url}: {reason}"))
         if progress is not None:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.core.colour_data import illuminants, light_sources
 from calib.core.errors import InputError
 from calib.core.spectra import Spectrum, read_spectrum_csv
 
@@ -51,11 +52,9 @@ def gaussian_lamp(centre_nm: float, fwhm_nm: float, *, name: str | None = None) 
 
 def colour_lamp(name: str) -> Spectrum:
     """A colour-science illuminant (``SDS_ILLUMINANTS``) or light source (``SDS_LIGHT_SOURCES``)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    for table in (colour.SDS_ILLUMINANTS, colour.SDS_LIGHT_SOURCES):
+    for table in (illuminants(), light_sources()):
         if name in table:
-            return Spectrum.from_colour(table[name], name=name)
+            return table[name]
     raise InputError(
         f"colour-science has no illuminant or light source named {name!r}", source="lamp"
     )

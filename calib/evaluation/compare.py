@@ -40,6 +40,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.colour_data import colorchecker
 from calib.core.errors import CalibError, InputError
 from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import GratingGeometry, QuadraticMapping
@@ -56,7 +57,7 @@ from calib.evaluation.synthetic import FLUORESCENT_LAMP, render_scene
 from calib.methods import ESTIMATION_METHODS, LAZY_METHODS, estimate
 from calib.methods.baselines.solomatov2023 import simulate_color_matrix
 from calib.model.bases import CameraBasis
-from calib.model.charts import colorchecker, gaussian_filters, render_chart
+from calib.model.charts import gaussian_filters, render_chart
 
 #: Noise levels of the comparison by default (fractions of the peak): ideal data, and 1 %.
 DEFAULT_NOISE_LEVELS: tuple[float, ...] = (0.0, 0.01)
@@ -158,15 +159,14 @@ def _colour_checker(scene: CompareScene) -> tuple[list[Observation], dict[str, A
 
 def _fluorescent_chart(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
     from calib.methods.baselines.han2012 import (
-        colorchecker_reflectances,
-        render_chart,
+        render_fluorescent_chart,
         synthetic_fluorescent_paints,
     )
 
     rng = np.random.default_rng([scene.seed, 2012])
-    chart = render_chart(
+    chart = render_fluorescent_chart(
         synthetic_fluorescent_paints(rng),
-        colorchecker_reflectances(),
+        colorchecker(),
         scene.sensitivity,
         colour_lamp(scene.broadband.name),
         rng=rng,

@@ -27,6 +27,7 @@ rate (a lower bound where it clipped) with infinite variance.
 
 Frames are streamed: the next ones are decoded (in background threads) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
+Over a region of interest, DNG frames decode only the tiles that meet it (:mod:`calib.image.dng_tiles`).
 Optional dark frames are matched to the light frames by exposure time (and averaged per exposure).
 All frames must come from one camera at one ISO, size and aperture; the first file that differs is
 named in the error.
@@ -64,6 +65,7 @@ from calib.image.raw import (
     DEFAULT_SATURATION_FRACTION,
     PlaneBuffers,
     PlaneRegion,
+    RawDecoder,
     RawMetadata,
     RawPlanes,
     UnpackedRaw,
@@ -115,12 +117,15 @@ class FrameRecord:
         Dark frames averaged and subtracted from it (empty if none).
     saturated_fraction
         Shape ``(3,)``: fraction of samples per channel flagged saturated.
+    decoding
+        How its pixels were decoded (:attr:`calib.image.raw.RawPlanes.decoding`).
     """
 
     path: Path
     exposure_s: float
     dark_paths: tuple[Path, ...]
     saturated_fraction: tuple[float, float, float]
+    decoding: str = "LibRaw"
 
 
 @dataclass(frozen=True, eq=False)
@@ -475,16 +480,21 @@ class _RegionHolder:
 
 class Unpacker:
     """Unpacks RAW files (:func:`calib.image.raw.unpack_raw`) in a given order, ``ahead`` files ahead of
-    the files taken, on :data:`DECODE_THREADS` threads; each file is handed out once.
+    the files taken, on :data:`DECODE_THREADS` threads; each file is handed out once. A DNG the
+    tile decoder reads is only opened here (its tiles are decoded with the region, in
+    :func:`calib.image.raw.read_raw`); ``decoder``: see :data:`calib.image.raw.RawDecoder`.
 
     One unpacker shared by several brackets (the lamps of a capture) keeps LibRaw busy across
     their boundaries. A file taken out of order, or again, is unpacked when taken. Use as a context
     manager: files never taken are closed at the end.
     """
 
-    def __init__(self, paths: Sequence[PathLike], ahead: int = PREFETCH_FRAMES) -> None:
+    def __init__(
+        self, paths: Sequence[PathLike], ahead: int = PREFETCH_FRAMES, decoder: RawDecoder = "auto"
+    ) -> None:
         self._order = deque(Path(p) for p in paths)
         self._ahead = ahead
+        self._decoder = decoder
         self._executor = ThreadPoolExecutor(
             max_workers=DECODE_THREADS, thread_name_prefix="raw-unpack"
         )
@@ -498,7 +508,7 @@ class Unpacker:
         while self._order and len(self._scheduled) < self._ahead and not self._closed:
             path = self._order.popleft()
             if path not in self._scheduled:
-                self._scheduled[path] = self._executor.submit(unpack_raw, path)
+                self._scheduled[path] = self._executor.submit(unpack_raw, path, self._decoder)
 
     def take(self, path: PathLike) -> UnpackedRaw:
         """``path`` unpacked (waits for it, or unpacks it now); the caller closes it."""
@@ -508,7 +518,7 @@ class Unpacker:
             if future is None and file in self._order:
                 self._order.remove(file)
             self._schedule_locked()
-        return future.result() if future is not None else unpack_raw(file)
+        return future.result() if future is not None else unpack_raw(file, self._decoder)
 
     def __enter__(self) -> Unpacker:
         return self
@@ -600,6 +610,7 @@ def merge_bracket(
     region: PlaneRegion | RegionChooser | None = None,
     unpacker: Unpacker | None = None,
     plan: DecodePlan | None = None,
+    decoder: RawDecoder = "auto",
 ) -> HdrImage:
     """Merge RAW frames of one scene at different exposure times into an :class:`HdrImage`.
 
@@ -627,14 +638,18 @@ def merge_bracket(
     region
         Merge only these plane samples (``(rows, columns)`` of the full planes), or a function
         that chooses them from the first decoded light frame (full planes; ``None`` = all). The
-        merge then costs the region, not the frame (LibRaw still unpacks every file); the image
-        records where the region lies (``region_origin_px``, ``full_sensor_shape_px``).
+        merge then costs the region, not the frame, and so does decoding the DNGs the tile
+        decoder reads (LibRaw unpacks other files whole); the image records where the region lies
+        (``region_origin_px``, ``full_sensor_shape_px``).
     unpacker
         Unpacks the files ahead, shared with other brackets (the :attr:`DecodePlan.paths` of
         :func:`decode_order` are this bracket's order); by default one of the bracket's own.
     plan
         These files' metadata and decode order from :func:`decode_order` (called with the same
         files and exposure times), so that the metadata is not read again; read here when ``None``.
+    decoder
+        Which decoder reads the pixels (:data:`calib.image.raw.RawDecoder`), when the bracket
+        unpacks its own files (``unpacker`` is ``None``).
 
     Notes
     -----
@@ -688,7 +703,7 @@ def merge_bracket(
         else _RegionHolder(region=_checked_region(region))
     )
     merger = _Merger(ordered, plan, settings, noise_model, progress, pool, holder)
-    source = unpacker or Unpacker(plan.paths)
+    source = unpacker or Unpacker(plan.paths, decoder=decoder)
     decoded = _prefetch(plan.schedule, plan.first_light, saturation_fraction, pool, holder, source)
     try:
         for planes, (role, index) in zip(decoded, plan.roles, strict=True):
@@ -974,6 +989,7 @@ class _Merger:
                 float(saturated_fraction[1]),
                 float(saturated_fraction[2]),
             ),
+            decoding=planes.decoding,
         )
         if group is not None:
             self.remaining[group] -= 1

@@ -6,6 +6,10 @@ array is split into three planes without demosaicing: R, G (the mean of the two 
 (LibRaw's ``black_level_per_channel`` is indexed by colour index, not raster position), and a
 saturation mask marks samples at or near the clipping level.
 
+DNGs whose layout the tile decoder (:mod:`calib.image.dng_tiles`) reads exactly are decoded there,
+and only the tiles that meet a requested region are decoded; LibRaw decodes every other file (and a
+DNG the tile decoder refuses, saying why in :attr:`RawPlanes.decoding`). See :data:`RawDecoder`.
+
 Coordinates stay in the sensor's frame (LibRaw's ``flip`` is not applied). A plane sample ``(i, j)``
 of channel ``c`` sits at sensor pixel ``(2 i + dy_c, 2 j + dx_c)`` (row, column), where ``(dy_c, dx_c)``
 is that colour's place in the 2×2 cell (``channel_origin_px``; green is the mean of its two sites,
@@ -26,10 +30,10 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import rawpy
@@ -37,6 +41,7 @@ from numpy.typing import NDArray
 
 from calib.core.arrays import BoolArray
 from calib.core.errors import InputError
+from calib.image.dng_tiles import CorruptDng, DngTiles, NotDng, UnsupportedDng, open_dng
 from calib.image.raw_metadata import (
     ExposureSource,
     RawMetadata,
@@ -51,6 +56,7 @@ __all__ = [
     "ExposureSource",
     "PlaneBuffers",
     "PlaneRegion",
+    "RawDecoder",
     "RawFileError",
     "RawMetadata",
     "RawPlanes",
@@ -63,6 +69,13 @@ __all__ = [
 Float32Array = NDArray[np.float32]
 #: A window of plane samples, ``(rows, columns)`` with explicit integer ``start``/``stop``.
 PlaneRegion = tuple[slice, slice]
+
+#: Which decoder reads the pixels: ``"auto"`` reads DNGs through the tile decoder
+#: (:mod:`calib.image.dng_tiles`: only the tiles that meet the region) when it reads them exactly,
+#: everything else through LibRaw; ``"libraw"`` always LibRaw; ``"tiles"`` the tile decoder or
+#: :class:`~calib.image.dng_tiles.UnsupportedDng`.
+RawDecoder = Literal["auto", "libraw", "tiles"]
+RAW_DECODERS: tuple[str, ...] = ("auto", "libraw", "tiles")
 
 #: Names of the three planes, in order.
 CHANNELS: tuple[str, str, str] = ("R", "G", "B")
@@ -112,6 +125,9 @@ class RawPlanes:
         region was read); sensor pixel = ``2 · (origin + index) + channel_origin_px``.
     full_plane_shape
         ``(h, w)`` of the full planes (the planes' own shape unless only a region was read).
+    decoding
+        How the pixels were decoded: ``"LibRaw"``, ``"LibRaw (<why not the tile decoder>)"`` for a
+        DNG the tile decoder refused, or ``"tiles: n of m"``.
     """
 
     metadata: RawMetadata
@@ -125,6 +141,7 @@ class RawPlanes:
     green_sites_px: tuple[tuple[int, int], tuple[int, int]] = ((0, 1), (1, 0))
     region_origin: tuple[int, int] = (0, 0)
     full_plane_shape: tuple[int, int] | None = None
+    decoding: str = "LibRaw"
 
     @property
     def plane_shape(self) -> tuple[int, int]:
@@ -171,6 +188,7 @@ class RawPlanes:
             green_sites_px=self.green_sites_px,
             region_origin=(rows.start, columns.start),
             full_plane_shape=self.full_shape,
+            decoding=self.decoding,
         )
 
     @property
@@ -291,18 +309,27 @@ def _unpacked(raw: Any, path: Path, read: Any) -> Any:
 
 @dataclass(eq=False)
 class UnpackedRaw:
-    """A RAW file opened and unpacked by LibRaw, with its EXIF tags: :func:`read_raw` then cuts it
-    into planes (of a region chosen meanwhile). Unpacking is most of the decoding, and LibRaw
-    releases the GIL while it runs. Holds LibRaw's copy of the pixels until closed.
+    """A RAW file opened for decoding, with its EXIF tags: :func:`read_raw` then cuts it into planes
+    (of a region chosen meanwhile).
+
+    Either LibRaw has unpacked it (``raw``, ``visible``: most of the decoding, and LibRaw releases
+    the GIL while it runs; LibRaw's copy of the pixels is held until closed), or it is a DNG the tile
+    decoder reads (``tiles``: only its tags and tile offsets are read until :func:`read_raw` decodes
+    the tiles of the region). ``fallback`` says why a DNG went to LibRaw; ``strict``: the tile
+    decoder was asked for (``decoder="tiles"``), so its refusal is an error, not a fallback.
     """
 
     path: Path
-    raw: Any
     exif: Mapping[str, Any]
-    visible: NDArray[np.uint16]
+    raw: Any | None = None
+    visible: NDArray[np.uint16] | None = None
+    tiles: DngTiles | None = None
+    fallback: str | None = None
+    strict: bool = False
 
     def close(self) -> None:
-        self.raw.close()
+        if self.raw is not None:
+            self.raw.close()
 
     def __enter__(self) -> UnpackedRaw:
         return self
@@ -311,18 +338,49 @@ class UnpackedRaw:
         self.close()
 
 
-def unpack_raw(path: str | os.PathLike[str]) -> UnpackedRaw:
-    """Open ``path`` with LibRaw and unpack its pixels (see :func:`read_raw` for the errors)."""
+#: exifread's names of the DNGVersion tag (older versions know it only by number).
+_DNG_VERSION_KEYS = ("Image DNGVersion", "Image Tag 0xC612")
+
+
+def _may_be_dng(exif: Mapping[str, Any]) -> bool:
+    """A DNG, or a file exifread could not parse (tifffile then decides): other TIFF-based RAWs
+    (NEF, CR2, ARW …) are not parsed twice."""
+    return not exif or any(key in exif for key in _DNG_VERSION_KEYS)
+
+
+def unpack_raw(path: str | os.PathLike[str], decoder: RawDecoder = "auto") -> UnpackedRaw:
+    """Open ``path`` for :func:`read_raw`: a DNG the tile decoder reads is only opened (tags and
+    tile offsets), anything else is unpacked by LibRaw (see :data:`RawDecoder` and, for the errors,
+    :func:`read_raw`).
+
+    Raises
+    ------
+    UnsupportedDng
+        ``decoder="tiles"`` and the tile decoder does not read the file exactly.
+    """
+    if decoder not in RAW_DECODERS:
+        raise ValueError(f"decoder must be one of {RAW_DECODERS}, got {decoder!r}")
     file = Path(path)
     _check_file(file)
     exif = exif_tags(file)
+    fallback: str | None = None
+    if decoder == "tiles" or (decoder == "auto" and _may_be_dng(exif)):
+        try:
+            return UnpackedRaw(file, exif, tiles=open_dng(file), strict=decoder == "tiles")
+        except NotDng:
+            if decoder == "tiles":
+                raise
+        except UnsupportedDng as exc:
+            if decoder == "tiles":
+                raise
+            fallback = str(exc).removeprefix(f"{file}: ")
     raw = _open_raw(file)
     try:
         visible = _unpacked(raw, file, lambda r: r.raw_image_visible)
     except BaseException:
         raw.close()
         raise
-    return UnpackedRaw(file, raw, exif, visible)
+    return UnpackedRaw(file, exif, raw=raw, visible=visible, fallback=fallback)
 
 
 def _visible_colour_indices(raw: Any) -> NDArray[np.int64]:
@@ -353,10 +411,15 @@ def _cfa_layout(raw: Any, path: Path) -> _CfaLayout:
             source=str(path),
         )
     pattern = _visible_colour_indices(raw)
+    return _bayer_layout(pattern.tolist(), description, path)
+
+
+def _bayer_layout(pattern: list[list[int]], description: str, path: Path) -> _CfaLayout:
+    """The layout of a 2×2 cell of colour indices into ``description`` (e.g. ``"RGBG"``)."""
     sites: dict[str, list[tuple[int, int]]] = {"R": [], "G": [], "B": []}
     for row in range(2):
         for column in range(2):
-            index = int(pattern[row, column])
+            index = int(pattern[row][column])
             colour = description[index] if index < len(description) else "?"
             if colour not in sites:
                 raise RawFileError(
@@ -366,7 +429,7 @@ def _cfa_layout(raw: Any, path: Path) -> _CfaLayout:
             sites[colour].append((row, column))
     if [len(sites[c]) for c in CHANNELS] != [1, 2, 1]:
         raise RawFileError(
-            f"colour filter cell {pattern.tolist()} ({description!r}) is not a Bayer cell with "
+            f"colour filter cell {pattern} ({description!r}) is not a Bayer cell with "
             "one red, two green and one blue site",
             source=str(path),
         )
@@ -405,6 +468,7 @@ def read_raw(
     buffers: PlaneBuffers | None = None,
     region: PlaneRegion | None = None,
     unpacked: UnpackedRaw | None = None,
+    decoder: RawDecoder = "auto",
 ) -> RawPlanes:
     """Decode a RAW file into black-subtracted R, G, B planes at half resolution.
 
@@ -422,43 +486,64 @@ def read_raw(
     buffers
         Arrays to fill instead of allocating new ones (used when their shape fits).
     region
-        Only these plane samples (rows, columns of the full planes; clipped to them): LibRaw still
-        unpacks the whole file, but black subtraction and saturation flags cost only the region.
-        A clipping plateau is then looked for inside the region.
+        Only these plane samples (rows, columns of the full planes; clipped to them). A DNG read by
+        the tile decoder decodes only the tiles that meet the region; LibRaw unpacks the whole file,
+        and then black subtraction and saturation flags cost only the region. A clipping plateau is
+        looked for inside the region.
     unpacked
-        ``path`` already unpacked (:func:`unpack_raw`); closed by this call.
+        ``path`` already opened (:func:`unpack_raw`); closed by this call.
+    decoder
+        See :data:`RawDecoder` (ignored when ``unpacked`` is given).
 
     Returns
     -------
     RawPlanes
-        Planes of shape ``(3, height // 2, width // 2)`` of the visible sensor area (an odd last
-        row or column is dropped), or of the region.
+        Planes of shape ``(3, height // 2, width // 2)`` of the visible sensor area (the DNG's
+        ActiveArea; an odd last row or column is dropped), or of the region. The tile decoder
+        subtracts the DNG's black level pixel by pixel (BlackLevel pattern and deltas, see
+        :mod:`calib.image.dng_tiles`); ``black_level_dn`` then holds each site's mean.
 
     Raises
     ------
     RawFileError
         Missing, empty, non-RAW, corrupt or truncated file; unsupported sensor layout.
+    UnsupportedDng
+        ``decoder="tiles"`` and the tile decoder does not read the file exactly.
     InputError
         No exposure time in the metadata and no override.
     """
     if not 0.0 < saturation_fraction <= 1.0:
         raise ValueError(f"saturation_fraction must be in (0, 1], got {saturation_fraction}")
-    source = unpacked if unpacked is not None else unpack_raw(path)
-    file, exif, visible = source.path, source.exif, source.visible
+    source = unpacked if unpacked is not None else unpack_raw(path, decoder)
+    options = (exposure_s, saturation_fraction, keep_green_difference, buffers, region)
+    try:
+        return _read_planes(source, *options)
+    except UnsupportedDng as exc:  # a tile the decoder cannot place: LibRaw reads the file
+        if source.tiles is None or source.strict:
+            raise
+        reason = str(exc).removeprefix(f"{source.path}: ")
+    fallback = unpack_raw(source.path, "libraw")
+    fallback.fallback = reason
+    return _read_planes(fallback, *options)
+
+
+def _read_planes(
+    source: UnpackedRaw,
+    exposure_s: float | None,
+    saturation_fraction: float,
+    keep_green_difference: bool,
+    buffers: PlaneBuffers | None,
+    region: PlaneRegion | None,
+) -> RawPlanes:
     with source:
-        raw = source.raw
-        layout = _cfa_layout(raw, file)
-        metadata = build_metadata(file, exif, raw.other, exposure_s)
-        colour_index = _visible_colour_indices(raw)
-        black_per_colour = [float(b) for b in raw.black_level_per_channel]
-        white_per_colour = raw.camera_white_level_per_channel
-        white_default = float(raw.white_level)
-        height, width = (visible.shape[0] // 2) * 2, (visible.shape[1] // 2) * 2
+        pixels = _pixel_source(source, exposure_s)
+        file = source.path
+        visible_height, visible_width = pixels.visible_shape
+        height, width = (visible_height // 2) * 2, (visible_width // 2) * 2
         if height < 2 or width < 2:
             raise RawFileError(
-                f"visible sensor area {visible.shape} is too small", source=str(file)
+                f"visible sensor area {pixels.visible_shape} is too small", source=str(file)
             )
-
         full_plane_shape = (height // 2, width // 2)
         row0, row1, column0, column1 = 0, height // 2, 0, width // 2
         if region is not None:
@@ -466,18 +551,11 @@ def read_raw(
             column0, column1 = max(region[1].start, 0), min(region[1].stop, column1)
             if row1 <= row0 or column1 <= column0:
                 raise ValueError(f"region {region} is outside the planes {full_plane_shape}")
+        window = pixels.window(slice(2 * row0, 2 * row1), slice(2 * column0, 2 * column1))
+        layout = pixels.layout
 
         def site_view(site: tuple[int, int]) -> NDArray[np.uint16]:
-            return visible[
-                2 * row0 + site[0] : 2 * row1 : 2, 2 * column0 + site[1] : 2 * column1 : 2
-            ]
-
-        def levels(site: tuple[int, int]) -> tuple[float, float]:
-            index = int(colour_index[site])
-            white = white_default
-            if white_per_colour is not None and white_per_colour[index] > 0:
-                white = float(white_per_colour[index])
-            return black_per_colour[index], white
+            return window.values[site[0] :: 2, site[1] :: 2]
 
         plane_shape = (row1 - row0, column1 - column0)
         if buffers is not None and buffers.signal_dn.shape == (3, *plane_shape):
@@ -489,17 +567,24 @@ def read_raw(
         clips: list[float] = []
         for channel, site in ((0, layout.red), (2, layout.blue)):
             view = site_view(site)
-            black, white = levels(site)
+            black, white = pixels.levels(site)
             np.subtract(view, np.float32(black), out=signal[channel], dtype=np.float32)
+            offset = window.black_offset(site)
+            if offset is not None:
+                signal[channel] -= offset
             threshold = _saturation_threshold(view, black, white, saturation_fraction)
             np.greater_equal(view, threshold, out=saturated[channel])
             blacks.append(black)
             clips.append(white - black)
         first, second = (site_view(site) for site in layout.greens)
-        (black_1, white_1), (black_2, white_2) = (levels(site) for site in layout.greens)
+        (black_1, white_1), (black_2, white_2) = (pixels.levels(site) for site in layout.greens)
+        offset_1, offset_2 = (window.black_offset(site) for site in layout.greens)
         green = signal[1]
         np.add(first, second, out=green, dtype=np.float32)
         green -= np.float32(black_1 + black_2)
+        for offset in (offset_1, offset_2):
+            if offset is not None:
+                green -= offset
         green *= np.float32(0.5)
         np.greater_equal(
             first,
@@ -513,8 +598,10 @@ def read_raw(
         if keep_green_difference:
             green_difference = np.subtract(first, second, dtype=np.float32)
             green_difference -= np.float32(black_1 - black_2)
+            if offset_1 is not None and offset_2 is not None:
+                green_difference -= offset_1 - offset_2
     return RawPlanes(
-        metadata=metadata,
+        metadata=pixels.metadata,
         signal_dn=signal,
         saturated=saturated,
         cfa_pattern=layout.pattern,
@@ -525,4 +612,109 @@ def read_raw(
         green_sites_px=layout.greens,
         region_origin=(row0, column0),
         full_plane_shape=full_plane_shape,
+        decoding=window.decoding,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Window:
+    """Raw values of a window of the visible area and what black to subtract beyond each site's."""
+
+    values: NDArray[np.uint16]
+    decoding: str
+    tiles: DngTiles | None = None
+    rows: slice | None = None
+    columns: slice | None = None
+
+    def black_offset(self, site: tuple[int, int]) -> Float32Array | None:
+        """Per-sample black of ``site`` minus the site's mean black (``None`` where it is 0)."""
+        if self.tiles is None or self.rows is None or self.columns is None:
+            return None
+        if not self.tiles.black_varies_within_sites():
+            return None
+        rows = slice(self.rows.start + site[0], self.rows.stop, 2)
+        columns = slice(self.columns.start + site[1], self.columns.stop, 2)
+        black = self.tiles.black_dn(rows, columns) - self.tiles.site_black_dn(site)
+        return black.astype(np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class _PixelSource:
+    """What :func:`read_raw` needs of a decoder: layout, levels per site, windows of raw values."""
+
+    metadata: RawMetadata
+    layout: _CfaLayout
+    visible_shape: tuple[int, int]
+    site_levels: dict[tuple[int, int], tuple[float, float]]
+    window: Callable[[slice, slice], _Window]
+
+    def levels(self, site: tuple[int, int]) -> tuple[float, float]:
+        """``(black, white)`` of a site of the 2×2 cell, DN."""
+        return self.site_levels[site]
+
+
+_SITES = ((0, 0), (0, 1), (1, 0), (1, 1))
+
+
+def _pixel_source(source: UnpackedRaw, exposure_s: float | None) -> _PixelSource:
+    file, exif, tiles = source.path, source.exif, source.tiles
+    if tiles is not None:
+        other = None
+        if exposure_s is None and exif_exposure_s(exif) is None:  # LibRaw's fallback values
+            with _open_raw(file) as raw:
+                other = _unpacked(raw, file, lambda r: r.other)
+        tiles_of = tiles
+
+        def tile_window(rows: slice, columns: slice) -> _Window:
+            read = tiles_of.blocks_meeting(rows, columns)
+            try:
+                values = tiles_of.decode(rows, columns)
+            except CorruptDng as exc:
+                message = str(exc).removeprefix(f"{file}: ")
+                raise RawFileError(
+                    f"corrupt or truncated RAW file ({message})", source=str(file)
+                ) from exc
+            return _Window(
+                values,
+                f"tiles: {read} of {tiles_of.block_count}",
+                tiles_of,
+                rows,
+                columns,
+            )
+
+        return _PixelSource(
+            metadata=build_metadata(file, exif, other, exposure_s),
+            layout=_bayer_layout([list(row) for row in tiles.cfa_colours], "RGB", file),
+            visible_shape=tiles.visible_shape,
+            site_levels={
+                site: (tiles.site_black_dn(site), tiles.white_level_dn) for site in _SITES
+            },
+            window=tile_window,
+        )
+    raw, visible = source.raw, source.visible
+    assert raw is not None and visible is not None
+    layout = _cfa_layout(raw, file)
+    colour_index = _visible_colour_indices(raw)
+    black_per_colour = [float(b) for b in raw.black_level_per_channel]
+    white_per_colour = raw.camera_white_level_per_channel
+    white_default = float(raw.white_level)
+
+    def levels(site: tuple[int, int]) -> tuple[float, float]:
+        index = int(colour_index[site])
+        white = white_default
+        if white_per_colour is not None and white_per_colour[index] > 0:
+            white = float(white_per_colour[index])
+        return black_per_colour[index], white
+
+    decoding = "LibRaw" if source.fallback is None else f"LibRaw ({source.fallback})"
+
+    def libraw_window(rows: slice, columns: slice) -> _Window:
+        return _Window(visible[rows, columns], decoding)
+
+    return _PixelSource(
+        metadata=build_metadata(file, exif, raw.other, exposure_s),
+        layout=layout,
+        visible_shape=(int(visible.shape[0]), int(visible.shape[1])),
+        site_levels={site: levels(site) for site in _SITES},
+        window=libraw_window,
     )

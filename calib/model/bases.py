@@ -33,6 +33,8 @@ import platformdirs
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
+from calib.core.colour_data import colour_matching_functions
+from calib.core.datasets import colour_science_cameras
 from calib.core.errors import InputError
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
 
@@ -477,20 +479,14 @@ def fourier_basis(
 
 def _colour_camera_like_curves() -> list[MultiSpectrum]:
     """Camera-like RGB curves from data that ships inside colour-science (no download)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    from calib.core.datasets import colour_science_cameras
-
     curves: list[MultiSpectrum] = [camera.sensitivity for camera in colour_science_cameras()]
-    cmfs = colour.MSDS_CMFS
 
     def from_columns(key: str, name: str, transform: FloatArray | None = None) -> MultiSpectrum:
-        data = cmfs[key]
-        values = np.asarray(data.values, dtype=np.float64)
+        wavelength, values = colour_matching_functions(key)
         if transform is not None:
             values = values @ transform.T
         values = np.clip(values, 0.0, None)
-        return MultiSpectrum(np.asarray(data.wavelengths, dtype=np.float64), values, name=name)
+        return MultiSpectrum(wavelength, values, name=name)
 
     # XYZ: drop x̄'s short-wavelength lobe so the "red" channel looks like a red filter.
     for key, label in (
@@ -498,9 +494,7 @@ def _colour_camera_like_curves() -> list[MultiSpectrum]:
         ("CIE 1964 10 Degree Standard Observer", "CIE 1964 XYZ camera-like"),
         ("CIE 2015 2 Degree Standard Observer", "CIE 2015 2° XYZ camera-like"),
     ):
-        data = cmfs[key]
-        wavelength = np.asarray(data.wavelengths, dtype=np.float64)
-        values = np.array(data.values, dtype=np.float64)
+        wavelength, values = colour_matching_functions(key)
         values[wavelength < 505, 0] = 0.0
         curves.append(MultiSpectrum(wavelength, np.clip(values, 0, None), name=label))
     for key, label in (

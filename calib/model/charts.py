@@ -6,11 +6,10 @@ linear between the working grid's nodes (``s_c = Σ_i φ_i s_ci``, hat functions
 integrated on a 1 nm axis exactly like :mod:`calib.model.forward` integrates lamp spectra — so a camera
 given on the grid, rendered with :func:`render_chart`, is reproduced to rounding error.
 
-Charts provided:
+Charts provided (colour-science's ColorChecker reflectances and CIE test colour samples, used by
+the "CC" and "Exif+CC" baselines of Makabe et al. (2025) §4, are
+:func:`calib.core.colour_data.colorchecker` and :func:`calib.core.colour_data.cie_test_colour_samples`):
 
-``colorchecker``     the 24 ColorChecker Classic reflectances shipped with colour-science
-                     (``SDS_COLOURCHECKERS``; BabelColor's average by default), as in Makabe et al.
-                     (2025) §4 for the "CC" and "Exif+CC" baselines.
 ``gaussian_filters`` N transmissive band filters with Gaussian transmittance whose centres tile the
                      range evenly (Makabe et al. 2025, Supp. G / Fig. S6: "shifted Gaussian
                      distributions, ensuring that the visible wavelength range was always fully
@@ -30,66 +29,11 @@ from calib.core.observations import ChartKind, ChartObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 from calib.model.forward import FINE_STEP_NM, fine_axis, hat_matrix
 
-#: The ColorChecker data used unless another is named (colour-science key).
-DEFAULT_COLORCHECKER = "BabelColor Average"
-
 #: FWHM of each Gaussian filter as a multiple of the spacing of the centres (neighbours cross at
 #: half maximum, so the sum of the set is flat to a few per cent inside the range).
 GAUSSIAN_FWHM_PER_SPACING = 1.0
 
 _FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
-
-
-def _patch_set(sds: object, channel_names: tuple[str, ...], name: str) -> MultiSpectrum:
-    """colour-science spectral distributions as one :class:`MultiSpectrum` on their common range.
-
-    Sets whose members are sampled differently are interpolated to the finest step of the set.
-    """
-    members = list(sds.values())  # type: ignore[attr-defined]
-    axes = [np.asarray(sd.wavelengths, dtype=np.float64) for sd in members]
-    if all(axis.shape == axes[0].shape and np.allclose(axis, axes[0]) for axis in axes):
-        wavelength = axes[0]
-        values = np.stack([np.asarray(sd.values, dtype=np.float64) for sd in members], axis=1)
-    else:
-        step = min(float(np.min(np.diff(axis))) for axis in axes)
-        start = max(float(axis[0]) for axis in axes)
-        stop = min(float(axis[-1]) for axis in axes)
-        wavelength = np.arange(start, stop + step / 2, step)
-        values = np.stack(
-            [
-                np.interp(wavelength, axis, np.asarray(sd.values, dtype=np.float64))
-                for axis, sd in zip(axes, members, strict=True)
-            ],
-            axis=1,
-        )
-    return MultiSpectrum(wavelength, values, channels=channel_names, name=name, negative="clip")
-
-
-def colorchecker(name: str = DEFAULT_COLORCHECKER) -> MultiSpectrum:
-    """The 24 ColorChecker reflectances of colour-science's ``SDS_COLOURCHECKERS[name]``.
-
-    Parameters
-    ----------
-    name
-        A key of ``colour.SDS_COLOURCHECKERS`` (``"BabelColor Average"``, ``"ColorChecker N Ohta"``,
-        ``"ISO 17321-1"`` …).
-
-    Returns
-    -------
-    MultiSpectrum
-        Reflectance factors (0–1), one channel per patch in the chart's reading order (dark skin,
-        light skin, blue sky, …, black), on the data's own wavelengths.
-    """
-    import colour  # deferred: importing colour costs ~1 s
-
-    if name not in colour.SDS_COLOURCHECKERS:
-        raise InputError(
-            f"colour-science has no colour checker {name!r}; choose from "
-            f"{', '.join(sorted(colour.SDS_COLOURCHECKERS))}",
-            source="chart",
-        )
-    patches = colour.SDS_COLOURCHECKERS[name]
-    return _patch_set(patches, tuple(patches), f"ColorChecker ({name})")
 
 
 def gaussian_filters(
@@ -232,6 +176,47 @@ def stimulus_rows(
     )
 
 
+def chart_rgb(
+    patch_spectra: MultiSpectrum,
+    illuminant: Spectrum | None,
+    camera: MultiSpectrum,
+    *,
+    gain: float = 1.0,
+    fine_step_nm: float = FINE_STEP_NM,
+) -> FloatArray:
+    """Noise-free patch RGBs ``gain · ∫ e ρ_j s_c dλ``, shape ``(n_patches, 3)``.
+
+    Integrated (trapezoid, ``fine_step_nm``) over the range the patches, the camera and the
+    illuminant all cover; the camera is linear between its samples. With ``illuminant=None`` the
+    patch spectra are radiances (e.g. fluorescent emission).
+
+    Raises
+    ------
+    InputError
+        The camera does not have 3 channels.
+    """
+    if camera.values.ndim != 2 or camera.values.shape[1] != 3:
+        raise InputError(
+            f"camera needs 3 channels, has {camera.values.shape[1]}", source=camera.name
+        )
+    lo = max(float(camera.wavelength_nm[0]), patch_spectra.range_nm[0])
+    hi = min(float(camera.wavelength_nm[-1]), patch_spectra.range_nm[1])
+    if illuminant is not None:
+        lo, hi = max(lo, illuminant.range_nm[0]), min(hi, illuminant.range_nm[1])
+    axis = fine_axis(lo, hi, fine_step_nm)
+    radiance = _radiance_on_axis(patch_spectra, illuminant, axis)
+    sensitivity = np.stack(
+        [
+            np.interp(axis, camera.wavelength_nm, camera.values[:, k], left=0.0, right=0.0)
+            for k in range(3)
+        ],
+        axis=1,
+    )
+    return np.asarray(
+        gain * (radiance * _trapezoid_weights(axis)[:, None]).T @ sensitivity, dtype=np.float64
+    )
+
+
 def render_chart(
     patch_spectra: MultiSpectrum,
     illuminant: Spectrum | None,
@@ -244,7 +229,7 @@ def render_chart(
     gain: float = 1.0,
     fine_step_nm: float = FINE_STEP_NM,
 ) -> ChartObservation:
-    """The patch RGBs a camera records of a chart: ``∫ e ρ_j s_c dλ`` on a 1 nm axis, plus noise.
+    """The patch RGBs a camera records of a chart: :func:`chart_rgb` on a 1 nm axis, plus noise.
 
     Parameters
     ----------
@@ -268,28 +253,8 @@ def render_chart(
         With ``patch_sigma`` when noise was added; ``metadata["clean_rgb"]`` holds the noise-free
         values.
     """
-    if noise_fraction < 0 or not math.isfinite(noise_fraction):
-        raise InputError(f"noise fraction must be >= 0, got {noise_fraction}", source="noise")
-    if noise_fraction > 0 and rng is None:
-        raise InputError("noise needs an explicit seeded numpy Generator (rng=)", source="rng")
-    if camera.values.ndim != 2 or camera.values.shape[1] != 3:
-        raise InputError(
-            f"camera needs 3 channels, has {camera.values.shape[1]}", source=camera.name
-        )
-    lo = max(float(camera.wavelength_nm[0]), patch_spectra.range_nm[0])
-    hi = min(float(camera.wavelength_nm[-1]), patch_spectra.range_nm[1])
-    if illuminant is not None:
-        lo, hi = max(lo, illuminant.range_nm[0]), min(hi, illuminant.range_nm[1])
-    axis = fine_axis(lo, hi, fine_step_nm)
-    radiance = _radiance_on_axis(patch_spectra, illuminant, axis)
-    sensitivity = np.stack(
-        [
-            np.interp(axis, camera.wavelength_nm, camera.values[:, k], left=0.0, right=0.0)
-            for k in range(3)
-        ],
-        axis=1,
-    )
-    clean = gain * (radiance * _trapezoid_weights(axis)[:, None]).T @ sensitivity
+    check_noise_request(noise_fraction, rng)
+    clean = chart_rgb(patch_spectra, illuminant, camera, gain=gain, fine_step_nm=fine_step_nm)
     rgb, sigma = clean, None
     if noise_fraction > 0 and rng is not None:
         sigma = np.full(clean.shape, noise_fraction * float(np.max(clean)))
@@ -310,23 +275,18 @@ def render_chart(
     )
 
 
-def cie_test_colour_samples(name: str = "CIE 1995") -> MultiSpectrum:
-    """The CIE test colour samples of colour-science (``colour.quality.datasets.SDS_TCS[name]``).
+def check_noise_request(noise_fraction: float, rng: np.random.Generator | None) -> None:
+    """A rendering's noise must be a finite fraction >= 0, drawn from an explicit seeded generator.
 
-    ``"CIE 1995"`` has the 14 samples of CIE 13.3 (colour rendering index); ``"CIE 2024"`` 15.
+    Raises
+    ------
+    InputError
+        A negative or non-finite fraction, or noise without ``rng``.
     """
-    from colour.quality.datasets import SDS_TCS
-
-    if name not in SDS_TCS:
-        raise InputError(
-            f"colour-science has no test colour samples {name!r}; choose from "
-            f"{', '.join(sorted(SDS_TCS))}",
-            source="chart",
-        )
-    samples = SDS_TCS[name]
-    return _patch_set(
-        samples, tuple(f"{name} {key}" for key in samples), f"test colour samples ({name})"
-    )
+    if noise_fraction < 0 or not math.isfinite(noise_fraction):
+        raise InputError(f"noise fraction must be >= 0, got {noise_fraction}", source="noise")
+    if noise_fraction > 0 and rng is None:
+        raise InputError("noise needs an explicit seeded numpy Generator (rng=)", source="rng")
 
 
 def combined(sets: list[MultiSpectrum], grid: WavelengthGrid = DEFAULT_GRID) -> MultiSpectrum:

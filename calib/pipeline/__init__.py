@@ -1,6 +1,8 @@
-"""Offline estimation from files: RAW brackets or 1-D profiles plus lamp spectra → estimate + report.
+"""Stage 7, offline estimation from files: RAW brackets or 1-D profiles plus lamp spectra → estimate + report.
 
-The one pipeline behind ``calib estimate`` and ``rig estimate``:
+The one pipeline behind ``calib estimate`` and ``rig estimate`` (inputs, brackets, provenance, the
+output writers, the report); ``calib.pipeline`` imports the stages before it (:mod:`calib.core` to
+:mod:`calib.spd`), never :mod:`calib.evaluation` or the command line:
 
 * :func:`estimate_offline` — inputs (:class:`LampImages` or :class:`LampProfile` per lamp) to an
   :class:`OfflineEstimate` (see :mod:`calib.pipeline.estimate`);
@@ -17,26 +19,11 @@ PosixPath('out/sensitivity.csv')
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
-
+from calib.pipeline.estimate import OfflineEstimate, OfflineSettings, estimate_offline
 from calib.pipeline.inputs import LampImages, LampInput, LampProfile
 from calib.pipeline.progress import NoProgress, OfflineProgress, RichFrameProgress
 from calib.pipeline.provenance import InputFile, Provenance
-
-if TYPE_CHECKING:
-    from calib.pipeline.estimate import OfflineEstimate, OfflineSettings, estimate_offline
-    from calib.pipeline.run import OfflineOutcome, run_offline
-
-#: Imported on first use: the pipeline pulls in the estimators (scipy), which ``calib estimate``
-#: imports while the first frames decode (:func:`calib.pipeline.estimate.import_estimation`).
-_LAZY = {
-    "OfflineEstimate": "calib.pipeline.estimate",
-    "OfflineSettings": "calib.pipeline.estimate",
-    "estimate_offline": "calib.pipeline.estimate",
-    "OfflineOutcome": "calib.pipeline.run",
-    "run_offline": "calib.pipeline.run",
-}
+from calib.pipeline.run import OfflineOutcome, run_offline
 
 __all__ = [
     "InputFile",
@@ -53,9 +40,3 @@ __all__ = [
     "estimate_offline",
     "run_offline",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'calib.pipeline' has no attribute {name!r}")

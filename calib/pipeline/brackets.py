@@ -4,14 +4,16 @@ Merging a bracket costs several passes over every plane sample of every frame, b
 only the direct spot, the first-order band(s) and their background strips: a region of interest that is
 often a tenth of the frame. So, for frames of :data:`REGION_MIN_SAMPLES` plane samples or more:
 
-1. the first decoded frame of the first lamp (full planes) is block-averaged to at most
-   :data:`COARSE_MAX_SIZE` samples across and the geometry detected on that coarse image
+1. the first decoded frame of the first lamp (full planes) is block-averaged to detection's own
+   working size (:data:`calib.image.blocks.DETECTION_MAX_SIZE` blocks across, :func:`coarse_image`)
+   and the geometry detected on that coarse image
    (:func:`calib.image.profiles.detect_geometry`); the region is every rectangle the extraction will read
    (spot, bands, background strips) with generous margins, extended across the band so that
    background dominates it (detection estimates the background as a median);
 2. every frame of every lamp is merged over that region only (:func:`calib.image.hdr.merge_bracket`
    ``region=``), and the geometry detected at full resolution on the merged region of the brightest
-   broadband lamp;
+   broadband lamp; DNG frames are decoded only where they meet the region (the tiles of
+   :mod:`calib.image.dng_tiles`; other formats are unpacked whole by LibRaw);
 3. if anything of that fails (no coarse detection, the band reaches the region's edge), the lamp is
    merged over the whole frame instead: the region is an optimisation, never a source of error.
 
@@ -22,14 +24,14 @@ region), so the pixel axes of all lamps agree exactly.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from calib.core.errors import EstimationError, InputError
+from calib.image.blocks import DETECTION_MAX_SIZE, block_any, block_factor, block_mean
 from calib.image.hdr import DecodePlan, HdrImage, Unpacker, decode_order, merge_bracket
 from calib.image.profiles import (
     DetectionError,
@@ -40,7 +42,7 @@ from calib.image.profiles import (
     extract,
 )
 from calib.image.profiles.geometry import rectangle_corners
-from calib.image.raw import PlaneRegion, RawPlanes
+from calib.image.raw import PlaneRegion, RawDecoder, RawPlanes
 from calib.image.sensor_noise import NoiseModel
 from calib.pipeline.inputs import LampImages
 
@@ -49,8 +51,6 @@ FrameCallback = Callable[[str, Path], None]
 
 #: Frames with at least this many plane samples per channel are merged over a region of interest.
 REGION_MIN_SAMPLES = 2_000_000
-#: The coarse image for the region's detection is at most this many samples across.
-COARSE_MAX_SIZE = 512
 #: A region larger than this fraction of the frame is not worth it: the whole frame is merged.
 REGION_MAX_FRACTION = 0.6
 #: At most this fraction of the region may be lit (spot and bands): detection takes the
@@ -278,25 +278,18 @@ def region_for(
     return region
 
 
-def coarse_image(planes: RawPlanes, max_size: int = COARSE_MAX_SIZE) -> HdrImage:
-    """A block-averaged rate image of one frame (for a first, coarse detection).
+def coarse_image(planes: RawPlanes) -> HdrImage:
+    """A block-averaged rate image of one frame, at detection's working size (a first detection).
 
-    Blocks of ``b × b`` plane samples (``b`` so that the image is at most ``max_size`` across) are
+    Blocks of ``b × b`` plane samples (``b`` so that the image is at most
+    :data:`calib.image.blocks.DETECTION_MAX_SIZE` across, so that detection uses it as it is) are
     averaged per channel and divided by the exposure time; a block with any saturated sample is
     flagged saturated. The variance is a rough shot + read estimate (detection does not use it).
     """
-    height, width = planes.plane_shape
-    factor = max(1, math.ceil(max(height, width) / max_size))
-    rows, columns = height // factor, width // factor
+    factor = block_factor(planes.plane_shape, DETECTION_MAX_SIZE)
     exposure = planes.metadata.exposure_s
-
-    def blocks(array: NDArray[np.generic]) -> NDArray[np.generic]:
-        return array[:, : rows * factor, : columns * factor].reshape(
-            3, rows, factor, columns, factor
-        )
-
-    radiance = blocks(planes.signal_dn).mean(axis=(2, 4), dtype=np.float64) / exposure
-    saturated = np.asarray(blocks(planes.saturated).any(axis=(2, 4)), dtype=np.bool_)
+    radiance = block_mean(planes.signal_dn, factor) / exposure
+    saturated = block_any(planes.saturated, factor)
     variance = (np.abs(radiance) * exposure + 10.0) / (factor * factor * exposure**2)
     origins = tuple(
         (float(factor - 1) + origin_row, float(factor - 1) + origin_column)
@@ -351,6 +344,7 @@ def merge_lamp(
     noise_model: NoiseModel | None = None,
     unpacker: Unpacker | None = None,
     plan: DecodePlan | None = None,
+    decoder: RawDecoder = "auto",
 ) -> HdrImage:
     """Merge one lamp's bracket (darks subtracted), over ``region`` when given.
 
@@ -374,6 +368,7 @@ def merge_lamp(
             noise_model=noise_model,
             unpacker=unpacker,
             plan=plan,
+            decoder=decoder,
         )
     except EstimationError as exc:  # the frames hold too little signal to measure their noise
         raise InputError(
@@ -418,6 +413,7 @@ def bracket_profiles(
     use_region: bool | None = None,
     frame_done: FrameCallback | None = None,
     stage: Callable[[str], None] | None = None,
+    decoder: RawDecoder = "auto",
 ) -> BracketProfiles:
     """Merge every lamp's bracket, detect the geometry once, extract every lamp with it.
 
@@ -432,6 +428,9 @@ def bracket_profiles(
         Called after every merged frame with the lamp's name and the file.
     stage
         Called with a short description when a new stage starts.
+    decoder
+        Which decoder reads the pixels (:data:`calib.image.raw.RawDecoder`): by default DNGs go
+        through the tile decoder, which decodes only the tiles that meet the region.
 
     Returns
     -------
@@ -461,7 +460,7 @@ def bracket_profiles(
     # LibRaw unpacks the next lamp's first frames while one lamp's last frames merge and its
     # geometry is detected
     plans = _decode_plans([lamps[index] for index in order])
-    with Unpacker([path for plan in plans for path in plan.paths]) as unpacker:
+    with Unpacker([path for plan in plans for path in plan.paths], decoder=decoder) as unpacker:
         announce(f"merging {first.name}")
         image = merge_lamp(first, chooser, frame_done, unpacker=unpacker, plan=plans[0])
         region = chooser.region if chooser is not None else None
@@ -485,7 +484,7 @@ def bracket_profiles(
             )
             region = None
             announce(f"merging {first.name} again (whole frames)")
-            image = merge_lamp(first, None, None, plan=plans[0])
+            image = merge_lamp(first, None, None, plan=plans[0], decoder=decoder)
             geometry = _detect(image)
         merged[first.name] = MergedLamp(first, image)
         for index, plan in zip(order[1:], plans[1:], strict=True):
@@ -496,6 +495,7 @@ def bracket_profiles(
                 merge_lamp(lamp, region, frame_done, _shared_noise(image, plan), unpacker, plan),
             )
     _check_same_sensor(list(merged.values()))
+    notes.extend(_decoder_notes(merged.values()))
     announce("extracting the profiles")
     geometry_lamp = first.name
     candidates = [m for m in merged.values() if m.lamp.kind in BROADBAND_KINDS]
@@ -548,6 +548,23 @@ def bracket_profiles(
         region_shape_px=shape,
         notes=tuple(notes),
     )
+
+
+def _decoder_notes(merged: Iterable[MergedLamp]) -> list[str]:
+    """A note per reason the tile decoder left DNG frames to LibRaw (one per reason, not per frame)."""
+    reasons: dict[str, list[str]] = {}
+    for item in merged:
+        for record in item.image.frames:
+            if record.decoding.startswith("LibRaw ("):
+                reason = record.decoding.removeprefix("LibRaw (").removesuffix(")")
+                reasons.setdefault(reason.removesuffix("; LibRaw decodes it"), []).append(
+                    record.path.name
+                )
+    return [
+        f"{len(names)} DNG frame(s) decoded whole by LibRaw, not the tile decoder "
+        f"({', '.join(names[:3])}{', …' if len(names) > 3 else ''}): {reason}"
+        for reason, names in reasons.items()
+    ]
 
 
 def _decode_plans(lamps: Sequence[LampImages]) -> list[DecodePlan]:

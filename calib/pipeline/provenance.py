@@ -7,9 +7,6 @@ hashed elsewhere (a session's verified record) is not read again.
 
 from __future__ import annotations
 
-import hashlib
-import platform
-import sys
 import threading
 from collections.abc import Iterable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -18,9 +15,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
 
-InputRole = Literal["frame", "dark", "spectrum", "profile", "grating"]
+from calib.core.checksums import file_sha256
+from calib.core.software import current_software
 
-_CHUNK_BYTES = 1 << 20
+InputRole = Literal["frame", "dark", "spectrum", "profile", "grating"]
 
 
 @dataclass(frozen=True)
@@ -55,17 +53,6 @@ class InputFile:
             "size": self.size,
             "sha256": self.sha256,
         }
-
-
-def file_sha256(path: Path) -> tuple[int, str]:
-    """``(size, sha256 hex)`` of a file, read in 1 MiB chunks."""
-    digest = hashlib.sha256()
-    size = 0
-    with path.open("rb") as stream:
-        while chunk := stream.read(_CHUNK_BYTES):
-            digest.update(chunk)
-            size += len(chunk)
-    return size, digest.hexdigest()
 
 
 class FileHasher:
@@ -117,22 +104,6 @@ class FileHasher:
         return (*self._known, *hashed)
 
 
-def software_info() -> dict[str, str]:
-    """Name and version of the installed distribution, Python and platform."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        installed = version("spectral-rig")
-    except PackageNotFoundError:  # running from a source tree without installing
-        installed = "unknown"
-    return {
-        "name": "spectral-rig",
-        "version": installed,
-        "python": sys.version.split()[0],
-        "platform": platform.platform(),
-    }
-
-
 @dataclass(frozen=True)
 class Provenance:
     """Everything recorded about how an estimate was produced.
@@ -154,7 +125,7 @@ class Provenance:
     created
         When the estimate was made (UTC).
     software
-        :func:`software_info`.
+        :func:`calib.core.software.current_software` as a dictionary.
     """
 
     inputs: tuple[InputFile, ...] = ()
@@ -164,7 +135,7 @@ class Provenance:
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     created: datetime = field(default_factory=lambda: datetime.now(UTC))
-    software: Mapping[str, str] = field(default_factory=software_info)
+    software: Mapping[str, str] = field(default_factory=lambda: current_software().to_dict())
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -22,7 +22,9 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.figures import agg_figure, import_matplotlib
 from calib.core.mapping import QuadraticMapping
+from calib.image.profiles import write_geometry_png
 from calib.pipeline.brackets import BracketProfiles
 from calib.pipeline.estimate import OfflineEstimate
 
@@ -33,13 +35,9 @@ _CHANNELS = ("R", "G", "B")
 
 
 def _figure(width_in: float = 7.0, height_in: float = 3.6) -> Any:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     # fixed margins: a constrained layout doubles the drawing time of every plot
-    figure = Figure(figsize=(width_in, height_in))
+    figure = agg_figure(width_in, height_in)
     figure.subplots_adjust(left=0.1, right=0.97, bottom=0.14, top=0.9, wspace=0.3, hspace=0.12)
-    FigureCanvasAgg(figure)
     return figure
 
 
@@ -198,8 +196,6 @@ def plot_fit(path: Path, estimate: OfflineEstimate, lamp: str) -> Path | None:
 
 def plot_geometry(path: Path, profiles: BracketProfiles) -> Path:
     """The detected geometry on the geometry lamp's image (:func:`calib.image.profiles.write_geometry_png`)."""
-    from calib.image.profiles import write_geometry_png
-
     image, geometry = profiles.geometry_image()
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_geometry_png(path, image, geometry)
@@ -207,8 +203,7 @@ def plot_geometry(path: Path, profiles: BracketProfiles) -> Path:
 
 def import_plotting() -> None:
     """Import matplotlib's Agg canvas (about a second), e.g. in a thread while frames decode."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
-    from matplotlib.figure import Figure  # noqa: F401
+    import_matplotlib()
 
 
 # ---------------------------------------------------------------------------------------- HTML

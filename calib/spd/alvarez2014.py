@@ -52,7 +52,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import linalg, ndimage
 
 from calib.core.arrays import FloatArray, checked_array
 from calib.core.errors import EstimationError, InputError
@@ -517,6 +516,8 @@ def refine_mapping_on_lamp(
     dispersion = float(np.median(mapping.dispersion_nm_per_px(profile.pixel)))
 
     def stage(blur_nm: float) -> Callable[[QuadraticMapping], FloatArray]:
+        from scipy import ndimage  # deferred: scipy costs ~0.3 s; calib's CLI imports this module
+
         blur_samples = blur_nm / abs(dispersion) / profile.spacing_px
         observed = profile.profile
         if blur_samples > 0:
@@ -632,6 +633,8 @@ def richardson_lucy(
     mirrored = psf[::-1]
 
     def blur(signal: FloatArray, weights: FloatArray) -> FloatArray:
+        from scipy import ndimage  # deferred: scipy costs ~0.3 s; calib's CLI imports this module
+
         return np.asarray(ndimage.convolve1d(signal, weights, axis=0, mode="constant"), float)
 
     # Edge-normalised: near the ends part of the kernel falls outside; dividing by the covered part
@@ -819,6 +822,8 @@ def _second_difference_banded(n: int) -> FloatArray:
 
 
 def _robust_peak(values: FloatArray) -> float:
+    from scipy import ndimage  # deferred: scipy costs ~0.3 s; calib's CLI imports this module
+
     finite = np.where(np.isfinite(values), values, 0.0)
     return float(np.max(ndimage.median_filter(finite, size=5, mode="nearest")))
 
@@ -983,6 +988,8 @@ def recover_spd_alvarez2014(
     banded[2] += totals
     if np.count_nonzero(totals) < 2:
         raise EstimationError("fewer than two wavelengths carry weight; nothing to recover")
+    from scipy import linalg  # deferred: scipy costs ~0.3 s; calib's CLI imports this module
+
     try:
         estimate = linalg.solveh_banded(banded, right)
     except linalg.LinAlgError as exc:

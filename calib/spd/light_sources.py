@@ -25,7 +25,6 @@ Romero, J. (1999), Appl. Opt. 38(27). Ohno, Y. (2014), LEUKOS 10(1).
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
@@ -35,6 +34,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.core.arrays import FloatArray
+from calib.core.colour_data import (
+    blackbody_linear_srgb,
+    correlated_colour_temperature_k,
+    emission_xyz,
+    illuminants,
+    light_sources,
+)
 from calib.core.errors import InputError
 from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
 from calib.spd.alvarez2014 import comparison_grid
@@ -133,22 +139,16 @@ class LightSourceLibrary:
 @lru_cache(maxsize=1)
 def colour_library() -> LightSourceLibrary:
     """colour-science's CIE illuminants (``SDS_ILLUMINANTS``) and light sources (``SDS_LIGHT_SOURCES``)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    spectra: list[tuple[str, str, Spectrum]] = []
-    for collection, table in (
-        ("illuminant", colour.SDS_ILLUMINANTS),
-        ("light source", colour.SDS_LIGHT_SOURCES),
-    ):
-        for name, sd in table.items():
-            spectra.append(
-                (
-                    str(name),
-                    collection,
-                    Spectrum(sd.wavelengths, sd.values, name=str(name), negative="clip"),
-                )
+    return LightSourceLibrary.from_spectra(
+        [
+            (name, collection, spectrum)
+            for collection, table in (
+                ("illuminant", illuminants()),
+                ("light source", light_sources()),
             )
-    return LightSourceLibrary.from_spectra(spectra)
+            for name, spectrum in table.items()
+        ]
+    )
 
 
 # ----------------------------------------------------------------------------------- recognition
@@ -365,22 +365,9 @@ class ColourTemperature:
         return {"cct_k": dict(self.cct_k), "duv": self.duv, "xy": list(self.xy)}
 
 
-def _colour_sd(spd: Spectrum) -> Any:
-    """A colour-science SpectralDistribution on 360–830 nm at 1 nm, zero outside the SPD."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    wavelength = np.arange(360.0, 831.0, 1.0)
-    return colour.SpectralDistribution(spd.at(wavelength), wavelength, name=spd.name)
-
-
 def tristimulus_xyz(spd: Spectrum) -> FloatArray:
     """CIE 1931 2° ``XYZ`` of an emission spectrum (relative: ``Y`` = 1)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        xyz = np.asarray(colour.sd_to_XYZ(_colour_sd(spd), cmfs), dtype=np.float64)
+    xyz = emission_xyz(spd)
     if not xyz[1] > 0:
         raise InputError("the SPD has no luminance (Y = 0)", source=spd.name)
     return np.asarray(xyz / xyz[1], dtype=np.float64)
@@ -396,27 +383,8 @@ def correlated_colour_temperature(
     outside a method's domain are whatever the method returns (colour-science's warnings are
     silenced); check ``Duv``.
     """
-    import colour  # deferred: importing colour costs ~1 s
-
-    xyz = tristimulus_xyz(spd)
-    xy = colour.XYZ_to_xy(xyz)
-    uv = colour.UCS_to_uv(colour.XYZ_to_UCS(xyz))
-    values: dict[str, float] = {}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        ohno = np.asarray(colour.uv_to_CCT(uv, method="Ohno 2013"), dtype=np.float64)
-        for method in methods:
-            if method in colour.temperature.UV_TO_CCT_METHODS:
-                values[method] = float(np.ravel(colour.uv_to_CCT(uv, method=method))[0])
-            elif method in colour.temperature.XY_TO_CCT_METHODS:
-                values[method] = float(np.ravel(colour.xy_to_CCT(xy, method=method))[0])
-            else:
-                raise InputError(
-                    f"unknown CCT method {method!r}; colour-science offers "
-                    f"{sorted(set(colour.temperature.UV_TO_CCT_METHODS) | set(colour.temperature.XY_TO_CCT_METHODS))}",
-                    source="cct",
-                )
-    return ColourTemperature(values, float(ohno[1]), (float(xy[0]), float(xy[1])))
+    cct_k, duv, xy = correlated_colour_temperature_k(tristimulus_xyz(spd), tuple(methods))
+    return ColourTemperature(cct_k, duv, xy)
 
 
 def camera_white_balance(spd: Spectrum, camera: MultiSpectrum) -> FloatArray:
@@ -456,15 +424,9 @@ def srgb_white_balance_from_cct(cct_k: float) -> FloatArray:
     ``e`` is the linear sRGB colour of a blackbody at ``cct_k`` (no chromatic adaptation, as in the
     blackbody colour table the paper uses) and ``e_w = (1, 1, 1)`` the D65 white.
     """
-    import colour  # deferred: importing colour costs ~1 s
-
     if not 500.0 <= cct_k <= 100000.0:
         raise InputError(f"CCT {cct_k:g} K is outside 500–100000 K", source="cct")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        body = colour.sd_blackbody(cct_k, colour.SpectralShape(360, 830, 1))
-        xyz = colour.sd_to_XYZ(body, colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"])
-        rgb = np.asarray(colour.XYZ_to_RGB(xyz, "sRGB"), dtype=np.float64)
+    rgb = blackbody_linear_srgb(cct_k)
     rgb = rgb / rgb[1]
     if np.any(rgb <= 0):
         raise InputError(f"a blackbody at {cct_k:g} K lies outside the sRGB gamut", source="cct")

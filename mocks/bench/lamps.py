@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.colour_data import illuminants
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import Spectrum
 from mocks.bench.spec import LampSpec, TwinSpecError
@@ -42,9 +43,7 @@ COMPONENT_TOLERANCE = 1e-9
 
 def illuminant_names() -> list[str]:
     """The colour-science illuminants a twin lamp may take its spectrum from."""
-    import colour  # deferred: importing colour costs about a second
-
-    return sorted(str(name) for name in colour.SDS_ILLUMINANTS)
+    return sorted(illuminants())
 
 
 def settled_spectrum(lamp: LampSpec) -> Spectrum:
@@ -55,16 +54,14 @@ def settled_spectrum(lamp: LampSpec) -> Spectrum:
     TwinSpecError
         The illuminant is unknown, or has no light in 400–700 nm.
     """
-    import colour
-
-    distribution = colour.SDS_ILLUMINANTS.get(lamp.spd)
-    if distribution is None:
+    illuminant = illuminants().get(lamp.spd)
+    if illuminant is None:
         shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
         raise TwinSpecError(
             f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
             f"illuminant; name the lamp after one or set spd to one of: {shown}"
         )
-    spectrum = Spectrum.from_colour(distribution, name=lamp.name)
+    spectrum = Spectrum(illuminant.wavelength_nm, illuminant.values, name=lamp.name)
     low, high = NORMALISATION_RANGE_NM
     axis = np.arange(low, high + 0.5, 1.0)
     mean = float(np.mean(spectrum.at(axis)))

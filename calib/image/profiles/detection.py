@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.core.arrays import BoolArray, FloatArray
+from calib.image.blocks import DETECTION_MAX_SIZE, block_factor, block_mean
 from calib.image.hdr import HdrImage
 from calib.image.profiles.geometry import (
     DetectionError,
@@ -34,8 +35,6 @@ from calib.image.profiles.geometry import (
     to_uv,
 )
 
-#: Detection works on a block-averaged luminance image at most this many samples across.
-_DETECTION_MAX_SIZE = 800
 #: The spot must rise this many noise sigmas above the background.
 _MIN_SPOT_SNR = 20.0
 #: Band candidates rise this many noise sigmas above the background.
@@ -78,13 +77,8 @@ def _downsample(image: HdrImage) -> _Downsampled:
     if image.saturated.any():
         saturated = image.saturated.any(axis=0)
         luminance[saturated] = max(float(luminance.max()), float(luminance[saturated].max()))
-    height, width = luminance.shape
-    factor = max(1, math.ceil(max(height, width) / _DETECTION_MAX_SIZE))
-    blocks_h, blocks_w = height // factor, width // factor
-    blocks = luminance[: blocks_h * factor, : blocks_w * factor].reshape(
-        blocks_h, factor, blocks_w, factor
-    )
-    small = blocks.mean(axis=(1, 3))
+    factor = block_factor(luminance.shape, DETECTION_MAX_SIZE)
+    small = block_mean(luminance, factor)
     background = float(np.median(small))
     noise = _MAD_TO_SIGMA * float(np.median(np.abs(small - background)))
     peak = float(small.max())

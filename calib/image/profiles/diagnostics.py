@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.core.figures import agg_figure, polygon
+from calib.image.blocks import block_factor, block_mean
 from calib.image.hdr import HdrImage
 from calib.image.profiles.extraction import extract
 from calib.image.profiles.geometry import (
@@ -26,10 +28,8 @@ def _display_image(image: HdrImage) -> tuple[np.ndarray, float]:
     """Log10 of the channel-summed radiance, block-averaged; and the block size in sensor pixels."""
     luminance = image.radiance.sum(axis=0, dtype=np.float64)
     luminance[~np.isfinite(luminance)] = 0.0
-    height, width = luminance.shape
-    factor = max(1, -(-max(height, width) // _DISPLAY_MAX_SIZE))
-    blocks = luminance[: height // factor * factor, : width // factor * factor]
-    small = blocks.reshape(height // factor, factor, width // factor, factor).mean(axis=(1, 3))
+    factor = block_factor(luminance.shape, _DISPLAY_MAX_SIZE)
+    small = block_mean(luminance, factor)
     positive = small[small > 0]
     floor = float(np.percentile(positive, 50)) if positive.size else 1.0
     return np.log10(np.maximum(small, floor)), factor * image.pixel_pitch_px
@@ -54,15 +54,9 @@ def write_geometry_png(
     Path
         ``path``.
     """
-    # matplotlib (≈ 0.3 s to import) only when a picture is drawn
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Polygon
-
     display, block_px = _display_image(image)
     height, width = image.sensor_shape_px
-    figure = Figure(figsize=(12, 5.5), layout="constrained")
-    FigureCanvasAgg(figure)
+    figure = agg_figure(12, 5.5, layout="constrained")
     picture, profiles = figure.subplots(1, 2, width_ratios=(1.4, 1))
     picture.imshow(
         display,
@@ -76,7 +70,7 @@ def write_geometry_png(
     along, across = geometry.spot_half_size_px
     primary_angle = geometry.primary.angle_deg
     picture.add_patch(
-        Polygon(
+        polygon(
             rectangle_corners(centre, primary_angle, (-along, along), (-across, across)),
             fill=False,
             edgecolor="yellow",
@@ -89,7 +83,7 @@ def write_geometry_png(
         colour = "cyan" if band.side == 1 else "magenta"
         offset, half = band.centre_offset_px, band.half_width_px
         picture.add_patch(
-            Polygon(
+            polygon(
                 rectangle_corners(
                     centre,
                     band.angle_deg,
@@ -108,7 +102,7 @@ def write_geometry_png(
             (offset + inner, offset + inner + geometry.background_width_px),
         ):
             picture.add_patch(
-                Polygon(
+                polygon(
                     rectangle_corners(
                         centre, band.angle_deg, (band.start_px, band.stop_px), (low, high)
                     ),

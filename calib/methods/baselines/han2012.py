@@ -26,9 +26,10 @@ divided by ``(2π)²`` and ``√f``, and the rows of ``A`` use unit-area emissio
 smoothness weights are relative to these units (the paper's ``(8, 8, 3)`` are in units it does not
 state).
 
-:func:`synthetic_fluorescent_paints` and :func:`render_chart` generate charts for tests and
-benchmarks: paints with absorption, emission and reflectance spectra like fluorescent poster paints
-(seeded), seen by a camera under any illuminant, with noise.
+:func:`synthetic_fluorescent_paints` and :func:`render_fluorescent_chart` generate charts for tests
+and benchmarks: paints with absorption, emission and reflectance spectra like fluorescent poster
+paints (seeded), seen by a camera under any illuminant, with noise; the reference chart is
+:func:`calib.core.colour_data.colorchecker` (BabelColor's average, as the paper's ColorChecker).
 
 References
 ----------
@@ -49,10 +50,12 @@ from numpy.typing import NDArray
 from scipy import linalg
 
 from calib.core.arrays import FloatArray, checked_array
+from calib.core.colour_data import cie_daylight_basis, training_reflectances
 from calib.core.errors import EstimationError, InputError
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 from calib.model.bases import CameraBasis, fourier_basis
+from calib.model.charts import chart_rgb, check_noise_request
 from calib.model.forward import hat_matrix
 
 Normalisation = Literal["brightness", "unit"]
@@ -66,8 +69,6 @@ DEFAULT_FOURIER_TERMS = 9
 DEFAULT_SMOOTHNESS = (0.01, 0.01, 0.004)
 #: Patches fluorescing for less of their signal than this are left out.
 MIN_FLUORESCENT_FRACTION = 0.02
-#: The reference chart of the paper: a ColorChecker (colour-science's BabelColor average).
-REFERENCE_CHART = "BabelColor Average"
 
 
 # ------------------------------------------------------------------------------------------ input
@@ -155,16 +156,7 @@ def reflectance_basis(
     The leading right-singular vectors (no mean-centring, as Parkkinen et al.) of the 190 training
     reflectances of rawtoaces, which ship with colour-science.
     """
-    import colour  # deferred: importing colour costs ~1 s
-
-    training = colour.characterisation.read_training_data_rawtoaces_v1()
-    curves = MultiSpectrum(
-        np.asarray(training.wavelengths),
-        np.asarray(training.values),
-        channels=training.labels,
-        name="rawtoaces training reflectances",
-        negative="clip",  # a few entries are -1e-17
-    ).resample(grid)
+    curves = training_reflectances().resample(grid)
     if not 1 <= n_vectors <= min(curves.values.shape):
         raise InputError(
             f"n_vectors must be within 1..{min(curves.values.shape)}, got {n_vectors}",
@@ -194,16 +186,10 @@ def fourier_curvature(grid: WavelengthGrid, n_terms: int) -> FloatArray:
 
 def daylight_basis(grid: WavelengthGrid = DEFAULT_GRID) -> FloatArray:
     """The CIE daylight basis ``S0, S1, S2`` on ``grid``, shape ``(f, 3)`` (colour-science data)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    table = colour.colorimetry.SDS_BASIS_FUNCTIONS_CIE_ILLUMINANT_D_SERIES
+    wavelength, values = cie_daylight_basis()
     # S1 and S2 change sign, so they are not spectra: interpolated as plain curves.
     return np.stack(
-        [
-            np.interp(grid.wavelength_nm, table[key].wavelengths, table[key].values)
-            for key in ("S0", "S1", "S2")
-        ],
-        axis=1,
+        [np.interp(grid.wavelength_nm, wavelength, values[:, k]) for k in range(3)], axis=1
     )
 
 
@@ -723,33 +709,7 @@ def synthetic_fluorescent_paints(
     )
 
 
-def colorchecker_reflectances(name: str = REFERENCE_CHART) -> MultiSpectrum:
-    """The 24 reflectances of a ColorChecker from colour-science (``SDS_COLOURCHECKERS[name]``)."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    if name not in colour.SDS_COLOURCHECKERS:
-        raise InputError(
-            f"no ColorChecker {name!r}; colour-science has {sorted(colour.SDS_COLOURCHECKERS)}",
-            source="reference chart",
-        )
-    patches = colour.SDS_COLOURCHECKERS[name]
-    first = next(iter(patches.values()))
-    wavelength = np.asarray(first.wavelengths, dtype=np.float64)
-    values = np.stack([np.asarray(sd.values, dtype=np.float64) for sd in patches.values()], 1)
-    return MultiSpectrum(wavelength, values, tuple(patches), f"ColorChecker ({name})")
-
-
-def cie_daylight(cct_k: float) -> Spectrum:
-    """CIE daylight at a correlated colour temperature (4000–25000 K), 300–830 nm."""
-    import colour  # deferred: importing colour costs ~1 s
-
-    if not 4000.0 <= cct_k <= 25000.0:
-        raise InputError(f"CIE daylight is defined for 4000–25000 K, got {cct_k:g}", source="cct")
-    xy = colour.temperature.CCT_to_xy_CIE_D(cct_k)
-    return Spectrum.from_colour(colour.sd_CIE_illuminant_D_series(xy), name=f"D{cct_k / 100:.0f}")
-
-
-def render_chart(
+def render_fluorescent_chart(
     paints: FluorescentPaints,
     reference: MultiSpectrum,
     camera: MultiSpectrum,
@@ -761,40 +721,27 @@ def render_chart(
 ) -> FluorescentChart:
     """What the camera records of the paints and the reference chart under ``illuminant``.
 
-    Reflected light ``∫ s c l dλ``; fluorescence ``y_p (∫ a_p l dλ') ∫ e_p c dλ`` with the
-    absorbed energy taken over the illuminant's whole range (daylight's UV included). Gaussian
-    noise of ``noise_fraction`` × the brightest patch value, from ``rng``.
+    Reflected light ``∫ s c l dλ`` and emitted light ``∫ e_p c dλ`` as
+    :func:`calib.model.charts.chart_rgb` renders any chart; fluorescence
+    ``y_p (∫ a_p l dλ') ∫ e_p c dλ`` with the absorbed energy taken over 300–780 nm (daylight's UV
+    included). Gaussian noise of ``noise_fraction`` × the brightest patch value, from ``rng``.
     """
-    if noise_fraction < 0:
-        raise InputError(f"noise_fraction must be >= 0, got {noise_fraction}", source="noise")
-    if noise_fraction > 0 and rng is None:
-        raise InputError("noise needs an explicit seeded numpy Generator (rng=)", source="rng")
+    check_noise_request(noise_fraction, rng)
     axis = np.arange(300.0, 781.0, 1.0)
-    light = illuminant.at(axis)
-
-    def curves(spectra: MultiSpectrum) -> FloatArray:
-        return np.stack(
-            [
-                np.interp(axis, spectra.wavelength_nm, spectra.values[:, k], 0.0, 0.0)
-                for k in range(spectra.values.shape[1])
-            ],
-            axis=1,
-        )
-
-    sensitivity = curves(camera)
-    reflected_paints = np.trapezoid(
-        curves(paints.reflectance)[:, :, None] * (sensitivity * light[:, None])[:, None, :],
-        axis,
-        axis=0,
+    absorption = np.stack(
+        [
+            np.interp(axis, paints.absorption.wavelength_nm, column, 0.0, 0.0)
+            for column in paints.absorption.values.T
+        ],
+        axis=1,
     )
-    absorbed = np.trapezoid(curves(paints.absorption) * light[:, None], axis, axis=0)
-    emitted = np.trapezoid(
-        curves(paints.emission)[:, :, None] * sensitivity[:, None, :], axis, axis=0
+    absorbed = np.trapezoid(absorption * illuminant.at(axis)[:, None], axis, axis=0)
+    emitted = chart_rgb(paints.emission, None, camera)
+    fluorescent = (
+        chart_rgb(paints.reflectance, illuminant, camera)
+        + (paints.quantum_yield * absorbed)[:, None] * emitted
     )
-    fluorescent = reflected_paints + (paints.quantum_yield * absorbed)[:, None] * emitted
-    reference_rgb = np.trapezoid(
-        curves(reference)[:, :, None] * (sensitivity * light[:, None])[:, None, :], axis, axis=0
-    )
+    reference_rgb = chart_rgb(reference, illuminant, camera)
     fluorescent_sigma = reference_sigma = None
     if noise_fraction > 0 and rng is not None:
         level = noise_fraction * float(max(fluorescent.max(), reference_rgb.max()))

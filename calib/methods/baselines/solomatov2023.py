@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
+from calib.core.colour_data import cie_test_colour_samples, colorchecker, colour_matching_functions
 from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import ChartObservation, ColorMatrixObservation
@@ -57,13 +58,7 @@ from calib.methods.baselines.inputs import (
     split_observations,
 )
 from calib.model.bases import CameraBasis
-from calib.model.charts import (
-    cie_test_colour_samples,
-    colorchecker,
-    combined,
-    radiance_rows,
-    stimulus_rows,
-)
+from calib.model.charts import combined, radiance_rows, stimulus_rows
 from calib.model.inequality_lstsq import lstsq_inequality
 
 WhiteBalance = Literal["diagonal", "full", "none"]
@@ -250,16 +245,9 @@ def calibration_illuminant(value: str | Spectrum) -> Spectrum:
 
 
 def _cmfs_on_grid(grid: WavelengthGrid) -> FloatArray:
-    import colour
-
-    data = colour.MSDS_CMFS[_CMFS]
-    cmfs = MultiSpectrum(
-        np.asarray(data.wavelengths, dtype=np.float64),
-        np.asarray(data.values, dtype=np.float64),
-        channels=("x", "y", "z"),
-        name=_CMFS,
-    )
-    return cmfs.resample(grid, "interpolate").values
+    wavelength, values = colour_matching_functions(_CMFS)
+    curves = MultiSpectrum(wavelength, values, channels=("x", "y", "z"), name=_CMFS)
+    return curves.resample(grid, "interpolate").values
 
 
 def default_training_reflectances(grid: WavelengthGrid = DEFAULT_GRID) -> MultiSpectrum:
