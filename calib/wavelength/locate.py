@@ -8,9 +8,11 @@
    the same rig become its prior.
 2. **Lines, when there are lines** (:mod:`calib.wavelength.features`): a lamp whose spectrum is a
    built-in line list (``builtin:cfl-triphosphor`` — a lamp nobody measured) is mapped through its
-   lines; a fluorescent lamp measured coarser than its lines (a 5 nm table) has its mapping refined
-   through the Hg/Tb/Eu lines from the whole-profile start; a measured source with Fraunhofer or
-   telluric dips (sunlight) is refined through them. The matched-line table goes with the result.
+   lines; a measured source that resolves Fraunhofer or telluric dips (sunlight at ≤ 1 nm) is
+   refined through them from the whole-profile start. A measured fluorescent lamp keeps the
+   whole-profile fit, and its Hg lines, fitted where that mapping puts them, say how well (a 5 nm
+   table biases the fit by most of a nanometre: the warning suggests ``builtin:cfl-triphosphor``).
+   The matched-line table goes with the result.
 3. **Otherwise the whole profiles** (:func:`calib.wavelength.profile_search.search_profiles`): the
    lamps times a response under the camera prior, with batched scans, analytic Jacobians and the
    basins' profile likelihoods — ambiguity stated, never hidden.
@@ -54,12 +56,15 @@ from calib.wavelength.rig_prior import (
 
 ExactMapping = QuadraticMapping | TiltedGrating
 
-#: A measured lamp spectrum sampled coarser than this (nm) cannot place a fluorescent lamp's lines:
-#: the mapping is refined through the built-in line list.
+#: A measured lamp spectrum sampled coarser than this (nm) cannot place a fluorescent lamp's lines.
 COARSE_SPECTRUM_NM = 2.0
 #: Absorption features of the built-in solar list that must be found in a measured spectrum for
 #: the dips to be used (sunlight, or a lamp behind an absorbing filter).
 MIN_SPECTRUM_DIPS = 3
+#: A measured spectrum resolves absorption dips when sampled at least this finely (nm).
+DIP_SAMPLING_NM = 1.0
+#: A known Hg line this far (nm) from where the whole-profile mapping puts it is reported.
+KNOWN_LINE_WARNING_NM = 0.3
 #: Line width (FWHM, profile samples) assumed when neither a line spread nor the profile tells.
 DEFAULT_FWHM_PX = 4.0
 #: A line-based mapping this far (RMS, nm) from the whole-profile start it was refined from is
@@ -109,16 +114,20 @@ def fwhm_px(observation: LampObservation, kind: str = "emission") -> float:
         spread = observation.line_spread
         above = np.flatnonzero(spread >= 0.5 * float(spread.max()))
         return float(max(above[-1] - above[0] + 1, 1))
-    from scipy import signal
+    from scipy import ndimage, signal
 
-    from calib.wavelength.features import feature_signal
-
-    values, noise = feature_signal(observation.profile, kind, DEFAULT_FWHM_PX)  # type: ignore[arg-type]
-    peaks, properties = signal.find_peaks(values, prominence=20.0 * noise)
+    total = np.sum(observation.profile, axis=1)
+    # Lines stand on broad bands: a baseline far wider than any line (a twentieth of the profile).
+    baseline = ndimage.grey_opening(total, size=max(3, (total.size // 20) | 1), mode="nearest")
+    values = total - baseline
+    if kind != "emission":
+        values = np.max(values) - values
+    peaks, properties = signal.find_peaks(values, prominence=0.05 * float(np.ptp(values)))
     if peaks.size == 0:
         return DEFAULT_FWHM_PX
     widths = signal.peak_widths(values, peaks, rel_height=0.5)[0]
-    strongest = np.argsort(properties["prominences"])[::-1][:8]
+    strongest = np.argsort(properties["prominences"])[::-1][:5]
+    # The narrowest of the strong ones: others are blends or bands.
     return float(max(np.min(widths[strongest]), 1.5))
 
 
@@ -226,10 +235,54 @@ def _spectrum_dips(observation: LampObservation) -> tuple[Line, ...]:
     return present if len(present) >= MIN_SPECTRUM_DIPS else ()
 
 
-def _coarse(observation: LampObservation) -> bool:
+def _coarse(observation: LampObservation, limit_nm: float = COARSE_SPECTRUM_NM) -> bool:
     step = float(np.median(np.diff(observation.spectrum.wavelength_nm)))
     bandwidth = observation.spectrum_bandwidth_nm or 0.0
-    return max(step, bandwidth) > COARSE_SPECTRUM_NM
+    return max(step, bandwidth) > limit_nm
+
+
+def _known_line_table(
+    lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
+) -> tuple[list[dict[str, Any]], str | None]:
+    """The built-in Hg lines fitted where ``mapping`` puts them (the mapping held): the matched-line
+    table of a measured fluorescent lamp, and a warning when they sit off by more than
+    :data:`KNOWN_LINE_WARNING_NM` (a spectrum too coarse for its lines, or a wrong mapping)."""
+    from calib.wavelength.features import feature_signal, features_at, fit_features
+
+    width = fwhm_px(lamp)
+    spacing = float(np.median(np.diff(lamp.pixel)))
+    signal, noise = feature_signal(lamp.profile, "emission", width)
+    pixel_range = (float(lamp.pixel[0]), float(lamp.pixel[-1]))
+    lines = [
+        line
+        for line in line_list("hg")
+        if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
+    ]
+    blends = features_at(lines, mapping, width * spacing, pixel_range)
+    rows: list[dict[str, Any]] = []
+    for fitted in fit_features(lamp.pixel, signal, noise, blends, mapping, width * spacing):
+        reference = fitted.blend.reference
+        at = float(mapping.wavelength_nm(np.array([fitted.pixel]))[0])
+        rows.append(
+            {
+                "line": fitted.blend.label,
+                "wavelength_nm": reference.wavelength_nm,
+                "pixel": fitted.pixel,
+                "fitted_nm": at,
+                "residual_nm": at - reference.wavelength_nm,
+                "weight": 0.0,  # not used by the mapping (the whole-profile fit is)
+            }
+        )
+    off = [row for row in rows if abs(float(row["residual_nm"])) > KNOWN_LINE_WARNING_NM]
+    note = None
+    if off:
+        worst = max(off, key=lambda row: abs(float(row["residual_nm"])))
+        note = (
+            f"lamp {lamp.name!r}: its {worst['line']} line sits {worst['residual_nm']:+.2f} nm from "
+            "where the mapping puts it — a lamp spectrum coarser than its lines biases the fit; "
+            "give --spectrum builtin:cfl-triphosphor (or a finer measurement)"
+        )
+    return rows, note
 
 
 def _directions(lead: LampObservation, orientation: Orientation) -> tuple[int, ...]:
@@ -320,32 +373,36 @@ def locate_mapping(
         )
         details["line_source"] = f"{lamp.spectrum.name} (built-in list)"
     elif search is not None:
-        fluorescent = [lamp for lamp in measured if lamp.kind == "fluorescent" and _coarse(lamp)]
-        dipped = [(lamp, _spectrum_dips(lamp)) for lamp in measured if lamp.kind != "fluorescent"]
+        # A measured source that resolves absorption dips (sunlight at ≤ 1 nm) is refined
+        # through them; a table coarser than its dips (D65's) would put them at its nodes.
+        dipped = [
+            (lamp, _spectrum_dips(lamp))
+            for lamp in measured
+            if lamp.kind != "fluorescent" and not _coarse(lamp, DIP_SAMPLING_NM)
+        ]
         dipped = [(lamp, dips) for lamp, dips in dipped if dips]
-        chosen: tuple[LampObservation, Sequence[Line], str] | None = None
-        if fluorescent:
-            chosen = (
-                fluorescent[0],
-                line_list("cfl-triphosphor"),
-                f"{fluorescent[0].name}'s spectrum is coarser than its lines: the built-in "
-                "cfl-triphosphor list places them",
-            )
-        elif dipped:
-            chosen = (dipped[0][0], dipped[0][1], f"absorption features of {dipped[0][0].name}")
-        if chosen is not None:
+        if dipped:
+            lamp, dips = dipped[0]
             try:
                 features = _map_lines(
-                    chosen[0],
-                    chosen[1],
+                    lamp,
+                    dips,
                     grating_prior,
                     start=search.exact,
                     directions=(_direction(search.exact, lead),),
                     grid=grid,
                 )
-                details["line_source"] = chosen[2]
+                details["line_source"] = f"absorption features of {lamp.name}"
             except EstimationError as exc:
-                warnings.append(f"the line refinement failed ({exc}); the profile fit stands")
+                warnings.append(f"the absorption refinement failed ({exc}); the profile fit stands")
+        else:
+            # A measured line lamp: the profile fit stands; its known lines say how well.
+            fluorescent = [lamp for lamp in measured if lamp.kind == "fluorescent"]
+            if fluorescent:
+                table, note = _known_line_table(fluorescent[0], search.exact, grid)
+                details["matched_lines"] = table
+                if note:
+                    warnings.append(note)
 
     if features is not None:
         mapping, exact = features.mapping, features.exact
