@@ -247,11 +247,11 @@ def main() -> int:
         ]
         summary = json.loads(estimate_runs[-1].stdout)
         from calib.core.datasets import colour_science_cameras, find_camera
+        from calib.core.formats.rgb_csv import read_camera_csv
         from calib.core.metrics import relative_error
-        from calib.core.spectra import read_multispectrum_csv
 
         camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II")
-        estimated = read_multispectrum_csv(Path(summary["files"]["sensitivity"]))
+        estimated = read_camera_csv(Path(summary["files"]["sensitivity"]))
         truth = camera.sensitivity.resample(estimated_grid(estimated)).values
         relative = relative_error(estimated.values, truth)
     cpu_ratios = [e.cpu_s / d.cpu_s for e, d in zip(estimate_runs, decode_runs, strict=True)]

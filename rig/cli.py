@@ -18,6 +18,7 @@ from rich.table import Table
 
 from calib.cli.options import EnsembleOption, EpochsOption
 from calib.core.errors import CalibError, InputError
+from calib.core.metrics import format_re
 from calib.core.software import current_software
 from drivers.base import DeviceError
 from rig.errors import RigError
@@ -281,7 +282,9 @@ def estimate(
     typer.echo(f"report: {outcome.files['report']}")
     typer.echo(f"sensitivity: {outcome.files['sensitivity']}")
     if result.mapping_re_estimate is not None:
-        typer.echo(f"method: {result.method}, mapping RE estimate {result.mapping_re_estimate:.2e}")
+        typer.echo(
+            f"method: {result.method}, mapping RE estimate {format_re(result.mapping_re_estimate)}"
+        )
     else:
         typer.echo(f"method: {result.method}")
 
@@ -513,9 +516,14 @@ def demo(
         typer.echo("the estimate wrote no sensitivity.csv: no error to report", err=True)
         raise typer.Exit(1)
     typer.echo(
-        f"RE against the twin's camera: {result.relative_error:.4f} "
+        f"RE against the twin's camera: {format_re(result.relative_error)} "
         "(Makabe et al. 2025 Eq. 16, curves normalised to their maximum)"
     )
+    for illuminant, (mean, worst) in result.colour_error.items():
+        typer.echo(
+            f"ΔE2000 against the twin's camera under {illuminant} (ColorChecker, developed with "
+            f"the estimate's matrix vs the truth's): mean {mean:.2f}, max {worst:.2f}"
+        )
 
 
 def _fail(message: str, code: int) -> None:

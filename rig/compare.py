@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.errors import InputError
-from calib.core.metrics import relative_error
+from calib.core.metrics import format_re, relative_error
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.evaluation.compare import (
     CompareRow,
@@ -205,7 +205,7 @@ class TwinSessionSource:
             self.notes.append(
                 f"{scene.label}: lamps {lamps}; single-lamp columns use {scene.solve_lamp.name}; "
                 f"`rig estimate`'s own result RE "
-                f"{relative_error(extracted.result.physical_sensitivity(), truth) * 100:.2f} ×10⁻²"
+                f"{format_re(relative_error(extracted.result.physical_sensitivity(), truth))}"
             )
             self.notes.extend(f"{scene.label}: {warning}" for warning in extracted.warnings)
             yield scene

@@ -15,16 +15,17 @@
 from __future__ import annotations
 
 import importlib
+import json
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from calib.core.errors import InputError
+from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.metrics import relative_error
-from calib.core.spectra import read_multispectrum_csv
 from calib.methods import default_camera_basis
 from rig.capture import run_capture
 from rig.config import RigConfig
@@ -64,6 +65,9 @@ class DemoResult:
         The HTML report, when the estimate wrote one.
     relative_error
         RE of the estimated sensitivity against the twin's camera.
+    colour_error
+        Per illuminant (D65, A): mean and max ΔE2000 of the ColorChecker between the twin's
+        camera developed with the estimate's colour-correction matrix and with its own.
     capture_s, estimate_s
         Wall time of the two stages.
     """
@@ -73,6 +77,7 @@ class DemoResult:
     estimate_dir: Path | None = None
     report: Path | None = None
     relative_error: float | None = None
+    colour_error: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     capture_s: float = 0.0
     estimate_s: float = 0.0
 
@@ -127,7 +132,7 @@ def sensitivity_error(estimate_csv: Path, truth_json: Path) -> float:
     InputError
         When the estimate lies outside the truth's wavelength range.
     """
-    estimated = read_multispectrum_csv(estimate_csv)
+    estimated = read_camera_csv(estimate_csv)
     truth = bench_module().TwinTruth.read(truth_json).sensitivity
     low, high = truth.range_nm
     wavelength = estimated.wavelength_nm
@@ -141,6 +146,22 @@ def sensitivity_error(estimate_csv: Path, truth_json: Path) -> float:
         [np.interp(wavelength, truth.wavelength_nm, truth.values[:, k]) for k in range(3)], axis=1
     )
     return relative_error(estimated.values, reference)
+
+
+def colour_error(result_json: Path) -> dict[str, tuple[float, float]]:
+    """``{illuminant: (mean, max)}`` ΔE2000 against the truth that ``result.json`` records."""
+    try:
+        document = json.loads(result_json.read_text(encoding="utf-8"))
+        against = (document.get("uses") or {}).get("against_truth") or {}
+        return {
+            name: (
+                float(entry["estimate_vs_truth"]["mean"]),
+                float(entry["estimate_vs_truth"]["max"]),
+            )
+            for name, entry in against.items()
+        }
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
 
 
 def run_demo(
@@ -193,6 +214,7 @@ def run_demo(
         estimate_dir=estimate_dir,
         report=report if report.is_file() else None,
         relative_error=sensitivity_error(sensitivity, truth) if sensitivity.is_file() else None,
+        colour_error=colour_error(estimate_dir / "result.json"),
         capture_s=capture_s,
         estimate_s=estimate_s,
     )

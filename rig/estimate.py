@@ -18,6 +18,7 @@ and spectra are complete, with a warning in the result.
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -32,6 +33,7 @@ from calib.core.checksums import file_sha256
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
+from calib.core.truth import GroundTruth
 from calib.pipeline import (
     InputFile,
     LampImages,
@@ -40,10 +42,17 @@ from calib.pipeline import (
     OfflineSettings,
     run_offline,
 )
+from calib.pipeline.context import EstimateContext, WarmupTrace
 from rig.config import LAMP_NAME_PATTERN
-from rig.errors import SessionFormatError
+from rig.errors import RigError, SessionFormatError
+from rig.plan import relative_change
 from rig.records import FileRecord
 from rig.session import Session, read_session
+from rig.steps import SpectrumMeasured
+from rig.twin import bench_module
+
+#: What ``rig demo`` writes beside a twin session (``mocks.bench.TRUTH_FILE_NAME``).
+TWIN_TRUTH_FILE = "twin-truth.json"
 
 #: Where ``rig estimate`` writes by default, inside the session directory.
 DEFAULT_OUT_NAME = "estimate"
@@ -229,6 +238,63 @@ def session_lamps(session: Session) -> tuple[list[LampImages], list[InputFile], 
     return lamps, known, warnings
 
 
+def _warmup_traces(session: Session) -> tuple[WarmupTrace, ...]:
+    """Each lamp's warm-up from the log: the change between successive warm-up spectra
+    (:func:`rig.plan.relative_change`, as the plan judged it) against the time since switch-on."""
+    done = session.done_steps()
+    start = session.start
+    lamps = start.config.get("lamps", []) if start is not None else []
+    traces: list[WarmupTrace] = []
+    for lamp in lamps if isinstance(lamps, list) else []:
+        name = lamp.get("name") if isinstance(lamp, Mapping) else None
+        switched = done.get(f"lamp/{name}/switch-on")
+        keys = sorted(
+            key for key in done if re.fullmatch(rf"lamp/{re.escape(str(name))}/warmup/\d+", key)
+        )
+        if not isinstance(name, str) or switched is None or switched.result is None or not keys:
+            continue
+
+        def load(relative: str) -> tuple[Any, Any]:
+            spectrum = read_spectrum_csv(session.file_path(relative), negative="clip")
+            return spectrum.wavelength_nm, spectrum.values
+
+        try:
+            spectra = [SpectrumMeasured.from_json(done[key].result or {}, load) for key in keys]
+        except (SpectrumError, SessionFormatError, KeyError, TypeError, ValueError):
+            continue  # the report says the warm-up is not available
+        on_s = float(switched.result.get("time_s", 0.0))
+        changes = [math.nan] + [relative_change(a, b) for a, b in itertools.pairwise(spectra)]
+        policy = lamp.get("warmup")
+        tolerance = policy.get("tolerance") if isinstance(policy, Mapping) else None
+        traces.append(
+            WarmupTrace(
+                lamp=name,
+                elapsed_s=tuple(spectrum.time_s - on_s for spectrum in spectra),
+                relative_change=tuple(changes),
+                tolerance=float(tolerance) if isinstance(tolerance, int | float) else None,
+            )
+        )
+    return tuple(traces)
+
+
+def _twin_truth(session_path: Path, warnings: list[str]) -> GroundTruth | None:
+    """The digital twin's truth written beside the session (``rig demo``), if there is one."""
+    path = session_path / TWIN_TRUTH_FILE
+    if not path.is_file():
+        return None
+    try:
+        truth = bench_module().TwinTruth.read(path)
+    except (ValueError, RigError) as exc:
+        warnings.append(f"{path.name} not used: {exc}")
+        return None
+    return GroundTruth(
+        truth.sensitivity,
+        grating_efficiency=truth.grating_efficiency,
+        mapping=truth.mapping,
+        source=f"{path.name}: the digital twin's camera {truth.camera} (not a verified session file)",
+    )
+
+
 def estimate_session(
     session_dir: str | Path,
     out_dir: str | Path | None = None,
@@ -279,6 +345,7 @@ def estimate_session(
     session_path = Path(session_dir)
     session = read_session(session_path)
     lamps, known, warnings = session_lamps(session)
+    context = EstimateContext(_twin_truth(session_path, warnings), _warmup_traces(session))
     start = session.start
     assert start is not None
     notes = (f"session {start.session_id} ({session_path.name}), status {session.status}",)
@@ -294,5 +361,10 @@ def estimate_session(
     }
     destination = Path(out_dir) if out_dir is not None else session_path / DEFAULT_OUT_NAME
     return run_offline(
-        lamps, destination, OfflineSettings(**options), progress=progress, known_inputs=known
+        lamps,
+        destination,
+        OfflineSettings(**options),
+        progress=progress,
+        known_inputs=known,
+        context=context,
     )

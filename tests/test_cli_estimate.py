@@ -14,6 +14,7 @@ import pytest
 from calib.cli.estimate import run
 from calib.cli.estimate_args import parse_estimate_arguments
 from calib.core.errors import EstimationError, InputError
+from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.grating_file import GratingEfficiency, read_grating_file, write_grating_file
 from calib.core.metrics import relative_error
 from calib.core.spectra import write_csv
@@ -138,7 +139,7 @@ def test_images_end_to_end_with_json_summary(capture: Capture, tmp_path: Path) -
         assert Path(summary["files"][key]).is_file()
     document = json.loads((out_dir / "result.json").read_text())
     assert document["provenance"]["command_line"][:4] == ["calib", "estimate", "--lamp", "LED"]
-    values = np.loadtxt(out_dir / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    values = read_camera_csv(out_dir / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
 
 
@@ -276,7 +277,7 @@ def test_profile_input_with_direct_measurement(capture: Capture, tmp_path: Path)
     assert code == 0, stderr
     summary = json.loads(stdout)
     assert summary["method"] == "makabe2025" and summary["warnings"] == []
-    values = np.loadtxt(tmp_path / "out" / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    values = read_camera_csv(tmp_path / "out" / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
 
 
@@ -294,8 +295,8 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     assert summary["uncertainty"] is True
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     truth = capture.truth
-    estimated = np.column_stack([document["sensitivity"][c] for c in "rgb"])
-    sigma = np.column_stack([document["sensitivity_sigma"][c] for c in "rgb"])
+    estimated = np.column_stack([document["sensitivity"][c] for c in "RGB"])
+    sigma = np.column_stack([document["sensitivity_sigma"][c] for c in "RGB"])
     assert relative_error(estimated, truth) < 0.02
     # the per-wavelength uncertainty is honest: errors mostly within 3 σ
     assert np.mean(np.abs(estimated - truth) <= 3 * sigma + 1e-3) > 0.9
@@ -323,7 +324,7 @@ def test_profile_in_wavelength_uses_the_identity_mapping(capture: Capture, tmp_p
     assert code == 0, stderr
     mapping = json.loads(stdout)["mapping"]
     assert (mapping["a"], mapping["b"], mapping["c"]) == (0.0, 1.0, 0.0)
-    values = np.loadtxt(tmp_path / "out" / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    values = read_camera_csv(tmp_path / "out" / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
 
 
@@ -405,7 +406,7 @@ def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     code, stdout, stderr = _call([*argv, "--out", str(second), "--json"])
     assert code == 0, stderr
     assert json.loads(stdout)["method"] == "multilamp"
-    values = np.loadtxt(second / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:]
+    values = read_camera_csv(second / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
     assert "weight-rule" not in stderr
     # η is known: a rule for the prior's weight in the η solve has nothing to choose, and says so.

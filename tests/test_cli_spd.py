@@ -204,7 +204,7 @@ def test_bad_files_are_named(
     arguments = base_arguments(scene, tmp_path / "out")
     arguments[arguments.index("--camera") + 1] = str(two_columns)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
-    assert code == 2 and str(two_columns) in stderr and "3 sensitivity columns" in stderr
+    assert code == 2 and str(two_columns) in stderr and "no column for blue" in stderr
     dark = tmp_path / "dark_camera.csv"
     dark.write_text("wavelength_nm,r,g,b\n400,0,0,0\n700,0,0,0\n")
     arguments[arguments.index("--camera") + 1] = str(dark)
@@ -216,6 +216,37 @@ def test_bad_files_are_named(
     arguments[arguments.index("--images") + 1] = str(not_raw)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and "frame.dng" in stderr
+
+
+def test_a_camera_csv_in_another_column_order_gives_the_same_spd(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """colour-science's own CSV writer, channels in the order blue, green, red: read by name."""
+    import colour
+
+    from tests.spd_scenes import nikon_camera
+
+    camera = nikon_camera()
+    reordered = tmp_path / "camera-bgr.csv"
+    colour.write_sds_to_csv_file(
+        {
+            name: colour.SpectralDistribution(camera.channel(name).values, camera.wavelength_nm)
+            for name in ("blue", "green", "red")
+        },
+        reordered,
+    )
+    assert reordered.read_text().splitlines()[0].split(",")[1:] == ["blue", "green", "red"]
+    spds = []
+    for name, path in (("as given", scene.camera), ("reordered", reordered)):
+        arguments = base_arguments(scene, tmp_path / name)
+        arguments[arguments.index("--camera") + 1] = str(path)
+        code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+        assert code == 0, stderr
+        spds.append(read_spectrum_csv(tmp_path / name / "spd.csv").values)
+    np.testing.assert_allclose(spds[1], spds[0], rtol=1e-9, atol=1e-12)
 
 
 def test_a_lamp_without_a_mapping_exits_2(

@@ -39,6 +39,10 @@ def test_every_command_is_registered() -> None:
         "compare",
         "spd",
         "plan-lamps",
+        "idt",
+        "ccm",
+        "raw-to-raw",
+        "profile",
     }
 
 

@@ -53,6 +53,7 @@ CALIB_STAGES = (
     "wavelength",
     "methods",
     "spd",
+    "use",
     "pipeline",
     "evaluation",
     "cli",

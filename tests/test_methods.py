@@ -18,7 +18,7 @@ def test_front_function_dispatches_through_the_registry(monkeypatch):
     monkeypatch.setitem(ESTIMATION_METHODS, "fake", fake)
     result = calib.methods.estimate([], method="FAKE", answer=42)
     assert result.method == "fake" and calls == {"answer": 42}
-    assert result.to_dict()["sensitivity"]["r"][0] == 1.0
+    assert result.to_dict()["sensitivity"]["R"][0] == 1.0
 
 
 def test_unknown_method_lists_the_known_ones():

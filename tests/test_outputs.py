@@ -19,7 +19,7 @@ from calib.core.grating_file import (
     read_grating_file,
     write_grating_file,
 )
-from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.pipeline import LampImages, OfflineSettings, run_offline
 from calib.pipeline.run import OfflineOutcome
 from tests.rendered_capture import Capture, shared_capture
@@ -43,14 +43,23 @@ def outcome(capture: Capture, tmp_path_factory: pytest.TempPathFactory) -> Offli
 
 def test_sensitivity_csv_is_on_the_grid_with_maximum_one(outcome: OfflineOutcome) -> None:
     with outcome.files["sensitivity"].open() as stream:
-        rows = list(csv.reader(stream))
-    assert rows[0] == ["wavelength_nm", "r", "g", "b"]
+        rows = [row for row in csv.reader(stream) if not row[0].startswith("#")]
+    assert rows[0] == ["wavelength_nm", "R", "G", "B", "R_sigma", "G_sigma", "B_sigma"]
     values = np.array(rows[1:], dtype=float)
     np.testing.assert_array_equal(values[:, 0], np.arange(400.0, 701.0, 10.0))
-    assert values[:, 1:].max() == pytest.approx(1.0)
-    assert values[:, 1:].min() >= 0.0
+    assert values[:, 1:4].max() == pytest.approx(1.0)
+    assert values[:, 1:4].min() >= 0.0
     result = outcome.estimate.result
-    np.testing.assert_allclose(values[:, 1:], np.clip(result.sensitivity, 0, None), atol=1e-12)
+    np.testing.assert_allclose(values[:, 1:4], np.clip(result.sensitivity, 0, None), atol=1e-12)
+    assert result.sensitivity_sigma is not None
+    np.testing.assert_allclose(values[:, 4:], result.sensitivity_sigma, rtol=1e-12)
+    text = outcome.files["sensitivity"].read_text()
+    assert "# units: relative; normalisation: maximum over all channels = 1" in text
+    import colour  # an independent reader: colour-science's own CSV reader, by column name
+
+    sds = colour.io.read_sds_from_csv_file(outcome.files["sensitivity"])
+    np.testing.assert_allclose(sds["G"].values, values[:, 2], atol=1e-15)
+    np.testing.assert_allclose(sds["B_sigma"].values, values[:, 6], atol=1e-15)
 
 
 def _sha256(path: Path) -> str:
@@ -61,10 +70,10 @@ def test_result_json_records_everything(outcome: OfflineOutcome, capture: Captur
     document = json.loads(outcome.files["result"].read_text())
     assert document["schema"] == "spectral-rig/estimate-result"
     assert document["method"] == "makabe2025"
-    assert set(document["sensitivity"]) == {"r", "g", "b"}
+    assert set(document["sensitivity"]) == {"R", "G", "B"}
     sigma = document["sensitivity_sigma"]
-    assert set(sigma) == {"r", "g", "b"}
-    assert all(len(sigma[c]) == 31 and min(sigma[c]) >= 0 for c in "rgb")
+    assert set(sigma) == {"R", "G", "B"}
+    assert all(len(sigma[c]) == 31 and min(sigma[c]) >= 0 for c in "RGB")
     mapping = document["mapping"]
     assert set(mapping["coefficients_nm"]) == {"a_nm_per_px2", "b_nm_per_px", "c_nm"}
     assert mapping["covariance"] is not None
@@ -89,20 +98,58 @@ def test_result_json_records_everything(outcome: OfflineOutcome, capture: Captur
     assert document["files"]["sensitivity"] == "sensitivity.csv"
 
 
-def test_camera_json_is_what_rawtoaces_reads(outcome: OfflineOutcome) -> None:
+def test_every_camera_file_drops_into_its_consumer(outcome: OfflineOutcome) -> None:
+    """rawtoaces (schema 1.0.0, 81 rows at 380–780/5), dcamprof (strict JSON), vkdt (loadtxt)."""
+    import jsonschema
+
+    from calib.core.formats.ampas import SCHEMA_FILE, rawtoaces_problems
+    from calib.core.formats.dcamprof import ssf_problems
+    from calib.pipeline.camera_identity import libraw_names
+
     path = outcome.files["camera_json"]
-    assert path.name == "spectral_rig_simcam_400_700_10.json"
     document = json.loads(path.read_text())
+    jsonschema.Draft4Validator(json.loads(SCHEMA_FILE.read_text())).validate(document)
+    assert rawtoaces_problems(document) == []
     header = document["header"]
-    assert header["schema_version"] == "0.1.0"
-    assert (header["manufacturer"], header["model"]) == ("spectral-rig", "simcam")
+    assert header["schema_version"] == "1.0.0"
+    first_frame = outcome.estimate.provenance.camera["first_frame"]
+    names = libraw_names(Path(first_frame))
+    assert names is not None
+    expected = (names.normalized_make or names.make, names.normalized_model or names.model)
+    assert (header["manufacturer"], header["model"]) == expected == ("spectral-rig", "SimCam")
+    assert path.name == "spectral-rig_SimCam_380_780_5.json"
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", header["document_creation_date"])
-    data = document["spectral_data"]
-    assert data["units"] == "relative" and data["index"] == {"main": ["R", "G", "B"]}
-    assert list(data["data"]["main"])[:2] == ["400", "410"]
+    assert "380–395 nm, 705–780 nm extended" in header["comments"]
+    main = document["spectral_data"]["data"]["main"]
+    assert list(main) == [str(w) for w in range(380, 781, 5)]
     curves = read_rawtoaces_json(path)
-    expected = np.clip(outcome.estimate.result.sensitivity, 0, None)
-    np.testing.assert_allclose(curves.values, expected / expected.max(), atol=1e-12)
+    result = outcome.estimate.result
+    inside = (curves.wavelength_nm >= 400) & (curves.wavelength_nm <= 700)
+    estimate = np.stack(
+        [
+            np.interp(curves.wavelength_nm[inside], result.wavelength_nm, c)
+            for c in result.physical_sensitivity().T
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(curves.values[inside], estimate, atol=1e-12)
+    ssf = json.loads(outcome.files["dcamprof"].read_text())
+    assert ssf_problems(ssf) == [] and ssf["camera_name"] == "spectral-rig SimCam"
+    np.testing.assert_allclose(np.array(ssf["green_ssf"]), curves.values[:, 1], atol=1e-12)
+    rows = np.loadtxt(outcome.files["vkdt"])
+    np.testing.assert_array_equal(rows[:, 0], np.arange(380, 781, 5))
+    np.testing.assert_allclose(rows[:, 1:], curves.values, atol=1e-12)
+
+
+def test_result_json_reads_back_as_the_camera_and_to_colour_agrees(outcome: OfflineOutcome) -> None:
+    from calib.core.formats import read_camera
+
+    result = outcome.estimate.result
+    again = read_camera(outcome.files["result"].parent)
+    np.testing.assert_allclose(again.values, result.sensitivity, atol=1e-12)
+    colour_camera = result.to_colour()
+    np.testing.assert_allclose(colour_camera.values, result.physical_sensitivity(), atol=1e-12)
+    np.testing.assert_array_equal(colour_camera.wavelengths, result.wavelength_nm)
 
 
 def test_grating_json_round_trips_with_its_geometry(outcome: OfflineOutcome) -> None:
@@ -116,12 +163,17 @@ def test_grating_json_round_trips_with_its_geometry(outcome: OfflineOutcome) -> 
     assert grating.provenance["method"] == "makabe2025"
 
 
-def test_report_is_one_self_contained_page_with_every_plot(outcome: OfflineOutcome) -> None:
+def test_report_is_one_self_contained_page_with_every_plot(
+    outcome: OfflineOutcome, capture: Capture
+) -> None:
     report = outcome.files["report"]
     page = report.read_text()
     assert page.startswith("<!DOCTYPE html>")
     sources = re.findall(r"src='([^']*)'", page)
-    assert len(sources) == 5  # sensitivity, efficiency, mapping, fit LED, geometry
+    # sensitivity, efficiency, mapping, a fit per lamp, lamp spectra, geometry
+    assert len(sources) == 5 + len(capture.lamps)
+    for lamp in capture.lamps:
+        assert outcome.files[f"plot:fit:{lamp.name}"].is_file()
     assert all(source.startswith("data:image/png;base64,") for source in sources)
     assert "http" not in page.replace("http-equiv", "")
     for key in ("plot:sensitivity", "plot:efficiency", "plot:mapping", "plot:fit:LED"):
@@ -142,8 +194,61 @@ def test_report_shows_warnings_first(outcome: OfflineOutcome, tmp_path: Path) ->
         provenance=replace(outcome.estimate.provenance, warnings=("check <the> lamp",)),
     )
     page = write_report(tmp_path, warned)["report"].read_text()
-    assert page.index("Warnings") < page.index("Summary")
-    assert "check &lt;the&gt; lamp" in page
+    assert page.index("1 warning(s)") < page.index("Summary")
+    assert page.index("check &lt;the&gt; lamp") < page.index("Summary")
+
+
+def test_report_overlays_the_truth_and_gives_the_colour_error(
+    outcome: OfflineOutcome, capture: Capture, tmp_path: Path
+) -> None:
+    from dataclasses import replace
+
+    from calib.core.camera_curves import CameraCurves
+    from calib.core.spectra import DEFAULT_GRID
+    from calib.core.truth import GroundTruth
+    from calib.pipeline.context import EstimateContext, WarmupTrace
+    from calib.pipeline.report import write_report
+    from tests.rendered_capture import GRATING, efficiency
+
+    wavelength = np.arange(380.0, 781.0, 5.0)
+    truth = GroundTruth(
+        CameraCurves(DEFAULT_GRID.wavelength_nm, capture.truth, name="rendered camera"),
+        grating_efficiency=Spectrum(wavelength, efficiency(wavelength)),
+        mapping=GRATING,
+        source="the rendered capture's camera",
+    )
+    warmup = WarmupTrace("LED", (10.0, 20.0, 30.0), (float("nan"), 0.03, 0.004), 0.01)
+    lines = [{"lamp": "FL", "pixel": 700.0, "wavelength_nm": 546.07, "residual_nm": 0.1}]
+    estimate = replace(
+        outcome.estimate,
+        result=replace(outcome.estimate.result, diagnostics={"matched_lines": lines}),
+    )
+    written = write_report(
+        tmp_path, estimate, outcome.files, context=EstimateContext(truth, (warmup,))
+    )
+    page = written["report"].read_text()
+    assert "RE against the truth" in page and "mapping RE against the truth" in page
+    assert "×10⁻²" in page
+    for illuminant in ("D65", "A"):
+        assert re.search(
+            rf"<tr><td>{illuminant}</td><td class='num'>\d+\.\d\d / \d+\.\d\d</td>", page
+        )
+    assert "546.07" in page and "Not available" not in page  # the matched lines' table
+    assert written["plot:warmup"].is_file()
+    own = outcome.files["report"].read_text()
+    for key in ("sensitivity", "camera_json", "dcamprof", "vkdt", "result"):
+        assert f"<a href='{outcome.files[key].name}'>" in own
+        assert f"/{outcome.files[key].name}'>" in page  # relative to where this one was written
+    # the truth's ΔE against itself would be zero: the estimate's is not, and is recorded
+    result = json.loads(outcome.files["result"].read_text())
+    assert result["uses"]["against_truth"] is None  # written without a truth
+    assert set(result["uses"]["aces_idt"]) == {"D55", "D65", "A"}
+
+
+def test_report_says_when_lines_and_warmup_are_not_available(outcome: OfflineOutcome) -> None:
+    page = outcome.files["report"].read_text()
+    assert "Matched lines" in page and "Not available" in page
+    assert "Lamp warm-up: not recorded" in page
 
 
 # ------------------------------------------------------------------------------- grating file
@@ -231,3 +336,20 @@ def test_a_paused_hasher_hashes_once_started_or_when_asked(tmp_path: Path) -> No
         assert [record.sha256 for record in hasher.results()] == expected[1:]
     with FileHasher(paused=True) as hasher:  # nor does leaving the block
         hasher.add(files[0], "frame", "A")
+
+
+def test_dcp_and_icc_are_made_when_dcamprof_is_installed(
+    outcome: OfflineOutcome, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from calib.pipeline.outputs import write_outputs
+    from tests import fake_dcamprof
+
+    assert "not installed" in json.loads(outcome.files["result"].read_text())["dcamprof"]
+    assert "dcp" not in outcome.files
+    assert "DCP and ICC profiles: not made here" in outcome.files["report"].read_text()
+    fake_dcamprof.install(tmp_path / "bin")
+    monkeypatch.setenv("PATH", f"{tmp_path / 'bin'}:/usr/bin:/bin")
+    files = write_outputs(tmp_path / "out", outcome.estimate)
+    assert files["dcp"].name == "spectral-rig SimCam.dcp" and files["dcp"].parent.name == "dcamprof"
+    assert files["icc"].read_bytes()[36:40] == b"acsp"
+    assert json.loads(files["result"].read_text())["dcamprof"].startswith("made by")

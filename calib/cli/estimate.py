@@ -19,6 +19,7 @@ import typer
 
 from calib.cli.estimate_args import USAGE, EstimateArguments, parse_estimate_arguments
 from calib.core.errors import CalibError, InputError
+from calib.core.metrics import format_re
 
 #: Files of an earlier estimate that ``--force`` allows to overwrite.
 _RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
@@ -81,9 +82,19 @@ def _print_summary(outcome: Any, stream: TextIO) -> None:
             f"({mapping['method']})"
         )
         if record["mapping_re_estimate"] is not None:
-            line += f", mapping RE estimate {record['mapping_re_estimate']:.2e}"
+            line += f", mapping RE estimate {format_re(record['mapping_re_estimate'])}"
         print(line, file=stream)
-    for key in ("sensitivity", "result", "report", "camera_json", "grating"):
+    for key in (
+        "sensitivity",
+        "result",
+        "report",
+        "camera_json",
+        "dcamprof",
+        "vkdt",
+        "dcp",
+        "icc",
+        "grating",
+    ):
         if key in record["files"]:
             print(f"{key:>11}: {record['files'][key]}", file=stream)
 

@@ -70,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         required=True,
         metavar="CSV",
-        help="the camera's sensitivity: wavelength_nm,r,g,b",
+        help="the camera's sensitivity: a CSV with columns wavelength_nm,R,G,B by name, a camera JSON, or an estimate's output directory",
     )
     parser.add_argument(
         "--grating-efficiency",

@@ -59,7 +59,7 @@ def _short_camera(name: str) -> str:
 def summary_table(rows: list[SyntheticRow], title: str) -> Table:
     """Rich table: one row per variant × noise, a column per camera and the mean.
 
-    Cells are RE ×10⁻²; the mean column adds the mean mapping RE in % when the mapping was estimated.
+    Cells are RE ×10⁻²; the mean column adds the mean mapping RE (×10⁻²) when the mapping was estimated.
     """
     keys = sorted(
         {(row.variant, row.noise) for row in rows}, key=lambda k: (VARIANTS.index(k[0]), k[1])
@@ -70,7 +70,7 @@ def summary_table(rows: list[SyntheticRow], title: str) -> Table:
         cells[(row.camera, row.variant, row.noise)].append(row)
     table = Table(
         title=title,
-        caption="RE ×10⁻² per camera; mean RE (mean mapping RE %) [share of the truth inside ±2σ]",
+        caption="RE ×10⁻² per camera; mean RE (mean mapping RE ×10⁻²) [share of the truth inside ±2σ]",
     )
     table.add_column("variant")
     table.add_column("noise", justify="right")

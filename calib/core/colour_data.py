@@ -28,10 +28,11 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
-from calib.core.spectra import MultiSpectrum, Spectrum
+from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
 
 #: The ColorChecker data used unless another is named.
 DEFAULT_COLORCHECKER = "BabelColor Average"
@@ -295,3 +296,97 @@ def blackbody_linear_srgb(cct_k: float) -> FloatArray:
         body = colour.sd_blackbody(cct_k, colour.SpectralShape(360, 830, 1))
         xyz = colour.sd_to_XYZ(body, colour.MSDS_CMFS[CIE_1931_2_DEGREE])
         return np.asarray(colour.XYZ_to_RGB(xyz, "sRGB"), dtype=np.float64)
+
+
+# ------------------------------------------------------------------- what a calibrated camera is for
+
+#: The illuminants the camera's uses are computed for, by the names used on the command line.
+USE_ILLUMINANTS: tuple[str, ...] = ("D50", "D55", "D65", "A")
+#: colour-science's ColorChecker with spectral reflectances to 380–780 nm (Ohta's measurements).
+COLORCHECKER_OHTA = "ColorChecker N Ohta"
+#: ACES' D55 is the CIE daylight at 5500 K on the 1968 temperature scale (c₂ = 1.4388e-2 m·K).
+_DAYLIGHT_C2_RATIO = 1.4388 / 1.4380
+
+
+def use_illuminant(name: str) -> Spectrum:
+    """The relative spectral power of ``D50``, ``D55``, ``D65`` (CIE daylight, 1968 scale) or ``A``.
+
+    Raises
+    ------
+    InputError
+        Any other name, with the names allowed.
+    """
+    key = name.strip().upper()
+    if key == "A":
+        return illuminants()["A"]
+    if key in ("D50", "D55", "D65"):
+        daylight = cie_daylight(float(key[1:]) * 100.0 * _DAYLIGHT_C2_RATIO)
+        return Spectrum(daylight.wavelength_nm, daylight.values, name=key)
+    raise InputError(
+        f"unknown illuminant {name!r}; choose one of {', '.join(USE_ILLUMINANTS)}",
+        source="--illuminant",
+    )
+
+
+def cie_1931_observer() -> MultiSpectrum:
+    """The CIE 1931 2° colour-matching functions x̄, ȳ, z̄ (360–830 nm, 1 nm)."""
+    wavelength, values = colour_matching_functions(CIE_1931_2_DEGREE)
+    return MultiSpectrum(wavelength, values, channels=("x", "y", "z"), name="CIE 1931 2°")
+
+
+def rgb_camera_sensitivities(wavelength_nm: ArrayLike, values: ArrayLike, name: str) -> Any:
+    """colour's ``RGB_CameraSensitivities`` of ``values`` ``(f, 3)`` (R, G, B; colour always labels
+    them ``red, green, blue``)."""
+    return _colour().characterisation.RGB_CameraSensitivities(
+        np.asarray(values, dtype=np.float64),
+        np.asarray(wavelength_nm, dtype=np.float64),
+        name=name,
+    )
+
+
+def xyz_to_lab(xyz: ArrayLike, white_xyz: ArrayLike) -> FloatArray:
+    """CIELAB of ``xyz`` ``(..., 3)`` against the reference white ``white_xyz`` ``(3,)`` (Y = 1)."""
+    colour = _colour()
+    white = np.asarray(white_xyz, dtype=np.float64)
+    return np.asarray(
+        colour.XYZ_to_Lab(np.asarray(xyz, dtype=np.float64), colour.XYZ_to_xy(white)),
+        dtype=np.float64,
+    )
+
+
+def delta_e_2000(lab_a: ArrayLike, lab_b: ArrayLike) -> FloatArray:
+    """CIEDE2000 colour difference between CIELAB values ``(..., 3)`` → ``(...)``."""
+    return np.asarray(
+        _colour().delta_E(
+            np.asarray(lab_a, dtype=np.float64), np.asarray(lab_b, dtype=np.float64), "CIE 2000"
+        ),
+        dtype=np.float64,
+    )
+
+
+def aces_idt_matrix(
+    wavelength_nm: ArrayLike, values: ArrayLike, illuminant_spd: Spectrum
+) -> tuple[FloatArray, FloatArray]:
+    """The ACES IDT matrix (camera RGB → ACES2065-1) and the white-balance multipliers.
+
+    ``colour.matrix_idt`` with its defaults (rawtoaces' 190 training reflectances, CIE 1931
+    observer, CAT02 to the ACES white, rawtoaces' optimisation in CIELAB). The sensitivities must
+    cover 380–780 nm at 5 nm (rawtoaces' range).
+
+    References
+    ----------
+    The Academy (2015), P-2013-001: Recommended procedures for the creation and use of digital
+    camera system input device transforms (IDTs).
+    """
+    colour = _colour()
+    grid = WavelengthGrid(380.0, 780.0, 5.0)
+    sensitivities = rgb_camera_sensitivities(wavelength_nm, values, "camera")
+    if not np.allclose(sensitivities.wavelengths, grid.wavelength_nm):
+        raise InputError(
+            "the IDT needs sensitivities on 380–780 nm at 5 nm (the camera files are)",
+            source="sensitivities",
+        )
+    spd = illuminant_spd.resample(grid)
+    sd = colour.SpectralDistribution(spd.values, spd.wavelength_nm, name=spd.name)
+    matrix, white_balance = colour.matrix_idt(sensitivities, sd)
+    return np.asarray(matrix, dtype=np.float64), np.asarray(white_balance, dtype=np.float64)

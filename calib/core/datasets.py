@@ -32,7 +32,6 @@ and checks its SHA-256.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import re
 import urllib.parse
@@ -46,7 +45,9 @@ import platformdirs
 from calib.core.checksums import file_sha256
 from calib.core.colour_data import camera_sensitivities, rawtoaces_sensitivity_path
 from calib.core.errors import CalibError, InputError, SpectrumError
-from calib.core.spectra import MultiSpectrum, read_table
+from calib.core.formats.ampas import read_camera_json
+from calib.core.formats.rgb_csv import read_camera_csv
+from calib.core.spectra import MultiSpectrum
 
 #: Environment variable naming a data directory.
 DATA_DIR_ENV = "SPECTRAL_RIG_DATA"
@@ -179,29 +180,18 @@ _SOLOMATOV_NAME = re.compile(
 )
 
 
-def read_rgb_csv(path: str | Path, *, name: str | None = None) -> MultiSpectrum:
-    """Read a ``wavelength,r,g,b`` CSV (header optional, ``#`` comments skipped), normalised.
+def read_rgb_csv(
+    path: str | Path, *, name: str | None = None, channels_in_order: bool = False
+) -> MultiSpectrum:
+    """Read a camera CSV by column name (``wavelength,red,green,blue`` in any order), normalised.
 
-    Used for the Solomatov/Akkaynak and butcherg files, the colour-science rawtoaces CSV and the
-    calibrated camera of ``calib spd`` (:func:`calib.spd.pipeline.measure_spd`).
-
-    Raises
-    ------
-    SpectrumError
-        Not 4 columns, a malformed axis or value, or curves that are zero everywhere (the file is
-        named).
+    Used for the Solomatov/Akkaynak files and the colour-science rawtoaces CSV; butcherg's CSVs have
+    no header line and are read with ``channels_in_order=True`` (their documented ``wl,r,g,b``).
     """
     path = Path(path)
-    table = read_table(path)
-    if table.rows.shape[1] != 4:
-        raise SpectrumError(
-            f"expected 4 columns (wavelength and 3 sensitivity columns R, G, B), found "
-            f"{table.rows.shape[1]}: {table.columns}",
-            source=str(path),
-        )
     label = name or path.stem
-    curves = MultiSpectrum(table.rows[:, 0], table.rows[:, 1:], name=label, negative="clip")
-    return _normalised(curves, label)
+    curves = read_camera_csv(path, name=label, channels_in_order=channels_in_order)
+    return _normalised(curves.to_multispectrum(), label)
 
 
 def solomatov_camera_name(path: str | Path) -> tuple[str, str]:
@@ -281,33 +271,9 @@ def butcherg_camera_name(path: str | Path) -> str:
 
 
 def read_rawtoaces_json(path: str | Path) -> MultiSpectrum:
-    """Read an AMPAS spectral-data JSON camera file (``spectral_data.data.main["<nm>"] = [R, G, B]``)."""
-    path = Path(path)
-    try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror}", source=str(path)) from None
-    except json.JSONDecodeError as exc:
-        raise InputError(
-            f"not valid JSON ({exc.msg} at line {exc.lineno})", source=str(path)
-        ) from None
-    try:
-        main = document["spectral_data"]["data"]["main"]
-        header = document.get("header", {})
-        items = sorted((float(key), [float(v) for v in value]) for key, value in main.items())
-    except (KeyError, TypeError, ValueError, AttributeError):
-        raise InputError(
-            "not an AMPAS camera file: expected spectral_data.data.main = {nm: [R, G, B]}",
-            source=str(path),
-        ) from None
-    name = " ".join(str(header.get(key, "")) for key in ("manufacturer", "model")).strip()
-    values = np.array([rgb for _, rgb in items], dtype=np.float64)
-    if values.ndim != 2 or values.shape[1] != 3:
-        raise InputError(
-            f"each wavelength needs 3 values [R, G, B], got shape {values.shape}", source=str(path)
-        )
-    curves = MultiSpectrum([nm for nm, _ in items], values, name=name or path.stem, negative="clip")
-    return _normalised(curves, curves.name)
+    """Read an AMPAS spectral-data JSON camera file (:func:`calib.core.formats.ampas.read_camera_json`)."""
+    curves = read_camera_json(path).curves
+    return _normalised(curves.to_multispectrum(), curves.name)
 
 
 def colour_science_cameras() -> list[CameraRecord]:
@@ -384,7 +350,7 @@ def load_collection(collection: str, data_dir: str | Path | None = None) -> list
             camera = butcherg_camera_name(path)
             kind = "spectroscope" if "spectroscope" in path.parts else "camspec"
             name = f"{camera} (butcherg {kind})"
-            curves = read_rgb_csv(path, name=name)
+            curves = read_rgb_csv(path, name=name, channels_in_order=True)
         else:
             curves = read_rawtoaces_json(path)
             camera = curves.name

@@ -69,6 +69,21 @@ def relative_error(estimated: ArrayLike, truth: ArrayLike, *, normalise: bool = 
     return float(np.mean(rmse / peaks))
 
 
+def format_re(value: float | None, digits: int = 2) -> str:
+    """An RE (sensitivity or mapping) as every command and report prints it: ×10⁻², as the paper.
+
+    Examples
+    --------
+    >>> format_re(0.0431)
+    '4.31 ×10⁻²'
+    >>> format_re(None)
+    '—'
+    """
+    if value is None or not np.isfinite(value):
+        return "—"
+    return f"{value * 100:.{digits}f} ×10⁻²"
+
+
 def mapping_relative_error(
     estimated_nm: ArrayLike, truth_nm: ArrayLike, *, range_nm: tuple[float, float] = (400.0, 700.0)
 ) -> float:

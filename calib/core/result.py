@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.camera_curves import CHANNEL_LABELS, CameraCurves
 from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.spectra import MultiSpectrum, Spectrum
@@ -111,6 +112,25 @@ class EstimateResult:
         """What ``sensitivity.csv`` holds, and what RE is scored on (:func:`physical_curves`)."""
         return physical_curves(self.sensitivity)
 
+    def camera_curves(self, name: str = "estimated sensitivity") -> CameraCurves:
+        """The delivered curves (:meth:`physical_sensitivity`) with their σ on the same scale."""
+        clipped = np.clip(self.sensitivity, 0.0, None)
+        peak = float(clipped.max())
+        scale = 1.0 / peak if peak > 0 else 1.0
+        sigma = None if self.sensitivity_sigma is None else self.sensitivity_sigma * scale
+        return CameraCurves(self.wavelength_nm, clipped * scale, sigma, name=name)
+
+    def to_colour(self, name: str = "estimated sensitivity") -> Any:
+        """colour-science's ``RGB_CameraSensitivities`` of the delivered curves (on this grid).
+
+        Examples
+        --------
+        >>> result = EstimateResult("demo", [400, 500, 600], [[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]])
+        >>> result.to_colour().values[:, 2].tolist()
+        [1.0, 0.2, 0.0]
+        """
+        return self.camera_curves(name).to_colour()
+
     def sensitivity_spectrum(self, name: str = "estimated sensitivity") -> MultiSpectrum:
         return MultiSpectrum(self.wavelength_nm, np.clip(self.sensitivity, 0, None), name=name)
 
@@ -122,17 +142,19 @@ class EstimateResult:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-safe data (lists, floats, strings; NaN → ``None``)."""
+        """Plain JSON-safe data (lists, floats, strings; NaN → ``None``); channels ``R, G, B``."""
         return {
             "method": self.method,
             "wavelength_nm": json_safe(self.wavelength_nm),
             "sensitivity": {
-                channel: json_safe(self.sensitivity[:, k]) for k, channel in enumerate("rgb")
+                channel: json_safe(self.sensitivity[:, k])
+                for k, channel in enumerate(CHANNEL_LABELS)
             },
             "sensitivity_sigma": None
             if self.sensitivity_sigma is None
             else {
-                channel: json_safe(self.sensitivity_sigma[:, k]) for k, channel in enumerate("rgb")
+                channel: json_safe(self.sensitivity_sigma[:, k])
+                for k, channel in enumerate(CHANNEL_LABELS)
             },
             "grating_efficiency": json_safe(self.grating_efficiency),
             "grating_efficiency_sigma": json_safe(self.grating_efficiency_sigma),

@@ -354,6 +354,28 @@ class Spectrum:
         )
 
 
+def as_spectrum(spectrum: object, name: str | None = None) -> Spectrum:
+    """Any spectrum-like object as a :class:`Spectrum`: a :class:`Spectrum`, or a colour-science
+    ``SpectralDistribution`` (read through its ``wavelengths`` and ``values``; colour itself is
+    not imported).
+
+    Raises
+    ------
+    SpectrumError
+        Not a spectrum (names what was given), or invalid values.
+    """
+    if isinstance(spectrum, Spectrum):
+        return spectrum
+    values = getattr(spectrum, "values", None)
+    if getattr(spectrum, "wavelengths", None) is None or values is None or np.ndim(values) != 1:
+        raise SpectrumError(
+            f"{type(spectrum).__name__} is not a spectrum: expected a Spectrum or colour's "
+            "SpectralDistribution",
+            source=name or "spectrum",
+        )
+    return Spectrum.from_colour(spectrum, name=name)
+
+
 @dataclass(frozen=True, eq=False, init=False)
 class MultiSpectrum:
     """Several curves on one wavelength axis, e.g. a camera's R, G, B sensitivities.
@@ -482,14 +504,148 @@ def _to_float(text: str, delimiter: str | None, where: str) -> float:
         raise SpectrumError(f"{cleaned!r} is not a number", source=where) from None
 
 
+#: Header names that mean the wavelength column (compared after :func:`column_key`).
+WAVELENGTH_COLUMNS: tuple[str, ...] = (
+    "wavelength_nm",
+    "wavelength",
+    "wavelengths",
+    "wl",
+    "wl_nm",
+    "nm",
+    "lambda",
+    "lambda_nm",
+    "λ",
+    "λ_nm",
+)
+#: Header names of each camera channel, in the order R, G, B.
+CHANNEL_COLUMNS: tuple[tuple[str, ...], ...] = (("r", "red"), ("g", "green"), ("b", "blue"))
+#: How a channel's standard-deviation column is named (``{channel}`` is any of its names).
+SIGMA_COLUMN_PATTERNS: tuple[str, ...] = (
+    "{channel}_sigma",
+    "sigma_{channel}",
+    "{channel}_σ",
+    "σ_{channel}",
+    "{channel}_std",
+)
+
+_UNIT_SUFFIX = re.compile(r"\s*[\(\[]\s*(nm|nanometres?|nanometers?)\s*[\)\]]\s*$")
+
+
+def column_key(header: str) -> str:
+    """A header cell as compared with the known names: lower case, a trailing ``(nm)``/``[nm]`` unit
+    removed, spaces and hyphens as ``_`` (``"Wavelength (nm)"`` → ``"wavelength"``)."""
+    key = header.strip().strip('"').strip("'").lower()
+    key = _UNIT_SUFFIX.sub("", key)
+    return re.sub(r"[\s\-]+", "_", key.strip())
+
+
+def sigma_column_names(channel: int) -> tuple[str, ...]:
+    """Every header name of channel ``channel``'s (0 = R) standard-deviation column."""
+    return tuple(
+        pattern.format(channel=name)
+        for name in CHANNEL_COLUMNS[channel]
+        for pattern in SIGMA_COLUMN_PATTERNS
+    )
+
+
 @dataclass(frozen=True)
 class CsvTable:
-    """A numeric table read from a CSV file: a header (possibly synthesised) and rows."""
+    """A numeric table read from a CSV file: a header (possibly synthesised) and rows.
+
+    Columns are found by name (:meth:`find`, :meth:`wavelength_index`, :meth:`rgb_indices`); a
+    table without a header line has the wavelength in its first column and nothing else known.
+    """
 
     columns: tuple[str, ...]
     rows: FloatArray
     path: Path
     had_header: bool
+
+    def find(self, names: Sequence[str], what: str) -> int | None:
+        """The one column whose name is in ``names``; ``None`` when none is.
+
+        Raises
+        ------
+        SpectrumError
+            When two columns both name ``what`` (an ambiguous table).
+        """
+        keys = [column_key(column) for column in self.columns]
+        wanted = {column_key(name) for name in names}
+        found = [index for index, key in enumerate(keys) if key in wanted]
+        if len(found) > 1:
+            clash = " and ".join(repr(self.columns[i]) for i in found)
+            raise SpectrumError(
+                f"columns {clash} both name the {what}; the table is ambiguous (columns "
+                f"{', '.join(self.columns)})",
+                source=str(self.path),
+            )
+        return found[0] if found else None
+
+    def wavelength_index(self) -> int:
+        """The wavelength column: by name (:data:`WAVELENGTH_COLUMNS`), the first without a header.
+
+        Raises
+        ------
+        SpectrumError
+            A header that names no wavelength column, or two.
+        """
+        if not self.had_header:
+            return 0
+        index = self.find(WAVELENGTH_COLUMNS, "wavelength")
+        if index is None:
+            raise SpectrumError(
+                f"no wavelength column among {', '.join(self.columns)}; name it wavelength_nm "
+                "(or wavelength, wl, nm, lambda)",
+                source=str(self.path),
+            )
+        return index
+
+    def rgb_indices(self) -> tuple[tuple[int, int, int], tuple[int, int, int] | None]:
+        """The R, G, B columns and their σ columns (``None`` when there are none), by name.
+
+        Raises
+        ------
+        SpectrumError
+            No header (which column is which cannot be known), a channel missing or named twice,
+            σ columns for some channels only, or a column that is none of these.
+        """
+        if not self.had_header:
+            raise SpectrumError(
+                f"no header line, so which of the {len(self.columns) - 1} value columns is R, G or "
+                "B cannot be known; add a header such as wavelength_nm,R,G,B",
+                source=str(self.path),
+            )
+        wavelength = self.wavelength_index()
+        found = [self.find(names, f"{names[1]} channel") for names in CHANNEL_COLUMNS]
+        sigmas = [
+            self.find(sigma_column_names(k), f"σ of {CHANNEL_COLUMNS[k][1]}") for k in range(3)
+        ]
+        missing = [CHANNEL_COLUMNS[k][1] for k, index in enumerate(found) if index is None]
+        if missing:
+            raise SpectrumError(
+                f"no column for {', '.join(missing)} among {', '.join(self.columns)}; name the "
+                "channels R, G, B (or red, green, blue)",
+                source=str(self.path),
+            )
+        if any(index is None for index in sigmas) and any(index is not None for index in sigmas):
+            raise SpectrumError(
+                "give a σ column for every channel (R_sigma, G_sigma, B_sigma) or for none; "
+                f"columns are {', '.join(self.columns)}",
+                source=str(self.path),
+            )
+        known = {wavelength, *found, *sigmas}
+        extra = [self.columns[i] for i in range(len(self.columns)) if i not in known]
+        if extra:
+            raise SpectrumError(
+                f"unknown column(s) {', '.join(extra)}: a camera table has wavelength_nm, R, G, B "
+                "and optionally R_sigma, G_sigma, B_sigma",
+                source=str(self.path),
+            )
+        channels = (found[0], found[1], found[2])
+        assert None not in channels
+        if sigmas[0] is None:
+            return channels, None  # type: ignore[return-value]
+        return channels, (sigmas[0], sigmas[1], sigmas[2])  # type: ignore[return-value]
 
 
 def read_table(path: str | Path) -> CsvTable:
@@ -555,6 +711,9 @@ def read_spectrum_csv(
 ) -> Spectrum:
     """Read a ``wavelength_nm,value`` CSV (header optional, any spacing).
 
+    With a header the wavelength column is found by name (:data:`WAVELENGTH_COLUMNS`); without
+    one it is the first column.
+
     Parameters
     ----------
     path
@@ -569,29 +728,35 @@ def read_spectrum_csv(
     """
     table = read_table(path)
     label = name or table.path.name
+    wavelength = table.wavelength_index()
     if column is None:
-        if len(table.columns) != 2:
+        values = [i for i in range(len(table.columns)) if i != wavelength]
+        if len(values) != 1:
             raise SpectrumError(
-                f"{len(table.columns) - 1} value columns {table.columns[1:]}; choose one with "
-                "column=NAME or use read_multispectrum_csv",
+                f"{len(values)} value columns {tuple(table.columns[i] for i in values)}; choose "
+                "one with column=NAME or use read_multispectrum_csv",
                 source=str(table.path),
             )
-        index = 1
+        index = values[0]
     elif isinstance(column, int):
-        if not 1 <= column < len(table.columns):
+        if not 1 <= column < len(table.columns) or column == wavelength:
             raise SpectrumError(
-                f"column index {column} out of range 1..{len(table.columns) - 1}",
+                f"column index {column} out of range 1..{len(table.columns) - 1} (or the "
+                "wavelength column)",
                 source=str(table.path),
             )
         index = column
     else:
-        if column.lower() not in table.columns:
+        found = table.find((column,), f"column {column!r}")
+        if found is None:
             raise SpectrumError(
                 f"no column {column!r}; columns are {table.columns}", source=str(table.path)
             )
-        index = table.columns.index(column.lower())
+        index = found
     try:
-        return Spectrum(table.rows[:, 0], table.rows[:, index], name=label, negative=negative)
+        return Spectrum(
+            table.rows[:, wavelength], table.rows[:, index], name=label, negative=negative
+        )
     except SpectrumError as exc:
         raise SpectrumError(str(exc).removeprefix(f"{label}: "), source=str(table.path)) from None
 
@@ -603,21 +768,32 @@ def read_multispectrum_csv(
     name: str | None = None,
     negative: NegativePolicy = "error",
 ) -> MultiSpectrum:
-    """Read a ``wavelength_nm,c1,c2,…`` CSV, e.g. ``wavelength_nm,r,g,b``.
+    """Read a ``wavelength_nm,c1,c2,…`` CSV: the wavelength column by name, every other column a
+    channel named by its header, in the file's order.
 
     ``channels`` overrides the names from the header (required count = number of value columns).
+    A camera's R, G, B (in that order whatever the file's, with σ) is
+    :func:`calib.core.camera_curves.read_camera_csv`.
     """
     table = read_table(path)
     label = name or table.path.name
-    names = tuple(channels) if channels is not None else table.columns[1:]
-    if len(names) != len(table.columns) - 1:
+    wavelength = table.wavelength_index()
+    value_columns = [i for i in range(len(table.columns)) if i != wavelength]
+    names = (
+        tuple(channels) if channels is not None else tuple(table.columns[i] for i in value_columns)
+    )
+    if len(names) != len(value_columns):
         raise SpectrumError(
-            f"{len(table.columns) - 1} value columns but {len(names)} channel names {names}",
+            f"{len(value_columns)} value columns but {len(names)} channel names {names}",
             source=str(table.path),
         )
     try:
         return MultiSpectrum(
-            table.rows[:, 0], table.rows[:, 1:], channels=names, name=label, negative=negative
+            table.rows[:, wavelength],
+            table.rows[:, value_columns],
+            channels=names,
+            name=label,
+            negative=negative,
         )
     except SpectrumError as exc:
         raise SpectrumError(str(exc).removeprefix(f"{label}: "), source=str(table.path)) from None

@@ -33,6 +33,7 @@ import platformdirs
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
+from calib.core.camera_curves import as_camera
 from calib.core.colour_data import colour_matching_functions
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import InputError
@@ -261,13 +262,14 @@ def _as_curve_stack(
     cameras: Sequence[MultiSpectrum] | ArrayLike, grid: WavelengthGrid
 ) -> FloatArray:
     """Curves of shape ``(n_cameras, f, 3)`` on ``grid``, each divided by its overall maximum."""
-    if isinstance(cameras, Sequence) and cameras and isinstance(cameras[0], MultiSpectrum):
-        stack = np.stack(
-            [
-                camera.resample(grid, "interpolate", out_of_range="zero").values  # type: ignore[union-attr]
-                for camera in cameras
-            ]
-        )
+    if (
+        isinstance(cameras, Sequence)
+        and cameras
+        and not np.isscalar(cameras[0])
+        and (isinstance(cameras[0], MultiSpectrum) or hasattr(cameras[0], "wavelengths"))
+    ):
+        # MultiSpectrum or colour-science cameras: R, G, B by channel name
+        stack = np.stack([as_camera(camera).at(grid.wavelength_nm) for camera in cameras])
     else:
         stack = np.array(cameras, dtype=np.float64)
     if stack.ndim != 3 or stack.shape[1:] != (grid.size, 3):

@@ -20,7 +20,13 @@ from calib.core.arrays import FloatArray
 from calib.core.errors import InputError, SpectrumError
 from calib.core.lamp_specs import is_spectrum_file, lamp_from_spec
 from calib.core.observations import LAMP_KINDS, LampKind
-from calib.core.spectra import Spectrum, WavelengthGrid, read_spectrum_csv, read_table
+from calib.core.spectra import (
+    Spectrum,
+    WavelengthGrid,
+    as_spectrum,
+    read_spectrum_csv,
+    read_table,
+)
 
 #: Negative spectrum values (dark-subtraction noise) up to this fraction of the maximum are set to
 #: zero with a warning; larger ones mean a broken measurement and are refused.
@@ -151,9 +157,9 @@ def load_spectrum(source: Path | Spectrum, lamp: str, grid: WavelengthGrid) -> L
         A name that is neither a file nor a known spectrum.
     """
     warnings: list[str] = []
-    if isinstance(source, Spectrum):
-        spectrum, where = source, f"spectrum of lamp {lamp!r}"
-    elif not is_spectrum_file(source):
+    if not isinstance(source, str | Path):  # a Spectrum, or colour's SpectralDistribution
+        spectrum, where = as_spectrum(source, lamp), f"spectrum of lamp {lamp!r}"
+    elif not is_spectrum_file(Path(source)):
         # A colour-science name, builtin:NAME or gauss:… — resolved where every lamp spec is.
         spectrum, where = lamp_from_spec(str(source)), f"spectrum {str(source)!r} of lamp {lamp!r}"
     else:

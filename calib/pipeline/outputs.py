@@ -1,65 +1,168 @@
 """The files an offline estimate leaves behind (``report.html`` is :mod:`calib.pipeline.report`).
 
+On the estimate's own working grid:
+
 ``sensitivity.csv``
-    ``wavelength_nm,r,g,b`` on the working grid, the maximum over all channels 1 (negative wiggles of
-    the estimate set to zero; ``result.json`` keeps them).
+    ``wavelength_nm,R,G,B,R_sigma,G_sigma,B_sigma`` (σ columns only when the method gives σ), then
+    ``#`` lines saying the units (relative), the normalisation (maximum over all channels 1), how
+    many negative values of the solve were set to zero, and the camera; read by column name by
+    colour-science (``colour.io.read_sds_from_csv_file``), numpy and spreadsheets.
 ``result.json``
-    Everything about the estimate: method, mapping coefficients and its error estimate, grating
-    efficiency, per-wavelength uncertainty (``null`` with the reason when the method gives none),
-    residuals per lamp, input files with sha256, software version, command line, warnings.
-``<make>_<model>_<start>_<stop>_<step>.json``
-    The camera in the AMPAS spectral-data schema (0.1.0) that rawtoaces reads from its camera data
-    directory: ``header`` (manufacturer, model, …) and ``spectral_data.data.main["<nm>"] = [R, G, B]``.
+    Everything about the estimate: method, sensitivity and σ (``R, G, B``, unclipped), mapping and
+    its error estimate, grating efficiency, residuals per lamp, the camera's uses (ACES IDTs,
+    colour-correction matrices and ColorChecker ΔE2000, the truth comparison when known), input files
+    with sha256, software, command line, warnings.
 ``grating.json``
     The grating efficiency found (when the method estimates it), in the :mod:`calib.core.grating_file`
     format, for a later ``--grating`` estimate without a direct measurement.
+
+On 380–780 nm at 5 nm, the estimate extended honestly beyond its measured range
+(:mod:`calib.model.extension`: predicted from alike measured cameras, with σ, and said so):
+
+``<Make>_<Model>_380_780_5.json``
+    The camera in the AMPAS spectral-data schema 1.0.0, checked against the schema and rawtoaces'
+    loading rules (:mod:`calib.core.formats.ampas`); make and model as LibRaw names the RAW files
+    (:mod:`calib.pipeline.camera_identity`). Drops into rawtoaces' ``data/camera/``.
+``<Make>_<Model>_ssf.json``
+    dcamprof's SSF JSON (strict JSON) for ``dcamprof make-target/make-profile -c``
+    (:mod:`calib.core.formats.dcamprof`); ``calib profile`` runs dcamprof with it.
+``<Make>_<Model>.txt``
+    vkdt's ``λ R G B`` text for ``vkdt-mkclut`` (:mod:`calib.core.formats.vkdt`).
+``dcamprof/<Make> <Model>.dcp``, ``dcamprof/<Make> <Model>.icc``
+    Dual-illuminant DCP and ICC profiles, when dcamprof is installed (:mod:`calib.use.dcamprof`);
+    without it ``result.json`` says so and ``calib profile DIR`` makes them later.
 """
 
 from __future__ import annotations
 
-import csv
+import hashlib
 import json
 import math
-import re
-import uuid
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from calib.core.camera_curves import CameraCurves
+from calib.core.errors import CalibError
+from calib.core.formats.ampas import AmpasHeader, camera_file_name, file_stem, write_camera_json
+from calib.core.formats.dcamprof import write_ssf_json
+from calib.core.formats.result_json import RESULT_FORMAT_VERSION, RESULT_SCHEMA
+from calib.core.formats.rgb_csv import write_camera_csv
+from calib.core.formats.vkdt import write_vkdt_txt
 from calib.core.grating_file import GratingEfficiency, write_grating_file
+from calib.core.metrics import format_re
 from calib.core.result import EstimateResult, json_safe
+from calib.core.truth import GroundTruth
+from calib.model.extension import Extension, extend
+from calib.pipeline.camera_identity import CameraIdentity, camera_identity
 from calib.pipeline.estimate import OfflineEstimate
-
-RESULT_SCHEMA = "spectral-rig/estimate-result"
-RESULT_FORMAT_VERSION = 1
-#: The AMPAS spectral-data schema version rawtoaces' camera files use.
-AMPAS_SCHEMA_VERSION = "0.1.0"
+from calib.use import CameraUses, camera_uses
+from calib.use.dcamprof import DcamprofError, find_dcamprof, make_profiles
 
 SENSITIVITY_FILE = "sensitivity.csv"
 RESULT_FILE = "result.json"
 GRATING_FILE = "grating.json"
+DCAMPROF_DIR = "dcamprof"
+#: The camera files carry a licence (the schema requires one); the measurement's owner decides it.
+CAMERA_FILE_LICENSE = "unspecified: set by whoever measured the camera before sharing the file"
+MEASUREMENT_EQUIPMENT = (
+    "spectral-rig: transmission diffraction grating, lamps with spectrometer-measured spectra, "
+    "the camera itself (Makabe et al. 2025)"
+)
 
 
-def _number(value: float) -> str:
-    """Shortest text that round-trips a float64."""
-    return repr(float(value))
+@dataclass(frozen=True, eq=False)
+class DeliveredCamera:
+    """The estimate as the files deliver it.
+
+    Attributes
+    ----------
+    curves
+        On the estimate's grid: negative values set to zero, maximum 1, σ on the same scale.
+    negative_values
+        How many values of the solve were negative (set to zero in the files, kept in result.json).
+    extension
+        On 380–780 nm at 5 nm (:func:`calib.model.extension.extend`).
+    identity
+        Make and model for the camera files.
+    uses
+        IDTs, colour-correction matrices, the truth comparison (``None`` when not computable).
+    uses_error
+        Why ``uses`` is ``None``.
+    truth
+        The known truth, when there is one.
+    """
+
+    curves: CameraCurves
+    negative_values: int
+    extension: Extension
+    identity: CameraIdentity
+    uses: CameraUses | None
+    uses_error: str | None
+    truth: GroundTruth | None
+
+    @property
+    def stem(self) -> str:
+        """``<Make>_<Model>``, the camera files' name."""
+        return file_stem(self.identity.make, self.identity.model)
+
+    def comments(self, result: EstimateResult) -> list[str]:
+        """What the camera files say about where their numbers come from."""
+        lines = [
+            f"{self.identity.name}: spectral sensitivity estimated by spectral-rig "
+            f"({result.method}) through an uncalibrated diffraction grating",
+            "units: relative; normalisation: maximum over all channels = 1",
+            self.extension.describe(),
+        ]
+        if self.negative_values:
+            lines.append(
+                f"{self.negative_values} negative value(s) of the solve set to zero "
+                "(result.json keeps them)"
+            )
+        if result.sensitivity_sigma is None:
+            lines.append(f"method {result.method} gives no per-wavelength sigma")
+        else:
+            lines.append("sigma: one standard deviation per wavelength, same scale")
+        re_estimate = result.mapping_re_estimate
+        if re_estimate is not None and math.isfinite(re_estimate):
+            lines.append(f"pixel-to-wavelength mapping RE estimate {format_re(re_estimate)}")
+        lines.append(f"make and model from {self.identity.source}")
+        if self.identity.note:
+            lines.append(self.identity.note)
+        return lines
 
 
-def _wavelength_key(wavelength_nm: float) -> str:
-    return str(round(wavelength_nm)) if float(wavelength_nm).is_integer() else repr(wavelength_nm)
+def _raw_file(estimate: OfflineEstimate) -> Path | None:
+    first = estimate.provenance.camera.get("first_frame")
+    return Path(first) if isinstance(first, str) and first else None
 
 
-def write_sensitivity_csv(path: Path, result: EstimateResult) -> Path:
-    """``wavelength_nm,r,g,b`` on the result's grid (maximum over all channels = 1)."""
-    curves = result.physical_sensitivity()
-    with path.open("w", newline="") as stream:
-        writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow(["wavelength_nm", "r", "g", "b"])
-        for wavelength, row in zip(result.wavelength_nm, curves, strict=True):
-            writer.writerow([_wavelength_key(float(wavelength)), *(_number(v) for v in row)])
-    return path
+def deliver(estimate: OfflineEstimate, truth: GroundTruth | None = None) -> DeliveredCamera:
+    """Everything the writers and the report share: computed once."""
+    result = estimate.result
+    curves = result.camera_curves(str(estimate.provenance.camera.get("camera") or "camera"))
+    negative = int(np.count_nonzero(result.sensitivity < 0))
+    extension = extend(curves, truth=None if truth is None else truth.camera)
+    camera = estimate.provenance.camera
+    identity = camera_identity(_raw_file(estimate), camera.get("make"), camera.get("model"))
+    uses: CameraUses | None = None
+    error: str | None = None
+    try:
+        uses = camera_uses(extension.curves, truth=None if truth is None else truth.camera)
+    except (CalibError, ValueError, np.linalg.LinAlgError) as exc:
+        error = f"the camera's uses could not be computed: {exc}"
+    return DeliveredCamera(curves, negative, extension, identity, uses, error, truth)
+
+
+def write_sensitivity_csv(
+    path: Path, result: EstimateResult, comments: list[str] | None = None
+) -> Path:
+    """``wavelength_nm,R,G,B[,R_sigma,G_sigma,B_sigma]`` on the result's grid (maximum 1)."""
+    lines = comments if comments is not None else ["units: relative; maximum over all channels = 1"]
+    return write_camera_csv(path, result.camera_curves(), lines)
 
 
 def _residual_summary(residuals: Mapping[str, Any]) -> dict[str, Any]:
@@ -83,7 +186,9 @@ def _residual_summary(residuals: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def result_document(
-    estimate: OfflineEstimate, files: Mapping[str, Path] | None = None
+    estimate: OfflineEstimate,
+    files: Mapping[str, Path] | None = None,
+    delivered: DeliveredCamera | None = None,
 ) -> dict[str, Any]:
     """The ``result.json`` document."""
     result = estimate.result
@@ -151,6 +256,21 @@ def result_document(
             for obs in estimate.observations
         ],
         "diagnostics": base["diagnostics"],
+        "camera_files": None
+        if delivered is None
+        else {
+            "make": delivered.identity.make,
+            "model": delivered.identity.model,
+            "names_from": delivered.identity.source,
+            "names_note": delivered.identity.note,
+            "grid": "380:780:5",
+            "extension": delivered.extension.describe(),
+            "extended_nm": list(delivered.extension.extended_nm),
+            "negative_values_set_to_zero": delivered.negative_values,
+        },
+        "uses": None if delivered is None or delivered.uses is None else delivered.uses.to_dict(),
+        "uses_error": None if delivered is None else delivered.uses_error,
+        "truth": None if delivered is None or delivered.truth is None else delivered.truth.source,
         "provenance": estimate.provenance.to_dict(),
         "timings_s": json_safe(dict(estimate.timings)),
         "files": None if files is None else {key: path.name for key, path in files.items()},
@@ -158,87 +278,35 @@ def result_document(
 
 
 def write_result_json(
-    path: Path, estimate: OfflineEstimate, files: Mapping[str, Path] | None = None
+    path: Path,
+    estimate: OfflineEstimate,
+    files: Mapping[str, Path] | None = None,
+    delivered: DeliveredCamera | None = None,
+    *,
+    dcamprof_note: str | None = None,
 ) -> Path:
     """Write :func:`result_document` as indented JSON (NaN and infinities as ``null``)."""
-    path.write_text(json.dumps(result_document(estimate, files), indent=1, allow_nan=False) + "\n")
+    document = json_safe(result_document(estimate, files, delivered))
+    document["dcamprof"] = dcamprof_note
+    path.write_text(json.dumps(document, indent=1, allow_nan=False) + "\n")
     return path
 
 
-def _slug(text: str) -> str:
-    return re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")
-
-
-def camera_names(estimate: OfflineEstimate) -> tuple[str, str]:
-    """``(manufacturer, model)`` for the camera file, from the RAW metadata when known."""
-    camera = estimate.provenance.camera
-    make = str(camera.get("make") or "").strip()
-    model = str(camera.get("model") or "").strip()
-    if make and model.lower().startswith(make.lower()):
-        model = model[len(make) :].strip()
-    return make or "unknown", model or "camera"
-
-
-def camera_file_name(estimate: OfflineEstimate) -> str:
-    """rawtoaces' naming: ``<manufacturer>_<model>_<start>_<stop>_<step>.json`` (lower case)."""
-    make, model = camera_names(estimate)
-    wavelength = estimate.result.wavelength_nm
-    step = float(wavelength[1] - wavelength[0]) if wavelength.size > 1 else 0.0
-    parts = [_slug(make), _slug(model)] + [
-        _wavelength_key(v) for v in (float(wavelength[0]), float(wavelength[-1]), step)
-    ]
-    return "_".join(part for part in parts if part) + ".json"
-
-
-def camera_document(estimate: OfflineEstimate) -> dict[str, Any]:
-    """The camera in the AMPAS spectral-data schema (as rawtoaces' ``data/camera/*.json``)."""
-    result = estimate.result
-    make, model = camera_names(estimate)
+def camera_header(estimate: OfflineEstimate, delivered: DeliveredCamera) -> AmpasHeader:
+    """The AMPAS header of the camera JSON (schema 1.0.0: every required field non-empty)."""
     software = estimate.provenance.software
-    curves = result.physical_sensitivity()
-    mapping_re = result.mapping_re_estimate
-    comments = (
-        f"estimated by spectral-rig ({result.method}) from a diffraction grating; "
-        f"sensitivities relative, maximum over channels 1"
+    data = json.dumps(delivered.extension.curves.values.tolist()).encode()
+    return AmpasHeader(
+        manufacturer=delivered.identity.make,
+        model=delivered.identity.model,
+        description="camera spectral sensitivity data",
+        document_creator=f"{software.get('name', 'spectral-rig')} {software.get('version', '')}".strip(),
+        document_creation_date=estimate.provenance.created.strftime("%Y-%m-%dT%H:%M:%SZ"),
+        license=CAMERA_FILE_LICENSE,
+        comments="; ".join(delivered.comments(estimate.result)),
+        measurement_equipment=MEASUREMENT_EQUIPMENT,
+        unique_identifier=hashlib.sha256(data).hexdigest(),
     )
-    if mapping_re is not None and math.isfinite(mapping_re):
-        comments += f"; mapping RE estimate {mapping_re:.2e}"
-    return {
-        "header": {
-            "schema_version": AMPAS_SCHEMA_VERSION,
-            "manufacturer": make.lower(),
-            "model": model.lower(),
-            "catalog_number": f"camera_{_slug(make)}_{_slug(model)}_{AMPAS_SCHEMA_VERSION}",
-            "description": "camera spectral sensitivity data",
-            "document_creator": f"{software.get('name', 'spectral-rig')} {software.get('version', '')}".strip(),
-            "unique_identifier": str(uuid.uuid4()),
-            "measurement_equipment": "transmission diffraction grating, lamps with measured spectra",
-            "laboratory": None,
-            "document_creation_date": estimate.provenance.created.strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "comments": comments,
-            "license": None,
-        },
-        "spectral_data": {
-            "units": "relative",
-            "reflection_geometry": None,
-            "transmission_geometry": None,
-            "bandwidth_FWHM": None,
-            "bandwidth_corrected": None,
-            "index": {"main": ["R", "G", "B"]},
-            "data": {
-                "main": {
-                    _wavelength_key(float(wavelength)): [float(v) for v in row]
-                    for wavelength, row in zip(result.wavelength_nm, curves, strict=True)
-                }
-            },
-        },
-    }
-
-
-def write_camera_json(path: Path, estimate: OfflineEstimate) -> Path:
-    """Write :func:`camera_document` (indented JSON)."""
-    path.write_text(json.dumps(camera_document(estimate), indent=4) + "\n")
-    return path
 
 
 def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
@@ -275,23 +343,54 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
     )
 
 
-def write_outputs(out_dir: Path, estimate: OfflineEstimate) -> dict[str, Path]:
-    """Write ``sensitivity.csv``, the camera JSON, ``grating.json`` (if any) and ``result.json``.
+def write_outputs(
+    out_dir: Path, estimate: OfflineEstimate, delivered: DeliveredCamera | None = None
+) -> dict[str, Path]:
+    """Write every file of the module docstring into ``out_dir`` (created if missing).
 
     Returns
     -------
     dict
-        ``{"sensitivity", "camera_json", "grating", "result"}`` → path (``grating`` only when the
-        efficiency was estimated).
+        ``{"sensitivity", "camera_json", "dcamprof", "vkdt", "dcp", "icc", "grating", "result"}``
+        → path (``dcp``/``icc`` only with dcamprof installed, ``grating`` only when the efficiency
+        was estimated).
     """
+    delivered = delivered or deliver(estimate)
     out_dir.mkdir(parents=True, exist_ok=True)
+    comments = delivered.comments(estimate.result)
+    extended = delivered.extension.curves
+    stem = delivered.stem
     files: dict[str, Path] = {
-        "sensitivity": write_sensitivity_csv(out_dir / SENSITIVITY_FILE, estimate.result),
-        "camera_json": write_camera_json(out_dir / camera_file_name(estimate), estimate),
+        "sensitivity": write_sensitivity_csv(
+            out_dir / SENSITIVITY_FILE, estimate.result, comments[:2] + comments[3:]
+        ),
+        "camera_json": write_camera_json(
+            out_dir / camera_file_name(delivered.identity.make, delivered.identity.model),
+            extended,
+            camera_header(estimate, delivered),
+        ),
+        "dcamprof": write_ssf_json(out_dir / f"{stem}_ssf.json", extended, delivered.identity.name),
+        "vkdt": write_vkdt_txt(out_dir / f"{stem}.txt", extended),
     }
+    profiles, note = dcamprof_profiles(files["dcamprof"], delivered, out_dir / DCAMPROF_DIR)
+    files.update(profiles)
     grating = grating_from_result(estimate)
     if grating is not None:
         files["grating"] = write_grating_file(out_dir / GRATING_FILE, grating)
     files["result"] = out_dir / RESULT_FILE
-    write_result_json(files["result"], estimate, files)
+    write_result_json(files["result"], estimate, files, delivered, dcamprof_note=note)
     return files
+
+
+def dcamprof_profiles(
+    ssf_json: Path, delivered: DeliveredCamera, out_dir: Path
+) -> tuple[dict[str, Path], str]:
+    """DCP and ICC through dcamprof when it is on ``PATH``; otherwise nothing, and why."""
+    program = find_dcamprof()
+    if program is None:
+        return {}, "dcamprof is not installed: no DCP/ICC (calib profile DIR makes them later)"
+    try:
+        made = make_profiles(ssf_json, delivered.identity.name, out_dir, executable=program)
+    except DcamprofError as exc:
+        return {}, f"no DCP/ICC: {exc}"
+    return {"dcp": made.dcp, "icc": made.icc}, f"made by {program}"

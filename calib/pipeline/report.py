@@ -1,11 +1,13 @@
 """``report.html``: one self-contained page (plots embedded) to judge an offline estimate.
 
-Plots (also written as PNG files next to the page): the sensitivity with its uncertainty band, the
-grating efficiency, the pixel→wavelength mapping with its error band, each lamp's profile against the
-model fit with normalised residuals, and the detected geometry (:func:`calib.image.profiles.
-write_geometry_png`). Tables: the warnings first, then the method, camera, mapping coefficients, fit
-quality, timings, and every input file with its sha256. Matplotlib runs with the Agg canvas only
-(no display, no pyplot state).
+From the top: a quality banner (the result's verdict when it carries one, and every warning), the
+summary (RE as ×10⁻², as the paper), what the camera is for (ColorChecker ΔE2000 under D50, D55,
+D65 and A with the colour-correction matrix each gives, the ACES IDT matrices, and with a known
+truth the colour error the estimate costs under D65 and A), the files written with where each drops
+in (linked), then the plots (:mod:`calib.pipeline.report_plots`: sensitivity, grating efficiency,
+mapping with its residuals and matched lines, a fit per lamp, the lamp spectra, the warm-up, the
+detected geometry; truth dotted, ±2σ bands), the matched lines' table, notes, inputs with sha256
+and the command.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import os
 import re
 import shlex
 from collections.abc import Mapping, Sequence
@@ -21,189 +24,38 @@ from typing import Any
 
 import numpy as np
 
-from calib.core.arrays import FloatArray
-from calib.core.figures import agg_figure, import_matplotlib
 from calib.core.mapping import QuadraticMapping
-from calib.image.profiles import write_geometry_png
-from calib.pipeline.brackets import BracketProfiles
+from calib.core.metrics import format_re, mapping_relative_error, relative_error
+from calib.pipeline.context import EstimateContext
 from calib.pipeline.estimate import OfflineEstimate
+from calib.pipeline.outputs import DeliveredCamera, deliver
+from calib.pipeline.report_plots import (
+    import_plotting,
+    plot_efficiency,
+    plot_fit,
+    plot_geometry,
+    plot_lamp_spectra,
+    plot_mapping,
+    plot_sensitivity,
+    plot_warmup,
+)
+
+__all__ = ["PLOTS_DIR", "REPORT_FILE", "import_plotting", "plot_geometry", "write_report"]
 
 REPORT_FILE = "report.html"
 PLOTS_DIR = "plots"
-_CHANNEL_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")
-_CHANNELS = ("R", "G", "B")
 
-
-def _figure(width_in: float = 7.0, height_in: float = 3.6) -> Any:
-    # fixed margins: a constrained layout doubles the drawing time of every plot
-    figure = agg_figure(width_in, height_in)
-    figure.subplots_adjust(left=0.1, right=0.97, bottom=0.14, top=0.9, wspace=0.3, hspace=0.12)
-    return figure
-
-
-def _save(figure: Any, path: Path) -> Path:
-    figure.savefig(path, dpi=100)
-    return path
-
-
-def plot_sensitivity(path: Path, estimate: OfflineEstimate) -> Path:
-    result = estimate.result
-    figure = _figure()
-    axes = figure.subplots()
-    curves = result.physical_sensitivity()
-    scale = float(np.max(result.sensitivity)) or 1.0
-    for channel, name in enumerate(_CHANNELS):
-        axes.plot(
-            result.wavelength_nm, curves[:, channel], color=_CHANNEL_COLOURS[channel], label=name
-        )
-        if result.sensitivity_sigma is not None:
-            sigma = result.sensitivity_sigma[:, channel] / scale
-            axes.fill_between(
-                result.wavelength_nm,
-                curves[:, channel] - 2 * sigma,
-                curves[:, channel] + 2 * sigma,
-                color=_CHANNEL_COLOURS[channel],
-                alpha=0.2,
-                linewidth=0,
-            )
-    band = "±2σ band" if result.sensitivity_sigma is not None else "no uncertainty estimate"
-    axes.set_title(f"camera sensitivity ({result.method}; {band})", fontsize=10, y=1.0)
-    axes.set_xlabel("wavelength (nm)")
-    axes.set_ylabel("relative sensitivity")
-    axes.legend(fontsize=8)
-    axes.grid(alpha=0.3)
-    return _save(figure, path)
-
-
-def plot_efficiency(path: Path, estimate: OfflineEstimate) -> Path | None:
-    result = estimate.result
-    efficiency = result.grating_efficiency
-    if efficiency is None or not np.any(np.isfinite(efficiency)):
-        return None
-    figure = _figure(7.0, 3.0)
-    axes = figure.subplots()
-    axes.plot(result.wavelength_nm, efficiency, color="black")
-    if result.grating_efficiency_sigma is not None:
-        sigma = result.grating_efficiency_sigma
-        axes.fill_between(
-            result.wavelength_nm,
-            efficiency - 2 * sigma,
-            efficiency + 2 * sigma,
-            color="grey",
-            alpha=0.3,
-        )
-    origin = "given" if estimate.grating is not None else "estimated"
-    if estimate.grating is None and result.method == "known-grating":
-        origin = "assumed flat"
-    axes.set_title(f"first-order grating efficiency ({origin}, maximum 1)", fontsize=10, y=1.0)
-    axes.set_xlabel("wavelength (nm)")
-    axes.set_ylabel("relative efficiency")
-    axes.grid(alpha=0.3)
-    return _save(figure, path)
-
-
-def _mapping_sigma_nm(mapping: Any, pixel: FloatArray) -> FloatArray | None:
-    covariance = getattr(mapping, "covariance", None)
-    if covariance is None:
-        return None
-    design = np.stack([pixel**2, pixel, np.ones_like(pixel)], axis=1)
-    variance = np.einsum("ij,jk,ik->i", design, np.asarray(covariance, dtype=np.float64), design)
-    return np.asarray(np.sqrt(np.clip(variance, 0.0, None)), dtype=np.float64)
-
-
-def plot_mapping(path: Path, estimate: OfflineEstimate) -> Path | None:
-    mapping = estimate.result.mapping
-    if mapping is None or not estimate.observations:
-        return None
-    pixel = np.asarray(estimate.observations[0].pixel, dtype=np.float64)
-    wavelength = np.asarray(mapping.wavelength_nm(pixel), dtype=np.float64)
-    figure = _figure(7.0, 3.2)
-    axes, dispersion_axes = figure.subplots(1, 2, width_ratios=(1.6, 1))
-    axes.plot(pixel, wavelength, color="black", label="g(p)")
-    sigma = _mapping_sigma_nm(mapping, pixel)
-    if sigma is not None:
-        axes.fill_between(
-            pixel,
-            wavelength - 2 * sigma,
-            wavelength + 2 * sigma,
-            color="orange",
-            alpha=0.4,
-            label="±2σ",
-        )
-    grid = estimate.result.wavelength_nm
-    axes.axhspan(float(grid[0]), float(grid[-1]), color="blue", alpha=0.06, label="working grid")
-    axes.set_xlabel("pixel")
-    axes.set_ylabel("wavelength (nm)")
-    axes.set_title(f"mapping ({getattr(mapping, 'method', 'given')})", fontsize=10, y=1.0)
-    axes.legend(fontsize=8)
-    axes.grid(alpha=0.3)
-    dispersion = np.gradient(wavelength, pixel)
-    dispersion_axes.plot(pixel, dispersion, color="black")
-    dispersion_axes.set_xlabel("pixel")
-    dispersion_axes.set_ylabel("nm per pixel")
-    dispersion_axes.set_title("dispersion", fontsize=10, y=1.0)
-    dispersion_axes.grid(alpha=0.3)
-    return _save(figure, path)
-
-
-def plot_fit(path: Path, estimate: OfflineEstimate, lamp: str) -> Path | None:
-    residuals = estimate.result.residuals.get(lamp)
-    observation = next((obs for obs in estimate.observations if obs.name == lamp), None)
-    if (
-        observation is None
-        or not isinstance(residuals, Mapping)
-        or residuals.get("profile") is None
-    ):
-        return None
-    difference = np.asarray(residuals["profile"], dtype=np.float64)
-    if difference.shape != observation.profile.shape:
-        return None
-    model = observation.profile - difference
-    figure = _figure(7.0, 4.4)
-    top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=(2.2, 1))
-    pixel = observation.pixel
-    for channel, name in enumerate(_CHANNELS):
-        colour = _CHANNEL_COLOURS[channel]
-        top.plot(
-            pixel,
-            observation.profile[:, channel],
-            color=colour,
-            linewidth=0.8,
-            label=f"{name} measured",
-        )
-        top.plot(
-            pixel,
-            model[:, channel],
-            color=colour,
-            linestyle="--",
-            linewidth=1.2,
-            label=f"{name} model",
-        )
-    top.set_ylabel("profile")
-    top.set_title(f"{lamp}: profile and model", fontsize=10, y=1.0)
-    top.legend(fontsize=7, ncol=3)
-    top.grid(alpha=0.3)
-    normalised = residuals.get("profile_normalised")
-    values = np.asarray(normalised if normalised is not None else difference, dtype=np.float64)
-    for channel in range(3):
-        bottom.plot(pixel, values[:, channel], color=_CHANNEL_COLOURS[channel], linewidth=0.6)
-    bottom.axhline(0.0, color="black", linewidth=0.6)
-    bottom.set_ylabel("residual / σ" if normalised is not None else "residual")
-    bottom.set_xlabel("pixel")
-    bottom.grid(alpha=0.3)
-    return _save(figure, path)
-
-
-def plot_geometry(path: Path, profiles: BracketProfiles) -> Path:
-    """The detected geometry on the geometry lamp's image (:func:`calib.image.profiles.write_geometry_png`)."""
-    image, geometry = profiles.geometry_image()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return write_geometry_png(path, image, geometry)
-
-
-def import_plotting() -> None:
-    """Import matplotlib's Agg canvas (about a second), e.g. in a thread while frames decode."""
-    import_matplotlib()
+#: Where each written file drops in (keys of :func:`calib.pipeline.outputs.write_outputs`).
+FILE_USES = {
+    "sensitivity": "colour-science (colour.io.read_sds_from_csv_file), numpy, spreadsheets",
+    "camera_json": "rawtoaces: put it in a directory on RAWTOACES_DATA_PATH, under camera/",
+    "dcamprof": "dcamprof make-target / make-profile -c (calib profile runs them: DCP, ICC)",
+    "vkdt": "vkdt-mkclut: writes the .lut that vkdt's colour module reads",
+    "dcp": "Adobe Camera Raw / Lightroom, RawTherapee: a dual-illuminant (A, D65) camera profile",
+    "icc": "raw converters taking ICC input profiles (darktable, RawTherapee)",
+    "grating": "a later calib estimate / rig estimate --grating without a direct measurement",
+    "result": "everything above; calib idt, calib ccm and calib raw-to-raw read it",
+}
 
 
 # ---------------------------------------------------------------------------------------- HTML
@@ -245,13 +97,17 @@ body{font-family:system-ui,sans-serif;margin:2em auto;max-width:72em;color:#222}
 h1{font-size:1.5em}h2{font-size:1.2em;margin-top:1.6em;border-bottom:1px solid #ccc}
 table{border-collapse:collapse;margin:.5em 0}th,td{padding:.2em .8em;text-align:left;
 vertical-align:top;border-bottom:1px solid #eee}table.facts th{color:#555;font-weight:normal}
+td.num{text-align:right;font-variant-numeric:tabular-nums}
+.banner{border:1px solid #bbb;border-left:6px solid #888;padding:.6em 1em;margin:1em 0}
 .warning{background:#fff4e5;border-left:4px solid #f0a020;padding:.5em 1em;margin:.4em 0}
 figure{margin:1em 0}img{max-width:100%}figcaption{color:#666;font-size:.9em}
-code{font-size:.85em;word-break:break-all}
+code{font-size:.85em;word-break:break-all}pre{font-size:.85em}
 """
 
 
-def _summary_rows(estimate: OfflineEstimate) -> list[tuple[str, object]]:
+def _summary_rows(
+    estimate: OfflineEstimate, delivered: DeliveredCamera
+) -> list[tuple[str, object]]:
     result = estimate.result
     mapping = result.mapping
     diagnostics = result.diagnostics
@@ -259,11 +115,18 @@ def _summary_rows(estimate: OfflineEstimate) -> list[tuple[str, object]]:
     rows: list[tuple[str, object]] = [
         ("method", result.method),
         ("camera", camera.get("camera", "— (profile input)")),
+        (
+            "camera files name it",
+            f"{delivered.identity.name} (from {delivered.identity.source})"
+            + (f"; {delivered.identity.note}" if delivered.identity.note else ""),
+        ),
         ("lamps", ", ".join(f"{obs.name} ({obs.kind})" for obs in estimate.observations)),
         (
             "working grid",
-            f"{result.wavelength_nm[0]:g}–{result.wavelength_nm[-1]:g} nm, {result.wavelength_nm.size} wavelengths",
+            f"{result.wavelength_nm[0]:g}–{result.wavelength_nm[-1]:g} nm, "
+            f"{result.wavelength_nm.size} wavelengths",
         ),
+        ("camera files (380–780 nm / 5 nm)", delivered.extension.describe()),
     ]
     if isinstance(mapping, QuadraticMapping):
         a, b, c = mapping.coefficients
@@ -274,8 +137,42 @@ def _summary_rows(estimate: OfflineEstimate) -> list[tuple[str, object]]:
             )
         )
         rows.append(("mapping found by", getattr(mapping, "method", "—")))
-    rows.append(("mapping RE estimate", result.mapping_re_estimate))
+    rows.append(("mapping RE estimate", format_re(result.mapping_re_estimate)))
+    truth = delivered.truth
+    if truth is not None:
+        true_curves = truth.camera.at(result.wavelength_nm)
+        rows.append(
+            (
+                "RE against the truth (Eq. 16, estimate's grid)",
+                format_re(relative_error(delivered.curves.values, true_curves)),
+            )
+        )
+        if truth.mapping is not None and mapping is not None and estimate.observations:
+            pixel = estimate.observations[0].pixel
+            rows.append(
+                (
+                    "mapping RE against the truth (Supp. Eq. 1)",
+                    format_re(
+                        mapping_relative_error(
+                            mapping.wavelength_nm(pixel),
+                            truth.mapping.wavelength_nm(pixel),
+                            range_nm=(
+                                float(result.wavelength_nm[0]),
+                                float(result.wavelength_nm[-1]),
+                            ),
+                        )
+                    ),
+                )
+            )
+        rows.append(("truth from", truth.source))
     rows.append(("reduced χ² of the fit", diagnostics.get("reduced_chi2")))
+    if delivered.negative_values:
+        rows.append(
+            (
+                "negative values of the solve",
+                f"{delivered.negative_values}, set to zero in the files",
+            )
+        )
     basis = diagnostics.get("basis")
     if isinstance(basis, Mapping):
         rows.append(("camera basis", basis.get("source")))
@@ -298,22 +195,194 @@ def _summary_rows(estimate: OfflineEstimate) -> list[tuple[str, object]]:
     return rows
 
 
+def _quality_banner(estimate: OfflineEstimate) -> str:
+    """The quality verdict the result carries (a later stage fills it) and every warning."""
+    quality = estimate.result.diagnostics.get("quality")
+    if isinstance(quality, Mapping) and quality.get("verdict"):
+        verdict = f"Quality: <strong>{_escape(quality['verdict'])}</strong>"
+        reasons = quality.get("reasons")
+        if isinstance(reasons, Sequence) and not isinstance(reasons, str):
+            verdict += "".join(f"<br>{_escape(reason)}" for reason in reasons)
+    else:
+        verdict = "Quality: no verdict recorded for this result."
+    warnings = estimate.provenance.warnings
+    parts = [f"<div class='banner'>{verdict}"]
+    if warnings:
+        parts.append(f"<br>{len(warnings)} warning(s):")
+        parts.extend(f"<div class='warning'>{_escape(w)}</div>" for w in warnings)
+    else:
+        parts.append("<br>No warnings.")
+    parts.append("</div>")
+    return "".join(parts)
+
+
+def _number_cell(value: float, digits: int = 2) -> str:
+    return f"<td class='num'>{value:.{digits}f}</td>" if math.isfinite(value) else "<td>—</td>"
+
+
+def _matrix(values: Any) -> str:
+    rows = np.asarray(values, dtype=np.float64)
+    return "<pre>" + "\n".join("  ".join(f"{v:+.4f}" for v in row) for row in rows) + "</pre>"
+
+
+def _colour_section(delivered: DeliveredCamera) -> list[str]:
+    """ΔE2000 of the ColorChecker under each illuminant, the truth comparison, the IDTs."""
+    parts = ["<h2>What the camera is for: colour</h2>"]
+    uses = delivered.uses
+    if uses is None:
+        parts.append(f"<p>{_escape(delivered.uses_error or 'not computed')}</p>")
+        return parts
+    if uses.truth:
+        parts.append(
+            "<p>Against the truth: the real camera's ColorChecker developed with the "
+            "colour-correction matrix fitted to the estimate, compared with the same RGB developed "
+            "with the matrix fitted to the truth (what the estimate costs), and with colorimetry. "
+            "ΔE2000, mean / max over the 24 patches.</p><table><tr><th>illuminant</th>"
+            "<th>estimate vs truth</th><th>worst patch</th><th>estimate's matrix vs colorimetry"
+            "</th><th>truth's own matrix vs colorimetry</th></tr>"
+        )
+        for comparison in uses.truth:
+            parts.append(
+                f"<tr><td>{_escape(comparison.illuminant)}</td>"
+                f"<td class='num'>{comparison.estimate_vs_truth.mean:.2f} / "
+                f"{comparison.estimate_vs_truth.max:.2f}</td>"
+                f"<td>{_escape(comparison.estimate_vs_truth.worst)}</td>"
+                f"<td class='num'>{comparison.estimate_vs_colorimetry.mean:.2f} / "
+                f"{comparison.estimate_vs_colorimetry.max:.2f}</td>"
+                f"<td class='num'>{comparison.truth_vs_colorimetry.mean:.2f} / "
+                f"{comparison.truth_vs_colorimetry.max:.2f}</td></tr>"
+            )
+        parts.append("</table>")
+    parts.append(
+        "<p>Colour-correction matrix per illuminant (white-balanced camera RGB → CIE XYZ, the "
+        "white exact) and the ΔE2000 of the ColorChecker it predicts from the estimated curves "
+        "(how close a 3×3 matrix brings this camera to colorimetry).</p><table><tr>"
+        "<th>illuminant</th><th>mean ΔE2000</th><th>max</th><th>worst patch</th>"
+        "<th>white balance R, G, B</th><th>matrix</th></tr>"
+    )
+    for correction in uses.corrections:
+        parts.append(
+            f"<tr><td>{_escape(correction.illuminant)}</td>"
+            + _number_cell(correction.delta_e.mean)
+            + _number_cell(correction.delta_e.max)
+            + f"<td>{_escape(correction.delta_e.worst)}</td><td>"
+            + ", ".join(f"{v:.3f}" for v in correction.white_balance)
+            + f"</td><td>{_matrix(correction.matrix)}</td></tr>"
+        )
+    parts.append(
+        "</table><p>ACES IDT (colour.matrix_idt, rawtoaces' method): white-balanced "
+        "camera RGB → ACES2065-1.</p><table><tr><th>illuminant</th>"
+        "<th>white balance</th><th>matrix</th></tr>"
+    )
+    for idt in uses.idts:
+        parts.append(
+            f"<tr><td>{_escape(idt.illuminant)}</td><td>"
+            + ", ".join(f"{v:.3f}" for v in idt.white_balance)
+            + f"</td><td>{_matrix(idt.matrix)}</td></tr>"
+        )
+    parts.append("</table>")
+    return parts
+
+
+def matched_lines(estimate: OfflineEstimate) -> list[dict[str, Any]] | None:
+    """The mapping's matched emission lines, when the mapping search records them."""
+    result = estimate.result
+    candidates: list[Any] = [getattr(result.mapping, "matched_lines", None)]
+    details = getattr(result.mapping, "details", None)
+    if isinstance(details, Mapping):
+        candidates.append(details.get("matched_lines"))
+    diagnostics = result.diagnostics
+    candidates.append(diagnostics.get("matched_lines"))
+    mapping_info = diagnostics.get("mapping")
+    if isinstance(mapping_info, Mapping):
+        candidates.append(mapping_info.get("matched_lines"))
+    for lines in candidates:
+        if lines is None or isinstance(lines, str | bytes) or not isinstance(lines, Sequence):
+            continue
+        records = []
+        for line in lines:
+            if hasattr(line, "to_dict"):
+                line = line.to_dict()
+            if isinstance(line, Mapping):
+                records.append(dict(line))
+        return records
+    return None
+
+
+def _lines_section(lines: list[dict[str, Any]] | None) -> list[str]:
+    parts = ["<h2>Matched lines</h2>"]
+    if lines is None:
+        return [
+            *parts,
+            "<p>Not available: this mapping search does not record the lines it matched.</p>",
+        ]
+    if not lines:
+        return [*parts, "<p>The mapping search matched no lines.</p>"]
+    columns = list(dict.fromkeys(key for line in lines for key in line))
+    parts.append("<table><tr>" + "".join(f"<th>{_escape(c)}</th>" for c in columns) + "</tr>")
+    for line in lines:
+        parts.append(
+            "<tr>"
+            + "".join(f"<td>{_escape(_format(line.get(c), 7))}</td>" for c in columns)
+            + "</tr>"
+        )
+    parts.append("</table>")
+    return parts
+
+
+def _files_section(files: Mapping[str, Path], out_dir: Path) -> list[str]:
+    parts = ["<h2>Files</h2><table><tr><th>file</th><th>drops into</th></tr>"]
+    for key, path in files.items():
+        if key.startswith("plot:") or key == "report":
+            continue
+        link = Path(os.path.relpath(path, out_dir)).as_posix()
+        parts.append(
+            f"<tr><td><a href='{_escape(link)}'><code>{_escape(path.name)}</code></a></td>"
+            f"<td>{_escape(FILE_USES.get(key, ''))}</td></tr>"
+        )
+    parts.append("</table>")
+    if "dcp" not in files:
+        parts.append(
+            "<p>DCP and ICC profiles: not made here (dcamprof was not found on PATH, or failed: "
+            "result.json's <code>dcamprof</code> entry says which); <code>calib profile "
+            "DIR</code> makes them with dcamprof installed.</p>"
+        )
+    return parts
+
+
 def write_report(
     out_dir: Path,
     estimate: OfflineEstimate,
     files: Mapping[str, Path] | None = None,
     *,
     prepared: Mapping[str, Path] | None = None,
+    delivered: DeliveredCamera | None = None,
+    context: EstimateContext | None = None,
 ) -> dict[str, Path]:
     """Write the plots (``plots/*.png``) and ``report.html`` into ``out_dir``.
 
-    ``prepared`` holds plots already drawn (``{"plot:geometry": path}``), which are reused.
+    Parameters
+    ----------
+    out_dir
+        Where the other outputs are.
+    estimate
+        The estimate.
+    files
+        The files written for it (linked from the page).
+    prepared
+        Plots already drawn (``{"plot:geometry": path}``), reused.
+    delivered
+        :func:`calib.pipeline.outputs.deliver`'s result (computed here when not given).
+    context
+        The truth and the session's warm-up records, when known.
 
     Returns
     -------
     dict
         ``{"report": path, "plot:<name>": path, …}``.
     """
+    context = context or EstimateContext()
+    delivered = delivered or deliver(estimate, context.truth)
     plots_dir = out_dir / PLOTS_DIR
     plots_dir.mkdir(parents=True, exist_ok=True)
     written: dict[str, Path] = {}
@@ -324,20 +393,35 @@ def write_report(
             written[f"plot:{name}"] = path
             figures.append((path, caption))
 
+    lines = matched_lines(estimate)
     add(
         "sensitivity",
-        plot_sensitivity(plots_dir / "sensitivity.png", estimate),
-        "estimated camera sensitivity",
+        plot_sensitivity(plots_dir / "sensitivity.png", estimate, delivered),
+        "camera sensitivity",
     )
-    add("efficiency", plot_efficiency(plots_dir / "efficiency.png", estimate), "grating efficiency")
-    add("mapping", plot_mapping(plots_dir / "mapping.png", estimate), "pixel → wavelength mapping")
+    add(
+        "efficiency",
+        plot_efficiency(plots_dir / "efficiency.png", estimate, delivered),
+        "grating efficiency",
+    )
+    add(
+        "mapping",
+        plot_mapping(plots_dir / "mapping.png", estimate, delivered, lines or ()),
+        "pixel → wavelength mapping and its residuals",
+    )
     for observation in estimate.observations:
         stem = _file_stem(observation.name)
         add(
             f"fit:{observation.name}",
-            plot_fit(plots_dir / f"fit-{stem}.png", estimate, observation.name),
+            plot_fit(plots_dir / f"fit-{stem}.png", estimate, observation),
             f"{observation.name}: profile vs. model",
         )
+    add(
+        "lamps",
+        plot_lamp_spectra(plots_dir / "lamp-spectra.png", estimate.observations),
+        "lamp spectra",
+    )
+    add("warmup", plot_warmup(plots_dir / "warmup.png", context.warmup), "lamp warm-up")
     geometry = (prepared or {}).get("plot:geometry")
     if geometry is None and estimate.profiles is not None:
         geometry = plot_geometry(plots_dir / "geometry.png", estimate.profiles)
@@ -355,20 +439,20 @@ def write_report(
         f"<h1>Camera spectral sensitivity — {_escape(provenance.camera.get('camera', 'profile input'))}</h1>",
         f"<p>{_escape(provenance.created.strftime('%Y-%m-%d %H:%M:%S UTC'))} · "
         f"{_escape(provenance.software.get('name'))} {_escape(provenance.software.get('version'))}</p>",
+        _quality_banner(estimate),
+        "<h2>Summary</h2>",
+        _table(_summary_rows(estimate, delivered)),
+        *_colour_section(delivered),
     ]
-    if provenance.warnings:
-        parts.append("<h2>Warnings</h2>")
-        parts.extend(f"<div class='warning'>{_escape(w)}</div>" for w in provenance.warnings)
-    parts.append("<h2>Summary</h2>")
-    parts.append(_table(_summary_rows(estimate)))
     if files:
-        parts.append(
-            "<p>Files: "
-            + ", ".join(f"<code>{_escape(p.name)}</code>" for p in files.values())
-            + "</p>"
-        )
+        parts.extend(_files_section(files, out_dir))
     parts.append("<h2>Plots</h2>")
+    if not context.warmup:
+        parts.append(
+            "<p>Lamp warm-up: not recorded with these inputs (rig sessions record it).</p>"
+        )
     parts.extend(_image(path, caption) for path, caption in figures)
+    parts.extend(_lines_section(lines))
     if provenance.notes:
         parts.append("<h2>Notes</h2><ul>")
         parts.extend(f"<li>{_escape(note)}</li>" for note in provenance.notes)

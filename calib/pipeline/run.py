@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from calib.pipeline.brackets import BracketProfiles
+from calib.pipeline.context import EstimateContext
 from calib.pipeline.estimate import (
     OfflineEstimate,
     OfflineSettings,
@@ -37,6 +38,7 @@ def run_offline(
     progress: OfflineProgress | None = None,
     known_inputs: Sequence[InputFile] = (),
     report: bool = True,
+    context: EstimateContext | None = None,
 ) -> OfflineOutcome:
     """Run :func:`calib.pipeline.estimate_offline` and write its outputs into ``out_dir``.
 
@@ -48,12 +50,14 @@ def run_offline(
         Created if missing.
     report
         Also write ``report.html`` with its plots.
+    context
+        The known truth and the session's warm-up records, for the outputs and the report.
 
     Returns
     -------
     OfflineOutcome
     """
-    from calib.pipeline.outputs import write_outputs
+    from calib.pipeline.outputs import deliver, write_outputs
     from calib.pipeline.report import PLOTS_DIR, import_plotting, plot_geometry, write_report
 
     started = time.perf_counter()
@@ -90,7 +94,9 @@ def run_offline(
         if progress is not None:
             progress.stage("writing the results")
         step = time.perf_counter()
-        files = dict(write_outputs(out_dir, estimate))
+        context = context or EstimateContext()
+        delivered = deliver(estimate, context.truth)
+        files = dict(write_outputs(out_dir, estimate, delivered))
         timings = dict(estimate.timings)
         timings["outputs_s"] = time.perf_counter() - step
         if report:
@@ -98,7 +104,16 @@ def run_offline(
                 progress.stage("writing the report")
             step = time.perf_counter()
             prepared = {key: future.result() for key, future in drawn.items()}
-            files.update(write_report(out_dir, estimate, files, prepared=prepared))
+            files.update(
+                write_report(
+                    out_dir,
+                    estimate,
+                    files,
+                    prepared=prepared,
+                    delivered=delivered,
+                    context=context,
+                )
+            )
             timings["report_s"] = time.perf_counter() - step
     timings["total_s"] = time.perf_counter() - started
     return OfflineOutcome(estimate, files, timings)

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from calib.core.checksums import file_sha256
-from calib.core.datasets import read_rgb_csv
 from calib.core.errors import EstimationError, InputError
 from calib.core.figures import agg_figure
+from calib.core.formats import read_camera as read_camera_file
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
 from calib.core.software import current_software
@@ -220,6 +220,14 @@ def _find_mapping(
     return mapping, wide, origin
 
 
+def read_camera(path: Path) -> MultiSpectrum:
+    """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`)."""
+    camera = read_camera_file(path).to_multispectrum()
+    if float(camera.values.max()) <= 0:
+        raise InputError("the sensitivities are all-zero", source=str(path))
+    return camera.normalised()
+
+
 def measure_spd(
     request: SpdRequest, progress: Callable[[str], None] | None = None
 ) -> SpdMeasurement:
@@ -233,7 +241,7 @@ def measure_spd(
         The mapping or the recovery failed on the data.
     """
     say = progress or (lambda message: None)
-    camera = read_rgb_csv(request.camera, name=request.camera.name)
+    camera = read_camera(request.camera)
     efficiency = (
         read_spectrum_csv(request.grating_efficiency, negative="clip")
         if request.grating_efficiency is not None

@@ -4,17 +4,21 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import json
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
+import jsonschema
 import numpy as np
 import pytest
 
 from calib.core import datasets
 from calib.core.datasets import PinnedFile
-from calib.core.metrics import relative_error
+from calib.core.formats.ampas import SCHEMA_FILE
+from calib.core.metrics import format_re, relative_error
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, write_csv
+from calib.pipeline.camera_identity import libraw_names
 from drivers import discovery
 from mocks.bench import TRUTH_FILE_NAME, TwinTruth
 from mocks.fake_gphoto2 import FakeGphoto2, nikon_body
@@ -131,7 +135,7 @@ def test_demo_captures_estimates_and_reports_the_error(
     assert Path(lines["report"]) == out / "estimate" / session.name / "report.html"
     truth = TwinTruth.read(session / TRUTH_FILE_NAME).sensitivity.resample(DEFAULT_GRID).values
     expected = relative_error(truth * scale, truth)
-    assert lines["RE against the twin's camera"].startswith(f"{expected:.4f}")
+    assert lines["RE against the twin's camera"].startswith(format_re(expected))
     # The truth file is not one of the session's trusted (acknowledged) files.
     assert read_session(session).verify_files() == []
     assert all(record.path != TRUTH_FILE_NAME for record in read_session(session).files())
@@ -173,8 +177,36 @@ def test_demo_end_to_end_with_the_session_estimator(
     out = tmp_path / "demo"
     assert run_cli(["demo", "-c", str(demo_config), "--out", str(out), "-q"], monkeypatch) == 0
     lines = dict(line.split(": ", 1) for line in capsys.readouterr().out.splitlines())
-    assert Path(lines["report"]).is_file()
-    error = float(lines["RE against the twin's camera"].split()[0])
+    report = Path(lines["report"])
+    assert report.is_file()
+    error = float(lines["RE against the twin's camera"].split()[0]) * 1e-2  # printed ×10⁻²
     # A sanity bound, far above what the estimator achieves on the twin: a broken hand-over (a wrong
     # lamp, axis or normalisation) gives errors of the order of the curves themselves.
     assert 0.0 < error < 0.5
+    # The camera JSON: schema 1.0.0, 81 rows at 380–780/5, LibRaw's names for the twin's DNGs.
+    session = Path(lines["session"].split(" (capture")[0])
+    (camera_json,) = report.parent.glob("*_380_780_5.json")
+    document = json.loads(camera_json.read_text())
+    jsonschema.Draft4Validator(json.loads(SCHEMA_FILE.read_text())).validate(document)
+    assert list(document["spectral_data"]["data"]["main"]) == [str(w) for w in range(380, 781, 5)]
+    frame = next((session / "frames").rglob("*.dng"))
+    names = libraw_names(frame)
+    assert names is not None and names.libraw_version
+    header = document["header"]
+    assert header["manufacturer"] == (names.normalized_make or names.make) == "spectral-rig"
+    assert header["model"] == (names.normalized_model or names.model) == "TwinCam"
+    assert camera_json.name == "spectral-rig_TwinCam_380_780_5.json"
+    # The report shows the truth beside the estimate and the ColorChecker's ΔE2000 under D65 and A.
+    page = report.read_text()
+    assert "RE against the truth" in page and "twin-truth.json" in page
+    assert (report.parent / "plots" / "warmup.png").is_file()  # from the session's warm-up records
+    assert "Lamp warm-up: not recorded" not in page
+    for illuminant in ("D65", "A"):
+        key = next(
+            k
+            for k in lines
+            if k.startswith(f"ΔE2000 against the twin's camera under {illuminant} ")
+        )
+        mean = float(lines[key].split("mean ")[1].split(",")[0])
+        assert 0.0 < mean < 5.0
+        assert f"<tr><td>{illuminant}</td><td class='num'>{mean:.2f} / " in page

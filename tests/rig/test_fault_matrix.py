@@ -41,6 +41,7 @@ import rawpy
 
 import rig.session as session_module
 from calib.core.arrays import FloatArray
+from calib.core.formats.rgb_csv import read_camera_csv
 from drivers.relays.hid_usbrelay import CMD_ALL_OFF
 from mocks.bench import TwinFaults
 from mocks.fake_gphoto2 import CameraFault
@@ -93,7 +94,7 @@ class Sensitivity:
     def of(cls, session: Path, out: Path) -> Sensitivity:
         estimate_session(session, out)
         path = out / "sensitivity.csv"
-        values = np.loadtxt(path, delimiter=",", skiprows=1)[:, 1:]
+        values = read_camera_csv(path).values
         return cls(hashlib.sha256(path.read_bytes()).hexdigest(), values)
 
     def relative_difference(self, other: Sensitivity) -> float:

@@ -12,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from calib.core.errors import InputError
+from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.grating_file import read_grating_file
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID
@@ -112,7 +113,7 @@ def test_rig_grating_command(
     assert result.exit_code == 0, result.output
     document = json.loads((estimated / "result.json").read_text())
     assert document["diagnostics"]["grating"]["source"] == str(out)
-    curves = np.loadtxt(estimated / "sensitivity.csv", delimiter=",", skiprows=1)[:, 1:4]
+    curves = read_camera_csv(estimated / "sensitivity.csv").values
     assert relative_error(curves, other.truth) < 0.015  # measured 0.65 ×10⁻²
     for argv, message in (
         (arguments, f"{out}: exists; pass --force to replace it"),

@@ -1,0 +1,384 @@
+"""The report's plots, each a PNG (Matplotlib's Agg canvas only: no display, no pyplot state).
+
+Every curve carries its ±2σ band when the estimate has one (and says so when it has none); the
+known truth, when there is one, is drawn dotted over the estimate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.figures import agg_figure, import_matplotlib
+from calib.core.observations import LampObservation
+from calib.core.spectra import MultiSpectrum, Spectrum
+from calib.image.profiles import write_geometry_png
+from calib.model.forward import render_observation
+from calib.pipeline.brackets import BracketProfiles
+from calib.pipeline.context import WarmupTrace
+from calib.pipeline.estimate import OfflineEstimate
+from calib.pipeline.outputs import DeliveredCamera
+
+CHANNEL_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")
+CHANNELS = ("R", "G", "B")
+_TRUTH_STYLE = {"linestyle": ":", "linewidth": 1.6}
+
+
+def _figure(width_in: float = 7.0, height_in: float = 3.6) -> Any:
+    # fixed margins (a constrained layout doubles the drawing time of every plot), wide enough on
+    # the left for a y label beside tick labels of up to five characters
+    figure = agg_figure(width_in, height_in)
+    figure.subplots_adjust(left=0.12, right=0.97, bottom=0.14, top=0.9, wspace=0.3, hspace=0.12)
+    return figure
+
+
+def _short_ticks(axes: Any) -> None:
+    """Tick labels in scientific notation beyond 10⁴ (the offset shown once), so they stay short."""
+    axes.ticklabel_format(axis="y", style="sci", scilimits=(-3, 4), useMathText=True)
+
+
+def _save(figure: Any, path: Path) -> Path:
+    figure.savefig(path, dpi=100)
+    return path
+
+
+def _band(axes: Any, x: FloatArray, y: FloatArray, sigma: FloatArray | None, colour: str) -> None:
+    if sigma is None:
+        return
+    known = np.isfinite(sigma)
+    axes.fill_between(
+        x,
+        np.where(known, y - 2 * sigma, np.nan),
+        np.where(known, y + 2 * sigma, np.nan),
+        color=colour,
+        alpha=0.2,
+        linewidth=0,
+    )
+
+
+def plot_sensitivity(path: Path, estimate: OfflineEstimate, delivered: DeliveredCamera) -> Path:
+    """The estimate on its grid (±2σ), its extension to 380–780 nm (dashed, ±2σ), the truth."""
+    result = estimate.result
+    curves = delivered.curves
+    extended = delivered.extension.curves
+    figure = _figure(7.0, 3.9)
+    axes = figure.subplots()
+    outside = ~extended.measured
+    for channel, name in enumerate(CHANNELS):
+        colour = CHANNEL_COLOURS[channel]
+        axes.plot(curves.wavelength_nm, curves.values[:, channel], color=colour, label=name)
+        _band(
+            axes,
+            curves.wavelength_nm,
+            curves.values[:, channel],
+            None if curves.sigma is None else curves.sigma[:, channel],
+            colour,
+        )
+        if outside.any():
+            for side in (
+                (extended.wavelength_nm < curves.range_nm[0]),
+                (extended.wavelength_nm > curves.range_nm[1]),
+            ):
+                if not side.any():
+                    continue
+                # join the extension to the measured end it continues
+                index = np.flatnonzero(side)
+                joined = np.union1d(
+                    index, [max(index[0] - 1, 0), min(index[-1] + 1, side.size - 1)]
+                )
+                axes.plot(
+                    extended.wavelength_nm[joined],
+                    extended.values[joined, channel],
+                    color=colour,
+                    linestyle="--",
+                    linewidth=1.0,
+                )
+                sigma = extended.sigma
+                _band(
+                    axes,
+                    extended.wavelength_nm[side],
+                    extended.values[side, channel],
+                    None if sigma is None else sigma[side, channel],
+                    colour,
+                )
+        if delivered.truth is not None:
+            truth = delivered.truth.camera
+            axes.plot(
+                truth.wavelength_nm,
+                truth.values[:, channel],
+                color=colour,
+                label=f"{name} truth" if channel == 0 else None,
+                **_TRUTH_STYLE,
+            )
+    bands = (
+        "±2σ bands" if result.sensitivity_sigma is not None else "no σ inside the measured range"
+    )
+    parts = [f"camera sensitivity ({result.method}; {bands}"]
+    if outside.any():
+        parts.append("dashed: extended to 380–780 nm, ±2σ")
+    if delivered.truth is not None:
+        parts.append("dotted: truth")
+    axes.set_title("; ".join(parts) + ")", fontsize=9, y=1.0)
+    axes.set_xlabel("wavelength (nm)")
+    axes.set_ylabel("relative sensitivity")
+    axes.set_xlim(380.0, 780.0)
+    axes.legend(fontsize=8, ncol=4)
+    axes.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def plot_efficiency(
+    path: Path, estimate: OfflineEstimate, delivered: DeliveredCamera
+) -> Path | None:
+    """η(λ) with its ±2σ band, and the truth's η scaled to the same maximum over the grid."""
+    result = estimate.result
+    efficiency = result.grating_efficiency
+    if efficiency is None or not np.any(np.isfinite(efficiency)):
+        return None
+    figure = _figure(7.0, 3.2)
+    axes = figure.subplots()
+    axes.plot(result.wavelength_nm, efficiency, color="black", label="estimate")
+    _band(axes, result.wavelength_nm, efficiency, result.grating_efficiency_sigma, "grey")
+    truth = None if delivered.truth is None else delivered.truth.grating_efficiency
+    if truth is not None:
+        on_grid = truth.at(result.wavelength_nm)
+        peak = float(np.max(on_grid))
+        if peak > 0:
+            scale = float(np.nanmax(efficiency)) / peak
+            axes.plot(
+                truth.wavelength_nm,
+                truth.values * scale,
+                color="black",
+                label="truth (same maximum)",
+                **_TRUTH_STYLE,
+            )
+    origin = "given" if estimate.grating is not None else "estimated"
+    if estimate.grating is None and result.method == "known-grating":
+        origin = "assumed flat"
+    band = "±2σ band" if result.grating_efficiency_sigma is not None else "no σ from this method"
+    axes.set_title(f"first-order grating efficiency ({origin}, maximum 1; {band})", fontsize=9)
+    axes.set_xlabel("wavelength (nm)")
+    axes.set_ylabel("relative efficiency")
+    axes.legend(fontsize=8)
+    axes.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def mapping_sigma_nm(mapping: Any, pixel: FloatArray) -> FloatArray | None:
+    """σ of g(p) at ``pixel`` from the quadratic fit's covariance, or ``None``."""
+    covariance = getattr(mapping, "covariance", None)
+    if covariance is None:
+        return None
+    design = np.stack([pixel**2, pixel, np.ones_like(pixel)], axis=1)
+    variance = np.einsum("ij,jk,ik->i", design, np.asarray(covariance, dtype=np.float64), design)
+    return np.asarray(np.sqrt(np.clip(variance, 0.0, None)), dtype=np.float64)
+
+
+def plot_mapping(
+    path: Path,
+    estimate: OfflineEstimate,
+    delivered: DeliveredCamera,
+    lines: Sequence[Mapping[str, Any]] = (),
+) -> Path | None:
+    """g(p) with ±2σ, matched lines when known, and the residuals (against the truth and the lines)."""
+    mapping = estimate.result.mapping
+    if mapping is None or not estimate.observations:
+        return None
+    pixel = np.asarray(estimate.observations[0].pixel, dtype=np.float64)
+    wavelength = np.asarray(mapping.wavelength_nm(pixel), dtype=np.float64)
+    sigma = mapping_sigma_nm(mapping, pixel)
+    figure = _figure(7.0, 4.6)
+    axes, residual_axes = figure.subplots(2, 1, sharex=True, height_ratios=(2.0, 1.2))
+    axes.plot(pixel, wavelength, color="black", label="g(p)")
+    if sigma is not None:
+        _band(axes, pixel, wavelength, sigma, "orange")
+    grid = estimate.result.wavelength_nm
+    axes.axhspan(float(grid[0]), float(grid[-1]), color="blue", alpha=0.06, label="working grid")
+    truth = None if delivered.truth is None else delivered.truth.mapping
+    truth_nm = None if truth is None else np.asarray(truth.wavelength_nm(pixel), dtype=np.float64)
+    if truth_nm is not None:
+        axes.plot(pixel, truth_nm, color="black", label="truth", **_TRUTH_STYLE)
+        residual_axes.plot(pixel, wavelength - truth_nm, color="black", label="g(p) − truth")
+    if sigma is not None:
+        residual_axes.fill_between(
+            pixel, -2 * sigma, 2 * sigma, color="orange", alpha=0.3, linewidth=0, label="±2σ"
+        )
+    line_pixel = np.array([float(line["pixel"]) for line in lines if "pixel" in line])
+    line_nm = np.array([float(line["wavelength_nm"]) for line in lines if "pixel" in line])
+    if line_pixel.size:
+        axes.plot(line_pixel, line_nm, "o", color="purple", markersize=4, label="matched lines")
+        fitted = np.asarray(mapping.wavelength_nm(line_pixel), dtype=np.float64)
+        residual_axes.plot(
+            line_pixel, line_nm - fitted, "o", color="purple", markersize=4, label="line − g(p)"
+        )
+    residual_axes.axhline(0.0, color="grey", linewidth=0.6)
+    axes.set_ylabel("wavelength (nm)")
+    axes.set_title(
+        f"mapping ({getattr(mapping, 'method', 'given')}; "
+        + ("±2σ band" if sigma is not None else "no σ for this mapping")
+        + ")",
+        fontsize=9,
+    )
+    axes.legend(fontsize=7, ncol=2)
+    axes.grid(alpha=0.3)
+    residual_axes.set_ylabel("residual (nm)")
+    residual_axes.set_xlabel("pixel (from the direct spot)")
+    if truth_nm is not None or line_pixel.size or sigma is not None:
+        residual_axes.legend(fontsize=7, ncol=3)
+    residual_axes.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def _predicted_profile(
+    estimate: OfflineEstimate, observation: LampObservation
+) -> tuple[FloatArray, str] | None:
+    """The lamp's profile as the estimate predicts it (one overall scale fitted), when possible."""
+    result = estimate.result
+    if result.mapping is None or observation.profile_wavelength_nm is not None:
+        return None
+    efficiency = result.efficiency_spectrum()
+    rendered = render_observation(
+        observation.spectrum,
+        MultiSpectrum(result.wavelength_nm, np.clip(result.sensitivity, 0.0, None)),
+        mapping=result.mapping,
+        pixel=observation.pixel,
+        grating_efficiency=efficiency,
+    )
+    model = rendered.clean_profile
+    weights = (
+        np.ones_like(model)
+        if observation.profile_sigma is None
+        else 1.0 / np.maximum(observation.profile_sigma, 1e-300) ** 2
+    )
+    denominator = float(np.sum(weights * model * model))
+    if denominator <= 0:
+        return None
+    scale = float(np.sum(weights * model * observation.profile)) / denominator
+    return model * scale, "predicted by the estimate (not in the solve; one scale fitted)"
+
+
+def plot_fit(path: Path, estimate: OfflineEstimate, observation: LampObservation) -> Path | None:
+    """Measured profile against the model, and the residuals (normalised by σ when known)."""
+    residuals = estimate.result.residuals.get(observation.name)
+    difference = None
+    normalised = None
+    how = "the solve's fit"
+    if isinstance(residuals, Mapping) and residuals.get("profile") is not None:
+        difference = np.asarray(residuals["profile"], dtype=np.float64)
+        if difference.shape != observation.profile.shape:
+            difference = None
+        elif residuals.get("profile_normalised") is not None:
+            normalised = np.asarray(residuals["profile_normalised"], dtype=np.float64)
+    if difference is None:
+        predicted = _predicted_profile(estimate, observation)
+        if predicted is None:
+            return None
+        model, how = predicted
+        difference = observation.profile - model
+        if observation.profile_sigma is not None:
+            normalised = difference / np.maximum(observation.profile_sigma, 1e-300)
+    model = observation.profile - difference
+    figure = _figure(7.0, 4.4)
+    top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=(2.2, 1))
+    pixel = observation.pixel
+    for channel, name in enumerate(CHANNELS):
+        colour = CHANNEL_COLOURS[channel]
+        top.plot(
+            pixel,
+            observation.profile[:, channel],
+            color=colour,
+            linewidth=0.8,
+            label=f"{name} measured",
+        )
+        top.plot(
+            pixel,
+            model[:, channel],
+            color=colour,
+            linestyle="--",
+            linewidth=1.2,
+            label=f"{name} model",
+        )
+        if observation.profile_sigma is not None:
+            _band(
+                top,
+                pixel,
+                observation.profile[:, channel],
+                observation.profile_sigma[:, channel],
+                colour,
+            )
+    top.set_ylabel("profile (DN)")
+    _short_ticks(top)
+    top.set_title(f"{observation.name}: profile and model ({how})", fontsize=9)
+    top.legend(fontsize=7, ncol=3)
+    top.grid(alpha=0.3)
+    values = normalised if normalised is not None else difference
+    for channel in range(3):
+        bottom.plot(pixel, values[:, channel], color=CHANNEL_COLOURS[channel], linewidth=0.6)
+    bottom.axhline(0.0, color="black", linewidth=0.6)
+    if normalised is not None:
+        bottom.axhspan(-2.0, 2.0, color="grey", alpha=0.15, linewidth=0)
+    bottom.set_ylabel("residual / σ" if normalised is not None else "residual")
+    _short_ticks(bottom)
+    bottom.set_xlabel("pixel")
+    bottom.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def plot_lamp_spectra(path: Path, observations: Sequence[LampObservation]) -> Path | None:
+    """Each lamp's measured spectrum, normalised to its maximum."""
+    spectra: list[Spectrum] = [obs.spectrum for obs in observations]
+    if not spectra:
+        return None
+    figure = _figure(7.0, 3.2)
+    axes = figure.subplots()
+    for obs in observations:
+        peak = float(np.max(obs.spectrum.values)) or 1.0
+        axes.plot(
+            obs.spectrum.wavelength_nm, obs.spectrum.values / peak, linewidth=0.9, label=obs.name
+        )
+    axes.set_title("lamp spectra as measured (each divided by its maximum)", fontsize=9)
+    axes.set_xlabel("wavelength (nm)")
+    axes.set_ylabel("relative power")
+    axes.legend(fontsize=8)
+    axes.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def plot_warmup(path: Path, traces: Sequence[WarmupTrace]) -> Path | None:
+    """Each lamp's change between successive warm-up spectra against the time since switch-on."""
+    usable = [t for t in traces if np.any(np.isfinite(t.relative_change))]
+    if not usable:
+        return None
+    figure = _figure(7.0, 3.2)
+    axes = figure.subplots()
+    for index, trace in enumerate(usable):
+        colour = f"C{index}"
+        change = np.asarray(trace.relative_change, dtype=np.float64)
+        axes.plot(trace.elapsed_s, 100.0 * change, "o-", color=colour, label=trace.lamp)
+        if trace.tolerance is not None:
+            axes.axhline(100.0 * trace.tolerance, color=colour, linestyle=":", linewidth=1.0)
+    axes.set_ylim(bottom=0.0)
+    axes.set_title(
+        "lamp warm-up: change from the previous spectrum (dotted: tolerance)", fontsize=9
+    )
+    axes.set_xlabel("time since the lamp was switched on (s)")
+    axes.set_ylabel("change (%)")
+    axes.legend(fontsize=8)
+    axes.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def plot_geometry(path: Path, profiles: BracketProfiles) -> Path:
+    """The detected geometry on the geometry lamp's image (:func:`calib.image.profiles.write_geometry_png`)."""
+    image, geometry = profiles.geometry_image()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_geometry_png(path, image, geometry)
+
+
+def import_plotting() -> None:
+    """Import matplotlib (about a second), e.g. in a thread while frames decode."""
+    import_matplotlib()
