@@ -2,7 +2,8 @@
 
 Renders the paper's synthetic scene (§4.1) for one camera — colour-science's Nikon 5100 with the offline
 basis (excluding it), or with ``--data-dir`` the Canon 600D with the 44-camera basis — and times
-``calib.estimate`` for the LED-only and LED+fluorescent variants (median of repeats, after a warm-up).
+``calib.methods.estimate`` (method ``auto``: the prior solve here) for the LED-only and
+LED+fluorescent variants (median of repeats, after a warm-up).
 
     python bench/estimate.py [--data-dir DIR] [--repeats 5]
 """

@@ -22,13 +22,14 @@ from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collecti
 from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
-from calib.methods import default_camera_basis
 from calib.methods.baselines.han2012 import (
-    estimate_han2012,
+    FOURIER,
+    Han2012Options,
+    recover_han2012,
     render_fluorescent_chart,
     synthetic_fluorescent_paints,
 )
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, default_camera_basis
 from calib.spd.light_sources import correlated_colour_temperature
 
 DAYLIGHTS_K = (4500.0, 5500.0, 6500.0, 8000.0, 12000.0, 20000.0)
@@ -55,7 +56,11 @@ def run_camera(
         )
         smoothness = (0.03, 0.03, 0.01) if basis is not None else (0.01, 0.01, 0.004)
         try:
-            result = estimate_han2012(chart, basis=basis, smoothness=smoothness)
+            result = recover_han2012(
+                chart,
+                basis=FOURIER if basis is None else basis,
+                options=Han2012Options(smoothness=smoothness),
+            )
         except Exception as exc:
             cells.append(f"failed ({exc.__class__.__name__})")
             continue

@@ -54,7 +54,7 @@ def main() -> None:
         if demo.capture.exit_status != "success":
             raise SystemExit(f"the capture did not complete: {demo.capture.message}")
         comparison = compare_sessions(
-            [demo.capture.session], out / "compare", methods=["makabe2025", "multilamp"]
+            [demo.capture.session], out / "compare", methods=["prior", "multilamp"]
         )
         print(
             f"5 lamps on the twin ({', '.join(name for name, _ in LAMPS)}), capture + demo "

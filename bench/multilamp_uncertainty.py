@@ -30,7 +30,7 @@ from calib.evaluation.synthetic import (
     random_mapping,
     render_lamps,
 )
-from calib.methods.multilamp import Uncertainty, estimate_multilamp
+from calib.methods.multilamp import MultilampOptions, Uncertainty, estimate_multilamp
 from calib.model.bases import camera_basis, fallback_camera_basis
 
 
@@ -56,7 +56,12 @@ def main() -> None:
         times = []
         for _ in range(args.repeats + 1):
             started = time.perf_counter()
-            estimate_multilamp(observations, basis=basis, mapping=mapping, uncertainty=uncertainty)
+            estimate_multilamp(
+                observations,
+                basis=basis,
+                mapping=mapping,
+                options=MultilampOptions(uncertainty=uncertainty),
+            )
             times.append(time.perf_counter() - started)
         return statistics.median(times[1:])
 

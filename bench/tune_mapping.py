@@ -25,7 +25,7 @@ from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import mapping_relative_error, relative_error
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import render_scene
-from calib.methods.makabe2025 import estimate_makabe2025
+from calib.methods.prior_solve import estimate_prior
 from calib.model.bases import camera_basis
 from calib.model.resolution import camera_kernel
 from calib.wavelength import search as mapping_search
@@ -68,7 +68,7 @@ def main() -> None:
                     true_nm = scene.mapping.wavelength_nm(observation.pixel)
                     inside = (true_nm >= grid.start_nm) & (true_nm <= grid.stop_nm)
                     for flexibility in flexibilities:
-                        found = mapping_search.find_mapping(
+                        found = mapping_search.search_mapping(
                             [observation],
                             prior,
                             grid,
@@ -89,7 +89,7 @@ def main() -> None:
                                 f"flexibility {flexibility:g}, repeat {repeat}",
                                 flush=True,
                             )
-                        result = estimate_makabe2025([observation], basis=basis, mapping=found)
+                        result = estimate_prior([observation], basis=basis, mapping=found)
                         errors[flexibility].append(
                             relative_error(result.physical_sensitivity(), scene.truth)
                         )

@@ -2,8 +2,8 @@
 
 For each of the 44 training cameras of Makabe et al. (2025) §4.1: the prior is built from the other
 43, the camera is rendered through a random grating and mapping (the synthetic protocol, 1 % noise,
-true mapping: this isolates the solve), and the sensitivity is estimated with ``solver="prior"`` for
-every candidate shrinkage. Prints the mean RE per shrinkage; the five test cameras are never used.
+true mapping: this isolates the solve), and the sensitivity is estimated with the prior solve
+(``estimate_prior``) for every candidate shrinkage. Prints the mean RE per shrinkage; the five test cameras are never used.
 
     python bench/tune_prior.py --data-dir ../shared/data/camera_sensitivities
 """
@@ -19,7 +19,7 @@ from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import render_scene
-from calib.methods.makabe2025 import estimate_makabe2025
+from calib.methods.prior_solve import PriorOptions, estimate_prior
 from calib.model.bases import camera_basis
 
 
@@ -52,11 +52,11 @@ def main() -> None:
                 noise_fraction=args.noise,
             )
             for shrinkage in shrinkages:
-                result = estimate_makabe2025(
+                result = estimate_prior(
                     [scene.broadband.observation],
                     basis=basis,
                     mapping=scene.mapping,
-                    prior_shrinkage=shrinkage,
+                    options=PriorOptions(prior_shrinkage=shrinkage),
                 )
                 errors[shrinkage].append(relative_error(result.physical_sensitivity(), scene.truth))
     print(

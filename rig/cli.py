@@ -223,7 +223,10 @@ def estimate(
         Path | None,
         typer.Option("--out", "-o", help="Output directory (default: SESSION/estimate)."),
     ] = None,
-    method: Annotated[str, typer.Option(help="Estimation method.")] = "makabe2025",
+    method: Annotated[
+        str,
+        typer.Option(help="Estimation method: auto (default), prior, makabe2025, multilamp …"),
+    ] = "auto",
     data_dir: Annotated[
         Path | None,
         typer.Option(help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."),

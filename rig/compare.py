@@ -39,8 +39,7 @@ from calib.evaluation.compare import (
     run_grating_comparison,
 )
 from calib.evaluation.compare_report import plot_panels, sessions_markdown_report, write_csv
-from calib.methods import default_camera_basis
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, default_camera_basis
 from calib.pipeline import InputFile, LampImages, OfflineSettings, estimate_offline
 from rig.demo import related_camera_names
 from rig.errors import SessionFormatError

@@ -26,7 +26,7 @@ import numpy as np
 from calib.core.errors import InputError
 from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.metrics import relative_error
-from calib.methods import default_camera_basis
+from calib.model.bases import default_camera_basis
 from rig.capture import run_capture
 from rig.config import RigConfig
 from rig.errors import RigError

@@ -299,7 +299,7 @@ def estimate_session(
     session_dir: str | Path,
     out_dir: str | Path | None = None,
     *,
-    method: str = "makabe2025",
+    method: str = "auto",
     data_dir: str | Path | None = None,
     grid: WavelengthGrid = DEFAULT_GRID,
     mapping_lamp: str | None = None,
@@ -316,7 +316,7 @@ def estimate_session(
     out_dir
         Where to write (default ``<session>/estimate``).
     method
-        Estimation method (:func:`calib.estimate`).
+        Estimation method (:func:`calib.methods.estimate`; ``"auto"`` chooses by the lamps).
     data_dir
         Camera data directory for the basis.
     grid

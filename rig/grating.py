@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -27,7 +26,6 @@ from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency, write_grating_file
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods import default_camera_basis
 from calib.methods.multilamp import (
     DEFAULT_WEIGHT_RULE,
     MULTILAMP_METHOD,
@@ -35,7 +33,7 @@ from calib.methods.multilamp import (
     refine_grating,
     weight_rule_option,
 )
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, default_camera_basis
 from calib.pipeline import OfflineSettings, estimate_offline
 from rig.errors import SessionFormatError
 from rig.estimate import session_lamps
@@ -131,8 +129,8 @@ def refine_session_grating(
     out = Path(out_file)
     if out.exists() and not force:
         raise InputError("exists; pass --force to replace it", source=str(out))
-    options: dict[str, Any] = weight_rule_option(MULTILAMP_METHOD, weight_rule)
-    rule: WeightRule = options.get("weight_rule", DEFAULT_WEIGHT_RULE)
+    options = weight_rule_option(MULTILAMP_METHOD, weight_rule)
+    rule: WeightRule = DEFAULT_WEIGHT_RULE if options is None else options.weight_rule
     # Every session is verified before anything is estimated.
     checked = []
     seen: dict[str, str] = {}

@@ -24,13 +24,11 @@ from calib.model.forward import blur_kernel, render_observation
 from calib.spd.alvarez2014 import (
     DiffractedProfile,
     comparison_grid,
-    find_mapping,
     kernel_fwhm_samples,
     median_distance_weights,
     recover_spd_alvarez2014,
     richardson_lucy,
     spd_rms_error,
-    system_response,
     widened_geometry,
 )
 from calib.spd.light_sources import (
@@ -38,6 +36,8 @@ from calib.spd.light_sources import (
     correlated_colour_temperature,
 )
 from calib.spd.pipeline import SpdMeasurement, SpdRequest, measure_spd
+from calib.wavelength import CalibratedCamera, find_mapping
+from calib.wavelength.calibrated import system_response
 from tests.spd_scenes import (
     GRATING,
     calibrated_rig,
@@ -298,7 +298,7 @@ def test_mapping_from_the_fluorescent_lamp_is_sub_nanometre(tmp_path: Path) -> N
     geometry = detect_geometry(merge_bracket(broadband.frames))
     profile, _ = read_profile(fl2.frames, name="FL2", geometry=geometry)
     mapping = find_mapping(
-        profile, camera, grating_efficiency=efficiency, lamp_spectrum=colour_lamp("FL2")
+        profile, camera=CalibratedCamera(camera, efficiency), lamp_spectrum=colour_lamp("FL2")
     )
     assert mapping.details["lines"] == "measured spectrum"
     wide = widened_geometry(geometry, mapping, (380.0, 730.0))
@@ -326,7 +326,7 @@ def test_reference_lines_map_a_tri_phosphor_tube_without_its_spectrum(tmp_path: 
     )
     geometry = detect_geometry(merge_bracket(broadband.frames))
     profile, _ = read_profile(tube.frames, name="tube", geometry=geometry)
-    mapping = find_mapping(profile, camera, grating_efficiency=efficiency)
+    mapping = find_mapping(profile, camera=CalibratedCamera(camera, efficiency))
     assert mapping.details["lines"] == "reference line list"
     matched = {round(m["line_nm"], 1) for m in mapping.details["matched"]}
     assert {435.8, 546.1, 611.6} <= matched

@@ -131,7 +131,7 @@ def test_images_end_to_end_with_json_summary(capture: Capture, tmp_path: Path) -
     code, stdout, stderr = _call([*_image_args(capture), "--out", str(out_dir), "--json"])
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["status"] == "ok" and summary["method"] == "makabe2025"
+    assert summary["status"] == "ok" and summary["method"] == "prior"
     assert summary["mapping"]["method"].startswith("lines of")
     assert 0 < summary["mapping_re_estimate"] < 0.01
     assert [lamp["name"] for lamp in summary["lamps"]] == ["LED", "FL"]
@@ -153,7 +153,7 @@ def test_an_existing_result_needs_force(capture: Capture, tmp_path: Path) -> Non
         [*_image_args(capture), "--out", str(out_dir), "--quiet", "--force"]
     )
     assert code == 0 and stdout == "", stderr
-    assert json.loads((out_dir / "result.json").read_text())["method"] == "makabe2025"
+    assert json.loads((out_dir / "result.json").read_text())["method"] == "prior"
 
 
 def test_bad_input_exits_2_with_one_line_naming_the_file(capture: Capture, tmp_path: Path) -> None:
@@ -276,7 +276,10 @@ def test_profile_input_with_direct_measurement(capture: Capture, tmp_path: Path)
     code, stdout, stderr = _call(argv)
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["method"] == "makabe2025" and summary["warnings"] == []
+    assert summary["method"] == "prior" and summary["warnings"] == []
+    # Two lamps measured directly: auto chose the prior solve and says why.
+    assert summary["method_choice"]["requested"] == "auto"
+    assert "multilamp needs at least 3" in summary["method_choice"]["reason"]
     values = read_camera_csv(tmp_path / "out" / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
 
@@ -405,7 +408,7 @@ def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     argv += ["--grating", str(first / "grating.json")]
     code, stdout, stderr = _call([*argv, "--out", str(second), "--json"])
     assert code == 0, stderr
-    assert json.loads(stdout)["method"] == "multilamp"
+    assert json.loads(stdout)["method"] == "known-grating"  # s = q̂ / η through the file
     values = read_camera_csv(second / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
     assert "weight-rule" not in stderr

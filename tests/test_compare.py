@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import csv
-import sys
-import types
 
 import numpy as np
 import pytest
@@ -13,9 +11,7 @@ from typer.testing import CliRunner
 from calib.cli.app import build_app
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import EstimationError, InputError
-from calib.core.result import EstimateResult
 from calib.evaluation.compare import (
-    CompareScene,
     SyntheticAdapter,
     SyntheticSource,
     active_adapters,
@@ -23,7 +19,7 @@ from calib.evaluation.compare import (
     synthetic_adapters,
 )
 from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
-from calib.methods import ESTIMATION_METHODS, LAZY_METHODS
+from calib.methods import ESTIMATION_METHODS
 from calib.model.bases import fallback_camera_basis
 
 #: Toivonen options small enough for plumbing tests (not for accuracy).
@@ -67,7 +63,14 @@ def test_columns_follow_the_registry(monkeypatch):
     adapters = synthetic_adapters(n_patches=12)
     chosen, skipped = active_adapters(adapters)
     methods = {adapter.method for adapter in chosen}
-    assert {"makabe2025", "jiang2013", "han2012", "solomatov2023", "toivonen2020"} <= methods
+    assert {
+        "prior",
+        "makabe2025",
+        "jiang2013",
+        "han2012",
+        "solomatov2023",
+        "toivonen2020",
+    } <= methods
     assert ("multilamp" in methods) == ("multilamp" in ESTIMATION_METHODS)
     assert "toivonen2020 (12 patches)" in [adapter.label for adapter in chosen]
 
@@ -83,24 +86,16 @@ def test_columns_follow_the_registry(monkeypatch):
         active_adapters(adapters, ["nope"])
 
 
-def test_a_method_module_can_provide_its_own_adapter(monkeypatch, source):
-    module = types.ModuleType("calib_test_fake_method")
-
-    def fake_method(observations, *, grid, **kwargs):
-        return EstimateResult("fake", grid.wavelength_nm, np.ones((grid.size, 3)))
-
-    def synthetic_observations(scene: CompareScene):
-        return [scene.chart], {}
-
-    module.fake_method = fake_method  # type: ignore[attr-defined]
-    module.synthetic_observations = synthetic_observations  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "calib_test_fake_method", module)
-    monkeypatch.setitem(LAZY_METHODS, "fakemethod", ("calib_test_fake_method", "fake_method"))
-    monkeypatch.setitem(ESTIMATION_METHODS, "fakemethod", fake_method)
-    chosen, skipped = active_adapters(synthetic_adapters(), ["fakemethod"])
-    assert [adapter.method for adapter in chosen] == ["fakemethod"] and skipped == []
-    rows = run_comparison(source, chosen)
-    assert len(rows) == 2 and all(np.isfinite(row.relative_error) for row in rows)
+def test_an_input_the_method_does_not_declare_fails_its_row(source):
+    """Columns call the registry with explicit inputs; a mismatch is a named failure, not ignored."""
+    wrong = SyntheticAdapter(
+        "jiang2013 (given a mapping)",
+        "jiang2013",
+        lambda scene: ([scene.chart], {"basis": scene.basis, "mapping": scene.mapping}),
+    )
+    rows = run_comparison(source, [wrong])
+    assert all(np.isnan(row.relative_error) for row in rows)
+    assert all("'jiang2013' takes no option 'mapping'" in (row.failure or "") for row in rows)
 
 
 def test_run_report_csv_and_plots(monkeypatch, source, tmp_path):

@@ -71,7 +71,7 @@ def test_the_single_lamp_columns_take_the_broadband_lamp_with_a_direct_measureme
 def test_chart_methods_are_skipped_with_their_reason(monkeypatch: pytest.MonkeyPatch) -> None:
     chosen, skipped = active_grating_adapters(grating_adapters(), n_patches=12)
     methods = {adapter.method for adapter in chosen}
-    assert methods == {"makabe2025", "toivonen2020"} | (
+    assert methods == {"prior", "makabe2025", "toivonen2020"} | (
         {"multilamp"} if "multilamp" in ESTIMATION_METHODS else set()
     )
     reasons = dict(skipped)
@@ -109,7 +109,7 @@ def test_rows_report_and_plot(
         [
             adapter
             for adapter in grating_adapters(toivonen=TINY_TOIVONEN)
-            if adapter.label != "makabe2025 (all lamps)"
+            if adapter.label != "prior (all lamps)"
         ]
     )
     source = _Scenes([scene, scene])

@@ -20,20 +20,23 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import colour_lamp
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
-from calib.methods import default_camera_basis, estimate
+from calib.methods import estimate
 from calib.methods.baselines.han2012 import (
+    FOURIER,
     FluorescentPaints,
+    Han2012Options,
     SensitivityBasis,
     chromaticity_system,
     estimate_han2012,
     recover_daylight,
+    recover_han2012,
     reflectance_basis,
     render_fluorescent_chart,
     separate_fluorescence,
     solve_sensitivity,
     synthetic_fluorescent_paints,
 )
-from calib.model.bases import fourier_basis
+from calib.model.bases import CameraBasis, default_camera_basis, fourier_basis
 from calib.spd.light_sources import correlated_colour_temperature
 
 #: Daylights the estimator is not told about (CCT in K).
@@ -161,11 +164,11 @@ def test_chart_validation_and_refusals() -> None:
         ),
     )
     with pytest.raises(InputError, match="5 reference patches cannot fix 8"):
-        estimate_han2012(small)
+        recover_han2012(small)
     with pytest.raises(InputError, match="smoothness"):
-        estimate_han2012(chart, smoothness=(1.0, -1.0, 0.0))
+        Han2012Options(smoothness=(1.0, -1.0, 0.0))
     with pytest.raises(InputError, match="normalisation"):
-        estimate_han2012(chart, normalisation="none")  # type: ignore[arg-type]
+        Han2012Options(normalisation="none")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="noise needs"):
         render_fluorescent_chart(paints, reference, camera, cie_daylight(6500), noise_fraction=0.01)
     with pytest.raises(InputError, match="4000–25000 K"):
@@ -175,7 +178,7 @@ def test_chart_validation_and_refusals() -> None:
         chart, fluorescent_rgb=separate_fluorescence(chart).reflective_rgb
     )
     with pytest.raises(EstimationError, match="lacks the short wavelengths"):
-        estimate_han2012(reflective_only)
+        recover_han2012(reflective_only)
 
 
 def test_registered_behind_the_front_function() -> None:
@@ -189,20 +192,25 @@ def test_registered_behind_the_front_function() -> None:
         rng=rng,
         noise_fraction=0.001,
     )
-    result = estimate([], method="han2012", chart=chart)
+    result = estimate([chart], method="han2012")
     assert result.method == "han2012" and result.sensitivity.shape == (31, 3)
     assert float(np.abs(result.sensitivity).max()) == pytest.approx(1.0)
     assert result.diagnostics["illuminant"] is not None
     assert result.to_dict()["diagnostics"]["basis"] == "Fourier, 9 terms"
     with pytest.raises(InputError, match="fluorescent and a reference chart"):
         estimate([], method="han2012")
+    assert estimate_han2012([chart]).to_dict() == result.to_dict()
 
 
 # ---------------------------------------------------------------------- the paper's finding
 
 
 def _run(
-    camera: MultiSpectrum, light: Spectrum, seed: int, **options: object
+    camera: MultiSpectrum,
+    light: Spectrum,
+    seed: int,
+    basis: CameraBasis | None = None,
+    options: Han2012Options = Han2012Options(),
 ) -> tuple[float, float | None]:
     """RE of the sensitivity and CCT error of the recovered daylight (None for non-daylights)."""
     rng = np.random.default_rng(seed)
@@ -210,7 +218,7 @@ def _run(
     chart = render_fluorescent_chart(
         paints, colorchecker(), camera, light, rng=rng, noise_fraction=0.001
     )
-    result = estimate_han2012(chart, **options)  # type: ignore[arg-type]
+    result = recover_han2012(chart, basis=FOURIER if basis is None else basis, options=options)
     error = relative_error(result.sensitivity, truth_on_grid(camera))
     cct_error = None
     if result.illuminant is not None and light.name.startswith("D"):
@@ -241,7 +249,13 @@ def test_with_a_camera_basis_it_works_under_any_light(shared_camera_data: Path) 
             DEFAULT_GRID, data_dir=shared_camera_data, exclude=[record.name]
         )
         results = [
-            _run(record.sensitivity, light, 1000 + k, basis=basis, smoothness=(0.03, 0.03, 0.01))
+            _run(
+                record.sensitivity,
+                light,
+                1000 + k,
+                basis=basis,
+                options=Han2012Options(smoothness=(0.03, 0.03, 0.01)),
+            )
             for k, light in enumerate(lights)
         ]
         errors = [error for error, _ in results]

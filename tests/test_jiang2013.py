@@ -19,6 +19,7 @@ from calib.image.chart_image import (
     sample_patches,
 )
 from calib.methods.baselines.jiang2013 import estimate_jiang2013
+from calib.methods.makabe2025 import Makabe2025Options
 from calib.model.bases import camera_basis
 from calib.model.charts import render_chart, stimulus_rows
 from tests.synthetic_cameras import as_spectrum, spanning_set
@@ -134,7 +135,11 @@ def test_colour_checker_is_noisier_than_the_grating():
             # is about that method; the default camera-prior solve follows the data more closely.
             clean, noisy = (
                 calib.methods.estimate(
-                    [s.broadband.observation], basis=basis, mapping=s.mapping, solver="basis"
+                    [s.broadband.observation],
+                    "makabe2025",
+                    basis=basis,
+                    mapping=s.mapping,
+                    options=Makabe2025Options(formulation="measured"),
                 )
                 for s in scenes
             )

@@ -8,7 +8,8 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import relative_error
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, Spectrum
-from calib.methods.makabe2025 import estimate_makabe2025
+from calib.methods.makabe2025 import Makabe2025Options, estimate_makabe2025
+from calib.methods.prior_solve import estimate_prior
 from calib.model.forward import render_observation
 from tests.synthetic_cameras import as_spectrum, exact_basis
 
@@ -38,7 +39,10 @@ def test_camera_in_the_basis_span_is_recovered_to_rounding(basis_and_cameras):
     basis, cameras = basis_and_cameras
     truth = 0.6 * cameras[1] + 0.4 * cameras[4]
     result = estimate_makabe2025(
-        [_observation(truth)], basis=basis, mapping=MAPPING, solver="basis"
+        [_observation(truth)],
+        basis=basis,
+        mapping=MAPPING,
+        options=Makabe2025Options(formulation="measured"),
     )
     assert relative_error(result.sensitivity, truth) < 1e-8
     assert result.grating_efficiency is not None
@@ -53,10 +57,10 @@ def test_prior_solver_recovers_the_prior_mean_camera_and_a_smooth_grating(basis_
     def efficiency(wavelength_nm):
         return 0.8 + 0.2 * np.sin(2 * np.pi * (wavelength_nm - 400) / 300)
 
-    result = estimate_makabe2025(
+    result = estimate_prior(
         [_observation(truth, efficiency=efficiency)], basis=basis, mapping=MAPPING
     )
-    assert result.diagnostics["solver"] == "prior"
+    assert result.method == "prior"
     assert relative_error(result.sensitivity, truth) < 2e-3
     assert result.sensitivity_sigma is not None
     assert np.all(result.sensitivity_sigma >= 0)
@@ -70,7 +74,10 @@ def test_smooth_grating_efficiency_is_recovered(basis_and_cameras):
         return 0.7 + 0.3 * np.cos(2 * np.pi * (wavelength_nm - 400) / 300)
 
     result = estimate_makabe2025(
-        [_observation(truth, efficiency=efficiency)], basis=basis, mapping=MAPPING, solver="basis"
+        [_observation(truth, efficiency=efficiency)],
+        basis=basis,
+        mapping=MAPPING,
+        options=Makabe2025Options(formulation="measured"),
     )
     # Not exact: η varies within each pixel's wavelength interval, which the linear rows ignore.
     assert relative_error(result.sensitivity, truth) < 5e-3
@@ -81,19 +88,18 @@ def test_smooth_grating_efficiency_is_recovered(basis_and_cameras):
 
 def test_paper_variant_runs_and_is_close_without_noise(basis_and_cameras):
     basis, cameras = basis_and_cameras
-    result = estimate_makabe2025(
-        [_observation(cameras[0])], basis=basis, mapping=MAPPING, solver="paper"
-    )
+    result = estimate_makabe2025([_observation(cameras[0])], basis=basis, mapping=MAPPING)
     # The paper's point-sampled W and grid-sampled lamp are approximations of the renderer.
     assert relative_error(result.sensitivity, cameras[0]) < 0.06
-    assert result.diagnostics["solver"] == "paper"
+    assert result.method == "makabe2025" and result.diagnostics["formulation"] == "printed"
+    assert result.sensitivity_sigma is None  # the paper gives no uncertainty
     assert result.diagnostics["kkt_condition"] > 1
 
 
 def test_mapping_is_found_from_the_broadband_lamp_alone(basis_and_cameras):
     basis, cameras = basis_and_cameras
     truth = cameras[2]
-    result = estimate_makabe2025([_observation(truth)], basis=basis)
+    result = estimate_prior([_observation(truth)], basis=basis)
     assert isinstance(result.mapping, QuadraticMapping)
     pixels = np.arange(720.0)
     inside = (MAPPING.wavelength_nm(pixels) >= 400) & (MAPPING.wavelength_nm(pixels) <= 700)
@@ -111,6 +117,8 @@ def test_missing_direct_is_a_clear_error(basis_and_cameras):
     )
     with pytest.raises(InputError, match="direct"):
         estimate_makabe2025([without], basis=basis, mapping=MAPPING)
+    with pytest.raises(InputError, match="direct"):
+        estimate_prior([without], basis=basis, mapping=MAPPING)
 
 
 @settings(max_examples=8, deadline=None)
@@ -120,7 +128,7 @@ def test_invariant_to_lamp_scale_and_equivariant_to_sensitivity_scale(
 ):
     basis, cameras = basis_and_cameras
     truth = 0.5 * cameras[5] + 0.5 * cameras[6]
-    reference = estimate_makabe2025([_observation(truth)], basis=basis, mapping=MAPPING)
+    reference = estimate_prior([_observation(truth)], basis=basis, mapping=MAPPING)
     observation = _observation(truth)
     # The lamp spectrum as given to the solver is rescaled: the estimate must not change shape.
     rescaled_lamp = LampObservation(
@@ -131,15 +139,34 @@ def test_invariant_to_lamp_scale_and_equivariant_to_sensitivity_scale(
         observation.direct_rgb,
         kind="led",
     )
-    result = estimate_makabe2025([rescaled_lamp], basis=basis, mapping=MAPPING)
+    result = estimate_prior([rescaled_lamp], basis=basis, mapping=MAPPING)
     np.testing.assert_allclose(result.sensitivity, reference.sensitivity, atol=1e-9)
     assert result.diagnostics["sensitivity_scale"] == pytest.approx(
         reference.diagnostics["sensitivity_scale"] / lamp_scale, rel=1e-7
     )
     # A camera k times as sensitive gives k times the signals and k times the absolute estimate.
     brighter = _observation(sensitivity_scale * truth)
-    scaled = estimate_makabe2025([brighter], basis=basis, mapping=MAPPING)
+    scaled = estimate_prior([brighter], basis=basis, mapping=MAPPING)
     np.testing.assert_allclose(scaled.sensitivity, reference.sensitivity, atol=1e-9)
     assert scaled.diagnostics["sensitivity_scale"] == pytest.approx(
         sensitivity_scale * reference.diagnostics["sensitivity_scale"], rel=1e-7
     )
+
+
+def test_the_printed_formulation_solves_one_lamp_and_says_so(basis_and_cameras):
+    basis, cameras = basis_and_cameras
+    first = _observation(cameras[0])
+    second = LampObservation(
+        "led 2", first.spectrum, first.pixel, first.profile, first.direct_rgb, kind="led"
+    )
+    with pytest.raises(InputError, match="printed formulation solves one lamp"):
+        estimate_makabe2025([first, second], basis=basis, mapping=MAPPING)
+    measured = estimate_makabe2025(
+        [first, second],
+        basis=basis,
+        mapping=MAPPING,
+        options=Makabe2025Options(formulation="measured"),
+    )
+    assert measured.diagnostics["solve_lamps"] == ["led", "led 2"]
+    with pytest.raises(InputError, match="formulation"):
+        Makabe2025Options(formulation="as printed")  # type: ignore[arg-type]

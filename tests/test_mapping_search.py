@@ -17,12 +17,11 @@ from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
-from calib.wavelength.peaks import icp_mapping
+from calib.wavelength import find_mapping
 from calib.wavelength.search import (
     ResponseFit,
     basin_spread_nm,
     bin_pixels,
-    find_mapping,
 )
 
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
@@ -71,7 +70,7 @@ def _mapping_re(mapping: QuadraticMapping) -> float:
 
 @pytest.mark.parametrize(("lamp", "noise", "limit"), [("D65", 0.0, 5e-4), ("LED-B3", 0.01, 4e-3)])
 def test_broadband_lamp_alone(prior, camera, lamp, noise, limit):
-    mapping = find_mapping([_render(lamp, camera, noise)], prior, DEFAULT_GRID)
+    mapping = find_mapping([_render(lamp, camera, noise)], camera=prior)
     assert _mapping_re(mapping) < limit
     assert mapping.details["origin"].startswith("correlation search")
     assert mapping.wavelength_rms_nm is not None and mapping.wavelength_rms_nm > 0
@@ -82,7 +81,7 @@ def test_fluorescent_lines_and_led_jointly(prior, camera, nikon, which):
     if which == "nikon":
         prior, camera = nikon
     lamps = [_render("FL2", camera, 0.01, kind="fluorescent"), _render("LED-B3", camera, 0.01)]
-    mapping = find_mapping(lamps, prior, DEFAULT_GRID)
+    mapping = find_mapping(lamps, camera=prior)
     assert mapping.details["origin"] == "lines of FL2"
     assert mapping.details["mapping_lamps"] == ["FL2", "LED-B3"]
     # The NPL-measured Nikon is far from the offline prior's curves: looser, but still < 1 %.
@@ -92,7 +91,7 @@ def test_fluorescent_lines_and_led_jointly(prior, camera, nikon, which):
 def test_a_start_far_off_is_corrected_by_the_search(prior, camera):
     """A given start 8 nm off at both ends (a rough geometry guess) still lands on the truth."""
     start = QuadraticMapping(TRUTH.a, TRUTH.b, TRUTH.c + 8.0, pixel_range=TRUTH.pixel_range)
-    mapping = find_mapping([_render("D65", camera)], prior, DEFAULT_GRID, starts=[start])
+    mapping = find_mapping([_render("D65", camera)], camera=prior, start=start)
     assert mapping.details["origin"] == "given start"
     assert _mapping_re(mapping) < 5e-4
 
@@ -102,14 +101,14 @@ def test_a_profile_missing_part_of_the_first_order_is_refused(prior, camera):
     keep = TRUTH.wavelength_nm(observation.pixel) < 600
     cut = replace(observation, pixel=observation.pixel[keep], profile=observation.profile[keep])
     with pytest.raises(EstimationError, match="not covering the grid"):
-        find_mapping([cut], prior, DEFAULT_GRID)
+        find_mapping([cut], camera=prior)
 
 
 def test_lamps_on_different_pixel_axes_are_refused(prior, camera):
     observation = _render("D65", camera)
     shifted = replace(observation, name="other", pixel=observation.pixel + 3.0)
     with pytest.raises(ValueError, match="different pixel axes"):
-        find_mapping([observation, shifted], prior, DEFAULT_GRID)
+        find_mapping([observation, shifted], camera=prior)
 
 
 def test_binning_keeps_the_truth_the_best_fit(prior, camera):
@@ -132,8 +131,8 @@ def test_robust_noise_sigma_measures_white_noise(rng):
 def test_paper_icp_reproduces_its_error_level_and_ours_beats_it(prior, camera):
     """The paper's LED-only ICP reports 2.1–2.3 % mapping RE; ours is an order of magnitude lower."""
     observation = _render("D65", camera)
-    paper = _mapping_re(icp_mapping(observation, prior.mean, DEFAULT_GRID))
-    ours = _mapping_re(find_mapping([observation], prior, DEFAULT_GRID))
+    paper = _mapping_re(find_mapping([observation], camera=prior, method="icp"))
+    ours = _mapping_re(find_mapping([observation], camera=prior))
     assert 2e-3 < paper < 6e-2
     assert ours < paper / 10
 
@@ -161,7 +160,7 @@ def test_a_camera_unlike_the_prior_does_not_pull_the_led_mapping_to_an_alias(sha
     """
     from calib.core.datasets import makabe2025_split
     from calib.evaluation.synthetic import render_scene
-    from calib.methods import default_camera_basis
+    from calib.model.bases import default_camera_basis
 
     _train, test = makabe2025_split(shared_camera_data)
     basis = default_camera_basis(data_dir=shared_camera_data, exclude=[r.name for r in test])
@@ -175,7 +174,7 @@ def test_a_camera_unlike_the_prior_does_not_pull_the_led_mapping_to_an_alias(sha
         noise_fraction=0.01,
     )
     observation = scene.broadband.observation
-    mapping = find_mapping([observation], basis.prior(), DEFAULT_GRID)
+    mapping = find_mapping([observation], camera=basis.prior())
     truth = scene.mapping.wavelength_nm(observation.pixel)
     inside = (truth >= 400) & (truth <= 700)
     error = mapping_relative_error(mapping.wavelength_nm(observation.pixel[inside]), truth[inside])

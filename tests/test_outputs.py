@@ -69,7 +69,8 @@ def _sha256(path: Path) -> str:
 def test_result_json_records_everything(outcome: OfflineOutcome, capture: Capture) -> None:
     document = json.loads(outcome.files["result"].read_text())
     assert document["schema"] == "spectral-rig/estimate-result"
-    assert document["method"] == "makabe2025"
+    assert document["method"] == "prior"  # auto: two lamps measured directly
+    assert document["diagnostics"]["method_choice"]["method"] == "prior"
     assert set(document["sensitivity"]) == {"R", "G", "B"}
     sigma = document["sensitivity_sigma"]
     assert set(sigma) == {"R", "G", "B"}
@@ -160,7 +161,7 @@ def test_grating_json_round_trips_with_its_geometry(outcome: OfflineOutcome) -> 
     np.testing.assert_allclose(grating.efficiency, result.grating_efficiency, atol=1e-12)
     assert grating.geometry["mapping"]["type"] == "quadratic"
     assert "spot_centre_px" in grating.geometry["diffraction"]
-    assert grating.provenance["method"] == "makabe2025"
+    assert grating.provenance["method"] == "prior"
 
 
 def test_report_is_one_self_contained_page_with_every_plot(
@@ -179,7 +180,7 @@ def test_report_is_one_self_contained_page_with_every_plot(
     for key in ("plot:sensitivity", "plot:efficiency", "plot:mapping", "plot:fit:LED"):
         assert outcome.files[key].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert outcome.files["plot:geometry"].exists()
-    assert "mapping RE estimate" in page and "makabe2025" in page
+    assert "mapping RE estimate" in page and "prior" in page
     for record in outcome.estimate.provenance.inputs:
         assert record.sha256 in page
 

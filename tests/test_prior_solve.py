@@ -13,8 +13,7 @@ from calib.core.metrics import relative_error
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
-from calib.methods.makabe2025 import estimate_makabe2025
-from calib.methods.prior_solve import fit_response, solve_with_prior
+from calib.methods.prior_solve import estimate_prior, fit_response, solve_with_prior
 from calib.model.bases import CameraBasis, fallback_camera_basis, fourier_basis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.model.linear_model import prepare_lamp
@@ -67,8 +66,8 @@ def test_a_companion_lamp_constrains_the_efficiency(basis, camera):
     for seed in range(3):
         led = _render("LED-B3", camera, 0.005, seed)
         fluorescent = _render("FL2", camera, 0.005, 100 + seed, kind="fluorescent")
-        alone = estimate_makabe2025([led], basis=basis, mapping=MAPPING)
-        joint = estimate_makabe2025([led, fluorescent], basis=basis, mapping=MAPPING)
+        alone = estimate_prior([led], basis=basis, mapping=MAPPING)
+        joint = estimate_prior([led, fluorescent], basis=basis, mapping=MAPPING)
         assert joint.diagnostics["efficiency_lamps"] == ["LED-B3", "FL2"]
         led_errors.append(relative_error(alone.sensitivity, _truth(camera)))
         joint_errors.append(relative_error(joint.sensitivity, _truth(camera)))
@@ -78,9 +77,7 @@ def test_a_companion_lamp_constrains_the_efficiency(basis, camera):
 def test_uncertainty_grows_with_the_noise(basis, camera):
     sigmas = []
     for noise in (0.003, 0.03):
-        result = estimate_makabe2025(
-            [_render("D65", camera, noise, 2)], basis=basis, mapping=MAPPING
-        )
+        result = estimate_prior([_render("D65", camera, noise, 2)], basis=basis, mapping=MAPPING)
         assert result.sensitivity_sigma is not None
         assert np.all(np.isfinite(result.sensitivity_sigma)) and np.all(
             result.sensitivity_sigma >= 0

@@ -194,17 +194,17 @@ def test_the_chart_fixes_the_channel_scales(offline_camera, offline_basis):
     scaled /= scaled.max()
     matrices = _matrices(truth)  # the same matrices: their rows do not know the gains
     chart = render_chart(colorchecker(), colour_lamp("D65"), as_spectrum(scaled))
-    balanced = estimate_solomatov2023(matrices, [chart], basis=offline_basis)
+    balanced = estimate_solomatov2023([matrices, chart], basis=offline_basis)
     reference_chart = render_chart(colorchecker(), colour_lamp("D65"), as_spectrum(truth))
-    reference = estimate_solomatov2023(matrices, [reference_chart], basis=offline_basis)
+    reference = estimate_solomatov2023([matrices, reference_chart], basis=offline_basis)
     # Same matrices, so the curves differ only by the chart's per-channel gains.
     ratio = balanced.sensitivity[10:25] / reference.sensitivity[10:25]
     np.testing.assert_allclose(ratio / ratio[:, 2:3], np.tile(gains / gains[2], (15, 1)), rtol=1e-9)
-    unbalanced = estimate_solomatov2023(matrices, [], basis=offline_basis, white_balance="none")
+    unbalanced = estimate_solomatov2023([matrices], basis=offline_basis, white_balance="none")
     assert relative_error(unbalanced.sensitivity, scaled) > 2 * relative_error(
         balanced.sensitivity, scaled
     )
-    full = estimate_solomatov2023(matrices, [chart], basis=offline_basis, white_balance="full")
+    full = estimate_solomatov2023([matrices, chart], basis=offline_basis, white_balance="full")
     assert np.shape(full.diagnostics["white_balance_transform"]) == (3, 3)
 
 
@@ -213,16 +213,16 @@ def test_bad_inputs_say_what_is_wrong(offline_camera, offline_basis):
     matrices = _matrices(truth)
     chart = render_chart(colorchecker(), colour_lamp("D65"), as_spectrum(truth))
     with pytest.raises(InputError, match="give a colour-checker observation"):
-        estimate_solomatov2023(matrices, [], basis=offline_basis)
+        estimate_solomatov2023([matrices], basis=offline_basis)
     with pytest.raises(InputError, match="white_balance must be"):
-        estimate_solomatov2023(matrices, [chart], basis=offline_basis, white_balance="grey")  # type: ignore[arg-type]
+        estimate_solomatov2023([matrices, chart], basis=offline_basis, white_balance="grey")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="needs exactly one ColorMatrixObservation"):
         calib.methods.estimate([chart], method="solomatov2023", basis=offline_basis)
     with pytest.raises(InputError, match="ridge"):
-        estimate_solomatov2023(matrices, [chart], basis=offline_basis, ridge=-0.5)
+        estimate_solomatov2023([matrices, chart], basis=offline_basis, ridge=-0.5)
     with pytest.raises(InputError, match="n_vectors"):
-        estimate_solomatov2023(matrices, [chart], basis=offline_basis, n_vectors=9)
+        estimate_solomatov2023([matrices, chart], basis=offline_basis, n_vectors=9)
     with pytest.raises(InputError, match="no illuminant or light source named 'D93'"):
         estimate_solomatov2023(
-            ColorMatrixObservation("c", MATRIX_A, ("D93",)), [chart], basis=offline_basis
+            [ColorMatrixObservation("c", MATRIX_A, ("D93",)), chart], basis=offline_basis
         )

@@ -5,8 +5,11 @@ import pytest
 from typer.testing import CliRunner
 
 from calib.cli.app import build_app
+from calib.cli.synthetic import paper_solve
 from calib.core.datasets import colour_science_cameras
+from calib.core.errors import InputError
 from calib.evaluation.synthetic import random_efficiency, random_mapping, run_protocol
+from calib.methods import Makabe2025Options, PriorOptions
 from tests.synthetic_cameras import exact_basis
 
 
@@ -93,3 +96,13 @@ def test_cli_rejects_an_unknown_weight_rule():
     )
     assert result.exit_code != 0
     assert "--weight-rule" in str(result.output) + str(result.exception)
+
+
+def test_the_method_options_say_which_solve_the_paper_variants_run():
+    assert paper_solve("prior", None) == PriorOptions()
+    assert paper_solve("makabe2025", None) == Makabe2025Options()
+    assert paper_solve("makabe2025", "measured") == Makabe2025Options(formulation="measured")
+    with pytest.raises(InputError, match="applies to --method makabe2025 only"):
+        paper_solve("prior", "measured")
+    with pytest.raises(InputError, match="--method"):
+        paper_solve("paper", None)  # the old --solver's value is not a method

@@ -25,8 +25,7 @@ from calib.evaluation.compare import (
     synthetic_adapters,
 )
 from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
-from calib.methods import default_camera_basis
-from calib.model.bases import CameraBasis, fallback_camera_basis
+from calib.model.bases import CameraBasis, default_camera_basis, fallback_camera_basis
 
 
 def register(app: typer.Typer) -> None:

@@ -19,7 +19,12 @@ import typer
 
 from calib.cli.estimate_args import USAGE, EstimateArguments, parse_estimate_arguments
 from calib.core.errors import CalibError, InputError
+from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import format_re
+from calib.core.result import json_safe
+from calib.pipeline.estimate import OfflineSettings
+from calib.pipeline.progress import RichFrameProgress
+from calib.pipeline.run import OfflineOutcome, run_offline
 
 #: Files of an earlier estimate that ``--force`` allows to overwrite.
 _RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
@@ -37,11 +42,8 @@ def _check_out_dir(out_dir: Path, force: bool) -> None:
         )
 
 
-def summary(outcome: Any) -> dict[str, Any]:
+def summary(outcome: OfflineOutcome) -> dict[str, Any]:
     """The ``--json`` summary of an :class:`calib.pipeline.OfflineOutcome`."""
-    from calib.core.mapping import QuadraticMapping
-    from calib.core.result import json_safe
-
     estimate = outcome.estimate
     result = estimate.result
     mapping = result.mapping
@@ -54,6 +56,7 @@ def summary(outcome: Any) -> dict[str, Any]:
         {
             "status": "ok",
             "method": result.method,
+            "method_choice": result.diagnostics.get("method_choice"),
             "out_dir": str(outcome.files["result"].parent),
             "files": {key: str(path) for key, path in outcome.files.items() if ":" not in key},
             "camera": estimate.provenance.camera.get("camera"),
@@ -69,10 +72,15 @@ def summary(outcome: Any) -> dict[str, Any]:
     return record
 
 
-def _print_summary(outcome: Any, stream: TextIO) -> None:
+def _print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
     record = summary(outcome)
     lamps = ", ".join(f"{lamp['name']} ({lamp['kind']})" for lamp in record["lamps"])
     print(f"estimate: {record['method']} from {lamps}", file=stream)
+    if record["method_choice"]:
+        print(
+            f"method: auto chose {record['method']}: {record['method_choice']['reason']}",
+            file=stream,
+        )
     if record["camera"]:
         print(f"camera: {record['camera']}", file=stream)
     mapping = record["mapping"]
@@ -131,10 +139,9 @@ def run(argv: Sequence[str], *, stdout: TextIO | None = None, stderr: TextIO | N
     return 0
 
 
-def _estimate(arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO) -> Any:
-    from calib.pipeline import OfflineSettings, run_offline
-    from calib.pipeline.progress import RichFrameProgress
-
+def _estimate(
+    arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO
+) -> OfflineOutcome:
     assert arguments.out_dir is not None
     _check_out_dir(arguments.out_dir, arguments.force)
     settings = OfflineSettings(

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from calib.core.errors import InputError
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.methods import AUTO, MethodOptions
+from calib.methods.multilamp import weight_rule_option
 from calib.pipeline.inputs import LampImages, LampInput, LampProfile, check_kind, parse_direct
 
 USAGE = """\
@@ -27,7 +28,8 @@ Usage: calib estimate --lamp NAME (--images PATH [PATH ...] | --profile CSV) --s
                       [--exposure S ...] [--dark-exposure S ...] [--direct R,G,B]
                       [--bandwidth NM]
                       [--lamp NAME … for every further lamp]
-                      --out DIR [--method makabe2025|…] [--weight-rule upre|typicality|evidence]
+                      --out DIR [--method auto|prior|makabe2025|multilamp|known-grating]
+                      [--weight-rule upre|typicality|evidence]
                       [--mapping-lamp NAME] [--grid 400:700:10]
                       [--data-dir DIR] [--grating FILE] [--force] [--quiet] [--json]
 
@@ -54,7 +56,9 @@ Per lamp (after --lamp NAME; repeat the group for every lamp):
 Global:
   --out DIR              where to write sensitivity.csv, result.json, report.html, the
                          rawtoaces camera JSON and grating.json (created if missing)
-  --method NAME          estimation method (default makabe2025)
+  --method NAME          estimation method: auto (default: multilamp when 3 or more lamps have a
+                         direct measurement, else prior), prior (the camera-prior solve),
+                         makabe2025 (the paper's solve as printed), multilamp, known-grating
   --weight-rule RULE     with --method multilamp: how the camera prior is weighted, upre (default),
                          typicality (better for cameras like the basis, worse for unusual ones)
                          or evidence (the marginal likelihood)
@@ -108,15 +112,16 @@ class EstimateArguments:
     method, mapping_lamp, grid, data_dir, grating
         The global options (``None`` when not given).
     method_options
-        What ``--weight-rule`` stands for (:func:`calib.methods.multilamp.weight_rule_option`), checked.
+        The method's typed options: what ``--weight-rule`` stands for
+        (:func:`calib.methods.multilamp.weight_rule_option`), checked; ``None``: its defaults.
     force, quiet, json_output, show_help
         The flags.
     """
 
     lamps: tuple[LampInput, ...]
     out_dir: Path | None
-    method: str = "makabe2025"
-    method_options: Mapping[str, Any] = field(default_factory=dict)
+    method: str = AUTO
+    method_options: MethodOptions | None = None
     mapping_lamp: str | None = None
     grid: WavelengthGrid = DEFAULT_GRID
     data_dir: Path | None = None
@@ -247,12 +252,8 @@ def parse_estimate_arguments(argv: Sequence[str]) -> EstimateArguments:
         except InputError as exc:
             message = str(exc).removeprefix(f"{exc.source}: ")
             raise InputError(message, source="--grid") from None
-    method = globals_.get("--method", "makabe2025")
-    method_options: dict[str, Any] = {}
-    if "--weight-rule" in globals_:
-        from calib.methods.multilamp import weight_rule_option
-
-        method_options = weight_rule_option(method, globals_["--weight-rule"])
+    method = globals_.get("--method", AUTO)
+    method_options = weight_rule_option(method, globals_.get("--weight-rule"))
     return EstimateArguments(
         lamps=tuple(_lamp_input(group) for group in groups),
         out_dir=Path(globals_["--out"]),

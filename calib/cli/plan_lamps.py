@@ -20,8 +20,8 @@ from calib.evaluation.lamp_planning import (
     best_additions,
     rank_subsets,
 )
-from calib.methods import default_camera_basis
 from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS
+from calib.model.bases import default_camera_basis
 
 #: Narrow-band LEDs suggested as extra lamps when none are given.
 DEFAULT_CANDIDATES: tuple[str, ...] = RGB_LEDS

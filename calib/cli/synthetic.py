@@ -22,13 +22,46 @@ from calib.evaluation.synthetic import (
     NOISE_LEVELS,
     PAPER_VARIANTS,
     VARIANTS,
+    PaperSolve,
     SyntheticRow,
     out_of_basis_cameras,
     run_protocol,
 )
-from calib.methods import default_camera_basis
-from calib.methods.makabe2025 import SOLVERS, Solver
-from calib.model.bases import CameraBasis, fallback_camera_basis
+from calib.methods.makabe2025 import FORMULATIONS, MAKABE2025_METHOD, Makabe2025Options
+from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, weight_rule_option
+from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions
+from calib.model.bases import CameraBasis, default_camera_basis, fallback_camera_basis
+
+#: The solves ``--method`` offers for the paper's variants.
+PAPER_METHODS = (PRIOR_METHOD, MAKABE2025_METHOD)
+
+
+def paper_solve(method: str, formulation: str | None) -> PaperSolve:
+    """The typed options ``--method`` (and ``--formulation``) stand for.
+
+    Raises
+    ------
+    InputError
+        An unknown method or formulation, or a formulation with a method that has none.
+    """
+    if method not in PAPER_METHODS:
+        raise InputError(
+            f"must be one of {', '.join(PAPER_METHODS)}, got {method!r}", source="--method"
+        )
+    if method == PRIOR_METHOD:
+        if formulation is not None:
+            raise InputError(
+                f"applies to --method {MAKABE2025_METHOD} only", source="--formulation"
+            )
+        return PriorOptions()
+    if formulation is None:
+        return Makabe2025Options()
+    if formulation not in FORMULATIONS:
+        raise InputError(
+            f"must be one of {', '.join(FORMULATIONS)}, got {formulation!r}",
+            source="--formulation",
+        )
+    return Makabe2025Options(formulation="measured" if formulation == "measured" else "printed")
 
 
 def _parse_noise(text: str) -> list[float]:
@@ -160,13 +193,20 @@ def register(app: typer.Typer) -> None:
                 "'grating file: 1 LED', or 'multilamp' for all four."
             ),
         ] = None,
-        solver: Annotated[
+        method: Annotated[
             str,
             typer.Option(
-                help="prior (camera prior, default), basis (the paper's 7-vector model in measured "
-                "units) or paper (Eq. 12 as printed)."
+                help="How the paper's variants solve: prior (the camera-prior solve, default) or "
+                "makabe2025 (the paper's solve)."
             ),
-        ] = "prior",
+        ] = PRIOR_METHOD,
+        formulation: Annotated[
+            str | None,
+            typer.Option(
+                help="With --method makabe2025: printed (Eq. 12 as printed, default) or measured "
+                "(the paper's 7-vector model in measured units)."
+            ),
+        ] = None,
         repeats: Annotated[
             int, typer.Option(min=1, help="Random scenes per camera and noise level.")
         ] = 1,
@@ -205,9 +245,8 @@ def register(app: typer.Typer) -> None:
         ] = Path("synthetic.csv"),
     ) -> None:
         """Reproduce the paper's synthetic experiment (§4.1): RE per camera × variant × noise."""
-        if solver not in SOLVERS:
-            raise InputError(f"solver must be one of {SOLVERS}, got {solver!r}", source="--solver")
-        chosen: Solver = solver
+        solve = paper_solve(method, formulation)
+        multilamp_options = weight_rule_option(MULTILAMP_METHOD, weight_rule) or MultilampOptions()
         grid = WavelengthGrid()
         variants = _variants(variant)
         if offline:
@@ -242,17 +281,19 @@ def register(app: typer.Typer) -> None:
             variants,
             noise,
             lamp,
-            chosen,
+            solve,
             repeats,
             seed,
             direct_noise,
-            weight_rule,
+            multilamp_options,
         )
         console = Console()
         console.print(
             summary_table(
                 rows,
-                f"Makabe 2025 §4.1 — lamp {lamp}, solver {solver}, basis: {basis_source}",
+                f"Makabe 2025 §4.1 — lamp {lamp}, method {method}"
+                + (f" ({formulation})" if formulation else "")
+                + f", basis: {basis_source}",
             )
         )
         write_rows_csv(csv_path, rows)
@@ -281,15 +322,12 @@ def _run(
     variants: list[str],
     noise: str,
     lamp: str,
-    solver: Solver,
+    solve: PaperSolve,
     repeats: int,
     seed: int,
-    direct_noise: float | None = None,
-    weight_rule: str | None = None,
+    direct_noise: float | None,
+    multilamp_options: MultilampOptions,
 ) -> list[SyntheticRow]:
-    from calib.methods.multilamp import MULTILAMP_METHOD, weight_rule_option
-
-    options = weight_rule_option(MULTILAMP_METHOD, weight_rule)
     console = Console(stderr=True)
     with console.status("estimating…") as status:
         return run_protocol(
@@ -299,11 +337,11 @@ def _run(
             variants=variants,
             noise_levels=_parse_noise(noise),
             broadband_lamp=lamp,
-            solver=solver,
+            paper_solve=solve,
             repeats=repeats,
             seed=seed,
             direct_noise=direct_noise,
-            multilamp_options=options,
+            multilamp_options=multilamp_options,
             progress=lambda row: status.update(
                 f"{row.camera} · {row.variant} · noise {row.noise:g}"
             ),

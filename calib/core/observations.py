@@ -293,7 +293,7 @@ class ColorMatrixObservation:
         object.__setattr__(self, "illuminants", tuple(self.illuminants))
 
 
-#: Everything :func:`calib.estimate` accepts; each method takes the kinds it needs.
+#: Everything :func:`calib.methods.estimate` accepts; each method takes the kinds it needs.
 Observation = LampObservation | ChartObservation | ColorMatrixObservation
 
 

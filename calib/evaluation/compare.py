@@ -14,12 +14,11 @@ with Gaussian noise of the same fraction of the peak on profiles, direct RGB and
 ``(camera i, noise j, repeat r)`` draws from ``default_rng([seed, i, j, r])`` (the same scenes as
 ``calib synthetic``); the charts' noise from ``default_rng([seed, i, j, r, k])``.
 
-Methods: :data:`SYNTHETIC_ADAPTERS` says, per registry name, how to hand a scene to the method (which
-observations, which options) and under which column label. A method runs when it is registered in
-:data:`calib.methods.ESTIMATION_METHODS` and has an adapter, so a method added later (``han2012``,
-``multilamp``) appears by registering itself and, if it needs data this table does not build, by
-providing ``synthetic_observations(scene: CompareScene) -> (observations, options)`` in its module
-(:func:`module_adapter`). Registered methods without either are listed in the report as skipped.
+Methods: :func:`synthetic_adapters` says, per column, which registered method runs on which inputs
+(observations, and the keywords that method declares: basis, mapping, its typed options …) through
+the front function :func:`calib.methods.estimate`, which refuses any input the method does not
+declare. A method registered in :data:`calib.methods.ESTIMATION_METHODS` without a column here is
+listed in the report as skipped.
 
 Captured sessions (the digital twin's, whose truth file says which camera it really has) hold only
 the lamps seen through the grating: no chart, no colour matrices. They come as :class:`GratingScene`
@@ -31,10 +30,9 @@ reason.
 
 from __future__ import annotations
 
-import importlib
 import time
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -54,8 +52,10 @@ from calib.core.observations import (
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
 from calib.evaluation.synthetic import FLUORESCENT_LAMP, render_scene
-from calib.methods import ESTIMATION_METHODS, LAZY_METHODS, estimate
+from calib.methods import ESTIMATION_METHODS, PriorOptions, estimate, method_names
+from calib.methods.baselines.han2012 import render_fluorescent_chart, synthetic_fluorescent_paints
 from calib.methods.baselines.solomatov2023 import simulate_color_matrix
+from calib.methods.baselines.toivonen2020 import ToivonenSettings
 from calib.model.bases import CameraBasis
 from calib.model.charts import gaussian_filters, render_chart
 
@@ -116,7 +116,7 @@ class CompareScene:
     seed: int
 
 
-#: How a scene becomes a method's input: ``(observations, options for calib.estimate)``.
+#: How a scene becomes a method's input: ``(observations, options for calib.methods.estimate)``.
 SceneBuilder = Callable[[CompareScene], tuple[list[Observation], dict[str, Any]]]
 
 
@@ -145,7 +145,7 @@ class SyntheticAdapter:
 def _lamps_led_flu(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
     return [scene.broadband, scene.fluorescent], {
         "basis": scene.basis,
-        "solve_lamps": [scene.broadband.name],
+        "options": PriorOptions(solve_lamps=(scene.broadband.name,)),
     }
 
 
@@ -157,12 +157,7 @@ def _colour_checker(scene: CompareScene) -> tuple[list[Observation], dict[str, A
     return [scene.chart], {"basis": scene.basis}
 
 
-def _fluorescent_chart(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
-    from calib.methods.baselines.han2012 import (
-        render_fluorescent_chart,
-        synthetic_fluorescent_paints,
-    )
-
+def _fluorescent_chart(scene: CompareScene) -> tuple[list[Any], dict[str, Any]]:
     rng = np.random.default_rng([scene.seed, 2012])
     chart = render_fluorescent_chart(
         synthetic_fluorescent_paints(rng),
@@ -172,19 +167,31 @@ def _fluorescent_chart(scene: CompareScene) -> tuple[list[Observation], dict[str
         rng=rng,
         noise_fraction=scene.noise,
     )
-    # The paper's Fourier basis: the method is about needing neither the light nor measured cameras.
-    return [], {"chart": chart, "basis": None}
+    # The method's default, the paper's Fourier basis: it needs neither the light nor measured
+    # cameras.
+    return [chart], {}
 
 
 def _matrices_and_checker(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
     return [scene.color_matrices, scene.chart], {"basis": scene.basis}
 
 
+def toivonen_settings(overrides: Mapping[str, Any] | None) -> ToivonenSettings:
+    """:class:`~calib.methods.baselines.toivonen2020.ToivonenSettings` with a command line's
+    overrides (``ensemble_size``, ``epochs`` …), checked once."""
+    return replace(ToivonenSettings(), **dict(overrides or {}))
+
+
 def _toivonen(
-    n_patches: int, settings: dict[str, Any]
+    n_patches: int, settings: ToivonenSettings
 ) -> Callable[[CompareScene], tuple[list[Observation], dict[str, Any]]]:
     def build(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
-        options = {"mapping": scene.mapping, "seed": scene.seed, **settings}
+        options = {
+            "basis": scene.basis,
+            "mapping": scene.mapping,
+            "seed": scene.seed,
+            "settings": settings,
+        }
         if n_patches <= 1:
             return [scene.broadband], {**options, "direct_as_patch": True}
         return [scene.broadband, scene.transmissive], {**options, "direct_as_patch": False}
@@ -197,7 +204,7 @@ def _multilamp(scene: CompareScene) -> tuple[list[Observation], dict[str, Any]]:
 
 
 def synthetic_adapters(
-    *, n_patches: int = DEFAULT_TRANSMISSIVE_PATCHES, toivonen: dict[str, Any] | None = None
+    *, n_patches: int = DEFAULT_TRANSMISSIVE_PATCHES, toivonen: Mapping[str, Any] | None = None
 ) -> tuple[SyntheticAdapter, ...]:
     """The adapter table: one entry per column, in table order.
 
@@ -206,21 +213,27 @@ def synthetic_adapters(
     n_patches
         Gaussian transmissive filters in the many-patch Toivonen column.
     toivonen
-        Options for the Toivonen columns (``ensemble_size``, ``epochs`` …).
+        Overrides of the Toivonen columns' settings (``ensemble_size``, ``epochs`` …).
     """
-    settings = dict(toivonen or {})
+    settings = toivonen_settings(toivonen)
     return (
         SyntheticAdapter(
-            "makabe2025 (LED+Flu)",
-            "makabe2025",
+            "prior (LED+Flu)",
+            "prior",
             _lamps_led_flu,
-            "mapping from the fluorescent lamp, solve with the broadband lamp",
+            "the prior solve: mapping from the fluorescent lamp, solve with the broadband lamp",
+        ),
+        SyntheticAdapter(
+            "prior (true mapping)",
+            "prior",
+            _lamp_true_mapping,
+            "the prior solve alone, given the true mapping",
         ),
         SyntheticAdapter(
             "makabe2025 (true mapping)",
             "makabe2025",
             _lamp_true_mapping,
-            "the closed-form solve alone, given the true mapping",
+            "the paper's closed-form solve as printed, given the true mapping",
         ),
         SyntheticAdapter(
             "multilamp",
@@ -259,30 +272,15 @@ def synthetic_adapters(
     )
 
 
-def module_adapter(method: str) -> SyntheticAdapter | None:
-    """An adapter a lazily registered method's module provides, if any.
-
-    A method module may define ``synthetic_observations(scene: CompareScene) ->
-    (observations, options)``; it is used for that method's column.
-    """
-    if method not in LAZY_METHODS:
-        return None
-    module_name, _ = LAZY_METHODS[method]
-    module = importlib.import_module(module_name)
-    builder = getattr(module, "synthetic_observations", None)
-    if builder is None:
-        return None
-    return SyntheticAdapter(method, method, builder, f"inputs from {module_name}")
-
-
 def _wanted_methods(methods: Sequence[str] | None) -> list[str]:
     """Registry names asked for (default: all registered), refusing unknown ones."""
     registered = sorted(ESTIMATION_METHODS)
     wanted = registered if methods is None else [m.lower() for m in methods]
-    unknown = [m for m in wanted if m not in ESTIMATION_METHODS]
+    unknown = [m for m in wanted if m not in method_names()]
     if unknown:
         raise InputError(
-            f"unknown methods {unknown}; registered: {', '.join(registered)}", source="--method"
+            f"unknown methods {unknown}; registered: {', '.join(method_names())}",
+            source="--method",
         )
     return wanted
 
@@ -302,15 +300,7 @@ def active_adapters(
     wanted = _wanted_methods(methods)
     chosen = [adapter for adapter in adapters if adapter.method in wanted]
     covered = {adapter.method for adapter in adapters}
-    skipped: list[str] = []
-    for method in wanted:
-        if method in covered:
-            continue
-        provided = module_adapter(method)
-        if provided is None:
-            skipped.append(method)
-        else:
-            chosen.append(provided)
+    skipped = [method for method in wanted if method not in covered]
     return chosen, skipped
 
 
@@ -592,7 +582,7 @@ class GratingScene:
         return (broadband or direct or list(self.lamps))[0]
 
 
-#: How a grating scene becomes a method's input: ``(observations, options for calib.estimate)``.
+#: How a grating scene becomes a method's input: ``(observations, options for calib.methods.estimate)``.
 GratingSceneBuilder = Callable[[GratingScene], tuple[list[Observation], dict[str, Any]]]
 
 
@@ -626,36 +616,49 @@ def _session_true_mapping(scene: GratingScene) -> tuple[list[Observation], dict[
 
 
 def _session_toivonen(
-    settings: dict[str, Any],
+    settings: ToivonenSettings,
 ) -> Callable[[GratingScene], tuple[list[Observation], dict[str, Any]]]:
     def build(scene: GratingScene) -> tuple[list[Observation], dict[str, Any]]:
-        options = {"mapping": scene.mapping, "seed": scene.seed, "direct_as_patch": True}
-        return [scene.solve_lamp], {**options, **settings}
+        return [scene.solve_lamp], {
+            "basis": scene.basis,
+            "mapping": scene.mapping,
+            "seed": scene.seed,
+            "direct_as_patch": True,
+            "settings": settings,
+        }
 
     return build
 
 
-def grating_adapters(*, toivonen: dict[str, Any] | None = None) -> tuple[GratingAdapter, ...]:
+def grating_adapters(*, toivonen: Mapping[str, Any] | None = None) -> tuple[GratingAdapter, ...]:
     """The columns a grating capture can feed, in table order.
 
     Parameters
     ----------
     toivonen
-        Options for the Toivonen column (``ensemble_size``, ``epochs`` …).
+        Overrides of the Toivonen column's settings (``ensemble_size``, ``epochs`` …).
     """
     return (
         GratingAdapter(
-            "makabe2025 (all lamps)",
-            "makabe2025",
+            "prior (all lamps)",
+            "prior",
             _session_all_lamps,
-            "every lamp of the session, as `rig estimate` runs it (the estimator finds the mapping)",
+            "the prior solve on every lamp of the session (the estimator finds the mapping); "
+            "what `rig estimate` runs when fewer than 3 lamps have a direct measurement",
+        ),
+        GratingAdapter(
+            "prior (true mapping)",
+            "prior",
+            _session_true_mapping,
+            "the prior solve alone on one lamp (the broadband one when its direct spot was "
+            "measured), given the twin's true mapping",
         ),
         GratingAdapter(
             "makabe2025 (true mapping)",
             "makabe2025",
             _session_true_mapping,
-            "the closed-form solve alone on one lamp (the broadband one when its direct spot "
-            "was measured), given the twin's true mapping",
+            "the paper's closed-form solve as printed on the same lamp, given the twin's true "
+            "mapping",
         ),
         GratingAdapter(
             "multilamp", "multilamp", _session_all_lamps, "every lamp of the session solved jointly"
@@ -663,7 +666,7 @@ def grating_adapters(*, toivonen: dict[str, Any] | None = None) -> tuple[Grating
         GratingAdapter(
             "toivonen2020 (1 patch)",
             "toivonen2020",
-            _session_toivonen(dict(toivonen or {})),
+            _session_toivonen(toivonen_settings(toivonen)),
             "the same lamp's profile, its direct light as the only patch, the twin's true mapping",
         ),
     )

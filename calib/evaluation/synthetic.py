@@ -20,7 +20,10 @@ sets of :data:`LAMP_SETS` (rendered after the paper's two lamps, so their draws 
 ``multilamp: 5 lamps, true mapping``,
 ``grating file: 1 LED``            η calibrated with the 5 lamps on the *other* cameras through the same
                                    grating (jointly, :func:`calib.methods.multilamp.refine_grating`), then this
-                                   camera from one LED-B3 shot (:func:`calib.methods.multilamp.estimate_with_grating`).
+                                   camera from one LED-B3 shot (:func:`calib.methods.known_grating.estimate_known_grating`).
+
+The paper's variants run the prior solve (:func:`calib.methods.prior_solve.estimate_prior`) or, given
+:class:`calib.methods.makabe2025.Makabe2025Options`, the paper's own.
 
 Out-of-basis cameras (:func:`out_of_basis_cameras`): colour-science's Sigma SDMerill (NPL, a Foveon
 sensor) and a camera behind a colour filter (:func:`colour_filter`).
@@ -29,13 +32,13 @@ sensor) and a camera behind a colour filter (:func:`colour_filter`).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.datasets import colour_science_cameras
 from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import RGB_LEDS, colour_lamp, lamp_from_spec
 from calib.core.mapping import QuadraticMapping
@@ -43,7 +46,11 @@ from calib.core.metrics import mapping_relative_error, relative_error
 from calib.core.observations import LampKind, LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
-from calib.methods.makabe2025 import Solver, estimate_makabe2025
+from calib.methods.closed_form import SearchMethod
+from calib.methods.known_grating import estimate_known_grating
+from calib.methods.makabe2025 import Makabe2025Options, estimate_makabe2025
+from calib.methods.multilamp import MultilampOptions, estimate_multilamp, refine_grating
+from calib.methods.prior_solve import PriorOptions, estimate_prior
 from calib.model.bases import CameraBasis, fourier_basis
 from calib.model.forward import PeakFractionNoise, RenderedObservation, render_observation
 
@@ -66,6 +73,8 @@ VARIANTS: tuple[str, ...] = PAPER_VARIANTS + MULTILAMP_VARIANTS
 NOISE_LEVELS: tuple[float, ...] = (0.0, 0.003, 0.01, 0.03)
 BROADBAND_LAMPS: tuple[str, ...] = ("D65", "LED-B3")
 FLUORESCENT_LAMP = "FL2"
+#: How the paper's variants solve: the prior solve's options, or the paper's solve's.
+PaperSolve = PriorOptions | Makabe2025Options
 
 
 def random_mapping(
@@ -166,8 +175,6 @@ def out_of_basis_cameras(
     filtered_name: str, filtered: MultiSpectrum
 ) -> list[tuple[str, MultiSpectrum]]:
     """Cameras unlike any basis: the Foveon camera and ``filtered`` behind :func:`colour_filter`."""
-    from calib.core.datasets import colour_science_cameras
-
     (foveon,) = (r.sensitivity for r in colour_science_cameras() if r.name == FOVEON_CAMERA)
     return [
         (FOVEON_CAMERA, foveon),
@@ -311,17 +318,22 @@ def evaluate_scene(
     variant: str,
     *,
     grid: WavelengthGrid = DEFAULT_GRID,
-    solver: Solver = "prior",
+    paper_solve: PaperSolve = PriorOptions(),
     noise: float = 0.0,
     repeat: int = 0,
-    multilamp_options: Mapping[str, Any] | None = None,
+    multilamp_options: MultilampOptions = MultilampOptions(),
 ) -> SyntheticRow:
     """Estimate one variant on a rendered scene and score it against the truth."""
     started = time.perf_counter()
     led = scene.broadband.observation
     try:
         result = _estimate_variant(
-            scene, basis, variant, grid=grid, solver=solver, options=multilamp_options or {}
+            scene,
+            basis,
+            variant,
+            grid=grid,
+            paper_solve=paper_solve,
+            multilamp_options=multilamp_options,
         )
     except EstimationError as exc:
         return SyntheticRow(
@@ -377,21 +389,30 @@ def _estimate_variant(
     variant: str,
     *,
     grid: WavelengthGrid,
-    solver: Solver,
-    options: Mapping[str, Any],
+    paper_solve: PaperSolve,
+    multilamp_options: MultilampOptions,
 ) -> EstimateResult:
-    from calib.methods.multilamp import estimate_multilamp, estimate_with_grating, refine_grating
-
     led = scene.broadband.observation
     if variant in PAPER_VARIANTS:
-        return estimate_makabe2025(
-            [led] if variant != "LED+Flu" else [led, scene.fluorescent.observation],
+        lamps = [led] if variant != "LED+Flu" else [led, scene.fluorescent.observation]
+        mapping = scene.mapping if _uses_true_mapping(variant) else None
+        mapping_method: SearchMethod = "icp" if variant == "LED only (paper ICP)" else "search"
+        if isinstance(paper_solve, Makabe2025Options):
+            return estimate_makabe2025(
+                lamps,
+                basis=basis,
+                grid=grid,
+                mapping=mapping,
+                options=replace(
+                    paper_solve, mapping_method=mapping_method, solve_lamps=(led.name,)
+                ),
+            )
+        return estimate_prior(
+            lamps,
             basis=basis,
             grid=grid,
-            mapping=scene.mapping if _uses_true_mapping(variant) else None,
-            solver=solver,
-            mapping_method="icp" if variant == "LED only (paper ICP)" else "search",
-            solve_lamps=[led.name],
+            mapping=mapping,
+            options=replace(paper_solve, mapping_method=mapping_method, solve_lamps=(led.name,)),
         )
     if variant == "grating file: 1 LED":
         if not scene.calibration:
@@ -399,16 +420,24 @@ def _estimate_variant(
                 "the grating-file variant needs calibration cameras in the scene",
                 source="variant",
             )
-        grating, _ = refine_grating(scene.calibration, basis=basis, grid=grid, **options)
+        # The pooled η solve takes the multi-lamp rule and model (its terms follow the equations).
+        grating, _ = refine_grating(
+            scene.calibration,
+            basis=basis,
+            grid=grid,
+            prior_weight=multilamp_options.prior_weight,
+            efficiency_model=multilamp_options.efficiency_model,
+            weight_rule=multilamp_options.weight_rule,
+        )
         (single,) = (obs for obs in scene.lamp_sets[FIVE_LAMPS] if obs.name == GRATING_FILE_LAMP)
-        return estimate_with_grating([single], grating, basis=basis, grid=grid)
+        return estimate_known_grating([single], grating=grating, basis=basis, grid=grid)
     set_name = variant.removeprefix("multilamp: ").removesuffix(", true mapping")
     return estimate_multilamp(
         scene.lamp_sets[set_name],
         basis=basis,
         grid=grid,
         mapping=scene.mapping if _uses_true_mapping(variant) else None,
-        **options,
+        options=multilamp_options,
     )
 
 
@@ -421,12 +450,12 @@ def run_protocol(
     noise_levels: Sequence[float] = NOISE_LEVELS,
     broadband_lamp: str = "D65",
     fluorescent_lamp: str = FLUORESCENT_LAMP,
-    solver: Solver = "prior",
+    paper_solve: PaperSolve = PriorOptions(),
     repeats: int = 1,
     seed: int = 0,
     progress: Callable[[SyntheticRow], None] | None = None,
     direct_noise: float | None = None,
-    multilamp_options: Mapping[str, Any] | None = None,
+    multilamp_options: MultilampOptions = MultilampOptions(),
 ) -> list[SyntheticRow]:
     """Run the protocol over cameras × noise levels × repeats × variants (see module docstring).
 
@@ -437,13 +466,17 @@ def run_protocol(
     basis
         Camera basis (e.g. from the 44 training cameras) on ``grid``, or a function of the camera's
         name giving one (e.g. the offline basis excluding that camera).
+    paper_solve
+        How the paper's variants solve: :class:`~calib.methods.prior_solve.PriorOptions` (the
+        prior solve, default) or :class:`~calib.methods.makabe2025.Makabe2025Options` (the paper's).
     seed
         Master seed; scene ``(camera i, noise j, repeat r)`` uses ``default_rng([seed, i, j, r])``.
 
     The multi-lamp variants render their lamp sets after the paper's lamps, their direct
     measurements with noise ``direct_noise`` (fraction of the peak; ``None``: the profile's); the
     grating-file variant calibrates the grating with every *other* camera of ``cameras`` under the
-    5 lamps. ``multilamp_options`` go to the multi-lamp solves (e.g. ``weight_rule``).
+    5 lamps. ``multilamp_options`` go to the multi-lamp solves (the grating-file variant's pooled
+    η solve takes their rule, model and fixed weight).
     """
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
@@ -486,7 +519,7 @@ def run_protocol(
                         scene_basis,
                         variant,
                         grid=grid,
-                        solver=solver,
+                        paper_solve=paper_solve,
                         noise=noise,
                         repeat=repeat,
                         multilamp_options=multilamp_options,

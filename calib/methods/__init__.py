@@ -1,226 +1,290 @@
 """The one front function :func:`estimate` and the registry of estimation methods behind it.
 
-In the style of colour-science's ``method=`` front functions: each method is a function
-``(observations, *, grid, basis, mapping, mapping_lamp, **options) -> EstimateResult`` registered
-under its paper's name with :func:`register_method`. Later methods (``multilamp``, ``jiang2013``,
-``toivonen2020``, ``han2012``, ``solomatov2023`` …) register themselves the same way, importing
-their module only when called so that ``import calib`` stays cheap.
+In colour-science's manner (``colour.recovery``'s ``METHODS`` tables with ``filter_kwargs``):
+:data:`ESTIMATION_METHODS` maps each method's name to its algorithm function, and :func:`estimate`
+routes each function only the keyword arguments it declares. An option the chosen method does not
+declare is refused with an :class:`~calib.core.errors.InputError` naming it and the method, unless
+the caller asks for filtering (``filter_options=True``, e.g. one option set for many methods).
+
+The front function resolves the camera basis once (:func:`calib.model.bases.default_camera_basis`,
+measured cameras when the data is found, else colour-science's) for a method that takes one;
+methods receive their basis and never call back here. The grating methods take their options as one
+typed object (:class:`PriorOptions`, :class:`Makabe2025Options`, :class:`MultilampOptions`,
+:class:`KnownGratingOptions`, …, checked on construction), built once by whoever parsed them.
+
+``method="auto"`` (the default) chooses by :func:`choose_method` and records the choice and its
+reason in the result's ``diagnostics["method_choice"]``.
 
 Examples
 --------
->>> from calib import estimate                                       # doctest: +SKIP
->>> result = estimate(observations, method="makabe2025")             # doctest: +SKIP
->>> result.sensitivity.shape                                         # doctest: +SKIP
-(31, 3)
+>>> from calib.core.datasets import colour_science_cameras, find_camera
+>>> from calib.core.lamp_specs import colour_lamp
+>>> from calib.core.mapping import QuadraticMapping
+>>> from calib.model.bases import fallback_camera_basis
+>>> from calib.model.forward import render_observation
+>>> camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+>>> basis = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"])
+>>> truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+>>> led = render_observation(colour_lamp("LED-B3"), camera, mapping=truth, pixel=800).observation
+>>> result = estimate([led], basis=basis, mapping=truth)
+>>> result.method, result.diagnostics["method_choice"]["method"]
+('prior', 'prior')
+>>> estimate([led], "prior", basis=basis, mapping=truth, weight_rule="upre")
+Traceback (most recent call last):
+...
+calib.core.errors.InputError: weight_rule: method 'prior' takes no option 'weight_rule' (it takes basis, grid, mapping, mapping_lamp, options)
 """
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable, Sequence
+import inspect
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 from calib.core.blas import one_blas_thread
-from calib.core.datasets import SOLOMATOV, load_collection
 from calib.core.errors import InputError
-from calib.core.mapping import GratingGeometry, QuadraticMapping
-from calib.core.observations import LampObservation, Observation
+from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.model.bases import DEFAULT_N_VECTORS, CameraBasis, camera_basis, fallback_camera_basis
+from calib.methods.baselines.han2012 import Han2012Options, estimate_han2012
+from calib.methods.baselines.jiang2013 import estimate_jiang2013
+from calib.methods.baselines.solomatov2023 import estimate_solomatov2023
+from calib.methods.baselines.toivonen2020 import estimate_toivonen2020
+from calib.methods.known_grating import (
+    KNOWN_GRATING_METHOD,
+    KnownGratingOptions,
+    estimate_known_grating,
+)
+from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
+from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, estimate_multilamp
+from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions, estimate_prior
+from calib.model.bases import CameraBasis, default_camera_basis
+
+__all__ = [
+    "AUTO",
+    "ESTIMATION_METHODS",
+    "Han2012Options",
+    "KnownGratingOptions",
+    "Makabe2025Options",
+    "MethodChoice",
+    "MethodOptions",
+    "MultilampOptions",
+    "PriorOptions",
+    "check_method",
+    "choose_method",
+    "estimate",
+    "method_names",
+]
+
+#: Type of a registered method: ``(observations, **declared keywords) -> EstimateResult``.
+MethodFunction = Callable[..., EstimateResult]
+
+#: Registry name → the algorithm function.
+ESTIMATION_METHODS: dict[str, MethodFunction] = {
+    PRIOR_METHOD: estimate_prior,
+    MAKABE2025_METHOD: estimate_makabe2025,
+    MULTILAMP_METHOD: estimate_multilamp,
+    KNOWN_GRATING_METHOD: estimate_known_grating,
+    "jiang2013": estimate_jiang2013,
+    "han2012": estimate_han2012,
+    "solomatov2023": estimate_solomatov2023,
+    "toivonen2020": estimate_toivonen2020,
+}
+
+#: The front function's default: :func:`choose_method` decides.
+AUTO = "auto"
 
 
-class EstimationMethod(Protocol):
-    """Signature every registered method implements."""
-
-    def __call__(
-        self,
-        observations: Sequence[Any],
-        *,
-        grid: WavelengthGrid,
-        basis: CameraBasis | None,
-        mapping: QuadraticMapping | GratingGeometry | None,
-        mapping_lamp: str | None,
-        **options: Any,
-    ) -> EstimateResult: ...
+def method_names() -> tuple[str, ...]:
+    """Every name :func:`estimate` takes: ``"auto"`` and the registered methods."""
+    return (AUTO, *ESTIMATION_METHODS)
 
 
-ESTIMATION_METHODS: dict[str, EstimationMethod] = {}
+#: The typed options of the grating methods (what a command line builds and a pipeline carries).
+MethodOptions = PriorOptions | Makabe2025Options | MultilampOptions | KnownGratingOptions
+
+#: Lamps with a direct measurement from which ``auto`` chooses ``multilamp``: each lamp adds three
+#: equations on η alone, and three spectrally different lamps determine it without leaning on the
+#: camera prior (decision 0015).
+AUTO_MULTILAMP_LAMPS = 3
 
 
-def register_method(
-    name: str, function: EstimationMethod | None = None, *, replace: bool = False
-) -> Any:
-    """Register ``function`` under ``name`` (usable as a decorator: ``@register_method("x")``)."""
+@dataclass(frozen=True)
+class MethodChoice:
+    """What ``method="auto"`` chose, and why (recorded in ``diagnostics["method_choice"]``)."""
 
-    def decorator(func: EstimationMethod) -> EstimationMethod:
-        key = name.lower()
-        if key in ESTIMATION_METHODS and not replace and ESTIMATION_METHODS[key] is not func:
-            raise InputError(f"a method named {name!r} is already registered", source="method")
-        ESTIMATION_METHODS[key] = func
-        return func
+    method: str
+    reason: str
 
-    return decorator(function) if function is not None else decorator
+    def to_dict(self) -> dict[str, str]:
+        return {"requested": AUTO, "method": self.method, "reason": self.reason}
 
 
-def default_camera_basis(
-    grid: WavelengthGrid = DEFAULT_GRID,
-    *,
-    n_vectors: int = DEFAULT_N_VECTORS,
-    data_dir: str | Path | None = None,
-    exclude: Sequence[str] = (),
-) -> CameraBasis:
-    """The measured-camera basis when the data is available, else the colour-science fallback.
+def choose_method(observations: Sequence[object]) -> MethodChoice:
+    """The method ``auto`` stands for: ``multilamp`` when at least :data:`AUTO_MULTILAMP_LAMPS`
+    lamps have a direct measurement, else the prior solve.
 
-    Uses every Solomatov/Akkaynak ground truth (49) not matching ``exclude``; when the data directory
-    cannot be found, :func:`calib.model.bases.fallback_camera_basis` (offline). The basis' ``source`` says
-    which was used.
+    Raises
+    ------
+    InputError
+        No lamp observation, or no lamp with a direct measurement (then the grating's efficiency
+        must come from elsewhere: ``method="known-grating"``).
     """
-    try:
-        records = load_collection(SOLOMATOV, data_dir)
-    except InputError:
-        if data_dir is not None:
-            raise
-        return fallback_camera_basis(grid=grid, n_vectors=n_vectors, exclude=exclude)
-    excluded = [token.lower() for token in exclude]
-    kept = [r for r in records if not any(token in r.name.lower() for token in excluded)]
-    return camera_basis(
-        [r.sensitivity for r in kept],
-        grid=grid,
-        n_vectors=n_vectors,
-        source=f"{SOLOMATOV} ground truths ({len(kept)})",
-        camera_names=[r.name for r in kept],
+    lamps = [item for item in observations if isinstance(item, LampObservation)]
+    if len(lamps) != len(observations) or not lamps:
+        raise InputError(
+            "method 'auto' chooses among the grating methods and needs lamp observations only; "
+            "name the method for charts or colour matrices (e.g. method='jiang2013')",
+            source="method",
+        )
+    direct = [lamp.name for lamp in lamps if lamp.direct_rgb is not None]
+    if len(direct) >= AUTO_MULTILAMP_LAMPS:
+        return MethodChoice(
+            MULTILAMP_METHOD,
+            f"{len(direct)} lamps have a direct measurement ({', '.join(direct)}): their direct "
+            "equations determine the grating efficiency",
+        )
+    if direct:
+        return MethodChoice(
+            PRIOR_METHOD,
+            f"{len(direct)} lamp(s) with a direct measurement ({', '.join(direct)}); multilamp "
+            f"needs at least {AUTO_MULTILAMP_LAMPS}",
+        )
+    raise InputError(
+        "no lamp has a direct (0th-order) measurement, so no method can estimate the grating "
+        "efficiency; give a grating file (method='known-grating', grating=...) or measure the "
+        "direct spot",
+        source="observations",
     )
+
+
+def check_method(method: str, *, source: str = "method") -> str:
+    """``method`` as registered (lower case), else an :class:`InputError` listing the names."""
+    key = method.lower()
+    if key != AUTO and key not in ESTIMATION_METHODS:
+        raise InputError(
+            f"unknown method {method!r}; available: {', '.join(method_names())}", source=source
+        )
+    return key
+
+
+def _route(
+    name: str,
+    function: MethodFunction,
+    options: Mapping[str, Any],
+    *,
+    filter_options: bool,
+) -> dict[str, Any]:
+    """The options ``function`` declares (after its first, positional parameter)."""
+    declared = list(inspect.signature(function).parameters.values())[1:]
+    if any(parameter.kind is inspect.Parameter.VAR_KEYWORD for parameter in declared):
+        return dict(options)  # a function taking **options routes them itself
+    names = [parameter.name for parameter in declared]
+    routed = {key: value for key, value in options.items() if key in names}
+    refused = [key for key in options if key not in names]
+    if refused and not filter_options:
+        raise InputError(
+            f"method {name!r} takes no option {refused[0]!r} (it takes {', '.join(names)})",
+            source=refused[0],
+        )
+    return routed
 
 
 @one_blas_thread
 def estimate(
-    observations: Sequence[Observation],
-    method: str = "makabe2025",
+    observations: Sequence[Any],
+    method: str = AUTO,
     *,
     grid: WavelengthGrid = DEFAULT_GRID,
     basis: CameraBasis | None = None,
-    mapping: QuadraticMapping | GratingGeometry | None = None,
-    mapping_lamp: str | None = None,
+    data_dir: str | Path | None = None,
+    filter_options: bool = False,
     **options: Any,
 ) -> EstimateResult:
-    """Estimate a camera's spectral sensitivity from lamp observations.
+    """Estimate a camera's spectral sensitivity by the method named.
 
     Parameters
     ----------
     observations
-        The lamps seen through the grating (see :class:`calib.core.observations.LampObservation`), or
+        The lamps seen through the grating (:class:`calib.core.observations.LampObservation`), or
         whatever else the method uses (:data:`calib.core.observations.Observation`: colour charts,
-        colour matrices); each method takes the kinds it understands.
+        colour matrices; han2012's fluorescent chart); each method takes the kinds it understands.
     method
-        A registered method name (see :data:`ESTIMATION_METHODS`); default ``"makabe2025"``.
+        ``"auto"`` (:func:`choose_method`) or a name of :data:`ESTIMATION_METHODS`.
     grid
-        Working wavelength grid.
+        Working grid.
     basis
-        Camera basis; ``None`` uses :func:`default_camera_basis` (measured data if available, else
-        the offline colour-science basis).
-    mapping
-        A known pixel→wavelength mapping, or ``None`` to estimate it.
-    mapping_lamp
-        Which lamp to find the mapping with.
+        The camera basis; ``None``: :func:`calib.model.bases.default_camera_basis` on ``grid``, for
+        a method that takes one.
+    data_dir
+        Where that default basis' camera data is (default ``$SPECTRAL_RIG_DATA``, the user cache).
+    filter_options
+        Drop the options the method does not declare instead of refusing them.
     **options
-        Method-specific options (e.g. ``weighting="paper"`` for makabe2025).
+        The method's own keywords, as its function declares them: ``mapping``, ``mapping_lamp``,
+        ``options`` (its typed options object), ``grating`` (known-grating), ``seed`` (toivonen2020) …
 
     Returns
     -------
     EstimateResult
+        With ``diagnostics["method_choice"]`` when ``method="auto"``.
+
+    Raises
+    ------
+    InputError
+        An unknown method; an option it does not declare (named); options of another method's type;
+        a missing required input; or whatever the method refuses.
     """
-    key = method.lower()
-    if key not in ESTIMATION_METHODS:
+    key = check_method(method)
+    choice: MethodChoice | None = None
+    if key == AUTO:
+        choice = choose_method(observations)
+        key = choice.method
+    function = ESTIMATION_METHODS[key]
+    routed = _route(key, function, options, filter_options=filter_options)
+    parameters = inspect.signature(function).parameters
+    if "grid" in parameters:
+        routed["grid"] = grid
+    if "basis" in parameters:
+        # A basis the method cannot do without; an optional one (toivonen2020: only to find a
+        # mapping not given; han2012: its Fourier basis by default) is passed only when given.
+        if basis is None and parameters["basis"].default is inspect.Parameter.empty:
+            basis = default_camera_basis(grid, data_dir=data_dir)
+            data_dir = None
+        if basis is not None:
+            routed["basis"] = basis
+    elif basis is not None and any(
+        parameter.kind is inspect.Parameter.VAR_KEYWORD for parameter in parameters.values()
+    ):
+        routed["basis"] = basis
+    elif basis is not None and not filter_options:
+        raise InputError(f"method {key!r} takes no camera basis", source="basis")
+    if data_dir is not None and not filter_options:
         raise InputError(
-            f"unknown method {method!r}; available: {', '.join(sorted(ESTIMATION_METHODS))}",
-            source="method",
+            f"method {key!r} reads no camera data here (a basis was given, or it takes none)",
+            source="data_dir",
         )
-    return ESTIMATION_METHODS[key](
-        observations, grid=grid, basis=basis, mapping=mapping, mapping_lamp=mapping_lamp, **options
-    )
-
-
-def resolve_basis(
-    basis: CameraBasis | None, grid: WavelengthGrid, options: dict[str, Any]
-) -> CameraBasis:
-    """``basis``, else :func:`default_camera_basis` (popping a ``data_dir`` option to find it)."""
-    data_dir = options.pop("data_dir", None)
-    return basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
-
-
-def _makabe2025(
-    observations: Sequence[LampObservation],
-    *,
-    grid: WavelengthGrid,
-    basis: CameraBasis | None,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    **options: Any,
-) -> EstimateResult:
-    from calib.methods.makabe2025 import estimate_makabe2025
-
-    chosen = resolve_basis(basis, grid, options)
-    return estimate_makabe2025(
-        observations, basis=chosen, grid=grid, mapping=mapping, mapping_lamp=mapping_lamp, **options
-    )
-
-
-register_method("makabe2025", _makabe2025)
-
-
-def lazy_method(module: str, function: str) -> EstimationMethod:
-    """A registry entry that imports ``module`` only when the method is first used.
-
-    Keeps ``import calib`` cheap: a baseline's module (and whatever it imports) loads on demand.
-    """
-
-    def run(observations: Sequence[Any], **arguments: Any) -> EstimateResult:
-        implementation = getattr(importlib.import_module(module), function)
-        return implementation(observations, **arguments)  # type: ignore[no-any-return]
-
-    run.__name__ = function
-    run.__qualname__ = function
-    run.__doc__ = f"Lazily imported ``{module}.{function}``."
-    return run
-
-
-#: Baselines behind the front function, imported on first use: name → (module, function).
-LAZY_METHODS: dict[str, tuple[str, str]] = {
-    "jiang2013": ("calib.methods.baselines.jiang2013", "jiang2013_method"),
-    "solomatov2023": ("calib.methods.baselines.solomatov2023", "solomatov2023_method"),
-    "toivonen2020": ("calib.methods.baselines.toivonen2020", "toivonen2020_method"),
-    "multilamp": ("calib.methods.multilamp", "multilamp_method"),
-}
-
-for _name, (_module, _function) in LAZY_METHODS.items():
-    register_method(_name, lazy_method(_module, _function))
-
-
-def _han2012(
-    observations: Sequence[LampObservation],
-    *,
-    grid: WavelengthGrid,
-    basis: CameraBasis | None,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    **options: Any,
-) -> EstimateResult:
-    from calib.methods.baselines.han2012 import FluorescentChart, estimate_han2012
-
-    chart = options.pop("chart", None)
-    if not isinstance(chart, FluorescentChart) or observations or mapping or mapping_lamp:
+    if "options" in routed and "options" in parameters:
+        expected = type(parameters["options"].default)
+        if not isinstance(routed["options"], expected):
+            raise InputError(
+                f"method {key!r} takes {expected.__name__}, got {type(routed['options']).__name__}",
+                source="options",
+            )
+    missing = [
+        name
+        for name, parameter in list(parameters.items())[1:]
+        if parameter.default is inspect.Parameter.empty
+        and parameter.kind is inspect.Parameter.KEYWORD_ONLY
+        and name not in routed
+    ]
+    if missing:
         raise InputError(
-            "han2012 works from one image of a fluorescent and a reference chart: call "
-            "estimate([], method='han2012', chart=FluorescentChart(...)); it uses no lamp "
-            "observations and no mapping",
-            source="method",
+            f"method {key!r} needs {', '.join(f'{name}=' for name in missing)}", source=missing[0]
         )
-    return estimate_han2012(chart, grid=grid, basis=basis, **options).to_estimate_result()
-
-
-register_method("han2012", _han2012)
-
-#: Type of a registered method, for other modules' annotations.
-MethodFunction = Callable[..., EstimateResult]
+    result = function(observations, **routed)
+    if choice is None:
+        return result
+    return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})

@@ -1,25 +1,25 @@
-"""Joint estimate of camera sensitivity and grating efficiency from lamps seen through a grating.
+"""The paper's joint estimate of camera sensitivity and grating efficiency (Makabe et al. 2025).
 
-Makabe et al. (2025): a lamp with a measured spectrum, seen through an uncalibrated grating, gives the
-direct (0th-order) RGB and a first-order profile; with the pixel→wavelength mapping known, both are
-linear in the camera sensitivity ``s_c`` and the inverse grating efficiency ``η⁻¹``, and the joint
-estimate has a closed form. Three solvers share the model (``solver=``):
+A lamp with a measured spectrum, seen through an uncalibrated grating, gives the direct (0th-order)
+RGB and a first-order profile; with the pixel→wavelength mapping known, both are linear in the
+camera's basis coefficients ``c_s,c`` (``s_c = B_s,c c_s,c``, the 7-vector SVD basis of measured
+cameras) and those of the inverse grating efficiency ``η⁻¹ = B_η c_η`` (Fourier, Supp. E), and the
+joint estimate has a closed form. Two formulations (``Makabe2025Options.formulation``):
 
-``"prior"`` (default) — :mod:`calib.methods.prior_solve`: ``s`` free at every grid wavelength with a Gaussian
-    camera prior learnt from measured cameras, rows in measured units weighted by their noise.
-``"basis"`` — the paper's model (``s_c = B_s,c c_s,c``, 7-vector SVD basis; ``η⁻¹ = B_η c_η``,
-    Fourier) with rows in measured-profile units, one per pixel and channel:
-    ``m_c(p) · (Ψ c_η)(p) − (K B_s,c c_s,c)(p) = 0``, ``K[p, i] = ∫_pixel e φ_i dλ`` (the *measured*
-    lamp at 1 nm over each pixel's wavelength interval). Several lamps may be solved jointly (each
-    lamp's brightness by alternation).
-``"paper"`` — the paper as printed (Eq. 9–12, Supp. F): ``a_c = diag(e⁻¹) W† m_c`` with ``W`` the
-    linear-interpolation weights of Eq. 14, the homogeneous system
+``"printed"`` (default) — the paper as printed (Eq. 9–12, Supp. F): ``a_c = diag(e⁻¹) W† m_c`` with
+    ``W`` the linear-interpolation weights of Eq. 14, the homogeneous system
     ``diag(a_c) B_η c_η − B_s,c c_s,c = 0`` (``3f`` rows) minimised subject to the direct constraint
-    through its Lagrange (KKT) system. Kept to reproduce the paper.
+    through its Lagrange (KKT) system. One lamp.
+``"measured"`` — the same model with rows in measured-profile units, one per pixel and channel:
+    ``m_c(p) · (Ψ c_η)(p) − (K B_s,c c_s,c)(p) = 0``, ``K[p, i] = ∫_pixel e φ_i dλ`` (the *measured*
+    lamp at 1 nm over each pixel's wavelength interval), weighted by the profile's noise. Several
+    lamps may be solved jointly (each lamp's brightness by alternation).
 
-The mapping (§3.2) comes from :func:`calib.wavelength.search.find_mapping` (fluorescent lines or a
-broadband search, then a fit of the whole profile), from a given mapping, or — to reproduce the paper
-— from its point-to-plane ICP (:func:`calib.core.mapping.icp_mapping`, ``mapping_method="icp"``).
+The mapping (§3.2) comes from :func:`calib.wavelength.find_mapping` (fluorescent lines or a
+broadband search, then a fit of the whole profile), from a given mapping, or — as the paper finds it
+— from its point-to-plane ICP (``mapping_method="icp"``). The project's own solve, with the camera
+free at every grid wavelength under a Gaussian prior, is :mod:`calib.methods.prior_solve`
+(registered as ``"prior"``).
 
 References
 ----------
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -42,22 +43,21 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods.prior_solve import solve_with_prior
-from calib.model.bases import CameraBasis, CameraPrior, FourierConvention, fourier_basis
-from calib.model.forward import WavelengthMapping, apply_blur, hat_matrix
+from calib.methods.closed_form import ClosedFormOptions, joint_result, joint_setup
+from calib.model.bases import CameraBasis
+from calib.model.forward import WavelengthMapping, hat_matrix
 from calib.model.linear_model import (
     LampSystem,
     design_matrices,
-    prepare_lamp,
     solve_constrained,
     solve_constrained_normal,
 )
-from calib.model.resolution import camera_kernel, match_spectrometer
-from calib.wavelength.search import find_mapping
 
-Solver = Literal["prior", "basis", "paper"]
-MappingMethod = Literal["search", "icp"]
-SOLVERS: tuple[Solver, ...] = ("prior", "basis", "paper")
+#: Registry name (and the result's ``method``).
+MAKABE2025_METHOD = "makabe2025"
+Formulation = Literal["printed", "measured"]
+#: The paper's rows as printed, or the same model in measured-profile units (module docstring).
+FORMULATIONS: tuple[Formulation, ...] = ("printed", "measured")
 
 
 def _diffracted_rows(
@@ -281,82 +281,26 @@ def solve_paper(
     )
 
 
-def _profile_model(
-    system: LampSystem,
-    mapping: WavelengthMapping,
-    sensitivity: FloatArray,
-    inverse_efficiency: FloatArray,
-    scale: float,
-) -> FloatArray:
-    """Predicted profile ``(n, 3)``: ``E K s / η⁻¹(g(p))``."""
-    grid = system.operators.grid
-    edges_nm = mapping.wavelength_nm(system.edges_px)
-    pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)
-    inverse = (
-        hat_matrix(grid, mapping.wavelength_nm(system.observation.pixel), clamp=True)
-        @ inverse_efficiency
-    )
-    with np.errstate(divide="ignore", invalid="ignore"):
-        model = scale * (pixel_matrix @ sensitivity) / inverse[:, None]
-    return np.where(np.isfinite(model), model, 0.0)
+@dataclass(frozen=True)
+class Makabe2025Options(ClosedFormOptions):
+    """Options of :func:`estimate_makabe2025`: those of every closed-form solve, and the formulation.
 
-
-def _dispersion(mapping: WavelengthMapping, pixel: FloatArray) -> FloatArray:
-    """nm per pixel-coordinate unit at each pixel (finite difference: works for any mapping)."""
-    return np.asarray(np.gradient(mapping.wavelength_nm(pixel), pixel), dtype=np.float64)
-
-
-def prepare_matched_lamp(
-    observation: LampObservation,
-    mapping: WavelengthMapping,
-    grid: WavelengthGrid,
-    kernel: FloatArray | None,
-) -> LampSystem:
-    """A lamp prepared for the solvers, its profile matched to the spectrometer's resolution.
-
-    Profiles measured against a broader spectrometer are blurred to its resolution (through the
-    mapping's dispersion), then the lamp is prepared with the camera's line spread ``kernel``.
+    Attributes
+    ----------
+    formulation
+        ``"printed"`` (the paper's Eq. 12 and KKT system, one lamp) or ``"measured"`` (the same
+        model in measured-profile units, several lamps); see the module docstring.
     """
-    spacing = float(np.median(np.diff(observation.pixel)))
-    dispersion = float(np.median(np.abs(_dispersion(mapping, observation.pixel))))
-    matched = match_spectrometer(observation, dispersion * spacing)
-    return prepare_lamp(matched, grid, kernel=kernel)
 
+    formulation: Formulation = "printed"
 
-def _choose_solve_lamps(
-    observations: Sequence[LampObservation], solve_lamps: Sequence[str] | None
-) -> list[LampObservation]:
-    by_name = {obs.name: obs for obs in observations}
-    if solve_lamps is None:
-        chosen = [o for o in observations if o.direct_rgb is not None and o.kind != "fluorescent"]
-        chosen = chosen or [o for o in observations if o.direct_rgb is not None]
-    else:
-        missing = [name for name in solve_lamps if name not in by_name]
-        if missing:
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.formulation not in FORMULATIONS:
             raise InputError(
-                f"unknown solve lamps {missing}; lamps are {list(by_name)}", source="solve_lamps"
+                f"unknown formulation {self.formulation!r}; choose from {FORMULATIONS}",
+                source="formulation",
             )
-        chosen = [by_name[name] for name in solve_lamps]
-    if not chosen:
-        raise InputError(
-            "no lamp has a direct (0th-order) measurement to solve with", source="observations"
-        )
-    return chosen
-
-
-def _mapping_lamps(
-    observations: Sequence[LampObservation], mapping_lamp: str | None
-) -> list[LampObservation]:
-    """The lamps the mapping is found with: the named one, else every lamp (they share one frame)."""
-    if mapping_lamp is None:
-        return list(observations)
-    chosen = [o for o in observations if o.name == mapping_lamp]
-    if not chosen:
-        raise InputError(
-            f"no lamp named {mapping_lamp!r}; lamps are {[o.name for o in observations]}",
-            source="mapping_lamp",
-        )
-    return chosen
 
 
 @one_blas_thread
@@ -367,186 +311,92 @@ def estimate_makabe2025(
     grid: WavelengthGrid = DEFAULT_GRID,
     mapping: QuadraticMapping | GratingGeometry | None = None,
     mapping_lamp: str | None = None,
-    solver: Solver = "prior",
-    mapping_method: MappingMethod = "search",
-    prior_shrinkage: float | None = None,
-    efficiency_terms: int = 7,
-    fourier_convention: FourierConvention = "paired",
-    solve_lamps: Sequence[str] | None = None,
-    refine_given_mapping: bool = False,
-    slit_width_px: float = 0.0,
-    psf_sigma_px: float = 0.0,
+    options: Makabe2025Options = Makabe2025Options(),
 ) -> EstimateResult:
-    """Estimate sensitivity, grating efficiency and mapping from lamp observations.
+    """Estimate sensitivity, grating efficiency and mapping as Makabe et al. (2025) do.
 
     Parameters
     ----------
     observations
         One or more lamps (direct RGB + first-order profile + measured spectrum), all in one geometry.
     basis
-        Camera basis on ``grid``: its vectors (``solver="basis"``/``"paper"``) or its prior (mean ŝ
-        and covariance, ``solver="prior"`` and the mapping search).
+        Camera basis on ``grid``: its vectors span the sensitivity; its prior (mean ŝ and
+        covariance) steers the mapping search.
     grid
         Working grid.
     mapping
-        A known mapping (used as is unless ``refine_given_mapping``, then it only seeds the search);
-        ``None`` finds it.
+        A known mapping (used as is unless ``options.refine_given_mapping``, then it only seeds the
+        search); ``None`` finds it.
     mapping_lamp
         Find the mapping with this lamp only. Default: every lamp jointly (fluorescent lines, if any,
         start the search).
-    solver
-        ``"prior"``, ``"basis"`` or ``"paper"`` (see the module docstring).
-    mapping_method
-        ``"search"`` (:func:`calib.wavelength.search.find_mapping`) or ``"icp"`` (the paper's
-        point-to-plane ICP from a flat start, for reproduction).
-    prior_shrinkage
-        Shrinkage of the camera prior's covariance (default: Ledoit–Wolf, see
-        :meth:`calib.model.bases.CameraBasis.prior`).
-    efficiency_terms, fourier_convention
-        The Fourier basis for ``η⁻¹`` (Supp. E).
-    solve_lamps
-        Names of the lamps that enter the solve. Default: every non-fluorescent lamp with a direct
-        measurement (the paper uses the LED only), else every lamp with one.
-    refine_given_mapping
-        Treat ``mapping`` as a start for the search rather than the answer.
-    slit_width_px, psf_sigma_px
-        Blur of the profile along dispersion, modelled in the mapping search and the solve.
+    options
+        :class:`Makabe2025Options`.
 
     Returns
     -------
     EstimateResult
+        ``method="makabe2025"``; no σ (the paper gives none).
+
+    Raises
+    ------
+    InputError
+        No lamps, duplicate names, a basis on another grid, no lamp with a direct measurement, or
+        several solve lamps for the printed formulation.
+    EstimationError
+        No mapping found, a singular system, or no positive sensitivity.
+
+    Examples
+    --------
+    >>> from calib.core.datasets import colour_science_cameras, find_camera
+    >>> from calib.core.lamp_specs import colour_lamp
+    >>> from calib.core.mapping import QuadraticMapping
+    >>> from calib.model.bases import fallback_camera_basis
+    >>> from calib.model.forward import render_observation
+    >>> camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+    >>> basis = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"])
+    >>> truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+    >>> led = render_observation(colour_lamp("LED-B3"), camera, mapping=truth, pixel=800)
+    >>> result = estimate_makabe2025([led.observation], basis=basis, mapping=truth)
+    >>> result.method, result.sensitivity.shape
+    ('makabe2025', (31, 3))
     """
-    started = time.perf_counter()
-    if not observations:
-        raise InputError("no lamp observations given", source="observations")
-    if basis.grid != grid:
-        raise InputError(
-            f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
-        )
-    if solver not in SOLVERS:
-        raise InputError(f"unknown solver {solver!r}; choose from {SOLVERS}", source="solver")
-    names = [obs.name for obs in observations]
-    if len(set(names)) != len(names):
-        raise InputError(f"lamp names must be unique, got {names}", source="observations")
-    chosen = _choose_solve_lamps(observations, solve_lamps)
-    prior: CameraPrior = basis.prior(prior_shrinkage)
-    efficiency_basis = fourier_basis(grid, efficiency_terms, convention=fourier_convention)
-    kernel = camera_kernel(observations, slit_width_px, psf_sigma_px)
-    timings: dict[str, float] = {"prepare_s": time.perf_counter() - started}
-
+    setup = joint_setup(
+        observations,
+        basis=basis,
+        grid=grid,
+        mapping=mapping,
+        mapping_lamp=mapping_lamp,
+        options=options,
+    )
     step = time.perf_counter()
-    used_mapping: QuadraticMapping | GratingGeometry
-    if mapping is not None and not refine_given_mapping:
-        used_mapping = mapping
-    else:
-        lamps = _mapping_lamps(observations, mapping_lamp)
-        if mapping_method == "icp":
-            from calib.wavelength.peaks import icp_mapping
-
-            used_mapping = icp_mapping(lamps[0], prior.mean, grid)
-        elif mapping_method == "search":
-            starts = None
-            if mapping is not None:
-                start = (
-                    mapping
-                    if isinstance(mapping, QuadraticMapping)
-                    else mapping.quadratic((grid.start_nm, grid.stop_nm))
-                )
-                starts = [start]
-            used_mapping = find_mapping(lamps, prior, grid, starts=starts, kernel=kernel)
-        else:
-            raise InputError(
-                f"unknown mapping method {mapping_method!r}; use 'search' or 'icp'",
-                source="mapping_method",
-            )
-    timings["mapping_s"] = time.perf_counter() - step
-
-    step = time.perf_counter()
-
-    def prepared(observation: LampObservation) -> LampSystem:
-        return prepare_matched_lamp(observation, used_mapping, grid, kernel)
-
-    systems = [prepared(obs) for obs in chosen]
-    sensitivity_sigma: FloatArray | None = None
-    if solver == "prior":
-        # Every other lamp with a direct measurement constrains η (its brightness cancels).
-        companions = [
-            prepared(obs)
-            for obs in observations
-            if obs is not chosen[0] and obs.direct_rgb is not None
-        ]
-        solution = solve_with_prior(
-            systems[0], used_mapping, prior, efficiency_basis, companions=companions
-        )
-        systems = systems[:1]
-        sensitivity, inverse_efficiency = solution.sensitivity, solution.inverse_efficiency
-        sensitivity_sigma = solution.sensitivity_sigma
-        info: dict[str, Any] = {**solution.info, "lamp_scales": [1.0]}
-    elif solver == "paper":
+    systems = [setup.prepared(obs, grid) for obs in setup.solve_lamps]
+    if options.formulation == "printed":
         if len(systems) != 1:
             raise InputError(
-                "solver='paper' solves one lamp; pass solve_lamps=[NAME]", source="solver"
+                "the printed formulation solves one lamp; pass solve_lamps=(NAME,) or "
+                "formulation='measured'",
+                source="solve_lamps",
             )
         _, sensitivity, inverse_efficiency, info = solve_paper(
-            systems[0], used_mapping, basis, efficiency_basis
+            systems[0], setup.mapping, basis, setup.efficiency_basis
         )
         info["lamp_scales"] = [1.0]
     else:
         _, sensitivity, inverse_efficiency, info = solve_noise_weighted(
-            systems, used_mapping, basis, efficiency_basis
+            systems, setup.mapping, basis, setup.efficiency_basis
         )
-    timings["solve_s"] = time.perf_counter() - step
-
-    peak = float(np.max(sensitivity))
-    if not np.isfinite(peak) or peak <= 0:
-        raise EstimationError(
-            "the solve produced no positive sensitivity; check the inputs and mapping"
-        )
-    with np.errstate(divide="ignore"):
-        efficiency = np.where(inverse_efficiency > 0, 1.0 / inverse_efficiency, np.nan)
-    efficiency_peak = (
-        float(np.nanmax(efficiency)) if np.any(np.isfinite(efficiency)) else float("nan")
-    )
-    residuals: dict[str, Any] = {}
-    chi2 = 0.0
-    count = 0
-    for index, system in enumerate(systems):
-        model = _profile_model(
-            system, used_mapping, sensitivity, inverse_efficiency, info["lamp_scales"][index]
-        )
-        difference = system.profile - model
-        residuals[system.observation.name] = {
-            "profile": difference,
-            "profile_normalised": difference / system.profile_sigma,
-            "direct": None
-            if system.observation.direct_rgb is None
-            else system.observation.direct_rgb
-            - info["lamp_scales"][index] * (system.operators.direct_row @ sensitivity),
-        }
-        chi2 += float(np.sum((difference / system.profile_sigma) ** 2))
-        count += difference.size
-    timings["total_s"] = time.perf_counter() - started
-    diagnostics = {
-        "basis": basis.to_dict(),
-        "solver": solver,
-        "mapping_method": mapping_method if mapping is None or refine_given_mapping else "given",
-        "efficiency_basis": {"terms": efficiency_terms, "convention": fourier_convention},
-        "solve_lamps": [s.observation.name for s in systems],
-        "negative_efficiency_nodes": int(np.sum(inverse_efficiency <= 0)),
-        "sensitivity_scale": peak,
-        "reduced_chi2": chi2 / max(count, 1),
-        "timings": timings,
-        **{key: value for key, value in info.items() if key != "passes"},
-    }
-    return EstimateResult(
-        method="makabe2025",
-        wavelength_nm=grid.wavelength_nm,
-        sensitivity=sensitivity / peak,
-        sensitivity_sigma=None if sensitivity_sigma is None else sensitivity_sigma / peak,
-        grating_efficiency=efficiency / efficiency_peak
-        if np.isfinite(efficiency_peak)
-        else efficiency,
-        mapping=used_mapping,
-        residuals=residuals,
-        diagnostics=diagnostics,
+    setup.timings["solve_s"] = time.perf_counter() - step
+    return joint_result(
+        MAKABE2025_METHOD,
+        setup,
+        systems,
+        basis=basis,
+        grid=grid,
+        options=options,
+        sensitivity=sensitivity,
+        inverse_efficiency=inverse_efficiency,
+        sensitivity_sigma=None,
+        info=info,
+        diagnostics={"formulation": options.formulation},
     )

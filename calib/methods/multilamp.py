@@ -35,8 +35,8 @@ propagated along ``Q_c ⊙ ∂η⁻¹/∂c_η``), then of its normalisation by t
 wavelength and channel; :func:`bootstrap_sigma` cross-checks it by re-drawing the noise model.
 
 With a grating file (:mod:`calib.core.grating_file`) ``η`` is known and a single lamp suffices:
-``s_c = q̂_c / η`` (:func:`estimate_with_grating`). Several cameras seen through one grating share
-``η``: :func:`refine_grating` stacks their lamps' rows.
+``s_c = q̂_c / η`` (:mod:`calib.methods.known_grating`, steps 1 and 3 alone). Several cameras seen
+through one grating share ``η``: :func:`refine_grating` stacks their lamps' rows.
 """
 
 from __future__ import annotations
@@ -49,18 +49,20 @@ from typing import Any, Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.methods.closed_form import GratingMethodOptions, check_lamps, prepare_matched_lamp
 from calib.methods.prior_solve import ResponseEstimate, fit_response
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
 from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
-from calib.wavelength.search import find_mapping
+from calib.wavelength import find_mapping, lamps_named
 
 Uncertainty = Literal["posterior", "noise", "none"]
 UNCERTAINTIES: tuple[Uncertainty, ...] = ("posterior", "noise", "none")
@@ -268,6 +270,7 @@ def weight_score(
     return misfit + 2.0 * float(np.trace(np.linalg.pinv(normal, hermitian=True) @ normal_data))
 
 
+@one_blas_thread
 def choose_prior_weight(
     data: FloatArray,
     target: FloatArray,
@@ -752,17 +755,6 @@ def blend_with_prior(solution: SensitivitySolution, prior: CameraPrior) -> Sensi
     )
 
 
-def _prepared_systems(
-    observations: Sequence[LampObservation],
-    mapping: WavelengthMapping,
-    grid: WavelengthGrid,
-    kernel: FloatArray | None,
-) -> list[LampSystem]:
-    from calib.methods.makabe2025 import prepare_matched_lamp
-
-    return [prepare_matched_lamp(obs, mapping, grid, kernel) for obs in observations]
-
-
 def mapping_lamps(observations: Sequence[LampObservation]) -> list[LampObservation]:
     """The lamps the mapping is searched with: fluorescent ones (their lines start the search) and
     the first other lamp; without a fluorescent lamp, the first two.
@@ -777,7 +769,7 @@ def mapping_lamps(observations: Sequence[LampObservation]) -> list[LampObservati
     return list(observations[:2])
 
 
-def _find_shared_mapping(
+def find_shared_mapping(
     observations: Sequence[LampObservation],
     prior: CameraPrior,
     grid: WavelengthGrid,
@@ -786,39 +778,17 @@ def _find_shared_mapping(
     refine_given_mapping: bool,
     kernel: FloatArray | None,
 ) -> QuadraticMapping | GratingGeometry:
-    """The given mapping, or one found jointly with :func:`mapping_lamps` (one geometry: one mapping)."""
+    """The given mapping, or one found jointly with :func:`mapping_lamps` (one geometry: one mapping)
+    or with the lamp named ``mapping_lamp``; a given mapping seeds the search when
+    ``refine_given_mapping``."""
     if mapping is not None and not refine_given_mapping:
         return mapping
-    lamps = mapping_lamps(observations)
-    if mapping_lamp is not None:
-        lamps = [o for o in observations if o.name == mapping_lamp]
-        if not lamps:
-            raise InputError(
-                f"no lamp named {mapping_lamp!r}; lamps are {[o.name for o in observations]}",
-                source="mapping_lamp",
-            )
-    starts = None
-    if mapping is not None:
-        starts = [
-            mapping
-            if isinstance(mapping, QuadraticMapping)
-            else mapping.quadratic((grid.start_nm, grid.stop_nm))
-        ]
-    return find_mapping(lamps, prior, grid, starts=starts, kernel=kernel)
-
-
-def _check_inputs(
-    observations: Sequence[LampObservation], basis: CameraBasis, grid: WavelengthGrid
-) -> None:
-    if not observations:
-        raise InputError("no lamp observations given", source="observations")
-    if basis.grid != grid:
-        raise InputError(
-            f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
-        )
-    names = [obs.name for obs in observations]
-    if len(set(names)) != len(names):
-        raise InputError(f"lamp names must be unique, got {names}", source="observations")
+    lamps = (
+        mapping_lamps(observations)
+        if mapping_lamp is None
+        else lamps_named(observations, mapping_lamp)
+    )
+    return find_mapping(lamps, camera=prior, grid=grid, start=mapping, kernel=kernel)
 
 
 @dataclass(frozen=True, eq=False)
@@ -832,7 +802,7 @@ class CalibratedLamps:
     mapping_s: float
 
 
-def _lamps_with_mapping(
+def lamps_with_mapping(
     observations: Sequence[LampObservation],
     prior: CameraPrior,
     grid: WavelengthGrid,
@@ -843,8 +813,10 @@ def _lamps_with_mapping(
     *,
     need_direct: bool,
 ) -> tuple[QuadraticMapping | GratingGeometry, list[LampSystem], float]:
+    """The mapping (:func:`find_shared_mapping`), the lamps prepared on it (those with a direct
+    measurement when ``need_direct``) and the time the mapping took."""
     started = time.perf_counter()
-    used_mapping = _find_shared_mapping(
+    used_mapping = find_shared_mapping(
         observations, prior, grid, mapping, mapping_lamp, refine_given_mapping, kernel
     )
     mapping_s = time.perf_counter() - started
@@ -855,7 +827,8 @@ def _lamps_with_mapping(
             "efficiency from an earlier calibration (grating=…, --grating FILE)",
             source="observations",
         )
-    return used_mapping, _prepared_systems(chosen, used_mapping, grid, kernel), mapping_s
+    systems = [prepare_matched_lamp(obs, used_mapping, grid, kernel) for obs in chosen]
+    return used_mapping, systems, mapping_s
 
 
 @dataclass(frozen=True, eq=False)
@@ -867,6 +840,7 @@ class PreparedLamps:
     mapping_s: float
 
 
+@one_blas_thread
 def prepare_lamps(
     observations: Sequence[LampObservation],
     *,
@@ -879,8 +853,8 @@ def prepare_lamps(
     kernel: FloatArray | None = None,
 ) -> PreparedLamps:
     """Step 1 for one camera's lamps (the mapping found with the prior when not given)."""
-    _check_inputs(observations, basis, grid)
-    used_mapping, systems, mapping_s = _lamps_with_mapping(
+    check_lamps(observations, basis, grid)
+    used_mapping, systems, mapping_s = lamps_with_mapping(
         observations,
         basis.prior(prior_shrinkage),
         grid,
@@ -894,6 +868,7 @@ def prepare_lamps(
     return PreparedLamps(used_mapping, lamps, mapping_s)
 
 
+@one_blas_thread
 def calibrate_lamps(
     prepared: PreparedLamps, prior: CameraPrior, settings: EfficiencySettings = EfficiencySettings()
 ) -> CalibratedLamps:
@@ -904,41 +879,14 @@ def calibrate_lamps(
     )
 
 
-def estimate_multilamp(
-    observations: Sequence[LampObservation],
-    *,
-    basis: CameraBasis,
-    grid: WavelengthGrid = DEFAULT_GRID,
-    mapping: QuadraticMapping | GratingGeometry | None = None,
-    mapping_lamp: str | None = None,
-    prior_shrinkage: float | None = None,
-    prior_weight: float | None = None,
-    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
-    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
-    weight_rule: WeightRule = DEFAULT_WEIGHT_RULE,
-    grating: GratingEfficiency | None = None,
-    uncertainty: Uncertainty = "posterior",
-    refine_given_mapping: bool = False,
-    slit_width_px: float = 0.0,
-    psf_sigma_px: float = 0.0,
-) -> EstimateResult:
-    """Estimate sensitivity and grating efficiency from any number of lamps jointly.
+@dataclass(frozen=True)
+class MultilampOptions(GratingMethodOptions):
+    """Options of :func:`estimate_multilamp` (checked on construction), besides those of every
+    grating method (:class:`calib.methods.closed_form.GratingMethodOptions`: ``prior_shrinkage``,
+    ``refine_given_mapping``, the profile's blur).
 
-    Parameters
+    Attributes
     ----------
-    observations
-        Lamps in one geometry, each with direct RGB, first-order profile and measured spectrum
-        (lamps without a direct measurement help the mapping only).
-    basis
-        Camera basis on ``grid``; its Gaussian prior enters with the weight ``weight_rule`` chooses.
-    grid
-        Working grid.
-    mapping
-        A known pixel→wavelength mapping, or ``None`` to find it with every lamp jointly.
-    mapping_lamp
-        Find the mapping with this lamp only.
-    prior_shrinkage
-        Shrinkage of the camera prior's covariance (default Ledoit–Wolf).
     prior_weight
         Fix the prior's weight ``λ`` instead of choosing it by ``weight_rule``.
     efficiency_terms
@@ -948,17 +896,62 @@ def estimate_multilamp(
     weight_rule
         How the prior's weight is chosen: ``"upre"`` (default), ``"typicality"`` or ``"evidence"``
         (:data:`PRIOR_WEIGHT_RULES`).
-    grating
-        A known grating efficiency (:mod:`calib.core.grating_file`): then ``η`` is not estimated and one
-        lamp, with or without a direct measurement, suffices (:func:`estimate_with_grating`).
     uncertainty
         ``"posterior"`` (default: the σ band, the camera prior's own uncertainty included),
         ``"noise"`` (the measurements' noise propagated alone, what :func:`bootstrap_sigma` checks)
         or ``"none"`` (no σ, for timing).
-    refine_given_mapping
-        Treat ``mapping`` as a start for the search.
-    slit_width_px, psf_sigma_px
-        Blur of the profile along dispersion (when the observations carry no line spread).
+    """
+
+    prior_weight: float | None = None
+    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS
+    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL
+    weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
+    uncertainty: Uncertainty = "posterior"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.uncertainty not in UNCERTAINTIES:
+            raise InputError(
+                f"unknown uncertainty {self.uncertainty!r}; choose from {UNCERTAINTIES}",
+                source="uncertainty",
+            )
+        self.efficiency_settings()  # checks the model and the rule
+
+    def efficiency_settings(self) -> EfficiencySettings:
+        """Step 2's settings (:class:`EfficiencySettings`)."""
+        return EfficiencySettings(
+            self.efficiency_terms, self.efficiency_model, self.prior_weight, self.weight_rule
+        )
+
+
+@one_blas_thread
+def estimate_multilamp(
+    observations: Sequence[LampObservation],
+    *,
+    basis: CameraBasis,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    mapping: QuadraticMapping | GratingGeometry | None = None,
+    mapping_lamp: str | None = None,
+    options: MultilampOptions = MultilampOptions(),
+) -> EstimateResult:
+    """Estimate sensitivity and grating efficiency from any number of lamps jointly.
+
+    Parameters
+    ----------
+    observations
+        Lamps in one geometry, each with direct RGB, first-order profile and measured spectrum
+        (lamps without a direct measurement help the mapping only).
+    basis
+        Camera basis on ``grid``; its Gaussian prior enters with the weight ``options.weight_rule``
+        chooses.
+    grid
+        Working grid.
+    mapping
+        A known pixel→wavelength mapping, or ``None`` to find it with the lamps jointly.
+    mapping_lamp
+        Find the mapping with this lamp only.
+    options
+        :class:`MultilampOptions`.
 
     Returns
     -------
@@ -968,29 +961,24 @@ def estimate_multilamp(
 
     Examples
     --------
-    >>> from calib import estimate                                          # doctest: +SKIP
-    >>> result = estimate([led, fluorescent, halogen], method="multilamp")  # doctest: +SKIP
-    >>> result.diagnostics["prior_weight"]                                  # doctest: +SKIP
-    1e-06
+    >>> import numpy as np
+    >>> from calib.core.datasets import colour_science_cameras, find_camera
+    >>> from calib.core.lamp_specs import lamp_from_spec
+    >>> from calib.core.mapping import QuadraticMapping
+    >>> from calib.model.bases import fallback_camera_basis
+    >>> from calib.model.forward import render_observation
+    >>> camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+    >>> basis = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"])
+    >>> truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+    >>> lamps = [
+    ...     render_observation(lamp_from_spec(spec), camera, mapping=truth, pixel=800).observation
+    ...     for spec in ("LED-B1", "LED-B3", "A")
+    ... ]
+    >>> result = estimate_multilamp(lamps, basis=basis, mapping=truth)
+    >>> result.method, result.diagnostics["prior_weight_rule"]
+    ('multilamp', 'UPRE')
     """
-    if uncertainty not in UNCERTAINTIES:
-        raise InputError(
-            f"unknown uncertainty {uncertainty!r}; choose from {UNCERTAINTIES}",
-            source="uncertainty",
-        )
-    settings = EfficiencySettings(efficiency_terms, efficiency_model, prior_weight, weight_rule)
-    kernel = camera_kernel(observations, slit_width_px, psf_sigma_px)
-    if grating is not None:
-        return estimate_with_grating(
-            observations,
-            grating,
-            basis=basis,
-            grid=grid,
-            mapping=mapping,
-            mapping_lamp=mapping_lamp,
-            refine_given_mapping=refine_given_mapping,
-            kernel=kernel,
-        )
+    kernel = camera_kernel(observations, options.slit_width_px, options.psf_sigma_px)
     started = time.perf_counter()
     prepared = prepare_lamps(
         observations,
@@ -998,24 +986,26 @@ def estimate_multilamp(
         grid=grid,
         mapping=mapping,
         mapping_lamp=mapping_lamp,
-        prior_shrinkage=prior_shrinkage,
-        refine_given_mapping=refine_given_mapping,
+        prior_shrinkage=options.prior_shrinkage,
+        refine_given_mapping=options.refine_given_mapping,
         kernel=kernel,
     )
-    calibrated = calibrate_lamps(prepared, basis.prior(prior_shrinkage), settings)
+    calibrated = calibrate_lamps(
+        prepared, basis.prior(options.prior_shrinkage), options.efficiency_settings()
+    )
     efficiency = calibrated.efficiency
     solution = combine_responses(
         [lamp.response for lamp in calibrated.lamps],
         efficiency.inverse_efficiency,
         efficiency.inverse_jacobian,
         efficiency.noise_covariance
-        if uncertainty == "noise"
+        if options.uncertainty == "noise"
         else efficiency.coefficient_covariance,
-        with_covariance=uncertainty != "none",
+        with_covariance=options.uncertainty != "none",
     )
     eta, eta_sigma = _efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
-    return _result(
+    return multilamp_result(
         calibrated.lamps,
         solution,
         (eta, eta_sigma),
@@ -1027,86 +1017,6 @@ def estimate_multilamp(
             "solve_s": total_s - calibrated.mapping_s,
             "total_s": total_s,
         },
-    )
-
-
-def estimate_with_grating(
-    observations: Sequence[LampObservation],
-    grating: GratingEfficiency,
-    *,
-    basis: CameraBasis,
-    grid: WavelengthGrid = DEFAULT_GRID,
-    mapping: QuadraticMapping | GratingGeometry | None = None,
-    mapping_lamp: str | None = None,
-    prior_shrinkage: float | None = None,
-    refine_given_mapping: bool = False,
-    kernel: FloatArray | None = None,
-) -> EstimateResult:
-    """The camera through a grating of known efficiency: ``s_c = q̂_c / η`` at full resolution.
-
-    One lamp suffices (a direct measurement is not needed); several are combined by SNR. The
-    grating's σ (if the file has one) is propagated node by node. Where every lamp is dim the data's
-    σ is large and the camera prior (:func:`blend_with_prior`, natural weight) takes over.
-
-    Raises
-    ------
-    InputError
-        A grating that does not cover the grid, or the usual input errors.
-    """
-    started = time.perf_counter()
-    _check_inputs(observations, basis, grid)
-    if not grating.covers(grid):
-        lo, hi = grating.range_nm
-        raise InputError(
-            f"the grating efficiency covers {lo:g}–{hi:g} nm, the grid needs {grid.start_nm:g}–"
-            f"{grid.stop_nm:g} nm",
-            source=grating.source,
-        )
-    prior = basis.prior(prior_shrinkage)
-    used_mapping, systems, mapping_s = _lamps_with_mapping(
-        observations,
-        prior,
-        grid,
-        mapping,
-        mapping_lamp,
-        refine_given_mapping,
-        kernel,
-        need_direct=False,
-    )
-    wavelength = grid.wavelength_nm
-    eta = grating.at(wavelength)
-    if np.any(eta <= 0):
-        raise InputError("the grating efficiency is zero inside the grid", source=grating.source)
-    eta_sigma = grating.sigma_at(wavelength)
-    inverse = 1.0 / eta
-    inverse_sigma = np.zeros_like(inverse) if eta_sigma is None else eta_sigma / eta**2
-    responses = [fit_response(system, used_mapping) for system in systems]
-    solution = combine_responses(
-        responses, inverse, np.eye(inverse.size), np.diag(inverse_sigma**2)
-    )
-    # The profile of one lamp says little where the lamp is dim: the camera prior fills in there
-    # (η is known, so the prior enters only here).
-    solution = blend_with_prior(solution, prior)
-    lamps = tuple(
-        LampData(
-            system.observation.name,
-            system.operators.direct_row,
-            response,
-            np.full(3, np.nan),
-            np.zeros(3),
-        )
-        for system, response in zip(systems, responses, strict=True)
-    )
-    peak = float(eta.max())
-    total_s = time.perf_counter() - started
-    return _result(
-        lamps,
-        solution,
-        (eta / peak, None if eta_sigma is None else eta_sigma / peak),
-        used_mapping,
-        basis,
-        {"grating": {"source": grating.source, "provenance": dict(grating.provenance)}},
-        {"mapping_s": mapping_s, "solve_s": total_s - mapping_s, "total_s": total_s},
     )
 
 
@@ -1159,6 +1069,7 @@ def pooled_efficiency_terms(n_equations: int) -> int:
     return max(DEFAULT_EFFICIENCY_TERMS, terms)
 
 
+@one_blas_thread
 def refine_grating(
     cameras: Sequence[Sequence[LampObservation]],
     *,
@@ -1229,7 +1140,7 @@ def refine_grating(
             efficiency.coefficient_covariance,
         )
         results.append(
-            _result(
+            multilamp_result(
                 calibrated.lamps,
                 solution,
                 eta_pair,
@@ -1245,7 +1156,7 @@ def refine_grating(
     ), results
 
 
-def _result(
+def multilamp_result(
     lamps: Sequence[LampData],
     solution: SensitivitySolution,
     efficiency: tuple[FloatArray, FloatArray | None],
@@ -1253,7 +1164,12 @@ def _result(
     basis: CameraBasis,
     info: dict[str, Any],
     timings: dict[str, float],
+    *,
+    method: str = MULTILAMP_METHOD,
 ) -> EstimateResult:
+    """The :class:`~calib.core.result.EstimateResult` of a solve over lamp responses: curves
+    normalised to a maximum of 1 (negative values clipped) with σ, ``η`` and its σ, each lamp's
+    direct residual, ``info`` and ``timings`` in the diagnostics."""
     sensitivity, sigma = solution.normalised()
     residuals = {
         lamp.name: {"direct": lamp.direct - lamp.direct_row @ solution.sensitivity * scale}
@@ -1261,7 +1177,7 @@ def _result(
         if np.all(np.isfinite(lamp.direct))
     }
     return EstimateResult(
-        method=MULTILAMP_METHOD,
+        method=method,
         wavelength_nm=basis.grid.wavelength_nm,
         sensitivity=np.clip(sensitivity, 0.0, None),
         sensitivity_sigma=sigma,
@@ -1279,8 +1195,8 @@ def _result(
     )
 
 
-def weight_rule_option(method: str, weight_rule: str | None) -> dict[str, Any]:
-    """The estimator options a command line's ``--weight-rule`` stands for (``{}`` when absent).
+def weight_rule_option(method: str, weight_rule: str | None) -> MultilampOptions | None:
+    """The options a command line's ``--weight-rule`` stands for (``None`` when absent).
 
     Raises
     ------
@@ -1288,7 +1204,7 @@ def weight_rule_option(method: str, weight_rule: str | None) -> dict[str, Any]:
         The rule is unknown, or the method is not ``multilamp`` (source ``--weight-rule``).
     """
     if weight_rule is None:
-        return {}
+        return None
     if method.lower() != MULTILAMP_METHOD:
         raise InputError(
             f"applies to --method {MULTILAMP_METHOD} only (the method is {method!r})",
@@ -1299,34 +1215,10 @@ def weight_rule_option(method: str, weight_rule: str | None) -> dict[str, Any]:
             f"{weight_rule!r} is not a rule; choose from {', '.join(PRIOR_WEIGHT_RULES)}",
             source="--weight-rule",
         )
-    return {"weight_rule": weight_rule}
+    return MultilampOptions(weight_rule=weight_rule)
 
 
-def multilamp_method(
-    observations: Sequence[LampObservation],
-    *,
-    grid: WavelengthGrid,
-    basis: CameraBasis | None,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    **options: Any,
-) -> EstimateResult:
-    """The registry entry (``calib.estimate(..., method="multilamp")``).
-
-    Options: those of :func:`estimate_multilamp`, and ``data_dir`` for the default camera basis.
-    """
-    from calib.methods import resolve_basis
-
-    return estimate_multilamp(
-        observations,
-        basis=resolve_basis(basis, grid, options),
-        grid=grid,
-        mapping=mapping,
-        mapping_lamp=mapping_lamp,
-        **options,
-    )
-
-
+@one_blas_thread
 def bootstrap_sigma(
     observations: Sequence[LampObservation],
     *,
@@ -1335,15 +1227,14 @@ def bootstrap_sigma(
     rng: np.random.Generator,
     draws: int = 50,
     grid: WavelengthGrid = DEFAULT_GRID,
-    prior_weight: float | None = None,
-    efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
-    efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
+    options: MultilampOptions = MultilampOptions(),
 ) -> FloatArray:
     """σ ``(f, 3)`` of the normalised sensitivity by a parametric bootstrap over the noise model.
 
     Each draw adds Gaussian noise of the observations' own σ (profile and direct) and re-runs the
-    solve with the mapping and the prior's weight held fixed; the spread of the draws is what the
-    analytic covariance predicts (to first order).
+    solve (``options``, without σ) with the mapping held fixed; the spread of the draws is what the
+    analytic covariance predicts (to first order) when the prior's weight is held fixed too
+    (``options.prior_weight``).
     """
     if draws < 2:
         raise InputError(f"need at least 2 draws, got {draws}", source="draws")
@@ -1363,10 +1254,7 @@ def bootstrap_sigma(
             basis=basis,
             grid=grid,
             mapping=mapping,
-            prior_weight=prior_weight,
-            efficiency_terms=efficiency_terms,
-            efficiency_model=efficiency_model,
-            uncertainty="none",
+            options=replace(options, uncertainty="none"),
         )
         samples.append(result.sensitivity)
     return np.asarray(np.std(np.stack(samples), axis=0, ddof=1), dtype=np.float64)

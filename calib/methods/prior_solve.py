@@ -20,10 +20,15 @@ the smooth factor shared by ``η`` and ``s``.
 
 Noise is handled where it enters: in step 1 the measured profile is only ever on the right-hand side
 (no errors-in-variables bias), and the paper's division by ``e`` never happens (``K`` carries the lamp).
+
+:func:`estimate_prior` is the registered method (``"prior"``): the lamps checked, the mapping found
+and the result reported as for the paper's solve (:mod:`calib.methods.closed_form`), this solve in
+between.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -31,8 +36,14 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
-from calib.model.bases import CameraPrior, whitening
+from calib.core.mapping import GratingGeometry, QuadraticMapping
+from calib.core.observations import LampObservation
+from calib.core.result import EstimateResult
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.methods.closed_form import ClosedFormOptions, joint_result, joint_setup
+from calib.model.bases import CameraBasis, CameraPrior, whitening
 from calib.model.forward import WavelengthMapping, apply_blur
 from calib.model.linear_model import LampSystem
 
@@ -41,6 +52,8 @@ from calib.model.linear_model import LampSystem
 RESPONSE_SMOOTHNESS = 1e-4
 #: Passes of step 2 (re-weighting by the previous η̂⁻¹ and α̂).
 EFFICIENCY_PASSES = 3
+#: Registry name (and the result's ``method``).
+PRIOR_METHOD = "prior"
 
 
 @dataclass(frozen=True, eq=False)
@@ -327,4 +340,105 @@ def _constrained_covariance(rows: FloatArray, constraint: FloatArray) -> FloatAr
     reduced = rows @ null_space
     return np.asarray(
         null_space @ np.linalg.pinv(reduced.T @ reduced) @ null_space.T, dtype=np.float64
+    )
+
+
+@dataclass(frozen=True)
+class PriorOptions(ClosedFormOptions):
+    """Options of :func:`estimate_prior` (those of every closed-form solve,
+    :class:`calib.methods.closed_form.ClosedFormOptions`); ``prior_shrinkage`` also shapes the
+    prior this solve leans on."""
+
+
+@one_blas_thread
+def estimate_prior(
+    observations: Sequence[LampObservation],
+    *,
+    basis: CameraBasis,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    mapping: QuadraticMapping | GratingGeometry | None = None,
+    mapping_lamp: str | None = None,
+    options: PriorOptions = PriorOptions(),
+) -> EstimateResult:
+    """Estimate sensitivity (with σ), grating efficiency and mapping under a Gaussian camera prior.
+
+    The first solve lamp (:func:`calib.methods.closed_form.choose_solve_lamps`) gives the
+    sensitivity's shape; every other lamp with a direct measurement constrains ``η`` (its own
+    response against its own direct signal, so its brightness cancels).
+
+    Parameters
+    ----------
+    observations
+        Lamps (direct RGB + first-order profile + measured spectrum), all in one geometry.
+    basis
+        Camera basis on ``grid``: its Gaussian prior (mean ŝ, covariance) is used.
+    grid
+        Working grid.
+    mapping
+        A known mapping (used as is unless ``options.refine_given_mapping``); ``None`` finds it.
+    mapping_lamp
+        Find the mapping with this lamp only (default: every lamp jointly).
+    options
+        :class:`PriorOptions`.
+
+    Returns
+    -------
+    EstimateResult
+        ``method="prior"``, with ``sensitivity_sigma``.
+
+    Raises
+    ------
+    InputError
+        No lamps, duplicate names, a basis on another grid, no lamp with a direct measurement.
+    EstimationError
+        No mapping found, too few pixels inside the grid, or no positive sensitivity.
+
+    Examples
+    --------
+    >>> from calib.core.datasets import colour_science_cameras, find_camera
+    >>> from calib.core.lamp_specs import colour_lamp
+    >>> from calib.core.mapping import QuadraticMapping
+    >>> from calib.core.metrics import relative_error
+    >>> from calib.model.bases import fallback_camera_basis
+    >>> from calib.model.forward import render_observation
+    >>> camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+    >>> basis = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"])
+    >>> truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+    >>> led = render_observation(colour_lamp("LED-B3"), camera, mapping=truth, pixel=800)
+    >>> result = estimate_prior([led.observation], basis=basis, mapping=truth)
+    >>> result.method, result.sensitivity_sigma is not None
+    ('prior', True)
+    """
+    setup = joint_setup(
+        observations,
+        basis=basis,
+        grid=grid,
+        mapping=mapping,
+        mapping_lamp=mapping_lamp,
+        options=options,
+    )
+    step = time.perf_counter()
+    reference = setup.solve_lamps[0]
+    system = setup.prepared(reference, grid)
+    companions = [
+        setup.prepared(obs, grid)
+        for obs in observations
+        if obs is not reference and obs.direct_rgb is not None
+    ]
+    solution = solve_with_prior(
+        system, setup.mapping, setup.prior, setup.efficiency_basis, companions=companions
+    )
+    setup.timings["solve_s"] = time.perf_counter() - step
+    return joint_result(
+        PRIOR_METHOD,
+        setup,
+        [system],
+        basis=basis,
+        grid=grid,
+        options=options,
+        sensitivity=solution.sensitivity,
+        inverse_efficiency=solution.inverse_efficiency,
+        sensitivity_sigma=solution.sensitivity_sigma,
+        info={**solution.info, "lamp_scales": [1.0]},
+        diagnostics={},
     )

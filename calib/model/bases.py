@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike
 from calib.core.arrays import FloatArray
 from calib.core.camera_curves import as_camera
 from calib.core.colour_data import colour_matching_functions
-from calib.core.datasets import colour_science_cameras
+from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
 from calib.core.errors import InputError
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
 
@@ -594,4 +594,48 @@ def fallback_camera_basis(
         groups=groups,
         cache=cache,
         cache_dir=cache_dir,
+    )
+
+
+def default_camera_basis(
+    grid: WavelengthGrid = DEFAULT_GRID,
+    *,
+    n_vectors: int = DEFAULT_N_VECTORS,
+    data_dir: str | Path | None = None,
+    exclude: Sequence[str] = (),
+) -> CameraBasis:
+    """The measured-camera basis when the data is available, else the colour-science fallback.
+
+    Uses every Solomatov/Akkaynak ground truth (49) not matching ``exclude``; when the data directory
+    cannot be found (and none was named), :func:`fallback_camera_basis` (offline). The basis'
+    ``source`` says which was used.
+
+    Parameters
+    ----------
+    grid, n_vectors
+        As for :func:`camera_basis`.
+    data_dir
+        The camera data directory; ``None`` looks in ``$SPECTRAL_RIG_DATA`` and the user cache.
+    exclude
+        Names (case-insensitive substrings) of cameras to leave out.
+
+    Raises
+    ------
+    InputError
+        A named ``data_dir`` without the data.
+    """
+    try:
+        records = load_collection(SOLOMATOV, data_dir)
+    except InputError:
+        if data_dir is not None:
+            raise
+        return fallback_camera_basis(grid=grid, n_vectors=n_vectors, exclude=exclude)
+    excluded = [token.lower() for token in exclude]
+    kept = [r for r in records if not any(token in r.name.lower() for token in excluded)]
+    return camera_basis(
+        [r.sensitivity for r in kept],
+        grid=grid,
+        n_vectors=n_vectors,
+        source=f"{SOLOMATOV} ground truths ({len(kept)})",
+        camera_names=[r.name for r in kept],
     )

@@ -5,9 +5,10 @@
 2. RAW lamps: merge each bracket (streamed, darks subtracted), detect the geometry once on the
    brightest broadband lamp and extract every lamp with it (:mod:`calib.pipeline.brackets`).
    Profile lamps: read the profile CSV (the same :class:`~calib.core.observations.LampObservation` follows).
-3. Estimate: with a direct (0th-order) measurement, :func:`calib.estimate` with the chosen method;
-   without one, the known-grating solve (:mod:`calib.methods.known_grating`) with the grating file
-   given, or a flat grating and a warning.
+3. Estimate: with a direct (0th-order) measurement, :func:`calib.methods.estimate` with the chosen
+   method (``auto`` by default) and its typed options; without one, or with a grating file and
+   ``multilamp`` or ``known-grating``, the known-grating solve (:mod:`calib.methods.known_grating`)
+   through the grating file given, or a flat grating and a warning.
 4. Record what produced it (:class:`~calib.pipeline.provenance.Provenance`): input hashes, software,
    command line, camera, warnings.
 
@@ -27,14 +28,15 @@ import numpy as np
 from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency, read_grating_file
-from calib.core.mapping import GratingGeometry, QuadraticMapping
+from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.image.raw import read_raw_metadata
-from calib.methods import ESTIMATION_METHODS, default_camera_basis, estimate
-from calib.methods.known_grating import estimate_with_known_grating
-from calib.model.bases import CameraBasis
+from calib.methods import AUTO, MethodOptions, check_method, estimate
+from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
+from calib.methods.multilamp import MULTILAMP_METHOD
+from calib.model.bases import CameraBasis, default_camera_basis
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
 from calib.pipeline.inputs import (
     LampImages,
@@ -61,9 +63,10 @@ class OfflineSettings:
     Parameters
     ----------
     method
-        Estimation method for lamps with a direct measurement (see :func:`calib.estimate`).
+        Estimation method (see :func:`calib.methods.estimate`; ``"auto"`` chooses by the lamps).
     method_options
-        Further keyword options of that method (e.g. ``{"weight_rule": "typicality"}``).
+        That method's typed options (e.g. ``MultilampOptions(weight_rule="typicality")``), or
+        ``None`` for its defaults.
     grid
         Working wavelength grid.
     mapping_lamp
@@ -83,8 +86,8 @@ class OfflineSettings:
         The caller's own warnings and notes (an incomplete session …), recorded with the result.
     """
 
-    method: str = "makabe2025"
-    method_options: Mapping[str, Any] = field(default_factory=dict)
+    method: str = AUTO
+    method_options: MethodOptions | None = None
     grid: WavelengthGrid = DEFAULT_GRID
     mapping_lamp: str | None = None
     data_dir: Path | None = None
@@ -148,11 +151,7 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         raise InputError(f"lamp {duplicates[0]!r} is given twice", source="--lamp")
-    if settings.method.lower() not in ESTIMATION_METHODS:
-        raise InputError(
-            f"unknown method {settings.method!r}; available: {', '.join(sorted(ESTIMATION_METHODS))}",
-            source="--method",
-        )
+    check_method(settings.method, source="--method")
     if settings.mapping_lamp is not None and settings.mapping_lamp not in names:
         raise InputError(
             f"no lamp named {settings.mapping_lamp!r}; lamps are {', '.join(names)}",
@@ -232,13 +231,11 @@ def _profile_observation(
 
 
 def import_estimation() -> None:
-    """Import what the merge's noise fit, the detection and the estimate use (scipy, the estimator:
-    about a second), e.g. in a thread while the first frames decode (LibRaw releases the GIL)."""
+    """Import what the merge's noise fit, the detection and the estimate use (scipy: most of a
+    second), e.g. in a thread while the first frames decode (LibRaw releases the GIL)."""
     import scipy.ndimage
     import scipy.optimize
     import scipy.signal  # noqa: F401
-
-    import calib.methods.makabe2025  # noqa: F401
 
 
 def _image_lamp_record(lamp: LampImages, extraction_frames: Sequence[Any]) -> dict[str, Any]:
@@ -474,6 +471,35 @@ def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMap
     )
 
 
+def _known_grating_options(
+    options: MethodOptions | None, warnings: list[str]
+) -> KnownGratingOptions:
+    """The known-grating solve's options from another grating method's: those it shares are kept
+    (none is lost on the way), the others, when set, are named in a warning."""
+    if options is None:
+        return KnownGratingOptions()
+    # Every grating method's options share these (GratingMethodOptions).
+    kept = KnownGratingOptions(
+        prior_shrinkage=options.prior_shrinkage,
+        refine_given_mapping=options.refine_given_mapping,
+        slit_width_px=options.slit_width_px,
+        psf_sigma_px=options.psf_sigma_px,
+    )
+    defaults = type(options)()
+    ignored = [
+        name
+        for name in type(options).__dataclass_fields__
+        if name not in KnownGratingOptions.__dataclass_fields__
+        and getattr(options, name) != getattr(defaults, name)
+    ]
+    if ignored:
+        flags = ", ".join(f"--{name.replace('_', '-')}" for name in ignored)
+        warnings.append(
+            f"{flags} has no effect with a grating file: the grating efficiency is not estimated"
+        )
+    return kept
+
+
 def _estimate(
     observations: Sequence[LampObservation],
     settings: OfflineSettings,
@@ -485,35 +511,30 @@ def _estimate(
 ) -> tuple[EstimateResult, GratingEfficiency | None]:
     grid = settings.grid
     basis = settings.basis or default_camera_basis(grid, data_dir=settings.data_dir)
-    mapping: QuadraticMapping | GratingGeometry | None = _wavelength_mapping(observations)
+    method = check_method(settings.method, source="--method")
+    where: dict[str, Any] = {}
+    mapping = _wavelength_mapping(observations)
+    if mapping is not None:
+        where["mapping"] = mapping
+    if settings.mapping_lamp is not None:
+        where["mapping_lamp"] = settings.mapping_lamp
     with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
-    # The grating library: multilamp through an earlier calibration's η, s = q̂ / η.
-    known_grating = settings.method.lower() == "multilamp" and checked.grating is not None
-    if known_grating or with_direct:
-        options = dict(settings.method_options)
-        if known_grating:
-            if options.pop("weight_rule", None) is not None:
-                warnings.append(
-                    "--weight-rule has no effect with a grating file: the grating efficiency is "
-                    "not estimated"
-                )
-            options["grating"] = checked.grating
-        elif checked.grating is not None:
+    # The grating library: multilamp (or known-grating) through an earlier calibration's η.
+    through_file = checked.grating is not None and method in (
+        MULTILAMP_METHOD,
+        KNOWN_GRATING_METHOD,
+    )
+    if with_direct and not through_file and method != KNOWN_GRATING_METHOD:
+        if checked.grating is not None:
             notes.append(
                 f"grating file {checked.grating.source} not used: the direct measurement of "
                 f"{', '.join(with_direct)} determines the grating efficiency"
             )
-        result = estimate(
-            observations,
-            settings.method,
-            grid=grid,
-            basis=basis,
-            mapping=mapping,
-            mapping_lamp=settings.mapping_lamp,
-            **options,
-        )
-        return result, checked.grating if known_grating else None
-    if image_input and checked.grating is None:
+        if settings.method_options is not None:
+            where["options"] = settings.method_options
+        result = estimate(observations, method, grid=grid, basis=basis, **where)
+        return result, None
+    if image_input and checked.grating is None and not with_direct:
         raise InputError(
             "no lamp has a direct (0th-order) measurement: the direct spot is saturated in every "
             "frame of every lamp; add a shorter exposure to the brackets, or give the grating's "
@@ -525,17 +546,21 @@ def _estimate(
             "no direct measurement and no --grating: a flat grating efficiency was assumed, so the "
             "sensitivity carries the grating's own spectral efficiency as an error; measure the "
             "direct RGB (--direct R,G,B) or give --grating FILE from an earlier calibration"
+            if not with_direct
+            else "--method known-grating without --grating: a flat grating efficiency was "
+            "assumed, so the sensitivity carries the grating's own spectral efficiency as an error"
         )
-    if settings.method.lower() != "makabe2025":
+    if method not in (AUTO, MULTILAMP_METHOD, KNOWN_GRATING_METHOD):
         notes.append(
             f"method {settings.method!r} needs a direct measurement; used the known-grating solve"
         )
-    result = estimate_with_known_grating(
+    result = estimate(
         observations,
-        checked.grating,
-        basis=basis,
+        KNOWN_GRATING_METHOD,
         grid=grid,
-        mapping=mapping,
-        mapping_lamp=settings.mapping_lamp,
+        basis=basis,
+        grating=checked.grating,
+        options=_known_grating_options(settings.method_options, warnings),
+        **where,
     )
     return result, checked.grating

@@ -46,7 +46,6 @@ from calib.spd.alvarez2014 import (
     SourceMode,
     SpdRecovery,
     Weighting,
-    find_mapping,
     instrument_view,
     recover_spd_alvarez2014,
     source_kernel_from_image,
@@ -63,6 +62,7 @@ from calib.spd.light_sources import (
     recognise_light_source,
     srgb_white_balance_from_cct,
 )
+from calib.wavelength import CalibratedCamera, find_mapping
 
 #: The recovered SPD is computed over this range (further limited to where the camera responds).
 RECOVERY_RANGE_NM = (380.0, 730.0)
@@ -193,8 +193,7 @@ def _find_mapping(
     try:
         mapping = find_mapping(
             _profile(source_image, geometry, "mapping lamp"),
-            camera,
-            grating_efficiency=efficiency,
+            camera=CalibratedCamera(camera, efficiency),
             lamp_spectrum=lamp_spectrum,
         )
         wide = widened_geometry(geometry, mapping, RECOVERY_RANGE_NM)
@@ -202,10 +201,9 @@ def _find_mapping(
             # Refine again over the whole range, which the detected extent may not have covered.
             mapping = find_mapping(
                 _profile(source_image, wide, "mapping lamp"),
-                camera,
-                grating_efficiency=efficiency,
+                camera=CalibratedCamera(camera, efficiency),
                 lamp_spectrum=lamp_spectrum,
-                initial=mapping,
+                start=mapping,
             )
             wide = widened_geometry(geometry, mapping, RECOVERY_RANGE_NM)
     except EstimationError as exc:

@@ -613,8 +613,8 @@ def icp_mapping(
     with normals from consecutive samples, ``g`` quadratic, 500 iterations from ``a = 0, b = f/n,
     c = 0`` — in grid-index units, as that start implies. One change so the two plots share a vertical
     scale: ``u`` is multiplied by ``√(n/f)`` (``ν`` leaves vectors of different lengths at different
-    amplitudes). Kept to reproduce the paper's numbers; :func:`calib.wavelength.search.find_mapping` is
-    the estimator to use.
+    amplitudes). Kept to reproduce the paper's numbers (``method="icp"`` of
+    :func:`calib.wavelength.find_mapping`); the ``"search"`` strategy is the estimator to use.
 
     Parameters
     ----------

@@ -56,7 +56,13 @@ from calib.core.mapping import (
 from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior, whitening
-from calib.model.forward import PiecewiseLinearDensity, apply_blur, fine_axis, pixel_edges
+from calib.model.forward import (
+    PiecewiseLinearDensity,
+    apply_blur,
+    fine_axis,
+    hat_matrix,
+    pixel_edges,
+)
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.peaks import (
     coarse_mapping_candidates,
@@ -176,8 +182,6 @@ def response_prior(
     camera unlike the training set (or measured with finer structure) stays representable while the
     response keeps a camera's shape.
     """
-    from calib.model.forward import hat_matrix
-
     interpolate = hat_matrix(prior.grid, nodes_nm, clamp=True)
     distance = (nodes_nm[:, None] - nodes_nm[None, :]) / EFFICIENCY_CORRELATION_NM
     efficiency_kernel = EFFICIENCY_SIGMA**2 * np.exp(-0.5 * distance**2)
@@ -511,7 +515,7 @@ def _refine(
 
 
 @one_blas_thread
-def find_mapping(
+def search_mapping(
     observations: LampObservation | Sequence[LampObservation],
     prior: CameraPrior,
     grid: WavelengthGrid,

@@ -284,7 +284,7 @@ def test_rig_estimate_takes_the_multilamp_weight_rule(
     assert result.exit_code == 0, result.output
     diagnostics = json.loads((out / "result.json").read_text())["diagnostics"]
     assert diagnostics["prior_weight_rule"] == "typicality"
-    monkeypatch.setattr(sys, "argv", ["rig", *arguments])  # the default method, makabe2025
+    monkeypatch.setattr(sys, "argv", ["rig", *arguments])  # the default method, auto
     with pytest.raises(SystemExit) as exit_info:
         main()
     assert exit_info.value.code == 2

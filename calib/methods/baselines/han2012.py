@@ -47,9 +47,9 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import linalg
 
 from calib.core.arrays import FloatArray, checked_array
+from calib.core.blas import one_blas_thread
 from calib.core.colour_data import cie_daylight_basis, training_reflectances
 from calib.core.errors import EstimationError, InputError
 from calib.core.result import EstimateResult
@@ -415,6 +415,8 @@ def solve_sensitivity(
     if integrals is None:
         eigenvalues, eigenvectors = np.linalg.eigh(normal)
     else:
+        from scipy import linalg  # deferred: scipy.linalg is slow to import
+
         brightness = np.concatenate(list(integrals), axis=1)  # (P, 3M): Σ_c t_cp · β_c
         metric = brightness.T @ brightness
         # The brightness form has rank P at most: a tiny ridge keeps it definite.
@@ -458,7 +460,7 @@ def recover_daylight(
 
 @dataclass(frozen=True, eq=False)
 class Han2012Result:
-    """What :func:`estimate_han2012` found.
+    """What :func:`recover_han2012` found.
 
     Attributes
     ----------
@@ -510,32 +512,14 @@ class Han2012Result:
         )
 
 
-def estimate_han2012(
-    chart: FluorescentChart,
-    *,
-    grid: WavelengthGrid = DEFAULT_GRID,
-    basis: CameraBasis | None = None,
-    n_terms: int = DEFAULT_FOURIER_TERMS,
-    n_reflectance_vectors: int = DEFAULT_REFLECTANCE_VECTORS,
-    smoothness: Sequence[float] = DEFAULT_SMOOTHNESS,
-    normalisation: Normalisation = "brightness",
-    weighting: RowWeighting = "fraction",
-    recover_illuminant: bool = True,
-) -> Han2012Result:
-    """Camera sensitivity (and the daylight) from one chart image (Han et al. 2012).
+@dataclass(frozen=True)
+class Han2012Options:
+    """Options of :func:`estimate_han2012` (checked on construction).
 
-    Parameters
+    Attributes
     ----------
-    chart
-        The fluorescent and reference patches' RGBs and spectra.
-    grid
-        Working grid; the Fourier basis spans it (the paper's ``[λ_l, λ_u]``).
-    basis
-        ``None``: the paper's Fourier basis of ``n_terms`` functions; a
-        :class:`calib.model.bases.CameraBasis` (on ``grid``): eigenvectors of measured cameras, which the
-        paper's footnote 2 suggests when such data are available.
     n_terms
-        Fourier functions per channel (the paper's 9).
+        Fourier functions per channel (the paper's 9; with the Fourier basis).
     n_reflectance_vectors
         Reflectance basis size for the separation (the paper's 8).
     smoothness
@@ -549,23 +533,83 @@ def estimate_han2012(
         out either way (listed in the diagnostics).
     recover_illuminant
         Also recover the light as a CIE daylight (Eq. 17–19).
+    """
+
+    n_terms: int = DEFAULT_FOURIER_TERMS
+    n_reflectance_vectors: int = DEFAULT_REFLECTANCE_VECTORS
+    smoothness: tuple[float, float, float] = DEFAULT_SMOOTHNESS
+    normalisation: Normalisation = "brightness"
+    weighting: RowWeighting = "fraction"
+    recover_illuminant: bool = True
+
+    def __post_init__(self) -> None:
+        smoothness = tuple(float(w) for w in self.smoothness)
+        if len(smoothness) != 3 or any(w < 0 or not math.isfinite(w) for w in smoothness):
+            raise InputError(
+                f"smoothness needs 3 finite weights >= 0, got {self.smoothness}",
+                source="smoothness",
+            )
+        object.__setattr__(self, "smoothness", smoothness)
+        if self.n_terms < 1:
+            raise InputError(
+                f"need at least one Fourier term, got {self.n_terms}", source="n_terms"
+            )
+        if self.weighting not in ("fraction", "paper"):
+            raise InputError(
+                f"weighting must be 'fraction' or 'paper', got {self.weighting!r}",
+                source="weighting",
+            )
+        if self.normalisation not in ("brightness", "unit"):
+            raise InputError(
+                f"normalisation must be 'brightness' or 'unit', got {self.normalisation!r}",
+                source="normalisation",
+            )
+
+
+#: The paper's basis: Fourier functions (``basis="fourier"``), not measured cameras.
+FOURIER: Literal["fourier"] = "fourier"
+
+
+@one_blas_thread
+def recover_han2012(
+    chart: FluorescentChart,
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    basis: CameraBasis | Literal["fourier"] = FOURIER,
+    options: Han2012Options = Han2012Options(),
+) -> Han2012Result:
+    """Camera sensitivity (and the daylight) from one chart image (Han et al. 2012), in full.
+
+    Parameters
+    ----------
+    chart
+        The fluorescent and reference patches' RGBs and spectra.
+    grid
+        Working grid; the Fourier basis spans it (the paper's ``[λ_l, λ_u]``).
+    basis
+        ``"fourier"``: the paper's Fourier basis of ``options.n_terms`` functions; a
+        :class:`calib.model.bases.CameraBasis` (on ``grid``): eigenvectors of measured cameras, which
+        the paper's footnote 2 suggests when such data are available.
+    options
+        :class:`Han2012Options`.
 
     Returns
     -------
     Han2012Result
+        The curves, the recovered light, the separation and the eigenvalues
+        (:func:`estimate_han2012` gives the registry's :class:`~calib.core.result.EstimateResult`).
     """
-    if len(smoothness) != 3 or any(w < 0 or not math.isfinite(w) for w in smoothness):
-        raise InputError(f"smoothness needs 3 finite weights >= 0, got {smoothness}")
-    if basis is not None and basis.grid != grid:
+    n_terms, n_reflectance_vectors = options.n_terms, options.n_reflectance_vectors
+    smoothness, normalisation = options.smoothness, options.normalisation
+    weighting, recover_illuminant = options.weighting, options.recover_illuminant
+    if isinstance(basis, CameraBasis) and basis.grid != grid:
         raise InputError(
             f"the camera basis is on {basis.grid}, the working grid is {grid}", source="basis"
         )
-    if basis is None and n_terms < 1:
-        raise InputError(f"need at least one Fourier term, got {n_terms}", source="n_terms")
     functions = (
-        SensitivityBasis.fourier(grid, n_terms)
-        if basis is None
-        else SensitivityBasis.from_camera_basis(basis)
+        SensitivityBasis.from_camera_basis(basis)
+        if isinstance(basis, CameraBasis)
+        else SensitivityBasis.fourier(grid, n_terms)
     )
     unknowns = 3 * functions.n_terms - 1
     if 2 * chart.n_paints < unknowns and not any(smoothness):
@@ -590,15 +634,6 @@ def estimate_han2012(
         # reflection, relative to the fluorescence, grows as reflection / fluorescence.
         fraction = separation.fluorescent_fraction[usable]
         system = system * np.repeat(fraction / fraction.max(), 3)[:, None]
-    elif weighting != "paper":
-        raise InputError(
-            f"weighting must be 'fraction' or 'paper', got {weighting!r}", source="weighting"
-        )
-    if normalisation not in ("brightness", "unit"):
-        raise InputError(
-            f"normalisation must be 'brightness' or 'unit', got {normalisation!r}",
-            source="normalisation",
-        )
     solution, eigenvalues = solve_sensitivity(
         system,
         functions.curvature,
@@ -635,6 +670,45 @@ def estimate_han2012(
             "chart": chart.name,
         },
     )
+
+
+def estimate_han2012(
+    observations: Sequence[object],
+    *,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    basis: CameraBasis | Literal["fourier"] = FOURIER,
+    options: Han2012Options = Han2012Options(),
+) -> EstimateResult:
+    """The registry's ``"han2012"``: :func:`recover_han2012` on the one chart in ``observations``.
+
+    Raises
+    ------
+    InputError
+        ``observations`` is not exactly one :class:`FluorescentChart`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from calib.core.colour_data import cie_daylight, colorchecker
+    >>> from calib.core.datasets import colour_science_cameras
+    >>> rng = np.random.default_rng(6)
+    >>> chart = render_fluorescent_chart(
+    ...     synthetic_fluorescent_paints(rng),
+    ...     colorchecker(),
+    ...     colour_science_cameras()[0].sensitivity,
+    ...     cie_daylight(6500),
+    ... )
+    >>> estimate_han2012([chart]).method
+    'han2012'
+    """
+    charts = [item for item in observations if isinstance(item, FluorescentChart)]
+    if len(charts) != 1 or len(observations) != 1:
+        raise InputError(
+            "han2012 works from one image of a fluorescent and a reference chart: call "
+            "estimate([FluorescentChart(...)], method='han2012'); it uses no lamp observations",
+            source="observations",
+        )
+    return recover_han2012(charts[0], grid=grid, basis=basis, options=options).to_estimate_result()
 
 
 # -------------------------------------------------------------------------------- synthetic data

@@ -1,14 +1,14 @@
 """What every registered baseline does with its inputs before estimating: sort and check them.
 
-The front function :func:`calib.estimate` hands each method one sequence of observations of any kind
-(:data:`calib.core.observations.Observation`). A method takes the kinds it understands, and says clearly
-when a kind it cannot use was given or one it needs is missing.
+The front function :func:`calib.methods.estimate` hands each method one sequence of observations of
+any kind (:data:`calib.core.observations.Observation`) and the camera basis, resolved once. A method
+takes the kinds it understands, and says clearly when a kind it cannot use was given or one it needs
+is missing.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,7 +29,7 @@ def split_observations(
     Parameters
     ----------
     observations
-        What the caller passed to :func:`calib.estimate`.
+        What the caller passed to :func:`calib.methods.estimate`.
     method
         The method's registry name (for messages).
     accepted
@@ -74,26 +74,6 @@ def check_weight(value: float, name: str) -> None:
     """Raise :class:`InputError` unless a regularisation weight is finite and ``>= 0``."""
     if not (np.isfinite(value) and value >= 0):
         raise InputError(f"{name} must be a finite number >= 0, got {value}", source=name)
-
-
-def method_basis(
-    basis: CameraBasis | None,
-    grid: WavelengthGrid,
-    *,
-    n_vectors: int,
-    data_dir: str | Path | None,
-) -> CameraBasis:
-    """The basis to use: the caller's (checked against the grid and ``n_vectors``) or the default.
-
-    A given basis with more vectors than ``n_vectors`` is used through its leading ``n_vectors``
-    (the SVD orders them by importance, so that equals a basis computed with fewer).
-    """
-    if basis is None:
-        from calib.methods import default_camera_basis
-
-        return default_camera_basis(grid, n_vectors=n_vectors, data_dir=data_dir)
-    check_basis(basis, grid, n_vectors)
-    return basis
 
 
 def normalised_curves(

@@ -29,21 +29,19 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
-from calib.core.mapping import GratingGeometry, QuadraticMapping
-from calib.core.observations import ChartObservation
+from calib.core.observations import ChartObservation, Observation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.baselines.inputs import (
     check_basis,
     check_weight,
-    method_basis,
     normalised_curves,
     split_observations,
 )
@@ -66,8 +64,9 @@ def _stacked_system(
     return rows, rgb, sigma
 
 
+@one_blas_thread
 def estimate_jiang2013(
-    charts: Sequence[ChartObservation],
+    observations: Sequence[Observation],
     *,
     basis: CameraBasis,
     grid: WavelengthGrid = DEFAULT_GRID,
@@ -79,9 +78,9 @@ def estimate_jiang2013(
 
     Parameters
     ----------
-    charts
+    observations
         Chart observations (patch RGB + patch spectra + illuminant), at least ``n_vectors``
-        patches in all.
+        patches in all; any other kind is refused.
     basis
         Per-channel camera basis on ``grid``; its leading ``n_vectors`` vectors are used.
     grid
@@ -101,6 +100,9 @@ def estimate_jiang2013(
         measured − model, in the charts' units), diagnostics (condition numbers, basis, timing).
     """
     started = time.perf_counter()
+    charts: list[ChartObservation] = split_observations(
+        observations, "jiang2013", {"charts": ChartObservation}
+    )["charts"]
     if not charts:
         raise InputError("jiang2013 needs at least one colour-chart observation", source="charts")
     check_basis(basis, grid, n_vectors)
@@ -173,20 +175,3 @@ def estimate_jiang2013(
         residuals=residuals,
         diagnostics=diagnostics,
     )
-
-
-def jiang2013_method(
-    observations: Sequence[Any],
-    *,
-    grid: WavelengthGrid,
-    basis: CameraBasis | None,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    n_vectors: int = JIANG2013_N_VECTORS,
-    data_dir: str | Path | None = None,
-    **options: Any,
-) -> EstimateResult:
-    """Registry entry ``"jiang2013"``: chart observations only; mapping arguments are unused."""
-    charts = split_observations(observations, "jiang2013", {"charts": ChartObservation})["charts"]
-    chosen = method_basis(basis, grid, n_vectors=n_vectors, data_dir=data_dir)
-    return estimate_jiang2013(charts, basis=chosen, grid=grid, n_vectors=n_vectors, **options)

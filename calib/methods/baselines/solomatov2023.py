@@ -44,16 +44,16 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import one_blas_thread
 from calib.core.colour_data import cie_test_colour_samples, colorchecker, colour_matching_functions
 from calib.core.errors import InputError
-from calib.core.mapping import GratingGeometry, QuadraticMapping
-from calib.core.observations import ChartObservation, ColorMatrixObservation
+from calib.core.lamp_specs import colour_lamp
+from calib.core.observations import ChartObservation, ColorMatrixObservation, Observation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 from calib.methods.baselines.inputs import (
     check_basis,
     check_weight,
-    method_basis,
     normalised_curves,
     split_observations,
 )
@@ -239,8 +239,6 @@ def calibration_illuminant(value: str | Spectrum) -> Spectrum:
     """A calibration illuminant as a spectrum (colour-science name, or a given spectrum)."""
     if isinstance(value, Spectrum):
         return value
-    from calib.core.lamp_specs import colour_lamp
-
     return colour_lamp(value)
 
 
@@ -389,9 +387,9 @@ def _white_balance(
     return sensitivity @ transform, transform
 
 
+@one_blas_thread
 def estimate_solomatov2023(
-    matrices: ColorMatrixObservation,
-    charts: Sequence[ChartObservation],
+    observations: Sequence[Observation],
     *,
     basis: CameraBasis,
     grid: WavelengthGrid = DEFAULT_GRID,
@@ -404,11 +402,11 @@ def estimate_solomatov2023(
 
     Parameters
     ----------
-    matrices
-        The camera's ColorMatrix1 (and 2) with their calibration illuminants.
-    charts
-        Colour-chart observations resolving the channel scales (not needed with
-        ``white_balance="none"``).
+    observations
+        Exactly one :class:`~calib.core.observations.ColorMatrixObservation` (the camera's
+        ColorMatrix1, and 2, with their calibration illuminants; read one with
+        :func:`read_color_matrices`) and the colour-chart observations resolving the channel scales
+        (not needed with ``white_balance="none"``).
     basis
         Per-channel camera basis on ``grid`` (leading ``n_vectors`` used; its mean is the prior).
     grid
@@ -429,6 +427,20 @@ def estimate_solomatov2023(
     EstimateResult
     """
     started = time.perf_counter()
+    groups = split_observations(
+        observations,
+        "solomatov2023",
+        {"matrices": ColorMatrixObservation, "charts": ChartObservation},
+    )
+    if len(groups["matrices"]) != 1:
+        raise InputError(
+            f"solomatov2023 needs exactly one ColorMatrixObservation (read one with "
+            f"calib.methods.baselines.solomatov2023.read_color_matrices), got "
+            f"{len(groups['matrices'])}",
+            source="observations",
+        )
+    matrices: ColorMatrixObservation = groups["matrices"][0]
+    charts: list[ChartObservation] = groups["charts"]
     check_basis(basis, grid, n_vectors)
     check_weight(ridge, "ridge")
     if white_balance not in ("diagonal", "full", "none"):
@@ -498,38 +510,4 @@ def estimate_solomatov2023(
         sensitivity=curves,
         residuals=residuals,
         diagnostics=diagnostics,
-    )
-
-
-def solomatov2023_method(
-    observations: Sequence[Any],
-    *,
-    grid: WavelengthGrid,
-    basis: CameraBasis | None,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    n_vectors: int = SOLOMATOV2023_N_VECTORS,
-    data_dir: str | Path | None = None,
-    **options: Any,
-) -> EstimateResult:
-    """Registry entry ``"solomatov2023"``: one :class:`ColorMatrixObservation` + chart observations."""
-    groups = split_observations(
-        observations,
-        "solomatov2023",
-        {"matrices": ColorMatrixObservation, "charts": ChartObservation},
-    )
-    if len(groups["matrices"]) != 1:
-        raise InputError(
-            f"solomatov2023 needs exactly one ColorMatrixObservation (read one with "
-            f"calib.methods.baselines.solomatov2023.read_color_matrices), got {len(groups['matrices'])}",
-            source="observations",
-        )
-    chosen = method_basis(basis, grid, n_vectors=n_vectors, data_dir=data_dir)
-    return estimate_solomatov2023(
-        groups["matrices"][0],
-        groups["charts"],
-        basis=chosen,
-        grid=grid,
-        n_vectors=n_vectors,
-        **options,
     )

@@ -43,23 +43,24 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.errors import EstimationError, InputError
+from calib.core.blas import one_blas_thread
+from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
-from calib.core.observations import ChartObservation, LampObservation
+from calib.core.observations import ChartObservation, LampObservation, Observation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.baselines.inputs import normalised_curves, split_observations
 from calib.model.bases import CameraBasis
 from calib.model.charts import stimulus_rows
 from calib.model.forward import hat_matrix, lamp_operators, pixel_edges
+from calib.model.resolution import camera_kernel
+from calib.wavelength import find_mapping, lamps_named
 
 #: Wavelength at which monochromatic data and lamp spectra are normalised (§3.4).
 NORMALISATION_NM = 550.0
@@ -236,8 +237,8 @@ def monochromatic_profile(
     else:
         raise InputError(
             "toivonen2020 needs the profile's pixel→wavelength mapping (Toivonen & Klami use two "
-            "laser lines): pass mapping=..., or call calib.estimate(..., method='toivonen2020'), "
-            "which finds it as makabe2025 does",
+            "laser lines): pass mapping=..., or a camera basis to estimate_toivonen2020, which "
+            "finds it as the grating methods do",
             source=f"lamp {observation.name!r}",
         )
     width_nm = np.abs(np.diff(edges))
@@ -459,31 +460,31 @@ def _mapping_from_lamps(
     basis: CameraBasis | None,
     grid: WavelengthGrid,
     mapping_lamp: str | None,
-    data_dir: str | Path | None,
-) -> QuadraticMapping | GratingGeometry:
+) -> QuadraticMapping:
     """The mapping as Makabe et al. (2025) find it (Supp. G runs Toivonen's fit on their mapping):
-    from a fluorescent lamp's lines when there is one, else from the broadband profile."""
-    from calib.methods import estimate
+    every lamp jointly (or the one named), fluorescent lines first, under the camera prior."""
+    if basis is None:
+        raise InputError(
+            "toivonen2020 needs the profiles' pixel→wavelength mapping: pass mapping=..., or a "
+            "camera basis (basis=...) to find it as the grating methods do",
+            source="mapping",
+        )
+    if basis.grid != grid:
+        raise InputError(
+            f"the camera basis is on grid {basis.grid}, the estimate on {grid}", source="basis"
+        )
+    searched = list(lamps) if mapping_lamp is None else lamps_named(lamps, mapping_lamp)
+    return find_mapping(searched, camera=basis.prior(), grid=grid, kernel=camera_kernel(lamps))
 
-    result = estimate(
-        list(lamps),
-        method="makabe2025",
-        grid=grid,
-        basis=basis,
-        mapping_lamp=mapping_lamp,
-        data_dir=data_dir,
-    )
-    if result.mapping is None:
-        raise EstimationError("makabe2025 returned no pixel→wavelength mapping")
-    return result.mapping
 
-
+@one_blas_thread
 def estimate_toivonen2020(
-    lamps: Sequence[LampObservation],
-    charts: Sequence[ChartObservation] = (),
+    observations: Sequence[Observation],
     *,
-    mapping: QuadraticMapping | GratingGeometry | None,
+    basis: CameraBasis | None = None,
     grid: WavelengthGrid = DEFAULT_GRID,
+    mapping: QuadraticMapping | GratingGeometry | None = None,
+    mapping_lamp: str | None = None,
     settings: ToivonenSettings = ToivonenSettings(),
     seed: int | np.random.Generator = 0,
     direct_as_patch: bool = True,
@@ -493,14 +494,18 @@ def estimate_toivonen2020(
 
     Parameters
     ----------
-    lamps
-        Lamp observations through the grating, all in one geometry.
-    charts
-        Colour-patch observations (transmissive filters, a ColorChecker …).
-    mapping
-        The profiles' pixel→wavelength mapping (not needed for profiles already mapped).
+    observations
+        Lamp observations through the grating, all in one geometry, and colour-patch observations
+        (transmissive filters, a ColorChecker …).
+    basis
+        Camera basis on ``grid``, whose prior finds the mapping when it is not given (as Makabe et
+        al. 2025, Supp. G, run this method); unused otherwise.
     grid
         Working grid (the data are normalised at its node nearest 550 nm).
+    mapping
+        The profiles' pixel→wavelength mapping (not needed for profiles already mapped).
+    mapping_lamp
+        Find the mapping with this lamp only (default: every lamp jointly).
     settings
         Hyper-parameters and ensemble size.
     seed
@@ -519,6 +524,15 @@ def estimate_toivonen2020(
         efficiency and its σ, diagnostics (losses per member, ensemble spread, timings).
     """
     started = time.perf_counter()
+    groups = split_observations(
+        observations, "toivonen2020", {"lamps": LampObservation, "charts": ChartObservation}
+    )
+    lamps: list[LampObservation] = groups["lamps"]
+    charts: list[ChartObservation] = groups["charts"]
+    mapping_source = "given" if mapping is not None else "profile wavelengths"
+    if mapping is None and any(lamp.profile_wavelength_nm is None for lamp in lamps):
+        mapping = _mapping_from_lamps(lamps, basis, grid, mapping_lamp)
+        mapping_source = "found (calib.wavelength.find_mapping)"
     if lamps_for_profiles is None:
         profiled = [lamp for lamp in lamps if lamp.kind != "fluorescent"] or list(lamps)
     else:
@@ -561,7 +575,7 @@ def estimate_toivonen2020(
         "collapsed_members": int(np.sum(member_peaks <= 0)),
         "efficiency_coefficients": fit.efficiency_coefficients.tolist(),
         "sensitivity_scale": peak,
-        "mapping_source": "given" if mapping is not None else "profile wavelengths",
+        "mapping_source": mapping_source,
         "timings": {"total_s": time.perf_counter() - started},
     }
     return EstimateResult(
@@ -576,53 +590,3 @@ def estimate_toivonen2020(
         mapping=mapping,
         diagnostics=diagnostics,
     )
-
-
-def toivonen2020_method(
-    observations: Sequence[Any],
-    *,
-    grid: WavelengthGrid,
-    basis: CameraBasis | None,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    data_dir: str | Path | None = None,
-    ensemble_size: int | None = None,
-    epochs: int | None = None,
-    learning_rate: float | None = None,
-    settings: ToivonenSettings | None = None,
-    **options: Any,
-) -> EstimateResult:
-    """Registry entry ``"toivonen2020"``: lamps (profiles, direct light) and charts.
-
-    Without a ``mapping`` and with profiles on a pixel axis, the mapping is estimated as Makabe et
-    al. (2025) do (``calib.estimate(..., method="makabe2025")`` with ``basis`` and
-    ``mapping_lamp``), which is how their Supp. G runs this method. ``ensemble_size``, ``epochs`` and ``learning_rate`` override
-    the defaults of :class:`ToivonenSettings`; ``seed`` sets the random starts.
-    """
-    groups = split_observations(
-        observations, "toivonen2020", {"lamps": LampObservation, "charts": ChartObservation}
-    )
-    lamps: list[LampObservation] = groups["lamps"]
-    chosen_settings = settings or ToivonenSettings()
-    if ensemble_size is not None:
-        chosen_settings = replace(chosen_settings, ensemble_size=ensemble_size)
-    if epochs is not None:
-        chosen_settings = replace(chosen_settings, epochs=epochs)
-    if learning_rate is not None:
-        chosen_settings = replace(chosen_settings, learning_rate=learning_rate)
-    used_mapping = mapping
-    needs_mapping = any(lamp.profile_wavelength_nm is None for lamp in lamps)
-    if used_mapping is None and needs_mapping:
-        used_mapping = _mapping_from_lamps(lamps, basis, grid, mapping_lamp, data_dir)
-    result = estimate_toivonen2020(
-        lamps,
-        groups["charts"],
-        mapping=used_mapping,
-        grid=grid,
-        settings=chosen_settings,
-        **options,
-    )
-    if used_mapping is not None and mapping is None:
-        diagnostics = {**result.diagnostics, "mapping_source": "makabe2025"}
-        return replace(result, diagnostics=diagnostics)
-    return result

@@ -1,0 +1,168 @@
+"""calib.methods.known_grating: the one solver through a grating of known (or flat) efficiency.
+
+It replaced two: ``multilamp.estimate_with_grating`` (a grating file, ``s = q̂ / η``) and the old
+``known_grating.estimate_with_known_grating`` (no direct measurement: a file, or a flat grating,
+and the mapping from the lamps). Both call paths' behaviours are checked here, and that the options
+reach the solve (``prior_shrinkage`` was dropped on the way before).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.core.errors import InputError
+from calib.core.grating_file import GratingEfficiency
+from calib.core.lamp_specs import colour_lamp
+from calib.core.metrics import mapping_relative_error, relative_error
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import band_coverage, random_efficiency, random_mapping
+from calib.methods import KnownGratingOptions, MultilampOptions, estimate
+from calib.methods.known_grating import estimate_known_grating
+from calib.model.bases import CameraBasis
+from calib.model.forward import PeakFractionNoise, render_observation
+from calib.pipeline import LampProfile, OfflineSettings, estimate_offline
+from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
+
+CAMERA = gaussian_camera((605, 530, 455), (35, 45, 28))
+TRUTH = CAMERA / CAMERA.max()
+
+
+@pytest.fixture(scope="module")
+def basis(tmp_path_factory: pytest.TempPathFactory) -> CameraBasis:
+    return exact_basis(tmp_path_factory.mktemp("basis"))[0]
+
+
+def _scene(seed: int = 4):
+    rng = np.random.default_rng([7, seed])
+    mapping = random_mapping(rng)
+    efficiency = random_efficiency(rng)
+    wavelength = np.arange(380.0, 721.0, 2.0)
+    grating = GratingEfficiency(wavelength, efficiency(wavelength), source="truth")
+    return rng, mapping, efficiency, grating
+
+
+def _lamp(spec: str, kind, mapping, efficiency, rng, noise: float = 0.003) -> LampObservation:
+    observation = render_observation(
+        colour_lamp(spec),
+        as_spectrum(CAMERA),
+        mapping=mapping,
+        pixel=round(mapping.pixel_range[1]) + 1,
+        grating_efficiency=efficiency,
+        noise=PeakFractionNoise(noise) if noise else None,
+        rng=rng,
+        kind=kind,
+    ).observation
+    return replace(observation, direct_rgb=None, direct_sigma=None)  # not needed, not given
+
+
+def test_through_a_grating_file_one_led_without_a_direct_measurement_suffices(basis):
+    """The grating-library path (``multilamp.estimate_with_grating`` before): s = q̂ / η."""
+    rng, mapping, efficiency, grating = _scene()
+    led = _lamp("LED-B3", "led", mapping, efficiency, rng)
+    result = estimate_known_grating([led], grating=grating, basis=basis, mapping=mapping)
+    assert result.method == "known-grating"
+    assert relative_error(result.sensitivity, TRUTH) < 0.04
+    assert result.sensitivity_sigma is not None and 0.8 <= band_coverage(result, TRUTH) <= 1.0
+    eta = efficiency(DEFAULT_GRID.wavelength_nm)
+    assert result.grating_efficiency is not None
+    np.testing.assert_allclose(result.grating_efficiency, eta / eta.max(), rtol=1e-9)
+    assert result.diagnostics["grating"]["source"] == "truth"
+    # The front function reaches the same solver, and refuses to run it without saying η.
+    through_front = estimate([led], "known-grating", basis=basis, mapping=mapping, grating=grating)
+    np.testing.assert_allclose(through_front.sensitivity, result.sensitivity, atol=1e-12)
+    with pytest.raises(InputError, match="needs grating="):
+        estimate([led], "known-grating", basis=basis, mapping=mapping)
+
+
+def test_without_a_grating_a_flat_one_is_assumed_and_recorded(basis):
+    """The no-direct, no-file path (``estimate_with_known_grating(…, None)`` before)."""
+    rng, mapping, _, _ = _scene(5)
+    led = _lamp("LED-B3", "led", mapping, None, rng)
+    result = estimate_known_grating([led], grating=None, basis=basis, mapping=mapping)
+    assert result.diagnostics["grating"] == "flat (assumed)"
+    assert result.grating_efficiency is not None
+    assert np.all(result.grating_efficiency == 1.0) and result.grating_efficiency_sigma is None
+    # A flat grating indeed: the camera comes back.
+    assert relative_error(result.sensitivity, TRUTH) < 0.04
+
+
+def test_the_mapping_is_found_from_the_lamps_when_not_given(basis):
+    """No mapping given: the lamps' fluorescent lines and profiles find it, as the joint solves do."""
+    rng, mapping, efficiency, grating = _scene(6)
+    led = _lamp("LED-B3", "led", mapping, efficiency, rng)
+    tube = _lamp("FL2", "fluorescent", mapping, efficiency, rng)
+    result = estimate_known_grating([led, tube], grating=grating, basis=basis)
+    assert result.mapping is not None
+    pixels = led.pixel
+    true_nm = mapping.wavelength_nm(pixels)
+    inside = (true_nm >= 400) & (true_nm <= 700)
+    found_nm = result.mapping.wavelength_nm(pixels[inside])
+    assert mapping_relative_error(found_nm, true_nm[inside]) < 2e-3
+    assert result.diagnostics["solve_lamps"] == ["LED-B3", "FL2"]
+    assert relative_error(result.sensitivity, TRUTH) < 0.04
+
+
+def test_a_grating_that_does_not_cover_the_grid_is_named(basis):
+    rng, mapping, efficiency, grating = _scene()
+    led = _lamp("LED-B3", "led", mapping, efficiency, rng)
+    short = GratingEfficiency(
+        grating.wavelength_nm[:100], grating.efficiency[:100], source="short.json"
+    )
+    with pytest.raises(InputError, match=r"short.json: the grating efficiency covers 380–578 nm"):
+        estimate_known_grating([led], grating=short, basis=basis, mapping=mapping)
+
+
+def test_the_prior_shrinkage_reaches_the_solve(basis):
+    rng, mapping, efficiency, grating = _scene()
+    led = _lamp("LED-B3", "led", mapping, efficiency, rng, noise=0.03)
+    default = estimate_known_grating([led], grating=grating, basis=basis, mapping=mapping)
+    shrunk = estimate_known_grating(
+        [led],
+        grating=grating,
+        basis=basis,
+        mapping=mapping,
+        options=KnownGratingOptions(prior_shrinkage=0.9),
+    )
+    assert shrunk.diagnostics["prior_shrinkage"] == [0.9, 0.9, 0.9]
+    assert default.diagnostics["prior_shrinkage"] != [0.9, 0.9, 0.9]
+    assert not np.allclose(shrunk.sensitivity, default.sensitivity)
+
+
+def test_the_pipeline_keeps_the_multilamp_options_it_can_use_through_a_grating_file(
+    basis, tmp_path: Path
+):
+    """``--method multilamp --grating FILE``: the solve is the known-grating one; before, the
+    multi-lamp options' ``prior_shrinkage`` was dropped on the way (typer → dict → ``**options``)."""
+    rng, mapping, efficiency, grating = _scene()
+    led = _lamp("LED-B3", "led", mapping, efficiency, rng, noise=0.03)
+    assert led.profile_sigma is not None
+    profile = tmp_path / "led.csv"
+    np.savetxt(
+        profile,
+        np.column_stack([led.pixel, led.profile, led.profile_sigma]),
+        delimiter=",",
+        header="pixel,r,g,b,r_sigma,g_sigma,b_sigma",
+        comments="",
+    )
+    lamps = [LampProfile("LED-B3", "led", led.spectrum, profile)]
+    options = MultilampOptions(prior_shrinkage=0.9, weight_rule="typicality")
+    settings = OfflineSettings(
+        method="multilamp", method_options=options, basis=basis, grating=grating
+    )
+    outcome = estimate_offline(lamps, settings)
+    assert outcome.result.method == "known-grating"
+    assert outcome.result.diagnostics["prior_shrinkage"] == [0.9, 0.9, 0.9]
+    assert any("--weight-rule has no effect with a grating file" in w for w in outcome.warnings)
+    direct = estimate_known_grating(
+        [outcome.observations[0]],
+        grating=grating,
+        basis=basis,
+        mapping=outcome.result.mapping,
+        options=KnownGratingOptions(prior_shrinkage=0.9),
+    )
+    np.testing.assert_allclose(outcome.result.sensitivity, direct.sensitivity, atol=1e-12)
