@@ -93,10 +93,13 @@ def physical_scene(
 
 
 def _old_search(observation: LampObservation, prior: CameraPrior) -> MappingSearch:
-    """The search as it was (``calib.wavelength.search.find_mapping``), in the new result's shape."""
-    from calib.wavelength.search import find_mapping
+    """The search as it was (``calib.wavelength.search.search_mapping``), in the new result's shape."""
+    from calib.model.resolution import camera_kernel
+    from calib.wavelength.search import search_mapping
 
-    mapping = find_mapping([observation], prior, DEFAULT_GRID)
+    mapping = search_mapping(
+        [observation], prior, DEFAULT_GRID, kernel=camera_kernel([observation])
+    )
     return MappingSearch(
         mapping=mapping,
         exact=mapping,
@@ -134,7 +137,7 @@ def main() -> None:
         "--engine",
         choices=("new", "old"),
         default="new",
-        help="old: calib.wavelength.search.find_mapping, for comparison",
+        help="old: calib.wavelength.search.search_mapping, for comparison",
     )
     args = parser.parse_args()
     train, _test = makabe2025_split(args.data_dir)

@@ -4,9 +4,10 @@ Three rows per scene, measured in one process one after the other (median of ``-
 warm-up; ``time.process_time``, one BLAS thread):
 
 ``solve alone``          :func:`calib.methods.estimate` given the true mapping (the yardstick);
-``mapping + estimate``   :func:`calib.wavelength.locate.locate_mapping`, then the estimate with it;
-``before (search)``      the estimate finding its own mapping with ``calib.wavelength.search``
-                         (what the estimators used before this package's engine).
+``mapping + estimate``   :func:`calib.methods.estimate` finding its mapping
+                         (:func:`calib.wavelength.find_mapping` → :mod:`calib.wavelength.locate`);
+``before``               ``calib.wavelength.search.search_mapping`` (what the estimators used
+                         before this engine), then the estimate with its mapping.
 
 Scenes: the paper's synthetic protocol (§4.1) for the Canon 600D (a test camera: reported, never
 tuned on) with the 44 training cameras' basis — LED only (D65) and LED + fluorescent (FL2) — and,
@@ -37,7 +38,8 @@ from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import render_scene
 from calib.methods import estimate
 from calib.model.bases import CameraBasis, camera_basis
-from calib.wavelength.locate import locate_mapping
+from calib.model.resolution import camera_kernel
+from calib.wavelength.search import search_mapping
 
 
 def cpu_median(function: Callable[[], object], repeats: int) -> float:
@@ -51,9 +53,11 @@ def cpu_median(function: Callable[[], object], repeats: int) -> float:
 
 
 @one_blas_thread
-def new_path(observations: Sequence[LampObservation], basis: CameraBasis) -> None:
-    solution = locate_mapping(observations, basis.prior(), DEFAULT_GRID)
-    estimate(observations, basis=basis, mapping=solution.exact)  # type: ignore[arg-type]
+def before_path(observations: Sequence[LampObservation], basis: CameraBasis) -> None:
+    mapping = search_mapping(
+        observations, basis.prior(), DEFAULT_GRID, kernel=camera_kernel(observations)
+    )
+    estimate(observations, basis=basis, mapping=mapping)
 
 
 def report(label: str, solve_s: float, new_s: float, old_s: float | None) -> None:
@@ -89,11 +93,11 @@ def main() -> None:
             return estimate(lamps, basis=basis, mapping=scene.mapping)
 
         def new(lamps: list[LampObservation] = lamps) -> object:
-            new_path(lamps, basis)
-            return None
+            return estimate(lamps, basis=basis)
 
         def old(lamps: list[LampObservation] = lamps) -> object:
-            return estimate(lamps, basis=basis)
+            before_path(lamps, basis)
+            return None
 
         solve_s = cpu_median(solve, args.repeats)
         report(

@@ -202,7 +202,18 @@ def test_rotated_and_mirrored_geometry(tmp_path: Path, angle_deg: float, pattern
         _inputs(capture), OfflineSettings(basis=capture.basis, use_region=True)
     )
     relative, mapping = capture.errors(result.result, result.observations[0].pixel)
-    assert relative < RE_TARGET and mapping < LED_MAPPING_RE_TARGET, (relative, mapping)
+    # An LED alone, with no focal length in the files: the curvature of the rainbow may be left
+    # open between basins (decision 0025). Then the result must say so and state a σ that covers
+    # the error to a factor of two — never a confident wrong mapping.
+    found = result.result.mapping
+    assert isinstance(found, QuadraticMapping)
+    if mapping >= LED_MAPPING_RE_TARGET:
+        assert found.details.get("ambiguous"), mapping
+        assert found.wavelength_rms_nm is not None
+        span = float(result.result.wavelength_nm[-1] - result.result.wavelength_nm[0])
+        assert 0.5 <= found.wavelength_rms_nm / (mapping * span) <= 2.0
+    else:
+        assert relative < RE_TARGET, relative
     detected = _profiles(result).geometry.primary.angle_deg
     assert abs((detected - angle_deg + 180) % 360 - 180) < 0.1
 

@@ -41,6 +41,11 @@ class QuadraticMapping:
         Estimated RMS wavelength error over ``pixel_range`` (from the covariance), or ``None``.
     details
         Diagnostics of the estimation (JSON-safe).
+    model
+        The physical mapping this quadratic reports, when it was fitted as one
+        (:class:`TiltedGrating`): it is what :meth:`wavelength_nm`, :meth:`dispersion_nm_per_px`
+        and :meth:`pixel_at` evaluate — the quadratic is then the report format, ``(a, b, c)``
+        its least-squares summary over ``pixel_range``.
     """
 
     a: float
@@ -51,6 +56,7 @@ class QuadraticMapping:
     covariance: tuple[tuple[float, float, float], ...] | None = None
     wavelength_rms_nm: float | None = None
     details: Mapping[str, Any] = field(default_factory=dict)
+    model: TiltedGrating | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(v) for v in (self.a, self.b, self.c)):
@@ -63,18 +69,24 @@ class QuadraticMapping:
         return (self.a, self.b, self.c)
 
     def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
-        """``g(p)`` in nm."""
+        """``g(p)`` in nm (the physical :attr:`model`'s when there is one)."""
+        if self.model is not None:
+            return self.model.wavelength_nm(pixel)
         p = np.asarray(pixel, dtype=np.float64)
         return np.asarray((self.a * p + self.b) * p + self.c, dtype=np.float64)
 
     def dispersion_nm_per_px(self, pixel: ArrayLike) -> FloatArray:
         """``g'(p)``."""
+        if self.model is not None:
+            return self.model.dispersion_at(pixel)
         return np.asarray(
             2 * self.a * np.asarray(pixel, dtype=np.float64) + self.b, dtype=np.float64
         )
 
     def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
         """Inverse ``g⁻¹(λ)``: the root on the branch where ``g`` is monotonic over ``pixel_range``."""
+        if self.model is not None:
+            return self.model.pixel_at(wavelength_nm)
         wavelength = np.asarray(wavelength_nm, dtype=np.float64)
         if abs(self.a) < 1e-15 * max(abs(self.b), 1e-300):
             return np.asarray((wavelength - self.c) / self.b, dtype=np.float64)
@@ -101,6 +113,7 @@ class QuadraticMapping:
             "covariance": [list(row) for row in self.covariance] if self.covariance else None,
             "wavelength_rms_nm": self.wavelength_rms_nm,
             "details": dict(self.details),
+            **({} if self.model is None else {"model": self.model.to_dict()}),
         }
 
     @classmethod
@@ -108,6 +121,7 @@ class QuadraticMapping:
         try:
             covariance = data.get("covariance")
             pixel_range = data.get("pixel_range")
+            model = data.get("model")
             return cls(
                 a=float(data["a"]),
                 b=float(data["b"]),
@@ -121,6 +135,7 @@ class QuadraticMapping:
                 if data.get("wavelength_rms_nm") is None
                 else float(data["wavelength_rms_nm"]),
                 details=dict(data.get("details") or {}),
+                model=None if model is None else TiltedGrating.from_dict(model),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError(f"not a quadratic mapping record ({exc})", source="mapping") from None

@@ -34,7 +34,15 @@ from calib.core.errors import InputError
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 
 #: The grating family's parameters, in the order of a full parameter vector.
-GRATING_PARAMETERS: tuple[str, ...] = ("zero_order_px", "log_spacing", "log_focal", "incidence_deg")
+GRATING_PARAMETERS: tuple[str, ...] = (
+    "zero_order_px",
+    "log_spacing",
+    "log_focal",
+    "incidence_deg",
+    "axis_offset_px",
+)
+#: Parameters held at the family's own value unless the prior names them.
+_HELD_UNLESS_NAMED = ("axis_offset_px",)
 _DEG = math.pi / 180.0
 
 
@@ -150,27 +158,41 @@ class GratingFamily:
     orientation
         ``+1`` (wavelength rises with the pixel) or ``−1``.
     axis_offset_px
-        The 0th order's distance from the lens axis along the order, ``u₀`` (known, not fitted).
+        The 0th order's distance from the lens axis along the order, ``u₀``: held at this value
+        unless the prior names ``axis_offset_px`` (then fitted from it).
     """
 
     prior: GratingPrior
     orientation: int = 1
     axis_offset_px: float = 0.0
 
+    def _held(self) -> dict[str, float]:
+        held = self.prior.fixed()
+        for name in _HELD_UNLESS_NAMED:
+            if name not in self.prior.values:
+                held[name] = self.axis_offset_px
+        return held
+
+    @property
+    def offset_guess(self) -> float:
+        """``u₀`` to start from: the prior's mean when it is fitted, else the held value."""
+        value = self.prior.values.get("axis_offset_px")
+        return self.axis_offset_px if value is None else value[0]
+
     @property
     def names(self) -> tuple[str, ...]:
-        fixed = self.prior.fixed()
-        return tuple(name for name in GRATING_PARAMETERS if name not in fixed)
+        held = self._held()
+        return tuple(name for name in GRATING_PARAMETERS if name not in held)
 
     def full(self, x: FloatArray) -> FloatArray:
-        """Parameters ``(..., P)`` → the full vectors ``(..., 4)`` with the held values filled in."""
+        """Parameters ``(..., P)`` → the full vectors ``(..., 5)`` with the held values filled in."""
         x = np.asarray(x, dtype=np.float64)
-        fixed = self.prior.fixed()
+        held = self._held()
         columns = []
         free = iter(range(x.shape[-1]))
         for name in GRATING_PARAMETERS:
-            if name in fixed:
-                columns.append(np.full(x.shape[:-1], fixed[name]))
+            if name in held:
+                columns.append(np.full(x.shape[:-1], held[name]))
             else:
                 columns.append(x[..., next(free)])
         return np.stack(columns, axis=-1)
@@ -182,11 +204,12 @@ class GratingFamily:
             "log_spacing": math.log(grating.groove_spacing_nm),
             "log_focal": math.log(grating.focal_length_px),
             "incidence_deg": grating.incidence_deg,
+            "axis_offset_px": grating.axis_offset_px,
         }
         return np.array([values[name] for name in self.names])
 
     def mapping(self, x: ArrayLike) -> TiltedGrating:
-        p0, log_spacing, log_focal, incidence = self.full(np.asarray(x, dtype=np.float64))
+        p0, log_spacing, log_focal, incidence, offset = self.full(np.asarray(x, dtype=np.float64))
         focal = math.exp(log_focal)
         return TiltedGrating(
             math.exp(log_spacing) / focal,
@@ -194,24 +217,24 @@ class GratingFamily:
             float(incidence),
             float(p0),
             self.orientation,
-            self.axis_offset_px,
+            float(offset),
         )
 
     def _terms(
         self, pixel: FloatArray, x: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
         full = self.full(x)
-        p0, spacing, focal, theta = (
+        p0, spacing, focal, theta, offset = (
             full[..., 0:1],
             np.exp(full[..., 1:2]),
             np.exp(full[..., 2:3]),
             full[..., 3:4] * _DEG,
+            full[..., 4:5],
         )
-        offset = self.axis_offset_px
         distance = self.orientation * (np.asarray(pixel, dtype=np.float64) - p0)
         along = distance + offset
         angle = np.arctan(along / focal) - np.arctan(offset / focal)
-        return spacing, focal, theta, along, angle, distance
+        return spacing, focal, theta, along, angle, offset
 
     def wavelengths(self, pixel: FloatArray, x: FloatArray) -> FloatArray:
         """``λ`` at ``pixel`` ``(n,)`` for ``x`` ``(P,)`` → ``(n,)`` or ``(K, P)`` → ``(K, n)``."""
@@ -220,8 +243,7 @@ class GratingFamily:
 
     def batch_jacobian(self, pixel: FloatArray, x: FloatArray) -> FloatArray:
         """``∂λ(p)/∂x`` for ``x`` ``(K, P)``: shape ``(K, n, P)`` (closed form)."""
-        spacing, focal, theta, along, angle, _ = self._terms(pixel, x)
-        offset = self.axis_offset_px
+        spacing, focal, theta, along, angle, offset = self._terms(pixel, x)
         cosine = np.cos(theta + angle)
         columns = {
             # ∂/∂p₀: through u = s (p − p₀).
@@ -232,6 +254,10 @@ class GratingFamily:
             * cosine
             * (-along * focal / (focal**2 + along**2) + offset * focal / (focal**2 + offset**2)),
             "incidence_deg": spacing * (cosine - np.cos(theta)) * _DEG,
+            # ∂angle/∂u₀ = F/(F² + (u+u₀)²) − F/(F² + u₀²).
+            "axis_offset_px": spacing
+            * cosine
+            * (focal / (focal**2 + along**2) - focal / (focal**2 + offset**2)),
         }
         return np.stack(
             [np.broadcast_to(columns[name], angle.shape) for name in self.names], axis=-1

@@ -614,6 +614,7 @@ def _initial_parameters(family: Family, mapping: ExactMapping, pixels: FloatArra
         "log_spacing": means.get("log_spacing", math.log(1e6 / 600.0)),
         "log_focal": means.get("log_focal", math.log(5000.0)),
         "incidence_deg": means.get("incidence_deg", 0.0),
+        "axis_offset_px": family.offset_guess,
     }
     if "zero_order_px" not in family.prior.fixed():
         slope = float(np.polyfit(pixels, targets, 1)[0])
@@ -874,4 +875,5 @@ def _report(
         covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in coefficient_covariance),
         wavelength_rms_nm=float(np.sqrt(np.mean(np.clip(variance, 0.0, None)))),
         details=details,
+        model=exact if isinstance(exact, TiltedGrating) else None,
     )

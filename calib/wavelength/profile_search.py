@@ -61,15 +61,19 @@ Orientation = Literal["auto", "rising", "falling"]
 #: Width (nm) of a binned pixel in the scan, the refinement of its minima, the basin-deciding and
 #: the final stage (a bin is never narrower than the profile's own pixels).
 SCAN_BIN_NM = 5.0
-GLOBAL_BIN_NM = 5.0
-REFINE_BIN_NM = 2.5
+GLOBAL_BIN_NM = 2.5
+REFINE_BIN_NM = 1.0
 FINAL_BIN_NM = 0.5
+#: Node spacing (nm) of the response in the scan.
+SCAN_NODES_NM = 10.0
 #: Quadratic family: the scan shifts the wavelengths at both ends of the profile by this half width
 #: and step (nm) around each start (the middle follows): the correlation search's linear starts are
 #: 2–25 nm off at the ends on the training cameras (a camera unlike the mean, the mapping's
 #: curvature). At most this many starts per direction, at least a step apart, are scanned.
 QUADRATIC_SCAN = (24.0, 4.0)
 MAX_STARTS = 2
+#: Around each refined scan minimum, the ends are scanned again this finely (half width, step nm).
+LOCAL_SCAN = (6.0, 2.0)
 #: Grating family: the same end grid, for the prior's focal length (±1σ when it is loose) or,
 #: without one, for each of these (px).
 #: Without a focal length, the scan covers wide-angle to telephoto at typical pitches (the curvature
@@ -299,10 +303,12 @@ def _local_minima(costs: FloatArray, shape: tuple[int, ...]) -> list[int]:
 
 
 def _quadratic_points(
-    start: QuadraticMapping, family: QuadraticFamily
+    start: QuadraticMapping,
+    family: QuadraticFamily,
+    scan: tuple[float, float] = QUADRATIC_SCAN,
 ) -> tuple[FloatArray, tuple[int, ...]]:
     """The end-shift grid around ``start`` as parameter vectors ``(K, 3)``."""
-    half, step = QUADRATIC_SCAN
+    half, step = scan
     shifts = np.arange(-half, half + 0.5 * step, step)
     left, right = np.meshgrid(shifts, shifts, indexing="ij")
     base = family.parameters(start)
@@ -361,6 +367,7 @@ def _grating_points(
             "log_spacing": np.log(np.where(ok, spacing, 1.0)),
             "log_focal": np.full(theta.shape, math.log(focal)),
             "incidence_deg": np.degrees(theta),
+            "axis_offset_px": np.full(theta.shape, offset),
         }
         rows.append(np.stack([full[name].ravel() for name in family.names], axis=1))
         keep.append(ok.ravel())
@@ -374,7 +381,7 @@ def _grating_points(
 #: Scan of a grating seen from its 0th order with no rig knowledge: the wavelength at the
 #: profile's first pixel (nm) and the incidence (degrees); the focal lengths are
 #: :data:`UNKNOWN_FOCAL_LENGTHS_PX` (or the prior's).
-SPOT_FIRST_NM = tuple(float(v) for v in np.arange(300.0, 441.0, 10.0))
+SPOT_FIRST_NM = tuple(float(v) for v in np.arange(300.0, 441.0, 5.0))
 SPOT_INCIDENCE_DEG = (-6.0, 0.0, 6.0)
 
 
@@ -394,7 +401,7 @@ def _spot_points(
         focals = list(UNKNOWN_FOCAL_LENGTHS_PX)
     incidences = [fixed["incidence_deg"]] if "incidence_deg" in fixed else list(SPOT_INCIDENCE_DEG)
     p0 = fixed["zero_order_px"]
-    offset = family.axis_offset_px
+    offset = family.offset_guess
     first_px = pixel_range[0] if family.orientation > 0 else pixel_range[1]
     rows = []
     for focal in focals:
@@ -410,6 +417,7 @@ def _spot_points(
                     "log_spacing": math.log(spacing) if spacing > 0 else float("nan"),
                     "log_focal": math.log(focal),
                     "incidence_deg": incidence,
+                    "axis_offset_px": offset,
                 }
                 rows.append([full[name] for name in family.names])
     return np.array(rows), (len(focals), len(incidences), len(SPOT_FIRST_NM))
@@ -585,7 +593,7 @@ def search_profiles(
     scanned: list[tuple[Family, Solution]] = []
     evaluations = 0
     for family in families:
-        scan = stage(family, SCAN_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR)
+        scan = stage(family, SCAN_BIN_NM, SCAN_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR)
         minima: list[tuple[float, FloatArray]] = []
         if isinstance(family, QuadraticFamily):
             grids = [_quadratic_points(c, family) for c in _spread_starts(candidates, pixel_range)]
@@ -619,7 +627,7 @@ def search_profiles(
             # Neighbouring grid minima are one basin: refine it once.
             if any(
                 np.max(np.abs(family.wavelengths(probe, point) - family.wavelengths(probe, other)))
-                < 2.0 * QUADRATIC_SCAN[1]
+                < QUADRATIC_SCAN[1]
                 for other in kept
             ):
                 continue
@@ -628,6 +636,17 @@ def search_profiles(
                 break
         for point in kept:
             solution = refining.refine(point, max_iterations=6, tolerance=1e-4, rounds=1)
+            if isinstance(family, QuadraticFamily):
+                # Finer around the refined point: a minimum a grid step away (the ends 4 nm
+                # apart) may hold the lower basin, which the descent from the grid point missed.
+                local, _ = _quadratic_points(family.mapping(solution.x), family, LOCAL_SCAN)
+                local_costs = refining.costs(local)
+                evaluations += local.shape[0]
+                best_local = local[int(np.argmin(local_costs))]
+                if float(np.min(local_costs)) < solution.cost:
+                    solution = refining.refine(
+                        best_local, max_iterations=6, tolerance=1e-4, rounds=1
+                    )
             evaluations += solution.evaluations
             scanned.append((family, solution))
     if not scanned:
@@ -638,8 +657,21 @@ def search_profiles(
     # 2. Decide between the basins on a finer profile with a flexible response.
     decided: list[tuple[Family, Solution]] = []
     for family, solution in basins:
-        deciding = stage(family, REFINE_BIN_NM, COARSE_NODES_NM, local_flexibility, 0.0)
-        outcome = deciding.refine(solution.x, max_iterations=10, tolerance=1e-5, rounds=1)
+        # The quadratic family decides with a flexible response (a broadband lamp's aliases: a
+        # camera unlike the prior fits the wrong one better under the stiff prior); the physical
+        # family's 0th order already rules out the shifts that the flexibility guards against,
+        # and there the stiff prior is what tells a stretched rainbow from the right one.
+        flexibility = local_flexibility if isinstance(family, QuadraticFamily) else FLEXIBILITY
+        deciding = stage(family, REFINE_BIN_NM, COARSE_NODES_NM, flexibility, 0.0)
+        start = solution.x
+        if isinstance(family, QuadraticFamily):
+            # The flexible fit's basins are narrower than the stiff one's: scan its ends finely
+            # around the stiff solution (one batched call) before descending.
+            local, _ = _quadratic_points(family.mapping(start), family, LOCAL_SCAN)
+            local_costs = deciding.costs(local)
+            evaluations += local.shape[0]
+            start = local[int(np.argmin(local_costs))]
+        outcome = deciding.refine(start, max_iterations=10, tolerance=1e-5, rounds=1)
         # Compared at their own prior scale (what a second round held there would report).
         outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
         evaluations += outcome.evaluations
@@ -855,5 +887,6 @@ def _report(
         covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in coefficient_covariance),
         wavelength_rms_nm=wavelength_rms_from_covariance(coefficient_covariance, pixel_range),
         details=details,
+        model=exact if isinstance(exact, TiltedGrating) else None,
     )
     return mapping, local_rms

@@ -44,6 +44,9 @@ INCIDENCE_PRIOR_DEG = (0.0, 5.0)
 #: the same parts moves.
 REUSED_INCIDENCE_SIGMA_DEG = 1.0
 REUSED_FOCAL_SIGMA = 0.01
+#: σ of the 0th order's distance from the lens axis, in focal lengths (the axis meets the sensor
+#: near its centre, give or take a crop).
+AXIS_OFFSET_SIGMA = 0.15
 #: A new capture's order must point within this angle (degrees) and its band sit within this
 #: fraction of the stored distance from the spot for the stored geometry to be reused whole.
 VERIFY_ANGLE_DEG = 1.0
@@ -301,14 +304,23 @@ def rig_prior(
     if spacing is None and focal is None and not from_spot:
         return None, "nothing known about the grating"
     values: dict[str, tuple[float, float]] = {"incidence_deg": incidence}
+    offset = 0.0
     if from_spot:
         values["zero_order_px"] = (0.0, 0.0)
+        if focal is not None:
+            # With the focal length known the curvature cannot hide where the lens axis is:
+            # u₀ is fitted, pulled to the spot's distance from the sensor's centre (where the
+            # axis meets it, give or take a crop or a shifted lens) with a σ of
+            # AXIS_OFFSET_SIGMA focal lengths. Without it, u₀ = 0: the incidence and the focal
+            # length absorb the off-axis bend, and fitting all three is degenerate.
+            offset = optics.axis_offset_px
+            values["axis_offset_px"] = (offset, AXIS_OFFSET_SIGMA * math.exp(focal[0]))
     if spacing is not None:
         values["log_spacing"] = spacing
     if focal is not None:
         values["log_focal"] = focal
     source = "; ".join(reason) or "0th order at the spot"
-    return GratingPrior(values, source, optics.axis_offset_px if from_spot else 0.0), source
+    return GratingPrior(values, source, offset), source
 
 
 def rig_geometry(
@@ -328,7 +340,8 @@ def rig_geometry(
 
 
 def default_prior(from_spot: bool) -> GratingPrior:
-    """The family's prior when the rig says nothing: incidence 0 ± 5°, the 0th order at the spot."""
+    """The family's prior when the rig says nothing: incidence 0 ± 5°, the 0th order at the spot
+    (taken on the lens axis: the incidence and focal length absorb the difference)."""
     values: dict[str, tuple[float, float]] = {"incidence_deg": INCIDENCE_PRIOR_DEG}
     if from_spot:
         values["zero_order_px"] = (0.0, 0.0)
