@@ -436,6 +436,12 @@ def estimate_offline(
             notes=notes,
         )
         timings["estimate_s"] = time.perf_counter() - step
+        # What the mapping search says for the user (an ambiguous mapping, a lamp spectrum too
+        # coarse for its lines) goes where every warning goes: stderr, the report, result.json.
+        mapping_details = getattr(result.mapping, "details", None) or {}
+        warnings.extend(
+            str(text) for text in mapping_details.get("warnings", ()) if str(text) not in warnings
+        )
         inputs = hasher.results()
     timings["total_s"] = time.perf_counter() - started
     provenance = Provenance(
