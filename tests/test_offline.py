@@ -155,7 +155,9 @@ def test_a_spot_clipped_in_long_frames_comes_from_the_short_ones(tmp_path: Path)
     assert observation.direct_rgb is not None
     ratio = observation.direct_rgb / clean_direct
     assert np.ptp(ratio) < 3e-3 * ratio.mean(), ratio
-    assert result.warnings == ()
+    # Nothing to warn about the clipped spot (an LED alone may leave the mapping's curvature
+    # open between basins: that, and only that, is said — decision 0025).
+    assert all("the mapping is ambiguous" in text for text in result.warnings), result.warnings
 
 
 def test_region_of_interest_merge_agrees_with_the_whole_frame(tmp_path: Path) -> None:

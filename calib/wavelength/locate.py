@@ -245,7 +245,7 @@ def _known_line_table(
     lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
 ) -> tuple[list[dict[str, Any]], str | None]:
     """The built-in Hg lines fitted where ``mapping`` puts them (the mapping held): the matched-line
-    table of a measured fluorescent lamp, and a warning when they sit off by more than
+    table of a measured fluorescent lamp, and a note when they sit off by more than
     :data:`KNOWN_LINE_WARNING_NM` (a spectrum too coarse for its lines, or a wrong mapping)."""
     from calib.wavelength.features import feature_signal, features_at, fit_features
 
@@ -278,9 +278,9 @@ def _known_line_table(
     if off:
         worst = max(off, key=lambda row: abs(float(row["residual_nm"])))
         note = (
-            f"lamp {lamp.name!r}: its {worst['line']} line sits {worst['residual_nm']:+.2f} nm from "
-            "where the mapping puts it — a lamp spectrum coarser than its lines biases the fit; "
-            "give --spectrum builtin:cfl-triphosphor (or a finer measurement)"
+            f"its {worst['line']} line sits {float(worst['residual_nm']):+.2f} nm from where the "
+            "mapping puts it: a lamp spectrum coarser than its lines biases the fit "
+            "(--spectrum builtin:cfl-triphosphor, or a finer measurement, avoids it)"
         )
     return rows, note
 
@@ -399,10 +399,13 @@ def locate_mapping(
             # A measured line lamp: the profile fit stands; its known lines say how well.
             fluorescent = [lamp for lamp in measured if lamp.kind == "fluorescent"]
             if fluorescent:
+                # The table is for the report and the quality checks: residuals at the known
+                # lines, with the mapping held (a note, not a warning — a rendered lamp table's
+                # lines sit at its nodes, a real lamp's at their wavelengths).
                 table, note = _known_line_table(fluorescent[0], search.exact, grid)
                 details["matched_lines"] = table
                 if note:
-                    warnings.append(note)
+                    details["known_lines_note"] = f"lamp {fluorescent[0].name!r}: {note}"
 
     if features is not None:
         mapping, exact = features.mapping, features.exact

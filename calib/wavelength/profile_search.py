@@ -89,6 +89,8 @@ MAX_BASINS = 3
 #: 10 of the 32 scenes whose mapping was > 3 nm off and on 37 of the 232 that were not; 100
 #: would warn on 27 failures but on half the good scenes. Decision 0025.
 AMBIGUITY_DELTA_CHI2 = 25.0
+#: A competing basin closer than this (RMS, nm) is the same answer, whatever its Δχ².
+AMBIGUITY_MIN_DISTANCE_NM = 1.0
 #: The basins' likelihood ratios are tempered by this before weighting the stated σ: the Δχ² of a
 #: misspecified camera prior is not χ²-distributed. With :data:`LOCAL_SIGMA_SCALE` chosen on the
 #: same 264 LOCO scenes (median actual/stated error 0.83; rig geometry: RMS ratio 1.22).
@@ -714,13 +716,21 @@ def search_profiles(
             np.sum(weights * np.array([c.distance_nm**2 for c in candidates_out])) / weights.sum()
         )
     )
-    ambiguous = any(c.delta_chi2 < ambiguity_delta_chi2 for c in candidates_out[1:])
+    # A basin that differs by a fraction of a nanometre is the same answer, not an ambiguity.
+    ambiguous = any(
+        c.delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
+        for c in candidates_out[1:]
+    )
     covariance = final.covariance()
     mapping, local_rms = _report(exact, family, final.x, covariance, pixel_range, origin)
     stated = math.hypot(LOCAL_SIGMA_SCALE * local_rms, spread_nm)
     warnings: list[str] = []
     if ambiguous:
-        other = candidates_out[1]
+        other = next(
+            c
+            for c in candidates_out[1:]
+            if c.delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
+        )
         warnings.append(
             f"the mapping is ambiguous: a second basin {other.distance_nm:.1f} nm away (RMS) fits "
             f"almost as well (tempered Δχ² {other.delta_chi2:.1f} < {ambiguity_delta_chi2:g}); both "
