@@ -155,6 +155,19 @@ class SpectrumReading:
     bandwidth_nm: float | None = None
 
 
+@dataclass(frozen=True, eq=False)
+class DarkReading:
+    """Dark spectra measured with the light off, one per integration time.
+
+    ``counts`` has shape ``(len(integration_ms), n_pixels)``: raw counts averaged over the scans, on
+    the instrument's pixel wavelengths ``wavelength_nm`` (shape ``(n_pixels,)``, increasing).
+    """
+
+    wavelength_nm: NDArray[np.float64]
+    integration_ms: tuple[float, ...]
+    counts: NDArray[np.float64]
+
+
 @dataclass(frozen=True)
 class CapturedFile:
     """A frame downloaded from the camera to ``path``; ``camera_path`` is where it was on the camera."""
@@ -224,6 +237,17 @@ class Spectrometer(Protocol):
     def measure(self) -> SpectrumReading: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class DarkCorrecting(Protocol):
+    """A spectrometer that subtracts a dark of its own measuring (an Ocean Optics spectrometer).
+
+    The rig calls :meth:`measure_dark` with every lamp off, after setting the exposure and before
+    the first :meth:`Spectrometer.measure`.
+    """
+
+    def measure_dark(self) -> DarkReading: ...
 
 
 @runtime_checkable

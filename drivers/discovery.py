@@ -1,4 +1,5 @@
-"""What is plugged in, for ``rig devices``: serial ports, HID relay boards and gphoto2 cameras.
+"""What is plugged in, for ``rig devices``: serial ports, HID relay boards, Ocean Optics
+spectrometers (python-seabreeze) and gphoto2 cameras.
 
 Each device comes with the YAML snippet of a ``devices:`` entry that uses it (``kind`` plus the
 port, serial or model that selects it). Every source is optional and failure-proof: a missing USB
@@ -18,6 +19,7 @@ import yaml
 from drivers.base import DeviceError
 from drivers.camera.detect import GphotoModule, list_cameras, load_gphoto2
 from drivers.relays.hid_usbrelay import find_hid_relays
+from drivers.spectrometer.ocean import find_ocean_spectrometers
 
 __all__ = [
     "SERIAL_KIND_HINTS",
@@ -27,7 +29,7 @@ __all__ = [
     "render_text",
 ]
 
-DeviceKind = Literal["serial_port", "hid_relay", "camera"]
+DeviceKind = Literal["serial_port", "hid_relay", "ocean_spectrometer", "camera"]
 
 SERIAL_KIND_HINTS: dict[tuple[int, int | None], tuple[str, str]] = {
     (0x1A86, 0x7523): ("lcus", "CH340 USB-serial: LCUS relay boards use it (so do many adapters)"),
@@ -47,7 +49,7 @@ class DiscoveredDevice:
     Attributes
     ----------
     kind
-        ``serial_port``, ``hid_relay`` or ``camera``.
+        ``serial_port``, ``hid_relay``, ``ocean_spectrometer`` or ``camera``.
     name
         What it is, as far as the bus tells (model, product, description).
     address
@@ -152,6 +154,29 @@ def _relay_devices(backend: Any, timeout_s: float) -> tuple[list[DiscoveredDevic
     return devices, [f"skipped USB device: {reason}" for reason in skipped]
 
 
+def _ocean_devices(backend: Any) -> tuple[list[DiscoveredDevice], list[str]]:
+    found, skipped = find_ocean_spectrometers(backend=backend)
+    devices = [
+        DiscoveredDevice(
+            kind="ocean_spectrometer",
+            name=f"Ocean {info.model}",
+            address=info.serial,
+            details={"port": info.port, "vendor_id": "0x2457"},
+            config_snippet=_snippet(
+                {
+                    "kind": "seabreeze",
+                    "serial": info.serial,
+                    "calibration_file": f"calibration-{info.serial}.csv",
+                },
+                f"Ocean {info.model} on {info.port}; its relative irradiance calibration: the "
+                "instrument's, or `rig calibrate-spectrometer --lamp A` against a known lamp",
+            ),
+        )
+        for info in found
+    ]
+    return devices, [f"skipped Ocean spectrometer: {reason}" for reason in skipped]
+
+
 def _camera_devices(gp: GphotoModule, timeout_s: float) -> list[DiscoveredDevice]:
     return [
         DiscoveredDevice(
@@ -180,20 +205,21 @@ def list_devices(
     gphoto2_module: GphotoModule | None = None,
     include_serial: bool = True,
     include_usb_relays: bool = True,
+    include_ocean: bool = True,
     include_cameras: bool = True,
     timeout_s: float = 5.0,
 ) -> DiscoveryReport:
-    """Find the serial ports, HID relay boards and cameras present.
+    """Find the serial ports, HID relay boards, Ocean spectrometers and cameras present.
 
     Parameters
     ----------
     serial_ports
         Returns pyserial ``ListPortInfo``-like objects (default ``list_ports.comports``).
     usb_backend
-        pyusb backend for the relay search (default: pyusb's choice, i.e. libusb).
+        pyusb backend for the relay and Ocean searches (default: pyusb's choice, i.e. libusb).
     gphoto2_module
         The ``gphoto2`` module (default: import python-gphoto2).
-    include_serial, include_usb_relays, include_cameras
+    include_serial, include_usb_relays, include_ocean, include_cameras
         Which sources to search.
     timeout_s
         Deadline of each USB control transfer and of camera autodetection.
@@ -205,13 +231,22 @@ def list_devices(
             devices += _serial_devices((serial_ports or _default_serial_ports)())
         except (OSError, ImportError) as exc:
             notes.append(f"serial ports: could not list them ({exc})")
+    usb_problems: dict[str, list[str]] = {}
     if include_usb_relays:
         try:
             relays, skipped = _relay_devices(usb_backend, timeout_s)
             devices += relays
             notes += skipped
         except DeviceError as exc:
-            notes.append(f"HID relay boards: {exc.message}")
+            usb_problems.setdefault(exc.message, []).append("HID relay boards")
+    if include_ocean:
+        try:
+            spectrometers, skipped = _ocean_devices(usb_backend)
+            devices += spectrometers
+            notes += skipped
+        except DeviceError as exc:
+            usb_problems.setdefault(exc.message, []).append("Ocean spectrometers")
+    notes += [f"{' and '.join(sources)}: {problem}" for problem, sources in usb_problems.items()]
     if include_cameras:
         try:
             gp = gphoto2_module if gphoto2_module is not None else load_gphoto2()
@@ -228,6 +263,7 @@ def render_text(report: DiscoveryReport) -> str:
     titles: dict[DeviceKind, str] = {
         "serial_port": "Serial ports",
         "hid_relay": "HID relay boards",
+        "ocean_spectrometer": "Ocean spectrometers (seabreeze)",
         "camera": "Cameras (gphoto2)",
     }
     lines: list[str] = []

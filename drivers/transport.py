@@ -25,8 +25,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-import serial
-
 from drivers.base import (
     DeviceBusy,
     DeviceNotFound,
@@ -37,15 +35,22 @@ from drivers.base import (
     TranscriptEntry,
     TranscriptSink,
 )
+from drivers.libraries import pyserial
 from drivers.lifecycle import ClosesOnExit
 
 try:
     import termios
 except ImportError:  # Windows
-    _PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError)
+    _OS_PORT_ERRORS: tuple[type[BaseException], ...] = (OSError,)
 else:
     # pyserial lets termios.error (not an OSError) escape from flush() on a vanished device.
-    _PORT_ERRORS = (serial.SerialException, OSError, termios.error)
+    _OS_PORT_ERRORS = (OSError, termios.error)
+
+
+def _port_errors() -> tuple[type[BaseException], ...]:
+    """What a failing port raises (pyserial is imported by then: a transport has a port)."""
+    return (pyserial().SerialException, *_OS_PORT_ERRORS)
+
 
 #: A reply longer than this without its terminator is treated as garbage, not waited on.
 DEFAULT_MAX_REPLY_BYTES = 1 << 16
@@ -318,7 +323,7 @@ class SerialTransport(ClosesOnExit):
             else:
                 self._port.write(data)
                 self._port.flush()
-        except serial.SerialTimeoutException as exc:
+        except pyserial().SerialTimeoutException as exc:
             self.record_event(f"write timeout: {exc}")
             raise DeviceTimeout(
                 self._device,
@@ -327,7 +332,7 @@ class SerialTransport(ClosesOnExit):
                 command=data,
                 timeout_s=float(self._port.write_timeout or 0.0),
             ) from exc
-        except _PORT_ERRORS as exc:
+        except _port_errors() as exc:
             raise self._disconnected("write", exc) from exc
         finally:
             self._last_write_end = self._clock()
@@ -339,7 +344,7 @@ class SerialTransport(ClosesOnExit):
         try:
             self._port.timeout = wait_s
             chunk = self._port.read(max(1, self._port.in_waiting))
-        except _PORT_ERRORS as exc:
+        except _port_errors() as exc:
             raise self._disconnected("read", exc) from exc
         self._pending.extend(chunk)
 
@@ -431,7 +436,7 @@ class SerialTransport(ClosesOnExit):
                 self._port.timeout = 0
                 stale += self._port.read(waiting)
             self._port.reset_input_buffer()
-        except _PORT_ERRORS as exc:
+        except _port_errors() as exc:
             raise self._disconnected("input flush", exc) from exc
         if stale:
             self._record("rx", stale)
@@ -447,7 +452,7 @@ class SerialTransport(ClosesOnExit):
         self._closed = True
         try:
             self._port.close()
-        except _PORT_ERRORS as exc:
+        except _port_errors() as exc:
             self.record_event(f"close failed: {exc}")
         self.record_event(f"closed {self.port_name}")
 
@@ -493,6 +498,7 @@ def open_serial(
     DeviceBusy
         Another program holds the port.
     """
+    serial = pyserial()
     try:
         handle = serial.serial_for_url(
             port,

@@ -1,9 +1,14 @@
 """A capture from configuration to finished session: check limits, open the station, run the plan.
 
-This is what ``rig capture`` does, as a function: limits are checked before anything is opened, the
-session directory is created before the devices are opened (so the transcripts of a failed opening
-are kept), and a station that cannot be opened still leaves a valid log with a start and a stop
-record saying why.
+This is what ``rig capture`` does, as a function. Limits are checked before anything is opened.
+The signal handlers are installed next, so a Ctrl-C or SIGTERM at any later moment ends in a clean
+stop; then every device is opened (all of them are tried, and every failure is named at once), and
+only when they all are is the session directory created: a device that cannot be opened, or a signal
+while they are being opened, leaves no session behind — the relays that did open are switched off
+and read back, and the error says whether the lamps are confirmed off. What the devices exchanged
+while opening is written to the session's transcripts once it exists
+(:class:`rig.session.PendingTranscripts`). ``rig resume`` continues a session the same way
+(:func:`run_on_station`), touching it only once its devices are open.
 """
 
 from __future__ import annotations
@@ -12,52 +17,38 @@ import contextlib
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 from drivers.base import DeviceError
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport, ModelledBench, check_limits, walk
-from rig.errors import LimitsExceeded, RigError
-from rig.interrupts import InterruptController
+from rig.errors import LimitsExceeded, OpeningInterrupted, StationOpenFailed
+from rig.interrupts import HaltRequested, InterruptController
 from rig.plan import Plan, StandardCaptureArgs, standard_capture
 from rig.progress import ProgressReporter
-from rig.records import PlanInfo, StartRecord, StopRecord
-from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts, error_info, software_info
-from rig.session import SessionWriter
-from rig.station import StationBuilder, resolve_builder, station_kind
+from rig.records import PlanInfo
+from rig.runner import RetryPolicy, Runner, RunOutcome, StepTimeouts, switch_off_now
+from rig.session import PendingTranscripts, SessionWriter
+from rig.station import Station, StationBuilder, resolve_builder, station_kind
 
 PLAN_NAME = "standard_capture"
 
+SessionOpener = Callable[[], SessionWriter]
+"""Creates (a capture) or continues (a resume) the session, once the devices are open."""
 
-def _record_unopened_station(
-    session: SessionWriter, plan: PlanInfo, config: dict[str, object], error: Exception
-) -> None:
-    """Start and stop records for a session whose devices could not be opened."""
-    with contextlib.suppress(RigError):
-        session.write(
-            StartRecord,
-            session_id=session.session_id,
-            wall_time=datetime.now(UTC),
-            software=software_info(),
-            plan=plan,
-            config=config,
-            devices={},
-            clock="none",
-        )
-        session.close_transcripts()
-        info = error_info(error)
-        session.write(
-            StopRecord,
-            exit_status="fail",
-            reason=info.reason,
-            message=f"the devices could not be opened: {error}",
-            wall_time=datetime.now(UTC),
-            t_s=0.0,
-            error=info,
-            lamps_off=False,
-        )
-    session.close()
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run is done: progress, signal handling, retries (``None``: the runner's defaults), and
+    the station builder (callers resolve it before they create or touch the session).
+    ``on_session`` is called with the session writer as soon as it exists (replay ends a killed
+    run's replay where the recording ends)."""
+
+    progress: ProgressReporter | None
+    interrupts: InterruptController | None
+    retry: RetryPolicy | None
+    builder: StationBuilder
+    on_session: Callable[[SessionWriter], None] | None = None
 
 
 def run_capture(
@@ -86,6 +77,8 @@ def run_capture(
     ------
     LimitsExceeded
         Before anything is opened, when the configuration violates the declared limits.
+    rig.errors.StationOpenFailed, rig.errors.OpeningInterrupted
+        The devices could not be opened, or a signal came while they were; no session exists.
     rig.errors.SessionWriteError
         When the session directory cannot be created.
     """
@@ -96,11 +89,10 @@ def run_capture(
     plan_info = PlanInfo(name=PLAN_NAME, args=args.model_dump(mode="json"))
     estimate = walk(standard_capture(args), ModelledBench(config))
     builder = builder or resolve_builder(station_kind(config))  # before anything is created
-    interrupts = interrupts or InterruptController()
-    session = SessionWriter.create(out_dir or config.output_dir, guard=interrupts.critical)
+    parent = out_dir or config.output_dir
     return run_on_station(
         config,
-        session,
+        functools.partial(SessionWriter.create, parent),
         standard_capture(args),
         plan_info,
         RunOptions(progress, interrupts, retry, builder),
@@ -108,20 +100,9 @@ def run_capture(
     )
 
 
-@dataclass(frozen=True)
-class RunOptions:
-    """How a run is done: progress, signal handling, retries (``None``: the runner's defaults), and
-    the station builder (callers resolve it before they create or touch the session)."""
-
-    progress: ProgressReporter | None
-    interrupts: InterruptController | None
-    retry: RetryPolicy | None
-    builder: StationBuilder
-
-
 def run_on_station(
     config: RigConfig,
-    session: SessionWriter,
+    open_session: SessionOpener,
     plan: Plan,
     plan_info: PlanInfo,
     options: RunOptions,
@@ -129,27 +110,97 @@ def run_on_station(
     estimate: DryRunReport | None = None,
     after_start: Callable[[Runner], None] | None = None,
 ) -> RunOutcome:
-    """Open the station recording into ``session``, run ``plan`` on it, and close it.
+    """Open the station under the signal handlers, then the session, run ``plan``, close.
 
-    A station that cannot be opened still leaves a start and a stop record saying why.
     ``after_start`` is called with the runner right after the run's start record.
+
+    Raises
+    ------
+    rig.errors.StationOpenFailed, rig.errors.OpeningInterrupted
+        Opening failed or was interrupted; ``open_session`` was not called.
+    rig.errors.SessionWriteError, rig.errors.SessionFormatError
+        ``open_session`` failed; the devices were switched off and closed.
     """
-    config_snapshot = config.model_dump(mode="json")
+    interrupts = options.interrupts or InterruptController()
+    with interrupts.installed():
+        transcripts = PendingTranscripts()
+        station = open_station(config, options.builder, transcripts, interrupts)
+        try:
+            session = open_session()
+            session.guard = interrupts.critical
+            transcripts.attach(session)
+        except BaseException:
+            release_station(station, config)
+            raise
+        if options.on_session is not None:
+            options.on_session(session)
+        try:
+            runner = Runner(
+                station,
+                session,
+                timeouts=StepTimeouts.from_config(config),
+                retry=options.retry,
+                progress=options.progress,
+                interrupts=interrupts,
+            )
+            hook = None if after_start is None else functools.partial(after_start, runner)
+            return runner.run(
+                plan, plan_info, config.model_dump(mode="json"), estimate, after_start=hook
+            )
+        finally:
+            station.close()  # the runner has closed it already, unless it failed to start
+
+
+def open_station(
+    config: RigConfig,
+    builder: StationBuilder,
+    transcripts: PendingTranscripts,
+    interrupts: InterruptController,
+) -> Station:
+    """Open every device with ``builder``, under the signal handlers.
+
+    A second signal is held until the builder returns (the devices it opened are then switched
+    off and closed, which a builder cut short could not do); after the first, the opened station
+    is switched off and closed at once.
+
+    Raises
+    ------
+    rig.errors.StationOpenFailed
+        A device could not be opened (a builder that names its failures raises it itself).
+    rig.errors.OpeningInterrupted
+        A signal arrived while the devices were being opened.
+    """
+    station: Station | None = None
     try:
-        station = options.builder(config, session.transcript_sink)
-    except (DeviceError, RigError) as exc:
-        _record_unopened_station(session, plan_info, config_snapshot, exc)
+        with interrupts.critical():
+            station = builder(config, transcripts)
+    except HaltRequested as exc:
+        lamps_off = release_station(station, config) if station is not None else False
+        raise OpeningInterrupted(
+            interrupts.stop_requested or exc.signal_name, lamps_off=lamps_off
+        ) from None
+    except DeviceError as exc:
+        signal_name = interrupts.stop_requested
+        if signal_name is not None:
+            raise OpeningInterrupted(signal_name, lamps_off=False) from None
+        raise StationOpenFailed({"station": exc}, lamps_off=False) from exc
+    except StationOpenFailed as exc:
+        signal_name = interrupts.stop_requested
+        if signal_name is not None:
+            raise OpeningInterrupted(signal_name, lamps_off=exc.lamps_off) from None
         raise
+    signal_name = interrupts.stop_requested
+    if signal_name is not None:
+        lamps_off = release_station(station, config)
+        raise OpeningInterrupted(signal_name, lamps_off=lamps_off)
+    return station
+
+
+def release_station(station: Station, config: RigConfig) -> bool:
+    """Switch every lamp of an opened station off, read the board back, close the station;
+    return whether the lamps are confirmed off. Nothing of it may raise."""
     try:
-        runner = Runner(
-            station,
-            session,
-            timeouts=StepTimeouts.from_config(config),
-            retry=options.retry,
-            progress=options.progress,
-            interrupts=options.interrupts,
-        )
-        hook = None if after_start is None else functools.partial(after_start, runner)
-        return runner.run(plan, plan_info, config_snapshot, estimate, after_start=hook)
+        return switch_off_now(station.relays, StepTimeouts.from_config(config).relays_s)
     finally:
-        station.close()  # the runner has closed it already, unless it failed to start
+        with contextlib.suppress(Exception):
+            station.close()

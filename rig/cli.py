@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -16,12 +17,13 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.exits import say_interrupted
 from calib.cli.options import EnsembleOption, EpochsOption
 from calib.core.errors import CalibError, InputError
 from calib.core.metrics import format_re
 from calib.core.software import current_software
 from drivers.base import DeviceError
-from rig.errors import RigError
+from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
 
 if TYPE_CHECKING:
     from rig.config import RigConfig
@@ -60,6 +62,80 @@ def _capture_progress(config: RigConfig, quiet: bool) -> ProgressReporter:
 def version() -> None:
     """Print the software version."""
     typer.echo(current_software().version)
+
+
+class SpectrometerKind(StrEnum):
+    twin = "twin"
+    pr655 = "pr655"
+    pr670 = "pr670"
+    cs2000 = "cs2000"
+    seabreeze = "seabreeze"
+    argyll = "argyll"
+    files = "files"
+
+
+class RelayKind(StrEnum):
+    twin = "twin"
+    hid_usbrelay = "hid_usbrelay"
+    lcus = "lcus"
+    numato = "numato"
+
+
+class CameraKind(StrEnum):
+    twin = "twin"
+    gphoto2 = "gphoto2"
+
+
+@app.command()
+def init(
+    twin: Annotated[
+        bool,
+        typer.Option(
+            "--twin",
+            help="The digital twin for every device not named (the default when none is named).",
+        ),
+    ] = False,
+    spectrometer: Annotated[
+        SpectrometerKind | None, typer.Option("--spectrometer", help="The spectrometer's kind.")
+    ] = None,
+    relays: Annotated[
+        RelayKind | None, typer.Option("--relays", help="The relay board's kind.")
+    ] = None,
+    camera: Annotated[
+        CameraKind | None, typer.Option("--camera", help="The camera's kind.")
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="The file to write.")] = DEFAULT_CONFIG,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing file.")] = False,
+) -> None:
+    """Write a commented configuration: real instruments (--spectrometer, --relays, --camera; the
+    others PR-655, HID relays, gphoto2) or the digital twin (--twin), each device on its own."""
+    from rig.init_config import HARDWARE_DEFAULTS, TWIN, write_new_config
+
+    named = {"spectrometer": spectrometer, "relays": relays, "camera": camera}
+    everything_twin = twin or all(kind is None for kind in named.values())
+    kinds = {
+        role: kind.value
+        if kind is not None
+        else TWIN
+        if everything_twin
+        else HARDWARE_DEFAULTS[role]
+        for role, kind in named.items()
+    }
+    try:
+        write_new_config(out, force=force, **kinds)
+    except FileExistsError as exc:
+        raise InputError(str(exc), source="--out") from None
+    typer.echo(
+        f"wrote {out}: spectrometer {kinds['spectrometer']}, relays {kinds['relays']}, "
+        f"camera {kinds['camera']}"
+    )
+    if all(kind == TWIN for kind in kinds.values()):
+        typer.echo(f"next: rig demo -c {out}   (capture on the twin, estimate, report)")
+    else:
+        typer.echo(
+            f"next: edit the ports and lamps in {out} (`rig devices` lists what is plugged in), "
+            f"then rig dry-run -c {out} and rig capture -c {out}"
+        )
 
 
 @app.command()
@@ -101,29 +177,23 @@ def resume(
         bool, typer.Option("--quiet", "-q", help="No progress bar; only the result.")
     ] = False,
     config: Annotated[
-        Path | None,
+        Path,
         typer.Option(
             "--config",
             "-c",
-            help="A configuration to resume with instead of the recorded one; it may change only "
-            "how the devices are reached (ports, serials, timeouts).",
+            help="The rig's configuration: the devices are opened as it says, and the session's "
+            "recorded configuration must match it except in how the devices are reached (ports, "
+            "serials, timeouts). The session's own snapshot is never used to open anything.",
         ),
-    ] = None,
+    ] = DEFAULT_CONFIG,
 ) -> None:
     """Continue an interrupted or failed session in a new run: lamps off first, devices set up again,
     every file verified, the lit lamp warmed up and measured again, done steps skipped."""
     from rig.config import load_config
-    from rig.resume import recorded_config, run_resume
+    from rig.resume import run_resume
 
-    # The recorded configuration drives the progress display: a new one may only change how the
-    # devices are reached, which run_resume checks before it touches the log.
-    _report_run(
-        run_resume(
-            session,
-            progress=_capture_progress(recorded_config(session), quiet),
-            config=None if config is None else load_config(config),
-        )
-    )
+    rig_config = load_config(config)
+    _report_run(run_resume(session, rig_config, progress=_capture_progress(rig_config, quiet)))
 
 
 @app.command("dry-run")
@@ -249,6 +319,9 @@ def estimate(
     quiet: Annotated[
         bool, typer.Option("--quiet", "-q", help="No progress bar; only where the report is.")
     ] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Overwrite the results of an earlier estimate in --out.")
+    ] = False,
 ) -> None:
     """Estimate the camera from a session (every file verified against the log) and write the report."""
     from calib.methods.multilamp import weight_rule_option
@@ -267,6 +340,7 @@ def estimate(
             data_dir=data_dir,
             command_line=command_line,
             settings=settings,
+            force=force,
         )
     else:
         with RichFrameProgress(sys.stderr) as progress:
@@ -278,6 +352,7 @@ def estimate(
                 progress=progress,
                 command_line=command_line,
                 settings=settings,
+                force=force,
             )
     result = outcome.estimate.result
     for warning in outcome.estimate.warnings:
@@ -413,7 +488,10 @@ def replay(
 def devices(
     serial: Annotated[bool, typer.Option("--serial/--no-serial", help="List serial ports.")] = True,
     usb: Annotated[
-        bool, typer.Option("--usb/--no-usb", help="Probe HID relay boards on the USB bus.")
+        bool,
+        typer.Option(
+            "--usb/--no-usb", help="Probe HID relay boards and Ocean spectrometers on the USB bus."
+        ),
     ] = True,
     cameras: Annotated[
         bool, typer.Option("--cameras/--no-cameras", help="Autodetect gphoto2 cameras.")
@@ -425,16 +503,63 @@ def devices(
         ),
     ] = 5.0,
 ) -> None:
-    """List the serial ports, HID relay boards and cameras present, with config snippets for each."""
+    """List the serial ports, HID relay boards, Ocean spectrometers and cameras present, with
+    config snippets for each."""
     from drivers.discovery import list_devices, render_text
 
     report = list_devices(
         include_serial=serial,
         include_usb_relays=usb,
+        include_ocean=usb,
         include_cameras=cameras,
         timeout_s=timeout_s,
     )
     typer.echo(render_text(report), nl=False)
+
+
+@app.command("calibrate-spectrometer")
+def calibrate_spectrometer_command(
+    lamp: Annotated[
+        str,
+        typer.Option(
+            "--lamp",
+            help="The reference lamp's known spectrum: a colour-science illuminant name (A for a "
+            "tungsten-halogen lamp) or a CSV (wavelength_nm, value).",
+        ),
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The calibration file to write.")],
+    config: ConfigOption = DEFAULT_CONFIG,
+    channel: Annotated[
+        int | None,
+        typer.Option(
+            "--channel", min=1, help="Relay channel of the lamp (default: the lamp of that name)."
+        ),
+    ] = None,
+    warmup_s: Annotated[
+        float, typer.Option("--warmup", min=0.0, help="Seconds the lamp burns before measuring.")
+    ] = 120.0,
+    repeats: Annotated[int, typer.Option("--repeats", min=1, help="Spectra averaged.")] = 3,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing file.")] = False,
+) -> None:
+    """Make an Ocean spectrometer's relative irradiance calibration against a lamp of known
+    spectrum (the file devices.spectrometer.calibration_file loads)."""
+    from calib.core.lamp_specs import lamp_from_spec
+    from rig.calibrate import calibrate_spectrometer
+    from rig.config import load_config
+
+    if out.exists() and not force:
+        raise InputError(f"{out} exists; pass --force to replace it", source="--out")
+    rig_config = load_config(config)
+    known = lamp_from_spec(lamp)
+    outcome = calibrate_spectrometer(
+        rig_config, known, out, channel=channel, warmup_s=warmup_s, repeats=repeats, source=lamp
+    )
+    typer.echo(f"calibration: {outcome.path}")
+    typer.echo(
+        f"range: {outcome.wavelength_nm[0]:g}-{outcome.wavelength_nm[-1]:g} nm, integration "
+        f"{outcome.integration_ms:g} ms, spread between spectra {outcome.spread:.2%}"
+    )
+    typer.echo(f"use it: devices.spectrometer.calibration_file: {outcome.path}")
 
 
 data_app = typer.Typer(
@@ -535,18 +660,42 @@ def _fail(message: str, code: int) -> None:
     sys.exit(code)
 
 
+def _warn_lamps(exc: BaseException) -> None:
+    """After an opening that failed or was interrupted: say when the lamps are not confirmed off."""
+    if isinstance(exc, StationOpenFailed | OpeningInterrupted) and not exc.lamps_off:
+        print(
+            "rig: warning: the lamps could not be confirmed off (the relay board did not open or "
+            "answer): check them by hand",
+            file=sys.stderr,
+        )
+
+
 def main() -> None:
     """Console entry point: errors become one line each on stderr and an exit code."""
     try:
         app(standalone_mode=True)
+    except SystemExit as exit_:
+        say_interrupted(exit_, "rig")
+        raise
+    except KeyboardInterrupt:
+        print("rig: interrupted", file=sys.stderr)
+        sys.exit(130)
     except InputError as exc:
         _fail(str(exc), 2)
+    except OpeningInterrupted as exc:
+        _warn_lamps(exc)
+        _fail(f"{exc} [{exc.reason}]", exc.signal_exit_code)
     except RigError as exc:
+        _warn_lamps(exc)
         _fail(f"{exc} [{exc.reason}]", exc.exit_code)
     except DeviceError as exc:
         _fail(f"{exc} [{exc.reason}]", 1)
     except CalibError as exc:
         _fail(str(exc), 1)
+    except OSError as exc:
+        if os.environ.get("RIG_DEBUG"):
+            raise
+        _fail(f"cannot read or write a file: {exc}", 1)
     except Exception as exc:
         if os.environ.get("RIG_DEBUG"):
             raise

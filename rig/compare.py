@@ -45,7 +45,7 @@ from rig.demo import related_camera_names
 from rig.errors import SessionFormatError
 from rig.estimate import session_lamps
 from rig.session import read_session
-from rig.twin import bench_module
+from rig.twin import TwinTruthRecord, digital_twin
 
 MARKDOWN_FILE = "compare.md"
 CSV_FILE = "compare.csv"
@@ -63,20 +63,20 @@ class CheckedSession:
     lamps, known, warnings
         :func:`rig.estimate.session_lamps`' inputs for the pipeline, verified files and warnings.
     truth
-        The twin's ``mocks.bench.TwinTruth``.
+        The twin's truth (:class:`rig.twin.TwinTruthRecord`).
     """
 
     path: Path
     lamps: list[LampImages]
     known: list[InputFile]
     warnings: list[str]
-    truth: Any
+    truth: TwinTruthRecord
 
 
-def _twin_truth(path: Path, config: Mapping[str, Any]) -> Any:
+def _twin_truth(path: Path, config: Mapping[str, Any]) -> TwinTruthRecord:
     """The session's ``twin-truth.json``, refused unless it is the truth of this session's twin."""
-    bench = bench_module()
-    truth_path = path / bench.TRUTH_FILE_NAME
+    twin = digital_twin()
+    truth_path = path / twin.truth_file_name
     try:
         mode = truth_path.lstat().st_mode
     except FileNotFoundError:
@@ -88,8 +88,8 @@ def _twin_truth(path: Path, config: Mapping[str, Any]) -> Any:
     if not stat.S_ISREG(mode):
         raise SessionFormatError(f"{truth_path}: not a regular file")
     try:
-        truth = bench.TwinTruth.read(truth_path)
-    except bench.TruthFormatError as exc:
+        truth = twin.read_truth(truth_path)
+    except twin.truth_error as exc:
         raise SessionFormatError(str(exc)) from None
     devices = config.get("devices")
     camera = devices.get("camera") if isinstance(devices, Mapping) else None

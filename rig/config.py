@@ -7,13 +7,16 @@ the value found and what is allowed, with the closest valid key suggested for a 
 
 Exposure times may be written as seconds (``0.01``), fractions (``"1/125"``) or with a unit
 (``"2.5s"``, ``"40ms"``). Relative paths (``output_dir``, the twin's ``data_dir`` and
-``state_file``) are resolved against the directory of the configuration file, so a rig behaves the
+``state_file``, a spectrometer's ``calibration_file`` and ``directory``) are resolved against the directory of the configuration file, so a rig behaves the
 same whatever the working directory.
 
-The device ``kind`` selects a driver: ``pr655``/``pr670``/``cs2000`` spectroradiometers, ``lcus``/
-``numato``/``hid_usbrelay`` relay boards, a ``gphoto2`` camera, or ``twin`` for the simulated bench
-(all three devices must then be ``twin``). :mod:`rig.station` turns a :class:`DevicesConfig` into
-device objects.
+The device ``kind`` selects a driver: ``pr655``/``pr670``/``cs2000`` spectroradiometers on a serial
+port, an Ocean Optics spectrometer through python-seabreeze (``seabreeze``), an X-Rite instrument
+through ArgyllCMS's ``spotread`` (``argyll``), measured spectrum files (``files``); ``lcus``/
+``numato``/``hid_usbrelay`` relay boards; a ``gphoto2`` camera; or ``twin`` for the simulated bench.
+Each device may be twin or real on its own (a real camera with twin lamps and spectrometer), except
+that a twin spectrometer or camera sees only the twin's lamps, so it needs twin relays.
+:mod:`rig.station` turns a :class:`DevicesConfig` into device objects.
 """
 
 from __future__ import annotations
@@ -90,7 +93,10 @@ class StrictModel(BaseModel):
 # --------------------------------------------------------------------------------------- devices
 
 SpectrometerModel = Literal["pr655", "pr670", "cs2000"]
+EmulatedSpectrometer = Literal["pr655", "pr670", "cs2000", "seabreeze", "argyll"]
+OceanModel = Literal["USB2000PLUS", "STS"]
 RelayModel = Literal["hid_usbrelay", "lcus", "numato"]
+CorrectionChoice = Literal["auto", "on", "off"]
 
 
 MEASURE_TIMEOUT_HELP = (
@@ -111,18 +117,118 @@ class SerialSpectrometerConfig(StrictModel):
     measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
 
 
-class TwinSpectrometerConfig(StrictModel):
-    """The simulated bench's spectrometer: the real driver talking to the byte-level emulator.
+class SeabreezeSpectrometerConfig(StrictModel):
+    """An Ocean Optics / Ocean Insight USB spectrometer through python-seabreeze (pyseabreeze).
 
-    ``time_scale`` is the fraction of the instrument's modelled measuring time (seconds for an
-    adaptive exposure) that passes in wall time; the twin's clock does not wait for it.
+    ``calibration_file`` is its relative irradiance calibration: a CSV with a ``wavelength_nm``
+    column and a ``factor`` column (relative irradiance per count per ms), e.g. the instrument's
+    calibration or one made against a lamp of known spectrum. Without it the rig refuses to measure
+    unless ``allow_uncalibrated`` is set (raw counts carry the spectrometer's own spectral response
+    into the estimate). The integration time is ranged automatically between
+    ``integration_min_ms`` and ``integration_max_ms`` (``spectrum.exposure_ms`` fixes it instead); a
+    dark spectrum is measured with every lamp off before the first lamp.
+    """
+
+    kind: Literal["seabreeze"]
+    serial: str | None = Field(None, min_length=1, description="serial number; null: the only one")
+    calibration_file: Path | None = None
+    allow_uncalibrated: bool = False
+    integration_min_ms: float = Field(1.0, gt=0, le=60000)
+    integration_max_ms: float = Field(5000.0, gt=0, le=600000)
+    averages: int = Field(3, ge=1, le=1000, description="scans averaged per spectrum and dark")
+    electric_dark: CorrectionChoice = "auto"
+    nonlinearity: CorrectionChoice = "auto"
+    bandwidth_nm: float | None = Field(
+        None, gt=0, le=100, description="optical resolution (FWHM) of the slit and grating"
+    )
+    timeout_s: float = Field(5.0, gt=0, le=600, description="USB deadline beyond a scan's time")
+    measure_timeout_s: float | None = Field(None, gt=0, le=3600, description=MEASURE_TIMEOUT_HELP)
+
+    @model_validator(mode="after")
+    def _calibrated_and_ordered(self) -> SeabreezeSpectrometerConfig:
+        if self.integration_min_ms >= self.integration_max_ms:
+            raise ValueError(
+                f"integration_min_ms = {self.integration_min_ms:g} is not below "
+                f"integration_max_ms = {self.integration_max_ms:g}"
+            )
+        if self.calibration_file is None and not self.allow_uncalibrated:
+            raise ValueError(
+                "calibration_file is missing: give the spectrometer's relative irradiance "
+                "calibration (CSV: wavelength_nm, factor), or set allow_uncalibrated: true to "
+                "record raw counts (not fit for estimating a camera)"
+            )
+        return self
+
+
+class ArgyllSpectrometerConfig(StrictModel):
+    """An instrument ArgyllCMS drives (X-Rite i1Pro, i1Studio, ColorMunki …) through ``spotread``
+    in ambient spectral mode (``spotread -a -s -N -O reading.sp``).
+
+    ``instrument`` is spotread's ``-c`` number (``spotread -?`` lists them); the instrument must
+    have been calibrated (``spotread -a -O``) with its ambient diffuser in place.
+    """
+
+    kind: Literal["argyll"]
+    executable: str = Field("spotread", min_length=1, description="spotread, or its full path")
+    instrument: int = Field(1, ge=1, le=32, description="spotread -c: which instrument")
+    high_resolution: bool = Field(False, description="spotread -H (3.3 nm, if the model has it)")
+    bandwidth_nm: float | None = Field(
+        None,
+        gt=0,
+        le=100,
+        description="optical resolution (FWHM); null: an i1Pro's, 25 nm (15 with -H)",
+    )
+    timeout_s: float = Field(60.0, gt=0, le=600, description="deadline of one spotread run")
+    measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
+
+
+SpectrumFileFormat = Literal["auto", "argyll", "csv", "ies", "xrite", "sekonic", "uprtek"]
+
+
+class FilesSpectrometerConfig(StrictModel):
+    """Spectra measured once, elsewhere: one file per lamp in ``directory``.
+
+    ``lamps`` maps every lamp name to its file: an ArgyllCMS CGATS ``.sp``, a CSV with a
+    ``wavelength_nm`` column and the values in the column ``column`` (default: the only other one;
+    ``# units:`` and ``# bandwidth_nm:`` comment lines say what it holds), an IES TM-27-14 ``.spdx``,
+    or an X-Rite, Sekonic or UPRtek export (``format``; ``auto`` goes by the suffix). ``units`` and
+    ``bandwidth_nm`` stand for files that do not say. A "measurement" returns the file of the lamp
+    that is lit (see :mod:`rig.spectrum_files`).
+    """
+
+    kind: Literal["files"]
+    directory: Path
+    lamps: dict[str, str] = Field(min_length=1)
+    format: SpectrumFileFormat = "auto"
+    column: str | None = Field(None, min_length=1)
+    units: str = Field("relative spectral power", min_length=1)
+    bandwidth_nm: float | None = Field(None, gt=0, le=100)
+    timeout_s: float = Field(5.0, gt=0, le=600)
+    measure_timeout_s: float | None = Field(None, gt=0, le=600)
+
+
+class TwinSpectrometerConfig(StrictModel):
+    """The simulated bench's spectrometer: the real driver talking to an emulator.
+
+    ``emulate`` picks the instrument: the PR-655/670 or CS-2000 firmware on a pty, an Ocean
+    spectrometer on an emulated USB bus (``seabreeze``; ``ocean_model`` USB2000+ or STS), or a fake
+    ``spotread`` (``argyll``). ``time_scale`` is the fraction of the instrument's modelled measuring
+    time that passes in wall time; the twin's clock does not wait for it. Sessions that differ only
+    in ``noise_draw`` differ only in the spectrometer's noise (its repeatability, measured).
     """
 
     kind: Literal["twin"]
-    emulate: SpectrometerModel = "pr655"
+    emulate: EmulatedSpectrometer = "pr655"
+    ocean_model: OceanModel = "USB2000PLUS"
     timeout_s: float = Field(35.0, gt=0, le=600)
     measure_timeout_s: float | None = Field(None, gt=0, le=600, description=MEASURE_TIMEOUT_HELP)
     time_scale: float = Field(0.001, gt=0, le=1)
+    noise_draw: int = Field(
+        0,
+        ge=0,
+        description="which draw of the spectrometer's noise (the rest of the twin unchanged)",
+    )
+    high_resolution: bool = Field(False, description="argyll: spotread -H (3.3 nm bands)")
 
 
 class LcusRelayConfig(StrictModel):
@@ -287,7 +393,12 @@ class TwinCameraConfig(StrictModel):
 
 
 SpectrometerConfig = Annotated[
-    SerialSpectrometerConfig | TwinSpectrometerConfig, Field(discriminator="kind")
+    SerialSpectrometerConfig
+    | SeabreezeSpectrometerConfig
+    | ArgyllSpectrometerConfig
+    | FilesSpectrometerConfig
+    | TwinSpectrometerConfig,
+    Field(discriminator="kind"),
 ]
 RelayConfig = Annotated[
     LcusRelayConfig | NumatoRelayConfig | HidRelayConfig | TwinRelayConfig,
@@ -304,25 +415,54 @@ class DevicesConfig(StrictModel):
     camera: CameraConfig
 
     @model_validator(mode="after")
-    def _twin_is_all_or_nothing(self) -> DevicesConfig:
-        kinds = {
-            "spectrometer": self.spectrometer.kind,
-            "relays": self.relays.kind,
-            "camera": self.camera.kind,
-        }
-        twins = sorted(role for role, kind in kinds.items() if kind == "twin")
-        if twins and len(twins) != len(kinds):
-            listed = ", ".join(f"{role} is {kind!r}" for role, kind in kinds.items())
+    def _twins_see_twin_lamps(self) -> DevicesConfig:
+        if self.relays.kind == "twin":
+            return self
+        blind = [
+            role
+            for role, kind in (
+                ("spectrometer", self.spectrometer.kind),
+                ("camera", self.camera.kind),
+            )
+            if kind == "twin"
+        ]
+        if blind:
             raise ValueError(
-                "the simulated bench ('twin') must be used for all three devices or none "
-                f"({listed})"
+                f"devices.{' and devices.'.join(blind)} {'is' if len(blind) == 1 else 'are'} "
+                f"'twin' but devices.relays is {self.relays.kind!r}: a twin spectrometer or camera "
+                "sees only the twin's lamps, so the relays must be 'twin' too (or make them real)"
             )
         return self
 
+    def twin_roles(self) -> tuple[str, ...]:
+        """The roles the digital twin plays (``()``: all real hardware)."""
+        return tuple(
+            role
+            for role, kind in (
+                ("spectrometer", self.spectrometer.kind),
+                ("relays", self.relays.kind),
+                ("camera", self.camera.kind),
+            )
+            if kind == "twin"
+        )
+
     @property
     def simulated(self) -> bool:
-        """Whether the devices are the digital twin."""
-        return self.spectrometer.kind == "twin"
+        """Whether any device is the digital twin."""
+        return bool(self.twin_roles())
+
+    @property
+    def spectrometer_model(self) -> str:
+        """The instrument the spectrometer is or emulates (``pr655``, ``seabreeze`` …)."""
+        spectrometer = self.spectrometer
+        if isinstance(spectrometer, TwinSpectrometerConfig):
+            return spectrometer.emulate
+        return spectrometer.kind
+
+    @property
+    def spectrometer_takes_dark(self) -> bool:
+        """Whether the spectrometer needs a dark spectrum measured with the lamps off."""
+        return self.spectrometer_model == "seabreeze"
 
 
 # ----------------------------------------------------------------------------------------- lamps
@@ -467,6 +607,34 @@ class RigConfig(StrictModel):
     dark_frames: int = Field(2, ge=0, le=50, description="dark frames per bracket exposure")
     dry_run: DryRunModel = DryRunModel()
 
+    @model_validator(mode="after")
+    def _every_lamp_has_its_file(self) -> RigConfig:
+        spectrometer = self.devices.spectrometer
+        if not isinstance(spectrometer, FilesSpectrometerConfig):
+            return self
+        names = [lamp.name for lamp in self.lamps]
+        missing = [name for name in names if name not in spectrometer.lamps]
+        unknown = [name for name in spectrometer.lamps if name not in names]
+        if missing or unknown:
+            parts = [f"no file for {', '.join(map(repr, missing))}"] if missing else []
+            if unknown:
+                parts.append(f"{', '.join(map(repr, unknown))} is not a lamp of lamps[]")
+            raise ValueError(
+                f"devices.spectrometer.lamps: {'; '.join(parts)} (lamps: {', '.join(names)})"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _exposure_is_the_spectrometers_to_choose(self) -> RigConfig:
+        model = self.devices.spectrometer_model
+        if model in ("argyll", "files") and self.spectrum.exposure_ms is not None:
+            who = "spotread chooses its own" if model == "argyll" else "files have no"
+            raise ValueError(
+                f"spectrum.exposure_ms = {self.spectrum.exposure_ms:g}: {who} integration "
+                f"time (devices.spectrometer is {model!r}); set it to null"
+            )
+        return self
+
     @field_validator("lamps")
     @classmethod
     def _lamp_names_are_unique(cls, lamps: list[LampConfig]) -> list[LampConfig]:
@@ -508,7 +676,18 @@ def parse_config(text: str, source: str = "<config>", base_dir: Path | None = No
         camera = camera.model_copy(update={"data_dir": base_dir / camera.data_dir})
     if isinstance(relays, TwinRelayConfig) and relays.state_file is not None:
         relays = relays.model_copy(update={"state_file": base_dir / relays.state_file})
-    devices = devices.model_copy(update={"camera": camera, "relays": relays})
+    spectrometer = devices.spectrometer
+    if isinstance(spectrometer, SeabreezeSpectrometerConfig) and spectrometer.calibration_file:
+        spectrometer = spectrometer.model_copy(
+            update={"calibration_file": base_dir / spectrometer.calibration_file}
+        )
+    if isinstance(spectrometer, FilesSpectrometerConfig):
+        spectrometer = spectrometer.model_copy(
+            update={"directory": base_dir / spectrometer.directory}
+        )
+    devices = devices.model_copy(
+        update={"camera": camera, "relays": relays, "spectrometer": spectrometer}
+    )
     return config.model_copy(update={"devices": devices})
 
 
@@ -519,7 +698,14 @@ def load_config(path: str | Path) -> RigConfig:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(
-            str(path), [ConfigIssue("", "file not found; pass --config PATH")]
+            str(path),
+            [
+                ConfigIssue(
+                    "",
+                    "file not found; pass --config PATH, or write one with `rig init` "
+                    "(`rig init --twin` for the digital twin)",
+                )
+            ],
         ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(str(path), [ConfigIssue("", f"cannot read the file: {exc}")]) from None

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import importlib
 import json
 import time
 from collections.abc import Callable, Mapping
@@ -29,10 +28,10 @@ from calib.core.metrics import relative_error
 from calib.model.bases import default_camera_basis
 from rig.capture import run_capture
 from rig.config import RigConfig
-from rig.errors import RigError
+from rig.estimate import estimate_session
 from rig.progress import ProgressReporter
 from rig.runner import RunOutcome
-from rig.twin import bench_module, write_twin_truth
+from rig.twin import digital_twin, read_twin_truth, write_twin_truth
 
 SESSIONS_DIR = "sessions"
 ESTIMATE_DIR = "estimate"
@@ -41,12 +40,6 @@ REPORT_FILE = "report.html"
 
 SessionEstimator = Callable[[Path, Path], object]
 """Estimates a session into an output directory (writes ``sensitivity.csv``, ``report.html`` …)."""
-
-
-class EstimatorUnavailable(RigError):
-    """This installation has no session estimator (``rig.estimate``)."""
-
-    reason = "estimator_unavailable"
 
 
 @dataclass(frozen=True)
@@ -83,27 +76,12 @@ class DemoResult:
 
 
 def default_estimator() -> SessionEstimator:
-    """``rig.estimate.estimate_session``, imported now, with a camera prior that leaves the twin's
-    own camera out (read from the session's truth file).
-
-    Raises
-    ------
-    EstimatorUnavailable
-        When this installation has no session estimator.
-    """
-    try:
-        module = importlib.import_module("rig.estimate")
-    except ModuleNotFoundError as exc:
-        if exc.name is not None and "rig.estimate".startswith(exc.name):
-            raise EstimatorUnavailable(
-                "the estimate step (rig.estimate) is not part of this installation"
-            ) from None
-        raise
-    estimate_session = module.estimate_session
+    """:func:`rig.estimate.estimate_session` with a camera prior that leaves the twin's own camera
+    out (read from the session's truth file)."""
 
     def estimate(session: Path, out_dir: Path) -> object:
         # The camera prior must not contain the twin's own camera: the RE would flatter us.
-        camera = bench_module().TwinTruth.read(session / bench_module().TRUTH_FILE_NAME).camera
+        camera = read_twin_truth(session / digital_twin().truth_file_name).camera
         basis = default_camera_basis(exclude=related_camera_names(camera))
         return estimate_session(session, out_dir, settings={"basis": basis})
 
@@ -133,7 +111,7 @@ def sensitivity_error(estimate_csv: Path, truth_json: Path) -> float:
         When the estimate lies outside the truth's wavelength range.
     """
     estimated = read_camera_csv(estimate_csv)
-    truth = bench_module().TwinTruth.read(truth_json).sensitivity
+    truth = read_twin_truth(truth_json).sensitivity
     low, high = truth.range_nm
     wavelength = estimated.wavelength_nm
     if wavelength[0] < low or wavelength[-1] > high:
@@ -189,7 +167,7 @@ def run_demo(
     InputError
         When the configuration's devices are not the twin.
     """
-    if not config.devices.simulated:
+    if len(config.devices.twin_roles()) != 3:
         raise InputError(
             "rig demo runs on the digital twin: set every device's kind to 'twin' (as the "
             "shipped config.yaml does), or use `rig capture` on real hardware",

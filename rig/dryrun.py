@@ -27,13 +27,17 @@ from rig.errors import PlanFailure, PlanProtocolError
 from rig.plan import Plan, StandardCaptureArgs, standard_capture
 from rig.steps import (
     AllLampsOff,
+    AnyStep,
     CameraReady,
     Capture,
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
+    DarkMeasured,
     ExposureSet,
     FrameCaptured,
+    KeepLampTimeline,
+    MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
@@ -41,10 +45,12 @@ from rig.steps import (
     SpectrometerReady,
     SpectrumMeasured,
     Step,
+    StepHandlers,
     StepResult,
     SwitchLamp,
     Wait,
     Waited,
+    interpret,
 )
 
 #: Seconds assumed for applying the camera or spectrometer settings, and for one exposure change.
@@ -112,30 +118,53 @@ def check_limits(config: RigConfig) -> list[LimitViolation]:
     return violations
 
 
-class StepCostModel:
-    """Estimated duration of each step in seconds, from ``config.dry_run``."""
+class StepCostModel(StepHandlers[float]):
+    """Estimated duration of each step in seconds, from ``config.dry_run`` (the spectrometer's dark
+    counts as one spectrum measurement: plans and the dry run know no driver's integration ladder).
+    """
 
     def __init__(self, model: DryRunModel) -> None:
         self.model = model
 
-    def duration_s(self, step: Step) -> float:
-        match step:
-            case AllLampsOff() | SwitchLamp():
-                return self.model.relay_switch_s
-            case ConfigureCamera() | ConfigureSpectrometer():
-                return SETTINGS_S
-            case MeasureSpectrum():
-                return self.model.spectrum_measure_s
-            case Wait():
-                return step.seconds
-            case SetExposure():
-                return EXPOSURE_CHANGE_S
-            case Capture() | DarkFrame():
-                return step.exposure_s + self.model.frame_download_s
-        return 0.0
+    def duration_s(self, step: AnyStep) -> float:
+        """The step's modelled duration (s)."""
+        return interpret(step, self)
+
+    def all_lamps_off(self, step: AllLampsOff) -> float:
+        return self.model.relay_switch_s
+
+    def switch_lamp(self, step: SwitchLamp) -> float:
+        return self.model.relay_switch_s
+
+    def configure_camera(self, step: ConfigureCamera) -> float:
+        return SETTINGS_S
+
+    def configure_spectrometer(self, step: ConfigureSpectrometer) -> float:
+        return SETTINGS_S
+
+    def measure_spectrum(self, step: MeasureSpectrum) -> float:
+        return self.model.spectrum_measure_s
+
+    def measure_dark(self, step: MeasureDark) -> float:
+        return self.model.spectrum_measure_s
+
+    def wait(self, step: Wait) -> float:
+        return step.seconds
+
+    def keep_lamp_timeline(self, step: KeepLampTimeline) -> float:
+        return step.seconds
+
+    def set_exposure(self, step: SetExposure) -> float:
+        return EXPOSURE_CHANGE_S
+
+    def capture(self, step: Capture) -> float:
+        return step.exposure_s + self.model.frame_download_s
+
+    def dark_frame(self, step: DarkFrame) -> float:
+        return step.exposure_s + self.model.frame_download_s
 
 
-class ModelledBench:
+class ModelledBench(StepHandlers[StepResult]):
     """Modelled readings for every step, on a modelled clock advanced by :class:`StepCostModel`."""
 
     #: The modelled spectrum's wavelengths (nm) and the relative drift per interval before settling.
@@ -149,11 +178,35 @@ class ModelledBench:
         self._n_channels = config.devices.relays.channels
         self._lit: set[int] = set()
 
+    def respond(self, step: AnyStep) -> StepResult:
+        """Advance the modelled clock by the step's duration and return its modelled result."""
+        self.time_s += self.cost.duration_s(step)
+        return interpret(step, self)
+
     def _relay_state(self) -> RelayState:
         channels = tuple(c in self._lit for c in range(1, self._n_channels + 1))
         return RelayState(self.time_s, channels)
 
-    def _spectrum(self, step: MeasureSpectrum) -> SpectrumMeasured:
+    def all_lamps_off(self, step: AllLampsOff) -> RelayState:
+        self._lit.clear()
+        return self._relay_state()
+
+    def switch_lamp(self, step: SwitchLamp) -> RelayState:
+        if step.on:
+            self._lit.add(step.channel)
+            self._switched_on_s[step.lamp] = self.time_s
+        else:
+            self._lit.discard(step.channel)
+        return self._relay_state()
+
+    def configure_camera(self, step: ConfigureCamera) -> CameraReady:
+        settings = tuple(SettingReadBack(n, v, v) for n, v in step.settings)
+        return CameraReady(settings, self.config.camera.exposure_range_s)
+
+    def configure_spectrometer(self, step: ConfigureSpectrometer) -> SpectrometerReady:
+        return SpectrometerReady(step.exposure_ms)
+
+    def measure_spectrum(self, step: MeasureSpectrum) -> SpectrumMeasured:
         lamp = self.config.lamp(step.lamp)
         on_for_s = self.time_s - self._switched_on_s.get(step.lamp, self.time_s)
         settle_s = self.config.dry_run.lamp_settles_s
@@ -168,53 +221,40 @@ class ModelledBench:
             self.time_s, file, self.WAVELENGTH_NM, shape * tilt, "W/(sr·m²·nm)", None
         )
 
-    def _frame(self, step: Capture | DarkFrame) -> FrameCaptured:
-        stream = "scene" if isinstance(step, Capture) else "dark"
-        file = f"frames/{step.lamp}/{stream}-{step.index:03d}.raw"
-        stats = None
-        if isinstance(step, Capture):
-            model = self.config.dry_run
-            ratio = step.exposure_s / model.direct_saturates_at_s
-            saturated = 0.0 if ratio <= 1.0 else min(1.0, 0.5 * (1.0 - 1.0 / ratio))
-            snr = model.band_snr_at_direct_saturation * math.sqrt(ratio)
-            stats = FrameStats(saturated, snr, 1000.0 * ratio)
-        return FrameCaptured(self.time_s, file, step.exposure_s, step.exposure_s, file, stats)
+    def measure_dark(self, step: MeasureDark) -> DarkMeasured:
+        return DarkMeasured(self.time_s, "spectra/dark.csv", ())
 
-    def respond(self, step: Step) -> StepResult:
-        """Advance the modelled clock by the step's duration and return its modelled result."""
-        self.time_s += self.cost.duration_s(step)
-        match step:
-            case AllLampsOff():
-                self._lit.clear()
-                return self._relay_state()
-            case SwitchLamp():
-                if step.on:
-                    self._lit.add(step.channel)
-                    self._switched_on_s[step.lamp] = self.time_s
-                else:
-                    self._lit.discard(step.channel)
-                return self._relay_state()
-            case ConfigureCamera():
-                settings = tuple(SettingReadBack(n, v, v) for n, v in step.settings)
-                return CameraReady(settings, self.config.camera.exposure_range_s)
-            case ConfigureSpectrometer():
-                return SpectrometerReady(step.exposure_ms)
-            case MeasureSpectrum():
-                return self._spectrum(step)
-            case Wait():
-                return Waited(self.time_s, step.seconds)
-            case SetExposure():
-                return ExposureSet(step.exposure_s, step.exposure_s)
-            case Capture() | DarkFrame():
-                return self._frame(step)
-        raise PlanProtocolError(f"the dry run has no model for {type(step).__name__}")
+    def wait(self, step: Wait) -> Waited:
+        return Waited(self.time_s, step.seconds)
+
+    def keep_lamp_timeline(self, step: KeepLampTimeline) -> Waited:
+        return self.wait(step)
+
+    def set_exposure(self, step: SetExposure) -> ExposureSet:
+        return ExposureSet(step.exposure_s, step.exposure_s)
+
+    def capture(self, step: Capture) -> FrameCaptured:
+        model = self.config.dry_run
+        ratio = step.exposure_s / model.direct_saturates_at_s
+        saturated = 0.0 if ratio <= 1.0 else min(1.0, 0.5 * (1.0 - 1.0 / ratio))
+        snr = model.band_snr_at_direct_saturation * math.sqrt(ratio)
+        return self._frame(step, "scene", FrameStats(saturated, snr, 1000.0 * ratio))
+
+    def dark_frame(self, step: DarkFrame) -> FrameCaptured:
+        return self._frame(step, "dark", None)
+
+    def _frame(
+        self, step: Capture | DarkFrame, stream: str, stats: FrameStats | None
+    ) -> FrameCaptured:
+        file = f"frames/{step.lamp}/{stream}-{step.index:03d}.raw"
+        return FrameCaptured(self.time_s, file, step.exposure_s, step.exposure_s, file, stats)
 
 
 @dataclass(frozen=True)
 class PlannedStep:
     """A step of the walked plan with its modelled start time and duration (s)."""
 
-    step: Step
+    step: AnyStep
     start_s: float
     duration_s: float
 

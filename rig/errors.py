@@ -9,7 +9,9 @@ the user's input (configuration, limits) must change, 1 for a failure of the rig
 
 from __future__ import annotations
 
-from typing import ClassVar
+import signal
+from collections.abc import Mapping
+from typing import Any, ClassVar
 
 from drivers.base import DeviceError
 
@@ -91,6 +93,53 @@ class SessionFormatError(RigError):
     exit_code = 2
 
 
+class StationOpenFailed(RigError):
+    """Devices could not be opened. Every device was tried, and every failure is named; a capture
+    creates no session and a resume writes nothing.
+
+    Attributes
+    ----------
+    failures
+        The error of each device that failed, by role (``relays``, ``spectrometer``, ``camera``).
+    lamps_off
+        Whether the relay board was opened and read back all off (``False``: it could not be
+        opened or confirmed, so a lamp a killed run left on may still be on).
+    """
+
+    reason = "devices_unavailable"
+
+    def __init__(self, failures: Mapping[str, BaseException], *, lamps_off: bool) -> None:
+        self.failures = dict(failures)
+        self.lamps_off = lamps_off
+        listed = "; ".join(str(error) for error in self.failures.values())
+        count = len(self.failures)
+        super().__init__(
+            f"{count} device{'s' if count != 1 else ''} could not be opened, nothing was recorded: "
+            f"{listed}"
+        )
+
+
+class OpeningInterrupted(RigError):
+    """A signal (Ctrl-C, SIGTERM) arrived while the devices were being opened: the run stopped
+    before anything was recorded, with the lamps switched off as far as the relay board opened."""
+
+    reason = "interrupted"
+
+    def __init__(self, signal_name: str, *, lamps_off: bool) -> None:
+        self.signal_name = signal_name
+        self.lamps_off = lamps_off
+        lamps = "every lamp switched off" if lamps_off else "the lamps could not be confirmed off"
+        super().__init__(
+            f"{signal_name} while the devices were being opened: stopped before anything was "
+            f"recorded ({lamps})"
+        )
+
+    @property
+    def signal_exit_code(self) -> int:
+        """128 + the signal's number, as a shell reports a process stopped by it (130 for SIGINT)."""
+        return 128 + int(signal.Signals[self.signal_name])
+
+
 class StationUnavailable(RigError):
     """No driver is available for a configured device kind in this installation."""
 
@@ -148,3 +197,20 @@ class ResumeMismatch(RigError):
     """A resumed run found the devices answering differently from the recorded run."""
 
     reason = "resume_mismatch"
+
+
+def _plain(part: object) -> bool:
+    text = str(part)
+    return bool(text) and text.isprintable() and text.strip() == text
+
+
+def first_validation_problem(errors: list[Any], default_where: str) -> str:
+    """``where: what`` of the first of pydantic's ``ValidationError.errors()``, on one line.
+
+    Keys come from files anyone may have written: a part of the location that is not a plain
+    printable word is shown as its ``repr`` (a key ``"\\n"`` must not break the line), and the
+    message's white space is folded.
+    """
+    first = errors[0]
+    parts = [str(part) if _plain(part) else repr(part) for part in first["loc"]]
+    return f"{'.'.join(parts) or default_where}: {' '.join(str(first['msg']).split())}"

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import re
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -43,13 +44,21 @@ from calib.pipeline import (
     run_offline,
 )
 from calib.pipeline.context import EstimateContext, WarmupTrace
+from calib.pipeline.outputs import check_out_dir
+from drivers.local_files import (
+    UnsafeLocalPath,
+    checked_directory,
+    describe_entry,
+    entries_below,
+    is_plain,
+)
 from rig.config import LAMP_NAME_PATTERN
 from rig.errors import RigError, SessionFormatError
 from rig.plan import relative_change
 from rig.records import FileRecord
 from rig.session import Session, read_session
 from rig.steps import SpectrumMeasured
-from rig.twin import bench_module
+from rig.twin import read_twin_truth
 
 #: What ``rig demo`` writes beside a twin session (``mocks.bench.TRUTH_FILE_NAME``).
 TWIN_TRUTH_FILE = "twin-truth.json"
@@ -89,7 +98,7 @@ def _recorded_lamps(session: Session) -> list[tuple[str, LampKind]]:
     for position, lamp in enumerate(lamps):
         name = lamp.get("name") if isinstance(lamp, Mapping) else None
         kind = str(lamp.get("kind", "other")).lower() if isinstance(lamp, Mapping) else ""
-        if not isinstance(name, str) or not re.match(LAMP_NAME_PATTERN, name):
+        if not isinstance(name, str) or not re.fullmatch(LAMP_NAME_PATTERN, name):
             raise SessionFormatError(
                 f"{session.path}: config lamps[{position}].name {name!r} is not a plain lamp name"
             )
@@ -127,7 +136,7 @@ def _collect(session: Session, lamps: Sequence[str]) -> dict[str, _LampFiles]:
     records = _done_files(session)
     selected: list[tuple[str, str, int, FileRecord]] = []
     for key, record in records.items():
-        match = _KEY.match(key)
+        match = _KEY.fullmatch(key)
         if match is None or match["lamp"] not in lamps:
             continue
         selected.append((match["lamp"], match["stream"], int(match["index"]), record))
@@ -283,7 +292,7 @@ def _twin_truth(session_path: Path, warnings: list[str]) -> GroundTruth | None:
     if not path.is_file():
         return None
     try:
-        truth = bench_module().TwinTruth.read(path)
+        truth = read_twin_truth(path)
     except (ValueError, RigError) as exc:
         warnings.append(f"{path.name} not used: {exc}")
         return None
@@ -293,6 +302,44 @@ def _twin_truth(session_path: Path, warnings: list[str]) -> GroundTruth | None:
         mapping=truth.mapping,
         source=f"{path.name}: the digital twin's camera {truth.camera} (not a verified session file)",
     )
+
+
+def check_estimate_out(session_dir: Path, out_dir: Path | None, *, force: bool) -> Path:
+    """The directory ``rig estimate`` writes to, checked before any work is done.
+
+    ``out_dir`` defaults to ``<session>/estimate``. The session may come from anyone, so where the
+    directory lies inside it every directory on the way must be a real directory, and nothing in an
+    existing one may be a symbolic link: the outputs are never written through a link planted
+    there. Results of an earlier estimate are replaced only with ``force`` (as ``calib estimate
+    --force``), and the directory must be writable.
+
+    Raises
+    ------
+    SessionFormatError
+        A link or special file is planted on the way or in the directory (named).
+    calib.errors.InputError
+        Earlier results without ``force``; a directory that cannot be written.
+    """
+    target = out_dir if out_dir is not None else Path(session_dir) / DEFAULT_OUT_NAME
+    # Compared by name, never resolved: resolving would follow the very link to be refused.
+    session_root = Path(os.path.normpath(Path(session_dir).absolute()))
+    absolute = Path(os.path.normpath(target.absolute()))
+    try:
+        if absolute != session_root and absolute.is_relative_to(session_root):
+            checked_directory(session_root, str(absolute.relative_to(session_root)), create=False)
+        if target.is_dir():
+            for entry in entries_below(target):
+                if not is_plain(entry):
+                    raise UnsafeLocalPath(Path(entry.path), describe_entry(Path(entry.path)))
+    except UnsafeLocalPath as exc:
+        raise SessionFormatError(
+            f"{exc.path} is {exc.problem}; the estimate is never written through it: remove it, "
+            "or choose another --out"
+        ) from None
+    except FileNotFoundError:
+        pass  # created by the estimate
+    check_out_dir(target, force)
+    return target
 
 
 def estimate_session(
@@ -306,8 +353,11 @@ def estimate_session(
     progress: OfflineProgress | None = None,
     command_line: Sequence[str] | None = None,
     settings: Mapping[str, Any] | None = None,
+    force: bool = False,
 ) -> OfflineOutcome:
     """Estimate the camera from a session and write the outputs.
+
+    Where it writes is checked first (:func:`check_estimate_out`), before any work.
 
     Parameters
     ----------
@@ -338,11 +388,16 @@ def estimate_session(
     Raises
     ------
     SessionFormatError
-        Not a session, an invalid log, unsafe paths, files that differ from the log.
+        Not a session, an invalid log, unsafe paths (a link planted where the estimate is written
+        too), files that differ from the log.
     InputError
-        No usable lamp; any input problem the pipeline finds.
+        No usable lamp; any input problem the pipeline finds; earlier results without ``force``;
+        an output directory that cannot be written.
     """
     session_path = Path(session_dir)
+    destination = check_estimate_out(
+        session_path, None if out_dir is None else Path(out_dir), force=force
+    )
     session = read_session(session_path)
     lamps, known, warnings = session_lamps(session)
     context = EstimateContext(_twin_truth(session_path, warnings), _warmup_traces(session))
@@ -359,7 +414,6 @@ def estimate_session(
         "notes": notes,
         **dict(settings or {}),
     }
-    destination = Path(out_dir) if out_dir is not None else session_path / DEFAULT_OUT_NAME
     return run_offline(
         lamps,
         destination,

@@ -17,9 +17,11 @@ and the next call to the same device (the lamps-off in cleanup) queues behind it
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from types import FrameType, TracebackType
 from typing import Literal
@@ -77,6 +79,7 @@ class InterruptController:
         self._halt_pending: str | None = None
         self._cleanup = False
         self._previous: dict[signal.Signals, object] = {}
+        self._installs = 0
 
     @property
     def stop_requested(self) -> str | None:
@@ -89,18 +92,39 @@ class InterruptController:
         return any(r.action == "stop-now" for r in self.received)
 
     def install(self) -> bool:
-        """Install the handlers; returns ``False`` (and does nothing) outside the main thread."""
+        """Install the handlers; returns ``False`` (and does nothing) outside the main thread.
+
+        Installs nest: a capture installs them before it opens the devices, the runner again when
+        the run starts; only the outermost :meth:`uninstall` restores the previous handlers.
+        """
         if threading.current_thread() is not threading.main_thread():
             return False
-        for signum in HANDLED_SIGNALS:
-            self._previous[signum] = signal.signal(signum, self._handle)
+        self._installs += 1
+        if self._installs == 1:
+            for signum in HANDLED_SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._handle)
         return True
 
     def uninstall(self) -> None:
-        """Restore the handlers that were there before :meth:`install`."""
+        """Undo one :meth:`install`; the outermost restores the handlers that were there before."""
+        if self._installs == 0:
+            return
+        self._installs -= 1
+        if self._installs > 0:
+            return
         for signum, previous in self._previous.items():
             signal.signal(signum, previous)  # type: ignore[arg-type]
         self._previous.clear()
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[None]:
+        """The handlers installed for the ``with`` block."""
+        installed = self.install()
+        try:
+            yield
+        finally:
+            if installed:
+                self.uninstall()
 
     def critical(self) -> _CriticalSection:
         """A section a second interrupt may not cut (it is raised when the section ends)."""

@@ -10,7 +10,8 @@ ones — sends each step's result back with ``plan.send(result)``::
         result = execute(step)
         step = plan.send(result)   # StopIteration when the plan is done
 
-The standard plan, per lamp: switch on; measure spectra every ``interval_s`` until consecutive spectra
+The standard plan: every lamp off, camera and spectrometer set up (and, for a spectrometer that
+subtracts its own dark, its dark spectrum measured with the lamps off); then per lamp: switch on; measure spectra every ``interval_s`` until consecutive spectra
 differ by less than the tolerance (or fail at the warm-up timeout); measure ``repeats`` reference
 spectra; capture an automatically extended HDR bracket of the direct + diffracted scene; switch off;
 take dark frames at the bracket's exposures. A plan fails by raising a :class:`rig.errors.PlanFailure`
@@ -44,20 +45,22 @@ from rig.errors import (
 )
 from rig.steps import (
     AllLampsOff,
+    AnyStep,
     CameraReady,
     Capture,
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
+    DarkMeasured,
     ExposureSet,
     FrameCaptured,
     JsonDict,
+    MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
     SpectrometerReady,
     SpectrumMeasured,
-    Step,
     StepResult,
     SwitchLamp,
     Wait,
@@ -65,7 +68,7 @@ from rig.steps import (
     format_exposure,
 )
 
-Plan = Generator[Step, StepResult, None]
+Plan = Generator[AnyStep, StepResult, None]
 """A plan: yields steps, receives each step's result, returns nothing."""
 
 ResultT = TypeVar("ResultT", bound=StepResult)
@@ -80,7 +83,7 @@ NOT_RAW_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".heic")
 SNR_PREDICTION_MARGIN = 1.25
 
 
-def run_step(step: Step, expected: type[ResultT]) -> Generator[Step, StepResult, ResultT]:
+def run_step(step: AnyStep, expected: type[ResultT]) -> Generator[AnyStep, StepResult, ResultT]:
     """Yield ``step`` and return its result, checked to be of the ``expected`` type."""
     result = yield step
     if not isinstance(result, expected):
@@ -143,7 +146,9 @@ def exposure_limits(hdr: HdrPolicy, camera: CameraReady) -> tuple[float, float]:
     return max(hdr.min_exposure_s, low), min(hdr.max_exposure_s, high)
 
 
-def wait_until_stable(lamp: LampConfig, switched_on_s: float) -> Generator[Step, StepResult, None]:
+def wait_until_stable(
+    lamp: LampConfig, switched_on_s: float
+) -> Generator[AnyStep, StepResult, None]:
     """Measure spectra ``interval_s`` apart until ``stable_pairs`` consecutive changes are below tolerance.
 
     Raises
@@ -242,7 +247,7 @@ def _next_exposure(
 
 def auto_bracket(
     lamp: LampConfig, hdr: HdrPolicy, limits: tuple[float, float], camera: CameraSettings
-) -> Generator[Step, StepResult, list[FrameCaptured]]:
+) -> Generator[AnyStep, StepResult, list[FrameCaptured]]:
     """Capture frames until the bracket satisfies the HDR policy; return them by increasing exposure.
 
     Starts at ``hdr.start_exposure_s`` (default: the geometric mean of ``limits``). While the shortest
@@ -286,7 +291,7 @@ def auto_bracket(
 
 def dark_frames(
     lamp: LampConfig, exposures_s: list[float], per_exposure: int
-) -> Generator[Step, StepResult, None]:
+) -> Generator[AnyStep, StepResult, None]:
     """``per_exposure`` dark frames at each exposure of the bracket (lamps off), shortest first."""
     count = len(exposures_s) * per_exposure
     index = 0
@@ -313,6 +318,7 @@ class StandardCaptureArgs(StrictModel):
     spectrum: SpectrumPolicy
     hdr: HdrPolicy
     dark_frames: int = Field(ge=0)
+    spectrometer_dark: bool = False
 
     @classmethod
     def from_config(cls, config: RigConfig) -> StandardCaptureArgs:
@@ -322,6 +328,7 @@ class StandardCaptureArgs(StrictModel):
             spectrum=config.spectrum,
             hdr=config.hdr,
             dark_frames=config.dark_frames,
+            spectrometer_dark=config.devices.spectrometer_takes_dark,
         )
 
 
@@ -341,6 +348,8 @@ def standard_capture(args: StandardCaptureArgs) -> Plan:
     camera = yield from run_step(ConfigureCamera(args.camera.setting_items()), CameraReady)
     limits = exposure_limits(args.hdr, camera)
     yield from run_step(ConfigureSpectrometer(args.spectrum.exposure_ms), SpectrometerReady)
+    if args.spectrometer_dark:
+        yield from run_step(MeasureDark(), DarkMeasured)
     for lamp in args.lamps:
         switched = yield from run_step(SwitchLamp(lamp.name, lamp.channel, True), RelayState)
         yield from wait_until_stable(lamp, switched.time_s)

@@ -22,7 +22,7 @@ from rich.progress import (
 )
 
 from rig.dryrun import DryRunReport, StepCostModel
-from rig.steps import Capture, Step, StepResult
+from rig.steps import AnyStep, Capture, StepResult
 
 
 class ProgressReporter(Protocol):
@@ -30,9 +30,9 @@ class ProgressReporter(Protocol):
 
     def start(self, estimate: DryRunReport | None) -> None: ...
 
-    def step_started(self, step: Step) -> None: ...
+    def step_started(self, step: AnyStep) -> None: ...
 
-    def step_done(self, step: Step, result: StepResult) -> None: ...
+    def step_done(self, step: AnyStep, result: StepResult) -> None: ...
 
     def message(self, text: str) -> None: ...
 
@@ -45,10 +45,10 @@ class SilentProgress:
     def start(self, estimate: DryRunReport | None) -> None:
         """Nothing."""
 
-    def step_started(self, step: Step) -> None:
+    def step_started(self, step: AnyStep) -> None:
         """Nothing."""
 
-    def step_done(self, step: Step, result: StepResult) -> None:
+    def step_done(self, step: AnyStep, result: StepResult) -> None:
         """Nothing."""
 
     def message(self, text: str) -> None:
@@ -86,7 +86,7 @@ class RichProgress:
         self._progress.start()
         self._task = self._progress.add_task("starting", total=self._total_s)
 
-    def _describe(self, step: Step) -> str:
+    def _describe(self, step: AnyStep) -> str:
         text = step.describe()
         if isinstance(step, Capture):
             modelled = self._frames_per_lamp.get(step.lamp)
@@ -96,11 +96,11 @@ class RichProgress:
                 )
         return text
 
-    def step_started(self, step: Step) -> None:
+    def step_started(self, step: AnyStep) -> None:
         if self._task is not None:
             self._progress.update(self._task, description=self._describe(step))
 
-    def step_done(self, step: Step, result: StepResult) -> None:
+    def step_done(self, step: AnyStep, result: StepResult) -> None:
         if self._task is None:
             return
         self._done_s += self.cost.duration_s(step)

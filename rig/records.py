@@ -23,8 +23,9 @@ SPECTRA_DIR = "spectra"
 TRANSCRIPTS_DIR = "transcripts"
 DATA_DIRS = (FRAMES_DIR, SPECTRA_DIR, TRANSCRIPTS_DIR)
 
-_PATH_PART = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,127}$")
-_KEY = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]*(/[A-Za-z0-9][A-Za-z0-9._+-]*)*$")
+# Matched whole (fullmatch): with re.match, "$" also matches before a trailing newline.
+_PATH_PART = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,127}")
+_KEY = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*(/[A-Za-z0-9][A-Za-z0-9._+-]*)*")
 MAX_PATH_CHARS = 512
 
 
@@ -41,7 +42,7 @@ def check_session_path(path: str) -> str:
     if len(parts) < 2 or parts[0] not in DATA_DIRS:
         raise ValueError(f"path {path!r} must lie inside {', '.join(d + '/' for d in DATA_DIRS)}")
     for part in parts:
-        if part in ("", ".", "..") or not _PATH_PART.match(part):
+        if part in ("", ".", "..") or not _PATH_PART.fullmatch(part):
             raise ValueError(
                 f"path {path!r} has an unsafe component {part!r}: only plain names of letters, "
                 "digits and '._+-' are allowed"
@@ -50,7 +51,7 @@ def check_session_path(path: str) -> str:
 
 
 def _check_key(key: str) -> str:
-    if len(key) > MAX_PATH_CHARS or not _KEY.match(key) or ".." in key.split("/"):
+    if len(key) > MAX_PATH_CHARS or not _KEY.fullmatch(key) or ".." in key.split("/"):
         raise ValueError(f"step key {key!r} is not a '/'-separated list of plain names")
     return key
 

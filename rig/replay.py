@@ -14,6 +14,17 @@ what to reuse, as it decided from the original's. Each step takes its recorded t
 simulated clock (the station's step hook moves the clock from the step's recorded start to its
 end), because a resume waits out the reused steps' durations.
 
+A run that was killed (no stop record; ``rig resume`` acknowledged its transcripts) is replayed up
+to its last record: the replay's session writer then stops as the killed process did
+(:meth:`rig.session.SessionWriter.kill`), and what the rig does after that point — the step the
+recording was cut in, the cleanup the killed process never did — is not checked. A run that
+stopped because the session could not be written (``session_write``) is refused: its recording
+ends where the disk filled, not where the rig stopped.
+
+The replay drivers come from the ``spectral_rig.replay`` entry point (``mocks.replay``'s
+:class:`~mocks.replay.station.RecordingServer`), through the typed :class:`ReplayBackend`
+protocol; the rig never imports ``mocks``.
+
 The result is a new session directory. The replay fails with :class:`ReplayDiverged` — naming the
 step, the device, the transcript line, and the expected and sent bytes or call — when the rig sends
 anything else, or leaves a recorded exchange unused; otherwise its log is compared with the
@@ -27,33 +38,49 @@ rebuilt by name from a registry, and nothing is written outside the new session 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from pathlib import Path
-from types import ModuleType
-from typing import Any, get_args
+from typing import Any, Protocol, TypedDict
 
 from pydantic import ValidationError
 
-from drivers.base import DeviceError, TranscriptDirection, TranscriptEntry
+from drivers.base import Camera, DeviceError, RelayBoard, Spectrometer, TranscriptEntry
 from rig.capture import RunOptions, run_on_station
+from rig.clock import Clock
 from rig.config import RigConfig
 from rig.dryrun import DryRunReport
-from rig.errors import RigError, SessionFormatError
+from rig.errors import (
+    PlanProtocolError,
+    RigError,
+    SessionFormatError,
+    StationUnavailable,
+    first_validation_problem,
+)
 from rig.frame_stats import RawFrameAnalyzer
 from rig.interrupts import InterruptController, ReceivedSignal
 from rig.plan import build_plan
 from rig.progress import ProgressReporter, SilentProgress
-from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord
+from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord, StopRecord
+from rig.resume import run_resume
 from rig.runner import RetryPolicy, RunOutcome
-from rig.session import Session, SessionWriter, decode_transcript_line, read_session
-from rig.station import Station, optional_module
-from rig.steps import DeviceRole, Step, StepResult, Wait
+from rig.session import (
+    Session,
+    SessionWriter,
+    parse_transcript,
+    read_session,
+    transcript_path,
+)
+from rig.station import Station, TranscriptFactory
+from rig.steps import AnyStep, DeviceRole, StepResult, Wait
 
-REPLAY_MODULE = "mocks.replay"
+#: The entry-point group naming the replay backend (``mocks.replay``'s ``RecordingServer``).
+REPLAY_ENTRY_POINTS = "spectral_rig.replay"
 ROLES: tuple[DeviceRole, ...] = ("relays", "spectrometer", "camera")
 #: Keys masked wherever they occur when logs are compared: times, ids and wall clocks.
 MASKED_KEYS = frozenset(
@@ -72,7 +99,6 @@ MASKED_KEYS = frozenset(
     }
 )
 MASK = "<masked>"
-TRANSCRIPT_DIRECTIONS = frozenset(get_args(TranscriptDirection))
 
 
 class ReplayRefused(RigError):
@@ -88,6 +114,99 @@ class ReplayDiverged(RigError):
     reason = "replay_mismatch"
 
 
+class RecordedDeviceData(TypedDict):
+    """One recorded device, as plain data for the backend (``mocks.replay.RecordedDevice``)."""
+
+    identity: dict[str, Any]
+    entries: list[TranscriptEntry]
+    timeout_s: float
+    download_timeout_s: float
+    measure_timeout_s: float | None
+
+
+class SteppedClock(Clock, Protocol):
+    """The replay's simulated clock: the timeline moves it to the recorded times."""
+
+    def advance(self, seconds: float) -> None: ...
+
+
+class ReplayMismatchView(Protocol):
+    """What the rig sent against what the recording has (``mocks.replay.ReplayMismatch``)."""
+
+    role: str
+    problem: str
+    index: int | None
+    expected: TranscriptEntry | None
+    sent: TranscriptEntry | None
+
+    def describe(self, entry: TranscriptEntry | None) -> str: ...
+
+
+class MismatchLog(Protocol):
+    """Every mismatch of one replay in order (``mocks.replay.Mismatches``)."""
+
+    context: Callable[[], str]
+
+    @property
+    def found(self) -> Sequence[ReplayMismatchView]: ...
+
+    def where(self, mismatch: Any) -> str: ...
+
+
+class ReplayStation(Protocol):
+    """The recorded devices opened on their stand-ins (``mocks.replay.ReplayBench``)."""
+
+    @property
+    def relays(self) -> RelayBoard: ...
+
+    @property
+    def spectrometer(self) -> Spectrometer: ...
+
+    @property
+    def camera(self) -> Camera: ...
+
+    @property
+    def clock(self) -> SteppedClock: ...
+
+    @property
+    def mismatches(self) -> MismatchLog: ...
+
+    def finish(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ReplayBackend(Protocol):
+    """What ``rig replay`` needs of the package that serves a recording to the real drivers."""
+
+    def open_recording(
+        self,
+        devices: Mapping[str, RecordedDeviceData],
+        transcripts: TranscriptFactory,
+        frames: Callable[[int, int, str | None], bytes],
+    ) -> ReplayStation: ...
+
+    def mismatch_of(self, error: BaseException) -> ReplayMismatchView | None: ...
+
+
+def replay_backend() -> ReplayBackend:
+    """The backend registered under :data:`REPLAY_ENTRY_POINTS`.
+
+    Raises
+    ------
+    StationUnavailable
+        This installation has none (replay needs the ``mocks`` package of spectral-rig).
+    """
+    found = sorted(entry_points(group=REPLAY_ENTRY_POINTS), key=lambda entry: entry.name)
+    if not found:
+        raise StationUnavailable(
+            f"session replay is not part of this installation (no {REPLAY_ENTRY_POINTS!r} entry "
+            "point: install spectral-rig with its mocks package)"
+        )
+    backend: ReplayBackend = found[0].load()()
+    return backend
+
+
 @dataclass(frozen=True)
 class RecordedRun:
     """One run of a session (a capture, or a resume of it): its start, records and transcripts."""
@@ -98,6 +217,8 @@ class RecordedRun:
     records: list[Record]
     transcripts: dict[DeviceRole, list[TranscriptEntry]]
     frames: list[FileRecord]
+    killed: bool = False
+    """The run has no stop record: it was killed, and is replayed up to its last record."""
 
 
 @dataclass(frozen=True)
@@ -130,37 +251,7 @@ class ReplayOutcome:
 
 
 def _first_validation_error(exc: ValidationError) -> str:
-    first = exc.errors()[0]
-    where = ".".join(str(part) for part in first["loc"]) or "config"
-    return f"{where}: {first['msg']}"
-
-
-def parse_transcript(data: bytes, where: str) -> list[TranscriptEntry]:
-    """The entries of a transcript file's bytes (JSONL, :func:`rig.session.encode_transcript_entry`).
-
-    Raises
-    ------
-    ReplayRefused
-        For the first line that is not UTF-8 or not a transcript entry (``where`` names the file).
-    """
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ReplayRefused(f"{where} is not UTF-8 ({exc.reason} at byte {exc.start})") from None
-    entries = []
-    for number, line in enumerate(text.split("\n"), start=1):
-        if not line:
-            continue
-        try:
-            entry = decode_transcript_line(line)
-        except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
-            raise ReplayRefused(
-                f"{where} line {number} is not a transcript entry ({exc!r})"
-            ) from None
-        if not isinstance(entry.direction, str) or entry.direction not in TRANSCRIPT_DIRECTIONS:
-            raise ReplayRefused(f"{where} line {number} has no valid direction")
-        entries.append(entry)
-    return entries
+    return first_validation_problem(exc.errors(), "config")
 
 
 def load_recording(path: Path) -> Recording:
@@ -198,7 +289,13 @@ def load_recording(path: Path) -> Recording:
         raise ReplayRefused(
             f"{path}: the recorded configuration or plan is invalid: {_first_validation_error(exc)}"
         ) from None
+    except PlanProtocolError as exc:
+        raise ReplayRefused(f"{path}: the recorded plan: {exc}") from None
     numbers = sorted({record.run for record in session.records})
+    known = {transcript_path(role, number) for role in ROLES for number in numbers}
+    for record in session.files():
+        if record.role == "transcript" and record.path not in known:
+            raise ReplayRefused(f"{path}: unexpected transcript {record.path}")
     runs = [_recorded_run(path, session, number) for number in numbers]
     return Recording(session, runs)
 
@@ -222,26 +319,27 @@ def _recorded_run(path: Path, session: Session, number: int) -> RecordedRun:
             f"{path}: run {number}'s start record identifies no {', '.join(missing)} (the devices "
             "never opened); there is nothing to replay"
         )
-    names = {
-        f"transcripts/{role}.jsonl"
-        if number == 1
-        else f"transcripts/{role}.run{number}.jsonl": role
-        for role in ROLES
-    }
+    stops = [record for record in records if isinstance(record, StopRecord)]
+    if stops and stops[-1].reason == "session_write":
+        raise ReplayRefused(
+            f"{path}: run {number} stopped because the session could not be written "
+            f"({stops[-1].message}); its recording ends where the disk failed, so it cannot be "
+            "reproduced exchange by exchange"
+        )
+    # A run's transcripts are acknowledged by the run itself, or by the resume after it was killed.
+    names = {transcript_path(role, number): role for role in ROLES}
     transcripts: dict[DeviceRole, list[TranscriptEntry]] = {}
     for record in session.files():
-        if record.role != "transcript" or record.run != number:
-            continue
         role = names.get(record.path)
-        if role is None:
-            raise ReplayRefused(f"{path}: unexpected transcript {record.path}")
-        data = session.file_path(record.path).read_bytes()
-        transcripts[role] = parse_transcript(data, f"{path}: {record.path}")
+        if record.role == "transcript" and role is not None:
+            data = session.file_path(record.path).read_bytes()
+            transcripts[role] = parse_transcript(data, f"{path}: {record.path}")
     absent = [role for role in ROLES if role not in transcripts]
     if absent:
         raise ReplayRefused(
-            f"{path}: no acknowledged transcript of run {number} for {', '.join(absent)} (a "
-            "crashed run's transcripts are not acknowledged); cannot replay"
+            f"{path}: no acknowledged transcript of run {number} for {', '.join(absent)} (a killed "
+            "run's transcripts are acknowledged when the session is resumed: rig resume it "
+            "first); cannot replay"
         )
     # Every frame the run downloaded, discarded ones too (a stale frame was downloaded before
     # the rig saw it was stale); each is checked against its sha256 when it is served.
@@ -250,7 +348,7 @@ def _recorded_run(path: Path, session: Session, number: int) -> RecordedRun:
         for record in records
         if isinstance(record, FileRecord) and record.role in ("frame", "dark")
     ]
-    return RecordedRun(number, start, config, records, transcripts, frames)
+    return RecordedRun(number, start, config, records, transcripts, frames, killed=not stops)
 
 
 # ------------------------------------------------------------------------------------ running
@@ -275,7 +373,7 @@ class _Timeline:
         self.clock: Any = None  # the station's, once it is opened (attach)
         self.current_key = "(opening the devices)"
         self._t0 = 0.0
-        self._current: Step | None = None
+        self._current: AnyStep | None = None
         self._steps = {r.key: r for r in records if isinstance(r, StepRecord)}
         self._interrupts = interrupts
         signals = [r.signal for r in records if isinstance(r, InterruptionRecord)]
@@ -301,7 +399,7 @@ class _Timeline:
             self._receive_signal()
         self.inner.start(estimate)
 
-    def step_started(self, step: Step) -> None:
+    def step_started(self, step: AnyStep) -> None:
         self.current_key = step.key
         self._current = step
         recorded = self._steps.get(step.key)
@@ -324,7 +422,7 @@ class _Timeline:
         if ahead_s > 0:
             self.clock.advance(ahead_s)
 
-    def step_done(self, step: Step, result: StepResult) -> None:
+    def step_done(self, step: AnyStep, result: StepResult) -> None:
         if self._signal is not None and step.key == self._last_key and not self._cut_short:
             self._receive_signal()
         self.inner.step_done(step, result)
@@ -361,7 +459,7 @@ def _frame_source(
     return frame
 
 
-def _recorded_devices(run: RecordedRun, module: ModuleType) -> dict[str, Any]:
+def _recorded_devices(run: RecordedRun) -> dict[str, RecordedDeviceData]:
     devices = run.config.devices
     timeouts = {
         "relays": devices.relays.timeout_s,
@@ -369,7 +467,7 @@ def _recorded_devices(run: RecordedRun, module: ModuleType) -> dict[str, Any]:
         "camera": devices.camera.timeout_s,
     }
     return {
-        role: module.RecordedDevice(
+        role: RecordedDeviceData(
             identity=run.start.devices[role].model_dump(),
             entries=run.transcripts[role],
             timeout_s=timeouts[role],
@@ -382,11 +480,11 @@ def _recorded_devices(run: RecordedRun, module: ModuleType) -> dict[str, Any]:
     }
 
 
-def _mismatch_text(mismatch: Any, step_key: str) -> str:
+def _mismatch_text(mismatch: ReplayMismatchView, step_key: str, run: int) -> str:
     return "\n".join(
         [
             f"step {step_key}: {mismatch.role}: {mismatch.problem}",
-            f"  at transcripts/{mismatch.role}.jsonl line {mismatch.index}"
+            f"  at {transcript_path(mismatch.role, run)} line {mismatch.index}"
             if mismatch.index is not None
             else "  after the last recorded entry",
             f"  expected: {mismatch.describe(mismatch.expected)}",
@@ -432,24 +530,24 @@ def replay_session(
         raise ReplayRefused(
             f"{target} lies inside the recorded session {source}; replay never writes there"
         )
-    module = optional_module(REPLAY_MODULE, f"session replay ({REPLAY_MODULE})")
+    backend = replay_backend()
     interrupts = interrupts or InterruptController()
     progress = progress or SilentProgress()
     first, *resumed = recording.runs
-    run, mismatch = _replay_run(recording, first, target, module, progress, interrupts)
+    run, mismatch = _replay_run(recording, first, target, backend, progress, interrupts)
     for later in resumed:
         if mismatch is not None:
             break
         # A resume is a new process: a signal the previous run received is not its own.
         fresh = InterruptController()
-        run, mismatch = _replay_run(recording, later, target, module, progress, fresh)
+        run, mismatch = _replay_run(recording, later, target, backend, progress, fresh)
     difference = None
     if mismatch is None:
         difference = compare_logs(recording.session, read_session(run.session))
     return ReplayOutcome(source, run, mismatch, difference)
 
 
-def _station(bench: Any, timeline: _Timeline) -> Station:
+def _station(bench: ReplayStation, timeline: _Timeline) -> Station:
     return Station(
         bench.spectrometer,
         bench.camera,
@@ -461,18 +559,37 @@ def _station(bench: Any, timeline: _Timeline) -> Station:
     )
 
 
-def _mismatch_of(bench: Any) -> str | None:
-    for role in ROLES:
-        bench.scripts[role].finish()
-    first = bench.mismatches.first
-    return None if first is None else _mismatch_text(first, bench.mismatches.where(first))
+@dataclass
+class _RunCheck:
+    """The replayed run's bench, and where a killed run's recording ended (the mismatches found
+    by then are the only ones that count)."""
+
+    bench: ReplayStation | None = None
+    cut: int | None = None
+
+    def kill_point(self) -> None:
+        if self.bench is not None:
+            self.cut = len(self.bench.mismatches.found)
+
+    def mismatch(self, run: RecordedRun) -> str | None:
+        bench = self.bench
+        if bench is None:
+            return None
+        if not run.killed:
+            bench.finish()  # unused recorded entries count as mismatches too
+        found = list(bench.mismatches.found)
+        counted = found if self.cut is None else found[: self.cut]
+        if not counted:
+            return None
+        first = counted[0]
+        return _mismatch_text(first, bench.mismatches.where(first), run.number)
 
 
 def _replay_run(
     recording: Recording,
     run: RecordedRun,
     target: Path,
-    module: ModuleType,
+    backend: ReplayBackend,
     progress: ProgressReporter,
     interrupts: InterruptController,
 ) -> tuple[RunOutcome, str | None]:
@@ -480,34 +597,41 @@ def _replay_run(
 
     Run 1 drives the recorded plan (:func:`rig.capture.run_on_station`); a later run is
     ``rig resume`` of the replay (:func:`rig.resume.run_resume`), which decides from the replay's
-    own log what to reuse, as it decided from the original's.
+    own log what to reuse, as it decided from the original's. A killed run's writer stops after
+    as many records as the recording has.
     """
-    from rig.resume import run_resume
-
-    benches: list[Any] = []
+    check = _RunCheck()
     timeline = _Timeline(progress, run.records, interrupts)
 
-    def builder(config: RigConfig, transcripts: Any) -> Station:
+    def builder(config: RigConfig, transcripts: TranscriptFactory) -> Station:
         try:
-            bench = module.open_replay(
-                _recorded_devices(run, module), transcripts, _frame_source(recording, run)
+            bench = backend.open_recording(
+                _recorded_devices(run), transcripts, _frame_source(recording, run)
             )
-        except module.ReplayMismatch as exc:
-            raise ReplayDiverged(_mismatch_text(exc, "(opening the devices)")) from None
         except (DeviceError, ValueError) as exc:
+            mismatch = backend.mismatch_of(exc)
+            if mismatch is not None:
+                raise ReplayDiverged(
+                    _mismatch_text(mismatch, "(opening the devices)", run.number)
+                ) from None
             raise ReplayRefused(
                 f"the recorded devices cannot be opened for replay: {exc}"
             ) from None
-        benches.append(bench)
+        check.bench = bench
         timeline.attach(bench.clock)
         bench.mismatches.context = lambda: timeline.current_key
         return _station(bench, timeline)
 
-    options = RunOptions(timeline, interrupts, RetryPolicy(), builder)
+    def on_session(writer: SessionWriter) -> None:
+        if run.killed:
+            writer.record_limit = len(run.records)
+            writer.on_kill = check.kill_point
+
+    options = RunOptions(timeline, interrupts, RetryPolicy(), builder, on_session)
     if run.number == 1:
         outcome = run_on_station(
             run.config,
-            SessionWriter(target, guard=interrupts.critical),
+            functools.partial(SessionWriter, target),
             build_plan(run.start.plan.name, run.start.plan.args),
             run.start.plan,
             options,
@@ -515,13 +639,14 @@ def _replay_run(
     else:
         outcome = run_resume(
             target,
+            run.config,
             progress=timeline,
             interrupts=interrupts,
             retry=RetryPolicy(),
             builder=builder,
-            config=run.config,
+            on_session=on_session,
         )
-    return outcome, _mismatch_of(benches[0]) if benches else None
+    return outcome, check.mismatch(run)
 
 
 # ------------------------------------------------------------------------------------ comparing

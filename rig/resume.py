@@ -4,28 +4,47 @@ A session is resumable when it has a start record and did not complete: ``interr
 or no stop record at all after a crash, ``kill -9`` or a power loss) or ``failed`` (a device gave
 up, e.g. the camera was unplugged). A ``complete`` session is refused (:class:`NotResumable`).
 
-Resuming
+A session may come from anyone, so everything in it is data, checked before anything is opened or
+written (:func:`prepare_resume`); any problem is a one-line refusal (exit 2):
 
-1. reads the log (a torn last line is moved aside to ``log.torn-<n>``) and verifies every
-   acknowledged file by size and sha256; a file that fails is recorded as ``discard``
-   (``unverified``) and its step is done again — never silently reused;
-2. rebuilds the plan from the start record (:func:`rig.plan.build_plan`) and walks it with the
-   recorded results (:func:`find_resume_point`): the *resume point* is the first step that is not
-   ``done``, whose file does not verify, or whose parameters differ from the record;
-3. opens the devices in a new run (``run`` + 1, its own transcripts): the runner reads the relays
-   and switches every lamp off before anything else, checks that every device is the instrument
-   the session was captured with (model and serial; another port is fine, another camera body or
-   spectrometer is refused as ``resume_mismatch``), then writes the start record and a
-   ``resume`` record (what the previous run left: status, reason, relays found on, torn line,
-   steps reused and redone);
-4. drives the plan again (:func:`resumed_plan`): recorded results are sent back into the plan
-   without touching a device for every reusable step before the resume point, except that the
-   device set-up (``start/*``) is always done again, and the lamp lit at the resume point is
-   switched on, warmed up and measured again (its state may have drifted while the rig was down).
-   Reused frames of that lamp's bracket were taken some time after switch-on: a
-   :class:`rig.steps.KeepLampTimeline` wait lets that time pass again, so the next frame sees the
-   lamp as old as it would have been. An exposure set by a reused step is set again before a new
-   frame. From the resume point on, every step is executed.
+* the log is read and validated, and every record the resume will use is rebuilt up front (its
+  step from ``action`` and ``params``, its result, the spectra it names): a malformed but
+  schema-valid record is a :class:`rig.errors.SessionFormatError` naming its line, never a crash
+  half-way through the run;
+* the configuration snapshot is compared with the **user's** configuration (``config.yaml`` or
+  ``--config``; :func:`config_for_resume`): only how the devices are reached may differ, and the
+  devices are opened from the user's configuration only — a port, state file or data directory
+  named by the session is never opened;
+* the session's directories are checked for anything planted (a symbolic link or special file
+  anywhere in ``frames/``, ``spectra/``, ``transcripts/``): refused and named;
+* every acknowledged file is verified by size and sha256; a file that fails is recorded as
+  ``discard`` (``unverified``) and its step is done again — never silently reused;
+* the transcripts of a run that was killed (no file records) are checked to be transcripts.
+
+Then :func:`rig.capture.run_on_station` opens the devices under the signal handlers (a device that
+cannot be opened changes nothing in the session) and only then continues the session: temporaries
+a killed run left (``.incoming-*``, the camera's ``..incoming-*.partial``, ``.reserve``) are
+removed, a torn last line of the log or of a killed run's transcript is moved aside
+(``<name>.torn-<n>``), and a new run (``run`` + 1, its own transcripts) begins. The runner reads the
+relays and switches every lamp off before anything else, checks that every device is the
+instrument the session was captured with (model and serial; another port is fine, another camera
+body or spectrometer is refused as ``resume_mismatch``), then writes the start record, the
+``resume`` record (what the previous run left: status, reason, relays found on, torn line, steps
+reused and redone), a ``discard`` per unverified file, and a ``file`` record acknowledging each
+transcript of a killed run (so the session replays run by run).
+
+The plan is rebuilt from the start record (:func:`rig.plan.build_plan`) and walked with the
+recorded results (:func:`find_resume_point`): the *resume point* is the first step that is not
+``done``, whose file does not verify, or whose parameters differ from the record. It is driven
+again (:func:`resumed_plan`): recorded results are sent back into the plan without touching a
+device for every reusable step before the resume point, except that the device set-up
+(``start/*``) is always done again, and the lamp lit at the resume point is switched on, warmed up
+and measured again (its state may have drifted while the rig was down). Reused frames of that
+lamp's bracket were taken some time after switch-on: a :class:`rig.steps.KeepLampTimeline` wait lets
+that time pass again, so the next frame sees the lamp as old as it would have been. An exposure set
+by a reused step is set again before a new frame. From the resume point on, every step is executed.
+Which steps are set-up, warm-up, exposure or frames is the vocabulary's business
+(:class:`ResumeRules`, one answer per step type).
 
 Step keys are idempotent (the same plan with the same readings yields the same keys), and later
 records of a key win, so a reader sees each step once, as last done.
@@ -33,46 +52,155 @@ records of a key win, so a reader sees each step once, as last done.
 
 from __future__ import annotations
 
-import contextlib
+import hashlib
 import json
 import math
-from collections.abc import Generator, Mapping
+from collections.abc import Callable, Generator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
+
+from pydantic import ValidationError
 
 from calib.core.arrays import FloatArray
+from calib.core.errors import SpectrumError
 from calib.core.spectra import read_spectrum_csv
 from drivers.base import DeviceIdentity
 from rig.capture import RunOptions, run_on_station
 from rig.config import RigConfig
-from rig.errors import NotResumable, ResumeConfigRefused, ResumeMismatch, RigError
+from rig.errors import (
+    NotResumable,
+    PlanProtocolError,
+    ResumeConfigRefused,
+    ResumeMismatch,
+    RigError,
+    SessionFormatError,
+    first_validation_problem,
+)
 from rig.interrupts import InterruptController
 from rig.plan import Plan, build_plan
 from rig.progress import ProgressReporter
-from rig.records import DeviceRecord, DiscardRecord, ResumeRecord, StartRecord, StepRecord
+from rig.records import (
+    DeviceRecord,
+    DiscardRecord,
+    FileRecord,
+    ResumeRecord,
+    StartRecord,
+    StepRecord,
+)
 from rig.runner import RetryPolicy, Runner, RunOutcome
-from rig.session import FileProblem, Session, SessionWriter, read_session
+from rig.session import (
+    FileProblem,
+    Session,
+    SessionWriter,
+    check_before_writing,
+    move_tail_aside,
+    parse_transcript,
+    read_session,
+    remove_leftovers,
+    transcript_path,
+)
 from rig.station import StationBuilder, resolve_builder, station_kind
 from rig.steps import (
     AllLampsOff,
+    AnyStep,
     Capture,
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
     ExposureSet,
+    FrameCaptured,
     KeepLampTimeline,
+    MeasureDark,
     MeasureSpectrum,
     SetExposure,
     SpectrumLoader,
-    Step,
+    StepHandlers,
     StepResult,
     SwitchLamp,
     Wait,
+    interpret,
     result_from_json,
+    step_from_record,
 )
 
-#: The set-up steps every run does again: a new process must re-initialise its devices.
-SETUP_STEPS = (AllLampsOff, ConfigureCamera, ConfigureSpectrometer)
+#: The device roles whose transcripts a run writes.
+ROLES = ("relays", "spectrometer", "camera")
+
+
+@dataclass(frozen=True)
+class StepOnResume:
+    """What resume needs to know of a step, answered per step type by :class:`ResumeRules`.
+
+    Attributes
+    ----------
+    setup
+        Every run does it again: a new process must set its devices up.
+    warmup_lamp
+        The step belongs to this lamp's warm-up (switch-on, warm-up wait, spectrum): done again
+        when the lamp is lit at the resume point.
+    switches
+        ``(lamp, on)`` when the step switches a lamp.
+    exposure
+        The step itself when it sets the camera's exposure (set again before a new frame).
+    frame
+        ``"scene"`` or ``"dark"`` when the step takes a frame.
+    """
+
+    setup: bool = False
+    warmup_lamp: str | None = None
+    switches: tuple[str, bool] | None = None
+    exposure: SetExposure | None = None
+    frame: Literal["scene", "dark"] | None = None
+
+
+class ResumeRules(StepHandlers[StepOnResume]):
+    """The vocabulary as resume reads it (see :class:`StepOnResume`)."""
+
+    def all_lamps_off(self, step: AllLampsOff) -> StepOnResume:
+        return StepOnResume(setup=True)
+
+    def configure_camera(self, step: ConfigureCamera) -> StepOnResume:
+        return StepOnResume(setup=True)
+
+    def configure_spectrometer(self, step: ConfigureSpectrometer) -> StepOnResume:
+        return StepOnResume(setup=True)
+
+    def switch_lamp(self, step: SwitchLamp) -> StepOnResume:
+        return StepOnResume(
+            warmup_lamp=step.lamp if step.on else None, switches=(step.lamp, step.on)
+        )
+
+    def measure_spectrum(self, step: MeasureSpectrum) -> StepOnResume:
+        return StepOnResume(warmup_lamp=step.lamp)
+
+    def measure_dark(self, step: MeasureDark) -> StepOnResume:
+        return StepOnResume(setup=True)  # a new process measures its spectrometer's dark again
+
+    def wait(self, step: Wait) -> StepOnResume:
+        return StepOnResume(warmup_lamp=step.lamp)
+
+    def keep_lamp_timeline(self, step: KeepLampTimeline) -> StepOnResume:
+        return StepOnResume()
+
+    def set_exposure(self, step: SetExposure) -> StepOnResume:
+        return StepOnResume(exposure=step)
+
+    def capture(self, step: Capture) -> StepOnResume:
+        return StepOnResume(frame="scene")
+
+    def dark_frame(self, step: DarkFrame) -> StepOnResume:
+        return StepOnResume(frame="dark")
+
+
+_RULES = ResumeRules()
+
+
+def on_resume(step: AnyStep) -> StepOnResume:
+    """What resume needs to know of ``step``."""
+    return interpret(step, _RULES)
+
+
 #: Relative difference within which a re-applied exposure matches the recorded one.
 EXPOSURE_RTOL = 0.01
 
@@ -85,6 +213,8 @@ class ResumePoint:
     ----------
     reusable
         Done steps whose files verify, by key (the last ``done`` record of each).
+    results
+        The result of every reusable step, rebuilt from its record (and its files) up front.
     resume_step
         The first step to execute (``None``: every step is done; only the stop was missing).
     lamps_on
@@ -96,24 +226,20 @@ class ResumePoint:
     """
 
     reusable: dict[str, StepRecord]
-    resume_step: Step | None
+    results: dict[str, StepResult]
+    resume_step: AnyStep | None
     lamps_on: frozenset[str]
     unverified: list[FileProblem]
-    walked: list[Step] = field(default_factory=list)
+    walked: list[AnyStep] = field(default_factory=list)
 
     @property
     def resume_key(self) -> str | None:
         return None if self.resume_step is None else self.resume_step.key
 
-    def must_redo(self, step: Step) -> bool:
+    def must_redo(self, step: AnyStep) -> bool:
         """Whether a reusable step is done again: device set-up, or the lit lamp's warm-up."""
-        if isinstance(step, SETUP_STEPS):
-            return True
-        if step.lamp_name not in self.lamps_on:
-            return False
-        is_warmup_wait = type(step) is Wait
-        is_switch_on = isinstance(step, SwitchLamp) and step.on
-        return is_switch_on or is_warmup_wait or isinstance(step, MeasureSpectrum)
+        rule = on_resume(step)
+        return rule.setup or (rule.warmup_lamp is not None and rule.warmup_lamp in self.lamps_on)
 
     @property
     def redo(self) -> list[str]:
@@ -131,7 +257,7 @@ def spectrum_loader(session: Session) -> SpectrumLoader:
     return load
 
 
-def _same_params(step: Step, record: StepRecord) -> bool:
+def _same_params(step: AnyStep, record: StepRecord) -> bool:
     return bool(json.loads(json.dumps(step.params())) == record.params)
 
 
@@ -155,20 +281,85 @@ def start_of(session: Session) -> StartRecord:
     return session.start
 
 
-def plan_of(session: Session) -> Plan:
-    """The session's plan, rebuilt from its start record."""
+def _line(record: StepRecord | StartRecord) -> str:
+    return f"line {record.seq + 1}"
+
+
+def _first_error(exc: ValidationError) -> str:
+    return first_validation_problem(exc.errors(), "value")
+
+
+def recorded_config(session: Session) -> RigConfig:
+    """The configuration snapshot of the session's start record, validated (as data: it is only
+    ever compared with the user's configuration, never opened).
+
+    Raises
+    ------
+    SessionFormatError
+        The snapshot is not a valid configuration.
+    """
     start = start_of(session)
-    return build_plan(start.plan.name, start.plan.args)
+    try:
+        return RigConfig.model_validate(start.config)
+    except ValidationError as exc:
+        raise SessionFormatError(
+            f"{session.path}: {_line(start)}: the recorded configuration is invalid: "
+            f"{_first_error(exc)}"
+        ) from None
+
+
+def plan_of(session: Session) -> Plan:
+    """The session's plan, rebuilt from its start record.
+
+    Raises
+    ------
+    SessionFormatError
+        The recorded plan is unknown or its arguments are invalid.
+    """
+    start = start_of(session)
+    try:
+        return build_plan(start.plan.name, start.plan.args)
+    except ValidationError as exc:
+        problem = f"its arguments are invalid: {_first_error(exc)}"
+    except PlanProtocolError as exc:
+        problem = str(exc)
+    raise SessionFormatError(f"{session.path}: {_line(start)}: the recorded plan: {problem}")
+
+
+def _rebuilt_result(session: Session, record: StepRecord, load: SpectrumLoader) -> StepResult:
+    """A done record's result, rebuilt; any problem with the record is a format error naming it."""
+    try:
+        step = step_from_record(record.action, record.params)
+        if step.key != record.key:
+            raise ValueError(f"its action and params make the step {step.key!r}")
+        assert record.result is not None  # a done record has one
+        return result_from_json(step, record.result, load)
+    except (SessionFormatError, SpectrumError) as exc:
+        problem = str(exc)
+    except (ValueError, TypeError, KeyError, OverflowError, AttributeError) as exc:
+        problem = f"{type(exc).__name__}: {exc}"
+    raise SessionFormatError(
+        f"{session.path}: {_line(record)}: step {record.key}: the recorded step or result cannot "
+        f"be read ({problem})"
+    )
 
 
 def find_resume_point(session: Session, unverified: list[FileProblem]) -> ResumePoint:
-    """Walk the rebuilt plan with the recorded results up to the first step that must be executed."""
+    """Walk the rebuilt plan with the recorded results up to the first step that must be executed.
+
+    Raises
+    ------
+    SessionFormatError
+        A reusable record cannot be rebuilt, or the recorded results cannot drive the plan.
+    """
     reusable = reusable_steps(session, unverified)
     load = spectrum_loader(session)
+    results = {key: _rebuilt_result(session, record, load) for key, record in reusable.items()}
     plan = plan_of(session)
     lit: dict[str, bool] = {}
-    walked: list[Step] = []
-    resume_step: Step | None = None
+    walked: list[AnyStep] = []
+    resume_step: AnyStep | None = None
+    step: AnyStep | None = None
     try:
         step = next(plan)
         while True:
@@ -177,27 +368,32 @@ def find_resume_point(session: Session, unverified: list[FileProblem]) -> Resume
                 resume_step = step
                 break
             walked.append(step)
-            if isinstance(step, SwitchLamp):
-                lit[step.lamp] = step.on
-            assert record.result is not None  # a done record has one
-            step = plan.send(result_from_json(step, record.result, load))
+            switches = on_resume(step).switches
+            if switches is not None:
+                lit[switches[0]] = switches[1]
+            step = plan.send(results[step.key])
     except StopIteration:
         pass
     except RigError:
         pass  # the recorded readings make the plan fail again; the resumed run fails the same way
+    except Exception as exc:  # the plan cannot digest what the log says it read
+        where = step.key if step is not None else "the start"
+        raise SessionFormatError(
+            f"{session.path}: the recorded results cannot drive the plan at {where} "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
     finally:
         plan.close()
     lamps_on = frozenset(lamp for lamp, on in lit.items() if on)
-    return ResumePoint(reusable, resume_step, lamps_on, unverified, walked)
+    return ResumePoint(reusable, results, resume_step, lamps_on, unverified, walked)
 
 
-def resumed_plan(plan: Plan, point: ResumePoint, session: Session, run: int) -> Plan:
+def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
     """``plan`` with the reusable steps before the resume point answered from the log.
 
     See the module docstring for what is done again. Raises :class:`ResumeMismatch` when an
     exposure set again reads back differently from the record.
     """
-    load = spectrum_loader(session)
     executing = False
     relit: str | None = None
     skipped: list[StepRecord] = []
@@ -212,28 +408,35 @@ def resumed_plan(plan: Plan, point: ResumePoint, session: Session, run: int) -> 
             record = point.reusable.get(step.key)
             if record is not None and not _same_params(step, record):
                 record = None  # the plan took another branch than the recorded run
+        rule = on_resume(step)
         result: StepResult
         if record is not None and not point.must_redo(step):
-            assert record.result is not None
-            result = result_from_json(step, record.result, load)
+            result = point.results[step.key]
             skipped.append(record)
-            if isinstance(step, SetExposure):
-                pending_exposure = (step, record)
+            if rule.exposure is not None:
+                pending_exposure = (rule.exposure, record)
         else:
             executing = executing or record is None
-            reapply = isinstance(step, Capture | DarkFrame) and pending_exposure is not None
+            reapply = rule.frame is not None and pending_exposure is not None
             if reapply and pending_exposure is not None and pending_exposure[1] in skipped:
                 # Set again below: its time is spent then, not in the wait.
                 skipped.remove(pending_exposure[1])
             yield from _keep_lamp_timeline(relit, skipped, run)
             skipped = []
             if reapply and pending_exposure is not None:
-                yield from _set_exposure_again(*pending_exposure)
-            if isinstance(step, SetExposure | Capture | DarkFrame):
+                exposure_step = pending_exposure[0]
+                recorded = point.results[exposure_step.key]
+                assert isinstance(recorded, ExposureSet)
+                yield from _set_exposure_again(exposure_step, recorded)
+            if rule.exposure is not None or rule.frame is not None:
                 pending_exposure = None
             result = yield step
-            if isinstance(step, SwitchLamp) and step.on and step.lamp in point.lamps_on:
-                relit = step.lamp
+            if (
+                rule.switches is not None
+                and rule.switches[1]
+                and rule.switches[0] in point.lamps_on
+            ):
+                relit = rule.switches[0]
         try:
             step = plan.send(result)
         except StopIteration:
@@ -242,17 +445,17 @@ def resumed_plan(plan: Plan, point: ResumePoint, session: Session, run: int) -> 
 
 def _keep_lamp_timeline(
     lamp: str | None, skipped: list[StepRecord], run: int
-) -> Generator[Step, StepResult, None]:
+) -> Generator[AnyStep, StepResult, None]:
     """Wait the time the reused steps took, when they follow the re-lit lamp's warm-up."""
     seconds = math.fsum(record.duration_s for record in skipped)
     if lamp is not None and seconds > 0:
         yield KeepLampTimeline(lamp, run, seconds)
 
 
-def _set_exposure_again(step: SetExposure, record: StepRecord) -> Generator[Step, StepResult, None]:
+def _set_exposure_again(
+    step: SetExposure, recorded: ExposureSet
+) -> Generator[AnyStep, StepResult, None]:
     """A reused exposure setting, applied again before a new frame (a new process starts unset)."""
-    assert record.result is not None
-    recorded = ExposureSet.from_json(record.result)
     again = yield step
     if not isinstance(again, ExposureSet) or not math.isclose(
         again.actual_s, recorded.actual_s, rel_tol=EXPOSURE_RTOL
@@ -296,6 +499,59 @@ def check_same_devices(session: Session, identities: Mapping[str, DeviceIdentity
             )
 
 
+@dataclass(frozen=True)
+class KilledTranscript:
+    """A transcript of a run that never acknowledged it (killed): where its whole entries end."""
+
+    role: str
+    path: str
+    whole_bytes: int
+    size: int
+
+
+def killed_transcripts(session: Session) -> list[KilledTranscript]:
+    """The transcripts of earlier runs that no ``file`` record acknowledges (a killed run's),
+    each checked to be a transcript up to a possibly torn last line.
+
+    Raises
+    ------
+    SessionFormatError
+        A complete line is not a transcript entry.
+    """
+    acknowledged = {
+        record.path
+        for record in session.records
+        if isinstance(record, FileRecord) and record.role == "transcript"
+    }
+    found = []
+    for run in range(1, session.records[-1].run + 1):
+        for role in ROLES:
+            relative = transcript_path(role, run)
+            if relative in acknowledged or not (session.path / relative).exists():
+                continue
+            data = session.file_path(relative).read_bytes()
+            whole = data.rfind(b"\n") + 1
+            parse_transcript(data[:whole], f"{session.path}: {relative}")
+            found.append(KilledTranscript(role, relative, whole, len(data)))
+    return found
+
+
+def _acknowledge_killed_transcripts(
+    writer: SessionWriter, session: Session, transcripts: list[KilledTranscript]
+) -> None:
+    """A ``file`` record for each transcript of a killed run (its torn tail already moved aside)."""
+    for transcript in transcripts:
+        data = session.file_path(transcript.path).read_bytes()
+        writer.write(
+            FileRecord,
+            key=f"transcripts/{transcript.role}",
+            role="transcript",
+            path=transcript.path,
+            size=len(data),
+            sha256=hashlib.sha256(data).hexdigest(),
+        )
+
+
 def _write_resume_records(
     writer: SessionWriter, runner: Runner, session: Session, point: ResumePoint
 ) -> None:
@@ -332,22 +588,10 @@ def _reanalyse_reused_frames(runner: Runner, session: Session, point: ResumePoin
     """
     lamp = point.resume_step.lamp_name if point.resume_step is not None else None
     for step in point.walked:
-        if isinstance(step, Capture) and step.lamp == lamp:
-            result = point.reusable[step.key].result or {}
-            runner.station.analyzer.analyse(session.file_path(str(result["file"])))
-
-
-def _remove_incoming(session: Session) -> None:
-    """Delete downloads a killed run left half-done (never acknowledged, named ``.incoming-*``)."""
-    for directory in ("frames", "spectra"):
-        for leftover in (session.path / directory).glob(".incoming-*.part"):
-            with contextlib.suppress(OSError):
-                leftover.unlink()
-
-
-def recorded_config(path: Path) -> RigConfig:
-    """The configuration a session was captured with (its start record's snapshot)."""
-    return RigConfig.model_validate(start_of(read_session(path)).config)
+        result = point.results[step.key]
+        if on_resume(step).frame == "scene" and step.lamp_name == lamp:
+            assert isinstance(result, FrameCaptured)
+            runner.station.analyzer.analyse(session.file_path(result.file))
 
 
 #: What a configuration given to ``rig resume --config`` may change: how each device is reached
@@ -366,10 +610,16 @@ def config_for_resume(recorded: RigConfig, new: RigConfig) -> RigConfig:
     ResumeConfigRefused
         ``new`` changes anything else (lamps, plan, camera settings, a device's kind …), named.
     """
-    changed = _changed_fields(
-        recorded.model_dump(mode="json"), new.model_dump(mode="json"), prefix=""
-    )
+    before, after = recorded.model_dump(mode="json"), new.model_dump(mode="json")
+    changed = _changed_fields(before, after, prefix="")
     refused = [field for field in changed if not _may_change(field)]
+    # Another kind of device: say that, not every field the two kinds do not share.
+    for role, device in before["devices"].items():
+        kind, new_kind = device["kind"], after["devices"][role]["kind"]
+        if kind != new_kind:
+            within = f"devices.{role}."
+            refused = [field for field in refused if not field.startswith(within)]
+            refused.append(f"devices.{role}.kind ({kind} → {new_kind})")
     if refused:
         raise ResumeConfigRefused(
             f"the configuration changes {', '.join(refused)}; a resumed session measures as it "
@@ -401,43 +651,84 @@ def _changed_fields(before: object, after: object, *, prefix: str) -> list[str]:
     return [] if before == after else [prefix.rstrip(".")]
 
 
+@dataclass(frozen=True)
+class PreparedResume:
+    """A session checked for resuming, before any device is opened or anything written."""
+
+    session: Session
+    config: RigConfig
+    point: ResumePoint
+    leftovers: list[Path]
+    killed: list[KilledTranscript]
+
+
+def prepare_resume(path: Path, config: RigConfig) -> PreparedResume:
+    """Check the session at ``path`` for resuming with the user's ``config``; open and write nothing.
+
+    Raises
+    ------
+    SessionFormatError
+        Not a valid session: a malformed record, an invalid configuration snapshot or plan, a
+        path planted in its directories, a killed run's transcript that is not one.
+    NotResumable
+        The session is complete, or has no start record.
+    ResumeConfigRefused
+        ``config`` differs from the recorded configuration in what is measured.
+    """
+    session = read_session(path)
+    start_of(session)  # NotResumable without a start record
+    if not session.resumable:
+        raise NotResumable(
+            f"{path} is complete; there is nothing to resume (estimate it with rig estimate)"
+        )
+    config = config_for_resume(recorded_config(session), config)
+    leftovers = check_before_writing(session)
+    unverified = session.verify_files()
+    point = find_resume_point(session, unverified)
+    return PreparedResume(session, config, point, leftovers, killed_transcripts(session))
+
+
+def _continue_session(prepared: PreparedResume, interrupts: InterruptController) -> SessionWriter:
+    """The session opened for the new run: leftovers removed, torn tails moved aside."""
+    session = prepared.session
+    try:
+        remove_leftovers(prepared.leftovers)
+        for transcript in prepared.killed:
+            if transcript.whole_bytes < transcript.size:
+                move_tail_aside(session.path / transcript.path, transcript.whole_bytes)
+    except OSError as exc:
+        raise SessionFormatError(f"{session.path}: cannot tidy the session: {exc}") from None
+    return SessionWriter.append(session, guard=interrupts.critical)
+
+
 def run_resume(
     path: Path,
+    config: RigConfig,
     *,
     progress: ProgressReporter | None = None,
     interrupts: InterruptController | None = None,
     retry: RetryPolicy | None = None,
     builder: StationBuilder | None = None,
-    config: RigConfig | None = None,
+    on_session: Callable[[SessionWriter], None] | None = None,
 ) -> RunOutcome:
-    """Continue the session at ``path`` in a new run; return how the run ended.
+    """Continue the session at ``path`` in a new run with the user's ``config``; return how the
+    run ended.
 
-    ``config`` replaces the recorded configuration for this run where :func:`config_for_resume`
-    allows it (how the devices are reached); the new run's start record keeps what it used.
+    ``config`` is what the devices are opened with; it may differ from the recorded configuration
+    only in how the devices are reached (:func:`config_for_resume`), and the new run's start record
+    keeps what it used. Everything is checked before anything is opened (:func:`prepare_resume`).
 
     Raises
     ------
-    NotResumable
-        The session is complete, or has no start record.
-    ResumeConfigRefused
-        ``config`` changes what the session measures.
-    rig.errors.SessionFormatError
-        ``path`` is not a valid session.
+    NotResumable, ResumeConfigRefused, rig.errors.SessionFormatError
+        See :func:`prepare_resume`; nothing was opened or written.
+    rig.errors.StationOpenFailed, rig.errors.OpeningInterrupted
+        The devices could not be opened, or a signal came while they were; nothing was written.
     """
-    session = read_session(path)
-    start = start_of(session)  # NotResumable without a start record
-    if not session.resumable:
-        raise NotResumable(
-            f"{path} is complete; there is nothing to resume (estimate it with rig estimate)"
-        )
-    recorded = RigConfig.model_validate(start.config)
-    config = recorded if config is None else config_for_resume(recorded, config)
-    unverified = session.verify_files()
-    point = find_resume_point(session, unverified)
-    builder = builder or resolve_builder(station_kind(config))  # before the log is touched
+    prepared = prepare_resume(path, config)
+    builder = builder or resolve_builder(station_kind(prepared.config))
     interrupts = interrupts or InterruptController()
-    writer = SessionWriter.append(session, guard=interrupts.critical)
-    _remove_incoming(session)
+    session, point = prepared.session, prepared.point
 
     def after_start(runner: Runner) -> None:
         check_same_devices(session, runner.identities)
@@ -446,14 +737,15 @@ def run_resume(
             for record in session.files()
             if record.role in ("frame", "dark")
         )
-        _write_resume_records(writer, runner, session, point)
+        _write_resume_records(runner.session, runner, session, point)
+        _acknowledge_killed_transcripts(runner.session, session, prepared.killed)
         _reanalyse_reused_frames(runner, session, point)
 
     return run_on_station(
-        config,
-        writer,
-        resumed_plan(plan_of(session), point, session, writer.run),
-        start.plan,
-        RunOptions(progress, interrupts, retry, builder),
+        prepared.config,
+        lambda: _continue_session(prepared, interrupts),
+        resumed_plan(plan_of(session), point, session.records[-1].run + 1),
+        start_of(session).plan,
+        RunOptions(progress, interrupts, retry, builder, on_session),
         after_start=after_start,
     )

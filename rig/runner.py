@@ -15,6 +15,7 @@ of minutes takes no wall time; device deadlines are wall-clock.
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import math
 import re
@@ -30,10 +31,12 @@ import numpy as np
 
 from calib.core.errors import SpectrumError
 from calib.core.software import current_software
-from calib.core.spectra import Spectrum, read_spectrum_csv
-from drivers.base import DeviceError, DeviceIdentity, StateMismatch
+from calib.core.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
+from drivers.base import DarkCorrecting, DeviceError, DeviceIdentity, RelayBoard, StateMismatch
+from drivers.local_files import NO_SPACE_ERRNOS, UnsafeLocalPath
 from drivers.spectrometer import longest_measure_s
-from rig.config import RigConfig, TwinSpectrometerConfig
+from drivers.spectrometer.ocean import integration_ladder_ms
+from rig.config import RigConfig, SeabreezeSpectrometerConfig
 from rig.dryrun import DryRunReport
 from rig.errors import (
     FrameAnalysisError,
@@ -61,18 +64,22 @@ from rig.records import (
     StepRecord,
     StopRecord,
 )
-from rig.session import SessionWriter
+from rig.session import STOP_TEXT_CHARS, SessionWriter
 from rig.station import Station
 from rig.steps import (
     AllLampsOff,
+    AnyStep,
     CameraReady,
     Capture,
     ConfigureCamera,
     ConfigureSpectrometer,
     DarkFrame,
+    DarkMeasured,
     DeviceRole,
     ExposureSet,
     FrameCaptured,
+    KeepLampTimeline,
+    MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
@@ -80,10 +87,12 @@ from rig.steps import (
     SpectrometerReady,
     SpectrumMeasured,
     Step,
+    StepHandlers,
     StepResult,
     SwitchLamp,
     Wait,
     Waited,
+    interpret,
 )
 from rig.workers import DeviceWorker
 
@@ -95,10 +104,27 @@ WAIT_SLICE_S = 0.25
 HALT_CLOSE_TIMEOUT_S = 0.2
 _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,8}$")
 DEVICE_ROLES: tuple[DeviceRole, ...] = ("relays", "camera", "spectrometer")
+#: ``OSError`` numbers that stop a run as ``session_write``: the disk is full or failing.
+SESSION_WRITE_ERRNOS = NO_SPACE_ERRNOS | {errno.EIO, errno.EROFS}
 #: Readings a step takes at most while the first reading after a settings change is stale.
 STALE_READING_ATTEMPTS = 3
 #: Relative difference above which a reading's own exposure shows a setting other than the new one.
 STALE_EXPOSURE_RTOL = 0.02
+
+
+def dark_duration_s(config: RigConfig) -> float:
+    """How long the spectrometer's dark takes: every rung of its integration ladder (a fixed
+    ``spectrum.exposure_ms`` alone), each averaged, plus the stale scan after each change."""
+    spectrometer = config.devices.spectrometer
+    if not isinstance(spectrometer, SeabreezeSpectrometerConfig):
+        return config.dry_run.spectrum_measure_s
+    fixed_ms = config.spectrum.exposure_ms
+    rungs = (
+        (fixed_ms,)
+        if fixed_ms is not None
+        else integration_ladder_ms(spectrometer.integration_min_ms, spectrometer.integration_max_ms)
+    )
+    return math.fsum(rungs) * (spectrometer.averages + 1) / 1000.0
 
 
 @dataclass(frozen=True)
@@ -123,6 +149,7 @@ class StepTimeouts:
     spectrometer_s: float
     camera_s: float
     capture_extra_s: float
+    dark_s: float = 0.0
 
     @classmethod
     def from_config(cls, config: RigConfig) -> StepTimeouts:
@@ -132,21 +159,19 @@ class StepTimeouts:
         # case, so a silent instrument ends in the driver's retryable timeout, not here.
         devices = config.devices
         spectrometer = devices.spectrometer
-        model = (
-            spectrometer.emulate
-            if isinstance(spectrometer, TwinSpectrometerConfig)
-            else (spectrometer.kind)
-        )
+        model = devices.spectrometer_model
         longest = longest_measure_s(
             model,
             timeout_s=spectrometer.timeout_s,
             measure_timeout_s=spectrometer.measure_timeout_s,
         )
+        dark_s = dark_duration_s(config) * 2.0 + 10.0 * spectrometer.timeout_s
         return cls(
             relays_s=4 * devices.relays.timeout_s + 1.0,
             spectrometer_s=max(2 * spectrometer.timeout_s, longest) + 1.0,
             camera_s=2 * devices.camera.timeout_s + 1.0,
             capture_extra_s=devices.camera.download_timeout_s + devices.camera.timeout_s,
+            dark_s=max(longest, dark_s) + 1.0,
         )
 
 
@@ -176,6 +201,23 @@ class RunOutcome:
         return self.error_exit_code
 
 
+def _shortened(text: str) -> str:
+    """At most :data:`rig.session.STOP_TEXT_CHARS` characters, the end kept (where a traceback
+    names the failing line)."""
+    if len(text) <= STOP_TEXT_CHARS:
+        return text
+    return "…" + text[-(STOP_TEXT_CHARS - 1) :]
+
+
+def _small(error: ErrorInfo) -> ErrorInfo:
+    """``error`` with its message and traceback shortened for the stop record, which must fit in
+    the room reserved for it on a full disk."""
+    traceback_text = None if error.traceback is None else _shortened(error.traceback)
+    return error.model_copy(
+        update={"message": _shortened(error.message), "traceback": traceback_text}
+    )
+
+
 class StopRequested(Exception):
     """Raised between steps after a first interrupt."""
 
@@ -189,10 +231,19 @@ def software_info() -> SoftwareInfo:
     return SoftwareInfo(**current_software().to_dict())
 
 
+def as_session_error(exc: Exception) -> Exception:
+    """``exc``, or a :class:`SessionWriteError` when it says the disk is full or failing (an
+    ``OSError`` with ``ENOSPC``, ``EDQUOT``, ``EFBIG``, ``EIO`` or ``EROFS`` from wherever it came:
+    the session writer, a driver storing a download, the twin's state file)."""
+    if isinstance(exc, OSError) and exc.errno in SESSION_WRITE_ERRNOS:
+        return SessionWriteError(f"cannot write: {exc}")
+    return exc
+
+
 def error_info(exc: BaseException, *, with_traceback: bool = False) -> ErrorInfo:
     """An exception as a log record's error: its ``reason`` (or ``internal``), type and message."""
     reason = getattr(exc, "reason", None)
-    if not isinstance(reason, str) or not re.match(r"^[a-z][a-z0-9_]*$", reason):
+    if not isinstance(reason, str) or not re.fullmatch(r"[a-z][a-z0-9_]*", reason):
         reason = "internal"
     return ErrorInfo(
         reason=reason,
@@ -204,8 +255,57 @@ def error_info(exc: BaseException, *, with_traceback: bool = False) -> ErrorInfo
     )
 
 
-class Runner:
+def switch_everything_off(
+    relays: RelayBoard, worker: DeviceWorker, timeout_s: float
+) -> tuple[bool, str]:
+    """Switch every relay channel off (one by one if "all off" fails) and read the board back.
+
+    Every call runs in ``worker`` under ``timeout_s``. Returns whether the board read back all off,
+    and what went wrong when it did not.
+    """
+    problems = []
+    try:
+        worker.call("switch all off", relays.all_off, timeout_s)
+    except Exception as exc:
+        problems.append(f"all off failed: {exc}")
+        n_channels = 0
+        with contextlib.suppress(Exception):
+            n_channels = int(relays.channels)
+        for channel in range(1, n_channels + 1):
+            try:
+                worker.call(
+                    f"switch channel {channel} off",
+                    functools.partial(relays.set, channel, False),
+                    timeout_s,
+                )
+            except Exception as channel_exc:
+                problems.append(f"channel {channel}: {channel_exc}")
+    try:
+        state = worker.call("read state", relays.state, timeout_s)
+    except Exception as exc:
+        problems.append(f"reading the board back failed: {exc}")
+        state = None
+    confirmed = state is not None and not any(state)
+    if confirmed:
+        return True, ""
+    return False, "; ".join(problems) if problems else f"board reads {state}"
+
+
+def switch_off_now(relays: RelayBoard, timeout_s: float) -> bool:
+    """:func:`switch_everything_off` outside a run (while the devices open), on a worker of its
+    own; ``True`` when the board read back all off. Never raises."""
+    worker = DeviceWorker("relays", "relay board")
+    try:
+        return switch_everything_off(relays, worker, timeout_s)[0]
+    finally:
+        worker.close(timeout_s=0.1)
+
+
+class Runner(StepHandlers[StepResult]):
     """Executes plans on a station, recording into a session.
+
+    The runner is the vocabulary's interpreter on devices: one :class:`rig.steps.StepHandlers`
+    method per step type, reached through :func:`rig.steps.interpret`.
 
     Parameters
     ----------
@@ -282,7 +382,7 @@ class Runner:
         process goes off first). ``after_start`` writes records that follow the start record (the
         resume record).
         """
-        self.interrupts.install()
+        installed = self.interrupts.install()
         self._t0 = self.clock.now()
         self._plan_info, self._config = plan_info, config
         status: ExitStatus = "success"
@@ -290,7 +390,7 @@ class Runner:
         failure: BaseException | None = None
         failed_key: str | None = None
         signal_name: str | None = None
-        current: Step | None = None
+        current: AnyStep | None = None
         try:
             try:
                 self._lamps_off_first()
@@ -309,13 +409,15 @@ class Runner:
             except StopRequested as exc:
                 status, reason, message = "abort", "interrupted", str(exc)
                 signal_name = exc.signal_name
-            except (DeviceError, RigError) as exc:
-                status, reason, message, failure = "fail", error_info(exc).reason, str(exc), exc
-                failed_key = getattr(exc, "key", None) or (current.key if current else None)
             except Exception as exc:
-                status, reason, failure = "fail", "internal", exc
-                message = f"internal error: {type(exc).__name__}: {exc}"
-                failed_key = current.key if current else None
+                failure = as_session_error(exc)
+                status, reason = "fail", error_info(failure).reason
+                message = (
+                    str(failure)
+                    if isinstance(failure, DeviceError | RigError)
+                    else f"internal error: {type(failure).__name__}: {failure}"
+                )
+                failed_key = getattr(failure, "key", None) or (current.key if current else None)
         except HaltRequested as exc:  # a second signal, during a step or while handling the first
             status, reason, message = "abort", "halted", str(exc)
             signal_name = self.interrupts.stop_requested or exc.signal_name
@@ -328,7 +430,8 @@ class Runner:
             self._write_stop(status, reason, message, failed_key, failure, lamps_off)
             self.progress.finish(status == "success")
             self._close_workers()
-            self.interrupts.uninstall()
+            if installed:
+                self.interrupts.uninstall()
         return RunOutcome(
             session=self.session.path,
             exit_status=status,
@@ -394,7 +497,7 @@ class Runner:
 
     # ------------------------------------------------------------------------------ one step
 
-    def _execute(self, step: Step) -> StepResult:
+    def _execute(self, step: AnyStep) -> StepResult:
         key = step.key
         if key in self._seen_keys:
             raise PlanProtocolError(f"the plan yielded the step key {key!r} twice")
@@ -406,7 +509,7 @@ class Runner:
             try:
                 if self.station.step_hook is not None:
                     self.station.step_hook(key)
-                result = self._dispatch(step)
+                result = interpret(step, self)
                 break
             except DeviceError as exc:
                 if (
@@ -472,71 +575,36 @@ class Runner:
             with contextlib.suppress(SessionWriteError):
                 self._write_step(step, attempts, started_s, error=exc)
 
-    def _dispatch(self, step: Step) -> StepResult:
-        station = self.station
-        match step:
-            case AllLampsOff():
-                self._call(
-                    "relays", "switch all off", station.relays.all_off, self.timeouts.relays_s
-                )
-                return self._relay_state()
-            case SwitchLamp():
-                self._call(
-                    "relays",
-                    f"switch channel {step.channel} {'on' if step.on else 'off'}",
-                    lambda: station.relays.set(step.channel, step.on),
-                    self.timeouts.relays_s,
-                )
-                state = self._relay_state()
-                if not 1 <= step.channel <= len(state.channels) or (
-                    state.channels[step.channel - 1] != step.on
-                ):
-                    raise StateMismatch(
-                        self._workers["relays"].device,
-                        f"relay channel {step.channel} ({step.lamp}) did not follow",
-                        expected="on" if step.on else "off",
-                        actual="".join("1" if on else "0" for on in state.channels),
-                    )
-                return state
-            case ConfigureCamera():
-                self._camera_changed = True
-                return self._configure_camera(step)
-            case ConfigureSpectrometer():
-                self._spectrometer_exposure_ms = step.exposure_ms
-                self._call(
-                    "spectrometer",
-                    "set exposure",
-                    lambda: station.spectrometer.set_exposure(step.exposure_ms),
-                    self.timeouts.spectrometer_s,
-                )
-                return SpectrometerReady(step.exposure_ms)
-            case MeasureSpectrum():
-                return self._measure(step)
-            case Wait():
-                began_s = self._now_s()
-                completed = self._sleep(step.seconds)
-                ended_s = self._now_s()
-                return Waited(ended_s, ended_s - began_s, completed)
-            case SetExposure():
-                self._camera_changed = True
-                actual = self._call(
-                    "camera",
-                    f"set exposure {step.exposure_s:g} s",
-                    lambda: station.camera.set_exposure(step.exposure_s),
-                    self.timeouts.camera_s,
-                )
-                return ExposureSet(step.exposure_s, float(actual))
-            case Capture() | DarkFrame():
-                return self._capture(step)
-        raise PlanProtocolError(f"the runner has no handler for {type(step).__name__}")
+    # ------------------------------------------------------------ the vocabulary on devices
+    # The runner's handlers of rig.steps.StepHandlers: reached through interpret() from _execute,
+    # which adds the deadline, retries and records around them.
 
-    def _relay_state(self) -> RelayState:
-        state = self._call(
-            "relays", "read state", self.station.relays.state, self.timeouts.relays_s
+    def all_lamps_off(self, step: AllLampsOff) -> RelayState:
+        self._call("relays", "switch all off", self.station.relays.all_off, self.timeouts.relays_s)
+        return self._relay_state()
+
+    def switch_lamp(self, step: SwitchLamp) -> RelayState:
+        relays = self.station.relays
+        self._call(
+            "relays",
+            f"switch channel {step.channel} {'on' if step.on else 'off'}",
+            functools.partial(relays.set, step.channel, step.on),
+            self.timeouts.relays_s,
         )
-        return RelayState(self._now_s(), tuple(bool(s) for s in state))
+        state = self._relay_state()
+        if not 1 <= step.channel <= len(state.channels) or (
+            state.channels[step.channel - 1] != step.on
+        ):
+            raise StateMismatch(
+                self._workers["relays"].device,
+                f"relay channel {step.channel} ({step.lamp}) did not follow",
+                expected="on" if step.on else "off",
+                actual="".join("1" if on else "0" for on in state.channels),
+            )
+        return state
 
-    def _configure_camera(self, step: ConfigureCamera) -> CameraReady:
+    def configure_camera(self, step: ConfigureCamera) -> CameraReady:
+        self._camera_changed = True
         camera = self.station.camera
         read_back = []
         for name, value in step.settings:
@@ -551,6 +619,53 @@ class Runner:
             "camera", "read exposure range", camera.exposure_range_s, self.timeouts.camera_s
         )
         return CameraReady(tuple(read_back), (float(low), float(high)))
+
+    def configure_spectrometer(self, step: ConfigureSpectrometer) -> SpectrometerReady:
+        self._spectrometer_exposure_ms = step.exposure_ms
+        self._call(
+            "spectrometer",
+            "set exposure",
+            functools.partial(self.station.spectrometer.set_exposure, step.exposure_ms),
+            self.timeouts.spectrometer_s,
+        )
+        return SpectrometerReady(step.exposure_ms)
+
+    def measure_dark(self, step: MeasureDark) -> DarkMeasured:
+        return self._measure_dark(step)
+
+    def measure_spectrum(self, step: MeasureSpectrum) -> SpectrumMeasured:
+        return self._measure(step)
+
+    def wait(self, step: Wait) -> Waited:
+        began_s = self._now_s()
+        completed = self._sleep(step.seconds)
+        ended_s = self._now_s()
+        return Waited(ended_s, ended_s - began_s, completed)
+
+    def keep_lamp_timeline(self, step: KeepLampTimeline) -> Waited:
+        return self.wait(step)
+
+    def set_exposure(self, step: SetExposure) -> ExposureSet:
+        self._camera_changed = True
+        actual = self._call(
+            "camera",
+            f"set exposure {step.exposure_s:g} s",
+            functools.partial(self.station.camera.set_exposure, step.exposure_s),
+            self.timeouts.camera_s,
+        )
+        return ExposureSet(step.exposure_s, float(actual))
+
+    def capture(self, step: Capture) -> FrameCaptured:
+        return self._capture(step)
+
+    def dark_frame(self, step: DarkFrame) -> FrameCaptured:
+        return self._capture(step)
+
+    def _relay_state(self) -> RelayState:
+        state = self._call(
+            "relays", "read state", self.station.relays.state, self.timeouts.relays_s
+        )
+        return RelayState(self._now_s(), tuple(bool(s) for s in state))
 
     def _discard_stale(self, key: str, path: str, problem: str) -> None:
         """Record that a reading was stale; the step takes it again."""
@@ -623,16 +738,47 @@ class Runner:
             int(np.count_nonzero(values < 0)),
         )
 
+    def _check_lamps_off(self, before: str) -> None:
+        state = self._relay_state()
+        lit = [str(i + 1) for i, on in enumerate(state.channels) if on]
+        if lit:
+            raise LampsNotOff(
+                self._workers["relays"].device,
+                f"relay channel(s) {', '.join(lit)} read as on before {before}",
+            )
+
+    def _measure_dark(self, step: MeasureDark) -> DarkMeasured:
+        """The spectrometer's dark spectra, lamps checked off first, stored as one CSV file
+        (``wavelength_nm`` and a ``dark_<t>ms`` column of raw counts per integration time)."""
+        spectrometer = self.station.spectrometer
+        device = self._workers["spectrometer"].device
+        if not isinstance(spectrometer, DarkCorrecting):
+            raise PlanProtocolError(f"{step.key}: {device} measures no dark of its own")
+        self._check_lamps_off("the spectrometer's dark")
+        reading = self._call(
+            "spectrometer", "measure the dark", spectrometer.measure_dark, self.timeouts.dark_s
+        )
+        try:
+            darks = MultiSpectrum(
+                reading.wavelength_nm,
+                np.asarray(reading.counts, dtype=np.float64).T,
+                channels=tuple(f"dark_{t:g}ms" for t in reading.integration_ms),
+                name=step.key,
+                negative="clip",
+            )
+        except SpectrumError as exc:
+            raise InvalidReading(device, f"invalid dark spectrum: {exc}") from None
+        temporary = self.session.incoming_path("spectra")
+        write_csv(temporary, darks)
+        record = self.session.commit_file(
+            temporary, "spectra/dark.csv", key=step.key, role="spectrum", units="counts"
+        )
+        return DarkMeasured(self._now_s(), record.path, tuple(reading.integration_ms))
+
     def _capture(self, step: Capture | DarkFrame) -> FrameCaptured:
         dark = isinstance(step, DarkFrame)
         if dark:
-            state = self._relay_state()
-            lit = [str(i + 1) for i, on in enumerate(state.channels) if on]
-            if lit:
-                raise LampsNotOff(
-                    self._workers["relays"].device,
-                    f"relay channel(s) {', '.join(lit)} read as on before a dark frame",
-                )
+            self._check_lamps_off("a dark frame")
         for _ in range(STALE_READING_ATTEMPTS):
             captured, record = self._capture_once(step, dark)
             problem = self._stale_frame(step, record)
@@ -674,9 +820,13 @@ class Runner:
                 lambda: camera.capture(temporary),
                 step.exposure_s + self.timeouts.capture_extra_s,
             )
-        except BaseException:
+        except BaseException as exc:
             with contextlib.suppress(OSError):
                 temporary.unlink(missing_ok=True)
+            if isinstance(exc, UnsafeLocalPath):
+                raise self.session.refusal(exc) from None
+            if isinstance(exc, OSError):  # the driver could not store the download
+                raise SessionWriteError(f"storing the frame from the camera: {exc}") from exc
             raise
         source = Path(captured.path)
         if not source.is_file():
@@ -686,7 +836,7 @@ class Runner:
             )
         suffix = Path(captured.camera_path).suffix.lower()
         stream = "dark" if dark else "scene"
-        relative = f"frames/{step.lamp}/{stream}-{step.index:03d}{suffix if _SUFFIX.match(suffix) else '.raw'}"
+        relative = f"frames/{step.lamp}/{stream}-{step.index:03d}{suffix if _SUFFIX.fullmatch(suffix) else '.raw'}"
         record = self.session.commit_file(
             source, relative, key=step.key, role="dark" if dark else "frame"
         )
@@ -727,36 +877,13 @@ class Runner:
 
     def _switch_everything_off(self) -> bool:
         """Switch every relay channel off and read the board back; ``True`` when confirmed off."""
-        relays = self.station.relays
-        worker = self._workers["relays"]
-        problems = []
-        try:
-            worker.call("switch all off", relays.all_off, self.timeouts.relays_s)
-        except Exception as exc:
-            problems.append(f"all off failed: {exc}")
-            n_channels = 0
-            with contextlib.suppress(Exception):
-                n_channels = int(relays.channels)
-            for channel in range(1, n_channels + 1):
-                try:
-                    worker.call(
-                        f"switch channel {channel} off",
-                        functools.partial(relays.set, channel, False),
-                        self.timeouts.relays_s,
-                    )
-                except Exception as channel_exc:
-                    problems.append(f"channel {channel}: {channel_exc}")
-        try:
-            state = worker.call("read state", relays.state, self.timeouts.relays_s)
-        except Exception as exc:
-            problems.append(f"reading the board back failed: {exc}")
-            state = None
-        confirmed = state is not None and not any(state)
+        confirmed, problem = switch_everything_off(
+            self.station.relays, self._workers["relays"], self.timeouts.relays_s
+        )
         if not confirmed:
             self.progress.message(
-                "WARNING: could not confirm that every lamp is off"
-                + (f" ({'; '.join(problems)})" if problems else f" (board reads {state})")
-                + ": switch them off by hand"
+                f"WARNING: could not confirm that every lamp is off ({problem}): switch them off "
+                "by hand"
             )
         return confirmed
 
@@ -770,7 +897,13 @@ class Runner:
         lamps_off: bool,
     ) -> None:
         session = self.session
-        if session.broken is not None:
+        # The room reserved for these records is released first: on a full disk they still fit.
+        if not session.finish():
+            if not session.killed:
+                self.progress.message(
+                    f"WARNING: the stop record could not be written: {session.broken}"
+                )
+            session.close()
             return
         try:
             if not self._started:
@@ -784,15 +917,16 @@ class Runner:
                 )
             session.close_transcripts()
             internal = failure is not None and not isinstance(failure, DeviceError | RigError)
+            error = error_info(failure, with_traceback=internal) if failure else None
             session.write(
                 StopRecord,
                 exit_status=status,
                 reason=reason,
-                message=message,
+                message=_shortened(message),
                 wall_time=datetime.now(UTC),
                 t_s=self._now_s(),
                 failed_key=failed_key,
-                error=error_info(failure, with_traceback=internal) if failure else None,
+                error=None if error is None else _small(error),
                 lamps_off=lamps_off,
                 counts=dict(self._counts),
             )

@@ -7,11 +7,15 @@
       frames/<lamp>/       RAW files exactly as downloaded: scene-000.dng, dark-003.dng, …
       spectra/<lamp>/      spectra as CSV (calib.core.spectra.write_csv): warmup-002.csv, reference-000.csv
       transcripts/         every device exchange, one JSONL file per device role
+      .reserve             room for the run's last records, while a run is active
 
 Writing (:class:`SessionWriter`): a file is written under a temporary name, hashed (sha256) while
 it is read for syncing, synced, renamed into place, its directory synced, and only then acknowledged
-by a ``file`` record. Each record is one ``write`` of one line followed by one ``fdatasync``; after
-any write error the writer refuses further writes, so a torn line can only ever be the last one.
+by a ``file`` record. Each record is one ``write`` of one line followed by one ``fdatasync``. Every
+path is checked on the way (:mod:`drivers.local_files`): nothing is written through a link or
+special file planted in the session. A write that fails part-way (a full disk) is cut back off, so
+log and transcripts end with whole records; the writer then refuses further records except the
+run's last ones, written in the room reserved for them (decision 0016).
 
 Reading (:func:`read_session`): every record is validated; a torn last line (a crash mid-write) is
 reported, not fatal; paths are never trusted — they must be plain relative names inside the data
@@ -22,6 +26,7 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import errno
 import hashlib
 import json
 import os
@@ -33,14 +38,23 @@ from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, TypeVar, get_args
 
 from pydantic import TypeAdapter, ValidationError
 
-from calib.core.checksums import file_sha256
+from calib.core.checksums import CHUNK_BYTES, file_sha256
 from calib.core.spectra import Spectrum, write_csv
-from drivers.base import TranscriptEntry
-from rig.errors import SessionFormatError, SessionWriteError
+from drivers.base import TranscriptDirection, TranscriptEntry, TranscriptSink
+from drivers.local_files import (
+    UnsafeLocalPath,
+    checked_directory,
+    create_new_file,
+    describe_entry,
+    entries_below,
+    is_plain,
+    write_all,
+)
+from rig.errors import SessionFormatError, SessionWriteError, first_validation_problem
 from rig.records import (
     DATA_DIRS,
     FRAMES_DIR,
@@ -57,6 +71,7 @@ from rig.records import (
 )
 
 RecordT = TypeVar("RecordT", bound=Record)
+TRANSCRIPT_DIRECTIONS = frozenset(get_args(TranscriptDirection))
 SessionStatus = Literal["complete", "interrupted", "failed"]
 Guard = Callable[[], AbstractContextManager[object]]
 
@@ -83,33 +98,31 @@ def _sync_directory(path: Path) -> None:
         os.close(fd)
 
 
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        written = os.write(fd, view)
-        view = view[written:]
+def move_tail_aside(path: Path, keep_bytes: int) -> str:
+    """Copy ``path``'s bytes after the first ``keep_bytes`` to ``<name>.torn-<n>`` next to it
+    (synced), then cut them off ``path``; return the copy's name.
 
-
-def _move_torn_tail(log: Path, torn_bytes: int) -> str:
-    """Copy the log's torn last ``torn_bytes`` to ``log.torn-<n>`` (synced), then cut them off the log."""
+    A torn last line (a crash mid-write) is kept for a person to look at, never silently dropped,
+    and the file again ends with whole records.
+    """
     number = 1
-    while (log.parent / f"{LOG_NAME}.torn-{number}").exists():
+    while os.path.lexists(path.parent / f"{path.name}.torn-{number}"):
         number += 1
-    aside = log.parent / f"{LOG_NAME}.torn-{number}"
-    size = log.stat().st_size
-    with log.open("rb") as stream:
-        stream.seek(size - torn_bytes)
-        tail = stream.read()
-    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    aside = path.parent / f"{path.name}.torn-{number}"
+    fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
     try:
-        _write_all(fd, tail)
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    _sync_directory(log.parent)
-    fd = os.open(log, os.O_WRONLY)
-    try:
-        os.ftruncate(fd, size - torn_bytes)
+        os.lseek(fd, keep_bytes, os.SEEK_SET)
+        tail = b""
+        while chunk := os.read(fd, CHUNK_BYTES):
+            tail += chunk
+        copy = create_new_file(aside)
+        try:
+            write_all(copy, tail)
+            os.fsync(copy)
+        finally:
+            os.close(copy)
+        _sync_directory(path.parent)
+        os.ftruncate(fd, keep_bytes)
         os.fsync(fd)
     finally:
         os.close(fd)
@@ -159,60 +172,174 @@ def decode_transcript_line(line: str) -> TranscriptEntry:
     return TranscriptEntry(str(item["device"]), item["dir"], payload, float(item["t_s"]))
 
 
+def parse_transcript(data: bytes, where: str) -> list[TranscriptEntry]:
+    """The entries of a transcript file's bytes (JSONL, :func:`encode_transcript_entry`).
+
+    Raises
+    ------
+    SessionFormatError
+        For the first line that is not UTF-8 or not a transcript entry (``where`` names the file).
+    """
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SessionFormatError(
+            f"{where} is not UTF-8 ({exc.reason} at byte {exc.start})"
+        ) from None
+    entries = []
+    for number, line in enumerate(text.split("\n"), start=1):
+        if not line:
+            continue
+        try:
+            entry = decode_transcript_line(line)
+        except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+            raise SessionFormatError(
+                f"{where} line {number} is not a transcript entry ({exc!r})"
+            ) from None
+        if not isinstance(entry.direction, str) or entry.direction not in TRANSCRIPT_DIRECTIONS:
+            raise SessionFormatError(f"{where} line {number} has no valid direction")
+        entries.append(entry)
+    return entries
+
+
 class TranscriptFile:
     """A :class:`drivers.base.TranscriptSink` appending to ``transcripts/<role>.jsonl``.
 
-    Thread-safe (drivers run in worker threads). Each entry is written at once (no user-space buffer
-    to lose); :meth:`sync` makes everything written so far durable; the sha256 is kept up to date
-    while writing.
+    Thread-safe (drivers run in worker threads). Each entry is one ``write`` of one line (no
+    user-space buffer to lose); :meth:`sync` makes everything written so far durable; the sha256 is
+    kept up to date while writing.
+
+    Appends are atomic per entry: a write that fails part-way (a full disk) is cut back off the file,
+    so the file always ends with a whole entry and matches its size and sha256. A failure never
+    reaches the driver that recorded the entry (switching the lamps off must not fail because its
+    exchange cannot be written down): the transcript stops taking entries, and :meth:`sync` — which
+    runs before every step record — raises it, so no step is acknowledged whose exchanges are not
+    all written.
     """
 
     def __init__(self, path: Path, relative: str) -> None:
         self.path = path
         self.relative = relative
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_EXCL, 0o644)
+        self._fd = create_new_file(path)
+        os.close(self._fd)
+        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC)
         self._hash = hashlib.sha256()
         self._size = 0
         self._dirty = False
         self._lock = threading.Lock()
         self._closed = False
+        self.failed: OSError | None = None
+        """Why the transcript stopped taking entries (a write failed), or ``None``."""
 
     def record(self, entry: TranscriptEntry) -> None:
         line = (json.dumps(encode_transcript_entry(entry), ensure_ascii=False) + "\n").encode()
         with self._lock:
-            if self._closed:
-                raise SessionWriteError(f"{self.path}: transcript already closed")
+            if self._closed or self.failed is not None:
+                return
             try:
-                _write_all(self._fd, line)
+                write_all(self._fd, line)
             except OSError as exc:
-                raise SessionWriteError(f"cannot write {self.path}: {exc}") from exc
+                self.failed = exc
+                with contextlib.suppress(OSError):  # cut the partial entry back off
+                    os.ftruncate(self._fd, self._size)
+                return
             self._hash.update(line)
             self._size += len(line)
             self._dirty = True
 
     def sync(self) -> None:
-        """Make the entries written so far durable (only if anything was written since)."""
+        """Make the entries written so far durable (only if anything was written since).
+
+        Raises
+        ------
+        OSError
+            An entry could not be written (see :attr:`failed`), or the sync failed.
+        """
         with self._lock:
+            if self.failed is not None:
+                raise OSError(
+                    self.failed.errno, f"appending to {self.relative}: {self.failed.strerror}"
+                )
             if self._dirty and not self._closed:
                 _sync(self._fd)
                 self._dirty = False
 
     def close(self) -> tuple[int, str]:
-        """Sync and close; return the file's size and sha256."""
+        """Sync and close; return the file's size and sha256 (of the entries it holds)."""
         with self._lock:
             if not self._closed:
-                if self._dirty:
-                    _sync(self._fd)
-                os.close(self._fd)
                 self._closed = True
+                try:
+                    if self._dirty:
+                        _sync(self._fd)
+                finally:
+                    os.close(self._fd)
             return self._size, self._hash.hexdigest()
+
+
+class PendingTranscripts:
+    """Transcript sinks for devices opened before their session exists (a
+    :data:`rig.station.TranscriptFactory`).
+
+    A capture opens every device before it creates the session directory, so a device that cannot
+    be opened leaves no session behind; what the devices exchanged meanwhile is kept in memory and
+    written to the session's transcripts, in order, by :meth:`attach`.
+    """
+
+    def __init__(self) -> None:
+        self._sinks: dict[str, _PendingSink] = {}
+
+    def __call__(self, role: str) -> TranscriptSink:
+        return self._sinks.setdefault(role, _PendingSink())
+
+    def attach(self, writer: SessionWriter) -> None:
+        """From now on every entry goes to ``writer``'s transcripts, the kept ones first."""
+        for role, sink in self._sinks.items():
+            sink.attach(writer.transcript_sink(role))
+
+
+class _PendingSink:
+    def __init__(self) -> None:
+        self._kept: list[TranscriptEntry] = []
+        self._target: TranscriptSink | None = None
+        self._lock = threading.Lock()
+
+    def record(self, entry: TranscriptEntry) -> None:
+        with self._lock:
+            if self._target is None:
+                self._kept.append(entry)
+                return
+        self._target.record(entry)
+
+    def attach(self, target: TranscriptSink) -> None:
+        with self._lock:
+            for entry in self._kept:
+                target.record(entry)
+            self._kept.clear()
+            self._target = target
 
 
 # ----------------------------------------------------------------------------------------- writer
 
+#: A hidden file at the session's top holding disk space for the run's last records: released
+#: when the run ends, so a full disk still gets its stop record (why, and whether the lamps are
+#: off). Removed with the other leftovers when a killed run is resumed.
+RESERVE_NAME = ".reserve"
+RESERVE_BYTES = 64 * 1024
+#: Longest message and traceback a stop record carries (the record is written on a full disk).
+STOP_TEXT_CHARS = 2000
+INCOMING_PREFIX = ".incoming-"
+"""Temporary names of downloads and spectra before they are acknowledged (``.incoming-<run>-<n>.part``;
+the camera driver's own temporary for it is ``..incoming-<run>-<n>.part.partial``)."""
+
 
 class SessionWriter:
     """Creates a session directory and appends to it; the only code that writes a session.
+
+    Every path it writes is checked on the way (:mod:`drivers.local_files`): directories are real
+    directories inside the session, temporaries are created new (``O_EXCL | O_NOFOLLOW``), and a
+    symbolic link or special file planted in the way is refused (:class:`SessionFormatError`
+    naming it) rather than written through.
 
     Parameters
     ----------
@@ -229,14 +356,15 @@ class SessionWriter:
             path.mkdir(parents=False, exist_ok=False)
             for name in DATA_DIRS:
                 (path / name).mkdir()
-            self._log_fd: int | None = os.open(
-                path / LOG_NAME, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_EXCL, 0o644
-            )
+            os.close(create_new_file(path / LOG_NAME))
+            self._open_log()
+            self._reserve_room()
             _sync_directory(path)
             _sync_directory(path.parent)
         except FileExistsError:
             raise SessionWriteError(f"session directory {path} already exists") from None
         except OSError as exc:
+            self.close()
             raise SessionWriteError(f"cannot create session directory {path}: {exc}") from exc
 
     def _init_state(
@@ -249,11 +377,40 @@ class SessionWriter:
         self.guard: Guard = guard or contextlib.nullcontext
         self.run = run
         self._seq = seq
+        self._seq_at_start = seq
         self._broken: str | None = None
+        self._log_intact = True
+        self._finishing = False
+        self._killed = False
         self._transcripts: dict[str, TranscriptFile] = {}
         self._incoming = 0
         self.torn_moved_to: str | None = None
-        self._log_fd = None
+        self._log_fd: int | None = None
+        self._log_size = 0
+        self.record_limit: int | None = None
+        """After this many records of this run the writer stops as a killed process would
+        (:meth:`kill`): replay uses it to end a run where the recorded one was killed."""
+        self.on_kill: Callable[[], None] | None = None
+
+    def _open_log(self) -> None:
+        fd = os.open(self.path / LOG_NAME, os.O_WRONLY | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC)
+        self._log_fd = fd
+        self._log_size = os.fstat(fd).st_size
+
+    def _reserve_room(self) -> None:
+        fd = create_new_file(self.path / RESERVE_NAME, 0o600)
+        try:
+            os.posix_fallocate(fd, 0, RESERVE_BYTES)
+        except OSError:
+            os.close(fd)
+            with contextlib.suppress(OSError):
+                (self.path / RESERVE_NAME).unlink()
+            raise
+        os.close(fd)
+
+    def _release_room(self) -> None:
+        with contextlib.suppress(OSError):
+            (self.path / RESERVE_NAME).unlink()
 
     @classmethod
     def append(cls, session: Session, *, guard: Guard | None = None) -> SessionWriter:
@@ -261,11 +418,13 @@ class SessionWriter:
 
         A torn last line is first moved aside to ``log.torn-<n>`` (copied, synced, then cut off the
         log): the only change ever made to existing log bytes. :attr:`torn_moved_to` names the copy.
+        The session's leftovers must have been removed first (:func:`remove_leftovers`).
 
         Raises
         ------
         SessionWriteError
-            When the log cannot be opened, or the torn line cannot be moved aside.
+            When the log cannot be opened, the torn line cannot be moved aside, or there is no room
+            for the run's last records.
         """
         start = session.start
         if start is None:
@@ -281,9 +440,11 @@ class SessionWriter:
         log = session.path / LOG_NAME
         try:
             if session.torn is not None:
-                writer.torn_moved_to = _move_torn_tail(log, session.torn.size)
-            writer._log_fd = os.open(log, os.O_WRONLY | os.O_APPEND)
+                writer.torn_moved_to = move_tail_aside(log, log.lstat().st_size - session.torn.size)
+            writer._open_log()
+            writer._reserve_room()
         except OSError as exc:
+            writer.close()
             raise SessionWriteError(
                 f"cannot continue the session in {session.path}: {exc}"
             ) from exc
@@ -310,12 +471,27 @@ class SessionWriter:
         return self._broken
 
     def _fail(self, what: str, exc: OSError) -> SessionWriteError:
-        self._broken = f"{what}: {exc}"
+        self._broken = self._broken or f"{what}: {exc}"
         return SessionWriteError(f"cannot write the session in {self.path}: {what}: {exc}")
 
+    def refusal(self, exc: UnsafeLocalPath) -> SessionFormatError:
+        """The error for a path planted in the session's way (named, relative to the session)."""
+        shown = exc.path.relative_to(self.path) if exc.path.is_relative_to(self.path) else exc.path
+        return SessionFormatError(
+            f"{self.path}: {shown} is {exc.problem}, planted in the session; refused (nothing "
+            "was written through it)"
+        )
+
     def write(self, record_type: type[RecordT], **fields: Any) -> RecordT:
-        """Append one record (``seq`` and ``run`` filled in), flushed and synced before returning."""
-        if self._broken is not None:
+        """Append one record (``seq`` and ``run`` filled in), flushed and synced before returning.
+
+        A write that fails part-way is cut back off the log (which then still ends with a whole
+        record), and the writer refuses further records — except the run's last ones, after
+        :meth:`finish`.
+        """
+        if self._killed:
+            raise SessionWriteError(f"{self.path}: the run was stopped here (replayed kill)")
+        if self._broken is not None and not (self._finishing and self._log_intact):
             raise SessionWriteError(f"{self.path}: an earlier write failed ({self._broken})")
         if self._log_fd is None:
             raise SessionWriteError(f"{self.path}: the session is closed")
@@ -324,21 +500,56 @@ class SessionWriter:
         log_fd = self._log_fd
         with self.guard():
             try:
-                _write_all(log_fd, line)
+                write_all(log_fd, line)
                 _sync(log_fd)
             except OSError as exc:
+                self._cut_back(log_fd)
                 raise self._fail(f"appending to {LOG_NAME}", exc) from exc
             self._seq += 1
+            self._log_size += len(line)
+        if self.record_limit is not None and self._seq - self._seq_at_start >= self.record_limit:
+            self.kill()
         return record
+
+    def _cut_back(self, log_fd: int) -> None:
+        """Cut a partly written record back off the log (if that fails too, the log is torn)."""
+        try:
+            os.ftruncate(log_fd, self._log_size)
+            _sync(log_fd)
+        except OSError:
+            self._log_intact = False
+
+    def finish(self) -> bool:
+        """The run is ending: release the room reserved for its last records.
+
+        Returns whether they can be written: after a failed write only if the log was cut back to
+        whole records (a full disk), never after :meth:`kill`.
+        """
+        self._release_room()
+        self._finishing = True
+        return not self._killed and self._log_intact and self._log_fd is not None
+
+    @property
+    def killed(self) -> bool:
+        """Whether :meth:`kill` stopped the writer."""
+        return self._killed
+
+    def kill(self) -> None:
+        """Stop writing as a killed process stops: nothing more, not even the last records."""
+        self._killed = True
+        self._broken = self._broken or "the run was stopped here (replayed kill)"
+        if self.on_kill is not None:
+            self.on_kill()
 
     def transcript_sink(self, role: str) -> TranscriptFile:
         """The transcript file for a device role (``spectrometer``, ``camera``, ``relays``)."""
         if role not in self._transcripts:
             # A resumed run keeps the earlier runs' transcripts and starts its own.
-            name = role if self.run == 1 else f"{role}.run{self.run}"
-            relative = check_session_path(f"{TRANSCRIPTS_DIR}/{name}.jsonl")
+            relative = transcript_path(role, self.run)
             try:
                 self._transcripts[role] = TranscriptFile(self.path / relative, relative)
+            except UnsafeLocalPath as exc:
+                raise self.refusal(exc) from None
             except OSError as exc:
                 raise self._fail(f"creating {relative}", exc) from exc
         return self._transcripts[role]
@@ -354,19 +565,38 @@ class SessionWriter:
     def incoming_path(self, directory: str = FRAMES_DIR) -> Path:
         """A fresh temporary path in a data directory for a download (never acknowledged as is).
 
-        The leading dot keeps it out of what a file record may name.
+        The leading dot keeps it out of what a file record may name. The directory is checked to
+        be the session's own; the name (and the camera driver's temporary for it) must be free.
+
+        Raises
+        ------
+        SessionFormatError
+            Something was planted under that name or in the way.
         """
         self._incoming += 1
-        return self.path / directory / f".incoming-{self.run}-{self._incoming:05d}.part"
+        name = f"{INCOMING_PREFIX}{self.run}-{self._incoming:05d}.part"
+        try:
+            parent = checked_directory(self.path, directory)
+        except UnsafeLocalPath as exc:
+            raise self.refusal(exc) from None
+        except OSError as exc:
+            raise self._fail(f"creating {directory}", exc) from exc
+        for taken in (parent / name, parent / f".{name}.partial"):
+            if os.path.lexists(taken):
+                raise self.refusal(UnsafeLocalPath(taken, describe_entry(taken)))
+        return parent / name
 
     def _free_name(self, relative: str) -> str:
-        """``relative``, or ``stem.2.ext``, ``stem.3.ext``… if taken (acknowledged files are never replaced)."""
+        """``relative``, or ``stem.2.ext``, ``stem.3.ext``… if taken (acknowledged files are never
+        replaced). A name taken by anything but a regular file is refused (planted)."""
         candidate = relative
         stem, dot, suffix = relative.rpartition(".")
         if not dot or "/" in suffix:
             stem, suffix = relative, ""
         number = 1
-        while (self.path / candidate).exists():
+        while os.path.lexists(self.path / candidate):
+            if not stat.S_ISREG((self.path / candidate).lstat().st_mode):
+                raise UnsafeLocalPath(self.path / candidate, describe_entry(self.path / candidate))
             number += 1
             candidate = f"{stem}.{number}" + (f".{suffix}" if suffix else "")
         return candidate
@@ -385,16 +615,30 @@ class SessionWriter:
 
         The file is read once, for the sha256, through the descriptor that is then synced. Returns
         the record (its ``path`` may carry a ``.2`` suffix when ``relative`` was already taken).
+
+        Raises
+        ------
+        SessionFormatError
+            A directory on the way or the final name is a planted link or special file.
+        SessionWriteError
+            The disk is full or failing.
         """
-        relative = self._free_name(check_session_path(relative))
-        final = self.path / relative
+        directory, _, _ = check_session_path(relative).rpartition("/")
         with self.guard():
             try:
-                final.parent.mkdir(parents=True, exist_ok=True)
+                checked_directory(self.path, directory)
+                relative = self._free_name(relative)
+                final = self.path / relative
+                if not stat.S_ISREG(temporary.lstat().st_mode):
+                    raise UnsafeLocalPath(temporary, describe_entry(temporary))
                 size, sha256 = file_sha256(temporary, sync=True)
                 temporary.replace(final)
                 _sync_directory(final.parent)
+            except UnsafeLocalPath as exc:
+                raise self.refusal(exc) from None
             except OSError as exc:
+                if exc.errno == errno.ELOOP:  # the temporary became a link
+                    raise self.refusal(UnsafeLocalPath(temporary, "a symbolic link")) from None
                 raise self._fail(f"storing {relative}", exc) from exc
         return self.write(
             FileRecord,
@@ -422,15 +666,24 @@ class SessionWriter:
         """
         temporary = self.incoming_path(relative.split("/")[0])
         try:
+            os.close(create_new_file(temporary))  # new and ours: write_csv cannot be led astray
             write_csv(temporary, spectrum)
+        except UnsafeLocalPath as exc:
+            raise self.refusal(exc) from None
         except OSError as exc:
+            with contextlib.suppress(OSError):
+                temporary.unlink()
             raise self._fail(f"writing {relative}", exc) from exc
         return self.commit_file(
             temporary, relative, key=key, role="spectrum", units=units, bandwidth_nm=bandwidth_nm
         )
 
     def close_transcripts(self) -> None:
-        """Close the transcripts, acknowledging each with a ``file`` record (before the stop record)."""
+        """Close the transcripts, acknowledging each with a ``file`` record (before the stop record).
+
+        A transcript that stopped taking entries (a write failed) is acknowledged as it is: whole
+        entries up to the failure.
+        """
         for role, transcript in self._transcripts.items():
             try:
                 size, sha256 = transcript.close()
@@ -447,7 +700,8 @@ class SessionWriter:
             )
 
     def close(self) -> None:
-        """Close any transcript still open (without records) and the log; safe to call twice."""
+        """Close any transcript still open (without records) and the log, and give back the room
+        reserved for the last records; safe to call twice."""
         for transcript in self._transcripts.values():
             with contextlib.suppress(OSError):
                 transcript.close()
@@ -455,6 +709,14 @@ class SessionWriter:
             with contextlib.suppress(OSError):
                 os.close(self._log_fd)
             self._log_fd = None
+        if not self._killed:
+            self._release_room()
+
+
+def transcript_path(role: str, run: int) -> str:
+    """``transcripts/<role>.jsonl`` for run 1, ``transcripts/<role>.run<n>.jsonl`` for later runs."""
+    name = role if run == 1 else f"{role}.run{run}"
+    return check_session_path(f"{TRANSCRIPTS_DIR}/{name}.jsonl")
 
 
 # ----------------------------------------------------------------------------------------- reader
@@ -578,6 +840,60 @@ class Session:
         return problems
 
 
+def _is_leftover(name: str) -> bool:
+    """A temporary name of the writer or the camera driver (never acknowledged)."""
+    return name.startswith((INCOMING_PREFIX, f".{INCOMING_PREFIX}"))
+
+
+def check_before_writing(session: Session) -> list[Path]:
+    """Check a session's directories before anything is written into it; return the leftovers.
+
+    The data directories must be real directories, and nothing in them may be a symbolic link or a
+    special file: a link planted there (a lamp directory pointing elsewhere, a temporary name
+    pointing at a file to overwrite) is refused, named, before any device is opened. Leftovers are
+    the temporaries a killed run left (``.incoming-*``, the camera's ``..incoming-*.partial``, the
+    ``.reserve`` file), to be removed by :func:`remove_leftovers` when the session is continued.
+
+    Raises
+    ------
+    SessionFormatError
+        A data directory is not a directory, or something in them is a link or special file.
+    """
+    leftovers: list[Path] = []
+    reserve = session.path / RESERVE_NAME
+    if os.path.lexists(reserve):
+        if not stat.S_ISREG(reserve.lstat().st_mode):
+            raise _planted(session, reserve)
+        leftovers.append(reserve)
+    for name in DATA_DIRS:
+        top = session.path / name
+        if not os.path.lexists(top):
+            continue
+        if not stat.S_ISDIR(top.lstat().st_mode):
+            raise _planted(session, top)
+        for entry in entries_below(top):
+            path = Path(entry.path)
+            if not is_plain(entry):
+                raise _planted(session, path)
+            if entry.is_file(follow_symlinks=False) and _is_leftover(entry.name):
+                leftovers.append(path)
+    return sorted(leftovers)
+
+
+def _planted(session: Session, path: Path) -> SessionFormatError:
+    return SessionFormatError(
+        f"{session.path}: {path.relative_to(session.path)} is {describe_entry(path)}; a session "
+        "holds only plain files and directories, so nothing is written into it: remove it (a "
+        "frame or spectrum it stood for is then taken again)"
+    )
+
+
+def remove_leftovers(leftovers: list[Path]) -> None:
+    """Remove the temporaries :func:`check_before_writing` found (never following a link)."""
+    for leftover in leftovers:
+        leftover.unlink(missing_ok=True)
+
+
 def _validate_sequence(records: list[Record], log: Path) -> None:
     for index, record in enumerate(records):
         if record.seq != index:
@@ -637,9 +953,8 @@ def _parse_line(raw: bytes, number: int, log: Path) -> Record:
     try:
         record = _RECORD_ADAPTER.validate_json(raw)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"]) or "record"
-        raise SessionFormatError(f"{log}: line {number}: {where}: {first['msg']}") from None
+        problem = first_validation_problem(exc.errors(), "record")
+        raise SessionFormatError(f"{log}: line {number}: {problem}") from None
     assert isinstance(record, Record)
     return record
 

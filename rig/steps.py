@@ -19,12 +19,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, Never, Protocol, TypeVar, get_args
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
 from rig.analysis import FrameStats
+from rig.errors import PlanProtocolError
 
 JsonDict = dict[str, Any]
 DeviceRole = Literal["spectrometer", "camera", "relays"]
@@ -147,6 +148,26 @@ class SpectrumMeasured(StepResult):
             str(data["units"]),
             None if exposure is None else float(exposure),
             int(data.get("negative_clipped", 0)),
+        )
+
+
+@dataclass(frozen=True)
+class DarkMeasured(StepResult):
+    """The spectrometer's dark spectra (lamps off), one per integration time, stored at ``file``.
+
+    ``integration_ms`` lists the integration times, in the order of the file's value columns.
+    """
+
+    time_s: float
+    file: str
+    integration_ms: tuple[float, ...]
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> DarkMeasured:
+        return cls(
+            float(data["time_s"]),
+            str(data["file"]),
+            tuple(float(value) for value in data["integration_ms"]),
         )
 
 
@@ -295,6 +316,25 @@ class ConfigureSpectrometer(Step):
 
 
 @dataclass(frozen=True)
+class MeasureDark(Step):
+    """Measure the spectrometer's dark spectra with every lamp off (the runner checks the board).
+
+    Only for spectrometers that subtract a dark of their own measuring (an Ocean spectrometer);
+    set-up: a resumed run measures it again before its first spectrum.
+    """
+
+    device = "spectrometer"
+    result_type = DarkMeasured
+
+    @property
+    def key(self) -> str:
+        return "start/spectrometer-dark"
+
+    def describe(self) -> str:
+        return "measure the spectrometer's dark spectrum (every lamp off)"
+
+
+@dataclass(frozen=True)
 class SwitchLamp(Step):
     """Switch one lamp's relay channel on or off and read the board back."""
 
@@ -423,30 +463,118 @@ class DarkFrame(Step):
         )
 
 
-STEP_TYPES: dict[str, type[Step]] = {
-    cls.__name__: cls
-    for cls in (
-        AllLampsOff,
-        ConfigureCamera,
-        ConfigureSpectrometer,
-        SwitchLamp,
-        MeasureSpectrum,
-        Wait,
-        KeepLampTimeline,
-        SetExposure,
-        Capture,
-        DarkFrame,
-    )
-}
+AnyStep = (
+    AllLampsOff
+    | ConfigureCamera
+    | ConfigureSpectrometer
+    | SwitchLamp
+    | MeasureSpectrum
+    | MeasureDark
+    | Wait
+    | KeepLampTimeline
+    | SetExposure
+    | Capture
+    | DarkFrame
+)
+"""Every step of the vocabulary: what a plan may yield. A new step type is added here, to
+:class:`StepHandlers` and to :func:`interpret`; mypy then names every interpreter that lacks it."""
+
+STEP_TYPES: dict[str, type[AnyStep]] = {cls.__name__: cls for cls in get_args(AnyStep)}
 """Every step type by its class name, as written in the log's ``action`` field."""
 
 
-def step_from_record(action: str, params: JsonDict) -> Step:
+# ---------------------------------------------------------------------------------- interpreting
+
+ResultT_co = TypeVar("ResultT_co", covariant=True)
+
+
+class StepHandlers(Protocol[ResultT_co]):
+    """An interpreter of the vocabulary: one method per step type.
+
+    The runner executes steps on the devices (:class:`rig.runner.Runner`), the dry run models
+    their duration and readings (:class:`rig.dryrun.StepCostModel`, :class:`rig.dryrun.ModelledBench`)
+    and resume decides what a new run must do again (:class:`rig.resume.ResumeRules`). Each
+    derives from this protocol, so mypy refuses to instantiate one that lacks a step type; every
+    step reaches its handler through :func:`interpret`, the one dispatch (Bluesky's RunEngine
+    command table).
+    """
+
+    def all_lamps_off(self, step: AllLampsOff) -> ResultT_co: ...
+
+    def configure_camera(self, step: ConfigureCamera) -> ResultT_co: ...
+
+    def configure_spectrometer(self, step: ConfigureSpectrometer) -> ResultT_co: ...
+
+    def switch_lamp(self, step: SwitchLamp) -> ResultT_co: ...
+
+    def measure_spectrum(self, step: MeasureSpectrum) -> ResultT_co: ...
+
+    def measure_dark(self, step: MeasureDark) -> ResultT_co: ...
+
+    def wait(self, step: Wait) -> ResultT_co: ...
+
+    def keep_lamp_timeline(self, step: KeepLampTimeline) -> ResultT_co: ...
+
+    def set_exposure(self, step: SetExposure) -> ResultT_co: ...
+
+    def capture(self, step: Capture) -> ResultT_co: ...
+
+    def dark_frame(self, step: DarkFrame) -> ResultT_co: ...
+
+
+ResultT = TypeVar("ResultT")
+
+
+def interpret(step: AnyStep, handlers: StepHandlers[ResultT]) -> ResultT:
+    """Hand ``step`` to the ``handlers`` method of its type: the vocabulary's one dispatch.
+
+    Raises
+    ------
+    rig.errors.PlanProtocolError
+        ``step`` is not of a type of the vocabulary (a plan yielded something else).
+    """
+    match step:
+        case AllLampsOff():
+            return handlers.all_lamps_off(step)
+        case ConfigureCamera():
+            return handlers.configure_camera(step)
+        case ConfigureSpectrometer():
+            return handlers.configure_spectrometer(step)
+        case SwitchLamp():
+            return handlers.switch_lamp(step)
+        case MeasureSpectrum():
+            return handlers.measure_spectrum(step)
+        case MeasureDark():
+            return handlers.measure_dark(step)
+        case KeepLampTimeline():  # before Wait, its base class
+            return handlers.keep_lamp_timeline(step)
+        case Wait():
+            return handlers.wait(step)
+        case SetExposure():
+            return handlers.set_exposure(step)
+        case Capture():
+            return handlers.capture(step)
+        case DarkFrame():
+            return handlers.dark_frame(step)
+        case _:
+            raise _not_in_vocabulary(step)
+
+
+def _not_in_vocabulary(step: Never) -> PlanProtocolError:
+    """The error for a step of no known type. Typed ``Never``: mypy refuses the call unless every
+    member of :data:`AnyStep` was matched before it (at run time, a plan bug)."""
+    return PlanProtocolError(
+        f"{type(step).__name__} is not a step of the vocabulary "
+        f"(known: {', '.join(sorted(STEP_TYPES))})"
+    )
+
+
+def step_from_record(action: str, params: JsonDict) -> AnyStep:
     """Rebuild a step from its log record's ``action`` and ``params``."""
     step_type = STEP_TYPES.get(action)
     if step_type is None:
         raise ValueError(f"unknown step action {action!r}; known: {', '.join(sorted(STEP_TYPES))}")
-    values = {
+    values: dict[str, Any] = {
         key: tuple(tuple(v) if isinstance(v, list) else v for v in value)
         if isinstance(value, list)
         else value

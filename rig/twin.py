@@ -1,10 +1,13 @@
-"""The digital twin as a station: the simulated bench of ``mocks.bench`` behind the rig's real logic.
+"""The digital twin as a station: the simulated bench behind the rig's real logic, through a typed seam.
 
-``rig`` never imports ``mocks`` statically (the twin is optional, and the layering keeps test doubles
-out of the rig); this module loads ``mocks.bench`` when the twin is asked for, hands it the
-configuration as plain data (``RigConfig.model_dump(mode="json")``) and wraps the open bench into a
-:class:`rig.station.Station` with the real frame analyser, exactly as the hardware station does.
-The bench's emulators stop when the station closes.
+The rig never imports ``mocks`` (the twin is optional, and the layering keeps test doubles out of
+the rig). What it needs of the simulated bench is the :class:`DigitalTwin` protocol; the
+implementation is found through the ``spectral_rig.twin`` entry point that the package declares
+(``mocks.bench.seam:BENCH``), so the dependency is written down in ``pyproject.toml`` and checked by
+mypy here, not hidden in a module-name string. The rig hands the bench its configuration as plain
+data (``RigConfig.model_dump(mode="json")``) and wraps the open bench into a
+:class:`rig.station_devices.Station` with the real frame analyser, as the hardware station does;
+the bench's emulators stop when the station closes.
 
 Tests reach the bench's fault injection through :func:`twin_station_builder` (faults armed at
 open, and a callback that receives the open bench for later injections).
@@ -12,48 +15,145 @@ open, and a callback that receives the open bench for later injections).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import functools
+from collections.abc import Callable, Mapping
+from importlib.metadata import entry_points
 from pathlib import Path
-from types import ModuleType
-from typing import Any
+from typing import Any, Protocol
 
+from calib.core.mapping import GratingGeometry
+from calib.core.spectra import MultiSpectrum, Spectrum
+from drivers.base import Camera, RelayBoard, Spectrometer
+from rig.clock import Clock
 from rig.config import RigConfig
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
-from rig.station import Station, StationBuilder, TranscriptFactory, optional_module
+from rig.hardware import open_configured_camera, open_configured_spectrometer, watched_relays
+from rig.station_devices import Station, StationBuilder, TranscriptFactory
 
-BENCH_MODULE = "mocks.bench"
+__all__ = [
+    "TWIN_ENTRY_POINT",
+    "DigitalTwin",
+    "TwinBenchHandle",
+    "TwinConfigError",
+    "TwinTruthRecord",
+    "digital_twin",
+    "open_twin_bench",
+    "open_twin_station",
+    "read_twin_truth",
+    "station_of",
+    "twin_station_builder",
+    "write_twin_truth",
+]
+
+TWIN_ENTRY_POINT = ("spectral_rig.twin", "bench")
+"""Entry-point group and name of the :class:`DigitalTwin` implementation."""
 
 
-def bench_module() -> ModuleType:
-    """``mocks.bench``, imported now.
+class TwinBenchHandle(Protocol):
+    """An open simulated bench: the drivers the rig uses, on the bench's clock.
+
+    ``spectrometer`` and ``camera`` are ``None`` where the rig's own instrument plays the role.
+    """
+
+    @property
+    def relays(self) -> RelayBoard: ...
+
+    @property
+    def spectrometer(self) -> Spectrometer | None: ...
+
+    @property
+    def camera(self) -> Camera | None: ...
+
+    @property
+    def clock(self) -> Clock: ...
+
+    def begin_step(self, key: str) -> None:
+        """The rig is about to do step ``key`` (the bench keys its noise by it)."""
+
+    def close(self) -> None:
+        """Stop the emulators (the drivers are closed by the station)."""
+
+
+class TwinTruthRecord(Protocol):
+    """What the twin knows about its camera: what an estimate is judged against."""
+
+    @property
+    def camera(self) -> str: ...
+
+    @property
+    def seed(self) -> int: ...
+
+    @property
+    def sensitivity(self) -> MultiSpectrum: ...
+
+    @property
+    def grating_efficiency(self) -> Spectrum: ...
+
+    @property
+    def mapping(self) -> GratingGeometry: ...
+
+
+class DigitalTwin(Protocol):
+    """What the rig needs of the simulated bench.
+
+    Attributes
+    ----------
+    config_error
+        Raised by :meth:`open` and :meth:`write_truth` for configuration data the twin cannot
+        build (the message names the field).
+    truth_error
+        Raised by :meth:`read_truth` for a file that is not a truth record.
+    truth_file_name
+        The name of the truth file next to a session's log (``twin-truth.json``).
+    """
+
+    config_error: type[Exception]
+    truth_error: type[Exception]
+    truth_file_name: str
+
+    def open(
+        self,
+        config_data: Mapping[str, Any],
+        transcripts: Callable[[str], Any] | None,
+        *,
+        faults: Any = None,
+        prepare: bool = True,
+    ) -> TwinBenchHandle:
+        """Open the bench of the configuration; ``prepare`` renders the lamps' images now."""
+
+    def write_truth(self, config_data: Mapping[str, Any], directory: Path) -> Path:
+        """Write the truth of the configuration's twin camera into ``directory``."""
+
+    def read_truth(self, path: Path) -> TwinTruthRecord:
+        """Read a truth file."""
+
+
+@functools.cache
+def digital_twin() -> DigitalTwin:
+    """The installed digital twin (the ``spectral_rig.twin`` entry point), loaded once.
 
     Raises
     ------
     StationUnavailable
-        When this installation has no ``mocks`` package.
+        This installation has no twin.
     """
-    return optional_module(
-        BENCH_MODULE,
-        f"the digital twin ({BENCH_MODULE})",
-        "; configure real devices instead of kind: twin",
-    )
-
-
-def twin_spec(config: RigConfig) -> Any:
-    """The ``mocks.bench.TwinSpec`` of a configuration whose devices are ``twin``.
-
-    Raises
-    ------
-    TwinConfigError
-        When the configuration cannot be simulated (unknown camera or illuminant, a layout that
-        does not fit the sensor); the message names the field.
-    """
-    bench = bench_module()
+    group, name = TWIN_ENTRY_POINT
+    found = [point for point in entry_points(group=group) if point.name == name]
+    if not found:
+        raise StationUnavailable(
+            f"the digital twin is not part of this installation (no {group!r} entry point "
+            f"{name!r}: install the package with `pip install 'spectral-rig[sim]'`), or "
+            "configure real devices instead of kind: twin"
+        )
     try:
-        return bench.TwinSpec.from_config_data(config.model_dump(mode="json"))
-    except bench.TwinSpecError as exc:
-        raise _config_error(exc) from None
+        twin: DigitalTwin = found[0].load()
+    except ImportError as exc:
+        raise StationUnavailable(
+            f"the digital twin needs the simulation extra: `pip install 'spectral-rig[sim]'` ({exc})"
+        ) from None
+    return twin
 
 
 class TwinConfigError(StationUnavailable):
@@ -69,23 +169,60 @@ def _config_error(exc: Exception) -> TwinConfigError:
 
 
 def open_twin_bench(
-    config: RigConfig, transcripts: TranscriptFactory | None = None, *, faults: Any = None
-) -> Any:
-    """Open the simulated bench (a ``mocks.bench.TwinBench``) of ``config``."""
-    bench = bench_module()
-    spec = twin_spec(config)
+    config: RigConfig,
+    transcripts: TranscriptFactory | None = None,
+    *,
+    faults: Any = None,
+    prepare: bool = True,
+) -> TwinBenchHandle:
+    """Open the simulated bench of ``config`` (``prepare``: render the lamps' images now).
+
+    Raises
+    ------
+    TwinConfigError
+        The configuration cannot be simulated.
+    """
+    twin = digital_twin()
     try:
-        return bench.open_twin(spec, transcripts, faults=faults)
-    except bench.TwinSpecError as exc:
+        return twin.open(
+            config.model_dump(mode="json"),
+            transcripts,  # type: ignore[arg-type]  # roles are the twin's strings
+            faults=faults,
+            prepare=prepare,
+        )
+    except twin.config_error as exc:
         raise _config_error(exc) from None
 
 
-def station_of(twin: Any) -> Station:
-    """Wrap an open bench into a station with the real frame analyser."""
+def station_of(twin: TwinBenchHandle, config: RigConfig, transcripts: TranscriptFactory) -> Station:
+    """Wrap an open bench into a station with the real frame analyser; the roles the twin does
+    not play (a real camera, a real spectrometer) are opened on their hardware
+    (:mod:`rig.hardware`). If one fails to open, the bench and what was opened are closed."""
+    opened: list[Any] = []
+    relays = watched_relays(config, twin.relays)
+    try:
+        spectrometer = twin.spectrometer
+        if spectrometer is None:
+            spectrometer = open_configured_spectrometer(
+                config.devices.spectrometer,
+                transcripts("spectrometer"),
+                relays=relays,
+                lamps=config.lamps,
+            )
+            opened.append(spectrometer)
+        camera = twin.camera
+        if camera is None:
+            camera = open_configured_camera(config.devices.camera, transcripts("camera"))
+    except BaseException:
+        for device in (*opened, twin.relays):
+            with contextlib.suppress(Exception):
+                device.close()
+        twin.close()
+        raise
     return Station(
-        twin.spectrometer,
-        twin.camera,
-        twin.relays,
+        spectrometer,
+        camera,
+        relays,
         twin.clock,
         RawFrameAnalyzer(),
         on_close=[twin.close],
@@ -94,32 +231,36 @@ def station_of(twin: Any) -> Station:
 
 
 def open_twin_station(config: RigConfig, transcripts: TranscriptFactory) -> Station:
-    """The station builder for ``devices.*.kind: twin`` (see :data:`rig.station.STATION_BUILDERS`)."""
-    return station_of(open_twin_bench(config, transcripts))
+    """The station builder for a configuration with twin devices (see
+    :data:`rig.station.STATION_BUILDERS`): the twin's lamps, and its spectrometer and camera
+    where the configuration says ``twin``."""
+    return station_of(open_twin_bench(config, transcripts), config, transcripts)
 
 
 def twin_station_builder(
     *, faults: Any = None, on_open: Callable[[Any], None] | None = None
 ) -> StationBuilder:
     """A station builder for tests: faults armed at open (``mocks.bench.TwinFaults``), and
-    ``on_open`` called with the open ``TwinBench`` (to inject faults later or inspect it)."""
+    ``on_open`` called with the open bench (to inject faults later or inspect it)."""
 
     def build(config: RigConfig, transcripts: TranscriptFactory) -> Station:
         twin = open_twin_bench(config, transcripts, faults=faults)
         if on_open is not None:
             on_open(twin)
-        return station_of(twin)
+        return station_of(twin, config, transcripts)
 
     return build
 
 
 def write_twin_truth(config: RigConfig, directory: Path) -> Path:
     """Write the twin's ``twin-truth.json`` for ``config`` into ``directory``; return its path."""
-    bench = bench_module()
-    spec = twin_spec(config)
+    twin = digital_twin()
     try:
-        optics = bench.TwinOptics.build(spec.camera)
-    except bench.TwinSpecError as exc:
+        return twin.write_truth(config.model_dump(mode="json"), directory)
+    except twin.config_error as exc:
         raise _config_error(exc) from None
-    path: Path = bench.TwinTruth.of(optics, spec.seed).write(directory)
-    return path
+
+
+def read_twin_truth(path: Path) -> TwinTruthRecord:
+    """A twin truth file (``twin.truth_error`` when it is not one)."""
+    return digital_twin().read_truth(path)

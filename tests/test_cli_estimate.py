@@ -417,3 +417,95 @@ def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     code, _, stderr = _call(argv)
     assert code == 0, stderr
     assert "--weight-rule has no effect with a grating file" in stderr
+
+
+# ------------------------------------------------------------------------ input limits and frames
+
+
+@pytest.mark.parametrize(
+    ("grid", "says"),
+    [
+        ("400:700:1e-6", "300,000,001 wavelengths; at most 1001"),
+        ("400:700:0.01", "30,001 wavelengths; at most 1001"),
+        ("400:700:0.1", "3,001 wavelengths; at most 1001"),
+        ("400:700:1e-320", "no countable number of steps"),
+        ("400:1e309:1", "must be finite"),
+    ],
+)
+def test_a_grid_too_fine_is_refused_before_any_work(
+    capture: Capture, tmp_path: Path, grid: str, says: str
+) -> None:
+    code, _, stderr = _call([*_image_args(capture), "--out", str(tmp_path / "o"), "--grid", grid])
+    assert code == 2 and stderr.count("\n") == 1 and says in stderr, stderr
+
+
+@pytest.mark.parametrize(
+    ("value", "says"), [("1e308", "values reach 1e+308"), ("1e-320", "values reach 9.99989e-321")]
+)
+def test_a_spectrum_of_extreme_values_is_an_input_error(
+    capture: Capture, tmp_path: Path, value: str, says: str
+) -> None:
+    spectrum = tmp_path / "extreme.csv"
+    rows = "".join(f"{nm},{value}\n" for nm in range(380, 781, 5))
+    spectrum.write_text("wavelength_nm,value\n" + rows)
+    lamp = capture.lamps[0]
+    argv = ["--lamp", lamp.name, "--images", *map(str, lamp.frames), "--spectrum", str(spectrum)]
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "o")])
+    assert code == 2 and stderr.count("\n") == 1, stderr
+    assert "extreme.csv" in stderr and says in stderr
+
+
+def test_an_oversized_spectrum_file_is_refused_unread(tmp_path: Path) -> None:
+    from calib.core.spectra import MAX_TABLE_BYTES, MAX_TABLE_ROWS, read_spectrum_csv
+
+    big = tmp_path / "big.csv"
+    with big.open("wb") as stream:
+        stream.truncate(MAX_TABLE_BYTES + 1)
+    with pytest.raises(InputError, match="more than 32 MiB"):
+        read_spectrum_csv(big)
+    many = tmp_path / "many.csv"
+    many.write_text("".join(f"{400 + k * 1e-3:.3f},1\n" for k in range(MAX_TABLE_ROWS + 1)))
+    with pytest.raises(InputError, match=f"{MAX_TABLE_ROWS + 1} data rows; at most"):
+        read_spectrum_csv(many)
+
+
+def test_the_same_frame_twice_in_a_bracket_is_refused(capture: Capture, tmp_path: Path) -> None:
+    lamp = capture.lamps[0]
+    copy = tmp_path / "copy.dng"
+    copy.write_bytes(lamp.frames[1].read_bytes())
+    for twice in ([lamp.frames[1], lamp.frames[1]], [lamp.frames[1], copy]):
+        argv = ["--lamp", lamp.name, "--images", *map(str, [lamp.frames[0], *twice])]
+        argv += ["--spectrum", str(lamp.spectrum_csv), "--out", str(tmp_path / "o")]
+        code, _, stderr = _call(argv)
+        assert code == 2 and stderr.count("\n") == 1, stderr
+        assert f"{twice[0]} and {twice[1]} are the same frame" in stderr
+
+
+def test_a_blank_frame_in_a_bracket_is_refused_naming_it(capture: Capture, tmp_path: Path) -> None:
+    import rawpy
+
+    from calib.image.raw import read_raw_metadata
+    from mocks.dng import DngMetadata, write_dng
+
+    lamp = capture.lamps[0]
+    metadata = read_raw_metadata(lamp.frames[0])
+    with rawpy.imread(str(lamp.frames[0])) as raw:
+        shape = raw.raw_image_visible.shape
+        black = int(raw.black_level_per_channel[0])
+    blank = tmp_path / "blank.dng"
+    write_dng(
+        blank,
+        np.full(shape, black, dtype=np.uint16),
+        DngMetadata(
+            exposure_s=0.001,
+            iso=int(metadata.iso) if metadata.iso else 100,
+            f_number=metadata.f_number,
+            model=metadata.camera.split(" ", 1)[-1],
+            black_level_dn=black,
+        ),
+    )
+    argv = ["--lamp", lamp.name, "--images", *map(str, [*lamp.frames, blank])]
+    argv += ["--spectrum", str(lamp.spectrum_csv), "--out", str(tmp_path / "o")]
+    code, _, stderr = _call(argv)
+    assert code == 2 and stderr.count("\n") == 1, stderr
+    assert "blank.dng" in stderr and "the frame is blank" in stderr

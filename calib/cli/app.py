@@ -14,6 +14,7 @@ import sys
 import typer
 
 from calib.cli import compare, data, estimate, plan_lamps, spd, synthetic, uses
+from calib.cli.exits import say_interrupted
 from calib.core.errors import CalibError, InputError
 
 
@@ -35,6 +36,9 @@ def main() -> None:
     """Console entry point."""
     try:
         build_app()(standalone_mode=True)
+    except SystemExit as exit_:
+        say_interrupted(exit_, "calib")
+        raise
     except InputError as exc:
         print(f"calib: error: {exc}", file=sys.stderr)
         sys.exit(2)

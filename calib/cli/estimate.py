@@ -12,7 +12,6 @@ import os
 import sys
 import traceback
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any, TextIO
 
 import typer
@@ -23,23 +22,9 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import format_re
 from calib.core.result import json_safe
 from calib.pipeline.estimate import OfflineSettings
+from calib.pipeline.outputs import check_out_dir
 from calib.pipeline.progress import RichFrameProgress
 from calib.pipeline.run import OfflineOutcome, run_offline
-
-#: Files of an earlier estimate that ``--force`` allows to overwrite.
-_RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
-
-
-def _check_out_dir(out_dir: Path, force: bool) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError("exists and is not a directory", source=f"--out {out_dir}")
-    existing = [name for name in _RESULT_MARKERS if (out_dir / name).exists()]
-    if existing and not force:
-        raise InputError(
-            f"already holds the results of an estimate ({', '.join(existing)}); choose another "
-            "--out or add --force to overwrite them",
-            source=f"--out {out_dir}",
-        )
 
 
 def summary(outcome: OfflineOutcome) -> dict[str, Any]:
@@ -143,7 +128,7 @@ def _estimate(
     arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO
 ) -> OfflineOutcome:
     assert arguments.out_dir is not None
-    _check_out_dir(arguments.out_dir, arguments.force)
+    check_out_dir(arguments.out_dir, arguments.force)
     settings = OfflineSettings(
         method=arguments.method,
         method_options=arguments.method_options,

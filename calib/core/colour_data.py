@@ -22,16 +22,17 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
-from calib.core.errors import InputError
+from calib.core.errors import InputError, SpectrumError
 from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
 
 #: The ColorChecker data used unless another is named.
@@ -84,6 +85,62 @@ def illuminants() -> Mapping[str, Spectrum]:
 def light_sources() -> Mapping[str, Spectrum]:
     """colour-science's measured light sources (``SDS_LIGHT_SOURCES``: ``Kinoton 75P`` …)."""
     return _spectra(_colour().SDS_LIGHT_SOURCES)
+
+
+SpectralFileFormat = Literal["ies", "xrite", "sekonic", "uprtek"]
+
+
+@dataclass(frozen=True)
+class SpectralFile:
+    """A measured spectrum colour-science read from a file: the spectrum, and what the file says
+    of it (IES TM-27-14's spectral quantity and bandwidth; ``None`` where it says nothing)."""
+
+    spectrum: Spectrum
+    quantity: str | None = None
+    bandwidth_nm: float | None = None
+
+
+def spectral_file(
+    path: str | Path, file_format: SpectralFileFormat, sample: str | None = None
+) -> SpectralFile:
+    """A spectrum from an IES TM-27-14 XML (``ies``), X-Rite (``xrite``: ``sample`` picks one of
+    several), Sekonic or UPRtek light-meter export, read by colour-science.
+
+    Raises
+    ------
+    SpectrumError
+        Not readable as that format, or no such sample (the file named).
+    """
+    colour = _colour()
+    source = str(path)
+    try:
+        if file_format == "ies":
+            distribution = colour.SpectralDistribution_IESTM2714(source).read()
+        elif file_format == "sekonic":
+            distribution = colour.io.SpectralDistribution_Sekonic(source).read()
+        elif file_format == "uprtek":
+            distribution = colour.io.SpectralDistribution_UPRTek(source).read()
+        else:
+            samples = colour.io.read_sds_from_xrite_file(source)
+            if sample is None and len(samples) != 1:
+                raise SpectrumError(
+                    f"{len(samples)} samples ({', '.join(samples)}); choose one by name",
+                    source=source,
+                )
+            name = sample if sample is not None else next(iter(samples))
+            distribution = _entry(samples, name, "sample", source)
+    except (ValueError, KeyError, IndexError, OSError) as exc:
+        if isinstance(exc, InputError):
+            raise SpectrumError(str(exc).removeprefix(f"{source}: "), source=source) from None
+        raise SpectrumError(f"not a readable {file_format} file: {exc}", source=source) from None
+    spectrum = Spectrum.from_colour(distribution, name=Path(source).name)
+    quantity = getattr(distribution, "spectral_quantity", None) if file_format == "ies" else None
+    fwhm = getattr(distribution, "bandwidth_FWHM", None) if file_format == "ies" else None
+    return SpectralFile(
+        Spectrum(spectrum.wavelength_nm, np.clip(spectrum.values, 0.0, None), name=spectrum.name),
+        str(quantity) if quantity else None,
+        float(fwhm) if fwhm else None,
+    )
 
 
 def cie_daylight(cct_k: float) -> Spectrum:

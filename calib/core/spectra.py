@@ -80,6 +80,12 @@ class WavelengthGrid:
                 source="grid",
             )
         n_steps = (self.stop_nm - self.start_nm) / self.step_nm
+        if not math.isfinite(n_steps):
+            raise SpectrumError(
+                f"{self.start_nm:g}:{self.stop_nm:g}:{self.step_nm:g} nm has no countable number "
+                "of steps",
+                source="grid",
+            )
         if abs(n_steps - round(n_steps)) > 1e-6:
             raise SpectrumError(
                 f"{self.stop_nm} - {self.start_nm} nm is not a whole number of {self.step_nm} nm steps",
@@ -101,6 +107,13 @@ class WavelengthGrid:
                 f"expected three numbers START:STOP:STEP (e.g. 400:700:10), got {text!r}",
                 source="grid",
             ) from None
+        n_steps = (stop - start) / step if step > 0 else 0.0
+        if math.isfinite(n_steps) and n_steps + 1 > MAX_GRID_SIZE:
+            raise SpectrumError(
+                f"{text.strip()} has {n_steps + 1:,.0f} wavelengths; at most {MAX_GRID_SIZE} "
+                "(a camera's sensitivity is smooth: 5 or 10 nm steps suffice, e.g. 400:700:10)",
+                source="grid",
+            )
         return cls(start, stop, step)
 
     @property
@@ -118,6 +131,9 @@ class WavelengthGrid:
 
 
 DEFAULT_GRID = WavelengthGrid(400.0, 700.0, 10.0)
+MAX_GRID_SIZE = 1001
+"""Most wavelengths a grid given as input may have (:meth:`WavelengthGrid.parse`): the solve grows
+as its cube (0.1 nm steps over 400–700 nm ran for minutes, 0.01 nm ran out of memory)."""
 
 
 def _validate_axis(wavelength_nm: ArrayLike, name: str) -> tuple[FloatArray, bool]:
@@ -548,6 +564,15 @@ def sigma_column_names(channel: int) -> tuple[str, ...]:
     )
 
 
+MAX_TABLE_BYTES = 32 * 1024 * 1024
+"""Largest CSV file read as a spectrum or profile (a spectrometer's 0.1 nm export is < 1 MiB)."""
+MAX_TABLE_ROWS = 200_000
+"""Most data rows read from one CSV file."""
+VALUE_MAGNITUDE_RANGE = (1e-30, 1e30)
+"""Where the largest magnitude of a table's value columns must lie (when not all zero): beyond it
+the arithmetic of resampling and solving overflows or underflows, and no measurement lies there."""
+
+
 @dataclass(frozen=True)
 class CsvTable:
     """A numeric table read from a CSV file: a header (possibly synthesised) and rows.
@@ -656,11 +681,18 @@ def read_table(path: str | Path) -> CsvTable:
     """
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        with path.open("rb") as stream:
+            raw = stream.read(MAX_TABLE_BYTES + 1)
     except FileNotFoundError:
         raise SpectrumError("file not found", source=str(path)) from None
     except OSError as exc:
         raise SpectrumError(f"cannot read: {exc.strerror}", source=str(path)) from None
+    if len(raw) > MAX_TABLE_BYTES:
+        raise SpectrumError(
+            f"more than {MAX_TABLE_BYTES // (1024 * 1024)} MiB: not a spectrum or profile table "
+            "(give the measurement itself, at most a few hundred thousand rows)",
+            source=str(path),
+        )
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -686,6 +718,10 @@ def read_table(path: str | Path) -> CsvTable:
         data_lines = lines
     if not data_lines:
         raise SpectrumError("a header but no data rows", source=str(path))
+    if len(data_lines) > MAX_TABLE_ROWS:
+        raise SpectrumError(
+            f"{len(data_lines)} data rows; at most {MAX_TABLE_ROWS} are read", source=str(path)
+        )
     rows: list[list[float]] = []
     for number, line in data_lines:
         fields = _strip_trailing_empty(_split(line, delimiter), delimiter)
@@ -699,7 +735,17 @@ def read_table(path: str | Path) -> CsvTable:
         raise SpectrumError(
             "need at least two columns: wavelength_nm and a value", source=str(path)
         )
-    return CsvTable(columns, np.array(rows, dtype=np.float64), path, had_header)
+    table = np.array(rows, dtype=np.float64)
+    values = np.abs(table[:, 1:][np.isfinite(table[:, 1:])])
+    peak = float(values.max()) if values.size else 0.0
+    low, high = VALUE_MAGNITUDE_RANGE
+    if peak > high or 0.0 < peak < low:
+        raise SpectrumError(
+            f"values reach {peak:g} at most: outside {low:g} … {high:g}, where no measurement "
+            "lies; is the column in the right unit?",
+            source=str(path),
+        )
+    return CsvTable(columns, table, path, had_header)
 
 
 def read_spectrum_csv(

@@ -739,6 +739,18 @@ def decode_order(
     )
 
 
+def _check_not_blank(planes: RawPlanes) -> None:
+    """A light frame whose every sample has one value (all zero, or flat black) shows nothing: a
+    corrupt file, or a capture without the lamp. Merged, it would pass as a very short exposure."""
+    signal = planes.signal_dn
+    if signal.size and float(signal.max()) == float(signal.min()):
+        raise InputError(
+            f"the frame is blank (every sample {float(signal.flat[0]):g} DN above black): a "
+            "bracket frame must show the direct spot and the band; remove it or capture it again",
+            source=str(planes.metadata.path),
+        )
+
+
 def _checked_region(region: PlaneRegion | None) -> PlaneRegion | None:
     if region is None:
         return None
@@ -880,6 +892,8 @@ class _Merger:
         self.records: dict[int, FrameRecord] = {}
 
     def _check(self, planes: RawPlanes, *, light: bool) -> None:
+        if light:
+            _check_not_blank(planes)
         if self.layout is None:
             self.layout = _PlaneLayout.of(planes)
         _check_planes(self.layout, planes)

@@ -47,7 +47,7 @@ from calib.pipeline.inputs import (
     read_profile_csv,
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
-from calib.pipeline.provenance import FileHasher, InputFile, Provenance
+from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
 
 __all__ = [
     "OfflineEstimate",
@@ -183,6 +183,14 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
                 raise InputError(
                     "file not found" if not path.exists() else "not a file", source=str(path)
                 )
+        repeated = repeated_file(lamp.images)
+        if repeated is not None:
+            first, second = repeated
+            raise InputError(
+                f"{first} and {second} are the same frame (same file or same content): a bracket "
+                "needs each frame once; remove one",
+                source=f"lamp {lamp.name!r}",
+            )
     warnings: list[str] = []
     spectra: dict[str, Spectrum] = {}
     for given in lamps:

@@ -38,6 +38,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
+import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.camera_curves import CameraCurves
-from calib.core.errors import CalibError
+from calib.core.errors import CalibError, InputError
 from calib.core.formats.ampas import AmpasHeader, camera_file_name, file_stem, write_camera_json
 from calib.core.formats.dcamprof import write_ssf_json
 from calib.core.formats.result_json import RESULT_FORMAT_VERSION, RESULT_SCHEMA
@@ -348,6 +350,45 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
         provenance=provenance,
         source="estimated grating efficiency",
     )
+
+
+#: Files of an earlier estimate that ``--force`` allows to overwrite.
+RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
+
+
+def check_out_dir(out_dir: Path, force: bool) -> None:
+    """Check, before any work, that the results can be written into ``out_dir``.
+
+    It must be a directory or not exist yet, hold no results of an earlier estimate unless
+    ``force`` (``--force``), and be writable (a file is created in it and removed again; a missing
+    directory is checked through its nearest existing parent).
+
+    Raises
+    ------
+    InputError
+        Naming ``--out`` and what to do.
+    """
+    source = f"--out {out_dir}"
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("exists and is not a directory", source=source)
+    existing = [name for name in RESULT_MARKERS if (out_dir / name).exists()]
+    if existing and not force:
+        raise InputError(
+            f"already holds the results of an estimate ({', '.join(existing)}); choose another "
+            "--out or add --force to overwrite them",
+            source=source,
+        )
+    probe_dir = out_dir
+    while not probe_dir.exists() and probe_dir != probe_dir.parent:
+        probe_dir = probe_dir.parent
+    try:
+        descriptor, probe = tempfile.mkstemp(prefix=".write-check-", dir=probe_dir)
+    except OSError as exc:
+        raise InputError(
+            f"cannot be written ({exc.strerror or exc}); choose another --out", source=source
+        ) from None
+    os.close(descriptor)
+    Path(probe).unlink()
 
 
 def write_outputs(

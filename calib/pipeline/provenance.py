@@ -8,7 +8,7 @@ hashed elsewhere (a session's verified record) is not read again.
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -53,6 +53,32 @@ class InputFile:
             "size": self.size,
             "sha256": self.sha256,
         }
+
+
+def repeated_file(paths: Sequence[Path]) -> tuple[Path, Path] | None:
+    """The first two of ``paths`` that are one file, or two files with the same bytes; ``None``.
+
+    Only files of equal size are hashed (RAW files of one bracket rarely share a size unless
+    uncompressed, and then their content differs).
+    """
+    seen: dict[Path, Path] = {}
+    by_size: dict[int, list[Path]] = {}
+    for path in paths:
+        resolved = path.resolve()
+        if resolved in seen:
+            return seen[resolved], path
+        seen[resolved] = path
+        by_size.setdefault(path.stat().st_size, []).append(path)
+    for group in by_size.values():
+        if len(group) < 2:
+            continue
+        digests: dict[str, Path] = {}
+        for path in group:
+            digest = file_sha256(path)[1]
+            if digest in digests:
+                return digests[digest], path
+            digests[digest] = path
+    return None
 
 
 class FileHasher:

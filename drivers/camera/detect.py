@@ -7,6 +7,7 @@ from typing import Any
 
 from drivers.base import DeviceNotFound, DeviceTimeout
 from drivers.camera.watchdog import CallTimedOut, CallWatchdog
+from drivers.libraries import gphoto2
 
 __all__ = ["GphotoModule", "list_cameras", "load_gphoto2", "select_camera"]
 
@@ -15,16 +16,8 @@ GphotoModule = Any
 
 
 def load_gphoto2() -> GphotoModule:
-    """Import the real python-gphoto2, or explain how to get it."""
-    try:
-        import gphoto2
-    except ImportError as exc:
-        raise DeviceNotFound(
-            "gphoto2",
-            f"python-gphoto2 is not importable ({exc}); install it with `pip install gphoto2` "
-            "(wheels for Linux and macOS bundle libgphoto2)",
-        ) from exc
-    return gphoto2
+    """Import the real python-gphoto2 (:func:`drivers.libraries.gphoto2`), or explain how to get it."""
+    return gphoto2()
 
 
 def camera_list_pairs(camera_list: Any) -> list[tuple[str, str]]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,7 +11,6 @@ __all__ = [
     "files_per_capture",
     "local_path",
     "primary_file",
-    "write_atomically",
 ]
 
 CameraPath = tuple[str, str]
@@ -43,23 +41,3 @@ def local_path(destination: Path, camera_file: CameraPath) -> Path:
     if destination.suffix:
         return destination
     return destination.with_suffix(Path(camera_file[1]).suffix.lower())
-
-
-def write_atomically(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary name in the same directory, fsync, rename.
-
-    A crash leaves either no file or the complete file under ``path`` (plus at most a hidden
-    ``.<name>.partial``), never a truncated frame under the final name.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.partial")
-    with temporary.open("wb") as handle:
-        handle.write(data)
-        handle.flush()
-        os.fsync(handle.fileno())
-    temporary.replace(path)
-    directory = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)

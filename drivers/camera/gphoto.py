@@ -63,14 +63,9 @@ from drivers.camera.errors import (
     classify_gphoto_error,
 )
 from drivers.camera.exposure import ExposureTable, format_exposure, is_bulb_choice, parse_exposure_s
-from drivers.camera.files import (
-    CameraPath,
-    files_per_capture,
-    local_path,
-    primary_file,
-    write_atomically,
-)
+from drivers.camera.files import CameraPath, files_per_capture, local_path, primary_file
 from drivers.camera.widgets import SETTING_WIDGETS, WidgetTable, same_value, value_text
+from drivers.local_files import write_atomically
 
 __all__ = [
     "BULB_MAX_EXPOSURE_S",

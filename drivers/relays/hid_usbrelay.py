@@ -30,9 +30,6 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
-import usb.core
-import usb.util
-
 from drivers.base import (
     DeviceBusy,
     DeviceError,
@@ -45,6 +42,7 @@ from drivers.base import (
     TranscriptEntry,
     TranscriptSink,
 )
+from drivers.libraries import pyusb
 from drivers.relays import verify_relay_state
 
 __all__ = [
@@ -232,7 +230,7 @@ class _ControlChannel:
                 self.event("detach_kernel_driver", interface=HID_INTERFACE)
         except NotImplementedError:
             pass  # macOS / Windows backends have no kernel-driver notion
-        except usb.core.USBError as exc:
+        except pyusb().USBError as exc:
             raise self._typed_error(exc, b"") from exc
 
     def release(self) -> None:
@@ -240,10 +238,10 @@ class _ControlChannel:
         if self._detached_kernel_driver:
             self._detached_kernel_driver = False
             # Best effort: the board may already be gone.
-            with contextlib.suppress(usb.core.USBError, NotImplementedError):
+            with contextlib.suppress(pyusb().USBError, NotImplementedError):
                 self.usb_device.attach_kernel_driver(HID_INTERFACE)
-        with contextlib.suppress(usb.core.USBError, NotImplementedError):
-            usb.util.dispose_resources(self.usb_device)
+        with contextlib.suppress(pyusb().USBError, NotImplementedError):
+            pyusb().util.dispose_resources(self.usb_device)
 
     def read_report(self) -> FeatureReport:
         """HID GET_REPORT (Feature): the board ID and relay bitmask."""
@@ -307,7 +305,7 @@ class _ControlChannel:
             return self.usb_device.ctrl_transfer(
                 request_type, request, value, index, data, timeout_ms
             )
-        except usb.core.USBError as exc:
+        except pyusb().USBError as exc:
             self._record(
                 "error",
                 json.dumps(
@@ -319,7 +317,7 @@ class _ControlChannel:
     def _typed_error(self, exc: Any, packet: bytes) -> DeviceError:
         code = exc.errno
         text = str(exc.strerror or exc)
-        if isinstance(exc, usb.core.USBTimeoutError) or code == _ERRNO_TIMEOUT:
+        if isinstance(exc, pyusb().USBTimeoutError) or code == _ERRNO_TIMEOUT:
             return DeviceTimeout(
                 self.label,
                 f"no answer to control transfer within {self.timeout_s:g} s ({text})",
@@ -433,11 +431,11 @@ def _probe(
 def _find_matches(backend: Any) -> list[Any]:
     try:
         return list(
-            usb.core.find(
+            pyusb().find(
                 find_all=True, idVendor=USB_VENDOR_ID, idProduct=USB_PRODUCT_ID, backend=backend
             )
         )
-    except usb.core.NoBackendError as exc:
+    except pyusb().NoBackendError as exc:
         raise DeviceNotFound(
             "HID USBRelay",
             "no USB backend available (libusb-1.0 not found): install it "
@@ -457,8 +455,8 @@ def _probe_all(
         probed = _probe(usb_device, transcript, timeout_s, recipient, time.monotonic)
         if isinstance(probed, str):
             skipped.append(probed)
-            with contextlib.suppress(usb.core.USBError, NotImplementedError):
-                usb.util.dispose_resources(usb_device)
+            with contextlib.suppress(pyusb().USBError, NotImplementedError):
+                pyusb().util.dispose_resources(usb_device)
         else:
             boards.append(probed)
     return boards, skipped

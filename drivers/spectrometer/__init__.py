@@ -1,7 +1,7 @@
-"""Spectroradiometers with a serial command protocol: Photo Research PR-655/PR-670, Konica Minolta
-CS-2000/CS-2000A.
-
-:func:`open_spectrometer` is what the rig calls with the model and port from its config.
+"""Spectrometers: the serial spectroradiometers (Photo Research PR-655/PR-670, Konica Minolta
+CS-2000/CS-2000A: :func:`open_spectrometer` with the model and port from the config), Ocean Optics
+USB spectrometers through python-seabreeze (:mod:`.ocean`), X-Rite instruments through ArgyllCMS's
+``spotread`` (:mod:`.argyll`) and measured spectrum files (:mod:`.files`).
 """
 
 from __future__ import annotations
@@ -23,6 +23,11 @@ __all__ = [
 
 #: Model names accepted by :func:`open_spectrometer` (case and separators are ignored).
 MODELS = ("PR-655", "PR-670", "CS-2000", "CS-2000A")
+
+#: The spectrometers that are not serial instruments, and the longest a measurement of each may
+#: take by default (s): an Ocean spectrometer ranges and averages up to its longest integration
+#: time (its own USB deadlines end a silent scan sooner); one spotread run; a file read.
+OTHER_KINDS = {"seabreeze": 300.0, "argyll": 120.0, "files": 5.0}
 
 
 def canonical_model(model: str) -> str:
@@ -50,6 +55,10 @@ def longest_measure_s(
     as for :func:`open_spectrometer` (``None``: the model's defaults); each driver adds up its own
     deadlines (:func:`pr6xx.longest_measure_s`, :func:`cs2000.longest_measure_s`).
     """
+    if model in OTHER_KINDS:
+        if measure_timeout_s is not None:
+            return measure_timeout_s
+        return OTHER_KINDS[model] if timeout_s is None else max(OTHER_KINDS[model], timeout_s)
     name = canonical_model(model)
     if name.startswith("PR-"):
         return pr6xx.longest_measure_s(timeout_s, measure_timeout_s)

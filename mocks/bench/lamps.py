@@ -26,6 +26,7 @@ from calib.core.arrays import FloatArray
 from calib.core.colour_data import illuminants
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import Spectrum
+from mocks.bench.colour_cache import cached_table
 from mocks.bench.spec import LampSpec, TwinSpecError
 from mocks.lamps import Clock, LampBank, VirtualLamp
 
@@ -54,14 +55,19 @@ def settled_spectrum(lamp: LampSpec) -> Spectrum:
     TwinSpecError
         The illuminant is unknown, or has no light in 400–700 nm.
     """
-    illuminant = illuminants().get(lamp.spd)
-    if illuminant is None:
-        shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
-        raise TwinSpecError(
-            f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
-            f"illuminant; name the lamp after one or set spd to one of: {shown}"
-        )
-    spectrum = Spectrum(illuminant.wavelength_nm, illuminant.values, name=lamp.name)
+
+    def from_colour() -> tuple[FloatArray, FloatArray]:
+        illuminant = illuminants().get(lamp.spd)  # importing colour costs a second: then cached
+        if illuminant is None:
+            shown = ", ".join(name for name in illuminant_names() if not name.startswith("ISO"))
+            raise TwinSpecError(
+                f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} is not a colour-science "
+                f"illuminant; name the lamp after one or set spd to one of: {shown}"
+            )
+        return illuminant.wavelength_nm, illuminant.values
+
+    wavelength_nm, values = cached_table(f"illuminant {lamp.spd}", from_colour)
+    spectrum = Spectrum(wavelength_nm, values, name=lamp.name)
     low, high = NORMALISATION_RANGE_NM
     axis = np.arange(low, high + 0.5, 1.0)
     mean = float(np.mean(spectrum.at(axis)))

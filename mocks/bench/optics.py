@@ -37,6 +37,7 @@ from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry
 from calib.core.spectra import MultiSpectrum, Spectrum
 from calib.model.forward import PiecewiseLinearDensity, RenderedObservation, render_observation
+from mocks.bench.colour_cache import cached_table
 from mocks.bench.spec import CameraSpec, TwinSpecError
 from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_box
 
@@ -63,9 +64,17 @@ def load_sensitivity(camera: CameraSpec) -> MultiSpectrum:
     TwinSpecError
         The collection or the camera cannot be found (the message lists candidates).
     """
-    try:
+
+    def from_collection() -> tuple[FloatArray, FloatArray]:
         records = load_collection(camera.sensitivity_collection, camera.data_dir)
-        record = find_camera(records, camera.sensitivity)
+        sensitivity = find_camera(records, camera.sensitivity).sensitivity.normalised()
+        return sensitivity.wavelength_nm, sensitivity.values
+
+    try:
+        if camera.sensitivity_collection == COLOUR_SCIENCE:  # built in: cached per colour version
+            wavelength_nm, values = cached_table(f"camera {camera.sensitivity}", from_collection)
+        else:
+            wavelength_nm, values = from_collection()
     except InputError as exc:
         raise TwinSpecError(
             f"devices.camera.sensitivity: {exc} (collection {camera.sensitivity_collection!r}"
@@ -76,7 +85,7 @@ def load_sensitivity(camera: CameraSpec) -> MultiSpectrum:
             )
             + ")"
         ) from None
-    return record.sensitivity.normalised()
+    return MultiSpectrum(wavelength_nm, values, name=camera.sensitivity)
 
 
 def blaze_efficiency(

@@ -21,10 +21,17 @@ from typing import Any, Literal
 
 from mocks.scene import SensorModel
 
-SpectrometerModel = Literal["pr655", "pr670", "cs2000"]
+SpectrometerModel = Literal["pr655", "pr670", "cs2000", "seabreeze", "argyll"]
 RelayModel = Literal["hid_usbrelay", "lcus", "numato"]
 
-SPECTROMETER_MODELS: tuple[SpectrometerModel, ...] = ("pr655", "pr670", "cs2000")
+SPECTROMETER_MODELS: tuple[SpectrometerModel, ...] = (
+    "pr655",
+    "pr670",
+    "cs2000",
+    "seabreeze",
+    "argyll",
+)
+OCEAN_MODELS = ("USB2000PLUS", "STS")
 RELAY_MODELS: tuple[RelayModel, ...] = ("hid_usbrelay", "lcus", "numato")
 
 
@@ -147,10 +154,17 @@ class TwinSpec:
     lamps
         The lamps, on distinct relay channels within ``1..relay_channels``.
     camera
-        The camera.
+        The camera (``None``: the rig's camera is real, the twin only lights its lamps).
     spectrometer_model, spectrometer_time_scale, spectrometer_timeout_s
-        Which emulator serves the spectrometer, the fraction of its measuring time that passes in
-        wall time, and the driver's command deadline.
+        Which emulator serves the spectrometer (``None``: the rig's spectrometer is real), the
+        fraction of its measuring time that passes in wall time, and the driver's command
+        deadline.
+    ocean_model
+        The Ocean spectrometer emulated for ``seabreeze`` (``USB2000PLUS`` or ``STS``).
+    spectrometer_noise_draw
+        Which draw of the spectrometer's noise (0: the seed's own; others leave the rest alone).
+    spectrometer_high_resolution
+        ``argyll``: spotread runs with ``-H`` (3.3 nm bands).
     spectrometer_measure_timeout_s
         The driver's measurement allowance (``None``: the model's default).
     relay_model, relay_channels, relay_timeout_s
@@ -161,8 +175,8 @@ class TwinSpec:
 
     seed: int
     lamps: tuple[LampSpec, ...]
-    camera: CameraSpec
-    spectrometer_model: SpectrometerModel
+    camera: CameraSpec | None
+    spectrometer_model: SpectrometerModel | None
     spectrometer_time_scale: float
     spectrometer_timeout_s: float
     relay_model: RelayModel
@@ -170,9 +184,20 @@ class TwinSpec:
     relay_timeout_s: float
     relay_state_file: Path | None = None
     spectrometer_measure_timeout_s: float | None = None
+    ocean_model: str = "USB2000PLUS"
+    spectrometer_noise_draw: int = 0
+    spectrometer_high_resolution: bool = False
 
     def __post_init__(self) -> None:
-        if self.spectrometer_model not in SPECTROMETER_MODELS:
+        if self.ocean_model not in OCEAN_MODELS:
+            raise TwinSpecError(
+                f"devices.spectrometer.ocean_model: {self.ocean_model!r} is not one of "
+                f"{', '.join(OCEAN_MODELS)}"
+            )
+        if (
+            self.spectrometer_model is not None
+            and self.spectrometer_model not in SPECTROMETER_MODELS
+        ):
             raise TwinSpecError(
                 f"devices.spectrometer.emulate: {self.spectrometer_model!r} is not one of "
                 f"{', '.join(SPECTROMETER_MODELS)}"
@@ -196,6 +221,13 @@ class TwinSpec:
                 f"{self.relay_channels}-channel relay board; raise devices.relays.channels"
             )
 
+    @property
+    def twin_camera(self) -> CameraSpec:
+        """The twin camera (:class:`TwinSpecError` when the rig's camera is real)."""
+        if self.camera is None:
+            raise TwinSpecError("devices.camera is real: the twin has no camera")
+        return self.camera
+
     # ------------------------------------------------------------------------ from config data
 
     @classmethod
@@ -203,7 +235,8 @@ class TwinSpec:
         """Build the spec from the rig's configuration as JSON-able data (validated by the rig).
 
         Every field must be present (the rig's dump carries its defaults); the twin keeps no
-        defaults of its own.
+        defaults of its own. The relays must be ``twin`` (the lamps are the twin's); a real
+        spectrometer or camera is left to the rig (``spectrometer_model`` / ``camera`` ``None``).
 
         Raises
         ------
@@ -215,11 +248,12 @@ class TwinSpec:
         spectrometer = devices.section("spectrometer")
         relays = devices.section("relays")
         camera = devices.section("camera")
-        for section in (spectrometer, relays, camera):
-            if section.text("kind") != "twin":
-                raise TwinSpecError(
-                    f"{section.where('kind')} is {section.text('kind')!r}; the twin needs 'twin'"
-                )
+        if relays.text("kind") != "twin":
+            raise TwinSpecError(
+                f"{relays.where('kind')} is {relays.text('kind')!r}; the twin's lamps need 'twin'"
+            )
+        twin_spectrometer = spectrometer.text("kind") == "twin"
+        twin_camera = camera.text("kind") == "twin"
         overrides = relays.section("lamps")
         lamps = root.items("lamps")
         names = [lamp.text("name") for lamp in lamps]
@@ -229,7 +263,7 @@ class TwinSpec:
                 f"devices.relays.lamps: {', '.join(map(repr, unknown))} is not a lamp of lamps[] "
                 f"({', '.join(names)})"
             )
-        spectrometer_model = spectrometer.text("emulate")
+        spectrometer_model = spectrometer.text("emulate") if twin_spectrometer else None
         state_file = relays.value("state_file")
         relay_model = relays.text("emulate")
         return cls(
@@ -238,10 +272,13 @@ class TwinSpec:
                 _lamp_spec(lamp, overrides.section(name) if name in overrides else None)
                 for lamp, name in zip(lamps, names, strict=True)
             ),
-            camera=_camera_spec(camera),
+            camera=_camera_spec(camera) if twin_camera else None,
             spectrometer_model=spectrometer_model,  # type: ignore[arg-type]  # checked on init
-            spectrometer_time_scale=spectrometer.number("time_scale"),
+            spectrometer_time_scale=spectrometer.number("time_scale") if twin_spectrometer else 1.0,
             spectrometer_timeout_s=spectrometer.number("timeout_s"),
+            ocean_model=str(spectrometer.optional("ocean_model") or "USB2000PLUS"),
+            spectrometer_noise_draw=int(spectrometer.optional("noise_draw") or 0),
+            spectrometer_high_resolution=bool(spectrometer.optional("high_resolution")),
             spectrometer_measure_timeout_s=(
                 None
                 if spectrometer.optional("measure_timeout_s") is None

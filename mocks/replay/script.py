@@ -239,6 +239,15 @@ class ReplayScript:
                 return Served(self.entries[self._next], self._next + 1)
             return None
 
+    def peek_answer(self) -> Served | None:
+        """:meth:`peek`, the events before it passed over (they are notes, never answers)."""
+        with self._lock:
+            served = self.peek()
+            while served is not None and served.entry.direction == "event":
+                self.skip()
+                served = self.peek()
+            return served
+
     def wait_before(self, served: Served) -> float:
         """Seconds to wait now so that ``served`` comes as long after the last command as recorded.
 

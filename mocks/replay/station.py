@@ -10,29 +10,56 @@ the recorded port as its name, so identities and labels come out as recorded.
 from __future__ import annotations
 
 import contextlib
+import json
 import re
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-from drivers.base import Camera, RelayBoard, Spectrometer, TranscriptEntry, TranscriptSink
+from calib.core.spectra import read_spectrum_csv
+from drivers.base import (
+    Camera,
+    RelayBoard,
+    Spectrometer,
+    SpectrumReading,
+    TranscriptEntry,
+    TranscriptSink,
+)
 from drivers.camera import CameraTimeouts, open_camera
 from drivers.lifecycle import connect_or_close
 from drivers.relays.hid_usbrelay import open_hid_relay
 from drivers.relays.lcus import LcusRelayBoard
 from drivers.relays.numato import NumatoRelayBoard
+from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
 from drivers.spectrometer.cs2000 import Cs2000
+from drivers.spectrometer.files import (
+    FilesSpectrometer,
+    LampFile,
+    SwitchedRelays,
+    reading_from_json,
+)
+from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from drivers.spectrometer.pr6xx import MODELS as PR6XX_MODELS
 from drivers.spectrometer.pr6xx import Pr6xx
 from drivers.transport import SerialTransport
+from mocks.bench.station import twin_ocean_settings
 from mocks.lamps import SimulatedClock
+from mocks.ocean_backend import OCEAN_MODELS
 from mocks.replay.gphoto2 import FrameSource, ReplayGphoto2, ReplayUnsupported
-from mocks.replay.script import CheckingSink, Mismatches, ReplayScript
+from mocks.replay.script import CheckingSink, Mismatches, ReplayMismatch, ReplayScript
 from mocks.replay.serial_port import ReplaySerialPort
-from mocks.replay.usb_backend import ReplayUsbBackend
+from mocks.replay.spotread import ReplaySpotreadLauncher
+from mocks.replay.usb_backend import ReplayOceanBackend, ReplayUsbBackend
 
-__all__ = ["RecordedDevice", "ReplayBench", "ReplayUnsupported", "open_replay"]
+__all__ = [
+    "RecordedDevice",
+    "RecordingServer",
+    "ReplayBench",
+    "ReplayUnsupported",
+    "open_replay",
+]
 
 TranscriptFactory = Callable[[str], TranscriptSink]
 _CHANNELS = re.compile(r"(\d+)")
@@ -81,6 +108,11 @@ class ReplayBench:
         for closer in reversed(self.closers):
             with contextlib.suppress(Exception):
                 closer()
+
+    def finish(self) -> None:
+        """After the run: note, as mismatches, every recorded entry left unused."""
+        for script in self.scripts.values():
+            script.finish()
 
 
 def _channels(model: str) -> int:
@@ -141,11 +173,101 @@ def _open_relays(
     raise ReplayUnsupported(f"no replay for the relay board {model!r}")
 
 
+def _ocean_settings(device: RecordedDevice) -> OceanSettings:
+    """The Ocean driver's settings as the recorded identity says the run used them."""
+    extra = device.identity.get("extra") or {}
+    model = str(device.identity.get("model", ""))
+    source = str(extra.get("calibration", ""))
+    timeout_s = int(extra.get("timeout_ms", 5000)) / 1000.0
+    if source == f"twin {model}":
+        return twin_ocean_settings(model, timeout_s)
+    ladder = [float(v) for v in str(extra.get("integration_ladder_ms", "")).split(",") if v]
+    if len(ladder) < 2:
+        raise ReplayUnsupported(f"the recorded {model} names no integration ladder")
+    calibration = None
+    if extra.get("calibration_sha256"):
+        table = read_spectrum_csv(source, column="factor")
+        calibration = IrradianceCalibration(table.wavelength_nm, table.values, source=source)
+        if calibration.sha256 != extra["calibration_sha256"]:
+            raise ReplayUnsupported(
+                f"the calibration file {source} changed since the session was recorded"
+            )
+    bandwidth = extra.get("bandwidth_nm")
+    return OceanSettings(
+        integration_range_ms=(ladder[0], ladder[-1]),
+        averages=int(extra.get("averages", 1)),
+        electric_dark="on" if extra.get("electric_dark") == "on" else "off",
+        nonlinearity="on" if extra.get("nonlinearity") == "on" else "off",
+        calibration=calibration,
+        allow_uncalibrated=calibration is None,
+        bandwidth_nm=None if bandwidth is None else float(bandwidth),
+        timeout_ms=round(timeout_s * 1000),
+    )
+
+
+def _open_files(
+    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, relays: SwitchedRelays
+) -> FilesSpectrometer:
+    """The files device as recorded: its reads at open are served from the transcript."""
+    extra = device.identity.get("extra") or {}
+    directory = Path(str(device.identity.get("port") or "."))
+    try:
+        listed = json.loads(str(extra.get("lamps")))
+        lamps = [
+            LampFile(name, int(item["channel"]), directory / str(item["file"]))
+            for name, item in listed.items()
+        ]
+        digests = {name: str(item["sha256"]) for name, item in listed.items()}
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise ReplayUnsupported("the recorded spectrum files are not listed readably") from None
+
+    def served(path: Path) -> SpectrumReading:
+        answer = script.take(f"the spectrum of {path.name}")
+        if answer.entry.direction == "error":
+            raise ValueError(json.loads(answer.entry.payload).get("error", "unreadable"))
+        return reading_from_json(json.loads(answer.entry.payload))
+
+    return FilesSpectrometer(
+        directory, lamps, served, relays, CheckingSink(script, sink), digests=digests
+    )
+
+
 def _open_spectrometer(
-    device: RecordedDevice, script: ReplayScript, sink: TranscriptSink, released: threading.Event
+    device: RecordedDevice,
+    script: ReplayScript,
+    sink: TranscriptSink,
+    released: threading.Event,
+    relays: RelayBoard,
 ) -> Spectrometer:
     model = str(device.identity.get("model", ""))
     port = str(device.identity.get("port") or "")
+    extra = device.identity.get("extra") or {}
+    if extra.get("driver") == "files":
+        if not isinstance(relays, SwitchedRelays):
+            raise ReplayUnsupported("a files spectrometer needs the switched relays")
+        return _open_files(device, script, sink, relays)
+    if extra.get("driver") == "seabreeze":
+        if model not in OCEAN_MODELS:
+            raise ReplayUnsupported(f"no replay for the Ocean spectrometer {model!r}")
+        return open_ocean(
+            device.identity.get("serial"),
+            _ocean_settings(device),
+            backend=ReplayOceanBackend(script, model, port),
+            transcript=CheckingSink(script, sink),
+        )
+    if extra.get("driver") == "argyll":
+        return open_argyll(
+            ArgyllSettings(
+                executable=str(extra.get("executable", "spotread")),
+                instrument=int(extra.get("instrument", 1)),
+                high_resolution=extra.get("high_resolution") == "on",
+                timeout_s=float(extra.get("timeout_s", device.timeout_s)),
+                bandwidth_nm=float(extra["bandwidth_nm"]) if "bandwidth_nm" in extra else None,
+            ),
+            launcher=ReplaySpotreadLauncher(script),
+            transcript=CheckingSink(script, sink),
+            resolve=False,
+        )
     transport = _serial_transport(script, sink, f"{model} on {port}", port, released)
     instrument: Pr6xx | Cs2000
     if model in PR6XX_MODELS:
@@ -202,8 +324,15 @@ def open_replay(
     try:
         relays = _open_relays(devices["relays"], scripts["relays"], transcripts("relays"), released)
         opened.append(relays.close)
+        spectrometer_extra = devices["spectrometer"].identity.get("extra") or {}
+        if spectrometer_extra.get("driver") == "files":
+            relays = SwitchedRelays(relays)
         spectrometer = _open_spectrometer(
-            devices["spectrometer"], scripts["spectrometer"], transcripts("spectrometer"), released
+            devices["spectrometer"],
+            scripts["spectrometer"],
+            transcripts("spectrometer"),
+            released,
+            relays,
         )
         opened.append(spectrometer.close)
         camera_device = devices["camera"]
@@ -228,3 +357,28 @@ def open_replay(
     return ReplayBench(
         relays, spectrometer, camera, clock, scripts, mismatches, closers=[released.set]
     )
+
+
+class RecordingServer:
+    """This package as ``rig replay``'s backend: the ``spectral_rig.replay`` entry point.
+
+    The rig reaches it only through that entry point and its typed protocol
+    (:class:`rig.replay.ReplayBackend`), never by importing ``mocks``.
+    """
+
+    def open_recording(
+        self,
+        devices: Mapping[str, Mapping[str, Any]],
+        transcripts: TranscriptFactory,
+        frames: FrameSource,
+    ) -> ReplayBench:
+        """:func:`open_replay` of plain data: per role, the :class:`RecordedDevice` fields."""
+        return open_replay(
+            {role: RecordedDevice(**fields) for role, fields in devices.items()},
+            transcripts,
+            frames,
+        )
+
+    def mismatch_of(self, error: BaseException) -> ReplayMismatch | None:
+        """``error`` when it is a replay mismatch (the rig sent what the recording did not)."""
+        return error if isinstance(error, ReplayMismatch) else None

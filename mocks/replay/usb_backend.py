@@ -21,10 +21,11 @@ import usb.backend
 import usb.core
 
 from drivers.base import TranscriptEntry
+from mocks.ocean_backend import OCEAN_MODELS, EmulatedOcean, OceanBackend
 from mocks.replay.script import ReplayScript
 from mocks.usb_relay_backend import device_descriptor
 
-__all__ = ["ReplayUsbBackend", "string_indices"]
+__all__ = ["ReplayOceanBackend", "ReplayUsbBackend", "string_indices"]
 
 _VENDOR_ID = 0x16C0
 _PRODUCT_ID = 0x05DF
@@ -109,10 +110,7 @@ class ReplayUsbBackend(usb.backend.IBackend):  # type: ignore[misc]
         data: array.array[int],
         timeout: int,
     ) -> int:
-        served = self._script.peek()
-        while served is not None and served.entry.direction == "event":
-            self._script.skip()
-            served = self._script.peek()
+        served = self._script.peek_answer()
         if served is not None and served.entry.direction == "error":
             self._script.take("an error")
             raise _recorded_error(served.entry.payload)
@@ -134,3 +132,42 @@ def _recorded_error(payload: bytes) -> usb.core.USBError:
     if code == errno.ETIMEDOUT:
         return usb.core.USBTimeoutError(message, None, code)
     return usb.core.USBError(message, None, code)
+
+
+class ReplayOceanBackend(OceanBackend):
+    """One recorded Ocean spectrometer on a pyusb backend: its descriptors are the emulated
+    model's, its bulk OUT transfers were checked by the transcript sink, and each bulk IN
+    transfer returns the recorded ``rx`` bytes (after their endpoint byte) or raises the recorded
+    error.
+
+    Parameters
+    ----------
+    script
+        The spectrometer transcript.
+    model
+        The recorded model (``USB2000PLUS``, ``STS``).
+    port
+        The recorded ``usb:BBB,AAA``.
+    """
+
+    def __init__(self, script: ReplayScript, model: str, port: str | None) -> None:
+        match = _PORT.match(port or "")
+        bus, address = (int(match.group(1)), int(match.group(2))) if match else (1, 1)
+        device = EmulatedOcean(
+            OCEAN_MODELS[model], lambda wavelength: wavelength * 0.0, bus=bus, address=address
+        )
+        super().__init__([device])
+        self._script = script
+
+    def bulk_write(self, dev_handle: Any, ep: int, intf: int, data: Any, timeout: int) -> int:
+        return len(data)
+
+    def bulk_read(self, dev_handle: Any, ep: int, intf: int, buff: Any, timeout: int) -> int:
+        served = self._script.peek_answer()
+        if served is not None and served.entry.direction == "error":
+            self._script.take("an error")
+            raise _recorded_error(served.entry.payload)
+        reply = self._script.take("a bulk transfer").entry.payload[1:]
+        count = min(len(buff), len(reply))
+        buff[:count] = array.array("B", reply[:count])
+        return count

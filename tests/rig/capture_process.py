@@ -1,26 +1,45 @@
 """``rig capture`` in a child process, on the fake rig and the wall clock, for the signal tests.
 
-Usage: ``python -m tests.rig.capture_process CONFIG STATE_FILE MARKER_FILE CAPTURE_DELAY_S``.
-The relay board mirrors its state to STATE_FILE (``"10"``: channel 1 on); the camera writes
-MARKER_FILE when a capture begins, and each capture takes CAPTURE_DELAY_S of real time.
+Usage: ``python -m tests.rig.capture_process CONFIG STATE_FILE MARKER_FILE CAPTURE_DELAY_S
+[OPEN_DELAY_S]``. The relay board mirrors its state to STATE_FILE (``"10"``: channel 1 on); the
+camera writes MARKER_FILE when a capture begins, and each capture takes CAPTURE_DELAY_S of real
+time. With OPEN_DELAY_S, the board starts with channel 1 on (a lamp a killed run left on), and
+opening the station takes that long after the board is open (as gphoto2 autodetection or a serial
+probe may): MARKER_FILE.opening is written when that wait begins.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 from rig import cli, station
 from rig.clock import MonotonicClock
+from rig.config import RigConfig
 from tests.rig.fakes import make_fake_rig
 
 
 def main() -> None:
-    config, state_file, marker_file, delay_s = sys.argv[1:5]
+    config, state_file, marker_file, delay_s, *rest = sys.argv[1:]
     rig = make_fake_rig(clock=MonotonicClock(), state_file=Path(state_file), warmup_tau_s=0.02)
     rig.camera.marker_file = Path(marker_file)
     rig.camera.io.delay_s["capture"] = float(delay_s)
     station.STATION_BUILDERS["twin"] = rig.builder
+    if rest:
+        open_delay_s = float(rest[0])
+        rig.relays.bank.set_channel(1, True)
+        rig.relays.set(1, True)  # writes the state file: "10"
+
+        def slow_builder(
+            config: RigConfig, transcripts: station.TranscriptFactory
+        ) -> station.Station:
+            opened = rig.builder(config, transcripts)
+            Path(f"{marker_file}.opening").write_text("")
+            time.sleep(open_delay_s)
+            return opened
+
+        station.STATION_BUILDERS["twin"] = slow_builder
     sys.argv = ["rig", "capture", "--config", config, "--quiet"]
     cli.main()
 

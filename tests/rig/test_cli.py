@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import cli, station
+from rig import cli, station, twin
 from rig.session import read_session
 from tests.rig.fakes import fake_config_data, make_fake_rig, write_config
 
@@ -66,20 +66,23 @@ def test_a_failed_capture_exits_1(
     assert "status: failed (lamp_not_stable): LED-B3 did not settle" in capsys.readouterr().out
 
 
-def test_a_missing_station_is_one_line_and_exit_1(
+def test_a_missing_twin_is_one_line_and_exit_1(
     config_file: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setitem(station.STATION_BUILDERS, "twin", "no_such_module:open")
-    assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
+    """An installation without the twin's entry point (an analysis-only install) says so."""
+    monkeypatch.setattr(twin, "entry_points", lambda group: [])
+    twin.digital_twin.cache_clear()
+    try:
+        assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
+    finally:
+        twin.digital_twin.cache_clear()
     err = capsys.readouterr().err
-    assert err == (
-        "rig: error: the twin station (no_such_module:open) is not part of this installation "
-        "[station_unavailable]\n"
-    )
+    assert err.startswith("rig: error: the digital twin is not part of this installation")
+    assert "pip install 'spectral-rig[sim]'" in err and err.count("\n") == 1
     assert not (config_file.parent / "sessions").exists()
 
 
-def test_a_device_that_cannot_be_opened_leaves_a_valid_log(
+def test_a_device_that_cannot_be_opened_leaves_no_session(
     config_file: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from drivers.base import DeviceNotFound
@@ -89,11 +92,16 @@ def test_a_device_that_cannot_be_opened_leaves_a_valid_log(
 
     monkeypatch.setitem(station.STATION_BUILDERS, "twin", builder)
     assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
-    assert "rig: error: PR-655 on /dev/ttyACM0: no such port [not_found]" in capsys.readouterr().err
-    (session_path,) = (config_file.parent / "sessions").iterdir()
-    session = read_session(session_path)
-    assert session.status == "failed"
-    assert session.stop is not None and session.stop.reason == "not_found"
+    err = capsys.readouterr().err
+    assert (
+        "rig: error: 1 device could not be opened, nothing was recorded: PR-655 on /dev/ttyACM0: "
+        "no such port [devices_unavailable]"
+    ) in err
+    assert "the lamps could not be confirmed off" in err  # no relay board opened to say so
+    assert "Traceback" not in err
+    assert not (config_file.parent / "sessions").exists() or not any(
+        (config_file.parent / "sessions").iterdir()
+    )
 
 
 def test_limits_are_bad_input(

@@ -25,6 +25,7 @@ from mocks.fake_gphoto2 import FakeGphoto2, nikon_body
 from mocks.lamps import LampBank
 from mocks.usb_relay_backend import EmulatedRelayBoard, FakeUsbBackend
 from rig import demo
+from rig.errors import StationUnavailable
 from rig.session import read_session
 from tests.rig.fakes import write_config
 from tests.rig.test_cli import run_cli
@@ -155,7 +156,7 @@ def test_demo_needs_the_twin_and_an_estimator(
     assert "rig demo runs on the digital twin" in capsys.readouterr().err
 
     def missing() -> Estimator:
-        raise demo.EstimatorUnavailable(
+        raise StationUnavailable(
             "the estimate step (rig.estimate) is not part of this installation"
         )
 

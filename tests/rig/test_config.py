@@ -84,7 +84,7 @@ class TestReadableErrors:
         data["devices"]["spectrometer"] = {"kind": "pr665", "port": "/dev/ttyACM0"}
         (issue,) = issues_for(data)
         assert "devices.spectrometer: kind 'pr665' is not known (did you mean 'pr655'?)" in issue
-        assert "allowed kinds: pr655, pr670, cs2000, twin" in issue
+        assert "allowed kinds: pr655, pr670, cs2000, seabreeze, argyll, files, twin" in issue
 
     def test_a_bad_choice_lists_the_choices(self) -> None:
         data = fake_config_data()
@@ -99,12 +99,31 @@ class TestReadableErrors:
         (issue,) = issues_for(data)
         assert "devices.relays.channels: 3 is not allowed; allowed: 1, 2, 4 or 8" in issue
 
-    def test_twin_and_real_devices_do_not_mix(self) -> None:
+    def test_a_real_camera_may_work_with_twin_lamps(self) -> None:
         data = fake_config_data()
         data["devices"]["camera"] = {"kind": "gphoto2"}
+        config = RigConfig.model_validate(data)
+        assert config.devices.twin_roles() == ("spectrometer", "relays")
+
+    def test_a_twin_spectrometer_needs_twin_lamps(self) -> None:
+        data = fake_config_data()
+        data["devices"]["relays"] = {"kind": "lcus", "port": "/dev/ttyUSB0", "channels": 2}
         (issue,) = issues_for(data)
-        assert "the simulated bench ('twin') must be used for all three devices or none" in issue
-        assert "camera is 'gphoto2'" in issue
+        assert (
+            "devices.spectrometer and devices.camera are 'twin' but devices.relays is 'lcus'"
+            in issue
+        )
+        assert "sees only the twin's lamps" in issue
+
+    def test_an_ocean_spectrometer_needs_its_calibration(self) -> None:
+        data = fake_config_data()
+        data["devices"]["spectrometer"] = {"kind": "seabreeze"}
+        data["devices"]["relays"] = {"kind": "lcus", "port": "/dev/ttyUSB0", "channels": 2}
+        data["devices"]["camera"] = {"kind": "gphoto2"}
+        (issue,) = issues_for(data)
+        assert "devices.spectrometer: calibration_file is missing" in issue
+        data["devices"]["spectrometer"]["allow_uncalibrated"] = True
+        assert RigConfig.model_validate(data).devices.spectrometer_takes_dark
 
     def test_cross_field_checks(self) -> None:
         data = fake_config_data()

@@ -2,14 +2,29 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import get_args
 
 import pytest
 
 from rig import cli
-from rig.config import RigConfig
-from rig.dryrun import StepCostModel, check_limits, dry_run
-from rig.steps import Capture, DarkFrame, MeasureSpectrum, SwitchLamp, Wait
+from rig.config import RigConfig, load_config
+from rig.dryrun import ModelledBench, StepCostModel, check_limits, dry_run
+from rig.errors import PlanProtocolError
+from rig.resume import ResumeRules
+from rig.steps import (
+    STEP_TYPES,
+    AnyStep,
+    Capture,
+    DarkFrame,
+    KeepLampTimeline,
+    MeasureSpectrum,
+    Step,
+    SwitchLamp,
+    Wait,
+    interpret,
+)
 from tests.rig.fakes import fake_config, fake_config_data, write_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -100,3 +115,53 @@ def test_the_command_exits_2_on_violations(
     assert "1 limit violation(s):" in out
     assert "FL2 shares relay channel 1 with LED-B3" in out
     assert "lamp/" not in out  # --summary lists no steps
+
+
+# ----------------------------------------------------------------- one interpreter of the steps
+
+
+def _all_step_classes() -> set[type[Step]]:
+    found: set[type[Step]] = set()
+    pending: list[type[Step]] = [Step]
+    while pending:
+        for subclass in pending.pop().__subclasses__():
+            if subclass.__module__ == "rig.steps":
+                found.add(subclass)
+                pending.append(subclass)
+    return found
+
+
+def test_every_step_type_is_in_the_vocabulary_table() -> None:
+    """A step class left out of AnyStep would escape mypy's exhaustive dispatch."""
+    assert set(get_args(AnyStep)) == _all_step_classes()
+    assert set(STEP_TYPES.values()) == _all_step_classes()
+
+
+@dataclass(frozen=True)
+class Unknown(Step):
+    """A step of no known type, as a buggy plan might yield."""
+
+    @property
+    def key(self) -> str:
+        return "unknown"
+
+
+def test_an_unknown_step_is_an_error_for_every_interpreter() -> None:
+    config = load_config(ROOT / "config.yaml")
+    interpreters = [StepCostModel(config.dry_run), ModelledBench(config), ResumeRules()]
+    for handlers in interpreters:
+        with pytest.raises(PlanProtocolError, match="Unknown is not a step of the vocabulary"):
+            interpret(Unknown(), handlers)  # type: ignore[arg-type]
+    with pytest.raises(PlanProtocolError, match="Unknown is not a step"):
+        StepCostModel(config.dry_run).duration_s(Unknown())  # type: ignore[arg-type]
+
+
+def test_the_dry_run_prices_each_step_type_by_its_own_rule() -> None:
+    cost = StepCostModel(load_config(ROOT / "config.yaml").dry_run)
+    model = cost.model
+    assert cost.duration_s(Wait("L", 0, 7.5)) == 7.5
+    assert cost.duration_s(KeepLampTimeline("L", 2, 3.0)) == 3.0
+    assert cost.duration_s(Capture("L", 0, 0.25)) == 0.25 + model.frame_download_s
+    assert cost.duration_s(DarkFrame("L", 0, 2, 0.5)) == 0.5 + model.frame_download_s
+    assert cost.duration_s(SwitchLamp("L", 1, True)) == model.relay_switch_s
+    assert cost.duration_s(MeasureSpectrum("L", "warmup", 0)) == model.spectrum_measure_s

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 import sys
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from rig.estimate import estimate_session
 from rig.records import PlanInfo, SoftwareInfo, StartRecord, StepRecord, StopRecord
 from rig.session import SessionWriter
 from tests.rendered_capture import BRACKET_S, Capture, colour_lamps, shared_capture
+from tests.rig.hostile import watching
 
 LAMP_CONFIG = [
     {"name": "LED", "channel": 1, "kind": "led"},
@@ -289,3 +291,73 @@ def test_rig_estimate_takes_the_multilamp_weight_rule(
         main()
     assert exit_info.value.code == 2
     assert "--weight-rule: applies to --method multilamp only" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------ where it writes
+
+
+@pytest.fixture
+def estimate_cli(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> Callable[..., tuple[int, str, list[Path]]]:
+    """``rig estimate ARGS``: exit code, stderr, and where the estimate would have been written
+    (the estimate itself is stubbed: these tests are about what happens before it)."""
+    reached: list[Path] = []
+
+    def estimate_stub(lamps: object, out_dir: Path, *args: object, **kwargs: object) -> None:
+        reached.append(out_dir)
+        raise InputError("stopped by the test", source="stub")
+
+    monkeypatch.setattr("rig.estimate.run_offline", estimate_stub)
+
+    def run(*arguments: str) -> tuple[int, str, list[Path]]:
+        monkeypatch.setattr(sys, "argv", ["rig", "estimate", *arguments, "-q"])
+        with pytest.raises(SystemExit) as exit_info:
+            main()
+        return int(exit_info.value.code or 0), capsys.readouterr().err, reached
+
+    return run
+
+
+def test_a_planted_estimate_link_is_refused(
+    capture: Capture, tmp_path: Path, estimate_cli: Callable[..., tuple[int, str, list[Path]]]
+) -> None:
+    session = write_session(tmp_path / "sessions", capture, lamps=("LED",), darks=False)
+    outside = tmp_path / "outside"
+    (outside / "dir").mkdir(parents=True)
+    (session / "estimate").symlink_to(outside / "dir")
+    with watching(outside):
+        for force in ([], ["--force"]):
+            code, err, reached = estimate_cli(str(session), *force)
+            assert code == 2 and err.count("\n") == 1 and reached == []
+            assert f"estimate is a symbolic link to {outside / 'dir'}" in err
+
+
+def test_earlier_results_are_kept_unless_forced_and_never_written_through_a_link(
+    capture: Capture, tmp_path: Path, estimate_cli: Callable[..., tuple[int, str, list[Path]]]
+) -> None:
+    session = write_session(tmp_path / "sessions", capture, lamps=("LED",), darks=False)
+    (session / "estimate" / "plots").mkdir(parents=True)
+    (session / "estimate" / "result.json").write_text("{}")
+    code, err, reached = estimate_cli(str(session))
+    assert code == 2 and reached == []
+    assert "already holds the results of an estimate (result.json)" in err and "--force" in err
+    victim = tmp_path / "victim"
+    victim.write_text("the user's own file")
+    (session / "estimate" / "plots" / "geometry.png").symlink_to(victim)
+    code, err, reached = estimate_cli(str(session), "--force")
+    assert code == 2 and reached == [] and "plots/geometry.png is a symbolic link" in err
+    (session / "estimate" / "plots" / "geometry.png").unlink()
+    code, err, reached = estimate_cli(str(session), "--force")
+    assert reached == [session / "estimate"]  # with --force, on to the estimate
+    assert victim.read_text() == "the user's own file"
+
+
+def test_an_out_directory_that_cannot_be_written_is_refused_before_any_work(
+    capture: Capture, tmp_path: Path, estimate_cli: Callable[..., tuple[int, str, list[Path]]]
+) -> None:
+    session = write_session(tmp_path / "sessions", capture, lamps=("LED",), darks=False)
+    (tmp_path / "a-file").write_text("")
+    code, err, reached = estimate_cli(str(session), "--out", str(tmp_path / "a-file" / "out"))
+    assert code == 2 and reached == []
+    assert err.startswith(f"rig: error: --out {tmp_path / 'a-file' / 'out'}: cannot be written")

@@ -14,9 +14,14 @@ runs ``rig resume`` without the fault. Every case then asserts the four invarian
    within :data:`SAME_RUN_TOLERANCE` of it.
 
 Running the estimator costs about a second and a half per session. In the default suite, the rows
-of camera-unplugged, disk-full-on-write and ``kill -9`` run it. The other resumed rows
-compare what the estimator reads (pixels, exposures, spectra), which is identical when the
-estimate is. ``make test-all`` runs every row again with the estimator (ids ``…+estimate``).
+of camera-unplugged and ``kill -9`` in a capture run it. The other resumed rows compare what the
+estimator reads (pixels, exposures, spectra), which is identical when the estimate is. ``make
+test-all`` runs every row again with the estimator (ids ``…+estimate``).
+
+Beyond the four invariants, rows check what their fault must leave: a full disk (a log record, its
+sync, a transcript entry, a frame's download) ends as ``session_write`` with the stop record written
+and no temporary left; a relay board lost with a lamp on says ``lamps_off: false`` and warns.
+Real ``ENOSPC`` on a small tmpfs is ``tests/rig/test_disk_full.py``.
 """
 
 from __future__ import annotations
@@ -33,12 +38,13 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pytest
 import rawpy
 
+import drivers.local_files as local_files
 import rig.session as session_module
 from calib.core.arrays import FloatArray
 from calib.core.formats.rgb_csv import read_camera_csv
@@ -47,6 +53,7 @@ from mocks.bench import TwinFaults
 from mocks.fake_gphoto2 import CameraFault
 from mocks.faults import Fault, FaultKind, FaultSchedule
 from mocks.usb_relay_backend import UsbFault
+from rig import station
 from rig.capture import run_capture
 from rig.config import RigConfig
 from rig.estimate import estimate_session
@@ -74,12 +81,22 @@ SAME_RUN_TOLERANCE = 0.02
 ESTIMATE_INPUT = re.compile(r"^lamp/[^/]+/(scene|dark|reference)/\d+$")
 
 
-def matrix_config(directory: Path) -> RigConfig:
-    """The small twin, its relays persisted in ``directory/relays.state``, short serial timeouts."""
+#: The twin's spectrometers in the matrix: the PR-655 (serial), an Ocean USB2000+ through
+#: pyseabreeze, an i1Pro through ArgyllCMS's spotread (the fake, one process per reading).
+EMULATED = ("pr655", "seabreeze", "argyll")
+
+
+def matrix_config(directory: Path, emulate: str = "pr655") -> RigConfig:
+    """The small twin, its relays persisted in ``directory/relays.state``, short deadlines.
+
+    A spotread run (a process start) gets 5 s; the serial and USB exchanges 0.5 s.
+    """
     data = twin_config_data(directory / "sessions")
     data["devices"]["relays"]["state_file"] = str(directory / "relays.state")
-    data["devices"]["spectrometer"]["timeout_s"] = 0.5
-    data["devices"]["spectrometer"]["measure_timeout_s"] = 1.0
+    spectrometer = data["devices"]["spectrometer"]
+    spectrometer["emulate"] = emulate
+    spectrometer["timeout_s"] = 5.0 if emulate == "argyll" else 0.5
+    spectrometer["measure_timeout_s"] = 10.0 if emulate == "argyll" else 1.0
     return RigConfig.model_validate(data)
 
 
@@ -136,12 +153,31 @@ class Uninterrupted:
         return self._sensitivity
 
 
+class UninterruptedRuns:
+    """Uninterrupted captures with the matrix's seed, one per emulated spectrometer, made once."""
+
+    def __init__(self, factory: pytest.TempPathFactory) -> None:
+        self._factory = factory
+        self._runs: dict[str, Uninterrupted] = {}
+
+    def __call__(self, emulate: str = "pr655") -> Uninterrupted:
+        if emulate not in self._runs:
+            directory = self._factory.mktemp(f"uninterrupted-{emulate}")
+            outcome = run_capture(matrix_config(directory, emulate), retry=NO_BACKOFF)
+            assert outcome.exit_status == "success", outcome
+            inputs = estimate_inputs(read_session(outcome.session))
+            self._runs[emulate] = Uninterrupted(outcome.session, inputs)
+        return self._runs[emulate]
+
+
 @pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Uninterrupted:
-    directory = tmp_path_factory.mktemp("uninterrupted")
-    outcome = run_capture(matrix_config(directory), retry=NO_BACKOFF)
-    assert outcome.exit_status == "success", outcome
-    return Uninterrupted(outcome.session, estimate_inputs(read_session(outcome.session)))
+def uninterrupted_runs(tmp_path_factory: pytest.TempPathFactory) -> UninterruptedRuns:
+    return UninterruptedRuns(tmp_path_factory)
+
+
+@pytest.fixture
+def uninterrupted(uninterrupted_runs: UninterruptedRuns) -> Uninterrupted:
+    return uninterrupted_runs("pr655")
 
 
 def with_estimate(rows: Iterable[str], always: set[str]) -> list[Any]:
@@ -196,14 +232,16 @@ def assert_invariants(
     return session
 
 
-def capture_then_resume(directory: Path, builder: Any = None) -> tuple[str, Path]:
+def capture_then_resume(
+    directory: Path, builder: Any = None, emulate: str = "pr655"
+) -> tuple[str, Path]:
     """Capture with ``builder`` (faults); resume without faults if it did not complete.
 
     Returns the first run's stop reason and the session.
     """
-    outcome = run_capture(matrix_config(directory), retry=NO_BACKOFF, builder=builder)
+    outcome = run_capture(matrix_config(directory, emulate), retry=NO_BACKOFF, builder=builder)
     if outcome.exit_status != "success":
-        resumed = run_resume(outcome.session, retry=NO_BACKOFF)
+        resumed = run_resume(outcome.session, matrix_config(directory), retry=NO_BACKOFF)
         assert resumed.exit_status == "success", resumed
     return outcome.reason, outcome.session
 
@@ -225,11 +263,22 @@ class Row:
 
     faults: Callable[[], TwinFaults]
     reason: str
+    emulate: str = "pr655"
 
 
-def _spectrometer(kind: FaultKind, nth: int = 4, **fault: Any) -> TwinFaults:
+def _spectrometer(kind: FaultKind, nth: int = 4, match: str = "M5", **fault: Any) -> TwinFaults:
     rule_fault = Fault(kind, **fault)
-    return TwinFaults(spectrometer=FaultSchedule.once(rule_fault, "M5", nth=nth))
+    return TwinFaults(spectrometer=FaultSchedule.once(rule_fault, match, nth=nth))
+
+
+def _ocean(kind: FaultKind) -> TwinFaults:
+    """A fault on the 12th spectrum transfer of the emulated USB2000+ (inside the warm-up)."""
+    return _spectrometer(kind, nth=12, match="spectrum")
+
+
+def _spotread(kind: FaultKind, code: str | None = None) -> TwinFaults:
+    """A fault on the 3rd spotread run (the fake's scene: ``mocks.bench.station.SPOTREAD_FAULTS``)."""
+    return _spectrometer(kind, nth=3, match="spotread", code=code)
 
 
 ROWS: dict[str, Row] = {
@@ -259,19 +308,68 @@ ROWS: dict[str, Row] = {
         ),
         "state_mismatch",
     ),
+    # Ocean (pyseabreeze on the emulated USB bus): a lost transfer is a USB timeout, a stall and
+    # a spectrum without its sync byte protocol errors, all retried; an unplugged spectrometer
+    # fails the run, and the resume (it is back) completes it.
+    "seabreeze-usb-timeout": Row(lambda: _ocean(FaultKind.NO_REPLY), "completed", "seabreeze"),
+    "seabreeze-stall": Row(lambda: _ocean(FaultKind.ERROR_CODE), "completed", "seabreeze"),
+    "seabreeze-bad-sync-byte": Row(
+        lambda: _ocean(FaultKind.GARBLED_REPLY), "completed", "seabreeze"
+    ),
+    "seabreeze-busy": Row(lambda: _ocean(FaultKind.BUSY), "completed", "seabreeze"),
+    "seabreeze-unplugged": Row(lambda: _ocean(FaultKind.DISCONNECT), "disconnected", "seabreeze"),
+    # ArgyllCMS (the fake spotread): a silent run is killed at its deadline and a misread retried;
+    # a calibration the instrument needs, or an instrument gone, fails the run for a person.
+    "argyll-silent": Row(lambda: _spotread(FaultKind.NO_REPLY), "completed", "argyll"),
+    "argyll-misread": Row(
+        lambda: _spotread(FaultKind.ERROR_CODE, "misread"), "completed", "argyll"
+    ),
+    "argyll-garbled-file": Row(lambda: _spotread(FaultKind.GARBLED_REPLY), "completed", "argyll"),
+    "argyll-needs-calibration": Row(
+        lambda: _spotread(FaultKind.ERROR_CODE, "needs_calibration"), "instrument_error", "argyll"
+    ),
+    "argyll-instrument-gone": Row(lambda: _spotread(FaultKind.DISCONNECT), "not_found", "argyll"),
 }
+#: Rows of the default suite (the others run in ``make test-all``); those in :data:`ALWAYS`
+#: run the estimator there too.
+DEFAULT_ROWS = {
+    *(row for row, spec in ROWS.items() if spec.emulate == "pr655"),
+    "seabreeze-usb-timeout",
+    "seabreeze-unplugged",
+    "argyll-silent",
+    "argyll-needs-calibration",
+}
+ALWAYS = {"camera-unplugged-mid-bracket", "seabreeze-unplugged"}
 
 
-@pytest.mark.parametrize(("row", "estimate"), with_estimate(ROWS, {"camera-unplugged-mid-bracket"}))
-def test_fault(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterrupted) -> None:
+def matrix_rows() -> list[Any]:
+    return [
+        param
+        if param.id.removesuffix("+estimate") in DEFAULT_ROWS
+        else pytest.param(*param.values, id=param.id, marks=pytest.mark.slow)
+        for param in with_estimate(ROWS, ALWAYS)
+    ]
+
+
+@pytest.mark.parametrize(("row", "estimate"), matrix_rows())
+def test_fault(
+    row: str, estimate: bool, tmp_path: Path, uninterrupted_runs: UninterruptedRuns
+) -> None:
     expected = ROWS[row]
-    reason, path = capture_then_resume(tmp_path, twin_station_builder(faults=expected.faults()))
+    builder = twin_station_builder(faults=expected.faults())
+    reason, path = capture_then_resume(tmp_path, builder, expected.emulate)
     assert reason == expected.reason
+    uninterrupted = uninterrupted_runs(expected.emulate)
     session = assert_invariants(path, tmp_path, uninterrupted, estimate)
     if row == "stale-frame-after-exposure-change":
         (discarded,) = [r for r in session.records if isinstance(r, DiscardRecord)]
         assert discarded.reason == "stale" and "metadata says" in discarded.message
-    if row in ("spectrometer-timeout", "spectrometer-truncated-reply"):
+    if row in (
+        "spectrometer-timeout",
+        "spectrometer-truncated-reply",
+        "seabreeze-usb-timeout",
+        "argyll-silent",
+    ):
         (retry,) = [r for r in session.records if isinstance(r, RetryRecord)]
         assert retry.error.reason == "timeout" and retry.error.retryable
     if reason != "completed":
@@ -283,16 +381,61 @@ def test_fault(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterr
 
 @dataclass(frozen=True)
 class DiskFull:
-    """``ENOSPC`` on the ``nth`` log record: half of it written (``write``), or its ``fdatasync``."""
+    """``ENOSPC`` on the ``nth`` write of a kind: half of it written first (``write``), or on its
+    ``fdatasync`` (``fsync``). ``target`` is what is written: a log record, a transcript entry, or
+    the frame the camera driver stores."""
 
-    call: str
+    target: Literal["log", "transcript", "frame"]
+    call: Literal["write", "fsync"]
     nth: int
 
 
-DISK_FULL = {"write": DiskFull("write", 40), "fsync": DiskFull("fsync", 40)}
+DISK_FULL = {
+    "log-write": DiskFull("log", "write", 40),
+    "log-fsync": DiskFull("log", "fsync", 40),
+    "transcript-append": DiskFull("transcript", "write", 60),
+    "frame-download": DiskFull("frame", "write", 2),
+}
 
 
-@pytest.mark.parametrize(("row", "estimate"), with_estimate(DISK_FULL, {"write"}))
+def leftovers(session: Path) -> list[str]:
+    """Temporaries left in a session (downloads, spectra, the camera's, the reserved room)."""
+    return sorted(
+        str(path.relative_to(session))
+        for path in session.rglob("*")
+        if path.name.startswith((".incoming-", "..incoming-", ".reserve"))
+    )
+
+
+def _fill_the_disk(fault: DiskFull, patch: pytest.MonkeyPatch) -> None:
+    calls = 0
+
+    def counts(data: bytes) -> bool:
+        if fault.target == "log":
+            return data.startswith(b'{"seq":')
+        if fault.target == "transcript":
+            return data.startswith(b'{"t_s":')
+        return True
+
+    def full(real: Callable[..., None]) -> Callable[..., None]:
+        def call(fd: int, *data: bytes) -> None:
+            nonlocal calls
+            hit = fault.call == "fsync" or counts(data[0])
+            calls += hit
+            if hit and calls == fault.nth:
+                if data:
+                    os.write(fd, data[0][: len(data[0]) // 2])  # the disk fills mid-write
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            real(fd, *data)
+
+        return call
+
+    module: Any = local_files if fault.target == "frame" else session_module
+    name = "_sync" if fault.call == "fsync" else "write_all"
+    patch.setattr(module, name, full(getattr(module, name)))
+
+
+@pytest.mark.parametrize(("row", "estimate"), with_estimate(DISK_FULL, set()))
 def test_disk_full(
     row: str,
     estimate: bool,
@@ -301,45 +444,38 @@ def test_disk_full(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     fault = DISK_FULL[row]
-    calls = 0
-
-    def full(real: Callable[..., None]) -> Callable[..., None]:
-        def call(fd: int, *data: bytes) -> None:
-            nonlocal calls
-            is_record = fault.call == "fsync" or data[0].startswith(b'{"seq":')
-            calls += is_record
-            if is_record and calls == fault.nth:
-                if data:
-                    os.write(fd, data[0][: len(data[0]) // 2])  # the disk fills mid-line
-                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-            real(fd, *data)
-
-        return call
-
-    name = "_write_all" if fault.call == "write" else "_sync"
     with monkeypatch.context() as patch:
-        patch.setattr(session_module, name, full(getattr(session_module, name)))
+        _fill_the_disk(fault, patch)
         outcome = run_capture(matrix_config(tmp_path), retry=NO_BACKOFF)
-    assert outcome.reason == "session_write" and outcome.lamps_off
-    interrupted = read_session(outcome.session)
-    assert interrupted.status == "interrupted" and interrupted.stop is None
-    assert (interrupted.torn is not None) == (fault.call == "write")
-    resumed = run_resume(outcome.session, retry=NO_BACKOFF)
+    assert (outcome.reason, outcome.lamps_off) == ("session_write", True)
+    failed = read_session(outcome.session)
+    # The log says why and that the lamps are off: its last records fit in the reserved room.
+    assert failed.torn is None and failed.status == "failed"
+    assert failed.stop is not None and failed.stop.reason == "session_write"
+    assert failed.stop.lamps_off and "No space left on device" in failed.stop.message
+    assert failed.verify_files() == []  # a transcript cut at a whole entry still verifies
+    assert leftovers(outcome.session) == []
+    resumed = run_resume(outcome.session, matrix_config(tmp_path), retry=NO_BACKOFF)
     assert resumed.exit_status == "success", resumed
     session = assert_invariants(outcome.session, tmp_path, uninterrupted, estimate)
     (resume,) = resumes(session)
-    assert resume.previous_reason == "no_stop_record"
-    assert (resume.torn_line is not None) == (fault.call == "write")
+    assert (resume.previous_status, resume.previous_reason) == ("failed", "session_write")
 
 
 # ----------------------------------------------------------------------------- real processes
 
 
-def start_twin_capture(directory: Path, slow_capture_s: float) -> subprocess.Popen[str]:
-    """``rig capture`` on the twin in a child process, stopped in its second (slow) capture."""
-    config = write_config(directory / "rig.yaml", matrix_config(directory).model_dump(mode="json"))
+def start_twin_capture(
+    directory: Path, slow_capture_s: float, call: str = "capture", emulate: str = "pr655"
+) -> subprocess.Popen[str]:
+    """``rig capture`` on the twin (its spectrometer emulating ``emulate``) in a child process,
+    stopped in its second (slow) capture, or in the second download of a frame from the camera
+    (``call="file_get"``)."""
+    config = write_config(
+        directory / "rig.yaml", matrix_config(directory, emulate).model_dump(mode="json")
+    )
     process = subprocess.Popen(
-        [sys.executable, "-m", "tests.rig.twin_process", str(config), str(slow_capture_s)],
+        [sys.executable, "-m", "tests.rig.twin_process", str(config), str(slow_capture_s), call],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -354,10 +490,10 @@ def start_twin_capture(directory: Path, slow_capture_s: float) -> subprocess.Pop
             return False
         lines = transcripts[0].read_text().splitlines()
         calls = [json.loads(line)["data"] for line in lines if '"dir": "call"' in line]
-        return sum('"call": "capture"' in call for call in calls) >= 2
+        return sum(f'"call": "{call}"' in entry for entry in calls) >= 2
 
     # The second capture is slow: interrupted there, the run has LED-B3 on and a frame done.
-    wait_for(in_second_capture, timeout_s=120, what="the second capture")
+    wait_for(in_second_capture, timeout_s=120, what=f"the second {call}")
     return process
 
 
@@ -386,17 +522,32 @@ def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninte
     path = the_session(tmp_path)
     stop = read_session(path).stop
     assert stop is not None and (stop.reason, stop.lamps_off) == (reason, True)
-    resumed = run_resume(path, retry=NO_BACKOFF)
+    resumed = run_resume(path, matrix_config(tmp_path), retry=NO_BACKOFF)
     assert resumed.exit_status == "success", resumed
     session = assert_invariants(path, tmp_path, uninterrupted, estimate)
     (resume,) = resumes(session)
     assert (resume.previous_status, resume.previous_reason) == ("interrupted", reason)
 
 
+@pytest.mark.parametrize(
+    ("emulate", "during"),
+    [
+        ("pr655", "capture"),
+        ("pr655", "file_get"),
+        ("seabreeze", "capture"),
+        pytest.param("argyll", "capture", marks=pytest.mark.slow),
+    ],
+    ids=["in-a-capture", "in-a-download", "seabreeze", "argyll"],
+)
 def test_kill_9_then_rig_resume(
-    tmp_path: Path, uninterrupted: Uninterrupted, monkeypatch: pytest.MonkeyPatch
+    emulate: str,
+    during: str,
+    tmp_path: Path,
+    uninterrupted_runs: UninterruptedRuns,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    process = start_twin_capture(tmp_path, slow_capture_s=60.0)
+    uninterrupted = uninterrupted_runs(emulate)
+    process = start_twin_capture(tmp_path, slow_capture_s=60.0, call=during, emulate=emulate)
     state = tmp_path / "relays.state"
     assert state.read_text().strip() == "10"  # LED-B3 is on for its bracket
     process.kill()
@@ -405,8 +556,9 @@ def test_kill_9_then_rig_resume(
     path = the_session(tmp_path)
     assert read_session(path).stop is None
     monkeypatch.chdir(tmp_path)
-    assert run_cli(["resume", str(path), "--quiet"], monkeypatch) == 0
-    session = assert_invariants(path, tmp_path, uninterrupted, estimate=True)
+    assert run_cli(["resume", str(path), "--quiet", "--config", "rig.yaml"], monkeypatch) == 0
+    # One kill runs the estimator; the other compares what it reads (identical inputs).
+    session = assert_invariants(path, tmp_path, uninterrupted, estimate=during == "capture")
     (resume,) = resumes(session)
     assert resume.previous_reason == "no_stop_record"
     assert resume.relays_found_on == [1]  # the lamp the killed run left on was seen on …
@@ -418,11 +570,78 @@ def test_kill_9_then_rig_resume(
     first_set = next(i for i, data in enumerate(sent) if data.startswith(SET_REPORT))
     assert sent[first_set][16:18] == f"{CMD_ALL_OFF:02x}"
     assert all(data.startswith((GET_DESCRIPTOR, GET_REPORT)) for data in sent[:first_set])
+    # The resume acknowledged the killed run's transcripts: the session replays run by run.
+    acknowledged = {r.path: r.run for r in session.files() if r.role == "transcript"}
+    assert acknowledged["transcripts/camera.jsonl"] == 2
+    assert leftovers(path) == []
+    replay = replay_session(path, tmp_path / "replay")
+    assert replay.identical, replay
 
 
 def test_a_complete_session_is_not_resumed(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    outcome = run_capture(matrix_config(tmp_path), retry=NO_BACKOFF)
-    assert run_cli(["resume", str(outcome.session)], monkeypatch) == 2
+    config = matrix_config(tmp_path)
+    outcome = run_capture(config, retry=NO_BACKOFF)
+    config_file = write_config(tmp_path / "rig.yaml", config.model_dump(mode="json"))
+    assert run_cli(["resume", str(outcome.session), "-c", str(config_file)], monkeypatch) == 2
     assert "is complete; there is nothing to resume" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ lamps that cannot be switched
+
+
+def test_a_board_lost_with_a_lamp_on_says_so_and_the_resume_switches_it_off(
+    tmp_path: Path,
+    uninterrupted: Uninterrupted,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The relay board vanishes as LED-B3 is to go off: the stop record says ``lamps_off: false``
+    and the command warns to switch them off by hand; the resume finds the lamp on, switches it
+    off first, and completes."""
+    lost = TwinFaults(usb_relays=[UsbFault("disconnect", request="set_report", skip=3, times=None)])
+    monkeypatch.setitem(station.STATION_BUILDERS, "twin", twin_station_builder(faults=lost))
+    config = matrix_config(tmp_path)
+    config_file = write_config(tmp_path / "rig.yaml", config.model_dump(mode="json"))
+    assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
+    captured = capsys.readouterr()
+    assert "WARNING: the lamps could not be confirmed off; check them by hand" in captured.err
+    assert (tmp_path / "relays.state").read_text().strip() == "10"  # LED-B3 is still on
+    path = the_session(tmp_path)
+    failed = read_session(path)
+    assert failed.stop is not None and not failed.stop.lamps_off
+    assert (failed.stop.reason, failed.stop.failed_key) == (
+        "disconnected",
+        "lamp/LED-B3/switch-off",
+    )
+    monkeypatch.setitem(station.STATION_BUILDERS, "twin", twin_station_builder())
+    assert run_cli(["resume", str(path), "-q", "-c", str(config_file)], monkeypatch) == 0
+    assert "WARNING" not in capsys.readouterr().err
+    session = read_session(path)
+    (resume,) = resumes(session)
+    assert resume.relays_found_on == [1]
+    stops = [r for r in session.records if isinstance(r, StopRecord)]
+    assert [stop.lamps_off for stop in stops] == [False, True]
+    assert (tmp_path / "relays.state").read_text().strip() == "00"
+    assert session.status == "complete" and session.verify_files() == []
+    assert estimate_inputs(session) == uninterrupted.inputs
+
+
+def test_a_board_missing_at_opening_with_a_lamp_on_warns_and_leaves_no_session(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "relays.state").write_text("10\n")  # a lamp a killed run left on
+    missing = TwinFaults(usb_relays=[UsbFault("disconnect", request="open", times=None)])
+    monkeypatch.setitem(station.STATION_BUILDERS, "twin", twin_station_builder(faults=missing))
+    config_file = write_config(
+        tmp_path / "rig.yaml", matrix_config(tmp_path).model_dump(mode="json")
+    )
+    assert run_cli(["capture", "-c", str(config_file), "-q"], monkeypatch) == 1
+    err = capsys.readouterr().err
+    assert (
+        "rig: warning: the lamps could not be confirmed off" in err and "check them by hand" in err
+    )
+    assert "could not be opened, nothing was recorded" in err
+    assert not (tmp_path / "sessions").exists()  # no session that could never be resumed
+    assert (tmp_path / "relays.state").read_text().strip() == "10"

@@ -26,7 +26,7 @@ class Camera:
 
     def __init__(self, directory: Path, optics: TwinOptics | None = None) -> None:
         spec = twin_spec()
-        self.optics = optics or TwinOptics.build(spec.camera)
+        self.optics = optics or TwinOptics.build(spec.twin_camera)
         self.clock = SimulatedClock(1e6)  # long after switch-on: settled lamps
         self.bank = LampBank([virtual_lamp(lamp) for lamp in spec.lamps], 2, self.clock)
         self.renderer = FrameRenderer(self.optics, self.bank, self.clock, seed=5, download_s=0)
@@ -89,7 +89,7 @@ def test_the_geometry_is_detected_once_per_lamp(
 
 def test_a_frame_without_a_visible_band_asks_for_longer(tmp_path: Path) -> None:
     # A grating that sends almost nothing into the first order: only the spot is visible.
-    optics = TwinOptics.build(twin_spec().camera)
+    optics = TwinOptics.build(twin_spec().twin_camera)
     dim = dataclasses.replace(optics, efficiency=optics.efficiency.scaled(1e-4))
     camera = Camera(tmp_path, dim)
     try:
@@ -114,7 +114,7 @@ def test_frames_that_cannot_be_measured_say_why(camera: Camera, tmp_path: Path) 
 
 
 def test_a_band_off_the_frame_is_a_setup_problem(tmp_path: Path) -> None:
-    optics = TwinOptics.build(twin_spec().camera)
+    optics = TwinOptics.build(twin_spec().twin_camera)
     shifted = dataclasses.replace(
         optics, layout=dataclasses.replace(optics.layout, spot_centre_px=(330.0, 160.0))
     )

@@ -14,13 +14,14 @@ import pytest
 
 from drivers.base import DeviceNotFound, ListTranscript
 from mocks.emulators import start_lcus, start_numato, start_pr655
+from mocks.emulators.lcus import LcusEmulator
 from mocks.fake_gphoto2 import FakeGphoto2, canon_eos_body
 from mocks.lamps import LampBank
 from mocks.pty_serial import PtySerialDevice
 from mocks.usb_relay_backend import EmulatedRelayBoard, FakeUsbBackend
 from rig.clock import MonotonicClock
 from rig.config import RigConfig
-from rig.errors import StationUnavailable
+from rig.errors import StationOpenFailed, StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
 from rig.hardware import open_hardware_station, open_relays
 from rig.runner import StepTimeouts
@@ -65,20 +66,32 @@ def emulators() -> Iterator[dict[str, PtySerialDevice]]:
         device.stop()
 
 
-def test_a_missing_relay_port_is_named_and_nothing_else_is_opened() -> None:
+def test_every_device_is_tried_and_every_failure_named_at_once() -> None:
     transcripts = Transcripts()
-    with pytest.raises(DeviceNotFound, match=r"/dev/spectral-rig-no-such-tty1.*does not exist"):
+    with pytest.raises(StationOpenFailed) as failed:
         open_hardware_station(hardware_config(), transcripts)
-    assert "spectrometer" not in transcripts.by_role  # relays open first, and failed
+    assert sorted(failed.value.failures) == ["camera", "relays", "spectrometer"]
+    assert all(isinstance(e, DeviceNotFound) for e in failed.value.failures.values())
+    message = str(failed.value)
+    assert message.startswith("3 devices could not be opened, nothing was recorded: ")
+    assert "/dev/spectral-rig-no-such-tty1' does not exist" in message
+    assert "/dev/spectral-rig-no-such-tty0' does not exist" in message
+    assert "no camera detected" in message
+    assert not failed.value.lamps_off  # no relay board opened to switch them off
 
 
-def test_a_missing_spectrometer_port_is_named_and_the_relays_are_closed_again(
+def test_when_a_device_fails_the_opened_board_switches_every_lamp_off_and_is_released(
     emulators: dict[str, PtySerialDevice],
 ) -> None:
     relays = {"kind": "lcus", "port": emulators["lcus"].path, "channels": 2}
     config = hardware_config(relays=relays)
-    with pytest.raises(DeviceNotFound, match=r"PR-655 on /dev/spectral-rig-no-such-tty0"):
+    board = emulators["lcus"].emulator
+    assert isinstance(board, LcusEmulator)
+    board.states[0] = True  # a lamp a killed run left on
+    with pytest.raises(StationOpenFailed, match=r"PR-655 on /dev/spectral-rig-no-such-tty0") as e:
         open_hardware_station(config, Transcripts())
+    assert sorted(e.value.failures) == ["camera", "spectrometer"]
+    assert e.value.lamps_off and board.states == [False, False]
     # The relay board's port was released: it opens again (ports are opened exclusively).
     open_relays(config.devices.relays, ListTranscript()).close()
 
@@ -120,11 +133,12 @@ def test_a_missing_camera_names_what_was_asked_and_found(
     )
     gphoto2 = FakeGphoto2([canon_eos_body()])
     with pytest.raises(
-        DeviceNotFound,
+        StationOpenFailed,
         match=r"no camera with model 'Nikon DSC D850'; detected: 'Canon EOS 5D Mark III' on usb:001,004",
-    ):
+    ) as failed:
         open_hardware_station(config, Transcripts(), gphoto2_module=gphoto2)
-    with pytest.raises(DeviceNotFound, match=r"detected: none \(is it on, in PTP mode"):
+    assert list(failed.value.failures) == ["camera"] and failed.value.lamps_off
+    with pytest.raises(StationOpenFailed, match=r"detected: none \(is it on, in PTP mode"):
         open_hardware_station(config, Transcripts(), gphoto2_module=FakeGphoto2([]))
 
 

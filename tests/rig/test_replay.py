@@ -39,6 +39,7 @@ from rig.runner import RetryPolicy
 from rig.session import decode_transcript_line, read_session
 from rig.steps import Step, StepResult
 from rig.twin import twin_station_builder
+from tests.rig.hostile import watching
 from tests.rig.test_cli import run_cli
 from tests.rig.twin_setup import twin_config, twin_config_data
 
@@ -268,7 +269,7 @@ def test_a_different_command_while_opening_fails_with_a_diff(
     assert message.startswith("step (opening the devices): spectrometer: the rig sent a different")
     assert "expected: tx 50 48 4f 54 4f  b'PHOTO'" in message
     assert "sent:     tx 50 48 4f 54 4f 0d  b'PHOTO\\r'" in message
-    assert read_session(tmp_path / "replay").status == "failed"  # the replay records why
+    assert not (tmp_path / "replay").exists()  # devices that do not open leave no session
 
 
 def test_a_recorded_command_left_unused_fails(session_copy: Path, tmp_path: Path) -> None:
@@ -410,7 +411,7 @@ def test_a_resumed_session_replays_run_by_run(tmp_path: Path, first_run: str) ->
         progress = _SignalAt(interrupts, "lamp/LED-B3/reference/000", "done")
         first = run_capture(config, retry=FAST_RETRY, interrupts=interrupts, progress=progress)
         assert first.exit_status == "abort", first
-    assert run_resume(first.session, retry=FAST_RETRY).exit_status == "success"
+    assert run_resume(first.session, config, retry=FAST_RETRY).exit_status == "success"
     starts = [r for r in read_session(first.session).records if isinstance(r, StartRecord)]
     assert [s.run for s in starts] == [1, 2]
     replay = replay_session(first.session, tmp_path / "replay")
@@ -445,3 +446,27 @@ def test_rig_estimate_of_the_replay_gives_the_identical_result(
         assert run_cli(["estimate", str(session), "--out", str(out), "--quiet"], monkeypatch) == 0
         sensitivities.append((out / "sensitivity.csv").read_bytes())
     assert sensitivities[0] == sensitivities[1]
+
+
+def test_ports_and_files_the_snapshot_names_are_never_opened_by_a_replay(
+    session_copy: Path, tmp_path: Path
+) -> None:
+    """Replay drives stand-ins: the recorded configuration's ports and state file are data."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "victim").write_bytes(b"the user's own file")
+    url = f"spy://loop://?file={outside / 'victim'}"
+
+    def hostile(record: dict[str, object]) -> dict[str, object]:
+        if record.get("type") == "start":
+            devices = record["config"]["devices"]  # type: ignore[index]
+            devices["spectrometer"] = {"kind": "pr655", "port": url}
+            devices["relays"] = {"kind": "lcus", "port": "socket://127.0.0.1:9", "channels": 2}
+            devices["camera"] = {"kind": "gphoto2", "port": "usb:001,002"}
+        return record
+
+    _rewrite_log(session_copy, hostile)
+    with watching(outside) as watch:
+        outcome = replay_session(session_copy, tmp_path / "replay")
+    assert watch.touches == [] and watch.connections == []
+    assert outcome.mismatch is None  # the recorded exchanges, as recorded

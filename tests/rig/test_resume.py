@@ -23,6 +23,11 @@ from tests.rig.test_cli import run_cli
 NO_BACKOFF = RetryPolicy(max_attempts=3, initial_s=0.0, max_s=0.0)
 
 
+def user_config(tmp_path: Path) -> RigConfig:
+    """The configuration the sessions of these tests were captured with: the user's own."""
+    return fake_config(tmp_path / "sessions")
+
+
 def failed_mid_bracket(tmp_path: Path) -> RunOutcome:
     """A capture whose camera goes away at the second frame of the first lamp's bracket."""
     rig = make_fake_rig()
@@ -40,7 +45,9 @@ def step_keys(path: Path, run: int) -> list[str]:
 def test_a_failed_session_continues_where_it_stopped(tmp_path: Path) -> None:
     failed = failed_mid_bracket(tmp_path)
     rig = make_fake_rig()
-    outcome = run_resume(failed.session, builder=rig.builder, retry=NO_BACKOFF)
+    outcome = run_resume(
+        failed.session, user_config(tmp_path), builder=rig.builder, retry=NO_BACKOFF
+    )
     assert outcome.exit_status == "success", outcome
     session = read_session(failed.session)
     assert session.status == "complete" and session.verify_files() == []
@@ -66,7 +73,9 @@ def test_another_camera_body_is_refused_and_the_session_stays_resumable(tmp_path
     failed = failed_mid_bracket(tmp_path)
     other = make_fake_rig()
     other.camera.serial = "C2"
-    outcome = run_resume(failed.session, builder=other.builder, retry=NO_BACKOFF)
+    outcome = run_resume(
+        failed.session, user_config(tmp_path), builder=other.builder, retry=NO_BACKOFF
+    )
     assert (outcome.exit_status, outcome.reason) == ("fail", "resume_mismatch")
     assert "FakeCam (serial C2)" in outcome.message and "serial C1" in outcome.message
     assert outcome.lamps_off and other.relays.state() == (False, False)
@@ -78,9 +87,9 @@ def test_another_camera_body_is_refused_and_the_session_stays_resumable(tmp_path
     # A replug on another port is the same camera; with the original body it goes on.
     again = make_fake_rig()
     again.camera.port = "fake:usb-2"
-    assert run_resume(failed.session, builder=again.builder, retry=NO_BACKOFF).exit_status == (
-        "success"
-    )
+    assert run_resume(
+        failed.session, user_config(tmp_path), builder=again.builder, retry=NO_BACKOFF
+    ).exit_status == ("success")
     starts = [r for r in read_session(failed.session).records if isinstance(r, StartRecord)]
     assert [s.devices["camera"].port for s in starts] == ["fake:usb", "fake:usb", "fake:usb-2"]
 
@@ -89,7 +98,9 @@ def test_a_frame_that_no_longer_verifies_is_discarded_and_taken_again(tmp_path: 
     failed = failed_mid_bracket(tmp_path)
     frame = failed.session / "frames" / "LED-B3" / "scene-000.dng"
     frame.write_bytes(frame.read_bytes() + b"!")
-    outcome = run_resume(failed.session, builder=make_fake_rig().builder, retry=NO_BACKOFF)
+    outcome = run_resume(
+        failed.session, user_config(tmp_path), builder=make_fake_rig().builder, retry=NO_BACKOFF
+    )
     assert outcome.exit_status == "success", outcome
     session = read_session(failed.session)
     (discarded,) = [r for r in session.records if isinstance(r, DiscardRecord)]
@@ -107,9 +118,9 @@ def test_a_new_configuration_may_change_how_devices_are_reached(tmp_path: Path) 
     data["devices"]["camera"]["download_timeout_s"] = 9
     outcome = run_resume(
         failed.session,
+        RigConfig.model_validate(data),
         builder=make_fake_rig().builder,
         retry=NO_BACKOFF,
-        config=RigConfig.model_validate(data),
     )
     assert outcome.exit_status == "success", outcome
     starts = [r for r in read_session(failed.session).records if isinstance(r, StartRecord)]
@@ -135,7 +146,7 @@ def test_a_new_configuration_that_changes_the_measurement_is_refused(
     data = fake_config_data(tmp_path / "sessions")
     change(data)
     with pytest.raises(ResumeConfigRefused, match=re.escape(named)):
-        run_resume(failed.session, config=RigConfig.model_validate(data))
+        run_resume(failed.session, RigConfig.model_validate(data))
     config_file = write_config(tmp_path / "changed.yaml", data)
     args = ["resume", str(failed.session), "--config", str(config_file)]
     assert run_cli(args, monkeypatch) == 2
@@ -147,7 +158,7 @@ def test_a_complete_session_is_refused(tmp_path: Path) -> None:
     rig = make_fake_rig()
     outcome = run_capture(fake_config(tmp_path / "sessions"), builder=rig.builder)
     with pytest.raises(NotResumable, match="is complete"):
-        run_resume(outcome.session, builder=make_fake_rig().builder)
+        run_resume(outcome.session, user_config(tmp_path), builder=make_fake_rig().builder)
 
 
 def test_sessions_says_which_can_be_resumed(

@@ -383,7 +383,7 @@ class TestHostilePaths:
 
 
 class TestWriteFailures:
-    def test_a_failed_write_stops_all_later_writes(
+    def test_a_failed_write_is_cut_back_and_stops_all_later_writes_but_the_last(
         self, writer: SessionWriter, monkeypatch: pytest.MonkeyPatch
     ) -> None:
         start(writer)
@@ -392,10 +392,40 @@ class TestWriteFailures:
             os.write(fd, data[: len(data) // 2])
             raise OSError(errno.ENOSPC, "No space left on device")
 
-        monkeypatch.setattr("rig.session._write_all", disk_full)
+        monkeypatch.setattr("rig.session.write_all", disk_full)
         with pytest.raises(SessionWriteError, match="No space left on device"):
             stop(writer)
         monkeypatch.undo()
+        with pytest.raises(SessionWriteError, match="an earlier write failed"):
+            stop(writer)
+        assert read_session(writer.path).torn is None  # the half-written line was cut back off
+        assert writer.finish()  # the run's last records may still be written
+        stop(writer)
+        writer.close()
+        session = read_session(writer.path)
+        assert session.torn is None and [type(r).__name__ for r in session.records] == [
+            "StartRecord",
+            "StopRecord",
+        ]
+
+    def test_a_write_that_cannot_be_cut_back_ends_all_writing(
+        self, writer: SessionWriter, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        start(writer)
+
+        def disk_full(fd: int, data: bytes) -> None:
+            os.write(fd, data[: len(data) // 2])
+            raise OSError(errno.EIO, "Input/output error")
+
+        def truncate_fails(fd: int, size: int) -> None:
+            raise OSError(errno.EIO, "Input/output error")
+
+        monkeypatch.setattr("rig.session.write_all", disk_full)
+        monkeypatch.setattr("rig.session.os.ftruncate", truncate_fails)
+        with pytest.raises(SessionWriteError, match="Input/output error"):
+            stop(writer)
+        monkeypatch.undo()
+        assert not writer.finish()
         with pytest.raises(SessionWriteError, match="an earlier write failed"):
             stop(writer)
         writer.close()

@@ -12,13 +12,18 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import os
+import shutil
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import strategies as st
 
-from rig.errors import RigError, SessionFormatError
+from drivers.base import Disconnected
+from rig.capture import run_capture
+from rig.errors import NotResumable, ResumeConfigRefused, RigError, SessionFormatError
 from rig.records import (
     FileRecord,
     PlanInfo,
@@ -27,9 +32,14 @@ from rig.records import (
     StepRecord,
     StopRecord,
 )
-from rig.replay import load_recording, parse_transcript
-from rig.session import read_session, summarise
+from rig.replay import load_recording
+from rig.resume import prepare_resume, run_resume
+from rig.runner import RetryPolicy
+from rig.session import Session, parse_transcript, read_session, summarise
 from tests.fuzzing import fuzz
+from tests.rig.fakes import fake_config, make_fake_rig
+
+NO_RETRY = RetryPolicy(max_attempts=1, initial_s=0.0, max_s=0.0)
 
 FRAME = b"not really a raw frame"
 WHEN = datetime(2026, 1, 1, tzinfo=UTC)
@@ -38,10 +48,13 @@ HOSTILE_PATHS = [
     "/etc/passwd",
     "frames/../../x",
     "frames/link.dng",
+    "frames/L/x.dng",
     "frames/dir.dng",
     "frames/missing.dng",
     "transcripts/../log.jsonl",
     "frames/x\x00.dng",
+    "frames/A/scene-000.dng\n",
+    "frames/A\n/scene-000.dng",
     "frames\\..\\x",
     "C:/x",
     "",
@@ -159,9 +172,37 @@ def session_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     outside = tmp_path_factory.mktemp("outside") / "secret"
     outside.write_bytes(b"secret")
     (directory / "frames" / "link.dng").symlink_to(outside)
+    (directory / "frames" / "A" / "scene-000.dng\n").write_bytes(FRAME)  # a name with a newline
+    (outside.parent / "x.dng").write_bytes(b"secret")
+    (directory / "frames" / "L").symlink_to(outside.parent)  # a lamp directory linked outside
     (directory / "transcripts").mkdir()
     (directory / "transcripts" / "relays.jsonl").write_bytes(b"")
     return directory
+
+
+def _assert_inside(session_dir: Path, relative: str) -> None:
+    """``file_path`` refuses ``relative``, or gives a path that really is inside the session: no
+    link on the way (resolved, not compared by name) and no component outside."""
+    session = Session(session_dir)
+    try:
+        path = session.file_path(relative)
+    except SessionFormatError:
+        return
+    assert Path(os.path.realpath(path)).is_relative_to(os.path.realpath(session_dir))
+    on_the_way = [path, *path.parents]
+    assert not any(p.is_symlink() for p in on_the_way if p.is_relative_to(session_dir))
+    assert path.is_file()
+
+
+@pytest.mark.parametrize("relative", HOSTILE_PATHS)
+def test_every_hostile_path_is_refused(session_dir: Path, relative: str) -> None:
+    with pytest.raises(SessionFormatError):
+        Session(session_dir).file_path(relative)
+
+
+def test_a_real_file_is_given(session_dir: Path) -> None:
+    _assert_inside(session_dir, "frames/A/scene-000.dng")
+    assert Session(session_dir).file_path("frames/A/scene-000.dng").read_bytes() == FRAME
 
 
 def _session_reader(session_dir: Path, log: bytes) -> None:
@@ -174,8 +215,7 @@ def _session_reader(session_dir: Path, log: bytes) -> None:
     for problem in session.verify_files():
         assert problem.path
     for record in session.files():
-        with contextlib.suppress(SessionFormatError):
-            assert session.file_path(record.path).is_relative_to(session_dir)
+        _assert_inside(session_dir, record.path)
     assert session.status in ("complete", "interrupted", "failed")
     session.done_steps()
     with contextlib.suppress(RigError):
@@ -218,3 +258,82 @@ def _transcript_reader(data: bytes) -> None:
 test_transcript_reader, test_transcript_reader_slow = fuzz(5_000, data=transcripts())(
     _transcript_reader
 )
+
+
+# ----------------------------------------------------------- rig resume on malformed, valid logs
+
+
+@pytest.fixture(scope="module")
+def resumable(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict[str, Any]]]:
+    """A fake-rig session whose camera went away mid-bracket, and its log's records as JSON."""
+    rig = make_fake_rig()
+    rig.camera.io.faults["capture"] = [None, Disconnected("FakeCam", "unplugged")]
+    directory = tmp_path_factory.mktemp("resumable")
+    outcome = run_capture(fake_config(directory / "sessions"), builder=rig.builder, retry=NO_RETRY)
+    assert outcome.reason == "disconnected"
+    log = (outcome.session / "log.jsonl").read_text()
+    return outcome.session, [json.loads(line) for line in log.splitlines()]
+
+
+_EXTREME = st.sampled_from([10**400, -(10**400), 1e308, -1e308, 5e-324, 0, -1, "", "x", [], {}])
+_VALUES = st.one_of(_EXTREME, _json_values)
+
+
+@st.composite
+def malformed_logs(draw: st.DrawFn, records: list[dict[str, Any]]) -> tuple[bytes, bool]:
+    """The session's log with schema-valid records made malformed: keys of a step's ``params`` or
+    ``result``, or of the configuration snapshot and the plan's arguments, dropped or replaced by
+    odd JSON (huge and tiny numbers, strings, lists). And whether to run the resume to the end."""
+    edited = json.loads(json.dumps(records))
+    steps = [record for record in edited if record["type"] == "step" and record["result"]]
+    for _ in range(draw(st.integers(1, 3))):
+        where = draw(st.sampled_from(["result", "params", "config", "plan"]))
+        if where in ("result", "params"):
+            target: Any = draw(st.sampled_from(steps))[where]
+        elif where == "config":
+            target = edited[0]["config"]
+            while isinstance(target, dict) and target and draw(st.booleans()):
+                target = target[draw(st.sampled_from(sorted(target)))]
+        else:
+            target = edited[0]["plan"]["args"]
+        if not isinstance(target, dict) or not target:
+            continue
+        key = draw(st.sampled_from(sorted(target)))
+        if draw(st.booleans()):
+            del target[key]
+        else:
+            target[key] = draw(_VALUES)
+    log = "".join(json.dumps(record) + "\n" for record in edited).encode()
+    return log, draw(st.integers(0, 9)) == 0
+
+
+def _resume_refuses_in_one_line(
+    resumable: tuple[Path, list[dict[str, Any]]], fuzz_dir: Path, data: st.DataObject
+) -> None:
+    session, records = resumable
+    log, run_it = data.draw(malformed_logs(records))
+    copy = fuzz_dir / "fuzzed" / session.name
+    if copy.parent.exists():
+        shutil.rmtree(copy.parent)
+    shutil.copytree(session, copy, symlinks=True)
+    (copy / "log.jsonl").write_bytes(log)
+    config = fake_config(session.parent)
+    try:
+        prepare_resume(copy, config)
+    except (SessionFormatError, NotResumable, ResumeConfigRefused) as refused:
+        assert "\n" not in str(refused)  # one line
+        return
+    if run_it:  # every record the run reuses was rebuilt above: the run cannot trip on one
+        outcome = run_resume(copy, config, builder=make_fake_rig().builder, retry=NO_RETRY)
+        assert outcome.reason != "internal", outcome
+
+
+@pytest.fixture
+def fuzz_dir(tmp_path: Path) -> Path:
+    """In memory where the machine allows (tests/rig/conftest.py): the resume syncs every record."""
+    return tmp_path
+
+
+test_resume_refuses_malformed_logs, test_resume_refuses_malformed_logs_slow = fuzz(
+    5_000, data=st.data()
+)(_resume_refuses_in_one_line)

@@ -104,3 +104,79 @@ def test_a_second_ctrl_c_stops_at_once(tmp_path: Path) -> None:
         "finish-step",
         "stop-now",
     ]
+
+
+@pytest.mark.parametrize(
+    ("signals", "exit_code"),
+    [([signal.SIGTERM], 143), ([signal.SIGINT], 130), ([signal.SIGINT, signal.SIGINT], 130)],
+    ids=["sigterm", "sigint", "sigint-twice"],
+)
+def test_a_signal_while_the_devices_open_switches_off_what_opened_and_records_nothing(
+    tmp_path: Path, signals: list[signal.Signals], exit_code: int
+) -> None:
+    config = write_config(tmp_path / "rig.yaml", fake_config_data(tmp_path / "sessions"))
+    state, marker = tmp_path / "relays.state", tmp_path / "capturing"
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tests.rig.capture_process",
+            *(str(config), str(state), str(marker), "0", "1.5"),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    wait_for(Path(f"{marker}.opening").exists, timeout_s=60, what="the devices to be opening")
+    assert state.read_text() == "10"  # a lamp a killed run left on; the board is open
+    for number, signum in enumerate(signals):
+        if number:
+            time.sleep(0.1)
+        process.send_signal(signum)
+    code, _, err = finish(process)
+    assert code == exit_code, err
+    assert state.read_text() == "00"  # switched off, as far as the devices had opened
+    assert err == (
+        f"rig: error: {signals[0].name} while the devices were being opened: stopped before "
+        "anything was recorded (every lamp switched off) [interrupted]\n"
+    )
+    assert not (tmp_path / "sessions").exists()  # nothing to resume, nothing half-made
+    assert not marker.exists()  # no capture began
+
+
+@pytest.fixture(scope="module")
+def python_start_s() -> float:
+    """How long this Python takes to start (interpreter and ``site``, before any code of rig runs):
+    a Ctrl-C inside that is CPython's own (``Fatal Python error: init_import_site``)."""
+    times = []
+    for _ in range(3):
+        began = time.monotonic()
+        subprocess.run([sys.executable, "-c", "pass"], check=True)
+        times.append(time.monotonic() - began)
+    return max(times)
+
+
+@pytest.mark.parametrize("after_start_s", [0.02, 0.06, 0.1, 0.15, 0.25])
+def test_ctrl_c_in_the_first_moments_is_one_line(
+    tmp_path: Path, python_start_s: float, after_start_s: float
+) -> None:
+    """``rig`` is still importing its libraries: a Ctrl-C then ends it as one later would."""
+    config = write_config(tmp_path / "rig.yaml", fake_config_data(tmp_path / "sessions"))
+    command = Path(sys.executable).parent / "rig"
+    process = subprocess.Popen(
+        [str(command), "capture", "--config", str(config), "--quiet"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(python_start_s + after_start_s)
+    process.send_signal(signal.SIGINT)
+    code, out, err = finish(process)
+    assert "Traceback" not in err
+    assert code == 130, err
+    # Interrupted while importing or opening: one line on stderr. Interrupted once the run had
+    # begun (a loaded machine gets there within 0.25 s): the run's own report on stdout.
+    assert err.count("\n") <= 2
+    assert "rig: " in err or "status: interrupted" in out, (out, err)

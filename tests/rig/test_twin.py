@@ -123,6 +123,7 @@ def test_a_busy_camera_is_recovered_by_its_driver(tmp_path: Path) -> None:
     outcome, session = _capture(tmp_path, builder=builder)
     assert outcome.exit_status == "success", outcome
     body = opened[0].camera_body
+    assert body is not None
     frames = len(_done(session, "Capture")) + len(_done(session, "DarkFrame"))
     assert [fault.fired for fault in body.faults] == [2]
     assert body.count("capture") == frames + 2  # two busy answers, retried inside the driver
@@ -154,9 +155,7 @@ def test_a_configuration_the_twin_cannot_simulate_fails_before_any_device(tmp_pa
     ) as error:
         run_capture(config)
     assert error.value.exit_code == 2
-    session = read_session(next((tmp_path / "sessions").iterdir()))
-    assert session.status == "failed"  # the session says why it has no frames
-    assert session.stop is not None and session.stop.reason == "twin_config"
+    assert not (tmp_path / "sessions").exists()  # nothing opened, so no session either
 
 
 @pytest.mark.parametrize("emulate", ["hid_usbrelay", "numato"])
@@ -170,7 +169,7 @@ def test_relays_left_on_by_a_dead_process_are_on_for_the_next(tmp_path: Path, em
     # The process dies: nothing switches the relay off, the emulators just stop.
     first.close()
     assert state_file.read_text().strip() == "10"
-    second = open_twin_bench(config)
+    second: Any = open_twin_bench(config)  # the bench itself (mocks.bench.TwinBench)
     try:
         assert second.relays.state() == (True, False)
         assert [lamp.name for lamp, _ in second.bank.lit()] == ["LED-B3"]

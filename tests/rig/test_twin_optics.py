@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -56,7 +57,7 @@ def _forward_per_pixel(optics: TwinOptics, lamp: Spectrum, pixel: np.ndarray) ->
 def test_axis_aligned_pixels_receive_forwards_per_pixel_integrals(
     spec: TwinSpec, fluorescent: VirtualLamp
 ) -> None:
-    optics = TwinOptics.build(spec.camera)
+    optics = TwinOptics.build(spec.twin_camera)
     signal = optics.first_order(fluorescent.spectrum, blur=False).signal
     # Pixel centres at a sub-pixel offset from the spot, over the whole band (sharp mercury lines).
     pixel = np.arange(200.37, 420.0, 1.0)
@@ -69,11 +70,11 @@ def test_axis_aligned_pixels_receive_forwards_per_pixel_integrals(
 def test_the_2d_frame_along_the_band_is_forwards_profile(
     spec: TwinSpec, fluorescent: VirtualLamp
 ) -> None:
-    level = dataclasses.replace(spec.camera.grating, dispersion_angle_deg=0.0)
+    level = dataclasses.replace(spec.twin_camera.grating, dispersion_angle_deg=0.0)
     camera = dataclasses.replace(
-        spec.camera,
+        spec.twin_camera,
         grating=level,
-        optics=dataclasses.replace(spec.camera.optics, spot_position_px=(101.3, 160.6)),
+        optics=dataclasses.replace(spec.twin_camera.optics, spot_position_px=(101.3, 160.6)),
     )
     optics = TwinOptics.build(camera)
     signal = optics.first_order(fluorescent.spectrum, blur=False).signal
@@ -122,7 +123,7 @@ def test_turned_pixels_integrate_their_whole_footprint() -> None:
 
 
 def test_the_slit_blur_keeps_the_light(spec: TwinSpec, fluorescent: VirtualLamp) -> None:
-    optics = TwinOptics.build(spec.camera)
+    optics = TwinOptics.build(spec.twin_camera)
     sharp = optics.first_order(fluorescent.spectrum, blur=False).signal
     blurred = optics.first_order(fluorescent.spectrum).signal
     np.testing.assert_allclose(blurred.cumulative[-1], sharp.cumulative[-1], rtol=1e-9)
@@ -153,7 +154,7 @@ def test_a_drift_the_components_cannot_span_is_rendered_directly(spec: TwinSpec)
     lamp = virtual_lamp(steep)
     # At switch-on the tilt drives the red end below zero, where the lamp's radiance is clipped.
     assert drift_coefficients(lamp, spectral_components(lamp), 0.0) is None
-    optics = TwinOptics.build(spec.camera)
+    optics = TwinOptics.build(spec.twin_camera)
     clock = SimulatedClock()
     bank = LampBank([lamp], n_channels=2, clock=clock)
     renderer = FrameRenderer(optics, bank, clock, seed=1, download_s=0.0)
@@ -175,7 +176,7 @@ def test_a_drift_the_components_cannot_span_is_rendered_directly(spec: TwinSpec)
 
 
 def test_frames_follow_exposure_iso_and_aperture(spec: TwinSpec, tmp_path: Path) -> None:
-    optics = TwinOptics.build(spec.camera)
+    optics = TwinOptics.build(spec.twin_camera)
     clock = SimulatedClock()
     lamps = [virtual_lamp(lamp) for lamp in spec.lamps]
     bank = LampBank(lamps, n_channels=2, clock=clock)
@@ -218,14 +219,16 @@ def test_frames_follow_exposure_iso_and_aperture(spec: TwinSpec, tmp_path: Path)
 
 def test_specs_that_cannot_be_simulated_say_which_field() -> None:
     with pytest.raises(TwinSpecError, match=r"devices\.camera\.sensitivity: .*Nikon 5100"):
-        TwinOptics.build(twin_spec(sensitivity="No Such Camera").camera)
+        TwinOptics.build(twin_spec(sensitivity="No Such Camera").twin_camera)
     with pytest.raises(TwinSpecError, match=r"beyond the 400×320 sensor"):
-        TwinOptics.build(twin_spec(sensor={"width_px": 400, "height_px": 320}).camera)
+        TwinOptics.build(twin_spec(sensor={"width_px": 400, "height_px": 320}).twin_camera)
     with pytest.raises(TwinSpecError, match=r"grooves_per_mm = 1300.*fewer grooves"):
-        TwinOptics.build(twin_spec(grating={"grooves_per_mm": 1300}).camera)
+        TwinOptics.build(twin_spec(grating={"grooves_per_mm": 1300}).twin_camera)
     with pytest.raises(TwinSpecError, match=r"edge_px = 6 is wider than slit_width_px = 4"):
         TwinOptics.build(
-            twin_spec(optics={"focal_length_mm": 4.8, "slit_length_px": 120, "edge_px": 6}).camera
+            twin_spec(
+                optics={"focal_length_mm": 4.8, "slit_length_px": 120, "edge_px": 6}
+            ).twin_camera
         )
     lamp = dataclasses.replace(twin_spec().lamps[0], spd="LED-Z9")
     with pytest.raises(TwinSpecError, match=r"devices\.relays\.lamps\.LED-B3\.spd: 'LED-Z9'.*FL2"):
@@ -250,13 +253,16 @@ def test_every_emulated_model_serves_the_real_driver(
         bench.relays.set(2, True)
         assert bench.relays.state() == (False, True)
         assert [lamp.name for lamp, _ in bench.bank.lit()] == ["FL2"]
+        assert bench.spectrometer is not None and bench.spectrometer_port is not None
         reading = bench.spectrometer.measure()
         # What the instrument's slit lets through: the lamp seen at its bandwidth, noise-free.
-        seen = bench.spectrometer_port.emulator.radiometer.band_radiance()  # type: ignore[attr-defined]
+        emulator: Any = bench.spectrometer_port.emulator
+        seen = emulator.radiometer.band_radiance()
         assert np.corrcoef(reading.values, seen)[0, 1] > 0.99
         bench.relays.all_off()
         assert bench.bank.lit() == []
     finally:
         for device in (bench.camera, bench.spectrometer, bench.relays):
+            assert device is not None
             device.close()
         bench.close()

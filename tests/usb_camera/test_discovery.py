@@ -79,7 +79,7 @@ def test_no_usb_backend_is_a_note_not_a_failure(monkeypatch: pytest.MonkeyPatch)
     report = list_devices(serial_ports=list, gphoto2_module=FakeGphoto2([canon_eos_body()]))
     assert len(report.of_kind("camera")) == 1
     assert report.notes == (
-        "HID relay boards: no USB backend available (libusb-1.0 not found): install it "
+        "HID relay boards and Ocean spectrometers: no USB backend available (libusb-1.0 not found): install it "
         "(apt install libusb-1.0-0, brew install libusb) or `pip install libusb-package`",
     )
     assert "Notes:" in render_text(report)
@@ -120,15 +120,60 @@ def test_camera_autodetection_that_fails_or_hangs() -> None:
         raise gp.GPhoto2Error(-7)
 
     gp.Camera.autodetect = staticmethod(failing)  # type: ignore[method-assign,assignment]
-    report = list_devices(include_serial=False, include_usb_relays=False, gphoto2_module=gp)
+    report = list_devices(
+        include_serial=False, include_usb_relays=False, include_ocean=False, gphoto2_module=gp
+    )
     assert report.notes == ("gphoto2 cameras: autodetection failed ([-7] I/O problem)",)
 
     release = threading.Event()
     gp.Camera.autodetect = staticmethod(lambda: release.wait(10))  # type: ignore[method-assign,assignment]
     try:
         report = list_devices(
-            include_serial=False, include_usb_relays=False, gphoto2_module=gp, timeout_s=0.1
+            include_serial=False,
+            include_usb_relays=False,
+            include_ocean=False,
+            gphoto2_module=gp,
+            timeout_s=0.1,
         )
     finally:
         release.set()
     assert report.notes == ("gphoto2 cameras: camera autodetection did not return within 0.1 s",)
+
+
+def test_ocean_spectrometers_on_the_bus_with_a_snippet_each() -> None:
+    from mocks.ocean_backend import STS, USB2000PLUS, EmulatedOcean, OceanBackend
+
+    dark = lambda wavelength: wavelength * 0.0  # noqa: E731
+    bus = OceanBackend(
+        [EmulatedOcean(USB2000PLUS, dark, address=9), EmulatedOcean(STS, dark, address=12)]
+    )
+    report = list_devices(serial_ports=list, usb_backend=bus, include_cameras=False)
+    assert report.notes == ()
+    found = {d.address: d for d in report.of_kind("ocean_spectrometer")}
+    assert set(found) == {USB2000PLUS.serial, STS.serial}
+    usb2000 = found[USB2000PLUS.serial]
+    assert usb2000.name == "Ocean USB2000PLUS" and usb2000.details["port"] == "usb:001,009"
+    assert yaml.safe_load(usb2000.config_snippet) == {
+        "kind": "seabreeze",
+        "serial": USB2000PLUS.serial,
+        "calibration_file": f"calibration-{USB2000PLUS.serial}.csv",
+    }
+    assert "rig calibrate-spectrometer" in usb2000.config_snippet
+    assert "Ocean spectrometers (seabreeze): 2" in render_text(report)
+    # Found means opened and closed again: the rig can open it right after.
+    assert all(device.configured for device in bus.devices)
+
+
+def test_a_missing_seabreeze_is_a_note(monkeypatch: pytest.MonkeyPatch) -> None:
+    from drivers import libraries
+
+    def missing() -> None:
+        raise libraries.HardwareLibraryMissing(
+            "python-seabreeze", "seabreeze", ImportError("No module named 'seabreeze'")
+        )
+
+    monkeypatch.setattr(discovery, "find_ocean_spectrometers", lambda **_: missing())
+    report = list_devices(serial_ports=list, include_usb_relays=False, include_cameras=False)
+    (note,) = report.notes
+    assert note.startswith("Ocean spectrometers: seabreeze is not installed")
+    assert "spectral-rig[rig]" in note

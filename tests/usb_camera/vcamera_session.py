@@ -80,7 +80,9 @@ def main(argv: list[str]) -> int:
     results["transcript_json_ok"] = all(
         isinstance(json.loads(entry.payload.decode("utf-8")), dict) for entry in transcript.entries
     )
-    report = list_devices(gphoto2_module=gphoto2, include_serial=False, include_usb_relays=False)
+    report = list_devices(
+        gphoto2_module=gphoto2, include_serial=False, include_usb_relays=False, include_ocean=False
+    )
     results["discovered"] = [
         {"kind": d.kind, "name": d.name, "address": d.address, "snippet": d.config_snippet}
         for d in report.devices

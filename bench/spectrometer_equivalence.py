@@ -1,0 +1,257 @@
+"""Do the spectrometers labs own estimate the camera as the PR-655 does? The twin, four instruments.
+
+Issue 20 asks that a twin session measured with an Ocean spectrometer (``emulate: seabreeze``) or an
+X-Rite instrument through ArgyllCMS (``emulate: argyll``) estimate the same sensitivity as one
+measured with the PR-655 emulator (RE difference ≤ 0.2 ×10⁻²). This captures the shipped
+``config.yaml`` on the twin with each spectrometer — PR-655 (8 nm slit, 4 nm samples), USB2000+
+(1.5 nm, 0.38 nm), STS (3 nm, 0.47 nm), an i1Pro through spotread (25 nm at 10 nm, or 15 nm at
+3.3 nm with ``-H``) — ``--draws``
+times each, the draws differing only in the spectrometer's noise
+(``devices.spectrometer.noise_draw``; camera frames, lamps and seed are the same), and reports:
+
+1. **the spectra each instrument hands to calib**, against the twin's true lamp at the moment of
+   the measurement seen through the slit the session recorded (``bandwidth_nm`` of its files):
+   RMS and the worst 100 nm band, relative to the mean;
+2. **the estimate** (``rig estimate``'s pipeline, the camera basis without the twin's camera): RE
+   against the truth, and the mapping it found at the first order's red end (the mercury lines
+   stop at 579 nm; beyond, the mapping is extrapolated);
+3. **RE between estimates** of each instrument and the PR-655, next to the PR-655's own
+   repeatability (PR-655 against PR-655, another noise draw);
+4. the same with the twin's **true mapping** given (the solve alone), which separates what the
+   spectra do to the solve from what they do to the mapping.
+
+    python bench/spectrometer_equivalence.py [--draws 3]
+        [--instruments pr655,usb2000plus,sts,i1pro,i1pro-hires]
+        [--config config.yaml] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID, read_spectrum_csv
+from calib.methods import estimate
+from calib.model.bases import CameraBasis
+from calib.pipeline import OfflineSettings, estimate_offline
+from mocks.bench.lamps import virtual_lamp
+from mocks.bench.spec import TwinSpec
+from rig.capture import run_capture
+from rig.compare import check_session, twin_basis
+from rig.config import RigConfig, load_config
+from rig.session import read_session
+from rig.twin import write_twin_truth
+
+#: name → devices.spectrometer fields of the twin.
+INSTRUMENTS = {
+    "pr655": {"emulate": "pr655"},
+    "usb2000plus": {"emulate": "seabreeze", "ocean_model": "USB2000PLUS"},
+    "sts": {"emulate": "seabreeze", "ocean_model": "STS"},
+    "i1pro": {"emulate": "argyll"},
+    "i1pro-hires": {"emulate": "argyll", "high_resolution": True},
+}
+REFERENCE = "pr655"
+BANDS_NM = ((380, 480), (480, 580), (580, 680), (680, 780))
+
+
+@dataclass
+class Run:
+    """One captured and estimated session."""
+
+    instrument: str
+    draw: int
+    session: Path
+    found: np.ndarray
+    true_mapping: np.ndarray
+    re_found: float
+    re_true_mapping: float
+    red_end_error_nm: float
+    spectra_rms: float
+    spectra_worst_band: float
+    cpu_s: float
+
+
+def configured(base: RigConfig, instrument: str, draw: int, out: Path) -> RigConfig:
+    data = base.model_dump(mode="json")
+    spectrometer = data["devices"]["spectrometer"]
+    spectrometer.update(INSTRUMENTS[instrument], noise_draw=draw)
+    data["output_dir"] = str(out)
+    return RigConfig.model_validate(data)
+
+
+def slit_view(
+    wavelength_nm: np.ndarray, radiance: object, seconds_on: float, fwhm_nm: float
+) -> np.ndarray:
+    """The lamp ``seconds_on`` after switch-on through a Gaussian slit of ``fwhm_nm``."""
+    fine = np.arange(wavelength_nm[0] - 3 * fwhm_nm, wavelength_nm[-1] + 3 * fwhm_nm, 0.05)
+    values = radiance.radiance(fine, seconds_on)  # type: ignore[attr-defined]
+    sigma = fwhm_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    weights = np.exp(-0.5 * ((wavelength_nm[:, None] - fine[None, :]) / sigma) ** 2)
+    return np.asarray(weights @ values / weights.sum(axis=1))
+
+
+def spectra_against_truth(session_path: Path, spec: TwinSpec) -> tuple[float, float]:
+    """Worst (over lamps) RMS and worst 100 nm band of the mean reference spectra, relative."""
+    session = read_session(session_path)
+    done = session.done_steps()
+    bandwidths = {r.path: r.bandwidth_nm for r in session.files() if r.role == "spectrum"}
+    rms, worst = 0.0, 0.0
+    for lamp in spec.lamps:
+        keys = sorted(k for k in done if k.startswith(f"lamp/{lamp.name}/reference/"))
+        paths = [str((done[k].result or {})["file"]) for k in keys]
+        spectra = [read_spectrum_csv(session.file_path(p), negative="clip") for p in paths]
+        wavelength = spectra[0].wavelength_nm
+        mean = np.mean([s.values for s in spectra], axis=0)
+        switched_on = done[f"lamp/{lamp.name}/switch-on"].started_s
+        seconds_on = done[keys[0]].started_s - switched_on
+        fwhm = bandwidths[paths[0]]
+        assert fwhm is not None, f"{session_path}: {paths[0]} records no bandwidth"
+        truth = slit_view(wavelength, virtual_lamp(lamp), seconds_on, fwhm)
+        inside = (wavelength >= 400.0) & (wavelength <= 700.0)
+        # Relative spectra: each divided by its mean over 400–700 nm (units and scale differ).
+        residual = mean / float(np.mean(mean[inside])) - truth / float(np.mean(truth[inside]))
+        rms = max(rms, float(np.sqrt(np.mean(residual[inside] ** 2))))
+        for low, high in BANDS_NM:
+            band = (wavelength >= low) & (wavelength < high)
+            if band.any():
+                worst = max(worst, abs(float(np.mean(residual[band]))))
+    return rms, worst
+
+
+def capture_and_estimate(
+    base: RigConfig, instrument: str, draw: int, root: Path, basis_cache: dict[str, CameraBasis]
+) -> Run:
+    started = time.process_time()
+    config = configured(base, instrument, draw, root / f"{instrument}-{draw}")
+    outcome = run_capture(config)
+    if outcome.exit_status != "success":
+        raise SystemExit(f"{instrument} draw {draw}: the capture did not complete: {outcome}")
+    write_twin_truth(config, outcome.session)
+    checked = check_session(outcome.session)
+    camera = checked.truth.camera
+    if camera not in basis_cache:
+        basis_cache[camera] = twin_basis(camera)
+    basis = basis_cache[camera]
+    extracted = estimate_offline(
+        checked.lamps,
+        OfflineSettings(basis=basis),
+        known_inputs=checked.known,
+    )
+    truth = checked.truth.sensitivity.resample(DEFAULT_GRID, "interpolate").values
+    found = extracted.result.physical_sensitivity()
+    solve = next(o for o in extracted.observations if o.kind != "fluorescent")
+    # The same method `rig estimate` chose (auto: the prior solve with two lamps), the mapping given.
+    given = estimate(
+        [solve], method=extracted.result.method, basis=basis, mapping=checked.truth.mapping
+    )
+    red_pixel = solve.pixel[-1:]
+    mapping = extracted.result.mapping
+    assert mapping is not None
+    red_end = float(
+        mapping.wavelength_nm(red_pixel)[0] - checked.truth.mapping.wavelength_nm(red_pixel)[0]
+    )
+    spec = TwinSpec.from_config_data(config.model_dump(mode="json"))
+    rms, worst = spectra_against_truth(outcome.session, spec)
+    return Run(
+        instrument,
+        draw,
+        outcome.session,
+        found,
+        given.physical_sensitivity(),
+        relative_error(found, truth),
+        relative_error(given.physical_sensitivity(), truth),
+        red_end,
+        rms,
+        worst,
+        time.process_time() - started,
+    )
+
+
+def pairwise(runs: Sequence[Run], a: str, b: str, field: str) -> list[float]:
+    """RE ×10⁻² between every run of ``a`` and every run of ``b`` (other draws when a == b)."""
+    left = [r for r in runs if r.instrument == a]
+    right = [r for r in runs if r.instrument == b]
+    pairs = itertools.combinations(left, 2) if a == b else itertools.product(left, right)
+    return [100 * relative_error(getattr(x, field), getattr(y, field)) for x, y in pairs]
+
+
+def span(values: Sequence[float]) -> str:
+    if not values:
+        return "—"
+    return f"{np.mean(values):5.2f} ({min(values):.2f}–{max(values):.2f})"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--config", type=Path, default=Path("config.yaml"))
+    parser.add_argument("--draws", type=int, default=3, help="noise draws per instrument")
+    parser.add_argument("--instruments", default=",".join(INSTRUMENTS))
+    parser.add_argument("--keep", type=Path, default=None, help="keep the sessions here")
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    args = parser.parse_args()
+    instruments = [name.strip() for name in args.instruments.split(",")]
+    unknown = set(instruments) - set(INSTRUMENTS)
+    if unknown or REFERENCE not in instruments:
+        raise SystemExit(f"--instruments: choose from {', '.join(INSTRUMENTS)}, with {REFERENCE}")
+    base = load_config(args.config)
+    runs: list[Run] = []
+    basis_cache: dict[str, CameraBasis] = {}
+    with tempfile.TemporaryDirectory() as temporary:
+        root = args.keep or Path(temporary)
+        for instrument in instruments:
+            for draw in range(args.draws):
+                runs.append(capture_and_estimate(base, instrument, draw, root, basis_cache))
+                run = runs[-1]
+                print(
+                    f"  {instrument:<12} draw {draw}: RE {100 * run.re_found:5.2f} "
+                    f"(true mapping {100 * run.re_true_mapping:5.2f}) ×10⁻², red end "
+                    f"{run.red_end_error_nm:+5.2f} nm, spectra rms {100 * run.spectra_rms:.2f} % "
+                    f"(worst band {100 * run.spectra_worst_band:.2f} %), {run.cpu_s:.1f} s CPU",
+                    flush=True,
+                )
+    print(f"\n{args.draws} noise draws per instrument; RE ×10⁻², mean (min–max) over pairs")
+    header = (
+        f"{'instrument':<12} {'vs truth':>18} {'itself (draws)':>18} {'vs PR-655':>18} "
+        f"{'vs PR-655, true mapping':>24}"
+    )
+    print(header)
+    figures: dict[str, dict[str, list[float]]] = {}
+    for instrument in instruments:
+        own = [r for r in runs if r.instrument == instrument]
+        against = pairwise(runs, instrument, REFERENCE, "found")
+        solve_only = pairwise(runs, instrument, REFERENCE, "true_mapping")
+        truth = [100 * r.re_found for r in own]
+        itself = pairwise(runs, instrument, instrument, "found")
+        if instrument == REFERENCE:
+            against, solve_only = [], []
+        print(
+            f"{instrument:<12} {span(truth):>18} {span(itself):>18} {span(against):>18} "
+            f"{span(solve_only):>24}"
+        )
+        figures[instrument] = {
+            "re_vs_truth": truth,
+            "re_vs_itself": itself,
+            "re_vs_pr655": against,
+            "re_vs_pr655_true_mapping": solve_only,
+            "red_end_error_nm": [r.red_end_error_nm for r in own],
+            "spectra_rms": [r.spectra_rms for r in own],
+        }
+    total = sum(r.cpu_s for r in runs)
+    print(f"\nCPU {total:.1f} s for {len(runs)} sessions (capture + estimate)")
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2))
+
+
+if __name__ == "__main__":
+    main()
