@@ -117,11 +117,15 @@ def fwhm_px(observation: LampObservation, kind: str = "emission") -> float:
     from scipy import ndimage, signal
 
     total = np.sum(observation.profile, axis=1)
-    # Lines stand on broad bands: a baseline far wider than any line (a twentieth of the profile).
-    baseline = ndimage.grey_opening(total, size=max(3, (total.size // 20) | 1), mode="nearest")
-    values = total - baseline
-    if kind != "emission":
-        values = np.max(values) - values
+    if kind == "emission":
+        # Lines stand on broad bands: a baseline far wider than any line (a twentieth).
+        baseline = ndimage.grey_opening(total, size=max(3, (total.size // 20) | 1), mode="nearest")
+        values = total - baseline
+    else:
+        from calib.wavelength.features import feature_signal
+
+        # Dips under the channels' envelopes, found with a provisional width of a few samples.
+        values, _ = feature_signal(observation.profile, "absorption", DEFAULT_FWHM_PX)
     peaks, properties = signal.find_peaks(values, prominence=0.05 * float(np.ptp(values)))
     if peaks.size == 0:
         return DEFAULT_FWHM_PX
@@ -179,8 +183,12 @@ def _map_lines(
     start: ExactMapping | None,
     directions: Sequence[int],
     grid: WavelengthGrid,
+    dispersion_nm_per_px: float | None = None,
 ) -> FeatureMapping:
-    """Lines of one lamp through the physical family, in each allowed direction; the better kept."""
+    """Lines of one lamp through the physical family, in each allowed direction; the better kept.
+
+    ``dispersion_nm_per_px`` (a whole-profile fit's) narrows the line matching when there is no
+    ``start`` to follow."""
     kind = lines[0].kind
     width = fwhm_px(lamp, kind)
     outcomes = []
@@ -196,6 +204,7 @@ def _map_lines(
                     family=family,
                     fwhm_px=width * float(np.median(np.diff(lamp.pixel))),
                     start=start,
+                    nominal_dispersion=dispersion_nm_per_px,
                     allow_reversed=direction < 0,
                     kind=kind,
                     range_nm=(grid.start_nm - 30.0, grid.stop_nm + 30.0),
@@ -383,14 +392,18 @@ def locate_mapping(
         dipped = [(lamp, dips) for lamp, dips in dipped if dips]
         if dipped:
             lamp, dips = dipped[0]
+            # The dips are matched afresh, in the fit's direction and near its dispersion: a
+            # broadband fit can be a few nanometres off, more than a dip's width.
+            middle = np.array([0.5 * (lead.pixel[0] + lead.pixel[-1])])
             try:
                 features = _map_lines(
                     lamp,
                     dips,
                     grating_prior,
-                    start=search.exact,
+                    start=None,
                     directions=(_direction(search.exact, lead),),
                     grid=grid,
+                    dispersion_nm_per_px=abs(float(_local_dispersion(search.exact, middle)[0])),
                 )
                 details["line_source"] = f"absorption features of {lamp.name}"
             except EstimationError as exc:
@@ -433,6 +446,12 @@ def locate_mapping(
     details["warnings"] = warnings
     mapping = mapping.with_details(details={**dict(mapping.details), **details})
     return MappingSolution(mapping, exact, tuple(warnings), details)
+
+
+def _local_dispersion(mapping: ExactMapping, pixel: FloatArray) -> FloatArray:
+    if isinstance(mapping, TiltedGrating):
+        return mapping.dispersion_at(pixel)
+    return mapping.dispersion_nm_per_px(pixel)
 
 
 def _direction(mapping: ExactMapping, lead: LampObservation) -> int:
