@@ -13,7 +13,7 @@ import sys
 
 import typer
 
-from calib.cli import compare, data, estimate, plan_lamps, spd, synthetic, uses
+from calib.cli import compare, data, estimate, plan_lamps, spd, synthetic, uses, validate
 from calib.cli.exits import say_interrupted
 from calib.core.errors import CalibError, InputError
 
@@ -27,7 +27,7 @@ def build_app() -> typer.Typer:
         add_completion=False,
         pretty_exceptions_enable=False,
     )
-    for command in (synthetic, data, estimate, compare, spd, plan_lamps, uses):
+    for command in (synthetic, data, estimate, compare, spd, plan_lamps, uses, validate):
         command.register(app)
     return app
 
