@@ -98,6 +98,10 @@ BASIN_TEMPER = 3.0
 #: The local (curvature) σ understates what the prior's pull does to a camera unlike the others:
 #: on the LOCO scenes whose basin was right, actual/local RMS error had a median of 1.9.
 LOCAL_SIGMA_SCALE = 2.0
+#: σ (nm) of a measured lamp spectrum's wavelength scale as a whole: compact spectrometers state a
+#: wavelength accuracy of ±0.5 nm (a uniform error within it: 0.5/√3). It shifts the mapping alike
+#: at every pixel, and no profile fit can see it.
+SPECTROMETER_SCALE_SIGMA_NM = 0.5 / math.sqrt(3.0)
 
 
 @dataclass(frozen=True)
@@ -553,6 +557,8 @@ def search_profiles(
     spacing = float(np.median(np.diff(lead.pixel)))
     dispersion = float(np.median(np.abs(candidates[0].dispersion_nm_per_px(lead.pixel))))
     nm_per_px = dispersion * spacing
+    # Before the spectra are matched to the camera's resolution (which drops their bandwidth).
+    scale_nm = spectrometer_scale_sigma_nm(lamps)
     lamps = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
 
     families: list[Family] = []
@@ -723,7 +729,8 @@ def search_profiles(
     )
     covariance = final.covariance()
     mapping, local_rms = _report(exact, family, final.x, covariance, pixel_range, origin)
-    stated = math.hypot(LOCAL_SIGMA_SCALE * local_rms, spread_nm)
+    stated = math.sqrt((LOCAL_SIGMA_SCALE * local_rms) ** 2 + spread_nm**2 + scale_nm**2)
+    mapping = _stated_covariance(mapping, stated, scale_nm, pixel_range)
     warnings: list[str] = []
     if ambiguous:
         other = next(
@@ -749,6 +756,7 @@ def search_profiles(
         "temper": temper,
         "basin_spread_nm": spread_nm,
         "local_rms_nm": local_rms,
+        "spectrometer_scale_sigma_nm": scale_nm,
         "ambiguous": ambiguous,
         "candidates": [c.to_dict(pixel_range) for c in candidates_out],
         "flexibility": FLEXIBILITY,
@@ -861,6 +869,33 @@ def _correlation_starts(
         n_candidates=3 * len(directions),
         n_dispersions=48,
         allow_reversed=-1 in directions,
+    )
+
+
+def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
+    """σ (nm) the mapping inherits from the lamp spectra's wavelength scale: a spectrum measured by a
+    spectrometer (its bandwidth stated) is :data:`SPECTROMETER_SCALE_SIGMA_NM` off as a whole; a
+    tabulated one (no bandwidth: colour-science's tables, a built-in line list) adds nothing."""
+    measured = any(lamp.spectrum_bandwidth_nm is not None for lamp in lamps)
+    return SPECTROMETER_SCALE_SIGMA_NM if measured else 0.0
+
+
+def _stated_covariance(
+    mapping: QuadraticMapping, stated_nm: float, scale_nm: float, pixel_range: tuple[float, float]
+) -> QuadraticMapping:
+    """The report form's coefficient covariance made to state ``stated_nm`` (RMS over the profile):
+    the local part scaled (the prior's pull, the basins' spread) plus a common offset of
+    ``scale_nm`` (the spectrometer's wavelength scale shifts every wavelength alike)."""
+    if mapping.covariance is None:
+        return mapping
+    local = np.asarray(mapping.covariance, dtype=np.float64)
+    local_nm = wavelength_rms_from_covariance(local, pixel_range)
+    wanted = max(stated_nm**2 - scale_nm**2, 0.0)
+    scaled = local * (wanted / local_nm**2 if local_nm > 0 else 1.0)
+    scaled[2, 2] += scale_nm**2
+    return mapping.with_details(
+        covariance=[[float(v) for v in row] for row in scaled],
+        wavelength_rms_nm=wavelength_rms_from_covariance(scaled, pixel_range),
     )
 
 
