@@ -43,6 +43,7 @@ from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.least_squares import Solution, levenberg_marquardt
+from calib.wavelength.rig_prior import default_prior
 from calib.wavelength.response_model import ResponseModel, fine_step_for
 from calib.wavelength.search import (
     COARSE_NODES_NM,
@@ -563,9 +564,7 @@ def search_profiles(
 
     families: list[Family] = []
     if physical:
-        base = geometry or GratingPrior(
-            {"zero_order_px": (0.0, 0.0), "incidence_deg": (0.0, 5.0)}, "defaults"
-        )
+        base = geometry or default_prior(True)
         for direction in directions:
             families.append(
                 GratingFamily(base, orientation=direction, axis_offset_px=base.axis_offset_px)
