@@ -14,6 +14,8 @@ Scenarios (``--scenario``):
                   mean and maximum ``|Δλ|`` over the profile's pixels inside the grid, the stated σ,
                   RMS ``Δλ`` over RMS σ_λ (1 when σ is honest) and whether the result warned of
                   ambiguity;
+                  (``--grooves``: with the sheet's nominal line density, as a rig's configuration
+                  gives it, the true one within ±2 %);
 ``grating-file``  a grating file from the same rig: the grating is calibrated once in the scene's
                   geometry on a *calibration camera* (a training camera, never the one measured:
                   ``--calibration-camera``) with five lamps (multilamp), its efficiency and rig
@@ -101,11 +103,21 @@ def candidate_mapping(record: dict[str, Any]) -> QuadraticMapping | TiltedGratin
     return QuadraticMapping.from_dict(record)
 
 
-def led_row(task: Task, scene: RenderedScene, lamps: dict[str, LampObservation]) -> dict[str, Any]:
+def nominal_grooves(scene: RenderedScene, rng: np.random.Generator) -> float:
+    """The sheet's line density as a rig's configuration states it: the true one within ±2 %."""
+    return scene.plan.geometry.grooves_per_mm * float(1.0 + rng.uniform(-0.02, 0.02))
+
+
+def led_row(
+    task: Task,
+    scene: RenderedScene,
+    lamps: dict[str, LampObservation],
+    grooves_per_mm: float | None = None,
+) -> dict[str, Any]:
     grid = task.settings.grid
     led = lamps[LED]
     started = time.process_time()
-    solution = locate_mapping([led], task.basis.prior(), grid)
+    solution = locate_mapping([led], task.basis.prior(), grid, grooves_per_mm=grooves_per_mm)
     cpu_s = time.process_time() - started
     scores = mapping_errors(
         solution.mapping, led.pixel, scene.true_wavelength_nm, (grid.start_nm, grid.stop_nm)
@@ -229,6 +241,11 @@ def main() -> None:
     parser.add_argument(
         "--calibration-camera", type=int, default=0, help="index of the training camera"
     )
+    parser.add_argument(
+        "--grooves",
+        action="store_true",
+        help="led: the rig's configuration gives the line density (the true one within ±2 %%)",
+    )
     parser.add_argument("--csv", default=None)
     args = parser.parse_args()
     splits, _notes = load_splits(args.data_dir)
@@ -246,7 +263,14 @@ def main() -> None:
         name = task.camera.name
         try:
             if args.scenario == "led":
-                row = led_row(task, scene, lamps)
+                grooves = (
+                    nominal_grooves(
+                        scene, np.random.default_rng([args.seed, task.camera.stable_id, 2])
+                    )
+                    if args.grooves
+                    else None
+                )
+                row = led_row(task, scene, lamps, grooves)
             else:
                 if task.camera.name == calibration.camera.name:
                     continue
