@@ -10,8 +10,8 @@ Canon 10D (rrogge): sunlight (Wehrli 1985 AM0 × the upstream file's atmosphere)
 III. The mapping comes from the profile and the measured solar spectrum alone; it is then checked
 at columns found here independently of it: the minimum of each feature (G, Hβ, Mg b, D, Hα, O₂ B)
 in the continuum-normalised sum of the channels, within ±``--window`` columns of where the
-author's own four markers (``Spectral Response Canon EOS 10D.Rmd``: G 404, Hβ 640, D 1072, Hα
-1354, 1-based) put it, refined by a parabola through the three lowest samples. Printed: the
+author's own four markers (G, Hβ, D, Hα, read from ``Spectral Response Canon EOS 10D.Rmd`` at
+run time) put it, refined by a parabola through the three lowest samples. Printed: the
 residual at each and their RMS (nm). The references are the air wavelengths of the built-in solar
 list, blends as the depth-weighted mean of their components.
 
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -42,16 +43,27 @@ from calib.wavelength.locate import MappingSolution, locate_mapping
 
 D7000 = "butcher-nikon-d7000-2020-08"
 CANON_10D = "rrogge-canon-eos-10d"
-#: The 10D features checked: the solar list's components of each, and the author's column (1-based;
-#: ``None``: placed by the author's cubic through the others).
-FEATURES_10D: dict[str, tuple[tuple[str, ...], int | None]] = {
-    "G": (("Fraunhofer G",), 404),
-    "Hβ": (("Fraunhofer F (H-beta)",), 640),
+#: The 10D features checked: the solar list's components of each, and the name the author's R
+#: Markdown gives the feature when he marked it (``None``: placed by his cubic through the others).
+FEATURES_10D: dict[str, tuple[tuple[str, ...], str | None]] = {
+    "G": (("Fraunhofer G",), "G"),
+    "Hβ": (("Fraunhofer F (H-beta)",), "H β"),
     "Mg b": (("Fraunhofer b1", "Fraunhofer b2", "Fraunhofer b4"), None),
-    "D": (("Fraunhofer D1", "Fraunhofer D2"), 1072),
-    "Hα": (("Fraunhofer C (H-alpha)",), 1354),
+    "D": (("Fraunhofer D1", "Fraunhofer D2"), "D1+D2"),
+    "Hα": (("Fraunhofer C (H-alpha)",), "H α"),
     "O₂ B": (("Fraunhofer B (O2)",), None),
 }
+
+
+def authors_markers(rmd: Path) -> dict[str, int]:
+    """The columns (1-based) the author marked, by his names, read from his R Markdown."""
+    text = rmd.read_text(encoding="utf-8")
+    columns = re.search(r"x\s*=\s*c\(([\d,\s]+)\)", text)
+    names = re.search(r"name\s*=\s*c\(([^)]*)\)", text)
+    if not columns or not names:
+        raise SystemExit(f"{rmd}: no calibration table found")
+    labels = [name.strip().strip('"') for name in names.group(1).split(",")]
+    return dict(zip(labels, (int(v) for v in columns.group(1).split(",")), strict=True))
 
 
 def d7000_pair(folder: Path) -> list[LampObservation]:
@@ -88,14 +100,18 @@ def canon_10d_sun(folder: Path) -> LampObservation:
     )
 
 
-def dip_columns(observation: LampObservation, window: int) -> dict[str, tuple[float, float]]:
+def dip_columns(
+    observation: LampObservation, window: int, markers: dict[str, int]
+) -> dict[str, tuple[float, float]]:
     """Each feature's column (0-based) found in the profile, and its reference wavelength (nm)."""
     total = np.sum(observation.profile, axis=1)
     envelope = total.copy()
     for _ in range(6):
         envelope = ndimage.gaussian_filter1d(np.maximum(envelope, total), 30.0)
     depth = 1.0 - total / envelope
-    marked = {name: col - 1 for name, (_, col) in FEATURES_10D.items() if col is not None}
+    marked = {
+        name: markers[label] - 1 for name, (_, label) in FEATURES_10D.items() if label is not None
+    }
     reference = {}
     solar = {line.label: line for line in line_list("solar")}
     for name, (labels, _) in FEATURES_10D.items():
@@ -152,13 +168,25 @@ def run_10d(folder: Path, prior: CameraPrior, window: int) -> None:
     solution = locate_mapping([sun], prior, DEFAULT_GRID)
     print(f"Canon 10D sunlight: {solution.mapping.method}; {solution.details.get('line_source')}")
     residuals = []
-    for name, (column, reference) in dip_columns(sun, window).items():
+    markers = authors_markers(folder / "Spectral Response Canon EOS 10D.Rmd")
+    for name, (column, reference) in dip_columns(sun, window, markers).items():
         fitted = float(solution.exact.wavelength_nm(np.array([column]))[0])
         residuals.append(fitted - reference)
         print(
             f"  {name:5s} {reference:8.2f} nm at column {column:7.1f}: mapping {fitted:8.2f}, "
             f"residual {fitted - reference:+.3f} nm"
         )
+    found = dip_columns(sun, window, markers)
+    at_marks = [
+        float(solution.exact.wavelength_nm(sun.pixel[:1] + markers[label] - 1)[0]) - found[name][1]
+        for name, (_, label) in FEATURES_10D.items()
+        if label is not None
+    ]
+    print(
+        "  at the author's own columns (whole pixels): residuals "
+        + ", ".join(f"{r:+.3f}" for r in at_marks)
+        + f" nm, RMS {float(np.sqrt(np.mean(np.square(at_marks)))):.3f} nm"
+    )
     rms = float(np.sqrt(np.mean(np.square(residuals))))
     print(
         f"  RMS over {len(residuals)} features {rms:.3f} nm; stated σ "
