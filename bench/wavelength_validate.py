@@ -116,8 +116,13 @@ def led_row(
 ) -> dict[str, Any]:
     grid = task.settings.grid
     led = lamps[LED]
+    if grooves_per_mm is not None:
+        # Where the rig's configuration puts it: the capture's optics record.
+        given = led.metadata.get("optics")
+        optics = {**(given if isinstance(given, dict) else {}), "grooves_per_mm": grooves_per_mm}
+        led = replace(led, metadata={**dict(led.metadata), "optics": optics})
     started = time.process_time()
-    solution = locate_mapping([led], task.basis.prior(), grid, grooves_per_mm=grooves_per_mm)
+    solution = locate_mapping([led], task.basis.prior(), grid)
     cpu_s = time.process_time() - started
     scores = mapping_errors(
         solution.mapping, led.pixel, scene.true_wavelength_nm, (grid.start_nm, grid.stop_nm)

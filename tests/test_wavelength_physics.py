@@ -215,6 +215,14 @@ def test_optics_come_from_exif_and_the_spot_geometry():
     assert prior.fixed() == {"zero_order_px": 0.0}
     assert prior.values["log_spacing"][0] == pytest.approx(math.log(1e6 / 600.0))
     assert prior.axis_offset_px == pytest.approx(-1200.0)
+    # The rig's configured line density travels in the same record.
+    configured = optics_from_observation(
+        _spot_observation({"optics": {"focal_length_mm": 35.0, "grooves_per_mm": 500.0}})
+    )
+    assert configured.grooves_per_mm == 500.0
+    prior, why = rig_prior(configured)
+    assert prior is not None and "500 lines/mm" in why
+    assert prior.values["log_spacing"][0] == pytest.approx(math.log(1e6 / 500.0))
 
 
 def test_a_stored_geometry_is_reused_whole_only_in_the_same_setup():

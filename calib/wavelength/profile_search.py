@@ -43,8 +43,8 @@ from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.least_squares import Solution, levenberg_marquardt
-from calib.wavelength.rig_prior import default_prior
 from calib.wavelength.response_model import ResponseModel, fine_step_for
+from calib.wavelength.rig_prior import default_prior
 from calib.wavelength.search import (
     COARSE_NODES_NM,
     FINE_NODES_NM,

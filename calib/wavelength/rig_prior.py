@@ -91,6 +91,9 @@ class RigOptics:
         (what a stored geometry is verified against), or ``None``.
     side
         Which first order the profile is (+1, −1).
+    grooves_per_mm
+        The sheet's nominal line density as the rig's configuration states it (``optics`` key
+        ``grooves_per_mm`` of the observation's metadata), or ``None``.
     """
 
     camera: str | None = None
@@ -101,6 +104,7 @@ class RigOptics:
     order_angle_deg: float | None = None
     band_distance_px: float | None = None
     side: int = 1
+    grooves_per_mm: float | None = None
 
     @property
     def focal_length_px(self) -> float | None:
@@ -119,6 +123,7 @@ class RigOptics:
             "order_angle_deg": self.order_angle_deg,
             "band_distance_px": self.band_distance_px,
             "side": self.side,
+            "grooves_per_mm": self.grooves_per_mm,
         }
 
 
@@ -148,6 +153,7 @@ def optics_from_observation(observation: LampObservation) -> RigOptics:
         order_angle_deg=angle,
         band_distance_px=distance,
         side=side,
+        grooves_per_mm=_positive(optics.get("grooves_per_mm")),
     )
 
 
@@ -223,6 +229,7 @@ class RigGeometry:
                     order_angle_deg=_finite(optics.get("order_angle_deg")),
                     band_distance_px=_positive(optics.get("band_distance_px")),
                     side=int(optics.get("side", 1)),
+                    grooves_per_mm=_positive(optics.get("grooves_per_mm")),
                 ),
                 grooves_per_mm=_positive(data.get("grooves_per_mm")),
             )
@@ -277,6 +284,8 @@ def rig_prior(
     order (else its position is free). ``None`` when nothing about the grating is known (the
     search then uses the family's defaults).
     """
+    if grooves_per_mm is None:
+        grooves_per_mm = optics.grooves_per_mm
     spacing: tuple[float, float] | None = None
     focal: tuple[float, float] | None = None
     incidence = INCIDENCE_PRIOR_DEG
@@ -336,7 +345,9 @@ def rig_geometry(
         return None
     grating = TiltedGrating.from_dict(record)
     optics = optics_from_observation(observation)
-    return RigGeometry(grating, optics, grooves_per_mm)
+    return RigGeometry(
+        grating, optics, grooves_per_mm if grooves_per_mm is not None else optics.grooves_per_mm
+    )
 
 
 def default_prior(from_spot: bool) -> GratingPrior:
