@@ -253,6 +253,13 @@ def test_a_stored_geometry_is_reused_whole_only_in_the_same_setup():
     assert prior.values["log_focal"][1] == 0.05
     # A turned camera: the order's angle moved.
     assert not same_setup(stored_optics, replace(same, order_angle_deg=4.0))[0]
+    # Another body behind the same lens and grating: the angles hold, the focal length in pixels
+    # follows the pitch, both a little looser than for the same setup.
+    body = replace(same, camera="NIKON D5300", pixel_pitch_um=3.92)
+    prior, why = rig_prior(body, stored=stored)
+    assert prior is not None and "the same lens" in why
+    assert prior.values["log_focal"][0] == pytest.approx(math.log(7300.0 * 4.79 / 3.92))
+    assert prior.values["incidence_deg"] == (pytest.approx(3.5), 2.0)
 
 
 def test_grating_file_carries_the_rig_and_reads_version_one(tmp_path):

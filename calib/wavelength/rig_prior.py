@@ -44,6 +44,11 @@ INCIDENCE_PRIOR_DEG = (0.0, 5.0)
 #: the same parts moves.
 REUSED_INCIDENCE_SIGMA_DEG = 1.0
 REUSED_FOCAL_SIGMA = 0.01
+#: The same, when another body sits behind the same lens and grating (the focal length in pixels
+#: scaled by the pitches): the body's flange and focus move the image distance by a percent or
+#: two, remounting it tilts the assembly by a degree or two.
+LENS_REUSED_FOCAL_SIGMA = 0.02
+LENS_REUSED_INCIDENCE_DEG = 2.0
 #: σ of the 0th order's distance from the lens axis, in focal lengths (the axis meets the sensor
 #: near its centre, give or take a crop).
 AXIS_OFFSET_SIGMA = 0.15
@@ -245,6 +250,21 @@ def _finite(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
+def same_lens(stored: RigOptics, new: RigOptics) -> float | None:
+    """The ratio of the stored pitch to the new one when both captures state the same focal length
+    (within EXIF's rounding) and both pitches, else ``None``: the same lens and grating, perhaps
+    another body."""
+    if (
+        stored.focal_length_mm is None
+        or new.focal_length_mm is None
+        or stored.pixel_pitch_um is None
+        or new.pixel_pitch_um is None
+        or abs(stored.focal_length_mm - new.focal_length_mm) > 0.5
+    ):
+        return None
+    return stored.pixel_pitch_um / new.pixel_pitch_um
+
+
 def same_setup(stored: RigOptics, new: RigOptics) -> tuple[bool, str]:
     """Whether a new capture is in the stored geometry: same body, same focal length, and its spot
     and band where the stored ones were (:data:`VERIFY_ANGLE_DEG`, :data:`VERIFY_DISTANCE`)."""
@@ -294,10 +314,20 @@ def rig_prior(
         spacing = (math.log(stored.grating.groove_spacing_nm), FITTED_GROOVES_SIGMA)
         reason.append("groove spacing from the grating file")
         whole, why = same_setup(stored.optics, optics)
+        lens = same_lens(stored.optics, optics)
         if whole:
             focal = (math.log(stored.grating.focal_length_px), REUSED_FOCAL_SIGMA)
             incidence = (stored.grating.incidence_deg * optics.side, REUSED_INCIDENCE_SIGMA_DEG)
             reason.append("focal length and incidence from the grating file (" + why + ")")
+        elif lens is not None:
+            # Another body behind the same lens and grating: the angles hold, the focal length
+            # in pixels scales with the pitch.
+            focal = (math.log(stored.grating.focal_length_px * lens), LENS_REUSED_FOCAL_SIGMA)
+            incidence = (stored.grating.incidence_deg * optics.side, LENS_REUSED_INCIDENCE_DEG)
+            reason.append(
+                "focal length (scaled by the pitch) and incidence from the grating file (the same "
+                f"lens; {why})"
+            )
         else:
             reason.append("geometry refitted: " + why)
     elif grooves_per_mm is not None:
