@@ -251,8 +251,18 @@ def main() -> None:
         action="store_true",
         help="led: the rig's configuration gives the line density (the true one within ±2 %%)",
     )
+    parser.add_argument(
+        "--no-lens-reuse",
+        action="store_true",
+        help="grating-file: reuse only the groove spacing for another body behind the same lens "
+        "(the rule before same_lens; an A/B switch for the validation split)",
+    )
     parser.add_argument("--csv", default=None)
     args = parser.parse_args()
+    if args.no_lens_reuse:
+        import calib.wavelength.rig_prior as rig_prior_module
+
+        rig_prior_module.same_lens = lambda stored, new: None
     splits, _notes = load_splits(args.data_dir)
     split = splits.validation if args.split == "validation" else splits.test
     settings = ProtocolSettings(seed=args.seed)
