@@ -155,7 +155,9 @@ def test_a_spot_clipped_in_long_frames_comes_from_the_short_ones(tmp_path: Path)
     assert observation.direct_rgb is not None
     ratio = observation.direct_rgb / clean_direct
     assert np.ptp(ratio) < 3e-3 * ratio.mean(), ratio
-    assert result.warnings == ()
+    # Nothing to warn about the clipped spot (an LED alone may leave the mapping's curvature
+    # open between basins: that, and only that, is said — decision 0025).
+    assert all("the mapping is ambiguous" in text for text in result.warnings), result.warnings
 
 
 def test_region_of_interest_merge_agrees_with_the_whole_frame(tmp_path: Path) -> None:
@@ -202,7 +204,18 @@ def test_rotated_and_mirrored_geometry(tmp_path: Path, angle_deg: float, pattern
         _inputs(capture), OfflineSettings(basis=capture.basis, use_region=True)
     )
     relative, mapping = capture.errors(result.result, result.observations[0].pixel)
-    assert relative < RE_TARGET and mapping < LED_MAPPING_RE_TARGET, (relative, mapping)
+    # An LED alone, with no focal length in the files: the curvature of the rainbow may be left
+    # open between basins (decision 0025). Then the result must say so and state a σ that covers
+    # the error to a factor of two — never a confident wrong mapping.
+    found = result.result.mapping
+    assert isinstance(found, QuadraticMapping)
+    if mapping >= LED_MAPPING_RE_TARGET:
+        assert found.details.get("ambiguous"), mapping
+        assert found.wavelength_rms_nm is not None
+        span = float(result.result.wavelength_nm[-1] - result.result.wavelength_nm[0])
+        assert 0.5 <= found.wavelength_rms_nm / (mapping * span) <= 2.0
+    else:
+        assert relative < RE_TARGET, relative
     detected = _profiles(result).geometry.primary.angle_deg
     assert abs((detected - angle_deg + 180) % 360 - 180) < 0.1
 

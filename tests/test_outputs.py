@@ -246,9 +246,16 @@ def test_report_overlays_the_truth_and_gives_the_colour_error(
     assert set(result["uses"]["aces_idt"]) == {"D55", "D65", "A"}
 
 
-def test_report_says_when_lines_and_warmup_are_not_available(outcome: OfflineOutcome) -> None:
+def test_report_lists_the_matched_lines_and_says_when_warmup_is_not_available(
+    outcome: OfflineOutcome,
+) -> None:
+    """The fluorescent lamp's Hg lines, fitted where the mapping puts them, are in the result and
+    the report (line, wavelength, pixel, fitted wavelength, residual); the warm-up is not."""
     page = outcome.files["report"].read_text()
-    assert "Matched lines" in page and "Not available" in page
+    assert "Matched lines" in page and "Hg 546.1" in page and "residual_nm" in page
+    result = json.loads(outcome.files["result"].read_text())
+    rows = result["mapping"]["details"]["matched_lines"]
+    assert {"line", "wavelength_nm", "pixel", "fitted_nm", "residual_nm", "weight"} <= set(rows[0])
     assert "Lamp warm-up: not recorded" in page
 
 

@@ -38,7 +38,10 @@ through a diffraction grating, and each lamp's measured spectrum.
 
 Per lamp (after --lamp NAME; repeat the group for every lamp):
   --images PATH ...      the lamp's RAW bracket (any format LibRaw reads: DNG, CR2, CR3, NEF, ARW …)
-  --spectrum CSV         the lamp's spectrum, wavelength_nm,value (header optional, any spacing)
+  --spectrum CSV|NAME    the lamp's spectrum, wavelength_nm,value (header optional, any spacing),
+                         or a named one: a colour-science illuminant/light source (FL11, LED-B3),
+                         builtin:NAME[:FWHM_NM] (a line list: builtin:cfl-triphosphor, builtin:hg,
+                         builtin:ne, builtin:solar …) for a lamp whose spectrum was not measured
   --kind KIND            led, fluorescent, halogen, narrowband or other (default: other);
                          a fluorescent lamp's lines give the pixel→wavelength mapping
   --dark PATH ...        dark frames at the bracket's exposure times (subtracted per exposure)

@@ -5,11 +5,11 @@ camera seen through the same grating, but with no direct measurement (a 1-D prof
 spectroscope, a line-scan tool), needs η given. ``calib estimate`` writes ``grating.json`` next to its
 results, and reads one with ``--grating FILE``.
 
-Format (``format_version`` 1)::
+Format (``format_version`` 2; version 1 files — without ``geometry.rig`` — are read as before)::
 
     {
       "schema": "spectral-rig/grating-efficiency",
-      "format_version": 1,
+      "format_version": 2,
       "wavelength_nm": [400.0, 410.0, …],          strictly increasing, nm
       "efficiency": [0.81, 0.84, …],               relative (maximum 1), finite, ≥ 0
       "efficiency_sigma": [0.01, …] | null,        standard deviation on the same scale
@@ -17,7 +17,14 @@ Format (``format_version`` 1)::
         "mapping": {…} | null,                     pixel → wavelength (calib.core.mapping to_dict)
         "diffraction": {…} | null,                 spot/band geometry (calib.image.profiles to_dict)
         "order": 1,                                the diffraction order
-        "description": "…"                         free text (incidence angle, sheet, …)
+        "description": "…",                        free text (incidence angle, sheet, …)
+        "rig": {                                   the rig it was measured in (version 2, optional)
+          "grating": {…},                          the fitted grating through the lens
+                                                   (calib.core.mapping.TiltedGrating to_dict)
+          "optics": {"camera", "focal_length_mm", "pixel_pitch_um", "axis_offset_px",
+                     "order_angle_deg", "band_distance_px", "side", …},
+          "grooves_per_mm": 600 | null             the sheet's nominal density, when configured
+        } | null
       },
       "provenance": {"created": "…", "software": "…", "method": "…", "source": "…", …}
     }
@@ -44,7 +51,7 @@ from calib.core.errors import InputError
 from calib.core.spectra import Spectrum, WavelengthGrid
 
 GRATING_SCHEMA = "spectral-rig/grating-efficiency"
-GRATING_FORMAT_VERSION = 1
+GRATING_FORMAT_VERSION = 2
 
 __all__ = [
     "GRATING_FORMAT_VERSION",
@@ -141,6 +148,12 @@ class GratingEfficiency:
             object.__setattr__(self, "efficiency_sigma", sigma)
 
     @property
+    def rig(self) -> Mapping[str, Any] | None:
+        """The rig it was measured in (``geometry.rig``, format version 2), or ``None``."""
+        rig = self.geometry.get("rig")
+        return rig if isinstance(rig, Mapping) else None
+
+    @property
     def range_nm(self) -> tuple[float, float]:
         return float(self.wavelength_nm[0]), float(self.wavelength_nm[-1])
 
@@ -226,6 +239,9 @@ class GratingEfficiency:
                 raise GratingFileError(
                     f"must be an object, got {type(value).__name__}", source=f"{source}: {optional}"
                 )
+        rig = (data.get("geometry") or {}).get("rig")
+        if rig is not None:
+            _check_rig(rig, f"{source}: geometry.rig")
         return cls(
             wavelength_nm=data["wavelength_nm"],
             efficiency=data["efficiency"],
@@ -234,6 +250,23 @@ class GratingEfficiency:
             provenance=dict(data.get("provenance") or {}),
             source=source,
         )
+
+
+def _check_rig(rig: Any, where: str) -> None:
+    """``geometry.rig`` must hold a grating record the mapping types read."""
+    from calib.core.mapping import TiltedGrating
+
+    if not isinstance(rig, Mapping):
+        raise GratingFileError(f"must be an object, got {type(rig).__name__}", source=where)
+    if "grating" not in rig:
+        raise GratingFileError("missing", source=f"{where}.grating")
+    try:
+        TiltedGrating.from_dict(rig["grating"])
+    except InputError as exc:
+        raise GratingFileError(str(exc), source=f"{where}.grating") from None
+    optics = rig.get("optics")
+    if optics is not None and not isinstance(optics, Mapping):
+        raise GratingFileError("must be an object", source=f"{where}.optics")
 
 
 def read_grating_file(path: str | os.PathLike[str]) -> GratingEfficiency:

@@ -1,8 +1,12 @@
-"""Lamp spectra named on a command line: colour-science names, Gaussian LEDs, CSV files.
+"""Lamp spectra named on a command line: colour-science names, Gaussian LEDs, line lists, CSV files.
 
 ``"LED-B3"`` or ``"FL2"`` — a colour-science illuminant or light source; ``"gauss:630:25"`` — a
-narrow-band LED modelled as a Gaussian with its centre and full width at half maximum in nm; anything
-else is read as a spectrum CSV (:func:`calib.core.spectra.read_spectrum_csv`).
+narrow-band LED modelled as a Gaussian with its centre and full width at half maximum in nm;
+``"builtin:cfl-triphosphor"`` (or ``builtin:NAME:FWHM_NM``) — a built-in line list rendered as a
+spectrum (:mod:`calib.core.line_lists`: Hg, Ne, Ar, a tri-phosphor CFL, sunlight's absorption
+features …), for a lamp whose spectrum was not measured; a path ending in ``.csv``/``.txt`` or naming
+a file is read as a spectrum CSV (:func:`calib.core.spectra.read_spectrum_csv`). This is the one
+place lamp specs are resolved: ``calib estimate --spectrum`` and ``calib plan-lamps --lamp`` both use it.
 """
 
 from __future__ import annotations
@@ -57,14 +61,20 @@ def colour_lamp(name: str) -> Spectrum:
 
 
 def lamp_from_spec(spec: str) -> Spectrum:
-    """A lamp from ``gauss:CENTRE:FWHM``, a CSV path, or a colour-science name (in that order).
+    """A lamp from ``gauss:CENTRE:FWHM``, ``builtin:NAME[:FWHM]``, a CSV path, or a colour-science
+    name (in that order).
 
     Raises
     ------
     InputError
-        A malformed ``gauss:`` spec, an unreadable CSV, or an unknown name (the spec is named).
+        A malformed ``gauss:``/``builtin:`` spec, an unreadable CSV, or an unknown name (the spec
+        is named, with what is accepted).
     """
+    from calib.core.line_lists import builtin_lamp, is_builtin
+
     text = spec.strip()
+    if is_builtin(text):
+        return builtin_lamp(text)
     if text.lower().startswith("gauss:"):
         parts = text.split(":")
         try:
@@ -75,6 +85,19 @@ def lamp_from_spec(spec: str) -> Spectrum:
             ) from None
         return gaussian_lamp(centre, width, name=text)
     path = Path(text)
-    if path.suffix.lower() in (".csv", ".txt") or path.is_file():
+    if is_spectrum_file(path):
         return read_spectrum_csv(path)
-    return colour_lamp(text)
+    try:
+        return colour_lamp(text)
+    except InputError:
+        raise InputError(
+            f"{text!r} is not a spectrum file, a colour-science illuminant or light source "
+            "(e.g. FL11, LED-B3, D65), builtin:NAME (a line list, e.g. builtin:cfl-triphosphor) "
+            "or gauss:CENTRE_NM:FWHM_NM",
+            source="spectrum",
+        ) from None
+
+
+def is_spectrum_file(path: Path) -> bool:
+    """Whether a spec names a spectrum file (by its suffix, or because the file exists)."""
+    return path.suffix.lower() in (".csv", ".txt") or path.is_file()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -41,6 +41,11 @@ class QuadraticMapping:
         Estimated RMS wavelength error over ``pixel_range`` (from the covariance), or ``None``.
     details
         Diagnostics of the estimation (JSON-safe).
+    model
+        The physical mapping this quadratic reports, when it was fitted as one
+        (:class:`TiltedGrating`): it is what :meth:`wavelength_nm`, :meth:`dispersion_nm_per_px`
+        and :meth:`pixel_at` evaluate — the quadratic is then the report format, ``(a, b, c)``
+        its least-squares summary over ``pixel_range``.
     """
 
     a: float
@@ -51,6 +56,7 @@ class QuadraticMapping:
     covariance: tuple[tuple[float, float, float], ...] | None = None
     wavelength_rms_nm: float | None = None
     details: Mapping[str, Any] = field(default_factory=dict)
+    model: TiltedGrating | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(v) for v in (self.a, self.b, self.c)):
@@ -63,18 +69,24 @@ class QuadraticMapping:
         return (self.a, self.b, self.c)
 
     def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
-        """``g(p)`` in nm."""
+        """``g(p)`` in nm (the physical :attr:`model`'s when there is one)."""
+        if self.model is not None:
+            return self.model.wavelength_nm(pixel)
         p = np.asarray(pixel, dtype=np.float64)
         return np.asarray((self.a * p + self.b) * p + self.c, dtype=np.float64)
 
     def dispersion_nm_per_px(self, pixel: ArrayLike) -> FloatArray:
         """``g'(p)``."""
+        if self.model is not None:
+            return self.model.dispersion_at(pixel)
         return np.asarray(
             2 * self.a * np.asarray(pixel, dtype=np.float64) + self.b, dtype=np.float64
         )
 
     def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
         """Inverse ``g⁻¹(λ)``: the root on the branch where ``g`` is monotonic over ``pixel_range``."""
+        if self.model is not None:
+            return self.model.pixel_at(wavelength_nm)
         wavelength = np.asarray(wavelength_nm, dtype=np.float64)
         if abs(self.a) < 1e-15 * max(abs(self.b), 1e-300):
             return np.asarray((wavelength - self.c) / self.b, dtype=np.float64)
@@ -101,6 +113,7 @@ class QuadraticMapping:
             "covariance": [list(row) for row in self.covariance] if self.covariance else None,
             "wavelength_rms_nm": self.wavelength_rms_nm,
             "details": dict(self.details),
+            **({} if self.model is None else {"model": self.model.to_dict()}),
         }
 
     @classmethod
@@ -108,6 +121,7 @@ class QuadraticMapping:
         try:
             covariance = data.get("covariance")
             pixel_range = data.get("pixel_range")
+            model = data.get("model")
             return cls(
                 a=float(data["a"]),
                 b=float(data["b"]),
@@ -121,6 +135,7 @@ class QuadraticMapping:
                 if data.get("wavelength_rms_nm") is None
                 else float(data["wavelength_rms_nm"]),
                 details=dict(data.get("details") or {}),
+                model=None if model is None else TiltedGrating.from_dict(model),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError(f"not a quadratic mapping record ({exc})", source="mapping") from None
@@ -296,28 +311,44 @@ class GratingGeometry:
 
 @dataclass(frozen=True)
 class TiltedGrating:
-    """The first order of a transmission grating, pixels measured from the 0th-order spot.
+    """The first order of a transmission grating in front of a lens: the grating equation seen
+    through a pinhole camera, with the 0th order as the origin.
 
-    ``λ(p) = d [sin(θ + atan(p / F)) − sin θ]`` with ``d`` the groove spacing, ``F`` the focal length
-    in pixels and ``θ`` the angle of incidence on the grating (the 0th order continues at ``θ``, the
-    first order leaves at ``θ'`` with ``sin θ' − sin θ = λ/d``). ``λ(0) = 0`` exactly: the 0th order
-    is where the undiffracted light lands — the constraint an arbitrary quadratic lacks.
-    :class:`GratingGeometry` is the special case ``θ = 0`` with ``d`` and ``F`` from the rig's
-    parts; here they are fitted.
+    ``λ(p) = d [sin(θ + atan((u + u₀)/F) − atan(u₀/F)) − sin θ]`` with ``u = s·(p − p₀)`` the
+    distance from the 0th order along the order, ``d`` the groove spacing, ``F`` the focal length
+    in pixels, ``θ`` the angle of incidence on the grating (the 0th order continues at ``θ``, the
+    first order leaves at ``θ'`` with ``sin θ' − sin θ = λ/d``) and ``u₀`` the 0th order's distance
+    from the principal point along the order (the camera's angle of a pixel is ``atan(x/F)``
+    from its axis). ``λ(p₀) = 0`` exactly: the 0th order is where the undiffracted light lands —
+    the constraint an arbitrary quadratic lacks. Profiles measured from the direct spot
+    (:mod:`calib.image.profiles`) have ``p₀ = 0`` and ``s = +1``; a profile whose wavelength falls
+    with the pixel (a mirrored export) has ``s = −1``. The other first order (``−1``, measured away
+    from the spot on the other side) is the same grating with ``θ → −θ`` and ``u₀ → −u₀``
+    (:meth:`other_order`). :class:`GratingGeometry` is the special case ``θ = 0``, ``u₀ = 0``
+    with ``d`` and ``F`` from the rig's parts.
 
     Attributes
     ----------
     dispersion_nm_per_px
-        ``d / F``: wavelength per pixel near the spot at normal incidence.
+        ``d / F``: wavelength per pixel near the 0th order at normal incidence.
     focal_length_px
         ``F``.
     incidence_deg
         ``θ``.
+    zero_order_px
+        ``p₀``: the profile coordinate of the 0th order (0 for profiles measured from the spot).
+    orientation
+        ``s``: ``+1`` when the wavelength rises with the profile coordinate, ``−1`` when it falls.
+    axis_offset_px
+        ``u₀`` (0 when the 0th order is on the lens axis or its position is unknown).
     """
 
     dispersion_nm_per_px: float
     focal_length_px: float
     incidence_deg: float = 0.0
+    zero_order_px: float = 0.0
+    orientation: int = 1
+    axis_offset_px: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.dispersion_nm_per_px > 0 and self.focal_length_px > 0):
@@ -326,13 +357,91 @@ class TiltedGrating:
                 f"{self.focal_length_px}",
                 source="mapping",
             )
+        if self.orientation not in (1, -1):
+            raise InputError(
+                f"orientation must be +1 or -1, got {self.orientation}", source="mapping"
+            )
+        values = (self.incidence_deg, self.zero_order_px, self.axis_offset_px)
+        if not all(math.isfinite(v) for v in values):
+            raise InputError(f"grating parameters must be finite, got {values}", source="mapping")
+
+    @property
+    def groove_spacing_nm(self) -> float:
+        """``d`` in nm (``10⁶ / grooves per mm``)."""
+        return self.dispersion_nm_per_px * self.focal_length_px
+
+    def _angle(self, pixel: ArrayLike) -> FloatArray:
+        """``atan((u + u₀)/F) − atan(u₀/F)``: the first order's deviation from the 0th order."""
+        distance = self.orientation * (np.asarray(pixel, dtype=np.float64) - self.zero_order_px)
+        focal = self.focal_length_px
+        return np.asarray(
+            np.arctan((distance + self.axis_offset_px) / focal)
+            - math.atan(self.axis_offset_px / focal),
+            dtype=np.float64,
+        )
 
     def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
         """``λ(p)`` in nm."""
         theta = math.radians(self.incidence_deg)
-        spacing = self.dispersion_nm_per_px * self.focal_length_px
-        angle = np.arctan(np.asarray(pixel, dtype=np.float64) / self.focal_length_px)
-        return np.asarray(spacing * (np.sin(theta + angle) - math.sin(theta)), dtype=np.float64)
+        angle = self._angle(pixel)
+        return np.asarray(
+            self.groove_spacing_nm * (np.sin(theta + angle) - math.sin(theta)), dtype=np.float64
+        )
+
+    def dispersion_at(self, pixel: ArrayLike) -> FloatArray:
+        """``dλ/dp`` in nm per pixel (negative where the wavelength falls with the pixel)."""
+        theta = math.radians(self.incidence_deg)
+        distance = self.orientation * (np.asarray(pixel, dtype=np.float64) - self.zero_order_px)
+        focal = self.focal_length_px
+        along = distance + self.axis_offset_px
+        return np.asarray(
+            self.orientation
+            * self.groove_spacing_nm
+            * np.cos(theta + self._angle(pixel))
+            * focal
+            / (focal**2 + along**2),
+            dtype=np.float64,
+        )
+
+    def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
+        """Inverse of :meth:`wavelength_nm` (the first order's branch)."""
+        theta = math.radians(self.incidence_deg)
+        sine = np.asarray(wavelength_nm, dtype=np.float64) / self.groove_spacing_nm + math.sin(
+            theta
+        )
+        if np.any(np.abs(sine) >= 1):
+            raise InputError(
+                "a wavelength has no first order at this groove spacing and incidence",
+                source="grating",
+            )
+        focal = self.focal_length_px
+        angle = np.arcsin(sine) - theta + math.atan(self.axis_offset_px / focal)
+        distance = focal * np.tan(angle) - self.axis_offset_px
+        return np.asarray(self.zero_order_px + self.orientation * distance, dtype=np.float64)
+
+    def other_order(self) -> TiltedGrating:
+        """The ``−1`` order measured away from the 0th order on the other side (``θ, u₀ → −θ, −u₀``)."""
+        return replace(self, incidence_deg=-self.incidence_deg, axis_offset_px=-self.axis_offset_px)
+
+    def quadratic(self, pixel_range: tuple[float, float]) -> QuadraticMapping:
+        """The least-squares quadratic over ``pixel_range`` (the report format), with its largest
+        departure from the grating in ``details["quadratic_max_error_nm"]``."""
+        pixels = np.linspace(pixel_range[0], pixel_range[1], 256)
+        exact = self.wavelength_nm(pixels)
+        fitted = QuadraticMapping.fit(pixels, exact, method="grating")
+        return QuadraticMapping(
+            fitted.a,
+            fitted.b,
+            fitted.c,
+            method="grating",
+            pixel_range=(float(pixel_range[0]), float(pixel_range[1])),
+            details={
+                "grating": self.to_dict(),
+                "quadratic_max_error_nm": float(
+                    np.max(np.abs(fitted.wavelength_nm(pixels) - exact))
+                ),
+            },
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -340,6 +449,9 @@ class TiltedGrating:
             "dispersion_nm_per_px": self.dispersion_nm_per_px,
             "focal_length_px": self.focal_length_px,
             "incidence_deg": self.incidence_deg,
+            "zero_order_px": self.zero_order_px,
+            "orientation": self.orientation,
+            "axis_offset_px": self.axis_offset_px,
         }
 
     @classmethod
@@ -349,6 +461,9 @@ class TiltedGrating:
                 float(data["dispersion_nm_per_px"]),
                 float(data["focal_length_px"]),
                 float(data.get("incidence_deg", 0.0)),
+                float(data.get("zero_order_px", 0.0)),
+                int(data.get("orientation", 1)),
+                float(data.get("axis_offset_px", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"not a tilted-grating record ({exc})", source="mapping") from None

@@ -33,6 +33,11 @@ _EXIF_ISO_KEYS = (
     "Image ISOSpeedRatings",
 )
 _EXIF_TIME_KEYS = ("EXIF DateTimeOriginal", "Image DateTimeOriginal", "Image DateTime")
+_EXIF_FOCAL_KEYS = ("EXIF FocalLength", "Image FocalLength")
+_EXIF_PLANE_RESOLUTION_KEYS = ("EXIF FocalPlaneXResolution", "Image FocalPlaneXResolution")
+_EXIF_PLANE_UNIT_KEYS = ("EXIF FocalPlaneResolutionUnit", "Image FocalPlaneResolutionUnit")
+#: EXIF FocalPlaneResolutionUnit → micrometres per unit (2 inch, 3 cm, 4 mm, 5 µm).
+_PLANE_UNIT_UM = {1: 25400.0, 2: 25400.0, 3: 10000.0, 4: 1000.0, 5: 1.0}
 _EXIF_UNIQUE_MODEL_KEYS = ("Image UniqueCameraModel", "Image Tag 0xC614")
 
 #: Canon CR3: the metadata boxes live in this UUID box inside ``moov``.
@@ -60,6 +65,11 @@ class RawMetadata:
         Camera maker and model (IFD0 tags; DNG UniqueCameraModel when Make/Model are absent).
     capture_time
         DateTimeOriginal (or DateTime), or ``None``.
+    focal_length_mm
+        The lens' focal length (EXIF FocalLength), or ``None`` (a manual lens, a scan).
+    pixel_pitch_um
+        The sensor's photosite pitch from EXIF FocalPlaneXResolution and its unit, or ``None``
+        (many bodies do not write it).
     """
 
     path: Path
@@ -70,6 +80,8 @@ class RawMetadata:
     make: str | None
     model: str | None
     capture_time: datetime | None
+    focal_length_mm: float | None = None
+    pixel_pitch_um: float | None = None
 
     @property
     def camera(self) -> str:
@@ -169,7 +181,21 @@ def build_metadata(
         make=make,
         model=model,
         capture_time=capture_time,
+        focal_length_mm=_exif_number(exif, _EXIF_FOCAL_KEYS),
+        pixel_pitch_um=_plane_pitch_um(exif),
     )
+
+
+def _plane_pitch_um(tags: Mapping[str, Any]) -> float | None:
+    """Photosite pitch from FocalPlaneXResolution (pixels per unit) and its unit, or ``None``."""
+    resolution = _exif_number(tags, _EXIF_PLANE_RESOLUTION_KEYS)
+    unit = _exif_number(tags, _EXIF_PLANE_UNIT_KEYS) or 2.0  # the tag's default is inches
+    per_unit = _PLANE_UNIT_UM.get(int(unit))
+    if resolution is None or per_unit is None:
+        return None
+    pitch = per_unit / resolution
+    # A pitch outside 0.5–30 µm is a tag describing something else (a thumbnail's plane).
+    return pitch if 0.5 <= pitch <= 30.0 else None
 
 
 def exif_exposure_s(tags: Mapping[str, Any]) -> float | None:

@@ -15,7 +15,8 @@ flat efficiency is assumed: the sensitivity then carries the grating's own spect
 an error, which the caller must say (the offline pipeline warns).
 
 The mapping is given (e.g. a profile already in wavelength) or found by the lamps jointly
-(:func:`calib.methods.multilamp.find_shared_mapping`).
+(:func:`calib.methods.multilamp.find_shared_mapping`), starting from the rig geometry the grating
+file stored (its groove spacing always; for the same camera and lens, the whole geometry).
 
 This is the one solver for "estimate through a known grating": it replaced a basis-constrained
 least-squares solve that was less accurate and whose σ covered the truth far less often than it
@@ -50,6 +51,7 @@ from calib.methods.multilamp import (
 from calib.methods.prior_solve import fit_response
 from calib.model.bases import CameraBasis
 from calib.model.resolution import camera_kernel
+from calib.wavelength import RigGeometry
 
 #: Registry name (and the result's ``method``).
 KNOWN_GRATING_METHOD = "known-grating"
@@ -157,6 +159,7 @@ def estimate_known_grating(
         options.refine_given_mapping,
         kernel,
         need_direct=False,
+        rig=None if grating is None or grating.rig is None else RigGeometry.from_dict(grating.rig),
     )
     inverse = 1.0 / eta
     inverse_sigma = np.zeros_like(inverse) if eta_sigma is None else eta_sigma / eta**2

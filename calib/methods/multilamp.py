@@ -62,7 +62,7 @@ from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_dis
 from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
-from calib.wavelength import find_mapping, lamps_named
+from calib.wavelength import RigGeometry, find_mapping, lamps_named
 
 Uncertainty = Literal["posterior", "noise", "none"]
 UNCERTAINTIES: tuple[Uncertainty, ...] = ("posterior", "noise", "none")
@@ -777,10 +777,11 @@ def find_shared_mapping(
     mapping_lamp: str | None,
     refine_given_mapping: bool,
     kernel: FloatArray | None,
+    rig: RigGeometry | None = None,
 ) -> QuadraticMapping | GratingGeometry:
     """The given mapping, or one found jointly with :func:`mapping_lamps` (one geometry: one mapping)
     or with the lamp named ``mapping_lamp``; a given mapping seeds the search when
-    ``refine_given_mapping``."""
+    ``refine_given_mapping``; ``rig``: a grating file's stored geometry (its physics)."""
     if mapping is not None and not refine_given_mapping:
         return mapping
     lamps = (
@@ -788,7 +789,7 @@ def find_shared_mapping(
         if mapping_lamp is None
         else lamps_named(observations, mapping_lamp)
     )
-    return find_mapping(lamps, camera=prior, grid=grid, start=mapping, kernel=kernel)
+    return find_mapping(lamps, camera=prior, grid=grid, start=mapping, kernel=kernel, rig=rig)
 
 
 @dataclass(frozen=True, eq=False)
@@ -812,12 +813,13 @@ def lamps_with_mapping(
     kernel: FloatArray | None,
     *,
     need_direct: bool,
+    rig: RigGeometry | None = None,
 ) -> tuple[QuadraticMapping | GratingGeometry, list[LampSystem], float]:
     """The mapping (:func:`find_shared_mapping`), the lamps prepared on it (those with a direct
     measurement when ``need_direct``) and the time the mapping took."""
     started = time.perf_counter()
     used_mapping = find_shared_mapping(
-        observations, prior, grid, mapping, mapping_lamp, refine_given_mapping, kernel
+        observations, prior, grid, mapping, mapping_lamp, refine_given_mapping, kernel, rig
     )
     mapping_s = time.perf_counter() - started
     chosen = [obs for obs in observations if obs.direct_rgb is not None or not need_direct]

@@ -270,13 +270,17 @@ def _camera_record(profiles: BracketProfiles) -> dict[str, Any]:
     image = profiles.extractions[0].merged.image
     first = image.frames[0].path if image.frames else None
     make = model = None
+    focal_length_mm = pixel_pitch_um = None
     if first is not None:
         metadata = read_raw_metadata(first, exposure_s=image.frames[0].exposure_s)
         make, model = metadata.make, metadata.model
+        focal_length_mm, pixel_pitch_um = metadata.focal_length_mm, metadata.pixel_pitch_um
     return {
         "camera": image.camera,
         "make": make,
         "model": model,
+        "focal_length_mm": focal_length_mm,
+        "pixel_pitch_um": pixel_pitch_um,
         "cfa_pattern": image.cfa_pattern,
         "iso": image.iso,
         "f_number": image.f_number,
@@ -376,6 +380,14 @@ def estimate_offline(
                 on_profiles(profiles)
             notes.extend(profiles.notes)
             notes.append(f"geometry detected on {profiles.geometry_lamp}")
+            camera = _camera_record(profiles)
+            # What the RAW files say of the optics: the mapping's physics starts from it.
+            optics = {
+                "camera": " ".join(part for part in (camera["make"], camera["model"]) if part)
+                or None,
+                "focal_length_mm": camera["focal_length_mm"],
+                "pixel_pitch_um": camera["pixel_pitch_um"],
+            }
             for item in profiles.extractions:
                 lamp = item.merged.lamp
                 extraction = item.extraction
@@ -387,6 +399,7 @@ def estimate_offline(
                         metadata={
                             "geometry": profiles.geometry.to_dict(),
                             "geometry_lamp": profiles.geometry_lamp,
+                            "optics": optics,
                         },
                     ),
                     spectrum_bandwidth_nm=lamp.spectrum_bandwidth_nm,
@@ -398,7 +411,6 @@ def estimate_offline(
                         "lamp has no direct measurement (add a shorter exposure)"
                     )
                 lamp_records.append(_image_lamp_record(lamp, item.merged.image.frames))
-            camera = _camera_record(profiles)
             timings["profiles_s"] = time.perf_counter() - step
         else:
             for given in lamps:
@@ -434,6 +446,12 @@ def estimate_offline(
             notes=notes,
         )
         timings["estimate_s"] = time.perf_counter() - step
+        # What the mapping search says for the user (an ambiguous mapping, a lamp spectrum too
+        # coarse for its lines) goes where every warning goes: stderr, the report, result.json.
+        mapping_details = getattr(result.mapping, "details", None) or {}
+        warnings.extend(
+            str(text) for text in mapping_details.get("warnings", ()) if str(text) not in warnings
+        )
         inputs = hasher.results()
     timings["total_s"] = time.perf_counter() - started
     provenance = Provenance(

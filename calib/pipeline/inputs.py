@@ -18,6 +18,7 @@ import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError, SpectrumError
+from calib.core.lamp_specs import is_spectrum_file, lamp_from_spec
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import (
     Spectrum,
@@ -144,15 +145,23 @@ def load_spectrum(source: Path | Spectrum, lamp: str, grid: WavelengthGrid) -> L
     Small negative values (noise after dark subtraction, at most
     :data:`NEGATIVE_SPECTRUM_TOLERANCE` of the maximum) are set to zero with a warning.
 
+    ``source`` may also name a spectrum instead of a file (a colour-science illuminant or light
+    source, ``builtin:NAME``, ``gauss:CENTRE:FWHM``; :func:`calib.core.lamp_specs.lamp_from_spec`).
+
     Raises
     ------
     SpectrumError
         Missing file, text in a data row, NaN, non-monotonic wavelengths, large negative values,
         an all-zero spectrum, or a range that does not cover the grid (the file is named).
+    InputError
+        A name that is neither a file nor a known spectrum.
     """
     warnings: list[str] = []
     if not isinstance(source, str | Path):  # a Spectrum, or colour's SpectralDistribution
         spectrum, where = as_spectrum(source, lamp), f"spectrum of lamp {lamp!r}"
+    elif not is_spectrum_file(Path(source)):
+        # A colour-science name, builtin:NAME or gauss:… — resolved where every lamp spec is.
+        spectrum, where = lamp_from_spec(str(source)), f"spectrum {str(source)!r} of lamp {lamp!r}"
     else:
         where = str(source)
         table = read_table(source)

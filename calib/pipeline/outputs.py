@@ -55,6 +55,7 @@ from calib.core.formats.result_json import RESULT_FORMAT_VERSION, RESULT_SCHEMA
 from calib.core.formats.rgb_csv import write_camera_csv
 from calib.core.formats.vkdt import write_vkdt_txt
 from calib.core.grating_file import GratingEfficiency, write_grating_file
+from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import format_re, relative_error
 from calib.core.result import EstimateResult, json_safe
 from calib.core.truth import GroundTruth
@@ -63,6 +64,7 @@ from calib.pipeline.camera_identity import CameraIdentity, camera_identity
 from calib.pipeline.estimate import OfflineEstimate
 from calib.use import CameraUses, camera_uses
 from calib.use.dcamprof import DcamprofError, find_dcamprof, make_profiles
+from calib.wavelength.rig_prior import rig_geometry
 
 SENSITIVITY_FILE = "sensitivity.csv"
 RESULT_FILE = "result.json"
@@ -333,6 +335,11 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
         geometry["mapping"] = json_safe(result.mapping.to_dict())
     if estimate.profiles is not None:
         geometry["diffraction"] = estimate.profiles.geometry.to_dict()
+    if isinstance(result.mapping, QuadraticMapping) and estimate.observations:
+        # The rig it was measured in (format version 2): a later camera reuses what holds.
+        rig = rig_geometry(result.mapping.details, estimate.observations[0])
+        if rig is not None:
+            geometry["rig"] = rig.to_dict()
     provenance = {
         "created": estimate.provenance.created.isoformat(timespec="seconds"),
         "software": dict(estimate.provenance.software),

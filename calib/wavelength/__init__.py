@@ -4,9 +4,13 @@ function :func:`find_mapping`. ``calib.wavelength`` imports only :mod:`calib.cor
 
 The strategies, by what is known about the camera:
 
-``"search"`` (a camera prior) — :func:`calib.wavelength.search.search_mapping`: starts from a
-    fluorescent lamp's lines or a broadband lamp's correlation with the mean camera, then fits the
-    whole profile of every lamp with a response under the camera prior (the estimators' default).
+``"search"`` (a camera prior) — :func:`calib.wavelength.locate.locate_mapping`: physics first (the
+    grating equation through the lens when the pixels are measured from the 0th order, with the
+    rig's line density, the lens' focal length and pitch, a grating file's stored geometry as its
+    prior), the lines of a built-in list or a resolved source's absorption dips where the lamps
+    have them, else whole profiles under the camera prior with batched scans, analytic Jacobians
+    and every basin's likelihood — an ambiguous mapping is stated, never hidden (decision 0025;
+    the estimators' default).
 ``"icp"`` (a camera prior) — :func:`calib.wavelength.peaks.icp_mapping`: Makabe et al.'s (2025)
     point-to-plane ICP against the mean camera from a flat start, kept to reproduce the paper.
 ``"lines"`` (a calibrated camera) — :func:`calib.wavelength.calibrated.lines_mapping`: a fluorescent
@@ -48,8 +52,9 @@ from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.model.bases import CameraPrior
 from calib.wavelength.calibrated import CalibratedCamera, SpectrometerProfile, lines_mapping
+from calib.wavelength.locate import locate_mapping
 from calib.wavelength.peaks import icp_mapping
-from calib.wavelength.search import search_mapping
+from calib.wavelength.rig_prior import RigGeometry
 
 MappingMethod = Literal["search", "icp", "lines"]
 #: The strategies of :func:`find_mapping`.
@@ -59,6 +64,7 @@ __all__ = [
     "MAPPING_METHODS",
     "CalibratedCamera",
     "MappingMethod",
+    "RigGeometry",
     "SpectrometerProfile",
     "find_mapping",
     "lamps_named",
@@ -95,6 +101,8 @@ def find_mapping(
     start: QuadraticMapping | GratingGeometry | None = None,
     kernel: FloatArray | None = None,
     lamp_spectrum: Spectrum | None = None,
+    rig: RigGeometry | None = None,
+    grooves_per_mm: float | None = None,
 ) -> QuadraticMapping:
     """The pixel→wavelength mapping of one geometry's profiles (see the module docstring).
 
@@ -118,6 +126,10 @@ def find_mapping(
         ``"search"``: the camera's line spread in profile samples (default: the lamps' own).
     lamp_spectrum
         ``"lines"``: the mapping lamp's measured spectrum; ``None`` matches a reference line list.
+    rig
+        ``"search"``: the geometry a grating file of the same rig stored (``geometry.rig``).
+    grooves_per_mm
+        ``"search"``: the grating's nominal line density, when the rig's configuration gives it.
 
     Returns
     -------
@@ -176,10 +188,12 @@ def find_mapping(
         if not lamps:
             raise InputError("no lamp observations to find the mapping with", source="lamps")
         return icp_mapping(lamps[0], camera.mean, grid)
-    return search_mapping(
+    return locate_mapping(
         lamps,
         camera,
         grid,
         starts=None if start is None else [_quadratic_start(start, grid)],
         kernel=kernel,
-    )
+        stored=rig,
+        grooves_per_mm=grooves_per_mm,
+    ).mapping

@@ -1,0 +1,210 @@
+"""The mapping on real grating captures (``../shared/data/real-grating/``, read here, never stored).
+
+Nikon D7000 (Butcher, August 2020): the CFL profile through the built-in tri-phosphor line list
+(``builtin:cfl-triphosphor``; no CFL spectrum was measured) with the halogen profile and its
+measured spectrum, as one geometry. Printed: every matched line's residual (fitted − listed, nm),
+the largest of the lines used, and the same mapping from the mirrored profiles (columns reversed):
+the largest difference between the two curves over the profile (nm, at the same physical column).
+
+Canon 10D (rrogge): sunlight (Wehrli 1985 AM0 × the upstream file's atmosphere) through the LHires
+III. The mapping comes from the profile and the measured solar spectrum alone; it is then checked
+at columns found here independently of it: the minimum of each feature (G, Hβ, Mg b, D, Hα, O₂ B)
+in the continuum-normalised sum of the channels, within ±``--window`` columns of where the
+author's own four markers (G, Hβ, D, Hα, read from ``Spectral Response Canon EOS 10D.Rmd`` at
+run time) put it, refined by a parabola through the three lowest samples. Printed: the
+residual at each and their RMS (nm). The references are the air wavelengths of the built-in solar
+list, blends as the depth-weighted mean of their components.
+
+    python bench/wavelength_real.py --real ../shared/data/real-grating --data-dir ../shared/data/camera_sensitivities
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+from dataclasses import replace
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+from scipy import ndimage
+
+from calib.core.arrays import FloatArray
+from calib.core.lamp_specs import lamp_from_spec
+from calib.core.line_lists import line_list
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, Spectrum, read_spectrum_csv
+from calib.image.profile_files import read_fits_profile, read_rawproc_dat
+from calib.model.bases import CameraPrior, default_camera_basis
+from calib.wavelength.locate import MappingSolution, locate_mapping
+
+D7000 = "butcher-nikon-d7000-2020-08"
+CANON_10D = "rrogge-canon-eos-10d"
+#: The 10D features checked: the solar list's components of each, and the name the author's R
+#: Markdown gives the feature when he marked it (``None``: placed by his cubic through the others).
+FEATURES_10D: dict[str, tuple[tuple[str, ...], str | None]] = {
+    "G": (("Fraunhofer G",), "G"),
+    "Hβ": (("Fraunhofer F (H-beta)",), "H β"),
+    "Mg b": (("Fraunhofer b1", "Fraunhofer b2", "Fraunhofer b4"), None),
+    "D": (("Fraunhofer D1", "Fraunhofer D2"), "D1+D2"),
+    "Hα": (("Fraunhofer C (H-alpha)",), "H α"),
+    "O₂ B": (("Fraunhofer B (O2)",), None),
+}
+
+
+def authors_markers(rmd: Path) -> dict[str, int]:
+    """The columns (1-based) the author marked, by his names, read from his R Markdown."""
+    text = rmd.read_text(encoding="utf-8")
+    columns = re.search(r"x\s*=\s*c\(([\d,\s]+)\)", text)
+    names = re.search(r"name\s*=\s*c\(([^)]*)\)", text)
+    if not columns or not names:
+        raise SystemExit(f"{rmd}: no calibration table found")
+    labels = [name.strip().strip('"') for name in names.group(1).split(",")]
+    return dict(zip(labels, (int(v) for v in columns.group(1).split(",")), strict=True))
+
+
+def d7000_pair(folder: Path) -> list[LampObservation]:
+    """The CFL (built-in lines) and the halogen lamp (its measured 5 nm spectrum)."""
+    cfl = read_rawproc_dat(folder / "D7000_calibration.dat").to_observation(
+        "CFL", lamp_from_spec("builtin:cfl-triphosphor"), kind="fluorescent"
+    )
+    halogen = read_rawproc_dat(folder / "D7000_spectrum.dat").to_observation(
+        "halogen", read_spectrum_csv(folder / "Dedolight_5nm.csv"), kind="halogen"
+    )
+    return [cfl, halogen]
+
+
+def mirrored(observation: LampObservation) -> LampObservation:
+    """The same profile with its columns reversed (a 1-D export mirrored)."""
+    sigma = None if observation.profile_sigma is None else observation.profile_sigma[::-1]
+    return replace(observation, profile=observation.profile[::-1], profile_sigma=sigma)
+
+
+def solar_spectrum(folder: Path) -> Spectrum:
+    """Wehrli 1985 AM0 (1 nm) times the upstream atmosphere's transmission (airmass 2.13)."""
+    wehrli = np.loadtxt(folder / "Wehrli85.csv", skiprows=1, usecols=(0, 1))
+    atmosphere = np.loadtxt(folder / "Atmosphere Transmission.csv", skiprows=1)
+    axis = wehrli[:, 0]
+    values = wehrli[:, 1] * np.interp(axis, atmosphere[:, 0], atmosphere[:, 1])
+    keep = (axis >= 350.0) & (axis <= 800.0)
+    return Spectrum(axis[keep], values[keep], name="sunlight (Wehrli 1985 × atmosphere)")
+
+
+def canon_10d_sun(folder: Path) -> LampObservation:
+    paths = [folder / f"Solar Spectrum Canon EOS 10D {c}.fit" for c in "RGB"]
+    return read_fits_profile(paths).to_observation(
+        "sunlight", solar_spectrum(folder), kind="other", spectrum_bandwidth_nm=1.0
+    )
+
+
+def dip_columns(
+    observation: LampObservation, window: int, markers: dict[str, int]
+) -> dict[str, tuple[float, float]]:
+    """Each feature's column (0-based) found in the profile, and its reference wavelength (nm)."""
+    total = np.sum(observation.profile, axis=1)
+    envelope = total.copy()
+    for _ in range(6):
+        envelope = ndimage.gaussian_filter1d(np.maximum(envelope, total), 30.0)
+    depth = 1.0 - total / envelope
+    marked = {
+        name: markers[label] - 1 for name, (_, label) in FEATURES_10D.items() if label is not None
+    }
+    reference = {}
+    solar = {line.label: line for line in line_list("solar")}
+    for name, (labels, _) in FEATURES_10D.items():
+        lines = [solar[label] for label in labels]
+        weights = np.array([line.strength for line in lines])
+        reference[name] = float(
+            np.sum(weights * [line.wavelength_nm for line in lines]) / weights.sum()
+        )
+    # The author's cubic through the marked features places the others for the search window.
+    marked_nm = np.array([reference[name] for name in marked])
+    cubic = np.polynomial.Polynomial.fit(marked_nm, np.array(list(marked.values()), float), 3)
+    found = {}
+    for name in FEATURES_10D:
+        guess = round(marked.get(name, float(cubic(reference[name]))))
+        lo, hi = max(guess - window, 1), min(guess + window, total.size - 2)
+        at = lo + int(np.argmax(depth[lo : hi + 1]))
+        y0, y1, y2 = depth[at - 1 : at + 2]
+        curvature = y0 - 2 * y1 + y2
+        shift = 0.5 * (y0 - y2) / curvature if curvature < 0 else 0.0
+        found[name] = (float(observation.pixel[at] + shift), reference[name])
+    return found
+
+
+def curve(solution: MappingSolution, pixel: FloatArray) -> FloatArray:
+    return np.asarray(solution.exact.wavelength_nm(pixel), dtype=np.float64)
+
+
+def run_d7000(folder: Path, prior: CameraPrior) -> None:
+    lamps = d7000_pair(folder)
+    solution = locate_mapping(lamps, prior, DEFAULT_GRID)
+    print(f"D7000 pair: {solution.mapping.method}; {solution.details.get('line_source')}")
+    used = []
+    for row in solution.matched_lines:
+        flag = "" if row["weight"] > 0 else "  (not used)"
+        print(
+            f"  {row['line']:34s} {row['wavelength_nm']:8.2f} nm at column {row['pixel']:7.1f}: "
+            f"residual {row['residual_nm']:+.3f} nm{flag}"
+        )
+        if row["weight"] > 0:
+            used.append(abs(float(row["residual_nm"])))
+    print(f"  lines used {len(used)}, largest |residual| {max(used):.3f} nm")
+    flipped = locate_mapping([mirrored(lamp) for lamp in lamps], prior, DEFAULT_GRID)
+    pixel = lamps[0].pixel
+    # Column i of the file is column n−1−i of the mirrored profile.
+    difference = curve(solution, pixel) - curve(flipped, pixel[::-1])
+    print(
+        f"  mirrored profiles: orientation {flipped.details.get('orientation', '?')}, largest "
+        f"difference between the curves {float(np.max(np.abs(difference))):.3f} nm"
+    )
+
+
+def run_10d(folder: Path, prior: CameraPrior, window: int) -> None:
+    sun = canon_10d_sun(folder)
+    solution = locate_mapping([sun], prior, DEFAULT_GRID)
+    print(f"Canon 10D sunlight: {solution.mapping.method}; {solution.details.get('line_source')}")
+    residuals = []
+    markers = authors_markers(folder / "Spectral Response Canon EOS 10D.Rmd")
+    for name, (column, reference) in dip_columns(sun, window, markers).items():
+        fitted = float(solution.exact.wavelength_nm(np.array([column]))[0])
+        residuals.append(fitted - reference)
+        print(
+            f"  {name:5s} {reference:8.2f} nm at column {column:7.1f}: mapping {fitted:8.2f}, "
+            f"residual {fitted - reference:+.3f} nm"
+        )
+    found = dip_columns(sun, window, markers)
+    at_marks = [
+        float(solution.exact.wavelength_nm(sun.pixel[:1] + markers[label] - 1)[0]) - found[name][1]
+        for name, (_, label) in FEATURES_10D.items()
+        if label is not None
+    ]
+    print(
+        "  at the author's own columns (whole pixels): residuals "
+        + ", ".join(f"{r:+.3f}" for r in at_marks)
+        + f" nm, RMS {float(np.sqrt(np.mean(np.square(at_marks)))):.3f} nm"
+    )
+    rms = float(np.sqrt(np.mean(np.square(residuals))))
+    print(
+        f"  RMS over {len(residuals)} features {rms:.3f} nm; stated σ "
+        f"{solution.mapping.wavelength_rms_nm}"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--real", type=Path, required=True)
+    parser.add_argument("--data-dir", default=None)
+    parser.add_argument("--window", type=int, default=15)
+    args = parser.parse_args()
+    basis_d7000 = default_camera_basis(data_dir=args.data_dir)
+    run_d7000(args.real / D7000, basis_d7000.prior())
+    basis_10d = default_camera_basis(data_dir=args.data_dir, exclude=["Canon 10D"])
+    run_10d(args.real / CANON_10D, basis_10d.prior(), args.window)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,146 @@
+"""CPU time of mapping + estimate, and the ratio to the solve alone, for one camera.
+
+Three rows per scene, measured in one process one after the other (median of ``--repeats`` after a
+warm-up; ``time.process_time``, one BLAS thread):
+
+``solve alone``          :func:`calib.methods.estimate` given the true mapping (the yardstick);
+``mapping + estimate``   :func:`calib.methods.estimate` finding its mapping
+                         (:func:`calib.wavelength.find_mapping` → :mod:`calib.wavelength.locate`);
+``before``               ``calib.wavelength.search.search_mapping`` (what the estimators used
+                         before this engine), then the estimate with its mapping.
+
+Scenes: the paper's synthetic protocol (§4.1) for the Canon 600D (a test camera: reported, never
+tuned on) with the 44 training cameras' basis — LED only (D65) and LED + fluorescent (FL2) — and,
+with ``--real DIR``, the real Nikon D7000 pair (2474 columns: the CFL through the built-in
+tri-phosphor line list, the halogen lamp measured).
+
+    python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--real ../shared/data/real-grating] [--skip-before]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from calib.core.blas import one_blas_thread
+from calib.core.datasets import find_camera, makabe2025_split
+from calib.core.lamp_specs import colour_lamp, lamp_from_spec
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, read_spectrum_csv
+from calib.evaluation.synthetic import render_scene
+from calib.methods import estimate
+from calib.model.bases import CameraBasis, camera_basis
+from calib.model.resolution import camera_kernel
+from calib.wavelength.search import search_mapping
+
+
+def cpu_median(function: Callable[[], object], repeats: int) -> float:
+    function()  # warm-up: imports, caches
+    times = []
+    for _ in range(repeats):
+        started = time.process_time()
+        function()
+        times.append(time.process_time() - started)
+    return statistics.median(times)
+
+
+@one_blas_thread
+def before_path(observations: Sequence[LampObservation], basis: CameraBasis) -> None:
+    mapping = search_mapping(
+        observations, basis.prior(), DEFAULT_GRID, kernel=camera_kernel(observations)
+    )
+    estimate(observations, basis=basis, mapping=mapping)
+
+
+def report(label: str, solve_s: float, new_s: float, old_s: float | None) -> None:
+    old = "" if old_s is None else f"; before {old_s:.3f} s ({old_s / solve_s:.1f}×)"
+    print(
+        f"{label:24s} solve alone {solve_s:.4f} s; mapping + estimate {new_s:.3f} s "
+        f"({new_s / solve_s:.1f}× the solve){old}",
+        flush=True,
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data-dir", default=None)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--noise", type=float, default=0.01)
+    parser.add_argument("--real", type=Path, default=None, help="the real-grating data directory")
+    parser.add_argument("--skip-before", action="store_true", help="leave out the old engine")
+    args = parser.parse_args()
+    train, test = makabe2025_split(args.data_dir)
+    camera = find_camera(test, "Canon 600D")
+    basis = camera_basis([r.sensitivity for r in train], source="Makabe 2025 train (44)")
+    scene = render_scene(
+        camera.name,
+        camera.sensitivity.resample(DEFAULT_GRID, "interpolate"),
+        np.random.default_rng(0),
+        broadband_lamp=colour_lamp("D65"),
+        fluorescent_lamp=colour_lamp("FL2"),
+        noise_fraction=args.noise,
+    )
+    led, fluorescent = scene.broadband.observation, scene.fluorescent.observation
+    for label, lamps in (("LED only", [led]), ("LED + fluorescent", [led, fluorescent])):
+
+        def solve(lamps: list[LampObservation] = lamps) -> object:
+            return estimate(lamps, basis=basis, mapping=scene.mapping)
+
+        def new(lamps: list[LampObservation] = lamps) -> object:
+            return estimate(lamps, basis=basis)
+
+        def old(lamps: list[LampObservation] = lamps) -> object:
+            before_path(lamps, basis)
+            return None
+
+        solve_s = cpu_median(solve, args.repeats)
+        report(
+            f"{camera.camera}, {label}",
+            solve_s,
+            cpu_median(new, args.repeats),
+            None if args.skip_before else cpu_median(old, args.repeats),
+        )
+    if args.real is not None:
+        real_pair(args.real, args.data_dir, args.repeats)
+
+
+def real_pair(real: Path, data_dir: str | None, repeats: int) -> None:
+    """The Nikon D7000 pair (2474 columns): the CFL through ``builtin:cfl-triphosphor`` and the
+    halogen lamp measured, through a flat grating (no efficiency is known for it), the profiles'
+    origin arbitrary (either orientation is tried)."""
+    from calib.image.profile_files import read_rawproc_dat
+    from calib.methods.known_grating import estimate_known_grating
+    from calib.model.bases import default_camera_basis
+
+    folder = real / "butcher-nikon-d7000-2020-08"
+    lamps = [
+        read_rawproc_dat(folder / "D7000_calibration.dat").to_observation(
+            "CFL", lamp_from_spec("builtin:cfl-triphosphor"), kind="fluorescent"
+        ),
+        read_rawproc_dat(folder / "D7000_spectrum.dat").to_observation(
+            "halogen", read_spectrum_csv(folder / "Dedolight_5nm.csv"), kind="halogen"
+        ),
+    ]
+    basis = default_camera_basis(data_dir=data_dir)
+    found = estimate_known_grating(lamps, grating=None, basis=basis)
+
+    def solve() -> object:
+        return estimate_known_grating(lamps, grating=None, basis=basis, mapping=found.mapping)
+
+    def new() -> object:
+        return estimate_known_grating(lamps, grating=None, basis=basis)
+
+    report("Nikon D7000 real pair", cpu_median(solve, repeats), cpu_median(new, repeats), None)
+
+
+if __name__ == "__main__":
+    main()

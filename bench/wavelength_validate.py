@@ -1,0 +1,349 @@
+"""The mapping on the validation protocol's cameras: LED alone, and one LED through a grating file.
+
+The scenes are ``calib validate``'s (:mod:`calib.evaluation.validation`, default settings: the same
+seed, plans and rig errors, profiles measured from the direct spot), one per camera of the chosen
+split; each camera's basis is its split's (leave-one-camera-out over the training cameras for the
+validation split, all of them for the test split). What a capture's RAW files would add is added to
+each profile's metadata (``optics``): the lens' focal length as EXIF states it (the image distance
+the scene drew, less a focus extension of 0–8 %, rounded to 1 mm) and the pitch.
+
+Scenarios (``--scenario``):
+
+``led``           the mapping from the broadband LED alone (:func:`calib.wavelength.locate.
+                  locate_mapping`, what ``calib validate``'s "LED only" variant runs): per camera the
+                  mean and maximum ``|Δλ|`` over the profile's pixels inside the grid, the stated σ,
+                  RMS ``Δλ`` over RMS σ_λ (1 when σ is honest) and whether the result warned of
+                  ambiguity;
+                  (``--grooves``: with the sheet's nominal line density, as a rig's configuration
+                  gives it, the true one within ±2 %);
+``grating-file``  a grating file from the same rig: the grating is calibrated once in the scene's
+                  geometry on a *calibration camera* (a training camera, never the one measured:
+                  ``--calibration-camera``) with five lamps (multilamp), its efficiency and rig
+                  geometry stored as ``calib estimate`` stores them; the camera of the split is then
+                  measured through that file with one LED (``known-grating``): RE ×10⁻² (Makabe et
+                  al. 2025 Eq. 16) and its mapping error.
+
+Which split: ``--split validation`` for any tuning, ``--split test`` for reporting only.
+
+    python bench/wavelength_validate.py --data-dir ../shared/data/camera_sensitivities --split test --scenario led
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from calib.core.errors import EstimationError, InputError
+from calib.core.grating_file import GratingEfficiency
+from calib.core.mapping import QuadraticMapping, TiltedGrating
+from calib.core.metrics import channel_relative_errors
+from calib.core.observations import LampObservation
+from calib.evaluation.validation.protocol import (
+    FIVE_LAMPS,
+    ProtocolSettings,
+    Task,
+    draw_task_plan,
+    mapping_sigma_nm,
+    render_task_scene,
+    scene_lamps,
+    split_tasks,
+)
+from calib.evaluation.validation.scenes import RenderedScene, render_scene
+from calib.evaluation.validation.splits import load_splits
+from calib.methods import estimate
+from calib.wavelength.locate import locate_mapping
+from calib.wavelength.rig_prior import rig_geometry
+
+LED = "LED-B3"
+
+
+def with_optics(scene: RenderedScene, rng: np.random.Generator) -> dict[str, LampObservation]:
+    """The scene's observations with the optics a RAW file reports (module docstring)."""
+    geometry = scene.plan.geometry
+    extension = float(rng.uniform(0.0, 0.08))
+    exif_focal_mm = float(max(round(geometry.focal_length_mm / (1.0 + extension)), 1.0))
+    optics = {"focal_length_mm": exif_focal_mm, "pixel_pitch_um": geometry.pixel_pitch_um}
+    return {
+        name: replace(obs, metadata={**dict(obs.metadata), "optics": optics})
+        for name, obs in scene.observations.items()
+    }
+
+
+def mapping_errors(
+    mapping: Any, pixel: np.ndarray, true_nm: np.ndarray, grid_nm: tuple[float, float]
+) -> dict[str, float]:
+    inside = (true_nm >= grid_nm[0]) & (true_nm <= grid_nm[1])
+    error = np.asarray(mapping.wavelength_nm(pixel[inside])) - true_nm[inside]
+    sigma = mapping_sigma_nm(mapping, pixel[inside])
+    stated = float("nan") if sigma is None else float(np.sqrt(np.mean(sigma**2)))
+    rms = float(np.sqrt(np.mean(error**2)))
+    return {
+        "mean_abs_nm": float(np.mean(np.abs(error))),
+        "max_abs_nm": float(np.max(np.abs(error))),
+        "rms_nm": rms,
+        "stated_nm": stated,
+        "ratio": rms / stated if stated > 0 else float("inf"),
+    }
+
+
+def candidate_mapping(record: dict[str, Any]) -> QuadraticMapping | TiltedGrating:
+    if record.get("type") == "tilted_grating":
+        return TiltedGrating.from_dict(record)
+    return QuadraticMapping.from_dict(record)
+
+
+def nominal_grooves(scene: RenderedScene, rng: np.random.Generator) -> float:
+    """The sheet's line density as a rig's configuration states it: the true one within ±2 %."""
+    return scene.plan.geometry.grooves_per_mm * float(1.0 + rng.uniform(-0.02, 0.02))
+
+
+def led_row(
+    task: Task,
+    scene: RenderedScene,
+    lamps: dict[str, LampObservation],
+    grooves_per_mm: float | None = None,
+) -> dict[str, Any]:
+    grid = task.settings.grid
+    led = lamps[LED]
+    if grooves_per_mm is not None:
+        # Where the rig's configuration puts it: the capture's optics record.
+        given = led.metadata.get("optics")
+        optics = {**(given if isinstance(given, dict) else {}), "grooves_per_mm": grooves_per_mm}
+        led = replace(led, metadata={**dict(led.metadata), "optics": optics})
+    started = time.process_time()
+    solution = locate_mapping([led], task.basis.prior(), grid)
+    cpu_s = time.process_time() - started
+    scores = mapping_errors(
+        solution.mapping, led.pixel, scene.true_wavelength_nm, (grid.start_nm, grid.stop_nm)
+    )
+    # The basins it weighed: the runner-up's tempered Δχ² and distance, and the basin nearest the
+    # truth (for choosing the ambiguity threshold on the validation split).
+    candidates = solution.details.get("candidates", [])
+    runner_up = candidates[1] if len(candidates) > 1 else {}
+    inside = (scene.true_wavelength_nm >= grid.start_nm) & (
+        scene.true_wavelength_nm <= grid.stop_nm
+    )
+    nearest = (
+        min(
+            (
+                float(
+                    np.mean(
+                        np.abs(
+                            candidate_mapping(c["mapping"]).wavelength_nm(led.pixel[inside])
+                            - scene.true_wavelength_nm[inside]
+                        )
+                    )
+                ),
+                index,
+            )
+            for index, c in enumerate(candidates)
+        )
+        if candidates
+        else (float("nan"), -1)
+    )
+    return {
+        **scores,
+        "ambiguous": solution.ambiguous,
+        "runner_up_delta_chi2": runner_up.get("delta_chi2", float("inf")),
+        "runner_up_distance_nm": runner_up.get("rms_distance_nm", 0.0),
+        "nearest_basin": nearest[1],
+        "nearest_basin_mean_abs_nm": nearest[0],
+        "reduced_chi2": solution.details.get("reduced_chi2", float("nan")),
+        "cpu_s": cpu_s,
+    }
+
+
+def calibration_file(
+    task: Task, calibration: Task, lamps: dict[str, LampObservation]
+) -> GratingEfficiency:
+    """The grating calibrated on the calibration camera in the task's geometry, as a file holds it."""
+    # The calibration camera sees the same plan (grating, geometry, lamps) as the measured one.
+    plan, _noise = draw_task_plan(task)
+    scene = render_scene(
+        plan,
+        calibration.camera.sensitivity,
+        scene_lamps(task.settings.variants),
+        np.random.default_rng([task.settings.seed, calibration.camera.stable_id, 1]),
+    )
+    calib_lamps = with_optics(scene, np.random.default_rng(0))
+    # Same lens and pitch as the measured camera's capture (one rig).
+    calib_lamps = {
+        name: replace(
+            obs, metadata={**dict(obs.metadata), "optics": lamps[name].metadata["optics"]}
+        )
+        for name, obs in calib_lamps.items()
+    }
+    observations = [calib_lamps[name] for name in FIVE_LAMPS]
+    result = estimate(
+        observations, method="multilamp", grid=task.settings.grid, basis=calibration.basis
+    )
+    assert result.grating_efficiency is not None
+    assert isinstance(result.mapping, QuadraticMapping)
+    geometry: dict[str, Any] = {"order": 1}
+    rig = rig_geometry(result.mapping.details, observations[0])
+    if rig is not None:
+        geometry["rig"] = rig.to_dict()
+    return GratingEfficiency(
+        wavelength_nm=result.wavelength_nm,
+        efficiency=result.grating_efficiency,
+        efficiency_sigma=result.grating_efficiency_sigma,
+        geometry=geometry,
+        provenance={"source": "bench/wavelength_validate.py", "camera": calibration.camera.name},
+        source=f"calibrated on {calibration.camera.name}",
+    )
+
+
+def grating_file_row(
+    task: Task, calibration: Task, scene: RenderedScene, lamps: dict[str, LampObservation]
+) -> dict[str, Any]:
+    grid = task.settings.grid
+    grating = calibration_file(task, calibration, lamps)
+    led = lamps[LED]
+    started = time.process_time()
+    result = estimate([led], method="known-grating", grid=grid, basis=task.basis, grating=grating)
+    cpu_s = time.process_time() - started
+    assert isinstance(result.mapping, QuadraticMapping)
+    scores = mapping_errors(
+        result.mapping, led.pixel, scene.true_wavelength_nm, (grid.start_nm, grid.stop_nm)
+    )
+    re = channel_relative_errors(result.physical_sensitivity(), scene.truth)
+    # What the file's η costs: the same estimate through the true η (the file's geometry kept),
+    # and the file's η against the truth (both at a maximum of 1, RMS over the grid).
+    true_eta = np.asarray(scene.plan.grating.efficiency(1, grid.wavelength_nm), dtype=np.float64)
+    exact_file = replace(grating, efficiency=true_eta, efficiency_sigma=None)
+    exact = estimate([led], method="known-grating", grid=grid, basis=task.basis, grating=exact_file)
+    re_exact = channel_relative_errors(exact.physical_sensitivity(), scene.truth)
+    eta = np.asarray(grating.at(grid.wavelength_nm))
+    eta_error = float(np.sqrt(np.mean((eta / eta.max() - true_eta / true_eta.max()) ** 2)))
+    return {
+        **scores,
+        "re_x100": 100.0 * float(np.mean(re)),
+        "re_true_eta_x100": 100.0 * float(np.mean(re_exact)),
+        "eta_rms_error": eta_error,
+        "rig_prior": str(result.mapping.details.get("rig_prior", "")),
+        "cpu_s": cpu_s,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data-dir", default=None)
+    parser.add_argument("--split", choices=("validation", "test"), default="validation")
+    parser.add_argument("--scenario", choices=("led", "grating-file"), default="led")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cameras", default=None, help="comma-separated indices (default all)")
+    parser.add_argument(
+        "--calibration-camera", type=int, default=0, help="index of the training camera"
+    )
+    parser.add_argument(
+        "--grooves",
+        action="store_true",
+        help="led: the rig's configuration gives the line density (the true one within ±2 %%)",
+    )
+    parser.add_argument(
+        "--no-lens-reuse",
+        action="store_true",
+        help="grating-file: reuse only the groove spacing for another body behind the same lens "
+        "(the rule before same_lens; an A/B switch for the validation split)",
+    )
+    parser.add_argument("--csv", default=None)
+    args = parser.parse_args()
+    if args.no_lens_reuse:
+        import calib.wavelength.rig_prior as rig_prior_module
+
+        rig_prior_module.same_lens = lambda stored, new: None
+    splits, _notes = load_splits(args.data_dir)
+    split = splits.validation if args.split == "validation" else splits.test
+    settings = ProtocolSettings(seed=args.seed)
+    tasks = split_tasks(split, settings)
+    if args.cameras is not None:
+        tasks = [tasks[int(i)] for i in args.cameras.split(",")]
+    # The calibration camera: a training camera with its leave-one-out basis (never a test one).
+    calibration = split_tasks(splits.validation, settings)[args.calibration_camera]
+    rows: list[dict[str, Any]] = []
+    for task in tasks:
+        scene = render_task_scene(task)
+        lamps = with_optics(scene, np.random.default_rng([args.seed, task.camera.stable_id]))
+        name = task.camera.name
+        try:
+            if args.scenario == "led":
+                grooves = (
+                    nominal_grooves(
+                        scene, np.random.default_rng([args.seed, task.camera.stable_id, 2])
+                    )
+                    if args.grooves
+                    else None
+                )
+                row = led_row(task, scene, lamps, grooves)
+            else:
+                if task.camera.name == calibration.camera.name:
+                    continue
+                row = grating_file_row(task, calibration, scene, lamps)
+        except (EstimationError, InputError) as exc:
+            print(f"{name[:40]:40s} FAILED: {exc}", flush=True)
+            rows.append({"camera": name, "failed": str(exc)})
+            continue
+        row = {"camera": name, "group": task.camera.group, **row}
+        rows.append(row)
+        extra = (
+            f"amb {int(row['ambiguous'])}"
+            if "ambiguous" in row
+            else f"RE {row['re_x100']:5.2f} (true η {row['re_true_eta_x100']:5.2f}, η RMS error "
+            f"{row['eta_rms_error']:.3f})"
+        )
+        print(
+            f"{name[:40]:40s} mean {row['mean_abs_nm']:6.2f} max {row['max_abs_nm']:6.2f} nm "
+            f"stated {row['stated_nm']:5.2f} ratio {row['ratio']:5.2f} {extra} "
+            f"cpu {row['cpu_s']:.2f} s",
+            flush=True,
+        )
+    done = [row for row in rows if "failed" not in row]
+    failed = len(rows) - len(done)
+    mean_abs = np.array([row["mean_abs_nm"] for row in done])
+    worst = np.array([row["max_abs_nm"] for row in done])
+    ratio = np.array([row["ratio"] for row in done])
+    summary = (
+        f"{args.split} split, {args.scenario}: {len(rows)} cameras ({failed} failed); "
+        f"median mean|Δλ| {np.median(mean_abs):.2f} nm; mean|Δλ| > 3 nm: "
+        f"{int(np.sum(mean_abs > 3))}; max|Δλ| > 3 nm: {int(np.sum(worst > 3))}"
+    )
+    if args.scenario == "led":
+        flagged = np.array([row["ambiguous"] for row in done], dtype=bool)
+        summary += (
+            f" ({int(np.sum((worst > 3) & ~flagged))} without an ambiguity warning), warnings "
+            f"{int(flagged.sum())}"
+        )
+    else:
+        re = np.array([row["re_x100"] for row in done])
+        exact = np.array([row["re_true_eta_x100"] for row in done])
+        summary += (
+            f"; RE ×10⁻² mean {np.mean(re):.2f}, median {np.median(re):.2f} (through the true η: "
+            f"mean {np.mean(exact):.2f}, median {np.median(exact):.2f})"
+        )
+    summary += (
+        f"; σ ratio (actual/stated RMS) median {np.median(ratio):.2f}, within 2×: "
+        f"{int(np.sum((ratio <= 2) & (ratio >= 0.5)))}/{ratio.size}; median CPU "
+        f"{np.median([row['cpu_s'] for row in done]):.2f} s"
+    )
+    print(summary, file=sys.stderr)
+    if args.csv:
+        with Path(args.csv).open("w", newline="") as handle:
+            fields = sorted({key for row in rows for key in row})
+            writer = csv.DictWriter(handle, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,879 @@
+"""The mapping from spectral features: emission lines and absorption dips found in a profile, matched to
+a line list, each fitted where it lies, and the mapping fitted through them.
+
+1. **Signal.** Emission: the channels summed, less a baseline that follows everything broader than a
+   line (a grey opening). Absorption: the channels summed and divided by their upper envelope (a grey
+   closing, smoothed) — the continuum-normalised depth, in which a Fraunhofer line is a dip whatever
+   the camera and the source's colour.
+2. **Peaks** of that signal above 5 noise σ (noise from the second differences).
+3. **Match** the strongest peaks to the list's features at the camera's resolution (:func:`blends`
+   of :mod:`calib.core.line_lists`): every pair of peaks against every pair of features proposes a
+   line, scored by how much of the peaks' strength it explains (:func:`match_lines`; spurious or
+   missing peaks only lower a hypothesis' score), unless a start mapping is given.
+4. **Fit every feature where it lies**: the signal in a window around the predicted pixel is a
+   linear background plus one Gaussian per component line, the components placed at their
+   wavelengths through the current mapping, with a shared width, free heights and one free shift
+   per feature — so a blend the camera half-resolves (Tb 542.4 + Hg 546.1, Na D1 + D2, the Mg b
+   triplet) is modelled as what it is, not as one line at a wrong centre. Features whose windows
+   overlap are fitted together.
+5. **Fit the mapping** (its family: the grating equation or the quadratic) through the features'
+   pixels by weighted least squares — each weighted by its position's σ (through the local
+   dispersion) and its wavelength's uncertainty — rejecting outliers beyond 4σ, and repeat 4–5 with
+   the new mapping.
+
+The result carries the matched-line table (:meth:`FeatureMatch.row`): line, wavelength, pixel, the
+mapping's wavelength there and the residual, for the report.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+from calib.core.line_lists import Blend, Line, LineKind, blends
+from calib.core.mapping import QuadraticMapping, TiltedGrating
+from calib.wavelength.families import GratingFamily, QuadraticFamily
+from calib.wavelength.least_squares import levenberg_marquardt
+
+Family = QuadraticFamily | GratingFamily
+ExactMapping = QuadraticMapping | TiltedGrating
+
+#: A channel "sees" an absorption feature where its envelope is at least this fraction of the
+#: brightest channel's there (:func:`feature_signal`).
+SEEN_FRACTION = 0.15
+#: Peaks must stand this many noise σ above their surroundings.
+PEAK_SIGMA = 5.0
+#: A peak broader than this many line widths (at half its prominence) is not a line.
+MAX_PEAK_WIDTH = 4.0
+#: Peaks and features whose triples are matched (every triple against every triple).
+MATCH_TRIPLE_PEAKS = 10
+MATCH_TRIPLE_FEATURES = 12
+#: Strongest peaks and features considered when matching without a start.
+MATCH_PEAKS = 14
+#: A feature's fit window reaches this many FWHM beyond its outermost components.
+WINDOW_FWHM = 2.0
+#: Position error (nm) the mapping fit adds to every feature (the line model's own approximation).
+MODEL_ERROR_NM = 0.01
+#: A feature this much weaker than a close neighbour is not fitted (:func:`_measurable`).
+WEAK_NEIGHBOUR = 0.15
+#: At most this many features are fitted together (a longer chain is cut).
+MAX_GROUP = 4
+#: Normalised residual beyond which a feature is an outlier.
+OUTLIER_SIGMA = 4.0
+#: Line-match hypotheses carried through the feature fits.
+HYPOTHESES = 6
+#: Refinement rounds (fit features → fit mapping).
+ROUNDS = 3
+
+
+@dataclass(frozen=True)
+class FeatureMatch:
+    """One list feature fitted in the profile.
+
+    Attributes
+    ----------
+    blend
+        The feature's component lines; ``reference`` is the strongest, whose pixel is reported.
+    pixel, pixel_sigma
+        Where the reference line lies, and its σ (profile coordinates).
+    fitted_nm
+        The mapping's wavelength at ``pixel``.
+    sigma_nm
+        The feature's total σ in the mapping fit (position through the dispersion, the line's own
+        uncertainty, the model error).
+    used
+        Kept by the mapping fit (not an outlier).
+    """
+
+    blend: Blend
+    pixel: float
+    pixel_sigma: float
+    fitted_nm: float
+    sigma_nm: float
+    used: bool = True
+    amplitude: float = 0.0
+
+    @property
+    def reference(self) -> Line:
+        return self.blend.reference
+
+    @property
+    def residual_nm(self) -> float:
+        return self.fitted_nm - self.reference.wavelength_nm
+
+    def row(self) -> dict[str, Any]:
+        """The matched-line table's row: ``{line, wavelength_nm, pixel, fitted_nm, residual_nm,
+        weight}`` (``weight`` is ``1/σ²`` in nm⁻², 0 for a rejected feature)."""
+        return {
+            "line": self.blend.label,
+            "wavelength_nm": self.reference.wavelength_nm,
+            "pixel": self.pixel,
+            "fitted_nm": self.fitted_nm,
+            "residual_nm": self.residual_nm,
+            "weight": 1.0 / self.sigma_nm**2 if self.used else 0.0,
+        }
+
+
+@dataclass(frozen=True)
+class FeatureMapping:
+    """The mapping through a profile's features.
+
+    Attributes
+    ----------
+    mapping
+        Report form (:class:`calib.core.mapping.QuadraticMapping` over the profile) with the fit's
+        covariance and ``wavelength_rms_nm``.
+    exact
+        The mapping in its family.
+    matches
+        Every feature fitted, by wavelength.
+    details
+        How it was found (JSON-safe).
+    """
+
+    mapping: QuadraticMapping
+    exact: ExactMapping
+    matches: tuple[FeatureMatch, ...]
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def table(self) -> list[dict[str, Any]]:
+        """The matched-line table (see :meth:`FeatureMatch.row`)."""
+        return [match.row() for match in self.matches]
+
+
+# --------------------------------------------------------------------------------- the signal
+
+
+def feature_signal(
+    profile: FloatArray, kind: LineKind, width_px: float
+) -> tuple[FloatArray, float]:
+    """The signal in which features are peaks ``(n,)``, and its noise σ (same units).
+
+    Emission: the summed channels less a grey opening ``6·width_px`` wide (what rises above
+    everything broader than a line). Absorption: each channel's upper envelope less the channel,
+    summed, so a dip counts by its depth times the light around it (where the camera barely sees,
+    a relative dip is noise); an envelope is smoothed iteratively over ``3·width_px`` keeping the
+    larger of it and the channel, which bridges dips narrower than that and follows the camera's
+    broad shape.
+    """
+    from scipy import ndimage
+
+    channels = np.asarray(profile, dtype=np.float64)
+    total = np.sum(channels, axis=1)
+    second = np.diff(total, n=2)
+    noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0)
+    noise = max(noise, 1e-12 * float(np.max(np.abs(total))))
+    if kind == "emission":
+        size = max(3, int(6 * width_px) | 1)
+        signal = total - ndimage.grey_opening(total, size=size, mode="nearest")
+    else:
+        # Each channel under its own envelope: where two channels cross, their sum dips although
+        # neither does — a camera's shape, not the light's.
+        envelope = channels.copy()
+        for _ in range(8):
+            envelope = ndimage.gaussian_filter1d(
+                np.maximum(envelope, channels), 3.0 * max(width_px, 1.0), axis=0, mode="nearest"
+            )
+        # A dip in the light has the same relative depth in every channel that sees it; a dip in
+        # one channel's sensitivity has none in the others. The smallest relative depth among the
+        # channels with a fair share of the light keeps the first and drops the second.
+        relative = (envelope - channels) / np.maximum(envelope, 1e-300)
+        seen = envelope >= SEEN_FRACTION * np.max(envelope, axis=1, keepdims=True)
+        depth = np.min(np.where(seen, relative, np.inf), axis=1)
+        signal = np.where(np.isfinite(depth), depth, 0.0) * np.sum(envelope, axis=1)
+    return np.asarray(signal, dtype=np.float64), noise
+
+
+def signal_peaks(
+    pixel: FloatArray, signal: FloatArray, noise: float, width_px: float
+) -> list[tuple[float, float]]:
+    """``(pixel, prominence)`` of the signal's peaks above :data:`PEAK_SIGMA` noise, strongest first."""
+    from scipy import ndimage
+    from scipy import signal as sp_signal
+
+    smooth = ndimage.gaussian_filter1d(signal, max(width_px / 4.0, 0.5), mode="nearest")
+    indices, properties = sp_signal.find_peaks(
+        smooth, prominence=PEAK_SIGMA * noise, distance=max(1, int(width_px / 2))
+    )
+    order = np.argsort(properties["prominences"])[::-1]
+    out = []
+    for k in order:
+        i = int(indices[k])
+        if 0 < i < signal.size - 1:
+            # Parabola through the three samples around the maximum.
+            left, centre, right = smooth[i - 1], smooth[i], smooth[i + 1]
+            curvature = left - 2 * centre + right
+            offset = 0.5 * (left - right) / curvature if curvature < 0 else 0.0
+            position = float(np.interp(i + np.clip(offset, -1, 1), np.arange(pixel.size), pixel))
+        else:
+            position = float(pixel[i])
+        out.append((position, float(properties["prominences"][k])))
+    return out
+
+
+# ------------------------------------------------------------------------------- feature fits
+
+
+@dataclass
+class _Fitted:
+    blend: Blend
+    pixel: float
+    sigma: float
+    amplitude: float
+
+
+def _fit_group(
+    pixel: FloatArray,
+    signal: FloatArray,
+    noise: float,
+    group: Sequence[Blend],
+    mapping: ExactMapping,
+    fwhm_px: float,
+) -> list[_Fitted]:
+    """Fit overlapping features together (see the module docstring, step 4).
+
+    Background (linear), one height per component, one shift per feature and a shared width,
+    fitted jointly by Levenberg–Marquardt with the closed-form Jacobian, from heights solved
+    linearly at the predicted places; a shift beyond one FWHM of the prediction or a width
+    outside ×0.5–2 of the camera's is outside the valid region.
+    """
+
+    sigma_px = fwhm_px / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    placed = []
+    for blend in group:
+        at = _pixel_of(mapping, np.array([line.wavelength_nm for line in blend.lines]))
+        ref_px = float(_pixel_of(mapping, np.array([blend.reference.wavelength_nm]))[0])
+        placed.append((blend, ref_px, at - ref_px))
+    lo = min(r + float(o.min()) for _, r, o in placed) - WINDOW_FWHM * fwhm_px
+    hi = max(r + float(o.max()) for _, r, o in placed) + WINDOW_FWHM * fwhm_px
+    inside = (pixel >= lo) & (pixel <= hi)
+    n_blends = len(placed)
+    n_lines = sum(offsets.size for _, _, offsets in placed)
+    if np.count_nonzero(inside) < n_lines + n_blends + 4:
+        return []
+    x = pixel[inside]
+    y = signal[inside]
+    centre = 0.5 * (lo + hi)
+    owner = np.concatenate([np.full(o.size, b) for b, (_, _, o) in enumerate(placed)])
+    positions = np.concatenate([ref + offsets for _, ref, offsets in placed])
+
+    def gaussians(shifts: FloatArray, width: float) -> tuple[FloatArray, FloatArray]:
+        offset = x[:, None] - (positions + shifts[owner])[None, :]
+        values = np.exp(-0.5 * (offset / width) ** 2)
+        return values, offset
+
+    base = np.stack([np.ones(x.size), (x - centre) / fwhm_px], axis=1)
+    # Heights and background for the predicted places: the start of the joint fit.
+    start_values, _ = gaussians(np.zeros(n_blends), sigma_px)
+    linear, *_ = np.linalg.lstsq(np.hstack([base, start_values]), y, rcond=None)
+    n_shape = n_blends + 1
+
+    def function(
+        params: FloatArray, with_jacobian: bool
+    ) -> tuple[FloatArray, FloatArray | None] | None:
+        shifts, width = params[:n_blends], params[n_blends]
+        if np.any(np.abs(shifts) > fwhm_px) or not (0.5 * sigma_px <= width <= 2.0 * sigma_px):
+            return None
+        values, offset = gaussians(shifts, width)
+        amplitudes = params[n_shape + 2 :]
+        model = base @ params[n_shape : n_shape + 2] + values @ amplitudes
+        residual = (model - y) / noise
+        if not with_jacobian:
+            return residual, None
+        weighted = values * amplitudes[None, :]
+        d_shift = np.zeros((x.size, n_blends))
+        np.add.at(d_shift.T, owner, (weighted * offset / width**2).T)
+        d_width = (weighted * offset**2 / width**3).sum(axis=1, keepdims=True)
+        jacobian = np.hstack([d_shift, d_width, base, values]) / noise
+        return residual, jacobian
+
+    start = np.concatenate([np.zeros(n_blends), [sigma_px], linear])
+    try:
+        solution = levenberg_marquardt(function, start, max_iterations=25, tolerance=1e-8)
+    except (ValueError, np.linalg.LinAlgError):
+        return []
+    heights = solution.x[n_shape + 2 :]
+    dof = max(y.size - start.size, 1)
+    variance_scale = max(solution.cost / dof, 1.0)
+    try:
+        covariance = np.linalg.pinv(solution.jacobian.T @ solution.jacobian) * variance_scale
+    except np.linalg.LinAlgError:
+        return []
+    out = []
+    for b, (blend, ref_px, _) in enumerate(placed):
+        mine = heights[owner == b]
+        shift = float(solution.x[b])
+        shift_sigma = float(np.sqrt(max(covariance[b, b], 0.0)))
+        at_bound = abs(abs(shift) - fwhm_px) < 1e-2 * fwhm_px
+        # A feature must stand out: positive, its strongest component above 3 noise σ.
+        if at_bound or not math.isfinite(shift_sigma) or float(np.max(mine)) < 3.0 * noise:
+            continue
+        if float(np.sum(mine)) <= 0:
+            continue
+        out.append(_Fitted(blend, ref_px + shift, shift_sigma, float(np.sum(mine))))
+    return out
+
+
+#: What the lit part of a profile spans, for a first guess of the dispersion: a camera's response
+#: (and most lamps' light) from the violet to the deep red.
+LIT_RANGE_NM = (400.0, 680.0)
+
+
+def lit_dispersion(pixel: FloatArray, profile: FloatArray) -> float:
+    """nm per profile sample if the lit part (above 5 % of the summed profile's peak, smoothed)
+    spans :data:`LIT_RANGE_NM`."""
+    from scipy import ndimage
+
+    total = ndimage.gaussian_filter1d(
+        np.sum(np.clip(profile, 0.0, None), axis=1), max(pixel.size / 200.0, 1.0)
+    )
+    lit = np.flatnonzero(total > 0.05 * float(total.max()))
+    if lit.size < 2:
+        raise EstimationError("the profile has too little signal to find features in")
+    return (LIT_RANGE_NM[1] - LIT_RANGE_NM[0]) / float(lit[-1] - lit[0])
+
+
+def match_lines(
+    peaks: Sequence[tuple[float, float]],
+    features: Sequence[Blend],
+    *,
+    dispersion_range: tuple[float, float],
+    tolerance_nm: float,
+    allow_reversed: bool,
+    count: int,
+) -> list[QuadraticMapping]:
+    """Line ↔ peak hypotheses, best first.
+
+    Every triple of the strongest peaks assigned to every triple of the strongest features (in
+    order: wavelength rising with the pixel, or falling when allowed) proposes a quadratic — a
+    linear guess from two far-apart lines misses a strongly curved first order by more than a
+    line's width. Each admissible one (monotonic with a dispersion in range over the peaks' span)
+    is scored by how much of the peaks' strength it explains (each peak within a Gaussian
+    ``tolerance_nm`` of a feature, weighted by the square root of its prominence); the best are
+    refitted through their inliers and scored again (:func:`_agreement`), distinct ones kept.
+
+    All triples are scored at once (vectorised), so the strongest peaks need not be the lines the
+    list calls strongest — a real lamp's ratios differ from any list's — and a spurious peak only
+    fails to be explained.
+    """
+    import itertools
+
+    position = np.array([p for p, _ in peaks])[:MATCH_TRIPLE_PEAKS]
+    strength = np.sqrt(np.array([h for _, h in peaks]))[:MATCH_TRIPLE_PEAKS]
+    strength = strength / strength.sum()
+    strongest = sorted(features, key=lambda b: -b.strength)[:MATCH_TRIPLE_FEATURES]
+    line_nm = np.sort(np.array([b.wavelength_nm for b in strongest]))
+    all_nm = np.array([b.wavelength_nm for b in features])
+    peak_triples = np.array(list(itertools.combinations(np.argsort(position), 3)))
+    line_triples = np.array(list(itertools.combinations(range(line_nm.size), 3)))
+    if peak_triples.size == 0 or line_triples.size == 0:
+        raise EstimationError("too few peaks or lines to match")
+    nodes = position[peak_triples]  # (T, 3), ascending
+    # Lagrange basis of each peak triple at every peak and its derivative at the span's ends.
+    span = np.array([position.min(), position.max()])
+    basis = _lagrange(nodes, position)  # (T, n, 3)
+    slope_basis = _lagrange_slope(nodes, span)  # (T, 2, 3)
+    orders = [line_triples] + ([line_triples[:, ::-1]] if allow_reversed else [])
+    candidates: list[tuple[float, QuadraticMapping]] = []
+    probe = np.linspace(span[0], span[1], 9)
+    for assignment in orders:
+        values = line_nm[assignment]  # (L, 3)
+        predicted = np.einsum("tnm,lm->tln", basis, values)  # (T, L, n)
+        slopes = np.einsum("tem,lm->tle", slope_basis, values)  # (T, L, 2)
+        magnitude = np.abs(slopes)
+        same_sign = np.sign(slopes[..., 0]) == np.sign(slopes[..., 1])
+        admissible = (
+            same_sign
+            & np.all(magnitude >= dispersion_range[0], axis=-1)
+            & np.all(magnitude <= dispersion_range[1], axis=-1)
+        )
+        distance = np.min(np.abs(predicted[..., None] - all_nm), axis=-1)  # (T, L, n)
+        scores = np.where(
+            admissible, (np.exp(-0.5 * (distance / tolerance_nm) ** 2) * strength).sum(-1), -1.0
+        )
+        best = np.argsort(-scores, axis=None)[: 20 * count]
+        for flat in best:
+            t, line = np.unravel_index(flat, scores.shape)
+            if scores[t, line] <= 0:
+                break
+            try:
+                start = QuadraticMapping.fit(nodes[t], values[line], degree=2)
+            except EstimationError:
+                continue
+            refined = _refit_through_inliers(start, position, all_nm, tolerance_nm)
+            if refined is None:
+                continue
+            candidates.append((_agreement(refined, peaks, features, tolerance_nm), refined))
+    candidates.sort(key=lambda item: -item[0])
+    out: list[QuadraticMapping] = []
+    for _, mapping in candidates:
+        if all(
+            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) >= 3.0
+            for other in out
+        ):
+            out.append(mapping)
+        if len(out) == count:
+            break
+    if not out:
+        raise EstimationError("no line ↔ peak match is monotonic with a plausible dispersion")
+    return out
+
+
+def _lagrange(nodes: FloatArray, at: FloatArray) -> FloatArray:
+    """Quadratic Lagrange basis of node triples ``(T, 3)`` at points ``(n,)``: ``(T, n, 3)``."""
+    x = at[None, :, None]
+    n = nodes[:, None, :]
+    out = np.ones((nodes.shape[0], at.size, 3))
+    for m in range(3):
+        for k in range(3):
+            if k != m:
+                out[..., m] *= (x[..., 0] - n[..., k]) / (n[..., m] - n[..., k])
+    return out
+
+
+def _lagrange_slope(nodes: FloatArray, at: FloatArray) -> FloatArray:
+    """Derivative of :func:`_lagrange`'s basis: ``(T, n, 3)``."""
+    x = at[None, :]
+    out = np.zeros((nodes.shape[0], at.size, 3))
+    for m in range(3):
+        others = [k for k in range(3) if k != m]
+        denominator = (nodes[:, m] - nodes[:, others[0]]) * (nodes[:, m] - nodes[:, others[1]])
+        out[..., m] = (2 * x - nodes[:, others[0], None] - nodes[:, others[1], None]) / denominator[
+            :, None
+        ]
+    return out
+
+
+def _refit_through_inliers(
+    mapping: QuadraticMapping, position: FloatArray, line_nm: FloatArray, tolerance_nm: float
+) -> QuadraticMapping | None:
+    """The mapping refitted (twice) through the peaks within ``tolerance_nm`` of a line."""
+    for _ in range(2):
+        predicted = mapping.wavelength_nm(position)
+        nearest = np.argmin(np.abs(predicted[:, None] - line_nm[None, :]), axis=1)
+        close = np.abs(predicted - line_nm[nearest]) <= tolerance_nm
+        if np.count_nonzero(close) < 2:
+            return None
+        degree = 2 if np.count_nonzero(close) >= 4 else 1
+        try:
+            mapping = QuadraticMapping.fit(position[close], line_nm[nearest[close]], degree=degree)
+        except EstimationError:
+            return None
+    slopes = mapping.dispersion_nm_per_px(np.linspace(position.min(), position.max(), 9))
+    if not (np.all(slopes > 0) or np.all(slopes < 0)):
+        return None
+    return mapping
+
+
+def _agreement(
+    mapping: QuadraticMapping,
+    peaks: Sequence[tuple[float, float]],
+    features: Sequence[Blend],
+    tolerance_nm: float,
+) -> float:
+    """How well a hypothesis explains both sides: every feature by a peak near its wavelength and
+    every peak by a feature near its mapped wavelength, each weighted by its relative strength
+    (Gaussian in the distance, σ ``tolerance_nm``). A hypothesis that leaves the strongest peaks
+    unexplained loses, however many weak lines it matches."""
+    if not peaks or not features:
+        return 0.0
+    peak_nm = mapping.wavelength_nm(np.array([p for p, _ in peaks]))
+    peak_weight = np.array([h for _, h in peaks])
+    feature_nm = np.array([b.wavelength_nm for b in features])
+    feature_weight = np.array([b.strength for b in features])
+    distance = np.abs(peak_nm[:, None] - feature_nm[None, :])
+    closeness = np.exp(-0.5 * (distance / tolerance_nm) ** 2)
+    explained_peaks = float(np.sum(peak_weight / peak_weight.sum() * closeness.max(axis=1)))
+    explained_features = float(
+        np.sum(feature_weight / feature_weight.sum() * closeness.max(axis=0))
+    )
+    return explained_peaks + explained_features
+
+
+def _pixel_of(mapping: ExactMapping, wavelength_nm: FloatArray) -> FloatArray:
+    return np.asarray(mapping.pixel_at(wavelength_nm), dtype=np.float64)
+
+
+def features_at(
+    lines: Sequence[Line],
+    mapping: ExactMapping,
+    fwhm_px: float,
+    pixel_range: tuple[float, float],
+) -> list[Blend]:
+    """The list's features at the resolution a mapping implies (the camera's FWHM times its
+    dispersion in the middle of the profile): what blends and what stands alone."""
+    middle = 0.5 * (pixel_range[0] + pixel_range[1])
+    resolution_nm = fwhm_px * float(_slope(mapping, np.array([middle]))[0])
+    return _measurable(blends(lines, resolution_nm), resolution_nm)
+
+
+def _measurable(features: Sequence[Blend], resolution_nm: float) -> list[Blend]:
+    """Features a camera can locate on their own: one weaker than :data:`WEAK_NEIGHBOUR` of a
+    neighbour within 1.5 resolutions is left out (its peak is the neighbour's shoulder, and fitting
+    it would let it take the neighbour's place)."""
+    kept = []
+    for blend in features:
+        crowded = any(
+            other is not blend
+            and abs(other.wavelength_nm - blend.wavelength_nm) < 1.5 * resolution_nm
+            and blend.strength < WEAK_NEIGHBOUR * other.strength
+            for other in features
+        )
+        if not crowded:
+            kept.append(blend)
+    return kept
+
+
+def fit_features(
+    pixel: FloatArray,
+    signal: FloatArray,
+    noise: float,
+    features: Sequence[Blend],
+    mapping: ExactMapping,
+    fwhm_px: float,
+) -> list[_Fitted]:
+    """Every feature the mapping puts inside the profile, fitted (overlapping ones together)."""
+    lo, hi = float(pixel[0]), float(pixel[-1])
+    located = []
+    for blend in features:
+        try:
+            at = _pixel_of(mapping, np.array([line.wavelength_nm for line in blend.lines]))
+        except InputError:
+            continue
+        if np.all((at > lo + fwhm_px) & (at < hi - fwhm_px)):
+            located.append((float(at.min()), float(at.max()), blend))
+    located.sort(key=lambda item: item[0])
+    groups: list[list[tuple[float, float, Blend]]] = []
+    for item in located:
+        near = groups and item[0] - groups[-1][-1][1] < 2 * WINDOW_FWHM * fwhm_px
+        if near and len(groups[-1]) < MAX_GROUP:
+            groups[-1].append(item)
+        else:
+            groups.append([item])
+    out: list[_Fitted] = []
+    for group in groups:
+        out += _fit_group(pixel, signal, noise, [b for _, _, b in group], mapping, fwhm_px)
+    return out
+
+
+# ------------------------------------------------------------------------------ mapping fit
+
+
+def fit_mapping_to_points(
+    family: Family,
+    x0: FloatArray,
+    pixels: FloatArray,
+    wavelengths_nm: FloatArray,
+    sigma_nm: FloatArray,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Weighted least squares of a family through ``(pixel, λ ± σ)`` points (and its prior rows).
+
+    Returns the parameters, their covariance (scaled by the reduced χ² when it exceeds 1) and χ².
+    """
+
+    def function(x: FloatArray, with_jacobian: bool) -> tuple[FloatArray, FloatArray | None] | None:
+        if isinstance(family, GratingFamily):
+            if not family.valid(x, (float(pixels.min()), float(pixels.max())))[0]:
+                return None
+            rows, row_jacobian = family.prior_rows(x)
+        else:
+            rows, row_jacobian = np.zeros(0), np.zeros((0, x.size))
+        residual = np.concatenate(
+            [(family.wavelengths(pixels, x) - wavelengths_nm) / sigma_nm, rows]
+        )
+        if not with_jacobian:
+            return residual, None
+        jacobian = np.vstack([family.jacobian(pixels, x) / sigma_nm[:, None], row_jacobian])
+        return residual, jacobian
+
+    solution = levenberg_marquardt(function, x0, max_iterations=50, tolerance=1e-12)
+    data_rows = pixels.size
+    chi2 = float(np.sum(solution.residual[:data_rows] ** 2))
+    dof = max(data_rows - x0.size, 1)
+    covariance = solution.covariance(scale_by_fit=False) * max(chi2 / dof, 1.0)
+    return solution.x, covariance, chi2
+
+
+def _initial_parameters(family: Family, mapping: ExactMapping, pixels: FloatArray) -> FloatArray:
+    """Family parameters that reproduce ``mapping`` over ``pixels`` (a least-squares fit)."""
+    if isinstance(family, QuadraticFamily):
+        return family.parameters(mapping)
+    if isinstance(mapping, TiltedGrating) and mapping.orientation == family.orientation:
+        return family.parameters(mapping)
+    targets = mapping.wavelength_nm(pixels)
+    means = {name: value[0] for name, value in family.prior.values.items()}
+    # Start from the prior (or a generic grating) and fit the family to the mapping's wavelengths.
+    guess = {
+        "zero_order_px": means.get("zero_order_px", float(pixels[0]) - family.orientation * 0.0),
+        "log_spacing": means.get("log_spacing", math.log(1e6 / 600.0)),
+        "log_focal": means.get("log_focal", math.log(5000.0)),
+        "incidence_deg": means.get("incidence_deg", 0.0),
+        "axis_offset_px": family.offset_guess,
+    }
+    if "zero_order_px" not in family.prior.fixed():
+        slope = float(np.polyfit(pixels, targets, 1)[0])
+        guess["zero_order_px"] = float(pixels[0] - targets[0] / slope)
+        spacing = math.exp(guess["log_spacing"])
+        guess["log_focal"] = math.log(max(abs(spacing / slope), 10.0))
+    x0 = np.array([guess[name] for name in family.names])
+    x, _, _ = fit_mapping_to_points(family, x0, pixels, targets, np.full(pixels.size, 0.1))
+    return x
+
+
+def map_features(
+    pixel: FloatArray,
+    profile: FloatArray,
+    lines: Sequence[Line],
+    *,
+    family: Family,
+    fwhm_px: float,
+    start: ExactMapping | None = None,
+    nominal_dispersion: float | None = None,
+    allow_reversed: bool = False,
+    kind: LineKind | None = None,
+    range_nm: tuple[float, float] = (380.0, 720.0),
+) -> FeatureMapping:
+    """The mapping through a profile's features (see the module docstring).
+
+    Parameters
+    ----------
+    pixel, profile
+        ``(n,)`` and ``(n, 3)``.
+    lines
+        The list to match (emission or absorption, not mixed).
+    family
+        The mapping family the features are fitted with.
+    fwhm_px
+        The camera's line width in profile samples (the line spread's FWHM).
+    start
+        A mapping to start from (skips the matching step).
+    nominal_dispersion
+        A rough nm per profile sample (bounds the matching's hypotheses to ×0.4–2.5 of it);
+        default: the profile's lit extent taken as :data:`LIT_RANGE_NM`.
+    allow_reversed
+        Let the matching try wavelengths falling with the pixel.
+    kind
+        Emission or absorption (default: the lines').
+    range_nm
+        Only features in this range are matched (the camera's and the working grid's).
+    """
+    if not lines:
+        raise InputError("no lines to match", source="line list")
+    kind = kind or lines[0].kind
+    spacing = float(np.median(np.diff(pixel)))
+    # Dispersion in nm per pixel unit (not per sample), from the start or the lit extent.
+    if start is not None:
+        ends = start.wavelength_nm(np.array([pixel[0], pixel[-1]]))
+        dispersion_guess = abs(float(ends[1] - ends[0])) / max(float(pixel[-1] - pixel[0]), 1e-9)
+    else:
+        dispersion_guess = nominal_dispersion or lit_dispersion(pixel, profile) / spacing
+    resolution_nm = fwhm_px * dispersion_guess
+    chosen = [
+        line
+        for line in lines
+        if line.kind == kind and range_nm[0] <= line.wavelength_nm <= range_nm[1]
+    ]
+    features = _measurable(blends(chosen, resolution_nm), resolution_nm)
+    signal, noise = feature_signal(profile, kind, fwhm_px / spacing)
+    pixel_range = (float(pixel[0]), float(pixel[-1]))
+    hypotheses: list[ExactMapping]
+    if start is None:
+        peaks = signal_peaks(pixel, signal, noise, fwhm_px / spacing)[:MATCH_PEAKS]
+        if len(peaks) < 3:
+            raise EstimationError(
+                f"found {len(peaks)} {kind} feature(s) in the profile; the mapping needs several "
+                "(is the lamp the one named, and the first order whole?)"
+            )
+        # The lit extent is a rough guess (a line lamp lights less than a camera sees).
+        hypotheses = list(
+            match_lines(
+                peaks,
+                features,
+                dispersion_range=(0.4 * dispersion_guess, 2.5 * dispersion_guess),
+                tolerance_nm=max(2.0, 0.5 * resolution_nm),
+                allow_reversed=allow_reversed,
+                count=HYPOTHESES,
+            )
+        )
+    else:
+        hypotheses = [start]
+    # Every hypothesis is carried through the feature fits; the one whose mapping explains the
+    # most (and strongest) features wins — a match by peaks alone is fooled by a camera's own
+    # narrow structure, which a feature fit through the list does not line up with.
+    outcomes = []
+    for hypothesis in hypotheses:
+        try:
+            outcomes.append(
+                _refine(
+                    family,
+                    hypothesis,
+                    pixel,
+                    signal,
+                    noise,
+                    features_at(chosen, hypothesis, fwhm_px, pixel_range),
+                    fwhm_px,
+                    pixel_range,
+                )
+            )
+        except (EstimationError, ValueError, np.linalg.LinAlgError):
+            continue
+    if not outcomes:
+        raise EstimationError(
+            f"none of {len(hypotheses)} line matches held when the {kind} features were fitted "
+            "(is the lamp the one named, and the first order whole?)"
+        )
+    x, covariance, fitted, sigma, used, _ = max(outcomes, key=_support)
+    exact = family.mapping(x)
+    matches = tuple(
+        FeatureMatch(
+            f.blend,
+            f.pixel,
+            f.sigma,
+            float(exact.wavelength_nm(np.array([f.pixel]))[0]),
+            float(s),
+            bool(u),
+            f.amplitude,
+        )
+        for f, s, u in zip(fitted, sigma, used, strict=True)
+    )
+    report = _report(exact, family, x, covariance, pixel_range)
+    kept = [m for m in matches if m.used]
+    residuals = np.array([m.residual_nm for m in kept])
+    details: dict[str, Any] = {
+        "origin": f"{kind} features",
+        "family": "grating" if isinstance(family, GratingFamily) else "quadratic",
+        "n_features": len(matches),
+        "n_used": len(kept),
+        "residual_rms_nm": float(np.sqrt(np.mean(residuals**2))) if kept else None,
+        "matched_lines": [m.row() for m in matches],
+    }
+    if isinstance(exact, TiltedGrating):
+        details["grating"] = exact.to_dict()
+    mapping_out = report.with_details(details={**dict(report.details), **details})
+    return FeatureMapping(mapping_out, exact, matches, details)
+
+
+_Outcome = tuple[FloatArray, FloatArray, list[_Fitted], FloatArray, FloatArray, float]
+
+
+def _support(outcome: _Outcome) -> float:
+    """The features a mapping keeps, less half those it puts inside the profile but could not fit
+    or rejected — each counted by the fourth root of its listed strength: a list's strengths are
+    a typical lamp's, not this one's (a CFL's Hg 404.7 may be faint, its Tb peak strong), so they
+    only mildly favour strong lines. A mapping that predicts lines where there are none loses."""
+    _, _, fitted, _, used = outcome[:5]
+    expected = outcome[5]
+    kept = sum(_weight(f.blend) for f, u in zip(fitted, used, strict=True) if u)
+    return float(kept - 0.5 * (expected - kept))
+
+
+def _weight(blend: Blend) -> float:
+    return float(blend.strength**0.25)
+
+
+def _refine(
+    family: Family,
+    mapping: ExactMapping,
+    pixel: FloatArray,
+    signal: FloatArray,
+    noise: float,
+    features: Sequence[Blend],
+    fwhm_px: float,
+    pixel_range: tuple[float, float],
+) -> _Outcome:
+    """Fit the features where ``mapping`` puts them, the mapping through them; :data:`ROUNDS`."""
+    # The family starts where the hypothesis is supported (between the features it predicts
+    # inside the profile): a quadratic through a few lines says little beyond them.
+    inside = []
+    for blend in features:
+        try:
+            at = float(_pixel_of(mapping, np.array([blend.wavelength_nm]))[0])
+        except InputError:
+            continue
+        if pixel_range[0] <= at <= pixel_range[1]:
+            inside.append(at)
+    span = (min(inside), max(inside)) if len(inside) >= 2 else pixel_range
+    x = _initial_parameters(family, mapping, np.linspace(*span, 64))
+    covariance = np.zeros((x.size, x.size))
+    fitted: list[_Fitted] = []
+    sigma = np.zeros(0)
+    used = np.zeros(0, dtype=bool)
+    for _ in range(ROUNDS):
+        current = family.mapping(x)
+        fitted = fit_features(pixel, signal, noise, features, current, fwhm_px)
+        if len(fitted) < x.size + 1:
+            raise EstimationError(
+                f"only {len(fitted)} of the list's features were found in the profile; the mapping "
+                f"needs at least {x.size + 1} (is the lamp the one named, and the first order whole?)"
+            )
+        pixels = np.array([f.pixel for f in fitted])
+        references = np.array([f.blend.reference.wavelength_nm for f in fitted])
+        sigma = np.sqrt(
+            (np.array([f.sigma for f in fitted]) * _slope(current, pixels)) ** 2
+            + np.array([f.blend.uncertainty_nm for f in fitted]) ** 2
+            + MODEL_ERROR_NM**2
+        )
+        used = np.ones(len(fitted), dtype=bool)
+        while True:
+            x, covariance, _ = fit_mapping_to_points(
+                family, x, pixels[used], references[used], sigma[used]
+            )
+            normalised = np.abs(family.wavelengths(pixels, x) - references) / sigma
+            worst = int(np.argmax(np.where(used, normalised, -1.0)))
+            if normalised[worst] <= OUTLIER_SIGMA or used.sum() <= x.size + 1:
+                break
+            used[worst] = False
+    final = family.mapping(x)
+    expected = 0.0
+    for blend in features:
+        try:
+            where = float(_pixel_of(final, np.array([blend.wavelength_nm]))[0])
+        except InputError:
+            continue
+        if pixel_range[0] + fwhm_px < where < pixel_range[1] - fwhm_px:
+            expected += _weight(blend)
+    return x, covariance, fitted, sigma, used, expected
+
+
+def _slope(mapping: ExactMapping, pixels: FloatArray) -> FloatArray:
+    if isinstance(mapping, TiltedGrating):
+        return np.abs(mapping.dispersion_at(pixels))
+    return np.abs(mapping.dispersion_nm_per_px(pixels))
+
+
+def _report(
+    exact: ExactMapping,
+    family: Family,
+    x: FloatArray,
+    covariance: FloatArray,
+    pixel_range: tuple[float, float],
+) -> QuadraticMapping:
+    pixels = np.linspace(pixel_range[0], pixel_range[1], 256)
+    fitted = QuadraticMapping.fit(pixels, exact.wavelength_nm(pixels))
+    jacobian = family.jacobian(pixels, x)
+    design = np.stack([pixels**2, pixels, np.ones_like(pixels)], axis=1)
+    projection = np.linalg.pinv(design)
+    coefficient_covariance = projection @ jacobian @ covariance @ jacobian.T @ projection.T
+    variance = np.einsum("ij,jk,ik->i", jacobian, covariance, jacobian)
+    details: dict[str, Any] = {}
+    if isinstance(exact, TiltedGrating):
+        details["quadratic_max_error_nm"] = float(
+            np.max(np.abs(fitted.wavelength_nm(pixels) - exact.wavelength_nm(pixels)))
+        )
+    return QuadraticMapping(
+        fitted.a,
+        fitted.b,
+        fitted.c,
+        method="features",
+        pixel_range=pixel_range,
+        covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in coefficient_covariance),
+        wavelength_rms_nm=float(np.sqrt(np.mean(np.clip(variance, 0.0, None)))),
+        details=details,
+        model=exact if isinstance(exact, TiltedGrating) else None,
+    )

@@ -1,0 +1,473 @@
+"""The pixel→wavelength mapping of one geometry's lamps, from whatever they offer — physics first.
+
+:func:`locate_mapping` decides what the lamps can tell and combines the ways this package has:
+
+1. **The rig's prior** (:mod:`calib.wavelength.rig_prior`): with pixels measured from the direct spot,
+   the grating equation through the lens is the model, and what the capture reports (EXIF focal
+   length and pitch, the spot's place on the sensor), the rig's line density and a grating file of
+   the same rig become its prior.
+2. **Lines, when there are lines** (:mod:`calib.wavelength.features`): a lamp whose spectrum is a
+   built-in line list (``builtin:cfl-triphosphor`` — a lamp nobody measured) is mapped through its
+   lines; a measured source that resolves Fraunhofer or telluric dips (sunlight at ≤ 1 nm) is
+   refined through them from the whole-profile start. A measured fluorescent lamp keeps the
+   whole-profile fit, and its Hg lines, fitted where that mapping puts them, say how well (a 5 nm
+   table biases the fit by most of a nanometre: the warning suggests ``builtin:cfl-triphosphor``).
+   The matched-line table goes with the result.
+3. **Otherwise the whole profiles** (:func:`calib.wavelength.profile_search.search_profiles`): the
+   lamps times a response under the camera prior, with batched scans, analytic Jacobians and the
+   basins' profile likelihoods — ambiguity stated, never hidden.
+
+Either orientation is tried when the profile's origin is arbitrary (a 1-D export may be mirrored);
+the result is monotonic or an error.
+
+The result's :class:`calib.core.mapping.QuadraticMapping` (the report format) carries in its
+``details``: ``family`` and ``grating`` (the physical parameters), ``matched_lines`` (rows
+``{line, wavelength_nm, pixel, fitted_nm, residual_nm, weight}``), ``candidates`` (every basin with its
+mapping and likelihood), ``ambiguous`` and ``warnings`` (sentences for the user), and
+``rig_prior`` (what the physics rested on).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+from calib.core.line_lists import Line, builtin_lines, is_builtin, line_list
+from calib.core.mapping import QuadraticMapping, TiltedGrating
+from calib.core.observations import LampObservation
+from calib.core.spectra import WavelengthGrid
+from calib.model.bases import CameraPrior
+from calib.model.resolution import camera_kernel
+from calib.wavelength.families import GratingFamily, GratingPrior
+from calib.wavelength.features import FeatureMapping, map_features
+from calib.wavelength.profile_search import Orientation, search_profiles
+from calib.wavelength.rig_prior import (
+    RigGeometry,
+    default_prior,
+    optics_from_observation,
+    rig_prior,
+)
+
+ExactMapping = QuadraticMapping | TiltedGrating
+
+#: A measured lamp spectrum sampled coarser than this (nm) cannot place a fluorescent lamp's lines.
+COARSE_SPECTRUM_NM = 2.0
+#: Absorption features of the built-in solar list that must be found in a measured spectrum for
+#: the dips to be used (sunlight, or a lamp behind an absorbing filter).
+MIN_SPECTRUM_DIPS = 3
+#: A measured spectrum resolves absorption dips when sampled at least this finely (nm).
+DIP_SAMPLING_NM = 1.0
+#: A known Hg line this far (nm) from where the whole-profile mapping puts it is reported.
+KNOWN_LINE_WARNING_NM = 0.3
+#: Line width (FWHM, profile samples) assumed when neither a line spread nor the profile tells.
+DEFAULT_FWHM_PX = 4.0
+#: A line-based mapping this far (RMS, nm) from the whole-profile start it was refined from is
+#: reported (the two sources disagree: a wrong line list or a wrong lamp).
+DISAGREEMENT_NM = 2.0
+
+
+@dataclass(frozen=True)
+class MappingSolution:
+    """The mapping and how it was found.
+
+    Attributes
+    ----------
+    mapping
+        The report form (see the module docstring for its ``details``).
+    exact
+        The mapping in its family (:class:`calib.core.mapping.TiltedGrating` for the physical one).
+    warnings
+        Sentences for the user.
+    """
+
+    mapping: QuadraticMapping
+    exact: ExactMapping
+    warnings: tuple[str, ...] = ()
+    details: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def matched_lines(self) -> list[dict[str, Any]]:
+        rows = self.details.get("matched_lines")
+        return list(rows) if isinstance(rows, list) else []
+
+    @property
+    def ambiguous(self) -> bool:
+        return bool(self.details.get("ambiguous", False))
+
+
+def lamp_lines(observation: LampObservation) -> tuple[Line, ...] | None:
+    """The built-in line list a lamp's spectrum was rendered from (``builtin:NAME``), or ``None``."""
+    name = observation.spectrum.name
+    return builtin_lines(name) if is_builtin(name) else None
+
+
+def fwhm_px(observation: LampObservation, kind: str = "emission") -> float:
+    """The camera's line width in profile samples: the measured line spread's FWHM, else the
+    narrowest of the profile's strong lines (or dips), else :data:`DEFAULT_FWHM_PX`."""
+    if observation.line_spread is not None and observation.line_spread.size > 1:
+        spread = observation.line_spread
+        above = np.flatnonzero(spread >= 0.5 * float(spread.max()))
+        return float(max(above[-1] - above[0] + 1, 1))
+    from scipy import ndimage, signal
+
+    total = np.sum(observation.profile, axis=1)
+    if kind == "emission":
+        # Lines stand on broad bands: a baseline far wider than any line (a twentieth).
+        baseline = ndimage.grey_opening(total, size=max(3, (total.size // 20) | 1), mode="nearest")
+        values = total - baseline
+    else:
+        from calib.wavelength.features import feature_signal
+
+        # Dips under the channels' envelopes, found with a provisional width of a few samples.
+        values, _ = feature_signal(observation.profile, "absorption", DEFAULT_FWHM_PX)
+    peaks, properties = signal.find_peaks(values, prominence=0.05 * float(np.ptp(values)))
+    if peaks.size == 0:
+        return DEFAULT_FWHM_PX
+    widths = signal.peak_widths(values, peaks, rel_height=0.5)[0]
+    strongest = np.argsort(properties["prominences"])[::-1][:5]
+    # The narrowest of the strong ones: others are blends or bands.
+    return float(max(np.min(widths[strongest]), 1.5))
+
+
+def _grating_prior_for(
+    lead: LampObservation,
+    *,
+    geometry: GratingPrior | None,
+    grooves_per_mm: float | None,
+    stored: RigGeometry | None,
+) -> tuple[GratingPrior | None, str]:
+    """The physical family's prior: given, else from the rig (spot profiles), else none."""
+    if geometry is not None:
+        return geometry, geometry.source
+    from_spot = lead.pixel_origin == "direct_spot"
+    optics = optics_from_observation(lead)
+    prior, why = rig_prior(
+        optics, grooves_per_mm=grooves_per_mm, stored=stored, from_spot=from_spot
+    )
+    if prior is None and from_spot:
+        return default_prior(True), "defaults"
+    return prior, why
+
+
+def _feature_family(
+    lead: LampObservation, prior: GratingPrior | None, orientation: int
+) -> GratingFamily:
+    """The physical family for a line fit: the rig's prior, or weak plausibility bounds when the
+    0th order's position is unknown (a 1-D export)."""
+    if prior is not None:
+        return GratingFamily(prior, orientation=orientation, axis_offset_px=prior.axis_offset_px)
+    # 300–1800 lines/mm, a focal length of 500–50000 px, incidence within ±40°: broad enough
+    # for any rig, narrow enough to keep the four parameters out of degenerate corners.
+    loose = GratingPrior(
+        {
+            "log_spacing": (math.log(1e6 / 750.0), 0.6),
+            "log_focal": (math.log(5000.0), 1.2),
+            "incidence_deg": (0.0, 20.0),
+        },
+        "plausible gratings (nothing known of the rig)",
+    )
+    return GratingFamily(loose, orientation=orientation)
+
+
+def _map_lines(
+    lamp: LampObservation,
+    lines: Sequence[Line],
+    prior: GratingPrior | None,
+    *,
+    start: ExactMapping | None,
+    directions: Sequence[int],
+    grid: WavelengthGrid,
+    dispersion_nm_per_px: float | None = None,
+) -> FeatureMapping:
+    """Lines of one lamp through the physical family, in each allowed direction; the better kept.
+
+    ``dispersion_nm_per_px`` (a whole-profile fit's) narrows the line matching when there is no
+    ``start`` to follow."""
+    kind = lines[0].kind
+    width = fwhm_px(lamp, kind)
+    outcomes = []
+    errors = []
+    for direction in directions:
+        family = _feature_family(lamp, prior, direction)
+        try:
+            outcomes.append(
+                map_features(
+                    lamp.pixel,
+                    lamp.profile,
+                    lines,
+                    family=family,
+                    fwhm_px=width * float(np.median(np.diff(lamp.pixel))),
+                    start=start,
+                    nominal_dispersion=dispersion_nm_per_px,
+                    allow_reversed=direction < 0,
+                    kind=kind,
+                    range_nm=(grid.start_nm - 30.0, grid.stop_nm + 30.0),
+                )
+            )
+        except (EstimationError, ValueError) as exc:
+            errors.append(str(exc))
+    if not outcomes:
+        raise EstimationError(
+            f"lamp {lamp.name!r}: its {kind} lines could not be matched ({'; '.join(errors)})"
+        )
+    return max(outcomes, key=lambda o: sum(m.blend.strength for m in o.matches if m.used))
+
+
+def _spectrum_dips(observation: LampObservation) -> tuple[Line, ...]:
+    """Solar-list features that show as dips in a lamp's measured spectrum (≥ 3, else none)."""
+    from scipy import ndimage, signal
+
+    spectrum = observation.spectrum
+    axis = np.arange(max(spectrum.range_nm[0], 380.0), min(spectrum.range_nm[1], 760.0), 0.25)
+    if axis.size < 20:
+        return ()
+    values = spectrum.at(axis)
+    envelope = values.copy()
+    for _ in range(6):
+        envelope = ndimage.gaussian_filter1d(np.maximum(envelope, values), 24.0)
+    depth = 1.0 - values / np.maximum(envelope, 1e-300)
+    peaks, _ = signal.find_peaks(depth, prominence=0.02)
+    found_nm = axis[peaks]
+    step = float(np.median(np.diff(spectrum.wavelength_nm)))
+    tolerance = max(1.0, step)
+    present = tuple(
+        line
+        for line in line_list("solar")
+        if found_nm.size and float(np.min(np.abs(found_nm - line.wavelength_nm))) <= tolerance
+    )
+    return present if len(present) >= MIN_SPECTRUM_DIPS else ()
+
+
+def _coarse(observation: LampObservation, limit_nm: float = COARSE_SPECTRUM_NM) -> bool:
+    step = float(np.median(np.diff(observation.spectrum.wavelength_nm)))
+    bandwidth = observation.spectrum_bandwidth_nm or 0.0
+    return max(step, bandwidth) > limit_nm
+
+
+def _known_line_table(
+    lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
+) -> tuple[list[dict[str, Any]], str | None]:
+    """The built-in Hg lines fitted where ``mapping`` puts them (the mapping held): the matched-line
+    table of a measured fluorescent lamp, and a note when they sit off by more than
+    :data:`KNOWN_LINE_WARNING_NM` (a spectrum too coarse for its lines, or a wrong mapping)."""
+    from calib.wavelength.features import feature_signal, features_at, fit_features
+
+    width = fwhm_px(lamp)
+    spacing = float(np.median(np.diff(lamp.pixel)))
+    signal, noise = feature_signal(lamp.profile, "emission", width)
+    pixel_range = (float(lamp.pixel[0]), float(lamp.pixel[-1]))
+    lines = [
+        line
+        for line in line_list("hg")
+        if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
+    ]
+    blends = features_at(lines, mapping, width * spacing, pixel_range)
+    rows: list[dict[str, Any]] = []
+    for fitted in fit_features(lamp.pixel, signal, noise, blends, mapping, width * spacing):
+        reference = fitted.blend.reference
+        at = float(mapping.wavelength_nm(np.array([fitted.pixel]))[0])
+        rows.append(
+            {
+                "line": fitted.blend.label,
+                "wavelength_nm": reference.wavelength_nm,
+                "pixel": fitted.pixel,
+                "fitted_nm": at,
+                "residual_nm": at - reference.wavelength_nm,
+                "weight": 0.0,  # not used by the mapping (the whole-profile fit is)
+            }
+        )
+    off = [row for row in rows if abs(float(row["residual_nm"])) > KNOWN_LINE_WARNING_NM]
+    note = None
+    if off:
+        worst = max(off, key=lambda row: abs(float(row["residual_nm"])))
+        note = (
+            f"its {worst['line']} line sits {float(worst['residual_nm']):+.2f} nm from where the "
+            "mapping puts it: a lamp spectrum coarser than its lines biases the fit "
+            "(--spectrum builtin:cfl-triphosphor, or a finer measurement, avoids it)"
+        )
+    return rows, note
+
+
+def _directions(lead: LampObservation, orientation: Orientation) -> tuple[int, ...]:
+    if lead.pixel_origin == "direct_spot" or orientation == "rising":
+        return (1,)
+    if orientation == "falling":
+        return (-1,)
+    return (1, -1)
+
+
+def locate_mapping(
+    observations: LampObservation | Sequence[LampObservation],
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    *,
+    geometry: GratingPrior | None = None,
+    grooves_per_mm: float | None = None,
+    stored: RigGeometry | None = None,
+    starts: Sequence[QuadraticMapping] | None = None,
+    kernel: FloatArray | None = None,
+    orientation: Orientation = "auto",
+) -> MappingSolution:
+    """The mapping shared by one geometry's lamps (see the module docstring).
+
+    Parameters
+    ----------
+    observations
+        The lamps, in one pixel frame.
+    prior
+        The camera prior on ``grid``.
+    grid
+        The working grid (the mapping must cover it).
+    geometry
+        A grating prior to use as is (else it is built from the rig: :func:`calib.wavelength.
+        rig_prior.rig_prior`).
+    grooves_per_mm
+        The grating's nominal line density, when the rig's configuration gives it.
+    stored
+        The geometry of a grating file of the same rig.
+    starts
+        Starting mappings for the whole-profile search.
+    kernel
+        The camera's line spread in profile samples (default: the lamps').
+    orientation
+        ``"auto"`` tries both directions when the profiles' origin is arbitrary.
+
+    Returns
+    -------
+    MappingSolution
+    """
+    lamps = [observations] if isinstance(observations, LampObservation) else list(observations)
+    if not lamps:
+        raise InputError("no lamp observations to find the mapping with", source="observations")
+    lead = lamps[0]
+    grating_prior, prior_source = _grating_prior_for(
+        lead, geometry=geometry, grooves_per_mm=grooves_per_mm, stored=stored
+    )
+    directions = _directions(lead, orientation)
+    warnings: list[str] = []
+    line_lamps = [(lamp, lamp_lines(lamp)) for lamp in lamps]
+    listed = [(lamp, lines) for lamp, lines in line_lamps if lines]
+    measured = [lamp for lamp, lines in line_lamps if not lines]
+    details: dict[str, Any] = {"rig_prior": prior_source}
+
+    search = None
+    if measured and not listed:
+        search = search_profiles(
+            measured,
+            prior,
+            grid,
+            geometry=grating_prior
+            if grating_prior is not None and lead.pixel_origin == "direct_spot"
+            else geometry,
+            starts=starts,
+            kernel=kernel if kernel is not None else camera_kernel(lamps),
+            orientation=orientation,
+        )
+        warnings += list(search.warnings)
+
+    features: FeatureMapping | None = None
+    if listed:
+        lamp, lines = max(listed, key=lambda item: len(item[1] or ()))
+        assert lines is not None
+        # The lines decide: a broadband lamp's whole-profile fit is not needed (nor trusted) to
+        # start them.
+        features = _map_lines(
+            lamp, lines, grating_prior, start=None, directions=directions, grid=grid
+        )
+        details["line_source"] = f"{lamp.spectrum.name} (built-in list)"
+    elif search is not None:
+        # A measured source that resolves absorption dips (sunlight at ≤ 1 nm) is refined
+        # through them; a table coarser than its dips (D65's) would put them at its nodes.
+        dipped = [
+            (lamp, _spectrum_dips(lamp))
+            for lamp in measured
+            if lamp.kind != "fluorescent" and not _coarse(lamp, DIP_SAMPLING_NM)
+        ]
+        dipped = [(lamp, dips) for lamp, dips in dipped if dips]
+        if dipped:
+            lamp, dips = dipped[0]
+            # The dips are matched afresh, in the fit's direction and near its dispersion: a
+            # broadband fit can be a few nanometres off, more than a dip's width.
+            middle = np.array([0.5 * (lead.pixel[0] + lead.pixel[-1])])
+            try:
+                features = _map_lines(
+                    lamp,
+                    dips,
+                    grating_prior,
+                    start=None,
+                    directions=(_direction(search.exact, lead),),
+                    grid=grid,
+                    dispersion_nm_per_px=abs(float(_local_dispersion(search.exact, middle)[0])),
+                )
+                details["line_source"] = f"absorption features of {lamp.name}"
+            except EstimationError as exc:
+                warnings.append(f"the absorption refinement failed ({exc}); the profile fit stands")
+        else:
+            # A measured line lamp: the profile fit stands; its known lines say how well.
+            fluorescent = [lamp for lamp in measured if lamp.kind == "fluorescent"]
+            if fluorescent:
+                # The table is for the report and the quality checks: residuals at the known
+                # lines, with the mapping held (a note, not a warning — a rendered lamp table's
+                # lines sit at its nodes, a real lamp's at their wavelengths).
+                table, note = _known_line_table(fluorescent[0], search.exact, grid)
+                details["matched_lines"] = table
+                if note:
+                    details["known_lines_note"] = f"lamp {fluorescent[0].name!r}: {note}"
+
+    if features is not None:
+        mapping, exact = features.mapping, features.exact
+        details.update(features.details)
+        details["ambiguous"] = False
+        if search is not None:
+            probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
+            apart = float(
+                np.sqrt(
+                    np.mean((exact.wavelength_nm(probe) - search.exact.wavelength_nm(probe)) ** 2)
+                )
+            )
+            details["profile_fit_distance_nm"] = apart
+            details["profile_fit"] = search.mapping.to_dict()
+            if apart > DISAGREEMENT_NM:
+                warnings.append(
+                    f"the lines and the whole-profile fit disagree by {apart:.1f} nm (RMS); the "
+                    "lines are used — check that the lamp spectra are the lamps'"
+                )
+    else:
+        assert search is not None
+        mapping, exact = search.mapping, search.exact
+        details.update(search.details)
+    _check_monotonic(exact, lead)
+    details["warnings"] = warnings
+    mapping = mapping.with_details(details={**dict(mapping.details), **details})
+    return MappingSolution(mapping, exact, tuple(warnings), details)
+
+
+def _local_dispersion(mapping: ExactMapping, pixel: FloatArray) -> FloatArray:
+    if isinstance(mapping, TiltedGrating):
+        return mapping.dispersion_at(pixel)
+    return mapping.dispersion_nm_per_px(pixel)
+
+
+def _direction(mapping: ExactMapping, lead: LampObservation) -> int:
+    ends = mapping.wavelength_nm(np.array([lead.pixel[0], lead.pixel[-1]]))
+    return 1 if ends[1] >= ends[0] else -1
+
+
+def _check_monotonic(mapping: ExactMapping, lead: LampObservation) -> None:
+    """A mapping that folds back over the profile is an error, never a result."""
+    wavelengths = mapping.wavelength_nm(np.linspace(lead.pixel[0], lead.pixel[-1], 257))
+    steps = np.diff(wavelengths)
+    if not (np.all(steps > 0) or np.all(steps < 0)) or not np.all(np.isfinite(wavelengths)):
+        raise EstimationError(
+            "the mapping found folds back over the profile (not monotonic); the profile may hold "
+            "more than one order or a reversed part — crop it to one first order"
+        )
+
+
+__all__ = ["MappingSolution", "fwhm_px", "lamp_lines", "locate_mapping"]

@@ -1,0 +1,936 @@
+"""The pixel→wavelength mapping from whole profiles: physics first, batched scans, honest basins.
+
+Every stage fits the profiles themselves with the lamp times a per-channel response under the
+camera prior (:class:`calib.wavelength.response_model.ResponseModel`), as
+:mod:`calib.wavelength.search` does, but
+
+- the mapping lives in a **family** (:mod:`calib.wavelength.families`): the grating equation through
+  a lens when the profile's pixels are measured from the 0th order (``pixel_origin="direct_spot"``)
+  or the rig's geometry is known — with the line density, focal length and incidence as a prior,
+  an LED-only search has one or two free directions and starts in the right basin — else the
+  paper's quadratic;
+- **scans are batched**: a whole grid of trial mappings is one vectorised call on a binned profile,
+  and every refinement is Levenberg–Marquardt with the exact Jacobian
+  (:mod:`calib.wavelength.least_squares`);
+- **coarse to fine with few starts**: scan (binned, stiff prior) → the grid's local minima refined
+  → distinct basins refined on a finer profile with a flexible response (which decides between
+  them) → the best one refined with finer response nodes;
+- **ambiguity is measured, not hidden**: each basin's cost is a profile likelihood; the stated σ of
+  the mapping mixes the best basin's curvature with the other basins weighted by their likelihood
+  ratio (tempered by the fit's reduced χ², so a model misfit does not make one basin look
+  certain), and when a competing basin's likelihood ratio passes :data:`AMBIGUITY_DELTA_CHI2` the
+  result says so and carries every candidate (:class:`MappingSearch`);
+- **either orientation**: for profiles whose origin is arbitrary, both directions (wavelength rising
+  or falling with the pixel) are searched; a mapping that folds back is never returned.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.blas import one_blas_thread
+from calib.core.errors import EstimationError, InputError
+from calib.core.mapping import QuadraticMapping, TiltedGrating, wavelength_rms_from_covariance
+from calib.core.observations import LampObservation
+from calib.core.spectra import WavelengthGrid
+from calib.model.bases import CameraPrior
+from calib.model.resolution import camera_kernel, match_spectrometer
+from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
+from calib.wavelength.least_squares import Solution, levenberg_marquardt
+from calib.wavelength.response_model import ResponseModel, fine_step_for
+from calib.wavelength.rig_prior import default_prior
+from calib.wavelength.search import (
+    COARSE_NODES_NM,
+    FINE_NODES_NM,
+    FLEXIBILITY,
+    GLOBAL_SIGMA_FLOOR,
+    LOCAL_FLEXIBILITY,
+    _binned_kernel,
+    bin_pixels,
+)
+
+Family = QuadraticFamily | GratingFamily
+ExactMapping = QuadraticMapping | TiltedGrating
+Orientation = Literal["auto", "rising", "falling"]
+
+#: Width (nm) of a binned pixel in the scan, the refinement of its minima, the basin-deciding and
+#: the final stage (a bin is never narrower than the profile's own pixels).
+SCAN_BIN_NM = 5.0
+GLOBAL_BIN_NM = 2.5
+REFINE_BIN_NM = 1.0
+FINAL_BIN_NM = 0.5
+#: Node spacing (nm) of the response in the scan.
+SCAN_NODES_NM = 10.0
+#: Quadratic family: the scan shifts the wavelengths at both ends of the profile by this half width
+#: and step (nm) around each start (the middle follows): the correlation search's linear starts are
+#: 2–25 nm off at the ends on the training cameras (a camera unlike the mean, the mapping's
+#: curvature). At most this many starts per direction, at least a step apart, are scanned.
+QUADRATIC_SCAN = (24.0, 4.0)
+MAX_STARTS = 2
+#: Around each refined scan minimum, the ends are scanned again this finely (half width, step nm).
+LOCAL_SCAN = (6.0, 2.0)
+#: Grating family: the same end grid, for the prior's focal length (±1σ when it is loose) or,
+#: without one, for each of these (px).
+#: Without a focal length, the scan covers wide-angle to telephoto at typical pitches (the curvature
+#: of the first order sets it; one value per ×1.5).
+UNKNOWN_FOCAL_LENGTHS_PX = tuple(float(f) for f in np.geomspace(800.0, 40000.0, 10))
+#: Local minima of a scan refined (per family), and the distinct basins among them (> 1 nm apart
+#: somewhere) carried to the deciding stage.
+SCAN_MINIMA = 4
+MAX_BASINS = 3
+#: A competing basin whose tempered Δχ² is below this is an ambiguity: warned about, carried in the
+#: result. Chosen on validation cameras only — leave-one-camera-out over the 44 training cameras,
+#: ``bench/wavelength_loco.py``, 264 scenes (paper/spot/rig geometry × LED-B3/D65): 25 warns on
+#: 10 of the 32 scenes whose mapping was > 3 nm off and on 37 of the 232 that were not; 100
+#: would warn on 27 failures but on half the good scenes. Decision 0025.
+AMBIGUITY_DELTA_CHI2 = 25.0
+#: A competing basin closer than this (RMS, nm) is the same answer, whatever its Δχ².
+AMBIGUITY_MIN_DISTANCE_NM = 1.0
+#: The basins' likelihood ratios are tempered by this before weighting the stated σ: the Δχ² of a
+#: misspecified camera prior is not χ²-distributed. With :data:`LOCAL_SIGMA_SCALE` chosen on the
+#: same 264 LOCO scenes (median actual/stated error 0.83; rig geometry: RMS ratio 1.22).
+BASIN_TEMPER = 3.0
+#: The local (curvature) σ understates what the prior's pull does to a camera unlike the others:
+#: on the LOCO scenes whose basin was right, actual/local RMS error had a median of 1.9.
+LOCAL_SIGMA_SCALE = 2.0
+#: σ (nm) of a measured lamp spectrum's wavelength scale as a whole: compact spectrometers state a
+#: wavelength accuracy of ±0.5 nm (a uniform error within it: 0.5/√3). It shifts the mapping alike
+#: at every pixel, and no profile fit can see it.
+SPECTROMETER_SCALE_SIGMA_NM = 0.5 / math.sqrt(3.0)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One basin of the mapping search: its mapping, cost and weight relative to the best."""
+
+    mapping: ExactMapping
+    cost: float
+    delta_chi2: float
+    weight: float
+    distance_nm: float
+
+    def to_dict(self, pixel_range: tuple[float, float]) -> dict[str, Any]:
+        probe = np.linspace(pixel_range[0], pixel_range[1], 5)
+        return {
+            "mapping": self.mapping.to_dict(),
+            "cost": self.cost,
+            "delta_chi2": self.delta_chi2,
+            "relative_likelihood": self.weight,
+            "rms_distance_nm": self.distance_nm,
+            "wavelength_at_pixels_nm": {
+                f"{p:g}": float(w)
+                for p, w in zip(probe, self.mapping.wavelength_nm(probe), strict=True)
+            },
+        }
+
+
+@dataclass(frozen=True)
+class MappingSearch:
+    """What the search found.
+
+    Attributes
+    ----------
+    mapping
+        The report form: a :class:`calib.core.mapping.QuadraticMapping` over the profile with the
+        covariance, ``wavelength_rms_nm`` (local curvature and basin spread combined) and the
+        search's details (the grating parameters when the family is physical).
+    exact
+        The mapping in its family (a :class:`calib.core.mapping.TiltedGrating` for the physical
+        one).
+    candidates
+        Every distinct basin, best first.
+    ambiguous
+        A competing basin is within :data:`AMBIGUITY_DELTA_CHI2`.
+    warnings
+        Sentences for the user (ambiguity, recommendation of a line lamp).
+    """
+
+    mapping: QuadraticMapping
+    exact: ExactMapping
+    candidates: tuple[Candidate, ...]
+    ambiguous: bool
+    warnings: tuple[str, ...] = ()
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------------------- stage fits
+
+
+@dataclass(frozen=True, eq=False)
+class StageFit:
+    """Several lamps (one frame, one mapping) under one family at one resolution."""
+
+    models: tuple[ResponseModel, ...]
+    family: Family
+    pixel_range: tuple[float, float]
+
+    @property
+    def edges_px(self) -> FloatArray:
+        return self.models[0].edges_px
+
+    def valid(self, x: FloatArray) -> FloatArray:
+        """Validity of each mapping ``(K, P)`` (a vector) or of one ``(P,)``."""
+        x = np.nan_to_num(np.atleast_2d(x), nan=np.inf)
+        finite = np.all(np.isfinite(x), axis=1)
+        out = np.zeros(x.shape[0], dtype=bool)
+        if np.any(finite):
+            if isinstance(self.family, GratingFamily):
+                out[finite] = self.family.valid(x[finite], self.pixel_range)
+            else:
+                out[finite] = self.family.valid(x[finite])
+        return out
+
+    def costs(self, x: FloatArray) -> FloatArray:
+        """Costs of a batch ``(K, P)`` (invalid points: ``inf``)."""
+        x = np.atleast_2d(x)
+        valid = self.valid(x)
+        out = np.full(x.shape[0], np.inf)
+        if not np.any(valid):
+            return out
+        edges = self.family.wavelengths(self.edges_px, x[valid])
+        total = sum(model.costs(edges) for model in self.models)
+        if isinstance(self.family, GratingFamily):
+            total = total + self.family.prior_cost(x[valid])
+        out[valid] = total
+        return out
+
+    def function(
+        self, x: FloatArray, with_jacobian: bool
+    ) -> tuple[FloatArray, FloatArray | None] | None:
+        if not self.valid(x)[0]:
+            return None
+        edges = self.family.wavelengths(self.edges_px, x)
+        edge_jacobian = self.family.jacobian(self.edges_px, x) if with_jacobian else None
+        residuals, jacobians = [], []
+        for model in self.models:
+            residual, jacobian, _ = model.residual(edges, edge_jacobian)
+            residuals.append(residual)
+            jacobians.append(jacobian)
+        if isinstance(self.family, GratingFamily):
+            rows, row_jacobian = self.family.prior_rows(x)
+            residuals.append(rows)
+            jacobians.append(row_jacobian)
+        residual = np.concatenate(residuals)
+        if not with_jacobian:
+            return residual, None
+        return residual, np.vstack([j for j in jacobians if j is not None])
+
+    def fixed_at(self, x: FloatArray) -> StageFit:
+        """The same fit with each model's prior scale and penalty weights held at ``x``'s."""
+        edges = self.family.wavelengths(self.edges_px, x)
+        return replace(self, models=tuple(model.reference(edges) for model in self.models))
+
+    def refine(
+        self, x: FloatArray, max_iterations: int, tolerance: float = 1e-6, rounds: int = 2
+    ) -> Solution:
+        """Levenberg–Marquardt from ``x``, the prior scale and penalties held at the start, then
+        (``rounds=2``) once more held at the solution: its cost is then :meth:`costs`' at its own
+        point, so the costs of different basins compare."""
+        first = levenberg_marquardt(
+            self.fixed_at(x).function, x, max_iterations=max_iterations, tolerance=tolerance
+        )
+        if rounds == 1:
+            return first
+        again = levenberg_marquardt(
+            self.fixed_at(first.x).function,
+            first.x,
+            max_iterations=max(3, max_iterations // 4),
+            tolerance=tolerance,
+        )
+        return replace(again, evaluations=first.evaluations + again.evaluations)
+
+
+def _stage(
+    lamps: Sequence[LampObservation],
+    family: Family,
+    grid: WavelengthGrid,
+    prior: CameraPrior,
+    *,
+    bin_nm: float,
+    nm_per_px: float,
+    kernel: FloatArray | None,
+    node_step_nm: float,
+    flexibility: float,
+    sigma_floor: float,
+    pixel_range: tuple[float, float],
+) -> StageFit:
+    factor = max(1, int(bin_nm / max(nm_per_px, 1e-9)))
+    stage_kernel = (
+        None if kernel is None else (kernel if factor == 1 else _binned_kernel(kernel, factor))
+    )
+    models = tuple(
+        ResponseModel.build(
+            bin_pixels(lamp, factor),
+            grid,
+            node_step_nm=node_step_nm,
+            prior=prior,
+            flexibility=flexibility,
+            kernel=stage_kernel,
+            sigma_floor=sigma_floor,
+            fine_step_nm=fine_step_for(nm_per_px * factor),
+        )
+        for lamp in lamps
+    )
+    return StageFit(models, family, pixel_range)
+
+
+# ------------------------------------------------------------------------------- the search
+
+
+def _distinct(
+    solutions: Sequence[tuple[Family, Solution]], pixel_range: tuple[float, float], count: int
+) -> list[tuple[Family, Solution]]:
+    """Lowest cost first, keeping those that differ from every kept one by > 1 nm somewhere."""
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+    chosen: list[tuple[Family, Solution, FloatArray]] = []
+    for family, solution in sorted(solutions, key=lambda item: item[1].cost):
+        wavelengths = family.wavelengths(probe, solution.x)
+        if all(np.max(np.abs(wavelengths - other)) > 1.0 for _, _, other in chosen):
+            chosen.append((family, solution, wavelengths))
+        if len(chosen) == count:
+            break
+    return [(family, solution) for family, solution, _ in chosen]
+
+
+def _local_minima(costs: FloatArray, shape: tuple[int, ...]) -> list[int]:
+    """Flat indices of the grid's local minima (≤ every neighbour), lowest first."""
+    from scipy import ndimage
+
+    grid_costs = costs.reshape(shape)
+    finite = np.where(np.isfinite(grid_costs), grid_costs, np.inf)
+    lowest = ndimage.minimum_filter(finite, size=3, mode="nearest")
+    minima = np.flatnonzero((finite <= lowest) & np.isfinite(finite))
+    return sorted(minima.tolist(), key=lambda i: float(costs[i]))
+
+
+def _quadratic_points(
+    start: QuadraticMapping,
+    family: QuadraticFamily,
+    scan: tuple[float, float] = QUADRATIC_SCAN,
+) -> tuple[FloatArray, tuple[int, ...]]:
+    """The end-shift grid around ``start`` as parameter vectors ``(K, 3)``."""
+    half, step = scan
+    shifts = np.arange(-half, half + 0.5 * step, step)
+    left, right = np.meshgrid(shifts, shifts, indexing="ij")
+    base = family.parameters(start)
+    points = base[None, :] + np.stack(
+        [left.ravel(), 0.5 * (left + right).ravel(), right.ravel()], axis=1
+    )
+    return points, (shifts.size, shifts.size)
+
+
+def _grating_points(
+    family: GratingFamily, start: QuadraticMapping, pixel_range: tuple[float, float]
+) -> tuple[FloatArray, tuple[int, ...]]:
+    """Trial gratings on a grid of the wavelengths at both ends of the profile, for each focal length.
+
+    The same end grid as the quadratic family's (in nm, where the cost's resolution lives): for a
+    focal length ``F`` and the 0th order at ``p₀``, two points ``(u, λ)`` fix the groove spacing
+    and the incidence in closed form. With ``a = atan((u + u₀)/F) − atan(u₀/F)``,
+    ``sin(θ + a) − sin θ = 2 cos(θ + a/2) sin(a/2)``, so the ratio of the two wavelengths gives
+    ``tan θ = (c_L − q c_R)/(s_L − q s_R)`` with ``c, s = cos(a/2), sin(a/2)`` and
+    ``q = (λ_L/λ_R)·s_R/s_L``; then ``d = λ_R / (sin(θ + a_R) − sin θ)``. Points with no
+    physical solution (|θ| ≥ 60°) are left out. The soft prior (line density, focal length,
+    incidence) enters the scan's cost, so the grid need not respect it.
+    """
+    soft = family.prior.soft()
+    fixed = family.prior.fixed()
+    if "log_focal" in fixed:
+        focals = [math.exp(fixed["log_focal"])]
+    elif "log_focal" in soft:
+        mean, sigma = soft["log_focal"]
+        focals = [
+            math.exp(mean + k * sigma) for k in ((0.0,) if sigma < 0.03 else (-1.0, 0.0, 1.0))
+        ]
+    else:
+        focals = list(UNKNOWN_FOCAL_LENGTHS_PX)
+    p0 = fixed.get("zero_order_px", soft.get("zero_order_px", (0.0, 0.0))[0])
+    half, step = QUADRATIC_SCAN
+    shifts = np.arange(-half, half + 0.5 * step, step)
+    ends_px = np.array(pixel_range)
+    left_nm, right_nm = np.meshgrid(
+        *(start.wavelength_nm(ends_px)[:, None] + shifts), indexing="ij"
+    )
+    offset = family.axis_offset_px
+    rows = []
+    keep = []
+    for focal in focals:
+        along = family.orientation * (ends_px - p0) + offset
+        angle = np.arctan(along / focal) - math.atan(offset / focal)
+        half_sin, half_cos = np.sin(angle / 2), np.cos(angle / 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = (left_nm / right_nm) * half_sin[1] / half_sin[0]
+            theta = np.arctan((half_cos[0] - q * half_cos[1]) / (half_sin[0] - q * half_sin[1]))
+            spacing = right_nm / (np.sin(theta + angle[1]) - np.sin(theta))
+        ok = (np.abs(theta) < math.radians(60.0)) & (spacing > 0) & np.isfinite(spacing)
+        full = {
+            "zero_order_px": np.full(theta.shape, p0),
+            "log_spacing": np.log(np.where(ok, spacing, 1.0)),
+            "log_focal": np.full(theta.shape, math.log(focal)),
+            "incidence_deg": np.degrees(theta),
+            "axis_offset_px": np.full(theta.shape, offset),
+        }
+        rows.append(np.stack([full[name].ravel() for name in family.names], axis=1))
+        keep.append(ok.ravel())
+    points = np.concatenate(rows)
+    valid = np.concatenate(keep)
+    # Invalid points keep their place in the grid (cost inf) so local minima stay local.
+    points[~valid] = points[valid][0] if np.any(valid) else points[~valid]
+    return np.where(valid[:, None], points, np.nan), (len(focals), shifts.size, shifts.size)
+
+
+#: Scan of a grating seen from its 0th order with no rig knowledge: the wavelength at the
+#: profile's first pixel (nm) and the incidence (degrees); the focal lengths are
+#: :data:`UNKNOWN_FOCAL_LENGTHS_PX` (or the prior's).
+SPOT_FIRST_NM = tuple(float(v) for v in np.arange(300.0, 441.0, 5.0))
+SPOT_INCIDENCE_DEG = (-6.0, 0.0, 6.0)
+
+
+def _spot_points(
+    family: GratingFamily, pixel_range: tuple[float, float]
+) -> tuple[FloatArray, tuple[int, ...]]:
+    """Gratings for every (focal length, incidence, wavelength at the first pixel): with the 0th
+    order pinned, those fix the groove spacing (``d = λ₁ / (sin(θ + a₁) − sin θ)``)."""
+    soft = family.prior.soft()
+    fixed = family.prior.fixed()
+    if "log_focal" in soft:
+        mean, sigma = soft["log_focal"]
+        focals = [math.exp(mean + k * sigma) for k in (-1.0, 0.0, 1.0)]
+    elif "log_focal" in fixed:
+        focals = [math.exp(fixed["log_focal"])]
+    else:
+        focals = list(UNKNOWN_FOCAL_LENGTHS_PX)
+    incidences = [fixed["incidence_deg"]] if "incidence_deg" in fixed else list(SPOT_INCIDENCE_DEG)
+    p0 = fixed["zero_order_px"]
+    offset = family.offset_guess
+    first_px = pixel_range[0] if family.orientation > 0 else pixel_range[1]
+    rows = []
+    for focal in focals:
+        along = family.orientation * (first_px - p0) + offset
+        angle = math.atan(along / focal) - math.atan(offset / focal)
+        for incidence in incidences:
+            theta = math.radians(incidence)
+            sine = math.sin(theta + angle) - math.sin(theta)
+            for first_nm in SPOT_FIRST_NM:
+                spacing = first_nm / sine if sine > 0 else float("nan")
+                full = {
+                    "zero_order_px": p0,
+                    "log_spacing": math.log(spacing) if spacing > 0 else float("nan"),
+                    "log_focal": math.log(focal),
+                    "incidence_deg": incidence,
+                    "axis_offset_px": offset,
+                }
+                rows.append([full[name] for name in family.names])
+    return np.array(rows), (len(focals), len(incidences), len(SPOT_FIRST_NM))
+
+
+def _rig_known(family: GratingFamily) -> bool:
+    """Whether the prior gives the groove spacing, focal length and incidence."""
+    return all(
+        name in family.prior.values for name in ("log_spacing", "log_focal", "incidence_deg")
+    )
+
+
+#: Grid over a rig's prior, in units of each parameter's σ: (σ multiples) per parameter.
+PRIOR_GRID: dict[str, tuple[float, ...]] = {
+    "log_spacing": (-1.5, 0.0, 1.5),
+    "log_focal": (-2.0, -1.0, 0.0, 1.0, 2.0),
+    "incidence_deg": tuple(float(k) for k in np.arange(-2.4, 2.41, 0.4)),
+}
+
+
+def _prior_points(family: GratingFamily) -> tuple[FloatArray, tuple[int, ...]]:
+    """A grid over the rig's prior (:data:`PRIOR_GRID`; held parameters stay at their value)."""
+    soft = family.prior.soft()
+    axes = []
+    for name in family.names:
+        mean, sigma = soft[name]
+        axes.append(mean + sigma * np.array(PRIOR_GRID.get(name, (0.0,))))
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.stack([m.ravel() for m in mesh], axis=1), mesh[0].shape
+
+
+def _covers(mapping: ExactMapping, pixel_range: tuple[float, float], grid: WavelengthGrid) -> None:
+    ends = mapping.wavelength_nm(np.array(pixel_range))
+    tolerance = 0.5 * grid.step_nm
+    if ends.min() > grid.start_nm + tolerance or ends.max() < grid.stop_nm - tolerance:
+        raise EstimationError(
+            f"the best mapping puts the profile at {ends.min():.0f}–{ends.max():.0f} nm, not "
+            f"covering the grid {grid.start_nm:g}–{grid.stop_nm:g} nm: does the profile hold the "
+            "whole first order?"
+        )
+
+
+@one_blas_thread
+def search_profiles(
+    observations: LampObservation | Sequence[LampObservation],
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    *,
+    geometry: GratingPrior | None = None,
+    starts: Sequence[QuadraticMapping] | None = None,
+    kernel: FloatArray | None = None,
+    orientation: Orientation = "auto",
+    local_flexibility: float = LOCAL_FLEXIBILITY,
+    ambiguity_delta_chi2: float = AMBIGUITY_DELTA_CHI2,
+) -> MappingSearch:
+    """The pixel→wavelength mapping shared by one or more lamps' profiles (see the module docstring).
+
+    Parameters
+    ----------
+    observations
+        The lamps, all in one frame. Starts come from a fluorescent lamp's lines if there is one,
+        else from the first lamp's correlation search (quadratic family) or from the grating
+        prior (physical family); every lamp's profile enters the fits.
+    prior
+        The camera prior on ``grid``.
+    grid
+        Working grid; the mapping must cover it.
+    geometry
+        What the rig says about the grating (:func:`calib.wavelength.families.grating_prior`:
+        line density, focal length in pixels, incidence). With profiles measured from the 0th
+        order the search always uses the physical family (with a default prior when this is
+        ``None``); with an arbitrary origin, giving it selects the physical family with the 0th
+        order's position free.
+    starts
+        Starting mappings instead of the first stage's.
+    kernel
+        The camera's line spread in profile samples (default: the lamps' measured one).
+    orientation
+        ``"auto"`` tries both directions for profiles whose origin is arbitrary; profiles measured
+        from the 0th order rise by construction.
+    local_flexibility
+        The basin-deciding stage's response flexibility.
+    ambiguity_delta_chi2
+        The tempered Δχ² below which a competing basin makes the result ambiguous.
+
+    Returns
+    -------
+    MappingSearch
+    """
+    lamps = [observations] if isinstance(observations, LampObservation) else list(observations)
+    if not lamps:
+        raise InputError("no lamp observations to find the mapping with", source="observations")
+    frames = {(lamp.pixel[0], lamp.pixel[-1], lamp.n_pixels) for lamp in lamps}
+    if len(frames) != 1:
+        raise InputError(
+            "the lamps' profiles are on different pixel axes; extract them with one geometry",
+            source="observations",
+        )
+    lead = next((lamp for lamp in lamps if lamp.kind == "fluorescent"), lamps[0])
+    pixel_range = (float(lead.pixel[0]), float(lead.pixel[-1]))
+    from_spot = lead.pixel_origin == "direct_spot"
+    physical = from_spot or geometry is not None
+    directions = _directions(orientation, from_spot)
+    if kernel is None:
+        kernel = camera_kernel(lamps)
+
+    # Starts (quadratic, in the profile's pixels) give the dispersion and, for the quadratic
+    # family, the scan's centres.
+    from calib.wavelength.search import fluorescent_starts
+
+    if starts:
+        candidates = list(starts)
+        origin = "given start"
+    else:
+        candidates = []
+        origin = ""
+        if lead.kind == "fluorescent":
+            try:
+                candidates = fluorescent_starts(lead, prior.mean, grid, MAX_STARTS)
+                origin = f"lines of {lead.name}"
+            except EstimationError:
+                candidates = []
+        if not candidates or (lead.kind != "fluorescent" and not physical):
+            broadband = next((lamp for lamp in lamps if lamp.kind != "fluorescent"), lamps[0])
+            candidates += _correlation_starts(broadband, prior, grid, directions)
+            origin = origin or f"correlation search on {broadband.name}"
+    candidates = [c for c in candidates if _direction(c, pixel_range) in directions]
+    if not candidates:
+        raise EstimationError(f"no starting mapping for lamp {lead.name!r} in {directions}")
+    directions = _plausible_directions(candidates, directions, pixel_range)
+    spacing = float(np.median(np.diff(lead.pixel)))
+    dispersion = float(np.median(np.abs(candidates[0].dispersion_nm_per_px(lead.pixel))))
+    nm_per_px = dispersion * spacing
+    # Before the spectra are matched to the camera's resolution (which drops their bandwidth).
+    scale_nm = spectrometer_scale_sigma_nm(lamps)
+    lamps = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
+
+    families: list[Family] = []
+    if physical:
+        base = geometry or default_prior(True)
+        for direction in directions:
+            families.append(
+                GratingFamily(base, orientation=direction, axis_offset_px=base.axis_offset_px)
+            )
+    else:
+        families.append(QuadraticFamily(pixel_range))
+
+    built: dict[tuple[float, float, float, float], StageFit] = {}
+
+    def stage(
+        family: Family, bin_nm: float, nodes: float, flexibility: float, floor: float
+    ) -> StageFit:
+        # The lamps' models do not depend on the family: build each resolution once.
+        key = (bin_nm, nodes, flexibility, floor)
+        if key not in built:
+            built[key] = _stage(
+                lamps,
+                family,
+                grid,
+                prior,
+                bin_nm=bin_nm,
+                nm_per_px=nm_per_px,
+                kernel=kernel,
+                node_step_nm=nodes,
+                flexibility=flexibility,
+                sigma_floor=floor,
+                pixel_range=pixel_range,
+            )
+        return replace(built[key], family=family)
+
+    # 1. Scan (binned, stiff prior, tempered noise); every local minimum of the grid is refined
+    # on the scan's own coarse profile (cheap), the distinct results once more on a finer one.
+    scanned: list[tuple[Family, Solution]] = []
+    evaluations = 0
+    for family in families:
+        scan = stage(family, SCAN_BIN_NM, SCAN_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR)
+        minima: list[tuple[float, FloatArray]] = []
+        if isinstance(family, QuadraticFamily):
+            grids = [_quadratic_points(c, family) for c in _spread_starts(candidates, pixel_range)]
+        elif _rig_known(family):
+            # The rig gives the line density and focal length: scan the prior itself (a
+            # correlation search's linear starts miss a strongly curved first order).
+            grids = [_prior_points(family)]
+        else:
+            same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
+            grids = [
+                _grating_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
+            ]
+            if "zero_order_px" in family.prior.fixed():
+                # The 0th order is at a known pixel: the physics leaves the wavelength at the
+                # profile's start, the focal length and the incidence to scan, whatever the
+                # correlation search said.
+                grids.append(_spot_points(family, pixel_range))
+        for points, shape in grids:
+            costs = scan.costs(points)
+            evaluations += points.shape[0]
+            # Each grid's own best minima: a grid around a poor start must not crowd out a
+            # physically drawn one (or the other way round).
+            minima += [
+                (float(costs[i]), points[i]) for i in _local_minima(costs, shape)[:SCAN_MINIMA]
+            ]
+        minima.sort(key=lambda item: item[0])
+        refining = stage(family, GLOBAL_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR)
+        probe = np.linspace(pixel_range[0], pixel_range[1], 5)
+        kept: list[FloatArray] = []
+        for _, point in minima:
+            # Neighbouring grid minima are one basin: refine it once.
+            if any(
+                np.max(np.abs(family.wavelengths(probe, point) - family.wavelengths(probe, other)))
+                < QUADRATIC_SCAN[1]
+                for other in kept
+            ):
+                continue
+            kept.append(point)
+            if len(kept) == SCAN_MINIMA * len(grids):
+                break
+        for point in kept:
+            solution = refining.refine(point, max_iterations=6, tolerance=1e-4, rounds=1)
+            if isinstance(family, QuadraticFamily):
+                # Finer around the refined point: a minimum a grid step away (the ends 4 nm
+                # apart) may hold the lower basin, which the descent from the grid point missed.
+                local, _ = _quadratic_points(family.mapping(solution.x), family, LOCAL_SCAN)
+                local_costs = refining.costs(local)
+                evaluations += local.shape[0]
+                best_local = local[int(np.argmin(local_costs))]
+                if float(np.min(local_costs)) < solution.cost:
+                    solution = refining.refine(
+                        best_local, max_iterations=6, tolerance=1e-4, rounds=1
+                    )
+            evaluations += solution.evaluations
+            scanned.append((family, solution))
+    if not scanned:
+        raise EstimationError("the mapping scan found no valid mapping")
+    refined = scanned
+    basins = _distinct(refined, pixel_range, MAX_BASINS)
+
+    # 2. Decide between the basins on a finer profile with a flexible response.
+    decided: list[tuple[Family, Solution]] = []
+    for family, solution in basins:
+        # The quadratic family decides with a flexible response (a broadband lamp's aliases: a
+        # camera unlike the prior fits the wrong one better under the stiff prior); the physical
+        # family's 0th order already rules out the shifts that the flexibility guards against,
+        # and there the stiff prior is what tells a stretched rainbow from the right one.
+        flexibility = local_flexibility if isinstance(family, QuadraticFamily) else FLEXIBILITY
+        deciding = stage(family, REFINE_BIN_NM, COARSE_NODES_NM, flexibility, 0.0)
+        start = solution.x
+        if isinstance(family, QuadraticFamily):
+            # The flexible fit's basins are narrower than the stiff one's: scan its ends finely
+            # around the stiff solution (one batched call) before descending.
+            local, _ = _quadratic_points(family.mapping(start), family, LOCAL_SCAN)
+            local_costs = deciding.costs(local)
+            evaluations += local.shape[0]
+            start = local[int(np.argmin(local_costs))]
+        outcome = deciding.refine(start, max_iterations=10, tolerance=1e-5, rounds=1)
+        # Compared at their own prior scale (what a second round held there would report).
+        outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
+        evaluations += outcome.evaluations
+        decided.append((family, outcome))
+    # Basins that the finer fit merged are one.
+    decided = _distinct(decided, pixel_range, MAX_BASINS)
+    family, best = decided[0]
+
+    # 3. Final: finer nodes, the stiff prior, the profile at ≤ FINAL_BIN_NM per sample.
+    final_stage = stage(family, FINAL_BIN_NM, FINE_NODES_NM, FLEXIBILITY, 0.0)
+    final = final_stage.refine(best.x, max_iterations=10, tolerance=1e-7, rounds=1)
+    evaluations += final.evaluations
+    exact = family.mapping(final.x)
+    _covers(exact, pixel_range, grid)
+
+    # Ambiguity: every basin's profile likelihood, tempered by the misfit of the best one.
+    rows = max(final.residual.size - final.x.size, 1)
+    best_cost = decided[0][1].cost
+    deciding_rows = max(decided[0][1].residual.size - decided[0][1].x.size, 1)
+    temper = max(best_cost / deciding_rows, 1.0)
+    probe = np.linspace(pixel_range[0], pixel_range[1], 64)
+    exact_probe = exact.wavelength_nm(probe)
+    candidates_out = []
+    for index, (basin_family, outcome) in enumerate(decided):
+        delta = (outcome.cost - best_cost) / temper
+        mapping = exact if index == 0 else basin_family.mapping(outcome.x)
+        distance = float(np.sqrt(np.mean((mapping.wavelength_nm(probe) - exact_probe) ** 2)))
+        candidates_out.append(
+            Candidate(
+                mapping,
+                outcome.cost,
+                float(delta),
+                float(math.exp(-0.5 * delta / BASIN_TEMPER)),
+                distance,
+            )
+        )
+    weights = np.array([c.weight for c in candidates_out])
+    spread_nm = float(
+        np.sqrt(
+            np.sum(weights * np.array([c.distance_nm**2 for c in candidates_out])) / weights.sum()
+        )
+    )
+    # A basin that differs by a fraction of a nanometre is the same answer, not an ambiguity.
+    ambiguous = any(
+        c.delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
+        for c in candidates_out[1:]
+    )
+    covariance = final.covariance()
+    mapping, local_rms = _report(exact, family, final.x, covariance, pixel_range, origin)
+    stated = math.sqrt((LOCAL_SIGMA_SCALE * local_rms) ** 2 + spread_nm**2 + scale_nm**2)
+    mapping = _stated_covariance(mapping, stated, scale_nm, pixel_range)
+    warnings: list[str] = []
+    if ambiguous:
+        other = next(
+            c
+            for c in candidates_out[1:]
+            if c.delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
+        )
+        warnings.append(
+            f"the mapping is ambiguous: a second basin {other.distance_nm:.1f} nm away (RMS) fits "
+            f"almost as well (tempered Δχ² {other.delta_chi2:.1f} < {ambiguity_delta_chi2:g}); both "
+            "are in the result. A fluorescent (line) lamp shot in the same geometry decides it."
+        )
+    details = {
+        **dict(mapping.details),
+        "mapping_lamps": [lamp.name for lamp in lamps],
+        "origin": origin,
+        "family": "grating" if isinstance(family, GratingFamily) else "quadratic",
+        "orientation": "rising" if _direction_of(exact, pixel_range) > 0 else "falling",
+        "n_starts": len(candidates),
+        "evaluations": evaluations,
+        "final_cost": final.cost,
+        "reduced_chi2": final.cost / rows,
+        "temper": temper,
+        "basin_spread_nm": spread_nm,
+        "local_rms_nm": local_rms,
+        "spectrometer_scale_sigma_nm": scale_nm,
+        "ambiguous": ambiguous,
+        "candidates": [c.to_dict(pixel_range) for c in candidates_out],
+        "flexibility": FLEXIBILITY,
+        "local_flexibility": local_flexibility,
+    }
+    if isinstance(family, GratingFamily):
+        details["grating_prior"] = {
+            "source": family.prior.source,
+            "values": {k: list(v) for k, v in family.prior.values.items()},
+        }
+    mapping = mapping.with_details(wavelength_rms_nm=stated, details=details)
+    return MappingSearch(
+        mapping=mapping,
+        exact=exact,
+        candidates=tuple(candidates_out),
+        ambiguous=ambiguous,
+        warnings=tuple(warnings),
+        details=details,
+    )
+
+
+#: A direction whose best correlation start scores this far below the best one is not searched
+#: (the correlation of a profile with its mirror image is poor; the margin keeps close calls).
+DIRECTION_MARGIN = 0.05
+
+
+def _plausible_directions(
+    candidates: Sequence[QuadraticMapping],
+    directions: tuple[int, ...],
+    pixel_range: tuple[float, float],
+) -> tuple[int, ...]:
+    """The directions whose correlation starts are near the best (all when scores are missing)."""
+    scores = dict.fromkeys(directions, -np.inf)
+    for candidate in candidates:
+        score = candidate.details.get("ncc")
+        if score is None:
+            return directions
+        direction = _direction(candidate, pixel_range)
+        scores[direction] = max(scores[direction], float(score))
+    best = max(scores.values())
+    return tuple(d for d in directions if scores[d] >= best - DIRECTION_MARGIN)
+
+
+def _spread_starts(
+    candidates: Sequence[QuadraticMapping], pixel_range: tuple[float, float]
+) -> list[QuadraticMapping]:
+    """At most :data:`MAX_STARTS` per direction, each a scan step away from the ones before."""
+    kept: list[QuadraticMapping] = []
+    ends = np.array(pixel_range)
+    for candidate in candidates:
+        same = [k for k in kept if _direction(k, pixel_range) == _direction(candidate, pixel_range)]
+        if len(same) >= MAX_STARTS:
+            continue
+        if all(
+            np.max(np.abs(candidate.wavelength_nm(ends) - k.wavelength_nm(ends)))
+            > QUADRATIC_SCAN[1]
+            for k in same
+        ):
+            kept.append(candidate)
+    return kept
+
+
+def _directions(orientation: Orientation, from_spot: bool) -> tuple[int, ...]:
+    if orientation == "rising" or from_spot:
+        return (1,)
+    if orientation == "falling":
+        return (-1,)
+    if orientation != "auto":
+        raise InputError(
+            f"orientation must be 'auto', 'rising' or 'falling', got {orientation!r}",
+            source="orientation",
+        )
+    return (1, -1)
+
+
+def _direction_of(mapping: ExactMapping, pixel_range: tuple[float, float]) -> int:
+    ends = mapping.wavelength_nm(np.array(pixel_range))
+    return 1 if ends[1] >= ends[0] else -1
+
+
+def _direction(mapping: QuadraticMapping, pixel_range: tuple[float, float]) -> int:
+    return _direction_of(mapping, pixel_range)
+
+
+def _correlation_starts(
+    observation: LampObservation,
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    directions: tuple[int, ...],
+) -> list[QuadraticMapping]:
+    """Linear starts from the normalised cross-correlation, on a profile binned to ~1 nm."""
+    from calib.wavelength.peaks import (
+        coarse_mapping_candidates,
+        model_curve_on_fine_axis,
+        nominal_dispersion,
+    )
+
+    axis, model = model_curve_on_fine_axis(observation.spectrum, prior.mean, grid)
+    nominal = nominal_dispersion(observation.pixel, observation.profile, axis, model)
+    # ~1.5 nm bins and 48 dispersions find starts as good as the full profile with 96 (the scan
+    # that follows covers their error) at a sixth of the cost.
+    factor = max(1, int(1.5 / max(nominal, 1e-9)))
+    binned = bin_pixels(observation, factor)
+    return coarse_mapping_candidates(
+        binned.pixel,
+        binned.profile,
+        axis,
+        model,
+        grid=grid,
+        n_candidates=3 * len(directions),
+        n_dispersions=48,
+        allow_reversed=-1 in directions,
+    )
+
+
+def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
+    """σ (nm) the mapping inherits from the lamp spectra's wavelength scale: a spectrum measured by a
+    spectrometer (its bandwidth stated) is :data:`SPECTROMETER_SCALE_SIGMA_NM` off as a whole; a
+    tabulated one (no bandwidth: colour-science's tables, a built-in line list) adds nothing."""
+    measured = any(lamp.spectrum_bandwidth_nm is not None for lamp in lamps)
+    return SPECTROMETER_SCALE_SIGMA_NM if measured else 0.0
+
+
+def _stated_covariance(
+    mapping: QuadraticMapping, stated_nm: float, scale_nm: float, pixel_range: tuple[float, float]
+) -> QuadraticMapping:
+    """The report form's coefficient covariance made to state ``stated_nm`` (RMS over the profile):
+    the local part scaled (the prior's pull, the basins' spread) plus a common offset of
+    ``scale_nm`` (the spectrometer's wavelength scale shifts every wavelength alike)."""
+    if mapping.covariance is None:
+        return mapping
+    local = np.asarray(mapping.covariance, dtype=np.float64)
+    local_nm = wavelength_rms_from_covariance(local, pixel_range)
+    wanted = max(stated_nm**2 - scale_nm**2, 0.0)
+    scaled = local * (wanted / local_nm**2 if local_nm > 0 else 1.0)
+    scaled[2, 2] += scale_nm**2
+    return mapping.with_details(
+        covariance=[[float(v) for v in row] for row in scaled],
+        wavelength_rms_nm=wavelength_rms_from_covariance(scaled, pixel_range),
+    )
+
+
+def _report(
+    exact: ExactMapping,
+    family: Family,
+    x: FloatArray,
+    covariance: FloatArray,
+    pixel_range: tuple[float, float],
+    origin: str,
+) -> tuple[QuadraticMapping, float]:
+    """The quadratic report form with the coefficients' covariance, and the local RMS σ (nm)."""
+    pixels = np.linspace(pixel_range[0], pixel_range[1], 256)
+    fitted = QuadraticMapping.fit(pixels, exact.wavelength_nm(pixels))
+    jacobian = family.jacobian(pixels, x)  # (n, P)
+    design = np.stack([pixels**2, pixels, np.ones_like(pixels)], axis=1)
+    projection = np.linalg.pinv(design)
+    coefficient_covariance = projection @ jacobian @ covariance @ jacobian.T @ projection.T
+    wavelength_variance = np.einsum("ij,jk,ik->i", jacobian, covariance, jacobian)
+    local_rms = float(np.sqrt(np.mean(np.clip(wavelength_variance, 0.0, None))))
+    method = f"{origin}+{'grating' if isinstance(family, GratingFamily) else 'profile'} fit"
+    details: dict[str, Any] = {}
+    if isinstance(exact, TiltedGrating):
+        details["grating"] = exact.to_dict()
+        details["quadratic_max_error_nm"] = float(
+            np.max(np.abs(fitted.wavelength_nm(pixels) - exact.wavelength_nm(pixels)))
+        )
+    mapping = QuadraticMapping(
+        fitted.a,
+        fitted.b,
+        fitted.c,
+        method=method,
+        pixel_range=pixel_range,
+        covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in coefficient_covariance),
+        wavelength_rms_nm=wavelength_rms_from_covariance(coefficient_covariance, pixel_range),
+        details=details,
+        model=exact if isinstance(exact, TiltedGrating) else None,
+    )
+    return mapping, local_rms

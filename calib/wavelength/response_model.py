@@ -1,0 +1,647 @@
+"""A profile explained by the lamp times a smooth per-channel response — fast, batched, differentiable.
+
+The model of one lamp's first-order profile (as in :mod:`calib.wavelength.search`)::
+
+    m_c(p) = Σ_t k_t ∫_{pixel p+h−t} e(λ) r_c(λ) dλ,
+
+``e`` the lamp, ``r_c = η s_c`` a response linear between nodes, ``k`` the camera's line spread. For a
+trial mapping the response is found by penalised least squares under a Gaussian camera prior
+(variable projection), and the cost is what remains. Three things make it fast:
+
+- **The lamp is integrated once** onto a fine axis (exact hat-function averages of its linear
+  interpolant, in ``O(samples)``: :func:`hat_averages`), whatever its sampling; the cumulative
+  integral of ``e·φ_j`` for every response node ``j`` is a table. A pixel's entry is a difference
+  of that table at its edge wavelengths, and with the line spread the row is a short difference
+  filter over the edges (:meth:`LampColumns.evaluate`), so a blurred pixel row costs ``L + 1``
+  table look-ups per node it touches.
+- **Rows are banded**: a pixel (or a binned pixel, or a blurred one) touches a few consecutive
+  nodes, so the model matrix is stored as ``(n, w)`` values and a first column per row, and its
+  normal matrix is assembled with one ``bincount`` — for a whole batch of trial mappings at once
+  (:meth:`ResponseModel.costs`).
+- **Analytic derivatives**: ``∂A/∂x`` is the lamp density at the edges times ``∂λ_edge/∂x`` from the
+  mapping family, and the exact variable-projection Jacobian (Golub & Pereyra 1973) of the
+  residual follows from the same factorised normal matrices (:meth:`ResponseModel.residual`).
+
+The per-channel systems are regularised by a tiny ridge (``RIDGE`` times their mean diagonal) so a
+batch never falls back to a per-channel least-squares solve: nodes no light reaches are held at the
+smoothest value their penalty allows.
+
+References
+----------
+Golub, G., Pereyra, V. (1973). The differentiation of pseudo-inverses and nonlinear least squares
+problems whose variables separate. SIAM J. Numer. Anal. 10(2), 413–432.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import InputError
+from calib.core.observations import LampObservation, profile_sigma
+from calib.core.spectra import Spectrum, WavelengthGrid
+from calib.model.bases import CameraPrior
+
+#: Relative ridge added to every per-channel normal matrix (times its mean diagonal).
+RIDGE = 1e-10
+#: Relative error of the profile model itself, added in quadrature to the noise (as the search's).
+MODEL_ERROR = 0.002
+#: Relative smoothness (second-difference penalty) of the response beyond the working range.
+MARGIN_SMOOTHNESS = 1e-2
+
+IntArray = NDArray[np.intp]
+
+
+# ------------------------------------------------------------------------------ the lamp, once
+
+
+def hat_averages(spectrum: Spectrum, start_nm: float, step_nm: float, count: int) -> FloatArray:
+    """Exact averages of a spectrum's linear interpolant under the hats of a uniform axis.
+
+    Node ``m`` (at ``start + m·step``) receives ``∫ e(λ) ψ_m(λ) dλ / step`` with ``ψ_m`` the
+    triangle of half-width ``step`` (the spectrum is zero outside its range). This is the
+    projection of :meth:`calib.core.spectra.Spectrum.resample` with ``"integrate"`` (decision
+    0001), computed from cumulative moments in ``O(samples + count)`` so a 0.1 nm spectrum costs
+    no more than its length.
+
+    Examples
+    --------
+    >>> flat = Spectrum([400.0, 500.0], [2.0, 2.0])
+    >>> hat_averages(flat, 420.0, 1.0, 3)
+    array([2., 2., 2.])
+    """
+    x = spectrum.wavelength_nm
+    v = spectrum.values
+    reference = 0.5 * (x[0] + x[-1])
+    xs = x - reference
+    width = np.diff(xs)
+    slope = np.diff(v) / width
+    # Cumulative ∫v and ∫(λ − ref)v up to each sample.
+    segment0 = 0.5 * (v[1:] + v[:-1]) * width
+    segment1 = (
+        xs[:-1] * v[:-1] * width + (xs[:-1] * slope + v[:-1]) * width**2 / 2 + slope * width**3 / 3
+    )
+    moment0 = np.concatenate([[0.0], np.cumsum(segment0)])
+    moment1 = np.concatenate([[0.0], np.cumsum(segment1)])
+
+    def moments(at: FloatArray) -> tuple[FloatArray, FloatArray]:
+        clipped = np.clip(at - reference, xs[0], xs[-1])
+        k = np.clip(np.searchsorted(xs, clipped, side="right") - 1, 0, xs.size - 2)
+        t = clipped - xs[k]
+        base, s = v[k], slope[k]
+        zero = moment0[k] + base * t + s * t**2 / 2
+        one = moment1[k] + xs[k] * base * t + (xs[k] * s + base) * t**2 / 2 + s * t**3 / 3
+        return zero, one
+
+    nodes = start_nm + step_nm * np.arange(-1, count + 1, dtype=np.float64)
+    zero, one = moments(nodes)
+    centred = nodes - reference
+    # ∫ e (λ − a_{m−1})/h over [a_{m−1}, a_m] and ∫ e (a_{m+1} − λ)/h over [a_m, a_{m+1}].
+    rising = (np.diff(one) - centred[:-1] * np.diff(zero)) / step_nm
+    falling = (centred[1:] * np.diff(zero) - np.diff(one)) / step_nm
+    return np.asarray((rising[:-1] + falling[1:]) / step_nm, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class NodeLayout:
+    """Response nodes: margin pieces and the working range, each piece's hats cut at its ends.
+
+    Attributes
+    ----------
+    nodes_nm
+        ``(N,)`` in piece order (a junction wavelength appears in both pieces).
+    piece_bounds
+        ``(N, 2)``: the ends of the piece each node belongs to.
+    working
+        Indices of the working range's nodes.
+    difference
+        Second differences within the margin pieces, ``(rows, N)``.
+    step_nm
+        Node spacing.
+    """
+
+    nodes_nm: FloatArray
+    piece_bounds: FloatArray
+    working: IntArray
+    difference: FloatArray
+    step_nm: float
+
+    @classmethod
+    def build(
+        cls, grid: WavelengthGrid, range_nm: tuple[float, float], step_nm: float
+    ) -> NodeLayout:
+        """Nodes every ``step_nm`` over the grid and over margins reaching into ``range_nm``."""
+        lo, hi = range_nm
+        count = round((grid.stop_nm - grid.start_nm) / step_nm)
+        working_nodes = grid.start_nm + step_nm * np.arange(count + 1.0)
+        pieces: list[FloatArray] = []
+        if grid.start_nm - lo >= step_nm:
+            n_left = int((grid.start_nm - lo) // step_nm)
+            pieces.append(grid.start_nm - step_nm * np.arange(n_left, -1, -1.0))
+        first_working = sum(piece.size for piece in pieces)
+        pieces.append(working_nodes)
+        if hi - grid.stop_nm >= step_nm:
+            n_right = int((hi - grid.stop_nm) // step_nm)
+            pieces.append(grid.stop_nm + step_nm * np.arange(0, n_right + 1.0))
+        nodes = np.concatenate(pieces)
+        bounds = np.concatenate(
+            [np.tile([piece[0], piece[-1]], (piece.size, 1)) for piece in pieces]
+        )
+        rows: list[FloatArray] = []
+        offset = 0
+        for piece in pieces:
+            if piece is not working_nodes:
+                for row in range(piece.size - 2):
+                    line = np.zeros(nodes.size)
+                    line[offset + row : offset + row + 3] = (1.0, -2.0, 1.0)
+                    rows.append(line)
+            offset += piece.size
+        return cls(
+            nodes_nm=nodes,
+            piece_bounds=bounds,
+            working=np.arange(first_working, first_working + working_nodes.size),
+            difference=np.array(rows).reshape(len(rows), nodes.size),
+            step_nm=step_nm,
+        )
+
+    @property
+    def support(self) -> tuple[FloatArray, FloatArray]:
+        """Each node's hat support ``(lo, hi)``, cut at its piece's ends (both non-decreasing)."""
+        lo = np.maximum(self.nodes_nm - self.step_nm, self.piece_bounds[:, 0])
+        hi = np.minimum(self.nodes_nm + self.step_nm, self.piece_bounds[:, 1])
+        return lo, hi
+
+
+@dataclass(frozen=True, eq=False)
+class LampColumns:
+    """``∫ e φ_j`` up to every fine-axis node, for every response node ``j`` (a lookup table).
+
+    The lamp ``e`` enters once, as hat averages on the fine axis (:func:`hat_averages`); each
+    column's density ``e·φ_j`` is linear between fine nodes, so its cumulative integral is exact
+    and continuously differentiable in the integration limit.
+    """
+
+    start_nm: float
+    step_nm: float
+    density: FloatArray
+    cumulative: FloatArray
+
+    @classmethod
+    def build(cls, lamp: Spectrum, layout: NodeLayout, fine_step_nm: float) -> LampColumns:
+        lo = float(layout.piece_bounds[:, 0].min())
+        hi = float(layout.piece_bounds[:, 1].max())
+        count = round((hi - lo) / fine_step_nm) + 1
+        axis = lo + fine_step_nm * np.arange(count, dtype=np.float64)
+        lamp_fine = hat_averages(lamp, lo, fine_step_nm, count)
+        nodes = layout.nodes_nm
+        hats = np.clip(1.0 - np.abs(axis[:, None] - nodes[None, :]) / layout.step_nm, 0.0, None)
+        outside = (axis[:, None] < layout.piece_bounds[None, :, 0] - 1e-9) | (
+            axis[:, None] > layout.piece_bounds[None, :, 1] + 1e-9
+        )
+        hats[outside] = 0.0
+        density = lamp_fine[:, None] * hats
+        cumulative = np.zeros_like(density)
+        cumulative[1:] = np.cumsum(0.5 * (density[1:] + density[:-1]) * fine_step_nm, axis=0)
+        return cls(lo, fine_step_nm, density, cumulative)
+
+    def evaluate(
+        self, wavelength_nm: FloatArray, column: IntArray, *, derivative: bool = False
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """``C_j(λ)`` (and ``∂C_j/∂λ = e φ_j (λ)``) for broadcast arrays of wavelengths and columns."""
+        count, size = self.density.shape
+        last = count - 1
+        position = np.clip((wavelength_nm - self.start_nm) / self.step_nm, 0.0, float(last))
+        index = np.minimum(position.astype(np.intp), last - 1)
+        t = position - index
+        flat = index * size + column
+        density = self.density.ravel()
+        low = density.take(flat)
+        high = density.take(flat + size)
+        value = self.cumulative.ravel().take(flat) + self.step_nm * t * (
+            low + 0.5 * (high - low) * t
+        )
+        if not derivative:
+            return value, None
+        # Beyond the axis the cumulative is constant.
+        inside = (wavelength_nm > self.start_nm) & (
+            wavelength_nm < self.start_nm + last * self.step_nm
+        )
+        return value, (low + (high - low) * t) * inside
+
+
+# -------------------------------------------------------------------------------- the model
+
+
+def _difference_filter(kernel: FloatArray | None) -> FloatArray:
+    """Weights of the edge cumulatives that make one blurred pixel: ``d_i = k_{L−i} − k_{L−1−i}``."""
+    taps = np.array([1.0]) if kernel is None else np.asarray(kernel, dtype=np.float64)
+    if taps.size % 2 != 1:
+        raise InputError("the line spread kernel must have an odd length", source="kernel")
+    padded = np.concatenate([[0.0], taps, [0.0]])  # padded[i + 1] = k_i
+    length = taps.size
+    return np.array([padded[length - i + 1] - padded[length - i] for i in range(length + 1)])
+
+
+@dataclass(frozen=True)
+class Band:
+    """A banded model matrix for a batch: values ``(K, n, w)``, first columns ``(K, n)``.
+
+    ``derivative`` ``(K, n, w, P)`` when asked for (``∂A/∂x``).
+    """
+
+    values: FloatArray
+    first: IntArray
+    derivative: FloatArray | None = None
+
+    @property
+    def columns(self) -> IntArray:
+        width = self.values.shape[-1]
+        return np.asarray(self.first[..., None] + np.arange(width), dtype=np.intp)
+
+
+@dataclass(frozen=True, eq=False)
+class ResponseModel:
+    """One lamp's profile model for any mapping (see the module docstring).
+
+    Build with :meth:`build`; evaluate batches of mappings with :meth:`costs` and single ones with
+    :meth:`residual` (value and exact Jacobian in the mapping parameters).
+
+    Attributes
+    ----------
+    observation
+        The (possibly binned) observation.
+    layout, columns
+        Response nodes and the lamp's lookup table.
+    edges_px
+        Pixel edges ``(n + 1,)``.
+    filter
+        Difference filter over ``L + 1`` edges (``L`` the kernel's length).
+    target
+        ``W y`` ``(n, 3)`` with ``W = 1/σ``.
+    weights
+        ``W`` ``(n, 3)``.
+    penalty
+        ``ΔᵀΔ`` ``(N, N)`` of the margins' second differences.
+    prior_factor, precision, prior_mean
+        The working range's prior: whitening factors ``(3, n_w, N)`` (rows ``F (r − β μ)``),
+        the precision ``FᵀF`` ``(3, N, N)`` and the mean ``(3, N)`` (for a camera of unit scale).
+    smoothness
+        The margins' relative penalty weight.
+    scale, penalty_weight
+        The prior's scale ``β̂`` and the penalty weights ``(3,)`` of a reference mapping (held
+        fixed by :meth:`residual`, so its Jacobian is exact; :meth:`costs` may refresh them).
+    """
+
+    observation: LampObservation
+    layout: NodeLayout
+    columns: LampColumns
+    edges_px: FloatArray
+    filter: FloatArray
+    target: FloatArray
+    weights: FloatArray
+    penalty: FloatArray
+    prior_factor: FloatArray
+    precision: FloatArray
+    prior_mean: FloatArray
+    smoothness: float
+    scale: float = 1.0
+    penalty_weight: FloatArray | None = None
+
+    @classmethod
+    def build(
+        cls,
+        observation: LampObservation,
+        grid: WavelengthGrid,
+        *,
+        node_step_nm: float,
+        prior: CameraPrior,
+        flexibility: float,
+        kernel: FloatArray | None = None,
+        margin_nm: float = 30.0,
+        sigma_floor: float = 0.0,
+        fine_step_nm: float = 1.0,
+        smoothness: float = MARGIN_SMOOTHNESS,
+    ) -> ResponseModel:
+        """The model of ``observation`` with a camera-prior response on ``node_step_nm`` nodes.
+
+        ``flexibility``: the response's smooth departure from the prior (a fraction of each
+        channel's peak, :func:`calib.wavelength.search.response_prior`); ``sigma_floor``: σ is at
+        least this fraction of the profile's peak (a coarse scan looks for a basin, which very
+        precise data make too narrow to find); ``fine_step_nm``: the lamp's integration step.
+        """
+        from calib.wavelength.search import response_prior
+
+        lamp = observation.spectrum
+        lo = max(grid.start_nm - margin_nm, lamp.range_nm[0])
+        hi = min(grid.stop_nm + margin_nm, lamp.range_nm[1])
+        if lo > grid.start_nm or hi < grid.stop_nm:
+            raise InputError(
+                f"lamp spectrum covers {lamp.range_nm[0]:g}–{lamp.range_nm[1]:g} nm but the grid "
+                f"needs {grid.start_nm:g}–{grid.stop_nm:g} nm",
+                source=lamp.name,
+            )
+        if prior.grid != grid:
+            raise InputError(
+                f"the camera prior is on grid {prior.grid}, not {grid}", source="prior"
+            )
+        layout = NodeLayout.build(grid, (lo, hi), node_step_nm)
+        columns = LampColumns.build(lamp, layout, fine_step_nm)
+        working = layout.working
+        mean, factors = response_prior(prior, layout.nodes_nm[working], flexibility)
+        size = layout.nodes_nm.size
+        factor = np.zeros((3, working.size, size))
+        factor[:, :, working] = factors
+        embedded_mean = np.zeros((3, size))
+        embedded_mean[:, working] = mean.T
+        sigma = np.maximum(
+            np.hypot(profile_sigma(observation), MODEL_ERROR * np.abs(observation.profile)),
+            sigma_floor * float(np.max(observation.profile)),
+        )
+        from calib.model.forward import pixel_edges
+
+        weights = 1.0 / sigma
+        return cls(
+            observation=observation,
+            layout=layout,
+            columns=columns,
+            edges_px=pixel_edges(observation.pixel),
+            filter=_difference_filter(kernel),
+            target=weights * observation.profile,
+            weights=weights,
+            penalty=layout.difference.T @ layout.difference,
+            prior_factor=factor,
+            precision=factor.transpose(0, 2, 1) @ factor,
+            prior_mean=embedded_mean,
+            smoothness=smoothness,
+        )
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.layout.nodes_nm.size)
+
+    # -------------------------------------------------------------------------- the band
+
+    def band(self, edges_nm: FloatArray, edge_jacobian: FloatArray | None = None) -> Band:
+        """The banded model matrix for edge wavelengths ``(K, n + 1)`` (and ``∂/∂x`` from
+        ``edge_jacobian`` ``(K, n + 1, P)``)."""
+        count = self.filter.size  # L + 1 edges per blurred pixel
+        half = (count - 2) // 2
+        n = self.edges_px.size - 1
+        index = np.clip(np.arange(n + 2 * half + 1) - half, 0, n)
+        padded = edges_nm[:, index]  # (K, n + 2h + 1)
+        windows = np.lib.stride_tricks.sliding_window_view(padded, count, axis=1)  # (K, n, L+1)
+        low = windows.min(axis=2)
+        high = windows.max(axis=2)
+        support_lo, support_hi = self.layout.support
+        first = np.searchsorted(support_hi, low, side="right")
+        last = np.searchsorted(support_lo, high, side="left") - 1
+        size = self.n_nodes
+        width = max(int(np.max(last - first)) + 1, 1)
+        first = np.clip(first, 0, max(size - width, 0))
+        column = first[..., None] + np.arange(width)  # (K, n, w)
+        valid = column < size
+        column = np.minimum(column, size - 1)
+        derivative = edge_jacobian is not None
+        value, slope = self.columns.evaluate(
+            windows[..., None, :], column[..., None], derivative=derivative
+        )  # (K, n, w, L+1)
+        # A falling mapping integrates from the higher edge: the pixel's light is |ΔC|.
+        sign = np.where(edges_nm[:, -1] >= edges_nm[:, 0], 1.0, -1.0)[:, None, None]
+        values = np.einsum("knwl,l->knw", value, self.filter) * valid * sign
+        band_derivative = None
+        if edge_jacobian is not None and slope is not None:
+            jac_windows = np.lib.stride_tricks.sliding_window_view(
+                edge_jacobian[:, index, :], count, axis=1
+            )  # (K, n, P, L+1)
+            band_derivative = (
+                np.einsum("knwl,l,knpl->knwp", slope, self.filter, jac_windows)
+                * (valid * sign)[..., None]
+            )
+        return Band(values, first, band_derivative)
+
+    # ----------------------------------------------------------------------- normal matrices
+
+    def _normal(self, band: Band) -> tuple[FloatArray, FloatArray]:
+        """Per batch and channel: ``AᵀW²A`` ``(K, 3, N, N)`` and ``AᵀW²y`` ``(K, 3, N)``.
+
+        One ``bincount`` each over every (batch, channel, row, band pair).
+        """
+        batch = band.values.shape[0]
+        size = self.n_nodes
+        columns = band.columns  # (K, n, w)
+        base = (np.arange(batch * 3)[:, None, None] * size).reshape(batch, 3, 1, 1)
+        index = base + columns[:, None, :, :]  # (K, 3, n, w): (k·3 + c)·N + j
+        pair = (index[..., :, None] * size + columns[:, None, :, None, :]).reshape(-1)
+        weights2 = self.weights.T**2  # (3, n)
+        product = (band.values[:, None, :, :, None] * band.values[:, None, :, None, :]) * weights2[
+            None, :, :, None, None
+        ]
+        normal = np.bincount(pair, weights=product.reshape(-1), minlength=batch * 3 * size * size)
+        weighted_target = (self.weights * self.target).T  # (3, n)
+        rhs = np.bincount(
+            index.reshape(-1),
+            weights=(band.values[:, None, :, :] * weighted_target[None, :, :, None]).reshape(-1),
+            minlength=batch * 3 * size,
+        )
+        return (
+            np.asarray(normal.reshape(batch, 3, size, size), dtype=np.float64),
+            np.asarray(rhs.reshape(batch, 3, size), dtype=np.float64),
+        )
+
+    def _prior_scale(self, band: Band) -> FloatArray:
+        """``β̂`` per batch: the mean camera's scale that best explains the profile ``(K,)``."""
+        mean = self.prior_mean  # (3, N)
+        gathered = mean[:, band.columns]  # (3, K, n, w)
+        predicted = np.einsum("cknw,knw->knc", gathered, band.values) * self.weights
+        numerator = np.einsum("knc,nc->k", predicted, self.target)
+        denominator = np.einsum("knc,knc->k", predicted, predicted)
+        scale = numerator / np.maximum(denominator, 1e-300)
+        return np.asarray(np.where(np.isfinite(scale) & (scale > 0), scale, 1.0), dtype=np.float64)
+
+    def _systems(
+        self, normal: FloatArray, scale: FloatArray, penalty_weight: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Full per-channel systems ``H`` ``(K, 3, N, N)``, pulls ``g`` and ``γ`` (the β row).
+
+        Built in place in ``normal`` (which it consumes).
+        """
+        inverse_square = 1.0 / scale**2  # (K,)
+        systems = normal
+        systems += penalty_weight[..., None, None] * self.penalty
+        systems += inverse_square[:, None, None, None] * self.precision
+        diagonal = np.einsum("kcii->kc", systems)
+        ridge = RIDGE * np.maximum(diagonal / self.n_nodes, 1e-300)
+        index = np.arange(self.n_nodes)
+        systems[..., index, index] += ridge[..., None]
+        unit_pulls = np.einsum("cij,cj->ci", self.precision, self.prior_mean)  # (3, N)
+        pulls = inverse_square[:, None, None] * unit_pulls
+        gamma = inverse_square * float(np.sum(unit_pulls * self.prior_mean))
+        return systems, pulls, gamma
+
+    def _penalty_weight(self, normal: FloatArray) -> FloatArray:
+        trace = np.einsum("kcii->kc", normal) / self.n_nodes
+        return np.asarray(self.smoothness * np.maximum(trace, 1e-300), dtype=np.float64)
+
+    def reference(self, edges_nm: FloatArray) -> ResponseModel:
+        """This model with ``β̂`` and the penalty weights of the mapping with these edge
+        wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
+        band = self.band(edges_nm[None, :])
+        normal, _ = self._normal(band)
+        return replace(
+            self,
+            scale=float(self._prior_scale(band)[0]),
+            penalty_weight=self._penalty_weight(normal)[0],
+        )
+
+    # --------------------------------------------------------------------------- evaluate
+
+    def costs(self, edges_nm: FloatArray, *, adaptive: bool = True) -> FloatArray:
+        """``χ²`` of the best response for each mapping's edge wavelengths ``(K, n + 1)`` → ``(K,)``.
+
+        ``adaptive`` recomputes ``β̂`` and the penalty weights per mapping (scans over a wide range
+        of dispersions); otherwise the reference values are used.
+        """
+        band = self.band(np.atleast_2d(edges_nm))
+        normal, rhs = self._normal(band)
+        batch = normal.shape[0]
+        if adaptive or self.penalty_weight is None:
+            scale = self._prior_scale(band)
+            weight = self._penalty_weight(normal)
+        else:
+            scale = np.full(batch, self.scale)
+            weight = np.broadcast_to(self.penalty_weight, (batch, 3))
+        systems, pulls, gamma = self._systems(normal, scale, weight)
+        solved = np.linalg.solve(systems, np.stack([rhs, pulls], axis=-1))
+        free, along = solved[..., 0], solved[..., 1]
+        denominator = gamma - np.einsum("kci,kci->k", pulls, along)
+        beta = np.einsum("kci,kci->k", pulls, free) / np.where(
+            np.abs(denominator) > 1e-300, denominator, np.inf
+        )
+        response = free + beta[:, None, None] * along
+        explained = np.einsum("kci,kci->k", rhs, response)
+        return np.asarray(float(np.sum(self.target**2)) - explained, dtype=np.float64)
+
+    def residual(
+        self, edges_nm: FloatArray, edge_jacobian: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray | None, dict[str, Any]]:
+        """Residual rows (data, margin penalty, prior) for one mapping, and their exact Jacobian.
+
+        Parameters
+        ----------
+        edges_nm
+            ``(n + 1,)`` wavelengths at the pixel edges.
+        edge_jacobian
+            ``(n + 1, P)``: ``∂λ_edge/∂x``; ``None`` skips the Jacobian.
+
+        Returns
+        -------
+        (residual, jacobian, parts)
+            Residual ``(R,)`` (model − data, weighted), Jacobian ``(R, P)`` or ``None``, and the
+            fitted response ``(3, N)``, the camera scale ``β`` and the model profile ``(n, 3)``.
+        """
+        model = self if self.penalty_weight is not None else self.reference(edges_nm)
+        assert model.penalty_weight is not None
+        band = model.band(edges_nm[None, :], None if edge_jacobian is None else edge_jacobian[None])
+        normal, rhs = model._normal(band)
+        systems, pulls, gamma = model._systems(
+            normal, np.array([model.scale]), model.penalty_weight[None]
+        )
+        # One inverse per channel serves the fit and every Jacobian column (small, ridged, SPD).
+        inverse = np.asarray(np.linalg.inv(systems), dtype=np.float64)
+        values, columns = band.values[0], band.columns[0]  # (n, w)
+        size = model.n_nodes
+        flat_columns = (np.arange(3)[:, None, None] * size + columns[None]).reshape(-1)
+
+        def apply(response: FloatArray) -> FloatArray:
+            """``A r`` for responses ``(3, N, m)`` → ``(3, n, m)``."""
+            return np.asarray(np.einsum("nw,cnwm->cnm", values, response[:, columns]))
+
+        def apply_transpose(rows: FloatArray, band_values: FloatArray) -> FloatArray:
+            """``Aᵀ v`` for ``v`` ``(3, n, m)`` and band values ``(n, w)`` → ``(3, N, m)``."""
+            m = rows.shape[-1]
+            weights = band_values[None, :, :, None] * rows[:, :, None, :]  # (3, n, w, m)
+            index = (flat_columns[:, None] * m + np.arange(m)).reshape(-1)
+            total = np.bincount(index, weights=weights.reshape(-1), minlength=3 * size * m)
+            return np.asarray(total.reshape(3, size, m), dtype=np.float64)
+
+        solution, beta_arr = _solve(inverse, pulls, gamma, rhs[..., None], np.zeros((1, 1)))
+        response, beta = solution[0, ..., 0], float(beta_arr[0, 0])
+        fitted = apply(response[..., None])[..., 0]  # (3, n)
+        weights = model.weights.T  # (3, n)
+        data_rows = weights * fitted - model.target.T  # (3, n)
+        root = np.sqrt(model.penalty_weight)
+        difference = model.layout.difference
+        penalty_rows = root[:, None] * (response @ difference.T)  # (3, r)
+        factor = model.prior_factor / model.scale
+        prior_rows = np.einsum("cij,cj->ci", factor, response - beta * model.prior_mean)
+        residual = np.concatenate([data_rows.ravel(), penalty_rows.ravel(), prior_rows.ravel()])
+        parts = {"response": response, "beta": beta, "model_profile": fitted.T}
+        if edge_jacobian is None or band.derivative is None:
+            return residual, None, parts
+        derivative = band.derivative[0]  # (n, w, P)
+        # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
+        moved = (
+            np.einsum("nwp,cnw->cnp", derivative, response[:, columns]) * weights[..., None]
+        )  # (3, n, P)
+        right = np.einsum(
+            "nwp,cnw->cnwp", derivative, (weights * data_rows)[:, :, None] * np.ones_like(values)
+        )
+        n_parameters = derivative.shape[-1]
+        gathered = np.zeros((3, size, n_parameters))
+        index = (flat_columns[:, None] * n_parameters + np.arange(n_parameters)).reshape(-1)
+        gathered = np.bincount(
+            index, weights=right.reshape(-1), minlength=3 * size * n_parameters
+        ).reshape(3, size, n_parameters) + apply_transpose(weights[..., None] * moved, values)
+        change, change_beta = _solve(
+            inverse, pulls, gamma, gathered[None], np.zeros((1, n_parameters))
+        )
+        change, change_beta = change[0], change_beta[0]  # (3, N, P), (P,)
+        data = moved - weights[..., None] * apply(change)  # (3, n, P)
+        penalty = -root[:, None, None] * np.einsum("rj,cjp->crp", difference, change)
+        prior = -np.einsum(
+            "cij,cjp->cip",
+            factor,
+            change - change_beta[None, None, :] * model.prior_mean[..., None],
+        )
+        jacobian = np.concatenate(
+            [
+                data.reshape(-1, n_parameters),
+                penalty.reshape(-1, n_parameters),
+                prior.reshape(-1, n_parameters),
+            ]
+        )
+        return residual, jacobian, parts
+
+
+def _solve(
+    inverse: FloatArray,
+    pulls: FloatArray,
+    gamma: FloatArray,
+    right: FloatArray,
+    right_beta: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """The full system (per-channel responses and the shared camera scale β) for ``m`` right-hand
+    sides: ``(K, 3, N, m)`` and ``(K, m)`` → solutions ``(K, 3, N, m)`` and ``β`` ``(K, m)``.
+
+    ``H_c x_c − g_c β = r_c`` and ``−Σ g_cᵀ x_c + γ β = r_β``: with ``a_c = H_c⁻¹ r_c`` and
+    ``e_c = H_c⁻¹ g_c``, ``β = (r_β + Σ g_cᵀ a_c) / (γ − Σ g_cᵀ e_c)`` and ``x_c = a_c + β e_c``.
+    """
+    free = inverse @ right  # (K, 3, N, m)
+    along = np.einsum("kcij,kcj->kci", inverse, pulls)  # (K, 3, N)
+    denominator = gamma - np.einsum("kci,kci->k", pulls, along)
+    denominator = np.where(np.abs(denominator) > 1e-300, denominator, np.inf)
+    beta = (right_beta + np.einsum("kci,kcim->km", pulls, free)) / denominator[:, None]
+    return free + along[..., None] * beta[:, None, None, :], beta
+
+
+def fine_step_for(nm_per_sample: float) -> float:
+    """The lamp's integration step: half a profile sample, between 0.1 and 1 nm (a divisor of 1)."""
+    for step in (1.0, 0.5, 0.25, 0.2, 0.1):
+        if step <= 0.5 * nm_per_sample or math.isclose(step, 0.1):
+            return step
+    return 0.1

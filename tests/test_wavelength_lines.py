@@ -1,0 +1,236 @@
+"""Line lists, the mapping from emission and absorption features, either orientation, and the
+ambiguity a broadband lamp leaves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.core.datasets import colour_science_cameras, find_camera
+from calib.core.errors import EstimationError, InputError
+from calib.core.lamp_specs import lamp_from_spec
+from calib.core.line_lists import blends, builtin_lamp, line_list
+from calib.core.mapping import QuadraticMapping, TiltedGrating
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
+from calib.model.bases import CameraPrior, fallback_camera_basis
+from calib.model.forward import PeakFractionNoise, render_observation
+from calib.pipeline.inputs import load_spectrum
+from calib.wavelength.families import GratingFamily, grating_prior
+from calib.wavelength.features import map_features
+from calib.wavelength.locate import _check_monotonic, locate_mapping
+from calib.wavelength.profile_search import search_profiles
+
+CAMERA_NAME = "Canon EOS 5D Mark II"
+
+
+@pytest.fixture(scope="module")
+def camera() -> MultiSpectrum:
+    return find_camera(colour_science_cameras(), CAMERA_NAME).sensitivity
+
+
+@pytest.fixture(scope="module")
+def prior() -> CameraPrior:
+    return fallback_camera_basis(exclude=[CAMERA_NAME]).prior()
+
+
+# ----------------------------------------------------------------------------- line lists
+
+
+def test_blends_follow_the_resolution():
+    cfl = line_list("cfl-triphosphor")
+    wide = {b.label: b for b in blends(cfl, 5.0)}
+    assert "Tb 542.4 + Hg 546.1" in wide
+    pair = wide["Tb 542.4 + Hg 546.1"]
+    # The centre a centroid measures is strength-weighted; the reference is the Hg line, whose
+    # wavelength is a standard (the phosphor peak's is known to 0.5 nm).
+    assert 542.4 < pair.wavelength_nm < 546.1
+    assert pair.reference.label == "Hg 546.1"
+    assert pair.uncertainty_nm == 0.5
+    narrow = {b.label for b in blends(cfl, 2.0)}
+    assert {"Tb 542.4", "Hg 546.1"} <= narrow
+    # Na D1/D2 (0.6 nm apart) and the Mg b triplet blend at 1 nm, not at 0.3 nm.
+    solar = {b.label for b in blends(line_list("solar"), 1.0)}
+    assert "Fraunhofer D2 + Fraunhofer D1" in solar
+    assert "Fraunhofer D2" in {b.label for b in blends(line_list("solar"), 0.3)}
+
+
+def test_builtin_specs_and_colour_names_resolve_in_one_place(tmp_path):
+    lamp = lamp_from_spec("builtin:hg:1.5")
+    assert lamp.name == "builtin:hg"
+    at = lamp.at(np.array([546.07, 550.0]))
+    assert at[0] > 100 * max(at[1], 1e-12)  # a line, not a band
+    with pytest.raises(InputError, match="needs a list name"):
+        lamp_from_spec("builtin:")
+    with pytest.raises(InputError, match="no built-in line list 'xenon'"):
+        lamp_from_spec("builtin:xenon")
+    with pytest.raises(InputError, match="width must be > 0"):
+        lamp_from_spec("builtin:hg:-1")
+    # calib estimate --spectrum FL11 (a colour-science light source, not a file) and builtin:.
+    for spec in ("FL11", "builtin:cfl-triphosphor"):
+        loaded = load_spectrum(Path(spec), "CFL", DEFAULT_GRID)
+        assert loaded.spectrum.covers(DEFAULT_GRID)
+    with pytest.raises(InputError, match="not a spectrum file, a colour-science"):
+        load_spectrum(Path("nonsense-lamp"), "CFL", DEFAULT_GRID)
+    with pytest.raises(InputError):  # a CSV that does not exist is still a missing file
+        load_spectrum(tmp_path / "missing.csv", "CFL", DEFAULT_GRID)
+
+
+# ------------------------------------------------------------------------- feature mapping
+
+
+def _physical_profile(
+    lamp: Spectrum, camera: MultiSpectrum, truth: TiltedGrating, seed: int, noise: float = 0.002
+) -> LampObservation:
+    u = truth.pixel_at(np.array([370.0, 730.0]))
+    lo, hi = sorted(u)
+    pixel = np.arange(np.floor(lo), np.ceil(hi))
+    return render_observation(
+        lamp,
+        camera,
+        mapping=truth,
+        pixel=pixel,
+        slit_width_px=3.0,
+        psf_sigma_px=1.0,
+        noise=PeakFractionNoise(noise),
+        rng=np.random.default_rng(seed),
+        fine_step_nm=0.05,  # lines narrower than 1 nm must be sampled finer to render right
+    ).observation
+
+
+def test_fraunhofer_mapping_on_a_synthetic_solar_profile(camera):
+    """Sunlight's dips, found continuum-normalised and matched with no start, place the mapping."""
+    dips = builtin_lamp("builtin:solar")
+    axis = dips.wavelength_nm
+    planck = 1.0 / (axis**5 * (np.exp(1.4388e7 / (axis * 5778.0)) - 1.0))
+    sun = Spectrum(axis, dips.values * planck / planck.max(), name="sunlight")
+    truth = TiltedGrating(1e6 / 600.0 / 7000.0, 7000.0, 3.0, axis_offset_px=-500.0)
+    observation = _physical_profile(sun, camera, truth, seed=2)
+    family = GratingFamily(
+        grating_prior(grooves_per_mm=600.0, focal_length_px=7300.0, axis_offset_px=-500.0),
+        axis_offset_px=-500.0,
+    )
+    found = map_features(
+        observation.pixel, observation.profile, line_list("solar"), family=family, fwhm_px=4.0
+    )
+    table = {row["line"]: row for row in found.table()}
+    for name in (
+        "Fraunhofer G",
+        "Fraunhofer F (H-beta)",
+        "Fraunhofer C (H-alpha)",
+        "Fraunhofer B (O2)",
+    ):
+        assert name in table
+    error = found.exact.wavelength_nm(observation.pixel) - truth.wavelength_nm(observation.pixel)
+    assert float(np.sqrt(np.mean(error**2))) < 0.1
+    assert set(table["Fraunhofer C (H-alpha)"]) == {
+        "line",
+        "wavelength_nm",
+        "pixel",
+        "fitted_nm",
+        "residual_nm",
+        "weight",
+    }
+
+
+@pytest.mark.parametrize("orientation", [1, -1])
+def test_a_cfl_through_its_builtin_lines_either_way_round(camera, orientation):
+    """No spectrum measured, no 0th order in the profile, possibly mirrored: the lines decide."""
+    truth = TiltedGrating(
+        1e6 / 1000.0 / 3700.0,
+        3700.0,
+        3.0,
+        zero_order_px=-1480.0 if orientation > 0 else 3980.0,
+        orientation=orientation,
+    )
+    pixel = np.arange(0.0, 2500.0)
+    observation = render_observation(
+        lamp_from_spec("builtin:cfl-triphosphor"),
+        camera,
+        mapping=truth,
+        pixel=pixel,
+        slit_width_px=12.0,
+        psf_sigma_px=3.0,
+        noise=PeakFractionNoise(0.002),
+        rng=np.random.default_rng(1),
+        fine_step_nm=0.05,
+        kind="fluorescent",
+    ).observation
+    solution = locate_mapping([observation], fallback_camera_basis().prior(), DEFAULT_GRID)
+    assert solution.details["orientation" if "orientation" in solution.details else "family"]
+    hg = {row["line"]: row for row in solution.matched_lines}
+    for line in ("Hg 435.8", "Hg 546.1"):
+        true_px = float(truth.pixel_at(np.array([hg[line]["wavelength_nm"]]))[0])
+        assert abs(hg[line]["pixel"] - true_px) < 0.5
+        assert abs(hg[line]["residual_nm"]) < 0.1
+    slope = np.diff(solution.exact.wavelength_nm(pixel[[0, -1]]))[0]
+    assert np.sign(slope) == orientation
+
+
+# ---------------------------------------------------------------------- orientation, folding
+
+
+def test_a_mirrored_profile_maps_to_the_same_wavelengths(camera, prior):
+    truth = QuadraticMapping(-2.0e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+    rising = render_observation(
+        lamp_from_spec("LED-B3"),
+        camera,
+        mapping=truth,
+        pixel=800,
+        noise=PeakFractionNoise(0.005),
+        rng=np.random.default_rng(4),
+    ).observation
+    mirrored = LampObservation(
+        "LED-B3 mirrored", rising.spectrum, rising.pixel, rising.profile[::-1], kind="led"
+    )
+    forward = search_profiles([rising], prior, DEFAULT_GRID)
+    backward = search_profiles([mirrored], prior, DEFAULT_GRID)
+    assert forward.details["orientation"] == "rising"
+    assert backward.details["orientation"] == "falling"
+    pixels = rising.pixel
+    np.testing.assert_allclose(
+        backward.exact.wavelength_nm(pixels[::-1]), forward.exact.wavelength_nm(pixels), atol=0.05
+    )
+    inside = (truth.wavelength_nm(pixels) > 400) & (truth.wavelength_nm(pixels) < 700)
+    error = forward.exact.wavelength_nm(pixels) - truth.wavelength_nm(pixels)
+    assert float(np.max(np.abs(error[inside]))) < 1.0
+
+
+def test_a_folding_mapping_is_an_error_not_a_result():
+    observation = LampObservation("x", lamp_from_spec("D65"), np.arange(100.0), np.ones((100, 3)))
+    folding = QuadraticMapping(-0.01, 1.0, 400.0)  # turns at pixel 50
+    with pytest.raises(EstimationError, match="folds back"):
+        _check_monotonic(folding, observation)
+
+
+# ------------------------------------------------------------------------------- ambiguity
+
+
+def test_two_near_equal_basins_are_stated_and_carried(camera, prior):
+    """A lamp whose only structure is a 10 nm comb lets a shift by whole periods fit almost as
+    well: the result warns, recommends a line lamp, carries both basins, and its σ includes the
+    other."""
+    axis = np.arange(360.0, 831.0, 0.5)
+    comb = Spectrum(axis, 1.0 + 0.9 * np.cos(2 * np.pi * axis / 10.0), name="comb")
+    truth = QuadraticMapping(0.0, 0.4, 380.0, pixel_range=(0.0, 799.0))
+    observation = render_observation(
+        comb,
+        camera,
+        mapping=truth,
+        pixel=800,
+        noise=PeakFractionNoise(0.02),
+        rng=np.random.default_rng(5),
+    ).observation
+    found = search_profiles([observation], prior, DEFAULT_GRID)
+    assert found.ambiguous
+    assert "fluorescent" in found.warnings[0]
+    candidates = found.details["candidates"]
+    assert len(candidates) >= 2
+    # The comb's aliases: a whole number of its periods away.
+    periods = candidates[1]["rms_distance_nm"] / 10.0
+    assert round(periods) >= 1 and abs(periods - round(periods)) < 0.1
+    assert candidates[1]["delta_chi2"] < found.details.get("ambiguity_delta_chi2", 25.0)
+    assert found.mapping.wavelength_rms_nm is not None
+    assert found.mapping.wavelength_rms_nm > 3 * found.details["local_rms_nm"]

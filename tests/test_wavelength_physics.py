@@ -1,0 +1,289 @@
+"""The mapping's physics: the grating equation through a lens, its families' analytic derivatives, the
+banded response model's exact Jacobian, the rig's prior and a grating file's stored geometry."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calib.core.datasets import colour_science_cameras, find_camera
+from calib.core.errors import InputError
+from calib.core.grating_file import (
+    GRATING_FORMAT_VERSION,
+    GratingEfficiency,
+    GratingFileError,
+    read_grating_file,
+    write_grating_file,
+)
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import GratingGeometry, QuadraticMapping, TiltedGrating
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID, Spectrum
+from calib.model.bases import fallback_camera_basis
+from calib.model.forward import blur_kernel, pixel_edges, render_observation
+from calib.wavelength.families import GratingFamily, QuadraticFamily, grating_prior
+from calib.wavelength.least_squares import levenberg_marquardt
+from calib.wavelength.response_model import ResponseModel, hat_averages
+from calib.wavelength.rig_prior import (
+    RigGeometry,
+    RigOptics,
+    optics_from_observation,
+    rig_prior,
+    same_setup,
+)
+
+
+def _central_difference(function, x: np.ndarray, step: float) -> np.ndarray:
+    columns = []
+    for k in range(x.size):
+        delta = np.zeros_like(x)
+        delta[k] = step
+        columns.append((function(x + delta) - function(x - delta)) / (2 * step))
+    return np.stack(columns, axis=-1)
+
+
+# ------------------------------------------------------------------------------ the grating
+
+
+def test_tilted_grating_round_trips_and_reduces_to_the_parts_geometry():
+    grating = TiltedGrating(
+        0.3, 5000.0, 4.0, zero_order_px=-120.0, orientation=1, axis_offset_px=300.0
+    )
+    pixels = np.linspace(1200.0, 2600.0, 9)
+    np.testing.assert_allclose(grating.pixel_at(grating.wavelength_nm(pixels)), pixels, atol=1e-8)
+    slope = np.gradient(grating.wavelength_nm(pixels), pixels)
+    np.testing.assert_allclose(grating.dispersion_at(pixels)[1:-1], slope[1:-1], rtol=2e-3)
+    assert TiltedGrating.from_dict(json.loads(json.dumps(grating.to_dict()))) == grating
+    # Normal incidence, 0th order on the axis: the rig's parts (GratingGeometry) exactly.
+    parts = GratingGeometry(grooves_per_mm=600.0, focal_length_mm=24.0, pixel_pitch_um=4.0)
+    tilted = TiltedGrating(1e6 / 600.0 / parts.focal_length_px, parts.focal_length_px)
+    np.testing.assert_allclose(tilted.wavelength_nm(pixels), parts.wavelength_nm(pixels), atol=1e-9)
+
+
+def test_the_other_first_order_is_the_same_grating_seen_the_other_way():
+    grating = TiltedGrating(0.25, 6000.0, 6.0, axis_offset_px=400.0)
+    other = grating.other_order()
+    spacing = grating.groove_spacing_nm
+    u = np.array([1500.0, 2500.0])
+    # −1 order: sin θ − sin θ' = λ/d, measured away from the spot on the other side.
+    theta = math.radians(6.0)
+    angle = np.arctan((-u + 400.0) / 6000.0) - math.atan(400.0 / 6000.0)
+    expected = spacing * (math.sin(theta) - np.sin(theta + angle))
+    np.testing.assert_allclose(other.wavelength_nm(u), expected, rtol=1e-12)
+
+
+def test_a_mirrored_grating_mapping_falls_with_the_pixel():
+    rising = TiltedGrating(0.3, 5000.0, 2.0, zero_order_px=-1500.0)
+    falling = replace(rising, zero_order_px=1500.0 + 2000.0, orientation=-1)
+    pixels = np.linspace(0.0, 2000.0, 5)
+    np.testing.assert_allclose(falling.wavelength_nm(pixels), rising.wavelength_nm(2000.0 - pixels))
+    assert np.all(falling.dispersion_at(pixels) < 0)
+
+
+def test_tilted_grating_refuses_a_bad_orientation():
+    with pytest.raises(InputError, match="orientation"):
+        TiltedGrating(0.3, 5000.0, orientation=0)
+
+
+# ----------------------------------------------------------------------- analytic derivatives
+
+
+@pytest.mark.parametrize("orientation", [1, -1])
+def test_grating_family_jacobian_equals_finite_differences(orientation):
+    family = GratingFamily(
+        grating_prior(zero_order_px=None, grooves_per_mm=None), orientation, axis_offset_px=350.0
+    )
+    x = np.array([-1800.0 * orientation, math.log(1600.0), math.log(7000.0), 6.0])
+    pixels = np.linspace(0.0, 2500.0, 11)
+    numeric = _central_difference(lambda v: family.wavelengths(pixels, v), x, 1e-6)
+    np.testing.assert_allclose(family.jacobian(pixels, x), numeric, rtol=1e-6, atol=1e-6)
+
+
+def test_quadratic_family_is_linear_in_the_end_wavelengths():
+    family = QuadraticFamily((0.0, 800.0))
+    truth = QuadraticMapping(-2e-5, 0.43, 383.0)
+    x = family.parameters(truth)
+    pixels = np.linspace(0.0, 800.0, 7)
+    np.testing.assert_allclose(family.mapping(x).wavelength_nm(pixels), truth.wavelength_nm(pixels))
+    numeric = _central_difference(lambda v: family.wavelengths(pixels, v), x, 1e-3)
+    np.testing.assert_allclose(family.jacobian(pixels), numeric, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def fluorescent_profile() -> LampObservation:
+    camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+    truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+    return render_observation(
+        colour_lamp("FL2"), camera, mapping=truth, pixel=800, slit_width_px=3.0, psf_sigma_px=1.0
+    ).observation
+
+
+def test_response_model_jacobian_equals_finite_differences(fluorescent_profile):
+    """The exact variable-projection Jacobian (Golub & Pereyra) of the residual in the mapping."""
+    prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
+    model = ResponseModel.build(
+        fluorescent_profile,
+        DEFAULT_GRID,
+        node_step_nm=10.0,
+        prior=prior,
+        flexibility=0.05,
+        kernel=blur_kernel(3.0, 1.0),
+    )
+    family = QuadraticFamily((0.0, 799.0))
+    edges = pixel_edges(fluorescent_profile.pixel)
+    x = family.parameters(QuadraticMapping(-2.2e-5, 0.43, 383.0)) + np.array([0.8, -0.4, 0.6])
+    fixed = model.reference(family.wavelengths(edges, x))
+    residual, jacobian, _ = fixed.residual(family.wavelengths(edges, x), family.jacobian(edges))
+    assert jacobian is not None
+    numeric = _central_difference(
+        lambda v: fixed.residual(family.wavelengths(edges, v))[0], x, 1e-4
+    )
+    np.testing.assert_allclose(jacobian, numeric, rtol=1e-5, atol=1e-6 * np.abs(numeric).max())
+    # The batched cost is the residual's squared norm (computed as ‖Wy‖² − bᵀr̂: a difference of
+    # large numbers on noise-free data, hence the tolerance).
+    cost = fixed.costs(family.wavelengths(edges, x)[None], adaptive=False)
+    np.testing.assert_allclose(cost, [residual @ residual], rtol=1e-5)
+
+
+def test_hat_averages_are_the_integrating_resample():
+    axis = np.linspace(380.0, 780.0, 4001)
+    spectrum = Spectrum(axis, 1.0 + np.sin(axis / 0.7) ** 2)
+    from calib.core.spectra import WavelengthGrid
+
+    grid = WavelengthGrid(400.0, 700.0, 1.0)
+    np.testing.assert_allclose(
+        hat_averages(spectrum, 400.0, 1.0, grid.size),
+        spectrum.resample(grid, "integrate").values,
+        rtol=1e-9,
+    )
+
+
+def test_levenberg_marquardt_with_a_rejected_region():
+    def function(x, with_jacobian):
+        if x[0] <= 0:
+            return None  # outside the valid region
+        t = np.linspace(0.0, 1.0, 20)
+        residual = x[0] * np.exp(-x[1] * t) - 2.0 * np.exp(-3.0 * t)
+        jacobian = np.stack([np.exp(-x[1] * t), -x[0] * t * np.exp(-x[1] * t)], axis=1)
+        return residual, jacobian if with_jacobian else None
+
+    solution = levenberg_marquardt(function, np.array([0.5, 1.0]))
+    np.testing.assert_allclose(solution.x, [2.0, 3.0], atol=1e-6)
+
+
+# ------------------------------------------------------------------------------- the rig
+
+
+def _spot_observation(metadata: dict[str, object]) -> LampObservation:
+    pixel = np.arange(1000.0, 1400.0)
+    return LampObservation(
+        "LED",
+        colour_lamp("LED-B3"),
+        pixel,
+        np.ones((pixel.size, 3)),
+        metadata=metadata,
+        pixel_origin="direct_spot",
+    )
+
+
+GEOMETRY = {
+    "sensor_shape_px": [4000, 6000],
+    "spot_centre_px": [1800.0, 2100.0],
+    "orders": [{"side": 1, "angle_deg": 0.0, "start_px": 900.0, "stop_px": 2600.0}],
+}
+
+
+def test_optics_come_from_exif_and_the_spot_geometry():
+    observation = _spot_observation(
+        {
+            "optics": {"camera": "Nikon D7000", "focal_length_mm": 35.0},
+            "geometry": GEOMETRY,
+        }
+    )
+    optics = optics_from_observation(observation)
+    assert optics.pitch_source == "sensor table"  # the D7000 writes no focal plane resolution
+    assert optics.pixel_pitch_um == pytest.approx(23.6e3 / 4928)
+    assert optics.focal_length_px == pytest.approx(35.0 / (23.6e3 / 4928 * 1e-3))
+    # The spot is 1200 px left of the sensor's centre along the order (angle 0: +x).
+    assert optics.axis_offset_px == pytest.approx(1800.0 - 3000.0)
+    prior, why = rig_prior(optics, grooves_per_mm=600.0)
+    assert prior is not None and "600 lines/mm" in why and "35 mm" in why
+    assert prior.fixed() == {"zero_order_px": 0.0}
+    assert prior.values["log_spacing"][0] == pytest.approx(math.log(1e6 / 600.0))
+    assert prior.axis_offset_px == pytest.approx(-1200.0)
+    # The rig's configured line density travels in the same record.
+    configured = optics_from_observation(
+        _spot_observation({"optics": {"focal_length_mm": 35.0, "grooves_per_mm": 500.0}})
+    )
+    assert configured.grooves_per_mm == 500.0
+    prior, why = rig_prior(configured)
+    assert prior is not None and "500 lines/mm" in why
+    assert prior.values["log_spacing"][0] == pytest.approx(math.log(1e6 / 500.0))
+
+
+def test_a_stored_geometry_is_reused_whole_only_in_the_same_setup():
+    grating = TiltedGrating(0.3, 7300.0, 3.5, axis_offset_px=-1200.0)
+    stored_optics = RigOptics(
+        camera="NIKON D7000",
+        focal_length_mm=35.0,
+        pixel_pitch_um=4.79,
+        order_angle_deg=0.0,
+        band_distance_px=1750.0,
+    )
+    stored = RigGeometry(grating, stored_optics, 600.0)
+    same = replace(stored_optics, band_distance_px=1760.0, order_angle_deg=0.3)
+    assert same_setup(stored_optics, same)[0]
+    prior, why = rig_prior(same, stored=stored)
+    assert prior is not None and "from the grating file" in why
+    assert prior.values["log_focal"][0] == pytest.approx(math.log(7300.0))
+    assert prior.values["log_focal"][1] == 0.01
+    assert prior.values["incidence_deg"][0] == pytest.approx(3.5)
+    assert prior.values["incidence_deg"][1] == 1.0
+    # Another lens: the sheet's spacing holds, the geometry is refitted (EXIF's focal length).
+    zoomed = replace(same, focal_length_mm=50.0)
+    ok, reason = same_setup(stored_optics, zoomed)
+    assert not ok and "focal length" in reason
+    prior, why = rig_prior(zoomed, stored=stored)
+    assert prior is not None and "refitted" in why
+    assert prior.values["log_spacing"][0] == pytest.approx(math.log(grating.groove_spacing_nm))
+    assert prior.values["log_focal"][1] == 0.05
+    # A turned camera: the order's angle moved.
+    assert not same_setup(stored_optics, replace(same, order_angle_deg=4.0))[0]
+    # Another body behind the same lens and grating: the angles hold, the focal length in pixels
+    # follows the pitch, both a little looser than for the same setup.
+    body = replace(same, camera="NIKON D5300", pixel_pitch_um=3.92)
+    prior, why = rig_prior(body, stored=stored)
+    assert prior is not None and "the same lens" in why
+    assert prior.values["log_focal"][0] == pytest.approx(math.log(7300.0 * 4.79 / 3.92))
+    assert prior.values["incidence_deg"][0] == pytest.approx(3.5)
+    assert prior.values["incidence_deg"][1] == 2.0
+
+
+def test_grating_file_carries_the_rig_and_reads_version_one(tmp_path):
+    rig = RigGeometry(
+        TiltedGrating(0.3, 7300.0, 3.5), RigOptics(camera="NIKON D7000", focal_length_mm=35.0)
+    )
+    grating = GratingEfficiency(
+        np.array([400.0, 700.0]), np.array([1.0, 0.5]), geometry={"rig": rig.to_dict()}
+    )
+    path = write_grating_file(tmp_path / "grating.json", grating)
+    document = json.loads(path.read_text())
+    assert document["format_version"] == GRATING_FORMAT_VERSION == 2
+    back = read_grating_file(path)
+    assert back.rig is not None
+    assert RigGeometry.from_dict(back.rig).grating == rig.grating
+    # Version 1 (no rig) still reads.
+    document["format_version"] = 1
+    del document["geometry"]["rig"]
+    path.write_text(json.dumps(document))
+    assert read_grating_file(path).rig is None
+    # A malformed rig is named.
+    document["format_version"] = 2
+    document["geometry"]["rig"] = {"grating": {"dispersion_nm_per_px": -1}}
+    path.write_text(json.dumps(document))
+    with pytest.raises(GratingFileError, match=r"geometry\.rig\.grating"):
+        read_grating_file(path)
