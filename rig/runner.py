@@ -65,7 +65,7 @@ from rig.records import (
     StopRecord,
 )
 from rig.session import STOP_TEXT_CHARS, SessionWriter
-from rig.station import Station
+from rig.station_devices import Station
 from rig.steps import (
     AllLampsOff,
     AnyStep,
