@@ -11,7 +11,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
-from calib.cli.options import EnsembleOption, EpochsOption
+from calib.cli.options import DataDirOption, EnsembleOption, EpochsOption, ExcludeCameraOption
 from calib.cli.synthetic import _parse_noise
 from calib.core.datasets import colour_science_cameras, makabe2025_split
 from calib.core.errors import InputError
@@ -32,19 +32,21 @@ def register(app: typer.Typer) -> None:
     @app.command("compare")
     def compare(
         out: Annotated[
-            Path, typer.Option(help="Directory for compare.md, compare.csv, plots.")
+            Path,
+            typer.Option("--out", "-o", help="Directory for compare.md, compare.csv, plots."),
         ] = Path("compare"),
-        data_dir: Annotated[
-            Path | None,
-            typer.Option(help="Camera data directory (else $SPECTRAL_RIG_DATA, the user cache)."),
-        ] = None,
+        data_dir: DataDirOption = None,
+        exclude_camera: ExcludeCameraOption = None,
         offline: Annotated[
             bool,
-            typer.Option(help="colour-science cameras and the offline basis (no dataset needed)."),
+            typer.Option(
+                "--offline",
+                help="colour-science cameras and the offline basis (no dataset needed).",
+            ),
         ] = False,
         method: Annotated[
             list[str] | None,
-            typer.Option(help="Registered methods to run (repeatable); default: all."),
+            typer.Option(help="Methods to run (repeatable; default: all): {registered_methods}."),
         ] = None,
         noise: Annotated[str, typer.Option(help="Noise levels, fractions of the peak.")] = ",".join(
             f"{n:g}" for n in DEFAULT_NOISE_LEVELS
@@ -60,6 +62,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Compare every registered method on the synthetic protocol (RE per camera × method)."""
         grid = WavelengthGrid()
+        excluded = list(exclude_camera or ())
         fallback_used = offline
         if not offline:
             try:
@@ -79,7 +82,7 @@ def register(app: typer.Typer) -> None:
             ]
 
             def basis_for(name: str) -> CameraBasis:
-                return fallback_camera_basis(grid=grid, exclude=[name.split(" (")[0]])
+                return fallback_camera_basis(grid=grid, exclude=[name.split(" (")[0], *excluded])
 
             basis = basis_for
             basis_description = (
@@ -87,7 +90,9 @@ def register(app: typer.Typer) -> None:
             )
         else:
             cameras = [(r.camera, r.sensitivity) for r in test]
-            measured = default_camera_basis(grid, data_dir=data_dir, exclude=[r.name for r in test])
+            measured = default_camera_basis(
+                grid, data_dir=data_dir, exclude=[*(r.name for r in test), *excluded]
+            )
             basis, basis_description = measured, measured.source
         source = SyntheticSource(
             cameras,

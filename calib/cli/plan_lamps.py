@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.options import DataDirOption, JsonOption
 from calib.core.errors import InputError
 from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.core.spectra import Spectrum, WavelengthGrid
@@ -85,13 +85,8 @@ def register(app: typer.Typer) -> None:
         terms: Annotated[
             int, typer.Option(min=1, help="Fourier terms of the grating efficiency.")
         ] = DEFAULT_EFFICIENCY_TERMS,
-        data_dir: Annotated[
-            Path | None,
-            typer.Option(help="Camera data directory for the prior (else the offline basis)."),
-        ] = None,
-        as_json: Annotated[
-            bool, typer.Option("--json", help="Print JSON instead of tables.")
-        ] = False,
+        data_dir: DataDirOption = None,
+        as_json: JsonOption = False,
     ) -> None:
         """Rank lamp subsets by how well they determine the grating efficiency (multilamp)."""
         if not math.isfinite(noise) or noise <= 0:

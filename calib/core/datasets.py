@@ -1070,3 +1070,6 @@ _PINNED_SOURCES.update(
         ),
     }
 )
+
+#: The collections ``data fetch`` downloads.
+FETCHABLE_COLLECTIONS: tuple[str, ...] = tuple(_PINNED_SOURCES)
