@@ -76,6 +76,9 @@ class OfflineSettings:
         the offline colour-science basis when none is found).
     basis
         A camera basis to use instead (on ``grid``).
+    exclude_cameras
+        Name patterns of cameras to keep out of the default basis (the camera under test, when
+        validating; :func:`calib.model.bases.default_camera_basis`); not with ``basis``.
     grating
         A grating efficiency (file or object) for lamps without a direct measurement.
     use_region
@@ -92,6 +95,7 @@ class OfflineSettings:
     mapping_lamp: str | None = None
     data_dir: Path | None = None
     basis: CameraBasis | None = None
+    exclude_cameras: tuple[str, ...] = ()
     grating: Path | GratingEfficiency | None = None
     use_region: bool | None = None
     command_line: tuple[str, ...] | None = None
@@ -506,7 +510,13 @@ def _estimate(
     notes: list[str],
 ) -> tuple[EstimateResult, GratingEfficiency | None]:
     grid = settings.grid
-    basis = settings.basis or default_camera_basis(grid, data_dir=settings.data_dir)
+    if settings.basis is not None and settings.exclude_cameras:
+        raise InputError(
+            "excluded cameras apply to the default basis, not to a basis given", source="basis"
+        )
+    basis = settings.basis or default_camera_basis(
+        grid, data_dir=settings.data_dir, exclude=settings.exclude_cameras
+    )
     method = check_method(settings.method, source="--method")
     where: dict[str, Any] = {}
     mapping = _wavelength_mapping(observations)
