@@ -30,7 +30,7 @@ from rig.capture import run_capture
 from rig.config import RigConfig, TwinCameraConfig, load_config
 from rig.records import StepRecord
 from rig.session import read_session
-from rig.station import Station, TranscriptFactory
+from rig.station_devices import Station, TranscriptFactory
 from rig.twin import open_twin_station
 
 

@@ -76,7 +76,7 @@ from rig.session import (
     read_session,
     transcript_path,
 )
-from rig.station import Station, TranscriptFactory
+from rig.station_devices import Station, TranscriptFactory
 from rig.steps import AnyStep, DeviceRole, StepResult, Wait
 
 #: The entry-point group naming the replay backend (``mocks.replay``'s ``RecordingServer``).

@@ -34,6 +34,18 @@ def shared_camera_data() -> Path:
     return SHARED_CAMERA_DATA
 
 
+#: The real grating captures (third-party validation data), beside the camera collections.
+SHARED_REAL_GRATING = SHARED_CAMERA_DATA.parent / "real-grating"
+
+
+@pytest.fixture
+def shared_real_grating() -> Path:
+    """The real grating captures; skips the test cleanly when they are not present."""
+    if not SHARED_REAL_GRATING.is_dir():
+        pytest.skip(f"real grating data not found at {SHARED_REAL_GRATING}")
+    return SHARED_REAL_GRATING
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20251121)

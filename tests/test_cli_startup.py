@@ -43,6 +43,7 @@ def test_every_command_is_registered() -> None:
         "ccm",
         "raw-to-raw",
         "profile",
+        "validate",
     }
 
 

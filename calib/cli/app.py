@@ -17,14 +17,14 @@ from collections.abc import Sequence
 
 import typer
 
-from calib.cli import compare, data, estimate, plan_lamps, spd, synthetic, uses
+from calib.cli import compare, data, estimate, plan_lamps, spd, synthetic, uses, validate
 from calib.cli.command_line import error_code_and_line, new_app, run_app
 
 
 def build_app() -> typer.Typer:
     """The ``calib`` command with every sub-command registered."""
     app = new_app("calib", "Camera spectral sensitivity from an uncalibrated diffraction grating.")
-    for command in (synthetic, data, estimate, compare, spd, plan_lamps, uses):
+    for command in (synthetic, data, estimate, compare, spd, plan_lamps, uses, validate):
         command.register(app)
     return app
 

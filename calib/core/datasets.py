@@ -16,6 +16,11 @@ Collections (the layout of a data directory; ``--data-dir`` may point at any suc
     Glenn Butcher's CSVs (``#`` comment header with ``#Camera:``, rows ``wl,r,g,b``).
 ``rawtoaces/``
     AMPAS rawtoaces camera JSON (spectral-data schema 0.1.0): ``spectral_data.data.main["<nm>"]``.
+``rawtoaces-data/``
+    The Academy's rawtoaces-data collection (52 cameras, ``data/camera/*.json``, schema 0.1.0 or
+    1.0.0 with the same ``spectral_data.data.main``; Apache-2.0), and its ``data/aliases.json``
+    (:func:`calib.core.camera_bodies.read_rawtoaces_aliases`). The copy bundled with spectral-rig
+    (:data:`calib.core.formats.ampas.RAWTOACES_DATA`) is read when the data directory has none.
 ``colour-science`` (built in, no files)
     ``colour.MSDS_CAMERA_SENSITIVITIES`` and the rawtoaces Canon EOS 5D Mark II CSV inside the
     colour package.
@@ -45,6 +50,7 @@ import platformdirs
 from calib.core.checksums import file_sha256
 from calib.core.colour_data import camera_sensitivities, rawtoaces_sensitivity_path
 from calib.core.errors import CalibError, InputError, SpectrumError
+from calib.core.formats.ampas import RAWTOACES_DATA as BUNDLED_RAWTOACES_DATA
 from calib.core.formats.ampas import read_camera_json
 from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.spectra import MultiSpectrum
@@ -57,6 +63,7 @@ SOLOMATOV_PREDICTIONS = "solomatov-akkaynak-2023-predictions"
 CAMSPEC = "jiang-2013-camspec"
 BUTCHERG = "butcherg-ssf-data"
 RAWTOACES = "rawtoaces"
+RAWTOACES_DATA = "rawtoaces-data"
 COLOUR_SCIENCE = "colour-science"
 
 #: Every collection name :func:`load_collection` accepts.
@@ -66,6 +73,7 @@ COLLECTIONS: tuple[str, ...] = (
     CAMSPEC,
     BUTCHERG,
     RAWTOACES,
+    RAWTOACES_DATA,
     COLOUR_SCIENCE,
 )
 
@@ -163,6 +171,13 @@ def resolve_data_dir(data_dir: str | Path | None = None) -> Path:
 
 
 def _collection_dir(data_dir: str | Path | None, collection: str) -> Path:
+    if collection == RAWTOACES_DATA:
+        # Bundled with spectral-rig (Apache-2.0); a data directory's own copy wins.
+        try:
+            local = resolve_data_dir(data_dir) / RAWTOACES_DATA
+        except InputError:
+            return BUNDLED_RAWTOACES_DATA
+        return local if local.is_dir() else BUNDLED_RAWTOACES_DATA
     root = resolve_data_dir(data_dir)
     folder = root / (SOLOMATOV if collection == SOLOMATOV_PREDICTIONS else collection)
     if not folder.is_dir():
@@ -354,7 +369,7 @@ def load_collection(collection: str, data_dir: str | Path | None = None) -> list
         else:
             curves = read_rawtoaces_json(path)
             camera = curves.name
-            name = f"{camera} (rawtoaces)"
+            name = f"{camera} ({collection})"
         records.append(CameraRecord(name, camera, collection, curves, relative))
     if not records:
         raise InputError(

@@ -55,6 +55,20 @@ def relative_error(estimated: ArrayLike, truth: ArrayLike, *, normalise: bool = 
     >>> relative_error(2 * truth, truth)
     0.0
     """
+    return float(np.mean(channel_relative_errors(estimated, truth, normalise=normalise)))
+
+
+def channel_relative_errors(
+    estimated: ArrayLike, truth: ArrayLike, *, normalise: bool = True
+) -> FloatArray:
+    """Each channel's term ``RMSE_c / max(s_c)`` of :func:`relative_error`, shape ``(3,)``.
+
+    Examples
+    --------
+    >>> truth = np.array([[1.0, 0.5, 0.2], [0.5, 1.0, 0.4]])
+    >>> channel_relative_errors(truth + [[0.0, 0.0, 0.04], [0.0, 0.0, 0.04]], truth).round(6).tolist()
+    [0.0, 0.0, 0.1]
+    """
     est = _curves(estimated, "estimated sensitivity")
     ref = _curves(truth, "true sensitivity")
     if est.shape != ref.shape:
@@ -66,7 +80,7 @@ def relative_error(estimated: ArrayLike, truth: ArrayLike, *, normalise: bool = 
     peaks = np.max(ref, axis=0)
     if np.any(peaks <= 0):
         raise InputError("a true channel is all zero; RE is undefined", source="true sensitivity")
-    return float(np.mean(rmse / peaks))
+    return np.asarray(rmse / peaks, dtype=np.float64)
 
 
 def format_re(value: float | None, digits: int = 2) -> str:

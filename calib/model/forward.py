@@ -425,6 +425,7 @@ def render_observation(
     name: str | None = None,
     fine_step_nm: float = FINE_STEP_NM,
     direct_throughput: float = 1.0,
+    zeroth_order_efficiency: EfficiencyLike = None,
 ) -> RenderedObservation:
     """Render a lamp's direct RGB and first-order profile as the camera records them.
 
@@ -455,6 +456,9 @@ def render_observation(
         Internal spectral step.
     direct_throughput
         Ratio of the direct path's throughput to the first order's (the 0th-order efficiency).
+    zeroth_order_efficiency
+        The 0th order's efficiency η₀(λ) (a :class:`Spectrum`, a callable, or ``None`` for a flat
+        one): the direct signal is ``direct_throughput · ∫ e η₀ s_c dλ``.
 
     Returns
     -------
@@ -483,9 +487,10 @@ def render_observation(
     edges_nm = np.asarray(mapping.wavelength_nm(pixel_edges(pixels)), dtype=np.float64)
     unblurred = PiecewiseLinearDensity.on_axis(axis, spectral_image).integrate_pixels(edges_nm)
     clean_profile = apply_blur(unblurred, blur_kernel(slit_width_px, psf_sigma_px))
+    zeroth = _efficiency_on(zeroth_order_efficiency, axis)
     clean_direct = (
         direct_throughput
-        * PiecewiseLinearDensity.on_axis(axis, lamp_values[:, None] * sensitivity).total
+        * PiecewiseLinearDensity.on_axis(axis, (lamp_values * zeroth)[:, None] * sensitivity).total
     )
     profile, direct = clean_profile, clean_direct
     profile_sigma: FloatArray | None = None

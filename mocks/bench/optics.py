@@ -37,6 +37,7 @@ from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry
 from calib.core.spectra import MultiSpectrum, Spectrum
 from calib.model.forward import PiecewiseLinearDensity, RenderedObservation, render_observation
+from calib.model.gratings import BlazedGrating
 from mocks.bench.colour_cache import cached_table
 from mocks.bench.spec import CameraSpec, TwinSpecError
 from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_box
@@ -91,9 +92,10 @@ def load_sensitivity(camera: CameraSpec) -> MultiSpectrum:
 def blaze_efficiency(
     blaze_nm: float, peak_efficiency: float, range_nm: tuple[float, float] = EFFICIENCY_RANGE_NM
 ) -> Spectrum:
-    """First-order efficiency ``η_peak · sinc²(λ_blaze/λ − 1)`` at 1 nm over ``range_nm``."""
+    """First-order efficiency ``η_peak · sinc²(λ_blaze/λ − 1)`` at 1 nm over ``range_nm``
+    (:class:`calib.model.gratings.BlazedGrating`)."""
     axis = np.arange(range_nm[0], range_nm[1] + 0.5, 1.0)
-    values = peak_efficiency * np.sinc(blaze_nm / axis - 1.0) ** 2
+    values = peak_efficiency * BlazedGrating(blaze_nm).efficiency(1, axis)
     return Spectrum(axis, values, name=f"blaze {blaze_nm:g} nm")
 
 

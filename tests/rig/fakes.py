@@ -39,7 +39,7 @@ from mocks.lamps import Clock, LampBank, SimulatedClock, VirtualLamp
 from rig.analysis import FrameStats
 from rig.config import RigConfig
 from rig.errors import FrameAnalysisError
-from rig.station import Station, TranscriptFactory
+from rig.station_devices import Station, TranscriptFactory
 
 RAW_MAGIC = b"FAKERAW1\n"
 WHITE_LEVEL_DN = 4000.0

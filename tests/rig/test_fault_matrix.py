@@ -241,7 +241,7 @@ def capture_then_resume(
     """
     outcome = run_capture(matrix_config(directory, emulate), retry=NO_BACKOFF, builder=builder)
     if outcome.exit_status != "success":
-        resumed = run_resume(outcome.session, matrix_config(directory), retry=NO_BACKOFF)
+        resumed = run_resume(outcome.session, matrix_config(directory, emulate), retry=NO_BACKOFF)
         assert resumed.exit_status == "success", resumed
     return outcome.reason, outcome.session
 

@@ -202,7 +202,10 @@ def test_without_the_users_configuration_nothing_is_resumed(
     monkeypatch.chdir(tmp_path / "sessions")  # no config.yaml here
     assert run_cli(["resume", str(session), "-q"], monkeypatch) == 2
     err = capsys.readouterr().err
-    assert err == "rig: error: config.yaml: file not found; pass --config PATH\n"
+    assert err == (
+        "rig: error: config.yaml: file not found; pass --config PATH, or write one with "
+        "`rig init` (`rig init --twin` for the digital twin)\n"
+    )
     assert fake_station.relays.io.calls == {}
 
 

@@ -1,0 +1,237 @@
+"""Profiles from other tools' files: rawproc .dat exports and FITS planes (calib.image.profile_files)."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.core.errors import InputError
+from calib.core.spectra import Spectrum
+from calib.image.profile_files import (
+    read_fits_planes,
+    read_fits_profile,
+    read_rawproc_dat,
+)
+
+COMMAND = (
+    "rawproc-0.9.1Dev DSG_0001.NEF:rawdata=crop;  demosaic:half rotate:hmirror "
+    "crop:0.000000,0.4,1.000000,0.5 "
+)
+
+
+def _dat_bytes(
+    red: list[float], green: list[float], blue: list[float], *, height: int = 7
+) -> bytes:
+    width = len(red)
+    rows = [
+        f"width: {width}",
+        f"height: {height}",
+        COMMAND,
+        "x," + ",".join(str(k) for k in range(width)),
+        *(
+            f"{name}," + ",".join(f"{v:.6f}" for v in values)
+            for name, values in (("red", red), ("green", green), ("blue", blue))
+        ),
+        "",
+        *(
+            f"{letter}max: {max(values):.6f} {letter}maxcolumn: {int(np.argmax(values))}"
+            for letter, values in (("r", red), ("g", green), ("b", blue))
+        ),
+    ]
+    return ("\n".join(rows) + "\n").encode()
+
+
+RED = [0.000020, 0.000100, 0.020000, 0.150000, 0.010000]
+GREEN = [0.000088, 0.050000, 0.159703, 0.030000, 0.000090]
+BLUE = [0.097665, 0.040000, 0.001000, 0.000100, 0.000109]
+
+
+def test_rawproc_dat_is_read_byte_for_byte(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.dat"
+    path.write_bytes(_dat_bytes(RED, GREEN, BLUE))
+    profile = read_rawproc_dat(path)
+    np.testing.assert_array_equal(profile.pixel, np.arange(5.0))
+    np.testing.assert_allclose(profile.profile, np.column_stack([RED, GREEN, BLUE]), atol=0)
+    assert profile.profile_sigma is None
+    assert profile.metadata["mirrored"] is True
+    assert profile.metadata["rows_averaged"] == 7
+    assert profile.metadata["command"] == COMMAND.strip()
+    # The sensor's own column order undoes rawproc's hmirror.
+    unmirrored = read_rawproc_dat(path, sensor_orientation=True)
+    np.testing.assert_allclose(unmirrored.profile, profile.profile[::-1])
+    observation = profile.to_observation(
+        "CFL", Spectrum([380, 780], [1.0, 1.0]), kind="fluorescent"
+    )
+    assert observation.n_pixels == 5 and observation.kind == "fluorescent"
+    assert observation.metadata["profile_file"] == str(path)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda text: text.replace("width: 5", "width: 6"), "has 5 values, width says 6"),
+        (lambda text: text.replace("green,", "greem,"), "unexpected line"),
+        (lambda text: text.replace("0.159703", "0.1x9703"), "is not a number"),
+        (lambda text: text.replace("x,0,1,", "x,1,0,"), "x row must be 0, 1"),
+        (lambda text: text.replace("gmax: 0.159703", "gmax: 0.200000"), "gmax 0.2 disagrees"),
+        (lambda text: text.replace("red,", "red,nan,").replace("width: 5", "width: 6"), "NaN"),
+        (lambda text: text.replace("height: 7\n", ""), "no height"),
+    ],
+)
+def test_rawproc_dat_errors_name_the_file_and_line(tmp_path: Path, edit, message: str) -> None:
+    path = tmp_path / "bad.dat"
+    path.write_text(edit(_dat_bytes(RED, GREEN, BLUE).decode()))
+    with pytest.raises(InputError, match=message) as caught:
+        read_rawproc_dat(path)
+    assert str(path) in str(caught.value)
+
+
+def test_a_missing_dat_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="file not found"):
+        read_rawproc_dat(tmp_path / "absent.dat")
+
+
+def _fits_bytes(image: np.ndarray, cards: dict[str, object] | None = None) -> bytes:
+    """A minimal FITS file written card by card (BITPIX −32, big-endian), as the standard says."""
+    header = [
+        ("SIMPLE", True),
+        ("BITPIX", -32),
+        ("NAXIS", image.ndim),
+        *((f"NAXIS{k + 1}", n) for k, n in enumerate(reversed(image.shape))),
+        *(cards or {}).items(),
+    ]
+
+    def card(key: str, value: object) -> bytes:
+        if isinstance(value, bool):
+            text = "T" if value else "F"
+        elif isinstance(value, str):
+            text = f"'{value:<8}'"
+        else:
+            text = str(value)
+        return f"{key:<8}= {text:>20}".ljust(80).encode("ascii")
+
+    block = b"".join(card(k, v) for k, v in header) + b"END".ljust(80)
+    block += b" " * (-len(block) % 2880)
+    data = struct.pack(f">{image.size}f", *image.astype(np.float32).ravel())
+    return block + data + b"\0" * (-len(data) % 2880)
+
+
+def _band_planes(rng: np.random.Generator, noise: float) -> tuple[np.ndarray, np.ndarray]:
+    """Three planes (rows 12, columns 40): a band of rows 3–9 with a spectrum, plus noise."""
+    columns = np.arange(40.0)
+    spectra = np.stack(
+        [np.exp(-0.5 * ((columns - centre) / 6.0) ** 2) for centre in (30.0, 20.0, 10.0)]
+    )
+    across = np.zeros(12)
+    across[3:10] = [0.6, 0.9, 1.0, 1.0, 0.95, 0.85, 0.7]
+    clean = across[None, :, None] * spectra[:, None, :]
+    return clean + noise * rng.standard_normal(clean.shape), spectra
+
+
+def test_fits_planes_written_byte_by_byte_give_the_band_sum_with_sigma(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    noise = 0.01
+    planes, spectra = _band_planes(rng, noise)
+    paths = []
+    for name, plane in zip("RGB", planes, strict=True):
+        path = tmp_path / f"band {name}.fit"
+        path.write_bytes(_fits_bytes(plane, {"EXPTIME": 0.25, "INSTRUME": "Twin"}))
+        paths.append(path)
+    profile = read_fits_profile(paths)
+    assert profile.metadata["band_rows"] == [3, 10]
+    assert profile.metadata["rows_summed"] == 7
+    assert profile.metadata["header"]["EXPTIME"] == 0.25
+    # Background: the 5 rows outside the band (their median per column) is subtracted.
+    expected = 5.0 * spectra.T  # the across profile sums to 6.0, less nothing but noise
+    np.testing.assert_allclose(profile.profile, expected * 6.0 / 5.0, atol=6 * noise * np.sqrt(7))
+    assert profile.profile_sigma is not None
+    # Independent rows: the σ of a sum of 7 rows is √7 × the per-row noise (within sampling).
+    np.testing.assert_allclose(np.median(profile.profile_sigma), noise * np.sqrt(7), rtol=0.35)
+
+
+def test_fits_sigma_of_a_sum_of_correlated_rows(tmp_path: Path) -> None:
+    rng = np.random.default_rng(9)
+    rows, columns, sigma = 60, 40, 0.01
+    spectrum = np.exp(-0.5 * ((np.arange(columns) - 20.0) / 6.0) ** 2)
+    clean = np.broadcast_to(spectrum, (3, rows, columns))
+    white = rng.standard_normal((3, rows + 1, columns)) * sigma
+    cases = {
+        # Neighbouring rows share a sample (as demosaicked rows do): var of the sum (4n − 2) σ².
+        "correlated": (white[:, 1:, :] + white[:, :-1, :], np.sqrt(4 * rows - 2) * sigma),
+        "independent": (white[:, 1:, :] * np.sqrt(2), np.sqrt(2 * rows) * sigma),
+    }
+    for name, (noise, expected) in cases.items():
+        path = tmp_path / f"{name}.fits"
+        path.write_bytes(_fits_bytes(clean + noise))
+        profile = read_fits_profile(path)
+        assert profile.profile_sigma is not None
+        assert float(np.median(profile.profile_sigma)) == pytest.approx(expected, rel=0.15), name
+
+
+def test_fits_errors_are_clear(tmp_path: Path) -> None:
+    flat = tmp_path / "flat.fits"
+    flat.write_bytes(_fits_bytes(np.ones((4, 6))))
+    with pytest.raises(InputError, match="cube of 3 colour planes"):
+        read_fits_planes(flat)
+    other = tmp_path / "other.fits"
+    other.write_bytes(_fits_bytes(np.ones((5, 6))))
+    with pytest.raises(InputError, match="one shape"):
+        read_fits_planes([flat, flat, other])
+    with pytest.raises(InputError, match="three FITS files"):
+        read_fits_planes([flat, flat])
+    text = tmp_path / "text.fits"
+    text.write_text("not a fits file")
+    with pytest.raises(InputError, match="not a readable FITS file"):
+        read_fits_planes(text)
+    with pytest.raises(InputError, match="band rows"):
+        read_fits_profile([flat, flat, flat], rows=(3, 4))
+
+
+def test_fits_without_astropy_says_how_to_install(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_astropy(name: str, *args: object, **kwargs: object) -> object:
+        if name.startswith("astropy"):
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(builtins, "__import__", no_astropy)
+    with pytest.raises(InputError, match=r"spectral-rig\[fits\]"):
+        read_fits_planes(tmp_path / "any.fits")
+
+
+@pytest.mark.shared_data
+def test_the_d7000_rawproc_exports(shared_real_grating: Path) -> None:
+    folder = shared_real_grating / "butcher-nikon-d7000-2020-08"
+    cfl = read_rawproc_dat(folder / "D7000_calibration.dat")
+    halogen = read_rawproc_dat(folder / "D7000_spectrum.dat")
+    for profile in (cfl, halogen):
+        assert profile.profile.shape == (2474, 3)
+        assert profile.metadata["mirrored"] is True and profile.metadata["rows_averaged"] == 115
+    # In the file's (mirrored) order blue peaks first and red last: wavelength rises with x.
+    peaks = cfl.profile.argmax(axis=0)
+    assert peaks[2] < peaks[1] < peaks[0]
+    assert tuple(peaks) == (1735, 1278, 546)  # the file's own rmaxcolumn/gmaxcolumn/bmaxcolumn
+
+
+@pytest.mark.shared_data
+def test_the_canon_10d_fits_planes(shared_real_grating: Path) -> None:
+    folder = shared_real_grating / "rrogge-canon-eos-10d"
+    paths = [folder / f"Solar Spectrum Canon EOS 10D {c}.fit" for c in "RGB"]
+    profile = read_fits_profile(paths)
+    assert profile.profile.shape == (1658, 3)
+    assert profile.metadata["band_rows"] == [0, 128]  # the crop is all band
+    assert profile.profile_sigma is not None and np.all(profile.profile_sigma > 0)
+    # Demosaicked planes: neighbouring rows are correlated, and σ is inflated for it.
+    assert all(factor > 1.5 for factor in profile.metadata["row_correlation_inflation"])
+    peaks = profile.profile.argmax(axis=0)
+    assert peaks[2] < peaks[1] < peaks[0]
+    snr = profile.profile / profile.profile_sigma
+    assert 100 < float(np.max(snr)) < 5000
