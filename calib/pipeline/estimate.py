@@ -517,6 +517,8 @@ def _estimate(
     basis = settings.basis or default_camera_basis(
         grid, data_dir=settings.data_dir, exclude=settings.exclude_cameras
     )
+    if basis.fallback is not None:
+        warnings.append(basis.fallback)
     method = check_method(settings.method, source="--method")
     where: dict[str, Any] = {}
     mapping = _wavelength_mapping(observations)
