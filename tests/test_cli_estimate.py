@@ -619,3 +619,24 @@ def test_a_blank_frame_in_a_bracket_is_refused_naming_it(capture: Capture, tmp_p
     code, _, stderr = _call(argv)
     assert code == 2 and stderr.count("\n") == 1, stderr
     assert "blank.dng" in stderr and "the frame is blank" in stderr
+
+
+def test_exclude_camera_keeps_the_camera_out_of_the_default_basis(
+    capture: Capture, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.undo()  # the real default basis: no data anywhere, so the bundled rawtoaces-data
+    monkeypatch.delenv("SPECTRAL_RIG_DATA", raising=False)
+    monkeypatch.setattr("calib.core.datasets.default_data_dir", lambda: tmp_path / "no-user-cache")
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--out", str(tmp_path / "out")]
+    argv += ["--exclude-camera", "Nikon D5100", "--exclude-camera", "sony*", "--json"]
+    code, stdout, stderr = _call(argv)
+    assert code == 0, stderr
+    basis = json.loads(stdout)["basis"]
+    assert basis["exclusions"] == ["Nikon D5100", "sony*"]
+    assert "Nikon D5100 (rawtoaces-data)" in basis["excluded_cameras"]
+    assert len(basis["excluded_cameras"]) == 12 and basis["n_cameras"] == 52 - 12
+    assert not any("D5100" in name or name.startswith("Sony") for name in basis["cameras"])
+    # the bundled basis is not the validated one: said on stderr and in the result
+    assert "calib: warning: the camera basis is the 52 rawtoaces-data cameras" in stderr
+    document = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert any("rawtoaces-data" in w for w in document["provenance"]["warnings"])

@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import contextlib
 import io
+import re
+import subprocess
+import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import pytest
 import typer
@@ -177,3 +181,58 @@ def test_list_options_take_the_values_up_to_the_next_option(
     argv: list[str], expanded: list[str]
 ) -> None:
     assert expand_list_options(argv, frozenset({"--images", "--exposure"})) == expanded
+
+
+def test_the_help_lists_the_registry_s_own_choices() -> None:
+    from calib.cli.options import METHOD_NAMES, WEIGHT_RULES
+    from calib.methods import method_names
+    from calib.methods.multilamp import PRIOR_WEIGHT_RULES
+
+    assert method_names() == METHOD_NAMES
+    assert WEIGHT_RULES == PRIOR_WEIGHT_RULES
+
+
+#: A Python repr in a message: a list or tuple of quoted strings, a call, an object's default repr.
+PYTHON_REPR = re.compile(r"\[['\"]|\(['\"]|<[\w.]+ object at|\w+\(\[|Traceback")
+
+
+@pytest.mark.parametrize(
+    ("program", "argv", "names"),
+    [
+        ("calib", ["estimate", "--out", "o"], "--lamp"),
+        ("calib", ["estimate", "--out", "o", "--method", "magic"], "--method"),
+        ("calib", ["estimate", "--out", "o", "--grid", "700:400:10"], "--grid"),
+        ("calib", ["synthetic", "--method", "magic"], "--method"),
+        ("calib", ["validate", "--split", "train"], "--split"),
+        ("calib", ["validate", "--variant", "magic"], "--variant"),
+        ("calib", ["validate", "--grating", "ruled,magic"], "--grating"),
+        ("calib", ["data", "fetch", "--collection", "magic"], "--collection"),
+        ("calib", ["spd", "--profile"], "--profile"),
+        ("rig", ["estimate", "no-such-session", "--method", "magic"], "--method"),
+        ("rig", ["compare", "--exclude-camera"], "--exclude-camera"),
+    ],
+)
+def test_a_wrong_invocation_is_one_line_without_python_reprs(
+    program: str, argv: list[str], names: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, stdout, stderr = _run(program, argv)
+    assert code == 2, stderr
+    assert stdout == "" and stderr.count("\n") == 1, stderr
+    assert stderr.startswith(f"{program}: error: ") and names in stderr
+    assert not PYTHON_REPR.search(stderr), stderr
+
+
+def test_calib_estimate_help_loads_neither_the_registry_nor_numpy() -> None:
+    code = (
+        "import sys\n"
+        "from calib.cli.app import main\n"
+        "try:\n"
+        "    main(['estimate', '--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "print(sorted({'calib.methods', 'calib.pipeline', 'numpy'} & set(sys.modules)), "
+        "file=sys.stderr)\n"
+    )
+    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert shown.stderr.strip() == "[]"

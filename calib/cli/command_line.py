@@ -267,6 +267,11 @@ def error_code_and_line(exc: BaseException) -> tuple[int, str]:
     )
 
 
+def warn(program: str, text: str) -> None:
+    """``<program>: warning: <text>`` on stderr, on one line (warnings are never silenced by -q)."""
+    print(f"{program}: warning: {one_line(text)}", file=sys.stderr)
+
+
 def usage_error_line(error: _click.ClickException, program: str, path: str) -> str:
     """One line for a mistake on the command line: ``<program>: error: <what> (<path> -h for help)``."""
     message = one_line(error.format_message()).replace("Value error, ", "")

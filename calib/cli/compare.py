@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
+from calib.cli.command_line import one_line, warn
 from calib.cli.options import DataDirOption, EnsembleOption, EpochsOption, ExcludeCameraOption
 from calib.cli.synthetic import _parse_noise
 from calib.core.datasets import colour_science_cameras, makabe2025_split
@@ -25,7 +26,12 @@ from calib.evaluation.compare import (
     synthetic_adapters,
 )
 from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
-from calib.model.bases import CameraBasis, default_camera_basis, fallback_camera_basis
+from calib.model.bases import (
+    FALLBACK_WARNING,
+    CameraBasis,
+    default_camera_basis,
+    fallback_camera_basis,
+)
 
 
 def register(app: typer.Typer) -> None:
@@ -70,8 +76,10 @@ def register(app: typer.Typer) -> None:
             except InputError as exc:
                 if data_dir is not None:
                     raise
-                Console(stderr=True).print(
-                    f"no measured camera data ({exc}); using the offline colour-science cameras"
+                warn(
+                    "calib",
+                    f"no measured test cameras ({one_line(exc)}); comparing on the offline "
+                    "colour-science cameras",
                 )
                 fallback_used = True
         basis: CameraBasis | Callable[[str], CameraBasis]
@@ -88,6 +96,7 @@ def register(app: typer.Typer) -> None:
             basis_description = (
                 "colour-science built-ins (offline), each camera excluded from its own basis"
             )
+            warn("calib", FALLBACK_WARNING)
         else:
             cameras = [(r.camera, r.sensitivity) for r in test]
             measured = default_camera_basis(

@@ -26,7 +26,10 @@ DataDirToFill = Annotated[
 
 def register(app: typer.Typer) -> None:
     """Add the ``data`` group (``fetch``, ``list``) to ``app``."""
-    data_app = new_app("data", "Reference camera sensitivity data (downloaded, never shipped).")
+    data_app = new_app(
+        "data",
+        "Reference camera sensitivity data (downloaded; rawtoaces-data ships with spectral-rig).",
+    )
 
     @data_app.command("fetch")
     def fetch(
@@ -52,8 +55,14 @@ def register(app: typer.Typer) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
         from calib.core.datasets import fetch_datasets, pinned_files
+        from calib.core.errors import InputError
 
-        files = pinned_files(collection)
+        try:
+            files = pinned_files(collection)
+        except InputError as exc:
+            raise InputError(
+                str(exc).removeprefix(f"{exc.source}: "), source="--collection"
+            ) from None
         progress = Progress(
             TextColumn("fetching"),
             BarColumn(),

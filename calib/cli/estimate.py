@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, TextIO
+from typing import TYPE_CHECKING, Annotated, Any, TextIO
 
 import typer
 
@@ -25,6 +25,7 @@ from calib.cli.command_line import (
     error_code_and_line,
     new_app,
     subcommands,
+    warn,
 )
 from calib.cli.lamp_groups import LAMP_GROUPS, LampGroup, LampGroupsCommand, option_names
 from calib.cli.options import (
@@ -40,16 +41,12 @@ from calib.cli.options import (
     checked_method,
 )
 from calib.core.errors import InputError
-from calib.core.mapping import QuadraticMapping
-from calib.core.metrics import format_re
-from calib.core.result import json_safe
-from calib.methods import AUTO
-from calib.methods.multilamp import weight_rule_option
-from calib.pipeline.estimate import OfflineSettings
-from calib.pipeline.inputs import LampInput
-from calib.pipeline.outputs import check_out_dir
-from calib.pipeline.progress import RichFrameProgress
-from calib.pipeline.run import OfflineOutcome, run_offline
+
+if TYPE_CHECKING:
+    # The pipeline (numpy, the methods registry) loads when a command runs, not for its help.
+    from calib.pipeline.estimate import OfflineSettings
+    from calib.pipeline.inputs import LampInput
+    from calib.pipeline.run import OfflineOutcome
 
 HELP = (
     "Estimate a camera's RGB spectral sensitivity from RAW brackets (or 1-D profiles) of lamps "
@@ -89,6 +86,9 @@ class EstimateRequest:
 
 def summary(outcome: OfflineOutcome) -> dict[str, Any]:
     """The ``--json`` summary of an :class:`calib.pipeline.OfflineOutcome`."""
+    from calib.core.mapping import QuadraticMapping
+    from calib.core.result import json_safe
+
     estimate = outcome.estimate
     result = estimate.result
     mapping = result.mapping
@@ -120,6 +120,8 @@ def summary(outcome: OfflineOutcome) -> dict[str, Any]:
 
 def print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
     """The few lines ``calib estimate`` prints after an estimate (without ``--json``)."""
+    from calib.core.metrics import format_re
+
     record = summary(outcome)
     lamps = ", ".join(f"{lamp['name']} ({lamp['kind']})" for lamp in record["lamps"])
     print(f"estimate: {record['method']} from {lamps}", file=stream)
@@ -174,7 +176,7 @@ def estimate_request(
     *,
     out: Path,
     inputs: Path | None = None,
-    method: str = AUTO,
+    method: str = "auto",
     weight_rule: str | None = None,
     mapping_lamp: str | None = None,
     grid: str | None = None,
@@ -186,6 +188,9 @@ def estimate_request(
     json_output: bool = False,
 ) -> EstimateRequest:
     """The request of a parsed ``calib estimate`` (its options, and the lamp groups in ``ctx``)."""
+    from calib.methods.multilamp import weight_rule_option
+    from calib.pipeline.estimate import OfflineSettings
+
     method = checked_method(method)
     settings = OfflineSettings(
         method=method,
@@ -226,6 +231,10 @@ def parse_estimate_command(argv: Sequence[str]) -> EstimateRequest:
 
 def run_request(request: EstimateRequest) -> OfflineOutcome:
     """Estimate and write the outputs; print warnings and the summary as the flags say."""
+    from calib.pipeline.outputs import check_out_dir
+    from calib.pipeline.progress import RichFrameProgress
+    from calib.pipeline.run import run_offline
+
     check_out_dir(request.out_dir, request.force)
     if request.quiet or not RichFrameProgress.wanted(sys.stderr):
         outcome = run_offline(request.lamps, request.out_dir, request.settings)
@@ -235,7 +244,7 @@ def run_request(request: EstimateRequest) -> OfflineOutcome:
                 request.lamps, request.out_dir, request.settings, progress=progress
             )
     for warning in outcome.estimate.warnings:
-        print(f"calib: warning: {warning}", file=sys.stderr)
+        warn("calib", warning)
     if request.json_output:
         print(json.dumps(summary(outcome), allow_nan=False))
     elif not request.quiet:
@@ -279,7 +288,7 @@ def register(app: typer.Typer) -> None:
                 "spectrum …; paths relative to the file), instead of or before --lamp groups.",
             ),
         ] = None,
-        method: MethodOption = AUTO,
+        method: MethodOption = "auto",
         weight_rule: WeightRuleOption = None,
         mapping_lamp: Annotated[
             str | None,

@@ -181,8 +181,8 @@ def _single(flag: str, values: list[str], where: str) -> str:
 
 @help_choices("lamp_kinds")
 def lamp_kinds() -> tuple[str, ...]:
-    """:data:`calib.core.observations.LAMP_KINDS`."""
-    from calib.core.observations import LAMP_KINDS
+    """:data:`calib.core.lamp_kinds.LAMP_KINDS`."""
+    from calib.core.lamp_kinds import LAMP_KINDS
 
     return LAMP_KINDS
 

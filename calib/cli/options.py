@@ -23,20 +23,35 @@ if TYPE_CHECKING:
     from calib.core.spectra import WavelengthGrid
 
 
+#: The names ``--method`` takes, as :func:`calib.methods.method_names` lists them: kept here so that
+#: a command's help lists them without importing the registry (it imports every method, ~0.3 s of
+#: CPU); tests/test_command_lines.py checks the two agree. The value is checked against the
+#: registry itself (:func:`checked_method`).
+METHOD_NAMES: tuple[str, ...] = (
+    "auto",
+    "prior",
+    "makabe2025",
+    "multilamp",
+    "known-grating",
+    "jiang2013",
+    "han2012",
+    "solomatov2023",
+    "toivonen2020",
+)
+#: :data:`calib.methods.multilamp.PRIOR_WEIGHT_RULES`, for the help (checked likewise).
+WEIGHT_RULES: tuple[str, ...] = ("evidence", "typicality", "upre")
+
+
 @help_choices("methods")
 def registered_methods() -> Sequence[str]:
     """``auto`` and the methods registered in :data:`calib.methods.ESTIMATION_METHODS`."""
-    from calib.methods import method_names  # deferred: the registry imports every method
-
-    return method_names()
+    return METHOD_NAMES
 
 
 @help_choices("registered_methods")
 def every_method() -> Sequence[str]:
     """The methods registered in :data:`calib.methods.ESTIMATION_METHODS` (not ``auto``)."""
-    from calib.methods import ESTIMATION_METHODS
-
-    return tuple(ESTIMATION_METHODS)
+    return METHOD_NAMES[1:]
 
 
 @help_choices("fetchable_collections")
@@ -50,9 +65,7 @@ def fetchable_collections() -> Sequence[str]:
 @help_choices("weight_rules")
 def weight_rules() -> Sequence[str]:
     """:data:`calib.methods.multilamp.PRIOR_WEIGHT_RULES`."""
-    from calib.methods.multilamp import PRIOR_WEIGHT_RULES
-
-    return PRIOR_WEIGHT_RULES
+    return WEIGHT_RULES
 
 
 def checked_method(method: str) -> str:
@@ -89,8 +102,10 @@ ExcludeCameraOption = Annotated[
     typer.Option(
         "--exclude-camera",
         metavar="PATTERN",
-        help="Leave every camera whose name contains PATTERN out of the basis (case, spaces and "
-        "punctuation ignored; repeatable), e.g. the camera under test when validating.",
+        help="Keep a camera out of the basis, e.g. the camera under test when validating "
+        "(repeatable): its make and model names every curve of that body (case, spaces, "
+        "punctuation, EOS and Mark/Mk ignored; market names joined), or a shell wildcard such as "
+        "'Sony*'.",
     ),
 ]
 MethodOption = Annotated[

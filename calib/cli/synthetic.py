@@ -14,6 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.command_line import warn
 from calib.cli.options import DataDirOption, ExcludeCameraOption, WeightRuleOption
 from calib.core.datasets import colour_science_cameras, makabe2025_split
 from calib.core.errors import InputError
@@ -31,7 +32,12 @@ from calib.evaluation.synthetic import (
 from calib.methods.makabe2025 import FORMULATIONS, MAKABE2025_METHOD, Makabe2025Options
 from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, weight_rule_option
 from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions
-from calib.model.bases import CameraBasis, default_camera_basis, fallback_camera_basis
+from calib.model.bases import (
+    FALLBACK_WARNING,
+    CameraBasis,
+    default_camera_basis,
+    fallback_camera_basis,
+)
 
 #: The solves ``--method`` offers for the paper's variants.
 PAPER_METHODS = (PRIOR_METHOD, MAKABE2025_METHOD)
@@ -260,6 +266,7 @@ def register(app: typer.Typer) -> None:
                 )
 
             basis_source = "colour-science built-ins, each camera excluded from its own basis"
+            warn("calib", FALLBACK_WARNING)
             basis_choice: CameraBasis | Callable[[str], CameraBasis] = basis_for
         else:
             _train, test = makabe2025_split(data_dir)
