@@ -236,3 +236,27 @@ def test_calib_estimate_help_loads_neither_the_registry_nor_numpy() -> None:
     )
     shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert shown.stderr.strip() == "[]"
+
+
+#: Every command that estimates a camera from a basis.
+ESTIMATING = [
+    ("calib", ("estimate",)),
+    ("calib", ("synthetic",)),
+    ("calib", ("compare",)),
+    ("calib", ("validate",)),
+    ("rig", ("estimate",)),
+    ("rig", ("grating",)),
+    ("rig", ("compare",)),
+]
+
+
+@pytest.mark.parametrize(("program", "path"), ESTIMATING)
+def test_every_estimating_command_takes_exclude_camera_repeatedly(
+    program: str, path: tuple[str, ...]
+) -> None:
+    command = click_command(calib_app.build_app() if program == "calib" else rig_cli.app)
+    for name in path:
+        command = subcommands(command)[name]
+    (option,) = [p for p in command.params if p.name == "exclude_camera"]
+    assert option.opts == ["--exclude-camera"] and option.multiple
+    assert option.metavar == "PATTERN"

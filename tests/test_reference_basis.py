@@ -176,3 +176,18 @@ def test_the_12_curve_fallback_always_carries_its_warning() -> None:
     assert basis.fallback == FALLBACK_WARNING
     assert basis.to_dict()["fallback"] == FALLBACK_WARNING
     assert basis.excluded_cameras == ("Nikon 5100 (NPL)",)
+
+
+def test_calib_validate_keeps_an_excluded_camera_out_of_every_basis(tmp_path: Path) -> None:
+    from calib.core.datasets import MAKABE2025_TEST_FILES
+    from calib.evaluation.validation.splits import load_splits
+
+    folder = tmp_path / SOLOMATOV / "data" / "ground-truths"
+    folder.mkdir(parents=True)
+    rows = ["wavelength,red,green,blue", *_rows(BUNDLED[0].sensitivity.resample(DEFAULT_GRID))]
+    for name in (*MAKABE2025_TEST_FILES, "Camera_3_Someone-2020.csv", "Camera_4_Someone-2020.csv"):
+        (folder / name).write_text("\n".join(rows) + "\n")
+    splits, notes = load_splits(tmp_path, exclude=["Camera 3"], out_of_basis=False)
+    assert [r.name for r in splits.validation.training] == ["Camera 4 (Someone-2020)"]
+    assert [c.name for c in splits.validation.cameras] == ["Camera 4 (Someone-2020)"]
+    assert "kept out of every basis by --exclude-camera: Camera 3 (Someone-2020)" in notes
