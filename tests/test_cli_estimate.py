@@ -637,6 +637,6 @@ def test_exclude_camera_keeps_the_camera_out_of_the_default_basis(
     assert len(basis["excluded_cameras"]) == 12 and basis["n_cameras"] == 52 - 12
     assert not any("D5100" in name or name.startswith("Sony") for name in basis["cameras"])
     # the bundled basis is not the validated one: said on stderr and in the result
-    assert "calib: warning: the camera basis is the 52 rawtoaces-data cameras" in stderr
+    assert "calib: warning: the camera basis comes from the 52 rawtoaces-data cameras" in stderr
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     assert any("rawtoaces-data" in w for w in document["provenance"]["warnings"])

@@ -10,6 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.command_line import warn
 from calib.cli.options import DataDirOption, JsonOption
 from calib.core.errors import InputError
 from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
@@ -93,7 +94,10 @@ def register(app: typer.Typer) -> None:
             raise InputError(f"must be a fraction > 0, got {noise}", source="--noise")
         owned = _lamps(lamp, "--lamp")
         extra = _lamps(list(candidate or DEFAULT_CANDIDATES), "--candidate")
-        prior = default_camera_basis(WavelengthGrid(), data_dir=data_dir).prior()
+        basis = default_camera_basis(WavelengthGrid(), data_dir=data_dir)
+        if basis.fallback is not None:
+            warn("calib", basis.fallback)
+        prior = basis.prior()
         ranked = rank_subsets(owned, prior, noise_fraction=noise, efficiency_terms=terms)
         additions = best_additions(
             owned, extra, prior, noise_fraction=noise, efficiency_terms=terms

@@ -476,8 +476,8 @@ class ReferenceCameras:
 
 #: Why the bundled rawtoaces-data cameras are a fallback, and what to do about it.
 FALLBACK_BASIS = (
-    "the camera basis is the {n} rawtoaces-data cameras bundled with spectral-rig ({where}), not "
-    "the Solomatov & Akkaynak (2023) ground truths: where the lamps leave the camera open the "
+    "the camera basis comes from the {n} rawtoaces-data cameras bundled with spectral-rig "
+    "({where}), not the Solomatov & Akkaynak (2023) ground truths: where the lamps leave the camera open the "
     "estimate is less accurate (decision 0027); fetch them with `calib data fetch --collection "
     + SOLOMATOV
     + "` (or `rig data fetch`), or give --data-dir DIR"
