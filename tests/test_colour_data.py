@@ -62,6 +62,21 @@ def test_importing_the_seam_and_its_users_does_not_import_colour() -> None:
     assert shown.stdout.strip() == "False"
 
 
+def test_using_colour_science_leaves_numpys_print_style_alone() -> None:
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from calib.core import colour_data\n"
+        "before = np.get_printoptions()\n"
+        "colour_data.illuminants()\n"
+        "print('colour' in sys.modules, np.get_printoptions() == before)\n"
+    )
+    shown = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    assert shown.stdout.split() == ["True", "True"]
+
+
 @pytest.mark.parametrize("name", sorted(colour.SDS_COLOURCHECKERS))
 def test_colorchecker_holds_colour_sciences_reflectances(name: str) -> None:
     # The two loaders this replaces stacked the patches on the first patch's axis (han2012) and

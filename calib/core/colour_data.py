@@ -20,6 +20,7 @@ blackbody (:func:`blackbody_linear_srgb`).
 
 from __future__ import annotations
 
+import sys
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -44,9 +45,18 @@ COLORIMETRY_AXIS_NM = (360.0, 830.0, 1.0)
 
 
 def _colour() -> Any:
-    """The colour-science package, imported on first use (about 1.1 s of CPU)."""
-    import colour
+    """The colour-science package, imported on first use (about 1.1 s of CPU).
 
+    Importing colour-science switches NumPy's global print options to the 1.13 legacy style; the
+    caller's options are put back, so using ``calib`` changes nothing in how a user's arrays print.
+    """
+    if "colour" in sys.modules:
+        return sys.modules["colour"]
+    print_options = np.get_printoptions()
+    try:
+        import colour
+    finally:
+        np.set_printoptions(**print_options)
     return colour
 
 

@@ -34,6 +34,9 @@ level, and tiles whose decoded size is not the tile size.
 
 Examples
 --------
+Not run as a doctest: it needs a tiled DNG (``tests/test_dng_tiles.py`` runs the same calls on
+written ones).
+
 >>> tiles = open_dng("frame.dng")  # doctest: +SKIP
 >>> window = tiles.decode(slice(1000, 1400), slice(2000, 2600))  # doctest: +SKIP
 >>> window.shape, tiles.blocks_meeting(slice(1000, 1400), slice(2000, 2600))  # doctest: +SKIP

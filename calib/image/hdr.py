@@ -39,6 +39,8 @@ channel from the dark frames when there are any.
 
 Examples
 --------
+Not run as a doctest: it needs a bracket of RAW files (``tests/test_hdr.py`` merges written ones).
+
 >>> image = merge_bracket(["f_0001.dng", "f_0002.dng"], darks=["d_0001.dng"])  # doctest: +SKIP
 >>> image.radiance.shape, image.variance.dtype  # doctest: +SKIP
 ((3, 2000, 3000), dtype('float32'))

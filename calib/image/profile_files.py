@@ -165,6 +165,9 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
 
     Examples
     --------
+    Not run as a doctest: it needs a rawproc export (``tests/test_profile_files.py`` reads written
+    ones, and the real D7000 files when ``../shared`` is present).
+
     >>> profile = read_rawproc_dat("D7000_spectrum.dat")  # doctest: +SKIP
     >>> profile.profile.shape, profile.metadata["mirrored"]  # doctest: +SKIP
     ((2474, 3), True)
@@ -499,6 +502,9 @@ def read_fits_profile(
 
     Examples
     --------
+    Not run as a doctest: it needs FITS planes (``tests/test_profile_files.py`` reads written ones,
+    and the real Canon 10D planes when ``../shared`` is present).
+
     >>> planes = [f"Solar Spectrum Canon EOS 10D {c}.fit" for c in "RGB"]  # doctest: +SKIP
     >>> read_fits_profile(planes).profile.shape  # doctest: +SKIP
     (1658, 3)

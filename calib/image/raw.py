@@ -21,6 +21,8 @@ both; a file without an exposure time and no override is rejected with its name.
 
 Examples
 --------
+Not run as a doctest: it needs a RAW file (``tests/test_raw.py`` reads written DNGs).
+
 >>> planes = read_raw("frame_0001.dng")  # doctest: +SKIP
 >>> planes.signal_dn.shape, planes.metadata.exposure_s  # doctest: +SKIP
 ((3, 2000, 3000), 0.004)

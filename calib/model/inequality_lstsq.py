@@ -49,8 +49,9 @@ def lstsq_inequality(
 
     Examples
     --------
-    >>> lstsq_inequality([[1.0, 0.0], [0.0, 1.0]], [1.0, -1.0], [[0.0, 1.0]], [0.0])
-    array([1., 0.])
+    >>> x = lstsq_inequality([[1.0, 0.0], [0.0, 1.0]], [1.0, -1.0], [[0.0, 1.0]], [0.0])
+    >>> bool(np.allclose(x, [1.0, 0.0]))  # the second unknown held at its bound 0
+    True
     """
     from scipy.optimize import nnls
 

@@ -10,6 +10,9 @@ output writers, the report); ``calib.pipeline`` imports the stages before it (:m
 
 Examples
 --------
+Not run as a doctest: it needs lamp spectra and RAW files (``tests/test_offline.py`` runs the
+pipeline on the twin's).
+
 >>> from pathlib import Path                                                    # doctest: +SKIP
 >>> lamp = LampImages("LED-B3", "led", Path("led.csv"), (Path("f1.dng"), Path("f2.dng")))  # doctest: +SKIP
 >>> outcome = run_offline([lamp], Path("out"))                                  # doctest: +SKIP

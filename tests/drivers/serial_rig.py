@@ -5,6 +5,9 @@ Timeouts are short so that every fault ends quickly; emulators run 100× faster 
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
+
 import numpy as np
 
 from calib.core.spectra import Spectrum
@@ -16,6 +19,9 @@ TIME_SCALE = 0.01
 FAST_TIMEOUT_S = 0.4
 #: Per-test ceiling for tests that inject faults (pytest-timeout): none may hang.
 FAULT_TEST_TIMEOUT_S = 15
+
+#: How long an emulator thread may take to act on the last bytes a driver sent before closing.
+SETTLE_DEADLINE_S = 10.0
 
 BLUE_PEAK_NM = 450.0
 RED_PEAK_NM = 630.0
@@ -35,3 +41,17 @@ def two_lamp_bank(n_channels: int = 4) -> LampBank:
         VirtualLamp("red", 2, narrow_band(RED_PEAK_NM, 10.0, 0.02), warmup_tau_s=0.0),
     ]
     return LampBank(lamps, n_channels)
+
+
+def settled(condition: Callable[[], bool], deadline_s: float = SETTLE_DEADLINE_S) -> bool:
+    """Whether ``condition`` holds once the emulator's thread has handled what was sent to it.
+
+    A driver's last command (leaving remote mode) is written and the port closed; the emulator reads
+    it on its own thread, later on a busy machine. This waits for it, up to ``deadline_s``.
+    """
+    end = time.monotonic() + deadline_s
+    while not condition():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.005)
+    return True

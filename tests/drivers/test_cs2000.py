@@ -35,6 +35,7 @@ from tests.drivers.serial_rig import (
     FAULT_TEST_TIMEOUT_S,
     RED_PEAK_NM,
     TIME_SCALE,
+    settled,
     two_lamp_bank,
 )
 from tests.exchange import Exchange, expected_exchange
@@ -305,7 +306,7 @@ def test_the_factory_opens_a_cs2000_that_measures_the_lit_lamp(bank: LampBank) -
             reading = instrument.measure()
         finally:
             instrument.close()
-        assert not device.emulator.remote  # type: ignore[attr-defined]
+        assert settled(lambda: not device.emulator.remote)  # type: ignore[attr-defined]
     assert reading.wavelength_nm[np.argmax(reading.values)] == pytest.approx(RED_PEAK_NM, abs=2)
     peak = int(np.argmax(truth))
     assert reading.values[peak] == pytest.approx(truth[peak], rel=0.02)

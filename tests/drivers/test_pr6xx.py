@@ -33,6 +33,7 @@ from tests.drivers.serial_rig import (
     FAULT_TEST_TIMEOUT_S,
     RED_PEAK_NM,
     TIME_SCALE,
+    settled,
     two_lamp_bank,
 )
 from tests.exchange import Exchange, expected_exchange
@@ -299,7 +300,7 @@ def test_the_spectrum_follows_the_lamp_that_is_on(bank: LampBank) -> None:
             red = instrument.measure()
         finally:
             instrument.close()
-        assert not device.emulator.remote  # type: ignore[attr-defined]
+        assert settled(lambda: not device.emulator.remote)  # type: ignore[attr-defined]
     assert abs(blue.wavelength_nm[np.argmax(blue.values)] - BLUE_PEAK_NM) <= 4
     assert abs(red.wavelength_nm[np.argmax(red.values)] - RED_PEAK_NM) <= 4
     assert blue.exposure_ms is not None and blue.exposure_ms > 0
