@@ -7,8 +7,10 @@ each on stderr, ``rig: error: …``, never a traceback.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
+from collections.abc import Sequence
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -17,14 +19,25 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from calib.cli.exits import say_interrupted
+from calib.cli import data
+from calib.cli.command_line import ARGUMENTS, new_app, run_app
 from calib.cli.options import (
+    DataDirOption,
     EnsembleOption,
     EpochsOption,
+    ExcludeCameraOption,
+    ForceOption,
+    GridOption,
     JobsOption,
+    JsonOption,
+    MethodOption,
+    QuietOption,
     ReportOption,
     SchedulerOption,
     SummaryOption,
+    WeightRuleOption,
+    checked_grid,
+    checked_method,
 )
 from calib.core.errors import CalibError, InputError
 from calib.core.metrics import format_re
@@ -33,17 +46,12 @@ from drivers.base import DeviceError
 from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
 
 if TYPE_CHECKING:
+    from calib.pipeline import OfflineOutcome
     from rig.config import RigConfig
     from rig.progress import ProgressReporter
     from rig.runner import RunOutcome
 
-app = typer.Typer(
-    name="rig",
-    help="Capture-rig controller for camera spectral sensitivity measurements.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
+app = new_app("rig", "Capture-rig controller for camera spectral sensitivity measurements.")
 
 DEFAULT_CONFIG = Path("config.yaml")
 ConfigOption = Annotated[Path, typer.Option("--config", "-c", help="The rig's configuration file.")]
@@ -295,6 +303,7 @@ def sessions(
 
 @app.command()
 def estimate(
+    ctx: typer.Context,
     sessions: Annotated[
         list[Path],
         typer.Argument(
@@ -311,22 +320,9 @@ def estimate(
             "OUT/<session>/ for each and the summary in OUT.",
         ),
     ] = None,
-    method: Annotated[
-        str,
-        typer.Option(help="Estimation method: auto (default), prior, makabe2025, multilamp …"),
-    ] = "auto",
-    data_dir: Annotated[
-        Path | None,
-        typer.Option(help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."),
-    ] = None,
-    weight_rule: Annotated[
-        str | None,
-        typer.Option(
-            help="With --method multilamp: how the camera prior is weighted, upre (default), "
-            "typicality (better for cameras like the basis, worse for unusual ones) or evidence "
-            "(the marginal likelihood)."
-        ),
-    ] = None,
+    method: MethodOption = "auto",
+    data_dir: DataDirOption = None,
+    weight_rule: WeightRuleOption = None,
     grating: Annotated[
         Path | None,
         typer.Option(
@@ -334,12 +330,11 @@ def estimate(
             "--method multilamp the sensitivity comes from it and the profiles, s = q / η."
         ),
     ] = None,
-    quiet: Annotated[
-        bool, typer.Option("--quiet", "-q", help="No progress bar; only where the report is.")
-    ] = False,
-    force: Annotated[
-        bool, typer.Option("--force", help="Overwrite the results of an earlier estimate in --out.")
-    ] = False,
+    grid: GridOption = None,
+    exclude_camera: ExcludeCameraOption = None,
+    quiet: QuietOption = False,
+    json_output: JsonOption = False,
+    force: ForceOption = False,
     report: ReportOption = True,
     jobs: JobsOption = None,
     scheduler: SchedulerOption = None,
@@ -348,17 +343,27 @@ def estimate(
     """Estimate the camera from a session (every file verified against the log) and write the
     report; several sessions run as a batch (local workers or a Dask cluster) with a summary."""
     from calib.cli.batch import run_batch_command
+    from calib.cli.estimate import summary as json_summary
     from calib.methods.multilamp import weight_rule_option
     from calib.pipeline import RichFrameProgress
     from rig.estimate import SESSION_INPUTS, estimate_session, session_settings
 
-    command_line = ("rig", "estimate", *sys.argv[2:])
-    settings: dict[str, object] = {"method_options": weight_rule_option(method, weight_rule)}
+    method = checked_method(method)
+    command_line = ("rig", "estimate", *ctx.meta.get(ARGUMENTS, ()))
+    settings: dict[str, object] = {
+        "method_options": weight_rule_option(method, weight_rule),
+        "exclude_cameras": tuple(exclude_camera or ()),
+    }
     if grating is not None:
         settings["grating"] = grating
+    working_grid = checked_grid(grid)
     if len(sessions) > 1 or scheduler is not None:
         offline = session_settings(
-            method=method, data_dir=data_dir, command_line=command_line, settings=settings
+            method=method,
+            data_dir=data_dir,
+            grid=working_grid,
+            command_line=command_line,
+            settings=settings,
         )
         code = run_batch_command(
             sessions,
@@ -375,33 +380,32 @@ def estimate(
         )
         raise typer.Exit(code)
     session = sessions[0]
-    if quiet or not RichFrameProgress.wanted(sys.stderr):
-        outcome = estimate_session(
+
+    def run(progress: RichFrameProgress | None) -> OfflineOutcome:
+        return estimate_session(
             session,
             out,
             method=method,
             data_dir=data_dir,
+            grid=working_grid,
+            progress=progress,
             command_line=command_line,
             settings=settings,
             force=force,
             report=report,
         )
+
+    if quiet or json_output or not RichFrameProgress.wanted(sys.stderr):
+        outcome = run(None)
     else:
         with RichFrameProgress(sys.stderr) as progress:
-            outcome = estimate_session(
-                session,
-                out,
-                method=method,
-                data_dir=data_dir,
-                progress=progress,
-                command_line=command_line,
-                settings=settings,
-                force=force,
-                report=report,
-            )
+            outcome = run(progress)
     result = outcome.estimate.result
     for warning in outcome.estimate.warnings:
         typer.echo(f"rig: warning: {warning}", err=True)
+    if json_output:
+        typer.echo(json.dumps(json_summary(outcome), allow_nan=False))
+        return
     if "report" in outcome.files:
         typer.echo(f"report: {outcome.files['report']}")
     typer.echo(f"sensitivity: {outcome.files['sensitivity']}")
@@ -420,16 +424,9 @@ def grating(
         typer.Argument(help="Session directories: one or more cameras through the same grating."),
     ],
     out: Annotated[Path, typer.Option("--out", "-o", help="The grating file to write (JSON).")],
-    data_dir: Annotated[
-        Path | None,
-        typer.Option(help="Camera data for the prior (default: $SPECTRAL_RIG_DATA or the cache)."),
-    ] = None,
-    weight_rule: Annotated[
-        str | None,
-        typer.Option(
-            help="How the camera prior is weighted: upre (default), typicality or evidence."
-        ),
-    ] = None,
+    data_dir: DataDirOption = None,
+    weight_rule: WeightRuleOption = None,
+    exclude_camera: ExcludeCameraOption = None,
     description: Annotated[
         str, typer.Option(help="What the grating is (sheet, slit), recorded in the file.")
     ] = "",
@@ -446,6 +443,7 @@ def grating(
         out,
         data_dir=data_dir,
         weight_rule=weight_rule,
+        exclude_cameras=exclude_camera or (),
         description=description,
         force=force,
     )
@@ -468,12 +466,10 @@ def compare(
     ] = Path("compare"),
     method: Annotated[
         list[str] | None,
-        typer.Option(help="Registered methods to run (repeatable); default: all."),
+        typer.Option(help="Methods to run (repeatable; default: all): {registered_methods}."),
     ] = None,
-    data_dir: Annotated[
-        Path | None,
-        typer.Option(help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."),
-    ] = None,
+    data_dir: DataDirOption = None,
+    exclude_camera: ExcludeCameraOption = None,
     ensemble: EnsembleOption = None,
     epochs: EpochsOption = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only where the files are.")] = False,
@@ -496,6 +492,7 @@ def compare(
             out,
             methods=method,
             data_dir=data_dir,
+            exclude_cameras=exclude_camera or (),
             toivonen=toivonen,
             command=" ".join(["rig", *(shlex.quote(arg) for arg in sys.argv[1:])]),
             progress=None if quiet else lambda row: status.update(f"{row.camera} · {row.label}"),
@@ -608,57 +605,7 @@ def calibrate_spectrometer_command(
     typer.echo(f"use it: devices.spectrometer.calibration_file: {outcome.path}")
 
 
-data_app = typer.Typer(
-    help="Reference camera sensitivity data (downloaded, never shipped).", no_args_is_help=True
-)
-app.add_typer(data_app, name="data")
-
-
-@data_app.command("fetch")
-def data_fetch(
-    dest: Annotated[
-        Path | None,
-        typer.Option(
-            "--dest", help="Data directory to fill (default: $SPECTRAL_RIG_DATA or the user cache)."
-        ),
-    ] = None,
-    collection: Annotated[
-        list[str] | None,
-        typer.Option("--collection", help="A collection to fetch (repeatable; default: all)."),
-    ] = None,
-    base_url: Annotated[
-        str | None,
-        typer.Option(
-            "--base-url", help="Mirror root, {base}/{repository}/{commit}/{path}; file:// works."
-        ),
-    ] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
-) -> None:
-    """Download the pinned camera collections and verify every file's size and SHA-256."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
-
-    from calib.core.datasets import fetch_datasets, pinned_files
-
-    files = pinned_files(collection)
-    progress = Progress(
-        TextColumn("fetching"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.description}"),
-        console=Console(stderr=True),
-        disable=quiet,
-    )
-    with progress:
-        task = progress.add_task("", total=len(files))
-
-        def advance(done: int, total: int, path: str) -> None:
-            progress.update(task, completed=done, total=total, description=path)
-
-        report = fetch_datasets(dest, collections=collection, base_url=base_url, progress=advance)
-    typer.echo(
-        f"{len(report.downloaded)} downloaded, {len(report.already_present)} already present "
-        f"and valid, in {report.destination}"
-    )
+data.register(app)
 
 
 @app.command()
@@ -716,16 +663,13 @@ def _warn_lamps(exc: BaseException) -> None:
         )
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     """Console entry point: errors become one line each on stderr and an exit code."""
     try:
-        app(standalone_mode=True)
-    except SystemExit as exit_:
-        say_interrupted(exit_, "rig")
-        raise
+        code = run_app(app, "rig", argv)
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
-        sys.exit(130)
+        code = 130
     except InputError as exc:
         _fail(str(exc), 2)
     except OpeningInterrupted as exc:
@@ -746,3 +690,4 @@ def main() -> None:
         if os.environ.get("RIG_DEBUG"):
             raise
         _fail(f"internal error: {type(exc).__name__}: {exc} (set RIG_DEBUG=1 for the traceback)", 1)
+    sys.exit(code)

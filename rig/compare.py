@@ -129,10 +129,16 @@ def check_session(path: str | Path) -> CheckedSession:
 
 
 def twin_basis(
-    camera: str, grid: WavelengthGrid = DEFAULT_GRID, data_dir: Path | None = None
+    camera: str,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    data_dir: Path | None = None,
+    exclude: Sequence[str] = (),
 ) -> CameraBasis:
-    """The camera basis without the twin's camera (as ``rig demo``'s estimate uses)."""
-    return default_camera_basis(grid, data_dir=data_dir, exclude=related_camera_names(camera))
+    """The camera basis without the twin's camera (as ``rig demo``'s estimate uses), nor the
+    cameras ``exclude`` names."""
+    return default_camera_basis(
+        grid, data_dir=data_dir, exclude=[*related_camera_names(camera), *exclude]
+    )
 
 
 @dataclass(eq=False)
@@ -149,6 +155,8 @@ class TwinSessionSource:
         Camera data for the basis.
     basis_for
         The basis of a true camera (default :func:`twin_basis`).
+    exclude_cameras
+        Name patterns of further cameras kept out of :func:`twin_basis`.
     notes
         Filled while scenes are made: per session, its lamps and the pipeline's warnings.
     """
@@ -157,6 +165,7 @@ class TwinSessionSource:
     grid: WavelengthGrid = DEFAULT_GRID
     data_dir: Path | None = None
     basis_for: Callable[[str], CameraBasis] | None = None
+    exclude_cameras: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)
     _bases: list[str] = field(default_factory=list, init=False, repr=False)
 
@@ -175,7 +184,7 @@ class TwinSessionSource:
             basis = (
                 self.basis_for(camera)
                 if self.basis_for is not None
-                else twin_basis(camera, self.grid, self.data_dir)
+                else twin_basis(camera, self.grid, self.data_dir, self.exclude_cameras)
             )
             self._bases.append(basis.source)
             extracted = estimate_offline(
@@ -228,6 +237,7 @@ def compare_sessions(
     grid: WavelengthGrid = DEFAULT_GRID,
     toivonen: Mapping[str, Any] | None = None,
     basis_for: Callable[[str], CameraBasis] | None = None,
+    exclude_cameras: Sequence[str] = (),
     command: str | None = None,
     progress: Callable[[CompareRow], None] | None = None,
 ) -> SessionComparison:
@@ -249,6 +259,8 @@ def compare_sessions(
         Options of the Toivonen column (``ensemble_size``, ``epochs`` …).
     basis_for
         The basis of a true camera (default :func:`twin_basis`).
+    exclude_cameras
+        Name patterns of further cameras kept out of the default basis.
     command
         The command line, recorded in the report.
     progress
@@ -266,7 +278,11 @@ def compare_sessions(
     )
     checked = [check_session(path) for path in sessions]
     source = TwinSessionSource(
-        checked, grid, None if data_dir is None else Path(data_dir), basis_for=basis_for
+        checked,
+        grid,
+        None if data_dir is None else Path(data_dir),
+        basis_for=basis_for,
+        exclude_cameras=tuple(exclude_cameras),
     )
     rows = run_grating_comparison(source, adapters, grid=grid, progress=progress)
     report = sessions_markdown_report(

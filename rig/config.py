@@ -2,7 +2,7 @@
 
 Every model forbids unknown keys. :func:`load_config` reads YAML with the safe loader only (duplicate
 keys are an error, not "last one wins"), validates, and turns every problem into a
-:class:`rig.yamlconfig.ConfigError` that names the file, the line, the field path (``lamps[1].warmup.interval_s``),
+:class:`calib.core.validated_yaml.ConfigError` that names the file, the line, the field path (``lamps[1].warmup.interval_s``),
 the value found and what is allowed, with the closest valid key suggested for a typo.
 
 Exposure times may be written as seconds (``0.01``), fractions (``"1/125"``) or with a unit
@@ -29,8 +29,8 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 from calib.core.observations import LampKind
-from rig.yamlconfig import ConfigError as ConfigError
-from rig.yamlconfig import ConfigIssue, parse_yaml_model
+from calib.core.validated_yaml import ConfigError as ConfigError
+from calib.core.validated_yaml import ConfigIssue, parse_yaml_model
 
 # ---------------------------------------------------------------------------------------- values
 

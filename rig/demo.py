@@ -92,7 +92,7 @@ def related_camera_names(camera: str) -> list[str]:
     """Names under which the twin's camera may appear in a camera collection.
 
     ``"Nikon 5100 (NPL)"`` → ``["Nikon 5100", "Nikon D5100"]`` (collections name Nikon DSLRs with
-    and without the ``D``); matching is by case-insensitive substring.
+    and without the ``D``); each names a body (:func:`calib.core.camera_bodies.names_camera`).
     """
     base = camera.split(" (")[0].strip()
     names = [base]

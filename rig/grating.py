@@ -93,6 +93,7 @@ def refine_session_grating(
     grid: WavelengthGrid = DEFAULT_GRID,
     weight_rule: str | None = None,
     basis: CameraBasis | None = None,
+    exclude_cameras: Sequence[str] = (),
     description: str = "",
     force: bool = False,
 ) -> GratingOutcome:
@@ -111,6 +112,8 @@ def refine_session_grating(
         Working wavelength grid.
     weight_rule
         How the camera prior is weighted (:data:`calib.methods.multilamp.PRIOR_WEIGHT_RULES`).
+    exclude_cameras
+        Name patterns of cameras kept out of the default basis (not with ``basis``).
     description
         Free text recorded in the file's geometry (e.g. the sheet and slit).
     force
@@ -145,8 +148,12 @@ def refine_session_grating(
             )
         seen[start.session_id] = str(path)
         checked.append((path, start.session_id, _camera_of(session), inputs))
-    chosen = basis if basis is not None else default_camera_basis(grid, data_dir=data_dir)
-    warnings: list[str] = []
+    chosen = (
+        basis
+        if basis is not None
+        else default_camera_basis(grid, data_dir=data_dir, exclude=exclude_cameras)
+    )
+    warnings: list[str] = [chosen.fallback] if chosen.fallback is not None else []
     cameras: list[list[LampObservation]] = []
     mappings = []
     summaries = []

@@ -2,22 +2,25 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from calib.cli.estimate import run
-from calib.cli.estimate_args import parse_estimate_arguments
+from calib.cli.app import main
+from calib.cli.estimate import EstimateRequest, parse_estimate_command
 from calib.core.errors import EstimationError, InputError
 from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.grating_file import GratingEfficiency, read_grating_file, write_grating_file
 from calib.core.metrics import relative_error
-from calib.core.spectra import write_csv
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid, write_csv
+from calib.methods import MultilampOptions
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.pipeline import LampImages, LampProfile
 from tests.rendered_capture import (
@@ -44,9 +47,14 @@ def exact_basis(monkeypatch: pytest.MonkeyPatch, capture: Capture) -> None:
 
 
 def _call(argv: list[str]) -> tuple[int, str, str]:
+    """Run ``calib estimate ARGV`` as the console script does; (exit code, stdout, stderr)."""
     out, err = io.StringIO(), io.StringIO()
-    code = run(argv, stdout=out, stderr=err)
-    return code, out.getvalue(), err.getvalue()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(["estimate", *argv])
+        except SystemExit as exit_:
+            code = exit_.code
+    return (code if isinstance(code, int) else 1), out.getvalue(), err.getvalue()
 
 
 def _image_args(capture: Capture) -> list[str]:
@@ -59,42 +67,128 @@ def _image_args(capture: Capture) -> list[str]:
 
 # ---------------------------------------------------------------------------------- the parser
 
+P = Path
 
-def test_lamp_groups_collect_their_own_options() -> None:
-    arguments = parse_estimate_arguments(
-        [
-            "--out", "out", "--lamp", "A", "--images", "a1.dng", "a2.dng", "--dark", "d.dng",
-            "--spectrum", "a.csv", "--kind", "LED", "--exposure", "0.01", "0.1",
-            "--lamp", "B", "--kind=fluorescent", "--spectrum=b.csv", "--images", "b.dng",
-            "--grid=400:700:5", "--mapping-lamp", "B", "--json",
-        ]
-    )  # fmt: skip
-    first, second = arguments.lamps
-    assert isinstance(first, LampImages) and isinstance(second, LampImages)
-    assert first.images == (Path("a1.dng"), Path("a2.dng")) and first.darks == (Path("d.dng"),)
-    assert first.kind == "led" and first.exposure_s == (0.01, 0.1)
-    assert second.kind == "fluorescent" and second.spectrum == Path("b.csv")
-    assert arguments.grid.step_nm == 5 and arguments.mapping_lamp == "B"
-    assert arguments.json_output and not arguments.quiet
+#: Command lines of the hand-written parser this command had, and the settings it gave them
+#: (checked against that parser before it was replaced by typer): they still mean the same.
+OLD_COMMAND_LINES: list[tuple[list[str], dict[str, object]]] = [
+    (
+        ["--out", "out", "--lamp", "A", "--images", "a1.dng", "a2.dng", "--dark", "d.dng",
+         "--spectrum", "a.csv", "--kind", "LED", "--exposure", "0.01", "0.1",
+         "--lamp", "B", "--kind=fluorescent", "--spectrum=b.csv", "--images", "b.dng",
+         "--grid=400:700:5", "--mapping-lamp", "B", "--json"],
+        {
+            "lamps": (
+                LampImages("A", "led", P("a.csv"), (P("a1.dng"), P("a2.dng")), (P("d.dng"),), (0.01, 0.1)),
+                LampImages("B", "fluorescent", P("b.csv"), (P("b.dng"),)),
+            ),
+            "out_dir": P("out"), "method": "auto", "method_options": None, "mapping_lamp": "B",
+            "grid": WavelengthGrid.parse("400:700:5"), "data_dir": None, "grating": None,
+            "force": False, "quiet": False, "json_output": True,
+        },
+    ),
+    (
+        ["--lamp", "P", "--profile", "p.csv", "--spectrum", "s.csv", "--direct", "1,2,3.5",
+         "--bandwidth", "8", "--out", "o", "--method", "multilamp", "--weight-rule", "typicality",
+         "--data-dir", "data", "--grating", "g.json", "--force", "-q"],
+        {
+            "lamps": (LampProfile("P", "other", P("s.csv"), P("p.csv"), (1.0, 2.0, 3.5), 8.0),),
+            "out_dir": P("o"), "method": "multilamp",
+            "method_options": MultilampOptions(weight_rule="typicality"), "mapping_lamp": None,
+            "grid": DEFAULT_GRID, "data_dir": P("data"), "grating": P("g.json"),
+            "force": True, "quiet": True, "json_output": False,
+        },
+    ),
+    (
+        # the command's options between a lamp's options; darks with their own exposure times
+        ["--lamp", "L", "--images", "x.dng", "--out", "o2", "--spectrum", "l.csv",
+         "--dark", "k1.dng", "k2.dng", "--dark-exposure", "0.5", "0.25", "--exposure", "2",
+         "--quiet", "--method", "prior"],
+        {
+            "lamps": (
+                LampImages("L", "other", P("l.csv"), (P("x.dng"),), (P("k1.dng"), P("k2.dng")), (2.0,), (0.5, 0.25)),
+            ),
+            "out_dir": P("o2"), "method": "prior", "method_options": None, "mapping_lamp": None,
+            "grid": DEFAULT_GRID, "data_dir": None, "grating": None,
+            "force": False, "quiet": True, "json_output": False,
+        },
+    ),
+]  # fmt: skip
 
 
-def test_profile_group() -> None:
-    arguments = parse_estimate_arguments(
-        [
-            "--lamp",
-            "P",
-            "--profile",
-            "p.csv",
-            "--spectrum",
-            "s.csv",
-            "--direct",
-            "1,2,3.5",
-            "--out",
-            "o",
-        ]
+def _settings_of(request: EstimateRequest) -> dict[str, object]:
+    settings = request.settings
+    return {
+        "lamps": request.lamps,
+        "out_dir": request.out_dir,
+        "method": settings.method,
+        "method_options": settings.method_options,
+        "mapping_lamp": settings.mapping_lamp,
+        "grid": settings.grid,
+        "data_dir": settings.data_dir,
+        "grating": settings.grating,
+        "force": request.force,
+        "quiet": request.quiet,
+        "json_output": request.json_output,
+    }
+
+
+@pytest.mark.parametrize(("argv", "expected"), OLD_COMMAND_LINES)
+def test_the_old_command_lines_parse_to_the_same_settings(
+    argv: list[str], expected: dict[str, object]
+) -> None:
+    request = parse_estimate_command(argv)
+    assert _settings_of(request) == expected
+    assert request.settings.command_line == ("calib", "estimate", *argv)
+
+
+def test_the_same_lamps_from_an_inputs_file(tmp_path: Path) -> None:
+    _, expected = OLD_COMMAND_LINES[0]
+    (tmp_path / "lamps.yaml").write_text(
+        "lamps:\n"
+        "  - {name: A, kind: LED, images: [a1.dng, a2.dng], darks: [d.dng], spectrum: a.csv,\n"
+        "     exposure_s: [0.01, 0.1]}\n"
+        "  - {name: B, kind: fluorescent, spectrum: b.csv, images: [b.dng]}\n"
     )
-    (lamp,) = arguments.lamps
-    assert isinstance(lamp, LampProfile) and lamp.direct_rgb == (1.0, 2.0, 3.5)
+    request = parse_estimate_command(
+        ["--inputs", str(tmp_path / "lamps.yaml"), "--out", "out", "--grid=400:700:5",
+         "--mapping-lamp", "B", "--json"]
+    )  # fmt: skip
+    relative = tuple(
+        replace(
+            lamp,
+            spectrum=lamp.spectrum.relative_to(tmp_path),
+            images=tuple(path.relative_to(tmp_path) for path in lamp.images),
+            darks=tuple(path.relative_to(tmp_path) for path in lamp.darks),
+        )
+        for lamp in request.lamps
+        if isinstance(lamp, LampImages) and isinstance(lamp.spectrum, Path)
+    )
+    assert relative == expected["lamps"]  # paths relative to the file's directory
+    assert {**_settings_of(request), "lamps": relative} == expected
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("lamps:\n  - {name: A, spectrum: a.csv}\n", "lamps.yaml:2: lamps[0]: give either images (a RAW bracket) or profile"),
+        ("lamps:\n  - {name: A, spectrum: a.csv, imgs: [a.dng]}\n", "lamps.yaml:2: lamps[0].imgs: unknown key 'imgs' (did you mean 'images'?)"),
+        ("lamps:\n  - name: A\n    spectrum: a.csv\n    images: [a.dng]\n    exposure_s: [-1]\n", "lamps.yaml:5: lamps[0].exposure_s[0]: -1 is out of range; must be > 0"),
+        ("lamps:\n  - {name: A, spectrum: a.csv, images: [a.dng], kind: laser}\n", "lamps[0].kind: 'laser' is not allowed"),
+        ("lamps: []\n", "lamps.yaml:1: lamps: List should have at least 1 item"),
+        ("lamp:\n  - {name: A}\n", "unknown key 'lamp' (did you mean 'lamps'?)"),
+        ("lamps:\n  - {name: A, spectrum: a.csv, profile: p.csv, direct_rgb: [1, 2]}\n", "lamps[0].direct_rgb"),
+    ],
+)  # fmt: skip
+def test_an_inputs_file_is_checked_with_one_line_naming_the_field(
+    tmp_path: Path, content: str, message: str
+) -> None:
+    inputs = tmp_path / "lamps.yaml"
+    inputs.write_text(content)
+    code, _, stderr = _call(["--inputs", str(inputs), "--out", str(tmp_path / "out")])
+    assert code == 2 and stderr.count("\n") == 1, stderr
+    assert stderr.startswith("calib: error: ") and message in stderr, stderr
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize(
@@ -102,25 +196,41 @@ def test_profile_group() -> None:
     [
         (["--out", "o", "--images", "a.dng"], "--images before any --lamp"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--imgs", "x"], "did you mean --images"),
-        (["--out", "o", "--lamp", "A", "--images", "a"], "--spectrum CSV is required"),
-        (["--lamp", "A", "--images", "a", "--spectrum", "s"], "--out DIR is required"),
+        (["--out", "o", "--lamp", "A", "--images", "a"], "lamp 'A' --spectrum: required key is missing"),
+        (["--lamp", "A", "--images", "a", "--spectrum", "s"], "Missing option '--out'"),
         (["--out", "o", "--lamp", "A", "--spectrum", "s"], "give either --images"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--profile", "p", "--spectrum", "s"], "not both"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--spectrum", "t"], "given twice"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "t"], "one value, got 2"),
         (["--out", "o", "--lamp", "A", "--images", "--spectrum", "s"], "at least one value"),
-        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--kind", "laser"], "unknown lamp kind"),
-        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--exposure", "-1"], "must be > 0"),
+        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--kind", "laser"], "lamp 'A' --kind: 'laser' is not allowed"),
+        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--exposure", "-1"], "lamp 'A' --exposure: '-1' is out of range; must be > 0"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--grid", "700:400:10"], "--grid"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--direct", "1,2,3"], "--direct goes with --profile"),
         (["--out", "o", "--lamp", "A", "--profile", "p", "--spectrum", "s", "--direct", "1,2"], "three numbers"),
-        (["stray", "--out", "o"], "unexpected argument 'stray'"),
-        (["--out", "o", "--quiet=yes", "--lamp", "A"], "takes no value"),
+        (["stray", "--out", "o"], "unexpected extra argument(s) (stray)"),
+        (["--out", "o", "--quiet=yes", "--lamp", "A"], "option '--quiet' does not take a value"),
+        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--method", "guess"], "unknown method 'guess'; available: auto, prior"),
+        (["--out", "o"], "no lamps; give --lamp NAME"),
     ],
 )  # fmt: skip
-def test_parser_mistakes_are_named(argv: list[str], message: str) -> None:
-    with pytest.raises(InputError, match=message):
-        parse_estimate_arguments(argv)
+def test_command_line_mistakes_are_one_line_exit_2(argv: list[str], message: str) -> None:
+    code, stdout, stderr = _call(argv)
+    assert code == 2, stderr
+    assert stderr.startswith("calib: error: ") and stderr.count("\n") == 1, stderr
+    assert message.lower() in stderr.lower(), stderr
+    assert stdout == ""
+
+
+def test_the_help_lists_the_lamp_options_and_the_choices() -> None:
+    code, stdout, _ = _call(["-h"])
+    assert code == 0
+    for flag in ("--lamp", "--images", "--spectrum", "--dark-exposure", "--inputs", "-q"):
+        assert flag in stdout
+    assert "known-grating" in stdout and "typicality" in stdout  # --method, --weight-rule
+    assert "fluorescent, halogen" in stdout  # --kind
+    # help never fails on a half-typed lamp
+    assert _call(["--lamp", "A", "--images", "-h"])[0] == 0
 
 
 # ------------------------------------------------------------------------- images, end to end
@@ -182,7 +292,7 @@ def test_estimation_failure_exits_1(
 
     monkeypatch.setattr("calib.pipeline.estimate.estimate", fail)
     code, _, stderr = _call([*_image_args(capture), "--out", str(tmp_path / "out")])
-    assert code == 1 and "calib estimate: failed: the solve produced" in stderr
+    assert code == 1 and "calib: failed: the solve produced" in stderr
 
 
 def test_internal_error_exits_1_without_traceback(
@@ -208,14 +318,14 @@ def test_console_script_exit_codes(tmp_path: Path) -> None:
     )  # fmt: skip
     assert done.returncode == 2, done.stderr
     assert (
-        done.stderr.strip().startswith("calib estimate: error:")
+        done.stderr.strip().startswith("calib: error:")
         and "none.dng: file not found" in done.stderr
     )
     assert done.stderr.count("\n") == 1
     help_text = subprocess.run(
         [str(script), "estimate", "--help"], capture_output=True, text=True, timeout=60, check=False
     )
-    assert help_text.returncode == 0 and "--lamp NAME" in help_text.stdout
+    assert help_text.returncode == 0 and "--lamp" in help_text.stdout
 
 
 # ------------------------------------------------------------------------------ profile input
@@ -509,3 +619,24 @@ def test_a_blank_frame_in_a_bracket_is_refused_naming_it(capture: Capture, tmp_p
     code, _, stderr = _call(argv)
     assert code == 2 and stderr.count("\n") == 1, stderr
     assert "blank.dng" in stderr and "the frame is blank" in stderr
+
+
+def test_exclude_camera_keeps_the_camera_out_of_the_default_basis(
+    capture: Capture, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.undo()  # the real default basis: no data anywhere, so the bundled rawtoaces-data
+    monkeypatch.delenv("SPECTRAL_RIG_DATA", raising=False)
+    monkeypatch.setattr("calib.core.datasets.default_data_dir", lambda: tmp_path / "no-user-cache")
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--out", str(tmp_path / "out")]
+    argv += ["--exclude-camera", "Nikon D5100", "--exclude-camera", "sony*", "--json"]
+    code, stdout, stderr = _call(argv)
+    assert code == 0, stderr
+    basis = json.loads(stdout)["basis"]
+    assert basis["exclusions"] == ["Nikon D5100", "sony*"]
+    assert "Nikon D5100 (rawtoaces-data)" in basis["excluded_cameras"]
+    assert len(basis["excluded_cameras"]) == 12 and basis["n_cameras"] == 52 - 12
+    assert not any("D5100" in name or name.startswith("Sony") for name in basis["cameras"])
+    # the bundled basis is not the validated one: said on stderr and in the result
+    assert "calib: warning: the camera basis comes from the 52 rawtoaces-data cameras" in stderr
+    document = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert any("rawtoaces-data" in w for w in document["provenance"]["warnings"])

@@ -54,8 +54,19 @@ def test_the_shared_options_do_not_load_the_calib_commands() -> None:
         "import sys\n"
         "import calib.cli.options\n"
         "print(sorted(name for name in sys.modules if name.startswith('calib.')))\n"
+        "print('numpy' in sys.modules)\n"
     )
     shown = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
     )
-    assert shown.stdout.strip() == "['calib.cli', 'calib.cli.options']"
+    loaded, numpy_loaded = shown.stdout.splitlines()
+    assert loaded == str(
+        [
+            "calib.cli",
+            "calib.cli.command_line",
+            "calib.cli.options",
+            "calib.core",
+            "calib.core.errors",
+        ]
+    )
+    assert numpy_loaded == "False"

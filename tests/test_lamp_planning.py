@@ -95,7 +95,7 @@ def test_cli_prints_a_ranked_table_and_json(tmp_path):
     assert "best subsets" in result.output and "helps most" in result.output
     result = runner.invoke(build_app(), [*arguments, "--json", "--top", "3"])
     assert result.exit_code == 0, result.output
-    data = json.loads(result.output)
+    data = json.loads(result.stdout)  # the basis warning goes to stderr
     assert len(data["subsets"]) == 3 and len(data["additions"]) == 3
     assert data["subsets"][0]["efficiency_sigma"] <= data["subsets"][-1]["efficiency_sigma"]
 

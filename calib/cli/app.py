@@ -1,47 +1,49 @@
 """The ``calib`` command: offline estimation, synthetic benchmarks and tools.
 
 Each sub-command lives in its own module of :mod:`calib.cli` with a ``register(app)`` function;
-:func:`build_app` assembles them and :func:`main` (the console script) maps errors to exit codes: 0 ok, 2 bad input (the reason on one
-line), 1 internal error. The command modules import no heavy library at import time (scipy,
-matplotlib and colour-science load when a command needs them), so ``calib --help`` and the start of
-``calib estimate`` stay fast.
+:func:`build_app` assembles them and :func:`main` (the console script) runs them in the one style of
+:mod:`calib.cli.command_line` and maps errors to exit codes: 0 ok, 2 bad input (the reason on one
+line), 1 the estimation failed or an internal error (``CALIB_DEBUG=1`` shows the traceback).
+
+The command modules are imported for real (the import graph is what tools and
+``tests/test_layering.py`` see); none of them imports scipy, matplotlib or colour-science at import
+time, each of those loads at its one seam when a command needs it.
 """
 
 from __future__ import annotations
 
+import os
 import sys
+import traceback
+from collections.abc import Sequence
 
 import typer
 
 from calib.cli import batch, compare, data, estimate, plan_lamps, spd, synthetic, uses, validate
-from calib.cli.exits import say_interrupted
-from calib.core.errors import CalibError, InputError
+from calib.cli.command_line import error_code_and_line, new_app, run_app
+
+
+def _calib() -> None:
+    """Camera spectral sensitivity from an uncalibrated diffraction grating."""
 
 
 def build_app() -> typer.Typer:
     """The ``calib`` command with every sub-command registered."""
-    app = typer.Typer(
-        name="calib",
-        help="Camera spectral sensitivity from an uncalibrated diffraction grating.",
-        no_args_is_help=True,
-        add_completion=False,
-        pretty_exceptions_enable=False,
-    )
+    app = new_app("calib", "Camera spectral sensitivity from an uncalibrated diffraction grating.")
+    app.callback()(_calib)
     for command in (synthetic, data, estimate, batch, compare, spd, plan_lamps, uses, validate):
         command.register(app)
     return app
 
 
-def main() -> None:
-    """Console entry point."""
+def main(argv: Sequence[str] | None = None) -> None:
+    """Console entry point (``argv``: the arguments, default ``sys.argv[1:]``)."""
+    arguments = list(sys.argv[1:] if argv is None else argv)
     try:
-        build_app()(standalone_mode=True)
-    except SystemExit as exit_:
-        say_interrupted(exit_, "calib")
-        raise
-    except InputError as exc:
-        print(f"calib: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except CalibError as exc:
-        print(f"calib: failed: {exc}", file=sys.stderr)
-        sys.exit(1)
+        code = run_app(build_app(), "calib", arguments)
+    except Exception as exc:
+        if os.environ.get("CALIB_DEBUG"):
+            traceback.print_exc()
+        code, line = error_code_and_line(exc)
+        print(f"calib: {line}", file=sys.stderr)
+    sys.exit(code)

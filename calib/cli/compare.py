@@ -11,7 +11,8 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
-from calib.cli.options import EnsembleOption, EpochsOption
+from calib.cli.command_line import one_line, warn
+from calib.cli.options import DataDirOption, EnsembleOption, EpochsOption, ExcludeCameraOption
 from calib.cli.synthetic import _parse_noise
 from calib.core.datasets import colour_science_cameras, makabe2025_split
 from calib.core.errors import InputError
@@ -25,26 +26,33 @@ from calib.evaluation.compare import (
     synthetic_adapters,
 )
 from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
-from calib.model.bases import CameraBasis, default_camera_basis, fallback_camera_basis
+from calib.model.bases import (
+    FALLBACK_WARNING,
+    CameraBasis,
+    default_camera_basis,
+    fallback_camera_basis,
+)
 
 
 def register(app: typer.Typer) -> None:
     @app.command("compare")
     def compare(
         out: Annotated[
-            Path, typer.Option(help="Directory for compare.md, compare.csv, plots.")
+            Path,
+            typer.Option("--out", "-o", help="Directory for compare.md, compare.csv, plots."),
         ] = Path("compare"),
-        data_dir: Annotated[
-            Path | None,
-            typer.Option(help="Camera data directory (else $SPECTRAL_RIG_DATA, the user cache)."),
-        ] = None,
+        data_dir: DataDirOption = None,
+        exclude_camera: ExcludeCameraOption = None,
         offline: Annotated[
             bool,
-            typer.Option(help="colour-science cameras and the offline basis (no dataset needed)."),
+            typer.Option(
+                "--offline",
+                help="colour-science cameras and the offline basis (no dataset needed).",
+            ),
         ] = False,
         method: Annotated[
             list[str] | None,
-            typer.Option(help="Registered methods to run (repeatable); default: all."),
+            typer.Option(help="Methods to run (repeatable; default: all): {registered_methods}."),
         ] = None,
         noise: Annotated[str, typer.Option(help="Noise levels, fractions of the peak.")] = ",".join(
             f"{n:g}" for n in DEFAULT_NOISE_LEVELS
@@ -60,6 +68,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Compare every registered method on the synthetic protocol (RE per camera × method)."""
         grid = WavelengthGrid()
+        excluded = list(exclude_camera or ())
         fallback_used = offline
         if not offline:
             try:
@@ -67,8 +76,10 @@ def register(app: typer.Typer) -> None:
             except InputError as exc:
                 if data_dir is not None:
                     raise
-                Console(stderr=True).print(
-                    f"no measured camera data ({exc}); using the offline colour-science cameras"
+                warn(
+                    "calib",
+                    f"no measured test cameras ({one_line(exc)}); comparing on the offline "
+                    "colour-science cameras",
                 )
                 fallback_used = True
         basis: CameraBasis | Callable[[str], CameraBasis]
@@ -79,15 +90,18 @@ def register(app: typer.Typer) -> None:
             ]
 
             def basis_for(name: str) -> CameraBasis:
-                return fallback_camera_basis(grid=grid, exclude=[name.split(" (")[0]])
+                return fallback_camera_basis(grid=grid, exclude=[name.split(" (")[0], *excluded])
 
             basis = basis_for
             basis_description = (
                 "colour-science built-ins (offline), each camera excluded from its own basis"
             )
+            warn("calib", FALLBACK_WARNING)
         else:
             cameras = [(r.camera, r.sensitivity) for r in test]
-            measured = default_camera_basis(grid, data_dir=data_dir, exclude=[r.name for r in test])
+            measured = default_camera_basis(
+                grid, data_dir=data_dir, exclude=[*(r.name for r in test), *excluded]
+            )
             basis, basis_description = measured, measured.source
         source = SyntheticSource(
             cameras,

@@ -1,4 +1,8 @@
-"""``calib data fetch`` and ``calib data list``: the reference camera collections."""
+"""``data fetch`` and ``data list`` (in ``calib`` and in ``rig`` alike): the reference camera collections.
+
+The module imports the datasets lazily, inside the commands: ``rig`` registers these commands at
+start-up.
+"""
 
 from __future__ import annotations
 
@@ -6,55 +10,89 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
-from rich.table import Table
 
-from calib.core.datasets import (
-    DATA_DIR_ENV,
-    collection_status,
-    default_data_dir,
-    fetch_datasets,
-    pinned_files,
-)
+from calib.cli.command_line import new_app
+from calib.cli.options import QuietOption
+
+DataDirToFill = Annotated[
+    Path | None,
+    typer.Option(
+        "--data-dir",
+        metavar="DIR",
+        help="The data directory (default: $SPECTRAL_RIG_DATA, else the user cache).",
+    ),
+]
 
 
 def register(app: typer.Typer) -> None:
-    data_app = typer.Typer(
-        help="Reference camera sensitivity data (downloaded, never shipped).", no_args_is_help=True
+    """Add the ``data`` group (``fetch``, ``list``) to ``app``."""
+    data_app = new_app(
+        "data",
+        "Reference camera sensitivity data (downloaded; rawtoaces-data ships with spectral-rig).",
     )
 
     @data_app.command("fetch")
     def fetch(
-        dest: Annotated[
-            Path | None, typer.Option(help="Data directory to fill (default: the user cache).")
-        ] = None,
+        data_dir: DataDirToFill = None,
         collection: Annotated[
-            list[str] | None, typer.Option(help="Collections to fetch (repeatable; default all).")
+            list[str] | None,
+            typer.Option(
+                metavar="NAME",
+                help="A collection to fetch (repeatable; default all): {fetchable_collections}.",
+            ),
         ] = None,
         base_url: Annotated[
-            str | None, typer.Option(help="Mirror root: {base}/{repo}/{commit}/{path}.")
+            str | None,
+            typer.Option(
+                metavar="URL",
+                help="Mirror root: {base}/{repository}/{commit}/{path}; file:// works.",
+            ),
         ] = None,
+        quiet: QuietOption = False,
     ) -> None:
-        """Download the pinned files from their public repositories and verify their SHA-256."""
-        console = Console()
-        files = pinned_files(collection)
-        with console.status(f"fetching {len(files)} files…") as status:
+        """Download the pinned camera collections and verify every file's size and SHA-256."""
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+        from calib.core.datasets import fetch_datasets, pinned_files
+        from calib.core.errors import InputError
+
+        try:
+            files = pinned_files(collection)
+        except InputError as exc:
+            raise InputError(
+                str(exc).removeprefix(f"{exc.source}: "), source="--collection"
+            ) from None
+        progress = Progress(
+            TextColumn("fetching"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.description}"),
+            console=Console(stderr=True),
+            disable=quiet,
+        )
+        with progress:
+            task = progress.add_task("", total=len(files))
+
+            def advance(done: int, total: int, path: str) -> None:
+                progress.update(task, completed=done, total=total, description=path)
+
             report = fetch_datasets(
-                dest,
-                collections=collection,
-                base_url=base_url,
-                progress=lambda done, total, path: status.update(f"{done}/{total} {path}"),
+                data_dir, collections=collection, base_url=base_url, progress=advance
             )
-        console.print(
+        typer.echo(
             f"{len(report.downloaded)} downloaded, {len(report.already_present)} already present "
             f"and valid, in {report.destination}"
         )
 
     @data_app.command("list")
-    def list_collections(
-        data_dir: Annotated[Path | None, typer.Option(help="Data directory to inspect.")] = None,
-    ) -> None:
+    def list_collections(data_dir: DataDirToFill = None) -> None:
         """Show each downloadable collection and how many of its files are present and valid."""
+        from rich.console import Console
+        from rich.table import Table
+
+        from calib.core.datasets import DATA_DIR_ENV, collection_status, default_data_dir
+
         table = Table(
             title=f"camera data in {data_dir or f'${DATA_DIR_ENV} or {default_data_dir()}'}"
         )

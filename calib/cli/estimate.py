@@ -1,34 +1,94 @@
 """``calib estimate``: standalone offline estimation from RAW brackets (or profiles) and lamp spectra.
 
-See :data:`calib.cli.estimate_args.USAGE` for the options. Exit codes: 0 ok, 2 bad input (the reason on
-one line on stderr, naming the file, field or option), 1 internal error (``CALIB_DEBUG=1`` shows the
+The lamps come as ``--lamp NAME`` groups (:mod:`calib.cli.lamp_groups`) or from an inputs file
+(``--inputs lamps.yaml``, :mod:`calib.pipeline.inputs_file`), or both (the file's lamps first); the
+rest are ordinary options. Exit codes: 0 ok, 2 bad input (the reason on one line on stderr, naming the
+file, field or option), 1 the estimation failed or an internal error (``CALIB_DEBUG=1`` shows the
 traceback). With ``--json`` a summary (or the error) is printed as one JSON object on stdout.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import sys
-import traceback
-from collections.abc import Mapping, Sequence
-from typing import Any, TextIO
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, TextIO
 
 import typer
 
-from calib.cli.estimate_args import USAGE, EstimateArguments, parse_estimate_arguments
-from calib.core.errors import CalibError, InputError
-from calib.core.mapping import QuadraticMapping
-from calib.core.metrics import format_re
-from calib.core.result import json_safe
-from calib.pipeline.estimate import OfflineSettings
-from calib.pipeline.outputs import check_out_dir
-from calib.pipeline.progress import RichFrameProgress
-from calib.pipeline.run import OfflineOutcome, run_offline
+from calib.cli.command_line import (
+    ARGUMENTS,
+    ClickContext,
+    click_command,
+    error_code_and_line,
+    new_app,
+    subcommands,
+    warn,
+)
+from calib.cli.lamp_groups import LAMP_GROUPS, LampGroup, LampGroupsCommand, option_names
+from calib.cli.options import (
+    DataDirOption,
+    ExcludeCameraOption,
+    ForceOption,
+    GridOption,
+    JsonOption,
+    MethodOption,
+    QuietOption,
+    WeightRuleOption,
+    checked_grid,
+    checked_method,
+)
+from calib.core.errors import InputError
+
+if TYPE_CHECKING:
+    # The pipeline (numpy, the methods registry) loads when a command runs, not for its help.
+    from calib.pipeline.estimate import OfflineSettings
+    from calib.pipeline.inputs import LampInput
+    from calib.pipeline.run import OfflineOutcome
+
+HELP = (
+    "Estimate a camera's RGB spectral sensitivity from RAW brackets (or 1-D profiles) of lamps "
+    "seen through a diffraction grating, and each lamp's measured spectrum.\n\n"
+    "Give every lamp as a group, --lamp NAME (--images RAW ... | --profile CSV) --spectrum CSV "
+    "[--kind KIND] …, repeated for each lamp; or list the lamps in a YAML file (--inputs). For "
+    "example: calib estimate --lamp LED --kind led --images led/*.dng --spectrum led.csv --lamp FL "
+    "--kind fluorescent --images fl/*.dng --spectrum fl.csv --out result\n\n"
+    "Exit codes: 0 ok, 2 bad input (the reason on one line), 1 the estimation failed."
+)
+
+
+@dataclass(frozen=True)
+class EstimateRequest:
+    """What one ``calib estimate`` command line asks for.
+
+    Attributes
+    ----------
+    lamps
+        The lamps, the inputs file's first, then the ``--lamp`` groups in order.
+    out_dir
+        ``--out``.
+    settings
+        How to estimate (method and its options, grid, mapping lamp, data, grating, excluded
+        cameras, the command line).
+    force, quiet, json_output
+        The flags.
+    """
+
+    lamps: tuple[LampInput, ...]
+    out_dir: Path
+    settings: OfflineSettings
+    force: bool = False
+    quiet: bool = False
+    json_output: bool = False
 
 
 def summary(outcome: OfflineOutcome) -> dict[str, Any]:
     """The ``--json`` summary of an :class:`calib.pipeline.OfflineOutcome`."""
+    from calib.core.mapping import QuadraticMapping
+    from calib.core.result import json_safe
+
     estimate = outcome.estimate
     result = estimate.result
     mapping = result.mapping
@@ -50,6 +110,7 @@ def summary(outcome: OfflineOutcome) -> dict[str, Any]:
             "mapping_re_estimate": result.mapping_re_estimate,
             "reduced_chi2": result.diagnostics.get("reduced_chi2"),
             "uncertainty": result.sensitivity_sigma is not None,
+            "basis": result.diagnostics.get("basis"),
             "warnings": list(estimate.warnings),
             "timings_s": dict(outcome.timings),
         }
@@ -57,7 +118,10 @@ def summary(outcome: OfflineOutcome) -> dict[str, Any]:
     return record
 
 
-def _print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
+def print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
+    """The few lines ``calib estimate`` prints after an estimate (without ``--json``)."""
+    from calib.core.metrics import format_re
+
     record = summary(outcome)
     lamps = ", ".join(f"{lamp['name']} ({lamp['kind']})" for lamp in record["lamps"])
     print(f"estimate: {record['method']} from {lamps}", file=stream)
@@ -92,98 +156,183 @@ def _print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
             print(f"{key:>11}: {record['files'][key]}", file=stream)
 
 
-def run(argv: Sequence[str], *, stdout: TextIO | None = None, stderr: TextIO | None = None) -> int:
-    """Run ``calib estimate`` with ``argv`` (without the command name); return the exit code."""
-    out = stdout or sys.stdout
-    err = stderr or sys.stderr
-    json_output = "--json" in argv
-    command_line = ("calib", "estimate", *argv)
-    try:
-        arguments = parse_estimate_arguments(argv)
-        if arguments.show_help:
-            print(USAGE, file=out, end="")
-            return 0
-        outcome = _estimate(arguments, command_line, err)
-    except InputError as exc:
-        return _fail(exc, 2, json_output, out, err)
-    except CalibError as exc:
-        return _fail(exc, 1, json_output, out, err)
-    except KeyboardInterrupt:
-        print("calib estimate: interrupted", file=err)
-        return 130
-    except Exception as exc:
-        if os.environ.get("CALIB_DEBUG"):
-            traceback.print_exc(file=err)
-        return _fail(exc, 1, json_output, out, err, internal=True)
-    for warning in outcome.estimate.warnings:
-        print(f"calib estimate: warning: {warning}", file=err)
-    if arguments.json_output:
-        print(json.dumps(summary(outcome), allow_nan=False), file=out)
-    elif not arguments.quiet:
-        _print_summary(outcome, out)
-    return 0
+def _lamps(inputs: Path | None, groups: Sequence[LampGroup]) -> tuple[LampInput, ...]:
+    # Deferred: pydantic and PyYAML, which `calib --help` need not load.
+    from calib.pipeline.inputs_file import lamp_from_options, read_inputs_file
 
-
-def _estimate(
-    arguments: EstimateArguments, command_line: tuple[str, ...], err: TextIO
-) -> OfflineOutcome:
-    assert arguments.out_dir is not None
-    check_out_dir(arguments.out_dir, arguments.force)
-    settings = OfflineSettings(
-        method=arguments.method,
-        method_options=arguments.method_options,
-        grid=arguments.grid,
-        mapping_lamp=arguments.mapping_lamp,
-        data_dir=arguments.data_dir,
-        grating=arguments.grating,
-        command_line=command_line,
-    )
-    if arguments.quiet or not RichFrameProgress.wanted(err):
-        return run_offline(arguments.lamps, arguments.out_dir, settings)
-    with RichFrameProgress(err) as progress:
-        return run_offline(arguments.lamps, arguments.out_dir, settings, progress=progress)
-
-
-def _fail(
-    exc: BaseException,
-    code: int,
-    json_output: bool,
-    out: TextIO,
-    err: TextIO,
-    *,
-    internal: bool = False,
-) -> int:
-    message = " ".join(str(exc).split()) or type(exc).__name__
-    if internal:
-        message = (
-            f"internal error: {type(exc).__name__}: {message} (set CALIB_DEBUG=1 for the traceback)"
+    lamps = read_inputs_file(inputs) if inputs is not None else ()
+    lamps += tuple(lamp_from_options(group.entry(), option_names()) for group in groups)
+    if not lamps:
+        raise InputError(
+            "no lamps; give --lamp NAME --images RAW ... --spectrum CSV for every lamp, or "
+            "--inputs FILE",
+            source="--lamp",
         )
-    kind = "error" if code == 2 else "failed"
-    print(f"calib estimate: {kind}: {message}", file=err)
-    if json_output:
-        record: Mapping[str, Any] = {
-            "status": "error",
-            "exit_code": code,
-            "error": message,
-            "source": getattr(exc, "source", None),
-        }
-        print(json.dumps(record), file=out)
-    return code
+    return lamps
+
+
+def estimate_request(
+    ctx: ClickContext,
+    *,
+    out: Path,
+    inputs: Path | None = None,
+    method: str = "auto",
+    weight_rule: str | None = None,
+    mapping_lamp: str | None = None,
+    grid: str | None = None,
+    data_dir: Path | None = None,
+    grating: Path | None = None,
+    exclude_camera: Sequence[str] | None = None,
+    force: bool = False,
+    quiet: bool = False,
+    json_output: bool = False,
+) -> EstimateRequest:
+    """The request of a parsed ``calib estimate`` (its options, and the lamp groups in ``ctx``)."""
+    from calib.methods.multilamp import weight_rule_option
+    from calib.pipeline.estimate import OfflineSettings
+
+    method = checked_method(method)
+    settings = OfflineSettings(
+        method=method,
+        method_options=weight_rule_option(method, weight_rule),
+        grid=checked_grid(grid),
+        mapping_lamp=mapping_lamp,
+        data_dir=data_dir,
+        grating=grating,
+        exclude_cameras=tuple(exclude_camera or ()),
+        command_line=("calib", "estimate", *ctx.meta.get(ARGUMENTS, ())),
+    )
+    return EstimateRequest(
+        lamps=_lamps(inputs, ctx.meta.get(LAMP_GROUPS, [])),
+        out_dir=out,
+        settings=settings,
+        force=force,
+        quiet=quiet,
+        json_output=json_output,
+    )
+
+
+def parse_estimate_command(argv: Sequence[str]) -> EstimateRequest:
+    """What ``calib estimate ARGV`` asks for, without running it (for scripts and tests).
+
+    Raises
+    ------
+    InputError, typer's click.UsageError
+        The mistakes the command itself would report.
+    """
+    app = new_app("calib", "")
+    register(app)
+    command = click_command(app)
+    command = subcommands(command).get("estimate", command)
+    with command.make_context("calib estimate", list(argv)) as ctx:
+        params = dict(ctx.params)
+        return estimate_request(ctx, json_output=params.pop("json_output"), **params)
+
+
+def run_request(request: EstimateRequest) -> OfflineOutcome:
+    """Estimate and write the outputs; print warnings and the summary as the flags say."""
+    from calib.pipeline.outputs import check_out_dir
+    from calib.pipeline.progress import RichFrameProgress
+    from calib.pipeline.run import run_offline
+
+    check_out_dir(request.out_dir, request.force)
+    if request.quiet or not RichFrameProgress.wanted(sys.stderr):
+        outcome = run_offline(request.lamps, request.out_dir, request.settings)
+    else:
+        with RichFrameProgress(sys.stderr) as progress:
+            outcome = run_offline(
+                request.lamps, request.out_dir, request.settings, progress=progress
+            )
+    for warning in outcome.estimate.warnings:
+        warn("calib", warning)
+    if request.json_output:
+        print(json.dumps(summary(outcome), allow_nan=False))
+    elif not request.quiet:
+        print_summary(outcome, sys.stdout)
+    return outcome
+
+
+def _json_error(exc: Exception) -> None:
+    code, line = error_code_and_line(exc)
+    record = {
+        "status": "error",
+        "exit_code": code,
+        "error": line.split(": ", 1)[1],
+        "source": getattr(exc, "source", None),
+    }
+    print(json.dumps(record))
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``calib estimate`` to the ``calib`` app (arguments parsed by :mod:`estimate_args`)."""
+    """Add ``calib estimate`` to the ``calib`` app."""
 
-    @app.command(
-        "estimate",
-        context_settings={
-            "allow_extra_args": True,
-            "ignore_unknown_options": True,
-            "help_option_names": [],
-        },
-        add_help_option=False,
-        help="Estimate a camera's sensitivity from RAW brackets (or profiles) and lamp spectra "
-        "(calib estimate --help for the options).",
-    )
-    def estimate_command(ctx: typer.Context) -> None:
-        raise typer.Exit(run(list(ctx.args)))
+    @app.command("estimate", cls=LampGroupsCommand, help=HELP)
+    def estimate_command(
+        ctx: typer.Context,
+        out: Annotated[
+            Path,
+            typer.Option(
+                "--out",
+                "-o",
+                metavar="DIR",
+                help="Where to write sensitivity.csv, result.json, report.html, the camera files "
+                "and grating.json (created if missing).",
+            ),
+        ],
+        inputs: Annotated[
+            Path | None,
+            typer.Option(
+                "--inputs",
+                metavar="YAML",
+                help="The lamps as a YAML file (lamps: a list of name, kind, images or profile, "
+                "spectrum …; paths relative to the file), instead of or before --lamp groups.",
+            ),
+        ] = None,
+        method: MethodOption = "auto",
+        weight_rule: WeightRuleOption = None,
+        mapping_lamp: Annotated[
+            str | None,
+            typer.Option(
+                "--mapping-lamp",
+                metavar="NAME",
+                help="The lamp that gives the pixel→wavelength mapping (default: the "
+                "estimator's choice).",
+            ),
+        ] = None,
+        grid: GridOption = None,
+        data_dir: DataDirOption = None,
+        grating: Annotated[
+            Path | None,
+            typer.Option(
+                "--grating",
+                metavar="FILE",
+                help="Grating efficiency (grating.json of an earlier estimate) for lamps with no "
+                "direct measurement; without it a flat grating is assumed, with a warning.",
+            ),
+        ] = None,
+        exclude_camera: ExcludeCameraOption = None,
+        force: ForceOption = False,
+        quiet: QuietOption = False,
+        json_output: JsonOption = False,
+    ) -> None:
+        try:
+            request = estimate_request(
+                ctx,
+                out=out,
+                inputs=inputs,
+                method=method,
+                weight_rule=weight_rule,
+                mapping_lamp=mapping_lamp,
+                grid=grid,
+                data_dir=data_dir,
+                grating=grating,
+                exclude_camera=exclude_camera,
+                force=force,
+                quiet=quiet,
+                json_output=json_output,
+            )
+            run_request(request)
+        except Exception as exc:
+            if json_output:
+                _json_error(exc)
+            raise

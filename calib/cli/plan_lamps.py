@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.command_line import warn
+from calib.cli.options import DataDirOption, JsonOption
 from calib.core.errors import InputError
 from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.core.spectra import Spectrum, WavelengthGrid
@@ -85,20 +86,18 @@ def register(app: typer.Typer) -> None:
         terms: Annotated[
             int, typer.Option(min=1, help="Fourier terms of the grating efficiency.")
         ] = DEFAULT_EFFICIENCY_TERMS,
-        data_dir: Annotated[
-            Path | None,
-            typer.Option(help="Camera data directory for the prior (else the offline basis)."),
-        ] = None,
-        as_json: Annotated[
-            bool, typer.Option("--json", help="Print JSON instead of tables.")
-        ] = False,
+        data_dir: DataDirOption = None,
+        as_json: JsonOption = False,
     ) -> None:
         """Rank lamp subsets by how well they determine the grating efficiency (multilamp)."""
         if not math.isfinite(noise) or noise <= 0:
             raise InputError(f"must be a fraction > 0, got {noise}", source="--noise")
         owned = _lamps(lamp, "--lamp")
         extra = _lamps(list(candidate or DEFAULT_CANDIDATES), "--candidate")
-        prior = default_camera_basis(WavelengthGrid(), data_dir=data_dir).prior()
+        basis = default_camera_basis(WavelengthGrid(), data_dir=data_dir)
+        if basis.fallback is not None:
+            warn("calib", basis.fallback)
+        prior = basis.prior()
         ranked = rank_subsets(owned, prior, noise_fraction=noise, efficiency_terms=terms)
         additions = best_additions(
             owned, extra, prior, noise_fraction=noise, efficiency_terms=terms

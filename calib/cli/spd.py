@@ -10,164 +10,28 @@ Exit codes: 0 ok, 2 bad input (a file, a field, an image that does not show a sp
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
-from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import Annotated
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
-from calib.core.errors import CalibError, InputError
+from calib.cli.command_line import ARGUMENTS, list_options_command
+from calib.cli.options import ForceOption, JsonOption, QuietOption, checked_grid
+from calib.core.errors import InputError
 from calib.core.result import json_safe
-from calib.core.spectra import WavelengthGrid
+from calib.pipeline.outputs import check_out_dir
+from calib.spd.alvarez2014 import SourceMode, Weighting
+from calib.spd.light_sources import Metric
 from calib.spd.pipeline import SpdMeasurement, SpdRequest, measure_spd
 
-# ------------------------------------------------------------------------------------ command
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse whose errors are :class:`InputError` (one line, exit code 2 via ``main``)."""
-
-    def error(self, message: str) -> NoReturn:
-        raise InputError(message, source="calib spd")
-
-
-def _grid(text: str) -> WavelengthGrid:
-    try:
-        return WavelengthGrid.parse(text)
-    except InputError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog="calib spd",
-        description="Measure a lamp's spectral power distribution with a calibrated camera and "
-        "the diffraction grating (Alvarez et al. 2014).",
-    )
-    parser.add_argument(
-        "--images",
-        nargs="+",
-        type=Path,
-        required=True,
-        metavar="RAW",
-        help="the lamp's bracket (RAW files, any exposures)",
-    )
-    parser.add_argument(
-        "--dark",
-        nargs="+",
-        type=Path,
-        default=[],
-        metavar="RAW",
-        help="dark frames matching the lamp's exposures",
-    )
-    parser.add_argument(
-        "--camera",
-        type=Path,
-        required=True,
-        metavar="CSV",
-        help="the camera's sensitivity: a CSV with columns wavelength_nm,R,G,B by name, a camera JSON, or an estimate's output directory",
-    )
-    parser.add_argument(
-        "--grating-efficiency",
-        type=Path,
-        metavar="CSV",
-        help="the grating's first-order efficiency: wavelength_nm,value (else assumed flat)",
-    )
-    parser.add_argument(
-        "--mapping-lamp-images",
-        nargs="+",
-        type=Path,
-        default=[],
-        metavar="RAW",
-        help="a fluorescent lamp's bracket in the same set-up, for the mapping",
-    )
-    parser.add_argument(
-        "--mapping-lamp-dark",
-        nargs="+",
-        type=Path,
-        default=[],
-        metavar="RAW",
-        help="its dark frames",
-    )
-    parser.add_argument(
-        "--mapping-lamp-spectrum",
-        type=Path,
-        metavar="CSV",
-        help="its measured spectrum (else its lines are taken from a reference "
-        "list: a few nm less accurate)",
-    )
-    parser.add_argument(
-        "--mapping",
-        type=Path,
-        metavar="JSON",
-        help="a known mapping (a mapping record or a result.json with one)",
-    )
-    parser.add_argument("--name", default="lamp", help="the lamp's name in the outputs")
-    parser.add_argument(
-        "--source",
-        choices=("auto", "point", "finite"),
-        default="auto",
-        help="finite: deconvolve the source's shape (auto: when it is wider than 1.5 samples)",
-    )
-    parser.add_argument(
-        "--weighting",
-        choices=("noise", "paper"),
-        default="noise",
-        help="paper: the median-distance weights alone",
-    )
-    parser.add_argument("--smoothness", type=float, default=50.0, help="w_s of the paper")
-    parser.add_argument(
-        "--metric",
-        choices=("weighted", "l2"),
-        default="weighted",
-        help="distance for recognising the source",
-    )
-    parser.add_argument(
-        "--grid",
-        type=_grid,
-        metavar="START:STOP:STEP",
-        help="wavelengths of spd.csv in nm (default: 1 nm over the recovered range)",
-    )
-    parser.add_argument("--out", type=Path, required=True, metavar="DIR")
-    parser.add_argument("--no-plots", action="store_true", help="skip spd.png and geometry.png")
-    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
-    parser.add_argument("--json", action="store_true", help="print spd.json to stdout")
-    return parser
-
-
-def request_from_args(arguments: Sequence[str]) -> tuple[SpdRequest, argparse.Namespace]:
-    options = build_parser().parse_args(list(arguments))
-    if options.mapping is not None and options.mapping_lamp_images:
-        raise InputError(
-            "give either --mapping or --mapping-lamp-images, not both", source="calib spd"
-        )
-    if options.smoothness < 0:
-        raise InputError(f"must be >= 0, got {options.smoothness}", source="--smoothness")
-    request = SpdRequest(
-        images=tuple(options.images),
-        darks=tuple(options.dark),
-        camera=options.camera,
-        out=options.out,
-        grating_efficiency=options.grating_efficiency,
-        mapping_images=tuple(options.mapping_lamp_images),
-        mapping_darks=tuple(options.mapping_lamp_dark),
-        mapping_spectrum=options.mapping_lamp_spectrum,
-        mapping_file=options.mapping,
-        name=options.name,
-        source=options.source,
-        weighting=options.weighting,
-        smoothness=options.smoothness,
-        metric=options.metric,
-        grid=options.grid,
-        plots=not options.no_plots,
-        command_line=("calib", "spd", *arguments),
-    )
-    return request, options
+#: The files of an earlier measurement that ``--force`` allows to overwrite.
+SPD_MARKERS = ("spd.json", "spd.csv")
+#: The options that take a list of files.
+LIST_OPTIONS = ("--images", "--dark", "--mapping-lamp-images", "--mapping-lamp-dark")
 
 
 def _print_summary(measurement: SpdMeasurement, out: Path) -> None:
@@ -191,34 +55,138 @@ def _print_summary(measurement: SpdMeasurement, out: Path) -> None:
     Console(stderr=True).print(table)
 
 
-def run(arguments: Sequence[str]) -> SpdMeasurement:
-    """Parse, measure, report (used by the typer command; raises :class:`CalibError`)."""
-    request, options = request_from_args(arguments)
-
-    def progress(message: str) -> None:
-        if not options.quiet:
-            print(f"calib spd: {message}", file=sys.stderr)
-
-    measurement = measure_spd(request, progress)
-    if options.json:
-        print(json.dumps(json_safe(measurement.summary), indent=2))
-    if not options.quiet:
-        _print_summary(measurement, request.out)
-    return measurement
-
-
 def register(app: typer.Typer) -> None:
-    @app.command(
-        "spd",
-        context_settings={"allow_extra_args": True, "ignore_unknown_options": True},
-        add_help_option=False,
-        help="Measure a lamp's SPD with a calibrated camera (see calib spd --help).",
-    )
-    def spd(context: typer.Context) -> None:
-        """Measure a lamp's spectral power distribution (calib spd --help for the options)."""
-        try:
-            run(context.args)
-        except CalibError:
-            raise
-        except OSError as exc:
-            raise InputError(f"{exc.strerror or exc}", source=str(exc.filename or "")) from None
+    @app.command("spd", cls=list_options_command(*LIST_OPTIONS))
+    def spd(
+        ctx: typer.Context,
+        images: Annotated[
+            list[Path],
+            typer.Option(metavar="RAW ...", help="The lamp's bracket (RAW files, any exposures)."),
+        ],
+        camera: Annotated[
+            Path,
+            typer.Option(
+                metavar="FILE",
+                help="The camera's sensitivity: a CSV with columns wavelength_nm,R,G,B by name, a "
+                "camera JSON, or an estimate's output directory.",
+            ),
+        ],
+        out: Annotated[
+            Path,
+            typer.Option(
+                "--out", "-o", metavar="DIR", help="Where to write spd.csv, spd.json and the plots."
+            ),
+        ],
+        dark: Annotated[
+            list[Path] | None,
+            typer.Option(metavar="RAW ...", help="Dark frames matching the lamp's exposures."),
+        ] = None,
+        grating_efficiency: Annotated[
+            Path | None,
+            typer.Option(
+                metavar="CSV",
+                help="The grating's first-order efficiency: wavelength_nm,value (else assumed "
+                "flat).",
+            ),
+        ] = None,
+        mapping_lamp_images: Annotated[
+            list[Path] | None,
+            typer.Option(
+                metavar="RAW ...",
+                help="A fluorescent lamp's bracket in the same set-up, for the mapping.",
+            ),
+        ] = None,
+        mapping_lamp_dark: Annotated[
+            list[Path] | None, typer.Option(metavar="RAW ...", help="Its dark frames.")
+        ] = None,
+        mapping_lamp_spectrum: Annotated[
+            Path | None,
+            typer.Option(
+                metavar="CSV",
+                help="Its measured spectrum (else its lines are taken from a reference list: a "
+                "few nm less accurate).",
+            ),
+        ] = None,
+        mapping: Annotated[
+            Path | None,
+            typer.Option(
+                metavar="JSON", help="A known mapping (a mapping record or a result.json with one)."
+            ),
+        ] = None,
+        name: Annotated[
+            str, typer.Option(metavar="NAME", help="The lamp's name in the outputs.")
+        ] = "lamp",
+        source: Annotated[
+            SourceMode,
+            typer.Option(
+                metavar="MODE",
+                help="auto, point or finite: finite deconvolves the source's shape (auto: when it "
+                "is wider than 1.5 samples).",
+            ),
+        ] = "auto",
+        weighting: Annotated[
+            Weighting,
+            typer.Option(
+                metavar="WEIGHTS", help="noise or paper (the median-distance weights alone)."
+            ),
+        ] = "noise",
+        smoothness: Annotated[
+            float,
+            typer.Option(min=0.0, metavar="W", help="w_s of the paper (smoothness weight, ≥ 0)."),
+        ] = 50.0,
+        metric: Annotated[
+            Metric,
+            typer.Option(
+                metavar="DISTANCE", help="Distance for recognising the source: weighted or l2."
+            ),
+        ] = "weighted",
+        grid: Annotated[
+            str | None,
+            typer.Option(
+                metavar="START:STOP:STEP",
+                help="Wavelengths of spd.csv in nm (default: 1 nm over the recovered range).",
+            ),
+        ] = None,
+        no_plots: Annotated[
+            bool, typer.Option("--no-plots", help="Skip spd.png and geometry.png.")
+        ] = False,
+        force: ForceOption = False,
+        quiet: QuietOption = False,
+        json_output: JsonOption = False,
+    ) -> None:
+        """Measure a lamp's spectral power distribution with a calibrated camera and the
+        diffraction grating (Alvarez et al. 2014)."""
+        if mapping is not None and mapping_lamp_images:
+            raise InputError(
+                "give either --mapping or --mapping-lamp-images, not both", source="calib spd"
+            )
+        check_out_dir(out, force, markers=SPD_MARKERS, what="an SPD measurement")
+        request = SpdRequest(
+            images=tuple(images),
+            darks=tuple(dark or ()),
+            camera=camera,
+            out=out,
+            grating_efficiency=grating_efficiency,
+            mapping_images=tuple(mapping_lamp_images or ()),
+            mapping_darks=tuple(mapping_lamp_dark or ()),
+            mapping_spectrum=mapping_lamp_spectrum,
+            mapping_file=mapping,
+            name=name,
+            source=source,
+            weighting=weighting,
+            smoothness=smoothness,
+            metric=metric,
+            grid=None if grid is None else checked_grid(grid),
+            plots=not no_plots,
+            command_line=("calib", "spd", *ctx.meta.get(ARGUMENTS, ())),
+        )
+
+        def progress(message: str) -> None:
+            if not quiet:
+                print(f"calib spd: {message}", file=sys.stderr)
+
+        measurement = measure_spd(request, progress)
+        if json_output:
+            print(json.dumps(json_safe(measurement.summary), indent=2))
+        if not quiet:
+            _print_summary(measurement, request.out)

@@ -14,6 +14,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.cli.command_line import warn
+from calib.cli.options import DataDirOption, ExcludeCameraOption, WeightRuleOption
 from calib.core.datasets import colour_science_cameras, makabe2025_split
 from calib.core.errors import InputError
 from calib.core.spectra import MultiSpectrum, WavelengthGrid
@@ -30,7 +32,12 @@ from calib.evaluation.synthetic import (
 from calib.methods.makabe2025 import FORMULATIONS, MAKABE2025_METHOD, Makabe2025Options
 from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, weight_rule_option
 from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions
-from calib.model.bases import CameraBasis, default_camera_basis, fallback_camera_basis
+from calib.model.bases import (
+    FALLBACK_WARNING,
+    CameraBasis,
+    default_camera_basis,
+    fallback_camera_basis,
+)
 
 #: The solves ``--method`` offers for the paper's variants.
 PAPER_METHODS = (PRIOR_METHOD, MAKABE2025_METHOD)
@@ -174,10 +181,8 @@ def write_rows_csv(path: Path, rows: list[SyntheticRow]) -> None:
 def register(app: typer.Typer) -> None:
     @app.command("synthetic")
     def synthetic(
-        data_dir: Annotated[
-            Path | None,
-            typer.Option(help="Camera data directory (else $SPECTRAL_RIG_DATA, the user cache)."),
-        ] = None,
+        data_dir: DataDirOption = None,
+        exclude_camera: ExcludeCameraOption = None,
         lamp: Annotated[
             str, typer.Option(help="Broadband lamp: D65 (the paper) or LED-B3.")
         ] = "D65",
@@ -216,13 +221,16 @@ def register(app: typer.Typer) -> None:
         ] = 7,
         offline: Annotated[
             bool,
-            typer.Option(help="Use colour-science cameras and the offline basis (no dataset)."),
+            typer.Option(
+                "--offline", help="Use colour-science cameras and the offline basis (no dataset)."
+            ),
         ] = False,
         out_of_basis: Annotated[
             bool,
             typer.Option(
+                "--out-of-basis",
                 help="Cameras unlike the basis instead of the 5 test cameras: Sigma SDMerill (NPL, "
-                "Foveon) and the first test camera behind a blue colour filter."
+                "Foveon) and the first test camera behind a blue colour filter.",
             ),
         ] = False,
         direct_noise: Annotated[
@@ -233,13 +241,7 @@ def register(app: typer.Typer) -> None:
                 "captures have it 2.3× below the profile's (bench/direct_noise.py)."
             ),
         ] = None,
-        weight_rule: Annotated[
-            str | None,
-            typer.Option(
-                help="How the multi-lamp variants weight the camera prior: upre (default), "
-                "typicality or evidence (calib.methods.multilamp.PRIOR_WEIGHT_RULES)."
-            ),
-        ] = None,
+        weight_rule: WeightRuleOption = None,
         csv_path: Annotated[
             Path, typer.Option("--csv", help="Where to write every estimate as CSV.")
         ] = Path("synthetic.csv"),
@@ -247,6 +249,7 @@ def register(app: typer.Typer) -> None:
         """Reproduce the paper's synthetic experiment (§4.1): RE per camera × variant × noise."""
         solve = paper_solve(method, formulation)
         multilamp_options = weight_rule_option(MULTILAMP_METHOD, weight_rule) or MultilampOptions()
+        excluded = list(exclude_camera or ())
         grid = WavelengthGrid()
         variants = _variants(variant)
         if offline:
@@ -259,15 +262,19 @@ def register(app: typer.Typer) -> None:
 
             def basis_for(name: str) -> CameraBasis:
                 return fallback_camera_basis(
-                    grid=grid, n_vectors=n_vectors, exclude=[name.split(" (")[0]]
+                    grid=grid, n_vectors=n_vectors, exclude=[name.split(" (")[0], *excluded]
                 )
 
             basis_source = "colour-science built-ins, each camera excluded from its own basis"
+            warn("calib", FALLBACK_WARNING)
             basis_choice: CameraBasis | Callable[[str], CameraBasis] = basis_for
         else:
             _train, test = makabe2025_split(data_dir)
             basis = default_camera_basis(
-                grid, n_vectors=n_vectors, data_dir=data_dir, exclude=[r.name for r in test]
+                grid,
+                n_vectors=n_vectors,
+                data_dir=data_dir,
+                exclude=[*(r.name for r in test), *excluded],
             )
             basis_source = basis.source
             cameras = [(r.camera, r.sensitivity) for r in test]

@@ -14,6 +14,7 @@ from typing import Annotated, get_args
 import typer
 from rich.console import Console
 
+from calib.cli.options import DataDirOption, ExcludeCameraOption
 from calib.core.errors import InputError
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
@@ -51,8 +52,8 @@ def _grating_kinds(text: str) -> tuple[GratingKind, ...]:
     unknown = [kind for kind in kinds if kind not in GRATING_KINDS]
     if unknown or not kinds:
         raise InputError(
-            f"unknown grating kind(s) {unknown or text!r}; use {', '.join(GRATING_KINDS)}, a "
-            "comma-separated list, or mix",
+            f"unknown grating kind {', '.join(unknown) or 'none'}; use "
+            f"{', '.join(GRATING_KINDS)}, a comma-separated list of them, or mix",
             source="--grating",
         )
     return tuple(kind for kind in GRATING_KINDS if kind in kinds)
@@ -62,12 +63,10 @@ def register(app: typer.Typer) -> None:
     @app.command("validate")
     def validate(
         split: Annotated[
-            str, typer.Option(help="Which split to run: validation, test or both.")
+            str, typer.Option(help="Which split to run: " + ", ".join(SPLIT_CHOICES) + ".")
         ] = "both",
-        data_dir: Annotated[
-            Path | None,
-            typer.Option(help="Camera data directory (else $SPECTRAL_RIG_DATA, the user cache)."),
-        ] = None,
+        data_dir: DataDirOption = None,
+        exclude_camera: ExcludeCameraOption = None,
         seed: Annotated[int, typer.Option(help="Master seed (scenes depend on it alone).")] = 0,
         scenes: Annotated[int, typer.Option(min=1, help="Scenes per camera.")] = 1,
         jobs: Annotated[
@@ -91,7 +90,7 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Option(
                 help="Method variants to run (repeatable; default the first four): "
-                + ", ".join(f"'{v.label}'" for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS))
+                + "; ".join(v.label for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS))
             ),
         ] = None,
         predictions: Annotated[
@@ -130,11 +129,18 @@ def register(app: typer.Typer) -> None:
         """The validation protocol: splits that cannot be tuned to, physical gratings, the rig's
         errors (decision 0023). Prints the report; writes it with the CSVs to --out."""
         if split not in SPLIT_CHOICES:
-            raise InputError(f"choose one of {', '.join(SPLIT_CHOICES)}", source="--split")
+            raise InputError(
+                f"unknown split {split}; choose one of {', '.join(SPLIT_CHOICES)}", source="--split"
+            )
         if errors not in ("all", "noise-only"):
-            raise InputError("choose all or noise-only", source="--errors")
+            raise InputError(
+                f"unknown errors {errors}; choose all or noise-only", source="--errors"
+            )
         if pixel_origin not in get_args(PixelOrigin):
-            raise InputError("choose direct_spot or arbitrary", source="--pixel-origin")
+            raise InputError(
+                f"unknown pixel origin {pixel_origin}; choose direct_spot or arbitrary",
+                source="--pixel-origin",
+            )
         origin: PixelOrigin = "direct_spot" if pixel_origin == "direct_spot" else "arbitrary"
         kinds = _grating_kinds(grating)
         curve = None if catalogue is None else CatalogueGrating.from_file(catalogue)
@@ -151,7 +157,8 @@ def register(app: typer.Typer) -> None:
         unknown = [label for label in labels if label not in known]
         if unknown:
             raise InputError(
-                f"unknown variant(s) {unknown}; choose from {list(known)}", source="--variant"
+                f"unknown variant {'; '.join(unknown)}; choose from {'; '.join(known)}",
+                source="--variant",
             )
         settings = ProtocolSettings(
             seed=seed,
@@ -162,7 +169,10 @@ def register(app: typer.Typer) -> None:
             variants=tuple(known[label] for label in labels),
             pixel_origin=origin,
         )
-        loaded, missing = load_splits(data_dir, predictions=predictions, seed=seed)
+        excluded = tuple(exclude_camera or ())
+        loaded, missing = load_splits(
+            data_dir, predictions=predictions, seed=seed, exclude=excluded
+        )
         chosen: list[Split] = [
             s for s in (loaded.validation, loaded.test) if split in ("both", s.role)
         ]
@@ -185,6 +195,7 @@ def register(app: typer.Typer) -> None:
             *([f"--catalogue={catalogue}"] if catalogue is not None else []),
             *(["--quick"] if quick else []),
             *([f"--data-dir={data_dir}"] if data_dir is not None else []),
+            *(f"--exclude-camera={pattern}" for pattern in excluded),
         ]
         command = "calib " + " ".join(shlex.quote(arg) for arg in arguments)
         rows: list[ValidationRow] = []

@@ -8,6 +8,8 @@ into the basis. :func:`body_key` reduces a name to a key (lower case, letters an
 ``mark`` → ``mk``, Canon's ``EOS`` dropped, the measurement source in parentheses dropped);
 :class:`BodyIndex` joins keys that name one body (built-in Canon market names, plus the
 rawtoaces-data ``aliases.json`` read at run time) and, separately, bodies that share a sensor.
+:func:`names_camera` tells whether a pattern (``--exclude-camera``) names a camera: the same body,
+or a shell wildcard over the normalised name.
 
 Examples
 --------
@@ -20,9 +22,11 @@ True
 
 from __future__ import annotations
 
+import fnmatch
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 
 from calib.core.errors import InputError
@@ -161,3 +165,44 @@ class BodyIndex:
     def sensor(self, name: str) -> str:
         """The sensor key: bodies that share a sensor (by the alias tables) share it."""
         return self._find(self._sensor, self.body(name))
+
+
+@cache
+def default_body_index() -> BodyIndex:
+    """A :class:`BodyIndex` with the bundled rawtoaces-data aliases (read once)."""
+    return BodyIndex(read_rawtoaces_aliases())
+
+
+#: Characters that make a pattern a shell wildcard (:func:`names_camera`).
+WILDCARDS = frozenset("*?[")
+
+
+def _wildcard_key(pattern: str) -> str:
+    """A wildcard pattern normalised as :func:`body_key` normalises names, wildcards kept."""
+    text = _SOURCE.sub(" ", pattern.lower())
+    tokens = [token for token in re.findall(r"[a-z0-9*?\[\]]+", text) if token != "eos"]
+    return "".join(tokens).replace("mark", "mk")
+
+
+def names_camera(pattern: str, name: str, index: BodyIndex | None = None) -> bool:
+    """Whether ``pattern`` names the camera ``name``.
+
+    A plain pattern names a body: ``"Canon 600D"`` names ``Canon EOS 600D``, ``Canon 600D
+    (Jiang-et-al-2013)`` and ``Canon Rebel T3i`` (:meth:`BodyIndex.body`; case, spaces,
+    punctuation, ``EOS``, ``Mark``/``Mk`` and a source in brackets do not matter), and not the
+    ``Canon 60D``. A pattern with shell wildcards (``*``, ``?``, ``[``) is matched against the
+    normalised name: ``"Canon*"`` names every Canon, ``"*5D*"`` every 5D.
+
+    Examples
+    --------
+    >>> names_camera("Canon 600D", "Canon EOS 600D (rawtoaces-data)")
+    True
+    >>> names_camera("Nikon D70", "Nikon D700 (Jiang-et-al-2013)")
+    False
+    >>> names_camera("nikon d7*", "Nikon D700 (Jiang-et-al-2013)")
+    True
+    """
+    if WILDCARDS & set(pattern):
+        return fnmatch.fnmatchcase(body_key(name), _wildcard_key(pattern))
+    index = index or default_body_index()
+    return index.body(pattern) == index.body(name)

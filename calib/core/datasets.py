@@ -36,7 +36,6 @@ and checks its SHA-256.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import re
 import urllib.parse
@@ -47,6 +46,7 @@ from pathlib import Path
 import numpy as np
 import platformdirs
 
+from calib.core.camera_bodies import BodyIndex, default_body_index, names_camera
 from calib.core.checksums import file_sha256
 from calib.core.colour_data import camera_sensitivities, rawtoaces_sensitivity_path
 from calib.core.errors import CalibError, InputError, SpectrumError
@@ -76,6 +76,12 @@ COLLECTIONS: tuple[str, ...] = (
     RAWTOACES_DATA,
     COLOUR_SCIENCE,
 )
+
+#: The collections of the default basis, in priority order: each one present adds only the bodies
+#: the ones before it lack, one record per body (:func:`reference_cameras`). Solomatov & Akkaynak
+#: alone: adding rawtoaces-data's other bodies made the validation cameras' estimates slightly worse
+#: (decision 0027, bench/basis_choice.py).
+REFERENCE_COLLECTIONS: tuple[str, ...] = (SOLOMATOV,)
 
 #: The five test cameras of Makabe et al. (2025) §4.1 (the other 44 ground truths train the basis).
 MAKABE2025_TEST_FILES: tuple[str, ...] = (
@@ -182,7 +188,7 @@ def _collection_dir(data_dir: str | Path | None, collection: str) -> Path:
     folder = root / (SOLOMATOV if collection == SOLOMATOV_PREDICTIONS else collection)
     if not folder.is_dir():
         raise InputError(
-            f"collection {collection!r} is missing from the data directory {root}; {FETCH_HINT}",
+            f"collection {collection} is missing from the data directory {root}; {FETCH_HINT}",
             source=str(folder),
         )
     return folder
@@ -339,7 +345,7 @@ def load_collection(collection: str, data_dir: str | Path | None = None) -> list
         return colour_science_cameras()
     if collection not in COLLECTIONS:
         raise InputError(
-            f"unknown collection {collection!r}; choose from {', '.join(COLLECTIONS)}",
+            f"unknown collection {collection}; choose from {', '.join(COLLECTIONS)}",
             source="collection",
         )
     folder = _collection_dir(data_dir, collection)
@@ -373,7 +379,7 @@ def load_collection(collection: str, data_dir: str | Path | None = None) -> list
         records.append(CameraRecord(name, camera, collection, curves, relative))
     if not records:
         raise InputError(
-            f"collection {collection!r} has no camera files; {FETCH_HINT}", source=str(folder)
+            f"collection {collection} has no camera files; {FETCH_HINT}", source=str(folder)
         )
     return records
 
@@ -409,6 +415,145 @@ def find_camera(records: Sequence[CameraRecord], query: str) -> CameraRecord:
         what = "no camera" if not matches else f"{len(matches)} cameras"
         raise InputError(f"{what} match {query!r}; candidates: {names}", source="camera")
     return matches[0]
+
+
+# ------------------------------------------------------------------------ the basis' cameras
+
+
+def exclude_cameras(
+    records: Sequence[CameraRecord], patterns: Sequence[str], index: BodyIndex | None = None
+) -> tuple[list[CameraRecord], list[CameraRecord]]:
+    """``(kept, excluded)``: the records no pattern names, and those some pattern names
+    (:func:`calib.core.camera_bodies.names_camera`: the same body, or a shell wildcard)."""
+    kept: list[CameraRecord] = []
+    excluded: list[CameraRecord] = []
+    for record in records:
+        named = any(
+            names_camera(pattern, record.camera, index) or names_camera(pattern, record.name, index)
+            for pattern in patterns
+        )
+        (excluded if named else kept).append(record)
+    return kept, excluded
+
+
+def new_bodies(
+    records: Sequence[CameraRecord],
+    known: Sequence[CameraRecord],
+    index: BodyIndex | None = None,
+) -> list[CameraRecord]:
+    """The ``records`` whose body is not among ``known``'s, one record per body (the first):
+    what a collection adds to another, each body once (one body, one weight)."""
+    index = index or default_body_index()
+    seen = {index.body(record.camera) for record in known}
+    added: list[CameraRecord] = []
+    for record in records:
+        body = index.body(record.camera)
+        if body not in seen:
+            seen.add(body)
+            added.append(record)
+    return added
+
+
+@dataclass(frozen=True)
+class ReferenceCameras:
+    """The measured cameras a default camera basis is built from.
+
+    Attributes
+    ----------
+    records
+        The cameras.
+    source
+        Where they come from, for the result's record.
+    fallback
+        Why these are not the default collection and what to fetch, when they are not; ``None``
+        when they are.
+    """
+
+    records: tuple[CameraRecord, ...]
+    source: str
+    fallback: str | None = None
+
+
+#: Why the bundled rawtoaces-data cameras are a fallback, and what to do about it.
+FALLBACK_BASIS = (
+    "the camera basis comes from the {n} rawtoaces-data cameras bundled with spectral-rig "
+    "({where}), not the Solomatov & Akkaynak (2023) ground truths: where the lamps leave the camera open the "
+    "estimate is less accurate (decision 0027); fetch them with `calib data fetch --collection "
+    + SOLOMATOV
+    + "` (or `rig data fetch`), or give --data-dir DIR"
+)
+
+
+def reference_cameras(
+    data_dir: str | Path | None = None, collections: Sequence[str] = REFERENCE_COLLECTIONS
+) -> ReferenceCameras:
+    """The cameras of the default basis (:func:`calib.model.bases.default_camera_basis`).
+
+    ``collections`` in priority order, each one present in the data directory adding only the
+    bodies the ones before it lack (:func:`new_bodies`: make and model, market names and aliases
+    joined). Without the Solomatov & Akkaynak ground truths the rawtoaces-data cameras come first
+    (the data directory's copy, else the one bundled with spectral-rig), the other collections
+    present de-duplicated against them, and :attr:`ReferenceCameras.fallback` says so.
+
+    Parameters
+    ----------
+    data_dir
+        The camera data directory (:func:`resolve_data_dir`); ``None`` and none found: the bundled
+        rawtoaces-data alone.
+    collections
+        Names of :data:`COLLECTIONS` (default :data:`REFERENCE_COLLECTIONS`);
+        ``(SOLOMATOV, RAWTOACES_DATA)`` adds rawtoaces-data's other bodies to the ground truths.
+
+    Raises
+    ------
+    InputError
+        A data directory named (``data_dir`` or ``$SPECTRAL_RIG_DATA``) that does not exist; an
+        unknown collection.
+    """
+    unknown = [name for name in collections if name not in COLLECTIONS]
+    if unknown:
+        raise InputError(
+            f"unknown collection {', '.join(unknown)}; choose from {', '.join(COLLECTIONS)}",
+            source="collections",
+        )
+    try:
+        root: Path | None = resolve_data_dir(data_dir)
+    except InputError:
+        if data_dir is not None or os.environ.get(DATA_DIR_ENV):
+            raise
+        root = None
+
+    def present(name: str) -> bool:
+        if name in (RAWTOACES_DATA, COLOUR_SCIENCE):
+            return True  # bundled, built in
+        folder = SOLOMATOV if name == SOLOMATOV_PREDICTIONS else name
+        return root is not None and (root / folder).is_dir()
+
+    fallback: str | None = None
+    order = [name for name in collections if present(name)]
+    if SOLOMATOV not in order:
+        order = [RAWTOACES_DATA, *(name for name in order if name != RAWTOACES_DATA)]
+    records: list[CameraRecord] = []
+    parts: list[str] = []
+    for name in order:
+        loaded = load_collection(name, root)
+        # The first collection whole (a body measured twice keeps both curves, as in the paper).
+        added = new_bodies(loaded, records) if records else loaded
+        if name == RAWTOACES_DATA:
+            folder = _collection_dir(root, RAWTOACES_DATA)
+            where = "bundled" if folder == BUNDLED_RAWTOACES_DATA else f"from {folder}"
+        else:
+            where = ""
+        label = f"{name} {'ground truths' if name == SOLOMATOV else 'cameras'}"
+        if records:
+            parts.append(f"{name} bodies not among them ({len(added)})")
+        else:
+            parts.append(f"{label} ({len(added)}{', ' + where if where else ''})")
+            if name != SOLOMATOV:
+                reason = "no data directory" if root is None else f"no {SOLOMATOV} in {root}"
+                fallback = FALLBACK_BASIS.format(n=len(added), where=reason)
+        records.extend(added)
+    return ReferenceCameras(tuple(records), " + ".join(parts), fallback)
 
 
 # ------------------------------------------------------------------------------ pinned download
@@ -456,7 +601,8 @@ def pinned_files(collections: Sequence[str] | None = None) -> list[PinnedFile]:
     unknown = [name for name in names if name not in _PINNED_SOURCES]
     if unknown:
         raise InputError(
-            f"cannot fetch {unknown}; downloadable collections are {', '.join(_PINNED_SOURCES)}",
+            f"cannot fetch {', '.join(unknown)}; downloadable collections are "
+            f"{', '.join(_PINNED_SOURCES)} ({RAWTOACES_DATA} is bundled)",
             source="collections",
         )
     return [
@@ -476,13 +622,88 @@ def _file_is_valid(path: Path, pinned: PinnedFile) -> bool:
         return False
 
 
-def _download(url: str, timeout_s: float) -> bytes:
-    # Deferred: urllib.request pulls in http, ssl and email (~25 ms), needed only to download.
-    import urllib.request
+class DatasetSourceUnreachable(DatasetFetchError):
+    """The download host could not be reached at all (offline, a name that does not resolve, a
+    connection refused): raised at the first file, not after trying every one."""
 
-    request = urllib.request.Request(url, headers={"User-Agent": "spectral-rig data fetch"})
-    with urllib.request.urlopen(request, timeout=timeout_s) as response:
-        return bytes(response.read())
+
+#: Retries of a file whose download broke off or arrived corrupted (pooch waits 1 s, then 2 s).
+DEFAULT_RETRIES = 2
+#: Seconds to wait for the server to accept a connection (a silent network fails in this time).
+CONNECT_TIMEOUT_S = 5.0
+
+
+class _Downloader:
+    """pooch's downloader for one fetch: HTTP(S) through :class:`pooch.HTTPDownloader`, file:// as a
+    copy. A host that cannot be reached raises :class:`DatasetSourceUnreachable`, which pooch does
+    not retry; a 4xx answer is not retried either (it will not change)."""
+
+    def __init__(self, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+
+    def __call__(self, url: str, output_file: str, pooch_object: object) -> None:
+        parsed = urllib.parse.urlsplit(url)
+        if parsed.scheme == "file":
+            import shutil
+            from urllib.request import url2pathname
+
+            shutil.copyfile(url2pathname(parsed.path), output_file)
+            return
+        import pooch
+        import requests
+
+        download = pooch.HTTPDownloader(
+            timeout=(min(CONNECT_TIMEOUT_S, self.timeout_s), self.timeout_s),
+            headers={"User-Agent": "spectral-rig data fetch"},
+        )
+        try:
+            download(url, output_file, pooch_object)
+        except requests.exceptions.ConnectTimeout as exc:
+            raise _unreachable(parsed.netloc, "no answer in time") from exc
+        except requests.exceptions.ConnectionError as exc:
+            reason = _connection_failure(exc)
+            if reason is None:
+                raise  # broke off after connecting: pooch retries
+            raise _unreachable(parsed.netloc, reason) from exc
+        except requests.exceptions.HTTPError as exc:
+            status = exc.response.status_code if exc.response is not None else 0
+            if 400 <= status < 500:
+                raise _NotRetried(f"HTTP {status}") from exc
+            raise
+
+
+class _NotRetried(Exception):
+    """A failure pooch must not retry (it is neither a ValueError nor a requests error)."""
+
+
+def _connection_failure(exc: Exception) -> str | None:
+    """Why no connection could be made (a name that does not resolve, refused, unreachable), or
+    ``None`` when the connection was made and broke off."""
+    import urllib3.exceptions
+
+    reason = getattr(exc.args[0] if exc.args else None, "reason", None)
+    if isinstance(reason, urllib3.exceptions.NameResolutionError):
+        return "its name does not resolve"
+    if isinstance(reason, urllib3.exceptions.NewConnectionError):
+        text = str(reason).lower()
+        return "connection refused" if "refused" in text else "no route to it"
+    return None
+
+
+def _unreachable(host: str, reason: str) -> DatasetSourceUnreachable:
+    return DatasetSourceUnreachable(
+        f"cannot reach {host} ({reason}; offline?): nothing downloaded. Run the fetch again when "
+        "online, or give --base-url URL (a mirror) or --data-dir DIR (the collections already on "
+        "disk); until then the basis is the bundled rawtoaces-data cameras",
+        [],
+    )
+
+
+def _checksum_failure(exc: ValueError) -> str:
+    text = str(exc)
+    return "checksum mismatch" + (
+        " (the file differs from the pinned SHA-256)" if "hash" in text.lower() else f": {text}"
+    )
 
 
 def fetch_datasets(
@@ -492,11 +713,15 @@ def fetch_datasets(
     base_url: str | None = None,
     progress: ProgressCallback | None = None,
     timeout_s: float = 30.0,
+    retries: int = DEFAULT_RETRIES,
 ) -> FetchReport:
-    """Download the pinned camera collections, verifying every file's size and SHA-256.
+    """Download the pinned camera collections through pooch, verifying every file's SHA-256.
 
-    Files already present and valid are skipped; each download is written to a temporary name and
-    renamed, so an interrupted fetch never leaves a half-written file under the final name.
+    Files already present and valid are skipped (the data directory is pooch's cache); pooch
+    downloads each file to a temporary name, checks its hash and only then moves it into place, so
+    an interrupted or corrupted download never leaves a file under the final name. A download that
+    breaks off or arrives corrupted is retried (``retries``); a host that cannot be reached stops
+    the fetch at the first file with one line (:class:`DatasetSourceUnreachable`).
 
     Parameters
     ----------
@@ -506,11 +731,13 @@ def fetch_datasets(
         Which collections (default: every downloadable one; see :func:`pinned_files`).
     base_url
         Mirror root: a file's URL is ``{base_url}/{repository}/{commit}/{path}``
-        (default ``https://raw.githubusercontent.com``; ``file://`` URLs work too).
+        (default ``https://raw.githubusercontent.com``; ``file://`` URLs work too, never retried).
     progress
         Called as ``progress(done, total, local_path)`` after each file.
     timeout_s
-        Per-request timeout.
+        Per-request timeout (connecting: at most :data:`CONNECT_TIMEOUT_S`).
+    retries
+        Further attempts at a file whose download failed after connecting.
 
     Returns
     -------
@@ -518,46 +745,61 @@ def fetch_datasets(
 
     Raises
     ------
+    DatasetSourceUnreachable
+        The host could not be reached (at the first file).
     DatasetFetchError
-        After trying every file, when any failed (network error or checksum mismatch). Valid files
+        After trying every file, when any failed (HTTP error or checksum mismatch). Valid files
         are kept, so re-running fetches only the rest.
     """
+    # Deferred: pooch and requests load only to download.
+    import pooch
+
     root = Path(destination).expanduser() if destination is not None else default_data_dir()
     files = pinned_files(collections)
+    base = base_url or DEFAULT_BASE_URL
+    fetcher = pooch.create(
+        path=root,
+        base_url="",
+        registry={pinned.local_path: f"sha256:{pinned.sha256}" for pinned in files},
+        urls={pinned.local_path: pinned.url(base) for pinned in files},
+        retry_if_failed=0 if base.startswith("file:") else retries,
+    )
+    downloader = _Downloader(timeout_s)
     report = FetchReport(destination=root)
-    for done, pinned in enumerate(files, start=1):
-        target = root / pinned.local_path
-        if _file_is_valid(target, pinned):
-            report.already_present.append(pinned.local_path)
-        else:
-            url = pinned.url(base_url or DEFAULT_BASE_URL)
-            try:
-                payload = _download(url, timeout_s)
-                digest = hashlib.sha256(payload).hexdigest()
-                if len(payload) != pinned.size_bytes or digest != pinned.sha256:
-                    raise ValueError(
-                        f"checksum mismatch: got {len(payload)} bytes with sha256 {digest[:16]}…, "
-                        f"expected {pinned.size_bytes} bytes with sha256 {pinned.sha256[:16]}…"
-                    )
-                target.parent.mkdir(parents=True, exist_ok=True)
-                temporary = target.with_name(f".{target.name}.part")
-                temporary.write_bytes(payload)
-                temporary.replace(target)
-                report.downloaded.append(pinned.local_path)
-            except (OSError, ValueError) as exc:  # urllib's URLError is an OSError
-                reason = getattr(exc, "reason", None) or str(exc)
-                report.failed.append((pinned.local_path, f"{url}: {reason}"))
-        if progress is not None:
-            progress(done, len(files), pinned.local_path)
+    logger = pooch.get_logger()
+    level = logger.level
+    logger.setLevel("WARNING")  # pooch says each download on stderr; the progress bar does
+    try:
+        for done, pinned in enumerate(files, start=1):
+            if _file_is_valid(root / pinned.local_path, pinned):
+                report.already_present.append(pinned.local_path)
+            else:
+                try:
+                    fetcher.fetch(pinned.local_path, downloader=downloader)
+                    report.downloaded.append(pinned.local_path)
+                except ValueError as exc:
+                    report.failed.append((pinned.local_path, _checksum_failure(exc)))
+                except (OSError, _NotRetried) as exc:  # requests' errors are OSErrors
+                    reason = getattr(exc, "strerror", None) or one_line_reason(exc)
+                    report.failed.append((pinned.local_path, f"{pinned.url(base)}: {reason}"))
+            if progress is not None:
+                progress(done, len(files), pinned.local_path)
+    finally:
+        logger.setLevel(level)
     if report.failed:
-        first = "; ".join(f"{path} ({why})" for path, why in report.failed[:3])
+        path, why = report.failed[0]
         raise DatasetFetchError(
-            f"{len(report.failed)} of {len(files)} files failed into {root}: {first}"
-            + (" …" if len(report.failed) > 3 else "")
-            + ". Valid files are kept; run the fetch again to retry the rest.",
+            f"{len(report.failed)} of {len(files)} files failed into {root}, the first {path} "
+            f"({why}). Valid files are kept; run the fetch again to retry the rest.",
             report.failed,
         )
     return report
+
+
+def one_line_reason(exc: BaseException) -> str:
+    """An exception's message on one line, without the nested reprs requests puts in it."""
+    text = " ".join(str(exc).split())
+    return re.sub(r"\(Caused by .*\)$", "", text).strip() or type(exc).__name__
 
 
 def collection_status(data_dir: str | Path | None = None) -> dict[str, tuple[int, int]]:
@@ -1085,3 +1327,6 @@ _PINNED_SOURCES.update(
         ),
     }
 )
+
+#: The collections ``data fetch`` downloads.
+FETCHABLE_COLLECTIONS: tuple[str, ...] = tuple(_PINNED_SOURCES)

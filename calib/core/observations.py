@@ -18,10 +18,9 @@ from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
+from calib.core.lamp_kinds import LAMP_KINDS as LAMP_KINDS  # re-exported
+from calib.core.lamp_kinds import LampKind as LampKind
 from calib.core.spectra import MultiSpectrum, Spectrum
-
-LampKind = Literal["led", "fluorescent", "halogen", "narrowband", "other"]
-LAMP_KINDS: tuple[LampKind, ...] = ("led", "fluorescent", "halogen", "narrowband", "other")
 
 
 def _readonly_float(value: ArrayLike, shape_hint: str, name: str, ndim: int) -> FloatArray:

@@ -9,10 +9,15 @@ the pixel→wavelength mapping (§3.2).
 Bases are cheap to compute but the camera sets they come from are not, so a basis is cached on disk
 (``.npz``, loaded without pickle) under the user cache directory, keyed by a hash of its content.
 
-Without the measured camera collections, :func:`fallback_camera_basis` builds a basis from
-colour-science's built-in curves only (its cameras, CIE colour-matching functions and cone
-fundamentals turned into camera-like curves, and physically plausible perturbations of them), so the
-estimator works on a fresh clone. Results record which basis was used (:attr:`CameraBasis.source`).
+The default basis (:func:`default_camera_basis`) is built from the measured cameras of
+:func:`calib.core.datasets.reference_cameras`: the Solomatov & Akkaynak ground truths when the data
+directory holds them, else the rawtoaces-data cameras bundled with spectral-rig (Apache-2.0), with a
+warning (:attr:`CameraBasis.fallback`) naming what to fetch. Cameras may be kept out of it by name
+(``exclude``, ``--exclude-camera``: the camera under test when validating); the basis records which.
+:func:`fallback_camera_basis` builds a toy basis from colour-science's built-in curves (its cameras,
+CIE colour-matching functions and cone fundamentals turned into camera-like curves, and perturbations
+of them), for examples and ``--offline`` smoke runs. Results record which basis was used
+(:meth:`CameraBasis.to_dict`).
 
 References
 ----------
@@ -33,9 +38,10 @@ import platformdirs
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
+from calib.core.camera_bodies import names_camera
 from calib.core.camera_curves import as_camera
 from calib.core.colour_data import colour_matching_functions
-from calib.core.datasets import SOLOMATOV, colour_science_cameras, load_collection
+from calib.core.datasets import colour_science_cameras, exclude_cameras, reference_cameras
 from calib.core.errors import InputError
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
 
@@ -82,6 +88,13 @@ class CameraBasis:
         The median over the training cameras of each one's :func:`prior_distance` from the
         default prior of the others (leave one out): how far a camera of this population lies
         from the prior; NaN with fewer than 3 cameras.
+    exclusions
+        The name patterns cameras were kept out by (``--exclude-camera``).
+    excluded_cameras
+        The cameras they kept out.
+    fallback
+        Why this is not the default basis and what to fetch (a warning for the result), or
+        ``None``.
     """
 
     grid: WavelengthGrid
@@ -94,6 +107,9 @@ class CameraBasis:
     covariance: FloatArray
     ledoit_wolf_shrinkage: FloatArray
     typical_distance: float = float("nan")
+    exclusions: tuple[str, ...] = ()
+    excluded_cameras: tuple[str, ...] = ()
+    fallback: str | None = None
 
     @property
     def n_vectors(self) -> int:
@@ -141,6 +157,9 @@ class CameraBasis:
             "n_cameras": len(self.camera_names),
             "cameras": list(self.camera_names),
             "content_hash": self.content_hash,
+            "exclusions": list(self.exclusions),
+            "excluded_cameras": list(self.excluded_cameras),
+            "fallback": self.fallback,
         }
 
 
@@ -536,6 +555,16 @@ def _perturbed(camera: MultiSpectrum, grid: WavelengthGrid, rng: np.random.Gener
     return np.clip(out * (ir * uv * np.clip(tilt, 0.2, None))[:, None] * gains[None, :], 0, None)
 
 
+#: The warning every use of :func:`fallback_camera_basis` carries (:attr:`CameraBasis.fallback`).
+FALLBACK_WARNING = (
+    "the camera basis is the colour-science fallback (12 built-in curves: 3 cameras, "
+    "colour-matching functions and cone fundamentals made camera-like, and perturbations of "
+    "them), meant for "
+    "examples and --offline smoke runs: an estimate leans on it where the lamps leave the camera "
+    "open; without --offline the basis is the measured cameras (rawtoaces-data is bundled)"
+)
+
+
 def fallback_camera_basis(
     *,
     grid: WavelengthGrid = DEFAULT_GRID,
@@ -553,22 +582,25 @@ def fallback_camera_basis(
     grid, n_vectors
         As for :func:`camera_basis`.
     exclude
-        Names (case-insensitive substrings) of curves to leave out, e.g. the camera under test
-        (``"Nikon 5100"``), so that a test does not see its own answer in the basis.
+        Patterns of curves to leave out (:func:`calib.core.camera_bodies.names_camera`), e.g. the
+        camera under test (``"Nikon 5100"``), so that a test does not see its own answer in the
+        basis.
     variants_per_curve
         Perturbed variants generated per base curve (shifts ±10 nm, width ±12 %, IR/UV cut-off
         filters, a spectral tilt, channel gains), seeded.
     seed
         Seed of the perturbations.
     """
-    excluded = [name.lower() for name in exclude]
+    curves = _colour_camera_like_curves()
     bases = [
         curve
-        for curve in _colour_camera_like_curves()
-        if not any(token in curve.name.lower() for token in excluded)
+        for curve in curves
+        if not any(names_camera(pattern, curve.name) for pattern in exclude)
     ]
     if not bases:
-        raise InputError(f"exclude={list(exclude)} leaves no built-in curve", source="exclude")
+        raise InputError(
+            f"excluding {', '.join(exclude)} leaves no built-in curve", source="exclude"
+        )
     rng = np.random.default_rng(seed)
     stack: list[FloatArray] = []
     names: list[str] = []
@@ -583,9 +615,9 @@ def fallback_camera_basis(
     label = (
         f"colour-science built-ins + perturbations ({len(bases)} curves × {variants_per_curve + 1})"
     )
-    if excluded:
+    if exclude:
         label += f", excluding {', '.join(exclude)}"
-    return camera_basis(
+    basis = camera_basis(
         np.stack(stack),
         grid=grid,
         n_vectors=n_vectors,
@@ -594,6 +626,13 @@ def fallback_camera_basis(
         groups=groups,
         cache=cache,
         cache_dir=cache_dir,
+    )
+    left_out = tuple(curve.name for curve in curves if curve not in bases)
+    return replace(
+        basis,
+        exclusions=tuple(exclude),
+        excluded_cameras=left_out,
+        fallback=FALLBACK_WARNING,
     )
 
 
@@ -604,11 +643,12 @@ def default_camera_basis(
     data_dir: str | Path | None = None,
     exclude: Sequence[str] = (),
 ) -> CameraBasis:
-    """The measured-camera basis when the data is available, else the colour-science fallback.
+    """The basis of the measured reference cameras (:func:`calib.core.datasets.reference_cameras`).
 
-    Uses every Solomatov/Akkaynak ground truth (49) not matching ``exclude``; when the data directory
-    cannot be found (and none was named), :func:`fallback_camera_basis` (offline). The basis'
-    ``source`` says which was used.
+    The Solomatov & Akkaynak ground truths when the data directory holds them; else the
+    rawtoaces-data cameras bundled with spectral-rig, with :attr:`CameraBasis.fallback` saying so
+    and what to fetch (the pipeline turns it into a warning on stderr, in ``result.json`` and in the
+    report).
 
     Parameters
     ----------
@@ -617,25 +657,42 @@ def default_camera_basis(
     data_dir
         The camera data directory; ``None`` looks in ``$SPECTRAL_RIG_DATA`` and the user cache.
     exclude
-        Names (case-insensitive substrings) of cameras to leave out.
+        Patterns of cameras to keep out (:func:`calib.core.camera_bodies.names_camera`: a camera's
+        name, every curve of that body, or a shell wildcard); recorded in the basis.
 
     Raises
     ------
     InputError
-        A named ``data_dir`` without the data.
+        A named ``data_dir`` that does not exist; exclusions that leave fewer cameras than
+        ``n_vectors``.
     """
-    try:
-        records = load_collection(SOLOMATOV, data_dir)
-    except InputError:
-        if data_dir is not None:
-            raise
-        return fallback_camera_basis(grid=grid, n_vectors=n_vectors, exclude=exclude)
-    excluded = [token.lower() for token in exclude]
-    kept = [r for r in records if not any(token in r.name.lower() for token in excluded)]
-    return camera_basis(
-        [r.sensitivity for r in kept],
+    reference = reference_cameras(data_dir)
+    kept, excluded = exclude_cameras(reference.records, exclude)
+    needed = max(n_vectors, 3)
+    if len(kept) < needed and excluded:
+        raise InputError(
+            f"excluding {', '.join(exclude)} leaves {len(kept)} of {len(reference.records)} "
+            f"cameras in the basis ({reference.source}); it needs at least {needed}",
+            source="--exclude-camera",
+        )
+    if len(kept) < needed:
+        raise InputError(
+            f"the basis has {len(kept)} cameras ({reference.source}); it needs at least {needed}",
+            source=str(data_dir) if data_dir is not None else "camera data",
+        )
+    source = reference.source
+    if excluded:
+        source += f", without {', '.join(record.name for record in excluded)}"
+    basis = camera_basis(
+        [record.sensitivity for record in kept],
         grid=grid,
         n_vectors=n_vectors,
-        source=f"{SOLOMATOV} ground truths ({len(kept)})",
-        camera_names=[r.name for r in kept],
+        source=source,
+        camera_names=[record.name for record in kept],
+    )
+    return replace(
+        basis,
+        exclusions=tuple(exclude),
+        excluded_cameras=tuple(record.name for record in excluded),
+        fallback=reference.fallback,
     )

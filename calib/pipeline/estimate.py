@@ -78,6 +78,9 @@ class OfflineSettings:
         the offline colour-science basis when none is found).
     basis
         A camera basis to use instead (on ``grid``).
+    exclude_cameras
+        Name patterns of cameras to keep out of the default basis (the camera under test, when
+        validating; :func:`calib.model.bases.default_camera_basis`); not with ``basis``.
     grating
         A grating efficiency (file or object) for lamps without a direct measurement.
     use_region
@@ -94,6 +97,7 @@ class OfflineSettings:
     mapping_lamp: str | None = None
     data_dir: Path | None = None
     basis: CameraBasis | None = None
+    exclude_cameras: tuple[str, ...] = ()
     grating: Path | GratingEfficiency | None = None
     use_region: bool | None = None
     command_line: tuple[str, ...] | None = None
@@ -475,13 +479,19 @@ def estimate_offline(
 def resolve_basis(settings: OfflineSettings) -> CameraBasis:
     """The camera basis an estimate with ``settings`` uses: the settings' own, else the default
     basis for their grid and data directory (:func:`basis_key` names what that depends on)."""
-    return settings.basis or default_camera_basis(settings.grid, data_dir=settings.data_dir)
+    if settings.basis is not None and settings.exclude_cameras:
+        raise InputError(
+            "excluded cameras apply to the default basis, not to a basis given", source="basis"
+        )
+    return settings.basis or default_camera_basis(
+        settings.grid, data_dir=settings.data_dir, exclude=settings.exclude_cameras
+    )
 
 
 def basis_key(settings: OfflineSettings) -> Hashable:
     """What :func:`resolve_basis` reads of ``settings`` without a basis of their own: equal keys
     give the same basis (a batch worker resolves it once per key)."""
-    return (settings.grid, settings.data_dir)
+    return (settings.grid, settings.data_dir, tuple(settings.exclude_cameras))
 
 
 def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMapping | None:
@@ -539,6 +549,8 @@ def _estimate(
 ) -> tuple[EstimateResult, GratingEfficiency | None]:
     grid = settings.grid
     basis = resolve_basis(settings)
+    if basis.fallback is not None:
+        warnings.append(basis.fallback)
     method = check_method(settings.method, source="--method")
     where: dict[str, Any] = {}
     mapping = _wavelength_mapping(observations)

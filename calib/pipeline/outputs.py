@@ -40,7 +40,7 @@ import json
 import math
 import os
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -362,11 +362,17 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
 RESULT_MARKERS = ("result.json", "sensitivity.csv", "report.html")
 
 
-def check_out_dir(out_dir: Path, force: bool) -> None:
+def check_out_dir(
+    out_dir: Path,
+    force: bool,
+    *,
+    markers: Sequence[str] = RESULT_MARKERS,
+    what: str = "an estimate",
+) -> None:
     """Check, before any work, that the results can be written into ``out_dir``.
 
-    It must be a directory or not exist yet, hold no results of an earlier estimate unless
-    ``force`` (``--force``), and be writable (a file is created in it and removed again; a missing
+    It must be a directory or not exist yet, hold none of the files ``markers`` of an earlier run
+    (``what`` it was, for the message) unless ``force`` (``--force``), and be writable (a file is created in it and removed again; a missing
     directory is checked through its nearest existing parent).
 
     Raises
@@ -377,10 +383,10 @@ def check_out_dir(out_dir: Path, force: bool) -> None:
     source = f"--out {out_dir}"
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("exists and is not a directory", source=source)
-    existing = [name for name in RESULT_MARKERS if (out_dir / name).exists()]
+    existing = [name for name in markers if (out_dir / name).exists()]
     if existing and not force:
         raise InputError(
-            f"already holds the results of an estimate ({', '.join(existing)}); choose another "
+            f"already holds the results of {what} ({', '.join(existing)}); choose another "
             "--out or add --force to overwrite them",
             source=source,
         )

@@ -76,7 +76,7 @@ def test_data_fetch_from_a_file_mirror(
 ) -> None:
     pinned = _mirror(tmp_path / "mirror", b"wavelength,r,g,b\n400,0.1,0.2,0.3\n")
     monkeypatch.setattr(datasets, "pinned_files", lambda collections=None: [pinned])
-    arguments = ["data", "fetch", "--dest", str(tmp_path / "data")]
+    arguments = ["data", "fetch", "--data-dir", str(tmp_path / "data")]
     arguments += ["--base-url", (tmp_path / "mirror").as_uri()]
     assert run_cli(arguments, monkeypatch) == 0
     captured = capsys.readouterr()
@@ -92,7 +92,7 @@ def test_data_fetch_reports_a_bad_download(
 ) -> None:
     pinned = _mirror(tmp_path / "mirror", b"tampered")
     monkeypatch.setattr(datasets, "pinned_files", lambda collections=None: [pinned])
-    arguments = ["data", "fetch", "--dest", str(tmp_path / "data"), "-q"]
+    arguments = ["data", "fetch", "--data-dir", str(tmp_path / "data"), "-q"]
     assert run_cli([*arguments, "--base-url", (tmp_path / "mirror").as_uri()], monkeypatch) == 1
     assert "checksum mismatch" in capsys.readouterr().err
 

@@ -9,7 +9,7 @@ import pytest
 
 RIG = Path(__file__).resolve().parents[2] / "rig"
 #: Modules that describe or record, and must not touch (or import) any device code.
-DEVICE_FREE = ("plan", "steps", "dryrun", "config", "yamlconfig", "records", "analysis", "errors")
+DEVICE_FREE = ("plan", "steps", "dryrun", "config", "records", "analysis", "errors")
 
 
 def imported_packages(path: Path) -> set[str]:

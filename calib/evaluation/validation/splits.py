@@ -45,6 +45,7 @@ from calib.core.datasets import (
     SOLOMATOV,
     SOLOMATOV_PREDICTIONS,
     CameraRecord,
+    exclude_cameras,
     load_collection,
     makabe2025_split,
     resolve_data_dir,
@@ -294,6 +295,7 @@ def load_splits(
     predictions: int = 0,
     seed: int = 0,
     out_of_basis: bool = True,
+    exclude: Sequence[str] = (),
 ) -> tuple[Splits, list[str]]:
     """The splits of a data directory, and notes on collections that are missing.
 
@@ -307,12 +309,21 @@ def load_splits(
         without replacement with ``seed``; 0: none).
     out_of_basis
         Add the Foveon camera and the first paper test camera behind a blue filter to the test split.
+    exclude
+        Patterns of training cameras to keep out of every basis (``--exclude-camera``,
+        :func:`calib.core.datasets.exclude_cameras`); they leave the validation split with them.
     """
     from calib.evaluation.synthetic import out_of_basis_cameras
 
     root = resolve_data_dir(data_dir)
     training, paper_test = makabe2025_split(root)
     missing: list[str] = []
+    if exclude:
+        training, excluded = exclude_cameras(training, exclude)
+        missing.append(
+            f"kept out of every basis by --exclude-camera: "
+            f"{', '.join(record.name for record in excluded) or 'no training camera matched'}"
+        )
     others: list[CameraRecord] = []
     for collection in TEST_COLLECTIONS:
         try:

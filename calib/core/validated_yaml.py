@@ -1,5 +1,9 @@
 """Validated YAML: load a file into a pydantic model, with errors a person can act on.
 
+Shared by the rig's configuration (:mod:`rig.config`) and ``calib estimate --inputs``
+(:mod:`calib.pipeline.inputs_file`); it imports pydantic and PyYAML, so the command lines import it
+only when a file is read.
+
 The safe loader only (no Python object tags), with duplicate mapping keys refused rather than
 silently keeping the last. Validation problems are reported all at once as :class:`ConfigIssue` s
 naming the line, the field path with list indices (``lamps[1].warmup.interval_s``, discriminator
