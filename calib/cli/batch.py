@@ -23,7 +23,22 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from calib.cli.options import JobsOption, ReportOption, SchedulerOption, SummaryOption
+from calib.cli.command_line import ARGUMENTS
+from calib.cli.options import (
+    DataDirOption,
+    ExcludeCameraOption,
+    ForceOption,
+    GridOption,
+    JobsOption,
+    MethodOption,
+    QuietOption,
+    ReportOption,
+    SchedulerOption,
+    SummaryOption,
+    WeightRuleOption,
+    checked_grid,
+    checked_method,
+)
 from calib.core.errors import InputError
 from calib.pipeline.batch import run_batch
 from calib.pipeline.batch_display import (
@@ -138,6 +153,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("batch")
     def batch_command(
+        ctx: typer.Context,
         inputs: Annotated[
             list[Path],
             typer.Argument(
@@ -154,34 +170,31 @@ def register(app: typer.Typer) -> None:
                 "each session into its own estimate/).",
             ),
         ] = None,
-        method: Annotated[
-            str,
-            typer.Option(help="Estimation method: auto (default), prior, makabe2025, multilamp …"),
-        ] = "auto",
-        data_dir: Annotated[
-            Path | None,
-            typer.Option(
-                help="Camera data for the basis (default: $SPECTRAL_RIG_DATA or the cache)."
-            ),
-        ] = None,
+        method: MethodOption = "auto",
+        data_dir: DataDirOption = None,
+        weight_rule: WeightRuleOption = None,
+        grid: GridOption = None,
+        exclude_camera: ExcludeCameraOption = None,
         jobs: JobsOption = None,
         scheduler: SchedulerOption = None,
         report: ReportOption = True,
         summary: SummaryOption = None,
-        quiet: Annotated[
-            bool, typer.Option("--quiet", "-q", help="No progress; the summary only.")
-        ] = False,
-        force: Annotated[
-            bool, typer.Option("--force", help="Replace the results of earlier estimates.")
-        ] = False,
+        quiet: QuietOption = False,
+        force: ForceOption = False,
     ) -> None:
         """Estimate many input sets (sessions …) on local workers or a Dask cluster, with a
         summary table."""
+        from calib.methods.multilamp import weight_rule_option
+
+        method = checked_method(method)
         readers = input_set_readers()
         settings = OfflineSettings(
             method=method,
             data_dir=data_dir,
-            command_line=("calib", "batch", *sys.argv[2:]),
+            grid=checked_grid(grid),
+            method_options=weight_rule_option(method, weight_rule),
+            exclude_cameras=tuple(exclude_camera or ()),
+            command_line=("calib", "batch", *ctx.meta.get(ARGUMENTS, ())),
         )
         code = run_batch_command(
             expand_inputs(inputs, readers),
