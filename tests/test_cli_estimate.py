@@ -431,6 +431,39 @@ def test_profile_input_without_direct_or_grating_assumes_flat_and_warns(
     assert "estimate: known-grating" in stdout
 
 
+def _as_rawproc_dat(csv_path: Path) -> Path:
+    """The CSV profile written as rawproc's text export (columns 0 … width−1, no σ), unmirrored."""
+    table = np.loadtxt(csv_path, delimiter=",", skiprows=1)
+    width = table.shape[0]
+    rows = [
+        f"width: {width}",
+        "height: 9",
+        "rawproc-0.9.1Dev lamp.NEF:rawdata=crop;  demosaic:half crop:0,0.4,1,0.5 ",
+        "x," + ",".join(str(k) for k in range(width)),
+        *(
+            f"{name}," + ",".join(f"{v:.8g}" for v in table[:, 1 + index])
+            for index, name in enumerate(("red", "green", "blue"))
+        ),
+    ]
+    path = csv_path.with_suffix(".dat")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_profile_input_as_rawproc_export(capture: Capture, tmp_path: Path) -> None:
+    argv = _profile_args(tmp_path, capture, direct=True)
+    argv = [
+        str(_as_rawproc_dat(Path(value))) if value.endswith("-profile.csv") else value
+        for value in argv
+    ]
+    assert sum(value.endswith(".dat") for value in argv) == 2
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json"])
+    assert code == 0, stderr
+    document = json.loads((tmp_path / "out" / "result.json").read_text())
+    estimated = np.column_stack([document["sensitivity"][c] for c in "RGB"])
+    assert relative_error(estimated, capture.truth) < 0.05
+
+
 def test_profile_in_wavelength_uses_the_identity_mapping(capture: Capture, tmp_path: Path) -> None:
     argv = _profile_args(tmp_path, capture, direct=True, axis="wavelength_nm")
     code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json"])

@@ -15,6 +15,7 @@ from calib.image.profile_files import (
     read_fits_profile,
     read_rawproc_dat,
 )
+from calib.pipeline.inputs import read_profile_csv, read_profile_file
 
 COMMAND = (
     "rawproc-0.9.1Dev DSG_0001.NEF:rawdata=crop;  demosaic:half rotate:hmirror "
@@ -150,6 +151,23 @@ def test_fits_planes_written_byte_by_byte_give_the_band_sum_with_sigma(tmp_path:
     assert profile.profile_sigma is not None
     # Independent rows: the σ of a sum of 7 rows is √7 × the per-row noise (within sampling).
     np.testing.assert_allclose(np.median(profile.profile_sigma), noise * np.sqrt(7), rtol=0.35)
+
+
+def test_calib_estimate_reads_each_profile_format_by_its_suffix(tmp_path: Path) -> None:
+    planes, _ = _band_planes(np.random.default_rng(6), 0.01)
+    cube = tmp_path / "band.fits"
+    cube.write_bytes(_fits_bytes(planes))
+    dat = tmp_path / "band.dat"
+    dat.write_bytes(_dat_bytes(RED, GREEN, BLUE))
+    csv = tmp_path / "band.csv"
+    csv.write_text("pixel,r,g,b\n" + "".join(f"{k},{k},{2 * k},{3 * k}\n" for k in range(9)))
+    from_fits, from_dat = read_profile_file(cube), read_profile_file(dat)
+    np.testing.assert_array_equal(from_fits.profile, read_fits_profile(cube).profile)
+    np.testing.assert_array_equal(from_dat.profile, read_rawproc_dat(dat).profile)
+    np.testing.assert_array_equal(from_dat.axis, read_rawproc_dat(dat).pixel)
+    assert not from_fits.in_wavelength and not from_dat.in_wavelength
+    assert from_dat.profile_sigma is None and from_fits.profile_sigma is not None
+    np.testing.assert_array_equal(read_profile_file(csv).profile, read_profile_csv(csv).profile)
 
 
 def test_fits_sigma_of_a_sum_of_correlated_rows(tmp_path: Path) -> None:

@@ -91,9 +91,10 @@ def _lamp_options(
         str | None,
         typer.Option(
             "--profile",
-            metavar="CSV",
-            help="Instead of images: a 1-D profile pixel,r,g,b or wavelength_nm,r,g,b (optional "
-            "r_sigma,g_sigma,b_sigma columns).",
+            metavar="FILE",
+            help="Instead of images: a 1-D profile, CSV pixel,r,g,b or wavelength_nm,r,g,b "
+            "(optional r_sigma,g_sigma,b_sigma columns), a rawproc .dat export, or a FITS cube "
+            "of the R, G, B planes.",
         ),
     ] = None,
     direct_rgb: Annotated[

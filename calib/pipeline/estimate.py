@@ -44,7 +44,7 @@ from calib.pipeline.inputs import (
     LampProfile,
     ProfileTable,
     load_spectrum,
-    read_profile_csv,
+    read_profile_file,
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
 from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
@@ -204,7 +204,9 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
         spectra[given.name] = loaded.spectrum
         warnings.extend(loaded.warnings)
     profiles = {
-        lamp.name: read_profile_csv(lamp.profile) for lamp in lamps if isinstance(lamp, LampProfile)
+        lamp.name: read_profile_file(lamp.profile)
+        for lamp in lamps
+        if isinstance(lamp, LampProfile)
     }
     axes = {table.in_wavelength for table in profiles.values()}
     if len(axes) > 1:

@@ -27,6 +27,7 @@ from calib.core.spectra import (
     read_spectrum_csv,
     read_table,
 )
+from calib.image.profile_files import read_fits_profile, read_rawproc_dat
 
 #: Negative spectrum values (dark-subtraction noise) up to this fraction of the maximum are set to
 #: zero with a warning; larger ones mean a broken measurement and are refused.
@@ -83,7 +84,8 @@ class LampProfile:
         As for :class:`LampImages`.
     profile
         CSV ``pixel,r,g,b`` or ``wavelength_nm,r,g,b`` (header required; optional
-        ``r_sigma,g_sigma,b_sigma``).
+        ``r_sigma,g_sigma,b_sigma``), a rawproc ``.dat`` export, or a FITS cube of the R, G and B
+        planes (``.fit``/``.fits``/``.fts``): see :func:`read_profile_file`.
     direct_rgb
         The direct (0th-order) RGB in the profile's units times pixels, or ``None``.
     spectrum_bandwidth_nm
@@ -282,6 +284,32 @@ def read_profile_csv(path: Path) -> ProfileTable:
             source=where,
         )
     return ProfileTable(axis, profile, sigma, in_wavelength)
+
+
+#: Profile file suffixes read by another reader than the CSV one.
+RAWPROC_SUFFIXES = (".dat",)
+FITS_SUFFIXES = (".fit", ".fits", ".fts")
+
+
+def read_profile_file(path: Path) -> ProfileTable:
+    """A lamp's 1-D profile from the file a user has: CSV, rawproc ``.dat`` or a FITS cube.
+
+    The CSV is read by :func:`read_profile_csv`; a rawproc export by
+    :func:`calib.image.profile_files.read_rawproc_dat` (its own pixel axis, any mirroring undone);
+    a FITS cube of R, G and B planes by :func:`calib.image.profile_files.read_fits_profile` (the
+    spectrum's band found in the planes, dispersion along x). The result is in pixels, with
+    the σ the reader could give.
+
+    Raises
+    ------
+    InputError
+        What the reader of that format refuses (the file and the line or keyword named).
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix not in RAWPROC_SUFFIXES + FITS_SUFFIXES:
+        return read_profile_csv(path)
+    read = read_rawproc_dat(path) if suffix in RAWPROC_SUFFIXES else read_fits_profile(path)
+    return ProfileTable(read.pixel, read.profile, read.profile_sigma, in_wavelength=False)
 
 
 def parse_direct(text: str, source: str = "--direct") -> tuple[float, float, float]:
