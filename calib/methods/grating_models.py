@@ -1,0 +1,293 @@
+"""Physical grating models in the multi-lamp solve: one shape parameter, the 0th order included.
+
+The multi-lamp solve (:mod:`calib.methods.multilamp`) reads the grating from each lamp's direct
+(0th-order) equations. With the lamp's first-order response ``q̂_l = E_l η₁ s`` fitted from its
+profile, the direct signal is
+
+    m_dir,lc = T E_l ∫ e_l η₀ s_c dλ = Σ_λ d_l(λ) q̂_lc(λ) · T η₀(λ) / η₁(λ),
+
+with ``T`` the direct path's throughput relative to the first order's (exposures, the spot's
+extraction — unknown, fitted). Two curves enter: ``g = T η₀/η₁`` weights the direct equations and
+``h = 1/η₁`` turns the response into the sensitivity (``s = Q ⊙ h``). The free Fourier model takes
+``η₀`` flat, so that ``g ∝ h`` (decision 0015); for a real grating ``η₀`` is not flat: a thin
+sinusoidal phase sheet has ``η₀ = J₀²(φ₀ λ₀/λ)``, a blazed grating ``sinc²(λ_B/λ)``
+(:mod:`calib.model.gratings`), and ignoring it biases the camera by the shape of ``η₀``.
+
+Here ``η₀`` and ``η₁`` come from one physical model with the same parameters
+(:data:`calib.model.gratings.PHYSICAL_KINDS`): ``θ = (p, log T)``, ``p`` the sheet's peak phase at
+550 nm or the blaze wavelength. ``p`` is found by scanning its range (``T`` in closed form at each
+value: the equations are linear in it) and refined by a bounded 1-D minimisation; the rows are
+re-whitened at each pass's ``g`` (the response's covariance enters their σ). No camera prior is
+needed: two parameters against ``3L`` equations.
+
+σ: the inverse of ``JᵀJ`` of the whitened residuals at the solution, inflated by the reduced χ²
+where it exceeds 1 (the model or the rig's errors do not match the stated noise; the inflation is
+reported), propagated to ``h`` along ``∂h/∂p``.
+
+The model is chosen (``grating_model="auto"``) by the estimated predictive risk of the direct
+equations, Mallows' ``C_L`` (what UPRE minimises for the Fourier model's prior weight): ``χ² + 2
+k_eff``, with ``k_eff = 2`` for a physical model and ``tr H`` (the effective number of parameters
+under the camera prior) for the Fourier model. It is an unbiased estimate of the error in
+predicting new direct measurements, and so asymptotically the leave-one-out cross-validation
+score (Stone 1977), computed on the lamps' own equations.
+
+References
+----------
+Mallows, C. L. (1973). Some comments on C_p. *Technometrics* 15(4), 661–675.
+Stone, M. (1977). An asymptotic equivalence of choice of model by cross-validation and Akaike's
+criterion. *J. R. Stat. Soc. B* 39(1), 44–47.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+from calib.model.gratings import (
+    PHYSICAL_KINDS,
+    PHYSICAL_PARAMETER_NAMES,
+    PHYSICAL_PARAMETER_RANGES,
+    BlazedGrating,
+    PhysicalKind,
+    SinusoidalPhaseGrating,
+    physical_grating,
+)
+
+if TYPE_CHECKING:
+    from calib.methods.multilamp import LampData
+
+GratingModelName = Literal["auto", "fourier", "sinusoidal", "blazed"]
+#: The estimator's grating models: ``"fourier"`` (free, ``η₀`` flat: decision 0015), the two
+#: physical families, or ``"auto"``: the one of the three with the smallest predictive risk.
+GRATING_MODELS: tuple[GratingModelName, ...] = ("auto", "fourier", "sinusoidal", "blazed")
+DEFAULT_GRATING_MODEL: GratingModelName = "auto"
+#: Parameter values scanned before the 1-D refinement.
+SCAN_POINTS = 120
+#: Passes: the rows are re-whitened at the previous pass's ``g``.
+FIT_PASSES = 3
+#: Relative step of the numerical derivative of the efficiencies in the parameter.
+DERIVATIVE_STEP = 1e-5
+
+
+def check_grating_model(name: str, source: str = "grating_model") -> GratingModelName:
+    """``name`` as a :data:`GRATING_MODELS` member, or a one-line :class:`InputError`."""
+    for model in GRATING_MODELS:
+        if name == model:
+            return model
+    raise InputError(
+        f"unknown grating model {name!r}; choose from {', '.join(GRATING_MODELS)}", source=source
+    )
+
+
+def model_curves(
+    kind: PhysicalKind, parameter: float, wavelength_nm: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """``η₀`` and ``η₁`` of the family at ``parameter``, each ``(f,)``."""
+    grating = physical_grating(kind, parameter)
+    return grating.efficiency(0, wavelength_nm), grating.efficiency(1, wavelength_nm)
+
+
+def _ratio(kind: PhysicalKind, parameter: float, wavelength_nm: FloatArray) -> FloatArray:
+    zeroth, first = model_curves(kind, parameter, wavelength_nm)
+    return np.asarray(zeroth / np.maximum(first, 1e-300), dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class PhysicalFit:
+    """A physical model fitted to the direct equations (module docstring).
+
+    Attributes
+    ----------
+    kind, parameter
+        The family and its shape parameter (rad at 550 nm, or nm).
+    log_throughput
+        ``log T``: the direct path's throughput relative to the first order's.
+    covariance
+        Of ``(parameter, log T)``, ``(2, 2)``, inflated by :attr:`inflation`.
+    noise_covariance
+        The same before the inflation (the stated noise alone).
+    chi2, n_equations
+        Of the whitened direct equations at the solution.
+    inflation
+        ``max(1, χ² / (n − 2))``.
+    wavelength_nm
+        The grid ``(f,)``.
+    scan
+        ``(parameter, χ²)`` over the scan of the last pass (for plots and the record).
+    """
+
+    kind: PhysicalKind
+    parameter: float
+    log_throughput: float
+    covariance: FloatArray
+    noise_covariance: FloatArray
+    chi2: float
+    n_equations: int
+    inflation: float
+    wavelength_nm: FloatArray
+    scan: tuple[FloatArray, FloatArray] = field(repr=False, default=(np.zeros(0), np.zeros(0)))
+
+    @property
+    def grating(self) -> SinusoidalPhaseGrating | BlazedGrating:
+        return physical_grating(self.kind, self.parameter)
+
+    @property
+    def parameter_sigma(self) -> float:
+        return float(np.sqrt(max(float(self.covariance[0, 0]), 0.0)))
+
+    @property
+    def predictive_risk(self) -> float:
+        """Mallows' ``C_L`` of the direct equations: ``χ² + 2 · 2``."""
+        return self.chi2 + 2.0 * 2
+
+    def zeroth_and_first(self) -> tuple[FloatArray, FloatArray]:
+        """``η₀``, ``η₁`` on the grid (fractions of the incident light)."""
+        return model_curves(self.kind, self.parameter, self.wavelength_nm)
+
+    def derivatives(self) -> tuple[FloatArray, FloatArray]:
+        """``∂η₀/∂p`` and ``∂η₁/∂p`` on the grid (central differences)."""
+        step = DERIVATIVE_STEP * max(abs(self.parameter), 1e-3)
+        zeroth_up, first_up = model_curves(self.kind, self.parameter + step, self.wavelength_nm)
+        zeroth_down, first_down = model_curves(self.kind, self.parameter - step, self.wavelength_nm)
+        return (zeroth_up - zeroth_down) / (2 * step), (first_up - first_down) / (2 * step)
+
+    def inverse_efficiency(self) -> tuple[FloatArray, FloatArray]:
+        """``h = 1/η₁`` ``(f,)`` and ``∂h/∂θ`` ``(f, 2)`` (``h`` does not depend on ``T``)."""
+        _, first = self.zeroth_and_first()
+        _, first_derivative = self.derivatives()
+        inverse = 1.0 / np.maximum(first, 1e-300)
+        jacobian = np.zeros((inverse.size, 2))
+        jacobian[:, 0] = -first_derivative * inverse**2
+        return inverse, jacobian
+
+    def direct_weight(self) -> FloatArray:
+        """``T η₀`` ``(f,)``: the direct signal is ``Σ d ⊙ s ⊙ T η₀`` with ``s = Q ⊙ h``."""
+        zeroth, _ = self.zeroth_and_first()
+        return np.asarray(np.exp(self.log_throughput) * zeroth, dtype=np.float64)
+
+    def efficiency_sigmas(self) -> tuple[FloatArray, FloatArray]:
+        """σ of ``η₀`` and ``η₁`` on the grid from the parameter's σ (first order)."""
+        zeroth_derivative, first_derivative = self.derivatives()
+        sigma = self.parameter_sigma
+        return np.abs(zeroth_derivative) * sigma, np.abs(first_derivative) * sigma
+
+    def record(self) -> dict[str, Any]:
+        """The fit as plain data (``diagnostics["grating_model"]``'s physical part)."""
+        name = PHYSICAL_PARAMETER_NAMES[self.kind]
+        zeroth, first = self.zeroth_and_first()
+        zeroth_sigma, first_sigma = self.efficiency_sigmas()
+        return {
+            "model": self.kind,
+            "parameters": {
+                name: self.parameter,
+                f"{name}_sigma": self.parameter_sigma,
+                "reference_nm": 550.0 if self.kind == "sinusoidal" else None,
+                "direct_throughput": float(np.exp(self.log_throughput)),
+            },
+            "grating": self.grating.to_dict(),
+            "direct_chi2": self.chi2,
+            "direct_equations": self.n_equations,
+            "sigma_inflation": self.inflation,
+            "zeroth_order_efficiency": zeroth.tolist(),
+            "zeroth_order_efficiency_sigma": zeroth_sigma.tolist(),
+            "first_order_efficiency": first.tolist(),
+            "first_order_efficiency_sigma": first_sigma.tolist(),
+        }
+
+
+def _profile_throughput(
+    rows: FloatArray, target: FloatArray, ratio: FloatArray
+) -> tuple[float, float]:
+    """``T`` minimising ``‖T rows @ ratio − target‖²`` (closed form) and the χ² there."""
+    predicted = rows @ ratio
+    norm = float(predicted @ predicted)
+    if norm <= 0 or not np.isfinite(norm):
+        return float("nan"), float("inf")
+    throughput = float(predicted @ target) / norm
+    if throughput <= 0:
+        return float("nan"), float("inf")
+    residual = throughput * predicted - target
+    return throughput, float(residual @ residual)
+
+
+def fit_physical(
+    lamps: Sequence[LampData], kind: PhysicalKind, wavelength_nm: FloatArray
+) -> PhysicalFit:
+    """Fit ``θ = (p, log T)`` of ``kind`` to the lamps' direct equations (module docstring).
+
+    Raises
+    ------
+    InputError
+        No lamps or an unknown family.
+    EstimationError
+        No parameter value gives a positive throughput (the direct signals contradict the model).
+    """
+    from scipy.optimize import minimize_scalar  # deferred: scipy.optimize is slow to import
+
+    from calib.methods.multilamp import direct_rows
+
+    if not lamps:
+        raise InputError("no lamps with a direct measurement", source="observations")
+    if kind not in PHYSICAL_KINDS:
+        raise InputError(f"unknown physical grating {kind!r}", source="grating_model")
+    low, high = PHYSICAL_PARAMETER_RANGES[kind]
+    candidates = np.linspace(low, high, SCAN_POINTS)
+    reference = lamps[0]
+    predicted = float(np.sum(reference.direct_row @ reference.response.response))
+    weight = np.full(wavelength_nm.size, float(np.sum(reference.direct)) / max(predicted, 1e-300))
+    parameter = float("nan")
+    throughput = float("nan")
+    rows = np.zeros((0, wavelength_nm.size))
+    target = np.zeros(0)
+    chi2_scan = np.zeros(0)
+    for _ in range(FIT_PASSES):
+        rows, target = direct_rows(lamps, weight)
+
+        def misfit(value: float, rows: FloatArray = rows, target: FloatArray = target) -> float:
+            return _profile_throughput(rows, target, _ratio(kind, value, wavelength_nm))[1]
+
+        chi2_scan = np.array([misfit(float(value)) for value in candidates])
+        if not np.any(np.isfinite(chi2_scan)):
+            raise EstimationError(
+                f"the direct signals fit no {kind} grating (no positive throughput anywhere)"
+            )
+        best = int(np.nanargmin(chi2_scan))
+        bounds = (
+            float(candidates[max(best - 1, 0)]),
+            float(candidates[min(best + 1, candidates.size - 1)]),
+        )
+        refined = minimize_scalar(misfit, bounds=bounds, method="bounded", options={"xatol": 1e-6})
+        parameter = float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
+        ratio = _ratio(kind, parameter, wavelength_nm)
+        throughput, _ = _profile_throughput(rows, target, ratio)
+        weight = throughput * ratio
+    chi2 = _profile_throughput(rows, target, _ratio(kind, parameter, wavelength_nm))[1]
+    step = DERIVATIVE_STEP * max(abs(parameter), 1e-3)
+    ratio = _ratio(kind, parameter, wavelength_nm)
+    ratio_derivative = (
+        _ratio(kind, parameter + step, wavelength_nm)
+        - _ratio(kind, parameter - step, wavelength_nm)
+    ) / (2 * step)
+    jacobian = np.stack([rows @ (throughput * ratio_derivative), rows @ (throughput * ratio)], 1)
+    noise_covariance = np.asarray(
+        np.linalg.pinv(jacobian.T @ jacobian, hermitian=True), dtype=np.float64
+    )
+    dof = max(target.size - 2, 1)
+    inflation = max(1.0, chi2 / dof)
+    return PhysicalFit(
+        kind=kind,
+        parameter=parameter,
+        log_throughput=float(np.log(throughput)),
+        covariance=noise_covariance * inflation,
+        noise_covariance=noise_covariance,
+        chi2=chi2,
+        n_equations=int(target.size),
+        inflation=inflation,
+        wavelength_nm=np.asarray(wavelength_nm, dtype=np.float64),
+        scan=(candidates, chi2_scan),
+    )
