@@ -1135,7 +1135,7 @@ def estimate_multilamp(
         else efficiency.coefficient_covariance,
         with_covariance=options.uncertainty != "none",
     )
-    eta, eta_sigma = _efficiency_with_sigma(efficiency)
+    eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
     return multilamp_result(
         calibrated.lamps,
@@ -1155,7 +1155,7 @@ def estimate_multilamp(
 
 def grating_file_from(calibrated: CalibratedLamps, *, description: str = "") -> GratingEfficiency:
     """The estimated ``η`` with its σ and geometry, ready for :func:`calib.core.grating_file.write_grating_file`."""
-    eta, eta_sigma = _efficiency_with_sigma(calibrated.efficiency)
+    eta, eta_sigma = efficiency_with_sigma(calibrated.efficiency)
     return GratingEfficiency(
         wavelength_nm=calibrated.grid.wavelength_nm,
         efficiency=eta,
@@ -1174,7 +1174,7 @@ def grating_file_from(calibrated: CalibratedLamps, *, description: str = "") -> 
     )
 
 
-def _efficiency_with_sigma(efficiency: EfficiencySolution) -> tuple[FloatArray, FloatArray]:
+def efficiency_with_sigma(efficiency: EfficiencySolution) -> tuple[FloatArray, FloatArray]:
     """``η`` (maximum 1) and its σ, from ``η⁻¹``'s covariance (first order, ``δη = −η² δη⁻¹``)."""
     inverse = efficiency.inverse_efficiency
     inverse_sigma = np.sqrt(
@@ -1264,7 +1264,7 @@ def refine_grating(
     efficiency = solve_efficiency(
         pooled, basis.prior(), settings, prior_groups=[calibrated.lamps for calibrated in each]
     )
-    eta_pair = _efficiency_with_sigma(efficiency)
+    eta_pair = efficiency_with_sigma(efficiency)
     results = []
     for calibrated in each:
         solution = combine_responses(

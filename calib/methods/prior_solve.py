@@ -42,7 +42,12 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods.closed_form import ClosedFormOptions, joint_result, joint_setup
+from calib.methods.closed_form import ClosedFormOptions, JointSetup, joint_result, joint_setup
+from calib.methods.grating_models import (
+    DEFAULT_GRATING_MODEL,
+    GratingModelName,
+    check_grating_model,
+)
 from calib.model.bases import CameraBasis, CameraPrior, whitening
 from calib.model.forward import WavelengthMapping, apply_blur
 from calib.model.linear_model import LampSystem
@@ -347,7 +352,23 @@ def _constrained_covariance(rows: FloatArray, constraint: FloatArray) -> FloatAr
 class PriorOptions(ClosedFormOptions):
     """Options of :func:`estimate_prior` (those of every closed-form solve,
     :class:`calib.methods.closed_form.ClosedFormOptions`); ``prior_shrinkage`` also shapes the
-    prior this solve leans on."""
+    prior this solve leans on.
+
+    Attributes
+    ----------
+    grating_model
+        ``"fourier"``: this module's solve (``η⁻¹`` in ``efficiency_terms`` Fourier terms, ``η₀``
+        flat); ``"sinusoidal"``/``"blazed"``: the physical grating fitted to the lamps' direct
+        equations (:mod:`calib.methods.grating_models`), then the camera through it with the prior
+        where the lamps are dim; ``"auto"`` (default): the model with the smallest predictive risk
+        on the direct equations.
+    """
+
+    grating_model: GratingModelName = DEFAULT_GRATING_MODEL
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_grating_model(self.grating_model)
 
 
 @one_blas_thread
@@ -418,6 +439,12 @@ def estimate_prior(
         options=options,
     )
     step = time.perf_counter()
+    record: dict[str, Any] = {"model": "fourier", "chosen": "fourier", "requested": "fourier"}
+    if options.grating_model != "fourier":
+        physical, record = _physical_estimate(observations, setup, basis, grid, options)
+        if physical is not None:
+            return physical
+        record = {**record, "model": "fourier", "terms": int(setup.efficiency_basis.shape[1])}
     reference = setup.solve_lamps[0]
     system = setup.prepared(reference, grid)
     companions = [
@@ -440,5 +467,58 @@ def estimate_prior(
         inverse_efficiency=solution.inverse_efficiency,
         sensitivity_sigma=solution.sensitivity_sigma,
         info={**solution.info, "lamp_scales": [1.0]},
-        diagnostics={},
+        diagnostics={"grating_model": record},
     )
+
+
+def _physical_estimate(
+    observations: Sequence[LampObservation],
+    setup: JointSetup,
+    basis: CameraBasis,
+    grid: WavelengthGrid,
+    options: PriorOptions,
+) -> tuple[EstimateResult | None, dict[str, Any]]:
+    """The estimate through a physical grating fitted to the direct equations, when
+    ``options.grating_model`` asks for one or ``"auto"`` prefers one (else ``None``: the Fourier
+    solve above runs), and the model choice's record. The camera is ``q̂ / η₁`` pooled over the lamps, with the prior where they
+    are dim (:func:`calib.methods.multilamp.blend_with_prior`: the prior enters once, here)."""
+    # Deferred: multilamp builds on this module's response fit.
+    from calib.methods.multilamp import (
+        EfficiencySettings,
+        blend_with_prior,
+        combine_responses,
+        efficiency_with_sigma,
+        lamp_data,
+        multilamp_result,
+        solve_efficiency,
+    )
+
+    started = time.perf_counter()
+    with_direct = [obs for obs in observations if obs.direct_rgb is not None]
+    lamps = [lamp_data(setup.prepared(obs, grid), setup.mapping) for obs in with_direct]
+    efficiency = solve_efficiency(
+        lamps, setup.prior, EfficiencySettings(grating_model=options.grating_model)
+    )
+    record: dict[str, Any] = efficiency.info["grating_model"]
+    if record["chosen"] == "fourier":
+        return None, record
+    solution = combine_responses(
+        [lamp.response for lamp in lamps],
+        efficiency.inverse_efficiency,
+        efficiency.inverse_jacobian,
+        efficiency.coefficient_covariance,
+    )
+    solution = blend_with_prior(solution, setup.prior)
+    setup.timings["solve_s"] = time.perf_counter() - started
+    setup.timings["total_s"] = time.perf_counter() - setup.started
+    return multilamp_result(
+        lamps,
+        solution,
+        efficiency_with_sigma(efficiency),
+        setup.mapping,
+        basis,
+        {**efficiency.info, "grating": "estimated", "mapping_given": setup.mapping_given},
+        setup.timings,
+        method=PRIOR_METHOD,
+        direct_weight=efficiency.direct_weights,
+    ), record
