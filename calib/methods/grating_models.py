@@ -216,9 +216,14 @@ def _profile_throughput(
 
 
 def fit_physical(
-    lamps: Sequence[LampData], kind: PhysicalKind, wavelength_nm: FloatArray
+    lamps: Sequence[LampData],
+    kind: PhysicalKind,
+    wavelength_nm: FloatArray,
+    *,
+    gain_sigma: float | None = None,
 ) -> PhysicalFit:
-    """Fit ``θ = (p, log T)`` of ``kind`` to the lamps' direct equations (module docstring).
+    """Fit ``θ = (p, log T)`` of ``kind`` to the lamps' direct equations (module docstring);
+    ``gain_sigma`` as :func:`calib.methods.multilamp.direct_rows` takes it.
 
     Raises
     ------
@@ -246,7 +251,7 @@ def fit_physical(
     target = np.zeros(0)
     chi2_scan = np.zeros(0)
     for _ in range(FIT_PASSES):
-        rows, target = direct_rows(lamps, weight)
+        rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma)
 
         def misfit(value: float, rows: FloatArray = rows, target: FloatArray = target) -> float:
             return _profile_throughput(rows, target, _ratio(kind, value, wavelength_nm))[1]

@@ -480,6 +480,9 @@ class EfficiencySettings:
         ``"fourier"`` (``terms`` free terms, ``η₀`` flat), ``"sinusoidal"`` or ``"blazed"``
         (physical, ``η₀`` from the same parameter: :mod:`calib.methods.grating_models`), or
         ``"auto"`` (default): the one with the smallest predictive risk on the direct equations.
+    direct_gain_sigma
+        Relative σ of each lamp's direct-to-profile ratio, shared by its channels
+        (:data:`DIRECT_GAIN_SIGMA`; 0 for data without exposure errors, as the paper's protocol).
     """
 
     terms: int = DEFAULT_EFFICIENCY_TERMS
@@ -487,9 +490,14 @@ class EfficiencySettings:
     prior_weight: float | None = None
     weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
     grating_model: GratingModelName = DEFAULT_GRATING_MODEL
+    direct_gain_sigma: float = DIRECT_GAIN_SIGMA
 
     def __post_init__(self) -> None:
         check_grating_model(self.grating_model)
+        if not 0.0 <= self.direct_gain_sigma < 1.0:
+            raise InputError(
+                f"must be in [0, 1), got {self.direct_gain_sigma}", source="direct_gain_sigma"
+            )
         if self.model not in EFFICIENCY_MODELS:
             raise InputError(
                 f"unknown efficiency model {self.model!r}; choose from {EFFICIENCY_MODELS}",
@@ -531,7 +539,7 @@ def solve_efficiency(
         if choice not in (kind, "auto"):
             continue
         try:
-            fit = fit_physical(lamps, kind, wavelength)
+            fit = fit_physical(lamps, kind, wavelength, gain_sigma=settings.direct_gain_sigma)
         except EstimationError as error:
             if choice != "auto":
                 raise
@@ -660,7 +668,7 @@ def solve_fourier_efficiency(
     distances = np.full(len(groups), np.nan)
     for index in range(EFFICIENCY_PASSES):
         # Rows on the grid's nodes of η⁻¹ (and every α_k), whitened at the current η⁻¹.
-        data_nodes, target = direct_rows(lamps, inverse)
+        data_nodes, target = direct_rows(lamps, inverse, gain_sigma=settings.direct_gain_sigma)
         penalty_nodes = _stacked_prior_rows(groups, prior, inverse, x[b_eta:])
         fixed = prior_weight
         used_weights = group_weights
@@ -1023,6 +1031,8 @@ class MultilampOptions(GratingMethodOptions):
         The grating's model (:data:`calib.methods.grating_models.GRATING_MODELS`): ``"auto"``
         (default: chosen by the direct equations' predictive risk), ``"fourier"``,
         ``"sinusoidal"`` or ``"blazed"``.
+    direct_gain_sigma
+        Relative σ of each lamp's direct-to-profile ratio (:data:`DIRECT_GAIN_SIGMA`).
     uncertainty
         ``"posterior"`` (default: the σ band, the camera prior's own uncertainty included),
         ``"noise"`` (the measurements' noise propagated alone, what :func:`bootstrap_sigma` checks)
@@ -1034,6 +1044,7 @@ class MultilampOptions(GratingMethodOptions):
     efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL
     weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
     grating_model: GratingModelName = DEFAULT_GRATING_MODEL
+    direct_gain_sigma: float = DIRECT_GAIN_SIGMA
     uncertainty: Uncertainty = "posterior"
 
     def __post_init__(self) -> None:
@@ -1053,6 +1064,7 @@ class MultilampOptions(GratingMethodOptions):
             self.prior_weight,
             self.weight_rule,
             self.grating_model,
+            self.direct_gain_sigma,
         )
 
 
