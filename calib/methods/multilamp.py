@@ -42,7 +42,7 @@ through one grating share ``η``: :func:`refine_grating` stacks their lamps' row
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -1183,7 +1183,23 @@ def grating_file_from(calibrated: CalibratedLamps, *, description: str = "") -> 
             "prior_weight": calibrated.efficiency.prior_weight,
         },
         source="multilamp calibration",
+        **grating_model_fields(calibrated.efficiency.info.get("grating_model")),
     )
+
+
+def grating_model_fields(record: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The grating file's ``obtained``, ``model`` and ``η₀`` fields from a solve's
+    ``info["grating_model"]`` (:func:`solve_efficiency`): the physical model's parameters with σ
+    and its ``η₀``, or only ``obtained`` for the Fourier model."""
+    if not record or record.get("chosen", record.get("model")) == "fourier":
+        return {"obtained": "estimated", "model": None if not record else {"model": "fourier"}}
+    kept = ("model", "parameters", "grating", "direct_chi2", "direct_equations", "sigma_inflation")
+    return {
+        "obtained": "estimated",
+        "model": {key: record[key] for key in kept if key in record},
+        "zeroth_order_efficiency": record.get("zeroth_order_efficiency"),
+        "zeroth_order_efficiency_sigma": record.get("zeroth_order_efficiency_sigma"),
+    }
 
 
 def efficiency_with_sigma(efficiency: EfficiencySolution) -> tuple[FloatArray, FloatArray]:
