@@ -92,11 +92,6 @@ def model_curves(
     return grating.efficiency(0, wavelength_nm), grating.efficiency(1, wavelength_nm)
 
 
-def _ratio(kind: PhysicalKind, parameter: float, wavelength_nm: FloatArray) -> FloatArray:
-    zeroth, first = model_curves(kind, parameter, wavelength_nm)
-    return np.asarray(zeroth / np.maximum(first, 1e-300), dtype=np.float64)
-
-
 @dataclass(frozen=True, eq=False)
 class PhysicalFit:
     """A physical model fitted to the direct equations (module docstring).
@@ -200,11 +195,8 @@ class PhysicalFit:
         }
 
 
-def _profile_throughput(
-    rows: FloatArray, target: FloatArray, ratio: FloatArray
-) -> tuple[float, float]:
-    """``T`` minimising ``‖T rows @ ratio − target‖²`` (closed form) and the χ² there."""
-    predicted = rows @ ratio
+def _profile_throughput(predicted: FloatArray, target: FloatArray) -> tuple[float, float]:
+    """``T`` minimising ``‖T predicted − target‖²`` (closed form) and the χ² there."""
     norm = float(predicted @ predicted)
     if norm <= 0 or not np.isfinite(norm):
         return float("nan"), float("inf")
@@ -213,6 +205,37 @@ def _profile_throughput(
         return float("nan"), float("inf")
     residual = throughput * predicted - target
     return throughput, float(residual @ residual)
+
+
+def _equations(
+    lamps: Sequence[LampData],
+    kind: PhysicalKind,
+    parameter: float,
+    weight: FloatArray,
+    gain_sigma: float | None,
+    wavelength_nm: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The whitened direct equations at ``parameter`` (whitened at the current ``weight``, ``g``
+    up to ``T``): their predicted values for ``T = 1``, targets, and ``g/T`` on the grid ``(f,)``.
+
+    ``η₀`` is integrated inside each lamp's row on the fine axis when the lamps carry their
+    operators (``g = T/η₁``); else it is taken at the grid's nodes (``g = T η₀/η₁``).
+    """
+    from calib.methods.multilamp import direct_rows
+
+    grating = physical_grating(kind, parameter)
+    first = np.maximum(grating.efficiency(1, wavelength_nm), 1e-300)
+    operators = [lamp.operators for lamp in lamps]
+    if all(operator is not None for operator in operators):
+        axis = operators[0].axis_nm if operators[0] is not None else wavelength_nm
+        rows, target = direct_rows(
+            lamps, weight, gain_sigma=gain_sigma, zeroth_order=grating.efficiency(0, axis)
+        )
+        shape = 1.0 / first
+    else:
+        rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma)
+        shape = grating.efficiency(0, wavelength_nm) / first
+    return rows @ shape, target, np.asarray(shape, dtype=np.float64)
 
 
 def fit_physical(
@@ -234,8 +257,6 @@ def fit_physical(
     """
     from scipy.optimize import minimize_scalar  # deferred: scipy.optimize is slow to import
 
-    from calib.methods.multilamp import direct_rows
-
     if not lamps:
         raise InputError("no lamps with a direct measurement", source="observations")
     if kind not in PHYSICAL_KINDS:
@@ -247,16 +268,14 @@ def fit_physical(
     weight = np.full(wavelength_nm.size, float(np.sum(reference.direct)) / max(predicted, 1e-300))
     parameter = float("nan")
     throughput = float("nan")
-    rows = np.zeros((0, wavelength_nm.size))
-    target = np.zeros(0)
     chi2_scan = np.zeros(0)
+
+    def misfit(value: float, weight: FloatArray) -> float:
+        values, target, _ = _equations(lamps, kind, value, weight, gain_sigma, wavelength_nm)
+        return _profile_throughput(values, target)[1]
+
     for _ in range(FIT_PASSES):
-        rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma)
-
-        def misfit(value: float, rows: FloatArray = rows, target: FloatArray = target) -> float:
-            return _profile_throughput(rows, target, _ratio(kind, value, wavelength_nm))[1]
-
-        chi2_scan = np.array([misfit(float(value)) for value in candidates])
+        chi2_scan = np.array([misfit(float(value), weight) for value in candidates])
         if not np.any(np.isfinite(chi2_scan)):
             raise EstimationError(
                 f"the direct signals fit no {kind} grating (no positive throughput anywhere)"
@@ -266,19 +285,24 @@ def fit_physical(
             float(candidates[max(best - 1, 0)]),
             float(candidates[min(best + 1, candidates.size - 1)]),
         )
-        refined = minimize_scalar(misfit, bounds=bounds, method="bounded", options={"xatol": 1e-6})
+        refined = minimize_scalar(
+            lambda value, weight=weight: misfit(float(value), weight),
+            bounds=bounds,
+            method="bounded",
+            options={"xatol": 1e-6},
+        )
         parameter = float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
-        ratio = _ratio(kind, parameter, wavelength_nm)
-        throughput, _ = _profile_throughput(rows, target, ratio)
-        weight = throughput * ratio
-    chi2 = _profile_throughput(rows, target, _ratio(kind, parameter, wavelength_nm))[1]
+        values, target, shape = _equations(
+            lamps, kind, parameter, weight, gain_sigma, wavelength_nm
+        )
+        throughput, _ = _profile_throughput(values, target)
+        weight = throughput * shape
+    values, target, _ = _equations(lamps, kind, parameter, weight, gain_sigma, wavelength_nm)
+    chi2 = _profile_throughput(values, target)[1]
     step = DERIVATIVE_STEP * max(abs(parameter), 1e-3)
-    ratio = _ratio(kind, parameter, wavelength_nm)
-    ratio_derivative = (
-        _ratio(kind, parameter + step, wavelength_nm)
-        - _ratio(kind, parameter - step, wavelength_nm)
-    ) / (2 * step)
-    jacobian = np.stack([rows @ (throughput * ratio_derivative), rows @ (throughput * ratio)], 1)
+    up = _equations(lamps, kind, parameter + step, weight, gain_sigma, wavelength_nm)[0]
+    down = _equations(lamps, kind, parameter - step, weight, gain_sigma, wavelength_nm)[0]
+    jacobian = np.stack([throughput * (up - down) / (2 * step), throughput * values], 1)
     noise_covariance = np.asarray(
         np.linalg.pinv(jacobian.T @ jacobian, hermitian=True), dtype=np.float64
     )

@@ -66,7 +66,7 @@ from calib.methods.grating_models import (
 )
 from calib.methods.prior_solve import ResponseEstimate, fit_response
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
-from calib.model.forward import WavelengthMapping
+from calib.model.forward import LampOperators, PiecewiseLinearDensity, WavelengthMapping
 from calib.model.gratings import PHYSICAL_KINDS
 from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
@@ -191,6 +191,19 @@ class LampData:
     response: ResponseEstimate
     direct: FloatArray  # (3,)
     direct_sigma: FloatArray  # (3,)
+    operators: LampOperators | None = None  # e φ_i on the fine axis, for an η₀ inside the row
+
+    def zeroth_order_row(self, zeroth_order: FloatArray | None) -> FloatArray:
+        """``∫ e φ_i η₀ dλ`` ``(f,)`` with ``η₀`` given on the fine axis (``None``: flat, the
+        plain direct row). Integrated at 1 nm: ``η₀`` may vary within a grid step (a blazed
+        grating's vanishes at its blaze)."""
+        if zeroth_order is None or self.operators is None:
+            return self.direct_row
+        densities = self.operators.densities
+        weighted = PiecewiseLinearDensity.on_axis(
+            densities.axis_nm, densities.density * zeroth_order[:, None]
+        )
+        return np.asarray(weighted.total, dtype=np.float64)
 
 
 def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
@@ -208,7 +221,12 @@ def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
         else np.asarray(observation.direct_sigma, dtype=np.float64)
     )
     return LampData(
-        observation.name, system.operators.direct_row, fit_response(system, mapping), direct, sigma
+        observation.name,
+        system.operators.direct_row,
+        fit_response(system, mapping),
+        direct,
+        sigma,
+        system.operators,
     )
 
 
@@ -217,9 +235,11 @@ def direct_rows(
     inverse_efficiency: FloatArray,
     *,
     gain_sigma: float | None = None,
+    zeroth_order: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ g = m_dir,lc`` on the grid's nodes of ``g`` (``η⁻¹``
-    for the Fourier model, ``T η₀/η₁`` for a physical one): rows ``(3L, f)``, targets ``(3L,)``.
+    for the Fourier model, ``T/η₁`` for a physical one, whose ``η₀`` enters ``d_l`` on the fine
+    axis: ``zeroth_order``, :meth:`LampData.zeroth_order_row`): rows ``(3L, f)``, targets ``(3L,)``.
 
     Each equation's variance is the direct measurement's, the response's covariance propagated
     through the current ``g`` and the model floor; a lamp's three equations also share the error of
@@ -231,7 +251,8 @@ def direct_rows(
     rows = []
     targets = []
     for lamp in lamps:
-        spread = lamp.direct_row * inverse_efficiency
+        direct_row = lamp.zeroth_order_row(zeroth_order)
+        spread = direct_row * inverse_efficiency
         variances = np.array(
             [
                 float(lamp.direct_sigma[c]) ** 2
@@ -243,7 +264,7 @@ def direct_rows(
         direct = np.asarray(lamp.direct, dtype=np.float64)
         covariance = np.diag(np.maximum(variances, 1e-300)) + gain**2 * np.outer(direct, direct)
         factor = np.linalg.inv(np.linalg.cholesky(covariance))
-        block = np.stack([lamp.direct_row * lamp.response.response[:, c] for c in range(3)])
+        block = np.stack([direct_row * lamp.response.response[:, c] for c in range(3)])
         rows.append(factor @ block)
         targets.append(factor @ direct)
     return np.vstack(rows), np.concatenate(targets)
