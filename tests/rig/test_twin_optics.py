@@ -47,7 +47,7 @@ def _forward_per_pixel(optics: TwinOptics, lamp: Spectrum, pixel: np.ndarray) ->
         mapping=optics.mapping,
         pixel=pixel,
         grating_efficiency=optics.efficiency,
-        direct_throughput=optics.zeroth_order_efficiency,
+        zeroth_order_efficiency=optics.zeroth_order_efficiency,
         fine_step_nm=SPECTRAL_STEP_NM,
     )
     scale = optics.throughput_e_per_s * optics.sensor.gain_dn_per_electron
