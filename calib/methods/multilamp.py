@@ -63,6 +63,7 @@ from calib.methods.grating_models import (
     PhysicalFit,
     check_grating_model,
     fit_physical,
+    with_jackknife,
 )
 from calib.methods.prior_solve import ResponseEstimate, fit_response
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
@@ -581,7 +582,11 @@ def solve_efficiency(
         assert fourier is not None
         record = {"model": "fourier", "terms": int(fourier.coefficients.size), **common}
         return replace(fourier, info={**fourier.info, "grating_model": record})
-    fit = next(fit for fit in fits if fit.kind == chosen)
+    fit = with_jackknife(
+        next(fit for fit in fits if fit.kind == chosen),
+        lamps,
+        gain_sigma=settings.direct_gain_sigma,
+    )
     return physical_solution(fit, {**fit.record(), **common})
 
 
