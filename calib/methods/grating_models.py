@@ -22,7 +22,8 @@ needed: two parameters against ``3L`` equations.
 
 σ: the inverse of ``JᵀJ`` of the whitened residuals at the solution, inflated by the reduced χ²
 where it exceeds 1 (the model or the rig's errors do not match the stated noise; the inflation is
-reported), and widened to the leave-one-lamp-out jackknife's σ of ``p`` where that is larger
+reported), never below the wavelength scale's share (:data:`WAVELENGTH_SCALE_SIGMA`), and widened
+to the leave-one-lamp-out jackknife's σ of ``p`` where that is larger
 (each lamp's response carries its own error of the mapping and of its measured spectrum, which the
 direct equations' χ² cannot see: on the twin, φ₀ within 0.002 rad of the truth but 6σ of the
 equations' own σ), propagated to ``h`` along ``∂h/∂p``.
@@ -73,6 +74,12 @@ DEFAULT_GRATING_MODEL: GratingModelName = "auto"
 SCAN_POINTS = 120
 #: Passes: the rows are re-whitened at the previous pass's ``g``.
 FIT_PASSES = 3
+#: Relative σ of the wavelength scale the responses are on: 0.5 nm at 550 nm, a spectrometer's
+#: stated accuracy (the validation protocol draws ±0.5 nm) and the order of the mapping's error.
+#: Both families depend on ``p/λ`` alone (``φ₀·550/λ``, ``λ_B/λ``), so a scale error moves ``p`` by
+#: the same fraction; the parameter's σ is never below it. (On the twin, with a consistent direct
+#: χ², φ₀ came out 0.11 % low: 6× the equations' own σ.)
+WAVELENGTH_SCALE_SIGMA = 0.5 / 550.0
 #: Relative step of the numerical derivative of the efficiencies in the parameter.
 DERIVATIVE_STEP = 1e-5
 
@@ -333,6 +340,16 @@ def fit_physical(
     )
 
 
+def _with_scale_floor(fit: PhysicalFit) -> PhysicalFit:
+    """``fit`` with ``σ_p ≥ p · WAVELENGTH_SCALE_SIGMA`` (both families depend on ``p/λ``)."""
+    floor = (fit.parameter * WAVELENGTH_SCALE_SIGMA) ** 2
+    stated = float(fit.covariance[0, 0])
+    if stated >= floor or stated <= 0:
+        return fit
+    factor = floor / stated
+    return replace(fit, covariance=fit.covariance * factor, inflation=fit.inflation * factor)
+
+
 def with_jackknife(
     fit: PhysicalFit,
     lamps: Sequence[LampData],
@@ -345,6 +362,7 @@ def with_jackknife(
 
     The jackknife variance is ``(L − 1)/L Σ_l (p_(−l) − p̄)²`` over the fits without lamp ``l``.
     """
+    fit = _with_scale_floor(fit)
     if len(lamps) < 2:
         return fit
     values = []
