@@ -72,6 +72,8 @@ GRATING_MODELS: tuple[GratingModelName, ...] = ("auto", "fourier", "sinusoidal",
 DEFAULT_GRATING_MODEL: GratingModelName = "auto"
 #: Parameter values scanned before the 1-D refinement.
 SCAN_POINTS = 120
+#: Values scanned around a known start (:func:`with_jackknife`'s refits).
+LOCAL_POINTS = 21
 #: Passes: the rows are re-whitened at the previous pass's ``g``.
 FIT_PASSES = 3
 #: Relative σ of the wavelength scale the responses are on: 0.5 nm at 550 nm, a spectrometer's
@@ -258,9 +260,11 @@ def fit_physical(
     wavelength_nm: FloatArray,
     *,
     gain_sigma: float | None = None,
+    near: float | None = None,
 ) -> PhysicalFit:
     """Fit ``θ = (p, log T)`` of ``kind`` to the lamps' direct equations (module docstring);
-    ``gain_sigma`` as :func:`calib.methods.multilamp.direct_rows` takes it.
+    ``gain_sigma`` as :func:`calib.methods.multilamp.direct_rows` takes it. ``near``: scan only a
+    tenth of the range around this value (the jackknife's refits start from the full fit).
 
     Raises
     ------
@@ -276,7 +280,11 @@ def fit_physical(
     if kind not in PHYSICAL_KINDS:
         raise InputError(f"unknown physical grating {kind!r}", source="grating_model")
     low, high = PHYSICAL_PARAMETER_RANGES[kind]
-    candidates = np.linspace(low, high, SCAN_POINTS)
+    if near is None:
+        candidates = np.linspace(low, high, SCAN_POINTS)
+    else:
+        reach = 0.05 * (high - low)
+        candidates = np.linspace(max(low, near - reach), min(high, near + reach), LOCAL_POINTS)
     reference = lamps[0]
     predicted = float(np.sum(reference.direct_row @ reference.response.response))
     weight = np.full(wavelength_nm.size, float(np.sum(reference.direct)) / max(predicted, 1e-300))
@@ -370,7 +378,9 @@ def with_jackknife(
         kept = [lamp for index, lamp in enumerate(lamps) if index != left_out]
         try:
             values.append(
-                fit_physical(kept, fit.kind, fit.wavelength_nm, gain_sigma=gain_sigma).parameter
+                fit_physical(
+                    kept, fit.kind, fit.wavelength_nm, gain_sigma=gain_sigma, near=fit.parameter
+                ).parameter
             )
         except EstimationError:
             return fit
