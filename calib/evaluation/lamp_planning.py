@@ -40,8 +40,8 @@ from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.spectra import Spectrum
 from calib.methods.grating_models import check_grating_model, physical_equations
-from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS, LampData, direct_rows, prior_rows
-from calib.methods.prior_solve import ResponseEstimate
+from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS, prior_rows
+from calib.methods.responses import LampData, ResponseEstimate, direct_rows
 from calib.model.bases import CameraPrior, fourier_basis
 from calib.model.forward import lamp_operators
 from calib.model.gratings import PHYSICAL_PARAMETER_NAMES, PhysicalKind, physical_grating
@@ -141,7 +141,7 @@ class _Planner:
 
     def rows(self, lamp: Spectrum) -> FloatArray:
         """The lamp's whitened direct equations for a camera like ``ŝ``, weighted as the solve
-        weights them (:func:`calib.methods.multilamp.direct_rows`): on ``c_η`` behind a flat
+        weights them (:func:`calib.methods.responses.direct_rows`): on ``c_η`` behind a flat
         grating, ``(3, b)``; or, with a physical model, their Jacobian in ``(p, log T)`` behind
         that grating, ``(3, 2)``."""
         size = self.prior.grid.size

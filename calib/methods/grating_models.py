@@ -46,12 +46,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
+from calib.methods.responses import LampData, direct_rows
 from calib.model.gratings import (
     PHYSICAL_KINDS,
     PHYSICAL_PARAMETER_NAMES,
@@ -61,9 +62,6 @@ from calib.model.gratings import (
     SinusoidalPhaseGrating,
     physical_grating,
 )
-
-if TYPE_CHECKING:
-    from calib.methods.multilamp import LampData
 
 GratingModelName = Literal["auto", "fourier", "sinusoidal", "blazed"]
 #: The estimator's grating models: ``"fourier"`` (free, ``η₀`` flat: decision 0015), the two
@@ -237,8 +235,6 @@ def physical_equations(
     ``η₀`` is integrated inside each lamp's row on the fine axis when the lamps carry their
     operators (``g = T/η₁``); else it is taken at the grid's nodes (``g = T η₀/η₁``).
     """
-    from calib.methods.multilamp import direct_rows
-
     grating = physical_grating(kind, parameter)
     first = np.maximum(grating.efficiency(1, wavelength_nm), 1e-300)
     operators = [lamp.operators for lamp in lamps]
@@ -263,7 +259,7 @@ def fit_physical(
     near: float | None = None,
 ) -> PhysicalFit:
     """Fit ``θ = (p, log T)`` of ``kind`` to the lamps' direct equations (module docstring);
-    ``gain_sigma`` as :func:`calib.methods.multilamp.direct_rows` takes it. ``near``: scan only a
+    ``gain_sigma`` as :func:`calib.methods.responses.direct_rows` takes it. ``near``: scan only a
     tenth of the range around this value (the jackknife's refits start from the full fit).
 
     Raises

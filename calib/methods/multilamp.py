@@ -10,7 +10,7 @@ equations on ``η⁻¹`` alone, independent of any camera basis; with three or m
 lamps ``η`` is determined by the data. The solve:
 
 1. Responses. Each lamp's profile gives ``q_lc = E_l η s_c`` on the grid by weighted least squares
-   (:func:`calib.methods.prior_solve.fit_response`: the measured lamp is inside the design matrix, nothing is
+   (:func:`calib.methods.responses.fit_response`: the measured lamp is inside the design matrix, nothing is
    divided by a spectrum), with its covariance ``C_lc``.
 2. Efficiency. ``η = B_η c_η`` (Fourier, Supp. E; a grating's efficiency is smooth and positive,
    its inverse over a 3:1 range is not) from the rows ``(d_l ⊙ q̂_lc)ᵀ η⁻¹ = m_dir,lc``, each
@@ -65,9 +65,14 @@ from calib.methods.grating_models import (
     fit_physical,
     with_jackknife,
 )
-from calib.methods.prior_solve import ResponseEstimate, fit_response
+from calib.methods.responses import (
+    DIRECT_GAIN_SIGMA,
+    LampData,
+    ResponseEstimate,
+    direct_rows,
+    lamp_data,
+)
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
-from calib.model.forward import LampOperators, PiecewiseLinearDensity, WavelengthMapping
 from calib.model.gratings import PHYSICAL_KINDS
 from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
@@ -128,12 +133,6 @@ DEFAULT_EFFICIENCY_TERMS = 7
 #: estimate through the file: 7 terms RE 2.69, 11 → 1.99, 15 → 1.78, 21 → 1.81 ×10⁻²).
 ROWS_PER_EFFICIENCY_TERM = 4
 MAX_POOLED_EFFICIENCY_TERMS = 15
-#: Relative floor on each direct equation's σ: lamp spectra and the model hold to ~0.1 %, not better.
-MODEL_FLOOR = 1e-3
-#: Relative σ of one lamp's direct-to-profile ratio, shared by its three channels: the spot and the
-#: band come from different exposures (a shutter's time is good to 1–3 %) and the lamp may drift
-#: between them. Without it the direct equations' reduced χ² on the validation split is 2–900.
-DIRECT_GAIN_SIGMA = 0.02
 #: Prior weights tried by UPRE and the evidence (relative to the prior's natural weight 1).
 PRIOR_WEIGHTS: FloatArray = np.logspace(-8, 2, 41)
 #: Re-weighting passes of step 2 (the rows' σ depend on the current ``η⁻¹``).
@@ -181,94 +180,6 @@ class EfficiencySolution:
         if self.direct_weight is None:
             return np.ones_like(self.inverse_efficiency)
         return self.direct_weight
-
-
-@dataclass(frozen=True, eq=False)
-class LampData:
-    """One lamp prepared for the efficiency rows: its response and its direct measurement."""
-
-    name: str
-    direct_row: FloatArray  # (f,): ∫ e φ_i dλ
-    response: ResponseEstimate
-    direct: FloatArray  # (3,)
-    direct_sigma: FloatArray  # (3,)
-    operators: LampOperators | None = None  # e φ_i on the fine axis, for an η₀ inside the row
-
-    def zeroth_order_row(self, zeroth_order: FloatArray | None) -> FloatArray:
-        """``∫ e φ_i η₀ dλ`` ``(f,)`` with ``η₀`` given on the fine axis (``None``: flat, the
-        plain direct row). Integrated at 1 nm: ``η₀`` may vary within a grid step (a blazed
-        grating's vanishes at its blaze)."""
-        if zeroth_order is None or self.operators is None:
-            return self.direct_row
-        densities = self.operators.densities
-        weighted = PiecewiseLinearDensity.on_axis(
-            densities.axis_nm, densities.density * zeroth_order[:, None]
-        )
-        return np.asarray(weighted.total, dtype=np.float64)
-
-
-def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
-    """Step 1 for one lamp with a direct measurement."""
-    observation = system.observation
-    if observation.direct_rgb is None:
-        raise InputError(
-            "every lamp of the multi-lamp solve needs a direct (0th-order) measurement",
-            source=f"lamp {observation.name!r}",
-        )
-    direct = np.asarray(observation.direct_rgb, dtype=np.float64)
-    sigma = (
-        np.zeros(3)
-        if observation.direct_sigma is None
-        else np.asarray(observation.direct_sigma, dtype=np.float64)
-    )
-    return LampData(
-        observation.name,
-        system.operators.direct_row,
-        fit_response(system, mapping),
-        direct,
-        sigma,
-        system.operators,
-    )
-
-
-def direct_rows(
-    lamps: Sequence[LampData],
-    inverse_efficiency: FloatArray,
-    *,
-    gain_sigma: float | None = None,
-    zeroth_order: FloatArray | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ g = m_dir,lc`` on the grid's nodes of ``g`` (``η⁻¹``
-    for the Fourier model, ``T/η₁`` for a physical one, whose ``η₀`` enters ``d_l`` on the fine
-    axis: ``zeroth_order``, :meth:`LampData.zeroth_order_row`): rows ``(3L, f)``, targets ``(3L,)``.
-
-    Each equation's variance is the direct measurement's, the response's covariance propagated
-    through the current ``g`` and the model floor; a lamp's three equations also share the error of
-    its direct-to-profile ratio (``gain_sigma``, default :data:`DIRECT_GAIN_SIGMA`: exposure times
-    and the lamp between the frames), a rank-one covariance ``σ_g² m mᵀ`` — so each lamp's block
-    is whitened by the Cholesky factor of its 3 × 3 covariance.
-    """
-    gain = DIRECT_GAIN_SIGMA if gain_sigma is None else gain_sigma
-    rows = []
-    targets = []
-    for lamp in lamps:
-        direct_row = lamp.zeroth_order_row(zeroth_order)
-        spread = direct_row * inverse_efficiency
-        variances = np.array(
-            [
-                float(lamp.direct_sigma[c]) ** 2
-                + float(spread @ lamp.response.covariance[c] @ spread)
-                + (MODEL_FLOOR * float(lamp.direct[c])) ** 2
-                for c in range(3)
-            ]
-        )
-        direct = np.asarray(lamp.direct, dtype=np.float64)
-        covariance = np.diag(np.maximum(variances, 1e-300)) + gain**2 * np.outer(direct, direct)
-        factor = np.linalg.inv(np.linalg.cholesky(covariance))
-        block = np.stack([direct_row * lamp.response.response[:, c] for c in range(3)])
-        rows.append(factor @ block)
-        targets.append(factor @ direct)
-    return np.vstack(rows), np.concatenate(targets)
 
 
 def prior_rows(

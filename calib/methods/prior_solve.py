@@ -48,13 +48,11 @@ from calib.methods.grating_models import (
     GratingModelName,
     check_grating_model,
 )
+from calib.methods.responses import fit_response, lamp_data
 from calib.model.bases import CameraBasis, CameraPrior, whitening
-from calib.model.forward import WavelengthMapping, apply_blur
+from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
 
-#: Second-difference penalty of the response fit, relative to the data's scale (stabilises grid
-#: nodes that few pixels see without shaping the curve).
-RESPONSE_SMOOTHNESS = 1e-4
 #: Passes of step 2 (re-weighting by the previous η̂⁻¹ and α̂).
 EFFICIENCY_PASSES = 3
 #: Registry name (and the result's ``method``).
@@ -89,59 +87,6 @@ class PriorSolution:
     scale: float
     used_pixels: FloatArray
     info: dict[str, Any]
-
-
-def pixels_inside(edges_nm: FloatArray, start_nm: float, stop_nm: float) -> FloatArray:
-    """Pixels whose whole wavelength interval lies in ``[start_nm, stop_nm]``: mask ``(n,)``."""
-    low = np.minimum(edges_nm[:-1], edges_nm[1:])
-    high = np.maximum(edges_nm[:-1], edges_nm[1:])
-    return np.asarray((low >= start_nm - 1e-9) & (high <= stop_nm + 1e-9))
-
-
-def _second_differences(size: int) -> FloatArray:
-    matrix = np.zeros((size - 2, size))
-    for row in range(size - 2):
-        matrix[row, row : row + 3] = (1.0, -2.0, 1.0)
-    return matrix
-
-
-@dataclass(frozen=True, eq=False)
-class ResponseEstimate:
-    """Step 1: ``q̂`` ``(f, 3)``, its covariance ``(3, f, f)`` and the pixels used ``(n,)``."""
-
-    response: FloatArray
-    covariance: FloatArray
-    used_pixels: FloatArray
-    chi2: float
-
-
-def fit_response(system: LampSystem, mapping: WavelengthMapping) -> ResponseEstimate:
-    """Step 1: weighted least squares for ``q_c = η s_c`` on the grid from the profile."""
-    grid = system.operators.grid
-    size = grid.size
-    edges_nm = mapping.wavelength_nm(system.edges_px)
-    inside = pixels_inside(edges_nm, grid.start_nm, grid.stop_nm)
-    if int(inside.sum()) < size:
-        raise EstimationError(
-            f"only {int(inside.sum())} profile pixels map inside {grid.start_nm:g}–{grid.stop_nm:g} "
-            f"nm; need at least {size} (one per grid wavelength)"
-        )
-    pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)[inside]
-    profile = system.observation.profile[inside]
-    weights = 1.0 / system.profile_sigma[inside]
-    difference = _second_differences(size)
-    penalty = difference.T @ difference
-    responses = np.empty((size, 3))
-    covariances = np.empty((3, size, size))
-    chi2 = 0.0
-    for c in range(3):
-        weighted = pixel_matrix * weights[:, c][:, None]
-        normal = weighted.T @ weighted
-        normal = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
-        covariances[c] = np.linalg.pinv(normal, hermitian=True)
-        responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
-        chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
-    return ResponseEstimate(responses, covariances, inside, chi2)
 
 
 def solve_with_prior(
@@ -488,7 +433,6 @@ def _physical_estimate(
         blend_with_prior,
         combine_responses,
         efficiency_with_sigma,
-        lamp_data,
         multilamp_result,
         solve_efficiency,
     )
