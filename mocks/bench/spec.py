@@ -103,7 +103,7 @@ class GratingSpec:
     first_order_peak_efficiency: float
     zeroth_order_efficiency: float | None
     dispersion_angle_deg: float
-    model: str = "sinusoidal"
+    model: str = "blazed"
     peak_phase_rad: float = 1.8
 
 
@@ -382,7 +382,7 @@ def _lamp_spec(lamp: _Reader, override: _Reader | None) -> LampSpec:
 
 
 def _grating_spec(grating: _Reader) -> GratingSpec:
-    model = grating.optional("model") or "sinusoidal"
+    model = grating.optional("model") or "blazed"
     if model not in ("sinusoidal", "blazed"):
         raise TwinSpecError(f"{grating.where('model')}: {model!r} is not sinusoidal or blazed")
     zeroth = grating.optional("zeroth_order_efficiency")
