@@ -40,7 +40,8 @@ from calib.evaluation.synthetic import (
     random_mapping,
     render_lamps,
 )
-from calib.methods.multilamp import direct_rows, pool_responses, prepare_lamps
+from calib.methods.multilamp import pool_responses, prepare_lamps
+from calib.methods.responses import direct_rows
 from calib.model.bases import camera_basis, fourier_basis
 
 MONTE_CARLO = 400

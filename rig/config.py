@@ -340,12 +340,24 @@ class TwinSensorConfig(StrictModel):
 
 
 class TwinGratingConfig(StrictModel):
-    """The twin's transmission grating in front of the lens (first-order efficiency: scalar blaze)."""
+    """The twin's transmission grating in front of the lens (``calib.model.gratings``).
+
+    ``model`` ``blazed`` (default): ``η_m = first_order_peak_efficiency · sinc²(blaze_nm/λ − m)``;
+    ``sinusoidal``: a thin sinusoidal phase sheet, ``η_m = J_m²(φ₀·550/λ)`` with
+    ``peak_phase_rad`` φ₀. Orders 0, 1 and 2 follow from the same parameters: the direct spot
+    through η₀(λ), the first order through η₁, the second order on top of the first's red end.
+    ``zeroth_order_efficiency`` replaces the model's η₀ by a flat one; it is 0.1 by default (the
+    twin's 0th order before physical gratings, which the rig's tests are set up for); ``null``
+    gives the model's own η₀(λ) (decision 0028: with a sheet's own η₀ the spot can be dimmer than
+    the band, which the rig's spot detection does not yet handle).
+    """
 
     grooves_per_mm: float = Field(500.0, gt=0, le=3000)
+    model: Literal["sinusoidal", "blazed"] = "blazed"
+    peak_phase_rad: float = Field(1.8, gt=0, le=2.6)
     blaze_nm: float = Field(500.0, ge=200, le=2000)
     first_order_peak_efficiency: float = Field(0.3, gt=0, le=1)
-    zeroth_order_efficiency: float = Field(0.1, gt=0, le=1)
+    zeroth_order_efficiency: float | None = Field(0.1, gt=0, le=1)
     dispersion_angle_deg: float = Field(
         0.8, ge=-180, le=180, description="direction of the first order on the sensor, from +x"
     )

@@ -299,6 +299,7 @@ def _twin_truth(session_path: Path, warnings: list[str]) -> GroundTruth | None:
     return GroundTruth(
         truth.sensitivity,
         grating_efficiency=truth.grating_efficiency,
+        zeroth_order_efficiency=truth.zeroth_order_efficiency,
         mapping=truth.mapping,
         source=f"{path.name}: the digital twin's camera {truth.camera} (not a verified session file)",
     )

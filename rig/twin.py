@@ -92,6 +92,9 @@ class TwinTruthRecord(Protocol):
     def grating_efficiency(self) -> Spectrum: ...
 
     @property
+    def zeroth_order_efficiency(self) -> Spectrum: ...
+
+    @property
     def mapping(self) -> GratingGeometry: ...
 
 

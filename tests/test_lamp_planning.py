@@ -116,3 +116,27 @@ def test_cli_exit_code_2_names_the_bad_input(arguments, named, tmp_path, monkeyp
     assert exited.value.code == 2
     stderr = capsys.readouterr().err
     assert named in stderr and len(stderr.strip().splitlines()) == 1
+
+
+def test_a_physical_grating_is_planned_for_and_a_grating_file_says_which() -> None:
+    """Two parameters against the direct equations: far smaller σ(η) than 7 free terms; the model
+    a calibration recorded is the one planned for."""
+    from calib.core.grating_file import GratingEfficiency
+    from calib.evaluation.lamp_planning import recorded_model
+
+    prior = fallback_camera_basis().prior()
+    lamps = [lamp_from_spec(spec) for spec in ("LED-B3", "FL2", "A")]
+    fourier = rank_subsets(lamps, prior)[0]
+    sheet = rank_subsets(lamps, prior, grating_model="sinusoidal", grating_parameter=1.3)[0]
+    assert sheet.lamps == ("LED-B3", "FL2", "A")
+    assert sheet.efficiency_sigma == pytest.approx(sheet.data_sigma, rel=1e-9)
+    assert sheet.efficiency_sigma < 0.2 * fourier.efficiency_sigma
+    with pytest.raises(InputError, match="one model"):
+        rank_subsets(lamps, prior, grating_model="auto")
+    record = {"model": "blazed", "parameters": {"blaze_nm": 480.0, "blaze_nm_sigma": 0.5}}
+    file = GratingEfficiency(np.array([400.0, 700.0]), np.ones(2), model=record)
+    assert recorded_model(file) == ("blazed", 480.0)
+    assert recorded_model(GratingEfficiency(np.array([400.0, 700.0]), np.ones(2))) == (
+        "fourier",
+        None,
+    )

@@ -13,7 +13,8 @@ from calib.core.metrics import relative_error
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
-from calib.methods.prior_solve import estimate_prior, fit_response, solve_with_prior
+from calib.methods.prior_solve import estimate_prior, solve_with_prior
+from calib.methods.responses import fit_response
 from calib.model.bases import CameraBasis, fallback_camera_basis, fourier_basis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.model.linear_model import prepare_lamp

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -13,6 +14,7 @@ from rich.table import Table
 from calib.cli.command_line import warn
 from calib.cli.options import DataDirOption, JsonOption
 from calib.core.errors import InputError
+from calib.core.grating_file import read_grating_file
 from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.core.spectra import Spectrum, WavelengthGrid
 from calib.evaluation.lamp_planning import (
@@ -20,6 +22,7 @@ from calib.evaluation.lamp_planning import (
     SubsetScore,
     best_additions,
     rank_subsets,
+    recorded_model,
 )
 from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS
 from calib.model.bases import default_camera_basis
@@ -88,19 +91,55 @@ def register(app: typer.Typer) -> None:
         ] = DEFAULT_EFFICIENCY_TERMS,
         data_dir: DataDirOption = None,
         as_json: JsonOption = False,
+        grating_model: Annotated[
+            str,
+            typer.Option(
+                help="The grating model to plan for: fourier (free, η₀ flat), sinusoidal (a "
+                "phase sheet) or blazed."
+            ),
+        ] = "fourier",
+        grating_parameter: Annotated[
+            float | None,
+            typer.Option(
+                help="The physical model's parameter: peak phase (rad at 550 nm) or blaze (nm); "
+                "default 1.2 rad / 500 nm."
+            ),
+        ] = None,
+        grating: Annotated[
+            Path | None,
+            typer.Option(
+                help="A grating file from an earlier calibration: plan for the model it records."
+            ),
+        ] = None,
     ) -> None:
         """Rank lamp subsets by how well they determine the grating efficiency (multilamp)."""
         if not math.isfinite(noise) or noise <= 0:
             raise InputError(f"must be a fraction > 0, got {noise}", source="--noise")
+        model, parameter = grating_model, grating_parameter
+        if grating is not None:
+            model, parameter = recorded_model(read_grating_file(grating))
         owned = _lamps(lamp, "--lamp")
         extra = _lamps(list(candidate or DEFAULT_CANDIDATES), "--candidate")
         basis = default_camera_basis(WavelengthGrid(), data_dir=data_dir)
         if basis.fallback is not None:
             warn("calib", basis.fallback)
         prior = basis.prior()
-        ranked = rank_subsets(owned, prior, noise_fraction=noise, efficiency_terms=terms)
+        ranked = rank_subsets(
+            owned,
+            prior,
+            noise_fraction=noise,
+            efficiency_terms=terms,
+            grating_model=model,
+            grating_parameter=parameter,
+        )
         additions = best_additions(
-            owned, extra, prior, noise_fraction=noise, efficiency_terms=terms
+            owned,
+            extra,
+            prior,
+            noise_fraction=noise,
+            efficiency_terms=terms,
+            grating_model=model,
+            grating_parameter=parameter,
         )
         if as_json:
             typer.echo(

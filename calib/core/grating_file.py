@@ -26,8 +26,20 @@ Format (``format_version`` 2; version 1 files — without ``geometry.rig`` — a
           "grooves_per_mm": 600 | null             the sheet's nominal density, when configured
         } | null
       },
-      "provenance": {"created": "…", "software": "…", "method": "…", "source": "…", …}
+      "provenance": {"created": "…", "software": "…", "method": "…", "source": "…", …},
+      "obtained": "estimated",                     how η was obtained (OBTAINED_KINDS)
+      "model": {"model": "sinusoidal",             the grating model, when a physical one was
+                "parameters": {…}, …} | null,      fitted (its parameters with σ)
+      "zeroth_order_efficiency": [0.62, …] | null, η₀ on the same wavelengths (absolute fraction)
+      "zeroth_order_efficiency_sigma": [...] | null
     }
+
+``obtained`` says what the curve is worth: ``"estimated"`` (from lamps' direct measurements),
+``"measured"`` (the spectrometer in the 0th- and 1st-order beams, ``rig``'s ``measure-grating``
+step), ``"maker's curve"`` (a catalogue), or ``"assumed flat"`` (no information at all: an
+estimate without a direct measurement saves the flat curve it assumed). Reusing an assumed-flat
+file warns (:func:`reuse_warnings`); a file without the key (written before it existed) counts as
+``"estimated"`` and says so.
 
 Unknown keys are kept in ``provenance``/``geometry`` and otherwise ignored, so later versions can add
 fields without breaking readers; a larger ``format_version`` is refused.
@@ -56,11 +68,17 @@ GRATING_FORMAT_VERSION = 2
 __all__ = [
     "GRATING_FORMAT_VERSION",
     "GRATING_SCHEMA",
+    "OBTAINED_KINDS",
     "GratingEfficiency",
     "GratingFileError",
     "read_grating_file",
+    "reuse_warnings",
     "write_grating_file",
 ]
+
+
+#: How a grating file's η was obtained (the file's ``obtained``).
+OBTAINED_KINDS: tuple[str, ...] = ("estimated", "measured", "maker's curve", "assumed flat")
 
 
 class GratingFileError(InputError):
@@ -107,6 +125,13 @@ class GratingEfficiency:
         Who made it, when, from what; JSON data.
     source
         Where it was read from (for messages).
+    obtained
+        How η was obtained (:data:`OBTAINED_KINDS`).
+    model
+        The grating model's record when a physical one was fitted (``model``, ``parameters``
+        with σ), else ``None``.
+    zeroth_order_efficiency, zeroth_order_efficiency_sigma
+        ``η₀`` and its σ on ``wavelength_nm`` (absolute fractions), when known.
     """
 
     wavelength_nm: FloatArray
@@ -115,8 +140,17 @@ class GratingEfficiency:
     geometry: Mapping[str, Any] = field(default_factory=dict)
     provenance: Mapping[str, Any] = field(default_factory=dict)
     source: str = "grating efficiency"
+    obtained: str = "estimated"
+    model: Mapping[str, Any] | None = None
+    zeroth_order_efficiency: FloatArray | None = None
+    zeroth_order_efficiency_sigma: FloatArray | None = None
 
     def __post_init__(self) -> None:
+        if self.obtained not in OBTAINED_KINDS:
+            raise GratingFileError(
+                f"{self.obtained!r} is not one of {', '.join(OBTAINED_KINDS)}",
+                source=f"{self.source}: obtained",
+            )
         wavelength = _array(self.wavelength_nm, "wavelength_nm", self.source)
         efficiency = _array(self.efficiency, "efficiency", self.source)
         if wavelength.size < 2:
@@ -146,6 +180,17 @@ class GratingEfficiency:
                     source=f"{self.source}: efficiency_sigma",
                 )
             object.__setattr__(self, "efficiency_sigma", sigma)
+        for name in ("zeroth_order_efficiency", "zeroth_order_efficiency_sigma"):
+            values = getattr(self, name)
+            if values is None:
+                continue
+            array = _array(values, name, self.source)
+            if array.shape != wavelength.shape or np.any(array < 0):
+                raise GratingFileError(
+                    f"needs {wavelength.size} values ≥ 0, one per wavelength",
+                    source=f"{self.source}: {name}",
+                )
+            object.__setattr__(self, name, array)
 
     @property
     def rig(self) -> Mapping[str, Any] | None:
@@ -195,6 +240,10 @@ class GratingEfficiency:
             else (self.efficiency_sigma / peak).tolist(),
             "geometry": dict(self.geometry),
             "provenance": dict(self.provenance),
+            "obtained": self.obtained,
+            "model": None if self.model is None else dict(self.model),
+            "zeroth_order_efficiency": _listed(self.zeroth_order_efficiency),
+            "zeroth_order_efficiency_sigma": _listed(self.zeroth_order_efficiency_sigma),
         }
 
     @classmethod
@@ -233,7 +282,7 @@ class GratingEfficiency:
         for required in ("wavelength_nm", "efficiency"):
             if required not in data:
                 raise GratingFileError("missing", source=f"{source}: {required}")
-        for optional in ("geometry", "provenance"):
+        for optional in ("geometry", "provenance", "model"):
             value = data.get(optional)
             if value is not None and not isinstance(value, Mapping):
                 raise GratingFileError(
@@ -249,7 +298,35 @@ class GratingEfficiency:
             geometry=dict(data.get("geometry") or {}),
             provenance=dict(data.get("provenance") or {}),
             source=source,
+            obtained=str(data.get("obtained", "estimated")),
+            model=None if data.get("model") is None else dict(data["model"]),
+            zeroth_order_efficiency=data.get("zeroth_order_efficiency"),
+            zeroth_order_efficiency_sigma=data.get("zeroth_order_efficiency_sigma"),
         )
+
+    def reuse_warnings(self) -> list[str]:
+        """:func:`reuse_warnings` of this file."""
+        return reuse_warnings(self)
+
+
+def _listed(values: FloatArray | None) -> list[float] | None:
+    return None if values is None else np.asarray(values, dtype=np.float64).tolist()
+
+
+def reuse_warnings(grating: GratingEfficiency) -> list[str]:
+    """What a user reusing ``grating`` as a calibration must hear (empty when nothing).
+
+    An assumed-flat file carries no information about the grating: an estimate through it carries
+    the grating's own spectral efficiency as an error.
+    """
+    if grating.obtained == "assumed flat":
+        return [
+            f"{grating.source}: this grating file holds a flat efficiency that was assumed, not "
+            "measured; an estimate through it carries the grating's own efficiency as an error. "
+            "Calibrate the grating with lamps measured directly (≥ 3 lamps, --method multilamp) "
+            "or with the spectrometer (rig plan measure-grating)"
+        ]
+    return []
 
 
 def _check_rig(rig: Any, where: str) -> None:

@@ -28,6 +28,8 @@ class GroundTruth:
         The true first-order efficiency η(λ), when known (any scale).
     mapping
         The true pixel→wavelength mapping, when known (same pixel axis as the estimate's).
+    zeroth_order_efficiency
+        The true 0th-order efficiency η₀(λ), when known (absolute, as ``grating_efficiency``).
     source
         Where it comes from, for the report (``"twin-truth.json (digital twin)"``).
     """
@@ -36,6 +38,7 @@ class GroundTruth:
     grating_efficiency: Spectrum | None = None
     mapping: QuadraticMapping | GratingGeometry | None = None
     source: str = "known truth"
+    zeroth_order_efficiency: Spectrum | None = None
 
     def __post_init__(self) -> None:
         camera = as_camera(self.sensitivity, name=None).normalised()

@@ -15,6 +15,14 @@ brightest direct channel, plus the model floor). A subset is scored by
 
 Subsets are ranked by the predicted σ; :func:`best_additions` says which extra lamp (e.g. a red,
 green or blue LED) lowers it most.
+
+With a physical grating model (``grating_model="sinusoidal"`` or ``"blazed"``,
+:mod:`calib.methods.grating_models`; the model the solve would choose, or the one a grating file
+recorded) the prediction is for that grating, at ``grating_parameter`` (default
+:data:`PLANNING_PARAMETERS`): the Fisher information of ``(p, log T)`` from the direct equations of a
+camera like ``ŝ`` through it, η₀ included, each lamp's rows whitened as the solve whitens them.
+That solve takes no camera prior, so both σ columns are the same bound, and the relative σ of
+``η₁``'s shape follows from ``∂ log η₁ / ∂p``.
 """
 
 from __future__ import annotations
@@ -22,18 +30,21 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
+from calib.core.grating_file import GratingEfficiency
 from calib.core.spectra import Spectrum
-from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS, LampData, direct_rows, prior_rows
-from calib.methods.prior_solve import ResponseEstimate
+from calib.methods.grating_models import check_grating_model, physical_equations
+from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS, prior_rows
+from calib.methods.responses import LampData, ResponseEstimate, direct_rows
 from calib.model.bases import CameraPrior, fourier_basis
 from calib.model.forward import lamp_operators
+from calib.model.gratings import PHYSICAL_PARAMETER_NAMES, PhysicalKind, physical_grating
 
 #: Direct noise of the prediction (fraction of the brightest channel), as in ``calib synthetic``.
 DEFAULT_NOISE_FRACTION = 0.01
@@ -41,6 +52,10 @@ DEFAULT_NOISE_FRACTION = 0.01
 MAX_LAMPS = 12
 #: Above this condition number the direct equations alone leave a direction of ``η`` open.
 MAX_CONDITION = 1e10
+#: The grating each physical family is planned for when no parameter is given: a sheet of peak
+#: phase 1.2 rad at 550 nm (the middle of what such sheets have), a grating blazed at 500 nm (the
+#: usual choice for the visible).
+PLANNING_PARAMETERS: dict[PhysicalKind, float] = {"sinusoidal": 1.2, "blazed": 500.0}
 
 
 @dataclass(frozen=True)
@@ -81,13 +96,42 @@ class _Planner:
     efficiency_basis: FloatArray
     penalty: FloatArray
     noise_fraction: float
+    grating: tuple[PhysicalKind, float] | None = None
 
     @classmethod
-    def of(cls, prior: CameraPrior, noise_fraction: float, efficiency_terms: int) -> _Planner:
+    def of(
+        cls,
+        prior: CameraPrior,
+        noise_fraction: float,
+        efficiency_terms: int,
+        grating_model: str = "fourier",
+        grating_parameter: float | None = None,
+    ) -> _Planner:
         if noise_fraction <= 0 or not math.isfinite(noise_fraction):
             raise InputError(
                 f"the noise fraction must be > 0, got {noise_fraction}", source="noise"
             )
+        model = check_grating_model(grating_model)
+        if model == "auto":
+            raise InputError(
+                "plan for one model: fourier, sinusoidal or blazed (auto chooses on data)",
+                source="grating_model",
+            )
+        if model != "fourier":
+            kind: PhysicalKind = "sinusoidal" if model == "sinusoidal" else "blazed"
+            parameter = (
+                PLANNING_PARAMETERS[kind] if grating_parameter is None else grating_parameter
+            )
+            grating = physical_grating(kind, parameter)  # checks the parameter
+            wavelength = prior.grid.wavelength_nm
+            shape = np.zeros((wavelength.size, 2))
+            step = 1e-4 * parameter
+            shape[:, 0] = (
+                np.log(physical_grating(kind, parameter + step).efficiency(1, wavelength))
+                - np.log(physical_grating(kind, parameter - step).efficiency(1, wavelength))
+            ) / (2 * step)
+            del grating
+            return cls(prior, shape, np.zeros((0, 3)), noise_fraction, (kind, parameter))
         efficiency_basis = fourier_basis(prior.grid, efficiency_terms)
         size = prior.grid.size
         flat = np.ones(size)
@@ -96,20 +140,53 @@ class _Planner:
         return cls(prior, efficiency_basis, penalty, noise_fraction)
 
     def rows(self, lamp: Spectrum) -> FloatArray:
-        """The lamp's whitened direct equations on ``c_η`` for a camera like ``ŝ`` behind a flat
-        grating, weighted as the solve weights them (:func:`calib.methods.multilamp.direct_rows`): ``(3, b)``."""
+        """The lamp's whitened direct equations for a camera like ``ŝ``, weighted as the solve
+        weights them (:func:`calib.methods.responses.direct_rows`): on ``c_η`` behind a flat
+        grating, ``(3, b)``; or, with a physical model, their Jacobian in ``(p, log T)`` behind
+        that grating, ``(3, 2)``."""
         size = self.prior.grid.size
-        direct_row = lamp_operators(lamp, self.prior.grid).direct_row
-        direct = direct_row @ self.prior.mean
-        predicted = LampData(
+        operators = lamp_operators(lamp, self.prior.grid)
+        direct_row = operators.direct_row
+        if self.grating is None:
+            direct = direct_row @ self.prior.mean
+            predicted = LampData(
+                lamp.name,
+                direct_row,
+                ResponseEstimate(
+                    self.prior.mean, np.zeros((3, size, size)), np.ones(size, bool), 0
+                ),
+                direct,
+                np.full(3, self.noise_fraction * float(np.max(direct))),
+            )
+            nodes, _ = direct_rows([predicted], np.ones(size))
+            return np.asarray(nodes @ self.efficiency_basis, dtype=np.float64)
+        kind, parameter = self.grating
+        grating = physical_grating(kind, parameter)
+        wavelength = self.prior.grid.wavelength_nm
+        first = grating.efficiency(1, wavelength)
+        data = LampData(
             lamp.name,
             direct_row,
-            ResponseEstimate(self.prior.mean, np.zeros((3, size, size)), np.ones(size, bool), 0),
-            direct,
-            np.full(3, self.noise_fraction * float(np.max(direct))),
+            ResponseEstimate(
+                self.prior.mean * first[:, None],
+                np.zeros((3, size, size)),
+                np.ones(size, bool),
+                0,
+            ),
+            np.zeros(3),
+            np.zeros(3),
+            operators,
         )
-        nodes, _ = direct_rows([predicted], np.ones(size))
-        return np.asarray(nodes @ self.efficiency_basis, dtype=np.float64)
+        direct = data.zeroth_order_row(grating.efficiency(0, operators.axis_nm)) @ self.prior.mean
+        data = replace(
+            data, direct=direct, direct_sigma=np.full(3, self.noise_fraction * float(direct.max()))
+        )
+        weight = 1.0 / first
+        step = 1e-4 * parameter
+        up = physical_equations([data], kind, parameter + step, weight, None, wavelength)[0]
+        down = physical_equations([data], kind, parameter - step, weight, None, wavelength)[0]
+        values = physical_equations([data], kind, parameter, weight, None, wavelength)[0]
+        return np.stack([(up - down) / (2 * step), values], axis=1)
 
     def score(self, rows: Mapping[str, FloatArray], names: Sequence[str]) -> SubsetScore:
         return score_subset(
@@ -169,8 +246,11 @@ def rank_subsets(
     *,
     noise_fraction: float = DEFAULT_NOISE_FRACTION,
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+    grating_model: str = "fourier",
+    grating_parameter: float | None = None,
 ) -> list[SubsetScore]:
-    """Every subset of ``lamps``, best (smallest predicted σ) first.
+    """Every subset of ``lamps``, best (smallest predicted σ) first (``grating_model``: the module
+    docstring).
 
     Raises
     ------
@@ -185,7 +265,7 @@ def rank_subsets(
             source="lamps",
         )
     names = _unique_names(lamps)
-    planner = _Planner.of(prior, noise_fraction, efficiency_terms)
+    planner = _Planner.of(prior, noise_fraction, efficiency_terms, grating_model, grating_parameter)
     rows = {lamp.name: planner.rows(lamp) for lamp in lamps}
     scores = [
         planner.score(rows, subset)
@@ -202,13 +282,15 @@ def best_additions(
     *,
     noise_fraction: float = DEFAULT_NOISE_FRACTION,
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS,
+    grating_model: str = "fourier",
+    grating_parameter: float | None = None,
 ) -> list[SubsetScore]:
     """All of ``lamps`` plus each candidate in turn, best first (the first is the one to buy).
 
     Candidates named like one of ``lamps`` are already there and are not tried again.
     """
     names = _unique_names(lamps)
-    planner = _Planner.of(prior, noise_fraction, efficiency_terms)
+    planner = _Planner.of(prior, noise_fraction, efficiency_terms, grating_model, grating_parameter)
     rows = {lamp.name: planner.rows(lamp) for lamp in lamps}
     scored = []
     for candidate in (c for c in candidates if c.name not in rows):
@@ -218,3 +300,14 @@ def best_additions(
             )
         )
     return sorted(scored, key=lambda score: score.efficiency_sigma)
+
+
+def recorded_model(grating: GratingEfficiency) -> tuple[str, float | None]:
+    """The model and parameter a grating file records (``"fourier"`` when none was fitted)."""
+    record = grating.model or {}
+    kind = record.get("model")
+    if kind not in PLANNING_PARAMETERS:
+        return "fourier", None
+    parameters = record.get("parameters") or {}
+    value = parameters.get(PHYSICAL_PARAMETER_NAMES[kind])
+    return str(kind), None if value is None else float(value)

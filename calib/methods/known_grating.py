@@ -3,7 +3,7 @@
 Without a direct (0th-order) measurement, or with the grating calibrated earlier (a grating file,
 :mod:`calib.core.grating_file`; ``rig grating`` pools several cameras into one), the joint solve of
 Makabe et al. (2025) is not needed: the profile is linear in the response ``q_c = η s_c``
-(:func:`calib.methods.prior_solve.fit_response`: the measured lamp at 1 nm over each pixel's
+(:func:`calib.methods.responses.fit_response`: the measured lamp at 1 nm over each pixel's
 wavelength interval, weighted least squares, nothing divided by a spectrum), and with ``η`` known
 the camera follows at every grid wavelength, not confined to a basis' span. One lamp suffices;
 several are combined by SNR with their relative brightness fitted
@@ -42,13 +42,12 @@ from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.closed_form import GratingMethodOptions, check_lamps
 from calib.methods.multilamp import (
-    LampData,
     blend_with_prior,
     combine_responses,
     lamps_with_mapping,
     multilamp_result,
 )
-from calib.methods.prior_solve import fit_response
+from calib.methods.responses import LampData, fit_response
 from calib.model.bases import CameraBasis
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry

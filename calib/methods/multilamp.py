@@ -10,7 +10,7 @@ equations on ``η⁻¹`` alone, independent of any camera basis; with three or m
 lamps ``η`` is determined by the data. The solve:
 
 1. Responses. Each lamp's profile gives ``q_lc = E_l η s_c`` on the grid by weighted least squares
-   (:func:`calib.methods.prior_solve.fit_response`: the measured lamp is inside the design matrix, nothing is
+   (:func:`calib.methods.responses.fit_response`: the measured lamp is inside the design matrix, nothing is
    divided by a spectrum), with its covariance ``C_lc``.
 2. Efficiency. ``η = B_η c_η`` (Fourier, Supp. E; a grating's efficiency is smooth and positive,
    its inverse over a 3:1 range is not) from the rows ``(d_l ⊙ q̂_lc)ᵀ η⁻¹ = m_dir,lc``, each
@@ -42,7 +42,7 @@ through one grating share ``η``: :func:`refine_grating` stacks their lamps' row
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -57,9 +57,23 @@ from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.closed_form import GratingMethodOptions, check_lamps, prepare_matched_lamp
-from calib.methods.prior_solve import ResponseEstimate, fit_response
+from calib.methods.grating_models import (
+    DEFAULT_GRATING_MODEL,
+    GratingModelName,
+    PhysicalFit,
+    check_grating_model,
+    fit_physical,
+    with_jackknife,
+)
+from calib.methods.responses import (
+    DIRECT_GAIN_SIGMA,
+    LampData,
+    ResponseEstimate,
+    direct_rows,
+    lamp_data,
+)
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
-from calib.model.forward import WavelengthMapping
+from calib.model.gratings import PHYSICAL_KINDS
 from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry, find_mapping, lamps_named
@@ -119,8 +133,6 @@ DEFAULT_EFFICIENCY_TERMS = 7
 #: estimate through the file: 7 terms RE 2.69, 11 → 1.99, 15 → 1.78, 21 → 1.81 ×10⁻²).
 ROWS_PER_EFFICIENCY_TERM = 4
 MAX_POOLED_EFFICIENCY_TERMS = 15
-#: Relative floor on each direct equation's σ: lamp spectra and the model hold to ~0.1 %, not better.
-MODEL_FLOOR = 1e-3
 #: Prior weights tried by UPRE and the evidence (relative to the prior's natural weight 1).
 PRIOR_WEIGHTS: FloatArray = np.logspace(-8, 2, 41)
 #: Re-weighting passes of step 2 (the rows' σ depend on the current ``η⁻¹``).
@@ -159,61 +171,15 @@ class EfficiencySolution:
     prior_weight: float
     inverse_jacobian: FloatArray
     info: dict[str, Any] = field(default_factory=dict)
+    direct_weight: FloatArray | None = None
 
-
-@dataclass(frozen=True, eq=False)
-class LampData:
-    """One lamp prepared for the efficiency rows: its response and its direct measurement."""
-
-    name: str
-    direct_row: FloatArray  # (f,): ∫ e φ_i dλ
-    response: ResponseEstimate
-    direct: FloatArray  # (3,)
-    direct_sigma: FloatArray  # (3,)
-
-
-def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
-    """Step 1 for one lamp with a direct measurement."""
-    observation = system.observation
-    if observation.direct_rgb is None:
-        raise InputError(
-            "every lamp of the multi-lamp solve needs a direct (0th-order) measurement",
-            source=f"lamp {observation.name!r}",
-        )
-    direct = np.asarray(observation.direct_rgb, dtype=np.float64)
-    sigma = (
-        np.zeros(3)
-        if observation.direct_sigma is None
-        else np.asarray(observation.direct_sigma, dtype=np.float64)
-    )
-    return LampData(
-        observation.name, system.operators.direct_row, fit_response(system, mapping), direct, sigma
-    )
-
-
-def direct_rows(
-    lamps: Sequence[LampData], inverse_efficiency: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ η⁻¹ = m_dir,lc`` on the grid's nodes of ``η⁻¹``:
-    rows ``(3L, f)``, targets ``(3L,)``.
-
-    Each row's σ² is the direct measurement's variance, the response's covariance propagated through
-    the current ``η⁻¹`` and the model floor.
-    """
-    rows = []
-    targets = []
-    for lamp in lamps:
-        spread = lamp.direct_row * inverse_efficiency
-        for c in range(3):
-            variance = (
-                float(lamp.direct_sigma[c]) ** 2
-                + float(spread @ lamp.response.covariance[c] @ spread)
-                + (MODEL_FLOOR * float(lamp.direct[c])) ** 2
-            )
-            sigma = np.sqrt(max(variance, 1e-300))
-            rows.append(lamp.direct_row * lamp.response.response[:, c] / sigma)
-            targets.append(float(lamp.direct[c]) / sigma)
-    return np.asarray(rows), np.asarray(targets)
+    @property
+    def direct_weights(self) -> FloatArray:
+        """``T η₀`` ``(f,)`` in the sensitivity's gauge: the direct signal is ``Σ d ⊙ s ⊙ T η₀``
+        (ones for the Fourier model, whose ``η₀`` is flat and whose gauge is the direct one)."""
+        if self.direct_weight is None:
+            return np.ones_like(self.inverse_efficiency)
+        return self.direct_weight
 
 
 def prior_rows(
@@ -443,14 +409,28 @@ class EfficiencySettings:
         How ``λ`` is chosen: ``"upre"``, ``"typicality"`` or ``"evidence"``
         (:data:`PRIOR_WEIGHT_RULES`; typicality falls back to UPRE when the prior carries no typical
         distance).
+    grating_model
+        ``"fourier"`` (``terms`` free terms, ``η₀`` flat), ``"sinusoidal"`` or ``"blazed"``
+        (physical, ``η₀`` from the same parameter: :mod:`calib.methods.grating_models`), or
+        ``"auto"`` (default): the one with the smallest predictive risk on the direct equations.
+    direct_gain_sigma
+        Relative σ of each lamp's direct-to-profile ratio, shared by its channels
+        (:data:`DIRECT_GAIN_SIGMA`; 0 for data without exposure errors, as the paper's protocol).
     """
 
     terms: int = DEFAULT_EFFICIENCY_TERMS
     model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL
     prior_weight: float | None = None
     weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
+    grating_model: GratingModelName = DEFAULT_GRATING_MODEL
+    direct_gain_sigma: float = DIRECT_GAIN_SIGMA
 
     def __post_init__(self) -> None:
+        check_grating_model(self.grating_model)
+        if not 0.0 <= self.direct_gain_sigma < 1.0:
+            raise InputError(
+                f"must be in [0, 1), got {self.direct_gain_sigma}", source="direct_gain_sigma"
+            )
         if self.model not in EFFICIENCY_MODELS:
             raise InputError(
                 f"unknown efficiency model {self.model!r}; choose from {EFFICIENCY_MODELS}",
@@ -470,7 +450,92 @@ def solve_efficiency(
     *,
     prior_groups: Sequence[Sequence[LampData]] | None = None,
 ) -> EfficiencySolution:
-    """Step 2: ``η`` from every lamp's direct equations, under the camera prior.
+    """Step 2: the grating from every lamp's direct equations, by ``settings.grating_model``.
+
+    ``"fourier"``: :func:`solve_fourier_efficiency`; ``"sinusoidal"``/``"blazed"``: the physical
+    family (:func:`calib.methods.grating_models.fit_physical`, no camera prior); ``"auto"``: all
+    three, the one with the smallest predictive risk (Mallows' ``C_L``) kept. The choice, every
+    candidate's risk and the physical model's parameters with σ are in ``info["grating_model"]``.
+    """
+    if not lamps:
+        raise InputError("no lamps with a direct measurement", source="observations")
+    choice = settings.grating_model
+    wavelength = prior.grid.wavelength_nm
+    candidates: dict[str, float] = {}
+    fourier: EfficiencySolution | None = None
+    if choice in ("fourier", "auto"):
+        fourier = solve_fourier_efficiency(lamps, prior, settings, prior_groups=prior_groups)
+        candidates["fourier"] = float(fourier.info["predictive_risk"])
+    fits: list[PhysicalFit] = []
+    failures: dict[str, str] = {}
+    for kind in PHYSICAL_KINDS:
+        if choice not in (kind, "auto"):
+            continue
+        try:
+            fit = fit_physical(lamps, kind, wavelength, gain_sigma=settings.direct_gain_sigma)
+        except EstimationError as error:
+            if choice != "auto":
+                raise
+            failures[kind] = str(error)
+            continue
+        fits.append(fit)
+        candidates[kind] = fit.predictive_risk
+    chosen = min(candidates, key=lambda name: candidates[name])
+    rule = "predictive risk of the direct equations (Mallows' C_L)"
+    common = {
+        "chosen": chosen,
+        "requested": choice,
+        "rule": rule if choice == "auto" else "given",
+        "predictive_risk": candidates,
+        **({"failed": failures} if failures else {}),
+    }
+    if chosen == "fourier":
+        assert fourier is not None
+        record = {"model": "fourier", "terms": int(fourier.coefficients.size), **common}
+        return replace(fourier, info={**fourier.info, "grating_model": record})
+    fit = with_jackknife(
+        next(fit for fit in fits if fit.kind == chosen),
+        lamps,
+        gain_sigma=settings.direct_gain_sigma,
+    )
+    return physical_solution(fit, {**fit.record(), **common})
+
+
+def physical_solution(fit: PhysicalFit, record: dict[str, Any]) -> EfficiencySolution:
+    """A physical fit as step 2's result: ``η⁻¹`` is ``h = 1/η₁``, the coefficients
+    ``(p, log T)``, and the direct equations' weight ``T η₀``."""
+    inverse, jacobian = fit.inverse_efficiency()
+    return EfficiencySolution(
+        inverse_efficiency=inverse,
+        coefficients=np.array([fit.parameter, fit.log_throughput]),
+        coefficient_covariance=fit.covariance,
+        noise_covariance=fit.noise_covariance,
+        prior_weight=0.0,
+        inverse_jacobian=jacobian,
+        info={
+            "prior_weight": 0.0,
+            "prior_weight_rule": "none (physical grating model)",
+            "prior_share": 0.0,
+            "efficiency_model": fit.kind,
+            "direct_chi2": fit.chi2,
+            "direct_equations": fit.n_equations,
+            "efficiency_terms": 2,
+            "predictive_risk": fit.predictive_risk,
+            "grating_model": record,
+        },
+        direct_weight=fit.direct_weight(),
+    )
+
+
+def solve_fourier_efficiency(
+    lamps: Sequence[LampData],
+    prior: CameraPrior,
+    settings: EfficiencySettings = EfficiencySettings(),
+    *,
+    prior_groups: Sequence[Sequence[LampData]] | None = None,
+) -> EfficiencySolution:
+    """Step 2 with the free Fourier model: ``η`` from every lamp's direct equations, under the
+    camera prior (``η₀`` taken as flat).
 
     Parameters
     ----------
@@ -540,7 +605,7 @@ def solve_efficiency(
     distances = np.full(len(groups), np.nan)
     for index in range(EFFICIENCY_PASSES):
         # Rows on the grid's nodes of η⁻¹ (and every α_k), whitened at the current η⁻¹.
-        data_nodes, target = direct_rows(lamps, inverse)
+        data_nodes, target = direct_rows(lamps, inverse, gain_sigma=settings.direct_gain_sigma)
         penalty_nodes = _stacked_prior_rows(groups, prior, inverse, x[b_eta:])
         fixed = prior_weight
         used_weights = group_weights
@@ -574,6 +639,8 @@ def solve_efficiency(
         dtype=np.float64,
     )
     residual = data_nodes @ inverse - target
+    # Mallows' C_L at the chosen weight: comparable with a physical model's χ² + 2k.
+    risk = weight_score("upre", max(weight, 1e-300), residual, np.zeros(0), data, penalty)
     singular = np.linalg.svd(data[:, :b_eta], compute_uv=False)
     reported_weight = float(used_weights[0] * weight)
     # The prior's share of the posterior precision of η's terms: falls as lamps are added.
@@ -595,6 +662,7 @@ def solve_efficiency(
             "prior_share": prior_share,
             "efficiency_model": model,
             "direct_chi2": float(residual @ residual),
+            "predictive_risk": risk,
             "direct_equations": int(data.shape[0]),
             "efficiency_terms": b_eta,
             "data_condition": float(singular[0] / max(singular[-1], 1e-300)),
@@ -898,6 +966,12 @@ class MultilampOptions(GratingMethodOptions):
     weight_rule
         How the prior's weight is chosen: ``"upre"`` (default), ``"typicality"`` or ``"evidence"``
         (:data:`PRIOR_WEIGHT_RULES`).
+    grating_model
+        The grating's model (:data:`calib.methods.grating_models.GRATING_MODELS`): ``"auto"``
+        (default: chosen by the direct equations' predictive risk), ``"fourier"``,
+        ``"sinusoidal"`` or ``"blazed"``.
+    direct_gain_sigma
+        Relative σ of each lamp's direct-to-profile ratio (:data:`DIRECT_GAIN_SIGMA`).
     uncertainty
         ``"posterior"`` (default: the σ band, the camera prior's own uncertainty included),
         ``"noise"`` (the measurements' noise propagated alone, what :func:`bootstrap_sigma` checks)
@@ -908,6 +982,8 @@ class MultilampOptions(GratingMethodOptions):
     efficiency_terms: int = DEFAULT_EFFICIENCY_TERMS
     efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL
     weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
+    grating_model: GratingModelName = DEFAULT_GRATING_MODEL
+    direct_gain_sigma: float = DIRECT_GAIN_SIGMA
     uncertainty: Uncertainty = "posterior"
 
     def __post_init__(self) -> None:
@@ -922,7 +998,12 @@ class MultilampOptions(GratingMethodOptions):
     def efficiency_settings(self) -> EfficiencySettings:
         """Step 2's settings (:class:`EfficiencySettings`)."""
         return EfficiencySettings(
-            self.efficiency_terms, self.efficiency_model, self.prior_weight, self.weight_rule
+            self.efficiency_terms,
+            self.efficiency_model,
+            self.prior_weight,
+            self.weight_rule,
+            self.grating_model,
+            self.direct_gain_sigma,
         )
 
 
@@ -1005,7 +1086,7 @@ def estimate_multilamp(
         else efficiency.coefficient_covariance,
         with_covariance=options.uncertainty != "none",
     )
-    eta, eta_sigma = _efficiency_with_sigma(efficiency)
+    eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
     return multilamp_result(
         calibrated.lamps,
@@ -1019,12 +1100,13 @@ def estimate_multilamp(
             "solve_s": total_s - calibrated.mapping_s,
             "total_s": total_s,
         },
+        direct_weight=efficiency.direct_weights,
     )
 
 
 def grating_file_from(calibrated: CalibratedLamps, *, description: str = "") -> GratingEfficiency:
     """The estimated ``η`` with its σ and geometry, ready for :func:`calib.core.grating_file.write_grating_file`."""
-    eta, eta_sigma = _efficiency_with_sigma(calibrated.efficiency)
+    eta, eta_sigma = efficiency_with_sigma(calibrated.efficiency)
     return GratingEfficiency(
         wavelength_nm=calibrated.grid.wavelength_nm,
         efficiency=eta,
@@ -1040,10 +1122,26 @@ def grating_file_from(calibrated: CalibratedLamps, *, description: str = "") -> 
             "prior_weight": calibrated.efficiency.prior_weight,
         },
         source="multilamp calibration",
+        **grating_model_fields(calibrated.efficiency.info.get("grating_model")),
     )
 
 
-def _efficiency_with_sigma(efficiency: EfficiencySolution) -> tuple[FloatArray, FloatArray]:
+def grating_model_fields(record: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The grating file's ``obtained``, ``model`` and ``η₀`` fields from a solve's
+    ``info["grating_model"]`` (:func:`solve_efficiency`): the physical model's parameters with σ
+    and its ``η₀``, or only ``obtained`` for the Fourier model."""
+    if not record or record.get("chosen", record.get("model")) == "fourier":
+        return {"obtained": "estimated", "model": None if not record else {"model": "fourier"}}
+    kept = ("model", "parameters", "grating", "direct_chi2", "direct_equations", "sigma_inflation")
+    return {
+        "obtained": "estimated",
+        "model": {key: record[key] for key in kept if key in record},
+        "zeroth_order_efficiency": record.get("zeroth_order_efficiency"),
+        "zeroth_order_efficiency_sigma": record.get("zeroth_order_efficiency_sigma"),
+    }
+
+
+def efficiency_with_sigma(efficiency: EfficiencySolution) -> tuple[FloatArray, FloatArray]:
     """``η`` (maximum 1) and its σ, from ``η⁻¹``'s covariance (first order, ``δη = −η² δη⁻¹``)."""
     inverse = efficiency.inverse_efficiency
     inverse_sigma = np.sqrt(
@@ -1082,6 +1180,7 @@ def refine_grating(
     prior_weight: float | None = None,
     efficiency_model: EfficiencyModel = DEFAULT_EFFICIENCY_MODEL,
     weight_rule: WeightRule = DEFAULT_WEIGHT_RULE,
+    grating_model: GratingModelName = DEFAULT_GRATING_MODEL,
 ) -> tuple[GratingEfficiency, list[EstimateResult]]:
     """``η`` shared by several cameras seen through one grating, and each camera's sensitivity.
 
@@ -1128,11 +1227,11 @@ def refine_grating(
             if efficiency_model == "inverse"
             else DEFAULT_EFFICIENCY_TERMS
         )
-    settings = EfficiencySettings(terms, efficiency_model, prior_weight, weight_rule)
+    settings = EfficiencySettings(terms, efficiency_model, prior_weight, weight_rule, grating_model)
     efficiency = solve_efficiency(
         pooled, basis.prior(), settings, prior_groups=[calibrated.lamps for calibrated in each]
     )
-    eta_pair = _efficiency_with_sigma(efficiency)
+    eta_pair = efficiency_with_sigma(efficiency)
     results = []
     for calibrated in each:
         solution = combine_responses(
@@ -1150,6 +1249,7 @@ def refine_grating(
                 basis,
                 {**efficiency.info, "grating": f"shared by {len(cameras)} cameras"},
                 {"mapping_s": calibrated.mapping_s},
+                direct_weight=efficiency.direct_weights,
             )
         )
     shared = CalibratedLamps(grid, each[0].mapping, tuple(pooled), efficiency, 0.0)
@@ -1168,13 +1268,18 @@ def multilamp_result(
     timings: dict[str, float],
     *,
     method: str = MULTILAMP_METHOD,
+    direct_weight: FloatArray | None = None,
 ) -> EstimateResult:
     """The :class:`~calib.core.result.EstimateResult` of a solve over lamp responses: curves
     normalised to a maximum of 1 (negative values clipped) with σ, ``η`` and its σ, each lamp's
-    direct residual, ``info`` and ``timings`` in the diagnostics."""
+    direct residual (the direct path weighted by ``direct_weight``, ``T η₀``: ones when ``η₀`` is
+    taken flat), ``info`` and ``timings`` in the diagnostics."""
     sensitivity, sigma = solution.normalised()
+    weight = np.ones(solution.sensitivity.shape[0]) if direct_weight is None else direct_weight
     residuals = {
-        lamp.name: {"direct": lamp.direct - lamp.direct_row @ solution.sensitivity * scale}
+        lamp.name: {
+            "direct": lamp.direct - (lamp.direct_row * weight) @ solution.sensitivity * scale
+        }
         for lamp, scale in zip(lamps, solution.lamp_scales, strict=True)
         if np.all(np.isfinite(lamp.direct))
     }

@@ -42,14 +42,17 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods.closed_form import ClosedFormOptions, joint_result, joint_setup
+from calib.methods.closed_form import ClosedFormOptions, JointSetup, joint_result, joint_setup
+from calib.methods.grating_models import (
+    DEFAULT_GRATING_MODEL,
+    GratingModelName,
+    check_grating_model,
+)
+from calib.methods.responses import fit_response, lamp_data
 from calib.model.bases import CameraBasis, CameraPrior, whitening
-from calib.model.forward import WavelengthMapping, apply_blur
+from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
 
-#: Second-difference penalty of the response fit, relative to the data's scale (stabilises grid
-#: nodes that few pixels see without shaping the curve).
-RESPONSE_SMOOTHNESS = 1e-4
 #: Passes of step 2 (re-weighting by the previous η̂⁻¹ and α̂).
 EFFICIENCY_PASSES = 3
 #: Registry name (and the result's ``method``).
@@ -84,59 +87,6 @@ class PriorSolution:
     scale: float
     used_pixels: FloatArray
     info: dict[str, Any]
-
-
-def pixels_inside(edges_nm: FloatArray, start_nm: float, stop_nm: float) -> FloatArray:
-    """Pixels whose whole wavelength interval lies in ``[start_nm, stop_nm]``: mask ``(n,)``."""
-    low = np.minimum(edges_nm[:-1], edges_nm[1:])
-    high = np.maximum(edges_nm[:-1], edges_nm[1:])
-    return np.asarray((low >= start_nm - 1e-9) & (high <= stop_nm + 1e-9))
-
-
-def _second_differences(size: int) -> FloatArray:
-    matrix = np.zeros((size - 2, size))
-    for row in range(size - 2):
-        matrix[row, row : row + 3] = (1.0, -2.0, 1.0)
-    return matrix
-
-
-@dataclass(frozen=True, eq=False)
-class ResponseEstimate:
-    """Step 1: ``q̂`` ``(f, 3)``, its covariance ``(3, f, f)`` and the pixels used ``(n,)``."""
-
-    response: FloatArray
-    covariance: FloatArray
-    used_pixels: FloatArray
-    chi2: float
-
-
-def fit_response(system: LampSystem, mapping: WavelengthMapping) -> ResponseEstimate:
-    """Step 1: weighted least squares for ``q_c = η s_c`` on the grid from the profile."""
-    grid = system.operators.grid
-    size = grid.size
-    edges_nm = mapping.wavelength_nm(system.edges_px)
-    inside = pixels_inside(edges_nm, grid.start_nm, grid.stop_nm)
-    if int(inside.sum()) < size:
-        raise EstimationError(
-            f"only {int(inside.sum())} profile pixels map inside {grid.start_nm:g}–{grid.stop_nm:g} "
-            f"nm; need at least {size} (one per grid wavelength)"
-        )
-    pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)[inside]
-    profile = system.observation.profile[inside]
-    weights = 1.0 / system.profile_sigma[inside]
-    difference = _second_differences(size)
-    penalty = difference.T @ difference
-    responses = np.empty((size, 3))
-    covariances = np.empty((3, size, size))
-    chi2 = 0.0
-    for c in range(3):
-        weighted = pixel_matrix * weights[:, c][:, None]
-        normal = weighted.T @ weighted
-        normal = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
-        covariances[c] = np.linalg.pinv(normal, hermitian=True)
-        responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
-        chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
-    return ResponseEstimate(responses, covariances, inside, chi2)
 
 
 def solve_with_prior(
@@ -347,7 +297,23 @@ def _constrained_covariance(rows: FloatArray, constraint: FloatArray) -> FloatAr
 class PriorOptions(ClosedFormOptions):
     """Options of :func:`estimate_prior` (those of every closed-form solve,
     :class:`calib.methods.closed_form.ClosedFormOptions`); ``prior_shrinkage`` also shapes the
-    prior this solve leans on."""
+    prior this solve leans on.
+
+    Attributes
+    ----------
+    grating_model
+        ``"fourier"``: this module's solve (``η⁻¹`` in ``efficiency_terms`` Fourier terms, ``η₀``
+        flat); ``"sinusoidal"``/``"blazed"``: the physical grating fitted to the lamps' direct
+        equations (:mod:`calib.methods.grating_models`), then the camera through it with the prior
+        where the lamps are dim; ``"auto"`` (default): the model with the smallest predictive risk
+        on the direct equations.
+    """
+
+    grating_model: GratingModelName = DEFAULT_GRATING_MODEL
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_grating_model(self.grating_model)
 
 
 @one_blas_thread
@@ -418,6 +384,12 @@ def estimate_prior(
         options=options,
     )
     step = time.perf_counter()
+    record: dict[str, Any] = {"model": "fourier", "chosen": "fourier", "requested": "fourier"}
+    if options.grating_model != "fourier":
+        physical, record = _physical_estimate(observations, setup, basis, grid, options)
+        if physical is not None:
+            return physical
+        record = {**record, "model": "fourier", "terms": int(setup.efficiency_basis.shape[1])}
     reference = setup.solve_lamps[0]
     system = setup.prepared(reference, grid)
     companions = [
@@ -440,5 +412,57 @@ def estimate_prior(
         inverse_efficiency=solution.inverse_efficiency,
         sensitivity_sigma=solution.sensitivity_sigma,
         info={**solution.info, "lamp_scales": [1.0]},
-        diagnostics={},
+        diagnostics={"grating_model": record},
     )
+
+
+def _physical_estimate(
+    observations: Sequence[LampObservation],
+    setup: JointSetup,
+    basis: CameraBasis,
+    grid: WavelengthGrid,
+    options: PriorOptions,
+) -> tuple[EstimateResult | None, dict[str, Any]]:
+    """The estimate through a physical grating fitted to the direct equations, when
+    ``options.grating_model`` asks for one or ``"auto"`` prefers one (else ``None``: the Fourier
+    solve above runs), and the model choice's record. The camera is ``q̂ / η₁`` pooled over the lamps, with the prior where they
+    are dim (:func:`calib.methods.multilamp.blend_with_prior`: the prior enters once, here)."""
+    # Deferred: multilamp builds on this module's response fit.
+    from calib.methods.multilamp import (
+        EfficiencySettings,
+        blend_with_prior,
+        combine_responses,
+        efficiency_with_sigma,
+        multilamp_result,
+        solve_efficiency,
+    )
+
+    started = time.perf_counter()
+    with_direct = [obs for obs in observations if obs.direct_rgb is not None]
+    lamps = [lamp_data(setup.prepared(obs, grid), setup.mapping) for obs in with_direct]
+    efficiency = solve_efficiency(
+        lamps, setup.prior, EfficiencySettings(grating_model=options.grating_model)
+    )
+    record: dict[str, Any] = efficiency.info["grating_model"]
+    if record["chosen"] == "fourier":
+        return None, record
+    solution = combine_responses(
+        [lamp.response for lamp in lamps],
+        efficiency.inverse_efficiency,
+        efficiency.inverse_jacobian,
+        efficiency.coefficient_covariance,
+    )
+    solution = blend_with_prior(solution, setup.prior)
+    setup.timings["solve_s"] = time.perf_counter() - started
+    setup.timings["total_s"] = time.perf_counter() - setup.started
+    return multilamp_result(
+        lamps,
+        solution,
+        efficiency_with_sigma(efficiency),
+        setup.mapping,
+        basis,
+        {**efficiency.info, "grating": "estimated", "mapping_given": setup.mapping_given},
+        setup.timings,
+        method=PRIOR_METHOD,
+        direct_weight=efficiency.direct_weights,
+    ), record

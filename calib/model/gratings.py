@@ -380,6 +380,46 @@ class CatalogueGrating(_SpectrumMixin):
         return self
 
 
+#: The physical families the estimator fits (:mod:`calib.methods.grating_models`): each is one
+#: shape parameter (the sinusoidal sheet's peak phase at 550 nm, the blazed grating's blaze
+#: wavelength), with the orders' efficiencies all following from it.
+PhysicalKind = Literal["sinusoidal", "blazed"]
+PHYSICAL_KINDS: tuple[PhysicalKind, ...] = ("sinusoidal", "blazed")
+#: Where the estimator searches each family's parameter. Wider than what any sheet sold for this
+#: work has (and than :meth:`SinusoidalPhaseGrating.draw`/:meth:`BlazedGrating.draw` sample), but
+#: inside the range where the first order has no zero between 380 and 780 nm: ``J₁`` vanishes at
+#: ``φ = 3.83`` (``φ₀ = 3.83 · 380 / 550 = 2.65`` rad), ``sinc²(λ_B/λ − 1)`` at ``λ_B = 2λ``
+#: (760 nm). Units: radians at 550 nm, nm.
+PHYSICAL_PARAMETER_RANGES: dict[PhysicalKind, tuple[float, float]] = {
+    "sinusoidal": (0.05, 2.6),
+    "blazed": (150.0, 755.0),
+}
+#: The parameter's name in records (``to_dict``'s key).
+PHYSICAL_PARAMETER_NAMES: dict[PhysicalKind, str] = {
+    "sinusoidal": "peak_phase_rad",
+    "blazed": "blaze_nm",
+}
+
+
+def physical_grating(
+    kind: PhysicalKind, parameter: float
+) -> SinusoidalPhaseGrating | BlazedGrating:
+    """The grating of a physical family with its one shape parameter (:data:`PHYSICAL_KINDS`).
+
+    Examples
+    --------
+    >>> physical_grating("blazed", 500.0).name
+    'blazed grating λ_B = 500 nm'
+    """
+    if kind == "sinusoidal":
+        return SinusoidalPhaseGrating(parameter)
+    if kind == "blazed":
+        return BlazedGrating(parameter)
+    raise InputError(
+        f"unknown physical grating {kind!r}; choose from {PHYSICAL_KINDS}", source="grating_model"
+    )
+
+
 def draw_grating(
     kind: GratingKind, rng: np.random.Generator, *, catalogue: CatalogueGrating | None = None
 ) -> SinusoidalPhaseGrating | BlazedGrating | CatalogueGrating:

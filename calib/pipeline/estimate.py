@@ -217,6 +217,8 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     grating = settings.grating
     if isinstance(grating, Path):
         grating = read_grating_file(grating)
+    if grating is not None:
+        warnings.extend(grating.reuse_warnings())
     if grating is not None and not grating.covers(settings.grid):
         lo, hi = grating.range_nm
         raise InputError(

@@ -59,6 +59,7 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import format_re, relative_error
 from calib.core.result import EstimateResult, json_safe
 from calib.core.truth import GroundTruth
+from calib.methods.multilamp import grating_model_fields
 from calib.model.extension import Extension, extend
 from calib.pipeline.camera_identity import CameraIdentity, camera_identity
 from calib.pipeline.estimate import OfflineEstimate
@@ -348,13 +349,19 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
         "lamps": [obs.name for obs in estimate.observations],
         "source": "calib estimate",
     }
+    fields = grating_model_fields(result.diagnostics.get("grating_model"))
+    if result.diagnostics.get("grating") == "flat (assumed)":
+        fields = {"obtained": "assumed flat"}
     return GratingEfficiency(
         wavelength_nm=result.wavelength_nm,
         efficiency=efficiency,
         efficiency_sigma=sigma,
         geometry=geometry,
         provenance=provenance,
-        source="estimated grating efficiency",
+        source="estimated grating efficiency"
+        if fields["obtained"] == "estimated"
+        else "assumed flat grating efficiency",
+        **fields,
     )
 
 

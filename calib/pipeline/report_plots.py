@@ -16,6 +16,7 @@ from calib.core.arrays import FloatArray
 from calib.core.figures import agg_figure, import_matplotlib
 from calib.core.observations import LampObservation
 from calib.core.spectra import MultiSpectrum, Spectrum
+from calib.core.truth import GroundTruth
 from calib.image.profiles import write_geometry_png
 from calib.model.forward import render_observation
 from calib.pipeline.brackets import BracketProfiles
@@ -134,11 +135,15 @@ def plot_sensitivity(path: Path, estimate: OfflineEstimate, delivered: Delivered
 def plot_efficiency(
     path: Path, estimate: OfflineEstimate, delivered: DeliveredCamera
 ) -> Path | None:
-    """η(λ) with its ±2σ band, and the truth's η scaled to the same maximum over the grid."""
+    """η(λ) with its ±2σ band, and the truth's η scaled to the same maximum over the grid; with a
+    physical grating model, η₀ and η₁ in absolute terms (:func:`plot_grating_orders`)."""
     result = estimate.result
     efficiency = result.grating_efficiency
     if efficiency is None or not np.any(np.isfinite(efficiency)):
         return None
+    record = result.diagnostics.get("grating_model")
+    if isinstance(record, dict) and "first_order_efficiency" in record:
+        return plot_grating_orders(path, result.wavelength_nm, record, delivered.truth)
     figure = _figure(7.0, 3.2)
     axes = figure.subplots()
     axes.plot(result.wavelength_nm, efficiency, color="black", label="estimate")
@@ -163,6 +168,55 @@ def plot_efficiency(
     axes.set_title(f"first-order grating efficiency ({origin}, maximum 1; {band})", fontsize=9)
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("relative efficiency")
+    axes.legend(fontsize=8)
+    axes.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def plot_grating_orders(
+    path: Path, wavelength_nm: FloatArray, record: Mapping[str, Any], truth: GroundTruth | None
+) -> Path:
+    """η₁ and η₀ of a physical grating model (absolute fractions) with ±2σ bands, and the truth's
+    orders where known (the twin's), on the same absolute scale."""
+    figure = _figure(7.0, 3.4)
+    axes = figure.subplots()
+    orders = (
+        ("η₁ (first order)", "first_order_efficiency", "tab:blue"),
+        ("η₀ (0th order, the direct spot)", "zeroth_order_efficiency", "tab:orange"),
+    )
+    for label, key, colour in orders:
+        values = np.asarray(record[key], dtype=np.float64)
+        sigma = np.asarray(record.get(f"{key}_sigma", np.zeros_like(values)), dtype=np.float64)
+        axes.plot(wavelength_nm, values, color=colour, label=label)
+        _band(axes, wavelength_nm, values, sigma, colour)
+    if truth is not None:
+        for curve, colour in (
+            (truth.grating_efficiency, "tab:blue"),
+            (truth.zeroth_order_efficiency, "tab:orange"),
+        ):
+            if curve is not None:
+                inside = (curve.wavelength_nm >= wavelength_nm[0]) & (
+                    curve.wavelength_nm <= wavelength_nm[-1]
+                )
+                axes.plot(
+                    curve.wavelength_nm[inside],
+                    curve.values[inside],
+                    color=colour,
+                    label="truth" if colour == "tab:blue" else None,
+                    **_TRUTH_STYLE,
+                )
+    parameters = record.get("parameters", {})
+    described = ", ".join(
+        f"{name} = {value:.4g} ± {parameters.get(f'{name}_sigma', float('nan')):.2g}"
+        for name, value in parameters.items()
+        if name in ("peak_phase_rad", "blaze_nm")
+    )
+    axes.set_title(
+        f"grating efficiency, {record.get('model')} model ({described}); ±2σ bands", fontsize=9
+    )
+    axes.set_xlabel("wavelength (nm)")
+    axes.set_ylabel("efficiency (fraction of the incident light)")
+    axes.set_ylim(bottom=0.0)
     axes.legend(fontsize=8)
     axes.grid(alpha=0.3)
     return _save(figure, path)

@@ -20,14 +20,18 @@ Units: lamps in W/(sr·m²·nm), sensitivities peaking at 1, and ``throughput_e_
 wavelength integral into photo-electrons per second at f/8; the renderer works in DN/s at ISO 100
 (electrons × the sensor's gain).
 
-The grating's first-order efficiency is the scalar-theory blaze curve
-``η(λ) = η_peak · sinc²(λ_blaze/λ − 1)``, its zeroth order a constant ``η₀``.
+The grating is a physical model (:mod:`calib.model.gratings`, ``rig.config.TwinGratingConfig``):
+a thin sinusoidal phase sheet by default (``η_m = J_m²(φ₀·550/λ)``) or a blazed grating
+(``η_m = η_peak · sinc²(λ_blaze/λ − m)``). The direct spot collects ``∫ e·η₀·s_c`` through the 0th
+order's own η₀(λ), and the second order lands on the first order's pixels at half their wavelength
+(the grating equation: the same angle), added to the first order's cumulative integral.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -37,9 +41,9 @@ from calib.core.errors import InputError
 from calib.core.mapping import GratingGeometry
 from calib.core.spectra import MultiSpectrum, Spectrum
 from calib.model.forward import PiecewiseLinearDensity, RenderedObservation, render_observation
-from calib.model.gratings import BlazedGrating
+from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
 from mocks.bench.colour_cache import cached_table
-from mocks.bench.spec import CameraSpec, TwinSpecError
+from mocks.bench.spec import CameraSpec, GratingSpec, TwinSpecError
 from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_box
 
 #: Step of the fine axis along the dispersion on which the first order's cumulative is tabulated.
@@ -90,13 +94,45 @@ def load_sensitivity(camera: CameraSpec) -> MultiSpectrum:
 
 
 def blaze_efficiency(
-    blaze_nm: float, peak_efficiency: float, range_nm: tuple[float, float] = EFFICIENCY_RANGE_NM
+    blaze_nm: float,
+    peak_efficiency: float,
+    range_nm: tuple[float, float] = EFFICIENCY_RANGE_NM,
+    *,
+    order: int = 1,
 ) -> Spectrum:
-    """First-order efficiency ``η_peak · sinc²(λ_blaze/λ − 1)`` at 1 nm over ``range_nm``
+    """Order ``m``'s efficiency ``η_peak · sinc²(λ_blaze/λ − m)`` at 1 nm over ``range_nm``
     (:class:`calib.model.gratings.BlazedGrating`)."""
     axis = np.arange(range_nm[0], range_nm[1] + 0.5, 1.0)
-    values = peak_efficiency * BlazedGrating(blaze_nm).efficiency(1, axis)
-    return Spectrum(axis, values, name=f"blaze {blaze_nm:g} nm")
+    values = peak_efficiency * BlazedGrating(blaze_nm).efficiency(order, axis)
+    return Spectrum(axis, values, name=f"blaze {blaze_nm:g} nm, order {order}")
+
+
+def grating_orders(
+    grating: GratingSpec, range_nm: tuple[float, float] = EFFICIENCY_RANGE_NM
+) -> tuple[Spectrum, Spectrum, Spectrum, dict[str, Any]]:
+    """η₀, η₁, η₂ of the twin's grating at 1 nm over ``range_nm``, and its record."""
+    axis = np.arange(range_nm[0], range_nm[1] + 0.5, 1.0)
+    if grating.model == "blazed":
+        orders = [
+            blaze_efficiency(
+                grating.blaze_nm, grating.first_order_peak_efficiency, range_nm, order=m
+            )
+            for m in (0, 1, 2)
+        ]
+        record: dict[str, Any] = {
+            **BlazedGrating(grating.blaze_nm).to_dict(),
+            "scale": grating.first_order_peak_efficiency,
+        }
+    else:
+        sheet = SinusoidalPhaseGrating(grating.peak_phase_rad)
+        orders = [sheet.efficiency_spectrum(m, axis) for m in (0, 1, 2)]
+        record = sheet.to_dict()
+    if grating.zeroth_order_efficiency is not None:
+        orders[0] = Spectrum(
+            axis, np.full(axis.size, grating.zeroth_order_efficiency), name="flat 0th order"
+        )
+        record["flat_zeroth_order_efficiency"] = grating.zeroth_order_efficiency
+    return orders[0], orders[1], orders[2], record
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,7 +171,11 @@ class TwinOptics:
     efficiency
         First-order grating efficiency η(λ).
     zeroth_order_efficiency
-        η₀, the direct path's throughput.
+        η₀(λ), the direct path's.
+    second_order_efficiency
+        η₂(λ).
+    grating
+        The grating's record (model and parameters).
     layout
         Spot position, dispersion angle, slit image size and edges on the sensor.
     sensor
@@ -152,7 +192,9 @@ class TwinOptics:
     sensitivity: MultiSpectrum
     mapping: GratingGeometry
     efficiency: Spectrum
-    zeroth_order_efficiency: float
+    zeroth_order_efficiency: Spectrum
+    second_order_efficiency: Spectrum
+    grating: dict[str, Any]
     layout: SceneLayout
     sensor: SensorModel
     throughput_e_per_s: float
@@ -210,12 +252,15 @@ class TwinOptics:
             edge_px=optics.edge_px,
         )
         _check_fits(layout, sensor, band_range)
+        zeroth, first, second, record = grating_orders(grating)
         return cls(
             camera_name=sensitivity.name,
             sensitivity=sensitivity,
             mapping=mapping,
-            efficiency=blaze_efficiency(grating.blaze_nm, grating.first_order_peak_efficiency),
-            zeroth_order_efficiency=grating.zeroth_order_efficiency,
+            efficiency=first,
+            zeroth_order_efficiency=zeroth,
+            second_order_efficiency=second,
+            grating=record,
             layout=layout,
             sensor=sensor,
             throughput_e_per_s=optics.throughput_e_per_s,
@@ -252,9 +297,18 @@ class TwinOptics:
             mapping=self.mapping,
             pixel=coarse,
             grating_efficiency=self.efficiency,
-            direct_throughput=self.zeroth_order_efficiency,
+            zeroth_order_efficiency=self.zeroth_order_efficiency,
             name=lamp.name,
             fine_step_nm=SPECTRAL_STEP_NM,
+        )
+        # The second order's spectral density: it lands where the first order has twice its λ.
+        second = PiecewiseLinearDensity.on_axis(
+            observation.spectral_axis_nm,
+            observation.spectral_image
+            * (
+                self.second_order_efficiency.at(observation.spectral_axis_nm)
+                / np.maximum(self.efficiency.at(observation.spectral_axis_nm), 1e-300)
+            )[:, None],
         )
         offsets, weights = self.slit_profile() if blur else (np.zeros(1), np.ones(1))
         reach = float(offsets[-1]) + FINE_STEP_PX
@@ -264,7 +318,11 @@ class TwinOptics:
         last = math.ceil((float(high) + reach) / FINE_STEP_PX)
         position = np.arange(first, last + 1, dtype=np.float64) * FINE_STEP_PX
         density = PiecewiseLinearDensity.on_axis(axis_nm, observation.spectral_image)
-        cumulative = density.cumulative_at(self.mapping.wavelength_nm(position))
+        wavelength = self.mapping.wavelength_nm(position)
+        # The second order over the first order's band only (beyond it the frame has no band).
+        cumulative = density.cumulative_at(wavelength) + second.cumulative_at(
+            np.minimum(wavelength, axis_nm[-1]) / 2.0
+        )
         if weights.size > 1:
             per_step = np.diff(cumulative, axis=0)
             blurred = np.stack(

@@ -87,13 +87,24 @@ class LampSpec:
 
 @dataclass(frozen=True)
 class GratingSpec:
-    """The transmission grating: line density, scalar-theory blaze, order efficiencies, direction."""
+    """The transmission grating: line density, physical model, direction (``rig.config.TwinGratingConfig``).
+
+    Attributes
+    ----------
+    model
+        ``"sinusoidal"`` (``peak_phase_rad``) or ``"blazed"`` (``blaze_nm``, scaled by
+        ``first_order_peak_efficiency``): :mod:`calib.model.gratings`.
+    zeroth_order_efficiency
+        A flat η₀ instead of the model's, or ``None``.
+    """
 
     grooves_per_mm: float
     blaze_nm: float
     first_order_peak_efficiency: float
-    zeroth_order_efficiency: float
+    zeroth_order_efficiency: float | None
     dispersion_angle_deg: float
+    model: str = "blazed"
+    peak_phase_rad: float = 1.8
 
 
 @dataclass(frozen=True)
@@ -370,6 +381,24 @@ def _lamp_spec(lamp: _Reader, override: _Reader | None) -> LampSpec:
     )
 
 
+def _grating_spec(grating: _Reader) -> GratingSpec:
+    model = grating.optional("model") or "blazed"
+    if model not in ("sinusoidal", "blazed"):
+        raise TwinSpecError(f"{grating.where('model')}: {model!r} is not sinusoidal or blazed")
+    zeroth = grating.optional("zeroth_order_efficiency")
+    return GratingSpec(
+        grooves_per_mm=grating.number("grooves_per_mm"),
+        blaze_nm=grating.number("blaze_nm"),
+        first_order_peak_efficiency=grating.number("first_order_peak_efficiency"),
+        zeroth_order_efficiency=None
+        if zeroth is None
+        else grating.number("zeroth_order_efficiency"),
+        dispersion_angle_deg=grating.number("dispersion_angle_deg"),
+        model=str(model),
+        peak_phase_rad=grating.number("peak_phase_rad", 1.8),
+    )
+
+
 def _camera_spec(camera: _Reader) -> CameraSpec:
     sensor = camera.section("sensor")
     grating = camera.section("grating")
@@ -395,13 +424,7 @@ def _camera_spec(camera: _Reader) -> CameraSpec:
         data_dir=None if data_dir is None else Path(str(data_dir)),
         sensor=sensor_model,
         pixel_pitch_um=sensor.number("pixel_pitch_um"),
-        grating=GratingSpec(
-            grooves_per_mm=grating.number("grooves_per_mm"),
-            blaze_nm=grating.number("blaze_nm"),
-            first_order_peak_efficiency=grating.number("first_order_peak_efficiency"),
-            zeroth_order_efficiency=grating.number("zeroth_order_efficiency"),
-            dispersion_angle_deg=grating.number("dispersion_angle_deg"),
-        ),
+        grating=_grating_spec(grating),
         optics=OpticsSpec(
             focal_length_mm=optics.number("focal_length_mm"),
             slit_width_px=optics.number("slit_width_px"),

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,9 @@ class TwinTruth:
     grating_efficiency
         First-order efficiency η(λ) (absolute).
     zeroth_order_efficiency
-        η₀.
+        η₀(λ) (absolute; a file written before physical gratings holds one number: a flat η₀).
+    grating
+        The grating's model and parameters (``mocks.bench.optics.grating_orders``).
     mapping
         Pixel→wavelength of the first order (sensor pixels from the spot centre).
     dispersion_angle_deg, spot_centre_px
@@ -60,7 +63,7 @@ class TwinTruth:
     camera: str
     sensitivity: MultiSpectrum
     grating_efficiency: Spectrum
-    zeroth_order_efficiency: float
+    zeroth_order_efficiency: Spectrum
     mapping: GratingGeometry
     dispersion_angle_deg: float
     spot_centre_px: tuple[float, float]
@@ -68,6 +71,7 @@ class TwinTruth:
     slit_length_px: float
     edge_px: float
     seed: int
+    grating: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def of(cls, optics: TwinOptics, seed: int) -> TwinTruth:
@@ -80,7 +84,10 @@ class TwinTruth:
             camera=optics.camera_name,
             sensitivity=optics.sensitivity.resample(grid),
             grating_efficiency=efficiency,
-            zeroth_order_efficiency=optics.zeroth_order_efficiency,
+            zeroth_order_efficiency=Spectrum(
+                axis, optics.zeroth_order_efficiency.at(axis), name="0th-order efficiency"
+            ),
+            grating=dict(optics.grating),
             mapping=optics.mapping,
             dispersion_angle_deg=optics.layout.dispersion_angle_deg,
             spot_centre_px=optics.layout.spot_centre_px,
@@ -105,7 +112,11 @@ class TwinTruth:
                 "wavelength_nm": self.grating_efficiency.wavelength_nm.tolist(),
                 "values": self.grating_efficiency.values.tolist(),
             },
-            "zeroth_order_efficiency": self.zeroth_order_efficiency,
+            "zeroth_order_efficiency": {
+                "wavelength_nm": self.zeroth_order_efficiency.wavelength_nm.tolist(),
+                "values": self.zeroth_order_efficiency.values.tolist(),
+            },
+            "grating": self.grating,
             "mapping": self.mapping.to_dict(),
             "mapping_axis": "sensor pixels from the direct spot centre along the first order",
             "dispersion_angle_deg": self.dispersion_angle_deg,
@@ -157,7 +168,8 @@ class TwinTruth:
                 grating_efficiency=Spectrum(
                     efficiency["wavelength_nm"], efficiency["values"], name="grating efficiency"
                 ),
-                zeroth_order_efficiency=float(data["zeroth_order_efficiency"]),
+                zeroth_order_efficiency=_zeroth_order(data["zeroth_order_efficiency"], efficiency),
+                grating=dict(data.get("grating") or {}),
                 mapping=GratingGeometry.from_dict(data["mapping"]),
                 dispersion_angle_deg=float(data["dispersion_angle_deg"]),
                 spot_centre_px=(float(x), float(y)),
@@ -170,3 +182,11 @@ class TwinTruth:
             raise
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise TruthFormatError(f"{file}: cannot read the twin's truth ({exc!r})") from None
+
+
+def _zeroth_order(value: Any, first_order: Mapping[str, Any]) -> Spectrum:
+    """η₀ from a truth file: a curve, or one number (a flat η₀, files before physical gratings)."""
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        axis = np.asarray(first_order["wavelength_nm"], dtype=np.float64)
+        return Spectrum(axis, np.full(axis.size, float(value)), name="0th-order efficiency")
+    return Spectrum(value["wavelength_nm"], value["values"], name="0th-order efficiency")

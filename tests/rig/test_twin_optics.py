@@ -47,7 +47,7 @@ def _forward_per_pixel(optics: TwinOptics, lamp: Spectrum, pixel: np.ndarray) ->
         mapping=optics.mapping,
         pixel=pixel,
         grating_efficiency=optics.efficiency,
-        direct_throughput=optics.zeroth_order_efficiency,
+        zeroth_order_efficiency=optics.zeroth_order_efficiency,
         fine_step_nm=SPECTRAL_STEP_NM,
     )
     scale = optics.throughput_e_per_s * optics.sensor.gain_dn_per_electron
@@ -266,3 +266,45 @@ def test_every_emulated_model_serves_the_real_driver(
             assert device is not None
             device.close()
         bench.close()
+
+
+def test_a_sinusoidal_sheet_sends_each_order_its_own_efficiency(
+    spec: TwinSpec, fluorescent: VirtualLamp
+) -> None:
+    """η₀(λ) = J₀² in the direct spot, and the second order only where the first has ≥ 2 × 380 nm."""
+    from calib.model.gratings import SinusoidalPhaseGrating
+
+    camera = spec.twin_camera
+    grating = dataclasses.replace(
+        camera.grating, model="sinusoidal", peak_phase_rad=1.4, zeroth_order_efficiency=None
+    )
+    optics = TwinOptics.build(dataclasses.replace(camera, grating=grating))
+    sheet = SinusoidalPhaseGrating(1.4)
+    axis = np.arange(400.0, 701.0, 10.0)
+    for order, curve in enumerate(
+        (optics.zeroth_order_efficiency, optics.efficiency, optics.second_order_efficiency)
+    ):
+        np.testing.assert_allclose(curve.at(axis), sheet.efficiency(order, axis), atol=1e-9)
+    rendering = optics.first_order(fluorescent.spectrum, blur=False)
+    expected = render_observation(
+        fluorescent.spectrum,
+        optics.sensitivity,
+        mapping=optics.mapping,
+        pixel=np.array([100.0, 200.0]),
+        grating_efficiency=optics.efficiency,
+        zeroth_order_efficiency=optics.zeroth_order_efficiency,
+        fine_step_nm=SPECTRAL_STEP_NM,
+    ).clean_direct
+    np.testing.assert_allclose(rendering.signal.direct_rgb, expected * rendering.scale_dn_per_s)
+    # Without the second order the band's red end holds less light; below 760 nm nothing changes.
+    first_only = dataclasses.replace(
+        optics, second_order_efficiency=optics.second_order_efficiency.scaled(0.0)
+    )
+    alone = first_only.first_order(fluorescent.spectrum, blur=False).signal
+    red = float(optics.mapping.pixel_at(np.array([770.0]))[0])
+    blue = float(optics.mapping.pixel_at(np.array([700.0]))[0])
+    both = rendering.signal
+    assert np.all(both.per_pixel(np.array([red]))[0] > alone.per_pixel(np.array([red]))[0])
+    np.testing.assert_allclose(
+        both.per_pixel(np.array([blue])), alone.per_pixel(np.array([blue])), rtol=1e-12
+    )

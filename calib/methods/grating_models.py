@@ -1,0 +1,394 @@
+"""Physical grating models in the multi-lamp solve: one shape parameter, the 0th order included.
+
+The multi-lamp solve (:mod:`calib.methods.multilamp`) reads the grating from each lamp's direct
+(0th-order) equations. With the lamp's first-order response ``q̂_l = E_l η₁ s`` fitted from its
+profile, the direct signal is
+
+    m_dir,lc = T E_l ∫ e_l η₀ s_c dλ = Σ_λ d_l(λ) q̂_lc(λ) · T η₀(λ) / η₁(λ),
+
+with ``T`` the direct path's throughput relative to the first order's (exposures, the spot's
+extraction — unknown, fitted). Two curves enter: ``g = T η₀/η₁`` weights the direct equations and
+``h = 1/η₁`` turns the response into the sensitivity (``s = Q ⊙ h``). The free Fourier model takes
+``η₀`` flat, so that ``g ∝ h`` (decision 0015); for a real grating ``η₀`` is not flat: a thin
+sinusoidal phase sheet has ``η₀ = J₀²(φ₀ λ₀/λ)``, a blazed grating ``sinc²(λ_B/λ)``
+(:mod:`calib.model.gratings`), and ignoring it biases the camera by the shape of ``η₀``.
+
+Here ``η₀`` and ``η₁`` come from one physical model with the same parameters
+(:data:`calib.model.gratings.PHYSICAL_KINDS`): ``θ = (p, log T)``, ``p`` the sheet's peak phase at
+550 nm or the blaze wavelength. ``p`` is found by scanning its range (``T`` in closed form at each
+value: the equations are linear in it) and refined by a bounded 1-D minimisation; the rows are
+re-whitened at each pass's ``g`` (the response's covariance enters their σ). No camera prior is
+needed: two parameters against ``3L`` equations.
+
+σ: the inverse of ``JᵀJ`` of the whitened residuals at the solution, inflated by the reduced χ²
+where it exceeds 1 (the model or the rig's errors do not match the stated noise; the inflation is
+reported), never below the wavelength scale's share (:data:`WAVELENGTH_SCALE_SIGMA`), and widened
+to the leave-one-lamp-out jackknife's σ of ``p`` where that is larger
+(each lamp's response carries its own error of the mapping and of its measured spectrum, which the
+direct equations' χ² cannot see: on the twin, φ₀ within 0.002 rad of the truth but 6σ of the
+equations' own σ), propagated to ``h`` along ``∂h/∂p``.
+
+The model is chosen (``grating_model="auto"``) by the estimated predictive risk of the direct
+equations, Mallows' ``C_L`` (what UPRE minimises for the Fourier model's prior weight): ``χ² + 2
+k_eff``, with ``k_eff = 2`` for a physical model and ``tr H`` (the effective number of parameters
+under the camera prior) for the Fourier model. It is an unbiased estimate of the error in
+predicting new direct measurements, and so asymptotically the leave-one-out cross-validation
+score (Stone 1977), computed on the lamps' own equations.
+
+References
+----------
+Mallows, C. L. (1973). Some comments on C_p. *Technometrics* 15(4), 661–675.
+Stone, M. (1977). An asymptotic equivalence of choice of model by cross-validation and Akaike's
+criterion. *J. R. Stat. Soc. B* 39(1), 44–47.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+from calib.methods.responses import LampData, direct_rows
+from calib.model.gratings import (
+    PHYSICAL_KINDS,
+    PHYSICAL_PARAMETER_NAMES,
+    PHYSICAL_PARAMETER_RANGES,
+    BlazedGrating,
+    PhysicalKind,
+    SinusoidalPhaseGrating,
+    physical_grating,
+)
+
+GratingModelName = Literal["auto", "fourier", "sinusoidal", "blazed"]
+#: The estimator's grating models: ``"fourier"`` (free, ``η₀`` flat: decision 0015), the two
+#: physical families, or ``"auto"``: the one of the three with the smallest predictive risk.
+GRATING_MODELS: tuple[GratingModelName, ...] = ("auto", "fourier", "sinusoidal", "blazed")
+DEFAULT_GRATING_MODEL: GratingModelName = "auto"
+#: Parameter values scanned before the 1-D refinement.
+SCAN_POINTS = 120
+#: Values scanned around a known start (:func:`with_jackknife`'s refits).
+LOCAL_POINTS = 21
+#: Passes: the rows are re-whitened at the previous pass's ``g``.
+FIT_PASSES = 3
+#: Relative σ of the wavelength scale the responses are on: 0.5 nm at 550 nm, a spectrometer's
+#: stated accuracy (the validation protocol draws ±0.5 nm) and the order of the mapping's error.
+#: Both families depend on ``p/λ`` alone (``φ₀·550/λ``, ``λ_B/λ``), so a scale error moves ``p`` by
+#: the same fraction; the parameter's σ is never below it. (On the twin, with a consistent direct
+#: χ², φ₀ came out 0.11 % low: 6× the equations' own σ.)
+WAVELENGTH_SCALE_SIGMA = 0.5 / 550.0
+#: Relative step of the numerical derivative of the efficiencies in the parameter.
+DERIVATIVE_STEP = 1e-5
+
+
+def check_grating_model(name: str, source: str = "grating_model") -> GratingModelName:
+    """``name`` as a :data:`GRATING_MODELS` member, or a one-line :class:`InputError`."""
+    for model in GRATING_MODELS:
+        if name == model:
+            return model
+    raise InputError(
+        f"unknown grating model {name!r}; choose from {', '.join(GRATING_MODELS)}", source=source
+    )
+
+
+def model_curves(
+    kind: PhysicalKind, parameter: float, wavelength_nm: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """``η₀`` and ``η₁`` of the family at ``parameter``, each ``(f,)``."""
+    grating = physical_grating(kind, parameter)
+    return grating.efficiency(0, wavelength_nm), grating.efficiency(1, wavelength_nm)
+
+
+@dataclass(frozen=True, eq=False)
+class PhysicalFit:
+    """A physical model fitted to the direct equations (module docstring).
+
+    Attributes
+    ----------
+    kind, parameter
+        The family and its shape parameter (rad at 550 nm, or nm).
+    log_throughput
+        ``log T``: the direct path's throughput relative to the first order's.
+    covariance
+        Of ``(parameter, log T)``, ``(2, 2)``, inflated by :attr:`inflation`.
+    noise_covariance
+        The same before the inflation (the stated noise alone).
+    chi2, n_equations
+        Of the whitened direct equations at the solution.
+    inflation
+        ``max(1, χ² / (n − 2))``, times the jackknife's widening (:func:`with_jackknife`).
+    wavelength_nm
+        The grid ``(f,)``.
+    scan
+        ``(parameter, χ²)`` over the scan of the last pass (for plots and the record).
+    jackknife_sigma
+        The leave-one-lamp-out σ of ``p`` (:func:`with_jackknife`), when computed.
+    """
+
+    kind: PhysicalKind
+    parameter: float
+    log_throughput: float
+    covariance: FloatArray
+    noise_covariance: FloatArray
+    chi2: float
+    n_equations: int
+    inflation: float
+    wavelength_nm: FloatArray
+    scan: tuple[FloatArray, FloatArray] = field(repr=False, default=(np.zeros(0), np.zeros(0)))
+    jackknife_sigma: float | None = None
+
+    @property
+    def grating(self) -> SinusoidalPhaseGrating | BlazedGrating:
+        return physical_grating(self.kind, self.parameter)
+
+    @property
+    def parameter_sigma(self) -> float:
+        return float(np.sqrt(max(float(self.covariance[0, 0]), 0.0)))
+
+    @property
+    def predictive_risk(self) -> float:
+        """Mallows' ``C_L`` of the direct equations: ``χ² + 2 · 2``."""
+        return self.chi2 + 2.0 * 2
+
+    def zeroth_and_first(self) -> tuple[FloatArray, FloatArray]:
+        """``η₀``, ``η₁`` on the grid (fractions of the incident light)."""
+        return model_curves(self.kind, self.parameter, self.wavelength_nm)
+
+    def derivatives(self) -> tuple[FloatArray, FloatArray]:
+        """``∂η₀/∂p`` and ``∂η₁/∂p`` on the grid (central differences)."""
+        step = DERIVATIVE_STEP * max(abs(self.parameter), 1e-3)
+        zeroth_up, first_up = model_curves(self.kind, self.parameter + step, self.wavelength_nm)
+        zeroth_down, first_down = model_curves(self.kind, self.parameter - step, self.wavelength_nm)
+        return (zeroth_up - zeroth_down) / (2 * step), (first_up - first_down) / (2 * step)
+
+    def inverse_efficiency(self) -> tuple[FloatArray, FloatArray]:
+        """``h = 1/η₁`` ``(f,)`` and ``∂h/∂θ`` ``(f, 2)`` (``h`` does not depend on ``T``)."""
+        _, first = self.zeroth_and_first()
+        _, first_derivative = self.derivatives()
+        inverse = 1.0 / np.maximum(first, 1e-300)
+        jacobian = np.zeros((inverse.size, 2))
+        jacobian[:, 0] = -first_derivative * inverse**2
+        return inverse, jacobian
+
+    def direct_weight(self) -> FloatArray:
+        """``T η₀`` ``(f,)``: the direct signal is ``Σ d ⊙ s ⊙ T η₀`` with ``s = Q ⊙ h``."""
+        zeroth, _ = self.zeroth_and_first()
+        return np.asarray(np.exp(self.log_throughput) * zeroth, dtype=np.float64)
+
+    def efficiency_sigmas(self) -> tuple[FloatArray, FloatArray]:
+        """σ of ``η₀`` and ``η₁`` on the grid from the parameter's σ (first order)."""
+        zeroth_derivative, first_derivative = self.derivatives()
+        sigma = self.parameter_sigma
+        return np.abs(zeroth_derivative) * sigma, np.abs(first_derivative) * sigma
+
+    def record(self) -> dict[str, Any]:
+        """The fit as plain data (``diagnostics["grating_model"]``'s physical part)."""
+        name = PHYSICAL_PARAMETER_NAMES[self.kind]
+        zeroth, first = self.zeroth_and_first()
+        zeroth_sigma, first_sigma = self.efficiency_sigmas()
+        return {
+            "model": self.kind,
+            "parameters": {
+                name: self.parameter,
+                f"{name}_sigma": self.parameter_sigma,
+                "reference_nm": 550.0 if self.kind == "sinusoidal" else None,
+                "direct_throughput": float(np.exp(self.log_throughput)),
+            },
+            "grating": self.grating.to_dict(),
+            "direct_chi2": self.chi2,
+            "direct_equations": self.n_equations,
+            "sigma_inflation": self.inflation,
+            "jackknife_sigma": self.jackknife_sigma,
+            "zeroth_order_efficiency": zeroth.tolist(),
+            "zeroth_order_efficiency_sigma": zeroth_sigma.tolist(),
+            "first_order_efficiency": first.tolist(),
+            "first_order_efficiency_sigma": first_sigma.tolist(),
+        }
+
+
+def _profile_throughput(predicted: FloatArray, target: FloatArray) -> tuple[float, float]:
+    """``T`` minimising ``‖T predicted − target‖²`` (closed form) and the χ² there."""
+    norm = float(predicted @ predicted)
+    if norm <= 0 or not np.isfinite(norm):
+        return float("nan"), float("inf")
+    throughput = float(predicted @ target) / norm
+    if throughput <= 0:
+        return float("nan"), float("inf")
+    residual = throughput * predicted - target
+    return throughput, float(residual @ residual)
+
+
+def physical_equations(
+    lamps: Sequence[LampData],
+    kind: PhysicalKind,
+    parameter: float,
+    weight: FloatArray,
+    gain_sigma: float | None,
+    wavelength_nm: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The whitened direct equations at ``parameter`` (whitened at the current ``weight``, ``g``
+    up to ``T``): their predicted values for ``T = 1``, targets, and ``g/T`` on the grid ``(f,)``.
+
+    ``η₀`` is integrated inside each lamp's row on the fine axis when the lamps carry their
+    operators (``g = T/η₁``); else it is taken at the grid's nodes (``g = T η₀/η₁``).
+    """
+    grating = physical_grating(kind, parameter)
+    first = np.maximum(grating.efficiency(1, wavelength_nm), 1e-300)
+    operators = [lamp.operators for lamp in lamps]
+    if all(operator is not None for operator in operators):
+        axis = operators[0].axis_nm if operators[0] is not None else wavelength_nm
+        rows, target = direct_rows(
+            lamps, weight, gain_sigma=gain_sigma, zeroth_order=grating.efficiency(0, axis)
+        )
+        shape = 1.0 / first
+    else:
+        rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma)
+        shape = grating.efficiency(0, wavelength_nm) / first
+    return rows @ shape, target, np.asarray(shape, dtype=np.float64)
+
+
+def fit_physical(
+    lamps: Sequence[LampData],
+    kind: PhysicalKind,
+    wavelength_nm: FloatArray,
+    *,
+    gain_sigma: float | None = None,
+    near: float | None = None,
+) -> PhysicalFit:
+    """Fit ``θ = (p, log T)`` of ``kind`` to the lamps' direct equations (module docstring);
+    ``gain_sigma`` as :func:`calib.methods.responses.direct_rows` takes it. ``near``: scan only a
+    tenth of the range around this value (the jackknife's refits start from the full fit).
+
+    Raises
+    ------
+    InputError
+        No lamps or an unknown family.
+    EstimationError
+        No parameter value gives a positive throughput (the direct signals contradict the model).
+    """
+    from scipy.optimize import minimize_scalar  # deferred: scipy.optimize is slow to import
+
+    if not lamps:
+        raise InputError("no lamps with a direct measurement", source="observations")
+    if kind not in PHYSICAL_KINDS:
+        raise InputError(f"unknown physical grating {kind!r}", source="grating_model")
+    low, high = PHYSICAL_PARAMETER_RANGES[kind]
+    if near is None:
+        candidates = np.linspace(low, high, SCAN_POINTS)
+    else:
+        reach = 0.05 * (high - low)
+        candidates = np.linspace(max(low, near - reach), min(high, near + reach), LOCAL_POINTS)
+    reference = lamps[0]
+    predicted = float(np.sum(reference.direct_row @ reference.response.response))
+    weight = np.full(wavelength_nm.size, float(np.sum(reference.direct)) / max(predicted, 1e-300))
+    parameter = float("nan")
+    throughput = float("nan")
+    chi2_scan = np.zeros(0)
+
+    def misfit(value: float, weight: FloatArray) -> float:
+        values, target, _ = physical_equations(
+            lamps, kind, value, weight, gain_sigma, wavelength_nm
+        )
+        return _profile_throughput(values, target)[1]
+
+    for _ in range(FIT_PASSES):
+        chi2_scan = np.array([misfit(float(value), weight) for value in candidates])
+        if not np.any(np.isfinite(chi2_scan)):
+            raise EstimationError(
+                f"the direct signals fit no {kind} grating (no positive throughput anywhere)"
+            )
+        best = int(np.nanargmin(chi2_scan))
+        bounds = (
+            float(candidates[max(best - 1, 0)]),
+            float(candidates[min(best + 1, candidates.size - 1)]),
+        )
+        refined = minimize_scalar(
+            lambda value, weight=weight: misfit(float(value), weight),
+            bounds=bounds,
+            method="bounded",
+            options={"xatol": 1e-6},
+        )
+        parameter = float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
+        values, target, shape = physical_equations(
+            lamps, kind, parameter, weight, gain_sigma, wavelength_nm
+        )
+        throughput, _ = _profile_throughput(values, target)
+        weight = throughput * shape
+    values, target, _ = physical_equations(
+        lamps, kind, parameter, weight, gain_sigma, wavelength_nm
+    )
+    chi2 = _profile_throughput(values, target)[1]
+    step = DERIVATIVE_STEP * max(abs(parameter), 1e-3)
+    up = physical_equations(lamps, kind, parameter + step, weight, gain_sigma, wavelength_nm)[0]
+    down = physical_equations(lamps, kind, parameter - step, weight, gain_sigma, wavelength_nm)[0]
+    jacobian = np.stack([throughput * (up - down) / (2 * step), throughput * values], 1)
+    noise_covariance = np.asarray(
+        np.linalg.pinv(jacobian.T @ jacobian, hermitian=True), dtype=np.float64
+    )
+    dof = max(target.size - 2, 1)
+    inflation = max(1.0, chi2 / dof)
+    return PhysicalFit(
+        kind=kind,
+        parameter=parameter,
+        log_throughput=float(np.log(throughput)),
+        covariance=noise_covariance * inflation,
+        noise_covariance=noise_covariance,
+        chi2=chi2,
+        n_equations=int(target.size),
+        inflation=inflation,
+        wavelength_nm=np.asarray(wavelength_nm, dtype=np.float64),
+        scan=(candidates, chi2_scan),
+    )
+
+
+def _with_scale_floor(fit: PhysicalFit) -> PhysicalFit:
+    """``fit`` with ``σ_p ≥ p · WAVELENGTH_SCALE_SIGMA`` (both families depend on ``p/λ``)."""
+    floor = (fit.parameter * WAVELENGTH_SCALE_SIGMA) ** 2
+    stated = float(fit.covariance[0, 0])
+    if stated >= floor or stated <= 0:
+        return fit
+    factor = floor / stated
+    return replace(fit, covariance=fit.covariance * factor, inflation=fit.inflation * factor)
+
+
+def with_jackknife(
+    fit: PhysicalFit,
+    lamps: Sequence[LampData],
+    *,
+    gain_sigma: float | None = None,
+) -> PhysicalFit:
+    """``fit`` with its covariance widened to the leave-one-lamp-out jackknife's variance of ``p``
+    where that is larger (module docstring); unchanged with one lamp, or where a lamp's removal
+    leaves too few equations.
+
+    The jackknife variance is ``(L − 1)/L Σ_l (p_(−l) − p̄)²`` over the fits without lamp ``l``.
+    """
+    fit = _with_scale_floor(fit)
+    if len(lamps) < 2:
+        return fit
+    values = []
+    for left_out in range(len(lamps)):
+        kept = [lamp for index, lamp in enumerate(lamps) if index != left_out]
+        try:
+            values.append(
+                fit_physical(
+                    kept, fit.kind, fit.wavelength_nm, gain_sigma=gain_sigma, near=fit.parameter
+                ).parameter
+            )
+        except EstimationError:
+            return fit
+    spread = np.asarray(values)
+    variance = (spread.size - 1) / spread.size * float(np.sum((spread - spread.mean()) ** 2))
+    stated = float(fit.covariance[0, 0])
+    if not np.isfinite(variance) or variance <= stated or stated <= 0:
+        return replace(fit, jackknife_sigma=float(np.sqrt(max(variance, 0.0))))
+    factor = variance / stated
+    return replace(
+        fit,
+        covariance=fit.covariance * factor,
+        inflation=fit.inflation * factor,
+        jackknife_sigma=float(np.sqrt(variance)),
+    )

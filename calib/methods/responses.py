@@ -1,0 +1,177 @@
+"""Step 1 of the grating solves: each lamp's first-order response and its direct equations.
+
+:func:`fit_response` fits ``q_c = η s_c`` on the grid from one lamp's profile (weighted least
+squares, the measured lamp inside the design matrix: nothing is divided by a spectrum), with its
+covariance. :class:`LampData` holds it with the lamp's direct (0th-order) measurement, and
+:func:`direct_rows` turns a set of lamps into the whitened equations
+``(d_l ⊙ q̂_lc)ᵀ g = m_dir,lc`` that every grating model is solved from
+(:mod:`calib.methods.multilamp`, :mod:`calib.methods.grating_models`, :mod:`calib.methods.prior_solve`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.core.arrays import FloatArray
+from calib.core.errors import EstimationError, InputError
+from calib.model.forward import (
+    LampOperators,
+    PiecewiseLinearDensity,
+    WavelengthMapping,
+    apply_blur,
+)
+from calib.model.linear_model import LampSystem
+
+#: Second-difference penalty of the response fit, relative to the data's scale (stabilises grid
+#: nodes that few pixels see without shaping the curve).
+RESPONSE_SMOOTHNESS = 1e-4
+#: Relative floor on each direct equation's σ: lamp spectra and the model hold to ~0.1 %, not better.
+MODEL_FLOOR = 1e-3
+#: Relative σ of one lamp's direct-to-profile ratio, shared by its three channels: the spot and the
+#: band come from different exposures (a shutter's time is good to 1–3 %) and the lamp may drift
+#: between them. Without it the direct equations' reduced χ² on the validation split is 2–900.
+DIRECT_GAIN_SIGMA = 0.02
+
+
+def pixels_inside(edges_nm: FloatArray, start_nm: float, stop_nm: float) -> FloatArray:
+    """Pixels whose whole wavelength interval lies in ``[start_nm, stop_nm]``: mask ``(n,)``."""
+    low = np.minimum(edges_nm[:-1], edges_nm[1:])
+    high = np.maximum(edges_nm[:-1], edges_nm[1:])
+    return np.asarray((low >= start_nm - 1e-9) & (high <= stop_nm + 1e-9))
+
+
+def _second_differences(size: int) -> FloatArray:
+    matrix = np.zeros((size - 2, size))
+    for row in range(size - 2):
+        matrix[row, row : row + 3] = (1.0, -2.0, 1.0)
+    return matrix
+
+
+@dataclass(frozen=True, eq=False)
+class ResponseEstimate:
+    """Step 1: ``q̂`` ``(f, 3)``, its covariance ``(3, f, f)`` and the pixels used ``(n,)``."""
+
+    response: FloatArray
+    covariance: FloatArray
+    used_pixels: FloatArray
+    chi2: float
+
+
+def fit_response(system: LampSystem, mapping: WavelengthMapping) -> ResponseEstimate:
+    """Step 1: weighted least squares for ``q_c = η s_c`` on the grid from the profile."""
+    grid = system.operators.grid
+    size = grid.size
+    edges_nm = mapping.wavelength_nm(system.edges_px)
+    inside = pixels_inside(edges_nm, grid.start_nm, grid.stop_nm)
+    if int(inside.sum()) < size:
+        raise EstimationError(
+            f"only {int(inside.sum())} profile pixels map inside {grid.start_nm:g}–{grid.stop_nm:g} "
+            f"nm; need at least {size} (one per grid wavelength)"
+        )
+    pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)[inside]
+    profile = system.observation.profile[inside]
+    weights = 1.0 / system.profile_sigma[inside]
+    difference = _second_differences(size)
+    penalty = difference.T @ difference
+    responses = np.empty((size, 3))
+    covariances = np.empty((3, size, size))
+    chi2 = 0.0
+    for c in range(3):
+        weighted = pixel_matrix * weights[:, c][:, None]
+        normal = weighted.T @ weighted
+        normal = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
+        covariances[c] = np.linalg.pinv(normal, hermitian=True)
+        responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
+        chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
+    return ResponseEstimate(responses, covariances, inside, chi2)
+
+
+@dataclass(frozen=True, eq=False)
+class LampData:
+    """One lamp prepared for the efficiency rows: its response and its direct measurement."""
+
+    name: str
+    direct_row: FloatArray  # (f,): ∫ e φ_i dλ
+    response: ResponseEstimate
+    direct: FloatArray  # (3,)
+    direct_sigma: FloatArray  # (3,)
+    operators: LampOperators | None = None  # e φ_i on the fine axis, for an η₀ inside the row
+
+    def zeroth_order_row(self, zeroth_order: FloatArray | None) -> FloatArray:
+        """``∫ e φ_i η₀ dλ`` ``(f,)`` with ``η₀`` given on the fine axis (``None``: flat, the
+        plain direct row). Integrated at 1 nm: ``η₀`` may vary within a grid step (a blazed
+        grating's vanishes at its blaze)."""
+        if zeroth_order is None or self.operators is None:
+            return self.direct_row
+        densities = self.operators.densities
+        weighted = PiecewiseLinearDensity.on_axis(
+            densities.axis_nm, densities.density * zeroth_order[:, None]
+        )
+        return np.asarray(weighted.total, dtype=np.float64)
+
+
+def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
+    """Step 1 for one lamp with a direct measurement."""
+    observation = system.observation
+    if observation.direct_rgb is None:
+        raise InputError(
+            "every lamp of the multi-lamp solve needs a direct (0th-order) measurement",
+            source=f"lamp {observation.name!r}",
+        )
+    direct = np.asarray(observation.direct_rgb, dtype=np.float64)
+    sigma = (
+        np.zeros(3)
+        if observation.direct_sigma is None
+        else np.asarray(observation.direct_sigma, dtype=np.float64)
+    )
+    return LampData(
+        observation.name,
+        system.operators.direct_row,
+        fit_response(system, mapping),
+        direct,
+        sigma,
+        system.operators,
+    )
+
+
+def direct_rows(
+    lamps: Sequence[LampData],
+    inverse_efficiency: FloatArray,
+    *,
+    gain_sigma: float | None = None,
+    zeroth_order: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ g = m_dir,lc`` on the grid's nodes of ``g`` (``η⁻¹``
+    for the Fourier model, ``T/η₁`` for a physical one, whose ``η₀`` enters ``d_l`` on the fine
+    axis: ``zeroth_order``, :meth:`LampData.zeroth_order_row`): rows ``(3L, f)``, targets ``(3L,)``.
+
+    Each equation's variance is the direct measurement's, the response's covariance propagated
+    through the current ``g`` and the model floor; a lamp's three equations also share the error of
+    its direct-to-profile ratio (``gain_sigma``, default :data:`DIRECT_GAIN_SIGMA`: exposure times
+    and the lamp between the frames), a rank-one covariance ``σ_g² m mᵀ`` — so each lamp's block
+    is whitened by the Cholesky factor of its 3 × 3 covariance.
+    """
+    gain = DIRECT_GAIN_SIGMA if gain_sigma is None else gain_sigma
+    rows = []
+    targets = []
+    for lamp in lamps:
+        direct_row = lamp.zeroth_order_row(zeroth_order)
+        spread = direct_row * inverse_efficiency
+        variances = np.array(
+            [
+                float(lamp.direct_sigma[c]) ** 2
+                + float(spread @ lamp.response.covariance[c] @ spread)
+                + (MODEL_FLOOR * float(lamp.direct[c])) ** 2
+                for c in range(3)
+            ]
+        )
+        direct = np.asarray(lamp.direct, dtype=np.float64)
+        covariance = np.diag(np.maximum(variances, 1e-300)) + gain**2 * np.outer(direct, direct)
+        factor = np.linalg.inv(np.linalg.cholesky(covariance))
+        block = np.stack([direct_row * lamp.response.response[:, c] for c in range(3)])
+        rows.append(factor @ block)
+        targets.append(factor @ direct)
+    return np.vstack(rows), np.concatenate(targets)

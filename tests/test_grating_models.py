@@ -1,0 +1,196 @@
+"""calib.methods.grating_models: physical gratings (η₀ and η₁ from one parameter) in the solves."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.core.errors import InputError
+from calib.core.grating_file import GratingEfficiency, read_grating_file, write_grating_file
+from calib.core.lamp_specs import lamp_from_spec
+from calib.core.mapping import QuadraticMapping
+from calib.core.metrics import relative_error
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import lamp_kind
+from calib.methods.grating_models import check_grating_model, fit_physical
+from calib.methods.multilamp import (
+    MultilampOptions,
+    calibrate_lamps,
+    estimate_multilamp,
+    grating_file_from,
+    prepare_lamps,
+)
+from calib.methods.prior_solve import PriorOptions, estimate_prior
+from calib.model.bases import CameraBasis
+from calib.model.forward import PeakFractionNoise, render_observation
+from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
+from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
+
+#: Three lamps that differ in colour (the solve's cost grows with each).
+LAMPS = ("LED-B3", "FL2", "A")
+MAPPING = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+Efficiency = Callable[[np.ndarray], np.ndarray] | None
+
+
+@pytest.fixture(scope="module")
+def basis(tmp_path_factory: pytest.TempPathFactory) -> CameraBasis:
+    return exact_basis(tmp_path_factory.mktemp("basis"))[0]
+
+
+def _order(grating: SinusoidalPhaseGrating | BlazedGrating, order: int) -> Efficiency:
+    def efficiency(wavelength_nm: np.ndarray) -> np.ndarray:
+        return grating.efficiency(order, wavelength_nm)
+
+    return efficiency
+
+
+def _scene(
+    first: Efficiency,
+    zeroth: Efficiency,
+    *,
+    lamps: tuple[str, ...] = LAMPS,
+    seed: int = 0,
+    noise: float = 0.0,
+    direct_noise: float = 0.004,
+) -> tuple[np.ndarray, tuple[LampObservation, ...]]:
+    """A smooth camera seen through ``first`` (η₁) with its direct signal through ``zeroth``."""
+    rng = np.random.default_rng([17, seed])
+    camera = gaussian_camera(
+        (rng.uniform(585, 615), rng.uniform(525, 555), rng.uniform(445, 475)),
+        (rng.uniform(32, 48), rng.uniform(36, 52), rng.uniform(26, 38)),
+    )
+    observations = tuple(
+        render_observation(
+            lamp_from_spec(spec),
+            as_spectrum(camera),
+            mapping=MAPPING,
+            pixel=800,
+            grating_efficiency=first,
+            zeroth_order_efficiency=zeroth,
+            direct_throughput=0.7,
+            noise=PeakFractionNoise(noise, direct_noise) if noise > 0 else None,
+            rng=rng,
+            kind=lamp_kind(spec),
+        ).observation
+        for spec in lamps
+    )
+    return camera / camera.max(), observations
+
+
+def test_a_sinusoidal_sheet_is_recognised_and_its_phase_recovered(basis):
+    """φ₀ = 1 rad: η₀ = J₀² falls by half from 700 to 400 nm; noise-free lamps, true mapping."""
+    grating = SinusoidalPhaseGrating(1.0)
+    truth, observations = _scene(_order(grating, 1), _order(grating, 0))
+    result = estimate_multilamp(observations, basis=basis, mapping=MAPPING)
+    record = result.diagnostics["grating_model"]
+    assert record["chosen"] == "sinusoidal"
+    assert set(record["predictive_risk"]) == {"fourier", "sinusoidal", "blazed"}
+    np.testing.assert_allclose(record["parameters"]["peak_phase_rad"], 1.0, atol=5e-3)
+    assert relative_error(result.sensitivity, truth) < 0.005
+    wavelength = DEFAULT_GRID.wavelength_nm
+    np.testing.assert_allclose(
+        record["zeroth_order_efficiency"], grating.efficiency(0, wavelength), atol=5e-3
+    )
+    # The free Fourier model takes η₀ flat: the camera carries η₀'s shape (any prior weight).
+    options = MultilampOptions(grating_model="fourier", prior_weight=1.0)
+    fourier = estimate_multilamp(observations, basis=basis, mapping=MAPPING, options=options)
+    assert relative_error(fourier.sensitivity, truth) > 5 * relative_error(
+        result.sensitivity, truth
+    )
+
+
+def test_a_blazed_grating_is_recognised_and_its_blaze_recovered(basis):
+    grating = BlazedGrating(520.0)
+    truth, observations = _scene(_order(grating, 1), _order(grating, 0))
+    result = estimate_multilamp(observations, basis=basis, mapping=MAPPING)
+    record = result.diagnostics["grating_model"]
+    assert record["chosen"] == "blazed"
+    np.testing.assert_allclose(record["parameters"]["blaze_nm"], 520.0, atol=1.0)
+    assert relative_error(result.sensitivity, truth) < 0.005
+    assert result.diagnostics["prior_weight_rule"] == "none (physical grating model)"
+
+
+def test_a_grating_neither_model_describes_keeps_the_fourier_model(basis):
+    """η₁ with two humps and a flat η₀: neither physical family fits, the free model is chosen."""
+
+    def humps(wavelength_nm: np.ndarray) -> np.ndarray:
+        return np.asarray(
+            0.6 + 0.3 * np.sin((np.asarray(wavelength_nm) - 400.0) / 300.0 * 3 * np.pi)
+        )
+
+    _, observations = _scene(humps, None, noise=0.01, direct_noise=0.001)
+    result = estimate_multilamp(observations, basis=basis, mapping=MAPPING)
+    assert result.diagnostics["grating_model"]["chosen"] == "fourier"
+
+
+def test_the_phase_sigma_covers_the_truth_and_the_direct_residuals_use_eta0(basis):
+    grating = SinusoidalPhaseGrating(1.3)
+    errors = []
+    for seed in range(5):
+        _, observations = _scene(
+            _order(grating, 1), _order(grating, 0), seed=seed, noise=0.01, direct_noise=0.004
+        )
+        prepared = prepare_lamps(observations, basis=basis, mapping=MAPPING)
+        fit = fit_physical(prepared.lamps, "sinusoidal", DEFAULT_GRID.wavelength_nm)
+        errors.append(abs(fit.parameter - 1.3) / fit.parameter_sigma)
+        assert fit.inflation >= 1.0
+    assert sum(error < 2.0 for error in errors) >= 4
+    _, observations = _scene(_order(grating, 1), _order(grating, 0))
+    options = MultilampOptions(grating_model="sinusoidal")
+    result = estimate_multilamp(observations, basis=basis, mapping=MAPPING, options=options)
+    # The direct path through η₀ (it halves from 700 to 400 nm): residuals within 1 %.
+    for observation in observations:
+        direct = np.asarray(observation.direct_rgb)
+        residual = result.residuals[observation.name]["direct"]
+        assert np.all(np.abs(residual) < 0.01 * direct)
+
+
+def test_the_prior_solve_uses_the_physical_model_with_two_lamps(basis):
+    grating = SinusoidalPhaseGrating(1.2)
+    truth, observations = _scene(
+        _order(grating, 1), _order(grating, 0), lamps=("LED-B3", "FL2"), noise=0.01
+    )
+    physical = estimate_prior(observations, basis=basis, mapping=MAPPING)
+    fourier = estimate_prior(
+        observations, basis=basis, mapping=MAPPING, options=PriorOptions(grating_model="fourier")
+    )
+    assert physical.method == fourier.method == "prior"
+    assert physical.diagnostics["grating_model"]["chosen"] == "sinusoidal"
+    assert fourier.diagnostics["grating_model"]["chosen"] == "fourier"
+    assert relative_error(physical.sensitivity, truth) < 0.5 * relative_error(
+        fourier.sensitivity, truth
+    )
+
+
+def test_a_grating_file_records_the_model_and_how_eta_was_obtained(basis, tmp_path: Path):
+    grating = SinusoidalPhaseGrating(0.9)
+    _, observations = _scene(_order(grating, 1), _order(grating, 0))
+    prepared = prepare_lamps(observations, basis=basis, mapping=MAPPING)
+    written = grating_file_from(calibrate_lamps(prepared, basis.prior()))
+    path = write_grating_file(tmp_path / "grating.json", written)
+    again = read_grating_file(path)
+    assert again.obtained == "estimated" and not again.reuse_warnings()
+    assert again.model is not None and again.model["model"] == "sinusoidal"
+    assert again.zeroth_order_efficiency is not None
+    np.testing.assert_allclose(
+        again.zeroth_order_efficiency, grating.efficiency(0, again.wavelength_nm), atol=5e-3
+    )
+    flat = GratingEfficiency(
+        np.array([400.0, 700.0]), np.ones(2), obtained="assumed flat", source="flat.json"
+    )
+    reread = read_grating_file(write_grating_file(tmp_path / "flat.json", flat))
+    assert reread.obtained == "assumed flat"
+    assert "assumed, not measured" in reread.reuse_warnings()[0]
+    with pytest.raises(InputError, match="obtained"):
+        GratingEfficiency(np.array([400.0, 700.0]), np.ones(2), obtained="guessed")
+
+
+def test_an_unknown_grating_model_is_refused_with_the_choices():
+    with pytest.raises(InputError, match="auto, fourier, sinusoidal, blazed"):
+        check_grating_model("holographic")
+    with pytest.raises(InputError, match="grating_model"):
+        MultilampOptions(grating_model="holographic")  # type: ignore[arg-type]
