@@ -46,7 +46,7 @@ from typing import Any
 from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.baselines.han2012 import Han2012Options, estimate_han2012
 from calib.methods.baselines.jiang2013 import estimate_jiang2013
@@ -60,11 +60,19 @@ from calib.methods.known_grating import (
 from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
 from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, estimate_multilamp
 from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions, estimate_prior
-from calib.model.bases import CameraBasis, default_camera_basis
+from calib.methods.uncertainty import (
+    DEFAULT_BUDGET,
+    BudgetSettings,
+    check_grid_within_basis,
+    uncertainty_budget,
+    with_budget,
+)
+from calib.model.bases import CameraBasis, default_camera_basis, is_fallback_basis
 
 __all__ = [
     "AUTO",
     "ESTIMATION_METHODS",
+    "BudgetSettings",
     "Han2012Options",
     "KnownGratingOptions",
     "Makabe2025Options",
@@ -201,6 +209,7 @@ def estimate(
     basis: CameraBasis | None = None,
     data_dir: str | Path | None = None,
     filter_options: bool = False,
+    budget: BudgetSettings | None = DEFAULT_BUDGET,
     **options: Any,
 ) -> EstimateResult:
     """Estimate a camera's spectral sensitivity by the method named.
@@ -222,6 +231,10 @@ def estimate(
         Where that default basis' camera data is (default ``$SPECTRAL_RIG_DATA``, the user cache).
     filter_options
         Drop the options the method does not declare instead of refusing them.
+    budget
+        How the stated σ is made (:mod:`calib.methods.uncertainty`: the method's own σ, the basis'
+        misfit, the mapping's σ, the spectrometer and η-model perturbations, the validation-judged
+        factor); ``None`` keeps the method's own σ (and no quality flags of the budget).
     **options
         The method's own keywords, as its function declares them: ``mapping``, ``mapping_lamp``,
         ``options`` (its typed options object), ``grating`` (known-grating), ``seed`` (toivonen2020) …
@@ -229,13 +242,15 @@ def estimate(
     Returns
     -------
     EstimateResult
-        With ``diagnostics["method_choice"]`` when ``method="auto"``.
+        With ``diagnostics["method_choice"]`` when ``method="auto"``, the budget's σ and its
+        ``quality`` flags.
 
     Raises
     ------
     InputError
         An unknown method; an option it does not declare (named); options of another method's type;
-        a missing required input; or whatever the method refuses.
+        a missing required input; a grid beyond the basis' camera data; or whatever the method
+        refuses.
     """
     key = check_method(method)
     choice: MethodChoice | None = None
@@ -284,7 +299,55 @@ def estimate(
         raise InputError(
             f"method {key!r} needs {', '.join(f'{name}=' for name in missing)}", source=missing[0]
         )
+    used_basis = routed.get("basis")
+    if isinstance(used_basis, CameraBasis):
+        check_grid_within_basis(used_basis)
     result = function(observations, **routed)
-    if choice is None:
+    if choice is not None:
+        result = replace(
+            result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}
+        )
+    if isinstance(used_basis, CameraBasis) and is_fallback_basis(used_basis):
+        result = result.with_quality(
+            QualityFlag(
+                "fallback_basis",
+                "no measured camera data found: the prior is the built-in fallback (CIE-derived "
+                "curves, not cameras); fetch the data (rig data fetch) or give --data-dir",
+            )
+        )
+    if budget is None or getattr(routed.get("options"), "uncertainty", None) == "none":
         return result
-    return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})
+    return with_budget(
+        result,
+        uncertainty_budget(
+            result,
+            observations,
+            rerun=_rerun(function, routed, result),
+            basis=used_basis if isinstance(used_basis, CameraBasis) else None,
+            options=routed.get("options", parameters["options"].default)
+            if "options" in parameters
+            else None,
+            settings=budget,
+        ),
+    )
+
+
+def _rerun(
+    function: MethodFunction, routed: Mapping[str, Any], result: EstimateResult
+) -> Callable[..., EstimateResult] | None:
+    """The method again with its mapping fixed (only the solve re-runs), for the budget's
+    perturbations; ``None`` for a method that takes no mapping."""
+    if result.mapping is None or "mapping" not in inspect.signature(function).parameters:
+        return None
+    fixed = {**routed, "mapping": result.mapping}
+    if "mapping_lamp" in fixed:
+        fixed["mapping_lamp"] = None
+
+    def rerun(observations: Sequence[Any], **changes: Any) -> EstimateResult:
+        arguments = {**fixed, **changes}
+        options = arguments.get("options")
+        if options is not None and getattr(options, "refine_given_mapping", False):
+            arguments["options"] = replace(options, refine_given_mapping=False)
+        return function(observations, **arguments)
+
+    return rerun

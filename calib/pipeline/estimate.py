@@ -43,8 +43,10 @@ from calib.pipeline.inputs import (
     LampInput,
     LampProfile,
     ProfileTable,
+    describe_spectrum,
     load_spectrum,
     read_profile_csv,
+    spectrum_paths,
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
 from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
@@ -139,6 +141,7 @@ class _Checked:
     profiles: dict[str, ProfileTable]
     grating: GratingEfficiency | None
     warnings: list[str]
+    bandwidths: dict[str, float | None] = field(default_factory=dict)
 
 
 def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Checked:
@@ -193,10 +196,16 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             )
     warnings: list[str] = []
     spectra: dict[str, Spectrum] = {}
+    bandwidths: dict[str, float | None] = {}
     for given in lamps:
         loaded = load_spectrum(given.spectrum, given.name, settings.grid)
         spectra[given.name] = loaded.spectrum
         warnings.extend(loaded.warnings)
+        bandwidths[given.name] = (
+            given.spectrum_bandwidth_nm
+            if given.spectrum_bandwidth_nm is not None
+            else loaded.bandwidth_nm
+        )
     profiles = {
         lamp.name: read_profile_csv(lamp.profile) for lamp in lamps if isinstance(lamp, LampProfile)
     }
@@ -216,7 +225,7 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             f"{settings.grid.start_nm:g}–{settings.grid.stop_nm:g} nm",
             source=grating.source,
         )
-    return _Checked(spectra, profiles, grating, warnings)
+    return _Checked(spectra, profiles, grating, warnings, bandwidths)
 
 
 def _profile_observation(
@@ -251,7 +260,7 @@ def _image_lamp_record(lamp: LampImages, extraction_frames: Sequence[Any]) -> di
         "name": lamp.name,
         "kind": lamp.kind,
         "input": "images",
-        "spectrum": str(lamp.spectrum) if isinstance(lamp.spectrum, Path) else lamp.spectrum.name,
+        "spectrum": describe_spectrum(lamp.spectrum),
         "frames": [
             {
                 "path": str(record.path),
@@ -351,8 +360,9 @@ def estimate_offline(
                         hasher.add(path, "dark", lamp.name)
             else:
                 hasher.add(lamp.profile, "profile", lamp.name)
-            if isinstance(lamp.spectrum, Path) and str(lamp.spectrum) not in known:
-                hasher.add(lamp.spectrum, "spectrum", lamp.name)
+            for path in spectrum_paths(lamp.spectrum):
+                if str(path) not in known:
+                    hasher.add(path, "spectrum", lamp.name)
         if isinstance(settings.grating, Path):
             hasher.add(settings.grating, "grating", None)
 
@@ -387,7 +397,7 @@ def estimate_offline(
                             "geometry_lamp": profiles.geometry_lamp,
                         },
                     ),
-                    spectrum_bandwidth_nm=lamp.spectrum_bandwidth_nm,
+                    spectrum_bandwidth_nm=checked.bandwidths[lamp.name],
                 )
                 observations.append(observation)
                 if extraction.direct_rgb is None:
@@ -405,7 +415,7 @@ def estimate_offline(
                 observations.append(
                     replace(
                         _profile_observation(given, checked.spectra[given.name], table),
-                        spectrum_bandwidth_nm=given.spectrum_bandwidth_nm,
+                        spectrum_bandwidth_nm=checked.bandwidths[given.name],
                     )
                 )
                 lamp_records.append(
@@ -416,9 +426,7 @@ def estimate_offline(
                         "profile": str(given.profile),
                         "axis": "wavelength_nm" if table.in_wavelength else "pixel",
                         "direct_rgb": None if given.direct_rgb is None else list(given.direct_rgb),
-                        "spectrum": str(given.spectrum)
-                        if isinstance(given.spectrum, Path)
-                        else given.spectrum.name,
+                        "spectrum": describe_spectrum(given.spectrum),
                     }
                 )
         report.stage("estimating")
