@@ -38,7 +38,8 @@ through a diffraction grating, and each lamp's measured spectrum.
 
 Per lamp (after --lamp NAME; repeat the group for every lamp):
   --images PATH ...      the lamp's RAW bracket (any format LibRaw reads: DNG, CR2, CR3, NEF, ARW …)
-  --spectrum CSV         the lamp's spectrum, wavelength_nm,value (header optional, any spacing)
+  --spectrum CSV ...     the lamp's spectrum, wavelength_nm,value (header optional, any spacing;
+                         several files: their mean; # units:/# bandwidth_nm: lines are read)
   --kind KIND            led, fluorescent, halogen, narrowband or other (default: other);
                          a fluorescent lamp's lines give the pixel→wavelength mapping
   --dark PATH ...        dark frames at the bracket's exposure times (subtracted per exposure)
@@ -73,8 +74,8 @@ Global:
 Exit codes: 0 ok, 2 bad input (the reason on one line), 1 internal error.
 """
 
-_LAMP_MULTI = ("--images", "--dark", "--exposure", "--dark-exposure")
-_LAMP_SINGLE = ("--spectrum", "--kind", "--profile", "--direct", "--bandwidth")
+_LAMP_MULTI = ("--images", "--dark", "--exposure", "--dark-exposure", "--spectrum")
+_LAMP_SINGLE = ("--kind", "--profile", "--direct", "--bandwidth")
 _GLOBAL_SINGLE = (
     "--out",
     "--method",
@@ -268,10 +269,11 @@ def parse_estimate_arguments(argv: Sequence[str]) -> EstimateArguments:
 
 def _lamp_input(group: _LampGroup) -> LampInput:
     where = f"lamp {group.name!r}"
-    if "--spectrum" not in group.values:
+    if "--spectrum" not in group.lists:
         raise InputError("--spectrum CSV is required for every lamp", source=where)
     kind = check_kind(group.values.get("--kind", "other"), f"{where} --kind")
-    spectrum = Path(group.values["--spectrum"])
+    paths = tuple(Path(p) for p in group.lists["--spectrum"])  # several: averaged
+    spectrum = paths[0] if len(paths) == 1 else paths
     bandwidth = (
         None
         if "--bandwidth" not in group.values

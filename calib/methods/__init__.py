@@ -38,10 +38,13 @@ calib.core.errors.InputError: weight_rule: method 'prior' takes no option 'weigh
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
@@ -82,6 +85,7 @@ __all__ = [
     "PriorOptions",
     "check_method",
     "choose_method",
+    "coarse_line_spectrum",
     "estimate",
     "method_names",
 ]
@@ -119,26 +123,67 @@ MethodOptions = PriorOptions | Makabe2025Options | MultilampOptions | KnownGrati
 AUTO_MULTILAMP_LAMPS = 3
 
 
+#: A line lamp (fluorescent, narrowband) whose spectrum is sampled more coarsely than this (nm)
+#: cannot place its lines: ``auto`` uses it for the mapping only. Spectrometers sample at 1–4 nm;
+#: tabulated CIE F-series spectra (5 nm) are nominal shapes, not a measurement of this lamp.
+COARSE_LINE_SPECTRUM_NM = 4.5
+LINE_LAMP_KINDS = ("fluorescent", "narrowband")
+
+
+def coarse_line_spectrum(observation: LampObservation) -> str | None:
+    """Why a line lamp's spectrum cannot be used in the solve (unknown or too coarse), or ``None``.
+
+    A spectrum is *unknown* when its lamp's ``metadata["spectrum_known"]`` is ``False`` (a nominal
+    spectrum standing in for one nobody measured)."""
+    if observation.kind not in LINE_LAMP_KINDS:
+        return None
+    if observation.metadata.get("spectrum_known") is False:
+        return f"lamp {observation.name!r}: its spectrum was not measured"
+    wavelength = np.asarray(observation.spectrum.wavelength_nm, dtype=np.float64)
+    step = float(np.median(np.diff(wavelength))) if wavelength.size > 1 else math.inf
+    if step > COARSE_LINE_SPECTRUM_NM:
+        return (
+            f"lamp {observation.name!r}: its spectrum is sampled every {step:g} nm, too coarse for "
+            f"its emission lines (≤ {COARSE_LINE_SPECTRUM_NM:g} nm needed)"
+        )
+    return None
+
+
 @dataclass(frozen=True)
 class MethodChoice:
-    """What ``method="auto"`` chose, and why (recorded in ``diagnostics["method_choice"]``)."""
+    """What ``method="auto"`` chose, and why (recorded in ``diagnostics["method_choice"]``).
+
+    ``mapping_only`` names the lamps used to find the mapping but kept out of the solve.
+    """
 
     method: str
     reason: str
+    mapping_only: tuple[str, ...] = ()
 
-    def to_dict(self) -> dict[str, str]:
-        return {"requested": AUTO, "method": self.method, "reason": self.reason}
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "requested": AUTO,
+            "method": self.method,
+            "reason": self.reason,
+            "mapping_only": list(self.mapping_only),
+        }
 
 
-def choose_method(observations: Sequence[object]) -> MethodChoice:
-    """The method ``auto`` stands for: ``multilamp`` when at least :data:`AUTO_MULTILAMP_LAMPS`
-    lamps have a direct measurement, else the prior solve.
+def choose_method(observations: Sequence[object], *, grating: object = None) -> MethodChoice:
+    """The method ``auto`` stands for.
+
+    1. A line lamp with an unknown or coarse spectrum (:func:`coarse_line_spectrum`) helps the
+       mapping only: its lines place the wavelengths, but its spectrum would put wrong lines into
+       the solve.
+    2. A grating file given: ``known-grating`` (its η and σ, measured or a maker's curve).
+    3. ``multilamp`` when at least :data:`AUTO_MULTILAMP_LAMPS` of the other lamps have a direct
+       measurement, else the prior solve.
 
     Raises
     ------
     InputError
-        No lamp observation, or no lamp with a direct measurement (then the grating's efficiency
-        must come from elsewhere: ``method="known-grating"``).
+        No lamp observation, or no lamp with a direct measurement and no grating file (then the
+        grating's efficiency must come from elsewhere).
     """
     lamps = [item for item in observations if isinstance(item, LampObservation)]
     if len(lamps) != len(observations) or not lamps:
@@ -147,18 +192,33 @@ def choose_method(observations: Sequence[object]) -> MethodChoice:
             "name the method for charts or colour matrices (e.g. method='jiang2013')",
             source="method",
         )
-    direct = [lamp.name for lamp in lamps if lamp.direct_rgb is not None]
+    reasons = {lamp.name: why for lamp in lamps if (why := coarse_line_spectrum(lamp))}
+    mapping_only = tuple(name for name in reasons if len(reasons) < len(lamps))
+    prefix = "".join(f"{reasons[name]}: used for the mapping only; " for name in mapping_only)
+    if grating is not None:
+        source = getattr(grating, "source", "the grating file")
+        return MethodChoice(
+            KNOWN_GRATING_METHOD,
+            prefix + f"a grating efficiency was given ({source}): the known-grating solve uses it "
+            "with its σ",
+            mapping_only,
+        )
+    direct = [
+        lamp.name for lamp in lamps if lamp.direct_rgb is not None and lamp.name not in mapping_only
+    ]
     if len(direct) >= AUTO_MULTILAMP_LAMPS:
         return MethodChoice(
             MULTILAMP_METHOD,
-            f"{len(direct)} lamps have a direct measurement ({', '.join(direct)}): their direct "
-            "equations determine the grating efficiency",
+            prefix + f"{len(direct)} lamps have a direct measurement ({', '.join(direct)}): their "
+            "direct equations determine the grating efficiency",
+            mapping_only,
         )
     if direct:
         return MethodChoice(
             PRIOR_METHOD,
-            f"{len(direct)} lamp(s) with a direct measurement ({', '.join(direct)}); multilamp "
-            f"needs at least {AUTO_MULTILAMP_LAMPS}",
+            prefix + f"{len(direct)} lamp(s) with a direct measurement ({', '.join(direct)}); "
+            f"multilamp needs at least {AUTO_MULTILAMP_LAMPS}",
+            mapping_only,
         )
     raise InputError(
         "no lamp has a direct (0th-order) measurement, so no method can estimate the grating "
@@ -255,8 +315,21 @@ def estimate(
     key = check_method(method)
     choice: MethodChoice | None = None
     if key == AUTO:
-        choice = choose_method(observations)
+        choice = choose_method(observations, grating=options.get("grating"))
         key = choice.method
+        if choice.mapping_only:
+            return _mapping_only_estimate(
+                observations,
+                choice,
+                grid=grid,
+                basis=basis,
+                data_dir=data_dir,
+                filter_options=filter_options,
+                budget=budget,
+                options=options,
+            )
+        if key != KNOWN_GRATING_METHOD:
+            options = {name: value for name, value in options.items() if name != "grating"}
     function = ESTIMATION_METHODS[key]
     routed = _route(key, function, options, filter_options=filter_options)
     parameters = inspect.signature(function).parameters
@@ -330,6 +403,56 @@ def estimate(
             settings=budget,
         ),
     )
+
+
+def _mapping_only_estimate(
+    observations: Sequence[LampObservation],
+    choice: MethodChoice,
+    *,
+    grid: WavelengthGrid,
+    basis: CameraBasis | None,
+    data_dir: str | Path | None,
+    filter_options: bool,
+    budget: BudgetSettings | None,
+    options: Mapping[str, Any],
+) -> EstimateResult:
+    """``auto`` with lamps for the mapping only: the mapping from every lamp (those lamps' direct
+    measurements set aside), then the chosen method on the other lamps through that mapping."""
+    kept = [
+        replace(obs, direct_rgb=None, direct_sigma=None) if obs.name in choice.mapping_only else obs
+        for obs in observations
+    ]
+    if basis is None:
+        basis = default_camera_basis(grid, data_dir=data_dir)
+    method_options = {
+        name: value
+        for name, value in options.items()
+        if name != "grating" or choice.method == KNOWN_GRATING_METHOD
+    }
+    mapping = method_options.pop("mapping", None)
+    if mapping is None:
+        mapping = estimate(
+            kept,
+            choice.method,
+            grid=grid,
+            basis=basis,
+            filter_options=True,
+            budget=None,
+            **method_options,
+        ).mapping
+    method_options.pop("mapping_lamp", None)
+    solve = [obs for obs in kept if obs.name not in choice.mapping_only]
+    result = estimate(
+        solve,
+        choice.method,
+        grid=grid,
+        basis=basis,
+        filter_options=filter_options,
+        budget=budget,
+        mapping=mapping,
+        **method_options,
+    )
+    return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})
 
 
 def _rerun(

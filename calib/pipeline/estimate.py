@@ -30,10 +30,10 @@ from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency, read_grating_file
 from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.image.raw import read_raw_metadata
-from calib.methods import AUTO, MethodOptions, check_method, estimate
+from calib.methods import AUTO, MethodOptions, check_method, coarse_line_spectrum, estimate
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
 from calib.model.bases import CameraBasis, default_camera_basis
@@ -400,11 +400,6 @@ def estimate_offline(
                     spectrum_bandwidth_nm=checked.bandwidths[lamp.name],
                 )
                 observations.append(observation)
-                if extraction.direct_rgb is None:
-                    warnings.append(
-                        f"lamp {lamp.name!r}: the direct spot is saturated in every frame; this "
-                        "lamp has no direct measurement (add a shorter exposure)"
-                    )
                 lamp_records.append(_image_lamp_record(lamp, item.merged.image.frames))
             camera = _camera_record(profiles)
             timings["profiles_s"] = time.perf_counter() - step
@@ -440,6 +435,8 @@ def estimate_offline(
             notes=notes,
         )
         timings["estimate_s"] = time.perf_counter() - step
+        result = result.with_quality(*input_flags(observations, image_input=bool(image_lamps)))
+        warnings.extend(line for line in result.quality.warnings() if line not in warnings)
         inputs = hasher.results()
     timings["total_s"] = time.perf_counter() - started
     provenance = Provenance(
@@ -458,6 +455,45 @@ def estimate_offline(
         grating=grating_used,
         timings=timings,
     )
+
+
+#: A profile whose peak is below this many σ of its noise carries no first-order signal.
+BLANK_PROFILE_SNR = 5.0
+
+
+def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
+    """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
+    order, a line lamp's spectrum too coarse for its lines."""
+    flags: list[QualityFlag] = []
+    saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
+    if saturated:
+        flags.append(
+            QualityFlag(
+                "saturated_frames",
+                f"the direct spot of {', '.join(saturated)} is saturated in every frame: no "
+                "direct measurement (add a shorter exposure to the bracket)",
+            )
+        )
+    blank = []
+    for obs in observations:
+        if obs.profile_sigma is None:
+            continue
+        snr = float(np.max(obs.profile / obs.profile_sigma))
+        if snr < BLANK_PROFILE_SNR:
+            blank.append(f"{obs.name} (peak {snr:.1f} σ)")
+    if blank:
+        flags.append(
+            QualityFlag(
+                "blank_frames",
+                f"no first-order signal above the noise for {', '.join(blank)}: blank frames, a "
+                "lamp that was off, or the band outside the crop",
+                "serious",
+            )
+        )
+    coarse = [why for obs in observations if (why := coarse_line_spectrum(obs))]
+    if coarse:
+        flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))
+    return flags
 
 
 def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMapping | None:
@@ -525,6 +561,7 @@ def _estimate(
     with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
     # The grating library: multilamp (or known-grating) through an earlier calibration's η.
     through_file = checked.grating is not None and method in (
+        AUTO,
         MULTILAMP_METHOD,
         KNOWN_GRATING_METHOD,
     )
@@ -558,9 +595,11 @@ def _estimate(
         notes.append(
             f"method {settings.method!r} needs a direct measurement; used the known-grating solve"
         )
+    # auto with a grating file records its choice (and may keep a line lamp for the mapping only)
+    chosen = AUTO if method == AUTO and checked.grating is not None else KNOWN_GRATING_METHOD
     result = estimate(
         observations,
-        KNOWN_GRATING_METHOD,
+        chosen,
         grid=grid,
         basis=basis,
         grating=checked.grating,
