@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from calib.core.lamp_specs import colour_lamp, lamp_from_spec
 from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, Quality, QualityFlag
-from calib.core.spectra import Spectrum, WavelengthGrid
+from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
 from calib.evaluation.validation.budget import coverage_at, fit_scale
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
@@ -26,29 +27,29 @@ from calib.methods.uncertainty import (
     reduced_chi2,
     uncertainty_budget,
 )
-from calib.model.bases import camera_basis, fallback_camera_basis
+from calib.model.bases import CameraBasis, camera_basis, fallback_camera_basis
 from calib.model.forward import render_observation
 
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
 
 
 @pytest.fixture(scope="module")
-def camera() -> object:
+def camera() -> MultiSpectrum:
     return find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
 
 
 @pytest.fixture(scope="module")
-def basis() -> object:
+def basis() -> CameraBasis:
     return fallback_camera_basis(exclude=["Canon EOS 5D Mark II"])
 
 
-def _lamp(spec: str, camera: object, bandwidth_nm: float | None = 4.0) -> LampObservation:
+def _lamp(spec: str, camera: MultiSpectrum, bandwidth_nm: float | None = 4.0) -> LampObservation:
     observation = render_observation(lamp_from_spec(spec), camera, mapping=TRUTH, pixel=800)
     return replace(observation.observation, spectrum_bandwidth_nm=bandwidth_nm)
 
 
 def test_the_budget_names_its_components_and_states_their_sum(
-    camera: object, basis: object
+    camera: MultiSpectrum, basis: CameraBasis
 ) -> None:
     lamps = [_lamp("LED-B3", camera)]
     own = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=None)
@@ -74,7 +75,7 @@ def test_the_budget_names_its_components_and_states_their_sum(
 
 
 def test_a_budget_without_perturbations_keeps_the_analytic_components(
-    camera: object, basis: object
+    camera: MultiSpectrum, basis: CameraBasis
 ) -> None:
     result = estimate(
         [_lamp("LED-B3", camera)],
@@ -87,12 +88,12 @@ def test_a_budget_without_perturbations_keeps_the_analytic_components(
 
 
 def test_the_spectrometer_perturbation_moves_with_the_stated_scale(
-    camera: object, basis: object
+    camera: MultiSpectrum, basis: CameraBasis
 ) -> None:
     lamps = [_lamp("LED-B3", camera)]
     result = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=None)
 
-    def rerun(observations: list[LampObservation], **changes: object) -> EstimateResult:
+    def rerun(observations: list[LampObservation], **changes: Any) -> EstimateResult:
         return estimate(observations, "prior", basis=basis, mapping=TRUTH, budget=None, **changes)
 
     small, large = (
@@ -104,7 +105,9 @@ def test_the_spectrometer_perturbation_moves_with_the_stated_scale(
     assert np.sqrt(np.mean(large**2)) > 3 * np.sqrt(np.mean(small**2)) > 0
 
 
-def test_a_missing_bandwidth_is_flagged_and_assumed(camera: object, basis: object) -> None:
+def test_a_missing_bandwidth_is_flagged_and_assumed(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
     given = estimate([_lamp("LED-B3", camera)], "prior", basis=basis, mapping=TRUTH)
     missing = estimate([_lamp("LED-B3", camera, None)], "prior", basis=basis, mapping=TRUTH)
     assert "no_spectrometer_bandwidth" not in {f.code for f in given.quality.flags}
@@ -113,7 +116,7 @@ def test_a_missing_bandwidth_is_flagged_and_assumed(camera: object, basis: objec
     assert missing.quality.verdict != "ok"
 
 
-def test_the_fallback_basis_is_flagged(camera: object, basis: object) -> None:
+def test_the_fallback_basis_is_flagged(camera: MultiSpectrum, basis: CameraBasis) -> None:
     result = estimate([_lamp("LED-B3", camera)], "prior", basis=basis, mapping=TRUTH)
     assert "fallback_basis" in {flag.code for flag in result.quality.flags}
 
@@ -121,8 +124,8 @@ def test_the_fallback_basis_is_flagged(camera: object, basis: object) -> None:
 def test_reduced_chi2_inflates_and_warns() -> None:
     result = EstimateResult(
         "demo",
-        [400, 500, 600],
-        [[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]],
+        np.array([400.0, 500.0, 600.0]),
+        np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
         sensitivity_sigma=np.full((3, 3), 0.01),
         diagnostics={"reduced_chi2": 25.0},
     )
@@ -166,7 +169,7 @@ def test_quality_keeps_one_flag_per_code_and_grades() -> None:
     assert quality.to_dict()["flags"][1] == {"code": "b", "severity": "serious", "message": "bad"}
 
 
-def test_auto_keeps_a_coarse_fluorescent_lamp_for_the_mapping(camera: object) -> None:
+def test_auto_keeps_a_coarse_fluorescent_lamp_for_the_mapping(camera: MultiSpectrum) -> None:
     led = _lamp("LED-B3", camera)
     fluorescent = render_observation(colour_lamp("FL2"), camera, mapping=TRUTH, pixel=800)
     fl = replace(fluorescent.observation, kind="fluorescent")
@@ -182,15 +185,19 @@ def test_auto_keeps_a_coarse_fluorescent_lamp_for_the_mapping(camera: object) ->
     assert choose_method([coarse]).mapping_only == ()
 
 
-def test_auto_uses_a_grating_file_when_given(camera: object) -> None:
+def test_auto_uses_a_grating_file_when_given(camera: MultiSpectrum) -> None:
     led = _lamp("LED-B3", camera)
-    grating = GratingEfficiency([380.0, 780.0], [1.0, 1.0], source="grating.json")
+    grating = GratingEfficiency(
+        np.array([380.0, 780.0]), np.array([1.0, 1.0]), source="grating.json"
+    )
     choice = choose_method([led], grating=grating)
     assert choice.method == "known-grating" and "grating.json" in choice.reason
     assert choose_method([led]).method == "prior"
 
 
-def test_auto_through_a_mapping_only_lamp_records_it(camera: object, basis: object) -> None:
+def test_auto_through_a_mapping_only_lamp_records_it(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
     led = _lamp("LED-B3", camera)
     fluorescent = render_observation(colour_lamp("FL2"), camera, mapping=TRUTH, pixel=800)
     coarse = replace(
