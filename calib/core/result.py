@@ -87,8 +87,9 @@ class QualityFlag:
         return {"code": self.code, "severity": self.severity, "message": self.message}
 
     def line(self) -> str:
-        """One line for stderr and the report."""
-        return f"{self.severity}: {self.message} [{self.code}]"
+        """One line for stderr and the report (serious findings say so)."""
+        prefix = "SERIOUS: " if self.severity == "serious" else ""
+        return f"{prefix}{self.message} [{self.code}]"
 
 
 @dataclass(frozen=True)

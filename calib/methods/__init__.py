@@ -169,7 +169,9 @@ class MethodChoice:
         }
 
 
-def choose_method(observations: Sequence[object], *, grating: object = None) -> MethodChoice:
+def choose_method(
+    observations: Sequence[object], *, grating: object = None, assume_flat_grating: bool = False
+) -> MethodChoice:
     """The method ``auto`` stands for.
 
     1. A line lamp with an unknown or coarse spectrum (:func:`coarse_line_spectrum`) helps the
@@ -178,12 +180,14 @@ def choose_method(observations: Sequence[object], *, grating: object = None) -> 
     2. A grating file given: ``known-grating`` (its η and σ, measured or a maker's curve).
     3. ``multilamp`` when at least :data:`AUTO_MULTILAMP_LAMPS` of the other lamps have a direct
        measurement, else the prior solve.
+    4. No direct measurement and no grating file: ``known-grating`` through a flat grating when
+       ``assume_flat_grating`` (the caller warns), else an error.
 
     Raises
     ------
     InputError
-        No lamp observation, or no lamp with a direct measurement and no grating file (then the
-        grating's efficiency must come from elsewhere).
+        No lamp observation, or no lamp with a direct measurement, no grating file and no flat
+        grating allowed (then the grating's efficiency must come from elsewhere).
     """
     lamps = [item for item in observations if isinstance(item, LampObservation)]
     if len(lamps) != len(observations) or not lamps:
@@ -218,6 +222,13 @@ def choose_method(observations: Sequence[object], *, grating: object = None) -> 
             PRIOR_METHOD,
             prefix + f"{len(direct)} lamp(s) with a direct measurement ({', '.join(direct)}); "
             f"multilamp needs at least {AUTO_MULTILAMP_LAMPS}",
+            mapping_only,
+        )
+    if assume_flat_grating:
+        return MethodChoice(
+            KNOWN_GRATING_METHOD,
+            prefix + "no direct measurement and no grating file: the known-grating solve through "
+            "a flat grating (assumed; the sensitivity carries the grating's efficiency)",
             mapping_only,
         )
     raise InputError(
@@ -270,6 +281,7 @@ def estimate(
     data_dir: str | Path | None = None,
     filter_options: bool = False,
     budget: BudgetSettings | None = DEFAULT_BUDGET,
+    assume_flat_grating: bool = False,
     **options: Any,
 ) -> EstimateResult:
     """Estimate a camera's spectral sensitivity by the method named.
@@ -295,6 +307,9 @@ def estimate(
         How the stated σ is made (:mod:`calib.methods.uncertainty`: the method's own σ, the basis'
         misfit, the mapping's σ, the spectrometer and η-model perturbations, the validation-judged
         factor); ``None`` keeps the method's own σ (and no quality flags of the budget).
+    assume_flat_grating
+        With ``"auto"``: lamps without a direct measurement and no grating file go through the
+        known-grating solve with a flat grating instead of an error (the caller warns).
     **options
         The method's own keywords, as its function declares them: ``mapping``, ``mapping_lamp``,
         ``options`` (its typed options object), ``grating`` (known-grating), ``seed`` (toivonen2020) …
@@ -315,7 +330,11 @@ def estimate(
     key = check_method(method)
     choice: MethodChoice | None = None
     if key == AUTO:
-        choice = choose_method(observations, grating=options.get("grating"))
+        choice = choose_method(
+            observations,
+            grating=options.get("grating"),
+            assume_flat_grating=assume_flat_grating,
+        )
         key = choice.method
         if choice.mapping_only:
             return _mapping_only_estimate(
@@ -328,7 +347,9 @@ def estimate(
                 budget=budget,
                 options=options,
             )
-        if key != KNOWN_GRATING_METHOD:
+        if key == KNOWN_GRATING_METHOD:
+            options = {"grating": None, **options}
+        else:
             options = {name: value for name, value in options.items() if name != "grating"}
     function = ESTIMATION_METHODS[key]
     routed = _route(key, function, options, filter_options=filter_options)
@@ -429,6 +450,8 @@ def _mapping_only_estimate(
         for name, value in options.items()
         if name != "grating" or choice.method == KNOWN_GRATING_METHOD
     }
+    if choice.method == KNOWN_GRATING_METHOD:
+        method_options.setdefault("grating", None)
     mapping = method_options.pop("mapping", None)
     if mapping is None:
         mapping = estimate(

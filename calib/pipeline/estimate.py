@@ -582,8 +582,9 @@ def _estimate(
             "efficiency from an earlier calibration with --grating FILE",
             source="lamps",
         )
+    flat: str | None = None
     if checked.grating is None:
-        warnings.append(
+        flat = (
             "no direct measurement and no --grating: a flat grating efficiency was assumed, so the "
             "sensitivity carries the grating's own spectral efficiency as an error; measure the "
             "direct RGB (--direct R,G,B) or give --grating FILE from an earlier calibration"
@@ -595,15 +596,17 @@ def _estimate(
         notes.append(
             f"method {settings.method!r} needs a direct measurement; used the known-grating solve"
         )
-    # auto with a grating file records its choice (and may keep a line lamp for the mapping only)
-    chosen = AUTO if method == AUTO and checked.grating is not None else KNOWN_GRATING_METHOD
+    # auto records its choice (and may keep a line lamp of unknown spectrum for the mapping only)
     result = estimate(
         observations,
-        chosen,
+        AUTO if method == AUTO else KNOWN_GRATING_METHOD,
+        assume_flat_grating=True,
         grid=grid,
         basis=basis,
         grating=checked.grating,
         options=_known_grating_options(settings.method_options, warnings),
         **where,
     )
+    if flat is not None:
+        result = result.with_quality(QualityFlag("flat_grating_assumed", flat))
     return result, checked.grating
