@@ -35,7 +35,6 @@ from calib.core.arrays import FloatArray
 from calib.core.datasets import find_camera, load_collection
 from calib.core.grating_file import GratingEfficiency
 from calib.core.lamp_specs import colour_lamp
-from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, Spectrum, read_spectrum_csv, read_table
 from calib.image.profile_files import read_fits_profile, read_rawproc_dat
@@ -49,8 +48,10 @@ def scores(result: EstimateResult, truth: FloatArray, *, per_channel: bool = Fal
     """RMS and ±2σ coverage of the estimate against ``truth`` ``(f, 3)`` (module docstring)."""
     estimate_curves = result.physical_sensitivity()
     sigma = result.sensitivity_sigma
-    sigma = np.zeros_like(estimate_curves) if sigma is None else sigma / float(
-        np.clip(result.sensitivity, 0.0, None).max()
+    sigma = (
+        np.zeros_like(estimate_curves)
+        if sigma is None
+        else sigma / float(np.clip(result.sensitivity, 0.0, None).max())
     )
     target = truth / truth.max()
     if per_channel:
@@ -107,7 +108,7 @@ def canon_10d(folder: Path, data_dir: Path) -> None:
     grating = GratingEfficiency(
         catalogue[:, 0], catalogue[:, 1] / catalogue[:, 1].max(), source="LHires III 150 l/mm"
     )
-    records = [r for r in load_collection("solomatov-akkaynak-2023", data_dir)]
+    records = list(load_collection("solomatov-akkaynak-2023", data_dir))
     kept = [r for r in records if "10d" not in r.name.lower()]
     basis = camera_basis(
         [r.sensitivity for r in kept],
