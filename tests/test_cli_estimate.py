@@ -244,9 +244,8 @@ def _write_profile(
     return path, observation.direct_rgb
 
 
-#: What these profile inputs are warned about: no --bandwidth, and colour's FL2 at 5 nm (the
-#: fluorescent lamp then gives the mapping only).
-EXPECTED_FLAGS = {"no_spectrometer_bandwidth", "coarse_lamp_spectrum"}
+#: What these profile inputs are warned about: no --bandwidth.
+EXPECTED_FLAGS = {"no_spectrometer_bandwidth"}
 
 
 def _flag_codes(summary: dict[str, object]) -> set[str]:

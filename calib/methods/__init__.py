@@ -124,9 +124,9 @@ AUTO_MULTILAMP_LAMPS = 3
 
 
 #: A line lamp (fluorescent, narrowband) whose spectrum is sampled more coarsely than this (nm)
-#: cannot place its lines: ``auto`` uses it for the mapping only. Spectrometers sample at 1–4 nm;
-#: tabulated CIE F-series spectra (5 nm) are nominal shapes, not a measurement of this lamp.
-COARSE_LINE_SPECTRUM_NM = 4.5
+#: cannot place its lines: ``auto`` uses it for the mapping only. Spectroradiometers sample at
+#: 1–5 nm (tabulated CIE F-series too); an i1Pro through ``spotread`` at 10 nm is too coarse.
+COARSE_LINE_SPECTRUM_NM = 5.0
 LINE_LAMP_KINDS = ("fluorescent", "narrowband")
 
 

@@ -200,7 +200,7 @@ def _quality_banner(estimate: OfflineEstimate) -> str:
     parts.extend(f"<div class='warning'>{_escape(line)}</div>" for line in flagged)
     others = [w for w in estimate.provenance.warnings if w not in flagged]
     if others:
-        parts.append(f"<br>{len(others)} other warning(s):")
+        parts.append(f"<br>{len(others)} warning(s):")
         parts.extend(f"<div class='warning'>{_escape(w)}</div>" for w in others)
     elif not flagged:
         parts.append("<br>No warnings.")

@@ -163,13 +163,10 @@ def test_a_complete_session_gives_the_outputs_and_the_truth(
     assert relative_error(result.sensitivity, capture.truth) < 0.05
     assert isinstance(result.mapping, QuadraticMapping)
     assert result.mapping.method.startswith("lines of")
-    # no bandwidth stated (σ assumes one) and colour's 5 nm FL2: the mapping's lamp only
-    assert {flag.code for flag in result.quality.flags} == {
-        "no_spectrometer_bandwidth",
-        "coarse_lamp_spectrum",
-    }
-    assert len(outcome.estimate.warnings) == 2
-    assert result.diagnostics["method_choice"]["mapping_only"] == ["FL"]
+    # no bandwidth stated: the one warning (σ assumes one)
+    assert {flag.code for flag in result.quality.flags} == {"no_spectrometer_bandwidth"}
+    assert len(outcome.estimate.warnings) == 1
+    assert result.diagnostics["method_choice"]["mapping_only"] == []
     assert result.quality.uncertainty["notes"]
     document = json.loads(outcome.files["result"].read_text())
     notes = document["provenance"]["notes"]
