@@ -397,6 +397,8 @@ def estimate(
     if isinstance(used_basis, CameraBasis):
         check_grid_within_basis(used_basis)
     result = function(observations, **routed)
+    if not isinstance(result, EstimateResult):  # a registered stand-in (tests) returns as is
+        return result
     if choice is not None:
         result = replace(
             result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}
