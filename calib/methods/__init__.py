@@ -396,12 +396,21 @@ def estimate(
     used_basis = routed.get("basis")
     if isinstance(used_basis, CameraBasis):
         check_grid_within_basis(used_basis)
-    result = function(observations, **routed)
-    if not isinstance(result, EstimateResult):  # a registered stand-in (tests) returns as is
-        return result
+    returned: object = function(observations, **routed)
+    if not isinstance(returned, EstimateResult):  # a registered stand-in (tests) returns as is
+        return returned  # type: ignore[return-value]
+    result = returned
     if choice is not None:
         result = replace(
             result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}
+        )
+    if choice is not None and key == KNOWN_GRATING_METHOD and routed.get("grating") is None:
+        result = result.with_quality(
+            QualityFlag(
+                "flat_grating_assumed",
+                "no direct measurement and no grating file: a flat grating efficiency was "
+                "assumed, so the sensitivity carries the grating's own efficiency as an error",
+            )
         )
     if isinstance(used_basis, CameraBasis) and is_fallback_basis(used_basis):
         result = result.with_quality(
