@@ -28,12 +28,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from calib.core.checksums import file_sha256
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
-from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid, read_spectrum_csv
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid, read_spectrum_csv
 from calib.core.truth import GroundTruth
 from calib.pipeline import (
     InputFile,
@@ -157,19 +155,6 @@ def _bandwidth(references: Sequence[_SessionFile]) -> float | None:
     return max(values) if values else None
 
 
-def _mean_spectrum(name: str, references: Sequence[_SessionFile]) -> Spectrum:
-    """The mean of a lamp's reference spectra (on the first one's wavelengths)."""
-    spectra = []
-    for item in references:
-        try:
-            spectra.append(read_spectrum_csv(item.path, name=name, negative="clip"))
-        except SpectrumError as exc:
-            raise SessionFormatError(f"{item.record.path}: {exc}") from None
-    axis = spectra[0].wavelength_nm
-    values = np.mean([np.interp(axis, s.wavelength_nm, s.values) for s in spectra], axis=0)
-    return Spectrum(axis, values, name=f"{name} (mean of {len(spectra)} reference spectra)")
-
-
 def _step_exposures(session: Session, keys: Sequence[str]) -> list[float | None]:
     """The exposure each step asked for (``params.exposure_s``), from its done record."""
     done = session.done_steps()
@@ -228,7 +213,7 @@ def session_lamps(session: Session) -> tuple[list[LampImages], list[InputFile], 
             LampImages(
                 name=name,
                 kind=kind,
-                spectrum=_mean_spectrum(name, entry.reference),
+                spectrum=tuple(item.path for item in entry.reference),
                 images=tuple(item.path for item in entry.scene),
                 darks=tuple(item.path for item in darks),
                 spectrum_bandwidth_nm=_bandwidth(entry.reference),

@@ -662,12 +662,13 @@ class SessionWriter:
     ) -> FileRecord:
         """Store a spectrum as CSV (``wavelength_nm,value``) and acknowledge it.
 
-        ``units`` of ``value`` and the instrument's ``bandwidth_nm`` go into the file record.
+        ``units`` of ``value`` and the instrument's ``bandwidth_nm`` go into the file record and the
+        CSV's ``# units:``/``# bandwidth_nm:`` header lines (so ``calib estimate`` reads them too).
         """
         temporary = self.incoming_path(relative.split("/")[0])
         try:
             os.close(create_new_file(temporary))  # new and ours: write_csv cannot be led astray
-            write_csv(temporary, spectrum)
+            write_csv(temporary, spectrum, header={"units": units, "bandwidth_nm": bandwidth_nm})
         except UnsafeLocalPath as exc:
             raise self.refusal(exc) from None
         except OSError as exc:

@@ -32,7 +32,7 @@ import numpy as np
 
 from calib.core.colour_data import spectral_file
 from calib.core.errors import SpectrumError
-from calib.core.spectra import read_spectrum_csv
+from calib.core.spectra import csv_header, read_spectrum_csv
 from drivers.base import RelayBoard, SpectrumReading, TranscriptSink
 from drivers.spectrometer.cgats import CgatsError, parse_sp, units_of
 from drivers.spectrometer.files import FilesSpectrometer, LampFile, SwitchedRelays
@@ -59,22 +59,6 @@ def detect_format(path: Path) -> KnownFormat:
         if "BEGIN_DATA_FORMAT" in head:
             return "xrite"
     return "csv"
-
-
-def _header(path: Path) -> dict[str, str]:
-    """``# key: value`` comment lines before the data of a CSV file."""
-    found: dict[str, str] = {}
-    with path.open(encoding="utf-8-sig", errors="replace") as handle:
-        for line in handle:
-            stripped = line.strip()
-            if not stripped:
-                continue
-            if not stripped.startswith("#"):
-                break
-            key, separator, value = stripped.lstrip("#").partition(":")
-            if separator:
-                found[key.strip().lower()] = value.strip()
-    return found
 
 
 def _positive(text: str, what: str) -> float:
@@ -116,7 +100,7 @@ def read_measured_spectrum(
             parsed.wavelength_nm, values, file_units or units, None, {}, bandwidth_nm
         )
     if chosen == "csv":
-        header = _header(path)
+        header = csv_header(path)
         spectrum = read_spectrum_csv(path, column=column, negative="clip")
         bandwidth = header.get("bandwidth_nm") or header.get("bandwidth")
         return SpectrumReading(

@@ -201,7 +201,7 @@ def test_an_inputs_file_is_checked_with_one_line_naming_the_field(
         (["--out", "o", "--lamp", "A", "--spectrum", "s"], "give either --images"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--profile", "p", "--spectrum", "s"], "not both"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--spectrum", "t"], "given twice"),
-        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "t"], "one value, got 2"),
+        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--kind", "led", "x"], "one value, got 2"),
         (["--out", "o", "--lamp", "A", "--images", "--spectrum", "s"], "at least one value"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--kind", "laser"], "lamp 'A' --kind: 'laser' is not allowed"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--exposure", "-1"], "lamp 'A' --exposure: '-1' is out of range; must be > 0"),
@@ -354,6 +354,16 @@ def _write_profile(
     return path, observation.direct_rgb
 
 
+#: What these profile inputs are warned about: no --bandwidth.
+EXPECTED_FLAGS = {"no_spectrometer_bandwidth"}
+
+
+def _flag_codes(summary: dict[str, object]) -> set[str]:
+    warnings = summary["warnings"]
+    assert isinstance(warnings, list)
+    return {str(line).rsplit("[", 1)[-1].rstrip("]") for line in warnings}
+
+
 def _profile_args(
     tmp_path: Path, capture: Capture, *, direct: bool, axis: str = "pixel"
 ) -> list[str]:
@@ -386,7 +396,7 @@ def test_profile_input_with_direct_measurement(capture: Capture, tmp_path: Path)
     code, stdout, stderr = _call(argv)
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["method"] == "prior" and summary["warnings"] == []
+    assert summary["method"] == "prior" and _flag_codes(summary) == EXPECTED_FLAGS
     # Two lamps measured directly: auto chose the prior solve and says why.
     assert summary["method_choice"]["requested"] == "auto"
     assert "multilamp needs at least 3" in summary["method_choice"]["reason"]
@@ -404,7 +414,7 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json"])
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["method"] == "known-grating" and summary["warnings"] == []
+    assert summary["method"] == "known-grating" and _flag_codes(summary) == EXPECTED_FLAGS
     assert summary["uncertainty"] is True
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     truth = capture.truth

@@ -173,6 +173,7 @@ def test_auto_records_what_it_chose_and_why(monkeypatch):
         "requested": "auto",
         "method": "prior",
         "reason": "1 lamp(s) with a direct measurement (LED); multilamp needs at least 3",
+        "mapping_only": [],
     }
     json.dumps(result.to_dict())  # recorded in result.json
 

@@ -5,7 +5,8 @@ the command line before click parses the rest: a group starts at ``--lamp NAME``
 after it (:func:`lamp_options`: ``--images``, ``--spectrum`` …) belong to that lamp until the next
 ``--lamp``. The command's own options (``--out``, ``--method`` …) may stand anywhere, also between
 a lamp's options. An option takes its value after it or after ``=`` (``--kind=led``); the list options
-(``--images``, ``--dark``, ``--exposure``, ``--dark-exposure``) take every value up to the next option.
+(``--images``, ``--spectrum``, ``--dark``, ``--exposure``, ``--dark-exposure``) take every value up to
+the next option.
 
 Each group is then validated by the same model as the lamps of an inputs file
 (:class:`calib.pipeline.inputs_file.LampEntry`), so a lamp reads the same from either. Mistakes are
@@ -53,9 +54,14 @@ def _lamp_options(
         ),
     ] = None,
     spectrum: Annotated[
-        str | None,
+        list[str] | None,
         typer.Option(
-            "--spectrum", metavar="CSV", help="The lamp's spectrum: wavelength_nm,value (required)."
+            "--spectrum",
+            metavar="CSV ...",
+            help="The lamp's spectrum (required): wavelength_nm,value (# units: and "
+            "# bandwidth_nm: header lines are read; several files: their mean), or a named one "
+            "(a colour-science illuminant or light source such as FL11, builtin:NAME[:FWHM_NM] "
+            "for a line list, gauss:CENTRE:FWHM).",
         ),
     ] = None,
     kind: Annotated[

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
 
 import numpy as np
 
@@ -51,6 +51,89 @@ def _frozen(array: Any, shape: tuple[int, ...], name: str) -> FloatArray:
     return out
 
 
+Severity = Literal["info", "warning", "serious"]
+
+#: What each quality code means (a flag's ``code``); the stage that finds it adds the flag. The
+#: mapping's and the grating's entries are slots their stages fill (:mod:`calib.wavelength`, the
+#: grating file); the others are found by the σ budget (:mod:`calib.methods.uncertainty`) and the
+#: offline pipeline's input checks.
+QUALITY_CODES: dict[str, str] = {
+    "model_misfit": "the fit's reduced χ² ≫ 1: the model does not describe the data; σ inflated",
+    "fallback_basis": "no measured camera data: the built-in fallback prior (CIE-derived curves)",
+    "grid_beyond_basis": "part of the grid lies outside the camera basis' range",
+    "no_spectrometer_bandwidth": "no spectrometer bandwidth given: a typical one is assumed in σ",
+    "coarse_lamp_spectrum": "a lamp spectrum is sampled too coarsely for its emission lines",
+    "saturated_frames": "frames with clipped pixels on the spot or the band",
+    "blank_frames": "frames with no signal above the dark level",
+    "uncertainty_incomplete": "some σ components could not be evaluated",
+    "mapping_ambiguous": "the pixel→wavelength mapping has competing solutions (mapping stage)",
+    "mapping_nonmonotonic": "the mapping is not monotonic over the profile (mapping stage)",
+    "mapping_line_residuals": "known lines sit far from the mapping (mapping stage)",
+    "flat_grating_assumed": "the grating efficiency was assumed flat, not measured (grating stage)",
+    "assumed_grating_reused": "a grating file holding an assumed η is reused (grating stage)",
+}
+
+
+@dataclass(frozen=True)
+class QualityFlag:
+    """One finding about a result: a code of :data:`QUALITY_CODES`, what a person should know, and
+    how much it matters (``"serious"``: the curve may be wrong beyond its σ)."""
+
+    code: str
+    message: str
+    severity: Severity = "warning"
+
+    def to_dict(self) -> dict[str, str]:
+        return {"code": self.code, "severity": self.severity, "message": self.message}
+
+    def line(self) -> str:
+        """One line for stderr and the report (serious findings say so)."""
+        prefix = "SERIOUS: " if self.severity == "serious" else ""
+        return f"{prefix}{self.message} [{self.code}]"
+
+
+@dataclass(frozen=True)
+class Quality:
+    """A result's self-diagnosis (``quality`` in ``result.json``, the report's banner).
+
+    Attributes
+    ----------
+    flags
+        Findings, in the order the stages added them.
+    uncertainty
+        What the σ band holds: the budget's components and their RMS share
+        (:class:`calib.methods.uncertainty.UncertaintyBudget.summary`), empty when none was made.
+    """
+
+    flags: tuple[QualityFlag, ...] = ()
+    uncertainty: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def verdict(self) -> str:
+        """``"ok"`` (no warning), ``"caution"`` (warnings) or ``"doubtful"`` (a serious one)."""
+        severities = {flag.severity for flag in self.flags}
+        if "serious" in severities:
+            return "doubtful"
+        return "caution" if "warning" in severities else "ok"
+
+    def with_flags(self, *flags: QualityFlag) -> Quality:
+        """A copy with ``flags`` added (one per code: a later flag of the same code replaces it)."""
+        codes = {flag.code for flag in flags}
+        kept = tuple(flag for flag in self.flags if flag.code not in codes)
+        return replace(self, flags=kept + tuple(flags))
+
+    def warnings(self) -> list[str]:
+        """The lines stderr and the banner show (warnings and serious findings)."""
+        return [flag.line() for flag in self.flags if flag.severity != "info"]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "verdict": self.verdict,
+            "flags": [flag.to_dict() for flag in self.flags],
+            "uncertainty": json_safe(self.uncertainty),
+        }
+
+
 @dataclass(frozen=True, eq=False)
 class EstimateResult:
     """A camera sensitivity estimate and everything needed to judge it.
@@ -74,6 +157,8 @@ class EstimateResult:
         Fit residuals (e.g. ``"profile"`` ``(n, 3)`` measured − model, ``"direct"`` ``(3,)``).
     diagnostics
         Condition numbers, the basis used, timings (s), per-step details.
+    quality
+        The self-diagnosis (:class:`Quality`): flags and what the σ band holds.
     """
 
     method: str
@@ -85,6 +170,7 @@ class EstimateResult:
     mapping: QuadraticMapping | GratingGeometry | None = None
     residuals: Mapping[str, Any] = field(default_factory=dict)
     diagnostics: Mapping[str, Any] = field(default_factory=dict)
+    quality: Quality = field(default_factory=Quality)
 
     def __post_init__(self) -> None:
         wavelength = np.array(self.wavelength_nm, dtype=np.float64)
@@ -162,4 +248,9 @@ class EstimateResult:
             "mapping_re_estimate": json_safe(self.mapping_re_estimate),
             "residuals": json_safe(self.residuals),
             "diagnostics": json_safe(self.diagnostics),
+            "quality": self.quality.to_dict(),
         }
+
+    def with_quality(self, *flags: QualityFlag) -> EstimateResult:
+        """A copy whose :attr:`quality` has ``flags`` added."""
+        return replace(self, quality=self.quality.with_flags(*flags))

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -845,16 +845,41 @@ def read_multispectrum_csv(
         raise SpectrumError(str(exc).removeprefix(f"{label}: "), source=str(table.path)) from None
 
 
-def write_csv(path: str | Path, spectrum: Spectrum | MultiSpectrum) -> Path:
-    """Write ``wavelength_nm,value`` (or ``wavelength_nm,<channels>``) with a header line."""
+def csv_header(path: str | Path) -> dict[str, str]:
+    """The ``# key: value`` comment lines before a CSV's data (keys lower-cased), e.g. a spectrum's
+    ``# units: W/(sr m² nm)`` and ``# bandwidth_nm: 8`` (what :func:`write_csv` writes)."""
+    found: dict[str, str] = {}
+    with Path(path).open(encoding="utf-8-sig", errors="replace") as handle:
+        for line in handle:
+            stripped = line.strip()
+            if not stripped:
+                continue
+            if not stripped.startswith("#"):
+                break
+            key, separator, value = stripped.lstrip("#").partition(":")
+            if separator:
+                found[key.strip().lower()] = value.strip()
+    return found
+
+
+def write_csv(
+    path: str | Path,
+    spectrum: Spectrum | MultiSpectrum,
+    *,
+    header: Mapping[str, object] | None = None,
+) -> Path:
+    """Write ``wavelength_nm,value`` (or ``wavelength_nm,<channels>``) with a header line, after
+    ``# key: value`` comment lines for ``header``'s entries that are not ``None`` (units,
+    bandwidth_nm …; :func:`csv_header` reads them back)."""
     path = Path(path)
     if isinstance(spectrum, Spectrum):
-        header: Iterable[str] = ("wavelength_nm", "value")
+        columns: Iterable[str] = ("wavelength_nm", "value")
         body = np.column_stack([spectrum.wavelength_nm, spectrum.values])
     else:
-        header = ("wavelength_nm", *spectrum.channels)
+        columns = ("wavelength_nm", *spectrum.channels)
         body = np.column_stack([spectrum.wavelength_nm, spectrum.values])
-    lines = [",".join(header)]
+    lines = [f"# {key}: {value}" for key, value in (header or {}).items() if value is not None]
+    lines.append(",".join(columns))
     lines.extend(",".join(f"{v:.10g}" for v in row) for row in body)
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -38,15 +38,18 @@ calib.core.errors.InputError: weight_rule: method 'prior' takes no option 'weigh
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.baselines.han2012 import Han2012Options, estimate_han2012
 from calib.methods.baselines.jiang2013 import estimate_jiang2013
@@ -60,11 +63,19 @@ from calib.methods.known_grating import (
 from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
 from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, estimate_multilamp
 from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions, estimate_prior
-from calib.model.bases import CameraBasis, default_camera_basis
+from calib.methods.uncertainty import (
+    DEFAULT_BUDGET,
+    BudgetSettings,
+    check_grid_within_basis,
+    uncertainty_budget,
+    with_budget,
+)
+from calib.model.bases import CameraBasis, default_camera_basis, is_fallback_basis
 
 __all__ = [
     "AUTO",
     "ESTIMATION_METHODS",
+    "BudgetSettings",
     "Han2012Options",
     "KnownGratingOptions",
     "Makabe2025Options",
@@ -74,6 +85,7 @@ __all__ = [
     "PriorOptions",
     "check_method",
     "choose_method",
+    "coarse_line_spectrum",
     "estimate",
     "method_names",
 ]
@@ -111,26 +123,71 @@ MethodOptions = PriorOptions | Makabe2025Options | MultilampOptions | KnownGrati
 AUTO_MULTILAMP_LAMPS = 3
 
 
+#: A line lamp (fluorescent, narrowband) whose spectrum is sampled more coarsely than this (nm)
+#: cannot place its lines: ``auto`` uses it for the mapping only. Spectroradiometers sample at
+#: 1–5 nm (tabulated CIE F-series too); an i1Pro through ``spotread`` at 10 nm is too coarse.
+COARSE_LINE_SPECTRUM_NM = 5.0
+LINE_LAMP_KINDS = ("fluorescent", "narrowband")
+
+
+def coarse_line_spectrum(observation: LampObservation) -> str | None:
+    """Why a line lamp's spectrum cannot be used in the solve (unknown or too coarse), or ``None``.
+
+    A spectrum is *unknown* when its lamp's ``metadata["spectrum_known"]`` is ``False`` (a nominal
+    spectrum standing in for one nobody measured)."""
+    if observation.kind not in LINE_LAMP_KINDS:
+        return None
+    if observation.metadata.get("spectrum_known") is False:
+        return f"lamp {observation.name!r}: its spectrum was not measured"
+    wavelength = np.asarray(observation.spectrum.wavelength_nm, dtype=np.float64)
+    step = float(np.median(np.diff(wavelength))) if wavelength.size > 1 else math.inf
+    if step > COARSE_LINE_SPECTRUM_NM:
+        return (
+            f"lamp {observation.name!r}: its spectrum is sampled every {step:g} nm, too coarse for "
+            f"its emission lines (≤ {COARSE_LINE_SPECTRUM_NM:g} nm needed)"
+        )
+    return None
+
+
 @dataclass(frozen=True)
 class MethodChoice:
-    """What ``method="auto"`` chose, and why (recorded in ``diagnostics["method_choice"]``)."""
+    """What ``method="auto"`` chose, and why (recorded in ``diagnostics["method_choice"]``).
+
+    ``mapping_only`` names the lamps used to find the mapping but kept out of the solve.
+    """
 
     method: str
     reason: str
+    mapping_only: tuple[str, ...] = ()
 
-    def to_dict(self) -> dict[str, str]:
-        return {"requested": AUTO, "method": self.method, "reason": self.reason}
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "requested": AUTO,
+            "method": self.method,
+            "reason": self.reason,
+            "mapping_only": list(self.mapping_only),
+        }
 
 
-def choose_method(observations: Sequence[object]) -> MethodChoice:
-    """The method ``auto`` stands for: ``multilamp`` when at least :data:`AUTO_MULTILAMP_LAMPS`
-    lamps have a direct measurement, else the prior solve.
+def choose_method(
+    observations: Sequence[object], *, grating: object = None, assume_flat_grating: bool = False
+) -> MethodChoice:
+    """The method ``auto`` stands for.
+
+    1. A line lamp with an unknown or coarse spectrum (:func:`coarse_line_spectrum`) helps the
+       mapping only: its lines place the wavelengths, but its spectrum would put wrong lines into
+       the solve.
+    2. A grating file given: ``known-grating`` (its η and σ, measured or a maker's curve).
+    3. ``multilamp`` when at least :data:`AUTO_MULTILAMP_LAMPS` of the other lamps have a direct
+       measurement, else the prior solve.
+    4. No direct measurement and no grating file: ``known-grating`` through a flat grating when
+       ``assume_flat_grating`` (the caller warns), else an error.
 
     Raises
     ------
     InputError
-        No lamp observation, or no lamp with a direct measurement (then the grating's efficiency
-        must come from elsewhere: ``method="known-grating"``).
+        No lamp observation, or no lamp with a direct measurement, no grating file and no flat
+        grating allowed (then the grating's efficiency must come from elsewhere).
     """
     lamps = [item for item in observations if isinstance(item, LampObservation)]
     if len(lamps) != len(observations) or not lamps:
@@ -139,18 +196,40 @@ def choose_method(observations: Sequence[object]) -> MethodChoice:
             "name the method for charts or colour matrices (e.g. method='jiang2013')",
             source="method",
         )
-    direct = [lamp.name for lamp in lamps if lamp.direct_rgb is not None]
+    reasons = {lamp.name: why for lamp in lamps if (why := coarse_line_spectrum(lamp))}
+    mapping_only = tuple(name for name in reasons if len(reasons) < len(lamps))
+    prefix = "".join(f"{reasons[name]}: used for the mapping only; " for name in mapping_only)
+    if grating is not None:
+        source = getattr(grating, "source", "the grating file")
+        return MethodChoice(
+            KNOWN_GRATING_METHOD,
+            prefix + f"a grating efficiency was given ({source}): the known-grating solve uses it "
+            "with its σ",
+            mapping_only,
+        )
+    direct = [
+        lamp.name for lamp in lamps if lamp.direct_rgb is not None and lamp.name not in mapping_only
+    ]
     if len(direct) >= AUTO_MULTILAMP_LAMPS:
         return MethodChoice(
             MULTILAMP_METHOD,
-            f"{len(direct)} lamps have a direct measurement ({', '.join(direct)}): their direct "
-            "equations determine the grating efficiency",
+            prefix + f"{len(direct)} lamps have a direct measurement ({', '.join(direct)}): their "
+            "direct equations determine the grating efficiency",
+            mapping_only,
         )
     if direct:
         return MethodChoice(
             PRIOR_METHOD,
-            f"{len(direct)} lamp(s) with a direct measurement ({', '.join(direct)}); multilamp "
-            f"needs at least {AUTO_MULTILAMP_LAMPS}",
+            prefix + f"{len(direct)} lamp(s) with a direct measurement ({', '.join(direct)}); "
+            f"multilamp needs at least {AUTO_MULTILAMP_LAMPS}",
+            mapping_only,
+        )
+    if assume_flat_grating:
+        return MethodChoice(
+            KNOWN_GRATING_METHOD,
+            prefix + "no direct measurement and no grating file: the known-grating solve through "
+            "a flat grating (assumed; the sensitivity carries the grating's efficiency)",
+            mapping_only,
         )
     raise InputError(
         "no lamp has a direct (0th-order) measurement, so no method can estimate the grating "
@@ -201,6 +280,8 @@ def estimate(
     basis: CameraBasis | None = None,
     data_dir: str | Path | None = None,
     filter_options: bool = False,
+    budget: BudgetSettings | None = DEFAULT_BUDGET,
+    assume_flat_grating: bool = False,
     **options: Any,
 ) -> EstimateResult:
     """Estimate a camera's spectral sensitivity by the method named.
@@ -222,6 +303,13 @@ def estimate(
         Where that default basis' camera data is (default ``$SPECTRAL_RIG_DATA``, the user cache).
     filter_options
         Drop the options the method does not declare instead of refusing them.
+    budget
+        How the stated σ is made (:mod:`calib.methods.uncertainty`: the method's own σ, the basis'
+        misfit, the mapping's σ, the spectrometer and η-model perturbations, the validation-judged
+        factor); ``None`` keeps the method's own σ (and no quality flags of the budget).
+    assume_flat_grating
+        With ``"auto"``: lamps without a direct measurement and no grating file go through the
+        known-grating solve with a flat grating instead of an error (the caller warns).
     **options
         The method's own keywords, as its function declares them: ``mapping``, ``mapping_lamp``,
         ``options`` (its typed options object), ``grating`` (known-grating), ``seed`` (toivonen2020) …
@@ -229,19 +317,40 @@ def estimate(
     Returns
     -------
     EstimateResult
-        With ``diagnostics["method_choice"]`` when ``method="auto"``.
+        With ``diagnostics["method_choice"]`` when ``method="auto"``, the budget's σ and its
+        ``quality`` flags.
 
     Raises
     ------
     InputError
         An unknown method; an option it does not declare (named); options of another method's type;
-        a missing required input; or whatever the method refuses.
+        a missing required input; a grid beyond the basis' camera data; or whatever the method
+        refuses.
     """
     key = check_method(method)
     choice: MethodChoice | None = None
     if key == AUTO:
-        choice = choose_method(observations)
+        choice = choose_method(
+            observations,
+            grating=options.get("grating"),
+            assume_flat_grating=assume_flat_grating,
+        )
         key = choice.method
+        if choice.mapping_only:
+            return _mapping_only_estimate(
+                observations,
+                choice,
+                grid=grid,
+                basis=basis,
+                data_dir=data_dir,
+                filter_options=filter_options,
+                budget=budget,
+                options=options,
+            )
+        if key == KNOWN_GRATING_METHOD:
+            options = {"grating": None, **options}
+        else:
+            options = {name: value for name, value in options.items() if name != "grating"}
     function = ESTIMATION_METHODS[key]
     routed = _route(key, function, options, filter_options=filter_options)
     parameters = inspect.signature(function).parameters
@@ -284,7 +393,118 @@ def estimate(
         raise InputError(
             f"method {key!r} needs {', '.join(f'{name}=' for name in missing)}", source=missing[0]
         )
-    result = function(observations, **routed)
-    if choice is None:
+    used_basis = routed.get("basis")
+    if isinstance(used_basis, CameraBasis):
+        check_grid_within_basis(used_basis)
+    returned: object = function(observations, **routed)
+    if not isinstance(returned, EstimateResult):  # a registered stand-in (tests) returns as is
+        return returned  # type: ignore[return-value]
+    result = returned
+    if choice is not None:
+        result = replace(
+            result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}
+        )
+    if choice is not None and key == KNOWN_GRATING_METHOD and routed.get("grating") is None:
+        result = result.with_quality(
+            QualityFlag(
+                "flat_grating_assumed",
+                "no direct measurement and no grating file: a flat grating efficiency was "
+                "assumed, so the sensitivity carries the grating's own efficiency as an error",
+            )
+        )
+    if isinstance(used_basis, CameraBasis) and is_fallback_basis(used_basis):
+        result = result.with_quality(
+            QualityFlag(
+                "fallback_basis",
+                "no measured camera data found: the prior is the built-in fallback (CIE-derived "
+                "curves, not cameras); fetch the data (rig data fetch) or give --data-dir",
+            )
+        )
+    if budget is None or getattr(routed.get("options"), "uncertainty", None) == "none":
         return result
+    return with_budget(
+        result,
+        uncertainty_budget(
+            result,
+            observations,
+            rerun=_rerun(function, routed, result),
+            basis=used_basis if isinstance(used_basis, CameraBasis) else None,
+            options=routed.get("options", parameters["options"].default)
+            if "options" in parameters
+            else None,
+            settings=budget,
+        ),
+    )
+
+
+def _mapping_only_estimate(
+    observations: Sequence[LampObservation],
+    choice: MethodChoice,
+    *,
+    grid: WavelengthGrid,
+    basis: CameraBasis | None,
+    data_dir: str | Path | None,
+    filter_options: bool,
+    budget: BudgetSettings | None,
+    options: Mapping[str, Any],
+) -> EstimateResult:
+    """``auto`` with lamps for the mapping only: the mapping from every lamp (those lamps' direct
+    measurements set aside), then the chosen method on the other lamps through that mapping."""
+    kept = [
+        replace(obs, direct_rgb=None, direct_sigma=None) if obs.name in choice.mapping_only else obs
+        for obs in observations
+    ]
+    if basis is None:
+        basis = default_camera_basis(grid, data_dir=data_dir)
+    method_options = {
+        name: value
+        for name, value in options.items()
+        if name != "grating" or choice.method == KNOWN_GRATING_METHOD
+    }
+    if choice.method == KNOWN_GRATING_METHOD:
+        method_options.setdefault("grating", None)
+    mapping = method_options.pop("mapping", None)
+    if mapping is None:
+        mapping = estimate(
+            kept,
+            choice.method,
+            grid=grid,
+            basis=basis,
+            filter_options=True,
+            budget=None,
+            **method_options,
+        ).mapping
+    method_options.pop("mapping_lamp", None)
+    solve = [obs for obs in kept if obs.name not in choice.mapping_only]
+    result = estimate(
+        solve,
+        choice.method,
+        grid=grid,
+        basis=basis,
+        filter_options=filter_options,
+        budget=budget,
+        mapping=mapping,
+        **method_options,
+    )
     return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})
+
+
+def _rerun(
+    function: MethodFunction, routed: Mapping[str, Any], result: EstimateResult
+) -> Callable[..., EstimateResult] | None:
+    """The method again with its mapping fixed (only the solve re-runs), for the budget's
+    perturbations; ``None`` for a method that takes no mapping."""
+    if result.mapping is None or "mapping" not in inspect.signature(function).parameters:
+        return None
+    fixed = {**routed, "mapping": result.mapping}
+    if "mapping_lamp" in fixed:
+        fixed["mapping_lamp"] = None
+
+    def rerun(observations: Sequence[Any], **changes: Any) -> EstimateResult:
+        arguments = {**fixed, **changes}
+        options = arguments.get("options")
+        if options is not None and getattr(options, "refine_given_mapping", False):
+            arguments["options"] = replace(options, refine_given_mapping=False)
+        return function(observations, **arguments)
+
+    return rerun

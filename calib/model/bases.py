@@ -564,6 +564,14 @@ FALLBACK_WARNING = (
     "open; without --offline the basis is the measured cameras (rawtoaces-data is bundled)"
 )
 
+#: How a fallback basis' ``source`` begins (:func:`is_fallback_basis`).
+FALLBACK_SOURCE = "colour-science built-ins"
+
+
+def is_fallback_basis(basis: CameraBasis) -> bool:
+    """Whether ``basis`` is :func:`fallback_camera_basis`'s (CIE-derived curves, no measured camera)."""
+    return basis.source.startswith(FALLBACK_SOURCE)
+
 
 def fallback_camera_basis(
     *,
@@ -612,9 +620,7 @@ def fallback_camera_basis(
             stack.append(_perturbed(camera, grid, rng))
             names.append(_VARIANT_NAME.format(camera=camera.name, index=index + 1))
         groups.extend([camera.name] * (variants_per_curve + 1))
-    label = (
-        f"colour-science built-ins + perturbations ({len(bases)} curves × {variants_per_curve + 1})"
-    )
+    label = f"{FALLBACK_SOURCE} + perturbations ({len(bases)} curves × {variants_per_curve + 1})"
     if exclude:
         label += f", excluding {', '.join(exclude)}"
     basis = camera_basis(

@@ -30,10 +30,10 @@ from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency, read_grating_file
 from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.image.raw import read_raw_metadata
-from calib.methods import AUTO, MethodOptions, check_method, estimate
+from calib.methods import AUTO, MethodOptions, check_method, coarse_line_spectrum, estimate
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
 from calib.model.bases import CameraBasis, default_camera_basis
@@ -43,8 +43,10 @@ from calib.pipeline.inputs import (
     LampInput,
     LampProfile,
     ProfileTable,
+    describe_spectrum,
     load_spectrum,
     read_profile_file,
+    spectrum_paths,
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
 from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
@@ -145,6 +147,7 @@ class _Checked:
     profiles: dict[str, ProfileTable]
     grating: GratingEfficiency | None
     warnings: list[str]
+    bandwidths: dict[str, float | None] = field(default_factory=dict)
 
 
 def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Checked:
@@ -199,10 +202,16 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             )
     warnings: list[str] = []
     spectra: dict[str, Spectrum] = {}
+    bandwidths: dict[str, float | None] = {}
     for given in lamps:
         loaded = load_spectrum(given.spectrum, given.name, settings.grid)
         spectra[given.name] = loaded.spectrum
         warnings.extend(loaded.warnings)
+        bandwidths[given.name] = (
+            given.spectrum_bandwidth_nm
+            if given.spectrum_bandwidth_nm is not None
+            else loaded.bandwidth_nm
+        )
     profiles = {
         lamp.name: read_profile_file(lamp.profile)
         for lamp in lamps
@@ -226,7 +235,7 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             f"{settings.grid.start_nm:g}–{settings.grid.stop_nm:g} nm",
             source=grating.source,
         )
-    return _Checked(spectra, profiles, grating, warnings)
+    return _Checked(spectra, profiles, grating, warnings, bandwidths)
 
 
 def _profile_observation(
@@ -261,7 +270,7 @@ def _image_lamp_record(lamp: LampImages, extraction_frames: Sequence[Any]) -> di
         "name": lamp.name,
         "kind": lamp.kind,
         "input": "images",
-        "spectrum": str(lamp.spectrum) if isinstance(lamp.spectrum, Path) else lamp.spectrum.name,
+        "spectrum": describe_spectrum(lamp.spectrum),
         "frames": [
             {
                 "path": str(record.path),
@@ -365,8 +374,9 @@ def estimate_offline(
                         hasher.add(path, "dark", lamp.name)
             else:
                 hasher.add(lamp.profile, "profile", lamp.name)
-            if isinstance(lamp.spectrum, Path) and str(lamp.spectrum) not in known:
-                hasher.add(lamp.spectrum, "spectrum", lamp.name)
+            for path in spectrum_paths(lamp.spectrum):
+                if str(path) not in known:
+                    hasher.add(path, "spectrum", lamp.name)
         if isinstance(settings.grating, Path):
             hasher.add(settings.grating, "grating", None)
 
@@ -410,14 +420,9 @@ def estimate_offline(
                             "optics": optics,
                         },
                     ),
-                    spectrum_bandwidth_nm=lamp.spectrum_bandwidth_nm,
+                    spectrum_bandwidth_nm=checked.bandwidths[lamp.name],
                 )
                 observations.append(observation)
-                if extraction.direct_rgb is None:
-                    warnings.append(
-                        f"lamp {lamp.name!r}: the direct spot is saturated in every frame; this "
-                        "lamp has no direct measurement (add a shorter exposure)"
-                    )
                 lamp_records.append(_image_lamp_record(lamp, item.merged.image.frames))
             timings["profiles_s"] = time.perf_counter() - step
         else:
@@ -427,7 +432,7 @@ def estimate_offline(
                 observations.append(
                     replace(
                         _profile_observation(given, checked.spectra[given.name], table),
-                        spectrum_bandwidth_nm=given.spectrum_bandwidth_nm,
+                        spectrum_bandwidth_nm=checked.bandwidths[given.name],
                     )
                 )
                 lamp_records.append(
@@ -438,9 +443,7 @@ def estimate_offline(
                         "profile": str(given.profile),
                         "axis": "wavelength_nm" if table.in_wavelength else "pixel",
                         "direct_rgb": None if given.direct_rgb is None else list(given.direct_rgb),
-                        "spectrum": str(given.spectrum)
-                        if isinstance(given.spectrum, Path)
-                        else given.spectrum.name,
+                        "spectrum": describe_spectrum(given.spectrum),
                     }
                 )
         report.stage("estimating")
@@ -454,12 +457,11 @@ def estimate_offline(
             notes=notes,
         )
         timings["estimate_s"] = time.perf_counter() - step
-        # What the mapping search says for the user (an ambiguous mapping, a lamp spectrum too
-        # coarse for its lines) goes where every warning goes: stderr, the report, result.json.
-        mapping_details = getattr(result.mapping, "details", None) or {}
-        warnings.extend(
-            str(text) for text in mapping_details.get("warnings", ()) if str(text) not in warnings
+        result = result.with_quality(
+            *input_flags(observations, image_input=bool(image_lamps)),
+            *mapping_flags(result.mapping),
         )
+        warnings.extend(line for line in result.quality.warnings() if line not in warnings)
         inputs = hasher.results()
     timings["total_s"] = time.perf_counter() - started
     provenance = Provenance(
@@ -496,6 +498,57 @@ def basis_key(settings: OfflineSettings) -> Hashable:
     """What :func:`resolve_basis` reads of ``settings`` without a basis of their own: equal keys
     give the same basis (a batch worker resolves it once per key)."""
     return (settings.grid, settings.data_dir, tuple(settings.exclude_cameras))
+
+
+#: A profile whose peak is below this many σ of its noise carries no first-order signal.
+BLANK_PROFILE_SNR = 5.0
+
+
+def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
+    """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
+    order, a line lamp's spectrum too coarse for its lines."""
+    flags: list[QualityFlag] = []
+    saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
+    if saturated:
+        flags.append(
+            QualityFlag(
+                "saturated_frames",
+                f"the direct spot of {', '.join(saturated)} is saturated in every frame: no "
+                "direct measurement (add a shorter exposure to the bracket)",
+            )
+        )
+    blank = []
+    for obs in observations:
+        if obs.profile_sigma is None:
+            continue
+        snr = float(np.max(obs.profile / obs.profile_sigma))
+        if snr < BLANK_PROFILE_SNR:
+            blank.append(f"{obs.name} (peak {snr:.1f} σ)")
+    if blank:
+        flags.append(
+            QualityFlag(
+                "blank_frames",
+                f"no first-order signal above the noise for {', '.join(blank)}: blank frames, a "
+                "lamp that was off, or the band outside the crop",
+                "serious",
+            )
+        )
+    coarse = [why for obs in observations if (why := coarse_line_spectrum(obs))]
+    if coarse:
+        flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))
+    return flags
+
+
+def mapping_flags(mapping: object) -> list[QualityFlag]:
+    """What the mapping search said for the user (an ambiguous mapping, lines that disagree with
+    the whole-profile fit, a failed refinement), as quality flags."""
+    details = getattr(mapping, "details", None) or {}
+    flags = []
+    for text in details.get("warnings", ()):
+        line = str(text)
+        code = "mapping_ambiguous" if "ambiguous" in line else "mapping_line_residuals"
+        flags.append(QualityFlag(code, line))
+    return flags
 
 
 def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMapping | None:
@@ -565,6 +618,7 @@ def _estimate(
     with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
     # The grating library: multilamp (or known-grating) through an earlier calibration's η.
     through_file = checked.grating is not None and method in (
+        AUTO,
         MULTILAMP_METHOD,
         KNOWN_GRATING_METHOD,
     )
@@ -585,8 +639,9 @@ def _estimate(
             "efficiency from an earlier calibration with --grating FILE",
             source="lamps",
         )
+    flat: str | None = None
     if checked.grating is None:
-        warnings.append(
+        flat = (
             "no direct measurement and no --grating: a flat grating efficiency was assumed, so the "
             "sensitivity carries the grating's own spectral efficiency as an error; measure the "
             "direct RGB (--direct R,G,B) or give --grating FILE from an earlier calibration"
@@ -598,13 +653,17 @@ def _estimate(
         notes.append(
             f"method {settings.method!r} needs a direct measurement; used the known-grating solve"
         )
+    # auto records its choice (and may keep a line lamp of unknown spectrum for the mapping only)
     result = estimate(
         observations,
-        KNOWN_GRATING_METHOD,
+        AUTO if method == AUTO else KNOWN_GRATING_METHOD,
+        assume_flat_grating=True,
         grid=grid,
         basis=basis,
         grating=checked.grating,
         options=_known_grating_options(settings.method_options, warnings),
         **where,
     )
+    if flat is not None:
+        result = result.with_quality(QualityFlag("flat_grating_assumed", flat))
     return result, checked.grating

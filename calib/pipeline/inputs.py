@@ -3,7 +3,9 @@
 :class:`LampImages` is a lamp seen in RAW files (a bracket, optional dark frames); :class:`LampProfile`
 is a lamp whose first-order profile was already extracted by other means (a CSV ``pixel,r,g,b`` or
 ``wavelength_nm,r,g,b``, optionally with ``r_sigma,g_sigma,b_sigma``, and an optional direct RGB).
-Both name the lamp's measured spectrum: a CSV ``wavelength_nm,value`` or a :class:`Spectrum`.
+Both name the lamp's measured spectrum: a CSV ``wavelength_nm,value`` (several CSVs: their mean,
+as the rig averages a lamp's reference spectra; ``# units:`` and ``# bandwidth_nm:`` header lines,
+which the rig writes, are read) or a :class:`Spectrum`.
 
 Everything here is checked before any RAW file is decoded, so a typo costs a second, not a minute.
 """
@@ -24,6 +26,7 @@ from calib.core.spectra import (
     Spectrum,
     WavelengthGrid,
     as_spectrum,
+    csv_header,
     read_spectrum_csv,
     read_table,
 )
@@ -39,6 +42,28 @@ _CHANNEL_COLUMNS = ("r", "g", "b")
 _SIGMA_COLUMNS = (("r_sigma", "sigma_r"), ("g_sigma", "sigma_g"), ("b_sigma", "sigma_b"))
 
 
+#: A lamp's spectrum as given: a CSV, several CSVs of one lamp (averaged), or a spectrum.
+SpectrumSource = Path | tuple[Path, ...] | Spectrum
+
+
+def spectrum_paths(source: SpectrumSource) -> tuple[Path, ...]:
+    """The files behind a spectrum source (none for a :class:`Spectrum`)."""
+    if isinstance(source, Path):
+        return (source,)
+    if isinstance(source, tuple):
+        return source
+    return ()
+
+
+def describe_spectrum(source: SpectrumSource) -> str:
+    """The spectrum source in a record: its path(s) or its name."""
+    paths = spectrum_paths(source)
+    if paths:
+        return ", ".join(str(path) for path in paths)
+    assert isinstance(source, Spectrum)
+    return source.name
+
+
 @dataclass(frozen=True)
 class LampImages:
     """A lamp captured as RAW files.
@@ -50,7 +75,7 @@ class LampImages:
     kind
         ``led``, ``fluorescent``, ``halogen``, ``narrowband`` or ``other``.
     spectrum
-        The lamp's measured spectrum: a CSV path or a :class:`Spectrum`.
+        The lamp's measured spectrum: a CSV path, several (averaged) or a :class:`Spectrum`.
     images
         The bracket's RAW files.
     darks
@@ -61,12 +86,13 @@ class LampImages:
         The same for the dark frames.
     spectrum_bandwidth_nm
         FWHM of the spectrometer's slit function that measured ``spectrum`` (see
-        :attr:`calib.core.observations.LampObservation.spectrum_bandwidth_nm`), or ``None``.
+        :attr:`calib.core.observations.LampObservation.spectrum_bandwidth_nm`), or ``None``: the
+        CSV's ``# bandwidth_nm:`` line when it has one.
     """
 
     name: str
     kind: LampKind
-    spectrum: Path | Spectrum
+    spectrum: SpectrumSource
     images: tuple[Path, ...]
     darks: tuple[Path, ...] = ()
     exposure_s: tuple[float, ...] | None = None
@@ -94,7 +120,7 @@ class LampProfile:
 
     name: str
     kind: LampKind
-    spectrum: Path | Spectrum
+    spectrum: SpectrumSource
     profile: Path
     direct_rgb: tuple[float, float, float] | None = None
     spectrum_bandwidth_nm: float | None = None
@@ -125,10 +151,16 @@ class ProfileTable:
 
 @dataclass
 class LoadedSpectrum:
-    """A lamp spectrum and what was done to it on reading."""
+    """A lamp spectrum and what was done to it on reading.
+
+    ``bandwidth_nm`` and ``units`` are the files' ``# bandwidth_nm:``/``# units:`` header lines
+    (the largest bandwidth when averaged files differ), ``None`` when they have none.
+    """
 
     spectrum: Spectrum
     warnings: list[str] = field(default_factory=list)
+    bandwidth_nm: float | None = None
+    units: str | None = None
 
 
 def check_kind(kind: str, source: str) -> LampKind:
@@ -141,8 +173,40 @@ def check_kind(kind: str, source: str) -> LampKind:
     return lowered
 
 
-def load_spectrum(source: Path | Spectrum, lamp: str, grid: WavelengthGrid) -> LoadedSpectrum:
-    """Read a lamp spectrum and check that it covers ``grid``.
+def _header_bandwidth(path: Path, header: dict[str, str]) -> float | None:
+    text = header.get("bandwidth_nm") or header.get("bandwidth")
+    if text is None:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise SpectrumError(f"# bandwidth_nm: {text!r} is not a positive number", source=str(path))
+    return value
+
+
+def _read_one(path: Path, lamp: str, warnings: list[str]) -> Spectrum:
+    table = read_table(path)
+    if len(table.columns) != 2:
+        raise SpectrumError(
+            f"expected two columns wavelength_nm,value, found {len(table.columns)} "
+            f"({', '.join(table.columns)})",
+            source=str(path),
+        )
+    values = table.rows[:, 1]
+    finite = values[np.isfinite(values)]
+    peak = float(finite.max()) if finite.size else 0.0
+    negative = values < 0
+    if negative.any() and np.all(values[negative] >= -NEGATIVE_SPECTRUM_TOLERANCE * peak):
+        warnings.append(f"{path.name}: {int(negative.sum())} small negative value(s) set to zero")
+        return read_spectrum_csv(path, name=lamp, negative="clip")
+    return read_spectrum_csv(path, name=lamp)
+
+
+def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> LoadedSpectrum:
+    """Read a lamp spectrum (several files: their mean on the first one's wavelengths) and check
+    that it covers ``grid``.
 
     Small negative values (noise after dark subtraction, at most
     :data:`NEGATIVE_SPECTRUM_TOLERANCE` of the maximum) are set to zero with a warning.
@@ -154,36 +218,42 @@ def load_spectrum(source: Path | Spectrum, lamp: str, grid: WavelengthGrid) -> L
     ------
     SpectrumError
         Missing file, text in a data row, NaN, non-monotonic wavelengths, large negative values,
-        an all-zero spectrum, or a range that does not cover the grid (the file is named).
+        an all-zero spectrum, a range that does not cover the grid, a bad ``# bandwidth_nm:``
+        line, or averaged files in different units (the file is named).
     InputError
         A name that is neither a file nor a known spectrum.
     """
     warnings: list[str] = []
-    if not isinstance(source, str | Path):  # a Spectrum, or colour's SpectralDistribution
+    bandwidth: float | None = None
+    units: str | None = None
+    paths = spectrum_paths(source)
+    if not paths:  # a Spectrum, or colour's SpectralDistribution
         spectrum, where = as_spectrum(source, lamp), f"spectrum of lamp {lamp!r}"
-    elif not is_spectrum_file(Path(source)):
+    elif len(paths) == 1 and not is_spectrum_file(paths[0]):
         # A colour-science name, builtin:NAME or gauss:… — resolved where every lamp spec is.
-        spectrum, where = lamp_from_spec(str(source)), f"spectrum {str(source)!r} of lamp {lamp!r}"
+        name = str(paths[0])
+        spectrum, where = lamp_from_spec(name), f"spectrum {name!r} of lamp {lamp!r}"
     else:
-        where = str(source)
-        table = read_table(source)
-        if len(table.columns) != 2:
+        where = ", ".join(str(path) for path in paths)
+        spectra = [_read_one(path, lamp, warnings) for path in paths]
+        headers = [csv_header(path) for path in paths]
+        widths = [_header_bandwidth(p, h) for p, h in zip(paths, headers, strict=True)]
+        known = [w for w in widths if w is not None]
+        bandwidth = max(known) if known else None
+        unit_set = {h["units"] for h in headers if "units" in h}
+        if len(unit_set) > 1:
             raise SpectrumError(
-                f"expected two columns wavelength_nm,value, found {len(table.columns)} "
-                f"({', '.join(table.columns)})",
+                f"the spectra of lamp {lamp!r} are in different units ({', '.join(sorted(unit_set))})"
+                "; give spectra of one kind",
                 source=where,
             )
-        values = table.rows[:, 1]
-        finite = values[np.isfinite(values)]
-        peak = float(finite.max()) if finite.size else 0.0
-        negative = values < 0
-        if negative.any() and np.all(values[negative] >= -NEGATIVE_SPECTRUM_TOLERANCE * peak):
-            warnings.append(
-                f"{source.name}: {int(negative.sum())} small negative value(s) set to zero"
-            )
-            spectrum = read_spectrum_csv(source, name=lamp, negative="clip")
+        units = unit_set.pop() if unit_set else None
+        if len(spectra) == 1:
+            spectrum = spectra[0]
         else:
-            spectrum = read_spectrum_csv(source, name=lamp)
+            axis = spectra[0].wavelength_nm
+            values = np.mean([np.interp(axis, s.wavelength_nm, s.values) for s in spectra], axis=0)
+            spectrum = Spectrum(axis, values, name=f"{lamp} (mean of {len(spectra)} spectra)")
     if not np.any(spectrum.values > 0):
         raise SpectrumError("the spectrum is zero everywhere", source=where)
     if not spectrum.covers(grid):
@@ -193,7 +263,7 @@ def load_spectrum(source: Path | Spectrum, lamp: str, grid: WavelengthGrid) -> L
             f"{grid.stop_nm:g} nm; measure a wider range or choose a narrower --grid",
             source=where,
         )
-    return LoadedSpectrum(spectrum, warnings)
+    return LoadedSpectrum(spectrum, warnings, bandwidth, units)
 
 
 def _column(columns: tuple[str, ...], names: tuple[str, ...]) -> int | None:

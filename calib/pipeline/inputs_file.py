@@ -66,7 +66,7 @@ class LampEntry(BaseModel):
 
     name: Annotated[str, Field(min_length=1)]
     kind: LampKind = "other"
-    spectrum: Path
+    spectrum: Path | Annotated[list[Path], Field(min_length=1)]
     images: Annotated[list[Path], Field(min_length=1)] | None = None
     darks: list[Path] = Field(default_factory=list)
     exposure_s: Annotated[list[PositiveFloat], Field(min_length=1)] | None = None
@@ -131,11 +131,17 @@ class LampEntry(BaseModel):
             value = value.expanduser()
             return value if base_dir is None or value.is_absolute() else base_dir / value
 
+        # Several spectrum files of one lamp are averaged (calib.pipeline.inputs.load_spectrum).
+        files = [self.spectrum] if isinstance(self.spectrum, Path) else self.spectrum
+        spectrum: Path | tuple[Path, ...] = (
+            path(files[0]) if len(files) == 1 else tuple(path(file) for file in files)
+        )
+
         if self.profile is not None:
             return LampProfile(
                 name=self.name,
                 kind=self.kind,
-                spectrum=path(self.spectrum),
+                spectrum=spectrum,
                 profile=path(self.profile),
                 direct_rgb=self.direct_rgb,
                 spectrum_bandwidth_nm=self.bandwidth_nm,
@@ -144,7 +150,7 @@ class LampEntry(BaseModel):
         return LampImages(
             name=self.name,
             kind=self.kind,
-            spectrum=path(self.spectrum),
+            spectrum=spectrum,
             images=tuple(path(image) for image in self.images),
             darks=tuple(path(dark) for dark in self.darks),
             exposure_s=None if self.exposure_s is None else tuple(self.exposure_s),

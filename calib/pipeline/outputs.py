@@ -205,7 +205,12 @@ def result_document(
     result = estimate.result
     base = result.to_dict()
     uncertainty_note = None
-    if result.sensitivity_sigma is None:
+    if result.quality.uncertainty:
+        uncertainty_note = (
+            "one standard deviation: the σ budget (quality.uncertainty lists its components and "
+            "their shares); the method's own σ is diagnostics.method_sigma"
+        )
+    elif result.sensitivity_sigma is None:
         uncertainty_note = (
             f"method {result.method!r} does not estimate a per-wavelength uncertainty; "
             "sensitivity_sigma is null"
@@ -266,6 +271,8 @@ def result_document(
             }
             for obs in estimate.observations
         ],
+        "quality": base["quality"],
+        "method_choice": base["diagnostics"].get("method_choice"),
         "diagnostics": base["diagnostics"],
         "camera_files": None
         if delivered is None

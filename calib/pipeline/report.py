@@ -1,6 +1,6 @@
 """``report.html``: one self-contained page (plots embedded) to judge an offline estimate.
 
-From the top: a quality banner (the result's verdict when it carries one, and every warning), the
+From the top: a quality banner (the result's verdict, its flags and every other warning), the
 summary (RE as ×10⁻², as the paper), what the camera is for (ColorChecker ΔE2000 under D50, D55,
 D65 and A with the colour-correction matrix each gives, the ACES IDT matrices, and with a known
 truth the colour error the estimate costs under D65 and A), the files written with where each drops
@@ -178,14 +178,10 @@ def _summary_rows(
     if estimate.profiles is not None:
         rows.append(("geometry detected on", estimate.profiles.geometry_lamp))
         rows.append(("dispersion angle", f"{estimate.profiles.geometry.primary.angle_deg:.3f}°"))
-    rows.append(
-        (
-            "uncertainty",
-            "per wavelength (±2σ band)"
-            if result.sensitivity_sigma is not None
-            else "not estimated by this method",
-        )
-    )
+    rows.append(("uncertainty", _uncertainty_row(estimate)))
+    choice = diagnostics.get("method_choice")
+    if isinstance(choice, Mapping):
+        rows.append(("method chosen", f"{choice.get('method')}: {choice.get('reason')}"))
     timings = estimate.timings
     if timings:
         rows.append(
@@ -195,24 +191,39 @@ def _summary_rows(
 
 
 def _quality_banner(estimate: OfflineEstimate) -> str:
-    """The quality verdict the result carries (a later stage fills it) and every warning."""
-    quality = estimate.result.diagnostics.get("quality")
-    if isinstance(quality, Mapping) and quality.get("verdict"):
-        verdict = f"Quality: <strong>{_escape(quality['verdict'])}</strong>"
-        reasons = quality.get("reasons")
-        if isinstance(reasons, Sequence) and not isinstance(reasons, str):
-            verdict += "".join(f"<br>{_escape(reason)}" for reason in reasons)
-    else:
-        verdict = "Quality: no verdict recorded for this result."
-    warnings = estimate.provenance.warnings
-    parts = [f"<div class='banner'>{verdict}"]
-    if warnings:
-        parts.append(f"<br>{len(warnings)} warning(s):")
-        parts.extend(f"<div class='warning'>{_escape(w)}</div>" for w in warnings)
-    else:
+    """The result's verdict (:class:`calib.core.result.Quality`), its flags, and every other
+    warning."""
+    quality = estimate.result.quality
+    flagged = [flag.line() for flag in quality.flags]
+    parts = [f"<div class='banner'>Quality: <strong>{_escape(quality.verdict)}</strong>"]
+    parts.extend(f"<div class='warning'>{_escape(line)}</div>" for line in flagged)
+    others = [w for w in estimate.provenance.warnings if w not in flagged]
+    if others:
+        parts.append(f"<br>{len(others)} warning(s):")
+        parts.extend(f"<div class='warning'>{_escape(w)}</div>" for w in others)
+    elif not flagged:
         parts.append("<br>No warnings.")
     parts.append("</div>")
     return "".join(parts)
+
+
+def _uncertainty_row(estimate: OfflineEstimate) -> str:
+    """What the ±2σ band holds: the budget's components by share of the variance."""
+    result = estimate.result
+    if result.sensitivity_sigma is None:
+        return "not estimated by this method"
+    budget = result.quality.uncertainty
+    share = budget.get("share_of_variance") if budget else None
+    if not isinstance(share, Mapping):
+        return "per wavelength (±2σ band): the method's own σ"
+    named = ", ".join(
+        f"{name} {100 * float(value):.0f} %"
+        for name, value in sorted(share.items(), key=lambda item: -float(item[1]))
+        if float(value) >= 0.005
+    )
+    chi2 = budget.get("reduced_chi2")
+    fit = f"; reduced χ² {float(chi2):.3g}" if isinstance(chi2, int | float) else ""
+    return f"per wavelength (±2σ band); variance: {named}{fit}"
 
 
 def _number_cell(value: float, digits: int = 2) -> str:

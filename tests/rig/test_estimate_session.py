@@ -80,6 +80,7 @@ def write_session(
     darks: bool = True,
     complete: bool = True,
     spectra: int = 2,
+    bandwidth_nm: float | None = None,
 ) -> Path:
     """A session as the runner writes it: start, spectra, bracket and dark steps with files, stop."""
     writer = SessionWriter.create(parent)
@@ -103,6 +104,7 @@ def write_session(
                 spectrum,
                 key=key,
                 units="W/(sr m² nm)",
+                bandwidth_nm=bandwidth_nm,
             )
             result = {
                 "time_s": 1.0,
@@ -161,7 +163,11 @@ def test_a_complete_session_gives_the_outputs_and_the_truth(
     assert relative_error(result.sensitivity, capture.truth) < 0.05
     assert isinstance(result.mapping, QuadraticMapping)
     assert result.mapping.method.startswith("lines of")
-    assert outcome.estimate.warnings == ()
+    # no bandwidth stated: the one warning (σ assumes one)
+    assert {flag.code for flag in result.quality.flags} == {"no_spectrometer_bandwidth"}
+    assert len(outcome.estimate.warnings) == 1
+    assert result.diagnostics["method_choice"]["mapping_only"] == []
+    assert result.quality.uncertainty["notes"]
     document = json.loads(outcome.files["result"].read_text())
     notes = document["provenance"]["notes"]
     assert any(note.startswith("session ") and "status complete" in note for note in notes)
@@ -186,7 +192,7 @@ def test_the_spectrum_is_the_mean_of_the_reference_spectra(
     observation = next(obs for obs in outcome.estimate.observations if obs.name == "LED")
     stored = read_spectrum_csv(session / "spectra" / "LED" / "reference-000.csv")
     np.testing.assert_allclose(observation.spectrum.values, stored.values)
-    assert "mean of 2 reference spectra" in observation.spectrum.name
+    assert "mean of 2 spectra" in observation.spectrum.name
 
 
 def test_a_changed_frame_is_refused(capture: Capture, tmp_path: Path) -> None:
@@ -361,3 +367,37 @@ def test_an_out_directory_that_cannot_be_written_is_refused_before_any_work(
     code, err, reached = estimate_cli(str(session), "--out", str(tmp_path / "a-file" / "out"))
     assert code == 2 and reached == []
     assert err.startswith(f"rig: error: --out {tmp_path / 'a-file' / 'out'}: cannot be written")
+
+
+def test_calib_estimate_on_the_sessions_own_files_matches_rig_estimate(
+    capture: Capture,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Issue 15: the same RAW files and spectra give the same curve through both commands — the
+    spectra averaged and their bandwidth read from the CSV headers the rig writes."""
+    from calib.cli.app import main
+
+    monkeypatch.setattr(
+        "calib.pipeline.estimate.default_camera_basis", lambda *a, **k: capture.basis
+    )
+    session = write_session(tmp_path, capture, bandwidth_nm=2.0)
+    through_rig = estimate_session(session, settings={"basis": capture.basis})
+    argv: list[str] = []
+    for lamp in through_rig.estimate.provenance.lamps:
+        name = lamp["name"]
+        frames = sorted((session / "frames" / name).glob("scene-*.dng"))
+        darks = sorted((session / "frames" / name).glob("dark-*.dng"))
+        spectra = sorted((session / "spectra" / name).glob("reference-*.csv"))
+        argv += ["--lamp", name, "--kind", lamp["kind"], "--images", *map(str, frames)]
+        argv += ["--dark", *map(str, darks), "--spectrum", *map(str, spectra)]
+    with pytest.raises(SystemExit) as exited:
+        main(["estimate", *argv, "--out", str(tmp_path / "calib"), "-q", "--json"])
+    assert exited.value.code == 0
+    document = json.loads((tmp_path / "calib" / "result.json").read_text())
+    from_calib = np.stack([document["sensitivity"][c] for c in "RGB"], axis=1)
+    np.testing.assert_allclose(from_calib, through_rig.estimate.result.sensitivity, atol=1e-6)
+    assert "bandwidth" not in capsys.readouterr().err  # read from the CSV headers
+    observation = through_rig.estimate.observations[0]
+    assert observation.spectrum_bandwidth_nm == 2.0

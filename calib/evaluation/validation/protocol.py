@@ -15,7 +15,8 @@ Scores per estimate (:class:`ValidationRow`):
 - ±2σ coverage per channel: the share of grid wavelengths where the truth lies within twice the
   stated σ of the estimate (both normalised to a maximum of 1);
 - σ ratio per channel: RMS of the actual error over RMS of the stated σ (1 when σ is honest, > 1
-  when it is too small);
+  when it is too small); the stated σ is the budget's (:mod:`calib.methods.uncertainty`), and the
+  coverage of the method's own σ (``diagnostics["method_sigma"]``) is kept beside it;
 - the mapping: mean ``|Δλ|`` over the profile's pixels inside the grid (nm), its RE
   (Supp. Eq. 1), the share of those pixels with ``|Δλ| ≤ 2σ_λ(p)`` (σ from the mapping's
   covariance) and RMS ``Δλ`` over RMS ``σ_λ``.
@@ -185,6 +186,7 @@ class ValidationRow:
     time_s: float
     scene_record: str = ""
     failure: str | None = None
+    method_coverage: tuple[float, float, float] | None = None
 
     @property
     def relative_error(self) -> float:
@@ -336,6 +338,12 @@ def scored_row(
         float(result.wavelength_nm[1] - result.wavelength_nm[0]),
     )
     channel_re, coverage, ratio = sensitivity_scores(result, truth)
+    own_sigma = result.diagnostics.get("method_sigma")
+    own_coverage = (
+        None
+        if own_sigma is None
+        else sensitivity_scores(replace(result, sensitivity_sigma=own_sigma), truth)[1]
+    )
     mapping = mapping_scores(result, pixel, true_nm, grid)
     return ValidationRow(
         **identity,
@@ -347,6 +355,7 @@ def scored_row(
         mapping_coverage=mapping[2],
         mapping_sigma_ratio=mapping[3],
         time_s=time.perf_counter() - started,
+        method_coverage=_triple(own_coverage),
     )
 
 

@@ -1,0 +1,219 @@
+"""calib.methods.uncertainty: the σ budget, the quality flags it raises, and auto's choices."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from calib.core.datasets import colour_science_cameras, find_camera
+from calib.core.errors import InputError
+from calib.core.grating_file import GratingEfficiency
+from calib.core.lamp_specs import colour_lamp, lamp_from_spec
+from calib.core.mapping import QuadraticMapping
+from calib.core.observations import LampObservation
+from calib.core.result import EstimateResult, Quality, QualityFlag
+from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
+from calib.evaluation.validation.budget import coverage_at, fit_scale
+from calib.methods import choose_method, estimate
+from calib.methods.uncertainty import (
+    COMPONENTS,
+    BudgetSettings,
+    basis_support_nm,
+    check_grid_within_basis,
+    misfit_flag,
+    reduced_chi2,
+    uncertainty_budget,
+)
+from calib.model.bases import CameraBasis, camera_basis, fallback_camera_basis
+from calib.model.forward import render_observation
+
+TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+
+
+@pytest.fixture(scope="module")
+def camera() -> MultiSpectrum:
+    return find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+
+
+@pytest.fixture(scope="module")
+def basis() -> CameraBasis:
+    return fallback_camera_basis(exclude=["Canon EOS 5D Mark II"])
+
+
+def _lamp(spec: str, camera: MultiSpectrum, bandwidth_nm: float | None = 4.0) -> LampObservation:
+    observation = render_observation(lamp_from_spec(spec), camera, mapping=TRUTH, pixel=800)
+    return replace(observation.observation, spectrum_bandwidth_nm=bandwidth_nm)
+
+
+def test_the_budget_names_its_components_and_states_their_sum(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    lamps = [_lamp("LED-B3", camera)]
+    own = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=None)
+    factor = 1.7
+    result = estimate(
+        lamps,
+        "prior",
+        basis=basis,
+        mapping=TRUTH,
+        budget=BudgetSettings(coverage_scale={"prior": factor}),
+    )
+    summary = result.quality.uncertainty
+    assert set(summary["rms"]) == set(COMPONENTS)  # every component evaluated for the prior solve
+    assert summary["coverage_scale"] == factor
+    assert sum(summary["share_of_variance"].values()) == pytest.approx(1.0)
+    assert summary["share_of_variance"]["unexplained"] == pytest.approx(1 - 1 / factor**2)
+    assert own.sensitivity_sigma is not None and result.sensitivity_sigma is not None
+    np.testing.assert_allclose(result.diagnostics["method_sigma"], own.sensitivity_sigma)
+    # the band holds the method's own σ (inflated by χ² where > 1) and more
+    assert np.all(result.sensitivity_sigma >= own.sensitivity_sigma * (1 - 1e-9))
+    np.testing.assert_allclose(result.sensitivity, own.sensitivity)
+    assert result.to_dict()["quality"]["uncertainty"]["total_rms"] > 0
+
+
+def test_a_budget_without_perturbations_keeps_the_analytic_components(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    result = estimate(
+        [_lamp("LED-B3", camera)],
+        "prior",
+        basis=basis,
+        mapping=TRUTH,
+        budget=BudgetSettings(perturb=False, coverage_scale={}),
+    )
+    assert set(result.quality.uncertainty["rms"]) == {"statistical", "basis", "mapping"}
+
+
+def test_the_spectrometer_perturbation_moves_with_the_stated_scale(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    lamps = [_lamp("LED-B3", camera)]
+    result = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=None)
+
+    def rerun(observations: list[LampObservation], **changes: Any) -> EstimateResult:
+        return estimate(observations, "prior", basis=basis, mapping=TRUTH, budget=None, **changes)
+
+    small, large = (
+        uncertainty_budget(
+            result, lamps, rerun=rerun, settings=BudgetSettings(wavelength_scale_nm=shift)
+        ).components["spectrometer scale"]
+        for shift in (0.2, 2.0)
+    )
+    assert np.sqrt(np.mean(large**2)) > 3 * np.sqrt(np.mean(small**2)) > 0
+
+
+def test_a_missing_bandwidth_is_flagged_and_assumed(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    given = estimate([_lamp("LED-B3", camera)], "prior", basis=basis, mapping=TRUTH)
+    missing = estimate([_lamp("LED-B3", camera, None)], "prior", basis=basis, mapping=TRUTH)
+    assert "no_spectrometer_bandwidth" not in {f.code for f in given.quality.flags}
+    flag = next(f for f in missing.quality.flags if f.code == "no_spectrometer_bandwidth")
+    assert "LED-B3" in flag.message and "--bandwidth" in flag.message
+    assert missing.quality.verdict != "ok"
+
+
+def test_the_fallback_basis_is_flagged(camera: MultiSpectrum, basis: CameraBasis) -> None:
+    result = estimate([_lamp("LED-B3", camera)], "prior", basis=basis, mapping=TRUTH)
+    assert "fallback_basis" in {flag.code for flag in result.quality.flags}
+
+
+def test_reduced_chi2_inflates_and_warns() -> None:
+    result = EstimateResult(
+        "demo",
+        np.array([400.0, 500.0, 600.0]),
+        np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
+        sensitivity_sigma=np.full((3, 3), 0.01),
+        diagnostics={"reduced_chi2": 25.0},
+    )
+    budget = uncertainty_budget(result, [])
+    np.testing.assert_allclose(budget.components["statistical"], 0.05)
+    assert budget.reduced_chi2 == 25.0
+    assert [flag.code for flag in budget.flags] == ["model_misfit"]
+    assert misfit_flag(2.0) is None
+    assert misfit_flag(500.0).severity == "serious"  # type: ignore[union-attr]
+    multilamp = replace(result, diagnostics={"direct_chi2": 30.0, "direct_equations": 15})
+    assert reduced_chi2(multilamp) == 2.0
+
+
+def test_a_grid_beyond_the_basis_is_refused_with_the_range() -> None:
+    grid = WavelengthGrid(390, 720, 10)
+    rng = np.random.default_rng(0)
+    curves = rng.uniform(0.1, 1.0, size=(12, grid.size, 3))
+    curves[:, grid.wavelength_nm < 400] = 0.0
+    curves[:, grid.wavelength_nm > 700] = 0.0
+    basis = camera_basis(curves, grid=grid, n_vectors=3, cache=False)
+    assert basis_support_nm(basis) == (400.0, 700.0)
+    with pytest.raises(InputError, match=r"beyond the camera data.*400–700 nm.*--grid 400:700:10"):
+        check_grid_within_basis(basis)
+    lamp = LampObservation(
+        "LED",
+        Spectrum([380, 740], [1.0, 1.0]),
+        np.arange(10.0),
+        np.ones((10, 3)),
+        direct_rgb=np.ones(3),
+    )
+    with pytest.raises(InputError, match="beyond the camera data"):
+        estimate([lamp], "prior", grid=grid, basis=basis, mapping=TRUTH)
+
+
+def test_quality_keeps_one_flag_per_code_and_grades() -> None:
+    quality = Quality().with_flags(QualityFlag("a", "first", "info"))
+    assert quality.verdict == "ok" and quality.warnings() == []
+    quality = quality.with_flags(QualityFlag("a", "second"), QualityFlag("b", "bad", "serious"))
+    assert [flag.message for flag in quality.flags] == ["second", "bad"]
+    assert quality.verdict == "doubtful"
+    assert quality.to_dict()["flags"][1] == {"code": "b", "severity": "serious", "message": "bad"}
+
+
+def test_auto_keeps_a_coarse_fluorescent_lamp_for_the_mapping(camera: MultiSpectrum) -> None:
+    led = _lamp("LED-B3", camera)
+    fluorescent = render_observation(colour_lamp("FL2"), camera, mapping=TRUTH, pixel=800)
+    fl = replace(fluorescent.observation, kind="fluorescent")
+    fine = replace(fl, spectrum=fl.spectrum.resample(WavelengthGrid(380, 780, 1)))
+    assert choose_method([led, fine]).mapping_only == ()
+    coarse = replace(fl, spectrum=fl.spectrum.resample(WavelengthGrid(380, 780, 10)))
+    choice = choose_method([led, coarse])
+    assert choice.method == "prior" and choice.mapping_only == ("FL2",)
+    assert "too coarse" in choice.reason and "mapping only" in choice.reason
+    unknown = replace(fine, metadata={"spectrum_known": False})
+    assert choose_method([led, unknown]).mapping_only == ("FL2",)
+    # the lamps alone cannot be all mapping-only
+    assert choose_method([coarse]).mapping_only == ()
+
+
+def test_auto_uses_a_grating_file_when_given(camera: MultiSpectrum) -> None:
+    led = _lamp("LED-B3", camera)
+    grating = GratingEfficiency(
+        np.array([380.0, 780.0]), np.array([1.0, 1.0]), source="grating.json"
+    )
+    choice = choose_method([led], grating=grating)
+    assert choice.method == "known-grating" and "grating.json" in choice.reason
+    assert choose_method([led]).method == "prior"
+
+
+def test_auto_through_a_mapping_only_lamp_records_it(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    led = _lamp("LED-B3", camera)
+    fluorescent = render_observation(colour_lamp("FL2"), camera, mapping=TRUTH, pixel=800)
+    coarse = replace(
+        fluorescent.observation,
+        kind="fluorescent",
+        spectrum=fluorescent.observation.spectrum.resample(WavelengthGrid(380, 780, 10)),
+    )
+    result = estimate([led, coarse], basis=basis, mapping=TRUTH)
+    choice = result.diagnostics["method_choice"]
+    assert choice["mapping_only"] == ["FL2"]
+    assert result.diagnostics["solve_lamps"] == ["LED-B3"]
+
+
+def test_the_coverage_factor_reaches_its_target() -> None:
+    rng = np.random.default_rng(1)
+    ratios = [np.abs(rng.standard_normal(200)) * scale for scale in (0.5, 2.0, 4.0)]
+    factor = fit_scale(ratios, 0.9)
+    assert coverage_at(ratios, factor) >= 0.9 > coverage_at(ratios, factor * 0.97)
+    assert fit_scale([np.full(10, 0.1)], 0.95) == 1.0  # never shrinks a band
