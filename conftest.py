@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
+
+# A shell starts a background job (`make test &`) with SIGINT ignored, and every process it starts
+# inherits that (POSIX). The signal tests send Ctrl-C to `rig` children and expect what a user at a
+# terminal gets, so the test processes take Python's own handler back; their children then start
+# with the default disposition.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True)

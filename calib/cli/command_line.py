@@ -59,6 +59,19 @@ class CommandInterrupted(Exception):
 class CommandGroup(TyperGroup):
     """The group class of both apps: a Ctrl-C anywhere below it becomes :class:`CommandInterrupted`."""
 
+    def make_context(
+        self,
+        info_name: str | None,
+        args: list[str],
+        parent: ClickContext | None = None,
+        **extra: Any,
+    ) -> ClickContext:
+        # A Ctrl-C while the command line is parsed (typer would end with a silent Exit(130)).
+        try:
+            return super().make_context(info_name, args, parent, **extra)
+        except KeyboardInterrupt:
+            raise CommandInterrupted from None
+
     def invoke(self, ctx: ClickContext) -> Any:
         try:
             return super().invoke(ctx)
