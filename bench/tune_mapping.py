@@ -3,7 +3,9 @@
 For each of the 44 training cameras of Makabe et al. (2025) §4.1: the prior is built from the other
 43, the camera is rendered through a random grating and mapping (the synthetic protocol), and the
 mapping is found from the broadband lamp alone ("LED only") for every candidate
-:data:`calib.wavelength.search.LOCAL_FLEXIBILITY`; the sensitivity is then solved with that mapping.
+``local_flexibility`` of the search as it was before issue 16 (``bench/mapping_before.py``; the
+product's :data:`calib.wavelength.profile_search.LOCAL_FLEXIBILITY` took its value from this run);
+the sensitivity is then solved with that mapping.
 Prints, per lamp, noise level and flexibility, the mean and worst mapping RE, the number of cameras
 whose mapping RE exceeds 1 % and the mean RE. The five test cameras are never used.
 
@@ -19,6 +21,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from mapping_before import search_mapping
 
 from calib.core.datasets import makabe2025_split
 from calib.core.lamp_specs import colour_lamp
@@ -28,7 +31,6 @@ from calib.evaluation.synthetic import render_scene
 from calib.methods.prior_solve import estimate_prior
 from calib.model.bases import camera_basis
 from calib.model.resolution import camera_kernel
-from calib.wavelength import search as mapping_search
 
 
 def main() -> None:
@@ -68,7 +70,7 @@ def main() -> None:
                     true_nm = scene.mapping.wavelength_nm(observation.pixel)
                     inside = (true_nm >= grid.start_nm) & (true_nm <= grid.stop_nm)
                     for flexibility in flexibilities:
-                        found = mapping_search.search_mapping(
+                        found = search_mapping(
                             [observation],
                             prior,
                             grid,

@@ -93,9 +93,10 @@ def physical_scene(
 
 
 def _old_search(observation: LampObservation, prior: CameraPrior) -> MappingSearch:
-    """The search as it was (``calib.wavelength.search.search_mapping``), in the new result's shape."""
+    """The search as it was (``bench/mapping_before.py``), in the new result's shape."""
+    from mapping_before import search_mapping
+
     from calib.model.resolution import camera_kernel
-    from calib.wavelength.search import search_mapping
 
     mapping = search_mapping(
         [observation], prior, DEFAULT_GRID, kernel=camera_kernel([observation])
@@ -137,7 +138,7 @@ def main() -> None:
         "--engine",
         choices=("new", "old"),
         default="new",
-        help="old: calib.wavelength.search.search_mapping, for comparison",
+        help="old: the search before issue 16 (bench/mapping_before.py), for comparison",
     )
     args = parser.parse_args()
     train, _test = makabe2025_split(args.data_dir)

@@ -6,8 +6,8 @@ warm-up; ``time.process_time``, one BLAS thread):
 ``solve alone``          :func:`calib.methods.estimate` given the true mapping (the yardstick);
 ``mapping + estimate``   :func:`calib.methods.estimate` finding its mapping
                          (:func:`calib.wavelength.find_mapping` → :mod:`calib.wavelength.locate`);
-``before``               ``calib.wavelength.search.search_mapping`` (what the estimators used
-                         before this engine), then the estimate with its mapping.
+``before``               ``bench/mapping_before.py``'s ``search_mapping`` (what the estimators
+                         used before this engine), then the estimate with its mapping.
 
 Scenes: the paper's synthetic protocol (§4.1) for the Canon 600D (a test camera: reported, never
 tuned on) with the 44 training cameras' basis — LED only (D65) and LED + fluorescent (FL2) — and,
@@ -30,6 +30,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from mapping_before import search_mapping
 
 from calib.core.blas import one_blas_thread
 from calib.core.datasets import find_camera, makabe2025_split
@@ -40,7 +41,6 @@ from calib.evaluation.synthetic import render_scene
 from calib.methods import estimate
 from calib.model.bases import CameraBasis, camera_basis
 from calib.model.resolution import camera_kernel
-from calib.wavelength.search import search_mapping
 
 
 def cpu_median(function: Callable[[], object], repeats: int) -> float:

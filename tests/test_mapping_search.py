@@ -1,4 +1,4 @@
-"""calib.wavelength.search: the pixel→wavelength mapping from fluorescent lines and broadband lamps."""
+"""calib.wavelength.find_mapping: the pixel→wavelength mapping from fluorescent lines and broadband lamps."""
 
 from __future__ import annotations
 
@@ -16,13 +16,10 @@ from calib.core.observations import LampObservation, robust_noise_sigma
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
 from calib.model.bases import CameraPrior, fallback_camera_basis
-from calib.model.forward import PeakFractionNoise, render_observation
+from calib.model.forward import PeakFractionNoise, pixel_edges, render_observation
 from calib.wavelength import find_mapping
-from calib.wavelength.search import (
-    ResponseFit,
-    basin_spread_nm,
-    bin_pixels,
-)
+from calib.wavelength.profile_search import bin_pixels
+from calib.wavelength.response_model import ResponseModel
 
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
 
@@ -116,10 +113,16 @@ def test_binning_keeps_the_truth_the_best_fit(prior, camera):
     observation = _render("D65", camera, 0.002)
     shifted = QuadraticMapping(TRUTH.a, TRUTH.b, TRUTH.c + 2.0, pixel_range=TRUTH.pixel_range)
     for factor in (1, 4):
-        fit = ResponseFit.build(
-            bin_pixels(observation, factor), DEFAULT_GRID, node_step_nm=5.0, prior=prior
+        binned = bin_pixels(observation, factor)
+        assert binned.n_pixels == 800 // factor
+        model = ResponseModel.build(
+            binned, DEFAULT_GRID, node_step_nm=5.0, prior=prior, flexibility=0.05
         )
-        assert fit.cost(TRUTH) < fit.cost(shifted) / 3
+        edges = pixel_edges(binned.pixel)
+        truth, off = model.costs(
+            np.stack([TRUTH.wavelength_nm(edges), shifted.wavelength_nm(edges)])
+        )
+        assert truth < off / 3
 
 
 def test_robust_noise_sigma_measures_white_noise(rng):
@@ -135,18 +138,6 @@ def test_paper_icp_reproduces_its_error_level_and_ours_beats_it(prior, camera):
     ours = _mapping_re(find_mapping([observation], camera=prior))
     assert 2e-3 < paper < 6e-2
     assert ours < paper / 10
-
-
-def test_basin_spread_weighs_competing_basins_by_their_evidence():
-    best = QuadraticMapping(0.0, 0.4, 380.0, pixel_range=(0.0, 799.0))
-    alias = QuadraticMapping(0.0, 0.4, 390.0, pixel_range=(0.0, 799.0))
-    # Equal costs: the profile cannot tell the basins apart, half the weight sits 10 nm away.
-    tied = basin_spread_nm(best, [(best, 100.0), (alias, 100.0)], (0.0, 799.0))
-    assert tied == pytest.approx(10.0 / np.sqrt(2.0))
-    # A χ² difference of 40: the alias carries e⁻²⁰ of the weight.
-    clear = basin_spread_nm(best, [(best, 100.0), (alias, 140.0)], (0.0, 799.0))
-    assert clear < 1e-3
-    assert basin_spread_nm(best, [(best, 100.0)], (0.0, 799.0)) == 0.0
 
 
 @pytest.mark.slow

@@ -22,6 +22,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError
 from calib.core.mapping import QuadraticMapping, wavelength_rms_from_covariance
+from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.model.forward import fine_axis, hat_matrix
 
@@ -673,4 +674,31 @@ def icp_mapping(
     c = start + step * (a_idx * offset**2 - b_idx * offset + c_idx)
     return QuadraticMapping(
         float(a), float(b), float(c), method="icp", pixel_range=(float(pixel[0]), float(pixel[-1]))
+    )
+
+
+def fluorescent_starts(
+    observation: LampObservation,
+    mean_sensitivity: FloatArray,
+    grid: WavelengthGrid,
+    n_candidates: int,
+) -> list[QuadraticMapping]:
+    """Mappings from matching the lamp's lines to the profile's peaks (several hypotheses)."""
+    model_nm, model = model_curve_on_fine_axis(observation.spectrum, mean_sensitivity, grid)
+    dispersion = nominal_dispersion(observation.pixel, observation.profile, model_nm, model)
+    total = mean_sensitivity.sum(axis=1)
+
+    def weight(wavelength: FloatArray) -> FloatArray:
+        return np.asarray(
+            np.interp(wavelength, grid.wavelength_nm, total, 0.0, 0.0), dtype=np.float64
+        )
+
+    lines = lamp_lines(observation.spectrum, weight, range_nm=(grid.start_nm, grid.stop_nm))
+    peaks = profile_peaks(observation.pixel, observation.profile, line_width_px=20.0 / dispersion)
+    return match_peak_hypotheses(
+        lines,
+        peaks,
+        pixel_range=(float(observation.pixel[0]), float(observation.pixel[-1])),
+        dispersion_range_nm_per_px=(0.5 * dispersion, 2.0 * dispersion),
+        n_hypotheses=n_candidates,
     )

@@ -1,8 +1,8 @@
 """The pixel→wavelength mapping from whole profiles: physics first, batched scans, honest basins.
 
 Every stage fits the profiles themselves with the lamp times a per-channel response under the
-camera prior (:class:`calib.wavelength.response_model.ResponseModel`), as
-:mod:`calib.wavelength.search` does, but
+camera prior (:class:`calib.wavelength.response_model.ResponseModel`). Unlike the search before
+issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
 
 - the mapping lives in a **family** (:mod:`calib.wavelength.families`): the grating equation through
   a lens when the profile's pixels are measured from the 0th order (``pixel_origin="direct_spot"``)
@@ -37,23 +37,15 @@ from calib.core.arrays import FloatArray
 from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import QuadraticMapping, TiltedGrating, wavelength_rms_from_covariance
-from calib.core.observations import LampObservation
+from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.least_squares import Solution, levenberg_marquardt
+from calib.wavelength.peaks import fluorescent_starts
 from calib.wavelength.response_model import ResponseModel, fine_step_for
 from calib.wavelength.rig_prior import default_prior
-from calib.wavelength.search import (
-    COARSE_NODES_NM,
-    FINE_NODES_NM,
-    FLEXIBILITY,
-    GLOBAL_SIGMA_FLOOR,
-    LOCAL_FLEXIBILITY,
-    _binned_kernel,
-    bin_pixels,
-)
 
 Family = QuadraticFamily | GratingFamily
 ExactMapping = QuadraticMapping | TiltedGrating
@@ -67,6 +59,25 @@ REFINE_BIN_NM = 1.0
 FINAL_BIN_NM = 0.5
 #: Node spacing (nm) of the response in the scan.
 SCAN_NODES_NM = 10.0
+#: Node spacing (nm) of the response in the refining and deciding stages, and in the final one.
+COARSE_NODES_NM = 10.0
+FINE_NODES_NM = 5.0
+#: Flexibility of the response beyond the camera prior (a fraction of the channel's peak,
+#: :func:`calib.wavelength.response_model.response_prior`) in every stage but the deciding one.
+FLEXIBILITY = 0.05
+#: Flexibility of the response in the quadratic family's deciding stage, which chooses between the
+#: basins. A broadband lamp's profile has aliases: moving (part of) the spectrum by the spacing of
+#: the lamp's structure (D65 is tabulated at 10 nm and interpolated linearly) changes the profile
+#: only by what a response on nodes of that spacing absorbs. Under the stiff prior, a camera unlike
+#: the training set can fit an alias better (its response there looks more like the mean camera's)
+#: and the mapping lands a whole alias spacing off. Letting the response deviate smoothly (σ: this
+#: fraction of the channel's peak, so well beyond the channel itself) hands that choice to the
+#: lamp's structure; the prior's covariance still sets how rough the response may be.
+#: Leave-one-camera-out on the 44 training cameras (``bench/tune_mapping.py``, 1 % noise) finds
+#: 0.05 and 2 equally good for cameras like the others.
+LOCAL_FLEXIBILITY = 2.0
+#: The scan and its refinement treat noise below this fraction of the profile's peak as this large.
+GLOBAL_SIGMA_FLOOR = 0.005
 #: Quadratic family: the scan shifts the wavelengths at both ends of the profile by this half width
 #: and step (nm) around each start (the middle follows): the correlation search's linear starts are
 #: 2–25 nm off at the ends on the training cameras (a camera unlike the mean, the mapping's
@@ -262,7 +273,7 @@ def _stage(
 ) -> StageFit:
     factor = max(1, int(bin_nm / max(nm_per_px, 1e-9)))
     stage_kernel = (
-        None if kernel is None else (kernel if factor == 1 else _binned_kernel(kernel, factor))
+        None if kernel is None else (kernel if factor == 1 else binned_kernel(kernel, factor))
     )
     models = tuple(
         ResponseModel.build(
@@ -278,6 +289,34 @@ def _stage(
         for lamp in lamps
     )
     return StageFit(models, family, pixel_range)
+
+
+def bin_pixels(observation: LampObservation, factor: int) -> LampObservation:
+    """Merge runs of ``factor`` pixels (profiles summed, σ in quadrature, centres averaged).
+
+    Exact for the profile model, which integrates over each pixel's wavelength interval: merged
+    pixels integrate over the merged interval. A remainder at the end is dropped.
+    """
+    if factor <= 1:
+        return observation
+    count = (observation.n_pixels // factor) * factor
+    sigma = profile_sigma(observation)[:count]
+    return replace(
+        observation,
+        pixel=observation.pixel[:count].reshape(-1, factor).mean(axis=1),
+        profile=observation.profile[:count].reshape(-1, factor, 3).sum(axis=1),
+        profile_sigma=np.sqrt((sigma**2).reshape(-1, factor, 3).sum(axis=1)),
+    )
+
+
+def binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
+    """The blur kernel in units of binned pixels (sampled at the bin centres, renormalised)."""
+    half = kernel.size // 2
+    offsets = np.arange(-half, half + 1, dtype=np.float64)
+    coarse = np.arange(-(half // factor) - 1, half // factor + 2, dtype=np.float64) * factor
+    values = np.interp(coarse, offsets, kernel, left=0.0, right=0.0)
+    total = float(values.sum())
+    return None if total <= 0 else np.asarray(values / total, dtype=np.float64)
 
 
 # ------------------------------------------------------------------------------- the search
@@ -533,8 +572,6 @@ def search_profiles(
 
     # Starts (quadratic, in the profile's pixels) give the dispersion and, for the quadratic
     # family, the scan's centres.
-    from calib.wavelength.search import fluorescent_starts
-
     if starts:
         candidates = list(starts)
         origin = "given start"

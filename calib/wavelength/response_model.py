@@ -1,6 +1,6 @@
 """A profile explained by the lamp times a smooth per-channel response — fast, batched, differentiable.
 
-The model of one lamp's first-order profile (as in :mod:`calib.wavelength.search`)::
+The model of one lamp's first-order profile::
 
     m_c(p) = Σ_t k_t ∫_{pixel p+h−t} e(λ) r_c(λ) dλ,
 
@@ -45,7 +45,8 @@ from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import Spectrum, WavelengthGrid
-from calib.model.bases import CameraPrior
+from calib.model.bases import CameraPrior, whitening
+from calib.model.forward import hat_matrix, pixel_edges
 
 #: Relative ridge added to every per-channel normal matrix (times its mean diagonal).
 RIDGE = 1e-10
@@ -53,11 +54,47 @@ RIDGE = 1e-10
 MODEL_ERROR = 0.002
 #: Relative smoothness (second-difference penalty) of the response beyond the working range.
 MARGIN_SMOOTHNESS = 1e-2
+#: The grating efficiency the camera prior is widened by, around a flat one: relative σ and
+#: correlation length (nm).
+EFFICIENCY_SIGMA = 0.3
+EFFICIENCY_CORRELATION_NM = 80.0
+#: Correlation length (nm) of the response's smooth departure from the camera prior.
+FLEX_CORRELATION_NM = 25.0
 
 IntArray = NDArray[np.intp]
 
 
 # ------------------------------------------------------------------------------ the lamp, once
+
+
+def response_prior(
+    prior: CameraPrior, nodes_nm: FloatArray, flexibility: float
+) -> tuple[FloatArray, FloatArray]:
+    """Mean ``(N, 3)`` and precision factors ``(3, N, N)`` of the response ``r_c = η s_c`` at ``nodes``.
+
+    The camera prior (interpolated from its grid to the nodes), widened by a smooth grating
+    efficiency — ``η`` = 1 plus a relative variation of σ :data:`EFFICIENCY_SIGMA` correlated over
+    :data:`EFFICIENCY_CORRELATION_NM` — and by a *flexibility* term: a Gaussian-process deviation
+    (correlation :data:`FLEX_CORRELATION_NM`) of ``flexibility`` times the channel's peak, so that a
+    camera unlike the training set (or measured with finer structure) stays representable while the
+    response keeps a camera's shape.
+    """
+    interpolate = hat_matrix(prior.grid, nodes_nm, clamp=True)
+    distance = (nodes_nm[:, None] - nodes_nm[None, :]) / EFFICIENCY_CORRELATION_NM
+    efficiency_kernel = EFFICIENCY_SIGMA**2 * np.exp(-0.5 * distance**2)
+    flex_distance = (nodes_nm[:, None] - nodes_nm[None, :]) / FLEX_CORRELATION_NM
+    flex_kernel = np.exp(-0.5 * flex_distance**2)
+    mean = interpolate @ prior.mean
+    factors = []
+    for c in range(3):
+        channel_mean = mean[:, c]
+        covariance = (
+            interpolate @ prior.covariance[c] @ interpolate.T
+            + np.outer(channel_mean, channel_mean) * efficiency_kernel
+            + (flexibility * float(np.max(channel_mean))) ** 2 * flex_kernel
+        )
+        factors.append(whitening(covariance))
+    return np.asarray(mean, dtype=np.float64), np.stack(factors)
 
 
 def hat_averages(spectrum: Spectrum, start_nm: float, step_nm: float, count: int) -> FloatArray:
@@ -330,12 +367,10 @@ class ResponseModel:
         """The model of ``observation`` with a camera-prior response on ``node_step_nm`` nodes.
 
         ``flexibility``: the response's smooth departure from the prior (a fraction of each
-        channel's peak, :func:`calib.wavelength.search.response_prior`); ``sigma_floor``: σ is at
+        channel's peak, :func:`response_prior`); ``sigma_floor``: σ is at
         least this fraction of the profile's peak (a coarse scan looks for a basin, which very
         precise data make too narrow to find); ``fine_step_nm``: the lamp's integration step.
         """
-        from calib.wavelength.search import response_prior
-
         lamp = observation.spectrum
         lo = max(grid.start_nm - margin_nm, lamp.range_nm[0])
         hi = min(grid.stop_nm + margin_nm, lamp.range_nm[1])
@@ -362,8 +397,6 @@ class ResponseModel:
             np.hypot(profile_sigma(observation), MODEL_ERROR * np.abs(observation.profile)),
             sigma_floor * float(np.max(observation.profile)),
         )
-        from calib.model.forward import pixel_edges
-
         weights = 1.0 / sigma
         return cls(
             observation=observation,

@@ -1,4 +1,14 @@
-"""Finding a profile's pixel→wavelength mapping: global search, then a fit of the whole profile.
+"""The pixel→wavelength mapping search as it was before issue 16 — the benchmarks' "before" column.
+
+Kept only as the baseline that ``bench/wavelength_loco.py``, ``bench/wavelength_speed.py`` and
+``bench/tune_mapping.py`` measure the product against; **not part of the product**: calib finds
+mappings with :func:`calib.wavelength.locate.locate_mapping` (whole profiles:
+:func:`calib.wavelength.profile_search.search_profiles`). It imports the pieces it shares with that
+engine (the response prior, pixel binning, fluorescent starts and the stage constants) from calib,
+so the baseline moves with them.
+
+As it was documented:
+
 
 Makabe et al. (2025, §3.2) match peaks for a fluorescent lamp and run point-to-plane ICP between the
 normalised profile and ``ŝ ⊙ e`` for an LED (Eq. 15, 500 iterations from a flat start). Both compare
@@ -38,7 +48,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import numpy as np
@@ -55,62 +65,37 @@ from calib.core.mapping import (
 )
 from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import WavelengthGrid
-from calib.model.bases import CameraPrior, whitening
+from calib.model.bases import CameraPrior
 from calib.model.forward import (
     PiecewiseLinearDensity,
     apply_blur,
     fine_axis,
-    hat_matrix,
     pixel_edges,
 )
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.peaks import (
     coarse_mapping_candidates,
-    lamp_lines,
-    match_peak_hypotheses,
+    fluorescent_starts,
     model_curve_on_fine_axis,
-    nominal_dispersion,
-    profile_peaks,
     refine_mapping,
 )
+from calib.wavelength.profile_search import (
+    COARSE_NODES_NM,
+    FINE_NODES_NM,
+    FLEXIBILITY,
+    GLOBAL_BIN_NM,
+    GLOBAL_SIGMA_FLOOR,
+    LOCAL_FLEXIBILITY,
+    bin_pixels,
+    binned_kernel,
+)
+from calib.wavelength.response_model import MARGIN_SMOOTHNESS, MODEL_ERROR, response_prior
 
 Mapping = QuadraticMapping | GratingGeometry | TiltedGrating
 AnyMapping = TypeVar("AnyMapping", QuadraticMapping, TiltedGrating)
 
-#: Node spacing (nm) of the response in the global and first local stage, and in the last stage.
-COARSE_NODES_NM = 10.0
-FINE_NODES_NM = 5.0
 #: Light is modelled this far beyond the working range (where the lamp spectrum reaches).
 MARGIN_NM = 30.0
-#: Relative smoothness (second-difference penalty) of the response beyond the working range.
-MARGIN_SMOOTHNESS = 1e-2
-#: The grating efficiency the global stage allows around a flat one: relative σ and correlation length.
-EFFICIENCY_SIGMA = 0.3
-EFFICIENCY_CORRELATION_NM = 80.0
-#: Flexibility of the response beyond the camera prior (a fraction of the channel's peak), and the
-#: correlation length of that smooth deviation.
-FLEXIBILITY = 0.05
-FLEX_CORRELATION_NM = 25.0
-#: Flexibility of the response in the first local stage, which chooses between the global stage's
-#: basins. A broadband lamp's profile has aliases: moving (part of) the spectrum by the spacing of
-#: the lamp's structure (D65 is tabulated at 10 nm and interpolated linearly) changes the profile
-#: only by what a response on nodes of that spacing absorbs. Under the stiff prior, a camera unlike
-#: the training set can fit an alias better (its response there looks more like the mean camera's)
-#: and the mapping lands a whole alias spacing off. Letting the response deviate smoothly (σ: this
-#: fraction of the channel's peak, so well beyond the channel itself) hands that choice to the
-#: lamp's structure; the prior's covariance still
-#: sets how rough the response may be. The last stage, within the chosen basin, keeps the stiff
-#: prior (it converges in fewer evaluations). Leave-one-camera-out on the 44 training cameras
-#: (``bench/tune_mapping.py``, 1 % noise) finds 0.05 and 2 equally good for cameras like the others.
-LOCAL_FLEXIBILITY = 2.0
-#: Relative error of the profile model itself (lamp spectrum calibration, η within a pixel, the
-#: response between nodes), added in quadrature to the noise: clean data do not make the model's
-#: own approximations decisive.
-MODEL_ERROR = 0.002
-#: The global stage treats noise below this fraction of the profile's peak as this large.
-GLOBAL_SIGMA_FLOOR = 0.005
-#: Binned pixel width (nm) of the global stage's profile.
-GLOBAL_BIN_NM = 2.5
 #: (half width, step) in nm of the scan of the ends' wavelengths, per kind of start.
 SCAN_BROADBAND = (20.0, 4.0)
 SCAN_LINES = (9.0, 3.0)
@@ -123,24 +108,6 @@ INTERMEDIATE_TOLERANCE = 1e-6
 FINAL_TOLERANCE = 1e-9
 #: Distinct global minima carried into the local stages.
 LOCAL_FINALISTS = 2
-
-
-def bin_pixels(observation: LampObservation, factor: int) -> LampObservation:
-    """Merge runs of ``factor`` pixels (profiles summed, σ in quadrature, centres averaged).
-
-    Exact for the profile model, which integrates over each pixel's wavelength interval: merged
-    pixels integrate over the merged interval. A remainder at the end is dropped.
-    """
-    if factor <= 1:
-        return observation
-    count = (observation.n_pixels // factor) * factor
-    sigma = profile_sigma(observation)[:count]
-    return replace(
-        observation,
-        pixel=observation.pixel[:count].reshape(-1, factor).mean(axis=1),
-        profile=observation.profile[:count].reshape(-1, factor, 3).sum(axis=1),
-        profile_sigma=np.sqrt((sigma**2).reshape(-1, factor, 3).sum(axis=1)),
-    )
 
 
 def _segment_hats(axis_nm: FloatArray, nodes_nm: FloatArray) -> FloatArray:
@@ -168,36 +135,6 @@ def _block_diagonal(blocks: Sequence[FloatArray], widths: Sequence[int]) -> Floa
         row += block.shape[0]
         col += width
     return out
-
-
-def response_prior(
-    prior: CameraPrior, nodes_nm: FloatArray, flexibility: float
-) -> tuple[FloatArray, FloatArray]:
-    """Mean ``(N, 3)`` and precision factors ``(3, N, N)`` of the response ``r_c = η s_c`` at ``nodes``.
-
-    The camera prior (interpolated from its grid to the nodes), widened by a smooth grating
-    efficiency — ``η`` = 1 plus a relative variation of σ :data:`EFFICIENCY_SIGMA` correlated over
-    :data:`EFFICIENCY_CORRELATION_NM` — and by a *flexibility* term: a Gaussian-process deviation
-    (correlation :data:`FLEX_CORRELATION_NM`) of ``flexibility`` times the channel's peak, so that a
-    camera unlike the training set (or measured with finer structure) stays representable while the
-    response keeps a camera's shape.
-    """
-    interpolate = hat_matrix(prior.grid, nodes_nm, clamp=True)
-    distance = (nodes_nm[:, None] - nodes_nm[None, :]) / EFFICIENCY_CORRELATION_NM
-    efficiency_kernel = EFFICIENCY_SIGMA**2 * np.exp(-0.5 * distance**2)
-    flex_distance = (nodes_nm[:, None] - nodes_nm[None, :]) / FLEX_CORRELATION_NM
-    flex_kernel = np.exp(-0.5 * flex_distance**2)
-    mean = interpolate @ prior.mean
-    factors = []
-    for c in range(3):
-        channel_mean = mean[:, c]
-        covariance = (
-            interpolate @ prior.covariance[c] @ interpolate.T
-            + np.outer(channel_mean, channel_mean) * efficiency_kernel
-            + (flexibility * float(np.max(channel_mean))) ** 2 * flex_kernel
-        )
-        factors.append(whitening(covariance))
-    return np.asarray(mean, dtype=np.float64), np.stack(factors)
 
 
 @dataclass(frozen=True, eq=False)
@@ -454,33 +391,6 @@ def broadband_starts(
     )
 
 
-def fluorescent_starts(
-    observation: LampObservation,
-    mean_sensitivity: FloatArray,
-    grid: WavelengthGrid,
-    n_candidates: int,
-) -> list[QuadraticMapping]:
-    """Mappings from matching the lamp's lines to the profile's peaks (several hypotheses)."""
-    model_nm, model = model_curve_on_fine_axis(observation.spectrum, mean_sensitivity, grid)
-    dispersion = nominal_dispersion(observation.pixel, observation.profile, model_nm, model)
-    total = mean_sensitivity.sum(axis=1)
-
-    def weight(wavelength: FloatArray) -> FloatArray:
-        return np.asarray(
-            np.interp(wavelength, grid.wavelength_nm, total, 0.0, 0.0), dtype=np.float64
-        )
-
-    lines = lamp_lines(observation.spectrum, weight, range_nm=(grid.start_nm, grid.stop_nm))
-    peaks = profile_peaks(observation.pixel, observation.profile, line_width_px=20.0 / dispersion)
-    return match_peak_hypotheses(
-        lines,
-        peaks,
-        pixel_range=(float(observation.pixel[0]), float(observation.pixel[-1])),
-        dispersion_range_nm_per_px=(0.5 * dispersion, 2.0 * dispersion),
-        n_hypotheses=n_candidates,
-    )
-
-
 def _first_broadband(lamps: Sequence[LampObservation]) -> LampObservation:
     return next((lamp for lamp in lamps if lamp.kind != "fluorescent"), lamps[0])
 
@@ -614,7 +524,7 @@ def search_mapping(
     global_fit = joint_fit(
         factor,
         COARSE_NODES_NM,
-        None if kernel is None else _binned_kernel(kernel, factor),
+        None if kernel is None else binned_kernel(kernel, factor),
         GLOBAL_SIGMA_FLOOR,
     )
     if lead.pixel_origin == "direct_spot" and not starts:
@@ -729,16 +639,6 @@ def basin_spread_nm(
         [np.mean((m.wavelength_nm(pixels) - best.wavelength_nm(pixels)) ** 2) for m, _ in outcomes]
     )
     return float(np.sqrt(np.sum(weights * squared) / np.sum(weights)))
-
-
-def _binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
-    """The blur kernel in units of binned pixels (sampled at the bin centres, renormalised)."""
-    half = kernel.size // 2
-    offsets = np.arange(-half, half + 1, dtype=np.float64)
-    coarse = np.arange(-(half // factor) - 1, half // factor + 2, dtype=np.float64) * factor
-    values = np.interp(coarse, offsets, kernel, left=0.0, right=0.0)
-    total = float(values.sum())
-    return None if total <= 0 else np.asarray(values / total, dtype=np.float64)
 
 
 # ------------------------------------------------------------------------- grating physics
