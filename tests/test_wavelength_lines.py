@@ -17,6 +17,7 @@ from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
+from calib.pipeline.estimate import mapping_flags
 from calib.pipeline.inputs import load_spectrum
 from calib.wavelength.families import GratingFamily, grating_prior
 from calib.wavelength.features import map_features
@@ -226,6 +227,11 @@ def test_two_near_equal_basins_are_stated_and_carried(camera, prior):
     found = search_profiles([observation], prior, DEFAULT_GRID)
     assert found.ambiguous
     assert "fluorescent" in found.warnings[0]
+    # Through the one entry, the warning reaches the result's quality as an ambiguity, by its code.
+    located = locate_mapping([observation], prior, DEFAULT_GRID, orientation="rising")
+    codes = located.mapping.details["warning_codes"]
+    assert codes and set(codes) == {"mapping_ambiguous"}
+    assert [flag.code for flag in mapping_flags(located.mapping)] == codes
     candidates = found.details["candidates"]
     assert len(candidates) >= 2
     # The comb's aliases: a whole number of its periods away.

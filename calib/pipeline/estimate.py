@@ -543,12 +543,9 @@ def mapping_flags(mapping: object) -> list[QualityFlag]:
     """What the mapping search said for the user (an ambiguous mapping, lines that disagree with
     the whole-profile fit, a failed refinement), as quality flags."""
     details = getattr(mapping, "details", None) or {}
-    flags = []
-    for text in details.get("warnings", ()):
-        line = str(text)
-        code = "mapping_ambiguous" if "ambiguous" in line else "mapping_line_residuals"
-        flags.append(QualityFlag(code, line))
-    return flags
+    texts = [str(text) for text in details.get("warnings", ())]
+    codes = list(details.get("warning_codes", ())) or ["mapping_line_residuals"] * len(texts)
+    return [QualityFlag(str(code), text) for code, text in zip(codes, texts, strict=True)]
 
 
 def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMapping | None:

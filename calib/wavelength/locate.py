@@ -23,7 +23,8 @@ the result is monotonic or an error.
 The result's :class:`calib.core.mapping.QuadraticMapping` (the report format) carries in its
 ``details``: ``family`` and ``grating`` (the physical parameters), ``matched_lines`` (rows
 ``{line, wavelength_nm, pixel, fitted_nm, residual_nm, weight}``), ``candidates`` (every basin with its
-mapping and likelihood), ``ambiguous`` and ``warnings`` (sentences for the user), and
+mapping and likelihood), ``ambiguous``, ``warnings`` (sentences for the user) with their ``warning_codes`` (one quality
+code each), and
 ``rig_prior`` (what the physics rested on).
 """
 
@@ -444,6 +445,12 @@ def locate_mapping(
         details.update(search.details)
     _check_monotonic(exact, lead)
     details["warnings"] = warnings
+    # The quality code of each warning (calib.core.result.QUALITY_CODES): the profile search warns
+    # only of competing basins; this function's own warnings are about the lines against the fit.
+    ambiguity = set(search.warnings) if search is not None else set()
+    details["warning_codes"] = [
+        "mapping_ambiguous" if text in ambiguity else "mapping_line_residuals" for text in warnings
+    ]
     mapping = mapping.with_details(details={**dict(mapping.details), **details})
     return MappingSolution(mapping, exact, tuple(warnings), details)
 
