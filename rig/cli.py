@@ -221,7 +221,7 @@ def dry_run_command(
     """Walk the capture plan with modelled readings: steps, estimated duration, limit violations."""
     from rig.config import load_config
     from rig.dryrun import dry_run
-    from rig.steps import Capture, DarkFrame, MeasureSpectrum
+    from rig.steps import AimSpectrometer, Capture, DarkFrame, MeasureBeam, MeasureSpectrum
 
     rig_config = load_config(config)
     report = dry_run(rig_config)
@@ -241,6 +241,13 @@ def dry_run_command(
         f"({', '.join(f'{lamp} {n}' for lamp, n in frames.items())}), "
         f"{report.count(DarkFrame)} dark frames, {report.count(MeasureSpectrum)} spectra"
     )
+    aims = report.count(AimSpectrometer)
+    if aims:
+        console.print(
+            f"the grating's efficiency: {report.count(MeasureBeam)} spectra in its beams, "
+            f"{aims} times a person re-aims the spectrometer (the steps marked OPERATOR; the run "
+            "waits at each for Enter in the terminal)"
+        )
     console.print(
         f"estimated duration: {_duration(report.duration_s)} (modelled readings from dry_run in {config})"
     )

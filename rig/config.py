@@ -594,6 +594,48 @@ class SpectrumPolicy(StrictModel):
     )
 
 
+class GratingMeasurement(StrictModel):
+    """Measure the grating sheet's efficiency with the spectrometer (issue 17, decision 0032).
+
+    While ``lamp`` is lit and settled (after its reference spectra), the operator aims the
+    spectrometer at the slit without the sheet (``direct``), then through the sheet straight on
+    (``order0``), then at the slit's 1st-order image at a series of angles, each putting another
+    wavelength band in the middle of the measuring field, and finally back at its usual target.
+    ``repeats`` spectra are taken in each beam. ``η₁ = order1 / direct`` and
+    ``η₀ = order0 / direct`` follow wherever the slit's image lies wholly inside the field.
+
+    A spot spectroradiometer (PR-655/670, CS-2000) sees the 1st order of a narrow slit over a band
+    ``(λ-spacing) · cos θ · field`` wide (500 lines/mm, 1° field: ≈ 33 nm at 550 nm); the aims step
+    by half of that (:data:`rig.plan.AIM_STEP_FRACTION`) so that the cores of neighbouring bands,
+    clear of the spectrometer's bandwidth at their edges, overlap. ``grooves_per_mm`` is the
+    sheet's nominal line density (the turn angles come from it); ``field_deg`` the spectrometer's
+    measuring field (PR-655 with its standard lens: 1°); ``range_nm`` the 1st-order wavelengths
+    to cover; ``lamp`` a broadband lamp (a halogen is best; a fluorescent lamp's gaps give no
+    ratio there).
+    """
+
+    lamp: str = Field(pattern=LAMP_NAME_PATTERN)
+    grooves_per_mm: float = Field(gt=0, le=3000)
+    field_deg: float = Field(1.0, gt=0, le=10)
+    range_nm: tuple[float, float] = (400.0, 700.0)
+    repeats: int = Field(2, ge=1, le=20)
+
+    @model_validator(mode="after")
+    def _first_order_exists(self) -> GratingMeasurement:
+        low, high = self.range_nm
+        if not 200.0 <= low < high <= 1100.0:
+            raise ValueError(
+                f"range_nm = [{low:g}, {high:g}] must be increasing within 200–1100 nm"
+            )
+        spacing_nm = 1e6 / self.grooves_per_mm
+        if high >= spacing_nm:
+            raise ValueError(
+                f"range_nm reaches {high:g} nm, but a sheet of {self.grooves_per_mm:g} lines/mm "
+                f"(spacing {spacing_nm:.0f} nm) has no 1st order beyond {spacing_nm:.0f} nm"
+            )
+        return self
+
+
 class DryRunModel(StrictModel):
     """What ``rig dry-run`` assumes about the bench, to model readings and durations."""
 
@@ -603,6 +645,9 @@ class DryRunModel(StrictModel):
     spectrum_measure_s: float = Field(5.0, ge=0)
     frame_download_s: float = Field(1.0, ge=0)
     relay_switch_s: float = Field(0.05, ge=0)
+    operator_aim_s: float = Field(
+        60.0, ge=0, description="a person re-aiming the spectrometer (measure_grating)"
+    )
 
 
 class RigConfig(StrictModel):
@@ -618,6 +663,27 @@ class RigConfig(StrictModel):
     hdr: HdrPolicy = HdrPolicy()
     dark_frames: int = Field(2, ge=0, le=50, description="dark frames per bracket exposure")
     dry_run: DryRunModel = DryRunModel()
+    measure_grating: GratingMeasurement | None = Field(
+        None, description="measure the grating's efficiency with the spectrometer (null: do not)"
+    )
+
+    @model_validator(mode="after")
+    def _grating_lamp_is_a_lamp(self) -> RigConfig:
+        measure = self.measure_grating
+        if measure is None:
+            return self
+        names = [lamp.name for lamp in self.lamps]
+        if measure.lamp not in names:
+            raise ValueError(
+                f"measure_grating.lamp {measure.lamp!r} is not a lamp of lamps[] "
+                f"({', '.join(names)})"
+            )
+        if self.devices.spectrometer_model == "files":
+            raise ValueError(
+                "measure_grating: a files spectrometer cannot be aimed at the grating's beams; "
+                "set measure_grating to null"
+            )
+        return self
 
     @model_validator(mode="after")
     def _every_lamp_has_its_file(self) -> RigConfig:

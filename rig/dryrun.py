@@ -10,7 +10,8 @@
 
 The readings are modelled from ``config.dry_run`` (:class:`ModelledBench`): the lamp spectrum drifts
 until ``lamp_settles_s`` after switch-on, the direct spot saturates above ``direct_saturates_at_s``,
-and the band's SNR grows as √exposure from ``band_snr_at_direct_saturation`` there. The same
+and the band's SNR grows as √exposure from ``band_snr_at_direct_saturation`` there; a person
+re-aiming the spectrometer takes ``operator_aim_s``. The same
 :class:`StepCostModel` gives the runner's progress bar its ETA.
 """
 
@@ -26,6 +27,7 @@ from rig.config import DryRunModel, RigConfig
 from rig.errors import PlanFailure, PlanProtocolError
 from rig.plan import Plan, StandardCaptureArgs, standard_capture
 from rig.steps import (
+    AimSpectrometer,
     AllLampsOff,
     AnyStep,
     CameraReady,
@@ -37,11 +39,13 @@ from rig.steps import (
     ExposureSet,
     FrameCaptured,
     KeepLampTimeline,
+    MeasureBeam,
     MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
     SettingReadBack,
+    SpectrometerAimed,
     SpectrometerReady,
     SpectrumMeasured,
     Step,
@@ -148,6 +152,12 @@ class StepCostModel(StepHandlers[float]):
     def measure_dark(self, step: MeasureDark) -> float:
         return self.model.spectrum_measure_s
 
+    def aim_spectrometer(self, step: AimSpectrometer) -> float:
+        return self.model.operator_aim_s
+
+    def measure_beam(self, step: MeasureBeam) -> float:
+        return self.model.spectrum_measure_s
+
     def wait(self, step: Wait) -> float:
         return step.seconds
 
@@ -205,6 +215,17 @@ class ModelledBench(StepHandlers[StepResult]):
 
     def configure_spectrometer(self, step: ConfigureSpectrometer) -> SpectrometerReady:
         return SpectrometerReady(step.exposure_ms)
+
+    def aim_spectrometer(self, step: AimSpectrometer) -> SpectrometerAimed:
+        return SpectrometerAimed(self.time_s, self.config.dry_run.operator_aim_s)
+
+    def measure_beam(self, step: MeasureBeam) -> SpectrumMeasured:
+        # Light only around the aimed wavelength in the 1st order; everywhere in the others.
+        wavelength = self.WAVELENGTH_NM
+        shape = np.exp(-(((wavelength - 550.0) / 120.0) ** 2))
+        if step.centre_nm is not None:
+            shape = shape * (np.abs(wavelength - step.centre_nm) < 15.0)
+        return SpectrumMeasured(self.time_s, step.file, wavelength, shape, "W/(sr·m²·nm)", None)
 
     def measure_spectrum(self, step: MeasureSpectrum) -> SpectrumMeasured:
         lamp = self.config.lamp(step.lamp)

@@ -45,6 +45,12 @@ class LampDark(PlanFailure):
     reason = "lamp_dark"
 
 
+class BeamNotFound(PlanFailure):
+    """The spectrometer, aimed at a beam of the grating, measured no light there."""
+
+    reason = "beam_not_found"
+
+
 class BracketImpossible(PlanFailure):
     """Automatic bracketing cannot meet the HDR policy within the exposure range or frame budget."""
 

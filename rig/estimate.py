@@ -9,6 +9,10 @@ recorded configuration it takes
   step wins, as after a resume);
 * the dark frames ``lamp/<name>/dark/NNN``, when there is one for every exposure of the bracket;
 * the spectrum: the mean of the reference spectra ``lamp/<name>/reference/NNN``;
+* the grating's beams, when the session measured them (``lamp/<name>/grating/<beam>/NNN``, the
+  ``measure_grating`` step): the grating's efficiency measured with the spectrometer
+  (:func:`calib.methods.measured_grating.grating_from_beams`), which the estimate then uses as a
+  known grating; its ``grating.json`` says ``obtained: measured``;
 
 and hands them to :func:`calib.pipeline.run_offline`, which writes ``sensitivity.csv``,
 ``result.json``, ``report.html``, the rawtoaces camera JSON and ``grating.json`` (by default into
@@ -28,11 +32,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from calib.core.checksums import file_sha256
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid, read_spectrum_csv
 from calib.core.truth import GroundTruth
+from calib.methods.measured_grating import BeamSpectra, grating_from_beams
 from calib.pipeline import (
     InputFile,
     LampImages,
@@ -232,6 +239,86 @@ def session_lamps(session: Session) -> tuple[list[LampImages], list[InputFile], 
     return lamps, known, warnings
 
 
+_BEAM_KEY = re.compile(
+    r"^lamp/(?P<lamp>[^/]+)/grating/(?P<target>direct|order0|order1-\d+nm)/(?P<index>\d+)$"
+)
+
+
+def session_grating_beams(session: Session) -> BeamSpectra | None:
+    """The spectra the session measured in the grating's beams (verified), or ``None`` when it
+    measured none, or not all three kinds (direct, 0th order, 1st order).
+
+    Raises
+    ------
+    SessionFormatError
+        A beam's file differs from the log, or its step's parameters are not a beam's.
+    """
+    done = session.done_steps()
+    files = _done_files(session)
+    spectra: dict[tuple[str, float | None], list[tuple[int, Any]]] = {}
+    lamp = ""
+    bandwidths: list[float] = []
+    for key, record in sorted(files.items()):
+        match = _BEAM_KEY.fullmatch(key)
+        if match is None:
+            continue
+        params = done[key].params
+        beam, centre = params.get("beam"), params.get("centre_nm")
+        if beam not in ("direct", "order0", "order1") or not (
+            centre is None or isinstance(centre, int | float)
+        ):
+            raise SessionFormatError(f"{session.path}: step {key}: its parameters are not a beam's")
+        lamp = match["lamp"]
+        spectrum = read_spectrum_csv(_verify(session, record))
+        spectra.setdefault((str(beam), None if centre is None else float(centre)), []).append(
+            (int(match["index"]), spectrum)
+        )
+        if record.bandwidth_nm:
+            bandwidths.append(float(record.bandwidth_nm))
+    direct, order0 = spectra.pop(("direct", None), None), spectra.pop(("order0", None), None)
+    if direct is None or order0 is None or not spectra:
+        return None
+    axis = direct[0][1].wavelength_nm
+
+    def stacked(items: list[tuple[int, Any]]) -> Any:
+        return np.stack([s.at(axis) for _, s in sorted(items, key=lambda item: item[0])])
+
+    return BeamSpectra(
+        wavelength_nm=axis,
+        direct=stacked(direct),
+        order0=stacked(order0),
+        order1=[(centre or 0.0, stacked(items)) for (_, centre), items in sorted(spectra.items())],
+        bandwidth_nm=max(bandwidths) if bandwidths else None,
+        lamp=lamp,
+    )
+
+
+#: The wavelengths a measured grating is tabulated on: a spectroradiometer's usual range (PR-655,
+#: CS-2000: 380–780 nm), so that any working grid inside it is covered.
+MEASURED_GRATING_GRID = WavelengthGrid(380.0, 780.0, 5.0)
+
+
+def measured_grating_settings(session: Session, notes: list[str]) -> dict[str, Any]:
+    """The estimate's ``grating`` when the session measured it (else nothing); a note says so."""
+    beams = session_grating_beams(session)
+    if beams is None:
+        return {}
+    grating = grating_from_beams(
+        beams,
+        MEASURED_GRATING_GRID,
+        provenance={"session": str(session.path.name), "lamp": beams.lamp},
+    )
+    model = grating.model or {}
+    notes.append(
+        f"the grating's efficiency was measured with the spectrometer in its beams ({beams.lamp}, "
+        f"{len(beams.order1)} first-order aims): the estimate uses it as a known grating "
+        f"({model.get('model')} model, reduced χ² {model.get('reduced_chi2', float('nan')):.3g})"
+    )
+    if "warning" in model:
+        notes.append(str(model["warning"]))
+    return {"grating": grating}
+
+
 def _warmup_traces(session: Session) -> tuple[WarmupTrace, ...]:
     """Each lamp's warm-up from the log: the change between successive warm-up spectra
     (:func:`rig.plan.relative_change`, as the plan judged it) against the time since switch-on."""
@@ -362,14 +449,17 @@ class SessionInputs:
         context = EstimateContext(_twin_truth(session_path, warnings), _warmup_traces(session))
         start = session.start
         assert start is not None
+        notes = [f"session {start.session_id} ({session_path.name}), status {session.status}"]
+        measured = measured_grating_settings(session, notes)
         return InputSet(
             name=session_path.name,
             lamps=tuple(lamps),
             out_dir=destination,
             known_inputs=tuple(known),
             warnings=tuple(warnings),
-            notes=(f"session {start.session_id} ({session_path.name}), status {session.status}",),
+            notes=tuple(notes),
             context=context,
+            settings=measured,
         )
 
 

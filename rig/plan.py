@@ -14,7 +14,10 @@ The standard plan: every lamp off, camera and spectrometer set up (and, for a sp
 subtracts its own dark, its dark spectrum measured with the lamps off); then per lamp: switch on; measure spectra every ``interval_s`` until consecutive spectra
 differ by less than the tolerance (or fail at the warm-up timeout); measure ``repeats`` reference
 spectra; capture an automatically extended HDR bracket of the direct + diffracted scene; switch off;
-take dark frames at the bracket's exposures. A plan fails by raising a :class:`rig.errors.PlanFailure`
+take dark frames at the bracket's exposures. When ``measure_grating`` is configured, its lamp's
+reference spectra are followed by the grating's beams (:func:`measure_grating_beams`): the operator
+aims the spectrometer at the slit without the sheet, through it straight on and at the 1st order
+band by band, a few spectra in each, then back at its usual target. A plan fails by raising a :class:`rig.errors.PlanFailure`
 with a reason a person can act on.
 """
 
@@ -29,6 +32,7 @@ from pydantic import Field
 
 from rig.config import (
     CameraSettings,
+    GratingMeasurement,
     HdrPolicy,
     LampConfig,
     RigConfig,
@@ -36,6 +40,7 @@ from rig.config import (
     StrictModel,
 )
 from rig.errors import (
+    BeamNotFound,
     BracketImpossible,
     LampDark,
     LampNotStable,
@@ -44,6 +49,7 @@ from rig.errors import (
     WrongFrameFormat,
 )
 from rig.steps import (
+    AimSpectrometer,
     AllLampsOff,
     AnyStep,
     CameraReady,
@@ -55,10 +61,13 @@ from rig.steps import (
     ExposureSet,
     FrameCaptured,
     JsonDict,
+    MeasureBeam,
     MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
+    SpectrometerAimed,
+    SpectrometerBeam,
     SpectrometerReady,
     SpectrumMeasured,
     StepResult,
@@ -307,6 +316,72 @@ def dark_frames(
             index += 1
 
 
+#: The 1st-order aims step by this fraction of the band the spectrometer's field sees: a band's
+#: edges are blurred by the spectrometer's bandwidth (PR-655: 8 nm) and by the aim's error, so only
+#: its core is used, and the cores of neighbouring aims overlap.
+AIM_STEP_FRACTION = 0.5
+
+
+def first_order_aims(measure: GratingMeasurement) -> list[tuple[float, float]]:
+    """``(centre_nm, angle_deg)`` of each 1st-order aim covering ``measure.range_nm``.
+
+    At normal incidence the 1st order of ``λ`` leaves at ``θ = asin(λ/d)``; a field of ``F``
+    radians sees ``d cos θ · F`` nm around it. Aims start half a step inside the range and step
+    by :data:`AIM_STEP_FRACTION` of that band until the range's end is inside one.
+    """
+    spacing_nm = 1e6 / measure.grooves_per_mm
+    field_rad = math.radians(measure.field_deg)
+    low, high = measure.range_nm
+
+    def step_nm(centre_nm: float) -> float:
+        cos_theta = math.sqrt(1.0 - (centre_nm / spacing_nm) ** 2)
+        return spacing_nm * cos_theta * field_rad * AIM_STEP_FRACTION
+
+    aims = []
+    centre = low + step_nm(low) / 2.0
+    while True:
+        centre = min(centre, high)
+        aims.append((round(centre, 1), math.degrees(math.asin(centre / spacing_nm))))
+        if centre + step_nm(centre) / 2.0 >= high:
+            return aims
+        centre += step_nm(centre)
+
+
+def _beam_spectra(
+    lamp: LampConfig,
+    aim: AimSpectrometer,
+    repeats: int,
+) -> Generator[AnyStep, StepResult, None]:
+    """Aim, then ``repeats`` spectra in that beam; no light at all is a :class:`BeamNotFound`."""
+    yield from run_step(aim, SpectrometerAimed)
+    for index in range(repeats):
+        step = MeasureBeam(lamp.name, aim.beam, aim.centre_nm, index)
+        spectrum = yield from run_step(step, SpectrumMeasured)
+        if index == 0 and not np.any(spectrum.values > 0):
+            raise BeamNotFound(
+                f"{lamp.name}: the spectrometer saw no light in the {step.target} beam; check "
+                f"that it is aimed as asked ({aim.instruction()}), that the lamp is on, and "
+                "that measure_grating.grooves_per_mm is the sheet's",
+                key=step.key,
+            )
+
+
+def measure_grating_beams(
+    lamp: LampConfig, measure: GratingMeasurement
+) -> Generator[AnyStep, StepResult, None]:
+    """The grating's beams with ``lamp`` lit: direct, 0th order, the 1st order band by band, then
+    the spectrometer back at its usual target (see :class:`rig.config.GratingMeasurement`)."""
+    beams: list[tuple[SpectrometerBeam, float | None, float]] = [
+        ("direct", None, 0.0),
+        ("order0", None, 0.0),
+        *(("order1", centre, angle) for centre, angle in first_order_aims(measure)),
+    ]
+    for beam, centre_nm, angle_deg in beams:
+        aim = AimSpectrometer(lamp.name, beam, centre_nm, round(angle_deg, 3))
+        yield from _beam_spectra(lamp, aim, measure.repeats)
+    yield from run_step(AimSpectrometer(lamp.name, "lamp"), SpectrometerAimed)
+
+
 # ---------------------------------------------------------------------------------- standard plan
 
 
@@ -319,6 +394,7 @@ class StandardCaptureArgs(StrictModel):
     hdr: HdrPolicy
     dark_frames: int = Field(ge=0)
     spectrometer_dark: bool = False
+    measure_grating: GratingMeasurement | None = None
 
     @classmethod
     def from_config(cls, config: RigConfig) -> StandardCaptureArgs:
@@ -329,6 +405,7 @@ class StandardCaptureArgs(StrictModel):
             hdr=config.hdr,
             dark_frames=config.dark_frames,
             spectrometer_dark=config.devices.spectrometer_takes_dark,
+            measure_grating=config.measure_grating,
         )
 
 
@@ -340,7 +417,7 @@ def standard_capture(args: StandardCaptureArgs) -> Plan:
     LimitsExceeded
         Before any lamp is switched on, when a lamp's relay channel is not on the board or the HDR
         range exceeds the camera's.
-    LampDark, LampNotStable, BracketImpossible, WrongFrameFormat
+    LampDark, LampNotStable, BracketImpossible, WrongFrameFormat, BeamNotFound
         When the readings show the measurement cannot succeed.
     """
     relays = yield from run_step(AllLampsOff(), RelayState)
@@ -355,6 +432,8 @@ def standard_capture(args: StandardCaptureArgs) -> Plan:
         yield from wait_until_stable(lamp, switched.time_s)
         for repeat in range(args.spectrum.repeats):
             yield from run_step(MeasureSpectrum(lamp.name, "reference", repeat), SpectrumMeasured)
+        if args.measure_grating is not None and args.measure_grating.lamp == lamp.name:
+            yield from measure_grating_beams(lamp, args.measure_grating)
         bracket = yield from auto_bracket(lamp, args.hdr, limits, args.camera)
         yield from run_step(SwitchLamp(lamp.name, lamp.channel, False), RelayState)
         yield from dark_frames(lamp, [f.exposure_s for f in bracket], args.dark_frames)

@@ -64,6 +64,7 @@ from rig.errors import (
 )
 from rig.frame_stats import RawFrameAnalyzer
 from rig.interrupts import InterruptController, ReceivedSignal
+from rig.operator import ScriptedOperator
 from rig.plan import build_plan
 from rig.progress import ProgressReporter, SilentProgress
 from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord, StopRecord
@@ -556,6 +557,9 @@ def _station(bench: ReplayStation, timeline: _Timeline) -> Station:
         RawFrameAnalyzer(),
         on_close=[bench.close],
         step_hook=timeline.step_hook,
+        # The recording's aims were done by a person; replaying them asks nobody (the log
+        # comparison checks that the replay aimed where the recording did).
+        operator=ScriptedOperator(),
     )
 
 

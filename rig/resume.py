@@ -42,8 +42,11 @@ device for every reusable step before the resume point, except that the device s
 and measured again (its state may have drifted while the rig was down). Reused frames of that
 lamp's bracket were taken some time after switch-on: a :class:`rig.steps.KeepLampTimeline` wait lets
 that time pass again, so the next frame sees the lamp as old as it would have been. An exposure set
-by a reused step is set again before a new frame. From the resume point on, every step is executed.
-Which steps are set-up, warm-up, exposure or frames is the vocabulary's business
+by a reused step is set again before a new frame. When an earlier run had the operator re-aim the
+spectrometer (the grating's beams, :class:`rig.steps.AimSpectrometer`), nobody knows where it looks
+now: before each spectrum the new run takes, the operator is asked to aim it where that spectrum
+needs it (an aim step keyed ``lamp/<name>/resume/<run>/aim-<beam>``), unless this run already did.
+From the resume point on, every step is executed. Which steps are set-up, warm-up, exposure or frames is the vocabulary's business
 (:class:`ResumeRules`, one answer per step type).
 
 Step keys are idempotent (the same plan with the same readings yields the same keys), and later
@@ -52,6 +55,7 @@ records of a key win, so a reader sees each step once, as last done.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -102,6 +106,7 @@ from rig.session import (
 )
 from rig.station import StationBuilder, resolve_builder, station_kind
 from rig.steps import (
+    AimSpectrometer,
     AllLampsOff,
     AnyStep,
     Capture,
@@ -111,6 +116,7 @@ from rig.steps import (
     ExposureSet,
     FrameCaptured,
     KeepLampTimeline,
+    MeasureBeam,
     MeasureDark,
     MeasureSpectrum,
     SetExposure,
@@ -145,6 +151,10 @@ class StepOnResume:
         The step itself when it sets the camera's exposure (set again before a new frame).
     frame
         ``"scene"`` or ``"dark"`` when the step takes a frame.
+    aims
+        The step itself when it aims the spectrometer (an operator's action).
+    needs_aim
+        Where the spectrometer must look for the step (:func:`rig.steps.beam_target`).
     """
 
     setup: bool = False
@@ -152,6 +162,8 @@ class StepOnResume:
     switches: tuple[str, bool] | None = None
     exposure: SetExposure | None = None
     frame: Literal["scene", "dark"] | None = None
+    aims: AimSpectrometer | None = None
+    needs_aim: str | None = None
 
 
 class ResumeRules(StepHandlers[StepOnResume]):
@@ -172,10 +184,16 @@ class ResumeRules(StepHandlers[StepOnResume]):
         )
 
     def measure_spectrum(self, step: MeasureSpectrum) -> StepOnResume:
-        return StepOnResume(warmup_lamp=step.lamp)
+        return StepOnResume(warmup_lamp=step.lamp, needs_aim="lamp")
 
     def measure_dark(self, step: MeasureDark) -> StepOnResume:
         return StepOnResume(setup=True)  # a new process measures its spectrometer's dark again
+
+    def aim_spectrometer(self, step: AimSpectrometer) -> StepOnResume:
+        return StepOnResume(aims=step)
+
+    def measure_beam(self, step: MeasureBeam) -> StepOnResume:
+        return StepOnResume(needs_aim=step.target)
 
     def wait(self, step: Wait) -> StepOnResume:
         return StepOnResume(warmup_lamp=step.lamp)
@@ -223,6 +241,10 @@ class ResumePoint:
         Acknowledged files that are missing or differ from their record.
     walked
         The reusable steps before the resume point, in plan order.
+    aimed_before
+        Where the spectrometer looks when the new run opens: ``"lamp"`` (its usual target), or
+        ``None`` (unknown) when an earlier run had it re-aimed — a person may also have moved it
+        while the rig was down, so the new run asks the operator before its first spectrum.
     """
 
     reusable: dict[str, StepRecord]
@@ -231,6 +253,7 @@ class ResumePoint:
     lamps_on: frozenset[str]
     unverified: list[FileProblem]
     walked: list[AnyStep] = field(default_factory=list)
+    aimed_before: str | None = "lamp"
 
     @property
     def resume_key(self) -> str | None:
@@ -385,7 +408,19 @@ def find_resume_point(session: Session, unverified: list[FileProblem]) -> Resume
     finally:
         plan.close()
     lamps_on = frozenset(lamp for lamp, on in lit.items() if on)
-    return ResumePoint(reusable, results, resume_step, lamps_on, unverified, walked)
+    re_aimed = any(
+        isinstance(record, StepRecord) and record.action == AimSpectrometer.__name__
+        for record in session.records
+    )
+    return ResumePoint(
+        reusable,
+        results,
+        resume_step,
+        lamps_on,
+        unverified,
+        walked,
+        aimed_before=None if re_aimed else "lamp",
+    )
 
 
 def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
@@ -398,6 +433,8 @@ def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
     relit: str | None = None
     skipped: list[StepRecord] = []
     pending_exposure: tuple[SetExposure, StepRecord] | None = None
+    aimed = point.aimed_before
+    aims: dict[str, AimSpectrometer] = {}
     try:
         step = next(plan)
     except StopIteration:
@@ -409,6 +446,8 @@ def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
             if record is not None and not _same_params(step, record):
                 record = None  # the plan took another branch than the recorded run
         rule = on_resume(step)
+        if rule.aims is not None:
+            aims[rule.aims.target] = rule.aims
         result: StepResult
         if record is not None and not point.must_redo(step):
             result = point.results[step.key]
@@ -430,7 +469,13 @@ def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
                 yield from _set_exposure_again(exposure_step, recorded)
             if rule.exposure is not None or rule.frame is not None:
                 pending_exposure = None
+            if rule.needs_aim is not None and rule.needs_aim != aimed:
+                yield from _aim_again(step, rule.needs_aim, aims, run)
             result = yield step
+            if rule.aims is not None:
+                aimed = rule.aims.target
+            elif rule.needs_aim is not None:
+                aimed = rule.needs_aim
             if (
                 rule.switches is not None
                 and rule.switches[1]
@@ -441,6 +486,21 @@ def resumed_plan(plan: Plan, point: ResumePoint, run: int) -> Plan:
             step = plan.send(result)
         except StopIteration:
             return
+
+
+def _aim_again(
+    step: AnyStep, target: str, aims: Mapping[str, AimSpectrometer], run: int
+) -> Generator[AnyStep, StepResult, None]:
+    """Ask the operator to aim the spectrometer at ``target`` before ``step``: in a new run the
+    spectrometer looks where the last run left it, or where a person put it since."""
+    lamp = step.lamp_name
+    if lamp is None:
+        raise PlanProtocolError(f"{step.key}: a spectrometer step of no lamp")
+    plan_aim = aims.get(target)
+    if plan_aim is None and target != "lamp":
+        raise PlanProtocolError(f"{step.key}: the plan never aimed the spectrometer at {target}")
+    aim = AimSpectrometer(lamp, "lamp") if plan_aim is None else plan_aim
+    yield dataclasses.replace(aim, lamp=lamp, run=run)
 
 
 def _keep_lamp_timeline(
@@ -737,6 +797,7 @@ def run_resume(
             for record in session.files()
             if record.role in ("frame", "dark")
         )
+        runner.spectrometer_aim = point.aimed_before
         _write_resume_records(runner.session, runner, session, point)
         _acknowledge_killed_transcripts(runner.session, session, prepared.killed)
         _reanalyse_reused_frames(runner, session, point)

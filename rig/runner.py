@@ -48,6 +48,7 @@ from rig.errors import (
     StaleReading,
 )
 from rig.interrupts import HaltRequested, InterruptController
+from rig.operator import ManualAction
 from rig.plan import Plan
 from rig.progress import ProgressReporter, SilentProgress
 from rig.records import (
@@ -67,6 +68,7 @@ from rig.records import (
 from rig.session import STOP_TEXT_CHARS, SessionWriter
 from rig.station_devices import Station
 from rig.steps import (
+    AimSpectrometer,
     AllLampsOff,
     AnyStep,
     CameraReady,
@@ -79,11 +81,13 @@ from rig.steps import (
     ExposureSet,
     FrameCaptured,
     KeepLampTimeline,
+    MeasureBeam,
     MeasureDark,
     MeasureSpectrum,
     RelayState,
     SetExposure,
     SettingReadBack,
+    SpectrometerAimed,
     SpectrometerReady,
     SpectrumMeasured,
     Step,
@@ -364,6 +368,10 @@ class Runner(StepHandlers[StepResult]):
         # The first reading after a settings change is checked against the new setting.
         self._camera_changed = True
         self._spectrometer_exposure_ms: float | None = None
+        #: Where the spectrometer looks (an aim target, :func:`rig.steps.beam_target`): at its
+        #: usual target until an operator re-aims it. ``None``: unknown (a resumed run whose
+        #: session re-aimed it; its plan asks the operator again before measuring).
+        self.spectrometer_aim: str | None = "lamp"
 
     # ------------------------------------------------------------------------------ the run
 
@@ -634,7 +642,33 @@ class Runner(StepHandlers[StepResult]):
         return self._measure_dark(step)
 
     def measure_spectrum(self, step: MeasureSpectrum) -> SpectrumMeasured:
-        return self._measure(step)
+        self._check_aim(step, "lamp")
+        return self._measure(step, f"spectra/{step.lamp}/{step.purpose}-{step.index:03d}.csv")
+
+    def aim_spectrometer(self, step: AimSpectrometer) -> SpectrometerAimed:
+        began_s = self._now_s()
+        action = ManualAction(
+            step.key, step.instruction(), step.beam, step.angle_deg, step.centre_nm
+        )
+        self.progress.message(f"{step.key}: waiting for the operator to {action.instruction}")
+        self.spectrometer_aim = None  # being moved
+        interrupts = self.interrupts
+        if not self.station.operator.perform(action, lambda: interrupts.stop_requested is not None):
+            raise StopRequested(interrupts.stop_requested or "SIGINT")
+        self.spectrometer_aim = step.target
+        ended_s = self._now_s()
+        return SpectrometerAimed(ended_s, ended_s - began_s)
+
+    def measure_beam(self, step: MeasureBeam) -> SpectrumMeasured:
+        self._check_aim(step, step.target)
+        return self._measure(step, step.file)
+
+    def _check_aim(self, step: MeasureSpectrum | MeasureBeam, target: str) -> None:
+        if self.spectrometer_aim != target:
+            where = self.spectrometer_aim or "an unknown direction"
+            raise PlanProtocolError(
+                f"{step.key}: the spectrometer must look at {target}, it was last aimed at {where}"
+            )
 
     def wait(self, step: Wait) -> Waited:
         began_s = self._now_s()
@@ -679,7 +713,7 @@ class Runner(StepHandlers[StepResult]):
             f"{STALE_READING_ATTEMPTS} readings in a row after a settings change {what}",
         )
 
-    def _measure(self, step: MeasureSpectrum) -> SpectrumMeasured:
+    def _measure(self, step: MeasureSpectrum | MeasureBeam, relative: str) -> SpectrumMeasured:
         configured_ms = self._spectrometer_exposure_ms
         for _ in range(STALE_READING_ATTEMPTS):
             reading = self._call(
@@ -695,7 +729,6 @@ class Runner(StepHandlers[StepResult]):
                 raise InvalidReading(
                     self._workers["spectrometer"].device, f"invalid spectrum: {exc}"
                 ) from None
-            relative = f"spectra/{step.lamp}/{step.purpose}-{step.index:03d}.csv"
             record = self.session.write_spectrum(
                 relative,
                 spectrum,

@@ -15,6 +15,7 @@ from rig.analysis import FrameAnalyzer
 from rig.clock import Clock
 from rig.config import RigConfig
 from rig.frame_stats import frame_exposure_s
+from rig.operator import ConsoleOperator, Operator
 from rig.steps import DeviceRole
 
 TranscriptFactory = Callable[[DeviceRole], TranscriptSink]
@@ -35,7 +36,8 @@ class Station:
     cannot tell), for the stale-frame check; the default reads RAW metadata
     (:func:`rig.frame_stats.frame_exposure_s`), ``None`` skips the check. ``step_hook`` is told the
     key of every step attempt before it touches a device (the twin keys its noise by it; real
-    hardware needs nothing).
+    hardware needs nothing). ``operator`` does the plan's manual actions (:mod:`rig.operator`; a
+    person at the terminal by default).
     """
 
     spectrometer: Spectrometer
@@ -46,6 +48,7 @@ class Station:
     on_close: list[Callable[[], None]] = field(default_factory=list)
     frame_exposure: Callable[[Path], float | None] | None = frame_exposure_s
     step_hook: Callable[[str], None] | None = None
+    operator: Operator = field(default_factory=ConsoleOperator)
     closed: bool = False
 
     def device(self, role: DeviceRole) -> Spectrometer | Camera | RelayBoard:

@@ -30,6 +30,11 @@ from rig.errors import PlanProtocolError
 JsonDict = dict[str, Any]
 DeviceRole = Literal["spectrometer", "camera", "relays"]
 SpectrumPurpose = Literal["warmup", "reference"]
+SpectrometerBeam = Literal["lamp", "direct", "order0", "order1"]
+"""Where the spectrometer looks: ``lamp`` its usual target (the lamps' warm-up and reference
+spectra); for measuring the grating's efficiency, ``direct`` the slit with the grating sheet out of
+its path, ``order0`` the slit straight through the sheet (the 0th-order beam), ``order1`` the
+slit's 1st-order image through the sheet at the angle of a chosen wavelength."""
 SpectrumLoader = Callable[[str], tuple[FloatArray, FloatArray]]
 """Reads a session-relative spectrum file into ``(wavelength_nm, values)``, both ``(n,)``."""
 
@@ -169,6 +174,19 @@ class DarkMeasured(StepResult):
             str(data["file"]),
             tuple(float(value) for value in data["integration_ms"]),
         )
+
+
+@dataclass(frozen=True)
+class SpectrometerAimed(StepResult):
+    """The operator aimed the spectrometer (a manual action): confirmed at ``time_s`` after
+    ``waited_s`` of waiting for the person (or the twin's hands)."""
+
+    time_s: float
+    waited_s: float
+
+    @classmethod
+    def from_json(cls, data: JsonDict) -> SpectrometerAimed:
+        return cls(float(data["time_s"]), float(data["waited_s"]))
 
 
 @dataclass(frozen=True)
@@ -371,6 +389,108 @@ class MeasureSpectrum(Step):
         return f"{self.lamp}: {what} {self.index + 1}"
 
 
+def beam_target(beam: SpectrometerBeam, centre_nm: float | None) -> str:
+    """The aim as a key word: ``order1-550nm`` for the 1st order at 550 nm, else the beam."""
+    if beam == "order1":
+        if centre_nm is None:
+            raise PlanProtocolError("an order1 aim needs the wavelength at the field's centre")
+        return f"order1-{centre_nm:.0f}nm"
+    return beam
+
+
+#: What the operator is asked to do for each beam (``{angle}`` and ``{centre}`` filled in).
+AIM_INSTRUCTIONS: dict[SpectrometerBeam, str] = {
+    "lamp": "aim the spectrometer back at its usual target, where it measured the lamps' "
+    "reference spectra, and focus it there",
+    "direct": "aim the spectrometer at the slit with the grating sheet OUT of its path (slide the "
+    "sheet aside or look past its edge), focused on the slit, the slit's image in the middle of "
+    "the measuring field",
+    "order0": "put the same grating sheet back in front of the spectrometer, in the same "
+    "orientation, and aim straight at the slit through it (the 0th-order beam), focused on the "
+    "slit, its image in the middle of the measuring field",
+    "order1": "turn the spectrometer by {angle:.2f}° from the 0th-order beam towards the side "
+    "where the camera sees the first-order spectrum, about the sheet (do not move the sheet), so "
+    "that the slit's 1st-order image at {centre:.0f} nm lies in the middle of the measuring field",
+}
+
+
+@dataclass(frozen=True)
+class AimSpectrometer(Step):
+    """A manual action: the operator aims the spectrometer at a beam and confirms.
+
+    The rig has no rotation stage among its drivers, so a person re-aims the spectrometer; the
+    runner asks the station's operator (:mod:`rig.operator`) and waits. ``angle_deg`` is the
+    turn from the 0th-order beam (order1 only), computed from the sheet's line density.
+    ``run`` is 0 in a plan; a resumed run that must aim again before a measurement numbers its
+    own aim steps with the run (the spectrometer may have been moved while the rig was down).
+    """
+
+    result_type = SpectrometerAimed
+    lamp: str
+    beam: SpectrometerBeam
+    centre_nm: float | None = None
+    angle_deg: float = 0.0
+    run: int = 0
+
+    @property
+    def target(self) -> str:
+        return beam_target(self.beam, self.centre_nm)
+
+    @property
+    def key(self) -> str:
+        if self.run:
+            return f"lamp/{self.lamp}/resume/{self.run:03d}/aim-{self.target}"
+        return f"lamp/{self.lamp}/grating/aim-{self.target}"
+
+    def instruction(self) -> str:
+        """What the operator is asked to do, in words."""
+        return AIM_INSTRUCTIONS[self.beam].format(
+            angle=self.angle_deg, centre=self.centre_nm or 0.0
+        )
+
+    def describe(self) -> str:
+        where = {
+            "lamp": "its usual target",
+            "direct": "the slit without the sheet",
+            "order0": "the 0th-order beam",
+            "order1": f"the 1st-order beam at {self.centre_nm or 0.0:.0f} nm "
+            f"({self.angle_deg:.2f}° from the 0th order)",
+        }[self.beam]
+        return f"{self.lamp}: OPERATOR aims the spectrometer at {where}"
+
+
+@dataclass(frozen=True)
+class MeasureBeam(Step):
+    """Measure the lit lamp's spectrum in one beam through the grating sheet (repeat ``index``).
+
+    The spectrometer must have been aimed there (:class:`AimSpectrometer`); the spectrum is stored
+    like any other, and the step's record says which beam it measured.
+    """
+
+    device = "spectrometer"
+    result_type = SpectrumMeasured
+    lamp: str
+    beam: SpectrometerBeam
+    centre_nm: float | None
+    index: int
+
+    @property
+    def target(self) -> str:
+        return beam_target(self.beam, self.centre_nm)
+
+    @property
+    def key(self) -> str:
+        return f"lamp/{self.lamp}/grating/{self.target}/{self.index:03d}"
+
+    @property
+    def file(self) -> str:
+        """Where its spectrum is stored, relative to the session."""
+        return f"spectra/{self.lamp}/grating-{self.target}-{self.index:03d}.csv"
+
+    def describe(self) -> str:
+        return f"{self.lamp}: spectrum in the {self.target} beam {self.index + 1}"
+
+
 @dataclass(frozen=True)
 class Wait(Step):
     """Let ``seconds`` pass before the warm-up spectrum with the same index."""
@@ -470,6 +590,8 @@ AnyStep = (
     | SwitchLamp
     | MeasureSpectrum
     | MeasureDark
+    | AimSpectrometer
+    | MeasureBeam
     | Wait
     | KeepLampTimeline
     | SetExposure
@@ -511,6 +633,10 @@ class StepHandlers(Protocol[ResultT_co]):
 
     def measure_dark(self, step: MeasureDark) -> ResultT_co: ...
 
+    def aim_spectrometer(self, step: AimSpectrometer) -> ResultT_co: ...
+
+    def measure_beam(self, step: MeasureBeam) -> ResultT_co: ...
+
     def wait(self, step: Wait) -> ResultT_co: ...
 
     def keep_lamp_timeline(self, step: KeepLampTimeline) -> ResultT_co: ...
@@ -546,6 +672,10 @@ def interpret(step: AnyStep, handlers: StepHandlers[ResultT]) -> ResultT:
             return handlers.measure_spectrum(step)
         case MeasureDark():
             return handlers.measure_dark(step)
+        case AimSpectrometer():
+            return handlers.aim_spectrometer(step)
+        case MeasureBeam():
+            return handlers.measure_beam(step)
         case KeepLampTimeline():  # before Wait, its base class
             return handlers.keep_lamp_timeline(step)
         case Wait():

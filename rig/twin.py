@@ -30,6 +30,7 @@ from rig.config import RigConfig
 from rig.errors import StationUnavailable
 from rig.frame_stats import RawFrameAnalyzer
 from rig.hardware import open_configured_camera, open_configured_spectrometer, watched_relays
+from rig.operator import ScriptedOperator
 from rig.station_devices import Station, StationBuilder, TranscriptFactory
 
 __all__ = [
@@ -71,6 +72,10 @@ class TwinBenchHandle(Protocol):
 
     def begin_step(self, key: str) -> None:
         """The rig is about to do step ``key`` (the bench keys its noise by it)."""
+
+    def aim_spectrometer(self, beam: str, angle_deg: float) -> None:
+        """Turn the twin's spectrometer to ``beam`` (``lamp``, ``direct``, ``order0``, ``order1``
+        ``angle_deg`` from the 0th order): what a person does on a real bench."""
 
     def close(self) -> None:
         """Stop the emulators (the drivers are closed by the station)."""
@@ -222,7 +227,7 @@ def station_of(twin: TwinBenchHandle, config: RigConfig, transcripts: Transcript
                 device.close()
         twin.close()
         raise
-    return Station(
+    station = Station(
         spectrometer,
         camera,
         relays,
@@ -231,6 +236,12 @@ def station_of(twin: TwinBenchHandle, config: RigConfig, transcripts: Transcript
         on_close=[twin.close],
         step_hook=twin.begin_step,
     )
+    if twin.spectrometer is not None:
+        # The twin's own spectrometer is aimed by the twin's hands; a real one by a person.
+        station.operator = ScriptedOperator(
+            act=lambda action: twin.aim_spectrometer(action.beam, action.angle_deg)
+        )
+    return station
 
 
 def open_twin_station(config: RigConfig, transcripts: TranscriptFactory) -> Station:

@@ -13,7 +13,7 @@ On the estimate's own working grid:
     colour-correction matrices and ColorChecker ΔE2000, the truth comparison when known), input files
     with sha256, software, command line, warnings.
 ``grating.json``
-    The grating efficiency found (when the method estimates it), in the :mod:`calib.core.grating_file`
+    The grating efficiency found (when the method estimates it, or the session measured it), in the :mod:`calib.core.grating_file`
     format, for a later ``--grating`` estimate without a direct measurement.
 
 On 380–780 nm at 5 nm, the estimate extended honestly beyond its measured range
@@ -333,8 +333,9 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
     efficiency = result.grating_efficiency
     if efficiency is None or not np.all(np.isfinite(efficiency)) or np.any(efficiency < 0):
         return None
-    if estimate.grating is not None:  # given, not estimated: nothing new to save
-        return None
+    if estimate.grating is not None:  # given, not estimated: nothing new to save, unless the
+        # session measured it in the grating's beams (the file to reuse it by)
+        return estimate.grating if estimate.grating.obtained == "measured" else None
     sigma = result.grating_efficiency_sigma
     if sigma is not None and not np.all(np.isfinite(sigma)):
         sigma = None

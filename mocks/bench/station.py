@@ -39,13 +39,14 @@ from drivers.spectrometer.argyll import ArgyllSettings, open_argyll
 from drivers.spectrometer.ocean import IrradianceCalibration, OceanSettings, open_ocean
 from drivers.spectrometer.pr6xx import open_pr6xx
 from drivers.transport import NO_PACING
+from mocks.bench.aim import FIELD_DEG, SpectrometerAim
 from mocks.bench.camera import FrameRenderer, twin_body
 from mocks.bench.lamps import PersistentLampBank, virtual_lamp
 from mocks.bench.optics import TwinOptics
 from mocks.bench.spec import TwinSpec, TwinSpecError
 from mocks.bench.truth import TwinTruth
 from mocks.emulators import start_cs2000, start_lcus, start_numato, start_pr655, start_pr670
-from mocks.emulators.radiometer import Radiometer, RadiometerOptics
+from mocks.emulators.radiometer import RadianceSource, Radiometer, RadiometerOptics
 from mocks.fake_gphoto2 import CameraFault, FakeBody, FakeGphoto2
 from mocks.faults import FaultKind, FaultSchedule
 from mocks.lamps import LampBank, SimulatedClock
@@ -127,7 +128,15 @@ class TwinBench:
     relay_port: PtySerialDevice | None = None
     relay_board: EmulatedRelayBoard | None = None
     usb_backend: FakeUsbBackend | None = None
+    aim: SpectrometerAim | None = None
     closed: bool = field(default=False, init=False)
+
+    def aim_spectrometer(self, beam: str, angle_deg: float) -> None:
+        """Turn the twin's spectrometer to ``beam`` (see :mod:`mocks.bench.aim`): the hands of
+        the person a real bench needs for the rig's ``AimSpectrometer`` step."""
+        if self.aim is None:
+            raise TwinSpecError("the spectrometer is real: the twin cannot aim it")
+        self.aim.aim(beam, angle_deg)
 
     def begin_step(self, key: str) -> None:
         """The rig is about to do step ``key``: its readings draw their noise from it.
@@ -330,7 +339,7 @@ class TwinSpotread:
 
     def __init__(
         self,
-        bank: LampBank,
+        radiance: RadianceSource,
         noise: np.random.Generator,
         faults: FaultSchedule | None,
         time_scale: float,
@@ -347,7 +356,7 @@ class TwinSpotread:
                     read_noise_counts=8.0,
                     overhead_s=1.5,
                 ),
-                bank.radiance,
+                radiance,
                 noise,
             )
             for mode, bands in I1PRO_BANDS.items()
@@ -409,10 +418,12 @@ def _open_spectrometer(
     if model is None:
         return
     noise = np.random.default_rng(np.random.SeedSequence(spectrometer_noise_key(spec)))
+    aim = SpectrometerAim(bench.bank.radiance, spec.camera, FIELD_DEG[model])
+    bench.aim = aim
     if model == "seabreeze":
         ocean = EmulatedOcean(
             OCEAN_MODELS[spec.ocean_model],
-            bench.bank.radiance,
+            aim.radiance,
             seed=noise,
             faults=faults.spectrometer,
             time_scale=spec.spectrometer_time_scale,
@@ -428,7 +439,7 @@ def _open_spectrometer(
         return
     if model == "argyll":
         spotread = TwinSpotread(
-            bench.bank, noise, faults.spectrometer, spec.spectrometer_time_scale
+            aim.radiance, noise, faults.spectrometer, spec.spectrometer_time_scale
         )
         bench.spotread = spotread
         opened.add(spotread.launcher.close)
@@ -445,7 +456,7 @@ def _open_spectrometer(
         return
     starter = {"pr655": start_pr655, "pr670": start_pr670, "cs2000": start_cs2000}
     port = starter[model](
-        bench.bank.radiance,
+        aim.radiance,
         seed=noise,
         faults=faults.spectrometer,
         time_scale=spec.spectrometer_time_scale,
