@@ -298,8 +298,11 @@ def session_grating_beams(session: Session) -> BeamSpectra | None:
 MEASURED_GRATING_GRID = WavelengthGrid(380.0, 780.0, 5.0)
 
 
-def measured_grating_settings(session: Session, notes: list[str]) -> dict[str, Any]:
-    """The estimate's ``grating`` when the session measured it (else nothing); a note says so."""
+def measured_grating_settings(
+    session: Session, notes: list[str], warnings: list[str]
+) -> dict[str, Any]:
+    """The estimate's ``grating`` when the session measured it (else nothing); a note says so,
+    a warning when no physical model describes the measurement."""
     beams = session_grating_beams(session)
     if beams is None:
         return {}
@@ -315,7 +318,7 @@ def measured_grating_settings(session: Session, notes: list[str]) -> dict[str, A
         f"({model.get('model')} model, reduced χ² {model.get('reduced_chi2', float('nan')):.3g})"
     )
     if "warning" in model:
-        notes.append(str(model["warning"]))
+        warnings.append(f"measured grating: {model['warning']}")
     return {"grating": grating}
 
 
@@ -450,7 +453,7 @@ class SessionInputs:
         start = session.start
         assert start is not None
         notes = [f"session {start.session_id} ({session_path.name}), status {session.status}"]
-        measured = measured_grating_settings(session, notes)
+        measured = measured_grating_settings(session, notes, warnings)
         return InputSet(
             name=session_path.name,
             lamps=tuple(lamps),

@@ -129,15 +129,15 @@ class ConsoleOperator:
 
 @dataclass
 class ScriptedOperator:
-    """An operator that does every action at once (or declines from ``decline_at``), recording
-    each; ``act`` is called with the action (the twin's hands turn the bench's spectrometer)."""
+    """An operator that does every action at once (declining those keyed in ``decline``),
+    recording each; ``act`` is called with the action (the twin's hands turn its spectrometer)."""
 
     act: Callable[[ManualAction], None] | None = None
-    decline_at: str | None = None
+    decline: frozenset[str] = frozenset()
     done: list[ManualAction] = field(default_factory=list)
 
     def perform(self, action: ManualAction, stop_requested: StopCheck) -> bool:
-        if action.key == self.decline_at:
+        if action.key in self.decline:
             raise OperatorDeclined(f"{action.key}: the operator declined")
         if self.act is not None:
             self.act(action)

@@ -340,8 +340,8 @@ def first_order_aims(measure: GratingMeasurement) -> list[tuple[float, float]]:
     aims = []
     centre = low + step_nm(low) / 2.0
     while True:
-        centre = min(centre, high)
-        aims.append((round(centre, 1), math.degrees(math.asin(centre / spacing_nm))))
+        centre = round(min(centre, high), 1)
+        aims.append((centre, math.degrees(math.asin(centre / spacing_nm))))
         if centre + step_nm(centre) / 2.0 >= high:
             return aims
         centre += step_nm(centre)

@@ -64,7 +64,7 @@ from rig.errors import (
 )
 from rig.frame_stats import RawFrameAnalyzer
 from rig.interrupts import InterruptController, ReceivedSignal
-from rig.operator import ScriptedOperator
+from rig.operator import OperatorDeclined, ScriptedOperator
 from rig.plan import build_plan
 from rig.progress import ProgressReporter, SilentProgress
 from rig.records import FileRecord, InterruptionRecord, Record, StartRecord, StepRecord, StopRecord
@@ -548,7 +548,19 @@ def replay_session(
     return ReplayOutcome(source, run, mismatch, difference)
 
 
-def _station(bench: ReplayStation, timeline: _Timeline) -> Station:
+def _declined(run: RecordedRun) -> frozenset[str]:
+    """The manual actions the run's operator declined (their steps failed so)."""
+    return frozenset(
+        record.key
+        for record in run.records
+        if isinstance(record, StepRecord)
+        and record.status == "failed"
+        and record.error is not None
+        and record.error.reason == OperatorDeclined.reason
+    )
+
+
+def _station(bench: ReplayStation, timeline: _Timeline, declined: frozenset[str]) -> Station:
     return Station(
         bench.spectrometer,
         bench.camera,
@@ -557,9 +569,9 @@ def _station(bench: ReplayStation, timeline: _Timeline) -> Station:
         RawFrameAnalyzer(),
         on_close=[bench.close],
         step_hook=timeline.step_hook,
-        # The recording's aims were done by a person; replaying them asks nobody (the log
-        # comparison checks that the replay aimed where the recording did).
-        operator=ScriptedOperator(),
+        # The recording's aims were done (or declined) by a person; replaying them asks nobody
+        # (the log comparison checks that the replay aimed where the recording did).
+        operator=ScriptedOperator(decline=declined),
     )
 
 
@@ -624,7 +636,7 @@ def _replay_run(
         check.bench = bench
         timeline.attach(bench.clock)
         bench.mismatches.context = lambda: timeline.current_key
-        return _station(bench, timeline)
+        return _station(bench, timeline, _declined(run))
 
     def on_session(writer: SessionWriter) -> None:
         if run.killed:

@@ -166,7 +166,7 @@ def first_order_points(beams: BeamSpectra) -> MeasuredPoints:
     InputError
         No 1st-order band has a usable core.
     """
-    bandwidth = beams.bandwidth_nm or DEFAULT_BANDWIDTH_NM
+    bandwidth = DEFAULT_BANDWIDTH_NM if beams.bandwidth_nm is None else beams.bandwidth_nm
     wavelengths, values, sigmas = [], [], []
     for _centre_nm, repeats in beams.order1:
         ratio, sigma, lit = _ratio(repeats, beams.direct)
