@@ -44,7 +44,7 @@ criterion. *J. R. Stat. Soc. B* 39(1), 44–47.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -100,6 +100,41 @@ def model_curves(
     """``η₀`` and ``η₁`` of the family at ``parameter``, each ``(f,)``."""
     grating = physical_grating(kind, parameter)
     return grating.efficiency(0, wavelength_nm), grating.efficiency(1, wavelength_nm)
+
+
+def recorded_physical_grating(
+    record: Mapping[str, Any] | None,
+) -> SinusoidalPhaseGrating | BlazedGrating | None:
+    """The physical grating a grating file's (or a solve's) ``model`` record describes, or
+    ``None`` (no record, the Fourier model, or a parameter missing)."""
+    if not record:
+        return None
+    kind = record.get("model")
+    parameters = record.get("parameters")
+    if kind not in PHYSICAL_KINDS or not isinstance(parameters, Mapping):
+        return None
+    value = parameters.get(PHYSICAL_PARAMETER_NAMES[kind])
+    if not isinstance(value, int | float) or not np.isfinite(value):
+        return None
+    return physical_grating(kind, float(value))
+
+
+#: The 1st order's efficiency below which the 2nd-to-1st ratio is held (a blazed grating's η₁
+#: vanishes far from its blaze).
+FIRST_ORDER_FLOOR = 1e-6
+
+
+def second_order_ratio(
+    grating: SinusoidalPhaseGrating | BlazedGrating,
+) -> Callable[[FloatArray], FloatArray]:
+    """``λ ↦ η₂(λ)/η₁(λ)`` of a physical grating: what turns the 1st-order response
+    ``q = η₁ s`` at ``λ`` into the 2nd order's ``η₂ s`` there (the scale of both orders cancels)."""
+
+    def ratio(wavelength_nm: FloatArray) -> FloatArray:
+        first = np.maximum(grating.efficiency(1, wavelength_nm), FIRST_ORDER_FLOOR)
+        return np.asarray(grating.efficiency(2, wavelength_nm) / first, dtype=np.float64)
+
+    return ratio
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,7 +10,10 @@ several are combined by SNR with their relative brightness fitted
 (:func:`calib.methods.multilamp.combine_responses`). Where every lamp is dim the data's σ is large
 and the camera prior (natural weight, :func:`calib.methods.multilamp.blend_with_prior`) fills in.
 
-The grating's σ (if the file has one) is propagated node by node. Without a grating (``None``) a
+The grating's σ (if the file has one) is propagated node by node. Where a lamp's 2nd order falls
+on the grid's red end, it is modelled when the grating file records a physical model (η₂ follows
+from its parameters), else its pixels are left out (:func:`calib.methods.responses.fit_response`);
+``diagnostics["second_order"]`` says which, per lamp. Without a grating (``None``) a
 flat efficiency is assumed: the sensitivity then carries the grating's own spectral efficiency as
 an error, which the caller must say (the offline pipeline warns).
 
@@ -41,6 +44,7 @@ from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.closed_form import GratingMethodOptions, check_lamps
+from calib.methods.grating_models import recorded_physical_grating, second_order_ratio
 from calib.methods.multilamp import (
     blend_with_prior,
     combine_responses,
@@ -162,7 +166,19 @@ def estimate_known_grating(
     )
     inverse = 1.0 / eta
     inverse_sigma = np.zeros_like(inverse) if eta_sigma is None else eta_sigma / eta**2
-    responses = [fit_response(system, used_mapping) for system in systems]
+    # The 2nd order on the 1st order's red end: modelled when the grating's physical model gives
+    # η₂/η₁, else its pixels left out (fit_response; decision 0032).
+    physical = None if grating is None else recorded_physical_grating(grating.model)
+    ratio = None if physical is None else second_order_ratio(physical)
+    responses = [fit_response(system, used_mapping, second_order=ratio) for system in systems]
+    second_order = {
+        system.observation.name: {
+            "from_nm": response.second_order_nm,
+            "treated": response.second_order,
+        }
+        for system, response in zip(systems, responses, strict=True)
+        if response.second_order is not None
+    }
     solution = combine_responses(
         responses, inverse, np.eye(inverse.size), np.diag(inverse_sigma**2)
     )
@@ -187,7 +203,11 @@ def estimate_known_grating(
         (eta / peak, None if eta_sigma is None else eta_sigma / peak),
         used_mapping,
         basis,
-        {"grating": record, "prior_shrinkage": prior.shrinkage.tolist()},
+        {
+            "grating": record,
+            "prior_shrinkage": prior.shrinkage.tolist(),
+            **({"second_order": second_order} if second_order else {}),
+        },
         {"mapping_s": mapping_s, "solve_s": total_s - mapping_s, "total_s": total_s},
         method=KNOWN_GRATING_METHOD,
     )

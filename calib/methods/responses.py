@@ -10,8 +10,9 @@ covariance. :class:`LampData` holds it with the lamp's direct (0th-order) measur
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -22,6 +23,7 @@ from calib.model.forward import (
     PiecewiseLinearDensity,
     WavelengthMapping,
     apply_blur,
+    second_order_onset_nm,
 )
 from calib.model.linear_model import LampSystem
 
@@ -52,16 +54,33 @@ def _second_differences(size: int) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class ResponseEstimate:
-    """Step 1: ``q̂`` ``(f, 3)``, its covariance ``(3, f, f)`` and the pixels used ``(n,)``."""
+    """Step 1: ``q̂`` ``(f, 3)``, its covariance ``(3, f, f)`` and the pixels used ``(n,)``;
+    ``second_order_nm`` the lamp's 2nd-order onset where it falls on the grid, else ``None``, and
+    ``second_order`` how its light was treated there (``"modelled"`` or ``"masked"``)."""
 
     response: FloatArray
     covariance: FloatArray
     used_pixels: FloatArray
     chi2: float
+    second_order_nm: float | None = None
+    second_order: Literal["modelled", "masked"] | None = None
 
 
-def fit_response(system: LampSystem, mapping: WavelengthMapping) -> ResponseEstimate:
-    """Step 1: weighted least squares for ``q_c = η s_c`` on the grid from the profile."""
+def fit_response(
+    system: LampSystem,
+    mapping: WavelengthMapping,
+    *,
+    second_order: Callable[[FloatArray], FloatArray] | None = None,
+) -> ResponseEstimate:
+    """Step 1: weighted least squares for ``q_c = η s_c`` on the grid from the profile.
+
+    The lamp's 2nd order lands on the 1st order's red end, from twice its shortest wavelength with
+    light (:func:`calib.model.forward.second_order_onset_nm`): a 1st-order pixel at ``λ`` also
+    receives ``e η₂ s`` at ``λ/2``. With ``second_order`` (``λ ↦ η₂/η₁``, known from a physical
+    grating model) that light is modelled: ``q`` at ``λ/2`` times the ratio, added to the pixel's
+    row, every pixel kept. Without it, the pixels beyond the onset are left out (where enough
+    remain), so that no 2nd-order light is fitted as 1st-order signal (decision 0032).
+    """
     grid = system.operators.grid
     size = grid.size
     edges_nm = mapping.wavelength_nm(system.edges_px)
@@ -71,7 +90,32 @@ def fit_response(system: LampSystem, mapping: WavelengthMapping) -> ResponseEsti
             f"only {int(inside.sum())} profile pixels map inside {grid.start_nm:g}–{grid.stop_nm:g} "
             f"nm; need at least {size} (one per grid wavelength)"
         )
-    pixel_matrix = apply_blur(system.operators.pixel_matrix(edges_nm), system.kernel)[inside]
+    # The lamp's 2nd order lands on the 1st order's red end (from twice its shortest wavelength
+    # with light): those pixels are not first-order signal, so they are left out, the grid's
+    # nodes there kept by the fit's smoothness and their σ (decision 0032). Only where enough
+    # pixels remain: a grid that lies wholly in the 2nd order cannot be fitted either way.
+    onset_nm = second_order_onset_nm(system.observation.spectrum)
+    treated: Literal["modelled", "masked"] | None = None
+    matrix = system.operators.pixel_matrix(edges_nm)
+    if onset_nm < grid.stop_nm:
+        # Modelled where λ/2 is on the grid (the camera is known there only); masked between
+        # the onset and twice the grid's start, where it comes from wavelengths below the grid.
+        modelled_from_nm = 2.0 * grid.start_nm if second_order is not None else np.inf
+        if second_order is not None and modelled_from_nm < grid.stop_nm:
+            densities = system.operators.densities
+            ratio = second_order(densities.axis_nm)
+            halves = PiecewiseLinearDensity.on_axis(
+                densities.axis_nm, densities.density * ratio[:, None]
+            )
+            matrix = matrix + halves.integrate_pixels(edges_nm / 2.0)
+            treated = "modelled"
+        clean = inside & np.logical_or(
+            pixels_inside(edges_nm, -np.inf, onset_nm),
+            pixels_inside(edges_nm, max(modelled_from_nm, onset_nm), np.inf),
+        )
+        if not np.array_equal(clean, inside) and int(clean.sum()) >= size:
+            inside, treated = clean, treated or "masked"
+    pixel_matrix = apply_blur(matrix, system.kernel)[inside]
     profile = system.observation.profile[inside]
     weights = 1.0 / system.profile_sigma[inside]
     difference = _second_differences(size)
@@ -86,7 +130,9 @@ def fit_response(system: LampSystem, mapping: WavelengthMapping) -> ResponseEsti
         covariances[c] = np.linalg.pinv(normal, hermitian=True)
         responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
         chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
-    return ResponseEstimate(responses, covariances, inside, chi2)
+    return ResponseEstimate(
+        responses, covariances, inside, chi2, onset_nm if treated else None, treated
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -252,6 +252,38 @@ def lamp_operators(
     return LampOperators(grid, densities, densities.total.copy())
 
 
+#: A lamp has light where its spectrum exceeds this fraction of its peak (the 2nd order's onset).
+SECOND_ORDER_LIGHT_FRACTION = 0.01
+#: A camera's lens and filter stack pass little below this (nm): a lamp's ultraviolet shorter
+#: than it reaches the sensor too weakly in its 2nd order to matter.
+SHORTEST_SEEN_NM = 380.0
+
+
+def second_order_onset_nm(lamp: Spectrum) -> float:
+    """Where the lamp's 2nd order begins, in 1st-order wavelengths: twice its shortest wavelength
+    with light (above :data:`SECOND_ORDER_LIGHT_FRACTION` of its peak), and never below twice
+    :data:`SHORTEST_SEEN_NM`.
+
+    The grating equation sends order 2 of ``λ`` to the angle of order 1 of ``2λ``, so a first-order
+    pixel at ``λ₁`` also receives ``η₂(λ₁/2) e(λ₁/2) s(λ₁/2)`` wherever the lamp has light at
+    ``λ₁/2``. A lamp lit at the first wavelength it was measured at may have light below it: the
+    onset is then at most twice that wavelength (a bound, the conservative side for a mask).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> axis = np.arange(380.0, 781.0, 5.0)
+    >>> second_order_onset_nm(Spectrum(axis, np.where(axis >= 420.0, 1.0, 0.0)))
+    840.0
+    """
+    values = np.asarray(lamp.values, dtype=np.float64)
+    peak = float(values.max(initial=0.0))
+    if peak <= 0:
+        return math.inf
+    lit = np.flatnonzero(values > SECOND_ORDER_LIGHT_FRACTION * peak)
+    return 2.0 * max(float(lamp.wavelength_nm[lit[0]]), SHORTEST_SEEN_NM)
+
+
 # ------------------------------------------------------------------------------------ blur
 
 
