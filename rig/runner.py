@@ -650,7 +650,6 @@ class Runner(StepHandlers[StepResult]):
         action = ManualAction(
             step.key, step.instruction(), step.beam, step.angle_deg, step.centre_nm
         )
-        self.progress.message(f"{step.key}: waiting for the operator to {action.instruction}")
         self.spectrometer_aim = None  # being moved
         interrupts = self.interrupts
         if not self.station.operator.perform(action, lambda: interrupts.stop_requested is not None):
