@@ -46,8 +46,8 @@ by a reused step is set again before a new frame. When an earlier run had the op
 spectrometer (the grating's beams, :class:`rig.steps.AimSpectrometer`), nobody knows where it looks
 now: before each spectrum the new run takes, the operator is asked to aim it where that spectrum
 needs it (an aim step keyed ``lamp/<name>/resume/<run>/aim-<beam>``), unless this run already did.
-From the resume point on, every step is executed. Which steps are set-up, warm-up, exposure or frames is the vocabulary's business
-(:class:`ResumeRules`, one answer per step type).
+From the resume point on, every step is executed. Which steps are set-up, warm-up, exposure, frames
+or aims is the vocabulary's business (:class:`ResumeRules`, one answer per step type).
 
 Step keys are idempotent (the same plan with the same readings yields the same keys), and later
 records of a key win, so a reader sees each step once, as last done.
