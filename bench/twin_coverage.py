@@ -12,7 +12,8 @@ Splits (issue 15's protocol): the estimate's prior is the bundled rawtoaces-data
 **validation** cameras are rawtoaces-data bodies (left out one at a time: the only cameras a choice
 may be judged on, e.g. ``--floors 0,0.005,0.01,0.02``), and **test** cameras come from elsewhere:
 colour-science's Nikon 5100 (NPL) always, and, with ``--data-dir``, bodies of the other measured
-collections. Every row says its split.
+collections (``--data-dir`` only finds their curves: the prior stays the bundled basis, with or
+without a data directory or ``$SPECTRAL_RIG_DATA``). Every row says its split.
 
     python bench/twin_coverage.py [--split validation|test|both] [--floors 0.01]
         [--data-dir ../shared/data/camera_sensitivities] [--keep DIR]
@@ -103,9 +104,13 @@ def twin_config(base: RigConfig, camera: str, collection: str, data_dir: Path | 
     return RigConfig.model_validate(data)
 
 
-def judge(session: Path, out: Path, camera: str, data_dir: Path | None) -> dict[str, object]:
+def judge(session: Path, out: Path, camera: str) -> dict[str, object]:
     """Estimate ``session`` as ``rig demo`` does; score it against the twin's truth."""
-    basis = default_camera_basis(data_dir=data_dir, exclude=related_camera_names(camera))
+    # The bundled rawtoaces-data basis (as on a machine without camera data), whatever --data-dir,
+    # $SPECTRAL_RIG_DATA or the user cache hold: the splits are named against it.
+    with tempfile.TemporaryDirectory() as no_data:
+        basis = default_camera_basis(data_dir=no_data, exclude=related_camera_names(camera))
+    assert basis.fallback is not None and "rawtoaces-data" in basis.source, basis.source
     started = time.process_time()
     outcome = estimate_session(session, out, settings={"basis": basis}, report=False, force=True)
     cpu_s = time.process_time() - started
@@ -162,9 +167,7 @@ def main() -> None:
             write_twin_truth(config, captured.session)
             for floor in floors:
                 with model_floor(floor):
-                    scored = judge(
-                        captured.session, root / slug / f"estimate-{floor:g}", camera, args.data_dir
-                    )
+                    scored = judge(captured.session, root / slug / f"estimate-{floor:g}", camera)
                 rows.append(Row(split, camera, floor, **scored))  # type: ignore[arg-type]
                 row = rows[-1]
                 print(
