@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any
 
@@ -23,6 +24,7 @@ from calib.methods.uncertainty import (
     BudgetSettings,
     basis_support_nm,
     check_grid_within_basis,
+    floored_reduced_chi2,
     misfit_flag,
     reduced_chi2,
     uncertainty_budget,
@@ -137,6 +139,33 @@ def test_reduced_chi2_inflates_and_warns() -> None:
     assert misfit_flag(500.0).severity == "serious"  # type: ignore[union-attr]
     multilamp = replace(result, diagnostics={"direct_chi2": 30.0, "direct_equations": 15})
     assert reduced_chi2(multilamp) == 2.0
+
+
+def test_misfit_is_judged_above_the_lamp_spectrums_precision() -> None:
+    """A profile far sharper than its lamp spectrum is known (photon noise 0.03 % of the signal,
+    residuals 0.8 % of it) is neither called a misfit nor inflated 30×; residuals of 20 % are."""
+    rng = np.random.default_rng(5)
+    profile = np.outer(np.hanning(200) + 0.05, [0.5, 1.0, 0.3]) * 1e4
+    lamp = LampObservation("led", Spectrum([380.0, 780.0], [1.0, 1.0]), np.arange(200.0), profile)
+    sigma = 3e-4 * profile
+    for relative, flagged in ((0.008, False), (0.2, True)):
+        difference = relative * profile * rng.choice([-1.0, 1.0], size=profile.shape)
+        result = EstimateResult(
+            "prior",
+            np.array([400.0, 550.0, 700.0]),
+            np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
+            sensitivity_sigma=np.full((3, 3), 0.01),
+            residuals={"led": {"profile": difference, "profile_normalised": difference / sigma}},
+            diagnostics={"reduced_chi2": float(np.mean((difference / sigma) ** 2))},
+        )
+        budget = uncertainty_budget(result, [lamp])
+        assert budget.noise_only_reduced_chi2 == pytest.approx((relative / 3e-4) ** 2)
+        expected = relative**2 / (3e-4**2 + BudgetSettings().model_floor ** 2)
+        assert budget.reduced_chi2 == pytest.approx(expected)
+        assert floored_reduced_chi2(result, [lamp], 0.0) == budget.noise_only_reduced_chi2
+        assert ([flag.code for flag in budget.flags] == ["model_misfit"]) is flagged
+        inflation = float(budget.components["statistical"][0, 0] / 0.01)
+        assert inflation == pytest.approx(max(1.0, math.sqrt(expected)))
 
 
 def test_a_grid_beyond_the_basis_is_refused_with_the_range() -> None:
