@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -19,7 +20,6 @@ from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.model.forward import (
     LampOperators,
-    PiecewiseLinearDensity,
     WavelengthMapping,
     apply_blur,
 )
@@ -106,11 +106,20 @@ class LampData:
         grating's vanishes at its blaze)."""
         if zeroth_order is None or self.operators is None:
             return self.direct_row
+        return np.asarray(zeroth_order @ self._trapezoid_densities, dtype=np.float64)
+
+    @cached_property
+    def _trapezoid_densities(self) -> FloatArray:
+        """``e φ_i`` on the fine axis times the trapezoid rule's weights ``(n_fine, f)``: the
+        integral of a density linear between the axis' nodes (what
+        :class:`~calib.model.forward.PiecewiseLinearDensity` integrates), as one product with
+        ``η₀`` — the physical grating fit evaluates it hundreds of times per lamp."""
+        assert self.operators is not None
         densities = self.operators.densities
-        weighted = PiecewiseLinearDensity.on_axis(
-            densities.axis_nm, densities.density * zeroth_order[:, None]
-        )
-        return np.asarray(weighted.total, dtype=np.float64)
+        axis = densities.axis_nm
+        weights = np.full(axis.size, float(axis[1] - axis[0]))
+        weights[[0, -1]] *= 0.5
+        return np.asarray(densities.density * weights[:, None], dtype=np.float64)
 
 
 def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
@@ -160,18 +169,18 @@ def direct_rows(
     for lamp in lamps:
         direct_row = lamp.zeroth_order_row(zeroth_order)
         spread = direct_row * inverse_efficiency
-        variances = np.array(
-            [
-                float(lamp.direct_sigma[c]) ** 2
-                + float(spread @ lamp.response.covariance[c] @ spread)
-                + (MODEL_FLOOR * float(lamp.direct[c])) ** 2
-                for c in range(3)
-            ]
-        )
         direct = np.asarray(lamp.direct, dtype=np.float64)
+        variances = (
+            lamp.direct_sigma**2
+            + (lamp.response.covariance @ spread) @ spread
+            + (MODEL_FLOOR * direct) ** 2
+        )
         covariance = np.diag(np.maximum(variances, 1e-300)) + gain**2 * np.outer(direct, direct)
-        factor = np.linalg.inv(np.linalg.cholesky(covariance))
-        block = np.stack([direct_row * lamp.response.response[:, c] for c in range(3)])
-        rows.append(factor @ block)
-        targets.append(factor @ direct)
+        # One triangular solve for the block and its target (the Cholesky factor whitens both).
+        block = np.empty((3, direct_row.size + 1))
+        block[:, :-1] = lamp.response.response.T * direct_row
+        block[:, -1] = direct
+        whitened = np.linalg.solve(np.linalg.cholesky(covariance), block)
+        rows.append(whitened[:, :-1])
+        targets.append(whitened[:, -1])
     return np.vstack(rows), np.concatenate(targets)
