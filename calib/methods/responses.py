@@ -10,6 +10,7 @@ covariance. :class:`LampData` holds it with the lamp's direct (0th-order) measur
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -170,17 +171,35 @@ def direct_rows(
         direct_row = lamp.zeroth_order_row(zeroth_order)
         spread = direct_row * inverse_efficiency
         direct = np.asarray(lamp.direct, dtype=np.float64)
-        variances = (
+        variances = np.maximum(
             lamp.direct_sigma**2
             + (lamp.response.covariance @ spread) @ spread
-            + (MODEL_FLOOR * direct) ** 2
+            + (MODEL_FLOOR * direct) ** 2,
+            1e-300,
         )
-        covariance = np.diag(np.maximum(variances, 1e-300)) + gain**2 * np.outer(direct, direct)
-        # One triangular solve for the block and its target (the Cholesky factor whitens both).
         block = np.empty((3, direct_row.size + 1))
         block[:, :-1] = lamp.response.response.T * direct_row
         block[:, -1] = direct
-        whitened = np.linalg.solve(np.linalg.cholesky(covariance), block)
+        whitened = _whiten_three(variances.tolist(), (gain * direct).tolist(), block)
         rows.append(whitened[:, :-1])
         targets.append(whitened[:, -1])
     return np.vstack(rows), np.concatenate(targets)
+
+
+def _whiten_three(variances: list[float], shared: list[float], block: FloatArray) -> FloatArray:
+    """``L⁻¹ block`` with ``L`` the Cholesky factor of ``diag(variances) + shared sharedᵀ`` (3 × 3),
+    written out: the direct equations are whitened hundreds of times per physical grating fit, and
+    LAPACK's call overhead on a 3 × 3 matrix is most of that time."""
+    v0, v1, v2 = variances
+    g0, g1, g2 = shared
+    l00 = math.sqrt(v0 + g0 * g0)
+    l10 = g1 * g0 / l00
+    l20 = g2 * g0 / l00
+    l11 = math.sqrt(v1 + g1 * g1 - l10 * l10)
+    l21 = (g2 * g1 - l20 * l10) / l11
+    l22 = math.sqrt(v2 + g2 * g2 - l20 * l20 - l21 * l21)
+    out = np.empty_like(block)
+    out[0] = block[0] / l00
+    out[1] = (block[1] - l10 * out[0]) / l11
+    out[2] = (block[2] - l20 * out[0] - l21 * out[1]) / l22
+    return out

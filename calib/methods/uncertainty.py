@@ -112,6 +112,10 @@ class BudgetSettings:
         run passes ``{}`` to see the components alone.
     perturb
         Re-solve for the perturbation components (off: the analytic components only).
+    reuse_solves
+        Let the re-solves share the estimate's identical sub-solves and start from its solutions
+        (:mod:`calib.methods.solve_scope`, decision 0031); off: every re-solve from scratch, the
+        reference the shared path is tested against.
     """
 
     wavelength_scale_nm: float = WAVELENGTH_SCALE_NM
@@ -119,6 +123,7 @@ class BudgetSettings:
     bandwidth_tolerance: float = BANDWIDTH_TOLERANCE
     coverage_scale: Mapping[str, float] | None = None
     perturb: bool = True
+    reuse_solves: bool = True
 
     def __post_init__(self) -> None:
         for item in fields(self):
