@@ -31,6 +31,10 @@ and channel, on the delivered curves' scale (maximum 1):
 
 The budget's summary goes into ``result.quality.uncertainty``; the method's own σ stays in
 ``diagnostics["method_sigma"]`` for comparison.
+
+The re-solves share what they have in common with the estimate (:mod:`calib.methods.solve_scope`,
+decision 0031): an identical sub-solve is answered once, and a perturbed one starts from the
+estimate's solution (:attr:`BudgetSettings.reuse_solves`).
 """
 
 from __future__ import annotations
