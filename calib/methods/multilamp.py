@@ -293,9 +293,13 @@ def _efficiency_jacobians(
     """``(J_d, J_p)`` of the data and prior residuals in ``x = (c, α…)`` where ``η = B c``."""
     size = efficiency_basis.shape[0]
     n_scales = penalty_nodes.shape[1] - size
+    b_eta = efficiency_basis.shape[1]
     inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis  # ∂η⁻¹/∂c
-    data_jac = np.hstack([data_nodes @ inverse_jacobian, np.zeros((data_nodes.shape[0], n_scales))])
-    penalty_jac = np.hstack([penalty_nodes[:, :size] @ inverse_jacobian, penalty_nodes[:, size:]])
+    data_jac = np.zeros((data_nodes.shape[0], b_eta + n_scales))
+    data_jac[:, :b_eta] = data_nodes @ inverse_jacobian
+    penalty_jac = np.empty((penalty_nodes.shape[0], b_eta + n_scales))
+    penalty_jac[:, :b_eta] = penalty_nodes[:, :size] @ inverse_jacobian
+    penalty_jac[:, b_eta:] = penalty_nodes[:, size:]
     return data_jac, penalty_jac
 
 
@@ -313,17 +317,21 @@ def _efficiency_terms_solve(
     """
     size, b_eta = efficiency_basis.shape
 
-    def cost_of(x: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
-        inverse = 1.0 / (efficiency_basis @ x[:b_eta])
+    penalty_nodes_eta, penalty_nodes_scales = penalty_nodes[:, :size], penalty_nodes[:, size:]
+
+    def cost_of(
+        x: FloatArray, efficiency: FloatArray
+    ) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        inverse = 1.0 / efficiency
         data_residual = data_nodes @ inverse - target
-        penalty_residual = penalty_nodes[:, :size] @ inverse + penalty_nodes[:, size:] @ x[b_eta:]
+        penalty_residual = penalty_nodes_eta @ inverse + penalty_nodes_scales @ x[b_eta:]
         cost = float(data_residual @ data_residual) + weight * float(
             penalty_residual @ penalty_residual
         )
         return cost, inverse, data_residual, penalty_residual
 
     x = start.copy()
-    cost, inverse, data_residual, penalty_residual = cost_of(x)
+    cost, inverse, data_residual, penalty_residual = cost_of(x, efficiency_basis @ x[:b_eta])
     damping = 1e-6
     for _ in range(GAUSS_NEWTON_ITERATIONS):
         data_jac, penalty_jac = _efficiency_jacobians(
@@ -335,8 +343,9 @@ def _efficiency_terms_solve(
         accepted = None
         while damping < 1e12:
             trial = x + np.linalg.solve(normal + damping * diagonal, -gradient)
-            if np.all(efficiency_basis @ trial[:b_eta] > 0):
-                trial_cost = cost_of(trial)
+            efficiency = efficiency_basis @ trial[:b_eta]
+            if np.all(efficiency > 0):
+                trial_cost = cost_of(trial, efficiency)
                 if trial_cost[0] <= cost:
                     accepted = trial, trial_cost
                     break
