@@ -1,9 +1,12 @@
 """CPU time of mapping + estimate, and the ratio to the solve alone, for one camera.
 
-Three rows per scene, measured in one process one after the other (median of ``--repeats`` after a
-warm-up; ``time.process_time``, one BLAS thread):
+Four figures per scene, measured in one process one after the other (median of ``--repeats`` after
+a warm-up; ``time.process_time``, one BLAS thread):
 
-``solve alone``          :func:`calib.methods.estimate` given the true mapping (the yardstick);
+``solve alone``          :func:`calib.methods.estimate` given the true mapping (the yardstick), its
+                         σ budget included (decision 0029: the re-solves of the perturbations);
+``no σ budget``          the same with ``budget=None``: the method's own solve, what the budget adds
+                         is the difference;
 ``mapping + estimate``   :func:`calib.methods.estimate` finding its mapping
                          (:func:`calib.wavelength.find_mapping` → :mod:`calib.wavelength.locate`);
 ``before``               ``bench/mapping_before.py``'s ``search_mapping`` (what the estimators
@@ -61,10 +64,13 @@ def before_path(observations: Sequence[LampObservation], basis: CameraBasis) -> 
     estimate(observations, basis=basis, mapping=mapping)
 
 
-def report(label: str, solve_s: float, new_s: float, old_s: float | None) -> None:
+def report(
+    label: str, solve_s: float, new_s: float, old_s: float | None, bare_s: float | None = None
+) -> None:
     old = "" if old_s is None else f"; before {old_s:.3f} s ({old_s / solve_s:.1f}×)"
+    bare = "" if bare_s is None else f" (no σ budget {bare_s:.4f} s)"
     print(
-        f"{label:24s} solve alone {solve_s:.4f} s; mapping + estimate {new_s:.3f} s "
+        f"{label:24s} solve alone {solve_s:.4f} s{bare}; mapping + estimate {new_s:.3f} s "
         f"({new_s / solve_s:.1f}× the solve){old}",
         flush=True,
     )
@@ -95,6 +101,9 @@ def main() -> None:
         def solve(lamps: list[LampObservation] = lamps) -> object:
             return estimate(lamps, basis=basis, mapping=scene.mapping)
 
+        def bare(lamps: list[LampObservation] = lamps) -> object:
+            return estimate(lamps, basis=basis, mapping=scene.mapping, budget=None)
+
         def new(lamps: list[LampObservation] = lamps) -> object:
             return estimate(lamps, basis=basis)
 
@@ -108,6 +117,7 @@ def main() -> None:
             solve_s,
             cpu_median(new, args.repeats),
             None if args.skip_before else cpu_median(old, args.repeats),
+            cpu_median(bare, args.repeats),
         )
     if args.real is not None:
         real_pair(args.real, args.data_dir, args.repeats)

@@ -63,6 +63,7 @@ from calib.methods.known_grating import (
 from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
 from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, estimate_multilamp
 from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions, estimate_prior
+from calib.methods.solve_scope import perturbation, solve_scope
 from calib.methods.uncertainty import (
     DEFAULT_BUDGET,
     BudgetSettings,
@@ -396,6 +397,25 @@ def estimate(
     used_basis = routed.get("basis")
     if isinstance(used_basis, CameraBasis):
         check_grid_within_basis(used_basis)
+    # The method and its budget's re-solves share identical sub-solves and warm starts.
+    with solve_scope(shared=budget is None or budget.reuse_solves):
+        return _estimate_in_scope(
+            observations, key, function, routed, parameters, choice, used_basis, budget
+        )
+
+
+def _estimate_in_scope(
+    observations: Sequence[Any],
+    key: str,
+    function: MethodFunction,
+    routed: dict[str, Any],
+    parameters: Mapping[str, inspect.Parameter],
+    choice: MethodChoice | None,
+    used_basis: object,
+    budget: BudgetSettings | None,
+) -> EstimateResult:
+    """:func:`estimate` once the method and its options are settled: the method, its quality
+    flags and the σ budget."""
     returned: object = function(observations, **routed)
     if not isinstance(returned, EstimateResult):  # a registered stand-in (tests) returns as is
         return returned  # type: ignore[return-value]
@@ -505,6 +525,7 @@ def _rerun(
         options = arguments.get("options")
         if options is not None and getattr(options, "refine_given_mapping", False):
             arguments["options"] = replace(options, refine_given_mapping=False)
-        return function(observations, **arguments)
+        with perturbation():
+            return function(observations, **arguments)
 
     return rerun

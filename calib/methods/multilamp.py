@@ -72,8 +72,9 @@ from calib.methods.responses import (
     direct_rows,
     lamp_data,
 )
+from calib.methods.solve_scope import recall, remember_start, reuse, warm_start
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
-from calib.model.gratings import PHYSICAL_KINDS
+from calib.model.gratings import PHYSICAL_KINDS, PHYSICAL_PARAMETER_RANGES, PhysicalKind
 from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry, find_mapping, lamps_named
@@ -292,9 +293,13 @@ def _efficiency_jacobians(
     """``(J_d, J_p)`` of the data and prior residuals in ``x = (c, α…)`` where ``η = B c``."""
     size = efficiency_basis.shape[0]
     n_scales = penalty_nodes.shape[1] - size
+    b_eta = efficiency_basis.shape[1]
     inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis  # ∂η⁻¹/∂c
-    data_jac = np.hstack([data_nodes @ inverse_jacobian, np.zeros((data_nodes.shape[0], n_scales))])
-    penalty_jac = np.hstack([penalty_nodes[:, :size] @ inverse_jacobian, penalty_nodes[:, size:]])
+    data_jac = np.zeros((data_nodes.shape[0], b_eta + n_scales))
+    data_jac[:, :b_eta] = data_nodes @ inverse_jacobian
+    penalty_jac = np.empty((penalty_nodes.shape[0], b_eta + n_scales))
+    penalty_jac[:, :b_eta] = penalty_nodes[:, :size] @ inverse_jacobian
+    penalty_jac[:, b_eta:] = penalty_nodes[:, size:]
     return data_jac, penalty_jac
 
 
@@ -312,17 +317,21 @@ def _efficiency_terms_solve(
     """
     size, b_eta = efficiency_basis.shape
 
-    def cost_of(x: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
-        inverse = 1.0 / (efficiency_basis @ x[:b_eta])
+    penalty_nodes_eta, penalty_nodes_scales = penalty_nodes[:, :size], penalty_nodes[:, size:]
+
+    def cost_of(
+        x: FloatArray, efficiency: FloatArray
+    ) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        inverse = 1.0 / efficiency
         data_residual = data_nodes @ inverse - target
-        penalty_residual = penalty_nodes[:, :size] @ inverse + penalty_nodes[:, size:] @ x[b_eta:]
+        penalty_residual = penalty_nodes_eta @ inverse + penalty_nodes_scales @ x[b_eta:]
         cost = float(data_residual @ data_residual) + weight * float(
             penalty_residual @ penalty_residual
         )
         return cost, inverse, data_residual, penalty_residual
 
     x = start.copy()
-    cost, inverse, data_residual, penalty_residual = cost_of(x)
+    cost, inverse, data_residual, penalty_residual = cost_of(x, efficiency_basis @ x[:b_eta])
     damping = 1e-6
     for _ in range(GAUSS_NEWTON_ITERATIONS):
         data_jac, penalty_jac = _efficiency_jacobians(
@@ -334,8 +343,9 @@ def _efficiency_terms_solve(
         accepted = None
         while damping < 1e12:
             trial = x + np.linalg.solve(normal + damping * diagonal, -gradient)
-            if np.all(efficiency_basis @ trial[:b_eta] > 0):
-                trial_cost = cost_of(trial)
+            efficiency = efficiency_basis @ trial[:b_eta]
+            if np.all(efficiency > 0):
+                trial_cost = cost_of(trial, efficiency)
                 if trial_cost[0] <= cost:
                     accepted = trial, trial_cost
                     break
@@ -358,14 +368,16 @@ def _nonlinear_efficiency(
     start: FloatArray,
     prior_weight: float | None,
     rule: WeightRule,
+    candidates: FloatArray = PRIOR_WEIGHTS,
 ) -> tuple[FloatArray, FloatArray, FloatArray, float, FloatArray]:
     """``η = B c`` (smooth and positive; ``η⁻¹`` is not): ``λ`` by ``rule`` on the linearisation.
 
-    Solved at every weight of :data:`PRIOR_WEIGHTS` from the largest down, each from the previous
-    solution; :func:`weight_score` uses the residuals and Jacobians at each solution.
+    Solved at every weight of ``candidates`` (ascending; default :data:`PRIOR_WEIGHTS`) from the
+    largest down, each from the previous solution; :func:`weight_score` uses the residuals and
+    Jacobians at each solution.
     """
     size, b_eta = efficiency_basis.shape
-    weights = PRIOR_WEIGHTS[::-1] if prior_weight is None else np.array([prior_weight])
+    weights = candidates[::-1] if prior_weight is None else np.array([prior_weight])
     scores = np.empty(weights.size)
     solutions = []
     x = start
@@ -390,6 +402,44 @@ def _nonlinear_efficiency(
     best = int(np.argmin(scores))
     x, data_jac, penalty_jac = solutions[best]
     return x, data_jac, penalty_jac, float(weights[best]), scores[::-1]
+
+
+#: Weights of :data:`PRIOR_WEIGHTS` on each side of the main solve's choice that a perturbation
+#: re-solve scores (±1 decade); a choice on the window's edge scores them all.
+WARM_WEIGHT_WINDOW = 4
+
+
+def _scored_efficiency(
+    data_nodes: FloatArray,
+    target: FloatArray,
+    penalty_nodes: FloatArray,
+    efficiency_basis: FloatArray,
+    start: FloatArray,
+    prior_weight: float | None,
+    rule: WeightRule,
+    near_index: int | None,
+) -> tuple[FloatArray, FloatArray, FloatArray, float, FloatArray, int | None]:
+    """:func:`_nonlinear_efficiency`, scoring only the weights within :data:`WARM_WEIGHT_WINDOW`
+    of ``near_index`` (a perturbation re-solve's start) unless the choice lands on the window's
+    edge; the scores on all of :data:`PRIOR_WEIGHTS` (NaN where not scored) and the chosen
+    weight's index there (``None`` for a fixed weight)."""
+    arguments = (data_nodes, target, penalty_nodes, efficiency_basis, start, prior_weight, rule)
+    if prior_weight is not None:
+        return (*_nonlinear_efficiency(*arguments), None)
+    last = PRIOR_WEIGHTS.size - 1
+    if near_index is not None:
+        low = max(0, near_index - WARM_WEIGHT_WINDOW)
+        high = min(last, near_index + WARM_WEIGHT_WINDOW)
+        x, data, penalty, weight, scores = _nonlinear_efficiency(
+            *arguments, candidates=PRIOR_WEIGHTS[low : high + 1]
+        )
+        chosen = low + int(np.argmin(scores))
+        if (chosen > low or low == 0) and (chosen < high or high == last):
+            curve = np.full(PRIOR_WEIGHTS.size, np.nan)
+            curve[low : high + 1] = scores
+            return x, data, penalty, weight, curve, chosen
+    x, data, penalty, weight, scores = _nonlinear_efficiency(*arguments)
+    return x, data, penalty, weight, scores, int(np.argmin(scores))
 
 
 @dataclass(frozen=True)
@@ -456,9 +506,83 @@ def solve_efficiency(
     family (:func:`calib.methods.grating_models.fit_physical`, no camera prior); ``"auto"``: all
     three, the one with the smallest predictive risk (Mallows' ``C_L``) kept. The choice, every
     candidate's risk and the physical model's parameters with σ are in ``info["grating_model"]``.
+
+    Inside a :func:`calib.methods.solve_scope.solve_scope` the same inputs give the result already
+    computed, and a perturbation re-solve starts each physical fit from the main solve's
+    (:func:`physical_fit`).
     """
     if not lamps:
         raise InputError("no lamps with a direct measurement", source="observations")
+    groups = None if prior_groups is None else [tuple(group) for group in prior_groups]
+    return reuse(
+        "solve_efficiency",
+        (tuple(lamps), prior, settings, groups),
+        lambda: _solve_efficiency(lamps, prior, settings, prior_groups),
+    )
+
+
+#: A physical fit's χ² scan with another local minimum below ``AMBIGUOUS_SCAN_FACTOR × best +
+#: AMBIGUOUS_SCAN_OFFSET`` has two basins a perturbation could swap: its re-solves scan in full.
+AMBIGUOUS_SCAN_FACTOR = 2.0
+AMBIGUOUS_SCAN_OFFSET = 10.0
+
+
+def _unambiguous(fit: PhysicalFit) -> bool:
+    """Whether the fit's scan has one basin (no other local minimum near the best's χ²)."""
+    _, chi2 = fit.scan
+    finite = np.where(np.isfinite(chi2), chi2, np.inf)
+    if finite.size < 3:
+        return False
+    best = int(np.argmin(finite))
+    inner = (finite[1:-1] <= finite[:-2]) & (finite[1:-1] <= finite[2:])
+    minima = [int(index) + 1 for index in np.flatnonzero(inner)]
+    if finite[0] < finite[1]:
+        minima.append(0)
+    if finite[-1] < finite[-2]:
+        minima.append(finite.size - 1)
+    limit = AMBIGUOUS_SCAN_FACTOR * float(finite[best]) + AMBIGUOUS_SCAN_OFFSET
+    return not any(index != best and finite[index] <= limit for index in minima)
+
+
+def physical_fit(
+    lamps: Sequence[LampData], kind: PhysicalKind, wavelength_nm: FloatArray, gain_sigma: float
+) -> PhysicalFit:
+    """:func:`calib.methods.grating_models.fit_physical` over the parameter's whole range (the
+    open scope's result for the same lamps, when there is one); in a perturbation re-solve (:mod:`calib.methods.solve_scope`), refined in the window around the
+    main solve's parameter when the main fit's scan had one basin, unless the optimum lands on the
+    window's edge (then the full scan)."""
+    parts = (tuple(lamps), kind, wavelength_nm, gain_sigma)
+    done = recall("fit_physical", parts)
+    if isinstance(done, PhysicalFit):
+        return done
+    label = f"physical {kind}: {', '.join(lamp.name for lamp in lamps)}"
+    start = warm_start(label)
+    if start is not None:
+        fit = fit_physical(lamps, kind, wavelength_nm, gain_sigma=gain_sigma, near=float(start))
+        candidates, chi2 = fit.scan
+        low, high = PHYSICAL_PARAMETER_RANGES[kind]
+        best = int(np.nanargmin(chi2))
+        inside = (best > 0 or candidates[0] <= low) and (
+            best < candidates.size - 1 or candidates[-1] >= high
+        )
+        if inside:
+            return fit
+    fit = reuse(
+        "fit_physical",
+        parts,
+        lambda: fit_physical(lamps, kind, wavelength_nm, gain_sigma=gain_sigma),
+    )
+    if _unambiguous(fit):
+        remember_start(label, fit.parameter)
+    return fit
+
+
+def _solve_efficiency(
+    lamps: Sequence[LampData],
+    prior: CameraPrior,
+    settings: EfficiencySettings,
+    prior_groups: Sequence[Sequence[LampData]] | None,
+) -> EfficiencySolution:
     choice = settings.grating_model
     wavelength = prior.grid.wavelength_nm
     candidates: dict[str, float] = {}
@@ -472,7 +596,7 @@ def solve_efficiency(
         if choice not in (kind, "auto"):
             continue
         try:
-            fit = fit_physical(lamps, kind, wavelength, gain_sigma=settings.direct_gain_sigma)
+            fit = physical_fit(lamps, kind, wavelength, settings.direct_gain_sigma)
         except EstimationError as error:
             if choice != "auto":
                 raise
@@ -603,6 +727,11 @@ def solve_fourier_efficiency(
     # pass, sets it to typical / D²_k from that pass's sensitivity (see PRIOR_WEIGHT_RULES).
     group_weights = np.ones(len(groups))
     distances = np.full(len(groups), np.nan)
+    # A perturbation re-solve scores the weights near the main solve's choice on each pass.
+    label = f"fourier {settings!r}: {', '.join(lamp.name for lamp in lamps)}"
+    scanned = model == "efficiency" and prior_weight is None and not by_typicality
+    starts = warm_start(label) if scanned else None
+    chosen_indices: list[int | None] = []
     for index in range(EFFICIENCY_PASSES):
         # Rows on the grid's nodes of η⁻¹ (and every α_k), whitened at the current η⁻¹.
         data_nodes, target = direct_rows(lamps, inverse, gain_sigma=settings.direct_gain_sigma)
@@ -618,9 +747,17 @@ def solve_fourier_efficiency(
             )
             inverse = efficiency_basis @ x[:b_eta]
         else:
-            x, data, penalty, weight, scores = _nonlinear_efficiency(
-                data_nodes, target, penalty_nodes, efficiency_basis, x, fixed, scoring
+            x, data, penalty, weight, scores, chosen_index = _scored_efficiency(
+                data_nodes,
+                target,
+                penalty_nodes,
+                efficiency_basis,
+                x,
+                fixed,
+                scoring,
+                None if starts is None else int(starts[index]),
             )
+            chosen_indices.append(chosen_index)
             inverse = 1.0 / (efficiency_basis @ x[:b_eta])
             inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis
         x[b_eta:] = np.where(np.abs(x[b_eta:]) > 0, np.abs(x[b_eta:]), scales)
@@ -634,6 +771,8 @@ def solve_fourier_efficiency(
             group_weights = np.clip(
                 typical / np.maximum(distances, 1e-300), PRIOR_WEIGHTS[0], PRIOR_WEIGHTS[-1]
             )
+    if scanned and None not in chosen_indices:
+        remember_start(label, tuple(chosen_indices))
     posterior = np.asarray(
         np.linalg.pinv(data.T @ data + weight * penalty.T @ penalty, hermitian=True),
         dtype=np.float64,

@@ -10,8 +10,10 @@ covariance. :class:`LampData` holds it with the lamp's direct (0th-order) measur
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -152,11 +154,20 @@ class LampData:
         grating's vanishes at its blaze)."""
         if zeroth_order is None or self.operators is None:
             return self.direct_row
+        return np.asarray(zeroth_order @ self._trapezoid_densities, dtype=np.float64)
+
+    @cached_property
+    def _trapezoid_densities(self) -> FloatArray:
+        """``e φ_i`` on the fine axis times the trapezoid rule's weights ``(n_fine, f)``: the
+        integral of a density linear between the axis' nodes (what
+        :class:`~calib.model.forward.PiecewiseLinearDensity` integrates), as one product with
+        ``η₀`` — the physical grating fit evaluates it hundreds of times per lamp."""
+        assert self.operators is not None
         densities = self.operators.densities
-        weighted = PiecewiseLinearDensity.on_axis(
-            densities.axis_nm, densities.density * zeroth_order[:, None]
-        )
-        return np.asarray(weighted.total, dtype=np.float64)
+        axis = densities.axis_nm
+        weights = np.full(axis.size, float(axis[1] - axis[0]))
+        weights[[0, -1]] *= 0.5
+        return np.asarray(densities.density * weights[:, None], dtype=np.float64)
 
 
 def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
@@ -206,18 +217,36 @@ def direct_rows(
     for lamp in lamps:
         direct_row = lamp.zeroth_order_row(zeroth_order)
         spread = direct_row * inverse_efficiency
-        variances = np.array(
-            [
-                float(lamp.direct_sigma[c]) ** 2
-                + float(spread @ lamp.response.covariance[c] @ spread)
-                + (MODEL_FLOOR * float(lamp.direct[c])) ** 2
-                for c in range(3)
-            ]
-        )
         direct = np.asarray(lamp.direct, dtype=np.float64)
-        covariance = np.diag(np.maximum(variances, 1e-300)) + gain**2 * np.outer(direct, direct)
-        factor = np.linalg.inv(np.linalg.cholesky(covariance))
-        block = np.stack([direct_row * lamp.response.response[:, c] for c in range(3)])
-        rows.append(factor @ block)
-        targets.append(factor @ direct)
+        variances = np.maximum(
+            lamp.direct_sigma**2
+            + (lamp.response.covariance @ spread) @ spread
+            + (MODEL_FLOOR * direct) ** 2,
+            1e-300,
+        )
+        block = np.empty((3, direct_row.size + 1))
+        block[:, :-1] = lamp.response.response.T * direct_row
+        block[:, -1] = direct
+        whitened = _whiten_three(variances.tolist(), (gain * direct).tolist(), block)
+        rows.append(whitened[:, :-1])
+        targets.append(whitened[:, -1])
     return np.vstack(rows), np.concatenate(targets)
+
+
+def _whiten_three(variances: list[float], shared: list[float], block: FloatArray) -> FloatArray:
+    """``L⁻¹ block`` with ``L`` the Cholesky factor of ``diag(variances) + shared sharedᵀ`` (3 × 3),
+    written out: the direct equations are whitened hundreds of times per physical grating fit, and
+    LAPACK's call overhead on a 3 × 3 matrix is most of that time."""
+    v0, v1, v2 = variances
+    g0, g1, g2 = shared
+    l00 = math.sqrt(v0 + g0 * g0)
+    l10 = g1 * g0 / l00
+    l20 = g2 * g0 / l00
+    l11 = math.sqrt(v1 + g1 * g1 - l10 * l10)
+    l21 = (g2 * g1 - l20 * l10) / l11
+    l22 = math.sqrt(v2 + g2 * g2 - l20 * l20 - l21 * l21)
+    out = np.empty_like(block)
+    out[0] = block[0] / l00
+    out[1] = (block[1] - l10 * out[0]) / l11
+    out[2] = (block[2] - l20 * out[0] - l21 * out[1]) / l22
+    return out

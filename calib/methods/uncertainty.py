@@ -37,6 +37,10 @@ and channel, on the delivered curves' scale (maximum 1):
 
 The budget's summary goes into ``result.quality.uncertainty``; the method's own σ stays in
 ``diagnostics["method_sigma"]`` for comparison.
+
+The re-solves share what they have in common with the estimate (:mod:`calib.methods.solve_scope`,
+decision 0031): an identical sub-solve is answered once, and a perturbed one starts from the
+estimate's solution (:attr:`BudgetSettings.reuse_solves`).
 """
 
 from __future__ import annotations
@@ -126,6 +130,10 @@ class BudgetSettings:
         Re-solve for the perturbation components (off: the analytic components only).
     model_floor
         Relative floor under the profile noise when the misfit is judged (:data:`MODEL_FLOOR`).
+    reuse_solves
+        Let the re-solves share the estimate's identical sub-solves and start from its solutions
+        (:mod:`calib.methods.solve_scope`, decision 0031); off: every re-solve from scratch, the
+        reference the shared path is tested against.
     """
 
     wavelength_scale_nm: float = WAVELENGTH_SCALE_NM
@@ -134,6 +142,7 @@ class BudgetSettings:
     coverage_scale: Mapping[str, float] | None = None
     perturb: bool = True
     model_floor: float = MODEL_FLOOR
+    reuse_solves: bool = True
 
     def __post_init__(self) -> None:
         for item in fields(self):
