@@ -47,7 +47,12 @@ from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel
 from calib.wavelength.families import GratingFamily, GratingPrior
 from calib.wavelength.features import FeatureMapping, map_features
-from calib.wavelength.profile_search import Orientation, search_profiles
+from calib.wavelength.profile_search import (
+    Orientation,
+    search_profiles,
+    spectrometer_scale_sigma_nm,
+    stated_covariance,
+)
 from calib.wavelength.rig_prior import (
     RigGeometry,
     default_prior,
@@ -185,11 +190,12 @@ def _map_lines(
     directions: Sequence[int],
     grid: WavelengthGrid,
     dispersion_nm_per_px: float | None = None,
+    moments: bool = False,
 ) -> FeatureMapping:
     """Lines of one lamp through the physical family, in each allowed direction; the better kept.
 
     ``dispersion_nm_per_px`` (a whole-profile fit's) narrows the line matching when there is no
-    ``start`` to follow."""
+    ``start`` to follow; ``moments``: :func:`calib.wavelength.features.map_features`'."""
     kind = lines[0].kind
     width = fwhm_px(lamp, kind)
     outcomes = []
@@ -209,6 +215,7 @@ def _map_lines(
                     allow_reversed=direction < 0,
                     kind=kind,
                     range_nm=(grid.start_nm - 30.0, grid.stop_nm + 30.0),
+                    moments=moments,
                 )
             )
         except (EstimationError, ValueError) as exc:
@@ -410,21 +417,48 @@ def locate_mapping(
             except EstimationError as exc:
                 warnings.append(f"the absorption refinement failed ({exc}); the profile fit stands")
         else:
-            # A measured line lamp: the profile fit stands; its known lines say how well.
             fluorescent = [lamp for lamp in measured if lamp.kind == "fluorescent"]
             if fluorescent:
-                # The table is for the report and the quality checks: residuals at the known
-                # lines, with the mapping held (a note, not a warning — a rendered lamp table's
-                # lines sit at its nodes, a real lamp's at their wavelengths).
-                table, note = _known_line_table(fluorescent[0], search.exact, grid)
-                details["matched_lines"] = table
-                if note:
-                    details["known_lines_note"] = f"lamp {fluorescent[0].name!r}: {note}"
+                # A measured line lamp: its Hg lines decide, from the profile fit (decision
+                # 0030). A coarse table nobody measured (no bandwidth: colour-science's 5 nm FL
+                # tables) holds its lines at its nodes, not their wavelengths: the fit stands.
+                lamp = fluorescent[0]
+                try:
+                    if lamp.spectrum_bandwidth_nm is None and _coarse(lamp):
+                        raise EstimationError(
+                            "a coarse tabulated spectrum: the lines are its nodes"
+                        )
+                    features = _measured_lines(lamp, search.exact, grating_prior, grid)
+                    details["line_source"] = f"Hg lines of {lamp.name} (measured lamp)"
+                    details["measured_lines"] = True
+                except EstimationError as exc:
+                    # The profile fit stands; its known lines say how well (a note, not a
+                    # warning — a rendered lamp table's lines sit at its nodes).
+                    table, note = _known_line_table(lamp, search.exact, grid)
+                    details["matched_lines"] = table
+                    details["measured_lines_failed"] = str(exc)
+                    if note:
+                        details["known_lines_note"] = f"lamp {lamp.name!r}: {note}"
 
+    extrapolated: list[str] = []
     if features is not None:
         mapping, exact = features.mapping, features.exact
         details.update(features.details)
         details["ambiguous"] = False
+        scale_nm = spectrometer_scale_sigma_nm(lamps) if search is not None else 0.0
+        if scale_nm > 0 and mapping.wavelength_rms_nm is not None:
+            # Lines placed by a measured spectrum carry its wavelength scale (a common offset).
+            mapping = stated_covariance(
+                mapping,
+                math.hypot(mapping.wavelength_rms_nm, scale_nm),
+                scale_nm,
+                (float(lead.pixel[0]), float(lead.pixel[-1])),
+            )
+            details["spectrometer_scale_sigma_nm"] = scale_nm
+        red_end, note = _red_end(features, mapping, grid)
+        details["red_end"] = red_end
+        if note:
+            extrapolated.append(note)
         if search is not None:
             probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
             apart = float(
@@ -434,7 +468,8 @@ def locate_mapping(
             )
             details["profile_fit_distance_nm"] = apart
             details["profile_fit"] = search.mapping.to_dict()
-            if apart > DISAGREEMENT_NM:
+            # A measured lamp's profile fit is only the lines' start: its distance is recorded.
+            if apart > DISAGREEMENT_NM and "measured_lines" not in details:
                 warnings.append(
                     f"the lines and the whole-profile fit disagree by {apart:.1f} nm (RMS); the "
                     "lines are used — check that the lamp spectra are the lamps'"
@@ -444,15 +479,88 @@ def locate_mapping(
         mapping, exact = search.mapping, search.exact
         details.update(search.details)
     _check_monotonic(exact, lead)
-    details["warnings"] = warnings
     # The quality code of each warning (calib.core.result.QUALITY_CODES): the profile search warns
-    # only of competing basins; this function's own warnings are about the lines against the fit.
+    # only of competing basins; this function's own warnings are about the lines against the fit,
+    # and about a mapping extrapolated beyond its lines.
     ambiguity = set(search.warnings) if search is not None else set()
     details["warning_codes"] = [
         "mapping_ambiguous" if text in ambiguity else "mapping_line_residuals" for text in warnings
-    ]
+    ] + ["mapping_extrapolated"] * len(extrapolated)
+    warnings += extrapolated
+    details["warnings"] = warnings
     mapping = mapping.with_details(details={**dict(mapping.details), **details})
     return MappingSolution(mapping, exact, tuple(warnings), details)
+
+
+def _measured_lines(
+    lamp: LampObservation,
+    start: ExactMapping,
+    prior: GratingPrior | None,
+    grid: WavelengthGrid,
+) -> FeatureMapping:
+    """A measured fluorescent lamp's Hg lines through the physical family, from ``start`` (the
+    whole-profile fit), each feature at its first moment (decision 0030).
+
+    Every fluorescent lamp has the Hg lines, at wavelengths the physics fixes; the whole-profile
+    fit, which the camera prior's misfit bends by nanometres, only starts them. The camera finds
+    them (only those it finds are used) and the list places them: a single line at its
+    wavelength, a blend the camera cannot resolve (577.0 + 579.1) at its list centre with σ for
+    the split nobody measured (span/√12). The lamp's measured spectrum does not place them: a
+    spectrometer's centre of a line on a phosphor band's flank was 0.3–0.8 nm off on the twin's
+    instruments (PR-655, USB2000+, STS, i1Pro), more than the list's blend σ."""
+    lines = tuple(
+        line
+        for line in line_list("hg")
+        if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
+    )
+    return _map_lines(
+        lamp,
+        lines,
+        prior,
+        start=start,
+        directions=(_direction(start, lamp),),
+        grid=grid,
+        moments=True,
+    )
+
+
+#: σ (nm) of the mapping at the working grid's ends beyond which a mapping extrapolated past its
+#: lamp's lines is reported (a 1 nm shift moves a camera's steep flanks by several per cent).
+EXTRAPOLATED_SIGMA_NM = 1.0
+
+
+def _red_end(
+    features: FeatureMapping, mapping: QuadraticMapping, grid: WavelengthGrid
+) -> tuple[dict[str, Any], str | None]:
+    """How far the lines reach and the mapping's stated σ at the grid's ends; a note when the
+    mapping is extrapolated past them with σ above :data:`EXTRAPOLATED_SIGMA_NM`."""
+    used = [m for m in features.matches if m.used]
+    if not used or mapping.covariance is None:
+        return {}, None
+    reach = (min(m.wavelength_nm for m in used), max(m.wavelength_nm for m in used))
+    ends = np.array([grid.start_nm, grid.stop_nm])
+    covariance = np.asarray(mapping.covariance, dtype=np.float64)
+    sigma = []
+    for wavelength in ends:
+        try:
+            pixel = float(mapping.pixel_at(np.array([wavelength]))[0])
+        except InputError:
+            pixel = float("nan")
+        design = np.array([pixel**2, pixel, 1.0])
+        sigma.append(float(np.sqrt(max(design @ covariance @ design, 0.0))))
+    record = {
+        "lines_reach_nm": list(reach),
+        "sigma_at_grid_ends_nm": sigma,
+        "grid_ends_nm": [float(v) for v in ends],
+    }
+    if not (sigma[1] > EXTRAPOLATED_SIGMA_NM and grid.stop_nm > reach[1]):
+        return record, None
+    return record, (
+        f"beyond its reddest line ({reach[1]:.0f} nm) the mapping is extrapolated by the grating "
+        f"equation: σ {sigma[1]:.1f} nm at {grid.stop_nm:g} nm. A lamp with red lines in the same "
+        "geometry pins it — a tri-phosphor CFL (Eu 611 nm) or a neon lamp — as does the grating's "
+        "known line density"
+    )
 
 
 def _local_dispersion(mapping: ExactMapping, pixel: FloatArray) -> FloatArray:
