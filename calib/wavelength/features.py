@@ -28,7 +28,7 @@ mapping's wavelength there and the residual, for the report.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -616,6 +616,44 @@ def fit_features(
     return out
 
 
+def spectrum_line_centres(
+    wavelength_nm: FloatArray,
+    values: FloatArray,
+    features: Sequence[Blend],
+    resolution_nm: float,
+) -> dict[str, tuple[float, float]]:
+    """Where a lamp's measured spectrum puts each single line among a camera's ``features``:
+    ``{label: (nm, σ nm)}``, the line's centre fitted in the spectrum (:func:`fit_features` on
+    the spectrum as a profile whose pixels are nanometres, a quadratic background under it, at
+    ``resolution_nm``: the bandwidth, never finer than the sampling). A line the spectrometer
+    blends with another one at that resolution, or does not find, is left out.
+
+    A real lamp's lines are where the list says; a tabulated one's (colour-science's 5 nm FL
+    tables, which the validation protocol renders) sit at the table's nodes, up to 1.1 nm away —
+    and what the camera saw is the lamp, as its spectrum says.
+    """
+    axis = np.asarray(wavelength_nm, dtype=np.float64)
+    spectrum = np.asarray(values, dtype=np.float64)
+    if axis.size < 8:
+        return {}
+    step = float(np.median(np.diff(axis)))
+    width = max(float(resolution_nm), step)
+    lines = sorted({line for feature in features for line in feature.lines}, key=_line_nm)
+    own = {blend.label: blend for blend in blends(lines, width)}
+    singles = [f for f in features if len(f.lines) == 1 and f.label in own]
+    identity = QuadraticMapping(0.0, 1.0, 0.0, pixel_range=(float(axis[0]), float(axis[-1])))
+    _, noise = feature_signal(spectrum[:, None], "emission", width / step)
+    return {
+        f.blend.label: (f.centroid_px, f.centroid_sigma)
+        for f in fit_features(axis, spectrum, noise, singles, identity, width, background_order=2)
+        if math.isfinite(f.centroid_px) and math.isfinite(f.centroid_sigma)
+    }
+
+
+def _line_nm(line: Line) -> float:
+    return line.wavelength_nm
+
+
 # ------------------------------------------------------------------------------ mapping fit
 
 
@@ -693,6 +731,7 @@ def map_features(
     kind: LineKind | None = None,
     range_nm: tuple[float, float] = (380.0, 720.0),
     moments: bool = False,
+    centres: Mapping[str, tuple[float, float]] | None = None,
 ) -> FeatureMapping:
     """The mapping through a profile's features (see the module docstring).
 
@@ -722,6 +761,9 @@ def map_features(
         quadratic background — for a lamp whose line strengths nobody listed (a measured
         fluorescent lamp's Hg lines: its 577.0/579.1 split is its own) — and let a physical
         family's soft prior count as an equation (a start is given: no matching to guard).
+    centres
+        With ``moments``: ``{label: (nm, σ nm)}`` of single lines placed by the lamp's measured
+        spectrum (:func:`spectrum_line_centres`), used instead of the list's wavelengths.
     """
     if not lines:
         raise InputError("no lines to match", source="line list")
@@ -784,6 +826,7 @@ def map_features(
                     fwhm_px,
                     pixel_range,
                     moments,
+                    centres or {},
                 )
             )
         except (EstimationError, ValueError, np.linalg.LinAlgError):
@@ -807,7 +850,7 @@ def map_features(
             centre,
         )
         for f, s, u in zip(fitted, sigma, used, strict=True)
-        for position, position_sigma, centre, _ in [_point(f, moments)]
+        for position, position_sigma, centre, _ in [_point(f, moments, centres or {})]
     )
     report = _report(exact, family, x, covariance, pixel_range)
     kept = [m for m in matches if m.used]
@@ -844,18 +887,24 @@ def _weight(blend: Blend) -> float:
     return float(blend.strength**0.25)
 
 
-def _point(fitted: _Fitted, moments: bool) -> tuple[float, float, float | None, float]:
+def _point(
+    fitted: _Fitted, moments: bool, centres: Mapping[str, tuple[float, float]]
+) -> tuple[float, float, float | None, float]:
     """A fitted feature as a point of the mapping fit: ``(pixel, σ px, nm or None, σ nm)``.
 
     By default the reference line's pixel, the list's wavelength (``None``) and uncertainty. With
     ``moments``, the feature's first moment: a single line at its list wavelength, a blend at the
     list's strength-weighted centre with σ for a split nobody measured (uniform between its
     components: their span/√12 — the Hg 576.96/579.07 doublet's share varies with the lamp; fitted
-    as two components at the list's places, the twin's put 579.07 1.1 nm off)."""
+    as two components at the list's places, the twin's put 579.07 1.1 nm off). A single line
+    that ``centres`` holds is placed there instead (where the lamp's own spectrum puts it)."""
     blend = fitted.blend
     if not moments or not math.isfinite(fitted.centroid_px):
         return fitted.pixel, fitted.sigma, None, blend.uncertainty_nm
     if len(blend.lines) == 1:
+        measured = centres.get(blend.label)
+        if measured is not None:
+            return fitted.centroid_px, fitted.centroid_sigma, measured[0], measured[1]
         return fitted.centroid_px, fitted.centroid_sigma, None, blend.uncertainty_nm
     wavelengths = [line.wavelength_nm for line in blend.lines]
     split_nm = math.hypot(
@@ -874,6 +923,7 @@ def _refine(
     fwhm_px: float,
     pixel_range: tuple[float, float],
     moments: bool = False,
+    centres: Mapping[str, tuple[float, float]] | None = None,
 ) -> _Outcome:
     """Fit the features where ``mapping`` puts them, the mapping through them; :data:`ROUNDS`."""
     # The family starts where the hypothesis is supported (between the features it predicts
@@ -912,7 +962,7 @@ def _refine(
                 f"only {len(fitted)} of the list's features were found in the profile; the mapping "
                 f"needs at least {needed} (is the lamp the one named, and the first order whole?)"
             )
-        points = [_point(f, moments) for f in fitted]
+        points = [_point(f, moments, centres or {}) for f in fitted]
         pixels = np.array([p[0] for p in points])
         references = np.array(
             [

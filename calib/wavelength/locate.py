@@ -191,11 +191,12 @@ def _map_lines(
     grid: WavelengthGrid,
     dispersion_nm_per_px: float | None = None,
     moments: bool = False,
+    centres: dict[str, tuple[float, float]] | None = None,
 ) -> FeatureMapping:
     """Lines of one lamp through the physical family, in each allowed direction; the better kept.
 
     ``dispersion_nm_per_px`` (a whole-profile fit's) narrows the line matching when there is no
-    ``start`` to follow; ``moments``: :func:`calib.wavelength.features.map_features`'."""
+    ``start`` to follow; ``moments`` and ``centres``: :func:`calib.wavelength.features.map_features`'."""
     kind = lines[0].kind
     width = fwhm_px(lamp, kind)
     outcomes = []
@@ -216,6 +217,7 @@ def _map_lines(
                     kind=kind,
                     range_nm=(grid.start_nm - 30.0, grid.stop_nm + 30.0),
                     moments=moments,
+                    centres=centres,
                 )
             )
         except (EstimationError, ValueError) as exc:
@@ -505,14 +507,34 @@ def _measured_lines(
     fit, which the camera prior's misfit bends by nanometres, only starts them. The camera finds
     them (only those it finds are used) and the list places them: a single line at its
     wavelength, a blend the camera cannot resolve (577.0 + 579.1) at its list centre with σ for
-    the split nobody measured (span/√12). The lamp's measured spectrum does not place them: a
-    spectrometer's centre of a line on a phosphor band's flank was 0.3–0.8 nm off on the twin's
-    instruments (PR-655, USB2000+, STS, i1Pro), more than the list's blend σ."""
+    the split nobody listed (span/√12). Where the lamp's measured spectrum resolves at least as
+    finely as the camera, it places the single lines instead (a tabulated lamp's sit at its
+    nodes); a coarser one's centre of a line on a phosphor band's flank was 0.4–0.8 nm off on
+    the twin's PR-655, and the blends' it measured (578.19 nm for the twin's doublet, right) met a
+    camera moment 0.3 nm off: those stay with the list."""
+    from calib.wavelength.features import features_at, spectrum_line_centres
+
     lines = tuple(
         line
         for line in line_list("hg")
         if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
     )
+    width = fwhm_px(lamp) * float(np.median(np.diff(lamp.pixel)))
+    pixel_range = (float(lamp.pixel[0]), float(lamp.pixel[-1]))
+    middle = np.array([0.5 * (pixel_range[0] + pixel_range[1])])
+    camera_nm = width * abs(float(_local_dispersion(start, middle)[0]))
+    spectrum = lamp.spectrum
+    resolution_nm = max(
+        lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
+    )
+    centres: dict[str, tuple[float, float]] = {}
+    if resolution_nm <= camera_nm:
+        centres = spectrum_line_centres(
+            spectrum.wavelength_nm,
+            spectrum.values,
+            features_at(lines, start, width, pixel_range),
+            resolution_nm,
+        )
     return _map_lines(
         lamp,
         lines,
@@ -521,6 +543,7 @@ def _measured_lines(
         directions=(_direction(start, lamp),),
         grid=grid,
         moments=True,
+        centres=centres,
     )
 
 
