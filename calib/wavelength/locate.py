@@ -431,6 +431,7 @@ def locate_mapping(
                             "a coarse tabulated spectrum: the lines are its nodes"
                         )
                     features = _measured_lines(lamp, search.exact, grating_prior, grid)
+                    _check_line_fit(features, search.exact, grating_prior, lead)
                     details["line_source"] = f"Hg lines of {lamp.name} (measured lamp)"
                     details["measured_lines"] = True
                 except EstimationError as exc:
@@ -494,6 +495,15 @@ def locate_mapping(
     return MappingSolution(mapping, exact, tuple(warnings), details)
 
 
+#: A measured spectrum's single Hg line this far (nm, beyond twice its σ) from its wavelength means
+#: the spectrum is not a real lamp's on a right scale (compact spectrometers: ±0.5 nm).
+LINE_SCALE_TOLERANCE_NM = 0.5
+#: Listed strength (:data:`calib.core.line_lists.MERCURY`) of the Hg lines a spectrum judges.
+STRONG_LINE = 1000.0
+#: ... judged only by a spectrum at most this many times the camera's resolution (FWHM, nm).
+JUDGING_RESOLUTION = 2.0
+
+
 def _measured_lines(
     lamp: LampObservation,
     start: ExactMapping,
@@ -527,14 +537,30 @@ def _measured_lines(
     resolution_nm = max(
         lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
     )
-    centres: dict[str, tuple[float, float]] = {}
-    if resolution_nm <= camera_nm:
-        centres = spectrum_line_centres(
-            spectrum.wavelength_nm,
-            spectrum.values,
-            features_at(lines, start, width, pixel_range),
-            resolution_nm,
-        )
+    measured = spectrum_line_centres(
+        spectrum.wavelength_nm,
+        spectrum.values,
+        features_at(lines, start, width, pixel_range),
+        resolution_nm,
+    )
+    listed = {line.label: line.wavelength_nm for line in lines}
+    # Only the strong lines every fluorescent lamp shows (404.7, 435.8, 546.1): a weak one's
+    # "centre" in a spectrum without it is the band's.
+    strong = {line.label for line in lines if line.strength >= STRONG_LINE}
+    measured = {label: value for label, value in measured.items() if label in strong}
+    # A spectrum blurred far more than the camera's profile cannot judge (the i1Pro's 15 nm put
+    # 546.1 on the halophosphate band 3.8 nm off).
+    judged = measured if resolution_nm <= JUDGING_RESOLUTION * camera_nm else {}
+    for label, (centre_nm, sigma_nm) in judged.items():
+        # A lamp whose spectrum does not put its lines where mercury has them (a tabulated lamp's
+        # nodes: colour-science's FL tables, the validation protocol's; a wrong scale) is not
+        # placed by the list: the profile fit, which matches the spectrum, stands.
+        if abs(centre_nm - listed[label]) > LINE_SCALE_TOLERANCE_NM + 2.0 * sigma_nm:
+            raise EstimationError(
+                f"its spectrum puts {label} at {centre_nm:.2f} nm, not where mercury has it "
+                f"({listed[label]:.2f} nm): a tabulated lamp or a shifted scale"
+            )
+    centres = measured if resolution_nm <= camera_nm else {}
     return _map_lines(
         lamp,
         lines,
@@ -545,6 +571,42 @@ def _measured_lines(
         moments=True,
         centres=centres,
     )
+
+
+#: A measured lamp's line fit is kept only with its incidence within this many σ of the rig's prior
+#: and within this RMS distance (nm) of the whole-profile fit it started from. Chosen on the
+#: validation split's LED+FL scenes (their FL2 is a 5 nm table, whose lines sit at its nodes: with
+#: three lines a fit reached −44° and 6 nm at the red end, another matched a line 6 nm off and was
+#: 10 nm from the profile fit) and the twin (its profile fits 2.1–3.3 nm away, lines within 2σ).
+LINE_FIT_INCIDENCE_SIGMAS = 2.0
+LINE_FIT_MAX_DISTANCE_NM = 5.0
+
+
+def _check_line_fit(
+    features: FeatureMapping,
+    start: ExactMapping,
+    prior: GratingPrior | None,
+    lead: LampObservation,
+) -> None:
+    """An :class:`EstimationError` when a measured lamp's line fit is not physically plausible
+    (incidence beyond :data:`LINE_FIT_INCIDENCE_SIGMAS` of the prior) or lies further than
+    :data:`LINE_FIT_MAX_DISTANCE_NM` (RMS) from the whole-profile fit: too few or wrong lines."""
+    exact = features.exact
+    incidence = None if prior is None else prior.values.get("incidence_deg")
+    if isinstance(exact, TiltedGrating) and incidence is not None and incidence[1] > 0:
+        deviation = abs(exact.incidence_deg - incidence[0]) / incidence[1]
+        if deviation > LINE_FIT_INCIDENCE_SIGMAS:
+            raise EstimationError(
+                f"the line fit's incidence {exact.incidence_deg:+.1f}° is {deviation:.1f}σ from "
+                "the rig's prior (too few lines to hold the grating)"
+            )
+    probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
+    apart = float(np.sqrt(np.mean((exact.wavelength_nm(probe) - start.wavelength_nm(probe)) ** 2)))
+    if apart > LINE_FIT_MAX_DISTANCE_NM:
+        raise EstimationError(
+            f"the line fit lies {apart:.1f} nm (RMS) from the whole-profile fit (a line matched "
+            "to the wrong feature)"
+        )
 
 
 #: σ (nm) of the mapping at the working grid's ends beyond which a mapping extrapolated past its
