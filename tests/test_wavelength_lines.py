@@ -14,7 +14,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import lamp_from_spec
 from calib.core.line_lists import blends, builtin_lamp, line_list
 from calib.core.mapping import GratingGeometry, QuadraticMapping, TiltedGrating
-from calib.core.observations import LampObservation
+from calib.core.observations import LampKind, LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
@@ -283,7 +283,11 @@ def test_a_measured_fluorescent_lamp_maps_through_its_lines_to_the_red_end(
     truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
     pixel = np.arange(440.0, 990.0, 1.0)
     observations = []
-    for lamp, kind in ((_halophosphate(2.5), "fluorescent"), (lamp_from_spec("LED-B3"), "led")):
+    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
+        (_halophosphate(2.5), "fluorescent"),
+        (lamp_from_spec("LED-B3"), "led"),
+    )
+    for lamp, kind in lamps:
         rendered = render_observation(
             lamp,
             camera,
