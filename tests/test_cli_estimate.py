@@ -23,6 +23,7 @@ from calib.core.spectra import DEFAULT_GRID, WavelengthGrid, write_csv
 from calib.methods import MultilampOptions
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.pipeline import LampImages, LampProfile
+from calib.pipeline.estimate import StatedOptics
 from tests.rendered_capture import (
     GRATING,
     Capture,
@@ -212,6 +213,8 @@ def test_an_inputs_file_is_checked_with_one_line_naming_the_field(
         (["--out", "o", "--quiet=yes", "--lamp", "A"], "option '--quiet' does not take a value"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--method", "guess"], "unknown method 'guess'; available: auto, prior"),
         (["--out", "o"], "no lamps; give --lamp NAME"),
+        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--grooves-per-mm", "0"], "--grooves-per-mm"),
+        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--pixel-pitch-um", "x"], "--pixel-pitch-um"),
     ],
 )  # fmt: skip
 def test_command_line_mistakes_are_one_line_exit_2(argv: list[str], message: str) -> None:
@@ -220,6 +223,27 @@ def test_command_line_mistakes_are_one_line_exit_2(argv: list[str], message: str
     assert stderr.startswith("calib: error: ") and stderr.count("\n") == 1, stderr
     assert message.lower() in stderr.lower(), stderr
     assert stdout == ""
+
+
+def test_the_optics_are_stated_on_the_command_line() -> None:
+    """Issue 16: the mapping's physical prior from the command line, in the one option style."""
+    request = parse_estimate_command(
+        ["--out", "o", "--lamp", "A", "--images", "a.dng", "--spectrum", "a.csv",
+         "--grooves-per-mm", "600", "--focal-length-mm", "24", "--pixel-pitch-um", "4.3"]
+    )  # fmt: skip
+    assert request.settings.optics == StatedOptics(600.0, 24.0, 4.3)
+    assert (
+        parse_estimate_command(
+            ["--out", "o", "--lamp", "A", "--images", "a.dng", "--spectrum", "a.csv"]
+        ).settings.optics
+        == StatedOptics()
+    )
+    # Over what the RAW files say, into the optics the mapping's prior reads.
+    exif = {"camera": "Nikon D7000", "focal_length_mm": None, "pixel_pitch_um": 4.78}
+    optics = StatedOptics(600.0, 24.0, None).over(exif)
+    assert optics == {**exif, "grooves_per_mm": 600.0, "focal_length_mm": 24.0}
+    stated = StatedOptics(None, None, 5.0).over(exif)
+    assert stated["pixel_pitch_um"] == 5.0 and stated["pitch_source"] == "stated"
 
 
 def test_the_help_lists_the_lamp_options_and_the_choices() -> None:
@@ -251,6 +275,15 @@ def test_images_end_to_end_with_json_summary(capture: Capture, tmp_path: Path) -
     assert document["provenance"]["command_line"][:4] == ["calib", "estimate", "--lamp", "LED"]
     values = read_camera_csv(out_dir / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05
+
+
+def test_a_stated_line_density_reaches_the_mapping(capture: Capture, tmp_path: Path) -> None:
+    out_dir = tmp_path / "out"
+    argv = [*_image_args(capture), "--out", str(out_dir), "--quiet", "--grooves-per-mm", "300"]
+    code, _, stderr = _call(argv)
+    assert code == 0, stderr
+    details = json.loads((out_dir / "result.json").read_text())["mapping"]["details"]
+    assert "300 lines/mm (nominal)" in details["rig_prior"]
 
 
 def test_an_existing_result_needs_force(capture: Capture, tmp_path: Path) -> None:

@@ -3,6 +3,7 @@ ambiguity a broadband lamp leaves."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +13,8 @@ from calib.core.datasets import colour_science_cameras, find_camera
 from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import lamp_from_spec
 from calib.core.line_lists import blends, builtin_lamp, line_list
-from calib.core.mapping import QuadraticMapping, TiltedGrating
-from calib.core.observations import LampObservation
+from calib.core.mapping import GratingGeometry, QuadraticMapping, TiltedGrating
+from calib.core.observations import LampKind, LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
@@ -240,3 +241,132 @@ def test_two_near_equal_basins_are_stated_and_carried(camera, prior):
     assert candidates[1]["delta_chi2"] < found.details.get("ambiguity_delta_chi2", 25.0)
     assert found.mapping.wavelength_rms_nm is not None
     assert found.mapping.wavelength_rms_nm > 3 * found.details["local_rms_nm"]
+
+
+# ------------------------------------------------------------------ a measured line lamp
+
+
+def _halophosphate(doublet_ratio: float) -> Spectrum:
+    """A measured-lamp truth: FL2's band (its 5 nm table without the line bins' excess) with narrow
+    Hg lines at their wavelengths, the 576.96/579.07 doublet split ``1 : doublet_ratio``."""
+    table = lamp_from_spec("FL2")
+    axis = np.arange(360.0, 800.0, 0.05)
+    band = np.interp(axis, table.wavelength_nm, table.values)
+    clear = ~np.any(np.abs(axis[:, None] - np.array([405.0, 435.0, 545.0, 580.0])) < 5.0, axis=1)
+    band = np.interp(axis, axis[clear], band[clear])
+    lines = {404.656: 1.0, 435.833: 2.5, 546.074: 3.0, 576.960: 1.0, 579.066: doublet_ratio}
+    sigma = 0.5 / 2.355
+    peak = float(band.max())
+    for centre, power in lines.items():
+        band = band + peak * power * np.exp(-0.5 * ((axis - centre) / sigma) ** 2)
+    return Spectrum(axis, band, name="halophosphate with Hg lines")
+
+
+def _measured(lamp: Spectrum, bandwidth_nm: float, step_nm: float) -> Spectrum:
+    """``lamp`` through a Gaussian slit of ``bandwidth_nm``, sampled every ``step_nm``."""
+    axis = np.arange(380.0, 780.0 + step_nm / 2, step_nm)
+    sigma = bandwidth_nm / 2.355
+    weights = np.exp(-0.5 * ((axis[:, None] - lamp.wavelength_nm[None, :]) / sigma) ** 2)
+    values = weights @ lamp.values / weights.sum(axis=1)
+    return Spectrum(axis, values, name=f"{lamp.name}, measured at {bandwidth_nm:g} nm")
+
+
+@pytest.mark.parametrize(("bandwidth_nm", "step_nm"), [(8.0, 4.0), (1.5, 0.4)])
+def test_a_measured_fluorescent_lamp_maps_through_its_lines_to_the_red_end(
+    camera, prior, bandwidth_nm, step_nm
+):
+    """Issue 20's twin: a halophosphate lamp (Hg lines up to 579 nm) measured by a spectrometer, a
+    camera unlike the prior, the 0th order at the origin and nothing else known. The whole-profile
+    fit bends the grating to suit the prior (the twin's landed 5–7 nm off at the red end); the
+    lines decide, the 577/579 doublet at its centre with σ for its unknown split, and the grating
+    equation carries them to the red end — within its stated σ."""
+    truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
+    pixel = np.arange(440.0, 990.0, 1.0)
+    observations = []
+    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
+        (_halophosphate(2.5), "fluorescent"),
+        (lamp_from_spec("LED-B3"), "led"),
+    )
+    for lamp, kind in lamps:
+        rendered = render_observation(
+            lamp,
+            camera,
+            mapping=truth,
+            pixel=pixel,
+            slit_width_px=2.0,
+            psf_sigma_px=0.8,
+            noise=PeakFractionNoise(0.002),
+            rng=np.random.default_rng(7),
+            fine_step_nm=0.05,
+            kind=kind,
+        ).observation
+        observations.append(
+            replace(
+                rendered,
+                spectrum=_measured(lamp, bandwidth_nm, step_nm),
+                spectrum_bandwidth_nm=bandwidth_nm,
+                pixel_origin="direct_spot",
+            )
+        )
+    solution = locate_mapping(observations, prior, DEFAULT_GRID)
+    assert (
+        solution.details["line_source"] == "Hg lines of halophosphate with Hg lines (measured lamp)"
+    )
+    red_px = float(truth.pixel_at(np.array([DEFAULT_GRID.stop_nm]))[0])
+    red_error = float(solution.exact.wavelength_nm(np.array([red_px]))[0]) - DEFAULT_GRID.stop_nm
+    assert abs(red_error) < 0.5
+    sigma_red = solution.details["red_end"]["sigma_at_grid_ends_nm"][1]
+    assert abs(red_error) < 2.0 * sigma_red
+    inside = (truth.wavelength_nm(pixel) >= 400.0) & (truth.wavelength_nm(pixel) <= 700.0)
+    error = solution.exact.wavelength_nm(pixel) - truth.wavelength_nm(pixel)
+    assert float(np.max(np.abs(error[inside]))) < 0.5
+    table = {row["line"]: row for row in solution.matched_lines}
+    doublet = table["Hg 577.0 + Hg 579.1"]
+    # At the list's centre (not the 579.07 line's), with the split's σ in its weight.
+    assert 577.5 < doublet["wavelength_nm"] < 578.5
+    assert doublet["weight"] < 1.0 / 0.6**2
+    # Nothing pins the grating beyond 579 nm but an incidence near 0: the result says so, by code.
+    if sigma_red > 1.0:
+        assert "mapping_extrapolated" in solution.details["warning_codes"]
+        assert "Eu 611" in solution.warnings[-1]
+    # The whole-profile fit only started the lines: its distance is recorded, not warned about.
+    assert "profile_fit_distance_nm" in solution.details
+    assert not any("disagree" in text for text in solution.warnings)
+
+
+def test_a_red_end_pinned_by_the_line_density_needs_no_warning(camera, prior):
+    """The same lamp with the grating's line density known (±2 %): σ at 700 nm falls below 1 nm and
+    nothing is warned; without it the extrapolation is stated."""
+    truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
+    pixel = np.arange(440.0, 990.0, 1.0)
+    lamp = _halophosphate(1.0)
+    rendered = render_observation(
+        lamp,
+        camera,
+        mapping=truth,
+        pixel=pixel,
+        slit_width_px=2.0,
+        psf_sigma_px=0.8,
+        noise=PeakFractionNoise(0.002),
+        rng=np.random.default_rng(8),
+        fine_step_nm=0.05,
+        kind="fluorescent",
+    ).observation
+    observation = replace(
+        rendered,
+        spectrum=_measured(lamp, 3.0, 0.5),
+        spectrum_bandwidth_nm=3.0,
+        pixel_origin="direct_spot",
+    )
+    known = locate_mapping([observation], prior, DEFAULT_GRID, grooves_per_mm=500.0)
+    assert known.details["red_end"]["sigma_at_grid_ends_nm"][1] < 1.0
+    assert "mapping_extrapolated" not in known.details["warning_codes"]
+    unknown = locate_mapping([observation], prior, DEFAULT_GRID)
+    assert (
+        unknown.details["red_end"]["sigma_at_grid_ends_nm"][1]
+        > known.details["red_end"]["sigma_at_grid_ends_nm"][1]
+    )
+    for found in (known, unknown):
+        red_px = float(truth.pixel_at(np.array([DEFAULT_GRID.stop_nm]))[0])
+        red_nm = float(found.exact.wavelength_nm(np.array([red_px]))[0])
+        assert abs(red_nm - DEFAULT_GRID.stop_nm) < 0.5

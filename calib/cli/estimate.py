@@ -31,10 +31,13 @@ from calib.cli.lamp_groups import LAMP_GROUPS, LampGroup, LampGroupsCommand, opt
 from calib.cli.options import (
     DataDirOption,
     ExcludeCameraOption,
+    FocalLengthOption,
     ForceOption,
     GridOption,
+    GroovesPerMmOption,
     JsonOption,
     MethodOption,
+    PixelPitchOption,
     QuietOption,
     WeightRuleOption,
     checked_grid,
@@ -183,13 +186,16 @@ def estimate_request(
     data_dir: Path | None = None,
     grating: Path | None = None,
     exclude_camera: Sequence[str] | None = None,
+    grooves_per_mm: float | None = None,
+    focal_length_mm: float | None = None,
+    pixel_pitch_um: float | None = None,
     force: bool = False,
     quiet: bool = False,
     json_output: bool = False,
 ) -> EstimateRequest:
     """The request of a parsed ``calib estimate`` (its options, and the lamp groups in ``ctx``)."""
     from calib.methods.multilamp import weight_rule_option
-    from calib.pipeline.estimate import OfflineSettings
+    from calib.pipeline.estimate import OfflineSettings, StatedOptics
 
     method = checked_method(method)
     settings = OfflineSettings(
@@ -200,6 +206,7 @@ def estimate_request(
         data_dir=data_dir,
         grating=grating,
         exclude_cameras=tuple(exclude_camera or ()),
+        optics=StatedOptics(grooves_per_mm, focal_length_mm, pixel_pitch_um),
         command_line=("calib", "estimate", *ctx.meta.get(ARGUMENTS, ())),
     )
     return EstimateRequest(
@@ -311,6 +318,9 @@ def register(app: typer.Typer) -> None:
             ),
         ] = None,
         exclude_camera: ExcludeCameraOption = None,
+        grooves_per_mm: GroovesPerMmOption = None,
+        focal_length_mm: FocalLengthOption = None,
+        pixel_pitch_um: PixelPitchOption = None,
         force: ForceOption = False,
         quiet: QuietOption = False,
         json_output: JsonOption = False,
@@ -327,6 +337,9 @@ def register(app: typer.Typer) -> None:
                 data_dir=data_dir,
                 grating=grating,
                 exclude_camera=exclude_camera,
+                grooves_per_mm=grooves_per_mm,
+                focal_length_mm=focal_length_mm,
+                pixel_pitch_um=pixel_pitch_um,
                 force=force,
                 quiet=quiet,
                 json_output=json_output,

@@ -1,7 +1,8 @@
 """The options several commands declare, one name and one meaning each, in ``calib`` and ``rig`` alike.
 
 ``--data-dir``, ``--exclude-camera``, ``--method``, ``--weight-rule``, ``--grid``, ``--quiet``/``-q``,
-``--json``, ``--force``. Choices that come from the methods registry are listed in the help through
+``--json``, ``--force``, the optics (``--grooves-per-mm``, ``--focal-length-mm``,
+``--pixel-pitch-um``). Choices that come from the methods registry are listed in the help through
 the placeholders ``{methods}`` and ``{weight_rules}`` (:func:`calib.cli.command_line.help_choices`),
 filled only when the help is shown; the commands check the value (:func:`checked_method`,
 :func:`checked_grid`).
@@ -144,6 +145,44 @@ JsonOption = Annotated[
 ]
 ForceOption = Annotated[
     bool, typer.Option("--force", help="Replace the results of an earlier run in --out.")
+]
+
+#: ``--grooves-per-mm``, ``--focal-length-mm``, ``--pixel-pitch-um``: what the rig knows of its
+#: optics, the mapping's physical prior (decision 0025; a RAW file's EXIF gives the last two when
+#: it records them).
+GroovesPerMmOption = Annotated[
+    float | None,
+    typer.Option(
+        "--grooves-per-mm",
+        metavar="N",
+        min=1.0,
+        max=10000.0,
+        help="The grating's nominal line density (lines/mm, taken as ±2 %): the pixel→wavelength "
+        "mapping's physics then holds the grating's spacing, which pins its red end beyond the "
+        "lamp's last line.",
+    ),
+]
+FocalLengthOption = Annotated[
+    float | None,
+    typer.Option(
+        "--focal-length-mm",
+        metavar="MM",
+        min=0.1,
+        max=5000.0,
+        help="The lens' focal length (mm), when the RAW files do not record it (with the pixel "
+        "pitch: the mapping's focal length in pixels). Overrides EXIF.",
+    ),
+]
+PixelPitchOption = Annotated[
+    float | None,
+    typer.Option(
+        "--pixel-pitch-um",
+        metavar="UM",
+        min=0.1,
+        max=100.0,
+        help="The sensor's pixel pitch (µm), when the RAW files and the built-in table of bodies "
+        "do not give it. Overrides them.",
+    ),
 ]
 
 #: Toivonen et al.'s ensemble size for comparisons.

@@ -452,3 +452,59 @@ def _parse_builtin(spec: str) -> tuple[str, float]:
         if not (math.isfinite(fwhm) and fwhm > 0):
             raise InputError(f"width must be > 0 nm, got {fwhm:g}", source=spec)
     return name, fwhm
+
+
+#: Hg lines a fluorescent lamp's tabulated spectrum (CIE FL tables, 5 nm bins) holds in its bins:
+#: 404.7, 435.8, 546.1 and the 577/579 doublet.
+TABULATED_MERCURY_NM = (404.6563, 435.8328, 546.0735, 576.9598, 579.0663)
+#: Width given to those lines when they are restored (far below what a camera's slit image or a
+#: spectroradiometer's slit resolves), and the sampling of the restored spectrum.
+RESTORED_LINE_FWHM_NM = 1.0
+RESTORED_LINE_STEP_NM = 0.2
+
+
+def with_narrow_lines(
+    spectrum: Spectrum,
+    lines_nm: Sequence[float] = TABULATED_MERCURY_NM,
+    *,
+    fwhm_nm: float = RESTORED_LINE_FWHM_NM,
+    step_nm: float = RESTORED_LINE_STEP_NM,
+) -> Spectrum:
+    """A binned line spectrum (CIE tables: each line's power added to its 5 nm bin) with its lines
+    restored as narrow Gaussians at their true wavelengths — the lamp a simulation shows a camera
+    and a spectrometer (a real fluorescent lamp's mercury lines are ~0.1 nm wide, not 5 nm bins).
+
+    The bins holding a line are replaced by the continuum interpolated from the nearest bins
+    without one; each line gets its bin's excess power (value above that continuum × bin width),
+    shared equally by the lines of one bin. Lines outside the table or without an excess are left
+    out. The result, on a ``step_nm`` axis, has the table's total power.
+
+    Examples
+    --------
+    >>> axis = np.arange(530.0, 565.0, 5.0)
+    >>> table = Spectrum(axis, np.where(axis == 545.0, 11.0, 1.0))
+    >>> lamp = with_narrow_lines(table)
+    >>> float(lamp.wavelength_nm[np.argmax(lamp.values)])
+    546.0
+    >>> round(float(np.trapezoid(lamp.values, lamp.wavelength_nm)), 1)  # 30 nm × 1 + 10 × 5 nm
+    80.0
+    """
+    axis = spectrum.wavelength_nm
+    values = spectrum.values
+    widths = np.gradient(axis)
+    line_bins: dict[int, list[float]] = {}
+    for line in lines_nm:
+        index = int(np.argmin(np.abs(axis - line)))
+        if abs(axis[index] - line) <= widths[index] / 2:
+            line_bins.setdefault(index, []).append(line)
+    clear = np.array([index not in line_bins for index in range(axis.size)])
+    continuum = np.interp(axis, axis[clear], values[clear])
+    fine = np.arange(axis[0], axis[-1] + step_nm / 2, step_nm)
+    result = np.interp(fine, axis, continuum)
+    sigma = fwhm_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    for index, lines in line_bins.items():
+        power = (values[index] - continuum[index]) * widths[index]
+        for line in lines if power > 0 else ():
+            profile = np.exp(-0.5 * ((fine - line) / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi))
+            result += power / len(lines) * profile
+    return Spectrum(fine, result, name=spectrum.name)

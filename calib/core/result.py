@@ -69,6 +69,8 @@ QUALITY_CODES: dict[str, str] = {
     "mapping_ambiguous": "the pixel→wavelength mapping has competing solutions (mapping stage)",
     "mapping_nonmonotonic": "the mapping is not monotonic over the profile (mapping stage)",
     "mapping_line_residuals": "known lines sit far from the mapping (mapping stage)",
+    "mapping_extrapolated": "the mapping is extrapolated beyond its lamp's lines with a large σ "
+    "there (mapping stage)",
     "flat_grating_assumed": "the grating efficiency was assumed flat, not measured (grating stage)",
     "assumed_grating_reused": "a grating file holding an assumed η is reused (grating stage)",
 }

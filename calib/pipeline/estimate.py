@@ -61,6 +61,30 @@ __all__ = [
 
 
 @dataclass(frozen=True)
+class StatedOptics:
+    """The optics a user states (``calib estimate --grooves-per-mm/--focal-length-mm/
+    --pixel-pitch-um``): the grating's nominal line density, and the focal length and pixel pitch
+    where the RAW files record none (a stated value wins over EXIF)."""
+
+    grooves_per_mm: float | None = None
+    focal_length_mm: float | None = None
+    pixel_pitch_um: float | None = None
+
+    def over(self, optics: Mapping[str, Any]) -> dict[str, Any]:
+        """``optics`` (an observation's ``"optics"`` metadata) with the stated values in."""
+        stated = {
+            "grooves_per_mm": self.grooves_per_mm,
+            "focal_length_mm": self.focal_length_mm,
+            "pixel_pitch_um": self.pixel_pitch_um,
+        }
+        out = dict(optics)
+        out.update({key: value for key, value in stated.items() if value is not None})
+        if self.pixel_pitch_um is not None:
+            out["pitch_source"] = "stated"
+        return out
+
+
+@dataclass(frozen=True)
 class OfflineSettings:
     """How to estimate.
 
@@ -85,6 +109,9 @@ class OfflineSettings:
         validating; :func:`calib.model.bases.default_camera_basis`); not with ``basis``.
     grating
         A grating efficiency (file or object) for lamps without a direct measurement.
+    optics
+        What the user states of the optics (line density, focal length, pitch): the mapping's
+        physical prior, over what the RAW files say.
     use_region
         Merge RAW frames over a region of interest: ``None`` decides by frame size.
     command_line
@@ -101,6 +128,7 @@ class OfflineSettings:
     basis: CameraBasis | None = None
     exclude_cameras: tuple[str, ...] = ()
     grating: Path | GratingEfficiency | None = None
+    optics: StatedOptics = field(default_factory=lambda: StatedOptics())
     use_region: bool | None = None
     command_line: tuple[str, ...] | None = None
     warnings: tuple[str, ...] = ()
@@ -406,6 +434,7 @@ def estimate_offline(
                 "focal_length_mm": camera["focal_length_mm"],
                 "pixel_pitch_um": camera["pixel_pitch_um"],
             }
+            optics = settings.optics.over(optics)
             for item in profiles.extractions:
                 lamp = item.merged.lamp
                 extraction = item.extraction

@@ -28,7 +28,7 @@ mapping's wavelength there and the residual, for the report.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -89,6 +89,9 @@ class FeatureMatch:
         uncertainty, the model error).
     used
         Kept by the mapping fit (not an outlier).
+    centre_nm
+        The wavelength of the feature's first moment, when the mapping was fitted through that
+        (``pixel`` is then the moment's); ``None``: ``pixel`` is the reference line's.
     """
 
     blend: Blend
@@ -98,21 +101,28 @@ class FeatureMatch:
     sigma_nm: float
     used: bool = True
     amplitude: float = 0.0
+    centre_nm: float | None = None
 
     @property
     def reference(self) -> Line:
         return self.blend.reference
 
     @property
+    def wavelength_nm(self) -> float:
+        """The wavelength the mapping was fitted to at :attr:`pixel`."""
+        return self.reference.wavelength_nm if self.centre_nm is None else self.centre_nm
+
+    @property
     def residual_nm(self) -> float:
-        return self.fitted_nm - self.reference.wavelength_nm
+        return self.fitted_nm - self.wavelength_nm
 
     def row(self) -> dict[str, Any]:
         """The matched-line table's row: ``{line, wavelength_nm, pixel, fitted_nm, residual_nm,
-        weight}`` (``weight`` is ``1/σ²`` in nm⁻², 0 for a rejected feature)."""
+        weight}`` (``weight`` is ``1/σ²`` in nm⁻², 0 for a rejected feature; ``wavelength_nm`` is
+        the reference line's, or a blend's centre when the feature was fitted at its moment)."""
         return {
             "line": self.blend.label,
-            "wavelength_nm": self.reference.wavelength_nm,
+            "wavelength_nm": self.wavelength_nm,
             "pixel": self.pixel,
             "fitted_nm": self.fitted_nm,
             "residual_nm": self.residual_nm,
@@ -222,10 +232,16 @@ def signal_peaks(
 
 @dataclass
 class _Fitted:
+    """A fitted feature: where its reference line lies (``pixel`` ± ``sigma``) and where its light's
+    first moment lies (``centroid_px`` ± ``centroid_sigma``: the heights-weighted mean of the fitted
+    components — well determined even when the components' split is not)."""
+
     blend: Blend
     pixel: float
     sigma: float
     amplitude: float
+    centroid_px: float = math.nan
+    centroid_sigma: float = math.nan
 
 
 def _fit_group(
@@ -235,13 +251,18 @@ def _fit_group(
     group: Sequence[Blend],
     mapping: ExactMapping,
     fwhm_px: float,
+    *,
+    background_order: int = 1,
 ) -> list[_Fitted]:
     """Fit overlapping features together (see the module docstring, step 4).
 
-    Background (linear), one height per component, one shift per feature and a shared width,
-    fitted jointly by Levenberg–Marquardt with the closed-form Jacobian, from heights solved
-    linearly at the predicted places; a shift beyond one FWHM of the prediction or a width
-    outside ×0.5–2 of the camera's is outside the valid region.
+    Background (a polynomial of ``background_order``), one height per component, one shift per
+    feature and a shared width, fitted jointly by Levenberg–Marquardt with the closed-form
+    Jacobian, from heights solved linearly at the predicted places; a shift beyond one FWHM of the
+    prediction or a width outside ×0.5–2 of the camera's is outside the valid region. Each
+    feature's first moment comes with it: the heights-weighted mean of its components (those
+    fitted below zero are absent lines) — as exact as the fit for a blend's light (within 0.05 nm
+    for a 1 : 2.5 Hg 577/579 doublet at 2–6 px of slit, where its 579.07 line's shift is not).
     """
 
     sigma_px = fwhm_px / (2.0 * math.sqrt(2.0 * math.log(2.0)))
@@ -255,7 +276,7 @@ def _fit_group(
     inside = (pixel >= lo) & (pixel <= hi)
     n_blends = len(placed)
     n_lines = sum(offsets.size for _, _, offsets in placed)
-    if np.count_nonzero(inside) < n_lines + n_blends + 4:
+    if np.count_nonzero(inside) < n_lines + n_blends + 3 + background_order:
         return []
     x = pixel[inside]
     y = signal[inside]
@@ -268,7 +289,8 @@ def _fit_group(
         values = np.exp(-0.5 * (offset / width) ** 2)
         return values, offset
 
-    base = np.stack([np.ones(x.size), (x - centre) / fwhm_px], axis=1)
+    base = np.stack([((x - centre) / fwhm_px) ** k for k in range(background_order + 1)], axis=1)
+    n_base = base.shape[1]
     # Heights and background for the predicted places: the start of the joint fit.
     start_values, _ = gaussians(np.zeros(n_blends), sigma_px)
     linear, *_ = np.linalg.lstsq(np.hstack([base, start_values]), y, rcond=None)
@@ -281,8 +303,8 @@ def _fit_group(
         if np.any(np.abs(shifts) > fwhm_px) or not (0.5 * sigma_px <= width <= 2.0 * sigma_px):
             return None
         values, offset = gaussians(shifts, width)
-        amplitudes = params[n_shape + 2 :]
-        model = base @ params[n_shape : n_shape + 2] + values @ amplitudes
+        amplitudes = params[n_shape + n_base :]
+        model = base @ params[n_shape : n_shape + n_base] + values @ amplitudes
         residual = (model - y) / noise
         if not with_jacobian:
             return residual, None
@@ -298,7 +320,7 @@ def _fit_group(
         solution = levenberg_marquardt(function, start, max_iterations=25, tolerance=1e-8)
     except (ValueError, np.linalg.LinAlgError):
         return []
-    heights = solution.x[n_shape + 2 :]
+    heights = solution.x[n_shape + n_base :]
     dof = max(y.size - start.size, 1)
     variance_scale = max(solution.cost / dof, 1.0)
     try:
@@ -306,7 +328,7 @@ def _fit_group(
     except np.linalg.LinAlgError:
         return []
     out = []
-    for b, (blend, ref_px, _) in enumerate(placed):
+    for b, (blend, ref_px, offsets) in enumerate(placed):
         mine = heights[owner == b]
         shift = float(solution.x[b])
         shift_sigma = float(np.sqrt(max(covariance[b, b], 0.0)))
@@ -314,9 +336,30 @@ def _fit_group(
         # A feature must stand out: positive, its strongest component above 3 noise σ.
         if at_bound or not math.isfinite(shift_sigma) or float(np.max(mine)) < 3.0 * noise:
             continue
-        if float(np.sum(mine)) <= 0:
+        total = float(np.sum(mine))
+        if total <= 0:
             continue
-        out.append(_Fitted(blend, ref_px + shift, shift_sigma, float(np.sum(mine))))
+        # The first moment of the fitted components and its σ through the joint covariance
+        # (∂c/∂shift = 1, ∂c/∂h_j = (o_j − (c − ref − shift))/Σh).
+        # Components fitted below zero are absent lines: no light, no weight.
+        weights = np.clip(mine, 0.0, None)
+        moment = float(np.dot(weights, offsets)) / float(np.sum(weights))
+        gradient = np.zeros(solution.x.size)
+        gradient[b] = 1.0
+        gradient[n_shape + n_base + np.flatnonzero(owner == b)] = np.where(
+            mine > 0, (offsets - moment) / float(np.sum(weights)), 0.0
+        )
+        centroid_sigma = math.sqrt(max(float(gradient @ covariance @ gradient), 0.0))
+        out.append(
+            _Fitted(
+                blend,
+                ref_px + shift,
+                shift_sigma,
+                total,
+                ref_px + shift + moment,
+                centroid_sigma,
+            )
+        )
     return out
 
 
@@ -537,8 +580,11 @@ def fit_features(
     features: Sequence[Blend],
     mapping: ExactMapping,
     fwhm_px: float,
+    *,
+    background_order: int = 1,
 ) -> list[_Fitted]:
-    """Every feature the mapping puts inside the profile, fitted (overlapping ones together)."""
+    """Every feature the mapping puts inside the profile, fitted (overlapping ones together;
+    ``background_order``: :func:`_fit_group`'s)."""
     lo, hi = float(pixel[0]), float(pixel[-1])
     located = []
     for blend in features:
@@ -558,8 +604,54 @@ def fit_features(
             groups.append([item])
     out: list[_Fitted] = []
     for group in groups:
-        out += _fit_group(pixel, signal, noise, [b for _, _, b in group], mapping, fwhm_px)
+        out += _fit_group(
+            pixel,
+            signal,
+            noise,
+            [b for _, _, b in group],
+            mapping,
+            fwhm_px,
+            background_order=background_order,
+        )
     return out
+
+
+def spectrum_line_centres(
+    wavelength_nm: FloatArray,
+    values: FloatArray,
+    features: Sequence[Blend],
+    resolution_nm: float,
+) -> dict[str, tuple[float, float]]:
+    """Where a lamp's measured spectrum puts each single line among a camera's ``features``:
+    ``{label: (nm, σ nm)}``, the line's centre fitted in the spectrum (:func:`fit_features` on
+    the spectrum as a profile whose pixels are nanometres, a quadratic background under it, at
+    ``resolution_nm``: the bandwidth, never finer than the sampling). A line the spectrometer
+    blends with another one at that resolution, or does not find, is left out.
+
+    A real lamp's lines are where the list says; a tabulated one's (colour-science's 5 nm FL
+    tables, which the validation protocol renders) sit at the table's nodes, up to 1.1 nm away —
+    and what the camera saw is the lamp, as its spectrum says.
+    """
+    axis = np.asarray(wavelength_nm, dtype=np.float64)
+    spectrum = np.asarray(values, dtype=np.float64)
+    if axis.size < 8:
+        return {}
+    step = float(np.median(np.diff(axis)))
+    width = max(float(resolution_nm), step)
+    lines = sorted({line for feature in features for line in feature.lines}, key=_line_nm)
+    own = {blend.label: blend for blend in blends(lines, width)}
+    singles = [f for f in features if len(f.lines) == 1 and f.label in own]
+    identity = QuadraticMapping(0.0, 1.0, 0.0, pixel_range=(float(axis[0]), float(axis[-1])))
+    _, noise = feature_signal(spectrum[:, None], "emission", width / step)
+    return {
+        f.blend.label: (f.centroid_px, f.centroid_sigma)
+        for f in fit_features(axis, spectrum, noise, singles, identity, width, background_order=2)
+        if math.isfinite(f.centroid_px) and math.isfinite(f.centroid_sigma)
+    }
+
+
+def _line_nm(line: Line) -> float:
+    return line.wavelength_nm
 
 
 # ------------------------------------------------------------------------------ mapping fit
@@ -638,6 +730,8 @@ def map_features(
     allow_reversed: bool = False,
     kind: LineKind | None = None,
     range_nm: tuple[float, float] = (380.0, 720.0),
+    moments: bool = False,
+    centres: Mapping[str, tuple[float, float]] | None = None,
 ) -> FeatureMapping:
     """The mapping through a profile's features (see the module docstring).
 
@@ -662,6 +756,14 @@ def map_features(
         Emission or absorption (default: the lines').
     range_nm
         Only features in this range are matched (the camera's and the working grid's).
+    moments
+        Fit each feature at its first moment (:func:`_point`), on the summed profile itself with a
+        quadratic background — for a lamp whose line strengths nobody listed (a measured
+        fluorescent lamp's Hg lines: its 577.0/579.1 split is its own) — and let a physical
+        family's soft prior count as an equation (a start is given: no matching to guard).
+    centres
+        With ``moments``: ``{label: (nm, σ nm)}`` of single lines placed by the lamp's measured
+        spectrum (:func:`spectrum_line_centres`), used instead of the list's wavelengths.
     """
     if not lines:
         raise InputError("no lines to match", source="line list")
@@ -681,6 +783,10 @@ def map_features(
     ]
     features = _measurable(blends(chosen, resolution_nm), resolution_nm)
     signal, noise = feature_signal(profile, kind, fwhm_px / spacing)
+    if moments and kind == "emission":
+        # On the light itself, a quadratic background under each feature: the baseline's opening
+        # leaves a broad band's shoulder under a line on a steep flank, which moves its moment.
+        signal = np.sum(np.asarray(profile, dtype=np.float64), axis=1)
     pixel_range = (float(pixel[0]), float(pixel[-1]))
     hypotheses: list[ExactMapping]
     if start is None:
@@ -719,6 +825,8 @@ def map_features(
                     features_at(chosen, hypothesis, fwhm_px, pixel_range),
                     fwhm_px,
                     pixel_range,
+                    moments,
+                    centres or {},
                 )
             )
         except (EstimationError, ValueError, np.linalg.LinAlgError):
@@ -733,14 +841,16 @@ def map_features(
     matches = tuple(
         FeatureMatch(
             f.blend,
-            f.pixel,
-            f.sigma,
-            float(exact.wavelength_nm(np.array([f.pixel]))[0]),
+            position,
+            position_sigma,
+            float(exact.wavelength_nm(np.array([position]))[0]),
             float(s),
             bool(u),
             f.amplitude,
+            centre,
         )
         for f, s, u in zip(fitted, sigma, used, strict=True)
+        for position, position_sigma, centre, _ in [_point(f, moments, centres or {})]
     )
     report = _report(exact, family, x, covariance, pixel_range)
     kept = [m for m in matches if m.used]
@@ -777,6 +887,32 @@ def _weight(blend: Blend) -> float:
     return float(blend.strength**0.25)
 
 
+def _point(
+    fitted: _Fitted, moments: bool, centres: Mapping[str, tuple[float, float]]
+) -> tuple[float, float, float | None, float]:
+    """A fitted feature as a point of the mapping fit: ``(pixel, σ px, nm or None, σ nm)``.
+
+    By default the reference line's pixel, the list's wavelength (``None``) and uncertainty. With
+    ``moments``, the feature's first moment: a single line at its list wavelength, a blend at the
+    list's strength-weighted centre with σ for a split nobody measured (uniform between its
+    components: their span/√12 — the Hg 576.96/579.07 doublet's share varies with the lamp; fitted
+    as two components at the list's places, the twin's put 579.07 1.1 nm off). A single line
+    that ``centres`` holds is placed there instead (where the lamp's own spectrum puts it)."""
+    blend = fitted.blend
+    if not moments or not math.isfinite(fitted.centroid_px):
+        return fitted.pixel, fitted.sigma, None, blend.uncertainty_nm
+    if len(blend.lines) == 1:
+        measured = centres.get(blend.label)
+        if measured is not None:
+            return fitted.centroid_px, fitted.centroid_sigma, measured[0], measured[1]
+        return fitted.centroid_px, fitted.centroid_sigma, None, blend.uncertainty_nm
+    wavelengths = [line.wavelength_nm for line in blend.lines]
+    split_nm = math.hypot(
+        (max(wavelengths) - min(wavelengths)) / math.sqrt(12.0), blend.uncertainty_nm
+    )
+    return fitted.centroid_px, fitted.centroid_sigma, blend.wavelength_nm, split_nm
+
+
 def _refine(
     family: Family,
     mapping: ExactMapping,
@@ -786,6 +922,8 @@ def _refine(
     features: Sequence[Blend],
     fwhm_px: float,
     pixel_range: tuple[float, float],
+    moments: bool = False,
+    centres: Mapping[str, tuple[float, float]] | None = None,
 ) -> _Outcome:
     """Fit the features where ``mapping`` puts them, the mapping through them; :data:`ROUNDS`."""
     # The family starts where the hypothesis is supported (between the features it predicts
@@ -806,17 +944,35 @@ def _refine(
     used = np.zeros(0, dtype=bool)
     for _ in range(ROUNDS):
         current = family.mapping(x)
-        fitted = fit_features(pixel, signal, noise, features, current, fwhm_px)
-        if len(fitted) < x.size + 1:
+        fitted = fit_features(
+            pixel,
+            signal,
+            noise,
+            features,
+            current,
+            fwhm_px,
+            background_order=2 if moments else 1,
+        )
+        # From a given start, a physical family's soft prior (an incidence near 0) is one more
+        # equation.
+        prior_row = moments and isinstance(family, GratingFamily) and bool(family.prior.soft())
+        needed = x.size + (0 if prior_row else 1)
+        if len(fitted) < needed:
             raise EstimationError(
                 f"only {len(fitted)} of the list's features were found in the profile; the mapping "
-                f"needs at least {x.size + 1} (is the lamp the one named, and the first order whole?)"
+                f"needs at least {needed} (is the lamp the one named, and the first order whole?)"
             )
-        pixels = np.array([f.pixel for f in fitted])
-        references = np.array([f.blend.reference.wavelength_nm for f in fitted])
+        points = [_point(f, moments, centres or {}) for f in fitted]
+        pixels = np.array([p[0] for p in points])
+        references = np.array(
+            [
+                f.blend.reference.wavelength_nm if p[2] is None else p[2]
+                for f, p in zip(fitted, points, strict=True)
+            ]
+        )
         sigma = np.sqrt(
-            (np.array([f.sigma for f in fitted]) * _slope(current, pixels)) ** 2
-            + np.array([f.blend.uncertainty_nm for f in fitted]) ** 2
+            (np.array([p[1] for p in points]) * _slope(current, pixels)) ** 2
+            + np.array([p[3] for p in points]) ** 2
             + MODEL_ERROR_NM**2
         )
         used = np.ones(len(fitted), dtype=bool)

@@ -47,7 +47,12 @@ from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel
 from calib.wavelength.families import GratingFamily, GratingPrior
 from calib.wavelength.features import FeatureMapping, map_features
-from calib.wavelength.profile_search import Orientation, search_profiles
+from calib.wavelength.profile_search import (
+    Orientation,
+    search_profiles,
+    spectrometer_scale_sigma_nm,
+    stated_covariance,
+)
 from calib.wavelength.rig_prior import (
     RigGeometry,
     default_prior,
@@ -185,11 +190,13 @@ def _map_lines(
     directions: Sequence[int],
     grid: WavelengthGrid,
     dispersion_nm_per_px: float | None = None,
+    moments: bool = False,
+    centres: dict[str, tuple[float, float]] | None = None,
 ) -> FeatureMapping:
     """Lines of one lamp through the physical family, in each allowed direction; the better kept.
 
     ``dispersion_nm_per_px`` (a whole-profile fit's) narrows the line matching when there is no
-    ``start`` to follow."""
+    ``start`` to follow; ``moments`` and ``centres``: :func:`calib.wavelength.features.map_features`'."""
     kind = lines[0].kind
     width = fwhm_px(lamp, kind)
     outcomes = []
@@ -209,6 +216,8 @@ def _map_lines(
                     allow_reversed=direction < 0,
                     kind=kind,
                     range_nm=(grid.start_nm - 30.0, grid.stop_nm + 30.0),
+                    moments=moments,
+                    centres=centres,
                 )
             )
         except (EstimationError, ValueError) as exc:
@@ -410,21 +419,49 @@ def locate_mapping(
             except EstimationError as exc:
                 warnings.append(f"the absorption refinement failed ({exc}); the profile fit stands")
         else:
-            # A measured line lamp: the profile fit stands; its known lines say how well.
             fluorescent = [lamp for lamp in measured if lamp.kind == "fluorescent"]
             if fluorescent:
-                # The table is for the report and the quality checks: residuals at the known
-                # lines, with the mapping held (a note, not a warning — a rendered lamp table's
-                # lines sit at its nodes, a real lamp's at their wavelengths).
-                table, note = _known_line_table(fluorescent[0], search.exact, grid)
-                details["matched_lines"] = table
-                if note:
-                    details["known_lines_note"] = f"lamp {fluorescent[0].name!r}: {note}"
+                # A measured line lamp: its Hg lines decide, from the profile fit (decision
+                # 0030). A coarse table nobody measured (no bandwidth: colour-science's 5 nm FL
+                # tables) holds its lines at its nodes, not their wavelengths: the fit stands.
+                lamp = fluorescent[0]
+                try:
+                    if lamp.spectrum_bandwidth_nm is None and _coarse(lamp):
+                        raise EstimationError(
+                            "a coarse tabulated spectrum: the lines are its nodes"
+                        )
+                    features = _measured_lines(lamp, search.exact, grating_prior, grid)
+                    _check_line_fit(features, search.exact, grating_prior, lead)
+                    details["line_source"] = f"Hg lines of {lamp.name} (measured lamp)"
+                    details["measured_lines"] = True
+                except EstimationError as exc:
+                    # The profile fit stands; its known lines say how well (a note, not a
+                    # warning — a rendered lamp table's lines sit at its nodes).
+                    table, note = _known_line_table(lamp, search.exact, grid)
+                    details["matched_lines"] = table
+                    details["measured_lines_failed"] = str(exc)
+                    if note:
+                        details["known_lines_note"] = f"lamp {lamp.name!r}: {note}"
 
+    extrapolated: list[str] = []
     if features is not None:
         mapping, exact = features.mapping, features.exact
         details.update(features.details)
         details["ambiguous"] = False
+        scale_nm = spectrometer_scale_sigma_nm(lamps) if search is not None else 0.0
+        if scale_nm > 0 and mapping.wavelength_rms_nm is not None:
+            # Lines placed by a measured spectrum carry its wavelength scale (a common offset).
+            mapping = stated_covariance(
+                mapping,
+                math.hypot(mapping.wavelength_rms_nm, scale_nm),
+                scale_nm,
+                (float(lead.pixel[0]), float(lead.pixel[-1])),
+            )
+            details["spectrometer_scale_sigma_nm"] = scale_nm
+        red_end, note = _red_end(features, mapping, grid)
+        details["red_end"] = red_end
+        if note:
+            extrapolated.append(note)
         if search is not None:
             probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
             apart = float(
@@ -434,7 +471,8 @@ def locate_mapping(
             )
             details["profile_fit_distance_nm"] = apart
             details["profile_fit"] = search.mapping.to_dict()
-            if apart > DISAGREEMENT_NM:
+            # A measured lamp's profile fit is only the lines' start: its distance is recorded.
+            if apart > DISAGREEMENT_NM and "measured_lines" not in details:
                 warnings.append(
                     f"the lines and the whole-profile fit disagree by {apart:.1f} nm (RMS); the "
                     "lines are used — check that the lamp spectra are the lamps'"
@@ -444,15 +482,170 @@ def locate_mapping(
         mapping, exact = search.mapping, search.exact
         details.update(search.details)
     _check_monotonic(exact, lead)
-    details["warnings"] = warnings
     # The quality code of each warning (calib.core.result.QUALITY_CODES): the profile search warns
-    # only of competing basins; this function's own warnings are about the lines against the fit.
+    # only of competing basins; this function's own warnings are about the lines against the fit,
+    # and about a mapping extrapolated beyond its lines.
     ambiguity = set(search.warnings) if search is not None else set()
     details["warning_codes"] = [
         "mapping_ambiguous" if text in ambiguity else "mapping_line_residuals" for text in warnings
-    ]
+    ] + ["mapping_extrapolated"] * len(extrapolated)
+    warnings += extrapolated
+    details["warnings"] = warnings
     mapping = mapping.with_details(details={**dict(mapping.details), **details})
     return MappingSolution(mapping, exact, tuple(warnings), details)
+
+
+#: A measured spectrum's single Hg line this far (nm, beyond twice its σ) from its wavelength means
+#: the spectrum is not a real lamp's on a right scale (compact spectrometers: ±0.5 nm).
+LINE_SCALE_TOLERANCE_NM = 0.5
+#: Listed strength (:data:`calib.core.line_lists.MERCURY`) of the Hg lines a spectrum judges.
+STRONG_LINE = 1000.0
+#: ... judged only by a spectrum at most this many times the camera's resolution (FWHM, nm).
+JUDGING_RESOLUTION = 2.0
+
+
+def _measured_lines(
+    lamp: LampObservation,
+    start: ExactMapping,
+    prior: GratingPrior | None,
+    grid: WavelengthGrid,
+) -> FeatureMapping:
+    """A measured fluorescent lamp's Hg lines through the physical family, from ``start`` (the
+    whole-profile fit), each feature at its first moment (decision 0030).
+
+    Every fluorescent lamp has the Hg lines, at wavelengths the physics fixes; the whole-profile
+    fit, which the camera prior's misfit bends by nanometres, only starts them. The camera finds
+    them (only those it finds are used) and the list places them: a single line at its
+    wavelength, a blend the camera cannot resolve (577.0 + 579.1) at its list centre with σ for
+    the split nobody listed (span/√12). Where the lamp's measured spectrum resolves at least as
+    finely as the camera, it places the single lines instead (a tabulated lamp's sit at its
+    nodes); a coarser one's centre of a line on a phosphor band's flank was 0.4–0.8 nm off on
+    the twin's PR-655, and the blends' it measured (578.19 nm for the twin's doublet, right) met a
+    camera moment 0.3 nm off: those stay with the list."""
+    from calib.wavelength.features import features_at, spectrum_line_centres
+
+    lines = tuple(
+        line
+        for line in line_list("hg")
+        if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
+    )
+    width = fwhm_px(lamp) * float(np.median(np.diff(lamp.pixel)))
+    pixel_range = (float(lamp.pixel[0]), float(lamp.pixel[-1]))
+    middle = np.array([0.5 * (pixel_range[0] + pixel_range[1])])
+    camera_nm = width * abs(float(_local_dispersion(start, middle)[0]))
+    spectrum = lamp.spectrum
+    resolution_nm = max(
+        lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
+    )
+    measured = spectrum_line_centres(
+        spectrum.wavelength_nm,
+        spectrum.values,
+        features_at(lines, start, width, pixel_range),
+        resolution_nm,
+    )
+    listed = {line.label: line.wavelength_nm for line in lines}
+    # Only the strong lines every fluorescent lamp shows (404.7, 435.8, 546.1): a weak one's
+    # "centre" in a spectrum without it is the band's.
+    strong = {line.label for line in lines if line.strength >= STRONG_LINE}
+    measured = {label: value for label, value in measured.items() if label in strong}
+    # A spectrum blurred far more than the camera's profile cannot judge (the i1Pro's 15 nm put
+    # 546.1 on the halophosphate band 3.8 nm off).
+    judged = measured if resolution_nm <= JUDGING_RESOLUTION * camera_nm else {}
+    for label, (centre_nm, sigma_nm) in judged.items():
+        # A lamp whose spectrum does not put its lines where mercury has them (a tabulated lamp's
+        # nodes: colour-science's FL tables, the validation protocol's; a wrong scale) is not
+        # placed by the list: the profile fit, which matches the spectrum, stands.
+        if abs(centre_nm - listed[label]) > LINE_SCALE_TOLERANCE_NM + 2.0 * sigma_nm:
+            raise EstimationError(
+                f"its spectrum puts {label} at {centre_nm:.2f} nm, not where mercury has it "
+                f"({listed[label]:.2f} nm): a tabulated lamp or a shifted scale"
+            )
+    centres = measured if resolution_nm <= camera_nm else {}
+    return _map_lines(
+        lamp,
+        lines,
+        prior,
+        start=start,
+        directions=(_direction(start, lamp),),
+        grid=grid,
+        moments=True,
+        centres=centres,
+    )
+
+
+#: A measured lamp's line fit is kept only with its incidence within this many σ of the rig's prior
+#: and within this RMS distance (nm) of the whole-profile fit it started from. Chosen on the
+#: validation split's LED+FL scenes (their FL2 is a 5 nm table, whose lines sit at its nodes: with
+#: three lines a fit reached −44° and 6 nm at the red end, another matched a line 6 nm off and was
+#: 10 nm from the profile fit) and the twin (its profile fits 2.1–3.3 nm away, lines within 2σ).
+LINE_FIT_INCIDENCE_SIGMAS = 2.0
+LINE_FIT_MAX_DISTANCE_NM = 5.0
+
+
+def _check_line_fit(
+    features: FeatureMapping,
+    start: ExactMapping,
+    prior: GratingPrior | None,
+    lead: LampObservation,
+) -> None:
+    """An :class:`EstimationError` when a measured lamp's line fit is not physically plausible
+    (incidence beyond :data:`LINE_FIT_INCIDENCE_SIGMAS` of the prior) or lies further than
+    :data:`LINE_FIT_MAX_DISTANCE_NM` (RMS) from the whole-profile fit: too few or wrong lines."""
+    exact = features.exact
+    incidence = None if prior is None else prior.values.get("incidence_deg")
+    if isinstance(exact, TiltedGrating) and incidence is not None and incidence[1] > 0:
+        deviation = abs(exact.incidence_deg - incidence[0]) / incidence[1]
+        if deviation > LINE_FIT_INCIDENCE_SIGMAS:
+            raise EstimationError(
+                f"the line fit's incidence {exact.incidence_deg:+.1f}° is {deviation:.1f}σ from "
+                "the rig's prior (too few lines to hold the grating)"
+            )
+    probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
+    apart = float(np.sqrt(np.mean((exact.wavelength_nm(probe) - start.wavelength_nm(probe)) ** 2)))
+    if apart > LINE_FIT_MAX_DISTANCE_NM:
+        raise EstimationError(
+            f"the line fit lies {apart:.1f} nm (RMS) from the whole-profile fit (a line matched "
+            "to the wrong feature)"
+        )
+
+
+#: σ (nm) of the mapping at the working grid's ends beyond which a mapping extrapolated past its
+#: lamp's lines is reported (a 1 nm shift moves a camera's steep flanks by several per cent).
+EXTRAPOLATED_SIGMA_NM = 1.0
+
+
+def _red_end(
+    features: FeatureMapping, mapping: QuadraticMapping, grid: WavelengthGrid
+) -> tuple[dict[str, Any], str | None]:
+    """How far the lines reach and the mapping's stated σ at the grid's ends; a note when the
+    mapping is extrapolated past them with σ above :data:`EXTRAPOLATED_SIGMA_NM`."""
+    used = [m for m in features.matches if m.used]
+    if not used or mapping.covariance is None:
+        return {}, None
+    reach = (min(m.wavelength_nm for m in used), max(m.wavelength_nm for m in used))
+    ends = np.array([grid.start_nm, grid.stop_nm])
+    covariance = np.asarray(mapping.covariance, dtype=np.float64)
+    sigma = []
+    for wavelength in ends:
+        try:
+            pixel = float(mapping.pixel_at(np.array([wavelength]))[0])
+        except InputError:
+            pixel = float("nan")
+        design = np.array([pixel**2, pixel, 1.0])
+        sigma.append(float(np.sqrt(max(design @ covariance @ design, 0.0))))
+    record = {
+        "lines_reach_nm": list(reach),
+        "sigma_at_grid_ends_nm": sigma,
+        "grid_ends_nm": [float(v) for v in ends],
+    }
+    if not (sigma[1] > EXTRAPOLATED_SIGMA_NM and grid.stop_nm > reach[1]):
+        return record, None
+    return record, (
+        f"beyond its reddest line ({reach[1]:.0f} nm) the mapping is extrapolated by the grating "
+        f"equation: σ {sigma[1]:.1f} nm at {grid.stop_nm:g} nm. A lamp with red lines in the same "
+        "geometry pins it — a tri-phosphor CFL (Eu 611 nm) or a neon lamp — as does the grating's "
+        "known line density"
+    )
 
 
 def _local_dispersion(mapping: ExactMapping, pixel: FloatArray) -> FloatArray:

@@ -766,7 +766,7 @@ def search_profiles(
     covariance = final.covariance()
     mapping, local_rms = _report(exact, family, final.x, covariance, pixel_range, origin)
     stated = math.sqrt((LOCAL_SIGMA_SCALE * local_rms) ** 2 + spread_nm**2 + scale_nm**2)
-    mapping = _stated_covariance(mapping, stated, scale_nm, pixel_range)
+    mapping = stated_covariance(mapping, stated, scale_nm, pixel_range)
     warnings: list[str] = []
     if ambiguous:
         other = next(
@@ -916,7 +916,7 @@ def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
     return SPECTROMETER_SCALE_SIGMA_NM if measured else 0.0
 
 
-def _stated_covariance(
+def stated_covariance(
     mapping: QuadraticMapping, stated_nm: float, scale_nm: float, pixel_range: tuple[float, float]
 ) -> QuadraticMapping:
     """The report form's coefficient covariance made to state ``stated_nm`` (RMS over the profile):

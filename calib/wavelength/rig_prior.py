@@ -141,7 +141,8 @@ def optics_from_observation(observation: LampObservation) -> RigOptics:
     camera = _text(optics.get("camera"))
     focal = _positive(optics.get("focal_length_mm"))
     pitch = _positive(optics.get("pixel_pitch_um"))
-    source = "EXIF focal plane resolution" if pitch is not None else "unknown"
+    stated = _text(optics.get("pitch_source"))
+    source = stated or ("EXIF focal plane resolution" if pitch is not None else "unknown")
     if pitch is None and camera is not None and camera.upper() in SENSOR_PITCH_UM:
         pitch, source = SENSOR_PITCH_UM[camera.upper()], "sensor table"
     side = -1 if metadata.get("side") == -1 else 1

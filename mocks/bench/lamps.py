@@ -4,7 +4,7 @@ A lamp's settled spectrum is a colour-science illuminant (CIE LED series ``LED-B
 ``FL2`` …, ``A``, ``D65``, high-pressure ``HP1`` …) scaled to the configured radiance; the drift
 after switch-on is :class:`mocks.lamps.VirtualLamp`'s. The CIE fluorescent tables hold each mercury
 line's power in its 5 nm bin; a fluorescent lamp gets its lines back as narrow peaks at their true
-wavelengths (:func:`with_narrow_lines`), as the camera and the spectrometer of a real rig see them —
+wavelengths (:func:`calib.core.line_lists.with_narrow_lines`), as the camera and the spectrometer of a real rig see them —
 the pixel→wavelength mapping is found from them.
 
 The camera renders a lamp's light once per *spectral component*: the drifting spectrum
@@ -24,6 +24,7 @@ import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.colour_data import illuminants
+from calib.core.line_lists import with_narrow_lines
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import Spectrum
 from mocks.bench.colour_cache import cached_table
@@ -32,12 +33,6 @@ from mocks.lamps import Clock, LampBank, VirtualLamp
 
 #: Wavelength range over which a lamp's radiance is normalised to the configured mean.
 NORMALISATION_RANGE_NM = (400.0, 700.0)
-#: Mercury lines of fluorescent lamps (nm, in air): 404.7, 435.8, 546.1 and the 577/579 doublet.
-MERCURY_LINES_NM = (404.656, 435.833, 546.074, 576.960, 579.066)
-#: Width the twin gives a lamp's lines (far below what the camera's slit image and the
-#: spectrometer's bandwidth resolve), and the sampling of a spectrum with lines.
-LINE_FWHM_NM = 1.0
-LINE_STEP_NM = 0.2
 #: Relative residual above which a lamp's spectrum is not a mix of its two components.
 COMPONENT_TOLERANCE = 1e-9
 
@@ -76,42 +71,6 @@ def settled_spectrum(lamp: LampSpec) -> Spectrum:
             f"devices.relays.lamps.{lamp.name}.spd: {lamp.spd!r} has no light in {low:g}–{high:g} nm"
         )
     return spectrum.scaled(lamp.radiance_w_sr_m2_nm / mean)
-
-
-def with_narrow_lines(
-    spectrum: Spectrum,
-    lines_nm: Sequence[float] = MERCURY_LINES_NM,
-    *,
-    fwhm_nm: float = LINE_FWHM_NM,
-    step_nm: float = LINE_STEP_NM,
-) -> Spectrum:
-    """A binned line spectrum (CIE tables: each line's power added to its 5 nm bin) with its lines
-    restored as narrow Gaussians at their true wavelengths.
-
-    The bins holding a line are replaced by the continuum interpolated from the nearest bins
-    without one; each line gets its bin's excess power (value above that continuum × bin width),
-    shared equally by the lines of one bin. Lines outside the table or without an excess are left
-    out. The result, on a ``step_nm`` axis, has the table's total power.
-    """
-    axis = spectrum.wavelength_nm
-    values = spectrum.values
-    widths = np.gradient(axis)
-    line_bins: dict[int, list[float]] = {}
-    for line in lines_nm:
-        index = int(np.argmin(np.abs(axis - line)))
-        if abs(axis[index] - line) <= widths[index] / 2:
-            line_bins.setdefault(index, []).append(line)
-    clear = np.array([index not in line_bins for index in range(axis.size)])
-    continuum = np.interp(axis, axis[clear], values[clear])
-    fine = np.arange(axis[0], axis[-1] + step_nm / 2, step_nm)
-    result = np.interp(fine, axis, continuum)
-    sigma = fwhm_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    for index, lines in line_bins.items():
-        power = (values[index] - continuum[index]) * widths[index]
-        for line in lines if power > 0 else ():
-            profile = np.exp(-0.5 * ((fine - line) / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi))
-            result += power / len(lines) * profile
-    return Spectrum(fine, result, name=spectrum.name)
 
 
 def virtual_lamp(lamp: LampSpec) -> VirtualLamp:

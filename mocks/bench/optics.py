@@ -49,7 +49,7 @@ from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_bo
 #: Step of the fine axis along the dispersion on which the first order's cumulative is tabulated.
 FINE_STEP_PX = 1.0 / 64.0
 #: Spectral step of the 1-D rendering: fine enough for the narrow lines of fluorescent lamps
-#: (:data:`mocks.bench.lamps.LINE_STEP_NM`), so their spectra are integrated exactly.
+#: (:data:`calib.core.line_lists.RESTORED_LINE_STEP_NM`), so their spectra are integrated exactly.
 SPECTRAL_STEP_NM = 0.2
 #: Aperture the throughput refers to.
 REFERENCE_F_NUMBER = 8.0

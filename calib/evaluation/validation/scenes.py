@@ -23,7 +23,9 @@ true line spread (the spot's cross-section, which the rig measures).
 
 Rendering one lamp (all orders through :func:`calib.model.forward.render_observation`):
 
-1. the lamp as the camera sees it: its spectrum drifted (:class:`~.rig_errors.LampDrift`);
+1. the lamp as the camera sees it: its true spectrum (:func:`true_lamp`: a tabulated fluorescent
+   lamp's mercury lines restored at their wavelengths, ~1 nm wide, as the twin renders them)
+   drifted (:class:`~.rig_errors.LampDrift`);
 2. the first order through ``η₁``, plus the second order through ``η₂`` on the same pixels (the
    grating equation puts ``λ/2`` of the second order where the first has ``λ``), both blurred by
    the slit and the lens;
@@ -48,6 +50,7 @@ from numpy.typing import ArrayLike
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.lamp_specs import lamp_from_spec
+from calib.core.line_lists import is_builtin, with_narrow_lines
 from calib.core.mapping import TiltedGrating
 from calib.core.observations import LampKind, LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
@@ -325,6 +328,17 @@ def clean_signals(
     return profile, direct
 
 
+def true_lamp(spec: str) -> Spectrum:
+    """The lamp ``spec`` names as it really shines: a fluorescent lamp tabulated in 5 nm bins (the
+    CIE FL tables colour-science holds) with its mercury lines restored as narrow lines at their
+    true wavelengths (:func:`calib.core.line_lists.with_narrow_lines`), as the twin renders it;
+    every other spec as :func:`calib.core.lamp_specs.lamp_from_spec` reads it."""
+    spectrum = lamp_from_spec(spec)
+    if lamp_kind(spec) != "fluorescent" or is_builtin(spec):
+        return spectrum
+    return with_narrow_lines(spectrum)
+
+
 def render_scene(
     plan: ScenePlan,
     camera: MultiSpectrum,
@@ -346,7 +360,7 @@ def render_scene(
         if spec not in plan.lamps:
             raise InputError(f"lamp {spec!r} was not drawn in this scene's plan", source="lamps")
         draw = plan.lamps[spec]
-        reference = (lamp_spectra or {}).get(spec) or lamp_from_spec(spec)
+        reference = (lamp_spectra or {}).get(spec) or true_lamp(spec)
         seen = drifted(reference, draw.drift_gain, draw.drift_tilt_per_100nm)
         profile, direct = clean_signals(plan, seen, camera)
         clean[spec] = (profile, direct)
