@@ -24,6 +24,54 @@ def test_the_calib_command_imports_no_heavy_library() -> None:
     assert shown.stdout.strip() == "[]"
 
 
+def test_building_calib_imports_no_stage() -> None:
+    # The command modules import their stages inside the commands: --help, and the parsing of any
+    # command, load typer and rich, not numpy or a pipeline stage (about 0.3 s of CPU).
+    code = (
+        "import sys\n"
+        "import calib.cli.app\n"
+        "app = calib.cli.app.build_app()\n"
+        "print(sorted(name for name in sys.modules if name.startswith('calib.')\n"
+        "             and not name.startswith('calib.cli')))\n"
+        "print('numpy' in sys.modules)\n"
+    )
+    shown = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    loaded, numpy_loaded = shown.stdout.splitlines()
+    assert loaded == str(["calib.core", "calib.core.errors"])
+    assert numpy_loaded == "False"
+
+
+def test_the_defaults_and_choices_the_help_shows_are_the_stages_own() -> None:
+    from typing import get_args
+
+    from calib.cli import compare, plan_lamps, spd, synthetic, uses, validate
+    from calib.core.colour_data import USE_ILLUMINANTS
+    from calib.evaluation.compare import DEFAULT_NOISE_LEVELS, DEFAULT_TRANSMISSIVE_PATCHES
+    from calib.evaluation.lamp_planning import DEFAULT_NOISE_FRACTION
+    from calib.evaluation.synthetic import NOISE_LEVELS
+    from calib.evaluation.validation.protocol import DEFAULT_VARIANTS, EXTRA_VARIANTS
+    from calib.methods.makabe2025 import MAKABE2025_METHOD
+    from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS
+    from calib.methods.prior_solve import PRIOR_METHOD
+    from calib.spd.alvarez2014 import SourceMode, Weighting
+    from calib.spd.light_sources import Metric
+
+    assert synthetic.PAPER_METHODS == (PRIOR_METHOD, MAKABE2025_METHOD)
+    assert ",".join(f"{n:g}" for n in NOISE_LEVELS) == synthetic.DEFAULT_NOISE
+    assert ",".join(f"{n:g}" for n in DEFAULT_NOISE_LEVELS) == compare.DEFAULT_NOISE
+    assert compare.DEFAULT_PATCHES == DEFAULT_TRANSMISSIVE_PATCHES
+    assert plan_lamps.DEFAULT_NOISE_FRACTION == DEFAULT_NOISE_FRACTION
+    assert plan_lamps.DEFAULT_EFFICIENCY_TERMS == DEFAULT_EFFICIENCY_TERMS
+    assert get_args(spd.SourceMode) == get_args(SourceMode)
+    assert get_args(spd.Weighting) == get_args(Weighting)
+    assert get_args(spd.Metric) == get_args(Metric)
+    assert tuple(uses.use_illuminants()) == tuple(USE_ILLUMINANTS)
+    labels = validate.validation_variants()[0].split("; ")
+    assert labels == [v.label for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)]
+
+
 def test_every_command_is_registered() -> None:
     import typer
     from typer.core import TyperGroup
