@@ -11,6 +11,23 @@ ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("scipy", "matplotlib", "colour")
 
 
+def _loaded_after(statements: str, skip: str = "calib.cli") -> tuple[str, str]:
+    """In a fresh interpreter, after ``statements``: the ``calib.`` modules loaded (sorted, those
+    starting with ``skip`` left out) and whether numpy is loaded, as printed."""
+    code = (
+        "import sys\n"
+        f"{statements}\n"
+        "print(sorted(name for name in sys.modules if name.startswith('calib.')\n"
+        f"             and not name.startswith({skip!r})))\n"
+        "print('numpy' in sys.modules)\n"
+    )
+    shown = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    loaded, numpy_loaded = shown.stdout.splitlines()
+    return loaded, numpy_loaded
+
+
 def test_the_calib_command_imports_no_heavy_library() -> None:
     code = (
         "import sys\n"
@@ -27,18 +44,7 @@ def test_the_calib_command_imports_no_heavy_library() -> None:
 def test_building_calib_imports_no_stage() -> None:
     # The command modules import their stages inside the commands: --help, and the parsing of any
     # command, load typer and rich, not numpy or a pipeline stage (about 0.3 s of CPU).
-    code = (
-        "import sys\n"
-        "import calib.cli.app\n"
-        "app = calib.cli.app.build_app()\n"
-        "print(sorted(name for name in sys.modules if name.startswith('calib.')\n"
-        "             and not name.startswith('calib.cli')))\n"
-        "print('numpy' in sys.modules)\n"
-    )
-    shown = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
-    )
-    loaded, numpy_loaded = shown.stdout.splitlines()
+    loaded, numpy_loaded = _loaded_after("import calib.cli.app\ncalib.cli.app.build_app()")
     assert loaded == str(["calib.core", "calib.core.errors"])
     assert numpy_loaded == "False"
 
@@ -98,16 +104,7 @@ def test_every_command_is_registered() -> None:
 
 def test_the_shared_options_do_not_load_the_calib_commands() -> None:
     # rig's command line imports calib.cli.options; it must not pay for every calib command.
-    code = (
-        "import sys\n"
-        "import calib.cli.options\n"
-        "print(sorted(name for name in sys.modules if name.startswith('calib.')))\n"
-        "print('numpy' in sys.modules)\n"
-    )
-    shown = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
-    )
-    loaded, numpy_loaded = shown.stdout.splitlines()
+    loaded, numpy_loaded = _loaded_after("import calib.cli.options", skip="calib.none")
     assert loaded == str(
         [
             "calib.cli",
