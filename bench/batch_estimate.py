@@ -18,10 +18,13 @@ Steps:
    * ``python bench/batch_estimate.py pool DIR`` — ``rig estimate SESSION… --jobs 2``;
    * ``python bench/batch_estimate.py dask DIR`` — a ``LocalCluster`` of 2 single-threaded worker
      processes and ``rig estimate SESSION… --scheduler ADDRESS`` (needs the ``dask`` extra;
-     ``--no-profile`` turns the workers' statistical profiler off).
+     ``--dask-config default`` for Dask's default worker settings instead of
+     :data:`BATCH_DASK_CONFIG`).
 
-   ``--limit N`` takes the first N sessions (wall linear in N: time ``--limit 10`` against
-   ``--limit 20``); ``--no-report`` passes ``--no-report`` to ``rig estimate``.
+   ``--limit N`` takes the first N sessions (wall linear in N: compare the wall per session at
+   ``--limit 20`` and at 100); ``--no-report`` passes ``--no-report`` to ``rig estimate``.
+   Modes joined by commas (``separate,pool,dask``) run in turn in one call, which then prints each
+   mode's CPU as a ratio to ``separate``'s: the figures of one run, on the same machine state.
 """
 
 from __future__ import annotations
@@ -86,20 +89,32 @@ def batch(sessions: Sequence[Path], out: Path, report: bool, where: Sequence[str
     subprocess.run([*command, *_estimate_options(report)], check=True, stdout=subprocess.DEVNULL)
 
 
-@contextmanager
-def local_cluster(workers: int, *, profile: bool = True) -> Iterator[str]:
-    """A ``LocalCluster`` of ``workers`` single-threaded worker processes (this process's
-    children, so their CPU time counts in this process's).
+#: The workers' settings of a cluster made for batch estimates (``--dask-config batch``): no
+#: statistical profiler (a stack sample every 10 ms), event-loop ticks and system/memory monitors
+#: at 1–5 s instead of 20–500 ms. An idle ``LocalCluster`` of 2 workers costs 0.073 cores with
+#: Dask's defaults and 0.014 with these (measured for 20 s); a batch pays that for its whole wall
+#: time, which a loaded machine stretches.
+BATCH_DASK_CONFIG: dict[str, object] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
 
-    With ``profile=False`` the workers do not sample their task threads' stacks (every 10 ms by
-    default: ``distributed.worker.profile``), which costs CPU on a loaded machine.
+
+@contextmanager
+def local_cluster(workers: int, *, settings: str = "batch") -> Iterator[str]:
+    """A ``LocalCluster`` of ``workers`` single-threaded worker processes (this process's
+    children, so their CPU time counts in this process's), with Dask's default worker settings
+    (``settings="default"``) or :data:`BATCH_DASK_CONFIG` (``"batch"``).
     """
     import dask
     import distributed
 
     cluster_type: Any = distributed.LocalCluster  # untyped
+    config = BATCH_DASK_CONFIG if settings == "batch" else {}
     with (
-        dask.config.set({"distributed.worker.profile.enabled": profile}),
+        dask.config.set(config),
         cluster_type(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
         ) as cluster,
@@ -107,9 +122,30 @@ def local_cluster(workers: int, *, profile: bool = True) -> Iterator[str]:
         yield str(cluster.scheduler_address)
 
 
+def _cpu_s() -> float:
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    return children.ru_utime + children.ru_stime + own.ru_utime + own.ru_stime
+
+
+def run_mode(mode: str, sessions: Sequence[Path], arguments: argparse.Namespace) -> None:
+    with tempfile.TemporaryDirectory(prefix="batch-bench-") as directory:
+        out = Path(directory)
+        if mode == "separate":
+            separate(sessions, out, arguments.parallel, arguments.report)
+        elif mode == "pool":
+            batch(sessions, out, arguments.report, ["--jobs", str(arguments.workers)])
+        else:
+            with local_cluster(arguments.workers, settings=arguments.dask_config) as address:
+                batch(sessions, out, arguments.report, ["--scheduler", address])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("mode", choices=("capture", "separate", "pool", "dask"))
+    parser.add_argument(
+        "mode",
+        help="capture, or one or more of separate, pool, dask joined by commas (run in turn)",
+    )
     parser.add_argument("directory", type=Path, help="the twin sessions")
     parser.add_argument("--sessions", type=int, default=20, help="capture: how many")
     parser.add_argument("--config", type=Path, default=Path("config.yaml"), help="capture: twin")
@@ -118,35 +154,39 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2, help="pool/dask: worker processes")
     parser.add_argument("--no-report", dest="report", action="store_false")
     parser.add_argument(
-        "--no-profile",
-        dest="profile",
-        action="store_false",
-        help="dask: the workers' statistical profiler off",
+        "--dask-config",
+        choices=("batch", "default"),
+        default="batch",
+        help="dask: the workers' settings (BATCH_DASK_CONFIG, or Dask's defaults)",
     )
     arguments = parser.parse_args()
     if arguments.mode == "capture":
         capture(arguments.directory, arguments.sessions, arguments.config)
         return
+    modes = arguments.mode.split(",")
+    unknown = sorted(set(modes) - {"separate", "pool", "dask"})
+    if unknown:
+        raise SystemExit(f"unknown mode {', '.join(unknown)}: give separate, pool or dask")
     sessions = sessions_in(arguments.directory, arguments.limit)
-    started = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="batch-bench-") as directory:
-        out = Path(directory)
-        if arguments.mode == "separate":
-            separate(sessions, out, arguments.parallel, arguments.report)
-        elif arguments.mode == "pool":
-            batch(sessions, out, arguments.report, ["--jobs", str(arguments.workers)])
-        else:
-            with local_cluster(arguments.workers, profile=arguments.profile) as address:
-                batch(sessions, out, arguments.report, ["--scheduler", address])
-    wall_s = time.perf_counter() - started
-    children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    own = resource.getrusage(resource.RUSAGE_SELF)
-    cpu_s = children.ru_utime + children.ru_stime + own.ru_utime + own.ru_stime
-    print(
-        f"{arguments.mode}: {len(sessions)} sessions, wall {wall_s:.1f} s, CPU {cpu_s:.1f} s "
-        f"({cpu_s / len(sessions):.2f} s a session, {cpu_s / wall_s:.2f} cores busy on average; "
-        f"{os.cpu_count()} CPUs)"
-    )
+    measured: dict[str, tuple[float, float]] = {}
+    for mode in modes:
+        started = time.perf_counter()
+        cpu_started = _cpu_s()
+        run_mode(mode, sessions, arguments)
+        wall_s = time.perf_counter() - started
+        cpu_s = _cpu_s() - cpu_started
+        measured[mode] = (wall_s, cpu_s)
+        print(
+            f"{mode}: {len(sessions)} sessions, wall {wall_s:.1f} s ({wall_s / len(sessions):.2f} s "
+            f"a session), CPU {cpu_s:.1f} s ({cpu_s / len(sessions):.2f} s a session, "
+            f"{cpu_s / wall_s:.2f} cores busy on average; {os.cpu_count()} CPUs)",
+            flush=True,
+        )
+    if "separate" in measured:
+        for mode, (_, cpu_s) in measured.items():
+            if mode != "separate":
+                ratio = cpu_s / measured["separate"][1]
+                print(f"CPU {mode} / separate: {ratio:.3f} (target ≤ 0.55)")
 
 
 if __name__ == "__main__":

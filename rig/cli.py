@@ -40,7 +40,6 @@ from calib.cli.options import (
     checked_method,
 )
 from calib.core.errors import CalibError, InputError
-from calib.core.metrics import format_re
 from calib.core.software import current_software
 from drivers.base import DeviceError
 from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
@@ -417,6 +416,8 @@ def estimate(
         typer.echo(f"report: {outcome.files['report']}")
     typer.echo(f"sensitivity: {outcome.files['sensitivity']}")
     if result.mapping_re_estimate is not None:
+        from calib.core.metrics import format_re
+
         typer.echo(
             f"method: {result.method}, mapping RE estimate {format_re(result.mapping_re_estimate)}"
         )
@@ -643,6 +644,8 @@ def demo(
     if result.relative_error is None:
         typer.echo("the estimate wrote no sensitivity.csv: no error to report", err=True)
         raise typer.Exit(1)
+    from calib.core.metrics import format_re
+
     typer.echo(
         f"RE against the twin's camera: {format_re(result.relative_error)} "
         "(Makabe et al. 2025 Eq. 16, curves normalised to their maximum)"

@@ -11,6 +11,23 @@ ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("scipy", "matplotlib", "colour")
 
 
+def _loaded_after(statements: str, skip: str = "calib.cli") -> tuple[str, str]:
+    """In a fresh interpreter, after ``statements``: the ``calib.`` modules loaded (sorted, those
+    starting with ``skip`` left out) and whether numpy is loaded, as printed."""
+    code = (
+        "import sys\n"
+        f"{statements}\n"
+        "print(sorted(name for name in sys.modules if name.startswith('calib.')\n"
+        f"             and not name.startswith({skip!r})))\n"
+        "print('numpy' in sys.modules)\n"
+    )
+    shown = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    loaded, numpy_loaded = shown.stdout.splitlines()
+    return loaded, numpy_loaded
+
+
 def test_the_calib_command_imports_no_heavy_library() -> None:
     code = (
         "import sys\n"
@@ -22,6 +39,43 @@ def test_the_calib_command_imports_no_heavy_library() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
     )
     assert shown.stdout.strip() == "[]"
+
+
+def test_building_calib_imports_no_stage() -> None:
+    # The command modules import their stages inside the commands: --help, and the parsing of any
+    # command, load typer and rich, not numpy or a pipeline stage (about 0.3 s of CPU).
+    loaded, numpy_loaded = _loaded_after("import calib.cli.app\ncalib.cli.app.build_app()")
+    assert loaded == str(["calib.core", "calib.core.errors"])
+    assert numpy_loaded == "False"
+
+
+def test_the_defaults_and_choices_the_help_shows_are_the_stages_own() -> None:
+    from typing import get_args
+
+    from calib.cli import compare, plan_lamps, spd, synthetic, uses, validate
+    from calib.core.colour_data import USE_ILLUMINANTS
+    from calib.evaluation.compare import DEFAULT_NOISE_LEVELS, DEFAULT_TRANSMISSIVE_PATCHES
+    from calib.evaluation.lamp_planning import DEFAULT_NOISE_FRACTION
+    from calib.evaluation.synthetic import NOISE_LEVELS
+    from calib.evaluation.validation.protocol import DEFAULT_VARIANTS, EXTRA_VARIANTS
+    from calib.methods.makabe2025 import MAKABE2025_METHOD
+    from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS
+    from calib.methods.prior_solve import PRIOR_METHOD
+    from calib.spd.alvarez2014 import SourceMode, Weighting
+    from calib.spd.light_sources import Metric
+
+    assert synthetic.PAPER_METHODS == (PRIOR_METHOD, MAKABE2025_METHOD)
+    assert ",".join(f"{n:g}" for n in NOISE_LEVELS) == synthetic.DEFAULT_NOISE
+    assert ",".join(f"{n:g}" for n in DEFAULT_NOISE_LEVELS) == compare.DEFAULT_NOISE
+    assert compare.DEFAULT_PATCHES == DEFAULT_TRANSMISSIVE_PATCHES
+    assert plan_lamps.DEFAULT_NOISE_FRACTION == DEFAULT_NOISE_FRACTION
+    assert plan_lamps.DEFAULT_EFFICIENCY_TERMS == DEFAULT_EFFICIENCY_TERMS
+    assert get_args(spd.SourceMode) == get_args(SourceMode)
+    assert get_args(spd.Weighting) == get_args(Weighting)
+    assert get_args(spd.Metric) == get_args(Metric)
+    assert tuple(uses.use_illuminants()) == tuple(USE_ILLUMINANTS)
+    labels = validate.validation_variants()[0].split("; ")
+    assert labels == [v.label for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)]
 
 
 def test_every_command_is_registered() -> None:
@@ -50,16 +104,7 @@ def test_every_command_is_registered() -> None:
 
 def test_the_shared_options_do_not_load_the_calib_commands() -> None:
     # rig's command line imports calib.cli.options; it must not pay for every calib command.
-    code = (
-        "import sys\n"
-        "import calib.cli.options\n"
-        "print(sorted(name for name in sys.modules if name.startswith('calib.')))\n"
-        "print('numpy' in sys.modules)\n"
-    )
-    shown = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
-    )
-    loaded, numpy_loaded = shown.stdout.splitlines()
+    loaded, numpy_loaded = _loaded_after("import calib.cli.options", skip="calib.none")
     assert loaded == str(
         [
             "calib.cli",

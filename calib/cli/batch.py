@@ -18,7 +18,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -40,16 +40,14 @@ from calib.cli.options import (
     checked_method,
 )
 from calib.core.errors import InputError
-from calib.pipeline.batch import run_batch
-from calib.pipeline.batch_display import (
-    RichBatchProgress,
-    check_summary_path,
-    summary_table,
-    write_summary,
-)
-from calib.pipeline.batch_jobs import DEBUG_VARIABLES, BatchOutcome, BatchPlan, batch_jobs
-from calib.pipeline.estimate import OfflineSettings
-from calib.pipeline.input_sets import InputSetReader, input_set_readers
+
+if TYPE_CHECKING:
+    from calib.pipeline.batch_jobs import BatchOutcome
+    from calib.pipeline.estimate import OfflineSettings
+    from calib.pipeline.input_sets import InputSetReader
+
+# The pipeline (numpy, the estimation stages) is imported by the functions that run a batch, not
+# here: ``calib --help`` and every other command load this module too.
 
 
 def expand_inputs(paths: Sequence[Path], readers: Sequence[InputSetReader]) -> list[Path]:
@@ -101,6 +99,10 @@ def run_batch_command(
         Before anything runs: an option in conflict, a path that is no input set, two sets
         writing to one place, a summary file of unknown format, a cluster that cannot be used.
     """
+    from calib.pipeline.batch import run_batch
+    from calib.pipeline.batch_display import RichBatchProgress, check_summary_path
+    from calib.pipeline.batch_jobs import BatchPlan, batch_jobs
+
     if jobs is not None and scheduler is not None:
         raise InputError(
             "give --jobs (local workers) or --scheduler (a Dask cluster's workers), not both",
@@ -122,6 +124,9 @@ def run_batch_command(
 
 
 def _report(outcome: BatchOutcome, targets: Sequence[Path], *, program: str, label: str) -> int:
+    from calib.pipeline.batch_display import summary_table, write_summary
+    from calib.pipeline.batch_jobs import DEBUG_VARIABLES
+
     console = Console()
     if not console.is_terminal:  # a log file or a pipe: rows whole, not wrapped at 80 columns
         console = Console(width=max(console.width, 200))
@@ -185,6 +190,8 @@ def register(app: typer.Typer) -> None:
         """Estimate many input sets (sessions …) on local workers or a Dask cluster, with a
         summary table."""
         from calib.methods.multilamp import weight_rule_option
+        from calib.pipeline.estimate import OfflineSettings
+        from calib.pipeline.input_sets import input_set_readers
 
         method = checked_method(method)
         readers = input_set_readers()

@@ -6,7 +6,7 @@ import shlex
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
@@ -14,24 +14,19 @@ from rich.console import Console
 from calib.cli.command_line import one_line, warn
 from calib.cli.options import DataDirOption, EnsembleOption, EpochsOption, ExcludeCameraOption
 from calib.cli.synthetic import _parse_noise
-from calib.core.datasets import colour_science_cameras, makabe2025_split
 from calib.core.errors import InputError
-from calib.core.spectra import WavelengthGrid
-from calib.evaluation.compare import (
-    DEFAULT_NOISE_LEVELS,
-    DEFAULT_TRANSMISSIVE_PATCHES,
-    SyntheticSource,
-    active_adapters,
-    run_comparison,
-    synthetic_adapters,
-)
-from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
-from calib.model.bases import (
-    FALLBACK_WARNING,
-    CameraBasis,
-    default_camera_basis,
-    fallback_camera_basis,
-)
+
+if TYPE_CHECKING:
+    from calib.model.bases import CameraBasis
+
+# The comparison and the bases are imported by the command when it runs (building ``calib``
+# imports this module); the defaults its options show are kept here, checked against
+# calib.evaluation.compare by tests/test_cli_startup.py.
+
+#: ``calib.evaluation.compare.DEFAULT_NOISE_LEVELS`` as ``--noise`` takes them.
+DEFAULT_NOISE = "0,0.01"
+#: ``calib.evaluation.compare.DEFAULT_TRANSMISSIVE_PATCHES``.
+DEFAULT_PATCHES = 16
 
 
 def register(app: typer.Typer) -> None:
@@ -54,19 +49,34 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Option(help="Methods to run (repeatable; default: all): {registered_methods}."),
         ] = None,
-        noise: Annotated[str, typer.Option(help="Noise levels, fractions of the peak.")] = ",".join(
-            f"{n:g}" for n in DEFAULT_NOISE_LEVELS
-        ),
+        noise: Annotated[
+            str, typer.Option(help="Noise levels, fractions of the peak.")
+        ] = DEFAULT_NOISE,
         lamp: Annotated[str, typer.Option(help="Broadband lamp (colour-science name).")] = "D65",
         repeats: Annotated[int, typer.Option(min=1, help="Scenes per camera and noise.")] = 1,
         seed: Annotated[int, typer.Option(help="Master seed.")] = 0,
         patches: Annotated[
             int, typer.Option(min=2, help="Gaussian transmissive filters (Toivonen, many-patch).")
-        ] = DEFAULT_TRANSMISSIVE_PATCHES,
+        ] = DEFAULT_PATCHES,
         ensemble: EnsembleOption = None,
         epochs: EpochsOption = None,
     ) -> None:
         """Compare every registered method on the synthetic protocol (RE per camera × method)."""
+        from calib.core.datasets import colour_science_cameras, makabe2025_split
+        from calib.core.spectra import WavelengthGrid
+        from calib.evaluation.compare import (
+            SyntheticSource,
+            active_adapters,
+            run_comparison,
+            synthetic_adapters,
+        )
+        from calib.evaluation.compare_report import markdown_report, plot_grid, write_csv
+        from calib.model.bases import (
+            FALLBACK_WARNING,
+            default_camera_basis,
+            fallback_camera_basis,
+        )
+
         grid = WavelengthGrid()
         excluded = list(exclude_camera or ())
         fallback_used = offline

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -14,24 +14,24 @@ from rich.table import Table
 from calib.cli.command_line import warn
 from calib.cli.options import DataDirOption, JsonOption
 from calib.core.errors import InputError
-from calib.core.grating_file import read_grating_file
-from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
-from calib.core.spectra import Spectrum, WavelengthGrid
-from calib.evaluation.lamp_planning import (
-    DEFAULT_NOISE_FRACTION,
-    SubsetScore,
-    best_additions,
-    rank_subsets,
-    recorded_model,
-)
-from calib.methods.multilamp import DEFAULT_EFFICIENCY_TERMS
-from calib.model.bases import default_camera_basis
 
-#: Narrow-band LEDs suggested as extra lamps when none are given.
-DEFAULT_CANDIDATES: tuple[str, ...] = RGB_LEDS
+if TYPE_CHECKING:
+    from calib.core.spectra import Spectrum
+    from calib.evaluation.lamp_planning import SubsetScore
+
+# The planning and the methods are imported by the command when it runs (building ``calib``
+# imports this module); the defaults its options show are kept here, checked against their
+# sources by tests/test_cli_startup.py.
+
+#: ``calib.evaluation.lamp_planning.DEFAULT_NOISE_FRACTION``.
+DEFAULT_NOISE_FRACTION = 0.01
+#: ``calib.methods.multilamp.DEFAULT_EFFICIENCY_TERMS``.
+DEFAULT_EFFICIENCY_TERMS = 7
 
 
 def _lamps(specs: list[str], option: str) -> list[Spectrum]:
+    from calib.core.lamp_specs import lamp_from_spec
+
     lamps = []
     for spec in specs:
         try:
@@ -113,13 +113,19 @@ def register(app: typer.Typer) -> None:
         ] = None,
     ) -> None:
         """Rank lamp subsets by how well they determine the grating efficiency (multilamp)."""
+        from calib.core.grating_file import read_grating_file
+        from calib.core.lamp_specs import RGB_LEDS
+        from calib.core.spectra import WavelengthGrid
+        from calib.evaluation.lamp_planning import best_additions, rank_subsets, recorded_model
+        from calib.model.bases import default_camera_basis
+
         if not math.isfinite(noise) or noise <= 0:
             raise InputError(f"must be a fraction > 0, got {noise}", source="--noise")
         model, parameter = grating_model, grating_parameter
         if grating is not None:
             model, parameter = recorded_model(read_grating_file(grating))
         owned = _lamps(lamp, "--lamp")
-        extra = _lamps(list(candidate or DEFAULT_CANDIDATES), "--candidate")
+        extra = _lamps(list(candidate or RGB_LEDS), "--candidate")
         basis = default_camera_basis(WavelengthGrid(), data_dir=data_dir)
         if basis.fallback is not None:
             warn("calib", basis.fallback)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 from rich.console import Console
@@ -22,11 +22,20 @@ from rich.table import Table
 from calib.cli.command_line import ARGUMENTS, list_options_command
 from calib.cli.options import ForceOption, JsonOption, QuietOption, checked_grid
 from calib.core.errors import InputError
-from calib.core.result import json_safe
-from calib.pipeline.outputs import check_out_dir
-from calib.spd.alvarez2014 import SourceMode, Weighting
-from calib.spd.light_sources import Metric
-from calib.spd.pipeline import SpdMeasurement, SpdRequest, measure_spd
+
+if TYPE_CHECKING:
+    from calib.spd.pipeline import SpdMeasurement
+
+# The measurement (calib.spd, the image stages) is imported by the command when it runs: building
+# ``calib`` imports this module. The choices its options take are kept here as the types typer
+# reads, checked against calib.spd's own by tests/test_cli_startup.py.
+
+#: ``calib.spd.alvarez2014.SourceMode``.
+SourceMode = Literal["point", "finite", "auto"]
+#: ``calib.spd.alvarez2014.Weighting``.
+Weighting = Literal["noise", "paper"]
+#: ``calib.spd.light_sources.Metric``.
+Metric = Literal["l2", "weighted"]
 
 #: The files of an earlier measurement that ``--force`` allows to overwrite.
 SPD_MARKERS = ("spd.json", "spd.csv")
@@ -160,6 +169,10 @@ def register(app: typer.Typer) -> None:
             raise InputError(
                 "give either --mapping or --mapping-lamp-images, not both", source="calib spd"
             )
+        from calib.core.result import json_safe
+        from calib.pipeline.outputs import check_out_dir
+        from calib.spd.pipeline import SpdRequest, measure_spd
+
         check_out_dir(out, force, markers=SPD_MARKERS, what="an SPD measurement")
         request = SpdRequest(
             images=tuple(images),

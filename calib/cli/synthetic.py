@@ -7,40 +7,31 @@ import math
 from collections import defaultdict
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from calib.cli.command_line import warn
 from calib.cli.options import DataDirOption, ExcludeCameraOption, WeightRuleOption
-from calib.core.datasets import colour_science_cameras, makabe2025_split
 from calib.core.errors import InputError
-from calib.core.spectra import MultiSpectrum, WavelengthGrid
-from calib.evaluation.synthetic import (
-    MULTILAMP_VARIANTS,
-    NOISE_LEVELS,
-    PAPER_VARIANTS,
-    VARIANTS,
-    PaperSolve,
-    SyntheticRow,
-    out_of_basis_cameras,
-    run_protocol,
-)
-from calib.methods.makabe2025 import FORMULATIONS, MAKABE2025_METHOD, Makabe2025Options
-from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, weight_rule_option
-from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions
-from calib.model.bases import (
-    FALLBACK_WARNING,
-    CameraBasis,
-    default_camera_basis,
-    fallback_camera_basis,
-)
 
-#: The solves ``--method`` offers for the paper's variants.
-PAPER_METHODS = (PRIOR_METHOD, MAKABE2025_METHOD)
+if TYPE_CHECKING:
+    from calib.core.spectra import MultiSpectrum, WavelengthGrid
+    from calib.evaluation.synthetic import PaperSolve, SyntheticRow
+    from calib.methods.multilamp import MultilampOptions
+    from calib.model.bases import CameraBasis
+
+# The protocol, the methods and the bases are imported by the functions that use them: building
+# the ``calib`` command (``calib --help``, any command) imports this module. What the options'
+# help and defaults show is kept here, checked against its source by tests/test_cli_startup.py.
+
+#: The solves ``--method`` offers for the paper's variants: ``calib.methods.prior_solve.PRIOR_METHOD``
+#: and ``calib.methods.makabe2025.MAKABE2025_METHOD``.
+PAPER_METHODS: tuple[str, ...] = ("prior", "makabe2025")
+#: ``calib.evaluation.synthetic.NOISE_LEVELS`` as ``--noise`` takes them.
+DEFAULT_NOISE = "0,0.003,0.01,0.03"
 
 
 def paper_solve(method: str, formulation: str | None) -> PaperSolve:
@@ -51,6 +42,9 @@ def paper_solve(method: str, formulation: str | None) -> PaperSolve:
     InputError
         An unknown method or formulation, or a formulation with a method that has none.
     """
+    from calib.methods.makabe2025 import FORMULATIONS, MAKABE2025_METHOD, Makabe2025Options
+    from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions
+
     if method not in PAPER_METHODS:
         raise InputError(
             f"must be one of {', '.join(PAPER_METHODS)}, got {method!r}", source="--method"
@@ -101,6 +95,10 @@ def summary_table(rows: list[SyntheticRow], title: str) -> Table:
 
     Cells are RE ×10⁻²; the mean column adds the mean mapping RE (×10⁻²) when the mapping was estimated.
     """
+    import numpy as np
+
+    from calib.evaluation.synthetic import VARIANTS
+
     keys = sorted(
         {(row.variant, row.noise) for row in rows}, key=lambda k: (VARIANTS.index(k[0]), k[1])
     )
@@ -188,7 +186,7 @@ def register(app: typer.Typer) -> None:
         ] = "D65",
         noise: Annotated[
             str, typer.Option(help="Profile noise levels, fractions of the peak.")
-        ] = ",".join(f"{n:g}" for n in NOISE_LEVELS),
+        ] = DEFAULT_NOISE,
         variant: Annotated[
             list[str] | None,
             typer.Option(
@@ -204,7 +202,7 @@ def register(app: typer.Typer) -> None:
                 help="How the paper's variants solve: prior (the camera-prior solve, default) or "
                 "makabe2025 (the paper's solve)."
             ),
-        ] = PRIOR_METHOD,
+        ] = PAPER_METHODS[0],
         formulation: Annotated[
             str | None,
             typer.Option(
@@ -247,6 +245,16 @@ def register(app: typer.Typer) -> None:
         ] = Path("synthetic.csv"),
     ) -> None:
         """Reproduce the paper's synthetic experiment (§4.1): RE per camera × variant × noise."""
+        from calib.core.datasets import colour_science_cameras, makabe2025_split
+        from calib.core.spectra import WavelengthGrid
+        from calib.evaluation.synthetic import out_of_basis_cameras
+        from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, weight_rule_option
+        from calib.model.bases import (
+            FALLBACK_WARNING,
+            default_camera_basis,
+            fallback_camera_basis,
+        )
+
         solve = paper_solve(method, formulation)
         multilamp_options = weight_rule_option(MULTILAMP_METHOD, weight_rule) or MultilampOptions()
         excluded = list(exclude_camera or ())
@@ -308,6 +316,8 @@ def register(app: typer.Typer) -> None:
 
 
 def _variants(chosen: list[str] | None) -> list[str]:
+    from calib.evaluation.synthetic import MULTILAMP_VARIANTS, PAPER_VARIANTS, VARIANTS
+
     if not chosen:
         return list(PAPER_VARIANTS)
     expanded: list[str] = []
@@ -335,6 +345,8 @@ def _run(
     direct_noise: float | None,
     multilamp_options: MultilampOptions,
 ) -> list[SyntheticRow]:
+    from calib.evaluation.synthetic import run_protocol
+
     console = Console(stderr=True)
     with console.status("estimating…") as status:
         return run_protocol(

@@ -8,18 +8,30 @@ with named columns, ``result.json``); the work is :mod:`calib.use`.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
-from calib.core.colour_data import USE_ILLUMINANTS as ILLUMINANTS
+from calib.cli.command_line import help_choices
 from calib.core.errors import InputError
 
 CameraArgument = Annotated[
     Path, typer.Argument(help="an estimate's output directory, or a camera file")
 ]
-IlluminantOption = Annotated[str, typer.Option(help=f"scene illuminant: {', '.join(ILLUMINANTS)}")]
+
+
+@help_choices("use_illuminants")
+def use_illuminants() -> Sequence[str]:
+    """The scene illuminants ``--illuminant`` takes (:data:`calib.core.colour_data.USE_ILLUMINANTS`:
+    read when the help is shown, so that building ``calib`` does not import numpy)."""
+    from calib.core.colour_data import USE_ILLUMINANTS
+
+    return USE_ILLUMINANTS
+
+
+IlluminantOption = Annotated[str, typer.Option(help="scene illuminant: {use_illuminants}")]
 JsonOption = Annotated[bool, typer.Option("--json", help="print JSON instead of text")]
 
 

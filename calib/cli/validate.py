@@ -7,38 +7,41 @@ from __future__ import annotations
 
 import os
 import shlex
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, get_args
+from typing import TYPE_CHECKING, Annotated, get_args
 
 import typer
 from rich.console import Console
 
+from calib.cli.command_line import help_choices
 from calib.cli.options import DataDirOption, ExcludeCameraOption
 from calib.core.errors import InputError
-from calib.evaluation.validation.protocol import (
-    DEFAULT_VARIANTS,
-    EXTRA_VARIANTS,
-    PixelOrigin,
-    ProtocolSettings,
-    ValidationRow,
-    run_split,
-)
-from calib.evaluation.validation.report import (
-    markdown_report,
-    write_rows_csv,
-    write_summary_csv,
-)
-from calib.evaluation.validation.rig_errors import RigErrors
-from calib.evaluation.validation.splits import Split, SplitCamera, load_splits
-from calib.model.gratings import GRATING_KINDS, CatalogueGrating, GratingKind
+
+if TYPE_CHECKING:
+    from calib.evaluation.validation.splits import Split
+    from calib.model.gratings import GratingKind
+
+# The protocol is imported by the command when it runs (building ``calib`` imports this module);
+# the variants its help lists are read when the help is shown ({validation_variants}).
 
 SPLIT_CHOICES = ("validation", "test", "both")
 #: ``--quick``: the first camera of each group, these variants, one scene.
 QUICK_VARIANTS = ("LED+FL", "5 lamps")
 
 
+@help_choices("validation_variants")
+def validation_variants() -> Sequence[str]:
+    """The labels ``--variant`` takes (a label may hold a comma: one "; "-separated entry)."""
+    from calib.evaluation.validation.protocol import DEFAULT_VARIANTS, EXTRA_VARIANTS
+
+    return ("; ".join(v.label for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)),)
+
+
 def _quick(split: Split) -> Split:
+    from calib.evaluation.validation.splits import SplitCamera
+
     firsts: dict[str, SplitCamera] = {}
     for camera in split.cameras:
         firsts.setdefault(camera.group, camera)
@@ -46,6 +49,8 @@ def _quick(split: Split) -> Split:
 
 
 def _grating_kinds(text: str) -> tuple[GratingKind, ...]:
+    from calib.model.gratings import GRATING_KINDS
+
     if text == "mix":
         return GRATING_KINDS
     kinds = tuple(part.strip() for part in text.split(",") if part.strip())
@@ -90,7 +95,7 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Option(
                 help="Method variants to run (repeatable; default the first four): "
-                + "; ".join(v.label for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS))
+                "{validation_variants}"
             ),
         ] = None,
         predictions: Annotated[
@@ -128,6 +133,23 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """The validation protocol: splits that cannot be tuned to, physical gratings, the rig's
         errors (decision 0023). Prints the report; writes it with the CSVs to --out."""
+        from calib.evaluation.validation.protocol import (
+            DEFAULT_VARIANTS,
+            EXTRA_VARIANTS,
+            PixelOrigin,
+            ProtocolSettings,
+            ValidationRow,
+            run_split,
+        )
+        from calib.evaluation.validation.report import (
+            markdown_report,
+            write_rows_csv,
+            write_summary_csv,
+        )
+        from calib.evaluation.validation.rig_errors import RigErrors
+        from calib.evaluation.validation.splits import load_splits
+        from calib.model.gratings import CatalogueGrating
+
         if split not in SPLIT_CHOICES:
             raise InputError(
                 f"unknown split {split}; choose one of {', '.join(SPLIT_CHOICES)}", source="--split"

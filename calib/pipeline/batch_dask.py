@@ -26,6 +26,7 @@ from calib.pipeline.batch_jobs import (
     not_run,
     prepare_worker,
 )
+from calib.pipeline.batch_malloc import allocator_for_task
 
 #: How long to wait for the scheduler to answer, and for it to have a worker (s).
 CONNECT_TIMEOUT_S = 15.0
@@ -88,6 +89,14 @@ def _check_workers(client: Any, address: str) -> None:
         )
 
 
+def dask_estimate_job(job: BatchJob, plan: BatchPlan) -> BatchRow:
+    """One task: :func:`~calib.pipeline.batch_jobs.estimate_job` with the allocator keeping the
+    memory the estimate frees until the task ends (:func:`calib.pipeline.batch_malloc.allocator_for_task`:
+    13 % less CPU than under a Dask worker's own settings)."""
+    with allocator_for_task():
+        return estimate_job(job, plan)
+
+
 def _lost(job: BatchJob, exc: BaseException) -> BatchRow:
     reason = " ".join(str(exc).split()) or type(exc).__name__
     return BatchRow(
@@ -117,7 +126,7 @@ def run_on_dask(
         # local worker's initializer does (a worker joining later does it in its first task).
         client.run(prepare_worker, plan, local=False)
         futures = {
-            client.submit(estimate_job, job, plan, pure=False): index
+            client.submit(dask_estimate_job, job, plan, pure=False): index
             for index, job in enumerate(jobs)
         }
         rows: dict[int, BatchRow] = {}

@@ -26,6 +26,7 @@ from typing import Literal
 
 from calib.core.errors import CalibError, InputError
 from calib.model.bases import CameraBasis
+from calib.pipeline.batch_malloc import roomy_allocator
 from calib.pipeline.estimate import OfflineSettings, basis_key, resolve_basis
 from calib.pipeline.input_sets import InputSetReader, reader_for
 
@@ -154,8 +155,9 @@ def prepare_worker(
     """A worker's initializer: import the pipeline (and the report's libraries when reports are
     written), resolve the basis.
 
-    A local worker also runs its BLAS on one thread (one worker per core) and leaves Ctrl-C to
-    the parent (which stops the batch between jobs). The basis is resolved here for the first
+    A local worker also runs its BLAS on one thread (one worker per core), leaves Ctrl-C to the
+    parent (which stops the batch between jobs) and keeps the memory its jobs free for the next
+    ones (:func:`calib.pipeline.batch_malloc.roomy_allocator`; a Dask worker does so task by task). The basis is resolved here for the first
     job's sake only: if that fails (a ``--data-dir`` without data), every job says why.
     """
     global _STARTED
@@ -164,6 +166,7 @@ def prepare_worker(
         from threadpoolctl import threadpool_limits
 
         threadpool_limits(limits=1, user_api="blas")
+        roomy_allocator()
     _STARTED = started
     from calib.pipeline.estimate import import_estimation
     from calib.pipeline.report import import_plotting

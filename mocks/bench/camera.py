@@ -27,6 +27,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -128,25 +129,53 @@ class FrameRenderer:
         self.rendered_frames = 0
         self.render_s = 0.0
         """Wall time spent rendering and encoding frames (the rest of a frame's time is waiting)."""
+        self.render_cpu_s = 0.0
+        """CPU time of the rendering: the frames and the lamps' images rendered in the background
+        (the twin's stand-in for the camera and the scene, not the rig's own work)."""
         self._components = {lamp.name: spectral_components(lamp) for lamp in bank.lamps}
-        self._cache: dict[tuple[str, int], Float32Array] = {}
+        self._cache: dict[tuple[str, int], Future[Float32Array]] = {}
         self._lock = threading.Lock()
         self._scratch = Path(tempfile.mkdtemp(prefix="spectral-rig-twin-"))
+        self._preparing: ThreadPoolExecutor | None = None
 
     def prepare(self) -> None:
-        """Render every lamp's components now rather than at its first frame."""
-        for lamp in self.bank.lamps:
-            for index in range(len(self._components[lamp.name])):
-                self._component(lamp, index)
+        """Start rendering every lamp's components in the background, before their first frame.
+
+        The rendering stands for the physical scene the camera looks at: it runs while the
+        station finishes opening and the plan's first steps (relays, warm-up, spectra) run, not
+        before them. A frame that needs a component still being rendered waits for it, inside
+        the camera's own time.
+        """
+        with self._lock:
+            if self._preparing is not None:
+                return
+            self._preparing = ThreadPoolExecutor(1, thread_name_prefix="twin-render")
+            for lamp in self.bank.lamps:
+                for index in range(len(self._components[lamp.name])):
+                    key = (lamp.name, index)
+                    if key not in self._cache:
+                        self._cache[key] = self._preparing.submit(
+                            self._render_in_background, self._components[lamp.name][index]
+                        )
 
     def close(self) -> None:
-        """Remove the scratch directory."""
+        """Stop the background rendering and remove the scratch directory."""
+        if self._preparing is not None:
+            self._preparing.shutdown(wait=True, cancel_futures=True)
         with contextlib.suppress(OSError):
             for path in self._scratch.iterdir():
                 path.unlink()
             self._scratch.rmdir()
 
     # -------------------------------------------------------------------------- the scene
+
+    def _render_in_background(self, spectrum: Spectrum) -> Float32Array:
+        started = time.thread_time()
+        try:
+            return self._render(spectrum)
+        finally:
+            with self._lock:
+                self.render_cpu_s += time.thread_time() - started
 
     def _render(self, spectrum: Spectrum) -> Float32Array:
         signal = self.optics.first_order(spectrum).signal
@@ -156,11 +185,20 @@ class FrameRenderer:
         key = (lamp.name, index)
         with self._lock:
             cached = self._cache.get(key)
-        if cached is None:
-            cached = self._render(self._components[lamp.name][index])
-            with self._lock:
-                self._cache[key] = cached
-        return cached
+            if cached is None:
+                cached = self._cache[key] = Future()
+                ours = True
+            else:
+                ours = False
+        if ours:
+            try:
+                cached.set_result(self._render(self._components[lamp.name][index]))
+            except BaseException as exc:
+                cached.set_exception(exc)
+                with self._lock:
+                    del self._cache[key]
+                raise
+        return cached.result()
 
     def noiseless(self, settings: ExposureSettings) -> Float32Array:
         """Shape ``(height, width)``: what each pixel collects from the lit lamps now, DN/s."""
@@ -183,6 +221,7 @@ class FrameRenderer:
 
     def __call__(self, request: FrameRequest) -> bytes:
         started = time.perf_counter()
+        cpu_started = time.thread_time()
         if request.file_format == "jpeg":
             data = placeholder_frame(request)
         else:
@@ -190,6 +229,8 @@ class FrameRenderer:
         self.clock.advance(self.download_s)
         elapsed = time.perf_counter() - started
         self.render_s += elapsed
+        with self._lock:
+            self.render_cpu_s += time.thread_time() - cpu_started
         self.rendered_frames += 1
         if self.realtime:
             remaining = request.exposure_s + self.download_s - elapsed
