@@ -6,7 +6,9 @@ sensitivity changes), estimates each session as ``rig demo`` does (the camera pr
 twin's own body) and reports, per camera: RE (×10⁻², Makabe et al. 2025 Eq. 16), the share of
 (wavelength, channel) cells whose truth lies inside ±2σ, the ratio of the stated σ's RMS to the
 actual error's RMS, the fit's reduced χ² against the profile noise alone and as the σ budget judges
-it (with :data:`calib.methods.uncertainty.MODEL_FLOOR` under the noise), and the quality verdict.
+it (with :data:`calib.methods.uncertainty.MODEL_FLOOR` under the noise), and the quality verdict;
+and for the grating efficiency η (issue 17): the share of grid nodes where the twin's true first-order
+η (normalised to its maximum, as the estimate is) lies inside the estimate's ±2σ band, and its σ/err.
 
 Splits (issue 15's protocol): the estimate's prior is the bundled rawtoaces-data basis, so
 **validation** cameras are rawtoaces-data bodies (left out one at a time: the only cameras a choice
@@ -34,6 +36,7 @@ import numpy as np
 
 import calib.methods
 from calib.core.metrics import relative_error
+from calib.evaluation.synthetic import efficiency_coverage
 from calib.methods.uncertainty import MODEL_FLOOR, BudgetSettings
 from calib.model.bases import default_camera_basis
 from rig.capture import run_capture
@@ -77,6 +80,8 @@ class Row:
     chi2_judged: float | None
     verdict: str
     cpu_s: float
+    eta_coverage: float = math.nan
+    eta_sigma_ratio: float = math.nan
 
 
 @contextlib.contextmanager
@@ -125,6 +130,10 @@ def judge(session: Path, out: Path, camera: str) -> dict[str, object]:
     assert sigma is not None, "every grating method states a σ through the budget"
     error = result.sensitivity - reference
     budget = result.quality.uncertainty or {}
+    eta_coverage, eta_ratio = math.nan, math.nan
+    if result.grating_efficiency_sigma is not None:
+        true_eta = read_twin_truth(session / "twin-truth.json").grating_efficiency.at(wavelength)
+        eta_coverage, eta_ratio = efficiency_coverage(result, true_eta)
     return {
         "method": result.method,
         "re": relative_error(result.sensitivity, reference),
@@ -134,6 +143,8 @@ def judge(session: Path, out: Path, camera: str) -> dict[str, object]:
         "chi2_judged": budget.get("reduced_chi2"),
         "verdict": result.quality.verdict,
         "cpu_s": cpu_s,
+        "eta_coverage": eta_coverage,
+        "eta_sigma_ratio": eta_ratio,
     }
 
 
@@ -174,13 +185,15 @@ def main() -> None:
                     f"{split:10s} {camera:24s} floor {floor:<6g} {row.method:9s} "
                     f"RE {100 * row.re:5.2f}  ±2σ {100 * row.coverage:5.1f} %  "
                     f"σ/err {row.sigma_ratio:4.2f}  χ² {row.chi2_noise or math.nan:7.3g} → "
-                    f"{row.chi2_judged or math.nan:6.3g}  {row.verdict}",
+                    f"{row.chi2_judged or math.nan:6.3g}  {row.verdict}  "
+                    f"η ±2σ {100 * row.eta_coverage:5.1f} %  η σ/err {row.eta_sigma_ratio:4.2f}",
                     flush=True,
                 )
     print(
-        "\n| split | floor | cameras | mean RE ×10⁻² | mean ±2σ coverage | median σ/err | verdicts |"
+        "\n| split | floor | cameras | mean RE ×10⁻² | mean ±2σ coverage | median σ/err | verdicts "
+        "| mean η ±2σ coverage | median η σ/err |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for split in ("validation", "test"):
         for floor in floors:
             chosen = [r for r in rows if r.split == split and r.floor == floor]
@@ -191,7 +204,9 @@ def main() -> None:
                 f"| {split} | {floor:g} | {len(chosen)} | "
                 f"{100 * np.mean([r.re for r in chosen]):.2f} | "
                 f"{100 * np.mean([r.coverage for r in chosen]):.1f} % | "
-                f"{np.median([r.sigma_ratio for r in chosen]):.2f} | {verdicts} |"
+                f"{np.median([r.sigma_ratio for r in chosen]):.2f} | {verdicts} | "
+                f"{100 * np.mean([r.eta_coverage for r in chosen]):.1f} % | "
+                f"{np.median([r.eta_sigma_ratio for r in chosen]):.2f} |"
             )
     print(f"estimate CPU {sum(r.cpu_s for r in rows):.0f} s for {len(rows)} estimates")
 

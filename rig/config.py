@@ -31,6 +31,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_valida
 from calib.core.observations import LampKind
 from calib.core.validated_yaml import ConfigError as ConfigError
 from calib.core.validated_yaml import ConfigIssue, parse_yaml_model
+from calib.model.gratings import REPLICA_SHEET_PEAK_PHASE_RAD
 
 # ---------------------------------------------------------------------------------------- values
 
@@ -342,22 +343,29 @@ class TwinSensorConfig(StrictModel):
 class TwinGratingConfig(StrictModel):
     """The twin's transmission grating in front of the lens (``calib.model.gratings``).
 
-    ``model`` ``blazed`` (default): ``η_m = first_order_peak_efficiency · sinc²(blaze_nm/λ − m)``;
-    ``sinusoidal``: a thin sinusoidal phase sheet, ``η_m = J_m²(φ₀·550/λ)`` with
-    ``peak_phase_rad`` φ₀. Orders 0, 1 and 2 follow from the same parameters: the direct spot
+    ``model`` ``sinusoidal`` (default): a thin sinusoidal phase sheet, ``η_m = J_m²(φ₀·550/λ)``
+    with ``peak_phase_rad`` φ₀; ``blazed``: ``η_m = first_order_peak_efficiency ·
+    sinc²(blaze_nm/λ − m)``. Orders 0, 1 and 2 follow from the same parameters: the direct spot
     through η₀(λ), the first order through η₁, the second order on top of the first's red end.
-    ``zeroth_order_efficiency`` replaces the model's η₀ by a flat one; it is 0.1 by default (the
-    twin's 0th order before physical gratings, which the rig's tests are set up for); ``null``
-    gives the model's own η₀(λ) (decision 0028: with a sheet's own η₀ the spot can be dimmer than
-    the band, which the rig's spot detection does not yet handle).
+
+    The default sheet is a cheap embossed replica film (the rainbow sheets sold for classrooms):
+    a sinusoidal surface relief about 0.36 µm deep in a polymer of index ≈ 1.58 (PET/PVC) gives a
+    peak phase ``φ₀ = π (n − 1) h / λ`` ≈ 1.2 rad at 550 nm (decision 0040). Such a sheet sends
+    25 % of the light at 550 nm into each first order (33 % at 400 nm, 18 % at 700 nm) and keeps
+    a bright direct spot (η₀ = J₀² from 0.18 at 400 nm to 0.62 at 700 nm), as these sheets
+    visibly do; 1.84 rad (the first order's ceiling of 33.8 %) would need a relief tuned for
+    efficiency, not a display film's.
+
+    ``zeroth_order_efficiency`` replaces the model's η₀ by a flat one (a number), e.g. to mimic the
+    twin before physical gratings; ``null`` (default) gives the model's own η₀(λ).
     """
 
     grooves_per_mm: float = Field(500.0, gt=0, le=3000)
-    model: Literal["sinusoidal", "blazed"] = "blazed"
-    peak_phase_rad: float = Field(1.8, gt=0, le=2.6)
+    model: Literal["sinusoidal", "blazed"] = "sinusoidal"
+    peak_phase_rad: float = Field(REPLICA_SHEET_PEAK_PHASE_RAD, gt=0, le=2.6)
     blaze_nm: float = Field(500.0, ge=200, le=2000)
     first_order_peak_efficiency: float = Field(0.3, gt=0, le=1)
-    zeroth_order_efficiency: float | None = Field(0.1, gt=0, le=1)
+    zeroth_order_efficiency: float | None = Field(None, gt=0, le=1)
     dispersion_angle_deg: float = Field(
         0.8, ge=-180, le=180, description="direction of the first order on the sensor, from +x"
     )

@@ -36,6 +36,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
 from calib.core.datasets import colour_science_cameras
@@ -381,6 +382,30 @@ def band_coverage(result: EstimateResult, truth: FloatArray, *, width: float = 2
         raise InputError("the estimate carries no σ", source=result.method)
     inside = np.abs(result.sensitivity - truth) <= width * result.sensitivity_sigma
     return float(np.mean(inside))
+
+
+def efficiency_coverage(
+    result: EstimateResult, truth: ArrayLike, *, width: float = 2.0
+) -> tuple[float, float]:
+    """Share of grid nodes whose true grating efficiency lies within ±``width`` σ of the estimate,
+    and the ratio of the stated σ's RMS to the actual error's RMS.
+
+    ``truth`` ``(f,)`` is η on the result's grid, in any units: it is normalised to its maximum
+    over the grid, as the estimate is (only η's shape is estimated).
+
+    Raises
+    ------
+    InputError
+        When the estimate carries no η or no σ of it.
+    """
+    if result.grating_efficiency is None or result.grating_efficiency_sigma is None:
+        raise InputError("the estimate carries no grating efficiency σ", source=result.method)
+    reference = np.asarray(truth, dtype=np.float64)
+    reference = reference / float(np.max(reference))
+    error = np.asarray(result.grating_efficiency) - reference
+    sigma = np.asarray(result.grating_efficiency_sigma)
+    ratio = float(np.sqrt(np.nanmean(sigma**2)) / max(np.sqrt(np.mean(error**2)), 1e-300))
+    return float(np.mean(np.abs(error) <= width * sigma)), ratio
 
 
 def _estimate_variant(

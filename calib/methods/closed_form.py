@@ -265,6 +265,39 @@ def _profile_model(
     return np.where(np.isfinite(model), model, 0.0)
 
 
+def normalised_efficiency_sigma(inverse: FloatArray, covariance: FloatArray) -> FloatArray:
+    """σ ``(f,)`` of ``η / max η`` from the covariance ``(f, f)`` of ``η⁻¹`` (first order).
+
+    With ``p`` the node of the maximum, ``n_i = η⁻¹_p / η⁻¹_i`` and ``δ = dη⁻¹ / η⁻¹``:
+    ``dn_i = n_i (δ_p − δ_i)``. The common scale of ``η`` cancels (only its shape is delivered),
+    so σ is 0 at the maximum and grows with the distance in shape from it. Nodes where ``η⁻¹ ≤ 0``
+    (no efficiency) get NaN.
+
+    Examples
+    --------
+    >>> inverse = np.array([2.0, 1.0, 4.0])
+    >>> normalised_efficiency_sigma(inverse, np.diag([0.0, 0.01, 0.0]))  # the peak's own error
+    array([0.05 , 0.   , 0.025])
+    >>> normalised_efficiency_sigma(inverse, 0.01 * np.outer(inverse, inverse))  # a common scale
+    array([0., 0., 0.])
+    """
+    inverse = np.asarray(inverse, dtype=np.float64)
+    covariance = np.asarray(covariance, dtype=np.float64)
+    positive = inverse > 0
+    if not np.any(positive):
+        return np.full(inverse.shape, np.nan)
+    peak = int(np.argmin(np.where(positive, inverse, np.inf)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative = np.where(positive, 1.0 / inverse, np.nan)
+        normalised = inverse[peak] * relative
+        variance = (
+            covariance[peak, peak] / inverse[peak] ** 2
+            + np.diag(covariance) * relative**2
+            - 2.0 * covariance[peak] * relative / inverse[peak]
+        )
+    return np.asarray(normalised * np.sqrt(np.clip(variance, 0.0, None)), dtype=np.float64)
+
+
 def joint_result(
     method: str,
     setup: JointSetup,
@@ -278,11 +311,14 @@ def joint_result(
     sensitivity_sigma: FloatArray | None,
     info: dict[str, Any],
     diagnostics: dict[str, Any],
+    inverse_efficiency_covariance: FloatArray | None = None,
 ) -> EstimateResult:
     """The solve's :class:`~calib.core.result.EstimateResult`: curves normalised to a maximum of 1,
     each solve lamp's residuals, the reduced χ², timings and ``diagnostics`` (the solve's own).
 
-    ``info["lamp_scales"]`` holds each system's brightness relative to the first.
+    ``info["lamp_scales"]`` holds each system's brightness relative to the first. With
+    ``inverse_efficiency_covariance`` ``(f, f)`` (of ``η⁻¹`` on the grid) the result states η's σ
+    (:func:`normalised_efficiency_sigma`).
     """
     peak = float(np.max(sensitivity))
     if not np.isfinite(peak) or peak <= 0:
@@ -320,6 +356,9 @@ def joint_result(
         grating_efficiency=efficiency / efficiency_peak
         if np.isfinite(efficiency_peak)
         else efficiency,
+        grating_efficiency_sigma=None
+        if inverse_efficiency_covariance is None
+        else normalised_efficiency_sigma(inverse_efficiency, inverse_efficiency_covariance),
         mapping=setup.mapping,
         residuals=residuals,
         diagnostics={

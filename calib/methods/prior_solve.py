@@ -69,6 +69,9 @@ class PriorSolution:
         Shape ``(f, 3)`` in the direct measurement's units (not normalised), and its posterior σ.
     inverse_efficiency, inverse_efficiency_sigma
         ``η⁻¹`` on the grid ``(f,)`` (same gauge) and its σ.
+    inverse_efficiency_covariance
+        ``(f, f)``: the covariance of ``η⁻¹`` on the grid (``B_η C_η B_ηᵀ``, the prior's spread and
+        the responses' noise as step 2 weighs them).
     response
         ``q̂`` ``(f, 3)``: the fitted ``η s_c``.
     scale
@@ -83,6 +86,7 @@ class PriorSolution:
     sensitivity_sigma: FloatArray
     inverse_efficiency: FloatArray
     inverse_efficiency_sigma: FloatArray
+    inverse_efficiency_covariance: FloatArray
     response: FloatArray
     scale: float
     used_pixels: FloatArray
@@ -218,9 +222,8 @@ def solve_with_prior(
         scale_hat = abs(float(solution[-1])) or scale_hat
     c_eta_cov = _constrained_covariance(rows, constraint)[:b_eta, :b_eta]
     inverse_efficiency = efficiency_basis @ solution[:b_eta]
-    inverse_sigma = np.sqrt(
-        np.clip(np.einsum("ij,jk,ik->i", efficiency_basis, c_eta_cov, efficiency_basis), 0, None)
-    )
+    inverse_covariance = efficiency_basis @ c_eta_cov @ efficiency_basis.T
+    inverse_sigma = np.sqrt(np.clip(np.diag(inverse_covariance), 0, None))
 
     # Step 3: combine the data's s = η⁻¹ ⊙ q̂ with the prior, conditioned on the direct signal.
     sensitivity = np.empty((size, 3))
@@ -248,6 +251,7 @@ def solve_with_prior(
         sensitivity_sigma=sensitivity_sigma,
         inverse_efficiency=inverse_efficiency,
         inverse_efficiency_sigma=inverse_sigma,
+        inverse_efficiency_covariance=inverse_covariance,
         response=response,
         scale=float(solution[-1]),
         used_pixels=estimate.used_pixels,
@@ -413,6 +417,7 @@ def estimate_prior(
         sensitivity_sigma=solution.sensitivity_sigma,
         info={**solution.info, "lamp_scales": [1.0]},
         diagnostics={"grating_model": record},
+        inverse_efficiency_covariance=solution.inverse_efficiency_covariance,
     )
 
 

@@ -35,8 +35,17 @@ and channel, on the delivered curves' scale (maximum 1):
     covers ~95 % of the validation cameras' truth. Its share is recorded, so a user sees how much of
     the band is named and how much is the empirical factor.
 
+The grating efficiency ``η`` (maximum 1) gets its budget the same way, from the same re-solves
+(:attr:`UncertaintyBudget.efficiency_components`): ``statistical`` (the method's σ of ``η``,
+inflated by the same √χ²), ``mapping`` (``|∂η/∂λ| σ_λ``), the two spectrometer components and the
+η model's, each ``|Δη|`` of the re-solve; ``basis`` has no ``η`` share of its own (a prior solve's
+``η`` σ already carries the camera prior's spread, through which the basis acts on it). The same
+per-method factor is applied; the share of the twins' true ``η`` inside the band is measured by
+``bench/twin_coverage.py`` (decision 0040).
+
 The budget's summary goes into ``result.quality.uncertainty``; the method's own σ stays in
-``diagnostics["method_sigma"]`` for comparison.
+``diagnostics["method_sigma"]`` (``η``'s in ``diagnostics["method_efficiency_sigma"]``) for
+comparison.
 
 The re-solves share what they have in common with the estimate (:mod:`calib.methods.solve_scope`,
 decision 0031): an identical sub-solve is answered once, and a perturbed one starts from the
@@ -181,6 +190,9 @@ class UncertaintyBudget:
         The method's own reduced χ², against the profile noise alone.
     notes
         What was assumed or could not be evaluated, one line each.
+    efficiency_components
+        Component name → σ ``(f,)`` of the grating efficiency (maximum 1); empty when the result
+        has no ``η``.
     """
 
     components: Mapping[str, FloatArray]
@@ -189,6 +201,17 @@ class UncertaintyBudget:
     notes: tuple[str, ...] = ()
     flags: tuple[QualityFlag, ...] = field(default=())
     noise_only_reduced_chi2: float | None = None
+    efficiency_components: Mapping[str, FloatArray] = field(default_factory=dict)
+
+    @property
+    def efficiency_total(self) -> FloatArray | None:
+        """The σ ``(f,)`` of ``η`` the result states (quadrature sum × factor), or ``None``."""
+        if not self.efficiency_components:
+            return None
+        stack = np.stack(
+            [np.asarray(v, dtype=np.float64) for v in self.efficiency_components.values()]
+        )
+        return np.asarray(np.sqrt(np.sum(stack**2, axis=0)) * self.coverage_scale, dtype=np.float64)
 
     @property
     def named(self) -> FloatArray:
@@ -211,6 +234,15 @@ class UncertaintyBudget:
             for name, v in self.components.items()
         }
         share["unexplained"] = max(0.0, 1.0 - sum(share.values()))
+        efficiency: dict[str, Any] = {}
+        if (eta_total := self.efficiency_total) is not None:
+            efficiency = {
+                "rms": {
+                    name: float(np.sqrt(np.nanmean(v**2)))
+                    for name, v in self.efficiency_components.items()
+                },
+                "total_rms": float(np.sqrt(np.nanmean(eta_total**2))),
+            }
         return {
             "rms": rms,
             "share_of_variance": share,
@@ -219,6 +251,7 @@ class UncertaintyBudget:
             "reduced_chi2": self.reduced_chi2,
             "noise_only_reduced_chi2": self.noise_only_reduced_chi2,
             "notes": list(self.notes),
+            **({"grating_efficiency": efficiency} if efficiency else {}),
         }
 
 
@@ -378,6 +411,27 @@ def _difference(result: EstimateResult, other: EstimateResult) -> FloatArray:
     )
 
 
+def _efficiency_difference(result: EstimateResult, other: EstimateResult) -> FloatArray | None:
+    """``|Δη|`` ``(f,)`` of a re-solve (both at maximum 1), or ``None`` when either has no ``η``."""
+    if result.grating_efficiency is None or other.grating_efficiency is None:
+        return None
+    return np.asarray(
+        np.abs(np.asarray(other.grating_efficiency) - np.asarray(result.grating_efficiency)),
+        dtype=np.float64,
+    )
+
+
+def efficiency_mapping_sigma(result: EstimateResult) -> FloatArray | None:
+    """``|∂η/∂λ| σ_λ`` ``(f,)`` with σ_λ the mapping's ``wavelength_rms_nm`` (``None`` without ``η``
+    or a mapping σ)."""
+    mapping = result.mapping
+    rms = mapping.wavelength_rms_nm if isinstance(mapping, QuadraticMapping) else None
+    if result.grating_efficiency is None or rms is None or not math.isfinite(rms):
+        return None
+    eta = np.asarray(result.grating_efficiency, dtype=np.float64)
+    return np.asarray(np.abs(np.gradient(eta, result.wavelength_nm)) * float(rms), dtype=np.float64)
+
+
 def _lamps(observations: Sequence[object]) -> list[LampObservation]:
     return [item for item in observations if isinstance(item, LampObservation)]
 
@@ -387,8 +441,9 @@ def spectrometer_sigma(
     observations: Sequence[LampObservation],
     rerun: Rerun,
     settings: BudgetSettings,
-) -> tuple[FloatArray, FloatArray, list[str], list[QualityFlag]]:
-    """The wavelength-scale and bandwidth components by perturbation (module docstring)."""
+) -> tuple[dict[str, EstimateResult], list[str], list[QualityFlag]]:
+    """The re-solves of the wavelength-scale and bandwidth components, by component name (module
+    docstring)."""
     notes: list[str] = []
     flags: list[QualityFlag] = []
     scales = [
@@ -396,7 +451,7 @@ def spectrometer_sigma(
         for lamp in observations
     ]
     shift = max(scales)
-    scale_sigma = _difference(result, rerun([shifted(lamp, shift) for lamp in observations]))
+    scale_solve = rerun([shifted(lamp, shift) for lamp in observations])
     missing = [lamp.name for lamp in observations if lamp.spectrum_bandwidth_nm is None]
     if missing:
         flags.append(
@@ -416,7 +471,7 @@ def spectrometer_sigma(
         )
         for lamp in observations
     ]
-    bandwidth_sigma = _difference(result, rerun(widened))
+    bandwidth_solve = rerun(widened)
     notes.append(
         f"spectrometer: scale ±{shift:g} nm, bandwidth "
         + (
@@ -425,20 +480,21 @@ def spectrometer_sigma(
             else f"±{100 * settings.bandwidth_tolerance:g} %"
         )
     )
-    return scale_sigma, bandwidth_sigma, notes, flags
+    solves = {"spectrometer scale": scale_solve, "spectrometer bandwidth": bandwidth_solve}
+    return solves, notes, flags
 
 
 def efficiency_model_sigma(
-    result: EstimateResult, observations: Sequence[object], rerun: Rerun, options: Any
-) -> tuple[FloatArray | None, str | None]:
-    """The answer's change with :data:`EFFICIENCY_TERMS_STEP` fewer η terms, or ``None`` when the
+    observations: Sequence[object], rerun: Rerun, options: Any
+) -> tuple[EstimateResult | None, str | None]:
+    """The re-solve with :data:`EFFICIENCY_TERMS_STEP` fewer η terms, or ``None`` when the
     method has no η model with terms."""
     terms = getattr(options, "efficiency_terms", None)
     if not isinstance(terms, int) or terms - EFFICIENCY_TERMS_STEP < 1:
         return None, None
     fewer = replace(options, efficiency_terms=terms - EFFICIENCY_TERMS_STEP)
     return (
-        _difference(result, rerun(observations, options=fewer)),
+        rerun(observations, options=fewer),
         f"η model: {terms} vs {terms - EFFICIENCY_TERMS_STEP} Fourier terms",
     )
 
@@ -500,6 +556,13 @@ def uncertainty_budget(
     chi2 = floored_reduced_chi2(result, lamps, settings.model_floor)
     inflation = math.sqrt(chi2) if chi2 is not None and chi2 > 1.0 else 1.0
     components: dict[str, FloatArray] = {"statistical": own * inflation}
+    # η's budget: only when the method states η's own σ (a method without one gets no band that
+    # would pretend to be the whole error).
+    eta_components: dict[str, FloatArray] = {}
+    if result.grating_efficiency is not None and result.grating_efficiency_sigma is not None:
+        eta_components["statistical"] = np.asarray(result.grating_efficiency_sigma) * inflation
+        if (eta_mapping := efficiency_mapping_sigma(result)) is not None:
+            eta_components["mapping"] = eta_mapping
     if (flag := misfit_flag(chi2, settings.model_floor)) is not None:
         flags.append(flag)
     if basis is not None:
@@ -509,16 +572,19 @@ def uncertainty_budget(
         notes.append(note)
     if rerun is not None and settings.perturb and lamps and len(lamps) == len(observations):
         try:
-            scale, bandwidth, more, more_flags = spectrometer_sigma(result, lamps, rerun, settings)
-            components["spectrometer scale"] = scale
-            components["spectrometer bandwidth"] = bandwidth
+            solves, more, more_flags = spectrometer_sigma(result, lamps, rerun, settings)
             notes.extend(more)
             flags.extend(more_flags)
-            efficiency, note = efficiency_model_sigma(result, lamps, rerun, options)
-            if efficiency is not None:
-                components["efficiency model"] = efficiency
+            fewer_terms, note = efficiency_model_sigma(lamps, rerun, options)
+            if fewer_terms is not None:
+                solves["efficiency model"] = fewer_terms
             if note:
                 notes.append(note)
+            for name, solve in solves.items():
+                components[name] = _difference(result, solve)
+                eta_change = _efficiency_difference(result, solve)
+                if eta_components and eta_change is not None:
+                    eta_components[name] = eta_change
         except Exception as exc:  # a perturbed solve that fails leaves its components out
             message = f"{type(exc).__name__}: {exc}".splitlines()[0]
             notes.append(f"perturbation components not evaluated ({message})")
@@ -536,6 +602,7 @@ def uncertainty_budget(
         notes=tuple(notes),
         flags=tuple(flags),
         noise_only_reduced_chi2=noise_only,
+        efficiency_components=eta_components,
     )
 
 
@@ -544,9 +611,15 @@ def with_budget(result: EstimateResult, budget: UncertaintyBudget) -> EstimateRe
     ``diagnostics["method_sigma"]``, the summary in ``quality.uncertainty`` and its flags."""
     peak = float(np.clip(result.sensitivity, 0.0, None).max())
     diagnostics = {**result.diagnostics, "method_sigma": result.sensitivity_sigma}
+    eta_sigma = budget.efficiency_total
+    if eta_sigma is not None:
+        diagnostics["method_efficiency_sigma"] = result.grating_efficiency_sigma
     updated = replace(
         result,
         sensitivity_sigma=budget.total * peak,
+        grating_efficiency_sigma=result.grating_efficiency_sigma
+        if eta_sigma is None
+        else eta_sigma,
         diagnostics=diagnostics,
         quality=replace(result.quality, uncertainty=budget.summary()),
     )

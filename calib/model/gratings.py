@@ -75,6 +75,12 @@ GratingKind = Literal["sinusoidal", "blazed", "catalogue"]
 GRATING_KINDS: tuple[GratingKind, ...] = ("sinusoidal", "blazed", "catalogue")
 #: The orders a rig sees: the direct beam, the first order, and the second on the red end.
 GRATING_ORDERS: tuple[int, ...] = (0, 1, 2)
+#: Peak phase at 550 nm of a cheap embossed replica sheet (the twin's default grating): a sinusoidal
+#: relief ``h ≈ 0.36 µm`` deep in a polymer of index ``n ≈ 1.58`` (PET/PVC) gives
+#: ``φ₀ = π (n − 1) h / λ ≈ 1.2 rad``: η₁ = J₁² 0.33 / 0.25 / 0.18 and η₀ = J₀² 0.18 / 0.45 / 0.62
+#: at 400 / 550 / 700 nm — a bright direct spot, as such sheets show. Mid-range of
+#: :attr:`SinusoidalPhaseGrating.PHASE_RANGE_RAD` (decision 0040).
+REPLICA_SHEET_PEAK_PHASE_RAD = 1.2
 #: Wavelengths at which :meth:`GratingModel.efficiency_spectrum` tabulates a model by default.
 DEFAULT_TABLE_NM: tuple[float, float, float] = (300.0, 1100.0, 1.0)
 

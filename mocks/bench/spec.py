@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from calib.model.gratings import REPLICA_SHEET_PEAK_PHASE_RAD
 from mocks.scene import SensorModel
 
 SpectrometerModel = Literal["pr655", "pr670", "cs2000", "seabreeze", "argyll"]
@@ -103,8 +104,8 @@ class GratingSpec:
     first_order_peak_efficiency: float
     zeroth_order_efficiency: float | None
     dispersion_angle_deg: float
-    model: str = "blazed"
-    peak_phase_rad: float = 1.8
+    model: str = "sinusoidal"
+    peak_phase_rad: float = REPLICA_SHEET_PEAK_PHASE_RAD
 
 
 @dataclass(frozen=True)
@@ -382,7 +383,7 @@ def _lamp_spec(lamp: _Reader, override: _Reader | None) -> LampSpec:
 
 
 def _grating_spec(grating: _Reader) -> GratingSpec:
-    model = grating.optional("model") or "blazed"
+    model = grating.optional("model") or "sinusoidal"
     if model not in ("sinusoidal", "blazed"):
         raise TwinSpecError(f"{grating.where('model')}: {model!r} is not sinusoidal or blazed")
     zeroth = grating.optional("zeroth_order_efficiency")
@@ -395,7 +396,7 @@ def _grating_spec(grating: _Reader) -> GratingSpec:
         else grating.number("zeroth_order_efficiency"),
         dispersion_angle_deg=grating.number("dispersion_angle_deg"),
         model=str(model),
-        peak_phase_rad=grating.number("peak_phase_rad", 1.8),
+        peak_phase_rad=grating.number("peak_phase_rad", REPLICA_SHEET_PEAK_PHASE_RAD),
     )
 
 
