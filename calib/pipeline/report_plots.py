@@ -143,7 +143,18 @@ def plot_efficiency(
         return None
     record = result.diagnostics.get("grating_model")
     if isinstance(record, dict) and "first_order_efficiency" in record:
-        return plot_grating_orders(path, result.wavelength_nm, record, delivered.truth)
+        stated = result.grating_efficiency_sigma
+        first_order = np.asarray(record["first_order_efficiency"], dtype=np.float64)
+        return plot_grating_orders(
+            path,
+            result.wavelength_nm,
+            record,
+            delivered.truth,
+            # The result's σ of η (its budget, maximum 1) on η₁'s absolute scale.
+            first_order_sigma=None
+            if stated is None
+            else np.asarray(stated, dtype=np.float64) * float(np.nanmax(first_order)),
+        )
     figure = _figure(7.0, 3.2)
     axes = figure.subplots()
     axes.plot(result.wavelength_nm, efficiency, color="black", label="estimate")
@@ -161,7 +172,7 @@ def plot_efficiency(
                 label="truth (same maximum)",
                 **_TRUTH_STYLE,
             )
-    origin = "given" if estimate.grating is not None else "estimated"
+    origin = "given" if estimate.grating is not None else "estimated, η₀ taken flat"
     if estimate.grating is None and result.method == "known-grating":
         origin = "assumed flat"
     band = "±2σ band" if result.grating_efficiency_sigma is not None else "no σ from this method"
@@ -174,10 +185,16 @@ def plot_efficiency(
 
 
 def plot_grating_orders(
-    path: Path, wavelength_nm: FloatArray, record: Mapping[str, Any], truth: GroundTruth | None
+    path: Path,
+    wavelength_nm: FloatArray,
+    record: Mapping[str, Any],
+    truth: GroundTruth | None,
+    *,
+    first_order_sigma: FloatArray | None = None,
 ) -> Path:
     """η₁ and η₀ of a physical grating model (absolute fractions) with ±2σ bands, and the truth's
-    orders where known (the twin's), on the same absolute scale."""
+    orders where known (the twin's), on the same absolute scale. ``first_order_sigma`` (the
+    result's stated σ of η, its budget) replaces the model's own σ of η₁ when given."""
     figure = _figure(7.0, 3.4)
     axes = figure.subplots()
     orders = (
@@ -187,6 +204,8 @@ def plot_grating_orders(
     for label, key, colour in orders:
         values = np.asarray(record[key], dtype=np.float64)
         sigma = np.asarray(record.get(f"{key}_sigma", np.zeros_like(values)), dtype=np.float64)
+        if key == "first_order_efficiency" and first_order_sigma is not None:
+            sigma = first_order_sigma
         axes.plot(wavelength_nm, values, color=colour, label=label)
         _band(axes, wavelength_nm, values, sigma, colour)
     if truth is not None:
@@ -212,7 +231,9 @@ def plot_grating_orders(
         if name in ("peak_phase_rad", "blaze_nm")
     )
     axes.set_title(
-        f"grating efficiency, {record.get('model')} model ({described}); ±2σ bands", fontsize=9
+        f"grating efficiency, {record.get('model')} model ({described}); ±2σ bands"
+        + (" (η₁: the σ budget; η₀: the model's)" if first_order_sigma is not None else ""),
+        fontsize=9,
     )
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("efficiency (fraction of the incident light)")

@@ -308,3 +308,32 @@ def test_a_sinusoidal_sheet_sends_each_order_its_own_efficiency(
     np.testing.assert_allclose(
         both.per_pixel(np.array([blue])), alone.per_pixel(np.array([blue])), rtol=1e-12
     )
+
+
+def test_the_default_grating_is_a_sinusoidal_replica_sheet_with_its_own_zeroth_order(
+    spec: TwinSpec,
+) -> None:
+    """Issue 17 item 4: the twin's default grating is physical — a thin sinusoidal sheet at the
+    replica sheet's peak phase, every order (the direct spot's η₀ included) from its model."""
+    from calib.model.gratings import REPLICA_SHEET_PEAK_PHASE_RAD, SinusoidalPhaseGrating
+    from rig.config import TwinGratingConfig
+
+    default = TwinGratingConfig()
+    assert (default.model, default.peak_phase_rad, default.zeroth_order_efficiency) == (
+        "sinusoidal",
+        REPLICA_SHEET_PEAK_PHASE_RAD,
+        None,
+    )
+    assert spec.twin_camera.grating.model == "sinusoidal"
+    optics = TwinOptics.build(spec.twin_camera)
+    sheet = SinusoidalPhaseGrating(REPLICA_SHEET_PEAK_PHASE_RAD)
+    axis = np.arange(400.0, 701.0, 10.0)
+    np.testing.assert_allclose(optics.zeroth_order_efficiency.at(axis), sheet.efficiency(0, axis))
+    np.testing.assert_allclose(optics.efficiency.at(axis), sheet.efficiency(1, axis))
+    # A replica sheet keeps a bright, reddish direct spot: η₀ rises 3× from 400 to 700 nm.
+    assert (
+        3.0
+        < optics.zeroth_order_efficiency.at([700.0])[0]
+        / optics.zeroth_order_efficiency.at([400.0])[0]
+        < 4.0
+    )

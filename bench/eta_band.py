@@ -1,0 +1,96 @@
+"""Does the estimate's ±2σ band of the grating efficiency η hold the true η? (issue 17, decision 0040)
+
+The validation protocol's scenes (``calib validate``'s plan for each camera: a sinusoidal sheet
+drawn per scene, the rig's errors, the mapping found from the lamps), estimated as the registry does
+(the σ budget included) for the protocol's method variants; per estimate: RE (×10⁻²), the grating
+model chosen, the share of grid nodes whose true first-order η (normalised to its maximum, as the
+estimate is) lies inside ±2σ, and the ratio of the stated σ's RMS to the actual error's RMS.
+
+    python bench/eta_band.py --data-dir DIR --split validation --cameras 8 [--seed 0]
+        [--variants "LED+FL,LED only"]
+
+Any choice is judged on ``--split validation`` only; ``--split test`` is for reporting.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calib.core.metrics import relative_error
+from calib.evaluation.synthetic import efficiency_coverage
+from calib.evaluation.validation.protocol import (
+    DEFAULT_VARIANTS,
+    ProtocolSettings,
+    render_task_scene,
+    split_tasks,
+)
+from calib.evaluation.validation.splits import load_splits
+from calib.methods import estimate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data-dir", type=Path, default=None)
+    parser.add_argument("--split", choices=("validation", "test"), default="validation")
+    parser.add_argument("--cameras", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--variants", default="LED+FL,LED only")
+    arguments = parser.parse_args()
+    labels = [item.strip() for item in arguments.variants.split(",")]
+    variants = tuple(v for v in DEFAULT_VARIANTS if v.label in labels)
+    loaded, _ = load_splits(arguments.data_dir)
+    split = loaded.validation if arguments.split == "validation" else loaded.test
+    settings = ProtocolSettings(seed=arguments.seed, variants=variants)
+    tasks = split_tasks(split, settings)
+    chosen = tasks[:: max(1, len(tasks) // arguments.cameras)][: arguments.cameras]
+    print(f"split {arguments.split}, seed {arguments.seed}, {len(chosen)} cameras")
+    print("camera | variant | model | RE ×10⁻² | η ±2σ coverage | η σ/err")
+    rows: dict[str, list[tuple[float, float, float]]] = {v.label: [] for v in variants}
+    for task in chosen:
+        scene = render_task_scene(task)
+        wavelength = task.settings.grid.wavelength_nm
+        true_eta = scene.plan.grating.efficiency(1, wavelength)
+        for variant in variants:
+            extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
+            try:
+                result = estimate(
+                    [scene.observations[lamp] for lamp in variant.lamps],
+                    method=variant.method,
+                    grid=task.settings.grid,
+                    basis=task.basis,
+                    **extra,
+                )
+            except Exception as exc:  # a failed estimate has no band; say so and go on
+                print(f"{task.camera.name} | {variant.label} | failed: {exc}".splitlines()[0])
+                continue
+            if result.grating_efficiency_sigma is None:
+                print(f"{task.camera.name} | {variant.label} | no σ of η")
+                continue
+            coverage, ratio = efficiency_coverage(result, true_eta)
+            error = 100.0 * relative_error(result.physical_sensitivity(), scene.truth)
+            rows[variant.label].append((error, coverage, ratio))
+            model = result.diagnostics.get("grating_model", {}).get("chosen", "?")
+            print(
+                f"{task.camera.name} | {variant.label} | {model} | {error:.2f} | "
+                f"{100 * coverage:.1f} % | {ratio:.2f}",
+                flush=True,
+            )
+    print(
+        "\n| split | variant | estimates | mean RE ×10⁻² | mean η ±2σ coverage | median η σ/err |"
+    )
+    print("|---|---|---|---|---|---|")
+    for label, scored in rows.items():
+        if scored:
+            values = np.asarray(scored)
+            print(
+                f"| {arguments.split} | {label} | {len(scored)} | {values[:, 0].mean():.2f} | "
+                f"{100 * values[:, 1].mean():.1f} % | {np.median(values[:, 2]):.2f} |"
+            )
+
+
+if __name__ == "__main__":
+    main()
