@@ -212,13 +212,25 @@ class MeasuredFit:
         return self.scale * physical_grating(self.kind, self.parameter).efficiency(1, wavelength_nm)
 
     def curve_sigma(self, wavelength_nm: FloatArray) -> FloatArray:
-        """σ of :meth:`curve` from the parameters' covariance (delta method)."""
+        """σ of :meth:`curve` (delta method), never below that of its shape.
+
+        Two uses read it: the curve itself (absolute, scale included) and its shape — the curve
+        over its maximum, as a grating file stores it and the estimators use it, where the scale
+        cancels and σ is 0 at the maximum. Where the scale and the shape parameter are correlated
+        the absolute σ understates the shape's error far from the maximum (issue 17: 2× at
+        700 nm for a 1.2 rad sheet), so the larger of the two (the shape's times the maximum) is
+        stated.
+        """
         step = self.parameter * 1e-5
         shape = physical_grating(self.kind, self.parameter).efficiency(1, wavelength_nm)
         moved = physical_grating(self.kind, self.parameter + step).efficiency(1, wavelength_nm)
         jacobian = np.stack([self.scale * (moved - shape) / step, shape], axis=1)
         variance = np.einsum("ij,jk,ik->i", jacobian, self.covariance, jacobian)
-        return np.asarray(np.sqrt(np.clip(variance, 0.0, None)), dtype=np.float64)
+        absolute = np.sqrt(np.clip(variance, 0.0, None))
+        peak = int(np.argmax(shape))
+        slope = (moved / moved[peak] - shape / shape[peak]) / step
+        relative = np.abs(slope) * math.sqrt(max(float(self.covariance[0, 0]), 0.0))
+        return np.asarray(np.maximum(absolute, relative * self.scale * shape[peak]), np.float64)
 
     def record(self) -> dict[str, Any]:
         sigma = np.sqrt(np.diag(self.covariance))

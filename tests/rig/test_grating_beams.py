@@ -16,6 +16,7 @@ import pytest
 
 from calib.core.grating_file import read_grating_file
 from calib.core.spectra import read_spectrum_csv
+from calib.model.gratings import REPLICA_SHEET_PEAK_PHASE_RAD
 from rig.capture import run_capture
 from rig.config import ConfigError, GratingMeasurement, RigConfig, parse_config
 from rig.dryrun import ModelledBench, dry_run, walk
@@ -247,7 +248,9 @@ def test_the_twin_spectrometer_sees_the_true_orders_through_its_field(captured: 
     axis, direct = _mean(session, "LED-B3", "direct")
     _, order0 = _mean(session, "LED-B3", "order0")
     _, order1 = _mean(session, "LED-B3", "order1-544nm")
-    lit = direct > 0.05 * direct.max()
+    # Where the lamp is well lit: at the LED's dim edges the spectrometer's bandwidth mixes its
+    # slope with the sheet's η₀ slope (J₀² varies 3× across the visible).
+    lit = direct > 0.2 * direct.max()
     eta0 = truth.zeroth_order_efficiency.at(axis)
     np.testing.assert_allclose((order0 / np.where(lit, direct, 1))[lit], eta0[lit], rtol=0.05)
     # The 1st order: a band around 544 nm (1° at 500 lines/mm ≈ 33 nm), dark elsewhere.
@@ -266,9 +269,11 @@ def test_the_estimate_uses_the_measured_grating_and_saves_it(
     assert result.method == "known-grating"
     grating = read_grating_file(outcome.files["grating"])
     assert grating.obtained == "measured"
-    assert grating.model is not None and grating.model["model"] == "blazed"  # the twin's
+    assert grating.model is not None and grating.model["model"] == "sinusoidal"  # the twin's
     truth = read_twin_truth(captured.session / "twin-truth.json")
-    assert grating.model["parameters"]["blaze_nm"] == pytest.approx(500.0, abs=3.0)
+    assert grating.model["parameters"]["peak_phase_rad"] == pytest.approx(
+        REPLICA_SHEET_PEAK_PHASE_RAD, abs=0.03
+    )
     # η₁ (relative, as the file stores it) within its ±2σ band and within 0.01 of the truth.
     true_eta = truth.grating_efficiency.at(grating.wavelength_nm)
     true_eta = true_eta / true_eta.max()
@@ -277,7 +282,12 @@ def test_the_estimate_uses_the_measured_grating_and_saves_it(
     assert np.max(np.abs(grating.efficiency - true_eta)) < 0.01
     assert grating.zeroth_order_efficiency is not None
     inside = (grating.wavelength_nm >= 420) & (grating.wavelength_nm <= 700)
-    np.testing.assert_allclose(grating.zeroth_order_efficiency[inside], 0.1, rtol=0.03)
+    # The sheet's η₀ (J₀², 0.2 → 0.6): 6 % where LED-B3 is dim (its blue edge, ≤ 440 nm).
+    np.testing.assert_allclose(
+        grating.zeroth_order_efficiency[inside],
+        truth.zeroth_order_efficiency.at(grating.wavelength_nm[inside]),
+        rtol=0.06,
+    )
     # The camera through it, against the twin's truth (the known-grating path's own floor on
     # this small twin is ≈ 6.6 ×10⁻² with the true η: mapping and profile, not the grating).
     assert outcome.truth_relative_error is not None and outcome.truth_relative_error < 0.075
@@ -388,6 +398,8 @@ def test_kill_9_while_the_operator_re_aims_then_rig_resume(
     assert len(beams) == 2 * (2 + 18)
     grating = read_grating_file(estimate_session(path, report=False).files["grating"])
     assert grating.model is not None
-    assert grating.model["parameters"]["blaze_nm"] == pytest.approx(500.0, abs=3.0)
+    assert grating.model["parameters"]["peak_phase_rad"] == pytest.approx(
+        REPLICA_SHEET_PEAK_PHASE_RAD, abs=0.03
+    )
     replay = replay_session(path, tmp_path / "replay")
     assert replay.identical, replay
