@@ -206,6 +206,7 @@ def plot_grating_orders(
         sigma = np.asarray(record.get(f"{key}_sigma", np.zeros_like(values)), dtype=np.float64)
         if key == "first_order_efficiency" and first_order_sigma is not None:
             sigma = first_order_sigma
+            label = "η₁ (first order; band: the σ budget)"
         axes.plot(wavelength_nm, values, color=colour, label=label)
         _band(axes, wavelength_nm, values, sigma, colour)
     if truth is not None:
@@ -231,8 +232,7 @@ def plot_grating_orders(
         if name in ("peak_phase_rad", "blaze_nm")
     )
     axes.set_title(
-        f"grating efficiency, {record.get('model')} model ({described}); ±2σ bands"
-        + (" (η₁: the σ budget; η₀: the model's)" if first_order_sigma is not None else ""),
+        f"grating efficiency, {record.get('model')} model ({described}); ±2σ bands",
         fontsize=9,
     )
     axes.set_xlabel("wavelength (nm)")
