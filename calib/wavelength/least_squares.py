@@ -17,9 +17,12 @@ import numpy as np
 
 from calib.core.arrays import FloatArray
 
-#: ``function(x, with_jacobian)`` → ``(residual, jacobian or None)``, or ``None`` outside the
-#: valid region.
-ResidualFunction = Callable[[FloatArray, bool], "tuple[FloatArray, FloatArray | None] | None"]
+#: What a residual function gives at a point: ``(residual, jacobian)`` — the Jacobian an array, a
+#: call that computes it (evaluated only if the point is accepted: a rejected trial costs only its
+#: residual), or ``None`` when not asked for — or ``None`` outside the valid region.
+Evaluation = tuple[FloatArray, FloatArray | Callable[[], FloatArray] | None] | None
+#: ``function(x, with_jacobian)`` → :data:`Evaluation`.
+ResidualFunction = Callable[[FloatArray, bool], Evaluation]
 
 
 @dataclass(frozen=True)
@@ -71,23 +74,27 @@ def levenberg_marquardt(
     residual, first_jacobian = first
     if first_jacobian is None:
         raise ValueError("the residual function gave no Jacobian")
-    jacobian: FloatArray = first_jacobian
+    jacobian = _concrete(first_jacobian)
     cost = float(residual @ residual)
     evaluations = 1
     damping = 1e-3
+    diagonal = np.arange(x.size)
     for _ in range(max_iterations):
-        gradient = jacobian.T @ residual
+        gradient = -(jacobian.T @ residual)
         normal = jacobian.T @ jacobian
-        scale = np.maximum(np.diag(normal), 1e-30)
+        scale = np.maximum(normal.diagonal(), 1e-30)
         improved = False
         while damping < 1e12:
+            system = normal.copy()
+            system[diagonal, diagonal] += damping * scale
             try:
-                step = np.linalg.solve(normal + damping * np.diag(scale), -gradient)
+                step = np.linalg.solve(system, gradient)
             except np.linalg.LinAlgError:
                 damping *= 10.0
                 continue
             trial = x + step
-            # The Jacobian comes with the trial: near convergence most steps are accepted.
+            # The Jacobian comes with the trial (near convergence most steps are accepted), as
+            # a call when the function defers it: computed only if the trial is accepted.
             outcome = function(trial, True)
             evaluations += 1
             if outcome is not None and outcome[1] is not None:
@@ -95,7 +102,7 @@ def levenberg_marquardt(
                 if math.isfinite(trial_cost) and trial_cost < cost:
                     decrease = cost - trial_cost
                     x = trial
-                    residual, jacobian = outcome[0], outcome[1]
+                    residual, jacobian = outcome[0], _concrete(outcome[1])
                     cost = trial_cost
                     damping = max(damping / 5.0, 1e-9)
                     improved = True
@@ -106,3 +113,7 @@ def levenberg_marquardt(
         if not improved:
             break
     return Solution(x, residual, jacobian, cost, evaluations)
+
+
+def _concrete(jacobian: FloatArray | Callable[[], FloatArray]) -> FloatArray:
+    return jacobian() if callable(jacobian) else jacobian
