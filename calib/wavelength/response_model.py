@@ -502,27 +502,47 @@ class ResponseModel:
         batch, _, width = values.shape
         size = self.n_nodes
         lows, offsets = _band_pairs(width)
-        first = band.first[:, None, :, None]  # (K, 1, n, 1)
-        weighted = values[:, None, :, :] * (self.weights.T**2)[None, :, :, None]  # (K, 3, n, w)
-        products = weighted[..., lows] * values[:, None, :, lows + offsets]  # (K, 3, n, M)
-        block = (np.arange(batch * 3) * (width * size)).reshape(batch, 3, 1, 1)
-        index = block + first + (offsets * size + lows)
-        diagonals = np.bincount(
-            index.reshape(-1), weights=products.reshape(-1), minlength=batch * 3 * width * size
-        ).reshape(batch, 3, width, size)
+        # Channel-free: each pair's product and its place; the channels differ by the weights.
+        products = values[..., lows] * values[..., lows + offsets]  # (K, n, M)
+        place = (
+            (np.arange(batch) * (width * size))[:, None, None]
+            + band.first[:, :, None]
+            + (offsets * size + lows)
+        ).reshape(-1)
+        squared = self.weights**2  # (n, 3)
+        diagonals = np.stack(
+            [
+                np.bincount(
+                    place,
+                    weights=(products * squared[None, :, c, None]).reshape(-1),
+                    minlength=batch * width * size,
+                ).reshape(batch, width, size)
+                for c in range(3)
+            ],
+            axis=1,
+        )  # (K, 3, w, N)
         normal = np.zeros((batch, 3, size, size))
         for offset in range(min(width, size)):
             row = np.arange(size - offset)
             normal[..., row, row + offset] = diagonals[:, :, offset, : size - offset]
             if offset:
                 normal[..., row + offset, row] = diagonals[:, :, offset, : size - offset]
-        weighted_target = (self.weights * self.target).T  # (3, n)
-        rhs = np.bincount(
-            (block // width + first + np.arange(width)).reshape(-1),
-            weights=(values[:, None, :, :] * weighted_target[None, :, :, None]).reshape(-1),
-            minlength=batch * 3 * size,
+        entries = (
+            band.first[:, :, None] + np.arange(width) + (np.arange(batch) * size)[:, None, None]
+        ).reshape(-1)
+        weighted_target = self.weights * self.target  # (n, 3)
+        rhs = np.stack(
+            [
+                np.bincount(
+                    entries,
+                    weights=(values * weighted_target[None, :, c, None]).reshape(-1),
+                    minlength=batch * size,
+                ).reshape(batch, size)
+                for c in range(3)
+            ],
+            axis=1,
         )
-        return normal, np.asarray(rhs.reshape(batch, 3, size), dtype=np.float64)
+        return normal, np.asarray(rhs, dtype=np.float64)
 
     def _prior_scale(self, band: Band) -> FloatArray:
         """``β̂`` per batch: the mean camera's scale that best explains the profile ``(K,)``."""
