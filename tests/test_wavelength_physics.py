@@ -416,3 +416,42 @@ def test_grating_file_carries_the_rig_and_reads_version_one(tmp_path):
     path.write_text(json.dumps(document))
     with pytest.raises(GratingFileError, match=r"geometry\.rig\.grating"):
         read_grating_file(path)
+
+
+def test_a_line_groups_fit_jacobian_equals_finite_differences(monkeypatch):
+    """The feature fit's closed-form Jacobian (shared shift of a blend's components, width,
+    background, heights) against central differences, for a blend of two lines and a single one."""
+    import calib.wavelength.features as features
+    from calib.core.line_lists import Line, blends
+
+    captured = []
+    real = levenberg_marquardt
+
+    def recording(function, x0, **options):
+        captured.append((function, np.array(x0)))
+        return real(function, x0, **options)
+
+    monkeypatch.setattr(features, "levenberg_marquardt", recording)
+    mapping = QuadraticMapping(0.0, 0.5, 400.0, pixel_range=(0.0, 400.0))
+    lines = [
+        Line("A 540", 540.0, 1.0, "A"),
+        Line("B 542.5", 542.5, 0.6, "B"),
+        Line("C 548", 548.0, 0.8, "C"),
+    ]
+    group = blends(lines, 3.0)
+    assert sorted(len(b.lines) for b in group) == [1, 2]
+    pixel = np.arange(0.0, 400.0)
+    sigma = 2.5 / 2.355
+    signal = np.zeros(pixel.size)
+    signal += sum(
+        line.strength
+        * np.exp(-0.5 * ((pixel - (line.wavelength_nm - 400.0) / 0.5 - 0.3) / sigma) ** 2)
+        for line in lines
+    )
+    fitted = features._fit_group(pixel, signal + 0.01, 0.01, group, mapping, 2.5)
+    assert fitted and captured
+    function, x0 = captured[0]
+    x = x0 + 0.05  # away from the start: nonzero shifts, another width and heights
+    _, jacobian = function(x, True)
+    numeric = _central_difference(lambda v: function(v, False)[0], x, 1e-6)
+    np.testing.assert_allclose(jacobian, numeric, rtol=1e-5, atol=1e-5 * np.abs(numeric).max())

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
@@ -44,6 +44,15 @@ GRATING_PARAMETERS: tuple[str, ...] = (
 #: Parameters held at the family's own value unless the prior names them.
 _HELD_UNLESS_NAMED = ("axis_offset_px",)
 _DEG = math.pi / 180.0
+#: Sample indices of the 9 pixels :meth:`GratingFamily.valid` checks.
+_PROBE_STEPS = np.arange(9.0)
+
+
+def _exp(value: float) -> float:
+    try:
+        return math.exp(value)
+    except OverflowError:
+        return math.inf
 
 
 def _anchors(pixel_range: tuple[float, float]) -> FloatArray:
@@ -268,11 +277,11 @@ class GratingFamily:
         return np.asarray(self.batch_jacobian(pixel, np.asarray(x)[None, :])[0])
 
     @cached_property
-    def _layout(self) -> tuple[FloatArray, FloatArray, tuple[int, ...]]:
+    def _layout(self) -> tuple[FloatArray, FloatArray, NDArray[np.intp]]:
         """The full vector's held values (NaN where free), and each free parameter's place in it."""
         held = self._held()
         template = np.array([held.get(name, math.nan) for name in GRATING_PARAMETERS])
-        places = tuple(GRATING_PARAMETERS.index(name) for name in self.names)
+        places = np.array([GRATING_PARAMETERS.index(name) for name in self.names], dtype=np.intp)
         soft = self.prior.soft()
         rows = [(column, soft[name]) for column, name in enumerate(self.names) if name in soft]
         prior = np.array([(column, mean, sigma) for column, (mean, sigma) in rows]).reshape(-1, 3)
@@ -291,26 +300,29 @@ class GratingFamily:
         or ``None`` when ``x`` is not :meth:`valid` over ``pixel_range`` (when given)."""
         template, _, places = self._layout
         full = template.copy()
-        full[list(places)] = x
-        if not np.all(np.isfinite(full)):
+        full[places] = x
+        if not np.isfinite(full).all():
             return None
-        p0, log_spacing, log_focal, incidence, offset = full
-        with np.errstate(over="ignore"):
-            spacing, focal = float(np.exp(log_spacing)), float(np.exp(log_focal))
+        p0, log_spacing, log_focal, incidence, offset = full.tolist()
+        spacing, focal = _exp(log_spacing), _exp(log_focal)
         theta = incidence * _DEG
         pixel = np.asarray(pixel, dtype=np.float64)
         probe = 0
         if pixel_range is not None:
-            # The 9 pixels :meth:`valid` checks, ahead of the asked ones.
-            probe = 9
-            pixel = np.concatenate([np.linspace(pixel_range[0], pixel_range[1], probe), pixel])
+            # The 9 pixels :meth:`valid` checks (np.linspace's own arithmetic), ahead of the
+            # asked ones.
+            probe = _PROBE_STEPS.size
+            lo, hi = pixel_range
+            ends = _PROBE_STEPS * ((hi - lo) / (probe - 1)) + lo
+            ends[-1] = hi
+            pixel = np.concatenate([ends, pixel])
         along = self.orientation * (pixel - p0) + offset
         angle = np.arctan(along / focal) - math.atan(offset / focal)
         turned = theta + angle
         sine = np.sin(turned)
         wavelength = spacing * (sine - math.sin(theta))
         if probe and not (
-            np.all(np.abs(turned[:probe]) < 0.5 * math.pi) and np.all(wavelength[:probe] > 0)
+            (np.abs(turned[:probe]) < 0.5 * math.pi).all() and (wavelength[:probe] > 0).all()
         ):
             return None
         wavelength = wavelength[probe:]
@@ -345,7 +357,7 @@ class GratingFamily:
         _, prior, places = self._layout
         columns = prior[:, 0].astype(np.intp)
         values = (np.asarray(x, dtype=np.float64)[columns] - prior[:, 1]) / prior[:, 2]
-        jacobian = np.zeros((columns.size, len(places)))
+        jacobian = np.zeros((columns.size, places.size))
         jacobian[np.arange(columns.size), columns] = 1.0 / prior[:, 2]
         return values, jacobian
 

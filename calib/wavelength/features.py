@@ -282,6 +282,7 @@ def _fit_group(
     y = signal[inside]
     centre = 0.5 * (lo + hi)
     owner = np.concatenate([np.full(o.size, b) for b, (_, _, o) in enumerate(placed)])
+    ownership = (owner[:, None] == np.arange(n_blends)[None, :]).astype(np.float64)  # (lines, F)
     positions = np.concatenate([ref + offsets for _, ref, offsets in placed])
 
     def gaussians(shifts: FloatArray, width: float) -> tuple[FloatArray, FloatArray]:
@@ -300,7 +301,7 @@ def _fit_group(
         params: FloatArray, with_jacobian: bool
     ) -> tuple[FloatArray, FloatArray | None] | None:
         shifts, width = params[:n_blends], params[n_blends]
-        if np.any(np.abs(shifts) > fwhm_px) or not (0.5 * sigma_px <= width <= 2.0 * sigma_px):
+        if (np.abs(shifts) > fwhm_px).any() or not (0.5 * sigma_px <= width <= 2.0 * sigma_px):
             return None
         values, offset = gaussians(shifts, width)
         amplitudes = params[n_shape + n_base :]
@@ -309,10 +310,13 @@ def _fit_group(
         if not with_jacobian:
             return residual, None
         weighted = values * amplitudes[None, :]
-        d_shift = np.zeros((x.size, n_blends))
-        np.add.at(d_shift.T, owner, (weighted * offset / width**2).T)
-        d_width = (weighted * offset**2 / width**3).sum(axis=1, keepdims=True)
-        jacobian = np.hstack([d_shift, d_width, base, values]) / noise
+        jacobian = np.empty((x.size, n_shape + n_base + n_lines))
+        # Each feature's shift moves its components: their derivatives summed per feature.
+        jacobian[:, :n_blends] = (weighted * offset / width**2) @ ownership
+        jacobian[:, n_blends] = (weighted * offset**2 / width**3).sum(axis=1)
+        jacobian[:, n_shape : n_shape + n_base] = base
+        jacobian[:, n_shape + n_base :] = values
+        jacobian /= noise
         return residual, jacobian
 
     start = np.concatenate([np.zeros(n_blends), [sigma_px], linear])
