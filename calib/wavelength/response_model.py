@@ -730,7 +730,6 @@ class ResponseModel:
             "nwp,cnw->cnwp", derivative, (weights * data_rows)[:, :, None] * np.ones_like(values)
         )
         n_parameters = derivative.shape[-1]
-        gathered = np.zeros((3, size, n_parameters))
         index = (flat_columns[:, None] * n_parameters + np.arange(n_parameters)).reshape(-1)
         gathered = np.bincount(
             index, weights=right.reshape(-1), minlength=3 * size * n_parameters
