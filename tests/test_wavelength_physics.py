@@ -27,7 +27,7 @@ from calib.model.bases import fallback_camera_basis
 from calib.model.forward import blur_kernel, pixel_edges, render_observation
 from calib.wavelength.families import GratingFamily, QuadraticFamily, grating_prior
 from calib.wavelength.least_squares import levenberg_marquardt
-from calib.wavelength.response_model import ResponseModel, hat_averages
+from calib.wavelength.response_model import SHARED_EDGES_FROM, ResponseModel, hat_averages
 from calib.wavelength.rig_prior import (
     RigGeometry,
     RigOptics,
@@ -202,6 +202,14 @@ def test_response_model_band_derivative_and_normal_matrix(fluorescent_profile):
     edges = family.wavelengths(edges_px, x)[None]
     band = model.band(edges, family.jacobian(edges_px)[None])
     assert band.derivative is not None
+    # Each edge's cumulatives computed once for the pixels sharing it (a blurred profile) are the
+    # pixel-by-pixel ones.
+    assert model.filter.size > SHARED_EDGES_FROM
+    windows, _ = model._windows(edges)
+    columns = np.minimum(band.columns, model.n_nodes - 1)
+    direct, _ = model.columns.evaluate(windows[..., None, :], columns[..., None])
+    expected = np.einsum("knwl,l->knw", direct, model.filter) * (band.columns < model.n_nodes)
+    np.testing.assert_array_equal(band.values, expected)
     step = 1e-4
     for k in range(x.size):
         delta = np.zeros(3)
