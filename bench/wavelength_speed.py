@@ -17,13 +17,15 @@ tuned on) with the 44 training cameras' basis — LED only (D65) and LED + fluor
 with ``--real DIR``, the real Nikon D7000 pair (2474 columns: the CFL through the built-in
 tri-phosphor line list, the halogen lamp measured).
 
-    python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--real ../shared/data/real-grating] [--skip-before]
+    python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--real ../shared/data/real-grating] [--skip-before] [--profile 12]
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
 import os
+import pstats
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -83,6 +85,14 @@ def main() -> None:
     parser.add_argument("--noise", type=float, default=0.01)
     parser.add_argument("--real", type=Path, default=None, help="the real-grating data directory")
     parser.add_argument("--skip-before", action="store_true", help="leave out the old engine")
+    parser.add_argument(
+        "--profile",
+        type=int,
+        default=0,
+        metavar="N",
+        help="after each scene, the N functions with the most own time in one profiled "
+        "mapping + estimate (cProfile: its overhead inflates many small calls)",
+    )
     args = parser.parse_args()
     train, test = makabe2025_split(args.data_dir)
     camera = find_camera(test, "Canon 600D")
@@ -119,11 +129,33 @@ def main() -> None:
             None if args.skip_before else cpu_median(old, args.repeats),
             cpu_median(bare, args.repeats),
         )
+        if args.profile:
+            profile_top(new, args.profile)
     if args.real is not None:
-        real_pair(args.real, args.data_dir, args.repeats)
+        real_pair(args.real, args.data_dir, args.repeats, args.profile)
 
 
-def real_pair(real: Path, data_dir: str | None, repeats: int) -> None:
+def profile_top(function: Callable[[], object], count: int) -> None:
+    """Where one run's time goes: the ``count`` functions with the most own time, and their
+    share of the run (cProfile's, so the shares, not the seconds, are what to read)."""
+    profiler = cProfile.Profile()
+    profiler.enable()
+    function()
+    profiler.disable()
+    stats = pstats.Stats(profiler)
+    entries = getattr(stats, "stats", {})
+    total = sum(entry[2] for entry in entries.values()) or 1.0
+    ranked = sorted(entries.items(), key=lambda item: -item[1][2])[:count]
+    for (filename, line, name), (_, calls, own, cumulative, _) in ranked:
+        where = f"{Path(filename).parent.name}/{Path(filename).name}:{line}({name})"
+        print(
+            f"    {100 * own / total:5.1f} % own, {100 * cumulative / total:5.1f} % with callees, "
+            f"{calls:6d} calls  {where}",
+            flush=True,
+        )
+
+
+def real_pair(real: Path, data_dir: str | None, repeats: int, profile: int = 0) -> None:
     """The Nikon D7000 pair (2474 columns): the CFL through ``builtin:cfl-triphosphor`` and the
     halogen lamp measured, through a flat grating (no efficiency is known for it), the profiles'
     origin arbitrary (either orientation is tried)."""
@@ -150,6 +182,8 @@ def real_pair(real: Path, data_dir: str | None, repeats: int) -> None:
         return estimate_known_grating(lamps, grating=None, basis=basis)
 
     report("Nikon D7000 real pair", cpu_median(solve, repeats), cpu_median(new, repeats), None)
+    if profile:
+        profile_top(new, profile)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from calib.model.bases import fallback_camera_basis
 from calib.model.forward import blur_kernel, pixel_edges, render_observation
 from calib.wavelength.families import GratingFamily, QuadraticFamily, grating_prior
 from calib.wavelength.least_squares import levenberg_marquardt
-from calib.wavelength.response_model import ResponseModel, hat_averages
+from calib.wavelength.response_model import SHARED_EDGES_FROM, ResponseModel, hat_averages
 from calib.wavelength.rig_prior import (
     RigGeometry,
     RigOptics,
@@ -103,6 +103,41 @@ def test_grating_family_jacobian_equals_finite_differences(orientation):
     np.testing.assert_allclose(family.jacobian(pixels, x), numeric, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.parametrize("orientation", [1, -1])
+def test_grating_family_one_pass_evaluation_is_wavelengths_jacobian_and_validity(orientation):
+    """:meth:`GratingFamily.evaluate` (a fit's inner loop) against the three separate calls and
+    against finite differences, with a held parameter, a soft prior and a point outside."""
+    family = GratingFamily(
+        grating_prior(zero_order_px=None, grooves_per_mm=600.0, focal_length_px=7000.0),
+        orientation,
+        axis_offset_px=350.0,
+    )
+    spacing = math.log(1e6 / 600.0)
+    # The 0th order 1800 px before the profile's first wavelength (at 0 or at 2500 px).
+    zero_order = -1800.0 if orientation > 0 else 4300.0
+    x = np.array([zero_order, spacing + 0.01, math.log(7000.0), 6.0])
+    pixels = np.linspace(0.0, 2500.0, 11)
+    span = (0.0, 2500.0)
+    evaluated = family.evaluate(pixels, x, span)
+    assert evaluated is not None and evaluated[1] is not None
+    np.testing.assert_allclose(evaluated[0], family.wavelengths(pixels, x), rtol=1e-13)
+    np.testing.assert_allclose(evaluated[1], family.jacobian(pixels, x), rtol=1e-12, atol=1e-12)
+    numeric = _central_difference(lambda v: family.wavelengths(pixels, v), x, 1e-6)
+    np.testing.assert_allclose(evaluated[1], numeric, rtol=1e-6, atol=1e-6)
+    assert family.evaluate(pixels, x, span, with_jacobian=False)[1] is None  # type: ignore[index]
+    # The 0th order inside the profile: not a valid mapping, as valid() says.
+    inside = np.array([1200.0, spacing, math.log(7000.0), 6.0])
+    assert not family.valid(inside, span)[0]
+    assert family.evaluate(pixels, inside, span) is None
+    assert family.evaluate(pixels, np.array([np.nan, spacing, 8.0, 0.0]), span) is None
+    # The prior rows and their Jacobian: ((x − mean)/σ, 1/σ) for the soft parameters only.
+    rows, row_jacobian = family.prior_rows(x)
+    np.testing.assert_allclose(rows, [0.5, 0.0, 1.2], atol=1e-12)
+    np.testing.assert_allclose(
+        row_jacobian, [[0.0, 50.0, 0.0, 0.0], [0.0, 0.0, 10.0, 0.0], [0.0, 0.0, 0.0, 0.2]]
+    )
+
+
 def test_quadratic_family_is_linear_in_the_end_wavelengths():
     family = QuadraticFamily((0.0, 800.0))
     truth = QuadraticMapping(-2e-5, 0.43, 383.0)
@@ -147,6 +182,108 @@ def test_response_model_jacobian_equals_finite_differences(fluorescent_profile):
     # large numbers on noise-free data, hence the tolerance).
     cost = fixed.costs(family.wavelengths(edges, x)[None], adaptive=False)
     np.testing.assert_allclose(cost, [residual @ residual], rtol=1e-5)
+
+
+def test_response_model_band_derivative_and_normal_matrix(fluorescent_profile):
+    """The banded matrix' derivative against finite differences of its values, and the normal
+    matrix assembled from its diagonals against the dense ``AᵀW²A``, for a batch."""
+    prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
+    model = ResponseModel.build(
+        fluorescent_profile,
+        DEFAULT_GRID,
+        node_step_nm=10.0,
+        prior=prior,
+        flexibility=0.05,
+        kernel=blur_kernel(3.0, 1.0),
+    )
+    family = QuadraticFamily((0.0, 799.0))
+    edges_px = pixel_edges(fluorescent_profile.pixel)
+    x = family.parameters(QuadraticMapping(-2.2e-5, 0.43, 383.0)) + np.array([0.8, -0.4, 0.6])
+    edges = family.wavelengths(edges_px, x)[None]
+    band = model.band(edges, family.jacobian(edges_px)[None])
+    assert band.derivative is not None
+    # Each edge's cumulatives computed once for the pixels sharing it (a blurred profile) are the
+    # pixel-by-pixel ones.
+    assert model.filter.size > SHARED_EDGES_FROM
+    windows, _ = model._windows(edges)
+    columns = np.minimum(band.columns, model.n_nodes - 1)
+    direct, _ = model.columns.evaluate(windows[..., None, :], columns[..., None])
+    expected = np.einsum("knwl,l->knw", direct, model.filter) * (band.columns < model.n_nodes)
+    np.testing.assert_array_equal(band.values, expected)
+    step = 1e-4
+    for k in range(x.size):
+        delta = np.zeros(3)
+        delta[k] = step
+        up = model.band(family.wavelengths(edges_px, x + delta)[None])
+        down = model.band(family.wavelengths(edges_px, x - delta)[None])
+        assert np.array_equal(up.first, band.first) and np.array_equal(down.first, band.first)
+        numeric = (up.values - down.values) / (2 * step)
+        np.testing.assert_allclose(
+            band.derivative[..., k], numeric, rtol=1e-5, atol=1e-6 * np.abs(numeric).max()
+        )
+    # A batch of two mappings (one falling): each normal matrix is the dense one.
+    falling = family.wavelengths(edges_px, x[::-1])
+    batch = model.band(np.stack([edges[0], falling]))
+    normal, rhs = model._normal(batch)
+    size = model.n_nodes
+    for k in range(2):
+        dense = np.zeros((edges_px.size - 1, size))
+        rows = np.arange(edges_px.size - 1)[:, None]
+        np.add.at(dense, (rows, batch.columns[k]), batch.values[k])
+        for c in range(3):
+            weighted = dense * model.weights[:, c, None] ** 2
+            np.testing.assert_allclose(normal[k, c], dense.T @ weighted, rtol=1e-12, atol=1e-300)
+            np.testing.assert_allclose(
+                rhs[k, c], weighted.T @ fluorescent_profile.profile[:, c], rtol=1e-12
+            )
+
+
+def test_the_deferred_jacobian_is_the_eager_one_and_computed_only_for_accepted_points(
+    fluorescent_profile,
+):
+    prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
+    model = ResponseModel.build(
+        fluorescent_profile, DEFAULT_GRID, node_step_nm=10.0, prior=prior, flexibility=0.05
+    )
+    family = QuadraticFamily((0.0, 799.0))
+    edges_px = pixel_edges(fluorescent_profile.pixel)
+    x = family.parameters(QuadraticMapping(-2.2e-5, 0.43, 383.0)) + np.array([0.8, -0.4, 0.6])
+    fixed = model.reference(family.wavelengths(edges_px, x))
+    eager = fixed.residual(family.wavelengths(edges_px, x), family.jacobian(edges_px))
+    lazy = fixed.residual_lazy(family.wavelengths(edges_px, x), family.jacobian(edges_px))
+    assert eager[1] is not None and lazy[1] is not None
+    np.testing.assert_array_equal(lazy[0], eager[0])
+    np.testing.assert_array_equal(lazy[1](), eager[1])
+
+    # The fit asks for the Jacobian of the points it accepts only (and of its start).
+    computed, accepted = [], []
+
+    def function(v, with_jacobian):
+        residual, jacobian, _ = fixed.residual_lazy(
+            family.wavelengths(edges_px, v), family.jacobian(edges_px)
+        )
+        cost = float(residual @ residual)
+
+        def deferred():
+            computed.append(cost)
+            assert jacobian is not None
+            return jacobian()
+
+        return residual, deferred
+
+    def watched(v, with_jacobian):
+        outcome = function(v, with_jacobian)
+        accepted.append(float(outcome[0] @ outcome[0]))
+        return outcome
+
+    solution = levenberg_marquardt(watched, x, max_iterations=8, tolerance=1e-9)
+    assert 1 < len(computed) < solution.evaluations  # some trials were rejected
+    # Every computed Jacobian belongs to a point that lowered the cost (or the start).
+    lowest = accepted[0]
+    for cost in computed[1:]:
+        assert cost < lowest
+        lowest = cost
+    assert solution.cost == pytest.approx(lowest)
 
 
 def test_hat_averages_are_the_integrating_resample():
@@ -287,3 +424,42 @@ def test_grating_file_carries_the_rig_and_reads_version_one(tmp_path):
     path.write_text(json.dumps(document))
     with pytest.raises(GratingFileError, match=r"geometry\.rig\.grating"):
         read_grating_file(path)
+
+
+def test_a_line_groups_fit_jacobian_equals_finite_differences(monkeypatch):
+    """The feature fit's closed-form Jacobian (shared shift of a blend's components, width,
+    background, heights) against central differences, for a blend of two lines and a single one."""
+    import calib.wavelength.features as features
+    from calib.core.line_lists import Line, blends
+
+    captured = []
+    real = levenberg_marquardt
+
+    def recording(function, x0, **options):
+        captured.append((function, np.array(x0)))
+        return real(function, x0, **options)
+
+    monkeypatch.setattr(features, "levenberg_marquardt", recording)
+    mapping = QuadraticMapping(0.0, 0.5, 400.0, pixel_range=(0.0, 400.0))
+    lines = [
+        Line("A 540", 540.0, 1.0, "A"),
+        Line("B 542.5", 542.5, 0.6, "B"),
+        Line("C 548", 548.0, 0.8, "C"),
+    ]
+    group = blends(lines, 3.0)
+    assert sorted(len(b.lines) for b in group) == [1, 2]
+    pixel = np.arange(0.0, 400.0)
+    sigma = 2.5 / 2.355
+    signal = np.zeros(pixel.size)
+    signal += sum(
+        line.strength
+        * np.exp(-0.5 * ((pixel - (line.wavelength_nm - 400.0) / 0.5 - 0.3) / sigma) ** 2)
+        for line in lines
+    )
+    fitted = features._fit_group(pixel, signal + 0.01, 0.01, group, mapping, 2.5)
+    assert fitted and captured
+    function, x0 = captured[0]
+    x = x0 + 0.05  # away from the start: nonzero shifts, another width and heights
+    _, jacobian = function(x, True)
+    numeric = _central_difference(lambda v: function(v, False)[0], x, 1e-6)
+    np.testing.assert_allclose(jacobian, numeric, rtol=1e-5, atol=1e-5 * np.abs(numeric).max())

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
@@ -44,6 +44,15 @@ GRATING_PARAMETERS: tuple[str, ...] = (
 #: Parameters held at the family's own value unless the prior names them.
 _HELD_UNLESS_NAMED = ("axis_offset_px",)
 _DEG = math.pi / 180.0
+#: Sample indices of the 9 pixels :meth:`GratingFamily.valid` checks.
+_PROBE_STEPS = np.arange(9.0)
+
+
+def _exp(value: float) -> float:
+    try:
+        return math.exp(value)
+    except OverflowError:
+        return math.inf
 
 
 def _anchors(pixel_range: tuple[float, float]) -> FloatArray:
@@ -267,6 +276,71 @@ class GratingFamily:
         """``∂λ(p)/∂x`` for one ``x``: shape ``(n, P)``."""
         return np.asarray(self.batch_jacobian(pixel, np.asarray(x)[None, :])[0])
 
+    @cached_property
+    def _layout(self) -> tuple[FloatArray, FloatArray, NDArray[np.intp]]:
+        """The full vector's held values (NaN where free), and each free parameter's place in it."""
+        held = self._held()
+        template = np.array([held.get(name, math.nan) for name in GRATING_PARAMETERS])
+        places = np.array([GRATING_PARAMETERS.index(name) for name in self.names], dtype=np.intp)
+        soft = self.prior.soft()
+        rows = [(column, soft[name]) for column, name in enumerate(self.names) if name in soft]
+        prior = np.array([(column, mean, sigma) for column, (mean, sigma) in rows]).reshape(-1, 3)
+        return template, prior, places
+
+    def evaluate(
+        self,
+        pixel: FloatArray,
+        x: FloatArray,
+        pixel_range: tuple[float, float] | None = None,
+        *,
+        with_jacobian: bool = True,
+    ) -> tuple[FloatArray, FloatArray | None] | None:
+        """``λ`` at ``pixel`` ``(n,)`` and ``∂λ/∂x`` ``(n, P)`` for one ``x`` in one pass — what
+        :meth:`wavelengths`, :meth:`jacobian` and :meth:`valid` give, for a fit's inner loop —
+        or ``None`` when ``x`` is not :meth:`valid` over ``pixel_range`` (when given)."""
+        template, _, places = self._layout
+        full = template.copy()
+        full[places] = x
+        if not np.isfinite(full).all():
+            return None
+        p0, log_spacing, log_focal, incidence, offset = full.tolist()
+        spacing, focal = _exp(log_spacing), _exp(log_focal)
+        theta = incidence * _DEG
+        pixel = np.asarray(pixel, dtype=np.float64)
+        probe = 0
+        if pixel_range is not None:
+            # The 9 pixels :meth:`valid` checks (np.linspace's own arithmetic), ahead of the
+            # asked ones.
+            probe = _PROBE_STEPS.size
+            lo, hi = pixel_range
+            ends = _PROBE_STEPS * ((hi - lo) / (probe - 1)) + lo
+            ends[-1] = hi
+            pixel = np.concatenate([ends, pixel])
+        along = self.orientation * (pixel - p0) + offset
+        angle = np.arctan(along / focal) - math.atan(offset / focal)
+        turned = theta + angle
+        sine = np.sin(turned)
+        wavelength = spacing * (sine - math.sin(theta))
+        if probe and not (
+            (np.abs(turned[:probe]) < 0.5 * math.pi).all() and (wavelength[:probe] > 0).all()
+        ):
+            return None
+        wavelength = wavelength[probe:]
+        if not with_jacobian:
+            return wavelength, None
+        along, turned = along[probe:], turned[probe:]
+        cosine = spacing * np.cos(turned)
+        radial = focal / (focal**2 + along**2)
+        at_axis = focal / (focal**2 + offset**2)
+        columns = {
+            "zero_order_px": -self.orientation * cosine * radial,
+            "log_spacing": wavelength,
+            "log_focal": cosine * (offset * at_axis - along * radial),
+            "incidence_deg": (cosine - spacing * math.cos(theta)) * _DEG,
+            "axis_offset_px": cosine * (radial - at_axis),
+        }
+        return wavelength, np.stack([columns[name] for name in self.names], axis=-1)
+
     def prior_cost(self, x: FloatArray) -> FloatArray:
         """``Σ ((x − mean)/σ)²`` of the soft prior for a batch ``(K, P)`` → ``(K,)``."""
         soft = self.prior.soft()
@@ -280,13 +354,11 @@ class GratingFamily:
 
     def prior_rows(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Residual rows ``(x − mean)/σ`` of the soft prior and their Jacobian ``(r, P)``."""
-        soft = self.prior.soft()
-        names = self.names
-        rows = [name for name in names if name in soft]
-        values = np.array([(x[names.index(name)] - soft[name][0]) / soft[name][1] for name in rows])
-        jacobian = np.zeros((len(rows), len(names)))
-        for row, name in enumerate(rows):
-            jacobian[row, names.index(name)] = 1.0 / soft[name][1]
+        _, prior, places = self._layout
+        columns = prior[:, 0].astype(np.intp)
+        values = (np.asarray(x, dtype=np.float64)[columns] - prior[:, 1]) / prior[:, 2]
+        jacobian = np.zeros((columns.size, places.size))
+        jacobian[np.arange(columns.size), columns] = 1.0 / prior[:, 2]
         return values, jacobian
 
     def valid(self, x: FloatArray, pixel_range: tuple[float, float]) -> FloatArray:

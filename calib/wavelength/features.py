@@ -282,6 +282,7 @@ def _fit_group(
     y = signal[inside]
     centre = 0.5 * (lo + hi)
     owner = np.concatenate([np.full(o.size, b) for b, (_, _, o) in enumerate(placed)])
+    ownership = (owner[:, None] == np.arange(n_blends)[None, :]).astype(np.float64)  # (lines, F)
     positions = np.concatenate([ref + offsets for _, ref, offsets in placed])
 
     def gaussians(shifts: FloatArray, width: float) -> tuple[FloatArray, FloatArray]:
@@ -300,7 +301,7 @@ def _fit_group(
         params: FloatArray, with_jacobian: bool
     ) -> tuple[FloatArray, FloatArray | None] | None:
         shifts, width = params[:n_blends], params[n_blends]
-        if np.any(np.abs(shifts) > fwhm_px) or not (0.5 * sigma_px <= width <= 2.0 * sigma_px):
+        if (np.abs(shifts) > fwhm_px).any() or not (0.5 * sigma_px <= width <= 2.0 * sigma_px):
             return None
         values, offset = gaussians(shifts, width)
         amplitudes = params[n_shape + n_base :]
@@ -309,10 +310,13 @@ def _fit_group(
         if not with_jacobian:
             return residual, None
         weighted = values * amplitudes[None, :]
-        d_shift = np.zeros((x.size, n_blends))
-        np.add.at(d_shift.T, owner, (weighted * offset / width**2).T)
-        d_width = (weighted * offset**2 / width**3).sum(axis=1, keepdims=True)
-        jacobian = np.hstack([d_shift, d_width, base, values]) / noise
+        jacobian = np.empty((x.size, n_shape + n_base + n_lines))
+        # Each feature's shift moves its components: their derivatives summed per feature.
+        jacobian[:, :n_blends] = (weighted * offset / width**2) @ ownership
+        jacobian[:, n_blends] = (weighted * offset**2 / width**3).sum(axis=1)
+        jacobian[:, n_shape : n_shape + n_base] = base
+        jacobian[:, n_shape + n_base :] = values
+        jacobian /= noise
         return residual, jacobian
 
     start = np.concatenate([np.zeros(n_blends), [sigma_px], linear])
@@ -413,6 +417,7 @@ def match_lines(
     strongest = sorted(features, key=lambda b: -b.strength)[:MATCH_TRIPLE_FEATURES]
     line_nm = np.sort(np.array([b.wavelength_nm for b in strongest]))
     all_nm = np.array([b.wavelength_nm for b in features])
+    sorted_nm = np.sort(all_nm)
     peak_triples = np.array(list(itertools.combinations(np.argsort(position), 3)))
     line_triples = np.array(list(itertools.combinations(range(line_nm.size), 3)))
     if peak_triples.size == 0 or line_triples.size == 0:
@@ -436,7 +441,7 @@ def match_lines(
             & np.all(magnitude >= dispersion_range[0], axis=-1)
             & np.all(magnitude <= dispersion_range[1], axis=-1)
         )
-        distance = np.min(np.abs(predicted[..., None] - all_nm), axis=-1)  # (T, L, n)
+        distance = _nearest_distance(predicted, sorted_nm)  # (T, L, n)
         scores = np.where(
             admissible, (np.exp(-0.5 * (distance / tolerance_nm) ** 2) * strength).sum(-1), -1.0
         )
@@ -466,6 +471,23 @@ def match_lines(
     if not out:
         raise EstimationError("no line ↔ peak match is monotonic with a plausible dispersion")
     return out
+
+
+def _nearest_distance(values: FloatArray, sorted_nm: FloatArray) -> FloatArray:
+    """``min_j |values − sorted_nm[j]|`` elementwise, from the two neighbours in the sorted list.
+
+    Examples
+    --------
+    >>> _nearest_distance(np.array([0.0, 2.4, 9.0]), np.array([1.0, 2.0, 5.0]))
+    array([1. , 0.4, 4. ])
+    """
+    right = np.clip(np.searchsorted(sorted_nm, values), 1, sorted_nm.size - 1)
+    if sorted_nm.size == 1:
+        return np.asarray(np.abs(values - sorted_nm[0]), dtype=np.float64)
+    return np.asarray(
+        np.minimum(np.abs(values - sorted_nm[right - 1]), np.abs(values - sorted_nm[right])),
+        dtype=np.float64,
+    )
 
 
 def _lagrange(nodes: FloatArray, at: FloatArray) -> FloatArray:
@@ -669,20 +691,23 @@ def fit_mapping_to_points(
     Returns the parameters, their covariance (scaled by the reduced χ² when it exceeds 1) and χ².
     """
 
+    span = (float(pixels.min()), float(pixels.max()))
+
     def function(x: FloatArray, with_jacobian: bool) -> tuple[FloatArray, FloatArray | None] | None:
         if isinstance(family, GratingFamily):
-            if not family.valid(x, (float(pixels.min()), float(pixels.max())))[0]:
+            evaluated = family.evaluate(pixels, x, span, with_jacobian=with_jacobian)
+            if evaluated is None:
                 return None
+            wavelengths, wavelength_jacobian = evaluated
             rows, row_jacobian = family.prior_rows(x)
         else:
+            wavelengths = family.wavelengths(pixels, x)
+            wavelength_jacobian = family.jacobian(pixels, x) if with_jacobian else None
             rows, row_jacobian = np.zeros(0), np.zeros((0, x.size))
-        residual = np.concatenate(
-            [(family.wavelengths(pixels, x) - wavelengths_nm) / sigma_nm, rows]
-        )
-        if not with_jacobian:
+        residual = np.concatenate([(wavelengths - wavelengths_nm) / sigma_nm, rows])
+        if wavelength_jacobian is None:
             return residual, None
-        jacobian = np.vstack([family.jacobian(pixels, x) / sigma_nm[:, None], row_jacobian])
-        return residual, jacobian
+        return residual, np.vstack([wavelength_jacobian / sigma_nm[:, None], row_jacobian])
 
     solution = levenberg_marquardt(function, x0, max_iterations=50, tolerance=1e-12)
     data_rows = pixels.size

@@ -14,12 +14,18 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 
 from calib.core.arrays import FloatArray
 
-#: ``function(x, with_jacobian)`` → ``(residual, jacobian or None)``, or ``None`` outside the
-#: valid region.
-ResidualFunction = Callable[[FloatArray, bool], "tuple[FloatArray, FloatArray | None] | None"]
+_gesv = lapack.dgesv
+
+#: What a residual function gives at a point: ``(residual, jacobian)`` — the Jacobian an array, a
+#: call that computes it (evaluated only if the point is accepted: a rejected trial costs only its
+#: residual), or ``None`` when not asked for — or ``None`` outside the valid region.
+Evaluation = tuple[FloatArray, FloatArray | Callable[[], FloatArray] | None] | None
+#: ``function(x, with_jacobian)`` → :data:`Evaluation`.
+ResidualFunction = Callable[[FloatArray, bool], Evaluation]
 
 
 @dataclass(frozen=True)
@@ -71,23 +77,28 @@ def levenberg_marquardt(
     residual, first_jacobian = first
     if first_jacobian is None:
         raise ValueError("the residual function gave no Jacobian")
-    jacobian: FloatArray = first_jacobian
+    jacobian = _concrete(first_jacobian)
     cost = float(residual @ residual)
     evaluations = 1
     damping = 1e-3
+    diagonal = np.arange(x.size)
     for _ in range(max_iterations):
-        gradient = jacobian.T @ residual
+        gradient = -(jacobian.T @ residual)
         normal = jacobian.T @ jacobian
-        scale = np.maximum(np.diag(normal), 1e-30)
+        scale = np.maximum(normal.diagonal(), 1e-30)
         improved = False
         while damping < 1e12:
-            try:
-                step = np.linalg.solve(normal + damping * np.diag(scale), -gradient)
-            except np.linalg.LinAlgError:
+            system = normal.copy()
+            system[diagonal, diagonal] += damping * scale
+            # LAPACK's gesv itself (what np.linalg.solve calls), without its per-call set-up:
+            # these systems are 2–10 wide and solved thousands of times per mapping.
+            _, _, step, info = _gesv(system, gradient)
+            if info != 0:
                 damping *= 10.0
                 continue
             trial = x + step
-            # The Jacobian comes with the trial: near convergence most steps are accepted.
+            # The Jacobian comes with the trial (near convergence most steps are accepted), as
+            # a call when the function defers it: computed only if the trial is accepted.
             outcome = function(trial, True)
             evaluations += 1
             if outcome is not None and outcome[1] is not None:
@@ -95,7 +106,7 @@ def levenberg_marquardt(
                 if math.isfinite(trial_cost) and trial_cost < cost:
                     decrease = cost - trial_cost
                     x = trial
-                    residual, jacobian = outcome[0], outcome[1]
+                    residual, jacobian = outcome[0], _concrete(outcome[1])
                     cost = trial_cost
                     damping = max(damping / 5.0, 1e-9)
                     improved = True
@@ -106,3 +117,7 @@ def levenberg_marquardt(
         if not improved:
             break
     return Solution(x, residual, jacobian, cost, evaluations)
+
+
+def _concrete(jacobian: FloatArray | Callable[[], FloatArray]) -> FloatArray:
+    return jacobian() if callable(jacobian) else jacobian

@@ -42,7 +42,7 @@ from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
-from calib.wavelength.least_squares import Solution, levenberg_marquardt
+from calib.wavelength.least_squares import Evaluation, Solution, levenberg_marquardt
 from calib.wavelength.peaks import fluorescent_starts
 from calib.wavelength.response_model import ResponseModel, fine_step_for
 from calib.wavelength.rig_prior import default_prior
@@ -211,26 +211,40 @@ class StageFit:
         out[valid] = total
         return out
 
-    def function(
-        self, x: FloatArray, with_jacobian: bool
-    ) -> tuple[FloatArray, FloatArray | None] | None:
-        if not self.valid(x)[0]:
-            return None
-        edges = self.family.wavelengths(self.edges_px, x)
-        edge_jacobian = self.family.jacobian(self.edges_px, x) if with_jacobian else None
-        residuals, jacobians = [], []
-        for model in self.models:
-            residual, jacobian, _ = model.residual(edges, edge_jacobian)
-            residuals.append(residual)
-            jacobians.append(jacobian)
+    def function(self, x: FloatArray, with_jacobian: bool) -> Evaluation:
+        """Residual rows of every lamp (and the grating prior's) at ``x``, the Jacobian left to a
+        call (:data:`calib.wavelength.least_squares.ResidualFunction`), or ``None`` if invalid."""
         if isinstance(self.family, GratingFamily):
-            rows, row_jacobian = self.family.prior_rows(x)
-            residuals.append(rows)
-            jacobians.append(row_jacobian)
+            evaluated = self.family.evaluate(
+                self.edges_px, x, self.pixel_range, with_jacobian=with_jacobian
+            )
+            if evaluated is None:
+                return None
+            edges, edge_jacobian = evaluated
+        else:
+            if not self.valid(x)[0]:
+                return None
+            edges = self.family.wavelengths(self.edges_px, x)
+            edge_jacobian = self.family.jacobian(self.edges_px, x) if with_jacobian else None
+        residuals, thunks = [], []
+        for model in self.models:
+            residual, thunk, _ = model.residual_lazy(edges, edge_jacobian)
+            residuals.append(residual)
+            if thunk is not None:
+                thunks.append(thunk)
+        rows: list[FloatArray] = []
+        if isinstance(self.family, GratingFamily):
+            prior_residual, row_jacobian = self.family.prior_rows(x)
+            residuals.append(prior_residual)
+            rows.append(row_jacobian)
         residual = np.concatenate(residuals)
         if not with_jacobian:
             return residual, None
-        return residual, np.vstack([j for j in jacobians if j is not None])
+
+        def jacobian() -> FloatArray:
+            return np.vstack([thunk() for thunk in thunks] + rows)
+
+        return residual, jacobian
 
     def fixed_at(self, x: FloatArray) -> StageFit:
         """The same fit with each model's prior scale and penalty weights held at ``x``'s."""

@@ -35,6 +35,7 @@ problems whose variables separate. SIAM J. Numer. Anal. 10(2), 413–432.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -60,6 +61,10 @@ EFFICIENCY_SIGMA = 0.3
 EFFICIENCY_CORRELATION_NM = 80.0
 #: Correlation length (nm) of the response's smooth departure from the camera prior.
 FLEX_CORRELATION_NM = 25.0
+#: A blurred pixel's row reads more edges than this: each edge's cumulatives are computed once
+#: for the pixels sharing it (:meth:`ResponseModel._edge_cumulatives`; the same numbers, 1.2–3×
+#: faster from a 3-tap line spread on; for an unblurred profile the table costs more than it saves).
+SHARED_EDGES_FROM = 3
 
 IntArray = NDArray[np.intp]
 
@@ -264,11 +269,23 @@ class LampColumns:
         )
         if not derivative:
             return value, None
-        # Beyond the axis the cumulative is constant.
+        return value, self.density_at(wavelength_nm, column)
+
+    def density_at(self, wavelength_nm: FloatArray, column: IntArray) -> FloatArray:
+        """``∂C_j/∂λ = e φ_j (λ)`` (zero beyond the axis, where the cumulative is constant)."""
+        count, size = self.density.shape
+        last = count - 1
+        position = np.clip((wavelength_nm - self.start_nm) / self.step_nm, 0.0, float(last))
+        index = np.minimum(position.astype(np.intp), last - 1)
+        t = position - index
+        flat = index * size + column
+        density = self.density.ravel()
+        low = density.take(flat)
+        high = density.take(flat + size)
         inside = (wavelength_nm > self.start_nm) & (
             wavelength_nm < self.start_nm + last * self.step_nm
         )
-        return value, (low + (high - low) * t) * inside
+        return np.asarray((low + (high - low) * t) * inside, dtype=np.float64)
 
 
 # -------------------------------------------------------------------------------- the model
@@ -422,12 +439,22 @@ class ResponseModel:
     def band(self, edges_nm: FloatArray, edge_jacobian: FloatArray | None = None) -> Band:
         """The banded model matrix for edge wavelengths ``(K, n + 1)`` (and ``∂/∂x`` from
         ``edge_jacobian`` ``(K, n + 1, P)``)."""
+        band = self._band_values(edges_nm)
+        if edge_jacobian is None:
+            return band
+        return replace(band, derivative=self.band_derivative(edges_nm, edge_jacobian, band))
+
+    def _windows(self, edges_nm: FloatArray) -> tuple[FloatArray, IntArray]:
+        """Each blurred pixel's ``L + 1`` edge wavelengths ``(K, n, L + 1)`` and the edge index."""
         count = self.filter.size  # L + 1 edges per blurred pixel
         half = (count - 2) // 2
         n = self.edges_px.size - 1
         index = np.clip(np.arange(n + 2 * half + 1) - half, 0, n)
         padded = edges_nm[:, index]  # (K, n + 2h + 1)
-        windows = np.lib.stride_tricks.sliding_window_view(padded, count, axis=1)  # (K, n, L+1)
+        return np.lib.stride_tricks.sliding_window_view(padded, count, axis=1), index
+
+    def _band_values(self, edges_nm: FloatArray) -> Band:
+        windows, _ = self._windows(edges_nm)  # (K, n, L+1)
         low = windows.min(axis=2)
         high = windows.max(axis=2)
         support_lo, support_hi = self.layout.support
@@ -438,53 +465,125 @@ class ResponseModel:
         first = np.clip(first, 0, max(size - width, 0))
         column = first[..., None] + np.arange(width)  # (K, n, w)
         valid = column < size
-        column = np.minimum(column, size - 1)
-        derivative = edge_jacobian is not None
-        value, slope = self.columns.evaluate(
-            windows[..., None, :], column[..., None], derivative=derivative
-        )  # (K, n, w, L+1)
-        # A falling mapping integrates from the higher edge: the pixel's light is |ΔC|.
-        sign = np.where(edges_nm[:, -1] >= edges_nm[:, 0], 1.0, -1.0)[:, None, None]
-        values = np.einsum("knwl,l->knw", value, self.filter) * valid * sign
-        band_derivative = None
-        if edge_jacobian is not None and slope is not None:
-            jac_windows = np.lib.stride_tricks.sliding_window_view(
-                edge_jacobian[:, index, :], count, axis=1
-            )  # (K, n, P, L+1)
-            band_derivative = (
-                np.einsum("knwl,l,knpl->knwp", slope, self.filter, jac_windows)
-                * (valid * sign)[..., None]
+        if self.filter.size > SHARED_EDGES_FROM:
+            value = self._edge_cumulatives(edges_nm, first, width)  # (K, n, w, L+1)
+        else:
+            value, _ = self.columns.evaluate(
+                windows[..., None, :], np.minimum(column, size - 1)[..., None]
             )
-        return Band(values, first, band_derivative)
+        values = np.einsum("knwl,l->knw", value, self.filter) * valid * _signs(edges_nm)
+        return Band(values, first)
+
+    def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
+        """``C_j`` at each blurred pixel's ``L + 1`` edges for its ``w`` columns ``(K, n, w, L + 1)``
+        (columns past the last node read the last one's).
+
+        Neighbouring pixels share their edges (a blurred pixel's window overlaps ``L`` others'),
+        so each edge is evaluated once, for the columns of every pixel whose window holds it,
+        and the pixels' entries are read from that table."""
+        count = self.filter.size
+        batch, n = first.shape
+        size = self.n_nodes
+        half = (count - 2) // 2
+        padded = edges_nm[:, np.clip(np.arange(n + 2 * half + 1) - half, 0, n)]  # (K, n + L)
+        # The columns an edge serves: those of the pixels n − L … n whose window holds it.
+        apart = np.full((batch, count - 1), size, dtype=np.intp)
+        lowest = np.lib.stride_tricks.sliding_window_view(
+            np.concatenate([apart, first, apart], axis=1), count, axis=1
+        ).min(axis=2)  # (K, n + L)
+        highest = np.lib.stride_tricks.sliding_window_view(
+            np.concatenate([-apart, first, -apart], axis=1), count, axis=1
+        ).max(axis=2)
+        span = int(np.max(highest - lowest)) + width
+        table, _ = self.columns.evaluate(
+            padded[..., None], np.minimum(lowest[..., None] + np.arange(span), size - 1)
+        )  # (K, n + L, span)
+        position = np.arange(n)[:, None] + np.arange(count)  # (n, L + 1): padded edge index
+        offset = (
+            first[:, :, None, None] + np.arange(width)[:, None] - lowest[:, position][:, :, None, :]
+        )  # (K, n, w, L + 1)
+        flat = (np.arange(batch)[:, None, None, None] * padded.shape[1] + position[:, None, :]) * (
+            span
+        ) + offset
+        return np.asarray(table.reshape(-1).take(flat), dtype=np.float64)
+
+    def band_derivative(
+        self, edges_nm: FloatArray, edge_jacobian: FloatArray, band: Band
+    ) -> FloatArray:
+        """``∂A/∂x`` ``(K, n, w, P)`` of :meth:`band`'s matrix, from ``∂λ_edge/∂x`` ``(K, n + 1, P)``:
+        the lamp density at the edges (:meth:`LampColumns.density_at`) through the filter."""
+        windows, index = self._windows(edges_nm)
+        size = self.n_nodes
+        column = band.columns
+        valid = column < size
+        slope = self.columns.density_at(
+            windows[..., None, :], np.minimum(column, size - 1)[..., None]
+        )
+        count = self.filter.size
+        jac_windows = np.lib.stride_tricks.sliding_window_view(
+            edge_jacobian[:, index, :], count, axis=1
+        )  # (K, n, P, L+1)
+        return np.asarray(
+            np.einsum("knwl,l,knpl->knwp", slope, self.filter, jac_windows)
+            * (valid * _signs(edges_nm))[..., None],
+            dtype=np.float64,
+        )
 
     # ----------------------------------------------------------------------- normal matrices
 
     def _normal(self, band: Band) -> tuple[FloatArray, FloatArray]:
         """Per batch and channel: ``AᵀW²A`` ``(K, 3, N, N)`` and ``AᵀW²y`` ``(K, 3, N)``.
 
-        One ``bincount`` each over every (batch, channel, row, band pair).
+        The normal matrix of a banded ``A`` (a row's ``w`` columns consecutive from its first) is
+        banded too: its ``d``-th diagonal sums ``W² A_{n,f+a} A_{n,f+a+d}`` over the rows, so one
+        ``bincount`` over the ``w(w+1)/2`` pairs ``a ≤ a + d`` of every (batch, channel, row)
+        gives every diagonal, which are then laid out (mirrored) in the dense matrix.
         """
-        batch = band.values.shape[0]
+        values = band.values  # (K, n, w)
+        batch, _, width = values.shape
         size = self.n_nodes
-        columns = band.columns  # (K, n, w)
-        base = (np.arange(batch * 3)[:, None, None] * size).reshape(batch, 3, 1, 1)
-        index = base + columns[:, None, :, :]  # (K, 3, n, w): (k·3 + c)·N + j
-        pair = (index[..., :, None] * size + columns[:, None, :, None, :]).reshape(-1)
-        weights2 = self.weights.T**2  # (3, n)
-        product = (band.values[:, None, :, :, None] * band.values[:, None, :, None, :]) * weights2[
-            None, :, :, None, None
-        ]
-        normal = np.bincount(pair, weights=product.reshape(-1), minlength=batch * 3 * size * size)
-        weighted_target = (self.weights * self.target).T  # (3, n)
-        rhs = np.bincount(
-            index.reshape(-1),
-            weights=(band.values[:, None, :, :] * weighted_target[None, :, :, None]).reshape(-1),
-            minlength=batch * 3 * size,
+        lows, offsets = _band_pairs(width)
+        # Channel-free: each pair's product and its place; the channels differ by the weights.
+        products = values[..., lows] * values[..., lows + offsets]  # (K, n, M)
+        place = (
+            (np.arange(batch) * (width * size))[:, None, None]
+            + band.first[:, :, None]
+            + (offsets * size + lows)
+        ).reshape(-1)
+        squared = self.weights**2  # (n, 3)
+        diagonals = np.stack(
+            [
+                np.bincount(
+                    place,
+                    weights=(products * squared[None, :, c, None]).reshape(-1),
+                    minlength=batch * width * size,
+                ).reshape(batch, width, size)
+                for c in range(3)
+            ],
+            axis=1,
+        )  # (K, 3, w, N)
+        normal = np.zeros((batch, 3, size, size))
+        for offset in range(min(width, size)):
+            row = np.arange(size - offset)
+            normal[..., row, row + offset] = diagonals[:, :, offset, : size - offset]
+            if offset:
+                normal[..., row + offset, row] = diagonals[:, :, offset, : size - offset]
+        entries = (
+            band.first[:, :, None] + np.arange(width) + (np.arange(batch) * size)[:, None, None]
+        ).reshape(-1)
+        weighted_target = self.weights * self.target  # (n, 3)
+        rhs = np.stack(
+            [
+                np.bincount(
+                    entries,
+                    weights=(values * weighted_target[None, :, c, None]).reshape(-1),
+                    minlength=batch * size,
+                ).reshape(batch, size)
+                for c in range(3)
+            ],
+            axis=1,
         )
-        return (
-            np.asarray(normal.reshape(batch, 3, size, size), dtype=np.float64),
-            np.asarray(rhs.reshape(batch, 3, size), dtype=np.float64),
-        )
+        return normal, np.asarray(rhs, dtype=np.float64)
 
     def _prior_scale(self, band: Band) -> FloatArray:
         """``β̂`` per batch: the mean camera's scale that best explains the profile ``(K,)``."""
@@ -577,9 +676,17 @@ class ResponseModel:
             Residual ``(R,)`` (model − data, weighted), Jacobian ``(R, P)`` or ``None``, and the
             fitted response ``(3, N)``, the camera scale ``β`` and the model profile ``(n, 3)``.
         """
+        residual, jacobian, parts = self.residual_lazy(edges_nm, edge_jacobian)
+        return residual, None if jacobian is None else jacobian(), parts
+
+    def residual_lazy(
+        self, edges_nm: FloatArray, edge_jacobian: FloatArray | None = None
+    ) -> tuple[FloatArray, Callable[[], FloatArray] | None, dict[str, Any]]:
+        """:meth:`residual` with the Jacobian left to a call: a fit computes it only for the
+        trial points it accepts (about half the work of an evaluation)."""
         model = self if self.penalty_weight is not None else self.reference(edges_nm)
         assert model.penalty_weight is not None
-        band = model.band(edges_nm[None, :], None if edge_jacobian is None else edge_jacobian[None])
+        band = model.band(edges_nm[None, :])
         normal, rhs = model._normal(band)
         systems, pulls, gamma = model._systems(
             normal, np.array([model.scale]), model.penalty_weight[None]
@@ -614,9 +721,48 @@ class ResponseModel:
         prior_rows = np.einsum("cij,cj->ci", factor, response - beta * model.prior_mean)
         residual = np.concatenate([data_rows.ravel(), penalty_rows.ravel(), prior_rows.ravel()])
         parts = {"response": response, "beta": beta, "model_profile": fitted.T}
-        if edge_jacobian is None or band.derivative is None:
+        if edge_jacobian is None:
             return residual, None, parts
-        derivative = band.derivative[0]  # (n, w, P)
+        edge_derivative = edge_jacobian
+
+        def jacobian() -> FloatArray:
+            return model._residual_jacobian(
+                model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0],
+                band,
+                inverse,
+                pulls,
+                gamma,
+                response,
+                data_rows,
+                apply,
+                apply_transpose,
+            )
+
+        return residual, jacobian, parts
+
+    def _residual_jacobian(
+        self,
+        derivative: FloatArray,
+        band: Band,
+        inverse: FloatArray,
+        pulls: FloatArray,
+        gamma: FloatArray,
+        response: FloatArray,
+        data_rows: FloatArray,
+        apply: Callable[[FloatArray], FloatArray],
+        apply_transpose: Callable[[FloatArray, FloatArray], FloatArray],
+    ) -> FloatArray:
+        """The exact variable-projection Jacobian of :meth:`residual_lazy`'s rows (``derivative``:
+        ``∂A/∂x`` ``(n, w, P)``)."""
+        model = self
+        assert model.penalty_weight is not None
+        values, columns = band.values[0], band.columns[0]  # (n, w)
+        size = model.n_nodes
+        flat_columns = (np.arange(3)[:, None, None] * size + columns[None]).reshape(-1)
+        weights = model.weights.T  # (3, n)
+        root = np.sqrt(model.penalty_weight)
+        difference = model.layout.difference
+        factor = model.prior_factor / model.scale
         # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
         moved = (
             np.einsum("nwp,cnw->cnp", derivative, response[:, columns]) * weights[..., None]
@@ -625,7 +771,6 @@ class ResponseModel:
             "nwp,cnw->cnwp", derivative, (weights * data_rows)[:, :, None] * np.ones_like(values)
         )
         n_parameters = derivative.shape[-1]
-        gathered = np.zeros((3, size, n_parameters))
         index = (flat_columns[:, None] * n_parameters + np.arange(n_parameters)).reshape(-1)
         gathered = np.bincount(
             index, weights=right.reshape(-1), minlength=3 * size * n_parameters
@@ -641,14 +786,13 @@ class ResponseModel:
             factor,
             change - change_beta[None, None, :] * model.prior_mean[..., None],
         )
-        jacobian = np.concatenate(
+        return np.concatenate(
             [
                 data.reshape(-1, n_parameters),
                 penalty.reshape(-1, n_parameters),
                 prior.reshape(-1, n_parameters),
             ]
         )
-        return residual, jacobian, parts
 
 
 def _solve(
@@ -670,6 +814,25 @@ def _solve(
     denominator = np.where(np.abs(denominator) > 1e-300, denominator, np.inf)
     beta = (right_beta + np.einsum("kci,kcim->km", pulls, free)) / denominator[:, None]
     return free + along[..., None] * beta[:, None, None, :], beta
+
+
+def _signs(edges_nm: FloatArray) -> FloatArray:
+    """A falling mapping integrates from the higher edge: the pixel's light is ``|ΔC|``
+    (``(K, 1, 1)``)."""
+    return np.where(edges_nm[:, -1] >= edges_nm[:, 0], 1.0, -1.0)[:, None, None]
+
+
+def _band_pairs(width: int) -> tuple[IntArray, IntArray]:
+    """The pairs ``(a, d)`` with ``a + d < width`` (a band's entry and its ``d``-th neighbour).
+
+    Examples
+    --------
+    >>> _band_pairs(2)
+    (array([0, 1, 0]), array([0, 0, 1]))
+    """
+    pairs = [(low, offset) for offset in range(width) for low in range(width - offset)]
+    lows, offsets = np.array(pairs, dtype=np.intp).reshape(-1, 2).T
+    return lows, offsets
 
 
 def fine_step_for(nm_per_sample: float) -> float:
