@@ -81,6 +81,7 @@ class Row:
     chi2_judged: float | None
     verdict: str
     cpu_s: float
+    components: dict[str, float]
 
 
 def twin_config(
@@ -105,9 +106,12 @@ def twin_config(
     return RigConfig.model_validate(data)
 
 
-def judge(session: Path, out: Path, camera: str, floor: float) -> dict[str, object]:
+def judge(
+    session: Path, out: Path, camera: str, floor: float, *, named_only: bool = False
+) -> dict[str, object]:
     """Estimate ``session`` as ``rig demo`` does, with the σ budget's misfit ``floor`` (the tuning
-    run's only lever; the product uses :data:`MODEL_FLOOR`); score it against the twin's truth."""
+    run's lever; the product uses :data:`MODEL_FLOOR`) and, with ``named_only``, without the
+    validation-fitted factor (the named components alone); score it against the twin's truth."""
     # The bundled rawtoaces-data basis (as on a machine without camera data), whatever --data-dir,
     # $SPECTRAL_RIG_DATA or the user cache hold: the splits are named against it.
     with tempfile.TemporaryDirectory() as no_data:
@@ -117,7 +121,10 @@ def judge(session: Path, out: Path, camera: str, floor: float) -> dict[str, obje
     outcome = estimate_session(
         session,
         out,
-        settings={"basis": basis, "budget": BudgetSettings(model_floor=floor)},
+        settings={
+            "basis": basis,
+            "budget": BudgetSettings(model_floor=floor, coverage_scale={} if named_only else None),
+        },
         report=False,
         force=True,
     )
@@ -135,11 +142,17 @@ def judge(session: Path, out: Path, camera: str, floor: float) -> dict[str, obje
     assert sigma is not None, "every grating method states a σ through the budget"
     error = curves.values - reference
     budget = result.quality.uncertainty or {}
+    error_rms = float(np.sqrt(np.mean(error**2)))
+    components = {
+        name: float(value) / error_rms for name, value in dict(budget.get("rms", {})).items()
+    }
+    components["factor"] = float(budget.get("coverage_scale", math.nan))
     return {
+        "components": components,
         "method": result.method,
         "re": relative_error(curves.values, reference),
         "coverage": float(np.mean(np.abs(error) <= 2.0 * sigma)),
-        "sigma_ratio": float(np.sqrt(np.mean(sigma**2)) / np.sqrt(np.mean(error**2))),
+        "sigma_ratio": float(np.sqrt(np.mean(sigma**2)) / error_rms),
         "chi2_noise": budget.get("noise_only_reduced_chi2"),
         "chi2_judged": budget.get("reduced_chi2"),
         "verdict": result.quality.verdict,
@@ -159,6 +172,11 @@ def main() -> None:
         choices=("on", "off"),
         default="on",
         help="the twin spectrometer's in-spec scale and slit errors (off: exactly as stated)",
+    )
+    parser.add_argument(
+        "--named-only",
+        action="store_true",
+        help="the σ budget's named components alone (no validation-fitted factor)",
     )
     parser.add_argument(
         "--seed-per-camera",
@@ -204,7 +222,13 @@ def main() -> None:
                     flush=True,
                 )
             for floor in floors:
-                scored = judge(captured.session, root / slug / f"estimate-{floor:g}", camera, floor)
+                scored = judge(
+                    captured.session,
+                    root / slug / f"estimate-{floor:g}",
+                    camera,
+                    floor,
+                    named_only=args.named_only,
+                )
                 rows.append(Row(split, camera, floor, **scored))  # type: ignore[arg-type]
                 row = rows[-1]
                 print(
@@ -212,6 +236,11 @@ def main() -> None:
                     f"RE {100 * row.re:5.2f}  ±2σ {100 * row.coverage:5.1f} %  "
                     f"σ/err {row.sigma_ratio:4.2f}  χ² {row.chi2_noise or math.nan:7.3g} → "
                     f"{row.chi2_judged or math.nan:6.3g}  {row.verdict}",
+                    flush=True,
+                )
+                print(
+                    "    σ component RMS / error RMS: "
+                    + ", ".join(f"{name} {value:.2f}" for name, value in row.components.items()),
                     flush=True,
                 )
     print(
