@@ -69,6 +69,12 @@ WAVELENGTH_SCALE_NM = 0.5
 ASSUMED_BANDWIDTH_NM = 5.0
 #: Relative tolerance of a stated bandwidth (a slit's FWHM is specified to about ±25 %).
 BANDWIDTH_TOLERANCE = 0.25
+#: σ of the spectrometer's scale and slit errors per unit of their stated tolerance: a unit within
+#: its specification is anywhere inside ±tolerance (uniformly: σ = tolerance/√3), as the twin's
+#: spectrometer (:mod:`mocks.bench.deviation`) and the validation protocol's offset
+#: (:class:`calib.evaluation.validation.rig_errors.SpectrometerError`) draw it; decision 0038. An
+#: assumed bandwidth (none given) keeps the whole perturbation.
+TOLERANCE_SIGMA = 1.0 / math.sqrt(3.0)
 #: Efficiency terms removed for the η-model perturbation.
 EFFICIENCY_TERMS_STEP = 2
 #: The lamp spectrum's precision relative to the signal, as a floor under each profile sample's
@@ -137,6 +143,9 @@ class BudgetSettings:
         Let the re-solves share the estimate's identical sub-solves and start from its solutions
         (:mod:`calib.methods.solve_scope`, decision 0031); off: every re-solve from scratch, the
         reference the shared path is tested against.
+    tolerance_sigma
+        σ of the spectrometer's errors per unit of their stated tolerance
+        (:data:`TOLERANCE_SIGMA`; 1: the tolerance taken as one σ, the budget before decision 0038).
     """
 
     wavelength_scale_nm: float = WAVELENGTH_SCALE_NM
@@ -146,6 +155,7 @@ class BudgetSettings:
     perturb: bool = True
     model_floor: float = MODEL_FLOOR
     reuse_solves: bool = True
+    tolerance_sigma: float = TOLERANCE_SIGMA
 
     def __post_init__(self) -> None:
         for item in fields(self):
@@ -396,7 +406,9 @@ def spectrometer_sigma(
         for lamp in observations
     ]
     shift = max(scales)
-    scale_sigma = _difference(result, rerun([shifted(lamp, shift) for lamp in observations]))
+    scale_sigma = settings.tolerance_sigma * _difference(
+        result, rerun([shifted(lamp, shift) for lamp in observations])
+    )
     missing = [lamp.name for lamp in observations if lamp.spectrum_bandwidth_nm is None]
     if missing:
         flags.append(
@@ -417,6 +429,8 @@ def spectrometer_sigma(
         for lamp in observations
     ]
     bandwidth_sigma = _difference(result, rerun(widened))
+    if not missing:
+        bandwidth_sigma = settings.tolerance_sigma * bandwidth_sigma
     notes.append(
         f"spectrometer: scale ±{shift:g} nm, bandwidth "
         + (
@@ -424,6 +438,7 @@ def spectrometer_sigma(
             if missing
             else f"±{100 * settings.bandwidth_tolerance:g} %"
         )
+        + f" (σ = {settings.tolerance_sigma:.3g} × tolerance)"
     )
     return scale_sigma, bandwidth_sigma, notes, flags
 
