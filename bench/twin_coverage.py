@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.metrics import relative_error
-from calib.methods.uncertainty import MODEL_FLOOR, BudgetSettings
+from calib.methods.uncertainty import MODEL_FLOOR, TOLERANCE_SIGMA, BudgetSettings
 from calib.model.bases import default_camera_basis
 from rig.capture import run_capture
 from rig.config import RigConfig, load_config
@@ -107,7 +107,13 @@ def twin_config(
 
 
 def judge(
-    session: Path, out: Path, camera: str, floor: float, *, named_only: bool = False
+    session: Path,
+    out: Path,
+    camera: str,
+    floor: float,
+    *,
+    named_only: bool = False,
+    tolerance_sigma: float = TOLERANCE_SIGMA,
 ) -> dict[str, object]:
     """Estimate ``session`` as ``rig demo`` does, with the σ budget's misfit ``floor`` (the tuning
     run's lever; the product uses :data:`MODEL_FLOOR`) and, with ``named_only``, without the
@@ -123,7 +129,11 @@ def judge(
         out,
         settings={
             "basis": basis,
-            "budget": BudgetSettings(model_floor=floor, coverage_scale={} if named_only else None),
+            "budget": BudgetSettings(
+                model_floor=floor,
+                coverage_scale={} if named_only else None,
+                tolerance_sigma=tolerance_sigma,
+            ),
         },
         report=False,
         force=True,
@@ -172,6 +182,12 @@ def main() -> None:
         choices=("on", "off"),
         default="on",
         help="the twin spectrometer's in-spec scale and slit errors (off: exactly as stated)",
+    )
+    parser.add_argument(
+        "--tolerance-sigma",
+        type=float,
+        default=TOLERANCE_SIGMA,
+        help="σ of the spectrometer's errors per unit of their tolerance (1/√3 ≈ 0.577: a bound)",
     )
     parser.add_argument(
         "--named-only",
@@ -228,6 +244,7 @@ def main() -> None:
                     camera,
                     floor,
                     named_only=args.named_only,
+                    tolerance_sigma=args.tolerance_sigma,
                 )
                 rows.append(Row(split, camera, floor, **scored))  # type: ignore[arg-type]
                 row = rows[-1]

@@ -21,6 +21,7 @@ from calib.evaluation.validation.budget import coverage_at, fit_scale
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
     COMPONENTS,
+    IN_SPEC_TOLERANCE_SIGMA,
     TOLERANCE_SIGMA,
     BudgetSettings,
     basis_support_nm,
@@ -127,12 +128,12 @@ def test_a_stated_tolerance_is_a_bound_not_one_sigma(
         settings = BudgetSettings(tolerance_sigma=tolerance_sigma)
         return dict(uncertainty_budget(result, lamps, rerun=rerun, settings=settings).components)
 
-    assert math.isclose(TOLERANCE_SIGMA * math.sqrt(3), 1.0)
-    bound, in_spec = components(stated, 1.0), components(stated, TOLERANCE_SIGMA)
+    assert TOLERANCE_SIGMA == 1.0 and math.isclose(IN_SPEC_TOLERANCE_SIGMA * math.sqrt(3), 1.0)
+    bound, in_spec = components(stated, 1.0), components(stated, IN_SPEC_TOLERANCE_SIGMA)
     for name in ("spectrometer scale", "spectrometer bandwidth"):
         assert np.sqrt(np.mean(bound[name] ** 2)) > 0
-        np.testing.assert_allclose(in_spec[name], TOLERANCE_SIGMA * bound[name], rtol=1e-9)
-    assumed = components(unstated, TOLERANCE_SIGMA)["spectrometer bandwidth"]
+        np.testing.assert_allclose(in_spec[name], IN_SPEC_TOLERANCE_SIGMA * bound[name], rtol=1e-9)
+    assumed = components(unstated, IN_SPEC_TOLERANCE_SIGMA)["spectrometer bandwidth"]
     np.testing.assert_allclose(assumed, components(unstated, 1.0)["spectrometer bandwidth"])
 
 
