@@ -64,7 +64,7 @@ def run_camera(
         except Exception as exc:
             cells.append(f"failed ({exc.__class__.__name__})")
             continue
-        error = relative_error(result.physical_sensitivity(), truth)
+        error = relative_error(result.sensitivity, truth)
         errors.append(error)
         cell = f"{100 * error:5.1f}"
         if index < len(DAYLIGHTS_K) and result.illuminant is not None:
