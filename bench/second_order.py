@@ -116,7 +116,7 @@ def main() -> None:
         scale = float(truth.max())
         error = np.abs(result.sensitivity / result.sensitivity.max() - truth / scale)[red]
         print(
-            f"{label}: RE {100 * relative_error(result.sensitivity, truth):.2f} ×10⁻², largest "
+            f"{label}: RE {100 * relative_error(result.physical_sensitivity(), truth):.2f} ×10⁻², largest "
             f"error beyond {RED_END_NM:g} nm {100 * float(error.max()):.2f} % of the peak "
             f"(CPU {spent:.2f} s)"
         )

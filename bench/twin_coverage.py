@@ -17,27 +17,31 @@ colour-science's Nikon 5100 (NPL) always, and, with ``--data-dir``, bodies of th
 collections (``--data-dir`` only finds their curves: the prior stays the bundled basis, with or
 without a data directory or ``$SPECTRAL_RIG_DATA``). Every row says its split.
 
+The twin's spectrometer has the in-spec wavelength-scale error and slit deviation a real one has
+(:mod:`mocks.bench.deviation`, drawn from the station's seed; ``--spectrometer-error off``: exactly
+as stated, the twin before decision 0038); ``--seed-per-camera`` gives every camera's station its own
+seed, so the ten twins see ten instrument draws instead of one. Scores are those of the curve users
+get (``sensitivity.csv`` = ``result.json``: negative lobes of the solve set to zero) and its σ.
+
     python bench/twin_coverage.py [--split validation|test|both] [--floors 0.01]
         [--data-dir ../shared/data/camera_sensitivities] [--keep DIR]
+        [--spectrometer-error on|off] [--seed-per-camera]
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import tempfile
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-import calib.methods
 from calib.core.metrics import relative_error
 from calib.evaluation.synthetic import efficiency_coverage
-from calib.methods.uncertainty import MODEL_FLOOR, BudgetSettings
+from calib.methods.uncertainty import MODEL_FLOOR, TOLERANCE_SIGMA, BudgetSettings
 from calib.model.bases import default_camera_basis
 from rig.capture import run_capture
 from rig.config import RigConfig, load_config
@@ -80,27 +84,25 @@ class Row:
     chi2_judged: float | None
     verdict: str
     cpu_s: float
+    components: dict[str, float]
     eta_coverage: float = math.nan
     eta_sigma_ratio: float = math.nan
 
 
-@contextlib.contextmanager
-def model_floor(floor: float) -> Iterator[None]:
-    """The σ budget :func:`calib.methods.estimate` applies by default, with ``floor``: the
-    tuning run's only lever (the product uses :data:`MODEL_FLOOR`)."""
-    defaults = calib.methods.estimate.__wrapped__.__kwdefaults__  # type: ignore[attr-defined]
-    assert defaults is not None
-    saved = defaults["budget"]
-    defaults["budget"] = BudgetSettings(model_floor=floor)
-    try:
-        yield
-    finally:
-        defaults["budget"] = saved
-
-
-def twin_config(base: RigConfig, camera: str, collection: str, data_dir: Path | None) -> RigConfig:
-    """``base`` with the twin camera's true sensitivity set to ``camera``."""
+def twin_config(
+    base: RigConfig,
+    camera: str,
+    collection: str,
+    data_dir: Path | None,
+    *,
+    in_spec_error: bool = True,
+    seed_offset: int = 0,
+) -> RigConfig:
+    """``base`` with the twin camera's true sensitivity set to ``camera``, the spectrometer's
+    in-spec errors on or off, and the station's seed moved by ``seed_offset``."""
     data = base.model_dump(mode="json")
+    data["seed"] += seed_offset
+    data["devices"]["spectrometer"]["in_spec_error"] = in_spec_error
     twin = data["devices"]["camera"]
     twin["sensitivity"] = camera
     twin["sensitivity_collection"] = collection
@@ -109,15 +111,38 @@ def twin_config(base: RigConfig, camera: str, collection: str, data_dir: Path | 
     return RigConfig.model_validate(data)
 
 
-def judge(session: Path, out: Path, camera: str) -> dict[str, object]:
-    """Estimate ``session`` as ``rig demo`` does; score it against the twin's truth."""
+def judge(
+    session: Path,
+    out: Path,
+    camera: str,
+    floor: float,
+    *,
+    named_only: bool = False,
+    tolerance_sigma: float = TOLERANCE_SIGMA,
+) -> dict[str, object]:
+    """Estimate ``session`` as ``rig demo`` does, with the σ budget's misfit ``floor`` (the tuning
+    run's lever; the product uses :data:`MODEL_FLOOR`) and, with ``named_only``, without the
+    validation-fitted factor (the named components alone); score it against the twin's truth."""
     # The bundled rawtoaces-data basis (as on a machine without camera data), whatever --data-dir,
     # $SPECTRAL_RIG_DATA or the user cache hold: the splits are named against it.
     with tempfile.TemporaryDirectory() as no_data:
         basis = default_camera_basis(data_dir=no_data, exclude=related_camera_names(camera))
     assert basis.fallback is not None and "rawtoaces-data" in basis.source, basis.source
     started = time.process_time()
-    outcome = estimate_session(session, out, settings={"basis": basis}, report=False, force=True)
+    outcome = estimate_session(
+        session,
+        out,
+        settings={
+            "basis": basis,
+            "budget": BudgetSettings(
+                model_floor=floor,
+                coverage_scale={} if named_only else None,
+                tolerance_sigma=tolerance_sigma,
+            ),
+        },
+        report=False,
+        force=True,
+    )
     cpu_s = time.process_time() - started
     result = outcome.estimate.result
     truth = read_twin_truth(session / "twin-truth.json").sensitivity
@@ -126,19 +151,27 @@ def judge(session: Path, out: Path, camera: str) -> dict[str, object]:
         [np.interp(wavelength, truth.wavelength_nm, truth.values[:, k]) for k in range(3)], axis=1
     )
     reference = reference / reference.max()
-    sigma = result.sensitivity_sigma
+    # What users get (sensitivity.csv and result.json): negative lobes set to zero, σ alongside.
+    curves = result.camera_curves()
+    sigma = curves.sigma
     assert sigma is not None, "every grating method states a σ through the budget"
-    error = result.sensitivity - reference
+    error = curves.values - reference
     budget = result.quality.uncertainty or {}
     eta_coverage, eta_ratio = math.nan, math.nan
     if result.grating_efficiency_sigma is not None:
         true_eta = read_twin_truth(session / "twin-truth.json").grating_efficiency.at(wavelength)
         eta_coverage, eta_ratio = efficiency_coverage(result, true_eta)
+    error_rms = float(np.sqrt(np.mean(error**2)))
+    components = {
+        name: float(value) / error_rms for name, value in dict(budget.get("rms", {})).items()
+    }
+    components["factor"] = float(budget.get("coverage_scale", math.nan))
     return {
+        "components": components,
         "method": result.method,
-        "re": relative_error(result.sensitivity, reference),
+        "re": relative_error(curves.values, reference),
         "coverage": float(np.mean(np.abs(error) <= 2.0 * sigma)),
-        "sigma_ratio": float(np.sqrt(np.mean(sigma**2)) / np.sqrt(np.mean(error**2))),
+        "sigma_ratio": float(np.sqrt(np.mean(sigma**2)) / error_rms),
         "chi2_noise": budget.get("noise_only_reduced_chi2"),
         "chi2_judged": budget.get("reduced_chi2"),
         "verdict": result.quality.verdict,
@@ -155,6 +188,29 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, default=None)
     parser.add_argument("--config", type=Path, default=ROOT / "config.yaml")
     parser.add_argument("--keep", type=Path, default=None, help="keep the sessions here")
+    parser.add_argument(
+        "--spectrometer-error",
+        choices=("on", "off"),
+        default="on",
+        help="the twin spectrometer's in-spec scale and slit errors (off: exactly as stated)",
+    )
+    parser.add_argument(
+        "--tolerance-sigma",
+        type=float,
+        default=TOLERANCE_SIGMA,
+        help="σ of the spectrometer's errors per unit of their tolerance (1/√3 ≈ 0.577: a bound)",
+    )
+    parser.add_argument(
+        "--named-only",
+        action="store_true",
+        help="the σ budget's named components alone (no validation-fitted factor)",
+    )
+    parser.add_argument(
+        "--seed-per-camera",
+        action="store_true",
+        help="each camera's station its own seed (config seed + its index): its own spectrometer "
+        "draw and noise; default: the config's seed for all",
+    )
     args = parser.parse_args()
     floors = [float(item) for item in args.floors.split(",")]
     cameras: list[tuple[str, str, str]] = []
@@ -168,17 +224,39 @@ def main() -> None:
     rows: list[Row] = []
     with tempfile.TemporaryDirectory() as scratch:
         root = args.keep or Path(scratch)
-        for split, camera, collection in cameras:
-            config = twin_config(base, camera, collection, args.data_dir)
+        for index, (split, camera, collection) in enumerate(cameras):
+            config = twin_config(
+                base,
+                camera,
+                collection,
+                args.data_dir,
+                in_spec_error=args.spectrometer_error == "on",
+                seed_offset=index if args.seed_per_camera else 0,
+            )
             slug = "".join(c if c.isalnum() else "_" for c in camera)
             captured = run_capture(config, out_dir=root / slug / "sessions")
             if captured.exit_status != "success":
                 print(f"{camera}: capture ended {captured.exit_status}; skipped")
                 continue
-            write_twin_truth(config, captured.session)
+            truth_file = write_twin_truth(config, captured.session)
+            drawn = read_twin_truth(truth_file).spectrometer or {}
+            if drawn.get("in_spec_error"):
+                print(
+                    f"{camera}: seed {config.seed}, spectrometer scale error "
+                    f"{drawn['wavelength_error_at_380_nm']:+.2f} nm at 380, "
+                    f"{drawn['wavelength_error_at_780_nm']:+.2f} nm at 780, "
+                    f"slit ×{drawn['bandwidth_factor']:.3f}",
+                    flush=True,
+                )
             for floor in floors:
-                with model_floor(floor):
-                    scored = judge(captured.session, root / slug / f"estimate-{floor:g}", camera)
+                scored = judge(
+                    captured.session,
+                    root / slug / f"estimate-{floor:g}",
+                    camera,
+                    floor,
+                    named_only=args.named_only,
+                    tolerance_sigma=args.tolerance_sigma,
+                )
                 rows.append(Row(split, camera, floor, **scored))  # type: ignore[arg-type]
                 row = rows[-1]
                 print(
@@ -187,6 +265,11 @@ def main() -> None:
                     f"σ/err {row.sigma_ratio:4.2f}  χ² {row.chi2_noise or math.nan:7.3g} → "
                     f"{row.chi2_judged or math.nan:6.3g}  {row.verdict}  "
                     f"η ±2σ {100 * row.eta_coverage:5.1f} %  η σ/err {row.eta_sigma_ratio:4.2f}",
+                    flush=True,
+                )
+                print(
+                    "    σ component RMS / error RMS: "
+                    + ", ".join(f"{name} {value:.2f}" for name, value in row.components.items()),
                     flush=True,
                 )
     print(

@@ -216,6 +216,9 @@ class TwinSpectrometerConfig(StrictModel):
     ``spotread`` (``argyll``). ``time_scale`` is the fraction of the instrument's modelled measuring
     time that passes in wall time; the twin's clock does not wait for it. Sessions that differ only
     in ``noise_draw`` differ only in the spectrometer's noise (its repeatability, measured).
+    ``in_spec_error`` (default on) gives the instrument the errors a real one has within its
+    specification — a wavelength-scale error and a slit wider or narrower than stated, drawn from
+    ``seed`` alone (the same whichever instrument is emulated; ``mocks.bench.deviation``).
     """
 
     kind: Literal["twin"]
@@ -230,6 +233,12 @@ class TwinSpectrometerConfig(StrictModel):
         description="which draw of the spectrometer's noise (the rest of the twin unchanged)",
     )
     high_resolution: bool = Field(False, description="argyll: spotread -H (3.3 nm bands)")
+    in_spec_error: bool = Field(
+        True,
+        description="the emulated instrument's wavelength scale (±0.5 nm) and slit width (±25 %) "
+        "are off within specification, drawn from the seed and recorded in twin-truth.json; "
+        "false: exactly as its data sheet states",
+    )
 
 
 class LcusRelayConfig(StrictModel):

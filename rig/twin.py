@@ -102,6 +102,10 @@ class TwinTruthRecord(Protocol):
     @property
     def mapping(self) -> GratingGeometry: ...
 
+    @property
+    def spectrometer(self) -> Mapping[str, Any] | None:
+        """The emulated spectrometer and its in-spec scale/slit errors (``None``: real)."""
+
 
 class DigitalTwin(Protocol):
     """What the rig needs of the simulated bench.

@@ -374,3 +374,26 @@ def test_frames_without_a_spot_or_band_are_an_input_error(capture: Capture) -> N
     dark = LampImages("LED", "led", lamp.spectrum_csv, lamp.darks[:2])
     with pytest.raises(InputError, match="is the lamp on"):
         estimate_offline([dark], OfflineSettings(basis=capture.basis))
+
+
+def test_the_sigma_budget_is_one_setting_of_the_offline_pipeline(
+    capture: Capture, estimate: OfflineEstimate
+) -> None:
+    """``OfflineSettings.budget`` reaches the estimator: ``None`` keeps the method's own σ (no
+    budget in the result); another budget's floor changes the χ² it judges."""
+    from calib.methods.uncertainty import BudgetSettings
+
+    own = estimate_offline(
+        _inputs(capture), OfflineSettings(basis=capture.basis, budget=None)
+    ).result
+    assert not own.quality.uncertainty
+    assert estimate.result.quality.uncertainty
+    np.testing.assert_allclose(own.sensitivity, estimate.result.sensitivity, atol=1e-9)
+    assert own.sensitivity_sigma is not None and estimate.result.sensitivity_sigma is not None
+    assert np.all(estimate.result.sensitivity_sigma >= own.sensitivity_sigma)
+    floored = estimate_offline(
+        _inputs(capture),
+        OfflineSettings(basis=capture.basis, budget=BudgetSettings(model_floor=0.2, perturb=False)),
+    ).result
+    judged, default = (r.quality.uncertainty["reduced_chi2"] for r in (floored, estimate.result))
+    assert judged < default

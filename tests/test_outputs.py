@@ -147,10 +147,46 @@ def test_result_json_reads_back_as_the_camera_and_to_colour_agrees(outcome: Offl
 
     result = outcome.estimate.result
     again = read_camera(outcome.files["result"].parent)
-    np.testing.assert_allclose(again.values, result.sensitivity, atol=1e-12)
+    np.testing.assert_allclose(again.values, result.physical_sensitivity(), atol=1e-12)
     colour_camera = result.to_colour()
     np.testing.assert_allclose(colour_camera.values, result.physical_sensitivity(), atol=1e-12)
     np.testing.assert_array_equal(colour_camera.wavelengths, result.wavelength_nm)
+
+
+def _csv_columns(path: Path) -> np.ndarray:
+    with path.open() as stream:
+        rows = [row for row in csv.reader(stream) if not row[0].startswith("#")]
+    return np.array(rows[1:], dtype=float)
+
+
+def test_result_json_and_sensitivity_csv_carry_the_same_curve_and_sigma(
+    outcome: OfflineOutcome, tmp_path: Path
+) -> None:
+    """One curve for users: a solve with negative lobes is clipped alike in both files."""
+    from dataclasses import replace
+
+    from calib.pipeline.outputs import write_result_json, write_sensitivity_csv
+
+    result = outcome.estimate.result
+    lobed = result.sensitivity.copy()
+    lobed[:3, 2] = [-0.04, -0.02, -0.01]  # a solve's ringing at the grid's edge
+    estimate = replace(outcome.estimate, result=replace(result, sensitivity=lobed))
+    csv_path = write_sensitivity_csv(tmp_path / "sensitivity.csv", estimate.result)
+    document = json.loads(write_result_json(tmp_path / "result.json", estimate).read_text())
+    columns = _csv_columns(csv_path)
+    from_json = np.stack([document["sensitivity"][c] for c in "RGB"], axis=1)
+    sigma_json = np.stack([document["sensitivity_sigma"][c] for c in "RGB"], axis=1)
+    np.testing.assert_array_equal(from_json, columns[:, 1:4])
+    np.testing.assert_array_equal(sigma_json, columns[:, 4:])
+    assert from_json[:3, 2].tolist() == [0.0, 0.0, 0.0]
+    negative = int(np.count_nonzero(lobed < 0))
+    assert document["sensitivity_clipping"].startswith(f"{negative} negative value(s)")
+    # the shipped run's files agree too
+    shipped = json.loads(outcome.files["result"].read_text())
+    columns = _csv_columns(outcome.files["sensitivity"])
+    np.testing.assert_allclose(
+        np.stack([shipped["sensitivity"][c] for c in "RGB"], axis=1), columns[:, 1:4], rtol=1e-15
+    )
 
 
 def test_grating_json_round_trips_with_its_geometry(outcome: OfflineOutcome) -> None:

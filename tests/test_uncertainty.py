@@ -21,6 +21,8 @@ from calib.evaluation.validation.budget import coverage_at, fit_scale
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
     COMPONENTS,
+    IN_SPEC_TOLERANCE_SIGMA,
+    TOLERANCE_SIGMA,
     BudgetSettings,
     basis_support_nm,
     check_grid_within_basis,
@@ -105,6 +107,34 @@ def test_the_spectrometer_perturbation_moves_with_the_stated_scale(
         for shift in (0.2, 2.0)
     )
     assert np.sqrt(np.mean(large**2)) > 3 * np.sqrt(np.mean(small**2)) > 0
+
+
+def test_a_stated_tolerance_is_a_bound_not_one_sigma(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0038: an instrument in spec is anywhere within ±tolerance (σ = tolerance/√3);
+    a bandwidth assumed because none was given keeps the whole perturbation."""
+    stated = [_lamp("LED-B3", camera)]
+    unstated = [_lamp("LED-B3", camera, None)]
+
+    def components(lamps: list[LampObservation], tolerance_sigma: float) -> dict[str, Any]:
+        result = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=None)
+
+        def rerun(observations: list[LampObservation], **changes: Any) -> EstimateResult:
+            return estimate(
+                observations, "prior", basis=basis, mapping=TRUTH, budget=None, **changes
+            )
+
+        settings = BudgetSettings(tolerance_sigma=tolerance_sigma)
+        return dict(uncertainty_budget(result, lamps, rerun=rerun, settings=settings).components)
+
+    assert TOLERANCE_SIGMA == 1.0 and math.isclose(IN_SPEC_TOLERANCE_SIGMA * math.sqrt(3), 1.0)
+    bound, in_spec = components(stated, 1.0), components(stated, IN_SPEC_TOLERANCE_SIGMA)
+    for name in ("spectrometer scale", "spectrometer bandwidth"):
+        assert np.sqrt(np.mean(bound[name] ** 2)) > 0
+        np.testing.assert_allclose(in_spec[name], IN_SPEC_TOLERANCE_SIGMA * bound[name], rtol=1e-9)
+    assumed = components(unstated, IN_SPEC_TOLERANCE_SIGMA)["spectrometer bandwidth"]
+    np.testing.assert_allclose(assumed, components(unstated, 1.0)["spectrometer bandwidth"])
 
 
 def test_a_missing_bandwidth_is_flagged_and_assumed(

@@ -184,9 +184,11 @@ def test_tuning_refuses_the_test_split(tmp_path: Path) -> None:
 def test_sensitivity_coverage_and_sigma_ratio_on_a_constructed_case() -> None:
     truth = np.zeros((DEFAULT_GRID.size, 3))
     truth[:, 0], truth[:, 1], truth[:, 2] = 0.5, 1.0, 0.25
+    truth[:5, 2] = 0.0  # a channel with no response at the grid's blue end
     error = np.zeros_like(truth)
     error[:10, 0] = 0.03  # 10 of 31 red values off by 3σ, the rest exact
-    error[:, 1] = 0.015  # every green value off by 1.5σ
+    error[:30, 1] = -0.015  # 30 green values off by 1.5σ; the peak (1) exact
+    error[:5, 2] = -0.03  # a negative lobe of 3σ where the truth is 0: the user gets 0
     result = EstimateResult(
         "constructed",
         DEFAULT_GRID.wavelength_nm,
@@ -195,12 +197,16 @@ def test_sensitivity_coverage_and_sigma_ratio_on_a_constructed_case() -> None:
     )
     channel_re, coverage, ratio = sensitivity_scores(result, truth)
     assert coverage is not None and ratio is not None
+    # scored on the delivered curve (negative lobes set to zero): the blue lobe is no error
     np.testing.assert_allclose(coverage, [21 / 31, 1.0, 1.0])
-    np.testing.assert_allclose(ratio, [np.sqrt(10 / 31) * 3.0, 1.5, 0.0], atol=1e-12)
+    np.testing.assert_allclose(
+        ratio, [np.sqrt(10 / 31) * 3.0, np.sqrt(30 / 31) * 1.5, 0.0], atol=1e-12
+    )
     # Eq. 16's terms on the delivered (peak-normalised) curves.
     delivered = result.physical_sensitivity()
     expected = np.sqrt(np.mean((delivered - truth) ** 2, axis=0)) / truth.max(axis=0)
     np.testing.assert_allclose(channel_re, expected, rtol=1e-12)
+    assert channel_re[2] == 0.0
     no_sigma = sensitivity_scores(replace(result, sensitivity_sigma=None), truth)
     assert no_sigma[1] is None and no_sigma[2] is None
 

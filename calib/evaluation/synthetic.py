@@ -376,11 +376,13 @@ def evaluate_scene(
 def band_coverage(result: EstimateResult, truth: FloatArray, *, width: float = 2.0) -> float:
     """Fraction of (wavelength, channel) cells whose true value lies within ±``width`` σ.
 
-    ``truth`` ``(f, 3)`` is normalised like the estimate (maximum 1).
+    ``truth`` ``(f, 3)`` is normalised like the estimate (maximum 1). Judged on the curve users
+    get (:meth:`~calib.core.result.EstimateResult.camera_curves`: negative lobes set to zero).
     """
-    if result.sensitivity_sigma is None:
+    curves = result.camera_curves()
+    if curves.sigma is None:
         raise InputError("the estimate carries no σ", source=result.method)
-    inside = np.abs(result.sensitivity - truth) <= width * result.sensitivity_sigma
+    inside = np.abs(curves.values - truth) <= width * curves.sigma
     return float(np.mean(inside))
 
 

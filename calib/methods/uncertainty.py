@@ -78,6 +78,16 @@ WAVELENGTH_SCALE_NM = 0.5
 ASSUMED_BANDWIDTH_NM = 5.0
 #: Relative tolerance of a stated bandwidth (a slit's FWHM is specified to about ±25 %).
 BANDWIDTH_TOLERANCE = 0.25
+#: σ of the spectrometer's scale and slit errors per unit of their stated tolerance, as the budget
+#: applies it: the tolerance taken as one σ (:data:`COVERAGE_SCALE` was fitted so). An assumed
+#: bandwidth (none given) keeps the whole perturbation whatever this is.
+TOLERANCE_SIGMA = 1.0
+#: What an instrument within its specification gives: anywhere inside ±tolerance, uniformly
+#: (σ = tolerance/√3), as the twin's spectrometer (:mod:`mocks.bench.deviation`) and the
+#: validation protocol's offset (:class:`calib.evaluation.validation.rig_errors.SpectrometerError`)
+#: draw it. Decision 0038: the consistent value, not yet the default — switching needs
+#: :data:`COVERAGE_SCALE` refitted on the validation split with it.
+IN_SPEC_TOLERANCE_SIGMA = 1.0 / math.sqrt(3.0)
 #: Efficiency terms removed for the η-model perturbation.
 EFFICIENCY_TERMS_STEP = 2
 #: The lamp spectrum's precision relative to the signal, as a floor under each profile sample's
@@ -146,6 +156,9 @@ class BudgetSettings:
         Let the re-solves share the estimate's identical sub-solves and start from its solutions
         (:mod:`calib.methods.solve_scope`, decision 0031); off: every re-solve from scratch, the
         reference the shared path is tested against.
+    tolerance_sigma
+        σ of the spectrometer's errors per unit of their stated tolerance (:data:`TOLERANCE_SIGMA`:
+        the tolerance as one σ; :data:`IN_SPEC_TOLERANCE_SIGMA`: a bound, decision 0038).
     """
 
     wavelength_scale_nm: float = WAVELENGTH_SCALE_NM
@@ -155,6 +168,7 @@ class BudgetSettings:
     perturb: bool = True
     model_floor: float = MODEL_FLOOR
     reuse_solves: bool = True
+    tolerance_sigma: float = TOLERANCE_SIGMA
 
     def __post_init__(self) -> None:
         for item in fields(self):
@@ -441,9 +455,9 @@ def spectrometer_sigma(
     observations: Sequence[LampObservation],
     rerun: Rerun,
     settings: BudgetSettings,
-) -> tuple[dict[str, EstimateResult], list[str], list[QualityFlag]]:
+) -> tuple[dict[str, EstimateResult], dict[str, float], list[str], list[QualityFlag]]:
     """The re-solves of the wavelength-scale and bandwidth components, by component name (module
-    docstring)."""
+    docstring), and the factor that turns each re-solve's change into its σ."""
     notes: list[str] = []
     flags: list[QualityFlag] = []
     scales = [
@@ -479,9 +493,16 @@ def spectrometer_sigma(
             if missing
             else f"±{100 * settings.bandwidth_tolerance:g} %"
         )
+        + f" (σ = {settings.tolerance_sigma:.3g} × tolerance)"
     )
     solves = {"spectrometer scale": scale_solve, "spectrometer bandwidth": bandwidth_solve}
-    return solves, notes, flags
+    # A stated tolerance bounds an in-spec instrument: σ = tolerance_sigma × the re-solve's change
+    # (an assumed bandwidth is not a tolerance: its change stands as one σ).
+    factors = {
+        "spectrometer scale": settings.tolerance_sigma,
+        "spectrometer bandwidth": 1.0 if missing else settings.tolerance_sigma,
+    }
+    return solves, factors, notes, flags
 
 
 def efficiency_model_sigma(
@@ -572,7 +593,7 @@ def uncertainty_budget(
         notes.append(note)
     if rerun is not None and settings.perturb and lamps and len(lamps) == len(observations):
         try:
-            solves, more, more_flags = spectrometer_sigma(result, lamps, rerun, settings)
+            solves, factors, more, more_flags = spectrometer_sigma(result, lamps, rerun, settings)
             notes.extend(more)
             flags.extend(more_flags)
             fewer_terms, note = efficiency_model_sigma(lamps, rerun, options)
@@ -581,10 +602,11 @@ def uncertainty_budget(
             if note:
                 notes.append(note)
             for name, solve in solves.items():
-                components[name] = _difference(result, solve)
+                factor = factors.get(name, 1.0)
+                components[name] = factor * _difference(result, solve)
                 eta_change = _efficiency_difference(result, solve)
                 if eta_components and eta_change is not None:
-                    eta_components[name] = eta_change
+                    eta_components[name] = factor * eta_change
         except Exception as exc:  # a perturbed solve that fails leaves its components out
             message = f"{type(exc).__name__}: {exc}".splitlines()[0]
             notes.append(f"perturbation components not evaluated ({message})")

@@ -36,6 +36,7 @@ from calib.image.raw import read_raw_metadata
 from calib.methods import AUTO, MethodOptions, check_method, coarse_line_spectrum, estimate
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
+from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings
 from calib.model.bases import CameraBasis, default_camera_basis
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
 from calib.pipeline.inputs import (
@@ -114,6 +115,9 @@ class OfflineSettings:
         physical prior, over what the RAW files say.
     use_region
         Merge RAW frames over a region of interest: ``None`` decides by frame size.
+    budget
+        How the stated σ is made (:class:`calib.methods.uncertainty.BudgetSettings`, e.g. another
+        ``model_floor`` for a validation-split tuning run); ``None``: the method's own σ only.
     command_line
         The command as typed, recorded in the result.
     warnings, notes
@@ -130,6 +134,7 @@ class OfflineSettings:
     grating: Path | GratingEfficiency | None = None
     optics: StatedOptics = field(default_factory=lambda: StatedOptics())
     use_region: bool | None = None
+    budget: BudgetSettings | None = DEFAULT_BUDGET
     command_line: tuple[str, ...] | None = None
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
@@ -656,7 +661,9 @@ def _estimate(
             )
         if settings.method_options is not None:
             where["options"] = settings.method_options
-        result = estimate(observations, method, grid=grid, basis=basis, **where)
+        result = estimate(
+            observations, method, grid=grid, basis=basis, budget=settings.budget, **where
+        )
         return result, None
     if image_input and checked.grating is None and not with_direct:
         raise InputError(
@@ -686,6 +693,7 @@ def _estimate(
         assume_flat_grating=True,
         grid=grid,
         basis=basis,
+        budget=settings.budget,
         grating=checked.grating,
         options=_known_grating_options(settings.method_options, warnings),
         **where,

@@ -8,7 +8,8 @@ On the estimate's own working grid:
     many negative values of the solve were set to zero, and the camera; read by column name by
     colour-science (``colour.io.read_sds_from_csv_file``), numpy and spreadsheets.
 ``result.json``
-    Everything about the estimate: method, sensitivity and σ (``R, G, B``, unclipped), mapping and
+    Everything about the estimate: method, sensitivity and σ (``R, G, B``: the curve of
+    ``sensitivity.csv``, negative lobes of the solve set to zero, and its σ), mapping and
     its error estimate, grating efficiency, residuals per lamp, the camera's uses (ACES IDTs,
     colour-correction matrices and ColorChecker ΔE2000, the truth comparison when known), input files
     with sha256, software, command line, warnings.
@@ -47,7 +48,8 @@ from typing import Any
 
 import numpy as np
 
-from calib.core.camera_curves import CameraCurves
+from calib.core.arrays import FloatArray
+from calib.core.camera_curves import CHANNEL_LABELS, CameraCurves
 from calib.core.errors import CalibError, InputError
 from calib.core.formats.ampas import AmpasHeader, camera_file_name, file_stem, write_camera_json
 from calib.core.formats.dcamprof import write_ssf_json
@@ -176,6 +178,11 @@ def write_sensitivity_csv(
     return write_camera_csv(path, result.camera_curves(), lines)
 
 
+def _channels(values: FloatArray) -> dict[str, Any]:
+    """``(f, 3)`` as ``{"R": [...], "G": [...], "B": [...]}`` (NaN → ``None``)."""
+    return {channel: json_safe(values[:, k]) for k, channel in enumerate(CHANNEL_LABELS)}
+
+
 def _residual_summary(residuals: Mapping[str, Any]) -> dict[str, Any]:
     """Per lamp: the residual arrays and their RMS (normalised residuals: ≈ 1 when the fit is good)."""
     summary: dict[str, Any] = {}
@@ -204,6 +211,9 @@ def result_document(
     """The ``result.json`` document."""
     result = estimate.result
     base = result.to_dict()
+    # The one curve users get: sensitivity.csv's (negative lobes set to zero, maximum 1).
+    curves = result.camera_curves()
+    negative = int(np.count_nonzero(result.sensitivity < 0))
     uncertainty_note = None
     if result.quality.uncertainty:
         uncertainty_note = (
@@ -248,9 +258,13 @@ def result_document(
         "format_version": RESULT_FORMAT_VERSION,
         "method": result.method,
         "wavelength_nm": base["wavelength_nm"],
-        "sensitivity": base["sensitivity"],
+        "sensitivity": _channels(curves.values),
         "sensitivity_normalisation": "maximum over all channels = 1",
-        "sensitivity_sigma": base["sensitivity_sigma"],
+        "sensitivity_clipping": (
+            f"{negative} negative value(s) of the solve set to zero, as in {SENSITIVITY_FILE} "
+            "(a sensitivity is ≥ 0; the band and its coverage are judged on this curve)"
+        ),
+        "sensitivity_sigma": None if curves.sigma is None else _channels(curves.sigma),
         "sensitivity_sigma_note": uncertainty_note,
         "grating_efficiency": base["grating_efficiency"],
         "grating_efficiency_sigma": base["grating_efficiency_sigma"],

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.base import TranscriptSink
+from mocks.bench.deviation import spectrometer_truth
 from mocks.bench.optics import TwinOptics
 from mocks.bench.spec import TwinSpec, TwinSpecError
 from mocks.bench.station import TwinBench, TwinFaults, open_twin
@@ -41,7 +42,8 @@ class BenchSeam:
 
     def write_truth(self, config_data: Mapping[str, Any], directory: Path) -> Path:
         spec = TwinSpec.from_config_data(config_data)
-        return TwinTruth.of(TwinOptics.build(spec.twin_camera), spec.seed).write(directory)
+        optics = TwinOptics.build(spec.twin_camera)
+        return TwinTruth.of(optics, spec.seed, spectrometer_truth(spec)).write(directory)
 
     def read_truth(self, path: Path) -> TwinTruth:
         return TwinTruth.read(path)

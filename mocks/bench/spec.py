@@ -177,6 +177,9 @@ class TwinSpec:
         Which draw of the spectrometer's noise (0: the seed's own; others leave the rest alone).
     spectrometer_high_resolution
         ``argyll``: spotread runs with ``-H`` (3.3 nm bands).
+    spectrometer_in_spec_error
+        The emulated instrument's wavelength scale and slit are off within specification, drawn
+        from ``seed`` (:mod:`mocks.bench.deviation`); ``False``: exactly as stated.
     spectrometer_measure_timeout_s
         The driver's measurement allowance (``None``: the model's default).
     relay_model, relay_channels, relay_timeout_s
@@ -199,6 +202,7 @@ class TwinSpec:
     ocean_model: str = "USB2000PLUS"
     spectrometer_noise_draw: int = 0
     spectrometer_high_resolution: bool = False
+    spectrometer_in_spec_error: bool = True
 
     def __post_init__(self) -> None:
         if self.ocean_model not in OCEAN_MODELS:
@@ -291,6 +295,7 @@ class TwinSpec:
             ocean_model=str(spectrometer.optional("ocean_model") or "USB2000PLUS"),
             spectrometer_noise_draw=int(spectrometer.optional("noise_draw") or 0),
             spectrometer_high_resolution=bool(spectrometer.optional("high_resolution")),
+            spectrometer_in_spec_error=_switch(spectrometer, "in_spec_error", default=True),
             spectrometer_measure_timeout_s=(
                 None
                 if spectrometer.optional("measure_timeout_s") is None
@@ -359,6 +364,16 @@ class _Reader:
         if isinstance(value, bool) or not isinstance(value, int):
             raise TwinSpecError(f"{self.where(key)}: {value!r} is not an integer")
         return value
+
+
+def _switch(section: _Reader, key: str, *, default: bool) -> bool:
+    """An optional true/false field (``default`` when absent)."""
+    value = section.optional(key)
+    if value is None:
+        return default
+    if not isinstance(value, bool):
+        raise TwinSpecError(f"{section.where(key)}: {value!r} is not true or false")
+    return value
 
 
 def _lamp_spec(lamp: _Reader, override: _Reader | None) -> LampSpec:

@@ -41,6 +41,7 @@ from drivers.spectrometer.pr6xx import open_pr6xx
 from drivers.transport import NO_PACING
 from mocks.bench.aim import FIELD_DEG, SpectrometerAim
 from mocks.bench.camera import FrameRenderer, twin_body
+from mocks.bench.deviation import spectrometer_deviation, spectrometer_truth
 from mocks.bench.lamps import PersistentLampBank, virtual_lamp
 from mocks.bench.optics import TwinOptics
 from mocks.bench.spec import TwinSpec, TwinSpecError
@@ -162,7 +163,17 @@ class TwinBench:
         """What an estimate from this twin's frames should find (a twin camera's)."""
         if self.optics is None:
             raise TwinSpecError("the camera is real: the twin knows no truth about it")
-        return TwinTruth.of(self.optics, self.spec.seed)
+        return TwinTruth.of(self.optics, self.spec.seed, spectrometer_truth(self.spec))
+
+    def radiometers(self) -> list[Radiometer]:
+        """The emulated spectrometer's measurement physics (one per resolution for spotread)."""
+        if self.ocean is not None:
+            return [self.ocean._radiometer]
+        if self.spotread is not None:
+            return list(self.spotread.radiometers.values())
+        if self.spectrometer_port is not None:
+            return [self.spectrometer_port.emulator.radiometer]  # type: ignore[attr-defined]
+        return []
 
     def close(self) -> None:
         """Stop the emulators and remove scratch files (the drivers are closed by their owner)."""
@@ -429,6 +440,7 @@ def _open_spectrometer(
             time_scale=spec.spectrometer_time_scale,
         )
         bench.ocean = ocean
+        _deviate(bench)
         bench.spectrometer = open_ocean(
             None,
             twin_ocean_settings(spec.ocean_model, spec.spectrometer_timeout_s),
@@ -442,6 +454,7 @@ def _open_spectrometer(
             aim.radiance, noise, faults.spectrometer, spec.spectrometer_time_scale
         )
         bench.spotread = spotread
+        _deviate(bench)
         opened.add(spotread.launcher.close)
         bench.spectrometer = open_argyll(
             ArgyllSettings(
@@ -462,6 +475,7 @@ def _open_spectrometer(
         time_scale=spec.spectrometer_time_scale,
     )
     bench.spectrometer_port = port
+    _deviate(bench)
     opened.add(port.stop)
     spectrometer: Spectrometer
     if model == "cs2000":
@@ -485,6 +499,16 @@ def _open_spectrometer(
         )
     bench.spectrometer = spectrometer
     opened.add(spectrometer.close)
+
+
+def _deviate(bench: TwinBench) -> None:
+    """Give the emulated instrument its in-spec scale and slit errors (the one place: each
+    emulator's :class:`~mocks.emulators.radiometer.Radiometer`)."""
+    deviation = spectrometer_deviation(bench.spec)
+    if deviation is None:
+        return
+    for radiometer in bench.radiometers():
+        radiometer.deviation = deviation
 
 
 def _open_camera(

@@ -58,6 +58,9 @@ class TwinTruth:
         The slit's image.
     seed
         The twin's seed.
+    spectrometer
+        The emulated spectrometer and its in-spec errors (:mod:`mocks.bench.deviation`), or
+        ``None`` (a real spectrometer, or a file written before the twin had them).
     """
 
     camera: str
@@ -72,10 +75,13 @@ class TwinTruth:
     edge_px: float
     seed: int
     grating: dict[str, Any] = field(default_factory=dict)
+    spectrometer: dict[str, Any] | None = None
 
     @classmethod
-    def of(cls, optics: TwinOptics, seed: int) -> TwinTruth:
-        """The truth of a twin built with ``optics``."""
+    def of(
+        cls, optics: TwinOptics, seed: int, spectrometer: dict[str, Any] | None = None
+    ) -> TwinTruth:
+        """The truth of a twin built with ``optics`` (and ``spectrometer``'s record)."""
         low, high = optics.sensitivity.range_nm
         grid = WavelengthGrid(float(math.ceil(low)), float(math.floor(high)), 1.0)
         axis = grid.wavelength_nm
@@ -95,6 +101,7 @@ class TwinTruth:
             slit_length_px=optics.slit_length_px,
             edge_px=optics.edge_px,
             seed=seed,
+            spectrometer=spectrometer,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -127,6 +134,7 @@ class TwinTruth:
                 "edge_px": self.edge_px,
             },
             "seed": self.seed,
+            "spectrometer": self.spectrometer,
         }
 
     def write(self, directory: str | Path) -> Path:
@@ -177,6 +185,7 @@ class TwinTruth:
                 slit_length_px=float(slit["length_px"]),
                 edge_px=float(slit["edge_px"]),
                 seed=int(data["seed"]),
+                spectrometer=_optional_record(data.get("spectrometer"), "spectrometer"),
             )
         except TruthFormatError:
             raise
@@ -190,3 +199,11 @@ def _zeroth_order(value: Any, first_order: Mapping[str, Any]) -> Spectrum:
         axis = np.asarray(first_order["wavelength_nm"], dtype=np.float64)
         return Spectrum(axis, np.full(axis.size, float(value)), name="0th-order efficiency")
     return Spectrum(value["wavelength_nm"], value["values"], name="0th-order efficiency")
+
+
+def _optional_record(value: Any, name: str) -> dict[str, Any] | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise TypeError(f"{name} is not an object")
+    return dict(value)

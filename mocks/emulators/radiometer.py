@@ -67,6 +67,38 @@ class RadiometerOptics:
 
 
 @dataclass(frozen=True)
+class InstrumentDeviation:
+    """How a real instrument differs, within its specification, from what it states.
+
+    Attributes
+    ----------
+    offset_nm
+        Wavelength-scale error at ``reference_nm``: the pixel the instrument reports as ``λ``
+        sees light of ``λ + offset_nm + slope · (λ − reference_nm)``.
+    slope
+        Linear term of the scale error (nm per nm).
+    bandwidth_factor
+        The slit function's true FWHM over the stated one.
+    reference_nm
+        Where ``offset_nm`` applies.
+    """
+
+    offset_nm: float = 0.0
+    slope: float = 0.0
+    bandwidth_factor: float = 1.0
+    reference_nm: float = 580.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.bandwidth_factor) and self.bandwidth_factor > 0):
+            raise ValueError(f"bandwidth_factor must be > 0, got {self.bandwidth_factor}")
+
+    def true_wavelength_nm(self, stated_nm: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The wavelength each stated one really sees, shape of ``stated_nm``."""
+        shift = self.offset_nm + self.slope * (stated_nm - self.reference_nm)
+        return np.asarray(stated_nm + shift, dtype=np.float64)
+
+
+@dataclass(frozen=True)
 class Observation:
     """The outcome of one measurement.
 
@@ -92,10 +124,17 @@ class Radiometer:
         Where the light comes from (e.g. :meth:`mocks.lamps.LampBank.radiance`).
     rng
         Seeded generator for the noise.
+    deviation
+        How the instrument differs from its stated scale and slit (``None``: not at all);
+        settable later (:attr:`deviation`).
     """
 
     def __init__(
-        self, optics: RadiometerOptics, source: RadianceSource, rng: np.random.Generator
+        self,
+        optics: RadiometerOptics,
+        source: RadianceSource,
+        rng: np.random.Generator,
+        deviation: InstrumentDeviation | None = None,
     ) -> None:
         self.optics = optics
         self.source = source
@@ -103,14 +142,32 @@ class Radiometer:
         #: When set, every observation draws its noise from a fresh generator it returns (the twin
         #: keys the noise by the rig's step, so a repeated or resumed step measures the same).
         self.rng_per_observation: Callable[[], np.random.Generator] | None = None
-        grid = optics.wavelength_nm
-        sigma_nm = optics.bandwidth_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-        step_nm = min(0.5, optics.bandwidth_nm / 8.0)
-        reach_nm = 4.0 * sigma_nm
-        self._fine_nm = np.arange(grid[0] - reach_nm, grid[-1] + reach_nm + step_nm / 2, step_nm)
-        weights = np.exp(-0.5 * ((grid[:, None] - self._fine_nm[None, :]) / sigma_nm) ** 2)
-        self._weights = weights / weights.sum(axis=1, keepdims=True)
+        self.deviation = deviation
         self._responsivity = optics.responsivity()
+
+    @property
+    def deviation(self) -> InstrumentDeviation | None:
+        """The instrument's true scale and slit against its stated ones (``None``: as stated)."""
+        return self._deviation
+
+    @deviation.setter
+    def deviation(self, deviation: InstrumentDeviation | None) -> None:
+        # The one place where the instrument's slit meets the light: every emulator's reading is
+        # made of these weights, so a scale or slit error set here reaches all of them.
+        self._deviation = deviation
+        optics = self.optics
+        centre_nm = optics.wavelength_nm
+        bandwidth_nm = optics.bandwidth_nm
+        if deviation is not None:
+            centre_nm = deviation.true_wavelength_nm(centre_nm)
+            bandwidth_nm = bandwidth_nm * deviation.bandwidth_factor
+        sigma_nm = bandwidth_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+        step_nm = min(0.5, bandwidth_nm / 8.0)
+        reach_nm = 4.0 * sigma_nm
+        low_nm, high_nm = float(np.min(centre_nm)), float(np.max(centre_nm))
+        self._fine_nm = np.arange(low_nm - reach_nm, high_nm + reach_nm + step_nm / 2, step_nm)
+        weights = np.exp(-0.5 * ((centre_nm[:, None] - self._fine_nm[None, :]) / sigma_nm) ** 2)
+        self._weights = weights / weights.sum(axis=1, keepdims=True)
 
     def band_radiance(self) -> NDArray[np.float64]:
         """Noise-free radiance as the instrument's slit sees it, on its grid, shape ``(n,)``."""

@@ -23,7 +23,14 @@ from tests.rig.twin_setup import twin_config_data
 
 def _config_data(directory: Path, emulate: str = "seabreeze") -> dict[str, Any]:
     data = twin_config_data(directory / "sessions")
-    data["devices"]["spectrometer"] = {"kind": "twin", "emulate": emulate, "timeout_s": 5}
+    # The calibration is later used on an emulator built as stated (no in-spec scale/slit error):
+    # the twin's instrument must be that same one for the response to transfer.
+    data["devices"]["spectrometer"] = {
+        "kind": "twin",
+        "emulate": emulate,
+        "timeout_s": 5,
+        "in_spec_error": False,
+    }
     data["devices"]["relays"]["channels"] = 4
     data["lamps"].append(
         {

@@ -397,7 +397,9 @@ def test_calib_estimate_on_the_sessions_own_files_matches_rig_estimate(
     assert exited.value.code == 0
     document = json.loads((tmp_path / "calib" / "result.json").read_text())
     from_calib = np.stack([document["sensitivity"][c] for c in "RGB"], axis=1)
-    np.testing.assert_allclose(from_calib, through_rig.estimate.result.sensitivity, atol=1e-6)
+    np.testing.assert_allclose(
+        from_calib, through_rig.estimate.result.physical_sensitivity(), atol=1e-6
+    )
     assert "bandwidth" not in capsys.readouterr().err  # read from the CSV headers
     observation = through_rig.estimate.observations[0]
     assert observation.spectrum_bandwidth_nm == 2.0

@@ -63,12 +63,14 @@ def task_ratios(task: Task) -> list[tuple[str, FloatArray]]:
             )
         except Exception:  # a failed estimate has no band to judge (the protocol counts it)
             continue
-        assert result.sensitivity_sigma is not None
-        error = np.abs(np.asarray(result.sensitivity - scene.truth))
+        # judged on the curve users get (negative lobes set to zero) and its σ
+        curves = result.camera_curves()
+        assert curves.sigma is not None
+        error = np.abs(np.asarray(curves.values - scene.truth))
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(
-                result.sensitivity_sigma > 0,
-                error / result.sensitivity_sigma,
+                curves.sigma > 0,
+                error / curves.sigma,
                 np.where(error > 0, np.inf, 0.0),
             )
         out.append((result.method, np.asarray(ratio, dtype=np.float64).ravel()))

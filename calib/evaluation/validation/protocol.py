@@ -13,7 +13,8 @@ Scores per estimate (:class:`ValidationRow`):
 - RE per channel (Makabe et al. 2025 Eq. 16's terms, :func:`calib.core.metrics.channel_relative_errors`)
   of the delivered curves (:meth:`calib.core.result.EstimateResult.physical_sensitivity`);
 - ±2σ coverage per channel: the share of grid wavelengths where the truth lies within twice the
-  stated σ of the estimate (both normalised to a maximum of 1);
+  stated σ of the delivered curves (the same curve, negative lobes set to zero; both normalised to
+  a maximum of 1);
 - σ ratio per channel: RMS of the actual error over RMS of the stated σ (1 when σ is honest, > 1
   when it is too small); the stated σ is the budget's (:mod:`calib.methods.uncertainty`), and the
   coverage of the method's own σ (``diagnostics["method_sigma"]``) is kept beside it;
@@ -203,11 +204,13 @@ def sensitivity_scores(
     result: EstimateResult, truth: FloatArray, *, width: float = 2.0
 ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
     """Per channel: RE, ±``width``σ coverage and σ ratio (``None`` without σ); see the module."""
-    channel_re = channel_relative_errors(result.physical_sensitivity(), truth)
-    if result.sensitivity_sigma is None:
+    # Scored on the curve and σ users get (sensitivity.csv, result.json): negative lobes set to 0.
+    curves = result.camera_curves()
+    channel_re = channel_relative_errors(curves.values, truth)
+    if curves.sigma is None:
         return channel_re, None, None
-    difference = np.asarray(result.sensitivity - truth, dtype=np.float64)
-    sigma = np.asarray(result.sensitivity_sigma, dtype=np.float64)
+    difference = np.asarray(curves.values - truth, dtype=np.float64)
+    sigma = np.asarray(curves.sigma, dtype=np.float64)
     coverage = np.mean(np.abs(difference) <= width * sigma, axis=0)
     stated = np.sqrt(np.mean(sigma**2, axis=0))
     actual = np.sqrt(np.mean(difference**2, axis=0))
