@@ -335,14 +335,16 @@ def _single_peak(values: FloatArray) -> float | None:
 def _line_misplacement_nm(
     lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
 ) -> float | None:
-    """How far ``mapping`` puts a measured fluorescent lamp's strong Hg lines from where the lamp's
-    own spectrum has them (RMS nm over the lines both show alone within
-    :data:`MISPLACEMENT_WINDOW_NM`), or ``None`` when the spectrum is too coarse to judge (the
-    rule of :func:`_measured_lines`) or no line qualifies.
+    """How far ``mapping`` puts a measured fluorescent lamp's strong Hg lines from where they are
+    (RMS nm over the lines the camera shows alone within :data:`MISPLACEMENT_WINDOW_NM`), or
+    ``None`` when no line qualifies.
 
-    It is the mapping's error at those lines whatever the spectrum's scale or its table's nodes
-    (the camera saw the lamp its spectrum describes): a whole-profile fit that the lines could not
-    correct states at least this (:func:`locate_mapping`)."""
+    Where the lamp's spectrum resolves about as finely as the camera (the rule of
+    :func:`_measured_lines`), a line is where the spectrum has it — the mapping's error at the line
+    whatever the spectrum's scale or its table's nodes (the camera saw the lamp its spectrum
+    describes); a coarser spectrum's centre sits on the phosphor band, and the list's wavelength is
+    used (a tabulated lamp's lines are up to 1.1 nm from it: an upper bound then). A whole-profile
+    fit that the lines could not correct states at least this (:func:`locate_mapping`)."""
     from calib.wavelength.features import feature_signal
 
     width = fwhm_px(lamp)
@@ -354,8 +356,7 @@ def _line_misplacement_nm(
     axis = np.asarray(spectrum.wavelength_nm, dtype=np.float64)
     values = np.asarray(spectrum.values, dtype=np.float64)
     resolution_nm = max(lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(axis))))
-    if resolution_nm > JUDGING_RESOLUTION * camera_nm:
-        return None
+    judged = resolution_nm <= JUDGING_RESOLUTION * camera_nm
     profile_signal, _ = feature_signal(lamp.profile, "emission", width)
     at_nm = np.asarray(mapping.wavelength_nm(lamp.pixel), dtype=np.float64)
     misplaced = []
@@ -363,17 +364,19 @@ def _line_misplacement_nm(
         centre = line.wavelength_nm
         if line.strength < STRONG_LINE or not grid.start_nm <= centre <= grid.stop_nm:
             continue
-        near_spectrum = np.flatnonzero(np.abs(axis - centre) <= MISPLACEMENT_WINDOW_NM)
         near_camera = np.flatnonzero(np.abs(at_nm - centre) <= MISPLACEMENT_WINDOW_NM)
-        if near_spectrum.size < 3 or near_camera.size < 3:
+        in_camera = _single_peak(profile_signal[near_camera]) if near_camera.size >= 3 else None
+        if in_camera is None:
             continue
-        in_spectrum = _single_peak(values[near_spectrum])
-        in_camera = _single_peak(profile_signal[near_camera])
-        if in_spectrum is None or in_camera is None:
-            continue
-        spectrum_nm = float(
-            np.interp(in_spectrum, np.arange(near_spectrum.size), axis[near_spectrum])
-        )
+        spectrum_nm = centre
+        if judged:
+            near_spectrum = np.flatnonzero(np.abs(axis - centre) <= MISPLACEMENT_WINDOW_NM)
+            in_spectrum = _single_peak(values[near_spectrum]) if near_spectrum.size >= 3 else None
+            if in_spectrum is None:
+                continue
+            spectrum_nm = float(
+                np.interp(in_spectrum, np.arange(near_spectrum.size), axis[near_spectrum])
+            )
         camera_px = float(
             np.interp(in_camera, np.arange(near_camera.size), lamp.pixel[near_camera])
         )
