@@ -16,10 +16,12 @@ issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
   → distinct basins refined on a finer profile with a flexible response (which decides between
   them) → the best one refined with finer response nodes;
 - **ambiguity is measured, not hidden**: each basin's cost is a profile likelihood; the stated σ of
-  the mapping mixes the best basin's curvature with the other basins weighted by their likelihood
-  ratio (tempered by the fit's reduced χ², so a model misfit does not make one basin look
-  certain), and when a competing basin's likelihood ratio passes :data:`AMBIGUITY_DELTA_CHI2` the
-  result says so and carries every candidate (:class:`MappingSearch`);
+  the mapping (:func:`basin_sigma`) mixes the best basin's curvature with the other basins weighted
+  by their likelihood ratio (tempered by the fit's reduced χ², so a model misfit does not make one
+  basin look certain) and, for broadband lamps alone, the camera prior's pull
+  (:data:`PRIOR_MISFIT_SIGMA_NM`); when a competing basin's likelihood ratio passes
+  :data:`AMBIGUITY_DELTA_CHI2` the result says so, carries every candidate
+  (:class:`MappingSearch`) and states a σ whose ±2σ reaches the competitor;
 - **either orientation**: for profiles whose origin is arbitrary, both directions (wavelength rising
   or falling with the pixel) are searched; a mapping that folds back is never returned.
 """
