@@ -470,14 +470,14 @@ def test_a_profile_fit_the_lines_could_not_correct_states_how_far_it_misplaces_t
             )
         )
     shift_nm = 4.0
-    real_search = locate.search_profiles
+    ends = (float(pixel[0]), float(pixel[-1]))
 
     def off_by_four(*args, **kwargs):  # the profile fit a camera unlike the prior gives
-        found = real_search(*args, **kwargs)
+        found = search_profiles(*args, **kwargs)
         exact = QuadraticMapping.fit(pixel, truth.wavelength_nm(pixel) + shift_nm)
-        exact = replace(exact, pixel_range=(float(pixel[0]), float(pixel[-1])))
+        exact = replace(exact, pixel_range=ends)
         stated = stated_covariance(
-            replace(exact, covariance=found.mapping.covariance), 0.2, 0.0, exact.pixel_range
+            replace(exact, covariance=found.mapping.covariance), 0.2, 0.0, ends
         )
         return replace(found, mapping=stated, exact=exact)
 
