@@ -471,6 +471,20 @@ def test_report_tables_and_csvs(tmp_path: Path) -> None:
     assert parsed[0]["re_g"] == "0.02" and parsed[2]["failure"].startswith("EstimationError")
 
 
+def test_mapping_failures_are_counted_with_and_without_an_ambiguity_warning() -> None:
+    """Issue 16's target: no mapping > 3 nm off without an ambiguity warning; the table says how
+    many were silent, and rows.csv which."""
+    rows = [
+        replace(_row("A", "LED only", 0.05), mapping_warned=True),  # 5 nm off, warned
+        replace(_row("B", "LED only", 0.04), mapping_warned=False),  # 4 nm off, silent
+        replace(_row("C", "LED only", 0.01), mapping_warned=False),  # 1 nm off
+    ]
+    whole = next(r for r in summarise(rows) if r.table == "mapping" and r.group == "all")
+    stats = dict(whole.statistics)
+    assert stats["> 3 nm"] == 2.0
+    assert stats["> 3 nm unwarned"] == 1.0
+
+
 @pytest.mark.parametrize(
     ("arguments", "message"),
     [

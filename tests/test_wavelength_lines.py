@@ -3,6 +3,7 @@ ambiguity a broadband lamp leaves."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,7 +24,14 @@ from calib.pipeline.inputs import load_spectrum
 from calib.wavelength.families import GratingFamily, grating_prior
 from calib.wavelength.features import map_features
 from calib.wavelength.locate import _check_monotonic, locate_mapping
-from calib.wavelength.profile_search import search_profiles
+from calib.wavelength.profile_search import (
+    AMBIGUITY_MIN_DISTANCE_NM,
+    PRIOR_MISFIT_SIGMA_NM,
+    Candidate,
+    basin_sigma,
+    search_profiles,
+    stated_covariance,
+)
 
 CAMERA_NAME = "Canon EOS 5D Mark II"
 
@@ -241,6 +249,59 @@ def test_two_near_equal_basins_are_stated_and_carried(camera, prior):
     assert candidates[1]["delta_chi2"] < found.details.get("ambiguity_delta_chi2", 25.0)
     assert found.mapping.wavelength_rms_nm is not None
     assert found.mapping.wavelength_rms_nm > 3 * found.details["local_rms_nm"]
+    # The stated σ spans the basins the warning names: its ±2σ reaches the competing one.
+    competing = [
+        c
+        for c in candidates[1:]
+        if c["delta_chi2"] < 25.0 and c["rms_distance_nm"] > AMBIGUITY_MIN_DISTANCE_NM
+    ]
+    assert competing
+    assert 2.0 * found.mapping.wavelength_rms_nm >= max(c["rms_distance_nm"] for c in competing)
+    # ... and the result carries both, each with its mapping (what result.json writes).
+    carried = located.mapping.to_dict()["details"]["candidates"]
+    assert len(carried) >= 2 and all("mapping" in c for c in carried)
+
+
+def _basin(delta_chi2: float, distance_nm: float) -> Candidate:
+    mapping = QuadraticMapping(0.0, 0.4, 380.0 + distance_nm, pixel_range=(0.0, 799.0))
+    return Candidate(
+        mapping, 100.0 + delta_chi2, delta_chi2, math.exp(-delta_chi2 / 6.0), distance_nm
+    )
+
+
+def test_the_basins_likelihoods_decide_the_stated_sigma():
+    """Two close basins 8 nm apart: ambiguous, σ spans them (±2σ reaches the other); the same
+    second basin far less likely: not ambiguous, σ from the best basin's parts alone."""
+    parts = {"local_nm": 0.1, "scale_nm": 0.2, "misfit_nm": 0.4}
+    close = basin_sigma([_basin(0.0, 0.0), _basin(4.0, 8.0)], **parts)
+    assert close.competing is not None and close.competing.distance_nm == 8.0
+    assert 2.0 * close.stated_nm >= 8.0
+    assert close.spread_nm > 1.0
+    unlikely = basin_sigma([_basin(0.0, 0.0), _basin(400.0, 8.0)], **parts)
+    assert unlikely.competing is None
+    assert unlikely.stated_nm == pytest.approx(math.sqrt(0.1**2 + 0.2**2 + 0.4**2), rel=1e-6)
+    # A basin a fraction of a nanometre away is the same answer, however likely.
+    same = basin_sigma([_basin(0.0, 0.0), _basin(0.5, 0.6)], **parts)
+    assert same.competing is None and same.stated_nm < 1.0
+
+
+def test_a_broadband_mapping_states_the_prior_pull(camera, prior):
+    """An LED alone: the stated σ holds the camera prior's pull (a few tenths of a nm), not only
+    the curvature's hundredths; a fluorescent lamp's lines pin it instead."""
+    truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+    led = render_observation(
+        lamp_from_spec("LED-B3"),
+        camera,
+        mapping=truth,
+        pixel=800,
+        noise=PeakFractionNoise(0.01),
+        rng=np.random.default_rng(3),
+        kind="led",
+    ).observation
+    found = search_profiles([led], prior, DEFAULT_GRID, orientation="rising")
+    assert found.details["prior_misfit_sigma_nm"] == PRIOR_MISFIT_SIGMA_NM
+    assert found.mapping.wavelength_rms_nm is not None
+    assert found.mapping.wavelength_rms_nm >= PRIOR_MISFIT_SIGMA_NM
 
 
 # ------------------------------------------------------------------ a measured line lamp
@@ -370,3 +431,68 @@ def test_a_red_end_pinned_by_the_line_density_needs_no_warning(camera, prior):
         red_px = float(truth.pixel_at(np.array([DEFAULT_GRID.stop_nm]))[0])
         red_nm = float(found.exact.wavelength_nm(np.array([red_px]))[0])
         assert abs(red_nm - DEFAULT_GRID.stop_nm) < 0.5
+
+
+def test_a_profile_fit_the_lines_could_not_correct_states_how_far_it_misplaces_them(
+    camera, prior, monkeypatch
+):
+    """When a measured lamp's line fit fails its checks, the whole-profile fit stands: its σ is
+    then at least how far it puts the lamp's lines from where the lamp's spectrum has them. A fit
+    4 nm off (forced here) is stated at ~4 nm, never at the curvature's tenths."""
+    import calib.wavelength.locate as locate
+
+    truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
+    pixel = np.arange(440.0, 990.0, 1.0)
+    observations = []
+    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
+        (_halophosphate(2.5), "fluorescent"),
+        (lamp_from_spec("LED-B3"), "led"),
+    )
+    for lamp, kind in lamps:
+        rendered = render_observation(
+            lamp,
+            camera,
+            mapping=truth,
+            pixel=pixel,
+            slit_width_px=2.0,
+            psf_sigma_px=0.8,
+            noise=PeakFractionNoise(0.002),
+            rng=np.random.default_rng(7),
+            fine_step_nm=0.05,
+            kind=kind,
+        ).observation
+        observations.append(
+            replace(
+                rendered,
+                spectrum=_measured(lamp, 1.5, 0.4),
+                spectrum_bandwidth_nm=1.5,
+                pixel_origin="direct_spot",
+            )
+        )
+    shift_nm = 4.0
+    ends = (float(pixel[0]), float(pixel[-1]))
+
+    def off_by_four(*args, **kwargs):  # the profile fit a camera unlike the prior gives
+        found = search_profiles(*args, **kwargs)
+        exact = QuadraticMapping.fit(pixel, truth.wavelength_nm(pixel) + shift_nm)
+        exact = replace(exact, pixel_range=ends)
+        stated = stated_covariance(
+            replace(exact, covariance=found.mapping.covariance), 0.2, 0.0, ends
+        )
+        return replace(found, mapping=stated, exact=exact)
+
+    def refuse(*args, **kwargs):
+        raise EstimationError("forced: the line fit is refused")
+
+    monkeypatch.setattr(locate, "search_profiles", off_by_four)
+    monkeypatch.setattr(locate, "_check_line_fit", refuse)
+    solution = locate_mapping(observations, prior, DEFAULT_GRID)
+    assert "measured_lines_failed" in solution.details
+    inside = (truth.wavelength_nm(pixel) >= 400.0) & (truth.wavelength_nm(pixel) <= 700.0)
+    error = solution.exact.wavelength_nm(pixel[inside]) - truth.wavelength_nm(pixel[inside])
+    assert float(np.sqrt(np.mean(error**2))) == pytest.approx(shift_nm, abs=0.2)
+    stated = solution.mapping.wavelength_rms_nm
+    assert stated is not None
+    assert 0.5 * shift_nm <= stated <= 2.0 * shift_nm
+    assert solution.details["profile_fit_sigma_nm"] == pytest.approx(0.2, rel=0.05)
+    assert solution.details["line_misplacement_nm"] == pytest.approx(shift_nm, abs=1.0)

@@ -304,6 +304,87 @@ def _known_line_table(
     return rows, note
 
 
+#: Half width (nm) of the window around each strong Hg line in which the camera's profile and the
+#: lamp's spectrum must each show one peak for :func:`_line_misplacement_nm` (a fit several nm off
+#: still has the line inside; a second line or a phosphor peak inside makes the line unusable).
+MISPLACEMENT_WINDOW_NM = 8.0
+#: A second peak this prominent (fraction of the window's strongest) makes a window ambiguous.
+SECOND_PEAK = 0.2
+
+
+def _single_peak(values: FloatArray) -> float | None:
+    """The sub-sample position (3-point parabola) of the one prominent peak of ``values``, or
+    ``None`` when there is none or a second one at least :data:`SECOND_PEAK` as prominent."""
+    from scipy import signal
+
+    peaks, properties = signal.find_peaks(values, prominence=0.0)
+    if peaks.size == 0:
+        return None
+    prominence = properties["prominences"]
+    order = np.argsort(prominence)[::-1]
+    if peaks.size > 1 and prominence[order[1]] >= SECOND_PEAK * prominence[order[0]]:
+        return None
+    top = int(peaks[order[0]])
+    if top == 0 or top == values.size - 1:
+        return None
+    left, middle, right = values[top - 1 : top + 2]
+    curvature = left - 2.0 * middle + right
+    return float(top + (0.5 * (left - right) / curvature if curvature < 0 else 0.0))
+
+
+def _line_misplacement_nm(
+    lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
+) -> float | None:
+    """How far ``mapping`` puts a measured fluorescent lamp's strong Hg lines from where they are
+    (RMS nm over the lines the camera shows alone within :data:`MISPLACEMENT_WINDOW_NM`), or
+    ``None`` when no line qualifies.
+
+    Where the lamp's spectrum resolves about as finely as the camera (the rule of
+    :func:`_measured_lines`), a line is where the spectrum has it — the mapping's error at the line
+    whatever the spectrum's scale or its table's nodes (the camera saw the lamp its spectrum
+    describes); a coarser spectrum's centre sits on the phosphor band, and the list's wavelength is
+    used (a tabulated lamp's lines are up to 1.1 nm from it: an upper bound then). A whole-profile
+    fit that the lines could not correct states at least this (:func:`locate_mapping`)."""
+    from calib.wavelength.features import feature_signal
+
+    width = fwhm_px(lamp)
+    spacing = float(np.median(np.diff(lamp.pixel)))
+    pixel_range = (float(lamp.pixel[0]), float(lamp.pixel[-1]))
+    middle = np.array([0.5 * (pixel_range[0] + pixel_range[1])])
+    camera_nm = width * spacing * abs(float(_local_dispersion(mapping, middle)[0]))
+    spectrum = lamp.spectrum
+    axis = np.asarray(spectrum.wavelength_nm, dtype=np.float64)
+    values = np.asarray(spectrum.values, dtype=np.float64)
+    resolution_nm = max(lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(axis))))
+    judged = resolution_nm <= JUDGING_RESOLUTION * camera_nm
+    profile_signal, _ = feature_signal(lamp.profile, "emission", width)
+    at_nm = np.asarray(mapping.wavelength_nm(lamp.pixel), dtype=np.float64)
+    misplaced = []
+    for line in line_list("hg"):
+        centre = line.wavelength_nm
+        if line.strength < STRONG_LINE or not grid.start_nm <= centre <= grid.stop_nm:
+            continue
+        near_camera = np.flatnonzero(np.abs(at_nm - centre) <= MISPLACEMENT_WINDOW_NM)
+        in_camera = _single_peak(profile_signal[near_camera]) if near_camera.size >= 3 else None
+        if in_camera is None:
+            continue
+        spectrum_nm = centre
+        if judged:
+            near_spectrum = np.flatnonzero(np.abs(axis - centre) <= MISPLACEMENT_WINDOW_NM)
+            in_spectrum = _single_peak(values[near_spectrum]) if near_spectrum.size >= 3 else None
+            if in_spectrum is None:
+                continue
+            spectrum_nm = float(
+                np.interp(in_spectrum, np.arange(near_spectrum.size), axis[near_spectrum])
+            )
+        camera_px = float(
+            np.interp(in_camera, np.arange(near_camera.size), lamp.pixel[near_camera])
+        )
+        camera_nm_at = float(mapping.wavelength_nm(np.array([camera_px]))[0])
+        misplaced.append(camera_nm_at - spectrum_nm)
+    return float(np.sqrt(np.mean(np.square(misplaced)))) if misplaced else None
+
+
 def _directions(lead: LampObservation, orientation: Orientation) -> tuple[int, ...]:
     if lead.pixel_origin == "direct_spot" or orientation == "rising":
         return (1,)
@@ -367,6 +448,9 @@ def locate_mapping(
     details: dict[str, Any] = {"rig_prior": prior_source}
 
     search = None
+    # σ of a whole-profile fit that a measured lamp's lines could not correct, from how far it
+    # misplaces them (when larger than the fit's own).
+    fallback_sigma_nm: float | None = None
     if measured and not listed:
         search = search_profiles(
             measured,
@@ -438,8 +522,16 @@ def locate_mapping(
                     # The profile fit stands; its known lines say how well (a note, not a
                     # warning — a rendered lamp table's lines sit at its nodes).
                     table, note = _known_line_table(lamp, search.exact, grid)
+                    misplaced_nm = _line_misplacement_nm(lamp, search.exact, grid)
                     details["matched_lines"] = table
                     details["measured_lines_failed"] = str(exc)
+                    stated_nm = search.mapping.wavelength_rms_nm
+                    if misplaced_nm is not None and stated_nm is not None:
+                        # The lines were not used, but they still say how far off the fit is
+                        # at them: its σ is at least that (never 0.2 nm for a 4 nm error).
+                        details["line_misplacement_nm"] = misplaced_nm
+                        if misplaced_nm > stated_nm:
+                            fallback_sigma_nm = misplaced_nm
                     if note:
                         details["known_lines_note"] = f"lamp {lamp.name!r}: {note}"
 
@@ -481,6 +573,15 @@ def locate_mapping(
         assert search is not None
         mapping, exact = search.mapping, search.exact
         details.update(search.details)
+        if fallback_sigma_nm is not None:
+            mapping = stated_covariance(
+                mapping,
+                fallback_sigma_nm,
+                float(search.details.get("spectrometer_scale_sigma_nm", 0.0)),
+                (float(lead.pixel[0]), float(lead.pixel[-1])),
+            )
+            details["profile_fit_sigma_nm"] = search.mapping.wavelength_rms_nm
+            details["wavelength_rms_from"] = "the measured lamp's lines, misplaced by the fit"
     _check_monotonic(exact, lead)
     # The quality code of each warning (calib.core.result.QUALITY_CODES): the profile search warns
     # only of competing basins; this function's own warnings are about the lines against the fit,

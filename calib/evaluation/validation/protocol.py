@@ -188,6 +188,8 @@ class ValidationRow:
     scene_record: str = ""
     failure: str | None = None
     method_coverage: tuple[float, float, float] | None = None
+    #: The mapping stage warned of competing basins (quality code ``mapping_ambiguous``).
+    mapping_warned: bool | None = None
 
     @property
     def relative_error(self) -> float:
@@ -359,7 +361,14 @@ def scored_row(
         mapping_sigma_ratio=mapping[3],
         time_s=time.perf_counter() - started,
         method_coverage=_triple(own_coverage),
+        mapping_warned=None if result.mapping is None else _ambiguity_warned(result.mapping),
     )
+
+
+def _ambiguity_warned(mapping: object) -> bool:
+    """Whether the mapping's result carries the ambiguity warning (its quality code)."""
+    details = getattr(mapping, "details", None) or {}
+    return "mapping_ambiguous" in details.get("warning_codes", ())
 
 
 def failed_row(identity: dict[str, Any], error: Exception, started: float) -> ValidationRow:

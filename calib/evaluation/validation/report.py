@@ -12,8 +12,9 @@ Statistics (over the estimates of a cell; failed estimates are counted, not aver
   that miss); and the coverage of the method's own σ before the budget
   (:mod:`calib.methods.uncertainty`);
 - σ ratio: the median over estimates of RMS(actual error) / RMS(stated σ) (1 when honest);
-- mapping: mean and median of the mean ``|Δλ|`` over the profile (nm), the share of estimates
-  off by more than 3 nm, mapping RE (%), coverage and σ ratio of the stated σ_λ.
+- mapping: mean and median of the mean ``|Δλ|`` over the profile (nm), the number of estimates
+  off by more than 3 nm and how many of them carried no ambiguity warning, mapping RE (%),
+  coverage and σ ratio of the stated σ_λ.
 """
 
 from __future__ import annotations
@@ -105,11 +106,17 @@ def _sensitivity_statistics(
 def _mapping_statistics(rows: Sequence[ValidationRow]) -> Statistics:
     mapped = [row for row in rows if row.failure is None and row.mapping_mean_abs_nm is not None]
     errors = [row.mapping_mean_abs_nm for row in mapped]
-    off = [e for e in errors if e is not None and e > MAPPING_FAILURE_NM]
+    off = [
+        row
+        for row in mapped
+        if row.mapping_mean_abs_nm is not None and row.mapping_mean_abs_nm > MAPPING_FAILURE_NM
+    ]
+    silent = [row for row in off if not row.mapping_warned]
     return (
         ("mean |Δλ| nm", _mean(errors)),
         ("median |Δλ| nm", _median(errors)),
         (f"> {MAPPING_FAILURE_NM:g} nm", float(len(off)) if mapped else None),
+        (f"> {MAPPING_FAILURE_NM:g} nm unwarned", float(len(silent)) if mapped else None),
         ("mapping RE %", None if (m := _mean(r.mapping_re for r in mapped)) is None else 100 * m),
         (
             "±2σ coverage %",
@@ -290,6 +297,7 @@ def write_rows_csv(path: Path, rows: Sequence[ValidationRow]) -> Path:
                 "mapping_re",
                 "mapping_coverage",
                 "mapping_sigma_ratio",
+                "mapping_warned",
                 "time_s",
                 "failure",
                 "scene_record",
@@ -323,6 +331,7 @@ def write_rows_csv(path: Path, rows: Sequence[ValidationRow]) -> Path:
                         row.mapping_sigma_ratio,
                     )
                 ]
+                + ["" if row.mapping_warned is None else str(int(row.mapping_warned))]
                 + [f"{row.time_s:.3f}", row.failure or "", row.scene_record]
             )
     return path
