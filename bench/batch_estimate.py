@@ -115,7 +115,8 @@ def batch(sessions: Sequence[Path], out: Path, report: bool, where: Sequence[str
         rows = list(csv.DictReader(table))
     workers: dict[str, list[float]] = {}
     for row in rows:
-        workers.setdefault(row["worker"], []).append(float(row["cpu_s"]))
+        # (a summary without the column, from an older spectral-rig: one entry)
+        workers.setdefault(row.get("worker", "not recorded"), []).append(float(row["cpu_s"]))
     print(
         f"  {len(workers)} workers estimated sessions: "
         + ", ".join(
