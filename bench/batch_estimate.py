@@ -117,6 +117,9 @@ def batch(sessions: Sequence[Path], out: Path, report: bool, where: Sequence[str
     for row in rows:
         # (a summary without the column, from an older spectral-rig: one entry)
         workers.setdefault(row.get("worker", "not recorded"), []).append(float(row["cpu_s"]))
+    if "not recorded" in workers:
+        print("  workers not recorded (a summary.csv without the worker column)", flush=True)
+        return sum(float(row["wall_s"]) for row in rows)
     print(
         f"  {len(workers)} workers estimated sessions: "
         + ", ".join(
