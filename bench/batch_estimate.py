@@ -25,11 +25,18 @@ Steps:
    ``--limit 20`` and at 100); ``--no-report`` passes ``--no-report`` to ``rig estimate``.
    Modes joined by commas (``separate,pool,dask``) run in turn in one call, which then prints each
    mode's CPU as a ratio to ``separate``'s: the figures of one run, on the same machine state.
+
+Whether both cores were kept busy is printed three ways per mode: the CPU time over the wall time
+("cores busy", at most 2, and lower whenever other jobs share the machine: the load average before
+and after is printed beside it); the sessions' summed wall time over the mode's ("sessions in
+progress on average": 2 when both workers always had a session, whatever else runs); and, for a
+batch, how many workers estimated sessions and their CPU time each (from its ``summary.csv``).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import os
 import resource
 import subprocess
@@ -68,25 +75,60 @@ def _estimate_options(report: bool) -> list[str]:
     return ["-q", "--force"] + ([] if report else ["--no-report"])
 
 
-def separate(sessions: Sequence[Path], out: Path, parallel: int, report: bool) -> None:
-    """One ``rig estimate`` process per session, ``parallel`` at a time."""
-    running: list[subprocess.Popen[bytes]] = []
+def separate(sessions: Sequence[Path], out: Path, parallel: int, report: bool) -> float:
+    """One ``rig estimate`` process per session, ``parallel`` at a time; the processes' summed
+    wall time."""
+    running: list[tuple[subprocess.Popen[bytes], float]] = []
+    busy_s = 0.0
+    failed = []
+
+    def finish(process: subprocess.Popen[bytes], started: float) -> None:
+        nonlocal busy_s
+        if process.wait() != 0:
+            failed.append(process.args)
+        busy_s += time.perf_counter() - started
+
     for session in sessions:
         while len(running) >= parallel:
-            running.pop(0).wait()
+            finish(*running.pop(0))
         command = [RIG, "estimate", str(session), "--out", str(out / session.name)]
         running.append(
-            subprocess.Popen([*command, *_estimate_options(report)], stdout=subprocess.DEVNULL)
+            (
+                subprocess.Popen([*command, *_estimate_options(report)], stdout=subprocess.DEVNULL),
+                time.perf_counter(),
+            )
         )
-    failed = [process.args for process in running if process.wait() != 0]
+    for process, started in running:
+        finish(process, started)
     if failed:
         raise SystemExit(f"rig estimate failed: {failed}")
+    return busy_s
 
 
-def batch(sessions: Sequence[Path], out: Path, report: bool, where: Sequence[str]) -> None:
-    """One ``rig estimate`` process for all sessions (``where``: ``--jobs`` or ``--scheduler``)."""
+def batch(sessions: Sequence[Path], out: Path, report: bool, where: Sequence[str]) -> float:
+    """One ``rig estimate`` process for all sessions (``where``: ``--jobs`` or ``--scheduler``);
+    the sessions' summed wall time in their workers, from the batch's ``summary.csv``, which
+    also says how many workers estimated sessions (printed)."""
     command = [RIG, "estimate", *map(str, sessions), "--out", str(out), *where]
     subprocess.run([*command, *_estimate_options(report)], check=True, stdout=subprocess.DEVNULL)
+    with (out / "summary.csv").open(newline="", encoding="utf-8") as table:
+        rows = list(csv.DictReader(table))
+    workers: dict[str, list[float]] = {}
+    for row in rows:
+        # (a summary without the column, from an older spectral-rig: one entry)
+        workers.setdefault(row.get("worker", "not recorded"), []).append(float(row["cpu_s"]))
+    if "not recorded" in workers:
+        print("  workers not recorded (a summary.csv without the worker column)", flush=True)
+        return sum(float(row["wall_s"]) for row in rows)
+    print(
+        f"  {len(workers)} workers estimated sessions: "
+        + ", ".join(
+            f"{len(cpu)} sessions, {sum(cpu):.1f} s CPU"
+            for cpu in sorted(workers.values(), key=len)
+        ),
+        flush=True,
+    )
+    return sum(float(row["wall_s"]) for row in rows)
 
 
 #: The workers' settings of a cluster made for batch estimates (``--dask-config batch``): no
@@ -128,16 +170,16 @@ def _cpu_s() -> float:
     return children.ru_utime + children.ru_stime + own.ru_utime + own.ru_stime
 
 
-def run_mode(mode: str, sessions: Sequence[Path], arguments: argparse.Namespace) -> None:
+def run_mode(mode: str, sessions: Sequence[Path], arguments: argparse.Namespace) -> float:
+    """Run ``mode``; the sessions' summed wall time (a process's, or a job's in its worker)."""
     with tempfile.TemporaryDirectory(prefix="batch-bench-") as directory:
         out = Path(directory)
         if mode == "separate":
-            separate(sessions, out, arguments.parallel, arguments.report)
-        elif mode == "pool":
-            batch(sessions, out, arguments.report, ["--jobs", str(arguments.workers)])
-        else:
-            with local_cluster(arguments.workers, settings=arguments.dask_config) as address:
-                batch(sessions, out, arguments.report, ["--scheduler", address])
+            return separate(sessions, out, arguments.parallel, arguments.report)
+        if mode == "pool":
+            return batch(sessions, out, arguments.report, ["--jobs", str(arguments.workers)])
+        with local_cluster(arguments.workers, settings=arguments.dask_config) as address:
+            return batch(sessions, out, arguments.report, ["--scheduler", address])
 
 
 def main() -> None:
@@ -170,16 +212,19 @@ def main() -> None:
     sessions = sessions_in(arguments.directory, arguments.limit)
     measured: dict[str, tuple[float, float]] = {}
     for mode in modes:
+        load_before = os.getloadavg()[0]
         started = time.perf_counter()
         cpu_started = _cpu_s()
-        run_mode(mode, sessions, arguments)
+        busy_s = run_mode(mode, sessions, arguments)
         wall_s = time.perf_counter() - started
         cpu_s = _cpu_s() - cpu_started
         measured[mode] = (wall_s, cpu_s)
         print(
             f"{mode}: {len(sessions)} sessions, wall {wall_s:.1f} s ({wall_s / len(sessions):.2f} s "
             f"a session), CPU {cpu_s:.1f} s ({cpu_s / len(sessions):.2f} s a session, "
-            f"{cpu_s / wall_s:.2f} cores busy on average; {os.cpu_count()} CPUs)",
+            f"{cpu_s / wall_s:.2f} cores busy on average; {os.cpu_count()} CPUs); "
+            f"{busy_s / wall_s:.2f} sessions in progress on average; machine load average "
+            f"{load_before:.1f} before, {os.getloadavg()[0]:.1f} after",
             flush=True,
         )
     if "separate" in measured:

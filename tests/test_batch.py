@@ -101,6 +101,7 @@ ROWS = [
         warnings=("lamp 'FL' left out",),
         wall_s=3.21,
         cpu_s=2.5,
+        worker="lab-pc:4242",
     ),
     BatchRow("s|2", "/x/s2", "failed", error="s2: sha256 differs"),
     BatchRow("s3", "/x/s3", "not run", error="the batch was interrupted"),
@@ -124,6 +125,7 @@ def test_the_summary_in_csv_keeps_plain_numbers() -> None:
     assert float(table[0]["truth_relative_error"]) == 0.0431
     assert table[0]["warnings"] == "lamp 'FL' left out"
     assert (table[0]["wall_s"], table[0]["cpu_s"]) == ("3.210", "2.500")
+    assert (table[0]["worker"], table[1]["worker"]) == ("lab-pc:4242", "")
     assert table[1]["error"] == "s2: sha256 differs" and table[1]["truth_relative_error"] == ""
     assert table[2]["status"] == "not run"
 

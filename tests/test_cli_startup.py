@@ -115,3 +115,25 @@ def test_the_shared_options_do_not_load_the_calib_commands() -> None:
         ]
     )
     assert numpy_loaded == "False"
+
+
+def test_building_rig_imports_no_numpy() -> None:
+    # rig's errors (rig.errors → drivers.base) load with every command: `rig --help` and the
+    # parsing of any command need typer and rich, not numpy (its import is most of rig's start).
+    code = (
+        "import contextlib, io, sys\n"
+        "import typer\n"
+        "import rig.cli\n"
+        "typer.main.get_command(rig.cli.app)\n"
+        "with contextlib.redirect_stdout(io.StringIO()) as shown:\n"
+        "    try:\n"
+        "        rig.cli.main(['--help'])\n"
+        "    except SystemExit as exc:\n"
+        "        assert exc.code == 0, exc.code\n"
+        "assert 'capture' in shown.getvalue()\n"
+        f"print(sorted({{name.split('.')[0] for name in sys.modules}} & {{'numpy', *{HEAVY!r}}}))\n"
+    )
+    shown = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    assert shown.stdout.strip() == "[]"

@@ -12,7 +12,7 @@ import pytest
 from calib.core.errors import EstimationError, InputError
 from calib.image.hdr import HdrImage, Unpacker, decode_order, merge_bracket
 from calib.image.raw import RawFileError, RawPlanes
-from calib.image.sensor_noise import NoiseModel
+from calib.image.sensor_noise import NoiseModel, robust_level_and_variance, robust_variance
 from mocks.dng import write_dng
 from mocks.scene import (
     SceneLayout,
@@ -321,3 +321,16 @@ def test_invalid_arguments() -> None:
         NoiseModel(0.0, (1.0, 1.0, 1.0))
     with pytest.raises(InputError, match="read noise"):
         NoiseModel(1.0, (1.0, -1.0, 1.0))
+
+
+def test_robust_variance_is_the_variance_inside_five_robust_sigmas() -> None:
+    rng = np.random.default_rng(5)
+    values = np.round(rng.normal(100.0, 3.0, 20_001))
+    values[::500] += 400.0  # hot pixels
+    centre = float(np.median(values))
+    sigma = 1.4826 * float(np.median(np.abs(values - centre)))
+    kept = values[np.abs(values - centre) <= 5.0 * sigma]
+    assert robust_level_and_variance(values) == (centre, float(np.var(kept)))
+    assert robust_variance(values) == float(np.var(kept))
+    assert 8.0 < robust_variance(values) < 10.0  # the hot pixels left out
+    assert robust_level_and_variance(np.full(9, 7.0)) == (7.0, 0.0)

@@ -20,6 +20,7 @@ from calib.image.profiles import (
     extract,
     write_geometry_png,
 )
+from calib.image.profiles.diagnostics import GEOMETRY_DPI, geometry_figure
 from mocks.scene import (
     SceneLayout,
     SceneSignal,
@@ -290,6 +291,37 @@ def test_geometry_png(tmp_path: Path) -> None:
     path = write_geometry_png(tmp_path / "geometry.png", image, detect_geometry(image))
     content = path.read_bytes()
     assert content[:8] == b"\x89PNG\r\n\x1a\n" and len(content) > 20_000
+
+
+@pytest.mark.parametrize("radiance_scale", [1.0, 300.0])
+def test_geometry_picture_keeps_every_label_inside_its_margins(radiance_scale: float) -> None:
+    # The margins are fixed (no layout engine): the tick labels of a full-size sensor's rows and
+    # of six-digit radiances (the scale puts the profiles' peak near 6e5 DN/s) and the axis labels
+    # must still lie inside the picture, each in its own panel's margin.
+    sensor = SensorModel(height_px=700, width_px=2000, cfa_pattern="RGGB")
+    layout = _layout_through_centre(sensor, 8.0, along_shift_px=0.0, minus_first_strength=0.4)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor) * radiance_scale,
+        "RGGB",
+        np.random.default_rng(12),
+    )
+    figure = geometry_figure(image, detect_geometry(image))
+    picture, profiles = figure.axes
+    picture.set_xlim(-0.5, 6000)  # a 24 MP sensor's columns and rows
+    picture.set_ylim(4000, -0.5)
+    figure.set_dpi(GEOMETRY_DPI)
+    figure.canvas.draw()
+    renderer = figure.canvas.get_renderer()
+    inside = figure.bbox
+    if radiance_scale > 1:
+        assert 1e5 < max(profiles.get_ylim()) < 1e6
+    drawn = {axes: axes.get_tightbbox(renderer) for axes in (picture, profiles)}
+    for axes, extent in drawn.items():  # tick labels, axis labels, title: all that is drawn
+        assert inside.x0 <= extent.x0 and extent.x1 <= inside.x1, axes.get_title()
+        assert inside.y0 <= extent.y0 and extent.y1 <= inside.y1, axes.get_title()
+    # each panel's labels stay in its own margin, off the other panel
+    assert drawn[profiles].x0 > picture.get_window_extent(renderer).x1
+    assert drawn[picture].x1 < profiles.get_window_extent(renderer).x0
 
 
 # --------------------------------------------------------------------------------------------------

@@ -129,14 +129,20 @@ def robust_variance(values: FloatArray, clip_sigma: float = 5.0) -> float:
     steps, which biases it by tens of per cent at read-noise levels; the variance of the clipped set
     does not (a 5-sigma clip removes 6e-7 of a normal distribution's samples).
     """
+    return robust_level_and_variance(values, clip_sigma)[1]
+
+
+def robust_level_and_variance(values: FloatArray, clip_sigma: float = 5.0) -> tuple[float, float]:
+    """The median of ``values`` and :func:`robust_variance`, which starts from it."""
     centre = float(np.median(values))
-    spread = _MAD_TO_SIGMA * float(np.median(np.abs(values - centre)))
+    deviation = np.abs(values - centre)  # once, for the spread and the clip
+    spread = _MAD_TO_SIGMA * float(np.median(deviation))
     if spread <= 0:
         spread = float(np.std(values))
     if spread <= 0:
-        return 0.0
-    kept = values[np.abs(values - centre) <= clip_sigma * max(spread, 1.0)]
-    return float(np.var(kept))
+        return centre, 0.0
+    kept = values[deviation <= clip_sigma * max(spread, 1.0)]
+    return centre, float(np.var(kept))
 
 
 def green_pair_statistics(planes: RawPlanes, max_samples: int = 1_000_000) -> PairStatistics:
@@ -293,8 +299,9 @@ class DarkSpread:
         for channel in range(3):
             plane = dark.signal_dn[channel]
             sample = plane[:: max(1, plane.shape[0] // 512)].ravel().astype(np.float64)
-            variances.append(robust_variance(sample))
-            levels.append(float(np.median(sample)))
+            level, variance = robust_level_and_variance(sample)
+            variances.append(variance)
+            levels.append(level)
         return cls((variances[0], variances[1], variances[2]), (levels[0], levels[1], levels[2]))
 
 

@@ -5,7 +5,7 @@ The summary's columns: the set (a session's name), its status, the camera its RA
 against the truth when one is known (×10⁻² on the terminal and in Markdown, as every report prints
 it; the plain fraction in CSV), the number of warnings, and the wall time in its worker. The
 Markdown file lists every failure's reason and every warning under the table; the CSV has them in
-columns.
+columns, with each set's CPU time and the worker (``host:pid``) that estimated it.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ _CSV_COLUMNS = (
     "warnings",
     "wall_s",
     "cpu_s",
+    "worker",
     "out_dir",
     "path",
     "error",
@@ -115,6 +116,7 @@ def summary_csv(rows: Sequence[BatchRow]) -> str:
                 "; ".join(row.warnings),
                 f"{row.wall_s:.3f}",
                 f"{row.cpu_s:.3f}",
+                row.worker,
                 row.out_dir or "",
                 row.path,
                 row.error or "",

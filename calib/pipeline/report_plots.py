@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.figures import agg_figure, import_matplotlib
+from calib.core.figures import agg_figure, import_matplotlib, save_png, scientific_y_ticks
 from calib.core.observations import LampObservation
 from calib.core.spectra import MultiSpectrum, Spectrum
 from calib.core.truth import GroundTruth
@@ -38,13 +38,12 @@ def _figure(width_in: float = 7.0, height_in: float = 3.6) -> Any:
 
 
 def _short_ticks(axes: Any) -> None:
-    """Tick labels in scientific notation beyond 10⁴ (the offset shown once), so they stay short."""
-    axes.ticklabel_format(axis="y", style="sci", scilimits=(-3, 4), useMathText=True)
+    """Tick labels in scientific notation beyond 10⁴ (the power shown once), so they stay short."""
+    scientific_y_ticks(axes, (-3, 4))
 
 
 def _save(figure: Any, path: Path) -> Path:
-    figure.savefig(path, dpi=100)
-    return path
+    return save_png(figure, path, dpi=100)
 
 
 def _band(axes: Any, x: FloatArray, y: FloatArray, sigma: FloatArray | None, colour: str) -> None:

@@ -26,7 +26,7 @@ import numpy as np
 
 from calib.core.checksums import file_sha256
 from calib.core.errors import EstimationError, InputError
-from calib.core.figures import agg_figure
+from calib.core.figures import agg_figure, save_png
 from calib.core.formats import read_camera as read_camera_file
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
@@ -446,5 +446,5 @@ def _plot(
     axes.set_ylabel("relative spectral power")
     axes.set_title(f"SPD of {spd.name} (source: {recovery.source})")
     axes.legend(loc="upper left", fontsize="small")
-    figure.savefig(path, dpi=110)
+    save_png(figure, path, dpi=110)
     return path

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -99,6 +100,10 @@ def test_a_pool_batch_gives_the_one_at_a_time_results_and_names_its_failure(
     assert [row["name"] for row in rows] == [sessions[0].name, sessions[1].name, broken.name]
     assert [row["status"] for row in rows] == ["ok", "ok", "failed"]
     assert "sha256 differs" in rows[2]["error"]
+    # each estimated set names the worker process that ran it (host:pid), none this one
+    for row in rows[:2]:
+        host, _, pid = row["worker"].rpartition(":")
+        assert host and pid.isdigit() and int(pid) != os.getpid()
     # the truth beside the first session gives its RE, as the report computes it
     truth = sessions[0] / "twin-truth.json"
     re_truth = float(rows[0]["truth_relative_error"])
