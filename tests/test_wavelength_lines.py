@@ -496,3 +496,62 @@ def test_a_profile_fit_the_lines_could_not_correct_states_how_far_it_misplaces_t
     assert 0.5 * shift_nm <= stated <= 2.0 * shift_nm
     assert solution.details["profile_fit_sigma_nm"] == pytest.approx(0.2, rel=0.05)
     assert solution.details["line_misplacement_nm"] == pytest.approx(shift_nm, abs=1.0)
+
+
+def test_measured_lines_that_decide_silence_the_profile_fits_basins(camera, prior, monkeypatch):
+    """rig demo's twin: the whole-profile fit saw a second basin 1.4 nm away, FL2's measured lines
+    then decided the mapping — the result warned "ambiguous … shoot a fluorescent lamp" about a
+    run that had one. The lines' mapping carries no ambiguity warning; the fit's is recorded."""
+    import calib.wavelength.locate as locate
+
+    truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
+    pixel = np.arange(440.0, 990.0, 1.0)
+    observations = []
+    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
+        (_halophosphate(2.5), "fluorescent"),
+        (lamp_from_spec("LED-B3"), "led"),
+    )
+    for lamp, kind in lamps:
+        rendered = render_observation(
+            lamp,
+            camera,
+            mapping=truth,
+            pixel=pixel,
+            slit_width_px=2.0,
+            psf_sigma_px=0.8,
+            noise=PeakFractionNoise(0.002),
+            rng=np.random.default_rng(7),
+            fine_step_nm=0.05,
+            kind=kind,
+        ).observation
+        observations.append(
+            replace(
+                rendered,
+                spectrum=_measured(lamp, 1.5, 0.4),
+                spectrum_bandwidth_nm=1.5,
+                pixel_origin="direct_spot",
+            )
+        )
+    basin_warning = "the mapping is ambiguous: a second basin 1.4 nm away (forced)"
+
+    def two_basins(*args, **kwargs):
+        found = search_profiles(*args, **kwargs)
+        return replace(found, warnings=(*found.warnings, basin_warning))
+
+    monkeypatch.setattr(locate, "search_profiles", two_basins)
+    solution = locate_mapping(observations, prior, DEFAULT_GRID)
+    assert solution.details["measured_lines"] is True
+    assert basin_warning not in solution.warnings
+    assert "mapping_ambiguous" not in solution.details["warning_codes"]
+    assert basin_warning in solution.details["profile_fit_warnings"]
+    # Where the lines do not decide (their checks refuse them), the fit's warning stands, coded
+    # as an ambiguity.
+
+    def refuse(*args, **kwargs):
+        raise EstimationError("forced: the line fit is refused")
+
+    monkeypatch.setattr(locate, "_check_line_fit", refuse)
+    fitted = locate_mapping(observations, prior, DEFAULT_GRID)
+    assert "measured_lines_failed" in fitted.details
+    assert basin_warning in fitted.warnings
+    assert "mapping_ambiguous" in fitted.details["warning_codes"]

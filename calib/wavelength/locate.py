@@ -463,7 +463,6 @@ def locate_mapping(
             kernel=kernel if kernel is not None else camera_kernel(lamps),
             orientation=orientation,
         )
-        warnings += list(search.warnings)
 
     features: FeatureMapping | None = None
     if listed:
@@ -514,8 +513,10 @@ def locate_mapping(
                         raise EstimationError(
                             "a coarse tabulated spectrum: the lines are its nodes"
                         )
-                    features = _measured_lines(lamp, search.exact, grating_prior, grid)
-                    _check_line_fit(features, search.exact, grating_prior, lead)
+                    fitted = _measured_lines(lamp, search.exact, grating_prior, grid)
+                    _check_line_fit(fitted, search.exact, grating_prior, lead)
+                    # Only a line fit that passed its checks decides (a refused one stands down).
+                    features = fitted
                     details["line_source"] = f"Hg lines of {lamp.name} (measured lamp)"
                     details["measured_lines"] = True
                 except EstimationError as exc:
@@ -540,6 +541,10 @@ def locate_mapping(
         mapping, exact = features.mapping, features.exact
         details.update(features.details)
         details["ambiguous"] = False
+        if search is not None and search.warnings:
+            # The lines decided: the whole-profile fit's competing basins only started them, so
+            # they are recorded, not warned about (the warning would ask for the line lamp used).
+            details["profile_fit_warnings"] = list(search.warnings)
         scale_nm = spectrometer_scale_sigma_nm(lamps) if search is not None else 0.0
         if scale_nm > 0 and mapping.wavelength_rms_nm is not None:
             # Lines placed by a measured spectrum carry its wavelength scale (a common offset).
@@ -573,6 +578,7 @@ def locate_mapping(
         assert search is not None
         mapping, exact = search.mapping, search.exact
         details.update(search.details)
+        warnings += list(search.warnings)
         if fallback_sigma_nm is not None:
             mapping = stated_covariance(
                 mapping,
