@@ -544,14 +544,24 @@ def test_measured_lines_that_decide_silence_the_profile_fits_basins(camera, prio
     assert basin_warning not in solution.warnings
     assert "mapping_ambiguous" not in solution.details["warning_codes"]
     assert basin_warning in solution.details["profile_fit_warnings"]
-    # Where the lines do not decide (their checks refuse them), the fit's warning stands, coded
-    # as an ambiguity.
+    # A line fit its checks refuse still decides, and says so.
 
     def refuse(*args, **kwargs):
         raise EstimationError("forced: the line fit is refused")
 
     monkeypatch.setattr(locate, "_check_line_fit", refuse)
+    refused = locate_mapping(observations, prior, DEFAULT_GRID)
+    assert "measured_lines" not in refused.details  # (the disagreement warning stays armed)
+    assert refused.details["line_checks_failed"] == "forced: the line fit is refused"
+    assert basin_warning not in refused.warnings
+    # Where no line fit exists (the camera finds none of the lines), the profile fit stands and
+    # its warning with it, coded as an ambiguity.
+
+    def no_lines(*args, **kwargs):
+        raise EstimationError("forced: no line matches held")
+
+    monkeypatch.setattr(locate, "_measured_lines", no_lines)
     fitted = locate_mapping(observations, prior, DEFAULT_GRID)
-    assert "measured_lines_failed" in fitted.details
+    assert fitted.details["measured_lines_failed"] == "forced: no line matches held"
     assert basin_warning in fitted.warnings
     assert "mapping_ambiguous" in fitted.details["warning_codes"]
