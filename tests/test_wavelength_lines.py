@@ -332,17 +332,16 @@ def _measured(lamp: Spectrum, bandwidth_nm: float, step_nm: float) -> Spectrum:
     return Spectrum(axis, values, name=f"{lamp.name}, measured at {bandwidth_nm:g} nm")
 
 
-@pytest.mark.parametrize(("bandwidth_nm", "step_nm"), [(8.0, 4.0), (1.5, 0.4)])
-def test_a_measured_fluorescent_lamp_maps_through_its_lines_to_the_red_end(
-    camera, prior, bandwidth_nm, step_nm
-):
-    """Issue 20's twin: a halophosphate lamp (Hg lines up to 579 nm) measured by a spectrometer, a
-    camera unlike the prior, the 0th order at the origin and nothing else known. The whole-profile
-    fit bends the grating to suit the prior (the twin's landed 5–7 nm off at the red end); the
-    lines decide, the 577/579 doublet at its centre with σ for its unknown split, and the grating
-    equation carries them to the red end — within its stated σ."""
-    truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
-    pixel = np.arange(440.0, 990.0, 1.0)
+#: The rig-like scene of the measured-lamp tests: a 500 l/mm sheet, 12 mm lens, 4.8 µm pixels.
+_RIG_TRUTH = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
+_RIG_PIXEL = np.arange(440.0, 990.0, 1.0)
+
+
+def _halophosphate_and_led(
+    camera: MultiSpectrum, bandwidth_nm: float, step_nm: float
+) -> list[LampObservation]:
+    """A halophosphate lamp and LED-B3 rendered through :data:`_RIG_TRUTH` (0th order at the
+    origin), each with its spectrum as a spectrometer of ``bandwidth_nm`` / ``step_nm`` measures it."""
     observations = []
     lamps: tuple[tuple[Spectrum, LampKind], ...] = (
         (_halophosphate(2.5), "fluorescent"),
@@ -352,8 +351,8 @@ def test_a_measured_fluorescent_lamp_maps_through_its_lines_to_the_red_end(
         rendered = render_observation(
             lamp,
             camera,
-            mapping=truth,
-            pixel=pixel,
+            mapping=_RIG_TRUTH,
+            pixel=_RIG_PIXEL,
             slit_width_px=2.0,
             psf_sigma_px=0.8,
             noise=PeakFractionNoise(0.002),
@@ -369,6 +368,20 @@ def test_a_measured_fluorescent_lamp_maps_through_its_lines_to_the_red_end(
                 pixel_origin="direct_spot",
             )
         )
+    return observations
+
+
+@pytest.mark.parametrize(("bandwidth_nm", "step_nm"), [(8.0, 4.0), (1.5, 0.4)])
+def test_a_measured_fluorescent_lamp_maps_through_its_lines_to_the_red_end(
+    camera, prior, bandwidth_nm, step_nm
+):
+    """Issue 20's twin: a halophosphate lamp (Hg lines up to 579 nm) measured by a spectrometer, a
+    camera unlike the prior, the 0th order at the origin and nothing else known. The whole-profile
+    fit bends the grating to suit the prior (the twin's landed 5–7 nm off at the red end); the
+    lines decide, the 577/579 doublet at its centre with σ for its unknown split, and the grating
+    equation carries them to the red end — within its stated σ."""
+    truth, pixel = _RIG_TRUTH, _RIG_PIXEL
+    observations = _halophosphate_and_led(camera, bandwidth_nm, step_nm)
     solution = locate_mapping(observations, prior, DEFAULT_GRID)
     assert (
         solution.details["line_source"] == "Hg lines of halophosphate with Hg lines (measured lamp)"
@@ -441,34 +454,8 @@ def test_a_profile_fit_the_lines_could_not_correct_states_how_far_it_misplaces_t
     4 nm off (forced here) is stated at ~4 nm, never at the curvature's tenths."""
     import calib.wavelength.locate as locate
 
-    truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
-    pixel = np.arange(440.0, 990.0, 1.0)
-    observations = []
-    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
-        (_halophosphate(2.5), "fluorescent"),
-        (lamp_from_spec("LED-B3"), "led"),
-    )
-    for lamp, kind in lamps:
-        rendered = render_observation(
-            lamp,
-            camera,
-            mapping=truth,
-            pixel=pixel,
-            slit_width_px=2.0,
-            psf_sigma_px=0.8,
-            noise=PeakFractionNoise(0.002),
-            rng=np.random.default_rng(7),
-            fine_step_nm=0.05,
-            kind=kind,
-        ).observation
-        observations.append(
-            replace(
-                rendered,
-                spectrum=_measured(lamp, 1.5, 0.4),
-                spectrum_bandwidth_nm=1.5,
-                pixel_origin="direct_spot",
-            )
-        )
+    truth, pixel = _RIG_TRUTH, _RIG_PIXEL
+    observations = _halophosphate_and_led(camera, 1.5, 0.4)
     shift_nm = 4.0
     ends = (float(pixel[0]), float(pixel[-1]))
 
@@ -504,34 +491,7 @@ def test_measured_lines_that_decide_silence_the_profile_fits_basins(camera, prio
     run that had one. The lines' mapping carries no ambiguity warning; the fit's is recorded."""
     import calib.wavelength.locate as locate
 
-    truth = GratingGeometry(grooves_per_mm=500.0, focal_length_mm=12.0, pixel_pitch_um=4.8)
-    pixel = np.arange(440.0, 990.0, 1.0)
-    observations = []
-    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
-        (_halophosphate(2.5), "fluorescent"),
-        (lamp_from_spec("LED-B3"), "led"),
-    )
-    for lamp, kind in lamps:
-        rendered = render_observation(
-            lamp,
-            camera,
-            mapping=truth,
-            pixel=pixel,
-            slit_width_px=2.0,
-            psf_sigma_px=0.8,
-            noise=PeakFractionNoise(0.002),
-            rng=np.random.default_rng(7),
-            fine_step_nm=0.05,
-            kind=kind,
-        ).observation
-        observations.append(
-            replace(
-                rendered,
-                spectrum=_measured(lamp, 1.5, 0.4),
-                spectrum_bandwidth_nm=1.5,
-                pixel_origin="direct_spot",
-            )
-        )
+    observations = _halophosphate_and_led(camera, 1.5, 0.4)
     basin_warning = "the mapping is ambiguous: a second basin 1.4 nm away (forced)"
 
     def two_basins(*args, **kwargs):

@@ -255,15 +255,7 @@ class LampColumns:
         self, wavelength_nm: FloatArray, column: IntArray, *, derivative: bool = False
     ) -> tuple[FloatArray, FloatArray | None]:
         """``C_j(λ)`` (and ``∂C_j/∂λ = e φ_j (λ)``) for broadcast arrays of wavelengths and columns."""
-        count, size = self.density.shape
-        last = count - 1
-        position = np.clip((wavelength_nm - self.start_nm) / self.step_nm, 0.0, float(last))
-        index = np.minimum(position.astype(np.intp), last - 1)
-        t = position - index
-        flat = index * size + column
-        density = self.density.ravel()
-        low = density.take(flat)
-        high = density.take(flat + size)
+        flat, t, low, high = self._interval(wavelength_nm, column)
         value = self.cumulative.ravel().take(flat) + self.step_nm * t * (
             low + 0.5 * (high - low) * t
         )
@@ -271,17 +263,23 @@ class LampColumns:
             return value, None
         return value, self.density_at(wavelength_nm, column)
 
-    def density_at(self, wavelength_nm: FloatArray, column: IntArray) -> FloatArray:
-        """``∂C_j/∂λ = e φ_j (λ)`` (zero beyond the axis, where the cumulative is constant)."""
+    def _interval(
+        self, wavelength_nm: FloatArray, column: IntArray
+    ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
+        """Each wavelength's node on the fine axis (flat index with its column), its fraction
+        through the interval, and the density at the interval's two ends."""
         count, size = self.density.shape
         last = count - 1
         position = np.clip((wavelength_nm - self.start_nm) / self.step_nm, 0.0, float(last))
         index = np.minimum(position.astype(np.intp), last - 1)
-        t = position - index
         flat = index * size + column
         density = self.density.ravel()
-        low = density.take(flat)
-        high = density.take(flat + size)
+        return flat, position - index, density.take(flat), density.take(flat + size)
+
+    def density_at(self, wavelength_nm: FloatArray, column: IntArray) -> FloatArray:
+        """``∂C_j/∂λ = e φ_j (λ)`` (zero beyond the axis, where the cumulative is constant)."""
+        last = self.density.shape[0] - 1
+        _, t, low, high = self._interval(wavelength_nm, column)
         inside = (wavelength_nm > self.start_nm) & (
             wavelength_nm < self.start_nm + last * self.step_nm
         )
