@@ -10,11 +10,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from calib.methods import uncertainty
+from calib.core.spectrometer_tolerance import BANDWIDTH_TOLERANCE, WAVELENGTH_SCALE_NM
 from mocks.bench import TwinSpec
 from mocks.bench.deviation import (
-    BANDWIDTH_TOLERANCE,
-    WAVELENGTH_SCALE_NM,
     deviation_from_record,
     draw_deviation,
     spectrometer_deviation,
@@ -61,8 +59,6 @@ def _centre_and_fwhm(radiometer: Radiometer) -> tuple[float, float]:
 
 
 def test_the_twin_draws_the_sizes_the_sigma_budget_assumes() -> None:
-    assert WAVELENGTH_SCALE_NM == uncertainty.WAVELENGTH_SCALE_NM
-    assert BANDWIDTH_TOLERANCE == uncertainty.BANDWIDTH_TOLERANCE
     draws = [draw_deviation(seed) for seed in range(200)]
     ends = np.array([d.true_wavelength_nm(np.array([380.0, 780.0])) - [380, 780] for d in draws])
     factors = np.array([d.bandwidth_factor for d in draws])

@@ -68,16 +68,12 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, Severity
 from calib.core.spectra import Spectrum
+from calib.core.spectrometer_tolerance import BANDWIDTH_TOLERANCE, WAVELENGTH_SCALE_NM
 from calib.model.bases import CameraBasis
 
-#: The spectrometer's wavelength-scale tolerance when the lamp's metadata states none (nm): the
-#: ±0.5 nm a PR-655/CS-2000 specifies.
-WAVELENGTH_SCALE_NM = 0.5
 #: The slit bandwidth assumed (FWHM, nm) for the perturbation when a lamp's is not given: the middle
 #: of the 2–10 nm of common spectroradiometers.
 ASSUMED_BANDWIDTH_NM = 5.0
-#: Relative tolerance of a stated bandwidth (a slit's FWHM is specified to about ±25 %).
-BANDWIDTH_TOLERANCE = 0.25
 #: σ of the spectrometer's scale and slit errors per unit of their stated tolerance, as the budget
 #: applies it: the tolerance taken as one σ (:data:`COVERAGE_SCALE` was fitted so). An assumed
 #: bandwidth (none given) keeps the whole perturbation whatever this is.

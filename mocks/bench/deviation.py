@@ -18,7 +18,8 @@ The twin draws one realisation per station from its seed alone (stream
 :data:`SPECTROMETER_DEVIATION_STREAM`), the same whichever instrument ``emulate:`` picks, so twins
 that differ only in the emulated instrument see the same scale error and the same relative slit
 deviation (the spectrometer-equivalence bench compares like with like). Its sizes are those the σ
-budget assumes (:mod:`calib.methods.uncertainty`, and the validation protocol's
+budget assumes (:mod:`calib.core.spectrometer_tolerance`, shared with
+:mod:`calib.methods.uncertainty` and the validation protocol's
 :class:`calib.evaluation.validation.rig_errors.SpectrometerError`), so the band and the twin agree
 by construction:
 
@@ -40,15 +41,10 @@ from typing import Any
 
 import numpy as np
 
+from calib.core.spectrometer_tolerance import BANDWIDTH_TOLERANCE, WAVELENGTH_SCALE_NM
 from mocks.bench.spec import TwinSpec
 from mocks.emulators.radiometer import InstrumentDeviation
 
-#: The scale error's bound (nm): :data:`calib.methods.uncertainty.WAVELENGTH_SCALE_NM`, the size the
-#: σ budget perturbs by (kept equal by tests/test_twin_deviation.py; not imported, so that opening
-#: the twin does not load the estimators).
-WAVELENGTH_SCALE_NM = 0.5
-#: The slit's relative deviation bound: :data:`calib.methods.uncertainty.BANDWIDTH_TOLERANCE`.
-BANDWIDTH_TOLERANCE = 0.25
 #: Random stream of the spectrometer's in-spec errors, mixed with the seed.
 SPECTROMETER_DEVIATION_STREAM = 3
 #: The wavelength range the scale error is drawn over (its ends; the error is linear between).

@@ -49,6 +49,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.spectra import Spectrum
+from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 
 
 def _check_range(name: str, bounds: tuple[float, float], low: float = 0.0) -> None:
@@ -123,7 +124,7 @@ class SpectrometerReading:
 class SpectrometerError:
     """The reference spectrometer's wavelength offset, slit function, sampling and noise."""
 
-    offset_range_nm: tuple[float, float] = (-0.5, 0.5)
+    offset_range_nm: tuple[float, float] = (-WAVELENGTH_SCALE_NM, WAVELENGTH_SCALE_NM)
     bandwidth_range_nm: tuple[float, float] = (2.0, 10.0)
     noise_fraction: float = 0.003
     floor_fraction: float = 5e-4

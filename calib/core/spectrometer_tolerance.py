@@ -1,0 +1,13 @@
+"""What a spectroradiometer's data sheet promises, as the project assumes it everywhere.
+
+One source for the σ budget (:mod:`calib.methods.uncertainty`), the validation protocol's
+reference spectrometer (:class:`calib.evaluation.validation.rig_errors.SpectrometerError`) and the
+twin's in-spec instrument (:mod:`mocks.bench.deviation`): the band and the simulations agree by
+construction. No imports, so the twin's station loads it without the estimators.
+"""
+
+#: Wavelength-scale tolerance (nm): the ±0.5 nm a PR-670 / calibrated compact spectrometer
+#: specifies (PR-655 ±2 nm, CS-2000 ±0.3 nm).
+WAVELENGTH_SCALE_NM = 0.5
+#: Relative tolerance of a stated slit bandwidth (a slit's FWHM is specified to about ±25 %).
+BANDWIDTH_TOLERANCE = 0.25
