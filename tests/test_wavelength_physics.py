@@ -157,11 +157,12 @@ def fluorescent_profile() -> LampObservation:
     ).observation
 
 
-def test_response_model_jacobian_equals_finite_differences(fluorescent_profile):
-    """The exact variable-projection Jacobian (Golub & Pereyra) of the residual in the mapping."""
+def _blurred_fluorescent_model(profile):
+    """FL2's profile through a 3 px slit and 1 px blur: its response model, the quadratic family,
+    the pixel edges and a mapping off the truth by (0.8, −0.4, 0.6) in the family's parameters."""
     prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
     model = ResponseModel.build(
-        fluorescent_profile,
+        profile,
         DEFAULT_GRID,
         node_step_nm=10.0,
         prior=prior,
@@ -169,8 +170,13 @@ def test_response_model_jacobian_equals_finite_differences(fluorescent_profile):
         kernel=blur_kernel(3.0, 1.0),
     )
     family = QuadraticFamily((0.0, 799.0))
-    edges = pixel_edges(fluorescent_profile.pixel)
     x = family.parameters(QuadraticMapping(-2.2e-5, 0.43, 383.0)) + np.array([0.8, -0.4, 0.6])
+    return model, family, pixel_edges(profile.pixel), x
+
+
+def test_response_model_jacobian_equals_finite_differences(fluorescent_profile):
+    """The exact variable-projection Jacobian (Golub & Pereyra) of the residual in the mapping."""
+    model, family, edges, x = _blurred_fluorescent_model(fluorescent_profile)
     fixed = model.reference(family.wavelengths(edges, x))
     residual, jacobian, _ = fixed.residual(family.wavelengths(edges, x), family.jacobian(edges))
     assert jacobian is not None
@@ -187,18 +193,7 @@ def test_response_model_jacobian_equals_finite_differences(fluorescent_profile):
 def test_response_model_band_derivative_and_normal_matrix(fluorescent_profile):
     """The banded matrix' derivative against finite differences of its values, and the normal
     matrix assembled from its diagonals against the dense ``AᵀW²A``, for a batch."""
-    prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
-    model = ResponseModel.build(
-        fluorescent_profile,
-        DEFAULT_GRID,
-        node_step_nm=10.0,
-        prior=prior,
-        flexibility=0.05,
-        kernel=blur_kernel(3.0, 1.0),
-    )
-    family = QuadraticFamily((0.0, 799.0))
-    edges_px = pixel_edges(fluorescent_profile.pixel)
-    x = family.parameters(QuadraticMapping(-2.2e-5, 0.43, 383.0)) + np.array([0.8, -0.4, 0.6])
+    model, family, edges_px, x = _blurred_fluorescent_model(fluorescent_profile)
     edges = family.wavelengths(edges_px, x)[None]
     band = model.band(edges, family.jacobian(edges_px)[None])
     assert band.derivative is not None
