@@ -42,6 +42,7 @@ from calib.cli.options import (
 from calib.core.errors import CalibError, InputError
 from calib.core.software import current_software
 from drivers.base import DeviceError
+from rig.entry import INTERRUPTED_EXIT_CODE, interrupt_seen
 from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
 
 if TYPE_CHECKING:
@@ -679,7 +680,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         code = run_app(app, "rig", argv)
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
-        code = 130
+        code = INTERRUPTED_EXIT_CODE
     except InputError as exc:
         _fail(str(exc), 2)
     except OpeningInterrupted as exc:
@@ -697,6 +698,10 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise
         _fail(f"cannot read or write a file: {exc}", 1)
     except Exception as exc:
+        if interrupt_seen():
+            # A library turned the Ctrl-C into its own error (see rig.entry).
+            print("rig: interrupted", file=sys.stderr)
+            sys.exit(INTERRUPTED_EXIT_CODE)
         if os.environ.get("RIG_DEBUG"):
             raise
         _fail(f"internal error: {type(exc).__name__}: {exc} (set RIG_DEBUG=1 for the traceback)", 1)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -180,3 +181,30 @@ def test_ctrl_c_in_the_first_moments_is_one_line(
     # begun (a loaded machine gets there within 0.25 s): the run's own report on stdout.
     assert err.count("\n") <= 2
     assert "rig: " in err or "status: interrupted" in out, (out, err)
+
+
+def test_a_ctrl_c_a_library_turned_into_its_own_error_still_ends_as_interrupted(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """pydantic-core turns a Ctrl-C while it builds a validator into a ``SchemaError``: still 130."""
+    from rig import cli, entry
+
+    def library_that_swallows_the_interrupt(*_args: object, **_kwargs: object) -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)  # the handler runs at the next bytecode boundary
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("Error building validator: KeyboardInterrupt") from exc.__context__
+        return 0
+
+    monkeypatch.setattr(cli, "run_app", library_that_swallows_the_interrupt)
+    monkeypatch.setattr(entry, "_seen", [])
+    before = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(SystemExit) as ended:
+            entry.main()
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert ended.value.code == entry.INTERRUPTED_EXIT_CODE
+    assert capsys.readouterr().err == "rig: interrupted\n"
