@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 DEMO_DIR ?= demo-output
 
-.PHONY: install demo test test-all lint typecheck docs format bench clean
+.PHONY: install demo test test-all checks lint typecheck docs format bench clean
 
 SIM_STAMP := $(VENV)/.sim-stamp
 
@@ -39,12 +39,17 @@ typecheck: $(STAMP)
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
+# The static checks side by side (mypy is one process; the docs build another), each target's
+# output kept together.
+checks: $(STAMP)
+	$(MAKE) --no-print-directory -j2 --output-sync=target lint typecheck docs
+
 ## The default suite: lint, types, the docs build, and every test not marked slow.
-test: lint typecheck docs
+test: checks
 	$(BIN)/pytest -n 2 -q
 
 ## Everything, slow tests included.
-test-all: lint typecheck docs
+test-all: checks
 	$(BIN)/pytest -n 2 -q -m ''
 
 format: $(STAMP)

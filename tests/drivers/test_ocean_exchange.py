@@ -8,13 +8,15 @@ line left unused.
 from __future__ import annotations
 
 import array
+import errno
 import struct
 from typing import Any
 
 import numpy as np
 import pytest
+import usb.core
 
-from drivers.base import ProtocolError
+from drivers.base import DeviceTimeout, ProtocolError
 from drivers.spectrometer.ocean import OceanSettings, OceanSpectrometer, open_ocean
 from mocks.ocean_backend import STS, USB2000PLUS, EmulatedOcean, OceanBackend, OceanModel
 
@@ -139,6 +141,31 @@ def test_usb2000plus_a_spectrum_without_its_sync_byte_is_a_protocol_error() -> N
     spectrometer.set_exposure(5.0)
     with pytest.raises(ProtocolError, match="sync byte 0x69"):
         spectrometer.measure_dark()
+
+
+class SilentBulkBackend(ScriptedBulkBackend):
+    """The script, then silence: a read with no answer scripted times out as libusb's does."""
+
+    def bulk_read(self, dev_handle: Any, ep: int, intf: int, buff: Any, timeout: int) -> int:
+        if not self.unread.get(ep):
+            raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
+        return super().bulk_read(dev_handle, ep, intf, buff, timeout)
+
+
+def test_usb2000plus_a_silent_spectrum_request_is_a_retryable_timeout() -> None:
+    """The runner retries a ``DeviceTimeout`` (the fault matrix's PR-655 rows); here the Ocean
+    driver's own part: a spectrum request libusb times out on is that error, with its deadline."""
+    set_5_ms = (b"\x02" + struct.pack("<I", 5000), None, None)
+    script = [*USB2000PLUS_OPEN, set_5_ms, (b"\x09", None, None)]
+    backend = SilentBulkBackend(USB2000PLUS, script)
+    settings = OceanSettings(allow_uncalibrated=True, averages=1, integration_range_ms=(1, 10))
+    spectrometer = open_ocean("USB2+F12345", settings, backend=backend)
+    spectrometer.set_exposure(5.0)
+    with pytest.raises(DeviceTimeout, match="no answer within") as raised:
+        spectrometer.measure_dark()
+    assert raised.value.retryable and raised.value.reason == "timeout"
+    assert raised.value.timeout_s == pytest.approx((5 + settings.timeout_ms) / 1000.0)
+    backend.check_complete()
 
 
 # ------------------------------------------------------------------------------------ STS (OBP)
