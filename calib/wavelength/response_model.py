@@ -581,7 +581,7 @@ class ResponseModel:
             ],
             axis=1,
         )
-        return diagonals, np.asarray(rhs, dtype=np.float64)
+        return np.asarray(diagonals, dtype=np.float64), np.asarray(rhs, dtype=np.float64)
 
     def _prior_scale(self, band: Band) -> FloatArray:
         """``β̂`` per batch: the mean camera's scale that best explains the profile ``(K,)``."""
