@@ -27,7 +27,12 @@ from calib.model.bases import fallback_camera_basis
 from calib.model.forward import blur_kernel, pixel_edges, render_observation
 from calib.wavelength.families import GratingFamily, QuadraticFamily, grating_prior
 from calib.wavelength.least_squares import levenberg_marquardt
-from calib.wavelength.response_model import SHARED_EDGES_FROM, ResponseModel, hat_averages
+from calib.wavelength.response_model import (
+    RIDGE,
+    SHARED_EDGES_FROM,
+    ResponseModel,
+    hat_averages,
+)
 from calib.wavelength.rig_prior import (
     RigGeometry,
     RigOptics,
@@ -219,8 +224,17 @@ def test_response_model_band_derivative_and_normal_matrix(fluorescent_profile):
     # A batch of two mappings (one falling): each normal matrix is the dense one.
     falling = family.wavelengths(edges_px, x[::-1])
     batch = model.band(np.stack([edges[0], falling]))
-    normal, rhs = model._normal(batch)
+    diagonals, rhs = model._normal(batch)
     size = model.n_nodes
+    width = batch.values.shape[-1]
+    assert diagonals.shape == (2, 3, size, width)
+    normal = np.zeros((2, 3, size, size))
+    for offset in range(width):
+        rows = np.arange(size - offset)
+        normal[..., rows, rows + offset] = diagonals[:, :, : size - offset, offset]
+        normal[..., rows + offset, rows] = diagonals[:, :, : size - offset, offset]
+        # Nothing is kept past the matrix.
+        assert not np.any(diagonals[:, :, size - offset :, offset])
     for k in range(2):
         dense = np.zeros((edges_px.size - 1, size))
         rows = np.arange(edges_px.size - 1)[:, None]
@@ -231,6 +245,32 @@ def test_response_model_band_derivative_and_normal_matrix(fluorescent_profile):
             np.testing.assert_allclose(
                 rhs[k, c], weighted.T @ fluorescent_profile.profile[:, c], rtol=1e-12
             )
+
+
+def test_response_model_systems_are_the_dense_sum_to_the_last_bit(fluorescent_profile):
+    """The per-channel systems written diagonal by diagonal from the normal matrices' diagonals
+    are ``(AᵀW²A + w_Δ ΔᵀΔ) + β̂⁻² FᵀF`` plus the ridge, summed densely in that order (the same
+    numbers, not merely close), and the penalty weight is the dense normal matrix' trace's."""
+    model, family, edges_px, x = _blurred_fluorescent_model(fluorescent_profile)
+    assert np.any(model.penalty)  # margins, so the penalty's diagonals are written too
+    falling = family.wavelengths(edges_px, x[::-1])
+    band = model.band(np.stack([family.wavelengths(edges_px, x), falling]))
+    diagonals, _ = model._normal(band)
+    size, width = model.n_nodes, band.values.shape[-1]
+    normal = np.zeros((2, 3, size, size))
+    for offset in range(width):
+        rows = np.arange(size - offset)
+        normal[..., rows, rows + offset] = diagonals[:, :, : size - offset, offset]
+        normal[..., rows + offset, rows] = diagonals[:, :, : size - offset, offset]
+    weight = model._penalty_weight(diagonals)
+    np.testing.assert_array_equal(weight, model.smoothness * (np.einsum("kcii->kc", normal) / size))
+    scale = np.array([0.7, 1.9])
+    systems, _, _ = model._systems(diagonals, scale, weight)
+    expected = normal + weight[..., None, None] * model.penalty
+    expected += (1.0 / scale**2)[:, None, None, None] * model.precision
+    ridge = RIDGE * np.einsum("kcii->kc", expected) / size
+    expected[..., np.arange(size), np.arange(size)] += ridge[..., None]
+    np.testing.assert_array_equal(systems, expected)
 
 
 def test_the_deferred_jacobian_is_the_eager_one_and_computed_only_for_accepted_points(

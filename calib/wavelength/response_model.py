@@ -16,8 +16,8 @@ trial mapping the response is found by penalised least squares under a Gaussian 
   table look-ups per node it touches.
 - **Rows are banded**: a pixel (or a binned pixel, or a blurred one) touches a few consecutive
   nodes, so the model matrix is stored as ``(n, w)`` values and a first column per row, and its
-  normal matrix is assembled with one ``bincount`` — for a whole batch of trial mappings at once
-  (:meth:`ResponseModel.costs`).
+  normal matrix's diagonals come from one ``bincount`` — for a whole batch of trial mappings at
+  once (:meth:`ResponseModel.costs`), whose dense systems are then written once.
 - **Analytic derivatives**: ``∂A/∂x`` is the lamp density at the edges times ``∂λ_edge/∂x`` from the
   mapping family, and the exact variable-projection Jacobian (Golub & Pereyra 1973) of the
   residual follows from the same factorised normal matrices (:meth:`ResponseModel.residual`).
@@ -496,14 +496,17 @@ class ResponseModel:
         table, _ = self.columns.evaluate(
             padded[..., None], np.minimum(lowest[..., None] + np.arange(span), size - 1)
         )  # (K, n + L, span)
+        # Row (k, e) of the table starts at (k (n + L) + e)·span and holds the columns from
+        # lowest[k, e] on: pixel (k, i)'s column first + a at its edge i + l is the table's entry
+        # starts[k, i + l] + first[k, i] + a.
+        starts = (
+            np.arange(batch)[:, None] * padded.shape[1] + np.arange(padded.shape[1])
+        ) * span - lowest  # (K, n + L)
         position = np.arange(n)[:, None] + np.arange(count)  # (n, L + 1): padded edge index
-        offset = (
-            first[:, :, None, None] + np.arange(width)[:, None] - lowest[:, position][:, :, None, :]
-        )  # (K, n, w, L + 1)
-        flat = (np.arange(batch)[:, None, None, None] * padded.shape[1] + position[:, None, :]) * (
-            span
-        ) + offset
-        return np.asarray(table.reshape(-1).take(flat), dtype=np.float64)
+        flat = (
+            starts[:, position][:, :, None, :] + (first[:, :, None] + np.arange(width))[..., None]
+        )
+        return np.asarray(table.reshape(-1).take(flat), dtype=np.float64)  # (K, n, w, L + 1)
 
     def band_derivative(
         self, edges_nm: FloatArray, edge_jacobian: FloatArray, band: Band
@@ -530,12 +533,15 @@ class ResponseModel:
     # ----------------------------------------------------------------------- normal matrices
 
     def _normal(self, band: Band) -> tuple[FloatArray, FloatArray]:
-        """Per batch and channel: ``AᵀW²A`` ``(K, 3, N, N)`` and ``AᵀW²y`` ``(K, 3, N)``.
+        """Per batch and channel: the diagonals of ``AᵀW²A`` ``(K, 3, N, w)`` and ``AᵀW²y``
+        ``(K, 3, N)``.
 
         The normal matrix of a banded ``A`` (a row's ``w`` columns consecutive from its first) is
         banded too: its ``d``-th diagonal sums ``W² A_{n,f+a} A_{n,f+a+d}`` over the rows, so one
         ``bincount`` over the ``w(w+1)/2`` pairs ``a ≤ a + d`` of every (batch, channel, row)
-        gives every diagonal, which are then laid out (mirrored) in the dense matrix.
+        gives every diagonal: entry ``[k, c, i, d]`` is ``(AᵀW²A)[i, i + d]`` (zero past the
+        matrix). :meth:`_systems` lays them out in the dense systems; a scan's batch never holds
+        the dense normal matrices themselves.
         """
         values = band.values  # (K, n, w)
         batch, _, width = values.shape
@@ -544,9 +550,9 @@ class ResponseModel:
         # Channel-free: each pair's product and its place; the channels differ by the weights.
         products = values[..., lows] * values[..., lows + offsets]  # (K, n, M)
         place = (
-            (np.arange(batch) * (width * size))[:, None, None]
-            + band.first[:, :, None]
-            + (offsets * size + lows)
+            (np.arange(batch) * (size * width))[:, None, None]
+            + band.first[:, :, None] * width
+            + (lows * width + offsets)
         ).reshape(-1)
         squared = self.weights**2  # (n, 3)
         diagonals = np.stack(
@@ -554,18 +560,12 @@ class ResponseModel:
                 np.bincount(
                     place,
                     weights=(products * squared[None, :, c, None]).reshape(-1),
-                    minlength=batch * width * size,
-                ).reshape(batch, width, size)
+                    minlength=batch * size * width,
+                ).reshape(batch, size, width)
                 for c in range(3)
             ],
             axis=1,
-        )  # (K, 3, w, N)
-        normal = np.zeros((batch, 3, size, size))
-        for offset in range(min(width, size)):
-            row = np.arange(size - offset)
-            normal[..., row, row + offset] = diagonals[:, :, offset, : size - offset]
-            if offset:
-                normal[..., row + offset, row] = diagonals[:, :, offset, : size - offset]
+        )  # (K, 3, N, w)
         entries = (
             band.first[:, :, None] + np.arange(width) + (np.arange(batch) * size)[:, None, None]
         ).reshape(-1)
@@ -581,7 +581,7 @@ class ResponseModel:
             ],
             axis=1,
         )
-        return normal, np.asarray(rhs, dtype=np.float64)
+        return np.asarray(diagonals, dtype=np.float64), np.asarray(rhs, dtype=np.float64)
 
     def _prior_scale(self, band: Band) -> FloatArray:
         """``β̂`` per batch: the mean camera's scale that best explains the profile ``(K,)``."""
@@ -593,17 +593,36 @@ class ResponseModel:
         scale = numerator / np.maximum(denominator, 1e-300)
         return np.asarray(np.where(np.isfinite(scale) & (scale > 0), scale, 1.0), dtype=np.float64)
 
-    def _systems(
-        self, normal: FloatArray, scale: FloatArray, penalty_weight: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Full per-channel systems ``H`` ``(K, 3, N, N)``, pulls ``g`` and ``γ`` (the β row).
+    @property
+    def _penalty_reach(self) -> int:
+        """``1 +`` the farthest diagonal on which the margins' penalty ``ΔᵀΔ`` has an entry."""
+        rows, columns = np.nonzero(self.penalty)
+        return int(np.max(np.abs(rows - columns))) + 1 if rows.size else 0
 
-        Built in place in ``normal`` (which it consumes).
+    def _systems(
+        self, diagonals: FloatArray, scale: FloatArray, penalty_weight: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Full per-channel systems ``H`` ``(K, 3, N, N)``, pulls ``g`` and ``γ`` (the β row),
+        from the normal matrices' diagonals (:meth:`_normal`).
+
+        ``H = (AᵀW²A + w_Δ ΔᵀΔ) + β̂⁻² FᵀF`` (plus the ridge) is written once: the dense prior
+        term, then the banded sum added diagonal by diagonal through strided views, so a batch
+        of a thousand trial mappings makes one ``(K, 3, N, N)`` array, not four.
         """
+        batch, _, size, width = diagonals.shape
         inverse_square = 1.0 / scale**2  # (K,)
-        systems = normal
-        systems += penalty_weight[..., None, None] * self.penalty
-        systems += inverse_square[:, None, None, None] * self.precision
+        systems = inverse_square[:, None, None, None] * self.precision
+        flat = systems.reshape(batch, 3, size * size)
+        for offset in range(min(max(width, self._penalty_reach), size)):
+            length = size - offset
+            near = penalty_weight[..., None] * np.diagonal(self.penalty, offset)  # (K, 3, length)
+            if offset < width:
+                near = diagonals[..., :length, offset] + near
+            # Entries (i, i + d) and (i + d, i) of a row-major N × N matrix, i < N − d.
+            flat[..., offset : offset + length * (size + 1) : size + 1] += near
+            if offset:
+                below = offset * size
+                flat[..., below : below + length * (size + 1) : size + 1] += near
         diagonal = np.einsum("kcii->kc", systems)
         ridge = RIDGE * np.maximum(diagonal / self.n_nodes, 1e-300)
         index = np.arange(self.n_nodes)
@@ -613,19 +632,21 @@ class ResponseModel:
         gamma = inverse_square * float(np.sum(unit_pulls * self.prior_mean))
         return systems, pulls, gamma
 
-    def _penalty_weight(self, normal: FloatArray) -> FloatArray:
-        trace = np.einsum("kcii->kc", normal) / self.n_nodes
+    def _penalty_weight(self, diagonals: FloatArray) -> FloatArray:
+        # The main diagonal is a strided view (every w-th value), as a dense matrix's is:
+        # einsum sums it in the same order, to the last bit.
+        trace = np.einsum("kci->kc", diagonals[..., 0]) / self.n_nodes
         return np.asarray(self.smoothness * np.maximum(trace, 1e-300), dtype=np.float64)
 
     def reference(self, edges_nm: FloatArray) -> ResponseModel:
         """This model with ``β̂`` and the penalty weights of the mapping with these edge
         wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
         band = self.band(edges_nm[None, :])
-        normal, _ = self._normal(band)
+        diagonals, _ = self._normal(band)
         return replace(
             self,
             scale=float(self._prior_scale(band)[0]),
-            penalty_weight=self._penalty_weight(normal)[0],
+            penalty_weight=self._penalty_weight(diagonals)[0],
         )
 
     # --------------------------------------------------------------------------- evaluate
@@ -637,15 +658,15 @@ class ResponseModel:
         of dispersions); otherwise the reference values are used.
         """
         band = self.band(np.atleast_2d(edges_nm))
-        normal, rhs = self._normal(band)
-        batch = normal.shape[0]
+        diagonals, rhs = self._normal(band)
+        batch = diagonals.shape[0]
         if adaptive or self.penalty_weight is None:
             scale = self._prior_scale(band)
-            weight = self._penalty_weight(normal)
+            weight = self._penalty_weight(diagonals)
         else:
             scale = np.full(batch, self.scale)
             weight = np.broadcast_to(self.penalty_weight, (batch, 3))
-        systems, pulls, gamma = self._systems(normal, scale, weight)
+        systems, pulls, gamma = self._systems(diagonals, scale, weight)
         solved = np.linalg.solve(systems, np.stack([rhs, pulls], axis=-1))
         free, along = solved[..., 0], solved[..., 1]
         denominator = gamma - np.einsum("kci,kci->k", pulls, along)
@@ -685,9 +706,9 @@ class ResponseModel:
         model = self if self.penalty_weight is not None else self.reference(edges_nm)
         assert model.penalty_weight is not None
         band = model.band(edges_nm[None, :])
-        normal, rhs = model._normal(band)
+        diagonals, rhs = model._normal(band)
         systems, pulls, gamma = model._systems(
-            normal, np.array([model.scale]), model.penalty_weight[None]
+            diagonals, np.array([model.scale]), model.penalty_weight[None]
         )
         # One inverse per channel serves the fit and every Jacobian column (small, ridged, SPD).
         inverse = np.asarray(np.linalg.inv(systems), dtype=np.float64)
