@@ -126,3 +126,31 @@ def test_wavelength_blur_keeps_its_width_in_nm_where_the_dispersion_changes() ->
         width = np.sqrt(np.sum(weights * (wavelength[window] - mean) ** 2) / weights.sum())
         assert width == pytest.approx(8.0 * SIGMA_PER_FWHM, rel=0.03)
         assert weights.sum() == pytest.approx(1.0, rel=0.03)
+
+
+def test_a_slit_broader_than_10_nm_is_flagged_by_name() -> None:
+    from calib.core.observations import LampObservation
+    from calib.pipeline.estimate import input_flags
+
+    wavelength = np.arange(380.0, 781.0, 10.0)
+    pixel = np.arange(50, dtype=np.float64)
+
+    def lamp(bandwidth_nm: float | None) -> LampObservation:
+        return LampObservation(
+            name="LED-B3",
+            spectrum=Spectrum(wavelength, np.ones_like(wavelength)),
+            pixel=pixel,
+            profile=np.ones((pixel.size, 3)),
+            spectrum_bandwidth_nm=bandwidth_nm,
+        )
+
+    codes = {bw: [f.code for f in input_flags([lamp(bw)], image_input=False)] for bw in (8.0, 25.0)}
+    assert "coarse_spectrometer" not in codes[8.0]
+    assert "coarse_spectrometer" in codes[25.0]
+    (flag,) = [
+        f for f in input_flags([lamp(25.0)], image_input=False) if f.code == "coarse_spectrometer"
+    ]
+    assert "LED-B3 (25 nm)" in flag.message
+    assert "coarse_spectrometer" not in [
+        f.code for f in input_flags([lamp(None)], image_input=False)
+    ]

@@ -50,6 +50,22 @@ RESOLUTION_FLOOR_NM = 2.5
 MATCHED_STEP_NM = 0.25
 
 
+#: A spectrometer slit broader than this (nm FWHM) is flagged: the sensitivity's detail finer than
+#: the slit then rests on the slit model's second-order terms and the camera prior. On the twin
+#: (``bench/spectrometer_equivalence.py``, validation use) slits of 1.5–8 nm agree within the
+#: PR-655's own repeatability; 15 and 25 nm (an i1Pro) differ from it by 1.3–2.5 ×10⁻² RE.
+COARSE_SLIT_NM = 10.0
+
+
+def coarse_slit(observation: LampObservation) -> str | None:
+    """What to tell the user when ``observation``'s spectrum was measured through a slit broader
+    than :data:`COARSE_SLIT_NM`, or ``None``."""
+    bandwidth = observation.spectrum_bandwidth_nm
+    if bandwidth is None or bandwidth <= COARSE_SLIT_NM:
+        return None
+    return f"{observation.name} ({bandwidth:g} nm)"
+
+
 def common_resolution_nm(bandwidth_nm: float, spectrum_step_nm: float) -> float:
     """The FWHM both the profile and the spectrum are brought to: the spectrometer's bandwidth, but
     at least :data:`RESOLUTION_FLOOR_NM` and two of the spectrum's own samples (a spectrum sampled
