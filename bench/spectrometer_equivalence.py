@@ -16,9 +16,11 @@ times each, the draws differing only in the spectrometer's noise
    against the truth, and the mapping it found at the first order's red end (the mercury lines
    stop at 579 nm; beyond, the mapping is extrapolated);
 3. **RE between estimates** of each instrument and the PR-655, next to the PR-655's own
-   repeatability (PR-655 against PR-655, another noise draw);
-4. the same with the twin's **true mapping** given (the solve alone), which separates what the
-   spectra do to the solve from what they do to the mapping.
+   repeatability (PR-655 against PR-655, another noise draw), and the target's other reading,
+   ``|RE vs truth − the PR-655's RE vs truth|``;
+4. the same with the twin's **true mapping** given (the same method and lamps as ``rig estimate``,
+   the solve alone), which separates what the spectra do to the solve from what they do to the
+   mapping.
 
     python bench/spectrometer_equivalence.py [--draws 3]
         [--instruments pr655,usb2000plus,sts,i1pro,i1pro-hires]
@@ -40,7 +42,7 @@ import numpy as np
 
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID, read_spectrum_csv
-from calib.methods import estimate
+from calib.methods import AUTO, estimate
 from calib.model.bases import CameraBasis
 from calib.pipeline import OfflineSettings, estimate_offline
 from mocks.bench.lamps import virtual_lamp
@@ -149,14 +151,11 @@ def capture_and_estimate(
     truth = checked.truth.sensitivity.resample(DEFAULT_GRID, "interpolate").values
     found = extracted.result.physical_sensitivity()
     solve = next(o for o in extracted.observations if o.kind != "fluorescent")
-    # The same method `rig estimate` chose (auto: the prior solve with two lamps) with the same
-    # lamps (the second lamp constrains η), the mapping given. (It once passed the LED alone: its
+    # As `rig estimate` chooses (auto: the prior solve with two lamps) with the same lamps (the
+    # second lamp constrains η), the mapping given. (It once passed the LED alone: its
     # "true mapping" RE, 1.8–2.9, was the one-lamp solve's, not the mapping's.)
     given = estimate(
-        list(extracted.observations),
-        method=extracted.result.method,
-        basis=basis,
-        mapping=checked.truth.mapping,
+        list(extracted.observations), method=AUTO, basis=basis, mapping=checked.truth.mapping
     )
     red_pixel = solve.pixel[-1:]
     mapping = extracted.result.mapping
