@@ -154,3 +154,31 @@ def test_a_slit_broader_than_10_nm_is_flagged_by_name() -> None:
     assert "coarse_spectrometer" not in [
         f.code for f in input_flags([lamp(None)], image_input=False)
     ]
+
+
+def test_the_search_matches_in_samples_and_the_solves_in_wavelength() -> None:
+    """Without a mapping (the search) only the profile is blurred, by the stated slit in samples,
+    the measured spectrum kept; with one (the solves) both go to the common resolution."""
+    from calib.core.observations import LampObservation
+    from calib.model.resolution import match_spectrometer, matched_resolution_nm
+
+    measured_nm = np.arange(380.0, 781.0, 4.0)
+    spectrum = Spectrum(
+        measured_nm, np.interp(measured_nm, FINE_NM, gaussian_blur(led_lamp(), 8.0))
+    )
+    pixel = np.arange(400, dtype=np.float64)
+    wavelength = 400.0 + 0.75 * pixel
+    profile = np.zeros((pixel.size, 3))
+    profile[200] = 1.0
+    lamp = LampObservation(
+        name="LED-B3", spectrum=spectrum, pixel=pixel, profile=profile, spectrum_bandwidth_nm=1.5
+    )
+    search = match_spectrometer(lamp, 0.75)
+    assert search.spectrum is spectrum and search.spectrum_bandwidth_nm is None
+    assert matched_resolution_nm(search) is None  # no slit terms follow from it
+    solve = match_spectrometer(lamp, 0.75, wavelength_nm=wavelength)
+    assert matched_resolution_nm(solve) == common_resolution_nm(1.5, 4.0) == 8.0
+    assert float(np.median(np.diff(solve.spectrum.wavelength_nm))) == pytest.approx(0.25)
+    # the profile's line: 1.5 nm wide in the search (2 samples), 8 nm in the solve
+    spread = [float(np.sum(np.asarray(m.profile)[:, 0] > 0.01)) for m in (search, solve)]
+    assert spread[0] < spread[1]
