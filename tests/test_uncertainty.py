@@ -242,6 +242,12 @@ def test_auto_keeps_a_coarse_fluorescent_lamp_for_the_mapping(camera: MultiSpect
     assert choose_method([led, unknown]).mapping_only == ("FL2",)
     # the lamps alone cannot be all mapping-only
     assert choose_method([coarse]).mapping_only == ()
+    # a slit-limited spectrum, well sampled (a 25 nm slit every 10 nm), enters the solve; a slit
+    # narrower than two samples does not
+    slit = replace(coarse, spectrum_bandwidth_nm=25.0)
+    assert choose_method([led, slit]).mapping_only == ()
+    narrow = replace(coarse, spectrum_bandwidth_nm=12.0)
+    assert choose_method([led, narrow]).mapping_only == ("FL2",)
 
 
 def test_auto_uses_a_grating_file_when_given(camera: MultiSpectrum) -> None:

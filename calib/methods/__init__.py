@@ -126,7 +126,10 @@ AUTO_MULTILAMP_LAMPS = 3
 
 #: A line lamp (fluorescent, narrowband) whose spectrum is sampled more coarsely than this (nm)
 #: cannot place its lines: ``auto`` uses it for the mapping only. Spectroradiometers sample at
-#: 1–5 nm (tabulated CIE F-series too); an i1Pro through ``spotread`` at 10 nm is too coarse.
+#: 1–5 nm (tabulated CIE F-series too). Unless the spectrum states a slit at least twice its
+#: sample step (an i1Pro through ``spotread``: 25 nm at 10 nm): such a spectrum is slit-limited
+#: and well sampled, the solve models the slit (:mod:`calib.model.resolution`), and the lamp's
+#: direct measurement constrains η (decision 0035).
 COARSE_LINE_SPECTRUM_NM = 5.0
 LINE_LAMP_KINDS = ("fluorescent", "narrowband")
 
@@ -142,10 +145,13 @@ def coarse_line_spectrum(observation: LampObservation) -> str | None:
         return f"lamp {observation.name!r}: its spectrum was not measured"
     wavelength = np.asarray(observation.spectrum.wavelength_nm, dtype=np.float64)
     step = float(np.median(np.diff(wavelength))) if wavelength.size > 1 else math.inf
-    if step > COARSE_LINE_SPECTRUM_NM:
+    bandwidth = observation.spectrum_bandwidth_nm
+    slit_limited = bandwidth is not None and bandwidth >= 2.0 * step
+    if step > COARSE_LINE_SPECTRUM_NM and not slit_limited:
         return (
             f"lamp {observation.name!r}: its spectrum is sampled every {step:g} nm, too coarse for "
-            f"its emission lines (≤ {COARSE_LINE_SPECTRUM_NM:g} nm needed)"
+            f"its emission lines (≤ {COARSE_LINE_SPECTRUM_NM:g} nm needed, or a stated "
+            f"spectrometer bandwidth of at least {2.0 * step:g} nm)"
         )
     return None
 

@@ -26,7 +26,7 @@ from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraBasis, CameraPrior, FourierConvention, fourier_basis
 from calib.model.forward import WavelengthMapping, apply_blur, hat_matrix
 from calib.model.linear_model import LampSystem, prepare_lamp
-from calib.model.resolution import camera_kernel, match_spectrometer
+from calib.model.resolution import camera_kernel, match_spectrometer, matched_resolution_nm
 from calib.wavelength import find_mapping, lamps_named
 
 SearchMethod = Literal["search", "icp"]
@@ -155,13 +155,16 @@ def prepare_matched_lamp(
 ) -> LampSystem:
     """A lamp prepared for the solvers, its profile matched to the spectrometer's resolution.
 
-    Profiles measured against a broader spectrometer are blurred to its resolution (through the
-    mapping's dispersion), then the lamp is prepared with the camera's line spread ``kernel``.
+    The profile and the spectrum are brought to a common resolution (the profile blurred in
+    wavelength through the mapping), then the lamp is prepared with the camera's line spread ``kernel``.
     """
     spacing = float(np.median(np.diff(observation.pixel)))
     dispersion = float(np.median(np.abs(_dispersion(mapping, observation.pixel))))
-    matched = match_spectrometer(observation, dispersion * spacing)
-    return prepare_lamp(matched, grid, kernel=kernel)
+    matched = match_spectrometer(
+        observation, dispersion * spacing, wavelength_nm=mapping.wavelength_nm(observation.pixel)
+    )
+    slit_fwhm_nm = None if matched is observation else matched_resolution_nm(matched)
+    return prepare_lamp(matched, grid, kernel=kernel, slit_fwhm_nm=slit_fwhm_nm)
 
 
 @dataclass(frozen=True, eq=False)

@@ -131,10 +131,14 @@ class PiecewiseLinearDensity:
     def integrate_pixels(self, edges_nm: FloatArray) -> FloatArray:
         """Integral between consecutive edge wavelengths ``(n + 1,)``, shape ``(n, ...)``.
 
-        ``|C(λ_{k+1}) − C(λ_k)|``, so decreasing mappings work too; no light beyond the axis.
+        ``±(C(λ_{k+1}) − C(λ_k))``, signed so that decreasing mappings work too (the density itself
+        may be negative: a slit correction's terms); no light beyond the axis.
         """
-        values = self.cumulative_at(np.asarray(edges_nm, dtype=np.float64))
-        return np.asarray(np.abs(np.diff(values, axis=0)), dtype=np.float64)
+        edges = np.asarray(edges_nm, dtype=np.float64)
+        values = self.cumulative_at(edges)
+        direction = np.where(np.diff(edges) < 0, -1.0, 1.0)
+        shape = (-1,) + (1,) * (values.ndim - 1)
+        return np.asarray(np.diff(values, axis=0) * direction.reshape(shape), dtype=np.float64)
 
 
 def hat_matrix(
@@ -229,9 +233,22 @@ class LampOperators:
 
 
 def lamp_operators(
-    lamp: Spectrum, grid: WavelengthGrid = DEFAULT_GRID, *, fine_step_nm: float = FINE_STEP_NM
+    lamp: Spectrum,
+    grid: WavelengthGrid = DEFAULT_GRID,
+    *,
+    fine_step_nm: float = FINE_STEP_NM,
+    slit_fwhm_nm: float | None = None,
 ) -> LampOperators:
     """Precompute :class:`LampOperators` for a lamp (its native samples interpolated to the fine axis).
+
+    ``slit_fwhm_nm``: the lamp spectrum ``e_G = e ⊗ G`` and the profile were both blurred by a
+    Gaussian ``G`` of this FWHM (:func:`calib.model.resolution.match_spectrometer`). The blurred
+    profile sees ``G ⊗ (e r)``, not ``r (e ⊗ G)``; with ``r`` expanded to second order over the slit
+    (the exact moments of a Gaussian slit),
+    ``G ⊗ (e r) = r e_G + σ² r′ e_G′ + ½ r″ (σ⁴ e_G″ + σ² e_G) + O(σ³ r‴)``, and the densities
+    carry the two correction terms, ``r′`` and ``r″`` as central differences of the grid values
+    (:func:`grid_derivatives`). Without them the error is of order ``σ² r″/(2r)``: a few per cent
+    at a 25 nm slit.
 
     Raises
     ------
@@ -246,10 +263,51 @@ def lamp_operators(
             source=lamp.name,
         )
     axis = fine_axis(grid.start_nm, grid.stop_nm, fine_step_nm)
-    densities = PiecewiseLinearDensity.on_axis(
-        axis, lamp.at(axis)[:, None] * hat_matrix(grid, axis)
-    )
+    hats = hat_matrix(grid, axis)
+    density = lamp.at(axis)[:, None] * hats
+    if slit_fwhm_nm is not None and slit_fwhm_nm > 0:
+        sigma2 = (slit_fwhm_nm / (2.0 * math.sqrt(2.0 * math.log(2.0)))) ** 2
+        first = np.gradient(lamp.values, lamp.wavelength_nm)
+        second = np.gradient(first, lamp.wavelength_nm)
+        slope = np.interp(axis, lamp.wavelength_nm, first, 0.0, 0.0)
+        curvature = np.interp(axis, lamp.wavelength_nm, second, 0.0, 0.0)
+        d1, d2 = grid_derivatives(grid)
+        smooth = grid_smoothing(grid, math.sqrt(sigma2))
+        d1, d2 = d1 @ smooth, d2 @ smooth
+        density = (
+            density
+            + (sigma2 * slope)[:, None] * (hats @ d1)
+            + (0.5 * (sigma2**2 * curvature + sigma2 * lamp.at(axis)))[:, None] * (hats @ d2)
+        )
+    densities = PiecewiseLinearDensity.on_axis(axis, density)
     return LampOperators(grid, densities, densities.total.copy())
+
+
+def grid_smoothing(grid: WavelengthGrid, sigma_nm: float) -> FloatArray:
+    """``S`` ``(f, f)``: a Gaussian of ``sigma_nm`` over the grid's nodes, rows summing to 1.
+
+    The slit correction takes ``r′``, ``r″`` of ``S r``: its response to a component of ``r`` of
+    wavenumber ``k`` is then ``1 − ½σ²k² e^{−σ²k²/2}`` — right to second order for smooth ``r``,
+    and never above 1 for the fast components, where the bare Taylor term ``1 − ½σ²k²`` would turn
+    negative (a 25 nm slit on a 10 nm grid) and the solve would chase them.
+    """
+    nodes = np.arange(grid.size, dtype=np.float64) * grid.step_nm
+    weights = np.exp(-0.5 * ((nodes[:, None] - nodes[None, :]) / max(sigma_nm, 1e-9)) ** 2)
+    return np.asarray(weights / weights.sum(axis=1, keepdims=True), dtype=np.float64)
+
+
+def grid_derivatives(grid: WavelengthGrid) -> tuple[FloatArray, FloatArray]:
+    """``D₁``, ``D₂`` ``(f, f)``: first and second derivatives (per nm, per nm²) of a curve from its
+    values on ``grid``, as central differences (the end nodes take their neighbour's)."""
+    size, step = grid.size, grid.step_nm
+    first = np.zeros((size, size))
+    second = np.zeros((size, size))
+    for node in range(size):
+        centre = min(max(node, 1), size - 2)
+        first[node, centre - 1] -= 0.5 / step
+        first[node, centre + 1] += 0.5 / step
+        second[node, centre - 1 : centre + 2] = np.array([1.0, -2.0, 1.0]) / step**2
+    return first, second
 
 
 #: A lamp has light where its spectrum exceeds this fraction of its peak (the 2nd order's onset).

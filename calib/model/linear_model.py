@@ -50,16 +50,19 @@ def prepare_lamp(
     slit_width_px: float = 0.0,
     psf_sigma_px: float = 0.0,
     kernel: FloatArray | None = None,
+    slit_fwhm_nm: float | None = None,
 ) -> LampSystem:
     """Precompute a lamp's operators; a missing profile σ is estimated from the profile itself.
 
     ``kernel`` is the camera's line spread in profile samples (see :mod:`calib.model.resolution`); without
     it, a box of ``slit_width_px`` convolved with a Gaussian of ``psf_sigma_px`` is used.
+    ``slit_fwhm_nm``: the Gaussian both the profile and the spectrum were blurred by (the operators
+    then carry the slit's second-order correction, :func:`calib.model.forward.lamp_operators`).
     """
     sigma = profile_sigma(observation)
     return LampSystem(
         observation=observation,
-        operators=lamp_operators(observation.spectrum, grid),
+        operators=lamp_operators(observation.spectrum, grid, slit_fwhm_nm=slit_fwhm_nm),
         edges_px=pixel_edges(observation.pixel),
         profile_sigma=np.asarray(sigma, dtype=np.float64),
         kernel=kernel if kernel is not None else blur_kernel(slit_width_px, psf_sigma_px),

@@ -19,12 +19,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.observations import LampObservation
+from calib.core.spectra import Spectrum
 from calib.model.forward import apply_blur, blur_kernel
+
+if TYPE_CHECKING:
+    from scipy import sparse
 
 _FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
@@ -39,29 +44,160 @@ def gaussian_kernel(sigma_samples: float) -> FloatArray | None:
     return np.asarray(kernel / kernel.sum(), dtype=np.float64)
 
 
-def match_spectrometer(observation: LampObservation, nm_per_sample: float) -> LampObservation:
-    """The observation with its profile blurred to the spectrometer's bandwidth (if it has one).
+#: The common resolution never drops below this FWHM (nm): the solvers sample a lamp at
+#: :data:`calib.model.forward.FINE_STEP_NM` (1 nm) and integrate it linearly between samples, which
+#: represents a line of 2.5 nm FWHM to a fraction of a per cent and a 1.5 nm line (a USB
+#: spectrometer's) only roughly. A spectrum sharper than this is blurred to it (and the profile
+#: with it).
+RESOLUTION_FLOOR_NM = 2.5
+#: Sample step (nm) of a matched spectrum: fine enough for the floor's line shape.
+MATCHED_STEP_NM = 0.25
 
-    ``nm_per_sample``: the dispersion times the profile's sample spacing (a typical value over the
-    profile; the bandwidth is a few samples, so its variation along the profile does not matter).
-    σ follows the blur (``σ'² = σ² ⊗ k²``, neighbours' correlation ignored). The result carries no
-    bandwidth (it is matched) and records the blur in its metadata.
+
+#: A spectrometer slit broader than this (nm FWHM) is flagged: the sensitivity's detail finer than
+#: the slit then rests on the slit model's second-order terms and the camera prior. On the twin
+#: (``bench/spectrometer_equivalence.py``, validation use) slits of 1.5–8 nm agree within the
+#: PR-655's own repeatability; 15 and 25 nm (an i1Pro) differ from it by 1.3–2.5 ×10⁻² RE.
+COARSE_SLIT_NM = 10.0
+
+
+def coarse_slit(observation: LampObservation) -> str | None:
+    """What to tell the user when ``observation``'s spectrum was measured through a slit broader
+    than :data:`COARSE_SLIT_NM`, or ``None``."""
+    bandwidth = observation.spectrum_bandwidth_nm
+    if bandwidth is None or bandwidth <= COARSE_SLIT_NM:
+        return None
+    return f"{observation.name} ({bandwidth:g} nm)"
+
+
+def common_resolution_nm(bandwidth_nm: float, spectrum_step_nm: float) -> float:
+    """The FWHM both the profile and the spectrum are brought to: the spectrometer's bandwidth, but
+    at least :data:`RESOLUTION_FLOOR_NM` and two of the spectrum's own samples (a spectrum sampled
+    more coarsely than half its bandwidth holds no detail finer than that)."""
+    return max(bandwidth_nm, RESOLUTION_FLOOR_NM, 2.0 * spectrum_step_nm)
+
+
+def blurred_spectrum(spectrum: Spectrum, bandwidth_nm: float, target_nm: float) -> Spectrum:
+    """``spectrum`` (measured through a Gaussian slit of ``bandwidth_nm``) at ``target_nm`` FWHM.
+
+    The samples are interpolated with a cubic spline (a slit-limited spectrum is smooth on the scale
+    of its samples; linear interpolation would cut a 8 nm line sampled every 4 nm by up to a sixth
+    at its peak) onto a :data:`MATCHED_STEP_NM` axis, then convolved with the difference kernel
+    (FWHM ``√(target² − bandwidth²)``). Negative overshoot is clipped.
+    """
+    from scipy.interpolate import CubicSpline  # deferred: scipy.interpolate is slow to import
+
+    low, high = spectrum.range_nm
+    axis = np.arange(low, high + MATCHED_STEP_NM / 2, MATCHED_STEP_NM)
+    values = CubicSpline(spectrum.wavelength_nm, spectrum.values)(axis)
+    extra_nm = math.sqrt(max(target_nm**2 - bandwidth_nm**2, 0.0))
+    kernel = gaussian_kernel(extra_nm / _FWHM_PER_SIGMA / MATCHED_STEP_NM)
+    if kernel is not None:
+        # Reflect at the ends: the spectrum's range edge is not a dark edge.
+        from scipy.ndimage import convolve1d
+
+        values = convolve1d(values, kernel, mode="nearest")
+    return Spectrum(axis, values, name=spectrum.name, negative="clip")
+
+
+def wavelength_blur(wavelength_nm: FloatArray, fwhm_nm: float) -> sparse.csr_array:
+    """The matrix ``W`` ``(n, n)`` that blurs a profile sampled at ``wavelength_nm`` (increasing or
+    decreasing, one per profile sample) by a Gaussian of ``fwhm_nm`` *in wavelength*.
+
+    A sample ``q`` holds ``g(λ_q)·J_q`` (the density times the nm it spans, ``J`` the dispersion);
+    the blurred density at ``λ_p`` is ``Σ_q B(λ_p − λ_q) g(λ_q) J_q``, and the sample at ``p`` is that
+    times ``J_p``: ``W[p, q] = J_p B(λ_p − λ_q)``. Unlike a kernel in samples, the slit keeps its
+    width in nm where the dispersion changes along the profile (±8 % over a typical first order).
+    Zero beyond the ends, as :func:`calib.model.forward.apply_blur`, and beyond 5σ: a band matrix
+    (sparse; a dense one cost 60 ms for a 1500-sample profile, per lamp and solve).
+    """
+    from scipy import sparse  # deferred: the mapping search never needs it
+
+    wavelength = np.asarray(wavelength_nm, dtype=np.float64)
+    size = wavelength.size
+    spans = np.abs(np.gradient(wavelength))
+    sigma = fwhm_nm / _FWHM_PER_SIGMA
+    reach = 5.0 * sigma
+    # The band's half-width in samples: the most samples any 5σ holds along the profile.
+    ordered = np.sort(wavelength)
+    half = int(np.max(np.searchsorted(ordered, ordered + reach, side="right") - np.arange(size)))
+    offsets = np.arange(-half, half + 1)
+    rows = np.repeat(np.arange(size), offsets.size)
+    columns = (np.arange(size)[:, None] + offsets[None, :]).ravel()
+    inside = (columns >= 0) & (columns < size)
+    rows, columns = rows[inside], columns[inside]
+    distance = (wavelength[rows] - wavelength[columns]) / sigma
+    near = np.abs(distance) <= 5.0
+    rows, columns, distance = rows[near], columns[near], distance[near]
+    weights = spans[rows] * np.exp(-0.5 * distance**2) / (sigma * math.sqrt(2.0 * math.pi))
+    return sparse.csr_array((weights, (rows, columns)), shape=(size, size))
+
+
+def match_spectrometer(
+    observation: LampObservation,
+    nm_per_sample: float,
+    *,
+    wavelength_nm: FloatArray | None = None,
+) -> LampObservation:
+    """The observation with its profile and spectrum at one common resolution (if it has a bandwidth).
+
+    The spectrometer reports ``e ⊗ B``; the camera sees ``e`` at its own (finer) resolution. Both are
+    brought to :func:`common_resolution_nm` ``T``: the profile blurred by a Gaussian of ``T``
+    (through the dispersion), the spectrum by the difference kernel (:func:`blurred_spectrum`), so
+    that ``m ⊗ G_T ≈ [∫ (e ⊗ G_T) r] ⊗ k`` with ``r`` smooth on the scale of ``T``.
+
+    ``wavelength_nm``: the profile samples' wavelengths (a known mapping: the solves); the blur is
+    then in wavelength (:func:`wavelength_blur`). σ follows the blur (``σ'² = W² σ²``, neighbours'
+    correlation ignored). The result carries no bandwidth (it is matched) and records the
+    resolution in its metadata.
+
+    Without it (the mapping search, whose response model works on the measured samples in coarse
+    bins), only the profile is blurred, by the stated bandwidth, with a kernel of constant width in
+    samples from ``nm_per_sample`` (the dispersion times the sample spacing), as before decision
+    0035: the search with a spline-resampled spectrum at the common resolution put the twin's
+    i1Pro (25 nm at 10 nm, noise draw 1) 23 nm off at the red end, where this finds it within
+    0.2 nm.
     """
     bandwidth = observation.spectrum_bandwidth_nm
     if bandwidth is None or nm_per_sample <= 0:
         return observation
-    kernel = gaussian_kernel(bandwidth / _FWHM_PER_SIGMA / nm_per_sample)
-    if kernel is None:
-        return replace(observation, spectrum_bandwidth_nm=None)
+    profile = np.asarray(observation.profile)
     sigma = observation.profile_sigma
-    blurred_sigma = None if sigma is None else np.sqrt(apply_blur(sigma**2, kernel**2))
+    if wavelength_nm is None:
+        kernel = gaussian_kernel(bandwidth / _FWHM_PER_SIGMA / nm_per_sample)
+        if kernel is None:
+            return replace(observation, spectrum_bandwidth_nm=None)
+        return replace(
+            observation,
+            profile=apply_blur(profile, kernel),
+            profile_sigma=None if sigma is None else np.sqrt(apply_blur(sigma**2, kernel**2)),
+            spectrum_bandwidth_nm=None,
+            metadata={**observation.metadata, "profile_blurred_in_samples_nm": bandwidth},
+        )
+    spectrum = observation.spectrum
+    step_nm = float(np.median(np.diff(spectrum.wavelength_nm)))
+    target = common_resolution_nm(bandwidth, step_nm)
+    matrix = wavelength_blur(wavelength_nm, target)
+    blurred = matrix @ profile
+    blurred_sigma = None if sigma is None else np.sqrt(matrix.power(2) @ sigma**2)
     return replace(
         observation,
-        profile=apply_blur(np.asarray(observation.profile), kernel),
+        spectrum=blurred_spectrum(spectrum, bandwidth, target),
+        profile=blurred,
         profile_sigma=blurred_sigma,
         spectrum_bandwidth_nm=None,
-        metadata={**observation.metadata, "profile_blurred_to_bandwidth_nm": bandwidth},
+        metadata={
+            **observation.metadata,
+            "profile_blurred_to_bandwidth_nm": target,
+            "spectrometer_bandwidth_nm": bandwidth,
+        },
     )
+
+
+def matched_resolution_nm(observation: LampObservation) -> float | None:
+    """The FWHM :func:`match_spectrometer` brought ``observation`` to, or ``None`` (not matched)."""
+    value = observation.metadata.get("profile_blurred_to_bandwidth_nm")
+    return None if value is None else float(value)  # type: ignore[arg-type]
 
 
 def camera_kernel(

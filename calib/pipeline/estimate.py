@@ -38,6 +38,7 @@ from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOption
 from calib.methods.multilamp import MULTILAMP_METHOD
 from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings
 from calib.model.bases import CameraBasis, default_camera_basis
+from calib.model.resolution import COARSE_SLIT_NM, coarse_slit
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
 from calib.pipeline.inputs import (
     LampImages,
@@ -540,7 +541,8 @@ BLANK_PROFILE_SNR = 5.0
 
 def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
     """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
-    order, a line lamp's spectrum too coarse for its lines."""
+    order, a line lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the
+    sensitivity's detail."""
     flags: list[QualityFlag] = []
     saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
     if saturated:
@@ -570,6 +572,19 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
     coarse = [why for obs in observations if (why := coarse_line_spectrum(obs))]
     if coarse:
         flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))
+    broad = [what for obs in observations if (what := coarse_slit(obs))]
+    if broad:
+        flags.append(
+            QualityFlag(
+                "coarse_spectrometer",
+                f"the lamp spectra of {', '.join(broad)} come from a spectrometer whose slit is "
+                f"broader than {COARSE_SLIT_NM:g} nm (an i1Pro-class instrument): the "
+                "sensitivity's detail finer than the slit rests on the slit model and the camera "
+                "prior: expect it to differ from an 8 nm spectroradiometer's by 1–3 ×10⁻² RE; "
+                "measure the lamps with a spectroradiometer or a USB spectrometer (≤ 10 nm) for "
+                "a reference-grade curve",
+            )
+        )
     return flags
 
 

@@ -1,0 +1,184 @@
+"""Resolution matching (calib.model.resolution): a narrow-lined lamp and an LED seen by spectrometers
+of 1.5, 8 and 25 nm; the matched model must reproduce the blurred profile the camera sees."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib.core.arrays import FloatArray
+from calib.core.spectra import Spectrum, WavelengthGrid
+from calib.model.forward import lamp_operators
+from calib.model.resolution import (
+    RESOLUTION_FLOOR_NM,
+    blurred_spectrum,
+    common_resolution_nm,
+    wavelength_blur,
+)
+
+GRID = WavelengthGrid(400.0, 700.0, 10.0)
+FINE_NM = np.arange(300.0, 800.0, 0.05)
+NODES_NM = np.arange(400.0, 700.1, 10.0)
+SIGMA_PER_FWHM = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+
+
+def gaussian_blur(values: FloatArray, fwhm_nm: float) -> FloatArray:
+    sigma = fwhm_nm * SIGMA_PER_FWHM
+    half = int(5 * sigma / 0.05) + 1
+    offsets = np.arange(-half, half + 1) * 0.05
+    kernel = np.exp(-0.5 * (offsets / sigma) ** 2)
+    return np.convolve(values, kernel / kernel.sum(), mode="same")
+
+
+def line_lamp() -> FloatArray:
+    """Mercury-like lines 0.7 nm wide on a faint continuum."""
+    lines = sum(
+        height * np.exp(-0.5 * ((FINE_NM - centre) / 0.3) ** 2)
+        for centre, height in ((436.0, 1.0), (487.0, 0.5), (546.0, 1.0), (578.0, 0.6), (611.0, 0.8))
+    )
+    return np.asarray(lines + 0.02, dtype=np.float64)
+
+
+def led_lamp() -> FloatArray:
+    """A blue die and a broad phosphor."""
+    return np.asarray(
+        np.exp(-0.5 * ((FINE_NM - 450.0) / 12.0) ** 2)
+        + 0.5 * np.exp(-0.5 * ((FINE_NM - 570.0) / 50.0) ** 2),
+        dtype=np.float64,
+    )
+
+
+def response(wavelength_nm: FloatArray) -> FloatArray:
+    """A smooth camera-like response (η s) peaking at 540 nm."""
+    return np.asarray(np.exp(-0.5 * ((wavelength_nm - 540.0) / 35.0) ** 2), dtype=np.float64)
+
+
+def model_error(lamp: FloatArray, fwhm_nm: float, step_nm: float, corrected: bool) -> float:
+    """RMS over pixels (0.7 nm) of the matched model minus the truth ``G ⊗ (e r)``, over the peak."""
+    measured_nm = np.arange(380.0, 780.1, step_nm)
+    measured = Spectrum(measured_nm, np.interp(measured_nm, FINE_NM, gaussian_blur(lamp, fwhm_nm)))
+    target = common_resolution_nm(fwhm_nm, step_nm)
+    matched = blurred_spectrum(measured, fwhm_nm, target)
+    truth = gaussian_blur(lamp * response(FINE_NM), target)
+    edges = np.arange(400.0, 700.01, 0.7)
+    cumulative = np.concatenate([[0.0], np.cumsum(0.5 * (truth[1:] + truth[:-1]) * 0.05)])
+    exact = np.diff(np.interp(edges, FINE_NM, cumulative))
+    operators = lamp_operators(matched, GRID, slit_fwhm_nm=target if corrected else None)
+    model = operators.pixel_matrix(edges) @ response(NODES_NM)
+    return float(np.sqrt(np.mean((model - exact) ** 2)) / exact.max())
+
+
+@pytest.mark.parametrize("lamp", [line_lamp, led_lamp], ids=["lines", "led"])
+@pytest.mark.parametrize(
+    ("fwhm_nm", "step_nm", "tolerance"),
+    [(1.5, 0.38, 0.006), (8.0, 4.0, 0.006), (25.0, 10.0, 0.004)],
+)
+def test_matched_model_reproduces_the_blurred_profile(
+    lamp: object, fwhm_nm: float, step_nm: float, tolerance: float
+) -> None:
+    # The floor is the 1 nm fine axis' linear pieces (lines at 2.5 nm) and the 10 nm grid's
+    # piecewise-linear response: ~0.3–0.5 % of the peak whatever the slit.
+    spectrum = lamp()  # type: ignore[operator]
+    assert model_error(spectrum, fwhm_nm, step_nm, corrected=True) < tolerance
+
+
+@pytest.mark.parametrize("lamp", [line_lamp, led_lamp], ids=["lines", "led"])
+def test_first_order_model_fails_at_25_nm(lamp: object) -> None:
+    """Without the slit's second-order terms, ``r (e ⊗ G)`` misses ``G ⊗ (e r)`` by 1–2 % of the peak
+    at 25 nm — four times what the corrected model leaves."""
+    spectrum = lamp()  # type: ignore[operator]
+    old = model_error(spectrum, 25.0, 10.0, corrected=False)
+    new = model_error(spectrum, 25.0, 10.0, corrected=True)
+    assert old > 0.01
+    assert old > 3.0 * new
+
+
+def test_common_resolution_has_a_floor_and_respects_sampling() -> None:
+    assert common_resolution_nm(1.5, 0.38) == RESOLUTION_FLOOR_NM
+    assert common_resolution_nm(8.0, 4.0) == 8.0
+    assert common_resolution_nm(5.0, 4.0) == 8.0  # sampled coarser than half its bandwidth
+
+
+def test_blurred_spectrum_keeps_a_line_peak_between_samples() -> None:
+    """An 8 nm line sampled every 4 nm, its centre between two samples: the spline keeps the peak
+    within 5 %, where linear interpolation cuts it by a sixth."""
+    sampled_nm = np.arange(380.0, 780.1, 4.0)
+    sigma = 8.0 * SIGMA_PER_FWHM
+    values = np.exp(-0.5 * ((sampled_nm - 546.0) / sigma) ** 2)
+    matched = blurred_spectrum(Spectrum(sampled_nm, values), 8.0, 8.0)
+    assert matched.at(np.array([546.0]))[0] == pytest.approx(1.0, abs=0.05)
+    linear = Spectrum(sampled_nm, values).at(np.array([546.0]))[0]
+    assert linear < 0.86
+
+
+def test_wavelength_blur_keeps_its_width_in_nm_where_the_dispersion_changes() -> None:
+    """A line at each end of a profile whose dispersion changes by 20 %: the blurred line has the
+    slit's width in nm at both ends (a kernel in samples would give one end 20 % too wide)."""
+    pixel = np.arange(600, dtype=np.float64)
+    wavelength = 400.0 + 0.6 * pixel + 1.0e-4 * pixel**2  # 0.6 → 0.72 nm per sample
+    profile = np.zeros(pixel.size)
+    profile[[100, 500]] = 1.0
+    blurred = wavelength_blur(wavelength, 8.0) @ profile
+    for centre in (100, 500):
+        window = slice(centre - 60, centre + 61)
+        weights = blurred[window]
+        mean = np.sum(weights * wavelength[window]) / weights.sum()
+        width = np.sqrt(np.sum(weights * (wavelength[window] - mean) ** 2) / weights.sum())
+        assert width == pytest.approx(8.0 * SIGMA_PER_FWHM, rel=0.03)
+        assert weights.sum() == pytest.approx(1.0, rel=0.03)
+
+
+def test_a_slit_broader_than_10_nm_is_flagged_by_name() -> None:
+    from calib.core.observations import LampObservation
+    from calib.pipeline.estimate import input_flags
+
+    wavelength = np.arange(380.0, 781.0, 10.0)
+    pixel = np.arange(50, dtype=np.float64)
+
+    def lamp(bandwidth_nm: float | None) -> LampObservation:
+        return LampObservation(
+            name="LED-B3",
+            spectrum=Spectrum(wavelength, np.ones_like(wavelength)),
+            pixel=pixel,
+            profile=np.ones((pixel.size, 3)),
+            spectrum_bandwidth_nm=bandwidth_nm,
+        )
+
+    codes = {bw: [f.code for f in input_flags([lamp(bw)], image_input=False)] for bw in (8.0, 25.0)}
+    assert "coarse_spectrometer" not in codes[8.0]
+    assert "coarse_spectrometer" in codes[25.0]
+    (flag,) = [
+        f for f in input_flags([lamp(25.0)], image_input=False) if f.code == "coarse_spectrometer"
+    ]
+    assert "LED-B3 (25 nm)" in flag.message
+    assert "coarse_spectrometer" not in [
+        f.code for f in input_flags([lamp(None)], image_input=False)
+    ]
+
+
+def test_the_search_matches_in_samples_and_the_solves_in_wavelength() -> None:
+    """Without a mapping (the search) only the profile is blurred, by the stated slit in samples,
+    the measured spectrum kept; with one (the solves) both go to the common resolution."""
+    from calib.core.observations import LampObservation
+    from calib.model.resolution import match_spectrometer, matched_resolution_nm
+
+    measured_nm = np.arange(380.0, 781.0, 4.0)
+    spectrum = Spectrum(
+        measured_nm, np.interp(measured_nm, FINE_NM, gaussian_blur(led_lamp(), 8.0))
+    )
+    pixel = np.arange(400, dtype=np.float64)
+    wavelength = 400.0 + 0.75 * pixel
+    profile = np.zeros((pixel.size, 3))
+    profile[200] = 1.0
+    lamp = LampObservation(
+        name="LED-B3", spectrum=spectrum, pixel=pixel, profile=profile, spectrum_bandwidth_nm=1.5
+    )
+    search = match_spectrometer(lamp, 0.75)
+    assert search.spectrum is spectrum and search.spectrum_bandwidth_nm is None
+    assert matched_resolution_nm(search) is None  # no slit terms follow from it
+    solve = match_spectrometer(lamp, 0.75, wavelength_nm=wavelength)
+    assert matched_resolution_nm(solve) == common_resolution_nm(1.5, 4.0) == 8.0
+    assert float(np.median(np.diff(solve.spectrum.wavelength_nm))) == pytest.approx(0.25)
+    # the profile's line: 1.5 nm wide in the search (2 samples), 8 nm in the solve
+    spread = [float(np.sum(np.asarray(m.profile)[:, 0] > 0.01)) for m in (search, solve)]
+    assert spread[0] < spread[1]
