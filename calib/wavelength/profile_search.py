@@ -504,49 +504,145 @@ def _grating_points(
     return np.where(valid[:, None], points, np.nan), (len(focals), shifts.size, shifts.size)
 
 
-#: Scan of a grating seen from its 0th order with no rig knowledge: the wavelength at the
-#: profile's first pixel (nm) and the incidence (degrees); the focal lengths are
-#: :data:`UNKNOWN_FOCAL_LENGTHS_PX` (or the prior's).
-SPOT_FIRST_NM = tuple(float(v) for v in np.arange(300.0, 441.0, 5.0))
-SPOT_INCIDENCE_DEG = (-6.0, 0.0, 6.0)
+#: The physical scan of a grating seen from its 0th order (no start needed): the wavelengths at
+#: the profile's two ends over the range the result may take — the first pixel from
+#: ``PHYSICAL_FIRST_NM[0]`` below the working grid's start up to it, the last from the grid's stop
+#: up to ``PHYSICAL_LAST_NM[1]`` beyond it (a band the camera sees: silicon behind an IR filter) —
+#: at ``PHYSICAL_STEP_NM``, for each incidence of ``PHYSICAL_INCIDENCE_DEG`` (the focal length
+#: follows: with the 0th order pinned, two wavelengths and the incidence fix the grating). At
+#: fixed ends the incidence moves the profile's middle by ~0.1 nm per degree, so three suffice;
+#: the focal length scanned directly (a factor 1.5 per step) moved the red end by 70–100 nm.
+PHYSICAL_FIRST_NM = (100.0, 0.0)
+PHYSICAL_LAST_NM = (0.0, 300.0)
+PHYSICAL_STEP_NM = 10.0
+PHYSICAL_INCIDENCE_DEG = (-8.0, 0.0, 8.0)
+#: Around this many of the coarse scan's lowest distinct minima, the ends are scanned again
+#: (half width, step nm).
+PHYSICAL_FINE = (10.0, 2.5)
+PHYSICAL_MINIMA = 4
+#: The focal lengths (in units of the last pixel's distance from the axis) over which the
+#: incidence is solved for: far beyond any lens and sheet.
+_FOCAL_TABLE = np.geomspace(0.05, 200.0, 160)
 
 
-def _spot_points(
-    family: GratingFamily, pixel_range: tuple[float, float]
-) -> tuple[FloatArray, tuple[int, ...]]:
-    """Gratings for every (focal length, incidence, wavelength at the first pixel): with the 0th
-    order pinned, those fix the groove spacing (``d = λ₁ / (sin(θ + a₁) − sin θ)``)."""
-    soft = family.prior.soft()
+def _end_points(
+    family: GratingFamily,
+    pixel_range: tuple[float, float],
+    left_nm: FloatArray,
+    right_nm: FloatArray,
+    incidences_deg: Sequence[float],
+) -> FloatArray:
+    """Gratings through ``(left_nm, right_nm)`` at the profile's two ends (arrays of one shape) for
+    each incidence: shape ``(*left_nm.shape, len(incidences_deg), P)``, NaN where none exists.
+
+    With the 0th order at ``p₀``, two points fix the groove spacing and the incidence in closed
+    form for a focal length ``F`` (:func:`_grating_points`); the incidence rises monotonically with
+    ``F``, so for a wanted incidence ``F`` is interpolated (in ``log F``) on a table of focal
+    lengths and the closed form then gives the grating exactly through both ends. A held focal
+    length (the prior's σ = 0) gives one point per end pair whatever ``incidences_deg``.
+    """
     fixed = family.prior.fixed()
-    if "log_focal" in soft:
-        mean, sigma = soft["log_focal"]
-        focals = [math.exp(mean + k * sigma) for k in (-1.0, 0.0, 1.0)]
-    elif "log_focal" in fixed:
-        focals = [math.exp(fixed["log_focal"])]
-    else:
-        focals = list(UNKNOWN_FOCAL_LENGTHS_PX)
-    incidences = [fixed["incidence_deg"]] if "incidence_deg" in fixed else list(SPOT_INCIDENCE_DEG)
-    p0 = fixed["zero_order_px"]
+    p0 = fixed.get("zero_order_px", 0.0)
     offset = family.offset_guess
-    first_px = pixel_range[0] if family.orientation > 0 else pixel_range[1]
-    rows = []
-    for focal in focals:
-        along = family.orientation * (first_px - p0) + offset
-        angle = math.atan(along / focal) - math.atan(offset / focal)
-        for incidence in incidences:
-            theta = math.radians(incidence)
-            sine = math.sin(theta + angle) - math.sin(theta)
-            for first_nm in SPOT_FIRST_NM:
-                spacing = first_nm / sine if sine > 0 else float("nan")
-                full = {
-                    "zero_order_px": p0,
-                    "log_spacing": math.log(spacing) if spacing > 0 else float("nan"),
-                    "log_focal": math.log(focal),
-                    "incidence_deg": incidence,
-                    "axis_offset_px": offset,
-                }
-                rows.append([full[name] for name in family.names])
-    return np.array(rows), (len(focals), len(incidences), len(SPOT_FIRST_NM))
+    ends_px = np.array(pixel_range)
+    along = family.orientation * (ends_px - p0) + offset
+    left = np.asarray(left_nm, dtype=np.float64)[None, ...]
+    right = np.asarray(right_nm, dtype=np.float64)[None, ...]
+
+    def solve(focal: FloatArray) -> tuple[FloatArray, FloatArray]:
+        # focal: broadcastable against left/right with the table (or the incidences) in front.
+        angle_left = np.arctan(along[0] / focal) - np.arctan(offset / focal)
+        angle_right = np.arctan(along[1] / focal) - np.arctan(offset / focal)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = (left / right) * np.sin(angle_right / 2) / np.sin(angle_left / 2)
+            theta = np.arctan(
+                (np.cos(angle_left / 2) - q * np.cos(angle_right / 2))
+                / (np.sin(angle_left / 2) - q * np.sin(angle_right / 2))
+            )
+            spacing = right / (np.sin(theta + angle_right) - np.sin(theta))
+        return theta, spacing
+
+    if "log_focal" in fixed:
+        focal = np.full((1, *left.shape[1:]), math.exp(fixed["log_focal"]))
+    else:
+        extra = (1,) * (left.ndim - 1)
+        table = (abs(along[1]) * _FOCAL_TABLE).reshape(-1, *extra)
+        theta_table, _ = solve(table)
+        log_table = np.log(table) + np.zeros_like(theta_table)
+        rows = []
+        for incidence in incidences_deg:
+            below = theta_table - math.radians(incidence)
+            # The physical branch rises through the wanted incidence (arctan's wrap at ±90°
+            # falls).
+            crossing = (below[:-1] <= 0) & (below[1:] > 0)
+            found = np.any(crossing, axis=0)
+            k = np.argmax(crossing, axis=0)[None, ...]
+            b0 = np.take_along_axis(below, k, axis=0)
+            b1 = np.take_along_axis(below, k + 1, axis=0)
+            f0 = np.take_along_axis(log_table, k, axis=0)
+            f1 = np.take_along_axis(log_table, k + 1, axis=0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                log_focal = f0 + (f1 - f0) * (-b0) / (b1 - b0)
+            rows.append(np.where(found[None, ...], np.exp(log_focal), np.nan))
+        focal = np.concatenate(rows, axis=0)
+    theta, spacing = solve(focal)
+    ok = (
+        np.isfinite(theta)
+        & np.isfinite(spacing)
+        & (spacing > 0)
+        & (np.abs(theta) < math.radians(60.0))
+    )
+    full = {
+        "zero_order_px": np.full(theta.shape, p0),
+        "log_spacing": np.log(np.where(ok, spacing, 1.0)),
+        "log_focal": np.log(np.where(ok, focal, 1.0)),
+        "incidence_deg": np.degrees(theta),
+        "axis_offset_px": np.full(theta.shape, offset),
+    }
+    # (incidence, *ends) → (*ends, incidence, P)
+    stacked = np.stack([full[name] for name in family.names], axis=-1)
+    stacked = np.moveaxis(stacked, 0, -2)
+    return np.where(np.moveaxis(ok, 0, -1)[..., None], stacked, np.nan)
+
+
+def _physical_scan(
+    scan: StageFit, family: GratingFamily, pixel_range: tuple[float, float], grid: WavelengthGrid
+) -> tuple[list[tuple[FloatArray, tuple[int, ...]]], int]:
+    """Coarse to fine over the ends the result may take (:data:`PHYSICAL_FIRST_NM` …): the
+    coarse grid's lowest distinct minima, each with a fine grid around it (returned with the
+    coarse grid's evaluation count; the caller scans the fine grids)."""
+    step = PHYSICAL_STEP_NM
+    first = np.arange(
+        grid.start_nm - PHYSICAL_FIRST_NM[0],
+        grid.start_nm + PHYSICAL_FIRST_NM[1] + 0.5 * step,
+        step,
+    )
+    last = np.arange(
+        grid.stop_nm - PHYSICAL_LAST_NM[0], grid.stop_nm + PHYSICAL_LAST_NM[1] + 0.5 * step, step
+    )
+    if family.orientation < 0:
+        first, last = last, first
+    left, right = np.meshgrid(first, last, indexing="ij")
+    coarse = _end_points(family, pixel_range, left, right, PHYSICAL_INCIDENCE_DEG)
+    shape = coarse.shape[:-1]
+    points = coarse.reshape(-1, coarse.shape[-1])
+    costs = scan.costs(points)
+    half, fine_step = PHYSICAL_FINE
+    shifts = np.arange(-half, half + 0.5 * fine_step, fine_step)
+    grids: list[tuple[FloatArray, tuple[int, ...]]] = []
+    taken: list[tuple[float, float]] = []
+    for index in _local_minima(costs, shape):
+        i, j = np.unravel_index(index, shape)[:2]
+        centre = (float(left[i, j]), float(right[i, j]))
+        if any(abs(centre[0] - a) <= step and abs(centre[1] - b) <= step for a, b in taken):
+            continue
+        taken.append(centre)
+        fine_left, fine_right = np.meshgrid(centre[0] + shifts, centre[1] + shifts, indexing="ij")
+        fine = _end_points(family, pixel_range, fine_left, fine_right, PHYSICAL_INCIDENCE_DEG)
+        grids.append((fine.reshape(-1, fine.shape[-1]), fine.shape[:-1]))
+        if len(grids) == PHYSICAL_MINIMA:
+            break
+    return grids, points.shape[0]
 
 
 def _rig_known(family: GratingFamily) -> bool:
@@ -725,16 +821,17 @@ def search_profiles(
             # The rig gives the line density and focal length: scan the prior itself (a
             # correlation search's linear starts miss a strongly curved first order).
             grids = [_prior_points(family)]
+        elif "zero_order_px" in family.prior.fixed():
+            # The 0th order is at a known pixel: the physics leaves the wavelengths at the
+            # profile's ends and the incidence to scan, whatever the correlation search said
+            # (its starts were up to 110 nm off at the red end on validation cameras).
+            grids, count = _physical_scan(scan, family, pixel_range, grid)
+            evaluations += count
         else:
             same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
             grids = [
                 _grating_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
             ]
-            if "zero_order_px" in family.prior.fixed():
-                # The 0th order is at a known pixel: the physics leaves the wavelength at the
-                # profile's start, the focal length and the incidence to scan, whatever the
-                # correlation search said.
-                grids.append(_spot_points(family, pixel_range))
         for points, shape in grids:
             costs = scan.costs(points)
             evaluations += points.shape[0]
@@ -803,7 +900,6 @@ def search_profiles(
     # Basins that the finer fit merged are one.
     decided = _distinct(decided, pixel_range, MAX_BASINS)
     family, best = decided[0]
-
     # 3. Final: finer nodes, the stiff prior, the profile at ≤ FINAL_BIN_NM per sample.
     final_stage = stage(family, FINAL_BIN_NM, FINE_NODES_NM, FLEXIBILITY, 0.0)
     final = final_stage.refine(best.x, max_iterations=10, tolerance=1e-7, rounds=1)
