@@ -12,6 +12,10 @@ issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
 - **scans are batched**: a whole grid of trial mappings is one vectorised call on a binned profile,
   and every refinement is Levenberg–Marquardt with the exact Jacobian
   (:mod:`calib.wavelength.least_squares`);
+- **the scan covers what the mapping may be**: from the 0th order, the wavelengths at the
+  profile's ends over the whole range the result may take (coarse to fine, the focal length solved
+  for each incidence: :func:`_physical_scan`) besides the end grids around the correlation starts
+  (decision 0043);
 - **coarse to fine with few starts**: scan (binned, stiff prior) → the grid's local minima refined
   → distinct basins refined on a finer profile with a flexible response (which decides between
   them) → the best one refined with finer response nodes;
@@ -20,7 +24,9 @@ issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
   by their likelihood ratio (tempered by the fit's reduced χ², so a model misfit does not make one
   basin look certain) and, for broadband lamps alone, the camera prior's pull
   (:data:`PRIOR_MISFIT_SIGMA_NM`); when a competing basin's likelihood ratio passes
-  :data:`AMBIGUITY_DELTA_CHI2` the result says so, carries every candidate
+  :data:`AMBIGUITY_DELTA_CHI2` — or passes it with the profile not blurred to a measured lamp
+  spectrum's bandwidth (:func:`_unmatched_deltas`: the rig's spectrometer, not noise, can explain
+  such a difference) — the result says so, carries every candidate
   (:class:`MappingSearch`) and states a σ whose ±2σ reaches the competitor;
 - **either orientation**: for profiles whose origin is arbitrary, both directions (wavelength rising
   or falling with the pixel) are searched; a mapping that folds back is never returned.
@@ -522,9 +528,10 @@ def _grating_points(
 #: ``PHYSICAL_FIRST_NM[0]`` below the working grid's start up to it, the last from the grid's stop
 #: up to ``PHYSICAL_LAST_NM[1]`` beyond it (a band the camera sees: silicon behind an IR filter) —
 #: at ``PHYSICAL_STEP_NM``, for each incidence of ``PHYSICAL_INCIDENCE_DEG`` (the focal length
-#: follows: with the 0th order pinned, two wavelengths and the incidence fix the grating). At
-#: fixed ends the incidence moves the profile's middle by ~0.1 nm per degree, so three suffice;
-#: the focal length scanned directly (a factor 1.5 per step) moved the red end by 70–100 nm.
+#: follows: with the 0th order pinned, two wavelengths and the incidence fix the grating; the
+#: incidence, about the prior's mean, mostly moves the profile's middle). The focal length scanned
+#: directly (a factor 1.5 per step) moved the red end by 70–100 nm, and the scan missed the basin
+#: of two validation cameras (decision 0043). The scan's ±8° is ~1.6σ of the default prior.
 PHYSICAL_FIRST_NM = (100.0, 0.0)
 PHYSICAL_LAST_NM = (0.0, 300.0)
 PHYSICAL_STEP_NM = 10.0
