@@ -9,8 +9,8 @@ import pytest
 
 from calib.core.datasets import colour_science_cameras, find_camera
 from calib.core.errors import EstimationError
-from calib.core.lamp_specs import colour_lamp
-from calib.core.mapping import QuadraticMapping
+from calib.core.lamp_specs import colour_lamp, lamp_from_spec
+from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.metrics import mapping_relative_error
 from calib.core.observations import LampObservation, robust_noise_sigma
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
@@ -18,8 +18,11 @@ from calib.evaluation.synthetic import random_efficiency
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, pixel_edges, render_observation
 from calib.wavelength import find_mapping
-from calib.wavelength.profile_search import bin_pixels
+from calib.wavelength.families import GratingFamily, GratingPrior
+from calib.wavelength.locate import locate_mapping
+from calib.wavelength.profile_search import _end_points, bin_pixels
 from calib.wavelength.response_model import ResponseModel
+from calib.wavelength.rig_prior import default_prior
 
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
 
@@ -170,3 +173,53 @@ def test_a_camera_unlike_the_prior_does_not_pull_the_led_mapping_to_an_alias(sha
     inside = (truth >= 400) & (truth <= 700)
     error = mapping_relative_error(mapping.wavelength_nm(observation.pixel[inside]), truth[inside])
     assert error < 5e-3
+
+
+def test_the_physical_scan_draws_gratings_through_the_ends_it_asks_for():
+    """With the 0th order pinned, each (first, last wavelength, incidence) of the scan is one
+    grating through exactly those ends at that incidence (the focal length solved for), and the
+    scan's ends cover the working grid with a band the camera may see beyond it."""
+    family = GratingFamily(default_prior(True), orientation=1)
+    pixel_range = (308.0, 922.0)
+    left, right = np.meshgrid([381.1, 392.0], [737.8, 760.0], indexing="ij")
+    points = _end_points(family, pixel_range, left, right, (-8.0, 0.0, 7.4))
+    assert points.shape == (2, 2, 3, len(family.names))
+    assert np.all(np.isfinite(points))
+    for i, j, k in np.ndindex(2, 2, 3):
+        ends = family.wavelengths(np.array(pixel_range), points[i, j, k])
+        np.testing.assert_allclose(ends, [left[i, j], right[i, j]], atol=1e-6)
+        incidence = points[i, j, k, family.names.index("incidence_deg")]
+        assert incidence == pytest.approx((-8.0, 0.0, 7.4)[k], abs=0.1)
+    # A focal length held by the prior: one grating per pair of ends.
+    held = GratingFamily(
+        GratingPrior({"zero_order_px": (0.0, 0.0), "log_focal": (np.log(726.0), 0.0)}), 1
+    )
+    points = _end_points(held, pixel_range, left, right, (-8.0, 0.0, 8.0))
+    assert points.shape[2] == 1
+    np.testing.assert_allclose(
+        held.wavelengths(np.array(pixel_range), points[0, 0, 0]), [381.1, 737.8], atol=1e-6
+    )
+
+
+def test_a_short_lens_led_profile_from_the_spot_finds_its_basin(prior, camera):
+    """Validation's Pentax Q geometry (a 726 px focal length, 7.4° incidence, 990 lines/mm): the
+    correlation search's starts were 100 nm off at the red end and the old scan over focal
+    lengths a factor 1.5 apart landed 12 nm off; the scan over the ends reaches the truth."""
+    truth = TiltedGrating(1010.4 / 726.0, 726.0, 7.39)
+    pixel = np.arange(308.0, 923.0)
+    observation = render_observation(
+        lamp_from_spec("LED-B3"),
+        camera,
+        mapping=truth,
+        pixel=pixel,
+        noise=PeakFractionNoise(0.005),
+        rng=np.random.default_rng(5),
+        kind="led",
+    ).observation
+    observation = replace(observation, pixel_origin="direct_spot")
+    solution = locate_mapping([observation], prior, DEFAULT_GRID)
+    true_nm = truth.wavelength_nm(pixel)
+    inside = (true_nm >= 400) & (true_nm <= 700)
+    error = solution.mapping.wavelength_nm(pixel[inside]) - true_nm[inside]
+    assert solution.details["family"] == "grating"
+    assert np.max(np.abs(error)) < 2.0

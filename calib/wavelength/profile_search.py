@@ -12,6 +12,10 @@ issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
 - **scans are batched**: a whole grid of trial mappings is one vectorised call on a binned profile,
   and every refinement is Levenberg–Marquardt with the exact Jacobian
   (:mod:`calib.wavelength.least_squares`);
+- **the scan covers what the mapping may be**: from the 0th order, the wavelengths at the
+  profile's ends over the whole range the result may take (coarse to fine, the focal length solved
+  for each incidence: :func:`_physical_scan`) besides the end grids around the correlation starts
+  (decision 0043);
 - **coarse to fine with few starts**: scan (binned, stiff prior) → the grid's local minima refined
   → distinct basins refined on a finer profile with a flexible response (which decides between
   them) → the best one refined with finer response nodes;
@@ -20,7 +24,9 @@ issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
   by their likelihood ratio (tempered by the fit's reduced χ², so a model misfit does not make one
   basin look certain) and, for broadband lamps alone, the camera prior's pull
   (:data:`PRIOR_MISFIT_SIGMA_NM`); when a competing basin's likelihood ratio passes
-  :data:`AMBIGUITY_DELTA_CHI2` the result says so, carries every candidate
+  :data:`AMBIGUITY_DELTA_CHI2` — or passes it with the profile not blurred to a measured lamp
+  spectrum's bandwidth (:func:`_unmatched_deltas`: the rig's spectrometer, not noise, can explain
+  such a difference) — the result says so, carries every candidate
   (:class:`MappingSearch`) and states a σ whose ±2σ reaches the competitor;
 - **either orientation**: for profiles whose origin is arbitrary, both directions (wavelength rising
   or falling with the pixel) are searched; a mapping that folds back is never returned.
@@ -86,6 +92,9 @@ GLOBAL_SIGMA_FLOOR = 0.005
 #: curvature). At most this many starts per direction, at least a step apart, are scanned.
 QUADRATIC_SCAN = (24.0, 4.0)
 MAX_STARTS = 2
+#: At most this many distinct scan minima are refined (the physical family's scan has up to six
+#: grids; on the validation split 8 gave the answers of 24 at 0.9× the CPU).
+MAX_REFINED = 8
 #: Around each refined scan minimum, the ends are scanned again this finely (half width, step nm).
 LOCAL_SCAN = (6.0, 2.0)
 #: Grating family: the same end grid, for the prior's focal length (±1σ when it is loose) or,
@@ -133,6 +142,15 @@ class Candidate:
     delta_chi2: float
     weight: float
     distance_nm: float
+    unmatched_delta_chi2: float | None = None
+
+    @property
+    def closest_delta_chi2(self) -> float:
+        """The smaller of its tempered Δχ² and the one with the lamp spectrum's bandwidth left
+        unmatched (:func:`_unmatched_deltas`): what the rig's errors leave of its deficit."""
+        if self.unmatched_delta_chi2 is None:
+            return self.delta_chi2
+        return min(self.delta_chi2, self.unmatched_delta_chi2)
 
     def to_dict(self, pixel_range: tuple[float, float]) -> dict[str, Any]:
         probe = np.linspace(pixel_range[0], pixel_range[1], 5)
@@ -140,6 +158,7 @@ class Candidate:
             "mapping": self.mapping.to_dict(),
             "cost": self.cost,
             "delta_chi2": self.delta_chi2,
+            "unmatched_delta_chi2": self.unmatched_delta_chi2,
             "relative_likelihood": self.weight,
             "rms_distance_nm": self.distance_nm,
             "wavelength_at_pixels_nm": {
@@ -199,9 +218,9 @@ def basin_sigma(
     competing = [
         c
         for c in candidates[1:]
-        if c.delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
+        if c.closest_delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
     ]
-    other = min(competing, key=lambda c: c.delta_chi2) if competing else None
+    other = min(competing, key=lambda c: c.closest_delta_chi2) if competing else None
     if competing:
         stated = max(stated, 0.5 * max(c.distance_nm for c in competing))
     return BasinSigma(stated, spread, local_nm, scale_nm, misfit_nm, other)
@@ -504,49 +523,167 @@ def _grating_points(
     return np.where(valid[:, None], points, np.nan), (len(focals), shifts.size, shifts.size)
 
 
-#: Scan of a grating seen from its 0th order with no rig knowledge: the wavelength at the
-#: profile's first pixel (nm) and the incidence (degrees); the focal lengths are
-#: :data:`UNKNOWN_FOCAL_LENGTHS_PX` (or the prior's).
-SPOT_FIRST_NM = tuple(float(v) for v in np.arange(300.0, 441.0, 5.0))
-SPOT_INCIDENCE_DEG = (-6.0, 0.0, 6.0)
+#: The physical scan of a grating seen from its 0th order (no start needed): the wavelengths at
+#: the profile's two ends over the range the result may take — the first pixel from
+#: ``PHYSICAL_FIRST_NM[0]`` below the working grid's start up to it, the last from the grid's stop
+#: up to ``PHYSICAL_LAST_NM[1]`` beyond it (a band the camera sees: silicon behind an IR filter) —
+#: at ``PHYSICAL_STEP_NM``, for each incidence of ``PHYSICAL_INCIDENCE_DEG`` (the focal length
+#: follows: with the 0th order pinned, two wavelengths and the incidence fix the grating; the
+#: incidence, about the prior's mean, mostly moves the profile's middle). The focal length scanned
+#: directly (a factor 1.5 per step) moved the red end by 70–100 nm, and the scan missed the basin
+#: of two validation cameras (decision 0043). The scan's ±8° is ~1.6σ of the default prior.
+PHYSICAL_FIRST_NM = (100.0, 0.0)
+PHYSICAL_LAST_NM = (0.0, 300.0)
+PHYSICAL_STEP_NM = 10.0
+PHYSICAL_INCIDENCE_DEG = (-8.0, 0.0, 8.0)
+#: Around this many of the coarse scan's lowest distinct minima, the ends are scanned again
+#: (half width, step nm).
+PHYSICAL_FINE = (10.0, 2.5)
+PHYSICAL_MINIMA = 4
+#: The focal lengths (in units of the last pixel's distance from the axis) over which the
+#: incidence is solved for: far beyond any lens and sheet.
+_FOCAL_TABLE = np.geomspace(0.05, 200.0, 160)
 
 
-def _spot_points(
-    family: GratingFamily, pixel_range: tuple[float, float]
-) -> tuple[FloatArray, tuple[int, ...]]:
-    """Gratings for every (focal length, incidence, wavelength at the first pixel): with the 0th
-    order pinned, those fix the groove spacing (``d = λ₁ / (sin(θ + a₁) − sin θ)``)."""
-    soft = family.prior.soft()
+def _end_points(
+    family: GratingFamily,
+    pixel_range: tuple[float, float],
+    left_nm: FloatArray,
+    right_nm: FloatArray,
+    incidences_deg: Sequence[float],
+) -> FloatArray:
+    """Gratings through ``(left_nm, right_nm)`` at the profile's two ends (arrays of one shape) for
+    each incidence: shape ``(*left_nm.shape, len(incidences_deg), P)``, NaN where none exists.
+
+    With the 0th order at ``p₀``, two points fix the groove spacing and the incidence in closed
+    form for a focal length ``F`` (:func:`_grating_points`); the incidence rises monotonically with
+    ``F``, so for a wanted incidence ``F`` is interpolated (in ``log F``) on a table of focal
+    lengths and the closed form then gives the grating exactly through both ends. A held focal
+    length (the prior's σ = 0) gives one point per end pair whatever ``incidences_deg``.
+    """
     fixed = family.prior.fixed()
-    if "log_focal" in soft:
-        mean, sigma = soft["log_focal"]
-        focals = [math.exp(mean + k * sigma) for k in (-1.0, 0.0, 1.0)]
-    elif "log_focal" in fixed:
-        focals = [math.exp(fixed["log_focal"])]
-    else:
-        focals = list(UNKNOWN_FOCAL_LENGTHS_PX)
-    incidences = [fixed["incidence_deg"]] if "incidence_deg" in fixed else list(SPOT_INCIDENCE_DEG)
-    p0 = fixed["zero_order_px"]
+    p0 = fixed.get("zero_order_px", 0.0)
     offset = family.offset_guess
-    first_px = pixel_range[0] if family.orientation > 0 else pixel_range[1]
-    rows = []
-    for focal in focals:
-        along = family.orientation * (first_px - p0) + offset
-        angle = math.atan(along / focal) - math.atan(offset / focal)
-        for incidence in incidences:
-            theta = math.radians(incidence)
-            sine = math.sin(theta + angle) - math.sin(theta)
-            for first_nm in SPOT_FIRST_NM:
-                spacing = first_nm / sine if sine > 0 else float("nan")
-                full = {
-                    "zero_order_px": p0,
-                    "log_spacing": math.log(spacing) if spacing > 0 else float("nan"),
-                    "log_focal": math.log(focal),
-                    "incidence_deg": incidence,
-                    "axis_offset_px": offset,
-                }
-                rows.append([full[name] for name in family.names])
-    return np.array(rows), (len(focals), len(incidences), len(SPOT_FIRST_NM))
+    ends_px = np.array(pixel_range)
+    along = family.orientation * (ends_px - p0) + offset
+    left = np.asarray(left_nm, dtype=np.float64)[None, ...]
+    right = np.asarray(right_nm, dtype=np.float64)[None, ...]
+
+    def solve(focal: FloatArray) -> tuple[FloatArray, FloatArray]:
+        # focal: broadcastable against left/right with the table (or the incidences) in front.
+        angle_left = np.arctan(along[0] / focal) - np.arctan(offset / focal)
+        angle_right = np.arctan(along[1] / focal) - np.arctan(offset / focal)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = (left / right) * np.sin(angle_right / 2) / np.sin(angle_left / 2)
+            theta = np.arctan(
+                (np.cos(angle_left / 2) - q * np.cos(angle_right / 2))
+                / (np.sin(angle_left / 2) - q * np.sin(angle_right / 2))
+            )
+            spacing = right / (np.sin(theta + angle_right) - np.sin(theta))
+        return theta, spacing
+
+    if "log_focal" in fixed:
+        focal = np.full((1, *left.shape[1:]), math.exp(fixed["log_focal"]))
+    else:
+        extra = (1,) * (left.ndim - 1)
+        table = (abs(along[1]) * _FOCAL_TABLE).reshape(-1, *extra)
+        theta_table, _ = solve(table)
+        log_table = np.log(table) + np.zeros_like(theta_table)
+        rows = []
+        for incidence in incidences_deg:
+            below = theta_table - math.radians(incidence)
+            # The physical branch rises through the wanted incidence (arctan's wrap at ±90°
+            # falls).
+            crossing = (below[:-1] <= 0) & (below[1:] > 0)
+            found = np.any(crossing, axis=0)
+            k = np.argmax(crossing, axis=0)[None, ...]
+            b0 = np.take_along_axis(below, k, axis=0)
+            b1 = np.take_along_axis(below, k + 1, axis=0)
+            f0 = np.take_along_axis(log_table, k, axis=0)
+            f1 = np.take_along_axis(log_table, k + 1, axis=0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                log_focal = f0 + (f1 - f0) * (-b0) / (b1 - b0)
+            rows.append(np.where(found[None, ...], np.exp(log_focal), np.nan))
+        focal = np.concatenate(rows, axis=0)
+    theta, spacing = solve(focal)
+    ok = (
+        np.isfinite(theta)
+        & np.isfinite(spacing)
+        & (spacing > 0)
+        & (np.abs(theta) < math.radians(60.0))
+    )
+    full = {
+        "zero_order_px": np.full(theta.shape, p0),
+        "log_spacing": np.log(np.where(ok, spacing, 1.0)),
+        "log_focal": np.log(np.where(ok, focal, 1.0)),
+        "incidence_deg": np.degrees(theta),
+        "axis_offset_px": np.full(theta.shape, offset),
+    }
+    # (incidence, *ends) → (*ends, incidence, P)
+    stacked = np.stack([full[name] for name in family.names], axis=-1)
+    stacked = np.moveaxis(stacked, 0, -2)
+    return np.where(np.moveaxis(ok, 0, -1)[..., None], stacked, np.nan)
+
+
+def _start_points(
+    family: GratingFamily, start: QuadraticMapping, pixel_range: tuple[float, float]
+) -> tuple[FloatArray, tuple[int, ...]]:
+    """The end grid around a start (:data:`QUADRATIC_SCAN`) for each incidence of
+    :data:`PHYSICAL_INCIDENCE_DEG` about the prior's."""
+    half, step = QUADRATIC_SCAN
+    shifts = np.arange(-half, half + 0.5 * step, step)
+    ends = start.wavelength_nm(np.array(pixel_range))
+    left, right = np.meshgrid(ends[0] + shifts, ends[1] + shifts, indexing="ij")
+    mean = family.prior.values.get("incidence_deg", (0.0, 0.0))[0]
+    points = _end_points(
+        family, pixel_range, left, right, [mean + k for k in PHYSICAL_INCIDENCE_DEG]
+    )
+    return points.reshape(-1, points.shape[-1]), points.shape[:-1]
+
+
+def _physical_scan(
+    scan: StageFit, family: GratingFamily, pixel_range: tuple[float, float], grid: WavelengthGrid
+) -> tuple[list[tuple[FloatArray, tuple[int, ...]]], int]:
+    """Coarse to fine over the ends the result may take (:data:`PHYSICAL_FIRST_NM` …): the
+    coarse grid's lowest distinct minima, each with a fine grid around it (returned with the
+    coarse grid's evaluation count; the caller scans the fine grids)."""
+    step = PHYSICAL_STEP_NM
+    first = np.arange(
+        grid.start_nm - PHYSICAL_FIRST_NM[0],
+        grid.start_nm + PHYSICAL_FIRST_NM[1] + 0.5 * step,
+        step,
+    )
+    last = np.arange(
+        grid.stop_nm - PHYSICAL_LAST_NM[0], grid.stop_nm + PHYSICAL_LAST_NM[1] + 0.5 * step, step
+    )
+    if family.orientation < 0:
+        first, last = last, first
+    left, right = np.meshgrid(first, last, indexing="ij")
+    mean = family.prior.values.get("incidence_deg", (0.0, 0.0))[0]
+    coarse = _end_points(
+        family, pixel_range, left, right, [mean + k for k in PHYSICAL_INCIDENCE_DEG]
+    )
+    shape = coarse.shape[:-1]
+    points = coarse.reshape(-1, coarse.shape[-1])
+    costs = scan.costs(points)
+    half, fine_step = PHYSICAL_FINE
+    shifts = np.arange(-half, half + 0.5 * fine_step, fine_step)
+    grids: list[tuple[FloatArray, tuple[int, ...]]] = []
+    taken: list[tuple[float, float]] = []
+    for index in _local_minima(costs, shape):
+        i, j = np.unravel_index(index, shape)[:2]
+        centre = (float(left[i, j]), float(right[i, j]))
+        if any(abs(centre[0] - a) <= step and abs(centre[1] - b) <= step for a, b in taken):
+            continue
+        taken.append(centre)
+        fine_left, fine_right = np.meshgrid(centre[0] + shifts, centre[1] + shifts, indexing="ij")
+        fine = _end_points(
+            family, pixel_range, fine_left, fine_right, [mean + k for k in PHYSICAL_INCIDENCE_DEG]
+        )
+        grids.append((fine.reshape(-1, fine.shape[-1]), fine.shape[:-1]))
+        if len(grids) == PHYSICAL_MINIMA:
+            break
+    return grids, points.shape[0]
 
 
 def _rig_known(family: GratingFamily) -> bool:
@@ -677,6 +814,7 @@ def search_profiles(
     nm_per_px = dispersion * spacing
     # Before the spectra are matched to the camera's resolution (which drops their bandwidth).
     scale_nm = spectrometer_scale_sigma_nm(lamps)
+    measured = lamps
     lamps = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
 
     families: list[Family] = []
@@ -725,16 +863,22 @@ def search_profiles(
             # The rig gives the line density and focal length: scan the prior itself (a
             # correlation search's linear starts miss a strongly curved first order).
             grids = [_prior_points(family)]
+        elif "zero_order_px" in family.prior.fixed():
+            # The 0th order is at a known pixel: the physics leaves the wavelengths at the
+            # profile's ends and the incidence to scan. The correlation search's starts were up
+            # to 110 nm off at the red end on validation cameras: the scan over every end the
+            # result may take (coarse to fine) joins the end grids around them.
+            same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
+            grids, count = _physical_scan(scan, family, pixel_range, grid)
+            evaluations += count
+            grids = [
+                _start_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
+            ] + grids
         else:
             same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
             grids = [
                 _grating_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
             ]
-            if "zero_order_px" in family.prior.fixed():
-                # The 0th order is at a known pixel: the physics leaves the wavelength at the
-                # profile's start, the focal length and the incidence to scan, whatever the
-                # correlation search said.
-                grids.append(_spot_points(family, pixel_range))
         for points, shape in grids:
             costs = scan.costs(points)
             evaluations += points.shape[0]
@@ -756,7 +900,7 @@ def search_profiles(
             ):
                 continue
             kept.append(point)
-            if len(kept) == SCAN_MINIMA * len(grids):
+            if len(kept) == min(SCAN_MINIMA * len(grids), MAX_REFINED):
                 break
         for point in kept:
             solution = refining.refine(point, max_iterations=6, tolerance=1e-4, rounds=1)
@@ -803,7 +947,6 @@ def search_profiles(
     # Basins that the finer fit merged are one.
     decided = _distinct(decided, pixel_range, MAX_BASINS)
     family, best = decided[0]
-
     # 3. Final: finer nodes, the stiff prior, the profile at ≤ FINAL_BIN_NM per sample.
     final_stage = stage(family, FINAL_BIN_NM, FINE_NODES_NM, FLEXIBILITY, 0.0)
     final = final_stage.refine(best.x, max_iterations=10, tolerance=1e-7, rounds=1)
@@ -818,6 +961,17 @@ def search_profiles(
     temper = max(best_cost / deciding_rows, 1.0)
     probe = np.linspace(pixel_range[0], pixel_range[1], 64)
     exact_probe = exact.wavelength_nm(probe)
+    unmatched = _unmatched_deltas(
+        decided,
+        measured,
+        lamps,
+        grid=grid,
+        prior=prior,
+        nm_per_px=nm_per_px,
+        kernel=kernel,
+        local_flexibility=local_flexibility,
+        pixel_range=pixel_range,
+    )
     candidates_out = []
     for index, (basin_family, outcome) in enumerate(decided):
         delta = (outcome.cost - best_cost) / temper
@@ -830,6 +984,7 @@ def search_profiles(
                 float(delta),
                 float(math.exp(-0.5 * delta / BASIN_TEMPER)),
                 distance,
+                None if unmatched is None else unmatched[index],
             )
         )
     covariance = final.covariance()
@@ -850,11 +1005,17 @@ def search_profiles(
     warnings: list[str] = []
     if sigma.competing is not None:
         other = sigma.competing
+        how = f"tempered Δχ² {other.delta_chi2:.1f}"
+        if other.unmatched_delta_chi2 is not None and other.unmatched_delta_chi2 < other.delta_chi2:
+            how += (
+                f"; {other.unmatched_delta_chi2:.1f} with the profile not blurred to the lamp "
+                "spectrum's bandwidth, an approximation the spectrometer's slit forces"
+            )
         warnings.append(
             f"the mapping is ambiguous: a second basin {other.distance_nm:.1f} nm away (RMS) fits "
-            f"almost as well (tempered Δχ² {other.delta_chi2:.1f} < {ambiguity_delta_chi2:g}); both "
-            f"are in the result and the stated σ ({stated:.1f} nm) spans them. A fluorescent (line) "
-            "lamp shot in the same geometry decides it."
+            f"almost as well ({how}; ambiguous below {ambiguity_delta_chi2:g}); both are in the "
+            f"result and the stated σ ({stated:.1f} nm) spans them. A fluorescent (line) lamp shot "
+            "in the same geometry (or a lamp spectrum measured at a narrower bandwidth) decides it."
         )
     spread_nm = sigma.spread_nm
     details = {
@@ -891,6 +1052,65 @@ def search_profiles(
         warnings=tuple(warnings),
         details=details,
     )
+
+
+def _unmatched_deltas(
+    decided: Sequence[tuple[Family, Solution]],
+    measured: Sequence[LampObservation],
+    matched: Sequence[LampObservation],
+    *,
+    grid: WavelengthGrid,
+    prior: CameraPrior,
+    nm_per_px: float,
+    kernel: FloatArray | None,
+    local_flexibility: float,
+    pixel_range: tuple[float, float],
+) -> list[float] | None:
+    """Each basin's tempered Δχ² from the first with the profiles *not* blurred to the lamp
+    spectra's bandwidth, or ``None`` when no spectrum states one or there is one basin.
+
+    A spectrometer's slit blurs the lamp's spectrum; the search blurs the profile to match
+    (:func:`calib.model.resolution.match_spectrometer`), which is exact only where the camera's
+    response is flat over the bandwidth. Around an IR-cut edge it is not, and which basin wins can
+    hang on that approximation: on the validation split's LED-only scenes the two treatments put
+    every camera's mapping within 0.6 nm of each other except two (Nikon D300s, Canon 300D: a
+    different basin, 11–12 nm off, each right under one treatment). So a basin that wins, or
+    nearly, with the bandwidth left unmatched is within what the rig's spectrometer can explain:
+    its smaller Δχ² decides the ambiguity (:attr:`Candidate.closest_delta_chi2`). Each basin is
+    refined from its own point (a basin the refinement leaves is costed where it was).
+    """
+    if len(decided) < 2 or all(
+        a.metadata.get("profile_blurred_to_bandwidth_nm") is None for a in matched
+    ):
+        return None
+    costs = []
+    rows = 1
+    for index, (family, outcome) in enumerate(decided):
+        flexibility = local_flexibility if isinstance(family, QuadraticFamily) else FLEXIBILITY
+        stage = _stage(
+            measured,
+            family,
+            grid,
+            prior,
+            bin_nm=REFINE_BIN_NM,
+            nm_per_px=nm_per_px,
+            kernel=kernel,
+            node_step_nm=COARSE_NODES_NM,
+            flexibility=flexibility,
+            sigma_floor=0.0,
+            pixel_range=pixel_range,
+        )
+        refined = stage.refine(outcome.x, max_iterations=6, tolerance=1e-5, rounds=1)
+        probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+        moved = np.max(
+            np.abs(family.wavelengths(probe, refined.x) - family.wavelengths(probe, outcome.x))
+        )
+        x = refined.x if moved <= AMBIGUITY_MIN_DISTANCE_NM else outcome.x
+        costs.append(float(stage.costs(x[None])[0]))
+        if index == 0:
+            rows = max(refined.residual.size - refined.x.size, 1)
+    temper = max(costs[0] / rows, 1.0)
+    return [(cost - costs[0]) / temper for cost in costs]
 
 
 #: A direction whose best correlation start scores this far below the best one is not searched
