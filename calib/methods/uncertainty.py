@@ -155,6 +155,10 @@ class BudgetSettings:
     tolerance_sigma
         σ of the spectrometer's errors per unit of their stated tolerance (:data:`TOLERANCE_SIGMA`:
         the tolerance as one σ; :data:`IN_SPEC_TOLERANCE_SIGMA`: a bound, decision 0038).
+    record_components
+        Keep every component's σ ``(f, 3)`` in ``diagnostics["budget_components"]`` (the
+        validation run judges other tolerance σ and factors from them; off in the product: the
+        summary in ``quality.uncertainty`` is what a result carries).
     """
 
     wavelength_scale_nm: float = WAVELENGTH_SCALE_NM
@@ -165,6 +169,7 @@ class BudgetSettings:
     model_floor: float = MODEL_FLOOR
     reuse_solves: bool = True
     tolerance_sigma: float = TOLERANCE_SIGMA
+    record_components: bool = False
 
     def __post_init__(self) -> None:
         for item in fields(self):
@@ -177,6 +182,12 @@ class BudgetSettings:
         if method in table:
             return float(table[method])
         return max([DEFAULT_COVERAGE_SCALE, *table.values()])
+
+    def validated(self, method: str) -> bool:
+        """Whether ``method``'s factor was judged on the validation split (a tuning run's own
+        table, ``coverage_scale={}``, counts as judged: it is the judging)."""
+        table = COVERAGE_SCALE if self.coverage_scale is None else self.coverage_scale
+        return method in table or not table
 
 
 #: The budget :func:`calib.methods.estimate` applies by default.
@@ -442,6 +453,17 @@ def efficiency_mapping_sigma(result: EstimateResult) -> FloatArray | None:
     return np.asarray(np.abs(np.gradient(eta, result.wavelength_nm)) * float(rms), dtype=np.float64)
 
 
+def mapping_scale_sigma_nm(result: EstimateResult) -> float:
+    """The spectrometer wavelength-scale σ (nm) the result's mapping already states
+    (``details["spectrometer_scale_sigma_nm"]``: its lines or profile were placed by measured lamp
+    spectra), else 0."""
+    mapping = result.mapping
+    if not isinstance(mapping, QuadraticMapping):
+        return 0.0
+    value = mapping.details.get("spectrometer_scale_sigma_nm")
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else 0.0
+
+
 def _lamps(observations: Sequence[object]) -> list[LampObservation]:
     return [item for item in observations if isinstance(item, LampObservation)]
 
@@ -461,7 +483,18 @@ def spectrometer_sigma(
         for lamp in observations
     ]
     shift = max(scales)
-    scale_solve = rerun([shifted(lamp, shift) for lamp in observations])
+    carried = mapping_scale_sigma_nm(result)
+    solves: dict[str, EstimateResult] = {}
+    if carried > 0:
+        # The mapping was placed by these spectra: a scale error moves it with them, so the curves
+        # move along the wavelength axis — the mapping component (its σ holds the scale); a
+        # re-solve against the fixed mapping would count it again (decision 0044).
+        notes.append(
+            f"spectrometer scale: in the mapping's σ ({carried:.3g} nm; the mapping follows "
+            "the lamp spectra's wavelength scale)"
+        )
+    else:
+        solves["spectrometer scale"] = rerun([shifted(lamp, shift) for lamp in observations])
     missing = [lamp.name for lamp in observations if lamp.spectrum_bandwidth_nm is None]
     if missing:
         flags.append(
@@ -481,9 +514,11 @@ def spectrometer_sigma(
         )
         for lamp in observations
     ]
-    bandwidth_solve = rerun(widened)
+    solves["spectrometer bandwidth"] = rerun(widened)
     notes.append(
-        f"spectrometer: scale ±{shift:g} nm, bandwidth "
+        "spectrometer: "
+        + ("" if carried > 0 else f"scale ±{shift:g} nm, ")
+        + "bandwidth "
         + (
             f"{settings.assumed_bandwidth_nm:g} nm assumed"
             if missing
@@ -491,7 +526,6 @@ def spectrometer_sigma(
         )
         + f" (σ = {settings.tolerance_sigma:.3g} × tolerance)"
     )
-    solves = {"spectrometer scale": scale_solve, "spectrometer bandwidth": bandwidth_solve}
     # A stated tolerance bounds an in-spec instrument: σ = tolerance_sigma × the re-solve's change
     # (an assumed bandwidth is not a tolerance: its change stands as one σ).
     factors = {
@@ -527,6 +561,30 @@ def misfit_flag(chi2: float | None, floor: float = MODEL_FLOOR) -> QualityFlag |
         f"reduced χ² = {chi2:.3g}{judged}: the model does not describe the data (σ inflated by "
         f"√χ² = {math.sqrt(chi2):.3g}); check the profiles, the mapping and the lamp spectra",
         severity,
+    )
+
+
+def grating_sigma_flag(result: EstimateResult) -> QualityFlag | None:
+    """What no σ component holds of a given η: ``flat_grating_assumed`` when the solve assumed a
+    flat grating (``diagnostics["grating"]`` says so, whichever path chose it), and
+    ``grating_sigma_missing`` when η was given as a file that states no σ (a maker's catalogue
+    curve, a file without ``efficiency_sigma``): how far this grating is from that curve is in
+    the error and in no σ component."""
+    given = result.diagnostics.get("grating")
+    if isinstance(given, str) and given.startswith("flat"):
+        return QualityFlag(
+            "flat_grating_assumed",
+            "no direct measurement and no grating file: a flat grating efficiency was assumed, "
+            "so the sensitivity carries the grating's own efficiency as an error, which the ±2σ "
+            "band does not hold",
+        )
+    if not isinstance(given, Mapping) or result.grating_efficiency_sigma is not None:
+        return None
+    return QualityFlag(
+        "grating_sigma_missing",
+        f"the grating efficiency {given.get('source', 'given')!r} states no σ: its departure from "
+        "this grating's true efficiency is not in the ±2σ band (measure the grating with the "
+        "rig, or give efficiency_sigma in the grating file)",
     )
 
 
@@ -582,6 +640,17 @@ def uncertainty_budget(
             eta_components["mapping"] = eta_mapping
     if (flag := misfit_flag(chi2, settings.model_floor)) is not None:
         flags.append(flag)
+    if not settings.validated(result.method):
+        flags.append(
+            QualityFlag(
+                "uncertainty_unvalidated",
+                f"the ±2σ band of method {result.method!r} was never judged on the validation "
+                f"split: it is the named σ × {settings.scale_for(result.method):.3g} (the "
+                "largest validated factor), and how often it holds the truth is not known",
+            )
+        )
+    if (flag := grating_sigma_flag(result)) is not None:
+        flags.append(flag)
     if basis is not None:
         components["basis"] = basis_misfit_sigma(basis)
     components["mapping"], note = mapping_sigma(result)
@@ -624,11 +693,16 @@ def uncertainty_budget(
     )
 
 
-def with_budget(result: EstimateResult, budget: UncertaintyBudget) -> EstimateResult:
+def with_budget(
+    result: EstimateResult, budget: UncertaintyBudget, *, record_components: bool = False
+) -> EstimateResult:
     """``result`` stating the budget's σ (on its own scale), the method's σ kept in
-    ``diagnostics["method_sigma"]``, the summary in ``quality.uncertainty`` and its flags."""
+    ``diagnostics["method_sigma"]``, the summary in ``quality.uncertainty`` and its flags; with
+    ``record_components`` every component's σ in ``diagnostics["budget_components"]``."""
     peak = float(np.clip(result.sensitivity, 0.0, None).max())
     diagnostics = {**result.diagnostics, "method_sigma": result.sensitivity_sigma}
+    if record_components:
+        diagnostics["budget_components"] = dict(budget.components)
     eta_sigma = budget.efficiency_total
     if eta_sigma is not None:
         diagnostics["method_efficiency_sigma"] = result.grating_efficiency_sigma
