@@ -134,7 +134,9 @@ def test_a_stated_tolerance_is_a_bound_not_one_sigma(
         settings = BudgetSettings(tolerance_sigma=tolerance_sigma)
         return dict(uncertainty_budget(result, lamps, rerun=rerun, settings=settings).components)
 
-    assert TOLERANCE_SIGMA == 1.0 and math.isclose(IN_SPEC_TOLERANCE_SIGMA * math.sqrt(3), 1.0)
+    # decision 0044: the bound is the default
+    assert TOLERANCE_SIGMA == IN_SPEC_TOLERANCE_SIGMA
+    assert math.isclose(IN_SPEC_TOLERANCE_SIGMA * math.sqrt(3), 1.0)
     bound, in_spec = components(stated, 1.0), components(stated, IN_SPEC_TOLERANCE_SIGMA)
     for name in ("spectrometer scale", "spectrometer bandwidth"):
         assert np.sqrt(np.mean(bound[name] ** 2)) > 0
@@ -332,10 +334,10 @@ def test_a_given_grating_without_sigma_is_flagged() -> None:
     def codes(grating: object, sigma: list[float] | None) -> set[str]:
         result = EstimateResult(
             "known-grating",
-            [400, 500, 600],
-            [[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]],
-            grating_efficiency=[0.5, 1.0, 0.8],
-            grating_efficiency_sigma=sigma,
+            np.array([400.0, 500.0, 600.0]),
+            np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
+            grating_efficiency=np.array([0.5, 1.0, 0.8]),
+            grating_efficiency_sigma=None if sigma is None else np.array(sigma),
             diagnostics={"grating": grating},
         )
         budget = uncertainty_budget(result, [], settings=BudgetSettings(perturb=False))

@@ -34,7 +34,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
-from calib.methods.uncertainty import IN_SPEC_TOLERANCE_SIGMA, TOLERANCE_SIGMA, BudgetSettings
+from calib.methods.uncertainty import IN_SPEC_TOLERANCE_SIGMA, BudgetSettings
 
 #: The mean ±2σ coverage the factor aims at on the validation split.
 TARGET_COVERAGE = 0.95
@@ -217,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, default=0, help="first N cameras only (smoke)")
     parser.add_argument(
         "--tolerance-sigma",
-        default=f"{TOLERANCE_SIGMA:g},{IN_SPEC_TOLERANCE_SIGMA:.4g}",
+        default=f"1,{IN_SPEC_TOLERANCE_SIGMA:.4g}",
         help="comma-separated σ per unit of the spectrometer tolerances to judge (one run)",
     )
     parser.add_argument("--save", default=None, help="write the records to this .npz")
