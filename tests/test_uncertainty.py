@@ -32,6 +32,7 @@ from calib.methods.uncertainty import (
     BudgetSettings,
     basis_support_nm,
     check_grid_within_basis,
+    efficiency_family,
     floored_reduced_chi2,
     misfit_flag,
     reduced_chi2,
@@ -368,3 +369,35 @@ def test_validation_records_judge_any_tolerance_sigma() -> None:
     assert list(ratios) == ["prior"] and len(ratios["prior"]) == 2
     shares = component_shares([stated], 1.0)
     assert sum(v for k, v in shares.items() if k != "sigma/error (median)") == pytest.approx(1.0)
+
+
+def test_the_factor_is_judged_per_eta_family() -> None:
+    """Decision 0044: a physical η and a Fourier fallback leave different shares unexplained; the
+    factor is looked up as ``method:family``, then ``method``, then the largest."""
+    table = {"prior": 1.8, "prior:physical": 1.0, "prior:fourier": 2.8, "makabe2025": 4.5}
+    settings = BudgetSettings(coverage_scale=table)
+    assert settings.scale_for("prior", "physical") == 1.0
+    assert settings.scale_for("prior", "fourier") == 2.8
+    assert settings.scale_for("prior", None) == 1.8
+    assert settings.scale_for("multilamp", "physical") == 4.5  # never validated: the largest
+    assert settings.validated("prior", "physical") and not settings.validated("multilamp", None)
+
+    def family(model: object) -> str | None:
+        result = EstimateResult(
+            "prior",
+            np.array([400.0, 500.0]),
+            np.ones((2, 3)),
+            diagnostics={"efficiency_model": model},
+        )
+        return efficiency_family(result)
+
+    assert [family(m) for m in ("sinusoidal", "blazed", "fourier", "inverse", None)] == [
+        "physical",
+        "physical",
+        "fourier",
+        "fourier",
+        None,
+    ]
+    record = EstimateRecord("prior", "LED+FL", np.zeros(2), {}, family="physical")
+    assert record.key == "prior:physical"
+    assert set(ratios_by_method([record], 1.0)) == {"prior", "prior:physical"}

@@ -34,7 +34,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
-from calib.methods.uncertainty import IN_SPEC_TOLERANCE_SIGMA, BudgetSettings
+from calib.methods.uncertainty import IN_SPEC_TOLERANCE_SIGMA, BudgetSettings, efficiency_family
 
 #: The mean ±2σ coverage the factor aims at on the validation split.
 TARGET_COVERAGE = 0.95
@@ -64,6 +64,8 @@ class EstimateRecord:
         Component name → σ (at ``tolerance_sigma`` = 1).
     assumed_bandwidth
         No bandwidth was given (its component is not a tolerance and does not scale).
+    family
+        The η model's family (:func:`calib.methods.uncertainty.efficiency_family`), or ``None``.
     """
 
     method: str
@@ -71,6 +73,12 @@ class EstimateRecord:
     error: FloatArray
     components: Mapping[str, FloatArray]
     assumed_bandwidth: bool = False
+    family: str | None = None
+
+    @property
+    def key(self) -> str:
+        """The factor's key in :data:`calib.methods.uncertainty.COVERAGE_SCALE`."""
+        return self.method if self.family is None else f"{self.method}:{self.family}"
 
     def named(self, tolerance_sigma: float = 1.0) -> FloatArray:
         """The components' quadrature sum with the spectrometer tolerances as ``tolerance_sigma``."""
@@ -122,7 +130,16 @@ def task_records(task: Task) -> list[EstimateRecord]:
             for name, sigma in result.diagnostics["budget_components"].items()
         }
         assumed = any(flag.code == "no_spectrometer_bandwidth" for flag in result.quality.flags)
-        out.append(EstimateRecord(result.method, variant.label, error, components, assumed))
+        out.append(
+            EstimateRecord(
+                result.method,
+                variant.label,
+                error,
+                components,
+                assumed,
+                efficiency_family(result),
+            )
+        )
     return out
 
 
@@ -171,10 +188,14 @@ def validation_records(
 def ratios_by_method(
     records: Sequence[EstimateRecord], tolerance_sigma: float
 ) -> dict[str, list[FloatArray]]:
-    """Registry method → every record's error/σ ratios at factor 1 and ``tolerance_sigma``."""
+    """Factor key → every record's error/σ ratios at factor 1 and ``tolerance_sigma``: each
+    registry method pooled (for results that record no η model) and per ``method:η family``."""
     gathered: dict[str, list[FloatArray]] = {}
     for record in records:
-        gathered.setdefault(record.method, []).append(record.ratio(tolerance_sigma))
+        ratio = record.ratio(tolerance_sigma)
+        gathered.setdefault(record.method, []).append(ratio)
+        if record.family is not None:
+            gathered.setdefault(record.key, []).append(ratio)
     return gathered
 
 
@@ -231,7 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.save:
         arrays: dict[str, Any] = {}
         for i, record in enumerate(records):
-            key = f"{i}__{record.method}__{record.variant}__{int(record.assumed_bandwidth)}"
+            key = f"{i}__{record.key}__{record.variant}__{int(record.assumed_bandwidth)}"
             arrays[f"{key}__error"] = record.error
             for name, sigma in record.components.items():
                 arrays[f"{key}__{name}"] = sigma
@@ -252,8 +273,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         for variant in sorted({record.variant for record in records}):
             chosen = [r for r in records if r.variant == variant]
             at_one = coverage_at([r.ratio(tolerance_sigma) for r in chosen], 1.0)
-            fitted = coverage_at(
-                [r.ratio(tolerance_sigma) for r in chosen], scales[chosen[0].method]
+            fitted = float(
+                np.mean(
+                    [np.mean(r.ratio(tolerance_sigma) <= WIDTH * scales[r.key]) for r in chosen]
+                )
             )
             shares = component_shares(chosen, tolerance_sigma)
             print(
