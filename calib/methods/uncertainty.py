@@ -23,7 +23,9 @@ and channel, on the delivered curves' scale (maximum 1):
     re-derived here) through the curves' slope: ``|∂s/∂λ| σ_λ``.
 ``spectrometer scale`` and ``spectrometer bandwidth``
     By perturbation: the method re-solved (with its mapping fixed, so only the solve runs) with every
-    lamp spectrum shifted by the spectrometer's wavelength-scale tolerance, and with the stated slit
+    lamp spectrum shifted by the spectrometer's wavelength-scale tolerance (only when the mapping's
+    σ does not already hold that scale: a mapping placed by the spectra moves with them, decision
+    0044), and with the stated slit
     bandwidth changed by its tolerance (or, when none was given, a typical one assumed; quality code
     ``no_spectrometer_bandwidth``).
 ``efficiency model``
@@ -31,8 +33,9 @@ and channel, on the delivered curves' scale (maximum 1):
     efficiency's Fourier model — how much the answer leans on the η model's form.
 ``unexplained``
     What the above leave out, judged on the validation split only (:data:`COVERAGE_SCALE`): the
-    quadrature sum of the components is multiplied by a per-method factor so that the ±2σ band
-    covers ~95 % of the validation cameras' truth. Its share is recorded, so a user sees how much of
+    quadrature sum of the components is multiplied by a factor per method and family of its η
+    model (:func:`efficiency_family`) so that the ±2σ band covers ~95 % of the validation
+    cameras' truth. Its share is recorded, so a user sees how much of
     the band is named and how much is the empirical factor.
 
 The grating efficiency ``η`` (maximum 1) gets its budget the same way, from the same re-solves

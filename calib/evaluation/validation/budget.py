@@ -1,14 +1,15 @@
 """Judge the σ budget's coverage factor on the validation split (and nowhere else).
 
 :mod:`calib.methods.uncertainty` names what limits an estimate; what it leaves out is covered by one
-factor per method (:data:`calib.methods.uncertainty.COVERAGE_SCALE`). This module chooses it: every
-validation camera's scene is estimated with the factor 1, each estimate's errors are divided by its
-named σ, and the factor is the smallest that brings the mean ±2σ coverage to the target. The split
+factor per method and η family (:data:`calib.methods.uncertainty.COVERAGE_SCALE`). This module
+chooses it: every validation camera's scene is estimated with the factor 1 and the tolerances as one
+σ, each estimate's error and named σ components are kept (:class:`EstimateRecord`), and for each
+tolerance σ asked for, the factor is the smallest that brings the mean ±2σ coverage to the target. The split
 must be the validation split (:func:`~calib.evaluation.validation.splits.require_validation`); the
 test split and the real data are only ever reported.
 
 Run it with ``python -m calib.evaluation.validation.budget --data-dir DIR [--jobs 2]``; the factors
-it prints are what ``COVERAGE_SCALE`` holds (with the command, in decision 0029).
+it prints are what ``COVERAGE_SCALE`` holds (with the command, in decisions 0029 and 0044).
 """
 
 from __future__ import annotations
