@@ -62,11 +62,24 @@ def scores(result: EstimateResult, truth: FloatArray, *, per_channel: bool = Fal
     difference = factor * estimate_curves - target
     rms = math.sqrt(float(np.mean(difference**2)))
     coverage = float(np.mean(np.abs(difference) <= 2 * factor * sigma))
-    share = result.quality.uncertainty.get("share_of_variance", {})
+    budget = result.quality.uncertainty
+    share = budget.get("share_of_variance", {})
     biggest = max(share, key=share.get) if share else "—"
+    # The named components alone (without the validation-fitted factor): what the band would be
+    # if the method's factor were 1 — the real data say whether the factor or a component is short.
+    scale = float(budget.get("coverage_scale", 1.0) or 1.0)
+    named = float(np.mean(np.abs(difference) <= 2 * factor * sigma / scale))
+    error_rms = rms if rms > 0 else math.nan
+    sigma_ratio = math.sqrt(float(np.mean((factor * sigma) ** 2))) / error_rms
+    chi2 = budget.get("reduced_chi2")
+    components = ", ".join(
+        f"{name} {factor * value / error_rms:.2f}" for name, value in budget.get("rms", {}).items()
+    )
     return (
-        f"RMS {rms:.4f}, ±2σ coverage {100 * coverage:.0f} %, verdict {result.quality.verdict}, "
-        f"largest σ share: {biggest}"
+        f"RMS {rms:.4f}, ±2σ coverage {100 * coverage:.0f} % (named components alone "
+        f"{100 * named:.0f} %, factor {scale:.2f}), σ/err {sigma_ratio:.2f}, reduced χ² "
+        f"{'—' if chi2 is None else f'{chi2:.3g}'}, verdict {result.quality.verdict}, largest σ "
+        f"share: {biggest}\n    σ component RMS / error RMS: {components}"
     )
 
 

@@ -211,6 +211,12 @@ def main() -> None:
         help="each camera's station its own seed (config seed + its index): its own spectrometer "
         "draw and noise; default: the config's seed for all",
     )
+    parser.add_argument(
+        "--camera",
+        action="append",
+        default=None,
+        help="only this camera of the split(s) (repeatable; a quick look, not a table)",
+    )
     args = parser.parse_args()
     floors = [float(item) for item in args.floors.split(",")]
     cameras: list[tuple[str, str, str]] = []
@@ -220,6 +226,8 @@ def main() -> None:
         cameras += [("test", name, coll) for name, coll in TEST]
         if args.data_dir is not None:
             cameras += [("test", name, coll) for name, coll in TEST_WITH_DATA]
+    if args.camera:
+        cameras = [item for item in cameras if item[1] in args.camera]
     base = load_config(args.config)
     rows: list[Row] = []
     with tempfile.TemporaryDirectory() as scratch:

@@ -447,7 +447,10 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json"])
     assert code == 0, stderr
     summary = json.loads(stdout)
-    assert summary["method"] == "known-grating" and _flag_codes(summary) == EXPECTED_FLAGS
+    # and (decision 0044) the known-grating band was never validated, the file states no σ
+    unvalidated = {"uncertainty_unvalidated", "grating_sigma_missing"}
+    assert summary["method"] == "known-grating"
+    assert _flag_codes(summary) == EXPECTED_FLAGS | unvalidated
     assert summary["uncertainty"] is True
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     truth = capture.truth

@@ -17,7 +17,13 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, Quality, QualityFlag
 from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
-from calib.evaluation.validation.budget import coverage_at, fit_scale
+from calib.evaluation.validation.budget import (
+    EstimateRecord,
+    component_shares,
+    coverage_at,
+    fit_scale,
+    ratios_by_method,
+)
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
     COMPONENTS,
@@ -26,6 +32,7 @@ from calib.methods.uncertainty import (
     BudgetSettings,
     basis_support_nm,
     check_grid_within_basis,
+    efficiency_family,
     floored_reduced_chi2,
     misfit_flag,
     reduced_chi2,
@@ -128,7 +135,9 @@ def test_a_stated_tolerance_is_a_bound_not_one_sigma(
         settings = BudgetSettings(tolerance_sigma=tolerance_sigma)
         return dict(uncertainty_budget(result, lamps, rerun=rerun, settings=settings).components)
 
-    assert TOLERANCE_SIGMA == 1.0 and math.isclose(IN_SPEC_TOLERANCE_SIGMA * math.sqrt(3), 1.0)
+    # decision 0044: the bound is the default
+    assert TOLERANCE_SIGMA == IN_SPEC_TOLERANCE_SIGMA
+    assert math.isclose(IN_SPEC_TOLERANCE_SIGMA * math.sqrt(3), 1.0)
     bound, in_spec = components(stated, 1.0), components(stated, IN_SPEC_TOLERANCE_SIGMA)
     for name in ("spectrometer scale", "spectrometer bandwidth"):
         assert np.sqrt(np.mean(bound[name] ** 2)) > 0
@@ -155,7 +164,7 @@ def test_the_fallback_basis_is_flagged(camera: MultiSpectrum, basis: CameraBasis
 
 def test_reduced_chi2_inflates_and_warns() -> None:
     result = EstimateResult(
-        "demo",
+        "prior",
         np.array([400.0, 500.0, 600.0]),
         np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
         sensitivity_sigma=np.full((3, 3), 0.01),
@@ -282,3 +291,119 @@ def test_the_coverage_factor_reaches_its_target() -> None:
     factor = fit_scale(ratios, 0.9)
     assert coverage_at(ratios, factor) >= 0.9 > coverage_at(ratios, factor * 0.97)
     assert fit_scale([np.full(10, 0.1)], 0.95) == 1.0  # never shrinks a band
+
+
+def test_a_mapping_placed_by_the_spectra_carries_their_scale_once(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0044: when the mapping was placed by the measured spectra (its σ holds their
+    scale), a scale error moves mapping and spectra together; the budget's mapping component
+    states it and no fixed-mapping re-solve counts it again."""
+    lamps = [_lamp("LED-B3", camera)]
+    carried = TRUTH.with_details(
+        wavelength_rms_nm=0.3, details={"spectrometer_scale_sigma_nm": 0.29}
+    )
+
+    def budget(mapping: QuadraticMapping) -> Any:
+        result = estimate(lamps, "prior", basis=basis, mapping=mapping, budget=None)
+
+        def rerun(observations: list[LampObservation], **changes: Any) -> EstimateResult:
+            return estimate(
+                observations, "prior", basis=basis, mapping=mapping, budget=None, **changes
+            )
+
+        return uncertainty_budget(result, lamps, rerun=rerun, settings=BudgetSettings())
+
+    separate, once = budget(TRUTH), budget(carried)
+    assert "spectrometer scale" in separate.components
+    assert "spectrometer scale" not in once.components
+    assert any("in the mapping's σ" in note for note in once.notes)
+    assert np.sqrt(np.mean(once.components["mapping"] ** 2)) > 0
+    np.testing.assert_allclose(
+        once.components["spectrometer bandwidth"], separate.components["spectrometer bandwidth"]
+    )
+
+
+def test_a_method_never_validated_says_so(camera: MultiSpectrum, basis: CameraBasis) -> None:
+    lamps = [_lamp("LED-B3", camera)]
+
+    def codes(table: dict[str, float]) -> set[str]:
+        settings = BudgetSettings(perturb=False, coverage_scale=table)
+        result = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=settings)
+        return {flag.code for flag in result.quality.flags}
+
+    assert "uncertainty_unvalidated" in codes({"multilamp": 1.0, "makabe2025": 3.0})
+    assert "uncertainty_unvalidated" not in codes({"prior": 1.5})
+    assert "uncertainty_unvalidated" not in codes({})  # the validation run itself
+
+
+def test_a_given_grating_without_sigma_is_flagged() -> None:
+    def codes(grating: object, sigma: list[float] | None) -> set[str]:
+        result = EstimateResult(
+            "known-grating",
+            np.array([400.0, 500.0, 600.0]),
+            np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
+            grating_efficiency=np.array([0.5, 1.0, 0.8]),
+            grating_efficiency_sigma=None if sigma is None else np.array(sigma),
+            diagnostics={"grating": grating},
+        )
+        budget = uncertainty_budget(result, [], settings=BudgetSettings(perturb=False))
+        return {flag.code for flag in budget.flags}
+
+    assert "grating_sigma_missing" in codes({"source": "maker's curve"}, None)
+    assert "grating_sigma_missing" not in codes({"source": "measured"}, [0.01, 0.01, 0.01])
+    assert "flat_grating_assumed" in codes("flat (assumed)", None)
+    assert not {"grating_sigma_missing", "flat_grating_assumed"} & codes(None, None)
+
+
+def test_validation_records_judge_any_tolerance_sigma() -> None:
+    """One validation run judges both readings of a tolerance: the spectrometer components scale
+    with it, an assumed bandwidth (no tolerance) does not."""
+    error = np.array([0.0, 0.3, 0.4, 1.0])
+    components = {
+        "basis": np.array([0.1, 0.1, 0.3, 0.0]),
+        "spectrometer scale": np.array([0.0, 0.4, 0.4, 1.0]),
+        "spectrometer bandwidth": np.array([0.0, 0.0, 0.0, 1.0]),
+    }
+    stated = EstimateRecord("prior", "LED+FL", error, components)
+    assumed = EstimateRecord("prior", "LED+FL", error, components, assumed_bandwidth=True)
+    np.testing.assert_allclose(stated.named(1.0) ** 2, [0.01, 0.17, 0.25, 2.0])
+    np.testing.assert_allclose(stated.named(0.5) ** 2, [0.01, 0.05, 0.13, 0.5])
+    np.testing.assert_allclose(assumed.named(0.5) ** 2, [0.01, 0.05, 0.13, 1.25])
+    assert stated.ratio(1.0)[0] == 0.0  # no error, σ > 0
+    ratios = ratios_by_method([stated, assumed], 0.5)
+    assert list(ratios) == ["prior"] and len(ratios["prior"]) == 2
+    shares = component_shares([stated], 1.0)
+    assert sum(v for k, v in shares.items() if k != "sigma/error (median)") == pytest.approx(1.0)
+
+
+def test_the_factor_is_judged_per_eta_family() -> None:
+    """Decision 0044: a physical η and a Fourier fallback leave different shares unexplained; the
+    factor is looked up as ``method:family``, then ``method``, then the largest."""
+    table = {"prior": 1.8, "prior:physical": 1.0, "prior:fourier": 2.8, "makabe2025": 4.5}
+    settings = BudgetSettings(coverage_scale=table)
+    assert settings.scale_for("prior", "physical") == 1.0
+    assert settings.scale_for("prior", "fourier") == 2.8
+    assert settings.scale_for("prior", None) == 1.8
+    assert settings.scale_for("multilamp", "physical") == 4.5  # never validated: the largest
+    assert settings.validated("prior", "physical") and not settings.validated("multilamp", None)
+
+    def family(model: object) -> str | None:
+        result = EstimateResult(
+            "prior",
+            np.array([400.0, 500.0]),
+            np.ones((2, 3)),
+            diagnostics={"efficiency_model": model},
+        )
+        return efficiency_family(result)
+
+    assert [family(m) for m in ("sinusoidal", "blazed", "fourier", "inverse", None)] == [
+        "physical",
+        "physical",
+        "fourier",
+        "fourier",
+        None,
+    ]
+    record = EstimateRecord("prior", "LED+FL", np.zeros(2), {}, family="physical")
+    assert record.key == "prior:physical"
+    assert set(ratios_by_method([record], 1.0)) == {"prior", "prior:physical"}

@@ -68,6 +68,8 @@ QUALITY_CODES: dict[str, str] = {
     "saturated_frames": "frames with clipped pixels on the spot or the band",
     "blank_frames": "frames with no signal above the dark level",
     "uncertainty_incomplete": "some σ components could not be evaluated",
+    "uncertainty_unvalidated": "the method's ±2σ band was not judged on the validation split",
+    "grating_sigma_missing": "the given grating efficiency states no σ: its error is not in σ",
     "mapping_ambiguous": "the pixel→wavelength mapping has competing solutions (mapping stage)",
     "mapping_nonmonotonic": "the mapping is not monotonic over the profile (mapping stage)",
     "mapping_line_residuals": "known lines sit far from the mapping (mapping stage)",

@@ -460,6 +460,7 @@ def _estimate_in_scope(
             else None,
             settings=budget,
         ),
+        record_components=budget.record_components,
     )
 
 

@@ -1,24 +1,26 @@
 """Judge the σ budget's coverage factor on the validation split (and nowhere else).
 
 :mod:`calib.methods.uncertainty` names what limits an estimate; what it leaves out is covered by one
-factor per method (:data:`calib.methods.uncertainty.COVERAGE_SCALE`). This module chooses it: every
-validation camera's scene is estimated with the factor 1, each estimate's errors are divided by its
-named σ, and the factor is the smallest that brings the mean ±2σ coverage to the target. The split
+factor per method and η family (:data:`calib.methods.uncertainty.COVERAGE_SCALE`). This module
+chooses it: every validation camera's scene is estimated with the factor 1 and the tolerances as one
+σ, each estimate's error and named σ components are kept (:class:`EstimateRecord`), and for each
+tolerance σ asked for, the factor is the smallest that brings the mean ±2σ coverage to the target. The split
 must be the validation split (:func:`~calib.evaluation.validation.splits.require_validation`); the
 test split and the real data are only ever reported.
 
 Run it with ``python -m calib.evaluation.validation.budget --data-dir DIR [--jobs 2]``; the factors
-it prints are what ``COVERAGE_SCALE`` holds (with the command, in decision 0029).
+it prints are what ``COVERAGE_SCALE`` holds (with the command, in decisions 0029 and 0044).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import multiprocessing
 import sys
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -33,7 +35,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
-from calib.methods.uncertainty import BudgetSettings
+from calib.methods.uncertainty import IN_SPEC_TOLERANCE_SIGMA, BudgetSettings, efficiency_family
 
 #: The mean ±2σ coverage the factor aims at on the validation split.
 TARGET_COVERAGE = 0.95
@@ -41,14 +43,72 @@ TARGET_COVERAGE = 0.95
 WIDTH = 2.0
 
 
-def task_ratios(task: Task) -> list[tuple[str, FloatArray]]:
-    """Per variant of the task's scene: ``(registry method, |error| / named σ)`` flattened over the
-    grid and channels (``inf`` where σ is 0 and the error is not); failed estimates are left out."""
+#: The components a spectrometer tolerance scales (``tolerance_sigma`` × the re-solve's change).
+TOLERANCE_COMPONENTS = ("spectrometer scale", "spectrometer bandwidth")
+
+
+@dataclass(frozen=True)
+class EstimateRecord:
+    """One validation estimate at factor 1 and ``tolerance_sigma`` = 1: its error and every named
+    σ component, flattened over the grid and channels (so any tolerance σ and factor can be
+    judged without re-estimating).
+
+    Attributes
+    ----------
+    method
+        The registry method.
+    variant
+        The protocol's variant label.
+    error
+        ``|estimate − truth|`` of the delivered curves.
+    components
+        Component name → σ (at ``tolerance_sigma`` = 1).
+    assumed_bandwidth
+        No bandwidth was given (its component is not a tolerance and does not scale).
+    family
+        The η model's family (:func:`calib.methods.uncertainty.efficiency_family`), or ``None``.
+    """
+
+    method: str
+    variant: str
+    error: FloatArray
+    components: Mapping[str, FloatArray]
+    assumed_bandwidth: bool = False
+    family: str | None = None
+
+    @property
+    def key(self) -> str:
+        """The factor's key in :data:`calib.methods.uncertainty.COVERAGE_SCALE`."""
+        return self.method if self.family is None else f"{self.method}:{self.family}"
+
+    def named(self, tolerance_sigma: float = 1.0) -> FloatArray:
+        """The components' quadrature sum with the spectrometer tolerances as ``tolerance_sigma``."""
+        total = np.zeros_like(self.error)
+        for name, sigma in self.components.items():
+            scaled = name in TOLERANCE_COMPONENTS and not (
+                name == "spectrometer bandwidth" and self.assumed_bandwidth
+            )
+            total = total + (sigma * (tolerance_sigma if scaled else 1.0)) ** 2
+        return np.asarray(np.sqrt(total), dtype=np.float64)
+
+    def ratio(self, tolerance_sigma: float = 1.0) -> FloatArray:
+        """``|error| / named σ`` (``inf`` where σ is 0 and the error is not)."""
+        sigma = self.named(tolerance_sigma)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.asarray(
+                np.where(sigma > 0, self.error / sigma, np.where(self.error > 0, np.inf, 0.0)),
+                dtype=np.float64,
+            )
+
+
+def task_records(task: Task) -> list[EstimateRecord]:
+    """Per variant of the task's scene, its :class:`EstimateRecord`; failed estimates are left
+    out (the protocol counts them)."""
     from calib.methods import estimate
 
     scene = render_task_scene(task)
-    out: list[tuple[str, FloatArray]] = []
-    unscaled = BudgetSettings(coverage_scale={})
+    out: list[EstimateRecord] = []
+    unscaled = BudgetSettings(coverage_scale={}, tolerance_sigma=1.0, record_components=True)
     for variant in task.settings.variants:
         observations = [scene.observations[lamp] for lamp in variant.lamps]
         extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
@@ -65,16 +125,28 @@ def task_ratios(task: Task) -> list[tuple[str, FloatArray]]:
             continue
         # judged on the curve users get (negative lobes set to zero) and its σ
         curves = result.camera_curves()
-        assert curves.sigma is not None
-        error = np.abs(np.asarray(curves.values - scene.truth))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(
-                curves.sigma > 0,
-                error / curves.sigma,
-                np.where(error > 0, np.inf, 0.0),
+        error = np.abs(np.asarray(curves.values - scene.truth, dtype=np.float64)).ravel()
+        components = {
+            name: np.asarray(sigma, dtype=np.float64).ravel()
+            for name, sigma in result.diagnostics["budget_components"].items()
+        }
+        assumed = any(flag.code == "no_spectrometer_bandwidth" for flag in result.quality.flags)
+        out.append(
+            EstimateRecord(
+                result.method,
+                variant.label,
+                error,
+                components,
+                assumed,
+                efficiency_family(result),
             )
-        out.append((result.method, np.asarray(ratio, dtype=np.float64).ravel()))
+        )
     return out
+
+
+def task_ratios(task: Task, tolerance_sigma: float = 1.0) -> list[tuple[str, FloatArray]]:
+    """Per variant of the task's scene: ``(registry method, |error| / named σ)`` at factor 1."""
+    return [(r.method, r.ratio(tolerance_sigma)) for r in task_records(task)]
 
 
 def coverage_at(ratios: Sequence[FloatArray], scale: float, width: float = WIDTH) -> float:
@@ -100,22 +172,55 @@ def fit_scale(
     return float(10.0**high)
 
 
-def validation_ratios(
+def validation_records(
     split: ValidationSplit, settings: ProtocolSettings, *, jobs: int = 1
-) -> dict[str, list[FloatArray]]:
-    """Registry method → every validation estimate's error/σ ratios (factor 1)."""
+) -> list[EstimateRecord]:
+    """Every validation estimate's :class:`EstimateRecord`, in the split's task order."""
     tasks = split_tasks(require_validation(split), settings)
-    gathered: dict[str, list[FloatArray]] = {}
     if jobs <= 1:
-        results = [task_ratios(task) for task in tasks]
+        results = [task_records(task) for task in tasks]
     else:
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-            results = list(pool.map(task_ratios, tasks, chunksize=1))
-    for rows in results:
-        for method, ratio in rows:
-            gathered.setdefault(method, []).append(ratio)
+            results = list(pool.map(task_records, tasks, chunksize=1))
+    return [record for rows in results for record in rows]
+
+
+def ratios_by_method(
+    records: Sequence[EstimateRecord], tolerance_sigma: float
+) -> dict[str, list[FloatArray]]:
+    """Factor key → every record's error/σ ratios at factor 1 and ``tolerance_sigma``: each
+    registry method pooled (for results that record no η model) and per ``method:η family``."""
+    gathered: dict[str, list[FloatArray]] = {}
+    for record in records:
+        ratio = record.ratio(tolerance_sigma)
+        gathered.setdefault(record.method, []).append(ratio)
+        if record.family is not None:
+            gathered.setdefault(record.key, []).append(ratio)
     return gathered
+
+
+def component_shares(records: Sequence[EstimateRecord], tolerance_sigma: float) -> dict[str, float]:
+    """Each component's share of the named variance (mean over cells and records) and the ratio of
+    the named σ's RMS to the error's RMS (``sigma/error``), at ``tolerance_sigma``."""
+    shares: dict[str, float] = {}
+    ratios = []
+    for record in records:
+        named = record.named(tolerance_sigma)
+        total = float(np.mean(named**2))
+        for name, sigma in record.components.items():
+            factor = (
+                tolerance_sigma
+                if name in TOLERANCE_COMPONENTS
+                and not (name == "spectrometer bandwidth" and record.assumed_bandwidth)
+                else 1.0
+            )
+            share = float(np.mean((factor * sigma) ** 2)) / total if total > 0 else 0.0
+            shares[name] = shares.get(name, 0.0) + share / len(records)
+        error_rms = float(np.sqrt(np.mean(record.error**2)))
+        ratios.append(math.sqrt(total) / error_rms if error_rms > 0 else math.inf)
+    shares["sigma/error (median)"] = float(np.median(ratios))
+    return shares
 
 
 def fit_coverage_scales(
@@ -132,27 +237,55 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--target", type=float, default=TARGET_COVERAGE)
     parser.add_argument("--limit", type=int, default=0, help="first N cameras only (smoke)")
-    parser.add_argument("--save", default=None, help="write the ratios to this .npz")
+    parser.add_argument(
+        "--tolerance-sigma",
+        default=f"1,{IN_SPEC_TOLERANCE_SIGMA:.4g}",
+        help="comma-separated σ per unit of the spectrometer tolerances to judge (one run)",
+    )
+    parser.add_argument("--save", default=None, help="write the records to this .npz")
     args = parser.parse_args(argv)
     splits, _ = load_splits(args.data_dir, seed=args.seed)
     split = splits.validation
     if args.limit:
         split = replace(split, cameras=split.cameras[: args.limit])
     settings = ProtocolSettings(seed=args.seed, variants=(*DEFAULT_VARIANTS, *EXTRA_VARIANTS))
-    ratios = validation_ratios(split, settings, jobs=args.jobs)
-    scales = fit_coverage_scales(ratios, args.target)
+    records = validation_records(split, settings, jobs=args.jobs)
     if args.save:
-        arrays: dict[str, Any] = {
-            f"{m}__{i}": r for m, values in ratios.items() for i, r in enumerate(values)
-        }
+        arrays: dict[str, Any] = {}
+        for i, record in enumerate(records):
+            key = f"{i}__{record.key}__{record.variant}__{int(record.assumed_bandwidth)}"
+            arrays[f"{key}__error"] = record.error
+            for name, sigma in record.components.items():
+                arrays[f"{key}__{name}"] = sigma
         np.savez_compressed(args.save, **arrays)
-    for method, values in sorted(ratios.items()):
-        print(
-            f"{method}: {len(values)} estimates, coverage at factor 1 "
-            f"{100 * coverage_at(values, 1.0):.1f} %, factor {scales[method]:.2f} "
-            f"→ {100 * coverage_at(values, scales[method]):.1f} %"
-        )
-    print("COVERAGE_SCALE =", scales)
+    print(
+        f"validation split: {len(split.cameras)} cameras, seed {args.seed}, {len(records)} estimates"
+    )
+    for tolerance_sigma in (float(item) for item in args.tolerance_sigma.split(",")):
+        ratios = ratios_by_method(records, tolerance_sigma)
+        scales = fit_coverage_scales(ratios, args.target)
+        print(f"tolerance_sigma = {tolerance_sigma:.4g}")
+        for method, values in sorted(ratios.items()):
+            print(
+                f"  {method}: {len(values)} estimates, coverage at factor 1 "
+                f"{100 * coverage_at(values, 1.0):.1f} %, factor {scales[method]:.2f} "
+                f"→ {100 * coverage_at(values, scales[method]):.1f} %"
+            )
+        for variant in sorted({record.variant for record in records}):
+            chosen = [r for r in records if r.variant == variant]
+            at_one = coverage_at([r.ratio(tolerance_sigma) for r in chosen], 1.0)
+            fitted = float(
+                np.mean(
+                    [np.mean(r.ratio(tolerance_sigma) <= WIDTH * scales[r.key]) for r in chosen]
+                )
+            )
+            shares = component_shares(chosen, tolerance_sigma)
+            print(
+                f"    {variant}: coverage {100 * at_one:.1f} % at factor 1, "
+                f"{100 * fitted:.1f} % fitted; "
+                + ", ".join(f"{name} {value:.2f}" for name, value in shares.items())
+            )
+        print("  COVERAGE_SCALE =", scales)
     return 0
 
 
