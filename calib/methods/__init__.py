@@ -534,7 +534,11 @@ def _rerun(
                 options = None
         if options is not None and getattr(options, "refine_given_mapping", False):
             arguments["options"] = options = replace(options, refine_given_mapping=False)
-        if isinstance(chosen, str) and getattr(options, "grating_model", None) == "auto":
+        if (
+            options is not None
+            and isinstance(chosen, str)
+            and getattr(options, "grating_model", None) == "auto"
+        ):
             arguments["options"] = replace(options, grating_model=chosen)
         with perturbation():
             return function(observations, **arguments)
