@@ -618,13 +618,26 @@ def _solve_efficiency(
             judged[kind] = fit.judged_chi2(lamps, gain, CHOICE_FLOOR) + 2.0 * 2
     candidates = judged if choice == "auto" else noise_only
     chosen = min(candidates, key=lambda name: candidates[name])
+    rule = CHOICE_RULE if choice == "auto" else "given"
+    physical_chi2: float | None = None
+    if choice == "auto" and fits:
+        # The physical model that fits to the rig's error level is kept: the free model could only
+        # fit the errors better, and bends η to them (decision 0042).
+        best = min(fits, key=lambda fit: judged[fit.kind])
+        physical_chi2 = (judged[best.kind] - 2.0 * 2) / max(best.n_equations - 2, 1)
+        if physical_chi2 <= PHYSICAL_FIT_CHI2:
+            chosen, rule = best.kind, PHYSICAL_RULE
     common = {
         "chosen": chosen,
         "requested": choice,
-        "rule": CHOICE_RULE if choice == "auto" else "given",
+        "rule": rule,
         "predictive_risk": candidates,
         **(
-            {"noise_only_predictive_risk": noise_only, "error_floor": CHOICE_FLOOR}
+            {
+                "noise_only_predictive_risk": noise_only,
+                "error_floor": CHOICE_FLOOR,
+                "physical_reduced_chi2": physical_chi2,
+            }
             if choice == "auto"
             else {}
         ),
@@ -642,10 +655,18 @@ def _solve_efficiency(
     return physical_solution(fit, {**fit.record(), **common})
 
 
+#: The reduced χ² of the direct equations (each σ floored at :data:`CHOICE_FLOOR`) up to which
+#: ``"auto"`` keeps the best physical model without comparing risks: the project's misfit level
+#: (:data:`calib.methods.uncertainty.MISFIT_CHI2`). Decision 0042.
+PHYSICAL_FIT_CHI2 = 4.0
 #: How ``"auto"`` chooses the grating model (recorded with the choice).
+PHYSICAL_RULE = (
+    "the physical model fits the direct equations to the rig's error level (reduced χ² ≤ "
+    "PHYSICAL_FIT_CHI2 with each equation's σ floored at CHOICE_FLOOR of its signal)"
+)
 CHOICE_RULE = (
-    "predictive risk of the direct equations (Mallows' C_L) at the rig's error level: each "
-    "equation's σ floored at CHOICE_FLOOR of its signal"
+    "predictive risk of the direct equations (Mallows' C_L) at the rig's error level (each "
+    "equation's σ floored at CHOICE_FLOOR of its signal): no physical model fits to it"
 )
 
 
