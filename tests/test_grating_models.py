@@ -20,8 +20,10 @@ from calib.evaluation.synthetic import lamp_kind
 from calib.methods import _rerun, estimate
 from calib.methods.grating_models import CHOICE_FLOOR, check_grating_model, fit_physical
 from calib.methods.multilamp import (
+    EfficiencySolution,
     MultilampOptions,
     calibrate_lamps,
+    efficiency_with_sigma,
     estimate_multilamp,
     grating_file_from,
     prepare_lamps,
@@ -208,6 +210,25 @@ def test_the_budgets_re_solves_keep_the_estimates_grating_model(basis):
         "sinusoidal",
         "blazed",
     }
+
+
+def test_the_sigma_of_eta_is_that_of_the_delivered_shape():
+    """η is delivered at maximum 1: a parameter that only rescales η (the throughput, or φ₀ where
+    ``J₁² ∝ φ₀²``) leaves no σ; one node's own error shows there and, through the peak, nowhere
+    else."""
+    eta = np.array([0.5, 1.0, 0.8])
+    inverse = 1.0 / eta
+
+    def solution(jacobian: np.ndarray) -> EfficiencySolution:
+        covariance = np.array([[0.04]])
+        return EfficiencySolution(inverse, np.ones(1), covariance, covariance, 0.0, jacobian)
+
+    shape, sigma = efficiency_with_sigma(solution(inverse[:, None]))
+    np.testing.assert_allclose(shape, eta)
+    np.testing.assert_allclose(sigma, 0.0, atol=1e-12)
+    _, sigma = efficiency_with_sigma(solution(np.array([[2.0], [0.0], [0.0]])))
+    # δη⁻¹ = 0.2 × 2 at the first node: δη = η² δη⁻¹ = 0.25 × 0.4.
+    np.testing.assert_allclose(sigma, [0.1, 0.0, 0.0], atol=1e-12)
 
 
 def test_the_phase_sigma_covers_the_truth_and_the_direct_residuals_use_eta0(basis):
