@@ -80,7 +80,8 @@ from calib.model.gratings import (
 
 GratingModelName = Literal["auto", "fourier", "sinusoidal", "blazed"]
 #: The estimator's grating models: ``"fourier"`` (free, ``η₀`` flat: decision 0015), the two
-#: physical families, or ``"auto"``: the one of the three with the smallest predictive risk.
+#: physical families, or ``"auto"``: chosen among the three at the rig's error level (module
+#: docstring).
 GRATING_MODELS: tuple[GratingModelName, ...] = ("auto", "fourier", "sinusoidal", "blazed")
 DEFAULT_GRATING_MODEL: GratingModelName = "auto"
 #: Parameter values scanned before the 1-D refinement.

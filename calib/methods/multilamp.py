@@ -468,7 +468,8 @@ class EfficiencySettings:
     grating_model
         ``"fourier"`` (``terms`` free terms, ``η₀`` flat), ``"sinusoidal"`` or ``"blazed"``
         (physical, ``η₀`` from the same parameter: :mod:`calib.methods.grating_models`), or
-        ``"auto"`` (default): the one with the smallest predictive risk on the direct equations.
+        ``"auto"`` (default): judged on the direct equations at the rig's error level
+        (:mod:`calib.methods.grating_models`).
     direct_gain_sigma
         Relative σ of each lamp's direct-to-profile ratio, shared by its channels
         (:data:`DIRECT_GAIN_SIGMA`; 0 for data without exposure errors, as the paper's protocol).
@@ -510,8 +511,10 @@ def solve_efficiency(
 
     ``"fourier"``: :func:`solve_fourier_efficiency`; ``"sinusoidal"``/``"blazed"``: the physical
     family (:func:`calib.methods.grating_models.fit_physical`, no camera prior); ``"auto"``: all
-    three, the one with the smallest predictive risk (Mallows' ``C_L``) kept. The choice, every
-    candidate's risk and the physical model's parameters with σ are in ``info["grating_model"]``.
+    three, judged at the rig's error level: the best physical model when it fits to that level
+    (:data:`PHYSICAL_FIT_CHI2`), else the smallest predictive risk (Mallows' ``C_L``). The choice,
+    its rule, every candidate's risk and the physical model's parameters with σ are in
+    ``info["grating_model"]``.
 
     Inside a :func:`calib.methods.solve_scope.solve_scope` the same inputs give the result already
     computed, and a perturbation re-solve starts each physical fit from the main solve's
@@ -1169,7 +1172,7 @@ class MultilampOptions(GratingMethodOptions):
         (:data:`PRIOR_WEIGHT_RULES`).
     grating_model
         The grating's model (:data:`calib.methods.grating_models.GRATING_MODELS`): ``"auto"``
-        (default: chosen by the direct equations' predictive risk), ``"fourier"``,
+        (default: chosen on the direct equations at the rig's error level), ``"fourier"``,
         ``"sinusoidal"`` or ``"blazed"``.
     direct_gain_sigma
         Relative σ of each lamp's direct-to-profile ratio (:data:`DIRECT_GAIN_SIGMA`).
