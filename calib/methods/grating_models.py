@@ -40,15 +40,12 @@ per channel: stray light on the band's tails, the spectrometer's scale and slit,
 between spectrum and frames. Against the stated noise alone the true physical model then gets a
 χ² of tens to hundreds, and the free model, which bends η to follow those errors, wins with a
 wrong, flat ``η₀`` (decision 0042: 13 of 32 validation estimates, RE 3.4–12.7 ×10⁻² where the
-physical model gave 0.7–2.9). So the choice judges at the rig's error level: each equation's σ
-floored at :data:`CHOICE_FLOOR` of its signal (as decision 0034 floors the profile's). The best
-physical model is kept when its reduced χ² so judged is at most
-:data:`calib.methods.multilamp.PHYSICAL_FIT_CHI2` (the free model could only fit the errors
-better); otherwise the smallest ``C_L`` so judged wins (the Fourier model's ``tr H`` taken from its
-fit as made). The fits themselves are unchanged; the record keeps the rule that applied, both risks
-(``predictive_risk`` as judged, ``noise_only_predictive_risk``), the floor and the physical
-model's judged reduced χ². The σ budget's re-solves keep the estimate's choice
-(:func:`calib.methods._rerun`).
+physical model gave 0.7–2.9). So ``C_L`` is judged at the rig's error level: each equation's σ
+floored at :data:`CHOICE_FLOOR` of its signal (as decision 0034 floors the profile's), both the χ²
+and — for the Fourier model — its ``tr H`` taken from the fit as made. The fits themselves are
+unchanged; the record keeps the rule, both risks (``predictive_risk`` as judged,
+``noise_only_predictive_risk``) and the floor. The σ budget's re-solves keep the estimate's
+choice (:func:`calib.methods._rerun`).
 
 References
 ----------

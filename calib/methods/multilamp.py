@@ -511,10 +511,9 @@ def solve_efficiency(
 
     ``"fourier"``: :func:`solve_fourier_efficiency`; ``"sinusoidal"``/``"blazed"``: the physical
     family (:func:`calib.methods.grating_models.fit_physical`, no camera prior); ``"auto"``: all
-    three, judged at the rig's error level: the best physical model when it fits to that level
-    (:data:`PHYSICAL_FIT_CHI2`), else the smallest predictive risk (Mallows' ``C_L``). The choice,
-    its rule, every candidate's risk and the physical model's parameters with σ are in
-    ``info["grating_model"]``.
+    three, the one with the smallest predictive risk (Mallows' ``C_L``) judged at the rig's error
+    level (:mod:`calib.methods.grating_models`). The choice, its rule, every candidate's risk and
+    the physical model's parameters with σ are in ``info["grating_model"]``.
 
     Inside a :func:`calib.methods.solve_scope.solve_scope` the same inputs give the result already
     computed, and a perturbation re-solve starts each physical fit from the main solve's
@@ -622,14 +621,6 @@ def _solve_efficiency(
     candidates = judged if choice == "auto" else noise_only
     chosen = min(candidates, key=lambda name: candidates[name])
     rule = CHOICE_RULE if choice == "auto" else "given"
-    physical_chi2: float | None = None
-    if choice == "auto" and fits:
-        # The physical model that fits to the rig's error level is kept: the free model could only
-        # fit the errors better, and bends η to them (decision 0042).
-        best = min(fits, key=lambda fit: judged[fit.kind])
-        physical_chi2 = (judged[best.kind] - 2.0 * 2) / max(best.n_equations - 2, 1)
-        if physical_chi2 <= PHYSICAL_FIT_CHI2:
-            chosen, rule = best.kind, PHYSICAL_RULE
     common = {
         "chosen": chosen,
         "requested": choice,
@@ -639,7 +630,6 @@ def _solve_efficiency(
             {
                 "noise_only_predictive_risk": noise_only,
                 "error_floor": CHOICE_FLOOR,
-                "physical_reduced_chi2": physical_chi2,
             }
             if choice == "auto"
             else {}
@@ -658,20 +648,10 @@ def _solve_efficiency(
     return physical_solution(fit, {**fit.record(), **common})
 
 
-#: The reduced χ² of the direct equations (each σ floored at :data:`CHOICE_FLOOR`) up to which
-#: ``"auto"`` keeps the best physical model without comparing risks: residuals up to ~4× the
-#: floor (8 %) are within what a rig's errors do to narrow-band lamps (RGB LEDs: a φ₀ = 1 rad sheet
-#: on a validation camera left 11, its sinusoidal fit RE 1.3 ×10⁻², the free model's 9.2); a first
-#: order no family follows leaves hundreds. Chosen on the VALIDATION split only (decision 0042).
-PHYSICAL_FIT_CHI2 = 16.0
 #: How ``"auto"`` chooses the grating model (recorded with the choice).
-PHYSICAL_RULE = (
-    "the physical model fits the direct equations to the rig's error level (reduced χ² ≤ "
-    "PHYSICAL_FIT_CHI2 with each equation's σ floored at CHOICE_FLOOR of its signal)"
-)
 CHOICE_RULE = (
-    "predictive risk of the direct equations (Mallows' C_L) at the rig's error level (each "
-    "equation's σ floored at CHOICE_FLOOR of its signal): no physical model fits to it"
+    "predictive risk of the direct equations (Mallows' C_L) at the rig's error level: each "
+    "equation's σ floored at CHOICE_FLOOR of its signal"
 )
 
 
