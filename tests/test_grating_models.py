@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +17,13 @@ from calib.core.metrics import relative_error
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import lamp_kind
-from calib.methods.grating_models import check_grating_model, fit_physical
+from calib.methods import _rerun, estimate
+from calib.methods.grating_models import CHOICE_FLOOR, check_grating_model, fit_physical
 from calib.methods.multilamp import (
+    EfficiencySolution,
     MultilampOptions,
     calibrate_lamps,
+    efficiency_with_sigma,
     estimate_multilamp,
     grating_file_from,
     prepare_lamps,
@@ -125,6 +129,106 @@ def test_a_grating_neither_model_describes_keeps_the_fourier_model(basis):
     _, observations = _scene(humps, None, noise=0.01, direct_noise=0.001)
     result = estimate_multilamp(observations, basis=basis, mapping=MAPPING)
     assert result.diagnostics["grating_model"]["chosen"] == "fourier"
+
+
+def _with_rig_errors(
+    observations: tuple[LampObservation, ...], seed: int
+) -> tuple[LampObservation, ...]:
+    """Each lamp's direct RGB off as a rig's are beyond the stated noise: a 2 % gain shared by its
+    channels (the spot's and the band's exposures) and 1 % per channel (stray light, the
+    spectrometer's scale and slit)."""
+    rng = np.random.default_rng([42, seed])
+    return tuple(
+        replace(
+            observation,
+            direct_rgb=np.asarray(observation.direct_rgb)
+            * (1.0 + 0.02 * rng.standard_normal())
+            * (1.0 + 0.01 * rng.standard_normal(3)),
+        )
+        for observation in observations
+    )
+
+
+def _humps(wavelength_nm: np.ndarray) -> np.ndarray:
+    """A first order no physical family follows: ±10 % humps, three half-periods over 400–700 nm."""
+    phase = (np.asarray(wavelength_nm) - 400.0) / 300.0 * 3 * np.pi
+    return np.asarray(0.6 * (1.0 + 0.1 * np.sin(phase)))
+
+
+def test_with_the_rigs_errors_auto_keeps_the_physical_model_and_its_phase(basis):
+    """Judged at the stated noise alone the free model wins where the direct RGB is off by the
+    rig's errors (it bends to them); judged at the rig's error level the sinusoidal sheet is
+    kept, φ₀ recovered and the camera far better."""
+    grating = SinusoidalPhaseGrating(0.8)
+    bare_noise_would_choose_fourier = 0
+    for seed in range(4):
+        truth, observations = _scene(
+            _order(grating, 1), _order(grating, 0), seed=seed, noise=0.01, direct_noise=0.004
+        )
+        result = estimate_multilamp(
+            _with_rig_errors(observations, seed), basis=basis, mapping=MAPPING
+        )
+        record = result.diagnostics["grating_model"]
+        assert record["chosen"] == "sinusoidal", (seed, record["predictive_risk"])
+        assert record["error_floor"] == CHOICE_FLOOR and "error level" in record["rule"]
+        assert abs(record["parameters"]["peak_phase_rad"] - 0.8) < 0.15
+        assert relative_error(result.sensitivity, truth) < 0.012
+        bare = record["noise_only_predictive_risk"]
+        bare_noise_would_choose_fourier += bare["fourier"] < bare["sinusoidal"]
+    assert bare_noise_would_choose_fourier >= 2
+
+
+def test_with_the_rigs_errors_a_grating_no_family_follows_keeps_the_fourier_model(basis):
+    for seed in range(3):
+        _, observations = _scene(_humps, None, seed=seed, noise=0.01, direct_noise=0.004)
+        result = estimate_multilamp(
+            _with_rig_errors(observations, seed), basis=basis, mapping=MAPPING
+        )
+        assert result.diagnostics["grating_model"]["chosen"] == "fourier"
+
+
+def test_the_budgets_re_solves_keep_the_estimates_grating_model(basis):
+    """The σ budget's re-solve (:func:`calib.methods.estimate`'s rerun) keeps the model ``auto``
+    chose, even where the perturbed data alone would choose another."""
+    grating = SinusoidalPhaseGrating(0.8)
+    _, observations = _scene(_order(grating, 1), _order(grating, 0), noise=0.01)
+    result = estimate(observations, "multilamp", basis=basis, mapping=MAPPING)
+    assert result.diagnostics["grating_model"]["chosen"] == "sinusoidal"
+    flipped = replace(
+        result, diagnostics={**result.diagnostics, "grating_model": {"chosen": "blazed"}}
+    )
+    for main in (result, flipped):
+        rerun = _rerun(estimate_multilamp, {"basis": basis}, main)
+        assert rerun is not None
+        again = rerun(observations).diagnostics["grating_model"]
+        chosen = main.diagnostics["grating_model"]["chosen"]
+        assert again["chosen"] == again["requested"] == chosen
+        assert set(again["predictive_risk"]) == {chosen}
+    fresh = estimate_multilamp(observations, basis=basis, mapping=MAPPING)
+    assert set(fresh.diagnostics["grating_model"]["predictive_risk"]) == {
+        "fourier",
+        "sinusoidal",
+        "blazed",
+    }
+
+
+def test_the_sigma_of_eta_is_that_of_the_delivered_shape():
+    """η is delivered at maximum 1: a parameter that only rescales η (the throughput, or φ₀ where
+    ``J₁² ∝ φ₀²``) leaves no σ; one node's own error shows there and, through the peak, nowhere
+    else."""
+    eta = np.array([0.5, 1.0, 0.8])
+    inverse = 1.0 / eta
+
+    def solution(jacobian: np.ndarray) -> EfficiencySolution:
+        covariance = np.array([[0.04]])
+        return EfficiencySolution(inverse, np.ones(1), covariance, covariance, 0.0, jacobian)
+
+    shape, sigma = efficiency_with_sigma(solution(inverse[:, None]))
+    np.testing.assert_allclose(shape, eta)
+    np.testing.assert_allclose(sigma, 0.0, atol=1e-12)
+    _, sigma = efficiency_with_sigma(solution(np.array([[2.0], [0.0], [0.0]])))
+    # δη⁻¹ = 0.2 × 2 at the first node: δη = η² δη⁻¹ = 0.25 × 0.4.
+    np.testing.assert_allclose(sigma, [0.1, 0.0, 0.0], atol=1e-12)
 
 
 def test_the_phase_sigma_covers_the_truth_and_the_direct_residuals_use_eta0(basis):

@@ -112,7 +112,11 @@ def test_shared_re_solves_state_the_sigma_of_full_re_solves(
     )
     with solve_scope() as scope:
         fast = estimate(lamps, method, basis=basis, mapping=TRUTH)
-    assert scope is not None and scope.warm_started > 0 and scope.reused > 0
+    # Shared: the re-solves start from the estimate's solution and answer identical sub-solves
+    # once (none left when the kept grating model, decision 0042, is the Fourier one: the η-model
+    # perturbation changes its terms).
+    assert scope is not None and scope.warm_started > 0
+    assert scope.reused > 0 or fast.diagnostics["grating_model"]["chosen"] == "fourier"
     assert full.sensitivity_sigma is not None and fast.sensitivity_sigma is not None
     np.testing.assert_array_equal(fast.sensitivity, full.sensitivity)  # the main solve as before
     full_rms = full.quality.uncertainty["rms"]

@@ -526,12 +526,27 @@ def _rerun(
     fixed = {**routed, "mapping": result.mapping}
     if "mapping_lamp" in fixed:
         fixed["mapping_lamp"] = None
+    # The grating model ``auto`` chose is kept (decision 0042): a perturbation measures how the
+    # chosen model's answer moves, not a switch to another model.
+    record = result.diagnostics.get("grating_model")
+    chosen = record.get("chosen") if isinstance(record, Mapping) else None
+    default_options = inspect.signature(function).parameters.get("options")
 
     def rerun(observations: Sequence[Any], **changes: Any) -> EstimateResult:
         arguments = {**fixed, **changes}
         options = arguments.get("options")
+        if options is None and default_options is not None:
+            options = default_options.default
+            if options is inspect.Parameter.empty:
+                options = None
         if options is not None and getattr(options, "refine_given_mapping", False):
-            arguments["options"] = replace(options, refine_given_mapping=False)
+            arguments["options"] = options = replace(options, refine_given_mapping=False)
+        if (
+            options is not None
+            and isinstance(chosen, str)
+            and getattr(options, "grating_model", None) == "auto"
+        ):
+            arguments["options"] = replace(options, grating_model=chosen)
         with perturbation():
             return function(observations, **arguments)
 

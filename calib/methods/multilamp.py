@@ -56,8 +56,14 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods.closed_form import GratingMethodOptions, check_lamps, prepare_matched_lamp
+from calib.methods.closed_form import (
+    GratingMethodOptions,
+    check_lamps,
+    normalised_efficiency_sigma,
+    prepare_matched_lamp,
+)
 from calib.methods.grating_models import (
+    CHOICE_FLOOR,
     DEFAULT_GRATING_MODEL,
     GratingModelName,
     PhysicalFit,
@@ -462,7 +468,8 @@ class EfficiencySettings:
     grating_model
         ``"fourier"`` (``terms`` free terms, ``η₀`` flat), ``"sinusoidal"`` or ``"blazed"``
         (physical, ``η₀`` from the same parameter: :mod:`calib.methods.grating_models`), or
-        ``"auto"`` (default): the one with the smallest predictive risk on the direct equations.
+        ``"auto"`` (default): judged on the direct equations at the rig's error level
+        (:mod:`calib.methods.grating_models`).
     direct_gain_sigma
         Relative σ of each lamp's direct-to-profile ratio, shared by its channels
         (:data:`DIRECT_GAIN_SIGMA`; 0 for data without exposure errors, as the paper's protocol).
@@ -504,8 +511,9 @@ def solve_efficiency(
 
     ``"fourier"``: :func:`solve_fourier_efficiency`; ``"sinusoidal"``/``"blazed"``: the physical
     family (:func:`calib.methods.grating_models.fit_physical`, no camera prior); ``"auto"``: all
-    three, the one with the smallest predictive risk (Mallows' ``C_L``) kept. The choice, every
-    candidate's risk and the physical model's parameters with σ are in ``info["grating_model"]``.
+    three, the one with the smallest predictive risk (Mallows' ``C_L``) judged at the rig's error
+    level (:mod:`calib.methods.grating_models`). The choice, its rule, every candidate's risk and
+    the physical model's parameters with σ are in ``info["grating_model"]``.
 
     Inside a :func:`calib.methods.solve_scope.solve_scope` the same inputs give the result already
     computed, and a perturbation re-solve starts each physical fit from the main solve's
@@ -585,32 +593,47 @@ def _solve_efficiency(
 ) -> EfficiencySolution:
     choice = settings.grating_model
     wavelength = prior.grid.wavelength_nm
-    candidates: dict[str, float] = {}
+    gain = settings.direct_gain_sigma
+    noise_only: dict[str, float] = {}
+    judged: dict[str, float] = {}
     fourier: EfficiencySolution | None = None
     if choice in ("fourier", "auto"):
         fourier = solve_fourier_efficiency(lamps, prior, settings, prior_groups=prior_groups)
-        candidates["fourier"] = float(fourier.info["predictive_risk"])
+        noise_only["fourier"] = float(fourier.info["predictive_risk"])
+        if choice == "auto":
+            judged["fourier"] = _fourier_judged_risk(fourier, lamps, gain, CHOICE_FLOOR)
     fits: list[PhysicalFit] = []
     failures: dict[str, str] = {}
     for kind in PHYSICAL_KINDS:
         if choice not in (kind, "auto"):
             continue
         try:
-            fit = physical_fit(lamps, kind, wavelength, settings.direct_gain_sigma)
+            fit = physical_fit(lamps, kind, wavelength, gain)
         except EstimationError as error:
             if choice != "auto":
                 raise
             failures[kind] = str(error)
             continue
         fits.append(fit)
-        candidates[kind] = fit.predictive_risk
+        noise_only[kind] = fit.predictive_risk
+        if choice == "auto":
+            judged[kind] = fit.judged_chi2(lamps, gain, CHOICE_FLOOR) + 2.0 * 2
+    candidates = judged if choice == "auto" else noise_only
     chosen = min(candidates, key=lambda name: candidates[name])
-    rule = "predictive risk of the direct equations (Mallows' C_L)"
+    rule = CHOICE_RULE if choice == "auto" else "given"
     common = {
         "chosen": chosen,
         "requested": choice,
-        "rule": rule if choice == "auto" else "given",
+        "rule": rule,
         "predictive_risk": candidates,
+        **(
+            {
+                "noise_only_predictive_risk": noise_only,
+                "error_floor": CHOICE_FLOOR,
+            }
+            if choice == "auto"
+            else {}
+        ),
         **({"failed": failures} if failures else {}),
     }
     if chosen == "fourier":
@@ -623,6 +646,26 @@ def _solve_efficiency(
         gain_sigma=settings.direct_gain_sigma,
     )
     return physical_solution(fit, {**fit.record(), **common})
+
+
+#: How ``"auto"`` chooses the grating model (recorded with the choice).
+CHOICE_RULE = (
+    "predictive risk of the direct equations (Mallows' C_L) at the rig's error level: each "
+    "equation's σ floored at CHOICE_FLOOR of its signal"
+)
+
+
+def _fourier_judged_risk(
+    fourier: EfficiencySolution, lamps: Sequence[LampData], gain_sigma: float, floor: float
+) -> float:
+    """The Fourier model's ``C_L`` with each direct equation's σ floored at ``floor`` of its
+    signal: the χ² of its residuals so judged, plus twice its effective number of parameters
+    (``tr H`` of the fit, :func:`weight_score`)."""
+    inverse = fourier.inverse_efficiency
+    rows, target = direct_rows(lamps, inverse, gain_sigma=gain_sigma, floor=floor)
+    residual = rows @ inverse - target
+    parameters = 0.5 * (float(fourier.info["predictive_risk"]) - float(fourier.info["direct_chi2"]))
+    return float(residual @ residual) + 2.0 * parameters
 
 
 def physical_solution(fit: PhysicalFit, record: dict[str, Any]) -> EfficiencySolution:
@@ -728,7 +771,9 @@ def solve_fourier_efficiency(
     group_weights = np.ones(len(groups))
     distances = np.full(len(groups), np.nan)
     # A perturbation re-solve scores the weights near the main solve's choice on each pass.
-    label = f"fourier {settings!r}: {', '.join(lamp.name for lamp in lamps)}"
+    # (The grating model is not part of this solve: a re-solve that keeps "auto"'s choice shares it.)
+    same = replace(settings, grating_model=DEFAULT_GRATING_MODEL)
+    label = f"fourier {same!r}: {', '.join(lamp.name for lamp in lamps)}"
     scanned = model == "efficiency" and prior_weight is None and not by_typicality
     starts = warm_start(label) if scanned else None
     chosen_indices: list[int | None] = []
@@ -1107,7 +1152,7 @@ class MultilampOptions(GratingMethodOptions):
         (:data:`PRIOR_WEIGHT_RULES`).
     grating_model
         The grating's model (:data:`calib.methods.grating_models.GRATING_MODELS`): ``"auto"``
-        (default: chosen by the direct equations' predictive risk), ``"fourier"``,
+        (default: chosen on the direct equations at the rig's error level), ``"fourier"``,
         ``"sinusoidal"`` or ``"blazed"``.
     direct_gain_sigma
         Relative σ of each lamp's direct-to-profile ratio (:data:`DIRECT_GAIN_SIGMA`).
@@ -1281,24 +1326,17 @@ def grating_model_fields(record: Mapping[str, Any] | None) -> dict[str, Any]:
 
 
 def efficiency_with_sigma(efficiency: EfficiencySolution) -> tuple[FloatArray, FloatArray]:
-    """``η`` (maximum 1) and its σ, from ``η⁻¹``'s covariance (first order, ``δη = −η² δη⁻¹``)."""
+    """``η`` (maximum 1) and the σ of that normalised curve, from ``η⁻¹``'s covariance (first
+    order, :func:`calib.methods.closed_form.normalised_efficiency_sigma`): η's common scale — a
+    physical model's throughput, or the phase where only η's level changes with it (small φ₀:
+    ``J₁² ∝ φ₀²``) — cancels in the delivered shape, so its σ does not widen the band."""
     inverse = efficiency.inverse_efficiency
-    inverse_sigma = np.sqrt(
-        np.clip(
-            np.einsum(
-                "ij,jk,ik->i",
-                efficiency.inverse_jacobian,
-                efficiency.coefficient_covariance,
-                efficiency.inverse_jacobian,
-            ),
-            0.0,
-            None,
-        )
-    )
+    jacobian = efficiency.inverse_jacobian
+    covariance = jacobian @ efficiency.coefficient_covariance @ jacobian.T
     with np.errstate(divide="ignore"):
         eta = np.where(inverse > 0, 1.0 / inverse, np.nan)
     peak = float(np.nanmax(eta)) if np.any(np.isfinite(eta)) else 1.0
-    return eta / peak, eta**2 * inverse_sigma / peak
+    return eta / peak, normalised_efficiency_sigma(inverse, covariance)
 
 
 def pooled_efficiency_terms(n_equations: int) -> int:

@@ -309,8 +309,8 @@ class PriorOptions(ClosedFormOptions):
         ``"fourier"``: this module's solve (``η⁻¹`` in ``efficiency_terms`` Fourier terms, ``η₀``
         flat); ``"sinusoidal"``/``"blazed"``: the physical grating fitted to the lamps' direct
         equations (:mod:`calib.methods.grating_models`), then the camera through it with the prior
-        where the lamps are dim; ``"auto"`` (default): the model with the smallest predictive risk
-        on the direct equations.
+        where the lamps are dim; ``"auto"`` (default): chosen on the direct equations at the rig's
+        error level (:func:`calib.methods.multilamp.solve_efficiency`).
     """
 
     grating_model: GratingModelName = DEFAULT_GRATING_MODEL

@@ -200,6 +200,7 @@ def direct_rows(
     *,
     gain_sigma: float | None = None,
     zeroth_order: FloatArray | None = None,
+    floor: float = MODEL_FLOOR,
 ) -> tuple[FloatArray, FloatArray]:
     """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ g = m_dir,lc`` on the grid's nodes of ``g`` (``η⁻¹``
     for the Fourier model, ``T/η₁`` for a physical one, whose ``η₀`` enters ``d_l`` on the fine
@@ -209,7 +210,9 @@ def direct_rows(
     through the current ``g`` and the model floor; a lamp's three equations also share the error of
     its direct-to-profile ratio (``gain_sigma``, default :data:`DIRECT_GAIN_SIGMA`: exposure times
     and the lamp between the frames), a rank-one covariance ``σ_g² m mᵀ`` — so each lamp's block
-    is whitened by the Cholesky factor of its 3 × 3 covariance.
+    is whitened by the Cholesky factor of its 3 × 3 covariance. ``floor``: the relative floor under
+    each equation's σ (:data:`MODEL_FLOOR` for the fit; the grating model's choice judges at the
+    rig's error level, :data:`calib.methods.grating_models.CHOICE_FLOOR`).
     """
     gain = DIRECT_GAIN_SIGMA if gain_sigma is None else gain_sigma
     rows = []
@@ -221,7 +224,7 @@ def direct_rows(
         variances = np.maximum(
             lamp.direct_sigma**2
             + (lamp.response.covariance @ spread) @ spread
-            + (MODEL_FLOOR * direct) ** 2,
+            + (floor * direct) ** 2,
             1e-300,
         )
         block = np.empty((3, direct_row.size + 1))
