@@ -63,7 +63,7 @@ INSTRUMENTS = {
     "pr655": {"emulate": "pr655"},
     "usb2000plus": {"emulate": "seabreeze", "ocean_model": "USB2000PLUS"},
     "sts": {"emulate": "seabreeze", "ocean_model": "STS"},
-    "i1pro": {"emulate": "argyll"},
+    "i1pro": {"emulate": "argyll", "high_resolution": False},
     "i1pro-hires": {"emulate": "argyll", "high_resolution": True},
 }
 REFERENCE = "pr655"

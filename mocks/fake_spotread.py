@@ -244,7 +244,12 @@ def measure(scene: dict[str, object], options: dict[str, object]) -> None:
     fault = scene.get("fault")
     spectra = scene.get("spectra") or {}
     assert isinstance(spectra, dict)
-    mode = "high_resolution" if options["high_resolution"] else "standard"
+    # -H is honoured "if available": a model without high-resolution bands reads its standard ones.
+    mode = (
+        "high_resolution"
+        if options["high_resolution"] and "high_resolution" in spectra
+        else "standard"
+    )
     while True:
         if fault == "needs_calibration":
             say(CALIBRATION_PROMPT)

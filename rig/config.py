@@ -172,7 +172,11 @@ class ArgyllSpectrometerConfig(StrictModel):
     kind: Literal["argyll"]
     executable: str = Field("spotread", min_length=1, description="spotread, or its full path")
     instrument: int = Field(1, ge=1, le=32, description="spotread -c: which instrument")
-    high_resolution: bool = Field(False, description="spotread -H (3.3 nm, if the model has it)")
+    high_resolution: bool = Field(
+        True,
+        description="spotread -H: 3.3 nm bands (15 nm FWHM) where the model has them, else its "
+        "10 nm ones (25 nm FWHM); the reading's sampling says which",
+    )
     bandwidth_nm: float | None = Field(
         None,
         gt=0,
@@ -232,7 +236,7 @@ class TwinSpectrometerConfig(StrictModel):
         ge=0,
         description="which draw of the spectrometer's noise (the rest of the twin unchanged)",
     )
-    high_resolution: bool = Field(False, description="argyll: spotread -H (3.3 nm bands)")
+    high_resolution: bool = Field(True, description="argyll: spotread -H (3.3 nm bands)")
     in_spec_error: bool = Field(
         True,
         description="the emulated instrument's wavelength scale (±0.5 nm) and slit width (±25 %) "

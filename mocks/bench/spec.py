@@ -201,7 +201,7 @@ class TwinSpec:
     spectrometer_measure_timeout_s: float | None = None
     ocean_model: str = "USB2000PLUS"
     spectrometer_noise_draw: int = 0
-    spectrometer_high_resolution: bool = False
+    spectrometer_high_resolution: bool = True
     spectrometer_in_spec_error: bool = True
 
     def __post_init__(self) -> None:
@@ -294,7 +294,7 @@ class TwinSpec:
             spectrometer_timeout_s=spectrometer.number("timeout_s"),
             ocean_model=str(spectrometer.optional("ocean_model") or "USB2000PLUS"),
             spectrometer_noise_draw=int(spectrometer.optional("noise_draw") or 0),
-            spectrometer_high_resolution=bool(spectrometer.optional("high_resolution")),
+            spectrometer_high_resolution=_switch(spectrometer, "high_resolution", default=True),
             spectrometer_in_spec_error=_switch(spectrometer, "in_spec_error", default=True),
             spectrometer_measure_timeout_s=(
                 None

@@ -74,11 +74,26 @@ def test_a_reading_is_the_saved_spectrum_with_its_units_and_bandwidth() -> None:
 
 
 def test_high_resolution_runs_with_minus_h_and_reads_the_3_3_nm_bands() -> None:
+    assert ArgyllSettings().high_resolution  # the default: a grating rig needs the detail
     device, transcript = instrument(high_resolution=True)
     reading = device.measure()
     assert reading.values.size == 106
     np.testing.assert_allclose(np.diff(reading.wavelength_nm), 350.0 / 105.0)
-    assert reading.bandwidth_nm == 15.0
+    assert reading.bandwidth_nm == 15.0 and reading.extra["high_resolution"] == "on"
+    call = next(entry for entry in transcript.entries if entry.direction == "call")
+    assert "-H" in json.loads(call.payload)["argv"]
+
+
+def test_a_model_without_high_resolution_bands_reads_its_standard_ones_at_their_bandwidth() -> None:
+    """spotread honours -H "if available": the sampling, not the request, sets the bandwidth."""
+    transcript = ListTranscript()
+    standard_only = {"instruments": 1, "fault": None, "spectra": {"standard": STANDARD}}
+    launcher = FakeSpotreadLauncher(lambda: standard_only)
+    settings = ArgyllSettings(timeout_s=10.0, high_resolution=True)
+    device = open_argyll(settings, launcher=launcher, transcript=transcript, resolve=False)
+    reading = device.measure()
+    assert reading.values.size == 36
+    assert reading.bandwidth_nm == 25.0 and reading.extra["high_resolution"] == "off"
     call = next(entry for entry in transcript.entries if entry.direction == "call")
     assert "-H" in json.loads(call.payload)["argv"]
 
@@ -145,7 +160,7 @@ def test_the_executable_on_path_runs_on_a_terminal(
     device = open_argyll(ArgyllSettings(instrument=1, timeout_s=10.0))
     assert device.executable == str(wrapper)
     assert device.identify().extra["executable"] == str(wrapper)
-    assert device.measure().values.size == 36
+    assert device.measure().values.size == 106  # -H by default: the 3.3 nm bands
 
 
 def test_spotread_chooses_its_own_integration_time() -> None:
@@ -168,7 +183,7 @@ def test_a_recorded_run_replays_byte_for_byte(fault: str | None) -> None:
     script = ReplayScript("spectrometer", recorded.entries, Mismatches())
     replayed = ListTranscript()
     replay = open_argyll(
-        ArgyllSettings(timeout_s=0.5),
+        ArgyllSettings(timeout_s=0.5, high_resolution=False),
         launcher=ReplaySpotreadLauncher(script),
         transcript=CheckingSink(script, replayed),
         resolve=False,

@@ -63,9 +63,11 @@ def test_an_argyll_twin_session_captures_and_replays_byte_for_byte(tmp_path: Pat
     assert outcome.exit_status == "success", outcome
     session = read_session(outcome.session)
     spectra = [r for r in session.files() if r.role == "spectrum"]
-    assert spectra and {r.bandwidth_nm for r in spectra} == {25.0}
+    # spotread -H by default: the i1Pro's 3.3 nm bands, 15 nm FWHM.
+    assert spectra and {r.bandwidth_nm for r in spectra} == {15.0}
     sent = [p for d, p in _transcript(outcome.session, "spectrometer") if d == "call"]
-    assert json.loads(sent[0]) == {"argv": ["spotread", "-a", "-s", "-N", "-O", "reading.sp"]}
+    argv = ["spotread", "-a", "-s", "-N", "-H", "-O", "reading.sp"]
+    assert json.loads(sent[0]) == {"argv": argv}
     replay = replay_session(outcome.session, tmp_path / "replay")
     assert replay.identical and replay.run.exit_status == "success", replay
     assert _transcript(replay.run.session, "spectrometer") == _transcript(
