@@ -42,8 +42,8 @@ from calib.cli.options import (
 from calib.core.errors import CalibError, InputError
 from calib.core.software import current_software
 from drivers.base import DeviceError
-from rig.entry import INTERRUPTED_EXIT_CODE, interrupt_seen
 from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
+from rig.interrupt import INTERRUPTED_EXIT_CODE, interrupt_seen
 
 if TYPE_CHECKING:
     from calib.pipeline import OfflineOutcome
@@ -699,7 +699,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         _fail(f"cannot read or write a file: {exc}", 1)
     except Exception as exc:
         if interrupt_seen():
-            # A library turned the Ctrl-C into its own error (see rig.entry).
+            # A library turned the Ctrl-C into its own error (see rig.interrupt).
             print("rig: interrupted", file=sys.stderr)
             sys.exit(INTERRUPTED_EXIT_CODE)
         if os.environ.get("RIG_DEBUG"):

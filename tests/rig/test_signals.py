@@ -187,7 +187,7 @@ def test_a_ctrl_c_a_library_turned_into_its_own_error_still_ends_as_interrupted(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """pydantic-core turns a Ctrl-C while it builds a validator into a ``SchemaError``: still 130."""
-    from rig import cli, entry
+    from rig import cli, entry, interrupt
 
     def library_that_swallows_the_interrupt(*_args: object, **_kwargs: object) -> int:
         try:
@@ -198,7 +198,7 @@ def test_a_ctrl_c_a_library_turned_into_its_own_error_still_ends_as_interrupted(
         return 0
 
     monkeypatch.setattr(cli, "run_app", library_that_swallows_the_interrupt)
-    monkeypatch.setattr(entry, "_seen", [])
+    monkeypatch.setattr(interrupt, "_seen", [])
     before = signal.getsignal(signal.SIGINT)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
@@ -206,5 +206,5 @@ def test_a_ctrl_c_a_library_turned_into_its_own_error_still_ends_as_interrupted(
             entry.main()
     finally:
         signal.signal(signal.SIGINT, before)
-    assert ended.value.code == entry.INTERRUPTED_EXIT_CODE
+    assert ended.value.code == interrupt.INTERRUPTED_EXIT_CODE
     assert capsys.readouterr().err == "rig: interrupted\n"
