@@ -43,7 +43,6 @@ from calib.core.errors import CalibError, InputError
 from calib.core.software import current_software
 from drivers.base import DeviceError
 from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
-from rig.interrupt import INTERRUPTED_EXIT_CODE, interrupt_seen
 
 if TYPE_CHECKING:
     from calib.pipeline import OfflineOutcome
@@ -674,13 +673,29 @@ def _warn_lamps(exc: BaseException) -> None:
         )
 
 
+def _interrupt_inside(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C a library turned into its own error: a ``KeyboardInterrupt`` in
+    its chain, or pydantic-core's ``SchemaError``, which keeps only the interrupt's name in its text
+    when one arrives while it builds a validator."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        if type(current).__name__ == "SchemaError" and "KeyboardInterrupt" in str(current):
+            return True
+        current = current.__cause__ or current.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Console entry point: errors become one line each on stderr and an exit code."""
     try:
         code = run_app(app, "rig", argv)
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
-        code = INTERRUPTED_EXIT_CODE
+        code = 130
     except InputError as exc:
         _fail(str(exc), 2)
     except OpeningInterrupted as exc:
@@ -698,10 +713,9 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise
         _fail(f"cannot read or write a file: {exc}", 1)
     except Exception as exc:
-        if interrupt_seen():
-            # A library turned the Ctrl-C into its own error (see rig.interrupt).
+        if _interrupt_inside(exc):
             print("rig: interrupted", file=sys.stderr)
-            sys.exit(INTERRUPTED_EXIT_CODE)
+            sys.exit(130)
         if os.environ.get("RIG_DEBUG"):
             raise
         _fail(f"internal error: {type(exc).__name__}: {exc} (set RIG_DEBUG=1 for the traceback)", 1)

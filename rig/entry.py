@@ -3,21 +3,17 @@
 Starting ``rig`` imports its libraries first (typer, rich, numpy …: a few tenths of a second). A
 Ctrl-C in that moment interrupts an import; it is caught here, around the import, and ends the
 command with ``rig: interrupted`` and exit code 130 like a Ctrl-C later on (:func:`rig.cli.main`).
-
-A library may turn the Ctrl-C into its own error; the handler of :mod:`rig.interrupt` notes it so
-the command still ends as interrupted.
 """
 
 from __future__ import annotations
 
 import sys
 
-from rig.interrupt import INTERRUPTED_EXIT_CODE, note_interrupts
+INTERRUPTED_EXIT_CODE = 130
 
 
 def main() -> None:
     """Import the command and run it; a Ctrl-C while importing exits quietly with 130."""
-    note_interrupts()
     try:
         # Imported here, not at the top: the import itself is what a Ctrl-C may interrupt.
         from rig import cli

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -183,28 +182,51 @@ def test_ctrl_c_in_the_first_moments_is_one_line(
     assert "rig: " in err or "status: interrupted" in out, (out, err)
 
 
+class SchemaError(Exception):
+    """pydantic-core's, as it reports a Ctrl-C that arrived while it built a validator."""
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        SchemaError('Error building "model" validator:\n  SchemaError: ... KeyboardInterrupt: '),
+        RuntimeError("a library's own error, raised while handling the interrupt"),
+    ],
+    ids=["pydantic-core", "chained"],
+)
 def test_a_ctrl_c_a_library_turned_into_its_own_error_still_ends_as_interrupted(
+    error: Exception, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """pydantic-core turns a Ctrl-C while it builds a validator into a ``SchemaError``: still 130,
+    as is any error raised while a ``KeyboardInterrupt`` was being handled; other errors are not."""
+    from rig import cli
+
+    def library(*_args: object, **_kwargs: object) -> int:
+        if isinstance(error, SchemaError):
+            raise error
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as interrupt:
+            raise error from interrupt
+
+    monkeypatch.setattr(cli, "run_app", library)
+    with pytest.raises(SystemExit) as ended:
+        cli.main([])
+    assert ended.value.code == 130
+    assert capsys.readouterr().err == "rig: interrupted\n"
+
+
+def test_an_error_without_an_interrupt_is_still_an_internal_error(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """pydantic-core turns a Ctrl-C while it builds a validator into a ``SchemaError``: still 130."""
-    from rig import cli, entry, interrupt
+    from rig import cli
 
-    def library_that_swallows_the_interrupt(*_args: object, **_kwargs: object) -> int:
-        try:
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(1.0)  # the handler runs at the next bytecode boundary
-        except KeyboardInterrupt as exc:
-            raise RuntimeError("Error building validator: KeyboardInterrupt") from exc.__context__
-        return 0
+    def library(*_args: object, **_kwargs: object) -> int:
+        raise SchemaError("Error building validator: a field has no type")
 
-    monkeypatch.setattr(cli, "run_app", library_that_swallows_the_interrupt)
-    monkeypatch.setattr(interrupt, "_seen", [])
-    before = signal.getsignal(signal.SIGINT)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        with pytest.raises(SystemExit) as ended:
-            entry.main()
-    finally:
-        signal.signal(signal.SIGINT, before)
-    assert ended.value.code == interrupt.INTERRUPTED_EXIT_CODE
-    assert capsys.readouterr().err == "rig: interrupted\n"
+    monkeypatch.setattr(cli, "run_app", library)
+    monkeypatch.delenv("RIG_DEBUG", raising=False)
+    with pytest.raises(SystemExit) as ended:
+        cli.main([])
+    assert ended.value.code == 1
+    assert "internal error: SchemaError" in capsys.readouterr().err
