@@ -11,3 +11,6 @@ construction. No imports, so the twin's station loads it without the estimators.
 WAVELENGTH_SCALE_NM = 0.5
 #: Relative tolerance of a stated slit bandwidth (a slit's FWHM is specified to about ±25 %).
 BANDWIDTH_TOLERANCE = 0.25
+#: σ per unit of tolerance of an instrument within its specification: anywhere inside ±tolerance,
+#: uniformly (σ = tolerance/√3), as the twin and the validation protocol draw it (decision 0038).
+IN_SPEC_TOLERANCE_SIGMA = 3.0**-0.5

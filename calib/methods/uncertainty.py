@@ -71,21 +71,20 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, Severity
 from calib.core.spectra import Spectrum
-from calib.core.spectrometer_tolerance import BANDWIDTH_TOLERANCE, WAVELENGTH_SCALE_NM
+from calib.core.spectrometer_tolerance import (
+    BANDWIDTH_TOLERANCE,
+    IN_SPEC_TOLERANCE_SIGMA,
+    WAVELENGTH_SCALE_NM,
+)
 from calib.model.bases import CameraBasis
 
 #: The slit bandwidth assumed (FWHM, nm) for the perturbation when a lamp's is not given: the middle
 #: of the 2–10 nm of common spectroradiometers.
 ASSUMED_BANDWIDTH_NM = 5.0
-#: What an instrument within its specification gives: anywhere inside ±tolerance, uniformly
-#: (σ = tolerance/√3), as the twin's spectrometer (:mod:`mocks.bench.deviation`) and the
-#: validation protocol's offset (:class:`calib.evaluation.validation.rig_errors.SpectrometerError`)
-#: draw it, and as the mapping states the scale it inherits
-#: (:data:`calib.wavelength.profile_search.SPECTROMETER_SCALE_SIGMA_NM`). Decision 0038 found it,
-#: decision 0044 made it the default with :data:`COVERAGE_SCALE` refitted on the validation split.
-IN_SPEC_TOLERANCE_SIGMA = 1.0 / math.sqrt(3.0)
 #: σ of the spectrometer's scale and slit errors per unit of their stated tolerance, as the budget
-#: applies it by default: a bound (:data:`IN_SPEC_TOLERANCE_SIGMA`). On the validation split both
+#: applies it by default: a bound (``spectrometer_tolerance.IN_SPEC_TOLERANCE_SIGMA``, shared with
+#: the twin, the validation protocol and the mapping's scale σ; decision 0044 made it the default
+#: with :data:`COVERAGE_SCALE` refitted on the validation split). On the validation split both
 #: readings bring every method within 85–98 % once refitted (decision 0044's table); the bound is
 #: the one the simulations and the mapping's σ share. An assumed bandwidth (none given) keeps the
 #: whole perturbation whatever this is.

@@ -47,6 +47,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import QuadraticMapping, TiltedGrating, wavelength_rms_from_covariance
 from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import WavelengthGrid
+from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA, WAVELENGTH_SCALE_NM
 from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
@@ -130,7 +131,7 @@ PRIOR_MISFIT_SIGMA_NM = 0.4
 #: σ (nm) of a measured lamp spectrum's wavelength scale as a whole: compact spectrometers state a
 #: wavelength accuracy of ±0.5 nm (a uniform error within it: 0.5/√3). It shifts the mapping alike
 #: at every pixel, and no profile fit can see it.
-SPECTROMETER_SCALE_SIGMA_NM = 0.5 / math.sqrt(3.0)
+SPECTROMETER_SCALE_SIGMA_NM = WAVELENGTH_SCALE_NM * IN_SPEC_TOLERANCE_SIGMA
 
 
 @dataclass(frozen=True)
