@@ -26,9 +26,8 @@ from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     ProtocolSettings,
     render_task_scene,
-    split_tasks,
+    spread_tasks,
 )
-from calib.evaluation.validation.splits import load_splits
 from calib.methods import estimate
 
 
@@ -42,11 +41,8 @@ def main() -> None:
     arguments = parser.parse_args()
     labels = [item.strip() for item in arguments.variants.split(",")]
     variants = tuple(v for v in DEFAULT_VARIANTS if v.label in labels)
-    loaded, _ = load_splits(arguments.data_dir)
-    split = loaded.validation if arguments.split == "validation" else loaded.test
     settings = ProtocolSettings(seed=arguments.seed, variants=variants)
-    tasks = split_tasks(split, settings)
-    chosen = tasks[:: max(1, len(tasks) // arguments.cameras)][: arguments.cameras]
+    chosen = spread_tasks(arguments.data_dir, arguments.split, settings, arguments.cameras)
     print(f"split {arguments.split}, seed {arguments.seed}, {len(chosen)} cameras")
     print("camera | variant | model | RE ×10⁻² | η ±2σ coverage | η σ/err")
     rows: dict[str, list[tuple[float, float, float]]] = {v.label: [] for v in variants}

@@ -35,10 +35,9 @@ from calib.evaluation.validation.protocol import (
     ProtocolSettings,
     Task,
     draw_task_plan,
-    split_tasks,
+    spread_tasks,
 )
 from calib.evaluation.validation.scenes import RenderedScene, render_scene
-from calib.evaluation.validation.splits import load_splits
 from calib.methods.known_grating import estimate_known_grating
 from calib.methods.multilamp import (
     MultilampOptions,
@@ -90,10 +89,8 @@ def main() -> None:
     parser.add_argument("--cameras", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
     arguments = parser.parse_args()
-    loaded, _ = load_splits(arguments.data_dir)
-    split = loaded.validation if arguments.split == "validation" else loaded.test
-    tasks = split_tasks(split, ProtocolSettings(seed=arguments.seed))
-    chosen = tasks[:: max(1, len(tasks) // arguments.cameras)][: arguments.cameras]
+    settings = ProtocolSettings(seed=arguments.seed)
+    chosen = spread_tasks(arguments.data_dir, arguments.split, settings, arguments.cameras)
     sheet = SinusoidalPhaseGrating(PHASE_RAD)
     print(
         f"split {arguments.split}, seed {arguments.seed}, {len(chosen)} cameras, φ₀ = {PHASE_RAD}"

@@ -59,6 +59,7 @@ from calib.evaluation.validation.splits import (
     Split,
     SplitCamera,
     ValidationSplit,
+    load_splits,
     require_validation,
 )
 from calib.methods import MethodOptions
@@ -443,6 +444,21 @@ def split_tasks(
             for scene in range(settings.scenes)
         )
     return tasks
+
+
+def spread_tasks(
+    data_dir: Path | None,
+    role: Literal["validation", "test"],
+    settings: ProtocolSettings,
+    cameras: int,
+) -> list[Task]:
+    """At most ``cameras`` of a split's tasks, spread evenly over its camera order: the sample the
+    benches that look at a few cameras of the protocol (``bench/eta_band.py``,
+    ``bench/grating_physics.py``) share."""
+    loaded, _ = load_splits(data_dir)
+    split = loaded.validation if role == "validation" else loaded.test
+    tasks = split_tasks(split, settings)
+    return tasks[:: max(1, len(tasks) // cameras)][:cameras]
 
 
 def run_split(
