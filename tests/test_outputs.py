@@ -399,3 +399,18 @@ def test_dcp_and_icc_are_made_when_dcamprof_is_installed(
     assert files["dcp"].name == "spectral-rig SimCam.dcp" and files["dcp"].parent.name == "dcamprof"
     assert files["icc"].read_bytes()[36:40] == b"acsp"
     assert json.loads(files["result"].read_text())["dcamprof"].startswith("made by")
+
+
+def test_the_eta_plots_absolute_band_keeps_the_scale_where_the_shape_sigma_is_zero() -> None:
+    """The result's σ of η is the max-1 shape's (zero at the peak); on η₁'s absolute scale the
+    model's own σ, which carries the scale, stays in the band."""
+    from calib.pipeline.report_plots import absolute_first_order_sigma
+
+    record = {
+        "first_order_efficiency": [0.2, 0.4, 0.3],
+        "first_order_efficiency_sigma": [0.01, 0.02, 0.015],
+    }
+    shape_sigma = np.array([0.05, 0.0, 0.025])
+    sigma = absolute_first_order_sigma(record, shape_sigma)
+    np.testing.assert_allclose(sigma, np.hypot([0.01, 0.02, 0.015], shape_sigma * 0.4))
+    assert sigma[1] == 0.02  # at the peak: the scale's σ, not zero

@@ -143,16 +143,14 @@ def plot_efficiency(
     record = result.diagnostics.get("grating_model")
     if isinstance(record, dict) and "first_order_efficiency" in record:
         stated = result.grating_efficiency_sigma
-        first_order = np.asarray(record["first_order_efficiency"], dtype=np.float64)
         return plot_grating_orders(
             path,
             result.wavelength_nm,
             record,
             delivered.truth,
-            # The result's σ of η (its budget, maximum 1) on η₁'s absolute scale.
             first_order_sigma=None
             if stated is None
-            else np.asarray(stated, dtype=np.float64) * float(np.nanmax(first_order)),
+            else absolute_first_order_sigma(record, np.asarray(stated, dtype=np.float64)),
         )
     figure = _figure(7.0, 3.2)
     axes = figure.subplots()
@@ -183,6 +181,17 @@ def plot_efficiency(
     return _save(figure, path)
 
 
+def absolute_first_order_sigma(record: Mapping[str, Any], shape_sigma: FloatArray) -> FloatArray:
+    """σ of η₁ on its absolute scale from the result's σ of η, which is the σ of the maximum-1 shape
+    (decision 0042: zero at the peak, a common scale cancels): the shape's σ at η₁'s peak, joined
+    in quadrature with the model's own σ of η₁, which carries the scale."""
+    first_order = np.asarray(record["first_order_efficiency"], dtype=np.float64)
+    own = np.asarray(
+        record.get("first_order_efficiency_sigma", np.zeros_like(first_order)), dtype=np.float64
+    )
+    return np.asarray(np.hypot(own, shape_sigma * float(np.nanmax(first_order))), dtype=np.float64)
+
+
 def plot_grating_orders(
     path: Path,
     wavelength_nm: FloatArray,
@@ -205,7 +214,7 @@ def plot_grating_orders(
         sigma = np.asarray(record.get(f"{key}_sigma", np.zeros_like(values)), dtype=np.float64)
         if key == "first_order_efficiency" and first_order_sigma is not None:
             sigma = first_order_sigma
-            label = "η₁ (first order; band: the σ budget)"
+            label = "η₁ (first order; band: the σ budget's shape and the model's scale)"
         axes.plot(wavelength_nm, values, color=colour, label=label)
         _band(axes, wavelength_nm, values, sigma, colour)
     if truth is not None:
