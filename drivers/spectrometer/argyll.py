@@ -251,20 +251,12 @@ class ArgyllSettings:
     timeout_s: float = 60.0
     bandwidth_nm: float | None = None
 
-    @property
-    def effective_bandwidth_nm(self) -> float:
-        """The bandwidth a reading in the asked mode has (see :meth:`bandwidth_of`)."""
+    def bandwidth_of(self, high_resolution_delivered: bool) -> float:
+        """The bandwidth of a reading: the stated one, else an i1Pro's in the mode the reading
+        came in (``-H`` honoured, or spotread fell back to its standard bands)."""
         if self.bandwidth_nm is not None:
             return self.bandwidth_nm
-        return I1PRO_BANDWIDTH_NM[self.high_resolution]
-
-    def bandwidth_of(self, wavelength_nm: NDArray[np.float64]) -> float:
-        """The bandwidth of a reading at these wavelengths: the stated one, else an i1Pro's in the
-        mode the sampling shows (3.3 nm steps: ``-H`` was honoured; 10 nm: the instrument has no
-        high-resolution mode and spotread fell back)."""
-        if self.bandwidth_nm is not None:
-            return self.bandwidth_nm
-        return I1PRO_BANDWIDTH_NM[delivered_high_resolution(wavelength_nm)]
+        return I1PRO_BANDWIDTH_NM[high_resolution_delivered]
 
 
 def delivered_high_resolution(wavelength_nm: NDArray[np.float64]) -> bool:
@@ -487,17 +479,16 @@ class ArgyllSpotread(ClosesOnExit):
             raise ProtocolError(
                 self.label, str(exc), command=command, reply=text[:200].encode()
             ) from None
+        high_resolution = delivered_high_resolution(spectrum.wavelength_nm)
         return SpectrumReading(
             wavelength_nm=spectrum.wavelength_nm,
             values=spectrum.values[-1],
             units=units_of(spectrum.measurement_type),
             exposure_ms=None,
-            bandwidth_nm=self.settings.bandwidth_of(spectrum.wavelength_nm),
+            bandwidth_nm=self.settings.bandwidth_of(high_resolution),
             extra={
                 "measurement_type": spectrum.measurement_type or "unknown",
-                "high_resolution": (
-                    "on" if delivered_high_resolution(spectrum.wavelength_nm) else "off"
-                ),
+                "high_resolution": "on" if high_resolution else "off",
             },
         )
 
