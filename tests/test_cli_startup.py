@@ -28,6 +28,14 @@ def _loaded_after(statements: str, skip: str = "calib.cli") -> tuple[str, str]:
     return loaded, numpy_loaded
 
 
+def _printed(code: str) -> str:
+    """What ``code`` prints, run in a fresh interpreter (its imports its own)."""
+    shown = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    return shown.stdout.strip()
+
+
 def test_the_calib_command_imports_no_heavy_library() -> None:
     code = (
         "import sys\n"
@@ -35,10 +43,7 @@ def test_the_calib_command_imports_no_heavy_library() -> None:
         "app = calib.cli.app.build_app()\n"
         f"print(sorted({{name.split('.')[0] for name in sys.modules}} & set({HEAVY!r})))\n"
     )
-    shown = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
-    )
-    assert shown.stdout.strip() == "[]"
+    assert _printed(code) == "[]"
 
 
 def test_building_calib_imports_no_stage() -> None:
@@ -133,7 +138,4 @@ def test_building_rig_imports_no_numpy() -> None:
         "assert 'capture' in shown.getvalue()\n"
         f"print(sorted({{name.split('.')[0] for name in sys.modules}} & {{'numpy', *{HEAVY!r}}}))\n"
     )
-    shown = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
-    )
-    assert shown.stdout.strip() == "[]"
+    assert _printed(code) == "[]"
