@@ -17,6 +17,7 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, Quality, QualityFlag
 from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
+from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA
 from calib.evaluation.validation.budget import (
     EstimateRecord,
     component_shares,
@@ -27,7 +28,6 @@ from calib.evaluation.validation.budget import (
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
     COMPONENTS,
-    IN_SPEC_TOLERANCE_SIGMA,
     TOLERANCE_SIGMA,
     BudgetSettings,
     basis_support_nm,

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     EXTRA_VARIANTS,
@@ -35,7 +36,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
-from calib.methods.uncertainty import IN_SPEC_TOLERANCE_SIGMA, BudgetSettings, efficiency_family
+from calib.methods.uncertainty import BudgetSettings, efficiency_family
 
 #: The mean ±2σ coverage the factor aims at on the validation split.
 TARGET_COVERAGE = 0.95
