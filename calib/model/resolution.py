@@ -16,6 +16,7 @@ along the dispersion direction). Neither holds as measured:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import replace
@@ -31,7 +32,8 @@ from calib.model.forward import apply_blur, blur_kernel
 if TYPE_CHECKING:
     from scipy import sparse
 
-_FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+#: A Gaussian's FWHM over its σ.
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
 
 def gaussian_kernel(sigma_samples: float) -> FloatArray | None:
@@ -91,13 +93,17 @@ def blurred_spectrum(spectrum: Spectrum, bandwidth_nm: float, target_nm: float) 
     axis = np.arange(low, high + MATCHED_STEP_NM / 2, MATCHED_STEP_NM)
     values = CubicSpline(spectrum.wavelength_nm, spectrum.values)(axis)
     extra_nm = math.sqrt(max(target_nm**2 - bandwidth_nm**2, 0.0))
-    kernel = gaussian_kernel(extra_nm / _FWHM_PER_SIGMA / MATCHED_STEP_NM)
+    kernel = gaussian_kernel(extra_nm / FWHM_PER_SIGMA / MATCHED_STEP_NM)
     if kernel is not None:
         # Reflect at the ends: the spectrum's range edge is not a dark edge.
         from scipy.ndimage import convolve1d
 
         values = convolve1d(values, kernel, mode="nearest")
     return Spectrum(axis, values, name=spectrum.name, negative="clip")
+
+
+#: How many blur matrices :func:`wavelength_blur` keeps (a few lamps × a few mappings in one run).
+BLUR_CACHE_SIZE = 16
 
 
 def wavelength_blur(wavelength_nm: FloatArray, fwhm_nm: float) -> sparse.csr_array:
@@ -110,13 +116,31 @@ def wavelength_blur(wavelength_nm: FloatArray, fwhm_nm: float) -> sparse.csr_arr
     width in nm where the dispersion changes along the profile (±8 % over a typical first order).
     Zero beyond the ends, as :func:`calib.model.forward.apply_blur`, and beyond 5σ: a band matrix
     (sparse; a dense one cost 60 ms for a 1500-sample profile, per lamp and solve).
+
+    It depends on the samples' wavelengths and ``fwhm_nm`` alone, and every solve of one estimate
+    (the methods ``auto`` compares, the η models, the σ budget's re-solves) asks for the same ones:
+    the last :data:`BLUR_CACHE_SIZE` are kept, keyed by those values (their bytes), and returned
+    read-only.
     """
+    wavelength = np.ascontiguousarray(wavelength_nm, dtype=np.float64)
+    return _cached_blur(wavelength.tobytes(), float(fwhm_nm))
+
+
+@functools.lru_cache(maxsize=BLUR_CACHE_SIZE)
+def _cached_blur(wavelength_bytes: bytes, fwhm_nm: float) -> sparse.csr_array:
+    matrix = _build_wavelength_blur(np.frombuffer(wavelength_bytes, dtype=np.float64), fwhm_nm)
+    for part in (matrix.data, matrix.indices, matrix.indptr):
+        part.flags.writeable = False
+    return matrix
+
+
+def _build_wavelength_blur(wavelength: FloatArray, fwhm_nm: float) -> sparse.csr_array:
+    """:func:`wavelength_blur`, built."""
     from scipy import sparse  # deferred: the mapping search never needs it
 
-    wavelength = np.asarray(wavelength_nm, dtype=np.float64)
     size = wavelength.size
     spans = np.abs(np.gradient(wavelength))
-    sigma = fwhm_nm / _FWHM_PER_SIGMA
+    sigma = fwhm_nm / FWHM_PER_SIGMA
     reach = 5.0 * sigma
     # The band's half-width in samples: the most samples any 5σ holds along the profile.
     ordered = np.sort(wavelength)
@@ -164,7 +188,7 @@ def match_spectrometer(
     profile = np.asarray(observation.profile)
     sigma = observation.profile_sigma
     if wavelength_nm is None:
-        kernel = gaussian_kernel(bandwidth / _FWHM_PER_SIGMA / nm_per_sample)
+        kernel = gaussian_kernel(bandwidth / FWHM_PER_SIGMA / nm_per_sample)
         if kernel is None:
             return replace(observation, spectrum_bandwidth_nm=None)
         return replace(
