@@ -44,10 +44,11 @@ from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
-from calib.model.resolution import camera_kernel
+from calib.model.resolution import COARSE_SLIT_NM, FWHM_PER_SIGMA, camera_kernel
 from calib.wavelength.families import GratingFamily, GratingPrior
 from calib.wavelength.features import FeatureMapping, map_features
 from calib.wavelength.profile_search import (
+    MappingSearch,
     Orientation,
     search_profiles,
     spectrometer_scale_sigma_nm,
@@ -513,10 +514,10 @@ def locate_mapping(
                         raise EstimationError(
                             "a coarse tabulated spectrum: the lines are its nodes"
                         )
-                    features = _measured_lines(lamp, search.exact, grating_prior, grid)
+                    features, start = _lines_from_basins(lamp, search, grating_prior, grid, lead)
                     details["line_source"] = f"Hg lines of {lamp.name} (measured lamp)"
                     try:
-                        _check_line_fit(features, search.exact, grating_prior, lead)
+                        _check_line_fit(features, start, grating_prior, lead)
                         details["measured_lines"] = True
                     except EstimationError as refused:
                         # The lines still decide: on the validation split a line fit its checks
@@ -539,6 +540,25 @@ def locate_mapping(
                             fallback_sigma_nm = misplaced_nm
                     if note:
                         details["known_lines_note"] = f"lamp {lamp.name!r}: {note}"
+                    slit_nm = max(other.spectrum_bandwidth_nm or 0.0 for other in measured)
+                    if slit_nm > COARSE_SLIT_NM:
+                        # Nothing corrects a whole-profile fit through a broad slit: its model
+                        # drops the slit's second-order terms, which at 25 nm are the size of
+                        # the camera's flanks, and the fit stretches the mapping for them (the
+                        # twin's i1Pro in standard bands: 4–14 nm off at the red end). Its σ is
+                        # at least the slit's own σ, and the user is told.
+                        slit_sigma_nm = slit_nm / FWHM_PER_SIGMA
+                        fallback_sigma_nm = max(
+                            fallback_sigma_nm or 0.0, stated_nm or 0.0, slit_sigma_nm
+                        )
+                        warnings.append(
+                            f"the mapping rests on the whole-profile fit alone: {lamp.name}'s "
+                            f"lines could not be matched, and its spectrum's {slit_nm:g} nm slit "
+                            f"leaves that fit several nm uncertain (σ {slit_sigma_nm:.1f} nm, "
+                            "most at the red end); measure the lamps through a finer slit "
+                            "(spotread -H, high_resolution: true, or a spectrometer of ≤ "
+                            f"{COARSE_SLIT_NM:g} nm)"
+                        )
 
     extrapolated: list[str] = []
     if features is not None:
@@ -613,6 +633,33 @@ LINE_SCALE_TOLERANCE_NM = 0.5
 STRONG_LINE = 1000.0
 #: ... judged only by a spectrum at most this many times the camera's resolution (FWHM, nm).
 JUDGING_RESOLUTION = 2.0
+
+
+def _lines_from_basins(
+    lamp: LampObservation,
+    search: MappingSearch,
+    prior: GratingPrior | None,
+    grid: WavelengthGrid,
+    lead: LampObservation,
+) -> tuple[FeatureMapping, ExactMapping]:
+    """:func:`_measured_lines` from the whole-profile fit, else from each of its other basins in
+    order of fit. The fit only starts the lines, and a broad slit biases it: the twin's i1Pro in
+    standard bands (25 nm) put its best basin 4 nm off at 550 nm (14 nm at the red end), too far
+    for the lines to match, the next one 2 nm. A line fit from another basin is kept only when it
+    passes :func:`_check_line_fit` against that basin (the best basin's is kept as before, its
+    refusal recorded). Returns the line fit and the start it came from; the best basin's error
+    when none matches."""
+    try:
+        return _measured_lines(lamp, search.exact, prior, grid), search.exact
+    except EstimationError as first:
+        for candidate in search.candidates[1:]:
+            try:
+                features = _measured_lines(lamp, candidate.mapping, prior, grid)
+                _check_line_fit(features, candidate.mapping, prior, lead)
+            except EstimationError:
+                continue
+            return features, candidate.mapping
+        raise first
 
 
 def _measured_lines(
