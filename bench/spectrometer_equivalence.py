@@ -327,6 +327,20 @@ def main() -> None:
             "re_vs_truth": [row[2] for row in sweep],
             "re_vs_sharpest": [row[3] for row in sweep],
         }
+    print(
+        "\nper draw (against the PR-655 session of the same draw): RE vs truth, RE vs the "
+        "PR-655's estimate, |RE vs truth − the PR-655's|, red end (nm); ×10⁻²"
+    )
+    reference = {r.draw: r for r in runs if r.instrument == REFERENCE}
+    for run in runs:
+        if run.instrument == REFERENCE:
+            continue
+        other = reference[run.draw]
+        print(
+            f"  {run.instrument:<12} draw {run.draw}: {100 * run.re_found:5.2f} "
+            f"{100 * relative_error(run.found, other.found):5.2f} "
+            f"{100 * abs(run.re_found - other.re_found):5.2f} {run.red_end_error_nm:+6.2f}"
+        )
     total = sum(r.cpu_s for r in runs)
     print(f"\nCPU {total:.1f} s for {len(runs)} sessions (capture + estimate)")
     if args.json:
