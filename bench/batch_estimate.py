@@ -9,7 +9,11 @@ children's rusage) sees all the CPU: the batch's parent, its spawned workers, a 
 Steps:
 
 1. ``python bench/batch_estimate.py capture DIR --sessions 20`` captures 20 twin sessions into
-   ``DIR`` (``rig capture`` on the packaged twin configuration; ``--config`` for another).
+   ``DIR`` with this environment's code: ``rig init --twin`` writes the packaged twin configuration
+   into ``DIR`` (``--config`` for another), and session ``i`` is captured with its ``seed``
+   replaced by ``--seed + i`` (default 20251121), so the same command makes the same sessions, and
+   the sessions differ in their noise as a lab's would. A directory captured by an older
+   spectral-rig is not comparable (its twin may not be today's): capture afresh.
 2. Time the modes side by side on the same sessions (outputs go to a temporary directory that is
    removed afterwards; each mode prints its N, wall time and CPU time):
 
@@ -38,6 +42,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import re
 import resource
 import subprocess
 import sys
@@ -63,12 +68,29 @@ def sessions_in(directory: Path, limit: int | None) -> list[Path]:
     return found
 
 
-def capture(directory: Path, sessions: int, config: Path) -> None:
+def capture(directory: Path, sessions: int, config: Path | None, seed: int) -> None:
+    """Capture ``sessions`` twin sessions into ``directory``, session ``i`` with seed ``seed + i``
+    (the configuration: ``config``, or ``rig init --twin``'s written into ``directory``)."""
     directory.mkdir(parents=True, exist_ok=True)
+    if config is None:
+        config = directory / "config.yaml"
+        init = [RIG, "init", "--twin", "--out", str(config), "--force"]
+        subprocess.run(init, check=True, stdout=subprocess.DEVNULL)
+    text = config.read_text(encoding="utf-8")
+    if not re.search(r"^seed: \d+", text, flags=re.MULTILINE):
+        raise SystemExit(f"{config}: no top-level `seed: N` line to vary")
     for number in range(sessions):
-        command = [RIG, "capture", "--config", str(config), "--out", str(directory), "-q"]
-        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-        print(f"captured {number + 1}/{sessions}", flush=True)
+        seeded = directory / f".config-seed-{seed + number}.yaml"
+        seeded.write_text(
+            re.sub(r"^seed: \d+", f"seed: {seed + number}", text, count=1, flags=re.MULTILINE),
+            encoding="utf-8",
+        )
+        command = [RIG, "capture", "--config", str(seeded), "--out", str(directory), "-q"]
+        try:
+            subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+        finally:
+            seeded.unlink()
+        print(f"captured {number + 1}/{sessions} (seed {seed + number})", flush=True)
 
 
 def _estimate_options(report: bool) -> list[str]:
@@ -190,7 +212,13 @@ def main() -> None:
     )
     parser.add_argument("directory", type=Path, help="the twin sessions")
     parser.add_argument("--sessions", type=int, default=20, help="capture: how many")
-    parser.add_argument("--config", type=Path, default=Path("config.yaml"), help="capture: twin")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="capture: a twin configuration (rig init --twin's)",
+    )
+    parser.add_argument("--seed", type=int, default=20251121, help="capture: the first seed")
     parser.add_argument("--limit", type=int, default=None, help="the first N sessions only")
     parser.add_argument("--parallel", type=int, default=2, help="separate: processes at a time")
     parser.add_argument("--workers", type=int, default=2, help="pool/dask: worker processes")
@@ -203,7 +231,7 @@ def main() -> None:
     )
     arguments = parser.parse_args()
     if arguments.mode == "capture":
-        capture(arguments.directory, arguments.sessions, arguments.config)
+        capture(arguments.directory, arguments.sessions, arguments.config, arguments.seed)
         return
     modes = arguments.mode.split(",")
     unknown = sorted(set(modes) - {"separate", "pool", "dask"})

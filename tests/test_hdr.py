@@ -334,3 +334,33 @@ def test_robust_variance_is_the_variance_inside_five_robust_sigmas() -> None:
     assert robust_variance(values) == float(np.var(kept))
     assert 8.0 < robust_variance(values) < 10.0  # the hot pixels left out
     assert robust_level_and_variance(np.full(9, 7.0)) == (7.0, 0.0)
+
+
+def _robust_by_medians(values: np.ndarray, clip_sigma: float = 5.0) -> tuple[float, float]:
+    """The definition, through ``np.median`` twice (what the counting path must equal)."""
+    centre = float(np.median(values))
+    deviation = np.abs(values - centre)
+    spread = 1.4826 * float(np.median(deviation))
+    if spread <= 0:
+        spread = float(np.std(values))
+    if spread <= 0:
+        return centre, 0.0
+    return centre, float(np.var(values[deviation <= clip_sigma * max(spread, 1.0)]))
+
+
+def test_robust_level_and_variance_counts_values_on_a_grid_to_the_same_bits() -> None:
+    # dark-frame samples are whole DN (red, blue) or half DN (a green pair's mean): counted, not
+    # partitioned; the numbers must be np.median's, odd and even sizes, with and without clipping
+    rng = np.random.default_rng(11)
+    for trial in range(400):
+        size = int(rng.integers(1, 2_000))
+        values = np.round(rng.normal(rng.normal(0.0, 50.0), rng.uniform(0.05, 30.0), size))
+        values = values / (1.0, 2.0, 8.0, 1.0, 3.0)[trial % 5]  # the last: off the grid
+        if trial % 5 == 3:
+            values[rng.integers(size)] += 1e5  # a hot pixel, clipped
+        values = np.ascontiguousarray(values)
+        centre, variance = robust_level_and_variance(values)
+        expected = _robust_by_medians(values)
+        assert (centre, variance) == expected, trial
+        assert np.signbit(centre) == np.signbit(expected[0])
+    assert robust_level_and_variance(np.array([np.nan, 1.0, 2.0]))[0] != 1.5  # NaN: general path

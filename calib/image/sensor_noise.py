@@ -132,8 +132,73 @@ def robust_variance(values: FloatArray, clip_sigma: float = 5.0) -> float:
     return robust_level_and_variance(values, clip_sigma)[1]
 
 
+#: Raw values on a grid of 1/_LATTICE DN (integers, a green pair's half-integers) take the exact
+#: counting path of :func:`robust_level_and_variance` when they span at most _MAX_LATTICE_BINS steps.
+_LATTICE = 8
+_MAX_LATTICE_BINS = 1 << 20
+
+
+def _lattice_level_and_variance(
+    values: FloatArray, clip_sigma: float
+) -> tuple[float, float] | None:
+    """:func:`robust_level_and_variance` of values on a grid of ``1/_LATTICE`` by counting: the same
+    numbers, bit for bit, or ``None`` (not on the grid, or too wide: the general path).
+
+    Both medians are order statistics read from one histogram of the values (the deviations'
+    histogram is the values' folded about the centre), where ``np.median`` partitions the values
+    and then their deviations. Every value, the centre (a mean of two) and every deviation is then
+    an exact multiple of ``1/(2 _LATTICE)``, so the medians are the same floats; when no value is
+    clipped, the variance is taken of the same array in the same order.
+    """
+    if values.ndim != 1 or values.size == 0 or not values.flags.c_contiguous:
+        return None
+    scaled = values * float(_LATTICE)  # exact: a power of two
+    keys = scaled.astype(np.int64)
+    if not np.array_equal(keys, scaled):  # off the grid, or NaN
+        return None
+    low, high = int(keys.min()), int(keys.max())
+    if high - low >= _MAX_LATTICE_BINS:
+        return None
+    counts = np.bincount(keys - low)
+    cumulative = np.cumsum(counts)
+    size = values.size
+
+    def order_statistic(cumulative: NDArray[np.int64], index: int) -> int:
+        return int(np.searchsorted(cumulative, index, side="right"))
+
+    half = size // 2
+    # the centre in steps of 1/(2 _LATTICE): twice the middle key, or the sum of the two middle keys
+    upper = order_statistic(cumulative, half) + low
+    lower = upper if size % 2 else order_statistic(cumulative, half - 1) + low
+    centre = _mean_of(lower / _LATTICE, upper / _LATTICE, size)
+    doubled_centre = lower + upper
+    # deviations |2 k − (k_lower + k_upper)| in steps of 1/(2 _LATTICE)
+    distance = np.abs(2 * (np.arange(counts.size) + low) - doubled_centre)
+    folded = np.bincount(distance, weights=counts)
+    folded_cumulative = np.cumsum(folded.astype(np.int64))
+    step = 2 * _LATTICE
+    deviation_upper = order_statistic(folded_cumulative, half)
+    deviation_lower = deviation_upper if size % 2 else order_statistic(folded_cumulative, half - 1)
+    spread = _MAD_TO_SIGMA * _mean_of(deviation_lower / step, deviation_upper / step, size)
+    if spread <= 0:
+        return None
+    widest = max(abs(2 * low - doubled_centre), abs(2 * high - doubled_centre)) / step
+    if widest > clip_sigma * max(spread, 1.0):
+        deviation = np.abs(values - centre)
+        return centre, float(np.var(values[deviation <= clip_sigma * max(spread, 1.0)]))
+    return centre, float(np.var(values))
+
+
+def _mean_of(lower: float, upper: float, size: int) -> float:
+    """The median of ``size`` values from its middle one (odd) or two (even), as ``np.median``."""
+    return lower if size % 2 else float(np.mean(np.array([lower, upper])))
+
+
 def robust_level_and_variance(values: FloatArray, clip_sigma: float = 5.0) -> tuple[float, float]:
     """The median of ``values`` and :func:`robust_variance`, which starts from it."""
+    counted = _lattice_level_and_variance(values, clip_sigma)
+    if counted is not None:
+        return counted
     centre = float(np.median(values))
     deviation = np.abs(values - centre)  # once, for the spread and the clip
     spread = _MAD_TO_SIGMA * float(np.median(deviation))

@@ -46,6 +46,15 @@ def _save(figure: Any, path: Path) -> Path:
     return save_png(figure, path, dpi=100)
 
 
+def _title(axes: Any, text: str) -> None:
+    """The axes' title on its top edge (``y=1.0``, the place Matplotlib's automatic placement keeps
+    when nothing rises above the axes). Automatic placement lays the y axis out once more at every
+    draw to find its offset text (``×10ⁿ``), a tenth of a plot's drawing; only plots without an
+    offset text take this (:func:`plot_fit`, whose DN axis has one, keeps the automatic place).
+    """
+    axes.set_title(text, fontsize=9, y=1.0)
+
+
 def _band(axes: Any, x: FloatArray, y: FloatArray, sigma: FloatArray | None, colour: str) -> None:
     if sigma is None:
         return
@@ -122,7 +131,7 @@ def plot_sensitivity(path: Path, estimate: OfflineEstimate, delivered: Delivered
         parts.append("dashed: extended to 380–780 nm, ±2σ")
     if delivered.truth is not None:
         parts.append("dotted: truth")
-    axes.set_title("; ".join(parts) + ")", fontsize=9, y=1.0)
+    _title(axes, "; ".join(parts) + ")")
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("relative sensitivity")
     axes.set_xlim(380.0, 780.0)
@@ -173,7 +182,7 @@ def plot_efficiency(
     if estimate.grating is None and result.method == "known-grating":
         origin = "assumed flat"
     band = "±2σ band" if result.grating_efficiency_sigma is not None else "no σ from this method"
-    axes.set_title(f"first-order grating efficiency ({origin}, maximum 1; {band})", fontsize=9)
+    _title(axes, f"first-order grating efficiency ({origin}, maximum 1; {band})")
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("relative efficiency")
     axes.legend(fontsize=8)
@@ -239,10 +248,7 @@ def plot_grating_orders(
         for name, value in parameters.items()
         if name in ("peak_phase_rad", "blaze_nm")
     )
-    axes.set_title(
-        f"grating efficiency, {record.get('model')} model ({described}); ±2σ bands",
-        fontsize=9,
-    )
+    _title(axes, f"grating efficiency, {record.get('model')} model ({described}); ±2σ bands")
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("efficiency (fraction of the incident light)")
     axes.set_ylim(bottom=0.0)
@@ -300,11 +306,11 @@ def plot_mapping(
         )
     residual_axes.axhline(0.0, color="grey", linewidth=0.6)
     axes.set_ylabel("wavelength (nm)")
-    axes.set_title(
+    _title(
+        axes,
         f"mapping ({getattr(mapping, 'method', 'given')}; "
         + ("±2σ band" if sigma is not None else "no σ for this mapping")
         + ")",
-        fontsize=9,
     )
     axes.legend(fontsize=7, ncol=2)
     axes.grid(alpha=0.3)
@@ -423,7 +429,7 @@ def plot_lamp_spectra(path: Path, observations: Sequence[LampObservation]) -> Pa
         axes.plot(
             obs.spectrum.wavelength_nm, obs.spectrum.values / peak, linewidth=0.9, label=obs.name
         )
-    axes.set_title("lamp spectra as measured (each divided by its maximum)", fontsize=9)
+    _title(axes, "lamp spectra as measured (each divided by its maximum)")
     axes.set_xlabel("wavelength (nm)")
     axes.set_ylabel("relative power")
     axes.legend(fontsize=8)
@@ -445,9 +451,7 @@ def plot_warmup(path: Path, traces: Sequence[WarmupTrace]) -> Path | None:
         if trace.tolerance is not None:
             axes.axhline(100.0 * trace.tolerance, color=colour, linestyle=":", linewidth=1.0)
     axes.set_ylim(bottom=0.0)
-    axes.set_title(
-        "lamp warm-up: change from the previous spectrum (dotted: tolerance)", fontsize=9
-    )
+    _title(axes, "lamp warm-up: change from the previous spectrum (dotted: tolerance)")
     axes.set_xlabel("time since the lamp was switched on (s)")
     axes.set_ylabel("change (%)")
     axes.legend(fontsize=8)
