@@ -957,6 +957,7 @@ def search_profiles(
     # prior's mean pulls it by what the curvature cannot see (lines pin it: no such term).
     broadband_only = all(lamp.kind != "fluorescent" for lamp in lamps)
     edge = red_edge_nm(measured[0], exact, prior) if broadband_only and physical else None
+    pulled: ExactMapping | None = None
     if (
         edge is not None
         and edge[0] - edge[1] > RED_EDGE_MARGIN_NM
@@ -991,6 +992,7 @@ def search_profiles(
                     edge = red_edge_nm(measured[0], exact, prior)
                 else:
                     decided = [*decided, (family, outcome)]
+                    pulled = family.mapping(outcome.x)
     _covers(exact, pixel_range, grid)
 
     # Ambiguity: every basin's profile likelihood, tempered by the misfit of the best one.
@@ -1040,15 +1042,24 @@ def search_profiles(
     warnings: list[str] = []
     if edge is not None and edge[0] - edge[1] > RED_EDGE_MARGIN_NM:
         # A stretched red end: no basin competes, so the likelihood cannot say (decision 0049).
+        # σ spans the excess and, when it was weighed, the basin with the red end pulled in.
         ambiguous = True
         stated = max(stated, edge[0] - edge[1])
+        other_basin = ""
+        if pulled is not None:
+            apart = float(np.sqrt(np.mean((pulled.wavelength_nm(probe) - exact_probe) ** 2)))
+            stated = max(stated, 0.5 * apart)
+            other_basin = (
+                f"; the basin with the red end pulled in to it fits worse, {apart:.1f} nm away "
+                "(RMS), and is among the result's candidates"
+            )
         warnings.append(
             f"the mapping may be stretched at the red end: it puts the end of {measured[0].name}'s "
             f"signal (where it falls to {RED_EDGE_FRACTION:.0%} of its peak) at {edge[0]:.0f} nm, "
             f"{edge[0] - edge[1]:.0f} nm beyond where the camera prior's mean puts it "
             f"({edge[1]:.0f} nm; more than {RED_EDGE_MARGIN_NM:g} nm is beyond any validation "
-            f"camera); the stated σ ({stated:.1f} nm) spans it. A fluorescent (line) lamp shot in "
-            "the same geometry decides it."
+            f"camera){other_basin}; the stated σ ({stated:.1f} nm) spans both. A fluorescent "
+            "(line) lamp shot in the same geometry decides it."
         )
     mapping = stated_covariance(mapping, stated, scale_nm, pixel_range)
     if sigma.competing is not None:
