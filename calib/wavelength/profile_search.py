@@ -713,10 +713,18 @@ def _prior_points(family: GratingFamily) -> tuple[FloatArray, tuple[int, ...]]:
     return np.stack([m.ravel() for m in mesh], axis=1), mesh[0].shape
 
 
-def _covers(mapping: ExactMapping, pixel_range: tuple[float, float], grid: WavelengthGrid) -> None:
+def _spans_grid(
+    mapping: ExactMapping, pixel_range: tuple[float, float], grid: WavelengthGrid
+) -> bool:
+    """The mapping puts the profile's ends around the whole grid (within half a step)."""
     ends = mapping.wavelength_nm(np.array(pixel_range))
     tolerance = 0.5 * grid.step_nm
-    if ends.min() > grid.start_nm + tolerance or ends.max() < grid.stop_nm - tolerance:
+    return bool(ends.min() <= grid.start_nm + tolerance and ends.max() >= grid.stop_nm - tolerance)
+
+
+def _covers(mapping: ExactMapping, pixel_range: tuple[float, float], grid: WavelengthGrid) -> None:
+    if not _spans_grid(mapping, pixel_range, grid):
+        ends = mapping.wavelength_nm(np.array(pixel_range))
         raise EstimationError(
             f"the best mapping puts the profile at {ends.min():.0f}–{ends.max():.0f} nm, not "
             f"covering the grid {grid.start_nm:g}–{grid.stop_nm:g} nm: does the profile hold the "
@@ -982,12 +990,19 @@ def search_profiles(
                 > AMBIGUITY_MIN_DISTANCE_NM
                 for f, o in decided
             ):
+                taken = None
                 if outcome.cost < decided[0][1].cost:
-                    decided = [(family, outcome), *decided]
-                    final = final_stage.refine(
+                    taken = final_stage.refine(
                         outcome.x, max_iterations=10, tolerance=1e-7, rounds=1
                     )
-                    evaluations += final.evaluations
+                    evaluations += taken.evaluations
+                    # A profile holds the whole first order: a basin short of the grid is no
+                    # answer (it stays a candidate).
+                    if not _spans_grid(family.mapping(taken.x), pixel_range, grid):
+                        taken = None
+                if taken is not None:
+                    decided = [(family, outcome), *decided]
+                    final = taken
                     exact = family.mapping(final.x)
                     edge = red_edge_nm(measured[0], exact, prior)
                 else:
