@@ -955,6 +955,10 @@ def search_profiles(
         decided.append((family, outcome))
     # Basins that the finer fit merged are one.
     decided = _distinct(decided, pixel_range, MAX_BASINS)
+    # A profile holds the whole first order: the best basin that spans the grid is the answer (a
+    # test camera's best basin ended at 688 nm and the estimate failed); the others stay
+    # candidates, and with none spanning it the check below says so.
+    decided.sort(key=lambda item: not _spans_grid(item[0].mapping(item[1].x), pixel_range, grid))
     family, best = decided[0]
     # 3. Final: finer nodes, the stiff prior, the profile at ≤ FINAL_BIN_NM per sample.
     final_stage = stage(family, FINAL_BIN_NM, FINE_NODES_NM, FLEXIBILITY, 0.0)
