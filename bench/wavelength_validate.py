@@ -24,6 +24,10 @@ Scenarios (``--scenario``):
                   al. 2025 Eq. 16) and its mapping error.
 
 Which split: ``--split validation`` for any tuning, ``--split test`` for reporting only.
+``--predictions N`` adds N of Solomatov & Akkaynak's predicted curves to the validation split as
+extra synthetic cameras (issue 15's protocol, as ``calib validate --predictions``; basis: all
+training curves); ``--only-predicted`` runs those alone. ``--no-optics`` measures the scenes as
+``calib validate`` does (no focal length or pitch from EXIF).
 
     python bench/wavelength_validate.py --data-dir ../shared/data/camera_sensitivities --split test --scenario led
 """
@@ -32,9 +36,11 @@ from __future__ import annotations
 
 import argparse
 import csv
+import multiprocessing
 import os
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -60,7 +66,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
 )
 from calib.evaluation.validation.scenes import RenderedScene, render_scene
-from calib.evaluation.validation.splits import load_splits
+from calib.evaluation.validation.splits import PREDICTION, load_splits
 from calib.methods import estimate
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.rig_prior import rig_geometry
@@ -88,7 +94,11 @@ def mapping_errors(
     sigma = mapping_sigma_nm(mapping, pixel[inside])
     stated = float("nan") if sigma is None else float(np.sqrt(np.mean(sigma**2)))
     rms = float(np.sqrt(np.mean(error**2)))
+    # The protocol's own share (calib.evaluation.validation.protocol.mapping_scores): pixels
+    # whose |Δλ| is within ±2σ.
+    covered = float("nan") if sigma is None else float(np.mean(np.abs(error) <= 2.0 * sigma))
     return {
+        "coverage": covered,
         "mean_abs_nm": float(np.mean(np.abs(error))),
         "max_abs_nm": float(np.max(np.abs(error))),
         "rms_nm": rms,
@@ -155,7 +165,20 @@ def led_row(
     return {
         **scores,
         "ambiguous": solution.ambiguous,
+        "n_basins": len(candidates),
         "runner_up_delta_chi2": runner_up.get("delta_chi2", float("inf")),
+        "runner_up_unmatched_delta_chi2": runner_up.get("unmatched_delta_chi2"),
+        "nearest_basin_delta_chi2": (
+            candidates[nearest[1]].get("delta_chi2") if nearest[1] >= 0 else None
+        ),
+        "nearest_basin_unmatched_delta_chi2": (
+            candidates[nearest[1]].get("unmatched_delta_chi2") if nearest[1] >= 0 else None
+        ),
+        "temper": solution.details.get("temper", float("nan")),
+        "first_nm": float(solution.mapping.wavelength_nm(led.pixel[:1])[0]),
+        "last_nm": float(solution.mapping.wavelength_nm(led.pixel[-1:])[0]),
+        "true_first_nm": float(scene.true_wavelength_nm[0]),
+        "true_last_nm": float(scene.true_wavelength_nm[-1]),
         "runner_up_distance_nm": runner_up.get("rms_distance_nm", 0.0),
         "nearest_basin": nearest[1],
         "nearest_basin_mean_abs_nm": nearest[0],
@@ -236,6 +259,56 @@ def grating_file_row(
     }
 
 
+def run_one(job: tuple[Task, Task, int, str, bool, bool]) -> dict[str, Any] | None:
+    """One camera's row (``None``: the calibration camera itself in the grating-file scenario)."""
+    task, calibration, seed, scenario, grooves, optics = job
+    scene = render_task_scene(task)
+    lamps = (
+        with_optics(scene, np.random.default_rng([seed, task.camera.stable_id]))
+        if optics
+        else dict(scene.observations)
+    )
+    name = task.camera.name
+    try:
+        if scenario == "led":
+            nominal = (
+                nominal_grooves(scene, np.random.default_rng([seed, task.camera.stable_id, 2]))
+                if grooves
+                else None
+            )
+            row = led_row(task, scene, lamps, nominal)
+        else:
+            if task.camera.name == calibration.camera.name:
+                return None
+            row = grating_file_row(task, calibration, scene, lamps)
+    except (EstimationError, InputError) as exc:
+        return {"camera": name, "group": task.camera.group, "failed": str(exc)}
+    return {"camera": name, "group": task.camera.group, **row}
+
+
+def report(row: dict[str, Any] | None, rows: list[dict[str, Any]]) -> None:
+    """Print one camera's line and keep its row."""
+    if row is None:
+        return
+    rows.append(row)
+    name = row["camera"]
+    if "failed" in row:
+        print(f"{name[:40]:40s} FAILED: {row['failed']}", flush=True)
+        return
+    extra = (
+        f"amb {int(row['ambiguous'])}"
+        if "ambiguous" in row
+        else f"RE {row['re_x100']:5.2f} (true η {row['re_true_eta_x100']:5.2f}, η RMS error "
+        f"{row['eta_rms_error']:.3f})"
+    )
+    print(
+        f"{name[:40]:40s} mean {row['mean_abs_nm']:6.2f} max {row['max_abs_nm']:6.2f} nm "
+        f"stated {row['stated_nm']:5.2f} ratio {row['ratio']:5.2f} {extra} "
+        f"cpu {row['cpu_s']:.2f} s",
+        flush=True,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default=None)
@@ -257,57 +330,59 @@ def main() -> None:
         help="grating-file: reuse only the groove spacing for another body behind the same lens "
         "(the rule before same_lens; an A/B switch for the validation split)",
     )
+    parser.add_argument(
+        "--predictions",
+        type=int,
+        default=0,
+        help="validation split: add this many of Solomatov & Akkaynak's predicted curves as extra "
+        "synthetic cameras (drawn with --seed, as `calib validate --predictions`)",
+    )
+    parser.add_argument(
+        "--only-predicted",
+        action="store_true",
+        help="with --predictions: run the predicted cameras only (not the 44 leave-one-out ones)",
+    )
+    parser.add_argument(
+        "--no-optics",
+        action="store_true",
+        help="led: the profiles as `calib validate` has them (no EXIF focal length or pitch)",
+    )
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--csv", default=None)
     args = parser.parse_args()
     if args.no_lens_reuse:
         import calib.wavelength.rig_prior as rig_prior_module
 
         rig_prior_module.same_lens = lambda stored, new: None
-    splits, _notes = load_splits(args.data_dir)
+    if args.predictions and args.split != "validation":
+        parser.error("--predictions joins the validation split only")
+    splits, _notes = load_splits(args.data_dir, predictions=args.predictions, seed=args.seed)
     split = splits.validation if args.split == "validation" else splits.test
+    if args.only_predicted:
+        split = replace(split, cameras=tuple(c for c in split.cameras if c.group == PREDICTION))
     settings = ProtocolSettings(seed=args.seed)
     tasks = split_tasks(split, settings)
     if args.cameras is not None:
         tasks = [tasks[int(i)] for i in args.cameras.split(",")]
     # The calibration camera: a training camera with its leave-one-out basis (never a test one).
     calibration = split_tasks(splits.validation, settings)[args.calibration_camera]
+    if args.no_optics and args.scenario != "led":
+        parser.error("--no-optics: the grating-file scenario needs the capture's optics")
+    jobs = [
+        (task, calibration, args.seed, args.scenario, args.grooves, not args.no_optics)
+        for task in tasks
+    ]
     rows: list[dict[str, Any]] = []
-    for task in tasks:
-        scene = render_task_scene(task)
-        lamps = with_optics(scene, np.random.default_rng([args.seed, task.camera.stable_id]))
-        name = task.camera.name
-        try:
-            if args.scenario == "led":
-                grooves = (
-                    nominal_grooves(
-                        scene, np.random.default_rng([args.seed, task.camera.stable_id, 2])
-                    )
-                    if args.grooves
-                    else None
-                )
-                row = led_row(task, scene, lamps, grooves)
-            else:
-                if task.camera.name == calibration.camera.name:
-                    continue
-                row = grating_file_row(task, calibration, scene, lamps)
-        except (EstimationError, InputError) as exc:
-            print(f"{name[:40]:40s} FAILED: {exc}", flush=True)
-            rows.append({"camera": name, "failed": str(exc)})
-            continue
-        row = {"camera": name, "group": task.camera.group, **row}
-        rows.append(row)
-        extra = (
-            f"amb {int(row['ambiguous'])}"
-            if "ambiguous" in row
-            else f"RE {row['re_x100']:5.2f} (true η {row['re_true_eta_x100']:5.2f}, η RMS error "
-            f"{row['eta_rms_error']:.3f})"
-        )
-        print(
-            f"{name[:40]:40s} mean {row['mean_abs_nm']:6.2f} max {row['max_abs_nm']:6.2f} nm "
-            f"stated {row['stated_nm']:5.2f} ratio {row['ratio']:5.2f} {extra} "
-            f"cpu {row['cpu_s']:.2f} s",
-            flush=True,
-        )
+    if args.jobs <= 1:
+        results = map(run_one, jobs)
+        for row in results:
+            report(row, rows)
+    else:
+        # Spawned workers (no inherited BLAS pools); the rows do not depend on their number.
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=args.jobs, mp_context=context) as pool:
+            for row in pool.map(run_one, jobs, chunksize=1):
+                report(row, rows)
     done = [row for row in rows if "failed" not in row]
     failed = len(rows) - len(done)
     mean_abs = np.array([row["mean_abs_nm"] for row in done])
@@ -320,9 +395,12 @@ def main() -> None:
     )
     if args.scenario == "led":
         flagged = np.array([row["ambiguous"] for row in done], dtype=bool)
+        coverage = np.array([row["coverage"] for row in done])
         summary += (
-            f" ({int(np.sum((worst > 3) & ~flagged))} without an ambiguity warning), warnings "
-            f"{int(flagged.sum())}"
+            f" ({int(np.sum((worst > 3) & ~flagged))} without an ambiguity warning; mean|Δλ| > 3 "
+            f"nm unwarned {int(np.sum((mean_abs > 3) & ~flagged))}), warnings "
+            f"{int(flagged.sum())} ({int(np.sum(flagged & (worst <= 3)))} on mappings ≤ 3 nm); "
+            f"±2σ coverage (pixels, as calib validate) {100.0 * float(np.nanmean(coverage)):.1f} %"
         )
     else:
         re = np.array([row["re_x100"] for row in done])

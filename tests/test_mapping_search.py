@@ -20,7 +20,12 @@ from calib.model.forward import PeakFractionNoise, pixel_edges, render_observati
 from calib.wavelength import find_mapping
 from calib.wavelength.families import GratingFamily, GratingPrior
 from calib.wavelength.locate import locate_mapping
-from calib.wavelength.profile_search import _end_points, bin_pixels
+from calib.wavelength.profile_search import (
+    RED_EDGE_MARGIN_NM,
+    _end_points,
+    bin_pixels,
+    red_edge_nm,
+)
 from calib.wavelength.response_model import ResponseModel
 from calib.wavelength.rig_prior import default_prior
 
@@ -223,3 +228,32 @@ def test_a_short_lens_led_profile_from_the_spot_finds_its_basin(prior, camera):
     error = solution.mapping.wavelength_nm(pixel[inside]) - true_nm[inside]
     assert solution.details["family"] == "grating"
     assert np.max(np.abs(error)) < 2.0
+
+
+def test_a_red_end_stretched_beyond_the_prior_is_flagged(prior, camera):
+    """Where an LED's signal ends is the camera's IR cut-off under the lamp, which the prior knows:
+    under the true mapping the profile's red edge is within the margin of the prior mean's, under
+    one stretched 30 nm at the red end it is beyond it (the failures of decision 0049); the right
+    mapping of a search carries the comparison and no warning."""
+    truth = TiltedGrating(1010.4 / 726.0, 726.0, 7.39)
+    pixel = np.arange(308.0, 923.0)
+    observation = render_observation(
+        lamp_from_spec("LED-B3"),
+        camera,
+        mapping=truth,
+        pixel=pixel,
+        noise=PeakFractionNoise(0.005),
+        rng=np.random.default_rng(5),
+        kind="led",
+    ).observation
+    true_nm = truth.wavelength_nm(pixel)
+    found, expected, _ = red_edge_nm(observation, truth, prior) or (np.nan, np.nan, np.nan)
+    assert abs(found - expected) < RED_EDGE_MARGIN_NM
+    stretch = 30.0 * (pixel - pixel[0]) / (pixel[-1] - pixel[0])
+    stretched = QuadraticMapping.fit(pixel, true_nm + stretch)
+    edge = red_edge_nm(observation, stretched, prior)
+    assert edge is not None and edge[0] - edge[1] > RED_EDGE_MARGIN_NM
+    assert edge[1] == expected  # the prior's edge does not depend on the mapping
+    # A profile with no signal has no edge.
+    dark = replace(observation, profile=np.zeros_like(observation.profile))
+    assert red_edge_nm(dark, truth, prior) is None
