@@ -18,7 +18,12 @@ from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import lamp_kind
 from calib.methods import _rerun, estimate
-from calib.methods.grating_models import CHOICE_FLOOR, check_grating_model, fit_physical
+from calib.methods.grating_models import (
+    CHOICE_FLOOR,
+    check_grating_model,
+    fit_physical,
+    physical_equations,
+)
 from calib.methods.multilamp import (
     EfficiencySolution,
     MultilampOptions,
@@ -298,3 +303,28 @@ def test_an_unknown_grating_model_is_refused_with_the_choices():
         check_grating_model("holographic")
     with pytest.raises(InputError, match="grating_model"):
         MultilampOptions(grating_model="holographic")  # type: ignore[arg-type]
+
+
+def test_the_choice_judges_each_model_at_its_best_throughput(basis):
+    """The judged χ² profiles the free throughput out at the judged floor (decision 0048): it
+    does not depend on the fit's own ``T`` (found at the stated noise; only the whitening's
+    response term moves with it), and is never above the χ² at that ``T``."""
+    grating = SinusoidalPhaseGrating(1.1)
+    _, observations = _scene(
+        _order(grating, 1), _order(grating, 0), seed=3, noise=0.01, direct_noise=0.004
+    )
+    lamps = prepare_lamps(_with_rig_errors(observations, 3), basis=basis, mapping=MAPPING).lamps
+    fit = fit_physical(lamps, "sinusoidal", DEFAULT_GRID.wavelength_nm)
+    judged = fit.judged_chi2(lamps, None, CHOICE_FLOOR)
+    shifted = replace(fit, log_throughput=fit.log_throughput + 0.05)
+    assert shifted.judged_chi2(lamps, None, CHOICE_FLOOR) == pytest.approx(judged, rel=1e-2)
+    wavelength = DEFAULT_GRID.wavelength_nm
+    shape = physical_equations(
+        lamps, "sinusoidal", fit.parameter, np.ones(wavelength.size), None, wavelength
+    )[2]
+    throughput = float(np.exp(fit.log_throughput))
+    values, target, _ = physical_equations(
+        lamps, "sinusoidal", fit.parameter, throughput * shape, None, wavelength, CHOICE_FLOOR
+    )
+    at_fit = float(np.sum((throughput * values - target) ** 2))
+    assert judged <= at_fit

@@ -69,6 +69,7 @@ from calib.methods.grating_models import (
     PhysicalFit,
     check_grating_model,
     fit_physical,
+    profile_throughput,
     with_jackknife,
 )
 from calib.methods.responses import (
@@ -651,7 +652,7 @@ def _solve_efficiency(
 #: How ``"auto"`` chooses the grating model (recorded with the choice).
 CHOICE_RULE = (
     "predictive risk of the direct equations (Mallows' C_L) at the rig's error level: each "
-    "equation's σ floored at CHOICE_FLOOR of its signal"
+    "equation's σ floored at CHOICE_FLOOR of its signal, the free throughput profiled out there"
 )
 
 
@@ -659,13 +660,14 @@ def _fourier_judged_risk(
     fourier: EfficiencySolution, lamps: Sequence[LampData], gain_sigma: float, floor: float
 ) -> float:
     """The Fourier model's ``C_L`` with each direct equation's σ floored at ``floor`` of its
-    signal: the χ² of its residuals so judged, plus twice its effective number of parameters
-    (``tr H`` of the fit, :func:`weight_score`)."""
+    signal: the χ² of its residuals so judged — ``η⁻¹``'s overall scale (the direct path's
+    throughput) profiled out at that weighting, as the physical models' ``T`` — plus twice its
+    effective number of parameters (``tr H`` of the fit, :func:`weight_score`)."""
     inverse = fourier.inverse_efficiency
     rows, target = direct_rows(lamps, inverse, gain_sigma=gain_sigma, floor=floor)
-    residual = rows @ inverse - target
+    _, chi2 = profile_throughput(rows @ inverse, target)
     parameters = 0.5 * (float(fourier.info["predictive_risk"]) - float(fourier.info["direct_chi2"]))
-    return float(residual @ residual) + 2.0 * parameters
+    return chi2 + 2.0 * parameters
 
 
 def physical_solution(fit: PhysicalFit, record: dict[str, Any]) -> EfficiencySolution:
