@@ -180,6 +180,28 @@ def test_reduced_chi2_inflates_and_warns() -> None:
     assert reduced_chi2(multilamp) == 2.0
 
 
+def test_a_physical_fits_chi2_is_not_counted_twice() -> None:
+    """Decision 0050: a physical η fit inflates its covariance by the direct equations' χ²/dof
+    (:func:`calib.methods.grating_models.fit_physical`); the budget does not inflate the method's σ
+    by that χ² again, but still judges and flags it. The Fourier model's posterior is not
+    inflated by it, so the budget does."""
+    direct = {"direct_chi2": 150.0, "direct_equations": 6}
+    result = EstimateResult(
+        "multilamp",
+        np.array([400.0, 500.0, 600.0]),
+        np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
+        sensitivity_sigma=np.full((3, 3), 0.01),
+        diagnostics={**direct, "efficiency_model": "sinusoidal"},
+    )
+    physical = uncertainty_budget(result, [])
+    np.testing.assert_allclose(physical.components["statistical"], 0.01)
+    assert physical.reduced_chi2 == 25.0
+    assert [flag.code for flag in physical.flags] == ["model_misfit"]
+    assert any("not inflated again" in note for note in physical.notes)
+    fourier = replace(result, diagnostics={**direct, "efficiency_model": "fourier-7"})
+    np.testing.assert_allclose(uncertainty_budget(fourier, []).components["statistical"], 0.05)
+
+
 def test_misfit_is_judged_above_the_lamp_spectrums_precision() -> None:
     """A profile far sharper than its lamp spectrum is known (photon noise 0.03 % of the signal,
     residuals 0.8 % of it) is neither called a misfit nor inflated 30×; residuals of 20 % are."""

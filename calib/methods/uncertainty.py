@@ -310,6 +310,22 @@ def reduced_chi2(result: EstimateResult) -> float | None:
     return None
 
 
+def chi2_in_method_sigma(result: EstimateResult, chi2: float | None) -> bool:
+    """Whether the method's own σ already carries ``chi2``: it is the direct equations' χ² (no
+    profile χ² judged it, ``diagnostics["reduced_chi2"]`` absent) and η is a physical model,
+    whose fit (:func:`calib.methods.grating_models.fit_physical`) inflates its covariance by
+    ``max(1, χ²/(n − 2))`` of those same equations. Inflating the budget's ``statistical``
+    component by it again would count the misfit twice."""
+    diagnostics = result.diagnostics
+    if chi2 is None or "reduced_chi2" in diagnostics or efficiency_family(result) != "physical":
+        return False
+    direct = diagnostics.get("direct_chi2")
+    equations = diagnostics.get("direct_equations")
+    if not isinstance(direct, int | float) or not isinstance(equations, int) or equations <= 0:
+        return False
+    return math.isclose(chi2, float(direct) / equations)
+
+
 def floored_reduced_chi2(
     result: EstimateResult, observations: Sequence[LampObservation], floor: float
 ) -> float | None:
@@ -664,6 +680,12 @@ def uncertainty_budget(
     noise_only = reduced_chi2(result)
     chi2 = floored_reduced_chi2(result, lamps, settings.model_floor)
     inflation = math.sqrt(chi2) if chi2 is not None and chi2 > 1.0 else 1.0
+    if inflation > 1.0 and chi2_in_method_sigma(result, chi2):
+        inflation = 1.0
+        notes.append(
+            "the direct equations' χ² is already in the physical η fit's σ (its covariance × "
+            "χ²/dof): not inflated again"
+        )
     components: dict[str, FloatArray] = {"statistical": own * inflation}
     # η's budget: only when the method states η's own σ (a method without one gets no band that
     # would pretend to be the whole error).
