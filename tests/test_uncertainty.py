@@ -429,3 +429,27 @@ def test_the_factor_is_judged_per_eta_family() -> None:
     record = EstimateRecord("prior", "LED+FL", np.zeros(2), {}, family="physical")
     assert record.key == "prior:physical"
     assert set(ratios_by_method([record], 1.0)) == {"prior", "prior:physical"}
+
+
+def test_unknown_channel_gains_take_the_populations_balance_with_its_spread(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0050: a profile from a white-balanced conversion (the Canon 10D's planes) has
+    channel gains that are not the raw data's; the delivered balance is the basis mean's, the
+    population's spread of it is in σ, and the result says so."""
+    lamps = [_lamp("LED-B3", camera)]
+    plain = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=None)
+    balanced_gains = [replace(lamps[0], metadata={"channel_gains": "unknown"})]
+    skewed = [replace(balanced_gains[0], profile=balanced_gains[0].profile * [2.5, 1.0, 1.6])]
+    result = estimate(skewed, "prior", basis=basis, mapping=TRUTH, budget=None)
+    record = result.diagnostics["channel_balance"]
+    areas = np.clip(result.sensitivity, 0.0, None).sum(axis=0)
+    mean_areas = basis.mean.sum(axis=0)
+    reference = "RGB".index(record["reference_channel"])
+    np.testing.assert_allclose(areas / areas[reference], mean_areas / mean_areas[reference])
+    assert record["relative_sigma"][reference] == 0.0
+    assert all(value > 0.0 for i, value in enumerate(record["relative_sigma"]) if i != reference)
+    assert result.sensitivity_sigma is not None and plain.sensitivity_sigma is not None
+    assert np.all(result.sensitivity_sigma >= 0.0)
+    assert "channel_gains_unknown" in {flag.code for flag in result.quality.flags}
+    assert "channel_balance" not in plain.diagnostics

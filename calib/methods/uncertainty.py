@@ -750,6 +750,70 @@ def uncertainty_budget(
     )
 
 
+#: ``LampObservation.metadata[CHANNEL_GAINS_KEY] == "unknown"``: the profile's relative channel gains
+#: are not the raw data's (a demosaicked, white-balanced conversion such as the Canon 10D's FITS
+#: planes), so the channel balance cannot come from the data.
+CHANNEL_GAINS_KEY = "channel_gains"
+
+
+def channel_gains_unknown(observations: Sequence[object]) -> bool:
+    """Whether any lamp says its profile's channel gains are not the raw data's
+    (:data:`CHANNEL_GAINS_KEY`)."""
+    return any(
+        getattr(item, "metadata", {}).get(CHANNEL_GAINS_KEY) == "unknown" for item in observations
+    )
+
+
+def with_prior_channel_balance(result: EstimateResult, basis: CameraBasis) -> EstimateResult:
+    """``result`` with its channels' relative gains taken from the camera population and σ for it.
+
+    Where the profile's channel gains are unknown (:func:`channel_gains_unknown`), a solve gets
+    each channel's shape but not their balance: the Canon 10D's converted planes put R/G at 2.6×
+    and B/G at 1.6× the monochromator's (decision 0050). Each channel is scaled so that its area
+    relative to the largest-area channel of the basis mean is the mean's; the population's spread of
+    that ratio (the basis covariance's variance of each channel's area, channels independent) is
+    added in quadrature as a relative σ (``diagnostics["channel_balance"]``, quality
+    ``channel_gains_unknown``).
+    """
+    curves = np.clip(np.asarray(result.sensitivity, dtype=np.float64), 0.0, None)
+    mean_area = basis.mean.sum(axis=0)
+    own_area = curves.sum(axis=0)
+    if curves.shape != basis.mean.shape or np.any(own_area <= 0) or np.any(mean_area <= 0):
+        return result
+    reference = int(np.argmax(mean_area))
+    gains = (mean_area / mean_area[reference]) / (own_area / own_area[reference])
+    area_variance = np.array([float(np.sum(basis.covariance[c])) for c in range(3)])
+    relative = area_variance / mean_area**2
+    relative_sigma = np.sqrt(relative + relative[reference])
+    relative_sigma[reference] = 0.0
+    sensitivity = np.asarray(result.sensitivity, dtype=np.float64) * gains
+    balance_sigma = np.abs(sensitivity) * relative_sigma
+    sigma = (
+        balance_sigma
+        if result.sensitivity_sigma is None
+        else np.sqrt((np.asarray(result.sensitivity_sigma) * gains) ** 2 + balance_sigma**2)
+    )
+    record = {
+        "gains": gains.tolist(),
+        "relative_sigma": relative_sigma.tolist(),
+        "reference_channel": "RGB"[reference],
+        "from": f"the mean channel balance of {basis.source}",
+    }
+    return replace(
+        result,
+        sensitivity=sensitivity,
+        sensitivity_sigma=sigma,
+        diagnostics={**result.diagnostics, "channel_balance": record},
+    ).with_quality(
+        QualityFlag(
+            "channel_gains_unknown",
+            "the profile's channel gains are not the raw data's (a converted image): the "
+            f"channels' balance is the camera population's (gains {np.round(gains, 3).tolist()}), "
+            f"with its spread ({', '.join(f'{100 * v:.0f} %' for v in relative_sigma)}) in σ",
+        )
+    )
+
+
 def with_budget(
     result: EstimateResult, budget: UncertaintyBudget, *, record_components: bool = False
 ) -> EstimateResult:
