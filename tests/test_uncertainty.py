@@ -30,6 +30,8 @@ from calib.methods.uncertainty import (
     COMPONENTS,
     TOLERANCE_SIGMA,
     BudgetSettings,
+    basis_misfit_sigma,
+    basis_sigma,
     basis_support_nm,
     check_grid_within_basis,
     efficiency_family,
@@ -453,3 +455,22 @@ def test_unknown_channel_gains_take_the_populations_balance_with_its_spread(
     assert np.all(result.sensitivity_sigma >= 0.0)
     assert "channel_gains_unknown" in {flag.code for flag in result.quality.flags}
     assert "channel_balance" not in plain.diagnostics
+
+
+def test_the_basis_sigma_is_the_estimates_own_out_of_span_part(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0050: a curve off the basis span gets its own out-of-span part as the basis σ
+    (so an out-of-basis camera widens its band); a curve its method holds to the span gets the
+    population's."""
+    curves = camera.resample(basis.grid, "interpolate").values
+    curves = curves / curves.max()
+    off_span = np.clip(curves + 0.1 * np.sin(basis.grid.wavelength_nm / 7.0)[:, None], 0, None)
+    result = EstimateResult("prior", basis.grid.wavelength_nm, 2.0 * off_span)
+    sigma, source = basis_sigma(result, basis)
+    assert source == "estimate"
+    scaled = off_span / off_span.max()
+    np.testing.assert_allclose(sigma, np.abs(scaled - basis.project(scaled)))
+    inside, source = basis_sigma(replace(result, sensitivity=basis.project(curves)), basis)
+    assert source == "population"
+    np.testing.assert_allclose(inside, basis_misfit_sigma(basis))
