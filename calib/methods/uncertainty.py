@@ -807,6 +807,28 @@ def channel_gains_unknown(observations: Sequence[object]) -> bool:
     )
 
 
+def population_channel_balance(basis: CameraBasis) -> tuple[FloatArray, FloatArray, int]:
+    """The basis mean's channel balance: each channel's area over the largest-area channel's
+    ``(3,)``, the population's relative σ of that ratio ``(3,)`` (the basis covariance's variance
+    of each channel's area, channels taken as independent; 0 for the reference) and the reference
+    channel's index.
+
+    Raises
+    ------
+    InputError
+        A channel of the basis mean has no area.
+    """
+    mean_area = basis.mean.sum(axis=0)
+    if np.any(mean_area <= 0):
+        raise InputError("a channel of the basis mean is zero", source=basis.source)
+    reference = int(np.argmax(mean_area))
+    area_variance = np.array([float(np.sum(basis.covariance[c])) for c in range(3)])
+    relative = area_variance / mean_area**2
+    relative_sigma = np.sqrt(relative + relative[reference])
+    relative_sigma[reference] = 0.0
+    return mean_area / mean_area[reference], relative_sigma, reference
+
+
 def with_prior_channel_balance(result: EstimateResult, basis: CameraBasis) -> EstimateResult:
     """``result`` with its channels' relative gains taken from the camera population and σ for it.
 
@@ -819,16 +841,14 @@ def with_prior_channel_balance(result: EstimateResult, basis: CameraBasis) -> Es
     ``channel_gains_unknown``).
     """
     curves = np.clip(np.asarray(result.sensitivity, dtype=np.float64), 0.0, None)
-    mean_area = basis.mean.sum(axis=0)
     own_area = curves.sum(axis=0)
-    if curves.shape != basis.mean.shape or np.any(own_area <= 0) or np.any(mean_area <= 0):
+    if curves.shape != basis.mean.shape or np.any(own_area <= 0):
         return result
-    reference = int(np.argmax(mean_area))
-    gains = (mean_area / mean_area[reference]) / (own_area / own_area[reference])
-    area_variance = np.array([float(np.sum(basis.covariance[c])) for c in range(3)])
-    relative = area_variance / mean_area**2
-    relative_sigma = np.sqrt(relative + relative[reference])
-    relative_sigma[reference] = 0.0
+    try:
+        ratio, relative_sigma, reference = population_channel_balance(basis)
+    except InputError:
+        return result
+    gains = ratio / (own_area / own_area[reference])
     sensitivity = np.asarray(result.sensitivity, dtype=np.float64) * gains
     balance_sigma = np.abs(sensitivity) * relative_sigma
     sigma = (
