@@ -39,6 +39,7 @@ from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, Spectrum, read_spectrum_csv, read_table
 from calib.image.profile_files import read_fits_profile, read_rawproc_dat
 from calib.methods import estimate
+from calib.methods.uncertainty import CHANNEL_GAINS_KEY
 from calib.model.bases import camera_basis, default_camera_basis
 
 GRID = DEFAULT_GRID
@@ -129,7 +130,12 @@ def canon_10d(folder: Path, data_dir: Path) -> None:
         source=f"solomatov-akkaynak-2023 without the 10D ({len(kept)})",
         camera_names=[r.name for r in kept],
     )
-    sun = profile.to_observation("sun", _solar(folder), kind="other")
+    # The planes come from a demosaicked conversion (PixInsight's DSLR_RAW through dcraw): their
+    # channel gains are not the raw data's, so the balance is the population's (decision 0050).
+    sun = replace(
+        profile.to_observation("sun", _solar(folder), kind="other"),
+        metadata={CHANNEL_GAINS_KEY: "unknown"},
+    )
     result = estimate([sun], basis=basis, grating=grating)
     choice = result.diagnostics["method_choice"]
     print(f"Canon EOS 10D: {choice['method']} ({choice['reason']})")

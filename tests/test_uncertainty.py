@@ -30,6 +30,8 @@ from calib.methods.uncertainty import (
     COMPONENTS,
     TOLERANCE_SIGMA,
     BudgetSettings,
+    basis_misfit_sigma,
+    basis_sigma,
     basis_support_nm,
     check_grid_within_basis,
     efficiency_family,
@@ -178,6 +180,28 @@ def test_reduced_chi2_inflates_and_warns() -> None:
     assert misfit_flag(500.0).severity == "serious"  # type: ignore[union-attr]
     multilamp = replace(result, diagnostics={"direct_chi2": 30.0, "direct_equations": 15})
     assert reduced_chi2(multilamp) == 2.0
+
+
+def test_a_physical_fits_chi2_is_not_counted_twice() -> None:
+    """Decision 0050: a physical η fit inflates its covariance by the direct equations' χ²/dof
+    (:func:`calib.methods.grating_models.fit_physical`); the budget does not inflate the method's σ
+    by that χ² again, but still judges and flags it. The Fourier model's posterior is not
+    inflated by it, so the budget does."""
+    direct = {"direct_chi2": 150.0, "direct_equations": 6}
+    result = EstimateResult(
+        "multilamp",
+        np.array([400.0, 500.0, 600.0]),
+        np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
+        sensitivity_sigma=np.full((3, 3), 0.01),
+        diagnostics={**direct, "efficiency_model": "sinusoidal"},
+    )
+    physical = uncertainty_budget(result, [])
+    np.testing.assert_allclose(physical.components["statistical"], 0.01)
+    assert physical.reduced_chi2 == 25.0
+    assert [flag.code for flag in physical.flags] == ["model_misfit"]
+    assert any("not inflated again" in note for note in physical.notes)
+    fourier = replace(result, diagnostics={**direct, "efficiency_model": "fourier-7"})
+    np.testing.assert_allclose(uncertainty_budget(fourier, []).components["statistical"], 0.05)
 
 
 def test_misfit_is_judged_above_the_lamp_spectrums_precision() -> None:
@@ -407,3 +431,46 @@ def test_the_factor_is_judged_per_eta_family() -> None:
     record = EstimateRecord("prior", "LED+FL", np.zeros(2), {}, family="physical")
     assert record.key == "prior:physical"
     assert set(ratios_by_method([record], 1.0)) == {"prior", "prior:physical"}
+
+
+def test_unknown_channel_gains_take_the_populations_balance_with_its_spread(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0050: a profile from a white-balanced conversion (the Canon 10D's planes) has
+    channel gains that are not the raw data's; the delivered balance is the basis mean's, the
+    population's spread of it is in σ, and the result says so."""
+    lamps = [_lamp("LED-B3", camera)]
+    plain = estimate(lamps, "prior", basis=basis, mapping=TRUTH, budget=None)
+    balanced_gains = [replace(lamps[0], metadata={"channel_gains": "unknown"})]
+    skewed = [replace(balanced_gains[0], profile=balanced_gains[0].profile * [2.5, 1.0, 1.6])]
+    result = estimate(skewed, "prior", basis=basis, mapping=TRUTH, budget=None)
+    record = result.diagnostics["channel_balance"]
+    areas = np.clip(result.sensitivity, 0.0, None).sum(axis=0)
+    mean_areas = basis.mean.sum(axis=0)
+    reference = "RGB".index(record["reference_channel"])
+    np.testing.assert_allclose(areas / areas[reference], mean_areas / mean_areas[reference])
+    assert record["relative_sigma"][reference] == 0.0
+    assert all(value > 0.0 for i, value in enumerate(record["relative_sigma"]) if i != reference)
+    assert result.sensitivity_sigma is not None and plain.sensitivity_sigma is not None
+    assert np.all(result.sensitivity_sigma >= 0.0)
+    assert "channel_gains_unknown" in {flag.code for flag in result.quality.flags}
+    assert "channel_balance" not in plain.diagnostics
+
+
+def test_the_basis_sigma_is_the_estimates_own_out_of_span_part(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0050: a curve off the basis span gets its own out-of-span part as the basis σ
+    (so an out-of-basis camera widens its band); a curve its method holds to the span gets the
+    population's."""
+    curves = camera.resample(basis.grid, "interpolate").values
+    curves = curves / curves.max()
+    off_span = np.clip(curves + 0.1 * np.sin(basis.grid.wavelength_nm / 7.0)[:, None], 0, None)
+    result = EstimateResult("prior", basis.grid.wavelength_nm, 2.0 * off_span)
+    sigma, source = basis_sigma(result, basis)
+    assert source == "estimate"
+    scaled = off_span / off_span.max()
+    np.testing.assert_allclose(sigma, np.abs(scaled - basis.project(scaled)))
+    inside, source = basis_sigma(replace(result, sensitivity=basis.project(curves)), basis)
+    assert source == "population"
+    np.testing.assert_allclose(inside, basis_misfit_sigma(basis))

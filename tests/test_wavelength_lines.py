@@ -399,6 +399,12 @@ def test_a_measured_fluorescent_lamp_maps_through_its_lines_to_the_red_end(
     assert (
         solution.details["line_source"] == "Hg lines of halophosphate with Hg lines (measured lamp)"
     )
+    # Decision 0050: the spectrometer's scale is in the σ only when its spectrum placed lines
+    # (the fine one); the list's lines sit where mercury has them whatever its scale.
+    placed_by_spectrum = bool(solution.details["line_centres_from_spectrum"])
+    assert placed_by_spectrum is (bandwidth_nm < 2.0)
+    assert ("spectrometer_scale_sigma_nm" in solution.details) is placed_by_spectrum
+    assert ("listed_lines_floor_nm" in solution.details) is not placed_by_spectrum
     red_px = float(truth.pixel_at(np.array([DEFAULT_GRID.stop_nm]))[0])
     red_error = float(solution.exact.wavelength_nm(np.array([red_px]))[0]) - DEFAULT_GRID.stop_nm
     assert abs(red_error) < 0.5

@@ -41,6 +41,7 @@ import inspect
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -67,9 +68,11 @@ from calib.methods.solve_scope import perturbation, solve_scope
 from calib.methods.uncertainty import (
     DEFAULT_BUDGET,
     BudgetSettings,
+    channel_gains_unknown,
     check_grid_within_basis,
     uncertainty_budget,
     with_budget,
+    with_prior_channel_balance,
 )
 from calib.model.bases import CameraBasis, default_camera_basis, is_fallback_basis
 
@@ -446,22 +449,34 @@ def _estimate_in_scope(
                 "curves, not cameras); fetch the data (rig data fetch) or give --data-dir",
             )
         )
+    if isinstance(used_basis, CameraBasis) and channel_gains_unknown(observations):
+        balance: Callable[[EstimateResult], EstimateResult] = partial(
+            with_prior_channel_balance, basis=used_basis
+        )
+    else:
+        balance = _unchanged
     if budget is None or getattr(routed.get("options"), "uncertainty", None) == "none":
-        return result
-    return with_budget(
-        result,
-        uncertainty_budget(
+        return balance(result)
+    return balance(
+        with_budget(
             result,
-            observations,
-            rerun=_rerun(function, routed, result),
-            basis=used_basis if isinstance(used_basis, CameraBasis) else None,
-            options=routed.get("options", parameters["options"].default)
-            if "options" in parameters
-            else None,
-            settings=budget,
-        ),
-        record_components=budget.record_components,
+            uncertainty_budget(
+                result,
+                observations,
+                rerun=_rerun(function, routed, result),
+                basis=used_basis if isinstance(used_basis, CameraBasis) else None,
+                options=routed.get("options", parameters["options"].default)
+                if "options" in parameters
+                else None,
+                settings=budget,
+            ),
+            record_components=budget.record_components,
+        )
     )
+
+
+def _unchanged(result: EstimateResult) -> EstimateResult:
+    return result
 
 
 def _mapping_only_estimate(

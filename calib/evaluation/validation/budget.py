@@ -68,6 +68,9 @@ class EstimateRecord:
         No bandwidth was given (its component is not a tolerance and does not scale).
     family
         The η model's family (:func:`calib.methods.uncertainty.efficiency_family`), or ``None``.
+    outside_basis
+        ``|ŝ − P ŝ|``: the delivered curves' part outside the basis span (not a component; kept so
+        a camera-specific basis term can be judged offline from ``--save``).
     """
 
     method: str
@@ -76,6 +79,7 @@ class EstimateRecord:
     components: Mapping[str, FloatArray]
     assumed_bandwidth: bool = False
     family: str | None = None
+    outside_basis: FloatArray | None = None
 
     @property
     def key(self) -> str:
@@ -132,6 +136,10 @@ def task_records(task: Task) -> list[EstimateRecord]:
             for name, sigma in result.diagnostics["budget_components"].items()
         }
         assumed = any(flag.code == "no_spectrometer_bandwidth" for flag in result.quality.flags)
+        values = np.asarray(curves.values, dtype=np.float64)
+        outside = None
+        if task.basis is not None and values.shape == (task.basis.grid.size, 3):
+            outside = np.abs(values - task.basis.project(values)).ravel()
         out.append(
             EstimateRecord(
                 result.method,
@@ -140,6 +148,7 @@ def task_records(task: Task) -> list[EstimateRecord]:
                 components,
                 assumed,
                 efficiency_family(result),
+                outside,
             )
         )
     return out
@@ -258,6 +267,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             arrays[f"{key}__error"] = record.error
             for name, sigma in record.components.items():
                 arrays[f"{key}__{name}"] = sigma
+            if record.outside_basis is not None:
+                arrays[f"{key}__outside_basis"] = record.outside_basis
         np.savez_compressed(args.save, **arrays)
     print(
         f"validation split: {len(split.cameras)} cameras, seed {args.seed}, {len(records)} estimates"
