@@ -127,7 +127,10 @@ SERIOUS_MISFIT_CHI2 = 100.0
 #: multilamp:physical 97.3 %, multilamp:fourier 86.5 %, makabe2025 69.0 % → LED+FL 95.7 %,
 #: LED only 93.0 %, 5 lamps 97.1 %, 3 lamps + RGB LEDs 96.9 %, paper's solve 95.0 %. No
 #: validation estimate fell back to the Fourier η in the prior solve: ``prior:fourier`` keeps
-#: decision 0044's 2.79, not re-judged.
+#: decision 0044's 2.79, not re-judged. Re-run after decision 0048 (the model choice profiles the
+#: throughput, so a physical η is chosen where the Fourier one was): at factor 1 prior:physical
+#: 94.9 %, multilamp:physical 96.2 %, paper's solve 69.0 % (→ 4.35); only 1 validation estimate
+#: still takes the Fourier η, too few to judge, so ``multilamp:fourier`` keeps 1.76.
 COVERAGE_SCALE: dict[str, float] = {
     "prior": 1.12,
     "prior:physical": 1.0,
