@@ -153,7 +153,8 @@ def _lattice_level_and_variance(
     if values.ndim != 1 or values.size == 0 or not values.flags.c_contiguous:
         return None
     scaled = values * float(_LATTICE)  # exact: a power of two
-    keys = scaled.astype(np.int64)
+    with np.errstate(invalid="ignore"):  # NaN or ±inf cast to garbage: caught just below
+        keys = scaled.astype(np.int64)
     if not np.array_equal(keys, scaled):  # off the grid, or NaN
         return None
     low, high = int(keys.min()), int(keys.max())
