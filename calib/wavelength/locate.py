@@ -573,26 +573,23 @@ def locate_mapping(
         # Hg lines the list places (decision 0050: on the twin's PR-655 every line was the list's,
         # and the scale made the stated σ 2.2× the actual error).
         by_spectrum = features.details.get("line_centres_from_spectrum", True)
-        scale_nm = spectrometer_scale_sigma_nm(lamps) if search is not None and by_spectrum else 0.0
-        if search is not None and not by_spectrum and mapping.wavelength_rms_nm is not None:
+        if by_spectrum:
+            # Lines placed by a measured spectrum carry its wavelength scale (a common offset).
+            offset_nm = spectrometer_scale_sigma_nm(lamps) if search is not None else 0.0
+            offset_key = "spectrometer_scale_sigma_nm"
+        else:
             # The list's lines as the camera sees them are off by a little more than the fit
             # states (decision 0050): a common floor, judged on the validation split.
+            offset_nm = LISTED_LINES_FLOOR_NM if search is not None else 0.0
+            offset_key = "listed_lines_floor_nm"
+        if offset_nm > 0 and mapping.wavelength_rms_nm is not None:
             mapping = stated_covariance(
                 mapping,
-                math.hypot(mapping.wavelength_rms_nm, LISTED_LINES_FLOOR_NM),
-                LISTED_LINES_FLOOR_NM,
+                math.hypot(mapping.wavelength_rms_nm, offset_nm),
+                offset_nm,
                 (float(lead.pixel[0]), float(lead.pixel[-1])),
             )
-            details["listed_lines_floor_nm"] = LISTED_LINES_FLOOR_NM
-        if scale_nm > 0 and mapping.wavelength_rms_nm is not None:
-            # Lines placed by a measured spectrum carry its wavelength scale (a common offset).
-            mapping = stated_covariance(
-                mapping,
-                math.hypot(mapping.wavelength_rms_nm, scale_nm),
-                scale_nm,
-                (float(lead.pixel[0]), float(lead.pixel[-1])),
-            )
-            details["spectrometer_scale_sigma_nm"] = scale_nm
+            details[offset_key] = offset_nm
         red_end, note = _red_end(features, mapping, grid)
         details["red_end"] = red_end
         if note:
