@@ -539,7 +539,7 @@ def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninte
         ("pr655", "capture"),
         ("pr655", "file_get"),
         ("seabreeze", "capture"),
-        pytest.param("argyll", "capture", marks=pytest.mark.slow),
+        ("argyll", "capture"),  # issue 20's done-when: kill -9, resume, estimate, replay
     ],
     ids=["in-a-capture", "in-a-download", "seabreeze", "argyll"],
 )
