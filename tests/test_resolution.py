@@ -128,21 +128,6 @@ def test_wavelength_blur_keeps_its_width_in_nm_where_the_dispersion_changes() ->
         assert weights.sum() == pytest.approx(1.0, rel=0.03)
 
 
-def test_wavelength_blur_is_built_once_per_wavelengths_and_width() -> None:
-    """The solves of one estimate ask for the same matrix: it is kept (keyed by the values, not
-    the array object), read-only, and another width or another mapping builds its own."""
-    wavelength = 400.0 + 0.6 * np.arange(300, dtype=np.float64)
-    first = wavelength_blur(wavelength, 8.0)
-    assert wavelength_blur(wavelength.copy(), 8.0) is first
-    assert not first.data.flags.writeable
-    with pytest.raises(ValueError):
-        first.data[0] = 0.0
-    wider = wavelength_blur(wavelength, 9.0)
-    shifted = wavelength_blur(wavelength + 0.5, 8.0)
-    assert wider is not first and shifted is not first
-    assert not np.allclose((wider @ np.eye(300)[150]), first @ np.eye(300)[150])
-
-
 def test_a_slit_broader_than_10_nm_is_flagged_by_name() -> None:
     from calib.core.observations import LampObservation
     from calib.pipeline.estimate import input_flags

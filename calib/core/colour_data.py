@@ -455,57 +455,5 @@ def aces_idt_matrix(
         )
     spd = illuminant_spd.resample(grid)
     sd = colour.SpectralDistribution(spd.values, spd.wavelength_nm, name=spd.name)
-    matrix, white_balance = colour.matrix_idt(
-        sensitivities, sd, optimisation_factory=_rawtoaces_v1_optimisation
-    )
+    matrix, white_balance = colour.matrix_idt(sensitivities, sd)
     return np.asarray(matrix, dtype=np.float64), np.asarray(white_balance, dtype=np.float64)
-
-
-def _rawtoaces_v1_optimisation() -> tuple[FloatArray, Any, Any, Any]:
-    """``colour.characterisation.optimisation_factory_rawtoaces_v1`` (``matrix_idt``'s default),
-    its objective written with NumPy alone: the same operations on the same operands, so the same
-    floats and the same BFGS path and matrix, without colour-science's per-call argument
-    conversions and domain-range checks, which were most of the objective's time (BFGS with a
-    numerical gradient evaluates it 7 times a step).
-
-    The objective is ``‖Lab(XYZ_ACES(M · RGB)) − Lab‖`` over the training set, ``M`` the
-    white-preserving matrix of the 6 free entries (rows summing to 1), Lab relative to the ACES
-    white. ``tests/test_uses.py`` checks it against colour-science's own objective and matrix.
-    """
-    colour = _colour()
-    x_0, _, to_lab, finaliser = colour.characterisation.optimisation_factory_rawtoaces_v1()
-    aces = colour.models.RGB_COLOURSPACE_ACES2065_1
-    rgb_to_xyz = np.asarray(aces.matrix_RGB_to_XYZ, dtype=np.float64)
-    white_x, white_y, white_z = colour.utilities.tsplit(
-        colour.xyY_to_XYZ(colour.xy_to_xyY(aces.whitepoint))
-    )
-    spow_enabled = bool(colour.algebra.common._SPOW_ENABLED)
-    ones = np.ones(3)
-    linear_below = (24 / 116) ** 3
-    cube_root = np.float64(1 / 3)
-
-    def lightness(value: FloatArray, white: Any) -> FloatArray:
-        # colour.colorimetry.intermediate_lightness_function_CIE1976
-        ratio = value / white
-        root = np.sign(ratio) * np.abs(ratio) ** cube_root if spow_enabled else ratio**cube_root
-        return np.asarray(np.where(ratio > linear_below, root, (841 / 108) * ratio + 16 / 116))
-
-    def objective(free: FloatArray, rgb: FloatArray, lab: FloatArray) -> float:
-        matrix = np.hstack([np.reshape(free, (3, 2)), np.zeros((3, 1))])
-        matrix[..., -1] = ones - np.sum(matrix[..., :-1], axis=-1)  # whitepoint_preserving_matrix
-        camera = np.matmul(matrix, rgb[..., None]).squeeze(-1)  # colour.algebra.vecmul
-        xyz = np.matmul(rgb_to_xyz, camera[..., None]).squeeze(-1)
-        f_x = lightness(xyz[..., 0], white_x)
-        f_y = lightness(xyz[..., 1], white_y)
-        f_z = lightness(xyz[..., 2], white_z)
-        predicted = np.concatenate(  # colour.utilities.tstack
-            [
-                (116 * f_y - 16)[..., None],
-                (500 * (f_x - f_y))[..., None],
-                (200 * (f_y - f_z))[..., None],
-            ],
-            axis=-1,
-        )
-        return float(np.linalg.norm(predicted - lab))
-
-    return np.asarray(x_0, dtype=np.float64), objective, to_lab, finaliser

@@ -16,7 +16,6 @@ along the dispersion direction). Neither holds as measured:
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Sequence
 from dataclasses import replace
@@ -102,10 +101,6 @@ def blurred_spectrum(spectrum: Spectrum, bandwidth_nm: float, target_nm: float) 
     return Spectrum(axis, values, name=spectrum.name, negative="clip")
 
 
-#: How many blur matrices :func:`wavelength_blur` keeps (a few lamps × a few mappings in one run).
-BLUR_CACHE_SIZE = 16
-
-
 def wavelength_blur(wavelength_nm: FloatArray, fwhm_nm: float) -> sparse.csr_array:
     """The matrix ``W`` ``(n, n)`` that blurs a profile sampled at ``wavelength_nm`` (increasing or
     decreasing, one per profile sample) by a Gaussian of ``fwhm_nm`` *in wavelength*.
@@ -117,27 +112,11 @@ def wavelength_blur(wavelength_nm: FloatArray, fwhm_nm: float) -> sparse.csr_arr
     Zero beyond the ends, as :func:`calib.model.forward.apply_blur`, and beyond 5σ: a band matrix
     (sparse; a dense one cost 60 ms for a 1500-sample profile, per lamp and solve).
 
-    It depends on the samples' wavelengths and ``fwhm_nm`` alone, and every solve of one estimate
-    (the methods ``auto`` compares, the η models, the σ budget's re-solves) asks for the same ones:
-    the last :data:`BLUR_CACHE_SIZE` are kept, keyed by those values (their bytes), and returned
-    read-only.
+    Not cached: building it costs ~2 ms, against ~4 s of an estimate (decision 0047).
     """
-    wavelength = np.ascontiguousarray(wavelength_nm, dtype=np.float64)
-    return _cached_blur(wavelength.tobytes(), float(fwhm_nm))
-
-
-@functools.lru_cache(maxsize=BLUR_CACHE_SIZE)
-def _cached_blur(wavelength_bytes: bytes, fwhm_nm: float) -> sparse.csr_array:
-    matrix = _build_wavelength_blur(np.frombuffer(wavelength_bytes, dtype=np.float64), fwhm_nm)
-    for part in (matrix.data, matrix.indices, matrix.indptr):
-        part.flags.writeable = False
-    return matrix
-
-
-def _build_wavelength_blur(wavelength: FloatArray, fwhm_nm: float) -> sparse.csr_array:
-    """:func:`wavelength_blur`, built."""
     from scipy import sparse  # deferred: the mapping search never needs it
 
+    wavelength = np.asarray(wavelength_nm, dtype=np.float64)
     size = wavelength.size
     spans = np.abs(np.gradient(wavelength))
     sigma = fwhm_nm / FWHM_PER_SIGMA
