@@ -206,10 +206,9 @@ def test_the_physical_scan_draws_gratings_through_the_ends_it_asks_for():
     )
 
 
-def test_a_short_lens_led_profile_from_the_spot_finds_its_basin(prior, camera):
-    """Validation's Pentax Q geometry (a 726 px focal length, 7.4° incidence, 990 lines/mm): the
-    correlation search's starts were 100 nm off at the red end and the old scan over focal
-    lengths a factor 1.5 apart landed 12 nm off; the scan over the ends reaches the truth."""
+def _short_lens_led(camera: MultiSpectrum) -> tuple[TiltedGrating, np.ndarray, LampObservation]:
+    """LED-B3 through validation's Pentax Q geometry (a 726 px focal length, 7.4° incidence,
+    990 lines/mm), 0.5 % noise: the grating, the pixels and the observation."""
     truth = TiltedGrating(1010.4 / 726.0, 726.0, 7.39)
     pixel = np.arange(308.0, 923.0)
     observation = render_observation(
@@ -221,6 +220,14 @@ def test_a_short_lens_led_profile_from_the_spot_finds_its_basin(prior, camera):
         rng=np.random.default_rng(5),
         kind="led",
     ).observation
+    return truth, pixel, observation
+
+
+def test_a_short_lens_led_profile_from_the_spot_finds_its_basin(prior, camera):
+    """Validation's Pentax Q geometry (a 726 px focal length, 7.4° incidence, 990 lines/mm): the
+    correlation search's starts were 100 nm off at the red end and the old scan over focal
+    lengths a factor 1.5 apart landed 12 nm off; the scan over the ends reaches the truth."""
+    truth, pixel, observation = _short_lens_led(camera)
     observation = replace(observation, pixel_origin="direct_spot")
     solution = locate_mapping([observation], prior, DEFAULT_GRID)
     true_nm = truth.wavelength_nm(pixel)
@@ -235,17 +242,7 @@ def test_a_red_end_stretched_beyond_the_prior_is_flagged(prior, camera):
     under the true mapping the profile's red edge is within the margin of the prior mean's, under
     one stretched 30 nm at the red end it is beyond it (the failures of decision 0049); the right
     mapping of a search carries the comparison and no warning."""
-    truth = TiltedGrating(1010.4 / 726.0, 726.0, 7.39)
-    pixel = np.arange(308.0, 923.0)
-    observation = render_observation(
-        lamp_from_spec("LED-B3"),
-        camera,
-        mapping=truth,
-        pixel=pixel,
-        noise=PeakFractionNoise(0.005),
-        rng=np.random.default_rng(5),
-        kind="led",
-    ).observation
+    truth, pixel, observation = _short_lens_led(camera)
     true_nm = truth.wavelength_nm(pixel)
     found, expected, _ = red_edge_nm(observation, truth, prior) or (np.nan, np.nan, np.nan)
     assert abs(found - expected) < RED_EDGE_MARGIN_NM
