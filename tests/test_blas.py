@@ -43,3 +43,26 @@ def test_every_registered_method_runs_on_one_blas_thread(monkeypatch: pytest.Mon
     with threadpool_limits(limits=2, user_api="blas"):
         assert cast(Any, estimate([], method="probe")) == "probed"
     assert seen and all(threads == [1] * len(threads) for threads in seen)
+
+
+def test_nested_entry_points_set_the_limit_once_and_restore_it_after() -> None:
+    np.dot(np.ones((2, 2)), np.ones((2, 2)))  # BLAS is loaded
+    seen: list[list[int]] = []
+
+    @one_blas_thread
+    def inner() -> None:
+        seen.append(_blas_threads())
+
+    @one_blas_thread
+    def outer() -> None:
+        inner()
+        seen.append(_blas_threads())
+        inner()
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = _blas_threads()
+        outer()
+        assert _blas_threads() == before
+        outer()  # the flag was cleared: the next outermost entry limits again
+        assert _blas_threads() == before
+    assert len(seen) == 6 and all(threads == [1] * len(threads) for threads in seen)

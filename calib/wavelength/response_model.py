@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import lapack
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
@@ -67,6 +68,9 @@ FLEX_CORRELATION_NM = 25.0
 SHARED_EDGES_FROM = 3
 
 IntArray = NDArray[np.intp]
+
+_potrf = lapack.dpotrf
+_potrs = lapack.dpotrs
 
 
 # ------------------------------------------------------------------------------ the lamp, once
@@ -702,40 +706,35 @@ class ResponseModel:
         self, edges_nm: FloatArray, edge_jacobian: FloatArray | None = None
     ) -> tuple[FloatArray, Callable[[], FloatArray] | None, dict[str, Any]]:
         """:meth:`residual` with the Jacobian left to a call: a fit computes it only for the
-        trial points it accepts (about half the work of an evaluation)."""
+        trial points it accepts (about half the work of an evaluation).
+
+        One mapping's matrix is small (``n × N``, a few hundred by a few dozen): besides its band
+        (which still gives the normal matrices) it is laid out dense for the products with ``A``
+        and ``∂A/∂x``, and each channel's system is factorised once (Cholesky: ridged, SPD) for
+        the fit and every Jacobian column — an inverse cost 2–4× more (0056)."""
         model = self if self.penalty_weight is not None else self.reference(edges_nm)
         assert model.penalty_weight is not None
         band = model.band(edges_nm[None, :])
+        size = model.n_nodes
+        n = band.values.shape[1]
+        flat = (np.arange(n)[:, None] * size + np.minimum(band.columns[0], size - 1)).ravel()
+        matrix = _dense(flat, band.values[0], (n, size))  # A (n, N)
+        weights = model.weights.T  # (3, n)
         diagonals, rhs = model._normal(band)
         systems, pulls, gamma = model._systems(
             diagonals, np.array([model.scale]), model.penalty_weight[None]
         )
-        # One inverse per channel serves the fit and every Jacobian column (small, ridged, SPD).
-        inverse = np.asarray(np.linalg.inv(systems), dtype=np.float64)
-        values, columns = band.values[0], band.columns[0]  # (n, w)
-        size = model.n_nodes
-        flat_columns = (np.arange(3)[:, None, None] * size + columns[None]).reshape(-1)
-
-        def apply(response: FloatArray) -> FloatArray:
-            """``A r`` for responses ``(3, N, m)`` → ``(3, n, m)``."""
-            return np.asarray(np.einsum("nw,cnwm->cnm", values, response[:, columns]))
-
-        def apply_transpose(rows: FloatArray, band_values: FloatArray) -> FloatArray:
-            """``Aᵀ v`` for ``v`` ``(3, n, m)`` and band values ``(n, w)`` → ``(3, N, m)``."""
-            m = rows.shape[-1]
-            weights = band_values[None, :, :, None] * rows[:, :, None, :]  # (3, n, w, m)
-            index = (flat_columns[:, None] * m + np.arange(m)).reshape(-1)
-            total = np.bincount(index, weights=weights.reshape(-1), minlength=3 * size * m)
-            return np.asarray(total.reshape(3, size, m), dtype=np.float64)
-
-        solution, beta_arr = _solve(inverse, pulls, gamma, rhs[..., None], np.zeros((1, 1)))
-        response, beta = solution[0, ..., 0], float(beta_arr[0, 0])
-        fitted = apply(response[..., None])[..., 0]  # (3, n)
-        weights = model.weights.T  # (3, n)
+        factors = _cholesky(systems[0])
+        pull, border = pulls[0], float(gamma[0])
+        free, along = np.moveaxis(
+            _cholesky_solve(factors, np.stack([rhs[0], pull], axis=-1)), -1, 0
+        )
+        beta = float(_scale_of(pull, border, free, along, 0.0))
+        response = free + beta * along  # (3, N)
+        fitted = response @ matrix.T  # (3, n)
         data_rows = weights * fitted - model.target.T  # (3, n)
         root = np.sqrt(model.penalty_weight)
-        difference = model.layout.difference
-        penalty_rows = root[:, None] * (response @ difference.T)  # (3, r)
+        penalty_rows = root[:, None] * (response @ model.layout.difference.T)  # (3, r)
         factor = model.prior_factor / model.scale
         prior_rows = np.einsum("cij,cj->ci", factor, response - beta * model.prior_mean)
         residual = np.concatenate([data_rows.ravel(), penalty_rows.ravel(), prior_rows.ravel()])
@@ -745,16 +744,15 @@ class ResponseModel:
         edge_derivative = edge_jacobian
 
         def jacobian() -> FloatArray:
+            derivative = model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0]
+            n_parameters = derivative.shape[-1]
+            moved_matrix = _dense(  # ∂A/∂x (P, n, N)
+                (flat[None, :] + (n * size) * np.arange(n_parameters)[:, None]).ravel(),
+                np.moveaxis(derivative, -1, 0),
+                (n_parameters, n, size),
+            )
             return model._residual_jacobian(
-                model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0],
-                band,
-                inverse,
-                pulls,
-                gamma,
-                response,
-                data_rows,
-                apply,
-                apply_transpose,
+                moved_matrix, matrix, factors, pull, border, along, response, data_rows
             )
 
         return residual, jacobian, parts
@@ -762,49 +760,35 @@ class ResponseModel:
     def _residual_jacobian(
         self,
         derivative: FloatArray,
-        band: Band,
-        inverse: FloatArray,
+        matrix: FloatArray,
+        factors: list[FloatArray],
         pulls: FloatArray,
-        gamma: FloatArray,
+        gamma: float,
+        along: FloatArray,
         response: FloatArray,
         data_rows: FloatArray,
-        apply: Callable[[FloatArray], FloatArray],
-        apply_transpose: Callable[[FloatArray, FloatArray], FloatArray],
     ) -> FloatArray:
         """The exact variable-projection Jacobian of :meth:`residual_lazy`'s rows (``derivative``:
-        ``∂A/∂x`` ``(n, w, P)``)."""
+        ``∂A/∂x`` ``(P, n, N)``, ``matrix`` ``A`` ``(n, N)``)."""
         model = self
         assert model.penalty_weight is not None
-        values, columns = band.values[0], band.columns[0]  # (n, w)
-        size = model.n_nodes
-        flat_columns = (np.arange(3)[:, None, None] * size + columns[None]).reshape(-1)
+        n_parameters = derivative.shape[0]
         weights = model.weights.T  # (3, n)
         root = np.sqrt(model.penalty_weight)
-        difference = model.layout.difference
         factor = model.prior_factor / model.scale
         # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
         moved = (
-            np.einsum("nwp,cnw->cnp", derivative, response[:, columns]) * weights[..., None]
+            np.matmul(derivative, response.T).transpose(2, 1, 0) * weights[..., None]
         )  # (3, n, P)
-        right = np.einsum(
-            "nwp,cnw->cnwp", derivative, (weights * data_rows)[:, :, None] * np.ones_like(values)
-        )
-        n_parameters = derivative.shape[-1]
-        index = (flat_columns[:, None] * n_parameters + np.arange(n_parameters)).reshape(-1)
-        gathered = np.bincount(
-            index, weights=right.reshape(-1), minlength=3 * size * n_parameters
-        ).reshape(3, size, n_parameters) + apply_transpose(weights[..., None] * moved, values)
-        change, change_beta = _solve(
-            inverse, pulls, gamma, gathered[None], np.zeros((1, n_parameters))
-        )
-        change, change_beta = change[0], change_beta[0]  # (3, N, P), (P,)
-        data = moved - weights[..., None] * apply(change)  # (3, n, P)
-        penalty = -root[:, None, None] * np.einsum("rj,cjp->crp", difference, change)
-        prior = -np.einsum(
-            "cij,cjp->cip",
-            factor,
-            change - change_beta[None, None, :] * model.prior_mean[..., None],
-        )
+        gathered = np.matmul(derivative.transpose(0, 2, 1), (weights * data_rows).T).transpose(
+            2, 1, 0
+        ) + np.matmul(matrix.T, weights[..., None] * moved)  # (3, N, P)
+        solved = _cholesky_solve(factors, gathered)  # (3, N, P)
+        change_beta = _scale_of(pulls, gamma, solved, along[..., None], np.zeros(n_parameters))
+        change = solved + along[..., None] * change_beta  # (3, N, P)
+        data = moved - weights[..., None] * np.matmul(matrix, change)  # (3, n, P)
+        penalty = -root[:, None, None] * np.matmul(model.layout.difference, change)
+        prior = -np.matmul(factor, change - change_beta * model.prior_mean[..., None])
         return np.concatenate(
             [
                 data.reshape(-1, n_parameters),
@@ -814,25 +798,43 @@ class ResponseModel:
         )
 
 
-def _solve(
-    inverse: FloatArray,
-    pulls: FloatArray,
-    gamma: FloatArray,
-    right: FloatArray,
-    right_beta: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
-    """The full system (per-channel responses and the shared camera scale β) for ``m`` right-hand
-    sides: ``(K, 3, N, m)`` and ``(K, m)`` → solutions ``(K, 3, N, m)`` and ``β`` ``(K, m)``.
+def _dense(flat: IntArray, values: FloatArray, shape: tuple[int, ...]) -> FloatArray:
+    """A banded matrix (or a stack of them) laid out dense: ``values`` summed at ``flat``."""
+    total = np.bincount(flat, weights=values.ravel(), minlength=math.prod(shape))
+    return np.asarray(total.reshape(shape), dtype=np.float64)
 
-    ``H_c x_c − g_c β = r_c`` and ``−Σ g_cᵀ x_c + γ β = r_β``: with ``a_c = H_c⁻¹ r_c`` and
-    ``e_c = H_c⁻¹ g_c``, ``β = (r_β + Σ g_cᵀ a_c) / (γ − Σ g_cᵀ e_c)`` and ``x_c = a_c + β e_c``.
-    """
-    free = inverse @ right  # (K, 3, N, m)
-    along = np.einsum("kcij,kcj->kci", inverse, pulls)  # (K, 3, N)
-    denominator = gamma - np.einsum("kci,kci->k", pulls, along)
+
+def _cholesky(systems: FloatArray) -> list[FloatArray]:
+    """Lower Cholesky factors of the per-channel systems ``(3, N, N)`` (ridged, SPD)."""
+    factors = []
+    for channel in systems:
+        lower, info = _potrf(channel, lower=1, clean=1)
+        if info != 0:
+            raise np.linalg.LinAlgError("a channel's response system is not positive definite")
+        factors.append(lower)
+    return factors
+
+
+def _cholesky_solve(factors: list[FloatArray], right: FloatArray) -> FloatArray:
+    """``H_c⁻¹ r_c`` per channel from the Cholesky factors (:meth:`ResponseModel._factorised`):
+    right-hand sides ``(3, N, m)`` → ``(3, N, m)``."""
+    out = np.empty_like(right)
+    for channel, lower in enumerate(factors):
+        out[channel], info = _potrs(lower, right[channel], lower=1)
+        if info != 0:
+            raise np.linalg.LinAlgError("the response system's triangular solve failed")
+    return out
+
+
+def _scale_of(
+    pulls: FloatArray, gamma: float, free: FloatArray, along: FloatArray, right_beta: Any
+) -> Any:
+    """The camera scale ``β`` of the bordered system ``H_c x_c − g_c β = r_c``,
+    ``−Σ g_cᵀ x_c + γ β = r_β`` (then ``x_c = a_c + β e_c``) from ``a_c = H_c⁻¹ r_c``
+    ``(3, N[, m])`` and ``e_c = H_c⁻¹ g_c`` ``(3, N[, 1])``: a number, or ``(m,)``."""
+    denominator = gamma - np.tensordot(pulls, along, axes=([0, 1], [0, 1]))
     denominator = np.where(np.abs(denominator) > 1e-300, denominator, np.inf)
-    beta = (right_beta + np.einsum("kci,kcim->km", pulls, free)) / denominator[:, None]
-    return free + along[..., None] * beta[:, None, None, :], beta
+    return (right_beta + np.tensordot(pulls, free, axes=([0, 1], [0, 1]))) / denominator
 
 
 def _signs(edges_nm: FloatArray) -> FloatArray:
