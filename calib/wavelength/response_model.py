@@ -528,8 +528,9 @@ class ResponseModel:
         jac_windows = np.lib.stride_tricks.sliding_window_view(
             edge_jacobian[:, index, :], count, axis=1
         )  # (K, n, P, L+1)
+        # One small product per pixel (a batched matmul: a three-operand einsum cost 4–5× more).
         return np.asarray(
-            np.einsum("knwl,l,knpl->knwp", slope, self.filter, jac_windows)
+            np.matmul(slope * self.filter, jac_windows.swapaxes(-1, -2))
             * (valid * _signs(edges_nm))[..., None],
             dtype=np.float64,
         )
