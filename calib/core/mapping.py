@@ -149,10 +149,12 @@ class QuadraticMapping:
         weights: ArrayLike | None = None,
         method: str = "fit",
         degree: int = 2,
+        with_covariance: bool = True,
     ) -> QuadraticMapping:
         """Weighted least-squares quadratic (or line, ``degree=1``) through ``(pixel, wavelength)`` pairs.
 
-        Needs ``degree + 1`` points; the covariance of ``(a, b, c)`` is attached when there are more.
+        Needs ``degree + 1`` points; the covariance of ``(a, b, c)`` is attached when there are more
+        (and ``with_covariance``: a search's trial fits use only the curve).
         """
         p = np.asarray(pixel, dtype=np.float64)
         lam = np.asarray(wavelength_nm, dtype=np.float64)
@@ -165,20 +167,18 @@ class QuadraticMapping:
         used = design[:, 2 - degree :]
         partial, *_ = np.linalg.lstsq(used * w[:, None], lam * w, rcond=None)
         coef = np.concatenate([np.zeros(2 - degree), partial])
-        residual = lam - design @ coef
-        dof = p.size - (degree + 1)
-        variance = float(np.sum((w * residual) ** 2) / dof) if dof > 0 else float("nan")
-        normal = used.T @ (used * (w**2)[:, None])
-        covariance = None
-        if dof > 0:
-            covariance = np.zeros((3, 3))
-            covariance[2 - degree :, 2 - degree :] = np.linalg.pinv(normal) * variance
         span = (float(p.min()), float(p.max()))
         mapping = cls(
             float(coef[0]), float(coef[1]), float(coef[2]), method=method, pixel_range=span
         )
-        if covariance is None:
+        dof = p.size - (degree + 1)
+        if dof <= 0 or not with_covariance:
             return mapping
+        residual = lam - design @ coef
+        variance = float(np.sum((w * residual) ** 2) / dof)
+        normal = used.T @ (used * (w**2)[:, None])
+        covariance = np.zeros((3, 3))
+        covariance[2 - degree :, 2 - degree :] = np.linalg.pinv(normal) * variance
         return mapping.with_details(
             covariance=[list(row) for row in covariance],
             wavelength_rms_nm=wavelength_rms_from_covariance(covariance, span),

@@ -188,7 +188,7 @@ class GratingFamily:
         value = self.prior.values.get("axis_offset_px")
         return self.axis_offset_px if value is None else value[0]
 
-    @property
+    @cached_property
     def names(self) -> tuple[str, ...]:
         held = self._held()
         return tuple(name for name in GRATING_PARAMETERS if name not in held)

@@ -39,7 +39,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.line_lists import Blend, Line, LineKind, blends
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.wavelength.families import GratingFamily, QuadraticFamily
-from calib.wavelength.least_squares import levenberg_marquardt
+from calib.wavelength.least_squares import Evaluation, levenberg_marquardt
 
 Family = QuadraticFamily | GratingFamily
 ExactMapping = QuadraticMapping | TiltedGrating
@@ -297,9 +297,7 @@ def _fit_group(
     linear, *_ = np.linalg.lstsq(np.hstack([base, start_values]), y, rcond=None)
     n_shape = n_blends + 1
 
-    def function(
-        params: FloatArray, with_jacobian: bool
-    ) -> tuple[FloatArray, FloatArray | None] | None:
+    def function(params: FloatArray, with_jacobian: bool) -> Evaluation:
         shifts, width = params[:n_blends], params[n_blends]
         if (np.abs(shifts) > fwhm_px).any() or not (0.5 * sigma_px <= width <= 2.0 * sigma_px):
             return None
@@ -309,14 +307,19 @@ def _fit_group(
         residual = (model - y) / noise
         if not with_jacobian:
             return residual, None
-        weighted = values * amplitudes[None, :]
-        jacobian = np.empty((x.size, n_shape + n_base + n_lines))
-        # Each feature's shift moves its components: their derivatives summed per feature.
-        jacobian[:, :n_blends] = (weighted * offset / width**2) @ ownership
-        jacobian[:, n_blends] = (weighted * offset**2 / width**3).sum(axis=1)
-        jacobian[:, n_shape : n_shape + n_base] = base
-        jacobian[:, n_shape + n_base :] = values
-        jacobian /= noise
+
+        def jacobian() -> FloatArray:
+            # Deferred: the fit asks for it at the trials it accepts only.
+            weighted = values * amplitudes[None, :]
+            out = np.empty((x.size, n_shape + n_base + n_lines))
+            # Each feature's shift moves its components: their derivatives summed per feature.
+            out[:, :n_blends] = (weighted * offset / width**2) @ ownership
+            out[:, n_blends] = (weighted * offset**2 / width**3).sum(axis=1)
+            out[:, n_shape : n_shape + n_base] = base
+            out[:, n_shape + n_base :] = values
+            out /= noise
+            return out
+
         return residual, jacobian
 
     start = np.concatenate([np.zeros(n_blends), [sigma_px], linear])
@@ -428,7 +431,8 @@ def match_lines(
     basis = _lagrange(nodes, position)  # (T, n, 3)
     slope_basis = _lagrange_slope(nodes, span)  # (T, 2, 3)
     orders = [line_triples] + ([line_triples[:, ::-1]] if allow_reversed else [])
-    candidates: list[tuple[float, QuadraticMapping]] = []
+    # Each candidate: its agreement, its curve and the points it was last fitted through.
+    candidates: list[tuple[float, QuadraticMapping, _Points]] = []
     probe = np.linspace(span[0], span[1], 9)
     for assignment in orders:
         values = line_nm[assignment]  # (L, 3)
@@ -454,18 +458,20 @@ def match_lines(
                 start = QuadraticMapping.fit(nodes[t], values[line], degree=2)
             except EstimationError:
                 continue
-            refined = _refit_through_inliers(start, position, all_nm, tolerance_nm)
-            if refined is None:
+            refitted = _refit_through_inliers(start, position, all_nm, tolerance_nm)
+            if refitted is None:
                 continue
-            candidates.append((_agreement(refined, peaks, features, tolerance_nm), refined))
+            refined, points = refitted
+            candidates.append((_agreement(refined, peaks, features, tolerance_nm), refined, points))
     candidates.sort(key=lambda item: -item[0])
     out: list[QuadraticMapping] = []
-    for _, mapping in candidates:
+    for _, mapping, (pixels, wavelengths, degree) in candidates:
         if all(
             np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) >= 3.0
             for other in out
         ):
-            out.append(mapping)
+            # The same fit with its covariance (the trial fits skipped it).
+            out.append(QuadraticMapping.fit(pixels, wavelengths, degree=degree))
         if len(out) == count:
             break
     if not out:
@@ -515,10 +521,16 @@ def _lagrange_slope(nodes: FloatArray, at: FloatArray) -> FloatArray:
     return out
 
 
+#: Points a quadratic was fitted through: pixels, wavelengths, degree.
+_Points = tuple[FloatArray, FloatArray, int]
+
+
 def _refit_through_inliers(
     mapping: QuadraticMapping, position: FloatArray, line_nm: FloatArray, tolerance_nm: float
-) -> QuadraticMapping | None:
-    """The mapping refitted (twice) through the peaks within ``tolerance_nm`` of a line."""
+) -> tuple[QuadraticMapping, _Points] | None:
+    """The mapping refitted (twice) through the peaks within ``tolerance_nm`` of a line, and the
+    points of its last fit (the curve only: :meth:`QuadraticMapping.fit` without covariance)."""
+    points: _Points | None = None
     for _ in range(2):
         predicted = mapping.wavelength_nm(position)
         nearest = np.argmin(np.abs(predicted[:, None] - line_nm[None, :]), axis=1)
@@ -526,14 +538,17 @@ def _refit_through_inliers(
         if np.count_nonzero(close) < 2:
             return None
         degree = 2 if np.count_nonzero(close) >= 4 else 1
+        points = (position[close], line_nm[nearest[close]], degree)
         try:
-            mapping = QuadraticMapping.fit(position[close], line_nm[nearest[close]], degree=degree)
+            mapping = QuadraticMapping.fit(
+                points[0], points[1], degree=degree, with_covariance=False
+            )
         except EstimationError:
             return None
     slopes = mapping.dispersion_nm_per_px(np.linspace(position.min(), position.max(), 9))
-    if not (np.all(slopes > 0) or np.all(slopes < 0)):
+    if points is None or not (np.all(slopes > 0) or np.all(slopes < 0)):
         return None
-    return mapping
+    return mapping, points
 
 
 def _agreement(
