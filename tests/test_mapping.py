@@ -67,3 +67,20 @@ def test_fluorescent_mapping_from_rendered_profile():
 def test_grating_rejects_bad_geometry():
     with pytest.raises(ValueError):
         GratingGeometry(grooves_per_mm=-1, focal_length_mm=24, pixel_pitch_um=4)
+
+
+def test_a_fit_without_covariance_is_the_same_curve():
+    """A search's trial fits skip the covariance; the curve and its range are the full fit's."""
+    rng = np.random.default_rng(3)
+    pixel = np.sort(rng.uniform(0.0, 800.0, 9))
+    wavelength = (-2.2e-5 * pixel + 0.43) * pixel + 383.0 + rng.normal(0.0, 0.05, pixel.size)
+    for degree in (1, 2):
+        full = QuadraticMapping.fit(pixel, wavelength, degree=degree)
+        bare = QuadraticMapping.fit(pixel, wavelength, degree=degree, with_covariance=False)
+        assert (bare.a, bare.b, bare.c, bare.pixel_range) == (
+            full.a,
+            full.b,
+            full.c,
+            full.pixel_range,
+        )
+        assert full.covariance is not None and bare.covariance is None
