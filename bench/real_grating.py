@@ -5,8 +5,8 @@ absent) and estimates through the registry's ``auto`` choice with the σ budget
 (:mod:`calib.methods.uncertainty`), as ``calib estimate`` would:
 
 - *Nikon D7000* (Butcher, rawproc ``.dat`` exports): the halogen profile with the Dedolight's
-  5 nm spectrum, and the CFL profile whose spectrum nobody measured (a nominal tri-phosphor FL11
-  marked ``spectrum_known=False``: ``auto`` uses it for the mapping only). No direct measurement
+  5 nm spectrum, and the CFL profile whose spectrum nobody measured (the built-in tri-phosphor line
+  list, marked ``spectrum_known=False``: ``auto`` uses it for the mapping only). No direct measurement
   and no grating file: the known-grating solve through a flat grating. Truth: rawtoaces'
   monochromator curve of the D7000 (not in the basis).
 - *Canon EOS 10D* (rrogge, FITS planes): sunlight (AM0 × the atmosphere's transmission) through
@@ -34,7 +34,8 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.datasets import find_camera, load_collection
 from calib.core.grating_file import GratingEfficiency
-from calib.core.lamp_specs import colour_lamp
+from calib.core.lamp_specs import lamp_from_spec
+from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, Spectrum, read_spectrum_csv, read_table
 from calib.image.profile_files import read_fits_profile, read_rawproc_dat
@@ -84,18 +85,33 @@ def scores(result: EstimateResult, truth: FloatArray, *, per_channel: bool = Fal
     )
 
 
-def d7000(folder: Path, data_dir: Path) -> None:
+#: The spectrum standing in for the D7000's CFL, which nobody measured: the built-in tri-phosphor
+#: line list (Hg, Tb, Eu at their physical wavelengths; the spec the mapping stage names for a lamp
+#: nobody measured, and the one ``tests/test_wavelength_real.py`` maps it with). Before decision
+#: 0055 this bench used colour-science's FL11, a 5 nm table whose lines sit on its nodes (Hg 546.1
+#: at 545, 435.8 at 435): the line fit refused it and the mapping rested on the whole-profile fit,
+#: 1.8 nm off at 546 nm (a real-data handling bug of this bench, not a tuning).
+D7000_CFL_SPEC = "builtin:cfl-triphosphor"
+
+
+def d7000_lamps(folder: Path) -> list[LampObservation]:
+    """The D7000 pair as a user brings it: the CFL (spectrum unknown: :data:`D7000_CFL_SPEC`,
+    ``spectrum_known=False`` so ``auto`` uses it for the mapping only) and the halogen with the
+    Dedolight's 5 nm spectrum."""
     cfl = read_rawproc_dat(folder / "D7000_calibration.dat")
     halogen = read_rawproc_dat(folder / "D7000_spectrum.dat")
     dedolight = read_spectrum_csv(folder / "Dedolight_5nm.csv", name="Dedolight")
-    nominal = colour_lamp("FL11")
-    lamps = [
+    return [
         replace(
-            cfl.to_observation("CFL", nominal, kind="fluorescent"),
+            cfl.to_observation("CFL", lamp_from_spec(D7000_CFL_SPEC), kind="fluorescent"),
             metadata={"spectrum_known": False},
         ),
         halogen.to_observation("halogen", dedolight, kind="halogen"),
     ]
+
+
+def d7000(folder: Path, data_dir: Path) -> None:
+    lamps = d7000_lamps(folder)
     basis = default_camera_basis(GRID, data_dir=data_dir)
     result = estimate(lamps, basis=basis, assume_flat_grating=True)
     truth = find_camera(load_collection("rawtoaces", data_dir), "nikon d7000")

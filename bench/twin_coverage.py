@@ -40,9 +40,12 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.metrics import relative_error
+from calib.core.spectra import DEFAULT_GRID
+from calib.core.spectrometer_tolerance import BANDWIDTH_TOLERANCE, WAVELENGTH_SCALE_NM
 from calib.evaluation.synthetic import efficiency_coverage
 from calib.methods.uncertainty import MODEL_FLOOR, TOLERANCE_SIGMA, BudgetSettings
 from calib.model.bases import default_camera_basis
+from mocks.bench.deviation import deviation_from_record
 from rig.capture import run_capture
 from rig.config import RigConfig, load_config
 from rig.demo import related_camera_names
@@ -248,12 +251,20 @@ def main() -> None:
                 continue
             truth_file = write_twin_truth(config, captured.session)
             drawn = read_twin_truth(truth_file).spectrometer or {}
-            if drawn.get("in_spec_error"):
+            if (deviation := deviation_from_record(drawn)) is not None:
+                # The draw against the σ the budget states for it (decision 0055: with one shared
+                # draw the twins see one realisation of a distribution, not the distribution).
+                grid_nm = DEFAULT_GRID.wavelength_nm
+                scale_rms = float(
+                    np.sqrt(np.mean((deviation.true_wavelength_nm(grid_nm) - grid_nm) ** 2))
+                )
                 print(
                     f"{camera}: seed {config.seed}, spectrometer scale error "
                     f"{drawn['wavelength_error_at_380_nm']:+.2f} nm at 380, "
-                    f"{drawn['wavelength_error_at_780_nm']:+.2f} nm at 780, "
-                    f"slit ×{drawn['bandwidth_factor']:.3f}",
+                    f"{drawn['wavelength_error_at_780_nm']:+.2f} nm at 780 (RMS over the grid "
+                    f"{scale_rms:.2f} nm; the budget's σ {WAVELENGTH_SCALE_NM * TOLERANCE_SIGMA:.2f}"
+                    f" nm), slit ×{drawn['bandwidth_factor']:.3f} (σ "
+                    f"{100 * BANDWIDTH_TOLERANCE * TOLERANCE_SIGMA:.0f} %)",
                     flush=True,
                 )
             for floor in floors:

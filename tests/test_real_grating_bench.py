@@ -1,0 +1,57 @@
+"""What ``bench/real_grating.py`` feeds the estimator for the Nikon D7000 (skipped without the data).
+
+The CFL nobody measured must stand in as a spectrum whose mercury lines sit where mercury has them,
+and must be kept out of the solve (its spectrum is unknown): with colour-science's FL11, a 5 nm
+table, the lines sat on its nodes (546.1 at 545) and the mapping drifted by 1.8 nm (decision 0055).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from calib.methods import coarse_line_spectrum
+from tests.conftest import SHARED_REAL_GRATING
+
+pytestmark = pytest.mark.shared_data
+
+BENCH = Path(__file__).resolve().parents[1] / "bench" / "real_grating.py"
+
+
+def _bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("real_grating_bench", BENCH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def d7000_folder() -> Path:
+    folder = SHARED_REAL_GRATING / "butcher-nikon-d7000-2020-08"
+    if not folder.is_dir():
+        pytest.skip(f"real grating data not found at {folder}")
+    return folder
+
+
+@pytest.mark.parametrize("line_nm", [435.833, 546.074])
+def test_the_unmeasured_cfl_has_its_mercury_lines_where_mercury_has_them(
+    d7000_folder: Path, line_nm: float
+) -> None:
+    cfl = _bench().d7000_lamps(d7000_folder)[0]
+    wavelength = np.asarray(cfl.spectrum.wavelength_nm)
+    values = np.asarray(cfl.spectrum.values)
+    near = (wavelength >= line_nm - 2.0) & (wavelength <= line_nm + 2.0)
+    peak_nm = float(wavelength[near][np.argmax(values[near])])
+    np.testing.assert_allclose(peak_nm, line_nm, atol=0.1)
+
+
+def test_the_unmeasured_cfl_is_used_for_the_mapping_only(d7000_folder: Path) -> None:
+    cfl, halogen = _bench().d7000_lamps(d7000_folder)
+    assert cfl.metadata["spectrum_known"] is False
+    assert "not measured" in (coarse_line_spectrum(cfl) or "")
+    assert coarse_line_spectrum(halogen) is None
