@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import multiprocessing
 import os
 import sys
@@ -183,7 +184,42 @@ def led_row(
         "nearest_basin": nearest[1],
         "nearest_basin_mean_abs_nm": nearest[0],
         "reduced_chi2": solution.details.get("reduced_chi2", float("nan")),
+        **edge_columns(solution.details.get("red_edge_nm"), led, scene.true_wavelength_nm),
+        "basins": json.dumps(
+            [
+                {
+                    "delta_chi2": c.get("delta_chi2"),
+                    "unmatched_delta_chi2": c.get("unmatched_delta_chi2"),
+                    "distance_nm": c.get("rms_distance_nm"),
+                    "mean_abs_nm": float(
+                        np.mean(
+                            np.abs(
+                                candidate_mapping(c["mapping"]).wavelength_nm(led.pixel[inside])
+                                - scene.true_wavelength_nm[inside]
+                            )
+                        )
+                    ),
+                }
+                for c in candidates
+            ]
+        ),
         "cpu_s": cpu_s,
+    }
+
+
+def edge_columns(
+    edge: dict[str, float] | None, led: LampObservation, true_nm: np.ndarray
+) -> dict[str, float]:
+    """The red edge the search compared (decision 0049) and where the truth puts the profile's."""
+    signal = np.sum(np.clip(np.asarray(led.profile, dtype=np.float64), 0.0, None), axis=1)
+    above = np.flatnonzero(signal >= 0.03 * float(np.max(signal)))
+    true_edge = float(np.max(true_nm[above])) if above.size else float("nan")
+    if edge is None:
+        return {"edge_true_nm": true_edge}
+    return {
+        "edge_profile_nm": float(edge["profile"]),
+        "edge_prior_nm": float(edge["prior_mean"]),
+        "edge_true_nm": true_edge,
     }
 
 

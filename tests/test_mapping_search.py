@@ -17,13 +17,16 @@ from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, pixel_edges, render_observation
-from calib.wavelength import find_mapping
+from calib.wavelength import find_mapping, profile_search
 from calib.wavelength.families import GratingFamily, GratingPrior
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.profile_search import (
+    MISFIT_WARN_TEMPER,
+    PRIOR_MISFIT_SIGMA_NM,
     RED_EDGE_MARGIN_NM,
     _end_points,
     bin_pixels,
+    prior_misfit_sigma_nm,
     red_edge_nm,
 )
 from calib.wavelength.response_model import ResponseModel
@@ -254,3 +257,40 @@ def test_a_red_end_stretched_beyond_the_prior_is_flagged(prior, camera):
     # A profile with no signal has no edge.
     dark = replace(observation, profile=np.zeros_like(observation.profile))
     assert red_edge_nm(dark, truth, prior) is None
+
+
+def test_the_prior_misfit_sigma_grows_with_the_fits_reduced_chi2():
+    """The Birge ratio: the flat term where the prior fits, √(reduced χ²) times it where not."""
+    assert prior_misfit_sigma_nm(0.3) == PRIOR_MISFIT_SIGMA_NM
+    assert prior_misfit_sigma_nm(1.0) == PRIOR_MISFIT_SIGMA_NM
+    assert prior_misfit_sigma_nm(9.0) == pytest.approx(3.0 * PRIOR_MISFIT_SIGMA_NM)
+
+
+def test_a_profile_the_prior_fits_badly_warns_and_widens_sigma(prior, camera, monkeypatch):
+    """Decision 0054: a camera the prior fits well is not warned about (the short-lens LED's fit
+    has a reduced χ² near 1); when the deciding fit's reduced χ² is above the threshold (lowered
+    here below this one's, as a camera unlike the prior would raise it) the result carries an
+    ambiguity warning and a σ that reaches the nearest other basin and holds the misfit term."""
+    _truth, pixel, observation = _short_lens_led(camera)
+    observation = replace(observation, pixel_origin="direct_spot")
+    quiet = locate_mapping([observation], prior, DEFAULT_GRID)
+    temper = quiet.details["temper"]
+    assert temper < MISFIT_WARN_TEMPER
+    assert not quiet.ambiguous and quiet.warnings == ()
+    stated = quiet.mapping.wavelength_rms_nm
+    assert stated is not None and stated >= prior_misfit_sigma_nm(temper)
+    monkeypatch.setattr(profile_search, "MISFIT_WARN_TEMPER", 0.5)
+    warned = locate_mapping([observation], prior, DEFAULT_GRID)
+    assert warned.ambiguous
+    (sentence,) = [w for w in warned.warnings if "fits LED-B3's profile badly" in w]
+    assert warned.details["warning_codes"][list(warned.warnings).index(sentence)] == (
+        "mapping_ambiguous"
+    )
+    others = [c["rms_distance_nm"] for c in warned.details["candidates"][1:]]
+    assert others, "the short-lens scene has competing basins"
+    widened = warned.mapping.wavelength_rms_nm
+    assert widened is not None and widened >= 0.5 * min(others) - 1e-9
+    # The mapping itself is the same: the warning and σ change, not the answer.
+    np.testing.assert_allclose(
+        warned.mapping.wavelength_nm(pixel), quiet.mapping.wavelength_nm(pixel), atol=1e-9
+    )
