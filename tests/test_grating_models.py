@@ -28,10 +28,12 @@ from calib.methods.multilamp import (
     EfficiencySolution,
     MultilampOptions,
     calibrate_lamps,
+    choice_weights,
     efficiency_with_sigma,
     estimate_multilamp,
     grating_file_from,
     prepare_lamps,
+    with_choice_spread,
 )
 from calib.methods.prior_solve import PriorOptions, estimate_prior
 from calib.model.bases import CameraBasis
@@ -328,3 +330,78 @@ def test_the_choice_judges_each_model_at_its_best_throughput(basis):
     )
     at_fit = float(np.sum((throughput * values - target) ** 2))
     assert judged <= at_fit
+
+
+def test_choice_weights_are_akaike_weights_of_the_physical_families():
+    weights = choice_weights({"fourier": 1.0, "sinusoidal": 10.0, "blazed": 10.0 + 2 * np.log(3)})
+    assert set(weights) == {"sinusoidal", "blazed"}  # the free model is never averaged in
+    assert weights["sinusoidal"] == pytest.approx(0.75) and weights["blazed"] == pytest.approx(0.25)
+    far = choice_weights({"sinusoidal": 10.0, "blazed": 30.0})
+    assert far == {"sinusoidal": 1.0}  # exp(−10)/(1 + exp(−10)) < MIN_CHOICE_WEIGHT
+
+
+def test_the_choice_spread_keeps_the_chosen_estimate_and_adds_the_others_share():
+    """σ² of η⁻¹ about the chosen family: Σ_k w_k (J_k C_k J_kᵀ + (h_k − h_c)(h_k − h_c)ᵀ)."""
+    rng = np.random.default_rng(5)
+
+    def solution(inverse: np.ndarray) -> EfficiencySolution:
+        jacobian = rng.standard_normal((3, 2))
+        factor = rng.standard_normal((2, 2))
+        covariance = factor @ factor.T + np.eye(2)
+        return EfficiencySolution(
+            inverse,
+            rng.standard_normal(2),
+            covariance,
+            0.5 * covariance,
+            0.0,
+            jacobian,
+            info={"grating_model": {"chosen": "sinusoidal"}},
+        )
+
+    sheet, blazed = solution(np.array([1.0, 2.0, 3.0])), solution(np.array([1.5, 2.0, 2.0]))
+    weights = {"sinusoidal": 0.7, "blazed": 0.3}
+    spread = with_choice_spread({"sinusoidal": sheet, "blazed": blazed}, weights, "sinusoidal")
+    np.testing.assert_array_equal(spread.inverse_efficiency, sheet.inverse_efficiency)
+    covariance = spread.inverse_jacobian @ spread.coefficient_covariance @ spread.inverse_jacobian.T
+    difference = blazed.inverse_efficiency - sheet.inverse_efficiency
+    expected = sum(
+        w * part.inverse_jacobian @ part.coefficient_covariance @ part.inverse_jacobian.T
+        for w, part in ((0.7, sheet), (0.3, blazed))
+    ) + 0.3 * np.outer(difference, difference)
+    np.testing.assert_allclose(covariance, expected, rtol=1e-12, atol=1e-12)
+    assert spread.info["grating_model"]["choice_weights"] == weights
+    alone = with_choice_spread({"sinusoidal": sheet}, {"sinusoidal": 1.0}, "sinusoidal")
+    assert alone is sheet
+
+
+def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
+    """φ₀ = 1.05 rad with the rig's errors: the direct equations barely tell the sheet from a
+    blazed grating. The estimate is the chosen family's, unchanged; its σ holds the other
+    family's answer, which the chosen family's own σ does not."""
+    grating = SinusoidalPhaseGrating(1.05)
+    _, observations = _scene(
+        _order(grating, 1), _order(grating, 0), seed=0, noise=0.01, direct_noise=0.004
+    )
+    observations = _with_rig_errors(observations, 0)
+    result = estimate_multilamp(observations, basis=basis, mapping=MAPPING)
+    record = result.diagnostics["grating_model"]
+    assert record["chosen"] == "sinusoidal"
+    assert set(record["choice_weights"]) == {"sinusoidal", "blazed"}
+    assert 0.2 < record["choice_weights"]["blazed"] < 0.5
+    alone = {
+        kind: estimate_multilamp(
+            observations,
+            basis=basis,
+            mapping=MAPPING,
+            options=MultilampOptions(grating_model=kind, uncertainty=uncertainty),
+        )
+        for kind, uncertainty in (("sinusoidal", "posterior"), ("blazed", "none"))
+    }
+    np.testing.assert_allclose(result.sensitivity, alone["sinusoidal"].sensitivity, rtol=1e-9)
+    other = np.abs(alone["blazed"].sensitivity - result.sensitivity)
+    assert (
+        result.sensitivity_sigma is not None and alone["sinusoidal"].sensitivity_sigma is not None
+    )
+    held = np.mean(other <= 2 * result.sensitivity_sigma)
+    held_alone = np.mean(other <= 2 * alone["sinusoidal"].sensitivity_sigma)
+    assert held > 0.95 and held_alone < 0.8, (held, held_alone)

@@ -41,12 +41,14 @@ through one grating share ``η``: :func:`refine_grating` stacks their lamps' row
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from calib.core.arrays import FloatArray
 from calib.core.blas import one_blas_thread
@@ -641,12 +643,89 @@ def _solve_efficiency(
         assert fourier is not None
         record = {"model": "fourier", "terms": int(fourier.coefficients.size), **common}
         return replace(fourier, info={**fourier.info, "grating_model": record})
-    fit = with_jackknife(
-        next(fit for fit in fits if fit.kind == chosen),
-        lamps,
-        gain_sigma=settings.direct_gain_sigma,
+    weights = choice_weights(judged) if choice == "auto" else {chosen: 1.0}
+    solutions = {
+        kind: physical_solution(fit, {**fit.record(), **common})
+        for kind in weights
+        for fit in [
+            with_jackknife(
+                next(fit for fit in fits if fit.kind == kind),
+                lamps,
+                gain_sigma=settings.direct_gain_sigma,
+            )
+        ]
+    }
+    return with_choice_spread(solutions, weights, chosen)
+
+
+#: A physical family whose evidence weight (:func:`choice_weights`) is below this share adds
+#: nothing measurable to the chosen model's σ and is not carried (saves its jackknife).
+MIN_CHOICE_WEIGHT = 0.01
+
+
+def choice_weights(judged: Mapping[str, float]) -> dict[str, float]:
+    """The physical families' evidence weights ``w_k ∝ exp(−(C_L,k − C_L,min)/2)`` from their
+    judged predictive risks (Akaike weights; Burnham & Anderson 2002, §2.9), those below
+    :data:`MIN_CHOICE_WEIGHT` dropped and the rest renormalised. The free Fourier model is not
+    among them: its ``η⁻¹`` is in the direct path's gauge, not the physical ``1/η₁``, and it is
+    carried alone when it wins."""
+    physical = {kind: float(judged[kind]) for kind in PHYSICAL_KINDS if kind in judged}
+    best = min(physical.values())
+    raw = {kind: math.exp(-0.5 * (risk - best)) for kind, risk in physical.items()}
+    total = sum(raw.values())
+    kept = {
+        kind: weight / total for kind, weight in raw.items() if weight / total >= MIN_CHOICE_WEIGHT
+    }
+    total = sum(kept.values())
+    return {kind: weight / total for kind, weight in kept.items()}
+
+
+def with_choice_spread(
+    solutions: Mapping[str, EfficiencySolution], weights: Mapping[str, float], chosen: str
+) -> EfficiencySolution:
+    """The chosen family's solution with the model choice's own uncertainty in its covariance
+    (decision 0053): the estimate stays the chosen model's (the families are not averaged — on
+    the validation split an average moved the near-ties' RE toward the mean of right and wrong,
+    no better on the whole), and its ``η⁻¹`` covariance becomes the expected squared error about
+    it over the families, ``Σ_k w_k (Σ_k + (h_k − h_c)(h_k − h_c)ᵀ)``: the coefficients are every
+    family's ``(p, log T)`` and one unit-variance term per other family, with Jacobian columns
+    ``√w_k ∂h_k/∂θ_k`` and ``√w_k (h_k − h_c)``. With one family it is that family's solution.
+    The perturbation re-solves of the σ budget keep the chosen family alone
+    (:func:`calib.methods._rerun`), so the spread is counted once, here."""
+    centre = solutions[chosen]
+    if len(solutions) == 1:
+        return centre
+    kinds = [chosen, *(kind for kind in solutions if kind != chosen)]
+    inverse = centre.inverse_efficiency
+    columns, posterior, noise = [], [], []
+    for kind in kinds:
+        root = math.sqrt(weights[kind])
+        columns.append(root * solutions[kind].inverse_jacobian)
+        posterior.append(solutions[kind].coefficient_covariance)
+        noise.append(solutions[kind].noise_covariance)
+    spread = [
+        math.sqrt(weights[kind]) * (solutions[kind].inverse_efficiency - inverse)[:, None]
+        for kind in kinds[1:]
+    ]
+    columns.extend(spread)
+    posterior.append(np.eye(len(spread)))
+    noise.append(np.zeros((len(spread), len(spread))))
+    coefficients = np.concatenate(
+        [solutions[kind].coefficients for kind in kinds] + [np.zeros(len(spread))]
     )
-    return physical_solution(fit, {**fit.record(), **common})
+    record = dict(centre.info["grating_model"])
+    record["choice_weights"] = {kind: weights[kind] for kind in kinds}
+    record["choice_spread"] = (
+        "σ holds the other families' share: Σ_k w_k (Σ_k + (h_k − h_chosen)²), w from C_L"
+    )
+    return replace(
+        centre,
+        coefficients=coefficients,
+        coefficient_covariance=block_diag(*posterior),
+        noise_covariance=block_diag(*noise),
+        inverse_jacobian=np.concatenate(columns, axis=1),
+        info={**centre.info, "grating_model": record},
+    )
 
 
 #: How ``"auto"`` chooses the grating model (recorded with the choice).
