@@ -20,6 +20,7 @@ from calib.evaluation.synthetic import lamp_kind
 from calib.methods import _rerun, estimate
 from calib.methods.grating_models import (
     CHOICE_FLOOR,
+    PhysicalFit,
     check_grating_model,
     fit_physical,
     physical_equations,
@@ -28,9 +29,9 @@ from calib.methods.multilamp import (
     EfficiencySolution,
     MultilampOptions,
     calibrate_lamps,
-    choice_weights,
     efficiency_with_sigma,
     estimate_multilamp,
+    family_weights,
     grating_file_from,
     prepare_lamps,
     with_choice_spread,
@@ -332,12 +333,21 @@ def test_the_choice_judges_each_model_at_its_best_throughput(basis):
     assert judged <= at_fit
 
 
-def test_choice_weights_are_akaike_weights_of_the_physical_families():
-    weights = choice_weights({"fourier": 1.0, "sinusoidal": 10.0, "blazed": 10.0 + 2 * np.log(3)})
-    assert set(weights) == {"sinusoidal", "blazed"}  # the free model is never averaged in
+def test_family_weights_are_akaike_weights_of_the_quasi_likelihood_at_the_stated_noise():
+    """QAIC: χ² over the best family's reduced χ² ĉ (never below 1), Akaike weights."""
+
+    def fit(kind: str, chi2: float) -> PhysicalFit:
+        return PhysicalFit(
+            kind, 1.0, 0.0, np.eye(2), np.eye(2), chi2, 18, 1.0, DEFAULT_GRID.wavelength_nm
+        )
+
+    # ĉ = 160/16 = 10: a Δχ² of 10 · 2 ln 3 is Δ QAIC 2 ln 3, weights 3 : 1.
+    weights = family_weights([fit("sinusoidal", 160.0), fit("blazed", 160.0 + 20 * np.log(3))])
     assert weights["sinusoidal"] == pytest.approx(0.75) and weights["blazed"] == pytest.approx(0.25)
-    far = choice_weights({"sinusoidal": 10.0, "blazed": 30.0})
-    assert far == {"sinusoidal": 1.0}  # exp(−10)/(1 + exp(−10)) < MIN_CHOICE_WEIGHT
+    # ĉ floored at 1: well-described data keep the plain Akaike weights; a far family is dropped.
+    assert family_weights([fit("sinusoidal", 8.0), fit("blazed", 28.0)]) == {"sinusoidal": 1.0}
+    weights = family_weights([fit("blazed", 8.0), fit("sinusoidal", 8.0 + 2 * np.log(3))])
+    assert weights["blazed"] == pytest.approx(0.75)
 
 
 def test_the_choice_spread_keeps_the_chosen_estimate_and_adds_the_others_share():
