@@ -679,8 +679,8 @@ def family_weights(fits: Sequence[PhysicalFit]) -> dict[str, float]:
     Why the stated noise here and the 2 % floor for physical against free (decision 0053): two
     2-parameter families cannot bend to the rig's per-lamp errors, so the precise equations —
     which the floor levels away — are what tells a sheet's ``J₁²`` from a blaze's ``sinc²``; on
-    the validation split's near-ties (judged ``C_L`` within 2) the floor picked the wrong family
-    2 times in 11, the stated noise 1 in 11. The free Fourier model is not among the weights: its
+    9 of the validation split's near-ties (judged ``C_L`` within 2) the floor picked the wrong
+    family twice, the stated noise once. The free Fourier model is not among the weights: its
     ``η⁻¹`` is in the direct path's gauge, not the physical ``1/η₁``, and it stands alone when it
     wins."""
     risks = {fit.kind: fit.chi2 for fit in fits}
