@@ -476,6 +476,12 @@ class EfficiencySettings:
     direct_gain_sigma
         Relative σ of each lamp's direct-to-profile ratio, shared by its channels
         (:data:`DIRECT_GAIN_SIGMA`; 0 for data without exposure errors, as the paper's protocol).
+    choice_spread
+        Carry the other physical family's share of the evidence in ``η⁻¹``'s covariance
+        (:func:`with_choice_spread`, decision 0053). Off where the covariance weighs the data
+        against the camera prior (the prior solve's blend, :func:`blend_with_prior`): there the
+        spread would not widen σ but pull the camera toward the prior (validation, LED only:
+        Canon 20D 1.22 → 3.02, Pentax Q 1.44 → 4.45).
     """
 
     terms: int = DEFAULT_EFFICIENCY_TERMS
@@ -484,6 +490,7 @@ class EfficiencySettings:
     weight_rule: WeightRule = DEFAULT_WEIGHT_RULE
     grating_model: GratingModelName = DEFAULT_GRATING_MODEL
     direct_gain_sigma: float = DIRECT_GAIN_SIGMA
+    choice_spread: bool = True
 
     def __post_init__(self) -> None:
         check_grating_model(self.grating_model)
@@ -649,9 +656,10 @@ def _solve_efficiency(
         assert fourier is not None
         record = {"model": "fourier", "terms": int(fourier.coefficients.size), **common}
         return replace(fourier, info={**fourier.info, "grating_model": record})
+    carried = weights if settings.choice_spread else {chosen: 1.0}
     solutions = {
         kind: physical_solution(fit, {**fit.record(), **common})
-        for kind in weights
+        for kind in carried
         for fit in [
             with_jackknife(
                 next(fit for fit in fits if fit.kind == kind),
@@ -660,6 +668,8 @@ def _solve_efficiency(
             )
         ]
     }
+    if not settings.choice_spread:
+        return solutions[chosen]
     return with_choice_spread(solutions, weights, chosen)
 
 
