@@ -26,6 +26,7 @@ from calib.methods.grating_models import (
     physical_equations,
 )
 from calib.methods.multilamp import (
+    EfficiencySettings,
     EfficiencySolution,
     MultilampOptions,
     calibrate_lamps,
@@ -419,3 +420,10 @@ def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
     held_alone = np.mean(other <= 2 * alone["sinusoidal"].sensitivity_sigma)
     # Measured: 88 % of the nodes against 59 % (without the spread both are the latter).
     assert held > 0.85 and held - held_alone > 0.2, (held, held_alone)
+    # Where the covariance weighs the data against the prior (the prior solve), no spread.
+    prepared = prepare_lamps(observations, basis=basis, mapping=MAPPING)
+    plain = calibrate_lamps(
+        prepared, basis.prior(), EfficiencySettings(choice_spread=False)
+    ).efficiency
+    assert "choice_weights" not in plain.info["grating_model"]
+    assert plain.inverse_jacobian.shape[1] == 2
