@@ -40,7 +40,7 @@ from calib.methods.multilamp import (
 from calib.methods.prior_solve import PriorOptions, estimate_prior
 from calib.model.bases import CameraBasis
 from calib.model.forward import PeakFractionNoise, render_observation
-from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
+from calib.model.gratings import BlazedGrating, PhysicalKind, SinusoidalPhaseGrating
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 
 #: Three lamps that differ in colour (the solve's cost grows with each).
@@ -337,7 +337,7 @@ def test_the_choice_judges_each_model_at_its_best_throughput(basis):
 def test_family_weights_are_akaike_weights_of_the_quasi_likelihood_at_the_stated_noise():
     """QAIC: χ² over the best family's reduced χ² ĉ (never below 1), Akaike weights."""
 
-    def fit(kind: str, chi2: float) -> PhysicalFit:
+    def fit(kind: PhysicalKind, chi2: float) -> PhysicalFit:
         return PhysicalFit(
             kind, 1.0, 0.0, np.eye(2), np.eye(2), chi2, 18, 1.0, DEFAULT_GRID.wavelength_nm
         )
@@ -399,14 +399,13 @@ def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
     assert record["chosen"] == "sinusoidal"
     assert set(record["choice_weights"]) == {"sinusoidal", "blazed"}
     assert 0.3 < record["choice_weights"]["blazed"] <= 0.5
+    chosen_alone = MultilampOptions(grating_model="sinusoidal")
+    other_alone = MultilampOptions(grating_model="blazed", uncertainty="none")
     alone = {
-        kind: estimate_multilamp(
-            observations,
-            basis=basis,
-            mapping=MAPPING,
-            options=MultilampOptions(grating_model=kind, uncertainty=uncertainty),
+        options.grating_model: estimate_multilamp(
+            observations, basis=basis, mapping=MAPPING, options=options
         )
-        for kind, uncertainty in (("sinusoidal", "posterior"), ("blazed", "none"))
+        for options in (chosen_alone, other_alone)
     }
     np.testing.assert_allclose(result.sensitivity, alone["sinusoidal"].sensitivity, rtol=1e-9)
     # The other family's camera at the scale that fits this one best (a scale is not an error).
