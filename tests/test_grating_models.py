@@ -20,23 +20,27 @@ from calib.evaluation.synthetic import lamp_kind
 from calib.methods import _rerun, estimate
 from calib.methods.grating_models import (
     CHOICE_FLOOR,
+    PhysicalFit,
     check_grating_model,
     fit_physical,
     physical_equations,
 )
 from calib.methods.multilamp import (
+    EfficiencySettings,
     EfficiencySolution,
     MultilampOptions,
     calibrate_lamps,
     efficiency_with_sigma,
     estimate_multilamp,
+    family_weights,
     grating_file_from,
     prepare_lamps,
+    with_choice_spread,
 )
 from calib.methods.prior_solve import PriorOptions, estimate_prior
 from calib.model.bases import CameraBasis
 from calib.model.forward import PeakFractionNoise, render_observation
-from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
+from calib.model.gratings import BlazedGrating, PhysicalKind, SinusoidalPhaseGrating
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 
 #: Three lamps that differ in colour (the solve's cost grows with each).
@@ -328,3 +332,97 @@ def test_the_choice_judges_each_model_at_its_best_throughput(basis):
     )
     at_fit = float(np.sum((throughput * values - target) ** 2))
     assert judged <= at_fit
+
+
+def test_family_weights_are_akaike_weights_of_the_quasi_likelihood_at_the_stated_noise():
+    """QAIC: χ² over the best family's reduced χ² ĉ (never below 1), Akaike weights."""
+
+    def fit(kind: PhysicalKind, chi2: float) -> PhysicalFit:
+        return PhysicalFit(
+            kind, 1.0, 0.0, np.eye(2), np.eye(2), chi2, 18, 1.0, DEFAULT_GRID.wavelength_nm
+        )
+
+    # ĉ = 160/16 = 10: a Δχ² of 10 · 2 ln 3 is Δ QAIC 2 ln 3, weights 3 : 1.
+    weights = family_weights([fit("sinusoidal", 160.0), fit("blazed", 160.0 + 20 * np.log(3))])
+    assert weights["sinusoidal"] == pytest.approx(0.75) and weights["blazed"] == pytest.approx(0.25)
+    # ĉ floored at 1: well-described data keep the plain Akaike weights; a far family is dropped.
+    assert family_weights([fit("sinusoidal", 8.0), fit("blazed", 28.0)]) == {"sinusoidal": 1.0}
+    weights = family_weights([fit("blazed", 8.0), fit("sinusoidal", 8.0 + 2 * np.log(3))])
+    assert weights["blazed"] == pytest.approx(0.75)
+
+
+def test_the_choice_spread_keeps_the_chosen_estimate_and_adds_the_others_share():
+    """σ² of η⁻¹ about the chosen family: Σ_k w_k (J_k C_k J_kᵀ + (h_k − h_c)(h_k − h_c)ᵀ)."""
+    rng = np.random.default_rng(5)
+
+    def solution(inverse: np.ndarray) -> EfficiencySolution:
+        jacobian = rng.standard_normal((3, 2))
+        factor = rng.standard_normal((2, 2))
+        covariance = factor @ factor.T + np.eye(2)
+        return EfficiencySolution(
+            inverse,
+            rng.standard_normal(2),
+            covariance,
+            0.5 * covariance,
+            0.0,
+            jacobian,
+            info={"grating_model": {"chosen": "sinusoidal"}},
+        )
+
+    sheet, blazed = solution(np.array([1.0, 2.0, 3.0])), solution(np.array([1.5, 2.0, 2.0]))
+    weights = {"sinusoidal": 0.7, "blazed": 0.3}
+    spread = with_choice_spread({"sinusoidal": sheet, "blazed": blazed}, weights, "sinusoidal")
+    np.testing.assert_array_equal(spread.inverse_efficiency, sheet.inverse_efficiency)
+    covariance = spread.inverse_jacobian @ spread.coefficient_covariance @ spread.inverse_jacobian.T
+    difference = blazed.inverse_efficiency - sheet.inverse_efficiency
+    expected = sum(
+        w * part.inverse_jacobian @ part.coefficient_covariance @ part.inverse_jacobian.T
+        for w, part in ((0.7, sheet), (0.3, blazed))
+    ) + 0.3 * np.outer(difference, difference)
+    np.testing.assert_allclose(covariance, expected, rtol=1e-12, atol=1e-12)
+    assert spread.info["grating_model"]["choice_weights"] == weights
+    alone = with_choice_spread({"sinusoidal": sheet}, {"sinusoidal": 1.0}, "sinusoidal")
+    assert alone is sheet
+
+
+def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
+    """φ₀ = 1.05 rad, the direct RGB at 3 % noise and the rig's errors: the direct equations
+    barely tell the sheet from a blazed grating. The estimate is the chosen family's, unchanged;
+    its σ holds the other family's answer, which the chosen family's own σ does not."""
+    grating = SinusoidalPhaseGrating(1.05)
+    _, observations = _scene(
+        _order(grating, 1), _order(grating, 0), seed=0, noise=0.01, direct_noise=0.03
+    )
+    observations = _with_rig_errors(observations, 0)
+    result = estimate_multilamp(observations, basis=basis, mapping=MAPPING)
+    record = result.diagnostics["grating_model"]
+    assert record["chosen"] == "sinusoidal"
+    assert set(record["choice_weights"]) == {"sinusoidal", "blazed"}
+    assert 0.3 < record["choice_weights"]["blazed"] <= 0.5
+    chosen_alone = MultilampOptions(grating_model="sinusoidal")
+    other_alone = MultilampOptions(grating_model="blazed", uncertainty="none")
+    alone = {
+        options.grating_model: estimate_multilamp(
+            observations, basis=basis, mapping=MAPPING, options=options
+        )
+        for options in (chosen_alone, other_alone)
+    }
+    np.testing.assert_allclose(result.sensitivity, alone["sinusoidal"].sensitivity, rtol=1e-9)
+    # The other family's camera at the scale that fits this one best (a scale is not an error).
+    blazed = alone["blazed"].sensitivity
+    scale = float(np.sum(blazed * result.sensitivity) / np.sum(blazed**2))
+    other = np.abs(scale * blazed - result.sensitivity)
+    assert (
+        result.sensitivity_sigma is not None and alone["sinusoidal"].sensitivity_sigma is not None
+    )
+    held = np.mean(other <= 2 * result.sensitivity_sigma)
+    held_alone = np.mean(other <= 2 * alone["sinusoidal"].sensitivity_sigma)
+    # Measured: 88 % of the nodes against 59 % (without the spread both are the latter).
+    assert held > 0.85 and held - held_alone > 0.2, (held, held_alone)
+    # Where the covariance weighs the data against the prior (the prior solve), no spread.
+    prepared = prepare_lamps(observations, basis=basis, mapping=MAPPING)
+    plain = calibrate_lamps(
+        prepared, basis.prior(), EfficiencySettings(choice_spread=False)
+    ).efficiency
+    assert "choice_weights" not in plain.info["grating_model"]
+    assert plain.inverse_jacobian.shape[1] == 2

@@ -51,7 +51,10 @@ compensates through its shape — won (decision 0048: 7 of 88 validation estimat
 multi-lamp variants, RE 3.6–18.8 ×10⁻² where the sinusoidal fit gave 0.3–0.9). The fits themselves are
 unchanged; the record keeps the rule, both risks (``predictive_risk`` as judged,
 ``noise_only_predictive_risk``) and the floor. The σ budget's re-solves keep the estimate's
-choice (:func:`calib.methods._rerun`).
+choice (:func:`calib.methods._rerun`). Once a physical model wins, *which* family is chosen at the
+stated noise (its quasi-likelihood, :func:`calib.methods.multilamp.family_weights`: two rigid
+families cannot bend to the rig's errors, and the precise equations tell them apart), and the
+other family's share of the evidence is carried in σ (decision 0053).
 
 References
 ----------

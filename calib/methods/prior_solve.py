@@ -446,7 +446,10 @@ def _physical_estimate(
     with_direct = [obs for obs in observations if obs.direct_rgb is not None]
     lamps = [lamp_data(setup.prepared(obs, grid), setup.mapping) for obs in with_direct]
     efficiency = solve_efficiency(
-        lamps, setup.prior, EfficiencySettings(grating_model=options.grating_model)
+        lamps,
+        setup.prior,
+        # The covariance weighs the data against the prior below: no choice spread (0053).
+        EfficiencySettings(grating_model=options.grating_model, choice_spread=False),
     )
     record: dict[str, Any] = efficiency.info["grating_model"]
     if record["chosen"] == "fourier":
