@@ -21,14 +21,16 @@ import math
 import re
 import traceback
 from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 
+from calib.core.checksums import file_sha256
 from calib.core.errors import SpectrumError
 from calib.core.software import current_software
 from calib.core.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
@@ -222,6 +224,17 @@ def _small(error: ErrorInfo) -> ErrorInfo:
     )
 
 
+@dataclass(frozen=True)
+class _DeferredStore:
+    """A dark frame whose storing (sync, rename, file and step records) runs in the journal
+    thread while the camera takes the next frame (:meth:`Runner._settle` waits for it)."""
+
+    step: DarkFrame
+    attempts: int
+    started_s: float
+    future: Future[None]
+
+
 class StopRequested(Exception):
     """Raised between steps after a first interrupt."""
 
@@ -346,6 +359,14 @@ class Runner(StepHandlers[StepResult]):
         self.session.guard = self.interrupts.critical
         self.clock = station.clock
         self._workers = {role: DeviceWorker(role, role) for role in DEVICE_ROLES}
+        #: Stores a dark frame (sync, rename, records) while the camera takes the next one; the
+        #: journal stays in step order because every other session write waits for it first.
+        self._journal = ThreadPoolExecutor(1, thread_name_prefix="rig-journal")
+        self._pending: _DeferredStore | None = None
+        #: The storing a handler left to the journal thread (set last thing before it returns).
+        self._store_later: Callable[[], None] | None = None
+        #: A deferred store that failed: its step key and error (the run's failure).
+        self._late: tuple[str, BaseException] | None = None
         self._t0 = self.clock.now()
         self._seen_keys: set[str] = set()
         self._counts = {
@@ -407,13 +428,15 @@ class Runner(StepHandlers[StepResult]):
                 if after_start is not None:
                     after_start()
                 self.progress.start(estimate)
-                current = next(plan)
-                while True:
+                current = next(plan, None)
+                while current is not None:
                     self._check_stop()
                     result = self._execute(current)
-                    current = plan.send(result)
-            except StopIteration:
-                current = None
+                    try:
+                        current = plan.send(result)
+                    except StopIteration:
+                        current = None
+                self._settle()  # the last dark frame is stored before the run counts as done
             except StopRequested as exc:
                 status, reason, message = "abort", "interrupted", str(exc)
                 signal_name = exc.signal_name
@@ -425,13 +448,18 @@ class Runner(StepHandlers[StepResult]):
                     if isinstance(failure, DeviceError | RigError)
                     else f"internal error: {type(failure).__name__}: {failure}"
                 )
-                failed_key = getattr(failure, "key", None) or (current.key if current else None)
+                late = self._late
+                if late is not None and late[1] is exc:
+                    failed_key = late[0]
+                else:
+                    failed_key = getattr(failure, "key", None) or (current.key if current else None)
         except HaltRequested as exc:  # a second signal, during a step or while handling the first
             status, reason, message = "abort", "halted", str(exc)
             signal_name = self.interrupts.stop_requested or exc.signal_name
         finally:
             self.interrupts.enter_cleanup()
             lamps_off = self._switch_everything_off()
+            self._settle_in_cleanup()
             with contextlib.suppress(Exception):
                 plan.close()
             self.station.close(self._close_device)
@@ -450,6 +478,30 @@ class Runner(StepHandlers[StepResult]):
             signal=signal_name,
             error_exit_code=getattr(failure, "exit_code", 1),
         )
+
+    def _is_late(self, exc: BaseException) -> bool:
+        """Whether ``exc`` is an earlier dark frame's deferred storing failing (not this step's)."""
+        return self._late is not None and self._late[1] is exc
+
+    def _settle(self) -> None:
+        """Wait for the previous dark frame's storing; its failure is recorded on its own step
+        (a ``failed`` step record) and raised here, before anything else is written."""
+        pending, self._pending = self._pending, None
+        if pending is None:
+            return
+        try:
+            pending.future.result()
+        except Exception as exc:
+            self._late = (pending.step.key, exc)
+            self._record_failure(pending.step, exc, pending.attempts, pending.started_s)
+            raise
+
+    def _settle_in_cleanup(self) -> None:
+        """:meth:`_settle` when the run is ending anyway (its failure is recorded, not raised),
+        then stop the journal thread."""
+        with contextlib.suppress(BaseException):  # recorded on its step; the cleanup goes on
+            self._settle()
+        self._journal.shutdown(wait=True)
 
     def _check_stop(self) -> None:
         signal_name = self.interrupts.stop_requested
@@ -510,6 +562,9 @@ class Runner(StepHandlers[StepResult]):
         if key in self._seen_keys:
             raise PlanProtocolError(f"the plan yielded the step key {key!r} twice")
         self._seen_keys.add(key)
+        if not isinstance(step, DarkFrame | SetExposure):
+            # Only the camera's next frame (and its exposure) overlaps a dark frame's storing.
+            self._settle()
         self.progress.step_started(step)
         started_s = self._now_s()
         attempt = 1
@@ -520,6 +575,8 @@ class Runner(StepHandlers[StepResult]):
                 result = interpret(step, self)
                 break
             except DeviceError as exc:
+                if self._is_late(exc):
+                    raise
                 if (
                     step.retry_safe
                     and exc.retryable
@@ -527,6 +584,7 @@ class Runner(StepHandlers[StepResult]):
                     and self.interrupts.stop_requested is None
                 ):
                     backoff_s = self.retry.backoff_s(attempt)
+                    self._settle()
                     self.session.write(
                         RetryRecord,
                         key=key,
@@ -544,9 +602,22 @@ class Runner(StepHandlers[StepResult]):
                 self._record_failure(step, exc, attempt, started_s)
                 raise
             except RigError as exc:
-                self._record_failure(step, exc, attempt, started_s)
+                if not self._is_late(exc):
+                    self._record_failure(step, exc, attempt, started_s)
                 raise
-        self._write_step(step, attempt, started_s, result=result)
+        store, self._store_later = self._store_later, None
+        if store is None:
+            self._write_step(step, attempt, started_s, result=result)
+        else:
+            assert isinstance(step, DarkFrame)
+            ended_s = self._now_s()
+
+            def store_and_record() -> None:
+                store()
+                self._record_step(step, attempt, started_s, ended_s, result=result)
+
+            future = self._journal.submit(store_and_record)
+            self._pending = _DeferredStore(step, attempt, started_s, future)
         self._counts["steps"] += 1
         self.progress.step_done(step, result)
         return result
@@ -560,7 +631,22 @@ class Runner(StepHandlers[StepResult]):
         result: StepResult | None = None,
         error: BaseException | None = None,
     ) -> None:
-        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), transcripts synced first."""
+        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), after any
+        dark frame still being stored."""
+        self._settle()
+        self._record_step(step, attempts, started_s, self._now_s(), result=result, error=error)
+
+    def _record_step(
+        self,
+        step: Step,
+        attempts: int,
+        started_s: float,
+        ended_s: float,
+        *,
+        result: StepResult | None = None,
+        error: BaseException | None = None,
+    ) -> None:
+        """Write the step's record, transcripts synced first (also from the journal thread)."""
         self.session.sync_transcripts()
         self.session.write(
             StepRecord,
@@ -570,7 +656,7 @@ class Runner(StepHandlers[StepResult]):
             status="done" if error is None else "failed",
             attempts=attempts,
             started_s=started_s,
-            duration_s=max(0.0, self._now_s() - started_s),
+            duration_s=max(0.0, ended_s - started_s),
             result=result.to_json() if result is not None else None,
             error=error_info(error) if error is not None else None,
         )
@@ -578,7 +664,9 @@ class Runner(StepHandlers[StepResult]):
     def _record_failure(
         self, step: Step, exc: BaseException, attempts: int, started_s: float
     ) -> None:
-        """A ``failed`` step record, unless the session itself can no longer be written."""
+        """A ``failed`` step record, unless the session itself can no longer be written (a dark
+        frame still being stored, and its failure, come first)."""
+        self._settle()
         if self.session.broken is None:
             with contextlib.suppress(SessionWriteError):
                 self._write_step(step, attempts, started_s, error=exc)
@@ -808,12 +896,12 @@ class Runner(StepHandlers[StepResult]):
         return DarkMeasured(self._now_s(), record.path, tuple(reading.integration_ms))
 
     def _capture(self, step: Capture | DarkFrame) -> FrameCaptured:
-        dark = isinstance(step, DarkFrame)
-        if dark:
-            self._check_lamps_off("a dark frame")
+        if isinstance(step, DarkFrame):
+            return self._dark_frame(step)
         for _ in range(STALE_READING_ATTEMPTS):
-            captured, record = self._capture_once(step, dark)
-            problem = self._stale_frame(step, record)
+            captured, source, relative = self._download(step, dark=False)
+            record = self._commit_frame(step, source, relative)
+            problem = self._stale_frame(step, record.sha256, self.session.path / record.path)
             self.frame_digests.setdefault(record.sha256, step.key)
             if problem is None:
                 break
@@ -821,17 +909,13 @@ class Runner(StepHandlers[StepResult]):
         else:
             raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
         self._camera_changed = False
-        stats = None
-        if dark:
-            self._counts["dark_frames"] += 1
-        else:
-            self._counts["frames"] += 1
-            try:
-                stats = self.station.analyzer.analyse(self.session.path / record.path)
-            except FrameAnalysisError:
-                raise
-            except Exception as exc:
-                raise FrameAnalysisError(record.path, f"{type(exc).__name__}: {exc}") from exc
+        self._counts["frames"] += 1
+        try:
+            stats = self.station.analyzer.analyse(self.session.path / record.path)
+        except FrameAnalysisError:
+            raise
+        except Exception as exc:
+            raise FrameAnalysisError(record.path, f"{type(exc).__name__}: {exc}") from exc
         return FrameCaptured(
             self._now_s(),
             record.path,
@@ -841,8 +925,70 @@ class Runner(StepHandlers[StepResult]):
             stats,
         )
 
-    def _capture_once(self, step: Capture | DarkFrame, dark: bool) -> tuple[Any, FileRecord]:
-        """Capture, download and acknowledge one frame for ``step``."""
+    def _dark_frame(self, step: DarkFrame) -> FrameCaptured:
+        """A dark frame, whose storing overlaps the camera's next frame.
+
+        The frame is downloaded and checked (not stale: a new digest, and after a settings change
+        the exposure its metadata records) here; syncing it, renaming it into place and its file
+        and step records are left to the journal thread (:meth:`_execute`), which works while
+        the plan's next steps — the next dark frame, or the next exposure — use the camera. The
+        previous dark frame's storing is waited for once this frame is downloaded: when it
+        failed, this frame is still stored (a ``file`` record; the step is not acknowledged) and
+        the run fails on the earlier step's error.
+        """
+        self._check_lamps_off("a dark frame")
+        for _ in range(STALE_READING_ATTEMPTS):
+            captured, source, relative = self._download(step, dark=True)
+            try:
+                self._settle()
+            except BaseException:
+                with contextlib.suppress(Exception):  # a broken session keeps it as a temporary
+                    self._commit_frame(step, source, relative)
+                raise
+            try:
+                _, sha256 = file_sha256(source)
+            except OSError as exc:
+                raise SessionWriteError(f"reading the downloaded frame {source}: {exc}") from exc
+            problem = self._stale_frame(step, sha256, source)
+            if problem is None:
+                break
+            record = self._commit_frame(step, source, relative)
+            self.frame_digests.setdefault(record.sha256, step.key)
+            self._discard_stale(step.key, record.path, problem)
+        else:
+            raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
+        self.frame_digests.setdefault(sha256, step.key)
+        self._camera_changed = False
+        self._counts["dark_frames"] += 1
+        final = self.session.final_name(relative)
+        result = FrameCaptured(
+            self._now_s(),
+            final,
+            step.exposure_s,
+            float(captured.exposure_s),
+            captured.camera_path,
+            None,
+        )
+
+        def store() -> None:
+            record = self._commit_frame(step, source, relative)
+            if record.path != final:
+                raise SessionWriteError(
+                    f"{self.session.path}: {relative} was stored as {record.path}, not {final}: "
+                    "something else writes into the session"
+                )
+
+        self._store_later = store
+        return result
+
+    def _commit_frame(self, step: Capture | DarkFrame, source: Path, relative: str) -> FileRecord:
+        """Acknowledge a downloaded frame under ``relative`` (a ``file`` record)."""
+        role: Literal["dark", "frame"] = "dark" if isinstance(step, DarkFrame) else "frame"
+        return self.session.commit_file(source, relative, key=step.key, role=role)
+
+    def _download(self, step: Capture | DarkFrame, *, dark: bool) -> tuple[Any, Path, str]:
+        """Capture and download one frame for ``step``: what the driver returned, the
+        downloaded file (a temporary in the session) and the name to acknowledge it under."""
         temporary = self.session.incoming_path()
         camera = self.station.camera
         try:
@@ -869,24 +1015,21 @@ class Runner(StepHandlers[StepResult]):
         suffix = Path(captured.camera_path).suffix.lower()
         stream = "dark" if dark else "scene"
         relative = f"frames/{step.lamp}/{stream}-{step.index:03d}{suffix if _SUFFIX.fullmatch(suffix) else '.raw'}"
-        record = self.session.commit_file(
-            source, relative, key=step.key, role="dark" if dark else "frame"
-        )
-        return captured, record
+        return captured, source, relative
 
-    def _stale_frame(self, step: Capture | DarkFrame, record: FileRecord) -> str | None:
+    def _stale_frame(self, step: Capture | DarkFrame, sha256: str, frame: Path) -> str | None:
         """Why a just-acknowledged frame is stale, or ``None``.
 
         A copy of a frame the session already holds is never a new frame. The first frame after a
         settings change must also show, in its own metadata, the exposure the camera was set to.
         """
-        earlier = self.frame_digests.get(record.sha256, step.key)
+        earlier = self.frame_digests.get(sha256, step.key)
         if earlier != step.key:
             return f"it is a byte-for-byte copy of the frame of {earlier}"
         read_exposure = self.station.frame_exposure
         if not self._camera_changed or read_exposure is None:
             return None
-        recorded_s = read_exposure(self.session.path / record.path)
+        recorded_s = read_exposure(frame)
         if recorded_s is None or math.isclose(
             recorded_s, step.exposure_s, rel_tol=STALE_EXPOSURE_RTOL
         ):

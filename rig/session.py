@@ -601,6 +601,19 @@ class SessionWriter:
             candidate = f"{stem}.{number}" + (f".{suffix}" if suffix else "")
         return candidate
 
+    def final_name(self, relative: str) -> str:
+        """The name :meth:`commit_file` would acknowledge ``relative`` under now.
+
+        Raises
+        ------
+        SessionFormatError
+            The name, or one after it, is taken by a planted link or special file.
+        """
+        try:
+            return self._free_name(check_session_path(relative))
+        except UnsafeLocalPath as exc:
+            raise self.refusal(exc) from None
+
     def commit_file(
         self,
         temporary: Path,
