@@ -38,6 +38,7 @@ from drivers.base import DarkCorrecting, DeviceError, DeviceIdentity, RelayBoard
 from drivers.local_files import NO_SPACE_ERRNOS, UnsafeLocalPath
 from drivers.spectrometer import longest_measure_s
 from drivers.spectrometer.ocean import integration_ladder_ms
+from rig.analysis import FrameStats
 from rig.config import RigConfig, SeabreezeSpectrometerConfig
 from rig.dryrun import DryRunReport
 from rig.errors import (
@@ -54,6 +55,7 @@ from rig.operator import ManualAction
 from rig.plan import Plan
 from rig.progress import ProgressReporter, SilentProgress
 from rig.records import (
+    FRAMES_DIR,
     DeviceRecord,
     DiscardRecord,
     ErrorInfo,
@@ -226,13 +228,18 @@ def _small(error: ErrorInfo) -> ErrorInfo:
 
 @dataclass(frozen=True)
 class _DeferredStore:
-    """A dark frame whose storing (sync, rename, file and step records) runs in the journal
-    thread while the camera takes the next frame (:meth:`Runner._settle` waits for it)."""
+    """A step whose storing runs in the journal thread while the camera takes the next frame
+    (:meth:`Runner._settle` waits for it): a dark frame (sync, rename, file and step records), or
+    the step record of an exposure set while the journal is still storing one."""
 
-    step: DarkFrame
+    step: Step
     attempts: int
     started_s: float
     future: Future[None]
+
+
+class _Skipped(Exception):
+    """A journal job not done because an earlier one failed (the log ends before it)."""
 
 
 class StopRequested(Exception):
@@ -362,7 +369,8 @@ class Runner(StepHandlers[StepResult]):
         #: Stores a dark frame (sync, rename, records) while the camera takes the next one; the
         #: journal stays in step order because every other session write waits for it first.
         self._journal = ThreadPoolExecutor(1, thread_name_prefix="rig-journal")
-        self._pending: _DeferredStore | None = None
+        self._pending: list[_DeferredStore] = []
+        self._journal_failed = False
         #: The storing a handler left to the journal thread (set last thing before it returns).
         self._store_later: Callable[[], None] | None = None
         #: A deferred store that failed: its step key and error (the run's failure).
@@ -486,15 +494,20 @@ class Runner(StepHandlers[StepResult]):
     def _settle(self) -> None:
         """Wait for the previous dark frame's storing; its failure is recorded on its own step
         (a ``failed`` step record) and raised here, before anything else is written."""
-        pending, self._pending = self._pending, None
-        if pending is None:
-            return
-        try:
-            pending.future.result()
-        except Exception as exc:
-            self._late = (pending.step.key, exc)
-            self._record_failure(pending.step, exc, pending.attempts, pending.started_s)
-            raise
+        pending, self._pending = self._pending, []
+        first: tuple[_DeferredStore, Exception] | None = None
+        for item in pending:
+            try:
+                item.future.result()
+            except _Skipped:
+                pass
+            except Exception as exc:
+                first = first or (item, exc)
+        if first is not None:
+            failed, error = first
+            self._late = (failed.step.key, error)
+            self._record_failure(failed.step, error, failed.attempts, failed.started_s)
+            raise error
 
     def _settle_in_cleanup(self) -> None:
         """:meth:`_settle` when the run is ending anyway (its failure is recorded, not raised),
@@ -562,8 +575,8 @@ class Runner(StepHandlers[StepResult]):
         if key in self._seen_keys:
             raise PlanProtocolError(f"the plan yielded the step key {key!r} twice")
         self._seen_keys.add(key)
-        if not isinstance(step, DarkFrame | SetExposure):
-            # Only the camera's next frame (and its exposure) overlaps a dark frame's storing.
+        if not isinstance(step, Capture | DarkFrame | SetExposure):
+            # Only the camera's next frame (and its exposure) overlaps a frame's storing.
             self._settle()
         self.progress.step_started(step)
         started_s = self._now_s()
@@ -606,21 +619,44 @@ class Runner(StepHandlers[StepResult]):
                     self._record_failure(step, exc, attempt, started_s)
                 raise
         store, self._store_later = self._store_later, None
-        if store is None:
+        if store is not None and self.session.record_limit is not None:
+            # A killed run's replay stops after its recorded records: records and device calls
+            # then go in lock-step, so the replay stops before the next step's device calls.
+            store()
+            store = None
+        if store is None and not (self._pending and isinstance(step, SetExposure)):
             self._write_step(step, attempt, started_s, result=result)
         else:
-            assert isinstance(step, DarkFrame)
-            ended_s = self._now_s()
-
-            def store_and_record() -> None:
-                store()
-                self._record_step(step, attempt, started_s, ended_s, result=result)
-
-            future = self._journal.submit(store_and_record)
-            self._pending = _DeferredStore(step, attempt, started_s, future)
+            self._defer(step, attempt, started_s, result, store)
         self._counts["steps"] += 1
         self.progress.step_done(step, result)
         return result
+
+    def _defer(
+        self,
+        step: Step,
+        attempts: int,
+        started_s: float,
+        result: StepResult,
+        store: Callable[[], None] | None,
+    ) -> None:
+        """Queue ``store`` (if any) and the step's record in the journal thread, after what is
+        queued already; nothing more is written there once a queued job failed."""
+        ended_s = self._now_s()
+
+        def job() -> None:
+            if self._journal_failed:
+                raise _Skipped
+            try:
+                if store is not None:
+                    store()
+                self._record_step(step, attempts, started_s, ended_s, result=result)
+            except BaseException:
+                self._journal_failed = True
+                raise
+
+        future = self._journal.submit(job)
+        self._pending.append(_DeferredStore(step, attempts, started_s, future))
 
     def _write_step(
         self,
@@ -896,49 +932,22 @@ class Runner(StepHandlers[StepResult]):
         return DarkMeasured(self._now_s(), record.path, tuple(reading.integration_ms))
 
     def _capture(self, step: Capture | DarkFrame) -> FrameCaptured:
-        if isinstance(step, DarkFrame):
-            return self._dark_frame(step)
-        for _ in range(STALE_READING_ATTEMPTS):
-            captured, source, relative = self._download(step, dark=False)
-            record = self._commit_frame(step, source, relative)
-            problem = self._stale_frame(step, record.sha256, self.session.path / record.path)
-            self.frame_digests.setdefault(record.sha256, step.key)
-            if problem is None:
-                break
-            self._discard_stale(step.key, record.path, problem)
-        else:
-            raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
-        self._camera_changed = False
-        self._counts["frames"] += 1
-        try:
-            stats = self.station.analyzer.analyse(self.session.path / record.path)
-        except FrameAnalysisError:
-            raise
-        except Exception as exc:
-            raise FrameAnalysisError(record.path, f"{type(exc).__name__}: {exc}") from exc
-        return FrameCaptured(
-            self._now_s(),
-            record.path,
-            step.exposure_s,
-            float(captured.exposure_s),
-            captured.camera_path,
-            stats,
-        )
+        """A frame, whose storing overlaps the camera's next frame.
 
-    def _dark_frame(self, step: DarkFrame) -> FrameCaptured:
-        """A dark frame, whose storing overlaps the camera's next frame.
-
-        The frame is downloaded and checked (not stale: a new digest, and after a settings change
-        the exposure its metadata records) here; syncing it, renaming it into place and its file
-        and step records are left to the journal thread (:meth:`_execute`), which works while
-        the plan's next steps — the next dark frame, or the next exposure — use the camera. The
-        previous dark frame's storing is waited for once this frame is downloaded: when it
-        failed, this frame is still stored (a ``file`` record; the step is not acknowledged) and
-        the run fails on the earlier step's error.
+        The frame is downloaded next to where it is kept, and checked (not stale: a new digest,
+        and after a settings change the exposure its metadata records) and, for a scene frame,
+        analysed there; syncing it, renaming it into place and its file and step records are
+        left to the journal thread (:meth:`_execute`), which works while the plan's next steps —
+        the next exposure and frame — use the camera. What the journal still stores is waited
+        for once this frame is downloaded: when it failed, this frame is still stored (a
+        ``file`` record; the step is not acknowledged) and the run fails on the earlier step's
+        error. A frame that cannot be analysed is stored before the run fails on it.
         """
-        self._check_lamps_off("a dark frame")
+        dark = isinstance(step, DarkFrame)
+        if dark:
+            self._check_lamps_off("a dark frame")
         for _ in range(STALE_READING_ATTEMPTS):
-            captured, source, relative = self._download(step, dark=True)
+            captured, source, relative = self._download(step, dark=dark)
             try:
                 self._settle()
             except BaseException:
@@ -959,7 +968,8 @@ class Runner(StepHandlers[StepResult]):
             raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
         self.frame_digests.setdefault(sha256, step.key)
         self._camera_changed = False
-        self._counts["dark_frames"] += 1
+        self._counts["dark_frames" if dark else "frames"] += 1
+        stats = None if dark else self._analyse(step, source, relative)
         final = self.session.final_name(relative)
         result = FrameCaptured(
             self._now_s(),
@@ -967,7 +977,7 @@ class Runner(StepHandlers[StepResult]):
             step.exposure_s,
             float(captured.exposure_s),
             captured.camera_path,
-            None,
+            stats,
         )
 
         def store() -> None:
@@ -981,6 +991,18 @@ class Runner(StepHandlers[StepResult]):
         self._store_later = store
         return result
 
+    def _analyse(self, step: Capture | DarkFrame, source: Path, relative: str) -> FrameStats:
+        """The statistics of a downloaded scene frame; one that cannot be analysed is stored
+        (a ``file`` record) before :class:`FrameAnalysisError` names it."""
+        try:
+            return self.station.analyzer.analyse(source)
+        except Exception as exc:
+            record = self._commit_frame(step, source, relative)
+            detail = str(exc).removeprefix(f"{source}: ")
+            if not isinstance(exc, FrameAnalysisError):
+                detail = f"{type(exc).__name__}: {exc}"
+            raise FrameAnalysisError(record.path, detail) from exc
+
     def _commit_frame(self, step: Capture | DarkFrame, source: Path, relative: str) -> FileRecord:
         """Acknowledge a downloaded frame under ``relative`` (a ``file`` record)."""
         role: Literal["dark", "frame"] = "dark" if isinstance(step, DarkFrame) else "frame"
@@ -989,7 +1011,8 @@ class Runner(StepHandlers[StepResult]):
     def _download(self, step: Capture | DarkFrame, *, dark: bool) -> tuple[Any, Path, str]:
         """Capture and download one frame for ``step``: what the driver returned, the
         downloaded file (a temporary in the session) and the name to acknowledge it under."""
-        temporary = self.session.incoming_path()
+        # Next to where it is kept: the analyser knows a lamp's frames by their directory.
+        temporary = self.session.incoming_path(f"{FRAMES_DIR}/{step.lamp}")
         camera = self.station.camera
         try:
             captured = self._call(
