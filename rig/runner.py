@@ -34,7 +34,14 @@ from calib.core.checksums import file_sha256
 from calib.core.errors import SpectrumError
 from calib.core.software import current_software
 from calib.core.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
-from drivers.base import DarkCorrecting, DeviceError, DeviceIdentity, RelayBoard, StateMismatch
+from drivers.base import (
+    DarkCorrecting,
+    DeviceError,
+    DeviceIdentity,
+    RelayBoard,
+    SpectrumReading,
+    StateMismatch,
+)
 from drivers.local_files import NO_SPACE_ERRNOS, UnsafeLocalPath
 from drivers.spectrometer import longest_measure_s
 from drivers.spectrometer.ocean import integration_ladder_ms
@@ -238,6 +245,11 @@ class _DeferredStore:
     future: Future[None]
 
 
+#: The steps that go on while the journal thread still stores earlier ones: they write nothing
+#: to the session before :meth:`Runner._settle` (their own storing and records queue behind).
+_OVERLAPPING = (Capture, DarkFrame, SetExposure, SwitchLamp, Wait, MeasureSpectrum)
+
+
 class _Skipped(Exception):
     """A journal job not done because an earlier one failed (the log ends before it)."""
 
@@ -371,8 +383,9 @@ class Runner(StepHandlers[StepResult]):
         self._journal = ThreadPoolExecutor(1, thread_name_prefix="rig-journal")
         self._pending: list[_DeferredStore] = []
         self._journal_failed = False
-        #: The storing a handler left to the journal thread (set last thing before it returns).
-        self._store_later: Callable[[], None] | None = None
+        #: The storing a handler left to the journal thread (set last thing before it returns),
+        #: and the temporary it stores.
+        self._store_later: tuple[Callable[[], None], Path] | None = None
         #: A deferred store that failed: its step key and error (the run's failure).
         self._late: tuple[str, BaseException] | None = None
         self._t0 = self.clock.now()
@@ -575,8 +588,8 @@ class Runner(StepHandlers[StepResult]):
         if key in self._seen_keys:
             raise PlanProtocolError(f"the plan yielded the step key {key!r} twice")
         self._seen_keys.add(key)
-        if not isinstance(step, Capture | DarkFrame | SetExposure):
-            # Only the camera's next frame (and its exposure) overlaps a frame's storing.
+        if not isinstance(step, _OVERLAPPING):
+            # What the journal still stores is waited for first (the journal stays in step order).
             self._settle()
         self.progress.step_started(step)
         started_s = self._now_s()
@@ -622,9 +635,9 @@ class Runner(StepHandlers[StepResult]):
         if store is not None and self.session.record_limit is not None:
             # A killed run's replay stops after its recorded records: records and device calls
             # then go in lock-step, so the replay stops before the next step's device calls.
-            store()
+            store[0]()
             store = None
-        if store is None and not (self._pending and isinstance(step, SetExposure)):
+        if store is None and not (self._pending and isinstance(step, _OVERLAPPING)):
             self._write_step(step, attempt, started_s, result=result)
         else:
             self._defer(step, attempt, started_s, result, store)
@@ -638,18 +651,22 @@ class Runner(StepHandlers[StepResult]):
         attempts: int,
         started_s: float,
         result: StepResult,
-        store: Callable[[], None] | None,
+        store: tuple[Callable[[], None], Path] | None,
     ) -> None:
         """Queue ``store`` (if any) and the step's record in the journal thread, after what is
-        queued already; nothing more is written there once a queued job failed."""
+        queued already; nothing more is written there once a queued job failed (its temporary is
+        removed: only a spectrum's, or a record alone, ever waits behind another job)."""
         ended_s = self._now_s()
 
         def job() -> None:
             if self._journal_failed:
+                if store is not None:
+                    with contextlib.suppress(OSError):
+                        store[1].unlink()
                 raise _Skipped
             try:
                 if store is not None:
-                    store()
+                    store[0]()
                 self._record_step(step, attempts, started_s, ended_s, result=result)
             except BaseException:
                 self._journal_failed = True
@@ -852,12 +869,8 @@ class Runner(StepHandlers[StepResult]):
                 raise InvalidReading(
                     self._workers["spectrometer"].device, f"invalid spectrum: {exc}"
                 ) from None
-            record = self.session.write_spectrum(
-                relative,
-                spectrum,
-                key=step.key,
-                units=reading.units,
-                bandwidth_nm=reading.bandwidth_nm,
+            temporary = self.session.stage_spectrum(
+                relative, spectrum, units=reading.units, bandwidth_nm=reading.bandwidth_nm
             )
             stale = (
                 configured_ms is not None
@@ -868,6 +881,8 @@ class Runner(StepHandlers[StepResult]):
             )
             if not stale:
                 break
+            self._settle()
+            record = self._commit(step, temporary, relative, "spectrum", reading)
             self._discard_stale(
                 step.key,
                 record.path,
@@ -883,10 +898,13 @@ class Runner(StepHandlers[StepResult]):
         self._counts["spectra"] += 1
         # The plan gets the spectrum as stored (CSV precision), so a plan re-driven from the session
         # (resume, replay) sees exactly the numbers this run saw and takes the same branches.
-        stored = read_spectrum_csv(self.session.path / record.path)
+        try:
+            stored = read_spectrum_csv(temporary)
+        except OSError as exc:
+            raise SessionWriteError(f"reading back {relative}: {exc}") from exc
         return SpectrumMeasured(
             self._now_s(),
-            record.path,
+            self._store_later_as(step, temporary, relative, "spectrum", reading),
             stored.wavelength_nm,
             stored.values,
             reading.units,
@@ -952,7 +970,7 @@ class Runner(StepHandlers[StepResult]):
                 self._settle()
             except BaseException:
                 with contextlib.suppress(Exception):  # a broken session keeps it as a temporary
-                    self._commit_frame(step, source, relative)
+                    self._commit(step, source, relative, "dark" if dark else "frame")
                 raise
             try:
                 _, sha256 = file_sha256(source)
@@ -961,7 +979,7 @@ class Runner(StepHandlers[StepResult]):
             problem = self._stale_frame(step, sha256, source)
             if problem is None:
                 break
-            record = self._commit_frame(step, source, relative)
+            record = self._commit(step, source, relative, "dark" if dark else "frame")
             self.frame_digests.setdefault(record.sha256, step.key)
             self._discard_stale(step.key, record.path, problem)
         else:
@@ -970,26 +988,37 @@ class Runner(StepHandlers[StepResult]):
         self._camera_changed = False
         self._counts["dark_frames" if dark else "frames"] += 1
         stats = None if dark else self._analyse(step, source, relative)
-        final = self.session.final_name(relative)
-        result = FrameCaptured(
+        return FrameCaptured(
             self._now_s(),
-            final,
+            self._store_later_as(step, source, relative, "dark" if dark else "frame"),
             step.exposure_s,
             float(captured.exposure_s),
             captured.camera_path,
             stats,
         )
 
+    def _store_later_as(
+        self,
+        step: Step,
+        temporary: Path,
+        relative: str,
+        role: Literal["dark", "frame", "spectrum"],
+        reading: SpectrumReading | None = None,
+    ) -> str:
+        """Leave the storing of ``temporary`` under ``relative`` to the journal thread
+        (:meth:`_execute` queues it with the step's record); return the name it will have."""
+        final = self.session.final_name(relative)
+
         def store() -> None:
-            record = self._commit_frame(step, source, relative)
+            record = self._commit(step, temporary, relative, role, reading)
             if record.path != final:
                 raise SessionWriteError(
                     f"{self.session.path}: {relative} was stored as {record.path}, not {final}: "
                     "something else writes into the session"
                 )
 
-        self._store_later = store
-        return result
+        self._store_later = (store, temporary)
+        return final
 
     def _analyse(self, step: Capture | DarkFrame, source: Path, relative: str) -> FrameStats:
         """The statistics of a downloaded scene frame; one that cannot be analysed is stored
@@ -997,16 +1026,29 @@ class Runner(StepHandlers[StepResult]):
         try:
             return self.station.analyzer.analyse(source)
         except Exception as exc:
-            record = self._commit_frame(step, source, relative)
+            record = self._commit(step, source, relative, "frame")
             detail = str(exc).removeprefix(f"{source}: ")
             if not isinstance(exc, FrameAnalysisError):
                 detail = f"{type(exc).__name__}: {exc}"
             raise FrameAnalysisError(record.path, detail) from exc
 
-    def _commit_frame(self, step: Capture | DarkFrame, source: Path, relative: str) -> FileRecord:
-        """Acknowledge a downloaded frame under ``relative`` (a ``file`` record)."""
-        role: Literal["dark", "frame"] = "dark" if isinstance(step, DarkFrame) else "frame"
-        return self.session.commit_file(source, relative, key=step.key, role=role)
+    def _commit(
+        self,
+        step: Step,
+        temporary: Path,
+        relative: str,
+        role: Literal["dark", "frame", "spectrum"],
+        reading: SpectrumReading | None = None,
+    ) -> FileRecord:
+        """Acknowledge a downloaded frame or a staged spectrum under ``relative``."""
+        return self.session.commit_file(
+            temporary,
+            relative,
+            key=step.key,
+            role=role,
+            units=None if reading is None else reading.units,
+            bandwidth_nm=None if reading is None else reading.bandwidth_nm,
+        )
 
     def _download(self, step: Capture | DarkFrame, *, dark: bool) -> tuple[Any, Path, str]:
         """Capture and download one frame for ``step``: what the driver returned, the
