@@ -3,6 +3,7 @@ the log in step order, a failure of the storing or a kill during it ends in a us
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -13,6 +14,7 @@ import pytest
 
 from rig.capture import run_capture
 from rig.errors import SessionFormatError
+from rig.interrupts import HaltRequested, InterruptController
 from rig.records import FileRecord, StepRecord
 from rig.resume import run_resume
 from rig.runner import RetryPolicy
@@ -177,3 +179,30 @@ def test_killed_while_a_dark_frame_is_stored_then_resumed(
     assert resumed.exit_status == "success", resumed
     assert_invariants(outcome.session, tmp_path, uninterrupted, estimate=False)
     assert leftovers(outcome.session) == []
+
+
+@pytest.mark.skipif(
+    threading.current_thread() is not threading.main_thread(),
+    reason="signal handlers run in the main thread only",
+)
+def test_the_journal_storing_does_not_hold_back_a_second_signal() -> None:
+    """A critical section in another thread (the journal's writes) cannot be cut by a signal, so
+    it does not delay the second signal's stop of the main thread (a long exposure)."""
+    controller = InterruptController()
+    entered, leave = threading.Event(), threading.Event()
+
+    def journal() -> None:
+        with controller.critical():
+            entered.set()
+            leave.wait(5)
+
+    thread = threading.Thread(target=journal)
+    thread.start()
+    try:
+        assert entered.wait(5)
+        controller._handle(signal.SIGINT, None)
+        with pytest.raises(HaltRequested):
+            controller._handle(signal.SIGINT, None)
+    finally:
+        leave.set()
+        thread.join(5)
