@@ -49,11 +49,18 @@ class ReceivedSignal:
 
 
 class _CriticalSection:
+    """Counted in the main thread only: signal handlers run there, so another thread (the
+    runner's journal) is never cut by one, and its sections must not hold back a second signal
+    meant to stop the main thread at once."""
+
     def __init__(self, controller: InterruptController) -> None:
         self._controller = controller
+        self._counted = False
 
     def __enter__(self) -> None:
-        self._controller._critical_depth += 1
+        self._counted = threading.current_thread() is threading.main_thread()
+        if self._counted:
+            self._controller._critical_depth += 1
 
     def __exit__(
         self,
@@ -61,6 +68,8 @@ class _CriticalSection:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
+        if not self._counted:
+            return
         controller = self._controller
         controller._critical_depth -= 1
         pending = controller._halt_pending

@@ -21,21 +21,31 @@ import math
 import re
 import traceback
 from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 
+from calib.core.checksums import file_sha256
 from calib.core.errors import SpectrumError
 from calib.core.software import current_software
 from calib.core.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
-from drivers.base import DarkCorrecting, DeviceError, DeviceIdentity, RelayBoard, StateMismatch
+from drivers.base import (
+    DarkCorrecting,
+    DeviceError,
+    DeviceIdentity,
+    RelayBoard,
+    SpectrumReading,
+    StateMismatch,
+)
 from drivers.local_files import NO_SPACE_ERRNOS, UnsafeLocalPath
 from drivers.spectrometer import longest_measure_s
 from drivers.spectrometer.ocean import integration_ladder_ms
+from rig.analysis import FrameStats
 from rig.config import RigConfig, SeabreezeSpectrometerConfig
 from rig.dryrun import DryRunReport
 from rig.errors import (
@@ -52,6 +62,7 @@ from rig.operator import ManualAction
 from rig.plan import Plan
 from rig.progress import ProgressReporter, SilentProgress
 from rig.records import (
+    FRAMES_DIR,
     DeviceRecord,
     DiscardRecord,
     ErrorInfo,
@@ -222,6 +233,27 @@ def _small(error: ErrorInfo) -> ErrorInfo:
     )
 
 
+@dataclass(frozen=True)
+class _DeferredStore:
+    """A step whose storing runs in the journal thread while the camera takes the next frame
+    (:meth:`Runner._settle` waits for it): a dark frame (sync, rename, file and step records), or
+    the step record of an exposure set while the journal is still storing one."""
+
+    step: Step
+    attempts: int
+    started_s: float
+    future: Future[None]
+
+
+#: The steps that go on while the journal thread still stores earlier ones: they write nothing
+#: to the session before :meth:`Runner._settle` (their own storing and records queue behind).
+_OVERLAPPING = (Capture, DarkFrame, SetExposure, SwitchLamp, Wait, MeasureSpectrum)
+
+
+class _Skipped(Exception):
+    """A journal job not done because an earlier one failed (the log ends before it)."""
+
+
 class StopRequested(Exception):
     """Raised between steps after a first interrupt."""
 
@@ -346,6 +378,16 @@ class Runner(StepHandlers[StepResult]):
         self.session.guard = self.interrupts.critical
         self.clock = station.clock
         self._workers = {role: DeviceWorker(role, role) for role in DEVICE_ROLES}
+        #: Stores a dark frame (sync, rename, records) while the camera takes the next one; the
+        #: journal stays in step order because every other session write waits for it first.
+        self._journal = ThreadPoolExecutor(1, thread_name_prefix="rig-journal")
+        self._pending: list[_DeferredStore] = []
+        self._journal_failed = False
+        #: The storing a handler left to the journal thread (set last thing before it returns),
+        #: and the temporary it stores.
+        self._store_later: tuple[Callable[[], None], Path] | None = None
+        #: A deferred store that failed: its step key and error (the run's failure).
+        self._late: tuple[str, BaseException] | None = None
         self._t0 = self.clock.now()
         self._seen_keys: set[str] = set()
         self._counts = {
@@ -407,13 +449,15 @@ class Runner(StepHandlers[StepResult]):
                 if after_start is not None:
                     after_start()
                 self.progress.start(estimate)
-                current = next(plan)
-                while True:
+                current = next(plan, None)
+                while current is not None:
                     self._check_stop()
                     result = self._execute(current)
-                    current = plan.send(result)
-            except StopIteration:
-                current = None
+                    try:
+                        current = plan.send(result)
+                    except StopIteration:
+                        current = None
+                self._settle()  # the last dark frame is stored before the run counts as done
             except StopRequested as exc:
                 status, reason, message = "abort", "interrupted", str(exc)
                 signal_name = exc.signal_name
@@ -425,13 +469,18 @@ class Runner(StepHandlers[StepResult]):
                     if isinstance(failure, DeviceError | RigError)
                     else f"internal error: {type(failure).__name__}: {failure}"
                 )
-                failed_key = getattr(failure, "key", None) or (current.key if current else None)
+                late = self._late
+                if late is not None and late[1] is exc:
+                    failed_key = late[0]
+                else:
+                    failed_key = getattr(failure, "key", None) or (current.key if current else None)
         except HaltRequested as exc:  # a second signal, during a step or while handling the first
             status, reason, message = "abort", "halted", str(exc)
             signal_name = self.interrupts.stop_requested or exc.signal_name
         finally:
             self.interrupts.enter_cleanup()
             lamps_off = self._switch_everything_off()
+            self._settle_in_cleanup()
             with contextlib.suppress(Exception):
                 plan.close()
             self.station.close(self._close_device)
@@ -450,6 +499,35 @@ class Runner(StepHandlers[StepResult]):
             signal=signal_name,
             error_exit_code=getattr(failure, "exit_code", 1),
         )
+
+    def _is_late(self, exc: BaseException) -> bool:
+        """Whether ``exc`` is an earlier dark frame's deferred storing failing (not this step's)."""
+        return self._late is not None and self._late[1] is exc
+
+    def _settle(self) -> None:
+        """Wait for the previous dark frame's storing; its failure is recorded on its own step
+        (a ``failed`` step record) and raised here, before anything else is written."""
+        pending, self._pending = self._pending, []
+        first: tuple[_DeferredStore, Exception] | None = None
+        for item in pending:
+            try:
+                item.future.result()
+            except _Skipped:
+                pass
+            except Exception as exc:
+                first = first or (item, exc)
+        if first is not None:
+            failed, error = first
+            self._late = (failed.step.key, error)
+            self._record_failure(failed.step, error, failed.attempts, failed.started_s)
+            raise error
+
+    def _settle_in_cleanup(self) -> None:
+        """:meth:`_settle` when the run is ending anyway (its failure is recorded, not raised),
+        then stop the journal thread."""
+        with contextlib.suppress(BaseException):  # recorded on its step; the cleanup goes on
+            self._settle()
+        self._journal.shutdown(wait=True)
 
     def _check_stop(self) -> None:
         signal_name = self.interrupts.stop_requested
@@ -510,6 +588,9 @@ class Runner(StepHandlers[StepResult]):
         if key in self._seen_keys:
             raise PlanProtocolError(f"the plan yielded the step key {key!r} twice")
         self._seen_keys.add(key)
+        if not isinstance(step, _OVERLAPPING):
+            # What the journal still stores is waited for first (the journal stays in step order).
+            self._settle()
         self.progress.step_started(step)
         started_s = self._now_s()
         attempt = 1
@@ -520,6 +601,8 @@ class Runner(StepHandlers[StepResult]):
                 result = interpret(step, self)
                 break
             except DeviceError as exc:
+                if self._is_late(exc):
+                    raise
                 if (
                     step.retry_safe
                     and exc.retryable
@@ -527,6 +610,7 @@ class Runner(StepHandlers[StepResult]):
                     and self.interrupts.stop_requested is None
                 ):
                     backoff_s = self.retry.backoff_s(attempt)
+                    self._settle()
                     self.session.write(
                         RetryRecord,
                         key=key,
@@ -544,12 +628,52 @@ class Runner(StepHandlers[StepResult]):
                 self._record_failure(step, exc, attempt, started_s)
                 raise
             except RigError as exc:
-                self._record_failure(step, exc, attempt, started_s)
+                if not self._is_late(exc):
+                    self._record_failure(step, exc, attempt, started_s)
                 raise
-        self._write_step(step, attempt, started_s, result=result)
+        store, self._store_later = self._store_later, None
+        if store is not None and self.session.record_limit is not None:
+            # A killed run's replay stops after its recorded records: records and device calls
+            # then go in lock-step, so the replay stops before the next step's device calls.
+            store[0]()
+            store = None
+        if store is None and not (self._pending and isinstance(step, _OVERLAPPING)):
+            self._write_step(step, attempt, started_s, result=result)
+        else:
+            self._defer(step, attempt, started_s, result, store)
         self._counts["steps"] += 1
         self.progress.step_done(step, result)
         return result
+
+    def _defer(
+        self,
+        step: Step,
+        attempts: int,
+        started_s: float,
+        result: StepResult,
+        store: tuple[Callable[[], None], Path] | None,
+    ) -> None:
+        """Queue ``store`` (if any) and the step's record in the journal thread, after what is
+        queued already; nothing more is written there once a queued job failed (its temporary is
+        removed: only a spectrum's, or a record alone, ever waits behind another job)."""
+        ended_s = self._now_s()
+
+        def job() -> None:
+            if self._journal_failed:
+                if store is not None:
+                    with contextlib.suppress(OSError):
+                        store[1].unlink()
+                raise _Skipped
+            try:
+                if store is not None:
+                    store[0]()
+                self._record_step(step, attempts, started_s, ended_s, result=result)
+            except BaseException:
+                self._journal_failed = True
+                raise
+
+        future = self._journal.submit(job)
+        self._pending.append(_DeferredStore(step, attempts, started_s, future))
 
     def _write_step(
         self,
@@ -560,7 +684,22 @@ class Runner(StepHandlers[StepResult]):
         result: StepResult | None = None,
         error: BaseException | None = None,
     ) -> None:
-        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), transcripts synced first."""
+        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), after any
+        dark frame still being stored."""
+        self._settle()
+        self._record_step(step, attempts, started_s, self._now_s(), result=result, error=error)
+
+    def _record_step(
+        self,
+        step: Step,
+        attempts: int,
+        started_s: float,
+        ended_s: float,
+        *,
+        result: StepResult | None = None,
+        error: BaseException | None = None,
+    ) -> None:
+        """Write the step's record, transcripts synced first (also from the journal thread)."""
         self.session.sync_transcripts()
         self.session.write(
             StepRecord,
@@ -570,7 +709,7 @@ class Runner(StepHandlers[StepResult]):
             status="done" if error is None else "failed",
             attempts=attempts,
             started_s=started_s,
-            duration_s=max(0.0, self._now_s() - started_s),
+            duration_s=max(0.0, ended_s - started_s),
             result=result.to_json() if result is not None else None,
             error=error_info(error) if error is not None else None,
         )
@@ -578,7 +717,9 @@ class Runner(StepHandlers[StepResult]):
     def _record_failure(
         self, step: Step, exc: BaseException, attempts: int, started_s: float
     ) -> None:
-        """A ``failed`` step record, unless the session itself can no longer be written."""
+        """A ``failed`` step record, unless the session itself can no longer be written (a dark
+        frame still being stored, and its failure, come first)."""
+        self._settle()
         if self.session.broken is None:
             with contextlib.suppress(SessionWriteError):
                 self._write_step(step, attempts, started_s, error=exc)
@@ -728,12 +869,8 @@ class Runner(StepHandlers[StepResult]):
                 raise InvalidReading(
                     self._workers["spectrometer"].device, f"invalid spectrum: {exc}"
                 ) from None
-            record = self.session.write_spectrum(
-                relative,
-                spectrum,
-                key=step.key,
-                units=reading.units,
-                bandwidth_nm=reading.bandwidth_nm,
+            temporary = self.session.stage_spectrum(
+                relative, spectrum, units=reading.units, bandwidth_nm=reading.bandwidth_nm
             )
             stale = (
                 configured_ms is not None
@@ -744,6 +881,8 @@ class Runner(StepHandlers[StepResult]):
             )
             if not stale:
                 break
+            self._settle()
+            record = self._commit(step, temporary, relative, "spectrum", reading)
             self._discard_stale(
                 step.key,
                 record.path,
@@ -759,10 +898,13 @@ class Runner(StepHandlers[StepResult]):
         self._counts["spectra"] += 1
         # The plan gets the spectrum as stored (CSV precision), so a plan re-driven from the session
         # (resume, replay) sees exactly the numbers this run saw and takes the same branches.
-        stored = read_spectrum_csv(self.session.path / record.path)
+        try:
+            stored = read_spectrum_csv(temporary)
+        except OSError as exc:
+            raise SessionWriteError(f"reading back {relative}: {exc}") from exc
         return SpectrumMeasured(
             self._now_s(),
-            record.path,
+            self._store_later_as(step, temporary, relative, "spectrum", reading),
             stored.wavelength_nm,
             stored.values,
             reading.units,
@@ -808,42 +950,111 @@ class Runner(StepHandlers[StepResult]):
         return DarkMeasured(self._now_s(), record.path, tuple(reading.integration_ms))
 
     def _capture(self, step: Capture | DarkFrame) -> FrameCaptured:
+        """A frame, whose storing overlaps the camera's next frame.
+
+        The frame is downloaded next to where it is kept, and checked (not stale: a new digest,
+        and after a settings change the exposure its metadata records) and, for a scene frame,
+        analysed there; syncing it, renaming it into place and its file and step records are
+        left to the journal thread (:meth:`_execute`), which works while the plan's next steps —
+        the next exposure and frame — use the camera. What the journal still stores is waited
+        for once this frame is downloaded: when it failed, this frame is still stored (a
+        ``file`` record; the step is not acknowledged) and the run fails on the earlier step's
+        error. A frame that cannot be analysed is stored before the run fails on it.
+        """
         dark = isinstance(step, DarkFrame)
         if dark:
             self._check_lamps_off("a dark frame")
         for _ in range(STALE_READING_ATTEMPTS):
-            captured, record = self._capture_once(step, dark)
-            problem = self._stale_frame(step, record)
-            self.frame_digests.setdefault(record.sha256, step.key)
+            captured, source, relative = self._download(step, dark=dark)
+            try:
+                self._settle()
+            except BaseException:
+                with contextlib.suppress(Exception):  # a broken session keeps it as a temporary
+                    self._commit(step, source, relative, "dark" if dark else "frame")
+                raise
+            try:
+                _, sha256 = file_sha256(source)
+            except OSError as exc:
+                raise SessionWriteError(f"reading the downloaded frame {source}: {exc}") from exc
+            problem = self._stale_frame(step, sha256, source)
             if problem is None:
                 break
+            record = self._commit(step, source, relative, "dark" if dark else "frame")
+            self.frame_digests.setdefault(record.sha256, step.key)
             self._discard_stale(step.key, record.path, problem)
         else:
             raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
+        self.frame_digests.setdefault(sha256, step.key)
         self._camera_changed = False
-        stats = None
-        if dark:
-            self._counts["dark_frames"] += 1
-        else:
-            self._counts["frames"] += 1
-            try:
-                stats = self.station.analyzer.analyse(self.session.path / record.path)
-            except FrameAnalysisError:
-                raise
-            except Exception as exc:
-                raise FrameAnalysisError(record.path, f"{type(exc).__name__}: {exc}") from exc
+        self._counts["dark_frames" if dark else "frames"] += 1
+        stats = None if dark else self._analyse(step, source, relative)
         return FrameCaptured(
             self._now_s(),
-            record.path,
+            self._store_later_as(step, source, relative, "dark" if dark else "frame"),
             step.exposure_s,
             float(captured.exposure_s),
             captured.camera_path,
             stats,
         )
 
-    def _capture_once(self, step: Capture | DarkFrame, dark: bool) -> tuple[Any, FileRecord]:
-        """Capture, download and acknowledge one frame for ``step``."""
-        temporary = self.session.incoming_path()
+    def _store_later_as(
+        self,
+        step: Step,
+        temporary: Path,
+        relative: str,
+        role: Literal["dark", "frame", "spectrum"],
+        reading: SpectrumReading | None = None,
+    ) -> str:
+        """Leave the storing of ``temporary`` under ``relative`` to the journal thread
+        (:meth:`_execute` queues it with the step's record); return the name it will have."""
+        final = self.session.final_name(relative)
+
+        def store() -> None:
+            record = self._commit(step, temporary, relative, role, reading)
+            if record.path != final:
+                raise SessionWriteError(
+                    f"{self.session.path}: {relative} was stored as {record.path}, not {final}: "
+                    "something else writes into the session"
+                )
+
+        self._store_later = (store, temporary)
+        return final
+
+    def _analyse(self, step: Capture | DarkFrame, source: Path, relative: str) -> FrameStats:
+        """The statistics of a downloaded scene frame; one that cannot be analysed is stored
+        (a ``file`` record) before :class:`FrameAnalysisError` names it."""
+        try:
+            return self.station.analyzer.analyse(source)
+        except Exception as exc:
+            record = self._commit(step, source, relative, "frame")
+            detail = str(exc).removeprefix(f"{source}: ")
+            if not isinstance(exc, FrameAnalysisError):
+                detail = f"{type(exc).__name__}: {exc}"
+            raise FrameAnalysisError(record.path, detail) from exc
+
+    def _commit(
+        self,
+        step: Step,
+        temporary: Path,
+        relative: str,
+        role: Literal["dark", "frame", "spectrum"],
+        reading: SpectrumReading | None = None,
+    ) -> FileRecord:
+        """Acknowledge a downloaded frame or a staged spectrum under ``relative``."""
+        return self.session.commit_file(
+            temporary,
+            relative,
+            key=step.key,
+            role=role,
+            units=None if reading is None else reading.units,
+            bandwidth_nm=None if reading is None else reading.bandwidth_nm,
+        )
+
+    def _download(self, step: Capture | DarkFrame, *, dark: bool) -> tuple[Any, Path, str]:
+        """Capture and download one frame for ``step``: what the driver returned, the
+        downloaded file (a temporary in the session) and the name to acknowledge it under."""
+        # Next to where it is kept: the analyser knows a lamp's frames by their directory.
+        temporary = self.session.incoming_path(f"{FRAMES_DIR}/{step.lamp}")
         camera = self.station.camera
         try:
             captured = self._call(
@@ -869,24 +1080,21 @@ class Runner(StepHandlers[StepResult]):
         suffix = Path(captured.camera_path).suffix.lower()
         stream = "dark" if dark else "scene"
         relative = f"frames/{step.lamp}/{stream}-{step.index:03d}{suffix if _SUFFIX.fullmatch(suffix) else '.raw'}"
-        record = self.session.commit_file(
-            source, relative, key=step.key, role="dark" if dark else "frame"
-        )
-        return captured, record
+        return captured, source, relative
 
-    def _stale_frame(self, step: Capture | DarkFrame, record: FileRecord) -> str | None:
+    def _stale_frame(self, step: Capture | DarkFrame, sha256: str, frame: Path) -> str | None:
         """Why a just-acknowledged frame is stale, or ``None``.
 
         A copy of a frame the session already holds is never a new frame. The first frame after a
         settings change must also show, in its own metadata, the exposure the camera was set to.
         """
-        earlier = self.frame_digests.get(record.sha256, step.key)
+        earlier = self.frame_digests.get(sha256, step.key)
         if earlier != step.key:
             return f"it is a byte-for-byte copy of the frame of {earlier}"
         read_exposure = self.station.frame_exposure
         if not self._camera_changed or read_exposure is None:
             return None
-        recorded_s = read_exposure(self.session.path / record.path)
+        recorded_s = read_exposure(frame)
         if recorded_s is None or math.isclose(
             recorded_s, step.exposure_s, rel_tol=STALE_EXPOSURE_RTOL
         ):

@@ -601,6 +601,19 @@ class SessionWriter:
             candidate = f"{stem}.{number}" + (f".{suffix}" if suffix else "")
         return candidate
 
+    def final_name(self, relative: str) -> str:
+        """The name :meth:`commit_file` would acknowledge ``relative`` under now.
+
+        Raises
+        ------
+        SessionFormatError
+            The name, or one after it, is taken by a planted link or special file.
+        """
+        try:
+            return self._free_name(check_session_path(relative))
+        except UnsafeLocalPath as exc:
+            raise self.refusal(exc) from None
+
     def commit_file(
         self,
         temporary: Path,
@@ -665,6 +678,16 @@ class SessionWriter:
         ``units`` of ``value`` and the instrument's ``bandwidth_nm`` go into the file record and the
         CSV's ``# units:``/``# bandwidth_nm:`` header lines (so ``calib estimate`` reads them too).
         """
+        temporary = self.stage_spectrum(relative, spectrum, units=units, bandwidth_nm=bandwidth_nm)
+        return self.commit_file(
+            temporary, relative, key=key, role="spectrum", units=units, bandwidth_nm=bandwidth_nm
+        )
+
+    def stage_spectrum(
+        self, relative: str, spectrum: Spectrum, *, units: str, bandwidth_nm: float | None = None
+    ) -> Path:
+        """Write a spectrum's CSV (as :meth:`write_spectrum`) to a new temporary, not yet synced
+        nor acknowledged: :meth:`commit_file` does that (under ``relative``)."""
         temporary = self.incoming_path(relative.split("/")[0])
         try:
             os.close(create_new_file(temporary))  # new and ours: write_csv cannot be led astray
@@ -675,9 +698,7 @@ class SessionWriter:
             with contextlib.suppress(OSError):
                 temporary.unlink()
             raise self._fail(f"writing {relative}", exc) from exc
-        return self.commit_file(
-            temporary, relative, key=key, role="spectrum", units=units, bandwidth_nm=bandwidth_nm
-        )
+        return temporary
 
     def close_transcripts(self) -> None:
         """Close the transcripts, acknowledging each with a ``file`` record (before the stop record).
