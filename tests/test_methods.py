@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 import json
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 
 import calib.methods
 from calib.core.errors import InputError
+from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
@@ -176,6 +178,32 @@ def test_auto_records_what_it_chose_and_why(monkeypatch):
         "mapping_only": [],
     }
     json.dumps(result.to_dict())  # recorded in result.json
+
+
+def test_the_mapping_stage_s_warnings_reach_the_quality_block_through_the_python_api(monkeypatch):
+    """A caller of calib.methods.estimate (not only the command lines) sees what the mapping
+    stage warned of, by its code."""
+    warned = QuadraticMapping(0.0, 0.4, 380.0).with_details(
+        details={
+            "warnings": ["two basins 6 nm apart fit almost as well"],
+            "warning_codes": ["mapping_ambiguous"],
+        }
+    )
+
+    def fake_prior(observations, *, grid, basis, mapping=None):
+        return replace(_fake_result(grid, "prior"), mapping=mapping)
+
+    monkeypatch.setitem(ESTIMATION_METHODS, "prior", fake_prior)
+    result = calib.methods.estimate(
+        [_lamp("LED")], method="prior", basis=_tiny_basis(), mapping=warned, budget=None
+    )
+    flags = {flag.code: flag.message for flag in result.quality.flags}
+    assert flags["mapping_ambiguous"] == "two basins 6 nm apart fit almost as well"
+    assert result.quality.verdict != "ok"
+    plain = calib.methods.estimate(
+        [_lamp("LED")], method="prior", basis=_tiny_basis(), mapping=QuadraticMapping(0, 0.4, 380)
+    )
+    assert "mapping_ambiguous" not in {flag.code for flag in plain.quality.flags}
 
 
 def test_result_to_dict_is_json_safe():

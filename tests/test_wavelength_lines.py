@@ -16,10 +16,10 @@ from calib.core.lamp_specs import lamp_from_spec
 from calib.core.line_lists import blends, builtin_lamp, line_list
 from calib.core.mapping import GratingGeometry, QuadraticMapping, TiltedGrating
 from calib.core.observations import LampKind, LampObservation
+from calib.core.result import mapping_flags
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
-from calib.pipeline.estimate import mapping_flags
 from calib.pipeline.inputs import load_spectrum
 from calib.wavelength.families import GratingFamily, grating_prior
 from calib.wavelength.features import map_features

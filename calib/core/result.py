@@ -142,6 +142,15 @@ class Quality:
         }
 
 
+def mapping_flags(mapping: object) -> list[QualityFlag]:
+    """What the mapping search said for the user (an ambiguous mapping, lines that disagree with
+    the whole-profile fit, a failed refinement), as quality flags."""
+    details = getattr(mapping, "details", None) or {}
+    texts = [str(text) for text in details.get("warnings", ())]
+    codes = list(details.get("warning_codes", ())) or ["mapping_line_residuals"] * len(texts)
+    return [QualityFlag(str(code), text) for code, text in zip(codes, texts, strict=True)]
+
+
 @dataclass(frozen=True, eq=False)
 class EstimateResult:
     """A camera sensitivity estimate and everything needed to judge it.

@@ -2,8 +2,11 @@
 
 One source for the σ budget (:mod:`calib.methods.uncertainty`), the validation protocol's
 reference spectrometer (:class:`calib.evaluation.validation.rig_errors.SpectrometerError`) and the
-twin's in-spec instrument (:mod:`mocks.bench.deviation`): the band and the simulations agree by
-construction. No imports, so the twin's station loads it without the estimators.
+twin's in-spec instrument (:mod:`mocks.bench.deviation`) share these tolerances. They do not draw
+the same errors from them (decision 0055): the protocol draws a constant scale offset and states
+the bandwidth exactly, the twin a straight-line scale error between independent ends (σ 0.225 nm
+over 400–700 nm against the budget's 0.289 nm) and a ±25 % slit; the budget covers both. No
+imports, so the twin's station loads it without the estimators.
 """
 
 #: Wavelength-scale tolerance (nm): the ±0.5 nm a PR-670 / calibrated compact spectrometer

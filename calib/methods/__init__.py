@@ -50,7 +50,7 @@ import numpy as np
 from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult, QualityFlag
+from calib.core.result import EstimateResult, QualityFlag, mapping_flags
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.baselines.han2012 import Han2012Options, estimate_han2012
 from calib.methods.baselines.jiang2013 import estimate_jiang2013
@@ -428,7 +428,9 @@ def _estimate_in_scope(
     returned: object = function(observations, **routed)
     if not isinstance(returned, EstimateResult):  # a registered stand-in (tests) returns as is
         return returned  # type: ignore[return-value]
-    result = returned
+    # What the mapping stage warned of (competing basins, lines against the fit, extrapolation)
+    # reaches the quality block whoever calls: the command lines and the Python API alike.
+    result = returned.with_quality(*mapping_flags(returned.mapping))
     if choice is not None:
         result = replace(
             result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}

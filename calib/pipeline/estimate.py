@@ -492,10 +492,8 @@ def estimate_offline(
             notes=notes,
         )
         timings["estimate_s"] = time.perf_counter() - step
-        result = result.with_quality(
-            *input_flags(observations, image_input=bool(image_lamps)),
-            *mapping_flags(result.mapping),
-        )
+        # The mapping's own flags came with the estimate (calib.methods.estimate).
+        result = result.with_quality(*input_flags(observations, image_input=bool(image_lamps)))
         warnings.extend(line for line in result.quality.warnings() if line not in warnings)
         inputs = hasher.results()
     timings["total_s"] = time.perf_counter() - started
@@ -586,15 +584,6 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
             )
         )
     return flags
-
-
-def mapping_flags(mapping: object) -> list[QualityFlag]:
-    """What the mapping search said for the user (an ambiguous mapping, lines that disagree with
-    the whole-profile fit, a failed refinement), as quality flags."""
-    details = getattr(mapping, "details", None) or {}
-    texts = [str(text) for text in details.get("warnings", ())]
-    codes = list(details.get("warning_codes", ())) or ["mapping_line_residuals"] * len(texts)
-    return [QualityFlag(str(code), text) for code, text in zip(codes, texts, strict=True)]
 
 
 def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMapping | None:
