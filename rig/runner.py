@@ -236,8 +236,8 @@ def _small(error: ErrorInfo) -> ErrorInfo:
 @dataclass(frozen=True)
 class _DeferredStore:
     """A step whose storing runs in the journal thread while the camera takes the next frame
-    (:meth:`Runner._settle` waits for it): a dark frame (sync, rename, file and step records), or
-    the step record of an exposure set while the journal is still storing one."""
+    (:meth:`Runner._settle` waits for it): a frame or a spectrum (sync, rename, file and step
+    records), or the step record alone of a step that ran while the journal was still storing."""
 
     step: Step
     attempts: int
@@ -378,8 +378,8 @@ class Runner(StepHandlers[StepResult]):
         self.session.guard = self.interrupts.critical
         self.clock = station.clock
         self._workers = {role: DeviceWorker(role, role) for role in DEVICE_ROLES}
-        #: Stores a dark frame (sync, rename, records) while the camera takes the next one; the
-        #: journal stays in step order because every other session write waits for it first.
+        #: Stores frames and spectra (sync, rename, records) while the camera takes the next
+        #: frame; the journal stays in step order because every other session write waits for it.
         self._journal = ThreadPoolExecutor(1, thread_name_prefix="rig-journal")
         self._pending: list[_DeferredStore] = []
         self._journal_failed = False
@@ -457,7 +457,7 @@ class Runner(StepHandlers[StepResult]):
                         current = plan.send(result)
                     except StopIteration:
                         current = None
-                self._settle()  # the last dark frame is stored before the run counts as done
+                self._settle()  # what the journal still stores is stored before the run counts as done
             except StopRequested as exc:
                 status, reason, message = "abort", "interrupted", str(exc)
                 signal_name = exc.signal_name
@@ -469,9 +469,8 @@ class Runner(StepHandlers[StepResult]):
                     if isinstance(failure, DeviceError | RigError)
                     else f"internal error: {type(failure).__name__}: {failure}"
                 )
-                late = self._late
-                if late is not None and late[1] is exc:
-                    failed_key = late[0]
+                if self._late is not None and self._is_late(exc):
+                    failed_key = self._late[0]
                 else:
                     failed_key = getattr(failure, "key", None) or (current.key if current else None)
         except HaltRequested as exc:  # a second signal, during a step or while handling the first
@@ -501,12 +500,12 @@ class Runner(StepHandlers[StepResult]):
         )
 
     def _is_late(self, exc: BaseException) -> bool:
-        """Whether ``exc`` is an earlier dark frame's deferred storing failing (not this step's)."""
+        """Whether ``exc`` is an earlier step's deferred storing failing (not this step's)."""
         return self._late is not None and self._late[1] is exc
 
     def _settle(self) -> None:
-        """Wait for the previous dark frame's storing; its failure is recorded on its own step
-        (a ``failed`` step record) and raised here, before anything else is written."""
+        """Wait for what the journal still stores; a failure is recorded on its own step (a
+        ``failed`` step record) and raised here, before anything else is written."""
         pending, self._pending = self._pending, []
         first: tuple[_DeferredStore, Exception] | None = None
         for item in pending:
@@ -684,8 +683,8 @@ class Runner(StepHandlers[StepResult]):
         result: StepResult | None = None,
         error: BaseException | None = None,
     ) -> None:
-        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), after any
-        dark frame still being stored."""
+        """The step's record (``done`` with ``result`` or ``failed`` with ``error``), after what
+        the journal still stores."""
         self._settle()
         self._record_step(step, attempts, started_s, self._now_s(), result=result, error=error)
 
@@ -717,8 +716,8 @@ class Runner(StepHandlers[StepResult]):
     def _record_failure(
         self, step: Step, exc: BaseException, attempts: int, started_s: float
     ) -> None:
-        """A ``failed`` step record, unless the session itself can no longer be written (a dark
-        frame still being stored, and its failure, come first)."""
+        """A ``failed`` step record, unless the session itself can no longer be written (what the
+        journal still stores, and its failure, come first)."""
         self._settle()
         if self.session.broken is None:
             with contextlib.suppress(SessionWriteError):

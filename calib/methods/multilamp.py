@@ -744,7 +744,8 @@ def with_choice_spread(
     record = dict(centre.info["grating_model"])
     record["choice_weights"] = {kind: weights[kind] for kind in kinds}
     record["choice_spread"] = (
-        "σ holds the other families' share: Σ_k w_k (Σ_k + (h_k − h_chosen)²), w from C_L"
+        "σ holds the other families' share: Σ_k w_k (Σ_k + (h_k − h_chosen)²), w from QAIC at "
+        "the stated noise"
     )
     return replace(
         centre,

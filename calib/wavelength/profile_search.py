@@ -1102,18 +1102,17 @@ def search_profiles(
         others = [c.distance_nm for c in candidates_out[1:]]
         nearest = min(others) if others else 0.0
         stated = max(stated, 0.5 * nearest)
-        other_basin = (
+        widened = (
             f"; the nearest other basin, {nearest:.1f} nm away (RMS), is among the result's "
-            "candidates"
+            f"candidates and the stated σ ({stated:.1f} nm) reaches half-way to it"
             if others
-            else ""
+            else f"; no other basin was found, the stated σ ({stated:.1f} nm) holds the misfit"
         )
         warnings.append(
             f"the camera prior fits {measured[0].name}'s profile badly (reduced χ² {temper:.1f}, "
             f"above {MISFIT_WARN_TEMPER:g}): with a broadband lamp alone the mapping leans on the "
-            f"prior's shape, and the basins' likelihoods cannot be trusted{other_basin}; the "
-            f"stated σ ({stated:.1f} nm) is widened for it. A fluorescent (line) lamp shot in the "
-            "same geometry decides it."
+            f"prior's shape, and the basins' likelihoods cannot be trusted{widened}. A "
+            "fluorescent (line) lamp shot in the same geometry decides it."
         )
     mapping = stated_covariance(mapping, stated, scale_nm, pixel_range)
     if sigma.competing is not None:
