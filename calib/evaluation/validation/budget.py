@@ -36,7 +36,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
-from calib.methods.uncertainty import BudgetSettings, efficiency_family
+from calib.methods.uncertainty import BudgetSettings, efficiency_family, prior_sigma_at_scale
 
 #: The mean ±2σ coverage the factor aims at on the validation split.
 TARGET_COVERAGE = 0.95
@@ -71,6 +71,10 @@ class EstimateRecord:
     outside_basis
         ``|ŝ − P ŝ|``: the delivered curves' part outside the basis span (not a component; kept so
         a camera-specific basis term can be judged offline from ``--save``).
+    prior_sigma
+        The camera prior's σ at the estimate's scale, ``α √diag Σ_c`` with ``α`` the estimate's
+        least-squares scale against the basis mean (not a component; kept so a basis term that
+        shrinks where the data pin the curve, against the method's σ, can be judged offline).
     """
 
     method: str
@@ -80,6 +84,7 @@ class EstimateRecord:
     assumed_bandwidth: bool = False
     family: str | None = None
     outside_basis: FloatArray | None = None
+    prior_sigma: FloatArray | None = None
 
     @property
     def key(self) -> str:
@@ -137,9 +142,10 @@ def task_records(task: Task) -> list[EstimateRecord]:
         }
         assumed = any(flag.code == "no_spectrometer_bandwidth" for flag in result.quality.flags)
         values = np.asarray(curves.values, dtype=np.float64)
-        outside = None
+        outside = prior = None
         if task.basis is not None and values.shape == (task.basis.grid.size, 3):
             outside = np.abs(values - task.basis.project(values)).ravel()
+            prior = prior_sigma_at_scale(values, task.basis).ravel()
         out.append(
             EstimateRecord(
                 result.method,
@@ -149,6 +155,7 @@ def task_records(task: Task) -> list[EstimateRecord]:
                 assumed,
                 efficiency_family(result),
                 outside,
+                prior,
             )
         )
     return out
@@ -269,6 +276,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 arrays[f"{key}__{name}"] = sigma
             if record.outside_basis is not None:
                 arrays[f"{key}__outside_basis"] = record.outside_basis
+            if record.prior_sigma is not None:
+                arrays[f"{key}__prior_sigma"] = record.prior_sigma
         np.savez_compressed(args.save, **arrays)
     print(
         f"validation split: {len(split.cameras)} cameras, seed {args.seed}, {len(records)} estimates"
