@@ -28,15 +28,18 @@ from calib.evaluation.validation.budget import (
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
     COMPONENTS,
+    DEFAULT_BUDGET,
     TOLERANCE_SIGMA,
     BudgetSettings,
     basis_misfit_sigma,
     basis_sigma,
     basis_support_nm,
     check_grid_within_basis,
+    data_open_share,
     efficiency_family,
     floored_reduced_chi2,
     misfit_flag,
+    prior_sigma_at_scale,
     reduced_chi2,
     uncertainty_budget,
 )
@@ -474,3 +477,57 @@ def test_the_basis_sigma_is_the_estimates_own_out_of_span_part(
     inside, source = basis_sigma(replace(result, sensitivity=basis.project(curves)), basis)
     assert source == "population"
     np.testing.assert_allclose(inside, basis_misfit_sigma(basis))
+
+
+def test_the_prior_sigma_follows_the_estimates_scale(basis: CameraBasis) -> None:
+    """``α √diag Σ_c`` with ``α`` the curves' least-squares scale against the basis mean."""
+    spread = np.stack([np.sqrt(np.diag(basis.covariance[c])) for c in range(3)], axis=1)
+    np.testing.assert_allclose(prior_sigma_at_scale(0.5 * basis.mean, basis), 0.5 * spread)
+
+
+def test_the_basis_sigma_shrinks_where_the_data_pin_the_curve(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0060: with a shrink power the estimate's out-of-span part is multiplied by the
+    share of the prior's spread the data leave open (σ_stat / σ_prior, at most 1): a curve pinned
+    by its data (tiny σ) keeps almost none of it, one the data leave open keeps all of it; the
+    multilamp method shrinks by default, the prior solve does not."""
+    curves = camera.resample(basis.grid, "interpolate").values
+    curves = curves / curves.max()
+    off_span = np.clip(curves + 0.1 * np.sin(basis.grid.wavelength_nm / 7.0)[:, None], 0, None)
+    result = EstimateResult("multilamp", basis.grid.wavelength_nm, off_span / off_span.max())
+    whole, source = basis_sigma(result, basis)
+    assert source == "estimate"
+    prior = prior_sigma_at_scale(result.sensitivity, basis)
+    pinned, source = basis_sigma(result, basis, 0.01 * prior, 1.0)
+    assert source == "estimate, shrunk"
+    np.testing.assert_allclose(pinned, 0.01 * whole, atol=1e-12)
+    open_, _ = basis_sigma(result, basis, 3.0 * prior, 1.0)
+    np.testing.assert_allclose(open_, whole)
+    assert data_open_share(result, basis, 0.01 * prior) == pytest.approx(0.01)
+    assert DEFAULT_BUDGET.shrink_power_for("multilamp") == 1.0
+    assert DEFAULT_BUDGET.shrink_power_for("prior") == 0.0
+    assert BudgetSettings(basis_shrink_power={}).shrink_power_for("multilamp") == 0.0
+
+
+def test_the_multilamp_budget_shrinks_its_basis_component(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Through :func:`uncertainty_budget`: the multilamp result's basis component is the shrunk
+    one by default and decision 0050's whole out-of-span part with ``basis_shrink_power={}``."""
+    curves = camera.resample(basis.grid, "interpolate").values
+    off_span = np.clip(curves + 0.1 * np.sin(basis.grid.wavelength_nm / 7.0)[:, None], 0, None)
+    result = EstimateResult(
+        "multilamp",
+        basis.grid.wavelength_nm,
+        off_span,
+        sensitivity_sigma=np.full_like(off_span, 1e-4 * off_span.max()),
+    )
+    shrunk = uncertainty_budget(result, [], basis=basis)
+    whole = uncertainty_budget(
+        result, [], basis=basis, settings=BudgetSettings(basis_shrink_power={})
+    )
+    assert float(np.max(shrunk.components["basis"])) < 0.1 * float(
+        np.max(whole.components["basis"])
+    )
+    assert any("leave open" in note for note in shrunk.notes)
