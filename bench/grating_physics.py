@@ -5,13 +5,17 @@
    model) should be as good (RE within 0.3 ×10⁻²) once η₀ is modelled.
 2. One LED through a grating file from a physical-model calibration: η solved with 3 lamps + RGB
    LEDs on *another* camera of the split seen through the same grating (its file written and read
-   back), then this camera from one LED-B3 shot (``known-grating``).
+   back), then this camera from one LED-B3 shot (``known-grating``). ``--same-rig``: the other
+   camera is calibrated in *this* camera's scene geometry (the same rig: sheet, line density, lens),
+   both captures carry the optics a RAW file reports (``bench/wavelength_validate.py``'s
+   ``with_optics``) and the file stores the rig geometry (``geometry.rig``), as ``calib estimate``
+   writes it (issue 16: a new camera through the file reuses what still holds).
 
 Every scene is the protocol's own (``calib validate``'s plan for the camera, seed and scene: geometry,
 rig errors, noise), with the grating replaced. The mapping is found from the lamps, as ``calib
 validate`` does.
 
-    python bench/grating_physics.py --data-dir DIR --split validation --cameras 8 [--seed 0]
+    python bench/grating_physics.py --data-dir DIR --split validation --cameras 8 [--seed 0] [--same-rig]
 
 Tuning looks at ``--split validation`` only; ``--split test`` is for reporting.
 """
@@ -26,9 +30,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
+from wavelength_validate import with_optics  # the sibling bench (run from bench/)
 
 from calib.core.arrays import FloatArray
 from calib.core.grating_file import read_grating_file, write_grating_file
+from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import channel_relative_errors
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
@@ -47,6 +53,7 @@ from calib.methods.multilamp import (
     prepare_lamps,
 )
 from calib.model.gratings import GratingKind, SinusoidalPhaseGrating
+from calib.wavelength.rig_prior import rig_geometry
 
 LAMPS = next(v for v in DEFAULT_VARIANTS if v.label == "3 lamps + RGB LEDs").lamps
 PHASE_RAD = 1.0
@@ -73,9 +80,13 @@ class FlatZerothSheet:
         return {**self.sheet.to_dict(), "flat_zeroth_order": True}
 
 
-def scene(task: Task, grating: Any) -> RenderedScene:
+def scene(task: Task, grating: Any, camera: Task | None = None) -> RenderedScene:
+    """``task``'s scene through ``grating``; with ``camera``, that camera seen in it instead."""
     plan, noise = draw_task_plan(task)
-    return render_scene(replace(plan, grating=grating), task.camera.sensitivity, LAMPS, noise)
+    if camera is not None:
+        noise = np.random.default_rng([task.settings.seed, camera.camera.stable_id, 1])
+    seen = (camera or task).camera.sensitivity
+    return render_scene(replace(plan, grating=grating), seen, LAMPS, noise)
 
 
 def re_of(result: Any, truth: FloatArray) -> float:
@@ -88,6 +99,11 @@ def main() -> None:
     parser.add_argument("--split", choices=("validation", "test"), default="validation")
     parser.add_argument("--cameras", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--same-rig",
+        action="store_true",
+        help="calibrate the file in this camera's geometry, with EXIF optics, storing the rig",
+    )
     arguments = parser.parse_args()
     settings = ProtocolSettings(seed=arguments.seed)
     chosen = spread_tasks(arguments.data_dir, arguments.split, settings, arguments.cameras)
@@ -109,21 +125,31 @@ def main() -> None:
         flat.append(re_of(flat_result, flat_eta0.truth))
         # The grating file: calibrated on the next camera of the list through the same sheet.
         other = chosen[(index + 1) % len(chosen)]
-        calibration = scene(other, sheet)
-        prepared = prepare_lamps(
-            [calibration.observations[lamp] for lamp in LAMPS], basis=other.basis
-        )
+        measured = dict(with_eta0.observations)
+        if arguments.same_rig:
+            calibration = scene(task, sheet, camera=other)
+            rng = np.random.default_rng([arguments.seed, task.camera.stable_id])
+            measured = with_optics(with_eta0, rng)
+            calibration_lamps = [
+                replace(calibration.observations[lamp], metadata=measured[lamp].metadata)
+                for lamp in LAMPS
+            ]
+        else:
+            calibration = scene(other, sheet)
+            calibration_lamps = [calibration.observations[lamp] for lamp in LAMPS]
+        prepared = prepare_lamps(calibration_lamps, basis=other.basis)
         calibrated = calibrate_lamps(
             prepared, other.basis.prior(), MultilampOptions().efficiency_settings()
         )
+        rig = None
+        if arguments.same_rig and isinstance(calibrated.mapping, QuadraticMapping):
+            rig = rig_geometry(calibrated.mapping.details, calibration_lamps[0])
         with tempfile.TemporaryDirectory() as directory:
             path = write_grating_file(
-                Path(directory) / "grating.json", grating_file_from(calibrated)
+                Path(directory) / "grating.json", grating_file_from(calibrated, rig=rig)
             )
             grating = read_grating_file(path)
-        led = estimate_known_grating(
-            [with_eta0.observations["LED-B3"]], grating=grating, basis=task.basis
-        )
+        led = estimate_known_grating([measured["LED-B3"]], grating=grating, basis=task.basis)
         through_file.append(re_of(led, with_eta0.truth))
         print(
             f"{task.camera.name} | {physical[-1]:.2f} | {flat[-1]:.2f} | "

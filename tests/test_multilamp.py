@@ -379,3 +379,22 @@ def test_a_camera_behind_a_filter_is_a_different_camera():
 )
 def test_pooled_equations_afford_more_efficiency_terms(equations: int, terms: int) -> None:
     assert pooled_efficiency_terms(equations) == terms
+
+
+def test_a_pooled_grating_file_carries_the_rig_geometry_it_was_measured_in(basis):
+    # A mapping fitted as a grating from the direct spot: the file stores that rig (its groove
+    # spacing, focal length and incidence), so a new camera through it reuses what still holds.
+    from calib.core.mapping import TiltedGrating
+    from calib.wavelength import RigGeometry
+
+    _, mapping, first, _ = _scene(5)
+    grating = TiltedGrating(
+        dispersion_nm_per_px=0.43, focal_length_px=2400.0, incidence_deg=3.0, zero_order_px=0.0
+    )
+    fitted = mapping.with_details(details={"grating": grating.to_dict()})
+    spot = [replace(obs, pixel_origin="direct_spot") for obs in first]
+    written, _ = refine_grating([spot], basis=basis, mappings=[fitted])
+    assert written.rig is not None
+    stored = RigGeometry.from_dict(written.rig)
+    assert stored.grating.incidence_deg == pytest.approx(3.0)
+    assert stored.grating.focal_length_px == pytest.approx(2400.0)

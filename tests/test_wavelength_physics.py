@@ -27,6 +27,7 @@ from calib.model.bases import fallback_camera_basis
 from calib.model.forward import blur_kernel, pixel_edges, render_observation
 from calib.wavelength.families import GratingFamily, QuadraticFamily, grating_prior
 from calib.wavelength.least_squares import levenberg_marquardt
+from calib.wavelength.locate import locate_mapping
 from calib.wavelength.response_model import (
     RIDGE,
     SHARED_EDGES_FROM,
@@ -433,6 +434,59 @@ def test_a_stored_geometry_is_reused_whole_only_in_the_same_setup():
     assert prior.values["log_focal"][0] == pytest.approx(math.log(7300.0 * 4.79 / 3.92))
     assert prior.values["incidence_deg"][0] == pytest.approx(3.5)
     assert prior.values["incidence_deg"][1] == 2.0
+
+
+def test_a_reused_geometry_keeps_its_axis_offset_with_its_incidence():
+    # θ and u₀ both bend the order: a calibration pins the mapping, not each of them, so the
+    # stored incidence is reused with the stored u₀ (scaled with the pitch like F), never with
+    # the spot's own u₀ — that pair is another mapping.
+    grating = TiltedGrating(0.55, 3540.0, 23.25, axis_offset_px=-929.0)
+    stored_optics = RigOptics(
+        camera="NIKON D300S", focal_length_mm=31.0, pixel_pitch_um=10.4, order_angle_deg=0.0
+    )
+    stored = RigGeometry(grating, stored_optics)
+    same = replace(stored_optics, axis_offset_px=150.0)
+    prior, _ = rig_prior(same, stored=stored)
+    assert prior is not None
+    mean, sigma = prior.values["axis_offset_px"]
+    assert mean == pytest.approx(-929.0) and prior.axis_offset_px == pytest.approx(-929.0)
+    assert sigma == pytest.approx(3540.0 * math.tan(math.radians(1.0)))
+    body = replace(same, camera="NIKON D5300", pixel_pitch_um=5.2)
+    prior, why = rig_prior(body, stored=stored)
+    assert prior is not None and "the same lens" in why
+    assert prior.values["axis_offset_px"][0] == pytest.approx(-929.0 * 2.0)
+    # The other first order: the same grating with θ → −θ and u₀ → −u₀.
+    prior, _ = rig_prior(replace(body, side=-1), stored=stored)
+    assert prior is not None
+    assert prior.values["axis_offset_px"][0] == pytest.approx(929.0 * 2.0)
+    assert prior.values["incidence_deg"][0] == pytest.approx(-23.25)
+    # Another lens: nothing of the stored angles is reused, u₀ is the spot's.
+    prior, _ = rig_prior(replace(same, focal_length_mm=50.0), stored=stored)
+    assert prior is not None and prior.values["axis_offset_px"][0] == pytest.approx(150.0)
+
+
+def test_one_led_through_a_stored_geometry_lands_on_its_mapping():
+    # A calibration's fitted pair (θ 23°, u₀ −929 px) for a rig whose truth is θ −9.4°, u₀ 0:
+    # the same mapping to 2 nm. Reused with the spot's u₀ instead, the LED search landed 6.6 nm
+    # off; with its own u₀, on the truth.
+    truth = TiltedGrating(0.4778, 3045.0, -9.36)
+    stored = TiltedGrating(0.5502, 3540.7, 23.25, axis_offset_px=-929.2)
+    low, high = truth.pixel_at([365.0, 765.0])
+    pixel = np.arange(np.floor(low), np.ceil(high), 2.0)
+    name = "Canon EOS 5D Mark II"
+    camera = find_camera(colour_science_cameras(), name).sensitivity
+    led = render_observation(
+        colour_lamp("LED-B3"), camera, mapping=truth, pixel=pixel, kind="led"
+    ).observation
+    optics = {"focal_length_mm": 31.0, "pixel_pitch_um": 10.0}
+    led = replace(led, pixel_origin="direct_spot", metadata={"optics": optics})
+    rig = RigGeometry(stored, RigOptics(focal_length_mm=31.0, pixel_pitch_um=10.0))
+    found = locate_mapping(
+        [led], fallback_camera_basis(exclude=[name]).prior(), DEFAULT_GRID, stored=rig
+    )
+    true_nm = truth.wavelength_nm(pixel)
+    inside = (true_nm >= DEFAULT_GRID.start_nm) & (true_nm <= DEFAULT_GRID.stop_nm)
+    assert np.mean(np.abs(found.mapping.wavelength_nm(pixel) - true_nm)[inside]) < 1.0
 
 
 def test_grating_file_carries_the_rig_and_reads_version_one(tmp_path):

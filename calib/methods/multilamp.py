@@ -87,6 +87,7 @@ from calib.model.gratings import PHYSICAL_KINDS, PHYSICAL_PARAMETER_RANGES, Phys
 from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry, find_mapping, lamps_named
+from calib.wavelength.rig_prior import rig_geometry
 
 Uncertainty = Literal["posterior", "noise", "none"]
 UNCERTAINTIES: tuple[Uncertainty, ...] = ("posterior", "noise", "none")
@@ -1399,18 +1400,27 @@ def estimate_multilamp(
     )
 
 
-def grating_file_from(calibrated: CalibratedLamps, *, description: str = "") -> GratingEfficiency:
-    """The estimated ``η`` with its σ and geometry, ready for :func:`calib.core.grating_file.write_grating_file`."""
+def grating_file_from(
+    calibrated: CalibratedLamps, *, description: str = "", rig: RigGeometry | None = None
+) -> GratingEfficiency:
+    """The estimated ``η`` with its σ and geometry, ready for :func:`calib.core.grating_file.write_grating_file`.
+
+    ``rig``: the rig it was measured in (:func:`calib.wavelength.rig_prior.rig_geometry`), stored
+    as the file's ``geometry.rig`` so a new camera through the file reuses what still holds.
+    """
     eta, eta_sigma = efficiency_with_sigma(calibrated.efficiency)
+    geometry: dict[str, Any] = {
+        "mapping": calibrated.mapping.to_dict(),
+        "order": 1,
+        "description": description,
+    }
+    if rig is not None:
+        geometry["rig"] = rig.to_dict()
     return GratingEfficiency(
         wavelength_nm=calibrated.grid.wavelength_nm,
         efficiency=eta,
         efficiency_sigma=eta_sigma,
-        geometry={
-            "mapping": calibrated.mapping.to_dict(),
-            "order": 1,
-            "description": description,
-        },
+        geometry=geometry,
         provenance={
             "method": MULTILAMP_METHOD,
             "lamps": [lamp.name for lamp in calibrated.lamps],
@@ -1541,8 +1551,14 @@ def refine_grating(
             )
         )
     shared = CalibratedLamps(grid, each[0].mapping, tuple(pooled), efficiency, 0.0)
+    # The first camera's geometry goes with the file (the sheet's groove spacing, and its lens'
+    # angles for a body behind the same lens).
+    first = each[0].mapping
+    rig = (
+        rig_geometry(first.details, cameras[0][0]) if isinstance(first, QuadraticMapping) else None
+    )
     return grating_file_from(
-        shared, description=f"refined jointly over {len(cameras)} cameras"
+        shared, description=f"refined jointly over {len(cameras)} cameras", rig=rig
     ), results
 
 

@@ -310,21 +310,38 @@ def rig_prior(
     spacing: tuple[float, float] | None = None
     focal: tuple[float, float] | None = None
     incidence = INCIDENCE_PRIOR_DEG
+    # The 0th order's distance from the lens axis a reused geometry carries: (mean, σ) in pixels.
+    axis: tuple[float, float] | None = None
     reason = []
     if stored is not None:
         spacing = (math.log(stored.grating.groove_spacing_nm), FITTED_GROOVES_SIGMA)
         reason.append("groove spacing from the grating file")
         whole, why = same_setup(stored.optics, optics)
         lens = same_lens(stored.optics, optics)
+        # The other first order is the same grating with θ → −θ and u₀ → −u₀.
+        flip = optics.side * stored.optics.side
+        if whole or lens is not None:
+            # The stored incidence and axis offset are reused together: a fit pins the mapping,
+            # not each of them (θ and u₀ both bend the order; one calibration's pair, 23° and
+            # −929 px where the truth was −9° and 0, gave a 0.1 nm mapping), so the incidence
+            # with another u₀ is another mapping. u₀ scales with the pitch like F (the spot
+            # keeps its angle from the lens axis) and moves as the incidence's σ tilts it.
+            scale = 1.0 if whole else float(lens or 1.0)
+            tilt_deg = REUSED_INCIDENCE_SIGMA_DEG if whole else LENS_REUSED_INCIDENCE_DEG
+            focal_px = stored.grating.focal_length_px * scale
+            axis = (
+                stored.grating.axis_offset_px * scale * flip,
+                focal_px * math.tan(math.radians(tilt_deg)),
+            )
         if whole:
             focal = (math.log(stored.grating.focal_length_px), REUSED_FOCAL_SIGMA)
-            incidence = (stored.grating.incidence_deg * optics.side, REUSED_INCIDENCE_SIGMA_DEG)
+            incidence = (stored.grating.incidence_deg * flip, REUSED_INCIDENCE_SIGMA_DEG)
             reason.append("focal length and incidence from the grating file (" + why + ")")
         elif lens is not None:
             # Another body behind the same lens and grating: the angles hold, the focal length
             # in pixels scales with the pitch.
             focal = (math.log(stored.grating.focal_length_px * lens), LENS_REUSED_FOCAL_SIGMA)
-            incidence = (stored.grating.incidence_deg * optics.side, LENS_REUSED_INCIDENCE_DEG)
+            incidence = (stored.grating.incidence_deg * flip, LENS_REUSED_INCIDENCE_DEG)
             reason.append(
                 "focal length (scaled by the pitch) and incidence from the grating file (the same "
                 f"lens; {why})"
@@ -353,8 +370,12 @@ def rig_prior(
             # axis meets it, give or take a crop or a shifted lens) with a σ of
             # AXIS_OFFSET_SIGMA focal lengths. Without it, u₀ = 0: the incidence and the focal
             # length absorb the off-axis bend, and fitting all three is degenerate.
-            offset = optics.axis_offset_px
-            values["axis_offset_px"] = (offset, AXIS_OFFSET_SIGMA * math.exp(focal[0]))
+            if axis is not None:
+                offset = axis[0]
+                values["axis_offset_px"] = axis
+            else:
+                offset = optics.axis_offset_px
+                values["axis_offset_px"] = (offset, AXIS_OFFSET_SIGMA * math.exp(focal[0]))
     if spacing is not None:
         values["log_spacing"] = spacing
     if focal is not None:
