@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -367,6 +367,11 @@ class ResponseModel:
     smoothness: float
     scale: float = 1.0
     penalty_weight: FloatArray | None = None
+    #: :meth:`reference`'s mapping: its edge wavelengths, band and normal matrices, which the
+    #: fit's first :meth:`residual_lazy` (at that mapping) reads instead of recomputing.
+    referenced: tuple[FloatArray, Band, tuple[FloatArray, FloatArray]] | None = field(
+        default=None, repr=False
+    )
 
     @classmethod
     def build(
@@ -647,11 +652,12 @@ class ResponseModel:
         """This model with ``β̂`` and the penalty weights of the mapping with these edge
         wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
         band = self.band(edges_nm[None, :])
-        diagonals, _ = self._normal(band)
+        normal = self._normal(band)
         return replace(
             self,
             scale=float(self._prior_scale(band)[0]),
-            penalty_weight=self._penalty_weight(diagonals)[0],
+            penalty_weight=self._penalty_weight(normal[0])[0],
+            referenced=(np.array(edges_nm, dtype=np.float64), band, normal),
         )
 
     # --------------------------------------------------------------------------- evaluate
@@ -715,13 +721,17 @@ class ResponseModel:
         the fit and every Jacobian column — an inverse cost 2–4× more (0056)."""
         model = self if self.penalty_weight is not None else self.reference(edges_nm)
         assert model.penalty_weight is not None
-        band = model.band(edges_nm[None, :])
+        referenced = model.referenced
+        if referenced is not None and np.array_equal(referenced[0], edges_nm):
+            band, (diagonals, rhs) = referenced[1], referenced[2]
+        else:
+            band = model.band(edges_nm[None, :])
+            diagonals, rhs = model._normal(band)
         size = model.n_nodes
         n = band.values.shape[1]
         flat = (np.arange(n)[:, None] * size + np.minimum(band.columns[0], size - 1)).ravel()
         matrix = _dense(flat, band.values[0], (n, size))  # A (n, N)
         weights = model.weights.T  # (3, n)
-        diagonals, rhs = model._normal(band)
         systems, pulls, gamma = model._systems(
             diagonals, np.array([model.scale]), model.penalty_weight[None]
         )
