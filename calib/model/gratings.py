@@ -204,9 +204,7 @@ class SinusoidalPhaseGrating(_SpectrumMixin):
 
     def efficiency(self, order: int, wavelength_nm: ArrayLike) -> FloatArray:
         """``J_m²(φ(λ))``; orders ``±m`` are equal."""
-        return _sinusoidal_efficiency(
-            abs(_order(order, "order")), self.phase_rad(wavelength_nm)
-        )
+        return _sinusoidal_efficiency(abs(_order(order, "order")), self.phase_rad(wavelength_nm))
 
     def to_dict(self) -> dict[str, Any]:
         return {
