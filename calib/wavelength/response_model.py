@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -451,14 +452,29 @@ class ResponseModel:
             return band
         return replace(band, derivative=self.band_derivative(edges_nm, edge_jacobian, band))
 
+    @cached_property
+    def _edge_index(self) -> IntArray:
+        """The edges of the blurred pixels' windows, the ends repeated (``n + L``)."""
+        half = (self.filter.size - 2) // 2
+        n = self.edges_px.size - 1
+        return np.asarray(np.clip(np.arange(n + 2 * half + 1) - half, 0, n), dtype=np.intp)
+
     def _windows(self, edges_nm: FloatArray) -> tuple[FloatArray, IntArray]:
         """Each blurred pixel's ``L + 1`` edge wavelengths ``(K, n, L + 1)`` and the edge index."""
         count = self.filter.size  # L + 1 edges per blurred pixel
-        half = (count - 2) // 2
-        n = self.edges_px.size - 1
-        index = np.clip(np.arange(n + 2 * half + 1) - half, 0, n)
-        padded = edges_nm[:, index]  # (K, n + 2h + 1)
-        return np.lib.stride_tricks.sliding_window_view(padded, count, axis=1), index
+        index = self._edge_index
+        padded = np.ascontiguousarray(edges_nm[:, index])  # (K, n + L)
+        # The sliding windows as a strided view of ``padded`` (what sliding_window_view gives,
+        # without its per-call checks: it cost more than the view's use for one mapping).
+        step = padded.strides[1]
+        windows = np.ndarray(
+            (padded.shape[0], index.size - count + 1, count),
+            dtype=padded.dtype,
+            buffer=padded,
+            strides=(padded.strides[0], step, step),
+        )
+        windows.flags.writeable = False
+        return windows, index
 
     def _band_values(self, edges_nm: FloatArray) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
@@ -603,7 +619,7 @@ class ResponseModel:
         scale = numerator / np.maximum(denominator, 1e-300)
         return np.asarray(np.where(np.isfinite(scale) & (scale > 0), scale, 1.0), dtype=np.float64)
 
-    @property
+    @cached_property
     def _penalty_reach(self) -> int:
         """``1 +`` the farthest diagonal on which the margins' penalty ``ΔᵀΔ`` has an entry."""
         rows, columns = np.nonzero(self.penalty)
@@ -843,9 +859,16 @@ def _scale_of(
     """The camera scale ``β`` of the bordered system ``H_c x_c − g_c β = r_c``,
     ``−Σ g_cᵀ x_c + γ β = r_β`` (then ``x_c = a_c + β e_c``) from ``a_c = H_c⁻¹ r_c``
     ``(3, N[, m])`` and ``e_c = H_c⁻¹ g_c`` ``(3, N[, 1])``: a number, or ``(m,)``."""
-    denominator = gamma - np.tensordot(pulls, along, axes=([0, 1], [0, 1]))
+    denominator = gamma - _over_channels_and_nodes(pulls, along)
     denominator = np.where(np.abs(denominator) > 1e-300, denominator, np.inf)
-    return (right_beta + np.tensordot(pulls, free, axes=([0, 1], [0, 1]))) / denominator
+    return (right_beta + _over_channels_and_nodes(pulls, free)) / denominator
+
+
+def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray:
+    """``Σ_c,i pulls[c, i] right[c, i, …]``: ``np.tensordot(pulls, right, axes=([0, 1], [0, 1]))``
+    as the one product it makes (the same ``dot``), without its per-call shape handling."""
+    flat = right.reshape(pulls.size, -1)
+    return np.asarray(np.dot(pulls.reshape(1, -1), flat).reshape(right.shape[2:]))
 
 
 def _signs(edges_nm: FloatArray) -> FloatArray:
