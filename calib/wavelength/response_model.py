@@ -653,10 +653,16 @@ class ResponseModel:
         ridge = RIDGE * np.maximum(diagonal / self.n_nodes, 1e-300)
         index = np.arange(self.n_nodes)
         systems[..., index, index] += ridge[..., None]
-        unit_pulls = np.einsum("cij,cj->ci", self.precision, self.prior_mean)  # (3, N)
+        unit_pulls, unit_gamma = self._unit_pulls
         pulls = inverse_square[:, None, None] * unit_pulls
-        gamma = inverse_square * float(np.sum(unit_pulls * self.prior_mean))
+        gamma = inverse_square * unit_gamma
         return systems, pulls, gamma
+
+    @cached_property
+    def _unit_pulls(self) -> tuple[FloatArray, float]:
+        """The prior's pulls ``FᵀF μ`` ``(3, N)`` and ``μᵀFᵀF μ`` for a camera of unit scale."""
+        unit_pulls = np.einsum("cij,cj->ci", self.precision, self.prior_mean)
+        return np.asarray(unit_pulls, dtype=np.float64), float(np.sum(unit_pulls * self.prior_mean))
 
     def _penalty_weight(self, diagonals: FloatArray) -> FloatArray:
         # The main diagonal is a strided view (every w-th value), as a dense matrix's is:
