@@ -261,8 +261,9 @@ class LampColumns:
     ) -> tuple[FloatArray, FloatArray | None]:
         """``C_j(λ)`` (and ``∂C_j/∂λ = e φ_j (λ)``) for broadcast arrays of wavelengths and columns."""
         flat, t, low, high = self._interval(wavelength_nm, column)
+        # (high − low)·(t/2): the half taken on the small factor (exact, the same numbers).
         value = self.cumulative.ravel().take(flat) + self.step_nm * t * (
-            low + 0.5 * (high - low) * t
+            low + (high - low) * (0.5 * t)
         )
         if not derivative:
             return value, None
@@ -279,7 +280,7 @@ class LampColumns:
         index = np.minimum(position.astype(np.intp), last - 1)
         flat = index * size + column
         density = self.density.ravel()
-        return flat, position - index, density.take(flat), density.take(flat + size)
+        return flat, position - index, density.take(flat), density[size:].take(flat)
 
     def density_at(self, wavelength_nm: FloatArray, column: IntArray) -> FloatArray:
         """``∂C_j/∂λ = e φ_j (λ)`` (zero beyond the axis, where the cumulative is constant)."""
@@ -463,18 +464,7 @@ class ResponseModel:
         """Each blurred pixel's ``L + 1`` edge wavelengths ``(K, n, L + 1)`` and the edge index."""
         count = self.filter.size  # L + 1 edges per blurred pixel
         index = self._edge_index
-        padded = np.ascontiguousarray(edges_nm[:, index])  # (K, n + L)
-        # The sliding windows as a strided view of ``padded`` (what sliding_window_view gives,
-        # without its per-call checks: it cost more than the view's use for one mapping).
-        step = padded.strides[1]
-        windows = np.ndarray(
-            (padded.shape[0], index.size - count + 1, count),
-            dtype=padded.dtype,
-            buffer=padded,
-            strides=(padded.strides[0], step, step),
-        )
-        windows.flags.writeable = False
-        return windows, index
+        return _sliding(np.ascontiguousarray(edges_nm[:, index]), count), index  # (K, n + L)
 
     def _band_values(self, edges_nm: FloatArray) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
@@ -546,9 +536,7 @@ class ResponseModel:
             windows[..., None, :], np.minimum(column, size - 1)[..., None]
         )
         count = self.filter.size
-        jac_windows = np.lib.stride_tricks.sliding_window_view(
-            edge_jacobian[:, index, :], count, axis=1
-        )  # (K, n, P, L+1)
+        jac_windows = _sliding(np.ascontiguousarray(edge_jacobian[:, index, :]), count)
         # One small product per pixel (a batched matmul: a three-operand einsum cost 4–5× more).
         return np.asarray(
             np.matmul(slope * self.filter, jac_windows.swapaxes(-1, -2))
@@ -829,6 +817,21 @@ class ResponseModel:
                 prior.reshape(-1, n_parameters),
             ]
         )
+
+
+def _sliding(padded: FloatArray, count: int) -> FloatArray:
+    """``sliding_window_view(padded, count, axis=1)`` of a C-contiguous ``(K, m, …)`` array —
+    ``(K, m − count + 1, …, count)``, read-only — as a plain strided view, without that function's
+    per-call checks (they cost more than the view's use for one mapping)."""
+    batch, length, *rest = padded.shape
+    view = np.ndarray(
+        (batch, length - count + 1, *rest, count),
+        dtype=padded.dtype,
+        buffer=padded,
+        strides=(*padded.strides, padded.strides[1]),
+    )
+    view.flags.writeable = False
+    return view
 
 
 def _dense(flat: IntArray, values: FloatArray, shape: tuple[int, ...]) -> FloatArray:
