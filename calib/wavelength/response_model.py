@@ -316,7 +316,7 @@ class Band:
     first: IntArray
     derivative: FloatArray | None = None
 
-    @property
+    @cached_property
     def columns(self) -> IntArray:
         width = self.values.shape[-1]
         return np.asarray(self.first[..., None] + np.arange(width), dtype=np.intp)
