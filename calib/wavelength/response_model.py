@@ -822,7 +822,15 @@ class ResponseModel:
 def _sliding(padded: FloatArray, count: int) -> FloatArray:
     """``sliding_window_view(padded, count, axis=1)`` of a C-contiguous ``(K, m, …)`` array —
     ``(K, m − count + 1, …, count)``, read-only — as a plain strided view, without that function's
-    per-call checks (they cost more than the view's use for one mapping)."""
+    per-call checks (they cost more than the view's use for one mapping).
+
+    Examples
+    --------
+    >>> padded = np.arange(12.0).reshape(2, 3, 2)
+    >>> view = _sliding(padded, 2)
+    >>> view.shape, bool(np.array_equal(view, np.lib.stride_tricks.sliding_window_view(padded, 2, axis=1)))
+    ((2, 2, 2, 2), True)
+    """
     batch, length, *rest = padded.shape
     view = np.ndarray(
         (batch, length - count + 1, *rest, count),
@@ -875,7 +883,15 @@ def _scale_of(
 
 def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray:
     """``Σ_c,i pulls[c, i] right[c, i, …]``: ``np.tensordot(pulls, right, axes=([0, 1], [0, 1]))``
-    as the one product it makes (the same ``dot``), without its per-call shape handling."""
+    as the one product it makes (the same ``dot``), without its per-call shape handling.
+
+    Examples
+    --------
+    >>> pulls, right = np.arange(6.0).reshape(3, 2), np.arange(24.0).reshape(3, 2, 4)
+    >>> bool(np.array_equal(_over_channels_and_nodes(pulls, right),
+    ...                     np.tensordot(pulls, right, axes=([0, 1], [0, 1]))))
+    True
+    """
     flat = right.reshape(pulls.size, -1)
     return np.asarray(np.dot(pulls.reshape(1, -1), flat).reshape(right.shape[2:]))
 
