@@ -24,6 +24,8 @@ from calib.methods.grating_models import (
     check_grating_model,
     fit_physical,
     physical_equations,
+    physical_misfits,
+    profile_throughput,
 )
 from calib.methods.multilamp import (
     EfficiencySettings,
@@ -40,7 +42,14 @@ from calib.methods.multilamp import (
 from calib.methods.prior_solve import PriorOptions, estimate_prior
 from calib.model.bases import CameraBasis
 from calib.model.forward import PeakFractionNoise, render_observation
-from calib.model.gratings import BlazedGrating, PhysicalKind, SinusoidalPhaseGrating
+from calib.model.gratings import (
+    PHYSICAL_PARAMETER_RANGES,
+    BlazedGrating,
+    PhysicalKind,
+    SinusoidalPhaseGrating,
+    physical_efficiencies,
+    physical_grating,
+)
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 
 #: Three lamps that differ in colour (the solve's cost grows with each).
@@ -332,6 +341,36 @@ def test_the_choice_judges_each_model_at_its_best_throughput(basis):
     )
     at_fit = float(np.sum((throughput * values - target) ** 2))
     assert judged <= at_fit
+
+
+@pytest.mark.parametrize("kind", ["sinusoidal", "blazed"])
+def test_a_scan_in_one_pass_equals_the_value_by_value_misfits(basis, kind: PhysicalKind):
+    """The fit's scans (decision 0061): every value's χ² at once, with η₀ integrated on the fine
+    axis (the lamps' operators) and at the grid's nodes (without them), equal to
+    :func:`physical_equations` + :func:`profile_throughput` one value at a time."""
+    grating = SinusoidalPhaseGrating(1.1)
+    _, observations = _scene(
+        _order(grating, 1), _order(grating, 0), seed=2, noise=0.01, direct_noise=0.004
+    )
+    lamps = prepare_lamps(observations, basis=basis, mapping=MAPPING).lamps
+    wavelength = DEFAULT_GRID.wavelength_nm
+    low, high = PHYSICAL_PARAMETER_RANGES[kind]
+    values = np.linspace(low, high, 37)
+    rows = physical_efficiencies(kind, values, 0, wavelength)
+    for row, value in zip(rows, values, strict=True):
+        assert np.array_equal(row, physical_grating(kind, value).efficiency(0, wavelength))
+    weight = np.linspace(0.5, 2.0, wavelength.size)
+    for group in (lamps, [replace(lamp, operators=None) for lamp in lamps]):
+        batched = physical_misfits(group, kind, values, weight, 0.02, wavelength)
+        pointwise = [
+            profile_throughput(
+                *physical_equations(group, kind, float(value), weight, 0.02, wavelength)[:2]
+            )[1]
+            for value in values
+        ]
+        np.testing.assert_allclose(batched, pointwise, rtol=1e-12)
+    with pytest.raises(InputError, match="positive"):
+        physical_efficiencies(kind, [0.0], 1, wavelength)
 
 
 def test_family_weights_are_akaike_weights_of_the_quasi_likelihood_at_the_stated_noise():

@@ -196,6 +196,30 @@ def test_response_model_jacobian_equals_finite_differences(fluorescent_profile):
     np.testing.assert_allclose(cost, [residual @ residual], rtol=1e-5)
 
 
+def test_the_fit_reads_its_reference_and_the_family_keeps_its_jacobian(fluorescent_profile):
+    """Decision 0061's shortcuts give the same numbers: the first residual at the reference
+    mapping reuses the band and normal matrices :meth:`ResponseModel.reference` built (any other
+    mapping builds its own), and the quadratic family's Jacobian is kept per pixel array
+    (read-only, the same values, a bounded number kept)."""
+    model, family, edges, x = _blurred_fluorescent_model(fluorescent_profile)
+    at = family.wavelengths(edges, x)
+    fixed = model.reference(at)
+    assert fixed.referenced is not None
+    plain = replace(fixed, referenced=None)
+    for where in (at, family.wavelengths(edges, x + np.array([0.1, 0.0, -0.1]))):
+        kept = fixed.residual(where, family.jacobian(edges))
+        fresh = plain.residual(where, family.jacobian(edges))
+        assert np.array_equal(kept[0], fresh[0]) and kept[1] is not None and fresh[1] is not None
+        assert np.array_equal(kept[1], fresh[1])
+    jacobian = family.jacobian(edges)
+    assert family.jacobian(edges.copy()) is jacobian and not jacobian.flags.writeable
+    design = np.stack([edges**2, edges, np.ones_like(edges)], axis=1)
+    np.testing.assert_array_equal(jacobian, design @ family._to_coefficients)
+    for count in range(20):
+        family.jacobian(np.linspace(0.0, 10.0 + count, 7))
+    assert len(family._jacobians) <= 8
+
+
 def test_response_model_band_derivative_and_normal_matrix(fluorescent_profile):
     """The banded matrix' derivative against finite differences of its values, and the normal
     matrix assembled from its diagonals against the dense ``AᵀW²A``, for a batch."""

@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -149,7 +149,7 @@ class LampData:
     operators: LampOperators | None = None  # e φ_i on the fine axis, for an η₀ inside the row
 
     def zeroth_order_row(self, zeroth_order: FloatArray | None) -> FloatArray:
-        """``∫ e φ_i η₀ dλ`` ``(f,)`` with ``η₀`` given on the fine axis (``None``: flat, the
+        """``∫ e φ_i η₀ dλ`` ``(f,)`` (``(k, f)`` for ``k`` rows of ``η₀``) with ``η₀`` given on the fine axis (``None``: flat, the
         plain direct row). Integrated at 1 nm: ``η₀`` may vary within a grid step (a blazed
         grating's vanishes at its blaze)."""
         if zeroth_order is None or self.operators is None:
@@ -204,7 +204,9 @@ def direct_rows(
 ) -> tuple[FloatArray, FloatArray]:
     """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ g = m_dir,lc`` on the grid's nodes of ``g`` (``η⁻¹``
     for the Fourier model, ``T/η₁`` for a physical one, whose ``η₀`` enters ``d_l`` on the fine
-    axis: ``zeroth_order``, :meth:`LampData.zeroth_order_row`): rows ``(3L, f)``, targets ``(3L,)``.
+    axis: ``zeroth_order``, :meth:`LampData.zeroth_order_row`): rows ``(3L, f)``, targets ``(3L,)``;
+    with ``zeroth_order`` ``(k, n_fine)`` (a scan over η₀'s parameter), ``(k, 3L, f)`` and
+    ``(k, 3L)``, each ``k`` the same numbers as its own call within rounding.
 
     Each equation's variance is the direct measurement's, the response's covariance propagated
     through the current ``g`` and the model floor; a lamp's three equations also share the error of
@@ -221,35 +223,47 @@ def direct_rows(
         direct_row = lamp.zeroth_order_row(zeroth_order)
         spread = direct_row * inverse_efficiency
         direct = np.asarray(lamp.direct, dtype=np.float64)
+        if spread.ndim == 1:
+            propagated = (lamp.response.covariance @ spread) @ spread
+        else:  # (k, f): one σ per value of η₀ (a scan), (k, 3)
+            propagated = np.sum((lamp.response.covariance @ spread.T) * spread.T, axis=1).T
         variances = np.maximum(
-            lamp.direct_sigma**2
-            + (lamp.response.covariance @ spread) @ spread
-            + (floor * direct) ** 2,
+            lamp.direct_sigma**2 + propagated + (floor * direct) ** 2,
             1e-300,
         )
-        block = np.empty((3, direct_row.size + 1))
-        block[:, :-1] = lamp.response.response.T * direct_row
-        block[:, -1] = direct
-        whitened = _whiten_three(variances.tolist(), (gain * direct).tolist(), block)
-        rows.append(whitened[:, :-1])
-        targets.append(whitened[:, -1])
-    return np.vstack(rows), np.concatenate(targets)
+        block = np.empty((*direct_row.shape[:-1], 3, direct_row.shape[-1] + 1))
+        block[..., :-1] = lamp.response.response.T * direct_row[..., None, :]
+        block[..., -1] = direct
+        whitened = _whiten_three(variances, gain * direct, block)
+        rows.append(whitened[..., :-1])
+        targets.append(whitened[..., -1])
+    return np.concatenate(rows, axis=-2), np.concatenate(targets, axis=-1)
 
 
-def _whiten_three(variances: list[float], shared: list[float], block: FloatArray) -> FloatArray:
+def _whiten_three(variances: FloatArray, shared: FloatArray, block: FloatArray) -> FloatArray:
     """``L⁻¹ block`` with ``L`` the Cholesky factor of ``diag(variances) + shared sharedᵀ`` (3 × 3),
     written out: the direct equations are whitened hundreds of times per physical grating fit, and
-    LAPACK's call overhead on a 3 × 3 matrix is most of that time."""
-    v0, v1, v2 = variances
-    g0, g1, g2 = shared
-    l00 = math.sqrt(v0 + g0 * g0)
+    LAPACK's call overhead on a 3 × 3 matrix is most of that time. ``variances`` ``(3,)`` with
+    ``block`` ``(3, m)``, or ``(k, 3)`` with ``(k, 3, m)``: ``k`` systems at once."""
+    if variances.ndim == 1:
+        v0, v1, v2 = variances.tolist()
+        sqrt: Callable[[Any], Any] = math.sqrt
+    else:
+        v0, v1, v2 = variances.T
+        sqrt = np.sqrt
+    g0, g1, g2 = shared.tolist()
+    l00 = sqrt(v0 + g0 * g0)
     l10 = g1 * g0 / l00
     l20 = g2 * g0 / l00
-    l11 = math.sqrt(v1 + g1 * g1 - l10 * l10)
+    l11 = sqrt(v1 + g1 * g1 - l10 * l10)
     l21 = (g2 * g1 - l20 * l10) / l11
-    l22 = math.sqrt(v2 + g2 * g2 - l20 * l20 - l21 * l21)
+    l22 = sqrt(v2 + g2 * g2 - l20 * l20 - l21 * l21)
+    if variances.ndim > 1:
+        l00, l10, l20, l11, l21, l22 = (
+            np.asarray(value)[:, None] for value in (l00, l10, l20, l11, l21, l22)
+        )
     out = np.empty_like(block)
-    out[0] = block[0] / l00
-    out[1] = (block[1] - l10 * out[0]) / l11
-    out[2] = (block[2] - l20 * out[0] - l21 * out[1]) / l22
+    out[..., 0, :] = block[..., 0, :] / l00
+    out[..., 1, :] = (block[..., 1, :] - l10 * out[..., 0, :]) / l11
+    out[..., 2, :] = (block[..., 2, :] - l20 * out[..., 0, :] - l21 * out[..., 1, :]) / l22
     return out

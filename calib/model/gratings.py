@@ -141,6 +141,21 @@ class _SpectrumMixin:
         return Spectrum(axis, self.efficiency(order, axis), name=f"{self.name}, order {order}")
 
 
+def _sinusoidal_efficiency(order: int, phase_rad: FloatArray) -> FloatArray:
+    """``J_m²(φ)`` for ``m ≥ 0`` (:meth:`SinusoidalPhaseGrating.efficiency`)."""
+    from scipy.special import j0, j1, jv  # deferred: scipy.special is slow to import
+
+    # J₀ and J₁ by their own routines (Cephes, ~30× faster than the general order's and equal
+    # to it within 1e-15): the physical grating fit evaluates them hundreds of times.
+    bessel = j0(phase_rad) if order == 0 else j1(phase_rad) if order == 1 else jv(order, phase_rad)
+    return np.asarray(bessel**2, dtype=np.float64)
+
+
+def _blazed_efficiency(order: int, blaze_ratio: FloatArray) -> FloatArray:
+    """``sinc²(λ_B/λ − m)`` given ``λ_B/λ`` (:meth:`BlazedGrating.efficiency`)."""
+    return np.asarray(np.sinc(blaze_ratio - order) ** 2, dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class SinusoidalPhaseGrating(_SpectrumMixin):
     """A thin sinusoidal phase grating: ``η_m(λ) = J_m²(φ₀ λ₀ / λ)`` (module docstring).
@@ -189,14 +204,7 @@ class SinusoidalPhaseGrating(_SpectrumMixin):
 
     def efficiency(self, order: int, wavelength_nm: ArrayLike) -> FloatArray:
         """``J_m²(φ(λ))``; orders ``±m`` are equal."""
-        from scipy.special import j0, j1, jv  # deferred: scipy.special is slow to import
-
-        m = abs(_order(order, "order"))
-        phase = self.phase_rad(wavelength_nm)
-        # J₀ and J₁ by their own routines (Cephes, ~30× faster than the general order's and equal
-        # to it within 1e-15): the physical grating fit evaluates them hundreds of times.
-        bessel = j0(phase) if m == 0 else j1(phase) if m == 1 else jv(m, phase)
-        return np.asarray(bessel**2, dtype=np.float64)
+        return _sinusoidal_efficiency(abs(_order(order, "order")), self.phase_rad(wavelength_nm))
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -246,9 +254,8 @@ class BlazedGrating(_SpectrumMixin):
 
     def efficiency(self, order: int, wavelength_nm: ArrayLike) -> FloatArray:
         """``sinc²(λ_B/λ − m)``."""
-        m = _order(order, "order")
         wavelength = _wavelengths(wavelength_nm, "wavelength_nm")
-        return np.asarray(np.sinc(self.blaze_nm / wavelength - m) ** 2, dtype=np.float64)
+        return _blazed_efficiency(_order(order, "order"), self.blaze_nm / wavelength)
 
     def to_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, "blaze_nm": self.blaze_nm}
@@ -426,6 +433,33 @@ def physical_grating(
         return SinusoidalPhaseGrating(parameter)
     if kind == "blazed":
         return BlazedGrating(parameter)
+    raise InputError(
+        f"unknown physical grating {kind!r}; choose from {PHYSICAL_KINDS}", source="grating_model"
+    )
+
+
+def physical_efficiencies(
+    kind: PhysicalKind, parameters: ArrayLike, order: int, wavelength_nm: ArrayLike
+) -> FloatArray:
+    """``η_order(λ)`` of ``kind`` for many parameter values at once, ``(k, n)``: row ``i`` is
+    ``physical_grating(kind, parameters[i]).efficiency(order, wavelength_nm)``, the same numbers
+    (the physical grating fit's scans evaluate whole grids of the parameter).
+
+    Examples
+    --------
+    >>> rows = physical_efficiencies("blazed", [500.0, 600.0], 1, [500.0, 700.0])
+    >>> bool(np.array_equal(rows[1], BlazedGrating(600.0).efficiency(1, [500.0, 700.0])))
+    True
+    """
+    values = np.asarray(parameters, dtype=np.float64).reshape(-1, 1)
+    if not (np.all(np.isfinite(values)) and np.all(values > 0)):
+        raise InputError("grating parameters must be positive numbers", source=kind)
+    wavelength = _wavelengths(wavelength_nm, "wavelength_nm")
+    if kind == "sinusoidal":
+        phase = values * SinusoidalPhaseGrating.reference_nm / wavelength
+        return _sinusoidal_efficiency(abs(_order(order, "order")), phase)
+    if kind == "blazed":
+        return _blazed_efficiency(_order(order, "order"), values / wavelength)
     raise InputError(
         f"unknown physical grating {kind!r}; choose from {PHYSICAL_KINDS}", source="grating_model"
     )

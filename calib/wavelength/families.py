@@ -44,6 +44,8 @@ GRATING_PARAMETERS: tuple[str, ...] = (
 #: Parameters held at the family's own value unless the prior names them.
 _HELD_UNLESS_NAMED = ("axis_offset_px",)
 _DEG = math.pi / 180.0
+#: Pixel arrays whose :meth:`QuadraticFamily.jacobian` a family keeps.
+_KEPT_JACOBIANS = 8
 #: Sample indices of the 9 pixels :meth:`GratingFamily.valid` checks.
 _PROBE_STEPS = np.arange(9.0)
 
@@ -93,10 +95,24 @@ class QuadraticFamily:
         return np.asarray(np.asarray(x, dtype=np.float64) @ self.jacobian(pixel).T)
 
     def jacobian(self, pixel: FloatArray, x: FloatArray | None = None) -> FloatArray:
-        """``∂λ(p)/∂x``, shape ``(n, 3)`` (the same for every ``x``: the family is linear)."""
+        """``∂λ(p)/∂x``, shape ``(n, 3)`` (the same for every ``x``: the family is linear), kept
+        for the last few pixel arrays (a fit asks for it at every trial point); read-only."""
         p = np.asarray(pixel, dtype=np.float64)
+        key = p.tobytes()
+        known = self._jacobians.get(key)
+        if known is not None:
+            return known
         design = np.stack([p**2, p, np.ones_like(p)], axis=1)
-        return np.asarray(design @ self._to_coefficients, dtype=np.float64)
+        jacobian = np.asarray(design @ self._to_coefficients, dtype=np.float64)
+        jacobian.setflags(write=False)
+        if len(self._jacobians) >= _KEPT_JACOBIANS:
+            self._jacobians.clear()
+        self._jacobians[key] = jacobian
+        return jacobian
+
+    @cached_property
+    def _jacobians(self) -> dict[bytes, FloatArray]:
+        return {}
 
     def batch_jacobian(self, pixel: FloatArray, x: FloatArray) -> FloatArray:
         """``∂λ/∂x`` for a batch ``(K, P)``: shape ``(K, n, P)``."""

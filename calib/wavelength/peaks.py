@@ -444,6 +444,7 @@ def coarse_mapping_candidates(
     profile_fft = np.fft.rfft(centred[::-1], size, axis=0)
     profile_norm = np.linalg.norm(centred, axis=0)
     signs = (1.0, -1.0) if allow_reversed else (1.0,)
+    window_fft = np.fft.rfft(np.ones(n), size)[:, None]  # the n-pixel window's sums
     scored: list[tuple[float, float, float]] = []
     for sign in signs:
         for dispersion in dispersions:
@@ -469,15 +470,9 @@ def coarse_mapping_candidates(
             correlation = np.fft.irfft(expected_fft * profile_fft, size, axis=0)[
                 n - 1 : n - 1 + length - n + 1
             ]
-            window_sum = np.fft.irfft(
-                np.fft.rfft(expected, size, axis=0) * np.fft.rfft(np.ones(n), size)[:, None],
-                size,
-                axis=0,
-            )
+            window_sum = np.fft.irfft(expected_fft * window_fft, size, axis=0)
             window_sq = np.fft.irfft(
-                np.fft.rfft(expected**2, size, axis=0) * np.fft.rfft(np.ones(n), size)[:, None],
-                size,
-                axis=0,
+                np.fft.rfft(expected**2, size, axis=0) * window_fft, size, axis=0
             )
             sums = window_sum[n - 1 : n - 1 + length - n + 1]
             squares = window_sq[n - 1 : n - 1 + length - n + 1]

@@ -36,7 +36,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -260,8 +261,9 @@ class LampColumns:
     ) -> tuple[FloatArray, FloatArray | None]:
         """``C_j(λ)`` (and ``∂C_j/∂λ = e φ_j (λ)``) for broadcast arrays of wavelengths and columns."""
         flat, t, low, high = self._interval(wavelength_nm, column)
+        # (high − low)·(t/2): the half taken on the small factor (exact, the same numbers).
         value = self.cumulative.ravel().take(flat) + self.step_nm * t * (
-            low + 0.5 * (high - low) * t
+            low + (high - low) * (0.5 * t)
         )
         if not derivative:
             return value, None
@@ -278,7 +280,7 @@ class LampColumns:
         index = np.minimum(position.astype(np.intp), last - 1)
         flat = index * size + column
         density = self.density.ravel()
-        return flat, position - index, density.take(flat), density.take(flat + size)
+        return flat, position - index, density.take(flat), density[size:].take(flat)
 
     def density_at(self, wavelength_nm: FloatArray, column: IntArray) -> FloatArray:
         """``∂C_j/∂λ = e φ_j (λ)`` (zero beyond the axis, where the cumulative is constant)."""
@@ -314,7 +316,7 @@ class Band:
     first: IntArray
     derivative: FloatArray | None = None
 
-    @property
+    @cached_property
     def columns(self) -> IntArray:
         width = self.values.shape[-1]
         return np.asarray(self.first[..., None] + np.arange(width), dtype=np.intp)
@@ -367,6 +369,11 @@ class ResponseModel:
     smoothness: float
     scale: float = 1.0
     penalty_weight: FloatArray | None = None
+    #: :meth:`reference`'s mapping: its edge wavelengths, band and normal matrices, which the
+    #: fit's first :meth:`residual_lazy` (at that mapping) reads instead of recomputing.
+    referenced: tuple[FloatArray, Band, tuple[FloatArray, FloatArray]] | None = field(
+        default=None, repr=False
+    )
 
     @classmethod
     def build(
@@ -446,14 +453,18 @@ class ResponseModel:
             return band
         return replace(band, derivative=self.band_derivative(edges_nm, edge_jacobian, band))
 
+    @cached_property
+    def _edge_index(self) -> IntArray:
+        """The edges of the blurred pixels' windows, the ends repeated (``n + L``)."""
+        half = (self.filter.size - 2) // 2
+        n = self.edges_px.size - 1
+        return np.asarray(np.clip(np.arange(n + 2 * half + 1) - half, 0, n), dtype=np.intp)
+
     def _windows(self, edges_nm: FloatArray) -> tuple[FloatArray, IntArray]:
         """Each blurred pixel's ``L + 1`` edge wavelengths ``(K, n, L + 1)`` and the edge index."""
         count = self.filter.size  # L + 1 edges per blurred pixel
-        half = (count - 2) // 2
-        n = self.edges_px.size - 1
-        index = np.clip(np.arange(n + 2 * half + 1) - half, 0, n)
-        padded = edges_nm[:, index]  # (K, n + 2h + 1)
-        return np.lib.stride_tricks.sliding_window_view(padded, count, axis=1), index
+        index = self._edge_index
+        return _sliding(np.ascontiguousarray(edges_nm[:, index]), count), index  # (K, n + L)
 
     def _band_values(self, edges_nm: FloatArray) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
@@ -525,9 +536,7 @@ class ResponseModel:
             windows[..., None, :], np.minimum(column, size - 1)[..., None]
         )
         count = self.filter.size
-        jac_windows = np.lib.stride_tricks.sliding_window_view(
-            edge_jacobian[:, index, :], count, axis=1
-        )  # (K, n, P, L+1)
+        jac_windows = _sliding(np.ascontiguousarray(edge_jacobian[:, index, :]), count)
         # One small product per pixel (a batched matmul: a three-operand einsum cost 4–5× more).
         return np.asarray(
             np.matmul(slope * self.filter, jac_windows.swapaxes(-1, -2))
@@ -598,7 +607,7 @@ class ResponseModel:
         scale = numerator / np.maximum(denominator, 1e-300)
         return np.asarray(np.where(np.isfinite(scale) & (scale > 0), scale, 1.0), dtype=np.float64)
 
-    @property
+    @cached_property
     def _penalty_reach(self) -> int:
         """``1 +`` the farthest diagonal on which the margins' penalty ``ΔᵀΔ`` has an entry."""
         rows, columns = np.nonzero(self.penalty)
@@ -632,10 +641,16 @@ class ResponseModel:
         ridge = RIDGE * np.maximum(diagonal / self.n_nodes, 1e-300)
         index = np.arange(self.n_nodes)
         systems[..., index, index] += ridge[..., None]
-        unit_pulls = np.einsum("cij,cj->ci", self.precision, self.prior_mean)  # (3, N)
+        unit_pulls, unit_gamma = self._unit_pulls
         pulls = inverse_square[:, None, None] * unit_pulls
-        gamma = inverse_square * float(np.sum(unit_pulls * self.prior_mean))
+        gamma = inverse_square * unit_gamma
         return systems, pulls, gamma
+
+    @cached_property
+    def _unit_pulls(self) -> tuple[FloatArray, float]:
+        """The prior's pulls ``FᵀF μ`` ``(3, N)`` and ``μᵀFᵀF μ`` for a camera of unit scale."""
+        unit_pulls = np.einsum("cij,cj->ci", self.precision, self.prior_mean)
+        return np.asarray(unit_pulls, dtype=np.float64), float(np.sum(unit_pulls * self.prior_mean))
 
     def _penalty_weight(self, diagonals: FloatArray) -> FloatArray:
         # The main diagonal is a strided view (every w-th value), as a dense matrix's is:
@@ -647,11 +662,12 @@ class ResponseModel:
         """This model with ``β̂`` and the penalty weights of the mapping with these edge
         wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
         band = self.band(edges_nm[None, :])
-        diagonals, _ = self._normal(band)
+        normal = self._normal(band)
         return replace(
             self,
             scale=float(self._prior_scale(band)[0]),
-            penalty_weight=self._penalty_weight(diagonals)[0],
+            penalty_weight=self._penalty_weight(normal[0])[0],
+            referenced=(np.array(edges_nm, dtype=np.float64), band, normal),
         )
 
     # --------------------------------------------------------------------------- evaluate
@@ -715,13 +731,17 @@ class ResponseModel:
         the fit and every Jacobian column — an inverse cost 2–4× more (0056)."""
         model = self if self.penalty_weight is not None else self.reference(edges_nm)
         assert model.penalty_weight is not None
-        band = model.band(edges_nm[None, :])
+        referenced = model.referenced
+        if referenced is not None and np.array_equal(referenced[0], edges_nm):
+            band, (diagonals, rhs) = referenced[1], referenced[2]
+        else:
+            band = model.band(edges_nm[None, :])
+            diagonals, rhs = model._normal(band)
         size = model.n_nodes
         n = band.values.shape[1]
         flat = (np.arange(n)[:, None] * size + np.minimum(band.columns[0], size - 1)).ravel()
         matrix = _dense(flat, band.values[0], (n, size))  # A (n, N)
         weights = model.weights.T  # (3, n)
-        diagonals, rhs = model._normal(band)
         systems, pulls, gamma = model._systems(
             diagonals, np.array([model.scale]), model.penalty_weight[None]
         )
@@ -799,6 +819,29 @@ class ResponseModel:
         )
 
 
+def _sliding(padded: FloatArray, count: int) -> FloatArray:
+    """``sliding_window_view(padded, count, axis=1)`` of a C-contiguous ``(K, m, …)`` array —
+    ``(K, m − count + 1, …, count)``, read-only — as a plain strided view, without that function's
+    per-call checks (they cost more than the view's use for one mapping).
+
+    Examples
+    --------
+    >>> padded = np.arange(12.0).reshape(2, 3, 2)
+    >>> view = _sliding(padded, 2)
+    >>> view.shape, bool(np.array_equal(view, np.lib.stride_tricks.sliding_window_view(padded, 2, axis=1)))
+    ((2, 2, 2, 2), True)
+    """
+    batch, length, *rest = padded.shape
+    view = np.ndarray(
+        (batch, length - count + 1, *rest, count),
+        dtype=padded.dtype,
+        buffer=padded,
+        strides=(*padded.strides, padded.strides[1]),
+    )
+    view.flags.writeable = False
+    return view
+
+
 def _dense(flat: IntArray, values: FloatArray, shape: tuple[int, ...]) -> FloatArray:
     """A banded matrix (or a stack of them) laid out dense: ``values`` summed at ``flat``."""
     total = np.bincount(flat, weights=values.ravel(), minlength=math.prod(shape))
@@ -833,9 +876,24 @@ def _scale_of(
     """The camera scale ``β`` of the bordered system ``H_c x_c − g_c β = r_c``,
     ``−Σ g_cᵀ x_c + γ β = r_β`` (then ``x_c = a_c + β e_c``) from ``a_c = H_c⁻¹ r_c``
     ``(3, N[, m])`` and ``e_c = H_c⁻¹ g_c`` ``(3, N[, 1])``: a number, or ``(m,)``."""
-    denominator = gamma - np.tensordot(pulls, along, axes=([0, 1], [0, 1]))
+    denominator = gamma - _over_channels_and_nodes(pulls, along)
     denominator = np.where(np.abs(denominator) > 1e-300, denominator, np.inf)
-    return (right_beta + np.tensordot(pulls, free, axes=([0, 1], [0, 1]))) / denominator
+    return (right_beta + _over_channels_and_nodes(pulls, free)) / denominator
+
+
+def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray:
+    """``Σ_c,i pulls[c, i] right[c, i, …]``: ``np.tensordot(pulls, right, axes=([0, 1], [0, 1]))``
+    as the one product it makes (the same ``dot``), without its per-call shape handling.
+
+    Examples
+    --------
+    >>> pulls, right = np.arange(6.0).reshape(3, 2), np.arange(24.0).reshape(3, 2, 4)
+    >>> bool(np.array_equal(_over_channels_and_nodes(pulls, right),
+    ...                     np.tensordot(pulls, right, axes=([0, 1], [0, 1]))))
+    True
+    """
+    flat = right.reshape(pulls.size, -1)
+    return np.asarray(np.dot(pulls.reshape(1, -1), flat).reshape(right.shape[2:]))
 
 
 def _signs(edges_nm: FloatArray) -> FloatArray:
