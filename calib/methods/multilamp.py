@@ -1020,13 +1020,50 @@ class SensitivitySolution:
         return self.sensitivity / peak, sigma.reshape(3, size).T
 
 
+#: Lamp kinds (:data:`calib.core.lamp_kinds.LAMP_KINDS`) whose responses give ``η`` its direct
+#: equations but not the sensitivity's ``Q`` while a broadband lamp is there (decision 0058): a
+#: narrow band's response is its profile over its measured spectrum, and the spectrometer's
+#: wavelength scale (±0.5 nm) and slit (2–10 nm) move that ratio by ``δλ · d ln e/dλ`` — 6 % one
+#: σ from a 20 nm LED's peak per 0.5 nm, a few ‰ for a white lamp — which the response's noise
+#: covariance does not hold, while its weight in the inverse-variance mean is the largest there.
+#: Validation split, 3 lamps + RGB LEDs, sinusoidal model: mean RE 0.77 → 0.73, and 0.94 → 0.71
+#: with every camera behind a blue filter (the out-of-basis proxy).
+NARROW_BAND_KINDS: tuple[str, ...] = ("narrowband",)
+
+
+def lamp_kinds(observations: Sequence[LampObservation], lamps: Sequence[LampData]) -> list[str]:
+    """The kind of each of ``lamps`` (by name, from the observations it was prepared from)."""
+    kinds = {obs.name: obs.kind for obs in observations}
+    return [kinds.get(lamp.name, "other") for lamp in lamps]
+
+
+def sensitivity_lamps(kinds: Sequence[str]) -> list[bool]:
+    """Which lamps' responses make the sensitivity's ``Q`` (:func:`pool_responses`), by kind: all
+    but the narrow-band ones (:data:`NARROW_BAND_KINDS`) when any other lamp is there, else all.
+
+    Examples
+    --------
+    >>> sensitivity_lamps(["led", "fluorescent", "narrowband"])
+    [True, True, False]
+    >>> sensitivity_lamps(["narrowband", "narrowband"])
+    [True, True]
+    """
+    broad = [kind not in NARROW_BAND_KINDS for kind in kinds]
+    return broad if any(broad) else [True] * len(broad)
+
+
 def pool_responses(
-    responses: Sequence[ResponseEstimate], *, iterations: int = 4
+    responses: Sequence[ResponseEstimate],
+    *,
+    iterations: int = 4,
+    pooled: Sequence[bool] | None = None,
 ) -> tuple[ResponseEstimate, FloatArray, FloatArray]:
     """``Q`` ``(f, 3)``: the inverse-variance mean of the lamps' ``q̂_lc / E_l``, with its covariance.
 
     The relative brightness ``E_l`` (first lamp = 1) is fitted by weighted least squares against the
-    running combination. Returns the pooled response, ``E`` ``(L,)`` and the weights ``(L, f, 3)``.
+    running combination. ``pooled`` (default: all): which responses enter ``Q``; every lamp's
+    ``E_l`` is fitted against it. Returns the pooled response, ``E`` ``(L,)`` and the weights
+    ``(L, f, 3)`` (zero for a lamp left out of ``Q``).
     """
     stacked = np.stack([response.response for response in responses])  # (L, f, 3)
     variances = np.stack(
@@ -1036,9 +1073,15 @@ def pool_responses(
         ]
     )
     variances = np.maximum(variances, 1e-300)
+    members = np.ones(len(responses)) if pooled is None else np.asarray(pooled, dtype=np.float64)
+    if members.shape != (len(responses),) or not np.any(members):
+        raise InputError(
+            f"{members.size} pooling flags for {len(responses)} responses, none set",
+            source="pooled",
+        )
     scales = np.ones(len(responses))
     for _ in range(iterations):
-        weights = scales[:, None, None] ** 2 / variances
+        weights = members[:, None, None] * scales[:, None, None] ** 2 / variances
         combined = np.sum(weights * stacked / scales[:, None, None], axis=0) / np.sum(
             weights, axis=0
         )
@@ -1049,13 +1092,15 @@ def pool_responses(
                     float(np.sum(stacked[index] * combined / variances[index])) / denominator
                 )
         scales = scales / scales[0]
-    weights = scales[:, None, None] ** 2 / variances
+    weights = members[:, None, None] * scales[:, None, None] ** 2 / variances
     weights = weights / np.sum(weights, axis=0)
     combined = np.sum(weights * stacked / scales[:, None, None], axis=0)
     size = combined.shape[0]
     covariance = np.zeros((3, size, size))
     for c in range(3):
         for index, response in enumerate(responses):
+            if not members[index]:
+                continue
             factor = weights[index, :, c] / scales[index]
             covariance[c] += factor[:, None] * response.covariance[c] * factor[None, :]
     used = np.any(np.stack([response.used_pixels for response in responses]), axis=0)
@@ -1070,14 +1115,16 @@ def combine_responses(
     coefficient_covariance: FloatArray,
     *,
     with_covariance: bool = True,
+    pooled: Sequence[bool] | None = None,
 ) -> SensitivitySolution:
-    """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q`` from :func:`pool_responses`.
+    """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q`` from :func:`pool_responses` (of the ``pooled``
+    responses, default all: :func:`sensitivity_lamps`).
 
     ``η⁻¹ = B_η c_η`` with ``c_η``'s covariance propagated along ``Q_c ⊙ B_η`` (``B_η`` may be the
     identity, for an efficiency known node by node).
     """
-    pooled, scales, _ = pool_responses(responses)
-    combined = pooled.response
+    pooled_response, scales, _ = pool_responses(responses, pooled=pooled)
+    combined = pooled_response.response
     size = inverse_efficiency.size
     sensitivity = combined * inverse_efficiency[:, None]
     if not with_covariance:
@@ -1086,7 +1133,9 @@ def combine_responses(
     for c in range(3):
         block = slice(c * size, (c + 1) * size)
         covariance[block, block] = (
-            inverse_efficiency[:, None] * pooled.covariance[c] * inverse_efficiency[None, :]
+            inverse_efficiency[:, None]
+            * pooled_response.covariance[c]
+            * inverse_efficiency[None, :]
         )
     jacobian = np.concatenate([combined[:, c][:, None] * efficiency_basis for c in range(3)])
     covariance += jacobian @ coefficient_covariance @ jacobian.T
@@ -1380,6 +1429,7 @@ def estimate_multilamp(
         if options.uncertainty == "noise"
         else efficiency.coefficient_covariance,
         with_covariance=options.uncertainty != "none",
+        pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
     )
     eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
@@ -1521,12 +1571,13 @@ def refine_grating(
     )
     eta_pair = efficiency_with_sigma(efficiency)
     results = []
-    for calibrated in each:
+    for calibrated, observations in zip(each, cameras, strict=True):
         solution = combine_responses(
             [lamp.response for lamp in calibrated.lamps],
             efficiency.inverse_efficiency,
             efficiency.inverse_jacobian,
             efficiency.coefficient_covariance,
+            pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
         )
         results.append(
             multilamp_result(
