@@ -779,8 +779,8 @@ def choice_penalty(n_equations: int) -> float:
     sinusoidal sheets ``C_L`` took the free model once (Canon 10D (Huynh), RE 3.45 against 0.53
     for the sheet's model), of the same cameras behind a blue filter twice (Nikon D3X 7.17 / 0.65,
     Canon 5D (Kawakami) 11.2 / 0.68); ``log n`` moves the first two, nothing else on 44 sinusoidal,
-    44 blazed and 15 catalogue sheets (decision 0058). The free model's estimate was 3–40 on
-    every one of those sheets.
+    44 blazed and 15 catalogue sheets (decision 0058). The free model's estimate, forced, was
+    2–42 ×10⁻² on every one of those sheets.
 
     Examples
     --------
