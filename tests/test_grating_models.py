@@ -465,3 +465,34 @@ def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
     ).efficiency
     assert "choice_weights" not in plain.info["grating_model"]
     assert plain.inverse_jacobian.shape[1] == 2
+
+
+def test_auto_charges_each_parameter_log_n_at_the_rig_s_error_level(basis):
+    """Decision 0058: the judged risks are χ² at the floor plus ``log n`` per (effective)
+    parameter, so the free model's ≈ 7 cost it 7 log n, not Mallows' 14."""
+    from calib.methods.grating_models import profile_throughput
+    from calib.methods.multilamp import choice_penalty, solve_efficiency
+    from calib.methods.responses import DIRECT_GAIN_SIGMA, direct_rows
+
+    grating = SinusoidalPhaseGrating(1.0)
+    _, observations = _scene(_order(grating, 1), _order(grating, 0), noise=0.01)
+    prepared = prepare_lamps(observations, basis=basis, mapping=MAPPING)
+    prior = basis.prior()
+    record = calibrate_lamps(prepared, prior).efficiency.info["grating_model"]
+    lamps = prepared.lamps
+    penalty = np.log(3 * len(lamps))
+    assert choice_penalty(3 * len(lamps)) == pytest.approx(penalty)
+    fit = fit_physical(
+        lamps, "sinusoidal", DEFAULT_GRID.wavelength_nm, gain_sigma=DIRECT_GAIN_SIGMA
+    )
+    judged = fit.judged_chi2(lamps, DIRECT_GAIN_SIGMA, CHOICE_FLOOR)
+    assert record["predictive_risk"]["sinusoidal"] == pytest.approx(judged + 2 * penalty, rel=1e-6)
+    fourier = solve_efficiency(lamps, prior, EfficiencySettings(grating_model="fourier"))
+    parameters = 0.5 * (fourier.info["predictive_risk"] - fourier.info["direct_chi2"])
+    assert parameters > 4.0
+    inverse = fourier.inverse_efficiency
+    rows, target = direct_rows(lamps, inverse, gain_sigma=DIRECT_GAIN_SIGMA, floor=CHOICE_FLOOR)
+    chi2 = profile_throughput(rows @ inverse, target)[1]
+    assert record["predictive_risk"]["fourier"] == pytest.approx(
+        chi2 + penalty * parameters, rel=1e-6
+    )

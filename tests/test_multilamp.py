@@ -398,3 +398,72 @@ def test_a_pooled_grating_file_carries_the_rig_geometry_it_was_measured_in(basis
     stored = RigGeometry.from_dict(written.rig)
     assert stored.grating.incidence_deg == pytest.approx(3.0)
     assert stored.grating.focal_length_px == pytest.approx(2400.0)
+
+
+def test_a_response_left_out_of_the_pool_keeps_its_scale_and_moves_nothing() -> None:
+    from calib.methods.multilamp import pool_responses
+    from calib.methods.responses import ResponseEstimate
+
+    rng = np.random.default_rng(5)
+    size = 12
+    shape = rng.uniform(0.2, 1.0, (size, 3))
+    covariance = np.stack([np.eye(size) * 1e-4] * 3)
+    used = np.ones(20, dtype=bool)
+    clean = [ResponseEstimate(scale * shape, covariance, used, 0.0) for scale in (1.0, 2.0)]
+    # A third lamp, three times as bright, whose response is off by 30 % at a few nodes (a narrow
+    # band over a spectrum measured on a slightly wrong wavelength scale), with a small σ.
+    biased = 3.0 * shape
+    biased[4:7] *= 1.3
+    third = ResponseEstimate(biased, covariance / 100.0, used, 0.0)
+    alone, _, _ = pool_responses(clean)
+    pooled, scales, weights = pool_responses([*clean, third], pooled=[True, True, False])
+    np.testing.assert_allclose(pooled.response, alone.response, rtol=1e-12)
+    np.testing.assert_allclose(scales[:2], [1.0, 2.0], rtol=1e-9)
+    assert scales[2] == pytest.approx(3.0, rel=0.15)
+    assert np.all(weights[2] == 0.0)
+    everything, _, _ = pool_responses([*clean, third])
+    assert np.max(np.abs(everything.response / shape - 1.0)) > 0.1
+    with pytest.raises(InputError, match="pooling flags"):
+        pool_responses(clean, pooled=[False, False])
+
+
+def test_narrow_band_lamps_pin_the_grating_but_not_the_sensitivity(basis):
+    # The narrow-band LEDs' spectra read 1 nm off (the spectrometer's wavelength scale): their
+    # responses are wrong on the LEDs' flanks by far more than their noise σ. Left out of the
+    # pooled response (decision 0058), they still give η its direct equations.
+    from calib.methods.multilamp import (
+        EfficiencySettings,
+        combine_responses,
+        lamp_kinds,
+        sensitivity_lamps,
+    )
+
+    truth, mapping, observations, _ = _scene(0, "3 lamps + RGB LEDs", noise=0.0)
+    shifted = [
+        replace(
+            obs,
+            spectrum=replace(obs.spectrum, wavelength_nm=obs.spectrum.wavelength_nm + 1.0),
+        )
+        if obs.kind == "narrowband"
+        else obs
+        for obs in observations
+    ]
+    prepared = prepare_lamps(shifted, basis=basis, mapping=mapping)
+    calibrated = calibrate_lamps(
+        prepared, basis.prior(), EfficiencySettings(grating_model="fourier")
+    )
+    rule = sensitivity_lamps(lamp_kinds(shifted, calibrated.lamps))
+    assert rule == [obs.kind != "narrowband" for obs in shifted]
+    errors = []
+    for pooled in (rule, None):
+        solution = combine_responses(
+            [lamp.response for lamp in calibrated.lamps],
+            calibrated.efficiency.inverse_efficiency,
+            calibrated.efficiency.inverse_jacobian,
+            calibrated.efficiency.coefficient_covariance,
+            with_covariance=False,
+            pooled=pooled,
+        )
+        errors.append(relative_error(solution.normalised()[0], truth))
+    assert errors[0] < 0.007
+    assert errors[1] > 1.5 * errors[0]

@@ -628,7 +628,9 @@ def _solve_efficiency(
         fits.append(fit)
         noise_only[kind] = fit.predictive_risk
         if choice == "auto":
-            judged[kind] = fit.judged_chi2(lamps, gain, CHOICE_FLOOR) + 2.0 * 2
+            judged[kind] = (
+                fit.judged_chi2(lamps, gain, CHOICE_FLOOR) + choice_penalty(fit.n_equations) * 2
+            )
     candidates = judged if choice == "auto" else noise_only
     chosen = min(candidates, key=lambda name: candidates[name])
     weights = {chosen: 1.0}
@@ -760,24 +762,48 @@ def with_choice_spread(
 
 #: How ``"auto"`` chooses the grating model (recorded with the choice).
 CHOICE_RULE = (
-    "predictive risk of the direct equations (Mallows' C_L) at the rig's error level: each "
-    "equation's σ floored at CHOICE_FLOOR of its signal, the free throughput profiled out there; "
-    "between the physical families, their quasi-likelihood (QAIC) at the stated noise"
+    "χ² of the direct equations at the rig's error level plus log(n) per effective parameter "
+    "(BIC): each equation's σ floored at CHOICE_FLOOR of its signal, the free throughput "
+    "profiled out there; between the physical families, their quasi-likelihood (QAIC) at the "
+    "stated noise"
 )
+
+
+def choice_penalty(n_equations: int) -> float:
+    """What each (effective) parameter costs when ``auto`` judges the grating models:
+    ``log n`` of the ``n`` direct equations (Schwarz's criterion, BIC), not Mallows' 2.
+
+    The choice is a question of *which* η the sheet has — the sensitivity is ``Q ⊙ 1/η₁`` — not
+    of predicting new direct measurements, which is what ``C_L``'s 2 per parameter estimates: a
+    free η that bends to the rig's per-lamp errors predicts them better and gets η's shape wrong.
+    Validation split, 3 lamps + RGB LEDs (18 equations, the Fourier model's ``tr H`` ≈ 7): of 44
+    sinusoidal sheets ``C_L`` took the free model once (Canon 10D (Huynh), RE 3.45 against 0.53
+    for the sheet's model), of the same cameras behind a blue filter twice (Nikon D3X 7.17 / 0.65,
+    Canon 5D (Kawakami) 11.2 / 0.68); ``log n`` moves the first two, nothing else on 44 sinusoidal,
+    44 blazed and 15 catalogue sheets (decision 0058). The free model's estimate, forced, was
+    2–42 ×10⁻² on every one of those sheets.
+
+    Examples
+    --------
+    >>> round(choice_penalty(18), 3)
+    2.89
+    """
+    return math.log(max(n_equations, 2))
 
 
 def _fourier_judged_risk(
     fourier: EfficiencySolution, lamps: Sequence[LampData], gain_sigma: float, floor: float
 ) -> float:
-    """The Fourier model's ``C_L`` with each direct equation's σ floored at ``floor`` of its
+    """The Fourier model's judged risk with each direct equation's σ floored at ``floor`` of its
     signal: the χ² of its residuals so judged — ``η⁻¹``'s overall scale (the direct path's
-    throughput) profiled out at that weighting, as the physical models' ``T`` — plus twice its
-    effective number of parameters (``tr H`` of the fit, :func:`weight_score`)."""
+    throughput) profiled out at that weighting, as the physical models' ``T`` — plus its
+    effective number of parameters (``tr H`` of the fit, :func:`weight_score`) at
+    :func:`choice_penalty` each."""
     inverse = fourier.inverse_efficiency
     rows, target = direct_rows(lamps, inverse, gain_sigma=gain_sigma, floor=floor)
     _, chi2 = profile_throughput(rows @ inverse, target)
     parameters = 0.5 * (float(fourier.info["predictive_risk"]) - float(fourier.info["direct_chi2"]))
-    return chi2 + 2.0 * parameters
+    return chi2 + choice_penalty(target.size) * parameters
 
 
 def physical_solution(fit: PhysicalFit, record: dict[str, Any]) -> EfficiencySolution:
@@ -1021,13 +1047,50 @@ class SensitivitySolution:
         return self.sensitivity / peak, sigma.reshape(3, size).T
 
 
+#: Lamp kinds (:data:`calib.core.lamp_kinds.LAMP_KINDS`) whose responses give ``η`` its direct
+#: equations but not the sensitivity's ``Q`` while a broadband lamp is there (decision 0058): a
+#: narrow band's response is its profile over its measured spectrum, and the spectrometer's
+#: wavelength scale (±0.5 nm) and slit (2–10 nm) move that ratio by ``δλ · d ln e/dλ`` — 6 % one
+#: σ from a 20 nm LED's peak per 0.5 nm, a few ‰ for a white lamp — which the response's noise
+#: covariance does not hold, while its weight in the inverse-variance mean is the largest there.
+#: Validation split, 3 lamps + RGB LEDs, sinusoidal model: mean RE 0.77 → 0.73, and 0.94 → 0.71
+#: with every camera behind a blue filter (the out-of-basis proxy).
+NARROW_BAND_KINDS: tuple[str, ...] = ("narrowband",)
+
+
+def lamp_kinds(observations: Sequence[LampObservation], lamps: Sequence[LampData]) -> list[str]:
+    """The kind of each of ``lamps`` (by name, from the observations it was prepared from)."""
+    kinds = {obs.name: obs.kind for obs in observations}
+    return [kinds.get(lamp.name, "other") for lamp in lamps]
+
+
+def sensitivity_lamps(kinds: Sequence[str]) -> list[bool]:
+    """Which lamps' responses make the sensitivity's ``Q`` (:func:`pool_responses`), by kind: all
+    but the narrow-band ones (:data:`NARROW_BAND_KINDS`) when any other lamp is there, else all.
+
+    Examples
+    --------
+    >>> sensitivity_lamps(["led", "fluorescent", "narrowband"])
+    [True, True, False]
+    >>> sensitivity_lamps(["narrowband", "narrowband"])
+    [True, True]
+    """
+    broad = [kind not in NARROW_BAND_KINDS for kind in kinds]
+    return broad if any(broad) else [True] * len(broad)
+
+
 def pool_responses(
-    responses: Sequence[ResponseEstimate], *, iterations: int = 4
+    responses: Sequence[ResponseEstimate],
+    *,
+    iterations: int = 4,
+    pooled: Sequence[bool] | None = None,
 ) -> tuple[ResponseEstimate, FloatArray, FloatArray]:
     """``Q`` ``(f, 3)``: the inverse-variance mean of the lamps' ``q̂_lc / E_l``, with its covariance.
 
     The relative brightness ``E_l`` (first lamp = 1) is fitted by weighted least squares against the
-    running combination. Returns the pooled response, ``E`` ``(L,)`` and the weights ``(L, f, 3)``.
+    running combination. ``pooled`` (default: all): which responses enter ``Q``; every lamp's
+    ``E_l`` is fitted against it. Returns the pooled response, ``E`` ``(L,)`` and the weights
+    ``(L, f, 3)`` (zero for a lamp left out of ``Q``).
     """
     stacked = np.stack([response.response for response in responses])  # (L, f, 3)
     variances = np.stack(
@@ -1037,9 +1100,15 @@ def pool_responses(
         ]
     )
     variances = np.maximum(variances, 1e-300)
+    members = np.ones(len(responses)) if pooled is None else np.asarray(pooled, dtype=np.float64)
+    if members.shape != (len(responses),) or not np.any(members):
+        raise InputError(
+            f"{members.size} pooling flags for {len(responses)} responses, none set",
+            source="pooled",
+        )
     scales = np.ones(len(responses))
     for _ in range(iterations):
-        weights = scales[:, None, None] ** 2 / variances
+        weights = members[:, None, None] * scales[:, None, None] ** 2 / variances
         combined = np.sum(weights * stacked / scales[:, None, None], axis=0) / np.sum(
             weights, axis=0
         )
@@ -1050,13 +1119,15 @@ def pool_responses(
                     float(np.sum(stacked[index] * combined / variances[index])) / denominator
                 )
         scales = scales / scales[0]
-    weights = scales[:, None, None] ** 2 / variances
+    weights = members[:, None, None] * scales[:, None, None] ** 2 / variances
     weights = weights / np.sum(weights, axis=0)
     combined = np.sum(weights * stacked / scales[:, None, None], axis=0)
     size = combined.shape[0]
     covariance = np.zeros((3, size, size))
     for c in range(3):
         for index, response in enumerate(responses):
+            if not members[index]:
+                continue
             factor = weights[index, :, c] / scales[index]
             covariance[c] += factor[:, None] * response.covariance[c] * factor[None, :]
     used = np.any(np.stack([response.used_pixels for response in responses]), axis=0)
@@ -1071,14 +1142,16 @@ def combine_responses(
     coefficient_covariance: FloatArray,
     *,
     with_covariance: bool = True,
+    pooled: Sequence[bool] | None = None,
 ) -> SensitivitySolution:
-    """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q`` from :func:`pool_responses`.
+    """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q`` from :func:`pool_responses` (of the ``pooled``
+    responses, default all: :func:`sensitivity_lamps`).
 
     ``η⁻¹ = B_η c_η`` with ``c_η``'s covariance propagated along ``Q_c ⊙ B_η`` (``B_η`` may be the
     identity, for an efficiency known node by node).
     """
-    pooled, scales, _ = pool_responses(responses)
-    combined = pooled.response
+    pooled_response, scales, _ = pool_responses(responses, pooled=pooled)
+    combined = pooled_response.response
     size = inverse_efficiency.size
     sensitivity = combined * inverse_efficiency[:, None]
     if not with_covariance:
@@ -1087,7 +1160,9 @@ def combine_responses(
     for c in range(3):
         block = slice(c * size, (c + 1) * size)
         covariance[block, block] = (
-            inverse_efficiency[:, None] * pooled.covariance[c] * inverse_efficiency[None, :]
+            inverse_efficiency[:, None]
+            * pooled_response.covariance[c]
+            * inverse_efficiency[None, :]
         )
     jacobian = np.concatenate([combined[:, c][:, None] * efficiency_basis for c in range(3)])
     covariance += jacobian @ coefficient_covariance @ jacobian.T
@@ -1381,6 +1456,7 @@ def estimate_multilamp(
         if options.uncertainty == "noise"
         else efficiency.coefficient_covariance,
         with_covariance=options.uncertainty != "none",
+        pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
     )
     eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
@@ -1531,12 +1607,13 @@ def refine_grating(
     )
     eta_pair = efficiency_with_sigma(efficiency)
     results = []
-    for calibrated in each:
+    for calibrated, observations in zip(each, cameras, strict=True):
         solution = combine_responses(
             [lamp.response for lamp in calibrated.lamps],
             efficiency.inverse_efficiency,
             efficiency.inverse_jacobian,
             efficiency.coefficient_covariance,
+            pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
         )
         results.append(
             multilamp_result(
