@@ -762,7 +762,7 @@ def with_choice_spread(
 
 #: How ``"auto"`` chooses the grating model (recorded with the choice).
 CHOICE_RULE = (
-    "χ² of the direct equations at the rig's error level plus log(n) per effective parameter "
+    "χ² of the direct equations at the rig's error level plus max(2, log n) per effective parameter "
     "(BIC): each equation's σ floored at CHOICE_FLOOR of its signal, the free throughput "
     "profiled out there; between the physical families, their quasi-likelihood (QAIC) at the "
     "stated noise"
@@ -783,12 +783,21 @@ def choice_penalty(n_equations: int) -> float:
     44 blazed and 15 catalogue sheets (decision 0058). The free model's estimate, forced, was
     2–42 ×10⁻² on every one of those sheets.
 
+    Never less than ``C_L``'s 2: below ``e² ≈ 7.4`` equations ``log n`` would charge a parameter
+    *less* than ``C_L`` and favour the free model, the opposite of the reason above. The prior
+    solve judges 3 (LED only) or 6 (LED+FL) equations; charged ``log n``, two held-out cameras
+    took the free model (Sony ILCE-7SM3 LED+FL 1.58 → 13.8, Nikon D850 LED only 4.45 → 9.01
+    ×10⁻², found on the test split after the merge). With the floor those choices are main's
+    before decision 0058 again, and no validation figure of 0058 moves (its ``n`` is 15–18).
+
     Examples
     --------
     >>> round(choice_penalty(18), 3)
     2.89
+    >>> choice_penalty(3), choice_penalty(6)
+    (2.0, 2.0)
     """
-    return math.log(max(n_equations, 2))
+    return max(2.0, math.log(max(n_equations, 2)))
 
 
 def _fourier_judged_risk(
