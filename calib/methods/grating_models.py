@@ -55,7 +55,7 @@ choice (:func:`calib.methods._rerun`). Once a physical model wins, *which* famil
 stated noise (its quasi-likelihood, :func:`calib.methods.multilamp.family_weights`: two rigid
 families cannot bend to the rig's errors, and the precise equations tell them apart), and the
 other family's share of the evidence is carried in σ (decision 0053). Each parameter is now
-charged ``log n`` instead of 2 (Schwarz's criterion, :func:`calib.methods.multilamp.choice_penalty`:
+charged ``max(2, log n)`` instead of 2 (Schwarz's criterion, :func:`calib.methods.multilamp.choice_penalty`:
 the choice asks which η the sheet has, not how well the direct equations are predicted; decision
 0058).
 
