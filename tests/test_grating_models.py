@@ -468,8 +468,9 @@ def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
 
 
 def test_auto_charges_each_parameter_log_n_at_the_rig_s_error_level(basis):
-    """Decision 0058: the judged risks are χ² at the floor plus ``log n`` per (effective)
-    parameter, so the free model's ≈ 7 cost it 7 log n, not Mallows' 14."""
+    """Decision 0058: the judged risks are χ² at the floor plus ``max(2, log n)`` per (effective)
+    parameter — here 9 equations, so ``log 9`` — and the free model's ≈ 7 cost it 7 log n, not
+    Mallows' 14. (Below 8 equations the charge stays 2: ``choice_penalty``'s doctest.)"""
     from calib.methods.grating_models import profile_throughput
     from calib.methods.multilamp import choice_penalty, solve_efficiency
     from calib.methods.responses import DIRECT_GAIN_SIGMA, direct_rows
