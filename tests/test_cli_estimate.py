@@ -280,6 +280,7 @@ def test_images_end_to_end_with_json_summary(capture: Capture, tmp_path: Path) -
 def test_a_stated_line_density_reaches_the_mapping(capture: Capture, tmp_path: Path) -> None:
     out_dir = tmp_path / "out"
     argv = [*_image_args(capture), "--out", str(out_dir), "--quiet", "--grooves-per-mm", "300"]
+    argv.append("--no-report")  # the mapping is what is tested
     code, _, stderr = _call(argv)
     assert code == 0, stderr
     details = json.loads((out_dir / "result.json").read_text())["mapping"]["details"]
@@ -293,10 +294,11 @@ def test_an_existing_result_needs_force(capture: Capture, tmp_path: Path) -> Non
     code, _, stderr = _call([*_image_args(capture), "--out", str(out_dir), "--quiet"])
     assert code == 2 and "--force" in stderr
     code, stdout, stderr = _call(
-        [*_image_args(capture), "--out", str(out_dir), "--quiet", "--force"]
+        [*_image_args(capture), "--out", str(out_dir), "--quiet", "--force", "--no-report"]
     )
     assert code == 0 and stdout == "", stderr
     assert json.loads((out_dir / "result.json").read_text())["method"] == "prior"
+    assert not (out_dir / "report.html").exists()  # --no-report, as in rig estimate
 
 
 def test_bad_input_exits_2_with_one_line_naming_the_file(capture: Capture, tmp_path: Path) -> None:
@@ -425,6 +427,7 @@ def test_profile_input_with_direct_measurement(capture: Capture, tmp_path: Path)
         "--out",
         str(tmp_path / "out"),
         "--json",
+        "--no-report",
     ]
     code, stdout, stderr = _call(argv)
     assert code == 0, stderr
@@ -444,7 +447,7 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
         GratingEfficiency(wavelength, efficiency(wavelength), provenance={"source": "truth"}),
     )
     argv = [*_profile_args(tmp_path, capture, direct=False), "--grating", str(grating)]
-    code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json"])
+    code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json", "--no-report"])
     assert code == 0, stderr
     summary = json.loads(stdout)
     # and (decision 0044) the known-grating band was never validated, the file states no σ
@@ -503,7 +506,7 @@ def test_profile_input_as_rawproc_export(capture: Capture, tmp_path: Path) -> No
         for value in argv
     ]
     assert sum(value.endswith(".dat") for value in argv) == 2
-    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json"])
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json", "--no-report"])
     assert code == 0, stderr
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     estimated = np.column_stack([document["sensitivity"][c] for c in "RGB"])
@@ -512,7 +515,7 @@ def test_profile_input_as_rawproc_export(capture: Capture, tmp_path: Path) -> No
 
 def test_profile_in_wavelength_uses_the_identity_mapping(capture: Capture, tmp_path: Path) -> None:
     argv = _profile_args(tmp_path, capture, direct=True, axis="wavelength_nm")
-    code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json"])
+    code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json", "--no-report"])
     assert code == 0, stderr
     mapping = json.loads(stdout)["mapping"]
     assert (mapping["a"], mapping["b"], mapping["c"]) == (0.0, 1.0, 0.0)
@@ -562,7 +565,7 @@ def test_images_and_profiles_do_not_mix(capture: Capture, tmp_path: Path) -> Non
 def test_the_prior_weight_rule_is_chosen_on_the_command_line(
     capture: Capture, tmp_path: Path
 ) -> None:
-    argv = [*_profile_args(tmp_path, capture, direct=True), "--method", "multilamp"]
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--method", "multilamp", "--no-report"]
     code, _, stderr = _call([*argv, "--weight-rule", "typicality", "--out", str(tmp_path / "t")])
     assert code == 0, stderr
     diagnostics = json.loads((tmp_path / "t" / "result.json").read_text())["diagnostics"]
@@ -582,7 +585,7 @@ def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     capture: Capture, tmp_path: Path
 ) -> None:
     first = tmp_path / "first"
-    argv = [*_profile_args(tmp_path, capture, direct=True), "--method", "multilamp"]
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--method", "multilamp", "--no-report"]
     code, stdout, stderr = _call([*argv, "--out", str(first), "--json"])
     assert code == 0, stderr
     assert json.loads(stdout)["method"] == "multilamp"
@@ -594,7 +597,7 @@ def test_multilamp_writes_a_grating_file_that_a_later_estimate_reuses(
     # The next camera (here: the same one) from profiles alone, through the saved grating.
     second = tmp_path / "second"
     argv = [*_profile_args(tmp_path, capture, direct=False), "--method", "multilamp"]
-    argv += ["--grating", str(first / "grating.json")]
+    argv += ["--grating", str(first / "grating.json"), "--no-report"]
     code, stdout, stderr = _call([*argv, "--out", str(second), "--json"])
     assert code == 0, stderr
     assert json.loads(stdout)["method"] == "known-grating"  # s = q̂ / η through the file
@@ -707,7 +710,14 @@ def test_exclude_camera_keeps_the_camera_out_of_the_default_basis(
     monkeypatch.delenv("SPECTRAL_RIG_DATA", raising=False)
     monkeypatch.setattr("calib.core.datasets.default_data_dir", lambda: tmp_path / "no-user-cache")
     argv = [*_profile_args(tmp_path, capture, direct=True), "--out", str(tmp_path / "out")]
-    argv += ["--exclude-camera", "Nikon D5100", "--exclude-camera", "sony*", "--json"]
+    argv += [
+        "--exclude-camera",
+        "Nikon D5100",
+        "--exclude-camera",
+        "sony*",
+        "--json",
+        "--no-report",
+    ]
     code, stdout, stderr = _call(argv)
     assert code == 0, stderr
     basis = json.loads(stdout)["basis"]

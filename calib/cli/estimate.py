@@ -37,6 +37,7 @@ from calib.cli.options import (
     GroovesPerMmOption,
     JsonOption,
     MethodOption,
+    NoReportOption,
     PixelPitchOption,
     QuietOption,
     WeightRuleOption,
@@ -77,6 +78,8 @@ class EstimateRequest:
         cameras, the command line).
     force, quiet, json_output
         The flags.
+    report
+        ``--report/--no-report``: write ``report.html`` and its plots (as ``rig estimate``).
     """
 
     lamps: tuple[LampInput, ...]
@@ -85,6 +88,7 @@ class EstimateRequest:
     force: bool = False
     quiet: bool = False
     json_output: bool = False
+    report: bool = True
 
 
 def summary(outcome: OfflineOutcome) -> dict[str, Any]:
@@ -192,6 +196,7 @@ def estimate_request(
     force: bool = False,
     quiet: bool = False,
     json_output: bool = False,
+    no_report: bool = False,
 ) -> EstimateRequest:
     """The request of a parsed ``calib estimate`` (its options, and the lamp groups in ``ctx``)."""
     from calib.methods.multilamp import weight_rule_option
@@ -216,6 +221,7 @@ def estimate_request(
         force=force,
         quiet=quiet,
         json_output=json_output,
+        report=not no_report,
     )
 
 
@@ -244,11 +250,17 @@ def run_request(request: EstimateRequest) -> OfflineOutcome:
 
     check_out_dir(request.out_dir, request.force)
     if request.quiet or not RichFrameProgress.wanted(sys.stderr):
-        outcome = run_offline(request.lamps, request.out_dir, request.settings)
+        outcome = run_offline(
+            request.lamps, request.out_dir, request.settings, report=request.report
+        )
     else:
         with RichFrameProgress(sys.stderr) as progress:
             outcome = run_offline(
-                request.lamps, request.out_dir, request.settings, progress=progress
+                request.lamps,
+                request.out_dir,
+                request.settings,
+                progress=progress,
+                report=request.report,
             )
     for warning in outcome.estimate.warnings:
         warn("calib", warning)
@@ -324,6 +336,7 @@ def register(app: typer.Typer) -> None:
         force: ForceOption = False,
         quiet: QuietOption = False,
         json_output: JsonOption = False,
+        no_report: NoReportOption = False,
     ) -> None:
         try:
             request = estimate_request(
@@ -343,6 +356,7 @@ def register(app: typer.Typer) -> None:
                 force=force,
                 quiet=quiet,
                 json_output=json_output,
+                no_report=no_report,
             )
             run_request(request)
         except Exception as exc:

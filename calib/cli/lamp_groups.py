@@ -272,7 +272,12 @@ class LampGroupsCommand(Command):
             ctx.meta[LAMP_GROUPS] = []
             shown = [token for token in args if token in (*ctx.help_option_names, "--version")]
             return super().parse_args(ctx, shown[:1])
-        own = [name for parameter in self.params for name in parameter.opts]
+        # a flag pair's "--no-…" half is a secondary name (``--report/--no-report``)
+        own = [
+            name
+            for parameter in self.params
+            for name in (*parameter.opts, *parameter.secondary_opts)
+        ]
         groups, rest = split_lamp_groups(args, own)
         ctx.meta[LAMP_GROUPS] = groups
         return super().parse_args(ctx, rest)

@@ -226,3 +226,8 @@ SummaryOption = Annotated[
 ReportOption = Annotated[
     bool, typer.Option("--report/--no-report", help="Write report.html and its plots.")
 ]
+#: ``--no-report`` alone (the report is the default), for commands whose option column has no room
+#: for a second flag name at 80 columns (``calib estimate``); the same name as ``rig estimate``'s.
+NoReportOption = Annotated[
+    bool, typer.Option("--no-report", help="Do not write report.html and its plots.")
+]

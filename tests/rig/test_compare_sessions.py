@@ -108,7 +108,7 @@ def test_compare_scores_the_curve_rig_demo_scores(
 
     rows, _ = _compare([twin_session], tmp_path / "cmp", monkeypatch, "--method", "prior")
     basis = twin_basis("Nikon 5100 (NPL)")
-    estimate_session(twin_session, tmp_path / "est", settings={"basis": basis})
+    estimate_session(twin_session, tmp_path / "est", settings={"basis": basis}, report=False)
     demo = sensitivity_error(tmp_path / "est" / "sensitivity.csv", twin_session / TRUTH_FILE_NAME)
     assert float(rows["prior (all lamps)"]["relative_error"]) == pytest.approx(demo, rel=1e-5)
 

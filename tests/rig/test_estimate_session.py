@@ -217,7 +217,9 @@ def test_a_symlinked_frame_is_refused(capture: Capture, tmp_path: Path) -> None:
 
 def test_an_interrupted_session_uses_the_lamps_it_has(capture: Capture, tmp_path: Path) -> None:
     session = write_session(tmp_path, capture, lamps=("LED",), darks=False, complete=False)
-    outcome = estimate_session(session, tmp_path / "out", settings={"basis": capture.basis})
+    outcome = estimate_session(
+        session, tmp_path / "out", settings={"basis": capture.basis}, report=False
+    )
     warnings = outcome.estimate.warnings
     assert any("session is interrupted" in w for w in warnings)
     assert any("lamp 'FL' left out" in w for w in warnings)
@@ -239,7 +241,9 @@ def test_incomplete_dark_frames_are_left_out(capture: Capture, tmp_path: Path) -
         record["seq"] = seq
         kept[seq] = json.dumps(record)
     log.write_text("\n".join(kept) + "\n")
-    outcome = estimate_session(session, tmp_path / "out", settings={"basis": capture.basis})
+    outcome = estimate_session(
+        session, tmp_path / "out", settings={"basis": capture.basis}, report=False
+    )
     assert any("dark frames left out" in w for w in outcome.estimate.warnings)
     assert all(not frame["dark_frames"] for frame in outcome.estimate.provenance.lamps[0]["frames"])
 
@@ -288,7 +292,7 @@ def test_rig_estimate_takes_the_multilamp_weight_rule(
     )
     out = tmp_path / "out"
     arguments = ["estimate", str(session), "--out", str(out), "-q", "--weight-rule", "typicality"]
-    result = CliRunner().invoke(app, [*arguments, "--method", "multilamp"])
+    result = CliRunner().invoke(app, [*arguments, "--method", "multilamp", "--no-report"])
     assert result.exit_code == 0, result.output
     diagnostics = json.loads((out / "result.json").read_text())["diagnostics"]
     assert diagnostics["prior_weight_rule"] == "typicality"
@@ -383,7 +387,7 @@ def test_calib_estimate_on_the_sessions_own_files_matches_rig_estimate(
         "calib.pipeline.estimate.default_camera_basis", lambda *a, **k: capture.basis
     )
     session = write_session(tmp_path, capture, bandwidth_nm=2.0)
-    through_rig = estimate_session(session, settings={"basis": capture.basis})
+    through_rig = estimate_session(session, settings={"basis": capture.basis}, report=False)
     argv: list[str] = []
     for lamp in through_rig.estimate.provenance.lamps:
         name = lamp["name"]
@@ -393,7 +397,7 @@ def test_calib_estimate_on_the_sessions_own_files_matches_rig_estimate(
         argv += ["--lamp", name, "--kind", lamp["kind"], "--images", *map(str, frames)]
         argv += ["--dark", *map(str, darks), "--spectrum", *map(str, spectra)]
     with pytest.raises(SystemExit) as exited:
-        main(["estimate", *argv, "--out", str(tmp_path / "calib"), "-q", "--json"])
+        main(["estimate", *argv, "--out", str(tmp_path / "calib"), "-q", "--json", "--no-report"])
     assert exited.value.code == 0
     document = json.loads((tmp_path / "calib" / "result.json").read_text())
     from_calib = np.stack([document["sensitivity"][c] for c in "RGB"], axis=1)

@@ -115,7 +115,7 @@ class Sensitivity:
 
     @classmethod
     def of(cls, session: Path, out: Path) -> Sensitivity:
-        estimate_session(session, out)
+        estimate_session(session, out, report=False)
         path = out / "sensitivity.csv"
         values = read_camera_csv(path).values
         return cls(hashlib.sha256(path.read_bytes()).hexdigest(), values)

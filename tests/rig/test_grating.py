@@ -106,7 +106,14 @@ def test_rig_grating_command(
     before = out.read_bytes()
     # The file is what rig estimate --grating takes: the sensitivity from the profiles and η.
     estimated = tmp_path / "estimate"
-    arguments_estimate = ["estimate", str(sessions[1]), "--method", "multilamp", "-q"]
+    arguments_estimate = [
+        "estimate",
+        str(sessions[1]),
+        "--method",
+        "multilamp",
+        "-q",
+        "--no-report",
+    ]
     result = CliRunner().invoke(
         app, [*arguments_estimate, "--grating", str(out), "--out", str(estimated)]
     )
