@@ -13,12 +13,12 @@ from typer.testing import CliRunner
 
 from calib.core.errors import InputError
 from calib.core.formats.rgb_csv import read_camera_csv
-from calib.core.grating_file import read_grating_file
+from calib.core.grating_file import GratingEfficiency, read_grating_file
 from calib.core.metrics import relative_error
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import random_efficiency, random_mapping, render_lamps
 from rig.cli import app, main
-from rig.grating import GratingOutcome, _with_direct, median_relative_sigma, refine_session_grating
+from rig.grating import _with_direct, median_relative_sigma, refine_session_grating
 from tests.rendered_capture import Capture, efficiency, render_capture, shared_capture
 from tests.rig.test_estimate_session import write_session
 from tests.synthetic_cameras import as_spectrum
@@ -53,41 +53,14 @@ def sessions(
     return write_session(root, capture), write_session(root, other)
 
 
-def _efficiency_error(outcome: GratingOutcome) -> float:
+def _efficiency_error(grating: GratingEfficiency) -> float:
     """RMS difference of the file's η from the rendered grating's, both with maximum 1."""
     truth = efficiency(DEFAULT_GRID.wavelength_nm)
-    estimate = np.asarray(outcome.grating.efficiency)
+    estimate = np.asarray(grating.efficiency)
     return float(np.sqrt(np.mean((estimate / estimate.max() - truth / truth.max()) ** 2)))
 
 
-def test_two_cameras_refine_one_grating(
-    sessions: tuple[Path, Path], capture: Capture, tmp_path: Path
-) -> None:
-    singles = [
-        refine_session_grating([session], tmp_path / f"{index}.json", basis=capture.basis)
-        for index, session in enumerate(sessions)
-    ]
-    pooled = refine_session_grating(
-        sessions, tmp_path / "pooled.json", basis=capture.basis, description="300 l/mm sheet"
-    )
-    # Pooling the two cameras' direct equations narrows η's band below either camera's alone and
-    # lands nearer the truth than the worse of them (a flat grating would be 35 % off).
-    spread = median_relative_sigma(pooled.grating)
-    assert spread is not None
-    assert all(spread < (median_relative_sigma(single.grating) or 0.0) for single in singles)
-    assert _efficiency_error(pooled) < 0.05
-    assert _efficiency_error(pooled) < max(_efficiency_error(single) for single in singles)
-    # The file reads back and says where it came from.
-    written = read_grating_file(pooled.path)
-    assert np.allclose(written.efficiency / written.efficiency.max(), pooled.grating.efficiency)
-    recorded = written.provenance["sessions"]
-    assert [entry["directory"] for entry in recorded] == [path.name for path in sessions]
-    assert all(entry["lamps"] == ["LED", "FL"] for entry in recorded)
-    assert written.geometry["description"] == "300 l/mm sheet"
-    assert len(written.geometry["mappings"]) == 2
-
-
-def test_rig_grating_command(
+def test_two_cameras_refine_one_grating_through_rig_grating(
     sessions: tuple[Path, Path],
     capture: Capture,
     other: Capture,
@@ -95,15 +68,36 @@ def test_rig_grating_command(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
+    """One test (the pooled refinement, the suite's costliest step here, runs once): `rig grating`
+    pools two cameras' sessions; each camera alone through the Python API; the file the command
+    wrote is what `rig estimate --grating` takes; the command's refusals."""
     for module in ("rig.grating", "calib.pipeline.estimate"):
         monkeypatch.setattr(f"{module}.default_camera_basis", lambda *a, **k: capture.basis)
     out = tmp_path / "sheet.json"
     arguments = ["grating", *map(str, sessions), "--out", str(out)]
-    result = CliRunner().invoke(app, arguments)
+    result = CliRunner().invoke(app, [*arguments, "--description", "300 l/mm sheet"])
     assert result.exit_code == 0, result.output
     assert f"grating: {out} (median σ" in result.output
     assert f"{sessions[1].name}: camera unknown, lamps LED, FL" in result.output
     before = out.read_bytes()
+    pooled = read_grating_file(out)
+    singles = [
+        refine_session_grating([session], tmp_path / f"{index}.json", basis=capture.basis).grating
+        for index, session in enumerate(sessions)
+    ]
+    # Pooling the two cameras' direct equations narrows η's band below either camera's alone and
+    # lands nearer the truth than the worse of them (a flat grating would be 35 % off).
+    spread = median_relative_sigma(pooled)
+    assert spread is not None
+    assert all(spread < (median_relative_sigma(single) or 0.0) for single in singles)
+    assert _efficiency_error(pooled) < 0.05
+    assert _efficiency_error(pooled) < max(_efficiency_error(single) for single in singles)
+    # The file says where it came from.
+    recorded = pooled.provenance["sessions"]
+    assert [entry["directory"] for entry in recorded] == [path.name for path in sessions]
+    assert all(entry["lamps"] == ["LED", "FL"] for entry in recorded)
+    assert pooled.geometry["description"] == "300 l/mm sheet"
+    assert len(pooled.geometry["mappings"]) == 2
     # The file is what rig estimate --grating takes: the sensitivity from the profiles and η.
     estimated = tmp_path / "estimate"
     arguments_estimate = [
