@@ -448,6 +448,11 @@ def _dof(solution: Solution) -> int:
     return max(solution.residual.size - solution.x.size, 1)
 
 
+def _behind(solution: Solution, leader: Solution) -> float:
+    """Tempered Δχ² of ``solution`` behind ``leader`` (by the leader's reduced χ²)."""
+    return (solution.cost - leader.cost) / max(leader.cost / _dof(leader), 1.0)
+
+
 def _distinct(
     solutions: Sequence[tuple[Family, Solution]], pixel_range: tuple[float, float], count: int
 ) -> list[tuple[Family, Solution]]:
@@ -885,6 +890,7 @@ def search_profiles(
             )
         return replace(built[key], family=family)
 
+    broadband_only = all(lamp.kind != "fluorescent" for lamp in lamps)
     # 1. Scan (binned, stiff prior, tempered noise); every local minimum of the grid is refined
     # on the scan's own coarse profile (cheap), the distinct results once more on a finer one.
     scanned: list[tuple[Family, Solution]] = []
@@ -939,7 +945,11 @@ def search_profiles(
                 break
         for point in kept:
             solution = refining.refine(point, max_iterations=6, tolerance=1e-4, rounds=1)
-            if isinstance(family, QuadraticFamily):
+            leader = min((s for _, s in scanned), key=lambda s: s.cost, default=solution)
+            # With a line lamp, a minimum far behind the best one so far is no answer: its
+            # local scan is skipped (it stays a candidate as refined).
+            far_behind = not broadband_only and _behind(solution, leader) > HOPELESS_DELTA_CHI2
+            if isinstance(family, QuadraticFamily) and not far_behind:
                 # Finer around the refined point: a minimum a grid step away (the ends 4 nm
                 # apart) may hold the lower basin, which the descent from the grid point missed.
                 local, _ = _quadratic_points(family.mapping(solution.x), family, LOCAL_SCAN)
@@ -982,17 +992,12 @@ def search_profiles(
         outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
         return outcome, count + outcome.evaluations
 
-    def behind(solution: Solution, leader: Solution) -> float:
-        """Tempered Δχ² of ``solution`` behind ``leader`` (by the leader's reduced χ²)."""
-        return (solution.cost - leader.cost) / max(leader.cost / _dof(leader), 1.0)
-
-    broadband_only = all(lamp.kind != "fluorescent" for lamp in lamps)
     decided: list[tuple[Family, Solution]] = []
     hopeless: list[tuple[Family, Solution]] = []
     for family, solution in basins:
         # Lines pin the mapping: a basin far behind the scan's best is only costed in the
         # deciding stage (below). The first basin is the scan's best, never hopeless.
-        if not broadband_only and behind(solution, basins[0][1]) > HOPELESS_DELTA_CHI2:
+        if not broadband_only and _behind(solution, basins[0][1]) > HOPELESS_DELTA_CHI2:
             hopeless.append((family, solution))
             continue
         outcome, count = decide(family, solution)
@@ -1006,7 +1011,7 @@ def search_profiles(
         outcome = replace(solution, cost=float(deciding_stage(family).costs(solution.x[None])[0]))
         evaluations += 1
         if not (
-            behind(outcome, leading) > HOPELESS_DELTA_CHI2
+            _behind(outcome, leading) > HOPELESS_DELTA_CHI2
             and _spans_grid(leading_family.mapping(leading.x), pixel_range, grid)
         ):
             outcome, count = decide(family, solution)
