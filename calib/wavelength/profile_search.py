@@ -108,10 +108,10 @@ UNKNOWN_FOCAL_LENGTHS_PX = tuple(float(f) for f in np.geomspace(800.0, 40000.0, 
 SCAN_MINIMA = 4
 MAX_BASINS = 3
 #: With a line lamp, a scan basin whose refined χ² is this far behind the best one (tempered by
-#: the best one's reduced χ²) is not refined again in the deciding stage, only costed there. On
-#: the bench scenes of the 44 training cameras (leave-one-out basis, LED + FL2) such basins were
-#: 1 378–19 825 behind after the deciding fit, and the one basin that came close (3.5) started
-#: 92 behind (decision 0065).
+#: the best one's reduced χ²) gets no more descents, only its cost in the deciding stage. On the
+#: speed bench's LED + FL2 scenes of 35 training cameras (leave-one-out basis) the 59 basins
+#: beyond it (from 1 571) all stayed ≥ 1 566 behind after the deciding fit; the closest calls
+#: started far lower (92 → 3.5, 308 → 43). Decision 0065.
 HOPELESS_DELTA_CHI2 = 1000.0
 #: A competing basin whose tempered Δχ² is below this is an ambiguity: warned about, carried in the
 #: result. Chosen on validation cameras only — leave-one-camera-out over the 44 training cameras,
