@@ -96,6 +96,30 @@ def test_fluorescent_lines_and_led_jointly(prior, camera, nikon, which):
     assert _mapping_re(mapping) < (2e-3 if which == "canon" else 1e-2)
 
 
+def test_basins_far_behind_lines_are_costed_not_refined(prior, camera, monkeypatch):
+    """Decision 0065: with a line lamp, scan basins far behind the best are only costed in the
+    deciding stage — the same answer and the same candidates as refining them, fewer
+    evaluations, and those candidates are still far behind."""
+    lamps = [_render("FL2", camera, 0.01, kind="fluorescent"), _render("D65", camera, 0.01)]
+    pruned = profile_search.search_profiles(lamps, prior, DEFAULT_GRID)
+    threshold = profile_search.HOPELESS_DELTA_CHI2
+    monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", np.inf)
+    refined = profile_search.search_profiles(lamps, prior, DEFAULT_GRID)
+    pixel = np.arange(800.0)
+    np.testing.assert_array_equal(
+        pruned.mapping.wavelength_nm(pixel), refined.mapping.wavelength_nm(pixel)
+    )
+    assert pruned.mapping.wavelength_rms_nm == refined.mapping.wavelength_rms_nm
+    assert len(pruned.candidates) == len(refined.candidates) == 3
+    assert pruned.details["evaluations"] < refined.details["evaluations"]
+    # The close runner-up (Δχ² 29 here, near the ambiguity threshold) is refined as before; the
+    # far one is costed where the scan left it: its Δχ² an upper bound, still far behind.
+    close = [c.delta_chi2 for c in refined.candidates if c.delta_chi2 < threshold]
+    assert [c.delta_chi2 for c in pruned.candidates[: len(close)]] == close
+    far = zip(pruned.candidates[len(close) :], refined.candidates[len(close) :], strict=True)
+    assert all(kept.delta_chi2 >= full.delta_chi2 > threshold for kept, full in far)
+
+
 def test_a_start_far_off_is_corrected_by_the_search(prior, camera):
     """A given start 8 nm off at both ends (a rough geometry guess) still lands on the truth."""
     start = QuadraticMapping(TRUTH.a, TRUTH.b, TRUTH.c + 8.0, pixel_range=TRUTH.pixel_range)

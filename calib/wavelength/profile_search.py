@@ -107,6 +107,12 @@ UNKNOWN_FOCAL_LENGTHS_PX = tuple(float(f) for f in np.geomspace(800.0, 40000.0, 
 #: somewhere) carried to the deciding stage.
 SCAN_MINIMA = 4
 MAX_BASINS = 3
+#: With a line lamp, a scan basin whose refined χ² is this far behind the best one (tempered by
+#: the best one's reduced χ²) gets no more descents, only its cost in the deciding stage. On the
+#: speed bench's LED + FL2 scenes of 35 training cameras (leave-one-out basis) the 59 basins
+#: beyond it (from 1 571) all stayed ≥ 1 566 behind after the deciding fit; the closest calls
+#: started far lower (92 → 3.5, 308 → 43). Decision 0065.
+HOPELESS_DELTA_CHI2 = 1000.0
 #: A competing basin whose tempered Δχ² is below this is an ambiguity: warned about, carried in the
 #: result. Chosen on validation cameras only — leave-one-camera-out over the 44 training cameras,
 #: ``bench/wavelength_loco.py``, 264 scenes (paper/spot/rig geometry × LED-B3/D65): 25 warns on
@@ -435,6 +441,16 @@ def binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
 
 
 # ------------------------------------------------------------------------------- the search
+
+
+def _dof(solution: Solution) -> int:
+    """Residual rows less parameters (at least 1): what a fit's χ² is reduced by."""
+    return max(solution.residual.size - solution.x.size, 1)
+
+
+def _behind(solution: Solution, leader: Solution) -> float:
+    """Tempered Δχ² of ``solution`` behind ``leader`` (by the leader's reduced χ²)."""
+    return (solution.cost - leader.cost) / max(leader.cost / _dof(leader), 1.0)
 
 
 def _distinct(
@@ -874,6 +890,7 @@ def search_profiles(
             )
         return replace(built[key], family=family)
 
+    broadband_only = all(lamp.kind != "fluorescent" for lamp in lamps)
     # 1. Scan (binned, stiff prior, tempered noise); every local minimum of the grid is refined
     # on the scan's own coarse profile (cheap), the distinct results once more on a finer one.
     scanned: list[tuple[Family, Solution]] = []
@@ -928,7 +945,11 @@ def search_profiles(
                 break
         for point in kept:
             solution = refining.refine(point, max_iterations=6, tolerance=1e-4, rounds=1)
-            if isinstance(family, QuadraticFamily):
+            leader = min((s for _, s in scanned), key=lambda s: s.cost, default=solution)
+            # With a line lamp, a minimum far behind the best one so far is no answer: its
+            # local scan is skipped (it stays a candidate as refined).
+            far_behind = not broadband_only and _behind(solution, leader) > HOPELESS_DELTA_CHI2
+            if isinstance(family, QuadraticFamily) and not far_behind:
                 # Finer around the refined point: a minimum a grid step away (the ends 4 nm
                 # apart) may hold the lower basin, which the descent from the grid point missed.
                 local, _ = _quadratic_points(family.mapping(solution.x), family, LOCAL_SCAN)
@@ -947,26 +968,54 @@ def search_profiles(
     basins = _distinct(refined, pixel_range, MAX_BASINS)
 
     # 2. Decide between the basins on a finer profile with a flexible response.
-    decided: list[tuple[Family, Solution]] = []
-    for family, solution in basins:
+    def deciding_stage(family: Family) -> StageFit:
         # The quadratic family decides with a flexible response (a broadband lamp's aliases: a
         # camera unlike the prior fits the wrong one better under the stiff prior); the physical
         # family's 0th order already rules out the shifts that the flexibility guards against,
         # and there the stiff prior is what tells a stretched rainbow from the right one.
         flexibility = local_flexibility if isinstance(family, QuadraticFamily) else FLEXIBILITY
-        deciding = stage(family, REFINE_BIN_NM, COARSE_NODES_NM, flexibility, 0.0)
+        return stage(family, REFINE_BIN_NM, COARSE_NODES_NM, flexibility, 0.0)
+
+    def decide(family: Family, solution: Solution) -> tuple[Solution, int]:
+        deciding = deciding_stage(family)
         start = solution.x
+        count = 0
         if isinstance(family, QuadraticFamily):
             # The flexible fit's basins are narrower than the stiff one's: scan its ends finely
             # around the stiff solution (one batched call) before descending.
             local, _ = _quadratic_points(family.mapping(start), family, LOCAL_SCAN)
             local_costs = deciding.costs(local)
-            evaluations += local.shape[0]
+            count += local.shape[0]
             start = local[int(np.argmin(local_costs))]
         outcome = deciding.refine(start, max_iterations=10, tolerance=1e-5, rounds=1)
         # Compared at their own prior scale (what a second round held there would report).
         outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
-        evaluations += outcome.evaluations
+        return outcome, count + outcome.evaluations
+
+    decided: list[tuple[Family, Solution]] = []
+    hopeless: list[tuple[Family, Solution]] = []
+    for family, solution in basins:
+        # Lines pin the mapping: a basin far behind the scan's best is only costed in the
+        # deciding stage (below). The first basin is the scan's best, never hopeless.
+        if not broadband_only and _behind(solution, basins[0][1]) > HOPELESS_DELTA_CHI2:
+            hopeless.append((family, solution))
+            continue
+        outcome, count = decide(family, solution)
+        evaluations += count
+        decided.append((family, outcome))
+    for family, solution in hopeless:
+        # Costed where the scan's refinement left it (a candidate in the result); refined as the
+        # others only when it is not still that far behind the deciding stage's best, or when
+        # that best falls short of the grid (the answer is then chosen among the rest).
+        leading_family, leading = min(decided, key=lambda item: item[1].cost)
+        outcome = replace(solution, cost=float(deciding_stage(family).costs(solution.x[None])[0]))
+        evaluations += 1
+        if not (
+            _behind(outcome, leading) > HOPELESS_DELTA_CHI2
+            and _spans_grid(leading_family.mapping(leading.x), pixel_range, grid)
+        ):
+            outcome, count = decide(family, solution)
+            evaluations += count
         decided.append((family, outcome))
     # Basins that the finer fit merged are one.
     decided = _distinct(decided, pixel_range, MAX_BASINS)
@@ -982,7 +1031,6 @@ def search_profiles(
     exact = family.mapping(final.x)
     # A broadband lamp alone leaves the mapping to the camera prior's shape: a camera unlike the
     # prior's mean pulls it by what the curvature cannot see (lines pin it: no such term).
-    broadband_only = all(lamp.kind != "fluorescent" for lamp in lamps)
     edge = red_edge_nm(measured[0], exact, prior) if broadband_only and physical else None
     pulled: ExactMapping | None = None
     if (
@@ -1032,8 +1080,7 @@ def search_profiles(
     # Ambiguity: every basin's profile likelihood, tempered by the misfit of the best one.
     rows = max(final.residual.size - final.x.size, 1)
     best_cost = decided[0][1].cost
-    deciding_rows = max(decided[0][1].residual.size - decided[0][1].x.size, 1)
-    temper = max(best_cost / deciding_rows, 1.0)
+    temper = max(best_cost / _dof(decided[0][1]), 1.0)
     probe = np.linspace(pixel_range[0], pixel_range[1], 64)
     exact_probe = exact.wavelength_nm(probe)
     unmatched = _unmatched_deltas(

@@ -468,8 +468,7 @@ class ResponseModel:
 
     def _band_values(self, edges_nm: FloatArray) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
-        low = windows.min(axis=2)
-        high = windows.max(axis=2)
+        low, high = _extremes(windows)
         support_lo, support_hi = self.layout.support
         first = np.searchsorted(support_hi, low, side="right")
         last = np.searchsorted(support_lo, high, side="left") - 1
@@ -501,12 +500,16 @@ class ResponseModel:
         padded = edges_nm[:, np.clip(np.arange(n + 2 * half + 1) - half, 0, n)]  # (K, n + L)
         # The columns an edge serves: those of the pixels n − L … n whose window holds it.
         apart = np.full((batch, count - 1), size, dtype=np.intp)
-        lowest = np.lib.stride_tricks.sliding_window_view(
-            np.concatenate([apart, first, apart], axis=1), count, axis=1
-        ).min(axis=2)  # (K, n + L)
-        highest = np.lib.stride_tricks.sliding_window_view(
-            np.concatenate([-apart, first, -apart], axis=1), count, axis=1
-        ).max(axis=2)
+        lowest, _ = _extremes(
+            np.lib.stride_tricks.sliding_window_view(
+                np.concatenate([apart, first, apart], axis=1), count, axis=1
+            )
+        )  # (K, n + L)
+        _, highest = _extremes(
+            np.lib.stride_tricks.sliding_window_view(
+                np.concatenate([-apart, first, -apart], axis=1), count, axis=1
+            )
+        )
         span = int(np.max(highest - lowest)) + width
         table, _ = self.columns.evaluate(
             padded[..., None], np.minimum(lowest[..., None] + np.arange(span), size - 1)
@@ -840,6 +843,24 @@ def _sliding(padded: FloatArray, count: int) -> FloatArray:
     )
     view.flags.writeable = False
     return view
+
+
+def _extremes(windows: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
+    """The minimum and maximum over the last axis of a window view ``(…, L + 1)``, taken slice
+    by slice: the same values as ``min``/``max(axis=-1)``, whose reduction over a short strided
+    axis cost 20–30× more (0065).
+
+    Examples
+    --------
+    >>> windows = _sliding(np.array([[3.0, 1.0, 2.0, 5.0]]), 2)
+    >>> _extremes(windows)
+    (array([[1., 1., 2.]]), array([[3., 2., 5.]]))
+    """
+    low = high = windows[..., 0]
+    for index in range(1, windows.shape[-1]):
+        low = np.minimum(low, windows[..., index])
+        high = np.maximum(high, windows[..., index])
+    return low, high
 
 
 def _dense(flat: IntArray, values: FloatArray, shape: tuple[int, ...]) -> FloatArray:
