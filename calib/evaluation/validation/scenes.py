@@ -176,6 +176,24 @@ def draw_geometry(
     )
 
 
+#: How far a lens is racked out to focus, as a fraction of its nominal focal length: the image
+#: distance a scene draws is ``F (1 + e)`` with ``e`` uniform in this range, while EXIF states ``F``.
+FOCUS_EXTENSION_RANGE: tuple[float, float] = (0.0, 0.08)
+
+
+def exif_optics(geometry: SceneGeometry, rng: np.random.Generator) -> dict[str, float]:
+    """The optics a RAW capture of ``geometry`` records, as an observation's ``"optics"`` metadata.
+
+    The lens reports its nominal focal length (the drawn image distance less a focus extension of
+    :data:`FOCUS_EXTENSION_RANGE`, rounded to 1 mm, as EXIF states it); the body its pixel pitch
+    (EXIF focal-plane resolution). :func:`calib.wavelength.rig_prior.optics_from_observation`
+    reads it as it reads what ``calib estimate`` takes from a RAW file.
+    """
+    extension = float(rng.uniform(*FOCUS_EXTENSION_RANGE))
+    focal_mm = float(max(round(geometry.focal_length_mm / (1.0 + extension)), 1.0))
+    return {"focal_length_mm": focal_mm, "pixel_pitch_um": geometry.pixel_pitch_um}
+
+
 @dataclass(frozen=True)
 class LampDraw:
     """One lamp's realised errors: drift, the bracket's start and its frames' exposure errors."""
