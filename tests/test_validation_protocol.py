@@ -405,10 +405,14 @@ def test_scenes_carry_the_optics_a_raw_file_records_and_the_no_exif_row_drops_th
     scene = render_task_scene(task)
     drawn = scene.plan.geometry
     optics = scene.observations["LED-B3"].metadata["optics"]
-    # EXIF: the nominal focal length (the drawn image distance less 0–8 % focus, whole mm).
-    assert optics["focal_length_mm"] == round(optics["focal_length_mm"])
-    assert drawn.focal_length_mm / 1.08 - 0.5 <= optics["focal_length_mm"]
-    assert optics["focal_length_mm"] <= drawn.focal_length_mm + 0.5
+    # EXIF: the nominal focal length (the drawn image distance less 0–8 % focus, to 0.1 mm
+    # below 10 mm, else whole mm).
+    step = 0.1 if optics["focal_length_mm"] < 10.0 else 1.0
+    assert optics["focal_length_mm"] == pytest.approx(
+        round(optics["focal_length_mm"] / step) * step
+    )
+    assert drawn.focal_length_mm / 1.08 - step / 2 <= optics["focal_length_mm"]
+    assert optics["focal_length_mm"] <= drawn.focal_length_mm + step / 2
     assert optics["pixel_pitch_um"] == drawn.pixel_pitch_um
     (stripped,) = variant_observations(scene, no_exif)
     kept = {k: v for k, v in scene.observations["LED-B3"].metadata.items() if k != "optics"}
