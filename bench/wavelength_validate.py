@@ -69,13 +69,23 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
     variant_observations,
 )
-from calib.evaluation.validation.scenes import RenderedScene, render_scene
+from calib.evaluation.validation.scenes import RenderedScene, exif_optics, render_scene
 from calib.evaluation.validation.splits import PREDICTION, load_splits
 from calib.methods import estimate
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.rig_prior import rig_geometry
 
 LED = "LED-B3"
+
+
+def with_optics(scene: RenderedScene, rng: np.random.Generator) -> dict[str, LampObservation]:
+    """A scene's observations with the optics a RAW file records (:func:`exif_optics`), for
+    benches that render scenes outside the protocol (``bench/grating_physics.py``)."""
+    optics = exif_optics(scene.plan.geometry, rng)
+    return {
+        name: replace(obs, metadata={**dict(obs.metadata), "optics": optics})
+        for name, obs in scene.observations.items()
+    }
 
 
 def mapping_errors(

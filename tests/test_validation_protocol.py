@@ -405,6 +405,7 @@ def test_scenes_carry_the_optics_a_raw_file_records_and_the_no_exif_row_drops_th
     scene = render_task_scene(task)
     drawn = scene.plan.geometry
     optics = scene.observations["LED-B3"].metadata["optics"]
+    assert isinstance(optics, dict)
     # EXIF: the nominal focal length (the drawn image distance less 0–8 % focus, to 0.1 mm
     # below 10 mm, else whole mm).
     step = 0.1 if optics["focal_length_mm"] < 10.0 else 1.0
