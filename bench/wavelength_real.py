@@ -2,8 +2,9 @@
 
 Nikon D7000 (Butcher, August 2020): the CFL profile through the built-in tri-phosphor line list
 (``builtin:cfl-triphosphor``; no CFL spectrum was measured) with the halogen profile and its
-measured spectrum, as one geometry. Printed: every matched line's residual (fitted − listed, nm),
-the largest of the lines used, and the same mapping from the mirrored profiles (columns reversed):
+measured spectrum, as one geometry. Printed: every matched line's residual (fitted − listed, nm)
+and σ as the fit weighs it, the largest of the lines used and of the sharp (mercury) lines — the
+only ones whose listed wavelength is the truth — and the same mapping from the mirrored profiles (columns reversed):
 the largest difference between the two curves over the profile (nm, at the same physical column).
 
 Canon 10D (rrogge): sunlight (Wehrli 1985 AM0 × the upstream file's atmosphere) through the LHires
@@ -42,6 +43,9 @@ from calib.model.bases import CameraPrior, default_camera_basis
 from calib.wavelength.locate import MappingSolution, locate_mapping
 
 D7000 = "butcher-nikon-d7000-2020-08"
+#: A matched line this sharp (σ as the mapping fit weighs it) has a listed wavelength that is the
+#: truth at its column: the mercury lines, not the phosphors' broad peaks.
+SHARP_SIGMA_NM = 0.15
 CANON_10D = "rrogge-canon-eos-10d"
 #: The 10D features checked: the solar list's components of each, and the name the author's R
 #: Markdown gives the feature when he marked it (``None``: placed by his cubic through the others).
@@ -143,16 +147,29 @@ def run_d7000(folder: Path, prior: CameraPrior) -> None:
     lamps = d7000_pair(folder)
     solution = locate_mapping(lamps, prior, DEFAULT_GRID)
     print(f"D7000 pair: {solution.mapping.method}; {solution.details.get('line_source')}")
-    used = []
+    used, sharp, normalised = [], [], []
     for row in solution.matched_lines:
-        flag = "" if row["weight"] > 0 else "  (not used)"
+        weight = float(row["weight"])
+        residual = float(row["residual_nm"])
+        sigma = 1.0 / np.sqrt(weight) if weight > 0 else float("nan")
+        flag = "" if weight > 0 else "  (not used)"
         print(
             f"  {row['line']:34s} {row['wavelength_nm']:8.2f} nm at column {row['pixel']:7.1f}: "
-            f"residual {row['residual_nm']:+.3f} nm{flag}"
+            f"residual {residual:+.3f} nm, σ {sigma:.3f} nm{flag}"
         )
-        if row["weight"] > 0:
-            used.append(abs(float(row["residual_nm"])))
+        if weight > 0:
+            used.append(abs(residual))
+            normalised.append(residual / sigma)
+            if sigma <= SHARP_SIGMA_NM:
+                sharp.append(abs(residual))
     print(f"  lines used {len(used)}, largest |residual| {max(used):.3f} nm")
+    # Only a sharp line's listed wavelength is the truth; a phosphor's listed peak is its
+    # phosphors' typical one (±0.5 nm), so its residual is mostly the list's, not the mapping's.
+    print(
+        f"  sharp lines (σ ≤ {SHARP_SIGMA_NM} nm, the mapping's error there): {len(sharp)}, largest "
+        f"|residual| {max(sharp, default=float('nan')):.3f} nm; residual/σ over the lines used: "
+        f"RMS {float(np.sqrt(np.mean(np.square(normalised)))):.2f}"
+    )
     flipped = locate_mapping([mirrored(lamp) for lamp in lamps], prior, DEFAULT_GRID)
     pixel = lamps[0].pixel
     # Column i of the file is column n−1−i of the mirrored profile.

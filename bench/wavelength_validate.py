@@ -3,9 +3,10 @@
 The scenes are ``calib validate``'s (:mod:`calib.evaluation.validation`, default settings: the same
 seed, plans and rig errors, profiles measured from the direct spot), one per camera of the chosen
 split; each camera's basis is its split's (leave-one-camera-out over the training cameras for the
-validation split, all of them for the test split). What a capture's RAW files would add is added to
-each profile's metadata (``optics``): the lens' focal length as EXIF states it (the image distance
-the scene drew, less a focus extension of 0–8 %, rounded to 1 mm) and the pitch.
+validation split, all of them for the test split). Each profile's metadata carries what a capture's
+RAW files record (``optics``, :func:`calib.evaluation.validation.scenes.exif_optics`): the lens'
+focal length as EXIF states it (the image distance the scene drew, less a focus extension of
+0–8 %, rounded to 1 mm) and the pitch.
 
 Scenarios (``--scenario``):
 
@@ -27,7 +28,7 @@ Which split: ``--split validation`` for any tuning, ``--split test`` for reporti
 ``--predictions N`` adds N of Solomatov & Akkaynak's predicted curves to the validation split as
 extra synthetic cameras (issue 15's protocol, as ``calib validate --predictions``; basis: all
 training curves); ``--only-predicted`` runs those alone. ``--no-optics`` measures the scenes as
-``calib validate`` does (no focal length or pitch from EXIF).
+``calib validate``'s "LED only, no EXIF" variant does (no focal length or pitch from EXIF).
 
     python bench/wavelength_validate.py --data-dir ../shared/data/camera_sensitivities --split test --scenario led
 """
@@ -58,6 +59,7 @@ from calib.core.metrics import channel_relative_errors
 from calib.core.observations import LampObservation
 from calib.evaluation.validation.protocol import (
     FIVE_LAMPS,
+    MethodVariant,
     ProtocolSettings,
     Task,
     draw_task_plan,
@@ -65,8 +67,9 @@ from calib.evaluation.validation.protocol import (
     render_task_scene,
     scene_lamps,
     split_tasks,
+    variant_observations,
 )
-from calib.evaluation.validation.scenes import RenderedScene, render_scene
+from calib.evaluation.validation.scenes import RenderedScene, exif_optics, render_scene
 from calib.evaluation.validation.splits import PREDICTION, load_splits
 from calib.methods import estimate
 from calib.wavelength.locate import locate_mapping
@@ -76,11 +79,9 @@ LED = "LED-B3"
 
 
 def with_optics(scene: RenderedScene, rng: np.random.Generator) -> dict[str, LampObservation]:
-    """The scene's observations with the optics a RAW file reports (module docstring)."""
-    geometry = scene.plan.geometry
-    extension = float(rng.uniform(0.0, 0.08))
-    exif_focal_mm = float(max(round(geometry.focal_length_mm / (1.0 + extension)), 1.0))
-    optics = {"focal_length_mm": exif_focal_mm, "pixel_pitch_um": geometry.pixel_pitch_um}
+    """A scene's observations with the optics a RAW file records (:func:`exif_optics`), for
+    benches that render scenes outside the protocol (``bench/grating_physics.py``)."""
+    optics = exif_optics(scene.plan.geometry, rng)
     return {
         name: replace(obs, metadata={**dict(obs.metadata), "optics": optics})
         for name, obs in scene.observations.items()
@@ -235,13 +236,12 @@ def calibration_file(
         scene_lamps(task.settings.variants),
         np.random.default_rng([task.settings.seed, calibration.camera.stable_id, 1]),
     )
-    calib_lamps = with_optics(scene, np.random.default_rng(0))
     # Same lens and pitch as the measured camera's capture (one rig).
     calib_lamps = {
         name: replace(
             obs, metadata={**dict(obs.metadata), "optics": lamps[name].metadata["optics"]}
         )
-        for name, obs in calib_lamps.items()
+        for name, obs in scene.observations.items()
     }
     observations = [calib_lamps[name] for name in FIVE_LAMPS]
     result = estimate(
@@ -299,11 +299,9 @@ def run_one(job: tuple[Task, Task, int, str, bool, bool]) -> dict[str, Any] | No
     """One camera's row (``None``: the calibration camera itself in the grating-file scenario)."""
     task, calibration, seed, scenario, grooves, optics = job
     scene = render_task_scene(task)
-    lamps = (
-        with_optics(scene, np.random.default_rng([seed, task.camera.stable_id]))
-        if optics
-        else dict(scene.observations)
-    )
+    # The protocol's scenes carry the RAW files' optics; --no-optics measures them without.
+    variant = MethodVariant(LED, "prior", tuple(scene.observations), exif_optics=optics)
+    lamps = dict(zip(scene.observations, variant_observations(scene, variant), strict=True))
     name = task.camera.name
     try:
         if scenario == "led":

@@ -29,6 +29,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
     tune_rows,
     tuning_score,
+    variant_observations,
 )
 from calib.evaluation.validation.report import (
     markdown_report,
@@ -394,6 +395,34 @@ def test_an_estimate_depends_on_its_seed_alone(tmp_path: Path) -> None:
         t for t in split_tasks(reordered, settings, cache_dir=tmp_path) if t.camera is task.camera
     )
     assert render_task_scene(task).plan.to_dict() == render_task_scene(again).plan.to_dict()
+
+
+def test_scenes_carry_the_optics_a_raw_file_records_and_the_no_exif_row_drops_them() -> None:
+    splits = _splits()
+    split = replace(splits.test, cameras=splits.test.cameras[1:2])
+    no_exif = next(v for v in DEFAULT_VARIANTS if v.label == "LED only, no EXIF")
+    (task,) = split_tasks(split, _tiny_settings(variants=(no_exif,)))
+    scene = render_task_scene(task)
+    drawn = scene.plan.geometry
+    optics = scene.observations["LED-B3"].metadata["optics"]
+    assert isinstance(optics, dict)
+    # EXIF: the nominal focal length (the drawn image distance less 0–8 % focus, to 0.1 mm
+    # below 10 mm, else whole mm).
+    step = 0.1 if optics["focal_length_mm"] < 10.0 else 1.0
+    assert optics["focal_length_mm"] == pytest.approx(
+        round(optics["focal_length_mm"] / step) * step
+    )
+    assert drawn.focal_length_mm / 1.08 - step / 2 <= optics["focal_length_mm"]
+    assert optics["focal_length_mm"] <= drawn.focal_length_mm + step / 2
+    assert optics["pixel_pitch_um"] == drawn.pixel_pitch_um
+    (stripped,) = variant_observations(scene, no_exif)
+    kept = {k: v for k, v in scene.observations["LED-B3"].metadata.items() if k != "optics"}
+    assert stripped.metadata == kept
+    # Profile CSVs of unknown origin carry no EXIF.
+    arbitrary = render_task_scene(
+        replace(task, settings=replace(task.settings, pixel_origin="arbitrary"))
+    )
+    assert "optics" not in arbitrary.observations["LED-B3"].metadata
 
 
 def _failing_variant() -> MethodVariant:

@@ -544,3 +544,29 @@ def test_measured_lines_that_decide_silence_the_profile_fits_basins(camera, prio
     assert fitted.details["measured_lines_failed"] == "forced: no line matches held"
     assert basin_warning in fitted.warnings
     assert "mapping_ambiguous" in fitted.details["warning_codes"]
+
+
+def test_the_mapping_fit_widens_sigma_where_the_list_or_where_the_model_is_short() -> None:
+    from calib.wavelength.families import QuadraticFamily
+    from calib.wavelength.features import _fit_with_model_scatter
+
+    family = QuadraticFamily((0.0, 1000.0))
+    pixels = np.linspace(50.0, 950.0, 10)
+    quadratic = 400.0 + 0.3 * pixels + 2e-5 * pixels**2
+    sharp = np.arange(10) % 3 == 0  # 4 sharp lines (σ 0.02 nm), 6 broad ones (σ 0.3 nm)
+    stated = np.where(sharp, 0.02, 0.3)
+    used = np.ones(10, dtype=bool)
+    x0 = family.parameters(QuadraticMapping(2e-5, 0.3, 400.0))
+    # The list is short: the broad lines sit ±0.6 nm off their listed places, the sharp ones
+    # exactly on a quadratic. Every σ is scaled alike and the fit still passes the sharp lines.
+    listed = quadratic + np.where(sharp, 0.0, 0.6 * (-1.0) ** np.arange(10))
+    x, _, sigma = _fit_with_model_scatter(family, x0, pixels, listed, stated, used)
+    np.testing.assert_allclose(sigma / stated, sigma[0] / stated[0], rtol=1e-9)
+    assert sigma[0] > stated[0]
+    assert np.max(np.abs(family.wavelengths(pixels, x) - quadratic)[sharp]) < 0.15
+    # The model is short: a cubic field term the quadratic lacks, seen by every line alike. One
+    # scatter is added to every σ, so the sharp lines' σ grow by a larger factor.
+    cubic = quadratic + 4e-9 * (pixels - 500.0) ** 3
+    _, _, sigma = _fit_with_model_scatter(family, x0, pixels, cubic, stated, used)
+    widening = sigma / stated
+    assert widening[sharp].min() > 2.0 * widening[~sharp].max()

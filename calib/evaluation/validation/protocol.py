@@ -45,6 +45,7 @@ from calib.core.arrays import FloatArray
 from calib.core.lamp_specs import RGB_LEDS
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.metrics import channel_relative_errors, mapping_relative_error
+from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.evaluation.validation.rig_errors import RigErrors
@@ -53,6 +54,7 @@ from calib.evaluation.validation.scenes import (
     RenderedScene,
     ScenePlan,
     draw_scene_plan,
+    exif_optics,
     render_scene,
 )
 from calib.evaluation.validation.splits import (
@@ -90,18 +92,24 @@ class MethodVariant:
         Lamp specs (:func:`calib.core.lamp_specs.lamp_from_spec`) it is given, from one scene.
     options
         The method's typed options (:data:`calib.methods.MethodOptions`), ``None`` for its defaults.
+    exif_optics
+        Whether its profiles carry the optics a RAW capture records (the lens' focal length and
+        the pixel pitch, :func:`~calib.evaluation.validation.scenes.exif_optics`); ``False``
+        measures the case of profile CSVs or RAW files without those tags.
     """
 
     label: str
     method: str
     lamps: tuple[str, ...]
     options: MethodOptions | None = None
+    exif_optics: bool = True
 
 
 FIVE_LAMPS: tuple[str, ...] = ("LED-B1", "LED-B3", "LED-B5", "FL2", "A")
 DEFAULT_VARIANTS: tuple[MethodVariant, ...] = (
     MethodVariant("LED+FL", TWO_LAMP_METHOD, ("LED-B3", "FL2")),
     MethodVariant("LED only", TWO_LAMP_METHOD, ("LED-B3",)),
+    MethodVariant("LED only, no EXIF", TWO_LAMP_METHOD, ("LED-B3",), exif_optics=False),
     MethodVariant("5 lamps", MULTILAMP_METHOD, FIVE_LAMPS),
     MethodVariant("3 lamps + RGB LEDs", MULTILAMP_METHOD, ("LED-B3", "FL2", "A", *RGB_LEDS)),
 )
@@ -298,16 +306,39 @@ def draw_task_plan(task: Task) -> tuple[ScenePlan, np.random.Generator]:
 
 
 def render_task_scene(task: Task) -> RenderedScene:
-    """The task's scene, drawn and rendered (a function of the task's seed alone)."""
+    """The task's scene, drawn and rendered (a function of the task's seed alone).
+
+    Profiles measured from the direct spot come from RAW files, so they carry the optics those
+    files record (:func:`~calib.evaluation.validation.scenes.exif_optics`, from a third child of
+    the scene's seed); profiles of arbitrary origin (CSVs) carry none.
+    """
     plan, noise = draw_task_plan(task)
     scene = render_scene(plan, task.camera.sensitivity, scene_lamps(task.settings.variants), noise)
     if task.settings.pixel_origin == "direct_spot":
-        return scene
-    observations = {
-        name: replace(obs, pixel_origin=task.settings.pixel_origin)
-        for name, obs in scene.observations.items()
-    }
+        optics_seed = scene_seed(task.settings.seed, task.camera, task.scene).spawn(3)[2]
+        optics = exif_optics(plan.geometry, np.random.default_rng(optics_seed))
+        observations = {
+            name: replace(obs, metadata={**dict(obs.metadata), "optics": optics})
+            for name, obs in scene.observations.items()
+        }
+    else:
+        observations = {
+            name: replace(obs, pixel_origin=task.settings.pixel_origin)
+            for name, obs in scene.observations.items()
+        }
     return replace(scene, observations=observations)
+
+
+def variant_observations(scene: RenderedScene, variant: MethodVariant) -> list[LampObservation]:
+    """The observations ``variant`` estimates from: its lamps of ``scene``, without the RAW
+    files' optics when it measures that case (``exif_optics=False``)."""
+    observations = [scene.observations[lamp] for lamp in variant.lamps]
+    if variant.exif_optics:
+        return observations
+    return [
+        replace(obs, metadata={k: v for k, v in obs.metadata.items() if k != "optics"})
+        for obs in observations
+    ]
 
 
 def row_identity(
@@ -404,7 +435,7 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
     record = json.dumps(scene.plan.to_dict(), default=float)
     rows: list[ValidationRow] = []
     for variant in settings.variants:
-        observations = [scene.observations[lamp] for lamp in variant.lamps]
+        observations = variant_observations(scene, variant)
         started = time.perf_counter()
         identity = row_identity(task, variant, record)
         try:

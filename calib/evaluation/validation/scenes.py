@@ -176,6 +176,27 @@ def draw_geometry(
     )
 
 
+#: How far a lens is racked out to focus, as a fraction of its nominal focal length: the image
+#: distance a scene draws is ``F (1 + e)`` with ``e`` uniform in this range, while EXIF states ``F``.
+FOCUS_EXTENSION_RANGE: tuple[float, float] = (0.0, 0.08)
+
+
+def exif_optics(geometry: SceneGeometry, rng: np.random.Generator) -> dict[str, float]:
+    """The optics a RAW capture of ``geometry`` records, as an observation's ``"optics"`` metadata.
+
+    The lens reports its nominal focal length: the drawn image distance less a focus extension of
+    :data:`FOCUS_EXTENSION_RANGE`, as EXIF states it — to 0.1 mm below 10 mm (phones and compacts
+    write 4.2 or 4.25 mm), to the whole mm above (interchangeable lenses). The body reports its
+    pixel pitch (EXIF focal-plane resolution). :func:`calib.wavelength.rig_prior.
+    optics_from_observation` reads it as it reads what ``calib estimate`` takes from a RAW file.
+    """
+    extension = float(rng.uniform(*FOCUS_EXTENSION_RANGE))
+    nominal_mm = geometry.focal_length_mm / (1.0 + extension)
+    step_mm = 0.1 if nominal_mm < 10.0 else 1.0
+    focal_mm = float(max(round(nominal_mm / step_mm) * step_mm, step_mm))
+    return {"focal_length_mm": round(focal_mm, 1), "pixel_pitch_um": geometry.pixel_pitch_um}
+
+
 @dataclass(frozen=True)
 class LampDraw:
     """One lamp's realised errors: drift, the bracket's start and its frames' exposure errors."""
