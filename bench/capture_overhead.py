@@ -107,6 +107,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="directory for the sessions")
     parser.add_argument("--repeats", type=int, default=3)
     arguments = parser.parse_args()
+    if arguments.out is not None:
+        arguments.out.mkdir(parents=True, exist_ok=True)
     config = realtime_config(load_config(arguments.config))
     camera = config.devices.camera
     assert isinstance(camera, TwinCameraConfig)

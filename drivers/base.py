@@ -270,8 +270,11 @@ class Camera(Protocol):
     def set_exposure(self, exposure_s: float) -> float:
         """Select the nearest available exposure time; return the exposure actually set, read back."""
 
-    def capture(self, destination: Path) -> CapturedFile:
-        """Expose one frame, download it to ``destination`` (a file path) and delete it on the camera."""
+    def capture(self, destination: Path, *, sync: bool = True) -> CapturedFile:
+        """Expose one frame, download it to ``destination`` (a file path) and delete it on the camera.
+
+        ``sync=False``: the file is not fsynced; the caller syncs it before relying on it.
+        """
 
     def close(self) -> None: ...
 

@@ -170,13 +170,16 @@ def write_all(fd: int, data: bytes) -> None:
         view = view[written:]
 
 
-def write_atomically(path: Path, data: bytes) -> None:
+def write_atomically(path: Path, data: bytes, *, sync: bool = True) -> None:
     """Write ``data`` to ``path`` via ``.<name>.partial`` in the same directory, fsync, rename.
 
     The directory is created if missing, and must be a real directory (not a link); everything
     happens relative to its own descriptor, so the file lands in that directory whatever is renamed meanwhile. A crash
     leaves either no file or the complete file under ``path`` (plus at most the temporary), never
     a truncated file under the final name; a failure (a full disk) removes the temporary.
+    ``sync=False`` leaves out both fsyncs, for a caller that syncs the file and its directory itself
+    before it relies on it (a session's ``commit_file``): after a power cut the file may then be
+    empty or missing, so it must not be acknowledged anywhere before that caller's sync.
 
     Raises
     ------
@@ -197,7 +200,8 @@ def write_atomically(path: Path, data: bytes) -> None:
         fd = create_new_file(Path(temporary), dir_fd=directory, shown_as=path.parent / temporary)
         try:
             write_all(fd, data)
-            os.fsync(fd)
+            if sync:
+                os.fsync(fd)
         except BaseException:
             os.close(fd)
             with contextlib.suppress(OSError):
@@ -205,6 +209,7 @@ def write_atomically(path: Path, data: bytes) -> None:
             raise
         os.close(fd)
         os.replace(temporary, path.name, src_dir_fd=directory, dst_dir_fd=directory)
-        os.fsync(directory)
+        if sync:
+            os.fsync(directory)
     finally:
         os.close(directory)

@@ -1059,7 +1059,9 @@ class Runner(StepHandlers[StepResult]):
             captured = self._call(
                 "camera",
                 f"capture {step.exposure_s:g} s",
-                lambda: camera.capture(temporary),
+                # Unsynced: commit_file syncs it before its record, in the journal thread,
+                # while the camera takes the next frame.
+                lambda: camera.capture(temporary, sync=False),
                 step.exposure_s + self.timeouts.capture_extra_s,
             )
         except BaseException as exc:

@@ -344,7 +344,7 @@ class GphotoCamera:
         self._bulb_exposure_s = None
         return parse_exposure_s(read_back)
 
-    def capture(self, destination: Path) -> CapturedFile:
+    def capture(self, destination: Path, *, sync: bool = True) -> CapturedFile:
         """Expose one frame, download it to ``destination`` and delete it on the camera.
 
         Parameters
@@ -353,6 +353,9 @@ class GphotoCamera:
             File path for the frame. Without a suffix, the camera file's (lower-case) suffix is
             appended. Parent directories are created. The file appears atomically (temporary name,
             fsync, rename), so a crash never leaves a truncated frame under the final name.
+        sync
+            ``False`` leaves the fsyncs to the caller, which syncs the file before it acknowledges
+            it (the rig's session does, off the camera's critical path); the rename stays atomic.
 
         Returns
         -------
@@ -396,7 +399,9 @@ class GphotoCamera:
             primary = primary_file(produced)
             local = local_path(destination, primary)
             try:
-                self._with_recovery("download", functools.partial(self._download, primary, local))
+                self._with_recovery(
+                    "download", functools.partial(self._download, primary, local, sync=sync)
+                )
             except InstrumentError as exc:
                 if exc.code != str(GP_FILE_NOT_FOUND):
                     raise
@@ -776,7 +781,7 @@ class GphotoCamera:
                 if event_type == self._gp.GP_EVENT_TIMEOUT:
                     return
 
-    def _download(self, camera_file: CameraPath, local: Path) -> None:
+    def _download(self, camera_file: CameraPath, local: Path, *, sync: bool) -> None:
         folder, name = camera_file
 
         def fetch() -> bytes:
@@ -791,7 +796,7 @@ class GphotoCamera:
                 command=f"file_get {folder}/{name}",
                 reply=b"",
             )
-        write_atomically(local, data)
+        write_atomically(local, data, sync=sync)
         self._lib.record(
             "event",
             {

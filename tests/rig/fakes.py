@@ -241,7 +241,7 @@ class FakeCamera:
         self.io.leave("set_exposure", f"{target:g}")
         return target
 
-    def capture(self, destination: Path) -> CapturedFile:
+    def capture(self, destination: Path, *, sync: bool = True) -> CapturedFile:
         self.capture_started.set()
         if self.marker_file is not None:
             self.marker_file.write_text(str(self.captured + 1))

@@ -348,6 +348,31 @@ def test_the_camera_never_writes_through_a_planted_temporary(tmp_path: Path, out
     assert not target.exists()
 
 
+def test_an_unsynced_download_is_synced_by_the_session_before_its_record(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The rig downloads with sync=False: the session's commit_file syncs the file and its
+    # directory before the record that acknowledges it.
+    synced: list[str] = []
+    for name in ("fsync", "fdatasync"):
+        if hasattr(os, name):
+            real = getattr(os, name)
+
+            def recording(fd: int, real: Callable[[int], None] = real) -> None:
+                synced.append(str(Path(f"/proc/self/fd/{fd}").readlink()))
+                real(fd)
+
+            monkeypatch.setattr(os, name, recording)
+    writer = SessionWriter(tmp_path / "session")
+    temporary = writer.incoming_path("frames/lamp")
+    synced.clear()
+    write_atomically(temporary, b"a frame", sync=False)
+    assert synced == [] and temporary.read_bytes() == b"a frame"
+    writer.commit_file(temporary, "frames/lamp/scene-000.dng", key="k", role="frame")
+    log = str(tmp_path / "session" / "log.jsonl")
+    assert synced.index(str(temporary)) < synced.index(str(temporary.parent)) < synced.index(log)
+
+
 def test_the_camera_never_writes_into_a_linked_directory(tmp_path: Path, outside: Path) -> None:
     (tmp_path / "frames").symlink_to(outside / "dir")
     with watching(outside), pytest.raises(UnsafeLocalPath, match="frames is a symbolic link"):
