@@ -634,15 +634,18 @@ def _solve_efficiency(
     candidates = judged if choice == "auto" else noise_only
     chosen = min(candidates, key=lambda name: candidates[name])
     weights = {chosen: 1.0}
-    bounded: Any = [fit.kind for fit in fits if fit.at_range_bound]
+    # Each pinned family's weight among all fits (None where the choice is not between families).
+    bounded: dict[str, float | None] = {fit.kind: None for fit in fits if fit.at_range_bound}
     if choice == "auto" and chosen != "fourier":
         # Physical against free at the rig's error level; which physical family, at the stated
         # noise (decision 0053), among the fits inside their range when any is (decision 0063).
-        weights = family_weights(interior_fits(fits))
-        chosen = max(weights, key=lambda name: weights[name])
-        if len(weights) < len(fits):
-            unbounded = family_weights(fits)
-            bounded = {kind: unbounded.get(kind, 0.0) for kind in bounded}
+        inside = family_weights(interior_fits(fits))
+        chosen = max(inside, key=lambda name: inside[name])
+        # σ still holds a pinned family's share of the evidence (the data do not rule it out).
+        weights = family_weights(fits)
+        bounded = {kind: weights.get(kind, 0.0) for kind in bounded}
+        if chosen not in weights:
+            weights = inside
     rule = CHOICE_RULE if choice == "auto" else "given"
     common = {
         "chosen": chosen,
@@ -1526,13 +1529,15 @@ def family_flag(record: Mapping[str, Any] | None) -> QualityFlag | None:
     pinned = {
         kind: float(w)
         for kind, w in (bounded.items() if isinstance(bounded, Mapping) else ())
-        if kind != chosen and w > FAMILY_SEPARATED_WEIGHT
+        if kind != chosen and w is not None and w > FAMILY_SEPARATED_WEIGHT
     }
     competing = {kind: w for kind, w in others.items() if w > FAMILY_SEPARATED_WEIGHT}
     if not competing and not pinned:
         return None
     reasons = [f"{kind} {w:.0%}" for kind, w in competing.items()]
-    reasons += [f"{kind} {w:.0%} with its fit pinned at its range's end" for kind, w in pinned.items()]
+    reasons += [
+        f"{kind} {w:.0%} with its fit pinned at its range's end" for kind, w in pinned.items()
+    ]
     return QualityFlag(
         "grating_family_unresolved",
         f"the direct signals do not separate the grating families (chose {chosen}; "
