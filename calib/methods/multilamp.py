@@ -695,7 +695,7 @@ def interior_fits(fits: Sequence[PhysicalFit]) -> list[PhysicalFit]:
 
     A fit pinned at its range's end has no χ² minimum among real sheets: it is the family bent
     to its limit to absorb the rig's per-lamp errors (validation split, 3 lamps + RGB LEDs: the
-    two confident wrong picks were blazed fits at λ_B = 150.5 and 170.9 nm, the range's foot,
+    two confident wrong picks were blazed fits at λ_B = 150.5 and 170.9 nm, the range's foot then,
     on sinusoidal sheets), so it does not compete for the family when another family's fit is an
     interior minimum."""
     inside = [fit for fit in fits if not fit.at_range_bound]
