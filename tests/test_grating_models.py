@@ -34,8 +34,10 @@ from calib.methods.multilamp import (
     calibrate_lamps,
     efficiency_with_sigma,
     estimate_multilamp,
+    family_flag,
     family_weights,
     grating_file_from,
+    interior_fits,
     prepare_lamps,
     with_choice_spread,
 )
@@ -113,6 +115,7 @@ def test_a_sinusoidal_sheet_is_recognised_and_its_phase_recovered(basis):
     assert set(record["predictive_risk"]) == {"fourier", "sinusoidal", "blazed"}
     np.testing.assert_allclose(record["parameters"]["peak_phase_rad"], 1.0, atol=5e-3)
     assert relative_error(result.sensitivity, truth) < 0.005
+    assert "grating_family_unresolved" not in {flag.code for flag in result.quality.flags}
     wavelength = DEFAULT_GRID.wavelength_nm
     np.testing.assert_allclose(
         record["zeroth_order_efficiency"], grating.efficiency(0, wavelength), atol=5e-3
@@ -388,6 +391,38 @@ def test_family_weights_are_akaike_weights_of_the_quasi_likelihood_at_the_stated
     assert family_weights([fit("sinusoidal", 8.0), fit("blazed", 28.0)]) == {"sinusoidal": 1.0}
     weights = family_weights([fit("blazed", 8.0), fit("sinusoidal", 8.0 + 2 * np.log(3))])
     assert weights["blazed"] == pytest.approx(0.75)
+    # A fit pinned at its range's end does not compete while another family's is inside
+    # (decision 0063); when every fit is pinned, all are kept.
+    low, high = PHYSICAL_PARAMETER_RANGES["blazed"]
+    pinned = replace(fit("blazed", 8.0), parameter=low)
+    inside = fit("sinusoidal", 30.0)
+    assert pinned.at_range_bound and not inside.at_range_bound
+    assert replace(pinned, parameter=high).at_range_bound
+    assert not replace(pinned, parameter=0.5 * (low + high)).at_range_bound
+    assert interior_fits([pinned, inside]) == [inside]
+    assert interior_fits([pinned]) == [pinned]
+
+
+def test_a_family_choice_the_data_do_not_separate_is_flagged_with_what_to_measure():
+    """``grating_family_unresolved``: another family above 5 %, or one set aside at its range's
+    end that carried more than 5 % among all fits; never for the Fourier model or a clear pick."""
+    assert family_flag(None) is None
+    assert family_flag({"chosen": "fourier"}) is None
+    assert family_flag({"chosen": "sinusoidal"}) is None
+    assert (
+        family_flag(
+            {"chosen": "sinusoidal", "choice_weights": {"sinusoidal": 0.96, "blazed": 0.04}}
+        )
+        is None
+    )
+    assert family_flag({"chosen": "sinusoidal", "at_range_bound": {"blazed": 0.01}}) is None
+    near = family_flag(
+        {"chosen": "sinusoidal", "choice_weights": {"sinusoidal": 0.9, "blazed": 0.1}}
+    )
+    assert near is not None and near.code == "grating_family_unresolved"
+    assert "blazed 10%" in near.message and "2nd order" in near.message
+    pinned = family_flag({"chosen": "sinusoidal", "at_range_bound": {"blazed": 0.87}})
+    assert pinned is not None and "pinned" in pinned.message and "spectrometer" in pinned.message
 
 
 def test_the_choice_spread_keeps_the_chosen_estimate_and_adds_the_others_share():
@@ -437,7 +472,10 @@ def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
     record = result.diagnostics["grating_model"]
     assert record["chosen"] == "sinusoidal"
     assert set(record["choice_weights"]) == {"sinusoidal", "blazed"}
-    assert 0.3 < record["choice_weights"]["blazed"] <= 0.5
+    # The blazed fit sits at its range's foot (190 nm): not chosen, but still in σ and flagged.
+    assert 0.25 < record["choice_weights"]["blazed"] <= 0.5
+    assert record["at_range_bound"] == {"blazed": record["choice_weights"]["blazed"]}
+    assert "grating_family_unresolved" in {flag.code for flag in result.quality.flags}
     chosen_alone = MultilampOptions(grating_model="sinusoidal")
     other_alone = MultilampOptions(grating_model="blazed", uncertainty="none")
     alone = {
@@ -456,8 +494,9 @@ def test_a_near_tie_carries_the_other_familys_spread_in_sigma(basis):
     )
     held = np.mean(other <= 2 * result.sensitivity_sigma)
     held_alone = np.mean(other <= 2 * alone["sinusoidal"].sensitivity_sigma)
-    # Measured: 88 % of the nodes against 59 % (without the spread both are the latter).
-    assert held > 0.85 and held - held_alone > 0.2, (held, held_alone)
+    # Measured: 83 % of the nodes against 60 % (without the spread both are the latter; 88 %
+    # before the blazed range's foot moved to 190 nm, decision 0063).
+    assert held > 0.8 and held - held_alone > 0.2, (held, held_alone)
     # Where the covariance weighs the data against the prior (the prior solve), no spread.
     prepared = prepare_lamps(observations, basis=basis, mapping=MAPPING)
     plain = calibrate_lamps(

@@ -77,6 +77,8 @@ QUALITY_CODES: dict[str, str] = {
     "there (mapping stage)",
     "flat_grating_assumed": "the grating efficiency was assumed flat, not measured (grating stage)",
     "assumed_grating_reused": "a grating file holding an assumed η is reused (grating stage)",
+    "grating_family_unresolved": "the direct signals do not tell the physical grating families "
+    "apart: measure the 2nd order or η with the rig's spectrometer (grating stage)",
     "channel_gains_unknown": "the profile's channel gains are not the raw data's: the channel "
     "balance is the camera population's, its spread in σ",
 }

@@ -215,6 +215,16 @@ class PhysicalFit:
         return float(np.sqrt(max(float(self.covariance[0, 0]), 0.0)))
 
     @property
+    def at_range_bound(self) -> bool:
+        """The fit sits within one full-range scan step of its search range's end
+        (:data:`PHYSICAL_PARAMETER_RANGES`): its χ² minimum is not inside the range of real
+        sheets, so the family explains the direct equations only as a limiting case (decision
+        0063)."""
+        low, high = PHYSICAL_PARAMETER_RANGES[self.kind]
+        step = (high - low) / (SCAN_POINTS - 1)
+        return bool(self.parameter <= low + step or self.parameter >= high - step)
+
+    @property
     def predictive_risk(self) -> float:
         """Mallows' ``C_L`` of the direct equations: ``χ² + 2 · 2``."""
         return self.chi2 + 2.0 * 2

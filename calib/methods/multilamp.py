@@ -56,7 +56,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.closed_form import (
     GratingMethodOptions,
@@ -634,11 +634,18 @@ def _solve_efficiency(
     candidates = judged if choice == "auto" else noise_only
     chosen = min(candidates, key=lambda name: candidates[name])
     weights = {chosen: 1.0}
+    # Each pinned family's weight among all fits (None where the choice is not between families).
+    bounded: dict[str, float | None] = {fit.kind: None for fit in fits if fit.at_range_bound}
     if choice == "auto" and chosen != "fourier":
         # Physical against free at the rig's error level; which physical family, at the stated
-        # noise (decision 0053).
+        # noise (decision 0053), among the fits inside their range when any is (decision 0063).
+        inside = family_weights(interior_fits(fits))
+        chosen = max(inside, key=lambda name: inside[name])
+        # σ still holds a pinned family's share of the evidence (the data do not rule it out).
         weights = family_weights(fits)
-        chosen = max(weights, key=lambda name: weights[name])
+        bounded = {kind: weights.get(kind, 0.0) for kind in bounded}
+        if chosen not in weights:
+            weights = inside
     rule = CHOICE_RULE if choice == "auto" else "given"
     common = {
         "chosen": chosen,
@@ -654,6 +661,7 @@ def _solve_efficiency(
             else {}
         ),
         **({"failed": failures} if failures else {}),
+        **({"at_range_bound": bounded} if bounded else {}),
     }
     if chosen == "fourier":
         assert fourier is not None
@@ -679,6 +687,19 @@ def _solve_efficiency(
 #: A physical family whose evidence weight (:func:`choice_weights`) is below this share adds
 #: nothing measurable to the chosen model's σ and is not carried (saves its jackknife).
 MIN_CHOICE_WEIGHT = 0.01
+
+
+def interior_fits(fits: Sequence[PhysicalFit]) -> list[PhysicalFit]:
+    """The fits whose parameter is inside its search range (:attr:`PhysicalFit.at_range_bound`),
+    or every fit when none is (decision 0063).
+
+    A fit pinned at its range's end has no χ² minimum among real sheets: it is the family bent
+    to its limit to absorb the rig's per-lamp errors (validation split, 3 lamps + RGB LEDs: the
+    two confident wrong picks were blazed fits at λ_B = 150.5 and 170.9 nm, the range's foot then,
+    on sinusoidal sheets), so it does not compete for the family when another family's fit is an
+    interior minimum."""
+    inside = [fit for fit in fits if not fit.at_range_bound]
+    return inside or list(fits)
 
 
 def family_weights(fits: Sequence[PhysicalFit]) -> dict[str, float]:
@@ -1469,7 +1490,7 @@ def estimate_multilamp(
     )
     eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
-    return multilamp_result(
+    result = multilamp_result(
         calibrated.lamps,
         solution,
         (eta, eta_sigma),
@@ -1482,6 +1503,46 @@ def estimate_multilamp(
             "total_s": total_s,
         },
         direct_weight=efficiency.direct_weights,
+    )
+    flag = family_flag(efficiency.info.get("grating_model"))
+    return result if flag is None else result.with_quality(flag)
+
+
+#: The runner-up physical family's evidence weight (:func:`family_weights`) above which the
+#: choice is not separated by the data and the result says so (a 1-in-20 chance of the other
+#: family; decision 0063).
+FAMILY_SEPARATED_WEIGHT = 0.05
+
+
+def family_flag(record: Mapping[str, Any] | None) -> QualityFlag | None:
+    """The ``grating_family_unresolved`` warning of a solve's ``info["grating_model"]``
+    (:func:`solve_efficiency`), or ``None`` when the chosen physical family is separated: no other
+    family above :data:`FAMILY_SEPARATED_WEIGHT`, counting a family set aside because its fit is
+    pinned at its range's end (:func:`interior_fits`) with the weight it had among all fits."""
+    if not record or record.get("chosen") in (None, "fourier"):
+        return None
+    chosen = str(record["chosen"])
+    weights = record.get("choice_weights") or {chosen: 1.0}
+    others = {kind: w for kind, w in weights.items() if kind != chosen}
+    bounded = record.get("at_range_bound")
+    # A family set aside at its range's end competes when its weight among all fits was not small.
+    pinned = {
+        kind: float(w)
+        for kind, w in (bounded.items() if isinstance(bounded, Mapping) else ())
+        if kind != chosen and w is not None and w > FAMILY_SEPARATED_WEIGHT
+    }
+    competing = {kind: w for kind, w in others.items() if w > FAMILY_SEPARATED_WEIGHT}
+    if not competing and not pinned:
+        return None
+    reasons = [f"{kind} {w:.0%}" for kind, w in competing.items()]
+    reasons += [
+        f"{kind} {w:.0%} with its fit pinned at its range's end" for kind, w in pinned.items()
+    ]
+    return QualityFlag(
+        "grating_family_unresolved",
+        f"the direct signals do not separate the grating families (chose {chosen}; "
+        f"{', '.join(reasons)}): the sensitivity may carry the wrong η shape; measure the 2nd "
+        "order or η with the rig's spectrometer and give it as a grating file",
     )
 
 

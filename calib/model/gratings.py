@@ -407,10 +407,13 @@ PHYSICAL_KINDS: tuple[PhysicalKind, ...] = ("sinusoidal", "blazed")
 #: work has (and than :meth:`SinusoidalPhaseGrating.draw`/:meth:`BlazedGrating.draw` sample), but
 #: inside the range where the first order has no zero between 380 and 780 nm: ``J₁`` vanishes at
 #: ``φ = 3.83`` (``φ₀ = 3.83 · 380 / 550 = 2.65`` rad), ``sinc²(λ_B/λ − 1)`` at ``λ_B = 2λ``
-#: (760 nm). Units: radians at 550 nm, nm.
+#: (760 nm). The blaze's foot is half the band's shortest wavelength (190 nm): below it the
+#: whole band lies on the far flank of the main lobe (``λ_B/λ − 1 < −0.5``), a grating blazed for
+#: the vacuum UV that no sheet sold for this work is; a fit there is the family bent to absorb the
+#: rig's errors (decision 0063). Units: radians at 550 nm, nm.
 PHYSICAL_PARAMETER_RANGES: dict[PhysicalKind, tuple[float, float]] = {
     "sinusoidal": (0.05, 2.6),
-    "blazed": (150.0, 755.0),
+    "blazed": (190.0, 755.0),
 }
 #: The parameter's name in records (``to_dict``'s key).
 PHYSICAL_PARAMETER_NAMES: dict[PhysicalKind, str] = {
