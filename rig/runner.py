@@ -30,7 +30,7 @@ from typing import Any, Literal, TypeVar
 
 import numpy as np
 
-from calib.core.checksums import file_sha256
+from calib.core.checksums import FileDigest, file_digest
 from calib.core.errors import SpectrumError
 from calib.core.software import current_software
 from calib.core.spectra import MultiSpectrum, Spectrum, read_spectrum_csv, write_csv
@@ -972,24 +972,25 @@ class Runner(StepHandlers[StepResult]):
                     self._commit(step, source, relative, "dark" if dark else "frame")
                 raise
             try:
-                _, sha256 = file_sha256(source)
+                # Taken once: storing the frame reuses it unless the file changed since.
+                digest = file_digest(source)
             except OSError as exc:
                 raise SessionWriteError(f"reading the downloaded frame {source}: {exc}") from exc
-            problem = self._stale_frame(step, sha256, source)
+            problem = self._stale_frame(step, digest.sha256, source)
             if problem is None:
                 break
-            record = self._commit(step, source, relative, "dark" if dark else "frame")
+            record = self._commit(step, source, relative, "dark" if dark else "frame", known=digest)
             self.frame_digests.setdefault(record.sha256, step.key)
             self._discard_stale(step.key, record.path, problem)
         else:
             raise self._still_stale("camera", f"were stale at {step.exposure_s:g} s of exposure")
-        self.frame_digests.setdefault(sha256, step.key)
+        self.frame_digests.setdefault(digest.sha256, step.key)
         self._camera_changed = False
         self._counts["dark_frames" if dark else "frames"] += 1
-        stats = None if dark else self._analyse(step, source, relative)
+        stats = None if dark else self._analyse(step, source, relative, digest)
         return FrameCaptured(
             self._now_s(),
-            self._store_later_as(step, source, relative, "dark" if dark else "frame"),
+            self._store_later_as(step, source, relative, "dark" if dark else "frame", known=digest),
             step.exposure_s,
             float(captured.exposure_s),
             captured.camera_path,
@@ -1003,13 +1004,15 @@ class Runner(StepHandlers[StepResult]):
         relative: str,
         role: Literal["dark", "frame", "spectrum"],
         reading: SpectrumReading | None = None,
+        *,
+        known: FileDigest | None = None,
     ) -> str:
         """Leave the storing of ``temporary`` under ``relative`` to the journal thread
         (:meth:`_execute` queues it with the step's record); return the name it will have."""
         final = self.session.final_name(relative)
 
         def store() -> None:
-            record = self._commit(step, temporary, relative, role, reading)
+            record = self._commit(step, temporary, relative, role, reading, known=known)
             if record.path != final:
                 raise SessionWriteError(
                     f"{self.session.path}: {relative} was stored as {record.path}, not {final}: "
@@ -1019,13 +1022,15 @@ class Runner(StepHandlers[StepResult]):
         self._store_later = (store, temporary)
         return final
 
-    def _analyse(self, step: Capture | DarkFrame, source: Path, relative: str) -> FrameStats:
+    def _analyse(
+        self, step: Capture | DarkFrame, source: Path, relative: str, digest: FileDigest
+    ) -> FrameStats:
         """The statistics of a downloaded scene frame; one that cannot be analysed is stored
         (a ``file`` record) before :class:`FrameAnalysisError` names it."""
         try:
             return self.station.analyzer.analyse(source)
         except Exception as exc:
-            record = self._commit(step, source, relative, "frame")
+            record = self._commit(step, source, relative, "frame", known=digest)
             detail = str(exc).removeprefix(f"{source}: ")
             if not isinstance(exc, FrameAnalysisError):
                 detail = f"{type(exc).__name__}: {exc}"
@@ -1038,8 +1043,11 @@ class Runner(StepHandlers[StepResult]):
         relative: str,
         role: Literal["dark", "frame", "spectrum"],
         reading: SpectrumReading | None = None,
+        *,
+        known: FileDigest | None = None,
     ) -> FileRecord:
-        """Acknowledge a downloaded frame or a staged spectrum under ``relative``."""
+        """Acknowledge a downloaded frame or a staged spectrum under ``relative`` (``known``:
+        its digest as the runner took it, :meth:`rig.session.SessionWriter.commit_file`)."""
         return self.session.commit_file(
             temporary,
             relative,
@@ -1047,6 +1055,7 @@ class Runner(StepHandlers[StepResult]):
             role=role,
             units=None if reading is None else reading.units,
             bandwidth_nm=None if reading is None else reading.bandwidth_nm,
+            known=known,
         )
 
     def _download(self, step: Capture | DarkFrame, *, dark: bool) -> tuple[Any, Path, str]:

@@ -42,7 +42,7 @@ from typing import Any, Literal, TypeVar, get_args
 
 from pydantic import TypeAdapter, ValidationError
 
-from calib.core.checksums import CHUNK_BYTES, file_sha256
+from calib.core.checksums import CHUNK_BYTES, FileDigest, file_digest, file_sha256
 from calib.core.spectra import Spectrum, write_csv
 from drivers.base import TranscriptDirection, TranscriptEntry, TranscriptSink
 from drivers.local_files import (
@@ -623,11 +623,14 @@ class SessionWriter:
         role: Literal["frame", "dark", "spectrum"],
         units: str | None = None,
         bandwidth_nm: float | None = None,
+        known: FileDigest | None = None,
     ) -> FileRecord:
         """Sync ``temporary``, rename it to ``relative`` and acknowledge it with a ``file`` record.
 
-        The file is read once, for the sha256, through the descriptor that is then synced. Returns
-        the record (its ``path`` may carry a ``.2`` suffix when ``relative`` was already taken).
+        The file is read once, for the sha256, through the descriptor that is then synced; with
+        ``known`` (its digest taken by the caller) it is not read again unless its state changed
+        since (:func:`calib.core.checksums.file_digest`). Returns the record (its ``path`` may
+        carry a ``.2`` suffix when ``relative`` was already taken).
 
         Raises
         ------
@@ -644,7 +647,7 @@ class SessionWriter:
                 final = self.path / relative
                 if not stat.S_ISREG(temporary.lstat().st_mode):
                     raise UnsafeLocalPath(temporary, describe_entry(temporary))
-                size, sha256 = file_sha256(temporary, sync=True)
+                digest = file_digest(temporary, sync=True, known=known)
                 temporary.replace(final)
                 _sync_directory(final.parent)
             except UnsafeLocalPath as exc:
@@ -658,8 +661,8 @@ class SessionWriter:
             key=key,
             role=role,
             path=relative,
-            size=size,
-            sha256=sha256,
+            size=digest.size,
+            sha256=digest.sha256,
             units=units,
             bandwidth_nm=bandwidth_nm,
         )

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from calib.core.checksums import CHUNK_BYTES, file_sha256
+from calib.core.checksums import CHUNK_BYTES, file_digest, file_sha256
 from calib.core.datasets import PinnedFile, _file_is_valid
 from calib.core.software import current_software
 from calib.pipeline.provenance import Provenance
@@ -25,6 +27,31 @@ def test_file_sha256_is_hashlibs_digest_of_the_whole_file(
     path = tmp_path / "frame.dng"
     path.write_bytes(data)
     assert file_sha256(path, sync=sync) == (size, hashlib.sha256(data).hexdigest())
+
+
+@pytest.mark.parametrize("sync", [False, True])
+def test_a_known_digest_is_reused_only_while_the_file_is_unchanged(
+    tmp_path: Path, sync: bool
+) -> None:
+    path = tmp_path / "frame.dng"
+    path.write_bytes(b"first frame")
+    digest = file_digest(path)
+    assert (digest.size, digest.sha256) == file_sha256(path)
+    # Unchanged: not read again (a digest with other bytes but the file's state comes back as is).
+    marked = dataclasses.replace(digest, sha256="0" * 64)
+    assert file_digest(path, sync=sync, known=marked) is marked
+    # Written since (same size, other bytes; a later modification time): read again.
+    path.write_bytes(b"other frame")
+    stat = path.stat()
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000))
+    again = file_digest(path, sync=sync, known=marked)
+    assert again.sha256 == hashlib.sha256(b"other frame").hexdigest() != marked.sha256
+    # Replaced by another file of the same bytes: another inode, read again.
+    replacement = tmp_path / "replacement.dng"
+    replacement.write_bytes(b"other frame")
+    kept = dataclasses.replace(again, sha256="1" * 64)
+    replacement.replace(path)
+    assert file_digest(path, known=kept).sha256 == again.sha256
 
 
 def test_a_missing_file_is_an_os_error_naming_it(tmp_path: Path) -> None:

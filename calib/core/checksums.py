@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 #: Bytes read per call while hashing.
@@ -44,15 +45,64 @@ def file_sha256(path: str | Path, *, sync: bool = False) -> tuple[int, str]:
     ...     file_sha256(path)
     (3, 'ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad')
     """
-    digest = hashlib.sha256()
-    size = 0
+    digest = file_digest(path, sync=sync)
+    return digest.size, digest.sha256
+
+
+@dataclass(frozen=True)
+class FileDigest:
+    """A file's size and sha256, with the state of the file they were read from.
+
+    ``state`` is the file's device, inode, size and modification and change times (ns) as its
+    descriptor showed them once the file was read: a later :func:`file_digest` given this
+    digest as ``known`` reads the file again only when its state differs (it was replaced or
+    written since).
+    """
+
+    size: int
+    sha256: str
+    state: tuple[int, int, int, int, int]
+
+
+def _state(descriptor: int) -> tuple[int, int, int, int, int]:
+    info = os.fstat(descriptor)
+    return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, info.st_ctime_ns
+
+
+def file_digest(
+    path: str | Path, *, sync: bool = False, known: FileDigest | None = None
+) -> FileDigest:
+    """The :class:`FileDigest` of a file, read once (:func:`file_sha256`, which it computes).
+
+    Parameters
+    ----------
+    path
+        The file.
+    sync
+        As for :func:`file_sha256`.
+    known
+        A digest of the same file taken earlier: when the opened file's state is still
+        ``known.state`` it is not read again (only synced when ``sync``) and ``known`` is
+        returned; otherwise it is read and hashed as without it.
+
+    Raises
+    ------
+    OSError
+        The file cannot be opened, read or synced (the caller names what it was for).
+    """
     descriptor = os.open(path, os.O_RDONLY)
     try:
-        while chunk := os.read(descriptor, CHUNK_BYTES):
-            digest.update(chunk)
-            size += len(chunk)
+        if known is not None and _state(descriptor) == known.state:
+            digest = known
+        else:
+            hasher = hashlib.sha256()
+            size = 0
+            while chunk := os.read(descriptor, CHUNK_BYTES):
+                hasher.update(chunk)
+                size += len(chunk)
+            digest = FileDigest(size, hasher.hexdigest(), _state(descriptor))
         if sync:
             os.fsync(descriptor)
     finally:
         os.close(descriptor)
-    return size, digest.hexdigest()
+    return digest

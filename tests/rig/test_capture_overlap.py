@@ -3,6 +3,7 @@ the log in step order, a failure of the storing or a kill during it ends in a us
 
 from __future__ import annotations
 
+import inspect
 import signal
 import threading
 import time
@@ -12,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from calib.core import checksums
 from rig.capture import run_capture
 from rig.errors import SessionFormatError
 from rig.interrupts import HaltRequested, InterruptController
@@ -206,3 +208,29 @@ def test_the_journal_storing_does_not_hold_back_a_second_signal() -> None:
     finally:
         leave.set()
         thread.join(5)
+
+
+def test_a_frame_is_read_for_its_digest_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The stale-frame check's digest is the one the file record carries: storing the frame does
+    not read it again (it only syncs it), and every stored file still verifies."""
+    hashed: list[Path] = []
+
+    class CountedDigest(checksums.FileDigest):
+        def __init__(self, *args: Any) -> None:
+            hashed.append(Path(inspect.stack()[1].frame.f_locals["path"]))
+            super().__init__(*args)
+
+    monkeypatch.setattr(checksums, "FileDigest", CountedDigest)
+    rig = make_fake_rig()
+    outcome = run_capture(fake_config(tmp_path / "sessions"), builder=rig.builder, retry=FAST_RETRY)
+    assert outcome.exit_status == "success", outcome
+    downloads = [path for path in hashed if path.parent.parent.name == "frames"]
+    session = read_session(outcome.session)
+    assert session.status == "complete" and session.verify_files() == []
+    frames = [f for f in session.files() if f.role in ("frame", "dark")]
+    assert len(frames) >= 4
+    # Each download hashed once, under its temporary name, before it was renamed into place.
+    assert all(path.suffix == ".part" for path in downloads)
+    assert len(downloads) == len(set(downloads)) == len(frames)
