@@ -731,7 +731,9 @@ def fit_mapping_to_points(
             return residual, None
         return residual, np.vstack([wavelength_jacobian / sigma_nm[:, None], row_jacobian])
 
-    solution = levenberg_marquardt(function, x0, max_iterations=FIT_ITERATIONS, tolerance=1e-12)
+    solution = levenberg_marquardt(
+        function, x0, max_iterations=FIT_ITERATIONS, tolerance=1e-12, geodesic=True
+    )
     data_rows = pixels.size
     chi2 = float(np.sum(solution.residual[:data_rows] ** 2))
     dof = max(data_rows - x0.size, 1)

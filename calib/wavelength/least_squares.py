@@ -24,6 +24,10 @@ _gesv = lapack.dgesv
 #: call that computes it (evaluated only if the point is accepted: a rejected trial costs only its
 #: residual), or ``None`` when not asked for — or ``None`` outside the valid region.
 Evaluation = tuple[FloatArray, FloatArray | Callable[[], FloatArray] | None] | None
+#: The geodesic step's probe, as a fraction of the step (the finite difference's ``h``).
+GEODESIC_PROBE = 0.1
+#: Largest ``2‖a‖/‖v‖`` (acceleration over velocity, scaled norm) a geodesic step may have.
+GEODESIC_RATIO = 0.75
 #: ``function(x, with_jacobian)`` → :data:`Evaluation`.
 ResidualFunction = Callable[[FloatArray, bool], Evaluation]
 
@@ -54,12 +58,20 @@ def levenberg_marquardt(
     *,
     max_iterations: int = 30,
     tolerance: float = 1e-8,
+    geodesic: bool = False,
 ) -> Solution:
     """Minimise ``‖r(x)‖²`` from ``x0`` (which must be valid).
 
     Stops when an accepted step lowers the cost by less than ``tolerance`` relative (or by less
     than ``tolerance`` absolutely, for a zero-residual problem), or after ``max_iterations``
     Jacobian evaluations.
+
+    With ``geodesic``, each step carries its geodesic acceleration (Transtrum & Sethna 2012): the
+    residual's second derivative along the step, by one extra residual evaluation a tenth of the
+    way along it, bends the step to follow a curved valley; a step whose bend exceeds
+    :data:`GEODESIC_RATIO` of its length (in the scaled norm) is treated as rejected. A fit that
+    crawls along a narrow curved valley (Marquardt's damping cycling once up and once down per
+    accepted step) goes there in tens of steps instead of hundreds.
 
     Examples
     --------
@@ -98,6 +110,13 @@ def levenberg_marquardt(
             if info != 0:
                 damping *= 10.0
                 continue
+            if geodesic:
+                bent = _geodesic_step(function, x, residual, jacobian, system, step, scale)
+                evaluations += 1
+                if bent is None:
+                    damping *= 4.0
+                    continue
+                step = bent
             trial = x + step
             # The Jacobian comes with the trial (near convergence most steps are accepted), as
             # a call when the function defers it: computed only if the trial is accepted.
@@ -119,6 +138,31 @@ def levenberg_marquardt(
         if not improved:
             break
     return Solution(x, residual, jacobian, cost, evaluations)
+
+
+def _geodesic_step(
+    function: ResidualFunction,
+    x: FloatArray,
+    residual: FloatArray,
+    jacobian: FloatArray,
+    system: FloatArray,
+    step: FloatArray,
+    scale: FloatArray,
+) -> FloatArray | None:
+    """``v + a/2``: the step ``v`` with its geodesic acceleration ``a`` (``system`` is the damped
+    normal matrix ``v`` was solved with, ``scale`` the norm's diagonal), or ``None`` when the
+    probe is outside the valid region or the bend is too large."""
+    probe = function(x + GEODESIC_PROBE * step, False)
+    if probe is None:
+        return None
+    second = (2.0 / GEODESIC_PROBE) * ((probe[0] - residual) / GEODESIC_PROBE - jacobian @ step)
+    _, _, acceleration, info = _gesv(system, -(jacobian.T @ second))
+    if info != 0:
+        return None
+    bend = float(acceleration**2 @ scale) / max(float(step**2 @ scale), 1e-300)
+    if not math.isfinite(bend) or 2.0 * math.sqrt(bend) > GEODESIC_RATIO:
+        return None
+    return np.asarray(step + 0.5 * acceleration, dtype=np.float64)
 
 
 def _concrete(jacobian: FloatArray | Callable[[], FloatArray]) -> FloatArray:
