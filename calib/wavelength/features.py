@@ -75,6 +75,8 @@ ROUNDS = 3
 #: valley; on the Canon 10D's sunlight the result moves until ~400 iterations and is the same from
 #: there to 5000 — 50 and 200 stopped on the way, with 0.43 and 0.41 nm RMS that were the cap's).
 FIT_ITERATIONS = 1000
+#: Iteration cap of the fit that starts a hypothesis (:func:`_initial_parameters`): a start.
+START_ITERATIONS = 100
 #: Refits that settle the shared model scatter (:func:`_fit_with_model_scatter`).
 SCATTER_ROUNDS = 4
 
@@ -707,6 +709,7 @@ def fit_mapping_to_points(
     pixels: FloatArray,
     wavelengths_nm: FloatArray,
     sigma_nm: FloatArray,
+    max_iterations: int = FIT_ITERATIONS,
 ) -> tuple[FloatArray, FloatArray, float]:
     """Weighted least squares of a family through ``(pixel, λ ± σ)`` points (and its prior rows).
 
@@ -732,7 +735,7 @@ def fit_mapping_to_points(
         return residual, np.vstack([wavelength_jacobian / sigma_nm[:, None], row_jacobian])
 
     solution = levenberg_marquardt(
-        function, x0, max_iterations=FIT_ITERATIONS, tolerance=1e-12, geodesic=True
+        function, x0, max_iterations=max_iterations, tolerance=1e-12, geodesic=True
     )
     data_rows = pixels.size
     chi2 = float(np.sum(solution.residual[:data_rows] ** 2))
@@ -763,7 +766,9 @@ def _initial_parameters(family: Family, mapping: ExactMapping, pixels: FloatArra
         spacing = math.exp(guess["log_spacing"])
         guess["log_focal"] = math.log(max(abs(spacing / slope), 10.0))
     x0 = np.array([guess[name] for name in family.names])
-    x, _, _ = fit_mapping_to_points(family, x0, pixels, targets, np.full(pixels.size, 0.1))
+    x, _, _ = fit_mapping_to_points(
+        family, x0, pixels, targets, np.full(pixels.size, 0.1), START_ITERATIONS
+    )
     return x
 
 
