@@ -75,6 +75,8 @@ ROUNDS = 3
 #: valley; on the Canon 10D's sunlight the result moves until ~400 iterations and is the same from
 #: there to 5000 — 50 and 200 stopped on the way, with 0.43 and 0.41 nm RMS that were the cap's).
 FIT_ITERATIONS = 1000
+#: The mapping fit stops when a step moves no feature by more than this fraction of its σ.
+STEP_TOLERANCE = 1e-4
 #: Iteration cap of the fit that starts a hypothesis (:func:`_initial_parameters`): a start.
 START_ITERATIONS = 100
 #: Refits that settle the shared model scatter (:func:`_fit_with_model_scatter`).
@@ -735,7 +737,12 @@ def fit_mapping_to_points(
         return residual, np.vstack([wavelength_jacobian / sigma_nm[:, None], row_jacobian])
 
     solution = levenberg_marquardt(
-        function, x0, max_iterations=max_iterations, tolerance=1e-12, geodesic=True
+        function,
+        x0,
+        max_iterations=max_iterations,
+        tolerance=1e-12,
+        geodesic=True,
+        step_tolerance=STEP_TOLERANCE,
     )
     data_rows = pixels.size
     chi2 = float(np.sum(solution.residual[:data_rows] ** 2))

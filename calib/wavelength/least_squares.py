@@ -59,12 +59,14 @@ def levenberg_marquardt(
     max_iterations: int = 30,
     tolerance: float = 1e-8,
     geodesic: bool = False,
+    step_tolerance: float = 0.0,
 ) -> Solution:
     """Minimise ``‖r(x)‖²`` from ``x0`` (which must be valid).
 
     Stops when an accepted step lowers the cost by less than ``tolerance`` relative (or by less
     than ``tolerance`` absolutely, for a zero-residual problem), or after ``max_iterations``
-    Jacobian evaluations.
+    Jacobian evaluations. With ``step_tolerance``, also when an accepted step moves no residual
+    by more than that (the residuals in units of their σ: the fit no longer moves what it fits).
 
     With ``geodesic``, each step carries its geodesic acceleration (Transtrum & Sethna 2012): the
     residual's second derivative along the step, by one extra residual evaluation a tenth of the
@@ -126,12 +128,13 @@ def levenberg_marquardt(
                 trial_cost = float(outcome[0] @ outcome[0])
                 if math.isfinite(trial_cost) and trial_cost < cost:
                     decrease = cost - trial_cost
+                    moved = float(np.max(np.abs(outcome[0] - residual))) if step_tolerance else 1.0
                     x = trial
                     residual, jacobian = outcome[0], _concrete(outcome[1])
                     cost = trial_cost
                     damping = max(damping / 5.0, 1e-9)
                     improved = True
-                    if decrease <= tolerance * max(cost, 1.0):
+                    if decrease <= tolerance * max(cost, 1.0) or moved < step_tolerance:
                         return Solution(x, residual, jacobian, cost, evaluations)
                     break
             damping *= 4.0
