@@ -719,6 +719,7 @@ def fit_mapping_to_points(
     """
 
     span = (float(pixels.min()), float(pixels.max()))
+    column_sigma = sigma_nm[:, None]
 
     def function(x: FloatArray, with_jacobian: bool) -> tuple[FloatArray, FloatArray | None] | None:
         if isinstance(family, GratingFamily):
@@ -734,7 +735,7 @@ def fit_mapping_to_points(
         residual = np.concatenate([(wavelengths - wavelengths_nm) / sigma_nm, rows])
         if wavelength_jacobian is None:
             return residual, None
-        return residual, np.vstack([wavelength_jacobian / sigma_nm[:, None], row_jacobian])
+        return residual, np.concatenate([wavelength_jacobian / column_sigma, row_jacobian])
 
     solution = levenberg_marquardt(
         function,
