@@ -75,6 +75,10 @@ ROUNDS = 3
 #: valley; on the Canon 10D's sunlight the result moves until ~400 iterations and is the same from
 #: there to 5000 — 50 and 200 stopped on the way, with 0.43 and 0.41 nm RMS that were the cap's).
 FIT_ITERATIONS = 1000
+#: The mapping fit stops when a step lowers its χ² by less than this fraction (a χ² change of
+#: ~1e-8: nothing a σ or a residual shows; 1e-12 let the flattest valleys crawl to the cap with
+#: the same printed answers).
+FIT_TOLERANCE = 1e-9
 #: The mapping fit stops when a step moves no feature by more than this fraction of its σ.
 STEP_TOLERANCE = 1e-4
 #: Iteration cap of the fit that starts a hypothesis (:func:`_initial_parameters`): a start.
@@ -741,7 +745,7 @@ def fit_mapping_to_points(
         function,
         x0,
         max_iterations=max_iterations,
-        tolerance=1e-12,
+        tolerance=FIT_TOLERANCE,
         geodesic=True,
         step_tolerance=STEP_TOLERANCE,
     )
