@@ -96,6 +96,9 @@ def levenberg_marquardt(
     evaluations = 1
     damping = 1e-3
     stride = x.size + 1
+    # Steps bend only once a plain step has been refused: a fit that converges with every step
+    # accepted costs no probes.
+    bending = False
     for _ in range(max_iterations):
         gradient = -(jacobian.T @ residual)
         normal = jacobian.T @ jacobian
@@ -112,7 +115,7 @@ def levenberg_marquardt(
             if info != 0:
                 damping *= 10.0
                 continue
-            if geodesic:
+            if bending:
                 bent = _geodesic_step(function, x, residual, jacobian, system, step, scale)
                 evaluations += 1
                 if bent is None:
@@ -138,6 +141,7 @@ def levenberg_marquardt(
                         return Solution(x, residual, jacobian, cost, evaluations)
                     break
             damping *= 4.0
+            bending = geodesic
         if not improved:
             break
     return Solution(x, residual, jacobian, cost, evaluations)
