@@ -68,9 +68,10 @@ def levenberg_marquardt(
     Jacobian evaluations. With ``step_tolerance``, also when an accepted step moves no residual
     by more than that (the residuals in units of their σ: the fit no longer moves what it fits).
 
-    With ``geodesic``, each step carries its geodesic acceleration (Transtrum & Sethna 2012): the
-    residual's second derivative along the step, by one extra residual evaluation a tenth of the
-    way along it, bends the step to follow a curved valley; a step whose bend exceeds
+    With ``geodesic``, once a plain step has been refused, each step carries its geodesic
+    acceleration (Transtrum & Sethna 2012): the residual's second derivative along the step, by
+    one extra residual evaluation a tenth of the way along it, bends the step to follow a curved
+    valley; a step whose bend exceeds
     :data:`GEODESIC_RATIO` of its length (in the scaled norm) is treated as rejected. A fit that
     crawls along a narrow curved valley (Marquardt's damping cycling once up and once down per
     accepted step) goes there in tens of steps instead of hundreds.
