@@ -372,6 +372,38 @@ def test_levenberg_marquardt_with_a_rejected_region():
     np.testing.assert_allclose(solution.x, [2.0, 3.0], atol=1e-6)
 
 
+def test_levenberg_marquardt_geodesic_follows_a_curved_valley():
+    # A narrow Rosenbrock valley as residuals (1000 (y − x²), 1 − x): the plain loop crawls
+    # along the parabola, the bent steps follow it; both end at (1, 1).
+    def function(x, with_jacobian):
+        residual = np.array([1000.0 * (x[1] - x[0] ** 2), 1.0 - x[0]])
+        jacobian = np.array([[-2000.0 * x[0], 1000.0], [-1.0, 0.0]])
+        return residual, jacobian if with_jacobian else None
+
+    start = np.array([-1.2, 1.0])
+    plain = levenberg_marquardt(function, start, max_iterations=1000, tolerance=1e-14)
+    bent = levenberg_marquardt(function, start, max_iterations=1000, tolerance=1e-14, geodesic=True)
+    np.testing.assert_allclose(plain.x, [1.0, 1.0], atol=1e-5)
+    np.testing.assert_allclose(bent.x, [1.0, 1.0], atol=1e-5)
+    assert bent.evaluations < 0.6 * plain.evaluations
+
+
+def test_levenberg_marquardt_stops_when_no_residual_moves():
+    def function(x, with_jacobian):
+        t = np.linspace(0.0, 1.0, 20)
+        residual = x[0] * np.exp(-x[1] * t) - 2.0 * np.exp(-3.0 * t)
+        jacobian = np.stack([np.exp(-x[1] * t), -x[0] * t * np.exp(-x[1] * t)], axis=1)
+        return residual, jacobian if with_jacobian else None
+
+    start = np.array([0.5, 1.0])
+    full = levenberg_marquardt(function, start, max_iterations=200, tolerance=0.0)
+    early = levenberg_marquardt(
+        function, start, max_iterations=200, tolerance=0.0, step_tolerance=1e-3
+    )
+    assert early.evaluations < full.evaluations
+    np.testing.assert_allclose(early.x, full.x, atol=1e-3)
+
+
 # ------------------------------------------------------------------------------- the rig
 
 

@@ -369,13 +369,21 @@ class GratingFamily:
         return total
 
     def prior_rows(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Residual rows ``(x − mean)/σ`` of the soft prior and their Jacobian ``(r, P)``."""
+        """Residual rows ``(x − mean)/σ`` of the soft prior and their Jacobian ``(r, P)`` (the
+        same read-only array every call: the rows are linear)."""
+        columns, mean, sigma, jacobian = self._prior_layout
+        values = (np.asarray(x, dtype=np.float64)[columns] - mean) / sigma
+        return values, jacobian
+
+    @cached_property
+    def _prior_layout(self) -> tuple[NDArray[np.intp], FloatArray, FloatArray, FloatArray]:
+        """The soft prior's columns, means, σ and (constant, read-only) Jacobian."""
         _, prior, places = self._layout
         columns = prior[:, 0].astype(np.intp)
-        values = (np.asarray(x, dtype=np.float64)[columns] - prior[:, 1]) / prior[:, 2]
         jacobian = np.zeros((columns.size, places.size))
         jacobian[np.arange(columns.size), columns] = 1.0 / prior[:, 2]
-        return values, jacobian
+        jacobian.setflags(write=False)
+        return columns, prior[:, 1].copy(), prior[:, 2].copy(), jacobian
 
     def valid(self, x: FloatArray, pixel_range: tuple[float, float]) -> FloatArray:
         """Whether each mapping ``(K, P)`` (or one ``(P,)``) puts the whole range on the first

@@ -24,6 +24,10 @@ _gesv = lapack.dgesv
 #: call that computes it (evaluated only if the point is accepted: a rejected trial costs only its
 #: residual), or ``None`` when not asked for — or ``None`` outside the valid region.
 Evaluation = tuple[FloatArray, FloatArray | Callable[[], FloatArray] | None] | None
+#: The geodesic step's probe, as a fraction of the step (the finite difference's ``h``).
+GEODESIC_PROBE = 0.1
+#: Largest ``2‖a‖/‖v‖`` (acceleration over velocity, scaled norm) a geodesic step may have.
+GEODESIC_RATIO = 0.75
 #: ``function(x, with_jacobian)`` → :data:`Evaluation`.
 ResidualFunction = Callable[[FloatArray, bool], Evaluation]
 
@@ -54,12 +58,23 @@ def levenberg_marquardt(
     *,
     max_iterations: int = 30,
     tolerance: float = 1e-8,
+    geodesic: bool = False,
+    step_tolerance: float = 0.0,
 ) -> Solution:
     """Minimise ``‖r(x)‖²`` from ``x0`` (which must be valid).
 
     Stops when an accepted step lowers the cost by less than ``tolerance`` relative (or by less
     than ``tolerance`` absolutely, for a zero-residual problem), or after ``max_iterations``
-    Jacobian evaluations.
+    Jacobian evaluations. With ``step_tolerance``, also when an accepted step moves no residual
+    by more than that (the residuals in units of their σ: the fit no longer moves what it fits).
+
+    With ``geodesic``, once a plain step has been refused, each step carries its geodesic
+    acceleration (Transtrum & Sethna 2012): the residual's second derivative along the step, by
+    one extra residual evaluation a tenth of the way along it, bends the step to follow a curved
+    valley; a step whose bend exceeds
+    :data:`GEODESIC_RATIO` of its length (in the scaled norm) is treated as rejected. A fit that
+    crawls along a narrow curved valley (Marquardt's damping cycling once up and once down per
+    accepted step) goes there in tens of steps instead of hundreds.
 
     Examples
     --------
@@ -82,6 +97,9 @@ def levenberg_marquardt(
     evaluations = 1
     damping = 1e-3
     stride = x.size + 1
+    # Steps bend only once a plain step has been refused: a fit that converges with every step
+    # accepted costs no probes.
+    bending = False
     for _ in range(max_iterations):
         gradient = -(jacobian.T @ residual)
         normal = jacobian.T @ jacobian
@@ -98,6 +116,13 @@ def levenberg_marquardt(
             if info != 0:
                 damping *= 10.0
                 continue
+            if bending:
+                bent = _geodesic_step(function, x, residual, jacobian, system, step, scale)
+                evaluations += 1
+                if bent is None:
+                    damping *= 4.0
+                    continue
+                step = bent
             trial = x + step
             # The Jacobian comes with the trial (near convergence most steps are accepted), as
             # a call when the function defers it: computed only if the trial is accepted.
@@ -107,18 +132,45 @@ def levenberg_marquardt(
                 trial_cost = float(outcome[0] @ outcome[0])
                 if math.isfinite(trial_cost) and trial_cost < cost:
                     decrease = cost - trial_cost
+                    moved = float(np.max(np.abs(outcome[0] - residual))) if step_tolerance else 1.0
                     x = trial
                     residual, jacobian = outcome[0], _concrete(outcome[1])
                     cost = trial_cost
                     damping = max(damping / 5.0, 1e-9)
                     improved = True
-                    if decrease <= tolerance * max(cost, 1.0):
+                    if decrease <= tolerance * max(cost, 1.0) or moved < step_tolerance:
                         return Solution(x, residual, jacobian, cost, evaluations)
                     break
             damping *= 4.0
+            bending = geodesic
         if not improved:
             break
     return Solution(x, residual, jacobian, cost, evaluations)
+
+
+def _geodesic_step(
+    function: ResidualFunction,
+    x: FloatArray,
+    residual: FloatArray,
+    jacobian: FloatArray,
+    system: FloatArray,
+    step: FloatArray,
+    scale: FloatArray,
+) -> FloatArray | None:
+    """``v + a/2``: the step ``v`` with its geodesic acceleration ``a`` (``system`` is the damped
+    normal matrix ``v`` was solved with, ``scale`` the norm's diagonal), or ``None`` when the
+    probe is outside the valid region or the bend is too large."""
+    probe = function(x + GEODESIC_PROBE * step, False)
+    if probe is None:
+        return None
+    second = (2.0 / GEODESIC_PROBE) * ((probe[0] - residual) / GEODESIC_PROBE - jacobian @ step)
+    _, _, acceleration, info = _gesv(system, -(jacobian.T @ second))
+    if info != 0:
+        return None
+    bend = float(acceleration**2 @ scale) / max(float(step**2 @ scale), 1e-300)
+    if not math.isfinite(bend) or 2.0 * math.sqrt(bend) > GEODESIC_RATIO:
+        return None
+    return np.asarray(step + 0.5 * acceleration, dtype=np.float64)
 
 
 def _concrete(jacobian: FloatArray | Callable[[], FloatArray]) -> FloatArray:
