@@ -206,6 +206,25 @@ def test_the_mapping_stage_s_warnings_reach_the_quality_block_through_the_python
     assert "mapping_ambiguous" not in {flag.code for flag in plain.quality.flags}
 
 
+def test_an_unresolved_grating_family_reaches_the_quality_block_for_every_method(monkeypatch):
+    """The grating model's record (the prior solve's as multilamp's) gives its warning through
+    calib.methods.estimate; a separated choice gives none (decision 0063)."""
+    near_tie = {"chosen": "sinusoidal", "choice_weights": {"sinusoidal": 0.7, "blazed": 0.3}}
+    separated = {"chosen": "sinusoidal", "choice_weights": {"sinusoidal": 0.99, "blazed": 0.01}}
+    for record, expected in ((near_tie, True), (separated, False)):
+
+        def fake_prior(observations, *, grid, basis, mapping=None, record=record):
+            fake = _fake_result(grid, "prior")
+            return replace(fake, diagnostics={**fake.diagnostics, "grating_model": record})
+
+        monkeypatch.setitem(ESTIMATION_METHODS, "prior", fake_prior)
+        result = calib.methods.estimate(
+            [_lamp("LED")], method="prior", basis=_tiny_basis(), budget=None
+        )
+        codes = {flag.code for flag in result.quality.flags}
+        assert ("grating_family_unresolved" in codes) is expected, codes
+
+
 def test_result_to_dict_is_json_safe():
     grid = DEFAULT_GRID
     sensitivity = np.ones((grid.size, 3))

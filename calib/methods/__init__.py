@@ -62,7 +62,12 @@ from calib.methods.known_grating import (
     estimate_known_grating,
 )
 from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
-from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, estimate_multilamp
+from calib.methods.multilamp import (
+    MULTILAMP_METHOD,
+    MultilampOptions,
+    estimate_multilamp,
+    family_flag,
+)
 from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions, estimate_prior
 from calib.methods.solve_scope import perturbation, solve_scope
 from calib.methods.uncertainty import (
@@ -431,6 +436,11 @@ def _estimate_in_scope(
     # What the mapping stage warned of (competing basins, lines against the fit, extrapolation)
     # reaches the quality block whoever calls: the command lines and the Python API alike.
     result = returned.with_quality(*mapping_flags(returned.mapping))
+    # Likewise the grating model's choice, for every method that judged the physical families
+    # from the direct equations (the prior solve and multilamp alike, decision 0063).
+    family = family_flag(returned.diagnostics.get("grating_model"))
+    if family is not None:
+        result = result.with_quality(family)
     if choice is not None:
         result = replace(
             result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}

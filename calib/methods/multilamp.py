@@ -1490,7 +1490,7 @@ def estimate_multilamp(
     )
     eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
-    result = multilamp_result(
+    return multilamp_result(
         calibrated.lamps,
         solution,
         (eta, eta_sigma),
@@ -1504,8 +1504,6 @@ def estimate_multilamp(
         },
         direct_weight=efficiency.direct_weights,
     )
-    flag = family_flag(efficiency.info.get("grating_model"))
-    return result if flag is None else result.with_quality(flag)
 
 
 #: The runner-up physical family's evidence weight (:func:`family_weights`) above which the
