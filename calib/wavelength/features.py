@@ -1124,14 +1124,14 @@ def _scatter_for_chi2(residual: FloatArray, sigma: FloatArray, dof: int) -> floa
     """The ``s ≥ 0`` with ``Σ r² / (σ² + s²) = dof`` (0 when the stated σ already give less)."""
     if float(np.sum((residual / sigma) ** 2)) <= dof:
         return 0.0
-    low, high = 0.0, float(np.max(np.abs(residual))) + float(np.max(sigma))
-    for _ in range(60):
-        middle = 0.5 * (low + high)
-        if float(np.sum(residual**2 / (sigma**2 + middle**2))) > dof:
-            low = middle
-        else:
-            high = middle
-    return 0.5 * (low + high)
+    from scipy.optimize import brentq  # deferred, as the module's other scipy uses
+
+    def excess(scatter: float) -> float:
+        return float(np.sum(residual**2 / (sigma**2 + scatter**2))) - dof
+
+    # Σ r²/(σ² + s²) falls with s; at this bound it is below n·max r²/s² = dof.
+    high = float(np.max(np.abs(residual))) * math.sqrt(residual.size / dof) + float(np.max(sigma))
+    return float(brentq(excess, 0.0, high, xtol=1e-12))
 
 
 def _slope(mapping: ExactMapping, pixels: FloatArray) -> FloatArray:
