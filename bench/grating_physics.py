@@ -8,7 +8,7 @@
    back), then this camera from one LED-B3 shot (``known-grating``). ``--same-rig``: the other
    camera is calibrated in *this* camera's scene geometry (the same rig: sheet, line density, lens),
    both captures carry the optics a RAW file reports (``bench/wavelength_validate.py``'s
-   ``with_optics``) and the file stores the rig geometry (``geometry.rig``), as ``calib estimate``
+   ``with_exif_optics``) and the file stores the rig geometry (``geometry.rig``), as ``calib estimate``
    writes it (issue 16: a new camera through the file reuses what still holds).
 
 Every scene is the protocol's own (``calib validate``'s plan for the camera, seed and scene: geometry,
@@ -30,7 +30,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
-from wavelength_validate import with_optics  # the sibling bench (run from bench/)
 
 from calib.core.arrays import FloatArray
 from calib.core.grating_file import read_grating_file, write_grating_file
@@ -43,7 +42,7 @@ from calib.evaluation.validation.protocol import (
     draw_task_plan,
     spread_tasks,
 )
-from calib.evaluation.validation.scenes import RenderedScene, render_scene
+from calib.evaluation.validation.scenes import RenderedScene, render_scene, with_exif_optics
 from calib.methods.known_grating import estimate_known_grating
 from calib.methods.multilamp import (
     MultilampOptions,
@@ -129,7 +128,7 @@ def main() -> None:
         if arguments.same_rig:
             calibration = scene(task, sheet, camera=other)
             rng = np.random.default_rng([arguments.seed, task.camera.stable_id])
-            measured = with_optics(with_eta0, rng)
+            measured = with_exif_optics(with_eta0.observations, with_eta0.plan.geometry, rng)
             calibration_lamps = [
                 replace(calibration.observations[lamp], metadata=measured[lamp].metadata)
                 for lamp in LAMPS

@@ -6,7 +6,7 @@ split; each camera's basis is its split's (leave-one-camera-out over the trainin
 validation split, all of them for the test split). Each profile's metadata carries what a capture's
 RAW files record (``optics``, :func:`calib.evaluation.validation.scenes.exif_optics`): the lens'
 focal length as EXIF states it (the image distance the scene drew, less a focus extension of
-0–8 %, rounded to 1 mm) and the pitch.
+0–8 %, as EXIF rounds it) and the pitch.
 
 Scenarios (``--scenario``):
 
@@ -69,23 +69,13 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
     variant_observations,
 )
-from calib.evaluation.validation.scenes import RenderedScene, exif_optics, render_scene
+from calib.evaluation.validation.scenes import RenderedScene, render_scene
 from calib.evaluation.validation.splits import PREDICTION, load_splits
 from calib.methods import estimate
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.rig_prior import rig_geometry
 
 LED = "LED-B3"
-
-
-def with_optics(scene: RenderedScene, rng: np.random.Generator) -> dict[str, LampObservation]:
-    """A scene's observations with the optics a RAW file records (:func:`exif_optics`), for
-    benches that render scenes outside the protocol (``bench/grating_physics.py``)."""
-    optics = exif_optics(scene.plan.geometry, rng)
-    return {
-        name: replace(obs, metadata={**dict(obs.metadata), "optics": optics})
-        for name, obs in scene.observations.items()
-    }
 
 
 def mapping_errors(

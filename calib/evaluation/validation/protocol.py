@@ -54,8 +54,8 @@ from calib.evaluation.validation.scenes import (
     RenderedScene,
     ScenePlan,
     draw_scene_plan,
-    exif_optics,
     render_scene,
+    with_exif_optics,
 )
 from calib.evaluation.validation.splits import (
     Split,
@@ -316,11 +316,9 @@ def render_task_scene(task: Task) -> RenderedScene:
     scene = render_scene(plan, task.camera.sensitivity, scene_lamps(task.settings.variants), noise)
     if task.settings.pixel_origin == "direct_spot":
         optics_seed = scene_seed(task.settings.seed, task.camera, task.scene).spawn(3)[2]
-        optics = exif_optics(plan.geometry, np.random.default_rng(optics_seed))
-        observations = {
-            name: replace(obs, metadata={**dict(obs.metadata), "optics": optics})
-            for name, obs in scene.observations.items()
-        }
+        observations = with_exif_optics(
+            scene.observations, plan.geometry, np.random.default_rng(optics_seed)
+        )
     else:
         observations = {
             name: replace(obs, pixel_origin=task.settings.pixel_origin)

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -195,6 +195,18 @@ def exif_optics(geometry: SceneGeometry, rng: np.random.Generator) -> dict[str, 
     step_mm = 0.1 if nominal_mm < 10.0 else 1.0
     focal_mm = float(max(round(nominal_mm / step_mm) * step_mm, step_mm))
     return {"focal_length_mm": round(focal_mm, 1), "pixel_pitch_um": geometry.pixel_pitch_um}
+
+
+def with_exif_optics(
+    observations: Mapping[str, LampObservation], geometry: SceneGeometry, rng: np.random.Generator
+) -> dict[str, LampObservation]:
+    """``observations`` with the optics a RAW capture of ``geometry`` records
+    (:func:`exif_optics`, one draw for all: one lens and body) in their metadata."""
+    optics = exif_optics(geometry, rng)
+    return {
+        name: replace(obs, metadata={**dict(obs.metadata), "optics": optics})
+        for name, obs in observations.items()
+    }
 
 
 @dataclass(frozen=True)
