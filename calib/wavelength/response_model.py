@@ -468,7 +468,7 @@ class ResponseModel:
 
     def _band_values(self, edges_nm: FloatArray) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
-        low, high = _extremes(windows)
+        low, high = _reduced(windows, np.minimum), _reduced(windows, np.maximum)
         support_lo, support_hi = self.layout.support
         first = np.searchsorted(support_hi, low, side="right")
         last = np.searchsorted(support_lo, high, side="left") - 1
@@ -500,15 +500,17 @@ class ResponseModel:
         padded = edges_nm[:, np.clip(np.arange(n + 2 * half + 1) - half, 0, n)]  # (K, n + L)
         # The columns an edge serves: those of the pixels n − L … n whose window holds it.
         apart = np.full((batch, count - 1), size, dtype=np.intp)
-        lowest, _ = _extremes(
+        lowest = _reduced(
             np.lib.stride_tricks.sliding_window_view(
                 np.concatenate([apart, first, apart], axis=1), count, axis=1
-            )
+            ),
+            np.minimum,
         )  # (K, n + L)
-        _, highest = _extremes(
+        highest = _reduced(
             np.lib.stride_tricks.sliding_window_view(
                 np.concatenate([-apart, first, -apart], axis=1), count, axis=1
-            )
+            ),
+            np.maximum,
         )
         span = int(np.max(highest - lowest)) + width
         table, _ = self.columns.evaluate(
@@ -845,22 +847,21 @@ def _sliding(padded: FloatArray, count: int) -> FloatArray:
     return view
 
 
-def _extremes(windows: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
-    """The minimum and maximum over the last axis of a window view ``(…, L + 1)``, taken slice
-    by slice: the same values as ``min``/``max(axis=-1)``, whose reduction over a short strided
-    axis cost 20–30× more (0065).
+def _reduced(windows: NDArray[Any], ufunc: np.ufunc) -> NDArray[Any]:
+    """``ufunc`` (``np.minimum`` or ``np.maximum``) folded over the last axis of a window view
+    ``(…, L + 1)``, slice by slice: the same values as ``min``/``max(axis=-1)``, whose reduction
+    over a short strided axis cost 20–30× more (0065).
 
     Examples
     --------
     >>> windows = _sliding(np.array([[3.0, 1.0, 2.0, 5.0]]), 2)
-    >>> _extremes(windows)
+    >>> _reduced(windows, np.minimum), _reduced(windows, np.maximum)
     (array([[1., 1., 2.]]), array([[3., 2., 5.]]))
     """
-    low = high = windows[..., 0]
+    folded = windows[..., 0]
     for index in range(1, windows.shape[-1]):
-        low = np.minimum(low, windows[..., index])
-        high = np.maximum(high, windows[..., index])
-    return low, high
+        folded = ufunc(folded, windows[..., index])
+    return folded
 
 
 def _dense(flat: IntArray, values: FloatArray, shape: tuple[int, ...]) -> FloatArray:
