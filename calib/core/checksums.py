@@ -72,7 +72,7 @@ def _state(descriptor: int) -> tuple[int, int, int, int, int]:
 def file_digest(
     path: str | Path, *, sync: bool = False, known: FileDigest | None = None
 ) -> FileDigest:
-    """The :class:`FileDigest` of a file, read once (:func:`file_sha256`, which it computes).
+    """The :class:`FileDigest` of a file, read once (:func:`file_sha256` is its size and sha256).
 
     Parameters
     ----------
