@@ -397,6 +397,21 @@ def test_an_estimate_depends_on_its_seed_alone(tmp_path: Path) -> None:
     assert render_task_scene(task).plan.to_dict() == render_task_scene(again).plan.to_dict()
 
 
+def test_a_run_of_one_variant_draws_the_full_runs_scene() -> None:
+    # ``calib validate --variant X`` must score the scenes the full run scores, or its rows
+    # cannot be compared with that run's.
+    splits = _splits()
+    split = replace(splits.test, cameras=splits.test.cameras[1:2])
+    (alone,) = split_tasks(split, _tiny_settings())
+    (full,) = split_tasks(split, _tiny_settings(variants=DEFAULT_VARIANTS))
+    one, every = render_task_scene(alone), render_task_scene(full)
+    assert one.plan.to_dict() == every.plan.to_dict()
+    assert set(one.observations) == set(every.observations)
+    for lamp, observation in every.observations.items():
+        assert np.array_equal(one.observations[lamp].profile, observation.profile), lamp
+        assert one.observations[lamp].metadata == observation.metadata, lamp
+
+
 def test_scenes_carry_the_optics_a_raw_file_records_and_the_no_exif_row_drops_them() -> None:
     splits = _splits()
     split = replace(splits.test, cameras=splits.test.cameras[1:2])

@@ -122,8 +122,15 @@ EXTRA_VARIANTS: tuple[MethodVariant, ...] = (
 
 
 def scene_lamps(variants: Sequence[MethodVariant]) -> tuple[str, ...]:
-    """Every lamp any variant uses, in first-use order (one scene renders them all)."""
-    return tuple(dict.fromkeys(lamp for variant in variants for lamp in variant.lamps))
+    """Every lamp the default variants and ``variants`` use, in first-use order (one scene renders
+    them all).
+
+    The defaults' lamps come first whichever variants run, so a run of some variants
+    (``calib validate --variant …``) draws the same scenes, to the bit, as the full run: its rows
+    can be compared with that run's.
+    """
+    chosen = (*DEFAULT_VARIANTS, *variants)
+    return tuple(dict.fromkeys(lamp for variant in chosen for lamp in variant.lamps))
 
 
 @dataclass(frozen=True, eq=False)
