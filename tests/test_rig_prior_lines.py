@@ -67,7 +67,7 @@ def test_exif_optics_leave_a_line_lamps_mapping_where_the_lines_put_it(
 ):
     """With the EXIF focal length at the top of its focus extension, the mapping stays within
     0.3 nm of the one without EXIF over the working grid (the axis offset fitted from a prior
-    centred on a guess moved it 0.6–0.9 nm, 0.9–1.1 nm from the truth at the red end)."""
+    centred on a guess moved it 0.6–1.4 nm from it, 0.9–1.3 nm from the truth)."""
     truth = TiltedGrating(1e6 / grooves_per_mm / focal_length_px, focal_length_px, incidence_deg)
     plain = _mercury_profile(camera, truth, seed)
     nominal_mm = focal_length_px * PITCH_UM * 1e-3 / (1.0 + TOP_FOCUS_EXTENSION)
