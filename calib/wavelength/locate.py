@@ -48,6 +48,7 @@ from calib.model.resolution import COARSE_SLIT_NM, FWHM_PER_SIGMA, camera_kernel
 from calib.wavelength.families import GratingFamily, GratingPrior
 from calib.wavelength.features import FeatureMapping, map_features
 from calib.wavelength.profile_search import (
+    HOPELESS_DELTA_CHI2,
     MappingSearch,
     Orientation,
     search_profiles,
@@ -658,12 +659,17 @@ def _lines_from_basins(
     standard bands (25 nm) put its best basin 4 nm off at 550 nm (14 nm at the red end), too far
     for the lines to match, the next one 2 nm. A line fit from another basin is kept only when it
     passes :func:`_check_line_fit` against that basin (the best basin's is kept as before, its
-    refusal recorded). Returns the line fit and the start it came from; the best basin's error
-    when none matches."""
+    refusal recorded), and only from a basin the profiles do not rule out: one more than
+    :data:`~calib.wavelength.profile_search.HOPELESS_DELTA_CHI2` behind (tempered, its closest
+    Δχ²; decision 0065: none came back) matches a few lines to the wrong features (decision
+    0066: Hg 491.6 and the 577/579 pair, 13.7 nm off, from a basin 15 000 behind). Returns the
+    line fit and the start it came from; the best basin's error when none matches."""
     try:
         return _measured_lines(lamp, search.exact, prior, grid), search.exact
     except EstimationError as first:
         for candidate in search.candidates[1:]:
+            if candidate.closest_delta_chi2 > HOPELESS_DELTA_CHI2:
+                continue
             try:
                 features = _measured_lines(lamp, candidate.mapping, prior, grid)
                 _check_line_fit(features, candidate.mapping, prior, lead)

@@ -49,8 +49,8 @@ REUSED_FOCAL_SIGMA = 0.01
 #: two, remounting it tilts the assembly by a degree or two.
 LENS_REUSED_FOCAL_SIGMA = 0.02
 LENS_REUSED_INCIDENCE_DEG = 2.0
-#: σ of the 0th order's distance from the lens axis, in focal lengths (the axis meets the sensor
-#: near its centre, give or take a crop).
+#: σ of the 0th order's distance from the lens axis, in focal lengths, when the capture records the
+#: spot's place on the sensor (the axis meets the sensor near its centre, give or take a crop).
 AXIS_OFFSET_SIGMA = 0.15
 #: A new capture's order must point within this angle (degrees) and its band sit within this
 #: fraction of the stored distance from the spot for the stored geometry to be reused whole.
@@ -110,6 +110,12 @@ class RigOptics:
     band_distance_px: float | None = None
     side: int = 1
     grooves_per_mm: float | None = None
+
+    @property
+    def spot_placed(self) -> bool:
+        """Whether the capture records where the spot lies on the sensor (its geometry), which
+        places the lens axis relative to it (:attr:`axis_offset_px`)."""
+        return self.order_angle_deg is not None
 
     @property
     def focal_length_px(self) -> float | None:
@@ -368,12 +374,17 @@ def rig_prior(
             # With the focal length known the curvature cannot hide where the lens axis is:
             # u₀ is fitted, pulled to the spot's distance from the sensor's centre (where the
             # axis meets it, give or take a crop or a shifted lens) with a σ of
-            # AXIS_OFFSET_SIGMA focal lengths. Without it, u₀ = 0: the incidence and the focal
-            # length absorb the off-axis bend, and fitting all three is degenerate.
+            # AXIS_OFFSET_SIGMA focal lengths — when the capture says where the spot is.
+            # Otherwise (no focal length, or no record of the spot's place on the sensor)
+            # u₀ = 0, the 0th order on the axis: nothing measures u₀, and a profile cannot — the
+            # spacing, focal length and incidence refit a u₀ of 0.1 F to < 0.1 nm over
+            # 380–780 nm (moving F by ~18 % and θ by ~19°). Fitted from a guess, u₀ gives a few
+            # lines the freedom the focal length's and incidence's priors deny, and their
+            # small errors bend the mapping beyond them (decision 0066).
             if axis is not None:
                 offset = axis[0]
                 values["axis_offset_px"] = axis
-            else:
+            elif optics.spot_placed:
                 offset = optics.axis_offset_px
                 values["axis_offset_px"] = (offset, AXIS_OFFSET_SIGMA * math.exp(focal[0]))
     if spacing is not None:
