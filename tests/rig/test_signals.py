@@ -164,16 +164,23 @@ def test_ctrl_c_in_the_first_moments_is_one_line(
     """``rig`` is still importing its libraries: a Ctrl-C then ends it as one later would."""
     config = write_config(tmp_path / "rig.yaml", fake_config_data(tmp_path / "sessions"))
     command = Path(sys.executable).parent / "rig"
-    process = subprocess.Popen(
-        [str(command), "capture", "--config", str(config), "--quiet"],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    time.sleep(python_start_s + after_start_s)
-    process.send_signal(signal.SIGINT)
-    code, out, err = finish(process)
+    delay_s = python_start_s + after_start_s
+    for _ in range(4):
+        process = subprocess.Popen(
+            [str(command), "capture", "--config", str(config), "--quiet"],
+            cwd=tmp_path,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        time.sleep(delay_s)
+        process.send_signal(signal.SIGINT)
+        code, out, err = finish(process)
+        # On a loaded machine this start can outlast the fixture's: the Ctrl-C then lands in
+        # CPython's own start-up, before any code of rig runs — not what this test is about.
+        if not err.startswith("Fatal Python error:"):
+            break
+        delay_s *= 2
     assert "Traceback" not in err
     assert code == 130, err
     # Interrupted while importing or opening: one line on stderr. Interrupted once the run had
