@@ -11,6 +11,7 @@ import pytest
 
 from calib.image.hdr import HdrImage
 from calib.image.profiles import DiffractionGeometry, detect_geometry
+from calib.image.raw import DEFAULT_SATURATION_FRACTION
 from mocks.bench import TwinOptics
 from mocks.bench.camera import FrameRenderer
 from mocks.bench.lamps import virtual_lamp
@@ -149,7 +150,7 @@ def test_the_detection_binning_is_numpys_block_mean_bit_for_bit(shape: tuple[int
 
 def test_a_frame_is_detected_on_the_same_binned_image(camera: Camera) -> None:
     frame = camera.frame("LED-B3", 1 / 60)
-    small = frame_stats._decode(frame, frame_stats.DEFAULT_SATURATION_FRACTION).image
+    small = frame_stats._decode(frame, DEFAULT_SATURATION_FRACTION).image
     # The small twin's frames are within the detection size: tiled to a 961-sample wide frame
     # with odd sides, binned twice.
     image = dataclasses.replace(
