@@ -98,6 +98,37 @@ def _decode(path: Path, saturation_fraction: float) -> _Frame:
     return _Frame(planes, image, mean_dn, saturated)
 
 
+def binned_mean(planes: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The mean of each 2×2 block of ``planes`` (shape ``(3, 2h, 2w)`` → ``(3, h, w)``, float32).
+
+    The same floats as ``planes.reshape(3, h, 2, w, 2).mean(axis=(2, 4), dtype=np.float32)``
+    (tested bit for bit against it), at a tenth of its cost: that reduction over two strided
+    axes took 11 ms of a 600×400-sample frame, the four strided slices take 1 ms. NumPy sums a
+    block as (top left + top right) + (bottom left + bottom right), except when the blocks form a
+    single column (``w == 1``), where it adds the four in turn; that case is left to NumPy.
+    """
+    if planes.shape[2] <= 2:
+        height, width = planes.shape[1] // 2, planes.shape[2] // 2
+        shape = (planes.shape[0], height, 2, width, 2)
+        mean: NDArray[np.float32] = planes.reshape(shape).mean(axis=(2, 4), dtype=np.float32)
+        return mean
+    top_left, top_right = planes[:, 0::2, 0::2], planes[:, 0::2, 1::2]
+    bottom_left, bottom_right = planes[:, 1::2, 0::2], planes[:, 1::2, 1::2]
+    total = top_left + top_right
+    total += bottom_left + bottom_right
+    total /= np.float32(4.0)
+    return total
+
+
+def binned_any(saturated: BoolArray) -> BoolArray:
+    """Whether any sample of each 2×2 block of ``saturated`` is set (``(3, 2h, 2w)`` →
+    ``(3, h, w)``); as ``np.any`` over the blocks, without its strided reduction (10 ms → 0.6 ms)."""
+    result: BoolArray = saturated[:, 0::2, 0::2] | saturated[:, 0::2, 1::2]
+    result |= saturated[:, 1::2, 0::2]
+    result |= saturated[:, 1::2, 1::2]
+    return result
+
+
 def _detection_image(image: HdrImage) -> HdrImage:
     """``image`` binned 2×2 (plane samples) while its long side exceeds :data:`DETECTION_SIZE`.
 
@@ -106,13 +137,8 @@ def _detection_image(image: HdrImage) -> HdrImage:
     """
     while max(image.plane_shape) > DETECTION_SIZE:
         height, width = (size // 2 * 2 for size in image.plane_shape)
-        shape = (3, height // 2, 2, width // 2, 2)
-        radiance = (
-            image.radiance[:, :height, :width].reshape(shape).mean(axis=(2, 4), dtype=np.float32)
-        )
-        saturated: BoolArray = np.any(
-            image.saturated[:, :height, :width].reshape(shape), axis=(2, 4)
-        )
+        radiance = binned_mean(image.radiance[:, :height, :width])
+        saturated = binned_any(image.saturated[:, :height, :width])
         pitch = image.pixel_pitch_px
         image = HdrImage(
             radiance=radiance,

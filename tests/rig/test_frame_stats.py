@@ -6,10 +6,12 @@ import dataclasses
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from calib.image.hdr import HdrImage
 from calib.image.profiles import DiffractionGeometry, detect_geometry
+from calib.image.raw import DEFAULT_SATURATION_FRACTION
 from mocks.bench import TwinOptics
 from mocks.bench.camera import FrameRenderer
 from mocks.bench.lamps import virtual_lamp
@@ -125,3 +127,47 @@ def test_a_band_off_the_frame_is_a_setup_problem(tmp_path: Path) -> None:
             RawFrameAnalyzer().analyse(camera.frame("LED-B3", 1 / 60))
     finally:
         camera.renderer.close()
+
+
+@pytest.mark.parametrize(
+    "shape", [(3, 800, 1200), (3, 401, 603), (3, 2, 2), (3, 7, 2), (3, 180, 3), (3, 4, 9001)]
+)
+def test_the_detection_binning_is_numpys_block_mean_bit_for_bit(shape: tuple[int, ...]) -> None:
+    rng = np.random.default_rng(sum(shape))
+    planes = (rng.standard_normal(shape) * 10 ** rng.uniform(-3, 5)).astype(np.float32)
+    saturated = rng.random(shape) < 0.05
+    height, width = shape[1] // 2 * 2, shape[2] // 2 * 2
+    blocks = (3, height // 2, 2, width // 2, 2)
+    expected = planes[:, :height, :width].reshape(blocks).mean(axis=(2, 4), dtype=np.float32)
+    binned = frame_stats.binned_mean(planes[:, :height, :width])
+    assert binned.dtype == np.float32
+    np.testing.assert_array_equal(binned, expected)
+    np.testing.assert_array_equal(
+        frame_stats.binned_any(saturated[:, :height, :width]),
+        np.any(saturated[:, :height, :width].reshape(blocks), axis=(2, 4)),
+    )
+
+
+def test_a_frame_is_detected_on_the_same_binned_image(camera: Camera) -> None:
+    frame = camera.frame("LED-B3", 1 / 60)
+    small = frame_stats._decode(frame, DEFAULT_SATURATION_FRACTION).image
+    # The small twin's frames are within the detection size: tiled to a 961-sample wide frame
+    # with odd sides, binned twice.
+    image = dataclasses.replace(
+        small,
+        radiance=np.tile(small.radiance, (1, 4, 4))[:, :481, :961],
+        variance=np.broadcast_to(np.float32(1.0), (3, 481, 961)),
+        saturated=np.tile(small.saturated, (1, 4, 4))[:, :481, :961],
+    )
+    binned = frame_stats._detection_image(image)
+    radiance, saturated, pitch = image.radiance, image.saturated, image.pixel_pitch_px
+    while max(radiance.shape[1:]) > frame_stats.DETECTION_SIZE:
+        height, width = (size // 2 * 2 for size in radiance.shape[1:])
+        blocks = (3, height // 2, 2, width // 2, 2)
+        radiance = radiance[:, :height, :width].reshape(blocks).mean(axis=(2, 4), dtype=np.float32)
+        saturated = np.any(saturated[:, :height, :width].reshape(blocks), axis=(2, 4))
+        pitch *= 2
+    assert pitch > image.pixel_pitch_px  # binned at least once
+    np.testing.assert_array_equal(binned.radiance, radiance)
+    np.testing.assert_array_equal(binned.saturated, saturated)
+    assert binned.pixel_pitch_px == pitch

@@ -37,3 +37,22 @@ def test_stored_tables_are_colours_own(tmp_path: Path, monkeypatch: pytest.Monke
         path.write_bytes(b"damaged")
     np.testing.assert_array_equal(settled_spectrum(lamp).values, first.values)
     np.testing.assert_array_equal(load_sensitivity(camera).values, sensitivity.values)
+
+
+def test_colours_version_is_read_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Reading a distribution's metadata parses its METADATA file (3 ms each); a twin opens with
+    # three tables, and the bench opens one per capture.
+    looked_up: list[str] = []
+
+    def counting(name: str) -> str:
+        looked_up.append(name)
+        return "0.4.7"
+
+    monkeypatch.setattr(colour_cache, "version", counting)
+    colour_cache.colour_version.cache_clear()
+    try:
+        names = {colour_cache.cache_directory().name for _ in range(3)}
+    finally:
+        colour_cache.colour_version.cache_clear()
+    assert looked_up == ["colour-science"]
+    assert names == {f"{colour_cache.CACHE_FORMAT}-colour-0.4.7"}
