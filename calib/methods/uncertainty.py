@@ -76,6 +76,7 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, Severity
 from calib.core.spectra import Spectrum
+from calib.core.spectrometer_scale import scale_sigma_nm
 from calib.core.spectrometer_tolerance import (
     BANDWIDTH_TOLERANCE,
     IN_SPEC_TOLERANCE_SIGMA,
@@ -360,26 +361,27 @@ def floored_reduced_chi2(
 ) -> float | None:
     """The fit's reduced χ² with ``floor`` × the profile under each sample's noise.
 
-    Each lamp's profile residual ``d`` and its noise-normalised form ``d/σ``
-    (``result.residuals[name]["profile"]`` and ``["profile_normalised"]``) give σ; the floor is taken
-    on the observed profile ``y``: ``χ² = mean(d² / (σ² + (floor·y)²))`` over every sample of every
-    lamp. Methods without profile residuals (multilamp's direct equations) keep their own χ²
-    (:func:`reduced_chi2`).
+        Each lamp's profile residual ``d`` and its noise-normalised form ``d/σ``
+        (``result.residuals[name]["profile"]`` and ``["profile_normalised"]``) give σ; the floor is taken
+        on the observed profile ``y``: ``χ² = mean(d² / (σ² + (floor·y)²))`` over every sample of every
+        lamp. Methods without profile residuals (multilamp's direct equations) keep their own χ²
+        (:func:`reduced_chi2`).
 
-    Examples
-    --------
-    >>> from calib.core.spectra import Spectrum
-    >>> y = np.full((4, 3), 100.0)
-    >>> lamp = LampObservation("led", Spectrum([400.0, 700.0], [1.0, 1.0]), np.arange(4.0), y)
-    >>> d = np.full((4, 3), 2.0)
-    >>> result = EstimateResult(
-    ...     method="prior", wavelength_nm=np.array([400.0, 700.0]), sensitivity=np.ones((2, 3)),
-    ...     residuals={"led": {"profile": d, "profile_normalised": d / 0.1}},
-    ...     diagnostics={"reduced_chi2": 400.0})
-    >>> floored_reduced_chi2(result, [lamp], 0.0)
-    400.0
-    >>> floored_reduced_chi2(result, [lamp], 0.02)  # 2 / √(0.1² + 2²)
-    0.9975...
+        Examples
+        --------
+        >>> from calib.core.spectra import Spectrum
+    from calib.core.spectrometer_scale import scale_sigma_nm
+        >>> y = np.full((4, 3), 100.0)
+        >>> lamp = LampObservation("led", Spectrum([400.0, 700.0], [1.0, 1.0]), np.arange(4.0), y)
+        >>> d = np.full((4, 3), 2.0)
+        >>> result = EstimateResult(
+        ...     method="prior", wavelength_nm=np.array([400.0, 700.0]), sensitivity=np.ones((2, 3)),
+        ...     residuals={"led": {"profile": d, "profile_normalised": d / 0.1}},
+        ...     diagnostics={"reduced_chi2": 400.0})
+        >>> floored_reduced_chi2(result, [lamp], 0.0)
+        400.0
+        >>> floored_reduced_chi2(result, [lamp], 0.02)  # 2 / √(0.1² + 2²)
+        0.9975...
     """
     own = reduced_chi2(result)
     by_name = {lamp.name: lamp for lamp in observations}
@@ -653,8 +655,12 @@ def spectrometer_sigma(
         for lamp in observations
     ]
     shift = max(scales)
+    # A lamp whose spectrum's scale was checked against Hg lines (decision 0069) is off by the
+    # check's σ (one σ), not by the tolerance.
+    checked = [scale_sigma_nm(lamp) for lamp in observations]
     carried = mapping_scale_sigma_nm(result)
     solves: dict[str, EstimateResult] = {}
+    scale_factor = settings.tolerance_sigma
     if carried > 0:
         # The mapping was placed by these spectra: a scale error moves it with them, so the curves
         # move along the wavelength axis — the mapping component (its σ holds the scale); a
@@ -662,6 +668,31 @@ def spectrometer_sigma(
         notes.append(
             f"spectrometer scale: in the mapping's σ ({carried:.3g} nm; the mapping follows "
             "the lamp spectra's wavelength scale)"
+        )
+    elif any(sigma is not None for sigma in checked):
+        # Each lamp's one-σ scale error: the check's, else the tolerance's. The re-solve moves the
+        # largest by the tolerance (a change well above the solve's own precision) and the rest in
+        # proportion; its change is scaled back to one σ.
+        sigmas = [
+            scale * settings.tolerance_sigma if sigma is None else sigma
+            for scale, sigma in zip(scales, checked, strict=True)
+        ]
+        largest = max(sigmas)
+        if largest > 0:
+            ratio = shift / largest
+            solves["spectrometer scale"] = rerun(
+                [
+                    shifted(lamp, ratio * sigma)
+                    for lamp, sigma in zip(observations, sigmas, strict=True)
+                ]
+            )
+            scale_factor = 1.0 / ratio
+        notes.append(
+            "spectrometer scale: checked against Hg lines, σ "
+            + ", ".join(
+                f"{lamp.name} {sigma:.2g} nm"
+                for lamp, sigma in zip(observations, sigmas, strict=True)
+            )
         )
     else:
         solves["spectrometer scale"] = rerun([shifted(lamp, shift) for lamp in observations])
@@ -687,7 +718,7 @@ def spectrometer_sigma(
     solves["spectrometer bandwidth"] = rerun(widened)
     notes.append(
         "spectrometer: "
-        + ("" if carried > 0 else f"scale ±{shift:g} nm, ")
+        + ("" if carried > 0 or any(c is not None for c in checked) else f"scale ±{shift:g} nm, ")
         + "bandwidth "
         + (
             f"{settings.assumed_bandwidth_nm:g} nm assumed"
@@ -699,7 +730,7 @@ def spectrometer_sigma(
     # A stated tolerance bounds an in-spec instrument: σ = tolerance_sigma × the re-solve's change
     # (an assumed bandwidth is not a tolerance: its change stands as one σ).
     factors = {
-        "spectrometer scale": settings.tolerance_sigma,
+        "spectrometer scale": scale_factor,
         "spectrometer bandwidth": 1.0 if missing else settings.tolerance_sigma,
     }
     return solves, factors, notes, flags
