@@ -32,7 +32,9 @@ and channel, on the delivered curves' scale (maximum 1):
     σ does not already hold that scale: a mapping placed by the spectra moves with them, decision
     0044), and with the stated slit
     bandwidth changed by its tolerance (or, when none was given, a typical one assumed; quality code
-    ``no_spectrometer_bandwidth``).
+    ``no_spectrometer_bandwidth``). Where the spectra's scale was checked against a fluorescent
+    lamp's Hg lines and corrected (:mod:`calib.core.spectrometer_scale`, decision 0069), the scale
+    component is the check's σ (``metadata["wavelength_scale_sigma_nm"]``), not the tolerance.
 ``efficiency model``
     By perturbation: re-solved with :data:`EFFICIENCY_TERMS_STEP` fewer terms of the grating
     efficiency's Fourier model — how much the answer leans on the η model's form.
