@@ -368,26 +368,26 @@ def floored_reduced_chi2(
 ) -> float | None:
     """The fit's reduced χ² with ``floor`` × the profile under each sample's noise.
 
-        Each lamp's profile residual ``d`` and its noise-normalised form ``d/σ``
-        (``result.residuals[name]["profile"]`` and ``["profile_normalised"]``) give σ; the floor is taken
-        on the observed profile ``y``: ``χ² = mean(d² / (σ² + (floor·y)²))`` over every sample of every
-        lamp. Methods without profile residuals (multilamp's direct equations) keep their own χ²
-        (:func:`reduced_chi2`).
+    Each lamp's profile residual ``d`` and its noise-normalised form ``d/σ``
+    (``result.residuals[name]["profile"]`` and ``["profile_normalised"]``) give σ; the floor is taken
+    on the observed profile ``y``: ``χ² = mean(d² / (σ² + (floor·y)²))`` over every sample of every
+    lamp. Methods without profile residuals (multilamp's direct equations) keep their own χ²
+    (:func:`reduced_chi2`).
 
-        Examples
-        --------
-        >>> from calib.core.spectra import Spectrum
-        >>> y = np.full((4, 3), 100.0)
-        >>> lamp = LampObservation("led", Spectrum([400.0, 700.0], [1.0, 1.0]), np.arange(4.0), y)
-        >>> d = np.full((4, 3), 2.0)
-        >>> result = EstimateResult(
-        ...     method="prior", wavelength_nm=np.array([400.0, 700.0]), sensitivity=np.ones((2, 3)),
-        ...     residuals={"led": {"profile": d, "profile_normalised": d / 0.1}},
-        ...     diagnostics={"reduced_chi2": 400.0})
-        >>> floored_reduced_chi2(result, [lamp], 0.0)
-        400.0
-        >>> floored_reduced_chi2(result, [lamp], 0.02)  # 2 / √(0.1² + 2²)
-        0.9975...
+    Examples
+    --------
+    >>> from calib.core.spectra import Spectrum
+    >>> y = np.full((4, 3), 100.0)
+    >>> lamp = LampObservation("led", Spectrum([400.0, 700.0], [1.0, 1.0]), np.arange(4.0), y)
+    >>> d = np.full((4, 3), 2.0)
+    >>> result = EstimateResult(
+    ...     method="prior", wavelength_nm=np.array([400.0, 700.0]), sensitivity=np.ones((2, 3)),
+    ...     residuals={"led": {"profile": d, "profile_normalised": d / 0.1}},
+    ...     diagnostics={"reduced_chi2": 400.0})
+    >>> floored_reduced_chi2(result, [lamp], 0.0)
+    400.0
+    >>> floored_reduced_chi2(result, [lamp], 0.02)  # 2 / √(0.1² + 2²)
+    0.9975...
     """
     own = reduced_chi2(result)
     by_name = {lamp.name: lamp for lamp in observations}
