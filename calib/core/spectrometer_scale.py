@@ -16,8 +16,8 @@ shows Hg 404.66, 435.83, 546.07 and the 576.96/579.07 doublet, known to 0.01 nm 
    with a free amplitude, on a polynomial background, all moved by one shift ``δ``. So a blend
    is modelled, not ignored: where the slit cannot separate Tb 542.4 from Hg 546.1 (or the two
    lines of the doublet) the free amplitudes make the shift poorly determined and the fit's
-   covariance says so; a phosphor line's own position (known to 0.5 nm) is moved by its
-   uncertainty and the change of ``δ`` added to its σ.
+   covariance says so; a phosphor line's peak (known to 0.5 nm) gets its own displacement with a
+   Gaussian prior of that σ, so it informs ``δ`` only as far as its position is known.
 2. *A window counts* when its mercury line is there: amplitude ≥ :data:`MIN_LINE_SNR` of its σ,
    the slit factor and the shift inside their search ranges (not at a bound), and ``δ``'s σ below
    :data:`MAX_LINE_SIGMA_NM`. Otherwise it is left out (the reason recorded).
@@ -25,16 +25,18 @@ shows Hg 404.66, 435.83, 546.07 and the 576.96/579.07 doublet, known to 0.01 nm 
    offset ``a`` takes no prior (the data decide it, so an instrument out of its specification is
    seen as such); the slope ``b`` takes the in-spec instrument's prior: the error at 380 and at
    780 nm each within ±tolerance (σ = tolerance/√3), independent, straight between — the twin's
-   model (decision 0038), ``σ_b = √2 · 0.289 / 400 nm``. With one window the slope stays its prior
-   and the σ grows away from the line; with lines spanning 140–175 nm the data pin it.
+   model (decision 0038), ``σ_b = √2 · 0.289 / 400 nm``. The data fit it only when the windows span
+   :data:`MIN_SLOPE_SPAN_NM`; otherwise it stays its prior and the σ grows away from the lines.
+   At least :data:`MIN_FEATURES` windows must count (one line cannot test itself).
    When the windows disagree (reduced χ² > 1) the covariance is inflated by it; beyond
    :data:`MAX_CONSISTENCY_CHI2` they are taken as not mercury's and nothing is returned.
 4. *The σ*: ``σ(λ)² = [1, λ − λ_r] Σ [1, λ − λ_r]ᵀ``, stated as its RMS over the working range
    (:attr:`ScaleCheck.sigma_nm`): the spectrometer scale σ the mapping and the budget use in place
    of the tolerance.
 
-Nothing is returned when no window counts (no Hg lines: an LED, a halogen lamp; lines too blended
-at this slit; a poor fit): the tolerance stays.
+Nothing is returned when fewer than two windows count (no Hg lines: an LED, a halogen lamp; lines
+too blended or too coarsely sampled at this slit; a poor fit), when they disagree, or when the
+result is no better than the tolerance: the tolerance stays.
 
 :func:`checked_observations` applies it to an estimate's lamps: the first line lamp whose spectrum a
 spectrometer measured (a stated bandwidth, not a built-in or tabulated spectrum) is checked, and
