@@ -34,7 +34,7 @@ import argparse
 import math
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +90,9 @@ class Row:
     components: dict[str, float]
     eta_coverage: float = math.nan
     eta_sigma_ratio: float = math.nan
+    #: The spectrometer-scale check's mean offset over the grid and its σ (nm), ``None``: none.
+    scale_check: tuple[float, float] | None = None
+    scale_check_notes: list[str] = field(default_factory=list)
 
 
 def twin_config(
@@ -169,7 +172,16 @@ def judge(
         name: float(value) / error_rms for name, value in dict(budget.get("rms", {})).items()
     }
     components["factor"] = float(budget.get("coverage_scale", math.nan))
+    # The spectrometer-scale check against the FL lamp's Hg lines (decision 0069), if it decided.
+    checked = result.diagnostics.get("spectrometer_scale_check") or {}
+    check = checked.get("check") if isinstance(checked, dict) else None
     return {
+        "scale_check": (
+            (float(check["mean_offset_nm"]), float(check["sigma_nm"]))
+            if isinstance(check, dict)
+            else None
+        ),
+        "scale_check_notes": list(checked.get("notes", [])) if isinstance(checked, dict) else [],
         "components": components,
         "method": result.method,
         "re": relative_error(curves.values, reference),
@@ -251,7 +263,14 @@ def main() -> None:
                 continue
             truth_file = write_twin_truth(config, captured.session)
             drawn = read_twin_truth(truth_file).spectrometer or {}
+            drawn_mean_nm: float | None = None
             if (deviation := deviation_from_record(drawn)) is not None:
+                drawn_mean_nm = float(
+                    np.mean(
+                        deviation.true_wavelength_nm(DEFAULT_GRID.wavelength_nm)
+                        - DEFAULT_GRID.wavelength_nm
+                    )
+                )
                 # The draw against the σ the budget states for it (decision 0055: with one shared
                 # draw the twins see one realisation of a distribution, not the distribution).
                 grid_nm = DEFAULT_GRID.wavelength_nm
@@ -286,6 +305,20 @@ def main() -> None:
                     f"η ±2σ {100 * row.eta_coverage:5.1f} %  η σ/err {row.eta_sigma_ratio:4.2f}",
                     flush=True,
                 )
+                if row.scale_check is not None:
+                    offset, sigma = row.scale_check
+                    truth_text = (
+                        ""
+                        if drawn_mean_nm is None
+                        else f"; drawn {drawn_mean_nm:+.3f} nm, error {offset - drawn_mean_nm:+.3f}"
+                    )
+                    print(
+                        f"    scale check: mean offset over the grid {offset:+.3f} ± {sigma:.3f} nm"
+                        + truth_text,
+                        flush=True,
+                    )
+                else:
+                    print(f"    scale check: none ({'; '.join(row.scale_check_notes)})", flush=True)
                 print(
                     "    σ component RMS / error RMS: "
                     + ", ".join(f"{name} {value:.2f}" for name, value in row.components.items()),

@@ -508,3 +508,19 @@ def with_narrow_lines(
             profile = np.exp(-0.5 * ((fine - line) / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi))
             result += power / len(lines) * profile
     return Spectrum(fine, result, name=spectrum.name)
+
+
+#: The mercury features a spectrometer's wavelength scale is checked against
+#: (:mod:`calib.core.spectrometer_scale`): the strong visible Hg I lines every fluorescent lamp
+#: shows, known to 0.005 nm (NIST), the 576.96/579.07 doublet as one feature (unresolved by slits
+#: wider than ~2 nm). 407.78 and 491.60 are too weak to rest a check on; 407.78 is modelled as a
+#: neighbour of 404.66.
+SCALE_CHECK_FEATURES: tuple[tuple[Line, ...], ...] = (
+    (MERCURY[0],),
+    (MERCURY[2],),
+    (MERCURY[4],),
+    (MERCURY[5], MERCURY[6]),
+)
+#: Every line a fluorescent lamp may show beside those features (Hg I, the tri-phosphors' Tb³⁺ and
+#: Eu³⁺ peaks): what a window of the check models with free amplitudes.
+CFL_NEIGHBOURS: tuple[Line, ...] = MERCURY + TERBIUM + EUROPIUM

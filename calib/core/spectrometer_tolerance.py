@@ -7,6 +7,10 @@ the same errors from them (decision 0055): the protocol draws a constant scale o
 the bandwidth exactly, the twin a straight-line scale error between independent ends (σ 0.225 nm
 over 400–700 nm against the budget's 0.289 nm) and a ±25 % slit; the budget covers both. No
 imports, so the twin's station loads it without the estimators.
+
+Where an estimate's fluorescent lamp shows its Hg lines clearly enough, the scale is measured
+instead of assumed (:mod:`calib.core.spectrometer_scale`, decision 0069): the spectra are corrected
+and the check's σ replaces :data:`WAVELENGTH_SCALE_NM` × :data:`IN_SPEC_TOLERANCE_SIGMA`.
 """
 
 #: Wavelength-scale tolerance (nm): the ±0.5 nm a PR-670 / calibrated compact spectrometer

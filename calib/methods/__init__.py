@@ -52,6 +52,7 @@ from calib.core.errors import InputError
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, mapping_flags
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.core.spectrometer_scale import ScaleCheckOutcome, checked_observations
 from calib.methods.baselines.han2012 import Han2012Options, estimate_han2012
 from calib.methods.baselines.jiang2013 import estimate_jiang2013
 from calib.methods.baselines.solomatov2023 import estimate_solomatov2023
@@ -297,6 +298,7 @@ def estimate(
     filter_options: bool = False,
     budget: BudgetSettings | None = DEFAULT_BUDGET,
     assume_flat_grating: bool = False,
+    check_spectrometer_scale: bool = True,
     **options: Any,
 ) -> EstimateResult:
     """Estimate a camera's spectral sensitivity by the method named.
@@ -325,6 +327,12 @@ def estimate(
     assume_flat_grating
         With ``"auto"``: lamps without a direct measurement and no grating file go through the
         known-grating solve with a flat grating instead of an error (the caller warns).
+    check_spectrometer_scale
+        Check the spectrometer's wavelength scale against the Hg lines of a fluorescent lamp it
+        measured and correct every spectrum of that instrument
+        (:func:`calib.core.spectrometer_scale.checked_observations`, decision 0069): the mapping
+        and the σ budget then carry the check's σ instead of the scale tolerance; the result
+        records it in ``diagnostics["spectrometer_scale_check"]``. Off: the spectra as given.
     **options
         The method's own keywords, as its function declares them: ``mapping``, ``mapping_lamp``,
         ``options`` (its typed options object), ``grating`` (known-grating), ``seed`` (toivonen2020) …
@@ -343,6 +351,13 @@ def estimate(
         refuses.
     """
     key = check_method(method)
+    scale_check: ScaleCheckOutcome | None = None
+    if check_spectrometer_scale:
+        observations, scale_check = checked_observations(
+            observations, range_nm=(grid.start_nm, grid.stop_nm)
+        )
+        if scale_check.check is None and not scale_check.notes:
+            scale_check = None
     choice: MethodChoice | None = None
     if key == AUTO:
         choice = choose_method(
@@ -352,15 +367,18 @@ def estimate(
         )
         key = choice.method
         if choice.mapping_only:
-            return _mapping_only_estimate(
-                observations,
-                choice,
-                grid=grid,
-                basis=basis,
-                data_dir=data_dir,
-                filter_options=filter_options,
-                budget=budget,
-                options=options,
+            return with_scale_check(
+                _mapping_only_estimate(
+                    observations,
+                    choice,
+                    grid=grid,
+                    basis=basis,
+                    data_dir=data_dir,
+                    filter_options=filter_options,
+                    budget=budget,
+                    options=options,
+                ),
+                scale_check,
             )
         if key == KNOWN_GRATING_METHOD:
             options = {"grating": None, **options}
@@ -413,9 +431,35 @@ def estimate(
         check_grid_within_basis(used_basis)
     # The method and its budget's re-solves share identical sub-solves and warm starts.
     with solve_scope(shared=budget is None or budget.reuse_solves):
-        return _estimate_in_scope(
-            observations, key, function, routed, parameters, choice, used_basis, budget
+        return with_scale_check(
+            _estimate_in_scope(
+                observations, key, function, routed, parameters, choice, used_basis, budget
+            ),
+            scale_check,
         )
+
+
+def with_scale_check(result: EstimateResult, outcome: ScaleCheckOutcome | None) -> EstimateResult:
+    """``result`` recording the spectrometer-scale check (``diagnostics["spectrometer_scale_check"]``),
+    flagged ``spectrometer_out_of_spec`` when the lines put the scale beyond its tolerance."""
+    if outcome is None or not isinstance(result, EstimateResult):
+        return result
+    result = replace(
+        result,
+        diagnostics={**result.diagnostics, "spectrometer_scale_check": outcome.to_dict()},
+    )
+    check = outcome.check
+    if check is not None and check.out_of_spec:
+        result = result.with_quality(
+            QualityFlag(
+                "spectrometer_out_of_spec",
+                f"the Hg lines of {check.lamp} put the spectrometer's wavelength scale "
+                f"{check.mean_offset_nm:+.2f} ± {check.sigma_nm:.2f} nm off, beyond its "
+                f"±{check.tolerance_nm:g} nm tolerance: the spectra were corrected by the lines, "
+                "but the instrument is out of its specification (recalibrate it)",
+            )
+        )
+    return result
 
 
 def _estimate_in_scope(
@@ -526,6 +570,7 @@ def _mapping_only_estimate(
             basis=basis,
             filter_options=True,
             budget=None,
+            check_spectrometer_scale=False,
             **method_options,
         ).mapping
     method_options.pop("mapping_lamp", None)
@@ -538,6 +583,7 @@ def _mapping_only_estimate(
         filter_options=filter_options,
         budget=budget,
         mapping=mapping,
+        check_spectrometer_scale=False,
         **method_options,
     )
     return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})

@@ -32,7 +32,9 @@ and channel, on the delivered curves' scale (maximum 1):
     σ does not already hold that scale: a mapping placed by the spectra moves with them, decision
     0044), and with the stated slit
     bandwidth changed by its tolerance (or, when none was given, a typical one assumed; quality code
-    ``no_spectrometer_bandwidth``).
+    ``no_spectrometer_bandwidth``). Where the spectra's scale was checked against a fluorescent
+    lamp's Hg lines and corrected (:mod:`calib.core.spectrometer_scale`, decision 0069), the scale
+    component is the check's σ (``metadata["wavelength_scale_sigma_nm"]``), not the tolerance.
 ``efficiency model``
     By perturbation: re-solved with :data:`EFFICIENCY_TERMS_STEP` fewer terms of the grating
     efficiency's Fourier model — how much the answer leans on the η model's form.
@@ -76,6 +78,7 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, Severity
 from calib.core.spectra import Spectrum
+from calib.core.spectrometer_scale import scale_sigma_nm
 from calib.core.spectrometer_tolerance import (
     BANDWIDTH_TOLERANCE,
     IN_SPEC_TOLERANCE_SIGMA,
@@ -139,14 +142,19 @@ SERIOUS_MISFIT_CHI2 = 100.0
 #: estimates without the paper's solve): multilamp and multilamp:physical 2.28 (3 lamps + RGB
 #: 95.6 %, 5 lamps 94.5 %); the one Fourier-η estimate alone would give 1.56, too few to judge, so
 #: ``multilamp:fourier`` takes the method's 2.28. The prior solve's and the paper's are unchanged.
+#: Decision 0069 (the spectra's scale checked against the FL lamp's Hg lines, the check's σ in place
+#: of the tolerance where it decides): re-run ``python -m calib.evaluation.validation.budget
+#: --data-dir DIR --jobs 1`` (tolerance σ 0.5774): prior:physical 95.0 % at factor 1 (LED+FL 96.3 %)
+#: → 1.0 unchanged; multilamp 74.9 % at factor 1 → 2.47 (5 lamps 94.7 %, 3 lamps + RGB 95.3 %);
+#: makabe2025 69.5 % → 4.24. ``multilamp:fourier`` takes the method's, as before.
 COVERAGE_SCALE: dict[str, float] = {
     "prior": 1.12,
     "prior:physical": 1.0,
     "prior:fourier": 2.79,
-    "multilamp": 2.28,
-    "multilamp:physical": 2.28,
-    "multilamp:fourier": 2.28,
-    "makabe2025": 4.35,
+    "multilamp": 2.47,
+    "multilamp:physical": 2.47,
+    "multilamp:fourier": 2.47,
+    "makabe2025": 4.24,
 }
 #: Factor for methods the validation run did not include.
 DEFAULT_COVERAGE_SCALE = 1.0
@@ -653,8 +661,12 @@ def spectrometer_sigma(
         for lamp in observations
     ]
     shift = max(scales)
+    # A lamp whose spectrum's scale was checked against Hg lines (decision 0069) is off by the
+    # check's σ (one σ), not by the tolerance.
+    checked = [scale_sigma_nm(lamp) for lamp in observations]
     carried = mapping_scale_sigma_nm(result)
     solves: dict[str, EstimateResult] = {}
+    scale_factor = settings.tolerance_sigma
     if carried > 0:
         # The mapping was placed by these spectra: a scale error moves it with them, so the curves
         # move along the wavelength axis — the mapping component (its σ holds the scale); a
@@ -662,6 +674,31 @@ def spectrometer_sigma(
         notes.append(
             f"spectrometer scale: in the mapping's σ ({carried:.3g} nm; the mapping follows "
             "the lamp spectra's wavelength scale)"
+        )
+    elif any(sigma is not None for sigma in checked):
+        # Each lamp's one-σ scale error: the check's, else the tolerance's. The re-solve moves the
+        # largest by the tolerance (a change well above the solve's own precision) and the rest in
+        # proportion; its change is scaled back to one σ.
+        sigmas = [
+            scale * settings.tolerance_sigma if sigma is None else sigma
+            for scale, sigma in zip(scales, checked, strict=True)
+        ]
+        largest = max(sigmas)
+        if largest > 0:
+            ratio = shift / largest
+            solves["spectrometer scale"] = rerun(
+                [
+                    shifted(lamp, ratio * sigma)
+                    for lamp, sigma in zip(observations, sigmas, strict=True)
+                ]
+            )
+            scale_factor = 1.0 / ratio
+        notes.append(
+            "spectrometer scale: checked against Hg lines, σ "
+            + ", ".join(
+                f"{lamp.name} {sigma:.2g} nm"
+                for lamp, sigma in zip(observations, sigmas, strict=True)
+            )
         )
     else:
         solves["spectrometer scale"] = rerun([shifted(lamp, shift) for lamp in observations])
@@ -687,7 +724,7 @@ def spectrometer_sigma(
     solves["spectrometer bandwidth"] = rerun(widened)
     notes.append(
         "spectrometer: "
-        + ("" if carried > 0 else f"scale ±{shift:g} nm, ")
+        + ("" if carried > 0 or any(c is not None for c in checked) else f"scale ±{shift:g} nm, ")
         + "bandwidth "
         + (
             f"{settings.assumed_bandwidth_nm:g} nm assumed"
@@ -699,7 +736,7 @@ def spectrometer_sigma(
     # A stated tolerance bounds an in-spec instrument: σ = tolerance_sigma × the re-solve's change
     # (an assumed bandwidth is not a tolerance: its change stands as one σ).
     factors = {
-        "spectrometer scale": settings.tolerance_sigma,
+        "spectrometer scale": scale_factor,
         "spectrometer bandwidth": 1.0 if missing else settings.tolerance_sigma,
     }
     return solves, factors, notes, flags

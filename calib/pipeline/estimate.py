@@ -492,6 +492,9 @@ def estimate_offline(
             notes=notes,
         )
         timings["estimate_s"] = time.perf_counter() - step
+        # The spectrometer-scale check against the FL lamp's Hg lines (decision 0069): the report's
+        # notes say whether the spectra were corrected, by how much, or why not.
+        notes.extend(scale_check_notes(result))
         # The mapping's own flags came with the estimate (calib.methods.estimate).
         result = result.with_quality(*input_flags(observations, image_input=bool(image_lamps)))
         warnings.extend(line for line in result.quality.warnings() if line not in warnings)
@@ -513,6 +516,15 @@ def estimate_offline(
         grating=grating_used,
         timings=timings,
     )
+
+
+def scale_check_notes(result: EstimateResult) -> list[str]:
+    """The notes of the spectrometer-scale check the estimate made
+    (``diagnostics["spectrometer_scale_check"]``, :mod:`calib.core.spectrometer_scale`)."""
+    record = result.diagnostics.get("spectrometer_scale_check")
+    if not isinstance(record, Mapping):
+        return []
+    return [str(note) for note in record.get("notes", [])]
 
 
 def resolve_basis(settings: OfflineSettings) -> CameraBasis:

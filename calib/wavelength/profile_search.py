@@ -1445,10 +1445,19 @@ def _correlation_starts(
 
 def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
     """σ (nm) the mapping inherits from the lamp spectra's wavelength scale: a spectrum measured by a
-    spectrometer (its bandwidth stated) is :data:`SPECTROMETER_SCALE_SIGMA_NM` off as a whole; a
-    tabulated one (no bandwidth: colour-science's tables, a built-in line list) adds nothing."""
-    measured = any(lamp.spectrum_bandwidth_nm is not None for lamp in lamps)
-    return SPECTROMETER_SCALE_SIGMA_NM if measured else 0.0
+    spectrometer (its bandwidth stated) is :data:`SPECTROMETER_SCALE_SIGMA_NM` off as a whole,
+    or the σ its Hg-line check left (``metadata["wavelength_scale_sigma_nm"]``,
+    :mod:`calib.core.spectrometer_scale`, decision 0069); a tabulated one (no bandwidth:
+    colour-science's tables, a built-in line list) adds nothing. The largest of the lamps'."""
+    # Imported here so that this function's change stays within it (the module's other owner).
+    from calib.core.spectrometer_scale import scale_sigma_nm
+
+    sigmas = [
+        SPECTROMETER_SCALE_SIGMA_NM if (checked := scale_sigma_nm(lamp)) is None else checked
+        for lamp in lamps
+        if lamp.spectrum_bandwidth_nm is not None
+    ]
+    return max(sigmas, default=0.0)
 
 
 def stated_covariance(

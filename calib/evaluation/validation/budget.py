@@ -85,6 +85,9 @@ class EstimateRecord:
     family: str | None = None
     outside_basis: FloatArray | None = None
     prior_sigma: FloatArray | None = None
+    #: The spectra's scale was checked against Hg lines (decision 0069): the ``spectrometer
+    #: scale`` component is the check's σ, not a tolerance, and does not scale.
+    scale_checked: bool = False
 
     @property
     def key(self) -> str:
@@ -96,7 +99,8 @@ class EstimateRecord:
         total = np.zeros_like(self.error)
         for name, sigma in self.components.items():
             scaled = name in TOLERANCE_COMPONENTS and not (
-                name == "spectrometer bandwidth" and self.assumed_bandwidth
+                (name == "spectrometer bandwidth" and self.assumed_bandwidth)
+                or (name == "spectrometer scale" and self.scale_checked)
             )
             total = total + (sigma * (tolerance_sigma if scaled else 1.0)) ** 2
         return np.asarray(np.sqrt(total), dtype=np.float64)
@@ -156,9 +160,16 @@ def task_records(task: Task) -> list[EstimateRecord]:
                 efficiency_family(result),
                 outside,
                 prior,
+                scale_checked=scale_checked(result),
             )
         )
     return out
+
+
+def scale_checked(result: Any) -> bool:
+    """Whether ``result``'s lamp spectra were corrected by a spectrometer-scale check."""
+    record = result.diagnostics.get("spectrometer_scale_check")
+    return isinstance(record, dict) and record.get("check") is not None
 
 
 def task_ratios(task: Task, tolerance_sigma: float = 1.0) -> list[tuple[str, FloatArray]]:

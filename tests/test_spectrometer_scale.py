@@ -1,0 +1,199 @@
+"""The spectrometer's wavelength scale checked against a fluorescent lamp's Hg lines (decision 0069)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+import calib.methods
+from calib.core.line_lists import BLUE_PHOSPHOR_BAND, line_list, line_spectrum
+from calib.core.observations import LampObservation
+from calib.core.result import EstimateResult
+from calib.core.spectra import Spectrum
+from calib.core.spectrometer_scale import (
+    SCALE_SIGMA_KEY,
+    check_spectrometer_scale,
+    checked_observations,
+    corrected_spectrum,
+)
+from calib.methods import ESTIMATION_METHODS
+from calib.methods.uncertainty import BudgetSettings, spectrometer_sigma
+from calib.wavelength.profile_search import SPECTROMETER_SCALE_SIGMA_NM, spectrometer_scale_sigma_nm
+
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+
+
+def _measured(
+    truth: Spectrum, *, offset_nm: float, bandwidth_nm: float, seed: int, step_nm: float = 1.0
+) -> Spectrum:
+    """``truth`` as a spectrometer reports it: Gaussian slit, the scale ``offset_nm`` off (it reports
+    at λ the light of λ + offset), sampled every ``step_nm``, 0.3 % + 0.05 %-of-peak noise."""
+    fine = np.arange(360.0, 830.0, 0.05)
+    sigma = bandwidth_nm / FWHM_PER_SIGMA
+    half = math.ceil(4 * sigma / 0.05)
+    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) * 0.05 / sigma) ** 2)
+    blurred = np.convolve(truth.at(fine), kernel / kernel.sum(), mode="same")
+    samples = np.arange(380.0, 780.0 + step_nm / 2, step_nm)
+    clean = np.interp(samples + offset_nm, fine, blurred)
+    noise = 0.003 * clean + 5e-4 * clean.max()
+    rng = np.random.default_rng(seed)
+    return Spectrum(samples, np.clip(clean + noise * rng.standard_normal(clean.size), 0, None))
+
+
+def _cfl() -> Spectrum:
+    """A tri-phosphor CFL: Hg lines (0.5 nm), Tb³⁺/Eu³⁺ multiplets, the blue band, a weak floor."""
+    lines = (*line_list("cfl-triphosphor"), BLUE_PHOSPHOR_BAND)
+    return line_spectrum(lines, fwhm_nm=0.5, continuum=0.01)
+
+
+def _mercury_on_a_smooth_band() -> Spectrum:
+    """A halophosphate-like lamp: the Hg lines on a broad phosphor band (no Tb/Eu multiplets)."""
+    hg = line_spectrum(line_list("hg"), fwhm_nm=0.5)
+    axis = hg.wavelength_nm
+    return Spectrum(axis, hg.values + 0.05 * np.exp(-0.5 * ((axis - 560.0) / 80.0) ** 2))
+
+
+@pytest.mark.parametrize(
+    ("lamp", "bandwidth_nm", "offset_nm"),
+    [
+        ("cfl", 2.0, 0.31),
+        pytest.param("cfl", 10.0, -0.42, marks=pytest.mark.slow),
+        pytest.param("mercury", 2.0, -0.2, marks=pytest.mark.slow),
+        pytest.param("mercury", 10.0, 0.45, marks=pytest.mark.slow),
+    ],
+)
+def test_a_shifted_lamp_spectrum_gives_its_offset_back_within_its_sigma(
+    lamp, bandwidth_nm, offset_nm
+):
+    truth = _cfl() if lamp == "cfl" else _mercury_on_a_smooth_band()
+    measured = _measured(truth, offset_nm=offset_nm, bandwidth_nm=bandwidth_nm, seed=3)
+    check = check_spectrometer_scale(measured, bandwidth_nm, lamp=lamp)
+    assert check is not None
+    error = check.mean_offset_nm - offset_nm
+    assert abs(error) <= 2.0 * check.sigma_nm, (check.note(), error)
+    # The check says more than the tolerance does (σ 0.29 nm), and the instrument is in spec.
+    assert check.sigma_nm < 0.2 and not check.out_of_spec
+    # The corrected spectrum's strongest line sits where mercury has it.
+    fixed = corrected_spectrum(measured, check)
+    near = np.flatnonzero((fixed.wavelength_nm > 431.0) & (fixed.wavelength_nm < 441.0))
+    top = near[np.argmax(fixed.values[near])]
+    x, y = fixed.wavelength_nm[top - 1 : top + 2], fixed.values[top - 1 : top + 2]
+    curve = np.polyfit(x - x[1], y, 2)
+    peak = x[1] - curve[1] / (2.0 * curve[0])  # the parabola through the three top samples
+    assert abs(peak - 435.83) < 0.5 * abs(offset_nm)
+
+
+@pytest.mark.slow
+def test_an_instrument_out_of_its_tolerance_is_flagged_as_such():
+    measured = _measured(_cfl(), offset_nm=1.4, bandwidth_nm=3.0, seed=5)
+    check = check_spectrometer_scale(measured, 3.0)
+    assert check is not None
+    assert abs(check.mean_offset_nm - 1.4) <= 2.0 * check.sigma_nm
+    assert check.out_of_spec
+
+
+def test_a_spectrum_without_mercury_lines_gives_no_check():
+    axis = np.arange(380.0, 781.0)
+    led = Spectrum(
+        axis,
+        np.exp(-0.5 * ((axis - 450) / 10) ** 2) + 0.6 * np.exp(-0.5 * ((axis - 570) / 50) ** 2),
+    )
+    assert check_spectrometer_scale(led, 5.0) is None
+
+
+@pytest.mark.slow
+def test_a_smooth_lamp_gives_no_check_through_any_slit():
+    axis = np.arange(380.0, 781.0)
+    halogen = Spectrum(axis, (axis / 560.0) ** 4)
+    for bandwidth in (2.0, 10.0):
+        assert check_spectrometer_scale(halogen, bandwidth) is None
+
+
+def _lamp(name: str, spectrum: Spectrum, kind: Any, bandwidth: float | None) -> LampObservation:
+    return LampObservation(
+        name,
+        spectrum,
+        np.arange(8.0),
+        np.ones((8, 3)),
+        kind=kind,
+        spectrum_bandwidth_nm=bandwidth,
+    )
+
+
+def test_every_spectrum_of_the_checked_instrument_is_corrected_and_no_other():
+    cfl = _measured(_cfl(), offset_nm=0.3, bandwidth_nm=3.0, seed=1)
+    axis = np.arange(380.0, 781.0)
+    smooth = Spectrum(axis, 1.0 + 0.001 * axis)
+    lamps = [
+        _lamp("CFL", cfl, "fluorescent", 3.0),
+        _lamp("LED", smooth, "led", 3.0),
+        _lamp("other instrument", smooth, "halogen", 8.0),
+        _lamp("tabulated", smooth, "halogen", None),
+    ]
+    out, outcome = checked_observations(lamps)
+    assert outcome.check is not None and outcome.corrected == ("CFL", "LED")
+    moved = {lamp.name: float(lamp.spectrum.wavelength_nm[0]) for lamp in out}
+    assert moved["other instrument"] == moved["tabulated"] == 380.0
+    assert abs(moved["LED"] - 380.0 - outcome.check.correction_nm(np.array([380.0]))[0]) < 1e-9
+    assert abs(moved["LED"] - 380.3) < 0.15
+    assert out[1].metadata[SCALE_SIGMA_KEY] == outcome.check.sigma_nm
+    assert any("another instrument" in note for note in outcome.notes)
+    # The mapping inherits the check's σ, not the tolerance; an unchecked spectrum keeps it.
+    assert spectrometer_scale_sigma_nm(out[:2]) == outcome.check.sigma_nm
+    assert spectrometer_scale_sigma_nm(lamps[:2]) == SPECTROMETER_SCALE_SIGMA_NM
+    # Checking again changes nothing.
+    again, second = checked_observations(out)
+    assert second.check is None and again == out
+
+
+def test_the_budget_s_scale_component_is_the_check_s_sigma():
+    cfl = _measured(_cfl(), offset_nm=0.3, bandwidth_nm=3.0, seed=1)
+    lamps, outcome = checked_observations([_lamp("CFL", cfl, "fluorescent", 3.0)])
+    assert outcome.check is not None
+    grid = np.array([400.0, 700.0])
+    result = EstimateResult("fake", grid, np.ones((2, 3)))
+    shifts: list[float] = []
+
+    def rerun(observations, **changes):
+        shifts.append(
+            float(observations[0].spectrum.wavelength_nm[0] - lamps[0].spectrum.wavelength_nm[0])
+        )
+        return result
+
+    settings = BudgetSettings()
+    _, factors, notes, _ = spectrometer_sigma(result, lamps, rerun, settings)
+    # Re-solved at the tolerance, scaled back to the check's one σ.
+    assert shifts[0] == pytest.approx(settings.wavelength_scale_nm)
+    assert factors["spectrometer scale"] * shifts[0] == pytest.approx(outcome.check.sigma_nm)
+    assert any("checked against Hg lines" in note for note in notes)
+    # Unchecked: the tolerance as a bound, as before.
+    shifts.clear()
+    _, factors, _, _ = spectrometer_sigma(
+        result, [_lamp("CFL", cfl, "fluorescent", 3.0)], rerun, settings
+    )
+    assert factors["spectrometer scale"] == settings.tolerance_sigma
+
+
+def test_every_estimate_takes_the_check(monkeypatch):
+    seen: dict[str, Any] = {}
+
+    def fake(observations, *, grid):
+        seen["observations"] = observations
+        return EstimateResult("fake", grid.wavelength_nm, np.ones((grid.size, 3)))
+
+    monkeypatch.setitem(ESTIMATION_METHODS, "fake", fake)
+    cfl = _measured(_cfl(), offset_nm=-0.25, bandwidth_nm=3.0, seed=2)
+    lamp = _lamp("CFL", cfl, "fluorescent", 3.0)
+    result = calib.methods.estimate([lamp], method="fake", budget=None)
+    record = result.diagnostics["spectrometer_scale_check"]
+    assert record["corrected"] == ["CFL"]
+    assert abs(record["check"]["mean_offset_nm"] + 0.25) <= 2 * record["check"]["sigma_nm"]
+    assert SCALE_SIGMA_KEY in seen["observations"][0].metadata
+    plain = calib.methods.estimate(
+        [lamp], method="fake", budget=None, check_spectrometer_scale=False
+    )
+    assert "spectrometer_scale_check" not in plain.diagnostics
+    assert seen["observations"][0] is lamp
