@@ -79,6 +79,8 @@ QUALITY_CODES: dict[str, str] = {
     "assumed_grating_reused": "a grating file holding an assumed η is reused (grating stage)",
     "grating_family_unresolved": "the direct signals do not tell the physical grating families "
     "apart: measure the 2nd order or η with the rig's spectrometer (grating stage)",
+    "spectrometer_out_of_spec": "the lamp's own Hg lines put the spectrometer's wavelength scale "
+    "beyond its tolerance: the spectra were corrected by the lines; recalibrate the instrument",
     "channel_gains_unknown": "the profile's channel gains are not the raw data's: the channel "
     "balance is the camera population's, its spread in σ",
 }
