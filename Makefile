@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 DEMO_DIR ?= demo-output
 
-.PHONY: install demo test test-all checks lint typecheck docs format bench clean
+.PHONY: install demo test test-all tests-default tests-all checks lint typecheck docs format bench clean
 
 SIM_STAMP := $(VENV)/.sim-stamp
 
@@ -44,13 +44,22 @@ docs: $(STAMP)
 checks: $(STAMP)
 	$(MAKE) --no-print-directory -j2 --output-sync=target lint typecheck docs
 
-## The default suite: lint, types, the docs build, and every test not marked slow.
-test: checks
+# The default tests (pytest-xdist's two workers) and the static checks run side by side: mypy's
+# single process fills the cores while tests wait on their subprocesses and timeouts. Any failure
+# fails the target; each part's output is printed whole when it ends.
+tests-default: $(STAMP)
 	$(BIN)/pytest -n 2 -q
 
-## Everything, slow tests included.
-test-all: checks
+tests-all: $(STAMP)
 	$(BIN)/pytest -n 2 -q -m ''
+
+## The default suite: lint, types, the docs build, and every test not marked slow.
+test: $(STAMP)
+	$(MAKE) --no-print-directory -j4 --output-sync=line lint typecheck docs tests-default
+
+## Everything, slow tests included.
+test-all: $(STAMP)
+	$(MAKE) --no-print-directory -j4 --output-sync=line lint typecheck docs tests-all
 
 format: $(STAMP)
 	$(BIN)/ruff format .
