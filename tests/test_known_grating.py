@@ -166,21 +166,3 @@ def test_the_pipeline_keeps_the_multilamp_options_it_can_use_through_a_grating_f
         options=KnownGratingOptions(prior_shrinkage=0.9),
     )
     np.testing.assert_allclose(outcome.result.sensitivity, direct.sensitivity, atol=1e-12)
-
-
-def test_one_leds_sigma_holds_its_spectrums_wavelength_scale_where_it_is_steep(basis, monkeypatch):
-    # LED-B3's blue peak: half a nanometre of the spectrometer's scale moves its response by
-    # several per cent on the flanks, far beyond the profile's noise (decision 0067). The one-lamp
-    # solve's σ holds that share, so the camera prior fills in there instead of the LED's error.
-    from calib.methods.responses import ResponseEstimate
-
-    rng, mapping, efficiency, grating = _scene()
-    led = _lamp("LED-B3", "led", mapping, efficiency, rng)
-    held = estimate_known_grating([led], grating=grating, basis=basis, mapping=mapping)
-    monkeypatch.setattr(ResponseEstimate, "with_scale_variance", lambda self, *_: self)
-    noise_only = estimate_known_grating([led], grating=grating, basis=basis, mapping=mapping)
-    assert held.sensitivity_sigma is not None and noise_only.sensitivity_sigma is not None
-    blue = DEFAULT_GRID.wavelength_nm <= 430.0
-    ratio = held.sensitivity_sigma[blue, 2] / noise_only.sensitivity_sigma[blue, 2]
-    assert np.max(ratio) > 1.2
-    assert np.all(held.sensitivity_sigma >= noise_only.sensitivity_sigma * (1 - 1e-9))

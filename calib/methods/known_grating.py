@@ -180,10 +180,7 @@ def estimate_known_grating(
         if response.second_order is not None
     }
     solution = combine_responses(
-        [response.with_scale_variance() for response in responses],
-        inverse,
-        np.eye(inverse.size),
-        np.diag(inverse_sigma**2),
+        responses, inverse, np.eye(inverse.size), np.diag(inverse_sigma**2)
     )
     # The profile of one lamp says little where the lamp is dim: the camera prior fills in there
     # (η is known, so the prior enters only here).

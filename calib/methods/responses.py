@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Literal
 
@@ -86,15 +86,6 @@ class ResponseEstimate:
             (self.response * scale_sigma_nm) ** 2 * self.log_slope_squared[:, None],
             dtype=np.float64,
         )
-
-    def with_scale_variance(self, scale_sigma_nm: float = WAVELENGTH_SCALE_NM) -> ResponseEstimate:
-        """The same estimate with :meth:`scale_variance` on its covariance's diagonal (each
-        node's share taken independently: the mean square slope does not say its sign)."""
-        added = self.scale_variance(scale_sigma_nm)
-        covariance = self.covariance.copy()
-        for c in range(3):
-            covariance[c] += np.diag(added[:, c])
-        return replace(self, covariance=covariance)
 
 
 def log_slope_squared(operators: LampOperators) -> FloatArray:
