@@ -467,3 +467,79 @@ def test_narrow_band_lamps_pin_the_grating_but_not_the_sensitivity(basis):
         errors.append(relative_error(solution.normalised()[0], truth))
     assert errors[0] < 0.007
     assert errors[1] > 1.5 * errors[0]
+
+
+def test_steep_spectra_on_a_wrong_wavelength_scale_are_weighed_down_in_the_pool(basis):
+    # Every measured spectrum reads 0.5 nm off (the spectrometer's stated scale accuracy): the
+    # fluorescent lines' and the white LED's steep flanks put their responses off by tens of per
+    # cent there, far beyond their noise σ. Weighed with that share (decision 0067), the pooled
+    # response follows the smooth lamps there; weighed by noise alone it follows the steep ones.
+    from calib.methods.multilamp import (
+        POOLING_SCALE_SIGMA_NM,
+        combine_responses,
+        lamp_kinds,
+        sensitivity_lamps,
+    )
+
+    truth, mapping, observations, efficiency = _scene(0, "3 lamps + RGB LEDs")
+    shifted = [
+        replace(obs, spectrum=replace(obs.spectrum, wavelength_nm=obs.spectrum.wavelength_nm + 0.5))
+        for obs in observations
+    ]
+    prepared = prepare_lamps(shifted, basis=basis, mapping=mapping)
+    inverse = 1.0 / efficiency(DEFAULT_GRID.wavelength_nm)
+    errors = []
+    for scale_sigma in (POOLING_SCALE_SIGMA_NM, None):
+        solution = combine_responses(
+            [lamp.response for lamp in prepared.lamps],
+            inverse,
+            np.eye(inverse.size),
+            np.zeros((inverse.size, inverse.size)),
+            with_covariance=False,
+            pooled=sensitivity_lamps(lamp_kinds(shifted, prepared.lamps)),
+            scale_sigma_nm=scale_sigma,
+        )
+        errors.append(relative_error(solution.normalised()[0], truth))
+    assert errors[0] < 0.007
+    assert errors[1] > 1.8 * errors[0]
+
+
+def test_a_lamps_wavelength_scale_share_follows_its_spectrums_log_slope() -> None:
+    from calib.core.spectra import Spectrum
+    from calib.methods.responses import ResponseEstimate, log_slope_squared
+    from calib.model.forward import lamp_operators
+
+    wavelength = np.arange(380.0, 781.0)
+    # A Gaussian line (σ 15 nm): d ln e/dλ = −(λ − 550)/15², so 0.5 nm moves e by 11 % at 600 nm.
+    line = Spectrum(wavelength, np.exp(-0.5 * ((wavelength - 550.0) / 15.0) ** 2), name="line")
+    slope2 = log_slope_squared(lamp_operators(line, DEFAULT_GRID))
+    nodes = DEFAULT_GRID.wavelength_nm
+    # The light-weighted mean over each node's hat, integrated finely: Σ e φ (d ln e/dλ)² / Σ e φ.
+    fine = np.linspace(nodes[0], nodes[-1], 30001)
+    light = np.exp(-0.5 * ((fine - 550.0) / 15.0) ** 2)
+    hats = np.clip(1.0 - np.abs(fine[:, None] - nodes[None, :]) / DEFAULT_GRID.step_nm, 0, None)
+    weights = light[:, None] * hats
+    expected = (weights * (((fine - 550.0) / 15.0**2) ** 2)[:, None]).sum(0) / weights.sum(0)
+    # Where the line has light (below 1e-12 of its peak, ln e is floored: no slope).
+    lit = np.abs(nodes - 550.0) <= 100.0
+    np.testing.assert_allclose(slope2[lit], expected[lit], rtol=0.02, atol=1e-4)
+    flat = Spectrum(wavelength, np.full(wavelength.size, 2.0), name="flat")
+    np.testing.assert_allclose(
+        log_slope_squared(lamp_operators(flat, DEFAULT_GRID)), 0.0, atol=1e-12
+    )
+    size = nodes.size
+    response = ResponseEstimate(
+        np.full((size, 3), 2.0),
+        np.stack([np.eye(size)] * 3),
+        np.ones(5, dtype=bool),
+        0.0,
+        log_slope_squared=slope2,
+    )
+    share = response.scale_variance(0.5)
+    np.testing.assert_allclose(share[:, 1], (2.0 * 0.5) ** 2 * slope2)
+    assert (
+        ResponseEstimate(response.response, response.covariance, response.used_pixels, 0.0)
+        .scale_variance()
+        .max()
+        == 0.0
+    )

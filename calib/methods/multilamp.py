@@ -58,6 +58,7 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 from calib.methods.closed_form import (
     GratingMethodOptions,
     check_lamps,
@@ -1094,6 +1095,15 @@ def lamp_kinds(observations: Sequence[LampObservation], lamps: Sequence[LampData
     return [kinds.get(lamp.name, "other") for lamp in lamps]
 
 
+#: σ of the measured spectra's wavelength scale with which the lamps' responses are weighed into
+#: ``Q`` (:func:`pool_responses`): the spectrometer's stated accuracy (±0.5 nm, taken as one σ;
+#: :data:`calib.core.spectrometer_tolerance.WAVELENGTH_SCALE_NM`). A response is the profile over
+#: the measured spectrum, so where the spectrum is steep — a fluorescent line's flanks, a white
+#: LED's blue peak — half a nanometre moves it by tens of per cent, which its noise covariance does
+#: not hold; weighed by noise alone, those lamps took most of ``Q`` exactly there (decision 0067).
+POOLING_SCALE_SIGMA_NM = WAVELENGTH_SCALE_NM
+
+
 def sensitivity_lamps(kinds: Sequence[str]) -> list[bool]:
     """Which lamps' responses make the sensitivity's ``Q`` (:func:`pool_responses`), by kind: all
     but the narrow-band ones (:data:`NARROW_BAND_KINDS`) when any other lamp is there, else all.
@@ -1114,13 +1124,17 @@ def pool_responses(
     *,
     iterations: int = 4,
     pooled: Sequence[bool] | None = None,
+    scale_sigma_nm: float | None = None,
 ) -> tuple[ResponseEstimate, FloatArray, FloatArray]:
     """``Q`` ``(f, 3)``: the inverse-variance mean of the lamps' ``q̂_lc / E_l``, with its covariance.
 
     The relative brightness ``E_l`` (first lamp = 1) is fitted by weighted least squares against the
     running combination. ``pooled`` (default: all): which responses enter ``Q``; every lamp's
-    ``E_l`` is fitted against it. Returns the pooled response, ``E`` ``(L,)`` and the weights
-    ``(L, f, 3)`` (zero for a lamp left out of ``Q``).
+    ``E_l`` is fitted against it. ``scale_sigma_nm``: the variances that weigh the lamps also hold
+    each response's error from its spectrum's wavelength scale, off by this σ
+    (:meth:`~calib.methods.responses.ResponseEstimate.scale_variance`, decision 0067); ``Q``'s
+    covariance stays the noise's, propagated with those weights. Returns the pooled response,
+    ``E`` ``(L,)`` and the weights ``(L, f, 3)`` (zero for a lamp left out of ``Q``).
     """
     stacked = np.stack([response.response for response in responses])  # (L, f, 3)
     variances = np.stack(
@@ -1129,6 +1143,10 @@ def pool_responses(
             for response in responses
         ]
     )
+    if scale_sigma_nm is not None:
+        variances = variances + np.stack(
+            [response.scale_variance(scale_sigma_nm) for response in responses]
+        )
     variances = np.maximum(variances, 1e-300)
     members = np.ones(len(responses)) if pooled is None else np.asarray(pooled, dtype=np.float64)
     if members.shape != (len(responses),) or not np.any(members):
@@ -1160,6 +1178,8 @@ def pool_responses(
                 continue
             factor = weights[index, :, c] / scales[index]
             covariance[c] += factor[:, None] * response.covariance[c] * factor[None, :]
+            if scale_sigma_nm is not None:
+                covariance[c] += np.diag(factor**2 * response.scale_variance(scale_sigma_nm)[:, c])
     used = np.any(np.stack([response.used_pixels for response in responses]), axis=0)
     chi2 = float(sum(response.chi2 for response in responses))
     return ResponseEstimate(combined, covariance, used, chi2), scales, weights
@@ -1173,14 +1193,18 @@ def combine_responses(
     *,
     with_covariance: bool = True,
     pooled: Sequence[bool] | None = None,
+    scale_sigma_nm: float | None = None,
 ) -> SensitivitySolution:
     """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q`` from :func:`pool_responses` (of the ``pooled``
-    responses, default all: :func:`sensitivity_lamps`).
+    responses, default all: :func:`sensitivity_lamps`; weighed with the spectra's wavelength scale
+    at ``scale_sigma_nm`` when given: :data:`POOLING_SCALE_SIGMA_NM`).
 
     ``η⁻¹ = B_η c_η`` with ``c_η``'s covariance propagated along ``Q_c ⊙ B_η`` (``B_η`` may be the
     identity, for an efficiency known node by node).
     """
-    pooled_response, scales, _ = pool_responses(responses, pooled=pooled)
+    pooled_response, scales, _ = pool_responses(
+        responses, pooled=pooled, scale_sigma_nm=scale_sigma_nm
+    )
     combined = pooled_response.response
     size = inverse_efficiency.size
     sensitivity = combined * inverse_efficiency[:, None]
@@ -1487,6 +1511,7 @@ def estimate_multilamp(
         else efficiency.coefficient_covariance,
         with_covariance=options.uncertainty != "none",
         pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
+        scale_sigma_nm=POOLING_SCALE_SIGMA_NM,
     )
     eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
@@ -1682,6 +1707,7 @@ def refine_grating(
             efficiency.inverse_jacobian,
             efficiency.coefficient_covariance,
             pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
+            scale_sigma_nm=POOLING_SCALE_SIGMA_NM,
         )
         results.append(
             multilamp_result(

@@ -20,11 +20,13 @@ import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
+from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 from calib.model.forward import (
     LampOperators,
     PiecewiseLinearDensity,
     WavelengthMapping,
     apply_blur,
+    hat_matrix,
     second_order_onset_nm,
 )
 from calib.model.linear_model import LampSystem
@@ -58,7 +60,9 @@ def _second_differences(size: int) -> FloatArray:
 class ResponseEstimate:
     """Step 1: ``q̂`` ``(f, 3)``, its covariance ``(3, f, f)`` and the pixels used ``(n,)``;
     ``second_order_nm`` the lamp's 2nd-order onset where it falls on the grid, else ``None``, and
-    ``second_order`` how its light was treated there (``"modelled"`` or ``"masked"``)."""
+    ``second_order`` how its light was treated there (``"modelled"`` or ``"masked"``);
+    ``log_slope_squared`` ``(f,)``: :func:`log_slope_squared` of the lamp's spectrum (``None``:
+    not known, no wavelength-scale share in :meth:`scale_variance`)."""
 
     response: FloatArray
     covariance: FloatArray
@@ -66,6 +70,39 @@ class ResponseEstimate:
     chi2: float
     second_order_nm: float | None = None
     second_order: Literal["modelled", "masked"] | None = None
+    log_slope_squared: FloatArray | None = None
+
+    def scale_variance(self, scale_sigma_nm: float = WAVELENGTH_SCALE_NM) -> FloatArray:
+        """``(f, 3)``: the variance of ``q̂`` from the measured spectrum's wavelength scale, off by
+        ``scale_sigma_nm`` (one σ; default the spectrometer's stated accuracy,
+        :data:`~calib.core.spectrometer_tolerance.WAVELENGTH_SCALE_NM`). The profile is divided by
+        the spectrum read at ``λ`` for the light of ``λ + δ``, so ``q̂`` is off by ``δ · d ln e/dλ``
+        of itself: ``(q̂ · σ_δ)² · (d ln e/dλ)²``. Not in :attr:`covariance` (the noise's alone):
+        a few ‰ for a tungsten lamp, tens of per cent on a fluorescent line's or a narrow LED's
+        flanks (decision 0067)."""
+        if self.log_slope_squared is None:
+            return np.zeros_like(self.response)
+        return np.asarray(
+            (self.response * scale_sigma_nm) ** 2 * self.log_slope_squared[:, None],
+            dtype=np.float64,
+        )
+
+
+def log_slope_squared(operators: LampOperators) -> FloatArray:
+    """``(f,)``: the mean of ``(d ln e/dλ)²`` (nm⁻²) over each grid node's hat, weighted by the
+    light ``e φ_i`` it receives there — ``e`` the lamp's spectrum as the response is fitted with
+    (at the matched resolution, :func:`calib.model.resolution.match_spectrometer`). The mean square,
+    not the square of the mean: within a node a fluorescent line's two flanks do not cancel in the
+    least-squares fit of the profile's pixels."""
+    axis = operators.densities.axis_nm
+    # The nodes' densities sum to ``e`` (the slit's correction terms are derivatives of the
+    # hats' sum, a constant); the weights are ``e φ_i`` without them (never negative).
+    spectrum = np.maximum(operators.densities.density.sum(axis=1), 0.0)
+    light = spectrum[:, None] * hat_matrix(operators.grid, axis)
+    floor = 1e-12 * max(float(spectrum.max()), 1e-300)
+    slope = np.gradient(np.log(np.maximum(spectrum, floor)), axis)
+    total = np.maximum(light.sum(axis=0), 1e-300)
+    return np.asarray((light * (slope**2)[:, None]).sum(axis=0) / total, dtype=np.float64)
 
 
 def fit_response(
@@ -133,7 +170,13 @@ def fit_response(
         responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
         chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
     return ResponseEstimate(
-        responses, covariances, inside, chi2, onset_nm if treated else None, treated
+        responses,
+        covariances,
+        inside,
+        chi2,
+        onset_nm if treated else None,
+        treated,
+        log_slope_squared(system.operators),
     )
 
 
