@@ -543,3 +543,41 @@ def test_a_lamps_wavelength_scale_share_follows_its_spectrums_log_slope() -> Non
         .max()
         == 0.0
     )
+
+
+def test_a_spectrum_its_hg_lines_checked_is_weighed_with_the_checks_sigma(basis):
+    # A fluorescent spectrum corrected by its own Hg lines (decision 0069) is off by the check's σ,
+    # not by the spectrometer's tolerance: its response takes its due share of Q again.
+    from calib.core.spectrometer_scale import SCALE_SIGMA_KEY
+    from calib.methods.multilamp import (
+        POOLING_SCALE_SIGMA_NM,
+        pool_responses,
+        pooling_scale_sigmas,
+    )
+
+    _, mapping, observations, _ = _scene(0, "3 lamps + RGB LEDs")
+    checked = [
+        replace(obs, metadata={**obs.metadata, SCALE_SIGMA_KEY: 0.05})
+        if obs.kind == "fluorescent"
+        else obs
+        for obs in observations
+    ]
+    prepared = prepare_lamps(checked, basis=basis, mapping=mapping)
+    sigmas = pooling_scale_sigmas(checked, prepared.lamps)
+    kinds = {obs.name: obs.kind for obs in checked}
+    assert sigmas == [
+        0.05 if kinds[lamp.name] == "fluorescent" else POOLING_SCALE_SIGMA_NM
+        for lamp in prepared.lamps
+    ]
+    responses = [lamp.response for lamp in prepared.lamps]
+    fluorescent = next(
+        i for i, lamp in enumerate(prepared.lamps) if kinds[lamp.name] == "fluorescent"
+    )
+    _, _, tolerance_weights = pool_responses(responses, scale_sigma_nm=POOLING_SCALE_SIGMA_NM)
+    _, _, checked_weights = pool_responses(responses, scale_sigma_nm=sigmas)
+    gain = checked_weights[fluorescent].sum() / tolerance_weights[fluorescent].sum()
+    assert gain > 1.2, gain
+    # The same σ for every lamp, given either way, pools the same.
+    same, _, _ = pool_responses(responses, scale_sigma_nm=[0.3] * len(responses))
+    scalar, _, _ = pool_responses(responses, scale_sigma_nm=0.3)
+    np.testing.assert_array_equal(same.response, scalar.response)

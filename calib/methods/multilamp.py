@@ -58,6 +58,7 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.core.spectrometer_scale import scale_sigma_nm
 from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 from calib.methods.closed_form import (
     GratingMethodOptions,
@@ -1104,6 +1105,19 @@ def lamp_kinds(observations: Sequence[LampObservation], lamps: Sequence[LampData
 POOLING_SCALE_SIGMA_NM = WAVELENGTH_SCALE_NM
 
 
+def pooling_scale_sigmas(
+    observations: Sequence[LampObservation], lamps: Sequence[LampData]
+) -> list[float]:
+    """The wavelength-scale σ (nm) each of ``lamps``' responses is weighed with in ``Q``: the σ its
+    spectrum's Hg-line check left (:func:`calib.core.spectrometer_scale.scale_sigma_nm`, decision
+    0069: the spectrum was corrected by the lines), else :data:`POOLING_SCALE_SIGMA_NM`."""
+    checked = {obs.name: scale_sigma_nm(obs) for obs in observations}
+    return [
+        POOLING_SCALE_SIGMA_NM if (sigma := checked.get(lamp.name)) is None else sigma
+        for lamp in lamps
+    ]
+
+
 def sensitivity_lamps(kinds: Sequence[str]) -> list[bool]:
     """Which lamps' responses make the sensitivity's ``Q`` (:func:`pool_responses`), by kind: all
     but the narrow-band ones (:data:`NARROW_BAND_KINDS`) when any other lamp is there, else all.
@@ -1124,15 +1138,16 @@ def pool_responses(
     *,
     iterations: int = 4,
     pooled: Sequence[bool] | None = None,
-    scale_sigma_nm: float | None = None,
+    scale_sigma_nm: float | Sequence[float] | None = None,
 ) -> tuple[ResponseEstimate, FloatArray, FloatArray]:
     """``Q`` ``(f, 3)``: the inverse-variance mean of the lamps' ``q̂_lc / E_l``, with its covariance.
 
     The relative brightness ``E_l`` (first lamp = 1) is fitted by weighted least squares against the
     running combination. ``pooled`` (default: all): which responses enter ``Q``; every lamp's
     ``E_l`` is fitted against it. ``scale_sigma_nm``: the variances that weigh the lamps also hold
-    each response's error from its spectrum's wavelength scale, off by this σ
-    (:meth:`~calib.methods.responses.ResponseEstimate.scale_variance`, decision 0067); ``Q``'s
+    each response's error from its spectrum's wavelength scale, off by this σ (one for every
+    response, or one each: :func:`pooling_scale_sigmas`;
+    :meth:`~calib.methods.responses.ResponseEstimate.scale_variance`, decision 0067); ``Q``'s
     covariance stays the noise's, propagated with those weights. Returns the pooled response,
     ``E`` ``(L,)`` and the weights ``(L, f, 3)`` (zero for a lamp left out of ``Q``).
     """
@@ -1143,9 +1158,19 @@ def pool_responses(
             for response in responses
         ]
     )
-    if scale_sigma_nm is not None:
+    scale_sigmas = (
+        None
+        if scale_sigma_nm is None
+        else [float(scale_sigma_nm)] * len(responses)
+        if isinstance(scale_sigma_nm, int | float)
+        else [float(value) for value in scale_sigma_nm]
+    )
+    if scale_sigmas is not None:
         variances = variances + np.stack(
-            [response.scale_variance(scale_sigma_nm) for response in responses]
+            [
+                response.scale_variance(sigma)
+                for response, sigma in zip(responses, scale_sigmas, strict=True)
+            ]
         )
     variances = np.maximum(variances, 1e-300)
     members = np.ones(len(responses)) if pooled is None else np.asarray(pooled, dtype=np.float64)
@@ -1178,8 +1203,9 @@ def pool_responses(
                 continue
             factor = weights[index, :, c] / scales[index]
             covariance[c] += factor[:, None] * response.covariance[c] * factor[None, :]
-            if scale_sigma_nm is not None:
-                covariance[c] += np.diag(factor**2 * response.scale_variance(scale_sigma_nm)[:, c])
+            if scale_sigmas is not None:
+                scale_variance = response.scale_variance(scale_sigmas[index])[:, c]
+                covariance[c] += np.diag(factor**2 * scale_variance)
     used = np.any(np.stack([response.used_pixels for response in responses]), axis=0)
     chi2 = float(sum(response.chi2 for response in responses))
     return ResponseEstimate(combined, covariance, used, chi2), scales, weights
@@ -1193,11 +1219,11 @@ def combine_responses(
     *,
     with_covariance: bool = True,
     pooled: Sequence[bool] | None = None,
-    scale_sigma_nm: float | None = None,
+    scale_sigma_nm: float | Sequence[float] | None = None,
 ) -> SensitivitySolution:
     """Step 3: ``s_c = Q_c ⊙ η⁻¹`` with ``Q`` from :func:`pool_responses` (of the ``pooled``
     responses, default all: :func:`sensitivity_lamps`; weighed with the spectra's wavelength scale
-    at ``scale_sigma_nm`` when given: :data:`POOLING_SCALE_SIGMA_NM`).
+    at ``scale_sigma_nm`` when given: :func:`pooling_scale_sigmas`).
 
     ``η⁻¹ = B_η c_η`` with ``c_η``'s covariance propagated along ``Q_c ⊙ B_η`` (``B_η`` may be the
     identity, for an efficiency known node by node).
@@ -1511,7 +1537,7 @@ def estimate_multilamp(
         else efficiency.coefficient_covariance,
         with_covariance=options.uncertainty != "none",
         pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
-        scale_sigma_nm=POOLING_SCALE_SIGMA_NM,
+        scale_sigma_nm=pooling_scale_sigmas(observations, calibrated.lamps),
     )
     eta, eta_sigma = efficiency_with_sigma(efficiency)
     total_s = time.perf_counter() - started
@@ -1707,7 +1733,7 @@ def refine_grating(
             efficiency.inverse_jacobian,
             efficiency.coefficient_covariance,
             pooled=sensitivity_lamps(lamp_kinds(observations, calibrated.lamps)),
-            scale_sigma_nm=POOLING_SCALE_SIGMA_NM,
+            scale_sigma_nm=pooling_scale_sigmas(observations, calibrated.lamps),
         )
         results.append(
             multilamp_result(
