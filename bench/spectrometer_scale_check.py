@@ -2,7 +2,7 @@
 
 For every camera's scene of a split (seed 0, one scene each, as ``calib validate`` draws it), the
 fluorescent lamp's reference spectrum as the scene's spectrometer reports it is checked
-(:func:`calib.core.spectrometer_scale.scale_check_or_reason`); the fitted mean offset over the grid
+(:func:`calib.core.spectrometer_scale.check_spectrometer_scale`); the fitted mean offset over the grid
 is compared with the offset the protocol drew. Prints per scene: slit, sampling, drawn offset,
 fitted offset ± σ, error / σ, or why the check declined; then the share of scenes checked, the
 error's RMS, the median σ and the share within ±2σ, by slit.
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.core.spectrometer_scale import scale_check_or_reason
+from calib.core.spectrometer_scale import check_spectrometer_scale
 from calib.evaluation.validation.protocol import ProtocolSettings, render_task_scene, split_tasks
 from calib.evaluation.validation.splits import load_splits
 
@@ -39,7 +39,7 @@ def main() -> None:
         if reading is None or lamp is None or lamp.spectrum_bandwidth_nm is None:
             continue
         grid = settings.grid
-        outcome = scale_check_or_reason(
+        outcome = check_spectrometer_scale(
             lamp.spectrum,
             lamp.spectrum_bandwidth_nm,
             lamp=args.lamp,

@@ -29,14 +29,14 @@ shows Hg 404.66, 435.83, 546.07 and the 576.96/579.07 doublet, known to 0.01 nm 
    :data:`MIN_SLOPE_SPAN_NM`; otherwise it stays its prior and the σ grows away from the lines.
    At least :data:`MIN_FEATURES` windows must count (one line cannot test itself).
    When the windows disagree (reduced χ² > 1) the covariance is inflated by it; beyond
-   :data:`MAX_CONSISTENCY_CHI2` they are taken as not mercury's and nothing is returned.
+   :data:`MAX_CONSISTENCY_CHI2` they are taken as not mercury's and no check is made.
 4. *The σ*: ``σ(λ)² = [1, λ − λ_r] Σ [1, λ − λ_r]ᵀ``, stated as its RMS over the working range
    (:attr:`ScaleCheck.sigma_nm`): the spectrometer scale σ the mapping and the budget use in place
    of the tolerance.
 
-Nothing is returned when fewer than two windows count (no Hg lines: an LED, a halogen lamp; lines
-too blended or too coarsely sampled at this slit; a poor fit), when they disagree, or when the
-result is no better than the tolerance: the tolerance stays.
+No check is made (the reason is returned) when fewer than two windows count (no Hg lines: an LED,
+a halogen lamp; lines too blended or too coarsely sampled at this slit; a poor fit), when they
+disagree, or when the result is no better than the tolerance: the tolerance stays.
 
 :func:`checked_observations` applies it to an estimate's lamps: the first line lamp whose spectrum a
 spectrometer measured (a stated bandwidth, not a built-in or tabulated spectrum) is checked, and
@@ -52,7 +52,7 @@ Examples
 >>> lamp = line_spectrum(line_list("hg"), fwhm_nm=3.0, continuum=0.02)
 >>> moved = Spectrum(lamp.wavelength_nm - 0.3, lamp.values)  # reports λ for the light of λ + 0.3
 >>> sampled = Spectrum(np.arange(380.0, 781.0), moved.at(np.arange(380.0, 781.0)))
->>> check = check_spectrometer_scale(sampled, 3.0)
+>>> check = check_spectrometer_scale(sampled, 3.0)  # a ScaleCheck, or why there is none
 >>> round(check.offset_nm, 2), check.sigma_nm < 0.05
 (0.3, True)
 """
@@ -438,7 +438,7 @@ def slope_prior_sigma(tolerance_nm: float = WAVELENGTH_SCALE_NM) -> float:
     return math.sqrt(2.0) * tolerance_nm * IN_SPEC_TOLERANCE_SIGMA / (high - low)
 
 
-def scale_check_or_reason(
+def check_spectrometer_scale(
     spectrum: Spectrum,
     bandwidth_nm: float,
     *,
@@ -446,7 +446,22 @@ def scale_check_or_reason(
     range_nm: tuple[float, float] = (400.0, 700.0),
     tolerance_nm: float = WAVELENGTH_SCALE_NM,
 ) -> ScaleCheck | str:
-    """:func:`check_spectrometer_scale`, or the reason it cannot decide."""
+    """The spectrometer's wavelength-scale error from the Hg lines of ``spectrum`` (module
+    docstring), or the reason the lines cannot decide it (a one-line string).
+
+    Parameters
+    ----------
+    spectrum
+        A lamp's spectrum as the spectrometer reported it.
+    bandwidth_nm
+        The spectrometer's stated slit FWHM.
+    lamp
+        The lamp's name (for the record).
+    range_nm
+        The working range the stated σ is the RMS over.
+    tolerance_nm
+        The instrument's stated wavelength tolerance (:attr:`ScaleCheck.out_of_spec`).
+    """
     if not (math.isfinite(bandwidth_nm) and bandwidth_nm > 0):
         return "no stated bandwidth"
     wavelength = np.asarray(spectrum.wavelength_nm, dtype=np.float64)
@@ -526,36 +541,6 @@ def scale_check_or_reason(
     return replace(check, sigma_nm=sigma)
 
 
-def check_spectrometer_scale(
-    spectrum: Spectrum,
-    bandwidth_nm: float,
-    *,
-    lamp: str = "",
-    range_nm: tuple[float, float] = (400.0, 700.0),
-    tolerance_nm: float = WAVELENGTH_SCALE_NM,
-) -> ScaleCheck | None:
-    """The spectrometer's wavelength-scale error from the Hg lines of ``spectrum`` (module
-    docstring), or ``None`` when the lines cannot decide it.
-
-    Parameters
-    ----------
-    spectrum
-        A lamp's spectrum as the spectrometer reported it.
-    bandwidth_nm
-        The spectrometer's stated slit FWHM.
-    lamp
-        The lamp's name (for the record).
-    range_nm
-        The working range the stated σ is the RMS over.
-    tolerance_nm
-        The instrument's stated wavelength tolerance (:attr:`ScaleCheck.out_of_spec`).
-    """
-    outcome = scale_check_or_reason(
-        spectrum, bandwidth_nm, lamp=lamp, range_nm=range_nm, tolerance_nm=tolerance_nm
-    )
-    return None if isinstance(outcome, str) else outcome
-
-
 def corrected_spectrum(spectrum: Spectrum, check: ScaleCheck) -> Spectrum:
     """``spectrum`` with each value put at the wavelength it was measured at, ``λ + δ(λ)``."""
     axis = np.asarray(spectrum.wavelength_nm, dtype=np.float64)
@@ -626,7 +611,7 @@ def checked_observations(
     reasons: list[str] = []
     for lamp in candidates:
         assert lamp.spectrum_bandwidth_nm is not None
-        outcome = scale_check_or_reason(
+        outcome = check_spectrometer_scale(
             lamp.spectrum, lamp.spectrum_bandwidth_nm, lamp=lamp.name, range_nm=range_nm
         )
         if isinstance(outcome, str):
