@@ -61,6 +61,7 @@ from calib.methods.known_grating import (
     KNOWN_GRATING_METHOD,
     KnownGratingOptions,
     estimate_known_grating,
+    is_assumed_physical,
 )
 from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
 from calib.methods.multilamp import (
@@ -439,6 +440,25 @@ def estimate(
         )
 
 
+def assumed_grating_flag(result: EstimateResult, advice: str = "") -> QualityFlag:
+    """What a known-grating result without a grating assumed for η (``diagnostics["grating"]``):
+    ``grating_assumed`` when η₁ was marginalised over the physical families (decision 0074),
+    ``flat_grating_assumed`` when it was taken flat. ``advice``: what the caller adds."""
+    if is_assumed_physical(result.diagnostics.get("grating")):
+        return QualityFlag(
+            "grating_assumed",
+            "no direct measurement and no grating file: the grating efficiency was not measured "
+            "but marginalised over the physical families (thin sinusoidal sheets, blazed "
+            "gratings) with their spread in σ; a grating outside them is an error σ does not "
+            "hold" + advice,
+        )
+    return QualityFlag(
+        "flat_grating_assumed",
+        "no direct measurement and no grating file: a flat grating efficiency was assumed, so "
+        "the sensitivity carries the grating's own efficiency as an error" + advice,
+    )
+
+
 def with_scale_check(result: EstimateResult, outcome: ScaleCheckOutcome | None) -> EstimateResult:
     """``result`` recording the spectrometer-scale check (``diagnostics["spectrometer_scale_check"]``),
     flagged ``spectrometer_out_of_spec`` when the lines put the scale beyond its tolerance."""
@@ -490,13 +510,7 @@ def _estimate_in_scope(
             result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}
         )
     if choice is not None and key == KNOWN_GRATING_METHOD and routed.get("grating") is None:
-        result = result.with_quality(
-            QualityFlag(
-                "flat_grating_assumed",
-                "no direct measurement and no grating file: a flat grating efficiency was "
-                "assumed, so the sensitivity carries the grating's own efficiency as an error",
-            )
-        )
+        result = result.with_quality(assumed_grating_flag(result))
     if isinstance(used_basis, CameraBasis) and is_fallback_basis(used_basis):
         result = result.with_quality(
             QualityFlag(

@@ -391,6 +391,16 @@ def variant_observations(scene: RenderedScene, variant: MethodVariant) -> list[L
     ]
 
 
+def variant_arguments(variant: MethodVariant) -> dict[str, Any]:
+    """The keywords :func:`calib.methods.estimate` takes for ``variant`` besides its
+    observations, grid and basis: its options, and — for ``auto`` on lamps without a direct
+    measurement — ``assume_flat_grating`` (as ``calib estimate`` passes it)."""
+    extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
+    if not variant.direct and variant.method == AUTO_METHOD:
+        extra["assume_flat_grating"] = True
+    return extra
+
+
 def row_identity(
     task: Task, variant: MethodVariant, scene_record: str = "", split: str | None = None
 ) -> dict[str, Any]:
@@ -489,11 +499,12 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
         started = time.perf_counter()
         identity = row_identity(task, variant, record)
         try:
-            extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
-            if not variant.direct and variant.method == AUTO_METHOD:
-                extra["assume_flat_grating"] = True
             result = estimate(
-                observations, method=variant.method, grid=settings.grid, basis=task.basis, **extra
+                observations,
+                method=variant.method,
+                grid=settings.grid,
+                basis=task.basis,
+                **variant_arguments(variant),
             )
             pixel = observations[0].pixel
             rows.append(
