@@ -127,6 +127,15 @@ def test_without_a_grating_the_physical_families_stand_in_for_eta_and_beat_a_fla
     quick = estimate([halogen], basis=basis, mapping=mapping, assume_flat_grating=True, budget=None)
     codes = {flag.code for flag in quick.quality.flags}
     assert "grating_assumed" in codes and "flat_grating_assumed" not in codes
+    # Likewise with a fluorescent lamp nobody measured, for the mapping only (the D7000 pair).
+    tube = replace(
+        _lamp("FL2", "fluorescent", mapping, efficiency, rng), metadata={"spectrum_known": False}
+    )
+    paired = estimate(
+        [tube, halogen], basis=basis, mapping=mapping, assume_flat_grating=True, budget=None
+    )
+    assert paired.diagnostics["method_choice"]["mapping_only"] == ["FL2"]
+    assert "grating_assumed" in {flag.code for flag in paired.quality.flags}
 
 
 def test_the_camera_prior_weighs_the_assumed_shapes() -> None:

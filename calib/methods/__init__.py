@@ -245,7 +245,9 @@ def choose_method(
         return MethodChoice(
             KNOWN_GRATING_METHOD,
             prefix + "no direct measurement and no grating file: the known-grating solve through "
-            "a flat grating (assumed; the sensitivity carries the grating's efficiency)",
+            "an assumed grating efficiency (the physical families marginalised, or flat: "
+            "KnownGratingOptions.assumed_grating; the sensitivity carries this grating's "
+            "departure from it)",
             mapping_only,
         )
     raise InputError(
@@ -600,6 +602,9 @@ def _mapping_only_estimate(
         check_spectrometer_scale=False,
         **method_options,
     )
+    if choice.method == KNOWN_GRATING_METHOD and method_options.get("grating") is None:
+        # The inner solve was called by name: say what it assumed for η here.
+        result = result.with_quality(assumed_grating_flag(result))
     return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})
 
 
