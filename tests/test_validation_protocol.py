@@ -16,6 +16,7 @@ from calib.core.lamp_specs import gaussian_lamp, lamp_from_spec
 from calib.core.mapping import QuadraticMapping, wavelength_rms_from_covariance
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
+from calib.evaluation.validation.budget import EstimateRecord, ratios_by_method
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     EXTRA_VARIANTS,
@@ -628,3 +629,10 @@ def test_the_real_splits(shared_camera_data: Path) -> None:
     names = {camera.name for camera in test.cameras}
     assert "Nikon D7000 (rawtoaces-data)" in names  # the real D7000 data's camera: a test camera
     assert not any("XTi" in name or "xti" in name for name in names)  # the 400D is in training
+
+
+def test_an_assumed_eta_is_judged_under_its_own_key_only() -> None:
+    """The budget run's factor for an assumed η (decision 0074) must not stand for the same method
+    through a grating file."""
+    assumed = EstimateRecord("known-grating", "no direct", np.zeros(2), {}, family="assumed")
+    assert set(ratios_by_method([assumed], 1.0)) == {"known-grating:assumed"}

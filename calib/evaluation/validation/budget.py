@@ -220,11 +220,16 @@ def ratios_by_method(
     records: Sequence[EstimateRecord], tolerance_sigma: float
 ) -> dict[str, list[FloatArray]]:
     """Factor key → every record's error/σ ratios at factor 1 and ``tolerance_sigma``: each
-    registry method pooled (for results that record no η model) and per ``method:η family``."""
+    registry method pooled (for results that record no η model) and per ``method:η family``.
+
+    An assumed η (family ``"assumed"``, decision 0074) is judged under its own key only: pooled
+    into the method's, it would stand for the same method through a grating file, which no
+    variant runs."""
     gathered: dict[str, list[FloatArray]] = {}
     for record in records:
         ratio = record.ratio(tolerance_sigma)
-        gathered.setdefault(record.method, []).append(ratio)
+        if record.family != "assumed":
+            gathered.setdefault(record.method, []).append(ratio)
         if record.family is not None:
             gathered.setdefault(record.key, []).append(ratio)
     return gathered
