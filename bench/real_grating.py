@@ -7,8 +7,10 @@ absent) and estimates through the registry's ``auto`` choice with the σ budget
 - *Nikon D7000* (Butcher, rawproc ``.dat`` exports): the halogen profile with the Dedolight's
   5 nm spectrum, and the CFL profile whose spectrum nobody measured (the built-in tri-phosphor line
   list, marked ``spectrum_known=False``: ``auto`` uses it for the mapping only). No direct measurement
-  and no grating file: the known-grating solve through a flat grating. Truth: rawtoaces'
-  monochromator curve of the D7000 (not in the basis).
+  and no grating file: the known-grating solve through an assumed grating (η₁ marginalised over the
+  physical families, weighed by the camera prior: decision 0074; a flat one before). Truth:
+  rawtoaces' monochromator curve of the D7000 (not in the basis). The validation protocol's
+  variant "A + FL unmeasured, no direct" is this set-up.
 - *Canon EOS 10D* (rrogge, FITS planes): sunlight (AM0 × the atmosphere's transmission) through
   the LHires III 150 l/mm, whose maker's efficiency curve is the grating file. Both 10D ground
   truths left out of the basis.
@@ -119,6 +121,13 @@ def d7000(folder: Path, data_dir: Path) -> None:
     choice = result.diagnostics["method_choice"]
     print(f"Nikon D7000: {choice['method']} ({choice['reason']})")
     print(f"  vs rawtoaces: {scores(result, curves)}")
+    assumed = result.diagnostics.get("grating")
+    if isinstance(assumed, dict) and "most_likely" in assumed:
+        weights = ", ".join(f"{k} {v:.2f}" for k, v in assumed["family_weights"].items())
+        print(
+            f"  assumed η: most likely {assumed['most_likely']}, family weights {weights}, "
+            f"{assumed['effective_candidates']:.1f} effective candidates"
+        )
     for flag in result.quality.flags:
         print(f"  flag: {flag.line()}")
 

@@ -310,6 +310,10 @@ def test_a_grating_file_records_the_model_and_how_eta_was_obtained(basis, tmp_pa
     reread = read_grating_file(write_grating_file(tmp_path / "flat.json", flat))
     assert reread.obtained == "assumed flat"
     assert "assumed, not measured" in reread.reuse_warnings()[0]
+    averaged = replace(flat, obtained="assumed physical", source="assumed.json")
+    reread = read_grating_file(write_grating_file(tmp_path / "assumed.json", averaged))
+    assert reread.obtained == "assumed physical"
+    assert "physical grating families that was assumed" in reread.reuse_warnings()[0]
     with pytest.raises(InputError, match="obtained"):
         GratingEfficiency(np.array([400.0, 700.0]), np.ones(2), obtained="guessed")
 

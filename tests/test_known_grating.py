@@ -22,12 +22,20 @@ from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import band_coverage, random_efficiency, random_mapping
 from calib.methods import KnownGratingOptions, MultilampOptions, estimate
-from calib.methods.known_grating import estimate_known_grating
+from calib.methods.grating_models import (
+    assumed_candidates,
+    assumed_efficiency,
+    candidate_log_evidence,
+)
+from calib.methods.known_grating import estimate_known_grating, is_assumed_physical
+from calib.methods.uncertainty import efficiency_family
 from calib.model.bases import CameraBasis
 from calib.model.forward import PeakFractionNoise, render_observation
+from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
 from calib.pipeline import LampProfile, OfflineSettings, estimate_offline
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 
+FLAT = KnownGratingOptions(assumed_grating="flat")
 CAMERA = gaussian_camera((605, 530, 455), (35, 45, 28))
 TRUTH = CAMERA / CAMERA.max()
 
@@ -83,12 +91,79 @@ def test_without_a_grating_a_flat_one_is_assumed_and_recorded(basis):
     """The no-direct, no-file path (``estimate_with_known_grating(…, None)`` before)."""
     rng, mapping, _, _ = _scene(5)
     led = _lamp("LED-B3", "led", mapping, None, rng)
-    result = estimate_known_grating([led], grating=None, basis=basis, mapping=mapping)
+    result = estimate_known_grating([led], grating=None, basis=basis, mapping=mapping, options=FLAT)
     assert result.diagnostics["grating"] == "flat (assumed)"
     assert result.grating_efficiency is not None
     assert np.all(result.grating_efficiency == 1.0) and result.grating_efficiency_sigma is None
     # A flat grating indeed: the camera comes back.
     assert relative_error(result.sensitivity, TRUTH) < 0.04
+
+
+@pytest.mark.parametrize("grating", [SinusoidalPhaseGrating(0.6), BlazedGrating(620.0)])
+def test_without_a_grating_the_physical_families_stand_in_for_eta_and_beat_a_flat_one(
+    basis, grating
+):
+    """No direct measurement, no file (decision 0074): η₁ marginalised over the physical
+    families, weighed by the camera prior, its spread in σ — not a flat η, which leaves the
+    sheet's shape in the camera."""
+    rng, mapping, _, _ = _scene(5)
+
+    def efficiency(wavelength):
+        return grating.efficiency(1, wavelength)
+
+    halogen = _lamp("A", "halogen", mapping, efficiency, rng)
+    flat = estimate_known_grating(
+        [halogen], grating=None, basis=basis, mapping=mapping, options=FLAT
+    )
+    result = estimate_known_grating([halogen], grating=None, basis=basis, mapping=mapping)
+    record = result.diagnostics["grating"]
+    assert is_assumed_physical(record) and record["weighted_by_camera_prior"]
+    assert efficiency_family(result) == "assumed"  # its own σ-budget factor key
+    assert result.grating_efficiency_sigma is not None
+    assumed_error = relative_error(result.sensitivity, TRUTH)
+    assert assumed_error < 0.5 * relative_error(flat.sensitivity, TRUTH)
+    assert band_coverage(result, TRUTH) >= 0.8
+    # auto says what it assumed: the physical families, not a flat grating.
+    quick = estimate([halogen], basis=basis, mapping=mapping, assume_flat_grating=True, budget=None)
+    codes = {flag.code for flag in quick.quality.flags}
+    assert "grating_assumed" in codes and "flat_grating_assumed" not in codes
+    # Likewise with a fluorescent lamp nobody measured, for the mapping only (the D7000 pair).
+    tube = replace(
+        _lamp("FL2", "fluorescent", mapping, efficiency, rng), metadata={"spectrum_known": False}
+    )
+    paired = estimate(
+        [tube, halogen], basis=basis, mapping=mapping, assume_flat_grating=True, budget=None
+    )
+    assert paired.diagnostics["method_choice"]["mapping_only"] == ["FL2"]
+    assert "grating_assumed" in {flag.code for flag in paired.quality.flags}
+
+
+def test_the_camera_prior_weighs_the_assumed_shapes() -> None:
+    """A candidate the evidence singles out is the mean, with no spread left; without evidence the
+    families' whole spread stays in the covariance."""
+    wavelength = DEFAULT_GRID.wavelength_nm
+    stack, weight, labels = assumed_candidates(wavelength)
+    assert weight.sum() == pytest.approx(1.0) and len(labels) == stack.shape[0]
+    evidence = np.full(stack.shape[0], -1e6)
+    evidence[7] = 0.0
+    singled = assumed_efficiency(wavelength, log_evidence=evidence)
+    np.testing.assert_allclose(singled.inverse, stack[7], rtol=1e-9)
+    assert np.max(np.abs(singled.inverse_covariance)) < 1e-12
+    assert singled.record["effective_candidates"] == pytest.approx(1.0)
+    spread = assumed_efficiency(wavelength)
+    assert np.all(spread.efficiency_sigma > 0) and spread.record["effective_candidates"] > 40
+    # The evidence prefers the shape the response was made through.
+    prior_mean = np.stack([TRUTH[:, c] for c in range(3)], axis=1)
+    prior_covariance = np.stack([np.eye(wavelength.size) * 1e-4] * 3)
+    response = prior_mean / stack[20][:, None]
+    log_evidence = candidate_log_evidence(
+        response,
+        np.stack([np.eye(wavelength.size) * 1e-6] * 3),
+        prior_mean,
+        prior_covariance,
+        stack,
+    )
+    assert int(np.argmax(log_evidence)) == 20
 
 
 def test_the_mapping_is_found_from_the_lamps_when_not_given(basis):

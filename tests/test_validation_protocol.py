@@ -12,12 +12,16 @@ from typer.testing import CliRunner
 
 from calib.cli.app import build_app
 from calib.core.datasets import CameraRecord
-from calib.core.lamp_specs import gaussian_lamp
+from calib.core.lamp_specs import gaussian_lamp, lamp_from_spec
 from calib.core.mapping import QuadraticMapping, wavelength_rms_from_covariance
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
+from calib.evaluation.validation.budget import EstimateRecord, ratios_by_method
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
+    EXTRA_VARIANTS,
+    NO_DIRECT_VARIANT,
+    UNMEASURED_FL_SPEC,
     MethodVariant,
     ProtocolSettings,
     ValidationRow,
@@ -29,6 +33,7 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
     tune_rows,
     tuning_score,
+    variant_arguments,
     variant_observations,
 )
 from calib.evaluation.validation.report import (
@@ -440,6 +445,27 @@ def test_scenes_carry_the_optics_a_raw_file_records_and_the_no_exif_row_drops_th
     assert "optics" not in arbitrary.observations["LED-B3"].metadata
 
 
+def test_the_no_direct_variant_gives_the_first_order_alone_and_the_fl_as_nobody_measured_it() -> (
+    None
+):
+    """The real D7000 set-up (decision 0074): no direct measurement, the FL's spectrum a nominal
+    line list marked unknown, ``auto`` allowed the known-grating solve without a grating file."""
+    splits = _splits()
+    split = replace(splits.test, cameras=splits.test.cameras[1:2])
+    (task,) = split_tasks(split, _tiny_settings(variants=(NO_DIRECT_VARIANT,)))
+    scene = render_task_scene(task)
+    tube, halogen = variant_observations(scene, NO_DIRECT_VARIANT)
+    assert (tube.name, halogen.name) == ("FL2", "A")
+    assert tube.direct_rgb is None and halogen.direct_rgb is None and halogen.direct_sigma is None
+    assert tube.metadata["spectrum_known"] is False and "spectrum_known" not in halogen.metadata
+    assert tube.spectrum.name == lamp_from_spec(UNMEASURED_FL_SPEC).name
+    np.testing.assert_array_equal(tube.profile, scene.observations["FL2"].profile)
+    assert halogen.spectrum is scene.observations["A"].spectrum
+    assert variant_arguments(NO_DIRECT_VARIANT) == {"assume_flat_grating": True}
+    assert variant_arguments(DEFAULT_VARIANTS[0]) == {}
+    assert NO_DIRECT_VARIANT in EXTRA_VARIANTS
+
+
 def _failing_variant() -> MethodVariant:
     # han2012 refuses lamp observations at once: the rows carry the scene records, cheaply.
     return MethodVariant("refused", "han2012", ("LED-B3",))
@@ -603,3 +629,10 @@ def test_the_real_splits(shared_camera_data: Path) -> None:
     names = {camera.name for camera in test.cameras}
     assert "Nikon D7000 (rawtoaces-data)" in names  # the real D7000 data's camera: a test camera
     assert not any("XTi" in name or "xti" in name for name in names)  # the 400D is in training
+
+
+def test_an_assumed_eta_is_judged_under_its_own_key_only() -> None:
+    """The budget run's factor for an assumed η (decision 0074) must not stand for the same method
+    through a grating file."""
+    assumed = EstimateRecord("known-grating", "no direct", np.zeros(2), {}, family="assumed")
+    assert set(ratios_by_method([assumed], 1.0)) == {"known-grating:assumed"}

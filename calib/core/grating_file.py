@@ -36,9 +36,10 @@ Format (``format_version`` 2; version 1 files — without ``geometry.rig`` — a
 
 ``obtained`` says what the curve is worth: ``"estimated"`` (from lamps' direct measurements),
 ``"measured"`` (the spectrometer in the 0th- and 1st-order beams, ``rig``'s ``measure-grating``
-step), ``"maker's curve"`` (a catalogue), or ``"assumed flat"`` (no information at all: an
-estimate without a direct measurement saves the flat curve it assumed). Reusing an assumed-flat
-file warns (:func:`reuse_warnings`); a file without the key (written before it existed) counts as
+step), ``"maker's curve"`` (a catalogue), ``"assumed flat"`` (no information at all: an
+estimate without a direct measurement saves the flat curve it assumed) or ``"assumed physical"``
+(the same estimate through η marginalised over the physical families, decision 0074). Reusing an
+assumed file warns (:func:`reuse_warnings`); a file without the key (written before it existed) counts as
 ``"estimated"`` and says so.
 
 Unknown keys are kept in ``provenance``/``geometry`` and otherwise ignored, so later versions can add
@@ -78,7 +79,13 @@ __all__ = [
 
 
 #: How a grating file's η was obtained (the file's ``obtained``).
-OBTAINED_KINDS: tuple[str, ...] = ("estimated", "measured", "maker's curve", "assumed flat")
+OBTAINED_KINDS: tuple[str, ...] = (
+    "estimated",
+    "measured",
+    "maker's curve",
+    "assumed flat",
+    "assumed physical",
+)
 
 
 class GratingFileError(InputError):
@@ -319,9 +326,14 @@ def reuse_warnings(grating: GratingEfficiency) -> list[str]:
     An assumed-flat file carries no information about the grating: an estimate through it carries
     the grating's own spectral efficiency as an error.
     """
-    if grating.obtained == "assumed flat":
+    if grating.obtained in ("assumed flat", "assumed physical"):
+        what = (
+            "a flat efficiency"
+            if grating.obtained == "assumed flat"
+            else ("an efficiency averaged over the physical grating families")
+        )
         return [
-            f"{grating.source}: this grating file holds a flat efficiency that was assumed, not "
+            f"{grating.source}: this grating file holds {what} that was assumed, not "
             "measured; an estimate through it carries the grating's own efficiency as an error. "
             "Calibrate the grating with lamps measured directly (≥ 3 lamps, --method multilamp) "
             "or with the spectrometer (rig plan measure-grating)"

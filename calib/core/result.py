@@ -76,6 +76,8 @@ QUALITY_CODES: dict[str, str] = {
     "mapping_extrapolated": "the mapping is extrapolated beyond its lamp's lines with a large σ "
     "there (mapping stage)",
     "flat_grating_assumed": "the grating efficiency was assumed flat, not measured (grating stage)",
+    "grating_assumed": "the grating efficiency was not measured: marginalised over the physical "
+    "grating families, their spread in σ (grating stage)",
     "assumed_grating_reused": "a grating file holding an assumed η is reused (grating stage)",
     "grating_family_unresolved": "the direct signals do not tell the physical grating families "
     "apart: measure the 2nd order or η with the rig's spectrometer (grating stage)",

@@ -61,6 +61,7 @@ from calib.methods.known_grating import (
     KNOWN_GRATING_METHOD,
     KnownGratingOptions,
     estimate_known_grating,
+    is_assumed_physical,
 )
 from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
 from calib.methods.multilamp import (
@@ -244,7 +245,9 @@ def choose_method(
         return MethodChoice(
             KNOWN_GRATING_METHOD,
             prefix + "no direct measurement and no grating file: the known-grating solve through "
-            "a flat grating (assumed; the sensitivity carries the grating's efficiency)",
+            "an assumed grating efficiency (the physical families marginalised, or flat: "
+            "KnownGratingOptions.assumed_grating; the sensitivity carries this grating's "
+            "departure from it)",
             mapping_only,
         )
     raise InputError(
@@ -439,6 +442,25 @@ def estimate(
         )
 
 
+def assumed_grating_flag(result: EstimateResult, advice: str = "") -> QualityFlag:
+    """What a known-grating result without a grating assumed for η (``diagnostics["grating"]``):
+    ``grating_assumed`` when η₁ was marginalised over the physical families (decision 0074),
+    ``flat_grating_assumed`` when it was taken flat. ``advice``: what the caller adds."""
+    if is_assumed_physical(result.diagnostics.get("grating")):
+        return QualityFlag(
+            "grating_assumed",
+            "no direct measurement and no grating file: the grating efficiency was not measured "
+            "but marginalised over the physical families (thin sinusoidal sheets, blazed "
+            "gratings) with their spread in σ; a grating outside them is an error σ does not "
+            "hold" + advice,
+        )
+    return QualityFlag(
+        "flat_grating_assumed",
+        "no direct measurement and no grating file: a flat grating efficiency was assumed, so "
+        "the sensitivity carries the grating's own efficiency as an error" + advice,
+    )
+
+
 def with_scale_check(result: EstimateResult, outcome: ScaleCheckOutcome | None) -> EstimateResult:
     """``result`` recording the spectrometer-scale check (``diagnostics["spectrometer_scale_check"]``),
     flagged ``spectrometer_out_of_spec`` when the lines put the scale beyond its tolerance."""
@@ -490,13 +512,7 @@ def _estimate_in_scope(
             result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}
         )
     if choice is not None and key == KNOWN_GRATING_METHOD and routed.get("grating") is None:
-        result = result.with_quality(
-            QualityFlag(
-                "flat_grating_assumed",
-                "no direct measurement and no grating file: a flat grating efficiency was "
-                "assumed, so the sensitivity carries the grating's own efficiency as an error",
-            )
-        )
+        result = result.with_quality(assumed_grating_flag(result))
     if isinstance(used_basis, CameraBasis) and is_fallback_basis(used_basis):
         result = result.with_quality(
             QualityFlag(
@@ -586,6 +602,9 @@ def _mapping_only_estimate(
         check_spectrometer_scale=False,
         **method_options,
     )
+    if choice.method == KNOWN_GRATING_METHOD and method_options.get("grating") is None:
+        # The inner solve was called by name: say what it assumed for η here.
+        result = result.with_quality(assumed_grating_flag(result))
     return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})
 
 

@@ -527,3 +527,155 @@ def with_jackknife(
         inflation=fit.inflation * factor,
         jackknife_sigma=float(np.sqrt(variance)),
     )
+
+
+#: Shape parameters per family over which an assumed grating is marginalised
+#: (:func:`assumed_efficiency`): the families' draw ranges (what sheets sold for this work span,
+#: :attr:`calib.model.gratings.SinusoidalPhaseGrating.PHASE_RANGE_RAD`,
+#: :attr:`calib.model.gratings.BlazedGrating.BLAZE_RANGE_NM`), sampled evenly.
+ASSUMED_POINTS = 41
+#: The efficiency's assumption when neither a direct measurement nor a grating file gives it:
+#: ``"flat"`` (η = 1, the grating's shape left in the sensitivity) or ``"physical"`` (η
+#: marginalised over the physical families, :func:`assumed_efficiency`).
+AssumedGrating = Literal["flat", "physical"]
+#: The families' parameter ranges an assumed grating spans: what sheets sold for the visible span.
+ASSUMED_RANGES: dict[PhysicalKind, tuple[float, float]] = {
+    "sinusoidal": SinusoidalPhaseGrating.PHASE_RANGE_RAD,
+    "blazed": BlazedGrating.BLAZE_RANGE_NM,
+}
+ASSUMED_GRATINGS: tuple[AssumedGrating, ...] = ("flat", "physical")
+
+
+@dataclass(frozen=True, eq=False)
+class AssumedEfficiency:
+    """A first-order efficiency nobody measured, marginalised over the physical families.
+
+    Attributes
+    ----------
+    inverse, inverse_covariance
+        Mean of ``1/η₁`` ``(f,)`` over the families' range (each candidate scaled to a geometric
+        mean of 1 on the grid: the sensitivity's scale is free) and its covariance ``(f, f)``
+        over the candidates (the shapes' spread: smooth, correlated across the grid).
+    record
+        What was assumed (``diagnostics["grating"]``).
+    """
+
+    inverse: FloatArray
+    inverse_covariance: FloatArray
+    record: dict[str, Any]
+
+    @property
+    def efficiency(self) -> FloatArray:
+        return np.asarray(1.0 / self.inverse, dtype=np.float64)
+
+    @property
+    def efficiency_sigma(self) -> FloatArray:
+        """σ of ``η₁`` node by node (first order from ``1/η₁``'s)."""
+        sigma = np.sqrt(np.clip(np.diag(self.inverse_covariance), 0.0, None))
+        return np.asarray(sigma / self.inverse**2, dtype=np.float64)
+
+
+def assumed_candidates(
+    wavelength_nm: FloatArray,
+    kinds: Sequence[PhysicalKind] = PHYSICAL_KINDS,
+    points: int = ASSUMED_POINTS,
+) -> tuple[FloatArray, FloatArray, list[tuple[PhysicalKind, float]]]:
+    """The physical families' ``1/η₁`` over their draw ranges ``(K, f)`` (each scaled to a
+    geometric mean of 1 on the grid: the sensitivity's scale is free), their prior weights
+    ``(K,)`` (equal per family, uniform in each range) and ``(kind, parameter)`` of each."""
+    wavelength = np.asarray(wavelength_nm, dtype=np.float64)
+    candidates: list[FloatArray] = []
+    labels: list[tuple[PhysicalKind, float]] = []
+    for kind in kinds:
+        low, high = ASSUMED_RANGES[kind]
+        for value in np.linspace(low, high, points):
+            first = physical_grating(kind, float(value)).efficiency(1, wavelength)
+            log_inverse = -np.log(np.maximum(first, 1e-300))
+            candidates.append(np.exp(log_inverse - log_inverse.mean()))
+            labels.append((kind, float(value)))
+    weights = np.full(len(candidates), 1.0 / len(candidates))
+    return np.asarray(candidates), weights, labels
+
+
+def candidate_log_evidence(
+    response: FloatArray,
+    response_covariance: FloatArray,
+    prior_mean: FloatArray,
+    prior_covariance: FloatArray,
+    inverse_candidates: FloatArray,
+) -> FloatArray:
+    """``log p(Q | η_k)`` of each candidate ``(K,)`` under the camera prior.
+
+    The first-order response ``Q_c = η ⊙ s_c`` (``(f, 3)``, covariance ``(3, f, f)``) with
+    ``s_c ~ N(α μ_c, α² Σ_c)``: ``Q_c ~ N(α η⊙μ_c, α² D_η Σ_c D_η + C_c)``, ``α`` the
+    least-squares scale of the prior's mean to the data (as
+    :func:`calib.methods.multilamp.blend_with_prior` takes it)."""
+    values = np.zeros(inverse_candidates.shape[0])
+    for k, inverse in enumerate(inverse_candidates):
+        eta = 1.0 / inverse
+        predicted = eta[:, None] * prior_mean
+        scale = float(np.sum(predicted * response)) / max(float(np.sum(predicted**2)), 1e-300)
+        total = 0.0
+        for c in range(3):
+            covariance = scale**2 * (eta[:, None] * prior_covariance[c] * eta[None, :])
+            covariance = covariance + response_covariance[c]
+            covariance = 0.5 * (covariance + covariance.T)
+            jitter = 1e-12 * float(np.trace(covariance)) / covariance.shape[0]
+            covariance[np.diag_indices_from(covariance)] += jitter
+            residual = response[:, c] - scale * predicted[:, c]
+            sign, logdet = np.linalg.slogdet(covariance)
+            if sign <= 0:
+                total = -np.inf
+                break
+            total -= 0.5 * (float(residual @ np.linalg.solve(covariance, residual)) + logdet)
+        values[k] = total
+    return values
+
+
+def assumed_efficiency(
+    wavelength_nm: FloatArray,
+    kinds: Sequence[PhysicalKind] = PHYSICAL_KINDS,
+    points: int = ASSUMED_POINTS,
+    log_evidence: FloatArray | None = None,
+) -> AssumedEfficiency:
+    """``1/η₁`` marginalised over ``kinds`` (:func:`assumed_candidates`), weighted by
+    ``log_evidence`` (:func:`candidate_log_evidence`) when given: its mean and covariance on
+    ``wavelength_nm``.
+
+    Without a direct measurement the first order's profile gives ``q = η₁ s`` only; η₁'s shape
+    is not in the data. A flat η leaves it in the sensitivity as an error no σ holds. Here the
+    error is the spread of the shapes real sheets have (a thin sinusoidal phase sheet
+    ``J₁²(φ₀ λ₀/λ)``, a blazed grating ``sinc²(λ_B/λ − 1)``, each over the range sold for the
+    visible), carried as a correlated covariance: the camera prior
+    (:func:`calib.methods.multilamp.blend_with_prior`) then settles what of that shape the
+    camera family allows, and σ holds the rest.
+    """
+    stack, weight, labels = assumed_candidates(wavelength_nm, kinds, points)
+    if log_evidence is not None:
+        finite = np.where(np.isfinite(log_evidence), log_evidence, -np.inf)
+        weight = weight * np.exp(finite - finite.max())
+        weight = weight / weight.sum()
+    mean = weight @ stack
+    centred = stack - mean
+    covariance = (centred * weight[:, None]).T @ centred
+    best = int(np.argmax(weight))
+    record = {
+        "assumed": "physical",
+        "families": list(kinds),
+        "ranges": {kind: list(ASSUMED_RANGES[kind]) for kind in kinds},
+        "weighted_by_camera_prior": log_evidence is not None,
+        "family_weights": {
+            kind: float(sum(w for w, (k, _) in zip(weight, labels, strict=True) if k == kind))
+            for kind in kinds
+        },
+        "most_likely": {
+            "model": labels[best][0],
+            PHYSICAL_PARAMETER_NAMES[labels[best][0]]: labels[best][1],
+        },
+        "effective_candidates": float(1.0 / np.sum(weight**2)),
+        "note": "no direct measurement and no grating file: η₁ marginalised over the physical "
+        "families' ranges, its spread carried in σ",
+    }
+    return AssumedEfficiency(
+        np.asarray(mean, dtype=np.float64), 0.5 * (covariance + covariance.T), record
+    )

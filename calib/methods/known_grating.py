@@ -29,7 +29,7 @@ claimed (decision 0020).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,12 +44,21 @@ from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.closed_form import GratingMethodOptions, check_lamps
-from calib.methods.grating_models import recorded_physical_grating, second_order_ratio
+from calib.methods.grating_models import (
+    AssumedEfficiency,
+    AssumedGrating,
+    assumed_candidates,
+    assumed_efficiency,
+    candidate_log_evidence,
+    recorded_physical_grating,
+    second_order_ratio,
+)
 from calib.methods.multilamp import (
     blend_with_prior,
     combine_responses,
     lamps_with_mapping,
     multilamp_result,
+    pool_responses,
 )
 from calib.methods.responses import LampData, fit_response
 from calib.model.bases import CameraBasis
@@ -58,13 +67,31 @@ from calib.wavelength import RigGeometry
 
 #: Registry name (and the result's ``method``).
 KNOWN_GRATING_METHOD = "known-grating"
+#: ``diagnostics["grating"]["source"]`` of an efficiency marginalised over the physical families.
+ASSUMED_PHYSICAL_SOURCE = "assumed: physical grating families"
+#: ``diagnostics["efficiency_model"]`` of a solve through an assumed-physical η: the σ budget
+#: judges its coverage factor apart (:func:`calib.methods.uncertainty.efficiency_family`).
+ASSUMED_EFFICIENCY_MODEL = "assumed"
+#: What stands in for an efficiency nobody measured (decision 0074).
+DEFAULT_ASSUMED_GRATING: AssumedGrating = "physical"
+
+
+def is_assumed_physical(record: object) -> bool:
+    """Whether a result's ``diagnostics["grating"]`` records an η marginalised over the physical
+    families (no direct measurement, no grating file: decision 0074)."""
+    return isinstance(record, Mapping) and record.get("source") == ASSUMED_PHYSICAL_SOURCE
 
 
 @dataclass(frozen=True)
 class KnownGratingOptions(GratingMethodOptions):
     """Options of :func:`estimate_known_grating`: those of every grating method
     (:class:`calib.methods.closed_form.GratingMethodOptions`); ``prior_shrinkage`` shapes the
-    prior that steers the mapping search and fills in where the lamps are dim."""
+    prior that steers the mapping search and fills in where the lamps are dim.
+    ``assumed_grating``: what stands in for η without a grating (``grating=None``):
+    ``"physical"`` (η₁ marginalised over the physical families,
+    :func:`calib.methods.grating_models.assumed_efficiency`) or ``"flat"``."""
+
+    assumed_grating: AssumedGrating = DEFAULT_ASSUMED_GRATING
 
 
 @one_blas_thread
@@ -133,9 +160,12 @@ def estimate_known_grating(
     check_lamps(observations, basis, grid)
     wavelength = grid.wavelength_nm
     eta_sigma: FloatArray | None = None
+    assumed: AssumedEfficiency | None = None
+    record: Any
     if grating is None:
+        # Placeholders until the responses are fitted (the assumed-physical η is weighed by them).
         eta = np.ones_like(wavelength)
-        record: Any = "flat (assumed)"
+        record = "flat (assumed)"
     else:
         if not grating.covers(grid):
             lo, hi = grating.range_nm
@@ -164,8 +194,6 @@ def estimate_known_grating(
         need_direct=False,
         rig=None if grating is None or grating.rig is None else RigGeometry.from_dict(grating.rig),
     )
-    inverse = 1.0 / eta
-    inverse_sigma = np.zeros_like(inverse) if eta_sigma is None else eta_sigma / eta**2
     # The 2nd order on the 1st order's red end: modelled when the grating's physical model gives
     # η₂/η₁, else its pixels left out (fit_response; decision 0032).
     physical = None if grating is None else recorded_physical_grating(grating.model)
@@ -179,9 +207,28 @@ def estimate_known_grating(
         for system, response in zip(systems, responses, strict=True)
         if response.second_order is not None
     }
-    solution = combine_responses(
-        responses, inverse, np.eye(inverse.size), np.diag(inverse_sigma**2)
-    )
+    if grating is None and options.assumed_grating == "physical":
+        # Each physical shape weighed by how well the camera prior explains the response through
+        # it (decision 0074: on the validation split the weighing beat the families' prior alone).
+        pooled = pool_responses(responses)[0]
+        log_evidence = candidate_log_evidence(
+            pooled.response,
+            pooled.covariance,
+            prior.mean,
+            prior.covariance,
+            assumed_candidates(wavelength)[0],
+        )
+        assumed = assumed_efficiency(wavelength, log_evidence=log_evidence)
+        eta, eta_sigma = assumed.efficiency, assumed.efficiency_sigma
+        record = {"source": ASSUMED_PHYSICAL_SOURCE, **assumed.record}
+        # The shapes' spread is smooth and shared by the channels: its full covariance, so that
+        # the camera prior can settle the part of it the camera family does not allow.
+        inverse, inverse_covariance = assumed.inverse, assumed.inverse_covariance
+    else:
+        inverse = 1.0 / eta
+        inverse_sigma = np.zeros_like(inverse) if eta_sigma is None else eta_sigma / eta**2
+        inverse_covariance = np.diag(inverse_sigma**2)
+    solution = combine_responses(responses, inverse, np.eye(inverse.size), inverse_covariance)
     # The profile of one lamp says little where the lamp is dim: the camera prior fills in there
     # (η is known, so the prior enters only here).
     solution = blend_with_prior(solution, prior)
@@ -205,6 +252,8 @@ def estimate_known_grating(
         basis,
         {
             "grating": record,
+            # The σ budget's factor key (known-grating:assumed, decision 0074).
+            **({"efficiency_model": ASSUMED_EFFICIENCY_MODEL} if assumed is not None else {}),
             "prior_shrinkage": prior.shrinkage.tolist(),
             **({"second_order": second_order} if second_order else {}),
         },

@@ -155,6 +155,11 @@ COVERAGE_SCALE: dict[str, float] = {
     "multilamp:physical": 2.47,
     "multilamp:fourier": 2.47,
     "makabe2025": 4.24,
+    # Decision 0074 (no direct measurement, no grating file: η₁ marginalised over the physical
+    # families): ``python -m calib.evaluation.validation.budget --data-dir DIR --jobs 1 --variant
+    # "A + FL unmeasured, no direct"``, 40 validation estimates, 89.5 % at factor 1 → 1.45. Only
+    # the assumed η's key: the known-grating solve through a grating file stays unvalidated.
+    "known-grating:assumed": 1.45,
 }
 #: Factor for methods the validation run did not include.
 DEFAULT_COVERAGE_SCALE = 1.0
@@ -623,11 +628,14 @@ PHYSICAL_EFFICIENCY_MODELS = frozenset({"sinusoidal", "blazed"})
 
 
 def efficiency_family(result: EstimateResult) -> str | None:
-    """``"physical"`` or ``"fourier"``: the family of the η model the result records
+    """``"physical"``, ``"fourier"`` or ``"assumed"`` (η nobody measured, marginalised over the
+    physical families: decision 0074): the family of the η model the result records
     (``diagnostics["efficiency_model"]``), ``None`` when it records none."""
     model = result.diagnostics.get("efficiency_model")
     if not isinstance(model, str):
         return None
+    if model == "assumed":
+        return "assumed"
     return "physical" if model in PHYSICAL_EFFICIENCY_MODELS else "fourier"
 
 

@@ -33,7 +33,14 @@ from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.image.raw import read_raw_metadata
-from calib.methods import AUTO, MethodOptions, check_method, coarse_line_spectrum, estimate
+from calib.methods import (
+    AUTO,
+    MethodOptions,
+    assumed_grating_flag,
+    check_method,
+    coarse_line_spectrum,
+    estimate,
+)
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
 from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings
@@ -688,15 +695,13 @@ def _estimate(
             "efficiency from an earlier calibration with --grating FILE",
             source="lamps",
         )
-    flat: str | None = None
+    advice: str | None = None
     if checked.grating is None:
-        flat = (
-            "no direct measurement and no --grating: a flat grating efficiency was assumed, so the "
-            "sensitivity carries the grating's own spectral efficiency as an error; measure the "
-            "direct RGB (--direct R,G,B) or give --grating FILE from an earlier calibration"
+        advice = (
+            "; measure the direct RGB (--direct R,G,B) or give --grating FILE from an earlier "
+            "calibration"
             if not with_direct
-            else "--method known-grating without --grating: a flat grating efficiency was "
-            "assumed, so the sensitivity carries the grating's own spectral efficiency as an error"
+            else " (--method known-grating without --grating)"
         )
     if method not in (AUTO, MULTILAMP_METHOD, KNOWN_GRATING_METHOD):
         notes.append(
@@ -714,6 +719,6 @@ def _estimate(
         options=_known_grating_options(settings.method_options, warnings),
         **where,
     )
-    if flat is not None:
-        result = result.with_quality(QualityFlag("flat_grating_assumed", flat))
+    if advice is not None:
+        result = result.with_quality(assumed_grating_flag(result, advice))
     return result, checked.grating

@@ -61,6 +61,7 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import format_re, relative_error
 from calib.core.result import EstimateResult, json_safe
 from calib.core.truth import GroundTruth
+from calib.methods.known_grating import is_assumed_physical
 from calib.methods.multilamp import grating_model_fields
 from calib.model.extension import Extension, extend
 from calib.pipeline.camera_identity import CameraIdentity, camera_identity
@@ -374,15 +375,18 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
     fields = grating_model_fields(result.diagnostics.get("grating_model"))
     if result.diagnostics.get("grating") == "flat (assumed)":
         fields = {"obtained": "assumed flat"}
+    elif is_assumed_physical(result.diagnostics.get("grating")):
+        fields = {"obtained": "assumed physical"}
     return GratingEfficiency(
         wavelength_nm=result.wavelength_nm,
         efficiency=efficiency,
         efficiency_sigma=sigma,
         geometry=geometry,
         provenance=provenance,
-        source="estimated grating efficiency"
-        if fields["obtained"] == "estimated"
-        else "assumed flat grating efficiency",
+        source={
+            "estimated": "estimated grating efficiency",
+            "assumed physical": "assumed grating efficiency (physical families)",
+        }.get(fields["obtained"], "assumed flat grating efficiency"),
         **fields,
     )
 

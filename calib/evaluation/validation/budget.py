@@ -34,6 +34,8 @@ from calib.evaluation.validation.protocol import (
     Task,
     render_task_scene,
     split_tasks,
+    variant_arguments,
+    variant_observations,
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
 from calib.methods.uncertainty import BudgetSettings, efficiency_family, prior_sigma_at_scale
@@ -124,8 +126,8 @@ def task_records(task: Task) -> list[EstimateRecord]:
     out: list[EstimateRecord] = []
     unscaled = BudgetSettings(coverage_scale={}, tolerance_sigma=1.0, record_components=True)
     for variant in task.settings.variants:
-        observations = [scene.observations[lamp] for lamp in variant.lamps]
-        extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
+        observations = variant_observations(scene, variant)
+        extra = variant_arguments(variant)
         try:
             result = estimate(
                 observations,
@@ -218,11 +220,16 @@ def ratios_by_method(
     records: Sequence[EstimateRecord], tolerance_sigma: float
 ) -> dict[str, list[FloatArray]]:
     """Factor key → every record's error/σ ratios at factor 1 and ``tolerance_sigma``: each
-    registry method pooled (for results that record no η model) and per ``method:η family``."""
+    registry method pooled (for results that record no η model) and per ``method:η family``.
+
+    An assumed η (family ``"assumed"``, decision 0074) is judged under its own key only: pooled
+    into the method's, it would stand for the same method through a grating file, which no
+    variant runs."""
     gathered: dict[str, list[FloatArray]] = {}
     for record in records:
         ratio = record.ratio(tolerance_sigma)
-        gathered.setdefault(record.method, []).append(ratio)
+        if record.family != "assumed":
+            gathered.setdefault(record.method, []).append(ratio)
         if record.family is not None:
             gathered.setdefault(record.key, []).append(ratio)
     return gathered
@@ -295,12 +302,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="comma-separated σ per unit of the spectrometer tolerances to judge (one run)",
     )
     parser.add_argument("--save", default=None, help="write the records to this .npz")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=None,
+        help="judge only these variants (repeatable; default every default and extra one)",
+    )
     args = parser.parse_args(argv)
     splits, _ = load_splits(args.data_dir, seed=args.seed)
     split = splits.validation
     if args.limit:
         split = replace(split, cameras=split.cameras[: args.limit])
-    settings = ProtocolSettings(seed=args.seed, variants=(*DEFAULT_VARIANTS, *EXTRA_VARIANTS))
+    variants = (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)
+    if args.variant:
+        unknown = sorted(set(args.variant) - {v.label for v in variants})
+        if unknown:
+            parser.error(f"unknown variant {'; '.join(unknown)}")
+        variants = tuple(v for v in variants if v.label in args.variant)
+    settings = ProtocolSettings(seed=args.seed, variants=variants)
     records = validation_records(split, settings, jobs=args.jobs)
     if args.save:
         arrays: dict[str, Any] = {}

@@ -42,7 +42,7 @@ from typing import Any, Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.lamp_specs import RGB_LEDS
+from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.metrics import channel_relative_errors, mapping_relative_error
 from calib.core.observations import LampObservation
@@ -74,6 +74,8 @@ TWO_LAMP_METHOD = "prior"
 MULTILAMP_METHOD = "multilamp"
 #: The paper's own solve (Makabe et al. 2025, Eq. 12), for comparison.
 PAPER_METHOD = "makabe2025"
+#: The registry's own choice (:func:`calib.methods.choose_method`), as ``calib estimate`` makes it.
+AUTO_METHOD = "auto"
 PixelOrigin = Literal["direct_spot", "arbitrary"]
 CHANNELS = ("r", "g", "b")
 
@@ -96,6 +98,15 @@ class MethodVariant:
         Whether its profiles carry the optics a RAW capture records (the lens' focal length and
         the pixel pitch, :func:`~calib.evaluation.validation.scenes.exif_optics`); ``False``
         measures the case of profile CSVs or RAW files without those tags.
+    direct
+        Whether its lamps come with their direct (0th-order) measurement; ``False`` measures a
+        capture of the first order alone (no grating file either: ``auto`` then goes through
+        the known-grating solve with the grating's efficiency assumed, ``assume_flat_grating``).
+    unmeasured
+        ``(lamp, nominal spec)`` pairs: lamps whose spectrum nobody measured, given to the
+        estimator as the nominal spectrum (a built-in line list) marked
+        ``spectrum_known=False`` (``auto`` uses them for the mapping only), while the scene
+        renders the lamp as it really shines.
     """
 
     label: str
@@ -103,6 +114,8 @@ class MethodVariant:
     lamps: tuple[str, ...]
     options: MethodOptions | None = None
     exif_optics: bool = True
+    direct: bool = True
+    unmeasured: tuple[tuple[str, str], ...] = ()
 
 
 FIVE_LAMPS: tuple[str, ...] = ("LED-B1", "LED-B3", "LED-B5", "FL2", "A")
@@ -115,9 +128,26 @@ DEFAULT_VARIANTS: tuple[MethodVariant, ...] = (
 )
 
 
+#: The nominal spectrum a user gives for a fluorescent lamp nobody measured: its mercury lines,
+#: the ones every fluorescent lamp has at physical wavelengths (the real D7000 pair's CFL, a
+#: tri-phosphor lamp, gets ``builtin:cfl-triphosphor``; FL2 is a halophosphate lamp, whose only
+#: lines are mercury's).
+UNMEASURED_FL_SPEC = "builtin:hg"
+#: The real D7000 set-up (``bench/real_grating.py``, Butcher's August pair) as a variant: a
+#: halogen lamp with its measured spectrum and a fluorescent lamp whose spectrum nobody measured
+#: (for the mapping only), the first order alone — no direct measurement, no grating file.
+NO_DIRECT_VARIANT = MethodVariant(
+    "A + FL unmeasured, no direct",
+    AUTO_METHOD,
+    ("FL2", "A"),
+    direct=False,
+    unmeasured=(("FL2", UNMEASURED_FL_SPEC),),
+)
+
 #: Variants a run may ask for besides the defaults.
 EXTRA_VARIANTS: tuple[MethodVariant, ...] = (
     MethodVariant("LED+FL, paper's solve", PAPER_METHOD, ("LED-B3", "FL2")),
+    NO_DIRECT_VARIANT,
 )
 
 
@@ -338,12 +368,37 @@ def variant_observations(scene: RenderedScene, variant: MethodVariant) -> list[L
     """The observations ``variant`` estimates from: its lamps of ``scene``, without the RAW
     files' optics when it measures that case (``exif_optics=False``)."""
     observations = [scene.observations[lamp] for lamp in variant.lamps]
+    if not variant.direct:
+        observations = [replace(obs, direct_rgb=None, direct_sigma=None) for obs in observations]
+    nominal = dict(variant.unmeasured)
+    if nominal:
+        observations = [
+            obs
+            if obs.name not in nominal
+            else replace(
+                obs,
+                spectrum=lamp_from_spec(nominal[obs.name]),
+                spectrum_bandwidth_nm=None,
+                metadata={**dict(obs.metadata), "spectrum_known": False},
+            )
+            for obs in observations
+        ]
     if variant.exif_optics:
         return observations
     return [
         replace(obs, metadata={k: v for k, v in obs.metadata.items() if k != "optics"})
         for obs in observations
     ]
+
+
+def variant_arguments(variant: MethodVariant) -> dict[str, Any]:
+    """The keywords :func:`calib.methods.estimate` takes for ``variant`` besides its
+    observations, grid and basis: its options, and — for ``auto`` on lamps without a direct
+    measurement — ``assume_flat_grating`` (as ``calib estimate`` passes it)."""
+    extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
+    if not variant.direct and variant.method == AUTO_METHOD:
+        extra["assume_flat_grating"] = True
+    return extra
 
 
 def row_identity(
@@ -444,9 +499,12 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
         started = time.perf_counter()
         identity = row_identity(task, variant, record)
         try:
-            extra: dict[str, Any] = {} if variant.options is None else {"options": variant.options}
             result = estimate(
-                observations, method=variant.method, grid=settings.grid, basis=task.basis, **extra
+                observations,
+                method=variant.method,
+                grid=settings.grid,
+                basis=task.basis,
+                **variant_arguments(variant),
             )
             pixel = observations[0].pixel
             rows.append(
