@@ -9,13 +9,17 @@
    camera is calibrated in *this* camera's scene geometry (the same rig: sheet, line density, lens),
    both captures carry the optics a RAW file reports (``bench/wavelength_validate.py``'s
    ``with_exif_optics``) and the file stores the rig geometry (``geometry.rig``), as ``calib estimate``
-   writes it (issue 16: a new camera through the file reuses what still holds).
+   writes it (issue 16: a new camera through the file reuses what still holds). The one-LED
+   estimate is made as ``calib estimate --grating FILE`` makes it (``calib.methods.estimate``, the
+   σ budget's); its ±2σ coverage is printed beside that of the method's own σ. ``--diagnose``
+   takes its error apart (:func:`diagnose`).
 
 Every scene is the protocol's own (``calib validate``'s plan for the camera, seed and scene: geometry,
 rig errors, noise), with the grating replaced. The mapping is found from the lamps, as ``calib
 validate`` does.
 
     python bench/grating_physics.py --data-dir DIR --split validation --cameras 8 [--seed 0] [--same-rig]
+        [--diagnose]
 
 Tuning looks at ``--split validation`` only; ``--split test`` is for reporting.
 """
@@ -32,18 +36,24 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
-from calib.core.grating_file import read_grating_file, write_grating_file
+from calib.core.grating_file import GratingEfficiency, read_grating_file, write_grating_file
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import channel_relative_errors
+from calib.core.observations import LampObservation
+from calib.core.spectra import WavelengthGrid
+from calib.core.spectrometer_scale import checked_observations, corrected_spectrum
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     ProtocolSettings,
     Task,
     draw_task_plan,
+    mapping_scores,
+    sensitivity_scores,
     spread_tasks,
 )
 from calib.evaluation.validation.scenes import RenderedScene, render_scene, with_exif_optics
-from calib.methods.known_grating import estimate_known_grating
+from calib.methods import estimate
+from calib.methods.known_grating import KNOWN_GRATING_METHOD, estimate_known_grating
 from calib.methods.multilamp import (
     MultilampOptions,
     calibrate_lamps,
@@ -88,8 +98,73 @@ def scene(task: Task, grating: Any, camera: Task | None = None) -> RenderedScene
     return render_scene(replace(plan, grating=grating), seen, LAMPS, noise)
 
 
+def coverage_of(result: Any, truth: FloatArray) -> float:
+    """The ±2σ coverage (%, mean over channels) of ``result``'s stated σ, NaN without one."""
+    coverage = sensitivity_scores(result, truth)[1]
+    return np.nan if coverage is None else 100.0 * float(np.mean(coverage))
+
+
 def re_of(result: Any, truth: FloatArray) -> float:
     return 100.0 * float(np.mean(channel_relative_errors(result.physical_sensitivity(), truth)))
+
+
+def diagnose(
+    task: Task,
+    rendered: RenderedScene,
+    led: LampObservation,
+    grating: GratingEfficiency,
+    sheet: SinusoidalPhaseGrating,
+    result: Any,
+    calibration_lamps: list[LampObservation],
+) -> tuple[float, ...]:
+    """What the one-LED estimate's error comes from (``--diagnose``, decision 0073): its mapping's
+    error (mean ``|Δλ|`` and mean ``Δλ``, nm) beside the scene spectrometer's drawn offset, the
+    file's η error (RMS, % of its peak), then RE with the true mapping, the true η, and both,
+    substituted; then RE with the LED's spectrum corrected by the calibration lamps' Hg-line check
+    (:mod:`calib.core.spectrometer_scale`), alone and with both true (NaN where the check
+    declines)."""
+    wavelength = np.asarray(result.wavelength_nm, dtype=np.float64)
+    grid = WavelengthGrid(
+        float(wavelength[0]), float(wavelength[-1]), float(wavelength[1] - wavelength[0])
+    )
+    pixel = rendered.plan.geometry.pixel
+    mapping_nm = mapping_scores(result, pixel, rendered.true_wavelength_nm, grid)[0]
+    inside = (rendered.true_wavelength_nm >= grid.start_nm) & (
+        rendered.true_wavelength_nm <= grid.stop_nm
+    )
+    signed_nm = float(
+        np.mean(result.mapping.wavelength_nm(pixel[inside]) - rendered.true_wavelength_nm[inside])
+    )
+    reading = rendered.plan.spectrometer
+    offset_nm = np.nan if reading is None else float(reading.offset_nm)
+    true_eta = np.asarray(sheet.efficiency(1, grating.wavelength_nm), dtype=np.float64)
+    true_eta = true_eta / true_eta.max()
+    filed = grating.efficiency / grating.efficiency.max()
+    eta_error = 100.0 * float(np.sqrt(np.mean((filed - true_eta) ** 2)))
+    true_grating = replace(grating, efficiency=true_eta, efficiency_sigma=None)
+    true_mapping = rendered.plan.geometry.mapping.quadratic((float(pixel[0]), float(pixel[-1])))
+    runs = [
+        estimate_known_grating([led], grating=grating, basis=task.basis, mapping=true_mapping),
+        estimate_known_grating([led], grating=true_grating, basis=task.basis),
+        estimate_known_grating([led], grating=true_grating, basis=task.basis, mapping=true_mapping),
+    ]
+    checked = checked_observations(calibration_lamps)[1].check
+    if checked is not None:
+        corrected = replace(led, spectrum=corrected_spectrum(led.spectrum, checked))
+        runs.append(estimate_known_grating([corrected], grating=grating, basis=task.basis))
+        runs.append(
+            estimate_known_grating(
+                [corrected], grating=true_grating, basis=task.basis, mapping=true_mapping
+            )
+        )
+    return (
+        float(mapping_nm if mapping_nm is not None else np.nan),
+        signed_nm,
+        offset_nm,
+        eta_error,
+        *(re_of(run, rendered.truth) for run in runs),
+        *((np.nan, np.nan) if checked is None else ()),
+    )
 
 
 def main() -> None:
@@ -103,6 +178,11 @@ def main() -> None:
         action="store_true",
         help="calibrate the file in this camera's geometry, with EXIF optics, storing the rig",
     )
+    parser.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="also the one-LED estimate with the true mapping, the true η, or both substituted",
+    )
     arguments = parser.parse_args()
     settings = ProtocolSettings(seed=arguments.seed)
     chosen = spread_tasks(arguments.data_dir, arguments.split, settings, arguments.cameras)
@@ -110,8 +190,21 @@ def main() -> None:
     print(
         f"split {arguments.split}, seed {arguments.seed}, {len(chosen)} cameras, φ₀ = {PHASE_RAD}"
     )
-    print("camera | RE η₀ = J₀² | RE η₀ flat | model chosen | RE 1 LED via grating file")
+    print(
+        "camera | RE η₀ = J₀² | RE η₀ flat | model chosen | RE 1 LED via grating file | "
+        "its ±2σ coverage % (budget) | the method's own σ's"
+    )
+    if arguments.diagnose:
+        print(
+            "diagnosis columns: one-LED mapping mean |Δλ| nm | its mean Δλ nm | the spectrometer's "
+            "drawn offset nm | file η's RMS error % | "
+            "RE true mapping | RE true η | RE both true | RE LED scale-corrected by the calibration's "
+            "Hg check | the same, true mapping and η"
+        )
     physical, flat, through_file = [], [], []
+    diagnosed: list[tuple[float, ...]] = []
+    covered: list[float] = []
+    covered_own: list[float] = []
     for index, task in enumerate(chosen):
         with_eta0 = scene(task, sheet)
         flat_eta0 = scene(task, FlatZerothSheet(sheet))
@@ -148,17 +241,35 @@ def main() -> None:
                 Path(directory) / "grating.json", grating_file_from(calibrated, rig=rig)
             )
             grating = read_grating_file(path)
-        led = estimate_known_grating([measured["LED-B3"]], grating=grating, basis=task.basis)
+        # As ``calib estimate --grating FILE`` makes it: the stated σ is the budget's.
+        led = estimate(
+            [measured["LED-B3"]], KNOWN_GRATING_METHOD, grating=grating, basis=task.basis
+        )
         through_file.append(re_of(led, with_eta0.truth))
+        covered.append(coverage_of(led, with_eta0.truth))
+        own = replace(led, sensitivity_sigma=led.diagnostics.get("method_sigma"))
+        covered_own.append(coverage_of(own, with_eta0.truth))
+        extra = ""
+        if arguments.diagnose:
+            row = diagnose(
+                task, with_eta0, measured["LED-B3"], grating, sheet, led, calibration_lamps
+            )
+            diagnosed.append(row)
+            extra = " | " + " | ".join(f"{value:.2f}" for value in row)
         print(
             f"{task.camera.name} | {physical[-1]:.2f} | {flat[-1]:.2f} | "
-            f"{result.diagnostics['grating_model']['chosen']} | {through_file[-1]:.2f}",
+            f"{result.diagnostics['grating_model']['chosen']} | {through_file[-1]:.2f} | "
+            f"{covered[-1]:.1f} | {covered_own[-1]:.1f}{extra}",
             flush=True,
         )
+    if diagnosed:
+        means = np.nanmean(np.array(diagnosed), axis=0)
+        print("diagnosis means: " + " | ".join(f"{value:.2f}" for value in means))
     print(
         f"mean RE ×10⁻²: η₀ = J₀² {np.mean(physical):.2f}, η₀ flat {np.mean(flat):.2f} "
         f"(difference {np.mean(physical) - np.mean(flat):+.2f}); one LED through a grating file "
-        f"{np.mean(through_file):.2f} (median {np.median(through_file):.2f})"
+        f"{np.mean(through_file):.2f} (median {np.median(through_file):.2f}), its ±2σ coverage "
+        f"{np.nanmean(covered):.1f} % (the method's own σ {np.nanmean(covered_own):.1f} %)"
     )
 
 
