@@ -12,14 +12,18 @@
    writes it (issue 16: a new camera through the file reuses what still holds). The one-LED
    estimate is made as ``calib estimate --grating FILE`` makes it (``calib.methods.estimate``, the
    σ budget's); its ±2σ coverage is printed beside that of the method's own σ. ``--diagnose``
-   takes its error apart (:func:`diagnose`).
+   takes its error apart (:func:`diagnose`). ``--judge-factor`` (validation split only) also makes it
+   at factor 1 and prints the coverage factor that brings its mean ±2σ coverage to 95 %
+   (:func:`calib.evaluation.validation.budget.fit_scale`, as the budget judges every other method):
+   the known-grating solve through a grating file runs in no protocol variant, so this is where its
+   :data:`calib.methods.uncertainty.COVERAGE_SCALE` entry is judged.
 
 Every scene is the protocol's own (``calib validate``'s plan for the camera, seed and scene: geometry,
 rig errors, noise), with the grating replaced. The mapping is found from the lamps, as ``calib
 validate`` does.
 
     python bench/grating_physics.py --data-dir DIR --split validation --cameras 8 [--seed 0] [--same-rig]
-        [--diagnose]
+        [--diagnose] [--judge-factor]
 
 Tuning looks at ``--split validation`` only; ``--split test`` is for reporting.
 """
@@ -42,6 +46,7 @@ from calib.core.metrics import channel_relative_errors
 from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
 from calib.core.spectrometer_scale import checked_observations, corrected_spectrum
+from calib.evaluation.validation.budget import TARGET_COVERAGE, coverage_at, fit_scale
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     ProtocolSettings,
@@ -61,6 +66,7 @@ from calib.methods.multilamp import (
     grating_file_from,
     prepare_lamps,
 )
+from calib.methods.uncertainty import BudgetSettings
 from calib.model.gratings import GratingKind, SinusoidalPhaseGrating
 from calib.wavelength.rig_prior import rig_geometry
 
@@ -102,6 +108,18 @@ def coverage_of(result: Any, truth: FloatArray) -> float:
     """The ±2σ coverage (%, mean over channels) of ``result``'s stated σ, NaN without one."""
     coverage = sensitivity_scores(result, truth)[1]
     return np.nan if coverage is None else 100.0 * float(np.mean(coverage))
+
+
+def factor_one_ratios(result: Any, truth: FloatArray) -> FloatArray:
+    """``|error| / σ`` over the grid and channels of a result made at factor 1, as
+    :class:`calib.evaluation.validation.budget.EstimateRecord` judges it (the delivered curves)."""
+    curves = result.camera_curves()
+    error = np.abs(np.asarray(curves.values - truth, dtype=np.float64)).ravel()
+    sigma = np.asarray(curves.sigma, dtype=np.float64).ravel()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray(
+            np.where(sigma > 0, error / sigma, np.where(error > 0, np.inf, 0.0)), dtype=np.float64
+        )
 
 
 def re_of(result: Any, truth: FloatArray) -> float:
@@ -183,7 +201,14 @@ def main() -> None:
         action="store_true",
         help="also the one-LED estimate with the true mapping, the true η, or both substituted",
     )
+    parser.add_argument(
+        "--judge-factor",
+        action="store_true",
+        help="validation only: the known-grating coverage factor that brings ±2σ to 95 %%",
+    )
     arguments = parser.parse_args()
+    if arguments.judge_factor and arguments.split != "validation":
+        parser.error("--judge-factor judges on the validation split only")
     settings = ProtocolSettings(seed=arguments.seed)
     chosen = spread_tasks(arguments.data_dir, arguments.split, settings, arguments.cameras)
     sheet = SinusoidalPhaseGrating(PHASE_RAD)
@@ -205,6 +230,7 @@ def main() -> None:
     diagnosed: list[tuple[float, ...]] = []
     covered: list[float] = []
     covered_own: list[float] = []
+    ratios: list[FloatArray] = []
     for index, task in enumerate(chosen):
         with_eta0 = scene(task, sheet)
         flat_eta0 = scene(task, FlatZerothSheet(sheet))
@@ -247,6 +273,15 @@ def main() -> None:
         )
         through_file.append(re_of(led, with_eta0.truth))
         covered.append(coverage_of(led, with_eta0.truth))
+        if arguments.judge_factor:
+            at_one = estimate(
+                [measured["LED-B3"]],
+                KNOWN_GRATING_METHOD,
+                grating=grating,
+                basis=task.basis,
+                budget=BudgetSettings(coverage_scale={}),
+            )
+            ratios.append(factor_one_ratios(at_one, with_eta0.truth))
         own = replace(led, sensitivity_sigma=led.diagnostics.get("method_sigma"))
         covered_own.append(coverage_of(own, with_eta0.truth))
         extra = ""
@@ -271,6 +306,13 @@ def main() -> None:
         f"{np.mean(through_file):.2f} (median {np.median(through_file):.2f}), its ±2σ coverage "
         f"{np.nanmean(covered):.1f} % (the method's own σ {np.nanmean(covered_own):.1f} %)"
     )
+
+    if ratios:
+        print(
+            f"known-grating through a grating file, factor 1: ±2σ coverage "
+            f"{100 * coverage_at(ratios, 1.0):.1f} %; the factor for {100 * TARGET_COVERAGE:.0f} % "
+            f"{fit_scale(ratios):.2f} ({len(ratios)} estimates)"
+        )
 
 
 if __name__ == "__main__":
