@@ -376,11 +376,9 @@ class ResponseModel:
     smoothness: float
     scale: float = 1.0
     penalty_weight: FloatArray | None = None
-    #: :meth:`reference`'s mapping: its edge wavelengths, band and normal matrices, which the
+    #: :meth:`reference`'s mapping: its edge wavelengths and band, which the
     #: fit's first :meth:`residual_lazy` (at that mapping) reads instead of recomputing.
-    referenced: tuple[FloatArray, Band, tuple[FloatArray, FloatArray]] | None = field(
-        default=None, repr=False
-    )
+    referenced: tuple[FloatArray, Band] | None = field(default=None, repr=False)
 
     @classmethod
     def build(
@@ -698,6 +696,22 @@ class ResponseModel:
         return {}
 
     @cached_property
+    def _held_systems(self) -> FloatArray:
+        """``β̂⁻² FᵀF + w_Δ ΔᵀΔ`` ``(3, N, N)`` at the held scale and penalty weights."""
+        assert self.penalty_weight is not None
+        return np.asarray(
+            self.precision / self.scale**2 + self.penalty_weight[:, None, None] * self.penalty,
+            dtype=np.float64,
+        )
+
+    @cached_property
+    def _held_pulls(self) -> tuple[FloatArray, float]:
+        """The pulls ``g`` ``(3, N)`` and ``γ`` at the held scale."""
+        unit_pulls, unit_gamma = self._unit_pulls
+        inverse_square = 1.0 / self.scale**2
+        return inverse_square * unit_pulls, inverse_square * unit_gamma
+
+    @cached_property
     def _unit_pulls(self) -> tuple[FloatArray, float]:
         """The prior's pulls ``FᵀF μ`` ``(3, N)`` and ``μᵀFᵀF μ`` for a camera of unit scale."""
         unit_pulls = np.einsum("cij,cj->ci", self.precision, self.prior_mean)
@@ -713,12 +727,16 @@ class ResponseModel:
         """This model with ``β̂`` and the penalty weights of the mapping with these edge
         wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
         band = self.band(edges_nm[None, :])
-        normal = self._normal(band)
+        # The normal matrices' trace (what :meth:`_penalty_weight` reads) straight from the band:
+        # Σ_n W² Σ_a A_na², without the matrices themselves.
+        trace = (band.values[0] ** 2).sum(axis=1) @ self.weights**2 / self.n_nodes  # (3,)
         return replace(
             self,
             scale=float(self._prior_scale(band)[0]),
-            penalty_weight=self._penalty_weight(normal[0])[0],
-            referenced=(np.array(edges_nm, dtype=np.float64), band, normal),
+            penalty_weight=np.asarray(
+                self.smoothness * np.maximum(trace, 1e-300), dtype=np.float64
+            ),
+            referenced=(np.array(edges_nm, dtype=np.float64), band),
         )
 
     # --------------------------------------------------------------------------- evaluate
@@ -784,23 +802,25 @@ class ResponseModel:
         assert model.penalty_weight is not None
         referenced = model.referenced
         if referenced is not None and np.array_equal(referenced[0], edges_nm):
-            band, (diagonals, rhs) = referenced[1], referenced[2]
+            band = referenced[1]
         else:
             band = model.band(edges_nm[None, :])
-            diagonals, rhs = model._normal(band)
         size = model.n_nodes
         n = band.values.shape[1]
         flat = (np.arange(n)[:, None] * size + np.minimum(band.columns[0], size - 1)).ravel()
         matrix = _dense(flat, band.values[0], (n, size))  # A (n, N)
         weights = model.weights.T  # (3, n)
-        systems, pulls, gamma = model._systems(
-            diagonals, np.array([model.scale]), model.penalty_weight[None]
-        )
-        factors = _cholesky(systems[0])
-        pull, border = pulls[0], float(gamma[0])
-        free, along = np.moveaxis(
-            _cholesky_solve(factors, np.stack([rhs[0], pull], axis=-1)), -1, 0
-        )
+        # One mapping's normal matrices from the dense A (three small products): the band's
+        # bincount and the diagonal-by-diagonal writes (:meth:`_normal`, :meth:`_systems`) cost
+        # more than the work itself at this size; the same sums up to rounding.
+        weighted = weights[:, :, None] * matrix  # (3, n, N): W A
+        systems = model._held_systems + np.matmul(weighted.transpose(0, 2, 1), weighted)
+        diagonal = systems.reshape(3, size * size)[:, :: size + 1]
+        diagonal += RIDGE * np.maximum(diagonal.sum(axis=1) / size, 1e-300)[:, None]
+        rhs = np.matmul(weighted.transpose(0, 2, 1), model.target.T[..., None])[..., 0]  # (3, N)
+        pull, border = model._held_pulls
+        factors = _cholesky(systems)
+        free, along = np.moveaxis(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)), -1, 0)
         beta = float(_scale_of(pull, border, free, along, 0.0))
         response = free + beta * along  # (3, N)
         fitted = response @ matrix.T  # (3, n)
