@@ -705,6 +705,11 @@ class ResponseModel:
         )
 
     @cached_property
+    def _held_factor(self) -> FloatArray:
+        """The prior's whitening factors ``F / β̂`` ``(3, n_w, N)`` at the held scale."""
+        return np.asarray(self.prior_factor / self.scale, dtype=np.float64)
+
+    @cached_property
     def _held_pulls(self) -> tuple[FloatArray, float]:
         """The pulls ``g`` ``(3, N)`` and ``γ`` at the held scale."""
         unit_pulls, unit_gamma = self._unit_pulls
@@ -827,7 +832,7 @@ class ResponseModel:
         data_rows = weights * fitted - model.target.T  # (3, n)
         root = np.sqrt(model.penalty_weight)
         penalty_rows = root[:, None] * (response @ model.layout.difference.T)  # (3, r)
-        factor = model.prior_factor / model.scale
+        factor = model._held_factor
         prior_rows = np.einsum("cij,cj->ci", factor, response - beta * model.prior_mean)
         residual = np.concatenate([data_rows.ravel(), penalty_rows.ravel(), prior_rows.ravel()])
         parts = {"response": response, "beta": beta, "model_profile": fitted.T}
@@ -867,7 +872,7 @@ class ResponseModel:
         n_parameters = derivative.shape[0]
         weights = model.weights.T  # (3, n)
         root = np.sqrt(model.penalty_weight)
-        factor = model.prior_factor / model.scale
+        factor = model._held_factor
         # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
         moved = (
             np.matmul(derivative, response.T).transpose(2, 1, 0) * weights[..., None]
