@@ -351,12 +351,16 @@ def _efficiency_terms_solve(
         )
         normal = data_jac.T @ data_jac + weight * penalty_jac.T @ penalty_jac
         gradient = data_jac.T @ data_residual + weight * penalty_jac.T @ penalty_residual
-        diagonal = np.diag(np.maximum(np.diag(normal), 1e-300))
+        diagonal = np.maximum(normal.diagonal(), 1e-300)
         accepted = None
         while damping < 1e12:
-            trial = x + np.linalg.solve(normal + damping * diagonal, -gradient)
+            # The damping on the diagonal as a strided view of a copy (the same sums as adding
+            # a diagonal matrix, without forming it).
+            system = normal.copy()
+            system.reshape(-1)[:: system.shape[0] + 1] += damping * diagonal
+            trial = x + np.linalg.solve(system, -gradient)
             efficiency = efficiency_basis @ trial[:b_eta]
-            if np.all(efficiency > 0):
+            if (efficiency > 0).all():
                 trial_cost = cost_of(trial, efficiency)
                 if trial_cost[0] <= cost:
                     accepted = trial, trial_cost

@@ -34,6 +34,7 @@ problems whose variables separate. SIAM J. Numer. Anal. 10(2), 413–432.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -67,6 +68,9 @@ FLEX_CORRELATION_NM = 25.0
 #: for the pixels sharing it (:meth:`ResponseModel._edge_cumulatives`; the same numbers, 1.2–3×
 #: faster from a 3-tap line spread on; for an unblurred profile the table costs more than it saves).
 SHARED_EDGES_FROM = 3
+#: Up to this many band values (``K·n·w``) the normal matrices' pair products are gathered along
+#: the band's short last axis (one mapping: 3× faster); beyond, pixels last (a scan's batch: 10×).
+SMALL_BAND = 16384
 
 IntArray = NDArray[np.intp]
 
@@ -216,7 +220,7 @@ class NodeLayout:
             step_nm=step_nm,
         )
 
-    @property
+    @cached_property
     def support(self) -> tuple[FloatArray, FloatArray]:
         """Each node's hat support ``(lo, hi)``, cut at its piece's ends (both non-decreasing)."""
         lo = np.maximum(self.nodes_nm - self.step_nm, self.piece_bounds[:, 0])
@@ -276,7 +280,10 @@ class LampColumns:
         through the interval, and the density at the interval's two ends."""
         count, size = self.density.shape
         last = count - 1
-        position = np.clip((wavelength_nm - self.start_nm) / self.step_nm, 0.0, float(last))
+        # np.clip's values by hand (its Python wrapper costs more than the work here).
+        position = np.minimum(
+            np.maximum((wavelength_nm - self.start_nm) / self.step_nm, 0.0), float(last)
+        )
         index = np.minimum(position.astype(np.intp), last - 1)
         flat = index * size + column
         density = self.density.ravel()
@@ -369,11 +376,9 @@ class ResponseModel:
     smoothness: float
     scale: float = 1.0
     penalty_weight: FloatArray | None = None
-    #: :meth:`reference`'s mapping: its edge wavelengths, band and normal matrices, which the
+    #: :meth:`reference`'s mapping: its edge wavelengths and band, which the
     #: fit's first :meth:`residual_lazy` (at that mapping) reads instead of recomputing.
-    referenced: tuple[FloatArray, Band, tuple[FloatArray, FloatArray]] | None = field(
-        default=None, repr=False
-    )
+    referenced: tuple[FloatArray, Band] | None = field(default=None, repr=False)
 
     @classmethod
     def build(
@@ -473,17 +478,25 @@ class ResponseModel:
         first = np.searchsorted(support_hi, low, side="right")
         last = np.searchsorted(support_lo, high, side="left") - 1
         size = self.n_nodes
-        width = max(int(np.max(last - first)) + 1, 1)
-        first = np.clip(first, 0, max(size - width, 0))
-        column = first[..., None] + np.arange(width)  # (K, n, w)
-        valid = column < size
+        width = max(int((last - first).max()) + 1, 1)
+        first = np.minimum(np.maximum(first, 0), max(size - width, 0))
         if self.filter.size > SHARED_EDGES_FROM:
+            column = first[..., None] + np.arange(width)  # (K, n, w)
             value = self._edge_cumulatives(edges_nm, first, width)  # (K, n, w, L+1)
-        else:
-            value, _ = self.columns.evaluate(
-                windows[..., None, :], np.minimum(column, size - 1)[..., None]
-            )
-        values = np.einsum("knwl,l->knw", value, self.filter) * valid * _signs(edges_nm)
+            values = np.einsum("knwl,l->knw", value, self.filter) * (column < size)
+            return Band(values * _signs(edges_nm), first)
+        # Laid out (w, L + 1, K, n), pixels last: every elementwise pass runs over whole rows of
+        # pixels, not over the short (w, L + 1) axes (the same operations on the same numbers).
+        column = first + np.arange(width)[:, None, None]  # (w, K, n)
+        count = self.filter.size
+        edge_windows = np.moveaxis(windows, -1, 0)  # (L + 1, K, n), a view
+        value, _ = self.columns.evaluate(
+            edge_windows[None], np.minimum(column, size - 1)[:, None]
+        )  # (w, L + 1, K, n)
+        filtered = value[:, 0] * self.filter[0]
+        for tap in range(1, count):
+            filtered = filtered + value[:, tap] * self.filter[tap]
+        values = np.moveaxis(filtered * (column < size), 0, -1) * _signs(edges_nm)  # (K, n, w)
         return Band(values, first)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
@@ -567,7 +580,15 @@ class ResponseModel:
         size = self.n_nodes
         lows, offsets = _band_pairs(width)
         # Channel-free: each pair's product and its place; the channels differ by the weights.
-        products = values[..., lows] * values[..., lows + offsets]  # (K, n, M)
+        if values.size <= SMALL_BAND:
+            products = values[..., lows] * values[..., lows + offsets]  # (K, n, M)
+        else:
+            # Formed pixels last (gathering the short last axis of a scan's batch cost 10× more),
+            # then laid out (K, n, M): the same products, each bin summed in the same order.
+            by_column = np.moveaxis(values, -1, 0)  # (w, K, n)
+            products = np.ascontiguousarray(
+                np.moveaxis(by_column[lows] * by_column[lows + offsets], 0, -1)
+            )
         place = (
             (np.arange(batch) * (size * width))[:, None, None]
             + band.first[:, :, None] * width
@@ -632,24 +653,68 @@ class ResponseModel:
         inverse_square = 1.0 / scale**2  # (K,)
         systems = inverse_square[:, None, None, None] * self.precision
         flat = systems.reshape(batch, 3, size * size)
-        for offset in range(min(max(width, self._penalty_reach), size)):
-            length = size - offset
-            near = penalty_weight[..., None] * np.diagonal(self.penalty, offset)  # (K, 3, length)
-            if offset < width:
-                near = diagonals[..., :length, offset] + near
-            # Entries (i, i + d) and (i + d, i) of a row-major N × N matrix, i < N − d.
-            flat[..., offset : offset + length * (size + 1) : size + 1] += near
-            if offset:
-                below = offset * size
-                flat[..., below : below + length * (size + 1) : size + 1] += near
+        positions, source, penalty_values = self._band_layout(width)
+        gathered = np.concatenate(
+            [diagonals.reshape(batch, 3, size * width), np.zeros((batch, 3, 1))], axis=-1
+        )[..., source]
+        # Each entry of the band is written once (the same sums as diagonal by diagonal).
+        flat[..., positions] += gathered + penalty_weight[..., None] * penalty_values
         diagonal = np.einsum("kcii->kc", systems)
         ridge = RIDGE * np.maximum(diagonal / self.n_nodes, 1e-300)
-        index = np.arange(self.n_nodes)
-        systems[..., index, index] += ridge[..., None]
+        flat[..., :: size + 1] += ridge[..., None]
         unit_pulls, unit_gamma = self._unit_pulls
         pulls = inverse_square[:, None, None] * unit_pulls
         gamma = inverse_square * unit_gamma
         return systems, pulls, gamma
+
+    def _band_layout(self, width: int) -> tuple[IntArray, IntArray, FloatArray]:
+        """Where :meth:`_systems` writes the band of ``w`` diagonals (and the penalty's): the
+        flat positions in an ``N × N`` matrix of entries ``(i, i + d)`` and ``(i + d, i)``, the
+        diagonals' flat index ``i·w + d`` (``N·w``, a zero, beyond the band) and the penalty's
+        values there; once per width."""
+        cache: dict[int, tuple[IntArray, IntArray, FloatArray]] = self._band_layouts
+        if width not in cache:
+            size = self.n_nodes
+            positions, source, values = [], [], []
+            for offset in range(min(max(width, self._penalty_reach), size)):
+                length = size - offset
+                along = np.arange(length) * (size + 1)
+                read = np.arange(length) * width + offset if offset < width else None
+                for start in (offset, offset * size) if offset else (0,):
+                    positions.append(start + along)
+                    source.append(np.full(length, size * width) if read is None else read)
+                    values.append(np.diagonal(self.penalty, offset))
+            cache[width] = (
+                np.concatenate(positions).astype(np.intp),
+                np.concatenate(source).astype(np.intp),
+                np.concatenate(values).astype(np.float64),
+            )
+        return cache[width]
+
+    @cached_property
+    def _band_layouts(self) -> dict[int, tuple[IntArray, IntArray, FloatArray]]:
+        return {}
+
+    @cached_property
+    def _held_systems(self) -> FloatArray:
+        """``β̂⁻² FᵀF + w_Δ ΔᵀΔ`` ``(3, N, N)`` at the held scale and penalty weights."""
+        assert self.penalty_weight is not None
+        return np.asarray(
+            self.precision / self.scale**2 + self.penalty_weight[:, None, None] * self.penalty,
+            dtype=np.float64,
+        )
+
+    @cached_property
+    def _held_factor(self) -> FloatArray:
+        """The prior's whitening factors ``F / β̂`` ``(3, n_w, N)`` at the held scale."""
+        return np.asarray(self.prior_factor / self.scale, dtype=np.float64)
+
+    @cached_property
+    def _held_pulls(self) -> tuple[FloatArray, float]:
+        """The pulls ``g`` ``(3, N)`` and ``γ`` at the held scale."""
+        unit_pulls, unit_gamma = self._unit_pulls
+        inverse_square = 1.0 / self.scale**2
+        return inverse_square * unit_pulls, inverse_square * unit_gamma
 
     @cached_property
     def _unit_pulls(self) -> tuple[FloatArray, float]:
@@ -667,12 +732,16 @@ class ResponseModel:
         """This model with ``β̂`` and the penalty weights of the mapping with these edge
         wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
         band = self.band(edges_nm[None, :])
-        normal = self._normal(band)
+        # The normal matrices' trace (what :meth:`_penalty_weight` reads) straight from the band:
+        # Σ_n W² Σ_a A_na², without the matrices themselves.
+        trace = (band.values[0] ** 2).sum(axis=1) @ self.weights**2 / self.n_nodes  # (3,)
         return replace(
             self,
             scale=float(self._prior_scale(band)[0]),
-            penalty_weight=self._penalty_weight(normal[0])[0],
-            referenced=(np.array(edges_nm, dtype=np.float64), band, normal),
+            penalty_weight=np.asarray(
+                self.smoothness * np.maximum(trace, 1e-300), dtype=np.float64
+            ),
+            referenced=(np.array(edges_nm, dtype=np.float64), band),
         )
 
     # --------------------------------------------------------------------------- evaluate
@@ -738,30 +807,32 @@ class ResponseModel:
         assert model.penalty_weight is not None
         referenced = model.referenced
         if referenced is not None and np.array_equal(referenced[0], edges_nm):
-            band, (diagonals, rhs) = referenced[1], referenced[2]
+            band = referenced[1]
         else:
             band = model.band(edges_nm[None, :])
-            diagonals, rhs = model._normal(band)
         size = model.n_nodes
         n = band.values.shape[1]
         flat = (np.arange(n)[:, None] * size + np.minimum(band.columns[0], size - 1)).ravel()
         matrix = _dense(flat, band.values[0], (n, size))  # A (n, N)
         weights = model.weights.T  # (3, n)
-        systems, pulls, gamma = model._systems(
-            diagonals, np.array([model.scale]), model.penalty_weight[None]
-        )
-        factors = _cholesky(systems[0])
-        pull, border = pulls[0], float(gamma[0])
-        free, along = np.moveaxis(
-            _cholesky_solve(factors, np.stack([rhs[0], pull], axis=-1)), -1, 0
-        )
+        # One mapping's normal matrices from the dense A (three small products): the band's
+        # bincount and the diagonal-by-diagonal writes (:meth:`_normal`, :meth:`_systems`) cost
+        # more than the work itself at this size; the same sums up to rounding.
+        weighted = weights[:, :, None] * matrix  # (3, n, N): W A
+        systems = model._held_systems + np.matmul(weighted.transpose(0, 2, 1), weighted)
+        diagonal = systems.reshape(3, size * size)[:, :: size + 1]
+        diagonal += RIDGE * np.maximum(diagonal.sum(axis=1) / size, 1e-300)[:, None]
+        rhs = np.matmul(weighted.transpose(0, 2, 1), model.target.T[..., None])[..., 0]  # (3, N)
+        pull, border = model._held_pulls
+        factors = _cholesky(systems)
+        free, along = np.moveaxis(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)), -1, 0)
         beta = float(_scale_of(pull, border, free, along, 0.0))
         response = free + beta * along  # (3, N)
         fitted = response @ matrix.T  # (3, n)
         data_rows = weights * fitted - model.target.T  # (3, n)
         root = np.sqrt(model.penalty_weight)
         penalty_rows = root[:, None] * (response @ model.layout.difference.T)  # (3, r)
-        factor = model.prior_factor / model.scale
+        factor = model._held_factor
         prior_rows = np.einsum("cij,cj->ci", factor, response - beta * model.prior_mean)
         residual = np.concatenate([data_rows.ravel(), penalty_rows.ravel(), prior_rows.ravel()])
         parts = {"response": response, "beta": beta, "model_profile": fitted.T}
@@ -801,7 +872,7 @@ class ResponseModel:
         n_parameters = derivative.shape[0]
         weights = model.weights.T  # (3, n)
         root = np.sqrt(model.penalty_weight)
-        factor = model.prior_factor / model.scale
+        factor = model._held_factor
         # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
         moved = (
             np.matmul(derivative, response.T).transpose(2, 1, 0) * weights[..., None]
@@ -924,6 +995,7 @@ def _signs(edges_nm: FloatArray) -> FloatArray:
     return np.where(edges_nm[:, -1] >= edges_nm[:, 0], 1.0, -1.0)[:, None, None]
 
 
+@functools.lru_cache(maxsize=16)
 def _band_pairs(width: int) -> tuple[IntArray, IntArray]:
     """The pairs ``(a, d)`` with ``a + d < width`` (a band's entry and its ``d``-th neighbour).
 
@@ -933,7 +1005,8 @@ def _band_pairs(width: int) -> tuple[IntArray, IntArray]:
     (array([0, 1, 0]), array([0, 0, 1]))
     """
     pairs = [(low, offset) for offset in range(width) for low in range(width - offset)]
-    lows, offsets = np.array(pairs, dtype=np.intp).reshape(-1, 2).T
+    lows, offsets = np.array(pairs, dtype=np.intp).reshape(-1, 2).T.copy()
+    lows.flags.writeable = offsets.flags.writeable = False  # shared by every call (cached)
     return lows, offsets
 
 

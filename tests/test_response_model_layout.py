@@ -1,0 +1,128 @@
+"""The response model's faster layouts give the numbers of the plain ones (decision 0070)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import QuadraticMapping
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.model.bases import fallback_camera_basis
+from calib.model.forward import pixel_edges, render_observation
+from calib.wavelength import response_model
+from calib.wavelength.families import QuadraticFamily
+from calib.wavelength.response_model import RIDGE, SHARED_EDGES_FROM, ResponseModel
+
+
+@pytest.fixture(scope="module")
+def unblurred():
+    """An unblurred LED profile (200 px) and its model: the band's pixels-last path."""
+    prior = fallback_camera_basis().prior()
+    # The prior's mean camera (cheap: no dataset to load), a little tilted so it is not the mean.
+    tilt = 1.0 + 0.3 * np.linspace(-1.0, 1.0, prior.grid.wavelength_nm.size)[:, None]
+    camera = MultiSpectrum(prior.grid.wavelength_nm, np.maximum(prior.mean, 0.0) * tilt)
+    truth = QuadraticMapping(-8.8e-5, 1.72, 383.0, pixel_range=(0.0, 199.0))
+    observation = render_observation(
+        colour_lamp("D65"), camera, mapping=truth, pixel=200
+    ).observation
+    model = ResponseModel.build(
+        observation, DEFAULT_GRID, node_step_nm=10.0, prior=prior, flexibility=0.05
+    )
+    family = QuadraticFamily((0.0, 199.0))
+    edges_px = pixel_edges(observation.pixel)
+    x = family.parameters(truth) + np.array([0.8, -0.4, 0.6])
+    return model, family, edges_px, x
+
+
+def _batch(family, edges_px, x):
+    """Three mappings: off the truth, further off, and one falling."""
+    return np.stack(
+        [
+            family.wavelengths(edges_px, x),
+            family.wavelengths(edges_px, x + np.array([-2.0, 1.5, 0.5])),
+            family.wavelengths(edges_px, x[::-1]),
+        ]
+    )
+
+
+def test_the_pixels_last_band_is_the_pixel_by_pixel_one_to_the_last_bit(unblurred):
+    model, family, edges_px, x = unblurred
+    assert model.filter.size <= SHARED_EDGES_FROM
+    edges = _batch(family, edges_px, x)
+    band = model.band(edges)
+    windows, _ = model._windows(edges)
+    columns = np.minimum(band.columns, model.n_nodes - 1)
+    direct, _ = model.columns.evaluate(windows[..., None, :], columns[..., None])
+    signs = np.where(edges[:, -1] >= edges[:, 0], 1.0, -1.0)[:, None, None]
+    expected = np.einsum("knwl,l->knw", direct, model.filter) * (band.columns < model.n_nodes)
+    np.testing.assert_array_equal(band.values, expected * signs)
+
+
+def test_small_and_large_batches_form_the_same_normal_matrices(unblurred, monkeypatch):
+    """The pair products gathered along the band (one mapping) and pixels last (a scan's batch)
+    are the same numbers, summed in the same order."""
+    model, family, edges_px, x = unblurred
+    band = model.band(_batch(family, edges_px, x))
+    monkeypatch.setattr(response_model, "SMALL_BAND", 0)
+    pixels_last = model._normal(band)
+    monkeypatch.setattr(response_model, "SMALL_BAND", band.values.size)
+    along_band = model._normal(band)
+    for one, other in zip(pixels_last, along_band, strict=True):
+        np.testing.assert_array_equal(one, other)
+
+
+def test_the_band_layout_is_kept_per_width(unblurred):
+    model, family, edges_px, x = unblurred
+    band = model.band(_batch(family, edges_px, x))
+    width = band.values.shape[-1]
+    model._systems(*_normal_and_scale(model, band))
+    kept = model._band_layout(width)
+    assert model._band_layout(width) is kept
+    positions = kept[0]
+    assert positions.size == np.unique(positions).size  # each entry written once
+
+
+def _normal_and_scale(model, band):
+    diagonals, _ = model._normal(band)
+    return diagonals, model._prior_scale(band), model._penalty_weight(diagonals)
+
+
+def test_one_mappings_dense_systems_are_the_batchs_up_to_rounding(unblurred):
+    """:meth:`ResponseModel.residual_lazy` forms one mapping's normal matrices from its dense
+    matrix and the held prior and penalty terms: the fitted response is the batch path's (banded
+    normal matrices, systems written diagonal by diagonal) to rounding, and the reference's
+    penalty weights are :meth:`_penalty_weight`'s."""
+    model, family, edges_px, x = unblurred
+    at = family.wavelengths(edges_px, x)
+    fixed = model.reference(at)
+    band = model.band(at[None])
+    diagonals, rhs = model._normal(band)
+    assert fixed.penalty_weight is not None
+    np.testing.assert_allclose(
+        fixed.penalty_weight, model._penalty_weight(diagonals)[0], rtol=1e-13
+    )
+    for where in (at, family.wavelengths(edges_px, x + np.array([0.3, -0.2, 0.1]))):
+        _, _, parts = fixed.residual(where)
+        band = model.band(where[None])
+        diagonals, rhs = model._normal(band)
+        systems, pulls, gamma = fixed._systems(
+            diagonals, np.array([fixed.scale]), fixed.penalty_weight[None]
+        )
+        solved = np.linalg.solve(systems[0], np.stack([rhs[0], pulls[0]], axis=-1))
+        free, along = solved[..., 0], solved[..., 1]
+        beta = np.sum(pulls[0] * free) / (gamma[0] - np.sum(pulls[0] * along))
+        np.testing.assert_allclose(parts["beta"], beta, rtol=1e-10)
+        np.testing.assert_allclose(
+            parts["response"], free + beta * along, rtol=1e-9, atol=1e-12 * np.abs(free).max()
+        )
+    # The held terms are the reference's own (a copy with other weights recomputes them).
+    other = replace(fixed, penalty_weight=2.0 * fixed.penalty_weight)
+    assert not np.array_equal(other._held_systems, fixed._held_systems)
+    expected = (
+        fixed.precision / fixed.scale**2 + fixed.penalty_weight[:, None, None] * fixed.penalty
+    )
+    np.testing.assert_array_equal(fixed._held_systems, expected)
+    assert RIDGE > 0
