@@ -28,7 +28,7 @@ from calib.methods.grating_models import (
     candidate_log_evidence,
 )
 from calib.methods.known_grating import estimate_known_grating, is_assumed_physical
-from calib.methods.uncertainty import efficiency_family
+from calib.methods.uncertainty import COVERAGE_SCALE, efficiency_family
 from calib.model.bases import CameraBasis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
@@ -85,6 +85,28 @@ def test_through_a_grating_file_one_led_without_a_direct_measurement_suffices(ba
     np.testing.assert_allclose(through_front.sensitivity, result.sensitivity, atol=1e-12)
     with pytest.raises(InputError, match="needs grating="):
         estimate([led], "known-grating", basis=basis, mapping=mapping)
+
+
+def test_a_grating_file_with_its_sigma_has_a_judged_band_a_makers_curve_says_it_has_none(basis):
+    """A calibration's file (η with σ) is the budget's ``known-grating:file`` key, judged on the
+    validation split (decision 0075); a maker's curve (no σ) keeps the largest factor and says so."""
+    rng, mapping, efficiency, grating = _scene()
+    led = _lamp("LED-B3", "led", mapping, efficiency, rng)
+    calibrated = replace(grating, efficiency_sigma=np.full(grating.wavelength_nm.size, 0.005))
+    results = {
+        name: estimate([led], "known-grating", basis=basis, mapping=mapping, grating=given)
+        for name, given in (("file", calibrated), ("maker", grating))
+    }
+    codes = {name: {flag.code for flag in r.quality.flags} for name, r in results.items()}
+    assert efficiency_family(results["file"]) == "file"
+    assert (
+        results["file"].quality.uncertainty["coverage_scale"]
+        == COVERAGE_SCALE["known-grating:file"]
+    )
+    assert "uncertainty_unvalidated" not in codes["file"]
+    assert efficiency_family(results["maker"]) is None
+    assert results["maker"].quality.uncertainty["coverage_scale"] == max(COVERAGE_SCALE.values())
+    assert {"uncertainty_unvalidated", "grating_sigma_missing"} <= codes["maker"]
 
 
 def test_without_a_grating_a_flat_one_is_assumed_and_recorded(basis):

@@ -72,6 +72,11 @@ ASSUMED_PHYSICAL_SOURCE = "assumed: physical grating families"
 #: ``diagnostics["efficiency_model"]`` of a solve through an assumed-physical η: the σ budget
 #: judges its coverage factor apart (:func:`calib.methods.uncertainty.efficiency_family`).
 ASSUMED_EFFICIENCY_MODEL = "assumed"
+#: ``diagnostics["efficiency_model"]`` of a solve through a grating file that states its η's σ
+#: (a calibration's): the σ budget's factor key ``known-grating:file``, judged on the validation
+#: split by ``bench/grating_physics.py --judge-factor``. A file without σ (a maker's curve) records
+#: none: its band stays the unvalidated largest factor and says so.
+FILE_EFFICIENCY_MODEL = "file"
 #: What stands in for an efficiency nobody measured (decision 0074).
 DEFAULT_ASSUMED_GRATING: AssumedGrating = "physical"
 
@@ -254,6 +259,11 @@ def estimate_known_grating(
             "grating": record,
             # The σ budget's factor key (known-grating:assumed, decision 0074).
             **({"efficiency_model": ASSUMED_EFFICIENCY_MODEL} if assumed is not None else {}),
+            **(
+                {"efficiency_model": FILE_EFFICIENCY_MODEL}
+                if grating is not None and grating.efficiency_sigma is not None
+                else {}
+            ),
             "prior_shrinkage": prior.shrinkage.tolist(),
             **({"second_order": second_order} if second_order else {}),
         },

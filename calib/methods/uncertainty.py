@@ -160,6 +160,12 @@ COVERAGE_SCALE: dict[str, float] = {
     # "A + FL unmeasured, no direct"``, 40 validation estimates, 89.5 % at factor 1 → 1.45. Only
     # the assumed η's key: the known-grating solve through a grating file stays unvalidated.
     "known-grating:assumed": 1.45,
+    # Decision 0075: one LED through a grating file that states its σ (a physical-model
+    # calibration's, same rig): ``python bench/grating_physics.py --data-dir DIR --split validation
+    # --cameras 44 --seed S --same-rig --judge-factor``: at factor 1, 95.3 % (seed 1) and 96.7 %
+    # (seed 2) of 44 estimates each → 1.0. A file without σ (a maker's curve) is not this key: it
+    # keeps the largest factor and the ``uncertainty_unvalidated`` flag.
+    "known-grating:file": 1.0,
 }
 #: Factor for methods the validation run did not include.
 DEFAULT_COVERAGE_SCALE = 1.0
@@ -628,14 +634,15 @@ PHYSICAL_EFFICIENCY_MODELS = frozenset({"sinusoidal", "blazed"})
 
 
 def efficiency_family(result: EstimateResult) -> str | None:
-    """``"physical"``, ``"fourier"`` or ``"assumed"`` (η nobody measured, marginalised over the
-    physical families: decision 0074): the family of the η model the result records
+    """``"physical"``, ``"fourier"``, ``"assumed"`` (η nobody measured, marginalised over the
+    physical families: decision 0074) or ``"file"`` (η given by a grating file stating its σ):
+    the family of the η model the result records
     (``diagnostics["efficiency_model"]``), ``None`` when it records none."""
     model = result.diagnostics.get("efficiency_model")
     if not isinstance(model, str):
         return None
-    if model == "assumed":
-        return "assumed"
+    if model in ("assumed", "file"):
+        return model
     return "physical" if model in PHYSICAL_EFFICIENCY_MODELS else "fourier"
 
 
