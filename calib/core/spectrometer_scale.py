@@ -403,7 +403,8 @@ def _fit_window(
     shift_step = min(0.1, 0.25 * step_nm, window.bandwidth_nm / 20.0)
     shifts = np.arange(-SEARCH_SHIFT_NM, SEARCH_SHIFT_NM + shift_step / 2, shift_step)
     best = (math.inf, 0.0, 1.0)
-    for factor in [held_factor] if held else np.linspace(low, high, 13):
+    factors = [held_factor] if held_factor is not None else list(np.linspace(low, high, 13))
+    for factor in factors:
         for shift in shifts:
             residual, _ = window.residual(float(shift), float(factor))
             cost = float(residual @ residual)
