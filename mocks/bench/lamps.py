@@ -3,10 +3,9 @@
 A lamp's settled spectrum is a colour-science illuminant (CIE LED series ``LED-B3`` …, fluorescent
 ``FL2`` …, ``A``, ``D65``, high-pressure ``HP1`` …) scaled to the configured radiance; the drift
 after switch-on is :class:`mocks.lamps.VirtualLamp`'s. The CIE fluorescent tables hold each mercury
-line spread over the two 5 nm steps either side of it (their triangular bandpass); a fluorescent
-lamp gets its lines back whole, as narrow peaks at their true wavelengths
-(:func:`calib.core.line_lists.with_narrow_lines`, decision 0072), as the camera and the
-spectrometer of a real rig see them — the pixel→wavelength mapping is found from them.
+line's power in its 5 nm bin; a fluorescent lamp gets its lines back as narrow peaks at their true
+wavelengths (:func:`calib.core.line_lists.with_narrow_lines`), as the camera and the spectrometer of a real rig see them —
+the pixel→wavelength mapping is found from them.
 
 The camera renders a lamp's light once per *spectral component*: the drifting spectrum
 ``settled · (1 + g·d) · (1 + k·d·(λ − 550)/100)`` is, at every moment, a combination of two fixed
