@@ -48,7 +48,7 @@ def main() -> None:
         if isinstance(outcome, str):
             print(
                 f"{task.camera.name:40s} slit {reading.bandwidth_nm:4.1f} nm step "
-                f"{reading.step_nm:g}  drawn {reading.offset_nm:+.3f}  declined: {outcome[:90]}"
+                f"{reading.step_nm:g}  drawn {reading.offset_nm:+.3f}  declined: {outcome}"
             )
             rows.append((reading.bandwidth_nm, reading.offset_nm, np.nan, np.nan))
             continue
