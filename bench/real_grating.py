@@ -7,10 +7,11 @@ absent) and estimates through the registry's ``auto`` choice with the σ budget
 - *Nikon D7000* (Butcher, rawproc ``.dat`` exports): the halogen profile with the Dedolight's
   5 nm spectrum, and the CFL profile whose spectrum nobody measured (the built-in tri-phosphor line
   list, marked ``spectrum_known=False``: ``auto`` uses it for the mapping only). No direct measurement
-  and no grating file: the known-grating solve through an assumed grating (η₁ marginalised over the
-  physical families, weighed by the camera prior: decision 0074; a flat one before). Truth:
+  and no grating file: the known-grating solve through an assumed flat grating (the default), and
+  beside it through η₁ marginalised over the physical families, weighed by the camera prior
+  (``assumed_grating="physical"``, decision 0074). Truth:
   rawtoaces' monochromator curve of the D7000 (not in the basis). The validation protocol's
-  variant "A + FL unmeasured, no direct" is this set-up.
+  variants "A + FL unmeasured, no direct" (and "…, physical η") are this set-up.
 - *Canon EOS 10D* (rrogge, FITS planes): sunlight (AM0 × the atmosphere's transmission) through
   the LHires III 150 l/mm, whose maker's efficiency curve is the grating file. Both 10D ground
   truths left out of the basis.
@@ -42,6 +43,7 @@ from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, Spectrum, read_spectrum_csv, read_table
 from calib.image.profile_files import read_fits_profile, read_rawproc_dat
 from calib.methods import estimate
+from calib.methods.known_grating import KnownGratingOptions
 from calib.methods.uncertainty import CHANNEL_GAINS_KEY
 from calib.model.bases import camera_basis, default_camera_basis
 
@@ -116,12 +118,19 @@ def d7000(folder: Path, data_dir: Path) -> None:
     lamps = d7000_lamps(folder)
     basis = default_camera_basis(GRID, data_dir=data_dir)
     result = estimate(lamps, basis=basis, assume_flat_grating=True)
+    physical = estimate(
+        lamps,
+        basis=basis,
+        assume_flat_grating=True,
+        options=KnownGratingOptions(assumed_grating="physical"),
+    )
     truth = find_camera(load_collection("rawtoaces", data_dir), "nikon d7000")
     curves = truth.sensitivity.resample(GRID, "interpolate").values
     choice = result.diagnostics["method_choice"]
     print(f"Nikon D7000: {choice['method']} ({choice['reason']})")
     print(f"  vs rawtoaces: {scores(result, curves)}")
-    assumed = result.diagnostics.get("grating")
+    print(f"  the option assumed_grating='physical', vs rawtoaces: {scores(physical, curves)}")
+    assumed = physical.diagnostics.get("grating")
     if isinstance(assumed, dict) and "most_likely" in assumed:
         weights = ", ".join(f"{k} {v:.2f}" for k, v in assumed["family_weights"].items())
         print(

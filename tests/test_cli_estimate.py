@@ -465,27 +465,23 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     assert not (tmp_path / "out" / "grating.json").exists()  # given, not estimated
 
 
-def test_profile_input_without_direct_or_grating_assumes_the_physical_families_and_warns(
+def test_profile_input_without_direct_or_grating_assumes_flat_and_warns(
     capture: Capture, tmp_path: Path
 ) -> None:
-    """No direct measurement, no grating file: η₁ marginalised over the physical families
-    (decision 0074; a flat η before), said on stderr, in result.json and the report."""
     argv = [*_profile_args(tmp_path, capture, direct=False), "--out", str(tmp_path / "out")]
     code, stdout, stderr = _call(argv)
     assert code == 0
-    assert "warning: no direct measurement and no grating file: the grating efficiency was not" in (
+    assert "warning: no direct measurement and no grating file: a flat grating" in (
         " ".join(stderr.split())
     )
     document = json.loads((tmp_path / "out" / "result.json").read_text())
-    assert any("physical families" in w for w in document["provenance"]["warnings"])
+    assert any("flat grating" in w for w in document["provenance"]["warnings"])
+    assert document["grating_efficiency"] == [1.0] * 31
     codes = {flag["code"] for flag in document["quality"]["flags"]}
-    assert "grating_assumed" in codes and "flat_grating_assumed" not in codes
-    assert document["grating_efficiency"] != [1.0] * 31
+    assert "flat_grating_assumed" in codes and "grating_assumed" not in codes
     page = (tmp_path / "out" / "report.html").read_text()
-    assert "physical families" in page
+    assert "flat grating" in page
     assert "estimate: known-grating" in stdout
-    saved = json.loads((tmp_path / "out" / "grating.json").read_text())
-    assert saved["obtained"] == "assumed physical"  # its reuse warns
 
 
 def _as_rawproc_dat(csv_path: Path) -> Path:

@@ -36,6 +36,7 @@ from calib.pipeline import LampProfile, OfflineSettings, estimate_offline
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 
 FLAT = KnownGratingOptions(assumed_grating="flat")
+PHYSICAL = KnownGratingOptions(assumed_grating="physical")
 CAMERA = gaussian_camera((605, 530, 455), (35, 45, 28))
 TRUTH = CAMERA / CAMERA.max()
 
@@ -137,7 +138,9 @@ def test_without_a_grating_the_physical_families_stand_in_for_eta_and_beat_a_fla
     flat = estimate_known_grating(
         [halogen], grating=None, basis=basis, mapping=mapping, options=FLAT
     )
-    result = estimate_known_grating([halogen], grating=None, basis=basis, mapping=mapping)
+    result = estimate_known_grating(
+        [halogen], grating=None, basis=basis, mapping=mapping, options=PHYSICAL
+    )
     record = result.diagnostics["grating"]
     assert is_assumed_physical(record) and record["weighted_by_camera_prior"]
     assert efficiency_family(result) == "assumed"  # its own σ-budget factor key
@@ -146,15 +149,34 @@ def test_without_a_grating_the_physical_families_stand_in_for_eta_and_beat_a_fla
     assert assumed_error < 0.5 * relative_error(flat.sensitivity, TRUTH)
     assert band_coverage(result, TRUTH) >= 0.8
     # auto says what it assumed: the physical families, not a flat grating.
-    quick = estimate([halogen], basis=basis, mapping=mapping, assume_flat_grating=True, budget=None)
+    quick = estimate(
+        [halogen],
+        basis=basis,
+        mapping=mapping,
+        assume_flat_grating=True,
+        budget=None,
+        options=PHYSICAL,
+    )
     codes = {flag.code for flag in quick.quality.flags}
     assert "grating_assumed" in codes and "flat_grating_assumed" not in codes
+    # By default (decision 0074, amended) auto assumes a flat grating, and says so.
+    default = estimate([halogen], basis=basis, mapping=mapping, assume_flat_grating=True)
+    default_codes = {flag.code for flag in default.quality.flags}
+    assert "flat_grating_assumed" in default_codes and np.all(default.grating_efficiency == 1.0)
+    # … with its band's factor judged on the protocol's variant of this set-up (decision 0075).
+    assert efficiency_family(default) == "flat" and "uncertainty_unvalidated" not in default_codes
+    assert default.quality.uncertainty["coverage_scale"] == COVERAGE_SCALE["known-grating:flat"]
     # Likewise with a fluorescent lamp nobody measured, for the mapping only (the D7000 pair).
     tube = replace(
         _lamp("FL2", "fluorescent", mapping, efficiency, rng), metadata={"spectrum_known": False}
     )
     paired = estimate(
-        [tube, halogen], basis=basis, mapping=mapping, assume_flat_grating=True, budget=None
+        [tube, halogen],
+        basis=basis,
+        mapping=mapping,
+        assume_flat_grating=True,
+        budget=None,
+        options=PHYSICAL,
     )
     assert paired.diagnostics["method_choice"]["mapping_only"] == ["FL2"]
     assert "grating_assumed" in {flag.code for flag in paired.quality.flags}

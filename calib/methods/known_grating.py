@@ -77,8 +77,14 @@ ASSUMED_EFFICIENCY_MODEL = "assumed"
 #: split by ``bench/grating_physics.py --judge-factor``. A file without σ (a maker's curve) records
 #: none: its band stays the unvalidated largest factor and says so.
 FILE_EFFICIENCY_MODEL = "file"
-#: What stands in for an efficiency nobody measured (decision 0074).
-DEFAULT_ASSUMED_GRATING: AssumedGrating = "physical"
+#: ``diagnostics["efficiency_model"]`` of a solve through an assumed flat η: the factor key
+#: ``known-grating:flat``, judged on the protocol's variant of that set-up (decision 0075).
+FLAT_EFFICIENCY_MODEL = "flat"
+#: What stands in for an efficiency nobody measured (decision 0074, amended): a flat η, said
+#: (``flat_grating_assumed``). ``"physical"`` (η₁ marginalised over the physical families) is an
+#: option: on the validation split it wins only where the truth is drawn from those very families
+#: (the protocol's sheets are), and loses on the one grating outside them (the maker's LHires curve).
+DEFAULT_ASSUMED_GRATING: AssumedGrating = "flat"
 
 
 def is_assumed_physical(record: object) -> bool:
@@ -262,6 +268,8 @@ def estimate_known_grating(
             **(
                 {"efficiency_model": FILE_EFFICIENCY_MODEL}
                 if grating is not None and grating.efficiency_sigma is not None
+                else {"efficiency_model": FLAT_EFFICIENCY_MODEL}
+                if grating is None and assumed is None
                 else {}
             ),
             "prior_shrinkage": prior.shrinkage.tolist(),

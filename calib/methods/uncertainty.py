@@ -166,6 +166,11 @@ COVERAGE_SCALE: dict[str, float] = {
     # (seed 2) of 44 estimates each → 1.0. A file without σ (a maker's curve) is not this key: it
     # keeps the largest factor and the ``uncertainty_unvalidated`` flag.
     "known-grating:file": 1.0,
+    # Decision 0075: no direct measurement, no grating file, a flat η assumed (the default):
+    # ``python -m calib.evaluation.validation.budget --data-dir DIR --jobs 2 --variant "A + FL
+    # unmeasured, no direct"``, 40 validation estimates, 62.6 % at factor 1 (the sheet's own shape
+    # is in no named component) → 8.45 at the product's tolerance σ.
+    "known-grating:flat": 8.45,
 }
 #: Factor for methods the validation run did not include.
 DEFAULT_COVERAGE_SCALE = 1.0
@@ -635,13 +640,14 @@ PHYSICAL_EFFICIENCY_MODELS = frozenset({"sinusoidal", "blazed"})
 
 def efficiency_family(result: EstimateResult) -> str | None:
     """``"physical"``, ``"fourier"``, ``"assumed"`` (η nobody measured, marginalised over the
-    physical families: decision 0074) or ``"file"`` (η given by a grating file stating its σ):
+    physical families: decision 0074), ``"flat"`` (a flat η assumed) or ``"file"`` (η given by a
+    grating file stating its σ):
     the family of the η model the result records
     (``diagnostics["efficiency_model"]``), ``None`` when it records none."""
     model = result.diagnostics.get("efficiency_model")
     if not isinstance(model, str):
         return None
-    if model in ("assumed", "file"):
+    if model in ("assumed", "file", "flat"):
         return model
     return "physical" if model in PHYSICAL_EFFICIENCY_MODELS else "fourier"
 

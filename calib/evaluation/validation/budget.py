@@ -46,6 +46,10 @@ TARGET_COVERAGE = 0.95
 WIDTH = 2.0
 
 
+#: η families an estimate assumed rather than measured: their factors are judged under their own
+#: ``method:family`` key only (:func:`ratios_by_method`).
+ASSUMED_FAMILIES = ("assumed", "flat")
+
 #: The components a spectrometer tolerance scales (``tolerance_sigma`` × the re-solve's change).
 TOLERANCE_COMPONENTS = ("spectrometer scale", "spectrometer bandwidth")
 
@@ -222,13 +226,13 @@ def ratios_by_method(
     """Factor key → every record's error/σ ratios at factor 1 and ``tolerance_sigma``: each
     registry method pooled (for results that record no η model) and per ``method:η family``.
 
-    An assumed η (family ``"assumed"``, decision 0074) is judged under its own key only: pooled
-    into the method's, it would stand for the same method through a grating file, which no
-    variant runs."""
+    An assumed η (family ``"assumed"`` or ``"flat"``, decisions 0074 and 0075) is judged under
+    its own key only: pooled into the method's, it would stand for the same method through a
+    grating file, which no variant runs."""
     gathered: dict[str, list[FloatArray]] = {}
     for record in records:
         ratio = record.ratio(tolerance_sigma)
-        if record.family != "assumed":
+        if record.family not in ASSUMED_FAMILIES:
             gathered.setdefault(record.method, []).append(ratio)
         if record.family is not None:
             gathered.setdefault(record.key, []).append(ratio)

@@ -65,6 +65,7 @@ from calib.evaluation.validation.splits import (
     require_validation,
 )
 from calib.methods import MethodOptions
+from calib.methods.known_grating import KnownGratingOptions
 from calib.model.bases import DEFAULT_N_VECTORS, CameraBasis, camera_basis
 from calib.model.gratings import CatalogueGrating, GratingKind
 
@@ -143,11 +144,19 @@ NO_DIRECT_VARIANT = MethodVariant(
     direct=False,
     unmeasured=(("FL2", UNMEASURED_FL_SPEC),),
 )
+#: The same set-up with η₁ marginalised over the physical grating families instead of flat
+#: (``KnownGratingOptions(assumed_grating="physical")``, decision 0074).
+NO_DIRECT_PHYSICAL_VARIANT = replace(
+    NO_DIRECT_VARIANT,
+    label="A + FL unmeasured, no direct, physical η",
+    options=KnownGratingOptions(assumed_grating="physical"),
+)
 
 #: Variants a run may ask for besides the defaults.
 EXTRA_VARIANTS: tuple[MethodVariant, ...] = (
     MethodVariant("LED+FL, paper's solve", PAPER_METHOD, ("LED-B3", "FL2")),
     NO_DIRECT_VARIANT,
+    NO_DIRECT_PHYSICAL_VARIANT,
 )
 
 
