@@ -718,6 +718,45 @@ def _physical_scan(
     return grids, points.shape[0]
 
 
+#: Around a deciding basin (grating family, broadband lamps alone): the profile's ends shifted by
+#: up to (half width, step) nm, at these incidence offsets (°) about the basin's.
+DECIDING_LOCAL_SCAN = (6.0, 2.0)
+DECIDING_LOCAL_INCIDENCE_DEG = (-4.0, 0.0, 4.0)
+
+
+def _local_end_points(
+    family: GratingFamily, x: FloatArray, pixel_range: tuple[float, float]
+) -> FloatArray:
+    """Gratings whose profile ends lie on a grid (:data:`DECIDING_LOCAL_SCAN`) around ``x``'s,
+    at incidences about its own: ``(K, P)``, NaN rows where none exists."""
+    half, step = DECIDING_LOCAL_SCAN
+    shifts = np.arange(-half, half + 0.5 * step, step)
+    ends = family.wavelengths(np.array(pixel_range), x)
+    left, right = np.meshgrid(ends[0] + shifts, ends[1] + shifts, indexing="ij")
+    incidence = float(x[family.names.index("incidence_deg")])
+    points = _end_points(
+        family, pixel_range, left, right, [incidence + k for k in DECIDING_LOCAL_INCIDENCE_DEG]
+    )
+    return points.reshape(-1, points.shape[-1])
+
+
+def _stretched_further(
+    family: GratingFamily,
+    x: FloatArray,
+    reference: FloatArray,
+    lamp: LampObservation,
+    prior: CameraPrior,
+) -> bool:
+    """Whether ``x`` puts ``lamp``'s red edge beyond the prior mean's by more than
+    :data:`RED_EDGE_MARGIN_NM` and further than ``reference`` does (decision 0049's stretched red
+    end, which a camera unlike the prior's mean can fit better)."""
+    edge = red_edge_nm(lamp, family.mapping(x), prior)
+    if edge is None or edge[0] - edge[1] <= RED_EDGE_MARGIN_NM:
+        return False
+    before = red_edge_nm(lamp, family.mapping(reference), prior)
+    return before is None or edge[0] > before[0]
+
+
 def _rig_known(family: GratingFamily) -> bool:
     """Whether the prior gives the groove spacing, focal length and incidence."""
     return all(
@@ -990,7 +1029,25 @@ def search_profiles(
         outcome = deciding.refine(start, max_iterations=10, tolerance=1e-5, rounds=1)
         # Compared at their own prior scale (what a second round held there would report).
         outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
-        return outcome, count + outcome.evaluations
+        count += outcome.evaluations
+        if broadband_only and isinstance(family, GratingFamily):
+            # The finer profile splits a scan basin into minima a few nanometres apart (the
+            # broadband profile's ripple against the prior's shape): scan the ends around the
+            # descent's result (one batched call) and descend again from a lower point.
+            local = _local_end_points(family, outcome.x, pixel_range)
+            local_costs = deciding.costs(local)
+            count += local.shape[0]
+            if np.any(np.isfinite(local_costs)) and float(np.min(local_costs)) < outcome.cost:
+                again = deciding.refine(
+                    local[int(np.argmin(local_costs))], max_iterations=10, tolerance=1e-5, rounds=1
+                )
+                again = replace(again, cost=float(deciding.costs(again.x[None])[0]))
+                count += again.evaluations
+                if again.cost < outcome.cost and not _stretched_further(
+                    family, again.x, outcome.x, measured[0], prior
+                ):
+                    outcome = again
+        return outcome, count
 
     decided: list[tuple[Family, Solution]] = []
     hopeless: list[tuple[Family, Solution]] = []
