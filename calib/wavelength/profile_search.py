@@ -1064,10 +1064,11 @@ def search_profiles(
         # Compared at their own prior scale (what a second round held there would report).
         outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
         count += outcome.evaluations
-        if broadband_only and isinstance(family, GratingFamily):
+        if broadband_only and isinstance(family, GratingFamily) and not _rig_known(family):
             # The finer profile splits a scan basin into minima a few nanometres apart (the
             # broadband profile's ripple against the prior's shape): scan the ends around the
-            # descent's result (one batched call) and descend again from a lower point.
+            # descent's result (one batched call) and descend again from a lower point. (A rig
+            # that gives the whole geometry — a grating file's — is scanned over its prior.)
             local = _local_end_points(family, outcome.x, pixel_range)
             local_costs = deciding.costs(local)
             count += local.shape[0]
