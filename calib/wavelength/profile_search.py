@@ -772,21 +772,15 @@ def _local_end_points(
     return points.reshape(-1, points.shape[-1])
 
 
-def _stretched_further(
-    family: GratingFamily,
-    x: FloatArray,
-    reference: FloatArray,
-    lamp: LampObservation,
-    prior: CameraPrior,
+def _stretched(
+    family: GratingFamily, x: FloatArray, lamp: LampObservation, prior: CameraPrior
 ) -> bool:
     """Whether ``x`` puts ``lamp``'s red edge beyond the prior mean's by more than
-    :data:`RED_EDGE_MARGIN_NM` and further than ``reference`` does (decision 0049's stretched red
-    end, which a camera unlike the prior's mean can fit better)."""
+    :data:`RED_EDGE_MARGIN_NM` (decision 0049's stretched red end, which a camera unlike the
+    prior's mean can fit better): the deciding stage's second descent looks for the near minimum
+    the first one missed, never moves a basin into that end."""
     edge = red_edge_nm(lamp, family.mapping(x), prior)
-    if edge is None or edge[0] - edge[1] <= RED_EDGE_MARGIN_NM:
-        return False
-    before = red_edge_nm(lamp, family.mapping(reference), prior)
-    return before is None or edge[0] > before[0]
+    return edge is not None and edge[0] - edge[1] > RED_EDGE_MARGIN_NM
 
 
 def _rig_known(family: GratingFamily) -> bool:
@@ -1078,8 +1072,8 @@ def search_profiles(
                 )
                 again = replace(again, cost=float(deciding.costs(again.x[None])[0]))
                 count += again.evaluations
-                if again.cost < outcome.cost and not _stretched_further(
-                    family, again.x, outcome.x, measured[0], prior
+                if again.cost < outcome.cost and not _stretched(
+                    family, again.x, measured[0], prior
                 ):
                     outcome = again
         return outcome, count
