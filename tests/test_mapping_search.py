@@ -21,10 +21,13 @@ from calib.wavelength import find_mapping, profile_search
 from calib.wavelength.families import GratingFamily, GratingPrior
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.profile_search import (
+    DECIDING_LOCAL_INCIDENCE_DEG,
+    DECIDING_LOCAL_SCAN,
     MISFIT_WARN_TEMPER,
     PRIOR_MISFIT_SIGMA_NM,
     RED_EDGE_MARGIN_NM,
     _end_points,
+    _local_end_points,
     bin_pixels,
     prior_misfit_sigma_nm,
     red_edge_nm,
@@ -318,3 +321,64 @@ def test_a_profile_the_prior_fits_badly_warns_and_widens_sigma(prior, camera, mo
     np.testing.assert_allclose(
         warned.mapping.wavelength_nm(pixel), quiet.mapping.wavelength_nm(pixel), atol=1e-9
     )
+
+
+def test_the_deciding_stage_scans_the_ends_around_each_basin():
+    """Decision 0071: around a deciding basin, gratings whose profile ends lie on a grid about the
+    basin's (every pair of shifts of :data:`DECIDING_LOCAL_SCAN`) at incidences about its own."""
+    family = GratingFamily(default_prior(True), orientation=1)
+    pixel_range = (308.0, 922.0)
+    left, right = np.meshgrid([381.1], [737.8], indexing="ij")
+    (x,) = _end_points(family, pixel_range, left, right, (3.0,)).reshape(-1, len(family.names))
+    points = _local_end_points(family, x, pixel_range)
+    half, step = DECIDING_LOCAL_SCAN
+    shifts = np.arange(-half, half + 0.5 * step, step)
+    assert points.shape == (shifts.size**2 * len(DECIDING_LOCAL_INCIDENCE_DEG), len(family.names))
+    assert np.all(np.isfinite(points))
+    ends = family.wavelengths(np.array(pixel_range), points)
+    wanted = {(round(381.1 + a, 6), round(737.8 + b, 6)) for a in shifts for b in shifts}
+    assert {(round(e[0], 6), round(e[1], 6)) for e in ends} == wanted
+    incidences = points[:, family.names.index("incidence_deg")]
+    for k in DECIDING_LOCAL_INCIDENCE_DEG:
+        assert np.sum(np.abs(incidences - (3.0 + k)) < 0.1) == shifts.size**2
+
+
+@pytest.mark.slow
+@pytest.mark.shared_data
+@pytest.mark.parametrize(
+    "name",
+    [
+        "Nikon D1X (Solomatov-Akkaynak-2023 prediction)",
+        "Phase One-P30 (Solomatov-Akkaynak-2023 prediction)",
+    ],
+)
+def test_an_led_search_reaches_the_lower_basin_it_used_to_stop_short_of(shared_camera_data, name):
+    """Decision 0071: two of validation's predicted cameras (seed 1, 400 predictions; LED only
+    with the RAW files' optics) whose IR cut-off lies below the prior's, each mapped 6.9 / 8.3 nm
+    off with a stated σ of 0.8 / 0.6 nm and no warning, although the truth's basin fits better at
+    every stage of the search. The D1X's descent on the deciding stage's finer profile stopped in
+    a minimum a few nm from the lower one (the ends scanned around it reach it); the P30's fine
+    scan grid had its lowest point on its edge, 15 nm short of the truth's red end (the grid
+    follows it)."""
+    from calib.evaluation.validation.protocol import (
+        MethodVariant,
+        ProtocolSettings,
+        render_task_scene,
+        split_tasks,
+        variant_observations,
+    )
+    from calib.evaluation.validation.splits import load_splits
+
+    splits, _ = load_splits(shared_camera_data, predictions=400, seed=1)
+    cameras = tuple(c for c in splits.validation.cameras if c.name == name)
+    (task,) = split_tasks(replace(splits.validation, cameras=cameras), ProtocolSettings(seed=1))
+    scene = render_task_scene(task)
+    variant = MethodVariant("LED-B3", "prior", tuple(scene.observations))
+    lamps = dict(zip(scene.observations, variant_observations(scene, variant), strict=True))
+    led = lamps["LED-B3"]
+    grid = task.settings.grid
+    solution = locate_mapping([led], task.basis.prior(), grid)
+    truth = scene.true_wavelength_nm
+    inside = (truth >= grid.start_nm) & (truth <= grid.stop_nm)
+    error = solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside]
+    assert float(np.mean(np.abs(error))) < 1.0

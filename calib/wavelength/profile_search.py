@@ -572,6 +572,12 @@ PHYSICAL_INCIDENCE_DEG = (-8.0, 0.0, 8.0)
 #: (half width, step nm).
 PHYSICAL_FINE = (10.0, 2.5)
 PHYSICAL_MINIMA = 4
+#: A broadband lamp alone: a fine grid whose lowest point lies on its edge is moved there up to
+#: this many times (each move up to PHYSICAL_FINE's half width). Its valley can run between the
+#: coarse grid's points: an IR cut-off below the prior's ends the profile's signal sooner, and the
+#: coarse point at the right ends but the wrong incidence fits worse than one stretched further
+#: (decision 0071). With lines the matched lines pin the mapping: never moved.
+PHYSICAL_FOLLOW = 3
 #: The focal lengths (in units of the last pixel's distance from the axis) over which the
 #: incidence is solved for: far beyond any lens and sheet.
 _FOCAL_TABLE = np.geomspace(0.05, 200.0, 160)
@@ -674,11 +680,17 @@ def _start_points(
 
 
 def _physical_scan(
-    scan: StageFit, family: GratingFamily, pixel_range: tuple[float, float], grid: WavelengthGrid
+    scan: StageFit,
+    family: GratingFamily,
+    pixel_range: tuple[float, float],
+    grid: WavelengthGrid,
+    follow: int = 0,
 ) -> tuple[list[tuple[FloatArray, tuple[int, ...]]], int]:
     """Coarse to fine over the ends the result may take (:data:`PHYSICAL_FIRST_NM` …): the
     coarse grid's lowest distinct minima, each with a fine grid around it (returned with the
-    coarse grid's evaluation count; the caller scans the fine grids)."""
+    evaluation count of the grids scanned here; the caller scans the fine grids). With
+    ``follow``, a fine grid whose lowest point lies on its edge is moved there, up to that many
+    times (:data:`PHYSICAL_FOLLOW`)."""
     step = PHYSICAL_STEP_NM
     first = np.arange(
         grid.start_nm - PHYSICAL_FIRST_NM[0],
@@ -702,20 +714,73 @@ def _physical_scan(
     shifts = np.arange(-half, half + 0.5 * fine_step, fine_step)
     grids: list[tuple[FloatArray, tuple[int, ...]]] = []
     taken: list[tuple[float, float]] = []
+    count = points.shape[0]
     for index in _local_minima(costs, shape):
         i, j = np.unravel_index(index, shape)[:2]
         centre = (float(left[i, j]), float(right[i, j]))
         if any(abs(centre[0] - a) <= step and abs(centre[1] - b) <= step for a, b in taken):
             continue
         taken.append(centre)
-        fine_left, fine_right = np.meshgrid(centre[0] + shifts, centre[1] + shifts, indexing="ij")
-        fine = _end_points(
-            family, pixel_range, fine_left, fine_right, [mean + k for k in PHYSICAL_INCIDENCE_DEG]
-        )
+        for moves in range(follow + 1):
+            fine_left, fine_right = np.meshgrid(
+                centre[0] + shifts, centre[1] + shifts, indexing="ij"
+            )
+            fine = _end_points(
+                family,
+                pixel_range,
+                fine_left,
+                fine_right,
+                [mean + k for k in PHYSICAL_INCIDENCE_DEG],
+            )
+            if moves == follow:
+                break
+            # A fine grid whose lowest point is on its edge holds no minimum: the valley goes on
+            # beyond it (between the coarse grid's points, at an incidence between its own).
+            fine_costs = scan.costs(fine.reshape(-1, fine.shape[-1]))
+            count += fine_costs.size
+            if not np.any(np.isfinite(fine_costs)):
+                break
+            a, b = np.unravel_index(int(np.argmin(fine_costs)), fine.shape[:-1])[:2]
+            if 0 < a < shifts.size - 1 and 0 < b < shifts.size - 1:
+                break
+            centre = (float(fine_left[a, b]), float(fine_right[a, b]))
         grids.append((fine.reshape(-1, fine.shape[-1]), fine.shape[:-1]))
         if len(grids) == PHYSICAL_MINIMA:
             break
-    return grids, points.shape[0]
+    return grids, count
+
+
+#: Around a deciding basin (grating family, broadband lamps alone): the profile's ends shifted by
+#: up to (half width, step) nm, at these incidence offsets (°) about the basin's.
+DECIDING_LOCAL_SCAN = (6.0, 2.0)
+DECIDING_LOCAL_INCIDENCE_DEG = (-4.0, 0.0, 4.0)
+
+
+def _local_end_points(
+    family: GratingFamily, x: FloatArray, pixel_range: tuple[float, float]
+) -> FloatArray:
+    """Gratings whose profile ends lie on a grid (:data:`DECIDING_LOCAL_SCAN`) around ``x``'s,
+    at incidences about its own: ``(K, P)``, NaN rows where none exists."""
+    half, step = DECIDING_LOCAL_SCAN
+    shifts = np.arange(-half, half + 0.5 * step, step)
+    ends = family.wavelengths(np.array(pixel_range), x)
+    left, right = np.meshgrid(ends[0] + shifts, ends[1] + shifts, indexing="ij")
+    incidence = float(x[family.names.index("incidence_deg")])
+    points = _end_points(
+        family, pixel_range, left, right, [incidence + k for k in DECIDING_LOCAL_INCIDENCE_DEG]
+    )
+    return points.reshape(-1, points.shape[-1])
+
+
+def _stretched(
+    family: GratingFamily, x: FloatArray, lamp: LampObservation, prior: CameraPrior
+) -> bool:
+    """Whether ``x`` puts ``lamp``'s red edge beyond the prior mean's by more than
+    :data:`RED_EDGE_MARGIN_NM` (decision 0049's stretched red end, which a camera unlike the
+    prior's mean can fit better): the deciding stage's second descent looks for the near minimum
+    the first one missed, never moves a basin into that end."""
+    edge = red_edge_nm(lamp, family.mapping(x), prior)
+    return edge is not None and edge[0] - edge[1] > RED_EDGE_MARGIN_NM
 
 
 def _rig_known(family: GratingFamily) -> bool:
@@ -910,7 +975,9 @@ def search_profiles(
             # to 110 nm off at the red end on validation cameras: the scan over every end the
             # result may take (coarse to fine) joins the end grids around them.
             same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
-            grids, count = _physical_scan(scan, family, pixel_range, grid)
+            grids, count = _physical_scan(
+                scan, family, pixel_range, grid, PHYSICAL_FOLLOW if broadband_only else 0
+            )
             evaluations += count
             grids = [
                 _start_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
@@ -990,7 +1057,26 @@ def search_profiles(
         outcome = deciding.refine(start, max_iterations=10, tolerance=1e-5, rounds=1)
         # Compared at their own prior scale (what a second round held there would report).
         outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
-        return outcome, count + outcome.evaluations
+        count += outcome.evaluations
+        if broadband_only and isinstance(family, GratingFamily) and not _rig_known(family):
+            # The finer profile splits a scan basin into minima a few nanometres apart (the
+            # broadband profile's ripple against the prior's shape): scan the ends around the
+            # descent's result (one batched call) and descend again from a lower point. (A rig
+            # that gives the whole geometry — a grating file's — is scanned over its prior.)
+            local = _local_end_points(family, outcome.x, pixel_range)
+            local_costs = deciding.costs(local)
+            count += local.shape[0]
+            if np.any(np.isfinite(local_costs)) and float(np.min(local_costs)) < outcome.cost:
+                again = deciding.refine(
+                    local[int(np.argmin(local_costs))], max_iterations=10, tolerance=1e-5, rounds=1
+                )
+                again = replace(again, cost=float(deciding.costs(again.x[None])[0]))
+                count += again.evaluations
+                if again.cost < outcome.cost and not _stretched(
+                    family, again.x, measured[0], prior
+                ):
+                    outcome = again
+        return outcome, count
 
     decided: list[tuple[Family, Solution]] = []
     hopeless: list[tuple[Family, Solution]] = []
