@@ -93,6 +93,15 @@ def is_assumed_physical(record: object) -> bool:
     return isinstance(record, Mapping) and record.get("source") == ASSUMED_PHYSICAL_SOURCE
 
 
+def _budget_family(grating: GratingEfficiency | None, assumed: object) -> str | None:
+    """The η model the σ budget keys its factor on (``known-grating:…``, decisions 0074/0075):
+    assumed over the physical families, assumed flat, or a file stating its σ; a file without σ
+    (a maker's curve) has none, so its band stays the unvalidated largest factor."""
+    if grating is None:
+        return ASSUMED_EFFICIENCY_MODEL if assumed is not None else FLAT_EFFICIENCY_MODEL
+    return FILE_EFFICIENCY_MODEL if grating.efficiency_sigma is not None else None
+
+
 @dataclass(frozen=True)
 class KnownGratingOptions(GratingMethodOptions):
     """Options of :func:`estimate_known_grating`: those of every grating method
@@ -263,15 +272,7 @@ def estimate_known_grating(
         basis,
         {
             "grating": record,
-            # The σ budget's factor key (known-grating:assumed, decision 0074).
-            **({"efficiency_model": ASSUMED_EFFICIENCY_MODEL} if assumed is not None else {}),
-            **(
-                {"efficiency_model": FILE_EFFICIENCY_MODEL}
-                if grating is not None and grating.efficiency_sigma is not None
-                else {"efficiency_model": FLAT_EFFICIENCY_MODEL}
-                if grating is None and assumed is None
-                else {}
-            ),
+            **({"efficiency_model": model} if (model := _budget_family(grating, assumed)) else {}),
             "prior_shrinkage": prior.shrinkage.tolist(),
             **({"second_order": second_order} if second_order else {}),
         },

@@ -157,8 +157,9 @@ COVERAGE_SCALE: dict[str, float] = {
     "makabe2025": 4.24,
     # Decision 0074 (no direct measurement, no grating file: η₁ marginalised over the physical
     # families): ``python -m calib.evaluation.validation.budget --data-dir DIR --jobs 1 --variant
-    # "A + FL unmeasured, no direct"``, 40 validation estimates, 89.5 % at factor 1 → 1.45. Only
-    # the assumed η's key: the known-grating solve through a grating file stays unvalidated.
+    # "A + FL unmeasured, no direct"`` while that variant ran the families (since decision 0074's
+    # amendment the same is ``--variant "A + FL unmeasured, no direct, physical η"``), 40
+    # validation estimates, 89.5 % at factor 1 → 1.45. Only the assumed η's key.
     "known-grating:assumed": 1.45,
     # Decision 0075: one LED through a grating file that states its σ (a physical-model
     # calibration's, same rig): ``python bench/grating_physics.py --data-dir DIR --split validation
