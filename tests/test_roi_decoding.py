@@ -71,6 +71,7 @@ def test_bracket_profiles_decode_the_region_only_and_agree_with_libraw(capture: 
         np.testing.assert_array_equal(ours.extraction.profile, reference.extraction.profile)
 
 
+@pytest.mark.slow  # the bracket profiles' libraw agreement stays in the default suite
 def test_the_estimate_is_the_same_decoded_by_tiles_or_by_libraw(
     capture: Capture, monkeypatch: pytest.MonkeyPatch
 ) -> None:

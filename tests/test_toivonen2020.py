@@ -210,6 +210,7 @@ def _assert_one_patch_unstable_many_stable(results):
     assert np.max(re_many) < 0.1
 
 
+@pytest.mark.slow  # 6 s: a baseline's property, not the product's (make test-all)
 def test_one_patch_is_unstable_many_patches_are_stable():
     """Makabe et al. (2025) Supp. G, over 3 cameras × 2 scenes (a statistic, not one lucky seed).
 

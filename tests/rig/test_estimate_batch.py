@@ -128,6 +128,7 @@ def local_cluster() -> Iterator[str]:
         yield str(cluster.scheduler_address)
 
 
+@pytest.mark.slow  # the pool batch covers the batch path in the default suite (make test-all)
 def test_a_dask_batch_gives_the_same_results_quietly(
     sessions: list[Path], one_at_a_time: Path, tmp_path: Path, local_cluster: str
 ) -> None:

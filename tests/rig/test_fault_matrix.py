@@ -543,7 +543,7 @@ def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninte
         pytest.param("pr655", "file_get", False, id="in-a-download"),
         # Checked by what the estimator reads (identical inputs, identical estimate); the
         # estimate itself runs in ``make test-all``.
-        pytest.param("seabreeze", "capture", False, id="seabreeze"),
+        pytest.param("seabreeze", "capture", False, id="seabreeze", marks=pytest.mark.slow),
         pytest.param("seabreeze", "capture", True, id="seabreeze+estimate", marks=pytest.mark.slow),
         # issue 20's done-when (kill -9, resume, estimate, replay): the in-a-capture row runs the
         # estimator on the default suite; this row compares its inputs, the estimate in test-all.
