@@ -484,6 +484,28 @@ def test_profile_input_without_direct_or_grating_assumes_flat_and_warns(
     assert "estimate: known-grating" in stdout
 
 
+def test_assume_grating_physical_marginalises_the_families_and_is_named_where_it_does_nothing(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """``--assume-grating physical`` (decision 0074's option): η₁ over the physical families,
+    flagged, saved as an assumed grating; with a direct measurement it has no effect and says so;
+    anything else is refused in one line."""
+    out = tmp_path / "physical"
+    argv = [*_profile_args(tmp_path, capture, direct=False), "--out", str(out)]
+    code, _, stderr = _call([*argv, "--assume-grating", "physical"])
+    assert code == 0, stderr
+    document = json.loads((out / "result.json").read_text())
+    codes = {flag["code"] for flag in document["quality"]["flags"]}
+    assert "grating_assumed" in codes and "flat_grating_assumed" not in codes
+    assert document["grating_efficiency"] != [1.0] * 31
+    assert json.loads((out / "grating.json").read_text())["obtained"] == "assumed physical"
+    direct = [*_profile_args(tmp_path, capture, direct=True), "--out", str(tmp_path / "direct")]
+    code, _, stderr = _call([*direct, "--assume-grating", "physical"])
+    assert code == 0 and "--assume-grating has no effect: a direct measurement" in stderr
+    code, _, stderr = _call([*argv, "--assume-grating", "sinusoidal", "--force"])
+    assert code == 2 and stderr.count("\n") == 1 and "--assume-grating" in stderr, stderr
+
+
 def _as_rawproc_dat(csv_path: Path) -> Path:
     """The CSV profile written as rawproc's text export (columns 0 … width−1, no σ), unmirrored."""
     table = np.loadtxt(csv_path, delimiter=",", skiprows=1)

@@ -41,6 +41,7 @@ from calib.cli.options import (
     PixelPitchOption,
     QuietOption,
     WeightRuleOption,
+    checked_assumed_grating,
     checked_grid,
     checked_method,
 )
@@ -189,6 +190,7 @@ def estimate_request(
     grid: str | None = None,
     data_dir: Path | None = None,
     grating: Path | None = None,
+    assume_grating: str | None = None,
     exclude_camera: Sequence[str] | None = None,
     grooves_per_mm: float | None = None,
     focal_length_mm: float | None = None,
@@ -210,6 +212,7 @@ def estimate_request(
         mapping_lamp=mapping_lamp,
         data_dir=data_dir,
         grating=grating,
+        assumed_grating=checked_assumed_grating(assume_grating),
         exclude_cameras=tuple(exclude_camera or ()),
         optics=StatedOptics(grooves_per_mm, focal_length_mm, pixel_pitch_um),
         command_line=("calib", "estimate", *ctx.meta.get(ARGUMENTS, ())),
@@ -329,6 +332,17 @@ def register(app: typer.Typer) -> None:
                 "direct measurement; without it a flat grating is assumed, with a warning.",
             ),
         ] = None,
+        assume_grating: Annotated[
+            str | None,
+            typer.Option(
+                "--assume-grating",
+                metavar="flat|physical",
+                help="With no direct measurement and no --grating: what stands in for the "
+                "grating's efficiency, flat (default) or physical (η₁ averaged over thin "
+                "sinusoidal sheets and blazed gratings, weighed by the camera prior: better when "
+                "the sheet is one of them, worse when not; decision 0074).",
+            ),
+        ] = None,
         exclude_camera: ExcludeCameraOption = None,
         grooves_per_mm: GroovesPerMmOption = None,
         focal_length_mm: FocalLengthOption = None,
@@ -349,6 +363,7 @@ def register(app: typer.Typer) -> None:
                 grid=grid,
                 data_dir=data_dir,
                 grating=grating,
+                assume_grating=assume_grating,
                 exclude_camera=exclude_camera,
                 grooves_per_mm=grooves_per_mm,
                 focal_length_mm=focal_length_mm,

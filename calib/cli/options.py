@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 
@@ -74,6 +74,20 @@ def checked_method(method: str) -> str:
     from calib.methods import check_method
 
     return check_method(method, source="--method")
+
+
+def checked_assumed_grating(text: str | None) -> Literal["flat", "physical"] | None:
+    """``--assume-grating flat|physical`` (``None`` when not given), else
+    :class:`~calib.core.errors.InputError` naming the option."""
+    from calib.core.errors import InputError
+
+    if text is None:
+        return None
+    if text == "flat":
+        return "flat"
+    if text == "physical":
+        return "physical"
+    raise InputError(f"{text!r} is not flat or physical", source="--assume-grating")
 
 
 def checked_grid(text: str | None) -> WavelengthGrid:

@@ -41,6 +41,7 @@ from calib.methods import (
     coarse_line_spectrum,
     estimate,
 )
+from calib.methods.grating_models import AssumedGrating
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
 from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings
@@ -123,6 +124,11 @@ class OfflineSettings:
         physical prior, over what the RAW files say.
     use_region
         Merge RAW frames over a region of interest: ``None`` decides by frame size.
+    assumed_grating
+        What stands in for η when no lamp has a direct measurement and no grating file is given:
+        ``"flat"`` or ``"physical"`` (:class:`calib.methods.known_grating.KnownGratingOptions`,
+        decision 0074); ``None``: the method options' (default flat). Named in a warning when the
+        data do not take that path.
     budget
         How the stated σ is made (:class:`calib.methods.uncertainty.BudgetSettings`, e.g. another
         ``model_floor`` for a validation-split tuning run); ``None``: the method's own σ only.
@@ -143,6 +149,7 @@ class OfflineSettings:
     optics: StatedOptics = field(default_factory=lambda: StatedOptics())
     use_region: bool | None = None
     budget: BudgetSettings | None = DEFAULT_BUDGET
+    assumed_grating: AssumedGrating | None = None
     command_line: tuple[str, ...] | None = None
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
@@ -621,18 +628,21 @@ def _wavelength_mapping(observations: Sequence[LampObservation]) -> QuadraticMap
 
 
 def _known_grating_options(
-    options: MethodOptions | None, warnings: list[str]
+    options: MethodOptions | None, warnings: list[str], *, assumed: AssumedGrating | None = None
 ) -> KnownGratingOptions:
     """The known-grating solve's options from another grating method's: those it shares are kept
-    (none is lost on the way), the others, when set, are named in a warning."""
-    if options is None:
-        return KnownGratingOptions()
+    (none is lost on the way), the others, when set, are named in a warning; ``assumed``, when
+    given, is what stands in for η without a grating file."""
+    if options is None or isinstance(options, KnownGratingOptions):
+        given = options or KnownGratingOptions()
+        return given if assumed is None else replace(given, assumed_grating=assumed)
     # Every grating method's options share these (GratingMethodOptions).
     kept = KnownGratingOptions(
         prior_shrinkage=options.prior_shrinkage,
         refine_given_mapping=options.refine_given_mapping,
         slit_width_px=options.slit_width_px,
         psf_sigma_px=options.psf_sigma_px,
+        **({} if assumed is None else {"assumed_grating": assumed}),
     )
     defaults = type(options)()
     ignored = [
@@ -670,6 +680,12 @@ def _estimate(
     if settings.mapping_lamp is not None:
         where["mapping_lamp"] = settings.mapping_lamp
     with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
+    if settings.assumed_grating is not None and (with_direct or checked.grating is not None):
+        warnings.append(
+            "--assume-grating has no effect: "
+            + ("a direct measurement" if with_direct else "the grating file")
+            + " gives the grating efficiency"
+        )
     # The grating library: multilamp (or known-grating) through an earlier calibration's η.
     through_file = checked.grating is not None and method in (
         AUTO,
@@ -716,7 +732,9 @@ def _estimate(
         basis=basis,
         budget=settings.budget,
         grating=checked.grating,
-        options=_known_grating_options(settings.method_options, warnings),
+        options=_known_grating_options(
+            settings.method_options, warnings, assumed=settings.assumed_grating
+        ),
         **where,
     )
     if advice is not None:
