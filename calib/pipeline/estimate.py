@@ -680,12 +680,15 @@ def _estimate(
     if settings.mapping_lamp is not None:
         where["mapping_lamp"] = settings.mapping_lamp
     with_direct = [obs.name for obs in observations if obs.direct_rgb is not None]
-    if settings.assumed_grating is not None and (with_direct or checked.grating is not None):
-        warnings.append(
-            "--assume-grating has no effect: "
-            + ("a direct measurement" if with_direct else "the grating file")
-            + " gives the grating efficiency"
-        )
+    moot = (
+        "the grating file"
+        if checked.grating is not None
+        else "a direct measurement"
+        if with_direct and method != KNOWN_GRATING_METHOD
+        else None
+    )
+    if settings.assumed_grating is not None and moot is not None:
+        warnings.append(f"--assume-grating has no effect: {moot} gives the grating efficiency")
     # The grating library: multilamp (or known-grating) through an earlier calibration's η.
     through_file = checked.grating is not None and method in (
         AUTO,
