@@ -365,22 +365,27 @@ def test_a_method_never_validated_says_so(camera: MultiSpectrum, basis: CameraBa
 
 
 def test_a_given_grating_without_sigma_is_flagged() -> None:
-    def codes(grating: object, sigma: list[float] | None) -> set[str]:
+    def codes(grating: object, sigma: list[float] | None, model: str | None = None) -> set[str]:
         result = EstimateResult(
             "known-grating",
             np.array([400.0, 500.0, 600.0]),
             np.array([[0, 0.2, 1], [0.1, 1, 0.2], [1, 0.1, 0]]),
             grating_efficiency=np.array([0.5, 1.0, 0.8]),
             grating_efficiency_sigma=None if sigma is None else np.array(sigma),
-            diagnostics={"grating": grating},
+            diagnostics={"grating": grating, **({"efficiency_model": model} if model else {})},
         )
         budget = uncertainty_budget(result, [], settings=BudgetSettings(perturb=False))
         return {flag.code for flag in budget.flags}
 
     assert "grating_sigma_missing" in codes({"source": "maker's curve"}, None)
     assert "grating_sigma_missing" not in codes({"source": "measured"}, [0.01, 0.01, 0.01])
-    assert "flat_grating_assumed" in codes("flat (assumed)", None)
-    assert not {"grating_sigma_missing", "flat_grating_assumed"} & codes(None, None)
+    # What was assumed is read from the η family the solve records (known_grating's keys).
+    assert "flat_grating_assumed" in codes("flat (assumed)", None, "flat")
+    assumed = codes({"source": "assumed"}, [0.01, 0.01, 0.01], "assumed")
+    assert "grating_assumed" in assumed and "flat_grating_assumed" not in assumed
+    assert not {"grating_sigma_missing", "flat_grating_assumed", "grating_assumed"} & codes(
+        None, None
+    )
 
 
 def test_validation_records_judge_any_tolerance_sigma() -> None:

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -69,6 +69,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.line_lists import CFL_NEIGHBOURS, SCALE_CHECK_FEATURES, Line, is_builtin
 from calib.core.observations import LampObservation
+from calib.core.result import json_safe
 from calib.core.spectra import Spectrum
 from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA, WAVELENGTH_SCALE_NM
 
@@ -133,14 +134,7 @@ class LineShift:
     slit_factor: float
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "label": self.label,
-            "wavelength_nm": self.wavelength_nm,
-            "shift_nm": self.shift_nm,
-            "sigma_nm": self.sigma_nm,
-            "snr": self.snr,
-            "slit_factor": self.slit_factor,
-        }
+        return asdict(self)
 
 
 @dataclass(frozen=True, eq=False)
@@ -229,21 +223,11 @@ class ScaleCheck:
         )
 
     def to_dict(self) -> dict[str, Any]:
+        """Its fields as plain JSON data, with the two derived figures the report shows."""
         return {
-            "lamp": self.lamp,
-            "bandwidth_nm": self.bandwidth_nm,
-            "offset_nm": self.offset_nm,
-            "slope": self.slope,
-            "reference_nm": self.reference_nm,
+            **json_safe(asdict(self)),
             "mean_offset_nm": self.mean_offset_nm,
-            "sigma_nm": self.sigma_nm,
-            "covariance": self.covariance.tolist(),
-            "range_nm": list(self.range_nm),
-            "reduced_chi2": self.reduced_chi2,
-            "tolerance_nm": self.tolerance_nm,
             "out_of_spec": self.out_of_spec,
-            "lines": [line.to_dict() for line in self.lines],
-            "left_out": list(self.left_out),
         }
 
 

@@ -61,7 +61,6 @@ from calib.methods.known_grating import (
     KNOWN_GRATING_METHOD,
     KnownGratingOptions,
     estimate_known_grating,
-    is_assumed_physical,
 )
 from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options, estimate_makabe2025
 from calib.methods.multilamp import (
@@ -75,6 +74,7 @@ from calib.methods.solve_scope import perturbation, solve_scope
 from calib.methods.uncertainty import (
     DEFAULT_BUDGET,
     BudgetSettings,
+    assumed_grating_flag,
     channel_gains_unknown,
     check_grid_within_basis,
     uncertainty_budget,
@@ -245,9 +245,8 @@ def choose_method(
         return MethodChoice(
             KNOWN_GRATING_METHOD,
             prefix + "no direct measurement and no grating file: the known-grating solve through "
-            "an assumed grating efficiency (the physical families marginalised, or flat: "
-            "KnownGratingOptions.assumed_grating; the sensitivity carries this grating's "
-            "departure from it)",
+            "an assumed grating efficiency (flat unless told otherwise; the quality flags say "
+            "which, and the sensitivity carries this grating's departure from it)",
             mapping_only,
         )
     raise InputError(
@@ -442,23 +441,9 @@ def estimate(
         )
 
 
-def assumed_grating_flag(result: EstimateResult, advice: str = "") -> QualityFlag:
-    """What a known-grating result without a grating assumed for η (``diagnostics["grating"]``):
-    ``grating_assumed`` when η₁ was marginalised over the physical families (decision 0074),
-    ``flat_grating_assumed`` when it was taken flat. ``advice``: what the caller adds."""
-    if is_assumed_physical(result.diagnostics.get("grating")):
-        return QualityFlag(
-            "grating_assumed",
-            "no direct measurement and no grating file: the grating efficiency was not measured "
-            "but marginalised over the physical families (thin sinusoidal sheets, blazed "
-            "gratings) with their spread in σ; a grating outside them is an error σ does not "
-            "hold" + advice,
-        )
-    return QualityFlag(
-        "flat_grating_assumed",
-        "no direct measurement and no grating file: a flat grating efficiency was assumed, so "
-        "the sensitivity carries the grating's own efficiency as an error" + advice,
-    )
+def _flag_assumed_grating(result: EstimateResult) -> EstimateResult:
+    flag = assumed_grating_flag(result)
+    return result if flag is None else result.with_quality(flag)
 
 
 def with_scale_check(result: EstimateResult, outcome: ScaleCheckOutcome | None) -> EstimateResult:
@@ -512,7 +497,7 @@ def _estimate_in_scope(
             result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()}
         )
     if choice is not None and key == KNOWN_GRATING_METHOD and routed.get("grating") is None:
-        result = result.with_quality(assumed_grating_flag(result))
+        result = _flag_assumed_grating(result)
     if isinstance(used_basis, CameraBasis) and is_fallback_basis(used_basis):
         result = result.with_quality(
             QualityFlag(
@@ -604,7 +589,7 @@ def _mapping_only_estimate(
     )
     if choice.method == KNOWN_GRATING_METHOD and method_options.get("grating") is None:
         # The inner solve was called by name: say what it assumed for η here.
-        result = result.with_quality(assumed_grating_flag(result))
+        result = _flag_assumed_grating(result)
     return replace(result, diagnostics={**result.diagnostics, "method_choice": choice.to_dict()})
 
 

@@ -793,20 +793,40 @@ def misfit_flag(chi2: float | None, floor: float = MODEL_FLOOR) -> QualityFlag |
     )
 
 
-def grating_sigma_flag(result: EstimateResult) -> QualityFlag | None:
-    """What no σ component holds of a given η: ``flat_grating_assumed`` when the solve assumed a
-    flat grating (``diagnostics["grating"]`` says so, whichever path chose it), and
-    ``grating_sigma_missing`` when η was given as a file that states no σ (a maker's catalogue
-    curve, a file without ``efficiency_sigma``): how far this grating is from that curve is in
-    the error and in no σ component."""
-    given = result.diagnostics.get("grating")
-    if isinstance(given, str) and given.startswith("flat"):
+def assumed_grating_flag(result: EstimateResult, advice: str = "") -> QualityFlag | None:
+    """What a solve without a direct measurement or a grating file assumed for η, from the η
+    family it records (:func:`efficiency_family`): ``grating_assumed`` (marginalised over the
+    physical families, decision 0074) or ``flat_grating_assumed``; ``None`` when it assumed
+    nothing. ``advice``: what the caller adds. The one place these flags are worded, whichever
+    layer (method choice, σ budget, pipeline) raises them."""
+    family = efficiency_family(result)
+    if family == "assumed":
+        return QualityFlag(
+            "grating_assumed",
+            "no direct measurement and no grating file: the grating efficiency was not measured "
+            "but marginalised over the physical families (thin sinusoidal sheets, blazed "
+            "gratings) with their spread in σ; a grating outside them is an error σ does not "
+            "hold" + advice,
+        )
+    if family == "flat":
         return QualityFlag(
             "flat_grating_assumed",
-            "no direct measurement and no grating file: a flat grating efficiency was assumed, "
-            "so the sensitivity carries the grating's own efficiency as an error, which the ±2σ "
-            "band does not hold",
+            "no direct measurement and no grating file: a flat grating efficiency was assumed, so "
+            "the sensitivity carries the grating's own efficiency as an error (the ±2σ band's "
+            "factor holds it as the validation split's gratings did, not for this grating in "
+            "particular)" + advice,
         )
+    return None
+
+
+def grating_sigma_flag(result: EstimateResult) -> QualityFlag | None:
+    """What no σ component holds of a given or assumed η: :func:`assumed_grating_flag` when the
+    solve assumed one, and ``grating_sigma_missing`` when η was given as a file that states no σ
+    (a maker's catalogue curve, a file without ``efficiency_sigma``): how far this grating is from
+    that curve is in the error and in no σ component."""
+    if (flag := assumed_grating_flag(result)) is not None:
+        return flag
+    given = result.diagnostics.get("grating")
     if not isinstance(given, Mapping) or result.grating_efficiency_sigma is not None:
         return None
     return QualityFlag(

@@ -36,7 +36,6 @@ from calib.image.raw import read_raw_metadata
 from calib.methods import (
     AUTO,
     MethodOptions,
-    assumed_grating_flag,
     check_method,
     coarse_line_spectrum,
     estimate,
@@ -44,7 +43,7 @@ from calib.methods import (
 from calib.methods.grating_models import AssumedGrating
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
-from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings
+from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings, assumed_grating_flag
 from calib.model.bases import CameraBasis, default_camera_basis
 from calib.model.resolution import COARSE_SLIT_NM, coarse_slit
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
@@ -740,6 +739,6 @@ def _estimate(
         ),
         **where,
     )
-    if advice is not None:
-        result = result.with_quality(assumed_grating_flag(result, advice))
+    if advice is not None and (flag := assumed_grating_flag(result, advice)) is not None:
+        result = result.with_quality(flag)
     return result, checked.grating
