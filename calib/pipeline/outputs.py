@@ -61,8 +61,8 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import format_re, relative_error
 from calib.core.result import EstimateResult, json_safe
 from calib.core.truth import GroundTruth
-from calib.methods.known_grating import is_assumed_physical
 from calib.methods.multilamp import grating_model_fields
+from calib.methods.uncertainty import efficiency_family
 from calib.model.extension import Extension, extend
 from calib.pipeline.camera_identity import CameraIdentity, camera_identity
 from calib.pipeline.estimate import OfflineEstimate
@@ -373,10 +373,12 @@ def grating_from_result(estimate: OfflineEstimate) -> GratingEfficiency | None:
         "source": "calib estimate",
     }
     fields = grating_model_fields(result.diagnostics.get("grating_model"))
-    if result.diagnostics.get("grating") == "flat (assumed)":
-        fields = {"obtained": "assumed flat"}
-    elif is_assumed_physical(result.diagnostics.get("grating")):
-        fields = {"obtained": "assumed physical"}
+    # What stood in for η is the family the solve records (one reading, shared with the σ budget).
+    assumed = {"flat": "assumed flat", "assumed": "assumed physical"}.get(
+        efficiency_family(result) or ""
+    )
+    if assumed is not None:
+        fields = {"obtained": assumed}
     return GratingEfficiency(
         wavelength_nm=result.wavelength_nm,
         efficiency=efficiency,
