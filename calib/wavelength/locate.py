@@ -556,6 +556,9 @@ def locate_mapping(
                     lead,
                     grid,
                 )
+                # The dips sit at the solar list's wavelengths, which the spectrum's scale does
+                # not move (it only says which dips are there, to ≥ 1 nm).
+                features.details["line_centres_from_spectrum"] = []
                 details["line_source"] = f"absorption features of {lamp.name}"
             except EstimationError as exc:
                 warnings.append(f"the absorption refinement failed ({exc}); the profile fit stands")
