@@ -18,9 +18,10 @@ The scene is rendered on a 0.02 nm spectral axis (the protocol's 1 nm would wash
 Printed per camera: the mapping's error (fitted − true wavelength, nm) at the true pixel of each
 feature the 10D bench checks (G, Hβ, Mg b, D, Hα, O₂ B; references as ``bench/wavelength_real.py``
 takes them), their RMS, the stated σ there and the 10D-style residual (the mapping at the depth
-minimum found in the profile minus the reference: what the real-data bench can measure). Summary:
-per-feature mean and RMS of the errors over the cameras, the RMS over the six, and the coverage of
-the errors by ±2 stated σ.
+minimum found in the profile minus the reference: what the real-data bench can measure), and the
+same with each feature matched by its shape (``wavelength_real.matched_columns``). Summary:
+per-feature mean and RMS of the errors over the cameras and of each measure less the error (its
+own bias and scatter), the RMS over the six, and the coverage of the errors by ±2 stated σ.
 
     python bench/solar_validate.py --data-dir ../shared/data/camera_sensitivities
 """
