@@ -106,6 +106,10 @@ def test_canon_10d_fraunhofer_mapping(shared_real_grating, shared_camera_data):
     prior = default_camera_basis(data_dir=shared_camera_data, exclude=["Canon 10D"]).prior()
     solution = locate_mapping([observation], prior, DEFAULT_GRID)
     assert "absorption" in str(solution.details.get("line_source"))
+    # The dips sit at the list's wavelengths: the solar spectrum's scale adds nothing to σ
+    # (decision 0077), the listed lines' floor does.
+    assert "listed_lines_floor_nm" in solution.details
+    assert "spectrometer_scale_sigma_nm" not in solution.details
     solar = {line.label: line.wavelength_nm for line in line_list("solar")}
     reference = {
         "G": solar["Fraunhofer G"],

@@ -256,6 +256,49 @@ def _spectrum_dips(observation: LampObservation) -> tuple[Line, ...]:
     return present if len(present) >= MIN_SPECTRUM_DIPS else ()
 
 
+def _dips_near_profile_fit(
+    features: FeatureMapping | None,
+    lamp: LampObservation,
+    dips: Sequence[Line],
+    prior: GratingPrior | None,
+    profile_fit: ExactMapping,
+    profile_sigma_nm: float | None,
+    lead: LampObservation,
+    grid: WavelengthGrid,
+) -> FeatureMapping:
+    """The dips' mapping where the whole-profile fit is: a match made afresh (``features``; ``None``
+    when none held) that lies further from it than :data:`DISAGREEMENT_NM` (RMS) and three of its
+    stated σ (``profile_sigma_nm``: a fit that states 10 nm cannot overrule the dips) paired the
+    dips with the wrong features (the solar list has many near-regular dips: on the validation
+    analog, ``bench/solar_validate.py``, 4 of 44 cameras were 22–240 nm off with the profile fit
+    within 1 nm, and one matched nothing), so the dips are fitted again from the profile fit
+    itself; if that still lies beyond :data:`LINE_FIT_MAX_DISTANCE_NM`, an
+    :class:`EstimationError` (the profile fit stands)."""
+    probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
+
+    def apart(mapping: ExactMapping) -> float:
+        difference = mapping.wavelength_nm(probe) - profile_fit.wavelength_nm(probe)
+        return float(np.sqrt(np.mean(difference**2)))
+
+    allowed = max(DISAGREEMENT_NM, 3.0 * (profile_sigma_nm or 0.0))
+    if features is not None and apart(features.exact) <= allowed:
+        return features
+    refitted = _map_lines(
+        lamp,
+        dips,
+        prior,
+        start=profile_fit,
+        directions=(_direction(profile_fit, lead),),
+        grid=grid,
+    )
+    distance = apart(refitted.exact)
+    if distance > LINE_FIT_MAX_DISTANCE_NM:
+        raise EstimationError(
+            f"the dips, fitted from the whole-profile fit, lie {distance:.1f} nm (RMS) from it"
+        )
+    return refitted
+
+
 def _coarse(observation: LampObservation, limit_nm: float = COARSE_SPECTRUM_NM) -> bool:
     step = float(np.median(np.diff(observation.spectrum.wavelength_nm)))
     bandwidth = observation.spectrum_bandwidth_nm or 0.0
@@ -491,15 +534,31 @@ def locate_mapping(
             # broadband fit can be a few nanometres off, more than a dip's width.
             middle = np.array([0.5 * (lead.pixel[0] + lead.pixel[-1])])
             try:
-                features = _map_lines(
+                try:
+                    features = _map_lines(
+                        lamp,
+                        dips,
+                        grating_prior,
+                        start=None,
+                        directions=(_direction(search.exact, lead),),
+                        grid=grid,
+                        dispersion_nm_per_px=abs(float(_local_dispersion(search.exact, middle)[0])),
+                    )
+                except EstimationError:
+                    features = None
+                features = _dips_near_profile_fit(
+                    features,
                     lamp,
                     dips,
                     grating_prior,
-                    start=None,
-                    directions=(_direction(search.exact, lead),),
-                    grid=grid,
-                    dispersion_nm_per_px=abs(float(_local_dispersion(search.exact, middle)[0])),
+                    search.exact,
+                    search.mapping.wavelength_rms_nm,
+                    lead,
+                    grid,
                 )
+                # The dips sit at the solar list's wavelengths, which the spectrum's scale does
+                # not move (it only says which dips are there, to ≥ 1 nm).
+                features.details["line_centres_from_spectrum"] = []
                 details["line_source"] = f"absorption features of {lamp.name}"
             except EstimationError as exc:
                 warnings.append(f"the absorption refinement failed ({exc}); the profile fit stands")

@@ -1,0 +1,101 @@
+"""The absorption-line (Fraunhofer) mapping's validation analog and its guard against a wrong basin.
+
+The synthetic sunlight (:mod:`calib.evaluation.validation.solar`) must carry the feature shapes that
+bias a mapping — a G band lopsided to the violet, an O₂ B band with its head near 686.7 nm and its
+tail to the red — and the dips' mapping must not leave the whole-profile fit for a far basin
+(``locate._dips_near_profile_fit``; judged on ``bench/solar_validate.py``).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+import calib.wavelength.locate as locate
+from calib.core.errors import EstimationError
+from calib.core.mapping import QuadraticMapping
+from calib.evaluation.validation.solar import STEP_NM, synthetic_sunlight
+
+
+@pytest.fixture(scope="module")
+def depth_at_1nm() -> tuple[np.ndarray, np.ndarray]:
+    sun = synthetic_sunlight()
+    blurred = ndimage.gaussian_filter1d(sun.values, 1.0 / 2.3548 / STEP_NM)
+    envelope = blurred.copy()
+    for _ in range(6):
+        envelope = ndimage.gaussian_filter1d(np.maximum(envelope, blurred), 3.0 / STEP_NM)
+    return sun.wavelength_nm, 1.0 - blurred / envelope
+
+
+def _deepest(axis: np.ndarray, depth: np.ndarray, lo: float, hi: float) -> float:
+    inside = (axis >= lo) & (axis <= hi)
+    return float(axis[inside][np.argmax(depth[inside])])
+
+
+def test_sunlight_features_where_physics_puts_them(depth_at_1nm):
+    axis, depth = depth_at_1nm
+    # Single symmetric lines: their minimum is their centre at any resolution.
+    assert abs(_deepest(axis, depth, 654.0, 659.0) - 656.28) < 0.1  # H alpha
+    assert abs(_deepest(axis, depth, 484.0, 488.0) - 486.13) < 0.1  # H beta
+    # The D doublet at 1 nm: one dip between D2 589.00 and D1 589.59.
+    assert 589.0 < _deepest(axis, depth, 587.0, 592.0) < 589.6
+    # The O2 B band: its head near 686.7–687.2 nm, its P-branch tail deeper on the red side than
+    # the continuum on the blue side.
+    assert 686.6 < _deepest(axis, depth, 684.0, 696.0) < 687.4
+    red = float(np.mean(depth[(axis > 688.0) & (axis < 692.0)]))
+    blue = float(np.mean(depth[(axis > 682.0) & (axis < 686.0)]))
+    assert red > 3.0 * max(blue, 0.01)
+    # The G band: CH lines spread over 429–431.5 nm, more absorption to the violet of Fe I
+    # 430.79 than to its red (within 1.5 nm).
+    violet = float(np.mean(depth[(axis > 429.3) & (axis < 430.7)]))
+    redward = float(np.mean(depth[(axis > 430.9) & (axis < 432.3)]))
+    assert violet > redward
+
+
+def _mapping(offset_nm: float) -> QuadraticMapping:
+    return QuadraticMapping(0.0, 0.3, 400.0 + offset_nm, pixel_range=(0.0, 1000.0))
+
+
+def test_dips_refitted_from_the_profile_fit_when_far(monkeypatch):
+    lead: Any = SimpleNamespace(pixel=np.arange(0.0, 1001.0), lamp="lamp", grid=None)
+    profile_fit = _mapping(0.0)
+    calls = []
+
+    def fake_map_lines(lamp, lines, prior, *, start, directions, grid, **kwargs):
+        calls.append(start)
+        return SimpleNamespace(exact=_mapping(0.3))
+
+    monkeypatch.setattr(locate, "_map_lines", fake_map_lines)
+
+    def guarded(afresh: Any, profile_sigma_nm: float) -> Any:
+        return locate._dips_near_profile_fit(
+            afresh, lead.lamp, (), None, profile_fit, profile_sigma_nm, lead, lead.grid
+        )
+
+    near: Any = SimpleNamespace(exact=_mapping(1.0))
+    # Within DISAGREEMENT_NM of a fit that states 0.8 nm: the afresh match stands.
+    assert guarded(near, 0.8) is near
+    assert not calls
+    # 40 nm away (a wrong basin): fitted again from the profile fit.
+    far: Any = SimpleNamespace(exact=_mapping(40.0))
+    again = guarded(far, 0.8)
+    assert calls == [profile_fit] and abs(again.exact.c - 400.3) < 1e-9
+    # Nothing matched afresh: the same.
+    assert guarded(None, 0.8) is not None
+    # A profile fit that states 20 nm cannot overrule a match 40 nm away.
+    calls.clear()
+    assert guarded(far, 20.0) is far
+    assert not calls
+
+
+def test_dips_refused_when_the_refit_leaves_the_profile_fit(monkeypatch):
+    lead: Any = SimpleNamespace(pixel=np.arange(0.0, 1001.0), grid=None)
+    lamp: Any = "lamp"
+    afresh: Any = SimpleNamespace(exact=_mapping(40.0))
+    monkeypatch.setattr(locate, "_map_lines", lambda *a, **k: SimpleNamespace(exact=_mapping(30.0)))
+    with pytest.raises(EstimationError, match="whole-profile fit"):
+        locate._dips_near_profile_fit(afresh, lamp, (), None, _mapping(0.0), 0.8, lead, lead.grid)
