@@ -570,3 +570,177 @@ def test_the_mapping_fit_widens_sigma_where_the_list_or_where_the_model_is_short
     _, _, sigma = _fit_with_model_scatter(family, x0, pixels, cubic, stated, used)
     widening = sigma / stated
     assert widening[sharp].min() > 2.0 * widening[~sharp].max()
+
+
+# ------------------------------------------------- lines a lamp shows; lines too few to hold
+
+
+def test_only_the_lines_a_measured_spectrum_shows_are_kept():
+    """The twin's FL2 has Hg 404.7, 435.8, 546.1 and the 577/579 doublet, not 407.8 or 491.6 (a
+    CIE table's bins hold only those): a camera feature matched to 491.6 there was a phosphor's
+    shape 1.0–2.2 nm off, and 407.8 moved the 404.7 blend's centre by 0.24 nm. A lamp that has a
+    line at its listed share keeps it."""
+    from calib.wavelength.features import lines_shown
+
+    hg = line_list("hg")
+    lamp = _halophosphate(2.5)
+    for bandwidth_nm, step_nm in ((1.5, 0.4), (4.0, 1.0)):
+        measured = _measured(lamp, bandwidth_nm, step_nm)
+        shown = lines_shown(measured.wavelength_nm, measured.values, hg, bandwidth_nm)
+        assert {line.label for line in shown} == {
+            "Hg 404.7",
+            "Hg 435.8",
+            "Hg 546.1",
+            "Hg 577.0",
+            "Hg 579.1",
+        }
+    # 491.6 at its listed share of 435.8 (80 : 4000), which the lamp above draws 2.5 × its band.
+    sigma = 0.5 / 2.355
+    peak = float(lamp.values.max())
+    with_491 = Spectrum(
+        lamp.wavelength_nm,
+        lamp.values + 0.02 * peak * np.exp(-0.5 * ((lamp.wavelength_nm - 491.607) / sigma) ** 2),
+    )
+    measured = _measured(with_491, 1.5, 0.4)
+    shown = lines_shown(measured.wavelength_nm, measured.values, hg, 1.5)
+    assert "Hg 491.6" in {line.label for line in shown}
+
+
+@pytest.mark.slow
+def test_a_measured_lamps_table_has_no_line_the_lamp_lacks(camera, prior):
+    """The twin-like case end to end: a camera slit wide enough to blend 404.7 with 407.8 (which
+    the lamp lacks); the matched-line table holds the lamp's lines only."""
+    observations = []
+    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
+        (_halophosphate(2.5), "fluorescent"),
+        (lamp_from_spec("LED-B3"), "led"),
+    )
+    for lamp, kind in lamps:
+        rendered = render_observation(
+            lamp,
+            camera,
+            mapping=_RIG_TRUTH,
+            pixel=_RIG_PIXEL,
+            slit_width_px=6.0,
+            psf_sigma_px=0.8,
+            noise=PeakFractionNoise(0.002),
+            rng=np.random.default_rng(7),
+            fine_step_nm=0.05,
+            kind=kind,
+        ).observation
+        observations.append(
+            replace(
+                rendered,
+                spectrum=_measured(lamp, 4.0, 1.0),
+                spectrum_bandwidth_nm=4.0,
+                pixel_origin="direct_spot",
+            )
+        )
+    solution = locate_mapping(observations, prior, DEFAULT_GRID)
+    labels = {row["line"] for row in solution.matched_lines}
+    assert "Hg 404.7" in labels
+    assert not any("407.8" in label or "491.6" in label for label in labels)
+
+
+def test_a_line_spread_narrower_than_two_samples_is_not_one_sample_wide():
+    """A 0.19/0.60/0.19 line spread (FWHM ≈ 1.5 samples) has one sample above half its maximum;
+    a feature fit one sample wide has too few samples (the validation split's Nikon D40 failed)."""
+    from calib.wavelength.locate import MIN_FWHM_PX, fwhm_px
+
+    observation = LampObservation(
+        name="FL2",
+        pixel=np.arange(10.0),
+        profile=np.ones((10, 3)),
+        spectrum=lamp_from_spec("FL2"),
+        line_spread=np.array([0.0, 0.007, 0.193, 0.599, 0.193, 0.007, 0.0]),
+    )
+    assert fwhm_px(observation) == MIN_FWHM_PX
+
+
+def _two_line_profile(camera: MultiSpectrum) -> LampObservation:
+    """Hg 435.8 and 546.1 alone (the rest of the list too dim to show) through :data:`_RIG_TRUTH`."""
+    hg = builtin_lamp("builtin:hg")
+    near = np.min(np.abs(hg.wavelength_nm[:, None] - np.array([435.83, 546.07])), axis=1) < 3.0
+    lamp = Spectrum(hg.wavelength_nm, np.where(near, hg.values, 0.0), name="builtin:hg")
+    return render_observation(
+        lamp,
+        camera,
+        mapping=_RIG_TRUTH,
+        pixel=_RIG_PIXEL,
+        slit_width_px=2.0,
+        psf_sigma_px=0.8,
+        noise=PeakFractionNoise(0.002),
+        rng=np.random.default_rng(3),
+        fine_step_nm=0.05,
+        kind="fluorescent",
+    ).observation
+
+
+def test_too_few_lines_correct_a_profile_fit_they_are_anchored_to(camera):
+    """Two lines cannot hold the grating family (three free parameters): alone they are refused.
+    Anchored to a whole-profile fit (here the truth 1.5 nm off at the ends, stated σ 1 nm), the
+    joint fit passes through the lines and follows the anchor elsewhere, within its σ."""
+    from calib.wavelength.features import ProfileAnchor
+
+    observation = _two_line_profile(camera)
+    pixel = observation.pixel
+    family = GratingFamily(grating_prior(focal_length_px=2500.0, incidence_sigma_deg=5.0))
+    truth_nm = _RIG_TRUTH.wavelength_nm(pixel)
+    # The profile fit: the truth stretched about its middle, ±1.5 nm at the ends, stated σ 1 nm
+    # at its ends and middle (independently).
+    tilt = 1.5 * (pixel - pixel.mean()) / (0.5 * np.ptp(pixel))
+    fit = QuadraticMapping.fit(pixel, truth_nm + tilt)
+    ends = np.array([pixel[0], pixel.mean(), pixel[-1]])
+    anchor = ProfileAnchor(ends, fit.wavelength_nm(ends), np.eye(3))
+    arguments = {"family": family, "fwhm_px": 2.5, "start": fit}
+    hg = line_list("hg")
+    with pytest.raises(EstimationError):
+        map_features(pixel, observation.profile, hg, **arguments)  # type: ignore[arg-type]
+    found = map_features(pixel, observation.profile, hg, anchor=anchor, **arguments)  # type: ignore[arg-type]
+    table = {row["line"]: row for row in found.table()}
+    assert set(table) == {"Hg 435.8", "Hg 546.1"}
+    for row in table.values():
+        assert abs(row["residual_nm"]) < 0.05
+    error = found.exact.wavelength_nm(pixel) - truth_nm
+    assert float(np.max(np.abs(error))) < 2.0 * 1.5
+    # The lines moved the fit towards the truth between them.
+    between = (truth_nm > 436.0) & (truth_nm < 546.0)
+    assert float(np.max(np.abs(error[between]))) < 0.5 * float(np.max(np.abs(tilt[between])))
+
+
+@pytest.mark.slow
+def test_a_listed_lamp_with_too_few_lines_is_mapped_jointly_with_a_measured_one(camera, prior):
+    """Issue 16's "A + FL unmeasured, no direct" failures: an Hg lamp nobody measured
+    (``builtin:hg``) that shows two lines, and a halogen lamp with its spectrum. The lines alone
+    cannot hold the grating; anchored to the halogen's whole-profile fit they correct it, and the
+    stated σ holds the result over the grid."""
+    lines = replace(
+        _two_line_profile(camera), spectrum=builtin_lamp("builtin:hg"), pixel_origin="direct_spot"
+    )
+    halogen = render_observation(
+        lamp_from_spec("A"),
+        camera,
+        mapping=_RIG_TRUTH,
+        pixel=_RIG_PIXEL,
+        slit_width_px=2.0,
+        psf_sigma_px=0.8,
+        noise=PeakFractionNoise(0.002),
+        rng=np.random.default_rng(4),
+        fine_step_nm=0.05,
+        kind="halogen",
+    ).observation
+    halogen = replace(halogen, spectrum_bandwidth_nm=1.0, pixel_origin="direct_spot")
+    with pytest.raises(EstimationError, match="could not be matched"):
+        locate_mapping([lines], prior, DEFAULT_GRID)
+    solution = locate_mapping([lines, halogen], prior, DEFAULT_GRID)
+    assert "anchored to the whole-profile fit of" in solution.details["line_source"]
+    assert {row["line"] for row in solution.matched_lines} == {"Hg 435.8", "Hg 546.1"}
+    pixel = _RIG_PIXEL
+    truth_nm = _RIG_TRUTH.wavelength_nm(pixel)
+    inside = (truth_nm >= DEFAULT_GRID.start_nm) & (truth_nm <= DEFAULT_GRID.stop_nm)
+    covariance = np.asarray(solution.mapping.covariance)
+    design = np.stack([pixel**2, pixel, np.ones_like(pixel)], axis=1)
+    sigma = np.sqrt(np.einsum("ij,jk,ik->i", design, covariance, design))
+    error = solution.mapping.wavelength_nm(pixel) - truth_nm
+    assert np.all(np.abs(error[inside]) <= 2.0 * sigma[inside])
+    assert float(np.max(np.abs(error[inside]))) < 1.0

@@ -88,6 +88,25 @@ STEP_TOLERANCE = 1e-4
 START_ITERATIONS = 100
 #: Refits that settle the shared model scatter (:func:`_fit_with_model_scatter`).
 SCATTER_ROUNDS = 4
+#: σ floor (nm) of a :class:`ProfileAnchor`'s wavelengths: numerical only (a line's own σ is
+#: ≥ :data:`MODEL_ERROR_NM`).
+ANCHOR_FLOOR_NM = 1e-3
+#: A listed line a measured spectrum shows at less than this fraction of the height the list's
+#: strengths predict is taken as absent (:func:`lines_shown`): a list's strengths are a typical
+#: lamp's, not this one's (:func:`_support`), so a line well below its listed share is still
+#: shown; one the lamp lacks fits near zero.
+SHOWN_FRACTION = 0.25
+#: ... and its blend at the spectrum's resolution stands this many of its σ (from the fit's
+#: residual: noise and the background's misfit) above zero: a line the spectrum cannot tell from
+#: its band is not shown (the twin's 8 nm PR-655
+#: spectra put the absent Hg 491.6 at −0.3 to +0.5 of its listed share, one repeat in 22 above
+#: :data:`SHOWN_FRACTION`).
+SHOWN_SIGMA = 3.0
+#: Half width (in the spectrum's resolutions) of the window each line's height is fitted in.
+SHOWN_WINDOW = 2.5
+#: Lines a line fit anchored to a whole-profile fit needs (:class:`ProfileAnchor`): two fix the
+#: offset and the scale the broadband fit is least sure of; one would only shift it.
+MIN_ANCHORED_FEATURES = 2
 
 
 @dataclass(frozen=True)
@@ -173,6 +192,72 @@ class FeatureMapping:
     def table(self) -> list[dict[str, Any]]:
         """The matched-line table (see :meth:`FeatureMatch.row`)."""
         return [match.row() for match in self.matches]
+
+
+@dataclass(frozen=True)
+class ProfileAnchor:
+    """A whole-profile fit as a Gaussian constraint on a line fit: its wavelengths at the ends and
+    middle of the profile with their covariance (the quadratic report's, a Laplace approximation
+    of the fit's likelihood). With it, the lines a lamp does show correct the broadband fit where
+    they lie and the fit holds the mapping's other degrees of freedom — one mapping fitting both —
+    where too few lines would not hold the family on their own (:func:`map_features`).
+
+    Attributes
+    ----------
+    pixels, wavelength_nm
+        ``(3,)``: where the constraint is placed and the fit's wavelengths there.
+    covariance_nm2
+        ``(3, 3)``: their covariance.
+    """
+
+    pixels: FloatArray
+    wavelength_nm: FloatArray
+    covariance_nm2: FloatArray
+
+    @classmethod
+    def from_mapping(
+        cls,
+        mapping: QuadraticMapping,
+        pixel_range: tuple[float, float],
+        centre: ExactMapping | None = None,
+    ) -> ProfileAnchor:
+        """The anchor of a whole-profile fit's report form (it must carry its covariance);
+        ``centre``: another basin of the same fit, placed with that covariance."""
+        if mapping.covariance is None:
+            raise EstimationError(
+                "the whole-profile fit carries no covariance to anchor lines with"
+            )
+        pixels = np.array([pixel_range[0], 0.5 * (pixel_range[0] + pixel_range[1]), pixel_range[1]])
+        design = np.stack([pixels**2, pixels, np.ones(3)], axis=1)
+        covariance = design @ np.asarray(mapping.covariance, dtype=np.float64) @ design.T
+        # A floor far below any line's σ keeps the whitening finite for a fit stated exact.
+        covariance = 0.5 * (covariance + covariance.T) + np.eye(3) * ANCHOR_FLOOR_NM**2
+        at = (mapping if centre is None else centre).wavelength_nm(pixels)
+        return cls(pixels, np.asarray(at, dtype=np.float64), covariance)
+
+    @property
+    def rows(self) -> int:
+        return int(self.pixels.size)
+
+    def whitening(self) -> FloatArray:
+        """``W`` with ``Wᵀ W = covariance⁻¹`` (rows ``W (λ − λ_fit)`` are unit normal)."""
+        return np.asarray(np.linalg.inv(np.linalg.cholesky(self.covariance_nm2)), dtype=np.float64)
+
+    def residual(
+        self, family: Family, x: FloatArray, with_jacobian: bool
+    ) -> tuple[FloatArray, FloatArray | None] | None:
+        """The whitened rows at ``x`` and their Jacobian ``(3, P)`` (``None``: ``x`` invalid)."""
+        if isinstance(family, GratingFamily):
+            evaluated = family.evaluate(self.pixels, x, with_jacobian=with_jacobian)
+            if evaluated is None:
+                return None
+            wavelengths, jacobian = evaluated
+        else:
+            wavelengths = family.wavelengths(self.pixels, x)
+            jacobian = family.jacobian(self.pixels, x) if with_jacobian else None
+        whitening = self.whitening()
+        rows = whitening @ (wavelengths - self.wavelength_nm)
+        return rows, None if jacobian is None else whitening @ jacobian
 
 
 # --------------------------------------------------------------------------------- the signal
@@ -705,6 +790,88 @@ def spectrum_line_centres(
     }
 
 
+def lines_shown(
+    wavelength_nm: FloatArray,
+    values: FloatArray,
+    lines: Sequence[Line],
+    resolution_nm: float,
+) -> tuple[Line, ...]:
+    """The emission ``lines`` a lamp's measured spectrum shows: each line's height fitted at its
+    wavelength (a Gaussian of the spectrum's ``resolution_nm``, never finer than its sampling,
+    over a quadratic background, by linear least squares; lines whose windows of
+    ±:data:`SHOWN_WINDOW` resolutions overlap fitted together), kept when it is at least
+    :data:`SHOWN_FRACTION` of what the list's strengths predict from the strongest listed line
+    the spectrum holds, and its blend at the spectrum's resolution (lines closer than it) at
+    least :data:`SHOWN_SIGMA` of its σ above zero. A line list is every line a species may emit; a lamp need not show them
+    all (the twin's FL2 has no Hg 407.8 or 491.6: a camera feature matched to one there is a
+    phosphor's shape, not the line).
+
+    Lines outside the spectrum, or with too few samples around them, are kept (nothing says they
+    are absent).
+    """
+    axis = np.asarray(wavelength_nm, dtype=np.float64)
+    spectrum = np.asarray(values, dtype=np.float64)
+    ordered = sorted(lines, key=_line_nm)
+    if axis.size < 8 or not ordered:
+        return tuple(ordered)
+    step = float(np.median(np.diff(axis)))
+    width = max(float(resolution_nm), step)
+    sigma = width / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    groups: list[list[Line]] = [[ordered[0]]]
+    for line in ordered[1:]:
+        if line.wavelength_nm - groups[-1][-1].wavelength_nm < 2.0 * SHOWN_WINDOW * width:
+            groups[-1].append(line)
+        else:
+            groups.append([line])
+    heights: dict[str, float] = {}
+    significance: dict[str, bool] = {}
+    for group in groups:
+        lo = group[0].wavelength_nm - SHOWN_WINDOW * width
+        hi = group[-1].wavelength_nm + SHOWN_WINDOW * width
+        inside = (axis >= lo) & (axis <= hi)
+        if lo < axis[0] or hi > axis[-1] or np.count_nonzero(inside) < len(group) + 4:
+            continue
+        x = axis[inside]
+        middle = 0.5 * (lo + hi)
+        design = np.column_stack(
+            [((x - middle) / width) ** k for k in range(3)]
+            + [np.exp(-0.5 * ((x - line.wavelength_nm) / sigma) ** 2) for line in group]
+        )
+        solution, *_ = np.linalg.lstsq(design, spectrum[inside], rcond=None)
+        residual = spectrum[inside] - design @ solution
+        dof = max(x.size - design.shape[1], 1)
+        covariance = np.linalg.pinv(design.T @ design) * float(residual @ residual) / dof
+        heights.update(zip((line.label for line in group), solution[3:].tolist(), strict=True))
+        # Lines closer than the resolution are told from the band together (their split is
+        # degenerate): each is judged by its blend's summed height against that sum's σ.
+        first = 0
+        for end in range(1, len(group) + 1):
+            if end < len(group) and group[end].wavelength_nm - group[end - 1].wavelength_nm < width:
+                continue
+            members = slice(3 + first, 3 + end)
+            total = float(np.sum(solution[members]))
+            total_sigma = math.sqrt(max(float(np.sum(covariance[members, members])), 0.0))
+            significant = total >= SHOWN_SIGMA * total_sigma
+            significance.update((line.label, significant) for line in group[first:end])
+            first = end
+    fitted = [line for line in ordered if line.label in heights]
+    if not fitted:
+        return tuple(ordered)
+    reference = max(fitted, key=lambda line: line.strength)
+    scale = heights[reference.label] / reference.strength
+    if not scale > 0:
+        return tuple(ordered)
+    return tuple(
+        line
+        for line in ordered
+        if line.label not in heights
+        or (
+            heights[line.label] >= SHOWN_FRACTION * scale * line.strength
+            and significance[line.label]
+        )
+    )
+
+
 def _line_nm(line: Line) -> float:
     return line.wavelength_nm
 
@@ -719,10 +886,13 @@ def fit_mapping_to_points(
     wavelengths_nm: FloatArray,
     sigma_nm: FloatArray,
     max_iterations: int = FIT_ITERATIONS,
+    anchor: ProfileAnchor | None = None,
 ) -> tuple[FloatArray, FloatArray, float]:
-    """Weighted least squares of a family through ``(pixel, λ ± σ)`` points (and its prior rows).
+    """Weighted least squares of a family through ``(pixel, λ ± σ)`` points (and its prior rows,
+    and an ``anchor``'s: a whole-profile fit the points correct).
 
-    Returns the parameters, their covariance (scaled by the reduced χ² when it exceeds 1) and χ².
+    Returns the parameters, their covariance (scaled by the reduced χ² when it exceeds 1) and χ²
+    (the points' and the anchor's rows).
     """
 
     span = (float(pixels.min()), float(pixels.max()))
@@ -739,10 +909,18 @@ def fit_mapping_to_points(
             wavelengths = family.wavelengths(pixels, x)
             wavelength_jacobian = family.jacobian(pixels, x) if with_jacobian else None
             rows, row_jacobian = np.zeros(0), np.zeros((0, x.size))
-        residual = np.concatenate([(wavelengths - wavelengths_nm) / sigma_nm, rows])
-        if wavelength_jacobian is None:
+        anchored: tuple[FloatArray, FloatArray | None] = (np.zeros(0), np.zeros((0, x.size)))
+        if anchor is not None:
+            evaluated_anchor = anchor.residual(family, x, with_jacobian)
+            if evaluated_anchor is None:
+                return None
+            anchored = evaluated_anchor
+        residual = np.concatenate([(wavelengths - wavelengths_nm) / sigma_nm, anchored[0], rows])
+        if wavelength_jacobian is None or anchored[1] is None:
             return residual, None
-        return residual, np.concatenate([wavelength_jacobian / column_sigma, row_jacobian])
+        return residual, np.concatenate(
+            [wavelength_jacobian / column_sigma, anchored[1], row_jacobian]
+        )
 
     solution = levenberg_marquardt(
         function,
@@ -752,7 +930,7 @@ def fit_mapping_to_points(
         geodesic=True,
         step_tolerance=STEP_TOLERANCE,
     )
-    data_rows = pixels.size
+    data_rows = pixels.size + (0 if anchor is None else anchor.rows)
     chi2 = float(np.sum(solution.residual[:data_rows] ** 2))
     dof = max(data_rows - x0.size, 1)
     covariance = solution.covariance(scale_by_fit=False) * max(chi2 / dof, 1.0)
@@ -801,6 +979,7 @@ def map_features(
     range_nm: tuple[float, float] = (380.0, 720.0),
     moments: bool = False,
     centres: Mapping[str, tuple[float, float]] | None = None,
+    anchor: ProfileAnchor | None = None,
 ) -> FeatureMapping:
     """The mapping through a profile's features (see the module docstring).
 
@@ -833,7 +1012,13 @@ def map_features(
     centres
         With ``moments``: ``{label: (nm, σ nm)}`` of single lines placed by the lamp's measured
         spectrum (:func:`spectrum_line_centres`), used instead of the list's wavelengths.
+    anchor
+        A whole-profile fit (with ``start``, its mapping) that the features correct: fitted
+        jointly with them, so :data:`MIN_ANCHORED_FEATURES` features suffice
+        (:class:`ProfileAnchor`).
     """
+    if anchor is not None and start is None:
+        raise InputError("an anchored line fit starts from its whole-profile fit", source="start")
     if not lines:
         raise InputError("no lines to match", source="line list")
     kind = kind or lines[0].kind
@@ -896,6 +1081,7 @@ def map_features(
                     pixel_range,
                     moments,
                     centres or {},
+                    anchor,
                 )
             )
         except (EstimationError, ValueError, np.linalg.LinAlgError):
@@ -993,8 +1179,10 @@ def _refine(
     pixel_range: tuple[float, float],
     moments: bool = False,
     centres: Mapping[str, tuple[float, float]] | None = None,
+    anchor: ProfileAnchor | None = None,
 ) -> _Outcome:
-    """Fit the features where ``mapping`` puts them, the mapping through them; :data:`ROUNDS`."""
+    """Fit the features where ``mapping`` puts them, the mapping through them (and ``anchor``'s
+    whole-profile fit, when given); :data:`ROUNDS`."""
     # The family starts where the hypothesis is supported (between the features it predicts
     # inside the profile): a quadratic through a few lines says little beyond them.
     inside = []
@@ -1026,6 +1214,9 @@ def _refine(
         # equation.
         prior_row = moments and isinstance(family, GratingFamily) and bool(family.prior.soft())
         needed = x.size + (0 if prior_row else 1)
+        if anchor is not None:
+            # The whole-profile fit holds the family; the features correct it.
+            needed = MIN_ANCHORED_FEATURES
         if len(fitted) < needed:
             raise EstimationError(
                 f"only {len(fitted)} of the list's features were found in the profile; the mapping "
@@ -1048,11 +1239,11 @@ def _refine(
         stated = sigma
         while True:
             x, covariance, sigma = _fit_with_model_scatter(
-                family, x, pixels, references, stated, used
+                family, x, pixels, references, stated, used, anchor
             )
             normalised = np.abs(family.wavelengths(pixels, x) - references) / sigma
             worst = int(np.argmax(np.where(used, normalised, -1.0)))
-            if normalised[worst] <= OUTLIER_SIGMA or used.sum() <= x.size + 1:
+            if normalised[worst] <= OUTLIER_SIGMA or used.sum() <= needed:
                 break
             used[worst] = False
     final = family.mapping(x)
@@ -1074,6 +1265,7 @@ def _fit_with_model_scatter(
     references: FloatArray,
     stated_nm: FloatArray,
     used: FloatArray,
+    anchor: ProfileAnchor | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The family through the ``used`` points, their σ widened where the fit says they are short.
 
@@ -1087,15 +1279,20 @@ def _fit_with_model_scatter(
     the others' cost where the model is what misfits, and an outlier is judged against the
     scatter the family actually leaves. Returns the parameters, their covariance and the widened
     σ of every point.
+
+    With an ``anchor`` (a whole-profile fit the points correct) its rows count as data, and only
+    the first explanation is weighed: the family's misfit is then the anchor's as much as the
+    points', and the covariance is already scaled by the whole χ² (:func:`fit_mapping_to_points`).
     """
-    dof = max(int(used.sum()) - x.size, 1)
+    extra_rows = 0 if anchor is None else anchor.rows
+    dof = max(int(used.sum()) + extra_rows - x.size, 1)
     x_list, covariance_list, _ = fit_mapping_to_points(
-        family, x, pixels[used], references[used], stated_nm[used]
+        family, x, pixels[used], references[used], stated_nm[used], anchor=anchor
     )
     residual = (family.wavelengths(pixels, x_list) - references)[used]
     factor = max(float(np.sqrt(np.sum((residual / stated_nm[used]) ** 2) / dof)), 1.0)
     best = (x_list, covariance_list, stated_nm * factor)
-    if factor == 1.0:
+    if factor == 1.0 or anchor is not None:
         return best
     best_likelihood = _log_likelihood(residual, stated_nm[used] * factor)
     scatter_nm, x_model, covariance_model = 0.0, x_list, covariance_list

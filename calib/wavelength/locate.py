@@ -46,7 +46,7 @@ from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
 from calib.model.resolution import COARSE_SLIT_NM, FWHM_PER_SIGMA, camera_kernel
 from calib.wavelength.families import GratingFamily, GratingPrior
-from calib.wavelength.features import FeatureMapping, map_features
+from calib.wavelength.features import FeatureMapping, ProfileAnchor, map_features
 from calib.wavelength.profile_search import (
     HOPELESS_DELTA_CHI2,
     MappingSearch,
@@ -75,6 +75,11 @@ DIP_SAMPLING_NM = 1.0
 KNOWN_LINE_WARNING_NM = 0.3
 #: Line width (FWHM, profile samples) assumed when neither a line spread nor the profile tells.
 DEFAULT_FWHM_PX = 4.0
+#: Narrowest line width (FWHM, profile samples) taken from a line spread or a profile: a line
+#: narrower than two samples has one sample above half its maximum, whatever its true width
+#: (1–2 samples), and a feature fit a sample wide has too few samples to fit (the twin's D40:
+#: a 0.19/0.60/0.19 spread, FWHM ≈ 1.5 samples, counted 1).
+MIN_FWHM_PX = 1.5
 #: A line-based mapping this far (RMS, nm) from the whole-profile start it was refined from is
 #: reported (the two sources disagree: a wrong line list or a wrong lamp).
 DISAGREEMENT_NM = 2.0
@@ -121,7 +126,7 @@ def fwhm_px(observation: LampObservation, kind: str = "emission") -> float:
     if observation.line_spread is not None and observation.line_spread.size > 1:
         spread = observation.line_spread
         above = np.flatnonzero(spread >= 0.5 * float(spread.max()))
-        return float(max(above[-1] - above[0] + 1, 1))
+        return float(max(above[-1] - above[0] + 1, MIN_FWHM_PX))
     from scipy import ndimage, signal
 
     total = np.sum(observation.profile, axis=1)
@@ -140,7 +145,7 @@ def fwhm_px(observation: LampObservation, kind: str = "emission") -> float:
     widths = signal.peak_widths(values, peaks, rel_height=0.5)[0]
     strongest = np.argsort(properties["prominences"])[::-1][:5]
     # The narrowest of the strong ones: others are blends or bands.
-    return float(max(np.min(widths[strongest]), 1.5))
+    return float(max(np.min(widths[strongest]), MIN_FWHM_PX))
 
 
 def _grating_prior_for(
@@ -194,11 +199,13 @@ def _map_lines(
     dispersion_nm_per_px: float | None = None,
     moments: bool = False,
     centres: dict[str, tuple[float, float]] | None = None,
+    anchor: ProfileAnchor | None = None,
 ) -> FeatureMapping:
     """Lines of one lamp through the physical family, in each allowed direction; the better kept.
 
     ``dispersion_nm_per_px`` (a whole-profile fit's) narrows the line matching when there is no
-    ``start`` to follow; ``moments`` and ``centres``: :func:`calib.wavelength.features.map_features`'."""
+    ``start`` to follow; ``moments``, ``centres`` and ``anchor``:
+    :func:`calib.wavelength.features.map_features`'."""
     kind = lines[0].kind
     width = fwhm_px(lamp, kind)
     outcomes = []
@@ -220,6 +227,7 @@ def _map_lines(
                     range_nm=(grid.start_nm - 30.0, grid.stop_nm + 30.0),
                     moments=moments,
                     centres=centres,
+                    anchor=anchor,
                 )
             )
         except (EstimationError, ValueError) as exc:
@@ -496,8 +504,9 @@ def locate_mapping(
     # σ of a whole-profile fit that a measured lamp's lines could not correct, from how far it
     # misplaces them (when larger than the fit's own).
     fallback_sigma_nm: float | None = None
-    if measured and not listed:
-        search = search_profiles(
+
+    def profile_search() -> MappingSearch:
+        return search_profiles(
             measured,
             prior,
             grid,
@@ -509,16 +518,32 @@ def locate_mapping(
             orientation=orientation,
         )
 
+    if measured and not listed:
+        search = profile_search()
+
     features: FeatureMapping | None = None
     if listed:
         lamp, lines = max(listed, key=lambda item: len(item[1] or ()))
         assert lines is not None
         # The lines decide: a broadband lamp's whole-profile fit is not needed (nor trusted) to
         # start them.
-        features = _map_lines(
-            lamp, lines, grating_prior, start=None, directions=directions, grid=grid
-        )
-        details["line_source"] = f"{lamp.spectrum.name} (built-in list)"
+        try:
+            features = _map_lines(
+                lamp, lines, grating_prior, start=None, directions=directions, grid=grid
+            )
+            details["line_source"] = f"{lamp.spectrum.name} (built-in list)"
+        except EstimationError as alone:
+            if not measured:
+                raise
+            # Too few of its lines above the noise to hold the family alone (a dim Hg 404.7:
+            # 435.8, 546.1 and the 577/579 blend): the measured lamps' whole-profile fit holds
+            # it, and the lines the lamp does show correct that fit — one fit of both.
+            search = profile_search()
+            features = _anchored_lines(lamp, lines, search, grating_prior, grid, lead, alone)
+            details["line_source"] = (
+                f"{lamp.spectrum.name} (built-in list) anchored to the whole-profile fit of "
+                + ", ".join(other.name for other in measured)
+            )
     elif search is not None:
         # A measured source that resolves absorption dips (sunlight at ≤ 1 nm) is refined
         # through them; a table coarser than its dips (D65's) would put them at its nodes.
@@ -738,6 +763,46 @@ def _lines_from_basins(
         raise first
 
 
+def _anchored_lines(
+    lamp: LampObservation,
+    lines: Sequence[Line],
+    search: MappingSearch,
+    prior: GratingPrior | None,
+    grid: WavelengthGrid,
+    lead: LampObservation,
+    alone: EstimationError,
+) -> FeatureMapping:
+    """A listed lamp's lines fitted jointly with the measured lamps' whole-profile fit
+    (:class:`~calib.wavelength.features.ProfileAnchor`): from the fit's best basin, else from
+    each other basin the profiles do not rule out (:func:`_lines_from_basins`' rule). ``alone``
+    is why the lines could not hold the mapping by themselves (raised with the joint fit's error
+    when that fails too)."""
+    pixel_range = (float(lead.pixel[0]), float(lead.pixel[-1]))
+    # Another basin is placed with the best one's covariance (the search states only that).
+    starts = [search.exact] + [
+        candidate.mapping
+        for candidate in search.candidates[1:]
+        if candidate.closest_delta_chi2 <= HOPELESS_DELTA_CHI2
+    ]
+    errors: list[str] = []
+    for start in starts:
+        try:
+            return _map_lines(
+                lamp,
+                lines,
+                prior,
+                start=start,
+                directions=(_direction(start, lead),),
+                grid=grid,
+                anchor=ProfileAnchor.from_mapping(search.mapping, pixel_range, start),
+            )
+        except EstimationError as exc:
+            errors.append(str(exc))
+    raise EstimationError(
+        f"{alone}; anchored to the whole-profile fit: {'; '.join(errors) or 'no fit with a σ'}"
+    )
+
+
 def _measured_lines(
     lamp: LampObservation,
     start: ExactMapping,
@@ -756,7 +821,7 @@ def _measured_lines(
     nodes); a coarser one's centre of a line on a phosphor band's flank was 0.4–0.8 nm off on
     the twin's PR-655, and the blends' it measured (578.19 nm for the twin's doublet, right) met a
     camera moment 0.3 nm off: those stay with the list."""
-    from calib.wavelength.features import features_at, spectrum_line_centres
+    from calib.wavelength.features import features_at, lines_shown, spectrum_line_centres
 
     lines = tuple(
         line
@@ -771,6 +836,12 @@ def _measured_lines(
     resolution_nm = max(
         lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
     )
+    if resolution_nm <= JUDGING_RESOLUTION * camera_nm:
+        # Only the lines the lamp shows: a camera feature where the list has a line the lamp
+        # lacks is a phosphor band's shape (the twin's FL2 has no 491.6, matched 1.0–1.5 nm
+        # off, nor 407.8, which moved the 404.7 blend's centre by 0.24 nm). A spectrum far
+        # coarser than the camera cannot tell; all are tried then.
+        lines = lines_shown(spectrum.wavelength_nm, spectrum.values, lines, resolution_nm)
     measured = spectrum_line_centres(
         spectrum.wavelength_nm,
         spectrum.values,
