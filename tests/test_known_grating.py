@@ -141,15 +141,17 @@ def test_one_lamps_prior_weight_is_the_evidences(spread: float) -> None:
 
 
 def test_one_lamp_through_a_grating_file_weighs_the_prior_by_the_evidence(basis):
-    """Only one lamp through a file: the assumed-η solves keep the prior at its natural weight,
-    where their σ factors were judged (decision 0075)."""
+    """Only one lamp through a calibration's file (η with σ, where decision 0080 judged it): the
+    assumed-η solves keep the prior at its natural weight, where their σ factors were judged
+    (decision 0075), and so does a maker's curve (no σ: unjudged)."""
     rng, mapping, efficiency, grating = _scene()
     led = _lamp("LED-B3", "led", mapping, efficiency, rng)
-    through_file = estimate_known_grating([led], grating=grating, basis=basis, mapping=mapping)
-    weight = through_file.diagnostics["prior_weight"]
-    assert weight in ONE_LAMP_PRIOR_WEIGHTS
-    assumed = estimate_known_grating([led], grating=None, basis=basis, mapping=mapping)
-    assert assumed.diagnostics["prior_weight"] == 1.0
+    calibrated = replace(grating, efficiency_sigma=np.full(grating.wavelength_nm.size, 0.005))
+    through_file = estimate_known_grating([led], grating=calibrated, basis=basis, mapping=mapping)
+    assert through_file.diagnostics["prior_weight"] in ONE_LAMP_PRIOR_WEIGHTS
+    for given in (None, grating):
+        other = estimate_known_grating([led], grating=given, basis=basis, mapping=mapping)
+        assert other.diagnostics["prior_weight"] == 1.0
 
 
 def test_without_a_grating_a_flat_one_is_assumed_and_recorded(basis):

@@ -283,12 +283,12 @@ def estimate_known_grating(
         inverse_covariance = np.diag(inverse_sigma**2)
     solution = combine_responses(responses, inverse, np.eye(inverse.size), inverse_covariance)
     # The profile of one lamp says little where the lamp is dim: the camera prior fills in there
-    # (η is known, so the prior enters only here). One lamp through a grating file weighs it by
-    # the evidence (decision 0080); elsewhere at its natural weight (the assumed η's σ factors
-    # were judged so, decision 0075).
+    # (η is known, so the prior enters only here). One lamp through a calibration's grating file
+    # (η with σ) weighs it by the evidence (decision 0080, judged there); elsewhere at its natural
+    # weight (the assumed η's σ factors were judged so, decision 0075; a maker's curve is unjudged).
     prior_weight = (
         one_lamp_prior_weight(solution, prior)
-        if grating is not None and len(responses) == 1
+        if _budget_family(grating, assumed) == FILE_EFFICIENCY_MODEL and len(responses) == 1
         else 1.0
     )
     solution = blend_with_prior(
