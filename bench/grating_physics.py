@@ -67,11 +67,20 @@ from calib.methods.multilamp import (
     prepare_lamps,
 )
 from calib.methods.uncertainty import BudgetSettings
+from calib.model.bases import CameraPrior
 from calib.model.gratings import GratingKind, SinusoidalPhaseGrating
+from calib.model.resolution import camera_kernel
+from calib.wavelength import RigGeometry, find_mapping
 from calib.wavelength.rig_prior import rig_geometry
 
 LAMPS = next(v for v in DEFAULT_VARIANTS if v.label == "3 lamps + RGB LEDs").lamps
 PHASE_RAD = 1.0
+#: σ of the true-response prior of :func:`true_response_mapping`, a fraction of each channel's peak:
+#: tight enough that the prior cannot pull the mapping away from the true camera.
+TRUE_RESPONSE_SIGMA = 0.01
+#: The spectrometer's bandwidth (nm, FWHM) of the narrow-slit probe: the low end of the protocol's
+#: 2–10 nm draw (:class:`calib.evaluation.validation.rig_errors.SpectrometerError`).
+NARROW_SLIT_NM = 2.0
 
 
 @dataclass(frozen=True)
@@ -95,9 +104,17 @@ class FlatZerothSheet:
         return {**self.sheet.to_dict(), "flat_zeroth_order": True}
 
 
-def scene(task: Task, grating: Any, camera: Task | None = None) -> RenderedScene:
-    """``task``'s scene through ``grating``; with ``camera``, that camera seen in it instead."""
+def scene(
+    task: Task, grating: Any, camera: Task | None = None, narrow_slit: bool = False
+) -> RenderedScene:
+    """``task``'s scene through ``grating``; with ``camera``, that camera seen in it instead;
+    ``narrow_slit``: its spectrometer at :data:`NARROW_SLIT_NM` sampled every 1 nm (its wavelength
+    offset kept: the probe of decision 0080)."""
     plan, noise = draw_task_plan(task)
+    if narrow_slit and plan.spectrometer is not None:
+        plan = replace(
+            plan, spectrometer=replace(plan.spectrometer, bandwidth_nm=NARROW_SLIT_NM, step_nm=1.0)
+        )
     if camera is not None:
         noise = np.random.default_rng([task.settings.seed, camera.camera.stable_id, 1])
     seen = (camera or task).camera.sensitivity
@@ -126,6 +143,27 @@ def re_of(result: Any, truth: FloatArray) -> float:
     return 100.0 * float(np.mean(channel_relative_errors(result.physical_sensitivity(), truth)))
 
 
+def true_response_mapping(
+    led: LampObservation,
+    grating: GratingEfficiency,
+    grid: WavelengthGrid,
+    truth: FloatArray,
+    true_eta: FloatArray,
+) -> QuadraticMapping:
+    """The one-LED mapping searched as ``known-grating`` searches it (the file's stored geometry, the
+    LED's own line spread), with the camera prior replaced by the *true* response ``η s`` (σ
+    :data:`TRUE_RESPONSE_SIGMA` of each channel's peak): what is left of the mapping's error is not
+    the population prior's pull (decision 0080)."""
+    response = true_eta[:, None] * truth
+    size = grid.size
+    covariance = np.stack(
+        [(TRUE_RESPONSE_SIGMA * float(response[:, c].max())) ** 2 * np.eye(size) for c in range(3)]
+    )
+    prior = CameraPrior(grid, response, covariance, np.zeros(3))
+    rig = None if grating.rig is None else RigGeometry.from_dict(grating.rig)
+    return find_mapping([led], camera=prior, grid=grid, kernel=camera_kernel([led]), rig=rig)
+
+
 def diagnose(
     task: Task,
     rendered: RenderedScene,
@@ -140,7 +178,9 @@ def diagnose(
     file's η error (RMS, % of its peak), then RE with the true mapping, the true η, and both,
     substituted; then RE with the LED's spectrum corrected by the calibration lamps' Hg-line check
     (:mod:`calib.core.spectrometer_scale`), alone and with both true (NaN where the check
-    declines)."""
+    declines); then the mean ``Δλ`` (nm) of the mapping searched with the true response as the
+    prior (:func:`true_response_mapping`, decision 0080); last the one-LED estimate's mean ``Δλ``
+    and RE in the same scene measured through a narrow slit (``scene(..., narrow_slit=True)``)."""
     wavelength = np.asarray(result.wavelength_nm, dtype=np.float64)
     grid = WavelengthGrid(
         float(wavelength[0]), float(wavelength[-1]), float(wavelength[1] - wavelength[0])
@@ -150,9 +190,13 @@ def diagnose(
     inside = (rendered.true_wavelength_nm >= grid.start_nm) & (
         rendered.true_wavelength_nm <= grid.stop_nm
     )
-    signed_nm = float(
-        np.mean(result.mapping.wavelength_nm(pixel[inside]) - rendered.true_wavelength_nm[inside])
-    )
+
+    def signed(mapping: Any) -> float:
+        return float(
+            np.mean(mapping.wavelength_nm(pixel[inside]) - rendered.true_wavelength_nm[inside])
+        )
+
+    signed_nm = signed(result.mapping)
     reading = rendered.plan.spectrometer
     offset_nm = np.nan if reading is None else float(reading.offset_nm)
     true_eta = np.asarray(sheet.efficiency(1, grating.wavelength_nm), dtype=np.float64)
@@ -166,6 +210,10 @@ def diagnose(
         estimate_known_grating([led], grating=true_grating, basis=task.basis),
         estimate_known_grating([led], grating=true_grating, basis=task.basis, mapping=true_mapping),
     ]
+    narrow_scene = scene(task, sheet, narrow_slit=True)
+    narrow_rng = np.random.default_rng([task.settings.seed, task.camera.stable_id])
+    narrow_led = with_exif_optics(narrow_scene.observations, narrow_scene.plan.geometry, narrow_rng)
+    narrow = estimate_known_grating([narrow_led["LED-B3"]], grating=grating, basis=task.basis)
     checked = checked_observations(calibration_lamps)[1].check
     if checked is not None:
         corrected = replace(led, spectrum=corrected_spectrum(led.spectrum, checked))
@@ -182,6 +230,17 @@ def diagnose(
         eta_error,
         *(re_of(run, rendered.truth) for run in runs),
         *((np.nan, np.nan) if checked is None else ()),
+        signed(
+            true_response_mapping(
+                led,
+                grating,
+                grid,
+                rendered.truth,
+                np.asarray(sheet.efficiency(1, wavelength), dtype=np.float64),
+            )
+        ),
+        signed(narrow.mapping),
+        re_of(narrow, rendered.truth),
     )
 
 
@@ -224,7 +283,8 @@ def main() -> None:
             "diagnosis columns: one-LED mapping mean |Δλ| nm | its mean Δλ nm | the spectrometer's "
             "drawn offset nm | file η's RMS error % | "
             "RE true mapping | RE true η | RE both true | RE LED scale-corrected by the calibration's "
-            "Hg check | the same, true mapping and η"
+            "Hg check | the same, true mapping and η | mean Δλ nm of the mapping searched with the "
+            "true response as the prior | through a 2 nm slit: mean Δλ nm | its RE"
         )
     physical, flat, through_file = [], [], []
     diagnosed: list[tuple[float, ...]] = []

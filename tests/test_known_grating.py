@@ -27,9 +27,15 @@ from calib.methods.grating_models import (
     assumed_efficiency,
     candidate_log_evidence,
 )
-from calib.methods.known_grating import estimate_known_grating, is_assumed_physical
+from calib.methods.known_grating import (
+    ONE_LAMP_PRIOR_WEIGHTS,
+    estimate_known_grating,
+    is_assumed_physical,
+    one_lamp_prior_weight,
+)
+from calib.methods.multilamp import SensitivitySolution
 from calib.methods.uncertainty import COVERAGE_SCALE, efficiency_family
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, CameraPrior
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
 from calib.pipeline import LampProfile, OfflineSettings, estimate_offline
@@ -108,6 +114,44 @@ def test_a_grating_file_with_its_sigma_has_a_judged_band_a_makers_curve_says_it_
     assert efficiency_family(results["maker"]) is None
     assert results["maker"].quality.uncertainty["coverage_scale"] == max(COVERAGE_SCALE.values())
     assert {"uncertainty_unvalidated", "grating_sigma_missing"} <= codes["maker"]
+
+
+@pytest.mark.parametrize("spread", [0.25, 1.0, 4.0])
+def test_one_lamps_prior_weight_is_the_evidences(spread: float) -> None:
+    """Cameras drawn from the prior with ``spread`` × its covariance (well measured): the evidence
+    gives the prior the weight ``1 / spread`` (decision 0080), whatever the data's overall scale."""
+    grid = DEFAULT_GRID
+    size = grid.size
+    rng = np.random.default_rng(3)
+    mean = gaussian_camera((605, 530, 455), (35, 45, 28))
+    distance = (grid.wavelength_nm[:, None] - grid.wavelength_nm[None, :]) / 30.0
+    covariance = np.stack([0.01 * np.exp(-0.5 * distance**2) + 1e-6 * np.eye(size)] * 3)
+    prior = CameraPrior(grid, mean, covariance, np.zeros(3))
+    noise = np.diag(np.full(3 * size, 1e-8))
+    factor = np.linalg.cholesky(spread * covariance[0])
+    chosen = []
+    for _ in range(5):
+        camera = mean + np.stack([factor @ rng.standard_normal(size) for _ in range(3)], axis=1)
+        solution = SensitivitySolution(3.0 * camera, 9.0 * noise, np.ones(1))
+        chosen.append(one_lamp_prior_weight(solution, prior))
+    ratio = np.exp(np.mean(np.log(chosen))) * spread
+    assert 0.6 < ratio < 1.6, chosen
+    # Without a covariance the prior keeps its natural weight.
+    assert one_lamp_prior_weight(SensitivitySolution(mean, None, np.ones(1)), prior) == 1.0
+
+
+def test_one_lamp_through_a_grating_file_weighs_the_prior_by_the_evidence(basis):
+    """Only one lamp through a calibration's file (η with σ, where decision 0080 judged it): the
+    assumed-η solves keep the prior at its natural weight, where their σ factors were judged
+    (decision 0075), and so does a maker's curve (no σ: unjudged)."""
+    rng, mapping, efficiency, grating = _scene()
+    led = _lamp("LED-B3", "led", mapping, efficiency, rng)
+    calibrated = replace(grating, efficiency_sigma=np.full(grating.wavelength_nm.size, 0.005))
+    through_file = estimate_known_grating([led], grating=calibrated, basis=basis, mapping=mapping)
+    assert through_file.diagnostics["prior_weight"] in ONE_LAMP_PRIOR_WEIGHTS
+    for given in (None, grating):
+        other = estimate_known_grating([led], grating=given, basis=basis, mapping=mapping)
+        assert other.diagnostics["prior_weight"] == 1.0
 
 
 def test_without_a_grating_a_flat_one_is_assumed_and_recorded(basis):

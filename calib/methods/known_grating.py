@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -54,6 +54,7 @@ from calib.methods.grating_models import (
     second_order_ratio,
 )
 from calib.methods.multilamp import (
+    SensitivitySolution,
     blend_with_prior,
     combine_responses,
     lamps_with_mapping,
@@ -61,7 +62,7 @@ from calib.methods.multilamp import (
     pool_responses,
 )
 from calib.methods.responses import LampData, fit_response
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, CameraPrior
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry
 
@@ -85,6 +86,38 @@ FLAT_EFFICIENCY_MODEL = "flat"
 #: option: on the validation split it wins only where the truth is drawn from those very families
 #: (the protocol's sheets are), and loses on the one grating outside them (the maker's LHires curve).
 DEFAULT_ASSUMED_GRATING: AssumedGrating = "flat"
+#: The camera prior's weights (its precision's multiplier) one lamp through a grating file chooses
+#: among by the evidence (:func:`one_lamp_prior_weight`, decision 0080): a logarithmic grid wide
+#: enough that no validation camera's choice sat at either end.
+ONE_LAMP_PRIOR_WEIGHTS = np.geomspace(0.03, 30.0, 25)
+
+
+def one_lamp_prior_weight(
+    solution: SensitivitySolution, prior: CameraPrior, weights: FloatArray = ONE_LAMP_PRIOR_WEIGHTS
+) -> float:
+    """The camera prior's weight ``w`` that maximises the marginal likelihood of one lamp's data
+    sensitivity ``ŝ`` (``ŝ ~ N(α m, C + α² Σ / w)``, ``C`` its covariance, ``α`` fitted as
+    :func:`calib.methods.multilamp.blend_with_prior` fits it): type-II maximum likelihood, the
+    multi-lamp ``"evidence"`` rule (:data:`calib.methods.multilamp.PRIOR_WEIGHT_RULES`) applied to
+    the one place the prior enters here. ``1.0`` (the natural weight) without a covariance."""
+    if solution.covariance is None:
+        return 1.0
+    size = prior.grid.size
+    data = solution.sensitivity.T.ravel()
+    mean = prior.mean.T.ravel()
+    scale = float(data @ mean) / max(float(mean @ mean), 1e-300)
+    residual = data - scale * mean
+    scores = []
+    for weight in weights:
+        spread = solution.covariance.copy()
+        for c in range(3):
+            block = slice(c * size, (c + 1) * size)
+            spread[block, block] += scale**2 * prior.covariance[c] / weight
+        sign, log_det = np.linalg.slogdet(spread)
+        scores.append(
+            float(residual @ np.linalg.solve(spread, residual)) + log_det if sign > 0 else np.inf
+        )
+    return float(weights[int(np.argmin(scores))])
 
 
 def is_assumed_physical(record: object) -> bool:
@@ -250,8 +283,17 @@ def estimate_known_grating(
         inverse_covariance = np.diag(inverse_sigma**2)
     solution = combine_responses(responses, inverse, np.eye(inverse.size), inverse_covariance)
     # The profile of one lamp says little where the lamp is dim: the camera prior fills in there
-    # (η is known, so the prior enters only here).
-    solution = blend_with_prior(solution, prior)
+    # (η is known, so the prior enters only here). One lamp through a calibration's grating file
+    # (η with σ) weighs it by the evidence (decision 0080, judged there); elsewhere at its natural
+    # weight (the assumed η's σ factors were judged so, decision 0075; a maker's curve is unjudged).
+    prior_weight = (
+        one_lamp_prior_weight(solution, prior)
+        if _budget_family(grating, assumed) == FILE_EFFICIENCY_MODEL and len(responses) == 1
+        else 1.0
+    )
+    solution = blend_with_prior(
+        solution, replace(prior, covariance=prior.covariance / prior_weight)
+    )
     lamps = tuple(
         LampData(
             system.observation.name,
@@ -274,6 +316,7 @@ def estimate_known_grating(
             "grating": record,
             **({"efficiency_model": model} if (model := _budget_family(grating, assumed)) else {}),
             "prior_shrinkage": prior.shrinkage.tolist(),
+            "prior_weight": prior_weight,
             **({"second_order": second_order} if second_order else {}),
         },
         {"mapping_s": mapping_s, "solve_s": total_s - mapping_s, "total_s": total_s},
