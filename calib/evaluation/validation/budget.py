@@ -328,7 +328,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.save:
         arrays: dict[str, Any] = {}
         for i, record in enumerate(records):
-            key = f"{i}__{record.key}__{record.variant}__{int(record.assumed_bandwidth)}"
+            key = (
+                f"{i}__{record.key}__{record.variant}__{int(record.assumed_bandwidth)}"
+                f"__{int(record.scale_checked)}"
+            )
             arrays[f"{key}__error"] = record.error
             for name, sigma in record.components.items():
                 arrays[f"{key}__{name}"] = sigma
