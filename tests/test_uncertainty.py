@@ -496,7 +496,7 @@ def test_the_basis_sigma_shrinks_where_the_data_pin_the_curve(
     """Decision 0060: with a shrink power the estimate's out-of-span part is multiplied by the
     share of the prior's spread the data leave open (σ_stat / σ_prior, at most 1): a curve pinned
     by its data (tiny σ) keeps almost none of it, one the data leave open keeps all of it; the
-    multilamp method and the prior solve shrink by default (decisions 0060, 0078)."""
+    multilamp method shrinks by default, the prior solve does not."""
     curves = camera.resample(basis.grid, "interpolate").values
     curves = curves / curves.max()
     off_span = np.clip(curves + 0.1 * np.sin(basis.grid.wavelength_nm / 7.0)[:, None], 0, None)
@@ -511,7 +511,7 @@ def test_the_basis_sigma_shrinks_where_the_data_pin_the_curve(
     np.testing.assert_allclose(open_, whole)
     assert data_open_share(result, basis, 0.01 * prior) == pytest.approx(0.01)
     assert DEFAULT_BUDGET.shrink_power_for("multilamp") == 1.0
-    assert DEFAULT_BUDGET.shrink_power_for("prior") == 1.0
+    assert DEFAULT_BUDGET.shrink_power_for("prior") == 0.0
     assert BudgetSettings(basis_shrink_power={}).shrink_power_for("multilamp") == 0.0
 
 
@@ -536,35 +536,3 @@ def test_the_multilamp_budget_shrinks_its_basis_component(
         np.max(whole.components["basis"])
     )
     assert any("leave open" in note for note in shrunk.notes)
-
-
-def test_the_basis_shrinks_against_every_named_error_of_the_data_not_the_noise_alone(
-    camera: MultiSpectrum, basis: CameraBasis
-) -> None:
-    """Decision 0078: the data pin the curve's out-of-span part only as far as their named errors
-    allow, so the share left open is (the quadrature of every non-basis component) / σ_prior. A
-    prior solve with a noise σ far below the prior's keeps most of its out-of-span part when its
-    mapping is uncertain (a 20 nm σ: the data place nothing finely) and little of it when the
-    mapping is sure (0.01 nm); with the noise alone deciding (decision 0060's rule), both would
-    be shrunk alike, and without the prior's shrink power neither."""
-    curves = camera.resample(basis.grid, "interpolate").values
-    off_span = np.clip(curves + 0.1 * np.sin(basis.grid.wavelength_nm / 7.0)[:, None], 0, None)
-    off_span = off_span / off_span.max()
-
-    def budget_with_mapping_sigma(sigma_nm: float) -> Any:
-        result = EstimateResult(
-            "prior",
-            basis.grid.wavelength_nm,
-            off_span,
-            sensitivity_sigma=np.full_like(off_span, 1e-5),
-            mapping=replace(TRUTH, wavelength_rms_nm=sigma_nm),
-        )
-        return uncertainty_budget(result, [], basis=basis)
-
-    whole, _ = basis_sigma(EstimateResult("prior", basis.grid.wavelength_nm, off_span), basis)
-    loose = budget_with_mapping_sigma(20.0)
-    sure = budget_with_mapping_sigma(0.01)
-    rms = lambda values: float(np.sqrt(np.mean(np.asarray(values) ** 2)))  # noqa: E731
-    assert rms(loose.components["basis"]) > 0.5 * rms(whole)
-    assert rms(sure.components["basis"]) < 0.1 * rms(whole)
-    assert list(sure.components)[:3] == ["statistical", "basis", "mapping"]

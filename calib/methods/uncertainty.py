@@ -20,10 +20,9 @@ and channel, on the delivered curves' scale (maximum 1):
     unlike the basis (decision 0050); for a curve its method holds to the span, the training
     population's spread outside it, ``diag((I−P)(Σ + m mᵀ)(I−P))``, scaled by ``n/(n−k)`` for the
     leave-one-out loss of a curve not in the basis. For the methods of :data:`BASIS_SHRINK_POWER`
-    (multilamp, prior) the estimate's part is multiplied by the share of the camera prior's spread
-    the data leave open (:func:`data_open_share`), the data's precision being the quadrature sum of
-    the other components (:func:`data_sigma`): it shrinks where the data pin the curve (decisions
-    0060, 0078). It is therefore computed last.
+    (multilamp) the estimate's part is multiplied by the share of the camera prior's spread the
+    data leave open (:func:`data_open_share`): it shrinks where the data pin the curve (decision
+    0060).
 ``mapping``
     The mapping's own stated error (``wavelength_rms_nm``, as the mapping stage gives it, never
     re-derived here) through the curves' slope: ``|∂s/∂λ| σ_λ``.
@@ -463,55 +462,42 @@ def basis_misfit_sigma(basis: CameraBasis) -> FloatArray:
 SPAN_HELD_SHARE = 1.0 / 3.0
 
 
-#: Per method, the power ``γ`` of the share the data leave open, ``ρ = min(1, σ_data / σ_prior)``
-#: (:func:`data_open_share`: the data's precision as the budget states it against the camera
-#: prior's σ at the estimate's scale, :func:`prior_sigma_at_scale`), that multiplies the estimate's
-#: own out-of-span part: where the data pin the curve (``ρ ≪ 1``) the out-of-span part was
-#: measured, not guessed, and is no error; where they do not, it stands. Judged on the VALIDATION
-#: split only. Decision 0060 took ``σ_data`` as the ``statistical`` component alone: for
-#: ``multilamp`` (γ = 1) the share of estimates whose coverage lies within 85–98 % went from 36 / 39 %
-#: to 77 / 70 % (3 lamps + RGB / 5 lamps) at a refitted factor, but the prior solve's ``statistical``
-#: σ is the profile noise alone (ρ ≈ 0.01 everywhere), which says nothing of how well its data pin
-#: the curve, so ``prior`` kept the whole out-of-span part. Decision 0078: ``σ_data`` is the
-#: quadrature sum of every non-basis component (:func:`data_sigma`) — the data determine the
-#: curve no better than their named errors (mapping, spectrometer scale and bandwidth, η model,
-#: noise and misfit) let them — and ``prior`` shrinks too, with the same γ = 1 (decision 0078's
-#: table: ``python -m calib.evaluation.validation.budget --data-dir DIR --jobs 1``).
-BASIS_SHRINK_POWER: dict[str, float] = {"multilamp": 1.0, "prior": 1.0}
-
-
-def data_sigma(components: Mapping[str, FloatArray]) -> FloatArray | None:
-    """The data's precision as the budget states it ``(f, 3)``: the quadrature sum of every
-    component but ``basis`` (``None`` when there is none)."""
-    others = [np.asarray(v, dtype=np.float64) for k, v in components.items() if k != "basis"]
-    if not others:
-        return None
-    return np.asarray(np.sqrt(np.sum(np.stack(others) ** 2, axis=0)), dtype=np.float64)
+#: Per method, the power ``γ`` of the share the data leave open, ``ρ = min(1, σ_stat / σ_prior)``
+#: (the budget's ``statistical`` σ against the camera prior's σ at the estimate's scale,
+#: :func:`prior_sigma_at_scale`), that multiplies the estimate's own out-of-span part: where the
+#: data pin the curve (``ρ ≪ 1``) the out-of-span part was measured, not guessed, and is no error;
+#: where they do not (a noisy or misfitting solve, ``σ_stat`` inflated by √χ²), it stands. Judged
+#: on the VALIDATION split only (decision 0060, from the budget run's ``--save`` records): for
+#: ``multilamp`` (γ = 1) the share of estimates whose coverage lies within 85–98 % goes from
+#: 36 / 39 % to 77 / 70 % (3 lamps + RGB / 5 lamps) at a refitted factor; for ``prior`` it falls
+#: (LED+FL 57 → 50 %: the prior solve's σ is the noise alone, ρ ≈ 0.01 everywhere, and says
+#: nothing of the model's errors), so ``prior`` keeps the whole out-of-span part.
+BASIS_SHRINK_POWER: dict[str, float] = {"multilamp": 1.0}
 
 
 def data_open_share(
-    result: EstimateResult, basis: CameraBasis, data: FloatArray
+    result: EstimateResult, basis: CameraBasis, statistical: FloatArray
 ) -> FloatArray | None:
-    """``ρ = min(1, σ_data / σ_prior)`` ``(f, 3)``: the share of the camera prior's spread the data
-    leave open at each wavelength and channel (:data:`BASIS_SHRINK_POWER`); ``data`` is the data's
-    precision on the maximum-1 scale (the budget passes :func:`data_sigma`). ``None`` when the
-    shapes do not match or the prior has no spread anywhere."""
+    """``ρ = min(1, σ_stat / σ_prior)`` ``(f, 3)``: the share of the camera prior's spread the data
+    leave open at each wavelength and channel (:data:`BASIS_SHRINK_POWER`); ``statistical`` is the
+    budget's component (maximum-1 scale). ``None`` when the shapes do not match or the prior has no
+    spread anywhere."""
     curves = np.clip(np.asarray(result.sensitivity, dtype=np.float64), 0.0, None)
     peak = float(curves.max())
-    if peak <= 0 or curves.shape != basis.mean.shape or data.shape != curves.shape:
+    if peak <= 0 or curves.shape != basis.mean.shape or statistical.shape != curves.shape:
         return None
     prior = prior_sigma_at_scale(curves / peak, basis)
     if not np.any(prior > 0):
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
-        share = np.where(prior > 0, data / prior, 1.0)
+        share = np.where(prior > 0, statistical / prior, 1.0)
     return np.asarray(np.clip(share, 0.0, 1.0), dtype=np.float64)
 
 
 def basis_sigma(
     result: EstimateResult,
     basis: CameraBasis,
-    data: FloatArray | None = None,
+    statistical: FloatArray | None = None,
     shrink_power: float = 0.0,
 ) -> tuple[FloatArray, str]:
     """σ ``(f, 3)`` of what the basis cannot represent, for this estimate, and which it is.
@@ -525,10 +511,9 @@ def basis_sigma(
     the population's) says nothing of its camera there: the population's
     :func:`basis_misfit_sigma` stands.
 
-    With ``shrink_power`` γ > 0 and the data's precision ``data`` (the budget's
-    :func:`data_sigma`), the estimate's own part is multiplied by ``ρ^γ``
-    (:func:`data_open_share`): it shrinks where the data pin the curve (:data:`BASIS_SHRINK_POWER`,
-    decisions 0060 and 0078); the source is then ``"estimate, shrunk"``.
+    With ``shrink_power`` γ > 0 and the budget's ``statistical`` σ, the estimate's own part is
+    multiplied by ``ρ^γ`` (:func:`data_open_share`): it shrinks where the data pin the curve
+    (:data:`BASIS_SHRINK_POWER`, decision 0060); the source is then ``"estimate, shrunk"``.
     """
     population = basis_misfit_sigma(basis)
     curves = np.clip(np.asarray(result.sensitivity, dtype=np.float64), 0.0, None)
@@ -541,8 +526,8 @@ def basis_sigma(
     population_rms = float(np.sqrt(np.mean(population**2)))
     if own_rms < SPAN_HELD_SHARE * population_rms:
         return population, "population"
-    if shrink_power > 0 and data is not None:
-        share = data_open_share(result, basis, np.asarray(data, dtype=np.float64))
+    if shrink_power > 0 and statistical is not None:
+        share = data_open_share(result, basis, np.asarray(statistical, dtype=np.float64))
         if share is not None:
             return np.asarray(outside * share**shrink_power, dtype=np.float64), "estimate, shrunk"
     return np.asarray(outside, dtype=np.float64), "estimate"
@@ -922,6 +907,18 @@ def uncertainty_budget(
         )
     if (flag := grating_sigma_flag(result)) is not None:
         flags.append(flag)
+    if basis is not None:
+        power = settings.shrink_power_for(result.method)
+        components["basis"], basis_from = basis_sigma(
+            result, basis, components["statistical"], power
+        )
+        if basis_from == "estimate":
+            notes.append("basis σ: the estimate's own part outside the basis span")
+        elif basis_from == "estimate, shrunk":
+            notes.append(
+                "basis σ: the estimate's own part outside the basis span × (the share of the "
+                f"prior's spread the data leave open)^{power:g}"
+            )
     components["mapping"], note = mapping_sigma(result)
     if note:
         notes.append(note)
@@ -951,19 +948,6 @@ def uncertainty_budget(
                     f"({message})",
                 )
             )
-    if basis is not None:
-        # After every other component: the data pin the curve's out-of-span part only as far as
-        # their own named errors allow (:func:`data_open_share`, decision 0078).
-        power = settings.shrink_power_for(result.method)
-        components["basis"], basis_from = basis_sigma(result, basis, data_sigma(components), power)
-        if basis_from == "estimate":
-            notes.append("basis σ: the estimate's own part outside the basis span")
-        elif basis_from == "estimate, shrunk":
-            notes.append(
-                "basis σ: the estimate's own part outside the basis span × (the share of the "
-                f"prior's spread the data leave open at their named σ)^{power:g}"
-            )
-        components = {name: components[name] for name in COMPONENTS if name in components}
     return UncertaintyBudget(
         components=components,
         coverage_scale=settings.scale_for(result.method, family),
