@@ -445,6 +445,7 @@ def test_saved_validation_records_judge_offline_as_the_run_does(tmp_path: Any) -
         np.testing.assert_allclose(
             after.ratio(IN_SPEC_TOLERANCE_SIGMA), before.ratio(IN_SPEC_TOLERANCE_SIGMA)
         )
+    assert loaded[1].outside_basis is not None
     np.testing.assert_allclose(loaded[1].outside_basis, 0.2)
     assert loaded[0].outside_basis is None
 
