@@ -23,7 +23,9 @@ from calib.evaluation.validation.budget import (
     component_shares,
     coverage_at,
     fit_scale,
+    load_records,
     ratios_by_method,
+    save_records,
 )
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
@@ -407,6 +409,45 @@ def test_validation_records_judge_any_tolerance_sigma() -> None:
     assert list(ratios) == ["prior"] and len(ratios["prior"]) == 2
     shares = component_shares([stated], 1.0)
     assert sum(v for k, v in shares.items() if k != "sigma/error (median)") == pytest.approx(1.0)
+
+
+def test_saved_validation_records_judge_offline_as_the_run_does(tmp_path: Any) -> None:
+    """``budget --save`` keeps what a record's named σ depends on (decision 0078): a record whose
+    spectra's scale was checked keeps its scale component whatever the tolerance σ, and one with
+    an assumed bandwidth its bandwidth component; read back, every record judges as before."""
+    error = np.array([0.0, 0.3, 0.4, 1.0])
+    components = {
+        "basis": np.array([0.1, 0.1, 0.3, 0.0]),
+        "spectrometer scale": np.array([0.0, 0.4, 0.4, 1.0]),
+        "spectrometer bandwidth": np.array([0.0, 0.0, 0.0, 1.0]),
+    }
+    records = [
+        EstimateRecord("prior", "LED+FL", error, components, family="physical"),
+        EstimateRecord(
+            "multilamp",
+            "3 lamps + RGB LEDs",
+            error,
+            components,
+            assumed_bandwidth=True,
+            scale_checked=True,
+            outside_basis=np.full(4, 0.2),
+            prior_sigma=np.full(4, 0.5),
+        ),
+    ]
+    path = str(tmp_path / "records.npz")
+    save_records(records, path)
+    loaded = load_records(path)
+    assert [(r.key, r.variant, r.assumed_bandwidth, r.scale_checked) for r in loaded] == [
+        ("prior:physical", "LED+FL", False, False),
+        ("multilamp", "3 lamps + RGB LEDs", True, True),
+    ]
+    for before, after in zip(records, loaded, strict=True):
+        np.testing.assert_allclose(
+            after.ratio(IN_SPEC_TOLERANCE_SIGMA), before.ratio(IN_SPEC_TOLERANCE_SIGMA)
+        )
+    assert loaded[1].outside_basis is not None
+    np.testing.assert_allclose(loaded[1].outside_basis, 0.2)
+    assert loaded[0].outside_basis is None
 
 
 def test_the_factor_is_judged_per_eta_family() -> None:

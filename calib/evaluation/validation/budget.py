@@ -293,6 +293,55 @@ def fit_coverage_scales(
     return {method: round(fit_scale(values, target), 2) for method, values in ratios.items()}
 
 
+#: The record's own arrays in a saved file, beside its components.
+_RECORD_ARRAYS = ("error", "outside_basis", "prior_sigma")
+
+
+def save_records(records: Sequence[EstimateRecord], path: str) -> None:
+    """Write ``records`` to a ``.npz`` (``--save``), one array per record and component, keyed
+    ``index__key__variant__assumed_bandwidth__scale_checked__name``; :func:`load_records` reads it,
+    so other tolerance σ, factors or component rules can be judged offline."""
+    arrays: dict[str, Any] = {}
+    for i, record in enumerate(records):
+        key = (
+            f"{i}__{record.key}__{record.variant}__{int(record.assumed_bandwidth)}"
+            f"__{int(record.scale_checked)}"
+        )
+        arrays[f"{key}__error"] = record.error
+        for name, sigma in record.components.items():
+            arrays[f"{key}__{name}"] = sigma
+        if record.outside_basis is not None:
+            arrays[f"{key}__outside_basis"] = record.outside_basis
+        if record.prior_sigma is not None:
+            arrays[f"{key}__prior_sigma"] = record.prior_sigma
+    np.savez_compressed(path, **arrays)
+
+
+def load_records(path: str) -> list[EstimateRecord]:
+    """The records :func:`save_records` wrote, in their order."""
+    fields: dict[int, dict[str, Any]] = {}
+    with np.load(path) as saved:
+        for name in saved.files:
+            index, key, variant, assumed, checked, array = name.split("__")
+            method, _, family = key.partition(":")
+            entry = fields.setdefault(
+                int(index),
+                {
+                    "method": method,
+                    "variant": variant,
+                    "family": family or None,
+                    "assumed_bandwidth": assumed == "1",
+                    "scale_checked": checked == "1",
+                    "components": {},
+                },
+            )
+            if array in _RECORD_ARRAYS:
+                entry[array] = np.asarray(saved[name], dtype=np.float64)
+            else:
+                entry["components"][array] = np.asarray(saved[name], dtype=np.float64)
+    return [EstimateRecord(**fields[index]) for index in sorted(fields)]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--data-dir", default=None)
@@ -326,17 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = ProtocolSettings(seed=args.seed, variants=variants)
     records = validation_records(split, settings, jobs=args.jobs)
     if args.save:
-        arrays: dict[str, Any] = {}
-        for i, record in enumerate(records):
-            key = f"{i}__{record.key}__{record.variant}__{int(record.assumed_bandwidth)}"
-            arrays[f"{key}__error"] = record.error
-            for name, sigma in record.components.items():
-                arrays[f"{key}__{name}"] = sigma
-            if record.outside_basis is not None:
-                arrays[f"{key}__outside_basis"] = record.outside_basis
-            if record.prior_sigma is not None:
-                arrays[f"{key}__prior_sigma"] = record.prior_sigma
-        np.savez_compressed(args.save, **arrays)
+        save_records(records, args.save)
     print(
         f"validation split: {len(split.cameras)} cameras, seed {args.seed}, {len(records)} estimates"
     )
