@@ -107,6 +107,18 @@ SHOWN_WINDOW = 2.5
 #: Lines a line fit anchored to a whole-profile fit needs (:class:`ProfileAnchor`): two fix the
 #: offset and the scale the broadband fit is least sure of; one would only shift it.
 MIN_ANCHORED_FEATURES = 2
+#: A line match made afresh (no start) is physically implausible when it puts a parameter of the
+#: grating further than this many σ from the family's prior (the rig's: EXIF focal length over
+#: the pitch, the 0th order at the spot, an incidence near square; :mod:`calib.wavelength.
+#: rig_prior`): a Gaussian prior gives a 4σ deviation odds of 6·10⁻⁵, so the lines were matched to
+#: the wrong features (an Hg 404.7 too dim to show, and 435.8 taken for it) rather than the rig
+#: being that far from what it reports.
+PLAUSIBLE_PRIOR_SIGMAS = 4.0
+#: ... or when it puts the bluest lit sample of the profile (:func:`lit_extent`) below this
+#: wavelength (nm): cameras' UV-cut filters (50 % at 390–410 nm) and glass optics leave less than
+#: a twentieth of a camera's peak response below ~380 nm, and a lamp's light there is the lit
+#: part's threshold (5 % of the peak) only through them.
+LIT_BLUE_LIMIT_NM = 380.0
 
 
 @dataclass(frozen=True)
@@ -478,9 +490,9 @@ def _fit_group(
 LIT_RANGE_NM = (400.0, 680.0)
 
 
-def lit_dispersion(pixel: FloatArray, profile: FloatArray) -> float:
-    """nm per profile sample if the lit part (above 5 % of the summed profile's peak, smoothed)
-    spans :data:`LIT_RANGE_NM`."""
+def lit_extent(pixel: FloatArray, profile: FloatArray) -> tuple[int, int]:
+    """The first and last sample of the lit part of a profile (above 5 % of the summed profile's
+    peak, smoothed)."""
     from scipy import ndimage
 
     total = ndimage.gaussian_filter1d(
@@ -489,7 +501,45 @@ def lit_dispersion(pixel: FloatArray, profile: FloatArray) -> float:
     lit = np.flatnonzero(total > 0.05 * float(total.max()))
     if lit.size < 2:
         raise EstimationError("the profile has too little signal to find features in")
-    return (LIT_RANGE_NM[1] - LIT_RANGE_NM[0]) / float(lit[-1] - lit[0])
+    return int(lit[0]), int(lit[-1])
+
+
+def lit_dispersion(pixel: FloatArray, profile: FloatArray) -> float:
+    """nm per profile sample if the lit part (:func:`lit_extent`) spans :data:`LIT_RANGE_NM`."""
+    first, last = lit_extent(pixel, profile)
+    return (LIT_RANGE_NM[1] - LIT_RANGE_NM[0]) / float(last - first)
+
+
+def implausible(
+    family: Family, x: FloatArray, pixel: FloatArray, lit: tuple[int, int]
+) -> str | None:
+    """Why a fresh line match's mapping (``family`` at ``x``) cannot be the rig's, or ``None``:
+    a grating parameter beyond :data:`PLAUSIBLE_PRIOR_SIGMAS` of the family's prior, or the lit
+    samples ``lit`` (:func:`lit_extent`) mapped below :data:`LIT_BLUE_LIMIT_NM`."""
+    if isinstance(family, GratingFamily) and family.prior.soft():
+        deviation = np.abs(family.prior_rows(x)[0])
+        worst = int(np.argmax(deviation))
+        if deviation[worst] > PLAUSIBLE_PRIOR_SIGMAS:
+            soft = family.prior.soft()
+            name = [n for n in family.names if n in soft][worst]
+            value = float(np.asarray(x)[family.names.index(name)])
+            shown = {
+                "incidence_deg": f"incidence at {value:+.1f}° (prior {soft[name][0]:+.1f} ± "
+                f"{soft[name][1]:g}°)",
+                "log_focal": f"focal length at {math.exp(value):.0f} px (prior "
+                f"{math.exp(soft[name][0]):.0f} px ± {100 * soft[name][1]:.0f} %)",
+                "log_spacing": f"line density at {1e6 / math.exp(value):.0f} lines/mm (prior "
+                f"{1e6 / math.exp(soft[name][0]):.0f} ± {100 * soft[name][1]:.0f} %)",
+            }.get(name, f"{name} at {value:.4g} (prior {soft[name][0]:.4g} ± {soft[name][1]:.2g})")
+            return f"it puts the grating's {shown}, {float(deviation[worst]):.0f}σ off"
+    ends = family.mapping(x).wavelength_nm(np.array([pixel[lit[0]], pixel[lit[1]]]))
+    bluest = float(np.min(ends))
+    if not bluest >= LIT_BLUE_LIMIT_NM:
+        return (
+            f"it puts the profile's lit part at {bluest:.0f} nm, where cameras see nothing "
+            f"(below {LIT_BLUE_LIMIT_NM:g} nm)"
+        )
+    return None
 
 
 def match_lines(
@@ -1091,6 +1141,21 @@ def map_features(
             f"none of {len(hypotheses)} line matches held when the {kind} features were fitted "
             "(is the lamp the one named, and the first order whole?)"
         )
+    refused = 0
+    if start is None and kind == "emission":
+        # A fresh match must be a grating the rig can be (lines alone: nothing else checks it).
+        lit = lit_extent(pixel, profile)
+        reasons = [implausible(family, outcome[0], pixel, lit) for outcome in outcomes]
+        plausible = [o for o, why in zip(outcomes, reasons, strict=True) if why is None]
+        refused = len(outcomes) - len(plausible)
+        if not plausible:
+            best = max(range(len(outcomes)), key=lambda k: _support(outcomes[k]))
+            raise EstimationError(
+                f"the best of {len(outcomes)} {kind} line matches is not physically plausible: "
+                f"{reasons[best]} — its lines were matched to the wrong features (a line too dim "
+                "or missing?)"
+            )
+        outcomes = plausible
     x, covariance, fitted, sigma, used, _ = max(outcomes, key=_support)
     exact = family.mapping(x)
     matches = tuple(
@@ -1118,6 +1183,8 @@ def map_features(
         "residual_rms_nm": float(np.sqrt(np.mean(residuals**2))) if kept else None,
         "matched_lines": [m.row() for m in matches],
     }
+    if refused:
+        details["implausible_matches"] = refused
     if isinstance(exact, TiltedGrating):
         details["grating"] = exact.to_dict()
     mapping_out = report.with_details(details={**dict(report.details), **details})

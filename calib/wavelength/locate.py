@@ -318,8 +318,12 @@ def _known_line_table(
 ) -> tuple[list[dict[str, Any]], str | None]:
     """The built-in Hg lines fitted where ``mapping`` puts them (the mapping held): the matched-line
     table of a measured fluorescent lamp, and a note when they sit off by more than
-    :data:`KNOWN_LINE_WARNING_NM` (a spectrum too coarse for its lines, or a wrong mapping)."""
-    from calib.wavelength.features import feature_signal, features_at, fit_features
+    :data:`KNOWN_LINE_WARNING_NM` (a spectrum too coarse for its lines, or a wrong mapping).
+
+    Only the lines the lamp's spectrum shows (:func:`~calib.wavelength.features.lines_shown`),
+    where it resolves within :data:`JUDGING_RESOLUTION` of the camera (:func:`_measured_lines`'
+    rule): a "line" the lamp lacks is a phosphor band's shape."""
+    from calib.wavelength.features import feature_signal, features_at, fit_features, lines_shown
 
     width = fwhm_px(lamp)
     spacing = float(np.median(np.diff(lamp.pixel)))
@@ -330,6 +334,14 @@ def _known_line_table(
         for line in line_list("hg")
         if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
     ]
+    middle = np.array([0.5 * (pixel_range[0] + pixel_range[1])])
+    camera_nm = width * spacing * abs(float(_local_dispersion(mapping, middle)[0]))
+    spectrum = lamp.spectrum
+    resolution_nm = max(
+        lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
+    )
+    if resolution_nm <= JUDGING_RESOLUTION * camera_nm:
+        lines = list(lines_shown(spectrum.wavelength_nm, spectrum.values, lines, resolution_nm))
     blends = features_at(lines, mapping, width * spacing, pixel_range)
     rows: list[dict[str, Any]] = []
     for fitted in fit_features(lamp.pixel, signal, noise, blends, mapping, width * spacing):
