@@ -685,12 +685,13 @@ def _physical_scan(
     pixel_range: tuple[float, float],
     grid: WavelengthGrid,
     follow: int = 0,
-) -> tuple[list[tuple[FloatArray, tuple[int, ...]]], int]:
+) -> tuple[list[tuple[FloatArray, tuple[int, ...], FloatArray | None]], int]:
     """Coarse to fine over the ends the result may take (:data:`PHYSICAL_FIRST_NM` …): the
     coarse grid's lowest distinct minima, each with a fine grid around it (returned with the
-    evaluation count of the grids scanned here; the caller scans the fine grids). With
-    ``follow``, a fine grid whose lowest point lies on its edge is moved there, up to that many
-    times (:data:`PHYSICAL_FOLLOW`)."""
+    evaluation count of the grids scanned here). With ``follow``, a fine grid whose lowest point
+    lies on its edge is moved there, up to that many times (:data:`PHYSICAL_FOLLOW`). Each fine
+    grid comes with its costs when they were computed here (``None``: the caller scans it), so
+    no grid is costed twice."""
     step = PHYSICAL_STEP_NM
     first = np.arange(
         grid.start_nm - PHYSICAL_FIRST_NM[0],
@@ -712,7 +713,7 @@ def _physical_scan(
     costs = scan.costs(points)
     half, fine_step = PHYSICAL_FINE
     shifts = np.arange(-half, half + 0.5 * fine_step, fine_step)
-    grids: list[tuple[FloatArray, tuple[int, ...]]] = []
+    grids: list[tuple[FloatArray, tuple[int, ...], FloatArray | None]] = []
     taken: list[tuple[float, float]] = []
     count = points.shape[0]
     for index in _local_minima(costs, shape):
@@ -721,6 +722,7 @@ def _physical_scan(
         if any(abs(centre[0] - a) <= step and abs(centre[1] - b) <= step for a, b in taken):
             continue
         taken.append(centre)
+        fine_costs: FloatArray | None = None
         for moves in range(follow + 1):
             fine_left, fine_right = np.meshgrid(
                 centre[0] + shifts, centre[1] + shifts, indexing="ij"
@@ -732,6 +734,7 @@ def _physical_scan(
                 fine_right,
                 [mean + k for k in PHYSICAL_INCIDENCE_DEG],
             )
+            fine_costs = None
             if moves == follow:
                 break
             # A fine grid whose lowest point is on its edge holds no minimum: the valley goes on
@@ -744,7 +747,7 @@ def _physical_scan(
             if 0 < a < shifts.size - 1 and 0 < b < shifts.size - 1:
                 break
             centre = (float(fine_left[a, b]), float(fine_right[a, b]))
-        grids.append((fine.reshape(-1, fine.shape[-1]), fine.shape[:-1]))
+        grids.append((fine.reshape(-1, fine.shape[-1]), fine.shape[:-1], fine_costs))
         if len(grids) == PHYSICAL_MINIMA:
             break
     return grids, count
@@ -960,36 +963,22 @@ def search_profiles(
     # on the scan's own coarse profile (cheap), the distinct results once more on a finer one.
     scanned: list[tuple[Family, Solution]] = []
     evaluations = 0
-    for family in families:
-        scan = stage(family, SCAN_BIN_NM, SCAN_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR)
+
+    def scan_grids(
+        family: Family,
+        scan: StageFit,
+        grids: list[tuple[FloatArray, tuple[int, ...], FloatArray | None]],
+    ) -> int:
+        """Each grid's local minima refined (appended to ``scanned``); the evaluations made."""
+        count = 0
         minima: list[tuple[float, FloatArray]] = []
-        if isinstance(family, QuadraticFamily):
-            grids = [_quadratic_points(c, family) for c in _spread_starts(candidates, pixel_range)]
-        elif _rig_known(family):
-            # The rig gives the line density and focal length: scan the prior itself (a
-            # correlation search's linear starts miss a strongly curved first order).
-            grids = [_prior_points(family)]
-        elif "zero_order_px" in family.prior.fixed():
-            # The 0th order is at a known pixel: the physics leaves the wavelengths at the
-            # profile's ends and the incidence to scan. The correlation search's starts were up
-            # to 110 nm off at the red end on validation cameras: the scan over every end the
-            # result may take (coarse to fine) joins the end grids around them.
-            same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
-            grids, count = _physical_scan(
-                scan, family, pixel_range, grid, PHYSICAL_FOLLOW if broadband_only else 0
-            )
-            evaluations += count
-            grids = [
-                _start_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
-            ] + grids
-        else:
-            same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
-            grids = [
-                _grating_points(family, c, pixel_range) for c in _spread_starts(same, pixel_range)
-            ]
-        for points, shape in grids:
-            costs = scan.costs(points)
-            evaluations += points.shape[0]
+        for points, shape, known in grids:
+            # A physical scan's fine grid may come costed already (:func:`_physical_scan`).
+            if known is None:
+                costs = scan.costs(points)
+                count += points.shape[0]
+            else:
+                costs = known
             # Each grid's own best minima: a grid around a poor start must not crowd out a
             # physically drawn one (or the other way round).
             minima += [
@@ -1021,14 +1010,49 @@ def search_profiles(
                 # apart) may hold the lower basin, which the descent from the grid point missed.
                 local, _ = _quadratic_points(family.mapping(solution.x), family, LOCAL_SCAN)
                 local_costs = refining.costs(local)
-                evaluations += local.shape[0]
+                count += local.shape[0]
                 best_local = local[int(np.argmin(local_costs))]
                 if float(np.min(local_costs)) < solution.cost:
                     solution = refining.refine(
                         best_local, max_iterations=6, tolerance=1e-4, rounds=1
                     )
-            evaluations += solution.evaluations
+            count += solution.evaluations
             scanned.append((family, solution))
+        return count
+
+    for family in families:
+        scan = stage(family, SCAN_BIN_NM, SCAN_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR)
+        grids: list[tuple[FloatArray, tuple[int, ...], FloatArray | None]]
+        if isinstance(family, QuadraticFamily):
+            grids = [
+                (*_quadratic_points(c, family), None)
+                for c in _spread_starts(candidates, pixel_range)
+            ]
+        elif _rig_known(family):
+            # The rig gives the line density and focal length: scan the prior itself (a
+            # correlation search's linear starts miss a strongly curved first order).
+            grids = [(*_prior_points(family), None)]
+        elif "zero_order_px" in family.prior.fixed():
+            # The 0th order is at a known pixel: the physics leaves the wavelengths at the
+            # profile's ends and the incidence to scan. The correlation search's starts were up
+            # to 110 nm off at the red end on validation cameras: the scan over every end the
+            # result may take (coarse to fine) joins the end grids around them.
+            same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
+            physical_grids, count = _physical_scan(
+                scan, family, pixel_range, grid, PHYSICAL_FOLLOW if broadband_only else 0
+            )
+            evaluations += count
+            grids = [
+                (*_start_points(family, c, pixel_range), None)
+                for c in _spread_starts(same, pixel_range)
+            ] + physical_grids
+        else:
+            same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
+            grids = [
+                (*_grating_points(family, c, pixel_range), None)
+                for c in _spread_starts(same, pixel_range)
+            ]
+        evaluations += scan_grids(family, scan, grids)
     if not scanned:
         raise EstimationError("the mapping scan found no valid mapping")
     refined = scanned
