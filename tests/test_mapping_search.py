@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -436,3 +437,33 @@ def test_the_physical_scan_costs_no_fine_grid_twice():
         follow=0,
     )[0]
     assert unknown is None and len(batches) == 3
+
+
+@pytest.mark.slow
+def test_a_basin_hopelessly_behind_gets_no_local_scan_in_the_deciding_stage(
+    prior, camera, monkeypatch
+):
+    """Decision 0076: with a broadband lamp alone, the deciding stage's scan of the ends about a
+    basin (decision 0071) is made for every basin not hopelessly behind the best descent; the
+    short-lens scene's runner-up (Δχ² ~580) loses it when the bound is lowered below that, and
+    the answer stays."""
+    _truth, pixel, observation = _short_lens_led(camera)
+    observation = replace(observation, pixel_origin="direct_spot")
+    scans = []
+    local = profile_search._local_end_points
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        scans.append(1)
+        return local(*args, **kwargs)
+
+    monkeypatch.setattr(profile_search, "_local_end_points", counted)
+    every = locate_mapping([observation], prior, DEFAULT_GRID)
+    scanned = len(scans)
+    assert scanned >= 2
+    monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", 100.0)
+    del scans[:]
+    fewer = locate_mapping([observation], prior, DEFAULT_GRID)
+    assert len(scans) < scanned
+    np.testing.assert_array_equal(
+        fewer.mapping.wavelength_nm(pixel), every.mapping.wavelength_nm(pixel)
+    )
