@@ -13,11 +13,15 @@ a warm-up; ``time.process_time``, one BLAS thread):
                          used before this engine), then the estimate with its mapping.
 
 Scenes: the paper's synthetic protocol (§4.1) for the Canon 600D (a test camera: reported, never
-tuned on) with the 44 training cameras' basis — LED only (D65) and LED + fluorescent (FL2) — and,
+tuned on) with the 44 training cameras' basis — LED only (D65) and LED + fluorescent (FL2), profiles
+whose origin is arbitrary (the quadratic family) —; with ``--protocol``, the same camera in
+``calib validate``'s scene (seed 0: the rig's errors, profiles measured from the direct spot with
+the RAW files' optics, so the physical family's scan over the ends) for its "LED only",
+"LED only, no EXIF" and "LED+FL" variants, the method and options the protocol gives them; and,
 with ``--real DIR``, the real Nikon D7000 pair (2474 columns: the CFL through the built-in
 tri-phosphor line list, the halogen lamp measured).
 
-    python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--real ../shared/data/real-grating] [--skip-before] [--profile 12]
+    python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--protocol] [--real ../shared/data/real-grating] [--skip-before] [--profile 12]
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -86,6 +91,11 @@ def main() -> None:
     parser.add_argument("--real", type=Path, default=None, help="the real-grating data directory")
     parser.add_argument("--skip-before", action="store_true", help="leave out the old engine")
     parser.add_argument(
+        "--protocol",
+        action="store_true",
+        help="also the camera in calib validate's scene (profiles from the direct spot)",
+    )
+    parser.add_argument(
         "--profile",
         type=int,
         default=0,
@@ -131,8 +141,66 @@ def main() -> None:
         )
         if args.profile:
             profile_top(new, args.profile)
+    if args.protocol:
+        protocol_scene(args.data_dir, camera.name, args.repeats, args.profile)
     if args.real is not None:
         real_pair(args.real, args.data_dir, args.repeats, args.profile)
+
+
+def protocol_scene(data_dir: str | None, name: str, repeats: int, profile: int = 0) -> None:
+    """The camera in ``calib validate``'s scene (test split, seed 0, its basis: all training
+    cameras), each default variant with one lamp set as the protocol runs it; the solve alone is
+    given the scene's true grating."""
+    from calib.evaluation.validation.protocol import (
+        DEFAULT_VARIANTS,
+        ProtocolSettings,
+        render_task_scene,
+        split_tasks,
+        variant_arguments,
+        variant_observations,
+    )
+    from calib.evaluation.validation.splits import load_splits
+
+    splits, _ = load_splits(data_dir)
+    settings = ProtocolSettings(seed=0)
+    task = next(t for t in split_tasks(splits.test, settings) if t.camera.name == name)
+    scene = render_task_scene(task)
+    truth = scene.plan.geometry.mapping
+    for variant in DEFAULT_VARIANTS:
+        if variant.label not in ("LED only", "LED only, no EXIF", "LED+FL"):
+            continue
+        lamps = variant_observations(scene, variant)
+        keywords = {
+            "method": variant.method,
+            "grid": settings.grid,
+            "basis": task.basis,
+            **variant_arguments(variant),
+        }
+
+        def solve(
+            lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords
+        ) -> object:
+            return estimate(lamps, mapping=truth, **keywords)
+
+        def bare(
+            lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords
+        ) -> object:
+            return estimate(lamps, mapping=truth, budget=None, **keywords)
+
+        def new(
+            lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords
+        ) -> object:
+            return estimate(lamps, **keywords)
+
+        report(
+            f"spot scene, {variant.label}",
+            cpu_median(solve, repeats),
+            cpu_median(new, repeats),
+            None,
+            cpu_median(bare, repeats),
+        )
+        if profile:
+            profile_top(new, profile)
 
 
 def profile_top(function: Callable[[], object], count: int) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -253,13 +254,25 @@ def _short_lens_led(camera: MultiSpectrum) -> tuple[TiltedGrating, np.ndarray, L
     return truth, pixel, observation
 
 
-def test_a_short_lens_led_profile_from_the_spot_finds_its_basin(prior, camera):
+def test_a_short_lens_led_profile_from_the_spot_finds_its_basin(prior, camera, monkeypatch):
     """Validation's Pentax Q geometry (a 726 px focal length, 7.4° incidence, 990 lines/mm): the
     correlation search's starts were 100 nm off at the red end and the old scan over focal
-    lengths a factor 1.5 apart landed 12 nm off; the scan over the ends reaches the truth."""
+    lengths a factor 1.5 apart landed 12 nm off; the scan over the ends reaches the truth. No
+    batch of trial mappings is costed twice in one stage (decision 0076: the follow rule's fine
+    grids were)."""
     truth, pixel, observation = _short_lens_led(camera)
     observation = replace(observation, pixel_origin="direct_spot")
+    costs = profile_search.StageFit.costs
+    seen: list[tuple[int, bytes]] = []
+
+    def recorded(self: profile_search.StageFit, x: np.ndarray) -> np.ndarray:
+        if np.atleast_2d(x).shape[0] > 1:
+            seen.append((id(self.models), np.asarray(x).tobytes()))
+        return costs(self, x)
+
+    monkeypatch.setattr(profile_search.StageFit, "costs", recorded)
     solution = locate_mapping([observation], prior, DEFAULT_GRID)
+    assert seen and len(set(seen)) == len(seen)
     true_nm = truth.wavelength_nm(pixel)
     inside = (true_nm >= 400) & (true_nm <= 700)
     error = solution.mapping.wavelength_nm(pixel[inside]) - true_nm[inside]
@@ -382,3 +395,75 @@ def test_an_led_search_reaches_the_lower_basin_it_used_to_stop_short_of(shared_c
     inside = (truth >= grid.start_nm) & (truth <= grid.stop_nm)
     error = solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside]
     assert float(np.mean(np.abs(error))) < 1.0
+
+
+def test_the_physical_scan_costs_no_fine_grid_twice():
+    """Decision 0076: a fine grid the follow rule costed (its lowest point inside it) comes back
+    with those costs, for the search to use; only a grid never costed comes back without."""
+    family = GratingFamily(default_prior(True), orientation=1)
+    pixel_range = (308.0, 922.0)
+    target = np.array([393.0, 741.0])
+
+    def cost(points: np.ndarray) -> np.ndarray:
+        ends = family.wavelengths(np.array(pixel_range), np.nan_to_num(points, nan=0.0))
+        out = np.sum((ends - target) ** 2, axis=-1)
+        return np.where(np.all(np.isfinite(points), axis=1), out, np.inf)
+
+    batches: list[int] = []
+
+    class Scan:
+        def costs(self, points: np.ndarray) -> np.ndarray:
+            batches.append(points.shape[0])
+            return cost(points)
+
+    grids, count = profile_search._physical_scan(
+        Scan(),  # type: ignore[arg-type]
+        family,
+        pixel_range,
+        DEFAULT_GRID,
+        follow=profile_search.PHYSICAL_FOLLOW,
+    )
+    # The coarse grid, then the fine grid around its one minimum, whose lowest point is inside.
+    assert len(batches) == 2 and count == sum(batches)
+    ((points, shape, known),) = grids
+    assert known is not None and points.shape[0] == batches[1] == int(np.prod(shape))
+    np.testing.assert_array_equal(known, cost(points))
+    # Without the follow rule nothing is costed here: the caller scans the fine grid.
+    ((_, _, unknown),) = profile_search._physical_scan(
+        Scan(),  # type: ignore[arg-type]
+        family,
+        pixel_range,
+        DEFAULT_GRID,
+        follow=0,
+    )[0]
+    assert unknown is None and len(batches) == 3
+
+
+@pytest.mark.slow
+def test_a_basin_hopelessly_behind_gets_no_local_scan_in_the_deciding_stage(
+    prior, camera, monkeypatch
+):
+    """Decision 0076: with a broadband lamp alone, the deciding stage's scan of the ends about a
+    basin (decision 0071) is made for every basin not hopelessly behind the best descent; the
+    short-lens scene's runner-up (Δχ² ~580) loses it when the bound is lowered below that, and
+    the answer stays."""
+    _truth, pixel, observation = _short_lens_led(camera)
+    observation = replace(observation, pixel_origin="direct_spot")
+    scans = []
+    local = profile_search._local_end_points
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        scans.append(1)
+        return local(*args, **kwargs)
+
+    monkeypatch.setattr(profile_search, "_local_end_points", counted)
+    every = locate_mapping([observation], prior, DEFAULT_GRID)
+    scanned = len(scans)
+    assert scanned >= 2
+    monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", 100.0)
+    del scans[:]
+    fewer = locate_mapping([observation], prior, DEFAULT_GRID)
+    assert len(scans) < scanned
+    np.testing.assert_array_equal(
+        fewer.mapping.wavelength_nm(pixel), every.mapping.wavelength_nm(pixel)
+    )
