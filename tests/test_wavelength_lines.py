@@ -351,10 +351,11 @@ _RIG_PIXEL = np.arange(440.0, 990.0, 1.0)
 
 
 def _halophosphate_and_led(
-    camera: MultiSpectrum, bandwidth_nm: float, step_nm: float
+    camera: MultiSpectrum, bandwidth_nm: float, step_nm: float, slit_width_px: float = 2.0
 ) -> list[LampObservation]:
     """A halophosphate lamp and LED-B3 rendered through :data:`_RIG_TRUTH` (0th order at the
-    origin), each with its spectrum as a spectrometer of ``bandwidth_nm`` / ``step_nm`` measures it."""
+    origin) and a camera slit ``slit_width_px`` wide, each with its spectrum as a spectrometer of
+    ``bandwidth_nm`` / ``step_nm`` measures it."""
     observations = []
     lamps: tuple[tuple[Spectrum, LampKind], ...] = (
         (_halophosphate(2.5), "fluorescent"),
@@ -366,7 +367,7 @@ def _halophosphate_and_led(
             camera,
             mapping=_RIG_TRUTH,
             pixel=_RIG_PIXEL,
-            slit_width_px=2.0,
+            slit_width_px=slit_width_px,
             psf_sigma_px=0.8,
             noise=PeakFractionNoise(0.002),
             rng=np.random.default_rng(7),
@@ -610,32 +611,7 @@ def test_only_the_lines_a_measured_spectrum_shows_are_kept():
 def test_a_measured_lamps_table_has_no_line_the_lamp_lacks(camera, prior):
     """The twin-like case end to end: a camera slit wide enough to blend 404.7 with 407.8 (which
     the lamp lacks); the matched-line table holds the lamp's lines only."""
-    observations = []
-    lamps: tuple[tuple[Spectrum, LampKind], ...] = (
-        (_halophosphate(2.5), "fluorescent"),
-        (lamp_from_spec("LED-B3"), "led"),
-    )
-    for lamp, kind in lamps:
-        rendered = render_observation(
-            lamp,
-            camera,
-            mapping=_RIG_TRUTH,
-            pixel=_RIG_PIXEL,
-            slit_width_px=6.0,
-            psf_sigma_px=0.8,
-            noise=PeakFractionNoise(0.002),
-            rng=np.random.default_rng(7),
-            fine_step_nm=0.05,
-            kind=kind,
-        ).observation
-        observations.append(
-            replace(
-                rendered,
-                spectrum=_measured(lamp, 4.0, 1.0),
-                spectrum_bandwidth_nm=4.0,
-                pixel_origin="direct_spot",
-            )
-        )
+    observations = _halophosphate_and_led(camera, 4.0, 1.0, slit_width_px=6.0)
     solution = locate_mapping(observations, prior, DEFAULT_GRID)
     labels = {row["line"] for row in solution.matched_lines}
     assert "Hg 404.7" in labels
