@@ -171,17 +171,7 @@ def spectrum_dip_nm(
     envelope :func:`dip_columns` takes (smoothed over ``envelope_nm``), its maximum within
     ±``window_nm`` of ``centre_nm`` refined by a parabola. A blend or a lopsided band (the G band,
     Mg b, the O₂ B head and tail) has its minimum there, not at its listed centre."""
-    axis = np.arange(spectrum.range_nm[0], spectrum.range_nm[1], SPECTRUM_STEP_NM)
-    values = spectrum.at(axis)
-    extra = max(resolution_nm**2 - bandwidth_nm**2, 0.0) ** 0.5 / 2.3548
-    if extra > 0:
-        values = ndimage.gaussian_filter1d(values, extra / SPECTRUM_STEP_NM)
-    envelope = values.copy()
-    for _ in range(6):
-        envelope = ndimage.gaussian_filter1d(
-            np.maximum(envelope, values), envelope_nm / SPECTRUM_STEP_NM
-        )
-    depth = 1.0 - values / np.maximum(envelope, 1e-300)
+    axis, depth = spectrum_depth(spectrum, resolution_nm, bandwidth_nm, envelope_nm)
     inside = np.flatnonzero(np.abs(axis - centre_nm) <= window_nm)
     at = int(inside[np.argmax(depth[inside])])
     y0, y1, y2 = depth[at - 1 : at + 2]
@@ -213,13 +203,33 @@ def spectrum_offset_nm(
     )
 
 
+def continuum_depth(values: FloatArray, envelope_samples: float) -> FloatArray:
+    """``1 − values / envelope``: the envelope an upper hull smoothed over ``envelope_samples``
+    (six passes of a Gaussian over the larger of it and the values)."""
+    envelope = values.copy()
+    for _ in range(6):
+        envelope = ndimage.gaussian_filter1d(np.maximum(envelope, values), envelope_samples)
+    return np.asarray(1.0 - values / np.maximum(envelope, 1e-300), dtype=np.float64)
+
+
+def spectrum_depth(
+    spectrum: Spectrum, resolution_nm: float, bandwidth_nm: float, envelope_nm: float
+) -> tuple[FloatArray, FloatArray]:
+    """The measured spectrum's depth at the camera's resolution, on :data:`SPECTRUM_STEP_NM`: the
+    spectrum blurred by the Gaussian that takes its ``bandwidth_nm`` to ``resolution_nm`` (FWHM;
+    none when the camera is the finer), under :func:`continuum_depth`'s envelope over
+    ``envelope_nm``. Returns the axis and the depth."""
+    axis = np.arange(spectrum.range_nm[0], spectrum.range_nm[1], SPECTRUM_STEP_NM)
+    values = spectrum.at(axis)
+    extra = max(resolution_nm**2 - bandwidth_nm**2, 0.0) ** 0.5 / 2.3548
+    if extra > 0:
+        values = ndimage.gaussian_filter1d(values, extra / SPECTRUM_STEP_NM)
+    return axis, continuum_depth(values, envelope_nm / SPECTRUM_STEP_NM)
+
+
 def profile_depth(observation: LampObservation) -> FloatArray:
     """The continuum-normalised depth of the summed channels (:func:`dip_columns`' signal)."""
-    total = np.sum(observation.profile, axis=1)
-    envelope = total.copy()
-    for _ in range(6):
-        envelope = ndimage.gaussian_filter1d(np.maximum(envelope, total), 30.0)
-    return np.asarray(1.0 - total / envelope, dtype=np.float64)
+    return continuum_depth(np.sum(observation.profile, axis=1), 30.0)
 
 
 def matched_columns(
@@ -242,17 +252,7 @@ def matched_columns(
     resolution, not by a minimum that sits away from its listed centre."""
     depth = profile_depth(observation)
     columns = np.arange(depth.size, dtype=np.float64)
-    axis = np.arange(spectrum.range_nm[0], spectrum.range_nm[1], SPECTRUM_STEP_NM)
-    values = spectrum.at(axis)
-    extra = max(resolution_nm**2 - bandwidth_nm**2, 0.0) ** 0.5 / 2.3548
-    if extra > 0:
-        values = ndimage.gaussian_filter1d(values, extra / SPECTRUM_STEP_NM)
-    envelope = values.copy()
-    for _ in range(6):
-        envelope = ndimage.gaussian_filter1d(
-            np.maximum(envelope, values), 30.0 * nm_per_column / SPECTRUM_STEP_NM
-        )
-    template = 1.0 - values / np.maximum(envelope, 1e-300)
+    axis, template = spectrum_depth(spectrum, resolution_nm, bandwidth_nm, 30.0 * nm_per_column)
     reach = window_nm / nm_per_column
     found = {}
     for name, (guess, listed) in guesses.items():
