@@ -344,7 +344,7 @@ def run_10d(folder: Path, prior: CameraPrior, window: int) -> None:
     rms = float(np.sqrt(np.mean(np.square(residuals))))
     print(
         f"  RMS over {len(residuals)} features {rms:.3f} nm (depth minima against the listed "
-        f"centres); stated σ {solution.mapping.wavelength_rms_nm}"
+        f"centres); stated σ {solution.mapping.wavelength_rms_nm:.3f} nm"
     )
     # Matched by shape to the solar spectrum at the camera's resolution: on the validation analog
     # (bench/solar_validate.py) the minima above sit off the listed centres by what a blend or a
