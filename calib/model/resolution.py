@@ -8,7 +8,9 @@ along the dispersion direction). Neither holds as measured:
   5 nm FWHM); a fluorescent lamp's mercury lines are ~1 nm wide, far sharper than ``B``. With the
   response ``r`` smooth on the scale of ``B``, ``m ⊗ B ≈ [∫ e_meas r] ⊗ k``: blurring the *profile* by
   ``B`` (in pixels, through the dispersion) brings it to the spectrometer's resolution, where the
-  model with the measured spectrum is right. :func:`match_spectrometer`.
+  model with the measured spectrum is right. :func:`match_spectrometer`. (The mapping search,
+  whose model has no slit terms, matches a broadband lamp the other way: its profile as measured,
+  its spectrum sharpened back to the camera's resolution, :func:`sharpened_spectrum`.)
 - ``k`` is the direct spot's cross-section along the dispersion direction (the 0th order is the slit's
   image through the same optics), recorded by :mod:`calib.image.profiles` as
   :attr:`calib.core.observations.LampObservation.line_spread`. :func:`camera_kernel`.
@@ -101,6 +103,33 @@ def blurred_spectrum(spectrum: Spectrum, bandwidth_nm: float, target_nm: float) 
     return Spectrum(axis, values, name=spectrum.name, negative="clip")
 
 
+def sharpened_spectrum(spectrum: Spectrum, bandwidth_nm: float) -> Spectrum:
+    """``spectrum`` (measured through a Gaussian slit of ``bandwidth_nm``) brought back to the
+    camera's resolution, to first order: ``e ≈ e_B − ½ σ² e_B″`` (σ the slit's).
+
+    The samples are interpolated with a cubic spline onto a :data:`MATCHED_STEP_NM` axis, as in
+    :func:`blurred_spectrum`; ``e_B″`` is the spline's second derivative smoothed by a Gaussian of
+    ``σ/2``, which keeps the correction exact to second order (the smoothing's own effect,
+    ``σ²·(σ/2)²/4 · e⁗``, is of the fourth) and damps the sample noise above the slit's band. The
+    series is in ``σ²/w²``, ``w`` the width of the spectrum's sharpest feature: right for a
+    broadband lamp (the white LED's blue peak, ``w`` ≈ 8–10 nm) through a slit of up to
+    :data:`COARSE_SLIT_NM`, not for a line lamp. Negative overshoot is clipped.
+    """
+    from scipy.interpolate import CubicSpline  # deferred: scipy.interpolate is slow to import
+    from scipy.ndimage import convolve1d
+
+    low, high = spectrum.range_nm
+    axis = np.arange(low, high + MATCHED_STEP_NM / 2, MATCHED_STEP_NM)
+    spline = CubicSpline(spectrum.wavelength_nm, spectrum.values)
+    sigma_nm = bandwidth_nm / FWHM_PER_SIGMA
+    curvature = spline(axis, 2)
+    kernel = gaussian_kernel(0.5 * sigma_nm / MATCHED_STEP_NM)
+    if kernel is not None:
+        curvature = convolve1d(curvature, kernel, mode="nearest")
+    values = spline(axis) - 0.5 * sigma_nm**2 * curvature
+    return Spectrum(axis, values, name=spectrum.name, negative="clip")
+
+
 def wavelength_blur(wavelength_nm: FloatArray, fwhm_nm: float) -> sparse.csr_array:
     """The matrix ``W`` ``(n, n)`` that blurs a profile sampled at ``wavelength_nm`` (increasing or
     decreasing, one per profile sample) by a Gaussian of ``fwhm_nm`` *in wavelength*.
@@ -160,10 +189,27 @@ def match_spectrometer(
     0035: the search with a spline-resampled spectrum at the common resolution put the twin's
     i1Pro (25 nm at 10 nm, noise draw 1) 23 nm off at the red end, where this finds it within
     0.2 nm.
+
+    In the search, a lamp that is not a line lamp, measured through a slit of at most
+    :data:`COARSE_SLIT_NM`, is matched the other way (decision 0082): its profile is kept as
+    measured and its spectrum brought to the camera's resolution (:func:`sharpened_spectrum`).
+    Blurring the profile instead leaves the search's model (which has no slit terms) the slit's
+    commutation term ``σ² (e_B′ r′ + ½ e_B r″)``: it reads as the spectrum shifted by ``σ² r′/r``
+    wherever the response is steep under a spectral peak (the white LED's blue one), a mapping
+    bias that follows the camera. The sharpened spectrum needs no ``r``. (The solves keep the
+    common resolution and its slit terms: sharpened there too, the LED + FL prior solve lost on
+    every validation camera, decision 0082.)
     """
     bandwidth = observation.spectrum_bandwidth_nm
     if bandwidth is None or nm_per_sample <= 0:
         return observation
+    if wavelength_nm is None and observation.kind != "fluorescent" and bandwidth <= COARSE_SLIT_NM:
+        return replace(
+            observation,
+            spectrum=sharpened_spectrum(observation.spectrum, bandwidth),
+            spectrum_bandwidth_nm=None,
+            metadata={**observation.metadata, "spectrum_sharpened_from_nm": bandwidth},
+        )
     profile = np.asarray(observation.profile)
     sigma = observation.profile_sigma
     if wavelength_nm is None:
