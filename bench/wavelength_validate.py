@@ -159,12 +159,8 @@ def led_row(
         "ambiguous": solution.ambiguous,
         "n_basins": len(candidates),
         "runner_up_delta_chi2": runner_up.get("delta_chi2", float("inf")),
-        "runner_up_unmatched_delta_chi2": runner_up.get("unmatched_delta_chi2"),
         "nearest_basin_delta_chi2": (
             candidates[nearest[1]].get("delta_chi2") if nearest[1] >= 0 else None
-        ),
-        "nearest_basin_unmatched_delta_chi2": (
-            candidates[nearest[1]].get("unmatched_delta_chi2") if nearest[1] >= 0 else None
         ),
         "temper": solution.details.get("temper", float("nan")),
         "first_nm": float(solution.mapping.wavelength_nm(led.pixel[:1])[0]),
@@ -180,7 +176,6 @@ def led_row(
             [
                 {
                     "delta_chi2": c.get("delta_chi2"),
-                    "unmatched_delta_chi2": c.get("unmatched_delta_chi2"),
                     "distance_nm": c.get("rms_distance_nm"),
                     "mean_abs_nm": float(
                         np.mean(

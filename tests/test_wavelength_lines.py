@@ -285,19 +285,6 @@ def test_the_basins_likelihoods_decide_the_stated_sigma():
     assert same.competing is None and same.stated_nm < 1.0
 
 
-def test_a_basin_that_wins_with_the_bandwidth_unmatched_is_ambiguous():
-    """A second basin 12 nm away, far less likely as the search matched the profile to the lamp
-    spectrum's bandwidth but better with it unmatched: the rig's spectrometer can explain the
-    difference, so the result is ambiguous and ±2σ reaches it; unlikely both ways: not."""
-    parts = {"local_nm": 0.1, "scale_nm": 0.2, "misfit_nm": 0.4}
-    flipped = replace(_basin(288.0, 12.0), unmatched_delta_chi2=-371.0)
-    found = basin_sigma([_basin(0.0, 0.0), flipped], **parts)
-    assert found.competing is flipped and flipped.closest_delta_chi2 == -371.0
-    assert 2.0 * found.stated_nm >= 12.0
-    both = replace(_basin(288.0, 12.0), unmatched_delta_chi2=300.0)
-    assert basin_sigma([_basin(0.0, 0.0), both], **parts).competing is None
-
-
 def test_a_broadband_mapping_states_the_prior_pull(camera, prior):
     """An LED alone: the stated σ holds the camera prior's pull (a few tenths of a nm), not only
     the curvature's hundredths; a fluorescent lamp's lines pin it instead."""

@@ -764,7 +764,7 @@ def _lines_from_basins(
         return _measured_lines(lamp, search.exact, prior, grid), search.exact
     except EstimationError as first:
         for candidate in search.candidates[1:]:
-            if candidate.closest_delta_chi2 > HOPELESS_DELTA_CHI2:
+            if candidate.delta_chi2 > HOPELESS_DELTA_CHI2:
                 continue
             try:
                 features = _measured_lines(lamp, candidate.mapping, prior, grid)
@@ -794,7 +794,7 @@ def _anchored_lines(
     starts = [search.exact] + [
         candidate.mapping
         for candidate in search.candidates[1:]
-        if candidate.closest_delta_chi2 <= HOPELESS_DELTA_CHI2
+        if candidate.delta_chi2 <= HOPELESS_DELTA_CHI2
     ]
     errors: list[str] = []
     for start in starts:

@@ -24,9 +24,7 @@ issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
   by their likelihood ratio (tempered by the fit's reduced χ², so a model misfit does not make one
   basin look certain) and, for broadband lamps alone, the camera prior's pull
   (:data:`PRIOR_MISFIT_SIGMA_NM`); when a competing basin's likelihood ratio passes
-  :data:`AMBIGUITY_DELTA_CHI2` — or passes it with the profile not blurred to a measured lamp
-  spectrum's bandwidth (:func:`_unmatched_deltas`: the rig's spectrometer, not noise, can explain
-  such a difference) — the result says so, carries every candidate
+  :data:`AMBIGUITY_DELTA_CHI2` the result says so, carries every candidate
   (:class:`MappingSearch`) and states a σ whose ±2σ reaches the competitor;
 - **either orientation**: for profiles whose origin is arbitrary, both directions (wavelength rising
   or falling with the pixel) are searched; a mapping that folds back is never returned.
@@ -155,15 +153,6 @@ class Candidate:
     delta_chi2: float
     weight: float
     distance_nm: float
-    unmatched_delta_chi2: float | None = None
-
-    @property
-    def closest_delta_chi2(self) -> float:
-        """The smaller of its tempered Δχ² and the one with the lamp spectrum's bandwidth left
-        unmatched (:func:`_unmatched_deltas`): what the rig's errors leave of its deficit."""
-        if self.unmatched_delta_chi2 is None:
-            return self.delta_chi2
-        return min(self.delta_chi2, self.unmatched_delta_chi2)
 
     def to_dict(self, pixel_range: tuple[float, float]) -> dict[str, Any]:
         probe = np.linspace(pixel_range[0], pixel_range[1], 5)
@@ -171,7 +160,6 @@ class Candidate:
             "mapping": self.mapping.to_dict(),
             "cost": self.cost,
             "delta_chi2": self.delta_chi2,
-            "unmatched_delta_chi2": self.unmatched_delta_chi2,
             "relative_likelihood": self.weight,
             "rms_distance_nm": self.distance_nm,
             "wavelength_at_pixels_nm": {
@@ -242,9 +230,9 @@ def basin_sigma(
     competing = [
         c
         for c in candidates[1:]
-        if c.closest_delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
+        if c.delta_chi2 < ambiguity_delta_chi2 and c.distance_nm > AMBIGUITY_MIN_DISTANCE_NM
     ]
-    other = min(competing, key=lambda c: c.closest_delta_chi2) if competing else None
+    other = min(competing, key=lambda c: c.delta_chi2) if competing else None
     if competing:
         stated = max(stated, 0.5 * max(c.distance_nm for c in competing))
     return BasinSigma(stated, spread, local_nm, scale_nm, misfit_nm, other)
@@ -1213,17 +1201,6 @@ def search_profiles(
     temper = max(best_cost / _dof(decided[0][1]), 1.0)
     probe = np.linspace(pixel_range[0], pixel_range[1], 64)
     exact_probe = exact.wavelength_nm(probe)
-    unmatched = _unmatched_deltas(
-        decided,
-        measured,
-        lamps,
-        grid=grid,
-        prior=prior,
-        nm_per_px=nm_per_px,
-        kernel=kernel,
-        local_flexibility=local_flexibility,
-        pixel_range=pixel_range,
-    )
     candidates_out = []
     for index, (basin_family, outcome) in enumerate(decided):
         delta = (outcome.cost - best_cost) / temper
@@ -1236,7 +1213,6 @@ def search_profiles(
                 float(delta),
                 float(math.exp(-0.5 * delta / BASIN_TEMPER)),
                 distance,
-                None if unmatched is None else unmatched[index],
             )
         )
     covariance = final.covariance()
@@ -1295,11 +1271,6 @@ def search_profiles(
     if sigma.competing is not None:
         other = sigma.competing
         how = f"tempered Δχ² {other.delta_chi2:.1f}"
-        if other.unmatched_delta_chi2 is not None and other.unmatched_delta_chi2 < other.delta_chi2:
-            how += (
-                f"; {other.unmatched_delta_chi2:.1f} with the profile not blurred to the lamp "
-                "spectrum's bandwidth, an approximation the spectrometer's slit forces"
-            )
         warnings.append(
             f"the mapping is ambiguous: a second basin {other.distance_nm:.1f} nm away (RMS) fits "
             f"almost as well ({how}; ambiguous below {ambiguity_delta_chi2:g}); both are in the "
@@ -1418,65 +1389,6 @@ def _pulled_in(
         [incidence + k for k in PULLED_IN_INCIDENCE_DEG],
     )
     return points.reshape(-1, points.shape[-1])
-
-
-def _unmatched_deltas(
-    decided: Sequence[tuple[Family, Solution]],
-    measured: Sequence[LampObservation],
-    matched: Sequence[LampObservation],
-    *,
-    grid: WavelengthGrid,
-    prior: CameraPrior,
-    nm_per_px: float,
-    kernel: FloatArray | None,
-    local_flexibility: float,
-    pixel_range: tuple[float, float],
-) -> list[float] | None:
-    """Each basin's tempered Δχ² from the first with the profiles *not* blurred to the lamp
-    spectra's bandwidth, or ``None`` when no spectrum states one or there is one basin.
-
-    A spectrometer's slit blurs the lamp's spectrum; the search blurs the profile to match
-    (:func:`calib.model.resolution.match_spectrometer`), which is exact only where the camera's
-    response is flat over the bandwidth. Around an IR-cut edge it is not, and which basin wins can
-    hang on that approximation: on the validation split's LED-only scenes the two treatments put
-    every camera's mapping within 0.6 nm of each other except two (Nikon D300s, Canon 300D: a
-    different basin, 11–12 nm off, each right under one treatment). So a basin that wins, or
-    nearly, with the bandwidth left unmatched is within what the rig's spectrometer can explain:
-    its smaller Δχ² decides the ambiguity (:attr:`Candidate.closest_delta_chi2`). Each basin is
-    refined from its own point (a basin the refinement leaves is costed where it was).
-    """
-    if len(decided) < 2 or all(
-        a.metadata.get("profile_blurred_to_bandwidth_nm") is None for a in matched
-    ):
-        return None
-    costs = []
-    rows = 1
-    for index, (family, outcome) in enumerate(decided):
-        flexibility = local_flexibility if isinstance(family, QuadraticFamily) else FLEXIBILITY
-        stage = _stage(
-            measured,
-            family,
-            grid,
-            prior,
-            bin_nm=REFINE_BIN_NM,
-            nm_per_px=nm_per_px,
-            kernel=kernel,
-            node_step_nm=COARSE_NODES_NM,
-            flexibility=flexibility,
-            sigma_floor=0.0,
-            pixel_range=pixel_range,
-        )
-        refined = stage.refine(outcome.x, max_iterations=6, tolerance=1e-5, rounds=1)
-        probe = np.linspace(pixel_range[0], pixel_range[1], 9)
-        moved = np.max(
-            np.abs(family.wavelengths(probe, refined.x) - family.wavelengths(probe, outcome.x))
-        )
-        x = refined.x if moved <= AMBIGUITY_MIN_DISTANCE_NM else outcome.x
-        costs.append(float(stage.costs(x[None])[0]))
-        if index == 0:
-            rows = max(refined.residual.size - refined.x.size, 1)
-    temper = max(costs[0] / rows, 1.0)
-    return [(cost - costs[0]) / temper for cost in costs]
 
 
 #: A direction whose best correlation start scores this far below the best one is not searched
