@@ -32,6 +32,7 @@ from calib.model.forward import apply_blur, blur_kernel
 
 if TYPE_CHECKING:
     from scipy import sparse
+    from scipy.interpolate import CubicSpline
 
 #: A Gaussian's FWHM over its σ.
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
@@ -80,19 +81,26 @@ def common_resolution_nm(bandwidth_nm: float, spectrum_step_nm: float) -> float:
     return max(bandwidth_nm, RESOLUTION_FLOOR_NM, 2.0 * spectrum_step_nm)
 
 
-def blurred_spectrum(spectrum: Spectrum, bandwidth_nm: float, target_nm: float) -> Spectrum:
-    """``spectrum`` (measured through a Gaussian slit of ``bandwidth_nm``) at ``target_nm`` FWHM.
-
-    The samples are interpolated with a cubic spline (a slit-limited spectrum is smooth on the scale
-    of its samples; linear interpolation would cut a 8 nm line sampled every 4 nm by up to a sixth
-    at its peak) onto a :data:`MATCHED_STEP_NM` axis, then convolved with the difference kernel
-    (FWHM ``√(target² − bandwidth²)``). Negative overshoot is clipped.
-    """
+def _matched_spline(spectrum: Spectrum) -> tuple[FloatArray, CubicSpline]:
+    """The :data:`MATCHED_STEP_NM` axis over ``spectrum``'s range and a cubic spline through its
+    samples (a slit-limited spectrum is smooth on the scale of its samples; linear interpolation
+    would cut a 8 nm line sampled every 4 nm by up to a sixth at its peak)."""
     from scipy.interpolate import CubicSpline  # deferred: scipy.interpolate is slow to import
 
     low, high = spectrum.range_nm
     axis = np.arange(low, high + MATCHED_STEP_NM / 2, MATCHED_STEP_NM)
-    values = CubicSpline(spectrum.wavelength_nm, spectrum.values)(axis)
+    return axis, CubicSpline(spectrum.wavelength_nm, spectrum.values)
+
+
+def blurred_spectrum(spectrum: Spectrum, bandwidth_nm: float, target_nm: float) -> Spectrum:
+    """``spectrum`` (measured through a Gaussian slit of ``bandwidth_nm``) at ``target_nm`` FWHM.
+
+    The samples are interpolated with a cubic spline onto a :data:`MATCHED_STEP_NM` axis
+    (:func:`_matched_spline`), then convolved with the difference kernel
+    (FWHM ``√(target² − bandwidth²)``). Negative overshoot is clipped.
+    """
+    axis, spline = _matched_spline(spectrum)
+    values = spline(axis)
     extra_nm = math.sqrt(max(target_nm**2 - bandwidth_nm**2, 0.0))
     kernel = gaussian_kernel(extra_nm / FWHM_PER_SIGMA / MATCHED_STEP_NM)
     if kernel is not None:
@@ -107,20 +115,16 @@ def sharpened_spectrum(spectrum: Spectrum, bandwidth_nm: float) -> Spectrum:
     """``spectrum`` (measured through a Gaussian slit of ``bandwidth_nm``) brought back to the
     camera's resolution, to first order: ``e ≈ e_B − ½ σ² e_B″`` (σ the slit's).
 
-    The samples are interpolated with a cubic spline onto a :data:`MATCHED_STEP_NM` axis, as in
-    :func:`blurred_spectrum`; ``e_B″`` is the spline's second derivative smoothed by a Gaussian of
+    The samples are interpolated as in :func:`blurred_spectrum` (:func:`_matched_spline`); ``e_B″`` is the spline's second derivative smoothed by a Gaussian of
     ``σ/2``, which keeps the correction exact to second order (the smoothing's own effect,
     ``σ²·(σ/2)²/4 · e⁗``, is of the fourth) and damps the sample noise above the slit's band. The
     series is in ``σ²/w²``, ``w`` the width of the spectrum's sharpest feature: right for a
     broadband lamp (the white LED's blue peak, ``w`` ≈ 8–10 nm) through a slit of up to
     :data:`COARSE_SLIT_NM`, not for a line lamp. Negative overshoot is clipped.
     """
-    from scipy.interpolate import CubicSpline  # deferred: scipy.interpolate is slow to import
     from scipy.ndimage import convolve1d
 
-    low, high = spectrum.range_nm
-    axis = np.arange(low, high + MATCHED_STEP_NM / 2, MATCHED_STEP_NM)
-    spline = CubicSpline(spectrum.wavelength_nm, spectrum.values)
+    axis, spline = _matched_spline(spectrum)
     sigma_nm = bandwidth_nm / FWHM_PER_SIGMA
     curvature = spline(axis, 2)
     kernel = gaussian_kernel(0.5 * sigma_nm / MATCHED_STEP_NM)

@@ -27,6 +27,7 @@ mapping's wavelength there and the residual, for the report.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -251,8 +252,10 @@ class ProfileAnchor:
     def rows(self) -> int:
         return int(self.pixels.size)
 
+    @functools.cached_property
     def whitening(self) -> FloatArray:
-        """``W`` with ``Wᵀ W = covariance⁻¹`` (rows ``W (λ − λ_fit)`` are unit normal)."""
+        """``W`` with ``Wᵀ W = covariance⁻¹`` (rows ``W (λ − λ_fit)`` are unit normal); once per
+        anchor, not per iteration of the fits that use it."""
         return np.asarray(np.linalg.inv(np.linalg.cholesky(self.covariance_nm2)), dtype=np.float64)
 
     def residual(
@@ -267,7 +270,7 @@ class ProfileAnchor:
         else:
             wavelengths = family.wavelengths(self.pixels, x)
             jacobian = family.jacobian(self.pixels, x) if with_jacobian else None
-        whitening = self.whitening()
+        whitening = self.whitening
         rows = whitening @ (wavelengths - self.wavelength_nm)
         return rows, None if jacobian is None else whitening @ jacobian
 

@@ -313,6 +313,36 @@ def _coarse(observation: LampObservation, limit_nm: float = COARSE_SPECTRUM_NM) 
     return max(step, bandwidth) > limit_nm
 
 
+def _hg_lines_shown(
+    lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
+) -> tuple[tuple[Line, ...], float, float]:
+    """The built-in Hg lines near ``grid`` that a measured fluorescent lamp's spectrum shows
+    (:func:`~calib.wavelength.features.lines_shown`), with the spectrum's resolution and the
+    camera's (nm, FWHM; the camera's through ``mapping`` at the profile's middle).
+
+    A camera feature where the list has a line the lamp lacks is a phosphor band's shape (the
+    twin's FL2 has no 491.6, matched 1.0–1.5 nm off, nor 407.8, which moved the 404.7 blend's
+    centre by 0.24 nm). A spectrum more than :data:`JUDGING_RESOLUTION` times coarser than the
+    camera cannot tell: every line is kept then."""
+    from calib.wavelength.features import lines_shown
+
+    lines = tuple(
+        line
+        for line in line_list("hg")
+        if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
+    )
+    width = fwhm_px(lamp) * float(np.median(np.diff(lamp.pixel)))
+    middle = np.array([0.5 * (float(lamp.pixel[0]) + float(lamp.pixel[-1]))])
+    camera_nm = width * abs(float(_local_dispersion(mapping, middle)[0]))
+    spectrum = lamp.spectrum
+    resolution_nm = max(
+        lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
+    )
+    if resolution_nm <= JUDGING_RESOLUTION * camera_nm:
+        lines = lines_shown(spectrum.wavelength_nm, spectrum.values, lines, resolution_nm)
+    return lines, resolution_nm, camera_nm
+
+
 def _known_line_table(
     lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
 ) -> tuple[list[dict[str, Any]], str | None]:
@@ -323,25 +353,13 @@ def _known_line_table(
     Only the lines the lamp's spectrum shows (:func:`~calib.wavelength.features.lines_shown`),
     where it resolves within :data:`JUDGING_RESOLUTION` of the camera (:func:`_measured_lines`'
     rule): a "line" the lamp lacks is a phosphor band's shape."""
-    from calib.wavelength.features import feature_signal, features_at, fit_features, lines_shown
+    from calib.wavelength.features import feature_signal, features_at, fit_features
 
     width = fwhm_px(lamp)
     spacing = float(np.median(np.diff(lamp.pixel)))
     signal, noise = feature_signal(lamp.profile, "emission", width)
     pixel_range = (float(lamp.pixel[0]), float(lamp.pixel[-1]))
-    lines = [
-        line
-        for line in line_list("hg")
-        if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
-    ]
-    middle = np.array([0.5 * (pixel_range[0] + pixel_range[1])])
-    camera_nm = width * spacing * abs(float(_local_dispersion(mapping, middle)[0]))
-    spectrum = lamp.spectrum
-    resolution_nm = max(
-        lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
-    )
-    if resolution_nm <= JUDGING_RESOLUTION * camera_nm:
-        lines = list(lines_shown(spectrum.wavelength_nm, spectrum.values, lines, resolution_nm))
+    lines, _, _ = _hg_lines_shown(lamp, mapping, grid)
     blends = features_at(lines, mapping, width * spacing, pixel_range)
     rows: list[dict[str, Any]] = []
     for fitted in fit_features(lamp.pixel, signal, noise, blends, mapping, width * spacing):
@@ -833,27 +851,12 @@ def _measured_lines(
     nodes); a coarser one's centre of a line on a phosphor band's flank was 0.4–0.8 nm off on
     the twin's PR-655, and the blends' it measured (578.19 nm for the twin's doublet, right) met a
     camera moment 0.3 nm off: those stay with the list."""
-    from calib.wavelength.features import features_at, lines_shown, spectrum_line_centres
+    from calib.wavelength.features import features_at, spectrum_line_centres
 
-    lines = tuple(
-        line
-        for line in line_list("hg")
-        if grid.start_nm - 30.0 <= line.wavelength_nm <= grid.stop_nm + 30.0
-    )
     width = fwhm_px(lamp) * float(np.median(np.diff(lamp.pixel)))
     pixel_range = (float(lamp.pixel[0]), float(lamp.pixel[-1]))
-    middle = np.array([0.5 * (pixel_range[0] + pixel_range[1])])
-    camera_nm = width * abs(float(_local_dispersion(start, middle)[0]))
+    lines, resolution_nm, camera_nm = _hg_lines_shown(lamp, start, grid)
     spectrum = lamp.spectrum
-    resolution_nm = max(
-        lamp.spectrum_bandwidth_nm or 0.0, float(np.median(np.diff(spectrum.wavelength_nm)))
-    )
-    if resolution_nm <= JUDGING_RESOLUTION * camera_nm:
-        # Only the lines the lamp shows: a camera feature where the list has a line the lamp
-        # lacks is a phosphor band's shape (the twin's FL2 has no 491.6, matched 1.0–1.5 nm
-        # off, nor 407.8, which moved the 404.7 blend's centre by 0.24 nm). A spectrum far
-        # coarser than the camera cannot tell; all are tried then.
-        lines = lines_shown(spectrum.wavelength_nm, spectrum.values, lines, resolution_nm)
     measured = spectrum_line_centres(
         spectrum.wavelength_nm,
         spectrum.values,
