@@ -707,11 +707,9 @@ class ResponseModel:
         diagonals, _ = self._normal(band)  # (1, 3, N, w)
         size, width = diagonals.shape[2:]
         positions, source, _ = self._band_layout(width)
-        gathered = np.concatenate(
-            [diagonals.reshape(3, size * width), np.zeros((3, 1))], axis=-1
-        )[:, source]
+        padded = np.concatenate([diagonals.reshape(3, size * width), np.zeros((3, 1))], axis=-1)
         normal = np.zeros((3, size * size))
-        normal[:, positions] = gathered
+        normal[:, positions] = padded[:, source]
         return normal.reshape(3, size, size)
 
     @cached_property
