@@ -126,3 +126,32 @@ def test_one_mappings_dense_systems_are_the_batchs_up_to_rounding(unblurred):
     )
     np.testing.assert_array_equal(fixed._held_systems, expected)
     assert RIDGE > 0
+
+
+def test_a_large_mappings_banded_normal_matrices_are_the_dense_ones(unblurred, monkeypatch):
+    """Above :data:`response_model.DENSE_NORMAL` entries one mapping's normal matrices come from
+    its band (:meth:`ResponseModel._banded_normal`): the same ``AᵀW²A`` as the dense product, so
+    the same residual, Jacobian and fitted response up to rounding."""
+    model, family, edges_px, x = unblurred
+    fixed = model.reference(family.wavelengths(edges_px, x))
+    where = family.wavelengths(edges_px, x + np.array([0.3, -0.2, 0.1]))
+    jacobian = family.jacobian(edges_px, x)
+    band = fixed.band(where[None])
+    size = fixed.n_nodes
+    columns = np.minimum(band.columns[0], size - 1)
+    flat = (np.arange(band.values.shape[1])[:, None] * size + columns).ravel()
+    rows = band.values.shape[1]
+    matrix = np.bincount(flat, weights=band.values[0].ravel(), minlength=rows * size)
+    matrix = matrix.reshape(rows, size)
+    weighted = fixed.weights.T[:, :, None] * matrix
+    dense = np.matmul(weighted.transpose(0, 2, 1), weighted)
+    normal = fixed._banded_normal(band)
+    np.testing.assert_allclose(normal, dense, rtol=0, atol=1e-13 * np.abs(dense).max())
+    outputs = []
+    for limit in (10**9, 0):  # the dense product, then the band's
+        monkeypatch.setattr(response_model, "DENSE_NORMAL", limit)
+        residual, derivative, parts = fixed.residual(where, jacobian)
+        outputs.append((residual, derivative, parts["response"]))
+    for dense_one, banded_one in zip(*outputs, strict=True):
+        scale = np.abs(dense_one).max()
+        np.testing.assert_allclose(banded_one, dense_one, rtol=0, atol=1e-11 * scale)

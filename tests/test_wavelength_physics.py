@@ -227,14 +227,14 @@ def test_response_model_band_derivative_and_normal_matrix(fluorescent_profile):
     edges = family.wavelengths(edges_px, x)[None]
     band = model.band(edges, family.jacobian(edges_px)[None])
     assert band.derivative is not None
-    # Each edge's cumulatives computed once for the pixels sharing it (a blurred profile) are the
-    # pixel-by-pixel ones.
+    # Each edge's cumulatives computed once for the pixels sharing it (a blurred profile) and
+    # filtered tap by tap are the pixel-by-pixel ones (the same sums up to rounding).
     assert model.filter.size > SHARED_EDGES_FROM
     windows, _ = model._windows(edges)
     columns = np.minimum(band.columns, model.n_nodes - 1)
     direct, _ = model.columns.evaluate(windows[..., None, :], columns[..., None])
     expected = np.einsum("knwl,l->knw", direct, model.filter) * (band.columns < model.n_nodes)
-    np.testing.assert_array_equal(band.values, expected)
+    np.testing.assert_allclose(band.values, expected, rtol=0, atol=1e-13 * np.abs(expected).max())
     step = 1e-4
     for k in range(x.size):
         delta = np.zeros(3)
