@@ -8,8 +8,8 @@ absent) and estimates through the registry's ``auto`` choice with the σ budget
   5 nm spectrum, and the CFL profile whose spectrum nobody measured (the built-in tri-phosphor line
   list, marked ``spectrum_known=False``: ``auto`` uses it for the mapping only). No direct measurement
   and no grating file: the known-grating solve through an assumed flat grating (the default), and
-  beside it through η₁ marginalised over the physical families, weighed by the camera prior
-  (``assumed_grating="physical"``, decision 0074). Truth:
+  beside it through η₁ marginalised over the physical families and the flat candidate, weighed by
+  the camera prior (``assumed_grating="physical"``, decisions 0074 and 0088). Truth:
   rawtoaces' monochromator curve of the D7000 (not in the basis). The validation protocol's
   variants "A + FL unmeasured, no direct" (and "…, physical η") are this set-up.
 - *Canon EOS 10D* (rrogge, FITS planes): sunlight (AM0 × the atmosphere's transmission) through
