@@ -8,8 +8,8 @@ absent) and estimates through the registry's ``auto`` choice with the σ budget
   5 nm spectrum, and the CFL profile whose spectrum nobody measured (the built-in tri-phosphor line
   list, marked ``spectrum_known=False``: ``auto`` uses it for the mapping only). No direct measurement
   and no grating file: the known-grating solve through an assumed flat grating (the default), and
-  beside it through η₁ marginalised over the physical families, weighed by the camera prior
-  (``assumed_grating="physical"``, decision 0074). Truth:
+  beside it through η₁ marginalised over the physical families and the flat candidate, weighed by
+  the camera prior (``assumed_grating="physical"``, decisions 0074 and 0088). Truth:
   rawtoaces' monochromator curve of the D7000 (not in the basis). The validation protocol's
   variants "A + FL unmeasured, no direct" (and "…, physical η") are this set-up.
 - *Canon EOS 10D* (rrogge, FITS planes): sunlight (AM0 × the atmosphere's transmission) through
@@ -50,8 +50,11 @@ from calib.model.bases import camera_basis, default_camera_basis
 GRID = DEFAULT_GRID
 
 
-def scores(result: EstimateResult, truth: FloatArray, *, per_channel: bool = False) -> str:
-    """RMS and ±2σ coverage of the estimate against ``truth`` ``(f, 3)`` (module docstring)."""
+def scaled_difference(
+    result: EstimateResult, truth: FloatArray, *, per_channel: bool = False
+) -> tuple[FloatArray, FloatArray, float]:
+    """The estimate less ``truth`` ``(f, 3)`` as the data's README scores it (module docstring),
+    the equally scaled stated σ, and the least-squares factor."""
     estimate_curves = result.physical_sensitivity()
     sigma = result.sensitivity_sigma
     sigma = (
@@ -65,9 +68,24 @@ def scores(result: EstimateResult, truth: FloatArray, *, per_channel: bool = Fal
         peak = estimate_curves.max(axis=0)
         estimate_curves, sigma = estimate_curves / peak, sigma / peak
     factor = float(np.sum(estimate_curves * target) / np.sum(estimate_curves**2))
-    difference = factor * estimate_curves - target
+    return factor * estimate_curves - target, factor * sigma, factor
+
+
+def rms_and_coverage(
+    result: EstimateResult, truth: FloatArray, *, per_channel: bool = False
+) -> tuple[float, float]:
+    """RMS and ±2σ coverage of the estimate against ``truth`` (module docstring); the solar
+    analog (``bench/solar_validate.py --sensitivity``) scores the 10D's set-up with it."""
+    difference, sigma, _ = scaled_difference(result, truth, per_channel=per_channel)
     rms = math.sqrt(float(np.mean(difference**2)))
-    coverage = float(np.mean(np.abs(difference) <= 2 * factor * sigma))
+    return rms, float(np.mean(np.abs(difference) <= 2 * sigma))
+
+
+def scores(result: EstimateResult, truth: FloatArray, *, per_channel: bool = False) -> str:
+    """RMS and ±2σ coverage of the estimate against ``truth`` ``(f, 3)`` (module docstring)."""
+    difference, sigma, factor = scaled_difference(result, truth, per_channel=per_channel)
+    sigma = sigma / factor
+    rms, coverage = rms_and_coverage(result, truth, per_channel=per_channel)
     budget = result.quality.uncertainty
     share = budget.get("share_of_variance", {})
     biggest = max(share, key=share.get) if share else "—"

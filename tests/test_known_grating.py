@@ -26,6 +26,7 @@ from calib.methods.grating_models import (
     assumed_candidates,
     assumed_efficiency,
     candidate_log_evidence,
+    check_assumed_families,
 )
 from calib.methods.known_grating import (
     ONE_LAMP_PRIOR_WEIGHTS,
@@ -238,7 +239,7 @@ def test_the_camera_prior_weighs_the_assumed_shapes() -> None:
     np.testing.assert_allclose(singled.inverse, stack[7], rtol=1e-9)
     assert np.max(np.abs(singled.inverse_covariance)) < 1e-12
     assert singled.record["effective_candidates"] == pytest.approx(1.0)
-    spread = assumed_efficiency(wavelength)
+    spread = assumed_efficiency(wavelength, ("sinusoidal", "blazed"))
     assert np.all(spread.efficiency_sigma > 0) and spread.record["effective_candidates"] > 40
     # The evidence prefers the shape the response was made through.
     prior_mean = np.stack([TRUTH[:, c] for c in range(3)], axis=1)
@@ -252,6 +253,48 @@ def test_the_camera_prior_weighs_the_assumed_shapes() -> None:
         stack,
     )
     assert int(np.argmax(log_evidence)) == 20
+
+
+def test_the_assumed_population_is_chosen_by_family_the_flat_one_a_family_of_one() -> None:
+    """Decision 0088: the population ``"physical"`` marginalises over is named by family (each
+    family equal weight, uniform inside it); ``"flat"`` is one candidate, η = 1."""
+    wavelength = DEFAULT_GRID.wavelength_nm
+    both, both_weight, _ = assumed_candidates(wavelength, ("sinusoidal", "blazed"))
+    stack, weight, labels = assumed_candidates(wavelength)  # the default adds the flat one
+    assert stack.shape[0] == both.shape[0] + 1 and labels[-1] == ("flat", 0.0)
+    np.testing.assert_array_equal(stack[-1], np.ones(wavelength.size))
+    np.testing.assert_allclose(stack[:-1], both)  # the families' shapes as before
+    np.testing.assert_allclose(weight[-1], 1 / 3)
+    np.testing.assert_allclose(weight[:-1], both_weight * 2 / 3)
+    sinusoidal = assumed_candidates(wavelength, ("sinusoidal",))[2]
+    assert {kind for kind, _ in sinusoidal} == {"sinusoidal"}
+    flat = assumed_efficiency(wavelength, ("flat",))
+    np.testing.assert_allclose(flat.inverse, 1.0)
+    assert np.max(np.abs(flat.inverse_covariance)) == 0.0
+    assert flat.record["most_likely"] == {"model": "flat"} and flat.record["ranges"] == {}
+    assert check_assumed_families(("flat", "sinusoidal")) == ("sinusoidal", "flat")
+    for wrong in [(), ("prism",), ("blazed", "blazed")]:
+        with pytest.raises(InputError, match="assumed families"):
+            KnownGratingOptions(assumed_families=wrong)  # type: ignore[arg-type]
+
+
+def test_the_assumed_families_reach_the_solve(basis):
+    """``assumed_families`` is the population the solve marginalises over and records."""
+    rng, mapping, _, _ = _scene(5)
+    grating = SinusoidalPhaseGrating(0.6)
+
+    def efficiency(wavelength):
+        return grating.efficiency(1, wavelength)
+
+    halogen = _lamp("A", "halogen", mapping, efficiency, rng)
+    only = KnownGratingOptions(assumed_grating="physical", assumed_families=("blazed",))
+    result = estimate_known_grating(
+        [halogen], grating=None, basis=basis, mapping=mapping, options=only
+    )
+    record = result.diagnostics["grating"]
+    assert record["families"] == ["blazed"]
+    assert record["family_weights"] == {"blazed": pytest.approx(1.0)}
+    assert record["most_likely"]["model"] == "blazed"
 
 
 def test_the_mapping_is_found_from_the_lamps_when_not_given(basis):

@@ -544,6 +544,32 @@ ASSUMED_RANGES: dict[PhysicalKind, tuple[float, float]] = {
     "blazed": BlazedGrating.BLAZE_RANGE_NM,
 }
 ASSUMED_GRATINGS: tuple[AssumedGrating, ...] = ("flat", "physical")
+#: A family an assumed η may be marginalised over: a physical one (its range,
+#: :data:`ASSUMED_RANGES`) or ``"flat"`` — one candidate, η = 1 (a sheet whose first order does not
+#: change over the grid: the limit no scalar family reaches exactly).
+AssumedFamily = Literal["sinusoidal", "blazed", "flat"]
+ASSUMED_FAMILY_NAMES: tuple[AssumedFamily, ...] = ("sinusoidal", "blazed", "flat")
+#: The population ``assumed_grating="physical"`` marginalises over: the two physical families
+#: (decision 0074) and the flat candidate, equal weight each (decision 0088: a sheet nearly flat
+#: over the grid, like a maker's ruled grating, is a real case no scalar family holds; on the
+#: validation split the flat candidate helped the one such curve, 2.87 → 2.68 ×10⁻², and left
+#: the families' own scenes as they were).
+DEFAULT_ASSUMED_FAMILIES: tuple[AssumedFamily, ...] = ("sinusoidal", "blazed", "flat")
+
+
+def check_assumed_families(
+    families: Sequence[str], source: str = "assumed_families"
+) -> tuple[AssumedFamily, ...]:
+    """``families`` as :data:`ASSUMED_FAMILY_NAMES` members (none repeated, at least one), or a
+    one-line :class:`InputError`."""
+    chosen = tuple(name for name in families if name in ASSUMED_FAMILY_NAMES)
+    if not chosen or len(chosen) != len(families) or len(set(chosen)) != len(chosen):
+        raise InputError(
+            f"assumed families {list(families)}: give one or more of "
+            f"{', '.join(ASSUMED_FAMILY_NAMES)}, each once",
+            source=source,
+        )
+    return tuple(family for family in ASSUMED_FAMILY_NAMES if family in chosen)
 
 
 @dataclass(frozen=True, eq=False)
@@ -577,24 +603,32 @@ class AssumedEfficiency:
 
 def assumed_candidates(
     wavelength_nm: FloatArray,
-    kinds: Sequence[PhysicalKind] = PHYSICAL_KINDS,
+    kinds: Sequence[AssumedFamily] = DEFAULT_ASSUMED_FAMILIES,
     points: int = ASSUMED_POINTS,
-) -> tuple[FloatArray, FloatArray, list[tuple[PhysicalKind, float]]]:
-    """The physical families' ``1/η₁`` over their draw ranges ``(K, f)`` (each scaled to a
-    geometric mean of 1 on the grid: the sensitivity's scale is free), their prior weights
-    ``(K,)`` (equal per family, uniform in each range) and ``(kind, parameter)`` of each."""
+) -> tuple[FloatArray, FloatArray, list[tuple[AssumedFamily, float]]]:
+    """The families' ``1/η₁`` over their draw ranges ``(K, f)`` (each scaled to a geometric mean
+    of 1 on the grid: the sensitivity's scale is free; ``"flat"`` one row of ones), their prior
+    weights ``(K,)`` (equal per family, uniform in each range) and ``(kind, parameter)`` of each
+    (``0.0`` for the flat one)."""
     wavelength = np.asarray(wavelength_nm, dtype=np.float64)
     candidates: list[FloatArray] = []
-    labels: list[tuple[PhysicalKind, float]] = []
+    labels: list[tuple[AssumedFamily, float]] = []
+    weights: list[float] = []
     for kind in kinds:
+        if kind == "flat":
+            candidates.append(np.ones(wavelength.size))
+            labels.append((kind, 0.0))
+            weights.append(1.0)
+            continue
         low, high = ASSUMED_RANGES[kind]
         for value in np.linspace(low, high, points):
             first = physical_grating(kind, float(value)).efficiency(1, wavelength)
             log_inverse = -np.log(np.maximum(first, 1e-300))
             candidates.append(np.exp(log_inverse - log_inverse.mean()))
             labels.append((kind, float(value)))
-    weights = np.full(len(candidates), 1.0 / len(candidates))
-    return np.asarray(candidates), weights, labels
+            weights.append(1.0 / points)
+    share = np.asarray(weights)
+    return np.asarray(candidates), share / share.sum(), labels
 
 
 def candidate_log_evidence(
@@ -634,7 +668,7 @@ def candidate_log_evidence(
 
 def assumed_efficiency(
     wavelength_nm: FloatArray,
-    kinds: Sequence[PhysicalKind] = PHYSICAL_KINDS,
+    kinds: Sequence[AssumedFamily] = DEFAULT_ASSUMED_FAMILIES,
     points: int = ASSUMED_POINTS,
     log_evidence: FloatArray | None = None,
 ) -> AssumedEfficiency:
@@ -662,16 +696,13 @@ def assumed_efficiency(
     record = {
         "assumed": "physical",
         "families": list(kinds),
-        "ranges": {kind: list(ASSUMED_RANGES[kind]) for kind in kinds},
+        "ranges": {kind: list(ASSUMED_RANGES[kind]) for kind in kinds if kind != "flat"},
         "weighted_by_camera_prior": log_evidence is not None,
         "family_weights": {
             kind: float(sum(w for w, (k, _) in zip(weight, labels, strict=True) if k == kind))
             for kind in kinds
         },
-        "most_likely": {
-            "model": labels[best][0],
-            PHYSICAL_PARAMETER_NAMES[labels[best][0]]: labels[best][1],
-        },
+        "most_likely": _candidate_record(*labels[best]),
         "effective_candidates": float(1.0 / np.sum(weight**2)),
         "note": "no direct measurement and no grating file: η₁ marginalised over the physical "
         "families' ranges, its spread carried in σ",
@@ -679,3 +710,10 @@ def assumed_efficiency(
     return AssumedEfficiency(
         np.asarray(mean, dtype=np.float64), 0.5 * (covariance + covariance.T), record
     )
+
+
+def _candidate_record(kind: AssumedFamily, value: float) -> dict[str, Any]:
+    """One candidate as plain data: its family and shape parameter (none for the flat one)."""
+    if kind == "flat":
+        return {"model": kind}
+    return {"model": kind, PHYSICAL_PARAMETER_NAMES[kind]: value}

@@ -45,11 +45,14 @@ from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.closed_form import GratingMethodOptions, check_lamps
 from calib.methods.grating_models import (
+    DEFAULT_ASSUMED_FAMILIES,
     AssumedEfficiency,
+    AssumedFamily,
     AssumedGrating,
     assumed_candidates,
     assumed_efficiency,
     candidate_log_evidence,
+    check_assumed_families,
     recorded_physical_grating,
     second_order_ratio,
 )
@@ -142,9 +145,17 @@ class KnownGratingOptions(GratingMethodOptions):
     prior that steers the mapping search and fills in where the lamps are dim.
     ``assumed_grating``: what stands in for η without a grating (``grating=None``):
     ``"physical"`` (η₁ marginalised over the physical families,
-    :func:`calib.methods.grating_models.assumed_efficiency`) or ``"flat"``."""
+    :func:`calib.methods.grating_models.assumed_efficiency`) or ``"flat"``.
+    ``assumed_families``: the population ``"physical"`` marginalises over
+    (:data:`calib.methods.grating_models.ASSUMED_FAMILY_NAMES`; decision 0088 judged each family
+    left out of it on the validation split)."""
 
     assumed_grating: AssumedGrating = DEFAULT_ASSUMED_GRATING
+    assumed_families: tuple[AssumedFamily, ...] = DEFAULT_ASSUMED_FAMILIES
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "assumed_families", check_assumed_families(self.assumed_families))
 
 
 @one_blas_thread
@@ -269,9 +280,11 @@ def estimate_known_grating(
             pooled.covariance,
             prior.mean,
             prior.covariance,
-            assumed_candidates(wavelength)[0],
+            assumed_candidates(wavelength, options.assumed_families)[0],
         )
-        assumed = assumed_efficiency(wavelength, log_evidence=log_evidence)
+        assumed = assumed_efficiency(
+            wavelength, options.assumed_families, log_evidence=log_evidence
+        )
         eta, eta_sigma = assumed.efficiency, assumed.efficiency_sigma
         record = {"source": ASSUMED_PHYSICAL_SOURCE, **assumed.record}
         # The shapes' spread is smooth and shared by the channels: its full covariance, so that

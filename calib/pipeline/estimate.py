@@ -641,8 +641,8 @@ def _known_grating_options(
         refine_given_mapping=options.refine_given_mapping,
         slit_width_px=options.slit_width_px,
         psf_sigma_px=options.psf_sigma_px,
-        **({} if assumed is None else {"assumed_grating": assumed}),
     )
+    kept = kept if assumed is None else replace(kept, assumed_grating=assumed)
     defaults = type(options)()
     ignored = [
         name

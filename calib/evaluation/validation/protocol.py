@@ -144,8 +144,9 @@ NO_DIRECT_VARIANT = MethodVariant(
     direct=False,
     unmeasured=(("FL2", UNMEASURED_FL_SPEC),),
 )
-#: The same set-up with η₁ marginalised over the physical grating families instead of flat
-#: (``KnownGratingOptions(assumed_grating="physical")``, decision 0074).
+#: The same set-up with η₁ marginalised over the physical grating families and the flat
+#: candidate instead of flat (``KnownGratingOptions(assumed_grating="physical")``, decisions 0074
+#: and 0088; ``bench/assumed_eta.py`` takes the population apart).
 NO_DIRECT_PHYSICAL_VARIANT = replace(
     NO_DIRECT_VARIANT,
     label="A + FL unmeasured, no direct, physical η",
