@@ -75,6 +75,7 @@ from typing import Any, Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.methods.responses import MODEL_FLOOR, LampData, direct_rows
 from calib.model.gratings import (
@@ -461,7 +462,7 @@ def fit_physical(
     down = physical_equations(lamps, kind, parameter - step, weight, gain_sigma, wavelength_nm)[0]
     jacobian = np.stack([throughput * (up - down) / (2 * step), throughput * values], 1)
     noise_covariance = np.asarray(
-        np.linalg.pinv(jacobian.T @ jacobian, hermitian=True), dtype=np.float64
+        pinv_symmetric(jacobian.T @ jacobian), dtype=np.float64
     )
     dof = max(target.size - 2, 1)
     inflation = max(1.0, chi2 / dof)

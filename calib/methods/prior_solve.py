@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.blas import one_blas_thread
+from calib.core.blas import one_blas_thread, pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
@@ -233,7 +233,7 @@ def solve_with_prior(
         data_cov = inverse_efficiency[:, None] * response_cov[c] * inverse_efficiency[None, :]
         prior_cov = scale_hat**2 * prior.covariance[c]
         prior_mean = scale_hat * mean[:, c]
-        data_precision = np.linalg.pinv(data_cov, hermitian=True)
+        data_precision = pinv_symmetric(data_cov)
         prior_precision = np.linalg.inv(prior_cov)
         posterior_cov = np.linalg.inv(data_precision + prior_precision)
         posterior_mean = posterior_cov @ (data_precision @ data_mean + prior_precision @ prior_mean)
