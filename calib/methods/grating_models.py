@@ -461,9 +461,7 @@ def fit_physical(
     up = physical_equations(lamps, kind, parameter + step, weight, gain_sigma, wavelength_nm)[0]
     down = physical_equations(lamps, kind, parameter - step, weight, gain_sigma, wavelength_nm)[0]
     jacobian = np.stack([throughput * (up - down) / (2 * step), throughput * values], 1)
-    noise_covariance = np.asarray(
-        pinv_symmetric(jacobian.T @ jacobian), dtype=np.float64
-    )
+    noise_covariance = np.asarray(pinv_symmetric(jacobian.T @ jacobian), dtype=np.float64)
     dof = max(target.size - 2, 1)
     inflation = max(1.0, chi2 / dof)
     return PhysicalFit(
