@@ -301,18 +301,23 @@ def _efficiency_jacobians(
     penalty_nodes: FloatArray,
     efficiency_basis: FloatArray,
     inverse: FloatArray,
-    size: int,
-    b_eta: int,
-    n_scales: int,
+    out: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """``(J_d, J_p)`` of the data and prior residuals in ``x = (c, α…)`` where ``η = B c``
-    (``size, b_eta``: ``B``'s shape; ``n_scales``: the ``α`` columns of ``penalty_nodes``)."""
+    """``(J_d, J_p)`` of the data and prior residuals in ``x = (c, α…)`` where ``η = B c``.
+
+    ``out``: arrays made by an earlier call with the same ``data_nodes`` and ``penalty_nodes``,
+    overwritten (only their ``c`` columns: the ``α`` ones do not depend on ``η``)."""
+    size, b_eta = efficiency_basis.shape
     inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis  # ∂η⁻¹/∂c
-    data_jac = np.zeros((data_nodes.shape[0], b_eta + n_scales))
+    if out is None:
+        n_scales = penalty_nodes.shape[1] - size
+        data_jac = np.zeros((data_nodes.shape[0], b_eta + n_scales))
+        penalty_jac = np.empty((penalty_nodes.shape[0], b_eta + n_scales))
+        penalty_jac[:, b_eta:] = penalty_nodes[:, size:]
+    else:
+        data_jac, penalty_jac = out
     data_jac[:, :b_eta] = data_nodes @ inverse_jacobian
-    penalty_jac = np.empty((penalty_nodes.shape[0], b_eta + n_scales))
     penalty_jac[:, :b_eta] = penalty_nodes[:, :size] @ inverse_jacobian
-    penalty_jac[:, b_eta:] = penalty_nodes[:, size:]
     return data_jac, penalty_jac
 
 
@@ -323,7 +328,7 @@ def _efficiency_terms_solve(
     efficiency_basis: FloatArray,
     start: FloatArray,
     weight: float,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, tuple[FloatArray, FloatArray] | None]:
     """``min ‖D η⁻¹ − t‖² + λ‖P (η⁻¹, α…)‖²`` over ``x = (c, α…)``, ``η = B c`` (Gauss–Newton).
 
     Levenberg-damped steps that keep ``η`` positive on the grid and lower the cost. Returns ``x``
@@ -332,7 +337,6 @@ def _efficiency_terms_solve(
     the same numbers it would compute again (decision 0083).
     """
     size, b_eta = efficiency_basis.shape
-    n_scales = penalty_nodes.shape[1] - size
     penalty_nodes_eta, penalty_nodes_scales = penalty_nodes[:, :size], penalty_nodes[:, size:]
 
     def cost_of(
@@ -349,13 +353,16 @@ def _efficiency_terms_solve(
     x = start.copy()
     cost, inverse, data_residual, penalty_residual = cost_of(x, efficiency_basis @ x[:b_eta])
     jacobians: tuple[FloatArray, FloatArray] | None = None
+    # One pair of Jacobian arrays, overwritten at each pass (a pass's products are made from it
+    # before the next overwrites it; it is returned only from the pass that built it last).
+    buffers: tuple[FloatArray, FloatArray] | None = None
     damping = 1e-6
     for _ in range(GAUSS_NEWTON_ITERATIONS):
-        data_jac, penalty_jac = jacobians = _efficiency_jacobians(
-            data_nodes, penalty_nodes, efficiency_basis, inverse, size, b_eta, n_scales
+        data_jac, penalty_jac = jacobians = buffers = _efficiency_jacobians(
+            data_nodes, penalty_nodes, efficiency_basis, inverse, buffers
         )
         normal = data_jac.T @ data_jac + weight * penalty_jac.T @ penalty_jac
-        gradient = data_jac.T @ data_residual + weight * penalty_jac.T @ penalty_residual
+        descent = -(data_jac.T @ data_residual + weight * penalty_jac.T @ penalty_residual)
         diagonal = np.maximum(normal.diagonal(), 1e-300)
         stride = normal.shape[0] + 1
         accepted = None
@@ -364,7 +371,7 @@ def _efficiency_terms_solve(
             # a diagonal matrix, without forming it).
             system = normal.copy()
             system.reshape(-1)[::stride] += damping * diagonal
-            trial = x + np.linalg.solve(system, -gradient)
+            trial = x + np.linalg.solve(system, descent)
             efficiency = efficiency_basis @ trial[:b_eta]
             if (efficiency > 0).all():
                 trial_cost = cost_of(trial, efficiency)
@@ -399,8 +406,6 @@ def _nonlinear_efficiency(
     largest down, each from the previous solution; :func:`weight_score` uses the residuals and
     Jacobians at each solution.
     """
-    size, b_eta = efficiency_basis.shape
-    n_scales = penalty_nodes.shape[1] - size
     weights = candidates[::-1] if prior_weight is None else np.array([prior_weight])
     scores = np.empty(weights.size)
     solutions = []
@@ -410,9 +415,7 @@ def _nonlinear_efficiency(
             data_nodes, target, penalty_nodes, efficiency_basis, x, weight
         )
         data_jac, penalty_jac = (
-            _efficiency_jacobians(
-                data_nodes, penalty_nodes, efficiency_basis, inverse, size, b_eta, n_scales
-            )
+            _efficiency_jacobians(data_nodes, penalty_nodes, efficiency_basis, inverse)
             if jacobians is None
             else jacobians
         )
