@@ -328,13 +328,12 @@ def _efficiency_terms_solve(
     efficiency_basis: FloatArray,
     start: FloatArray,
     weight: float,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, tuple[FloatArray, FloatArray] | None]:
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """``min ‖D η⁻¹ − t‖² + λ‖P (η⁻¹, α…)‖²`` over ``x = (c, α…)``, ``η = B c`` (Gauss–Newton).
 
     Levenberg-damped steps that keep ``η`` positive on the grid and lower the cost. Returns ``x``
-    and, at ``x``, ``η⁻¹``, the data and prior residuals, and ``(J_d, J_p)`` when the last pass
-    built them there (else ``None``): what :func:`_nonlinear_efficiency` scores the weight with,
-    the same numbers it would compute again (decision 0083).
+    and, at ``x``, ``η⁻¹`` and the data and prior residuals: what :func:`_nonlinear_efficiency`
+    scores the weight with, the same numbers it would compute again (decision 0083).
     """
     size, b_eta = efficiency_basis.shape
     penalty_nodes_eta, penalty_nodes_scales = penalty_nodes[:, :size], penalty_nodes[:, size:]
@@ -352,13 +351,12 @@ def _efficiency_terms_solve(
 
     x = start.copy()
     cost, inverse, data_residual, penalty_residual = cost_of(x, efficiency_basis @ x[:b_eta])
-    jacobians: tuple[FloatArray, FloatArray] | None = None
     # One pair of Jacobian arrays, overwritten at each pass (a pass's products are made from it
-    # before the next overwrites it; it is returned only from the pass that built it last).
+    # before the next overwrites it).
     buffers: tuple[FloatArray, FloatArray] | None = None
     damping = 1e-6
     for _ in range(GAUSS_NEWTON_ITERATIONS):
-        data_jac, penalty_jac = jacobians = buffers = _efficiency_jacobians(
+        data_jac, penalty_jac = buffers = _efficiency_jacobians(
             data_nodes, penalty_nodes, efficiency_basis, inverse, buffers
         )
         normal = data_jac.T @ data_jac + weight * penalty_jac.T @ penalty_jac
@@ -383,11 +381,10 @@ def _efficiency_terms_solve(
             break
         previous = cost
         x, (cost, inverse, data_residual, penalty_residual) = accepted
-        jacobians = None  # built at the previous x
         damping = max(damping / 10.0, 1e-12)
         if previous - cost <= 1e-12 * previous:
             break
-    return x, inverse, data_residual, penalty_residual, jacobians
+    return x, inverse, data_residual, penalty_residual
 
 
 def _nonlinear_efficiency(
@@ -411,13 +408,11 @@ def _nonlinear_efficiency(
     solutions = []
     x = start
     for index, weight in enumerate(weights.tolist()):
-        x, inverse, data_residual, penalty_residual, jacobians = _efficiency_terms_solve(
+        x, inverse, data_residual, penalty_residual = _efficiency_terms_solve(
             data_nodes, target, penalty_nodes, efficiency_basis, x, weight
         )
-        data_jac, penalty_jac = (
-            _efficiency_jacobians(data_nodes, penalty_nodes, efficiency_basis, inverse)
-            if jacobians is None
-            else jacobians
+        data_jac, penalty_jac = _efficiency_jacobians(
+            data_nodes, penalty_nodes, efficiency_basis, inverse
         )
         scores[index] = weight_score(
             rule, weight, data_residual, penalty_residual, data_jac, penalty_jac
