@@ -206,6 +206,7 @@ def test_the_fourier_solve_after_the_model_choice_reuses_its_fits_to_the_bit(
     direct = estimate_prior(
         lamps, basis=basis, mapping=MAPPING, options=PriorOptions(grating_model="fourier")
     )
+    assert chosen.sensitivity_sigma is not None and direct.sensitivity_sigma is not None
     assert np.array_equal(chosen.sensitivity, direct.sensitivity)
     assert np.array_equal(chosen.sensitivity_sigma, direct.sensitivity_sigma)
 
