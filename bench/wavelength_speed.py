@@ -21,7 +21,10 @@ the RAW files' optics, so the physical family's scan over the ends) for its "LED
 with ``--real DIR``, the real Nikon D7000 pair (2474 columns: the CFL through the built-in
 tri-phosphor line list, the halogen lamp measured).
 
-    python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--protocol] [--real ../shared/data/real-grating] [--skip-before] [--profile 12]
+With ``--solve-only`` only the first two figures (the estimate after the mapping: decision 0083),
+and ``--profile N`` then profiles the solve alone.
+
+    python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--protocol] [--real ../shared/data/real-grating] [--skip-before] [--profile 12] [--solve-only]
 """
 
 from __future__ import annotations
@@ -72,15 +75,20 @@ def before_path(observations: Sequence[LampObservation], basis: CameraBasis) -> 
 
 
 def report(
-    label: str, solve_s: float, new_s: float, old_s: float | None, bare_s: float | None = None
+    label: str,
+    solve_s: float,
+    new_s: float | None,
+    old_s: float | None,
+    bare_s: float | None = None,
 ) -> None:
     old = "" if old_s is None else f"; before {old_s:.3f} s ({old_s / solve_s:.1f}×)"
     bare = "" if bare_s is None else f" (no σ budget {bare_s:.4f} s)"
-    print(
-        f"{label:24s} solve alone {solve_s:.4f} s{bare}; mapping + estimate {new_s:.3f} s "
-        f"({new_s / solve_s:.1f}× the solve){old}",
-        flush=True,
+    new = (
+        ""
+        if new_s is None
+        else f"; mapping + estimate {new_s:.3f} s ({new_s / solve_s:.1f}× the solve)"
     )
+    print(f"{label:24s} solve alone {solve_s:.4f} s{bare}{new}{old}", flush=True)
 
 
 def main() -> None:
@@ -101,7 +109,13 @@ def main() -> None:
         default=0,
         metavar="N",
         help="after each scene, the N functions with the most own time in one profiled "
-        "mapping + estimate (cProfile: its overhead inflates many small calls)",
+        "mapping + estimate (with --solve-only: the solve alone; cProfile: its overhead "
+        "inflates many small calls)",
+    )
+    parser.add_argument(
+        "--solve-only",
+        action="store_true",
+        help="time only the estimate given the true mapping (with and without its σ budget)",
     )
     args = parser.parse_args()
     train, test = makabe2025_split(args.data_dir)
@@ -135,12 +149,12 @@ def main() -> None:
         report(
             f"{camera.camera}, {label}",
             solve_s,
-            cpu_median(new, args.repeats),
-            None if args.skip_before else cpu_median(old, args.repeats),
+            None if args.solve_only else cpu_median(new, args.repeats),
+            None if args.skip_before or args.solve_only else cpu_median(old, args.repeats),
             cpu_median(bare, args.repeats),
         )
         if args.profile:
-            profile_top(new, args.profile)
+            profile_top(solve if args.solve_only else new, args.profile)
     if args.protocol:
         protocol_scene(args.data_dir, camera.name, args.repeats, args.profile)
     if args.real is not None:

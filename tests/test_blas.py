@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import sys
+import types
 from typing import Any, cast
 
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from calib.core.blas import one_blas_thread
+from calib.core.blas import blas_controller, one_blas_thread, pinv_symmetric
 from calib.methods import ESTIMATION_METHODS, estimate
 
 
@@ -66,3 +68,26 @@ def test_nested_entry_points_set_the_limit_once_and_restore_it_after() -> None:
         outer()  # the flag was cleared: the next outermost entry limits again
         assert _blas_threads() == before
     assert len(seen) == 6 and all(threads == [1] * len(threads) for threads in seen)
+
+
+def test_pinv_symmetric_is_numpys_hermitian_pinv_to_the_bit() -> None:
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        size = int(rng.integers(2, 33))
+        rank = int(rng.integers(1, size + 1))
+        factor = rng.normal(size=(size, rank)) * 10.0 ** rng.uniform(-5, 5, rank)
+        matrix = factor @ factor.T
+        if trial % 3 == 0:  # indefinite: the signs move into the right factor
+            matrix = matrix - np.eye(size) * float(np.abs(matrix).max()) * 0.3
+        assert np.array_equal(pinv_symmetric(matrix), np.linalg.pinv(matrix, hermitian=True))
+
+
+def test_the_blas_listing_is_made_anew_after_an_import(monkeypatch: pytest.MonkeyPatch) -> None:
+    first = blas_controller()
+    assert blas_controller() is first  # nothing imported since: the same listing
+    monkeypatch.setitem(sys.modules, "calib_test_new_module", types.ModuleType("new"))
+    renewed = blas_controller()
+    assert renewed is not first
+    assert {lib.filepath for lib in renewed.lib_controllers} >= {
+        lib.filepath for lib in first.lib_controllers
+    }

@@ -49,7 +49,9 @@ from calib.model.gratings import (
     BlazedGrating,
     PhysicalKind,
     SinusoidalPhaseGrating,
+    checked_wavelengths,
     physical_efficiencies,
+    physical_efficiency,
     physical_grating,
 )
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
@@ -542,3 +544,26 @@ def test_auto_charges_each_parameter_log_n_at_the_rig_s_error_level(basis):
     assert record["predictive_risk"]["fourier"] == pytest.approx(
         chi2 + penalty * parameters, rel=1e-6
     )
+
+
+def test_the_fits_efficiency_formula_is_the_models_to_the_bit() -> None:
+    """:func:`physical_efficiency` on checked axes (the fit's evaluations, decision 0083) gives
+    each model's ``efficiency`` to the bit, and refuses a parameter no model takes."""
+    axis = checked_wavelengths(np.arange(380.0, 781.0, 1.0))
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        phase, blaze = float(rng.uniform(0.3, 2.5)), float(rng.uniform(350.0, 800.0))
+        for order in (0, 1, 2, -1):
+            assert np.array_equal(
+                physical_efficiency("sinusoidal", phase, order, axis),
+                SinusoidalPhaseGrating(phase).efficiency(order, axis),
+            )
+            assert np.array_equal(
+                physical_efficiency("blazed", blaze, order, axis),
+                BlazedGrating(blaze).efficiency(order, axis),
+            )
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError):
+            physical_efficiency("blazed", bad, 1, axis)
+    with pytest.raises(InputError):
+        checked_wavelengths([400.0, float("nan")])

@@ -28,6 +28,7 @@ from calib.methods import ESTIMATION_METHODS, estimate
 from calib.methods.known_grating import estimate_known_grating
 from calib.methods.multilamp import (
     MultilampOptions,
+    _efficiency_terms_solve,
     bootstrap_sigma,
     calibrate_lamps,
     choose_prior_weight,
@@ -581,3 +582,38 @@ def test_a_spectrum_its_hg_lines_checked_is_weighed_with_the_checks_sigma(basis)
     same, _, _ = pool_responses(responses, scale_sigma_nm=[0.3] * len(responses))
     scalar, _, _ = pool_responses(responses, scale_sigma_nm=0.3)
     np.testing.assert_array_equal(same.response, scalar.response)
+
+
+def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
+    """:func:`_efficiency_terms_solve` hands its last ``η⁻¹`` and residuals to the weight's score
+    (decision 0083): each must be what ``x`` gives afresh, after steps and from the optimum."""
+    rng = np.random.default_rng(7)
+    size, terms, scales = 31, 7, 1
+    wavelength = np.linspace(400.0, 700.0, size)
+    basis = np.cos(np.pi * np.outer((wavelength - 400.0) / 300.0, np.arange(terms)))
+    data_nodes = rng.uniform(0.0, 1.0, (6, size))
+    truth = 1.0 / (0.5 + 0.2 * np.sin(wavelength / 60.0))
+    target = data_nodes @ truth + 0.01 * rng.normal(size=6)
+    penalty_nodes = np.hstack(
+        [rng.normal(size=(3 * size, size)) * 0.1, rng.normal(size=(3 * size, scales))]
+    )
+    start = np.concatenate([np.linalg.lstsq(basis, 1.0 / truth, rcond=None)[0], np.ones(scales)])
+    for weight in (1e-3, 1.0):
+        x, *state = _efficiency_terms_solve(
+            data_nodes, target, penalty_nodes, basis, start * 1.1, weight
+        )
+        assert not np.allclose(x, start * 1.1)  # steps were taken
+        again, *again_state = _efficiency_terms_solve(
+            data_nodes, target, penalty_nodes, basis, x, weight
+        )
+        for solution, (inverse, data_residual, penalty_residual) in (
+            (x, state),
+            (again, again_state),
+        ):
+            fresh = 1.0 / (basis @ solution[:terms])
+            assert np.array_equal(inverse, fresh)
+            assert np.array_equal(data_residual, data_nodes @ fresh - target)
+            assert np.array_equal(
+                penalty_residual,
+                penalty_nodes[:, :size] @ fresh + penalty_nodes[:, size:] @ solution[terms:],
+            )

@@ -13,7 +13,8 @@ from calib.core.metrics import relative_error
 from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
-from calib.methods.prior_solve import estimate_prior, solve_with_prior
+from calib.methods import prior_solve, responses
+from calib.methods.prior_solve import PriorOptions, estimate_prior, solve_with_prior
 from calib.methods.responses import fit_response
 from calib.model.bases import CameraBasis, fallback_camera_basis, fourier_basis
 from calib.model.forward import PeakFractionNoise, render_observation
@@ -134,7 +135,6 @@ def test_eta_states_a_sigma_that_covers_a_known_grating(basis, name):
     the error (the solve's own σ alone covers 6–48 % here: the budget's components carry it)."""
     from calib.evaluation.synthetic import efficiency_coverage
     from calib.methods import estimate
-    from calib.methods.prior_solve import PriorOptions
     from calib.model.gratings import SinusoidalPhaseGrating
 
     camera = find_camera(colour_science_cameras(), name).sensitivity
@@ -179,3 +179,48 @@ def test_eta_states_a_sigma_that_covers_a_known_grating(basis, name):
     )
     assert coverage >= 0.9
     assert 1.0 <= sigma_over_error <= 4.0
+
+
+def test_the_fourier_solve_after_the_model_choice_reuses_its_fits_to_the_bit(
+    basis, camera, monkeypatch
+):
+    """``auto`` choosing the Fourier model hands its prepared lamps and fitted responses to the
+    Fourier solve (decision 0083): each lamp's response fitted once, and the same numbers as the
+    Fourier solve asked for directly."""
+    lamps = [
+        _render("LED-B3", camera, 0.005, 0),
+        _render("FL2", camera, 0.005, 100, kind="fluorescent"),
+    ]
+    fits: list[str] = []
+
+    def counted(system, mapping, **options):
+        fits.append(system.observation.name)
+        return fit_response(system, mapping, **options)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(prior_solve, "fit_response", counted)
+        patch.setattr(responses, "fit_response", counted)
+        chosen = estimate_prior(lamps, basis=basis, mapping=MAPPING)
+    assert chosen.diagnostics["grating_model"]["chosen"] == "fourier"
+    assert sorted(fits) == ["FL2", "LED-B3"]
+    direct = estimate_prior(
+        lamps, basis=basis, mapping=MAPPING, options=PriorOptions(grating_model="fourier")
+    )
+    assert chosen.sensitivity_sigma is not None and direct.sensitivity_sigma is not None
+    assert np.array_equal(chosen.sensitivity, direct.sensitivity)
+    assert np.array_equal(chosen.sensitivity_sigma, direct.sensitivity_sigma)
+
+
+def test_responses_given_to_the_solve_are_used_in_the_lamps_order(basis, camera):
+    led = prepare_lamp(_render("LED-B3", camera, 0.005, 0), DEFAULT_GRID)
+    fluorescent = prepare_lamp(_render("FL2", camera, 0.005, 100, kind="fluorescent"), DEFAULT_GRID)
+    fitted = [fit_response(led, MAPPING), fit_response(fluorescent, MAPPING)]
+    arguments = (led, MAPPING, basis.prior(), fourier_basis(DEFAULT_GRID))
+    fresh = solve_with_prior(*arguments, companions=[fluorescent])
+    given = solve_with_prior(*arguments, companions=[fluorescent], responses=fitted)
+    assert np.array_equal(given.sensitivity, fresh.sensitivity)
+    assert np.array_equal(given.sensitivity_sigma, fresh.sensitivity_sigma)
+    swapped = solve_with_prior(*arguments, companions=[fluorescent], responses=fitted[::-1])
+    assert not np.allclose(swapped.sensitivity, fresh.sensitivity)
+    with pytest.raises(InputError, match="responses"):
+        solve_with_prior(*arguments, companions=[fluorescent], responses=fitted[:1])

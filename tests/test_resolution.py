@@ -11,6 +11,7 @@ from calib.core.spectra import Spectrum, WavelengthGrid
 from calib.model.forward import lamp_operators
 from calib.model.resolution import (
     RESOLUTION_FLOOR_NM,
+    _wavelength_blur,
     blurred_spectrum,
     common_resolution_nm,
     sharpened_spectrum,
@@ -253,3 +254,19 @@ def test_the_search_keeps_an_leds_profile_and_sharpens_its_spectrum() -> None:
         assert np.sum(np.asarray(match_spectrometer(other, 0.75).profile)[:, 0] > 0.01) > 1
     solve = match_spectrometer(led, 0.75, wavelength_nm=wavelength)
     assert matched_resolution_nm(solve) == 8.0
+
+
+def test_a_kept_wavelength_blur_is_the_one_built_for_the_same_content() -> None:
+    """The matrix kept for a profile's wavelengths is returned for an equal copy of them, never
+    for changed wavelengths or another width (each equal to a fresh build), and is read-only."""
+    pixel = np.arange(300, dtype=np.float64)
+    wavelength = 400.0 + 0.6 * pixel + 1.0e-4 * pixel**2
+    kept = wavelength_blur(wavelength, 8.0)
+    assert wavelength_blur(wavelength.copy(), 8.0) is kept
+    with pytest.raises(ValueError):
+        kept.data[0] = 0.0
+    for other_nm, fwhm in ((wavelength + 1e-9, 8.0), (wavelength, 8.0 + 1e-9)):
+        other = wavelength_blur(other_nm, fwhm)
+        assert other is not kept
+        assert np.array_equal(other.toarray(), _wavelength_blur(other_nm, fwhm).toarray())
+    assert not np.array_equal(wavelength_blur(wavelength[::-1], 8.0).toarray(), kept.toarray())

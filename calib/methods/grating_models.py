@@ -75,6 +75,7 @@ from typing import Any, Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.methods.responses import MODEL_FLOOR, LampData, direct_rows
 from calib.model.gratings import (
@@ -84,7 +85,9 @@ from calib.model.gratings import (
     BlazedGrating,
     PhysicalKind,
     SinusoidalPhaseGrating,
+    checked_wavelengths,
     physical_efficiencies,
+    physical_efficiency,
     physical_grating,
 )
 
@@ -320,6 +323,8 @@ def physical_equations(
     gain_sigma: float | None,
     wavelength_nm: FloatArray,
     floor: float = MODEL_FLOOR,
+    *,
+    checked: bool = False,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The whitened direct equations at ``parameter`` (whitened at the current ``weight``, ``g``
     up to ``T``): their predicted values for ``T = 1``, targets, and ``g/T`` on the grid ``(f,)``.
@@ -327,23 +332,27 @@ def physical_equations(
     ``η₀`` is integrated inside each lamp's row on the fine axis when the lamps carry their
     operators (``g = T/η₁``); else it is taken at the grid's nodes (``g = T η₀/η₁``). ``floor``:
     the relative floor under each equation's σ (:func:`calib.methods.responses.direct_rows`).
+    ``checked``: ``wavelength_nm`` and the operators' axis already went through
+    :func:`calib.model.gratings.checked_wavelengths` (a fit's repeated evaluations).
     """
-    grating = physical_grating(kind, parameter)
-    first = np.maximum(grating.efficiency(1, wavelength_nm), 1e-300)
+    grid_nm = wavelength_nm if checked else checked_wavelengths(wavelength_nm)
+    first = np.maximum(physical_efficiency(kind, parameter, 1, grid_nm), 1e-300)
     operators = [lamp.operators for lamp in lamps]
     if all(operator is not None for operator in operators):
-        axis = operators[0].axis_nm if operators[0] is not None else wavelength_nm
+        axis = operators[0].axis_nm if operators[0] is not None else grid_nm
         rows, target = direct_rows(
             lamps,
             weight,
             gain_sigma=gain_sigma,
-            zeroth_order=grating.efficiency(0, axis),
+            zeroth_order=physical_efficiency(
+                kind, parameter, 0, axis if checked else checked_wavelengths(axis)
+            ),
             floor=floor,
         )
         shape = 1.0 / first
     else:
         rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma, floor=floor)
-        shape = grating.efficiency(0, wavelength_nm) / first
+        shape = physical_efficiency(kind, parameter, 0, grid_nm) / first
     return rows @ shape, target, np.asarray(shape, dtype=np.float64)
 
 
@@ -422,11 +431,19 @@ def fit_physical(
     parameter = float("nan")
     throughput = float("nan")
     chi2_scan = np.zeros(0)
+    # The two axes checked once for every evaluation below (physical_equations' ``checked``).
+    wavelength_nm = checked_wavelengths(wavelength_nm)
+    first_operators = lamps[0].operators
+    if first_operators is not None and all(lamp.operators is not None for lamp in lamps):
+        checked_wavelengths(first_operators.axis_nm)
+
+    def equations(value: float, weight: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        return physical_equations(
+            lamps, kind, value, weight, gain_sigma, wavelength_nm, checked=True
+        )
 
     def misfit(value: float, weight: FloatArray) -> float:
-        values, target, _ = physical_equations(
-            lamps, kind, value, weight, gain_sigma, wavelength_nm
-        )
+        values, target, _ = equations(value, weight)
         return profile_throughput(values, target)[1]
 
     for _ in range(FIT_PASSES):
@@ -447,22 +464,16 @@ def fit_physical(
             options={"xatol": 1e-6},
         )
         parameter = float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
-        values, target, shape = physical_equations(
-            lamps, kind, parameter, weight, gain_sigma, wavelength_nm
-        )
+        values, target, shape = equations(parameter, weight)
         throughput, _ = profile_throughput(values, target)
         weight = throughput * shape
-    values, target, _ = physical_equations(
-        lamps, kind, parameter, weight, gain_sigma, wavelength_nm
-    )
+    values, target, _ = equations(parameter, weight)
     chi2 = profile_throughput(values, target)[1]
     step = DERIVATIVE_STEP * max(abs(parameter), 1e-3)
-    up = physical_equations(lamps, kind, parameter + step, weight, gain_sigma, wavelength_nm)[0]
-    down = physical_equations(lamps, kind, parameter - step, weight, gain_sigma, wavelength_nm)[0]
+    up = equations(parameter + step, weight)[0]
+    down = equations(parameter - step, weight)[0]
     jacobian = np.stack([throughput * (up - down) / (2 * step), throughput * values], 1)
-    noise_covariance = np.asarray(
-        np.linalg.pinv(jacobian.T @ jacobian, hermitian=True), dtype=np.float64
-    )
+    noise_covariance = np.asarray(pinv_symmetric(jacobian.T @ jacobian), dtype=np.float64)
     dof = max(target.size - 2, 1)
     inflation = max(1.0, chi2 / dof)
     return PhysicalFit(

@@ -51,7 +51,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from calib.core.arrays import FloatArray
-from calib.core.blas import one_blas_thread
+from calib.core.blas import one_blas_thread, pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
@@ -246,7 +246,7 @@ def weight_score(
             - penalty_residual.size * float(np.log(weight))
             + float(log_det)
         )
-    return misfit + 2.0 * float(np.trace(np.linalg.pinv(normal, hermitian=True) @ normal_data))
+    return misfit + 2.0 * float(np.trace(pinv_symmetric(normal) @ normal_data))
 
 
 @one_blas_thread
@@ -266,7 +266,7 @@ def choose_prior_weight(
     right = data.T @ target
     scores = np.empty(weights.size)
     for index, weight in enumerate(weights):
-        solution = np.linalg.pinv(normal_data + weight * normal_penalty, hermitian=True) @ right
+        solution = pinv_symmetric(normal_data + weight * normal_penalty) @ right
         scores[index] = weight_score(
             rule, float(weight), data @ solution - target, penalty @ solution, data, penalty
         )
@@ -292,7 +292,7 @@ def _linear_efficiency(
     if weight is None:
         weight, scores = choose_prior_weight(data, target, penalty, rule=rule)
     normal = data.T @ data + weight * penalty.T @ penalty
-    solution = np.linalg.pinv(normal, hermitian=True) @ (data.T @ target)
+    solution = pinv_symmetric(normal) @ (data.T @ target)
     return solution, data, penalty, weight, scores
 
 
@@ -301,17 +301,23 @@ def _efficiency_jacobians(
     penalty_nodes: FloatArray,
     efficiency_basis: FloatArray,
     inverse: FloatArray,
+    out: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """``(J_d, J_p)`` of the data and prior residuals in ``x = (c, α…)`` where ``η = B c``."""
-    size = efficiency_basis.shape[0]
-    n_scales = penalty_nodes.shape[1] - size
-    b_eta = efficiency_basis.shape[1]
+    """``(J_d, J_p)`` of the data and prior residuals in ``x = (c, α…)`` where ``η = B c``.
+
+    ``out``: arrays made by an earlier call with the same ``data_nodes`` and ``penalty_nodes``,
+    overwritten (only their ``c`` columns: the ``α`` ones do not depend on ``η``)."""
+    size, b_eta = efficiency_basis.shape
     inverse_jacobian = -(inverse**2)[:, None] * efficiency_basis  # ∂η⁻¹/∂c
-    data_jac = np.zeros((data_nodes.shape[0], b_eta + n_scales))
+    if out is None:
+        n_scales = penalty_nodes.shape[1] - size
+        data_jac = np.zeros((data_nodes.shape[0], b_eta + n_scales))
+        penalty_jac = np.empty((penalty_nodes.shape[0], b_eta + n_scales))
+        penalty_jac[:, b_eta:] = penalty_nodes[:, size:]
+    else:
+        data_jac, penalty_jac = out
     data_jac[:, :b_eta] = data_nodes @ inverse_jacobian
-    penalty_jac = np.empty((penalty_nodes.shape[0], b_eta + n_scales))
     penalty_jac[:, :b_eta] = penalty_nodes[:, :size] @ inverse_jacobian
-    penalty_jac[:, b_eta:] = penalty_nodes[:, size:]
     return data_jac, penalty_jac
 
 
@@ -322,13 +328,14 @@ def _efficiency_terms_solve(
     efficiency_basis: FloatArray,
     start: FloatArray,
     weight: float,
-) -> FloatArray:
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """``min ‖D η⁻¹ − t‖² + λ‖P (η⁻¹, α…)‖²`` over ``x = (c, α…)``, ``η = B c`` (Gauss–Newton).
 
-    Levenberg-damped steps that keep ``η`` positive on the grid and lower the cost.
+    Levenberg-damped steps that keep ``η`` positive on the grid and lower the cost. Returns ``x``
+    and, at ``x``, ``η⁻¹`` and the data and prior residuals: what :func:`_nonlinear_efficiency`
+    scores the weight with, the same numbers it would compute again (decision 0083).
     """
     size, b_eta = efficiency_basis.shape
-
     penalty_nodes_eta, penalty_nodes_scales = penalty_nodes[:, :size], penalty_nodes[:, size:]
 
     def cost_of(
@@ -344,21 +351,25 @@ def _efficiency_terms_solve(
 
     x = start.copy()
     cost, inverse, data_residual, penalty_residual = cost_of(x, efficiency_basis @ x[:b_eta])
+    # One pair of Jacobian arrays, overwritten at each pass (a pass's products are made from it
+    # before the next overwrites it).
+    buffers: tuple[FloatArray, FloatArray] | None = None
     damping = 1e-6
     for _ in range(GAUSS_NEWTON_ITERATIONS):
-        data_jac, penalty_jac = _efficiency_jacobians(
-            data_nodes, penalty_nodes, efficiency_basis, inverse
+        data_jac, penalty_jac = buffers = _efficiency_jacobians(
+            data_nodes, penalty_nodes, efficiency_basis, inverse, buffers
         )
         normal = data_jac.T @ data_jac + weight * penalty_jac.T @ penalty_jac
-        gradient = data_jac.T @ data_residual + weight * penalty_jac.T @ penalty_residual
+        descent = -(data_jac.T @ data_residual + weight * penalty_jac.T @ penalty_residual)
         diagonal = np.maximum(normal.diagonal(), 1e-300)
+        stride = normal.shape[0] + 1
         accepted = None
         while damping < 1e12:
             # The damping on the diagonal as a strided view of a copy (the same sums as adding
             # a diagonal matrix, without forming it).
             system = normal.copy()
-            system.reshape(-1)[:: system.shape[0] + 1] += damping * diagonal
-            trial = x + np.linalg.solve(system, -gradient)
+            system.reshape(-1)[::stride] += damping * diagonal
+            trial = x + np.linalg.solve(system, descent)
             efficiency = efficiency_basis @ trial[:b_eta]
             if (efficiency > 0).all():
                 trial_cost = cost_of(trial, efficiency)
@@ -373,7 +384,7 @@ def _efficiency_terms_solve(
         damping = max(damping / 10.0, 1e-12)
         if previous - cost <= 1e-12 * previous:
             break
-    return x
+    return x, inverse, data_residual, penalty_residual
 
 
 def _nonlinear_efficiency(
@@ -392,27 +403,19 @@ def _nonlinear_efficiency(
     largest down, each from the previous solution; :func:`weight_score` uses the residuals and
     Jacobians at each solution.
     """
-    size, b_eta = efficiency_basis.shape
     weights = candidates[::-1] if prior_weight is None else np.array([prior_weight])
     scores = np.empty(weights.size)
     solutions = []
     x = start
-    for index, weight in enumerate(weights):
-        x = _efficiency_terms_solve(
-            data_nodes, target, penalty_nodes, efficiency_basis, x, float(weight)
+    for index, weight in enumerate(weights.tolist()):
+        x, inverse, data_residual, penalty_residual = _efficiency_terms_solve(
+            data_nodes, target, penalty_nodes, efficiency_basis, x, weight
         )
-        inverse = 1.0 / (efficiency_basis @ x[:b_eta])
         data_jac, penalty_jac = _efficiency_jacobians(
             data_nodes, penalty_nodes, efficiency_basis, inverse
         )
-        penalty_residual = penalty_nodes[:, :size] @ inverse + penalty_nodes[:, size:] @ x[b_eta:]
         scores[index] = weight_score(
-            rule,
-            float(weight),
-            data_nodes @ inverse - target,
-            penalty_residual,
-            data_jac,
-            penalty_jac,
+            rule, weight, data_residual, penalty_residual, data_jac, penalty_jac
         )
         solutions.append((x, data_jac, penalty_jac))
     best = int(np.argmin(scores))
@@ -993,7 +996,7 @@ def solve_fourier_efficiency(
     if scanned and None not in chosen_indices:
         remember_start(label, tuple(chosen_indices))
     posterior = np.asarray(
-        np.linalg.pinv(data.T @ data + weight * penalty.T @ penalty, hermitian=True),
+        pinv_symmetric(data.T @ data + weight * penalty.T @ penalty),
         dtype=np.float64,
     )
     residual = data_nodes @ inverse - target
@@ -1270,7 +1273,7 @@ def blend_with_prior(solution: SensitivitySolution, prior: CameraPrior) -> Sensi
     for c in range(3):
         block = slice(c * size, (c + 1) * size)
         prior_precision[block, block] = np.linalg.inv(scale**2 * prior.covariance[c])
-    data_precision = np.linalg.pinv(solution.covariance, hermitian=True)
+    data_precision = pinv_symmetric(solution.covariance)
     covariance = np.linalg.inv(data_precision + prior_precision)
     blended = covariance @ (data_precision @ data + prior_precision @ (scale * mean))
     return SensitivitySolution(

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.blas import one_blas_thread
+from calib.core.blas import one_blas_thread, pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
@@ -48,7 +48,7 @@ from calib.methods.grating_models import (
     GratingModelName,
     check_grating_model,
 )
-from calib.methods.responses import fit_response, lamp_data
+from calib.methods.responses import LampData, ResponseEstimate, fit_response, lamp_data
 from calib.model.bases import CameraBasis, CameraPrior, whitening
 from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
@@ -100,6 +100,7 @@ def solve_with_prior(
     efficiency_basis: FloatArray,
     *,
     companions: Sequence[LampSystem] = (),
+    responses: Sequence[ResponseEstimate] | None = None,
 ) -> PriorSolution:
     """MAP estimate of sensitivity and η⁻¹ (see the module docstring).
 
@@ -118,6 +119,10 @@ def solve_with_prior(
         Other lamps with a direct measurement (e.g. the fluorescent lamp used for the mapping). Each
         adds three equations on ``η⁻¹`` alone, ``d_l · (q̂_l ⊙ η⁻¹) = m_dir,l`` — its own response
         against its own direct signal, so its brightness cancels.
+    responses
+        Step 1 already made (:func:`calib.methods.responses.fit_response` of ``system`` and then
+        of each companion, on ``mapping``), e.g. by the grating model's choice; ``None``: fitted
+        here.
 
     Raises
     ------
@@ -139,7 +144,11 @@ def solve_with_prior(
     mean = prior.mean
     size = grid.size
     b_eta = efficiency_basis.shape[1]
-    estimate = fit_response(system, mapping)
+    if responses is not None and len(responses) != 1 + len(companions):
+        raise InputError(
+            f"{len(responses)} fitted responses for {1 + len(companions)} lamps", source="responses"
+        )
+    estimate = fit_response(system, mapping) if responses is None else responses[0]
     response, response_cov = estimate.response, estimate.covariance
 
     # Step 2: c_η and α under the prior, constrained by the direct measurement.
@@ -155,13 +164,13 @@ def solve_with_prior(
     # Companions' equations are rows weighted by their own noise (their responses are noisy where
     # their lamp is dim — between a fluorescent lamp's lines — so they must not be exact).
     companion_terms = []
-    for companion in companions:
+    for index, companion in enumerate(companions, start=1):
         if companion.observation.direct_rgb is None:
             raise InputError(
                 "a companion lamp needs a direct measurement",
                 source=f"lamp {companion.observation.name!r}",
             )
-        fitted = fit_response(companion, mapping)
+        fitted = fit_response(companion, mapping) if responses is None else responses[index]
         companion_terms.append(
             (
                 companion.operators.direct_row,
@@ -233,7 +242,7 @@ def solve_with_prior(
         data_cov = inverse_efficiency[:, None] * response_cov[c] * inverse_efficiency[None, :]
         prior_cov = scale_hat**2 * prior.covariance[c]
         prior_mean = scale_hat * mean[:, c]
-        data_precision = np.linalg.pinv(data_cov, hermitian=True)
+        data_precision = pinv_symmetric(data_cov)
         prior_precision = np.linalg.inv(prior_cov)
         posterior_cov = np.linalg.inv(data_precision + prior_precision)
         posterior_mean = posterior_cov @ (data_precision @ data_mean + prior_precision @ prior_mean)
@@ -389,20 +398,35 @@ def estimate_prior(
     )
     step = time.perf_counter()
     record: dict[str, Any] = {"model": "fourier", "chosen": "fourier", "requested": "fourier"}
+    # Each lamp prepared and its response fitted once: the grating model's choice made both for
+    # the lamps with a direct measurement, on the same mapping (decision 0083).
+    prepared: dict[int, tuple[LampSystem, ResponseEstimate]] = {}
     if options.grating_model != "fourier":
-        physical, record = _physical_estimate(observations, setup, basis, grid, options)
+        physical, record, made = _physical_estimate(observations, setup, basis, grid, options)
         if physical is not None:
             return physical
         record = {**record, "model": "fourier", "terms": int(setup.efficiency_basis.shape[1])}
+        prepared = {id(obs): pair for obs, pair in made}
     reference = setup.solve_lamps[0]
-    system = setup.prepared(reference, grid)
-    companions = [
-        setup.prepared(obs, grid)
-        for obs in observations
-        if obs is not reference and obs.direct_rgb is not None
+    solved = [reference] + [
+        obs for obs in observations if obs is not reference and obs.direct_rgb is not None
     ]
+    systems = [
+        prepared[id(obs)][0] if id(obs) in prepared else setup.prepared(obs, grid) for obs in solved
+    ]
+    fitted = (
+        [prepared[id(obs)][1] for obs in solved]
+        if all(id(obs) in prepared for obs in solved)
+        else None
+    )
+    system = systems[0]
     solution = solve_with_prior(
-        system, setup.mapping, setup.prior, setup.efficiency_basis, companions=companions
+        system,
+        setup.mapping,
+        setup.prior,
+        setup.efficiency_basis,
+        companions=systems[1:],
+        responses=fitted,
     )
     setup.timings["solve_s"] = time.perf_counter() - step
     return joint_result(
@@ -427,11 +451,17 @@ def _physical_estimate(
     basis: CameraBasis,
     grid: WavelengthGrid,
     options: PriorOptions,
-) -> tuple[EstimateResult | None, dict[str, Any]]:
+) -> tuple[
+    EstimateResult | None,
+    dict[str, Any],
+    list[tuple[LampObservation, tuple[LampSystem, ResponseEstimate]]],
+]:
     """The estimate through a physical grating fitted to the direct equations, when
     ``options.grating_model`` asks for one or ``"auto"`` prefers one (else ``None``: the Fourier
-    solve above runs), and the model choice's record. The camera is ``q̂ / η₁`` pooled over the lamps, with the prior where they
-    are dim (:func:`calib.methods.multilamp.blend_with_prior`: the prior enters once, here)."""
+    solve above runs), the model choice's record, and each lamp with a direct measurement with
+    its prepared system and fitted response (for the Fourier solve). The camera is ``q̂ / η₁``
+    pooled over the lamps, with the prior where they are dim
+    (:func:`calib.methods.multilamp.blend_with_prior`: the prior enters once, here)."""
     # Deferred: multilamp builds on this module's response fit.
     from calib.methods.multilamp import (
         EfficiencySettings,
@@ -444,7 +474,12 @@ def _physical_estimate(
 
     started = time.perf_counter()
     with_direct = [obs for obs in observations if obs.direct_rgb is not None]
-    lamps = [lamp_data(setup.prepared(obs, grid), setup.mapping) for obs in with_direct]
+    systems = [setup.prepared(obs, grid) for obs in with_direct]
+    lamps: list[LampData] = [lamp_data(system, setup.mapping) for system in systems]
+    made = [
+        (obs, (system, lamp.response))
+        for obs, system, lamp in zip(with_direct, systems, lamps, strict=True)
+    ]
     efficiency = solve_efficiency(
         lamps,
         setup.prior,
@@ -453,7 +488,7 @@ def _physical_estimate(
     )
     record: dict[str, Any] = efficiency.info["grating_model"]
     if record["chosen"] == "fourier":
-        return None, record
+        return None, record, made
     solution = combine_responses(
         [lamp.response for lamp in lamps],
         efficiency.inverse_efficiency,
@@ -463,14 +498,18 @@ def _physical_estimate(
     solution = blend_with_prior(solution, setup.prior)
     setup.timings["solve_s"] = time.perf_counter() - started
     setup.timings["total_s"] = time.perf_counter() - setup.started
-    return multilamp_result(
-        lamps,
-        solution,
-        efficiency_with_sigma(efficiency),
-        setup.mapping,
-        basis,
-        {**efficiency.info, "grating": "estimated", "mapping_given": setup.mapping_given},
-        setup.timings,
-        method=PRIOR_METHOD,
-        direct_weight=efficiency.direct_weights,
-    ), record
+    return (
+        multilamp_result(
+            lamps,
+            solution,
+            efficiency_with_sigma(efficiency),
+            setup.mapping,
+            basis,
+            {**efficiency.info, "grating": "estimated", "mapping_given": setup.mapping_given},
+            setup.timings,
+            method=PRIOR_METHOD,
+            direct_weight=efficiency.direct_weights,
+        ),
+        record,
+        made,
+    )

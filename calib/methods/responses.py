@@ -19,6 +19,7 @@ from typing import Any, Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 from calib.model.forward import (
@@ -166,7 +167,7 @@ def fit_response(
         weighted = pixel_matrix * weights[:, c][:, None]
         normal = weighted.T @ weighted
         normal = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
-        covariances[c] = np.linalg.pinv(normal, hermitian=True)
+        covariances[c] = pinv_symmetric(normal)
         responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
         chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
     return ResponseEstimate(

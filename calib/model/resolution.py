@@ -19,6 +19,7 @@ along the dispersion direction). Neither holds as measured:
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -145,11 +146,36 @@ def wavelength_blur(wavelength_nm: FloatArray, fwhm_nm: float) -> sparse.csr_arr
     Zero beyond the ends, as :func:`calib.model.forward.apply_blur`, and beyond 5σ: a band matrix
     (sparse; a dense one cost 60 ms for a 1500-sample profile, per lamp and solve).
 
-    Not cached: building it costs ~2 ms, against ~4 s of an estimate (decision 0047).
+    Kept for the last :data:`BLUR_CACHE_SIZE` ``(wavelengths, FWHM)`` (by content, never by the
+    array's identity; the matrix's arrays read-only): an estimate builds the same one per lamp for
+    the solve and again for each σ-budget re-solve of an unchanged mapping, ~1 ms each against
+    the ~0.1 s estimate (decision 0083; 0047 left it uncached against a 4 s one).
     """
+    wavelength = np.asarray(wavelength_nm, dtype=np.float64)
+    key = (wavelength.shape, wavelength.tobytes(), float(fwhm_nm))
+    matrix = _BLUR_CACHE.get(key)
+    if matrix is None:
+        matrix = _wavelength_blur(wavelength, float(fwhm_nm))
+        for array in (matrix.data, matrix.indices, matrix.indptr):
+            array.flags.writeable = False
+        _BLUR_CACHE[key] = matrix
+        while len(_BLUR_CACHE) > BLUR_CACHE_SIZE:
+            _BLUR_CACHE.popitem(last=False)
+    else:
+        _BLUR_CACHE.move_to_end(key)
+    return matrix
+
+
+#: How many of :func:`wavelength_blur`'s matrices are kept (a few lamps' profiles, each perhaps
+#: at two resolutions).
+BLUR_CACHE_SIZE = 8
+_BLUR_CACHE: OrderedDict[tuple[tuple[int, ...], bytes, float], sparse.csr_array] = OrderedDict()
+
+
+def _wavelength_blur(wavelength: FloatArray, fwhm_nm: float) -> sparse.csr_array:
+    """:func:`wavelength_blur` built."""
     from scipy import sparse  # deferred: the mapping search never needs it
 
-    wavelength = np.asarray(wavelength_nm, dtype=np.float64)
     size = wavelength.size
     spans = np.abs(np.gradient(wavelength))
     sigma = fwhm_nm / FWHM_PER_SIGMA
