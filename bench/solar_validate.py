@@ -28,7 +28,15 @@ own bias and scatter), the RMS over the six, and the coverage of the errors by �
 file is the scene's own η₁, so what is left is everything but the grating file's departure from the
 real sheet) and scores it the 10D's way (decision 0088).
 
-    python bench/solar_validate.py --data-dir ../shared/data/camera_sensitivities [--sensitivity]
+``--geometry spectrograph`` (decision 0086) renders the same scenes through a slit spectrograph
+instead (:func:`calib.evaluation.validation.solar.draw_spectrograph`: a reflection grating of
+150–600 l/mm at 0–30° between the arms, the 0th order off the frame, a camera lens' radial
+distortion of −3 … +2 % at the sensor's corner, the sensor tilted up to ±2°), its columns a crop of
+arbitrary origin with no EXIF optics — the Canon 10D's case, outside the mapping family's
+grating-through-a-lens-from-the-0th-order.
+
+    python bench/solar_validate.py --data-dir ../shared/data/camera_sensitivities \
+        [--sensitivity] [--geometry spectrograph]
 """
 
 from __future__ import annotations
@@ -40,7 +48,7 @@ import os
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -54,6 +62,7 @@ import calib.evaluation.validation.scenes as scenes
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.line_lists import line_list
+from calib.core.mapping import TiltedGrating
 from calib.core.metrics import channel_relative_errors
 from calib.core.observations import LampObservation
 from calib.core.spectra import Spectrum
@@ -65,7 +74,11 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
 )
 from calib.evaluation.validation.rig_errors import RigErrors, SpectrometerError
-from calib.evaluation.validation.solar import synthetic_sunlight
+from calib.evaluation.validation.solar import (
+    SpectrographMapping,
+    draw_spectrograph,
+    synthetic_sunlight,
+)
 from calib.evaluation.validation.splits import load_splits
 from calib.methods import estimate
 from calib.methods.uncertainty import CHANNEL_GAINS_KEY
@@ -140,13 +153,32 @@ def sensitivity(
 
 
 def run(
-    task: Task, sun: Spectrum, refs: dict[str, float], with_sensitivity: bool = False
+    task: Task,
+    sun: Spectrum,
+    refs: dict[str, float],
+    geometry: str = "protocol",
+    with_sensitivity: bool = False,
 ) -> dict[str, Any]:
     seed = scene_seed(task.settings.seed, task.camera, task.scene)
-    plan_seed, noise_seed, optics_seed = seed.spawn(3)
+    # The first three children as the protocol's scenes draw them; the fourth, the spectrograph.
+    plan_seed, noise_seed, optics_seed, spectrograph_seed = seed.spawn(4)
     plan = scenes.draw_scene_plan(
         np.random.default_rng(plan_seed), [SUN], errors=ERRORS, geometry=GEOMETRY
     )
+    spectrograph: SpectrographMapping | None = None
+    if geometry == "spectrograph":
+        spectrograph, n_pixels = draw_spectrograph(np.random.default_rng(spectrograph_seed))
+        # Only the mapping and the columns change: the slit, blur, sensor, stray light and
+        # spectrometer stay the plan's. (The renderer needs only ``wavelength_nm``.)
+        plan = replace(
+            plan,
+            geometry=replace(
+                plan.geometry,
+                mapping=cast(TiltedGrating, spectrograph),
+                first_pixel=0,
+                n_pixels=n_pixels,
+            ),
+        )
     scene = scenes.render_scene(
         plan,
         task.camera.sensitivity,
@@ -154,11 +186,16 @@ def run(
         np.random.default_rng(noise_seed),
         lamp_spectra={SUN: sun},
     )
-    observations = scenes.with_exif_optics(
-        scene.observations, plan.geometry, np.random.default_rng(optics_seed)
-    )
-    sun_obs = replace(observations[SUN], kind="other")
-    truth = plan.geometry.mapping
+    if spectrograph is None:
+        observations = scenes.with_exif_optics(
+            scene.observations, plan.geometry, np.random.default_rng(optics_seed)
+        )
+        sun_obs = replace(observations[SUN], kind="other")
+        truth: TiltedGrating | SpectrographMapping = plan.geometry.mapping
+    else:
+        # A crop of columns exported from a spectrograph: no 0th order, no lens in EXIF.
+        sun_obs = replace(scene.observations[SUN], kind="other", pixel_origin="arbitrary")
+        truth = spectrograph
     started = time.process_time()
     solution = locate_mapping([sun_obs], task.basis.prior(), task.settings.grid)
     cpu = time.process_time() - started
@@ -214,6 +251,8 @@ def run(
         "profile_fit_distance_nm": solution.details.get("profile_fit_distance_nm"),
         "profile_sigma_nm": (solution.details.get("profile_fit") or {}).get("wavelength_rms_nm"),
         "warnings": list(solution.warnings),
+        "family": solution.details.get("family"),
+        "spectrograph": None if spectrograph is None else spectrograph.to_dict(),
         **(
             {"sensitivity": sensitivity(task, plan, sun_obs, scene.truth)}
             if with_sensitivity
@@ -233,6 +272,13 @@ def main() -> None:
         action="store_true",
         help="also estimate the camera as the Canon 10D is (module docstring)",
     )
+    parser.add_argument(
+        "--geometry",
+        choices=("protocol", "spectrograph"),
+        default="protocol",
+        help="the protocol's grating through a lens (0th order at the origin) or a slit "
+        "spectrograph (solar.draw_spectrograph: 0th order off the frame, distortion, tilt)",
+    )
     args = parser.parse_args()
     # The protocol renders on a 1 nm axis; the lines need a finer one (module docstring).
     setattr(  # noqa: B010 (a module's name rebound for this run)
@@ -249,7 +295,7 @@ def main() -> None:
     rows = []
     for task in tasks:
         try:
-            row = run(task, sun, refs, args.sensitivity)
+            row = run(task, sun, refs, args.geometry, args.sensitivity)
         except (EstimationError, InputError) as exc:
             print(f"{task.camera.name[:36]:36s} FAILED: {exc}", flush=True)
             continue
@@ -282,7 +328,9 @@ def main() -> None:
     bench = np.array([[row["bench_style"][n] for n in names] for row in rows])
     matched = np.array([[row["matched_style"][n] for n in names] for row in rows])
     absorption = np.array(["absorption" in row["source"] for row in rows])
-    print(f"\nvalidation split, {len(rows)} cameras ({int(absorption.sum())} through the dips)")
+    print(
+        f"\n{args.geometry} scenes, validation split, {len(rows)} cameras ({int(absorption.sum())} through the dips)"
+    )
     for label, values in (
         ("mapping error", errors),
         ("10D-style, listed", bench),

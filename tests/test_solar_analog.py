@@ -22,8 +22,12 @@ from calib.evaluation.validation.solar import STEP_NM, synthetic_sunlight
 
 
 @pytest.fixture(scope="module")
-def depth_at_1nm() -> tuple[np.ndarray, np.ndarray]:
-    sun = synthetic_sunlight()
+def sun() -> Any:
+    return synthetic_sunlight()
+
+
+@pytest.fixture(scope="module")
+def depth_at_1nm(sun) -> tuple[np.ndarray, np.ndarray]:
     blurred = ndimage.gaussian_filter1d(sun.values, 1.0 / 2.3548 / STEP_NM)
     envelope = blurred.copy()
     for _ in range(6):
@@ -99,3 +103,55 @@ def test_dips_refused_when_the_refit_leaves_the_profile_fit(monkeypatch):
     monkeypatch.setattr(locate, "_map_lines", lambda *a, **k: SimpleNamespace(exact=_mapping(30.0)))
     with pytest.raises(EstimationError, match="whole-profile fit"):
         locate._dips_near_profile_fit(afresh, lamp, (), None, _mapping(0.0), 0.8, lead, lead.grid)
+
+
+def test_a_broad_band_is_fitted_at_its_own_width():
+    """Decision 0086: a band several times the camera's line spread (O₂ B, 1.8 nm, at a
+    spectrograph's 0.2 nm per pixel) is fitted at its width, not dropped."""
+    from calib.core.line_lists import Blend, line_list
+    from calib.wavelength.features import fit_features
+
+    band = next(line for line in line_list("solar") if line.label == "Fraunhofer B (O2)")
+    mapping = QuadraticMapping(0.0, 0.2, 650.0, pixel_range=(0.0, 400.0))
+    pixel = np.arange(401.0)
+    at = (band.wavelength_nm - 650.0) / 0.2 + 1.3  # the band 1.3 px from where the mapping says
+    fwhm_camera = 3.5
+    width = float(np.hypot(fwhm_camera, band.width_nm / 0.2)) / 2.3548
+    rng = np.random.default_rng(3)
+    signal = 0.3 * np.exp(-0.5 * ((pixel - at) / width) ** 2) + rng.normal(0, 0.003, pixel.size)
+    blend = Blend((band,), band.wavelength_nm, band.strength, band.uncertainty_nm)
+    fitted = fit_features(pixel, signal, 0.003, [blend], mapping, fwhm_camera)
+    assert len(fitted) == 1
+    assert abs(fitted[0].pixel - at) < 0.3
+
+
+def test_lines_merged_in_a_spectrums_dip_are_shown_together(sun):
+    """Decision 0086: at 1 nm sampling Na D2 and D1 make one dip; a spectrum whose dip lands
+    nearer D1 still shows D2 (without it D1 alone is fitted where the pair's blend lies)."""
+    from calib.core.spectra import Spectrum
+
+    blurred = ndimage.gaussian_filter1d(sun.values, 0.7 / 2.3548 / STEP_NM)
+    axis = np.arange(380.0, 790.0, 1.0)
+    # The spectrometer's scale 0.4 nm off (within the protocol's ±0.5 nm).
+    spectrum = Spectrum(axis, np.interp(axis - 0.4, sun.wavelength_nm, blurred))
+    observation: Any = SimpleNamespace(spectrum=spectrum)
+    shown = {line.label for line in locate._spectrum_dips(observation)}
+    assert {"Fraunhofer D1", "Fraunhofer D2"} <= shown
+
+
+def test_spectrograph_scenes_cover_the_grid_off_the_family():
+    """The spectrograph analog (decision 0086): its columns cover 380–780 nm with margins, its
+    inverse is exact, and its distortion stays within the drawn corner range."""
+    from calib.evaluation.validation.solar import SpectrographRanges, draw_spectrograph
+
+    ranges = SpectrographRanges()
+    for seed in range(6):
+        mapping, n = draw_spectrograph(np.random.default_rng(seed), ranges)
+        columns = np.arange(float(n))
+        wavelengths = mapping.wavelength_nm(columns)
+        assert min(wavelengths[0], wavelengths[-1]) < 380.0 - 4.0
+        assert max(wavelengths[0], wavelengths[-1]) > 780.0 + 4.0
+        assert np.all(np.diff(wavelengths) * mapping.orientation > 0)
+        np.testing.assert_allclose(mapping.pixel_at(wavelengths), columns, atol=1e-6)
+        # The corner's distortion: k₁ r_c² with the corner ≥ 0.601 n from the axis.
+        assert abs(mapping.k1_per_px2) * (0.601 * n) ** 2 <= 0.03 + 1e-9

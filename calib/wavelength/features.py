@@ -362,6 +362,33 @@ class _Fitted:
     centroid_sigma: float = math.nan
 
 
+def _absorption_width_px(group: Sequence[Blend], mapping: ExactMapping, fwhm_px: float) -> float:
+    """The width a group of features shows: the camera's line spread ``fwhm_px``, widened in
+    quadrature by the broadest absorption feature's own width (the list's ``width_nm`` through the
+    mapping's dispersion there). A band such as O₂ B (1.8 nm) or the G band (0.6 nm) is several
+    times a spectrograph's line spread at 0.2–0.3 nm per pixel (decision 0086): fitted with the
+    camera's width alone (×0.5–2 allowed) it was dropped or placed by its sharpest part.
+    Emission lines keep the camera's width."""
+    widths = [
+        line.width_nm
+        for blend in group
+        for line in blend.lines
+        if line.kind == "absorption" and line.width_nm > 0
+    ]
+    if not widths:
+        return fwhm_px
+    reference = np.array([group[0].reference.wavelength_nm])
+    try:
+        at = _pixel_of(mapping, reference)
+    except InputError:
+        return fwhm_px
+    own_px = max(widths) / max(float(_slope(mapping, at)[0]), 1e-12)
+    if own_px <= math.sqrt(3.0) * fwhm_px:
+        # The fit's shared width (×0.5–2 of the camera's) already reaches hypot(f, √3 f) = 2 f.
+        return fwhm_px
+    return float(math.hypot(fwhm_px, own_px))
+
+
 def _fit_group(
     pixel: FloatArray,
     signal: FloatArray,
@@ -383,6 +410,7 @@ def _fit_group(
     for a 1 : 2.5 Hg 577/579 doublet at 2–6 px of slit, where its 579.07 line's shift is not).
     """
 
+    fwhm_px = _absorption_width_px(group, mapping, fwhm_px)
     sigma_px = fwhm_px / (2.0 * math.sqrt(2.0 * math.log(2.0)))
     placed = []
     for blend in group:

@@ -28,6 +28,10 @@ their physics, never from any camera's data:
 - **Line blanketing**: weak Fraunhofer lines at fixed random places, their summed equivalent
   width ~20 % of the continuum per nm at 400 nm falling to ~5 % at 600 nm (the Sun's blanketing).
 
+:class:`SpectrographMapping` and :func:`draw_spectrograph` give the analog a second geometry
+(decision 0086): a slit spectrograph whose camera lens distorts and whose sensor may be tilted, the
+0th order off the frame — what the Canon 10D's LHires III is, and the mapping family is not.
+
 Everything is rendered on a 0.001 nm grid as a transmission (the product of every feature's) and
 box-averaged to :data:`STEP_NM` — the spectrum's own sampling, fine enough for a camera at 0.1 nm
 per pixel.
@@ -36,8 +40,10 @@ per pixel.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
 from calib.core.spectra import Spectrum
@@ -214,3 +220,158 @@ def synthetic_sunlight(airmass: float = 1.5) -> Spectrum:
     binned = values[: n * per].reshape(n, per).mean(axis=1)
     axis = fine[: n * per].reshape(n, per).mean(axis=1)
     return Spectrum(axis, binned / float(binned.max()), name="synthetic sunlight")
+
+
+@dataclass(frozen=True)
+class SpectrographMapping:
+    """The first order of a slit spectrograph as a camera sees it: slit → collimator → grating →
+    camera lens → sensor, the 0th order off the frame and the profile's columns arbitrary (a crop
+    exported as FITS or CSV, like the Canon 10D's LHires III set).
+
+    The grating equation ``λ = d (sin α + sin β)`` (reflection, both angles from the normal on the
+    same side; Littrow is ``α = β``); the camera's axis leaves the grating at ``β_c`` and meets the
+    sensor at column ``p_c``. A ray at ``φ = β − β_c`` from the axis lands ``F sin φ / cos(φ + τ)``
+    from it on a sensor tilted by ``τ`` about the slit's direction, then moves radially by the
+    lens' distortion ``x_d = x (1 + k₁ x²)`` (the row's offset from the axis only rescales ``x``);
+    column ``p = p_c + s x_d``.
+
+    Attributes
+    ----------
+    spacing_nm
+        ``d``.
+    focal_length_px
+        ``F``: the camera lens' image distance in pixels.
+    incidence_deg, camera_deg
+        ``α`` and ``β_c``.
+    axis_px
+        ``p_c``.
+    orientation
+        ``s``: ``+1`` when the wavelength rises with the column.
+    k1_per_px2
+        ``k₁`` (px⁻²): > 0 pincushion, < 0 barrel.
+    tilt_deg
+        ``τ``.
+    """
+
+    spacing_nm: float
+    focal_length_px: float
+    incidence_deg: float
+    camera_deg: float
+    axis_px: float
+    orientation: int = 1
+    k1_per_px2: float = 0.0
+    tilt_deg: float = 0.0
+
+    def wavelength_nm(self, pixel: ArrayLike) -> FloatArray:
+        """``λ`` at each column (nm)."""
+        distorted = self.orientation * (np.asarray(pixel, dtype=np.float64) - self.axis_px)
+        # x_d = x (1 + k₁ x²) for x by Newton's method from x = x_d (|k₁ x²| ≪ 1).
+        x = distorted.copy()
+        for _ in range(8):
+            x -= (x * (1.0 + self.k1_per_px2 * x**2) - distorted) / (
+                1.0 + 3.0 * self.k1_per_px2 * x**2
+            )
+        tau = math.radians(self.tilt_deg)
+        # x = F sin φ / cos(φ + τ)  ⇔  tan φ = x cos τ / (F + x sin τ).
+        phi = np.arctan2(x * math.cos(tau), self.focal_length_px + x * math.sin(tau))
+        beta = math.radians(self.camera_deg) + phi
+        return np.asarray(
+            self.spacing_nm * (math.sin(math.radians(self.incidence_deg)) + np.sin(beta)),
+            dtype=np.float64,
+        )
+
+    def pixel_at(self, wavelength_nm: ArrayLike) -> FloatArray:
+        """The column of each wavelength (nm)."""
+        nm = np.asarray(wavelength_nm, dtype=np.float64)
+        beta = np.arcsin(nm / self.spacing_nm - math.sin(math.radians(self.incidence_deg)))
+        phi = beta - math.radians(self.camera_deg)
+        x = self.focal_length_px * np.sin(phi) / np.cos(phi + math.radians(self.tilt_deg))
+        return np.asarray(
+            self.axis_px + self.orientation * x * (1.0 + self.k1_per_px2 * x**2), dtype=np.float64
+        )
+
+    def to_dict(self) -> dict[str, float]:
+        return {
+            "spacing_nm": self.spacing_nm,
+            "focal_length_px": self.focal_length_px,
+            "incidence_deg": self.incidence_deg,
+            "camera_deg": self.camera_deg,
+            "axis_px": self.axis_px,
+            "orientation": float(self.orientation),
+            "k1_per_px2": self.k1_per_px2,
+            "tilt_deg": self.tilt_deg,
+        }
+
+
+@dataclass(frozen=True)
+class SpectrographRanges:
+    """What a spectrograph scene draws (:func:`draw_spectrograph`), each range from the physics of
+    the instruments amateurs and labs point at the Sun.
+
+    - ``grooves_per_mm_range``: reflection gratings of whole-visible spectrographs — the LHires
+      III's 150 and 300 l/mm, DADOS' 200, DIY builds' 300–600 (above 600 l/mm the visible does
+      not fit on one APS-C frame at these focal lengths).
+    - ``deviation_deg_range``: the angle between the collimator's and the camera's arms,
+      ``α − β_c``: 0 is Littrow (LHires III, a few degrees off it), Czerny–Turner and DIY builds
+      up to ~30°.
+    - ``centre_nm_range``: the wavelength on the camera's axis (where the user centres the
+      grating): anywhere in the middle of the visible.
+    - ``band_length_px_range``: 400–700 nm over 750–1600 columns (0.19–0.4 nm per column: the 10D
+      is 0.24).
+    - ``corner_distortion_range``: the camera lens' radial distortion at the sensor's corner,
+      ``k₁ r_c²``: −3 % (barrel, standard and short lenses) to +2 % (pincushion, telephotos) —
+      DSLR lenses' measured range (a dedicated spectrograph objective near 0).
+    - ``fill_range``: the profile's share of the sensor's width (a 3:2 sensor; its corner at
+      0.601 of the width from the centre), where ``k₁`` is set from the corner's distortion.
+    - ``tilt_deg_range``: the sensor's tilt about the slit direction: an adapter's flange tolerance
+      (~0.1°) up to the tilt that follows a simple camera lens' colour focus (~2°).
+    - ``axis_range``: where the camera's axis meets the profile, as a share of its length.
+    """
+
+    grooves_per_mm_range: tuple[float, float] = (150.0, 600.0)
+    deviation_deg_range: tuple[float, float] = (0.0, 30.0)
+    centre_nm_range: tuple[float, float] = (480.0, 620.0)
+    band_length_px_range: tuple[float, float] = (750.0, 1600.0)
+    corner_distortion_range: tuple[float, float] = (-0.03, 0.02)
+    fill_range: tuple[float, float] = (0.5, 1.0)
+    tilt_deg_range: tuple[float, float] = (-2.0, 2.0)
+    margin_below_nm_range: tuple[float, float] = (5.0, 30.0)
+    margin_above_nm_range: tuple[float, float] = (5.0, 40.0)
+
+
+def draw_spectrograph(
+    rng: np.random.Generator,
+    ranges: SpectrographRanges | None = None,
+    grid: tuple[float, float] = (380.0, 780.0),
+) -> tuple[SpectrographMapping, int]:
+    """A random spectrograph (:class:`SpectrographRanges`) and the number of columns of a profile
+    that covers ``grid`` (nm) with margins, its first column 0."""
+    ranges = ranges or SpectrographRanges()
+    spacing = 1e6 / float(math.exp(rng.uniform(*np.log(ranges.grooves_per_mm_range))))
+    deviation = math.radians(float(rng.uniform(*ranges.deviation_deg_range)))
+    centre = float(rng.uniform(*ranges.centre_nm_range))
+    band_px = float(rng.uniform(*ranges.band_length_px_range))
+    corner = float(rng.uniform(*ranges.corner_distortion_range))
+    fill = float(rng.uniform(*ranges.fill_range))
+    tilt = float(rng.uniform(*ranges.tilt_deg_range))
+    orientation = 1 if rng.uniform() < 0.5 else -1
+    below = float(rng.uniform(*ranges.margin_below_nm_range))
+    above = float(rng.uniform(*ranges.margin_above_nm_range))
+    # sin α + sin β_c = λ_c/d with α − β_c = δ: 2 sin((α+β_c)/2) cos(δ/2) = λ_c/d.
+    half_sum = math.asin(centre / (2.0 * spacing * math.cos(0.5 * deviation)))
+    alpha, beta_c = (
+        math.degrees(half_sum + 0.5 * deviation),
+        math.degrees(half_sum - 0.5 * deviation),
+    )
+    unit = SpectrographMapping(spacing, 1.0, alpha, beta_c, 0.0).pixel_at(np.array([400.0, 700.0]))
+    focal = band_px / float(unit[1] - unit[0])
+    span = np.array([grid[0] - below, grid[1] + above])
+    # k₁ from the corner's distortion, the sensor's width from the undistorted profile's length.
+    plain = SpectrographMapping(spacing, focal, alpha, beta_c, 0.0, tilt_deg=tilt).pixel_at(span)
+    k1 = corner / (0.601 * float(plain[1] - plain[0]) / fill) ** 2
+    low, high = SpectrographMapping(spacing, focal, alpha, beta_c, 0.0, 1, k1, tilt).pixel_at(span)
+    n_pixels = math.floor(float(high - low))
+    # Column 0 at the short end (or the long one, mirrored); the axis where λ_c falls.
+    axis_px = -float(low) if orientation > 0 else float(high)
+    mapping = SpectrographMapping(spacing, focal, alpha, beta_c, axis_px, orientation, k1, tilt)
+    return mapping, n_pixels
