@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from calib.evaluation.validation.rig_errors import ExposureTimeError, StrayLight
-from mocks.bench import TwinOptics
+from calib.image.raw import read_raw
+from mocks.bench import TwinOptics, TwinSpec
 from mocks.bench.camera import FrameRenderer
 from mocks.bench.flaws import (
     PROTOCOL_BAND_PX,
@@ -87,8 +88,6 @@ def test_the_switches_are_on_by_default_and_each_turns_one_off() -> None:
         RigConfig.model_validate(twin_config_data(stray_light="maybe"))
     data = RigConfig.model_validate(twin_config_data()).model_dump(mode="json")
     data["devices"]["camera"]["shutter_error"] = "maybe"
-    from mocks.bench import TwinSpec
-
     with pytest.raises(TwinSpecError, match=r"devices\.camera\.shutter_error"):
         TwinSpec.from_config_data(data)
 
@@ -96,12 +95,10 @@ def test_the_switches_are_on_by_default_and_each_turns_one_off() -> None:
 def _frames(tmp_path: Path, flaws: CameraFlaws) -> tuple[TwinOptics, np.ndarray, np.ndarray]:
     """The LED's frame (1/50 s, frame 4, seed 3) of a clean camera and of one with ``flaws``:
     RGB planes above black."""
-    from calib.image.raw import read_raw
-
     spec = twin_spec()
     clock = SimulatedClock()
     lamp = virtual_lamp(spec.lamps[0])
-    planes = []
+    planes: list[np.ndarray] = []
     optics = TwinOptics.build(spec.twin_camera, flaws)
     for flawed in (None, flaws):
         renderer = FrameRenderer(
