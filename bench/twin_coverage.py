@@ -20,12 +20,16 @@ without a data directory or ``$SPECTRAL_RIG_DATA``). Every row says its split.
 The twin's spectrometer has the in-spec wavelength-scale error and slit deviation a real one has
 (:mod:`mocks.bench.deviation`, drawn from the station's seed; ``--spectrometer-error off``: exactly
 as stated, the twin before decision 0038); ``--seed-per-camera`` gives every camera's station its own
-seed, so the ten twins see ten instrument draws instead of one. Scores are those of the curve users
+seed, so the ten twins see ten instrument draws instead of one. The twin camera has the stray light
+along the band and the per-frame shutter error a real rig has (:mod:`mocks.bench.flaws`, the
+validation protocol's ranges, drawn from the station's seed; ``--stray-light off`` and
+``--shutter-error off``: without them, the twin before decision 0087). Scores are those of the curve users
 get (``sensitivity.csv`` = ``result.json``: negative lobes of the solve set to zero) and its σ.
 
     python bench/twin_coverage.py [--split validation|test|both] [--floors 0.01]
         [--data-dir ../shared/data/camera_sensitivities] [--keep DIR]
-        [--spectrometer-error on|off] [--seed-per-camera]
+        [--spectrometer-error on|off] [--stray-light on|off]
+        [--shutter-error on|off] [--seed-per-camera]
 """
 
 from __future__ import annotations
@@ -102,14 +106,19 @@ def twin_config(
     data_dir: Path | None,
     *,
     in_spec_error: bool = True,
+    stray_light: bool = True,
+    shutter_error: bool = True,
     seed_offset: int = 0,
 ) -> RigConfig:
     """``base`` with the twin camera's true sensitivity set to ``camera``, the spectrometer's
-    in-spec errors on or off, and the station's seed moved by ``seed_offset``."""
+    in-spec errors, the camera's stray light and its shutter error on or off, and the
+    station's seed moved by ``seed_offset``."""
     data = base.model_dump(mode="json")
     data["seed"] += seed_offset
     data["devices"]["spectrometer"]["in_spec_error"] = in_spec_error
     twin = data["devices"]["camera"]
+    twin["stray_light"] = stray_light
+    twin["shutter_error"] = shutter_error
     twin["sensitivity"] = camera
     twin["sensitivity_collection"] = collection
     if data_dir is not None and collection not in ("colour-science", "rawtoaces-data"):
@@ -210,6 +219,18 @@ def main() -> None:
         help="the twin spectrometer's in-spec scale and slit errors (off: exactly as stated)",
     )
     parser.add_argument(
+        "--stray-light",
+        choices=("on", "off"),
+        default="on",
+        help="the twin camera's stray light along the band (off: none, the twin before 0087)",
+    )
+    parser.add_argument(
+        "--shutter-error",
+        choices=("on", "off"),
+        default="on",
+        help="the twin camera's per-frame shutter error (off: exact, the twin before 0087)",
+    )
+    parser.add_argument(
         "--tolerance-sigma",
         type=float,
         default=TOLERANCE_SIGMA,
@@ -254,6 +275,8 @@ def main() -> None:
                 collection,
                 args.data_dir,
                 in_spec_error=args.spectrometer_error == "on",
+                stray_light=args.stray_light == "on",
+                shutter_error=args.shutter_error == "on",
                 seed_offset=index if args.seed_per_camera else 0,
             )
             slug = "".join(c if c.isalnum() else "_" for c in camera)

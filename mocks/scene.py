@@ -14,7 +14,12 @@ pixel of the given colour would collect above black:
 * the +1 order at ``u > 0`` is ``profile(u) · t(v)`` where ``profile`` is given at sensor-pixel
   distances and ``t`` is a flat top of half-width ``band_half_width_px`` with soft edges (1 inside);
 * optionally the −1 order (mirror image at ``u < 0``, scaled) and the 2nd order (``profile(u/2)/2``,
-  twice as dispersed, scaled).
+  twice as dispersed, scaled);
+* optionally stray light of the direct spot scattered along the dispersion line (in-plane scatter
+  of the grooves, the lens' flare streak): a fraction of the spot's light in a Lorentzian wing
+  ``(w/π) / (w² + u²)`` along ``u`` on both sides of the spot, with the band's cross-section
+  ``t(v)`` — so it lies on the band, where the background strips beside it do not see it (the
+  validation protocol's :class:`calib.evaluation.validation.rig_errors.StrayLight`, in 2-D).
 
 A :class:`SceneSignal` gives the first order as per-pixel values at sample positions, which are
 interpolated at each pixel's centre. A :class:`PixelIntegratedSignal` gives it as the cumulative
@@ -123,6 +128,10 @@ class SceneLayout:
         Scale of the 2nd order along the +1 side (0 = none).
     background_dn_per_s
         Uniform stray light, per channel (R, G, B).
+    stray_fraction, stray_wing_px
+        Stray light along the band: this fraction of the direct spot's light (per channel) in a
+        Lorentzian wing of half-width ``stray_wing_px`` along the dispersion, centred on the spot,
+        spread across the band like the first order (0: none).
     """
 
     spot_centre_px: tuple[float, float]
@@ -134,6 +143,19 @@ class SceneLayout:
     minus_first_strength: float = 0.0
     second_order_strength: float = 0.0
     background_dn_per_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    stray_fraction: float = 0.0
+    stray_wing_px: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.stray_fraction < 1.0) or self.stray_wing_px < 0:
+            raise ValueError("need 0 ≤ stray_fraction < 1 and stray_wing_px ≥ 0")
+        if self.stray_fraction > 0 and not self.stray_wing_px > 0:
+            raise ValueError("stray light needs a wing half-width > 0")
+
+    def stray_wing(self, u: FloatArray) -> FloatArray:
+        """The stray light's Lorentzian along ``u`` per pixel of length (integral 1 over all ``u``)."""
+        wing = self.stray_wing_px
+        return np.asarray((wing / math.pi) / (wing**2 + np.asarray(u) ** 2), dtype=np.float64)
 
     @property
     def direction(self) -> tuple[float, float]:
@@ -360,7 +382,7 @@ def _field(
     v: FloatArray,
     spot_scale: float,
 ) -> FloatArray:
-    """Radiance of one channel at coordinates ``(u, v)`` (no background)."""
+    """Radiance of one channel at coordinates ``(u, v)`` (no uniform background)."""
     along, across = layout.spot_half_size_px
     value = spot_scale * soft_box(u, along, layout.edge_px) * soft_box(v, across, layout.edge_px)
     band = soft_box(v, layout.band_half_width_px, layout.edge_px)
@@ -372,6 +394,12 @@ def _field(
         orders += layout.minus_first_strength * signal.first_order(channel, -u, footprint)
     if layout.second_order_strength:
         orders += layout.second_order_strength * signal.first_order(channel, u, footprint, 2.0)
+    if layout.stray_fraction:
+        # The spot's light per row of the band (the band's cross-section integrates to twice its
+        # half-width), spread along u by the wing; sampled at the pixel centre (the wing is ≥ 100×
+        # wider than a pixel).
+        per_row = float(signal.direct_rgb[channel]) / (2.0 * layout.band_half_width_px)
+        orders += layout.stray_fraction * per_row * layout.stray_wing(u)
     return value + orders * band
 
 
@@ -395,6 +423,8 @@ def render_mosaic_radiance(
         Shape ``(height_px, width_px)``, float32, DN/s.
     """
     reach = signal.reach_px * (2.0 if layout.second_order_strength else 1.0) + 1.0
+    if layout.stray_fraction:
+        reach = max(reach, math.hypot(sensor.width_px, sensor.height_px))  # the wing's whole length
     rows, columns = _bounding_rows_columns(layout, sensor, spot_only=False, reach_px=reach)
     normaliser = _spot_normaliser(layout, sensor)
     mosaic = np.empty((sensor.height_px, sensor.width_px), dtype=np.float32)

@@ -409,7 +409,9 @@ class TwinCameraConfig(StrictModel):
     colour-science's cameras (``sensitivity_collection: colour-science``, the default), or a camera
     of a downloaded collection (``rig data fetch``; ``data_dir`` as for calib). Each frame costs
     its exposure plus ``download_s`` on the twin's clock; with ``realtime: true`` they also pass in
-    wall time (to measure the rig's own overhead).
+    wall time (to measure the rig's own overhead). ``stray_light`` and ``shutter_error`` (default
+    on) give the camera the errors a real rig's camera has: stray light of the direct spot along
+    the band and a per-frame shutter error, drawn from ``seed`` (``mocks.bench.flaws``).
     """
 
     kind: Literal["twin"]
@@ -423,6 +425,16 @@ class TwinCameraConfig(StrictModel):
     optics: TwinOpticsConfig = TwinOpticsConfig()
     download_s: float = Field(0.5, ge=0, le=600, description="simulated download time per frame")
     realtime: bool = False
+    stray_light: bool = Field(
+        True,
+        description="stray light of the direct spot along the band (0.1–1 % of it in a Lorentzian "
+        "wing), drawn from the seed and recorded in twin-truth.json; false: none",
+    )
+    shutter_error: bool = Field(
+        True,
+        description="each frame exposed its recorded time × (1 + ε), ε of σ 1–3 % drawn from the "
+        "seed and recorded in twin-truth.json; false: an exact shutter",
+    )
 
 
 SpectrometerConfig = Annotated[

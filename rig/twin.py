@@ -106,6 +106,10 @@ class TwinTruthRecord(Protocol):
     def spectrometer(self) -> Mapping[str, Any] | None:
         """The emulated spectrometer and its in-spec scale/slit errors (``None``: real)."""
 
+    @property
+    def camera_flaws(self) -> Mapping[str, Any] | None:
+        """The twin camera's stray light along the band and shutter error (``None``: none)."""
+
 
 class DigitalTwin(Protocol):
     """What the rig needs of the simulated bench.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 from typing import Any
@@ -364,3 +365,70 @@ def test_robust_level_and_variance_counts_values_on_a_grid_to_the_same_bits() ->
         assert (centre, variance) == expected, trial
         assert np.signbit(centre) == np.signbit(expected[0])
     assert robust_level_and_variance(np.array([np.nan, 1.0, 2.0]))[0] != 1.5  # NaN: general path
+
+
+# ------------------------------------------------------------------------- per-frame gains (0089)
+
+#: Each frame's actual exposure relative to its recorded one (a shutter's 1–3 % errors, larger).
+SHUTTER_ERRORS = (0.03, -0.02, 0.025, -0.035)
+
+
+@pytest.fixture(scope="module")
+def shutter_bracket(tmp_path_factory: pytest.TempPathFactory, scene: np.ndarray) -> list[Path]:
+    directory = tmp_path_factory.mktemp("shutter")
+    actual = [t * (1 + e) for t, e in zip(EXPOSURES_S, SHUTTER_ERRORS, strict=True)]
+    return write_bracket(directory, scene, SENSOR, actual, np.random.default_rng(11))
+
+
+def _spot_error(image: HdrImage, truth: np.ndarray) -> np.ndarray:
+    """Per channel, the merged spot's relative error, with its edge's share from other frames."""
+    geometric = math.prod(1 + e for e in SHUTTER_ERRORS) ** (1 / len(SHUTTER_ERRORS))
+    errors = []
+    for channel in range(3):
+        lit = truth[channel] > 0.02 * truth[channel].max()
+        errors.append(image.radiance[channel][lit].sum() / truth[channel][lit].sum() / geometric)
+    return np.asarray(errors) - 1
+
+
+def test_frames_gains_are_estimated_and_the_merge_is_right_within_noise(
+    shutter_bracket: list[Path], scene: np.ndarray
+) -> None:
+    truth = channel_planes(scene, SENSOR.cfa_pattern)
+    recorded = list(EXPOSURES_S)
+    image = merge_bracket(shutter_bracket, exposure_s=recorded, noise_model=TRUE_NOISE)
+    trusted = merge_bracket(
+        shutter_bracket, exposure_s=recorded, noise_model=TRUE_NOISE, estimate_gains=False
+    )
+    # the gains: each frame's error about the bracket's geometric mean, within 3 of their σ
+    actual = np.array([1 + e for e in SHUTTER_ERRORS])
+    expected = actual / np.exp(np.log(actual).mean())
+    by_exposure = {record.exposure_s: record for record in image.frames}
+    for exposure, want in zip(EXPOSURES_S, expected, strict=True):
+        record = by_exposure[exposure]
+        assert record.gain_sigma is not None and record.gain_sigma < 1e-3
+        assert abs(record.gain - want) < 3 * max(record.gain_sigma, 1e-4), exposure
+    assert image.metadata["frame_gains"]["kept_recorded_time"] == []  # type: ignore[index]
+    # the merge equals the truth × the geometric mean error, within its stated noise, everywhere
+    scaled = truth * float(np.exp(np.log(actual).mean()))
+    z = ((image.radiance - scaled) / np.sqrt(image.variance))[truth >= 2_000]
+    assert abs(z.mean()) < 0.05 and 0.9 < z.var() < 1.1
+    z_trusted = ((trusted.radiance - scaled) / np.sqrt(trusted.variance))[truth >= 2_000]
+    assert z_trusted.var() > 3  # recorded times: frame-to-frame steps far outside the noise
+    # the spot's channels agree (a shared gain): each channel's error is below 0.1 %
+    assert np.abs(_spot_error(image, truth)).max() < 1e-3
+    assert np.ptp(_spot_error(trusted, truth)) > 3e-3
+
+
+def test_with_too_little_overlap_the_recorded_times_are_kept(
+    tmp_path: Path, scene: np.ndarray
+) -> None:
+    # 1 s and 1/1024 s: the samples both measure are few and dim in the short frame, so the gain
+    # would be poorer than the recorded time (σ > GAIN_MAX_SIGMA)
+    exposures = (1.0 / 1024, 1.0)
+    paths = write_bracket(tmp_path, scene, SENSOR, exposures, np.random.default_rng(5))
+    image = merge_bracket(paths, noise_model=TRUE_NOISE)
+    trusted = merge_bracket(paths, noise_model=TRUE_NOISE, estimate_gains=False)
+    gains = image.metadata["frame_gains"]
+    assert isinstance(gains, dict) and len(gains["kept_recorded_time"]) == 1
+    assert [record.gain for record in image.frames] == [1.0, 1.0]
+    np.testing.assert_array_equal(image.radiance, trusted.radiance)

@@ -324,6 +324,9 @@ def _image_lamp_record(lamp: LampImages, extraction_frames: Sequence[Any]) -> di
                 "exposure_s": record.exposure_s,
                 "dark_frames": [str(dark) for dark in record.dark_paths],
                 "saturated_fraction": list(record.saturated_fraction),
+                # the merge's estimate of its actual exposure / exposure_s (decision 0089)
+                "exposure_gain": record.gain,
+                "exposure_gain_sigma": record.gain_sigma,
             }
             for record in extraction_frames
         ],

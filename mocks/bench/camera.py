@@ -10,7 +10,8 @@ each frame it
 2. exposes it with shot noise (Poisson in electrons), read noise, dark current, black level and
    clipping (:func:`mocks.scene.expose`), from a generator seeded by the twin's seed and the rig's
    step (the frame's number when no step was announced), so a step gives the same frame in any
-   process, retried or resumed;
+   process, retried or resumed; with the camera's flaws (:mod:`mocks.bench.flaws`) for the
+   recorded time × (1 + ε), the shutter's error, keyed the same way;
 3. writes a DNG (:func:`mocks.dng.write_dng`: ExposureTime in IFD0, ISO in the EXIF IFD) and hands
    back its bytes;
 4. lets the download time pass on the twin's clock (the exposure itself already has: the body
@@ -36,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.core.spectra import Spectrum
+from mocks.bench.flaws import CameraFlaws
 from mocks.bench.lamps import drift_coefficients, spectral_components
 from mocks.bench.optics import REFERENCE_F_NUMBER, REFERENCE_ISO, TwinOptics
 from mocks.dng import DngMetadata, write_dng
@@ -105,6 +107,9 @@ class FrameRenderer:
         Simulated download time per frame.
     realtime
         Also let exposure + download pass in wall time.
+    flaws
+        The camera's stray light (already in ``optics``' layout) and shutter error (``None``: an
+        exact shutter).
     """
 
     def __init__(
@@ -116,8 +121,10 @@ class FrameRenderer:
         seed: int,
         download_s: float,
         realtime: bool = False,
+        flaws: CameraFlaws | None = None,
     ) -> None:
         self.optics = optics
+        self.flaws = flaws
         self.bank = bank
         self.clock = clock
         self.seed = seed
@@ -251,7 +258,12 @@ class FrameRenderer:
         rng = np.random.default_rng(
             np.random.SeedSequence([self.seed, CAMERA_NOISE_STREAM, *frame])
         )
-        raw = expose(self.noiseless(settings), request.exposure_s, sensor, rng)
+        exposed_s = request.exposure_s
+        if (
+            self.flaws is not None and self.flaws.exposure_sigma > 0
+        ):  # the shutter's error: the DNG records the requested time
+            exposed_s *= 1.0 + self.flaws.frame_exposure_error(self.seed, frame)
+        raw = expose(self.noiseless(settings), exposed_s, sensor, rng)
         metadata = DngMetadata(
             exposure_s=request.exposure_s,
             iso=round(settings.iso),

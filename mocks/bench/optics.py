@@ -30,7 +30,7 @@ order's own η₀(λ), and the second order lands on the first order's pixels at
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -43,6 +43,7 @@ from calib.core.spectra import MultiSpectrum, Spectrum
 from calib.model.forward import PiecewiseLinearDensity, RenderedObservation, render_observation
 from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
 from mocks.bench.colour_cache import cached_table
+from mocks.bench.flaws import CameraFlaws
 from mocks.bench.spec import CameraSpec, GratingSpec, TwinSpecError
 from mocks.scene import PixelIntegratedSignal, SceneLayout, SensorModel, soft_box
 
@@ -204,8 +205,9 @@ class TwinOptics:
     band_range_px: tuple[float, float]
 
     @classmethod
-    def build(cls, camera: CameraSpec) -> TwinOptics:
-        """Set up the optics of ``camera``, placing the spot so the first order fits the frame.
+    def build(cls, camera: CameraSpec, flaws: CameraFlaws | None = None) -> TwinOptics:
+        """Set up the optics of ``camera``, placing the spot so the first order fits the frame;
+        with ``flaws``, the spot's stray light along the band (:mod:`mocks.bench.flaws`).
 
         Raises
         ------
@@ -251,6 +253,12 @@ class TwinOptics:
             band_half_width_px=optics.slit_length_px / 2.0,
             edge_px=optics.edge_px,
         )
+        if flaws is not None and flaws.stray_fraction > 0:
+            layout = replace(
+                layout,
+                stray_fraction=flaws.stray_fraction,
+                stray_wing_px=flaws.stray_wing_band * visible_band_px(mapping),
+            )
         _check_fits(layout, sensor, band_range)
         zeroth, first, second, record = grating_orders(grating)
         return cls(
@@ -336,6 +344,12 @@ class TwinOptics:
             cumulative=np.maximum.accumulate(scale / self.slit_length_px * cumulative, axis=0),
         )
         return FirstOrderRendering(signal, observation, scale)
+
+
+def visible_band_px(mapping: GratingGeometry) -> float:
+    """Length of the first order's 400–700 nm on the sensor (pixels)."""
+    ends = mapping.pixel_at(np.array([400.0, 700.0]))
+    return float(abs(ends[1] - ends[0]))
 
 
 def _check_fits(layout: SceneLayout, sensor: SensorModel, band_range: tuple[float, float]) -> None:

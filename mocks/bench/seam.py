@@ -13,6 +13,7 @@ from typing import Any
 
 from drivers.base import TranscriptSink
 from mocks.bench.deviation import spectrometer_truth
+from mocks.bench.flaws import camera_flaws
 from mocks.bench.optics import TwinOptics
 from mocks.bench.spec import TwinSpec, TwinSpecError
 from mocks.bench.station import TwinBench, TwinFaults, open_twin
@@ -42,8 +43,9 @@ class BenchSeam:
 
     def write_truth(self, config_data: Mapping[str, Any], directory: Path) -> Path:
         spec = TwinSpec.from_config_data(config_data)
-        optics = TwinOptics.build(spec.twin_camera)
-        return TwinTruth.of(optics, spec.seed, spectrometer_truth(spec)).write(directory)
+        flaws = camera_flaws(spec)
+        optics = TwinOptics.build(spec.twin_camera, flaws)
+        return TwinTruth.of(optics, spec.seed, spectrometer_truth(spec), flaws).write(directory)
 
     def read_truth(self, path: Path) -> TwinTruth:
         return TwinTruth.read(path)

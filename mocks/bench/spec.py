@@ -140,6 +140,9 @@ class CameraSpec:
         Exposures and downloads also pass in wall time.
     timeout_s, download_timeout_s
         The driver's deadlines for a call and for a download.
+    stray_light, shutter_error
+        Stray light along the band and a per-frame shutter error as a real rig has them, drawn
+        from the seed (:mod:`mocks.bench.flaws`); ``False``: none.
     """
 
     sensitivity: str
@@ -153,6 +156,8 @@ class CameraSpec:
     realtime: bool
     timeout_s: float
     download_timeout_s: float
+    stray_light: bool = True
+    shutter_error: bool = True
 
 
 @dataclass(frozen=True)
@@ -453,4 +458,6 @@ def _camera_spec(camera: _Reader) -> CameraSpec:
         realtime=bool(camera.value("realtime")),
         timeout_s=camera.number("timeout_s"),
         download_timeout_s=camera.number("download_timeout_s"),
+        stray_light=_switch(camera, "stray_light", default=True),
+        shutter_error=_switch(camera, "shutter_error", default=True),
     )

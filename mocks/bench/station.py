@@ -42,6 +42,7 @@ from drivers.transport import NO_PACING
 from mocks.bench.aim import FIELD_DEG, SpectrometerAim
 from mocks.bench.camera import FrameRenderer, twin_body
 from mocks.bench.deviation import spectrometer_deviation, spectrometer_truth
+from mocks.bench.flaws import camera_flaws
 from mocks.bench.lamps import PersistentLampBank, virtual_lamp
 from mocks.bench.optics import TwinOptics
 from mocks.bench.spec import TwinSpec, TwinSpecError
@@ -163,7 +164,9 @@ class TwinBench:
         """What an estimate from this twin's frames should find (a twin camera's)."""
         if self.optics is None:
             raise TwinSpecError("the camera is real: the twin knows no truth about it")
-        return TwinTruth.of(self.optics, self.spec.seed, spectrometer_truth(self.spec))
+        return TwinTruth.of(
+            self.optics, self.spec.seed, spectrometer_truth(self.spec), camera_flaws(self.spec)
+        )
 
     def radiometers(self) -> list[Radiometer]:
         """The emulated spectrometer's measurement physics (one per resolution for spotread)."""
@@ -523,7 +526,8 @@ def _open_camera(
     camera_spec = bench.spec.camera
     if camera_spec is None:
         return
-    optics = TwinOptics.build(camera_spec)
+    flaws = camera_flaws(bench.spec)
+    optics = TwinOptics.build(camera_spec, flaws)
     renderer = FrameRenderer(
         optics,
         bench.bank,
@@ -531,6 +535,7 @@ def _open_camera(
         seed=bench.spec.seed,
         download_s=camera_spec.download_s,
         realtime=camera_spec.realtime,
+        flaws=flaws,
     )
     opened.add(renderer.close)
     bench.optics, bench.renderer = optics, renderer

@@ -23,7 +23,8 @@ import numpy as np
 
 from calib.core.mapping import GratingGeometry
 from calib.core.spectra import MultiSpectrum, Spectrum, WavelengthGrid
-from mocks.bench.optics import TwinOptics
+from mocks.bench.flaws import CameraFlaws
+from mocks.bench.optics import TwinOptics, visible_band_px
 
 TRUTH_FORMAT = "spectral-rig/twin-truth"
 TRUTH_VERSION = 1
@@ -61,6 +62,9 @@ class TwinTruth:
     spectrometer
         The emulated spectrometer and its in-spec errors (:mod:`mocks.bench.deviation`), or
         ``None`` (a real spectrometer, or a file written before the twin had them).
+    camera_flaws
+        The camera's stray light along the band and shutter error (:mod:`mocks.bench.flaws`), or
+        ``None`` (a clean camera, or a file written before the twin had them).
     """
 
     camera: str
@@ -76,12 +80,18 @@ class TwinTruth:
     seed: int
     grating: dict[str, Any] = field(default_factory=dict)
     spectrometer: dict[str, Any] | None = None
+    camera_flaws: dict[str, Any] | None = None
 
     @classmethod
     def of(
-        cls, optics: TwinOptics, seed: int, spectrometer: dict[str, Any] | None = None
+        cls,
+        optics: TwinOptics,
+        seed: int,
+        spectrometer: dict[str, Any] | None = None,
+        camera_flaws: CameraFlaws | None = None,
     ) -> TwinTruth:
-        """The truth of a twin built with ``optics`` (and ``spectrometer``'s record)."""
+        """The truth of a twin built with ``optics`` (and ``spectrometer``'s record, and the
+        camera's ``camera_flaws``)."""
         low, high = optics.sensitivity.range_nm
         grid = WavelengthGrid(float(math.ceil(low)), float(math.floor(high)), 1.0)
         axis = grid.wavelength_nm
@@ -102,6 +112,11 @@ class TwinTruth:
             edge_px=optics.edge_px,
             seed=seed,
             spectrometer=spectrometer,
+            camera_flaws=(
+                None
+                if camera_flaws is None
+                else camera_flaws.to_dict(visible_band_px(optics.mapping))
+            ),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -135,6 +150,7 @@ class TwinTruth:
             },
             "seed": self.seed,
             "spectrometer": self.spectrometer,
+            "camera_flaws": self.camera_flaws,
         }
 
     def write(self, directory: str | Path) -> Path:
@@ -186,6 +202,7 @@ class TwinTruth:
                 edge_px=float(slit["edge_px"]),
                 seed=int(data["seed"]),
                 spectrometer=_optional_record(data.get("spectrometer"), "spectrometer"),
+                camera_flaws=_optional_record(data.get("camera_flaws"), "camera_flaws"),
             )
         except TruthFormatError:
             raise
