@@ -467,3 +467,44 @@ def test_a_basin_hopelessly_behind_gets_no_local_scan_in_the_deciding_stage(
     np.testing.assert_array_equal(
         fewer.mapping.wavelength_nm(pixel), every.mapping.wavelength_nm(pixel)
     )
+
+
+@pytest.mark.slow
+@pytest.mark.shared_data
+@pytest.mark.parametrize(
+    "name", ["Canon 1D-Mk-III (Jiang-et-al-2013)", "Canon 1Ds-Mk-II (Brady-2009)"]
+)
+def test_an_led_search_weighs_a_red_end_pulled_in_below_the_priors_edge(shared_camera_data, name):
+    """Decision 0085: two validation cameras (seed 3, LED only with the RAW files' optics) behind a
+    blue colour filter (a step at 580 nm) end their signal 20–40 nm below the prior mean's edge;
+    the scan leaned on the prior's edge and the search stretched the red end 30–45 nm, 18.6 / 10.6
+    nm off with a stated σ of 0.7 nm and no warning, although the truth's basin fits the deciding
+    stage far better. The red end pulled in below the found edge is now weighed and taken."""
+    from calib.evaluation.validation.protocol import (
+        MethodVariant,
+        ProtocolSettings,
+        render_task_scene,
+        split_tasks,
+        variant_observations,
+    )
+    from calib.evaluation.validation.splits import load_splits
+
+    splits, _ = load_splits(shared_camera_data, seed=3)
+    (camera,) = (c for c in splits.validation.cameras if c.name == name)
+    axis = camera.sensitivity.wavelength_nm
+    filtered = (
+        camera.sensitivity.values * (0.12 + 0.8 / (1.0 + np.exp((axis - 580.0) / 25.0)))[:, None]
+    )
+    behind = MultiSpectrum(axis, filtered / filtered.max(), name=f"{name} behind a blue filter")
+    cameras = (replace(camera, sensitivity=behind),)
+    (task,) = split_tasks(replace(splits.validation, cameras=cameras), ProtocolSettings(seed=3))
+    scene = render_task_scene(task)
+    variant = MethodVariant("LED-B3", "prior", tuple(scene.observations))
+    lamps = dict(zip(scene.observations, variant_observations(scene, variant), strict=True))
+    led = lamps["LED-B3"]
+    grid = task.settings.grid
+    solution = locate_mapping([led], task.basis.prior(), grid)
+    truth = scene.true_wavelength_nm
+    inside = (truth >= grid.start_nm) & (truth <= grid.stop_nm)
+    error = solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside]
+    assert float(np.mean(np.abs(error))) < 1.0

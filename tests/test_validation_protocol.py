@@ -553,6 +553,11 @@ def test_mapping_failures_are_counted_with_and_without_an_ambiguity_warning() ->
     stats = dict(whole.statistics)
     assert stats["> 3 nm"] == 2.0
     assert stats["> 3 nm unwarned"] == 1.0
+    # A warning on a right mapping is a false alarm, counted apart (decision 0085).
+    assert stats["≤ 3 nm warned"] == 0.0
+    rows.append(replace(_row("D", "LED only", 0.005), mapping_warned=True))  # 0.5 nm off, warned
+    whole = next(r for r in summarise(rows) if r.table == "mapping" and r.group == "all")
+    assert dict(whole.statistics)["≤ 3 nm warned"] == 1.0
 
 
 @pytest.mark.parametrize(

@@ -133,7 +133,12 @@ LOCAL_SIGMA_SCALE = 2.0
 #: nm (LED only, validation split, 44 leave-one-camera-out scenes; decision 0036). Chosen there:
 #: the RMS error is within ±2σ for 93 % of the scenes whose basin was right (83 % without it) and
 #: the median actual/stated ratio is 0.63 (0.97 without); 0.3 covers 90 %, 0.5 gives a ratio 0.54.
-PRIOR_MISFIT_SIGMA_NM = 0.4
+#: Halved by decision 0085: those errors held the +0.23 nm spectrometer-slit bias that decision
+#: 0082 removed, and with it gone 0.4 stated twice the error (validation split, 44 cameras: ±2σ
+#: 100 %, actual/stated 0.41). Chosen on the enlarged validation split (190 predicted cameras of
+#: seed 1, no EXIF): 0.2 covers 97.6 % at a median ratio of 0.61 (0.4: 98.8 %, 0.48; 0: 96.6 %,
+#: 0.68 — the spectrometer's scale and the curvature then hold the rest).
+PRIOR_MISFIT_SIGMA_NM = 0.2
 #: A deciding fit whose reduced χ² (the basins' temper) exceeds this fits the camera prior too badly
 #: for its likelihood to pick the basin: the result warns (``mapping_ambiguous``) and its σ reaches
 #: the nearest other basin. Chosen on the validation split only (decision 0054).
@@ -1151,16 +1156,21 @@ def search_profiles(
     # prior's mean pulls it by what the curvature cannot see (lines pin it: no such term).
     edge = red_edge_nm(measured[0], exact, prior) if broadband_only and physical else None
     pulled: ExactMapping | None = None
+    stretched = edge is not None and edge[0] - edge[1] > RED_EDGE_MARGIN_NM
     if (
         edge is not None
-        and edge[0] - edge[1] > RED_EDGE_MARGIN_NM
         and isinstance(family, GratingFamily)
+        and (stretched or not _rig_known(family))
     ):
         # The red end stretched beyond where the prior ends the signal: a basin the likelihood
         # may prefer with no other competing. The basin with the red end pulled in to the prior's
-        # edge is weighed too (and taken when it fits better: the scan missed it).
+        # edge is weighed too (and taken when it fits better: the scan missed it). Not
+        # stretched, the red end pulled in further than the prior's own edge (a camera whose
+        # signal ends early, e.g. behind a colour filter) is weighed the same way: the scan's
+        # coarse profile leans on the prior's edge and misses that basin (decision 0085).
         deciding = stage(family, REFINE_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, 0.0)
-        points = _pulled_in(family, final.x, pixel_range, edge)
+        targets = None if stretched else [edge[0] - pull for pull in RED_EDGE_PULL_IN_NM]
+        points = _pulled_in(family, final.x, pixel_range, edge, targets)
         costs = deciding.costs(points)
         evaluations += points.shape[0]
         if np.any(np.isfinite(costs)):
@@ -1190,9 +1200,12 @@ def search_profiles(
                     final = taken
                     exact = family.mapping(final.x)
                     edge = red_edge_nm(measured[0], exact, prior)
-                else:
+                elif stretched:
                     decided = [*decided, (family, outcome)]
                     pulled = family.mapping(outcome.x)
+                # Not stretched and fitting worse, the pulled-in basin is no candidate: on the
+                # validation split each one kept warned a right mapping (8 of 304 scenes, none
+                # of the wrong ones; decision 0085).
     _covers(exact, pixel_range, grid)
 
     # Ambiguity: every basin's profile likelihood, tempered by the misfit of the best one.
@@ -1330,6 +1343,11 @@ RED_EDGE_MARGIN_NM = 6.0
 RED_EDGE_STEP_NM = 0.5
 #: Incidence offsets (°) about a basin's at which a red end pulled in is tried.
 PULLED_IN_INCIDENCE_DEG = (-4.0, 0.0, 4.0)
+#: How far (nm) below the found mapping's red edge a red end pulled in is tried when the edge is
+#: not stretched: the physical scan's end step (:data:`PHYSICAL_STEP_NM`) up to 40 nm, where a
+#: camera behind a colour filter (a Wratten-80-like step at 560–580 nm) ends its signal 20–40 nm
+#: below the prior mean's edge; the descent from the best of them finds the minimum between.
+RED_EDGE_PULL_IN_NM = tuple(PHYSICAL_STEP_NM * k for k in (1, 2, 3, 4))
 
 
 def red_edge_nm(
@@ -1370,22 +1388,25 @@ def _pulled_in(
     x: FloatArray,
     pixel_range: tuple[float, float],
     edge: tuple[float, float, float],
+    targets_nm: Sequence[float] | None = None,
 ) -> FloatArray:
-    """Gratings (one per :data:`PULLED_IN_INCIDENCE_DEG` offset about ``x``'s incidence) whose red
-    end is pulled in so that the profile's red edge lands on the prior mean's: the stretch grows
-    from the blue end, so the red end moves by the edge's excess scaled to the whole profile."""
+    """Gratings (one per :data:`PULLED_IN_INCIDENCE_DEG` offset about ``x``'s incidence, for each
+    target) whose red end is pulled in so that the profile's red edge lands on a target (default:
+    the prior mean's edge, ``edge[1]``): the stretch grows from the blue end, so the red end moves
+    by the edge's excess scaled to the whole profile."""
     ends = family.wavelengths(np.array(pixel_range), x)
     red = 1 if ends[1] > ends[0] else 0
     blue_px, red_px = pixel_range[1 - red], pixel_range[red]
-    moved = (edge[0] - edge[1]) * (red_px - blue_px) / (edge[2] - blue_px)
-    wanted = ends.copy()
-    wanted[red] -= moved
+    targets = np.array([edge[1]] if targets_nm is None else list(targets_nm), dtype=np.float64)
+    moved = (edge[0] - targets) * (red_px - blue_px) / (edge[2] - blue_px)
+    wanted = np.repeat(ends[None, :], targets.size, axis=0)
+    wanted[:, red] -= moved
     incidence = float(x[family.names.index("incidence_deg")])
     points = _end_points(
         family,
         pixel_range,
-        np.array([[wanted[0]]]),
-        np.array([[wanted[1]]]),
+        wanted[:, 0],
+        wanted[:, 1],
         [incidence + k for k in PULLED_IN_INCIDENCE_DEG],
     )
     return points.reshape(-1, points.shape[-1])

@@ -13,8 +13,8 @@ Statistics (over the estimates of a cell; failed estimates are counted, not aver
   (:mod:`calib.methods.uncertainty`);
 - σ ratio: the median over estimates of RMS(actual error) / RMS(stated σ) (1 when honest);
 - mapping: mean and median of the mean ``|Δλ|`` over the profile (nm), the number of estimates
-  off by more than 3 nm and how many of them carried no ambiguity warning, mapping RE (%),
-  coverage and σ ratio of the stated σ_λ.
+  off by more than 3 nm and how many of them carried no ambiguity warning, how many within 3 nm
+  carried one (false alarms), mapping RE (%), coverage and σ ratio of the stated σ_λ.
 """
 
 from __future__ import annotations
@@ -112,11 +112,19 @@ def _mapping_statistics(rows: Sequence[ValidationRow]) -> Statistics:
         if row.mapping_mean_abs_nm is not None and row.mapping_mean_abs_nm > MAPPING_FAILURE_NM
     ]
     silent = [row for row in off if not row.mapping_warned]
+    alarms = [
+        row
+        for row in mapped
+        if row.mapping_warned
+        and row.mapping_mean_abs_nm is not None
+        and row.mapping_mean_abs_nm <= MAPPING_FAILURE_NM
+    ]
     return (
         ("mean |Δλ| nm", _mean(errors)),
         ("median |Δλ| nm", _median(errors)),
         (f"> {MAPPING_FAILURE_NM:g} nm", float(len(off)) if mapped else None),
         (f"> {MAPPING_FAILURE_NM:g} nm unwarned", float(len(silent)) if mapped else None),
+        (f"≤ {MAPPING_FAILURE_NM:g} nm warned", float(len(alarms)) if mapped else None),
         ("mapping RE %", None if (m := _mean(r.mapping_re for r in mapped)) is None else 100 * m),
         (
             "±2σ coverage %",
