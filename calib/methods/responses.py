@@ -10,11 +10,12 @@ covariance. :class:`LampData` holds it with the lamp's direct (0th-order) measur
 
 from __future__ import annotations
 
-import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
@@ -259,53 +260,127 @@ def direct_rows(
     is whitened by the Cholesky factor of its 3 × 3 covariance. ``floor``: the relative floor under
     each equation's σ (:data:`MODEL_FLOOR` for the fit; the grating model's choice judges at the
     rig's error level, :data:`calib.methods.grating_models.CHOICE_FLOOR`).
+
+    All lamps at once, on their arrays stacked (:func:`_lamp_stack`): every number is the one a
+    lamp-by-lamp loop gives, to the bit (the same products per lamp, the same elementwise
+    expressions; decision 0092) — the physical fits call this thousands of times per estimate.
     """
     gain = DIRECT_GAIN_SIGMA if gain_sigma is None else gain_sigma
-    rows = []
-    targets = []
-    for lamp in lamps:
-        direct_row = lamp.zeroth_order_row(zeroth_order)
-        spread = direct_row * inverse_efficiency
-        direct = np.asarray(lamp.direct, dtype=np.float64)
-        if spread.ndim == 1:
-            propagated = (lamp.response.covariance @ spread) @ spread
-        else:  # (k, f): one σ per value of η₀ (a scan), (k, 3)
-            propagated = np.sum((lamp.response.covariance @ spread.T) * spread.T, axis=1).T
-        variances = np.maximum(
-            lamp.direct_sigma**2 + propagated + (floor * direct) ** 2,
-            1e-300,
-        )
-        block = np.empty((*direct_row.shape[:-1], 3, direct_row.shape[-1] + 1))
-        block[..., :-1] = lamp.response.response.T * direct_row[..., None, :]
-        block[..., -1] = direct
-        whitened = _whiten_three(variances, gain * direct, block)
-        rows.append(whitened[..., :-1])
-        targets.append(whitened[..., -1])
-    return np.concatenate(rows, axis=-2), np.concatenate(targets, axis=-1)
+    stack = _lamp_stack(lamps)
+    if zeroth_order is None:
+        row = stack.direct_row  # (L, f)
+    elif stack.densities is not None:
+        row = np.asarray(zeroth_order @ stack.densities, dtype=np.float64)  # (L, [k,] f)
+    else:
+        row = np.stack([lamp.zeroth_order_row(zeroth_order) for lamp in lamps])
+    spread = row * inverse_efficiency
+    if spread.ndim == 2:
+        propagated = ((stack.covariance @ spread[:, None, :, None])[..., 0] @ spread[:, :, None])[
+            ..., 0
+        ]  # (L, 3)
+        response, direct, sigma2 = stack.response, stack.direct, stack.direct_sigma2
+    else:  # (L, k, f): one σ per value of η₀ (a scan), (L, k, 3)
+        columns = spread.swapaxes(-1, -2)[:, None]  # (L, 1, f, k)
+        propagated = np.sum((stack.covariance @ columns) * columns, axis=2).swapaxes(-1, -2)
+        response = stack.response[:, None]
+        direct, sigma2 = stack.direct[:, None], stack.direct_sigma2[:, None]
+    variances = np.maximum(sigma2 + propagated + (floor * direct) ** 2, 1e-300)
+    block = np.empty((*row.shape[:-1], 3, row.shape[-1] + 1))
+    block[..., :-1] = response * row[..., None, :]
+    block[..., -1] = direct
+    whitened = _whiten_three(variances, gain * direct, block)  # (L, [k,] 3, f + 1)
+    if whitened.ndim == 4:
+        whitened = whitened.swapaxes(0, 1)  # (k, L, 3, f + 1): the lamps' rows in turn
+    lead = whitened.shape[:-3]
+    count = whitened.shape[-3] * 3
+    return (
+        np.ascontiguousarray(whitened[..., :-1].reshape(*lead, count, row.shape[-1])),
+        np.ascontiguousarray(whitened[..., -1].reshape(*lead, count)),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _LampStack:
+    """The arrays of a set of lamps that :func:`direct_rows` needs, stacked along a first axis
+    ``L`` (read-only): ``direct_row`` ``(L, f)``, ``response`` ``(L, 3, f)`` (each ``q̂ᵀ``),
+    ``covariance`` ``(L, 3, f, f)``, ``direct`` and ``direct_sigma2`` ``(L, 3)``, and
+    ``densities`` ``(L, n_fine, f)`` (:attr:`LampData._trapezoid_densities`; ``None`` unless
+    every lamp carries its operators on one fine axis)."""
+
+    lamps: tuple[LampData, ...]
+    direct_row: FloatArray
+    response: FloatArray
+    covariance: FloatArray
+    direct: FloatArray
+    direct_sigma2: FloatArray
+    densities: FloatArray | None
+
+
+#: How many lamp sets' stacks :func:`_lamp_stack` keeps (an estimate solves from one set; its
+#: σ budget's re-solves and the grating model's choice from the same lamp objects, or a few).
+STACK_CACHE_SIZE = 8
+_STACKS: OrderedDict[tuple[int, ...], _LampStack] = OrderedDict()
+_STACKS_LOCK = threading.Lock()
+
+
+def _lamp_stack(lamps: Sequence[LampData]) -> _LampStack:
+    """The lamps' arrays stacked (:class:`_LampStack`), kept for the last :data:`STACK_CACHE_SIZE`
+    sets by the lamps' identity: a kept stack holds its lamps, so no other object can take their
+    ids while it is kept (a :class:`LampData` is frozen; its arrays are never written)."""
+    key = tuple(id(lamp) for lamp in lamps)
+    with _STACKS_LOCK:
+        stack = _STACKS.get(key)
+        if stack is not None:
+            _STACKS.move_to_end(key)
+            return stack
+    if not lamps:
+        raise InputError("no lamps with a direct measurement", source="observations")
+    axes = [None if lamp.operators is None else lamp.operators.densities.axis_nm for lamp in lamps]
+    first_axis = axes[0]
+    same_axis = first_axis is not None and all(
+        axis is not None and np.array_equal(axis, first_axis) for axis in axes
+    )
+    stack = _LampStack(
+        tuple(lamps),
+        np.stack([np.asarray(lamp.direct_row, dtype=np.float64) for lamp in lamps]),
+        np.stack([lamp.response.response.T for lamp in lamps]),
+        np.stack([lamp.response.covariance for lamp in lamps]),
+        np.stack([np.asarray(lamp.direct, dtype=np.float64) for lamp in lamps]),
+        np.stack([lamp.direct_sigma**2 for lamp in lamps]),
+        np.stack([lamp._trapezoid_densities for lamp in lamps]) if same_axis else None,
+    )
+    for array in (
+        stack.direct_row,
+        stack.response,
+        stack.covariance,
+        stack.direct,
+        stack.direct_sigma2,
+        stack.densities,
+    ):
+        if array is not None:
+            array.flags.writeable = False
+    with _STACKS_LOCK:
+        _STACKS[key] = stack
+        while len(_STACKS) > STACK_CACHE_SIZE:
+            _STACKS.popitem(last=False)
+    return stack
 
 
 def _whiten_three(variances: FloatArray, shared: FloatArray, block: FloatArray) -> FloatArray:
     """``L⁻¹ block`` with ``L`` the Cholesky factor of ``diag(variances) + shared sharedᵀ`` (3 × 3),
     written out: the direct equations are whitened hundreds of times per physical grating fit, and
-    LAPACK's call overhead on a 3 × 3 matrix is most of that time. ``variances`` ``(3,)`` with
-    ``block`` ``(3, m)``, or ``(k, 3)`` with ``(k, 3, m)``: ``k`` systems at once."""
-    if variances.ndim == 1:
-        v0, v1, v2 = variances.tolist()
-        sqrt: Callable[[Any], Any] = math.sqrt
-    else:
-        v0, v1, v2 = variances.T
-        sqrt = np.sqrt
-    g0, g1, g2 = shared.tolist()
-    l00 = sqrt(v0 + g0 * g0)
+    LAPACK's call overhead on a 3 × 3 matrix is most of that time. ``variances`` ``(…, 3)`` with
+    ``shared`` broadcasting against it and ``block`` ``(…, 3, m)``: every system at once (the
+    elementwise expressions of one system's, so each its own numbers to the bit)."""
+    v0, v1, v2 = (variances[..., i] for i in range(3))
+    g0, g1, g2 = (shared[..., i] for i in range(3))
+    l00 = np.sqrt(v0 + g0 * g0)
     l10 = g1 * g0 / l00
     l20 = g2 * g0 / l00
-    l11 = sqrt(v1 + g1 * g1 - l10 * l10)
+    l11 = np.sqrt(v1 + g1 * g1 - l10 * l10)
     l21 = (g2 * g1 - l20 * l10) / l11
-    l22 = sqrt(v2 + g2 * g2 - l20 * l20 - l21 * l21)
-    if variances.ndim > 1:
-        l00, l10, l20, l11, l21, l22 = (
-            np.asarray(value)[:, None] for value in (l00, l10, l20, l11, l21, l22)
-        )
+    l22 = np.sqrt(v2 + g2 * g2 - l20 * l20 - l21 * l21)
+    l00, l10, l20, l11, l21, l22 = (value[..., None] for value in (l00, l10, l20, l11, l21, l22))
     out = np.empty_like(block)
     out[..., 0, :] = block[..., 0, :] / l00
     out[..., 1, :] = (block[..., 1, :] - l10 * out[..., 0, :]) / l11
