@@ -279,15 +279,24 @@ class _Window:
 
     def costs(self, shifts_nm: FloatArray, factor: float) -> FloatArray:
         """The residual sum of squares at every shift of ``shifts_nm`` (the linear parameters
-        projected out), as :meth:`residual` finds it shift by shift, in one batched SVD: the fit
-        spans the left singular vectors ``lstsq`` keeps (singular values above
-        ``eps · max(n, k)`` of the largest, its ``rcond=None``)."""
+        projected out), as :meth:`residual` finds it shift by shift, in batched calls.
+
+        The background's columns do not move with the shift: they are projected out of the data
+        and of every shift's Gaussians once, and the Gaussians left are fitted by one batched SVD.
+        Both keep the singular vectors ``lstsq`` keeps (singular values above ``eps · max(n, k)``
+        of the largest, its ``rcond=None``), so a rank-deficient design (a line listed twice) is
+        fitted as it fits it."""
         design = self.designs(shifts_nm, factor)
-        left, singular, _ = np.linalg.svd(design, full_matrices=False)
+        lines = len(self.lines)
         rcond = np.finfo(np.float64).eps * max(design.shape[-2:])
+        flat, singular, _ = np.linalg.svd(design[0, :, lines:], full_matrices=False)
+        flat = flat[:, singular > rcond * singular[0]]
+        peaks = design[:, :, :lines] - flat @ np.einsum("nb,snk->sbk", flat, design[:, :, :lines])
+        y = self.y - flat @ (flat.T @ self.y)
+        left, singular, _ = np.linalg.svd(peaks, full_matrices=False)
         kept = singular > rcond * singular[:, :1]
-        projections = np.einsum("snk,n->sk", left, self.y) * kept
-        residual = self.y[None, :] - np.einsum("snk,sk->sn", left, projections)
+        projections = np.einsum("snk,n->sk", left, y) * kept
+        residual = y[None, :] - np.einsum("snk,sk->sn", left, projections)
         return np.asarray(np.einsum("sn,sn->s", residual, residual))
 
 
