@@ -5,7 +5,8 @@ fluorescent lamp's reference spectrum as the scene's spectrometer reports it is 
 (:func:`calib.core.spectrometer_scale.check_spectrometer_scale`); the fitted mean offset over the grid
 is compared with the offset the protocol drew. Prints per scene: slit, sampling, drawn offset,
 fitted offset ± σ, error / σ, or why the check declined; then the share of scenes checked, the
-error's RMS, the median σ and the share within ±2σ, by slit.
+error's RMS, the median σ and the share within ±2σ, by slit; and the checks' CPU time (the check
+alone, the scenes' rendering left out: decision 0090).
 
     python bench/spectrometer_scale_check.py --split validation --data-dir DIR
 """
@@ -13,6 +14,7 @@ error's RMS, the median σ and the share within ±2σ, by slit.
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +34,7 @@ def main() -> None:
     loaded, _ = load_splits(args.data_dir)
     split = loaded.validation if args.split == "validation" else loaded.test
     rows = []
+    cpu_s = 0.0
     for task in split_tasks(split, settings):
         scene = render_task_scene(task)
         reading = scene.plan.spectrometer
@@ -39,12 +42,14 @@ def main() -> None:
         if reading is None or lamp is None or lamp.spectrum_bandwidth_nm is None:
             continue
         grid = settings.grid
+        started = time.process_time()
         outcome = check_spectrometer_scale(
             lamp.spectrum,
             lamp.spectrum_bandwidth_nm,
             lamp=args.lamp,
             range_nm=(grid.start_nm, grid.stop_nm),
         )
+        cpu_s += time.process_time() - started
         if isinstance(outcome, str):
             print(
                 f"{task.camera.name:40s} slit {reading.bandwidth_nm:4.1f} nm step "
@@ -60,6 +65,9 @@ def main() -> None:
         )
         rows.append((reading.bandwidth_nm, reading.offset_nm, fitted, sigma))
     table = np.array(rows)
+    print(
+        f"\ncheck CPU: {cpu_s:.2f} s for {len(rows)} spectra, {1e3 * cpu_s / len(rows):.0f} ms each"
+    )
     print("\n| slit (nm) | scenes | checked | error RMS (nm) | median σ (nm) | within ±2σ |")
     print("|---|---|---|---|---|---|")
     for low, high in ((2, 4), (4, 6), (6, 8), (8, 10.01), (0, 100)):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,9 @@ from calib.core.result import EstimateResult
 from calib.core.spectra import Spectrum
 from calib.core.spectrometer_scale import (
     SCALE_SIGMA_KEY,
+    SEARCH_SHIFT_NM,
     ScaleCheck,
+    _windows,
     check_spectrometer_scale,
     checked_observations,
     corrected_spectrum,
@@ -85,6 +88,42 @@ def test_a_shifted_lamp_spectrum_gives_its_offset_back_within_its_sigma(
     curve = np.polyfit(x - x[1], y, 2)
     peak = x[1] - curve[1] / (2.0 * curve[0])  # the parabola through the three top samples
     assert abs(peak - 435.83) < 0.5 * abs(offset_nm)
+
+
+def _per_shift_costs(window: Any, shifts: np.ndarray, factor: float) -> np.ndarray:
+    """The reference the batched scan must reproduce: one ``lstsq`` fit per shift."""
+    return np.array([float(r @ r) for r, _ in (window.residual(s, factor) for s in shifts)])
+
+
+def test_the_batched_shift_scan_is_the_per_shift_fit():
+    """Decision 0090: every shift of a window in one batched call gives each shift's residual as
+    its own ``lstsq`` fit does, so the scan picks the same grid point — here the known offset —
+    also when a design is rank-deficient (a line listed twice: ``lstsq`` drops the copy)."""
+    offset_nm = 0.3
+    measured = _measured(_cfl(), offset_nm=offset_nm, bandwidth_nm=3.0, seed=5)
+    windows, _ = _windows(measured, 3.0)
+    assert len(windows) >= 3
+    shifts = np.arange(-SEARCH_SHIFT_NM, SEARCH_SHIFT_NM + 0.05, 0.1)
+    twice = replace(
+        windows[0],
+        lines=(*windows[0].lines, windows[0].lines[0]),
+        reference=(*windows[0].reference, False),
+    )
+    for window in (*windows, twice):
+        grid = []
+        for factor in (0.8, 1.0, 1.2):
+            batched = window.costs(shifts, factor)
+            reference = _per_shift_costs(window, shifts, factor)
+            np.testing.assert_allclose(
+                batched, reference, rtol=1e-9, atol=1e-12 * float(window.y @ window.y)
+            )
+            grid.append(reference)
+        best = np.unravel_index(int(np.argmin(grid)), (3, shifts.size))
+        assert best == np.unravel_index(
+            int(np.argmin(np.stack([window.costs(shifts, f) for f in (0.8, 1.0, 1.2)]))),
+            (3, shifts.size),
+        )
+        assert abs(shifts[best[1]] - offset_nm) <= 0.15, window.label
 
 
 @pytest.mark.slow

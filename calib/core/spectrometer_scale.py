@@ -233,9 +233,10 @@ class ScaleCheck:
 
 def _gaussians(
     x: FloatArray, centres: FloatArray, fwhm: FloatArray
-) -> FloatArray:  # (n, k), peak 1
+) -> FloatArray:  # (..., n, k), peak 1, for centres (..., k)
     sigma = fwhm / FWHM_PER_SIGMA
-    return np.asarray(np.exp(-0.5 * ((x[:, None] - centres[None, :]) / sigma[None, :]) ** 2))
+    offsets = x[:, None] - centres[..., None, :]
+    return np.asarray(np.exp(-0.5 * (offsets / sigma) ** 2))
 
 
 @dataclass(frozen=True)
@@ -250,7 +251,15 @@ class _Window:
     bandwidth_nm: float
 
     def design(self, shift_nm: float, factor: float, moved: Sequence[float] = ()) -> FloatArray:
-        positions = np.array([line.wavelength_nm for line in self.lines]) - shift_nm
+        return np.asarray(self.designs(np.array([shift_nm]), factor, moved)[0])
+
+    def designs(
+        self, shifts_nm: FloatArray, factor: float, moved: Sequence[float] = ()
+    ) -> FloatArray:
+        """The design matrices at every shift of ``shifts_nm`` at once, ``(shifts, n, k)``: the
+        lines' Gaussians, then the background's powers."""
+        listed = np.array([line.wavelength_nm for line in self.lines])
+        positions = listed[None, :] - np.asarray(shifts_nm, dtype=np.float64)[:, None]
         if moved:
             positions = positions + np.asarray(moved)
         widths = np.hypot(factor * self.bandwidth_nm, [line.width_nm for line in self.lines])
@@ -258,7 +267,8 @@ class _Window:
         centre = self.wavelength_nm
         scale = max(float(np.ptp(self.x)) / 2.0, 1.0)
         background = np.stack([((self.x - centre) / scale) ** j for j in range(self.degree + 1)], 1)
-        return np.concatenate([peaks, background], axis=1)
+        background = np.broadcast_to(background, (*peaks.shape[:-1], background.shape[1]))
+        return np.concatenate([peaks, background], axis=-1)
 
     def residual(
         self, shift_nm: float, factor: float, moved: Sequence[float] = ()
@@ -266,6 +276,28 @@ class _Window:
         design = self.design(shift_nm, factor, moved)
         coefficients, *_ = np.linalg.lstsq(design, self.y, rcond=None)
         return np.asarray(self.y - design @ coefficients), np.asarray(coefficients)
+
+    def costs(self, shifts_nm: FloatArray, factor: float) -> FloatArray:
+        """The residual sum of squares at every shift of ``shifts_nm`` (the linear parameters
+        projected out), as :meth:`residual` finds it shift by shift, in batched calls.
+
+        The background's columns do not move with the shift: they are projected out of the data
+        and of every shift's Gaussians once, and the Gaussians left are fitted by one batched SVD.
+        Both keep the singular vectors ``lstsq`` keeps (singular values above ``eps · max(n, k)``
+        of the largest, its ``rcond=None``), so a rank-deficient design (a line listed twice) is
+        fitted as it fits it."""
+        design = self.designs(shifts_nm, factor)
+        lines = len(self.lines)
+        rcond = np.finfo(np.float64).eps * max(design.shape[-2:])
+        flat, singular, _ = np.linalg.svd(design[0, :, lines:], full_matrices=False)
+        flat = flat[:, singular > rcond * singular[0]]
+        peaks = design[:, :, :lines] - flat @ np.einsum("nb,snk->sbk", flat, design[:, :, :lines])
+        y = self.y - flat @ (flat.T @ self.y)
+        left, singular, _ = np.linalg.svd(peaks, full_matrices=False)
+        kept = singular > rcond * singular[:, :1]
+        projections = np.einsum("snk,n->sk", left, y) * kept
+        residual = y[None, :] - np.einsum("snk,sk->sn", left, projections)
+        return np.asarray(np.einsum("sn,sn->s", residual, residual))
 
 
 def _windows(spectrum: Spectrum, bandwidth_nm: float) -> tuple[list[_Window], list[str]]:
@@ -342,13 +374,19 @@ def _fit_window(window: _Window, step_nm: float) -> LineShift | str:
 
     shift_step = min(0.1, 0.25 * step_nm, window.bandwidth_nm / 20.0)
     shifts = np.arange(-SEARCH_SHIFT_NM, SEARCH_SHIFT_NM + shift_step / 2, shift_step)
+    factors = np.linspace(low, high, 13)
+    # The grid's costs, factor by factor, every shift of one factor in one call; the first smallest
+    # in factor-then-shift order (a cost that is not a number never counts), its cost then
+    # recomputed by the fit itself, so the noise the refinement whitens with is the fit's.
+    costs = np.stack([window.costs(shifts, float(factor)) for factor in factors])
+    costs = np.where(np.isnan(costs), math.inf, costs)
+    first = int(np.argmin(costs))
     best = (math.inf, 0.0, 1.0)
-    for factor in np.linspace(low, high, 13):
-        for shift in shifts:
-            residual, _ = window.residual(float(shift), float(factor))
-            cost = float(residual @ residual)
-            if cost < best[0]:
-                best = (cost, float(shift), float(factor))
+    if costs.flat[first] < math.inf:
+        row, column = divmod(first, shifts.size)
+        shift, factor = float(shifts[column]), float(factors[row])
+        residual, _ = window.residual(shift, factor)
+        best = (float(residual @ residual), shift, factor)
     n = window.x.size
     k = len(window.lines) + window.degree + 1
     dof = n - k - 2
