@@ -200,7 +200,7 @@ def test_the_5d_mk_ii_without_optics_is_warned_or_right(shared_camera_data, monk
     from calib.model import forward
 
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "bench"))
-    import solar_validate as bench  # type: ignore[import-not-found]
+    import solar_validate as bench
 
     monkeypatch.setattr(
         scenes,
