@@ -64,10 +64,12 @@ def _mapping(offset_nm: float) -> QuadraticMapping:
     return QuadraticMapping(0.0, 0.3, 400.0 + offset_nm, pixel_range=(0.0, 1000.0))
 
 
-def _match(offset_nm: float, used: int = 4) -> Any:
-    """A stand-in for a dips' match: its mapping and how many dips it used."""
+def _match(offset_nm: float, used: int = 4, residual_nm: float = 0.3) -> Any:
+    """A stand-in for a dips' match: its mapping, how many dips it used and how well."""
     return SimpleNamespace(
-        exact=_mapping(offset_nm), matches=tuple(SimpleNamespace(used=True) for _ in range(used))
+        exact=_mapping(offset_nm),
+        matches=tuple(SimpleNamespace(used=True) for _ in range(used)),
+        details={"residual_rms_nm": residual_nm},
     )
 
 
@@ -104,18 +106,23 @@ def test_dips_refitted_from_the_profile_fit_when_far(monkeypatch):
     assert not calls
 
 
-def test_a_far_match_of_more_dips_is_the_refits_competitor(monkeypatch):
-    """Decision 0091: the refit near the profile fit is kept, but a rejected match that used more
-    dips is returned as its competitor (the profile fit chose between them)."""
+def test_a_far_match_that_explains_the_dips_better_stands(monkeypatch):
+    """Decision 0091: a rejected match that used more dips, fitted no worse, stands, with the
+    refit near the profile fit as its competitor; more dips fitted worse do not."""
     lead: Any = SimpleNamespace(pixel=np.arange(0.0, 1001.0), grid=None)
-    monkeypatch.setattr(locate, "_map_lines", lambda *a, **k: _match(0.3, used=4))
-    far = _match(14.0, used=10)
+    refit = _match(0.3, used=4, residual_nm=0.35)
+    monkeypatch.setattr(locate, "_map_lines", lambda *a, **k: refit)
     lamp: Any = "lamp"
-    kept: Any
-    kept, competitor = locate._dips_near_profile_fit(
-        far, lamp, (), None, _mapping(0.0), 3.0, lead, lead.grid
-    )
-    assert abs(kept.exact.c - 400.3) < 1e-9 and competitor is far
+
+    def guarded(afresh: Any) -> Any:
+        return locate._dips_near_profile_fit(
+            afresh, lamp, (), None, _mapping(0.0), 3.0, lead, lead.grid
+        )
+
+    better = _match(14.0, used=10, residual_nm=0.10)
+    assert guarded(better) == (better, refit)
+    # More dips, but fitted worse (a wrong pairing): the refit stands alone.
+    assert guarded(_match(14.0, used=9, residual_nm=2.0)) == (refit, None)
 
 
 def test_dips_refused_when_the_refit_leaves_the_profile_fit(monkeypatch):
