@@ -62,7 +62,7 @@ import calib.evaluation.validation.scenes as scenes
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.line_lists import line_list
-from calib.core.mapping import TiltedGrating
+from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.metrics import channel_relative_errors
 from calib.core.observations import LampObservation
 from calib.core.spectra import Spectrum
@@ -127,9 +127,21 @@ def dip_minimum(profile: np.ndarray, guess: float, window: int) -> float:
     return at + (0.5 * (y0 - y2) / curvature if curvature < 0 else 0.0)
 
 
+def silent(errors: np.ndarray, sigmas: np.ndarray, codes: list[str]) -> bool:
+    """A silent wrong mapping (decision 0091): RMS over the six features above 2 nm or above three
+    times its stated σ there, and no ``mapping_ambiguous`` flag."""
+    rms = float(np.sqrt(np.mean(errors**2)))
+    stated = float(np.sqrt(np.nanmean(sigmas**2)))
+    return (rms > 2.0 or rms > 3.0 * stated) and "mapping_ambiguous" not in codes
+
+
 def sensitivity(
-    task: Task, plan: scenes.ScenePlan, sun_obs: LampObservation, truth: np.ndarray
-) -> dict[str, float]:
+    task: Task,
+    plan: scenes.ScenePlan,
+    sun_obs: LampObservation,
+    truth: np.ndarray,
+    refs: dict[str, float],
+) -> dict[str, Any]:
     """The Canon 10D's set-up on the analog (``--sensitivity``): the sunlight's first order alone,
     through a grating file that is the scene's own η₁ (the 10D's is the maker's curve), channel
     gains unknown and no optics recorded (its FITS planes carry neither), estimated by ``auto``
@@ -143,7 +155,18 @@ def sensitivity(
     result = estimate([observation], basis=task.basis, grid=task.settings.grid, grating=grating)
     per_channel = rms_and_coverage(result, truth, per_channel=True)
     together = rms_and_coverage(result, truth)
+    # Its mapping (no optics: the 0th order at the spot alone), at the six features.
+    wavelengths = np.array(list(refs.values()))
+    at = plan.geometry.mapping.pixel_at(wavelengths)
+    assert isinstance(result.mapping, QuadraticMapping)
+    errors = result.mapping.wavelength_nm(at) - wavelengths
+    stated = mapping_sigma_nm(result.mapping, at)
+    sigmas = np.full(at.shape, np.nan) if stated is None else stated
+    codes = list(result.mapping.details.get("warning_codes", ()))
     return {
+        "mapping_rms_nm": float(np.sqrt(np.mean(errors**2))),
+        "mapping_sigma_nm": float(np.sqrt(np.nanmean(sigmas**2))),
+        "mapping_silent": silent(errors, sigmas, codes),
         "rms_per_channel": per_channel[0],
         "coverage_per_channel": per_channel[1],
         "rms": together[0],
@@ -251,10 +274,11 @@ def run(
         "profile_fit_distance_nm": solution.details.get("profile_fit_distance_nm"),
         "profile_sigma_nm": (solution.details.get("profile_fit") or {}).get("wavelength_rms_nm"),
         "warnings": list(solution.warnings),
+        "warning_codes": list(solution.details.get("warning_codes", ())),
         "family": solution.details.get("family"),
         "spectrograph": None if spectrograph is None else spectrograph.to_dict(),
         **(
-            {"sensitivity": sensitivity(task, plan, sun_obs, scene.truth)}
+            {"sensitivity": sensitivity(task, plan, sun_obs, scene.truth, refs)}
             if with_sensitivity
             else {}
         ),
@@ -312,8 +336,10 @@ def main() -> None:
             f"{row['profile_sigma_nm'] or float('nan'):.2f}) warnings {len(row['warnings'])}"
             + (
                 " | 10D-style RMS per channel {rms_per_channel:.4f} (±2σ {coverage_per_channel:.2f})"
-                ", together {rms:.4f} (±2σ {coverage:.2f}), RE {re:.2f}".format(
-                    **row["sensitivity"]
+                ", together {rms:.4f} (±2σ {coverage:.2f}), RE {re:.2f}; its mapping (no optics) "
+                "{mapping_rms_nm:.2f} nm (σ {mapping_sigma_nm:.2f}){flag}".format(
+                    flag=" SILENT" if row["sensitivity"]["mapping_silent"] else "",
+                    **row["sensitivity"],
                 )
                 if "sensitivity" in row
                 else ""
@@ -356,7 +382,9 @@ def main() -> None:
                 f"{key} mean {np.mean([s[key] for s in scored]):.4f} median "
                 f"{np.median([s[key] for s in scored]):.4f}"
                 for key in scored[0]
+                if key != "mapping_silent"
             )
+            + f"; silent wrong mappings {sum(s['mapping_silent'] for s in scored)}"
         )
     per_camera = np.sqrt(np.mean(errors**2, axis=1))
     print(
@@ -370,6 +398,15 @@ def main() -> None:
             f"  spectrograph-like (≤ 0.4 nm/px, {int(fine.sum())} cameras): overall RMS "
             f"{float(np.sqrt(np.mean(errors[fine] ** 2))):.3f} nm"
         )
+    silent_rows = [
+        row["camera"]
+        for row, e, sg in zip(rows, errors, sigmas, strict=True)
+        if silent(e, sg, row["warning_codes"])
+    ]
+    print(
+        f"silent wrong mappings (RMS over the six > 2 nm or > 3 stated σ, not flagged "
+        f"ambiguous): {len(silent_rows)}" + (f" ({', '.join(silent_rows)})" if silent_rows else "")
+    )
     covered = np.abs(errors) <= 2.0 * sigmas
     print(
         f"±2 stated σ covers {100.0 * float(np.mean(covered)):.1f} % of the feature errors; "

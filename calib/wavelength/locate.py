@@ -40,7 +40,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.core.line_lists import Line, builtin_lines, is_builtin, line_list
-from calib.core.mapping import QuadraticMapping, TiltedGrating
+from calib.core.mapping import QuadraticMapping, TiltedGrating, wavelength_rms_from_covariance
 from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
@@ -283,7 +283,7 @@ def _dips_near_profile_fit(
     profile_sigma_nm: float | None,
     lead: LampObservation,
     grid: WavelengthGrid,
-) -> FeatureMapping:
+) -> tuple[FeatureMapping, FeatureMapping | None]:
     """The dips' mapping where the whole-profile fit is: a match made afresh (``features``; ``None``
     when none held) that lies further from it than :data:`DISAGREEMENT_NM` (RMS) and three of its
     stated σ (``profile_sigma_nm``: a fit that states 10 nm cannot overrule the dips) paired the
@@ -291,7 +291,13 @@ def _dips_near_profile_fit(
     analog, ``bench/solar_validate.py``, 4 of 44 cameras were 22–240 nm off with the profile fit
     within 1 nm, and one matched nothing), so the dips are fitted again from the profile fit
     itself; if that still lies beyond :data:`LINE_FIT_MAX_DISTANCE_NM`, an
-    :class:`EstimationError` (the profile fit stands)."""
+    :class:`EstimationError` (the profile fit stands).
+
+    When the fresh match explains the dips better than the refit (:func:`_dominates`), the
+    profile fit is the one in the wrong basin (decision 0091: the 5D Mk II, Kawakami, without
+    optics — the fit 14 nm off with σ 3.5 nm, its refit 4 dips to 517 nm at 0.35 nm, the fresh
+    match 10 dips to 656 nm at 0.10 nm and right): the fresh match is returned with the refit as
+    its competitor (the second element; ``None`` when there is none)."""
     probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
 
     def apart(mapping: ExactMapping) -> float:
@@ -300,7 +306,7 @@ def _dips_near_profile_fit(
 
     allowed = max(DISAGREEMENT_NM, 3.0 * (profile_sigma_nm or 0.0))
     if features is not None and apart(features.exact) <= allowed:
-        return features
+        return features, None
     refitted = _map_lines(
         lamp,
         dips,
@@ -314,7 +320,43 @@ def _dips_near_profile_fit(
         raise EstimationError(
             f"the dips, fitted from the whole-profile fit, lie {distance:.1f} nm (RMS) from it"
         )
-    return refitted
+    if features is not None and _dominates(features, refitted):
+        # The dips, not the profile fit, decide between the two: the fresh match stands, the
+        # refit is its competitor.
+        return features, refitted
+    return refitted, None
+
+
+def _dominates(one: FeatureMapping, other: FeatureMapping) -> bool:
+    """Whether ``one`` explains the dips better than ``other``: more of them used, fitted at most
+    as far off (residual RMS). A wrong pairing of the solar list's near-regular dips can use more
+    of them only by fitting them worse (the 10D, Kawakami, on the validation analog: 9 dips at
+    2.0 nm against the right 7 at 0.76)."""
+    residual, other_residual = (mapping.details.get("residual_rms_nm") for mapping in (one, other))
+    if residual is None or other_residual is None:
+        return False
+    return _dips_used(one) > _dips_used(other) and float(residual) <= float(other_residual)
+
+
+def _spanning(
+    mapping: QuadraticMapping, other: QuadraticMapping, pixel_range: tuple[float, float]
+) -> QuadraticMapping:
+    """``mapping`` with a covariance that reaches ``other`` at every pixel: the coefficients'
+    difference ``d`` added as ``d dᵀ`` (σ(p) ≥ |other(p) − mapping(p)|, the two candidates one σ
+    apart wherever they differ — at the blue end when the dips there were paired differently)."""
+    if mapping.covariance is None:
+        return mapping
+    difference = np.array([other.a - mapping.a, other.b - mapping.b, other.c - mapping.c])
+    covariance = np.asarray(mapping.covariance, dtype=np.float64) + np.outer(difference, difference)
+    return mapping.with_details(
+        covariance=[[float(v) for v in row] for row in covariance],
+        wavelength_rms_nm=wavelength_rms_from_covariance(covariance, pixel_range),
+    )
+
+
+def _dips_used(features: FeatureMapping) -> int:
+    """How many of the dips a match used (its line fit's count)."""
+    return sum(1 for match in features.matches if match.used)
 
 
 def _coarse(observation: LampObservation, limit_nm: float = COARSE_SPECTRUM_NM) -> bool:
@@ -562,6 +604,8 @@ def locate_mapping(
         search = profile_search()
 
     features: FeatureMapping | None = None
+    # The dips' match near the profile fit when one that explains them better was kept.
+    dips_competitor: FeatureMapping | None = None
     if listed:
         lamp, lines = max(listed, key=lambda item: len(item[1] or ()))
         assert lines is not None
@@ -611,7 +655,7 @@ def locate_mapping(
                     )
                 except EstimationError:
                     features = None
-                features = _dips_near_profile_fit(
+                features, competitor = _dips_near_profile_fit(
                     features,
                     lamp,
                     dips,
@@ -625,6 +669,8 @@ def locate_mapping(
                 # not move (it only says which dips are there, to ≥ 1 nm).
                 features.details["line_centres_from_spectrum"] = []
                 details["line_source"] = f"absorption features of {lamp.name}"
+                if competitor is not None:
+                    dips_competitor = competitor
             except EstimationError as exc:
                 warnings.append(f"the absorption refinement failed ({exc}); the profile fit stands")
         else:
@@ -686,6 +732,7 @@ def locate_mapping(
                         )
 
     extrapolated: list[str] = []
+    ambiguity_warnings: list[str] = []
     if features is not None:
         mapping, exact = features.mapping, features.exact
         details.update(features.details)
@@ -715,6 +762,37 @@ def locate_mapping(
                 (float(lead.pixel[0]), float(lead.pixel[-1])),
             )
             details[offset_key] = offset_nm
+        if dips_competitor is not None:
+            # Two assignments of the dips, the profile fit against the better one: ambiguous, the
+            # other in the result and the stated σ reaching it (never 2 nm for a 14 nm error).
+            probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
+            competing_nm = float(
+                np.sqrt(
+                    np.mean(
+                        (exact.wavelength_nm(probe) - dips_competitor.exact.wavelength_nm(probe))
+                        ** 2
+                    )
+                )
+            )
+            mapping = _spanning(
+                mapping, dips_competitor.mapping, (float(lead.pixel[0]), float(lead.pixel[-1]))
+            )
+            stated_nm = mapping.wavelength_rms_nm or competing_nm
+            details["ambiguous"] = True
+            details["dips_competitor"] = {
+                "mapping": dips_competitor.mapping.to_dict(),
+                "distance_nm": competing_nm,
+                "dips_used": _dips_used(dips_competitor),
+                "dips_used_kept": _dips_used(features),
+            }
+            ambiguity_warnings.append(
+                f"the mapping is ambiguous: the absorption dips also match {competing_nm:.1f} nm "
+                f"away (RMS), near the whole-profile fit ({_dips_used(dips_competitor)} of them "
+                f"against the {_dips_used(features)} used); both are in the result and the stated "
+                f"σ ({stated_nm:.1f} nm) spans them. A "
+                "fluorescent (line) lamp shot in the same geometry, or the camera's optics (EXIF "
+                "focal length), decides it."
+            )
         red_end, note = _red_end(features, mapping, grid)
         details["red_end"] = red_end
         if note:
@@ -752,7 +830,9 @@ def locate_mapping(
     # The quality code of each warning (calib.core.result.QUALITY_CODES): the profile search warns
     # only of competing basins; this function's own warnings are about the lines against the fit,
     # and about a mapping extrapolated beyond its lines.
+    warnings += ambiguity_warnings
     ambiguity = set(search.warnings) if search is not None else set()
+    ambiguity |= set(ambiguity_warnings)
     details["warning_codes"] = [
         "mapping_ambiguous" if text in ambiguity else "mapping_line_residuals" for text in warnings
     ] + ["mapping_extrapolated"] * len(extrapolated)
