@@ -25,10 +25,11 @@ def test_a_tabulated_line_is_restored_whole_and_its_neighbouring_step_is_the_con
     # No shoulder one step to the red of each line (440 and 550 nm): the continuum there, not the
     # 17–21 % of the line's table value the bandpass put in that step.
     for step in (440.0, 550.0):
-        assert abs(restored.at(np.array([step]))[0] - np.interp(step, axis, continuum)) < 1e-6
+        value = float(restored.at(np.array([step]))[0])
+        assert abs(value - float(np.interp(step, axis, continuum))) < 1e-6
     # Each line carries all its power (both steps' excess), at its own wavelength.
     for line, power in powers.items():
         near = np.abs(restored.wavelength_nm - line) < 3.0
         excess = restored.values[near] - np.interp(restored.wavelength_nm[near], axis, continuum)
-        assert abs(np.trapezoid(excess, restored.wavelength_nm[near]) - power) < 0.01 * power
+        assert abs(float(np.trapezoid(excess, restored.wavelength_nm[near])) - power) < 0.01 * power
         assert abs(restored.wavelength_nm[near][np.argmax(excess)] - line) < 0.15

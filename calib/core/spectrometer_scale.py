@@ -410,7 +410,7 @@ def _fit_window(
 
     shift_step = min(0.1, 0.25 * step_nm, window.bandwidth_nm / 20.0)
     shifts = np.arange(-SEARCH_SHIFT_NM, SEARCH_SHIFT_NM + shift_step / 2, shift_step)
-    factors = np.array([held_factor]) if held else np.linspace(low, high, 13)
+    factors = np.array([held_factor]) if held_factor is not None else np.linspace(low, high, 13)
     # The grid's costs, factor by factor, every shift of one factor in one call; the first smallest
     # in factor-then-shift order (a cost that is not a number never counts), its cost then
     # recomputed by the fit itself, so the noise the refinement whitens with is the fit's.
