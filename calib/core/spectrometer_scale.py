@@ -18,6 +18,14 @@ shows Hg 404.66, 435.83, 546.07 and the 576.96/579.07 doublet, known to 0.01 nm 
    lines of the doublet) the free amplitudes make the shift poorly determined and the fit's
    covariance says so; a phosphor line's peak (known to 0.5 nm) gets its own displacement with a
    Gaussian prior of that σ, so it informs ``δ`` only as far as its position is known.
+   *Coarse sampling* (decision 0072; a PR-655 reports every 4 nm through its 8 nm slit: 9–10
+   samples per window): the background's degree is lowered as far as a straight line
+   (:data:`MIN_BACKGROUND_DEGREE`) until the window holds three samples more than parameters, and
+   a window so lowered that models a neighbour closer than :data:`RESOLVED_FWHM` slit widths
+   (404.7 beside Hg 407.8, 546.1 beside Tb 542.4) holds the slit factor at the one its resolved
+   windows measured (one instrument, one slit): with so few samples a free width trades with
+   the blended neighbour's amplitude and moves the centre (on the twin's FL2 at 7 nm, 404.7 by
+   0.7–0.9 nm with a free width, 0.1 nm held).
 2. *A window counts* when its mercury line is there: amplitude ≥ :data:`MIN_LINE_SNR` of its σ,
    the slit factor and the shift inside their search ranges (not at a bound), and ``δ``'s σ below
    :data:`MAX_LINE_SIGMA_NM`. Otherwise it is left out (the reason recorded).
