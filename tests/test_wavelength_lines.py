@@ -22,7 +22,7 @@ from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.pipeline.inputs import load_spectrum
 from calib.wavelength.families import GratingFamily, grating_prior
-from calib.wavelength.features import map_features
+from calib.wavelength.features import fit_features, map_features
 from calib.wavelength.locate import _check_monotonic, locate_mapping
 from calib.wavelength.profile_search import (
     AMBIGUITY_MIN_DISTANCE_NM,
@@ -707,3 +707,25 @@ def test_a_listed_lamp_with_too_few_lines_is_mapped_jointly_with_a_measured_one(
     error = solution.mapping.wavelength_nm(pixel) - truth_nm
     assert np.all(np.abs(error[inside]) <= 2.0 * sigma[inside])
     assert float(np.max(np.abs(error[inside]))) < 1.0
+
+
+@pytest.mark.parametrize("miss_px", [2.0, 2.5])
+def test_a_line_missed_by_more_than_its_width_is_found_when_restarted(miss_px):
+    """Decision 0093: a line 2 px (1.6 σ of a 3 px FWHM) from where the start puts it: fitted from
+    the predicted place, the background takes the line and the Gaussian settles on a dip (the
+    feature is dropped); restarted half a FWHM to either side, it is found where it is."""
+    hg = [line for line in line_list("hg") if abs(line.wavelength_nm - 435.83) < 0.1]
+    pixel = np.arange(380.0, 500.0)
+    identity = QuadraticMapping(0.0, 1.0, 0.0, pixel_range=(380.0, 499.0))
+    fwhm = 3.0
+    sigma = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    band = 5.0 * (1.0 + 0.002 * (pixel - 440.0) - 0.0005 * (pixel - 440.0) ** 2)
+    signal = band + 10.0 * np.exp(-0.5 * ((pixel - 435.83 - miss_px) / sigma) ** 2)
+    features = blends(hg, fwhm)
+    kept = fit_features(pixel, signal, 0.02, features, identity, fwhm, background_order=2)
+    assert kept == []
+    found = fit_features(
+        pixel, signal, 0.02, features, identity, fwhm, background_order=2, restart=True
+    )
+    assert len(found) == 1
+    assert abs(found[0].centroid_px - (435.83 + miss_px)) < 0.05

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from scipy import optimize
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
@@ -454,13 +455,24 @@ def _parse_builtin(spec: str) -> tuple[str, float]:
     return name, fwhm
 
 
-#: Hg lines a fluorescent lamp's tabulated spectrum (CIE FL tables, 5 nm bins) holds in its bins:
-#: 404.7, 435.8, 546.1 and the 577/579 doublet.
+#: Hg lines a fluorescent lamp's tabulated spectrum (CIE FL tables, 5 nm steps) holds: 404.7, 435.8,
+#: 546.1 and the 577/579 doublet.
 TABULATED_MERCURY_NM = (404.6563, 435.8328, 546.0735, 576.9598, 579.0663)
 #: Width given to those lines when they are restored (far below what a camera's slit image or a
 #: spectroradiometer's slit resolves), and the sampling of the restored spectrum.
 RESTORED_LINE_FWHM_NM = 1.0
 RESTORED_LINE_STEP_NM = 0.2
+
+
+def table_bandpass(offset_nm: FloatArray, step_nm: float) -> FloatArray:
+    """The weight (1/nm) a table value at ``offset_nm`` from a line gives that line's power: the
+    tables' triangular bandpass of FWHM = the step (unit area, zero beyond one step).
+
+    The CIE FL tables were measured through such a bandpass: a line between two 5 nm steps adds
+    to both, in proportion to its distance from each. FL1–FL9 bear it out to 1–2 %: the excess
+    above the continuum at 440 nm over that at 435 nm is 0.199–0.202 (Hg 435.83: 0.83/4.17 =
+    0.199), at 550 over 545 0.261–0.272 (Hg 546.07: 1.07/3.93 = 0.272)."""
+    return np.clip(1.0 - np.abs(offset_nm) / step_nm, 0.0, None) / step_nm
 
 
 def with_narrow_lines(
@@ -470,43 +482,57 @@ def with_narrow_lines(
     fwhm_nm: float = RESTORED_LINE_FWHM_NM,
     step_nm: float = RESTORED_LINE_STEP_NM,
 ) -> Spectrum:
-    """A binned line spectrum (CIE tables: each line's power added to its 5 nm bin) with its lines
-    restored as narrow Gaussians at their true wavelengths — the lamp a simulation shows a camera
-    and a spectrometer (a real fluorescent lamp's mercury lines are ~0.1 nm wide, not 5 nm bins).
+    """A tabulated line spectrum (CIE FL tables: the lamp through a triangular bandpass as wide as
+    the step, :func:`table_bandpass`) with its lines restored as narrow Gaussians at their true
+    wavelengths — the lamp a simulation shows a camera and a spectrometer (a real fluorescent
+    lamp's mercury lines are ~0.1 nm wide, not 5 nm steps).
 
-    The bins holding a line are replaced by the continuum interpolated from the nearest bins
-    without one; each line gets its bin's excess power (value above that continuum × bin width),
-    shared equally by the lines of one bin. Lines outside the table or without an excess are left
-    out. The result, on a ``step_nm`` axis, has the table's total power.
+    Each line reaches the two table values either side of it. Those values are replaced by the
+    continuum interpolated from the nearest values no line reaches; the lines' powers are the
+    non-negative least-squares fit of the excess above that continuum by the bandpass (a line
+    alone between two steps: the excess summed × the step). So no restored line keeps a shoulder
+    one step away (decision 0072). Lines outside the table or without an excess are left out. The
+    result, on a ``step_nm`` axis, has the table's total power.
 
     Examples
     --------
     >>> axis = np.arange(530.0, 565.0, 5.0)
-    >>> table = Spectrum(axis, np.where(axis == 545.0, 11.0, 1.0))
+    >>> table = Spectrum(axis, 1.0 + 10.0 * 5.0 * table_bandpass(axis - 546.0735, 5.0))
     >>> lamp = with_narrow_lines(table)
     >>> float(lamp.wavelength_nm[np.argmax(lamp.values)])
     546.0
+    >>> round(float(lamp.at(np.array([550.0]))[0]), 3)  # no shoulder: the continuum
+    1.0
     >>> round(float(np.trapezoid(lamp.values, lamp.wavelength_nm)), 1)  # 30 nm × 1 + 10 × 5 nm
     80.0
     """
     axis = spectrum.wavelength_nm
     values = spectrum.values
     widths = np.gradient(axis)
-    line_bins: dict[int, list[float]] = {}
-    for line in lines_nm:
-        index = int(np.argmin(np.abs(axis - line)))
-        if abs(axis[index] - line) <= widths[index] / 2:
-            line_bins.setdefault(index, []).append(line)
-    clear = np.array([index not in line_bins for index in range(axis.size)])
-    continuum = np.interp(axis, axis[clear], values[clear])
+    inside = [
+        line for line in lines_nm if axis[0] - widths[0] / 2 <= line <= axis[-1] + widths[-1] / 2
+    ]
+    weights = (
+        np.stack(
+            [table_bandpass(axis - line, float(np.interp(line, axis, widths))) for line in inside],
+            axis=1,
+        )
+        if inside
+        else np.zeros((axis.size, 0))
+    )
+    reached = np.any(weights > 0, axis=1)
+    continuum = np.interp(axis, axis[~reached], values[~reached])
+    powers = np.zeros(len(inside))
+    if inside:
+        excess = (values - continuum)[reached]
+        powers = optimize.nnls(weights[reached], excess)[0]
     fine = np.arange(axis[0], axis[-1] + step_nm / 2, step_nm)
     result = np.interp(fine, axis, continuum)
     sigma = fwhm_nm / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    for index, lines in line_bins.items():
-        power = (values[index] - continuum[index]) * widths[index]
-        for line in lines if power > 0 else ():
+    for line, power in zip(inside, powers, strict=True):
+        if power > 0:
             profile = np.exp(-0.5 * ((fine - line) / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi))
-            result += power / len(lines) * profile
+            result += power * profile
     return Spectrum(fine, result, name=spectrum.name)
 
 

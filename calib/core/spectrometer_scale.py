@@ -18,6 +18,14 @@ shows Hg 404.66, 435.83, 546.07 and the 576.96/579.07 doublet, known to 0.01 nm 
    lines of the doublet) the free amplitudes make the shift poorly determined and the fit's
    covariance says so; a phosphor line's peak (known to 0.5 nm) gets its own displacement with a
    Gaussian prior of that σ, so it informs ``δ`` only as far as its position is known.
+   *Coarse sampling* (decision 0072; a PR-655 reports every 4 nm through its 8 nm slit: 9–10
+   samples per window): the background's degree is lowered as far as a straight line
+   (:data:`MIN_BACKGROUND_DEGREE`) until the window holds three samples more than parameters, and
+   a window so lowered that models a neighbour closer than :data:`RESOLVED_FWHM` slit widths
+   (404.7 beside Hg 407.8, 546.1 beside Tb 542.4) holds the slit factor at the one its resolved
+   windows measured (one instrument, one slit): with so few samples a free width trades with
+   the blended neighbour's amplitude and moves the centre (on the twin's FL2 at 7 nm, 404.7 by
+   0.7–0.9 nm with a free width, 0.1 nm held).
 2. *A window counts* when its mercury line is there: amplitude ≥ :data:`MIN_LINE_SNR` of its σ,
    the slit factor and the shift inside their search ranges (not at a bound), and ``δ``'s σ below
    :data:`MAX_LINE_SIGMA_NM`. Otherwise it is left out (the reason recorded).
@@ -117,8 +125,16 @@ REFERENCE_NM = 580.0
 #: A line known better than this (nm) is an atomic standard and moves with the scale alone; a
 #: less well known one (a phosphor multiplet, 0.5 nm) gets its own displacement with that prior.
 ATOMIC_UNCERTAINTY_NM = 0.05
+#: A neighbour farther than this many stated slit FWHM from a mercury feature is resolved from it:
+#: two Gaussian lines one FWHM apart already show a dip between them, and the true slit may be
+#: 25 % wider than stated (decision 0038), so 1.5 stated FWHM is ≥ 1.2 true ones.
+RESOLVED_FWHM = 1.5
 #: Degree of the polynomial background of a window.
 BACKGROUND_DEGREE = 3
+#: The lowest degree it is lowered to when a window has too few samples for a cubic: a straight
+#: line (a phosphor continuum's slope under the line must be fitted; its curvature over ±2 FWHM
+#: moves the centre far less than the slope would).
+MIN_BACKGROUND_DEGREE = 1
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
 
@@ -250,6 +266,18 @@ class _Window:
     degree: int
     bandwidth_nm: float
 
+    @property
+    def isolated(self) -> bool:
+        """Whether the feature is resolved from every neighbour the window models (none within
+        :data:`RESOLVED_FWHM` stated slit widths), so its width measures the slit."""
+        feature = [line for line, ref in zip(self.lines, self.reference, strict=True) if ref]
+        return all(
+            abs(line.wavelength_nm - own.wavelength_nm) > RESOLVED_FWHM * self.bandwidth_nm
+            for line, ref in zip(self.lines, self.reference, strict=True)
+            if not ref
+            for own in feature
+        )
+
     def design(self, shift_nm: float, factor: float, moved: Sequence[float] = ()) -> FloatArray:
         return np.asarray(self.designs(np.array([shift_nm]), factor, moved)[0])
 
@@ -329,7 +357,11 @@ def _windows(spectrum: Spectrum, bandwidth_nm: float) -> tuple[list[_Window], li
         reference = tuple(line in feature for line in lines)
         n = int(inside.sum())
         nonlinear = 2
+        # The background's degree as the samples allow (coarse sampling: a PR-655's 4 nm steps
+        # through an 8 nm slit give 9–10 samples per window), never below a straight line.
         degree = BACKGROUND_DEGREE
+        while degree > MIN_BACKGROUND_DEGREE and n < nonlinear + len(lines) + degree + 1 + 3:
+            degree -= 1
         parameters = nonlinear + len(lines) + degree + 1
         if n < parameters + 3:
             left_out.append(
@@ -351,10 +383,13 @@ def _windows(spectrum: Spectrum, bandwidth_nm: float) -> tuple[list[_Window], li
     return windows, left_out
 
 
-def _fit_window(window: _Window, step_nm: float) -> LineShift | str:
+def _fit_window(
+    window: _Window, step_nm: float, held_factor: float | None = None
+) -> LineShift | str:
     """The window's shift and its σ, or why it does not count.
 
-    Nonlinear parameters: the shift, the slit factor and, for each phosphor line (a multiplet whose
+    Nonlinear parameters: the shift, the slit factor (unless ``held_factor`` holds it: the slit
+    measured on another window of the same spectrum) and, for each phosphor line (a multiplet whose
     peak is known to its ``uncertainty_nm`` only), its own displacement with a Gaussian prior of
     that σ; the amplitudes and the background are projected out. So a strong phosphor neighbour
     (Tb 542.4 beside Hg 546.1) informs the shift only as far as its listed position is known."""
@@ -372,9 +407,18 @@ def _fit_window(window: _Window, step_nm: float) -> LineShift | str:
             out[index] = float(value)
         return out
 
+    held = held_factor is not None
+    free = 1 if held else 2  # the shift, and the slit factor unless held
+
+    def full(values: FloatArray) -> FloatArray:
+        # (shift, factor, displacements…) from the free parameters.
+        if not held:
+            return values
+        return np.concatenate([[values[0], held_factor], values[1:]])
+
     shift_step = min(0.1, 0.25 * step_nm, window.bandwidth_nm / 20.0)
     shifts = np.arange(-SEARCH_SHIFT_NM, SEARCH_SHIFT_NM + shift_step / 2, shift_step)
-    factors = np.linspace(low, high, 13)
+    factors = np.array([held_factor]) if held_factor is not None else np.linspace(low, high, 13)
     # The grid's costs, factor by factor, every shift of one factor in one call; the first smallest
     # in factor-then-shift order (a cost that is not a number never counts), its cost then
     # recomputed by the fit itself, so the noise the refinement whitens with is the fit's.
@@ -389,16 +433,17 @@ def _fit_window(window: _Window, step_nm: float) -> LineShift | str:
         best = (float(residual @ residual), shift, factor)
     n = window.x.size
     k = len(window.lines) + window.degree + 1
-    dof = n - k - 2
+    dof = n - k - free
     noise = math.sqrt(max(best[0], 1e-300) / dof)
-    parameters = np.concatenate([[best[1], best[2]], np.zeros(len(phosphor))])
+    parameters = np.concatenate([[best[1], best[2]][:free], np.zeros(len(phosphor))])
 
     def whitened(values: FloatArray) -> FloatArray:
-        residual, _ = window.residual(values[0], values[1], moved(values[2:]))
-        return np.concatenate([residual / noise, values[2:] / prior_sigma])
+        every = full(values)
+        residual, _ = window.residual(every[0], every[1], moved(every[2:]))
+        return np.concatenate([residual / noise, every[2:] / prior_sigma])
 
     # Gauss–Newton, the linear parameters projected out at each step.
-    limits = np.concatenate([[0.5, 0.1], 0.5 * prior_sigma])
+    limits = np.concatenate([[0.5, 0.1][:free], 0.5 * prior_sigma])
     for _ in range(40):
         residual = whitened(parameters)
         jacobian = np.empty((residual.size, parameters.size))
@@ -409,12 +454,13 @@ def _fit_window(window: _Window, step_nm: float) -> LineShift | str:
         step, *_ = np.linalg.lstsq(jacobian, -residual, rcond=None)
         step = np.clip(step, -limits, limits)
         parameters = parameters + step
-        if abs(step[0]) < 1e-5 and abs(step[1]) < 1e-6:
+        if abs(step[0]) < 1e-5 and (held or abs(step[1]) < 1e-6):
             break
+    parameters = full(parameters)
     shift, factor = float(parameters[0]), float(parameters[1])
     if not (-SEARCH_SHIFT_NM < shift < SEARCH_SHIFT_NM):
         return f"{window.label}: no line within ±{SEARCH_SHIFT_NM:g} nm"
-    if not (low < factor < high):
+    if not held and not (low < factor < high):
         return (
             f"{window.label}: its width is not the slit's ({factor:.2f} × the stated "
             f"{window.bandwidth_nm:g} nm)"
@@ -428,6 +474,8 @@ def _fit_window(window: _Window, step_nm: float) -> LineShift | str:
     model = design @ coefficients
     columns = []
     for j in range(parameters.size):
+        if held and j == 1:
+            continue
         probe = parameters.copy()
         probe[j] += 1e-4
         changed = window.design(probe[0], probe[1], moved(probe[2:])) @ coefficients
@@ -435,11 +483,11 @@ def _fit_window(window: _Window, step_nm: float) -> LineShift | str:
     data_rows = np.concatenate([np.stack(columns, axis=1), design], axis=1) / noise
     prior_rows = np.zeros((len(phosphor), data_rows.shape[1]))
     for row, sigma_u in enumerate(prior_sigma):
-        prior_rows[row, 2 + row] = 1.0 / sigma_u
+        prior_rows[row, free + row] = 1.0 / sigma_u
     jacobian = np.concatenate([data_rows, prior_rows], axis=0)
     covariance = np.linalg.pinv(jacobian.T @ jacobian)
     sigma = math.sqrt(max(float(covariance[0, 0]), 0.0))
-    first = parameters.size
+    first = parameters.size - (1 if held else 0)
     amplitudes = [first + i for i, is_ref in enumerate(window.reference) if is_ref]
     amplitude = float(sum(coefficients[i - first] for i in amplitudes))
     amplitude_sigma = math.sqrt(
@@ -489,13 +537,36 @@ def check_spectrometer_scale(
     wavelength = np.asarray(spectrum.wavelength_nm, dtype=np.float64)
     step = float(np.median(np.diff(wavelength))) if wavelength.size > 1 else math.inf
     windows, left_out = _windows(spectrum, bandwidth_nm)
+    # Windows sampled too coarsely for the full background (a PR-655's 4 nm steps through an 8 nm
+    # slit) that model neighbours are fitted after the isolated ones, with the slit held at the
+    # width the isolated lines measured: with few samples a free width trades with a blended
+    # neighbour's amplitude and moves the centre (decision 0072). One instrument, one slit.
+    coarse = [w for w in windows if w.degree < BACKGROUND_DEGREE and not w.isolated]
     lines: list[LineShift] = []
+    slits: list[float] = []
     for window in windows:
+        if any(window is other for other in coarse):
+            continue
         outcome = _fit_window(window, step)
+        if isinstance(outcome, str):
+            left_out.append(outcome)
+            continue
+        lines.append(outcome)
+        if window.isolated:
+            slits.append(outcome.slit_factor)
+    for window in coarse:
+        if not slits:
+            left_out.append(
+                f"{window.label}: too few samples to fit the slit beside its neighbours, and no "
+                "resolved line measured it"
+            )
+            continue
+        outcome = _fit_window(window, step, held_factor=float(np.median(slits)))
         if isinstance(outcome, str):
             left_out.append(outcome)
         else:
             lines.append(outcome)
+    lines.sort(key=lambda line: line.wavelength_nm)
     if len(lines) < MIN_FEATURES:
         measured = f" (only {lines[0].label})" if lines else ""
         return f"fewer than {MIN_FEATURES} mercury features measured{measured}: " + "; ".join(

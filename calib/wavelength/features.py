@@ -398,6 +398,7 @@ def _fit_group(
     fwhm_px: float,
     *,
     background_order: int = 1,
+    restart: bool = False,
 ) -> list[_Fitted]:
     """Fit overlapping features together (see the module docstring, step 4).
 
@@ -408,6 +409,9 @@ def _fit_group(
     feature's first moment comes with it: the heights-weighted mean of its components (those
     fitted below zero are absent lines) — as exact as the fit for a blend's light (within 0.05 nm
     for a 1 : 2.5 Hg 577/579 doublet at 2–6 px of slit, where its 579.07 line's shift is not).
+
+    With ``restart`` (a measured lamp's few Hg lines placed from its whole-profile fit), a group
+    whose fit found no feature is fitted again from half a FWHM to either side (decision 0093).
     """
 
     fwhm_px = _absorption_width_px(group, mapping, fwhm_px)
@@ -474,6 +478,26 @@ def _fit_group(
     except (ValueError, np.linalg.LinAlgError):
         return []
     heights = solution.x[n_shape + n_base :]
+    if restart and float(np.max(heights)) < 3.0 * noise:
+        # A feature the predicted place misses by more than a line width starts with
+        # its Gaussian off the line: the background takes the line and the fit settles on a dip
+        # (a negative height). Started half a FWHM to either side as well, the lowest cost wins.
+        for offset in (-0.5 * fwhm_px, 0.5 * fwhm_px):
+            shifted = np.full(n_blends, offset)
+            values, _ = gaussians(shifted, sigma_px)
+            moved, *_ = np.linalg.lstsq(np.hstack([base, values]), y, rcond=None)
+            try:
+                other = levenberg_marquardt(
+                    function,
+                    np.concatenate([shifted, [sigma_px], moved]),
+                    max_iterations=25,
+                    tolerance=1e-8,
+                )
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            if other.cost < solution.cost:
+                solution = other
+        heights = solution.x[n_shape + n_base :]
     dof = max(y.size - start.size, 1)
     variance_scale = max(solution.cost / dof, 1.0)
     try:
@@ -803,9 +827,10 @@ def fit_features(
     fwhm_px: float,
     *,
     background_order: int = 1,
+    restart: bool = False,
 ) -> list[_Fitted]:
     """Every feature the mapping puts inside the profile, fitted (overlapping ones together;
-    ``background_order``: :func:`_fit_group`'s)."""
+    ``background_order``, ``restart``: :func:`_fit_group`'s)."""
     lo, hi = float(pixel[0]), float(pixel[-1])
     located = []
     for blend in features:
@@ -833,6 +858,7 @@ def fit_features(
             mapping,
             fwhm_px,
             background_order=background_order,
+            restart=restart,
         )
     return out
 
@@ -1307,6 +1333,7 @@ def _refine(
             current,
             fwhm_px,
             background_order=2 if moments else 1,
+            restart=moments,
         )
         # From a given start, a physical family's soft prior (an incidence near 0) is one more
         # equation.
