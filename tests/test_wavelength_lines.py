@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -92,21 +93,32 @@ def test_builtin_specs_and_colour_names_resolve_in_one_place(tmp_path):
 
 
 def _physical_profile(
-    lamp: Spectrum, camera: MultiSpectrum, truth: TiltedGrating, seed: int, noise: float = 0.002
+    lamp: Spectrum,
+    camera: MultiSpectrum,
+    truth: TiltedGrating | GratingGeometry,
+    seed: int,
+    noise: float = 0.002,
+    *,
+    pixel: np.ndarray | None = None,
+    slit_width_px: float = 3.0,
+    psf_sigma_px: float = 1.0,
+    **extra: Any,
 ) -> LampObservation:
-    u = truth.pixel_at(np.array([370.0, 730.0]))
-    lo, hi = sorted(u)
-    pixel = np.arange(np.floor(lo), np.ceil(hi))
+    """``lamp`` through ``truth`` (by default over the pixels of 370–730 nm)."""
+    if pixel is None:
+        lo, hi = sorted(truth.pixel_at(np.array([370.0, 730.0])))
+        pixel = np.arange(np.floor(lo), np.ceil(hi))
     return render_observation(
         lamp,
         camera,
         mapping=truth,
         pixel=pixel,
-        slit_width_px=3.0,
-        psf_sigma_px=1.0,
+        slit_width_px=slit_width_px,
+        psf_sigma_px=psf_sigma_px,
         noise=PeakFractionNoise(noise),
         rng=np.random.default_rng(seed),
         fine_step_nm=0.05,  # lines narrower than 1 nm must be sampled finer to render right
+        **extra,
     ).observation
 
 
@@ -625,18 +637,16 @@ def _two_line_profile(camera: MultiSpectrum) -> LampObservation:
     hg = builtin_lamp("builtin:hg")
     near = np.min(np.abs(hg.wavelength_nm[:, None] - np.array([435.83, 546.07])), axis=1) < 3.0
     lamp = Spectrum(hg.wavelength_nm, np.where(near, hg.values, 0.0), name="builtin:hg")
-    return render_observation(
+    return _physical_profile(
         lamp,
         camera,
-        mapping=_RIG_TRUTH,
+        _RIG_TRUTH,
+        3,
         pixel=_RIG_PIXEL,
         slit_width_px=2.0,
         psf_sigma_px=0.8,
-        noise=PeakFractionNoise(0.002),
-        rng=np.random.default_rng(3),
-        fine_step_nm=0.05,
         kind="fluorescent",
-    ).observation
+    )
 
 
 def test_too_few_lines_correct_a_profile_fit_they_are_anchored_to(camera):
