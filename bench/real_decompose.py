@@ -34,8 +34,10 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from assumed_eta import KNOWN_AXIS_NM
 from real_grating import (
     GRID,
     Canon10DInputs,
@@ -52,10 +54,20 @@ from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import Spectrum, read_table
+from calib.evaluation.validation.protocol import (
+    NO_DIRECT_VARIANT,
+    ProtocolSettings,
+    render_task_scene,
+    split_tasks,
+    variant_arguments,
+    variant_observations,
+)
+from calib.evaluation.validation.splits import load_splits, require_validation
 from calib.methods import estimate
 from calib.methods.grating_models import assumed_candidates
 from calib.methods.known_grating import KnownGratingOptions, estimate_known_grating
 from calib.model.bases import CameraBasis, default_camera_basis
+from calib.model.gratings import CatalogueGrating, GratingKind
 
 WAVELENGTH = GRID.wavelength_nm
 REGIONS = ((400.0, 490.0), (500.0, 590.0), (600.0, 700.0))
@@ -106,7 +118,11 @@ def common_ratio(
     difference = curve_difference(curves, truth, per_channel=per_channel)
     target = truth / (truth.max(axis=0) if per_channel else truth.max())
     scored = difference + target
-    ratio = np.sum(scored * target, axis=1) / np.maximum(np.sum(target**2, axis=1), 1e-12)
+    power = np.sum(target**2, axis=1)
+    # Where no channel has signal (a truth that is zero at the grid's end) r says nothing: 1; and
+    # a non-positive r (an estimate below zero there) is floored so that it can be divided out.
+    ratio = np.where(power > 1e-8, np.sum(scored * target, axis=1) / np.maximum(power, 1e-8), 1.0)
+    ratio = np.clip(ratio, 1e-3, None)
     return np.asarray(ratio, dtype=np.float64), np.asarray(scored, dtype=np.float64)
 
 
@@ -127,6 +143,19 @@ def eta_part(curves: FloatArray, truth: FloatArray, *, per_channel: bool) -> str
             f"      smooth r (log-polynomial, degree {degree}) divided out: RMS {left:.4f} "
             f"(r's departure from it {100 * wiggle:.1f} % RMS, signal-weighted)"
         )
+    smooth, _ = smooth_ratio(ratio, truth, 3, per_channel=per_channel)
+    at = slice(None, None, 3)
+    lines.append(
+        "      smooth r (degree 3, geometric mean 1 over 400–700 nm) at "
+        + ", ".join(
+            f"{w:.0f}: {value:.2f}"
+            for w, value in zip(
+                WAVELENGTH[at], smooth[at] / np.exp(np.mean(np.log(smooth))), strict=True
+            )
+        )
+    )
+    lines.append("      what is left with it divided out:")
+    lines.append(where(curve_difference(curves / smooth[:, None], truth, per_channel=per_channel)))
     return "\n".join(lines)
 
 
@@ -399,6 +428,28 @@ def canon_section(folder: Path, data_dir: Path) -> None:
 
     print("  mapping (the sun through the given mapping, vs the first truth):")
     print(mapping_part(through, found, truths[0], per_channel=True))
+    # The planes' floor outside the spectrum (below the camera's UV cut, beyond its IR cut): an
+    # offset the FITS rows' background left (stray light or bias), subtracted per channel.
+    pixels_nm = found.wavelength_nm(inputs.sun.pixel)
+    outside = ((pixels_nm >= 335) & (pixels_nm < 370)) | ((pixels_nm >= 715) & (pixels_nm < 730))
+    floor = np.median(inputs.sun.profile[outside], axis=0)
+    floored = inputs._replace(sun=replace(inputs.sun, profile=inputs.sun.profile - floor))
+    again = through(found, floored)
+    print(
+        "  the planes' floor outside the spectrum (335–370, 715–730 nm: "
+        + " / ".join(f"{100 * v:.2f}" for v in floor / inputs.sun.profile.max(axis=0))
+        + " % of each channel's peak) subtracted: "
+        + " / ".join(
+            f"{rms(curve_difference(again.physical_sensitivity(), t, per_channel=True)):.4f}"
+            for t in truths
+        )
+        + " (through the found mapping; as found: "
+        + " / ".join(
+            f"{rms(curve_difference(through(found).physical_sensitivity(), t, per_channel=True)):.4f}"
+            for t in truths
+        )
+        + ")"
+    )
     print("  solar reference (vs each truth, per channel):")
     cells = []
     for blur in (0.0, 1.0, 2.0, 4.0):
@@ -479,13 +530,114 @@ def at_airmass(folder: Path, airmass: float) -> Spectrum:
     )
 
 
+#: The columns of :func:`analog_section`.
+ANALOG_COLUMNS = (
+    "flat",
+    "flat, r free out",
+    "flat, r degree 3 out",
+    "physical",
+    "η known",
+)
+
+
+def analog_scores(
+    flat: EstimateResult, physical: EstimateResult, known: EstimateResult, truth: FloatArray
+) -> list[float]:
+    """One analog scene scored as the D7000 is (:data:`ANALOG_COLUMNS`)."""
+    curves = flat.physical_sensitivity()
+    ratio, _ = common_ratio(curves, truth, per_channel=False)
+    smooth, _ = smooth_ratio(ratio, truth, 3, per_channel=False)
+    return [
+        rms(curve_difference(curves, truth, per_channel=False)),
+        rms(curve_difference(curves / ratio[:, None], truth, per_channel=False)),
+        rms(curve_difference(curves / smooth[:, None], truth, per_channel=False)),
+        rms(curve_difference(physical.physical_sensitivity(), truth, per_channel=False)),
+        rms(curve_difference(known.physical_sensitivity(), truth, per_channel=False)),
+    ]
+
+
+def analog_section(camera_dir: Path, catalogue: Path | None, predictions: int, seed: int) -> None:
+    """The D7000's analog (the protocol's "A + FL unmeasured, no direct" scenes, validation split
+    only) scored the D7000's way: flat η, the common ratio r divided out of it (free, and a
+    degree-3 log-polynomial — the decomposition's own check: on the analog η is the known
+    culprit, so dividing r out should land near η known), the "physical" option and η known (the
+    scene's own η₁ as the grating file)."""
+    kinds: tuple[GratingKind, ...] = ("sinusoidal", "blazed")
+    curve = None if catalogue is None else CatalogueGrating.from_file(catalogue)
+    if curve is not None:
+        kinds = (*kinds, "catalogue")
+    settings = ProtocolSettings(
+        seed=seed, grating_kinds=kinds, catalogue=curve, variants=(NO_DIRECT_VARIANT,)
+    )
+    loaded, _ = load_splits(camera_dir, predictions=predictions, seed=seed)
+    split = require_validation(loaded.validation)
+    scored: dict[str, list[list[float]]] = {}
+    for task in split_tasks(split, settings):
+        if task.settings.grid != GRID:
+            raise SystemExit(f"the protocol's grid {task.settings.grid} is not {GRID}")
+        scene = render_task_scene(task)
+        observations = variant_observations(scene, NO_DIRECT_VARIANT)
+        common: dict[str, Any] = {
+            "method": NO_DIRECT_VARIANT.method,
+            "grid": GRID,
+            "basis": task.basis,
+        }
+        arguments = variant_arguments(NO_DIRECT_VARIANT)
+        flat = estimate(observations, **common, **arguments)
+        physical = estimate(
+            observations,
+            **common,
+            **{**arguments, "options": KnownGratingOptions(assumed_grating="physical")},
+        )
+        grating = scene.plan.grating
+        known = estimate(
+            observations,
+            **common,
+            grating=GratingEfficiency(
+                KNOWN_AXIS_NM,
+                grating.efficiency(1, KNOWN_AXIS_NM),
+                source=f"the scene's own {grating.kind} η₁",
+            ),
+        )
+        scored.setdefault(grating.kind, []).append(
+            analog_scores(flat, physical, known, scene.truth)
+        )
+    print(
+        f"The D7000's analog scored the D7000's way (validation split, {len(split.cameras)} "
+        f"cameras, seed {seed}, gratings {'/'.join(kinds)}): mean / median RMS"
+    )
+    print("| grating | n | " + " | ".join(ANALOG_COLUMNS) + " |")
+    print("|---|---|" + "---|" * len(ANALOG_COLUMNS))
+    everything = [row for rows in scored.values() for row in rows]
+    for kind, rows in [*scored.items(), ("all", everything)]:
+        values = np.asarray(rows)
+        cells = [
+            f"{mean:.4f} / {median:.4f}"
+            for mean, median in zip(values.mean(axis=0), np.median(values, axis=0), strict=True)
+        ]
+        print(f"| {kind} | {len(rows)} | " + " | ".join(cells) + " |")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     here = Path(__file__).resolve().parents[1]
     parser.add_argument("--data-dir", type=Path, default=here.parent / "shared" / "data")
+    parser.add_argument(
+        "--analog",
+        action="store_true",
+        help="instead: the D7000's analog on the validation split scored the D7000's way",
+    )
+    parser.add_argument("--predictions", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     real = args.data_dir / "real-grating"
     cameras = args.data_dir / "camera_sensitivities"
+    if args.analog:
+        catalogue = real / "rrogge-canon-eos-10d" / "LHires III Grating Efficiency 150.csv"
+        analog_section(
+            cameras, catalogue if catalogue.is_file() else None, args.predictions, args.seed
+        )
+        return 0
     if not real.is_dir() or not cameras.is_dir():
         print(f"real grating data not found under {args.data_dir}: nothing to do")
         return 0
