@@ -602,6 +602,14 @@ def analog_section(camera_dir: Path, catalogue: Path | None, predictions: int, s
         scored.setdefault(grating.kind, []).append(
             analog_scores(flat, physical, known, scene.truth)
         )
+        print(
+            f"  {task.camera.name} ({grating.kind}): "
+            + ", ".join(
+                f"{name} {value:.4f}"
+                for name, value in zip(ANALOG_COLUMNS, scored[grating.kind][-1], strict=True)
+            ),
+            flush=True,
+        )
     print(
         f"The D7000's analog scored the D7000's way (validation split, {len(split.cameras)} "
         f"cameras, seed {seed}, gratings {'/'.join(kinds)}): mean / median RMS"
