@@ -22,6 +22,8 @@ of those samples within twice the (equally scaled) stated σ. The 10D is also sc
 channel normalised on its own (its planes come from a demosaicked conversion).
 
     python bench/real_grating.py [--data-dir ../shared/data]
+
+``bench/real_decompose.py`` takes these RMS apart (decision 0100).
 """
 
 from __future__ import annotations
