@@ -602,8 +602,11 @@ def analog_section(camera_dir: Path, catalogue: Path | None, predictions: int, s
         scored.setdefault(grating.kind, []).append(
             analog_scores(flat, physical, known, scene.truth)
         )
+        drawn = {k: v for k, v in grating.to_dict().items() if k not in ("kind", "source")}
+        chosen = physical.diagnostics.get("grating", {})
         print(
-            f"  {task.camera.name} ({grating.kind}): "
+            f"  {task.camera.name} ({grating.kind} {drawn}; the physical option's most likely "
+            f"{chosen.get('most_likely') if isinstance(chosen, dict) else None}): "
             + ", ".join(
                 f"{name} {value:.4f}"
                 for name, value in zip(ANALOG_COLUMNS, scored[grating.kind][-1], strict=True)
