@@ -22,6 +22,8 @@ of those samples within twice the (equally scaled) stated σ. The 10D is also sc
 channel normalised on its own (its planes come from a demosaicked conversion).
 
     python bench/real_grating.py [--data-dir ../shared/data]
+
+``bench/real_decompose.py`` takes these RMS apart (decision 0100).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -45,7 +48,7 @@ from calib.image.profile_files import read_fits_profile, read_rawproc_dat
 from calib.methods import estimate
 from calib.methods.known_grating import KnownGratingOptions
 from calib.methods.uncertainty import CHANNEL_GAINS_KEY
-from calib.model.bases import camera_basis, default_camera_basis
+from calib.model.bases import CameraBasis, camera_basis, default_camera_basis
 
 GRID = DEFAULT_GRID
 
@@ -132,6 +135,12 @@ def d7000_lamps(folder: Path) -> list[LampObservation]:
     ]
 
 
+def d7000_truth(data_dir: Path) -> FloatArray:
+    """rawtoaces' monochromator curve of the D7000 on :data:`GRID` ``(f, 3)``."""
+    truth = find_camera(load_collection("rawtoaces", data_dir), "nikon d7000")
+    return truth.sensitivity.resample(GRID, "interpolate").values
+
+
 def d7000(folder: Path, data_dir: Path) -> None:
     lamps = d7000_lamps(folder)
     basis = default_camera_basis(GRID, data_dir=data_dir)
@@ -142,8 +151,7 @@ def d7000(folder: Path, data_dir: Path) -> None:
         assume_flat_grating=True,
         options=KnownGratingOptions(assumed_grating="physical"),
     )
-    truth = find_camera(load_collection("rawtoaces", data_dir), "nikon d7000")
-    curves = truth.sensitivity.resample(GRID, "interpolate").values
+    curves = d7000_truth(data_dir)
     choice = result.diagnostics["method_choice"]
     print(f"Nikon D7000: {choice['method']} ({choice['reason']})")
     print(f"  vs rawtoaces: {scores(result, curves)}")
@@ -159,7 +167,9 @@ def d7000(folder: Path, data_dir: Path) -> None:
         print(f"  flag: {flag.line()}")
 
 
-def _solar(folder: Path) -> Spectrum:
+def solar_spectrum(folder: Path) -> Spectrum:
+    """The 10D's source: Wehrli's AM0 table (1 nm) × the atmosphere's transmission (airmass 2.13),
+    350–800 nm."""
     irradiance = read_table(folder / "Wehrli85.csv").rows
     transmission = read_table(folder / "Atmosphere Transmission.csv").rows
     wavelength = irradiance[:, 0]
@@ -168,7 +178,18 @@ def _solar(folder: Path) -> Spectrum:
     return Spectrum(wavelength[keep], values[keep], name="sun (AM0 × atmosphere)")
 
 
-def canon_10d(folder: Path, data_dir: Path) -> None:
+class Canon10DInputs(NamedTuple):
+    """The 10D as this bench estimates it: the sunlight's observation, the maker's curve as the
+    grating file, the basis without the 10D and both 10D ground truths on :data:`GRID`."""
+
+    sun: LampObservation
+    grating: GratingEfficiency
+    basis: CameraBasis
+    truths: dict[str, FloatArray]
+
+
+def canon_10d_inputs(folder: Path, data_dir: Path, solar: Spectrum | None = None) -> Canon10DInputs:
+    """:class:`Canon10DInputs` (``solar``: the source spectrum, :func:`solar_spectrum` by default)."""
     profile = read_fits_profile([folder / f"Solar Spectrum Canon EOS 10D {c}.fit" for c in "RGB"])
     catalogue = read_table(folder / "LHires III Grating Efficiency 150.csv").rows
     grating = GratingEfficiency(
@@ -185,17 +206,25 @@ def canon_10d(folder: Path, data_dir: Path) -> None:
     # The planes come from a demosaicked conversion (PixInsight's DSLR_RAW through dcraw): their
     # channel gains are not the raw data's, so the balance is the population's (decision 0050).
     sun = replace(
-        profile.to_observation("sun", _solar(folder), kind="other"),
+        profile.to_observation("sun", solar or solar_spectrum(folder), kind="other"),
         metadata={CHANNEL_GAINS_KEY: "unknown"},
     )
-    result = estimate([sun], basis=basis, grating=grating)
+    truths = {
+        r.name: r.sensitivity.resample(GRID, "interpolate").values
+        for r in records
+        if "10d" in r.name.lower()
+    }
+    return Canon10DInputs(sun, grating, basis, truths)
+
+
+def canon_10d(folder: Path, data_dir: Path) -> None:
+    inputs = canon_10d_inputs(folder, data_dir)
+    result = estimate([inputs.sun], basis=inputs.basis, grating=inputs.grating)
     choice = result.diagnostics["method_choice"]
     print(f"Canon EOS 10D: {choice['method']} ({choice['reason']})")
-    for record in records:
-        if "10d" in record.name.lower():
-            curves = record.sensitivity.resample(GRID, "interpolate").values
-            print(f"  vs {record.name}: {scores(result, curves)}")
-            print(f"  vs {record.name}, per channel: {scores(result, curves, per_channel=True)}")
+    for name, curves in inputs.truths.items():
+        print(f"  vs {name}: {scores(result, curves)}")
+        print(f"  vs {name}, per channel: {scores(result, curves, per_channel=True)}")
     for flag in result.quality.flags:
         print(f"  flag: {flag.line()}")
 
