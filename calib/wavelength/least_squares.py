@@ -32,7 +32,7 @@ GEODESIC_RATIO = 0.75
 #: the refused step: halved, as Armijo's (1966) backtracking halves a refused line-search step.
 #: Cutting by the quadratic interpolation of the cost along the straight refused step instead
 #: (clipped to 0.1–0.5, Dennis & Schnabel's trust-radius update) cut further than a curved valley
-#: allows: Rosenbrock's took 1272 evaluations against 597 with ×4 alone and 469 halved (decision
+#: allows: Rosenbrock's took 1013 evaluations against 597 with ×4 alone and 469 halved (decision
 #: 0096).
 SHORTEN_FRACTION = 0.5
 #: ``function(x, with_jacobian)`` → :data:`Evaluation`.
