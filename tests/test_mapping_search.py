@@ -18,7 +18,7 @@ from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, pixel_edges, render_observation
-from calib.wavelength import find_mapping, profile_search
+from calib.wavelength import find_mapping, least_squares, profile_search
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.profile_search import (
@@ -547,9 +547,9 @@ def test_a_stage_fits_validity_for_one_point_is_its_batch_validity(prior, camera
     assert fit.function(points[2], False) is None
     # The mapping search's stage fits shorten their refused steps.
     options: list[dict[str, object]] = []
-    real = profile_search.levenberg_marquardt
+    real = least_squares.levenberg_marquardt
 
-    def recording(*args, **kwargs):  # type: ignore[no-untyped-def]
+    def recording(*args: Any, **kwargs: Any) -> least_squares.Solution:
         options.append(kwargs)
         return real(*args, **kwargs)
 
