@@ -8,7 +8,8 @@ a warm-up; ``time.process_time``, one BLAS thread):
 ``no σ budget``          the same with ``budget=None``: the method's own solve, what the budget adds
                          is the difference;
 ``mapping + estimate``   :func:`calib.methods.estimate` finding its mapping
-                         (:func:`calib.wavelength.find_mapping` → :mod:`calib.wavelength.locate`);
+                         (:func:`calib.wavelength.find_mapping` → :mod:`calib.wavelength.locate`),
+                         with the search's evaluation count (a count: the work, free of noise);
 ``before``               ``bench/mapping_before.py``'s ``search_mapping`` (what the estimators
                          used before this engine), then the estimate with its mapping.
 
@@ -57,13 +58,29 @@ from calib.model.resolution import camera_kernel
 
 
 def cpu_median(function: Callable[[], object], repeats: int) -> float:
+    return timed(function, repeats)[0]
+
+
+def timed(function: Callable[[], object], repeats: int) -> tuple[float, object]:
+    """The median CPU time of ``repeats`` calls after a warm-up, and the last call's result."""
     function()  # warm-up: imports, caches
     times = []
+    result = None
     for _ in range(repeats):
         started = time.process_time()
-        function()
+        result = function()
         times.append(time.process_time() - started)
-    return statistics.median(times)
+    return statistics.median(times), result
+
+
+def searched(function: Callable[[], object], repeats: int) -> tuple[float, int | None]:
+    """:func:`cpu_median` of an estimate that finds its mapping, and the search's evaluation
+    count (its details' ``evaluations``: trial mappings costed in the scans and residuals of the
+    descents): a count, so a change of the search's work shows beside the noisy CPU time."""
+    median, result = timed(function, repeats)
+    details = getattr(getattr(result, "mapping", None), "details", None) or {}
+    count = details.get("evaluations")
+    return median, None if count is None else int(count)
 
 
 @one_blas_thread
@@ -80,13 +97,15 @@ def report(
     new_s: float | None,
     old_s: float | None,
     bare_s: float | None = None,
+    evaluations: int | None = None,
 ) -> None:
     old = "" if old_s is None else f"; before {old_s:.3f} s ({old_s / solve_s:.1f}×)"
     bare = "" if bare_s is None else f" (no σ budget {bare_s:.4f} s)"
+    count = "" if evaluations is None else f", {evaluations} search evaluations"
     new = (
         ""
         if new_s is None
-        else f"; mapping + estimate {new_s:.3f} s ({new_s / solve_s:.1f}× the solve)"
+        else f"; mapping + estimate {new_s:.3f} s ({new_s / solve_s:.1f}× the solve{count})"
     )
     print(f"{label:24s} solve alone {solve_s:.4f} s{bare}{new}{old}", flush=True)
 
@@ -146,12 +165,14 @@ def main() -> None:
             return None
 
         solve_s = cpu_median(solve, args.repeats)
+        new_s, count = (None, None) if args.solve_only else searched(new, args.repeats)
         report(
             f"{camera.camera}, {label}",
             solve_s,
-            None if args.solve_only else cpu_median(new, args.repeats),
+            new_s,
             None if args.skip_before or args.solve_only else cpu_median(old, args.repeats),
             cpu_median(bare, args.repeats),
+            count,
         )
         if args.profile:
             profile_top(solve if args.solve_only else new, args.profile)
@@ -206,12 +227,15 @@ def protocol_scene(data_dir: str | None, name: str, repeats: int, profile: int =
         ) -> object:
             return estimate(lamps, **keywords)
 
+        solve_s = cpu_median(solve, repeats)
+        new_s, count = searched(new, repeats)
         report(
             f"spot scene, {variant.label}",
-            cpu_median(solve, repeats),
-            cpu_median(new, repeats),
+            solve_s,
+            new_s,
             None,
             cpu_median(bare, repeats),
+            count,
         )
         if profile:
             profile_top(new, profile)
@@ -263,7 +287,9 @@ def real_pair(real: Path, data_dir: str | None, repeats: int, profile: int = 0) 
     def new() -> object:
         return estimate_known_grating(lamps, grating=None, basis=basis)
 
-    report("Nikon D7000 real pair", cpu_median(solve, repeats), cpu_median(new, repeats), None)
+    solve_s = cpu_median(solve, repeats)
+    new_s, count = searched(new, repeats)
+    report("Nikon D7000 real pair", solve_s, new_s, None, evaluations=count)
     if profile:
         profile_top(new, profile)
 

@@ -18,8 +18,8 @@ from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
 from calib.model.bases import CameraPrior, fallback_camera_basis
 from calib.model.forward import PeakFractionNoise, pixel_edges, render_observation
-from calib.wavelength import find_mapping, profile_search
-from calib.wavelength.families import GratingFamily, GratingPrior
+from calib.wavelength import find_mapping, least_squares, profile_search
+from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.profile_search import (
     DECIDING_LOCAL_INCIDENCE_DEG,
@@ -505,3 +505,54 @@ def _led_only_mean_error_nm(task: Any) -> float:
     inside = (truth >= grid.start_nm) & (truth <= grid.stop_nm)
     error = solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside]
     return float(np.mean(np.abs(error)))
+
+
+def test_a_stage_fits_validity_for_one_point_is_its_batch_validity(prior, camera, monkeypatch):
+    # One point is judged by the family alone in StageFit.function (decision 0096); the batch
+    # path maps NaN to ∞ and masks non-finite rows. Both must agree on every kind of point.
+    truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 399.0))
+    lamp = render_observation(
+        colour_lamp("LED-B3"),
+        camera,
+        mapping=truth,
+        pixel=400,
+        rng=np.random.default_rng(0),
+    ).observation
+    family = QuadraticFamily((0.0, 399.0))
+    fit = profile_search._stage(
+        [lamp],
+        family,
+        DEFAULT_GRID,
+        prior,
+        bin_nm=2.0,
+        nm_per_px=0.43,
+        kernel=None,
+        node_step_nm=20.0,
+        flexibility=1.0,
+        sigma_floor=0.0,
+        pixel_range=(0.0, 399.0),
+    )
+    good = family.parameters(truth)
+    points = [
+        good,
+        good[::-1].copy(),  # falling: valid
+        np.array([400.0, 700.0, 450.0]),  # folds back: invalid
+        np.array([np.nan, 550.0, 700.0]),
+        np.array([383.0, np.inf, 700.0]),
+        np.array([-np.inf, 550.0, 700.0]),
+    ]
+    for point in points:
+        assert (fit.function(point, False) is not None) == bool(fit.valid(point)[0])
+    assert fit.function(good, False) is not None
+    assert fit.function(points[2], False) is None
+    # The mapping search's stage fits shorten their refused steps.
+    options: list[dict[str, object]] = []
+    real = least_squares.levenberg_marquardt
+
+    def recording(*args: Any, **kwargs: Any) -> least_squares.Solution:
+        options.append(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(profile_search, "levenberg_marquardt", recording)
+    fit.refine(good + 1.0, max_iterations=2)
+    assert len(options) == 2 and all(o.get("shorten") is True for o in options)

@@ -28,6 +28,13 @@ Evaluation = tuple[FloatArray, FloatArray | Callable[[], FloatArray] | None] | N
 GEODESIC_PROBE = 0.1
 #: Largest ``2‖a‖/‖v‖`` (acceleration over velocity, scaled norm) a geodesic step may have.
 GEODESIC_RATIO = 0.75
+#: With ``shorten``: how long (scaled norm) the step after a refused one may be, as a fraction of
+#: the refused step: halved, as Armijo's (1966) backtracking halves a refused line-search step.
+#: Cutting by the quadratic interpolation of the cost along the straight refused step instead
+#: (clipped to 0.1–0.5, Dennis & Schnabel's trust-radius update) cut further than a curved valley
+#: allows: Rosenbrock's took 1013 evaluations against 597 with ×4 alone and 469 halved (decision
+#: 0096).
+SHORTEN_FRACTION = 0.5
 #: ``function(x, with_jacobian)`` → :data:`Evaluation`.
 ResidualFunction = Callable[[FloatArray, bool], Evaluation]
 
@@ -60,6 +67,7 @@ def levenberg_marquardt(
     tolerance: float = 1e-8,
     geodesic: bool = False,
     step_tolerance: float = 0.0,
+    shorten: bool = False,
 ) -> Solution:
     """Minimise ``‖r(x)‖²`` from ``x0`` (which must be valid).
 
@@ -75,6 +83,15 @@ def levenberg_marquardt(
     :data:`GEODESIC_RATIO` of its length (in the scaled norm) is treated as rejected. A fit that
     crawls along a narrow curved valley (Marquardt's damping cycling once up and once down per
     accepted step) goes there in tens of steps instead of hundreds.
+
+    With ``shorten``, a refused step raises the damping (at least ×4, as without it) until the
+    damped step is at most :data:`SHORTEN_FRACTION` as long as the refused one in the scaled norm,
+    and the step then accepted keeps that damping instead of the usual ÷5 (the step that was just
+    cut is not lengthened at once, straight back into the refused one). With Marquardt's scaling
+    by ``diag(JᵀJ)`` a damping far below 1 leaves the step nearly the Gauss–Newton one, so ×4
+    alone refused the same long step many times over (one scan refinement nine times in a row,
+    decision 0084). The length a damping gives is read off one eigendecomposition of the scaled
+    normal matrix; no residual is evaluated for it (decision 0096).
 
     Examples
     --------
@@ -105,6 +122,7 @@ def levenberg_marquardt(
         normal = jacobian.T @ jacobian
         scale = np.maximum(normal.diagonal(), 1e-30)
         improved = False
+        refused = False
         while damping < 1e12:
             system = normal.copy()
             # The diagonal as a strided view of the fresh copy (a fancy-indexed add cost more
@@ -136,16 +154,52 @@ def levenberg_marquardt(
                     x = trial
                     residual, jacobian = outcome[0], _concrete(outcome[1])
                     cost = trial_cost
-                    damping = max(damping / 5.0, 1e-9)
+                    if not (shorten and refused):
+                        # (A step just cut to the length the cost allows is not lengthened at
+                        # once: straight back into the refused one.)
+                        damping = max(damping / 5.0, 1e-9)
                     improved = True
                     if decrease <= tolerance * max(cost, 1.0) or moved < step_tolerance:
                         return Solution(x, residual, jacobian, cost, evaluations)
                     break
-            damping *= 4.0
+            refused = True
+            if shorten:
+                damping = _shortened(normal, scale, gradient, step, damping)
+            else:
+                damping *= 4.0
             bending = geodesic
         if not improved:
             break
     return Solution(x, residual, jacobian, cost, evaluations)
+
+
+def _shortened(
+    normal: FloatArray, scale: FloatArray, gradient: FloatArray, step: FloatArray, damping: float
+) -> float:
+    """The damping after ``step`` (solved at ``damping``) was refused: at least four times
+    ``damping``, and large enough that the damped step's scaled length ``‖D s‖`` (``D² = scale``)
+    is at most :data:`SHORTEN_FRACTION` of ``step``'s."""
+    least = 4.0 * damping
+    root = np.sqrt(scale)
+    scaled = normal / np.outer(root, root)
+    if not np.all(np.isfinite(scaled)):
+        return least
+    # The scaled step is (Λ + λ)⁻¹ b in the eigenbasis of D⁻¹(JᵀJ)D⁻¹ = QΛQᵀ, b = Qᵀ D⁻¹ g.
+    eigenvalues, vectors = np.linalg.eigh(scaled)
+    along = vectors.T @ (gradient / root)
+    target = SHORTEN_FRACTION * math.sqrt(float(step**2 @ scale))
+    # ‖D s(λ)‖ falls with λ and 1/‖D s(λ)‖ is concave and rising: Newton's iteration on it from
+    # the left stays left of the root (Moré & Sorensen 1983); within 10 % is close enough.
+    lam = max(least, -float(eigenvalues[0]) + 1e-12 * least)
+    for _ in range(20):
+        shifted = along / (eigenvalues + lam)
+        length = math.sqrt(float(shifted @ shifted))
+        if not length > 1.1 * target:
+            break
+        # d‖s‖/dλ = −Σ b²/(Λ+λ)³ / ‖s‖; Newton on ψ(λ) = 1/‖s‖ − 1/target.
+        derivative = -float(shifted @ (shifted / (eigenvalues + lam))) / length
+        lam += (1.0 / target - 1.0 / length) * length**2 / -derivative
+    return lam if math.isfinite(lam) else least
 
 
 def _geodesic_step(

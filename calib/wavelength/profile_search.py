@@ -324,7 +324,9 @@ class StageFit:
                 return None
             edges, edge_jacobian = evaluated
         else:
-            if not self.valid(x)[0]:
+            # One point: :meth:`valid`'s batch handling (NaN to ∞, masks) cost as much as the
+            # family's own check; a finite point is judged by the family alone, as there.
+            if not (all(map(math.isfinite, x.tolist())) and self.family.valid(x)[0]):
                 return None
             edges = self.family.wavelengths(self.edges_px, x)
             edge_jacobian = self.family.jacobian(self.edges_px, x) if with_jacobian else None
@@ -358,9 +360,14 @@ class StageFit:
     ) -> Solution:
         """Levenberg–Marquardt from ``x``, the prior scale and penalties held at the start, then
         (``rounds=2``) once more held at the solution: its cost is then :meth:`costs`' at its own
-        point, so the costs of different basins compare."""
+        point, so the costs of different basins compare. A refused step is cut to the length the
+        cost along it allows (``shorten``, decision 0096)."""
         first = levenberg_marquardt(
-            self.fixed_at(x).function, x, max_iterations=max_iterations, tolerance=tolerance
+            self.fixed_at(x).function,
+            x,
+            max_iterations=max_iterations,
+            tolerance=tolerance,
+            shorten=True,
         )
         if rounds == 1:
             return first
@@ -369,6 +376,7 @@ class StageFit:
             first.x,
             max_iterations=max(3, max_iterations // 4),
             tolerance=tolerance,
+            shorten=True,
         )
         return replace(again, evaluations=first.evaluations + again.evaluations)
 

@@ -1,0 +1,97 @@
+"""calib.wavelength.least_squares: the refused step shortened (``shorten``, decision 0096)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib.wavelength.least_squares import (
+    SHORTEN_FRACTION,
+    Evaluation,
+    ResidualFunction,
+    Solution,
+    levenberg_marquardt,
+)
+
+
+def _rosenbrock(x: np.ndarray, with_jacobian: bool) -> Evaluation:
+    residual = np.array([1000.0 * (x[1] - x[0] ** 2), 1.0 - x[0]])
+    jacobian = np.array([[-2000.0 * x[0], 1000.0], [-1.0, 0.0]])
+    return residual, jacobian if with_jacobian else None
+
+
+def _flattening(x: np.ndarray, with_jacobian: bool) -> Evaluation:
+    # A residual that flattens away from its root: the Gauss–Newton step from x = 2 overshoots
+    # to x ≈ −3.5, where the cost is higher, and stays that long under a small damping.
+    residual = np.array([np.arctan(x[0]), 0.1 * np.arctan(x[0] + 1.0)])
+    jacobian = np.array([[1.0 / (1.0 + x[0] ** 2)], [0.1 / (1.0 + (x[0] + 1.0) ** 2)]])
+    return residual, jacobian if with_jacobian else None
+
+
+def _cost(function: ResidualFunction, x: np.ndarray) -> float:
+    evaluated = function(x, False)
+    assert evaluated is not None
+    return float(evaluated[0] @ evaluated[0])
+
+
+def _trials(
+    function: ResidualFunction, start: np.ndarray, *, shorten: bool = False
+) -> tuple[Solution, list[float]]:
+    """The solution and, for every refused trial, the next trial's scaled step over its own
+    (both from the same point; the scale ``diag(JᵀJ)`` there)."""
+    points: list[np.ndarray] = []
+
+    def watched(x: np.ndarray, with_jacobian: bool) -> Evaluation:
+        points.append(np.array(x, dtype=np.float64))
+        return function(x, with_jacobian)
+
+    solution = levenberg_marquardt(
+        watched, start, max_iterations=1000, tolerance=1e-14, shorten=shorten
+    )
+    base = points[0]
+    cost = _cost(function, base)
+    ratios = []
+    refused: np.ndarray | None = None
+    for point in points[1:]:
+        evaluated = function(base, True)
+        assert evaluated is not None
+        jacobian = np.asarray(evaluated[1])
+        scale = np.sqrt(np.sum(jacobian**2, axis=0))
+        if refused is not None:
+            moved = np.linalg.norm(scale * (point - base)) / np.linalg.norm(scale * refused)
+            ratios.append(float(moved))
+        trial = _cost(function, point)
+        if trial < cost:
+            base, cost, refused = point, trial, None
+        else:
+            refused = point - base
+    return solution, ratios
+
+
+@pytest.mark.parametrize(
+    ("function", "start"),
+    [(_rosenbrock, np.array([-1.2, 1.0])), (_flattening, np.array([2.0]))],
+)
+def test_shorten_halves_every_refused_step_and_needs_fewer_evaluations(
+    function: ResidualFunction, start: np.ndarray
+) -> None:
+    plain, plain_ratios = _trials(function, start)
+    cut, ratios = _trials(function, start, shorten=True)
+    np.testing.assert_allclose(cut.x, plain.x, atol=1e-5)
+    assert ratios and max(ratios) <= 1.1 * SHORTEN_FRACTION
+    # ×4 alone does not (the flattening residual's refused step stays nearly as long: the
+    # damping is far below 1).
+    assert max(plain_ratios) > 1.1 * SHORTEN_FRACTION
+    assert cut.evaluations < 0.85 * plain.evaluations
+
+
+def test_the_step_after_a_cut_is_not_lengthened_at_once() -> None:
+    # The accepted step right after a refusal keeps its damping: without that rule (÷5 as after
+    # any accepted step) the same valley takes more evaluations than with ×4 alone.
+    start = np.array([-3.0, 8.0])
+    plain = levenberg_marquardt(_rosenbrock, start, max_iterations=1000, tolerance=1e-14)
+    cut = levenberg_marquardt(
+        _rosenbrock, start, max_iterations=1000, tolerance=1e-14, shorten=True
+    )
+    np.testing.assert_allclose(cut.x, [1.0, 1.0], atol=1e-5)
+    assert cut.evaluations < 0.85 * plain.evaluations
