@@ -552,16 +552,16 @@ def test_a_line_lamps_lines_matched_through_the_grating_equation_land_in_its_bas
     assert np.max(np.abs(family.wavelengths(probe, match.points[0]) - true_nm)) < 8.0
     starts = fluorescent_starts(observation, prior.mean, DEFAULT_GRID, 2)
     assert min(np.max(np.abs(s.wavelength_nm(probe) - true_nm)) for s in starts) > 15.0
-    grids = profile_search._line_start_grids(
+    grids, matched = profile_search._line_start_grids(
         family, starts, observation, prior, DEFAULT_GRID, pixel_range
     )
-    assert [shape for _, shape, _ in grids] == [(1,)] * len(match.points)
+    assert matched and [shape for _, shape, _ in grids] == [(7, 7, 3)] * len(match.points)
     # Two lines alone leave the geometry unconfirmed (no third line): no start, the end grids.
     two = sorted(lines, key=lambda line: -line.prominence)[:2]
     alone = profile_search._line_match(family, two, peaks, pixel_range)
     assert alone is not None and not alone.unambiguous
     monkeypatch.setattr(profile_search, "lines_and_peaks", lambda *_: (two, peaks, 0.0))
-    grids = profile_search._line_start_grids(
+    grids, matched = profile_search._line_start_grids(
         family, starts, observation, prior, DEFAULT_GRID, pixel_range
     )
-    assert [shape for _, shape, _ in grids] == [(13, 13, 3)] * len(starts)
+    assert not matched and [shape for _, shape, _ in grids] == [(13, 13, 3)] * len(starts)

@@ -923,15 +923,16 @@ def _line_start_grids(
     prior: CameraPrior,
     grid: WavelengthGrid,
     pixel_range: tuple[float, float],
-) -> list[tuple[FloatArray, tuple[int, ...], FloatArray | None]]:
-    """The scan's grids about the starts of a profile seen from its 0th order.
+) -> tuple[list[tuple[FloatArray, tuple[int, ...], FloatArray | None]], bool]:
+    """The scan's grids about the starts of a profile seen from its 0th order, and whether they
+    come from a line match (then the physical scan over every end is not needed).
 
-    A line lamp's lines matched through the grating equation (:func:`_line_match`) give its
-    distinct geometries as single points when the match is unambiguous: the end grids about the
-    quadratic line matches (:func:`_start_points`, 507 trial mappings each) are then not scanned.
-    Otherwise (a broadband lead, a match that fails or is ambiguous) those end grids, at most
-    :data:`MAX_STARTS` of them (decision 0076, refusal 2: the physical scan alone misses a
-    line lamp's basin).
+    A line lamp's lines matched through the grating equation (:func:`_line_match`), when the
+    match is unambiguous, give its distinct geometries; the scan covers the ends about each
+    (:func:`_local_end_points`, 147 trial mappings). Otherwise (a broadband lead, a match that
+    fails or is ambiguous) the end grids about the starts, at most :data:`MAX_STARTS` of them
+    (:func:`_start_points`, 507 each), which the physical scan joins (decision 0076, refusal 2:
+    either alone misses some cameras' basins).
     """
     if lead.kind == "fluorescent":
         try:
@@ -940,10 +941,13 @@ def _line_start_grids(
             lines, peaks = [], []
         match = _line_match(family, lines, peaks, pixel_range)
         if match is not None and match.unambiguous:
-            return [(point[None, :], (1,), None) for point in match.points]
-    return [
+            local = [_local_end_points(family, point, pixel_range) for point in match.points]
+            side = round(2 * DECIDING_LOCAL_SCAN[0] / DECIDING_LOCAL_SCAN[1]) + 1
+            return [(p, (side, side, p.shape[0] // side**2), None) for p in local], True
+    grids: list[tuple[FloatArray, tuple[int, ...], FloatArray | None]] = [
         (*_start_points(family, c, pixel_range), None) for c in _spread_starts(starts, pixel_range)
     ]
+    return grids, False
 
 
 def _physical_scan(
@@ -1303,13 +1307,16 @@ def search_profiles(
             # The 0th order is at a known pixel: the physics leaves the wavelengths at the
             # profile's ends and the incidence to scan. The correlation search's starts were up
             # to 110 nm off at the red end on validation cameras: the scan over every end the
-            # result may take (coarse to fine) joins the end grids around them.
+            # result may take (coarse to fine) joins the end grids around them — unless a line
+            # lamp's lines matched through the grating equation place it (decision 0097).
             same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
-            physical_grids, count = _physical_scan(
-                scan, family, pixel_range, grid, PHYSICAL_FOLLOW if broadband_only else 0
-            )
-            evaluations += count
-            grids = _line_start_grids(family, same, lead, prior, grid, pixel_range) + physical_grids
+            grids, matched = _line_start_grids(family, same, lead, prior, grid, pixel_range)
+            if not matched:
+                physical_grids, count = _physical_scan(
+                    scan, family, pixel_range, grid, PHYSICAL_FOLLOW if broadband_only else 0
+                )
+                evaluations += count
+                grids += physical_grids
         else:
             same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
             grids = [
