@@ -21,6 +21,7 @@ from calib.model.forward import PeakFractionNoise, pixel_edges, render_observati
 from calib.wavelength import find_mapping, least_squares, profile_search
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.locate import locate_mapping
+from calib.wavelength.peaks import fluorescent_starts, lines_and_peaks
 from calib.wavelength.profile_search import (
     DECIDING_LOCAL_INCIDENCE_DEG,
     DECIDING_LOCAL_SCAN,
@@ -556,3 +557,62 @@ def test_a_stage_fits_validity_for_one_point_is_its_batch_validity(prior, camera
     monkeypatch.setattr(profile_search, "levenberg_marquardt", recording)
     fit.refine(good + 1.0, max_iterations=2)
     assert len(options) == 2 and all(o.get("shorten") is True for o in options)
+
+
+def _short_lens_fluorescent(camera: MultiSpectrum) -> tuple[TiltedGrating, LampObservation]:
+    """FL2 through the short-lens geometry of :func:`_short_lens_led`, seen from its 0th order."""
+    truth, pixel, _ = _short_lens_led(camera)
+    observation = render_observation(
+        colour_lamp("FL2"),
+        camera,
+        mapping=truth,
+        pixel=pixel,
+        noise=PeakFractionNoise(0.005),
+        rng=np.random.default_rng(6),
+        kind="fluorescent",
+    ).observation
+    return truth, replace(observation, pixel_origin="direct_spot")
+
+
+def test_a_line_lamps_lines_matched_through_the_grating_equation_land_in_its_basin(
+    prior, camera, monkeypatch
+):
+    """Decision 0097: with the 0th order pinned, FL2's lines matched to the profile's peaks
+    through the grating equation (the focal length within the EXIF prior) put a short lens'
+    strongly curved first order within a few nanometres of the truth over the whole profile —
+    where the quadratic line matches' red end is tens of nanometres off (decision 0076,
+    refusal 1) — so the scan starts from single points instead of 507-mapping end grids; with
+    too few lines to stand alone the match is no start and the end grids are scanned."""
+    truth, observation = _short_lens_fluorescent(camera)
+    pixel_range = (float(observation.pixel[0]), float(observation.pixel[-1]))
+    family = GratingFamily(
+        GratingPrior(
+            {
+                "zero_order_px": (0.0, 0.0),
+                "log_focal": (np.log(726.0 * 1.03), 0.05),
+                "incidence_deg": (0.0, 5.0),
+            }
+        ),
+        orientation=1,
+    )
+    probe = np.linspace(*pixel_range, 9)
+    true_nm = truth.wavelength_nm(probe)
+    lines, peaks, _ = lines_and_peaks(observation, prior.mean, DEFAULT_GRID)
+    match = profile_search._line_match(family, lines, peaks, pixel_range)
+    assert match is not None and match.unambiguous and match.matched[0] >= 3
+    assert np.max(np.abs(family.wavelengths(probe, match.points[0]) - true_nm)) < 8.0
+    starts = fluorescent_starts(observation, prior.mean, DEFAULT_GRID, 2)
+    assert min(np.max(np.abs(s.wavelength_nm(probe) - true_nm)) for s in starts) > 15.0
+    grids, matched = profile_search._line_start_grids(
+        family, starts, observation, prior, DEFAULT_GRID, pixel_range
+    )
+    assert matched and [shape for _, shape, _ in grids] == [(7, 7, 3)] * len(match.points)
+    # Two lines alone leave the geometry unconfirmed (no third line): no start, the end grids.
+    two = sorted(lines, key=lambda line: -line.prominence)[:2]
+    alone = profile_search._line_match(family, two, peaks, pixel_range)
+    assert alone is not None and not alone.unambiguous
+    monkeypatch.setattr(profile_search, "lines_and_peaks", lambda *_: (two, peaks, 0.0))
+    grids, matched = profile_search._line_start_grids(
+        family, starts, observation, prior, DEFAULT_GRID, pixel_range
+    )
+    assert not matched and [shape for _, shape, _ in grids] == [(13, 13, 3)] * len(starts)

@@ -672,13 +672,12 @@ def icp_mapping(
     )
 
 
-def fluorescent_starts(
-    observation: LampObservation,
-    mean_sensitivity: FloatArray,
-    grid: WavelengthGrid,
-    n_candidates: int,
-) -> list[QuadraticMapping]:
-    """Mappings from matching the lamp's lines to the profile's peaks (several hypotheses)."""
+def lines_and_peaks(
+    observation: LampObservation, mean_sensitivity: FloatArray, grid: WavelengthGrid
+) -> tuple[list[Peak], list[Peak], float]:
+    """A line lamp's lines (nm, :func:`lamp_lines` of its spectrum weighted by ``ŝ``), its
+    profile's peaks (px, :func:`profile_peaks`), both strongest first, and the nominal dispersion
+    (nm per pixel unit, :func:`nominal_dispersion`) the peaks were found with."""
     model_nm, model = model_curve_on_fine_axis(observation.spectrum, mean_sensitivity, grid)
     dispersion = nominal_dispersion(observation.pixel, observation.profile, model_nm, model)
     total = mean_sensitivity.sum(axis=1)
@@ -690,6 +689,17 @@ def fluorescent_starts(
 
     lines = lamp_lines(observation.spectrum, weight, range_nm=(grid.start_nm, grid.stop_nm))
     peaks = profile_peaks(observation.pixel, observation.profile, line_width_px=20.0 / dispersion)
+    return lines, peaks, dispersion
+
+
+def fluorescent_starts(
+    observation: LampObservation,
+    mean_sensitivity: FloatArray,
+    grid: WavelengthGrid,
+    n_candidates: int,
+) -> list[QuadraticMapping]:
+    """Mappings from matching the lamp's lines to the profile's peaks (several hypotheses)."""
+    lines, peaks, dispersion = lines_and_peaks(observation, mean_sensitivity, grid)
     return match_peak_hypotheses(
         lines,
         peaks,

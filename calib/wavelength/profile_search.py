@@ -50,7 +50,7 @@ from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.least_squares import Evaluation, Solution, levenberg_marquardt
-from calib.wavelength.peaks import fluorescent_starts
+from calib.wavelength.peaks import Peak, fluorescent_starts, lines_and_peaks
 from calib.wavelength.response_model import ResponseModel, fine_step_for
 from calib.wavelength.rig_prior import default_prior
 
@@ -586,6 +586,30 @@ PHYSICAL_FOLLOW = 3
 _FOCAL_TABLE = np.geomspace(0.05, 200.0, 160)
 
 
+def _through_two(
+    along_a: FloatArray | float,
+    along_b: FloatArray | float,
+    nm_a: FloatArray,
+    nm_b: FloatArray,
+    focal: FloatArray,
+    offset: float,
+) -> tuple[FloatArray, FloatArray]:
+    """The incidence (rad) and groove spacing (nm) of the grating that puts ``nm_a`` and ``nm_b``
+    at the distances ``along_a``, ``along_b`` (px, measured from the lens axis, ``u + u₀``) for a
+    focal length ``focal`` (all broadcast together; NaN or out of range where none exists): the
+    closed form of :func:`_grating_points`."""
+    angle_a = np.arctan(along_a / focal) - np.arctan(offset / focal)
+    angle_b = np.arctan(along_b / focal) - np.arctan(offset / focal)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = (nm_a / nm_b) * np.sin(angle_b / 2) / np.sin(angle_a / 2)
+        theta = np.arctan(
+            (np.cos(angle_a / 2) - q * np.cos(angle_b / 2))
+            / (np.sin(angle_a / 2) - q * np.sin(angle_b / 2))
+        )
+        spacing = nm_b / (np.sin(theta + angle_b) - np.sin(theta))
+    return theta, spacing
+
+
 def _end_points(
     family: GratingFamily,
     pixel_range: tuple[float, float],
@@ -612,16 +636,7 @@ def _end_points(
 
     def solve(focal: FloatArray) -> tuple[FloatArray, FloatArray]:
         # focal: broadcastable against left/right with the table (or the incidences) in front.
-        angle_left = np.arctan(along[0] / focal) - np.arctan(offset / focal)
-        angle_right = np.arctan(along[1] / focal) - np.arctan(offset / focal)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = (left / right) * np.sin(angle_right / 2) / np.sin(angle_left / 2)
-            theta = np.arctan(
-                (np.cos(angle_left / 2) - q * np.cos(angle_right / 2))
-                / (np.sin(angle_left / 2) - q * np.sin(angle_right / 2))
-            )
-            spacing = right / (np.sin(theta + angle_right) - np.sin(theta))
-        return theta, spacing
+        return _through_two(along[0], along[1], left, right, focal, offset)
 
     if "log_focal" in fixed:
         focal = np.full((1, *left.shape[1:]), math.exp(fixed["log_focal"]))
@@ -680,6 +695,267 @@ def _start_points(
         family, pixel_range, left, right, [mean + k for k in PHYSICAL_INCIDENCE_DEG]
     )
     return points.reshape(-1, points.shape[-1]), points.shape[:-1]
+
+
+#: A line lamp seen from its 0th order: the strongest lines and profile peaks the physical match
+#: pairs (:func:`_line_match`), the soft-inlier width τ (nm) of its score and the tolerance (nm)
+#: within which a peak counts as a line's (:func:`calib.wavelength.peaks.match_peak_hypotheses`'
+#: values), the prior's bound on each matched geometry (σ multiples: a geometry beyond 3σ of the
+#: rig's focal length, incidence or line density is one in 370), and the σ (nm) of a line's
+#: position in the matched lines' fit (a centroid on 5 nm bins of a line blurred by the slit).
+LINE_MATCH_LINES = 6
+LINE_MATCH_PEAKS = 10
+LINE_MATCH_TAU_NM = 2.0
+LINE_MATCH_TOLERANCE_NM = 1.5
+LINE_MATCH_PRIOR_SIGMAS = 3.0
+LINE_MATCH_SIGMA_NM = 0.5
+#: Distinct line matches (> this far apart somewhere over the profile, nm) kept as starts.
+LINE_MATCH_DISTINCT_NM = 3.0
+LINE_MATCH_HYPOTHESES = 4
+
+
+@dataclass(frozen=True)
+class LineMatch:
+    """A line lamp's lines matched to its profile's peaks through the grating equation.
+
+    Attributes
+    ----------
+    points
+        The matched gratings ``(k, P)``, distinct, best first (each fitted to its matched lines
+        under the prior).
+    matched
+        How many lines each one puts within :data:`LINE_MATCH_TOLERANCE_NM` of a peak.
+    scores
+        Their soft inlier scores (line strengths, :data:`LINE_MATCH_TAU_NM`).
+    unambiguous
+        Whether the best one stands alone (see :func:`_line_match`).
+    """
+
+    points: FloatArray
+    matched: tuple[int, ...]
+    scores: tuple[float, ...]
+    unambiguous: bool
+
+
+def _line_match(
+    family: GratingFamily,
+    lines: Sequence[Peak],
+    peaks: Sequence[Peak],
+    pixel_range: tuple[float, float],
+) -> LineMatch | None:
+    """The lamp's lines matched to the profile's peaks through the grating equation with the 0th
+    order pinned (``None`` when it is not, or nothing matches).
+
+    With the 0th order at ``p₀`` and a focal length ``F``, two lines at two peaks fix the groove
+    spacing and the incidence in closed form (:func:`_through_two`). Every pair of the strongest
+    lines at every pair of peaks (the longer wavelength the farther from the 0th order) is solved
+    for a table of focal lengths (:data:`_FOCAL_TABLE`); a geometry beyond the prior
+    (:data:`LINE_MATCH_PRIOR_SIGMAS`) is dropped and the rest are scored by where they put the
+    other peaks (the soft inlier count of :func:`calib.wavelength.peaks.match_peak_hypotheses`).
+    Unlike a quadratic through the lines (decision 0076, refusal 1), the extrapolation to the
+    profile's ends follows the physics: the 0th order anchors it. The best-scored distinct
+    geometries are fitted to their matched lines under the prior.
+
+    The best one is *unambiguous* when it matches at least three lines and no distinct geometry
+    matches as many.
+    """
+    fixed = family.prior.fixed()
+    if "zero_order_px" not in fixed or len(lines) < 2 or len(peaks) < 2:
+        return None
+    strongest = sorted(lines, key=lambda line: -line.prominence)[:LINE_MATCH_LINES]
+    line_nm = np.array([line.position for line in strongest])
+    weight = np.array([line.prominence for line in strongest])
+    weight = weight / weight.max()
+    peak_px = np.array(
+        [peak.position for peak in sorted(peaks, key=lambda p: -p.prominence)][:LINE_MATCH_PEAKS]
+    )
+    offset = family.offset_guess
+    distance = family.orientation * (peak_px - fixed["zero_order_px"])
+    peak_px, distance = peak_px[distance > 0], distance[distance > 0]
+    if peak_px.size < 2:
+        return None
+    along = distance + offset
+    ends_along = family.orientation * (np.array(pixel_range) - fixed["zero_order_px"]) + offset
+    line_pairs = [
+        (i, j) for i in range(line_nm.size) for j in range(line_nm.size) if line_nm[i] < line_nm[j]
+    ]
+    peak_pairs = [
+        (a, b) for a in range(along.size) for b in range(along.size) if distance[a] < distance[b]
+    ]
+    if not line_pairs or not peak_pairs:
+        return None
+    li, lj = np.array(line_pairs).T
+    pa, pb = np.array(peak_pairs).T
+    if "log_focal" in fixed:
+        focal = np.array([math.exp(fixed["log_focal"])])
+    else:
+        focal = abs(float(ends_along[1])) * _FOCAL_TABLE
+    # Shapes: (line pairs, peak pairs, focal lengths).
+    focal3 = focal[None, None, :]
+    theta, spacing = _through_two(
+        along[pa][None, :, None],
+        along[pb][None, :, None],
+        line_nm[li][:, None, None],
+        line_nm[lj][:, None, None],
+        focal3,
+        offset,
+    )
+    theta, spacing = np.broadcast_arrays(theta, spacing)
+    theta, spacing = theta.ravel(), spacing.ravel()
+    focal_all = np.broadcast_to(focal3, (len(line_pairs), len(peak_pairs), focal.size)).ravel()
+    ok = (
+        np.isfinite(theta)
+        & np.isfinite(spacing)
+        & (spacing > 0)
+        & (np.abs(theta) < math.radians(60.0))
+    )
+    values = {
+        "log_spacing": np.log(np.where(ok, spacing, 1.0)),
+        "log_focal": np.log(focal_all),
+        "incidence_deg": np.degrees(theta),
+    }
+    for name, (mean, sigma) in family.prior.soft().items():
+        if name in values:
+            ok &= np.abs(values[name] - mean) <= LINE_MATCH_PRIOR_SIGMAS * sigma
+    if not np.any(ok):
+        return None
+    theta, spacing, focal_all = theta[ok], spacing[ok], focal_all[ok]
+    at_axis = np.arctan(offset / focal_all)
+    # The peaks' and the profile ends' wavelengths under each geometry.
+    turned = theta[:, None] + np.arctan(along[None, :] / focal_all[:, None]) - at_axis[:, None]
+    ends = theta[:, None] + np.arctan(ends_along[None, :] / focal_all[:, None]) - at_axis[:, None]
+    inside = np.all(np.abs(ends) < 0.5 * math.pi, axis=1) & np.all(
+        spacing[:, None] * (np.sin(ends) - np.sin(theta)[:, None]) > 0, axis=1
+    )
+    predicted = spacing[:, None] * (np.sin(turned) - np.sin(theta)[:, None])
+    miss = np.min(np.abs(predicted[:, None, :] - line_nm[None, :, None]), axis=2)
+    score = np.where(
+        inside, np.sum(weight * np.exp(-0.5 * (miss / LINE_MATCH_TAU_NM) ** 2), axis=1), -np.inf
+    )
+    order = np.argsort(-score, kind="stable")
+    names = family.names
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+
+    def vector(k: int) -> FloatArray:
+        full = {
+            "zero_order_px": fixed["zero_order_px"],
+            "log_spacing": math.log(spacing[k]),
+            "log_focal": math.log(focal_all[k]),
+            "incidence_deg": math.degrees(theta[k]),
+            "axis_offset_px": offset,
+        }
+        return np.array([full[name] for name in names])
+
+    def pairs(x: FloatArray, tolerance: float) -> list[tuple[int, int]]:
+        wavelengths = family.wavelengths(peak_px, x)
+        chosen: list[tuple[int, int]] = []
+        for i in range(line_nm.size):
+            gap = np.abs(wavelengths - line_nm[i])
+            j = int(np.argmin(gap))
+            if gap[j] <= tolerance and all(j != other for _, other in chosen):
+                chosen.append((i, j))
+        return chosen
+
+    def fit(x: FloatArray) -> FloatArray:
+        for tolerance in (2.0 * LINE_MATCH_TOLERANCE_NM, LINE_MATCH_TOLERANCE_NM):
+            matched = pairs(x, tolerance)
+            if len(matched) < 2:
+                return x
+            at = peak_px[[j for _, j in matched]]
+            target = line_nm[[i for i, _ in matched]]
+
+            def residual(
+                y: FloatArray,
+                with_jacobian: bool,
+                at: FloatArray = at,
+                target: FloatArray = target,
+            ) -> Evaluation:
+                evaluated = family.evaluate(at, y, pixel_range, with_jacobian=with_jacobian)
+                if evaluated is None:
+                    return None
+                wavelengths, jacobian = evaluated
+                prior_residual, prior_jacobian = family.prior_rows(y)
+                rows = np.concatenate(
+                    [(wavelengths - target) / LINE_MATCH_SIGMA_NM, prior_residual]
+                )
+                if not with_jacobian:
+                    return rows, None
+                assert jacobian is not None
+                return rows, np.vstack([jacobian / LINE_MATCH_SIGMA_NM, prior_jacobian])
+
+            x = levenberg_marquardt(residual, x, max_iterations=20, tolerance=1e-8).x
+        return x
+
+    def soft_score(x: FloatArray) -> float:
+        gap = np.abs(family.wavelengths(peak_px, x)[None, :] - line_nm[:, None])
+        return float(np.sum(weight * np.exp(-0.5 * (np.min(gap, axis=1) / LINE_MATCH_TAU_NM) ** 2)))
+
+    # The best-scored distinct geometries (before their fit), then each fitted and scored again.
+    drawn: list[FloatArray] = []
+    drawn_wavelengths: list[FloatArray] = []
+    for k in order:
+        if not np.isfinite(score[k]):
+            break
+        x = vector(int(k))
+        wavelengths = family.wavelengths(probe, x)
+        if any(
+            np.max(np.abs(wavelengths - w)) <= LINE_MATCH_DISTINCT_NM for w in drawn_wavelengths
+        ):
+            continue
+        drawn.append(x)
+        drawn_wavelengths.append(wavelengths)
+        if len(drawn) == 2 * LINE_MATCH_HYPOTHESES:
+            break
+    fitted = sorted(((soft_score(x), x) for x in map(fit, drawn)), key=lambda item: -item[0])
+    kept: list[tuple[float, FloatArray, FloatArray]] = []
+    for value, x in fitted:
+        wavelengths = family.wavelengths(probe, x)
+        if any(np.max(np.abs(wavelengths - w)) <= LINE_MATCH_DISTINCT_NM for _, _, w in kept):
+            continue
+        kept.append((value, x, wavelengths))
+        if len(kept) == LINE_MATCH_HYPOTHESES:
+            break
+    if not kept:
+        return None
+    matched = tuple(len(pairs(x, LINE_MATCH_TOLERANCE_NM)) for _, x, _ in kept)
+    unambiguous = matched[0] >= 3 and all(m < matched[0] for m in matched[1:])
+    return LineMatch(
+        np.array([x for _, x, _ in kept]), matched, tuple(v for v, _, _ in kept), unambiguous
+    )
+
+
+def _line_start_grids(
+    family: GratingFamily,
+    starts: Sequence[QuadraticMapping],
+    lead: LampObservation,
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    pixel_range: tuple[float, float],
+) -> tuple[list[tuple[FloatArray, tuple[int, ...], FloatArray | None]], bool]:
+    """The scan's grids about the starts of a profile seen from its 0th order, and whether they
+    come from a line match (then the physical scan over every end is not needed).
+
+    A line lamp's lines matched through the grating equation (:func:`_line_match`), when the
+    match is unambiguous, give its distinct geometries; the scan covers the ends about each
+    (:func:`_local_end_points`, 147 trial mappings). Otherwise (a broadband lead, a match that
+    fails or is ambiguous) the end grids about the starts, at most :data:`MAX_STARTS` of them
+    (:func:`_start_points`, 507 each), which the physical scan joins (decision 0076, refusal 2:
+    either alone misses some cameras' basins).
+    """
+    if lead.kind == "fluorescent":
+        try:
+            lines, peaks, _ = lines_and_peaks(lead, prior.mean, grid)
+        except EstimationError:
+            lines, peaks = [], []
+        match = _line_match(family, lines, peaks, pixel_range)
+        if match is not None and match.unambiguous:
+            local = [_local_end_points(family, point, pixel_range) for point in match.points]
+            side = round(2 * DECIDING_LOCAL_SCAN[0] / DECIDING_LOCAL_SCAN[1]) + 1
+            return [(p, (side, side, p.shape[0] // side**2), None) for p in local], True
+    grids: list[tuple[FloatArray, tuple[int, ...], FloatArray | None]] = [
+        (*_start_points(family, c, pixel_range), None) for c in _spread_starts(starts, pixel_range)
+    ]
+    return grids, False
 
 
 def _physical_scan(
@@ -1039,16 +1315,16 @@ def search_profiles(
             # The 0th order is at a known pixel: the physics leaves the wavelengths at the
             # profile's ends and the incidence to scan. The correlation search's starts were up
             # to 110 nm off at the red end on validation cameras: the scan over every end the
-            # result may take (coarse to fine) joins the end grids around them.
+            # result may take (coarse to fine) joins the end grids around them — unless a line
+            # lamp's lines matched through the grating equation place it (decision 0097).
             same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
-            physical_grids, count = _physical_scan(
-                scan, family, pixel_range, grid, PHYSICAL_FOLLOW if broadband_only else 0
-            )
-            evaluations += count
-            grids = [
-                (*_start_points(family, c, pixel_range), None)
-                for c in _spread_starts(same, pixel_range)
-            ] + physical_grids
+            grids, matched = _line_start_grids(family, same, lead, prior, grid, pixel_range)
+            if not matched:
+                physical_grids, count = _physical_scan(
+                    scan, family, pixel_range, grid, PHYSICAL_FOLLOW if broadband_only else 0
+                )
+                evaluations += count
+                grids += physical_grids
         else:
             same = [c for c in candidates if _direction(c, pixel_range) == family.orientation]
             grids = [
