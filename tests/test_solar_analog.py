@@ -257,3 +257,34 @@ def test_the_5d_mk_ii_without_optics_is_warned_or_right(shared_camera_data, monk
         assert solution.details["line_source"] == "absorption features of sunlight"
         assert any("their own match stands" in warning for warning in solution.warnings)
         assert not any("the profile fit stands" in warning for warning in solution.warnings)
+
+
+def test_an_unresolved_absorption_blend_is_placed_at_its_moment():
+    """Decision 0095: Na D2 + D1 (0.6 nm apart) at a 1.7 nm spectrograph resolution, an unlisted
+    weak line on D1's red side, the fit started 2 px off. The components' free heights trade with
+    the blend's shift, so D2's own pixel lands ~0.5 nm off; the blend's first moment, placed at
+    the list's strength-weighted centre with the split's σ, stays within 2σ."""
+    from calib.core.line_lists import blends, line_list
+    from calib.wavelength.features import _point, fit_features
+
+    solar = {line.label: line for line in line_list("solar")}
+    d2, d1 = solar["Fraunhofer D2"], solar["Fraunhofer D1"]
+    (blend,) = blends([d2, d1], 1.7)
+    truth = QuadraticMapping(0.0, 0.24, 560.0, pixel_range=(0.0, 250.0))
+    pixel = np.arange(251.0)
+    sigma_px = 7.0 / 2.3548
+    at = (np.array([d2.wavelength_nm, d1.wavelength_nm]) - 560.0) / 0.24
+    # The solar equivalent widths (D2 0.075, D1 0.056 nm), not the list's weights.
+    signal = sum(
+        ew * np.exp(-0.5 * ((pixel - centre) / sigma_px) ** 2)
+        for ew, centre in ((0.075, at[0]), (0.056, at[1]), (0.02, at[1] + 5.0))
+    )
+    signal = signal + np.random.default_rng(0).normal(0.0, 0.002, pixel.size)
+    start = QuadraticMapping(0.0, 0.24, 560.0 + 2 * 0.24, pixel_range=(0.0, 250.0))
+    (fitted,) = fit_features(pixel, signal, 0.002, [blend], start, 7.0)
+    assert abs(float(truth.wavelength_nm(np.array([fitted.pixel]))[0]) - d2.wavelength_nm) > 0.35
+    position, _, wavelength, sigma_nm = _point(fitted, False, {})
+    assert wavelength == pytest.approx(blend.wavelength_nm)
+    error = float(truth.wavelength_nm(np.array([position]))[0]) - blend.wavelength_nm
+    assert abs(error) < 2.0 * sigma_nm
+    assert abs(error) < 0.25
