@@ -288,3 +288,23 @@ def test_an_unresolved_absorption_blend_is_placed_at_its_moment():
     error = float(truth.wavelength_nm(np.array([position]))[0]) - blend.wavelength_nm
     assert abs(error) < 2.0 * sigma_nm
     assert abs(error) < 0.25
+
+
+def test_the_o2_bands_are_as_deep_as_their_airmass(monkeypatch):
+    """Decision 0095: the O₂ optical depths are stated at airmass 1 and the path scales them (they
+    were divided by 1.5, so the default airmass 1.5 rendered airmass 1's bands). The B band's mean
+    transmission over 686–695 nm in the rendered sunlight is the bands' own at that airmass."""
+    import calib.evaluation.validation.solar as solar
+
+    fine = np.arange(680.0, 700.0, 0.001)
+    tau = np.zeros_like(fine)
+    solar._o2_bands(tau, fine)
+    band = (fine >= 686.0) & (fine <= 695.0)
+    with_o2 = {airmass: synthetic_sunlight(airmass) for airmass in (1.0, 2.5)}
+    monkeypatch.setattr(solar, "_o2_bands", lambda tau, axis: None)
+    for airmass, sunlight in with_o2.items():
+        without = synthetic_sunlight(airmass)
+        inside = (sunlight.wavelength_nm >= 686.0) & (sunlight.wavelength_nm <= 695.0)
+        rendered = float(np.mean(sunlight.values[inside]) / np.mean(without.values[inside]))
+        expected = float(np.mean(np.exp(-tau[band] * airmass)))
+        assert rendered == pytest.approx(expected, abs=0.01)
