@@ -308,3 +308,43 @@ def test_the_o2_bands_are_as_deep_as_their_airmass(monkeypatch):
         rendered = float(np.mean(sunlight.values[inside]) / np.mean(without.values[inside]))
         expected = float(np.mean(np.exp(-tau[band] * airmass)))
         assert rendered == pytest.approx(expected, abs=0.01)
+
+
+def test_dips_missed_by_most_of_their_width_are_found_when_refitted():
+    """Decision 0095: dips a start mapping misses by 2.6 px at a 3 px FWHM are fitted again from
+    ±½ FWHM (decision 0093's restart, now for absorption too); without it no dip is found."""
+    from calib.core.line_lists import line_list
+    from calib.wavelength.families import QuadraticFamily
+    from calib.wavelength.features import map_features
+
+    labels = (
+        "Fraunhofer d",
+        "Fraunhofer F (H-beta)",
+        "Fraunhofer c",
+        "Fraunhofer E2",
+        "Fraunhofer C (H-alpha)",
+    )
+    dips = [line for line in line_list("solar") if line.label in labels]
+    truth = QuadraticMapping(0.0, 0.5, 400.0, pixel_range=(0.0, 700.0))
+    pixel = np.arange(701.0)
+    depth = sum(
+        0.3 * np.exp(-0.5 * ((pixel - (line.wavelength_nm - 400.0) / 0.5) / (3.0 / 2.3548)) ** 2)
+        for line in dips
+    )
+    profile = 100.0 * np.stack([1.0 - depth] * 3, axis=1)
+    profile += np.random.default_rng(0).normal(0.0, 0.05, profile.shape)
+    start = QuadraticMapping(0.0, 0.5, 400.0 + 2.6 * 0.5, pixel_range=(0.0, 700.0))
+    found = map_features(
+        pixel,
+        profile,
+        dips,
+        family=QuadraticFamily((0.0, 700.0)),
+        fwhm_px=3.0,
+        start=start,
+        kind="absorption",
+    )
+    assert found.details["n_used"] == len(dips)
+    probe = np.array([100.0, 400.0, 600.0])
+    np.testing.assert_allclose(
+        found.exact.wavelength_nm(probe), truth.wavelength_nm(probe), atol=0.02
+    )
