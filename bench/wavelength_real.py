@@ -8,7 +8,8 @@ only ones whose listed wavelength is the truth — and the same mapping from the
 the largest difference between the two curves over the profile (nm, at the same physical column).
 
 Canon 10D (rrogge): sunlight (Wehrli 1985 AM0 × the upstream file's atmosphere) through the LHires
-III. The mapping comes from the profile and the measured solar spectrum alone; it is then checked
+III. The mapping comes from the profile and the measured solar spectrum alone (printed first: the
+dips it was fitted through, each with its residual and σ — the profile's own evidence); it is then checked
 at columns found here independently of it: the minimum of each feature (G, Hβ, Mg b, D, Hα, O₂ B)
 in the continuum-normalised sum of the channels, within ±``--window`` columns of where the
 author's own four markers (G, Hβ, D, Hα, read from ``Spectral Response Canon EOS 10D.Rmd`` at
@@ -321,6 +322,16 @@ def run_10d(folder: Path, prior: CameraPrior, window: int) -> None:
     sun = canon_10d_sun(folder)
     solution = locate_mapping([sun], prior, DEFAULT_GRID)
     print(f"Canon 10D sunlight: {solution.mapping.method}; {solution.details.get('line_source')}")
+    # The dips the mapping was fitted through (a blend at its first moment, decision 0095): their
+    # residuals are the profile's own evidence of where the family and the features disagree.
+    for row in solution.matched_lines:
+        weight = float(row["weight"])
+        sigma = 1.0 / np.sqrt(weight) if weight > 0 else float("nan")
+        print(
+            f"  dip {row['line']:45s} {row['wavelength_nm']:8.3f} nm at column {row['pixel']:7.1f}: "
+            f"residual {float(row['residual_nm']):+.3f} nm, σ {sigma:.3f} nm"
+            + ("" if weight > 0 else "  (not used)")
+        )
     residuals = []
     markers = authors_markers(folder / "Spectral Response Canon EOS 10D.Rmd")
     for name, (column, reference) in dip_columns(sun, window, markers).items():

@@ -257,3 +257,94 @@ def test_the_5d_mk_ii_without_optics_is_warned_or_right(shared_camera_data, monk
         assert solution.details["line_source"] == "absorption features of sunlight"
         assert any("their own match stands" in warning for warning in solution.warnings)
         assert not any("the profile fit stands" in warning for warning in solution.warnings)
+
+
+def test_an_unresolved_absorption_blend_is_placed_at_its_moment():
+    """Decision 0095: Na D2 + D1 (0.6 nm apart) at a 1.7 nm spectrograph resolution, an unlisted
+    weak line on D1's red side, the fit started 2 px off. The components' free heights trade with
+    the blend's shift, so D2's own pixel lands ~0.5 nm off; the blend's first moment, placed at
+    the list's strength-weighted centre with the split's σ, stays within 2σ."""
+    from calib.core.line_lists import blends, line_list
+    from calib.wavelength.features import _point, fit_features
+
+    solar = {line.label: line for line in line_list("solar")}
+    d2, d1 = solar["Fraunhofer D2"], solar["Fraunhofer D1"]
+    (blend,) = blends([d2, d1], 1.7)
+    truth = QuadraticMapping(0.0, 0.24, 560.0, pixel_range=(0.0, 250.0))
+    pixel = np.arange(251.0)
+    sigma_px = 7.0 / 2.3548
+    at = (np.array([d2.wavelength_nm, d1.wavelength_nm]) - 560.0) / 0.24
+    # The solar equivalent widths (D2 0.075, D1 0.056 nm), not the list's weights.
+    signal = sum(
+        ew * np.exp(-0.5 * ((pixel - centre) / sigma_px) ** 2)
+        for ew, centre in ((0.075, at[0]), (0.056, at[1]), (0.02, at[1] + 5.0))
+    )
+    signal = signal + np.random.default_rng(0).normal(0.0, 0.002, pixel.size)
+    start = QuadraticMapping(0.0, 0.24, 560.0 + 2 * 0.24, pixel_range=(0.0, 250.0))
+    (fitted,) = fit_features(pixel, signal, 0.002, [blend], start, 7.0)
+    assert abs(float(truth.wavelength_nm(np.array([fitted.pixel]))[0]) - d2.wavelength_nm) > 0.35
+    position, _, wavelength, sigma_nm = _point(fitted, False, {})
+    assert wavelength == pytest.approx(blend.wavelength_nm)
+    error = float(truth.wavelength_nm(np.array([position]))[0]) - blend.wavelength_nm
+    assert abs(error) < 2.0 * sigma_nm
+    assert abs(error) < 0.25
+
+
+def test_the_o2_bands_are_as_deep_as_their_airmass(monkeypatch):
+    """Decision 0095: the O₂ optical depths are stated at airmass 1 and the path scales them (they
+    were divided by 1.5, so the default airmass 1.5 rendered airmass 1's bands). The B band's mean
+    transmission over 686–695 nm in the rendered sunlight is the bands' own at that airmass."""
+    import calib.evaluation.validation.solar as solar
+
+    fine = np.arange(680.0, 700.0, 0.001)
+    tau = np.zeros_like(fine)
+    solar._o2_bands(tau, fine)
+    band = (fine >= 686.0) & (fine <= 695.0)
+    with_o2 = {airmass: synthetic_sunlight(airmass) for airmass in (1.0, 2.5)}
+    monkeypatch.setattr(solar, "_o2_bands", lambda tau, axis: None)
+    for airmass, sunlight in with_o2.items():
+        without = synthetic_sunlight(airmass)
+        inside = (sunlight.wavelength_nm >= 686.0) & (sunlight.wavelength_nm <= 695.0)
+        rendered = float(np.mean(sunlight.values[inside]) / np.mean(without.values[inside]))
+        expected = float(np.mean(np.exp(-tau[band] * airmass)))
+        assert rendered == pytest.approx(expected, abs=0.01)
+
+
+def test_dips_missed_by_most_of_their_width_are_found_when_refitted():
+    """Decision 0095: dips a start mapping misses by 2.6 px at a 3 px FWHM are fitted again from
+    ±½ FWHM (decision 0093's restart, now for absorption too); without it no dip is found."""
+    from calib.core.line_lists import line_list
+    from calib.wavelength.families import QuadraticFamily
+    from calib.wavelength.features import map_features
+
+    labels = (
+        "Fraunhofer d",
+        "Fraunhofer F (H-beta)",
+        "Fraunhofer c",
+        "Fraunhofer E2",
+        "Fraunhofer C (H-alpha)",
+    )
+    dips = [line for line in line_list("solar") if line.label in labels]
+    truth = QuadraticMapping(0.0, 0.5, 400.0, pixel_range=(0.0, 700.0))
+    pixel = np.arange(701.0)
+    depth = sum(
+        0.3 * np.exp(-0.5 * ((pixel - (line.wavelength_nm - 400.0) / 0.5) / (3.0 / 2.3548)) ** 2)
+        for line in dips
+    )
+    profile = 100.0 * np.stack([1.0 - depth] * 3, axis=1)
+    profile += np.random.default_rng(0).normal(0.0, 0.05, profile.shape)
+    start = QuadraticMapping(0.0, 0.5, 400.0 + 2.6 * 0.5, pixel_range=(0.0, 700.0))
+    found = map_features(
+        pixel,
+        profile,
+        dips,
+        family=QuadraticFamily((0.0, 700.0)),
+        fwhm_px=3.0,
+        start=start,
+        kind="absorption",
+    )
+    assert found.details["n_used"] == len(dips)
+    probe = np.array([100.0, 400.0, 600.0])
+    np.testing.assert_allclose(
+        found.exact.wavelength_nm(probe), truth.wavelength_nm(probe), atol=0.02
+    )

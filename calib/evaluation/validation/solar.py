@@ -202,7 +202,8 @@ def _scattered_lines(tau: FloatArray, axis: FloatArray) -> None:
 
 
 def synthetic_sunlight(airmass: float = 1.5) -> Spectrum:
-    """The analog's sunlight at the ground (module docstring), every :data:`STEP_NM`."""
+    """The analog's sunlight at the ground (module docstring), every :data:`STEP_NM`, through
+    ``airmass`` atmospheres (Rayleigh and O₂ alike)."""
     fine = np.arange(RANGE_NM[0], RANGE_NM[1], _FINE_NM)
     tau = np.zeros_like(fine)
     _strong_lines(tau, fine)
@@ -214,7 +215,9 @@ def synthetic_sunlight(airmass: float = 1.5) -> Spectrum:
     micron = fine * 1e-3
     planck = micron**-5 / np.expm1(_C2 * 1e4 / (micron * 5772.0))
     rayleigh = np.exp(-airmass * 0.0088 * micron**-4.05)
-    values = planck * rayleigh * solar * np.exp(-telluric * airmass / 1.5)
+    # The O₂ optical depths are at airmass 1 (:data:`O2_BANDS`): the path scales them. (They were
+    # divided by 1.5 before decision 0095, so the default airmass 1.5 rendered airmass 1's bands.)
+    values = planck * rayleigh * solar * np.exp(-telluric * airmass)
     per = round(STEP_NM / _FINE_NM)
     n = values.size // per
     binned = values[: n * per].reshape(n, per).mean(axis=1)
