@@ -78,7 +78,7 @@ from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, Severity
 from calib.core.spectra import Spectrum
-from calib.core.spectrometer_scale import scale_sigma_nm
+from calib.core.spectrometer_scale import measured_slit, scale_sigma_nm
 from calib.core.spectrometer_tolerance import (
     BANDWIDTH_TOLERANCE,
     IN_SPEC_TOLERANCE_SIGMA,
@@ -739,32 +739,70 @@ def spectrometer_sigma(
                 "(give --bandwidth, or the spectrum CSV's bandwidth_nm header)",
             )
         )
-    widened = [
-        replace(
-            lamp,
-            spectrum_bandwidth_nm=settings.assumed_bandwidth_nm
-            if lamp.spectrum_bandwidth_nm is None
-            else lamp.spectrum_bandwidth_nm * (1.0 + settings.bandwidth_tolerance),
-        )
-        for lamp in observations
+    # A lamp whose instrument's slit the Hg-line check measured (decision 0099): its stated bandwidth
+    # is off by what the check found, ``k − 1`` of it, known to ``σ_k`` — one σ of
+    # ``hypot(k − 1, σ_k)``, toward the measured slit, in place of the tolerance.
+    slits = [
+        None if lamp.spectrum_bandwidth_nm is None else measured_slit(lamp) for lamp in observations
     ]
+    bandwidth_factor = 1.0 if missing else settings.tolerance_sigma
+    if not missing and any(slit is not None for slit in slits):
+        relative = [
+            settings.bandwidth_tolerance * settings.tolerance_sigma
+            if slit is None
+            else math.copysign(math.hypot(slit[0] - 1.0, slit[1]), slit[0] - 1.0)
+            for slit in slits
+        ]
+        # The largest moved by the tolerance (a change well above the solve's own precision), the
+        # rest in proportion; the change is scaled back to one σ.
+        largest = max(abs(value) for value in relative)
+        ratio = settings.bandwidth_tolerance / largest if largest > 0 else 1.0
+        widened = [
+            replace(
+                lamp,
+                spectrum_bandwidth_nm=float(lamp.spectrum_bandwidth_nm or 0.0)
+                * (1.0 + ratio * value),
+            )
+            for lamp, value in zip(observations, relative, strict=True)
+        ]
+        bandwidth_factor = 1.0 / ratio if largest > 0 else 0.0
+        described = "bandwidth " + ", ".join(
+            f"{lamp.name} ±{100 * abs(value):.2g} % (tolerance)"
+            if slit is None
+            else f"{lamp.name} {100 * value:+.2g} % (measured slit)"
+            for lamp, slit, value in zip(observations, slits, relative, strict=True)
+        )
+    else:
+        widened = [
+            replace(
+                lamp,
+                spectrum_bandwidth_nm=settings.assumed_bandwidth_nm
+                if lamp.spectrum_bandwidth_nm is None
+                else lamp.spectrum_bandwidth_nm * (1.0 + settings.bandwidth_tolerance),
+            )
+            for lamp in observations
+        ]
+        described = (
+            "bandwidth "
+            + (
+                f"{settings.assumed_bandwidth_nm:g} nm assumed"
+                if missing
+                else f"±{100 * settings.bandwidth_tolerance:g} %"
+            )
+            + f" (σ = {settings.tolerance_sigma:.3g} × tolerance)"
+        )
     solves["spectrometer bandwidth"] = rerun(widened)
     notes.append(
         "spectrometer: "
         + ("" if carried > 0 or any(c is not None for c in checked) else f"scale ±{shift:g} nm, ")
-        + "bandwidth "
-        + (
-            f"{settings.assumed_bandwidth_nm:g} nm assumed"
-            if missing
-            else f"±{100 * settings.bandwidth_tolerance:g} %"
-        )
-        + f" (σ = {settings.tolerance_sigma:.3g} × tolerance)"
+        + described
     )
     # A stated tolerance bounds an in-spec instrument: σ = tolerance_sigma × the re-solve's change
-    # (an assumed bandwidth is not a tolerance: its change stands as one σ).
+    # (an assumed bandwidth is not a tolerance: its change stands as one σ; a measured slit's is
+    # scaled to its own one σ above).
     factors = {
         "spectrometer scale": scale_factor,
-        "spectrometer bandwidth": 1.0 if missing else settings.tolerance_sigma,
+        "spectrometer bandwidth": bandwidth_factor,
     }
     return solves, factors, notes, flags
 
