@@ -152,14 +152,20 @@ SERIOUS_MISFIT_CHI2 = 100.0
 #: --variant "LED+FL" --variant "5 lamps" --variant "3 lamps + RGB LEDs"`` (tolerance σ 0.5774):
 #: prior:physical 95.7 % at factor 1 → 1.0 unchanged; multilamp 66.1 % at factor 1 → 2.71 (5 lamps
 #: 94.9 %, 3 lamps + RGB 95.1 %). makabe2025 was not in that run: unchanged.
+#: Decision 0099 (the bandwidth component from the scale check's measured slit where it exists):
+#: ``python -m calib.evaluation.validation.budget --data-dir DIR --jobs 1 --variant "LED+FL"
+#: --variant "5 lamps" --variant "3 lamps + RGB LEDs" --variant "LED+FL, paper's solve"``
+#: (tolerance σ 0.5774): prior:physical 95.2 % at factor 1 → 1.0 unchanged; multilamp 63.6 % at
+#: factor 1 → 3.03 (5 lamps 94.7 %, 3 lamps + RGB 95.3 %; at 2.71 they were 92.8 / 93.6 %);
+#: makabe2025 68.8 % → 4.52 (94.3 % at 4.24; on the base, before the slit, the same run gave 4.39).
 COVERAGE_SCALE: dict[str, float] = {
     "prior": 1.12,
     "prior:physical": 1.0,
     "prior:fourier": 2.79,
-    "multilamp": 2.71,
-    "multilamp:physical": 2.71,
-    "multilamp:fourier": 2.71,
-    "makabe2025": 4.24,
+    "multilamp": 3.03,
+    "multilamp:physical": 3.03,
+    "multilamp:fourier": 3.03,
+    "makabe2025": 4.52,
     # Decision 0074 (no direct measurement, no grating file: η₁ marginalised over the physical
     # families): ``python -m calib.evaluation.validation.budget --data-dir DIR --jobs 1 --variant
     # "A + FL unmeasured, no direct"`` while that variant ran the families (since decision 0074's
