@@ -34,7 +34,10 @@ and channel, on the delivered curves' scale (maximum 1):
     bandwidth changed by its tolerance (or, when none was given, a typical one assumed; quality code
     ``no_spectrometer_bandwidth``). Where the spectra's scale was checked against a fluorescent
     lamp's Hg lines and corrected (:mod:`calib.core.spectrometer_scale`, decision 0069), the scale
-    component is the check's σ (``metadata["wavelength_scale_sigma_nm"]``), not the tolerance.
+    component is the check's σ (``metadata["wavelength_scale_sigma_nm"]``), not the tolerance;
+    where that check also measured the slit (:func:`calib.core.spectrometer_scale.measured_slit`),
+    the bandwidth is re-solved toward the measured slit and the component is that slit's one σ,
+    ``hypot(k − 1, σ_k)`` of the stated bandwidth, not the tolerance (decision 0099).
 ``efficiency model``
     By perturbation: re-solved with :data:`EFFICIENCY_TERMS_STEP` fewer terms of the grating
     efficiency's Fourier model — how much the answer leans on the η model's form.
