@@ -16,8 +16,8 @@ from calib.core.result import EstimateResult
 from calib.core.spectra import Spectrum
 from calib.core.spectrometer_scale import (
     SCALE_SIGMA_KEY,
-    SLIT_FACTOR_FLOOR,
     SEARCH_SHIFT_NM,
+    SLIT_FACTOR_FLOOR,
     ScaleCheck,
     _windows,
     check_spectrometer_scale,
