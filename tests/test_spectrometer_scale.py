@@ -17,11 +17,13 @@ from calib.core.spectra import Spectrum
 from calib.core.spectrometer_scale import (
     SCALE_SIGMA_KEY,
     SEARCH_SHIFT_NM,
+    SLIT_FACTOR_FLOOR,
     ScaleCheck,
     _windows,
     check_spectrometer_scale,
     checked_observations,
     corrected_spectrum,
+    measured_slit,
 )
 from calib.methods import ESTIMATION_METHODS
 from calib.methods.uncertainty import BudgetSettings, spectrometer_sigma
@@ -235,6 +237,56 @@ def test_the_budget_s_scale_component_is_the_check_s_sigma():
         result, [_lamp("CFL", cfl, "fluorescent", 3.0)], rerun, settings
     )
     assert factors["spectrometer scale"] == settings.tolerance_sigma
+
+
+def test_the_check_measures_the_slit_its_isolated_lines_show():
+    """Decision 0099: a slit 20 % wider (narrower) than stated is measured as 1.2 (0.8) × the
+    stated, with the model-error floor in its σ; the record carries it to the budget."""
+    for true_nm, factor in ((3.6, 1.2), (2.4, 0.8), (3.0, 1.0)):
+        cfl = _measured(_cfl(), offset_nm=0.2, bandwidth_nm=true_nm, seed=3)
+        lamps, outcome = checked_observations([_lamp("CFL", cfl, "fluorescent", 3.0)])
+        assert outcome.check is not None and outcome.check.slit_factor is not None
+        measured, sigma = outcome.check.slit_factor
+        assert measured == pytest.approx(factor, abs=0.03)
+        assert SLIT_FACTOR_FLOOR <= sigma < SLIT_FACTOR_FLOOR + 0.01
+        assert measured_slit(lamps[0]) == (measured, sigma)
+    assert measured_slit(_lamp("CFL", cfl, "fluorescent", 3.0)) is None
+
+
+def test_the_budget_s_bandwidth_component_is_the_measured_slit_s():
+    """Decision 0099: where the check measured the slit, the bandwidth re-solve moves toward it and
+    its change is scaled to the measured slit's one σ, ``hypot(k − 1, σ_k)``, whatever the
+    tolerance σ; unmeasured, the tolerance as before."""
+    cfl = _measured(_cfl(), offset_nm=0.3, bandwidth_nm=3.0, seed=1)
+    plain = _lamp("CFL", cfl, "fluorescent", 3.0)
+    grid = np.array([400.0, 700.0])
+    result = EstimateResult("fake", grid, np.ones((2, 3)))
+    widths: list[float] = []
+
+    def rerun(observations, **changes):
+        widths.append(float(observations[0].spectrum_bandwidth_nm))
+        return result
+
+    def factor(slit: tuple[float, float] | None, tolerance_sigma: float) -> float:
+        record = {"slit_factor": slit[0], "slit_factor_sigma": slit[1]} if slit else None
+        lamp = (
+            plain
+            if record is None
+            else replace(plain, metadata={"spectrometer_scale_check": record})
+        )
+        widths.clear()
+        settings = BudgetSettings(tolerance_sigma=tolerance_sigma)
+        return spectrometer_sigma(result, [lamp], rerun, settings)[1]["spectrometer bandwidth"]
+
+    tolerance = BudgetSettings().bandwidth_tolerance
+    narrower = factor((0.9, 0.05), 0.5)
+    assert widths[-1] == pytest.approx(3.0 * (1.0 - tolerance))  # toward the measured slit
+    assert narrower * tolerance == pytest.approx(math.hypot(0.1, 0.05))
+    assert factor((0.9, 0.05), 1.0) == narrower  # not a tolerance
+    wider = factor((1.0, 0.07), 0.5)
+    assert widths[-1] == pytest.approx(3.0 * (1.0 + tolerance))
+    assert wider * tolerance == pytest.approx(0.07)
+    assert factor(None, 0.5) == 0.5  # unmeasured: the tolerance as a bound
 
 
 def test_every_estimate_takes_the_check(monkeypatch):

@@ -450,6 +450,32 @@ def test_saved_validation_records_judge_offline_as_the_run_does(tmp_path: Any) -
     assert loaded[0].outside_basis is None
 
 
+def test_a_measured_slits_bandwidth_component_is_not_a_tolerance(
+    tmp_path: Any, capsys: Any
+) -> None:
+    """Decision 0099: where the scale check measured the slit, the record's bandwidth component is
+    that slit's one σ and does not scale with the tolerance σ; the flag survives ``--save``, and
+    ``--load`` judges saved sets together, each set's coverage printed."""
+    from calib.evaluation.validation.budget import main
+
+    error = np.array([0.0, 0.3, 0.4, 1.0])
+    components = {
+        "basis": np.array([0.1, 0.1, 0.3, 0.0]),
+        "spectrometer bandwidth": np.array([0.0, 0.0, 0.0, 1.0]),
+    }
+    tolerance = EstimateRecord("prior", "LED+FL", error, components)
+    measured = EstimateRecord("prior", "LED+FL", error, components, slit_measured=True)
+    np.testing.assert_allclose(tolerance.named(0.5) ** 2, [0.01, 0.01, 0.09, 0.25])
+    np.testing.assert_allclose(measured.named(0.5) ** 2, [0.01, 0.01, 0.09, 1.0])
+    paths = [str(tmp_path / "a.npz"), str(tmp_path / "b.npz")]
+    save_records([tolerance], paths[0])
+    save_records([measured], paths[1])
+    assert [r.slit_measured for p in paths for r in load_records(p)] == [False, True]
+    assert main(["--load", paths[0], "--load", paths[1], "--tolerance-sigma", "0.5"]) == 0
+    printed = capsys.readouterr().out
+    assert f"{paths[0]}: 1 estimates" in printed and f"{paths[1]}: 1 estimates" in printed
+
+
 def test_the_factor_is_judged_per_eta_family() -> None:
     """Decision 0044: a physical η and a Fourier fallback leave different shares unexplained; the
     factor is looked up as ``method:family``, then ``method``, then the largest."""

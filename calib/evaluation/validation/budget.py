@@ -10,6 +10,9 @@ test split and the real data are only ever reported.
 
 Run it with ``python -m calib.evaluation.validation.budget --data-dir DIR [--jobs 2]``; the factors
 it prints are what ``COVERAGE_SCALE`` holds (with the command, in decisions 0029 and 0044).
+``--grating`` (sinusoidal, blazed, catalogue with ``--catalogue FILE``, a list, or mix),
+``--predictions N`` and ``--seed`` draw other validation sets (gratings and cameras a factor was
+not judged on, decision 0099), as ``calib validate`` does.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from calib.evaluation.validation.protocol import (
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
 from calib.methods.uncertainty import BudgetSettings, efficiency_family, prior_sigma_at_scale
+from calib.model.gratings import GRATING_KINDS, CatalogueGrating
 
 #: The mean ±2σ coverage the factor aims at on the validation split.
 TARGET_COVERAGE = 0.95
@@ -94,21 +98,27 @@ class EstimateRecord:
     #: The spectra's scale was checked against Hg lines (decision 0069): the ``spectrometer
     #: scale`` component is the check's σ, not a tolerance, and does not scale.
     scale_checked: bool = False
+    #: The spectra's instrument's slit was measured by that check (decision 0099): the ``spectrometer
+    #: bandwidth`` component is the measured slit's one σ, not a tolerance, and does not scale.
+    slit_measured: bool = False
 
     @property
     def key(self) -> str:
         """The factor's key in :data:`calib.methods.uncertainty.COVERAGE_SCALE`."""
         return self.method if self.family is None else f"{self.method}:{self.family}"
 
+    def scaled(self, name: str) -> bool:
+        """Whether component ``name`` is a tolerance's (it scales with ``tolerance_sigma``)."""
+        return name in TOLERANCE_COMPONENTS and not (
+            (name == "spectrometer bandwidth" and (self.assumed_bandwidth or self.slit_measured))
+            or (name == "spectrometer scale" and self.scale_checked)
+        )
+
     def named(self, tolerance_sigma: float = 1.0) -> FloatArray:
         """The components' quadrature sum with the spectrometer tolerances as ``tolerance_sigma``."""
         total = np.zeros_like(self.error)
         for name, sigma in self.components.items():
-            scaled = name in TOLERANCE_COMPONENTS and not (
-                (name == "spectrometer bandwidth" and self.assumed_bandwidth)
-                or (name == "spectrometer scale" and self.scale_checked)
-            )
-            total = total + (sigma * (tolerance_sigma if scaled else 1.0)) ** 2
+            total = total + (sigma * (tolerance_sigma if self.scaled(name) else 1.0)) ** 2
         return np.asarray(np.sqrt(total), dtype=np.float64)
 
     def ratio(self, tolerance_sigma: float = 1.0) -> FloatArray:
@@ -167,6 +177,7 @@ def task_records(task: Task) -> list[EstimateRecord]:
                 outside,
                 prior,
                 scale_checked=scale_checked(result),
+                slit_measured=slit_measured(result),
             )
         )
     return out
@@ -176,6 +187,13 @@ def scale_checked(result: Any) -> bool:
     """Whether ``result``'s lamp spectra were corrected by a spectrometer-scale check."""
     record = result.diagnostics.get("spectrometer_scale_check")
     return isinstance(record, dict) and record.get("check") is not None
+
+
+def slit_measured(result: Any) -> bool:
+    """Whether ``result``'s spectrometer-scale check measured the slit (decision 0099)."""
+    record = result.diagnostics.get("spectrometer_scale_check")
+    check = record.get("check") if isinstance(record, dict) else None
+    return isinstance(check, dict) and check.get("slit_factor") is not None
 
 
 def task_ratios(task: Task, tolerance_sigma: float = 1.0) -> list[tuple[str, FloatArray]]:
@@ -248,12 +266,7 @@ def component_shares(records: Sequence[EstimateRecord], tolerance_sigma: float) 
         named = record.named(tolerance_sigma)
         total = float(np.mean(named**2))
         for name, sigma in record.components.items():
-            factor = (
-                tolerance_sigma
-                if name in TOLERANCE_COMPONENTS
-                and not (name == "spectrometer bandwidth" and record.assumed_bandwidth)
-                else 1.0
-            )
+            factor = tolerance_sigma if record.scaled(name) else 1.0
             share = float(np.mean((factor * sigma) ** 2)) / total if total > 0 else 0.0
             shares[name] = shares.get(name, 0.0) + share / len(records)
         error_rms = float(np.sqrt(np.mean(record.error**2)))
@@ -299,13 +312,14 @@ _RECORD_ARRAYS = ("error", "outside_basis", "prior_sigma")
 
 def save_records(records: Sequence[EstimateRecord], path: str) -> None:
     """Write ``records`` to a ``.npz`` (``--save``), one array per record and component, keyed
-    ``index__key__variant__assumed_bandwidth__scale_checked__name``; :func:`load_records` reads it,
+    ``index__key__variant__assumed_bandwidth__{scale_checked}{slit_measured}__name`` (a file
+    written before decision 0099 has no slit digit: not measured); :func:`load_records` reads it,
     so other tolerance σ, factors or component rules can be judged offline."""
     arrays: dict[str, Any] = {}
     for i, record in enumerate(records):
         key = (
             f"{i}__{record.key}__{record.variant}__{int(record.assumed_bandwidth)}"
-            f"__{int(record.scale_checked)}"
+            f"__{int(record.scale_checked)}{int(record.slit_measured)}"
         )
         arrays[f"{key}__error"] = record.error
         for name, sigma in record.components.items():
@@ -331,7 +345,8 @@ def load_records(path: str) -> list[EstimateRecord]:
                     "variant": variant,
                     "family": family or None,
                     "assumed_bandwidth": assumed == "1",
-                    "scale_checked": checked == "1",
+                    "scale_checked": checked[:1] == "1",
+                    "slit_measured": checked[1:] == "1",
                     "components": {},
                 },
             )
@@ -361,9 +376,51 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=None,
         help="judge only these variants (repeatable; default every default and extra one)",
     )
+    parser.add_argument(
+        "--grating",
+        default="sinusoidal",
+        help="grating kinds the scenes draw from: a comma-separated list of "
+        f"{', '.join(GRATING_KINDS)}, or mix (catalogue needs --catalogue)",
+    )
+    parser.add_argument("--catalogue", default=None, help="the maker's curve, for catalogue")
+    parser.add_argument(
+        "--predictions", type=int, default=0, help="add N predicted cameras to the validation split"
+    )
+    parser.add_argument(
+        "--group",
+        action="append",
+        default=None,
+        help="only the split's cameras of this group (repeatable, e.g. 'predicted curve')",
+    )
+    parser.add_argument(
+        "--load",
+        action="append",
+        default=None,
+        help="judge the union of these --save files instead of estimating (repeatable); each "
+        "file's coverage at the fitted factors is printed",
+    )
     args = parser.parse_args(argv)
-    splits, _ = load_splits(args.data_dir, seed=args.seed)
+    if args.load:
+        sets = {path: load_records(path) for path in args.load}
+        print(f"validation records: {', '.join(f'{p} ({len(r)})' for p, r in sets.items())}")
+        return judge(
+            [record for records in sets.values() for record in records],
+            args.tolerance_sigma,
+            args.target,
+            sets,
+        )
+    kinds = tuple(
+        kind for kind in GRATING_KINDS if args.grating == "mix" or kind in args.grating.split(",")
+    )
+    curve = None if args.catalogue is None else CatalogueGrating.from_file(args.catalogue)
+    if curve is None:
+        kinds = tuple(kind for kind in kinds if kind != "catalogue")
+    if not kinds:
+        parser.error(f"no grating kind to draw from --grating {args.grating}")
+    splits, _ = load_splits(args.data_dir, predictions=args.predictions, seed=args.seed)
     split = splits.validation
+    if args.group:
+        split = replace(split, cameras=tuple(c for c in split.cameras if c.group in args.group))
     if args.limit:
         split = replace(split, cameras=split.cameras[: args.limit])
     variants = (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)
@@ -372,16 +429,31 @@ def main(argv: Sequence[str] | None = None) -> int:
         if unknown:
             parser.error(f"unknown variant {'; '.join(unknown)}")
         variants = tuple(v for v in variants if v.label in args.variant)
-    settings = ProtocolSettings(seed=args.seed, variants=variants)
+    settings = ProtocolSettings(
+        seed=args.seed, grating_kinds=kinds, catalogue=curve, variants=variants
+    )
     records = validation_records(split, settings, jobs=args.jobs)
     if args.save:
         save_records(records, args.save)
     print(
-        f"validation split: {len(split.cameras)} cameras, seed {args.seed}, {len(records)} estimates"
+        f"validation split: {len(split.cameras)} cameras, seed {args.seed}, gratings "
+        f"{'/'.join(kinds)}, {len(records)} estimates"
     )
-    for tolerance_sigma in (float(item) for item in args.tolerance_sigma.split(",")):
+    return judge(records, args.tolerance_sigma, args.target)
+
+
+def judge(
+    records: Sequence[EstimateRecord],
+    tolerance_sigmas: str,
+    target: float = TARGET_COVERAGE,
+    sets: Mapping[str, Sequence[EstimateRecord]] | None = None,
+) -> int:
+    """Print, per tolerance σ of ``tolerance_sigmas`` (comma-separated), each factor key's fitted
+    factor and each variant's coverage; with ``sets`` (a name → its records, a part of
+    ``records`` each) also each set's coverage at the fitted factors."""
+    for tolerance_sigma in (float(item) for item in tolerance_sigmas.split(",")):
         ratios = ratios_by_method(records, tolerance_sigma)
-        scales = fit_coverage_scales(ratios, args.target)
+        scales = fit_coverage_scales(ratios, target)
         print(f"tolerance_sigma = {tolerance_sigma:.4g}")
         for method, values in sorted(ratios.items()):
             print(
@@ -404,6 +476,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
             print(
                 "      estimates covering (fitted) "
+                + ", ".join(
+                    f"{band} {100 * share:.0f} %"
+                    for band, share in scene_spread(per_estimate).items()
+                )
+            )
+        for name, members in (sets or {}).items():
+            per_estimate = [
+                float(np.mean(r.ratio(tolerance_sigma) <= WIDTH * scales[r.key])) for r in members
+            ]
+            print(
+                f"    {name}: {len(members)} estimates, {100 * float(np.mean(per_estimate)):.1f} % "
+                "fitted; estimates covering "
                 + ", ".join(
                     f"{band} {100 * share:.0f} %"
                     for band, share in scene_spread(per_estimate).items()
