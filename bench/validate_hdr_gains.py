@@ -9,7 +9,7 @@ rig's errors, profiles measured from the direct spot), so ``--merge-gains on`` p
 rows as ``calib validate`` with the same split and variants.
 
     python bench/validate_hdr_gains.py --split validation --data-dir DIR --merge-gains off \\
-        [--variant 'LED+FL' ...] [--jobs 1] [--out DIR]
+        [--variant 'LED+FL' ...] [--jobs 1] [--cameras N] [--out DIR]
 """
 
 from __future__ import annotations
@@ -25,7 +25,9 @@ from calib.evaluation.validation.protocol import (
     EXTRA_VARIANTS,
     ProtocolSettings,
     ValidationRow,
+    evaluate_task,
     run_split,
+    spread_tasks,
 )
 from calib.evaluation.validation.report import (
     markdown_report,
@@ -40,9 +42,15 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--split", choices=("validation", "test"), default="validation")
     parser.add_argument("--data-dir", type=Path, default=None)
-    parser.add_argument("--merge-gains", choices=("on", "off"), default="off")
+    parser.add_argument("--merge-gains", choices=("on", "off", "base"), default="off")
     parser.add_argument("--variant", action="append", default=None)
     parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument(
+        "--cameras",
+        type=int,
+        default=0,
+        help="at most this many cameras of the split, spread over its order (0: all)",
+    )
     parser.add_argument("--out", type=Path, default=Path("validation-hdr-gains"))
     args = parser.parse_args(argv)
     known = {v.label: v for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)}
@@ -51,11 +59,17 @@ def main(argv: list[str] | None = None) -> None:
     if unknown:
         parser.error(f"unknown variant {'; '.join(unknown)}; choose from {'; '.join(known)}")
     errors = RigErrors()
-    errors = replace(errors, photons=replace(errors.photons, merge_gains=args.merge_gains == "on"))
+    if args.merge_gains != "base":  # base: a tree before decision 0098 (no such switch)
+        photons = replace(errors.photons, merge_gains=args.merge_gains == "on")
+        errors = replace(errors, photons=photons)
     settings = ProtocolSettings(errors=errors, variants=tuple(known[label] for label in labels))
     loaded, _ = load_splits(args.data_dir)
     split = loaded.validation if args.split == "validation" else loaded.test
-    rows: list[ValidationRow] = run_split(split, settings, jobs=args.jobs)
+    if args.cameras:
+        tasks = spread_tasks(args.data_dir, args.split, settings, args.cameras)
+        rows: list[ValidationRow] = [row for task in tasks for row in evaluate_task(task)]
+    else:
+        rows = run_split(split, settings, jobs=args.jobs)
     command = "python bench/validate_hdr_gains.py " + shlex.join(
         sys.argv[1:] if argv is None else argv
     )

@@ -111,9 +111,10 @@ class CapturedLamp:
         Shape ``(3,)``.
     profile, profile_sigma
         Shape ``(n, 3)``.
-    frame_gains
-        Each frame's exposure as the merge estimated it (1 where it kept the recorded time),
-        shortest frame first.
+    frame_gains, frame_gain_sigmas
+        Each frame's exposure as the merge estimated it (1 where it kept the recorded time) and
+        the estimate's σ (0 for the first merged frame, ``None`` where the recorded time was kept
+        for want of overlap), shortest frame first.
     """
 
     direct: FloatArray
@@ -121,6 +122,7 @@ class CapturedLamp:
     profile: FloatArray
     profile_sigma: FloatArray
     frame_gains: tuple[float, ...]
+    frame_gain_sigmas: tuple[float | None, ...]
 
 
 def capture_lamp(
@@ -131,7 +133,7 @@ def capture_lamp(
     sensor: SensorDraw,
     electrons_per_unit: float,
     factors: Sequence[float],
-    exposure_errors: Sequence[float],
+    exposure_errors: Sequence[float] | FloatArray,
     rng: np.random.Generator,
 ) -> CapturedLamp:
     """The bracket of ``profile`` ``(n, 3)`` and ``direct`` ``(3,)`` through ``budget``'s sensor
@@ -186,11 +188,13 @@ def capture_lamp(
     variance = merged.variance.astype(np.float64) * scale**2
     spot = slice(0, slit.along.size)
     band = slice(slit.along.size + GAP_COLUMNS, None)
-    gains = {record.exposure_s: record.gain for record in merged.frames}
+    records = {record.exposure_s: record for record in merged.frames}
+    shortest_first = [records[SHORTEST_S * factor] for factor in factors]
     return CapturedLamp(
         direct=radiance[:, :, spot].sum(axis=(1, 2)),
         direct_sigma=np.sqrt(variance[:, :, spot].sum(axis=(1, 2))),
         profile=radiance[:, :, band].sum(axis=1).T,
         profile_sigma=np.sqrt(variance[:, :, band].sum(axis=1).T),
-        frame_gains=tuple(gains[SHORTEST_S * factor] for factor in factors),
+        frame_gains=tuple(record.gain for record in shortest_first),
+        frame_gain_sigmas=tuple(record.gain_sigma for record in shortest_first),
     )
