@@ -156,8 +156,15 @@ def capture_lamp(
     for index, factor in enumerate(factors):
         error = float(exposure_errors[index])
         level = image * np.float32(dn_per_electron * electrons_per_unit * factor * (1.0 + error))
-        sigma = np.sqrt((np.float32(dn_per_electron) * level + np.float32(read_dn**2)) / sites)
-        signal = level + sigma * rng.standard_normal(image.shape, dtype=np.float32)
+        # in place (a frame's temporaries are most of the scene's rendering cost):
+        # signal = level + √((g·level + σ²) / sites) · N(0, 1), clipped
+        sigma = np.multiply(level, np.float32(dn_per_electron))
+        sigma += np.float32(read_dn**2)
+        np.divide(sigma, sites, out=sigma)
+        np.sqrt(sigma, out=sigma)
+        signal = rng.standard_normal(image.shape, dtype=np.float32)
+        signal *= sigma
+        signal += level
         np.minimum(signal, np.float32(clip_dn), out=signal)
         meta = RawMetadata(
             Path(f"frame_{index}"), SHORTEST_S * factor, "override", None, None, None, None, None
