@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from calib.core.errors import EstimationError, InputError
-from calib.image.hdr import HdrImage, Unpacker, decode_order, merge_bracket
-from calib.image.raw import RawFileError, RawPlanes
+from calib.image.hdr import HdrImage, Unpacker, decode_order, merge_bracket, merge_planes
+from calib.image.raw import RawFileError, RawPlanes, read_raw
 from calib.image.sensor_noise import NoiseModel, robust_level_and_variance, robust_variance
 from mocks.dng import write_dng
 from mocks.scene import (
@@ -124,6 +124,17 @@ def test_a_shared_unpacker_gives_the_same_merge(bracket: list[Path], merged: Hdr
         np.testing.assert_array_equal(image.variance, merged.variance)
     order = decode_order(bracket, estimate_noise=False).paths
     assert order == [record.path for record in merged.frames]
+
+
+def test_decoded_planes_merge_as_their_files(bracket: list[Path]) -> None:
+    # merge_planes is merge_bracket's merge without the decoding (the validation protocol's)
+    from_files = merge_bracket(bracket, noise_model=TRUE_NOISE)
+    decoded = merge_planes([read_raw(path) for path in bracket], noise_model=TRUE_NOISE)
+    np.testing.assert_array_equal(decoded.radiance, from_files.radiance)
+    np.testing.assert_array_equal(decoded.variance, from_files.variance)
+    assert [r.gain for r in decoded.frames] == [r.gain for r in from_files.frames]
+    with pytest.raises(ValueError, match=r"own metadata\.path"):
+        merge_planes([read_raw(bracket[0]), read_raw(bracket[0])], noise_model=TRUE_NOISE)
 
 
 def test_a_plan_reads_each_file_s_metadata_once(

@@ -17,6 +17,7 @@ from calib.core.mapping import QuadraticMapping, wavelength_rms_from_covariance
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum
 from calib.evaluation.validation.budget import EstimateRecord, ratios_by_method
+from calib.evaluation.validation.capture import SlitImage, capture_lamp
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     EXTRA_VARIANTS,
@@ -307,39 +308,19 @@ def test_stray_light_is_a_lorentzian_wing_of_the_direct_spot() -> None:
     np.testing.assert_allclose(added[1, 0], 0.01 / (np.pi * 100.0) / 2)
 
 
-def test_the_photon_budget_states_its_noise_honestly(rng: np.random.Generator) -> None:
-    budget = PhotonBudget()
-    sensor = SensorDraw(20000.0, 3.0, 50)
-    profile = np.outer(np.exp(-0.5 * ((np.arange(400) - 200) / 60.0) ** 2), [1.0, 1.5, 0.5])
-    direct = np.array([400.0, 600.0, 200.0])
-    gain, factors = budget.bracket(profile, direct, sensor, 3 * 50, 0.5)
-    assert len(factors) >= 2  # the band needs longer frames than the spot
-    no_error = np.zeros(budget.max_frames)
-    draws = [budget.merge(profile, 50, sensor, gain, factors, no_error, rng) for _ in range(200)]
-    values = np.stack([d.values for d in draws])
-    z = (values - profile) / draws[0].sigma
-    assert float(np.std(z)) == pytest.approx(1.0, abs=0.05)
-    assert abs(float(np.mean(z))) < 0.05
-    # A frame that exposed 2 % longer than recorded reads 2 % high where it is used alone.
-    errors = np.zeros(budget.max_frames)
-    errors[0] = 0.02
-    spot = budget.merge(direct, 150, sensor, gain, factors[:1], errors, np.random.default_rng(1))
-    np.testing.assert_allclose(
-        spot.values / direct, 1.02, atol=5 * float(np.max(spot.sigma / direct))
-    )
-
-
 def test_a_band_brighter_than_the_spot_starts_the_bracket(rng: np.random.Generator) -> None:
     # A narrow blue LED through a sheet near its optimum phase: η₀ ≪ η₁, the band outshines the spot.
     budget = PhotonBudget()
     sensor = SensorDraw(20000.0, 3.0, 20)
     profile = np.outer(np.exp(-0.5 * ((np.arange(300) - 150) / 8.0) ** 2), [0.1, 0.3, 5.0])
-    direct = np.array([0.5, 1.0, 20.0])
-    gain, factors = budget.bracket(profile, direct, sensor, 4 * 20, 0.9)
+    direct = np.array([0.5, 1.0, 5.0])
+    slit = SlitImage.of(np.array([0.25, 0.5, 0.25]), sensor.band_rows, 0.5)
+    assert float(direct.max()) / slit.spot_px < float(profile.max()) / sensor.band_rows
+    gain, factors = budget.bracket(profile, direct, sensor, slit.spot_px, 0.9)
     brightest = gain * float(profile.max()) / sensor.band_rows
     assert brightest == pytest.approx(0.9 * budget.clip_fraction * sensor.full_well_e)
-    merged = budget.merge(profile, 20, sensor, gain, factors, np.zeros(8), rng)
-    assert np.all(np.isfinite(merged.sigma))
+    merged = capture_lamp(profile, direct, slit, budget, sensor, gain, factors, np.zeros(8), rng)
+    assert np.all(np.isfinite(merged.profile_sigma)) and np.all(np.isfinite(merged.direct_sigma))
 
 
 def test_a_scene_that_cannot_be_rendered_fails_its_rows_not_the_run(

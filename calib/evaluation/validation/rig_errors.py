@@ -34,8 +34,9 @@ source may be switched off (``None``). The defaults and why:
     the band's where a weak 0th order makes the band brighter (the rig's policy looks at the spot
     only, and would leave such a band clipped in every frame), frames
     grow by ``step_stops`` until the band's median SNR reaches ``min_band_snr`` (at most
-    ``max_frames``), and every pixel is the inverse-variance mean of the frames where it is below
-    ``clip_fraction`` of full well (:mod:`calib.image.hdr`).
+    ``max_frames``). The frames are rendered as the sensor sees the slit's image, soft edges and
+    all, and merged by the rig's own merge (:mod:`calib.image.hdr`; a sample is used below
+    ``clip_fraction`` of the clipping level): :mod:`~calib.evaluation.validation.capture`.
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.spectra import Spectrum
 from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
+from calib.image.raw import DEFAULT_SATURATION_FRACTION
+from calib.image.sensor_noise import SITES_PER_SAMPLE
 
 
 def _check_range(name: str, bounds: tuple[float, float], low: float = 0.0) -> None:
@@ -221,14 +224,6 @@ class SensorDraw:
 
 
 @dataclass(frozen=True)
-class ExposedSignal:
-    """A signal after the bracket and the HDR merge: values and stated σ (same units as given)."""
-
-    values: FloatArray
-    sigma: FloatArray
-
-
-@dataclass(frozen=True)
 class PhotonBudget:
     """Shot + read noise of a sensor behind the rig's HDR policy (module docstring)."""
 
@@ -241,8 +236,13 @@ class PhotonBudget:
     max_frames: int = 8
     dark_frames: int = 2
     clip_fraction: float = 0.9
-    #: The band's extent for the SNR check: where the summed profile exceeds this share of its peak.
-    band_extent_fraction: float = 0.05
+    #: The band's bright part for the SNR check: cells at least this share of its 98th percentile
+    #: (the rig's frame analyser's ``BRIGHT_FRACTION``, ``rig/frame_stats.py``).
+    bright_fraction: float = 0.25
+    #: The merge estimates each frame's gain from the samples it shares with the frames merged
+    #: before it, as the rig's merge does (decision 0089); ``False`` trusts the recorded times
+    #: (what the merge did before: shows what the estimate removes).
+    merge_gains: bool = True
 
     def __post_init__(self) -> None:
         _check_range("photons.full_well_range_e", self.full_well_range_e, 1.0)
@@ -280,9 +280,12 @@ class PhotonBudget:
         """Electrons per signal unit of the shortest frame and the frames' nominal exposure factors.
 
         The shortest frame puts the brightest pixel (spot or band) at ``spot_fill`` of the clipping
-        level; frames
-        ``× 2^step_stops`` are added while the last one's median band SNR (summed channels, over
-        the band's extent, unsaturated pixels) is below ``min_band_snr``.
+        level; frames ``× 2^step_stops`` are added while the last one's band SNR is below
+        ``min_band_snr``. The SNR is the one the rig's frame analyser judges the bracket by
+        (``rig/frame_stats.py``): the band's mean signal per 2×2 cell (the channels' mean) over its
+        bright part (cells at least :attr:`bright_fraction` of the band's 98th percentile), over the
+        noise of one such cell (unsaturated cells; their median noise) — one cell's SNR, not the
+        SNR of the profile summed over the slit's rows.
         """
         # The brightest pixel is the spot's, or the band's where a weak 0th order makes the band
         # brighter (a narrow LED through a sheet near its optimum phase).
@@ -292,68 +295,30 @@ class PhotonBudget:
         if peak_per_pixel <= 0:
             raise InputError("the direct spot and the band are dark", source="photon budget")
         gain = spot_fill * self.clip_fraction * sensor.full_well_e / peak_per_pixel
-        summed = profile.sum(axis=1)
-        extent = summed >= self.band_extent_fraction * float(summed.max())
-        read_variance = sensor.band_rows * self.read_variance_e2(sensor)
+        per_pixel = np.clip(profile, 0.0, None) / sensor.band_rows  # the band's flat top
+        cell = per_pixel.mean(axis=1)
+        bright = cell >= self.bright_fraction * float(np.percentile(cell, 98))
+        saturation = DEFAULT_SATURATION_FRACTION * sensor.full_well_e
+        sites = np.asarray(SITES_PER_SAMPLE, dtype=np.float64)
         factors: list[float] = []
         for frame in range(self.max_frames):
             factor = (2.0**self.step_stops) ** frame
             factors.append(factor)
-            electrons = gain * factor * profile[extent]
-            unsaturated = np.all(
-                electrons / sensor.band_rows < self.clip_fraction * sensor.full_well_e, axis=1
-            )
+            electrons = gain * factor * per_pixel[bright]
+            unsaturated = np.all(electrons < saturation, axis=1)
             if not unsaturated.any():
                 break
-            signal = electrons[unsaturated].sum(axis=1)
-            noise = np.sqrt(
-                np.clip(electrons[unsaturated], 0, None).sum(axis=1) + 3 * read_variance
-            )
-            if float(np.median(signal / noise)) >= self.min_band_snr:
+            signal = float(np.minimum(electrons, sensor.full_well_e).mean())
+            cell_variance = ((electrons[unsaturated] + sensor.read_noise_e**2) / sites).sum(
+                axis=1
+            ) / 9.0
+            if signal / math.sqrt(float(np.median(cell_variance))) >= self.min_band_snr:
                 break
         return gain, factors
 
     def read_variance_e2(self, sensor: SensorDraw) -> float:
         """Read variance of one dark-subtracted pixel (e⁻²)."""
         return sensor.read_noise_e**2 * (1.0 + 1.0 / self.dark_frames)
-
-    def merge(
-        self,
-        values: FloatArray,
-        pixels_per_sample: float,
-        sensor: SensorDraw,
-        gain: float,
-        factors: list[float],
-        exposure_errors: FloatArray,
-        rng: np.random.Generator,
-    ) -> ExposedSignal:
-        """The HDR-merged ``values`` (any shape) and their stated σ, each sample the sum of
-        ``pixels_per_sample`` pixels of equal level.
-
-        Frame ``k`` records ``gain · factor_k`` electrons per unit but exposes
-        ``gain · factor_k · (1 + ε_k)``; its samples are usable below ``clip_fraction`` of full
-        well (predicted from the expected level, as :mod:`calib.image.hdr` predicts from the
-        neighbours), and the merge is their inverse-variance mean.
-        """
-        clean = np.clip(np.asarray(values, dtype=np.float64), 0.0, None)
-        weight_sum = np.zeros_like(clean)
-        weighted = np.zeros_like(clean)
-        read_variance = pixels_per_sample * self.read_variance_e2(sensor)
-        for factor, error in zip(factors, exposure_errors, strict=False):
-            recorded = gain * factor
-            expected = recorded * clean
-            usable = expected / pixels_per_sample < self.clip_fraction * sensor.full_well_e
-            exposed = expected * (1.0 + float(error))
-            observed = exposed + np.sqrt(exposed + read_variance) * rng.standard_normal(clean.shape)
-            variance = (expected + read_variance) / recorded**2
-            weight = np.where(usable, 1.0 / variance, 0.0)
-            weight_sum += weight
-            weighted += weight * observed / recorded
-        if np.any(weight_sum <= 0):
-            raise InputError(
-                "a sample is saturated in every frame of the bracket", source="photon budget"
-            )
-        return ExposedSignal(weighted / weight_sum, 1.0 / np.sqrt(weight_sum))
 
 
 @dataclass(frozen=True)

@@ -31,8 +31,10 @@ Rendering one lamp (all orders through :func:`calib.model.forward.render_observa
    the slit and the lens;
 3. the direct signal through the 0th order's own ``η₀(λ)``;
 4. stray light of the direct spot along the band (:class:`~.rig_errors.StrayLight`);
-5. the bracket and the HDR merge with shot and read noise and per-frame exposure errors
-   (:class:`~.rig_errors.PhotonBudget`), which also give the stated σ;
+5. the bracket with shot and read noise and per-frame exposure errors
+   (:class:`~.rig_errors.PhotonBudget`), the spot and the band rendered as the slit's image with
+   the lens blur's soft edges and merged by the rig's HDR merge
+   (:mod:`~.capture`), which also gives the stated σ;
 6. the lamp's *reference* spectrum as the spectrometer reports the undrifted lamp
    (:class:`~.rig_errors.SpectrometerError`), with its bandwidth stated.
 """
@@ -55,6 +57,7 @@ from calib.core.mapping import TiltedGrating
 from calib.core.observations import LampKind, LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
 from calib.evaluation.synthetic import lamp_kind
+from calib.evaluation.validation.capture import SlitImage, capture_lamp
 from calib.evaluation.validation.rig_errors import (
     RigErrors,
     SensorDraw,
@@ -397,15 +400,21 @@ def render_scene(
         seen = drifted(reference, draw.drift_gain, draw.drift_tilt_per_100nm)
         profile, direct = clean_signals(plan, seen, camera)
         clean[spec] = (profile, direct)
-        spot_px = max(shape.slit_width_px, 1.0) * plan.sensor.band_rows
+        slit = SlitImage.of(shape.line_spread, plan.sensor.band_rows, shape.psf_sigma_px)
         gain, factors = errors.photons.bracket(
-            profile, direct, plan.sensor, spot_px, draw.spot_fill
+            profile, direct, plan.sensor, slit.spot_px, draw.spot_fill
         )
-        errors_k = np.asarray(draw.exposure_errors)
-        band = errors.photons.merge(
-            profile, plan.sensor.band_rows, plan.sensor, gain, factors, errors_k, rng
+        captured = capture_lamp(
+            profile,
+            direct,
+            slit,
+            errors.photons,
+            plan.sensor,
+            gain,
+            factors,
+            draw.exposure_errors,
+            rng,
         )
-        spot = errors.photons.merge(direct, spot_px, plan.sensor, gain, factors, errors_k, rng)
         if plan.spectrometer is not None and errors.spectrometer is not None:
             measured = errors.spectrometer.measure(reference, plan.spectrometer, rng)
             bandwidth: float | None = plan.spectrometer.bandwidth_nm
@@ -416,12 +425,16 @@ def render_scene(
             name=spec,
             spectrum=measured,
             pixel=shape.pixel,
-            profile=band.values,
-            direct_rgb=spot.values,
-            profile_sigma=band.sigma,
-            direct_sigma=spot.sigma,
+            profile=captured.profile,
+            direct_rgb=captured.direct,
+            profile_sigma=captured.profile_sigma,
+            direct_sigma=captured.direct_sigma,
             kind=kind,
-            metadata={"rendered": "validation scene", "frames": len(factors)},
+            metadata={
+                "rendered": "validation scene",
+                "frames": len(factors),
+                "frame_gains": list(captured.frame_gains),
+            },
             spectrum_bandwidth_nm=bandwidth,
             line_spread=shape.line_spread,
             pixel_origin="direct_spot",
