@@ -29,7 +29,7 @@ from __future__ import annotations
 import zlib
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -296,6 +296,7 @@ def load_splits(
     seed: int = 0,
     out_of_basis: bool = True,
     exclude: Sequence[str] = (),
+    transformed: int = 0,
 ) -> tuple[Splits, list[str]]:
     """The splits of a data directory, and notes on collections that are missing.
 
@@ -312,6 +313,10 @@ def load_splits(
     exclude
         Patterns of training cameras to keep out of every basis (``--exclude-camera``,
         :func:`calib.core.datasets.exclude_cameras`); they leave the validation split with them.
+    transformed
+        How many physically transformed validation cameras join the validation split (IR-cut
+        edge, blue edge, dye shifts, colour filters: :mod:`calib.evaluation.validation.transforms`,
+        drawn with ``seed`` from the split's other cameras; decision 0094).
     """
     from calib.evaluation.synthetic import out_of_basis_cameras
 
@@ -345,4 +350,10 @@ def load_splits(
         else []
     )
     splits = make_splits(training, paper_test, others, extra, predicted, BodyIndex(aliases))
+    if transformed > 0:
+        from calib.evaluation.validation.transforms import transformed_cameras
+
+        validation = splits.validation
+        added = transformed_cameras(validation.cameras, transformed, seed)
+        splits = Splits(replace(validation, cameras=(*validation.cameras, *added)), splits.test)
     return splits, missing
