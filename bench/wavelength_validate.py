@@ -81,7 +81,7 @@ LED = "LED-B3"
 
 def mapping_errors(
     mapping: Any, pixel: np.ndarray, true_nm: np.ndarray, grid_nm: tuple[float, float]
-) -> dict[str, float]:
+) -> dict[str, Any]:
     inside = (true_nm >= grid_nm[0]) & (true_nm <= grid_nm[1])
     error = np.asarray(mapping.wavelength_nm(pixel[inside])) - true_nm[inside]
     sigma = mapping_sigma_nm(mapping, pixel[inside])
