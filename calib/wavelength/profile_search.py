@@ -124,9 +124,10 @@ AMBIGUITY_DELTA_CHI2 = 25.0
 #: basin win by more: over 200 physically transformed validation cameras (IR-cut edge, blue
 #: edge, CFA dye shifts, colour filters; :mod:`calib.evaluation.validation.transforms`, LED only
 #: with and without EXIF) the truth's basin stood 25–47 behind the chosen one, and the right
-#: mappings' runner-up had a median of 243. 100 warns on 9 of the 16 wrong mappings left
-#: unwarned by 25, and on 8 % of the validation split's right ones (101 cameras; 25: 1 %, 50:
-#: 2 %, 200: 21 %). Decision 0094.
+#: mappings' runner-up had a median of 243. 100 warns on 7 of the 16 wrong mappings (> 3 nm)
+#: left unwarned by 25 (the 9 left: CFA dyes shifted 4–8 nm, no basin nearer the truth), and on
+#: 8 % (EXIF) and 16 % (no EXIF) of the right mappings of the validation split's 101 cameras
+#: (with EXIF, offline: 25: 1 %, 50: 2 %, 200: 21 %). Decision 0094.
 BROADBAND_AMBIGUITY_DELTA_CHI2 = 100.0
 #: A competing basin closer than this (RMS, nm) is the same answer, whatever its Δχ².
 AMBIGUITY_MIN_DISTANCE_NM = 1.0
