@@ -70,8 +70,7 @@ from calib.evaluation.validation.protocol import (
     variant_observations,
 )
 from calib.evaluation.validation.scenes import RenderedScene, render_scene
-from calib.evaluation.validation.splits import PREDICTION, load_splits
-from calib.evaluation.validation.transforms import TRANSFORMED
+from calib.evaluation.validation.splits import PREDICTION, TRANSFORMED, load_splits
 from calib.methods import estimate
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.rig_prior import rig_geometry

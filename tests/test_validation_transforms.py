@@ -6,16 +6,19 @@ import numpy as np
 import pytest
 
 from calib.core.spectra import MultiSpectrum
-from calib.evaluation.validation.splits import LEAVE_ONE_OUT, SplitCamera
+from calib.evaluation.validation.splits import (
+    LEAVE_ONE_OUT,
+    TRANSFORMED,
+    SplitCamera,
+    transformed_cameras,
+)
 from calib.evaluation.validation.transforms import (
     EDGE_FRACTION,
     TRANSFORM_KINDS,
-    TRANSFORMED,
     filtered,
     move_edge,
     shift_dyes,
     transform_camera,
-    transformed_cameras,
 )
 
 

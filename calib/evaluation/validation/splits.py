@@ -63,6 +63,8 @@ PREDICTION = "predicted curve"
 PAPER_TEST = "paper test"
 OTHER_COLLECTIONS = "other collections"
 OUT_OF_BASIS = "out of basis"
+#: Validation cameras changed physically (:mod:`calib.evaluation.validation.transforms`).
+TRANSFORMED = "physically transformed"
 
 
 class SplitRoleError(InputError):
@@ -289,6 +291,26 @@ def make_splits(
     )
 
 
+def transformed_cameras(cameras: Sequence[SplitCamera], count: int, seed: int) -> list[SplitCamera]:
+    """``count`` transformed copies of ``cameras``, the bases drawn in turn from a shuffled order
+    and the kinds in turn, all from ``seed``; each keeps its base's body and collection."""
+    from calib.evaluation.validation.transforms import TRANSFORM_KINDS, transform_camera
+
+    if count <= 0 or not cameras:
+        return []
+    rng = np.random.default_rng([seed, 94])
+    order = rng.permutation(len(cameras))
+    out: list[SplitCamera] = []
+    for k in range(count):
+        base = cameras[int(order[k % len(cameras)])]
+        kind = TRANSFORM_KINDS[k % len(TRANSFORM_KINDS)]
+        sensitivity, text = transform_camera(base.sensitivity, kind, rng)
+        out.append(
+            replace(base, name=f"{base.name} · {text}", group=TRANSFORMED, sensitivity=sensitivity)
+        )
+    return out
+
+
 def load_splits(
     data_dir: str | Path | None = None,
     *,
@@ -351,8 +373,6 @@ def load_splits(
     )
     splits = make_splits(training, paper_test, others, extra, predicted, BodyIndex(aliases))
     if transformed > 0:
-        from calib.evaluation.validation.transforms import transformed_cameras
-
         validation = splits.validation
         added = transformed_cameras(validation.cameras, transformed, seed)
         splits = Splits(replace(validation, cameras=(*validation.cameras, *added)), splits.test)

@@ -20,23 +20,19 @@ camera's optics explain (decision 0094). Each transformed camera is a validation
 ``yellow-filter``
     Behind a yellow (UV/haze, Wratten-2/8-like) filter cutting the blue below 420–470 nm.
 
-A transformed camera keeps its body (its basis leaves that body out, as for the camera it came
+A transformed camera (:func:`calib.evaluation.validation.splits.transformed_cameras`) keeps its body (its basis leaves that body out, as for the camera it came
 from), so it stays a validation camera: tuning may look at it; no test camera is used.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.spectra import MultiSpectrum
-
-if TYPE_CHECKING:
-    from calib.evaluation.validation.splits import SplitCamera
 
 TransformKind = Literal["ir-cut", "blue-edge", "dyes", "blue-filter", "yellow-filter"]
 TRANSFORM_KINDS: tuple[TransformKind, ...] = (
@@ -46,8 +42,6 @@ TRANSFORM_KINDS: tuple[TransformKind, ...] = (
     "blue-filter",
     "yellow-filter",
 )
-#: The group of transformed cameras in the validation split (a column of the tables).
-TRANSFORMED = "physically transformed"
 #: Sampling (nm) the transforms work at.
 STEP_NM = 1.0
 #: The edge of a summed signal: where it falls to this fraction of its peak (as the mapping's red
@@ -144,21 +138,3 @@ def transform_camera(
     values = np.clip(values, 0.0, None)
     values = values / float(np.max(values))
     return MultiSpectrum(axis, values, camera.channels, name=f"{camera.name} · {text}"), text
-
-
-def transformed_cameras(cameras: Sequence[SplitCamera], count: int, seed: int) -> list[SplitCamera]:
-    """``count`` transformed copies of ``cameras``, the bases drawn in turn from a shuffled order
-    and the kinds in turn, all from ``seed``; each keeps its base's body and collection."""
-    if count <= 0 or not cameras:
-        return []
-    rng = np.random.default_rng([seed, 94])
-    order = rng.permutation(len(cameras))
-    out: list[SplitCamera] = []
-    for k in range(count):
-        base = cameras[int(order[k % len(cameras)])]
-        kind = TRANSFORM_KINDS[k % len(TRANSFORM_KINDS)]
-        sensitivity, text = transform_camera(base.sensitivity, kind, rng)
-        out.append(
-            replace(base, name=f"{base.name} · {text}", group=TRANSFORMED, sensitivity=sensitivity)
-        )
-    return out
