@@ -70,7 +70,7 @@ from calib.evaluation.validation.protocol import (
     variant_observations,
 )
 from calib.evaluation.validation.scenes import RenderedScene, render_scene
-from calib.evaluation.validation.splits import PREDICTION, load_splits
+from calib.evaluation.validation.splits import PREDICTION, TRANSFORMED, load_splits
 from calib.methods import estimate
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.rig_prior import rig_geometry
@@ -80,7 +80,7 @@ LED = "LED-B3"
 
 def mapping_errors(
     mapping: Any, pixel: np.ndarray, true_nm: np.ndarray, grid_nm: tuple[float, float]
-) -> dict[str, float]:
+) -> dict[str, Any]:
     inside = (true_nm >= grid_nm[0]) & (true_nm <= grid_nm[1])
     error = np.asarray(mapping.wavelength_nm(pixel[inside])) - true_nm[inside]
     sigma = mapping_sigma_nm(mapping, pixel[inside])
@@ -89,7 +89,13 @@ def mapping_errors(
     # The protocol's own share (calib.evaluation.validation.protocol.mapping_scores): pixels
     # whose |Δλ| is within ±2σ.
     covered = float("nan") if sigma is None else float(np.mean(np.abs(error) <= 2.0 * sigma))
+    probe = np.linspace(0, error.size - 1, 32).astype(int)
     return {
+        # Per-pixel error and σ at 32 pixels (for re-sizing σ offline on the validation split).
+        "errors_nm": json.dumps([round(float(v), 4) for v in error[probe]]),
+        "sigmas_nm": json.dumps(
+            [] if sigma is None else [round(float(v), 4) for v in np.asarray(sigma)[probe]]
+        ),
         "coverage": covered,
         "mean_abs_nm": float(np.mean(np.abs(error))),
         "max_abs_nm": float(np.max(np.abs(error))),
@@ -171,6 +177,15 @@ def led_row(
         "nearest_basin": nearest[1],
         "nearest_basin_mean_abs_nm": nearest[0],
         "reduced_chi2": solution.details.get("reduced_chi2", float("nan")),
+        **{
+            key: solution.details.get(key, float("nan"))
+            for key in (
+                "local_rms_nm",
+                "basin_spread_nm",
+                "prior_misfit_sigma_nm",
+                "spectrometer_scale_sigma_nm",
+            )
+        },
         **edge_columns(solution.details.get("red_edge_nm"), led, scene.true_wavelength_nm),
         "basins": json.dumps(
             [
@@ -362,6 +377,18 @@ def main() -> None:
         help="with --predictions: run the predicted cameras only (not the 44 leave-one-out ones)",
     )
     parser.add_argument(
+        "--transformed",
+        type=int,
+        default=0,
+        help="validation split: add this many physically transformed validation cameras (as "
+        "`calib validate --transformed`)",
+    )
+    parser.add_argument(
+        "--only-transformed",
+        action="store_true",
+        help="with --transformed: run the transformed cameras only",
+    )
+    parser.add_argument(
         "--no-optics",
         action="store_true",
         help="led: the profiles as `calib validate` has them (no EXIF focal length or pitch)",
@@ -375,10 +402,16 @@ def main() -> None:
         rig_prior_module.same_lens = lambda stored, new: None
     if args.predictions and args.split != "validation":
         parser.error("--predictions joins the validation split only")
-    splits, _notes = load_splits(args.data_dir, predictions=args.predictions, seed=args.seed)
+    if args.transformed and args.split != "validation":
+        parser.error("--transformed joins the validation split only")
+    splits, _notes = load_splits(
+        args.data_dir, predictions=args.predictions, seed=args.seed, transformed=args.transformed
+    )
     split = splits.validation if args.split == "validation" else splits.test
     if args.only_predicted:
         split = replace(split, cameras=tuple(c for c in split.cameras if c.group == PREDICTION))
+    if args.only_transformed:
+        split = replace(split, cameras=tuple(c for c in split.cameras if c.group == TRANSFORMED))
     settings = ProtocolSettings(seed=args.seed)
     tasks = split_tasks(split, settings)
     if args.cameras is not None:

@@ -23,6 +23,9 @@ from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFami
 from calib.wavelength.locate import locate_mapping
 from calib.wavelength.peaks import fluorescent_starts, lines_and_peaks
 from calib.wavelength.profile_search import (
+    AMBIGUITY_DELTA_CHI2,
+    AMBIGUITY_MIN_DISTANCE_NM,
+    BROADBAND_AMBIGUITY_DELTA_CHI2,
     DECIDING_LOCAL_INCIDENCE_DEG,
     DECIDING_LOCAL_SCAN,
     MISFIT_WARN_TEMPER,
@@ -99,6 +102,8 @@ def test_fluorescent_lines_and_led_jointly(prior, camera, nikon, which):
     assert mapping.details["mapping_lamps"] == ["FL2", "LED-B3"]
     # The NPL-measured Nikon is far from the offline prior's curves: looser, but still < 1 %.
     assert _mapping_re(mapping) < (2e-3 if which == "canon" else 1e-2)
+    # Lines pin the mapping: the ambiguity threshold stays the line lamps' (decision 0094).
+    assert mapping.details["ambiguity_delta_chi2"] == AMBIGUITY_DELTA_CHI2
 
 
 def test_basins_far_behind_lines_are_costed_not_refined(prior, camera, monkeypatch):
@@ -318,6 +323,13 @@ def test_a_profile_the_prior_fits_badly_warns_and_widens_sigma(prior, camera, mo
     temper = quiet.details["temper"]
     assert temper < MISFIT_WARN_TEMPER
     assert not quiet.ambiguous and quiet.warnings == ()
+    # A broadband lamp alone: a basin within the wider threshold would be an ambiguity (decision
+    # 0094), so every other basin apart from this one stands beyond it.
+    assert quiet.details["ambiguity_delta_chi2"] == BROADBAND_AMBIGUITY_DELTA_CHI2
+    assert BROADBAND_AMBIGUITY_DELTA_CHI2 > AMBIGUITY_DELTA_CHI2
+    for other in quiet.details["candidates"][1:]:
+        if other["rms_distance_nm"] > AMBIGUITY_MIN_DISTANCE_NM:
+            assert other["delta_chi2"] >= BROADBAND_AMBIGUITY_DELTA_CHI2
     stated = quiet.mapping.wavelength_rms_nm
     assert stated is not None and stated >= prior_misfit_sigma_nm(temper)
     monkeypatch.setattr(profile_search, "MISFIT_WARN_TEMPER", 0.5)

@@ -106,6 +106,14 @@ def register(app: typer.Typer) -> None:
                 "split.",
             ),
         ] = 0,
+        transformed: Annotated[
+            int,
+            typer.Option(
+                min=0,
+                help="Add this many physically transformed validation cameras (IR-cut edge moved, "
+                "blue edge, dye shifts, colour filters) to the validation split.",
+            ),
+        ] = 0,
         errors: Annotated[
             str,
             typer.Option(
@@ -193,7 +201,11 @@ def register(app: typer.Typer) -> None:
         )
         excluded = tuple(exclude_camera or ())
         loaded, missing = load_splits(
-            data_dir, predictions=predictions, seed=seed, exclude=excluded
+            data_dir,
+            predictions=predictions,
+            seed=seed,
+            exclude=excluded,
+            transformed=transformed,
         )
         chosen: list[Split] = [
             s for s in (loaded.validation, loaded.test) if split in ("both", s.role)

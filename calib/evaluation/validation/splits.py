@@ -29,7 +29,7 @@ from __future__ import annotations
 import zlib
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -63,6 +63,8 @@ PREDICTION = "predicted curve"
 PAPER_TEST = "paper test"
 OTHER_COLLECTIONS = "other collections"
 OUT_OF_BASIS = "out of basis"
+#: Validation cameras changed physically (:mod:`calib.evaluation.validation.transforms`).
+TRANSFORMED = "physically transformed"
 
 
 class SplitRoleError(InputError):
@@ -289,6 +291,26 @@ def make_splits(
     )
 
 
+def transformed_cameras(cameras: Sequence[SplitCamera], count: int, seed: int) -> list[SplitCamera]:
+    """``count`` transformed copies of ``cameras``, the bases drawn in turn from a shuffled order
+    and the kinds in turn, all from ``seed``; each keeps its base's body and collection."""
+    from calib.evaluation.validation.transforms import TRANSFORM_KINDS, transform_camera
+
+    if count <= 0 or not cameras:
+        return []
+    rng = np.random.default_rng([seed, 94])
+    order = rng.permutation(len(cameras))
+    out: list[SplitCamera] = []
+    for k in range(count):
+        base = cameras[int(order[k % len(cameras)])]
+        kind = TRANSFORM_KINDS[k % len(TRANSFORM_KINDS)]
+        sensitivity, text = transform_camera(base.sensitivity, kind, rng)
+        out.append(
+            replace(base, name=f"{base.name} · {text}", group=TRANSFORMED, sensitivity=sensitivity)
+        )
+    return out
+
+
 def load_splits(
     data_dir: str | Path | None = None,
     *,
@@ -296,6 +318,7 @@ def load_splits(
     seed: int = 0,
     out_of_basis: bool = True,
     exclude: Sequence[str] = (),
+    transformed: int = 0,
 ) -> tuple[Splits, list[str]]:
     """The splits of a data directory, and notes on collections that are missing.
 
@@ -312,6 +335,10 @@ def load_splits(
     exclude
         Patterns of training cameras to keep out of every basis (``--exclude-camera``,
         :func:`calib.core.datasets.exclude_cameras`); they leave the validation split with them.
+    transformed
+        How many physically transformed validation cameras join the validation split (IR-cut
+        edge, blue edge, dye shifts, colour filters: :mod:`calib.evaluation.validation.transforms`,
+        drawn with ``seed`` from the split's other cameras; decision 0094).
     """
     from calib.evaluation.synthetic import out_of_basis_cameras
 
@@ -345,4 +372,8 @@ def load_splits(
         else []
     )
     splits = make_splits(training, paper_test, others, extra, predicted, BodyIndex(aliases))
+    if transformed > 0:
+        validation = splits.validation
+        added = transformed_cameras(validation.cameras, transformed, seed)
+        splits = Splits(replace(validation, cameras=(*validation.cameras, *added)), splits.test)
     return splits, missing
