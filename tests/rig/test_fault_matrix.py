@@ -548,6 +548,13 @@ def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninte
     assert (resume.previous_status, resume.previous_reason) == ("interrupted", reason)
 
 
+#: The hang guard of a kill -9 row (pytest-timeout; not a speed check): it runs two captures (one
+#: in a child process), a resume, up to two estimates and a replay, which on a machine loaded 10×
+#: its cores takes longer than the suite's 120 s although nothing hangs.
+KILL_TEST_TIMEOUT_S = 360
+
+
+@pytest.mark.timeout(KILL_TEST_TIMEOUT_S)
 @pytest.mark.parametrize(
     ("emulate", "during", "estimate", "lag"),
     [
