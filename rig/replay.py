@@ -100,6 +100,11 @@ MASKED_KEYS = frozenset(
     }
 )
 MASK = "<masked>"
+#: The rig's retries, without their backoff: the timeline moves the clock to each step's recorded
+#: end (:meth:`_Timeline.step_hook`), which already holds the backoffs the recording waited out;
+#: waiting them again would put every later step that much later than recorded (a retry's
+#: ``backoff_s`` is masked when the logs are compared).
+REPLAY_RETRY = RetryPolicy(initial_s=0.0, max_s=0.0)
 
 
 class ReplayRefused(RigError):
@@ -643,7 +648,7 @@ def _replay_run(
             writer.record_limit = len(run.records)
             writer.on_kill = check.kill_point
 
-    options = RunOptions(timeline, interrupts, RetryPolicy(), builder, on_session)
+    options = RunOptions(timeline, interrupts, REPLAY_RETRY, builder, on_session)
     if run.number == 1:
         outcome = run_on_station(
             run.config,
@@ -658,7 +663,7 @@ def _replay_run(
             run.config,
             progress=timeline,
             interrupts=interrupts,
-            retry=RetryPolicy(),
+            retry=REPLAY_RETRY,
             builder=builder,
             on_session=on_session,
         )

@@ -23,9 +23,10 @@ written (:func:`prepare_resume`); any problem is a one-line refusal (exit 2):
 
 Then :func:`rig.capture.run_on_station` opens the devices under the signal handlers (a device that
 cannot be opened changes nothing in the session) and only then continues the session: temporaries
-a killed run left (``.incoming-*``, the camera's ``..incoming-*.partial``, ``.reserve``) are
-removed, a torn last line of the log or of a killed run's transcript is moved aside
-(``<name>.torn-<n>``), and a new run (``run`` + 1, its own transcripts) begins. The runner reads the
+a killed run left (``.incoming-*``, the camera's ``..incoming-*.partial``, ``.reserve``) and any
+frame or spectrum no ``file`` record acknowledges (renamed into place when the run was killed) are
+removed, so the log alone decides what the new run stores under which name (it replays so); a
+torn last line of the log or of a killed run's transcript is moved aside (``<name>.torn-<n>``); and a new run (``run`` + 1, its own transcripts) begins. The runner reads the
 relays and switches every lamp off before anything else, checks that every device is the
 instrument the session was captured with (model and serial; another port is fine, another camera
 body or spectrometer is refused as ``resume_mismatch``), then writes the start record, the

@@ -639,6 +639,8 @@ class SessionWriter:
         SessionWriteError
             The disk is full or failing.
         """
+        if self._killed:  # a killed process renames nothing more either (a replayed kill)
+            raise SessionWriteError(f"{self.path}: the run was stopped here (replayed kill)")
         directory, _, _ = check_session_path(relative).rpartition("/")
         with self.guard():
             try:
@@ -877,7 +879,11 @@ def check_before_writing(session: Session) -> list[Path]:
     special file: a link planted there (a lamp directory pointing elsewhere, a temporary name
     pointing at a file to overwrite) is refused, named, before any device is opened. Leftovers are
     the temporaries a killed run left (``.incoming-*``, the camera's ``..incoming-*.partial``, the
-    ``.reserve`` file), to be removed by :func:`remove_leftovers` when the session is continued.
+    ``.reserve`` file) and any frame or spectrum no ``file`` record acknowledges (a run killed, or
+    stopped by a full disk, between renaming it into place and writing its record), to be removed
+    by :func:`remove_leftovers` when the session is continued. The log alone then decides what the
+    new run finds on disk, so the names it gives its files (``stem.2.ext`` when ``stem.ext`` is
+    taken) do not depend on where in a store the previous run stopped: a replay gives the same.
 
     Raises
     ------
@@ -885,6 +891,9 @@ def check_before_writing(session: Session) -> list[Path]:
         A data directory is not a directory, or something in them is a link or special file.
     """
     leftovers: list[Path] = []
+    acknowledged = {
+        session.path / record.path for record in session.records if isinstance(record, FileRecord)
+    }
     reserve = session.path / RESERVE_NAME
     if os.path.lexists(reserve):
         if not stat.S_ISREG(reserve.lstat().st_mode):
@@ -900,7 +909,10 @@ def check_before_writing(session: Session) -> list[Path]:
             path = Path(entry.path)
             if not is_plain(entry):
                 raise _planted(session, path)
-            if entry.is_file(follow_symlinks=False) and _is_leftover(entry.name):
+            if entry.is_file(follow_symlinks=False) and (
+                _is_leftover(entry.name) or (name != TRANSCRIPTS_DIR and path not in acknowledged)
+            ):
+                # A killed run's transcripts are acknowledged by the resume itself, not here.
                 leftovers.append(path)
     return sorted(leftovers)
 
