@@ -451,25 +451,24 @@ def canon_section(folder: Path, data_dir: Path) -> None:
         + ")"
     )
     print("  solar reference (vs each truth, per channel):")
-    cells = []
-    for blur in (0.0, 1.0, 2.0, 4.0):
-        solar = blurred(solar_spectrum(folder), blur)
+
+    def with_solar(solar: Spectrum) -> str:
+        """The per-channel RMS against each truth with ``solar`` as the sun's spectrum."""
         variant = canon_10d_inputs(folder, data_dir, solar=solar)
         again = estimate([variant.sun], basis=variant.basis, grating=variant.grating, budget=None)
-        values = " / ".join(
+        return " / ".join(
             f"{rms(curve_difference(again.physical_sensitivity(), t, per_channel=True)):.4f}"
             for t in truths
         )
-        cells.append(f"Gaussian σ {blur:g} nm: {values}")
-    for airmass in (1.0, 1.5, 3.0):
-        solar = at_airmass(folder, airmass)
-        variant = canon_10d_inputs(folder, data_dir, solar=solar)
-        again = estimate([variant.sun], basis=variant.basis, grating=variant.grating, budget=None)
-        values = " / ".join(
-            f"{rms(curve_difference(again.physical_sensitivity(), t, per_channel=True)):.4f}"
-            for t in truths
-        )
-        cells.append(f"airmass {airmass:g}: {values}")
+
+    cells = [
+        f"Gaussian σ {blur:g} nm: {with_solar(blurred(solar_spectrum(folder), blur))}"
+        for blur in (0.0, 1.0, 2.0, 4.0)
+    ]
+    cells += [
+        f"airmass {airmass:g}: {with_solar(at_airmass(folder, airmass))}"
+        for airmass in (1.0, 1.5, 3.0)
+    ]
     print("      " + "\n      ".join(cells))
     flat_grating = GratingEfficiency(np.array([350.0, 800.0]), np.array([1.0, 1.0]), source="flat")
     flat = estimate([inputs.sun], basis=inputs.basis, grating=flat_grating, budget=None)
