@@ -617,3 +617,68 @@ def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
                 penalty_residual,
                 penalty_nodes[:, :size] @ fresh + penalty_nodes[:, size:] @ solution[terms:],
             )
+
+
+def test_a_channel_darker_than_the_spectrums_floor_gets_its_share_of_sigma() -> None:
+    """Each channel's direct σ is at least :data:`SPECTRUM_FLOOR` of the lamp's brightest: the
+    blue of a red LED (10⁻⁴ of its red) is left to the spectrometer's noise, the red itself
+    barely moves."""
+    from calib.methods.multilamp import SPECTRUM_FLOOR, with_spectrum_floor
+    from calib.methods.responses import LampData
+
+    lamp = LampData(
+        "gauss:630:20",
+        np.ones(4),
+        None,  # type: ignore[arg-type]  # the floor reads only the direct measurement
+        np.array([9.0, 0.2, 9e-4]),
+        np.array([2e-3, 6e-5, 2e-5]),
+    )
+    floored = with_spectrum_floor(lamp, SPECTRUM_FLOOR)
+    assert floored.direct_sigma[2] == pytest.approx(SPECTRUM_FLOOR * 9.0, rel=1e-3)
+    assert floored.direct_sigma[2] > floored.direct[2]  # the blue equation no longer decides
+    assert floored.direct_sigma[0] < 5 * lamp.direct_sigma[0]
+    assert np.all(floored.direct_sigma >= lamp.direct_sigma)
+
+
+@pytest.mark.slow
+def test_rgb_leds_under_a_noisy_spectrometer_at_the_rigs_snr(shared_camera_data: Path) -> None:
+    """The validation split's Canon 5D scene, 3 lamps + RGB LEDs (decision 0103): at the rig's
+    bracket SNR the red LED's blue and the blue LED's red direct equations are predicted from
+    the reference spectrum's noise floor; without :func:`with_spectrum_floor` the grating model
+    turns Fourier and RE is 0.14, with it 0.0045."""
+    from calib.evaluation.validation.protocol import (
+        DEFAULT_VARIANTS,
+        ProtocolSettings,
+        evaluate_task,
+        split_tasks,
+    )
+    from calib.evaluation.validation.splits import load_splits
+
+    splits, _ = load_splits(shared_camera_data)
+    variant = next(v for v in DEFAULT_VARIANTS if v.label == "3 lamps + RGB LEDs")
+    settings = ProtocolSettings(variants=(variant,))
+    task = next(
+        t
+        for t in split_tasks(splits.validation, settings)
+        if t.camera.name.startswith("Canon 5D (Kawakami")
+    )
+    (row,) = evaluate_task(task)
+    assert row.failure is None
+    assert row.relative_error < 0.02
+
+
+def test_only_a_measured_spectrum_with_a_noisy_dark_range_gets_the_floor() -> None:
+    """A narrow LED read with a spectrometer's noise floor (clipped at 0, as a file is read) gets
+    :data:`SPECTRUM_FLOOR`; the exact LED and a noisy broadband lamp (no dark range) get none."""
+    from calib.core.lamp_specs import gaussian_lamp, lamp_from_spec
+    from calib.core.spectra import Spectrum
+    from calib.methods.multilamp import SPECTRUM_FLOOR, spectrum_floor
+
+    rng = np.random.default_rng(3)
+    led = gaussian_lamp(630.0, 20.0)
+    noisy = led.values + 5e-4 * rng.standard_normal(led.values.size)
+    assert spectrum_floor(led) == 0.0
+    assert spectrum_floor(Spectrum(led.wavelength_nm, noisy, negative="clip")) == SPECTRUM_FLOOR
+    tungsten = lamp_from_spec("A")
+    grainy = tungsten.values * (1 + 3e-3 * rng.standard_normal(tungsten.values.size))
+    assert spectrum_floor(Spectrum(tungsten.wavelength_nm, grainy)) == 0.0

@@ -15,9 +15,10 @@ lamps ``η`` is determined by the data. The solve:
 2. Efficiency. ``η = B_η c_η`` (Fourier, Supp. E; a grating's efficiency is smooth and positive,
    its inverse over a 3:1 range is not) from the rows ``(d_l ⊙ q̂_lc)ᵀ η⁻¹ = m_dir,lc``, each
    whitened by its noise (the direct σ plus the response's propagated covariance plus a 0.1 % model
-   floor), and the camera prior ``s_c ~ N(α ŝ_c, α² Σ_c)`` applied to ``Q ⊙ η⁻¹`` (``Q``: the
-   lamps' pooled response, step 3; with several cameras, each camera's own ``Q`` and ``α``) as a
-   penalty of weight ``λ``. The rows are linear in ``η⁻¹``, not in ``c_η``: Gauss–Newton solves it
+   floor; a lamp whose spectrum has a noisy dark range also 10⁻³ of its brightest channel,
+   :func:`with_spectrum_floor`), and the camera prior ``s_c ~ N(α ŝ_c, α² Σ_c)`` applied to
+   ``Q ⊙ η⁻¹`` (``Q``: the lamps' pooled response, step 3; with several cameras, each camera's own
+   ``Q`` and ``α``) as a penalty of weight ``λ``. The rows are linear in ``η⁻¹``, not in ``c_η``: Gauss–Newton solves it
    (the paper's linear model ``η⁻¹ = B_η c_η`` stays available, ``efficiency_model="inverse"``).
    ``λ`` comes from the unbiased predictive risk estimator (UPRE, Mallows' C_L: the rows are
    whitened, so the noise level is known), ``‖A x_λ − b‖² + 2 tr H_λ`` on the linearisation over
@@ -57,7 +58,7 @@ from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag
-from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
+from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
 from calib.core.spectrometer_scale import scale_sigma_nm
 from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 from calib.methods.closed_form import (
@@ -1359,6 +1360,72 @@ def lamps_with_mapping(
     return used_mapping, systems, mapping_s
 
 
+#: A measured spectrum's dark range: samples below this share of its peak. A channel whose light
+#: lies there sees the lamp only through the spectrometer's noise floor; a broadband lamp has no
+#: such range, and its spectrum's curvature is not noise.
+DARK_SHARE = 0.01
+#: Fewest dark samples (with a neighbour each side) to read the noise floor from.
+DARK_SAMPLES = 10
+
+
+def spectrum_noise_floor(spectrum: Spectrum) -> float:
+    """The measured spectrum's noise σ over its dark range (:data:`DARK_SHARE`), relative to its
+    peak: the median absolute second difference of the dark samples (σ √6 for white noise; the
+    scaled MAD, ×1.4826, of a Gaussian). 0 without a dark range (a broadband lamp) or for an
+    exact (synthetic) spectrum.
+
+    Examples
+    --------
+    >>> from calib.core.lamp_specs import gaussian_lamp
+    >>> spectrum_noise_floor(gaussian_lamp(630.0, 20.0)) < 1e-9
+    True
+    """
+    values = np.asarray(spectrum.values, dtype=np.float64)
+    peak = float(np.max(values)) if values.size else 0.0
+    if values.size < 3 or peak <= 0:
+        return 0.0
+    second = np.diff(values, 2)
+    dark = np.max(np.stack([values[:-2], values[1:-1], values[2:]]), axis=0) < DARK_SHARE * peak
+    if int(dark.sum()) < DARK_SAMPLES:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(second[dark])) / math.sqrt(6.0) / peak)
+
+
+#: The reference spectrum's noise floor relative to its peak, as a spectrometer's specification
+#: gives it: a CCD spectrometer's signal-to-noise ratio at full scale is a few hundred to a
+#: thousand to one per sample. Only its order matters: a channel that sees a narrow LED only
+#: where it is dark (its leak, ~10⁻⁴ of its peak) has a direct signal of that order or below.
+SPECTRUM_FLOOR = 1e-3
+#: A dark range's measured σ below this share of the peak is round-off, not a spectrometer's noise.
+ROUND_OFF_FLOOR = 1e-9
+
+
+def spectrum_floor(spectrum: Spectrum) -> float:
+    """The floor :func:`with_spectrum_floor` gives a lamp measured as ``spectrum``:
+    :data:`SPECTRUM_FLOOR` where the spectrum has a dark range with noise in it
+    (:func:`spectrum_noise_floor`), else 0 (a broadband lamp, an exact synthetic spectrum)."""
+    return SPECTRUM_FLOOR if spectrum_noise_floor(spectrum) > ROUND_OFF_FLOOR else 0.0
+
+
+def with_spectrum_floor(lamp: LampData, floor: float) -> LampData:
+    """``lamp`` with each channel's direct σ at least ``floor`` (:func:`spectrum_floor`) of its
+    brightest channel's signal, added in quadrature.
+
+    A direct equation predicts its target from the measured spectrum times the lamp's response.
+    In a channel that sees the lamp only where it is dark (the blue of a red LED: the LED's leak
+    of ~10⁻⁴ of its peak, against a spectrometer's noise floor of a few 10⁻⁴) the prediction is
+    the spectrum's noise, which no σ of the camera's holds. At the rig's bracket SNR (decision
+    0098) those equations held most of the direct χ² and turned the grating model to Fourier
+    (decision 0103). The brightest channel's σ grows by ``floor`` of itself, the size of the
+    direct equations' own 0.1 % model floor.
+    """
+    if floor <= 0:
+        return lamp
+    brightest = float(np.max(np.abs(lamp.direct)))
+    sigma = np.sqrt(lamp.direct_sigma**2 + (floor * brightest) ** 2)
+    return replace(lamp, direct_sigma=np.asarray(sigma, dtype=np.float64))
+
+
 @dataclass(frozen=True, eq=False)
 class PreparedLamps:
     """Step 1 for one camera's lamps: the mapping, and each lamp's response and direct measurement."""
@@ -1392,7 +1459,12 @@ def prepare_lamps(
         kernel,
         need_direct=True,
     )
-    lamps = tuple(lamp_data(system, used_mapping) for system in systems)
+    lamps = tuple(
+        with_spectrum_floor(
+            lamp_data(system, used_mapping), spectrum_floor(system.observation.spectrum)
+        )
+        for system in systems
+    )
     return PreparedLamps(used_mapping, lamps, mapping_s)
 
 
