@@ -132,7 +132,7 @@ AMBIGUITY_DELTA_CHI2 = 25.0
 #: predicted and 100 transformed cameras (seed 0, 44 + 56 + 100 scenes, LED only with and without
 #: EXIF) 100 left 6 / 4 mappings > 3 nm unwarned, all transformed (runner-ups 107–474 behind,
 #: 9–17 nm away); 400 leaves 2 / 1 and warns one more right mapping in each (offline: 28 → 29,
-#: 27 → 28 of ~185); 1 000 warns 3–4 more right ones.
+#: 27 → 28 of ~185); 1 000 warns 4–5 more right ones.
 BROADBAND_AMBIGUITY_DELTA_CHI2 = 400.0
 #: A competing basin closer than this (RMS, nm) is the same answer, whatever its Δχ².
 AMBIGUITY_MIN_DISTANCE_NM = 1.0
