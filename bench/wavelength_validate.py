@@ -298,7 +298,11 @@ def grating_file_row(
 def run_one(job: tuple[Task, Task, int, str, bool, bool]) -> dict[str, Any] | None:
     """One camera's row (``None``: the calibration camera itself in the grating-file scenario)."""
     task, calibration, seed, scenario, grooves, optics = job
-    scene = render_task_scene(task)
+    try:
+        scene = render_task_scene(task)
+    except InputError as exc:
+        # A scene that cannot be rendered is a failed row, as in `calib validate`, not the run's end.
+        return {"camera": task.camera.name, "group": task.camera.group, "failed": str(exc)}
     # The protocol's scenes carry the RAW files' optics; --no-optics measures them without.
     variant = MethodVariant(LED, "prior", tuple(scene.observations), exif_optics=optics)
     lamps = dict(zip(scene.observations, variant_observations(scene, variant), strict=True))
