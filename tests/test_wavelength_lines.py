@@ -24,7 +24,7 @@ from calib.model.forward import PeakFractionNoise, render_observation
 from calib.pipeline.inputs import load_spectrum
 from calib.wavelength.families import GratingFamily, grating_prior
 from calib.wavelength.features import fit_features, map_features
-from calib.wavelength.locate import _check_monotonic, locate_mapping
+from calib.wavelength.locate import _check_monotonic, _map_lines, locate_mapping
 from calib.wavelength.profile_search import (
     AMBIGUITY_MIN_DISTANCE_NM,
     PRIOR_MISFIT_SIGMA_NM,
@@ -225,6 +225,15 @@ def test_a_folding_mapping_is_an_error_not_a_result():
     folding = QuadraticMapping(-0.01, 1.0, 400.0)  # turns at pixel 50
     with pytest.raises(EstimationError, match="folds back"):
         _check_monotonic(folding, observation)
+
+
+def test_a_lamp_none_of_whose_lines_shows_is_an_estimation_error_its_caller_falls_back_from():
+    # A measured FL lamp whose Hg lines all fall outside what it shows (the protocol's noise-only
+    # errors: no line shown) ended in an IndexError that no caller catches; the callers' fallback
+    # (the profile fit stands, the next basin) catches EstimationError.
+    observation = LampObservation("FL2", lamp_from_spec("FL2"), np.arange(100.0), np.ones((100, 3)))
+    with pytest.raises(EstimationError, match="none of its listed lines shows"):
+        _map_lines(observation, (), None, start=None, directions=(1,), grid=DEFAULT_GRID)
 
 
 # ------------------------------------------------------------------------------- ambiguity

@@ -206,6 +206,10 @@ def _map_lines(
     ``dispersion_nm_per_px`` (a whole-profile fit's) narrows the line matching when there is no
     ``start`` to follow; ``moments``, ``centres`` and ``anchor``:
     :func:`calib.wavelength.features.map_features`'."""
+    if not lines:
+        # Nothing of the list shows in this lamp's spectrum and grid: the caller's fallback (the
+        # profile fit, another basin) decides, as for lines that could not be matched.
+        raise EstimationError(f"lamp {lamp.name!r}: none of its listed lines shows to be matched")
     kind = lines[0].kind
     width = fwhm_px(lamp, kind)
     outcomes = []
