@@ -36,12 +36,14 @@ from typing import Any
 
 import numpy as np
 
+from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.evaluation.validation.protocol import (
     NO_DIRECT_VARIANT,
     ProtocolSettings,
     ValidationRow,
     failed_row,
+    protocol_gratings,
     render_task_scene,
     row_identity,
     scored_row,
@@ -53,7 +55,6 @@ from calib.evaluation.validation.report import write_rows_csv
 from calib.evaluation.validation.splits import load_splits, require_validation
 from calib.methods import estimate
 from calib.methods.known_grating import KnownGratingOptions
-from calib.model.gratings import CatalogueGrating, GratingKind
 
 #: Label → the estimate's keywords besides the variant's own (``None``: the scene's own η₁).
 CONFIGURATIONS: dict[str, dict[str, Any] | None] = {
@@ -161,18 +162,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--eta", action="append", choices=list(CONFIGURATIONS), default=None)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
-    kinds: tuple[GratingKind, ...]
-    if args.grating == "mix":
-        kinds = ("sinusoidal", "blazed", "catalogue")
-    else:
-        kinds = tuple(
-            kind for kind in ("sinusoidal", "blazed", "catalogue") if kind == args.grating
-        )
-    curve = None if args.catalogue is None else CatalogueGrating.from_file(args.catalogue)
-    if curve is None:
-        kinds = tuple(kind for kind in kinds if kind != "catalogue")
-    if not kinds:
-        parser.error(f"no grating kind to draw from --grating {args.grating}")
+    try:
+        kinds, curve = protocol_gratings(args.grating, args.catalogue)
+    except InputError as exc:
+        parser.error(str(exc))
     settings = ProtocolSettings(
         seed=args.seed, grating_kinds=kinds, catalogue=curve, variants=(NO_DIRECT_VARIANT,)
     )

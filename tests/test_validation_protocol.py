@@ -622,3 +622,19 @@ def test_an_assumed_eta_is_judged_under_its_own_key_only() -> None:
     through a grating file."""
     assumed = EstimateRecord("known-grating", "no direct", np.zeros(2), {}, family="assumed")
     assert set(ratios_by_method([assumed], 1.0)) == {"known-grating:assumed"}
+
+
+def test_the_grating_choice_is_read_one_way_for_the_cli_the_budget_and_the_benches(tmp_path):
+    from calib.core.errors import InputError
+    from calib.evaluation.validation.protocol import protocol_gratings
+
+    assert protocol_gratings("mix", None) == (("sinusoidal", "blazed"), None)
+    assert protocol_gratings("blazed, sinusoidal", None) == (("sinusoidal", "blazed"), None)
+    with pytest.raises(InputError, match="needs the maker's curve"):
+        protocol_gratings("catalogue", None)  # asked for by name: not dropped quietly
+    with pytest.raises(InputError, match="unknown grating kind holographic"):
+        protocol_gratings("sinusoidal,holographic", None)
+    curve = tmp_path / "curve.csv"
+    curve.write_text("wavelength_nm,efficiency\n400,0.3\n550,0.5\n700,0.4\n")
+    kinds, read = protocol_gratings("mix", curve)
+    assert kinds == ("sinusoidal", "blazed", "catalogue") and read is not None

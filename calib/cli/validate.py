@@ -21,7 +21,6 @@ from calib.core.errors import InputError
 
 if TYPE_CHECKING:
     from calib.evaluation.validation.splits import Split
-    from calib.model.gratings import GratingKind
 
 # The protocol is imported by the command when it runs (building ``calib`` imports this module);
 # the variants its help lists are read when the help is shown ({validation_variants}).
@@ -46,22 +45,6 @@ def _quick(split: Split) -> Split:
     for camera in split.cameras:
         firsts.setdefault(camera.group, camera)
     return replace(split, cameras=tuple(firsts.values()))
-
-
-def _grating_kinds(text: str) -> tuple[GratingKind, ...]:
-    from calib.model.gratings import GRATING_KINDS
-
-    if text == "mix":
-        return GRATING_KINDS
-    kinds = tuple(part.strip() for part in text.split(",") if part.strip())
-    unknown = [kind for kind in kinds if kind not in GRATING_KINDS]
-    if unknown or not kinds:
-        raise InputError(
-            f"unknown grating kind {', '.join(unknown) or 'none'}; use "
-            f"{', '.join(GRATING_KINDS)}, a comma-separated list of them, or mix",
-            source="--grating",
-        )
-    return tuple(kind for kind in GRATING_KINDS if kind in kinds)
 
 
 def register(app: typer.Typer) -> None:
@@ -147,6 +130,7 @@ def register(app: typer.Typer) -> None:
             PixelOrigin,
             ProtocolSettings,
             ValidationRow,
+            protocol_gratings,
             run_split,
         )
         from calib.evaluation.validation.report import (
@@ -156,7 +140,6 @@ def register(app: typer.Typer) -> None:
         )
         from calib.evaluation.validation.rig_errors import RigErrors
         from calib.evaluation.validation.splits import load_splits
-        from calib.model.gratings import CatalogueGrating
 
         if split not in SPLIT_CHOICES:
             raise InputError(
@@ -172,16 +155,7 @@ def register(app: typer.Typer) -> None:
                 source="--pixel-origin",
             )
         origin: PixelOrigin = "direct_spot" if pixel_origin == "direct_spot" else "arbitrary"
-        kinds = _grating_kinds(grating)
-        curve = None if catalogue is None else CatalogueGrating.from_file(catalogue)
-        if "catalogue" in kinds and curve is None:
-            if grating == "mix":
-                kinds = tuple(kind for kind in kinds if kind != "catalogue")
-            else:
-                raise InputError(
-                    "the catalogue grating needs the maker's curve: --catalogue FILE",
-                    source="--grating",
-                )
+        kinds, curve = protocol_gratings(grating, catalogue)
         labels = list(variant or (QUICK_VARIANTS if quick else [v.label for v in DEFAULT_VARIANTS]))
         known = {v.label: v for v in (*DEFAULT_VARIANTS, *EXTRA_VARIANTS)}
         unknown = [label for label in labels if label not in known]

@@ -29,12 +29,14 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.errors import InputError
 from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     EXTRA_VARIANTS,
     ProtocolSettings,
     Task,
+    protocol_gratings,
     render_task_scene,
     split_tasks,
     variant_arguments,
@@ -42,7 +44,7 @@ from calib.evaluation.validation.protocol import (
 )
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
 from calib.methods.uncertainty import BudgetSettings, efficiency_family, prior_sigma_at_scale
-from calib.model.gratings import GRATING_KINDS, CatalogueGrating
+from calib.model.gratings import GRATING_KINDS
 
 #: The mean ±2σ coverage the factor aims at on the validation split.
 TARGET_COVERAGE = 0.95
@@ -409,14 +411,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.target,
             sets,
         )
-    kinds = tuple(
-        kind for kind in GRATING_KINDS if args.grating == "mix" or kind in args.grating.split(",")
-    )
-    curve = None if args.catalogue is None else CatalogueGrating.from_file(args.catalogue)
-    if curve is None:
-        kinds = tuple(kind for kind in kinds if kind != "catalogue")
-    if not kinds:
-        parser.error(f"no grating kind to draw from --grating {args.grating}")
+    try:
+        kinds, curve = protocol_gratings(args.grating, args.catalogue)
+    except InputError as exc:
+        parser.error(str(exc))
     splits, _ = load_splits(args.data_dir, predictions=args.predictions, seed=args.seed)
     split = splits.validation
     if args.group:

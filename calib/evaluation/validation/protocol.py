@@ -161,6 +161,40 @@ EXTRA_VARIANTS: tuple[MethodVariant, ...] = (
 )
 
 
+def protocol_gratings(
+    text: str, catalogue: Path | str | None
+) -> tuple[tuple[GratingKind, ...], CatalogueGrating | None]:
+    """The grating kinds a run draws from (``--grating``: ``mix``, a kind, or a comma-separated
+    list) and the maker's curve ``catalogue`` gives (a file, or ``None``). ``mix`` without a curve
+    leaves the catalogue kind out; asking for it by name without one, or for an unknown kind, is an
+    :class:`~calib.core.errors.InputError` naming ``--grating`` (``calib validate``, the budget
+    and the benches share this one reading)."""
+    from calib.core.errors import InputError
+    from calib.model.gratings import GRATING_KINDS
+
+    if text == "mix":
+        kinds: tuple[GratingKind, ...] = GRATING_KINDS
+    else:
+        asked = tuple(part.strip() for part in text.split(",") if part.strip())
+        unknown = [kind for kind in asked if kind not in GRATING_KINDS]
+        if unknown or not asked:
+            raise InputError(
+                f"unknown grating kind {', '.join(unknown) or 'none'}; use "
+                f"{', '.join(GRATING_KINDS)}, a comma-separated list of them, or mix",
+                source="--grating",
+            )
+        kinds = tuple(kind for kind in GRATING_KINDS if kind in asked)
+    curve = None if catalogue is None else CatalogueGrating.from_file(catalogue)
+    if "catalogue" in kinds and curve is None:
+        if text != "mix":
+            raise InputError(
+                "the catalogue grating needs the maker's curve: --catalogue FILE",
+                source="--grating",
+            )
+        kinds = tuple(kind for kind in kinds if kind != "catalogue")
+    return kinds, curve
+
+
 def scene_lamps(variants: Sequence[MethodVariant]) -> tuple[str, ...]:
     """Every lamp the default variants and ``variants`` use, in first-use order (one scene renders
     them all).
