@@ -24,7 +24,13 @@ seed, so the ten twins see ten instrument draws instead of one. The twin camera 
 along the band and the per-frame shutter error a real rig has (:mod:`mocks.bench.flaws`, the
 validation protocol's ranges, drawn from the station's seed; ``--stray-light off`` and
 ``--shutter-error off``: without them, the twin before decision 0087). Scores are those of the curve users
-get (``sensitivity.csv`` = ``result.json``: negative lobes of the solve set to zero) and its σ.
+get (``sensitivity.csv`` = ``result.json``: negative lobes of the solve set to zero) and its σ,
+against the truth's point samples on the estimate's grid. Two diagnoses follow each row (decision
+0111): where the delivered curves and the truth have their maximum and the coverage at the best
+common scale (a miss of the max-1 normalisation moves every cell), and RE and coverage against the
+truth's least-squares projection onto the grid's piecewise-linear curves (what a curve on that grid
+can hold: a camera with detail finer than the grid, e.g. colour's Nikon 5100 with its red peak at
+595 nm between two 10 nm nodes, differs from its point samples there).
 
     python bench/twin_coverage.py [--split validation|test|both] [--floors 0.01]
         [--data-dir ../shared/data/camera_sensitivities] [--keep DIR]
@@ -97,6 +103,16 @@ class Row:
     #: The spectrometer-scale check's mean offset over the grid and its σ (nm), ``None``: none.
     scale_check: tuple[float, float] | None = None
     scale_check_notes: list[str] = field(default_factory=list)
+    #: Where the delivered curves and the truth have their maximum: (channel, nm) each.
+    peaks: tuple[tuple[str, float], tuple[str, float]] | None = None
+    #: The least-squares common scale of the delivered curves onto the truth and the ±2σ coverage
+    #: at that scale (the max-1 normalisation's part of the misses).
+    common_scale: float = math.nan
+    coverage_at_common_scale: float = math.nan
+    #: RE and ±2σ coverage against the truth's projection onto the estimate's grid (what a curve
+    #: on that grid can hold; the truth's point samples are the scores above).
+    re_grid_truth: float = math.nan
+    coverage_grid_truth: float = math.nan
 
 
 def twin_config(
@@ -124,6 +140,48 @@ def twin_config(
     if data_dir is not None and collection not in ("colour-science", "rawtoaces-data"):
         twin["data_dir"] = str(data_dir)
     return RigConfig.model_validate(data)
+
+
+def grid_projection(
+    wavelength_nm: np.ndarray, values: np.ndarray, grid_nm: np.ndarray, step_nm: float = 0.5
+) -> np.ndarray:
+    """``values`` ``(n, 3)`` sampled at ``wavelength_nm`` (linear between samples), projected by least
+    squares onto the piecewise-linear curves with nodes ``grid_nm`` (the hat functions over the
+    grid's span): the node values of the grid curve closest to the truth, ``(len(grid_nm), 3)``.
+
+    A node's value differs from the truth's point sample where the curve bends within a grid step,
+    by ``−h² s''/12`` (``h`` the step): a peak between nodes raises the nodes beside it.
+    """
+    grid = np.asarray(grid_nm, dtype=np.float64)
+    fine = np.arange(grid[0], grid[-1] + step_nm / 2, step_nm)
+    truth = np.stack(
+        [np.interp(fine, wavelength_nm, values[:, k]) for k in range(values.shape[1])], axis=1
+    )
+    hats = np.stack([np.interp(fine, grid, row) for row in np.eye(grid.size)], axis=1)
+    projected, *_ = np.linalg.lstsq(hats, truth, rcond=None)
+    return np.asarray(projected, dtype=np.float64)
+
+
+def normalisation_diagnosis(
+    curves: np.ndarray, sigma: np.ndarray, reference: np.ndarray, wavelength_nm: np.ndarray
+) -> dict[str, object]:
+    """Both max-1 curves ``(f, 3)``: where each has its maximum, the common scale that best maps
+    ``curves`` onto ``reference`` and the ±2σ coverage at that scale (``σ`` scaled alike). A scale
+    far from 1 with a coverage far above the max-1 one: the misses are the normalisation's (the
+    estimate's maximum node off its truth moves every cell)."""
+
+    def peak(values: np.ndarray) -> tuple[str, float]:
+        row, channel = np.unravel_index(int(np.argmax(values)), values.shape)
+        return "RGB"[channel], float(wavelength_nm[row])
+
+    scale = float(np.sum(curves * reference) / np.sum(curves * curves))
+    return {
+        "peaks": (peak(curves), peak(reference)),
+        "common_scale": scale,
+        "coverage_at_common_scale": float(
+            np.mean(np.abs(scale * curves - reference) <= 2.0 * scale * sigma)
+        ),
+    }
 
 
 def judge(
@@ -177,6 +235,8 @@ def judge(
         true_eta = read_twin_truth(session / "twin-truth.json").grating_efficiency.at(wavelength)
         eta_coverage, eta_ratio = efficiency_coverage(result, true_eta)
     error_rms = float(np.sqrt(np.mean(error**2)))
+    on_grid = grid_projection(truth.wavelength_nm, truth.values, wavelength)
+    on_grid = on_grid / on_grid.max()
     components = {
         name: float(value) / error_rms for name, value in dict(budget.get("rms", {})).items()
     }
@@ -202,6 +262,9 @@ def judge(
         "cpu_s": cpu_s,
         "eta_coverage": eta_coverage,
         "eta_sigma_ratio": eta_ratio,
+        **normalisation_diagnosis(curves.values, sigma, reference, wavelength),
+        "re_grid_truth": relative_error(curves.values, on_grid),
+        "coverage_grid_truth": float(np.mean(np.abs(curves.values - on_grid) <= 2.0 * sigma)),
     }
 
 
@@ -342,6 +405,16 @@ def main() -> None:
                     )
                 else:
                     print(f"    scale check: none ({'; '.join(row.scale_check_notes)})", flush=True)
+                if row.peaks is not None:
+                    (got, got_nm), (true, true_nm) = row.peaks
+                    print(
+                        f"    normalisation: maximum {got} {got_nm:.0f} nm (truth's {true} "
+                        f"{true_nm:.0f} nm), common scale {row.common_scale:.4f} → ±2σ "
+                        f"{100 * row.coverage_at_common_scale:5.1f} %; against the truth's "
+                        f"projection on the grid: RE {100 * row.re_grid_truth:5.2f}, ±2σ "
+                        f"{100 * row.coverage_grid_truth:5.1f} %",
+                        flush=True,
+                    )
                 print(
                     "    σ component RMS / error RMS: "
                     + ", ".join(f"{name} {value:.2f}" for name, value in row.components.items()),
@@ -349,9 +422,10 @@ def main() -> None:
                 )
     print(
         "\n| split | floor | cameras | mean RE ×10⁻² | mean ±2σ coverage | median σ/err | verdicts "
-        "| mean η ±2σ coverage | median η σ/err |"
+        "| mean η ±2σ coverage | median η σ/err | mean ±2σ at the common scale "
+        "| mean RE / ±2σ against the grid projection |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for split in ("validation", "test"):
         for floor in floors:
             chosen = [r for r in rows if r.split == split and r.floor == floor]
@@ -364,7 +438,10 @@ def main() -> None:
                 f"{100 * np.mean([r.coverage for r in chosen]):.1f} % | "
                 f"{np.median([r.sigma_ratio for r in chosen]):.2f} | {verdicts} | "
                 f"{100 * np.mean([r.eta_coverage for r in chosen]):.1f} % | "
-                f"{np.median([r.eta_sigma_ratio for r in chosen]):.2f} |"
+                f"{np.median([r.eta_sigma_ratio for r in chosen]):.2f} | "
+                f"{100 * np.mean([r.coverage_at_common_scale for r in chosen]):.1f} % | "
+                f"{100 * np.mean([r.re_grid_truth for r in chosen]):.2f} / "
+                f"{100 * np.mean([r.coverage_grid_truth for r in chosen]):.1f} % |"
             )
     print(f"estimate CPU {sum(r.cpu_s for r in rows):.0f} s for {len(rows)} estimates")
 

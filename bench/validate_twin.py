@@ -11,10 +11,12 @@ What the twin renders of a plan: the first order through ``η₁`` and the direc
 0th order's own ``η₀(λ)`` along the plan's physical mapping; the slit's width and a soft edge of
 ≈ 2σ of the plan's lens blur; the lamp as drifted for the capture, the spectrometer's reading
 (offset, bandwidth, noise) as the lamp's spectrum, with its bandwidth; the plan's full well and
-read noise (DN gain from a 14-bit range); dark frames; the HDR policy's 2-stop bracket from a
-shortest frame at the plan's spot fill (extended until the band peak reaches a quarter of the
-clipping level, at most ``max_frames``) and each frame's exposure error (frames exposed
-``t (1 + ε)``, the pipeline told ``t``).
+read noise (DN gain from a 14-bit range); dark frames; the rig's bracket
+(:meth:`calib.evaluation.validation.rig_errors.PhotonBudget.bracket`, the rule ``calib validate``'s
+1-D scenes take since decision 0098: a shortest frame at the plan's spot fill, 2-stop steps while
+one cell's band SNR over the band's bright part is below the HDR policy's minimum, at most
+``max_frames``) and each frame's exposure error (frames exposed ``t (1 + ε)``, the pipeline told
+``t``).
 
 What the twin cannot render yet (so the 2-D rows lack it; the 1-D rows have it):
 
@@ -43,6 +45,7 @@ import numpy as np
 from calib.core.lamp_specs import lamp_from_spec
 from calib.core.spectra import write_csv
 from calib.evaluation.synthetic import lamp_kind
+from calib.evaluation.validation.capture import BLACK_DN, SHORTEST_S, WHITE_DN
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     ProtocolSettings,
@@ -65,9 +68,6 @@ from calib.pipeline.inputs import LampImages
 from mocks.forward_scene import first_order_signal
 from mocks.scene import SceneLayout, SensorModel, render_mosaic_radiance, write_bracket
 
-BLACK_DN, WHITE_DN = 512, 16383
-#: The bracket's shortest exposure (s).
-SHORTEST_S = 1e-3
 #: Room around the spot and the band on the sensor (px): detection's background strips.
 MARGIN_PX = 80
 
@@ -126,18 +126,24 @@ def _lamp_images(
         slit_width_px=shape.slit_width_px,
     )
     mosaic = render_mosaic_radiance(layout, signal, sensor)
-    clip_dn = errors.photons.clip_fraction * (WHITE_DN - BLACK_DN)
+    # The rig's bracket rule (decision 0098, as calib validate's 1-D scenes take it): the shortest
+    # frame puts the brightest pixel at the plan's spot fill, frames are added while one cell's band
+    # SNR over the band's bright part is below the HDR policy's minimum. The band's per-pixel
+    # radiance on its centre line is the signal's profile (the bracket takes the profile summed
+    # over the slit's rows); the spot's pixels are its total over its brightest rendered pixel.
     spot_end = int(layout.spot_centre_px[0] + shape.slit_width_px + 4)
-    spot_peak = float(mosaic[:, :spot_end].max())
-    band_peak = float(mosaic[:, spot_end:].max())
-    # The scene's brightness is free: scale it so the bracket starts at SHORTEST_S.
-    mosaic = mosaic * np.float32(draw.spot_fill * clip_dn / (spot_peak * SHORTEST_S))
-    band_peak *= draw.spot_fill * clip_dn / (spot_peak * SHORTEST_S)
-    shortest = SHORTEST_S
-    step = 2.0**errors.photons.step_stops
-    exposures = [shortest]
-    while band_peak * exposures[-1] < 0.25 * clip_dn and len(exposures) < errors.photons.max_frames:
-        exposures.append(exposures[-1] * step)
+    spot_px = float(signal.direct_rgb.max()) / float(mosaic[:, :spot_end].max())
+    gain, factors = errors.photons.bracket(
+        signal.profile * plan.sensor.band_rows,
+        signal.direct_rgb,
+        plan.sensor,
+        spot_px,
+        draw.spot_fill,
+    )
+    # The scene's brightness is free: scale it so the bracket starts at SHORTEST_S, its shortest
+    # frame exposed ``gain`` electrons per unit of the signal.
+    mosaic = mosaic * np.float32(gain * sensor.gain_dn_per_electron / SHORTEST_S)
+    exposures = [SHORTEST_S * factor for factor in factors]
     actual = [t * (1.0 + e) for t, e in zip(exposures, draw.exposure_errors, strict=False)]
     folder = directory / spec.replace(":", "_")
     folder.mkdir(parents=True, exist_ok=True)

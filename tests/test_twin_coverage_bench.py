@@ -1,0 +1,58 @@
+"""``bench/twin_coverage.py``'s diagnoses of a miss (decision 0111): the truth a grid can hold, and
+the max-1 normalisation's part."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+#: Importing the bench imports the rig (capture, estimate): seconds, so not in the default suite.
+pytestmark = pytest.mark.slow
+
+BENCH = Path(__file__).resolve().parents[1] / "bench" / "twin_coverage.py"
+
+
+def _bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("twin_coverage_bench", BENCH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses resolve their annotations through it
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_grid_projection_is_off_the_point_samples_by_the_curvature() -> None:
+    bench = _bench()
+    fine = np.arange(380.0, 781.0, 0.5)  # finer than the projection needs: a smooth truth
+    curvature = 1e-4  # s = c (λ − 550)², s'' = 2c
+    values = np.stack([curvature * (fine - 550.0) ** 2] * 3, axis=1)
+    grid = np.arange(400.0, 701.0, 10.0)
+    projected = bench.grid_projection(fine, values, grid)
+    points = curvature * (grid - 550.0) ** 2
+    # interior nodes: −h² s''/12 (the piecewise-linear least-squares curve lies under a parabola's
+    # chords); the end nodes see one side only
+    np.testing.assert_allclose(
+        projected[2:-2, 1] - points[2:-2], -(10.0**2) * 2 * curvature / 12, rtol=0.02
+    )
+
+
+def test_a_maximum_node_above_its_truth_shows_as_a_common_scale() -> None:
+    bench = _bench()
+    wavelength = np.arange(400.0, 701.0, 10.0)
+    reference = np.stack(
+        [np.exp(-0.5 * ((wavelength - centre) / 30.0) ** 2) for centre in (590, 530, 460)], axis=1
+    )
+    curves = reference.copy()
+    curves[19, 0] *= 1.04  # the red node at 590 nm, 4 % above its truth, becomes the maximum
+    curves /= curves.max()
+    sigma = np.full_like(curves, 0.005)
+    found = bench.normalisation_diagnosis(curves, sigma, reference, wavelength)
+    assert found["peaks"][0] == ("R", 590.0)
+    assert 1.03 < found["common_scale"] < 1.045
+    covered = float(np.mean(np.abs(curves - reference) <= 2 * sigma))
+    assert covered < 0.8 and found["coverage_at_common_scale"] > 0.95
