@@ -22,6 +22,15 @@ minimum found in the profile minus the reference: what the real-data bench can m
 same with each feature matched by its shape (``wavelength_real.matched_columns``). Summary:
 per-feature mean and RMS of the errors over the cameras and of each measure less the error (its
 own bias and scatter), the RMS over the six, and the coverage of the errors by ±2 stated σ.
+Decision 0110 adds the two measures against the scene's own sunlight at full resolution (what a
+high-resolution atlas is to the real Sun): "minima" (each depth minimum against that spectrum's
+minimum at the camera's resolution) and "matched sun" (each shape against that spectrum's), and a
+summary over the 10D-like scenes (≤ 0.4 nm per pixel, resolution 1.2–2.5 nm).
+
+``--atlas FILE`` renders the scenes with a high-resolution solar atlas (``wavelength_real.
+read_atlas``, read at run time and never stored; e.g. SAO2010) through the analog's atmosphere
+instead of the synthetic Sun: the real Sun's blends and bands, the G band's among them.
+``--bandwidth`` fixes the spectrometer's bandwidth (the 10D's reference table: 1 nm bins).
 
 ``--sensitivity`` also estimates each camera as ``bench/real_grating.py`` estimates the Canon 10D
 (the sunlight's profile alone through a grating file, channel gains unknown, no optics; here the
@@ -39,7 +48,8 @@ grating-through-a-lens-from-the-0th-order.
 the Rayleigh continuum and the O₂ bands alike) instead of the fixed 1.5.
 
     python bench/solar_validate.py --data-dir ../shared/data/camera_sensitivities \
-        [--sensitivity] [--geometry spectrograph] [--airmass drawn]
+        [--sensitivity] [--geometry spectrograph] [--airmass drawn|AIRMASS] [--atlas FILE] \
+        [--bandwidth NM]
 """
 
 from __future__ import annotations
@@ -59,7 +69,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 from real_grating import rms_and_coverage
 from scipy import ndimage
-from wavelength_real import matched_columns, spectrum_offset_nm
+from wavelength_real import (
+    matched_columns,
+    read_atlas,
+    reference_minima,
+    spectrum_offset_nm,
+)
 
 import calib.evaluation.validation.scenes as scenes
 from calib.core.errors import EstimationError, InputError
@@ -80,6 +95,7 @@ from calib.evaluation.validation.rig_errors import RigErrors, SpectrometerError
 from calib.evaluation.validation.solar import (
     SpectrographMapping,
     draw_spectrograph,
+    sunlight_from_atlas,
     synthetic_sunlight,
 )
 from calib.evaluation.validation.splits import load_splits
@@ -189,16 +205,18 @@ def run(
     geometry: str = "protocol",
     with_sensitivity: bool = False,
     airmass: float = 1.5,
+    atlas: Spectrum | None = None,
 ) -> dict[str, Any]:
     """One scene; ``sun``: the sunlight (at ``airmass``), or ``None`` to draw its airmass
-    (:data:`AIRMASS_RANGE`)."""
+    (:data:`AIRMASS_RANGE`) — the synthetic sunlight's, or ``atlas`` through the analog's
+    atmosphere (:func:`sunlight_from_atlas`)."""
     seed = scene_seed(task.settings.seed, task.camera, task.scene)
     # The first three children as the protocol's scenes draw them; the fourth, the spectrograph;
     # the fifth, the airmass (spawning five leaves the first four as they were).
     plan_seed, noise_seed, optics_seed, spectrograph_seed, airmass_seed = seed.spawn(5)
     if sun is None:
         airmass = float(np.random.default_rng(airmass_seed).uniform(*AIRMASS_RANGE))
-        sun = synthetic_sunlight(airmass)
+        sun = synthetic_sunlight(airmass) if atlas is None else sunlight_from_atlas(atlas, airmass)
     plan = scenes.draw_scene_plan(
         np.random.default_rng(plan_seed), [SUN], errors=ERRORS, geometry=GEOMETRY
     )
@@ -246,7 +264,8 @@ def run(
     errors, sigmas, bench_style, matched_style = {}, {}, {}, {}
     window = max(3, round(2.0 / dispersion))
     # The camera's resolution as the line spread and the fitted mapping's dispersion say it is.
-    fitted_dispersion = abs(float(np.mean(np.diff(solution.exact.wavelength_nm(pixel)))))
+    signed_dispersion = float(np.mean(np.diff(solution.exact.wavelength_nm(pixel))))
+    fitted_dispersion = abs(signed_dispersion)
     offset = spectrum_offset_nm(
         sun_obs.spectrum, refs, sun_obs.spectrum_bandwidth_nm or 0.0, 30.0 * fitted_dispersion
     )
@@ -259,10 +278,33 @@ def run(
             name: (float(column), nm + offset)
             for (name, nm), column in zip(refs.items(), guessed, strict=True)
         },
-        nm_per_column=fitted_dispersion,
+        nm_per_column=signed_dispersion,
         resolution_nm=fwhm_px(sun_obs, "absorption") * fitted_dispersion,
         bandwidth_nm=sun_obs.spectrum_bandwidth_nm or 0.0,
     )
+    # The two measures against the scene's own sunlight at full resolution (what an atlas is to
+    # the real Sun; decision 0110): each minimum against where the spectrum's own minimum lies at
+    # the camera's resolution, and each shape against that spectrum's (its scale needs no offset).
+    resolution_measured = fwhm_px(sun_obs, "absorption") * fitted_dispersion
+    minima = reference_minima(
+        sun,
+        refs,
+        resolution_nm=resolution_measured,
+        bandwidth_nm=0.0,
+        envelope_nm=30.0 * fitted_dispersion,
+    )
+    matched_sun = matched_columns(
+        sun_obs,
+        sun,
+        {
+            name: (float(column), nm)
+            for (name, nm), column in zip(refs.items(), guessed, strict=True)
+        },
+        nm_per_column=signed_dispersion,
+        resolution_nm=resolution_measured,
+        bandwidth_nm=0.0,
+    )
+    minima_style, matched_sun_style = {}, {}
     for name, ref in refs.items():
         at = float(truth.pixel_at(np.array([ref]))[0])
         errors[name] = float(solution.exact.wavelength_nm(np.array([at]))[0]) - ref
@@ -271,6 +313,10 @@ def run(
         column = dip_minimum(sun_obs.profile, at - pixel[0], window) + pixel[0]
         mapped = float(solution.exact.wavelength_nm(np.array([column]))[0])
         bench_style[name] = mapped - ref
+        minima_style[name] = mapped - minima[name]
+        matched_sun_style[name] = (
+            float(solution.exact.wavelength_nm(np.array([matched_sun[name] + pixel[0]]))[0]) - ref
+        )
         matched_style[name] = (
             float(solution.exact.wavelength_nm(np.array([matched[name] + pixel[0]]))[0]) - ref
         )
@@ -285,6 +331,9 @@ def run(
         "sigmas": sigmas,
         "bench_style": bench_style,
         "matched_style": matched_style,
+        "minima_style": minima_style,
+        "matched_sun_style": matched_sun_style,
+        "resolution_measured_nm": resolution_measured,
         "cpu_s": cpu,
         "profile_fit_distance_nm": solution.details.get("profile_fit_distance_nm"),
         "profile_sigma_nm": (solution.details.get("profile_fit") or {}).get("wavelength_rms_nm"),
@@ -323,7 +372,28 @@ def main() -> None:
         default="1.5",
         help="the sunlight's airmass, or 'drawn': per scene within AIRMASS_RANGE (1–3)",
     )
+    parser.add_argument(
+        "--atlas",
+        type=Path,
+        default=None,
+        help="a high-resolution solar atlas (wavelength_real.read_atlas; read, never stored) as the "
+        "scenes' Sun instead of the synthetic one, through the same atmosphere",
+    )
+    parser.add_argument(
+        "--bandwidth",
+        type=float,
+        default=None,
+        help="the spectrometer's bandwidth (nm) for every scene instead of 0.3–1.0 (the 10D's "
+        "reference spectrum: 1 nm bins)",
+    )
     args = parser.parse_args()
+    if args.bandwidth is not None:
+        global ERRORS
+        ERRORS = replace(
+            ERRORS,
+            spectrometer=SpectrometerError(bandwidth_range_nm=(args.bandwidth, args.bandwidth)),
+        )
+    atlas = None if args.atlas is None else read_atlas(args.atlas)
     # The protocol renders on a 1 nm axis; the lines need a finer one (module docstring).
     setattr(  # noqa: B010 (a module's name rebound for this run)
         scenes,
@@ -334,7 +404,12 @@ def main() -> None:
     tasks = split_tasks(splits.validation, ProtocolSettings(seed=args.seed))
     if args.cameras is not None:
         tasks = [tasks[int(i)] for i in args.cameras.split(",")]
-    sun = None if args.airmass == "drawn" else synthetic_sunlight(float(args.airmass))
+    if args.airmass == "drawn":
+        sun = None
+    elif atlas is None:
+        sun = synthetic_sunlight(float(args.airmass))
+    else:
+        sun = sunlight_from_atlas(atlas, float(args.airmass))
     refs = references()
     rows = []
     for task in tasks:
@@ -346,6 +421,7 @@ def main() -> None:
                 args.geometry,
                 args.sensitivity,
                 1.5 if args.airmass == "drawn" else float(args.airmass),
+                atlas,
             )
         except (EstimationError, InputError) as exc:
             print(f"{task.camera.name[:36]:36s} FAILED: {exc}", flush=True)
@@ -381,6 +457,8 @@ def main() -> None:
     sigmas = np.array([[row["sigmas"][n] for n in names] for row in rows])
     bench = np.array([[row["bench_style"][n] for n in names] for row in rows])
     matched = np.array([[row["matched_style"][n] for n in names] for row in rows])
+    minima = np.array([[row["minima_style"][n] for n in names] for row in rows])
+    matched_sun = np.array([[row["matched_sun_style"][n] for n in names] for row in rows])
     absorption = np.array(["absorption" in row["source"] for row in rows])
     print(
         f"\n{args.geometry} scenes, validation split, {len(rows)} cameras ({int(absorption.sum())} through the dips)"
@@ -391,6 +469,8 @@ def main() -> None:
         ("listed − error", bench - errors),
         ("10D-style, matched", matched),
         ("matched − error", matched - errors),
+        ("minima − error", minima - errors),
+        ("matched sun − error", matched_sun - errors),
     ):
         print(
             f"{label:20s} mean  "
@@ -402,6 +482,27 @@ def main() -> None:
                 f"{n} {float(np.sqrt(np.mean(values[:, k] ** 2))):.3f}" for k, n in enumerate(names)
             )
         )
+    # The Canon 10D's case: a spectrograph's dispersion and a resolution near its 1.7 nm.
+    like = np.array(
+        [row["nm_per_px"] <= 0.4 and 1.2 <= row["resolution_nm"] <= 2.5 for row in rows]
+    )
+    if like.any():
+        print(f"10D-like (≤ 0.4 nm/px, resolution 1.2–2.5 nm): {int(like.sum())} cameras")
+        for label, values in (
+            ("mapping error", errors),
+            ("listed − error", bench - errors),
+            ("matched − error", matched - errors),
+            ("minima − error", minima - errors),
+            ("matched sun − error", matched_sun - errors),
+        ):
+            part = values[like]
+            print(
+                f"  {label:20s} mean/RMS "
+                + " ".join(
+                    f"{n} {float(np.mean(part[:, k])):+.3f}/{float(np.sqrt(np.mean(part[:, k] ** 2))):.3f}"
+                    for k, n in enumerate(names)
+                )
+            )
     if args.sensitivity:
         scored = [row["sensitivity"] for row in rows]
         print(

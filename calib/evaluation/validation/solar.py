@@ -209,20 +209,41 @@ def synthetic_sunlight(airmass: float = 1.5) -> Spectrum:
     _strong_lines(tau, fine)
     _ch_band(tau, fine)
     _scattered_lines(tau, fine)
-    solar = np.exp(-tau)
+    micron = fine * 1e-3
+    planck = micron**-5 / np.expm1(_C2 * 1e4 / (micron * 5772.0))
+    return _at_the_ground(fine, planck * np.exp(-tau), airmass, "synthetic sunlight")
+
+
+def sunlight_from_atlas(atlas: Spectrum, airmass: float = 1.5) -> Spectrum:
+    """A measured solar spectrum above the atmosphere (air wavelengths, finer than the features:
+    a high-resolution atlas such as Chance & Kurucz's SAO2010, 0.04 nm FWHM) through the analog's
+    atmosphere at ``airmass`` (Rayleigh and O₂, as :func:`synthetic_sunlight`), every
+    :data:`STEP_NM`: the analog with the real Sun's features (decision 0110; an atlas is read at
+    run time, never stored)."""
+    fine = np.arange(RANGE_NM[0], RANGE_NM[1], _FINE_NM)
+    return _at_the_ground(fine, atlas.at(fine), airmass, f"{atlas.name} at airmass {airmass:g}")
+
+
+def _at_the_ground(fine: FloatArray, above: FloatArray, airmass: float, name: str) -> Spectrum:
+    """``above`` (on the :data:`_FINE_NM` axis ``fine``) through ``airmass`` atmospheres, box-averaged
+    to :data:`STEP_NM` and normalised to its maximum."""
     telluric = np.zeros_like(fine)
     _o2_bands(telluric, fine)
     micron = fine * 1e-3
-    planck = micron**-5 / np.expm1(_C2 * 1e4 / (micron * 5772.0))
     rayleigh = np.exp(-airmass * 0.0088 * micron**-4.05)
     # The O₂ optical depths are at airmass 1 (:data:`O2_BANDS`): the path scales them. (They were
     # divided by 1.5 before decision 0095, so the default airmass 1.5 rendered airmass 1's bands.)
-    values = planck * rayleigh * solar * np.exp(-telluric * airmass)
+    values = above * rayleigh * np.exp(-telluric * airmass)
     per = round(STEP_NM / _FINE_NM)
     n = values.size // per
     binned = values[: n * per].reshape(n, per).mean(axis=1)
     axis = fine[: n * per].reshape(n, per).mean(axis=1)
-    return Spectrum(axis, binned / float(binned.max()), name="synthetic sunlight")
+    return Spectrum(axis, binned / float(binned.max()), name=name)
+
+
+def air_wavelength_nm(vacuum_nm: ArrayLike) -> FloatArray:
+    """Vacuum → air wavelength (nm): :func:`_air` for a caller's table (an atlas in vacuum)."""
+    return _air(np.asarray(vacuum_nm, dtype=np.float64))
 
 
 @dataclass(frozen=True)
