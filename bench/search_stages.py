@@ -19,6 +19,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable
+from types import FrameType
 from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -40,8 +41,8 @@ _DEPTH = [0]
 
 
 def _caller(skip: int) -> str:
-    frame = sys._getframe(skip)
-    names = []
+    frame: FrameType | None = sys._getframe(skip)
+    names: list[str] = []
     while frame is not None and len(names) < 6:
         name = frame.f_code.co_name
         if name in (
@@ -149,7 +150,11 @@ def main() -> None:
     )
     led, fluorescent = scene.broadband.observation, scene.fluorescent.observation
     for label, lamps in (("LED only", [led]), ("LED + fluorescent", [led, fluorescent])):
-        run(f"bench {label}", lambda lamps=lamps: estimate(lamps, basis=basis))
+
+        def bench(lamps: list[LampObservation] = lamps) -> Any:
+            return estimate(lamps, basis=basis)
+
+        run(f"bench {label}", bench)
     if not args.protocol:
         return
     from calib.evaluation.validation.protocol import (
@@ -176,10 +181,13 @@ def main() -> None:
             "basis": task.basis,
             **variant_arguments(variant),
         }
-        run(
-            f"spot {variant.label}",
-            lambda chosen=chosen, keywords=keywords: estimate(chosen, **keywords),
-        )
+
+        def spot_estimate(
+            chosen: list[LampObservation] = chosen, keywords: dict[str, Any] = keywords
+        ) -> Any:
+            return estimate(chosen, **keywords)
+
+        run(f"spot {variant.label}", spot_estimate)
 
 
 if __name__ == "__main__":
