@@ -23,7 +23,8 @@ with ``--real DIR``, the real Nikon D7000 pair (2474 columns: the CFL through th
 tri-phosphor line list, the halogen lamp measured).
 
 With ``--solve-only`` only the first two figures (the estimate after the mapping: decision 0083),
-and ``--profile N`` then profiles the solve alone.
+and ``--profile N`` then profiles the solve alone. Where the search's evaluations go, stage by
+stage, for the same scenes: ``bench/search_stages.py`` (decision 0105).
 
     python bench/wavelength_speed.py --data-dir ../shared/data/camera_sensitivities [--protocol] [--real ../shared/data/real-grating] [--skip-before] [--profile 12] [--solve-only]
 """

@@ -656,3 +656,57 @@ def _led_only_solution(task: Any) -> tuple[float, Any]:
     inside = (truth >= grid.start_nm) & (truth <= grid.stop_nm)
     error = solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside]
     return float(np.mean(np.abs(error))), solution
+
+
+def test_a_shortlisted_scan_costs_only_the_coarse_lowest_finely():
+    """Decision 0105: the deepening scan is ranked on a coarser profile and only its lowest
+    points are costed on the deciding one (the rest ``inf``: only the lowest point is read)."""
+    points = np.arange(10.0)[:, None] * np.ones((1, 2))
+    points[3] = np.nan
+    batches: list[np.ndarray] = []
+
+    class Fit:
+        def __init__(self, values: np.ndarray) -> None:
+            self.values = values
+
+        def costs(self, x: np.ndarray) -> np.ndarray:
+            batches.append(x)
+            rows = np.nan_to_num(x[:, 0], nan=-1.0).astype(int)
+            return np.where(rows >= 0, self.values[rows], np.inf)
+
+    coarse = Fit(np.array([9.0, 1.0, 8.0, 0.0, 2.0, 7.0, 3.0, 6.0, 5.0, 4.0]))
+    fine = Fit(np.array([0.0, 5.0, 0.0, 0.0, 4.0, 0.0, 6.0, 0.0, 0.0, 0.0]))
+    costs, count = profile_search._shortlisted_costs(points, coarse, fine, 3)  # type: ignore[arg-type]
+    # The coarse ranking's three lowest valid points (1, 4, 6), the invalid one (3) never chosen.
+    assert count == 10 + 3 and len(batches) == 2 and batches[1].shape[0] == 3
+    np.testing.assert_array_equal(np.flatnonzero(np.isfinite(costs)), [1, 4, 6])
+    assert int(np.argmin(costs)) == 4
+
+
+@pytest.mark.slow
+def test_the_deepening_scan_is_ranked_coarsely_and_finds_the_full_scans_answer(
+    prior, camera, monkeypatch
+):
+    """Decision 0105: the deepening scan about each deciding basin is ranked on the scan
+    refinement's coarser profile and only :data:`DEEPEN_SHORTLIST` points are costed on the
+    deciding one; on the short-lens LED scene the answer is the full scan's to the bit."""
+    _truth, pixel, observation = _short_lens_led(camera)
+    observation = replace(observation, pixel_origin="direct_spot")
+    calls: list[tuple[int, int, int, int]] = []
+    original = profile_search._shortlisted_costs
+
+    def spy(points: np.ndarray, coarse: Any, fine: Any, keep: int) -> Any:
+        calls.append((points.shape[0], coarse.edges_px.size, fine.edges_px.size, keep))
+        return original(points, coarse, fine, keep)
+
+    monkeypatch.setattr(profile_search, "_shortlisted_costs", spy)
+    shortlisted = locate_mapping([observation], prior, DEFAULT_GRID)
+    assert calls
+    for size, coarse_edges, fine_edges, keep in calls:
+        assert keep == profile_search.DEEPEN_SHORTLIST < size
+        assert coarse_edges < fine_edges
+    monkeypatch.setattr(profile_search, "DEEPEN_SHORTLIST", 10_000)
+    full = locate_mapping([observation], prior, DEFAULT_GRID)
+    np.testing.assert_array_equal(
+        shortlisted.mapping.wavelength_nm(pixel), full.mapping.wavelength_nm(pixel)
+    )

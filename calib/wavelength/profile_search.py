@@ -492,6 +492,22 @@ def _distinct(
     return [(family, solution) for family, solution, _ in chosen]
 
 
+def _shortlisted_costs(
+    points: FloatArray, coarse: StageFit, fine: StageFit, keep: int
+) -> tuple[FloatArray, int]:
+    """``fine``'s costs of the ``keep`` points ``coarse`` ranks lowest (the rest ``inf``), and the
+    evaluations made: coarse to fine, for a scan whose argmin is all that is read."""
+    costs = coarse.costs(points)
+    count = points.shape[0]
+    finite = np.flatnonzero(np.isfinite(costs))
+    chosen = finite[np.argsort(costs[finite], kind="stable")[:keep]]
+    out = np.full(points.shape[0], np.inf)
+    if chosen.size:
+        out[chosen] = fine.costs(points[chosen])
+        count += chosen.size
+    return out, count
+
+
 def _local_minima(costs: FloatArray, shape: tuple[int, ...]) -> list[int]:
     """Flat indices of the grid's local minima (≤ every neighbour), lowest first."""
     from scipy import ndimage
@@ -1057,6 +1073,10 @@ def _physical_scan(
 #: up to (half width, step) nm, at these incidence offsets (°) about the basin's.
 DECIDING_LOCAL_SCAN = (6.0, 2.0)
 DECIDING_LOCAL_INCIDENCE_DEG = (-4.0, 0.0, 4.0)
+#: The deepening scan (:data:`DECIDING_LOCAL_SCAN`'s 147 gratings) is costed on the scan
+#: refinement's profile (:data:`GLOBAL_BIN_NM`) first and only this many of its lowest on the
+#: deciding one, whose lowest point is all the scan gives.
+DEEPEN_SHORTLIST = 12
 
 
 def _local_end_points(
@@ -1397,8 +1417,12 @@ def search_profiles(
         # gives the whole geometry — a grating file's — is scanned over its prior.)
         deciding = deciding_stage(family)
         local = _local_end_points(family, outcome.x, pixel_range)
-        local_costs = deciding.costs(local)
-        count = local.shape[0]
+        local_costs, count = _shortlisted_costs(
+            local,
+            stage(family, GLOBAL_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR),
+            deciding,
+            DEEPEN_SHORTLIST,
+        )
         if np.any(np.isfinite(local_costs)) and float(np.min(local_costs)) < outcome.cost:
             again = deciding.refine(
                 local[int(np.argmin(local_costs))], max_iterations=10, tolerance=1e-5, rounds=1

@@ -1,0 +1,194 @@
+"""Where the profile search's evaluations and CPU time go, stage by stage, for the speed bench's scenes.
+
+Wraps :class:`calib.wavelength.profile_search.StageFit`'s ``costs`` (a batch of trial mappings)
+and ``refine`` (Levenberg–Marquardt descents) and the start finders, and books each call to the
+search's stage that made it (the calling function's name, the profile's bin count): the scan
+grids, their minima's refinement, the deciding descents, the deepening scans, the red-end
+pull-in, the final fit; plus the line match, the starts and what lies outside the search
+(:func:`calib.methods.estimate`'s solve and σ budget). Counts are exact; times are CPU
+(``time.process_time``) of one run after a warm-up, with the instrumentation's own small cost.
+
+    python bench/search_stages.py --data-dir ../shared/data/camera_sensitivities [--protocol]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections import defaultdict
+from collections.abc import Callable
+from types import FrameType
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from calib.core.datasets import find_camera, makabe2025_split
+from calib.core.lamp_specs import colour_lamp
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import render_scene
+from calib.methods import estimate
+from calib.model.bases import camera_basis
+from calib.wavelength import profile_search
+
+BOOK: dict[str, list[float]] = defaultdict(lambda: [0, 0, 0.0])
+_DEPTH = [0]
+
+
+def _caller(skip: int) -> str:
+    frame: FrameType | None = sys._getframe(skip)
+    names: list[str] = []
+    while frame is not None and len(names) < 6:
+        name = frame.f_code.co_name
+        if name in (
+            "_physical_scan",
+            "scan_grids",
+            "decide",
+            "deepen",
+            "search_profiles",
+            "_line_match",
+        ):
+            return name
+        names.append(name)
+        frame = frame.f_back
+    return "/".join(names[:3])
+
+
+def _wrap_costs(original: Callable[..., Any]) -> Callable[..., Any]:
+    def costs(self: Any, x: Any) -> Any:
+        x2 = np.atleast_2d(x)
+        started = time.process_time()
+        out = original(self, x)
+        if _DEPTH[0] == 0:
+            key = f"costs  {_caller(2):16s} {self.models[0].edges_px.size - 1:5d} px"
+            entry = BOOK[key]
+            entry[0] += 1
+            entry[1] += x2.shape[0]
+            entry[2] += time.process_time() - started
+        return out
+
+    return costs
+
+
+def _wrap_refine(original: Callable[..., Any]) -> Callable[..., Any]:
+    def refine(self: Any, x: Any, *args: Any, **kwargs: Any) -> Any:
+        started = time.process_time()
+        _DEPTH[0] += 1
+        try:
+            out = original(self, x, *args, **kwargs)
+        finally:
+            _DEPTH[0] -= 1
+        key = f"refine {_caller(2):16s} {self.models[0].edges_px.size - 1:5d} px"
+        entry = BOOK[key]
+        entry[0] += 1
+        entry[1] += out.evaluations
+        entry[2] += time.process_time() - started
+        return out
+
+    return refine
+
+
+def _wrap_plain(module: Any, name: str, label: str) -> None:
+    original = getattr(module, name)
+
+    def wrapped(*args: Any, **kwargs: Any) -> Any:
+        started = time.process_time()
+        out = original(*args, **kwargs)
+        entry = BOOK[label]
+        entry[0] += 1
+        entry[2] += time.process_time() - started
+        return out
+
+    setattr(module, name, wrapped)
+
+
+def install() -> None:
+    fit = profile_search.StageFit
+    fit.costs = _wrap_costs(fit.costs)  # type: ignore[method-assign]
+    fit.refine = _wrap_refine(fit.refine)  # type: ignore[method-assign]
+    _wrap_plain(profile_search, "_line_match", "line match (physical)")
+    _wrap_plain(profile_search, "lines_and_peaks", "lines and peaks")
+    _wrap_plain(profile_search, "fluorescent_starts", "fluorescent starts")
+    _wrap_plain(profile_search, "_correlation_starts", "correlation starts")
+    _wrap_plain(profile_search, "_stage", "stage models built")
+
+
+def run(label: str, function: Callable[[], Any]) -> None:
+    function()  # warm-up
+    BOOK.clear()
+    started = time.process_time()
+    result = function()
+    total = time.process_time() - started
+    details = getattr(getattr(result, "mapping", None), "details", None) or {}
+    print(f"\n{label}: {total:.3f} s CPU, {details.get('evaluations')} search evaluations")
+    for key, (calls, points, seconds) in sorted(BOOK.items(), key=lambda kv: -kv[1][2]):
+        print(f"   {key:42s} {int(calls):4d} calls {int(points):6d} evals {seconds:7.3f} s")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data-dir", default=None)
+    parser.add_argument("--noise", type=float, default=0.01)
+    parser.add_argument("--protocol", action="store_true")
+    args = parser.parse_args()
+    install()
+    train, test = makabe2025_split(args.data_dir)
+    camera = find_camera(test, "Canon 600D")
+    basis = camera_basis([r.sensitivity for r in train], source="Makabe 2025 train (44)")
+    scene = render_scene(
+        camera.name,
+        camera.sensitivity.resample(DEFAULT_GRID, "interpolate"),
+        np.random.default_rng(0),
+        broadband_lamp=colour_lamp("D65"),
+        fluorescent_lamp=colour_lamp("FL2"),
+        noise_fraction=args.noise,
+    )
+    led, fluorescent = scene.broadband.observation, scene.fluorescent.observation
+    for label, lamps in (("LED only", [led]), ("LED + fluorescent", [led, fluorescent])):
+
+        def bench(lamps: list[LampObservation] = lamps) -> Any:
+            return estimate(lamps, basis=basis)
+
+        run(f"bench {label}", bench)
+    if not args.protocol:
+        return
+    from calib.evaluation.validation.protocol import (
+        DEFAULT_VARIANTS,
+        ProtocolSettings,
+        render_task_scene,
+        split_tasks,
+        variant_arguments,
+        variant_observations,
+    )
+    from calib.evaluation.validation.splits import load_splits
+
+    splits, _ = load_splits(args.data_dir)
+    settings = ProtocolSettings(seed=0)
+    task = next(t for t in split_tasks(splits.test, settings) if t.camera.name == camera.name)
+    spot = render_task_scene(task)
+    for variant in DEFAULT_VARIANTS:
+        if variant.label not in ("LED only", "LED only, no EXIF", "LED+FL"):
+            continue
+        chosen: list[LampObservation] = variant_observations(spot, variant)
+        keywords = {
+            "method": variant.method,
+            "grid": settings.grid,
+            "basis": task.basis,
+            **variant_arguments(variant),
+        }
+
+        def spot_estimate(
+            chosen: list[LampObservation] = chosen, keywords: dict[str, Any] = keywords
+        ) -> Any:
+            return estimate(chosen, **keywords)
+
+        run(f"spot {variant.label}", spot_estimate)
+
+
+if __name__ == "__main__":
+    main()
