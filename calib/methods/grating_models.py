@@ -460,12 +460,17 @@ def fit_physical(
             lamps, kind, value, weight, gain_sigma, wavelength_nm, checked=True
         )
 
+    # The equations the pass's refinement evaluated, by parameter value (its weight is the
+    # pass's): the refinement returns one of them, which the pass then reads again.
+    evaluated: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
+
     def misfit(value: float, weight: FloatArray) -> float:
-        values, target, _ = equations(value, weight)
-        return profile_throughput(values, target)[1]
+        evaluated[value] = made = equations(value, weight)
+        return profile_throughput(made[0], made[1])[1]
 
     scanned = scan_efficiencies(lamps, kind, candidates, wavelength_nm)
     for _ in range(FIT_PASSES):
+        evaluated.clear()
         chi2_scan = physical_misfits(
             lamps, kind, candidates, weight, gain_sigma, wavelength_nm, efficiencies=scanned
         )
@@ -485,7 +490,7 @@ def fit_physical(
             options={"xatol": 1e-6},
         )
         parameter = float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
-        values, target, shape = equations(parameter, weight)
+        values, target, shape = evaluated.get(parameter) or equations(parameter, weight)
         throughput, _ = profile_throughput(values, target)
         weight = throughput * shape
     values, target, _ = equations(parameter, weight)
