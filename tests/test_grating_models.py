@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -43,6 +44,7 @@ from calib.methods.multilamp import (
     with_choice_spread,
 )
 from calib.methods.prior_solve import PriorOptions, estimate_prior
+from calib.methods.responses import LampData
 from calib.model.bases import CameraBasis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.model.gratings import (
@@ -404,17 +406,24 @@ def test_a_fit_evaluates_its_model_once_per_value(basis, monkeypatch):
     scans: list[int] = []
     evaluated: list[tuple[float, int]] = []
     weights: list[np.ndarray] = []  # kept alive: no later weight can take an earlier one's id
-    efficiencies = grating_models.physical_efficiencies
-    equations = grating_models.physical_equations
 
-    def counted_efficiencies(kind, parameters, order, wavelength_nm):  # type: ignore[no-untyped-def]
+    def counted_efficiencies(
+        kind: PhysicalKind, parameters: np.ndarray, order: int, wavelength_nm: np.ndarray
+    ) -> np.ndarray:
         scans.append(order)
-        return efficiencies(kind, parameters, order, wavelength_nm)
+        return physical_efficiencies(kind, parameters, order, wavelength_nm)
 
-    def counted_equations(lamps, kind, parameter, weight, *args, **kwargs):  # type: ignore[no-untyped-def]
+    def counted_equations(
+        lamps: Sequence[LampData],
+        kind: PhysicalKind,
+        parameter: float,
+        weight: np.ndarray,
+        *args: Any,
+        **kwargs: Any,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         weights.append(weight)
         evaluated.append((parameter, id(weight)))
-        return equations(lamps, kind, parameter, weight, *args, **kwargs)
+        return physical_equations(lamps, kind, parameter, weight, *args, **kwargs)
 
     monkeypatch.setattr(grating_models, "physical_efficiencies", counted_efficiencies)
     monkeypatch.setattr(grating_models, "physical_equations", counted_equations)

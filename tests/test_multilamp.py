@@ -615,17 +615,13 @@ def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
     data_nodes, target, penalty_nodes, basis, start = _gauss_newton_problem()
     size, terms = basis.shape
     for weight in (1e-3, 1.0):
-        x, *state = _efficiency_terms_solve(
+        first = _efficiency_terms_solve(
             data_nodes, target, penalty_nodes, basis, start * 1.1, weight
         )
+        x = first[0]
         assert not np.allclose(x, start * 1.1)  # steps were taken
-        again, *again_state = _efficiency_terms_solve(
-            data_nodes, target, penalty_nodes, basis, x, weight
-        )
-        for solution, (inverse, data_residual, penalty_residual, jacobians) in (
-            (x, state),
-            (again, again_state),
-        ):
+        second = _efficiency_terms_solve(data_nodes, target, penalty_nodes, basis, x, weight)
+        for solution, inverse, data_residual, penalty_residual, jacobians in (first, second):
             fresh = 1.0 / (basis @ solution[:terms])
             assert np.array_equal(inverse, fresh)
             assert np.array_equal(data_residual, data_nodes @ fresh - target)
@@ -642,11 +638,8 @@ def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
         # The start's Jacobians handed in: the same solve, and the handed arrays left as they were.
         handed = _efficiency_jacobians(data_nodes, penalty_nodes, basis, 1.0 / (basis @ x[:terms]))
         copies = [array.copy() for array in handed]
-        warm, *warm_state = _efficiency_terms_solve(
-            data_nodes, target, penalty_nodes, basis, x, weight, handed
-        )
-        assert np.array_equal(warm, again)
-        for made, expected in zip(warm_state[:3], again_state[:3], strict=True):
+        warm = _efficiency_terms_solve(data_nodes, target, penalty_nodes, basis, x, weight, handed)
+        for made, expected in zip(warm[:4], second[:4], strict=True):
             assert np.array_equal(made, expected)
         for array, copy in zip(handed, copies, strict=True):
             assert np.array_equal(array, copy)
@@ -673,7 +666,13 @@ def test_the_weights_are_scored_at_once_as_one_by_one(monkeypatch) -> None:
     seen: list[bytes] = []
     jacobians = multilamp._efficiency_jacobians
 
-    def counted(data, penalty, efficiency_basis, inverse, out=None):  # type: ignore[no-untyped-def]
+    def counted(
+        data: np.ndarray,
+        penalty: np.ndarray,
+        efficiency_basis: np.ndarray,
+        inverse: np.ndarray,
+        out: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         seen.append(inverse.tobytes())
         return jacobians(data, penalty, efficiency_basis, inverse, out)
 

@@ -183,7 +183,7 @@ def solve_with_prior(
     rows = np.zeros((0, n_unknowns))
     # The constraint is the same on every pass: its null space and particular solution once.
     null_space = _null_space(constraint)
-    particular = np.linalg.lstsq(constraint, direct, rcond=None)[0]
+    particular = np.asarray(np.linalg.lstsq(constraint, direct, rcond=None)[0], dtype=np.float64)
     for _ in range(EFFICIENCY_PASSES):
         blocks = []
         for c in range(3):
