@@ -83,6 +83,7 @@ from calib.methods.responses import (
     ResponseEstimate,
     direct_rows,
     lamp_data,
+    prepared_response,
 )
 from calib.methods.solve_scope import recall, remember_start, reuse, warm_start
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
@@ -1417,6 +1418,35 @@ def lamps_with_mapping(
 ) -> tuple[QuadraticMapping | GratingGeometry, list[LampSystem], float]:
     """The mapping (:func:`find_shared_mapping`), the lamps prepared on it (those with a direct
     measurement when ``need_direct``) and the time the mapping took."""
+    used_mapping, chosen, mapping_s = mapping_and_lamps(
+        observations,
+        prior,
+        grid,
+        mapping,
+        mapping_lamp,
+        refine_given_mapping,
+        kernel,
+        need_direct=need_direct,
+        rig=rig,
+    )
+    systems = [prepare_matched_lamp(obs, used_mapping, grid, kernel) for obs in chosen]
+    return used_mapping, systems, mapping_s
+
+
+def mapping_and_lamps(
+    observations: Sequence[LampObservation],
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    mapping: QuadraticMapping | GratingGeometry | None,
+    mapping_lamp: str | None,
+    refine_given_mapping: bool,
+    kernel: FloatArray | None,
+    *,
+    need_direct: bool,
+    rig: RigGeometry | None = None,
+) -> tuple[QuadraticMapping | GratingGeometry, list[LampObservation], float]:
+    """:func:`lamps_with_mapping` before the lamps are prepared: the mapping, the lamps to
+    prepare on it and the time the mapping took."""
     started = time.perf_counter()
     used_mapping = find_shared_mapping(
         observations, prior, grid, mapping, mapping_lamp, refine_given_mapping, kernel, rig
@@ -1429,8 +1459,7 @@ def lamps_with_mapping(
             "efficiency from an earlier calibration (grating=…, --grating FILE)",
             source="observations",
         )
-    systems = [prepare_matched_lamp(obs, used_mapping, grid, kernel) for obs in chosen]
-    return used_mapping, systems, mapping_s
+    return used_mapping, chosen, mapping_s
 
 
 #: A measured spectrum's dark range: samples below this share of its peak. A channel whose light
@@ -1520,9 +1549,10 @@ def prepare_lamps(
     refine_given_mapping: bool = False,
     kernel: FloatArray | None = None,
 ) -> PreparedLamps:
-    """Step 1 for one camera's lamps (the mapping found with the prior when not given)."""
+    """Step 1 for one camera's lamps (the mapping found with the prior when not given; each lamp
+    prepared and its response fitted once per solve scope: :func:`prepared_response`)."""
     check_lamps(observations, basis, grid)
-    used_mapping, systems, mapping_s = lamps_with_mapping(
+    used_mapping, chosen, mapping_s = mapping_and_lamps(
         observations,
         basis.prior(prior_shrinkage),
         grid,
@@ -1532,11 +1562,13 @@ def prepare_lamps(
         kernel,
         need_direct=True,
     )
+    pairs = [prepared_response(obs, used_mapping, grid, kernel) for obs in chosen]
     lamps = tuple(
         with_spectrum_floor(
-            lamp_data(system, used_mapping), spectrum_floor(system.observation.spectrum)
+            lamp_data(system, used_mapping, response),
+            spectrum_floor(system.observation.spectrum),
         )
-        for system in systems
+        for system, response in pairs
     )
     return PreparedLamps(used_mapping, lamps, mapping_s)
 

@@ -48,7 +48,13 @@ from calib.methods.grating_models import (
     GratingModelName,
     check_grating_model,
 )
-from calib.methods.responses import LampData, ResponseEstimate, fit_response, lamp_data
+from calib.methods.responses import (
+    LampData,
+    ResponseEstimate,
+    fit_response,
+    lamp_data,
+    prepared_response,
+)
 from calib.model.bases import CameraBasis, CameraPrior, whitening
 from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
@@ -397,14 +403,15 @@ def estimate_prior(
     solved = [reference] + [
         obs for obs in observations if obs is not reference and obs.direct_rgb is not None
     ]
-    systems = [
-        prepared[id(obs)][0] if id(obs) in prepared else setup.prepared(obs, grid) for obs in solved
+    # Made here or found in the open scope (the σ budget's η-terms re-solve: decision 0107).
+    pairs = [
+        prepared[id(obs)]
+        if id(obs) in prepared
+        else prepared_response(obs, setup.mapping, grid, setup.kernel)
+        for obs in solved
     ]
-    fitted = (
-        [prepared[id(obs)][1] for obs in solved]
-        if all(id(obs) in prepared for obs in solved)
-        else None
-    )
+    systems = [system for system, _ in pairs]
+    fitted = [response for _, response in pairs]
     system = systems[0]
     solution = solve_with_prior(
         system,
@@ -460,12 +467,11 @@ def _physical_estimate(
 
     started = time.perf_counter()
     with_direct = [obs for obs in observations if obs.direct_rgb is not None]
-    systems = [setup.prepared(obs, grid) for obs in with_direct]
-    lamps: list[LampData] = [lamp_data(system, setup.mapping) for system in systems]
-    made = [
-        (obs, (system, lamp.response))
-        for obs, system, lamp in zip(with_direct, systems, lamps, strict=True)
+    pairs = [prepared_response(obs, setup.mapping, grid, setup.kernel) for obs in with_direct]
+    lamps: list[LampData] = [
+        lamp_data(system, setup.mapping, response) for system, response in pairs
     ]
+    made = list(zip(with_direct, pairs, strict=True))
     efficiency = solve_efficiency(
         lamps,
         setup.prior,
