@@ -204,3 +204,13 @@ def test_a_lamp_is_prepared_and_its_response_fitted_once_per_scope(
     assert np.array_equal(response.response, fresh.response)
     assert np.array_equal(response.covariance, fresh.covariance)
     assert np.array_equal(system.operators.direct_row, fresh_system.operators.direct_row)
+    # Metadata no digest reads (a reader's object): made, not shared, never an error.
+    odd = replace(observation, metadata={"reader": object()})
+    with solve_scope() as scope:
+        assert scope is not None
+        first = prepared_response(odd, TRUTH, grid, None)[1]
+        assert prepared_response(odd, TRUTH, grid, None)[1] is not first
+        assert scope.reused == 0
+        with pytest.raises(TypeError):
+            reuse("strict", (odd,), lambda: None)
+    assert np.array_equal(first.response, fresh.response)

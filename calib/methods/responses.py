@@ -236,7 +236,8 @@ def prepared_response(
         system = prepare_matched_lamp(observation, mapping, grid, kernel)
         return system, fit_response(system, mapping)
 
-    return reuse("prepared response", (observation, mapping, grid, kernel), made)
+    # Not strict: an observation's metadata may hold objects no digest reads (not shared then).
+    return reuse("prepared response", (observation, mapping, grid, kernel), made, strict=False)
 
 
 def lamp_data(
