@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,6 +27,7 @@ from calib.methods.grating_models import (
     physical_equations,
     physical_misfits,
     profile_throughput,
+    scan_efficiencies,
 )
 from calib.methods.multilamp import (
     EfficiencySettings,
@@ -42,6 +44,7 @@ from calib.methods.multilamp import (
     with_choice_spread,
 )
 from calib.methods.prior_solve import PriorOptions, estimate_prior
+from calib.methods.responses import LampData
 from calib.model.bases import CameraBasis
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.model.gratings import (
@@ -378,8 +381,58 @@ def test_a_scan_in_one_pass_equals_the_value_by_value_misfits(basis, kind: Physi
             for value in values
         ]
         np.testing.assert_allclose(batched, pointwise, rtol=1e-12)
+        # The scan's efficiencies made beforehand (a fit's passes): the same numbers, to the bit.
+        made = scan_efficiencies(group, kind, values, wavelength)
+        given = physical_misfits(group, kind, values, weight, 0.02, wavelength, efficiencies=made)
+        assert np.array_equal(given, batched)
     with pytest.raises(InputError, match="positive"):
         physical_efficiencies(kind, [0.0], 1, wavelength)
+
+
+def test_a_fit_evaluates_its_model_once_per_value(basis, monkeypatch):
+    """Decision 0107: a physical fit makes the scan's efficiencies once for its passes (one call
+    per order, not one per pass), and evaluates the direct equations once per (parameter, weight)
+    — a pass reads its refinement's evaluation at the optimum instead of making it again — with
+    the same fit as evaluating everything afresh."""
+    import calib.methods.grating_models as grating_models
+
+    grating = SinusoidalPhaseGrating(1.1)
+    _, observations = _scene(
+        _order(grating, 1), _order(grating, 0), seed=2, noise=0.01, direct_noise=0.004
+    )
+    lamps = prepare_lamps(observations, basis=basis, mapping=MAPPING).lamps
+    wavelength = DEFAULT_GRID.wavelength_nm
+    reference = fit_physical(lamps, "sinusoidal", wavelength, gain_sigma=0.02)
+    scans: list[int] = []
+    evaluated: list[tuple[float, int]] = []
+    weights: list[np.ndarray] = []  # kept alive: no later weight can take an earlier one's id
+
+    def counted_efficiencies(
+        kind: PhysicalKind, parameters: np.ndarray, order: int, wavelength_nm: np.ndarray
+    ) -> np.ndarray:
+        scans.append(order)
+        return physical_efficiencies(kind, parameters, order, wavelength_nm)
+
+    def counted_equations(
+        lamps: Sequence[LampData],
+        kind: PhysicalKind,
+        parameter: float,
+        weight: np.ndarray,
+        *args: Any,
+        **kwargs: Any,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        weights.append(weight)
+        evaluated.append((parameter, id(weight)))
+        return physical_equations(lamps, kind, parameter, weight, *args, **kwargs)
+
+    monkeypatch.setattr(grating_models, "physical_efficiencies", counted_efficiencies)
+    monkeypatch.setattr(grating_models, "physical_equations", counted_equations)
+    fit = fit_physical(lamps, "sinusoidal", wavelength, gain_sigma=0.02)
+    assert sorted(scans) == [0, 1]
+    assert len(set(evaluated)) == len(evaluated)
+    assert fit.parameter == reference.parameter
+    assert np.array_equal(fit.covariance, reference.covariance)
+    assert fit.chi2 == reference.chi2
 
 
 def test_family_weights_are_akaike_weights_of_the_quasi_likelihood_at_the_stated_noise():

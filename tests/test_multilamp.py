@@ -27,8 +27,12 @@ from calib.evaluation.synthetic import (
 from calib.methods import ESTIMATION_METHODS, estimate
 from calib.methods.known_grating import estimate_known_grating
 from calib.methods.multilamp import (
+    PRIOR_WEIGHTS,
     MultilampOptions,
+    _efficiency_jacobians,
     _efficiency_terms_solve,
+    _nonlinear_efficiency,
+    _pinv_symmetric_stack,
     bootstrap_sigma,
     calibrate_lamps,
     choose_prior_weight,
@@ -38,6 +42,8 @@ from calib.methods.multilamp import (
     pooled_efficiency_terms,
     prepare_lamps,
     refine_grating,
+    upre_scores,
+    weight_score,
 )
 from calib.methods.prior_solve import PriorOptions, estimate_prior
 from calib.model.bases import CameraBasis, fallback_camera_basis
@@ -584,10 +590,11 @@ def test_a_spectrum_its_hg_lines_checked_is_weighed_with_the_checks_sigma(basis)
     np.testing.assert_array_equal(same.response, scalar.response)
 
 
-def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
-    """:func:`_efficiency_terms_solve` hands its last ``η⁻¹`` and residuals to the weight's score
-    (decision 0083): each must be what ``x`` gives afresh, after steps and from the optimum."""
-    rng = np.random.default_rng(7)
+def _gauss_newton_problem(
+    seed: int = 7,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A small ``η = B c`` problem: data nodes, target, prior rows, Fourier-like basis, a start."""
+    rng = np.random.default_rng(seed)
     size, terms, scales = 31, 7, 1
     wavelength = np.linspace(400.0, 700.0, size)
     basis = np.cos(np.pi * np.outer((wavelength - 400.0) / 300.0, np.arange(terms)))
@@ -598,18 +605,23 @@ def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
         [rng.normal(size=(3 * size, size)) * 0.1, rng.normal(size=(3 * size, scales))]
     )
     start = np.concatenate([np.linalg.lstsq(basis, 1.0 / truth, rcond=None)[0], np.ones(scales)])
+    return data_nodes, target, penalty_nodes, basis, start
+
+
+def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
+    """:func:`_efficiency_terms_solve` hands its last ``η⁻¹``, residuals and Jacobians to the
+    weight's score (decisions 0083, 0107): each must be what ``x`` gives afresh, after steps and
+    from the optimum; and Jacobians handed in for the start give the same solve to the bit."""
+    data_nodes, target, penalty_nodes, basis, start = _gauss_newton_problem()
+    size, terms = basis.shape
     for weight in (1e-3, 1.0):
-        x, *state = _efficiency_terms_solve(
+        first = _efficiency_terms_solve(
             data_nodes, target, penalty_nodes, basis, start * 1.1, weight
         )
+        x = first[0]
         assert not np.allclose(x, start * 1.1)  # steps were taken
-        again, *again_state = _efficiency_terms_solve(
-            data_nodes, target, penalty_nodes, basis, x, weight
-        )
-        for solution, (inverse, data_residual, penalty_residual) in (
-            (x, state),
-            (again, again_state),
-        ):
+        second = _efficiency_terms_solve(data_nodes, target, penalty_nodes, basis, x, weight)
+        for solution, inverse, data_residual, penalty_residual, jacobians in (first, second):
             fresh = 1.0 / (basis @ solution[:terms])
             assert np.array_equal(inverse, fresh)
             assert np.array_equal(data_residual, data_nodes @ fresh - target)
@@ -617,6 +629,81 @@ def test_the_gauss_newton_state_it_returns_is_the_one_at_its_solution() -> None:
                 penalty_residual,
                 penalty_nodes[:, :size] @ fresh + penalty_nodes[:, size:] @ solution[terms:],
             )
+            for made, afresh in zip(
+                jacobians,
+                _efficiency_jacobians(data_nodes, penalty_nodes, basis, fresh),
+                strict=True,
+            ):
+                assert np.array_equal(made, afresh)
+        # The start's Jacobians handed in: the same solve, and the handed arrays left as they were.
+        handed = _efficiency_jacobians(data_nodes, penalty_nodes, basis, 1.0 / (basis @ x[:terms]))
+        copies = [array.copy() for array in handed]
+        warm = _efficiency_terms_solve(data_nodes, target, penalty_nodes, basis, x, weight, handed)
+        for made, expected in zip(warm[:4], second[:4], strict=True):
+            assert np.array_equal(made, expected)
+        for array, copy in zip(handed, copies, strict=True):
+            assert np.array_equal(array, copy)
+
+
+def test_the_weights_are_scored_at_once_as_one_by_one(monkeypatch) -> None:
+    """Decision 0107: UPRE's scores over the weights in one pass equal :func:`weight_score` weight
+    by weight to the bit (the stacked pseudo-inverse is ``pinv_symmetric``'s, also for singular
+    and indefinite matrices), and the weights' chain computes the Jacobians once per solution."""
+    from calib.core.blas import pinv_symmetric
+
+    rng = np.random.default_rng(3)
+    matrices = rng.normal(size=(30, 8, 8))
+    matrices = matrices @ matrices.transpose(0, 2, 1) * np.logspace(-6, 6, 30)[:, None, None]
+    matrices[::3, 0, :] = matrices[::3, :, 0] = 0.0  # singular
+    matrices[1::3] -= 2.0 * np.eye(8) * np.abs(matrices[1::3]).max()  # indefinite
+    stacked = _pinv_symmetric_stack(matrices)
+    for matrix, inverse in zip(matrices, stacked, strict=True):
+        assert np.array_equal(inverse, pinv_symmetric(matrix))
+
+    import calib.methods.multilamp as multilamp
+
+    data_nodes, target, penalty_nodes, basis, start = _gauss_newton_problem(seed=11)
+    seen: list[bytes] = []
+    jacobians = multilamp._efficiency_jacobians
+
+    def counted(
+        data: np.ndarray,
+        penalty: np.ndarray,
+        efficiency_basis: np.ndarray,
+        inverse: np.ndarray,
+        out: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        seen.append(inverse.tobytes())
+        return jacobians(data, penalty, efficiency_basis, inverse, out)
+
+    monkeypatch.setattr(multilamp, "_efficiency_jacobians", counted)
+    x, data_jac, penalty_jac, weight, scores = _nonlinear_efficiency(
+        data_nodes, target, penalty_nodes, basis, start, None, "upre"
+    )
+    assert len(set(seen)) == len(seen)  # never twice at one η⁻¹
+    # Each weight's score afresh, from the same chain of solves.
+    one_by_one = []
+    state = start
+    for candidate in PRIOR_WEIGHTS[::-1].tolist():
+        state, _, data_residual, penalty_residual, (solved_data, solved_penalty) = (
+            _efficiency_terms_solve(data_nodes, target, penalty_nodes, basis, state, candidate)
+        )
+        one_by_one.append(
+            weight_score(
+                "upre", candidate, data_residual, penalty_residual, solved_data, solved_penalty
+            )
+        )
+    assert np.array_equal(scores, np.array(one_by_one)[::-1])
+    assert weight == PRIOR_WEIGHTS[int(np.argmin(scores))]
+    assert np.array_equal(
+        upre_scores(
+            np.array([weight]),
+            [data_nodes @ (1.0 / (basis @ x[:7])) - target],
+            [data_jac],
+            [penalty_jac],
+        ),
+        [scores[int(np.argmin(scores))]],
+    )
 
 
 def test_a_channel_darker_than_the_spectrums_floor_gets_its_share_of_sigma() -> None:

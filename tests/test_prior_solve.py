@@ -99,11 +99,24 @@ def test_the_direct_measurement_is_required(basis, camera):
         )
 
 
-def test_the_result_honours_the_direct_measurement(basis, camera):
-    """The solve's sensitivity reproduces the measured direct RGB (it is an exact constraint)."""
+def test_the_result_honours_the_direct_measurement(basis, camera, monkeypatch):
+    """The solve's sensitivity reproduces the measured direct RGB (it is an exact constraint),
+    the constraint's null space found once per solve: it is the same on every pass (decision
+    0107)."""
+    import calib.methods.prior_solve as prior_solve
+
+    factored = []
+    null_space = prior_solve._null_space
+
+    def counted(constraint: np.ndarray) -> np.ndarray:
+        factored.append(constraint)
+        return null_space(constraint)
+
+    monkeypatch.setattr(prior_solve, "_null_space", counted)
     observation = _render("D65", camera, 0.01, 4)
     system = prepare_lamp(observation, DEFAULT_GRID)
     solution = solve_with_prior(system, MAPPING, basis.prior(), fourier_basis(DEFAULT_GRID))
+    assert len(factored) == 1
     assert observation.direct_rgb is not None
     np.testing.assert_allclose(
         system.operators.direct_row @ solution.sensitivity, observation.direct_rgb, rtol=1e-9

@@ -22,7 +22,7 @@ from calib.core.observations import LampKind, LampObservation
 from calib.core.spectra import MultiSpectrum
 from calib.methods import BudgetSettings, estimate
 from calib.methods.multilamp import physical_fit
-from calib.methods.responses import lamp_data
+from calib.methods.responses import lamp_data, prepared_response
 from calib.methods.solve_scope import (
     fingerprint,
     perturbation,
@@ -180,3 +180,37 @@ def test_a_start_in_the_wrong_basin_falls_back_to_the_full_scan(
         assert scope.warm_started == 1
     assert warm.parameter == pytest.approx(full.parameter, rel=1e-5)
     assert warm.parameter == pytest.approx(1.2, rel=0.05)
+
+
+def test_a_lamp_is_prepared_and_its_response_fitted_once_per_scope(
+    camera: MultiSpectrum, basis: CameraBasis
+) -> None:
+    """Decision 0107: inside a scope, :func:`prepared_response` of the same observation, mapping,
+    grid and kernel is the pair already made (the σ budget's η-terms re-solve); another mapping,
+    or no scope, makes it afresh — with the same numbers as a fresh pair."""
+    observation = _lamp("LED-B3", camera, SinusoidalPhaseGrating(1.2), 0)
+    grid = basis.grid
+    fresh_system, fresh = prepared_response(observation, TRUTH, grid, None)
+    assert prepared_response(observation, TRUTH, grid, None)[1] is not fresh  # no scope
+    moved = replace(TRUTH, c=TRUTH.c + 1e-9)
+    with solve_scope() as scope:
+        assert scope is not None
+        system, response = prepared_response(observation, TRUTH, grid, None)
+        again_system, again = prepared_response(observation, TRUTH, grid, None)
+        assert again is response and again_system is system
+        assert scope.reused == 1
+        assert prepared_response(observation, moved, grid, None)[1] is not response
+        assert scope.reused == 1
+    assert np.array_equal(response.response, fresh.response)
+    assert np.array_equal(response.covariance, fresh.covariance)
+    assert np.array_equal(system.operators.direct_row, fresh_system.operators.direct_row)
+    # Metadata no digest reads (a reader's object): made, not shared, never an error.
+    odd = replace(observation, metadata={"reader": object()})
+    with solve_scope() as scope:
+        assert scope is not None
+        first = prepared_response(odd, TRUTH, grid, None)[1]
+        assert prepared_response(odd, TRUTH, grid, None)[1] is not first
+        assert scope.reused == 0
+        with pytest.raises(TypeError):
+            reuse("strict", (odd,), lambda: None)
+    assert np.array_equal(first.response, fresh.response)

@@ -356,6 +356,22 @@ def physical_equations(
     return rows @ shape, target, np.asarray(shape, dtype=np.float64)
 
 
+def scan_efficiencies(
+    lamps: Sequence[LampData], kind: PhysicalKind, parameters: FloatArray, wavelength_nm: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """What :func:`physical_misfits` evaluates of the model at ``parameters`` ``(k,)``: ``η₁`` on
+    ``wavelength_nm`` (floored at 1e-300) and ``η₀`` on the lamps' fine axis when every lamp
+    carries its operators (else on ``wavelength_nm``). They depend on the values scanned alone, not
+    on the rows' weights: a fit's passes, which re-whiten the rows and scan the same values, make
+    them once (decision 0107)."""
+    first = np.maximum(physical_efficiencies(kind, parameters, 1, wavelength_nm), 1e-300)
+    operators = [lamp.operators for lamp in lamps]
+    if all(operator is not None for operator in operators):
+        axis = operators[0].axis_nm if operators[0] is not None else wavelength_nm
+        return first, physical_efficiencies(kind, parameters, 0, axis)
+    return first, physical_efficiencies(kind, parameters, 0, wavelength_nm)
+
+
 def physical_misfits(
     lamps: Sequence[LampData],
     kind: PhysicalKind,
@@ -364,26 +380,28 @@ def physical_misfits(
     gain_sigma: float | None,
     wavelength_nm: FloatArray,
     floor: float = MODEL_FLOOR,
+    *,
+    efficiencies: tuple[FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
     """:func:`profile_throughput`'s χ² of :func:`physical_equations` at each of ``parameters``
     ``(k,)``, all in one pass: the efficiencies as ``(k, ·)`` arrays, the direct rows of every
     value at once (:func:`calib.methods.responses.direct_rows`) — the fit's scans. Equal to the
-    value-by-value χ² within rounding (``inf`` where the throughput is not positive)."""
-    first = np.maximum(physical_efficiencies(kind, parameters, 1, wavelength_nm), 1e-300)
-    operators = [lamp.operators for lamp in lamps]
-    if all(operator is not None for operator in operators):
-        axis = operators[0].axis_nm if operators[0] is not None else wavelength_nm
+    value-by-value χ² within rounding (``inf`` where the throughput is not positive).
+    ``efficiencies``: :func:`scan_efficiencies` of the same lamps, kind, values and grid, already
+    made."""
+    first, zeroth = (
+        scan_efficiencies(lamps, kind, parameters, wavelength_nm)
+        if efficiencies is None
+        else efficiencies
+    )
+    if all(lamp.operators is not None for lamp in lamps):
         rows, target = direct_rows(
-            lamps,
-            weight,
-            gain_sigma=gain_sigma,
-            zeroth_order=physical_efficiencies(kind, parameters, 0, axis),
-            floor=floor,
+            lamps, weight, gain_sigma=gain_sigma, zeroth_order=zeroth, floor=floor
         )
         values = np.matmul(rows, (1.0 / first)[:, :, None])[:, :, 0]
     else:
         rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma, floor=floor)
-        values = (physical_efficiencies(kind, parameters, 0, wavelength_nm) / first) @ rows.T
+        values = (zeroth / first) @ rows.T
         target = np.broadcast_to(target, values.shape)
     norm = np.sum(values * values, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -442,12 +460,20 @@ def fit_physical(
             lamps, kind, value, weight, gain_sigma, wavelength_nm, checked=True
         )
 
-    def misfit(value: float, weight: FloatArray) -> float:
-        values, target, _ = equations(value, weight)
-        return profile_throughput(values, target)[1]
+    # The equations the pass's refinement evaluated, by parameter value (its weight is the
+    # pass's): the refinement returns one of them, which the pass then reads again.
+    evaluated: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
 
+    def misfit(value: float, weight: FloatArray) -> float:
+        evaluated[value] = made = equations(value, weight)
+        return profile_throughput(made[0], made[1])[1]
+
+    scanned = scan_efficiencies(lamps, kind, candidates, wavelength_nm)
     for _ in range(FIT_PASSES):
-        chi2_scan = physical_misfits(lamps, kind, candidates, weight, gain_sigma, wavelength_nm)
+        evaluated.clear()
+        chi2_scan = physical_misfits(
+            lamps, kind, candidates, weight, gain_sigma, wavelength_nm, efficiencies=scanned
+        )
         if not np.any(np.isfinite(chi2_scan)):
             raise EstimationError(
                 f"the direct signals fit no {kind} grating (no positive throughput anywhere)"
@@ -464,7 +490,7 @@ def fit_physical(
             options={"xatol": 1e-6},
         )
         parameter = float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
-        values, target, shape = equations(parameter, weight)
+        values, target, shape = evaluated.get(parameter) or equations(parameter, weight)
         throughput, _ = profile_throughput(values, target)
         weight = throughput * shape
     values, target, _ = equations(parameter, weight)

@@ -83,6 +83,7 @@ from calib.methods.responses import (
     ResponseEstimate,
     direct_rows,
     lamp_data,
+    prepared_response,
 )
 from calib.methods.solve_scope import recall, remember_start, reuse, warm_start
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
@@ -329,12 +330,16 @@ def _efficiency_terms_solve(
     efficiency_basis: FloatArray,
     start: FloatArray,
     weight: float,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    jacobians: tuple[FloatArray, FloatArray] | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, tuple[FloatArray, FloatArray]]:
     """``min ‖D η⁻¹ − t‖² + λ‖P (η⁻¹, α…)‖²`` over ``x = (c, α…)``, ``η = B c`` (Gauss–Newton).
 
     Levenberg-damped steps that keep ``η`` positive on the grid and lower the cost. Returns ``x``
-    and, at ``x``, ``η⁻¹`` and the data and prior residuals: what :func:`_nonlinear_efficiency`
-    scores the weight with, the same numbers it would compute again (decision 0083).
+    and, at ``x``, ``η⁻¹``, the data and prior residuals and ``(J_d, J_p)``
+    (:func:`_efficiency_jacobians`): what :func:`_nonlinear_efficiency` scores the weight with,
+    the same numbers it would compute again (decision 0083). ``jacobians``: ``(J_d, J_p)`` at
+    ``start`` (the previous weight's, whose solution this weight starts from; read, never
+    written), used for the first step instead of computing them again (decision 0107).
     """
     size, b_eta = efficiency_basis.shape
     penalty_nodes_eta, penalty_nodes_scales = penalty_nodes[:, :size], penalty_nodes[:, size:]
@@ -352,16 +357,20 @@ def _efficiency_terms_solve(
 
     x = start.copy()
     cost, inverse, data_residual, penalty_residual = cost_of(x, efficiency_basis @ x[:b_eta])
-    # One pair of Jacobian arrays, overwritten at each pass (a pass's products are made from it
-    # before the next overwrites it).
+    # One pair of Jacobian arrays made here, overwritten at each pass (a pass's products are made
+    # from it before the next overwrites it); the given pair only read.
     buffers: tuple[FloatArray, FloatArray] | None = None
+    current = jacobians  # (J_d, J_p) at x, when known
     damping = 1e-6
     for _ in range(GAUSS_NEWTON_ITERATIONS):
-        data_jac, penalty_jac = buffers = _efficiency_jacobians(
-            data_nodes, penalty_nodes, efficiency_basis, inverse, buffers
-        )
-        normal = data_jac.T @ data_jac + weight * penalty_jac.T @ penalty_jac
-        descent = -(data_jac.T @ data_residual + weight * penalty_jac.T @ penalty_residual)
+        if current is None:
+            current = buffers = _efficiency_jacobians(
+                data_nodes, penalty_nodes, efficiency_basis, inverse, buffers
+            )
+        data_jac, penalty_jac = current
+        weighted_penalty = weight * penalty_jac.T
+        normal = data_jac.T @ data_jac + weighted_penalty @ penalty_jac
+        descent = -(data_jac.T @ data_residual + weighted_penalty @ penalty_residual)
         diagonal = np.maximum(normal.diagonal(), 1e-300)
         stride = normal.shape[0] + 1
         accepted = None
@@ -372,7 +381,7 @@ def _efficiency_terms_solve(
             system.reshape(-1)[::stride] += damping * diagonal
             trial = x + np.linalg.solve(system, descent)
             efficiency = efficiency_basis @ trial[:b_eta]
-            if (efficiency > 0).all():
+            if efficiency.min() > 0:  # (NaN fails, as every element's test would)
                 trial_cost = cost_of(trial, efficiency)
                 if trial_cost[0] <= cost:
                     accepted = trial, trial_cost
@@ -382,10 +391,62 @@ def _efficiency_terms_solve(
             break
         previous = cost
         x, (cost, inverse, data_residual, penalty_residual) = accepted
+        current = None
         damping = max(damping / 10.0, 1e-12)
         if previous - cost <= 1e-12 * previous:
             break
-    return x, inverse, data_residual, penalty_residual
+    if current is None:
+        current = _efficiency_jacobians(
+            data_nodes, penalty_nodes, efficiency_basis, inverse, buffers
+        )
+    return x, inverse, data_residual, penalty_residual, current
+
+
+def _pinv_symmetric_stack(matrices: FloatArray) -> FloatArray:
+    """:func:`calib.core.blas.pinv_symmetric` of each matrix of a stack ``(k, n, n)``, to the bit,
+    in one pass: the same ``eigh`` (numpy's stacked call runs LAPACK on each matrix in turn), the
+    same ordering, cutoff and final product per matrix (numpy's stacked ``matmul`` makes each
+    slice's product with the BLAS call a single matrix gets). The weights' scores of one
+    Gauss–Newton pass take one pseudo-inverse of an 8 × 8 matrix each, 41 of them (decision 0107)."""
+    values, vectors = np.linalg.eigh(matrices)
+    signs = np.copysign(1.0, values)
+    values = np.abs(values)
+    order = np.argsort(values, axis=-1)[..., ::-1]
+    signs = np.take_along_axis(signs, order, -1)
+    values = np.take_along_axis(values, order, -1)
+    vectors = np.ascontiguousarray(np.take_along_axis(vectors, order[..., None, :], -1))
+    right = np.swapaxes(vectors * signs[..., None, :], -1, -2)
+    large = values > 1e-15 * values.max(axis=-1, keepdims=True)
+    inverse = np.divide(1, values, where=large, out=values)
+    inverse[~large] = 0
+    return np.asarray(
+        np.matmul(np.swapaxes(right, -1, -2), inverse[..., :, None] * np.swapaxes(vectors, -1, -2)),
+        dtype=np.float64,
+    )
+
+
+def upre_scores(
+    weights: FloatArray,
+    data_residuals: Sequence[FloatArray],
+    data_jacobians: Sequence[FloatArray],
+    penalty_jacobians: Sequence[FloatArray],
+) -> FloatArray:
+    """:func:`weight_score`'s ``"upre"`` at each of ``weights``, from each weight's solution
+    (residuals and Jacobians of the same shapes), every number the one it gives weight by weight:
+    the normal matrices stacked, their pseudo-inverses in one pass (:func:`_pinv_symmetric_stack`)."""
+    data = np.stack(data_jacobians)
+    penalty = np.stack(penalty_jacobians)
+    normal_data = np.matmul(np.swapaxes(data, 1, 2), data)
+    normal = normal_data + np.matmul(
+        np.asarray(weights, dtype=np.float64)[:, None, None] * np.swapaxes(penalty, 1, 2), penalty
+    )
+    product = np.matmul(_pinv_symmetric_stack(normal), normal_data)
+    return np.array(
+        [
+            float(residual @ residual) + 2.0 * float(product[index].trace())
+            for index, residual in enumerate(data_residuals)
+        ]
+    )
 
 
 def _nonlinear_efficiency(
@@ -401,24 +462,37 @@ def _nonlinear_efficiency(
     """``η = B c`` (smooth and positive; ``η⁻¹`` is not): ``λ`` by ``rule`` on the linearisation.
 
     Solved at every weight of ``candidates`` (ascending; default :data:`PRIOR_WEIGHTS`) from the
-    largest down, each from the previous solution; :func:`weight_score` uses the residuals and
-    Jacobians at each solution.
+    largest down, each from the previous solution (and its Jacobians); :func:`weight_score` uses
+    the residuals and Jacobians at each solution (UPRE: every weight's at once,
+    :func:`upre_scores`).
     """
     weights = candidates[::-1] if prior_weight is None else np.array([prior_weight])
-    scores = np.empty(weights.size)
     solutions = []
+    residuals = []
     x = start
-    for index, weight in enumerate(weights.tolist()):
-        x, inverse, data_residual, penalty_residual = _efficiency_terms_solve(
-            data_nodes, target, penalty_nodes, efficiency_basis, x, weight
+    jacobians: tuple[FloatArray, FloatArray] | None = None
+    for weight in weights.tolist():
+        x, _, data_residual, penalty_residual, jacobians = _efficiency_terms_solve(
+            data_nodes, target, penalty_nodes, efficiency_basis, x, weight, jacobians
         )
-        data_jac, penalty_jac = _efficiency_jacobians(
-            data_nodes, penalty_nodes, efficiency_basis, inverse
+        solutions.append((x, *jacobians))
+        residuals.append((data_residual, penalty_residual))
+    if rule == "upre":
+        scores = upre_scores(
+            weights,
+            [data_residual for data_residual, _ in residuals],
+            [data_jac for _, data_jac, _ in solutions],
+            [penalty_jac for _, _, penalty_jac in solutions],
         )
-        scores[index] = weight_score(
-            rule, weight, data_residual, penalty_residual, data_jac, penalty_jac
+    else:
+        scores = np.array(
+            [
+                weight_score(rule, weight, data_residual, penalty_residual, data_jac, penalty_jac)
+                for weight, (data_residual, penalty_residual), (_, data_jac, penalty_jac) in zip(
+                    weights.tolist(), residuals, solutions, strict=True
+                )
+            ]
         )
-        solutions.append((x, data_jac, penalty_jac))
     best = int(np.argmin(scores))
     x, data_jac, penalty_jac = solutions[best]
     return x, data_jac, penalty_jac, float(weights[best]), scores[::-1]
@@ -1344,6 +1418,35 @@ def lamps_with_mapping(
 ) -> tuple[QuadraticMapping | GratingGeometry, list[LampSystem], float]:
     """The mapping (:func:`find_shared_mapping`), the lamps prepared on it (those with a direct
     measurement when ``need_direct``) and the time the mapping took."""
+    used_mapping, chosen, mapping_s = mapping_and_lamps(
+        observations,
+        prior,
+        grid,
+        mapping,
+        mapping_lamp,
+        refine_given_mapping,
+        kernel,
+        need_direct=need_direct,
+        rig=rig,
+    )
+    systems = [prepare_matched_lamp(obs, used_mapping, grid, kernel) for obs in chosen]
+    return used_mapping, systems, mapping_s
+
+
+def mapping_and_lamps(
+    observations: Sequence[LampObservation],
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    mapping: QuadraticMapping | GratingGeometry | None,
+    mapping_lamp: str | None,
+    refine_given_mapping: bool,
+    kernel: FloatArray | None,
+    *,
+    need_direct: bool,
+    rig: RigGeometry | None = None,
+) -> tuple[QuadraticMapping | GratingGeometry, list[LampObservation], float]:
+    """:func:`lamps_with_mapping` before the lamps are prepared: the mapping, the lamps to
+    prepare on it and the time the mapping took."""
     started = time.perf_counter()
     used_mapping = find_shared_mapping(
         observations, prior, grid, mapping, mapping_lamp, refine_given_mapping, kernel, rig
@@ -1356,8 +1459,7 @@ def lamps_with_mapping(
             "efficiency from an earlier calibration (grating=…, --grating FILE)",
             source="observations",
         )
-    systems = [prepare_matched_lamp(obs, used_mapping, grid, kernel) for obs in chosen]
-    return used_mapping, systems, mapping_s
+    return used_mapping, chosen, mapping_s
 
 
 #: A measured spectrum's dark range: samples below this share of its peak. A channel whose light
@@ -1447,9 +1549,10 @@ def prepare_lamps(
     refine_given_mapping: bool = False,
     kernel: FloatArray | None = None,
 ) -> PreparedLamps:
-    """Step 1 for one camera's lamps (the mapping found with the prior when not given)."""
+    """Step 1 for one camera's lamps (the mapping found with the prior when not given; each lamp
+    prepared and its response fitted once per solve scope: :func:`prepared_response`)."""
     check_lamps(observations, basis, grid)
-    used_mapping, systems, mapping_s = lamps_with_mapping(
+    used_mapping, chosen, mapping_s = mapping_and_lamps(
         observations,
         basis.prior(prior_shrinkage),
         grid,
@@ -1459,11 +1562,13 @@ def prepare_lamps(
         kernel,
         need_direct=True,
     )
+    pairs = [prepared_response(obs, used_mapping, grid, kernel) for obs in chosen]
     lamps = tuple(
         with_spectrum_floor(
-            lamp_data(system, used_mapping), spectrum_floor(system.observation.spectrum)
+            lamp_data(system, used_mapping, response),
+            spectrum_floor(system.observation.spectrum),
         )
-        for system in systems
+        for system, response in pairs
     )
     return PreparedLamps(used_mapping, lamps, mapping_s)
 

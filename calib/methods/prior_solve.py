@@ -48,7 +48,13 @@ from calib.methods.grating_models import (
     GratingModelName,
     check_grating_model,
 )
-from calib.methods.responses import LampData, ResponseEstimate, fit_response, lamp_data
+from calib.methods.responses import (
+    LampData,
+    ResponseEstimate,
+    fit_response,
+    lamp_data,
+    prepared_response,
+)
 from calib.model.bases import CameraBasis, CameraPrior, whitening
 from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
@@ -181,6 +187,9 @@ def solve_with_prior(
         )
     solution = np.zeros(n_unknowns)
     rows = np.zeros((0, n_unknowns))
+    # The constraint is the same on every pass: its null space and particular solution once.
+    null_space = _null_space(constraint)
+    particular = np.asarray(np.linalg.lstsq(constraint, direct, rcond=None)[0], dtype=np.float64)
     for _ in range(EFFICIENCY_PASSES):
         blocks = []
         for c in range(3):
@@ -192,44 +201,28 @@ def solve_with_prior(
             block[:, :b_eta] = whitening_factor @ (response[:, c][:, None] * efficiency_basis)
             block[:, -1] = -(whitening_factor @ mean[:, c])
             blocks.append(block)
+        companion_targets = []
         for companion_row, fitted, companion_direct, companion_sigma in companion_terms:
+            spread = companion_row * inverse_hat
+            variances = np.empty(3)
             for c in range(3):
                 weighted = companion_row * fitted.response[:, c]
-                spread = companion_row * inverse_hat
                 variance = float(spread @ fitted.covariance[c] @ spread)
                 if companion_sigma is not None:
                     variance += float(companion_sigma[c]) ** 2
                 # A floor: the lamp's spectrum and the model are known to ~0.1 %, not better.
                 variance += (1e-3 * companion_direct[c]) ** 2
+                variances[c] = variance
                 block = np.zeros((1, n_unknowns))
                 block[0, :b_eta] = (weighted @ efficiency_basis) / np.sqrt(variance)
                 blocks.append(block)
-        target_rows = np.concatenate(
-            [np.zeros(3 * size)]
-            + [
-                companion_direct
-                / np.sqrt(
-                    np.array(
-                        [
-                            float(
-                                (companion_row * inverse_hat)
-                                @ fitted.covariance[c]
-                                @ (companion_row * inverse_hat)
-                            )
-                            + (0.0 if companion_sigma is None else float(companion_sigma[c]) ** 2)
-                            + (1e-3 * companion_direct[c]) ** 2
-                            for c in range(3)
-                        ]
-                    )
-                )
-                for companion_row, fitted, companion_direct, companion_sigma in companion_terms
-            ]
-        )
+            companion_targets.append(companion_direct / np.sqrt(variances))
+        target_rows = np.concatenate([np.zeros(3 * size), *companion_targets])
         rows = np.vstack(blocks)
-        solution = _constrained_lstsq(rows, constraint, direct, target_rows)
+        solution = _constrained_lstsq(rows, particular, null_space, target_rows)
         inverse_hat = efficiency_basis @ solution[:b_eta]
         scale_hat = abs(float(solution[-1])) or scale_hat
-    c_eta_cov = _constrained_covariance(rows, constraint)[:b_eta, :b_eta]
+    c_eta_cov = _constrained_covariance(rows, null_space)[:b_eta, :b_eta]
     inverse_efficiency = efficiency_basis @ solution[:b_eta]
     inverse_covariance = efficiency_basis @ c_eta_cov @ efficiency_basis.T
     inverse_sigma = np.sqrt(np.clip(np.diag(inverse_covariance), 0, None))
@@ -285,21 +278,20 @@ def _null_space(constraint: FloatArray) -> FloatArray:
 
 def _constrained_lstsq(
     rows: FloatArray,
-    constraint: FloatArray,
-    target: FloatArray,
+    particular: FloatArray,
+    null_space: FloatArray,
     row_target: FloatArray | None = None,
 ) -> FloatArray:
-    """``argmin ‖rows x − row_target‖²`` s.t. ``constraint x = target`` (through its null space)."""
-    particular, *_ = np.linalg.lstsq(constraint, target, rcond=None)
-    null_space = _null_space(constraint)
+    """``argmin ‖rows x − row_target‖²`` s.t. ``constraint x = target``, through the constraint's
+    ``particular`` solution (``lstsq``) and its ``null_space`` (:func:`_null_space`)."""
     offset = rows @ particular - (0.0 if row_target is None else row_target)
     coefficients, *_ = np.linalg.lstsq(rows @ null_space, -offset, rcond=None)
     return np.asarray(particular + null_space @ coefficients, dtype=np.float64)
 
 
-def _constrained_covariance(rows: FloatArray, constraint: FloatArray) -> FloatArray:
-    """Covariance of that solution for unit-variance rows and an exact constraint."""
-    null_space = _null_space(constraint)
+def _constrained_covariance(rows: FloatArray, null_space: FloatArray) -> FloatArray:
+    """Covariance of that solution for unit-variance rows and an exact constraint (its
+    ``null_space``)."""
     reduced = rows @ null_space
     return np.asarray(
         null_space @ np.linalg.pinv(reduced.T @ reduced) @ null_space.T, dtype=np.float64
@@ -411,14 +403,15 @@ def estimate_prior(
     solved = [reference] + [
         obs for obs in observations if obs is not reference and obs.direct_rgb is not None
     ]
-    systems = [
-        prepared[id(obs)][0] if id(obs) in prepared else setup.prepared(obs, grid) for obs in solved
+    # Made here or found in the open scope (the σ budget's η-terms re-solve: decision 0107).
+    pairs = [
+        prepared[id(obs)]
+        if id(obs) in prepared
+        else prepared_response(obs, setup.mapping, grid, setup.kernel)
+        for obs in solved
     ]
-    fitted = (
-        [prepared[id(obs)][1] for obs in solved]
-        if all(id(obs) in prepared for obs in solved)
-        else None
-    )
+    systems = [system for system, _ in pairs]
+    fitted = [response for _, response in pairs]
     system = systems[0]
     solution = solve_with_prior(
         system,
@@ -474,12 +467,11 @@ def _physical_estimate(
 
     started = time.perf_counter()
     with_direct = [obs for obs in observations if obs.direct_rgb is not None]
-    systems = [setup.prepared(obs, grid) for obs in with_direct]
-    lamps: list[LampData] = [lamp_data(system, setup.mapping) for system in systems]
-    made = [
-        (obs, (system, lamp.response))
-        for obs, system, lamp in zip(with_direct, systems, lamps, strict=True)
+    pairs = [prepared_response(obs, setup.mapping, grid, setup.kernel) for obs in with_direct]
+    lamps: list[LampData] = [
+        lamp_data(system, setup.mapping, response) for system, response in pairs
     ]
+    made = list(zip(with_direct, pairs, strict=True))
     efficiency = solve_efficiency(
         lamps,
         setup.prior,

@@ -22,7 +22,11 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.blas import pinv_symmetric
 from calib.core.errors import EstimationError, InputError
+from calib.core.observations import LampObservation
+from calib.core.spectra import WavelengthGrid
 from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
+from calib.methods.closed_form import prepare_matched_lamp
+from calib.methods.solve_scope import reuse
 from calib.model.forward import (
     LampOperators,
     PiecewiseLinearDensity,
@@ -215,8 +219,32 @@ class LampData:
         return np.asarray(densities.density * weights[:, None], dtype=np.float64)
 
 
-def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
-    """Step 1 for one lamp with a direct measurement."""
+def prepared_response(
+    observation: LampObservation,
+    mapping: WavelengthMapping,
+    grid: WavelengthGrid,
+    kernel: FloatArray | None,
+) -> tuple[LampSystem, ResponseEstimate]:
+    """``observation`` prepared on ``mapping`` (:func:`calib.methods.closed_form.prepare_matched_lamp`
+    with the camera's line spread ``kernel``) and its response fitted there (:func:`fit_response`).
+
+    Inside a :func:`calib.methods.solve_scope.solve_scope`, the pair made once for the same inputs
+    (by content): the σ budget's η-terms re-solve changes only the solve's options, so it reads
+    the estimate's lamps and responses instead of making them again (decision 0107)."""
+
+    def made() -> tuple[LampSystem, ResponseEstimate]:
+        system = prepare_matched_lamp(observation, mapping, grid, kernel)
+        return system, fit_response(system, mapping)
+
+    # Not strict: an observation's metadata may hold objects no digest reads (not shared then).
+    return reuse("prepared response", (observation, mapping, grid, kernel), made, strict=False)
+
+
+def lamp_data(
+    system: LampSystem, mapping: WavelengthMapping, response: ResponseEstimate | None = None
+) -> LampData:
+    """Step 1 for one lamp with a direct measurement (``response``: :func:`fit_response` of the
+    system on ``mapping``, already made)."""
     observation = system.observation
     if observation.direct_rgb is None:
         raise InputError(
@@ -232,7 +260,7 @@ def lamp_data(system: LampSystem, mapping: WavelengthMapping) -> LampData:
     return LampData(
         observation.name,
         system.operators.direct_row,
-        fit_response(system, mapping),
+        fit_response(system, mapping) if response is None else response,
         direct,
         sigma,
         system.operators,

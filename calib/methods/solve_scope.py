@@ -149,13 +149,24 @@ def recall(label: str, parts: tuple[object, ...]) -> Any:
     return value
 
 
-def reuse(label: str, parts: tuple[object, ...], compute: Callable[[], T]) -> T:
+def reuse(
+    label: str, parts: tuple[object, ...], compute: Callable[[], T], *, strict: bool = True
+) -> T:
     """``compute()``, or the result already computed in the open scope from the same ``label`` and
-    inputs ``parts`` (everything ``compute`` reads must be in them); outside a scope: ``compute()``."""
+    inputs ``parts`` (everything ``compute`` reads must be in them); outside a scope: ``compute()``.
+
+    A part with no content digest (:func:`fingerprint`) raises :class:`TypeError`; with
+    ``strict=False`` the result is computed and not shared (inputs that carry whatever a reader
+    put in them, e.g. an observation's ``metadata``)."""
     scope = _SCOPE.get()
     if scope is None:
         return compute()
-    key = fingerprint(label, *parts)
+    try:
+        key = fingerprint(label, *parts)
+    except TypeError:
+        if strict:
+            raise
+        return compute()
     if key in scope.results:
         scope.reused += 1
         return cast(T, scope.results[key])
