@@ -213,3 +213,25 @@ def test_the_residuals_jacobian_from_kept_densities_is_the_relocated_one(unblurr
     np.testing.assert_array_equal(residual, again)
     assert jacobian is not None and relocated is not None
     np.testing.assert_allclose(jacobian, relocated, rtol=0, atol=1e-12 * np.abs(relocated).max())
+
+
+def test_the_batchs_systems_written_diagonal_by_diagonal_are_the_scattered_ones(unblurred):
+    """:meth:`ResponseModel._systems` adds the band and the penalty diagonal by diagonal through
+    strided views: the same systems, to the last bit, as scattering the same sums at
+    :meth:`_band_layout`'s places (decision 0106)."""
+    model, family, edges_px, x = unblurred
+    band = model.band(_batch(family, edges_px, x))
+    diagonals, scale, weight = _normal_and_scale(model, band)
+    systems, _, _ = model._systems(diagonals, scale, weight)
+    batch, _, size, width = diagonals.shape
+    positions, source, penalty_values = model._band_layout(width)
+    expected = (1.0 / scale**2)[:, None, None, None] * model.precision
+    flat = expected.reshape(batch, 3, size * size)
+    padded = np.concatenate(
+        [diagonals.reshape(batch, 3, size * width), np.zeros((batch, 3, 1))], axis=-1
+    )
+    flat[..., positions] += padded[..., source] + weight[..., None] * penalty_values
+    diagonal = np.einsum("kcii->kc", expected)
+    flat[..., :: size + 1] += (RIDGE * np.maximum(diagonal / size, 1e-300))[..., None]
+    assert model._penalty_reach > 0 and np.any(weight > 0)
+    np.testing.assert_array_equal(systems, expected)
