@@ -593,7 +593,7 @@ class ResponseModel:
         band kept (``band.slope``): tap by tap, each entry's coefficient — density, filter
         weight, validity and sign — times its edge's ``∂λ/∂x``, every pass over whole rows of
         pixels (the ``(K, n, w, P)`` layout's short inner axes cost 3× more; the sums in the
-        taps' order, the batched matmul's up to rounding)."""
+        taps' order, the batched matmul's up to rounding; decision 0106)."""
         slope = band.slope
         assert slope is not None
         _, index = self._windows(edges_nm)
@@ -699,7 +699,8 @@ class ResponseModel:
         """:meth:`_prior_scale` from the normal equations a batch has already formed
         (:meth:`_normal`): the mean camera's fit ``μᵀAᵀW²y / μᵀAᵀW²Aμ`` as ``μ·rhs`` and the
         band's quadratic form in ``μ`` — ``(K, 3, N, w)`` products instead of gathering the mean at
-        every ``(K, n, w)`` band entry (the same sums in another order: equal up to rounding)."""
+        every ``(K, n, w)`` band entry (the same sums in another order: equal up to rounding;
+        decision 0106)."""
         width = diagonals.shape[-1]
         batch = rhs.shape[0]
         numerator = rhs.reshape(batch, -1) @ self.prior_mean.ravel()
@@ -746,7 +747,7 @@ class ResponseModel:
         # Diagonal by diagonal through strided views (above and below the main one): each entry
         # of the band written once, the sum ``(AᵀW²A)_ij + w_Δ (ΔᵀΔ)_ij`` added to the prior's
         # as before. (Scattered through an index array, ``flat[..., positions] += …``, the same
-        # writes cost 5–10× more: numpy's fancy-index path over a batch's leading axes.)
+        # writes cost 5–10× more: numpy's fancy-index path over a batch's leading axes; 0106.)
         stride = size + 1
         for offset in range(min(max(width, self._penalty_reach), size)):
             length = size - offset
