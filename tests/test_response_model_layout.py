@@ -155,3 +155,83 @@ def test_a_large_mappings_banded_normal_matrices_are_the_dense_ones(unblurred, m
     for dense_one, banded_one in zip(*outputs, strict=True):
         scale = np.abs(dense_one).max()
         np.testing.assert_allclose(banded_one, dense_one, rtol=0, atol=1e-11 * scale)
+
+
+def test_a_batchs_prior_scale_from_its_normal_equations_is_the_gathered_one(unblurred):
+    """:meth:`ResponseModel.costs` reads ``β̂`` off the normal equations it formed (``μ·AᵀW²y``
+    over the band's quadratic form in ``μ``): the scale :meth:`_prior_scale` gathers from the
+    band, to rounding, for rising and falling mappings alike (decision 0106)."""
+    model, family, edges_px, x = unblurred
+    band = model.band(_batch(family, edges_px, x))
+    diagonals, rhs = model._normal(band)
+    gathered = model._prior_scale(band)
+    from_normal = model._prior_scale_from_normal(diagonals, rhs)
+    assert np.all(gathered > 0) and not np.allclose(gathered, 1.0)
+    np.testing.assert_allclose(from_normal, gathered, rtol=1e-12)
+    # The quadratic form's weights are kept per band width.
+    width = diagonals.shape[-1]
+    assert model._mean_pairs(width) is model._mean_pairs(width)
+
+
+def test_the_bands_kept_densities_give_the_located_derivative(unblurred):
+    """A band asked for its edge densities (``slopes``) keeps :meth:`LampColumns.density_at`'s
+    numbers, and :meth:`band_derivative` read from them (pixels last) is the one that locates
+    the edges again (batched matmul) up to rounding (decision 0106)."""
+    model, family, edges_px, x = unblurred
+    edges = _batch(family, edges_px, x)
+    moving = np.stack([family.jacobian(edges_px, x)] * edges.shape[0])
+    kept = model.band(edges, slopes=True)
+    plain = model.band(edges)
+    assert kept.slope is not None and plain.slope is None
+    np.testing.assert_array_equal(kept.values, plain.values)
+    size = model.n_nodes
+    column = np.minimum(kept.first + np.arange(kept.values.shape[-1])[:, None, None], size - 1)
+    windows, _ = model._windows(edges)
+    located = model.columns.density_at(np.moveaxis(windows, -1, 0)[None], column[:, None])
+    np.testing.assert_array_equal(kept.slope, located)
+    from_kept = model.band_derivative(edges, moving, kept)
+    relocated = model.band_derivative(edges, moving, plain)
+    assert np.abs(relocated).max() > 0
+    np.testing.assert_allclose(from_kept, relocated, rtol=0, atol=1e-14 * np.abs(relocated).max())
+
+
+def test_the_residuals_jacobian_from_kept_densities_is_the_relocated_one(unblurred, monkeypatch):
+    """:meth:`residual_lazy` keeps the band's edge densities for its Jacobian: the same residual
+    and, up to rounding, the same Jacobian as a band that locates the edges again."""
+    model, family, edges_px, x = unblurred
+    fixed = model.reference(family.wavelengths(edges_px, x))
+    where = family.wavelengths(edges_px, x + np.array([0.3, -0.2, 0.1]))
+    moving = family.jacobian(edges_px, x)
+    residual, jacobian, _ = fixed.residual(where, moving)
+    plain_band = ResponseModel.band
+
+    def without_densities(self, edges_nm, edge_jacobian=None, *, slopes=False):
+        return plain_band(self, edges_nm, edge_jacobian)
+
+    monkeypatch.setattr(ResponseModel, "band", without_densities)
+    again, relocated, _ = fixed.residual(where, moving)
+    np.testing.assert_array_equal(residual, again)
+    assert jacobian is not None and relocated is not None
+    np.testing.assert_allclose(jacobian, relocated, rtol=0, atol=1e-12 * np.abs(relocated).max())
+
+
+def test_the_batchs_systems_written_diagonal_by_diagonal_are_the_scattered_ones(unblurred):
+    """:meth:`ResponseModel._systems` adds the band and the penalty diagonal by diagonal through
+    strided views: the same systems, to the last bit, as scattering the same sums at
+    :meth:`_band_layout`'s places (decision 0106)."""
+    model, family, edges_px, x = unblurred
+    band = model.band(_batch(family, edges_px, x))
+    diagonals, scale, weight = _normal_and_scale(model, band)
+    systems, _, _ = model._systems(diagonals, scale, weight)
+    batch, _, size, width = diagonals.shape
+    positions, source, penalty_values = model._band_layout(width)
+    expected = (1.0 / scale**2)[:, None, None, None] * model.precision
+    flat = expected.reshape(batch, 3, size * size)
+    padded = np.concatenate(
+        [diagonals.reshape(batch, 3, size * width), np.zeros((batch, 3, 1))], axis=-1
+    )
+    flat[..., positions] += padded[..., source] + weight[..., None] * penalty_values
+    diagonal = np.einsum("kcii->kc", expected)
+    flat[..., :: size + 1] += (RIDGE * np.maximum(diagonal / size, 1e-300))[..., None]
+    assert model._penalty_reach > 0 and np.any(weight > 0)
+    np.testing.assert_array_equal(systems, expected)

@@ -269,13 +269,21 @@ class LampColumns:
     ) -> tuple[FloatArray, FloatArray | None]:
         """``C_j(λ)`` (and ``∂C_j/∂λ = e φ_j (λ)``) for broadcast arrays of wavelengths and columns."""
         flat, t, low, high = self._interval(wavelength_nm, column)
+        rise = high - low
         # (high − low)·(t/2): the half taken on the small factor (exact, the same numbers).
-        value = self.cumulative.ravel().take(flat) + self.step_nm * t * (
-            low + (high - low) * (0.5 * t)
-        )
+        value = self.cumulative.ravel().take(flat) + self.step_nm * t * (low + rise * (0.5 * t))
         if not derivative:
             return value, None
-        return value, self.density_at(wavelength_nm, column)
+        # density_at's numbers from the same interval (no second search).
+        return value, (low + rise * t) * self._inside(wavelength_nm)
+
+    def _inside(self, wavelength_nm: FloatArray) -> NDArray[np.bool_]:
+        """Strictly inside the axis (beyond it the cumulative is constant: no density)."""
+        last = self.density.shape[0] - 1
+        inside = (wavelength_nm > self.start_nm) & (
+            wavelength_nm < self.start_nm + last * self.step_nm
+        )
+        return np.asarray(inside, dtype=np.bool_)
 
     def _interval(
         self, wavelength_nm: FloatArray, column: IntArray
@@ -295,12 +303,8 @@ class LampColumns:
 
     def density_at(self, wavelength_nm: FloatArray, column: IntArray) -> FloatArray:
         """``∂C_j/∂λ = e φ_j (λ)`` (zero beyond the axis, where the cumulative is constant)."""
-        last = self.density.shape[0] - 1
         _, t, low, high = self._interval(wavelength_nm, column)
-        inside = (wavelength_nm > self.start_nm) & (
-            wavelength_nm < self.start_nm + last * self.step_nm
-        )
-        return np.asarray((low + (high - low) * t) * inside, dtype=np.float64)
+        return np.asarray((low + (high - low) * t) * self._inside(wavelength_nm), dtype=np.float64)
 
 
 # -------------------------------------------------------------------------------- the model
@@ -326,6 +330,10 @@ class Band:
     values: FloatArray
     first: IntArray
     derivative: FloatArray | None = None
+    #: The lamp density ``e φ_j`` at each entry's edges, ``(w, L + 1, K, n)``, zero beyond the
+    #: lamp axis (:meth:`LampColumns.density_at`), when :meth:`ResponseModel.band` was asked for
+    #: it: read by :meth:`ResponseModel.band_derivative` instead of locating the edges again.
+    slope: FloatArray | None = None
 
     @cached_property
     def columns(self) -> IntArray:
@@ -454,10 +462,17 @@ class ResponseModel:
 
     # -------------------------------------------------------------------------- the band
 
-    def band(self, edges_nm: FloatArray, edge_jacobian: FloatArray | None = None) -> Band:
+    def band(
+        self,
+        edges_nm: FloatArray,
+        edge_jacobian: FloatArray | None = None,
+        *,
+        slopes: bool = False,
+    ) -> Band:
         """The banded model matrix for edge wavelengths ``(K, n + 1)`` (and ``∂/∂x`` from
-        ``edge_jacobian`` ``(K, n + 1, P)``)."""
-        band = self._band_values(edges_nm)
+        ``edge_jacobian`` ``(K, n + 1, P)``; with ``slopes``, the lamp density at the edges kept
+        for a later :meth:`band_derivative`)."""
+        band = self._band_values(edges_nm, slopes=slopes or edge_jacobian is not None)
         if edge_jacobian is None:
             return band
         return replace(band, derivative=self.band_derivative(edges_nm, edge_jacobian, band))
@@ -475,7 +490,7 @@ class ResponseModel:
         index = self._edge_index
         return _sliding(np.ascontiguousarray(edges_nm[:, index]), count), index  # (K, n + L)
 
-    def _band_values(self, edges_nm: FloatArray) -> Band:
+    def _band_values(self, edges_nm: FloatArray, *, slopes: bool = False) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
         low, high = _reduced(windows, np.minimum), _reduced(windows, np.maximum)
         support_lo, support_hi = self.layout.support
@@ -493,14 +508,14 @@ class ResponseModel:
         column = first + np.arange(width)[:, None, None]  # (w, K, n)
         count = self.filter.size
         edge_windows = np.moveaxis(windows, -1, 0)  # (L + 1, K, n), a view
-        value, _ = self.columns.evaluate(
-            edge_windows[None], np.minimum(column, size - 1)[:, None]
+        value, slope = self.columns.evaluate(
+            edge_windows[None], np.minimum(column, size - 1)[:, None], derivative=slopes
         )  # (w, L + 1, K, n)
         filtered = value[:, 0] * self.filter[0]
         for tap in range(1, count):
             filtered = filtered + value[:, tap] * self.filter[tap]
         values = np.moveaxis(filtered * (column < size), 0, -1) * _signs(edges_nm)  # (K, n, w)
-        return Band(values, first)
+        return Band(values, first, slope=slope)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
         """``Σ_l f_l C_j`` over each blurred pixel's ``L + 1`` edges for its ``w`` columns
@@ -552,21 +567,50 @@ class ResponseModel:
     ) -> FloatArray:
         """``∂A/∂x`` ``(K, n, w, P)`` of :meth:`band`'s matrix, from ``∂λ_edge/∂x`` ``(K, n + 1, P)``:
         the lamp density at the edges (:meth:`LampColumns.density_at`) through the filter."""
+        if band.slope is not None:
+            pixels_last = self._pixels_last_derivative(edges_nm, edge_jacobian, band)
+            return np.moveaxis(pixels_last, (0, 1), (3, 2))  # (K, n, w, P), a view
         windows, index = self._windows(edges_nm)
         size = self.n_nodes
         column = band.columns
         valid = column < size
+        count = self.filter.size
+        jac_windows = _sliding(np.ascontiguousarray(edge_jacobian[:, index, :]), count)
         slope = self.columns.density_at(
             windows[..., None, :], np.minimum(column, size - 1)[..., None]
         )
-        count = self.filter.size
-        jac_windows = _sliding(np.ascontiguousarray(edge_jacobian[:, index, :]), count)
         # One small product per pixel (a batched matmul: a three-operand einsum cost 4–5× more).
         return np.asarray(
             np.matmul(slope * self.filter, jac_windows.swapaxes(-1, -2))
             * (valid * _signs(edges_nm))[..., None],
             dtype=np.float64,
         )
+
+    def _pixels_last_derivative(
+        self, edges_nm: FloatArray, edge_jacobian: FloatArray, band: Band
+    ) -> FloatArray:
+        """:meth:`band_derivative` laid out ``(P, w, K, n)``, pixels last, from the densities the
+        band kept (``band.slope``): tap by tap, each entry's coefficient — density, filter
+        weight, validity and sign — times its edge's ``∂λ/∂x``, every pass over whole rows of
+        pixels (the ``(K, n, w, P)`` layout's short inner axes cost 3× more; the sums in the
+        taps' order, the batched matmul's up to rounding; decision 0106)."""
+        slope = band.slope
+        assert slope is not None
+        _, index = self._windows(edges_nm)
+        n = band.first.shape[1]
+        # Validity and sign (w, K, n).
+        mask = (band.first + np.arange(slope.shape[0])[:, None, None] < self.n_nodes) * _signs(
+            edges_nm
+        )[None, :, :, 0]
+        # ∂λ/∂x at each window's edges, (P, K, n + L).
+        moving = np.ascontiguousarray(np.moveaxis(edge_jacobian[:, index, :], -1, 0))
+        total = None
+        for tap in range(self.filter.size):
+            coefficient = slope[:, tap] * (self.filter[tap] * mask)  # (w, K, n)
+            term = coefficient[None] * moving[:, None, :, tap : tap + n]
+            total = term if total is None else total + term
+        assert total is not None
+        return np.asarray(total, dtype=np.float64)
 
     # ----------------------------------------------------------------------- normal matrices
 
@@ -581,6 +625,11 @@ class ResponseModel:
         matrix). :meth:`_systems` lays them out in the dense systems; a scan's batch never holds
         the dense normal matrices themselves.
         """
+        return self._normal_diagonals(band), self._normal_rhs(band)
+
+    def _normal_diagonals(self, band: Band) -> FloatArray:
+        """:meth:`_normal`'s diagonals ``(K, 3, N, w)`` alone (one mapping's dense normal
+        matrices need no right-hand side from the band)."""
         values = band.values  # (K, n, w)
         batch, _, width = values.shape
         size = self.n_nodes
@@ -612,6 +661,13 @@ class ResponseModel:
             ],
             axis=1,
         )  # (K, 3, N, w)
+        return np.asarray(diagonals, dtype=np.float64)
+
+    def _normal_rhs(self, band: Band) -> FloatArray:
+        """:meth:`_normal`'s right-hand sides ``AᵀW²y`` ``(K, 3, N)``."""
+        values = band.values  # (K, n, w)
+        batch, _, width = values.shape
+        size = self.n_nodes
         entries = (
             band.first[:, :, None] + np.arange(width) + (np.arange(batch) * size)[:, None, None]
         ).reshape(-1)
@@ -627,7 +683,7 @@ class ResponseModel:
             ],
             axis=1,
         )
-        return np.asarray(diagonals, dtype=np.float64), np.asarray(rhs, dtype=np.float64)
+        return np.asarray(rhs, dtype=np.float64)
 
     def _prior_scale(self, band: Band) -> FloatArray:
         """``β̂`` per batch: the mean camera's scale that best explains the profile ``(K,)``."""
@@ -638,6 +694,35 @@ class ResponseModel:
         denominator = np.einsum("knc,knc->k", predicted, predicted)
         scale = numerator / np.maximum(denominator, 1e-300)
         return np.asarray(np.where(np.isfinite(scale) & (scale > 0), scale, 1.0), dtype=np.float64)
+
+    def _prior_scale_from_normal(self, diagonals: FloatArray, rhs: FloatArray) -> FloatArray:
+        """:meth:`_prior_scale` from the normal equations a batch has already formed
+        (:meth:`_normal`): the mean camera's fit ``μᵀAᵀW²y / μᵀAᵀW²Aμ`` as ``μ·rhs`` and the
+        band's quadratic form in ``μ`` — ``(K, 3, N, w)`` products instead of gathering the mean at
+        every ``(K, n, w)`` band entry (the same sums in another order: equal up to rounding;
+        decision 0106)."""
+        width = diagonals.shape[-1]
+        batch = rhs.shape[0]
+        numerator = rhs.reshape(batch, -1) @ self.prior_mean.ravel()
+        denominator = diagonals.reshape(batch, -1) @ self._mean_pairs(width)
+        scale = numerator / np.maximum(denominator, 1e-300)
+        return np.asarray(np.where(np.isfinite(scale) & (scale > 0), scale, 1.0), dtype=np.float64)
+
+    def _mean_pairs(self, width: int) -> FloatArray:
+        """``μ_{c,i} μ_{c,i+d}`` (twice off the diagonal, zero past the matrix) ``(3·N·w,)``: the
+        weights of :meth:`_normal`'s diagonals in the quadratic form ``μᵀAᵀW²Aμ``; once per width."""
+        cache: dict[int, FloatArray] = self._mean_pair_cache
+        if width not in cache:
+            size = self.n_nodes
+            mean = np.concatenate([self.prior_mean, np.zeros((3, width))], axis=1)
+            offsets = np.arange(width)
+            pairs = mean[:, :size, None] * mean[:, offsets + np.arange(size)[:, None]]
+            cache[width] = np.ascontiguousarray((pairs * np.where(offsets > 0, 2.0, 1.0)).ravel())
+        return cache[width]
+
+    @cached_property
+    def _mean_pair_cache(self) -> dict[int, FloatArray]:
+        return {}
 
     @cached_property
     def _penalty_reach(self) -> int:
@@ -659,12 +744,18 @@ class ResponseModel:
         inverse_square = 1.0 / scale**2  # (K,)
         systems = inverse_square[:, None, None, None] * self.precision
         flat = systems.reshape(batch, 3, size * size)
-        positions, source, penalty_values = self._band_layout(width)
-        gathered = np.concatenate(
-            [diagonals.reshape(batch, 3, size * width), np.zeros((batch, 3, 1))], axis=-1
-        )[..., source]
-        # Each entry of the band is written once (the same sums as diagonal by diagonal).
-        flat[..., positions] += gathered + penalty_weight[..., None] * penalty_values
+        # Diagonal by diagonal through strided views (above and below the main one): each entry
+        # of the band written once, the sum ``(AᵀW²A)_ij + w_Δ (ΔᵀΔ)_ij`` added to the prior's
+        # as before. (Scattered through an index array, ``flat[..., positions] += …``, the same
+        # writes cost 5–10× more: numpy's fancy-index path over a batch's leading axes; 0106.)
+        stride = size + 1
+        for offset in range(min(max(width, self._penalty_reach), size)):
+            length = size - offset
+            penalty = penalty_weight[..., None] * np.diagonal(self.penalty, offset)
+            addend = diagonals[..., :length, offset] + penalty if offset < width else penalty
+            flat[..., offset::stride][..., :length] += addend
+            if offset:
+                flat[..., offset * size :: stride][..., :length] += addend
         diagonal = np.einsum("kcii->kc", systems)
         ridge = RIDGE * np.maximum(diagonal / self.n_nodes, 1e-300)
         flat[..., :: size + 1] += ridge[..., None]
@@ -674,8 +765,9 @@ class ResponseModel:
         return systems, pulls, gamma
 
     def _band_layout(self, width: int) -> tuple[IntArray, IntArray, FloatArray]:
-        """Where :meth:`_systems` writes the band of ``w`` diagonals (and the penalty's): the
-        flat positions in an ``N × N`` matrix of entries ``(i, i + d)`` and ``(i + d, i)``, the
+        """Where :meth:`_banded_normal` writes one mapping's band of ``w`` diagonals (and the
+        penalty's; :meth:`_systems` writes the same entries diagonal by diagonal): the flat
+        positions in an ``N × N`` matrix of entries ``(i, i + d)`` and ``(i + d, i)``, the
         diagonals' flat index ``i·w + d`` (``N·w``, a zero, beyond the band) and the penalty's
         values there; once per width."""
         cache: dict[int, tuple[IntArray, IntArray, FloatArray]] = self._band_layouts
@@ -703,8 +795,8 @@ class ResponseModel:
 
     def _banded_normal(self, band: Band) -> FloatArray:
         """``AᵀW²A`` ``(3, N, N)`` of one mapping's band, laid out dense (:meth:`_normal`'s
-        diagonals written as :meth:`_systems` writes them, without the prior or penalty)."""
-        diagonals, _ = self._normal(band)  # (1, 3, N, w)
+        diagonals at :meth:`_band_layout`'s places, without the prior or penalty)."""
+        diagonals = self._normal_diagonals(band)  # (1, 3, N, w)
         size, width = diagonals.shape[2:]
         positions, source, _ = self._band_layout(width)
         padded = np.concatenate([diagonals.reshape(3, size * width), np.zeros((3, 1))], axis=-1)
@@ -748,7 +840,7 @@ class ResponseModel:
     def reference(self, edges_nm: FloatArray) -> ResponseModel:
         """This model with ``β̂`` and the penalty weights of the mapping with these edge
         wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
-        band = self.band(edges_nm[None, :])
+        band = self.band(edges_nm[None, :], slopes=True)
         # The normal matrices' trace (what :meth:`_penalty_weight` reads) straight from the band:
         # Σ_n W² Σ_a A_na², without the matrices themselves.
         trace = (band.values[0] ** 2).sum(axis=1) @ self.weights**2 / self.n_nodes  # (3,)
@@ -773,7 +865,7 @@ class ResponseModel:
         diagonals, rhs = self._normal(band)
         batch = diagonals.shape[0]
         if adaptive or self.penalty_weight is None:
-            scale = self._prior_scale(band)
+            scale = self._prior_scale_from_normal(diagonals, rhs)
             weight = self._penalty_weight(diagonals)
         else:
             scale = np.full(batch, self.scale)
@@ -826,7 +918,7 @@ class ResponseModel:
         if referenced is not None and np.array_equal(referenced[0], edges_nm):
             band = referenced[1]
         else:
-            band = model.band(edges_nm[None, :])
+            band = model.band(edges_nm[None, :], slopes=edge_jacobian is not None)
         size = model.n_nodes
         n = band.values.shape[1]
         flat = (np.arange(n)[:, None] * size + np.minimum(band.columns[0], size - 1)).ravel()
@@ -863,11 +955,23 @@ class ResponseModel:
         edge_derivative = edge_jacobian
 
         def jacobian() -> FloatArray:
-            derivative = model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0]
-            n_parameters = derivative.shape[-1]
+            n_parameters = edge_derivative.shape[-1]
+            if band.slope is not None:
+                # Pixels last (P, w, n): laid out dense through the band's places read (w, n).
+                derivative = model._pixels_last_derivative(
+                    edges_nm[None, :], edge_derivative[None], band
+                )[:, :, 0]
+                places = flat.reshape(n, -1).T
+            else:
+                derivative = np.moveaxis(
+                    model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0],
+                    -1,
+                    0,
+                )  # (P, n, w)
+                places = flat.reshape(n, -1)
             moved_matrix = _dense(  # ∂A/∂x (P, n, N)
-                (flat[None, :] + (n * size) * np.arange(n_parameters)[:, None]).ravel(),
-                np.moveaxis(derivative, -1, 0),
+                (places[None] + (n * size) * np.arange(n_parameters)[:, None, None]).ravel(),
+                derivative,
                 (n_parameters, n, size),
             )
             return model._residual_jacobian(
@@ -896,8 +1000,11 @@ class ResponseModel:
         root = np.sqrt(model.penalty_weight)
         factor = model._held_factor
         # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
+        # (rT laid out C-ordered: with the transposed view numpy's stacked product took the slow
+        # non-BLAS loop, 2.5× longer at 941 pixels.)
         moved = (
-            np.matmul(derivative, response.T).transpose(2, 1, 0) * weights[..., None]
+            np.matmul(derivative, np.ascontiguousarray(response.T)).transpose(2, 1, 0)
+            * weights[..., None]
         )  # (3, n, P)
         gathered = np.matmul(derivative.transpose(0, 2, 1), (weights * data_rows).T).transpose(
             2, 1, 0

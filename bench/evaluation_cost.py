@@ -1,0 +1,165 @@
+"""CPU time per search evaluation of the response model, apart from how many evaluations a search makes.
+
+One mapping + estimate of the Canon 600D synthetic scene (``wavelength_speed.py``'s: D65 LED, and
+LED + FL2) is run once while every call of :meth:`ResponseModel.costs` (a scan's batch of trial
+mappings) and :meth:`ResponseModel.residual_lazy` (one mapping of a descent, with its Jacobian) is
+recorded with its arguments (with ``--protocol``, also the camera's ``calib validate`` scene, seed 0, its
+"LED only" and "LED+FL" variants as ``wavelength_speed.py --protocol`` runs them: the rig's spot,
+blurred profiles, the physical family's scans); the recorded calls are then replayed ``--repeats`` times and the
+median CPU time (``time.process_time``, one BLAS thread) of each kind is printed, with the number
+of trial mappings they cost. The search's own choices (how many evaluations) do not enter: run it
+on two checkouts to compare what one evaluation costs (decision 0106).
+
+    python bench/evaluation_cost.py --data-dir ../shared/data/camera_sensitivities [--repeats 7] [--protocol]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from calib.core.blas import one_blas_thread
+from calib.core.datasets import find_camera, makabe2025_split
+from calib.core.lamp_specs import colour_lamp
+from calib.core.observations import LampObservation
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import render_scene
+from calib.methods import estimate
+from calib.model.bases import camera_basis
+from calib.wavelength.response_model import ResponseModel
+
+
+def recorded(run: Callable[[], object]) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
+    """The ``costs`` and ``residual_lazy`` calls ``run`` makes, with copies of their arrays."""
+    costs_calls: list[tuple[Any, ...]] = []
+    residual_calls: list[tuple[Any, ...]] = []
+    costs, residual_lazy = ResponseModel.costs, ResponseModel.residual_lazy
+
+    def recording_costs(self: ResponseModel, edges_nm: Any, *, adaptive: bool = True) -> Any:
+        costs_calls.append((self, np.array(edges_nm), adaptive))
+        return costs(self, edges_nm, adaptive=adaptive)
+
+    def recording_residual(self: ResponseModel, edges_nm: Any, edge_jacobian: Any = None) -> Any:
+        jacobian = None if edge_jacobian is None else np.array(edge_jacobian)
+        residual_calls.append((self, np.array(edges_nm), jacobian))
+        return residual_lazy(self, edges_nm, edge_jacobian)
+
+    ResponseModel.costs = recording_costs  # type: ignore[method-assign]
+    ResponseModel.residual_lazy = recording_residual  # type: ignore[method-assign]
+    try:
+        run()
+    finally:
+        ResponseModel.costs = costs  # type: ignore[method-assign]
+        ResponseModel.residual_lazy = residual_lazy  # type: ignore[method-assign]
+    return costs_calls, residual_calls
+
+
+@one_blas_thread
+def replay(
+    costs_calls: list[tuple[Any, ...]], residual_calls: list[tuple[Any, ...]]
+) -> dict[str, float]:
+    """CPU seconds of one replay: the scans' batches, the residuals, their Jacobians."""
+    spent = {"costs": 0.0, "residual": 0.0, "jacobian": 0.0}
+    for model, edges_nm, adaptive in costs_calls:
+        started = time.process_time()
+        model.costs(edges_nm, adaptive=adaptive)
+        spent["costs"] += time.process_time() - started
+    for model, edges_nm, edge_jacobian in residual_calls:
+        started = time.process_time()
+        _, jacobian, _ = model.residual_lazy(edges_nm, edge_jacobian)
+        spent["residual"] += time.process_time() - started
+        if jacobian is not None:
+            started = time.process_time()
+            jacobian()
+            spent["jacobian"] += time.process_time() - started
+    return spent
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data-dir", default=None)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--protocol", action="store_true", help="also the calib validate scene")
+    args = parser.parse_args()
+    train, test = makabe2025_split(args.data_dir)
+    camera = find_camera(test, "Canon 600D")
+    basis = camera_basis([r.sensitivity for r in train], source="Makabe 2025 train (44)")
+    scene = render_scene(
+        camera.name,
+        camera.sensitivity.resample(DEFAULT_GRID, "interpolate"),
+        np.random.default_rng(0),
+        broadband_lamp=colour_lamp("D65"),
+        fluorescent_lamp=colour_lamp("FL2"),
+        noise_fraction=0.01,
+    )
+    led, fluorescent = scene.broadband.observation, scene.fluorescent.observation
+    runs: list[tuple[str, Callable[[], object]]] = [
+        ("LED only", lambda: estimate([led], basis=basis)),
+        ("LED + fluorescent", lambda: estimate([led, fluorescent], basis=basis)),
+    ]
+    if args.protocol:
+        runs += protocol_runs(args.data_dir, camera.name)
+    for label, run in runs:
+        costs_calls, residual_calls = recorded(run)
+        replay(costs_calls, residual_calls)  # warm-up: the models' cached layouts
+        spent = [replay(costs_calls, residual_calls) for _ in range(args.repeats)]
+        trials = sum(np.atleast_2d(edges).shape[0] for _, edges, _ in costs_calls)
+        median = {key: statistics.median(one[key] for one in spent) for key in spent[0]}
+        print(
+            f"{label:24s} scans {1e3 * median['costs']:6.1f} ms ({len(costs_calls)} batches, "
+            f"{trials} trial mappings); residuals {1e3 * median['residual']:5.1f} ms and "
+            f"Jacobians {1e3 * median['jacobian']:5.1f} ms ({len(residual_calls)}); "
+            f"total {1e3 * sum(median.values()):6.1f} ms",
+            flush=True,
+        )
+
+
+def protocol_runs(data_dir: str | None, name: str) -> list[tuple[str, Callable[[], object]]]:
+    """The camera's ``calib validate`` scene (test split, seed 0): its "LED only" and "LED+FL"
+    variants' estimates, the method and options the protocol gives them."""
+    from calib.evaluation.validation.protocol import (
+        DEFAULT_VARIANTS,
+        ProtocolSettings,
+        render_task_scene,
+        split_tasks,
+        variant_arguments,
+        variant_observations,
+    )
+    from calib.evaluation.validation.splits import load_splits
+
+    splits, _ = load_splits(data_dir)
+    settings = ProtocolSettings(seed=0)
+    task = next(t for t in split_tasks(splits.test, settings) if t.camera.name == name)
+    scene = render_task_scene(task)
+    runs: list[tuple[str, Callable[[], object]]] = []
+    for variant in DEFAULT_VARIANTS:
+        if variant.label not in ("LED only", "LED+FL"):
+            continue
+        lamps = variant_observations(scene, variant)
+        keywords = {
+            "method": variant.method,
+            "grid": settings.grid,
+            "basis": task.basis,
+            **variant_arguments(variant),
+        }
+
+        def run(
+            lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords
+        ) -> object:
+            return estimate(lamps, **keywords)
+
+        runs.append((f"spot scene, {variant.label}", run))
+    return runs
+
+
+if __name__ == "__main__":
+    main()
