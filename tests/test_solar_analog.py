@@ -113,11 +113,12 @@ def test_a_rival_the_profile_fit_allows_is_the_dips_competitor(monkeypatch):
     2.3 nm away (the Canon 10D, Huynh, on the spectrograph analog: the kept one 0.7 nm off at
     σ 0.16), returns that runner-up as its competitor; one the profile fit excludes does not."""
     lead: Any = SimpleNamespace(pixel=np.arange(0.0, 1001.0), grid=None)
+    lamp: Any = "lamp"
     monkeypatch.setattr(locate, "_map_lines", lambda *a, **k: pytest.fail("no refit"))
 
     def guarded(afresh: Any) -> Any:
         return locate._dips_near_profile_fit(
-            afresh, "lamp", (), None, _mapping(0.0), 0.8, lead, lead.grid
+            afresh, lamp, (), None, _mapping(0.0), 0.8, lead, lead.grid
         )
 
     near_rival = _match(2.3)
