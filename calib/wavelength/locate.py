@@ -310,7 +310,10 @@ def _dips_near_profile_fit(
 
     allowed = max(DISAGREEMENT_NM, 3.0 * (profile_sigma_nm or 0.0))
     if features is not None and apart(features.exact) <= allowed:
-        return features, None
+        # A runner-up of the dips' own match as well supported, which the profile fit does not
+        # exclude either, is its competitor (decision 0112).
+        rival = features.rival
+        return features, rival if rival is not None and apart(rival.exact) <= allowed else None
     refitted = _map_lines(
         lamp,
         dips,
@@ -804,7 +807,7 @@ def locate_mapping(
             }
             ambiguity_warnings.append(
                 f"the mapping is ambiguous: the absorption dips also match {competing_nm:.1f} nm "
-                f"away (RMS), near the whole-profile fit ({_dips_used(dips_competitor)} of them "
+                f"away (RMS) ({_dips_used(dips_competitor)} of them "
                 f"against the {_dips_used(features)} used); both are in the result and the stated "
                 f"σ ({stated_nm:.1f} nm) spans them. A "
                 "fluorescent (line) lamp shot in the same geometry, or the camera's optics (EXIF "
