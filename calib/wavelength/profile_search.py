@@ -165,9 +165,18 @@ PRIOR_MISFIT_SIGMA_NM = 0.15
 #: the nearest other basin. Chosen on the validation split only (decision 0054).
 MISFIT_WARN_TEMPER = 8.0
 #: σ (nm) of a measured lamp spectrum's wavelength scale as a whole: compact spectrometers state a
-#: wavelength accuracy of ±0.5 nm (a uniform error within it: 0.5/√3). It shifts the mapping alike
-#: at every pixel, and no profile fit can see it.
+#: wavelength accuracy of ±0.5 nm (a uniform error within it: 0.5/√3). A mapping placed by the
+#: spectrum's lines or dips moves with it at every pixel, and no profile fit can see it.
 SPECTROMETER_SCALE_SIGMA_NM = WAVELENGTH_SCALE_NM * IN_SPEC_TOLERANCE_SIGMA
+#: The share of that offset a mapping found from broadband lamps alone takes up (RMS over the
+#: profile, nm of mapping per nm of offset): such a mapping is placed by the profile's shape against
+#: the camera prior, whose channel edges sit on the true scale, so it follows a smooth spectrum's
+#: offset only in part — most at the blue end, where the LED's peak is, little at the red end.
+#: Measured, not tuned (decision 0108): validation scenes rendered twice with the reference
+#: spectrometer's offset forced to +0.5 and −0.5 nm (the same seed otherwise; ``python
+#: bench/wavelength_validate.py --split validation --predictions 60 --transformed 100
+#: --scale-transfer 0.5``), each mapped from the LED alone.
+BROADBAND_SCALE_TRANSFER = 0.33
 
 
 @dataclass(frozen=True)
@@ -1818,12 +1827,18 @@ def _correlation_starts(
     )
 
 
-def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
+def spectrometer_scale_sigma_nm(
+    lamps: Sequence[LampObservation], *, placed_by_features: bool = False
+) -> float:
     """σ (nm) the mapping inherits from the lamp spectra's wavelength scale: a spectrum measured by a
     spectrometer (its bandwidth stated) is :data:`SPECTROMETER_SCALE_SIGMA_NM` off as a whole,
     or the σ its Hg-line check left (``metadata["wavelength_scale_sigma_nm"]``,
     :mod:`calib.core.spectrometer_scale`, decision 0069); a tabulated one (no bandwidth:
-    colour-science's tables, a built-in line list) adds nothing. The largest of the lamps'."""
+    colour-science's tables, a built-in line list) adds nothing. The largest of the lamps'.
+
+    A mapping placed by the spectra's lines or dips (``placed_by_features``) or with a line lamp
+    among ``lamps`` moves with that offset; one found from broadband lamps alone takes up
+    :data:`BROADBAND_SCALE_TRANSFER` of it (decision 0108)."""
     # Imported here so that this function's change stays within it (the module's other owner).
     from calib.core.spectrometer_scale import scale_sigma_nm
 
@@ -1832,7 +1847,10 @@ def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
         for lamp in lamps
         if lamp.spectrum_bandwidth_nm is not None
     ]
-    return max(sigmas, default=0.0)
+    scale = max(sigmas, default=0.0)
+    if not placed_by_features and all(lamp.kind != "fluorescent" for lamp in lamps):
+        return BROADBAND_SCALE_TRANSFER * scale
+    return scale
 
 
 def stated_covariance(
