@@ -378,7 +378,7 @@ def task_scene(task: Task, offset_nm: float | None = None) -> RenderedScene:
     try:
         return render_task_scene(task)
     finally:
-        protocol.draw_task_plan = drawn  # type: ignore[assignment]
+        protocol.draw_task_plan = drawn
 
 
 def led_lamps(scene: RenderedScene, optics: bool) -> dict[str, LampObservation]:
