@@ -29,6 +29,10 @@ Which split: ``--split validation`` for any tuning, ``--split test`` for reporti
 extra synthetic cameras (issue 15's protocol, as ``calib validate --predictions``; basis: all
 training curves); ``--only-predicted`` runs those alone. ``--no-optics`` measures the scenes as
 ``calib validate``'s "LED only, no EXIF" variant does (no focal length or pitch from EXIF).
+``--scale-transfer NM`` (``led``) renders each scene with the reference spectrometer's wavelength
+offset forced to ±NM and states how much of it the mapping takes up (decision 0108). The ``led``
+summary says what σ scale would give the median ratio a calibrated σ of the rows' own shape gives
+(~0.67–0.9, not 1) and what scale would cover 95 %.
 
     python bench/wavelength_validate.py --data-dir ../shared/data/camera_sensitivities --split test --scenario led
 """
