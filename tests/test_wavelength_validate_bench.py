@@ -38,7 +38,7 @@ def _rows(bench: ModuleType, inflate: float) -> list[dict[str, object]]:
             0.45,
             390.0,
             pixel_range=(0.0, 399.0),
-            covariance=tuple(tuple(float(v) for v in row) for row in covariance),
+            covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in covariance),
         )
         coefficients = rng.normal(0.0, inflate * sd)
         error = coefficients[0] * pixel**2 + coefficients[1] * pixel + coefficients[2]
