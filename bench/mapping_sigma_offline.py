@@ -1,0 +1,116 @@
+"""The broadband-only mapping σ re-sized offline from ``bench/wavelength_validate.py --csv`` rows.
+
+Each ``led`` row stores the stated σ's parts (the best basin's curvature, the basins, the camera
+prior's pull, the spectrometer's scale) and the error and σ at 32 pixels. This script re-states σ
+with other constants — :data:`~calib.wavelength.profile_search.LOCAL_SIGMA_SCALE`,
+:data:`~calib.wavelength.profile_search.BASIN_TEMPER`, the prior's pull and the spectrometer-scale
+term — keeping the σ's shape over the profile (the scale term a common offset, as
+:func:`~calib.wavelength.profile_search.stated_covariance` states it) and the widening the
+ambiguity rules gave (a floor), and prints the ±2σ coverage and the median actual/stated ratio.
+For choosing on the validation split only.
+
+    python bench/mapping_sigma_offline.py /tmp/val.csv --scale 0.29,0.06 --local-scale 1,2 --temper 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calib.wavelength.profile_search import BASIN_TEMPER, LOCAL_SIGMA_SCALE
+
+
+def restated(
+    row: dict[str, Any],
+    scale_nm: float,
+    local_scale: float,
+    temper: float,
+    misfit_factor: float,
+    misfit_power: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The row's 32 errors, their σ under the new constants and the new RMS ratio."""
+    errors = np.array(json.loads(row["errors_nm"]))
+    sigmas = np.array(json.loads(row["sigmas_nm"]))
+    local = float(row["local_rms_nm"])
+    misfit = float(row["prior_misfit_sigma_nm"])
+    # The prior's pull as a power of the deciding fit's reduced χ² (stored: its square root).
+    fit_temper = max(float(row["temper"]), 1.0)
+    pull = misfit * fit_temper ** (misfit_power - 0.5) if misfit > 0 else 0.0
+    scale_old = float(row["spectrometer_scale_sigma_nm"])
+    basins = json.loads(row["basins"])
+    spread_old = float(row["basin_spread_nm"])
+
+    def spread(t: float) -> float:
+        if not basins:
+            return 0.0
+        weights = np.array([math.exp(-0.5 * b["delta_chi2"] / t) for b in basins])
+        distances = np.array([b["distance_nm"] for b in basins])
+        return float(np.sqrt(np.sum(weights * distances**2) / weights.sum()))
+
+    old = math.sqrt((LOCAL_SIGMA_SCALE * local) ** 2 + spread_old**2 + scale_old**2 + misfit**2)
+    new = math.sqrt(
+        (local_scale * local) ** 2 + spread(temper) ** 2 + scale_nm**2 + (misfit_factor * pull) ** 2
+    )
+    stated_row = float(row["stated_nm"])
+    # The ambiguity rules' widening (a floor the quadrature sum does not reach).
+    floor = stated_row if stated_row > 1.05 * old else 0.0
+    old_total = max(old, floor)
+    new_total = max(new, floor)
+    shape = np.clip(sigmas**2 - scale_old**2, 0.0, None) / max(old_total**2 - scale_old**2, 1e-12)
+    new_sigmas = np.sqrt(shape * max(new_total**2 - scale_nm**2, 0.0) + scale_nm**2)
+    factor = math.sqrt(float(np.mean(new_sigmas**2)) / max(float(np.mean(sigmas**2)), 1e-12))
+    return errors, new_sigmas, float(row["ratio"]) / factor
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("csv", nargs="+")
+    parser.add_argument("--scale", default="0.2887", help="spectrometer-scale terms (nm), commas")
+    parser.add_argument("--local-scale", default=str(LOCAL_SIGMA_SCALE))
+    parser.add_argument("--temper", default=str(BASIN_TEMPER))
+    parser.add_argument("--misfit-factor", default="1", help="× the stored prior-pull term")
+    parser.add_argument("--misfit-power", default="0.5", help="the pull ∝ reduced χ² to this")
+    parser.add_argument("--group", default=None, help="only rows of this group")
+    args = parser.parse_args()
+    rows = []
+    for name in args.csv:
+        with Path(name).open(newline="") as handle:
+            rows += [r for r in csv.DictReader(handle) if not r.get("failed")]
+    if args.group:
+        rows = [r for r in rows if r["group"] == args.group]
+    print(f"{len(rows)} rows")
+    grid = itertools.product(
+        *(
+            [float(v) for v in text.split(",")]
+            for text in (
+                args.scale,
+                args.local_scale,
+                args.temper,
+                args.misfit_factor,
+                args.misfit_power,
+            )
+        )
+    )
+    for scale, local_scale, temper, misfit, power in grid:
+        covered, ratios = [], []
+        for row in rows:
+            errors, sigmas, ratio = restated(row, scale, local_scale, temper, misfit, power)
+            covered.append(float(np.mean(np.abs(errors) <= 2.0 * sigmas)))
+            ratios.append(ratio)
+        print(
+            f"scale {scale:.3f} local×{local_scale:g} temper {temper:g} misfit×{misfit:g} "
+            f"(χ²^{power:g}): "
+            f"±2σ {100 * np.mean(covered):.2f} %, ratio median {np.median(ratios):.2f}, "
+            f"cameras ≥ 85 % covered {100 * np.mean(np.array(covered) >= 0.85):.1f} %"
+        )
+
+
+if __name__ == "__main__":
+    main()

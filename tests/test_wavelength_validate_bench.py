@@ -1,0 +1,67 @@
+"""``bench/wavelength_validate.py``'s σ-scale summary (decision 0108): rows whose errors are drawn
+from their own stated covariance are calibrated, and the summary says so."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from calib.core.mapping import QuadraticMapping
+
+BENCH = Path(__file__).resolve().parents[1] / "bench" / "wavelength_validate.py"
+
+
+def _bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("wavelength_validate_bench", BENCH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _rows(bench: ModuleType, inflate: float) -> list[dict[str, object]]:
+    """Rows of mappings whose errors are drawn from ``inflate`` × their stated covariance."""
+    rng = np.random.default_rng(3)
+    pixel = np.arange(400.0)
+    rows = []
+    for _ in range(150):
+        # An offset-dominated σ with a little slope, as an LED-only mapping's.
+        jitter = rng.uniform(0.5, 2.0)
+        sd = np.array([2e-7, 1e-4, 0.1]) * jitter
+        covariance = np.diag(sd**2)
+        mapping = QuadraticMapping(
+            -2e-5,
+            0.45,
+            390.0,
+            pixel_range=(0.0, 399.0),
+            covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in covariance),
+        )
+        coefficients = rng.normal(0.0, inflate * sd)
+        error = coefficients[0] * pixel**2 + coefficients[1] * pixel + coefficients[2]
+        true_nm = np.asarray(mapping.wavelength_nm(pixel)) - error
+        rows.append(bench.mapping_errors(mapping, pixel, true_nm, (380.0, 800.0), rng))
+    return rows
+
+
+def _scales(text: str) -> tuple[float, float, float]:
+    found = re.search(
+        r"median ratio of ([\d.]+): σ × ([\d.]+) would give it, σ × ([\d.]+) covers", text
+    )
+    assert found is not None, text
+    return float(found[1]), float(found[2]), float(found[3])
+
+
+def test_the_summary_finds_a_calibrated_sigma_calibrated_and_an_inflated_one_too_narrow():
+    bench = _bench()
+    honest = _rows(bench, 1.0)
+    calibrated, to_calibrate, to_cover = _scales(bench.sigma_scales(honest))
+    # An offset-dominated σ's own median ratio is |N(0,1)|'s median, ~0.67, not 1.
+    assert 0.6 < calibrated < 0.8
+    assert 0.8 < to_calibrate < 1.25 and 0.8 < to_cover < 1.25
+    # Errors twice what σ states: the summary asks for about twice the σ.
+    _, to_calibrate, to_cover = _scales(bench.sigma_scales(_rows(bench, 2.0)))
+    assert 1.6 < to_calibrate < 2.5 and 1.6 < to_cover < 2.5
