@@ -27,11 +27,7 @@ from calib.core.spectrometer_scale import (
 )
 from calib.methods import ESTIMATION_METHODS
 from calib.methods.uncertainty import BudgetSettings, spectrometer_sigma
-from calib.wavelength.profile_search import (
-    BROADBAND_SCALE_TRANSFER,
-    SPECTROMETER_SCALE_SIGMA_NM,
-    spectrometer_scale_sigma_nm,
-)
+from calib.wavelength.profile_search import SPECTROMETER_SCALE_SIGMA_NM, spectrometer_scale_sigma_nm
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
@@ -213,27 +209,6 @@ def test_every_spectrum_of_the_checked_instrument_is_corrected_and_no_other():
     # Checking again changes nothing.
     again, second = checked_observations(out)
     assert second.check is None and again == out
-
-
-def test_a_broadband_only_mapping_inherits_the_measured_share_of_the_spectrum_s_scale():
-    # Decision 0108: a mapping found from broadband lamps alone is placed by the profile's shape
-    # against the camera prior and takes up only part of the reference spectrum's offset; lines or
-    # dips placed by the spectrum, or a line lamp among the lamps, carry all of it.
-    axis = np.arange(380.0, 781.0)
-    smooth = Spectrum(axis, 1.0 + 0.001 * axis)
-    led = _lamp("LED", smooth, "led", 3.0)
-    halogen = _lamp("halogen", smooth, "halogen", 8.0)
-    cfl = _lamp("CFL", smooth, "fluorescent", 3.0)
-    assert 0.0 < BROADBAND_SCALE_TRANSFER < 1.0
-    shared = BROADBAND_SCALE_TRANSFER * SPECTROMETER_SCALE_SIGMA_NM
-    assert spectrometer_scale_sigma_nm([led]) == pytest.approx(shared)
-    assert spectrometer_scale_sigma_nm([led, halogen]) == pytest.approx(shared)
-    assert (
-        spectrometer_scale_sigma_nm([led], placed_by_features=True) == SPECTROMETER_SCALE_SIGMA_NM
-    )
-    assert spectrometer_scale_sigma_nm([led, cfl]) == SPECTROMETER_SCALE_SIGMA_NM
-    # A tabulated spectrum (no bandwidth) adds nothing either way.
-    assert spectrometer_scale_sigma_nm([_lamp("tabulated", smooth, "led", None)]) == 0.0
 
 
 def test_the_budget_s_scale_component_is_the_check_s_sigma():
