@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from calib.core.arrays import FloatArray
 from calib.core.datasets import colour_science_cameras, find_camera
 from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency
@@ -26,6 +27,7 @@ from calib.evaluation.validation.budget import (
     load_records,
     ratios_by_method,
     save_records,
+    without_components,
 )
 from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
@@ -40,10 +42,12 @@ from calib.methods.uncertainty import (
     data_open_share,
     efficiency_family,
     floored_reduced_chi2,
+    lamp_spread_sigma,
     misfit_flag,
     prior_sigma_at_scale,
     reduced_chi2,
     uncertainty_budget,
+    with_stray_light,
 )
 from calib.model.bases import CameraBasis, camera_basis, fallback_camera_basis
 from calib.model.forward import render_observation
@@ -80,7 +84,9 @@ def test_the_budget_names_its_components_and_states_their_sum(
         budget=BudgetSettings(coverage_scale={"prior": factor}),
     )
     summary = result.quality.uncertainty
-    assert set(summary["rms"]) == set(COMPONENTS)  # every component evaluated for the prior solve
+    # every component evaluated for the prior solve; lamp spread and stray light are multilamp's
+    # (decision 0109)
+    assert set(summary["rms"]) == set(COMPONENTS) - {"lamp spread", "stray light"}
     assert summary["coverage_scale"] == factor
     assert sum(summary["share_of_variance"].values()) == pytest.approx(1.0)
     assert summary["share_of_variance"]["unexplained"] == pytest.approx(1 - 1 / factor**2)
@@ -603,3 +609,116 @@ def test_the_multilamp_budget_shrinks_its_basis_component(
         np.max(whole.components["basis"])
     )
     assert any("leave open" in note for note in shrunk.notes)
+
+
+def _pooled(values: FloatArray, method: str = "multilamp") -> EstimateResult:
+    wavelength = np.linspace(400.0, 700.0, 4)
+    curves = np.tile(values[:, None], (1, 3))
+    return EstimateResult(
+        method=method,
+        wavelength_nm=wavelength,
+        sensitivity=curves,
+        sensitivity_sigma=np.full_like(curves, 1e-4),
+        grating_efficiency=np.ones(4),
+        grating_efficiency_sigma=np.full(4, 1e-4),
+        mapping=TRUTH,
+    )
+
+
+def _named_lamps(count: int, direct: int) -> list[LampObservation]:
+    spectrum = Spectrum([400.0, 700.0], [1.0, 1.0])
+    return [
+        LampObservation(
+            f"lamp{i}",
+            spectrum,
+            np.arange(4.0),
+            np.ones((4, 3)),
+            direct_rgb=np.ones(3) if i < direct else None,
+            spectrum_bandwidth_nm=2.0,
+        )
+        for i in range(count)
+    ]
+
+
+def _leave_one_out_rerun(offsets: dict[str, float], fail: str = "") -> Any:
+    """Each lamp pulls the pooled curve by its offset (the curve's peak stays 1): without it, the
+    others' mean pull."""
+
+    def rerun(observations: list[LampObservation], **changes: Any) -> EstimateResult:
+        names = {lamp.name for lamp in observations}
+        missing = sorted(set(offsets) - names)
+        if missing == [fail]:
+            raise RuntimeError("too few lamps")
+        pull = np.mean([offsets[name] for name in names if name in offsets])
+        return _pooled(np.array([0.5 + pull, 1.0, 0.5, 0.2]))
+
+    return rerun
+
+
+def test_the_lamp_spread_is_the_lamps_leave_one_out_jackknife() -> None:
+    """Decision 0109: the jackknife over the lamps with a direct measurement, the mapping-only lamp
+    left in; a lamp whose re-solve fails is left out, fewer than three lamps give none."""
+    offsets = {"lamp0": 0.0, "lamp1": 0.01, "lamp2": 0.05, "lamp3": -0.03}
+    lamps = _named_lamps(5, 4)  # lamp4 has no direct measurement
+    result = _pooled(np.array([0.5, 1.0, 0.5, 0.2]))
+    spread = lamp_spread_sigma(result, lamps, _leave_one_out_rerun(offsets))
+    assert spread is not None
+    sigma, eta_sigma, note = spread
+    pulls = np.array([np.mean([v for k, v in offsets.items() if k != left]) for left in offsets])
+    expected = math.sqrt(3 / 4 * np.sum((pulls - pulls.mean()) ** 2))
+    np.testing.assert_allclose(sigma[0], expected)
+    np.testing.assert_allclose(sigma[1:], 0.0, atol=1e-12)
+    assert eta_sigma is not None and np.allclose(eta_sigma, 0.0)
+    assert "4 of 4 lamps" in note
+    failed = lamp_spread_sigma(result, lamps, _leave_one_out_rerun(offsets, fail="lamp2"))
+    assert failed is not None and "3 of 4" in failed[2]
+    assert failed[0][0, 0] < sigma[0, 0]  # the lamp that disagrees most is the one left in
+    assert lamp_spread_sigma(result, _named_lamps(3, 2), _leave_one_out_rerun(offsets)) is None
+
+
+def test_the_multilamp_budget_names_its_lamps_spread() -> None:
+    """The component enters multilamp's budget (and its η's), not another method's, and the
+    setting turns it off."""
+    offsets = {"lamp0": 0.0, "lamp1": 0.01, "lamp2": 0.05, "lamp3": -0.03}
+    lamps = _named_lamps(4, 4)
+    rerun = _leave_one_out_rerun(offsets)
+    values = np.array([0.5, 1.0, 0.5, 0.2])
+    settings = BudgetSettings(coverage_scale={})
+    budget = uncertainty_budget(_pooled(values), lamps, rerun=rerun, settings=settings)
+    assert budget.components["lamp spread"][0, 0] > 0.01
+    assert "lamp spread" in budget.efficiency_components
+    assert "lamp spread" in budget.summary()["rms"]
+    other = uncertainty_budget(_pooled(values, "prior"), lamps, rerun=rerun, settings=settings)
+    assert "lamp spread" not in other.components
+    off = replace(settings, lamp_spread=False)
+    assert (
+        "lamp spread"
+        not in uncertainty_budget(_pooled(values), lamps, rerun=rerun, settings=off).components
+    )
+
+
+def test_the_stray_light_perturbation_lies_on_the_band_about_the_spot() -> None:
+    """Decision 0109: the direct signal's fraction in a Lorentzian wing, on pixels measured from
+    the spot; lamps without a direct measurement are left as they are, and without a spot-measured
+    lamp there is nothing to place it by."""
+    lamps = [replace(lamp, pixel_origin="direct_spot") for lamp in _named_lamps(2, 1)]
+    stray = with_stray_light(lamps, fraction=0.01, wing_px=2.0)
+    assert stray is not None
+    added = stray[0].profile - lamps[0].profile
+    wing = (2.0 / math.pi) / (4.0 + np.arange(4.0) ** 2)
+    np.testing.assert_allclose(added, 0.01 * wing[:, None] * np.ones(3)[None, :])
+    np.testing.assert_array_equal(stray[1].profile, lamps[1].profile)
+    assert with_stray_light(_named_lamps(2, 2)) is None  # arbitrary pixel origin
+
+
+def test_saved_records_are_judged_without_a_component() -> None:
+    record = EstimateRecord(
+        "multilamp",
+        "5 lamps",
+        np.full(3, 0.1),
+        {"mapping": np.full(3, 0.1), "lamp spread": np.full(3, 0.1)},
+    )
+    (left,) = without_components([record], ["lamp spread"])
+    assert set(left.components) == {"mapping"}
+    np.testing.assert_allclose(left.named(), 0.1)
+    np.testing.assert_allclose(record.named(), 0.1 * math.sqrt(2))

@@ -41,6 +41,13 @@ and channel, on the delivered curves' scale (maximum 1):
 ``efficiency model``
     By perturbation: re-solved with :data:`EFFICIENCY_TERMS_STEP` fewer terms of the grating
     efficiency's Fourier model — how much the answer leans on the η model's form.
+``lamp spread`` and ``stray light`` (the methods of :data:`LAMP_SPREAD_METHODS`: multilamp)
+    The lamps' leave-one-out spread (:func:`lamp_spread_sigma`): each lamp's response is its
+    profile divided through its measured spectrum, so that spectrum's error (slit, sampling, noise,
+    drift) enters the curves where the lamp weighs most, common to the channels; and a re-solve
+    with a typical stray light along the band (:func:`with_stray_light`), which errs where the band
+    is dim. Decision 0109 found them by switching the validation protocol's errors off one at a
+    time (``bench/multilamp_limits.py``).
 ``unexplained``
     What the above leave out, judged on the validation split only (:data:`COVERAGE_SCALE`): the
     quadrature sum of the components is multiplied by a factor per method and family of its η
@@ -168,13 +175,25 @@ SERIOUS_MISFIT_CHI2 = 100.0
 #: brackets shrank the named noise, not multilamp's error, so most of its band is now this factor
 #: (what limits multilamp is not yet named). multilamp:fourier (4 estimates) takes the method's.
 #: makabe2025 67.0 % → 4.84.
+#: Refitted after decision 0103 (a narrow LED's dark channels under the spectrometer's floor: four
+#: 3 lamps + RGB LEDs estimates mended), on base 5977152, the same command with ``--jobs 1`` and
+#: ``--variant "LED+FL"`` (tolerance σ 0.5774): multilamp 52.3 % at factor 1 (all 88 estimates
+#: physical η) → 7.90 (5 lamps 94.9 %, 3 lamps + RGB 95.1 %; at 7.0 they were 93.9 / 94.0 %);
+#: prior:physical 96.5 % → 1.0 unchanged; makabe2025 67.0 % → 4.84 unchanged (decision 0109).
+#: Decision 0109 (multilamp's ``lamp spread`` and ``stray light`` components, named by switching
+#: the protocol's errors off one at a time): ``python -m calib.evaluation.validation.budget
+#: --data-dir DIR --jobs 1 --variant "5 lamps" --variant "3 lamps + RGB LEDs" --save S.npz``
+#: (tolerance σ 0.5774): multilamp 84.6 % at factor 1 (52.3 % without them, the same records with
+#: ``--load S.npz --without "lamp spread" --without "stray light"``) → 1.67 (5 lamps 94.7 %,
+#: 3 lamps + RGB 95.4 %); with the lamp spread alone 2.28, the stray light alone 2.99. The named
+#: share of the band's variance goes from 1/7.9² = 1.6 % to 1/1.67² = 36 %.
 COVERAGE_SCALE: dict[str, float] = {
     "prior": 1.12,
     "prior:physical": 1.0,
     "prior:fourier": 2.79,
-    "multilamp": 7.0,
-    "multilamp:physical": 7.04,
-    "multilamp:fourier": 7.0,
+    "multilamp": 1.67,
+    "multilamp:physical": 1.67,
+    "multilamp:fourier": 1.67,
     "makabe2025": 4.84,
     # Decision 0074 (no direct measurement, no grating file: η₁ marginalised over the physical
     # families): ``python -m calib.evaluation.validation.budget --data-dir DIR --jobs 1 --variant
@@ -213,6 +232,8 @@ COMPONENTS = (
     "spectrometer scale",
     "spectrometer bandwidth",
     "efficiency model",
+    "lamp spread",
+    "stray light",
 )
 
 #: Re-run the method on changed observations/options: ``rerun(observations, **changes)``.
@@ -249,6 +270,10 @@ class BudgetSettings:
     basis_shrink_power
         Per method, the power of the data's open share on the ``basis`` component (``None``:
         :data:`BASIS_SHRINK_POWER`; ``{}``: no shrinking, decision 0050's component).
+    lamp_spread
+        The ``lamp spread`` and ``stray light`` components for :data:`LAMP_SPREAD_METHODS`
+        (:func:`lamp_spread_sigma`, :func:`with_stray_light`; off: the budget before decision
+        0109).
     record_components
         Keep every component's σ ``(f, 3)`` in ``diagnostics["budget_components"]`` (the
         validation run judges other tolerance σ and factors from them; off in the product: the
@@ -265,6 +290,7 @@ class BudgetSettings:
     tolerance_sigma: float = TOLERANCE_SIGMA
     record_components: bool = False
     basis_shrink_power: Mapping[str, float] | None = None
+    lamp_spread: bool = True
 
     def __post_init__(self) -> None:
         for item in fields(self):
@@ -846,6 +872,98 @@ def efficiency_model_sigma(
     )
 
 
+#: Methods whose curves pool several lamps' responses (each lamp's profile divided through its own
+#: measured spectrum): their ``lamp spread`` component is the lamps' leave-one-out spread
+#: (:func:`lamp_spread_sigma`) and their ``stray light`` component a re-solve with the stray light
+#: :func:`with_stray_light` adds (decision 0109; the other methods were not judged with them).
+LAMP_SPREAD_METHODS = frozenset({"multilamp"})
+
+
+def lamp_spread_sigma(
+    result: EstimateResult, observations: Sequence[LampObservation], rerun: Rerun
+) -> tuple[FloatArray, FloatArray | None, str] | None:
+    """The jackknife σ over the lamps with a direct measurement: each re-solved without one lamp
+    (mapping fixed), ``σ² = (n−1)/n Σ_l (ŝ_(−l) − ŝ_(·))²`` on the delivered scale (maximum 1),
+    and the same for ``η``; ``None`` with fewer than three such lamps or two successful re-solves.
+
+    A lamp's response is its profile divided through its measured spectrum, so an error of that
+    spectrum (the spectrometer's slit and scale on a steep flank or a line, the lamp's drift since
+    its reading) enters the curves as a relative error common to the channels where that lamp
+    weighs most: on the validation split that common part is most of a multi-lamp estimate's
+    error (decision 0109), and none of the other components holds it. Where the lamps overlap,
+    leaving one out moves the pooled curve by its disagreement with the others; where one lamp
+    alone carries a range, by what the others cannot say there.
+    """
+    direct = [i for i, lamp in enumerate(observations) if lamp.direct_rgb is not None]
+    if len(direct) < 3:
+        return None
+    curves: list[FloatArray] = []
+    etas: list[FloatArray] = []
+    for index in direct:
+        kept = [lamp for i, lamp in enumerate(observations) if i != index]
+        try:
+            solve = rerun(kept)
+        except Exception:  # a lamp the others cannot do without: no leave-one-out for it
+            continue
+        curves.append(np.asarray(solve.physical_sensitivity(), dtype=np.float64))
+        if solve.grating_efficiency is not None:
+            eta = np.asarray(solve.grating_efficiency, dtype=np.float64)
+            peak = float(np.max(eta))
+            etas.append(eta / peak if peak > 0 else eta)
+    if len(curves) < 2:
+        return None
+
+    def jackknife(values: list[FloatArray]) -> FloatArray:
+        stack = np.stack(values)
+        n = stack.shape[0]
+        spread = ((n - 1) / n) * np.sum((stack - stack.mean(axis=0)) ** 2, axis=0)
+        return np.asarray(np.sqrt(spread), dtype=np.float64)
+
+    eta_sigma = jackknife(etas) if len(etas) == len(curves) else None
+    return (
+        jackknife(curves),
+        eta_sigma,
+        f"lamp spread: leave-one-out over {len(curves)} of {len(direct)} lamps with a direct "
+        "measurement",
+    )
+
+
+#: The stray light the ``stray light`` component re-solves with (decision 0109): light of the direct
+#: spot scattered along the dispersion line by the grooves' in-plane scatter and the lens' flare
+#: streak, a fraction of the 0th order in a Lorentzian wing centred on the spot. The middle of the
+#: ranges such a rig shows and the validation protocol draws (:class:`calib.evaluation.validation.
+#: rig_errors.StrayLight`: 0.1–1 % of the 0th order, half-width 100–1000 px): 0.5 % and the
+#: ranges' geometric middle, 300 px. It lies on the band itself (the background strips beside the
+#: band do not remove it) and matters where the band is dim: the channels' tails, where the other
+#: components are small.
+STRAY_FRACTION = 0.005
+STRAY_WING_PX = 300.0
+
+
+def with_stray_light(
+    observations: Sequence[LampObservation],
+    fraction: float = STRAY_FRACTION,
+    wing_px: float = STRAY_WING_PX,
+) -> list[LampObservation] | None:
+    """The lamps with ``fraction`` of their direct signal added along their profile in a Lorentzian
+    wing of half-width ``wing_px`` about the spot (``profile + fraction · direct_c · L(p)``, ``p``
+    the pixel's distance from the spot), or ``None`` when no lamp has a direct measurement on
+    pixels measured from the spot (the wing's place is then unknown)."""
+    out: list[LampObservation] = []
+    changed = False
+    for lamp in observations:
+        if lamp.direct_rgb is None or lamp.pixel_origin != "direct_spot":
+            out.append(lamp)
+            continue
+        pixel = np.asarray(lamp.pixel, dtype=np.float64)
+        wing = (wing_px / math.pi) / (wing_px**2 + pixel**2)
+        direct = np.asarray(lamp.direct_rgb, dtype=np.float64)
+        profile = np.asarray(lamp.profile, dtype=np.float64) + fraction * np.outer(wing, direct)
+        out.append(replace(lamp, profile=profile))
+        changed = True
+    return out if changed else None
+
+
 def misfit_flag(chi2: float | None, floor: float = MODEL_FLOOR) -> QualityFlag | None:
     """``model_misfit`` when the reduced χ² (judged with ``floor``) exceeds :data:`MISFIT_CHI2`."""
     if chi2 is None or chi2 <= MISFIT_CHI2:
@@ -999,6 +1117,20 @@ def uncertainty_budget(
                 solves["efficiency model"] = fewer_terms
             if note:
                 notes.append(note)
+            if settings.lamp_spread and result.method in LAMP_SPREAD_METHODS:
+                spread = lamp_spread_sigma(result, lamps, rerun)
+                if spread is not None:
+                    components["lamp spread"], eta_spread, note = spread
+                    if eta_components and eta_spread is not None:
+                        eta_components["lamp spread"] = eta_spread
+                    notes.append(note)
+                stray = with_stray_light(lamps)
+                if stray is not None:
+                    solves["stray light"] = rerun(stray)
+                    notes.append(
+                        f"stray light: {100 * STRAY_FRACTION:g} % of the direct spot in a "
+                        f"{STRAY_WING_PX:g} px Lorentzian wing along the band"
+                    )
             for name, solve in solves.items():
                 factor = factors.get(name, 1.0)
                 components[name] = factor * _difference(result, solve)

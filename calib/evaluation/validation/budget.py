@@ -42,6 +42,7 @@ from calib.evaluation.validation.protocol import (
     variant_arguments,
     variant_observations,
 )
+from calib.evaluation.validation.scenes import RenderedScene
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
 from calib.methods.uncertainty import BudgetSettings, efficiency_family, prior_sigma_at_scale
 from calib.model.gratings import GRATING_KINDS
@@ -133,17 +134,23 @@ class EstimateRecord:
             )
 
 
-def task_records(task: Task) -> list[EstimateRecord]:
+def task_records(
+    task: Task,
+    scene: RenderedScene | None = None,
+    extra_arguments: Mapping[str, Any] | None = None,
+) -> list[EstimateRecord]:
     """Per variant of the task's scene, its :class:`EstimateRecord`; failed estimates are left
-    out (the protocol counts them)."""
+    out (the protocol counts them). ``scene`` (default: the task's, rendered) and
+    ``extra_arguments`` (keywords every estimate takes besides the variant's, e.g. the true
+    ``mapping``) let an ablation change what the estimates see (``bench/multilamp_limits.py``)."""
     from calib.methods import estimate
 
-    scene = render_task_scene(task)
+    scene = render_task_scene(task) if scene is None else scene
     out: list[EstimateRecord] = []
     unscaled = BudgetSettings(coverage_scale={}, tolerance_sigma=1.0, record_components=True)
     for variant in task.settings.variants:
         observations = variant_observations(scene, variant)
-        extra = variant_arguments(variant)
+        extra = {**variant_arguments(variant), **dict(extra_arguments or {})}
         try:
             result = estimate(
                 observations,
@@ -359,6 +366,16 @@ def load_records(path: str) -> list[EstimateRecord]:
     return [EstimateRecord(**fields[index]) for index in sorted(fields)]
 
 
+def without_components(
+    records: Sequence[EstimateRecord], names: Sequence[str]
+) -> list[EstimateRecord]:
+    """``records`` with the σ components ``names`` left out (what the budget was without them)."""
+    return [
+        replace(r, components={k: v for k, v in r.components.items() if k not in names})
+        for r in records
+    ]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--data-dir", default=None)
@@ -401,9 +418,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="judge the union of these --save files instead of estimating (repeatable); each "
         "file's coverage at the fitted factors is printed",
     )
+    parser.add_argument(
+        "--without",
+        action="append",
+        default=None,
+        help="judge the --load records without this σ component (repeatable; e.g. what a "
+        "component adds, decision 0109)",
+    )
     args = parser.parse_args(argv)
+    if args.without and not args.load:
+        parser.error("--without judges saved records: give --load")
     if args.load:
-        sets = {path: load_records(path) for path in args.load}
+        sets = {
+            path: without_components(load_records(path), args.without or ()) for path in args.load
+        }
         print(f"validation records: {', '.join(f'{p} ({len(r)})' for p, r in sets.items())}")
         return judge(
             [record for records in sets.values() for record in records],
