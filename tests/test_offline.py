@@ -8,18 +8,23 @@ RE estimate within a factor 2 of the true error. The bounds below are the estima
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
 
 from calib.core.errors import InputError
 from calib.core.mapping import QuadraticMapping
+from calib.image.profiles import DiffractionGeometry
 from calib.pipeline import LampImages, OfflineEstimate, OfflineSettings, estimate_offline
 from calib.pipeline.brackets import (
     BROADBAND_KINDS,
     BracketProfiles,
     _decode_plans,
+    dark_reach,
     extend_orders,
     shift_geometry,
 )
@@ -367,6 +372,38 @@ def test_extension_stops_at_the_frame_and_before_a_second_order(
     assert far.primary.stop_px <= limit + 1e-9
     floor = second.spot_half_size_px[0] + second.background_gap_px
     assert far.primary.start_px == pytest.approx(floor)
+
+
+def test_a_long_band_extends_into_its_dark_end_and_stops_where_light_rises(
+    capture: Capture, estimate: OfflineEstimate
+) -> None:
+    # A band lit from 100 to 300 px (a camera blind beyond its red end): 1.9 × its start forbids
+    # any extension; the pixels beyond its lit end are dark up to 330 px in every lamp's profile,
+    # where light rises again (a 2nd order), so the red end extends to 329 px and no further.
+    geometry = _profiles(estimate).geometry_image()[1]
+    long_band = replace(geometry.primary, start_px=100.0, stop_px=300.0)
+    geometry = replace(geometry, orders=(long_band,))
+
+    def extract_all(trial: DiffractionGeometry) -> list[Any]:
+        stop = trial.primary.stop_px
+        pixel = np.arange(long_band.start_px, stop + 1.0)
+        lit = np.where(pixel <= 300.0, 1.0, 0.0)
+        tail = np.where((pixel > 300.0) & (pixel <= 303.0), 0.05, 0.0)  # its own first order
+        rise = np.where(pixel >= 330.0, 0.2, 0.0)
+        dark_lamp = np.column_stack([lit + tail, lit, lit])
+        second_order = np.column_stack([lit, lit, lit + rise])
+        return [SimpleNamespace(side=1, pixel=pixel, profile=p) for p in (dark_lamp, second_order)]
+
+    shape = (10_000, 10_000)
+    reach = dark_reach(geometry, shape, extract_all, fraction=0.5)
+    assert reach[1] == pytest.approx(329.0)
+    extended, _ = extend_orders(geometry, shape, fraction=0.5, dark_reach=reach)
+    assert extended.primary.stop_px == pytest.approx(329.0)
+    guessed, _ = extend_orders(geometry, shape, fraction=0.5)
+    assert guessed.primary.stop_px == pytest.approx(300.0)
+    # without a rise the extension takes its whole fraction
+    quiet = dark_reach(geometry, shape, lambda trial: extract_all(trial)[:1], fraction=0.5)
+    assert quiet[1] == pytest.approx(400.0)
 
 
 def test_frames_without_a_spot_or_band_are_an_input_error(capture: Capture) -> None:

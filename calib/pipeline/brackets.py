@@ -24,7 +24,7 @@ region), so the pixel axes of all lamps agree exactly.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -41,6 +41,7 @@ from calib.image.profiles import (
     detect_geometry,
     extract,
 )
+from calib.image.profiles.detection import EXTENT_FRACTION
 from calib.image.profiles.geometry import rectangle_corners
 from calib.image.raw import PlaneRegion, RawDecoder, RawPlanes
 from calib.image.sensor_noise import NoiseModel
@@ -178,7 +179,10 @@ def _fits(
 
 
 def extend_orders(
-    geometry: DiffractionGeometry, shape_px: tuple[int, int], fraction: float = EXTENSION_FRACTION
+    geometry: DiffractionGeometry,
+    shape_px: tuple[int, int],
+    fraction: float = EXTENSION_FRACTION,
+    dark_reach: Mapping[int, float] | None = None,
 ) -> tuple[DiffractionGeometry, list[str]]:
     """Extend each first order beyond its detected (lit) extent, where the image allows.
 
@@ -186,8 +190,10 @@ def extend_orders(
     inside the working grid (no LED emits at 400 nm). A profile that stops there leaves the ends of
     the wavelength range unconstrained, and the mapping refinement drifts by nanometres; with dark
     pixels beyond the grid's ends in the profile it does not. Each end moves out by ``fraction`` of
-    the band's length, but not into the direct spot, not beyond 1.9 × the band's start (where a 2nd
-    order may begin) and not so far that the band or its background strips leave ``shape_px``.
+    the band's length, but not into the direct spot, not so far that the band or its background
+    strips leave ``shape_px``, and not into a 2nd order: when ``dark_reach`` gives, per side, how far
+    the band stays dark beyond its lit end in every lamp's image (:func:`dark_reach`), up to there;
+    without it, not beyond 1.9 × the band's start (where a 2nd order may begin).
 
     Returns
     -------
@@ -202,7 +208,9 @@ def extend_orders(
         length = band.stop_px - band.start_px
         wanted_start = max(band.start_px - fraction * length, floor, 0.0)
         wanted_stop = band.stop_px + fraction * length
-        if band.start_px > 0:
+        if dark_reach is not None and band.side in dark_reach:
+            wanted_stop = min(wanted_stop, max(dark_reach[band.side], band.stop_px))
+        elif band.start_px > 0:
             wanted_stop = min(wanted_stop, max(1.9 * band.start_px, band.stop_px))
         start, stop = band.start_px, band.stop_px
         for _ in range(24):  # bisect towards the largest extension that fits
@@ -221,6 +229,59 @@ def extend_orders(
             )
         orders.append(replace(band, start_px=start, stop_px=stop))
     return replace(geometry, orders=tuple(orders)), notes
+
+
+def dark_reach(
+    geometry: DiffractionGeometry,
+    shape_px: tuple[int, int],
+    extract_all: Callable[[DiffractionGeometry], Sequence[Extraction]],
+    fraction: float = EXTENSION_FRACTION,
+) -> dict[int, float]:
+    """Per side, how far beyond its lit end each first order stays dark in every lamp's image.
+
+    The detected band ends where the geometry lamp's light falls below ``EXTENT_FRACTION`` of its
+    maximum, which on a camera blind beyond ~690 nm lies inside the working grid; its pixels
+    beyond are data (the camera's response is ~0 there), as long as no 2nd order has begun. Rather
+    than guess where one may begin (1.9 × the band's start, which for a long band forbids any
+    extension), look: the band is extracted out to ``fraction`` of its length beyond its stop (as
+    far as ``shape_px`` allows) from every lamp's image (``extract_all``); in each lamp's profile,
+    after its own first order has fallen below ``EXTENT_FRACTION`` of its maximum, the first
+    sample that rises above that level again (a 2nd order, stray light) ends the dark run. The
+    reach is the shortest dark run over the lamps; a lamp whose light never falls below the level
+    inside the trial (its own first order runs on) does not limit it.
+    """
+    reach: dict[int, float] = {}
+    for band in geometry.orders:
+        length = band.stop_px - band.start_px
+        trial_stop = band.stop_px + fraction * length
+        for _ in range(24):
+            if _fits(geometry, band, band.start_px, trial_stop, shape_px):
+                break
+            trial_stop = 0.5 * (trial_stop + band.stop_px)
+        else:
+            trial_stop = band.stop_px
+        if trial_stop <= band.stop_px:
+            continue
+        orders = tuple(replace(b, stop_px=trial_stop) if b is band else b for b in geometry.orders)
+        limit = trial_stop
+        for extraction in extract_all(replace(geometry, orders=orders)):
+            if extraction.side != band.side:
+                continue
+            total = np.nansum(extraction.profile, axis=1)
+            pixel = extraction.pixel
+            lit = pixel <= band.stop_px
+            if not lit.any() or not np.nanmax(total[lit]) > 0:
+                continue
+            level = EXTENT_FRACTION * float(np.nanmax(total[lit]))
+            beyond = np.flatnonzero(pixel > band.stop_px)
+            dark = beyond[total[beyond] <= level]
+            if dark.size == 0:
+                continue
+            risen = beyond[(beyond > dark[0]) & (total[beyond] > level)]
+            if risen.size:
+                limit = min(limit, max(float(pixel[risen[0] - 1]), band.stop_px))
+        reach[band.side] = limit
+    return reach
 
 
 def region_for(
@@ -520,8 +581,19 @@ def bracket_profiles(
             else:
                 geometry, geometry_lamp = better, brightest
     reference = merged[geometry_lamp].image
+
+    def extract_all(trial: DiffractionGeometry) -> list[Extraction]:
+        in_sensor = to_sensor(trial, reference)
+        return [
+            extract(m.image, shift_geometry(in_sensor, m.image), allow_saturated_direct=True)
+            for m in merged.values()
+        ]
+
+    local = shift_geometry(geometry, reference)
     extended, extension_notes = extend_orders(
-        shift_geometry(geometry, reference), reference.sensor_shape_px
+        local,
+        reference.sensor_shape_px,
+        dark_reach=dark_reach(local, reference.sensor_shape_px, extract_all),
     )
     geometry = to_sensor(extended, reference)
     notes.extend(extension_notes)

@@ -39,6 +39,9 @@ from calib.image.profiles.geometry import (
 _MIN_SPOT_SNR = 20.0
 #: Band candidates rise this many noise sigmas above the background.
 _BAND_SNR = 8.0
+#: A band extends where its along-profile exceeds this fraction of its maximum (``detect_geometry``'s
+#: default); beyond it the band counts as dark.
+EXTENT_FRACTION = 0.01
 #: A region on the other side counts as the other first order above this fraction of the flux.
 _MIN_ORDER_FLUX_RATIO = 0.05
 #: Centroid directions within this angle (degrees) count as "opposite".
@@ -562,7 +565,7 @@ def detect_geometry(
     image: HdrImage,
     *,
     across_fraction: float = 0.8,
-    extent_fraction: float = 0.01,
+    extent_fraction: float = EXTENT_FRACTION,
     margin_fraction: float = 0.05,
     bin_px: float = 2.0,
 ) -> DiffractionGeometry:
