@@ -128,29 +128,18 @@ def protocol_runs(data_dir: str | None, name: str) -> list[tuple[str, Callable[[
     variants' estimates, the method and options the protocol gives them."""
     from calib.evaluation.validation.protocol import (
         DEFAULT_VARIANTS,
-        ProtocolSettings,
+        named_task,
         render_task_scene,
-        split_tasks,
-        variant_arguments,
-        variant_observations,
+        variant_inputs,
     )
-    from calib.evaluation.validation.splits import load_splits
 
-    splits, _ = load_splits(data_dir)
-    settings = ProtocolSettings(seed=0)
-    task = next(t for t in split_tasks(splits.test, settings) if t.camera.name == name)
+    task = named_task(data_dir, name)
     scene = render_task_scene(task)
     runs: list[tuple[str, Callable[[], object]]] = []
     for variant in DEFAULT_VARIANTS:
         if variant.label not in ("LED only", "LED+FL"):
             continue
-        lamps = variant_observations(scene, variant)
-        keywords = {
-            "method": variant.method,
-            "grid": settings.grid,
-            "basis": task.basis,
-            **variant_arguments(variant),
-        }
+        lamps, keywords = variant_inputs(task, scene, variant)
 
         def run(
             lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords

@@ -159,28 +159,17 @@ def main() -> None:
         return
     from calib.evaluation.validation.protocol import (
         DEFAULT_VARIANTS,
-        ProtocolSettings,
+        named_task,
         render_task_scene,
-        split_tasks,
-        variant_arguments,
-        variant_observations,
+        variant_inputs,
     )
-    from calib.evaluation.validation.splits import load_splits
 
-    splits, _ = load_splits(args.data_dir)
-    settings = ProtocolSettings(seed=0)
-    task = next(t for t in split_tasks(splits.test, settings) if t.camera.name == camera.name)
+    task = named_task(args.data_dir, camera.name)
     spot = render_task_scene(task)
     for variant in DEFAULT_VARIANTS:
         if variant.label not in ("LED only", "LED only, no EXIF", "LED+FL"):
             continue
-        chosen: list[LampObservation] = variant_observations(spot, variant)
-        keywords = {
-            "method": variant.method,
-            "grid": settings.grid,
-            "basis": task.basis,
-            **variant_arguments(variant),
-        }
+        chosen, keywords = variant_inputs(task, spot, variant)
 
         def spot_estimate(
             chosen: list[LampObservation] = chosen, keywords: dict[str, Any] = keywords

@@ -35,6 +35,7 @@ from calib.evaluation.validation.protocol import (
     tune_rows,
     tuning_score,
     variant_arguments,
+    variant_inputs,
     variant_observations,
 )
 from calib.evaluation.validation.report import (
@@ -445,6 +446,15 @@ def test_the_no_direct_variant_gives_the_first_order_alone_and_the_fl_as_nobody_
     assert variant_arguments(NO_DIRECT_VARIANT) == {"assume_flat_grating": True}
     assert variant_arguments(DEFAULT_VARIANTS[0]) == {}
     assert NO_DIRECT_VARIANT in EXTRA_VARIANTS
+    # What the protocol (and every bench) hands calib.methods.estimate for the variant.
+    lamps, keywords = variant_inputs(task, scene, NO_DIRECT_VARIANT)
+    assert [lamp.name for lamp in lamps] == ["FL2", "A"] and lamps[0].direct_rgb is None
+    assert keywords == {
+        "method": NO_DIRECT_VARIANT.method,
+        "grid": task.settings.grid,
+        "basis": task.basis,
+        "assume_flat_grating": True,
+    }
 
 
 def _failing_variant() -> MethodVariant:

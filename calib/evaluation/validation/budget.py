@@ -39,8 +39,7 @@ from calib.evaluation.validation.protocol import (
     protocol_gratings,
     render_task_scene,
     split_tasks,
-    variant_arguments,
-    variant_observations,
+    variant_inputs,
 )
 from calib.evaluation.validation.scenes import RenderedScene
 from calib.evaluation.validation.splits import ValidationSplit, load_splits, require_validation
@@ -149,16 +148,10 @@ def task_records(
     out: list[EstimateRecord] = []
     unscaled = BudgetSettings(coverage_scale={}, tolerance_sigma=1.0, record_components=True)
     for variant in task.settings.variants:
-        observations = variant_observations(scene, variant)
-        extra = {**variant_arguments(variant), **dict(extra_arguments or {})}
+        observations, keywords = variant_inputs(task, scene, variant)
         try:
             result = estimate(
-                observations,
-                method=variant.method,
-                grid=task.settings.grid,
-                basis=task.basis,
-                budget=unscaled,
-                **extra,
+                observations, budget=unscaled, **{**keywords, **dict(extra_arguments or {})}
             )
         except Exception:  # a failed estimate has no band to judge (the protocol counts it)
             continue

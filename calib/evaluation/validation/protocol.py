@@ -445,6 +445,32 @@ def variant_arguments(variant: MethodVariant) -> dict[str, Any]:
     return extra
 
 
+def variant_inputs(
+    task: Task, scene: RenderedScene, variant: MethodVariant
+) -> tuple[list[LampObservation], dict[str, Any]]:
+    """What :func:`calib.methods.estimate` is given for ``variant`` on the task's ``scene``: its
+    observations (:func:`variant_observations`) and its keywords — method, grid, the task's basis
+    and :func:`variant_arguments` — as :func:`evaluate_task` runs it."""
+    keywords = {
+        "method": variant.method,
+        "grid": task.settings.grid,
+        "basis": task.basis,
+        **variant_arguments(variant),
+    }
+    return variant_observations(scene, variant), keywords
+
+
+def named_task(data_dir: str | None, camera: str, split: str = "test", seed: int = 0) -> Task:
+    """The protocol's task for the camera named ``camera`` in ``split`` ("validation" or "test";
+    default settings, ``seed``): one camera's scene for a bench."""
+    splits, _ = load_splits(data_dir, seed=seed)
+    tasks = split_tasks(getattr(splits, split), ProtocolSettings(seed=seed))
+    found = [task for task in tasks if task.camera.name == camera]
+    if not found:
+        raise ValueError(f"no camera named {camera!r} in the {split} split")
+    return found[0]
+
+
 def row_identity(
     task: Task, variant: MethodVariant, scene_record: str = "", split: str | None = None
 ) -> dict[str, Any]:
@@ -539,17 +565,11 @@ def evaluate_task(task: Task) -> list[ValidationRow]:
     record = json.dumps(scene.plan.to_dict(), default=float)
     rows: list[ValidationRow] = []
     for variant in settings.variants:
-        observations = variant_observations(scene, variant)
+        observations, keywords = variant_inputs(task, scene, variant)
         started = time.perf_counter()
         identity = row_identity(task, variant, record)
         try:
-            result = estimate(
-                observations,
-                method=variant.method,
-                grid=settings.grid,
-                basis=task.basis,
-                **variant_arguments(variant),
-            )
+            result = estimate(observations, **keywords)
             pixel = observations[0].pixel
             rows.append(
                 scored_row(identity, result, scene.truth, pixel, scene.true_wavelength_nm, started)
