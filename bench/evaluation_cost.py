@@ -26,15 +26,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from wavelength_speed import paper_scene
 
 from calib.core.blas import one_blas_thread
-from calib.core.datasets import find_camera, makabe2025_split
-from calib.core.lamp_specs import colour_lamp
 from calib.core.observations import LampObservation
-from calib.core.spectra import DEFAULT_GRID
-from calib.evaluation.synthetic import render_scene
 from calib.methods import estimate
-from calib.model.bases import camera_basis
 from calib.wavelength.response_model import ResponseModel
 
 
@@ -90,17 +86,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--protocol", action="store_true", help="also the calib validate scene")
     args = parser.parse_args()
-    train, test = makabe2025_split(args.data_dir)
-    camera = find_camera(test, "Canon 600D")
-    basis = camera_basis([r.sensitivity for r in train], source="Makabe 2025 train (44)")
-    scene = render_scene(
-        camera.name,
-        camera.sensitivity.resample(DEFAULT_GRID, "interpolate"),
-        np.random.default_rng(0),
-        broadband_lamp=colour_lamp("D65"),
-        fluorescent_lamp=colour_lamp("FL2"),
-        noise_fraction=0.01,
-    )
+    camera, basis, scene = paper_scene(args.data_dir, 0.01)
     led, fluorescent = scene.broadband.observation, scene.fluorescent.observation
     runs: list[tuple[str, Callable[[], object]]] = [
         ("LED only", lambda: estimate([led], basis=basis)),

@@ -26,14 +26,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from wavelength_speed import paper_scene
 
-from calib.core.datasets import find_camera, makabe2025_split
-from calib.core.lamp_specs import colour_lamp
 from calib.core.observations import LampObservation
-from calib.core.spectra import DEFAULT_GRID
-from calib.evaluation.synthetic import render_scene
 from calib.methods import estimate
-from calib.model.bases import camera_basis
 from calib.wavelength import profile_search
 
 BOOK: dict[str, list[float]] = defaultdict(lambda: [0, 0, 0.0])
@@ -137,17 +133,7 @@ def main() -> None:
     parser.add_argument("--protocol", action="store_true")
     args = parser.parse_args()
     install()
-    train, test = makabe2025_split(args.data_dir)
-    camera = find_camera(test, "Canon 600D")
-    basis = camera_basis([r.sensitivity for r in train], source="Makabe 2025 train (44)")
-    scene = render_scene(
-        camera.name,
-        camera.sensitivity.resample(DEFAULT_GRID, "interpolate"),
-        np.random.default_rng(0),
-        broadband_lamp=colour_lamp("D65"),
-        fluorescent_lamp=colour_lamp("FL2"),
-        noise_fraction=args.noise,
-    )
+    camera, basis, scene = paper_scene(args.data_dir, args.noise)
     led, fluorescent = scene.broadband.observation, scene.fluorescent.observation
     for label, lamps in (("LED only", [led]), ("LED + fluorescent", [led, fluorescent])):
 

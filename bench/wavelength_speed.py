@@ -111,6 +111,25 @@ def report(
     print(f"{label:24s} solve alone {solve_s:.4f} s{bare}{new}{old}", flush=True)
 
 
+def paper_scene(data_dir: str | None, noise: float = 0.01) -> tuple[Any, Any, Any]:
+    """The bench's scene (module docstring): the paper's synthetic protocol for the Canon 600D, a
+    test camera, with the 44 training cameras' basis, an LED (D65) and a fluorescent lamp (FL2) at
+    ``noise`` (of the peak). Returns the camera, the basis and the rendered scene; the speed
+    benches (``bench/search_stages.py``, ``bench/evaluation_cost.py``) time the same one."""
+    train, test = makabe2025_split(data_dir)
+    camera = find_camera(test, "Canon 600D")
+    basis = camera_basis([r.sensitivity for r in train], source="Makabe 2025 train (44)")
+    scene = render_scene(
+        camera.name,
+        camera.sensitivity.resample(DEFAULT_GRID, "interpolate"),
+        np.random.default_rng(0),
+        broadband_lamp=colour_lamp("D65"),
+        fluorescent_lamp=colour_lamp("FL2"),
+        noise_fraction=noise,
+    )
+    return camera, basis, scene
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default=None)
@@ -138,17 +157,7 @@ def main() -> None:
         help="time only the estimate given the true mapping (with and without its σ budget)",
     )
     args = parser.parse_args()
-    train, test = makabe2025_split(args.data_dir)
-    camera = find_camera(test, "Canon 600D")
-    basis = camera_basis([r.sensitivity for r in train], source="Makabe 2025 train (44)")
-    scene = render_scene(
-        camera.name,
-        camera.sensitivity.resample(DEFAULT_GRID, "interpolate"),
-        np.random.default_rng(0),
-        broadband_lamp=colour_lamp("D65"),
-        fluorescent_lamp=colour_lamp("FL2"),
-        noise_fraction=args.noise,
-    )
+    camera, basis, scene = paper_scene(args.data_dir, args.noise)
     led, fluorescent = scene.broadband.observation, scene.fluorescent.observation
     for label, lamps in (("LED only", [led]), ("LED + fluorescent", [led, fluorescent])):
 
