@@ -4,10 +4,10 @@ The direct RGB is the background-subtracted radiance integrated over the spot's 
 integrated over sensor pixels): each plane's sum times the plane pitch squared where the spot's blur
 hides the plane sampling, else one slit-image shape shared by the channels, fitted to every plane's
 samples (a sharp spot a few pixels wide falls on different numbers of each colour's columns). The
-profile is the mean across the central part of the band in bins of ``bin_px`` along it; every channel's samples are placed at their true sensor
-position (R, G and B sit at different places of the 2×2 cell), binned, and resampled linearly to one
-common ``pixel`` axis, the distance from the spot centre. Standard deviations are propagated from the
-HDR variance.
+profile is the mean across the central part of the band in bins of ``bin_px`` along it; every
+channel's samples are placed at their true sensor position (R, G and B sit at different places of
+the 2×2 cell), binned, and resampled linearly to one common ``pixel`` axis, the distance from the
+spot centre. Standard deviations are propagated from the HDR variance.
 """
 
 from __future__ import annotations
