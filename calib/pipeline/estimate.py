@@ -447,6 +447,12 @@ def estimate_offline(
             if on_profiles is not None:
                 on_profiles(profiles)
             notes.extend(profiles.notes)
+            # A sharp direct spot whose colour rests on the planes' plain sums (decision 0114).
+            warnings.extend(
+                f"{item.merged.lamp.name}: {item.extraction.direct_note}"
+                for item in profiles.extractions
+                if item.extraction.direct_note is not None
+            )
             notes.append(f"geometry detected on {profiles.geometry_lamp}")
             camera = _camera_record(profiles)
             # What the RAW files say of the optics: the mapping's physics starts from it.

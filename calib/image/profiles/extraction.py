@@ -1,11 +1,13 @@
 """Direct RGB and first-order profiles of an HDR image in a fixed geometry.
 
-The direct RGB is the background-subtracted radiance summed over the spot's aperture (times the plane
-pitch squared: DN/s integrated over sensor pixels). The profile is the mean across the central part of
-the band in bins of ``bin_px`` along it; every channel's samples are placed at their true sensor
-position (R, G and B sit at different places of the 2×2 cell), binned, and resampled linearly to one
-common ``pixel`` axis, the distance from the spot centre. Standard deviations are propagated from the
-HDR variance.
+The direct RGB is the background-subtracted radiance integrated over the spot's aperture (DN/s
+integrated over sensor pixels): each plane's sum times the plane pitch squared where the spot's blur
+hides the plane sampling, else one slit-image shape shared by the channels, fitted to every plane's
+samples (a sharp spot a few pixels wide falls on different numbers of each colour's columns). The
+profile is the mean across the central part of the band in bins of ``bin_px`` along it; every
+channel's samples are placed at their true sensor position (R, G and B sit at different places of
+the 2×2 cell), binned, and resampled linearly to one common ``pixel`` axis, the distance from the
+spot centre. Standard deviations are propagated from the HDR variance.
 """
 
 from __future__ import annotations
@@ -32,6 +34,11 @@ from calib.image.profiles.geometry import (
     sample_positions,
     to_uv,
 )
+
+ALIASING_LIMIT = 0.005
+"""Below this first-harmonic aliasing of the spot's blur at the plane pitch, the plane's plain sum
+× pitch² is the spot's integral to better than ≈ 1 % (the harmonic enters twice, once per side),
+so the sum is kept; above it the direct RGB comes from the shared slit-image fit."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,6 +67,9 @@ class Extraction:
     line_spread
         The direct spot's cross-section along the dispersion direction at the profile's sampling
         (odd length, sum 1): the camera's line spread; ``None`` when the spot was saturated.
+    direct_note
+        Why a sharp direct spot's colour rests on the colour planes' plain sums (it may be
+        aliased: decision 0114); ``None`` when the spot is resolved or blurred enough.
     geometry
         The geometry used.
     source
@@ -79,6 +89,7 @@ class Extraction:
     source: str = "image"
     frames: tuple[str, ...] = field(default_factory=tuple)
     line_spread: FloatArray | None = None
+    direct_note: str | None = None
 
     def to_observation(
         self,
@@ -281,8 +292,12 @@ def _extract_direct(
     allow_saturated: bool,
     source: str,
     subtract_background: bool,
-) -> tuple[FloatArray | None, FloatArray | None, FloatArray, FloatArray | None]:
-    """Direct RGB, its σ, the spot's background and its line spread (see :func:`_line_spread`)."""
+) -> tuple[FloatArray | None, FloatArray | None, FloatArray, FloatArray | None, str | None]:
+    """Direct RGB, its σ, the spot's background, its line spread (see :func:`_line_spread`) and why
+    a sharp spot's RGB is the planes' plain sum (see :func:`_resolved_direct`).
+
+    The RGB is the plain sum where the spot's blur hides the plane sampling, else the integral of
+    one slit-image shape shared by the channels; σ is the plain sum's either way."""
     centre = geometry.spot_centre_px
     angle = geometry.primary.angle_deg
     along, across = geometry.spot_half_size_px
@@ -307,12 +322,16 @@ def _extract_direct(
     variance = np.empty(3)
     positions: list[FloatArray] = []
     weights: list[FloatArray] = []
+    columns: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+    across_axis = (
+        0 if abs(math.cos(math.radians(angle))) >= abs(math.sin(math.radians(angle))) else 1
+    )
     for channel in range(3):
         u, v = _channel_uv(image, channel, window, centre, angle)
         inside = (np.abs(u) <= along) & (np.abs(v) <= across)
         if image.saturated[channel][window][inside].any():
             if allow_saturated:
-                return None, None, background, None
+                return None, None, background, None, None
             raise DetectionError(
                 f"the direct spot is saturated in every frame of the bracket "
                 f"({CHANNEL_NAMES[channel]} channel); add a shorter exposure",
@@ -326,10 +345,165 @@ def _extract_direct(
         )
         positions.append(u[inside])
         weights.append((values - background[channel]) / max(float(direct[channel]), 1e-300))
+        columns.append(
+            _column_sums(
+                np.broadcast_to(u, inside.shape),
+                inside,
+                image.radiance[channel][window].astype(np.float64) - background[channel],
+                image.variance[channel][window].astype(np.float64),
+                across_axis,
+            )
+        )
     spread = _line_spread(
         np.concatenate(positions), np.concatenate(weights), geometry.bin_px, along
     )
-    return direct, np.sqrt(variance), background, spread
+    resolved, note = _resolved_direct(
+        columns, _site_offsets(image, angle), image.pixel_pitch_px, along
+    )
+    if resolved is not None:
+        direct = resolved
+    if note is not None:
+        note = (
+            f"{note}: the direct RGB is each colour plane's plain sum, which a sharp spot "
+            "aliases (its colour may be off by tens of per cent); defocus the slit image slightly "
+            "or widen the slit"
+        )
+    return direct, np.sqrt(variance), background, spread, note
+
+
+def _column_sums(
+    u: FloatArray, inside: NDArray[np.bool_], values: FloatArray, variances: FloatArray, axis: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """One channel's spot summed along the slit: per plane column (row when the dispersion runs
+    closer to the sensor's y axis), its mean ``u``, its sum and the sum's variance."""
+    count = inside.sum(axis=axis)
+    used = count > 0
+    mean_u = np.where(inside, u, 0.0).sum(axis=axis)[used] / count[used]
+    total = np.where(inside, values, 0.0).sum(axis=axis)[used]
+    total_variance = np.where(inside, variances, 0.0).sum(axis=axis)[used]
+    return (
+        np.asarray(mean_u, dtype=np.float64),
+        np.asarray(total, dtype=np.float64),
+        np.asarray(total_variance, dtype=np.float64),
+    )
+
+
+def _site_offsets(image: HdrImage, angle_deg: float) -> tuple[float, float, float]:
+    """Per channel: half the distance along ``u`` between the two sites a plane sample averages.
+
+    A Bayer G plane sample is the mean of the cell's two greens, one pixel apart on a diagonal
+    (``calib.image.raw``); R and B are one site each. For a sharp spot the mean of two sites is
+    not the value at their middle."""
+    pattern = image.cfa_pattern.upper()
+    offsets = [0.0, 0.0, 0.0]
+    if image.pixel_pitch_px != 2.0 or len(pattern) != 4:
+        return (0.0, 0.0, 0.0)
+    angle = math.radians(angle_deg)
+    for channel, name in enumerate("RGB"):
+        sites = [divmod(index, 2) for index, letter in enumerate(pattern) if letter == name]
+        if len(sites) == 2:
+            (row_a, column_a), (row_b, column_b) = sites
+            along = (column_b - column_a) * math.cos(angle) + (row_b - row_a) * math.sin(angle)
+            offsets[channel] = 0.5 * abs(along)
+    return (offsets[0], offsets[1], offsets[2])
+
+
+def _spot_shape(u: FloatArray, centre: float, half_width: float, blur: float) -> FloatArray:
+    """A slit image across the dispersion: a unit-height rectangle of half-width ``half_width``
+    convolved with a Gaussian of σ ``blur`` (its integral over ``u`` is ``2 · half_width``)."""
+    from scipy.special import erf  # deferred like the other scipy imports of this package
+
+    scale = blur * math.sqrt(2.0)
+    return np.asarray(
+        0.5 * (erf((u - centre + half_width) / scale) - erf((u - centre - half_width) / scale)),
+        dtype=np.float64,
+    )
+
+
+def _resolved_direct(
+    columns: list[tuple[FloatArray, FloatArray, FloatArray]],
+    site_offsets: tuple[float, float, float],
+    pitch: float,
+    half_size: float,
+) -> tuple[FloatArray | None, str | None]:
+    """Per channel: the spot's integral from one slit-image shape shared by the channels.
+
+    Each colour plane samples the spot every ``pitch`` sensor pixels at its own offset, so the
+    plane's sum × pitch² is the integral only when the spot is smooth at that pitch. A sharp slit
+    image a few pixels wide falls on 2 columns of one channel and 3 of another at the same level
+    (decision 0114). The slit's image along the dispersion is the same for every channel (one slit,
+    one lens; the colours differ only in level), so one shape — a rectangle ⊗ Gaussian with shared
+    centre, width and blur — is fitted to every channel's column sums (the slit's length summed),
+    with its own amplitude per channel (a plane that averages two sites, Bayer G, sees the mean of
+    the shape at both: ``site_offsets``); the channel's integral is its amplitude × the shape's
+    integral × pitch (a column sum holds one sample per ``pitch`` along the slit).
+
+    ``None`` (keep the plain sum) where the plain sum is already exact or the fit cannot be
+    trusted: the fitted blur makes the plane sampling's aliasing (its first harmonic,
+    ``exp(−2π²σ²/pitch²)``) smaller than :data:`ALIASING_LIMIT`; the fitted slit image narrower than
+    one plane pitch (then no channel resolves its edges); the fit failed. The second item says why
+    a sharp spot kept its plain sum (its colour may then be off), ``None`` otherwise.
+    """
+    from scipy.optimize import least_squares  # deferred like the other scipy imports
+
+    if pitch <= 1.0:
+        return None, None
+    u = np.concatenate([column[0] for column in columns])
+    total = np.concatenate([column[1] for column in columns])
+    sigma = np.sqrt(np.concatenate([column[2] for column in columns]))
+    channel = np.concatenate([np.full(column[0].size, k) for k, column in enumerate(columns)])
+    if u.size < 8 or not np.all(np.isfinite(total)) or not np.all(sigma > 0):
+        return None, None
+    weights = 1.0 / sigma
+
+    def amplitudes(shape: FloatArray) -> FloatArray:
+        result = np.zeros(3)
+        for k in range(3):
+            mine = channel == k
+            a = shape[mine] * weights[mine]
+            denominator = float(a @ a)
+            if denominator > 0:
+                result[k] = float(a @ (total[mine] * weights[mine])) / denominator
+        return result
+
+    offset = np.asarray(site_offsets, dtype=np.float64)[channel]
+
+    def seen(centre: float, half_width: float, blur: float) -> FloatArray:
+        """The shape as each plane sample sees it (the mean over its sites)."""
+        return 0.5 * (
+            _spot_shape(u - offset, centre, half_width, blur)
+            + _spot_shape(u + offset, centre, half_width, blur)
+        )
+
+    def residuals(parameters: FloatArray) -> FloatArray:
+        shape = seen(parameters[0], math.exp(parameters[1]), math.exp(parameters[2]))
+        return np.asarray((amplitudes(shape)[channel] * shape - total) * weights, dtype=np.float64)
+
+    level = np.clip(total, 0.0, None)
+    if float(level.sum()) <= 0:
+        return None, None
+    mean_u = float((u * level).sum() / level.sum())
+    spread = math.sqrt(max(float(((u - mean_u) ** 2 * level).sum() / level.sum()), 0.25))
+    # A rectangle of half-width h has an RMS width h/√3; start at that with a third of a pitch blur.
+    start = np.array([mean_u, math.log(math.sqrt(3.0) * spread), math.log(pitch / 3.0)])
+    try:
+        fit = least_squares(residuals, start, method="lm", x_scale=np.array([1.0, 0.3, 0.3]))
+    except (ValueError, np.linalg.LinAlgError):
+        return None, "the slit-image fit failed"
+    centre, half_width, blur = fit.x[0], math.exp(fit.x[1]), math.exp(fit.x[2])
+    if not fit.success or not np.all(np.isfinite(fit.x)) or abs(centre) > half_size:
+        return None, "the slit-image fit failed"
+    if math.exp(-2.0 * math.pi**2 * blur**2 / pitch**2) < ALIASING_LIMIT:
+        return None, None
+    if 2.0 * half_width < pitch:
+        return None, (
+            f"the slit image is {2.0 * half_width:.1f} px wide and sharp (blur σ {blur:.2f} px), "
+            f"narrower than the colour planes' {pitch:g} px pitch"
+        )
+    if 2.0 * half_width > 2.0 * half_size:
+        return None, "the slit-image fit failed"
+    shape = seen(centre, half_width, blur)
+    return np.asarray(amplitudes(shape) * 2.0 * half_width * pitch, dtype=np.float64), None
 
 
 def _line_spread(
@@ -407,7 +581,7 @@ def extract(
             geometry.background_width_px,
         )
     pixel, profile, sigma, counts = _extract_profile(image, geometry, band, background, source)
-    direct, direct_sigma, direct_background, line_spread = _extract_direct(
+    direct, direct_sigma, direct_background, line_spread, direct_note = _extract_direct(
         image, geometry, allow_saturated_direct, source, subtract_background
     )
     return Extraction(
@@ -424,4 +598,5 @@ def extract(
         source=source,
         frames=tuple(str(record.path) for record in image.frames),
         line_spread=line_spread,
+        direct_note=direct_note,
     )
