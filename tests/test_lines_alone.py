@@ -4,6 +4,7 @@ be is refused or passed over, never returned (decision 0081)."""
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -57,9 +58,9 @@ def _fl2_without(line_nm: float) -> Spectrum:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("camera_index", "refused"), [(5, True), (12, False)])
+@pytest.mark.parametrize(("camera_index", "may_refuse"), [(5, True), (12, False)])
 def test_a_lamp_without_hg_404_is_never_mapped_60_nm_off(
-    shared_camera_data: Path, camera_index: int, refused: bool
+    shared_camera_data: Path, camera_index: int, may_refuse: bool
 ):
     """Validation scenes (seed 0) of the Canon 20D and 5D Mk II (Jiang): an FL2 without Hg 404.7
     mapped through ``builtin:hg`` alone from the direct spot with EXIF optics. On the base the
@@ -95,11 +96,17 @@ def test_a_lamp_without_hg_404_is_never_mapped_60_nm_off(
     optics = np.random.default_rng(scene_seed(0, camera, 0).spawn(3)[2])
     observation = with_exif_optics({"FL2": observation}, plan.geometry, optics)["FL2"]
     prior = fallback_camera_basis().prior()
-    if refused:
-        with pytest.raises(EstimationError, match=r"not physically plausible: .*incidence"):
-            locate_mapping(observation, prior, settings.grid)
-        return
-    solution = locate_mapping(observation, prior, settings.grid)
+    if may_refuse:
+        # Since decision 0098's capture re-rendered this scene the right match is also found
+        # (0.14 nm off, the implausible ones set aside): right, or refused for its incidence —
+        # never the match one feature over.
+        try:
+            solution = locate_mapping(observation, prior, settings.grid)
+        except EstimationError as exc:
+            assert re.search(r"not physically plausible: .*incidence", str(exc)), exc
+            return
+    else:
+        solution = locate_mapping(observation, prior, settings.grid)
     error = solution.mapping.wavelength_nm(observation.pixel) - scene.true_wavelength_nm
     assert float(np.max(np.abs(error))) < 1.0
     assert solution.details["implausible_matches"] >= 1
