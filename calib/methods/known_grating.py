@@ -43,7 +43,7 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
-from calib.methods.closed_form import GratingMethodOptions, check_lamps
+from calib.methods.closed_form import GratingMethodOptions, check_lamps, prepare_matched_lamp
 from calib.methods.grating_models import (
     DEFAULT_ASSUMED_FAMILIES,
     AssumedEfficiency,
@@ -60,7 +60,7 @@ from calib.methods.multilamp import (
     SensitivitySolution,
     blend_with_prior,
     combine_responses,
-    lamps_with_mapping,
+    mapping_and_lamps,
     multilamp_result,
     pool_responses,
 )
@@ -247,7 +247,7 @@ def estimate_known_grating(
         record = {"source": grating.source, "provenance": dict(grating.provenance)}
     prior = basis.prior(options.prior_shrinkage)
     kernel = camera_kernel(observations, options.slit_width_px, options.psf_sigma_px)
-    used_mapping, systems, mapping_s = lamps_with_mapping(
+    used_mapping, chosen, mapping_s = mapping_and_lamps(
         observations,
         prior,
         grid,
@@ -258,6 +258,7 @@ def estimate_known_grating(
         need_direct=False,
         rig=None if grating is None or grating.rig is None else RigGeometry.from_dict(grating.rig),
     )
+    systems = [prepare_matched_lamp(obs, used_mapping, grid, kernel) for obs in chosen]
     # The 2nd order on the 1st order's red end: modelled when the grating's physical model gives
     # η₂/η₁, else its pixels left out (fit_response; decision 0032).
     physical = None if grating is None else recorded_physical_grating(grating.model)

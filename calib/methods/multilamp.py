@@ -65,7 +65,6 @@ from calib.methods.closed_form import (
     GratingMethodOptions,
     check_lamps,
     normalised_efficiency_sigma,
-    prepare_matched_lamp,
 )
 from calib.methods.grating_models import (
     CHOICE_FLOOR,
@@ -88,7 +87,6 @@ from calib.methods.responses import (
 from calib.methods.solve_scope import recall, remember_start, reuse, warm_start
 from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
 from calib.model.gratings import PHYSICAL_KINDS, PHYSICAL_PARAMETER_RANGES, PhysicalKind
-from calib.model.linear_model import LampSystem
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry, find_mapping, lamps_named
 from calib.wavelength.rig_prior import rig_geometry
@@ -1404,35 +1402,6 @@ class CalibratedLamps:
     mapping_s: float
 
 
-def lamps_with_mapping(
-    observations: Sequence[LampObservation],
-    prior: CameraPrior,
-    grid: WavelengthGrid,
-    mapping: QuadraticMapping | GratingGeometry | None,
-    mapping_lamp: str | None,
-    refine_given_mapping: bool,
-    kernel: FloatArray | None,
-    *,
-    need_direct: bool,
-    rig: RigGeometry | None = None,
-) -> tuple[QuadraticMapping | GratingGeometry, list[LampSystem], float]:
-    """The mapping (:func:`find_shared_mapping`), the lamps prepared on it (those with a direct
-    measurement when ``need_direct``) and the time the mapping took."""
-    used_mapping, chosen, mapping_s = mapping_and_lamps(
-        observations,
-        prior,
-        grid,
-        mapping,
-        mapping_lamp,
-        refine_given_mapping,
-        kernel,
-        need_direct=need_direct,
-        rig=rig,
-    )
-    systems = [prepare_matched_lamp(obs, used_mapping, grid, kernel) for obs in chosen]
-    return used_mapping, systems, mapping_s
-
-
 def mapping_and_lamps(
     observations: Sequence[LampObservation],
     prior: CameraPrior,
@@ -1445,8 +1414,8 @@ def mapping_and_lamps(
     need_direct: bool,
     rig: RigGeometry | None = None,
 ) -> tuple[QuadraticMapping | GratingGeometry, list[LampObservation], float]:
-    """:func:`lamps_with_mapping` before the lamps are prepared: the mapping, the lamps to
-    prepare on it and the time the mapping took."""
+    """The mapping (:func:`find_shared_mapping`), the lamps to prepare on it (those with a direct
+    measurement when ``need_direct``) and the time the mapping took."""
     started = time.perf_counter()
     used_mapping = find_shared_mapping(
         observations, prior, grid, mapping, mapping_lamp, refine_given_mapping, kernel, rig
