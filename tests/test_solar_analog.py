@@ -208,27 +208,12 @@ def test_spectrograph_scenes_cover_the_grid_off_the_family():
         assert abs(mapping.k1_per_px2) * (0.601 * n) ** 2 <= 0.03 + 1e-9
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("optics", [False, True])
-def test_the_5d_mk_ii_without_optics_is_warned_or_right(shared_camera_data, monkeypatch, optics):
-    """Decision 0091: validation camera 13 (Canon 5D Mk II, Kawakami) on the sunlight analog with
-    no optics recorded: its profile fit is 14 nm off and the dips refitted there went through
-    silently (σ 2.5 nm). The mapping must be right (RMS ≤ 2 nm and ≤ 3 stated σ at the six bench
-    features) or flagged ambiguous with its σ covering the error. With the optics the profile fit
-    is 13.5 nm off too; the dips' own match stands and a warning says the lines are used against
-    the fit (it used to say the profile fit stood)."""
+def _solar_bench(monkeypatch: pytest.MonkeyPatch) -> Any:
+    """``bench/solar_validate.py`` imported, the scenes rendered on its fine step (as it runs)."""
     import functools
-    from dataclasses import replace
     from pathlib import Path
 
     import calib.evaluation.validation.scenes as scenes
-    from calib.evaluation.validation.protocol import (
-        ProtocolSettings,
-        mapping_sigma_nm,
-        scene_seed,
-        split_tasks,
-    )
-    from calib.evaluation.validation.splits import load_splits
     from calib.model import forward
 
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "bench"))
@@ -239,6 +224,30 @@ def test_the_5d_mk_ii_without_optics_is_warned_or_right(shared_camera_data, monk
         "render_observation",
         functools.partial(forward.render_observation, fine_step_nm=bench.FINE_STEP_NM),
     )
+    return bench
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("optics", [False, True])
+def test_the_5d_mk_ii_without_optics_is_warned_or_right(shared_camera_data, monkeypatch, optics):
+    """Decision 0091: validation camera 13 (Canon 5D Mk II, Kawakami) on the sunlight analog with
+    no optics recorded: its profile fit is 14 nm off and the dips refitted there went through
+    silently (σ 2.5 nm). The mapping must be right (RMS ≤ 2 nm and ≤ 3 stated σ at the six bench
+    features) or flagged ambiguous with its σ covering the error. With the optics the profile fit
+    is 13.5 nm off too; the dips' own match stands and a warning says the lines are used against
+    the fit (it used to say the profile fit stood)."""
+    from dataclasses import replace
+
+    import calib.evaluation.validation.scenes as scenes
+    from calib.evaluation.validation.protocol import (
+        ProtocolSettings,
+        mapping_sigma_nm,
+        scene_seed,
+        split_tasks,
+    )
+    from calib.evaluation.validation.splits import load_splits
+
+    bench = _solar_bench(monkeypatch)
     splits, _ = load_splits(shared_camera_data, seed=0)
     task = split_tasks(splits.validation, ProtocolSettings(seed=0))[13]
     assert "5D-Mk-II" in task.camera.name and "Kawakami" in task.camera.name
@@ -385,22 +394,11 @@ def test_the_iphone_11_spectrograph_scene_is_right_or_warned(shared_camera_data,
     with σ 0.45 and no warning, while the right mapping fits 10 dips at 0.21 nm: the matches were
     ranked by the dips they keep, not by how near the mapping passes them. Right (RMS ≤ 1 nm and
     ≤ 3 stated σ at the six bench features) or flagged ambiguous with σ covering the error."""
-    import functools
-    from pathlib import Path
 
-    import calib.evaluation.validation.scenes as scenes
     from calib.evaluation.validation.protocol import ProtocolSettings, split_tasks
     from calib.evaluation.validation.splits import load_splits
-    from calib.model import forward
 
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "bench"))
-    import solar_validate as bench
-
-    monkeypatch.setattr(
-        scenes,
-        "render_observation",
-        functools.partial(forward.render_observation, fine_step_nm=bench.FINE_STEP_NM),
-    )
+    bench = _solar_bench(monkeypatch)
     splits, _ = load_splits(shared_camera_data, seed=0)
     task = split_tasks(splits.validation, ProtocolSettings(seed=0))[41]
     assert "iPhone 11" in task.camera.name
