@@ -26,7 +26,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-from wavelength_speed import paper_scene
+from wavelength_speed import paper_scene, protocol_estimates
 
 from calib.core.blas import one_blas_thread
 from calib.core.observations import LampObservation
@@ -112,27 +112,15 @@ def main() -> None:
 def protocol_runs(data_dir: str | None, name: str) -> list[tuple[str, Callable[[], object]]]:
     """The camera's ``calib validate`` scene (test split, seed 0): its "LED only" and "LED+FL"
     variants' estimates, the method and options the protocol gives them."""
-    from calib.evaluation.validation.protocol import (
-        DEFAULT_VARIANTS,
-        named_task,
-        render_task_scene,
-        variant_inputs,
-    )
-
-    task = named_task(data_dir, name)
-    scene = render_task_scene(task)
     runs: list[tuple[str, Callable[[], object]]] = []
-    for variant in DEFAULT_VARIANTS:
-        if variant.label not in ("LED only", "LED+FL"):
-            continue
-        lamps, keywords = variant_inputs(task, scene, variant)
+    for label, lamps, keywords, _ in protocol_estimates(data_dir, name, ("LED only", "LED+FL")):
 
         def run(
             lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords
         ) -> object:
             return estimate(lamps, **keywords)
 
-        runs.append((f"spot scene, {variant.label}", run))
+        runs.append((f"spot scene, {label}", run))
     return runs
 
 

@@ -26,7 +26,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-from wavelength_speed import paper_scene
+from wavelength_speed import PROTOCOL_VARIANTS, paper_scene, protocol_estimates
 
 from calib.core.observations import LampObservation
 from calib.methods import estimate
@@ -143,26 +143,16 @@ def main() -> None:
         run(f"bench {label}", bench)
     if not args.protocol:
         return
-    from calib.evaluation.validation.protocol import (
-        DEFAULT_VARIANTS,
-        named_task,
-        render_task_scene,
-        variant_inputs,
-    )
-
-    task = named_task(args.data_dir, camera.name)
-    spot = render_task_scene(task)
-    for variant in DEFAULT_VARIANTS:
-        if variant.label not in ("LED only", "LED only, no EXIF", "LED+FL"):
-            continue
-        chosen, keywords = variant_inputs(task, spot, variant)
+    for label, chosen, keywords, _ in protocol_estimates(
+        args.data_dir, camera.name, PROTOCOL_VARIANTS
+    ):
 
         def spot_estimate(
             chosen: list[LampObservation] = chosen, keywords: dict[str, Any] = keywords
         ) -> Any:
             return estimate(chosen, **keywords)
 
-        run(f"spot {variant.label}", spot_estimate)
+        run(f"spot {label}", spot_estimate)
 
 
 if __name__ == "__main__":

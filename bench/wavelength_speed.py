@@ -192,10 +192,15 @@ def main() -> None:
         real_pair(args.real, args.data_dir, args.repeats, args.profile)
 
 
-def protocol_scene(data_dir: str | None, name: str, repeats: int, profile: int = 0) -> None:
-    """The camera in ``calib validate``'s scene (test split, seed 0, its basis: all training
-    cameras), each default variant with one lamp set as the protocol runs it; the solve alone is
-    given the scene's true grating."""
+#: The ``calib validate`` variants the speed benches time in the protocol's scene.
+PROTOCOL_VARIANTS = ("LED only", "LED only, no EXIF", "LED+FL")
+
+
+def protocol_estimates(
+    data_dir: str | None, name: str, labels: Sequence[str]
+) -> list[tuple[str, list[LampObservation], dict[str, Any], Any]]:
+    """The camera's ``calib validate`` scene (test split, seed 0): per variant in ``labels``, its
+    label, what :func:`calib.methods.estimate` is given for it and the scene's true mapping."""
     from calib.evaluation.validation.protocol import (
         DEFAULT_VARIANTS,
         named_task,
@@ -205,19 +210,30 @@ def protocol_scene(data_dir: str | None, name: str, repeats: int, profile: int =
 
     task = named_task(data_dir, name)
     scene = render_task_scene(task)
-    truth = scene.plan.geometry.mapping
-    for variant in DEFAULT_VARIANTS:
-        if variant.label not in ("LED only", "LED only, no EXIF", "LED+FL"):
-            continue
-        lamps, keywords = variant_inputs(task, scene, variant)
+    return [
+        (variant.label, *variant_inputs(task, scene, variant), scene.plan.geometry.mapping)
+        for variant in DEFAULT_VARIANTS
+        if variant.label in labels
+    ]
+
+
+def protocol_scene(data_dir: str | None, name: str, repeats: int, profile: int = 0) -> None:
+    """The camera in ``calib validate``'s scene (test split, seed 0, its basis: all training
+    cameras), each default variant with one lamp set as the protocol runs it; the solve alone is
+    given the scene's true grating."""
+    for label, lamps, keywords, truth in protocol_estimates(data_dir, name, PROTOCOL_VARIANTS):
 
         def solve(
-            lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords
+            lamps: list[LampObservation] = lamps,
+            keywords: dict[str, Any] = keywords,
+            truth: Any = truth,
         ) -> object:
             return estimate(lamps, mapping=truth, **keywords)
 
         def bare(
-            lamps: list[LampObservation] = lamps, keywords: dict[str, Any] = keywords
+            lamps: list[LampObservation] = lamps,
+            keywords: dict[str, Any] = keywords,
+            truth: Any = truth,
         ) -> object:
             return estimate(lamps, mapping=truth, budget=None, **keywords)
 
@@ -229,7 +245,7 @@ def protocol_scene(data_dir: str | None, name: str, repeats: int, profile: int =
         solve_s = cpu_median(solve, repeats)
         new_s, count = searched(new, repeats)
         report(
-            f"spot scene, {variant.label}",
+            f"spot scene, {label}",
             solve_s,
             new_s,
             None,
