@@ -424,7 +424,7 @@ def _few_lamps_whitened(
     point (a square root of a negative number, a division by zero): the stacked path carries
     those on as NaN or ±inf."""
     rows = np.multiply(response, row[:, None, :], out=np.empty(response.shape))  # (L, 3, f)
-    targets = []
+    targets: list[float] = []
     try:
         for lamp, ((d0, d1, d2), (s0, s1, s2), (p0, p1, p2)) in enumerate(
             zip(direct.tolist(), sigma2.tolist(), propagated.tolist(), strict=True)
