@@ -424,10 +424,11 @@ def _few_lamps_whitened(
     point (a square root of a negative number, a division by zero): the stacked path carries
     those on as NaN or ±inf."""
     rows = np.multiply(response, row[:, None, :], out=np.empty(response.shape))  # (L, 3, f)
+    factors: list[tuple[float, ...]] = []
     targets: list[float] = []
     try:
-        for lamp, ((d0, d1, d2), (s0, s1, s2), (p0, p1, p2)) in enumerate(
-            zip(direct.tolist(), sigma2.tolist(), propagated.tolist(), strict=True)
+        for (d0, d1, d2), (s0, s1, s2), (p0, p1, p2) in zip(
+            direct.tolist(), sigma2.tolist(), propagated.tolist(), strict=True
         ):
             v0 = max(s0 + p0 + (floor * d0) * (floor * d0), 1e-300)
             v1 = max(s1 + p1 + (floor * d1) * (floor * d1), 1e-300)
@@ -439,19 +440,29 @@ def _few_lamps_whitened(
             l11 = math.sqrt(v1 + g1 * g1 - l10 * l10)
             l21 = (g2 * g1 - l20 * l10) / l11
             l22 = math.sqrt(v2 + g2 * g2 - l20 * l20 - l21 * l21)
-            first, second, third = rows[lamp]
-            first /= l00
-            second -= l10 * first
-            second /= l11
-            third -= l20 * first
-            third -= l21 * second
-            third /= l22
+            factors.append((l00, l10, l20, l11, l21, l22))
             t0 = d0 / l00
             t1 = (d1 - l10 * t0) / l11
             t2 = (d2 - l20 * t0 - l21 * t1) / l22
             targets.extend((t0, t1, t2))
     except (ValueError, ZeroDivisionError):
         return None
+    # The substitution on every lamp's rows at once, in place: each lamp's factor a (L, 1)
+    # column, or for one lamp the floats themselves (numpy's scalar operand is the cheaper call).
+    columns: Sequence[float | FloatArray]
+    if len(factors) == 1:
+        columns = factors[0]
+    else:
+        table = np.array(factors, dtype=np.float64)
+        columns = [table[:, index, None] for index in range(6)]
+    a00, a10, a20, a11, a21, a22 = columns
+    first, second, third = rows[:, 0], rows[:, 1], rows[:, 2]
+    first /= a00
+    second -= a10 * first
+    second /= a11
+    third -= a20 * first
+    third -= a21 * second
+    third /= a22
     return rows.reshape(-1, row.shape[-1]), np.array(targets, dtype=np.float64)
 
 
