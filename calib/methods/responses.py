@@ -319,7 +319,9 @@ def direct_rows(
             return made
     variances = np.maximum(sigma2 + propagated + (floor * direct) ** 2, 1e-300)
     block = np.empty((*row.shape[:-1], 3, row.shape[-1] + 1))
-    block[..., :-1] = response * row[..., None, :]
+    # Written in place (a scan's (k, 3, f) product, formed apart and copied in, was a third of
+    # the call): the same products.
+    np.multiply(response, row[..., None, :], out=block[..., :-1])
     block[..., -1] = direct
     whitened = _whiten_three(variances, gain * direct, block)  # (L, [k,] 3, f + 1)
     if whitened.ndim == 4:
