@@ -13,15 +13,26 @@ the median of ``--repeats`` passes after a warm-up pass. The scenes are rendered
 It imports only :func:`calib.methods.estimate` and the protocol's public functions, so the same
 file times another checkout (``PYTHONPATH=that/checkout python bench/solve_speed.py ...``).
 
-    python bench/solve_speed.py --data-dir ../shared/data/camera_sensitivities [--cameras 4] [--repeats 3]
+With ``--stages``, also where one pass's time goes (decision 0116): the CPU time inside each of
+the solve's named stages (:data:`STAGES`: the Fourier η model's prior-weight search, the physical
+families' fits, the prior solve, a lamp prepared and its response fitted, and the σ budget), per
+estimate, each stage's time inclusive of what it calls (the budget's re-solves run the other
+stages again: they are counted in their rows too), read by wrapping the functions where the solve
+looks them up (the same names on older checkouts).
+
+    python bench/solve_speed.py --data-dir ../shared/data/camera_sensitivities [--cameras 4] [--repeats 3] [--stages]
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib
 import os
 import statistics
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -40,12 +51,73 @@ from calib.methods import estimate
 
 VARIANTS = ("LED only", "LED+FL", "5 lamps")
 
+#: The solve's stages :func:`staged` times: label → the modules that look the function up and
+#: its name there.
+STAGES: dict[str, tuple[tuple[str, ...], str]] = {
+    "Fourier η model (prior-weight search)": (
+        ("calib.methods.multilamp",),
+        "solve_fourier_efficiency",
+    ),
+    "physical families' fits": (
+        ("calib.methods.multilamp", "calib.methods.grating_models"),
+        "fit_physical",
+    ),
+    "prior solve": (("calib.methods.prior_solve",), "solve_with_prior"),
+    "lamp prepared + response fitted": (
+        ("calib.methods.prior_solve", "calib.methods.multilamp"),
+        "prepared_response",
+    ),
+    "σ budget (its re-solves included)": (("calib.methods",), "uncertainty_budget"),
+}
+
+
+@contextmanager
+def staged(spent: dict[str, float]) -> Iterator[None]:
+    """Within the block, add each :data:`STAGES` function's CPU time to ``spent[label]`` (a call
+    inside a call of the same stage counted once)."""
+    patched: list[tuple[Any, str, Any]] = []
+
+    def timed(label: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        depth = [0]
+
+        @functools.wraps(function)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            depth[0] += 1
+            started = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                depth[0] -= 1
+                if depth[0] == 0:
+                    spent[label] = spent.get(label, 0.0) + time.process_time() - started
+
+        return wrapper
+
+    for label, (modules, name) in STAGES.items():
+        wrappers: dict[int, Any] = {}
+        for module_name in modules:
+            module = importlib.import_module(module_name)
+            original = getattr(module, name, None)
+            if original is None:
+                continue
+            wrapper = wrappers.setdefault(id(original), timed(label, original))
+            patched.append((module, name, original))
+            setattr(module, name, wrapper)
+    try:
+        yield
+    finally:
+        for module, name, original in reversed(patched):
+            setattr(module, name, original)
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default=None)
     parser.add_argument("--cameras", type=int, default=4)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--stages", action="store_true", help="also the CPU time of the solve's named stages"
+    )
     args = parser.parse_args()
     splits, _ = load_splits(args.data_dir)
     settings = ProtocolSettings(seed=0)
@@ -86,6 +158,15 @@ def main() -> None:
                 f"({len(runs)} validation cameras, median of {args.repeats})",
                 flush=True,
             )
+            if args.stages:
+                spent: dict[str, float] = {}
+                with staged(spent):
+                    for _ in range(args.repeats):
+                        one_pass()
+                count = args.repeats * len(runs)
+                for stage in STAGES:
+                    if stage in spent:
+                        print(f"    {stage:38s} {spent[stage] / count * 1e3:7.1f} ms", flush=True)
 
 
 if __name__ == "__main__":

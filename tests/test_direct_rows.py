@@ -136,3 +136,66 @@ def test_lamps_without_operators_take_their_plain_row_as_before() -> None:
     # The lamps' order is the rows' order.
     swapped = direct_rows(lamps[::-1], inverse, zeroth_order=zeroth_order)
     np.testing.assert_array_equal(swapped[0][:3], expected[0][-3:])
+
+
+def test_one_g_over_a_few_lamps_whitens_on_floats_without_the_stacked_path(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Decision 0116: one ``g`` over up to :data:`FLOAT_LAMPS` lamps (the physical fit's
+    refinement) is whitened lamp by lamp on Python floats, never through the stacked
+    :func:`_whiten_three`; its numbers are the lamp-by-lamp loop's to the bit."""
+    from calib.methods import responses
+
+    rng = np.random.default_rng(116)
+    lamps = _lamps(rng, 3)
+    inverse = rng.uniform(0.5, 3.0, DEFAULT_GRID.size)
+    zeroth_order = rng.uniform(0.1, 1.0, 301)
+    expected = _per_lamp(lamps, inverse, DIRECT_GAIN_SIGMA, zeroth_order, 1e-3)
+
+    def stacked(*_: object) -> None:
+        raise AssertionError("the stacked whitening was used for one g over three lamps")
+
+    monkeypatch.setattr(responses, "_whiten_three", stacked)
+    got = direct_rows(lamps, inverse, zeroth_order=zeroth_order)
+    np.testing.assert_array_equal(got[0], expected[0])
+    np.testing.assert_array_equal(got[1], expected[1])
+
+
+def test_a_factor_singular_in_floating_point_gives_the_stacked_paths_numbers() -> None:
+    """A lamp whose only error is its direct-to-profile gain (no σ, no covariance, no floor):
+    ``v + g² − l₁₀²`` rounds to 0, a factor is 0 and Python's division raises where numpy's gives
+    ±inf/NaN. The float path hands such a lamp to the stacked path, whose numbers (and
+    non-finite values) it then returns, instead of raising."""
+    from calib.methods import responses
+
+    rng = np.random.default_rng(3)
+    lamps = _lamps(rng, 2)
+    degenerate = [
+        LampData(
+            lamp.name,
+            lamp.direct_row,
+            ResponseEstimate(
+                lamp.response.response,
+                np.zeros_like(lamp.response.covariance),
+                lamp.response.used_pixels,
+                lamp.response.chi2,
+            ),
+            lamp.direct,
+            np.zeros(3),
+            lamp.operators,
+        )
+        for lamp in lamps
+    ]
+    inverse = rng.uniform(0.5, 3.0, DEFAULT_GRID.size)
+    stack = responses._lamp_stack(degenerate)
+    direct = stack.direct
+    variances = np.maximum(stack.direct_sigma2 + 0.0 + (0.0 * direct) ** 2, 1e-300)
+    block = np.empty((*stack.direct_row.shape[:-1], 3, stack.direct_row.shape[-1] + 1))
+    block[..., :-1] = stack.response * stack.direct_row[..., None, :]
+    block[..., -1] = direct
+    with np.errstate(divide="ignore", invalid="ignore"):
+        whitened = responses._whiten_three(variances, DIRECT_GAIN_SIGMA * direct, block)
+        rows, targets = direct_rows(degenerate, inverse, floor=0.0)
+    assert not np.all(np.isfinite(whitened))  # the case this test is about
+    np.testing.assert_array_equal(rows, whitened[..., :-1].reshape(6, -1))
+    np.testing.assert_array_equal(targets, whitened[..., -1].reshape(6))

@@ -235,3 +235,73 @@ def test_the_batchs_systems_written_diagonal_by_diagonal_are_the_scattered_ones(
     flat[..., :: size + 1] += (RIDGE * np.maximum(diagonal / size, 1e-300))[..., None]
     assert model._penalty_reach > 0 and np.any(weight > 0)
     np.testing.assert_array_equal(systems, expected)
+
+
+def _lu_costs(model, edges):
+    """:meth:`ResponseModel.costs` as before decision 0116: the systems solved by numpy's batched
+    LU for ``[rhs, g]``, then β and the explained part from the solutions."""
+    band = model.band(edges)
+    diagonals, rhs = model._normal(band)
+    scale = model._prior_scale_from_normal(diagonals, rhs)
+    systems, pulls, gamma = model._systems(diagonals, scale, model._penalty_weight(diagonals))
+    solved = np.linalg.solve(systems, np.stack([rhs, pulls], axis=-1))
+    free, along = solved[..., 0], solved[..., 1]
+    beta = np.einsum("kci,kci->k", pulls, free) / (gamma - np.einsum("kci,kci->k", pulls, along))
+    explained = np.einsum("kci,kci->k", rhs, free + beta[:, None, None] * along)
+    return float(np.sum(model.target**2)) - explained
+
+
+def test_a_batchs_costs_from_the_bordered_cholesky_are_the_lu_solves(unblurred):
+    """Decision 0116: a scan's χ² from one Cholesky factor of the bordered systems (their last
+    rows ``L⁻¹r``, ``L⁻¹g``) equal the LU solve's to rounding, and the bordered systems hold
+    :meth:`ResponseModel._systems`' ``H`` to the bit."""
+    model, family, edges_px, x = unblurred
+    edges = np.concatenate(
+        [_batch(family, edges_px, x), _batch(family, edges_px, x + np.array([1.0, -0.5, 0.2]))]
+    )
+    expected = _lu_costs(model, edges)
+    got = model.costs(edges)
+    np.testing.assert_allclose(got, expected, rtol=1e-10)
+    assert int(np.argmin(got)) == int(np.argmin(expected))
+    band = model.band(edges)
+    diagonals, rhs = model._normal(band)
+    scale = model._prior_scale_from_normal(diagonals, rhs)
+    weight = model._penalty_weight(diagonals)
+    plain, pulls, _ = model._systems(diagonals, scale, weight)
+    bordered, bordered_pulls, _ = model._systems(diagonals, scale, weight, rhs)
+    size = model.n_nodes
+    np.testing.assert_array_equal(bordered[..., :size, :size], plain)
+    np.testing.assert_array_equal(bordered[..., :size, size], rhs)
+    np.testing.assert_array_equal(bordered[..., size + 1, :size], pulls)
+    np.testing.assert_array_equal(bordered_pulls, pulls)
+
+
+def test_bordered_forms_are_the_quadratic_forms_and_refuse_an_indefinite_system():
+    rng = np.random.default_rng(116)
+    size = 12
+    factor = rng.normal(size=(4, 3, size, size + 5))
+    systems = factor @ factor.transpose(0, 1, 3, 2) + 0.1 * np.eye(size)
+    right = rng.normal(size=(4, 3, size))
+    pulls = rng.normal(size=(4, 3, size))
+    bordered = np.zeros((4, 3, size + 2, size + 2))
+    bordered[..., :size, :size] = systems
+    for column, vector in ((size, right), (size + 1, pulls)):
+        bordered[..., :size, column] = vector
+        bordered[..., column, :size] = vector
+        bordered[..., column, column] = 1e6
+    forms = response_model._bordered_forms(bordered)
+    assert forms is not None
+    free = np.linalg.solve(systems, right[..., None])[..., 0]
+    along = np.linalg.solve(systems, pulls[..., None])[..., 0]
+    for got, expected in zip(
+        forms,
+        (
+            np.einsum("kci,kci->k", right, free),
+            np.einsum("kci,kci->k", pulls, free),
+            np.einsum("kci,kci->k", pulls, along),
+        ),
+        strict=True,
+    ):
+        np.testing.assert_allclose(got, expected, rtol=1e-10)
+    bordered[1, 2, 3, 3] = -1.0  # one system indefinite: the batch falls back to the LU solve
+    assert response_model._bordered_forms(bordered) is None
