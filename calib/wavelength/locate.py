@@ -846,7 +846,13 @@ def locate_mapping(
             )
             details["profile_fit_sigma_nm"] = search.mapping.wavelength_rms_nm
             details["wavelength_rms_from"] = "the measured lamp's lines, misplaced by the fit"
-        if all(lamp.kind != "fluorescent" for lamp in measured):
+        if (
+            stored is None
+            and geometry is None
+            and all(lamp.kind != "fluorescent" for lamp in measured)
+        ):
+            # Judged with the rig's own incidence prior only (a grating file's reused incidence
+            # has a σ of a fraction of a degree: not judged).
             conflict = _incidence_conflict(
                 search, mapping, (float(lead.pixel[0]), float(lead.pixel[-1]))
             )
