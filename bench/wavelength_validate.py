@@ -14,7 +14,8 @@ Scenarios (``--scenario``):
                   locate_mapping`, what ``calib validate``'s "LED only" variant runs): per camera the
                   mean and maximum ``|Δλ|`` over the profile's pixels inside the grid, the stated σ,
                   RMS ``Δλ`` over RMS σ_λ (1 when σ is honest) and whether the result warned of
-                  ambiguity;
+                  ambiguity (the summary counts warnings on mappings within 1 nm: decision 0118's
+                  false alarms; the rows carry the coarser profile's verdict on the answer);
                   (``--grooves``: with the sheet's nominal line density, as a rig's configuration
                   gives it, the true one within ±2 %);
 ``grating-file``  a grating file from the same rig: the grating is calibrated once in the scene's
