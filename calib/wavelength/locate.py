@@ -846,6 +846,21 @@ def locate_mapping(
             )
             details["profile_fit_sigma_nm"] = search.mapping.wavelength_rms_nm
             details["wavelength_rms_from"] = "the measured lamp's lines, misplaced by the fit"
+        if (
+            stored is None
+            and geometry is None
+            and all(lamp.kind != "fluorescent" for lamp in measured)
+        ):
+            # Judged with the rig's own incidence prior only (a grating file's reused incidence
+            # has a σ of a fraction of a degree: not judged).
+            conflict = _incidence_conflict(
+                search, mapping, (float(lead.pixel[0]), float(lead.pixel[-1]))
+            )
+            if conflict is not None:
+                mapping, text = conflict
+                details["ambiguous"] = True
+                details["incidence_conflict_sigmas"] = _incidence_sigmas(search)
+                ambiguity_warnings.append(text)
     _check_monotonic(exact, lead)
     # The quality code of each warning (calib.core.result.QUALITY_CODES): the profile search warns
     # only of competing basins; this function's own warnings are about the lines against the fit,
@@ -860,6 +875,65 @@ def locate_mapping(
     details["warnings"] = warnings
     mapping = mapping.with_details(details={**dict(mapping.details), **details})
     return MappingSolution(mapping, exact, tuple(warnings), details)
+
+
+#: A broadband-only mapping whose grating incidence lies further than this many of the rig prior's
+#: σ from its mean conflicts with the prior (the prior, 0 ± 5° without a grating file, is what a rig
+#: that faces the grating to the lens holds: :data:`calib.wavelength.rig_prior.INCIDENCE_PRIOR_DEG`).
+#: Five σ is the conventional bar for a prior–data conflict, not a tuned value. Without EXIF the
+#: incidence and focal length trade against each other along the profile, and a camera prior that
+#: does not describe the camera's red cut-off uses that freedom to bend the red end (decision 0118:
+#: the validation split's two silent wrong LED-only mappings, 5–6 nm off at the red end, sat at
+#: −29° and −33°; of the right ones of the 44 leave-one-body-out and 100 predicted cameras, with or
+#: without EXIF, none unwarned beyond 19°, one already warned at 28–31°). The result is then
+#: ambiguous and its σ reaches the nearest other basin.
+INCIDENCE_CONFLICT_SIGMAS = 5.0
+
+
+def _incidence_sigmas(search: MappingSearch) -> float | None:
+    """How many of the rig prior's σ the search's grating incidence lies from the prior's mean
+    (``None`` for a quadratic mapping or a prior without an incidence)."""
+    exact = search.exact
+    values = search.details.get("grating_prior", {}).get("values", {})
+    incidence = values.get("incidence_deg")
+    if not isinstance(exact, TiltedGrating) or incidence is None or not incidence[1] > 0:
+        return None
+    return abs(exact.incidence_deg - float(incidence[0])) / float(incidence[1])
+
+
+def _incidence_conflict(
+    search: MappingSearch, mapping: QuadraticMapping, pixel_range: tuple[float, float]
+) -> tuple[QuadraticMapping, str] | None:
+    """A broadband-only search's mapping whose incidence conflicts with the rig's prior
+    (:data:`INCIDENCE_CONFLICT_SIGMAS`), not already warned of: the mapping with its σ reaching
+    half-way to the nearest other basin (the search's candidates, all in the result) and the
+    warning; ``None`` when there is no conflict."""
+    sigmas = _incidence_sigmas(search)
+    if sigmas is None or sigmas <= INCIDENCE_CONFLICT_SIGMAS or search.ambiguous:
+        return None
+    assert isinstance(search.exact, TiltedGrating)
+    others = [c.distance_nm for c in search.candidates[1:]]
+    stated = mapping.wavelength_rms_nm or 0.0
+    widened = "no other basin was found"
+    if others:
+        nearest = min(others)
+        stated = max(stated, 0.5 * nearest)
+        mapping = stated_covariance(
+            mapping,
+            stated,
+            float(search.details.get("spectrometer_scale_sigma_nm", 0.0)),
+            pixel_range,
+        )
+        widened = (
+            f"the nearest other basin, {nearest:.1f} nm away (RMS), is among the result's "
+            f"candidates and the stated σ ({stated:.1f} nm) reaches half-way to it"
+        )
+    return mapping, (
+        f"the mapping is ambiguous: its grating incidence ({search.exact.incidence_deg:+.0f}°) "
+        f"lies {sigmas:.1f}σ from the rig's prior — with a broadband lamp alone the camera "
+        f"prior's shape bends the red end where the camera is unlike it; {widened}. A fluorescent "
+        "(line) lamp shot in the same geometry decides it."
+    )
 
 
 #: A measured spectrum's single Hg line this far (nm, beyond twice its σ) from its wavelength means

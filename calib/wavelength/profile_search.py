@@ -48,6 +48,7 @@ from calib.core.spectra import WavelengthGrid
 from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA, WAVELENGTH_SCALE_NM
 from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
+from calib.wavelength.coarse_check import COARSE_REJECTION_DELTA_CHI2, coarse_view
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.least_squares import Evaluation, Solution, levenberg_marquardt
 from calib.wavelength.peaks import Peak, fluorescent_starts, lines_and_peaks
@@ -1625,6 +1626,45 @@ def search_profiles(
             f"prior's shape, and the basins' likelihoods cannot be trusted{widened}. A "
             "fluorescent (line) lamp shot in the same geometry decides it."
         )
+    coarse = None
+    if broadband_only and isinstance(family, GratingFamily):
+        # The basins were found on a coarser profile of the same model: an answer that view
+        # rejects is not decided by the finer one's Δχ² (decision 0118, calib.wavelength.
+        # coarse_check); its best basin becomes a candidate and σ reaches it.
+        coarse = coarse_view(
+            stage(family, GLOBAL_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR).costs,
+            final.x,
+            [
+                (solution.x, _dof(solution))
+                for basin_family, solution in basins
+                if basin_family is family
+            ],
+            lambda x: float(np.sqrt(np.mean((family.wavelengths(probe, x) - exact_probe) ** 2))),
+            min_distance_nm=AMBIGUITY_MIN_DISTANCE_NM,
+        )
+    if coarse is not None and coarse.rejects:
+        cost = float(deciding_stage(family).costs(coarse.x[None])[0])
+        delta = (cost - best_cost) / temper
+        candidates_out.append(
+            Candidate(
+                family.mapping(coarse.x),
+                cost,
+                float(delta),
+                float(math.exp(-0.5 * delta / BASIN_TEMPER)) if math.isfinite(delta) else 0.0,
+                coarse.distance_nm,
+            )
+        )
+        ambiguous = True
+        stated = max(stated, 0.5 * coarse.distance_nm)
+        warnings.append(
+            f"the mapping is ambiguous: on the coarser profile ({GLOBAL_BIN_NM:g} nm bins) where "
+            f"the search found its basins, the same model puts its best basin {coarse.distance_nm:.1f} "
+            f"nm away (RMS) and this answer Δχ² {coarse.delta_chi2:.0f} behind it (above "
+            f"{COARSE_REJECTION_DELTA_CHI2:g}): the camera prior describes {measured[0].name}'s "
+            "camera too poorly for the finer fit to decide; both are in the result and the stated "
+            f"σ ({stated:.1f} nm) spans them. A fluorescent (line) lamp shot in the same geometry "
+            "decides it."
+        )
     mapping = stated_covariance(mapping, stated, scale_nm, pixel_range)
     if sigma.competing is not None:
         other = sigma.competing
@@ -1653,6 +1693,13 @@ def search_profiles(
         "prior_misfit_sigma_nm": sigma.misfit_nm,
         "ambiguous": ambiguous,
         "ambiguity_delta_chi2": ambiguity_delta_chi2,
+        "coarse_view": None
+        if coarse is None
+        else {
+            "delta_chi2": coarse.delta_chi2,
+            "distance_nm": coarse.distance_nm,
+            "rejects": coarse.rejects,
+        },
         "red_edge_nm": None if edge is None else {"profile": edge[0], "prior_mean": edge[1]},
         "candidates": [c.to_dict(pixel_range) for c in candidates_out],
         "flexibility": FLEXIBILITY,
