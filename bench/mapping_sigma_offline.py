@@ -10,6 +10,10 @@ ambiguity rules gave (a floor), and prints the ±2σ coverage and the median act
 For choosing on the validation split only.
 
     python bench/mapping_sigma_offline.py /tmp/val.csv --scale 0.29,0.06 --local-scale 1,2 --temper 3
+
+``--coherence C`` states the prior's pull as :func:`~calib.wavelength.profile_search.prior_misfit_sigma_nm`
+does since decision 0117 (C × the row's curvature σ × √(reduced χ² − 1)) instead of the stored term
+re-scaled; ``--by-group`` prints each camera group on its own line.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ def restated(
     temper: float,
     misfit_factor: float,
     misfit_power: float = 0.5,
+    coherence: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """The row's 32 errors, their σ under the new constants and the new RMS ratio."""
     errors = np.array(json.loads(row["errors_nm"]))
@@ -43,6 +48,9 @@ def restated(
     # The prior's pull as a power of the deciding fit's reduced χ² (stored: its square root).
     fit_temper = max(float(row["temper"]), 1.0)
     pull = misfit * fit_temper ** (misfit_power - 0.5) if misfit > 0 else 0.0
+    if coherence is not None:
+        # Every ``led`` row is a broadband-only search (the LED alone).
+        pull = coherence * local * math.sqrt(max(fit_temper - 1.0, 0.0))
     scale_old = float(row["spectrometer_scale_sigma_nm"])
     basins = json.loads(row["basins"])
     spread_old = float(row["basin_spread_nm"])
@@ -78,6 +86,8 @@ def main() -> None:
     parser.add_argument("--misfit-factor", default="1", help="× the stored prior-pull term")
     parser.add_argument("--misfit-power", default="0.5", help="the pull ∝ reduced χ² to this")
     parser.add_argument("--group", default=None, help="only rows of this group")
+    parser.add_argument("--coherence", default=None, help="the pull as C × curvature × √(χ²ᵣ − 1)")
+    parser.add_argument("--by-group", action="store_true", help="one line per camera group")
     args = parser.parse_args()
     rows = []
     for name in args.csv:
@@ -86,6 +96,9 @@ def main() -> None:
     if args.group:
         rows = [r for r in rows if r["group"] == args.group]
     print(f"{len(rows)} rows")
+    coherences: list[float | None] = (
+        [None] if args.coherence is None else [float(v) for v in args.coherence.split(",")]
+    )
     grid = itertools.product(
         *(
             [float(v) for v in text.split(",")]
@@ -98,18 +111,28 @@ def main() -> None:
             )
         )
     )
-    for scale, local_scale, temper, misfit, power in grid:
-        covered, ratios = [], []
-        for row in rows:
-            errors, sigmas, ratio = restated(row, scale, local_scale, temper, misfit, power)
-            covered.append(float(np.mean(np.abs(errors) <= 2.0 * sigmas)))
-            ratios.append(ratio)
-        print(
-            f"scale {scale:.3f} local×{local_scale:g} temper {temper:g} misfit×{misfit:g} "
-            f"(χ²^{power:g}): "
-            f"±2σ {100 * np.mean(covered):.2f} %, ratio median {np.median(ratios):.2f}, "
-            f"cameras ≥ 85 % covered {100 * np.mean(np.array(covered) >= 0.85):.1f} %"
-        )
+    settings: list[tuple[tuple[float, ...], float | None]] = [
+        (values, coherence) for values in grid for coherence in coherences
+    ]
+    groups = sorted({r["group"] for r in rows}) if args.by_group else [None]
+    for (scale, local_scale, temper, misfit, power), coherence in settings:
+        pull = f"(χ²^{power:g})" if coherence is None else f"coherence {coherence:g}"
+        for group in groups:
+            covered, ratios = [], []
+            for row in rows:
+                if group is not None and row["group"] != group:
+                    continue
+                errors, sigmas, ratio = restated(
+                    row, scale, local_scale, temper, misfit, power, coherence
+                )
+                covered.append(float(np.mean(np.abs(errors) <= 2.0 * sigmas)))
+                ratios.append(ratio)
+            print(
+                f"scale {scale:.3f} local×{local_scale:g} temper {temper:g} misfit×{misfit:g} "
+                f"{pull}{'' if group is None else f' [{group}, {len(ratios)}]'}: "
+                f"±2σ {100 * np.mean(covered):.2f} %, ratio median {np.median(ratios):.2f}, "
+                f"cameras ≥ 85 % covered {100 * np.mean(np.array(covered) >= 0.85):.1f} %"
+            )
 
 
 if __name__ == "__main__":

@@ -138,6 +138,27 @@ def sigma_scales(done: list[dict[str, Any]]) -> str:
     )
 
 
+def group_summaries(done: list[dict[str, Any]]) -> list[str]:
+    """One line per camera group of ``led`` rows (as run, or read back from ``--csv``): ±2σ
+    coverage, median ratio and :func:`sigma_scales` — the sets a mapping σ is judged on."""
+    lines = []
+    for group in sorted({str(row["group"]) for row in done}):
+        rows = [
+            {**row, "ratio": float(row["ratio"]), "coverage": float(row["coverage"])}
+            for row in done
+            if row["group"] == group and row.get("coverage") not in (None, "")
+        ]
+        if not rows:
+            continue
+        coverage = 100.0 * float(np.nanmean([row["coverage"] for row in rows]))
+        ratio = float(np.median([row["ratio"] for row in rows]))
+        lines.append(
+            f"  {group} ({len(rows)}): ±2σ {coverage:.2f} %, ratio median {ratio:.2f}"
+            f"{sigma_scales(rows)}"
+        )
+    return lines
+
+
 def mapping_errors(
     mapping: Any,
     pixel: np.ndarray,
@@ -665,6 +686,8 @@ def main() -> None:
         f"CPU {np.median([row['cpu_s'] for row in done]):.2f} s"
     )
     print(summary, file=sys.stderr)
+    if args.scenario == "led" and len({row["group"] for row in done}) > 1:
+        print("\n".join(group_summaries(done)), file=sys.stderr)
     if args.csv:
         with Path(args.csv).open("w", newline="") as handle:
             fields = sorted({key for row in rows for key in row})

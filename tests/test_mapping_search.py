@@ -29,7 +29,7 @@ from calib.wavelength.profile_search import (
     DECIDING_LOCAL_INCIDENCE_DEG,
     DECIDING_LOCAL_SCAN,
     MISFIT_WARN_TEMPER,
-    PRIOR_MISFIT_SIGMA_NM,
+    PRIOR_MISFIT_COHERENCE,
     RED_EDGE_MARGIN_NM,
     _end_points,
     _local_end_points,
@@ -305,11 +305,15 @@ def test_a_red_end_stretched_beyond_the_prior_is_flagged(prior, camera):
     assert red_edge_nm(dark, truth, prior) is None
 
 
-def test_the_prior_misfit_sigma_grows_with_the_fits_reduced_chi2():
-    """The Birge ratio: the flat term where the prior fits, √(reduced χ²) times it where not."""
-    assert prior_misfit_sigma_nm(0.3) == PRIOR_MISFIT_SIGMA_NM
-    assert prior_misfit_sigma_nm(1.0) == PRIOR_MISFIT_SIGMA_NM
-    assert prior_misfit_sigma_nm(9.0) == pytest.approx(3.0 * PRIOR_MISFIT_SIGMA_NM)
+def test_the_prior_misfit_sigma_is_the_curvature_under_the_fits_excess_misfit():
+    """Decision 0117: nothing where the prior describes the profile down to its noise (reduced
+    χ² ≤ 1), the curvature σ times the coherence times √(χ²ᵣ − 1) where not — wider for a camera
+    fitted worse and for a profile that pins the mapping less."""
+    assert prior_misfit_sigma_nm(0.3, 0.05) == 0.0
+    assert prior_misfit_sigma_nm(1.0, 0.05) == 0.0
+    assert prior_misfit_sigma_nm(5.0, 0.05) == pytest.approx(2.0 * PRIOR_MISFIT_COHERENCE * 0.05)
+    assert prior_misfit_sigma_nm(10.0, 0.05) > prior_misfit_sigma_nm(5.0, 0.05)
+    assert prior_misfit_sigma_nm(5.0, 0.1) == pytest.approx(2.0 * prior_misfit_sigma_nm(5.0, 0.05))
 
 
 def test_a_profile_the_prior_fits_badly_warns_and_widens_sigma(prior, camera, monkeypatch):
@@ -331,7 +335,11 @@ def test_a_profile_the_prior_fits_badly_warns_and_widens_sigma(prior, camera, mo
         if other["rms_distance_nm"] > AMBIGUITY_MIN_DISTANCE_NM:
             assert other["delta_chi2"] >= BROADBAND_AMBIGUITY_DELTA_CHI2
     stated = quiet.mapping.wavelength_rms_nm
-    assert stated is not None and stated >= prior_misfit_sigma_nm(temper)
+    assert stated is not None
+    assert stated >= prior_misfit_sigma_nm(temper, quiet.details["local_rms_nm"])
+    assert quiet.details["prior_misfit_sigma_nm"] == pytest.approx(
+        prior_misfit_sigma_nm(temper, quiet.details["local_rms_nm"])
+    )
     monkeypatch.setattr(profile_search, "MISFIT_WARN_TEMPER", 0.5)
     warned = locate_mapping([observation], prior, DEFAULT_GRID)
     assert warned.ambiguous

@@ -11,6 +11,7 @@ import pytest
 
 import calib.methods
 from calib.core.line_lists import BLUE_PHOSPHOR_BAND, line_list, line_spectrum
+from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import Spectrum
@@ -27,7 +28,11 @@ from calib.core.spectrometer_scale import (
 )
 from calib.methods import ESTIMATION_METHODS
 from calib.methods.uncertainty import BudgetSettings, spectrometer_sigma
-from calib.wavelength.profile_search import SPECTROMETER_SCALE_SIGMA_NM, spectrometer_scale_sigma_nm
+from calib.wavelength.profile_search import (
+    BROADBAND_SCALE_TRANSFER,
+    SPECTROMETER_SCALE_SIGMA_NM,
+    spectrometer_scale_sigma_nm,
+)
 
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
@@ -236,6 +241,61 @@ def test_the_budget_s_scale_component_is_the_check_s_sigma():
     _, factors, _, _ = spectrometer_sigma(
         result, [_lamp("CFL", cfl, "fluorescent", 3.0)], rerun, settings
     )
+    assert factors["spectrometer scale"] == settings.tolerance_sigma
+
+
+def test_a_broadband_only_mapping_states_the_measured_share_of_the_spectrum_s_scale():
+    """Decisions 0108, 0117: an LED (or LED + halogen) alone states the share of the offset such a
+    mapping follows; a line lamp, a narrowband LED or features placed by the spectrum, the whole
+    term; a tabulated spectrum, nothing."""
+    axis = np.arange(380.0, 781.0)
+    smooth = Spectrum(axis, 1.0 + 0.001 * axis)
+    led = _lamp("LED", smooth, "led", 3.0)
+    halogen = _lamp("halogen", smooth, "halogen", 3.0)
+    shared = BROADBAND_SCALE_TRANSFER * SPECTROMETER_SCALE_SIGMA_NM
+    assert 0.0 < BROADBAND_SCALE_TRANSFER < 1.0
+    assert spectrometer_scale_sigma_nm([led]) == pytest.approx(shared)
+    assert spectrometer_scale_sigma_nm([led, halogen]) == pytest.approx(shared)
+    assert (
+        spectrometer_scale_sigma_nm([led], placed_by_features=True) == SPECTROMETER_SCALE_SIGMA_NM
+    )
+    cfl = _lamp("CFL", _measured(_cfl(), offset_nm=0.0, bandwidth_nm=3.0, seed=1), "fluorescent", 3)
+    assert spectrometer_scale_sigma_nm([led, cfl]) == SPECTROMETER_SCALE_SIGMA_NM
+    narrow = _lamp("blue LED", smooth, "narrowband", 3.0)
+    assert spectrometer_scale_sigma_nm([narrow]) == SPECTROMETER_SCALE_SIGMA_NM
+    assert spectrometer_scale_sigma_nm([_lamp("LED", smooth, "led", None)]) == 0.0
+
+
+def test_the_budget_re_solves_the_share_of_the_scale_the_mapping_does_not_follow():
+    """Decision 0117: a mapping stating the whole scale offset skips the re-solve (decision 0044);
+    one stating a share of it (broadband lamps alone) gets the rest re-solved against the fixed
+    mapping, its change scaled by that rest; a mapping stating none, the whole re-solve."""
+    axis = np.arange(380.0, 781.0)
+    led = _lamp("LED", Spectrum(axis, 1.0 + 0.001 * axis), "led", 3.0)
+    grid = np.array([400.0, 700.0])
+    settings = BudgetSettings()
+    whole = settings.wavelength_scale_nm * settings.tolerance_sigma
+
+    def budget(carried: float | None) -> tuple[dict[str, Any], dict[str, float], list[str]]:
+        details = {} if carried is None else {"spectrometer_scale_sigma_nm": carried}
+        mapping = QuadraticMapping(0.0, 0.4, 380.0, pixel_range=(0.0, 800.0), details=details)
+        result = EstimateResult("fake", grid, np.ones((2, 3)), mapping=mapping)
+        solves, factors, notes, _ = spectrometer_sigma(
+            result, [led], lambda observations, **changes: result, settings
+        )
+        return solves, factors, notes
+
+    solves, factors, notes = budget(whole)
+    assert "spectrometer scale" not in solves
+    assert any("in the mapping's σ" in note for note in notes)
+    solves, factors, notes = budget(BROADBAND_SCALE_TRANSFER * whole)
+    assert "spectrometer scale" in solves
+    assert factors["spectrometer scale"] == pytest.approx(
+        (1.0 - BROADBAND_SCALE_TRANSFER) * settings.tolerance_sigma
+    )
+    assert any("re-solved against the fixed mapping" in note for note in notes)
+    solves, factors, _ = budget(None)
+    assert "spectrometer scale" in solves
     assert factors["spectrometer scale"] == settings.tolerance_sigma
 
 

@@ -27,9 +27,10 @@ from calib.wavelength.features import fit_features, map_features
 from calib.wavelength.locate import _check_monotonic, _map_lines, locate_mapping
 from calib.wavelength.profile_search import (
     AMBIGUITY_MIN_DISTANCE_NM,
-    PRIOR_MISFIT_SIGMA_NM,
+    LOCAL_SIGMA_SCALE,
     Candidate,
     basin_sigma,
+    prior_misfit_sigma_nm,
     search_profiles,
     stated_covariance,
 )
@@ -307,8 +308,9 @@ def test_the_basins_likelihoods_decide_the_stated_sigma():
 
 
 def test_a_broadband_mapping_states_the_prior_pull(camera, prior):
-    """An LED alone: the stated σ holds the camera prior's pull (a few tenths of a nm), not only
-    the curvature's hundredths; a fluorescent lamp's lines pin it instead."""
+    """An LED alone: the stated σ holds the camera prior's pull, measured by the deciding fit's
+    excess misfit (decision 0117), and the share of the spectrometer's scale an LED-only mapping
+    follows (decision 0108) — here a tabulated spectrum, so none."""
     truth = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
     led = render_observation(
         lamp_from_spec("LED-B3"),
@@ -320,9 +322,13 @@ def test_a_broadband_mapping_states_the_prior_pull(camera, prior):
         kind="led",
     ).observation
     found = search_profiles([led], prior, DEFAULT_GRID, orientation="rising")
-    assert found.details["prior_misfit_sigma_nm"] == PRIOR_MISFIT_SIGMA_NM
-    assert found.mapping.wavelength_rms_nm is not None
-    assert found.mapping.wavelength_rms_nm >= PRIOR_MISFIT_SIGMA_NM
+    details = found.details
+    pull = prior_misfit_sigma_nm(details["temper"], details["local_rms_nm"])
+    assert details["prior_misfit_sigma_nm"] == pytest.approx(pull)
+    assert details["spectrometer_scale_sigma_nm"] == 0.0
+    stated = found.mapping.wavelength_rms_nm
+    assert stated is not None
+    assert stated >= math.hypot(pull, LOCAL_SIGMA_SCALE * details["local_rms_nm"]) - 1e-9
 
 
 # ------------------------------------------------------------------ a measured line lamp

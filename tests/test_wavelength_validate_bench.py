@@ -65,3 +65,16 @@ def test_the_summary_finds_a_calibrated_sigma_calibrated_and_an_inflated_one_too
     # Errors twice what σ states: the summary asks for about twice the σ.
     _, to_calibrate, to_cover = _scales(bench.sigma_scales(_rows(bench, 2.0)))
     assert 1.6 < to_calibrate < 2.5 and 1.6 < to_cover < 2.5
+
+
+def test_each_camera_group_is_summarised_on_its_own_line_as_read_back_from_the_csv():
+    """Decision 0117 judges σ per set (leave-one-body-out, predicted, transformed): a group whose
+    errors are twice its σ asks for about twice the σ, the honest one for about 1, also from the
+    CSV's text fields."""
+    bench = _bench()
+    honest = [{**row, "group": "honest"} for row in _rows(bench, 1.0)]
+    wide = [{**row, "group": "wide"} for row in _rows(bench, 2.0)]
+    read_back = [{key: str(value) for key, value in row.items()} for row in honest + wide]
+    lines = bench.group_summaries(read_back)
+    assert [line.split(" (")[0].strip() for line in lines] == ["honest", "wide"]
+    assert _scales(lines[0])[1] < 1.25 < 1.6 < _scales(lines[1])[1]

@@ -708,10 +708,16 @@ def efficiency_family(result: EstimateResult) -> str | None:
     return "physical" if model in PHYSICAL_EFFICIENCY_MODELS else "fourier"
 
 
+#: A mapping whose σ holds all but this share of the spectra's scale offset holds it whole (no
+#: re-solve): a numerical tolerance, not a tuned value.
+MAPPING_SCALE_SHARE_WHOLE = 1e-6
+
+
 def mapping_scale_sigma_nm(result: EstimateResult) -> float:
     """The spectrometer wavelength-scale σ (nm) the result's mapping already states
     (``details["spectrometer_scale_sigma_nm"]``: its lines or profile were placed by measured lamp
-    spectra), else 0."""
+    spectra; for a mapping from broadband lamps alone, the share of the offset it follows), else
+    0."""
     mapping = result.mapping
     if not isinstance(mapping, QuadraticMapping):
         return 0.0
@@ -744,7 +750,24 @@ def spectrometer_sigma(
     carried = mapping_scale_sigma_nm(result)
     solves: dict[str, EstimateResult] = {}
     scale_factor = settings.tolerance_sigma
-    if carried > 0:
+    # Each lamp's one-σ scale error: the check's, else the tolerance's.
+    sigmas = [
+        scale * settings.tolerance_sigma if sigma is None else sigma
+        for scale, sigma in zip(scales, checked, strict=True)
+    ]
+    # The share of that offset the mapping's σ already holds, of the measured spectra it counted
+    # (a stated bandwidth): all of it for a mapping placed by the spectra's lines or dips, part for
+    # one found from broadband lamps alone (decisions 0108, 0117). The rest moves the spectra
+    # against the mapping: re-solved, its change scaled by the rest (a linear response).
+    counted = [
+        sigma
+        for lamp, sigma in zip(observations, sigmas, strict=True)
+        if lamp.spectrum_bandwidth_nm is not None
+    ]
+    whole = max(counted, default=0.0)
+    share = min(carried / whole, 1.0) if carried > 0 and whole > 0 else 0.0
+    rest = 1.0 - share
+    if rest < MAPPING_SCALE_SHARE_WHOLE:
         # The mapping was placed by these spectra: a scale error moves it with them, so the curves
         # move along the wavelength axis — the mapping component (its σ holds the scale); a
         # re-solve against the fixed mapping would count it again (decision 0044).
@@ -753,13 +776,8 @@ def spectrometer_sigma(
             "the lamp spectra's wavelength scale)"
         )
     elif any(sigma is not None for sigma in checked):
-        # Each lamp's one-σ scale error: the check's, else the tolerance's. The re-solve moves the
-        # largest by the tolerance (a change well above the solve's own precision) and the rest in
-        # proportion; its change is scaled back to one σ.
-        sigmas = [
-            scale * settings.tolerance_sigma if sigma is None else sigma
-            for scale, sigma in zip(scales, checked, strict=True)
-        ]
+        # The re-solve moves the largest by the tolerance (a change well above the solve's own
+        # precision) and the rest in proportion; its change is scaled back to one σ.
         largest = max(sigmas)
         if largest > 0:
             ratio = shift / largest
@@ -769,7 +787,7 @@ def spectrometer_sigma(
                     for lamp, sigma in zip(observations, sigmas, strict=True)
                 ]
             )
-            scale_factor = 1.0 / ratio
+            scale_factor = rest / ratio
         notes.append(
             "spectrometer scale: checked against Hg lines, σ "
             + ", ".join(
@@ -779,6 +797,13 @@ def spectrometer_sigma(
         )
     else:
         solves["spectrometer scale"] = rerun([shifted(lamp, shift) for lamp in observations])
+        scale_factor = rest * settings.tolerance_sigma
+    if carried > 0 and rest >= MAPPING_SCALE_SHARE_WHOLE:
+        notes.append(
+            f"spectrometer scale: {share:.2g} of it in the mapping's σ ({carried:.3g} nm; a "
+            f"mapping from broadband lamps alone follows the spectra in part), {rest:.2g} "
+            "re-solved against the fixed mapping"
+        )
     missing = [lamp.name for lamp in observations if lamp.spectrum_bandwidth_nm is None]
     if missing:
         flags.append(
@@ -844,7 +869,11 @@ def spectrometer_sigma(
     solves["spectrometer bandwidth"] = rerun(widened)
     notes.append(
         "spectrometer: "
-        + ("" if carried > 0 or any(c is not None for c in checked) else f"scale ±{shift:g} nm, ")
+        + (
+            ""
+            if rest < MAPPING_SCALE_SHARE_WHOLE or any(c is not None for c in checked)
+            else f"scale ±{shift:g} nm, "
+        )
         + described
     )
     # A stated tolerance bounds an in-spec instrument: σ = tolerance_sigma × the re-solve's change

@@ -767,7 +767,11 @@ def locate_mapping(
         by_spectrum = features.details.get("line_centres_from_spectrum", True)
         if by_spectrum:
             # Lines placed by a measured spectrum carry its wavelength scale (a common offset).
-            offset_nm = spectrometer_scale_sigma_nm(lamps) if search is not None else 0.0
+            offset_nm = (
+                spectrometer_scale_sigma_nm(lamps, placed_by_features=True)
+                if search is not None
+                else 0.0
+            )
             offset_key = "spectrometer_scale_sigma_nm"
         else:
             # The list's lines as the camera sees them are off by a little more than the fit

@@ -23,7 +23,7 @@ issue 16 (kept only as the benchmarks' baseline, ``bench/mapping_before.py``):
   the mapping (:func:`basin_sigma`) mixes the best basin's curvature with the other basins weighted
   by their likelihood ratio (tempered by the fit's reduced χ², so a model misfit does not make one
   basin look certain) and, for broadband lamps alone, the camera prior's pull
-  (:data:`PRIOR_MISFIT_SIGMA_NM`); when a competing basin's likelihood ratio passes
+  (:func:`prior_misfit_sigma_nm`); when a competing basin's likelihood ratio passes
   :data:`AMBIGUITY_DELTA_CHI2` the result says so, carries every candidate
   (:class:`MappingSearch`) and states a σ whose ±2σ reaches the competitor;
 - **either orientation**: for profiles whose origin is arbitrary, both directions (wavelength rising
@@ -150,27 +150,18 @@ BASIN_TEMPER = 3.0
 #: and the median ratio from 0.62 to 0.50, the transformed cameras' from 86.7 to 88.9 % — no value
 #: both covers them and stays honest on the others; kept (it serves line-lamp searches, not judged).
 LOCAL_SIGMA_SCALE = 2.0
-#: σ (nm) of what the camera prior's shape does to a mapping found from broadband lamps alone: a
-#: camera unlike the prior's mean pulls it by 0.1–1.7 nm where the local curvature states 0.03–0.14
-#: nm (LED only, validation split, 44 leave-one-camera-out scenes; decision 0036). Chosen there:
-#: the RMS error is within ±2σ for 93 % of the scenes whose basin was right (83 % without it) and
-#: the median actual/stated ratio is 0.63 (0.97 without); 0.3 covers 90 %, 0.5 gives a ratio 0.54.
-#: Halved by decision 0085: those errors held the +0.23 nm spectrometer-slit bias that decision
-#: 0082 removed, and with it gone 0.4 stated twice the error (validation split, 44 cameras: ±2σ
-#: 100 %, actual/stated 0.41). Chosen on the enlarged validation split (190 predicted cameras of
-#: seed 1, no EXIF): 0.2 covers 97.6 % at a median ratio of 0.61 (0.4: 98.8 %, 0.48; 0: 96.6 %,
-#: 0.68 — the spectrometer's scale and the curvature then hold the rest). 0.15 since decision 0094:
-#: its wider broadband ambiguity threshold widens σ on the warned scenes, and on the enlarged
-#: validation split (101 cameras, LED only) 0.2 then covered 98.4 %, 0.15 97.9 % (ratio 0.59;
-#: the transformed cameras 91.7 %, 0.1: 97.6 % and 91.3 %). Kept by decision 0104 on decision
-#: 0098's capture: the leave-one-body-out cameras stay above 98 % at any value ≥ 0 (99.1 % at 0:
-#: the spectrometer-scale term, which an LED-only mapping does not follow, holds the band), while
-#: lowering it takes the transformed cameras to the range's low end (85.1 % at 0). Decision 0108
-#: judged it with the spectrometer-scale term at the share an LED-only mapping takes up
-#: (0.36 of it, measured; not applied): every validation set then inside 85–98 % (the 44
-#: leave-one-body-out cameras 96.7 %, the transformed 87.2 %); 0.25 brings the transformed to 90.6 %
-#: but the leave-one-body-out above 98 % (98.6 %) and the pooled median ratio from 0.59 to 0.41.
-PRIOR_MISFIT_SIGMA_NM = 0.15
+#: The camera prior's pull on a mapping found from broadband lamps alone, per scene
+#: (:func:`prior_misfit_sigma_nm`): this × the deciding fit's curvature σ × √(reduced χ² − 1).
+#: A broadband profile places the mapping through the camera prior's shape; where the prior
+#: describes the profile down to its noise (reduced χ² ≈ 1) the curvature holds the error, and the
+#: excess misfit √(χ²ᵣ − 1) (in units of the noise) measures how unlike the basis the camera is.
+#: That misfit is a smooth shape, coherent over many pixels, so it moves the mapping by far more
+#: than white noise of its size would (which the Birge-scaled curvature already states): this
+#: factor is that coherence, judged on the validation split only (decision 0117). Replaces a flat
+#: 0.15 nm × √χ²ᵣ (decisions 0036, 0085, 0094, 0104), which was as wide on a camera the prior
+#: describes as on one it does not, and held the transformed validation cameras only with the whole
+#: spectrometer scale beside it (decision 0108).
+PRIOR_MISFIT_COHERENCE = 6.0
 #: A deciding fit whose reduced χ² (the basins' temper) exceeds this fits the camera prior too badly
 #: for its likelihood to pick the basin: the result warns (``mapping_ambiguous``) and its σ reaches
 #: the nearest other basin. Chosen on the validation split only (decision 0054).
@@ -179,6 +170,14 @@ MISFIT_WARN_TEMPER = 8.0
 #: wavelength accuracy of ±0.5 nm (a uniform error within it: 0.5/√3). A mapping placed by the
 #: spectrum's lines or dips moves with it at every pixel, and no profile fit can see it.
 SPECTROMETER_SCALE_SIGMA_NM = WAVELENGTH_SCALE_NM * IN_SPEC_TOLERANCE_SIGMA
+#: The share of the lamp spectrum's wavelength offset a mapping found from broadband lamps alone
+#: takes up (RMS over the profile): measured by decision 0108 on 153 validation scenes rendered at
+#: ±0.5 nm spectrometer offsets (``bench/wavelength_validate.py --scale-transfer 0.5``; median
+#: 0.32, 16–84 % 0.19–0.46, RMS over cameras 0.36). The profile's shape against the camera
+#: prior's channel edges, which are on the true scale, places the rest; the sensitivity's σ
+#: budget re-solves that rest against the fixed mapping
+#: (:func:`calib.methods.uncertainty.spectrometer_sigma`).
+BROADBAND_SCALE_TRANSFER = 0.36
 
 
 @dataclass(frozen=True)
@@ -219,7 +218,7 @@ class BasinSigma:
         The basins' RMS distance from the best, weighted by their tempered likelihood ratios.
     local_nm, scale_nm, misfit_nm
         The best basin's (scaled) curvature, the lamp spectrum's wavelength scale and the camera
-        prior's pull (:data:`PRIOR_MISFIT_SIGMA_NM`).
+        prior's pull (:func:`prior_misfit_sigma_nm`).
     competing
         The nearest-in-likelihood basin that makes the mapping ambiguous (tempered Δχ² below the
         threshold, further than :data:`AMBIGUITY_MIN_DISTANCE_NM`), else ``None``.
@@ -233,15 +232,18 @@ class BasinSigma:
     competing: Candidate | None
 
 
-def prior_misfit_sigma_nm(temper: float) -> float:
+def prior_misfit_sigma_nm(temper: float, local_nm: float) -> float:
     """σ (nm) of the camera prior's pull on a broadband-only mapping, for a deciding fit of reduced
-    χ² ``temper`` (≥ 1): :data:`PRIOR_MISFIT_SIGMA_NM` scaled by its square root (the Birge ratio).
+    χ² ``temper`` whose curvature states ``local_nm`` (RMS over the profile, Birge-scaled):
+    :data:`PRIOR_MISFIT_COHERENCE` × ``local_nm`` × √(``temper`` − 1).
 
-    A camera unlike the prior is both fitted worse and pulled further: over the validation split's
-    421 cameras (decision 0054) the ones whose fit had a reduced χ² of 4–8 had an actual/stated
-    error of 1.85 under the flat term (±2σ held 57 %), those below 2 of 0.8.
+    Zero where the camera prior describes the profile down to its noise; wide where the camera is
+    unlike the basis (the fit's excess misfit) and where the profile pins the mapping weakly (its
+    curvature). Decision 0117: on the validation split's leave-one-body-out, predicted and
+    physically transformed cameras the actual error of a right LED-only mapping grows with both,
+    and a flat term was too wide on the first and too narrow on the last.
     """
-    return PRIOR_MISFIT_SIGMA_NM * math.sqrt(max(temper, 1.0))
+    return PRIOR_MISFIT_COHERENCE * local_nm * math.sqrt(max(temper - 1.0, 0.0))
 
 
 def basin_sigma(
@@ -1580,7 +1582,7 @@ def search_profiles(
         candidates_out,
         local_nm=LOCAL_SIGMA_SCALE * local_rms,
         scale_nm=scale_nm,
-        misfit_nm=prior_misfit_sigma_nm(temper) if broadband_only else 0.0,
+        misfit_nm=prior_misfit_sigma_nm(temper, local_rms) if broadband_only else 0.0,
         ambiguity_delta_chi2=ambiguity_delta_chi2,
     )
     ambiguous = sigma.competing is not None
@@ -1899,21 +1901,20 @@ def _correlation_starts(
     )
 
 
-def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
+def spectrometer_scale_sigma_nm(
+    lamps: Sequence[LampObservation], *, placed_by_features: bool = False
+) -> float:
     """σ (nm) the mapping inherits from the lamp spectra's wavelength scale: a spectrum measured by a
     spectrometer (its bandwidth stated) is :data:`SPECTROMETER_SCALE_SIGMA_NM` off as a whole,
     or the σ its Hg-line check left (``metadata["wavelength_scale_sigma_nm"]``,
     :mod:`calib.core.spectrometer_scale`, decision 0069); a tabulated one (no bandwidth:
     colour-science's tables, a built-in line list) adds nothing. The largest of the lamps'.
 
-    A mapping found from broadband lamps alone takes up only part of that offset (decision 0108
-    measured 0.36 of it, RMS over the profile, on 153 validation scenes: ``python
-    bench/wavelength_validate.py --split validation --predictions 60 --transformed 100
-    --scale-transfer 0.5``). The whole term stays: at 0.36 the transformed validation cameras'
-    ±2σ coverage falls below the 90 % asked of them (90.7 → 87.2 %; the full term covers, by
-    accident, a misfit no component names yet), and the sensitivity's σ budget skips its own
-    spectrometer-scale re-solve whenever the mapping carries a scale term, so the rest of the
-    offset would reach no σ at all."""
+    A mapping placed by lines or dips of the spectra (``placed_by_features``) or found with a
+    fluorescent (line) or narrowband lamp follows that offset whole. One found from broadband lamps alone takes
+    up :data:`BROADBAND_SCALE_TRANSFER` of it (measured, decision 0108); the rest moves the spectra
+    against the mapping and is re-solved in the sensitivity's σ budget
+    (:func:`calib.methods.uncertainty.spectrometer_sigma`, decision 0117)."""
     # Imported here so that this function's change stays within it (the module's other owner).
     from calib.core.spectrometer_scale import scale_sigma_nm
 
@@ -1922,7 +1923,12 @@ def spectrometer_scale_sigma_nm(lamps: Sequence[LampObservation]) -> float:
         for lamp in lamps
         if lamp.spectrum_bandwidth_nm is not None
     ]
-    return max(sigmas, default=0.0)
+    full = max(sigmas, default=0.0)
+    # A narrowband LED's peak is a feature its spectrum places, like a line: the transfer was
+    # measured on a white LED only, so such a lamp keeps the whole term.
+    if placed_by_features or any(lamp.kind in ("fluorescent", "narrowband") for lamp in lamps):
+        return full
+    return BROADBAND_SCALE_TRANSFER * full
 
 
 def stated_covariance(
