@@ -718,3 +718,41 @@ def test_the_deepening_scan_is_ranked_coarsely_and_finds_the_full_scans_answer(
     np.testing.assert_array_equal(
         shortlisted.mapping.wavelength_nm(pixel), full.mapping.wavelength_nm(pixel)
     )
+
+
+def test_a_broadband_quadratic_search_refines_few_minima_and_ranks_its_deciding_scans(
+    prior, camera, monkeypatch
+):
+    """Decision 0115: with a broadband lamp alone the quadratic family's scan refines at most
+    :data:`BROADBAND_QUADRATIC_REFINED` of its minima (each with its local scan), and each deciding
+    scan (the 49 mappings of ``LOCAL_SCAN``) is ranked on the scan refinement's profile with only
+    :data:`DECIDING_SHORTLIST` costed on the deciding one."""
+    import sys
+
+    local_scans: list[str] = []
+    original_points = profile_search._quadratic_points
+
+    def points(*args: Any) -> Any:
+        if len(args) == 3 and args[2] == profile_search.LOCAL_SCAN:
+            local_scans.append(sys._getframe(1).f_code.co_name)
+        return original_points(*args)
+
+    shortlists: list[tuple[int, int, int, int]] = []
+    original_shortlist = profile_search._shortlisted_costs
+
+    def shortlist(points: np.ndarray, coarse: Any, fine: Any, keep: int) -> Any:
+        shortlists.append((points.shape[0], coarse.edges_px.size, fine.edges_px.size, keep))
+        return original_shortlist(points, coarse, fine, keep)
+
+    monkeypatch.setattr(profile_search, "_quadratic_points", points)
+    monkeypatch.setattr(profile_search, "_shortlisted_costs", shortlist)
+    # This scene's scan has four distinct minima: a cap of two refines two.
+    monkeypatch.setattr(profile_search, "BROADBAND_QUADRATIC_REFINED", 2)
+    found = profile_search.search_profiles([_render("D65", camera)], prior, DEFAULT_GRID)
+    assert _mapping_re(found.mapping) < 5e-4
+    assert local_scans.count("scan_grids") == 2
+    deciding = local_scans.count("decide")
+    assert deciding >= 1 and len(shortlists) == deciding
+    for size, coarse_edges, fine_edges, keep in shortlists:
+        assert keep == profile_search.DECIDING_SHORTLIST < size
+        assert coarse_edges < fine_edges
