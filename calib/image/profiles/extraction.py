@@ -127,6 +127,10 @@ class Extraction:
             "direct_background_rgb": self.direct_background_rgb.tolist(),
             "pixel_unit": "sensor pixels from the direct spot centre",
             "radiance_unit": "DN/s (direct: DN/s summed over sensor pixels)",
+            # The profile is the band's mean across its rows, the direct RGB the whole spot's: the
+            # rows the band's column total spreads over (its full width at half maximum), for
+            # what relates the two per row (calib.methods.uncertainty.PROFILE_ROWS_KEY).
+            "profile_rows": 2.0 * self.geometry.order(self.side).band_half_width_px,
         }
         record.update(metadata or {})
         return LampObservation(
@@ -302,8 +306,7 @@ def _extract_direct(
     """Direct RGB, its σ, the spot's background, its line spread (see :func:`_line_spread`) and why
     a sharp spot's RGB is the planes' plain sum (see :func:`_resolved_direct`).
 
-    The RGB is the Bayer cells' interleaving (:func:`_interleaved_direct`, with its σ) where it
-    differs from the plain sums by more than twice its σ, else the plain sum; without an
+    The RGB is the Bayer cells' interleaving (:func:`_interleaved_direct`, with its σ); without an
     interleaving (no two greens per cell, a slit image narrower than the pitch) the plain sum or,
     where the spot's blur does not hide the plane sampling, the integral of one slit-image shape
     shared by the channels, the two estimates' difference in its σ."""
@@ -387,13 +390,12 @@ def _extract_direct(
     )
     if interleaved is not None:
         # The spot's integral from the Bayer cells' interleaving, which needs no model of the
-        # spot's edge (decision 0119). Where it agrees with the plain sums within twice its σ
-        # (a blurred spot: R's and B's columns then differ little, and the fit of their weights
-        # is noisy) the plain sums are kept with their smaller σ; where it does not, the planes'
-        # sampling shows in the data and the interleaving is the value.
-        values, sigma_interleaved = interleaved
-        if np.any(np.abs(values - direct) > 2.0 * sigma_interleaved):
-            direct, variance = values, sigma_interleaved**2
+        # spot's edge (decision 0119). Also on a blurred spot, where the plain sums are right: the
+        # fit of R's and B's weights is then noisier, and its σ says so (keeping the plain sums
+        # where the two agree within 2σ was tried and made the validation twins far worse: an
+        # inflated σ let aliased plain sums through).
+        direct, sigma_interleaved = interleaved
+        variance = sigma_interleaved**2
         note = None
     elif resolved is not None:
         # Two estimates of the spot's integral, each biased its own way: the plain sum by the
