@@ -1,11 +1,12 @@
 """Direct RGB and first-order profiles of an HDR image in a fixed geometry.
 
 The direct RGB is the background-subtracted radiance integrated over the spot's aperture (DN/s
-integrated over sensor pixels): each plane's sum times the plane pitch squared where the spot's blur
-hides the plane sampling, else (a sharp spot a few pixels wide falls on different numbers of each
-colour's columns) the Bayer cells' interleaving, which reads every sensor column's share of the
-slit image from the green plane's two sites without a model of its edge (decision 0119), or, on a
-sensor without two greens per cell, one slit-image shape shared by the channels. The
+integrated over sensor pixels). A sharp spot a few pixels wide falls on different numbers of each
+colour's columns, so each plane's sum times the plane pitch squared misses its colour; on a Bayer
+sensor the cells' interleaving reads every sensor column's share of the slit image from the green
+plane's two sites without a model of its edge (decision 0119); elsewhere the plain sums are kept
+where the spot's blur hides the plane sampling, else one slit-image shape shared by the channels is
+fitted to every plane's samples (decision 0114). The
 profile is the mean across the central part of the band in bins of ``bin_px`` along it; every
 channel's samples are placed at their true sensor position (R, G and B sit at different places of
 the 2×2 cell), binned, and resampled linearly to one common ``pixel`` axis, the distance from the
