@@ -458,6 +458,8 @@ def _slit_image(
     angle_deg: float = 0.0,
     *,
     raised_cosine_edge: bool = False,
+    half_length: float = 40.0,
+    length_shift_px: float = 0.3,
 ) -> tuple[HdrImage, DiffractionGeometry, np.ndarray]:
     """A noiseless RGGB image of a slit image (rectangle ⊗ Gaussian across and along, or with
     ``raised_cosine_edge`` a rectangle with raised-cosine edges ``blur_px`` wide, the twin's) and
@@ -470,9 +472,9 @@ def _slit_image(
         scale = blur_px * math.sqrt(2.0)
         return np.asarray(0.5 * (erf((x + half) / scale) - erf((x - half) / scale)), dtype=float)
 
-    colour, half_length = np.array([1.0, 2.0, 0.5]), 40.0
+    colour = np.array([1.0, 2.0, 0.5])
     height, width = 160, 160
-    centre = (80.0 + shift_px, 80.3)
+    centre = (80.0 + shift_px, 80.0 + length_shift_px)
     angle = math.radians(angle_deg)
     planes = []
     for channel, sites in enumerate(([(0, 0)], [(0, 1), (1, 0)], [(1, 1)])):  # RGGB; G: both
@@ -564,6 +566,29 @@ def test_a_slit_image_with_a_non_gaussian_edge_keeps_its_colour(
         )
     assert worst < 0.005
     assert worst_without > 0.01 or half_width_px > 2
+
+
+def test_a_short_sharp_slits_ends_are_not_read_as_colour(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Decision 0119: R's rows and B's rows hold a sharp slit end unequally; the columns' fit
+    alone would read that as colour (5 % here, a 25 px slit); the row ratio taken from the slit's
+    middle brings it under 2 %."""
+    from calib.image.profiles import extraction as module
+
+    def worst(length_shift_px: float) -> float:
+        out = 0.0
+        for shift_px in (0.0, 0.7, 1.5):
+            image, geometry, truth = _slit_image(
+                2.5, 0.3, shift_px, 0.2, half_length=12.3, length_shift_px=length_shift_px
+            )
+            direct = extract(image, geometry, subtract_background=False).direct_rgb
+            assert direct is not None
+            out = max(out, float(np.abs((direct / direct[1]) / (truth / truth[1]) - 1).max()))
+        return out
+
+    assert worst(0.0) < 0.02 and worst(1.0) < 0.02
+    with monkeypatch.context() as patch:
+        patch.setattr(module, "_row_parity_ratio", lambda *_: 1.0)
+        assert worst(0.0) > 0.04
 
 
 def test_the_interleavings_sigma_follows_the_noise() -> None:

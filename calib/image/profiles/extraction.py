@@ -337,6 +337,7 @@ def _extract_direct(
     weights: list[FloatArray] = []
     columns: list[tuple[FloatArray, FloatArray, FloatArray]] = []
     cells: list[tuple[FloatArray, FloatArray]] = []
+    lengths: list[FloatArray] = []
     across_axis = (
         0 if abs(math.cos(math.radians(angle))) >= abs(math.sin(math.radians(angle))) else 1
     )
@@ -368,16 +369,16 @@ def _extract_direct(
                 across_axis,
             )
         )
+        spot = np.where(inside, image.radiance[channel][window] - background[channel], 0.0)
         cells.append(
             (
-                np.where(inside, image.radiance[channel][window] - background[channel], 0.0).sum(
-                    axis=across_axis, dtype=np.float64
-                ),
+                spot.sum(axis=across_axis, dtype=np.float64),
                 np.where(inside, image.variance[channel][window], 0.0).sum(
                     axis=across_axis, dtype=np.float64
                 ),
             )
         )
+        lengths.append(spot.sum(axis=1 - across_axis, dtype=np.float64))
     spread = _line_spread(
         np.concatenate(positions), np.concatenate(weights), geometry.bin_px, along
     )
@@ -387,7 +388,9 @@ def _extract_direct(
     # A slit image narrower than the plane pitch lights too few cells to fit the interleaving.
     narrow = note is not None and note != FIT_FAILED
     interleaved = (
-        None if narrow else _interleaved_direct(cells, image.cfa_pattern, image.pixel_pitch_px)
+        None
+        if narrow
+        else _interleaved_direct(cells, lengths, image.cfa_pattern, image.pixel_pitch_px)
     )
     if interleaved is not None:
         # The spot's integral from the Bayer cells' interleaving, which needs no model of the
@@ -432,7 +435,10 @@ def _column_sums(
 
 
 def _interleaved_direct(
-    cells: list[tuple[FloatArray, FloatArray]], cfa_pattern: str, pitch: float
+    cells: list[tuple[FloatArray, FloatArray]],
+    lengths: list[FloatArray],
+    cfa_pattern: str,
+    pitch: float,
 ) -> tuple[FloatArray, FloatArray] | None:
     """Per channel: the spot's integral and its σ from the Bayer cells' interleaving, with no
     model of the spot's shape (decision 0119).
@@ -449,6 +455,15 @@ def _interleaved_direct(
     ``T_G = 2p (a ΣR + b ΣB)`` (``p`` the plane pitch; the slit's length is taken as sampled alike by
     the planes' rows). ``None`` when the pattern is not a 2×2 Bayer cell with two greens or fewer
     than three cells carry the spot; the σ comes from the fit's covariance and the sums' variances.
+
+    The slit's ends alias the same way along its length: R's rows and B's rows hold the slit's
+    length in the ratio ``r = G_o / G_e`` (odd to even sensor rows, ≠ 1 by up to a few per cent
+    for a sharp end), which the column fit alone would read as colour (twice). ``lengths`` holds
+    each plane's sums across the slit per plane row; in the slit's middle R's and B's rows see the
+    same length profile, so ``r`` = (ΣB / ΣR) / (ΣB / ΣR over the middle rows), and with the columns'
+    ratio ``f = F_o / F_e = (ΣB / ΣR)(b / a) r`` the integrals are ``T_R = ΣR (1 + f)(1 + r)``,
+    ``T_B = ΣB (1 + 1/f)(1 + 1/r)``, ``T_G = 2 ΣG (1 + f)(1 + r) / (f + r)`` (for ``r`` = 1 these
+    are the forms above).
     """
     pattern = cfa_pattern.upper()
     if pitch != 2.0 or sorted(pattern) != ["B", "G", "G", "R"]:
@@ -462,9 +477,12 @@ def _interleaved_direct(
     red_var, green_var, blue_var = red_var[used], green_var[used], blue_var[used]
     if int(used.sum()) < 3:
         return None
+    rows = _row_parity_ratio(lengths[0], lengths[2])
+    if rows is None:
+        return None
     noise = green_var + 0.25 * (red_var + blue_var)
     for _ in range(2):  # weights from every plane's noise at the current coefficients
-        fitted = _interleaving_totals(red, green, blue, noise, pitch)
+        fitted = _interleaving_totals(red, green, blue, noise, rows)
         if fitted is None:
             return None
         totals, (a, b), chi_square = fitted
@@ -478,7 +496,7 @@ def _interleaved_direct(
     for index in range(values.size):
         moved = values.copy()
         moved[index] += steps[index]
-        shifted = _interleaving_totals(moved[:n], moved[n : 2 * n], moved[2 * n :], noise, pitch)
+        shifted = _interleaving_totals(moved[:n], moved[n : 2 * n], moved[2 * n :], noise, rows)
         if shifted is None:
             return None
         variance += ((shifted[0] - totals) / steps[index]) ** 2 * variances[index]
@@ -489,11 +507,26 @@ def _interleaved_direct(
     return totals, np.sqrt(variance)
 
 
+def _row_parity_ratio(red_rows: FloatArray, blue_rows: FloatArray) -> float | None:
+    """``r = G_o / G_e`` of :func:`_interleaved_direct`: the slit's length as B's rows hold it over
+    R's, from the planes' sums across the slit per plane row (``None`` without a middle)."""
+    middle = (red_rows > 0.5 * float(red_rows.max())) & (blue_rows > 0.5 * float(blue_rows.max()))
+    if int(middle.sum()) < 3 or float(red_rows.sum()) <= 0 or float(blue_rows.sum()) <= 0:
+        return None
+    # Sums over the middle, not a median of row ratios: a slit tilted against the columns moves
+    # across them along its length, and each row's column ratio with it.
+    level = float(blue_rows[middle].sum() / red_rows[middle].sum())
+    if not level > 0:
+        return None
+    return float(blue_rows.sum() / red_rows.sum()) / level
+
+
 def _interleaving_totals(
-    red: FloatArray, green: FloatArray, blue: FloatArray, noise: FloatArray, pitch: float
+    red: FloatArray, green: FloatArray, blue: FloatArray, noise: FloatArray, rows: float
 ) -> tuple[FloatArray, tuple[float, float], float] | None:
-    """:func:`_interleaved_direct`'s totals for cells' sums and the G fit's noise variance: the
-    totals, ``(a, b)`` and the fit's χ²; ``None`` where the fit is singular or not positive."""
+    """:func:`_interleaved_direct`'s totals for cells' sums, the G fit's noise variance and the
+    row-parity ratio ``rows``: the totals, ``(a, b)`` and the fit's χ²; ``None`` where the fit is
+    singular or not positive."""
     design = np.stack([red, blue], axis=1) / np.sqrt(noise)[:, None]
     target = green / np.sqrt(noise)
     normal = design.T @ design
@@ -503,12 +536,16 @@ def _interleaving_totals(
     if not (a > 0 and b > 0):
         return None
     residual = target - design @ np.array([a, b])
-    sum_red, sum_blue = float(red.sum()), float(blue.sum())
+    sum_red, sum_green, sum_blue = float(red.sum()), float(green.sum()), float(blue.sum())
+    if not (sum_red > 0 and sum_blue > 0):
+        return None
+    columns = sum_blue / sum_red * (b / a) * rows
+    extent = (1.0 + columns) * (1.0 + rows)
     totals = np.array(
         [
-            pitch * (sum_red + b / a * sum_blue),
-            2.0 * pitch * (a * sum_red + b * sum_blue),
-            pitch * (a / b * sum_red + sum_blue),
+            sum_red * extent,
+            2.0 * sum_green * extent / (columns + rows),
+            sum_blue * (1.0 + 1.0 / columns) * (1.0 + 1.0 / rows),
         ]
     )
     return totals, (a, b), float(residual @ residual)
