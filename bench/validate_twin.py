@@ -37,11 +37,12 @@ import argparse
 import math
 import tempfile
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from calib.core.arrays import FloatArray
 from calib.core.lamp_specs import lamp_from_spec
 from calib.core.spectra import write_csv
 from calib.evaluation.synthetic import lamp_kind
@@ -66,7 +67,14 @@ from calib.model.forward import render_observation
 from calib.pipeline.estimate import OfflineSettings, estimate_offline
 from calib.pipeline.inputs import LampImages
 from mocks.forward_scene import first_order_signal
-from mocks.scene import SceneLayout, SensorModel, render_mosaic_radiance, write_bracket
+from mocks.scene import (
+    PixelFootprint,
+    SceneLayout,
+    SceneSignal,
+    SensorModel,
+    render_mosaic_radiance,
+    write_bracket,
+)
 
 #: Room around the spot and the band on the sensor (px): detection's background strips.
 MARGIN_PX = 80
@@ -97,9 +105,44 @@ def _sensor_and_layout(plan: ScenePlan) -> tuple[SensorModel, SceneLayout]:
     return sensor, layout
 
 
+@dataclass(frozen=True, eq=False)
+class TwinLamp:
+    """One lamp as rendered: its bracket (the pipeline's input) and what the twin rendered, in the
+    pipeline's units (DN/s at the exposure the pipeline is told), for ablations
+    (``bench/twin_limits.py``)."""
+
+    images: LampImages
+    signal: SceneSignal
+    dn_per_s: float
+    dispersion_angle_deg: float
+    slit_width_px: float
+
+    def true_direct(self) -> FloatArray:
+        """Shape ``(3,)``: the spot's rendered total, DN/s summed over sensor pixels."""
+        return np.asarray(self.signal.direct_rgb * self.dn_per_s, dtype=np.float64)
+
+    def true_profile(self, pixel: FloatArray) -> FloatArray:
+        """Shape ``(n, 3)``: the rendered first order's radiance at ``pixel`` from the spot, DN/s."""
+        footprint = PixelFootprint.at_angle(self.dispersion_angle_deg)
+        return np.stack(
+            [self.dn_per_s * self.signal.first_order(c, pixel, footprint) for c in range(3)],
+            axis=1,
+        )
+
+
+def render_lamps(
+    directory: Path, plan: ScenePlan, task: Task, rng: np.random.Generator
+) -> dict[str, TwinLamp]:
+    """Every lamp of the task's variants rendered as a bracket with dark frames."""
+    return {
+        spec: _lamp_images(directory, plan, task, spec, rng)
+        for spec in dict.fromkeys(s for v in task.settings.variants for s in v.lamps)
+    }
+
+
 def _lamp_images(
     directory: Path, plan: ScenePlan, task: Task, spec: str, rng: np.random.Generator
-) -> LampImages:
+) -> TwinLamp:
     """Render one lamp of ``plan`` as a bracket with dark frames (module docstring)."""
     draw = plan.lamps[spec]
     errors = plan.errors
@@ -142,7 +185,8 @@ def _lamp_images(
     )
     # The scene's brightness is free: scale it so the bracket starts at SHORTEST_S, its shortest
     # frame exposed ``gain`` electrons per unit of the signal.
-    mosaic = mosaic * np.float32(gain * sensor.gain_dn_per_electron / SHORTEST_S)
+    dn_per_s = gain * sensor.gain_dn_per_electron / SHORTEST_S
+    mosaic = mosaic * np.float32(dn_per_s)
     exposures = [SHORTEST_S * factor for factor in factors]
     actual = [t * (1.0 + e) for t, e in zip(exposures, draw.exposure_errors, strict=False)]
     folder = directory / spec.replace(":", "_")
@@ -155,7 +199,7 @@ def _lamp_images(
         spectrum = errors.spectrometer.measure(reference, plan.spectrometer, rng)
         bandwidth = plan.spectrometer.bandwidth_nm
     write_csv(folder / "spectrum.csv", spectrum)
-    return LampImages(
+    images = LampImages(
         name=spec,
         kind=lamp_kind(spec),
         spectrum=spectrum,
@@ -165,15 +209,13 @@ def _lamp_images(
         dark_exposure_s=tuple(exposures),
         spectrum_bandwidth_nm=bandwidth,
     )
+    return TwinLamp(images, signal, dn_per_s, layout.dispersion_angle_deg, shape.slit_width_px)
 
 
 def evaluate_2d(task: Task, directory: Path) -> list[ValidationRow]:
     """The task's scene rendered as RAW brackets, each variant estimated from them and scored."""
     plan, noise = draw_task_plan(task)
-    lamps = {
-        spec: _lamp_images(directory, plan, task, spec, noise)
-        for spec in dict.fromkeys(s for v in task.settings.variants for s in v.lamps)
-    }
+    lamps = {spec: lamp.images for spec, lamp in render_lamps(directory, plan, task, noise).items()}
     truth = task.camera.sensitivity.resample(plan.grid, "interpolate", out_of_range="zero").values
     truth = truth / truth.max()
     rows = []

@@ -33,6 +33,7 @@ from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
     COMPONENTS,
     DEFAULT_BUDGET,
+    PROFILE_ROWS_KEY,
     TOLERANCE_SIGMA,
     BudgetSettings,
     basis_misfit_sigma,
@@ -709,6 +710,21 @@ def test_the_stray_light_perturbation_lies_on_the_band_about_the_spot() -> None:
     np.testing.assert_allclose(added, 0.01 * wing[:, None] * np.ones(3)[None, :])
     np.testing.assert_array_equal(stray[1].profile, lamps[1].profile)
     assert with_stray_light(_named_lamps(2, 2)) is None  # arbitrary pixel origin
+
+
+def test_the_stray_light_on_a_per_row_profile_is_the_spots_light_per_row() -> None:
+    """Decision 0119: an image extraction's profile is the band's mean across its rows while its
+    direct RGB is the whole spot's; each row of the slit scatters its own light, so the wing is the
+    direct signal over the rows (the 2-D twins' band was otherwise widened by the rows, ×50–200)."""
+    lamps = [replace(lamp, pixel_origin="direct_spot") for lamp in _named_lamps(2, 1)]
+    per_row = [replace(lamp, metadata={PROFILE_ROWS_KEY: 40.0}) for lamp in lamps]
+    column_total = with_stray_light(lamps, fraction=0.01, wing_px=2.0)
+    mean_of_rows = with_stray_light(per_row, fraction=0.01, wing_px=2.0)
+    assert column_total is not None and mean_of_rows is not None
+    np.testing.assert_allclose(
+        mean_of_rows[0].profile - lamps[0].profile,
+        (column_total[0].profile - lamps[0].profile) / 40.0,
+    )
 
 
 def test_saved_records_are_judged_without_a_component() -> None:

@@ -967,6 +967,10 @@ def lamp_spread_sigma(
 #: components are small.
 STRAY_FRACTION = 0.005
 STRAY_WING_PX = 300.0
+#: ``LampObservation.metadata[PROFILE_ROWS_KEY]``: the sensor rows across the band whose mean the
+#: profile is (an image extraction's profile is the band's radiance per row, its direct RGB the
+#: whole spot's); absent where the profile is the band's column total, in the direct's units.
+PROFILE_ROWS_KEY = "profile_rows"
 
 
 def with_stray_light(
@@ -975,9 +979,14 @@ def with_stray_light(
     wing_px: float = STRAY_WING_PX,
 ) -> list[LampObservation] | None:
     """The lamps with ``fraction`` of their direct signal added along their profile in a Lorentzian
-    wing of half-width ``wing_px`` about the spot (``profile + fraction · direct_c · L(p)``, ``p``
-    the pixel's distance from the spot), or ``None`` when no lamp has a direct measurement on
-    pixels measured from the spot (the wing's place is then unknown)."""
+    wing of half-width ``wing_px`` about the spot (``profile + fraction · direct_c / rows · L(p)``,
+    ``p`` the pixel's distance from the spot), or ``None`` when no lamp has a direct measurement on
+    pixels measured from the spot (the wing's place is then unknown).
+
+    Each row of the slit's image scatters its own light along its row, so the wing on a profile
+    that is the band's mean across its rows (an image extraction: ``metadata[PROFILE_ROWS_KEY]``
+    the rows it averages the band's column total over) is the spot's light per row; a profile that
+    is the band's column total (the 1-D protocol, a CSV) takes the whole spot (``rows`` 1)."""
     out: list[LampObservation] = []
     changed = False
     for lamp in observations:
@@ -986,7 +995,8 @@ def with_stray_light(
             continue
         pixel = np.asarray(lamp.pixel, dtype=np.float64)
         wing = (wing_px / math.pi) / (wing_px**2 + pixel**2)
-        direct = np.asarray(lamp.direct_rgb, dtype=np.float64)
+        rows = float(lamp.metadata.get(PROFILE_ROWS_KEY, 1.0))  # type: ignore[arg-type]
+        direct = np.asarray(lamp.direct_rgb, dtype=np.float64) / max(rows, 1.0)
         profile = np.asarray(lamp.profile, dtype=np.float64) + fraction * np.outer(wing, direct)
         out.append(replace(lamp, profile=profile))
         changed = True

@@ -1,9 +1,12 @@
 """Direct RGB and first-order profiles of an HDR image in a fixed geometry.
 
 The direct RGB is the background-subtracted radiance integrated over the spot's aperture (DN/s
-integrated over sensor pixels): each plane's sum times the plane pitch squared where the spot's blur
-hides the plane sampling, else one slit-image shape shared by the channels, fitted to every plane's
-samples (a sharp spot a few pixels wide falls on different numbers of each colour's columns). The
+integrated over sensor pixels). A sharp spot a few pixels wide falls on different numbers of each
+colour's columns, so each plane's sum times the plane pitch squared misses its colour; on a Bayer
+sensor the cells' interleaving reads every sensor column's share of the slit image from the green
+plane's two sites without a model of its edge (decision 0119); elsewhere the plain sums are kept
+where the spot's blur hides the plane sampling, else one slit-image shape shared by the channels is
+fitted to every plane's samples (decision 0114). The
 profile is the mean across the central part of the band in bins of ``bin_px`` along it; every
 channel's samples are placed at their true sensor position (R, G and B sit at different places of
 the 2×2 cell), binned, and resampled linearly to one common ``pixel`` axis, the distance from the
@@ -39,6 +42,10 @@ ALIASING_LIMIT = 0.005
 """Below this first-harmonic aliasing of the spot's blur at the plane pitch, the plane's plain sum
 × pitch² is the spot's integral to better than ≈ 1 % (the harmonic enters twice, once per side),
 so the sum is kept; above it the direct RGB comes from the shared slit-image fit."""
+
+
+FIT_FAILED = "the slit-image fit failed"
+"""The note of a slit-image fit that did not converge (the direct RGB is then the plain sum)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,6 +128,10 @@ class Extraction:
             "direct_background_rgb": self.direct_background_rgb.tolist(),
             "pixel_unit": "sensor pixels from the direct spot centre",
             "radiance_unit": "DN/s (direct: DN/s summed over sensor pixels)",
+            # The profile is the band's mean across its rows, the direct RGB the whole spot's: the
+            # rows the band's column total spreads over (its full width at half maximum), for
+            # what relates the two per row (calib.methods.uncertainty.PROFILE_ROWS_KEY).
+            "profile_rows": 2.0 * self.geometry.order(self.side).band_half_width_px,
         }
         record.update(metadata or {})
         return LampObservation(
@@ -296,8 +307,10 @@ def _extract_direct(
     """Direct RGB, its σ, the spot's background, its line spread (see :func:`_line_spread`) and why
     a sharp spot's RGB is the planes' plain sum (see :func:`_resolved_direct`).
 
-    The RGB is the plain sum where the spot's blur hides the plane sampling, else the integral of
-    one slit-image shape shared by the channels; σ is the plain sum's either way."""
+    The RGB is the Bayer cells' interleaving (:func:`_interleaved_direct`, with its σ); without an
+    interleaving (no two greens per cell, a slit image narrower than the pitch) the plain sum or,
+    where the spot's blur does not hide the plane sampling, the integral of one slit-image shape
+    shared by the channels, the two estimates' difference in its σ."""
     centre = geometry.spot_centre_px
     angle = geometry.primary.angle_deg
     along, across = geometry.spot_half_size_px
@@ -323,6 +336,8 @@ def _extract_direct(
     positions: list[FloatArray] = []
     weights: list[FloatArray] = []
     columns: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+    cells: list[tuple[FloatArray, FloatArray]] = []
+    lengths: list[FloatArray] = []
     across_axis = (
         0 if abs(math.cos(math.radians(angle))) >= abs(math.sin(math.radians(angle))) else 1
     )
@@ -354,13 +369,39 @@ def _extract_direct(
                 across_axis,
             )
         )
+        spot = np.where(inside, image.radiance[channel][window] - background[channel], 0.0)
+        cells.append(
+            (
+                spot.sum(axis=across_axis, dtype=np.float64),
+                np.where(inside, image.variance[channel][window], 0.0).sum(
+                    axis=across_axis, dtype=np.float64
+                ),
+            )
+        )
+        lengths.append(spot.sum(axis=1 - across_axis, dtype=np.float64))
     spread = _line_spread(
         np.concatenate(positions), np.concatenate(weights), geometry.bin_px, along
     )
     resolved, note = _resolved_direct(
         columns, _site_offsets(image, angle), image.pixel_pitch_px, along
     )
-    if resolved is not None:
+    # A slit image narrower than the plane pitch lights too few cells to fit the interleaving.
+    narrow = note is not None and note != FIT_FAILED
+    interleaved = (
+        None
+        if narrow
+        else _interleaved_direct(cells, lengths, image.cfa_pattern, image.pixel_pitch_px)
+    )
+    if interleaved is not None:
+        # The spot's integral from the Bayer cells' interleaving, which needs no model of the
+        # spot's edge (decision 0119). Also on a blurred spot, where the plain sums are right: the
+        # fit of R's and B's weights is then noisier, and its σ says so (keeping the plain sums
+        # where the two agree within 2σ was tried and made the validation twins far worse: an
+        # inflated σ let aliased plain sums through).
+        direct, sigma_interleaved = interleaved
+        variance = sigma_interleaved**2
+        note = None
+    elif resolved is not None:
         # Two estimates of the spot's integral, each biased its own way: the plain sum by the
         # plane sampling, the fit by an edge profile that is not the Gaussian it assumes (decision
         # 0114: 5–12 % on a spot whose soft edge is as wide as the slit, where the fit's
@@ -391,6 +432,123 @@ def _column_sums(
         np.asarray(total, dtype=np.float64),
         np.asarray(total_variance, dtype=np.float64),
     )
+
+
+def _interleaved_direct(
+    cells: list[tuple[FloatArray, FloatArray]],
+    lengths: list[FloatArray],
+    cfa_pattern: str,
+    pitch: float,
+) -> tuple[FloatArray, FloatArray] | None:
+    """Per channel: the spot's integral and its σ from the Bayer cells' interleaving, with no
+    model of the spot's shape (decision 0119).
+
+    ``cells`` holds, per channel (R, G, B), each plane column's sum along the slit (row where the
+    dispersion runs nearer the sensor's y axis) on one common cell index, and its variance. In a
+    2×2 Bayer cell R and B sit on the cell's two different sensor columns and the two greens on
+    both, so for one slit image ``S`` (the same for every channel, only the level ``A_c`` differs)
+    ``R_k = A_R S(2k)``, ``B_k = A_B S(2k + 1)`` (or the other way round) and ``G_k = A_G (S(2k) +
+    S(2k + 1)) / 2``: ``G_k = a R_k + b B_k`` with ``a = A_G / (2 A_R)``, ``b = A_G / (2 A_B)``,
+    whatever the spot's edge is (a lens' Gaussian, a defocus disc, the twin's raised cosine). With
+    ``a`` and ``b`` fitted, every sensor column's share of the slit image is known in one level, so
+    the integral over all columns is ``T_R = p (ΣR + (b/a) ΣB)``, ``T_B = p ((a/b) ΣR + ΣB)``,
+    ``T_G = 2p (a ΣR + b ΣB)`` (``p`` the plane pitch; the slit's length is taken as sampled alike by
+    the planes' rows). ``None`` when the pattern is not a 2×2 Bayer cell with two greens or fewer
+    than three cells carry the spot; the σ comes from the fit's covariance and the sums' variances.
+
+    The slit's ends alias the same way along its length: R's rows and B's rows hold the slit's
+    length in the ratio ``r = G_o / G_e`` (odd to even sensor rows, ≠ 1 by up to a few per cent
+    for a sharp end), which the column fit alone would read as colour (twice). ``lengths`` holds
+    each plane's sums across the slit per plane row; in the slit's middle R's and B's rows see the
+    same length profile, so ``r`` = (ΣB / ΣR) / (ΣB / ΣR over the middle rows), and with the columns'
+    ratio ``f = F_o / F_e = (ΣB / ΣR)(b / a) r`` the integrals are ``T_R = ΣR (1 + f)(1 + r)``,
+    ``T_B = ΣB (1 + 1/f)(1 + 1/r)``, ``T_G = 2 ΣG (1 + f)(1 + r) / (f + r)`` (for ``r`` = 1 these
+    are the forms above).
+    """
+    pattern = cfa_pattern.upper()
+    if pitch != 2.0 or sorted(pattern) != ["B", "G", "G", "R"]:
+        return None
+    (red, red_var), (green, green_var), (blue, blue_var) = cells
+    if not (red.size == green.size == blue.size):
+        return None
+    # Cells with every plane's samples in the spot's window (the window's corners may miss one).
+    used = (red_var > 0) & (green_var > 0) & (blue_var > 0)
+    red, green, blue = red[used], green[used], blue[used]
+    red_var, green_var, blue_var = red_var[used], green_var[used], blue_var[used]
+    if int(used.sum()) < 3:
+        return None
+    rows = _row_parity_ratio(lengths[0], lengths[2])
+    if rows is None:
+        return None
+    noise = green_var + 0.25 * (red_var + blue_var)
+    for _ in range(2):  # weights from every plane's noise at the current coefficients
+        fitted = _interleaving_totals(red, green, blue, noise, rows)
+        if fitted is None:
+            return None
+        totals, (a, b), chi_square = fitted
+        noise = green_var + a**2 * red_var + b**2 * blue_var
+    # First-order propagation through the weighted fit: each cell's value perturbed in turn.
+    values = np.concatenate([red, green, blue])
+    variances = np.concatenate([red_var, green_var, blue_var])
+    steps = 1e-3 * np.sqrt(variances)
+    n = red.size
+    variance = np.zeros(3)
+    for index in range(values.size):
+        moved = values.copy()
+        moved[index] += steps[index]
+        shifted = _interleaving_totals(moved[:n], moved[n : 2 * n], moved[2 * n :], noise, rows)
+        if shifted is None:
+            return None
+        variance += ((shifted[0] - totals) / steps[index]) ** 2 * variances[index]
+    # Where one shape does not hold for the three channels (a lens' colour fringes, a slit end
+    # sampled unlike by the planes' rows) the residuals show it: the variance follows them.
+    if n > 2:
+        variance = variance * max(1.0, chi_square / (n - 2))
+    return totals, np.sqrt(variance)
+
+
+def _row_parity_ratio(red_rows: FloatArray, blue_rows: FloatArray) -> float | None:
+    """``r = G_o / G_e`` of :func:`_interleaved_direct`: the slit's length as B's rows hold it over
+    R's, from the planes' sums across the slit per plane row (``None`` without a middle)."""
+    middle = (red_rows > 0.5 * float(red_rows.max())) & (blue_rows > 0.5 * float(blue_rows.max()))
+    if int(middle.sum()) < 3 or float(red_rows.sum()) <= 0 or float(blue_rows.sum()) <= 0:
+        return None
+    # Sums over the middle, not a median of row ratios: a slit tilted against the columns moves
+    # across them along its length, and each row's column ratio with it.
+    level = float(blue_rows[middle].sum() / red_rows[middle].sum())
+    if not level > 0:
+        return None
+    return float(blue_rows.sum() / red_rows.sum()) / level
+
+
+def _interleaving_totals(
+    red: FloatArray, green: FloatArray, blue: FloatArray, noise: FloatArray, rows: float
+) -> tuple[FloatArray, tuple[float, float], float] | None:
+    """:func:`_interleaved_direct`'s totals for cells' sums, the G fit's noise variance and the
+    row-parity ratio ``rows``: the totals, ``(a, b)`` and the fit's χ²; ``None`` where the fit is
+    singular or not positive."""
+    design = np.stack([red, blue], axis=1) / np.sqrt(noise)[:, None]
+    target = green / np.sqrt(noise)
+    normal = design.T @ design
+    if np.linalg.cond(normal) > 1e12:
+        return None
+    a, b = (float(x) for x in np.linalg.solve(normal, design.T @ target))
+    if not (a > 0 and b > 0):
+        return None
+    residual = target - design @ np.array([a, b])
+    sum_red, sum_green, sum_blue = float(red.sum()), float(green.sum()), float(blue.sum())
+    if not (sum_red > 0 and sum_blue > 0):
+        return None
+    columns = sum_blue / sum_red * (b / a) * rows
+    extent = (1.0 + columns) * (1.0 + rows)
+    totals = np.array(
+        [
+            sum_red * extent,
+            2.0 * sum_green * extent / (columns + rows),
+            sum_blue * (1.0 + 1.0 / columns) * (1.0 + 1.0 / rows),
+        ]
+    )
+    return totals, (a, b), float(residual @ residual)
 
 
 def _site_offsets(image: HdrImage, angle_deg: float) -> tuple[float, float, float]:
@@ -494,10 +652,10 @@ def _resolved_direct(
     try:
         fit = least_squares(residuals, start, method="lm", x_scale=np.array([1.0, 0.3, 0.3]))
     except (ValueError, np.linalg.LinAlgError):
-        return None, "the slit-image fit failed"
+        return None, FIT_FAILED
     centre, half_width, blur = fit.x[0], math.exp(fit.x[1]), math.exp(fit.x[2])
     if not fit.success or not np.all(np.isfinite(fit.x)) or abs(centre) > half_size:
-        return None, "the slit-image fit failed"
+        return None, FIT_FAILED
     if math.exp(-2.0 * math.pi**2 * blur**2 / pitch**2) < ALIASING_LIMIT:
         return None, None
     if 2.0 * half_width < pitch:
@@ -506,7 +664,7 @@ def _resolved_direct(
             f"narrower than the colour planes' {pitch:g} px pitch"
         )
     if 2.0 * half_width > 2.0 * half_size:
-        return None, "the slit-image fit failed"
+        return None, FIT_FAILED
     shape = seen(centre, half_width, blur)
     return np.asarray(amplitudes(shape) * 2.0 * half_width * pitch, dtype=np.float64), None
 
