@@ -134,10 +134,10 @@ def _located(observations: list[LampObservation], prior: CameraPrior) -> Mapping
                 else (
                     Candidate(
                         solution.mapping,
+                        float(runner_up.get("cost", float("nan"))),
                         float(runner_up.get("delta_chi2", float("nan"))),
+                        float(runner_up.get("relative_likelihood", float("nan"))),
                         float(runner_up.get("rms_distance_nm", float("nan"))),
-                        0.0,
-                        0.0,
                     ),
                 )
             ),
