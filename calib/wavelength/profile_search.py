@@ -1252,19 +1252,17 @@ def search_profiles(
     else:
         candidates = []
         origin = ""
-        # A line lamp's lines start the search wherever it stands among the lamps (one pixel
-        # frame): a broadband lead's correlation starts alone left the validation split's paper
-        # scenes with FL2 up to 55 nm off at a reduced χ² of 12 (decision 0121).
-        line_lamp = next((lamp for lamp in lamps if lamp.kind == "fluorescent"), None)
-        if line_lamp is not None:
+        if lead.kind == "fluorescent":
             try:
-                candidates = fluorescent_starts(line_lamp, prior.mean, grid, MAX_STARTS)
-                origin = f"lines of {line_lamp.name}"
+                candidates = fluorescent_starts(lead, prior.mean, grid, MAX_STARTS)
+                origin = f"lines of {lead.name}"
             except EstimationError:
                 candidates = []
             if not physical:
+                # A quadratic through a coarse table's lines extrapolates its node offsets
+                # (decision 0121): the straight line through them starts the scan too.
                 candidates = _with_linear_companions(candidates)
-        if not candidates or (line_lamp is None and not physical):
+        if not candidates or (lead.kind != "fluorescent" and not physical):
             broadband = next((lamp for lamp in lamps if lamp.kind != "fluorescent"), lamps[0])
             candidates += _correlation_starts(broadband, prior, grid, directions)
             origin = origin or f"correlation search on {broadband.name}"
@@ -1865,8 +1863,9 @@ def _with_linear_companions(starts: Sequence[QuadraticMapping]) -> list[Quadrati
     A quadratic through a table's lines extrapolates their node offsets (a 5 nm table's 580 nm
     node where the camera's peak is at 577) into tens of nm at the profile's red end, beyond the
     scan's end grid (:data:`QUADRATIC_SCAN`); the straight line through the same lines is a start
-    of the correlation search's kind (decision 0121: two of the validation split's FL2 paper
-    scenes, 2.5 and 1.4 nm off from such starts, land right from their straight companions)."""
+    of the correlation search's kind (decision 0121: the validation split's Leica M8 FL2 paper
+    scene, 2.5 nm off from such a start, lands 0.03 nm off from its straight companion). With
+    :data:`MAX_STARTS` per direction, the best match and its companion are the ones scanned."""
     out: list[QuadraticMapping] = []
     for start in starts:
         out.append(start)
