@@ -1258,6 +1258,10 @@ def search_profiles(
                 origin = f"lines of {lead.name}"
             except EstimationError:
                 candidates = []
+            if not physical:
+                # A quadratic through a coarse table's lines extrapolates its node offsets
+                # (decision 0121): the straight line through them starts the scan too.
+                candidates = _with_linear_companions(candidates)
         if not candidates or (lead.kind != "fluorescent" and not physical):
             broadband = next((lamp for lamp in lamps if lamp.kind != "fluorescent"), lamps[0])
             candidates += _correlation_starts(broadband, prior, grid, directions)
@@ -1851,6 +1855,39 @@ def _plausible_directions(
         scores[direction] = max(scores[direction], float(score))
     best = max(scores.values())
     return tuple(d for d in directions if scores[d] >= best - DIRECTION_MARGIN)
+
+
+def _with_linear_companions(starts: Sequence[QuadraticMapping]) -> list[QuadraticMapping]:
+    """Each line-matched start followed by the straight line through its matched lines.
+
+    A quadratic through a table's lines extrapolates their node offsets (a 5 nm table's 580 nm
+    node where the camera's peak is at 577) into tens of nm at the profile's red end, beyond the
+    scan's end grid (:data:`QUADRATIC_SCAN`); the straight line through the same lines is a start
+    of the correlation search's kind (decision 0121: the validation split's Leica M8 FL2 paper
+    scene, 2.5 nm off from such a start, lands 0.03 nm off from its straight companion). With
+    :data:`MAX_STARTS` per direction, the best match and its companion are the ones scanned."""
+    out: list[QuadraticMapping] = []
+    for start in starts:
+        out.append(start)
+        matched = start.details.get("matched") or []
+        if len(matched) < 3 or start.a == 0.0:
+            continue
+        pixel = np.array([float(m["pixel"]) for m in matched])
+        line_nm = np.array([float(m["line_nm"]) for m in matched])
+        try:
+            straight = QuadraticMapping.fit(pixel, line_nm, method="fluorescent-peaks", degree=1)
+        except EstimationError:
+            continue
+        out.append(
+            QuadraticMapping(
+                straight.a,
+                straight.b,
+                straight.c,
+                method="fluorescent-peaks",
+                pixel_range=start.pixel_range,
+            )
+        )
+    return out
 
 
 def _spread_starts(
