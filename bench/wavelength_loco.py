@@ -147,6 +147,8 @@ def _located(observations: list[LampObservation], prior: CameraPrior) -> Mapping
             "local_rms_nm": details.get("local_rms_nm", float("nan")),
             "temper": details.get("temper", float("nan")),
             "codes": ";".join(details.get("warning_codes", [])),
+            # Decision 0122: the σ stated for the fit's extrapolation past the line lamp's lines.
+            "beyond_lines_nm": (details.get("beyond_lines") or {}).get("rms_nm", 0.0),
         },
     )
 
@@ -164,6 +166,7 @@ def failed_row(name: str) -> dict[str, object]:
         "temper": float("nan"),
         "codes": "",
         "cpu_s": float("nan"),
+        "beyond_lines_nm": float("nan"),
     }
 
 
@@ -255,6 +258,7 @@ def main() -> None:
             "temper": found.details["temper"],
             "codes": found.details.get("codes", ""),
             "cpu_s": cpu_s,
+            "beyond_lines_nm": found.details.get("beyond_lines_nm", float("nan")),
         }
         rows.append(row)
         print(
@@ -273,7 +277,8 @@ def main() -> None:
         f"{np.nanmedian([r['cpu_s'] for r in rows]):.3f} s; false alarms (warned, RMS < 1 nm) "
         f"{int(np.sum(flagged & (rms < 1)))}; RMS ≤ 2σ "
         f"{100 * np.mean(rms <= 2 * np.array([r['stated_nm'] for r in rows], dtype=float)):.1f} %; "
-        f"RMS > 3σ unwarned {int(np.sum((rms > 3 * np.array([r['stated_nm'] for r in rows], dtype=float)) & ~flagged))}",
+        f"RMS > 3σ unwarned {int(np.sum((rms > 3 * np.array([r['stated_nm'] for r in rows], dtype=float)) & ~flagged))}; "
+        f"median RMS/σ {np.nanmedian(rms / np.array([r['stated_nm'] for r in rows], dtype=float)):.2f}",
         file=sys.stderr,
     )
     if args.csv:

@@ -51,6 +51,7 @@ from calib.wavelength.profile_search import (
     HOPELESS_DELTA_CHI2,
     MappingSearch,
     Orientation,
+    deciding_shot,
     search_profiles,
     spectrometer_scale_sigma_nm,
     stated_covariance,
@@ -527,6 +528,50 @@ def _line_misplacement_nm(
     return float(np.sqrt(np.mean(np.square(misplaced)))) if misplaced else None
 
 
+def _beyond_lines_sigma_nm(
+    lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid, lead: LampObservation
+) -> dict[str, Any] | None:
+    """The σ (nm) of a quadratic whole-profile fit where it extrapolates past a line lamp's lines
+    (decision 0122), or ``None`` when the lines span the grid.
+
+    Between its outermost lines (the Hg lines the lamp shows, :func:`_hg_lines_shown`) a line
+    lamp's sharp peaks hold the fit's curvature; past them only the broadband shapes do, through
+    the camera prior's red (or blue) end, and there the validation split's fits were 1–3 nm off
+    with σ 0.1–0.5 nm (the likelihood's own bias: decision 0121's 5D Mk II). The quadratic's
+    departure from its straight continuation past the last line — the part of the mapping no line
+    supports — is stated as its σ there: no constant, only the fit's own extrapolated curvature.
+    Returned: ``rms_nm`` over the profile's pixels inside ``grid`` (zero within the lines), the
+    σ at the grid's ends and the lines' reach."""
+    lines, _, _ = _hg_lines_shown(lamp, mapping, grid)
+    inside = [
+        line.wavelength_nm for line in lines if grid.start_nm <= line.wavelength_nm <= grid.stop_nm
+    ]
+    if len(inside) < 2:
+        return None
+    reach = (min(inside), max(inside))
+    pixel = np.asarray(lead.pixel, dtype=np.float64)
+    at_nm = np.asarray(mapping.wavelength_nm(pixel), dtype=np.float64)
+    order = np.argsort(at_nm)
+    beyond = np.zeros_like(at_nm)
+    ends = []
+    for edge, outside in ((reach[0], at_nm < reach[0]), (reach[1], at_nm > reach[1])):
+        edge_px = float(np.interp(edge, at_nm[order], pixel[order]))
+        slope = float(_local_dispersion(mapping, np.array([edge_px]))[0])
+        straight = edge + slope * (pixel - edge_px)
+        beyond[outside] = (at_nm - straight)[outside]
+        ends.append(edge_px)
+    within = (at_nm >= grid.start_nm) & (at_nm <= grid.stop_nm)
+    if not np.any(within):
+        return None
+    rms_nm = float(np.sqrt(np.mean(beyond[within] ** 2)))
+    at_ends = np.interp([grid.start_nm, grid.stop_nm], at_nm[order], np.abs(beyond)[order])
+    return {
+        "rms_nm": rms_nm,
+        "sigma_at_grid_ends_nm": [float(v) for v in at_ends],
+        "lines_reach_nm": [float(v) for v in reach],
+    }
+
+
 def _directions(lead: LampObservation, orientation: Orientation) -> tuple[int, ...]:
     if lead.pixel_origin == "direct_spot" or orientation == "rising":
         return (1,)
@@ -731,6 +776,18 @@ def locate_mapping(
                             fallback_sigma_nm = misplaced_nm
                     if note:
                         details["known_lines_note"] = f"lamp {lamp.name!r}: {note}"
+                    beyond = (
+                        _beyond_lines_sigma_nm(lamp, search.exact, grid, lead)
+                        if lead.pixel_origin != "direct_spot" and stated_nm is not None
+                        else None
+                    )
+                    if beyond is not None and beyond["rms_nm"] > 0:
+                        # The quadratic family only: a grating family's curvature is its
+                        # geometry's (the 0th order pins it), not a free coefficient.
+                        details["beyond_lines"] = beyond
+                        fallback_sigma_nm = math.hypot(
+                            fallback_sigma_nm or stated_nm or 0.0, beyond["rms_nm"]
+                        )
                     slit_nm = max(other.spectrum_bandwidth_nm or 0.0 for other in measured)
                     if slit_nm > COARSE_SLIT_NM:
                         # Nothing corrects a whole-profile fit through a broad slit: its model
@@ -813,9 +870,9 @@ def locate_mapping(
                 f"the mapping is ambiguous: the absorption dips also match {competing_nm:.1f} nm "
                 f"away (RMS) ({_dips_used(dips_competitor)} of them "
                 f"against the {_dips_used(features)} used); both are in the result and the stated "
-                f"σ ({stated_nm:.1f} nm) spans them. A "
-                "fluorescent (line) lamp shot in the same geometry, or the camera's optics (EXIF "
-                "focal length), decides it."
+                f"σ ({stated_nm:.1f} nm) spans them. "
+                + deciding_shot(lamps)
+                + " So does the camera's optics (EXIF focal length)."
             )
         red_end, note = _red_end(features, mapping, grid)
         details["red_end"] = red_end
@@ -849,7 +906,11 @@ def locate_mapping(
                 (float(lead.pixel[0]), float(lead.pixel[-1])),
             )
             details["profile_fit_sigma_nm"] = search.mapping.wavelength_rms_nm
-            details["wavelength_rms_from"] = "the measured lamp's lines, misplaced by the fit"
+            details["wavelength_rms_from"] = (
+                "the measured lamp's lines, misplaced by the fit"
+                if "beyond_lines" not in details
+                else "the fit's own σ, its lines' misplacement and its extrapolation past them"
+            )
         if (
             stored is None
             and geometry is None
@@ -935,8 +996,8 @@ def _incidence_conflict(
     return mapping, (
         f"the mapping is ambiguous: its grating incidence ({search.exact.incidence_deg:+.0f}°) "
         f"lies {sigmas:.1f}σ from the rig's prior — with a broadband lamp alone the camera "
-        f"prior's shape bends the red end where the camera is unlike it; {widened}. A fluorescent "
-        "(line) lamp shot in the same geometry decides it."
+        f"prior's shape bends the red end where the camera is unlike it; {widened}. "
+        + deciding_shot(())  # broadband lamps alone (its caller's condition)
     )
 
 

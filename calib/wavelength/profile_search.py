@@ -1634,8 +1634,8 @@ def search_profiles(
             f"signal (where it falls to {RED_EDGE_FRACTION:.0%} of its peak) at {edge[0]:.0f} nm, "
             f"{edge[0] - edge[1]:.0f} nm beyond where the camera prior's mean puts it "
             f"({edge[1]:.0f} nm; more than {RED_EDGE_MARGIN_NM:g} nm is beyond nearly every "
-            f"validation camera){other_basin}; the stated σ ({stated:.1f} nm) spans both. A fluorescent "
-            "(line) lamp shot in the same geometry decides it."
+            f"validation camera){other_basin}; the stated σ ({stated:.1f} nm) spans both. "
+            + deciding_shot(lamps)
         )
     if broadband_only and temper > MISFIT_WARN_TEMPER:
         # The camera is unlike the prior: the likelihood that ranked the basins is misspecified,
@@ -1653,8 +1653,8 @@ def search_profiles(
         warnings.append(
             f"the camera prior fits {measured[0].name}'s profile badly (reduced χ² {temper:.1f}, "
             f"above {MISFIT_WARN_TEMPER:g}): with a broadband lamp alone the mapping leans on the "
-            f"prior's shape, and the basins' likelihoods cannot be trusted{widened}. A "
-            "fluorescent (line) lamp shot in the same geometry decides it."
+            f"prior's shape, and the basins' likelihoods cannot be trusted{widened}. "
+            + deciding_shot(lamps)
         )
     coarse = None
     if broadband_only and isinstance(family, GratingFamily):
@@ -1692,8 +1692,7 @@ def search_profiles(
             f"nm away (RMS) and this answer Δχ² {coarse.delta_chi2:.0f} behind it (above "
             f"{COARSE_REJECTION_DELTA_CHI2:g}): the camera prior describes {measured[0].name}'s "
             "camera too poorly for the finer fit to decide; both are in the result and the stated "
-            f"σ ({stated:.1f} nm) spans them. A fluorescent (line) lamp shot in the same geometry "
-            "decides it."
+            f"σ ({stated:.1f} nm) spans them. " + deciding_shot(lamps)
         )
     mapping = stated_covariance(mapping, stated, scale_nm, pixel_range)
     if sigma.competing is not None:
@@ -1702,8 +1701,8 @@ def search_profiles(
         warnings.append(
             f"the mapping is ambiguous: a second basin {other.distance_nm:.1f} nm away (RMS) fits "
             f"almost as well ({how}; ambiguous below {ambiguity_delta_chi2:g}); both are in the "
-            f"result and the stated σ ({stated:.1f} nm) spans them. A fluorescent (line) lamp shot "
-            "in the same geometry (or a lamp spectrum measured at a narrower bandwidth) decides it."
+            f"result and the stated σ ({stated:.1f} nm) spans them. "
+            + deciding_shot(lamps, bandwidth_hint=True)
         )
     spread_nm = sigma.spread_nm
     details = {
@@ -1960,6 +1959,50 @@ def _correlation_starts(
         n_dispersions=48,
         allow_reversed=-1 in directions,
     )
+
+
+#: A lamp spectrum sampled or measured more coarsely than this (nm) holds its lines at its nodes
+#: (as :data:`calib.wavelength.locate.COARSE_SPECTRUM_NM`): a camera line's centre is 1–2 nm from it.
+LINE_SPECTRUM_NM = 2.0
+
+
+def deciding_shot(lamps: Sequence[LampObservation], *, bandwidth_hint: bool = False) -> str:
+    """The advice closing an ambiguity warning: what would decide the mapping, given what was
+    shot (decision 0122). Without a line lamp: a fluorescent (line) lamp. With one whose spectrum
+    is a coarse table or has no stated bandwidth: its spectrum measured with a bandwidth (or its
+    built-in line list), another lamp's lines, or the 0th order. With a finely measured one:
+    another line lamp with other lines, or the 0th order. The 0th order is not asked for when the
+    profiles' origin is already the direct spot."""
+    line_lamps = [lamp for lamp in lamps if lamp.kind == "fluorescent"]
+    spot = any(lamp.pixel_origin == "direct_spot" for lamp in lamps)
+    zeroth = "" if spot else ", or the grating's 0th order (direct spot) in the frame"
+    if not line_lamps:
+        hint = " (or a lamp spectrum measured at a narrower bandwidth)" if bandwidth_hint else ""
+        return f"A fluorescent (line) lamp shot in the same geometry{hint} decides it."
+    names = ", ".join(lamp.name for lamp in line_lamps)
+    others = (
+        "a second line lamp with other lines (a neon lamp, or a tri-phosphor CFL's Eu 611 nm) "
+        "in the same geometry"
+    )
+    coarse = [
+        lamp
+        for lamp in line_lamps
+        if lamp.spectrum_bandwidth_nm is None
+        or max(
+            lamp.spectrum_bandwidth_nm,
+            float(np.median(np.diff(lamp.spectrum.wavelength_nm))),
+        )
+        > LINE_SPECTRUM_NM
+    ]
+    if coarse:
+        return (
+            f"The line lamp {names} was in the scene, but its spectrum is too coarse or has no "
+            "stated bandwidth to place its lines: its spectrum measured with a stated bandwidth "
+            f"of ≤ {LINE_SPECTRUM_NM:g} nm (or its built-in line list: --spectrum builtin:hg, "
+            "builtin:cfl-triphosphor), "
+            f"{others}{zeroth} decides it."
+        )
+    return f"The line lamp {names} was in the scene and did not decide it: {others}{zeroth} decides it."
 
 
 def spectrometer_scale_sigma_nm(
