@@ -370,7 +370,7 @@ def main() -> None:
     if args.direct_reading == "fit":
         from calib.image.profiles import extraction
 
-        extraction._interleaved_direct = lambda *_args, **_kwargs: None  # type: ignore[assignment]
+        extraction._interleaved_direct = lambda *_args, **_kwargs: None
     cameras: list[tuple[str, str, str, int]] = []
     if args.split in ("validation", "both"):
         for seed in range(args.validation_seeds):
