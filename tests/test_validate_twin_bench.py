@@ -61,7 +61,7 @@ def test_the_2d_twin_brackets_each_lamp_as_the_1d_protocol_does(
         _, factors = plan.errors.photons.bracket(
             profile, direct, plan.sensor, slit.spot_px, draw.spot_fill
         )
-        np.testing.assert_allclose(lamp.exposure_s, SHORTEST_S * np.asarray(factors))
+        np.testing.assert_allclose(lamp.images.exposure_s, SHORTEST_S * np.asarray(factors))
         frames.append(len(factors))
     # the scene's lamps need more than one frame each: the test judges a bracket, not a single shot
     assert min(frames) > 1
