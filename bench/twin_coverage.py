@@ -36,6 +36,12 @@ can hold: a camera with detail finer than the grid, e.g. colour's Nikon 5100 wit
         [--data-dir ../shared/data/camera_sensitivities] [--keep DIR]
         [--spectrometer-error on|off] [--stray-light on|off]
         [--shutter-error on|off] [--seed-per-camera]
+        [--validation-cameras N] [--validation-seeds K] [--direct-reading interleaving|fit]
+
+``--validation-cameras N`` adds N rawtoaces-data bodies to the six named validation twins (a fixed
+draw, never a test body), ``--validation-seeds K`` captures every validation twin at K station seeds:
+more validation evidence for a choice. ``--direct-reading fit`` reads the direct spot's colour as
+decision 0114 did (the comparison decision 0123 needed; the product reads it as decision 0119 does).
 """
 
 from __future__ import annotations
@@ -80,6 +86,27 @@ TEST_WITH_DATA = (
     ("Canon 60D (camspec)", "jiang-2013-camspec"),
     ("Pentax K-5 (camspec)", "jiang-2013-camspec"),
 )
+#: Bodies never drawn as extra validation twins: the test cameras' bodies here and in
+#: ``bench/validate_twin.py``'s test split (a body on both sides would leak the test split).
+TEST_BODIES = ("Nikon D5100", "Nikon D3X", "Canon 60D", "Pentax K-5", "Canon EOS 600D", "ARRI D21")
+#: The draw of the extra validation bodies (``--validation-cameras``): fixed, so runs compare.
+EXTRA_VALIDATION_SEED = 20261127
+
+
+def extra_validation_cameras(count: int) -> list[tuple[str, str]]:
+    """``count`` more rawtoaces-data bodies (left out of the basis one at a time, as the named six),
+    drawn once with :data:`EXTRA_VALIDATION_SEED` from those not named in :data:`VALIDATION` and not
+    a test body (:data:`TEST_BODIES`)."""
+    from calib.core.datasets import load_collection
+
+    named = {name for name, _ in VALIDATION}
+    eligible = sorted(
+        base
+        for record in load_collection("rawtoaces-data")
+        if (base := record.name.split(" (")[0].strip()) not in named and base not in TEST_BODIES
+    )
+    order = np.random.default_rng(EXTRA_VALIDATION_SEED).permutation(len(eligible))
+    return [(eligible[index], "rawtoaces-data") for index in order[:count]]
 
 
 @dataclass
@@ -311,6 +338,28 @@ def main() -> None:
         "draw and noise; default: the config's seed for all",
     )
     parser.add_argument(
+        "--validation-cameras",
+        type=int,
+        default=0,
+        help="this many more validation twins: rawtoaces-data bodies beyond the named six, drawn "
+        "once with a fixed seed (never a test body)",
+    )
+    parser.add_argument(
+        "--validation-seeds",
+        type=int,
+        default=1,
+        help="each validation twin captured with this many station seeds (config seed + 0, 1, …; "
+        "more noise and spectrometer draws)",
+    )
+    parser.add_argument(
+        "--direct-reading",
+        choices=("interleaving", "fit"),
+        default="interleaving",
+        help="the direct spot's colour on a Bayer sensor: the cells' interleaving (decision 0119, "
+        "the product) or decision 0114's shared-shape fit with the fit − sum difference in its σ "
+        "(a comparison, not the product)",
+    )
+    parser.add_argument(
         "--camera",
         action="append",
         default=None,
@@ -318,20 +367,28 @@ def main() -> None:
     )
     args = parser.parse_args()
     floors = [float(item) for item in args.floors.split(",")]
-    cameras: list[tuple[str, str, str]] = []
+    if args.direct_reading == "fit":
+        from calib.image.profiles import extraction
+
+        extraction._interleaved_direct = lambda *_args, **_kwargs: None
+    cameras: list[tuple[str, str, str, int]] = []
     if args.split in ("validation", "both"):
-        cameras += [("validation", name, coll) for name, coll in VALIDATION]
+        for seed in range(args.validation_seeds):
+            cameras += [
+                ("validation", name, coll, seed)
+                for name, coll in (*VALIDATION, *extra_validation_cameras(args.validation_cameras))
+            ]
     if args.split in ("test", "both"):
-        cameras += [("test", name, coll) for name, coll in TEST]
+        cameras += [("test", name, coll, 0) for name, coll in TEST]
         if args.data_dir is not None:
-            cameras += [("test", name, coll) for name, coll in TEST_WITH_DATA]
+            cameras += [("test", name, coll, 0) for name, coll in TEST_WITH_DATA]
     if args.camera:
         cameras = [item for item in cameras if item[1] in args.camera]
     base = load_config(args.config)
     rows: list[Row] = []
     with tempfile.TemporaryDirectory() as scratch:
         root = args.keep or Path(scratch)
-        for index, (split, camera, collection) in enumerate(cameras):
+        for index, (split, camera, collection, seed) in enumerate(cameras):
             config = twin_config(
                 base,
                 camera,
@@ -340,9 +397,9 @@ def main() -> None:
                 in_spec_error=args.spectrometer_error == "on",
                 stray_light=args.stray_light == "on",
                 shutter_error=args.shutter_error == "on",
-                seed_offset=index if args.seed_per_camera else 0,
+                seed_offset=(index if args.seed_per_camera else 0) + seed,
             )
-            slug = "".join(c if c.isalnum() else "_" for c in camera)
+            slug = "".join(c if c.isalnum() else "_" for c in camera) + f"_{seed}"
             captured = run_capture(config, out_dir=root / slug / "sessions")
             if captured.exit_status != "success":
                 print(f"{camera}: capture ended {captured.exit_status}; skipped")
@@ -381,7 +438,7 @@ def main() -> None:
                     named_only=args.named_only,
                     tolerance_sigma=args.tolerance_sigma,
                 )
-                rows.append(Row(split, camera, floor, **scored))  # type: ignore[arg-type]
+                rows.append(Row(split, camera + (f" #{seed}" if seed else ""), floor, **scored))  # type: ignore[arg-type]
                 row = rows[-1]
                 print(
                     f"{split:10s} {camera:24s} floor {floor:<6g} {row.method:9s} "

@@ -56,3 +56,17 @@ def test_a_maximum_node_above_its_truth_shows_as_a_common_scale() -> None:
     assert 1.03 < found["common_scale"] < 1.045
     covered = float(np.mean(np.abs(curves - reference) <= 2 * sigma))
     assert covered < 0.8 and found["coverage_at_common_scale"] > 0.95
+
+
+def test_the_extra_validation_twins_are_other_rawtoaces_bodies_never_a_test_body() -> None:
+    bench = _bench()
+    drawn = bench.extra_validation_cameras(100)
+    names = [name for name, _ in drawn]
+    assert {collection for _, collection in drawn} == {"rawtoaces-data"}
+    assert len(set(names)) == len(names) > 30
+    assert not set(names) & {name for name, _ in bench.VALIDATION}
+    # the test cameras' bodies (here and in bench/validate_twin.py) stay on the test side
+    assert not set(names) & set(bench.TEST_BODIES)
+    assert "Nikon D5100" not in names and "ARRI D21" not in names
+    # a fixed draw: the first N of a longer draw, the same on every run
+    assert bench.extra_validation_cameras(5) == drawn[:5]

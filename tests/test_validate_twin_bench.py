@@ -9,6 +9,7 @@ clipping level), so both render the same scene with the same frames.
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -35,6 +36,7 @@ def _bench() -> ModuleType:
     spec = importlib.util.spec_from_file_location("validate_twin_bench", BENCH)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses resolve their annotations through it
     spec.loader.exec_module(module)
     return module
 
@@ -59,7 +61,7 @@ def test_the_2d_twin_brackets_each_lamp_as_the_1d_protocol_does(
         _, factors = plan.errors.photons.bracket(
             profile, direct, plan.sensor, slit.spot_px, draw.spot_fill
         )
-        np.testing.assert_allclose(lamp.exposure_s, SHORTEST_S * np.asarray(factors))
+        np.testing.assert_allclose(lamp.images.exposure_s, SHORTEST_S * np.asarray(factors))
         frames.append(len(factors))
     # the scene's lamps need more than one frame each: the test judges a bracket, not a single shot
     assert min(frames) > 1

@@ -385,19 +385,25 @@ def _extract_direct(
     resolved, note = _resolved_direct(
         columns, _site_offsets(image, angle), image.pixel_pitch_px, along
     )
-    # A slit image narrower than the plane pitch lights too few cells to fit the interleaving.
+    # A slit image narrower than the plane pitch lights too few cells to fit the interleaving. A
+    # spot blurred enough that the plane sampling cannot alias it (``_resolved_direct`` returns
+    # neither a fit nor a note) keeps its plain sums, which are then exact: the interleaving would
+    # only add its noise and a bias of its own where the slit's image is tilted against the columns
+    # (each green sees the slit ±tan θ off the R or B site sharing its column: ±0.37 % at 0.8° on a
+    # smooth spot, whose weights a and b the fit then barely separates; decision 0123).
     narrow = note is not None and note != FIT_FAILED
+    smooth = resolved is None and note is None
     interleaved = (
         None
-        if narrow
+        if narrow or smooth
         else _interleaved_direct(cells, lengths, image.cfa_pattern, image.pixel_pitch_px)
     )
     if interleaved is not None:
         # The spot's integral from the Bayer cells' interleaving, which needs no model of the
-        # spot's edge (decision 0119). Also on a blurred spot, where the plain sums are right: the
-        # fit of R's and B's weights is then noisier, and its σ says so (keeping the plain sums
-        # where the two agree within 2σ was tried and made the validation twins far worse: an
-        # inflated σ let aliased plain sums through).
+        # spot's edge (decision 0119), where the spot is sharp enough for the plane sampling to
+        # alias it. (Keeping the plain sums where the two agree within 2σ was tried and made the
+        # validation twins far worse: an inflated σ let aliased plain sums through; the blur
+        # test above does not look at the interleaving's σ.)
         direct, sigma_interleaved = interleaved
         variance = sigma_interleaved**2
         note = None
