@@ -40,6 +40,7 @@ def test_the_best_line_match_explains_the_strongest_peaks() -> None:
         pixel_range=(0.0, 928.0),
         dispersion_range_nm_per_px=(0.5 * 0.3914, 2.0 * 0.3914),
         n_hypotheses=2,
+        explain_peaks=True,
     )[0]
     ends = np.array([0.0, 928.0])
     # Scored on its lines alone, a quadratic through three lines at weak peaks won (112 nm off).

@@ -211,12 +211,18 @@ def match_peak_hypotheses(
     tolerance_nm: float = 1.5,
     allow_reversed: bool = False,
     n_hypotheses: int = 6,
+    explain_peaks: bool = False,
 ) -> list[QuadraticMapping]:
     """Several distinct line↔peak mappings, best scored first (see :func:`match_peaks`).
 
     Each hypothesis comes from a pair or triple of lines matched to peaks, scored by a soft inlier
     count, then refitted on its inliers with tightening tolerances. Distinct hypotheses (differing by
     more than 3 nm somewhere over ``pixel_range``) let a later fit of the whole profile choose.
+    With ``explain_peaks`` the count also asks the profile's strongest peaks to be explained by a
+    line (decision 0121: profiles with an arbitrary origin, where no 0th order bounds the mapping).
+    Not where a rig's geometry bounds it: a fluorescent lamp's strongest peaks there may be its
+    phosphor bands, which no line list holds (a coarse sensor's twin session took the Hg 546.1 line
+    1.3 nm off with it).
     """
     if len(lines) < 2 or len(peaks) < 2:
         raise EstimationError(
@@ -244,8 +250,9 @@ def match_peak_hypotheses(
         return pairs
 
     def score(mapping: QuadraticMapping) -> float:
-        """Soft inlier count both ways (τ = 2 nm): each line counts by its strength and how close
-        a peak lands, each peak by its prominence and how close a line lands. A quadratic through
+        """Soft inlier count (τ = 2 nm): each line counts by its strength and how close a peak
+        lands; with ``explain_peaks`` also each peak by its prominence and how close a line lands.
+        A quadratic through
         three lines at three weak peaks scores its three lines as fully as the right match does;
         only the profile's strongest peaks left unexplained tell it apart (decision 0121: the
         validation split's FL2 paper scenes, 55 nm off from such a triple)."""
@@ -253,7 +260,8 @@ def match_peak_hypotheses(
         gap = np.abs(predicted[None, :] - line_nm[:, None])
         lines_found = np.exp(-0.5 * (np.min(gap, axis=1) / 2.0) ** 2)
         peaks_explained = np.exp(-0.5 * (np.min(gap, axis=0) / 2.0) ** 2)
-        return float(np.sum(line_weight * lines_found) + np.sum(peak_share * peaks_explained))
+        explained = float(np.sum(peak_share * peaks_explained)) if explain_peaks else 0.0
+        return float(np.sum(line_weight * lines_found)) + explained
 
     def admissible(mapping: QuadraticMapping) -> bool:
         slope = mapping.dispersion_nm_per_px(probe)
@@ -704,8 +712,11 @@ def fluorescent_starts(
     mean_sensitivity: FloatArray,
     grid: WavelengthGrid,
     n_candidates: int,
+    *,
+    explain_peaks: bool = False,
 ) -> list[QuadraticMapping]:
-    """Mappings from matching the lamp's lines to the profile's peaks (several hypotheses)."""
+    """Mappings from matching the lamp's lines to the profile's peaks (several hypotheses;
+    ``explain_peaks``: see :func:`match_peak_hypotheses`)."""
     lines, peaks, dispersion = lines_and_peaks(observation, mean_sensitivity, grid)
     return match_peak_hypotheses(
         lines,
@@ -713,4 +724,5 @@ def fluorescent_starts(
         pixel_range=(float(observation.pixel[0]), float(observation.pixel[-1])),
         dispersion_range_nm_per_px=(0.5 * dispersion, 2.0 * dispersion),
         n_hypotheses=n_candidates,
+        explain_peaks=explain_peaks,
     )

@@ -1254,7 +1254,9 @@ def search_profiles(
         origin = ""
         if lead.kind == "fluorescent":
             try:
-                candidates = fluorescent_starts(lead, prior.mean, grid, MAX_STARTS)
+                candidates = fluorescent_starts(
+                    lead, prior.mean, grid, MAX_STARTS, explain_peaks=not physical
+                )
                 origin = f"lines of {lead.name}"
             except EstimationError:
                 candidates = []
