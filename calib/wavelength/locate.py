@@ -51,6 +51,7 @@ from calib.wavelength.profile_search import (
     HOPELESS_DELTA_CHI2,
     MappingSearch,
     Orientation,
+    coarse_spectrum,
     deciding_shot,
     search_profiles,
     spectrometer_scale_sigma_nm,
@@ -65,8 +66,6 @@ from calib.wavelength.rig_prior import (
 
 ExactMapping = QuadraticMapping | TiltedGrating
 
-#: A measured lamp spectrum sampled coarser than this (nm) cannot place a fluorescent lamp's lines.
-COARSE_SPECTRUM_NM = 2.0
 #: Absorption features of the built-in solar list that must be found in a measured spectrum for
 #: the dips to be used (sunlight, or a lamp behind an absorbing filter).
 MIN_SPECTRUM_DIPS = 3
@@ -365,12 +364,6 @@ def _spanning(
 def _dips_used(features: FeatureMapping) -> int:
     """How many of the dips a match used (its line fit's count)."""
     return sum(1 for match in features.matches if match.used)
-
-
-def _coarse(observation: LampObservation, limit_nm: float = COARSE_SPECTRUM_NM) -> bool:
-    step = float(np.median(np.diff(observation.spectrum.wavelength_nm)))
-    bandwidth = observation.spectrum_bandwidth_nm or 0.0
-    return max(step, bandwidth) > limit_nm
 
 
 def _hg_lines_shown(
@@ -686,7 +679,7 @@ def locate_mapping(
         dipped = [
             (lamp, _spectrum_dips(lamp))
             for lamp in measured
-            if lamp.kind != "fluorescent" and not _coarse(lamp, DIP_SAMPLING_NM)
+            if lamp.kind != "fluorescent" and not coarse_spectrum(lamp, DIP_SAMPLING_NM)
         ]
         dipped = [(lamp, dips) for lamp, dips in dipped if dips]
         if dipped:
@@ -746,7 +739,7 @@ def locate_mapping(
                 # tables) holds its lines at its nodes, not their wavelengths: the fit stands.
                 lamp = fluorescent[0]
                 try:
-                    if lamp.spectrum_bandwidth_nm is None and _coarse(lamp):
+                    if lamp.spectrum_bandwidth_nm is None and coarse_spectrum(lamp):
                         raise EstimationError(
                             "a coarse tabulated spectrum: the lines are its nodes"
                         )

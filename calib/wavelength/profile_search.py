@@ -1963,9 +1963,17 @@ def _correlation_starts(
     )
 
 
-#: A lamp spectrum sampled or measured more coarsely than this (nm) holds its lines at its nodes
-#: (as :data:`calib.wavelength.locate.COARSE_SPECTRUM_NM`): a camera line's centre is 1–2 nm from it.
-LINE_SPECTRUM_NM = 2.0
+#: A measured lamp spectrum sampled or measured coarser than this (nm) cannot place a fluorescent
+#: lamp's lines: it holds them at its nodes, 1–2 nm from a camera line's centre.
+COARSE_SPECTRUM_NM = 2.0
+
+
+def coarse_spectrum(observation: LampObservation, limit_nm: float = COARSE_SPECTRUM_NM) -> bool:
+    """The lamp's spectrum is sampled, or was measured with a bandwidth, coarser than
+    ``limit_nm``."""
+    step = float(np.median(np.diff(observation.spectrum.wavelength_nm)))
+    bandwidth = observation.spectrum_bandwidth_nm or 0.0
+    return max(step, bandwidth) > limit_nm
 
 
 def deciding_shot(lamps: Sequence[LampObservation], *, bandwidth_hint: bool = False) -> str:
@@ -1987,20 +1995,13 @@ def deciding_shot(lamps: Sequence[LampObservation], *, bandwidth_hint: bool = Fa
         "in the same geometry"
     )
     coarse = [
-        lamp
-        for lamp in line_lamps
-        if lamp.spectrum_bandwidth_nm is None
-        or max(
-            lamp.spectrum_bandwidth_nm,
-            float(np.median(np.diff(lamp.spectrum.wavelength_nm))),
-        )
-        > LINE_SPECTRUM_NM
+        lamp for lamp in line_lamps if lamp.spectrum_bandwidth_nm is None or coarse_spectrum(lamp)
     ]
     if coarse:
         return (
             f"The line lamp {names} was in the scene, but its spectrum is too coarse or has no "
             "stated bandwidth to place its lines: its spectrum measured with a stated bandwidth "
-            f"of ≤ {LINE_SPECTRUM_NM:g} nm (or its built-in line list: --spectrum builtin:hg, "
+            f"of ≤ {COARSE_SPECTRUM_NM:g} nm (or its built-in line list: --spectrum builtin:hg, "
             "builtin:cfl-triphosphor), "
             f"{others}{zeroth} decides it."
         )
