@@ -12,6 +12,7 @@ import pytest
 from calib.core.mapping import QuadraticMapping
 from calib.wavelength.peaks import Peak, match_peak_hypotheses
 from calib.wavelength.profile_search import _with_linear_companions
+from tests.paper_scenes import mapped_fl_paper_scene
 
 # The validation split's Nikon D200 (Jiang) paper scene, seed 12: FL2's lines as a typical camera
 # weighs them (colour's 5 nm table: its nodes) and the profile's peaks, strongest first.
@@ -70,29 +71,6 @@ def test_a_quadratic_start_is_followed_by_the_straight_line_through_its_lines() 
 
 @pytest.mark.slow
 def test_the_fl2_paper_scene_with_a_broadband_lead_lands_right(shared_camera_data: Path) -> None:
-    from calib.core.datasets import makabe2025_split
-    from calib.core.lamp_specs import lamp_from_spec
-    from calib.core.spectra import DEFAULT_GRID
-    from calib.evaluation.synthetic import render_scene
-    from calib.model.bases import camera_basis
-    from calib.wavelength.locate import locate_mapping
-
-    train, _ = makabe2025_split(str(shared_camera_data))
-    index = next(i for i, r in enumerate(train) if r.name.startswith("Nikon D200 (Jiang"))
-    prior = camera_basis(
-        [r.sensitivity for i, r in enumerate(train) if i != index], grid=DEFAULT_GRID
-    ).prior()
-    scene = render_scene(
-        train[index].name,
-        train[index].sensitivity,
-        np.random.default_rng([12, index]),
-        broadband_lamp=lamp_from_spec("D65"),
-        fluorescent_lamp=lamp_from_spec("FL2"),
-        noise_fraction=0.01,
-    )
-    lamps = [scene.broadband.observation, scene.fluorescent.observation]
-    found = locate_mapping(lamps, prior, DEFAULT_GRID)
-    pixel = lamps[0].pixel
-    error = found.exact.wavelength_nm(pixel) - scene.mapping.wavelength_nm(pixel)
+    error = mapped_fl_paper_scene(shared_camera_data, "Nikon D200 (Jiang", 12).error_nm()
     # Base 404c247: 52 nm RMS off, stated 0.25 nm, no warning.
     assert float(np.sqrt(np.mean(error**2))) < 1.0
