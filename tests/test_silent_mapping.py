@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 
 from calib.core.datasets import colour_science_cameras, find_camera
-from calib.core.lamp_specs import lamp_from_spec
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.spectra import DEFAULT_GRID
 from calib.model.bases import fallback_camera_basis
-from calib.model.forward import PeakFractionNoise, render_observation
 from calib.wavelength import profile_search
 from calib.wavelength.coarse_check import COARSE_REJECTION_DELTA_CHI2, CoarseView, coarse_view
 from calib.wavelength.locate import (
@@ -25,6 +23,7 @@ from calib.wavelength.locate import (
 )
 from calib.wavelength.profile_search import Candidate, MappingSearch
 from calib.wavelength.rig_prior import INCIDENCE_PRIOR_DEG
+from tests.test_mapping_search import _short_lens_led as short_lens_led
 
 
 def _line(x: np.ndarray) -> float:
@@ -70,20 +69,10 @@ def test_the_coarser_view_rejects_an_answer_far_behind_its_best_basin():
 
 def _short_lens_led() -> tuple[Any, Any]:
     """The prior without the 5D Mk II and its LED-B3 profile from the direct spot through
-    validation's Pentax Q geometry (as ``tests/test_mapping_search.py``'s short-lens scene)."""
+    validation's Pentax Q geometry (``tests/test_mapping_search.py``'s short-lens scene)."""
     prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
     camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
-    truth = TiltedGrating(1010.4 / 726.0, 726.0, 7.39)
-    pixel = np.arange(308.0, 923.0)
-    observation = render_observation(
-        lamp_from_spec("LED-B3"),
-        camera,
-        mapping=truth,
-        pixel=pixel,
-        noise=PeakFractionNoise(0.005),
-        rng=np.random.default_rng(5),
-        kind="led",
-    ).observation
+    _, _, observation = short_lens_led(camera)
     return prior, replace(observation, pixel_origin="direct_spot")
 
 
