@@ -7,7 +7,6 @@ table, the lines sat on its nodes (546.1 at 545) and the mapping drifted by 1.8 
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 from types import ModuleType
 
@@ -15,19 +14,14 @@ import numpy as np
 import pytest
 
 from calib.methods import coarse_line_spectrum
+from tests.benches import load_bench
 from tests.conftest import SHARED_REAL_GRATING
 
 pytestmark = pytest.mark.shared_data
 
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "real_grating.py"
-
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("real_grating_bench", BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_bench("real_grating.py")
 
 
 @pytest.fixture(scope="module")

@@ -3,27 +3,19 @@ the max-1 normalisation's part."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 import pytest
 
+from tests.benches import load_bench
+
 #: Importing the bench imports the rig (capture, estimate): seconds, so not in the default suite.
 pytestmark = pytest.mark.slow
 
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "twin_coverage.py"
-
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("twin_coverage_bench", BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses resolve their annotations through it
-    spec.loader.exec_module(module)
-    return module
+    return load_bench("twin_coverage.py")
 
 
 def test_the_grid_projection_is_off_the_point_samples_by_the_curvature() -> None:

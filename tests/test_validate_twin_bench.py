@@ -8,8 +8,6 @@ clipping level), so both render the same scene with the same frames.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -26,19 +24,13 @@ from calib.evaluation.validation.protocol import (
 from calib.evaluation.validation.rig_errors import drifted
 from calib.evaluation.validation.scenes import clean_signals, true_lamp
 from calib.evaluation.validation.splits import load_splits
+from tests.benches import load_bench
 
 pytestmark = [pytest.mark.shared_data, pytest.mark.slow]
 
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "validate_twin.py"
-
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("validate_twin_bench", BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses resolve their annotations through it
-    spec.loader.exec_module(module)
-    return module
+    return load_bench("validate_twin.py")
 
 
 def test_the_2d_twin_brackets_each_lamp_as_the_1d_protocol_does(

@@ -3,24 +3,17 @@ from their own stated covariance are calibrated, and the summary says so."""
 
 from __future__ import annotations
 
-import importlib.util
 import re
-from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 
 from calib.core.mapping import QuadraticMapping
-
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "wavelength_validate.py"
+from tests.benches import load_bench
 
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("wavelength_validate_bench", BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_bench("wavelength_validate.py")
 
 
 def _rows(bench: ModuleType, inflate: float) -> list[dict[str, object]]:
