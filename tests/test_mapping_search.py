@@ -645,9 +645,17 @@ def test_an_led_only_mapping_off_by_more_than_3_nm_on_a_dye_shifted_camera_is_wa
     assert solution.details["ambiguity_delta_chi2"] == BROADBAND_AMBIGUITY_DELTA_CHI2
 
 
-def _led_only_solution(task: Any) -> tuple[float, Any]:
-    """The protocol's LED-only scene of ``task`` (LED-B3 with the RAW files' optics) mapped by the
-    search alone: its mean |error| in nm over the grid, and the search's result."""
+def _led_only_solution(task: Any, exif_optics: bool = True) -> tuple[float, Any]:
+    """The protocol's LED-only scene of ``task`` (LED-B3, with the RAW files' optics unless
+    ``exif_optics`` is off) mapped by the search alone: its mean |error| in nm over the grid, and
+    the search's result."""
+    error, solution = led_only_errors(task, exif_optics)
+    return float(np.mean(np.abs(error))), solution
+
+
+def led_only_errors(task: Any, exif_optics: bool = True) -> tuple[np.ndarray, Any]:
+    """:func:`_led_only_solution`'s mapping error (nm) at each pixel inside the grid, and the
+    search's result."""
     from calib.evaluation.validation.protocol import (
         MethodVariant,
         render_task_scene,
@@ -655,15 +663,14 @@ def _led_only_solution(task: Any) -> tuple[float, Any]:
     )
 
     scene = render_task_scene(task)
-    variant = MethodVariant("LED-B3", "prior", tuple(scene.observations))
+    variant = MethodVariant("LED-B3", "prior", tuple(scene.observations), exif_optics=exif_optics)
     lamps = dict(zip(scene.observations, variant_observations(scene, variant), strict=True))
     led = lamps["LED-B3"]
     grid = task.settings.grid
     solution = locate_mapping([led], task.basis.prior(), grid)
     truth = scene.true_wavelength_nm
     inside = (truth >= grid.start_nm) & (truth <= grid.stop_nm)
-    error = solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside]
-    return float(np.mean(np.abs(error))), solution
+    return solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside], solution
 
 
 def test_a_shortlisted_scan_costs_only_the_coarse_lowest_finely():

@@ -24,6 +24,7 @@ from calib.wavelength.locate import (
 from calib.wavelength.profile_search import Candidate, MappingSearch
 from calib.wavelength.rig_prior import INCIDENCE_PRIOR_DEG
 from tests.test_mapping_search import _short_lens_led as short_lens_led
+from tests.test_mapping_search import led_only_errors
 
 
 def _line(x: np.ndarray) -> float:
@@ -172,27 +173,13 @@ def test_the_validation_splits_silent_led_only_mappings_are_warned(
     """Decision 0118: the validation split's LED-only mappings 5–6 nm off at the red end with no
     warning on base f9b561e (seed 0; the S7-Edge prediction without EXIF, the X-A1 prediction with
     and without) are warned, with their stated σ at least half their error's RMS."""
-    from calib.evaluation.validation.protocol import (
-        MethodVariant,
-        ProtocolSettings,
-        render_task_scene,
-        split_tasks,
-        variant_observations,
-    )
+    from calib.evaluation.validation.protocol import ProtocolSettings, split_tasks
     from calib.evaluation.validation.splits import load_splits
 
     splits, _ = load_splits(shared_camera_data, predictions=predictions, seed=0)
     (camera,) = (c for c in splits.validation.cameras if c.name == name)
     (task,) = split_tasks(replace(splits.validation, cameras=(camera,)), ProtocolSettings(seed=0))
-    scene = render_task_scene(task)
-    variant = MethodVariant("LED-B3", "prior", tuple(scene.observations), exif_optics=optics)
-    lamps = dict(zip(scene.observations, variant_observations(scene, variant), strict=True))
-    led = lamps["LED-B3"]
-    grid = task.settings.grid
-    solution = locate_mapping([led], task.basis.prior(), grid)
-    truth = scene.true_wavelength_nm
-    inside = (truth >= grid.start_nm) & (truth <= grid.stop_nm)
-    error = solution.mapping.wavelength_nm(led.pixel[inside]) - truth[inside]
+    error, solution = led_only_errors(task, exif_optics=optics)
     assert np.max(np.abs(error)) > 3.0  # still wrong: the fix warns, it does not move it
     assert solution.ambiguous
     assert "mapping_ambiguous" in solution.details["warning_codes"]
