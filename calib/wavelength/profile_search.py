@@ -45,6 +45,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import QuadraticMapping, TiltedGrating, wavelength_rms_from_covariance
 from calib.core.observations import LampObservation, profile_sigma
 from calib.core.spectra import WavelengthGrid
+from calib.core.spectrometer_scale import scale_sigma_nm
 from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA, WAVELENGTH_SCALE_NM
 from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
@@ -2022,9 +2023,6 @@ def spectrometer_scale_sigma_nm(
     up :data:`BROADBAND_SCALE_TRANSFER` of it (measured, decision 0108); the rest moves the spectra
     against the mapping and is re-solved in the sensitivity's σ budget
     (:func:`calib.methods.uncertainty.spectrometer_sigma`, decision 0117)."""
-    # Imported here so that this function's change stays within it (the module's other owner).
-    from calib.core.spectrometer_scale import scale_sigma_nm
-
     sigmas = [
         SPECTROMETER_SCALE_SIGMA_NM if (checked := scale_sigma_nm(lamp)) is None else checked
         for lamp in lamps
