@@ -15,12 +15,13 @@ from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.spectra import DEFAULT_GRID
 from calib.model.bases import fallback_camera_basis
 from calib.wavelength import profile_search
-from calib.wavelength.coarse_check import COARSE_REJECTION_DELTA_CHI2, CoarseView, coarse_view
+from calib.wavelength.coarse_check import CoarseView, coarse_view
 from calib.wavelength.locate import (
     INCIDENCE_CONFLICT_SIGMAS,
     _incidence_conflict,
     locate_mapping,
 )
+from calib.wavelength.profile_search import AMBIGUITY_DELTA_CHI2 as AMBIGUITY
 from calib.wavelength.profile_search import Candidate, MappingSearch
 from calib.wavelength.rig_prior import INCIDENCE_PRIOR_DEG
 from tests.test_mapping_search import _short_lens_led as short_lens_led
@@ -42,20 +43,31 @@ def test_the_coarser_view_rejects_an_answer_far_behind_its_best_basin():
     def costs_with(gap: float) -> Any:
         return lambda x: np.where(np.asarray(x)[:, 0] == 0.0, 50.0 + gap, 50.0)
 
-    rejected = coarse_view(costs_with(40.0), answer, [(far, 100)], _line, min_distance_nm=1.0)
+    rejected = coarse_view(
+        costs_with(40.0), answer, [(far, 100)], _line, min_distance_nm=1.0, threshold=AMBIGUITY
+    )
     assert isinstance(rejected, CoarseView) and rejected.rejects
     assert rejected.delta_chi2 == pytest.approx(40.0) and rejected.distance_nm == 3.0
     np.testing.assert_array_equal(rejected.x, far)
-    kept = coarse_view(costs_with(10.0), answer, [(far, 100)], _line, min_distance_nm=1.0)
+    kept = coarse_view(
+        costs_with(10.0), answer, [(far, 100)], _line, min_distance_nm=1.0, threshold=AMBIGUITY
+    )
     assert kept is not None and not kept.rejects
     near = coarse_view(
-        costs_with(400.0), answer, [(np.array([0.5]), 100)], _line, min_distance_nm=1.0
+        costs_with(400.0),
+        answer,
+        [(np.array([0.5]), 100)],
+        _line,
+        min_distance_nm=1.0,
+        threshold=AMBIGUITY,
     )
     assert near is not None and not near.rejects
     # A basin fitted at reduced χ² 2 halves the gap: 40 → 20, below the threshold.
-    tempered = coarse_view(costs_with(40.0), answer, [(far, 25)], _line, min_distance_nm=1.0)
+    tempered = coarse_view(
+        costs_with(40.0), answer, [(far, 25)], _line, min_distance_nm=1.0, threshold=AMBIGUITY
+    )
     assert tempered is not None and tempered.delta_chi2 == pytest.approx(20.0)
-    assert not tempered.rejects and 20.0 < COARSE_REJECTION_DELTA_CHI2 < 40.0
+    assert not tempered.rejects
     # The best of several basins is the one compared.
     two = coarse_view(
         lambda x: np.array([90.0, 60.0, 50.0])[: len(x)],
@@ -63,9 +75,13 @@ def test_the_coarser_view_rejects_an_answer_far_behind_its_best_basin():
         [(np.array([-2.0]), 100), (far, 100)],
         _line,
         min_distance_nm=1.0,
+        threshold=AMBIGUITY,
     )
     assert two is not None and two.distance_nm == 3.0 and two.delta_chi2 == pytest.approx(40.0)
-    assert coarse_view(costs_with(40.0), answer, [], _line, min_distance_nm=1.0) is None
+    assert (
+        coarse_view(costs_with(40.0), answer, [], _line, min_distance_nm=1.0, threshold=AMBIGUITY)
+        is None
+    )
 
 
 def _short_lens_led() -> tuple[Any, Any]:
@@ -94,7 +110,7 @@ def test_an_answer_the_coarser_view_rejects_is_warned_with_its_rival(monkeypatch
         # focal length (a rival the search would not otherwise carry).
         rival = np.asarray(answer, dtype=np.float64).copy()
         rival[1] -= 0.02
-        return CoarseView(rival, COARSE_REJECTION_DELTA_CHI2 + 10.0, distance(rival), True)
+        return CoarseView(rival, AMBIGUITY + 10.0, distance(rival), True)
 
     monkeypatch.setattr(profile_search, "coarse_view", rejecting)
     solution = locate_mapping([observation], prior, DEFAULT_GRID)

@@ -40,7 +40,6 @@ from calib.core.arrays import FloatArray
 #: without) any value from 14 to 37 warns the same scenes: the right mappings (mean |Δλ| < 1 nm)
 #: whose coarse best basin lies over 1 nm away stood at most 13 behind it, the two silent wrong ones
 #: 38.
-COARSE_REJECTION_DELTA_CHI2 = 25.0
 
 
 @dataclass(frozen=True)
@@ -74,7 +73,7 @@ def coarse_view(
     distance_nm: Callable[[FloatArray], float],
     *,
     min_distance_nm: float,
-    threshold: float | None = None,
+    threshold: float,
 ) -> CoarseView | None:
     """The coarser view's best basin and its verdict on ``answer`` (see the module docstring);
     ``None`` when no basin (or the answer) has a finite cost there.
@@ -94,10 +93,10 @@ def coarse_view(
     min_distance_nm
         A basin closer than this is the same answer.
     threshold
-        Default :data:`COARSE_REJECTION_DELTA_CHI2`.
+        The Δχ² behind the best basin beyond which the coarser view rejects the answer: the
+        search's own bar for a competing basin
+        (:data:`calib.wavelength.profile_search.AMBIGUITY_DELTA_CHI2`).
     """
-    if threshold is None:
-        threshold = COARSE_REJECTION_DELTA_CHI2
     if not basins:
         return None
     points = np.stack([np.asarray(answer, dtype=np.float64), *(x for x, _ in basins)])
@@ -119,4 +118,4 @@ def coarse_view(
     )
 
 
-__all__ = ["COARSE_REJECTION_DELTA_CHI2", "CoarseView", "coarse_view"]
+__all__ = ["CoarseView", "coarse_view"]

@@ -49,7 +49,7 @@ from calib.core.spectrometer_scale import scale_sigma_nm
 from calib.core.spectrometer_tolerance import IN_SPEC_TOLERANCE_SIGMA, WAVELENGTH_SCALE_NM
 from calib.model.bases import CameraPrior
 from calib.model.resolution import camera_kernel, match_spectrometer
-from calib.wavelength.coarse_check import COARSE_REJECTION_DELTA_CHI2, coarse_view
+from calib.wavelength.coarse_check import coarse_view
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.least_squares import Evaluation, Solution, levenberg_marquardt
 from calib.wavelength.peaks import Peak, fluorescent_starts, lines_and_peaks
@@ -1674,6 +1674,7 @@ def search_profiles(
             ],
             lambda x: float(np.sqrt(np.mean((family.wavelengths(probe, x) - exact_probe) ** 2))),
             min_distance_nm=AMBIGUITY_MIN_DISTANCE_NM,
+            threshold=AMBIGUITY_DELTA_CHI2,
         )
     if coarse is not None and coarse.rejects:
         cost = float(deciding_stage(family).costs(coarse.x[None])[0])
@@ -1693,7 +1694,7 @@ def search_profiles(
             f"the mapping is ambiguous: on the coarser profile ({GLOBAL_BIN_NM:g} nm bins) where "
             f"the search found its basins, the same model puts its best basin {coarse.distance_nm:.1f} "
             f"nm away (RMS) and this answer Δχ² {coarse.delta_chi2:.0f} behind it (above "
-            f"{COARSE_REJECTION_DELTA_CHI2:g}): the camera prior describes {measured[0].name}'s "
+            f"{AMBIGUITY_DELTA_CHI2:g}): the camera prior describes {measured[0].name}'s "
             "camera too poorly for the finer fit to decide; both are in the result and the stated "
             f"σ ({stated:.1f} nm) spans them. " + deciding_shot(lamps)
         )
