@@ -641,16 +641,22 @@ def _slope(curves: FloatArray, wavelength_nm: FloatArray) -> FloatArray:
 
 
 def mapping_sigma(result: EstimateResult) -> tuple[FloatArray, str | None]:
-    """``|∂s/∂λ| σ_λ`` with σ_λ the mapping's own ``wavelength_rms_nm``; a note when it gives none."""
+    """``|∂s/∂λ| σ_λ`` with σ_λ the mapping's own stated σ at each wavelength (the covariance's and
+    the extrapolation past its lines: :meth:`calib.core.mapping.QuadraticMapping.
+    sigma_at_wavelength_nm`, decision 0127); a note when it gives none."""
     zeros = np.zeros_like(result.sensitivity)
     mapping = result.mapping
     if mapping is None:
         return zeros, None
-    rms = mapping.wavelength_rms_nm if isinstance(mapping, QuadraticMapping) else None
-    if rms is None or not math.isfinite(rms):
+    sigma_nm = (
+        mapping.sigma_at_wavelength_nm(result.wavelength_nm)
+        if isinstance(mapping, QuadraticMapping)
+        else None
+    )
+    if sigma_nm is None:
         return zeros, "the mapping states no σ: its error is not in the band"
     slope = _slope(result.physical_sensitivity(), result.wavelength_nm)
-    return np.abs(slope) * float(rms), None
+    return np.abs(slope) * sigma_nm[:, None], None
 
 
 def shifted(observation: LampObservation, shift_nm: float) -> LampObservation:
