@@ -24,8 +24,9 @@ and channel, on the delivered curves' scale (maximum 1):
     data leave open (:func:`data_open_share`): it shrinks where the data pin the curve (decision
     0060).
 ``mapping``
-    The mapping's own stated error (``wavelength_rms_nm``, as the mapping stage gives it, never
-    re-derived here) through the curves' slope: ``|∂s/∂λ| σ_λ``.
+    The mapping's own stated error at each wavelength (its ``sigma_nm``: the covariance's and the
+    extrapolation past its lines, as the mapping stage gives it, never re-derived here; decision
+    0127) through the curves' slope: ``|∂s/∂λ| σ_λ(λ)``.
 ``spectrometer scale`` and ``spectrometer bandwidth``
     By perturbation: the method re-solved (with its mapping fixed, so only the solve runs) with every
     lamp spectrum shifted by the spectrometer's wavelength-scale tolerance (only when the mapping's
