@@ -46,6 +46,10 @@ class QuadraticMapping:
         (:class:`TiltedGrating`): it is what :meth:`wavelength_nm`, :meth:`dispersion_nm_per_px`
         and :meth:`pixel_at` evaluate — the quadratic is then the report format, ``(a, b, c)``
         its least-squares summary over ``pixel_range``.
+    line_reach
+        Where the lamp's lines hold the mapping and how its σ grows past them
+        (:class:`LineReach`), or ``None``. With it, :meth:`sigma_nm` and ``wavelength_rms_nm``
+        state the covariance's σ and the extrapolation past the lines together (decision 0127).
     """
 
     a: float
@@ -57,6 +61,7 @@ class QuadraticMapping:
     wavelength_rms_nm: float | None = None
     details: Mapping[str, Any] = field(default_factory=dict)
     model: TiltedGrating | None = field(default=None, compare=False)
+    line_reach: LineReach | None = None
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(v) for v in (self.a, self.b, self.c)):
@@ -97,9 +102,59 @@ class QuadraticMapping:
         # Stable form of (−b ± √D) / 2a choosing the branch with g' of the right sign.
         return np.asarray((-self.b + slope_sign * root) / (2 * self.a), dtype=np.float64)
 
+    def sigma_nm(self, pixel: ArrayLike) -> FloatArray | None:
+        """The stated σ (nm) of ``g(p)`` at each pixel: the coefficients' covariance and, past the
+        lines' reach, the extrapolation term (:class:`LineReach`) in quadrature; ``None`` without
+        a covariance. Every consumer of the mapping's σ reads this (decision 0127)."""
+        if self.covariance is None:
+            return None
+        return _sigma_nm(self.covariance, pixel, self.line_reach)
+
+    def sigma_at_wavelength_nm(self, wavelength_nm: ArrayLike) -> FloatArray | None:
+        """:meth:`sigma_nm` at the pixel the mapping puts each wavelength (``wavelength_rms_nm``
+        where it states no covariance or does not reach the wavelength); ``None`` when it states
+        no σ at all."""
+        rms = self.wavelength_rms_nm
+        if rms is None or not math.isfinite(rms):
+            return None
+        wavelength = np.asarray(wavelength_nm, dtype=np.float64)
+        constant = np.full(wavelength.shape, float(rms))
+        if self.covariance is None:
+            return constant
+        try:
+            pixel = np.asarray(self.pixel_at(wavelength), dtype=np.float64)
+        except InputError:
+            return constant
+        sigma = _sigma_nm(self.covariance, pixel, self.line_reach)
+        return np.asarray(np.where(np.isfinite(sigma), sigma, constant), dtype=np.float64)
+
+    def with_line_reach(self, reach: LineReach | None) -> QuadraticMapping:
+        """A copy stating ``reach``: its ``wavelength_rms_nm`` the RMS of :meth:`sigma_nm` over
+        ``pixel_range`` (unchanged without a covariance or a pixel range)."""
+        changes: dict[str, Any] = {"line_reach": None if reach is None else reach.to_dict()}
+        if self.covariance is not None and self.pixel_range is not None:
+            changes["wavelength_rms_nm"] = wavelength_rms_from_covariance(
+                self.covariance, self.pixel_range, reach
+            )
+        return self.with_details(**changes)
+
     def with_details(self, **changes: Any) -> QuadraticMapping:
-        """A copy with fields replaced (``method``, ``covariance`` …)."""
+        """A copy with fields replaced (``method``, ``covariance`` …). A mapping with a
+        :attr:`line_reach` whose covariance is replaced states its RMS with the reach: the
+        ``wavelength_rms_nm`` is recomputed (a caller passes the covariance's own)."""
         values = {**self.to_dict(), **changes}
+        reach = values.get("line_reach")
+        if (
+            "covariance" in changes
+            and reach is not None
+            and values.get("covariance") is not None
+            and values.get("pixel_range") is not None
+        ):
+            values["wavelength_rms_nm"] = wavelength_rms_from_covariance(
+                values["covariance"],
+                tuple(values["pixel_range"]),
+                reach if isinstance(reach, LineReach) else LineReach.from_dict(reach),
+            )
         return QuadraticMapping.from_dict(values)
 
     def to_dict(self) -> dict[str, Any]:
@@ -112,6 +167,7 @@ class QuadraticMapping:
             "pixel_range": list(self.pixel_range) if self.pixel_range else None,
             "covariance": [list(row) for row in self.covariance] if self.covariance else None,
             "wavelength_rms_nm": self.wavelength_rms_nm,
+            **({} if self.line_reach is None else {"line_reach": self.line_reach.to_dict()}),
             "details": dict(self.details),
             **({} if self.model is None else {"model": self.model.to_dict()}),
         }
@@ -122,6 +178,7 @@ class QuadraticMapping:
             covariance = data.get("covariance")
             pixel_range = data.get("pixel_range")
             model = data.get("model")
+            reach = data.get("line_reach")
             return cls(
                 a=float(data["a"]),
                 b=float(data["b"]),
@@ -136,6 +193,11 @@ class QuadraticMapping:
                 else float(data["wavelength_rms_nm"]),
                 details=dict(data.get("details") or {}),
                 model=None if model is None else TiltedGrating.from_dict(model),
+                line_reach=None
+                if reach is None
+                else reach
+                if isinstance(reach, LineReach)
+                else LineReach.from_dict(reach),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError(f"not a quadratic mapping record ({exc})", source="mapping") from None
@@ -185,15 +247,91 @@ class QuadraticMapping:
         )
 
 
+@dataclass(frozen=True)
+class LineReach:
+    """How far a mapping's lamp lines reach, and the σ of its extrapolation past them (decision 0127).
+
+    Between its outermost lines (``pixel_range``, at ``wavelength_range_nm``) a line lamp's
+    sharp features hold the mapping; past them only broadband shapes do, through the camera
+    prior's ends. In the quadratic family (profiles of arbitrary origin) nothing else holds the
+    curvature there: the mapping's departure from its straight continuation (value and slope) at
+    the outermost line, ``|a| (p − p_line)²``, is stated as its σ past the line — the curvature
+    taken as unknown to 100 %, no constant fitted (decision 0122 measured it: the validation
+    split's fits 1–3 nm off at the red end with a curvature σ of 0.1–0.5 nm). Inside the reach the
+    term is zero. In the physical family (the 0th order pins the grating equation) the curvature
+    is the geometry's, carried by the covariance: ``curvature_nm_per_px2`` is 0 and only the reach
+    is recorded.
+
+    Attributes
+    ----------
+    pixel_range
+        ``(low, high)`` pixels of the outermost lines.
+    wavelength_range_nm
+        Their wavelengths (bluest, reddest).
+    curvature_nm_per_px2
+        ``|a|`` of the term (≥ 0).
+    """
+
+    pixel_range: tuple[float, float]
+    wavelength_range_nm: tuple[float, float]
+    curvature_nm_per_px2: float = 0.0
+
+    def __post_init__(self) -> None:
+        values = (*self.pixel_range, *self.wavelength_range_nm, self.curvature_nm_per_px2)
+        if not all(math.isfinite(v) for v in values) or self.curvature_nm_per_px2 < 0:
+            raise InputError(f"not a line reach: {values}", source="mapping")
+
+    def sigma_nm(self, pixel: ArrayLike) -> FloatArray:
+        """The extrapolation term at each pixel: 0 within the reach, ``|a| d²`` at ``d`` px past it."""
+        p = np.asarray(pixel, dtype=np.float64)
+        low, high = sorted(self.pixel_range)
+        past = np.maximum(low - p, 0.0) + np.maximum(p - high, 0.0)
+        return np.asarray(self.curvature_nm_per_px2 * past**2, dtype=np.float64)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "pixel_range": [float(v) for v in self.pixel_range],
+            "wavelength_range_nm": [float(v) for v in self.wavelength_range_nm],
+            "curvature_nm_per_px2": self.curvature_nm_per_px2,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> LineReach:
+        try:
+            pixels, wavelengths = data["pixel_range"], data["wavelength_range_nm"]
+            return cls(
+                (float(pixels[0]), float(pixels[1])),
+                (float(wavelengths[0]), float(wavelengths[1])),
+                float(data.get("curvature_nm_per_px2", 0.0)),
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(f"not a line-reach record ({exc})", source="mapping") from None
+
+
+def _sigma_nm(
+    covariance: ArrayLike, pixel: ArrayLike, reach: LineReach | None = None
+) -> FloatArray:
+    """σ of ``g(p)`` at each pixel from the covariance of (a, b, c) and the extrapolation past
+    ``reach`` in quadrature."""
+    p = np.asarray(pixel, dtype=np.float64)
+    design = np.stack([p**2, p, np.ones_like(p)], axis=-1)
+    variance = np.clip(
+        np.einsum("...j,jk,...k->...", design, np.asarray(covariance, dtype=np.float64), design),
+        0.0,
+        None,
+    )
+    if reach is not None:
+        variance = variance + reach.sigma_nm(p) ** 2
+    return np.asarray(np.sqrt(variance), dtype=np.float64)
+
+
 def wavelength_rms_from_covariance(
-    covariance: ArrayLike, pixel_range: tuple[float, float]
+    covariance: ArrayLike, pixel_range: tuple[float, float], reach: LineReach | None = None
 ) -> float:
-    """RMS over ``pixel_range`` of the standard deviation of ``g(p)`` given the covariance of (a, b, c)."""
-    cov = np.asarray(covariance, dtype=np.float64)
+    """RMS over ``pixel_range`` of the standard deviation of ``g(p)`` given the covariance of
+    (a, b, c) — and the extrapolation past ``reach``'s lines when given (:class:`LineReach`)."""
     p = np.linspace(pixel_range[0], pixel_range[1], 64)
-    design = np.stack([p**2, p, np.ones_like(p)], axis=1)
-    variance = np.einsum("ij,jk,ik->i", design, cov, design)
-    return float(np.sqrt(np.mean(np.clip(variance, 0, None))))
+    return float(np.sqrt(np.mean(_sigma_nm(covariance, p, reach) ** 2)))
 
 
 @dataclass(frozen=True)

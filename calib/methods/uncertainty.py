@@ -24,8 +24,9 @@ and channel, on the delivered curves' scale (maximum 1):
     data leave open (:func:`data_open_share`): it shrinks where the data pin the curve (decision
     0060).
 ``mapping``
-    The mapping's own stated error (``wavelength_rms_nm``, as the mapping stage gives it, never
-    re-derived here) through the curves' slope: ``|∂s/∂λ| σ_λ``.
+    The mapping's own stated error at each wavelength (its ``sigma_nm``: the covariance's and the
+    extrapolation past its lines, as the mapping stage gives it, never re-derived here; decision
+    0127) through the curves' slope: ``|∂s/∂λ| σ_λ(λ)``.
 ``spectrometer scale`` and ``spectrometer bandwidth``
     By perturbation: the method re-solved (with its mapping fixed, so only the solve runs) with every
     lamp spectrum shifted by the spectrometer's wavelength-scale tolerance (only when the mapping's
@@ -641,16 +642,22 @@ def _slope(curves: FloatArray, wavelength_nm: FloatArray) -> FloatArray:
 
 
 def mapping_sigma(result: EstimateResult) -> tuple[FloatArray, str | None]:
-    """``|∂s/∂λ| σ_λ`` with σ_λ the mapping's own ``wavelength_rms_nm``; a note when it gives none."""
+    """``|∂s/∂λ| σ_λ`` with σ_λ the mapping's own stated σ at each wavelength (the covariance's and
+    the extrapolation past its lines: :meth:`calib.core.mapping.QuadraticMapping.
+    sigma_at_wavelength_nm`, decision 0127); a note when it gives none."""
     zeros = np.zeros_like(result.sensitivity)
     mapping = result.mapping
     if mapping is None:
         return zeros, None
-    rms = mapping.wavelength_rms_nm if isinstance(mapping, QuadraticMapping) else None
-    if rms is None or not math.isfinite(rms):
+    sigma_nm = (
+        mapping.sigma_at_wavelength_nm(result.wavelength_nm)
+        if isinstance(mapping, QuadraticMapping)
+        else None
+    )
+    if sigma_nm is None:
         return zeros, "the mapping states no σ: its error is not in the band"
     slope = _slope(result.physical_sensitivity(), result.wavelength_nm)
-    return np.abs(slope) * float(rms), None
+    return np.abs(slope) * sigma_nm[:, None], None
 
 
 def shifted(observation: LampObservation, shift_nm: float) -> LampObservation:

@@ -137,6 +137,22 @@ def _summary_rows(
             )
         )
         rows.append(("mapping found by", getattr(mapping, "method", "—")))
+        ends = mapping.sigma_at_wavelength_nm(result.wavelength_nm[[0, -1]])
+        if ends is not None:
+            reach = mapping.line_reach
+            rows.append(
+                (
+                    "mapping σ at the grid's ends",
+                    f"{ends[0]:.2g} nm at {result.wavelength_nm[0]:g} nm, {ends[1]:.2g} nm at "
+                    f"{result.wavelength_nm[-1]:g} nm"
+                    + (
+                        ""
+                        if reach is None
+                        else f" (lines reach {reach.wavelength_range_nm[0]:.0f}–"
+                        f"{reach.wavelength_range_nm[1]:.0f} nm)"
+                    ),
+                )
+            )
     rows.append(("mapping RE estimate", format_re(result.mapping_re_estimate)))
     truth = delivered.truth
     if truth is not None:

@@ -258,13 +258,10 @@ def plot_grating_orders(
 
 
 def mapping_sigma_nm(mapping: Any, pixel: FloatArray) -> FloatArray | None:
-    """σ of g(p) at ``pixel`` from the quadratic fit's covariance, or ``None``."""
-    covariance = getattr(mapping, "covariance", None)
-    if covariance is None:
-        return None
-    design = np.stack([pixel**2, pixel, np.ones_like(pixel)], axis=1)
-    variance = np.einsum("ij,jk,ik->i", design, np.asarray(covariance, dtype=np.float64), design)
-    return np.asarray(np.sqrt(np.clip(variance, 0.0, None)), dtype=np.float64)
+    """The mapping's stated σ of g(p) at ``pixel`` (its covariance's and the extrapolation past its
+    lines: :meth:`calib.core.mapping.QuadraticMapping.sigma_nm`), or ``None``."""
+    sigma = getattr(mapping, "sigma_nm", None)
+    return None if sigma is None else sigma(pixel)
 
 
 def plot_mapping(

@@ -40,7 +40,12 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError, InputError
 from calib.core.line_lists import Line, builtin_lines, is_builtin, line_list
-from calib.core.mapping import QuadraticMapping, TiltedGrating, wavelength_rms_from_covariance
+from calib.core.mapping import (
+    LineReach,
+    QuadraticMapping,
+    TiltedGrating,
+    wavelength_rms_from_covariance,
+)
 from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
@@ -521,48 +526,37 @@ def _line_misplacement_nm(
     return float(np.sqrt(np.mean(np.square(misplaced)))) if misplaced else None
 
 
-def _beyond_lines_sigma_nm(
-    lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid, lead: LampObservation
-) -> dict[str, Any] | None:
-    """The σ (nm) of a quadratic whole-profile fit where it extrapolates past a line lamp's lines
-    (decision 0122), or ``None`` when the lines span the grid.
-
-    Between its outermost lines (the Hg lines the lamp shows, :func:`_hg_lines_shown`) a line
-    lamp's sharp peaks hold the fit's curvature; past them only the broadband shapes do, through
-    the camera prior's red (or blue) end, and there the validation split's fits were 1–3 nm off
-    with σ 0.1–0.5 nm (the likelihood's own bias: decision 0121's 5D Mk II). The quadratic's
-    departure from its straight continuation past the last line — the part of the mapping no line
-    supports — is stated as its σ there: no constant, only the fit's own extrapolated curvature.
-    Returned: ``rms_nm`` over the profile's pixels inside ``grid`` (zero within the lines), the
-    σ at the grid's ends and the lines' reach."""
+def _hg_reach_nm(
+    lamp: LampObservation, mapping: ExactMapping, grid: WavelengthGrid
+) -> tuple[float, float] | None:
+    """The bluest and reddest Hg lines a measured fluorescent lamp shows inside ``grid``
+    (:func:`_hg_lines_shown`) — how far its lines hold a whole-profile fit they did not correct
+    (decision 0122) — or ``None`` with fewer than two."""
     lines, _, _ = _hg_lines_shown(lamp, mapping, grid)
     inside = [
         line.wavelength_nm for line in lines if grid.start_nm <= line.wavelength_nm <= grid.stop_nm
     ]
-    if len(inside) < 2:
-        return None
-    reach = (min(inside), max(inside))
+    return (min(inside), max(inside)) if len(inside) >= 2 else None
+
+
+def _line_reach(
+    reach_nm: tuple[float, float], exact: ExactMapping, lead: LampObservation
+) -> LineReach:
+    """The :class:`~calib.core.mapping.LineReach` of lines spanning ``reach_nm`` under ``exact``:
+    in the quadratic family its curvature is the fit's own ``|a|`` (the departure from the
+    straight continuation at the outermost line, decision 0122); in the physical family 0 (the
+    grating equation, pinned by the 0th order, carries the mapping past the lines, and its
+    covariance states how well)."""
     pixel = np.asarray(lead.pixel, dtype=np.float64)
-    at_nm = np.asarray(mapping.wavelength_nm(pixel), dtype=np.float64)
+    at_nm = np.asarray(exact.wavelength_nm(pixel), dtype=np.float64)
     order = np.argsort(at_nm)
-    beyond = np.zeros_like(at_nm)
-    ends = []
-    for edge, outside in ((reach[0], at_nm < reach[0]), (reach[1], at_nm > reach[1])):
-        edge_px = float(np.interp(edge, at_nm[order], pixel[order]))
-        slope = float(_local_dispersion(mapping, np.array([edge_px]))[0])
-        straight = edge + slope * (pixel - edge_px)
-        beyond[outside] = (at_nm - straight)[outside]
-        ends.append(edge_px)
-    within = (at_nm >= grid.start_nm) & (at_nm <= grid.stop_nm)
-    if not np.any(within):
-        return None
-    rms_nm = float(np.sqrt(np.mean(beyond[within] ** 2)))
-    at_ends = np.interp([grid.start_nm, grid.stop_nm], at_nm[order], np.abs(beyond)[order])
-    return {
-        "rms_nm": rms_nm,
-        "sigma_at_grid_ends_nm": [float(v) for v in at_ends],
-        "lines_reach_nm": [float(v) for v in reach],
-    }
+    ends = np.interp(np.asarray(reach_nm), at_nm[order], pixel[order])
+    curvature = abs(exact.a) if isinstance(exact, QuadraticMapping) else 0.0
+    return LineReach(
+        (float(min(ends)), float(max(ends))),
+        (float(reach_nm[0]), float(reach_nm[1])),
+        float(curvature),
+    )
 
 
 def _directions(lead: LampObservation, orientation: Orientation) -> tuple[int, ...]:
@@ -631,6 +625,8 @@ def locate_mapping(
     # σ of a whole-profile fit that a measured lamp's lines could not correct, from how far it
     # misplaces them (when larger than the fit's own).
     fallback_sigma_nm: float | None = None
+    # How far (nm) the lamp lines that hold the mapping reach (decision 0127).
+    reach_nm: tuple[float, float] | None = None
 
     def profile_search() -> MappingSearch:
         return search_profiles(
@@ -769,18 +765,11 @@ def locate_mapping(
                             fallback_sigma_nm = misplaced_nm
                     if note:
                         details["known_lines_note"] = f"lamp {lamp.name!r}: {note}"
-                    beyond = (
-                        _beyond_lines_sigma_nm(lamp, search.exact, grid, lead)
-                        if lead.pixel_origin != "direct_spot" and stated_nm is not None
-                        else None
-                    )
-                    if beyond is not None and beyond["rms_nm"] > 0:
-                        # The quadratic family only: a grating family's curvature is its
-                        # geometry's (the 0th order pins it), not a free coefficient.
-                        details["beyond_lines"] = beyond
-                        fallback_sigma_nm = math.hypot(
-                            fallback_sigma_nm or stated_nm or 0.0, beyond["rms_nm"]
-                        )
+                    if isinstance(search.exact, QuadraticMapping) and stated_nm is not None:
+                        # The quadratic family: past the lines the lamp shows the fit's
+                        # curvature is held by nothing (the mapping's line reach, decision
+                        # 0127); a grating family's is its geometry's (the 0th order pins it).
+                        reach_nm = _hg_reach_nm(lamp, search.exact, grid)
                     slit_nm = max(other.spectrum_bandwidth_nm or 0.0 for other in measured)
                     if slit_nm > COARSE_SLIT_NM:
                         # Nothing corrects a whole-profile fit through a broad slit: its model
@@ -867,10 +856,9 @@ def locate_mapping(
                 + deciding_shot(lamps)
                 + " So does the camera's optics (EXIF focal length)."
             )
-        red_end, note = _red_end(features, mapping, grid)
-        details["red_end"] = red_end
-        if note:
-            extrapolated.append(note)
+        used = [m.wavelength_nm for m in features.matches if m.used]
+        if used:
+            reach_nm = (min(used), max(used))
         if search is not None:
             probe = np.linspace(lead.pixel[0], lead.pixel[-1], 64)
             apart = float(
@@ -899,11 +887,7 @@ def locate_mapping(
                 (float(lead.pixel[0]), float(lead.pixel[-1])),
             )
             details["profile_fit_sigma_nm"] = search.mapping.wavelength_rms_nm
-            details["wavelength_rms_from"] = (
-                "the measured lamp's lines, misplaced by the fit"
-                if "beyond_lines" not in details
-                else "the fit's own σ, its lines' misplacement and its extrapolation past them"
-            )
+            details["wavelength_rms_from"] = "the measured lamp's lines, misplaced by the fit"
         if (
             stored is None
             and geometry is None
@@ -920,6 +904,13 @@ def locate_mapping(
                 details["incidence_conflict_sigmas"] = _incidence_sigmas(search)
                 ambiguity_warnings.append(text)
     _check_monotonic(exact, lead)
+    if reach_nm is not None:
+        # One σ past the lines for every consumer: the mapping carries it (decision 0127).
+        mapping = mapping.with_line_reach(_line_reach(reach_nm, exact, lead))
+        red_end, note = _red_end(mapping, grid)
+        details["red_end"] = red_end
+        if note:
+            extrapolated.append(note)
     # The quality code of each warning (calib.core.result.QUALITY_CODES): the profile search warns
     # only of competing basins; this function's own warnings are about the lines against the fit,
     # and about a mapping extrapolated beyond its lines.
@@ -1182,42 +1173,52 @@ def _check_line_fit(
         )
 
 
-#: σ (nm) of the mapping at the working grid's ends beyond which a mapping extrapolated past its
-#: lamp's lines is reported (a 1 nm shift moves a camera's steep flanks by several per cent).
+#: σ (nm) of a mapping's extrapolation past its lamp's reddest line, at the working grid's red
+#: end, beyond which it is reported (a 1 nm shift moves a camera's steep flanks by several per
+#: cent).
 EXTRAPOLATED_SIGMA_NM = 1.0
 
 
-def _red_end(
-    features: FeatureMapping, mapping: QuadraticMapping, grid: WavelengthGrid
-) -> tuple[dict[str, Any], str | None]:
-    """How far the lines reach and the mapping's stated σ at the grid's ends; a note when the
-    mapping is extrapolated past them with σ above :data:`EXTRAPOLATED_SIGMA_NM`."""
-    used = [m for m in features.matches if m.used]
-    if not used or mapping.covariance is None:
+def _red_end(mapping: QuadraticMapping, grid: WavelengthGrid) -> tuple[dict[str, Any], str | None]:
+    """How far the lines reach and the mapping's stated σ (:meth:`~calib.core.mapping.
+    QuadraticMapping.sigma_nm`: the covariance's and the extrapolation past the lines) at the
+    grid's ends; a note when what carries the mapping past its reddest line leaves it uncertain
+    by more than :data:`EXTRAPOLATED_SIGMA_NM` at the grid's red end: in the quadratic family the
+    line reach's term (the curvature nothing holds there), in the physical family the grating
+    equation, whose σ there is its covariance's (the reach's term is 0)."""
+    reach = mapping.line_reach
+    if reach is None or mapping.covariance is None:
         return {}, None
-    reach = (min(m.wavelength_nm for m in used), max(m.wavelength_nm for m in used))
+    lines = reach.wavelength_range_nm
     ends = np.array([grid.start_nm, grid.stop_nm])
-    covariance = np.asarray(mapping.covariance, dtype=np.float64)
-    sigma = []
-    for wavelength in ends:
-        try:
-            pixel = float(mapping.pixel_at(np.array([wavelength]))[0])
-        except InputError:
-            pixel = float("nan")
-        design = np.array([pixel**2, pixel, 1.0])
-        sigma.append(float(np.sqrt(max(design @ covariance @ design, 0.0))))
+    try:
+        pixel = np.asarray(mapping.pixel_at(ends), dtype=np.float64)
+    except InputError:
+        pixel = np.full(2, np.nan)
+    stated = mapping.sigma_nm(pixel)
+    assert stated is not None
+    sigma = [float(v) for v in stated]
+    extrapolation = [float(v) for v in reach.sigma_nm(pixel)]
+    quadratic = reach.curvature_nm_per_px2 > 0
+    carried_nm = extrapolation[1] if quadratic else sigma[1]
     record = {
-        "lines_reach_nm": list(reach),
+        "lines_reach_nm": list(lines),
         "sigma_at_grid_ends_nm": sigma,
+        "extrapolation_at_grid_ends_nm": extrapolation,
         "grid_ends_nm": [float(v) for v in ends],
     }
-    if not (sigma[1] > EXTRAPOLATED_SIGMA_NM and grid.stop_nm > reach[1]):
+    if not (carried_nm > EXTRAPOLATED_SIGMA_NM and grid.stop_nm > lines[1]):
         return record, None
+    if quadratic:
+        how = f"by the quadratic fit, whose curvature no line holds there (σ {carried_nm:.1f} nm)"
+        pins = "or the 0th order in the frame (the grating equation then carries it)"
+    else:
+        how = "by the grating equation"
+        pins = "as does the grating's known line density"
     return record, (
-        f"beyond its reddest line ({reach[1]:.0f} nm) the mapping is extrapolated by the grating "
-        f"equation: σ {sigma[1]:.1f} nm at {grid.stop_nm:g} nm. A lamp with red lines in the same "
-        "geometry pins it — a tri-phosphor CFL (Eu 611 nm) or a neon lamp — as does the grating's "
-        "known line density"
+        f"beyond its reddest line ({lines[1]:.0f} nm) the mapping is extrapolated {how}: "
+        f"σ {sigma[1]:.1f} nm at {grid.stop_nm:g} nm. A lamp with red lines in the same geometry "
+        f"pins it — a tri-phosphor CFL (Eu 611 nm) or a neon lamp — {pins}"
     )
 
 

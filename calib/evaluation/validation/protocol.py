@@ -314,13 +314,12 @@ def sensitivity_scores(
 def mapping_sigma_nm(
     mapping: QuadraticMapping | GratingGeometry, pixel: FloatArray
 ) -> FloatArray | None:
-    """The stated σ of ``g(p)`` at each pixel from the mapping's covariance, or ``None``."""
-    if not isinstance(mapping, QuadraticMapping) or mapping.covariance is None:
+    """The stated σ of ``g(p)`` at each pixel (the mapping's own: its covariance's and the
+    extrapolation past its lines, :meth:`calib.core.mapping.QuadraticMapping.sigma_nm`), or
+    ``None``."""
+    if not isinstance(mapping, QuadraticMapping):
         return None
-    design = np.stack([pixel**2, pixel, np.ones_like(pixel)], axis=1)
-    covariance = np.asarray(mapping.covariance, dtype=np.float64)
-    variance = np.einsum("ij,jk,ik->i", design, covariance, design)
-    return np.asarray(np.sqrt(np.clip(variance, 0.0, None)), dtype=np.float64)
+    return mapping.sigma_nm(pixel)
 
 
 def mapping_scores(
