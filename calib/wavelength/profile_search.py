@@ -178,10 +178,10 @@ PRIOR_MISFIT_COHERENCE = 2.0
 #: the coarse view's σ — a per-scene measurement of the pull, not a rule. The coarse view's
 #: curvature σ is √(2.5 nm / 1 nm) ≈ 1.6 × the deciding fit's from the binning alone and wider
 #: with its stiffer response: this factor, 2, was chosen with the coherence on the validation split
-#: only (decision 0128: 0, 1, 1.5, …, 3 against coherences 0, 2, 3, …, 6; of the pairs that kept every
-#: validation group's ±2σ in 85–98 % and its calibrated median within 2× on both seeds, with and
-#: without EXIF, the one whose σ told the scenes apart best — the 10–90 % spread of actual/stated
-#: error over the unwarned scenes fell from 5.3–5.9× to 3.5–4.7×).
+#: only (decision 0128: 0, 1, 1.5, …, 3 against coherences 0, 2, 3, …, 6; of the pairs that kept
+#: every validation group's ±2σ in 85–98 % and its calibrated median within 2× on both seeds, with
+#: and without EXIF, the one whose σ told the scenes apart best — the 10–90 % spread of
+#: actual/stated error over the unwarned scenes fell from 5.3–6.7× to 3.5–4.7× per run).
 VIEW_DISAGREEMENT_SCALE = 2.0
 #: A deciding fit whose reduced χ² (the basins' temper) exceeds this fits the camera prior too badly
 #: for its likelihood to pick the basin: the result warns (``mapping_ambiguous``) and its σ reaches
