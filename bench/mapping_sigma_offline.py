@@ -13,7 +13,14 @@ For choosing on the validation split only.
 
 ``--coherence C`` states the prior's pull as :func:`~calib.wavelength.profile_search.prior_misfit_sigma_nm`
 does since decision 0117 (C × the row's curvature σ × √(reduced χ² − 1)) instead of the stored term
-re-scaled; ``--by-group`` prints each camera group on its own line.
+re-scaled; ``--view V`` adds the coarser view's disagreement to it as decision 0128 does
+(C² × (χ²ᵣ − 1) + V² × the coarse view's Δχ², under the square root; needs ``--coherence``);
+``--by-group`` prints each camera group on its own line. Each line also says how well σ tells the
+scenes apart: the spread (10–90 %, as a factor) of actual/stated error over the unwarned scenes,
+against the spread a calibrated σ of the rows' own shape would leave (their stored
+``calibrated_ratios``).
+
+    python bench/mapping_sigma_offline.py /tmp/val.csv --scale 0.1039 --coherence 3 --view 2 --by-group
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ def restated(
     misfit_factor: float,
     misfit_power: float = 0.5,
     coherence: float | None = None,
+    view: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """The row's 32 errors, their σ under the new constants and the new RMS ratio."""
     errors = np.array(json.loads(row["errors_nm"]))
@@ -50,7 +58,9 @@ def restated(
     pull = misfit * fit_temper ** (misfit_power - 0.5) if misfit > 0 else 0.0
     if coherence is not None:
         # Every ``led`` row is a broadband-only search (the LED alone).
-        pull = coherence * local * math.sqrt(max(fit_temper - 1.0, 0.0))
+        disagreement = float(row.get("coarse_delta_chi2") or "nan")
+        disagreement = max(disagreement, 0.0) if math.isfinite(disagreement) else 0.0
+        pull = local * math.sqrt(coherence**2 * max(fit_temper - 1.0, 0.0) + view**2 * disagreement)
     scale_old = float(row["spectrometer_scale_sigma_nm"])
     basins = json.loads(row["basins"])
     spread_old = float(row["basin_spread_nm"])
@@ -77,6 +87,20 @@ def restated(
     return errors, new_sigmas, float(row["ratio"]) / factor
 
 
+def spread(ratios: list[float]) -> float:
+    """The 10–90 % spread of actual/stated error ratios, as a factor (1: σ follows the error
+    exactly scene by scene)."""
+    low, high = np.percentile(np.log(ratios), [10.0, 90.0])
+    return float(math.exp(high - low))
+
+
+def calibrated_spread(rows: list[dict[str, Any]]) -> float:
+    """The spread :func:`spread` a calibrated σ of the rows' own shape leaves: the median over the
+    rows' stored draws (one draw per row at a time)."""
+    draws = np.array([json.loads(row["calibrated_ratios"]) for row in rows])
+    return float(np.median([spread(list(draws[:, k])) for k in range(draws.shape[1])]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("csv", nargs="+")
@@ -87,6 +111,9 @@ def main() -> None:
     parser.add_argument("--misfit-power", default="0.5", help="the pull ∝ reduced χ² to this")
     parser.add_argument("--group", default=None, help="only rows of this group")
     parser.add_argument("--coherence", default=None, help="the pull as C × curvature × √(χ²ᵣ − 1)")
+    parser.add_argument(
+        "--view", default="0", help="with --coherence: + V² × the coarse view's Δχ² (commas)"
+    )
     parser.add_argument("--by-group", action="store_true", help="one line per camera group")
     args = parser.parse_args()
     rows = []
@@ -111,27 +138,43 @@ def main() -> None:
             )
         )
     )
-    settings: list[tuple[tuple[float, ...], float | None]] = [
-        (values, coherence) for values in grid for coherence in coherences
+    views = [float(v) for v in args.view.split(",")]
+    if args.coherence is None and views != [0.0]:
+        parser.error("--view needs --coherence")
+    settings: list[tuple[tuple[float, ...], float | None, float]] = [
+        (values, coherence, view) for values in grid for coherence in coherences for view in views
     ]
     groups = sorted({r["group"] for r in rows}) if args.by_group else [None]
-    for (scale, local_scale, temper, misfit, power), coherence in settings:
-        pull = f"(χ²^{power:g})" if coherence is None else f"coherence {coherence:g}"
+    for (scale, local_scale, temper, misfit, power), coherence, view in settings:
+        pull = (
+            f"(χ²^{power:g})"
+            if coherence is None
+            else f"coherence {coherence:g}" + (f" view {view:g}" if view else "")
+        )
         for group in groups:
-            covered, ratios = [], []
+            covered, ratios, unwarned, unwarned_rows = [], [], [], []
             for row in rows:
                 if group is not None and row["group"] != group:
                     continue
                 errors, sigmas, ratio = restated(
-                    row, scale, local_scale, temper, misfit, power, coherence
+                    row, scale, local_scale, temper, misfit, power, coherence, view
                 )
                 covered.append(float(np.mean(np.abs(errors) <= 2.0 * sigmas)))
                 ratios.append(ratio)
+                if row["ambiguous"] not in ("True", "1") and ratio > 0:
+                    unwarned.append(ratio)
+                    unwarned_rows.append(row)
+            told = (
+                f", spread (unwarned, 10–90 %) {spread(unwarned):.2f}× "
+                f"(calibrated {calibrated_spread(unwarned_rows):.2f}×)"
+                if len(unwarned) >= 5
+                else ""
+            )
             print(
                 f"scale {scale:.3f} local×{local_scale:g} temper {temper:g} misfit×{misfit:g} "
                 f"{pull}{'' if group is None else f' [{group}, {len(ratios)}]'}: "
                 f"±2σ {100 * np.mean(covered):.2f} %, ratio median {np.median(ratios):.2f}, "
-                f"cameras ≥ 85 % covered {100 * np.mean(np.array(covered) >= 0.85):.1f} %"
+                f"cameras ≥ 85 % covered {100 * np.mean(np.array(covered) >= 0.85):.1f} %{told}"
             )
 
 

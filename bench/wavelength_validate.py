@@ -301,6 +301,11 @@ def led_row(
                 for c in candidates
             ]
         ),
+        # Everything else the search recorded (the grating's parameters and prior, the coarse
+        # view, …): per-scene quantities known at estimate time, for judging a σ offline.
+        "search_details": json.dumps(
+            {k: v for k, v in solution.details.items() if k != "candidates"}, default=str
+        ),
         "cpu_s": cpu_s,
     }
 

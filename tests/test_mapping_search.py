@@ -336,10 +336,11 @@ def test_a_profile_the_prior_fits_badly_warns_and_widens_sigma(prior, camera, mo
             assert other["delta_chi2"] >= BROADBAND_AMBIGUITY_DELTA_CHI2
     stated = quiet.mapping.wavelength_rms_nm
     assert stated is not None
-    assert stated >= prior_misfit_sigma_nm(temper, quiet.details["local_rms_nm"])
-    assert quiet.details["prior_misfit_sigma_nm"] == pytest.approx(
-        prior_misfit_sigma_nm(temper, quiet.details["local_rms_nm"])
-    )
+    # The pull also holds the coarser view's disagreement with the answer (decision 0128).
+    view = quiet.details["coarse_view"]["delta_chi2"]
+    pull = prior_misfit_sigma_nm(temper, quiet.details["local_rms_nm"], view)
+    assert stated >= pull
+    assert quiet.details["prior_misfit_sigma_nm"] == pytest.approx(pull)
     monkeypatch.setattr(profile_search, "MISFIT_WARN_TEMPER", 0.5)
     warned = locate_mapping([observation], prior, DEFAULT_GRID)
     assert warned.ambiguous

@@ -159,17 +159,30 @@ BASIN_TEMPER = 3.0
 #: both covers them and stays honest on the others; kept (it serves line-lamp searches, not judged).
 LOCAL_SIGMA_SCALE = 2.0
 #: The camera prior's pull on a mapping found from broadband lamps alone, per scene
-#: (:func:`prior_misfit_sigma_nm`): this × the deciding fit's curvature σ × √(reduced χ² − 1).
-#: A broadband profile places the mapping through the camera prior's shape; where the prior
-#: describes the profile down to its noise (reduced χ² ≈ 1) the curvature holds the error, and the
-#: excess misfit √(χ²ᵣ − 1) (in units of the noise) measures how unlike the basis the camera is.
-#: That misfit is a smooth shape, coherent over many pixels, so it moves the mapping by far more
-#: than white noise of its size would (which the Birge-scaled curvature already states): this
-#: factor is that coherence, judged on the validation split only (decision 0117). Replaces a flat
-#: 0.15 nm × √χ²ᵣ (decisions 0036, 0085, 0094, 0104), which was as wide on a camera the prior
-#: describes as on one it does not, and held the transformed validation cameras only with the whole
-#: spectrometer scale beside it (decision 0108).
-PRIOR_MISFIT_COHERENCE = 6.0
+#: (:func:`prior_misfit_sigma_nm`), has two named parts, each in units of the deciding fit's
+#: curvature σ (Birge-scaled). First, the fit's excess misfit √(reduced χ² − 1): a smooth shape
+#: the camera prior does not describe, coherent over many pixels, so it moves the mapping by more
+#: than white noise of its size would (which the Birge-scaled curvature already states); this
+#: factor is that coherence. Second, :data:`VIEW_DISAGREEMENT_SCALE`. Decision 0117 chose 6 with
+#: the first part alone; decision 0128 lowered it to 2 with the second beside it (validation split
+#: only: 44 leave-one-body-out, ~56 predicted and 100 transformed scenes, LED only with and
+#: without EXIF, seeds 0 and 1). Replaces a flat 0.15 nm × √χ²ᵣ (decisions 0036, 0085, 0094,
+#: 0104), which was as wide on a camera the prior describes as on one it does not.
+PRIOR_MISFIT_COHERENCE = 2.0
+#: The second part of the prior's pull: how far the coarser profile the basins were found on
+#: (:data:`GLOBAL_BIN_NM` bins, a stiffer response) puts the answer behind its own best basin,
+#: √Δχ² (:func:`calib.wavelength.coarse_check.coarse_view`, tempered by that view's misfit). Both
+#: profiles are views of one likelihood: where the camera prior describes the camera their minima
+#: agree to within their noise (Δχ² of order 1); where it does not, the finer view's extra rows
+#: pull the answer by a misfit that neither curvature states, and √Δχ² is that displacement in
+#: the coarse view's σ — a per-scene measurement of the pull, not a rule. The coarse view's
+#: curvature σ is √(2.5 nm / 1 nm) ≈ 1.6 × the deciding fit's from the binning alone and wider
+#: with its stiffer response: this factor, 2, was chosen with the coherence on the validation split
+#: only (decision 0128: 0, 1, 1.5, …, 3 against coherences 0, 2, 3, …, 6; of the pairs that kept
+#: every validation group's ±2σ in 85–98 % and its calibrated median within 2× on both seeds, with
+#: and without EXIF, the one whose σ told the scenes apart best — the 10–90 % spread of
+#: actual/stated error over the unwarned scenes fell from 5.3–6.7× to 3.5–4.7× per run).
+VIEW_DISAGREEMENT_SCALE = 2.0
 #: A deciding fit whose reduced χ² (the basins' temper) exceeds this fits the camera prior too badly
 #: for its likelihood to pick the basin: the result warns (``mapping_ambiguous``) and its σ reaches
 #: the nearest other basin. Chosen on the validation split only (decision 0054).
@@ -240,18 +253,28 @@ class BasinSigma:
     competing: Candidate | None
 
 
-def prior_misfit_sigma_nm(temper: float, local_nm: float) -> float:
+def prior_misfit_sigma_nm(temper: float, local_nm: float, view_delta_chi2: float = 0.0) -> float:
     """σ (nm) of the camera prior's pull on a broadband-only mapping, for a deciding fit of reduced
-    χ² ``temper`` whose curvature states ``local_nm`` (RMS over the profile, Birge-scaled):
-    :data:`PRIOR_MISFIT_COHERENCE` × ``local_nm`` × √(``temper`` − 1).
+    χ² ``temper`` whose curvature states ``local_nm`` (RMS over the profile, Birge-scaled) and
+    whose answer the coarser view of the profile puts ``view_delta_chi2`` behind its own best
+    basin: ``local_nm`` × √(C² (``temper`` − 1) + V² ``view_delta_chi2``), with
+    C = :data:`PRIOR_MISFIT_COHERENCE` and V = :data:`VIEW_DISAGREEMENT_SCALE` (negative parts
+    count as zero).
 
-    Zero where the camera prior describes the profile down to its noise; wide where the camera is
-    unlike the basis (the fit's excess misfit) and where the profile pins the mapping weakly (its
-    curvature). Decision 0117: on the validation split's leave-one-body-out, predicted and
-    physically transformed cameras the actual error of a right LED-only mapping grows with both,
-    and a flat term was too wide on the first and too narrow on the last.
+    Zero where the camera prior describes the profile down to its noise and both views agree;
+    wide where the camera is unlike the basis (the fit's excess misfit), where the two views of
+    the profile disagree about the answer (the misfit's pull, measured) and where the profile
+    pins the mapping weakly (its curvature). Decisions 0117 and 0128: on the validation split's
+    leave-one-body-out, predicted and physically transformed cameras the actual error of a right
+    LED-only mapping grows with all three; a flat term was too wide on the first and too narrow
+    on the last, and the misfit alone told the scenes apart less well than with the views'
+    disagreement beside it.
     """
-    return PRIOR_MISFIT_COHERENCE * local_nm * math.sqrt(max(temper - 1.0, 0.0))
+    excess = max(temper - 1.0, 0.0)
+    view = max(view_delta_chi2, 0.0) if math.isfinite(view_delta_chi2) else 0.0
+    return local_nm * math.sqrt(
+        PRIOR_MISFIT_COHERENCE**2 * excess + VIEW_DISAGREEMENT_SCALE**2 * view
+    )
 
 
 def basin_sigma(
@@ -1609,11 +1632,33 @@ def search_profiles(
         ambiguity_delta_chi2 = (
             BROADBAND_AMBIGUITY_DELTA_CHI2 if broadband_only else AMBIGUITY_DELTA_CHI2
         )
+    coarse = None
+    if broadband_only and isinstance(family, GratingFamily):
+        # The basins were found on a coarser profile of the same model: an answer that view
+        # rejects is not decided by the finer one's Δχ² (decision 0118, calib.wavelength.
+        # coarse_check); its best basin becomes a candidate and σ reaches it. How far behind it
+        # the answer stands also sizes the prior's pull (decision 0128).
+        coarse = coarse_view(
+            stage(family, GLOBAL_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR).costs,
+            final.x,
+            [
+                (solution.x, _dof(solution))
+                for basin_family, solution in basins
+                if basin_family is family
+            ],
+            lambda x: float(np.sqrt(np.mean((family.wavelengths(probe, x) - exact_probe) ** 2))),
+            min_distance_nm=AMBIGUITY_MIN_DISTANCE_NM,
+            threshold=AMBIGUITY_DELTA_CHI2,
+        )
     sigma = basin_sigma(
         candidates_out,
         local_nm=LOCAL_SIGMA_SCALE * local_rms,
         scale_nm=scale_nm,
-        misfit_nm=prior_misfit_sigma_nm(temper, local_rms) if broadband_only else 0.0,
+        misfit_nm=prior_misfit_sigma_nm(
+            temper, local_rms, 0.0 if coarse is None else coarse.delta_chi2
+        )
+        if broadband_only
+        else 0.0,
         ambiguity_delta_chi2=ambiguity_delta_chi2,
     )
     ambiguous = sigma.competing is not None
@@ -1658,23 +1703,6 @@ def search_profiles(
             f"above {MISFIT_WARN_TEMPER:g}): with a broadband lamp alone the mapping leans on the "
             f"prior's shape, and the basins' likelihoods cannot be trusted{widened}. "
             + deciding_shot(lamps)
-        )
-    coarse = None
-    if broadband_only and isinstance(family, GratingFamily):
-        # The basins were found on a coarser profile of the same model: an answer that view
-        # rejects is not decided by the finer one's Δχ² (decision 0118, calib.wavelength.
-        # coarse_check); its best basin becomes a candidate and σ reaches it.
-        coarse = coarse_view(
-            stage(family, GLOBAL_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR).costs,
-            final.x,
-            [
-                (solution.x, _dof(solution))
-                for basin_family, solution in basins
-                if basin_family is family
-            ],
-            lambda x: float(np.sqrt(np.mean((family.wavelengths(probe, x) - exact_probe) ** 2))),
-            min_distance_nm=AMBIGUITY_MIN_DISTANCE_NM,
-            threshold=AMBIGUITY_DELTA_CHI2,
         )
     if coarse is not None and coarse.rejects:
         cost = float(deciding_stage(family).costs(coarse.x[None])[0])
