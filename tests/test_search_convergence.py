@@ -90,6 +90,7 @@ def test_a_descent_stops_within_a_tenth_of_its_sigma():
     assert stopped.cost - plain.cost < 0.01
 
 
+@pytest.mark.slow
 def test_only_the_search_s_final_fit_reaches_the_ramps_and_stops_at_a_tenth_of_sigma(
     led_model, monkeypatch
 ):
