@@ -91,8 +91,8 @@ GLOBAL_SIGMA_FLOOR = 0.005
 #: residuals are in units of their σ, so that decrease is the squared distance (in σ) of the local
 #: model's minimum from where the fit stands, and 0.01 puts it within a tenth of the fit's own σ
 #: (a statistical bar, not a tuned one). With its stop at 1e-7 of the cost alone, the speed
-#: bench's final fits spent 9–12 of their 14–17 evaluations on refused steps there (decision
-#: 0124). The earlier stages' descents keep their stops: their end points choose the basins, and
+#: bench's final fits spent 11–12 of their 14–17 evaluations beyond that point, most of them
+#: refused steps (decision 0124). The earlier stages' descents keep their stops: their end points choose the basins, and
 #: on the validation split's broadband paper scenes any change of them moved answers.
 CONVERGED_DELTA_CHI2 = 0.01
 #: Quadratic family: the scan shifts the wavelengths at both ends of the profile by this half width
