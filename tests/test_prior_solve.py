@@ -259,7 +259,7 @@ def test_the_direct_values_sigma_is_propagated_into_eta_and_the_sensitivity(basi
     system = prepare_lamp(replace(observation, direct_sigma=None), DEFAULT_GRID)
     responses = [fit_response(system, MAPPING)]
 
-    def solve(values: np.ndarray, values_sigma: np.ndarray | None):  # type: ignore[no-untyped-def]
+    def solve(values: np.ndarray, values_sigma: np.ndarray | None) -> prior_solve.PriorSolution:
         changed = replace(system.observation, direct_rgb=values, direct_sigma=values_sigma)
         return solve_with_prior(
             replace(system, observation=changed),
