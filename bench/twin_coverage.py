@@ -127,6 +127,9 @@ class Row:
     components: dict[str, float]
     eta_coverage: float = math.nan
     eta_sigma_ratio: float = math.nan
+    #: η's σ components' RMS over η's error RMS (decision 0126), and the η model the estimate fitted.
+    eta_components: dict[str, float] = field(default_factory=dict)
+    eta_model: str | None = None
     #: The spectrometer-scale check's mean offset over the grid and its σ (nm), ``None``: none.
     scale_check: tuple[float, float] | None = None
     scale_check_notes: list[str] = field(default_factory=list)
@@ -258,9 +261,15 @@ def judge(
     error = curves.values - reference
     budget = result.quality.uncertainty or {}
     eta_coverage, eta_ratio = math.nan, math.nan
+    eta_components: dict[str, float] = {}
     if result.grating_efficiency_sigma is not None:
         true_eta = read_twin_truth(session / "twin-truth.json").grating_efficiency.at(wavelength)
         eta_coverage, eta_ratio = efficiency_coverage(result, true_eta)
+        eta_error = np.asarray(result.grating_efficiency) - true_eta / float(np.max(true_eta))
+        eta_error_rms = max(float(np.sqrt(np.mean(eta_error**2))), 1e-300)
+        eta_budget = dict(budget.get("grating_efficiency", {}).get("rms", {}))
+        eta_components = {name: float(value) / eta_error_rms for name, value in eta_budget.items()}
+    eta_record = result.diagnostics.get("grating_model")
     error_rms = float(np.sqrt(np.mean(error**2)))
     on_grid = grid_projection(truth.wavelength_nm, truth.values, wavelength)
     on_grid = on_grid / on_grid.max()
@@ -289,6 +298,8 @@ def judge(
         "cpu_s": cpu_s,
         "eta_coverage": eta_coverage,
         "eta_sigma_ratio": eta_ratio,
+        "eta_components": eta_components,
+        "eta_model": eta_record.get("chosen") if isinstance(eta_record, dict) else None,
         **normalisation_diagnosis(curves.values, sigma, reference, wavelength),
         "re_grid_truth": relative_error(curves.values, on_grid),
         "coverage_grid_truth": float(np.mean(np.abs(curves.values - on_grid) <= 2.0 * sigma)),
@@ -477,6 +488,14 @@ def main() -> None:
                     + ", ".join(f"{name} {value:.2f}" for name, value in row.components.items()),
                     flush=True,
                 )
+                if row.eta_components:
+                    print(
+                        f"    η ({row.eta_model}) σ component RMS / η error RMS: "
+                        + ", ".join(
+                            f"{name} {value:.2f}" for name, value in row.eta_components.items()
+                        ),
+                        flush=True,
+                    )
     print(
         "\n| split | floor | cameras | mean RE ×10⁻² | mean ±2σ coverage | median σ/err | verdicts "
         "| mean η ±2σ coverage | median η σ/err | mean ±2σ at the common scale "
@@ -500,6 +519,22 @@ def main() -> None:
                 f"{100 * np.mean([r.re_grid_truth for r in chosen]):.2f} / "
                 f"{100 * np.mean([r.coverage_grid_truth for r in chosen]):.1f} % |"
             )
+    for split in ("validation", "test"):
+        chosen = [r for r in rows if r.split == split and not math.isnan(r.eta_coverage)]
+        if not chosen:
+            continue
+        models = sorted({str(r.eta_model) for r in chosen})
+        names = list(dict.fromkeys(name for r in chosen for name in r.eta_components))
+        medians = [
+            f"{name} {np.median([r.eta_components[name] for r in chosen if name in r.eta_components]):.2f}"
+            for name in names
+        ]
+        print(
+            f"{split}: η of {len(chosen)} estimates (models: {', '.join(models)}): bands < 95 % "
+            f"{sum(r.eta_coverage < 0.95 for r in chosen)}, σ/err < 1 "
+            f"{sum(r.eta_sigma_ratio < 1 for r in chosen)}; median component RMS / η error RMS: "
+            + ", ".join(medians)
+        )
     print(f"estimate CPU {sum(r.cpu_s for r in rows):.0f} s for {len(rows)} estimates")
 
 

@@ -13,7 +13,15 @@ the twin's truth in the same units (DN/s, the extraction's pixel axis):
 - ``true mapping``: the plan's mapping given to the estimator;
 - and their combinations. The 1-D protocol's row of the same task is printed beside them.
 
+``--paths`` compares the σ budget of the two paths on the same tasks instead (decision 0126): each
+variant's 1-D estimate (:func:`calib.evaluation.validation.budget.task_records`) and its 2-D one as
+extracted, both at factor 1 and the spectrometer tolerances at the product's σ; per path, the
+error's RMS, each component's RMS over the error's (median over estimates), the lamp spread's share
+of the named variance, and the ±2σ coverage at factor 1 and at the product's factor, with and
+without the lamp spread, and the factor that brings each to 95 %.
+
     python bench/twin_limits.py --data-dir DIR [--cameras-per-group 12] [--only NAME ...]
+    python bench/twin_limits.py --data-dir DIR --paths [--variant '5 lamps']
 """
 
 from __future__ import annotations
@@ -34,6 +42,14 @@ import numpy as np
 
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
+from calib.evaluation.validation.budget import (
+    EstimateRecord,
+    coverage_at,
+    fit_scale,
+    scale_checked,
+    slit_measured,
+    task_records,
+)
 from calib.evaluation.validation.protocol import (
     DEFAULT_VARIANTS,
     ProtocolSettings,
@@ -47,7 +63,7 @@ from calib.evaluation.validation.protocol import (
 )
 from calib.evaluation.validation.splits import load_splits, require_validation
 from calib.methods import estimate
-from calib.methods.uncertainty import BudgetSettings
+from calib.methods.uncertainty import TOLERANCE_SIGMA, BudgetSettings, efficiency_family
 from calib.model.forward import blur_kernel
 from calib.pipeline.estimate import OfflineSettings, estimate_offline
 
@@ -124,18 +140,129 @@ def _component_scores(
     return out
 
 
+#: The budget both paths are judged with in ``--paths``: factor 1, tolerances at σ 1, every component
+#: kept (as :func:`calib.evaluation.validation.budget.task_records` estimates the 1-D path).
+UNSCALED = BudgetSettings(coverage_scale={}, tolerance_sigma=1.0, record_components=True)
+#: Component name ``--paths`` leaves out for its "without" columns.
+LAMP_SPREAD = "lamp spread"
+
+
+def _record(result: EstimateResult, label: str, task: Task) -> EstimateRecord:
+    """The 2-D estimate as :func:`calib.evaluation.validation.budget.task_records` records a 1-D
+    one (its error on the delivered curves and its components at factor 1)."""
+    plan, _ = draw_task_plan(task)
+    truth = task.camera.sensitivity.resample(plan.grid, "interpolate", out_of_range="zero").values
+    curves = result.camera_curves()
+    error = np.abs(np.asarray(curves.values, dtype=np.float64) - truth / truth.max()).ravel()
+    return EstimateRecord(
+        result.method,
+        label,
+        error,
+        {
+            name: np.asarray(sigma, dtype=np.float64).ravel()
+            for name, sigma in result.diagnostics["budget_components"].items()
+        },
+        any(flag.code == "no_spectrometer_bandwidth" for flag in result.quality.flags),
+        efficiency_family(result),
+        scale_checked=scale_checked(result),
+        slit_measured=slit_measured(result),
+    )
+
+
+def _without(record: EstimateRecord, name: str) -> EstimateRecord:
+    return replace(record, components={k: v for k, v in record.components.items() if k != name})
+
+
+def _path_summary(records: list[EstimateRecord]) -> list[str]:
+    """``--paths``' lines for one path and variant (module docstring)."""
+    if not records:
+        return ["    no estimates"]
+    factor = BudgetSettings().scale_for(records[0].method, records[0].family)
+    error_rms = [float(np.sqrt(np.mean(r.error**2))) for r in records]
+    names = list(dict.fromkeys(name for r in records for name in r.components))
+    parts = []
+    for name in names:
+        ratio = [
+            float(np.sqrt(np.mean(r.components[name] ** 2))) / e
+            for r, e in zip(records, error_rms, strict=True)
+            if name in r.components
+        ]
+        parts.append(f"{name} {np.median(ratio):.2f}")
+    shares = [
+        float(np.mean(r.components.get(LAMP_SPREAD, 0.0 * r.error) ** 2))
+        / float(np.mean(r.named(TOLERANCE_SIGMA) ** 2))
+        for r in records
+    ]
+    lines = [
+        f"    {len(records)} estimates, error RMS mean {np.mean(error_rms):.4f} (median "
+        f"{np.median(error_rms):.4f}); component RMS / error RMS (median): " + ", ".join(parts),
+        f"    lamp spread's share of the named variance {np.mean(shares):.2f}",
+    ]
+    for label, chosen in (
+        ("all components", records),
+        ("without the lamp spread", [_without(r, LAMP_SPREAD) for r in records]),
+    ):
+        ratios = [r.ratio(TOLERANCE_SIGMA) for r in chosen]
+        lines.append(
+            f"    {label:24s} ±2σ at factor 1 {100 * coverage_at(ratios, 1.0):.1f} %, at the "
+            f"product's {factor:g} {100 * coverage_at(ratios, factor):.1f} %; factor to 95 % "
+            f"{fit_scale(ratios):.2f}"
+        )
+    return lines
+
+
+def compare_paths(split: object, variants: tuple[object, ...]) -> None:
+    """``--paths``: the 1-D and the 2-D estimates' budgets on the same tasks (module docstring)."""
+    settings = ProtocolSettings(variants=variants)  # type: ignore[arg-type]
+    found: dict[tuple[str, str], list[EstimateRecord]] = {}
+    started = time.process_time()
+    with tempfile.TemporaryDirectory() as temporary:
+        for index, task in enumerate(split_tasks(split, settings)):  # type: ignore[arg-type]
+            for record in task_records(task):
+                found.setdefault(("1-D", record.variant), []).append(record)
+            plan, noise = draw_task_plan(task)
+            lamps = render_lamps(Path(temporary) / f"task_{index:03d}", plan, task, noise)
+            for variant in settings.variants:
+                offline = estimate_offline(
+                    [lamps[spec].images for spec in variant.lamps],
+                    OfflineSettings(
+                        method=variant.method,
+                        method_options=variant.options,
+                        grid=plan.grid,
+                        basis=task.basis,
+                        budget=UNSCALED,
+                    ),
+                )
+                found.setdefault(("2-D", variant.label), []).append(
+                    _record(offline.result, variant.label, task)
+                )
+            print(f"task {index} {task.camera.name} done", file=sys.stderr, flush=True)
+    print(
+        "validation split, seed 0; both paths at factor 1 (tolerances at the product's σ "
+        f"{TOLERANCE_SIGMA:.3g})"
+    )
+    for (path, label), records in found.items():
+        print(f"  {path} {label}:")
+        print("\n".join(_path_summary(records)))
+    print(f"CPU time: {time.process_time() - started:.0f} s")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--data-dir", type=Path, required=True)
     parser.add_argument("--cameras-per-group", type=int, default=12)
     parser.add_argument("--only", action="append", default=None)
     parser.add_argument("--variant", action="append", default=None)
+    parser.add_argument("--paths", action="store_true", help="the 1-D and 2-D budgets compared")
     args = parser.parse_args()
     labels = args.variant or ["LED+FL", "5 lamps"]
     variants = tuple(v for v in DEFAULT_VARIANTS if v.label in labels)
     settings = ProtocolSettings(variants=variants)
     splits, _ = load_splits(args.data_dir)
     split = _subset(require_validation(splits.validation), args.cameras_per_group)
+    if args.paths:
+        compare_paths(split, variants)
+        return
     names = args.only or list(ABLATIONS)
     table: dict[tuple[str, str], list[ValidationRow]] = {}
     components: dict[str, list[dict[str, tuple[float, float]]]] = {}

@@ -9,8 +9,10 @@ the result exactly as the 1-D protocol does. It prints both, side by side, per c
 
 What the twin renders of a plan: the first order through ``η₁`` and the direct spot through the
 0th order's own ``η₀(λ)`` along the plan's physical mapping; the slit's width and a soft edge of
-≈ 2σ of the plan's lens blur; the lamp as drifted for the capture, the spectrometer's reading
-(offset, bandwidth, noise) as the lamp's spectrum, with its bandwidth; the plan's full well and
+≈ 2σ of the plan's lens blur; the lamp as the 1-D scene's shines
+(:func:`calib.evaluation.validation.scenes.true_lamp`: a fluorescent lamp with its narrow mercury
+lines, not the CIE table's 5 nm bins; decision 0126) drifted for the capture, the spectrometer's
+reading of it (offset, bandwidth, noise) as the lamp's spectrum, with its bandwidth; the plan's full well and
 read noise (DN gain from a 14-bit range); dark frames; the rig's bracket
 (:meth:`calib.evaluation.validation.rig_errors.PhotonBudget.bracket`, the rule ``calib validate``'s
 1-D scenes take since decision 0098: a shortest frame at the plan's spot fill, 2-stop steps while
@@ -43,7 +45,6 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.lamp_specs import lamp_from_spec
 from calib.core.spectra import write_csv
 from calib.evaluation.synthetic import lamp_kind
 from calib.evaluation.validation.capture import BLACK_DN, SHORTEST_S, WHITE_DN
@@ -61,7 +62,7 @@ from calib.evaluation.validation.protocol import (
 )
 from calib.evaluation.validation.report import markdown_report
 from calib.evaluation.validation.rig_errors import drifted
-from calib.evaluation.validation.scenes import ScenePlan
+from calib.evaluation.validation.scenes import ScenePlan, true_lamp
 from calib.evaluation.validation.splits import Split, load_splits
 from calib.model.forward import render_observation
 from calib.pipeline.estimate import OfflineSettings, estimate_offline
@@ -146,7 +147,7 @@ def _lamp_images(
     """Render one lamp of ``plan`` as a bracket with dark frames (module docstring)."""
     draw = plan.lamps[spec]
     errors = plan.errors
-    reference = lamp_from_spec(spec)
+    reference = true_lamp(spec)
     seen = drifted(reference, draw.drift_gain, draw.drift_tilt_per_100nm)
     sensor, layout = _sensor_and_layout(plan)
     shape = plan.geometry

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import random_efficiency
 from calib.methods import prior_solve, responses
+from calib.methods.closed_form import normalised_efficiency_sigma
 from calib.methods.prior_solve import PriorOptions, estimate_prior, solve_with_prior
 from calib.methods.responses import fit_response
 from calib.model.bases import CameraBasis, fallback_camera_basis, fourier_basis
@@ -237,3 +240,59 @@ def test_responses_given_to_the_solve_are_used_in_the_lamps_order(basis, camera)
     assert not np.allclose(swapped.sensitivity, fresh.sensitivity)
     with pytest.raises(InputError, match="responses"):
         solve_with_prior(*arguments, companions=[fluorescent], responses=fitted[:1])
+
+
+def _normalised_eta(inverse: np.ndarray) -> np.ndarray:
+    eta = 1.0 / inverse
+    return np.asarray(eta / eta.max())
+
+
+def test_the_direct_values_sigma_is_propagated_into_eta_and_the_sensitivity(basis, camera):
+    """A 2 % σ of the leading lamp's direct RGB widens η's and s's σ by exactly its first-order
+    effect (the solve's own finite-difference derivative in each channel's direct value): the
+    direct RGB is a measurement, not an exact constraint. Without the propagation the σ does
+    not change with the direct value's σ."""
+    observation = _render("D65", camera, 0.003, 4)
+    direct = np.asarray(observation.direct_rgb, dtype=np.float64)
+    sigma = 0.02 * direct
+    prior, efficiency_basis = basis.prior(), fourier_basis(DEFAULT_GRID)
+    system = prepare_lamp(replace(observation, direct_sigma=None), DEFAULT_GRID)
+    responses = [fit_response(system, MAPPING)]
+
+    def solve(values: np.ndarray, values_sigma: np.ndarray | None) -> prior_solve.PriorSolution:
+        changed = replace(system.observation, direct_rgb=values, direct_sigma=values_sigma)
+        return solve_with_prior(
+            replace(system, observation=changed),
+            MAPPING,
+            prior,
+            efficiency_basis,
+            responses=responses,
+        )
+
+    exact, measured = solve(direct, None), solve(direct, sigma)
+    # The estimate itself is the same; only its σ holds the direct value's.
+    np.testing.assert_allclose(measured.sensitivity, exact.sensitivity, rtol=1e-12)
+    eta_sigma = [
+        normalised_efficiency_sigma(s.inverse_efficiency, s.inverse_efficiency_covariance)
+        for s in (exact, measured)
+    ]
+    added_eta = eta_sigma[1] ** 2 - eta_sigma[0] ** 2
+    added_s = measured.sensitivity_sigma**2 - exact.sensitivity_sigma**2
+    expected_eta = np.zeros_like(added_eta)
+    expected_s = np.zeros_like(added_s)
+    step = 1e-4
+    for c in range(3):
+        moved = direct.copy()
+        moved[c] *= 1.0 + step
+        shifted = solve(moved, None)
+        d_eta = (
+            _normalised_eta(shifted.inverse_efficiency) - _normalised_eta(exact.inverse_efficiency)
+        ) / (step * direct[c])
+        d_s = (shifted.sensitivity - exact.sensitivity) / (step * direct[c])
+        expected_eta += (d_eta * sigma[c]) ** 2
+        expected_s += (d_s * sigma[c]) ** 2
+    assert float(np.sum(expected_eta)) > 0.01 * float(np.sum(eta_sigma[0] ** 2))
+    np.testing.assert_allclose(np.sqrt(np.sum(added_eta)), np.sqrt(np.sum(expected_eta)), rtol=0.05)
+    np.testing.assert_allclose(
+        np.sqrt(np.sum(added_s, axis=0)), np.sqrt(np.sum(expected_s, axis=0)), rtol=0.05
+    )

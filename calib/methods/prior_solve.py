@@ -18,6 +18,12 @@ the smooth factor shared by ``η`` and ``s``.
    prior are combined (product of Gaussians) and conditioned on the direct measurement; the posterior
    covariance, plus the propagated uncertainty of ``c_η``, gives the sensitivity's σ.
 
+The direct measurement is used as exact in steps 2 and 3, but it is measured: its variance (its
+``direct_sigma`` and a 0.1 % floor, as a companion's, :func:`direct_variance`) is carried to first
+order into ``c_η``'s covariance (``J Σ_dir Jᵀ``, ``J = ∂c_η/∂m_dir`` of step 2's constrained solution)
+and into the sensitivity's σ (through ``η⁻¹`` and step 3's conditioning together), so η's and s's σ
+hold it (decision 0126).
+
 Noise is handled where it enters: in step 1 the measured profile is only ever on the right-hand side
 (no errors-in-variables bias), and the paper's division by ``e`` never happens (``K`` carries the lamp).
 
@@ -204,17 +210,12 @@ def solve_with_prior(
         companion_targets = []
         for companion_row, fitted, companion_direct, companion_sigma in companion_terms:
             spread = companion_row * inverse_hat
-            variances = np.empty(3)
+            variances = direct_variance(companion_direct, companion_sigma)
             for c in range(3):
                 weighted = companion_row * fitted.response[:, c]
-                variance = float(spread @ fitted.covariance[c] @ spread)
-                if companion_sigma is not None:
-                    variance += float(companion_sigma[c]) ** 2
-                # A floor: the lamp's spectrum and the model are known to ~0.1 %, not better.
-                variance += (1e-3 * companion_direct[c]) ** 2
-                variances[c] = variance
+                variances[c] += float(spread @ fitted.covariance[c] @ spread)
                 block = np.zeros((1, n_unknowns))
-                block[0, :b_eta] = (weighted @ efficiency_basis) / np.sqrt(variance)
+                block[0, :b_eta] = (weighted @ efficiency_basis) / np.sqrt(variances[c])
                 blocks.append(block)
             companion_targets.append(companion_direct / np.sqrt(variances))
         target_rows = np.concatenate([np.zeros(3 * size), *companion_targets])
@@ -222,7 +223,12 @@ def solve_with_prior(
         solution = _constrained_lstsq(rows, particular, null_space, target_rows)
         inverse_hat = efficiency_basis @ solution[:b_eta]
         scale_hat = abs(float(solution[-1])) or scale_hat
-    c_eta_cov = _constrained_covariance(rows, null_space)[:b_eta, :b_eta]
+    # The leading lamp's direct RGB is measured, not exact: its variance moves the constrained
+    # solution along ``∂x/∂m_dir`` (first order; the rows' noise is independent of it).
+    leading_variance = direct_variance(direct, observation.direct_sigma)
+    direct_gain = _constrained_gain(rows, constraint, null_space)[:b_eta]
+    noise_cov = _constrained_covariance(rows, null_space)[:b_eta, :b_eta]
+    c_eta_cov = noise_cov + (direct_gain * leading_variance) @ direct_gain.T
     inverse_efficiency = efficiency_basis @ solution[:b_eta]
     inverse_covariance = efficiency_basis @ c_eta_cov @ efficiency_basis.T
     inverse_sigma = np.sqrt(np.clip(np.diag(inverse_covariance), 0, None))
@@ -244,7 +250,13 @@ def solve_with_prior(
         conditioned = posterior_cov - np.outer(gain, direct_row @ posterior_cov)
         # η's own uncertainty moves s_c along q̂_c ⊙ B_η (a smooth common factor).
         jacobian = response[:, c][:, None] * efficiency_basis
-        total = conditioned + jacobian @ c_eta_cov @ jacobian.T
+        total = conditioned + jacobian @ noise_cov @ jacobian.T
+        # The leading lamp's measured direct RGB moves s_c through η⁻¹ (step 2) and through this
+        # step's conditioning on m_dir,c, together (one draw of m_dir): ∂s_c/∂m_dir, first order.
+        moved = (posterior_cov @ data_precision) @ (jacobian @ direct_gain)
+        moved -= np.outer(gain, direct_row @ moved)
+        moved[:, c] += gain
+        total += (moved * leading_variance) @ moved.T
         sensitivity_sigma[:, c] = np.sqrt(np.clip(np.diag(total), 0.0, None))
 
     singular = np.linalg.svd(rows, compute_uv=False)
@@ -287,6 +299,27 @@ def _constrained_lstsq(
     offset = rows @ particular - (0.0 if row_target is None else row_target)
     coefficients, *_ = np.linalg.lstsq(rows @ null_space, -offset, rcond=None)
     return np.asarray(particular + null_space @ coefficients, dtype=np.float64)
+
+
+def direct_variance(direct: FloatArray, sigma: FloatArray | None) -> FloatArray:
+    """The variance ``(3,)`` of a lamp's direct equations ``d · (q̂ ⊙ η⁻¹) = m_dir``: the direct
+    value's own (``sigma``, e.g. the Bayer interleaving's 0.3–3 %: decision 0119) and a floor of
+    0.1 % of it, to which the lamp's spectrum and the model are known."""
+    variance = (1e-3 * np.asarray(direct, dtype=np.float64)) ** 2
+    if sigma is not None:
+        variance = variance + np.asarray(sigma, dtype=np.float64) ** 2
+    return np.asarray(variance, dtype=np.float64)
+
+
+def _constrained_gain(
+    rows: FloatArray, constraint: FloatArray, null_space: FloatArray
+) -> FloatArray:
+    """``∂x/∂target`` ``(n, 3)`` of :func:`_constrained_lstsq`'s solution: the particular solution
+    ``constraint⁺ target`` less what the rows then pull back along the null space."""
+    particular = np.linalg.pinv(constraint)
+    reduced = rows @ null_space
+    pulled = null_space @ np.linalg.lstsq(reduced, rows @ particular, rcond=None)[0]
+    return np.asarray(particular - pulled, dtype=np.float64)
 
 
 def _constrained_covariance(rows: FloatArray, null_space: FloatArray) -> FloatArray:
