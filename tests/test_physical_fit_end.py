@@ -33,7 +33,7 @@ def test_a_fit_that_ends_on_its_ranges_bound_answers_the_bound_without_crawling_
     to) after one look just inside it per pass, where the refinement took 29 evaluations."""
     grating = SinusoidalPhaseGrating(0.75)
     _, observations = _scene(
-        _order(grating, 1), _order(grating, 0), seed=2, noise=0.01, direct_noise=0.004
+        _order(grating, 1), _order(grating, 0), lamps=("A",), seed=2, noise=0.01, direct_noise=0.004
     )
     lamps = prepare_lamps(observations, basis=basis, mapping=MAPPING).lamps
     wavelength = DEFAULT_GRID.wavelength_nm
