@@ -147,7 +147,8 @@ DEFAULT_EFFICIENCY_TERMS = 7
 #: estimate through the file: 7 terms RE 2.69, 11 → 1.99, 15 → 1.78, 21 → 1.81 ×10⁻²).
 ROWS_PER_EFFICIENCY_TERM = 4
 MAX_POOLED_EFFICIENCY_TERMS = 15
-#: Prior weights tried by UPRE and the evidence (relative to the prior's natural weight 1).
+#: Prior weights UPRE and the evidence choose among (relative to the prior's natural weight 1;
+#: searched coarse-to-fine, not all solved: :func:`_nonlinear_efficiency`).
 PRIOR_WEIGHTS: FloatArray = np.logspace(-8, 2, 41)
 #: Re-weighting passes of step 2 (the rows' σ depend on the current ``η⁻¹``).
 EFFICIENCY_PASSES = 3
@@ -175,7 +176,7 @@ class EfficiencySolution:
         propagates the coefficients' covariance to ``η⁻¹`` and to the sensitivity.
     info
         Condition number of the data rows alone, χ² of the data rows, the rule's curve over
-        :data:`PRIOR_WEIGHTS` (``weight_curve``).
+        :data:`PRIOR_WEIGHTS` (``weight_curve``; NaN at the weights the search did not solve).
     """
 
     inverse_efficiency: FloatArray
