@@ -103,6 +103,9 @@ SCAN_POINTS = 120
 LOCAL_POINTS = 21
 #: Passes: the rows are re-whitened at the previous pass's ``g``.
 FIT_PASSES = 3
+#: The refinement's tolerance in the parameter (``minimize_scalar``'s ``xatol``); also how far
+#: inside a scan's end :func:`fit_physical` looks to see whether the misfit falls away from it.
+REFINE_XATOL = 1e-6
 #: Relative σ of the wavelength scale the responses are on: 0.5 nm at 550 nm, a spectrometer's
 #: stated accuracy (the validation protocol draws ±0.5 nm) and the order of the mapping's error.
 #: Both families depend on ``p/λ`` alone (``φ₀·550/λ``, ``λ_B/λ``), so a scale error moves ``p`` by
@@ -479,17 +482,27 @@ def fit_physical(
                 f"the direct signals fit no {kind} grating (no positive throughput anywhere)"
             )
         best = int(np.nanargmin(chi2_scan))
-        bounds = (
-            float(candidates[max(best - 1, 0)]),
-            float(candidates[min(best + 1, candidates.size - 1)]),
-        )
-        refined = minimize_scalar(
-            lambda value, weight=weight: misfit(float(value), weight),
-            bounds=bounds,
-            method="bounded",
-            options={"xatol": 1e-6},
-        )
-        parameter = float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
+        end = best in (0, candidates.size - 1)
+        inside = float(candidates[best]) + (REFINE_XATOL if best == 0 else -REFINE_XATOL)
+        if end and misfit(inside, weight) >= chi2_scan[best]:
+            # The scan's best is its end and the misfit rises from there inwards: the bounded
+            # refinement would crawl towards the end by golden sections (29 evaluations where
+            # 8-9 refine an inner minimum), never evaluate it, and lose to the scan's value
+            # there, which is the answer (decision 0125).
+            parameter = float(candidates[best])
+        else:
+            refined = minimize_scalar(
+                lambda value, weight=weight: misfit(float(value), weight),
+                bounds=(
+                    float(candidates[max(best - 1, 0)]),
+                    float(candidates[min(best + 1, candidates.size - 1)]),
+                ),
+                method="bounded",
+                options={"xatol": REFINE_XATOL},
+            )
+            parameter = (
+                float(refined.x) if refined.fun <= chi2_scan[best] else float(candidates[best])
+            )
         values, target, shape = evaluated.get(parameter) or equations(parameter, weight)
         throughput, _ = profile_throughput(values, target)
         weight = throughput * shape
