@@ -178,3 +178,22 @@ def test_cli_runs_the_validation_split(tmp_path):
     assert all(row["coverage_2sigma"] and row["method_coverage_2sigma"] for row in rows)
     refused = CliRunner().invoke(build_app(), [*arguments, "validation", "--offline"])
     assert refused.exit_code != 0 and "--split" in str(refused.output) + str(refused.exception)
+
+
+def test_the_table_says_whose_sigma_each_coverage_is():
+    from rich.console import Console
+
+    from calib.cli.synthetic import summary_table
+    from calib.evaluation.synthetic import SyntheticRow
+
+    rows = [
+        SyntheticRow(
+            "A (x)", "LED+Flu", 0.0, 0.02, 0.001, 0.002, 0.1, coverage=c, method_coverage=m
+        )
+        for c, m in ((0.9, 0.5), (1.0, 0.3))
+    ]
+    console = Console(record=True, width=300)
+    console.print(summary_table(rows, "title"))
+    text = " ".join(console.export_text().split())  # the caption wraps at the table's width
+    assert "[95 % / 40 %]" in text
+    assert "[share of the truth inside ±2σ: the stated σ (budget) / the method's own σ]" in text

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from calib.cli.command_line import warn
@@ -113,8 +114,11 @@ def summary_table(rows: list[SyntheticRow], title: str) -> Table:
         cells[(row.camera, row.variant, row.noise)].append(row)
     table = Table(
         title=title,
-        caption="RE ×10⁻² per camera; mean RE (mean mapping RE ×10⁻²) [share of the truth inside "
-        "±2σ: the stated σ (budget) / the method's own σ]",
+        # Escaped: rich would read the bracket as a markup tag and drop it.
+        caption=escape(
+            "RE ×10⁻² per camera; mean RE (mean mapping RE ×10⁻²) [share of the truth inside ±2σ: "
+            "the stated σ (budget) / the method's own σ]"
+        ),
     )
     table.add_column("variant")
     table.add_column("noise", justify="right")
