@@ -153,7 +153,7 @@ def _small_data_dir(root: Path, training: int) -> Path:
 
 
 def test_the_validation_split_leaves_each_camera_out_of_its_basis(tmp_path):
-    from calib.evaluation.synthetic import validation_cameras
+    from calib.evaluation.synthetic_splits import validation_cameras
 
     cameras, basis_for, _source = validation_cameras(_small_data_dir(tmp_path, 5), n_vectors=3)
     names = [name for name, _ in cameras]

@@ -269,7 +269,8 @@ def register(app: typer.Typer) -> None:
         """Reproduce the paper's synthetic experiment (§4.1): RE per camera × variant × noise."""
         from calib.core.datasets import colour_science_cameras, makabe2025_split
         from calib.core.spectra import WavelengthGrid
-        from calib.evaluation.synthetic import out_of_basis_cameras, validation_cameras
+        from calib.evaluation.synthetic import out_of_basis_cameras
+        from calib.evaluation.synthetic_splits import validation_cameras
         from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, weight_rule_option
         from calib.model.bases import (
             FALLBACK_WARNING,

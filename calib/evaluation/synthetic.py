@@ -41,7 +41,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -62,7 +61,7 @@ from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options
 from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, refine_grating
 from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions
 from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings
-from calib.model.bases import CameraBasis, camera_basis, fourier_basis
+from calib.model.bases import CameraBasis, fourier_basis
 from calib.model.forward import PeakFractionNoise, RenderedObservation, render_observation
 
 PAPER_VARIANTS: tuple[str, ...] = ("true mapping", "LED+Flu", "LED only", "LED only (paper ICP)")
@@ -138,7 +137,8 @@ def random_efficiency(
 
 @dataclass(frozen=True, eq=False)
 class SyntheticScene:
-    """One camera rendered under the protocol's lamps."""
+    """One camera rendered under the protocol's lamps (``efficiency``: the true grating efficiency,
+    for experiments that give a solve the truth)."""
 
     camera: str
     truth: FloatArray
@@ -147,6 +147,7 @@ class SyntheticScene:
     fluorescent: RenderedObservation
     lamp_sets: dict[str, tuple[LampObservation, ...]] = field(default_factory=dict)
     calibration: tuple[tuple[LampObservation, ...], ...] = ()
+    efficiency: Callable[[FloatArray], FloatArray] | None = None
 
 
 def lamp_kind(spec: str) -> LampKind:
@@ -191,45 +192,6 @@ def out_of_basis_cameras(
         (FOVEON_CAMERA, foveon),
         (f"{filtered_name} + blue filter", behind_filter(filtered, colour_filter())),
     ]
-
-
-def validation_cameras(
-    data_dir: str | Path | None = None,
-    *,
-    grid: WavelengthGrid = DEFAULT_GRID,
-    n_vectors: int = 7,
-    exclude: Sequence[str] = (),
-) -> tuple[list[tuple[str, MultiSpectrum]], Callable[[str], CameraBasis], str]:
-    """The validation split's measured cameras for the paper's protocol: every training curve, each
-    with a basis of the training curves of the *other* bodies (leave one body out,
-    :class:`calib.evaluation.validation.splits.ValidationSplit`), the only cameras a tuning choice
-    made on this protocol may look at.
-
-    Returns ``(name, sensitivity)`` pairs, the basis of a camera by its name (built once per left-out
-    body) and a description of the bases.
-    """
-    from calib.evaluation.validation.splits import load_splits
-
-    splits, _missing = load_splits(data_dir, out_of_basis=False, exclude=exclude)
-    split = splits.validation
-    by_name = {camera.name: camera for camera in split.cameras}
-    bases: dict[tuple[str, ...], CameraBasis] = {}
-
-    def basis_for(name: str) -> CameraBasis:
-        records = split.basis_records(by_name[name])
-        key = tuple(record.name for record in records)
-        if key not in bases:
-            bases[key] = camera_basis(
-                [record.sensitivity for record in records],
-                grid=grid,
-                n_vectors=n_vectors,
-                source=f"validation basis: {len(records)} training curves",
-                camera_names=list(key),
-            )
-        return bases[key]
-
-    cameras = [(camera.name, camera.sensitivity) for camera in split.cameras]
-    return cameras, basis_for, "training curves, each camera's own body left out of its basis"
 
 
 def render_lamps(
@@ -338,6 +300,7 @@ def render_scene(
         rendered["fluorescent"],
         sets,
         calibration,
+        efficiency,
     )
 
 
