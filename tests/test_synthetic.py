@@ -1,4 +1,6 @@
 import csv
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,9 +10,14 @@ from calib.cli.app import build_app
 from calib.cli.synthetic import paper_solve
 from calib.core.datasets import colour_science_cameras
 from calib.core.errors import InputError
-from calib.evaluation.synthetic import random_efficiency, random_mapping, run_protocol
+from calib.evaluation.synthetic import (
+    band_coverage,
+    random_efficiency,
+    random_mapping,
+    run_protocol,
+)
 from calib.methods import Makabe2025Options, PriorOptions
-from tests.synthetic_cameras import exact_basis
+from tests.synthetic_cameras import exact_basis, gaussian_camera
 
 
 def test_random_mapping_covers_the_grid_and_is_monotonic():
@@ -33,13 +40,26 @@ def test_protocol_on_a_spanned_camera_is_nearly_exact(tmp_path):
     basis, cameras = exact_basis(tmp_path)
     from tests.synthetic_cameras import as_spectrum
 
+    seen = []
     rows = run_protocol(
         [("smooth", as_spectrum(cameras[0]))],
         basis,
         variants=["true mapping", "LED+Flu"],
         noise_levels=[0.0],
+        on_result=lambda scene, row, result: seen.append((scene, row, result)),
     )
     assert {row.variant for row in rows} == {"true mapping", "LED+Flu"}
+    # The band judged is the one users get: the σ budget of calib.methods.estimate (decision 0129),
+    # the method's own σ (kept in the diagnostics) judged beside it.
+    for scene, row, result in seen:
+        assert result.quality.uncertainty is not None
+        own = result.diagnostics["method_sigma"]
+        assert result.sensitivity_sigma is not None
+        assert not np.allclose(own, result.sensitivity_sigma)
+        assert row.coverage == band_coverage(result, scene.truth)
+        assert row.method_coverage == band_coverage(
+            replace(result, sensitivity_sigma=own), scene.truth
+        )
     # The protocol's random η (its 1/η is outside the Fourier span) limits RE; the mapping must be
     # found to a small fraction of a nanometre from the fluorescent lines either way.
     assert all(np.isfinite(row.relative_error) for row in rows)
@@ -68,17 +88,22 @@ def test_multilamp_variants_see_the_same_scene_and_report_coverage(tmp_path):
     from tests.synthetic_cameras import as_spectrum
 
     camera = [("smooth", as_spectrum(cameras[1]))]
-    paper_only = run_protocol(camera, basis, variants=["true mapping"], noise_levels=[0.01])
+    # The methods' own σ (no budget): this test is about the scene, not the σ.
+    paper_only = run_protocol(
+        camera, basis, variants=["true mapping"], noise_levels=[0.01], budget=None
+    )
     rows = run_protocol(
         camera,
         basis,
         variants=["true mapping", "multilamp: 5 lamps, true mapping"],
         noise_levels=[0.01],
+        budget=None,
     )
     # Rendering the extra lamps after the paper's two leaves the paper's variants unchanged.
     assert rows[0].relative_error == paper_only[0].relative_error
     multi = rows[1]
     assert multi.coverage is not None and 0.0 <= multi.coverage <= 1.0
+    assert multi.method_coverage == multi.coverage  # without a budget the stated σ is the method's
     assert multi.mapping_relative_error is None and np.isfinite(multi.relative_error)
 
 
@@ -106,3 +131,69 @@ def test_the_method_options_say_which_solve_the_paper_variants_run():
         paper_solve("prior", "measured")
     with pytest.raises(InputError, match="--method"):
         paper_solve("paper", None)  # the old --solver's value is not a method
+
+
+def _small_data_dir(root: Path, training: int) -> Path:
+    """A camera data directory: the paper's 5 test files and ``training`` other Gaussian cameras."""
+    from calib.core.datasets import MAKABE2025_TEST_FILES
+    from calib.core.spectra import DEFAULT_GRID
+
+    folder = root / "data" / "solomatov-akkaynak-2023" / "data" / "ground-truths"
+    folder.mkdir(parents=True)
+    grid = DEFAULT_GRID.wavelength_nm
+    names = [*MAKABE2025_TEST_FILES, *(f"Camera_{k}_Someone-2020.csv" for k in range(training))]
+    for index, name in enumerate(names):
+        centres = (590.0 + 3 * index, 535.0 + 2 * index, 455.0 + index)
+        values = gaussian_camera(centres, (40.0, 45.0, 30.0))
+        lines = "\n".join(
+            f"{w:g},{r:.6f},{g:.6f},{b:.6f}" for w, (r, g, b) in zip(grid, values, strict=True)
+        )
+        (folder / name).write_text("wavelength,red,green,blue\n" + lines + "\n")
+    return root / "data"
+
+
+def test_the_validation_split_leaves_each_camera_out_of_its_basis(tmp_path):
+    from calib.evaluation.synthetic_splits import validation_cameras
+
+    cameras, basis_for, _source = validation_cameras(_small_data_dir(tmp_path, 5), n_vectors=3)
+    names = [name for name, _ in cameras]
+    assert len(names) == 5 and all(name.startswith("Camera") for name in names)
+    for name in names:
+        kept = basis_for(name).camera_names
+        assert name not in kept and len(kept) == 4
+        assert not any("600D" in other for other in kept)  # no paper test camera in any basis
+
+
+@pytest.mark.slow
+def test_cli_runs_the_validation_split(tmp_path):
+    path = tmp_path / "out.csv"
+    arguments = ["synthetic", "--data-dir", str(_small_data_dir(tmp_path, 3)), "--split"]
+    options = ["--n-vectors", "2", "--noise", "0", "--variant", "true mapping", "--csv", str(path)]
+    result = CliRunner().invoke(build_app(), [*arguments, "validation", *options])
+    assert result.exit_code == 0, result.output + str(result.exception)
+    assert "validation split" in result.output
+    with path.open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [row["camera"].split(" (")[0] for row in rows] == [f"Camera {k}" for k in range(3)]
+    assert all(row["coverage_2sigma"] and row["method_coverage_2sigma"] for row in rows)
+    refused = CliRunner().invoke(build_app(), [*arguments, "validation", "--offline"])
+    assert refused.exit_code != 0 and "--split" in str(refused.output) + str(refused.exception)
+
+
+def test_the_table_says_whose_sigma_each_coverage_is():
+    from rich.console import Console
+
+    from calib.cli.synthetic import summary_table
+    from calib.evaluation.synthetic import SyntheticRow
+
+    rows = [
+        SyntheticRow(
+            "A (x)", "LED+Flu", 0.0, 0.02, 0.001, 0.002, 0.1, coverage=c, method_coverage=m
+        )
+        for c, m in ((0.9, 0.5), (1.0, 0.3))
+    ]
+    console = Console(record=True, width=300)
+    console.print(summary_table(rows, "title"))
+    text = " ".join(console.export_text().split())  # the caption wraps at the table's width
+    assert "[95 % / 40 %]" in text
+    assert "[share of the truth inside ±2σ: the stated σ (budget) / the method's own σ]" in text

@@ -25,6 +25,13 @@ sets of :data:`LAMP_SETS` (rendered after the paper's two lamps, so their draws 
 The paper's variants run the prior solve (:func:`calib.methods.prior_solve.estimate_prior`) or, given
 :class:`calib.methods.makabe2025.Makabe2025Options`, the paper's own.
 
+Every variant is estimated through :func:`calib.methods.estimate`, the front function ``calib
+estimate`` and ``rig estimate`` run, so the ±2σ band judged (:attr:`SyntheticRow.coverage`) is the
+one users are given: the σ budget (:mod:`calib.methods.uncertainty`, ``budget``) — not the method's
+own σ, which is kept beside it (:attr:`SyntheticRow.method_coverage`). The protocol draws no
+spectrometer error (its lamp spectra are the true ones and state no bandwidth), so the budget's
+spectrometer components are what it assumes of an instrument nobody described (decision 0129).
+
 Out-of-basis cameras (:func:`out_of_basis_cameras`): colour-science's Sigma SDMerill (NPL, a Foveon
 sensor) and a camera behind a colour filter (:func:`colour_filter`).
 """
@@ -47,11 +54,13 @@ from calib.core.metrics import mapping_relative_error, relative_error
 from calib.core.observations import LampKind, LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, Spectrum, WavelengthGrid
+from calib.methods import estimate
 from calib.methods.closed_form import SearchMethod
-from calib.methods.known_grating import estimate_known_grating
-from calib.methods.makabe2025 import Makabe2025Options, estimate_makabe2025
-from calib.methods.multilamp import MultilampOptions, estimate_multilamp, refine_grating
-from calib.methods.prior_solve import PriorOptions, estimate_prior
+from calib.methods.known_grating import KNOWN_GRATING_METHOD
+from calib.methods.makabe2025 import MAKABE2025_METHOD, Makabe2025Options
+from calib.methods.multilamp import MULTILAMP_METHOD, MultilampOptions, refine_grating
+from calib.methods.prior_solve import PRIOR_METHOD, PriorOptions
+from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings
 from calib.model.bases import CameraBasis, fourier_basis
 from calib.model.forward import PeakFractionNoise, RenderedObservation, render_observation
 
@@ -128,7 +137,8 @@ def random_efficiency(
 
 @dataclass(frozen=True, eq=False)
 class SyntheticScene:
-    """One camera rendered under the protocol's lamps."""
+    """One camera rendered under the protocol's lamps (``efficiency``: the true grating efficiency,
+    for experiments that give a solve the truth)."""
 
     camera: str
     truth: FloatArray
@@ -137,6 +147,7 @@ class SyntheticScene:
     fluorescent: RenderedObservation
     lamp_sets: dict[str, tuple[LampObservation, ...]] = field(default_factory=dict)
     calibration: tuple[tuple[LampObservation, ...], ...] = ()
+    efficiency: Callable[[FloatArray], FloatArray] | None = None
 
 
 def lamp_kind(spec: str) -> LampKind:
@@ -289,12 +300,18 @@ def render_scene(
         rendered["fluorescent"],
         sets,
         calibration,
+        efficiency,
     )
 
 
 @dataclass(frozen=True)
 class SyntheticRow:
-    """One estimate of the protocol: RE and mapping RE (fractions) and the wall time."""
+    """One estimate of the protocol: RE and mapping RE (fractions) and the wall time.
+
+    ``coverage`` is the share of the truth inside the stated ±2σ band (the budget's σ, as users get
+    it; the method's own when the protocol ran without a budget), ``method_coverage`` the same for
+    the method's own σ (``diagnostics["method_sigma"]``), ``None`` when there is none.
+    """
 
     camera: str
     variant: str
@@ -306,6 +323,11 @@ class SyntheticRow:
     repeat: int = 0
     failure: str | None = None
     coverage: float | None = None
+    method_coverage: float | None = None
+
+
+#: ``on_result(scene, row, result)``: what :func:`evaluate_scene` shows a caller of each estimate.
+ResultHook = Callable[[SyntheticScene, SyntheticRow, EstimateResult], None]
 
 
 def _uses_true_mapping(variant: str) -> bool:
@@ -323,8 +345,14 @@ def evaluate_scene(
     noise: float = 0.0,
     repeat: int = 0,
     multilamp_options: MultilampOptions = MultilampOptions(),
+    budget: BudgetSettings | None = DEFAULT_BUDGET,
+    on_result: ResultHook | None = None,
 ) -> SyntheticRow:
-    """Estimate one variant on a rendered scene and score it against the truth."""
+    """Estimate one variant on a rendered scene and score it against the truth.
+
+    ``budget`` is the σ budget :func:`calib.methods.estimate` states (``None``: the method's own σ);
+    ``on_result(scene, row, result)`` sees each estimate and its row (e.g. its budget's components).
+    """
     started = time.perf_counter()
     led = scene.broadband.observation
     try:
@@ -335,6 +363,7 @@ def evaluate_scene(
             grid=grid,
             paper_solve=paper_solve,
             multilamp_options=multilamp_options,
+            budget=budget,
         )
     except EstimationError as exc:
         return SyntheticRow(
@@ -360,7 +389,7 @@ def evaluate_scene(
             true_nm[inside],
             range_nm=(grid.start_nm, grid.stop_nm),
         )
-    return SyntheticRow(
+    row = SyntheticRow(
         scene.camera,
         variant,
         noise,
@@ -370,7 +399,20 @@ def evaluate_scene(
         elapsed,
         repeat,
         coverage=None if result.sensitivity_sigma is None else band_coverage(result, scene.truth),
+        method_coverage=_method_coverage(result, scene.truth),
     )
+    if on_result is not None:
+        on_result(scene, row, result)
+    return row
+
+
+def _method_coverage(result: EstimateResult, truth: FloatArray) -> float | None:
+    """:func:`band_coverage` of the method's own σ: ``diagnostics["method_sigma"]`` when a budget
+    replaced it, else the σ the result states."""
+    own = result.diagnostics.get("method_sigma", result.sensitivity_sigma)
+    if own is None:
+        return None
+    return band_coverage(replace(result, sensitivity_sigma=np.asarray(own)), truth)
 
 
 def band_coverage(result: EstimateResult, truth: FloatArray, *, width: float = 2.0) -> float:
@@ -418,26 +460,21 @@ def _estimate_variant(
     grid: WavelengthGrid,
     paper_solve: PaperSolve,
     multilamp_options: MultilampOptions,
+    budget: BudgetSettings | None = DEFAULT_BUDGET,
 ) -> EstimateResult:
+    """The variant's estimate, through :func:`calib.methods.estimate` with ``budget``."""
     led = scene.broadband.observation
     if variant in PAPER_VARIANTS:
         lamps = [led] if variant != "LED+Flu" else [led, scene.fluorescent.observation]
         mapping = scene.mapping if _uses_true_mapping(variant) else None
         mapping_method: SearchMethod = "icp" if variant == "LED only (paper ICP)" else "search"
-        if isinstance(paper_solve, Makabe2025Options):
-            return estimate_makabe2025(
-                lamps,
-                basis=basis,
-                grid=grid,
-                mapping=mapping,
-                options=replace(
-                    paper_solve, mapping_method=mapping_method, solve_lamps=(led.name,)
-                ),
-            )
-        return estimate_prior(
+        method = MAKABE2025_METHOD if isinstance(paper_solve, Makabe2025Options) else PRIOR_METHOD
+        return estimate(
             lamps,
+            method,
             basis=basis,
             grid=grid,
+            budget=budget,
             mapping=mapping,
             options=replace(paper_solve, mapping_method=mapping_method, solve_lamps=(led.name,)),
         )
@@ -457,12 +494,16 @@ def _estimate_variant(
             weight_rule=multilamp_options.weight_rule,
         )
         (single,) = (obs for obs in scene.lamp_sets[FIVE_LAMPS] if obs.name == GRATING_FILE_LAMP)
-        return estimate_known_grating([single], grating=grating, basis=basis, grid=grid)
+        return estimate(
+            [single], KNOWN_GRATING_METHOD, basis=basis, grid=grid, budget=budget, grating=grating
+        )
     set_name = variant.removeprefix("multilamp: ").removesuffix(", true mapping")
-    return estimate_multilamp(
+    return estimate(
         scene.lamp_sets[set_name],
+        MULTILAMP_METHOD,
         basis=basis,
         grid=grid,
+        budget=budget,
         mapping=scene.mapping if _uses_true_mapping(variant) else None,
         options=multilamp_options,
     )
@@ -483,6 +524,8 @@ def run_protocol(
     progress: Callable[[SyntheticRow], None] | None = None,
     direct_noise: float | None = None,
     multilamp_options: MultilampOptions = MultilampOptions(),
+    budget: BudgetSettings | None = DEFAULT_BUDGET,
+    on_result: ResultHook | None = None,
 ) -> list[SyntheticRow]:
     """Run the protocol over cameras × noise levels × repeats × variants (see module docstring).
 
@@ -503,7 +546,9 @@ def run_protocol(
     measurements with noise ``direct_noise`` (fraction of the peak; ``None``: the profile's); the
     grating-file variant calibrates the grating with every *other* camera of ``cameras`` under the
     5 lamps. ``multilamp_options`` go to the multi-lamp solves (the grating-file variant's pooled
-    η solve takes their rule, model and fixed weight).
+    η solve takes their rule, model and fixed weight). ``budget``: the σ budget every estimate
+    states (:func:`calib.methods.estimate`; ``None``: the methods' own σ); ``on_result`` as for
+    :func:`evaluate_scene`.
     """
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
@@ -550,6 +595,8 @@ def run_protocol(
                         noise=noise,
                         repeat=repeat,
                         multilamp_options=multilamp_options,
+                        budget=budget,
+                        on_result=on_result,
                     )
                     rows.append(row)
                     if progress is not None:
