@@ -7,32 +7,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib.core.lamp_specs import colour_lamp
-from calib.core.mapping import QuadraticMapping
-from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
-from calib.model.bases import fallback_camera_basis
-from calib.model.forward import pixel_edges, render_observation
 from calib.wavelength import response_model
-from calib.wavelength.families import QuadraticFamily
 from calib.wavelength.response_model import RIDGE, SHARED_EDGES_FROM, ResponseModel
+from tests.led_scene import unblurred_led
 
 
 @pytest.fixture(scope="module")
 def unblurred():
-    """An unblurred LED profile (200 px) and its model: the band's pixels-last path."""
-    prior = fallback_camera_basis().prior()
-    # The prior's mean camera (cheap: no dataset to load), a little tilted so it is not the mean.
-    tilt = 1.0 + 0.3 * np.linspace(-1.0, 1.0, prior.grid.wavelength_nm.size)[:, None]
-    camera = MultiSpectrum(prior.grid.wavelength_nm, np.maximum(prior.mean, 0.0) * tilt)
-    truth = QuadraticMapping(-8.8e-5, 1.72, 383.0, pixel_range=(0.0, 199.0))
-    observation = render_observation(
-        colour_lamp("D65"), camera, mapping=truth, pixel=200
-    ).observation
-    model = ResponseModel.build(
-        observation, DEFAULT_GRID, node_step_nm=10.0, prior=prior, flexibility=0.05
-    )
-    family = QuadraticFamily((0.0, 199.0))
-    edges_px = pixel_edges(observation.pixel)
+    """The shared unblurred LED scene and its model: the band's pixels-last path."""
+    model, family, edges_px, truth = unblurred_led()
     x = family.parameters(truth) + np.array([0.8, -0.4, 0.6])
     return model, family, edges_px, x
 

@@ -6,36 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.core.lamp_specs import colour_lamp
-from calib.core.mapping import QuadraticMapping
-from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
+from calib.core.spectra import DEFAULT_GRID
 from calib.model.bases import fallback_camera_basis
-from calib.model.forward import pixel_edges, render_observation
-from calib.wavelength.families import QuadraticFamily
 from calib.wavelength.least_squares import levenberg_marquardt
-from calib.wavelength.response_model import ResponseModel
+from tests.led_scene import unblurred_led
 
 
 @pytest.fixture(scope="module")
 def led_model():
-    """An unblurred D65 profile (200 px, ~1.7 nm a pixel) and its model on 10 nm nodes, the band
-    reaching the cut hats' ramps (as the search's final fit builds it)."""
-    prior = fallback_camera_basis().prior()
-    tilt = 1.0 + 0.3 * np.linspace(-1.0, 1.0, prior.grid.wavelength_nm.size)[:, None]
-    camera = MultiSpectrum(prior.grid.wavelength_nm, np.maximum(prior.mean, 0.0) * tilt)
-    truth = QuadraticMapping(-8.8e-5, 1.72, 383.0, pixel_range=(0.0, 199.0))
-    observation = render_observation(
-        colour_lamp("D65"), camera, mapping=truth, pixel=200
-    ).observation
-    model = ResponseModel.build(
-        observation,
-        DEFAULT_GRID,
-        node_step_nm=10.0,
-        prior=prior,
-        flexibility=0.05,
-        cut_ramps=True,
-    )
-    return model, QuadraticFamily((0.0, 199.0)), pixel_edges(observation.pixel), truth
+    """The shared unblurred D65 scene, its band reaching the cut hats' ramps (as the search's
+    final fit builds it)."""
+    return unblurred_led(cut_ramps=True)
 
 
 @pytest.mark.parametrize("end", ["start", "stop"])
