@@ -22,6 +22,10 @@ actual error's RMS, and how many estimates lie within 85–98 %.
 (the default), 9 and 11 Fourier terms of η, and of the known-grating solve given the scene's true η:
 how much of the error is η's form and how much its confounding with the sensitivity.
 
+``--mappings``: each searched mapping's largest error over the working grid (nm) and whether it
+carries an ambiguity warning; the count of mappings more than 3 nm off, and every one of them
+without a warning (a silent wrong mapping), listed.
+
 Tuning choices may look at ``--split validation`` only (the training curves, each camera's own body
 left out of its basis); ``--split test`` (the paper's 5) is for the report.
 
@@ -55,6 +59,7 @@ from calib.evaluation.synthetic import (
     run_protocol,
 )
 from calib.evaluation.synthetic_splits import validation_cameras
+from calib.evaluation.validation.report import MAPPING_FAILURE_NM
 from calib.methods import PriorOptions, estimate
 from calib.methods.uncertainty import BudgetSettings
 from calib.model.bases import CameraBasis, default_camera_basis
@@ -195,6 +200,7 @@ def main() -> None:
     parser.add_argument("--cameras", type=int, default=None, help="the first N cameras only")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eta-experiment", action="store_true")
+    parser.add_argument("--mappings", action="store_true")
     args = parser.parse_args()
     basis: CameraBasis | Callable[[str], CameraBasis]
     if args.split == "validation":
@@ -208,9 +214,25 @@ def main() -> None:
     cameras = cameras[: args.cameras] if args.cameras else cameras
     records: list[Record] = []
     experiment: dict[tuple[float, str], list[float]] = defaultdict(list)
+    mappings: list[tuple[str, str, float, float, bool]] = []
 
     def keep(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> None:
         records.append(record(result, scene, row.variant, row.noise))
+        if args.mappings and row.mapping_relative_error is not None and result.mapping is not None:
+            pixel = scene.broadband.observation.pixel
+            truth = scene.mapping.wavelength_nm(pixel)
+            inside = (truth >= DEFAULT_GRID.start_nm) & (truth <= DEFAULT_GRID.stop_nm)
+            error = np.abs(result.mapping.wavelength_nm(pixel) - truth)[inside]
+            codes = (getattr(result.mapping, "details", None) or {}).get("warning_codes", ())
+            mappings.append(
+                (
+                    row.camera,
+                    row.variant,
+                    row.noise,
+                    float(np.max(error)),
+                    "mapping_ambiguous" in codes,
+                )
+            )
         if args.eta_experiment and row.variant == "true mapping":
             for label, value in eta_experiment(
                 scene, basis(row.camera) if callable(basis) else basis
@@ -233,6 +255,17 @@ def main() -> None:
         f"{len(failures)} failed"
     )
     summarise(records)
+    if args.mappings:
+        off = [m for m in mappings if m[3] > MAPPING_FAILURE_NM]
+        silent = [m for m in off if not m[4]]
+        print(
+            f"mappings: {len(mappings)} searched, > {MAPPING_FAILURE_NM:g} nm {len(off)}, "
+            f"of them without an ambiguity warning {len(silent)}"
+        )
+        for camera, variant, noise, worst, _ in silent:
+            print(
+                f"  silent: {camera}, {variant}, noise {100 * noise:g} %: {worst:.2f} nm at worst"
+            )
     for (noise, label), values in experiment.items():
         print(
             f"true mapping, noise {100 * noise:g} %: {label}: mean RE {100 * np.mean(values):.2f} ×10⁻²"
