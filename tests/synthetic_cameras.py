@@ -43,3 +43,22 @@ def exact_basis(cache_dir: Path) -> tuple[CameraBasis, np.ndarray]:
 
 def as_spectrum(values: np.ndarray, name: str = "camera") -> MultiSpectrum:
     return MultiSpectrum(DEFAULT_GRID.wavelength_nm, values, name=name)
+
+
+def small_data_dir(root: Path, training: int) -> Path:
+    """A camera data directory under ``root``: the paper's 5 test files (Solomatov & Akkaynak's
+    layout) and ``training`` other Gaussian cameras, each a little shifted from the last."""
+    from calib.core.datasets import MAKABE2025_TEST_FILES
+
+    folder = root / "data" / "solomatov-akkaynak-2023" / "data" / "ground-truths"
+    folder.mkdir(parents=True)
+    grid = DEFAULT_GRID.wavelength_nm
+    names = [*MAKABE2025_TEST_FILES, *(f"Camera_{k}_Someone-2020.csv" for k in range(training))]
+    for index, name in enumerate(names):
+        centres = (590.0 + 3 * index, 535.0 + 2 * index, 455.0 + index)
+        values = gaussian_camera(centres, (40.0, 45.0, 30.0))
+        lines = "\n".join(
+            f"{w:g},{r:.6f},{g:.6f},{b:.6f}" for w, (r, g, b) in zip(grid, values, strict=True)
+        )
+        (folder / name).write_text("wavelength,red,green,blue\n" + lines + "\n")
+    return root / "data"

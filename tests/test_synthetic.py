@@ -1,6 +1,5 @@
 import csv
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +16,7 @@ from calib.evaluation.synthetic import (
     run_protocol,
 )
 from calib.methods import Makabe2025Options, PriorOptions
-from tests.synthetic_cameras import exact_basis, gaussian_camera
+from tests.synthetic_cameras import exact_basis, small_data_dir
 
 
 def test_random_mapping_covers_the_grid_and_is_monotonic():
@@ -133,29 +132,10 @@ def test_the_method_options_say_which_solve_the_paper_variants_run():
         paper_solve("paper", None)  # the old --solver's value is not a method
 
 
-def _small_data_dir(root: Path, training: int) -> Path:
-    """A camera data directory: the paper's 5 test files and ``training`` other Gaussian cameras."""
-    from calib.core.datasets import MAKABE2025_TEST_FILES
-    from calib.core.spectra import DEFAULT_GRID
-
-    folder = root / "data" / "solomatov-akkaynak-2023" / "data" / "ground-truths"
-    folder.mkdir(parents=True)
-    grid = DEFAULT_GRID.wavelength_nm
-    names = [*MAKABE2025_TEST_FILES, *(f"Camera_{k}_Someone-2020.csv" for k in range(training))]
-    for index, name in enumerate(names):
-        centres = (590.0 + 3 * index, 535.0 + 2 * index, 455.0 + index)
-        values = gaussian_camera(centres, (40.0, 45.0, 30.0))
-        lines = "\n".join(
-            f"{w:g},{r:.6f},{g:.6f},{b:.6f}" for w, (r, g, b) in zip(grid, values, strict=True)
-        )
-        (folder / name).write_text("wavelength,red,green,blue\n" + lines + "\n")
-    return root / "data"
-
-
 def test_the_validation_split_leaves_each_camera_out_of_its_basis(tmp_path):
     from calib.evaluation.synthetic_splits import validation_cameras
 
-    cameras, basis_for, _source = validation_cameras(_small_data_dir(tmp_path, 5), n_vectors=3)
+    cameras, basis_for, _source = validation_cameras(small_data_dir(tmp_path, 5), n_vectors=3)
     names = [name for name, _ in cameras]
     assert len(names) == 5 and all(name.startswith("Camera") for name in names)
     for name in names:
@@ -167,7 +147,7 @@ def test_the_validation_split_leaves_each_camera_out_of_its_basis(tmp_path):
 @pytest.mark.slow
 def test_cli_runs_the_validation_split(tmp_path):
     path = tmp_path / "out.csv"
-    arguments = ["synthetic", "--data-dir", str(_small_data_dir(tmp_path, 3)), "--split"]
+    arguments = ["synthetic", "--data-dir", str(small_data_dir(tmp_path, 3)), "--split"]
     options = ["--n-vectors", "2", "--noise", "0", "--variant", "true mapping", "--csv", str(path)]
     result = CliRunner().invoke(build_app(), [*arguments, "validation", *options])
     assert result.exit_code == 0, result.output + str(result.exception)

@@ -72,7 +72,7 @@ from calib.evaluation.validation.splits import (
     require_validation,
 )
 from calib.model.gratings import BlazedGrating, SinusoidalPhaseGrating
-from tests.synthetic_cameras import gaussian_camera
+from tests.synthetic_cameras import small_data_dir
 
 AXIS = np.arange(380.0, 781.0, 5.0)
 
@@ -568,19 +568,7 @@ def test_cli_refuses_bad_options(arguments: list[str], message: str) -> None:
 
 
 def test_cli_runs_the_protocol_on_a_small_data_directory(tmp_path: Path) -> None:
-    from calib.core.datasets import MAKABE2025_TEST_FILES
-
-    folder = tmp_path / "data" / "solomatov-akkaynak-2023" / "data" / "ground-truths"
-    folder.mkdir(parents=True)
-    grid = DEFAULT_GRID.wavelength_nm
-    names = [*MAKABE2025_TEST_FILES, *(f"Camera_{k}_Someone-2020.csv" for k in range(9))]
-    for index, name in enumerate(names):
-        centres = (590.0 + 3 * index, 535.0 + 2 * index, 455.0 + index)
-        values = gaussian_camera(centres, (40.0, 45.0, 30.0))
-        lines = "\n".join(
-            f"{w:g},{r:.6f},{g:.6f},{b:.6f}" for w, (r, g, b) in zip(grid, values, strict=True)
-        )
-        (folder / name).write_text("wavelength,red,green,blue\n" + lines + "\n")
+    small_data_dir(tmp_path, 9)
     out = tmp_path / "out"
     result = CliRunner().invoke(
         build_app(),
