@@ -34,6 +34,7 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -63,7 +64,12 @@ from calib.evaluation.validation.protocol import (
 )
 from calib.evaluation.validation.splits import load_splits, require_validation
 from calib.methods import estimate
-from calib.methods.uncertainty import TOLERANCE_SIGMA, BudgetSettings, efficiency_family
+from calib.methods.uncertainty import (
+    DEFAULT_BUDGET,
+    TOLERANCE_SIGMA,
+    BudgetSettings,
+    efficiency_family,
+)
 from calib.model.forward import blur_kernel
 from calib.pipeline.estimate import OfflineSettings, estimate_offline
 
@@ -211,6 +217,32 @@ def _path_summary(records: list[EstimateRecord]) -> list[str]:
     return lines
 
 
+def reduced(
+    task: Task,
+    directory: Path,
+    variants: tuple[Any, ...],
+    budget: BudgetSettings | None = DEFAULT_BUDGET,
+) -> tuple[Any, dict[str, TwinLamp], dict[str, Any]]:
+    """The task rendered as the twin's RAW brackets (in ``directory``) and each variant's lamps
+    reduced by ``calib estimate``'s offline path: ``(plan, lamps by spec, offline by label)``."""
+    plan, noise = draw_task_plan(task)
+    lamps = render_lamps(directory, plan, task, noise)
+    offline = {
+        variant.label: estimate_offline(
+            [lamps[spec].images for spec in variant.lamps],
+            OfflineSettings(
+                method=variant.method,
+                method_options=variant.options,
+                grid=plan.grid,
+                basis=task.basis,
+                budget=budget,
+            ),
+        )
+        for variant in variants
+    }
+    return plan, lamps, offline
+
+
 def compare_paths(split: object, variants: tuple[object, ...]) -> None:
     """``--paths``: the 1-D and the 2-D estimates' budgets on the same tasks (module docstring)."""
     settings = ProtocolSettings(variants=variants)  # type: ignore[arg-type]
@@ -220,22 +252,11 @@ def compare_paths(split: object, variants: tuple[object, ...]) -> None:
         for index, task in enumerate(split_tasks(split, settings)):  # type: ignore[arg-type]
             for record in task_records(task):
                 found.setdefault(("1-D", record.variant), []).append(record)
-            plan, noise = draw_task_plan(task)
-            lamps = render_lamps(Path(temporary) / f"task_{index:03d}", plan, task, noise)
-            for variant in settings.variants:
-                offline = estimate_offline(
-                    [lamps[spec].images for spec in variant.lamps],
-                    OfflineSettings(
-                        method=variant.method,
-                        method_options=variant.options,
-                        grid=plan.grid,
-                        basis=task.basis,
-                        budget=UNSCALED,
-                    ),
-                )
-                found.setdefault(("2-D", variant.label), []).append(
-                    _record(offline.result, variant.label, task)
-                )
+            _, _, offline = reduced(
+                task, Path(temporary) / f"task_{index:03d}", settings.variants, UNSCALED
+            )
+            for label, one in offline.items():
+                found.setdefault(("2-D", label), []).append(_record(one.result, label, task))
             print(f"task {index} {task.camera.name} done", file=sys.stderr, flush=True)
     print(
         "validation split, seed 0; both paths at factor 1 (tolerances at the product's σ "
@@ -269,20 +290,11 @@ def main() -> None:
     started = time.process_time()
     with tempfile.TemporaryDirectory() as temporary:
         for index, task in enumerate(split_tasks(split, settings)):
-            plan, noise = draw_task_plan(task)
-            lamps = render_lamps(Path(temporary) / f"task_{index:03d}", plan, task, noise)
+            plan, lamps, reductions = reduced(task, Path(temporary) / f"task_{index:03d}", variants)
             for one in evaluate_task(task):
                 table.setdefault(("1-D protocol", one.variant), []).append(one)
             for variant in variants:
-                offline = estimate_offline(
-                    [lamps[spec].images for spec in variant.lamps],
-                    OfflineSettings(
-                        method=variant.method,
-                        method_options=variant.options,
-                        grid=plan.grid,
-                        basis=task.basis,
-                    ),
-                )
+                offline = reductions[variant.label]
                 for name in names:
                     swaps, true_mapping = ABLATIONS[name]
                     observations = []
