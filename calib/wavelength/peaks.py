@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError
@@ -422,6 +423,18 @@ def mapping_from_peaks(
 # ------------------------------------------------------------------------- broadband search
 
 
+def _local_maxima(values: FloatArray, order: int) -> NDArray[np.intp]:
+    """Indices above each of their ``order`` neighbours on either side, the ends' neighbours
+    clipped to the ends (:func:`scipy.signal.argrelmax`'s rule, without its per-call cost)."""
+    n = values.size
+    padded = np.concatenate((np.full(order, values[0]), values, np.full(order, values[-1])))
+    above = np.ones(n, dtype=bool)
+    for shift in range(1, order + 1):
+        above &= values > padded[order + shift : order + shift + n]
+        above &= values > padded[order - shift : order - shift + n]
+    return np.flatnonzero(above)
+
+
 def coarse_mapping_candidates(
     pixel: FloatArray,
     profile: FloatArray,
@@ -448,8 +461,6 @@ def coarse_mapping_candidates(
     list of QuadraticMapping
         Up to ``n_candidates`` distinct linear mappings (``method="led-search"``), best first.
     """
-    from scipy import signal
-
     n = pixel.size
     spacing = float(np.median(np.diff(pixel)))
     nominal = nominal_dispersion(pixel, profile, model_nm, model)
@@ -457,54 +468,63 @@ def coarse_mapping_candidates(
     centred = profile - profile.mean(axis=0)
     size = 1 << math.ceil(math.log2(4 * n))
     profile_fft = np.fft.rfft(centred[::-1], size, axis=0)
+    # A mirrored placement's correlations are the model's convolutions with the profile itself.
+    forward_fft = np.fft.rfft(centred, size, axis=0) if allow_reversed else None
     profile_norm = np.linalg.norm(centred, axis=0)
-    signs = (1.0, -1.0) if allow_reversed else (1.0,)
-    window_fft = np.fft.rfft(np.ones(n), size)[:, None]  # the n-pixel window's sums
+    profile_norm = np.where(profile_norm > 0, profile_norm, 1.0)
+    zero = np.zeros((1, 3))
     scored: list[tuple[float, float, float]] = []
-    for sign in signs:
-        for dispersion in dispersions:
-            step_nm = dispersion * spacing
-            start_nm = grid.start_nm - n * step_nm
-            samples_nm = start_nm + step_nm * np.arange(
-                int((grid.stop_nm - start_nm) / step_nm) + n + 2
+    for dispersion in dispersions:
+        step_nm = dispersion * spacing
+        start_nm = grid.start_nm - n * step_nm
+        samples_nm = start_nm + step_nm * np.arange(
+            int((grid.stop_nm - start_nm) / step_nm) + n + 2
+        )
+        length = samples_nm.size
+        if length + n > size:
+            continue
+        expected = np.stack(
+            [np.interp(samples_nm, model_nm, model[:, k], left=0.0, right=0.0) for k in range(3)],
+            axis=1,
+        )
+        # corr[s] = Σ_p profile[p] · expected[p + s], every shift s at once; one transform of
+        # the model serves both orientations.
+        expected_fft = np.fft.rfft(expected, size, axis=0)
+        correlation = np.fft.irfft(expected_fft * profile_fft, size, axis=0)[n - 1 : length]
+        # The n-pixel windows' sums of the model and of its square, by running sums.
+        running = np.cumsum(np.vstack([zero, expected]), axis=0)
+        running_sq = np.cumsum(np.vstack([zero, expected**2]), axis=0)
+        sums = running[n:] - running[:-n]
+        squares = running_sq[n:] - running_sq[:-n]
+        energy = running_sq[-1]
+        placements = [(1.0, correlation, sums, squares, samples_nm)]
+        if forward_fft is not None:
+            # Mirrored (the model reversed, L samples): its correlation at shift s is the
+            # convolution at L − 1 − s, its window at s the forward one at L − n − s.
+            convolution = np.fft.irfft(expected_fft * forward_fft, size, axis=0)
+            placements.append(
+                (
+                    -1.0,
+                    convolution[n - 1 : length][::-1],
+                    sums[::-1],
+                    squares[::-1],
+                    samples_nm[::-1],
+                )
             )
-            expected = np.stack(
-                [
-                    np.interp(samples_nm, model_nm, model[:, k], left=0.0, right=0.0)
-                    for k in range(3)
-                ],
-                axis=1,
-            )
-            if sign < 0:
-                expected = expected[::-1]
-            length = expected.shape[0]
-            if length + n > size:
-                continue
-            # corr[s] = Σ_p profile[p] · expected[p + s]
-            expected_fft = np.fft.rfft(expected, size, axis=0)
-            correlation = np.fft.irfft(expected_fft * profile_fft, size, axis=0)[
-                n - 1 : n - 1 + length - n + 1
-            ]
-            window_sum = np.fft.irfft(expected_fft * window_fft, size, axis=0)
-            window_sq = np.fft.irfft(
-                np.fft.rfft(expected**2, size, axis=0) * window_fft, size, axis=0
-            )
-            sums = window_sum[n - 1 : n - 1 + length - n + 1]
-            squares = window_sq[n - 1 : n - 1 + length - n + 1]
-            variance = np.clip(squares - sums**2 / n, 1e-300, None)
-            ncc = correlation / (np.sqrt(variance) * np.where(profile_norm > 0, profile_norm, 1.0))
+        for sign, corr, window_sums, window_squares, nm in placements:
+            variance = np.clip(window_squares - window_sums**2 / n, 1e-300, None)
+            ncc = corr / (np.sqrt(variance) * profile_norm)
             # Only windows that hold (nearly) the whole modelled first order are admissible.
-            inside = squares >= min_model_fraction * np.sum(expected**2, axis=0)
+            inside = window_squares >= min_model_fraction * energy
             total = np.where(np.all(inside, axis=1), ncc.mean(axis=1), -np.inf)
             if not np.any(np.isfinite(total)):
                 continue
             finite = np.where(np.isfinite(total), total, np.min(total[np.isfinite(total)]) - 1)
-            for shift in [*signal.argrelmax(finite, order=3)[0].tolist(), int(np.argmax(finite))]:
+            for shift in [*_local_maxima(finite, 3).tolist(), int(np.argmax(finite))]:
                 if not np.isfinite(total[shift]):
                     continue
-                lam0 = samples_nm[shift] if sign > 0 else samples_nm[::-1][shift]
                 slope = sign * dispersion
-                offset = lam0 - slope * pixel[0]
+                offset = nm[shift] - slope * pixel[0]
                 scored.append((float(total[shift]), float(slope), float(offset)))
     scored.sort(reverse=True)
     candidates: list[QuadraticMapping] = []
