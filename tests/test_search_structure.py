@@ -1,5 +1,6 @@
-"""The LED search's correlation starts: every placement scored as the definition says, both
-orientations from one transform of the model per dispersion (decision 0130)."""
+"""The searches' starts made cheaper with the same answers (decision 0130): the LED search's
+correlation scores both orientations from one transform of the model per dispersion; the line
+match judges each line set's placements at once."""
 
 from __future__ import annotations
 
@@ -9,8 +10,15 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from calib.core.mapping import QuadraticMapping
 from calib.core.spectra import DEFAULT_GRID
-from calib.wavelength.peaks import _local_maxima, coarse_mapping_candidates
+from calib.wavelength.peaks import (
+    Peak,
+    _curves_through,
+    _local_maxima,
+    coarse_mapping_candidates,
+    match_peak_hypotheses,
+)
 
 
 def _scene(mirrored: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -107,3 +115,41 @@ def test_local_maxima_follow_scipys_rule() -> None:
         size = int(rng.integers(1, 40))
         values = rng.integers(0, 4, size).astype(float) if trial % 2 else rng.normal(size=size)
         assert np.array_equal(_local_maxima(values, 3), signal.argrelmax(values, order=3)[0])
+
+
+@pytest.mark.parametrize("points", [2, 3])
+def test_curves_through_points_are_the_exact_fits(points: int) -> None:
+    rng = np.random.default_rng(points)
+    pixel = np.sort(rng.uniform(0.0, 900.0, (50, points)), axis=1)
+    wavelength = np.sort(rng.uniform(400.0, 700.0, points))
+    a, b, c = _curves_through(pixel, wavelength)
+    for k in range(pixel.shape[0]):
+        fitted = QuadraticMapping.fit(pixel[k], wavelength, degree=points - 1)
+        assert (a[k], b[k], c[k]) == pytest.approx(fitted.coefficients, rel=1e-9, abs=1e-12)
+
+
+def test_line_match_fits_only_the_hypotheses_it_polishes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Hundreds of line/peak placements are judged without a least-squares fit each (before:
+    one per placement); the right one still leads."""
+    line_nm = np.array([404.66, 435.83, 487.7, 546.07, 576.96, 611.6])
+    truth = QuadraticMapping(2e-5, 0.3, 390.0)
+    peak_px = truth.pixel_at(line_nm)
+    lines = [Peak(float(nm), 1.0, 1.0 - 0.1 * k) for k, nm in enumerate(line_nm)]
+    peaks = [Peak(float(px), 1.0, 1.0 - 0.05 * k) for k, px in enumerate(peak_px)]
+    peaks += [Peak(float(px), 0.2, 0.2) for px in (120.0, 333.0, 640.0)]
+    fits = {"count": 0}
+    fit = QuadraticMapping.fit
+
+    def counted(*args: Any, **kwargs: Any) -> QuadraticMapping:
+        fits["count"] += 1
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(QuadraticMapping, "fit", counted)
+    found = match_peak_hypotheses(
+        lines, peaks, pixel_range=(0.0, 900.0), dispersion_range_nm_per_px=(0.15, 0.6)
+    )
+    # ~11 000 placements (pairs and triples of the 6 lines through ordered peaks) are judged;
+    # only the candidates polished (three refits each, until 6 distinct ones) are fitted.
+    assert fits["count"] < 1000
+    probe = np.linspace(0.0, 900.0, 9)
+    assert np.max(np.abs(found[0].wavelength_nm(probe) - truth.wavelength_nm(probe))) < 0.01

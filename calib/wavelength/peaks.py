@@ -203,6 +203,25 @@ def nominal_dispersion(
     return float(model_lit[-1] - model_lit[0]) / support_px
 
 
+def _curves_through(
+    pixel: FloatArray, wavelength_nm: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(a, b, c)`` ``(K,)`` of the line (two points) or quadratic (three) through each row of
+    ``pixel`` ``(K, 2 | 3)`` at ``wavelength_nm`` ``(2 | 3,)``; non-finite where two pixels
+    coincide."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if pixel.shape[1] == 2:
+            b = (wavelength_nm[1] - wavelength_nm[0]) / (pixel[:, 1] - pixel[:, 0])
+            return np.zeros_like(b), b, wavelength_nm[0] - b * pixel[:, 0]
+        # Newton's divided differences.
+        p0, p1, p2 = pixel[:, 0], pixel[:, 1], pixel[:, 2]
+        first = (wavelength_nm[1] - wavelength_nm[0]) / (p1 - p0)
+        second = (wavelength_nm[2] - wavelength_nm[1]) / (p2 - p1)
+        a = (second - first) / (p2 - p0)
+        b = first - a * (p0 + p1)
+        return a, b, wavelength_nm[0] - (a * p0 + b) * p0
+
+
 def match_peak_hypotheses(
     lines: Sequence[Peak],
     peaks: Sequence[Peak],
@@ -264,6 +283,17 @@ def match_peak_hypotheses(
         explained = float(np.sum(peak_share * peaks_explained)) if explain_peaks else 0.0
         return float(np.sum(line_weight * lines_found)) + explained
 
+    def _soft_scores(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
+        """:func:`score` of the quadratics ``(a, b, c)`` ``(K,)`` each, at once."""
+        predicted = (a[:, None] * peak_px[None, :] + b[:, None]) * peak_px[None, :] + c[:, None]
+        gap = np.abs(predicted[:, None, :] - line_nm[None, :, None])
+        lines_found = np.exp(-0.5 * (np.min(gap, axis=2) / 2.0) ** 2)
+        total = np.sum(line_weight[None, :] * lines_found, axis=1)
+        if explain_peaks:
+            peaks_explained = np.exp(-0.5 * (np.min(gap, axis=1) / 2.0) ** 2)
+            total = total + np.sum(peak_share[None, :] * peaks_explained, axis=1)
+        return np.asarray(total, dtype=np.float64)
+
     def admissible(mapping: QuadraticMapping) -> bool:
         slope = mapping.dispersion_nm_per_px(probe)
         if np.any(slope <= 0) and not allow_reversed:
@@ -297,23 +327,36 @@ def match_peak_hypotheses(
             details={"matched": matched, "n_lines": len(lines), "n_peaks": len(peaks)}
         )
 
+    # Every pair and triple of the strongest lines through every ordered pair or triple of the
+    # strongest peaks: the curve through them exactly, each line set's placements judged at once.
+    low, high = dispersion_range_nm_per_px
     scored: list[tuple[float, QuadraticMapping]] = []
     strongest_lines = sorted(np.argsort(-line_weight)[:6].tolist(), key=lambda i: line_nm[i])
     strongest_peaks = np.argsort(-peak_weight)[:10].tolist()
     for size in (2, 3):
+        orders = np.array(list(itertools.permutations(strongest_peaks, size)), dtype=np.intp)
+        if orders.size == 0:
+            continue
+        at = peak_px[orders]
         for line_set in itertools.combinations(strongest_lines, size):
             if line_nm[line_set[-1]] - line_nm[line_set[0]] < 60.0:
                 continue  # too short a baseline to extrapolate from
-            for peak_set in itertools.permutations(strongest_peaks, size):
-                try:
-                    fitted = QuadraticMapping.fit(
-                        peak_px[list(peak_set)], line_nm[list(line_set)], degree=size - 1
-                    )
-                except EstimationError:
-                    continue
-                candidate = QuadraticMapping(fitted.a, fitted.b, fitted.c, pixel_range=pixel_range)
-                if admissible(candidate):
-                    scored.append((score(candidate), candidate))
+            through = line_nm[list(line_set)]
+            a, b, c = _curves_through(at, through)
+            slope = 2.0 * a[:, None] * probe[None, :] + b[:, None]
+            within = np.all((np.abs(slope) >= low) & (np.abs(slope) <= high), axis=1)
+            if not allow_reversed:
+                within &= np.all(slope > 0, axis=1)
+            within &= np.isfinite(a) & np.isfinite(b) & np.isfinite(c)
+            for k, value in zip(
+                np.flatnonzero(within).tolist(),
+                _soft_scores(a[within], b[within], c[within]).tolist(),
+                strict=True,
+            ):
+                candidate = QuadraticMapping(
+                    float(a[k]), float(b[k]), float(c[k]), pixel_range=pixel_range
+                )
+                scored.append((value, candidate))
     if not scored:
         raise EstimationError(
             "could not match the lamp's lines to the profile's peaks (no consistent pair of lines); "
