@@ -466,16 +466,24 @@ def mapping_from_peaks(
 # ------------------------------------------------------------------------- broadband search
 
 
-def _local_maxima(values: FloatArray, order: int) -> NDArray[np.intp]:
-    """Indices above each of their ``order`` neighbours on either side, the ends' neighbours
-    clipped to the ends (:func:`scipy.signal.argrelmax`'s rule, without its per-call cost)."""
-    n = values.size
-    padded = np.concatenate((np.full(order, values[0]), values, np.full(order, values[-1])))
-    above = np.ones(n, dtype=bool)
+def _local_maxima(values: FloatArray, order: int) -> NDArray[np.bool_]:
+    """Where a value is above each of its ``order`` neighbours on either side along the last
+    axis, the ends' neighbours clipped to the ends (:func:`scipy.signal.argrelmax`'s rule, on
+    every row at once)."""
+    n = values.shape[-1]
+    padded = np.concatenate(
+        (
+            np.repeat(values[..., :1], order, axis=-1),
+            values,
+            np.repeat(values[..., -1:], order, axis=-1),
+        ),
+        axis=-1,
+    )
+    above = np.ones(values.shape, dtype=bool)
     for shift in range(1, order + 1):
-        above &= values > padded[order + shift : order + shift + n]
-        above &= values > padded[order - shift : order - shift + n]
-    return np.flatnonzero(above)
+        above &= values > padded[..., order + shift : order + shift + n]
+        above &= values > padded[..., order - shift : order - shift + n]
+    return above
 
 
 def coarse_mapping_candidates(
@@ -510,81 +518,109 @@ def coarse_mapping_candidates(
     dispersions = nominal * np.geomspace(0.6, 1.6, n_dispersions)
     centred = profile - profile.mean(axis=0)
     size = 1 << math.ceil(math.log2(4 * n))
-    profile_fft = np.fft.rfft(centred[::-1], size, axis=0)
-    # A mirrored placement's correlations are the model's convolutions with the profile itself.
-    forward_fft = np.fft.rfft(centred, size, axis=0) if allow_reversed else None
     profile_norm = np.linalg.norm(centred, axis=0)
     profile_norm = np.where(profile_norm > 0, profile_norm, 1.0)
-    zero = np.zeros((1, 3))
-    scored: list[tuple[float, float, float]] = []
-    for dispersion in dispersions:
-        step_nm = dispersion * spacing
-        start_nm = grid.start_nm - n * step_nm
-        samples_nm = start_nm + step_nm * np.arange(
-            int((grid.stop_nm - start_nm) / step_nm) + n + 2
-        )
-        length = samples_nm.size
-        if length + n > size:
-            continue
-        expected = np.stack(
-            [np.interp(samples_nm, model_nm, model[:, k], left=0.0, right=0.0) for k in range(3)],
-            axis=1,
-        )
-        # corr[s] = Σ_p profile[p] · expected[p + s], every shift s at once; one transform of
-        # the model serves both orientations.
-        expected_fft = np.fft.rfft(expected, size, axis=0)
-        correlation = np.fft.irfft(expected_fft * profile_fft, size, axis=0)[n - 1 : length]
-        # The n-pixel windows' sums of the model and of its square, by running sums.
-        running = np.cumsum(np.vstack([zero, expected]), axis=0)
-        running_sq = np.cumsum(np.vstack([zero, expected**2]), axis=0)
-        sums = running[n:] - running[:-n]
-        squares = running_sq[n:] - running_sq[:-n]
-        energy = running_sq[-1]
-        placements = [(1.0, correlation, sums, squares, samples_nm)]
-        if forward_fft is not None:
-            # Mirrored (the model reversed, L samples): its correlation at shift s is the
-            # convolution at L − 1 − s, its window at s the forward one at L − n − s.
-            convolution = np.fft.irfft(expected_fft * forward_fft, size, axis=0)
-            placements.append(
-                (
-                    -1.0,
-                    convolution[n - 1 : length][::-1],
-                    sums[::-1],
-                    squares[::-1],
-                    samples_nm[::-1],
-                )
+    # The model sampled at every dispersion's step (one row each, zero past its own length: the
+    # transforms pad with zeros anyway), from a step before the profile's first pixel to past
+    # the grid's end; rows too long for the transforms are left out.
+    steps_nm = dispersions * spacing
+    starts_nm = grid.start_nm - n * steps_nm
+    lengths = ((grid.stop_nm - starts_nm) / steps_nm).astype(np.intp) + n + 2
+    kept = np.flatnonzero(lengths + n <= size)
+    if kept.size == 0:
+        raise EstimationError("the broadband mapping search found no candidate")
+    dispersions, steps_nm, starts_nm, lengths = (
+        dispersions[kept],
+        steps_nm[kept],
+        starts_nm[kept],
+        lengths[kept],
+    )
+    longest = int(lengths.max())
+    index = np.arange(longest)
+    samples_nm = starts_nm[:, None] + steps_nm[:, None] * index[None, :]
+    inside_row = index[None, :] < lengths[:, None]
+    expected = np.stack(
+        [
+            np.where(
+                inside_row,
+                np.interp(samples_nm, model_nm, model[:, k], left=0.0, right=0.0),
+                0.0,
             )
-        for sign, corr, window_sums, window_squares, nm in placements:
-            variance = np.clip(window_squares - window_sums**2 / n, 1e-300, None)
-            ncc = corr / (np.sqrt(variance) * profile_norm)
-            # Only windows that hold (nearly) the whole modelled first order are admissible.
-            inside = window_squares >= min_model_fraction * energy
-            total = np.where(np.all(inside, axis=1), ncc.mean(axis=1), -np.inf)
-            if not np.any(np.isfinite(total)):
-                continue
-            finite = np.where(np.isfinite(total), total, np.min(total[np.isfinite(total)]) - 1)
-            for shift in [*_local_maxima(finite, 3).tolist(), int(np.argmax(finite))]:
-                if not np.isfinite(total[shift]):
-                    continue
-                slope = sign * dispersion
-                offset = nm[shift] - slope * pixel[0]
-                scored.append((float(total[shift]), float(slope), float(offset)))
+            for k in range(3)
+        ],
+        axis=2,
+    )
+    # corr[s] = Σ_p profile[p] · expected[p + s], every shift s of every dispersion at once;
+    # a mirrored placement's (the model reversed) is the model's convolution with the profile.
+    expected_fft = np.fft.rfft(expected, size, axis=1)
+    correlation = np.fft.irfft(
+        expected_fft * np.fft.rfft(centred[::-1], size, axis=0)[None], size, axis=1
+    )
+    convolution = (
+        np.fft.irfft(expected_fft * np.fft.rfft(centred, size, axis=0)[None], size, axis=1)
+        if allow_reversed
+        else None
+    )
+    # The n-pixel windows' sums of the model and of its square, by running sums; shift s of a
+    # row is admissible up to its own L − n.
+    zero = np.zeros((kept.size, 1, 3))
+    running = np.cumsum(np.concatenate([zero, expected], axis=1), axis=1)
+    running_sq = np.cumsum(np.concatenate([zero, expected**2], axis=1), axis=1)
+    shifts = longest - n + 1
+    last = lengths - n
+    rows = np.arange(kept.size)[:, None]
+    sums = running[:, n:] - running[:, :shifts]
+    squares = running_sq[:, n:] - running_sq[:, :shifts]
+    energy = running_sq[np.arange(kept.size), lengths][:, None, :]
+    placed = [(1.0, correlation[:, n - 1 : n - 1 + shifts], sums, squares)]
+    if convolution is not None:
+        # Mirrored (L samples): its correlation at shift s is the convolution at L − 1 − s, its
+        # window at s the forward one at L − n − s.
+        mirror = np.clip(last[:, None] - np.arange(shifts)[None, :], 0, shifts - 1)
+        placed.append(
+            (-1.0, convolution[rows, n - 1 + mirror], sums[rows, mirror], squares[rows, mirror])
+        )
+    valid = np.arange(shifts)[None, :] <= last[:, None]
+    any_row = np.arange(kept.size)
+    scored: list[tuple[float, float, float]] = []
+    for sign, corr, window_sums, window_squares in placed:
+        variance = np.clip(window_squares - window_sums**2 / n, 1e-300, None)
+        ncc = corr / (np.sqrt(variance) * profile_norm)
+        # Only windows that hold (nearly) the whole modelled first order are admissible.
+        inside = np.all(window_squares >= min_model_fraction * energy, axis=2) & valid
+        totals = np.where(inside, ncc.mean(axis=2), -np.inf)
+        lit = np.any(inside, axis=1)
+        # Each row's inadmissible shifts just below its lowest admissible score, and past its
+        # own last shift its last value (the local maxima's ends clipped as for one row).
+        floor = np.min(np.where(inside, totals, np.inf), axis=1, keepdims=True) - 1
+        finite = np.where(inside, totals, floor)
+        finite = np.where(valid, finite, finite[any_row, last][:, None])
+        peaks_at = _local_maxima(finite, 3) & valid
+        peaks_at[any_row, np.argmax(finite, axis=1)] = True
+        for row, shift in zip(*np.nonzero(peaks_at & inside & lit[:, None]), strict=True):
+            slope = sign * float(dispersions[row])
+            nm = samples_nm[row, shift] if sign > 0 else samples_nm[row, last[row] + n - 1 - shift]
+            scored.append((float(totals[row, shift]), slope, float(nm - slope * pixel[0])))
     scored.sort(reverse=True)
-    candidates: list[QuadraticMapping] = []
     pixel_range = (float(pixel[0]), float(pixel[-1]))
+    probe = np.linspace(pixel_range[0], pixel_range[1], 16)
+    chosen: list[tuple[float, float, float]] = []
+    kept_nm = np.empty((0, probe.size))
     for value, slope, offset in scored:
-        mapping = QuadraticMapping(
+        # (QuadraticMapping.wavelength_nm's own expression, for a = 0.)
+        placed_nm = (0.0 * probe + slope) * probe + offset
+        if kept_nm.shape[0] and np.min(np.max(np.abs(kept_nm - placed_nm), axis=1)) < 6.0:
+            continue
+        chosen.append((value, slope, offset))
+        kept_nm = np.vstack([kept_nm, placed_nm])
+        if len(chosen) == n_candidates:
+            break
+    candidates = [
+        QuadraticMapping(
             0.0, slope, offset, method="led-search", pixel_range=pixel_range, details={"ncc": value}
         )
-        probe = np.linspace(pixel_range[0], pixel_range[1], 16)
-        if any(
-            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) < 6.0
-            for other in candidates
-        ):
-            continue
-        candidates.append(mapping)
-        if len(candidates) == n_candidates:
-            break
+        for value, slope, offset in chosen
+    ]
     if not candidates:
         raise EstimationError("the broadband mapping search found no candidate")
     return candidates
