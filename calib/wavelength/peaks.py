@@ -581,7 +581,7 @@ def coarse_mapping_candidates(
             (-1.0, convolution[rows, n - 1 + mirror], sums[rows, mirror], squares[rows, mirror])
         )
     valid = np.arange(shifts)[None, :] <= last[:, None]
-    any_row = np.arange(kept.size)
+    each_row = np.arange(kept.size)
     scored: list[tuple[float, float, float]] = []
     for sign, corr, window_sums, window_squares in placed:
         variance = np.clip(window_squares - window_sums**2 / n, 1e-300, None)
@@ -594,9 +594,9 @@ def coarse_mapping_candidates(
         # own last shift its last value (the local maxima's ends clipped as for one row).
         floor = np.min(np.where(inside, totals, np.inf), axis=1, keepdims=True) - 1
         finite = np.where(inside, totals, floor)
-        finite = np.where(valid, finite, finite[any_row, last][:, None])
+        finite = np.where(valid, finite, finite[each_row, last][:, None])
         peaks_at = _local_maxima(finite, 3) & valid
-        peaks_at[any_row, np.argmax(finite, axis=1)] = True
+        peaks_at[each_row, np.argmax(finite, axis=1)] = True
         for row, shift in zip(*np.nonzero(peaks_at & inside & lit[:, None]), strict=True):
             slope = sign * float(dispersions[row])
             nm = samples_nm[row, shift] if sign > 0 else samples_nm[row, last[row] + n - 1 - shift]
