@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import EstimationError
@@ -202,6 +203,25 @@ def nominal_dispersion(
     return float(model_lit[-1] - model_lit[0]) / support_px
 
 
+def _curves_through(
+    pixel: FloatArray, wavelength_nm: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(a, b, c)`` ``(K,)`` of the line (two points) or quadratic (three) through each row of
+    ``pixel`` ``(K, 2 | 3)`` at ``wavelength_nm`` ``(2 | 3,)``; non-finite where two pixels
+    coincide."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if pixel.shape[1] == 2:
+            b = (wavelength_nm[1] - wavelength_nm[0]) / (pixel[:, 1] - pixel[:, 0])
+            return np.zeros_like(b), b, wavelength_nm[0] - b * pixel[:, 0]
+        # Newton's divided differences.
+        p0, p1, p2 = pixel[:, 0], pixel[:, 1], pixel[:, 2]
+        first = (wavelength_nm[1] - wavelength_nm[0]) / (p1 - p0)
+        second = (wavelength_nm[2] - wavelength_nm[1]) / (p2 - p1)
+        a = (second - first) / (p2 - p0)
+        b = first - a * (p0 + p1)
+        return a, b, wavelength_nm[0] - (a * p0 + b) * p0
+
+
 def match_peak_hypotheses(
     lines: Sequence[Peak],
     peaks: Sequence[Peak],
@@ -263,6 +283,17 @@ def match_peak_hypotheses(
         explained = float(np.sum(peak_share * peaks_explained)) if explain_peaks else 0.0
         return float(np.sum(line_weight * lines_found)) + explained
 
+    def _soft_scores(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
+        """:func:`score` of the quadratics ``(a, b, c)`` ``(K,)`` each, at once."""
+        predicted = (a[:, None] * peak_px[None, :] + b[:, None]) * peak_px[None, :] + c[:, None]
+        gap = np.abs(predicted[:, None, :] - line_nm[None, :, None])
+        lines_found = np.exp(-0.5 * (np.min(gap, axis=2) / 2.0) ** 2)
+        total = np.sum(line_weight[None, :] * lines_found, axis=1)
+        if explain_peaks:
+            peaks_explained = np.exp(-0.5 * (np.min(gap, axis=1) / 2.0) ** 2)
+            total = total + np.sum(peak_share[None, :] * peaks_explained, axis=1)
+        return np.asarray(total, dtype=np.float64)
+
     def admissible(mapping: QuadraticMapping) -> bool:
         slope = mapping.dispersion_nm_per_px(probe)
         if np.any(slope <= 0) and not allow_reversed:
@@ -296,23 +327,36 @@ def match_peak_hypotheses(
             details={"matched": matched, "n_lines": len(lines), "n_peaks": len(peaks)}
         )
 
+    # Every pair and triple of the strongest lines through every ordered pair or triple of the
+    # strongest peaks: the curve through them exactly, each line set's placements judged at once.
+    low, high = dispersion_range_nm_per_px
     scored: list[tuple[float, QuadraticMapping]] = []
     strongest_lines = sorted(np.argsort(-line_weight)[:6].tolist(), key=lambda i: line_nm[i])
     strongest_peaks = np.argsort(-peak_weight)[:10].tolist()
     for size in (2, 3):
+        orders = np.array(list(itertools.permutations(strongest_peaks, size)), dtype=np.intp)
+        if orders.size == 0:
+            continue
+        at = peak_px[orders]
         for line_set in itertools.combinations(strongest_lines, size):
             if line_nm[line_set[-1]] - line_nm[line_set[0]] < 60.0:
                 continue  # too short a baseline to extrapolate from
-            for peak_set in itertools.permutations(strongest_peaks, size):
-                try:
-                    fitted = QuadraticMapping.fit(
-                        peak_px[list(peak_set)], line_nm[list(line_set)], degree=size - 1
-                    )
-                except EstimationError:
-                    continue
-                candidate = QuadraticMapping(fitted.a, fitted.b, fitted.c, pixel_range=pixel_range)
-                if admissible(candidate):
-                    scored.append((score(candidate), candidate))
+            through = line_nm[list(line_set)]
+            a, b, c = _curves_through(at, through)
+            slope = 2.0 * a[:, None] * probe[None, :] + b[:, None]
+            within = np.all((np.abs(slope) >= low) & (np.abs(slope) <= high), axis=1)
+            if not allow_reversed:
+                within &= np.all(slope > 0, axis=1)
+            within &= np.isfinite(a) & np.isfinite(b) & np.isfinite(c)
+            for k, value in zip(
+                np.flatnonzero(within).tolist(),
+                _soft_scores(a[within], b[within], c[within]).tolist(),
+                strict=True,
+            ):
+                candidate = QuadraticMapping(
+                    float(a[k]), float(b[k]), float(c[k]), pixel_range=pixel_range
+                )
+                scored.append((value, candidate))
     if not scored:
         raise EstimationError(
             "could not match the lamp's lines to the profile's peaks (no consistent pair of lines); "
@@ -422,6 +466,26 @@ def mapping_from_peaks(
 # ------------------------------------------------------------------------- broadband search
 
 
+def _local_maxima(values: FloatArray, order: int) -> NDArray[np.bool_]:
+    """Where a value is above each of its ``order`` neighbours on either side along the last
+    axis, the ends' neighbours clipped to the ends (:func:`scipy.signal.argrelmax`'s rule, on
+    every row at once)."""
+    n = values.shape[-1]
+    padded = np.concatenate(
+        (
+            np.repeat(values[..., :1], order, axis=-1),
+            values,
+            np.repeat(values[..., -1:], order, axis=-1),
+        ),
+        axis=-1,
+    )
+    above = np.ones(values.shape, dtype=bool)
+    for shift in range(1, order + 1):
+        above &= values > padded[..., order + shift : order + shift + n]
+        above &= values > padded[..., order - shift : order - shift + n]
+    return above
+
+
 def coarse_mapping_candidates(
     pixel: FloatArray,
     profile: FloatArray,
@@ -448,80 +512,115 @@ def coarse_mapping_candidates(
     list of QuadraticMapping
         Up to ``n_candidates`` distinct linear mappings (``method="led-search"``), best first.
     """
-    from scipy import signal
-
     n = pixel.size
     spacing = float(np.median(np.diff(pixel)))
     nominal = nominal_dispersion(pixel, profile, model_nm, model)
     dispersions = nominal * np.geomspace(0.6, 1.6, n_dispersions)
     centred = profile - profile.mean(axis=0)
     size = 1 << math.ceil(math.log2(4 * n))
-    profile_fft = np.fft.rfft(centred[::-1], size, axis=0)
     profile_norm = np.linalg.norm(centred, axis=0)
-    signs = (1.0, -1.0) if allow_reversed else (1.0,)
-    window_fft = np.fft.rfft(np.ones(n), size)[:, None]  # the n-pixel window's sums
+    profile_norm = np.where(profile_norm > 0, profile_norm, 1.0)
+    # The model sampled at every dispersion's step (one row each, zero past its own length: the
+    # transforms pad with zeros anyway), from a step before the profile's first pixel to past
+    # the grid's end; rows too long for the transforms are left out.
+    steps_nm = dispersions * spacing
+    starts_nm = grid.start_nm - n * steps_nm
+    lengths = ((grid.stop_nm - starts_nm) / steps_nm).astype(np.intp) + n + 2
+    kept = np.flatnonzero(lengths + n <= size)
+    if kept.size == 0:
+        raise EstimationError("the broadband mapping search found no candidate")
+    dispersions, steps_nm, starts_nm, lengths = (
+        dispersions[kept],
+        steps_nm[kept],
+        starts_nm[kept],
+        lengths[kept],
+    )
+    longest = int(lengths.max())
+    index = np.arange(longest)
+    samples_nm = starts_nm[:, None] + steps_nm[:, None] * index[None, :]
+    inside_row = index[None, :] < lengths[:, None]
+    expected = np.stack(
+        [
+            np.where(
+                inside_row,
+                np.interp(samples_nm, model_nm, model[:, k], left=0.0, right=0.0),
+                0.0,
+            )
+            for k in range(3)
+        ],
+        axis=2,
+    )
+    # corr[s] = Σ_p profile[p] · expected[p + s], every shift s of every dispersion at once;
+    # a mirrored placement's (the model reversed) is the model's convolution with the profile.
+    expected_fft = np.fft.rfft(expected, size, axis=1)
+    correlation = np.fft.irfft(
+        expected_fft * np.fft.rfft(centred[::-1], size, axis=0)[None], size, axis=1
+    )
+    convolution = (
+        np.fft.irfft(expected_fft * np.fft.rfft(centred, size, axis=0)[None], size, axis=1)
+        if allow_reversed
+        else None
+    )
+    # The n-pixel windows' sums of the model and of its square, by running sums; shift s of a
+    # row is admissible up to its own L − n.
+    zero = np.zeros((kept.size, 1, 3))
+    running = np.cumsum(np.concatenate([zero, expected], axis=1), axis=1)
+    running_sq = np.cumsum(np.concatenate([zero, expected**2], axis=1), axis=1)
+    shifts = longest - n + 1
+    last = lengths - n
+    rows = np.arange(kept.size)[:, None]
+    sums = running[:, n:] - running[:, :shifts]
+    squares = running_sq[:, n:] - running_sq[:, :shifts]
+    energy = running_sq[np.arange(kept.size), lengths][:, None, :]
+    placed = [(1.0, correlation[:, n - 1 : n - 1 + shifts], sums, squares)]
+    if convolution is not None:
+        # Mirrored (L samples): its correlation at shift s is the convolution at L − 1 − s, its
+        # window at s the forward one at L − n − s.
+        mirror = np.clip(last[:, None] - np.arange(shifts)[None, :], 0, shifts - 1)
+        placed.append(
+            (-1.0, convolution[rows, n - 1 + mirror], sums[rows, mirror], squares[rows, mirror])
+        )
+    valid = np.arange(shifts)[None, :] <= last[:, None]
+    each_row = np.arange(kept.size)
     scored: list[tuple[float, float, float]] = []
-    for sign in signs:
-        for dispersion in dispersions:
-            step_nm = dispersion * spacing
-            start_nm = grid.start_nm - n * step_nm
-            samples_nm = start_nm + step_nm * np.arange(
-                int((grid.stop_nm - start_nm) / step_nm) + n + 2
-            )
-            expected = np.stack(
-                [
-                    np.interp(samples_nm, model_nm, model[:, k], left=0.0, right=0.0)
-                    for k in range(3)
-                ],
-                axis=1,
-            )
-            if sign < 0:
-                expected = expected[::-1]
-            length = expected.shape[0]
-            if length + n > size:
-                continue
-            # corr[s] = Σ_p profile[p] · expected[p + s]
-            expected_fft = np.fft.rfft(expected, size, axis=0)
-            correlation = np.fft.irfft(expected_fft * profile_fft, size, axis=0)[
-                n - 1 : n - 1 + length - n + 1
-            ]
-            window_sum = np.fft.irfft(expected_fft * window_fft, size, axis=0)
-            window_sq = np.fft.irfft(
-                np.fft.rfft(expected**2, size, axis=0) * window_fft, size, axis=0
-            )
-            sums = window_sum[n - 1 : n - 1 + length - n + 1]
-            squares = window_sq[n - 1 : n - 1 + length - n + 1]
-            variance = np.clip(squares - sums**2 / n, 1e-300, None)
-            ncc = correlation / (np.sqrt(variance) * np.where(profile_norm > 0, profile_norm, 1.0))
-            # Only windows that hold (nearly) the whole modelled first order are admissible.
-            inside = squares >= min_model_fraction * np.sum(expected**2, axis=0)
-            total = np.where(np.all(inside, axis=1), ncc.mean(axis=1), -np.inf)
-            if not np.any(np.isfinite(total)):
-                continue
-            finite = np.where(np.isfinite(total), total, np.min(total[np.isfinite(total)]) - 1)
-            for shift in [*signal.argrelmax(finite, order=3)[0].tolist(), int(np.argmax(finite))]:
-                if not np.isfinite(total[shift]):
-                    continue
-                lam0 = samples_nm[shift] if sign > 0 else samples_nm[::-1][shift]
-                slope = sign * dispersion
-                offset = lam0 - slope * pixel[0]
-                scored.append((float(total[shift]), float(slope), float(offset)))
+    for sign, corr, window_sums, window_squares in placed:
+        variance = np.clip(window_squares - window_sums**2 / n, 1e-300, None)
+        ncc = corr / (np.sqrt(variance) * profile_norm)
+        # Only windows that hold (nearly) the whole modelled first order are admissible.
+        inside = np.all(window_squares >= min_model_fraction * energy, axis=2) & valid
+        totals = np.where(inside, ncc.mean(axis=2), -np.inf)
+        lit = np.any(inside, axis=1)
+        # Each row's inadmissible shifts just below its lowest admissible score, and past its
+        # own last shift its last value (the local maxima's ends clipped as for one row).
+        floor = np.min(np.where(inside, totals, np.inf), axis=1, keepdims=True) - 1
+        finite = np.where(inside, totals, floor)
+        finite = np.where(valid, finite, finite[each_row, last][:, None])
+        peaks_at = _local_maxima(finite, 3) & valid
+        peaks_at[each_row, np.argmax(finite, axis=1)] = True
+        for row, shift in zip(*np.nonzero(peaks_at & inside & lit[:, None]), strict=True):
+            slope = sign * float(dispersions[row])
+            nm = samples_nm[row, shift] if sign > 0 else samples_nm[row, last[row] + n - 1 - shift]
+            scored.append((float(totals[row, shift]), slope, float(nm - slope * pixel[0])))
     scored.sort(reverse=True)
-    candidates: list[QuadraticMapping] = []
     pixel_range = (float(pixel[0]), float(pixel[-1]))
+    probe = np.linspace(pixel_range[0], pixel_range[1], 16)
+    chosen: list[tuple[float, float, float]] = []
+    kept_nm = np.empty((0, probe.size))
     for value, slope, offset in scored:
-        mapping = QuadraticMapping(
+        # (QuadraticMapping.wavelength_nm's own expression, for a = 0.)
+        placed_nm = (0.0 * probe + slope) * probe + offset
+        if kept_nm.shape[0] and np.min(np.max(np.abs(kept_nm - placed_nm), axis=1)) < 6.0:
+            continue
+        chosen.append((value, slope, offset))
+        kept_nm = np.vstack([kept_nm, placed_nm])
+        if len(chosen) == n_candidates:
+            break
+    candidates = [
+        QuadraticMapping(
             0.0, slope, offset, method="led-search", pixel_range=pixel_range, details={"ncc": value}
         )
-        probe = np.linspace(pixel_range[0], pixel_range[1], 16)
-        if any(
-            np.max(np.abs(mapping.wavelength_nm(probe) - other.wavelength_nm(probe))) < 6.0
-            for other in candidates
-        ):
-            continue
-        candidates.append(mapping)
-        if len(candidates) == n_candidates:
-            break
+        for value, slope, offset in chosen
+    ]
     if not candidates:
         raise EstimationError("the broadband mapping search found no candidate")
     return candidates
