@@ -751,14 +751,19 @@ class ResponseModel:
         places += (np.arange(batch) * per_batch)[:, None, None]
         flat = places.reshape(-1)
         weights = self._normal_weights(width, with_rhs)  # (3, n, M [+ w])
-        sums = np.stack(
-            [
-                np.bincount(
-                    flat, weights=(factors * weights[c]).reshape(-1), minlength=batch * per_batch
-                ).reshape(batch, per_batch)
-                for c in range(3)
-            ],
-            axis=1,
+        sums = np.asarray(
+            np.stack(
+                [
+                    np.bincount(
+                        flat,
+                        weights=(factors * weights[c]).reshape(-1),
+                        minlength=batch * per_batch,
+                    ).reshape(batch, per_batch)
+                    for c in range(3)
+                ],
+                axis=1,
+            ),
+            dtype=np.float64,
         )  # (K, 3, N·w [+ N])
         diagonals = sums[..., : size * width].reshape(batch, 3, size, width)
         rhs = sums[..., size * width :] if with_rhs else None
