@@ -36,12 +36,16 @@ can hold: a camera with detail finer than the grid, e.g. colour's Nikon 5100 wit
         [--data-dir ../shared/data/camera_sensitivities] [--keep DIR]
         [--spectrometer-error on|off] [--stray-light on|off]
         [--shutter-error on|off] [--seed-per-camera]
-        [--validation-cameras N] [--validation-seeds K] [--direct-reading interleaving|fit]
+        [--validation-cameras N] [--validation-seeds K]
+        [--direct-reading interleaving|fit|interleaving-everywhere]
 
 ``--validation-cameras N`` adds N rawtoaces-data bodies to the six named validation twins (a fixed
 draw, never a test body), ``--validation-seeds K`` captures every validation twin at K station seeds:
 more validation evidence for a choice. ``--direct-reading fit`` reads the direct spot's colour as
-decision 0114 did (the comparison decision 0123 needed; the product reads it as decision 0119 does).
+decision 0114 did (the comparison decision 0123 needed; the product reads it as decision 0119 does);
+``--direct-reading interleaving-everywhere`` reads every spot with the Bayer interleaving, the
+blurred ones too (the product keeps their plain sums): these twins' slit is tilted 0.8°, so this is
+the test of the interleaving's σ under the tilt (decisions 0123, 0134).
 """
 
 from __future__ import annotations
@@ -364,11 +368,14 @@ def main() -> None:
     )
     parser.add_argument(
         "--direct-reading",
-        choices=("interleaving", "fit"),
+        choices=("interleaving", "fit", "interleaving-everywhere"),
         default="interleaving",
-        help="the direct spot's colour on a Bayer sensor: the cells' interleaving (decision 0119, "
-        "the product) or decision 0114's shared-shape fit with the fit − sum difference in its σ "
-        "(a comparison, not the product)",
+        help="the direct spot's colour on a Bayer sensor: the cells' interleaving where the spot is "
+        "sharp (decision 0119 with its merge addendum, the product), decision 0114's shared-shape "
+        "fit with the fit − sum difference in its σ, or the interleaving on every spot, the "
+        "blurred ones too (decision 0119 before the addendum; these twins' spots are blurred, so "
+        "this is what puts the interleaving and its σ under the slit's tilt to the test) — the "
+        "last two comparisons, not the product",
     )
     parser.add_argument(
         "--camera",
@@ -382,6 +389,20 @@ def main() -> None:
         from calib.image.profiles import extraction
 
         extraction._interleaved_direct = lambda *_args, **_kwargs: None
+    elif args.direct_reading == "interleaving-everywhere":
+        from calib.image.profiles import extraction
+
+        resolved_direct = extraction._resolved_direct
+
+        def everywhere(*resolved_args, **resolved_kwargs):  # type: ignore[no-untyped-def]
+            # A blurred spot (no fit, no note) is read like one whose fit failed: the
+            # interleaving, else the plain sums.
+            values, note = resolved_direct(*resolved_args, **resolved_kwargs)
+            if values is None and note is None:
+                return None, extraction.FIT_FAILED
+            return values, note
+
+        extraction._resolved_direct = everywhere
     cameras: list[tuple[str, str, str, int]] = []
     if args.split in ("validation", "both"):
         for seed in range(args.validation_seeds):

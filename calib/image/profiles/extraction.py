@@ -390,13 +390,21 @@ def _extract_direct(
     # neither a fit nor a note) keeps its plain sums, which are then exact: the interleaving would
     # only add its noise and a bias of its own where the slit's image is tilted against the columns
     # (each green sees the slit ±tan θ off the R or B site sharing its column: ±0.37 % at 0.8° on a
-    # smooth spot, whose weights a and b the fit then barely separates; decision 0123).
+    # smooth spot, whose weights a and b the fit then barely separates; decision 0123). Where the
+    # interleaving reads the spot, a bound on that term is in its σ (decision 0134).
     narrow = note is not None and note != FIT_FAILED
     smooth = resolved is None and note is None
     interleaved = (
         None
         if narrow or smooth
-        else _interleaved_direct(cells, lengths, image.cfa_pattern, image.pixel_pitch_px)
+        else _interleaved_direct(
+            cells,
+            lengths,
+            image.cfa_pattern,
+            image.pixel_pitch_px,
+            _slit_tilt(angle, across_axis),
+            across_axis,
+        )
     )
     if interleaved is not None:
         # The spot's integral from the Bayer cells' interleaving, which needs no model of the
@@ -445,6 +453,8 @@ def _interleaved_direct(
     lengths: list[FloatArray],
     cfa_pattern: str,
     pitch: float,
+    tilt: float = 0.0,
+    axis: int = 0,
 ) -> tuple[FloatArray, FloatArray] | None:
     """Per channel: the spot's integral and its σ from the Bayer cells' interleaving, with no
     model of the spot's shape (decision 0119).
@@ -470,6 +480,11 @@ def _interleaved_direct(
     ratio ``f = F_o / F_e = (ΣB / ΣR)(b / a) r`` the integrals are ``T_R = ΣR (1 + f)(1 + r)``,
     ``T_B = ΣB (1 + 1/f)(1 + 1/r)``, ``T_G = 2 ΣG (1 + f)(1 + r) / (f + r)`` (for ``r`` = 1 these
     are the forms above).
+
+    A slit tilted against the columns by ``tilt`` (:func:`_slit_tilt`; ``axis`` is the axis the
+    cells were summed along, 1 when the dispersion runs nearer the sensor's y axis) adds a term the
+    relation above does not hold; a bound on its effect is in the σ (:func:`_tilt_bias`, decision
+    0134).
     """
     pattern = cfa_pattern.upper()
     if pitch != 2.0 or sorted(pattern) != ["B", "G", "G", "R"]:
@@ -510,7 +525,10 @@ def _interleaved_direct(
     # sampled unlike by the planes' rows) the residuals show it: the variance follows them.
     if n > 2:
         variance = variance * max(1.0, chi_square / (n - 2))
-    return totals, np.sqrt(variance)
+    bias = _tilt_bias(red, green, blue, noise, rows, pattern, axis, tilt)
+    if bias is None:
+        return None
+    return totals, np.sqrt(variance + bias**2)
 
 
 def _row_parity_ratio(red_rows: FloatArray, blue_rows: FloatArray) -> float | None:
@@ -555,6 +573,58 @@ def _interleaving_totals(
         ]
     )
     return totals, (a, b), float(residual @ residual)
+
+
+def _slit_tilt(angle_deg: float, across_axis: int) -> float:
+    """How far across the summed plane columns (rows for ``across_axis`` 1) the slit's image moves
+    per sensor line along it, in pixels: ``tan θ`` of the dispersion's angle to the sensor axis it
+    runs nearest (the slit is perpendicular to the dispersion)."""
+    angle = math.radians(angle_deg)
+    if across_axis == 0:
+        return math.tan(angle)
+    return math.cos(angle) / math.sin(angle)
+
+
+def _tilt_bias(
+    red: FloatArray,
+    green: FloatArray,
+    blue: FloatArray,
+    noise: FloatArray,
+    rows: float,
+    pattern: str,
+    axis: int,
+    tilt: float,
+) -> FloatArray | None:
+    """Per channel: a bound on the bias a tilted slit puts into :func:`_interleaved_direct`'s
+    integrals (decision 0134).
+
+    Each green shares its sensor column with R or B but sits on the cell's other sensor line, where
+    a slit tilted against the columns lies ``tilt`` pixels further across them; so to first order
+    ``G_k = a R_k + b B_k ± tilt (h'(x_R) − h'(x_B))``, ``h`` the columns' profile ``(a R, b B)``
+    interleaved at the sites' columns (decision 0123: up to ±0.4 % in colour at 0.8° on a smooth
+    spot, where R's and B's columns differ little and the fit reads that small term as colour). The
+    term is not corrected: its derivative from 1 px samples errs by the term's own size on a sharp
+    edge (decision 0123). Its effect on the integrals — the cells' greens moved by the term, through
+    the same fit — is the bound; its sign does not matter, nor then which sensor line holds which
+    green."""
+    if tilt == 0.0:
+        return np.zeros(3)
+    fitted = _interleaving_totals(red, green, blue, noise, rows)
+    if fitted is None:
+        return None
+    totals, (a, b), _ = fitted
+    red_site = pattern.index("R") // 2 if axis else pattern.index("R") % 2
+    blue_site = pattern.index("B") // 2 if axis else pattern.index("B") % 2
+    n = red.size
+    level = np.zeros(2 * n + 2)  # h on the sensor's columns, one empty column each side
+    level[1 + red_site : 1 + 2 * n : 2] = a * red
+    level[1 + blue_site : 1 + 2 * n : 2] = b * blue
+    slope = 0.5 * (level[2:] - level[:-2])
+    term = tilt * (slope[red_site::2] - slope[blue_site::2])
+    moved = _interleaving_totals(red, green - term, blue, noise, rows)
+    if moved is None:
+        return None
+    return np.asarray(np.abs(moved[0] - totals), dtype=np.float64)
 
 
 def _site_offsets(image: HdrImage, angle_deg: float) -> tuple[float, float, float]:
