@@ -50,9 +50,11 @@ from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
 from calib.model.resolution import COARSE_SLIT_NM, FWHM_PER_SIGMA, camera_kernel
-from calib.wavelength.families import GratingFamily, GratingPrior
+from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.features import FeatureMapping, ProfileAnchor, map_features
 from calib.wavelength.profile_search import (
+    AMBIGUITY_DELTA_CHI2,
+    GLOBAL_BIN_NM,
     HOPELESS_DELTA_CHI2,
     MappingSearch,
     Orientation,
@@ -62,6 +64,7 @@ from calib.wavelength.profile_search import (
     spectrometer_scale_sigma_nm,
     stated_covariance,
 )
+from calib.wavelength.quadratic_view import quadratic_coarse_view
 from calib.wavelength.rig_prior import (
     RigGeometry,
     default_prior,
@@ -903,6 +906,21 @@ def locate_mapping(
                 details["ambiguous"] = True
                 details["incidence_conflict_sigmas"] = _incidence_sigmas(search)
                 ambiguity_warnings.append(text)
+        if (
+            isinstance(search.exact, QuadraticMapping)
+            and search.exact.model is None
+            and all(lamp.kind != "fluorescent" for lamp in measured)
+        ):
+            mapping = _quadratic_coarse_check(
+                search,
+                mapping,
+                measured,
+                prior,
+                grid,
+                kernel if kernel is not None else camera_kernel(lamps),
+                details,
+                ambiguity_warnings,
+            )
     _check_monotonic(exact, lead)
     if reach_nm is not None:
         # One σ past the lines for every consumer: the mapping carries it (decision 0127).
@@ -983,6 +1001,68 @@ def _incidence_conflict(
         f"prior's shape bends the red end where the camera is unlike it; {widened}. "
         + deciding_shot(())  # broadband lamps alone (its caller's condition)
     )
+
+
+def _quadratic_coarse_check(
+    search: MappingSearch,
+    mapping: QuadraticMapping,
+    lamps: Sequence[LampObservation],
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    kernel: FloatArray | None,
+    details: dict[str, Any],
+    ambiguity_warnings: list[str],
+) -> QuadraticMapping:
+    """A broadband-only quadratic answer, not already warned of, that the coarse view rejects
+    (:mod:`calib.wavelength.quadratic_view`, decision 0133): ambiguous, the coarse view's basin a
+    candidate (``coarse_view_delta_chi2``, ``rms_distance_nm``) and the stated σ reaching half-way
+    to it; the verdict in ``details["quadratic_coarse_view"]``. Returns the mapping (σ widened or
+    not). An answer warned already is not asked (its σ reaches its rival)."""
+    assert isinstance(search.exact, QuadraticMapping)
+    if details.get("ambiguous"):
+        return mapping
+    view, evaluations = quadratic_coarse_view(lamps, prior, grid, search.exact, kernel=kernel)
+    if view is None:
+        return mapping
+    details["quadratic_coarse_view"] = {
+        "delta_chi2": view.delta_chi2,
+        "distance_nm": view.distance_nm,
+        "rejects": view.rejects,
+        "evaluations": evaluations,
+    }
+    if not view.rejects:
+        return mapping
+    pixel_range = (float(lamps[0].pixel[0]), float(lamps[0].pixel[-1]))
+    family = QuadraticFamily(pixel_range)
+    other = family.mapping(view.x)
+    stated = max(mapping.wavelength_rms_nm or 0.0, 0.5 * view.distance_nm)
+    mapping = stated_covariance(
+        mapping,
+        stated,
+        float(search.details.get("spectrometer_scale_sigma_nm", 0.0)),
+        pixel_range,
+    )
+    details["ambiguous"] = True
+    probe = np.linspace(pixel_range[0], pixel_range[1], 5)
+    details["candidates"] = [
+        *details.get("candidates", []),
+        {
+            "mapping": other.to_dict(),
+            "coarse_view_delta_chi2": view.delta_chi2,
+            "rms_distance_nm": view.distance_nm,
+            "wavelength_at_pixels_nm": {
+                f"{p:g}": float(w) for p, w in zip(probe, other.wavelength_nm(probe), strict=True)
+            },
+        },
+    ]
+    ambiguity_warnings.append(
+        f"the mapping is ambiguous: on the coarser profile ({GLOBAL_BIN_NM:g} nm bins) where the "
+        f"search found its basins, the same model has a basin {view.distance_nm:.1f} nm away "
+        f"(RMS) that puts this answer Δχ² {view.delta_chi2:.0f} behind it (above "
+        f"{AMBIGUITY_DELTA_CHI2:g}); it is among the result's candidates and the stated σ "
+        f"({stated:.1f} nm) reaches half-way to it. " + deciding_shot(lamps)
+    )
+    return mapping
 
 
 #: A measured spectrum's single Hg line this far (nm, beyond twice its σ) from its wavelength means
