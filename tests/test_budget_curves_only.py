@@ -77,6 +77,19 @@ def test_a_curves_only_re_solve_gives_the_full_solves_curves_and_no_sigma(basis,
     assert curves.residuals == {} and full.residuals
 
 
+def test_a_curves_only_physical_re_solve_gives_the_full_solves_curves(basis, lamps):
+    options = PriorOptions(grating_model="sinusoidal")
+    full = estimate_prior(lamps, basis=basis, mapping=MAPPING, options=options)
+    with curves_only():
+        curves = estimate_prior(lamps, basis=basis, mapping=MAPPING, options=options)
+    assert full.diagnostics["grating_model"]["chosen"] == "sinusoidal"
+    assert np.array_equal(curves.sensitivity, full.sensitivity)
+    assert np.array_equal(
+        np.asarray(curves.grating_efficiency), np.asarray(full.grating_efficiency)
+    )
+    assert full.sensitivity_sigma is not None and curves.sensitivity_sigma is None
+
+
 def test_the_budget_is_the_same_to_the_bit_with_full_re_solves(basis, lamps, monkeypatch):
     settings = BudgetSettings(record_components=True)
     fast = estimate(lamps, "prior", basis=basis, mapping=MAPPING, options=FOURIER, budget=settings)

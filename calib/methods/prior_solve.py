@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -561,6 +561,10 @@ def _physical_estimate(
         efficiency.coefficient_covariance,
     )
     solution = blend_with_prior(solution, setup.prior)
+    if reading_curves_only():
+        # A σ budget's re-solve: the curves are read, not their σ (the normalised covariance's
+        # products left out; decision 0132).
+        solution = replace(solution, covariance=None)
     setup.timings["solve_s"] = time.perf_counter() - started
     setup.timings["total_s"] = time.perf_counter() - setup.started
     return (
