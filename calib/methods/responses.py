@@ -21,6 +21,7 @@ from typing import Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
@@ -165,21 +166,16 @@ def fit_response(
     weights = 1.0 / system.profile_sigma[inside]
     difference = _second_differences(size)
     penalty = difference.T @ difference
-    # Deferred: multilamp builds on this module.
-    from calib.methods.multilamp import _pinv_symmetric_stack
-
     responses = np.empty((size, 3))
-    normals = np.empty((3, size, size))
-    weighted = [pixel_matrix * weights[:, c][:, None] for c in range(3)]
-    for c in range(3):
-        normal = weighted[c].T @ weighted[c]
-        normals[c] = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
-    # The three pseudo-inverses in one stacked call (each the same bits as pinv_symmetric's).
-    covariances = _pinv_symmetric_stack(normals)
+    covariances = np.empty((3, size, size))
     chi2 = 0.0
     for c in range(3):
-        responses[:, c] = covariances[c] @ (weighted[c].T @ (weights[:, c] * profile[:, c]))
-        chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted[c] @ responses[:, c]) ** 2))
+        weighted = pixel_matrix * weights[:, c][:, None]
+        normal = weighted.T @ weighted
+        normal = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
+        covariances[c] = pinv_symmetric(normal)
+        responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
+        chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
     return ResponseEstimate(
         responses,
         covariances,
