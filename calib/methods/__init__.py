@@ -77,6 +77,7 @@ from calib.methods.uncertainty import (
     assumed_grating_flag,
     channel_gains_unknown,
     check_grid_within_basis,
+    curves_only,
     uncertainty_budget,
     with_budget,
     with_prior_channel_balance,
@@ -624,7 +625,8 @@ def _rerun(
             and getattr(options, "grating_model", None) == "auto"
         ):
             arguments["options"] = replace(options, grating_model=chosen)
-        with perturbation():
+        # The budget reads only the re-solve's curves and η (never its σ or residuals).
+        with perturbation(), curves_only():
             return function(observations, **arguments)
 
     return rerun

@@ -36,13 +36,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.blas import one_blas_thread, pinv_symmetric
+from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
@@ -54,6 +54,7 @@ from calib.methods.grating_models import (
     GratingModelName,
     check_grating_model,
 )
+from calib.methods.multilamp import _pinv_symmetric_stack
 from calib.methods.responses import (
     LampData,
     ResponseEstimate,
@@ -61,12 +62,16 @@ from calib.methods.responses import (
     lamp_data,
     prepared_response,
 )
-from calib.model.bases import CameraBasis, CameraPrior, whitening
+from calib.methods.uncertainty import reading_curves_only
+from calib.model.bases import CameraBasis, CameraPrior
 from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
 
 #: Passes of step 2 (re-weighting by the previous η̂⁻¹ and α̂).
 EFFICIENCY_PASSES = 3
+#: :func:`calib.model.bases.whitening`'s default relative eigenvalue floor, which
+#: :func:`_whitening_stack` applies to each matrix.
+WHITENING_FLOOR = 1e-10
 #: Registry name (and the result's ``method``).
 PRIOR_METHOD = "prior"
 
@@ -113,6 +118,7 @@ def solve_with_prior(
     *,
     companions: Sequence[LampSystem] = (),
     responses: Sequence[ResponseEstimate] | None = None,
+    with_sigma: bool = True,
 ) -> PriorSolution:
     """MAP estimate of sensitivity and η⁻¹ (see the module docstring).
 
@@ -135,6 +141,12 @@ def solve_with_prior(
         Step 1 already made (:func:`calib.methods.responses.fit_response` of ``system`` and then
         of each companion, on ``mapping``), e.g. by the grating model's choice; ``None``: fitted
         here.
+    with_sigma
+        Off: the curves only (a σ budget's re-solve, whose σ nobody reads:
+        :func:`calib.methods.uncertainty.curves_only`): the same sensitivity and ``η⁻¹`` to the
+        bit, without what only their σ needs (the constrained solution's gain and covariance, the
+        step-3 σ terms, the rows' singular values); the σ fields, the covariance and the
+        condition number are then NaN.
 
     Raises
     ------
@@ -198,11 +210,13 @@ def solve_with_prior(
     particular = np.asarray(np.linalg.lstsq(constraint, direct, rcond=None)[0], dtype=np.float64)
     for _ in range(EFFICIENCY_PASSES):
         blocks = []
+        # The three channels' spreads whitened in one stacked call (the same bits as each alone).
+        whitening_factors = _whitening_stack(
+            scale_hat**2 * prior.covariance
+            + (inverse_hat[None, :, None] * response_cov * inverse_hat[None, None, :])
+        )
         for c in range(3):
-            spread = scale_hat**2 * prior.covariance[c] + (
-                inverse_hat[:, None] * response_cov[c] * inverse_hat[None, :]
-            )
-            whitening_factor = whitening(spread)
+            whitening_factor = whitening_factors[c]
             block = np.zeros((size, n_unknowns))
             block[:, :b_eta] = whitening_factor @ (response[:, c][:, None] * efficiency_basis)
             block[:, -1] = -(whitening_factor @ mean[:, c])
@@ -223,30 +237,40 @@ def solve_with_prior(
         solution = _constrained_lstsq(rows, particular, null_space, target_rows)
         inverse_hat = efficiency_basis @ solution[:b_eta]
         scale_hat = abs(float(solution[-1])) or scale_hat
-    # The leading lamp's direct RGB is measured, not exact: its variance moves the constrained
-    # solution along ``∂x/∂m_dir`` (first order; the rows' noise is independent of it).
-    leading_variance = direct_variance(direct, observation.direct_sigma)
-    direct_gain = _constrained_gain(rows, constraint, null_space)[:b_eta]
-    noise_cov = _constrained_covariance(rows, null_space)[:b_eta, :b_eta]
-    c_eta_cov = noise_cov + (direct_gain * leading_variance) @ direct_gain.T
     inverse_efficiency = efficiency_basis @ solution[:b_eta]
-    inverse_covariance = efficiency_basis @ c_eta_cov @ efficiency_basis.T
-    inverse_sigma = np.sqrt(np.clip(np.diag(inverse_covariance), 0, None))
+    if with_sigma:
+        # The leading lamp's direct RGB is measured, not exact: its variance moves the constrained
+        # solution along ``∂x/∂m_dir`` (first order; the rows' noise is independent of it).
+        leading_variance = direct_variance(direct, observation.direct_sigma)
+        direct_gain = _constrained_gain(rows, constraint, null_space)[:b_eta]
+        noise_cov = _constrained_covariance(rows, null_space)[:b_eta, :b_eta]
+        c_eta_cov = noise_cov + (direct_gain * leading_variance) @ direct_gain.T
+        inverse_covariance = efficiency_basis @ c_eta_cov @ efficiency_basis.T
+        inverse_sigma = np.sqrt(np.clip(np.diag(inverse_covariance), 0, None))
+    else:
+        inverse_covariance = np.full((size, size), np.nan)
+        inverse_sigma = np.full(size, np.nan)
 
     # Step 3: combine the data's s = η⁻¹ ⊙ q̂ with the prior, conditioned on the direct signal.
     sensitivity = np.empty((size, 3))
-    sensitivity_sigma = np.empty((size, 3))
+    sensitivity_sigma = np.full((size, 3), np.nan)
+    # The channels' inverses in stacked calls: LAPACK on each matrix in turn, the same bits.
+    data_precisions = _pinv_symmetric_stack(
+        inverse_efficiency[None, :, None] * response_cov * inverse_efficiency[None, None, :]
+    )
+    prior_precisions = np.linalg.inv(scale_hat**2 * prior.covariance)
+    posterior_covs = np.linalg.inv(data_precisions + prior_precisions)
     for c in range(3):
         data_mean = inverse_efficiency * response[:, c]
-        data_cov = inverse_efficiency[:, None] * response_cov[c] * inverse_efficiency[None, :]
-        prior_cov = scale_hat**2 * prior.covariance[c]
         prior_mean = scale_hat * mean[:, c]
-        data_precision = pinv_symmetric(data_cov)
-        prior_precision = np.linalg.inv(prior_cov)
-        posterior_cov = np.linalg.inv(data_precision + prior_precision)
+        data_precision = data_precisions[c]
+        prior_precision = prior_precisions[c]
+        posterior_cov = posterior_covs[c]
         posterior_mean = posterior_cov @ (data_precision @ data_mean + prior_precision @ prior_mean)
         gain = posterior_cov @ direct_row / float(direct_row @ posterior_cov @ direct_row)
         sensitivity[:, c] = posterior_mean + gain * (direct[c] - float(direct_row @ posterior_mean))
+        if not with_sigma:
+            continue
         conditioned = posterior_cov - np.outer(gain, direct_row @ posterior_cov)
         # η's own uncertainty moves s_c along q̂_c ⊙ B_η (a smooth common factor).
         jacobian = response[:, c][:, None] * efficiency_basis
@@ -259,7 +283,10 @@ def solve_with_prior(
         total += (moved * leading_variance) @ moved.T
         sensitivity_sigma[:, c] = np.sqrt(np.clip(np.diag(total), 0.0, None))
 
-    singular = np.linalg.svd(rows, compute_uv=False)
+    condition = float("nan")
+    if with_sigma:
+        singular = np.linalg.svd(rows, compute_uv=False)
+        condition = float(singular[0] / max(singular[-1], 1e-300))
     return PriorSolution(
         sensitivity=sensitivity,
         sensitivity_sigma=sensitivity_sigma,
@@ -273,13 +300,23 @@ def solve_with_prior(
             "pixels_used": int(estimate.used_pixels.sum()),
             "response_chi2": estimate.chi2,
             "prior_chi2": float(np.sum((rows @ solution) ** 2)),
-            "efficiency_condition": float(singular[0] / max(singular[-1], 1e-300)),
+            "efficiency_condition": condition,
             "prior_shrinkage": prior.shrinkage.tolist(),
             "camera_scale": float(solution[-1]),
             "efficiency_lamps": [system.observation.name]
             + [companion.observation.name for companion in companions],
         },
     )
+
+
+def _whitening_stack(covariances: FloatArray) -> FloatArray:
+    """:func:`calib.model.bases.whitening` of each matrix of a stack ``(k, n, n)``, to the bit, in one
+    pass: the same symmetrisation, ``eigh`` (numpy's stacked call runs LAPACK on each matrix in
+    turn), floor (of each matrix's own largest eigenvalue) and product per matrix."""
+    values, vectors = np.linalg.eigh(0.5 * (covariances + np.swapaxes(covariances, -1, -2)))
+    floor = WHITENING_FLOOR * np.maximum(values.max(axis=-1, keepdims=True), 1e-300)
+    scaled = vectors / np.sqrt(np.maximum(values, floor))[..., None, :]
+    return np.asarray(scaled @ np.swapaxes(vectors, -1, -2), dtype=np.float64)
 
 
 def _null_space(constraint: FloatArray) -> FloatArray:
@@ -446,6 +483,8 @@ def estimate_prior(
     systems = [system for system, _ in pairs]
     fitted = [response for _, response in pairs]
     system = systems[0]
+    # A σ budget's re-solve: its curves are read, never its σ or residuals (decision 0132).
+    full = not reading_curves_only()
     solution = solve_with_prior(
         system,
         setup.mapping,
@@ -453,21 +492,22 @@ def estimate_prior(
         setup.efficiency_basis,
         companions=systems[1:],
         responses=fitted,
+        with_sigma=full,
     )
     setup.timings["solve_s"] = time.perf_counter() - step
     return joint_result(
         PRIOR_METHOD,
         setup,
-        [system],
+        [system] if full else [],
         basis=basis,
         grid=grid,
         options=options,
         sensitivity=solution.sensitivity,
         inverse_efficiency=solution.inverse_efficiency,
-        sensitivity_sigma=solution.sensitivity_sigma,
+        sensitivity_sigma=solution.sensitivity_sigma if full else None,
         info={**solution.info, "lamp_scales": [1.0]},
         diagnostics={"grating_model": record},
-        inverse_efficiency_covariance=solution.inverse_efficiency_covariance,
+        inverse_efficiency_covariance=solution.inverse_efficiency_covariance if full else None,
     )
 
 
@@ -521,6 +561,10 @@ def _physical_estimate(
         efficiency.coefficient_covariance,
     )
     solution = blend_with_prior(solution, setup.prior)
+    if reading_curves_only():
+        # A σ budget's re-solve: the curves are read, not their σ (the normalised covariance's
+        # products left out; decision 0132).
+        solution = replace(solution, covariance=None)
     setup.timings["solve_s"] = time.perf_counter() - started
     setup.timings["total_s"] = time.perf_counter() - setup.started
     return (

@@ -76,7 +76,9 @@ estimate's solution (:attr:`BudgetSettings.reuse_solves`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
 from typing import Any
@@ -246,6 +248,26 @@ COMPONENTS = (
 
 #: Re-run the method on changed observations/options: ``rerun(observations, **changes)``.
 Rerun = Callable[..., EstimateResult]
+
+_CURVES_ONLY: ContextVar[bool] = ContextVar("calib_budget_curves_only", default=False)
+
+
+@contextmanager
+def curves_only() -> Iterator[None]:
+    """Mark the solves in the block as the budget's re-solves, of which only the curves are read:
+    the sensitivity (:func:`_difference`) and ``η`` (:func:`_efficiency_difference`). A solve may
+    then leave out what is computed only for its σ (its covariances, the step-3 σ terms) and its
+    residuals; the curves it returns must be the full solve's to the bit (decision 0132)."""
+    token = _CURVES_ONLY.set(True)
+    try:
+        yield
+    finally:
+        _CURVES_ONLY.reset(token)
+
+
+def reading_curves_only() -> bool:
+    """Whether the solve running is a budget re-solve whose σ nobody reads (:func:`curves_only`)."""
+    return _CURVES_ONLY.get()
 
 
 @dataclass(frozen=True)
