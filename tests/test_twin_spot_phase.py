@@ -38,7 +38,8 @@ def test_the_twin_places_the_spot_by_the_curves_tabulated_range() -> None:
     base = load_config(ROOT / "config.yaml")
 
     def spot(camera: str, collection: str) -> tuple[float, float]:
-        return bench.twin_spot_px(bench.twin_config(base, camera, collection, None))
+        x, y = bench.twin_spot_px(bench.twin_config(base, camera, collection, None))
+        return float(x), float(y)
 
     # two rawtoaces-data bodies (380–780 nm): one spot, to the bit
     assert spot("Canon EOS 5D Mark II", "rawtoaces-data") == spot("Nikon D850", "rawtoaces-data")
