@@ -37,7 +37,7 @@ can hold: a camera with detail finer than the grid, e.g. colour's Nikon 5100 wit
         [--spectrometer-error on|off] [--stray-light on|off]
         [--shutter-error on|off] [--seed-per-camera]
         [--validation-cameras N] [--validation-seeds K]
-        [--direct-reading interleaving|fit|interleaving-everywhere]
+        [--direct-reading interleaving|fit|interleaving-everywhere] [--spot-phase drawn|twin]
 
 ``--validation-cameras N`` adds N rawtoaces-data bodies to the six named validation twins (a fixed
 draw, never a test body), ``--validation-seeds K`` captures every validation twin at K station seeds:
@@ -46,6 +46,16 @@ decision 0114 did (the comparison decision 0123 needed; the product reads it as 
 ``--direct-reading interleaving-everywhere`` reads every spot with the Bayer interleaving, the
 blurred ones too (the product keeps their plain sums): these twins' slit is tilted 0.8°, so this is
 the test of the interleaving's σ under the tilt (decisions 0123, 0134).
+
+The twin places the direct spot so that the first order of the true curve's longest tabulated
+wavelength is centred on the frame, so the spot's sub-pixel phase on the Bayer mosaic follows from
+the curve's table: every rawtoaces-data body (380–780 nm) met one phase, where the demo's spot is
+judged blurred and its plain sums are kept, and the test bodies tabulated over 400–720 nm another,
+where it is judged sharp and the interleaving reads it (decision 0136). Each validation twin's spot
+is therefore moved by a sub-pixel shift drawn over one Bayer period (``--spot-phase drawn``, the
+default; ``twin``: where the twin places it, the protocol before); test twins stay where the twin
+places them. Every row prints the spot's position and how many of the twin's direct extractions the
+interleaving read.
 """
 
 from __future__ import annotations
@@ -54,6 +64,7 @@ import argparse
 import math
 import tempfile
 import time
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -95,6 +106,24 @@ TEST_WITH_DATA = (
 TEST_BODIES = ("Nikon D5100", "Nikon D3X", "Canon 60D", "Pentax K-5", "Canon EOS 600D", "ARRI D21")
 #: The draw of the extra validation bodies (``--validation-cameras``): fixed, so runs compare.
 EXTRA_VALIDATION_SEED = 20261127
+#: The draw of the validation twins' spot phases (``--spot-phase drawn``): fixed, so runs compare.
+SPOT_PHASE_SEED = 20261128
+#: The colour filter array's period (sensor pixels): the twin's sensor is a 2×2 Bayer mosaic, so a
+#: spot moved by a whole period meets the same sites; its phase within one period is what differs.
+CFA_PERIOD_PX = 2.0
+
+
+def spot_shift(camera: str, seed_offset: int) -> tuple[float, float]:
+    """The validation twin's spot shift (x, y sensor pixels), uniform over one Bayer period.
+
+    Where the twin places the spot follows from the true curve's tabulated range (the first order
+    of its longest wavelength is centred on the frame), so every rawtoaces-data body (380–780 nm)
+    had its spot at one sub-pixel phase and the test bodies of other collections at another
+    (decision 0136); on a real rig the phase is anybody's. Drawn from the camera's name and the
+    station's seed offset alone, so a twin's phase does not depend on which others run."""
+    rng = np.random.default_rng([SPOT_PHASE_SEED, seed_offset, zlib.crc32(camera.encode())])
+    dx, dy = rng.uniform(0.0, CFA_PERIOD_PX, size=2)
+    return float(dx), float(dy)
 
 
 def extra_validation_cameras(count: int) -> list[tuple[str, str]]:
@@ -147,6 +176,11 @@ class Row:
     #: on that grid can hold; the truth's point samples are the scores above).
     re_grid_truth: float = math.nan
     coverage_grid_truth: float = math.nan
+    #: The direct spot's centre (sensor pixels, x, y), the direct extractions of the twin's capture
+    #: and estimate, and how many of them the Bayer interleaving read (decision 0136).
+    spot_px: tuple[float, float] | None = None
+    direct_spots: int = 0
+    interleaved_spots: int = 0
 
 
 def twin_config(
@@ -159,10 +193,12 @@ def twin_config(
     stray_light: bool = True,
     shutter_error: bool = True,
     seed_offset: int = 0,
+    spot_shift_px: tuple[float, float] | None = None,
 ) -> RigConfig:
     """``base`` with the twin camera's true sensitivity set to ``camera``, the spectrometer's
-    in-spec errors, the camera's stray light and its shutter error on or off, and the
-    station's seed moved by ``seed_offset``."""
+    in-spec errors, the camera's stray light and its shutter error on or off, the
+    station's seed moved by ``seed_offset`` and, with ``spot_shift_px``, the direct spot moved by
+    that much (x, y sensor pixels) from where the twin places it (:func:`twin_spot_px`)."""
     data = base.model_dump(mode="json")
     data["seed"] += seed_offset
     data["devices"]["spectrometer"]["in_spec_error"] = in_spec_error
@@ -173,7 +209,22 @@ def twin_config(
     twin["sensitivity_collection"] = collection
     if data_dir is not None and collection not in ("colour-science", "rawtoaces-data"):
         twin["data_dir"] = str(data_dir)
+    config = RigConfig.model_validate(data)
+    if spot_shift_px is None:
+        return config
+    x, y = twin_spot_px(config)
+    twin["optics"]["spot_position_px"] = [x + spot_shift_px[0], y + spot_shift_px[1]]
     return RigConfig.model_validate(data)
+
+
+def twin_spot_px(config: RigConfig) -> tuple[float, float]:
+    """Where the twin of ``config`` places the direct spot's centre (sensor pixels, x, y)."""
+    from mocks.bench.optics import TwinOptics
+    from mocks.bench.spec import TwinSpec
+
+    spec = TwinSpec.from_config_data(config.model_dump(mode="json"))
+    x, y = TwinOptics.build(spec.twin_camera).layout.spot_centre_px
+    return float(x), float(y)
 
 
 def grid_projection(
@@ -378,6 +429,15 @@ def main() -> None:
         "last two comparisons, not the product",
     )
     parser.add_argument(
+        "--spot-phase",
+        choices=("drawn", "twin"),
+        default="drawn",
+        help="the validation twins' direct spot: moved by a sub-pixel shift drawn per twin over one "
+        "Bayer period (the phases a rig meets), or where the twin places it (one phase for every "
+        "rawtoaces-data body: the protocol before decision 0136); test twins are always where "
+        "the twin places them",
+    )
+    parser.add_argument(
         "--camera",
         action="append",
         default=None,
@@ -403,6 +463,7 @@ def main() -> None:
             return values, note
 
         extraction._resolved_direct = everywhere
+    spots = _count_direct_readings()
     cameras: list[tuple[str, str, str, int]] = []
     if args.split in ("validation", "both"):
         for seed in range(args.validation_seeds):
@@ -430,7 +491,14 @@ def main() -> None:
                 stray_light=args.stray_light == "on",
                 shutter_error=args.shutter_error == "on",
                 seed_offset=(index if args.seed_per_camera else 0) + seed,
+                spot_shift_px=(
+                    spot_shift(camera, seed)
+                    if split == "validation" and args.spot_phase == "drawn"
+                    else None
+                ),
             )
+            spot_px = twin_spot_px(config)
+            spots.update(direct=0, interleaved=0)
             slug = "".join(c if c.isalnum() else "_" for c in camera) + f"_{seed}"
             captured = run_capture(config, out_dir=root / slug / "sessions")
             if captured.exit_status != "success":
@@ -472,12 +540,20 @@ def main() -> None:
                 )
                 rows.append(Row(split, camera + (f" #{seed}" if seed else ""), floor, **scored))  # type: ignore[arg-type]
                 row = rows[-1]
+                row.spot_px = spot_px
+                row.direct_spots, row.interleaved_spots = spots["direct"], spots["interleaved"]
+                spots.update(direct=0, interleaved=0)
                 print(
                     f"{split:10s} {camera:24s} floor {floor:<6g} {row.method:9s} "
                     f"RE {100 * row.re:5.2f}  ±2σ {100 * row.coverage:5.1f} %  "
                     f"σ/err {row.sigma_ratio:4.2f}  χ² {row.chi2_noise or math.nan:7.3g} → "
                     f"{row.chi2_judged or math.nan:6.3g}  {row.verdict}  "
                     f"η ±2σ {100 * row.eta_coverage:5.1f} %  η σ/err {row.eta_sigma_ratio:4.2f}",
+                    flush=True,
+                )
+                print(
+                    f"    direct spot at ({spot_px[0]:.3f}, {spot_px[1]:.3f}) px: the interleaving "
+                    f"read {row.interleaved_spots} of {row.direct_spots} extractions",
                     flush=True,
                 )
                 if row.scale_check is not None:
@@ -556,7 +632,40 @@ def main() -> None:
             f"{sum(r.eta_sigma_ratio < 1 for r in chosen)}; median component RMS / η error RMS: "
             + ", ".join(medians)
         )
+    for split in ("validation", "test"):
+        chosen = [r for r in rows if r.split == split]
+        if chosen:
+            print(
+                f"{split}: the interleaving read {sum(r.interleaved_spots for r in chosen)} of "
+                f"{sum(r.direct_spots for r in chosen)} direct extractions ("
+                f"{sum(r.interleaved_spots > 0 for r in chosen)} of {len(chosen)} estimates)"
+            )
     print(f"estimate CPU {sum(r.cpu_s for r in rows):.0f} s for {len(rows)} estimates")
+
+
+def _count_direct_readings() -> dict[str, int]:
+    """Count the direct spots the extraction reads (``direct``) and those the Bayer interleaving
+    read (``interleaved``) from here on, in the dictionary returned (reset it between twins)."""
+    from calib.image.profiles import extraction
+
+    counts = {"direct": 0, "interleaved": 0}
+    resolved_direct, interleaved_direct = (
+        extraction._resolved_direct,
+        extraction._interleaved_direct,
+    )
+
+    def resolved(*args, **kwargs):  # type: ignore[no-untyped-def]
+        counts["direct"] += 1
+        return resolved_direct(*args, **kwargs)
+
+    def interleaved(*args, **kwargs):  # type: ignore[no-untyped-def]
+        values = interleaved_direct(*args, **kwargs)
+        counts["interleaved"] += values is not None
+        return values
+
+    extraction._resolved_direct = resolved
+    extraction._interleaved_direct = interleaved
+    return counts
 
 
 if __name__ == "__main__":
