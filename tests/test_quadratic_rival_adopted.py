@@ -59,15 +59,9 @@ def _run(monkeypatch: Any, final_delta: float, adopts: bool = True) -> Any:
         kind="led",
         pixel_origin="arbitrary",
     )
+    prior: Any = None  # the views are replaced: the prior is not read
     out, out_exact = locate._quadratic_coarse_check(
-        search,
-        mapping,
-        [led],
-        None,
-        DEFAULT_GRID,
-        None,
-        details,
-        warnings,  # type: ignore[arg-type]
+        search, mapping, [led], prior, DEFAULT_GRID, None, details, warnings
     )
     return out, out_exact, exact, rival, details, warnings
 
