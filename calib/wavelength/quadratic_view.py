@@ -29,6 +29,11 @@ wavelength.profile_search.AMBIGUITY_MIN_DISTANCE_NM`). Where the model describes
 coarse view's best basin near the answer is the answer itself (right mappings on the validation
 split stood up to Δχ² 53 behind it, but within 0.5 nm); both views are one likelihood at two
 binnings with the same stiff response.
+
+A rejected answer's rival is then weighed on the search's final stage (:func:`final_verdict`,
+decision 0139): in both scenes above the rival, the truth's basin, fits the full-resolution profile
+better by tempered Δχ² 330–340, and :func:`calib.wavelength.locate.locate_mapping` takes it as the
+answer when that stage prefers it by the search's bar.
 """
 
 from __future__ import annotations
