@@ -25,7 +25,9 @@ how much of the error is η's form and how much its confounding with the sensiti
 ``--mappings``: each searched mapping's largest error over the working grid (nm) and whether it
 carries an ambiguity warning; the count of mappings more than 3 nm off, and every one of them
 without a warning (a silent wrong mapping), listed; and the count of mappings within 3 nm that carry
-a warning (false alarms).
+a warning (false alarms). ``--mappings-csv FILE`` also writes one row per searched mapping (camera,
+variant, noise, largest error, warned, whether the coarse-view check adopted its rival), to
+compare two runs scene by scene.
 
 Tuning choices may look at ``--split validation`` only (the training curves, each camera's own body
 left out of its basis); ``--split test`` (the paper's 5) is for the report.
@@ -41,6 +43,7 @@ import os
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -202,6 +205,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eta-experiment", action="store_true")
     parser.add_argument("--mappings", action="store_true")
+    parser.add_argument(
+        "--mappings-csv", default=None, help="one row per mapping (with --mappings)"
+    )
     args = parser.parse_args()
     basis: CameraBasis | Callable[[str], CameraBasis]
     if args.split == "validation":
@@ -216,6 +222,7 @@ def main() -> None:
     records: list[Record] = []
     experiment: dict[tuple[float, str], list[float]] = defaultdict(list)
     mappings: list[tuple[str, str, float, float, bool]] = []
+    adopted: list[bool] = []
 
     def keep(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> None:
         records.append(record(result, scene, row.variant, row.noise))
@@ -224,7 +231,10 @@ def main() -> None:
             truth = scene.mapping.wavelength_nm(pixel)
             inside = (truth >= DEFAULT_GRID.start_nm) & (truth <= DEFAULT_GRID.stop_nm)
             error = np.abs(result.mapping.wavelength_nm(pixel) - truth)[inside]
-            codes = (getattr(result.mapping, "details", None) or {}).get("warning_codes", ())
+            mapping_details = getattr(result.mapping, "details", None) or {}
+            codes = mapping_details.get("warning_codes", ())
+            view = mapping_details.get("quadratic_coarse_view") or {}
+            adopted.append(bool(view.get("adopted", False)))
             mappings.append(
                 (
                     row.camera,
@@ -269,6 +279,15 @@ def main() -> None:
             print(
                 f"  silent: {camera}, {variant}, noise {100 * noise:g} %: {worst:.2f} nm at worst"
             )
+        if args.mappings_csv:
+            with Path(args.mappings_csv).open("w", encoding="utf-8") as handle:
+                handle.write("camera,variant,noise,worst_nm,warned,adopted\n")
+                for (camera, variant, noise, worst, warned), taken in zip(
+                    mappings, adopted, strict=True
+                ):
+                    handle.write(
+                        f'"{camera}",{variant},{noise:g},{worst:.4f},{int(warned)},{int(taken)}\n'
+                    )
     for (noise, label), values in experiment.items():
         print(
             f"true mapping, noise {100 * noise:g} %: {label}: mean RE {100 * np.mean(values):.2f} ×10⁻²"

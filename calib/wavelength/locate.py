@@ -54,17 +54,24 @@ from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFami
 from calib.wavelength.features import FeatureMapping, ProfileAnchor, map_features
 from calib.wavelength.profile_search import (
     AMBIGUITY_DELTA_CHI2,
+    BASIN_TEMPER,
+    BROADBAND_AMBIGUITY_DELTA_CHI2,
     GLOBAL_BIN_NM,
     HOPELESS_DELTA_CHI2,
+    LOCAL_SIGMA_SCALE,
+    Candidate,
     MappingSearch,
     Orientation,
+    _report,
+    basin_sigma,
     coarse_spectrum,
     deciding_shot,
+    prior_misfit_sigma_nm,
     search_profiles,
     spectrometer_scale_sigma_nm,
     stated_covariance,
 )
-from calib.wavelength.quadratic_view import quadratic_coarse_view
+from calib.wavelength.quadratic_view import FinalVerdict, final_verdict, quadratic_coarse_view
 from calib.wavelength.rig_prior import (
     RigGeometry,
     default_prior,
@@ -911,7 +918,7 @@ def locate_mapping(
             and search.exact.model is None
             and all(lamp.kind != "fluorescent" for lamp in measured)
         ):
-            mapping = _quadratic_coarse_check(
+            mapping, exact = _quadratic_coarse_check(
                 search,
                 mapping,
                 measured,
@@ -1012,26 +1019,39 @@ def _quadratic_coarse_check(
     kernel: FloatArray | None,
     details: dict[str, Any],
     ambiguity_warnings: list[str],
-) -> QuadraticMapping:
+) -> tuple[QuadraticMapping, ExactMapping]:
     """A broadband-only quadratic answer, not already warned of, that the coarse view rejects
-    (:mod:`calib.wavelength.quadratic_view`, decision 0133): ambiguous, the coarse view's basin a
-    candidate (``coarse_view_delta_chi2``, ``rms_distance_nm``) and the stated σ reaching half-way
-    to it; the verdict in ``details["quadratic_coarse_view"]``. Returns the mapping (σ widened or
-    not). An answer warned already is not asked (its σ reaches its rival)."""
+    (:mod:`calib.wavelength.quadratic_view`, decision 0133). The coarse view's basin is weighed on
+    the search's final stage (:func:`~calib.wavelength.quadratic_view.final_verdict`, decision
+    0139): when that stage prefers it by the search's bar, it is the answer (:func:`_adopted`);
+    else the answer is ambiguous, the basin a candidate (``coarse_view_delta_chi2``,
+    ``rms_distance_nm``) and the stated σ reaching half-way to it. The verdicts are in
+    ``details["quadratic_coarse_view"]``. Returns the mapping (σ widened, replaced, or as it was)
+    and its exact form. An answer warned already is not asked (its σ reaches its rival)."""
     assert isinstance(search.exact, QuadraticMapping)
     if details.get("ambiguous"):
-        return mapping
+        return mapping, search.exact
     view, evaluations = quadratic_coarse_view(lamps, prior, grid, search.exact, kernel=kernel)
     if view is None:
-        return mapping
+        return mapping, search.exact
     details["quadratic_coarse_view"] = {
         "delta_chi2": view.delta_chi2,
         "distance_nm": view.distance_nm,
         "rejects": view.rejects,
         "evaluations": evaluations,
+        "adopted": False,
     }
     if not view.rejects:
-        return mapping
+        return mapping, search.exact
+    verdict = final_verdict(lamps, prior, grid, search.exact, view.x, kernel=kernel)
+    if verdict is not None:
+        details["quadratic_coarse_view"].update(
+            final_delta_chi2=verdict.delta_chi2,
+            final_temper=verdict.temper,
+            evaluations=evaluations + verdict.evaluations,
+        )
+        if verdict.adopts:
+            return _adopted(search, verdict, lamps, view.delta_chi2, details, ambiguity_warnings)
     pixel_range = (float(lamps[0].pixel[0]), float(lamps[0].pixel[-1]))
     family = QuadraticFamily(pixel_range)
     other = family.mapping(view.x)
@@ -1062,7 +1082,92 @@ def _quadratic_coarse_check(
         f"{AMBIGUITY_DELTA_CHI2:g}); it is among the result's candidates and the stated σ "
         f"({stated:.1f} nm) reaches half-way to it. " + deciding_shot(lamps)
     )
-    return mapping
+    return mapping, search.exact
+
+
+def _adopted(
+    search: MappingSearch,
+    verdict: FinalVerdict,
+    lamps: Sequence[LampObservation],
+    coarse_delta_chi2: float,
+    details: dict[str, Any],
+    ambiguity_warnings: list[str],
+) -> tuple[QuadraticMapping, QuadraticMapping]:
+    """The coarse view's basin as the answer, the final stage preferring it (decision 0139): its
+    report form, curvature and stated σ as the search states its own answer's
+    (:func:`~calib.wavelength.profile_search.basin_sigma` over the two basins, weighed on the final
+    stage with its temper; the camera prior's pull from that temper), the search's answer the
+    second candidate. Ambiguous (warned, σ half-way to it) when the search's first answer stays
+    within the search's ambiguity bar (``details["ambiguity_delta_chi2"]``) of it. The search's
+    other candidates follow, their distances to the new answer, their Δχ² as the search stated
+    them (behind its first answer on the deciding stage: none within its bar and > 1 nm away,
+    or it would have warned)."""
+    assert isinstance(search.exact, QuadraticMapping)
+    pixel_range = (float(lamps[0].pixel[0]), float(lamps[0].pixel[-1]))
+    family = QuadraticFamily(pixel_range)
+    solution = verdict.rival
+    exact = family.mapping(solution.x)
+    mapping, local_rms = _report(
+        exact,
+        family,
+        solution.x,
+        solution.covariance(),
+        pixel_range,
+        str(details.get("origin", "")),
+    )
+    probe = np.linspace(pixel_range[0], pixel_range[1], 64)
+    exact_probe = exact.wavelength_nm(probe)
+
+    def distance(other: ExactMapping) -> float:
+        return float(np.sqrt(np.mean((other.wavelength_nm(probe) - exact_probe) ** 2)))
+
+    first = Candidate(
+        search.exact,
+        verdict.answer_cost,
+        verdict.delta_chi2,
+        float(math.exp(-0.5 * verdict.delta_chi2 / BASIN_TEMPER)),
+        distance(search.exact),
+    )
+    candidates = [Candidate(exact, verdict.rival_cost, 0.0, 1.0, 0.0), first]
+    scale_nm = float(search.details.get("spectrometer_scale_sigma_nm", 0.0))
+    bar = float(details.get("ambiguity_delta_chi2", BROADBAND_AMBIGUITY_DELTA_CHI2))
+    sigma = basin_sigma(
+        candidates,
+        local_nm=LOCAL_SIGMA_SCALE * local_rms,
+        scale_nm=scale_nm,
+        misfit_nm=prior_misfit_sigma_nm(verdict.temper, local_rms),
+        ambiguity_delta_chi2=bar,
+    )
+    mapping = stated_covariance(mapping, sigma.stated_nm, scale_nm, pixel_range)
+    others = []
+    for candidate in search.candidates[1:]:
+        entry = candidate.to_dict(pixel_range)
+        entry["rms_distance_nm"] = distance(candidate.mapping)
+        entry["delta_chi2_behind"] = "the search's first answer, on its deciding stage"
+        others.append(entry)
+    rows = solution.residual.size
+    details.update(
+        candidates=[c.to_dict(pixel_range) for c in candidates] + others,
+        final_cost=verdict.rival_cost,
+        reduced_chi2=verdict.rival_cost / max(rows - solution.x.size, 1),
+        temper=verdict.temper,
+        basin_spread_nm=sigma.spread_nm,
+        local_rms_nm=local_rms,
+        prior_misfit_sigma_nm=sigma.misfit_nm,
+        ambiguous=sigma.competing is not None,
+        profile_fit=search.mapping.to_dict(),
+    )
+    details["quadratic_coarse_view"]["adopted"] = True
+    if sigma.competing is not None:
+        ambiguity_warnings.append(
+            f"the mapping is ambiguous: the search's basin, {first.distance_nm:.1f} nm away (RMS), "
+            f"stood Δχ² {coarse_delta_chi2:.0f} behind this one on the coarser profile "
+            f"({GLOBAL_BIN_NM:g} nm bins) where the search found its basins, and this one fits "
+            f"the full-resolution profile better by Δχ² {verdict.delta_chi2:.0f} (tempered; "
+            f"ambiguous below {bar:g}); both are in the result and the stated σ "
+            f"({sigma.stated_nm:.1f} nm) spans them. " + deciding_shot(lamps)
+        )
+    return mapping, exact
 
 
 #: A measured spectrum's single Hg line this far (nm, beyond twice its σ) from its wavelength means

@@ -29,11 +29,18 @@ wavelength.profile_search.AMBIGUITY_MIN_DISTANCE_NM`). Where the model describes
 coarse view's best basin near the answer is the answer itself (right mappings on the validation
 split stood up to Δχ² 53 behind it, but within 0.5 nm); both views are one likelihood at two
 binnings with the same stiff response.
+
+A rejected answer's rival is then weighed on the search's final stage (:func:`final_verdict`,
+decision 0139): in both scenes above the rival, the truth's basin, fits the full-resolution profile
+better by tempered Δχ² 330–340, and :func:`calib.wavelength.locate.locate_mapping` takes it as the
+answer when that stage prefers it by the search's bar.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -45,16 +52,21 @@ from calib.model.bases import CameraPrior
 from calib.model.resolution import match_spectrometer
 from calib.wavelength.coarse_check import CoarseView, coarse_view
 from calib.wavelength.families import QuadraticFamily
+from calib.wavelength.least_squares import Solution
 from calib.wavelength.profile_search import (
     AMBIGUITY_DELTA_CHI2,
     AMBIGUITY_MIN_DISTANCE_NM,
     COARSE_NODES_NM,
+    CONVERGED_DELTA_CHI2,
+    FINAL_BIN_NM,
+    FINE_NODES_NM,
     FLEXIBILITY,
     GLOBAL_BIN_NM,
     GLOBAL_SIGMA_FLOOR,
     QUADRATIC_SCAN,
     _dof,
     _quadratic_points,
+    _spans_grid,
     _stage,
 )
 
@@ -134,4 +146,88 @@ def quadratic_coarse_view(
     return verdict, evaluations
 
 
-__all__ = ["quadratic_coarse_view"]
+@dataclass(frozen=True)
+class FinalVerdict:
+    """The final stage's word on the coarse view's rival (decision 0139).
+
+    Attributes
+    ----------
+    rival
+        The final stage's descent from the coarse view's basin (as the search's final fit: its
+        covariance is the search's).
+    rival_cost, answer_cost
+        The rival's and the search's answer's costs on that stage, each at its own prior scale.
+    temper
+        The leader's reduced χ² on that stage (at least 1).
+    delta_chi2
+        How far behind the rival the answer stands there, tempered (negative: the answer leads).
+    adopts
+        The rival fits better by more than the search's bar
+        (:data:`~calib.wavelength.profile_search.AMBIGUITY_DELTA_CHI2`) and spans the grid.
+    evaluations
+        The final stage's evaluations made.
+    """
+
+    rival: Solution
+    rival_cost: float
+    answer_cost: float
+    temper: float
+    delta_chi2: float
+    adopts: bool
+    evaluations: int
+
+
+def final_verdict(
+    lamps: Sequence[LampObservation],
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    answer: QuadraticMapping,
+    rival: FloatArray,
+    *,
+    kernel: FloatArray | None,
+) -> FinalVerdict | None:
+    """The coarse view's rival (``rival``, quadratic family parameters) refined on the search's
+    final stage — the profile at :data:`~calib.wavelength.profile_search.FINAL_BIN_NM`, the stiff
+    response on :data:`~calib.wavelength.profile_search.FINE_NODES_NM` nodes, the search's own
+    descent and stop — and weighed against ``answer`` there (decision 0139). Both views are one
+    likelihood; the final one is the finest, the one the search's answer was refined on. The rival
+    is adopted when the answer stands more than the search's bar behind it (tempered by the
+    leader's reduced χ², at least 1) and it spans the grid (the search's rule for an answer).
+    ``None`` when the rival's descent fails."""
+    lead = lamps[0]
+    pixel_range = (float(lead.pixel[0]), float(lead.pixel[-1]))
+    family = QuadraticFamily(pixel_range)
+    spacing = float(np.median(np.diff(lead.pixel)))
+    nm_per_px = float(np.median(np.abs(answer.dispersion_nm_per_px(lead.pixel)))) * spacing
+    matched = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
+    final = _stage(
+        matched,
+        family,
+        grid,
+        prior,
+        bin_nm=FINAL_BIN_NM,
+        nm_per_px=nm_per_px,
+        kernel=kernel,
+        node_step_nm=FINE_NODES_NM,
+        flexibility=FLEXIBILITY,
+        sigma_floor=0.0,
+        pixel_range=pixel_range,
+        cut_ramps=True,
+    )
+    solution = final.refine(
+        rival, max_iterations=10, tolerance=1e-7, rounds=1, gain_tolerance=CONVERGED_DELTA_CHI2
+    )
+    costs = final.costs(np.vstack([solution.x, family.parameters(answer)]))
+    evaluations = solution.evaluations + 2
+    rival_cost, answer_cost = float(costs[0]), float(costs[1])
+    if not (math.isfinite(rival_cost) and math.isfinite(answer_cost)):
+        return None
+    temper = max(min(rival_cost, answer_cost) / _dof(solution), 1.0)
+    delta = (answer_cost - rival_cost) / temper
+    adopts = delta > AMBIGUITY_DELTA_CHI2 and _spans_grid(
+        family.mapping(solution.x), pixel_range, grid
+    )
+    return FinalVerdict(solution, rival_cost, answer_cost, temper, delta, adopts, evaluations)
+
+
+__all__ = ["FinalVerdict", "final_verdict", "quadratic_coarse_view"]
