@@ -488,7 +488,73 @@ class ResponseModel:
                 f"the camera prior is on grid {prior.grid}, not {grid}", source="prior"
             )
         layout = NodeLayout.build(grid, (lo, hi), node_step_nm)
-        columns = LampColumns.build(lamp, layout, fine_step_nm)
+        return cls._assembled(
+            observation,
+            layout,
+            LampColumns.build(lamp, layout, fine_step_nm),
+            pixel_edges(observation.pixel),
+            _difference_filter(kernel),
+            layout.difference.T @ layout.difference,
+            prior=prior,
+            flexibility=flexibility,
+            sigma_floor=sigma_floor,
+            smoothness=smoothness,
+            cut_ramps=cut_ramps,
+        )
+
+    def with_prior(
+        self, prior: CameraPrior, *, flexibility: float, sigma_floor: float
+    ) -> ResponseModel:
+        """The model :meth:`build` makes of the same observation, nodes, lamp table and line
+        spread with another flexibility and σ floor: its node layout, lamp columns, pixel edges,
+        filter and margin penalty are this model's (shared, not copied), the prior's terms and
+        the weights are built anew; the scale and penalty weights are :meth:`build`'s defaults.
+
+        A search's stages on the same bins and nodes differ only in these two (the refinement
+        stage and the deciding stage's ranking): each built its own layout and lamp table, the
+        same numbers (decision 0135)."""
+        working = self.layout.nodes_nm[self.layout.working]
+        if not (
+            math.isclose(prior.grid.start_nm, working[0], abs_tol=1e-9)
+            and math.isclose(prior.grid.stop_nm, working[-1], abs_tol=1e-9)
+        ):
+            raise InputError(
+                f"the camera prior is on grid {prior.grid}, not on this model's "
+                f"{working[0]:g}–{working[-1]:g} nm",
+                source="prior",
+            )
+        return self._assembled(
+            self.observation,
+            self.layout,
+            self.columns,
+            self.edges_px,
+            self.filter,
+            self.penalty,
+            prior=prior,
+            flexibility=flexibility,
+            sigma_floor=sigma_floor,
+            smoothness=self.smoothness,
+            cut_ramps=self.cut_ramps,
+        )
+
+    @classmethod
+    def _assembled(
+        cls,
+        observation: LampObservation,
+        layout: NodeLayout,
+        columns: LampColumns,
+        edges_px: FloatArray,
+        filter_: FloatArray,
+        penalty: FloatArray,
+        *,
+        prior: CameraPrior,
+        flexibility: float,
+        sigma_floor: float,
+        smoothness: float,
+        cut_ramps: bool,
+    ) -> ResponseModel:
+        """:meth:`build` from its layout, lamp table, edges, filter and penalty: the prior's
+        terms (:func:`shared_response_prior`) and the weights."""
         working = layout.working
         mean, factors = shared_response_prior(prior, layout.nodes_nm[working], flexibility)
         size = layout.nodes_nm.size
@@ -505,11 +571,11 @@ class ResponseModel:
             observation=observation,
             layout=layout,
             columns=columns,
-            edges_px=pixel_edges(observation.pixel),
-            filter=_difference_filter(kernel),
+            edges_px=edges_px,
+            filter=filter_,
             target=weights * observation.profile,
             weights=weights,
-            penalty=layout.difference.T @ layout.difference,
+            penalty=penalty,
             prior_factor=factor,
             precision=factor.transpose(0, 2, 1) @ factor,
             prior_mean=embedded_mean,
