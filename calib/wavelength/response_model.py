@@ -657,14 +657,14 @@ class ResponseModel:
         # pixels, not over the short (w, L + 1) axes (the same operations on the same numbers).
         column = first + np.arange(width)[:, None, None]  # (w, K, n)
         count = self.filter.size
-        edge_windows = np.moveaxis(windows, -1, 0)  # (L + 1, K, n), a view
+        edge_windows = _last_first(windows)  # (L + 1, K, n), a view
         value, slope = self.columns.evaluate(
             edge_windows[None], np.minimum(column, size - 1)[:, None], derivative=slopes
         )  # (w, L + 1, K, n)
         filtered = value[:, 0] * self.filter[0]
         for tap in range(1, count):
             filtered = filtered + value[:, tap] * self.filter[tap]
-        values = np.moveaxis(filtered * (column < size), 0, -1) * _signs(edges_nm)  # (K, n, w)
+        values = _first_last(filtered * (column < size)) * _signs(edges_nm)  # (K, n, w)
         return Band(values, first, slope=slope)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
@@ -719,7 +719,7 @@ class ResponseModel:
         the lamp density at the edges (:meth:`LampColumns.density_at`) through the filter."""
         if band.slope is not None:
             pixels_last = self._pixels_last_derivative(edges_nm, edge_jacobian, band)
-            return np.moveaxis(pixels_last, (0, 1), (3, 2))  # (K, n, w, P), a view
+            return pixels_last.transpose(2, 3, 1, 0)  # (K, n, w, P), a view
         windows, index = self._windows(edges_nm)
         size = self.n_nodes
         column = band.columns
@@ -753,7 +753,7 @@ class ResponseModel:
             edges_nm
         )[None, :, :, 0]
         # ∂λ/∂x at each window's edges, (P, K, n + L).
-        moving = np.ascontiguousarray(np.moveaxis(edge_jacobian[:, index, :], -1, 0))
+        moving = np.ascontiguousarray(_last_first(edge_jacobian[:, index, :]))
         total = None
         for tap in range(self.filter.size):
             coefficient = slope[:, tap] * (self.filter[tap] * mask)  # (w, K, n)
@@ -805,8 +805,8 @@ class ResponseModel:
         else:
             # Formed pixels last (gathering the short last axis of a scan's batch cost 10× more),
             # then laid out (K, n, M): the same products, each bin summed in the same order.
-            by_column = np.moveaxis(values, -1, 0)  # (w, K, n)
-            factors[..., :pairs] = np.moveaxis(by_column[lows] * by_column[lows + offsets], 0, -1)
+            by_column = _last_first(values)  # (w, K, n)
+            factors[..., :pairs] = _first_last(by_column[lows] * by_column[lows + offsets])
         pair_places = band.first[:, :, None] * width + (lows * width + offsets)
         places = np.empty((batch, n, pairs + extra), dtype=np.intp)
         places[..., :pairs] = pair_places
@@ -1151,7 +1151,7 @@ class ResponseModel:
         rhs = (model.target * model.weights).T @ matrix  # (3, N): Aᵀ W y per channel
         pull, border = model._held_pulls
         factors = _cholesky(systems)
-        free, along = np.moveaxis(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)), -1, 0)
+        free, along = _last_first(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)))
         beta = float(_scale_of(pull, border, free, along, 0.0))
         response = free + beta * along  # (3, N)
         fitted = response @ matrix.T  # (3, n)
@@ -1175,10 +1175,8 @@ class ResponseModel:
                 )[:, :, 0]
                 places = flat.reshape(n, -1).T
             else:
-                derivative = np.moveaxis(
-                    model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0],
-                    -1,
-                    0,
+                derivative = _last_first(
+                    model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0]
                 )  # (P, n, w)
                 places = flat.reshape(n, -1)
             moved_matrix = _dense(  # ∂A/∂x (P, n, N)
@@ -1274,6 +1272,31 @@ def _reduced(windows: NDArray[Any], ufunc: np.ufunc) -> NDArray[Any]:
     for index in range(1, windows.shape[-1]):
         folded = ufunc(folded, windows[..., index])
     return folded
+
+
+def _last_first(array: NDArray[Any]) -> NDArray[Any]:
+    """``np.moveaxis(array, -1, 0)``: the same view, without that function's per-call axis
+    handling (it cost more than the view's use at a descent's sizes; decision 0135).
+
+    Examples
+    --------
+    >>> array = np.arange(24.0).reshape(2, 3, 4)
+    >>> bool(np.array_equal(_last_first(array), np.moveaxis(array, -1, 0)))
+    True
+    """
+    return array.transpose(array.ndim - 1, *range(array.ndim - 1))
+
+
+def _first_last(array: NDArray[Any]) -> NDArray[Any]:
+    """``np.moveaxis(array, 0, -1)``: the same view (see :func:`_last_first`).
+
+    Examples
+    --------
+    >>> array = np.arange(24.0).reshape(2, 3, 4)
+    >>> bool(np.array_equal(_first_last(array), np.moveaxis(array, 0, -1)))
+    True
+    """
+    return array.transpose(*range(1, array.ndim), 0)
 
 
 def _dense(flat: IntArray, values: FloatArray, shape: tuple[int, ...]) -> FloatArray:
