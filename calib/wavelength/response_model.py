@@ -746,7 +746,7 @@ class ResponseModel:
         taps' order, the batched matmul's up to rounding; decision 0106)."""
         slope = band.slope
         assert slope is not None
-        _, index = self._windows(edges_nm)
+        index = self._edge_index  # the windows' edges (not their wavelengths: not needed here)
         n = band.first.shape[1]
         # Validity and sign (w, K, n).
         mask = (band.first + np.arange(slope.shape[0])[:, None, None] < self.n_nodes) * _signs(
@@ -1019,6 +1019,18 @@ class ResponseModel:
         )
 
     @cached_property
+    def _held_root(self) -> FloatArray:
+        """``√w_Δ`` ``(3,)``: the margin penalty rows' weights at the held penalty weights."""
+        assert self.penalty_weight is not None
+        return np.asarray(np.sqrt(self.penalty_weight), dtype=np.float64)
+
+    @cached_property
+    def _weighted_target(self) -> FloatArray:
+        """``(W y)ᵀ W`` ``(3, n)``: each channel's data weighted twice (the right-hand sides'
+        factor, the same for every mapping)."""
+        return (self.target * self.weights).T
+
+    @cached_property
     def _held_factor(self) -> FloatArray:
         """The prior's whitening factors ``F / β̂`` ``(3, n_w, N)`` at the held scale."""
         return np.asarray(self.prior_factor / self.scale, dtype=np.float64)
@@ -1148,7 +1160,7 @@ class ResponseModel:
             systems = model._held_systems + model._banded_normal(band)
         diagonal = systems.reshape(3, size * size)[:, :: size + 1]
         diagonal += RIDGE * np.maximum(diagonal.sum(axis=1) / size, 1e-300)[:, None]
-        rhs = (model.target * model.weights).T @ matrix  # (3, N): Aᵀ W y per channel
+        rhs = model._weighted_target @ matrix  # (3, N): Aᵀ W y per channel
         pull, border = model._held_pulls
         factors = _cholesky(systems)
         free, along = _last_first(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)))
@@ -1156,7 +1168,7 @@ class ResponseModel:
         response = free + beta * along  # (3, N)
         fitted = response @ matrix.T  # (3, n)
         data_rows = weights * fitted - model.target.T  # (3, n)
-        root = np.sqrt(model.penalty_weight)
+        root = model._held_root
         penalty_rows = root[:, None] * (response @ model.layout.difference.T)  # (3, r)
         factor = model._held_factor
         prior_rows = np.einsum("cij,cj->ci", factor, response - beta * model.prior_mean)
@@ -1207,7 +1219,7 @@ class ResponseModel:
         assert model.penalty_weight is not None
         n_parameters = derivative.shape[0]
         weights = model.weights.T  # (3, n)
-        root = np.sqrt(model.penalty_weight)
+        root = model._held_root
         factor = model._held_factor
         # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
         # (rT laid out C-ordered: with the transposed view numpy's stacked product took the slow
