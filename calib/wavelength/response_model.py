@@ -638,7 +638,9 @@ class ResponseModel:
         """Each blurred pixel's ``L + 1`` edge wavelengths ``(K, n, L + 1)`` and the edge index."""
         count = self.filter.size  # L + 1 edges per blurred pixel
         index = self._edge_index
-        return _sliding(np.ascontiguousarray(edges_nm[:, index]), count), index  # (K, n + L)
+        # Unblurred (L = 1), the windows' edges are the edges themselves: no gathered copy.
+        padded = edges_nm if count == 2 else edges_nm[:, index]
+        return _sliding(np.ascontiguousarray(padded), count), index  # (K, n + L)
 
     def _band_values(self, edges_nm: FloatArray, *, slopes: bool = False) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
@@ -753,7 +755,9 @@ class ResponseModel:
             edges_nm
         )[None, :, :, 0]
         # ∂λ/∂x at each window's edges, (P, K, n + L).
-        moving = np.ascontiguousarray(_last_first(edge_jacobian[:, index, :]))
+        moving = np.ascontiguousarray(
+            _last_first(edge_jacobian if self.filter.size == 2 else edge_jacobian[:, index, :])
+        )
         total = None
         for tap in range(self.filter.size):
             coefficient = slope[:, tap] * (self.filter[tap] * mask)  # (w, K, n)
