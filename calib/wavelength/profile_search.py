@@ -478,7 +478,21 @@ def _stage(
     sigma_floor: float,
     pixel_range: tuple[float, float],
     cut_ramps: bool = False,
+    like: StageFit | None = None,
 ) -> StageFit:
+    """The lamps' models on ``bin_nm`` bins and ``node_step_nm`` nodes; ``like``, a stage built
+    with the same lamps, bins, nodes, line spread and ``cut_ramps`` (only the flexibility and σ
+    floor may differ): its models' layouts and lamp tables are reused
+    (:meth:`ResponseModel.with_prior`, the same numbers as a new build)."""
+    if like is not None:
+        return StageFit(
+            tuple(
+                model.with_prior(prior, flexibility=flexibility, sigma_floor=sigma_floor)
+                for model in like.models
+            ),
+            family,
+            pixel_range,
+        )
     factor = max(1, int(bin_nm / max(nm_per_px, 1e-9)))
     stage_kernel = (
         None if kernel is None else (kernel if factor == 1 else binned_kernel(kernel, factor))
@@ -1347,6 +1361,12 @@ def search_profiles(
         # The lamps' models do not depend on the family: build each resolution once.
         key = (bin_nm, nodes, flexibility, floor, final)
         if key not in built:
+            # A stage on the same bins and nodes differs only in its prior and weights: it
+            # shares that stage's layouts and lamp tables (decision 0135).
+            like = next(
+                (fit for other, fit in built.items() if other[:2] + other[4:] == key[:2] + key[4:]),
+                None,
+            )
             built[key] = _stage(
                 lamps,
                 family,
@@ -1360,6 +1380,7 @@ def search_profiles(
                 sigma_floor=floor,
                 pixel_range=pixel_range,
                 cut_ramps=final,
+                like=like,
             )
         return replace(built[key], family=family)
 

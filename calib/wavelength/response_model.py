@@ -488,7 +488,73 @@ class ResponseModel:
                 f"the camera prior is on grid {prior.grid}, not {grid}", source="prior"
             )
         layout = NodeLayout.build(grid, (lo, hi), node_step_nm)
-        columns = LampColumns.build(lamp, layout, fine_step_nm)
+        return cls._assembled(
+            observation,
+            layout,
+            LampColumns.build(lamp, layout, fine_step_nm),
+            pixel_edges(observation.pixel),
+            _difference_filter(kernel),
+            layout.difference.T @ layout.difference,
+            prior=prior,
+            flexibility=flexibility,
+            sigma_floor=sigma_floor,
+            smoothness=smoothness,
+            cut_ramps=cut_ramps,
+        )
+
+    def with_prior(
+        self, prior: CameraPrior, *, flexibility: float, sigma_floor: float
+    ) -> ResponseModel:
+        """The model :meth:`build` makes of the same observation, nodes, lamp table and line
+        spread with another flexibility and σ floor: its node layout, lamp columns, pixel edges,
+        filter and margin penalty are this model's (shared, not copied), the prior's terms and
+        the weights are built anew; the scale and penalty weights are :meth:`build`'s defaults.
+
+        A search's stages on the same bins and nodes differ only in these two (the refinement
+        stage and the deciding stage's ranking): each built its own layout and lamp table, the
+        same numbers (decision 0135)."""
+        working = self.layout.nodes_nm[self.layout.working]
+        if not (
+            math.isclose(prior.grid.start_nm, working[0], abs_tol=1e-9)
+            and math.isclose(prior.grid.stop_nm, working[-1], abs_tol=1e-9)
+        ):
+            raise InputError(
+                f"the camera prior is on grid {prior.grid}, not on this model's "
+                f"{working[0]:g}–{working[-1]:g} nm",
+                source="prior",
+            )
+        return self._assembled(
+            self.observation,
+            self.layout,
+            self.columns,
+            self.edges_px,
+            self.filter,
+            self.penalty,
+            prior=prior,
+            flexibility=flexibility,
+            sigma_floor=sigma_floor,
+            smoothness=self.smoothness,
+            cut_ramps=self.cut_ramps,
+        )
+
+    @classmethod
+    def _assembled(
+        cls,
+        observation: LampObservation,
+        layout: NodeLayout,
+        columns: LampColumns,
+        edges_px: FloatArray,
+        filter_: FloatArray,
+        penalty: FloatArray,
+        *,
+        prior: CameraPrior,
+        flexibility: float,
+        sigma_floor: float,
+        smoothness: float,
+        cut_ramps: bool,
+    ) -> ResponseModel:
+        """:meth:`build` from its layout, lamp table, edges, filter and penalty: the prior's
+        terms (:func:`shared_response_prior`) and the weights."""
         working = layout.working
         mean, factors = shared_response_prior(prior, layout.nodes_nm[working], flexibility)
         size = layout.nodes_nm.size
@@ -505,11 +571,11 @@ class ResponseModel:
             observation=observation,
             layout=layout,
             columns=columns,
-            edges_px=pixel_edges(observation.pixel),
-            filter=_difference_filter(kernel),
+            edges_px=edges_px,
+            filter=filter_,
             target=weights * observation.profile,
             weights=weights,
-            penalty=layout.difference.T @ layout.difference,
+            penalty=penalty,
             prior_factor=factor,
             precision=factor.transpose(0, 2, 1) @ factor,
             prior_mean=embedded_mean,
@@ -572,7 +638,9 @@ class ResponseModel:
         """Each blurred pixel's ``L + 1`` edge wavelengths ``(K, n, L + 1)`` and the edge index."""
         count = self.filter.size  # L + 1 edges per blurred pixel
         index = self._edge_index
-        return _sliding(np.ascontiguousarray(edges_nm[:, index]), count), index  # (K, n + L)
+        # Unblurred (L = 1), the windows' edges are the edges themselves: no gathered copy.
+        padded = edges_nm if count == 2 else edges_nm[:, index]
+        return _sliding(np.ascontiguousarray(padded), count), index  # (K, n + L)
 
     def _band_values(self, edges_nm: FloatArray, *, slopes: bool = False) -> Band:
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
@@ -591,14 +659,14 @@ class ResponseModel:
         # pixels, not over the short (w, L + 1) axes (the same operations on the same numbers).
         column = first + np.arange(width)[:, None, None]  # (w, K, n)
         count = self.filter.size
-        edge_windows = np.moveaxis(windows, -1, 0)  # (L + 1, K, n), a view
+        edge_windows = _last_first(windows)  # (L + 1, K, n), a view
         value, slope = self.columns.evaluate(
             edge_windows[None], np.minimum(column, size - 1)[:, None], derivative=slopes
         )  # (w, L + 1, K, n)
         filtered = value[:, 0] * self.filter[0]
         for tap in range(1, count):
             filtered = filtered + value[:, tap] * self.filter[tap]
-        values = np.moveaxis(filtered * (column < size), 0, -1) * _signs(edges_nm)  # (K, n, w)
+        values = _first_last(filtered * (column < size)) * _signs(edges_nm)  # (K, n, w)
         return Band(values, first, slope=slope)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
@@ -653,7 +721,7 @@ class ResponseModel:
         the lamp density at the edges (:meth:`LampColumns.density_at`) through the filter."""
         if band.slope is not None:
             pixels_last = self._pixels_last_derivative(edges_nm, edge_jacobian, band)
-            return np.moveaxis(pixels_last, (0, 1), (3, 2))  # (K, n, w, P), a view
+            return pixels_last.transpose(2, 3, 1, 0)  # (K, n, w, P), a view
         windows, index = self._windows(edges_nm)
         size = self.n_nodes
         column = band.columns
@@ -680,14 +748,16 @@ class ResponseModel:
         taps' order, the batched matmul's up to rounding; decision 0106)."""
         slope = band.slope
         assert slope is not None
-        _, index = self._windows(edges_nm)
+        index = self._edge_index  # the windows' edges (not their wavelengths: not needed here)
         n = band.first.shape[1]
         # Validity and sign (w, K, n).
         mask = (band.first + np.arange(slope.shape[0])[:, None, None] < self.n_nodes) * _signs(
             edges_nm
         )[None, :, :, 0]
         # ∂λ/∂x at each window's edges, (P, K, n + L).
-        moving = np.ascontiguousarray(np.moveaxis(edge_jacobian[:, index, :], -1, 0))
+        moving = np.ascontiguousarray(
+            _last_first(edge_jacobian if self.filter.size == 2 else edge_jacobian[:, index, :])
+        )
         total = None
         for tap in range(self.filter.size):
             coefficient = slope[:, tap] * (self.filter[tap] * mask)  # (w, K, n)
@@ -739,8 +809,8 @@ class ResponseModel:
         else:
             # Formed pixels last (gathering the short last axis of a scan's batch cost 10× more),
             # then laid out (K, n, M): the same products, each bin summed in the same order.
-            by_column = np.moveaxis(values, -1, 0)  # (w, K, n)
-            factors[..., :pairs] = np.moveaxis(by_column[lows] * by_column[lows + offsets], 0, -1)
+            by_column = _last_first(values)  # (w, K, n)
+            factors[..., :pairs] = _first_last(by_column[lows] * by_column[lows + offsets])
         pair_places = band.first[:, :, None] * width + (lows * width + offsets)
         places = np.empty((batch, n, pairs + extra), dtype=np.intp)
         places[..., :pairs] = pair_places
@@ -953,6 +1023,18 @@ class ResponseModel:
         )
 
     @cached_property
+    def _held_root(self) -> FloatArray:
+        """``√w_Δ`` ``(3,)``: the margin penalty rows' weights at the held penalty weights."""
+        assert self.penalty_weight is not None
+        return np.asarray(np.sqrt(self.penalty_weight), dtype=np.float64)
+
+    @cached_property
+    def _weighted_target(self) -> FloatArray:
+        """``(W y)ᵀ W`` ``(3, n)``: each channel's data weighted twice (the right-hand sides'
+        factor, the same for every mapping)."""
+        return (self.target * self.weights).T
+
+    @cached_property
     def _held_factor(self) -> FloatArray:
         """The prior's whitening factors ``F / β̂`` ``(3, n_w, N)`` at the held scale."""
         return np.asarray(self.prior_factor / self.scale, dtype=np.float64)
@@ -1082,15 +1164,15 @@ class ResponseModel:
             systems = model._held_systems + model._banded_normal(band)
         diagonal = systems.reshape(3, size * size)[:, :: size + 1]
         diagonal += RIDGE * np.maximum(diagonal.sum(axis=1) / size, 1e-300)[:, None]
-        rhs = (model.target * model.weights).T @ matrix  # (3, N): Aᵀ W y per channel
+        rhs = model._weighted_target @ matrix  # (3, N): Aᵀ W y per channel
         pull, border = model._held_pulls
         factors = _cholesky(systems)
-        free, along = np.moveaxis(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)), -1, 0)
+        free, along = _last_first(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)))
         beta = float(_scale_of(pull, border, free, along, 0.0))
         response = free + beta * along  # (3, N)
         fitted = response @ matrix.T  # (3, n)
         data_rows = weights * fitted - model.target.T  # (3, n)
-        root = np.sqrt(model.penalty_weight)
+        root = model._held_root
         penalty_rows = root[:, None] * (response @ model.layout.difference.T)  # (3, r)
         factor = model._held_factor
         prior_rows = np.einsum("cij,cj->ci", factor, response - beta * model.prior_mean)
@@ -1109,10 +1191,8 @@ class ResponseModel:
                 )[:, :, 0]
                 places = flat.reshape(n, -1).T
             else:
-                derivative = np.moveaxis(
-                    model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0],
-                    -1,
-                    0,
+                derivative = _last_first(
+                    model.band_derivative(edges_nm[None, :], edge_derivative[None], band)[0]
                 )  # (P, n, w)
                 places = flat.reshape(n, -1)
             moved_matrix = _dense(  # ∂A/∂x (P, n, N)
@@ -1143,7 +1223,7 @@ class ResponseModel:
         assert model.penalty_weight is not None
         n_parameters = derivative.shape[0]
         weights = model.weights.T  # (3, n)
-        root = np.sqrt(model.penalty_weight)
+        root = model._held_root
         factor = model._held_factor
         # v_k = W ∂A_k r̂ (data rows only); u_k = ∂A_kᵀ W ρ + Aᵀ W v_k.
         # (rT laid out C-ordered: with the transposed view numpy's stacked product took the slow
@@ -1208,6 +1288,31 @@ def _reduced(windows: NDArray[Any], ufunc: np.ufunc) -> NDArray[Any]:
     for index in range(1, windows.shape[-1]):
         folded = ufunc(folded, windows[..., index])
     return folded
+
+
+def _last_first(array: NDArray[Any]) -> NDArray[Any]:
+    """``np.moveaxis(array, -1, 0)``: the same view, without that function's per-call axis
+    handling (it cost more than the view's use at a descent's sizes; decision 0135).
+
+    Examples
+    --------
+    >>> array = np.arange(24.0).reshape(2, 3, 4)
+    >>> bool(np.array_equal(_last_first(array), np.moveaxis(array, -1, 0)))
+    True
+    """
+    return array.transpose(array.ndim - 1, *range(array.ndim - 1))
+
+
+def _first_last(array: NDArray[Any]) -> NDArray[Any]:
+    """``np.moveaxis(array, 0, -1)``: the same view (see :func:`_last_first`).
+
+    Examples
+    --------
+    >>> array = np.arange(24.0).reshape(2, 3, 4)
+    >>> bool(np.array_equal(_first_last(array), np.moveaxis(array, 0, -1)))
+    True
+    """
+    return array.transpose(*range(1, array.ndim), 0)
 
 
 def _dense(flat: IntArray, values: FloatArray, shape: tuple[int, ...]) -> FloatArray:
