@@ -19,6 +19,7 @@ along the dispersion direction). Neither holds as measured:
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import replace
@@ -217,22 +218,26 @@ def blurred_profile(
         values.tobytes(),
         None if spread is None else (spread.shape, spread.tobytes()),
     )
-    found = _PROFILE_CACHE.get(key)
-    if found is not None:
-        _PROFILE_CACHE.move_to_end(key)
-        return found
+    with _PROFILE_LOCK:
+        found = _PROFILE_CACHE.get(key)
+        if found is not None:
+            _PROFILE_CACHE.move_to_end(key)
+            return found
     matrix = wavelength_blur(wavelength, fwhm_nm)
     blurred = matrix @ values
     blurred_sigma = None if spread is None else np.sqrt(matrix.power(2) @ spread**2)
     for array in (blurred, blurred_sigma):
         if array is not None:
             array.flags.writeable = False
-    _PROFILE_CACHE[key] = (blurred, blurred_sigma)
-    while len(_PROFILE_CACHE) > BLUR_CACHE_SIZE:
-        _PROFILE_CACHE.popitem(last=False)
+    with _PROFILE_LOCK:
+        _PROFILE_CACHE[key] = (blurred, blurred_sigma)
+        while len(_PROFILE_CACHE) > BLUR_CACHE_SIZE:
+            _PROFILE_CACHE.popitem(last=False)
     return blurred, blurred_sigma
 
 
+#: Guards :data:`_PROFILE_CACHE` (the solves may run in threads).
+_PROFILE_LOCK = threading.Lock()
 _PROFILE_CACHE: OrderedDict[tuple[object, ...], tuple[FloatArray, FloatArray | None]] = (
     OrderedDict()
 )
