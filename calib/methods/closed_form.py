@@ -23,6 +23,7 @@ from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import WavelengthGrid
+from calib.methods.solve_scope import reuse
 from calib.model.bases import CameraBasis, CameraPrior, FourierConvention, fourier_basis
 from calib.model.forward import WavelengthMapping, apply_blur, hat_matrix
 from calib.model.linear_model import LampSystem, prepare_lamp
@@ -205,6 +206,12 @@ class JointSetup:
         return prepare_matched_lamp(observation, self.mapping, grid, self.kernel)
 
 
+def _read_only(array: FloatArray) -> FloatArray:
+    """``array``, made read-only (a result shared by a solve scope's callers)."""
+    array.flags.writeable = False
+    return array
+
+
 def joint_setup(
     observations: Sequence[LampObservation],
     *,
@@ -217,14 +224,26 @@ def joint_setup(
     """Check the lamps, build the prior and the efficiency basis, and find the mapping if needed.
 
     The mapping is found with the lamp named ``mapping_lamp``, else with every lamp jointly (one
-    geometry: one mapping; fluorescent lines, if any, start the search).
+    geometry: one mapping; fluorescent lines, if any, start the search). Inside a
+    :func:`calib.methods.solve_scope.solve_scope` the prior and the efficiency basis are built once
+    for the same basis, grid and options (the σ budget's re-solves take the estimate's).
     """
     started = time.perf_counter()
     check_lamps(observations, basis, grid)
     chosen = choose_solve_lamps(observations, options.solve_lamps)
-    prior = basis.prior(options.prior_shrinkage)
-    efficiency_basis = fourier_basis(
-        grid, options.efficiency_terms, convention=options.fourier_convention
+    # The prior and the η basis depend on the basis and the options only: inside a solve scope
+    # the σ budget's re-solves read the estimate's instead of building them again.
+    prior = reuse(
+        "camera prior",
+        (basis, options.prior_shrinkage),
+        lambda: basis.prior(options.prior_shrinkage),
+    )
+    efficiency_basis = reuse(
+        "efficiency basis",
+        (grid, options.efficiency_terms, options.fourier_convention),
+        lambda: _read_only(
+            fourier_basis(grid, options.efficiency_terms, convention=options.fourier_convention)
+        ),
     )
     kernel = camera_kernel(observations, options.slit_width_px, options.psf_sigma_px)
     timings = {"prepare_s": time.perf_counter() - started}

@@ -52,6 +52,15 @@ class SolveScope:
     reused, warm_started
         How many sub-solves were answered from :attr:`results`, and how many starts were handed
         out (a record for tests and profiles).
+    digests
+        The digest of an object that cannot change, by its ``id`` (the object kept with it, so
+        the ``id`` is not reused while the scope is open): a read-only array whose memory no
+        writeable array owns, fed once by content; an array or frozen dataclass a
+        :func:`reuse` computed, by where it came from (:func:`_register`).
+    content_fed
+        The objects (arrays, dataclasses) whose content was fed to a digest and not kept in
+        :attr:`digests` (by ``id``, kept alive): never registered afterwards, so that each
+        object's digest stays the same for the whole scope.
     """
 
     results: dict[bytes, Any] = field(default_factory=dict)
@@ -59,6 +68,8 @@ class SolveScope:
     perturbed: bool = False
     reused: int = 0
     warm_started: int = 0
+    digests: dict[int, tuple[object, bytes]] = field(default_factory=dict)
+    content_fed: dict[int, object] = field(default_factory=dict)
 
 
 _SCOPE: ContextVar[SolveScope | None] = ContextVar("calib_solve_scope", default=None)
@@ -103,37 +114,145 @@ def perturbation() -> Iterator[None]:
         scope.perturbed = previous
 
 
-def _feed(digest: Any, value: object) -> None:
+def _unchangeable(array: np.ndarray) -> bool:
+    """Whether no writeable array reaches ``array``'s memory: it and every array it views are
+    read-only (the project's frozen arrays: ``flags.writeable = False`` on an array that owns its
+    copy), down to an owner that is an array or ``bytes``."""
+    value: object = array
+    while isinstance(value, np.ndarray):
+        if value.flags.writeable:
+            return False
+        if value.base is None:
+            return True
+        value = value.base
+    return isinstance(value, bytes)
+
+
+def _array_digest(value: np.ndarray) -> bytes:
+    """An array's own digest: dtype, shape and bytes."""
+    if value.dtype.hasobject:
+        raise TypeError("no content digest for an array of Python objects")
+    digest = hashlib.blake2b(digest_size=16)
+    digest.update(f"a{value.dtype.str}{value.shape}".encode())
+    digest.update(np.ascontiguousarray(value).tobytes())
+    return digest.digest()
+
+
+def _feed(digest: Any, value: object, scope: SolveScope | None = None) -> bool:
     """Add ``value``'s content to ``digest`` (arrays by dtype, shape and bytes; dataclasses by
-    their fields; sequences and mappings element by element; scalars by ``repr``)."""
+    their fields; sequences and mappings element by element; scalars by ``repr``; an array's and
+    a dataclass's content through a digest of its own). Returns whether the content cannot
+    change: a scalar, a read-only array no writeable array reaches (:func:`_unchangeable`), a
+    tuple or frozen dataclass of such.
+
+    In an open ``scope`` an object already in :attr:`SolveScope.digests` is fed by its recorded
+    digest, and an array or frozen dataclass whose content cannot change is recorded there the
+    first time it is fed: its bytes are read once per scope."""
+    if scope is not None and _kept(value):
+        known = scope.digests.get(id(value))
+        if known is not None and known[0] is value:
+            digest.update(b"k")
+            digest.update(known[1])
+            return True
     if isinstance(value, np.ndarray):
-        digest.update(f"a{value.dtype.str}{value.shape}".encode())
-        digest.update(np.ascontiguousarray(value).tobytes())
+        own = _array_digest(value)
+        fixed = _unchangeable(value)
     elif is_dataclass(value) and not isinstance(value, type):
-        digest.update(f"d{type(value).__qualname__}".encode())
+        inner = hashlib.blake2b(digest_size=16)
+        inner.update(f"d{type(value).__qualname__}".encode())
+        parameters = getattr(type(value), "__dataclass_params__", None)
+        fixed = parameters is not None and bool(parameters.frozen)
         for item in fields(value):
-            digest.update(item.name.encode())
-            _feed(digest, getattr(value, item.name))
+            inner.update(item.name.encode())
+            fixed = _feed(inner, getattr(value, item.name), scope) and fixed
+        own = inner.digest()
     elif isinstance(value, list | tuple):
         digest.update(f"s{len(value)}".encode())
+        fixed = isinstance(value, tuple)
         for item in value:
-            _feed(digest, item)
+            fixed = _feed(digest, item, scope) and fixed
+        return fixed
     elif isinstance(value, dict):
         digest.update(f"m{len(value)}".encode())
         for key in sorted(value, key=repr):
-            _feed(digest, key)
-            _feed(digest, value[key])
+            _feed(digest, key, scope)
+            _feed(digest, value[key], scope)
+        return False
     elif value is None or isinstance(value, bool | int | float | str | np.number):
         digest.update(f"v{type(value).__name__}{value!r}".encode())
+        return True
     else:
         raise TypeError(f"no content digest for {type(value).__name__}")
+    if scope is not None:
+        if fixed:
+            scope.digests[id(value)] = (value, own)
+        else:
+            scope.content_fed[id(value)] = value
+    digest.update(b"k")
+    digest.update(own)
+    return fixed
+
+
+def _kept(value: object) -> bool:
+    """Whether ``value`` is an object :attr:`SolveScope.digests` may hold: an array or a
+    dataclass instance."""
+    return isinstance(value, np.ndarray) or (is_dataclass(value) and not isinstance(value, type))
+
+
+def _register(scope: SolveScope, origin: bytes, value: object) -> bool:
+    """Record, in ``scope``, the digest of each array and frozen dataclass in ``value`` (what a
+    :func:`reuse` computed from inputs of digest ``origin``) as its place in the result: the
+    result is determined by its inputs (what :func:`reuse` rests on), and a result handed to
+    more than one caller is never modified (each would see the other's change), so the place is
+    as good a digest as the content, without reading it again for each lookup. Tuples, lists and
+    frozen dataclasses are walked; dictionaries and other objects are not (their content is fed
+    as before). An object already fed by content in the scope (an input passed through, say)
+    keeps its content digest. Returns whether all of ``value`` is recorded."""
+
+    def walk(item: object, place: str) -> bool:
+        if _kept(item):
+            known = scope.digests.get(id(item))
+            if known is not None and known[0] is item:
+                return True
+            if id(item) in scope.content_fed:
+                return False
+        if isinstance(item, np.ndarray):
+            if item.dtype.hasobject:
+                return False
+            token = hashlib.blake2b(origin + place.encode(), digest_size=16).digest()
+            scope.digests[id(item)] = (item, token)
+            return True
+        if isinstance(item, list | tuple):
+            done = True
+            for index, part in enumerate(item):  # every part, also after one not recorded
+                done = walk(part, f"{place}/{index}") and done
+            return done
+        if is_dataclass(item) and not isinstance(item, type):
+            parameters = getattr(type(item), "__dataclass_params__", None)
+            inner = True
+            for part in fields(item):
+                inner = walk(getattr(item, part.name), f"{place}.{part.name}") and inner
+            if not (inner and parameters is not None and parameters.frozen):
+                return False
+            token = hashlib.blake2b(origin + place.encode(), digest_size=16).digest()
+            scope.digests[id(item)] = (item, token)
+            return True
+        return item is None or isinstance(item, bool | int | float | str | np.number)
+
+    return walk(value, "r")
 
 
 def fingerprint(*parts: object) -> bytes:
-    """A digest of the parts' content (BLAKE2b, 16 bytes): equal only for equal content."""
+    """A digest of the parts' content (BLAKE2b, 16 bytes): equal only for equal content.
+
+    Inside an open scope, objects that cannot change are read once (:attr:`SolveScope.digests`)."""
+    return _fingerprint(_SCOPE.get(), parts)
+
+
+def _fingerprint(scope: SolveScope | None, parts: tuple[object, ...]) -> bytes:
     digest = hashlib.blake2b(digest_size=16)
     for part in parts:
-        _feed(digest, part)
+        _feed(digest, part, scope)
     return digest.digest()
 
 
@@ -143,7 +262,7 @@ def recall(label: str, parts: tuple[object, ...]) -> Any:
     scope = _SCOPE.get()
     if scope is None:
         return None
-    value = scope.results.get(fingerprint(label, *parts))
+    value = scope.results.get(_fingerprint(scope, (label, *parts)))
     if value is not None:
         scope.reused += 1
     return value
@@ -162,7 +281,7 @@ def reuse(
     if scope is None:
         return compute()
     try:
-        key = fingerprint(label, *parts)
+        key = _fingerprint(scope, (label, *parts))
     except TypeError:
         if strict:
             raise
@@ -172,6 +291,7 @@ def reuse(
         return cast(T, scope.results[key])
     value = compute()
     scope.results[key] = value
+    _register(scope, key, value)
     return value
 
 

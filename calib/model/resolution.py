@@ -19,6 +19,7 @@ along the dispersion direction). Neither holds as measured:
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import replace
@@ -195,6 +196,53 @@ def _wavelength_blur(wavelength: FloatArray, fwhm_nm: float) -> sparse.csr_array
     return sparse.csr_array((weights, (rows, columns)), shape=(size, size))
 
 
+def blurred_profile(
+    wavelength_nm: FloatArray, fwhm_nm: float, profile: FloatArray, sigma: FloatArray | None
+) -> tuple[FloatArray, FloatArray | None]:
+    """``profile`` ``(n, 3)`` and its σ blurred in wavelength (:func:`wavelength_blur`):
+    ``W profile`` and ``√(W² σ²)`` (``W²`` elementwise; neighbours' correlation ignored).
+
+    Kept for the last :data:`BLUR_CACHE_SIZE` inputs (by content: the wavelengths, FWHM, profile
+    and σ as bytes; the arrays read-only): the σ budget's spectrometer-scale re-solve moves only
+    the lamp's spectrum, so its profile is blurred by the same matrix to the same numbers; the
+    two sparse products cost ~1 ms for a 941-sample profile (decision 0138).
+    """
+    wavelength = np.asarray(wavelength_nm, dtype=np.float64)
+    values = np.asarray(profile, dtype=np.float64)
+    spread = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+    key = (
+        wavelength.shape,
+        wavelength.tobytes(),
+        float(fwhm_nm),
+        values.shape,
+        values.tobytes(),
+        None if spread is None else (spread.shape, spread.tobytes()),
+    )
+    with _PROFILE_LOCK:
+        found = _PROFILE_CACHE.get(key)
+        if found is not None:
+            _PROFILE_CACHE.move_to_end(key)
+            return found
+    matrix = wavelength_blur(wavelength, fwhm_nm)
+    blurred = matrix @ values
+    blurred_sigma = None if spread is None else np.sqrt(matrix.power(2) @ spread**2)
+    for array in (blurred, blurred_sigma):
+        if array is not None:
+            array.flags.writeable = False
+    with _PROFILE_LOCK:
+        _PROFILE_CACHE[key] = (blurred, blurred_sigma)
+        while len(_PROFILE_CACHE) > BLUR_CACHE_SIZE:
+            _PROFILE_CACHE.popitem(last=False)
+    return blurred, blurred_sigma
+
+
+#: Guards :data:`_PROFILE_CACHE` (the solves may run in threads).
+_PROFILE_LOCK = threading.Lock()
+_PROFILE_CACHE: OrderedDict[tuple[object, ...], tuple[FloatArray, FloatArray | None]] = (
+    OrderedDict()
+)
+
+
 def match_spectrometer(
     observation: LampObservation,
     nm_per_sample: float,
@@ -256,9 +304,7 @@ def match_spectrometer(
     spectrum = observation.spectrum
     step_nm = float(np.median(np.diff(spectrum.wavelength_nm)))
     target = common_resolution_nm(bandwidth, step_nm)
-    matrix = wavelength_blur(wavelength_nm, target)
-    blurred = matrix @ profile
-    blurred_sigma = None if sigma is None else np.sqrt(matrix.power(2) @ sigma**2)
+    blurred, blurred_sigma = blurred_profile(wavelength_nm, target, profile, sigma)
     return replace(
         observation,
         spectrum=blurred_spectrum(spectrum, bandwidth, target),
