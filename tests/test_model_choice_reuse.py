@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import calib.methods.multilamp as multilamp
+from calib.methods.grating_models import with_jackknife
 from calib.methods.multilamp import EfficiencySettings, prepare_lamps, solve_efficiency
 from calib.methods.responses import LampData
 from calib.methods.solve_scope import perturbation, solve_scope
@@ -90,7 +91,7 @@ def test_the_eta_terms_re_solve_shares_the_main_solve_s_jackknife(
     fewer = replace(settings, terms=5)
     fresh = solve_efficiency(lamps, prior, fewer)  # no scope: everything computed
     calls: list[int] = []
-    jackknife = multilamp.with_jackknife
+    jackknife = with_jackknife
 
     def counted(*args: object, **kwargs: object) -> object:
         calls.append(1)
