@@ -64,11 +64,50 @@ from calib.wavelength.profile_search import (
     GLOBAL_BIN_NM,
     GLOBAL_SIGMA_FLOOR,
     QUADRATIC_SCAN,
+    StageFit,
     _dof,
     _quadratic_points,
     _spans_grid,
     _stage,
 )
+
+
+def _quadratic_stage(
+    lamps: Sequence[LampObservation],
+    prior: CameraPrior,
+    grid: WavelengthGrid,
+    answer: QuadraticMapping,
+    *,
+    kernel: FloatArray | None,
+    bin_nm: float,
+    node_step_nm: float,
+    flexibility: float,
+    sigma_floor: float,
+    cut_ramps: bool = False,
+) -> tuple[QuadraticFamily, tuple[float, float], StageFit]:
+    """The quadratic family on the lead lamp's pixels, and one of the search's stages built as
+    the search builds it at ``answer``'s dispersion (the lamps matched to it)."""
+    lead = lamps[0]
+    pixel_range = (float(lead.pixel[0]), float(lead.pixel[-1]))
+    family = QuadraticFamily(pixel_range)
+    spacing = float(np.median(np.diff(lead.pixel)))
+    nm_per_px = float(np.median(np.abs(answer.dispersion_nm_per_px(lead.pixel)))) * spacing
+    matched = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
+    stage = _stage(
+        matched,
+        family,
+        grid,
+        prior,
+        bin_nm=bin_nm,
+        nm_per_px=nm_per_px,
+        kernel=kernel,
+        node_step_nm=node_step_nm,
+        flexibility=flexibility,
+        sigma_floor=sigma_floor,
+        pixel_range=pixel_range,
+        cut_ramps=cut_ramps,
+    )
+    return family, pixel_range, stage
 
 
 def quadratic_coarse_view(
@@ -103,24 +142,16 @@ def quadratic_coarse_view(
         The verdict (``None`` when the coarse view costs nothing finite there) and the coarse
         view's evaluations made.
     """
-    lead = lamps[0]
-    pixel_range = (float(lead.pixel[0]), float(lead.pixel[-1]))
-    family = QuadraticFamily(pixel_range)
-    spacing = float(np.median(np.diff(lead.pixel)))
-    nm_per_px = float(np.median(np.abs(answer.dispersion_nm_per_px(lead.pixel)))) * spacing
-    matched = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
-    view = _stage(
-        matched,
-        family,
-        grid,
+    family, pixel_range, view = _quadratic_stage(
+        lamps,
         prior,
-        bin_nm=GLOBAL_BIN_NM,
-        nm_per_px=nm_per_px,
+        grid,
+        answer,
         kernel=kernel,
+        bin_nm=GLOBAL_BIN_NM,
         node_step_nm=COARSE_NODES_NM,
         flexibility=FLEXIBILITY,
         sigma_floor=GLOBAL_SIGMA_FLOOR,
-        pixel_range=pixel_range,
     )
     x = family.parameters(answer)
     points, _ = _quadratic_points(answer, family, scan)
@@ -194,24 +225,16 @@ def final_verdict(
     is adopted when the answer stands more than the search's bar behind it (tempered by the
     leader's reduced χ², at least 1) and it spans the grid (the search's rule for an answer).
     ``None`` when the rival's descent fails."""
-    lead = lamps[0]
-    pixel_range = (float(lead.pixel[0]), float(lead.pixel[-1]))
-    family = QuadraticFamily(pixel_range)
-    spacing = float(np.median(np.diff(lead.pixel)))
-    nm_per_px = float(np.median(np.abs(answer.dispersion_nm_per_px(lead.pixel)))) * spacing
-    matched = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
-    final = _stage(
-        matched,
-        family,
-        grid,
+    family, pixel_range, final = _quadratic_stage(
+        lamps,
         prior,
-        bin_nm=FINAL_BIN_NM,
-        nm_per_px=nm_per_px,
+        grid,
+        answer,
         kernel=kernel,
+        bin_nm=FINAL_BIN_NM,
         node_step_nm=FINE_NODES_NM,
         flexibility=FLEXIBILITY,
         sigma_floor=0.0,
-        pixel_range=pixel_range,
         cut_ramps=True,
     )
     solution = final.refine(
