@@ -457,10 +457,10 @@ def main() -> None:
         def everywhere(*resolved_args, **resolved_kwargs):  # type: ignore[no-untyped-def]
             # A blurred spot (no fit, no note) is read like one whose fit failed: the
             # interleaving, else the plain sums.
-            values, note = resolved_direct(*resolved_args, **resolved_kwargs)
+            values, note, aliasing = resolved_direct(*resolved_args, **resolved_kwargs)
             if values is None and note is None:
-                return None, extraction.FIT_FAILED
-            return values, note
+                return None, extraction.FIT_FAILED, 0.0
+            return values, note, aliasing
 
         extraction._resolved_direct = everywhere
     spots = _count_direct_readings()

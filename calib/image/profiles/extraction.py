@@ -4,9 +4,10 @@ The direct RGB is the background-subtracted radiance integrated over the spot's 
 integrated over sensor pixels). A sharp spot a few pixels wide falls on different numbers of each
 colour's columns, so each plane's sum times the plane pitch squared misses its colour; on a Bayer
 sensor the cells' interleaving reads every sensor column's share of the slit image from the green
-plane's two sites without a model of its edge (decision 0119); elsewhere the plain sums are kept
-where the spot's blur hides the plane sampling, else one slit-image shape shared by the channels is
-fitted to every plane's samples (decision 0114). The
+plane's two sites without a model of its edge (decision 0119); the plain sums are kept where the
+slit image has almost no first harmonic at the plane pitch (its blur, or a width of a whole number
+of pitches, decision 0140), else one slit-image shape shared by the channels is fitted to every
+plane's samples (decision 0114). The
 profile is the mean across the central part of the band in bins of ``bin_px`` along it; every
 channel's samples are placed at their true sensor position (R, G and B sit at different places of
 the 2×2 cell), binned, and resampled linearly to one common ``pixel`` axis, the distance from the
@@ -39,9 +40,10 @@ from calib.image.profiles.geometry import (
 )
 
 ALIASING_LIMIT = 0.005
-"""Below this first-harmonic aliasing of the spot's blur at the plane pitch, the plane's plain sum
-× pitch² is the spot's integral to better than ≈ 1 % (the harmonic enters twice, once per side),
-so the sum is kept; above it the direct RGB comes from the shared slit-image fit."""
+"""Below this first harmonic of the spot's slit image at the plane pitch (its Fourier transform at
+``1/pitch`` over its integral, :func:`_aliasing`), the plane's plain sum × pitch² is the spot's
+integral to better than ≈ 1 % (the harmonic enters twice, once per side), so the sum is kept, that
+bound in its σ; above it the direct RGB comes from the Bayer interleaving or the slit-image fit."""
 
 
 FIT_FAILED = "the slit-image fit failed"
@@ -309,7 +311,7 @@ def _extract_direct(
 
     The RGB is the Bayer cells' interleaving (:func:`_interleaved_direct`, with its σ); without an
     interleaving (no two greens per cell, a slit image narrower than the pitch) the plain sum or,
-    where the spot's blur does not hide the plane sampling, the integral of one slit-image shape
+    where the plane sampling aliases the spot, the integral of one slit-image shape
     shared by the channels, the two estimates' difference in its σ."""
     centre = geometry.spot_centre_px
     angle = geometry.primary.angle_deg
@@ -382,18 +384,22 @@ def _extract_direct(
     spread = _line_spread(
         np.concatenate(positions), np.concatenate(weights), geometry.bin_px, along
     )
-    resolved, note = _resolved_direct(
+    resolved, note, aliasing = _resolved_direct(
         columns, _site_offsets(image, angle), image.pixel_pitch_px, along
     )
     # A slit image narrower than the plane pitch lights too few cells to fit the interleaving. A
-    # spot blurred enough that the plane sampling cannot alias it (``_resolved_direct`` returns
-    # neither a fit nor a note) keeps its plain sums, which are then exact: the interleaving would
+    # spot whose slit image has (almost) no first harmonic at the plane pitch, blurred or as wide
+    # as a whole number of pitches (``_resolved_direct`` returns neither a fit nor a note), keeps
+    # its plain sums, off by at most twice that harmonic (decision 0140): the interleaving would
     # only add its noise and a bias of its own where the slit's image is tilted against the columns
     # (each green sees the slit ±tan θ off the R or B site sharing its column: ±0.37 % at 0.8° on a
     # smooth spot, whose weights a and b the fit then barely separates; decision 0123). Where the
     # interleaving reads the spot, a bound on that term is in its σ (decision 0134).
     narrow = note is not None and note != FIT_FAILED
     smooth = resolved is None and note is None
+    if smooth:
+        # The plain sums' aliasing bound, ±2 × the harmonic per plane, is in their σ.
+        variance = variance + (2.0 * aliasing * direct) ** 2
     interleaved = (
         None
         if narrow or smooth
@@ -410,7 +416,7 @@ def _extract_direct(
         # The spot's integral from the Bayer cells' interleaving, which needs no model of the
         # spot's edge (decision 0119), where the spot is sharp enough for the plane sampling to
         # alias it. (Keeping the plain sums where the two agree within 2σ was tried and made the
-        # validation twins far worse: an inflated σ let aliased plain sums through; the blur
+        # validation twins far worse: an inflated σ let aliased plain sums through; the spectrum
         # test above does not look at the interleaving's σ.)
         direct, sigma_interleaved = interleaved
         variance = sigma_interleaved**2
@@ -664,7 +670,7 @@ def _resolved_direct(
     site_offsets: tuple[float, float, float],
     pitch: float,
     half_size: float,
-) -> tuple[FloatArray | None, str | None]:
+) -> tuple[FloatArray | None, str | None, float]:
     """Per channel: the spot's integral from one slit-image shape shared by the channels.
 
     Each colour plane samples the spot every ``pitch`` sensor pixels at its own offset, so the
@@ -678,21 +684,22 @@ def _resolved_direct(
     integral × pitch (a column sum holds one sample per ``pitch`` along the slit).
 
     ``None`` (keep the plain sum) where the plain sum is already exact or the fit cannot be
-    trusted: the fitted blur makes the plane sampling's aliasing (its first harmonic,
-    ``exp(−2π²σ²/pitch²)``) smaller than :data:`ALIASING_LIMIT`; the fitted slit image narrower than
+    trusted: the fitted slit image's first harmonic at the plane pitch (:func:`_aliasing`, width
+    and blur together) is smaller than :data:`ALIASING_LIMIT`; the fitted slit image narrower than
     one plane pitch (then no channel resolves its edges); the fit failed. The second item says why
-    a sharp spot kept its plain sum (its colour may then be off), ``None`` otherwise.
+    a sharp spot kept its plain sum (its colour may then be off), ``None`` otherwise; the third is
+    the fitted harmonic where the plain sum is kept as exact (its aliasing bound), else 0.
     """
     from scipy.optimize import least_squares  # deferred like the other scipy imports
 
     if pitch <= 1.0:
-        return None, None
+        return None, None, 0.0
     u = np.concatenate([column[0] for column in columns])
     total = np.concatenate([column[1] for column in columns])
     sigma = np.sqrt(np.concatenate([column[2] for column in columns]))
     channel = np.concatenate([np.full(column[0].size, k) for k, column in enumerate(columns)])
     if u.size < 8 or not np.all(np.isfinite(total)) or not np.all(sigma > 0):
-        return None, None
+        return None, None, 0.0
     weights = 1.0 / sigma
 
     def amplitudes(shape: FloatArray) -> FloatArray:
@@ -720,7 +727,7 @@ def _resolved_direct(
 
     level = np.clip(total, 0.0, None)
     if float(level.sum()) <= 0:
-        return None, None
+        return None, None, 0.0
     mean_u = float((u * level).sum() / level.sum())
     spread = math.sqrt(max(float(((u - mean_u) ** 2 * level).sum() / level.sum()), 0.25))
     # A rectangle of half-width h has an RMS width h/√3; start at that with a third of a pitch blur.
@@ -728,21 +735,39 @@ def _resolved_direct(
     try:
         fit = least_squares(residuals, start, method="lm", x_scale=np.array([1.0, 0.3, 0.3]))
     except (ValueError, np.linalg.LinAlgError):
-        return None, FIT_FAILED
+        return None, FIT_FAILED, 0.0
     centre, half_width, blur = fit.x[0], math.exp(fit.x[1]), math.exp(fit.x[2])
     if not fit.success or not np.all(np.isfinite(fit.x)) or abs(centre) > half_size:
-        return None, FIT_FAILED
-    if math.exp(-2.0 * math.pi**2 * blur**2 / pitch**2) < ALIASING_LIMIT:
-        return None, None
-    if 2.0 * half_width < pitch:
-        return None, (
-            f"the slit image is {2.0 * half_width:.1f} px wide and sharp (blur σ {blur:.2f} px), "
-            f"narrower than the colour planes' {pitch:g} px pitch"
-        )
+        return None, FIT_FAILED, 0.0
     if 2.0 * half_width > 2.0 * half_size:
-        return None, FIT_FAILED
+        return None, FIT_FAILED, 0.0
+    aliasing = _aliasing(half_width, blur, pitch)
+    if aliasing < ALIASING_LIMIT:
+        return None, None, aliasing
+    if 2.0 * half_width < pitch:
+        return (
+            None,
+            (
+                f"the slit image is {2.0 * half_width:.1f} px wide and sharp (blur σ "
+                f"{blur:.2f} px), narrower than the colour planes' {pitch:g} px pitch"
+            ),
+            0.0,
+        )
     shape = seen(centre, half_width, blur)
-    return np.asarray(amplitudes(shape) * 2.0 * half_width * pitch, dtype=np.float64), None
+    return np.asarray(amplitudes(shape) * 2.0 * half_width * pitch, dtype=np.float64), None, 0.0
+
+
+def _aliasing(half_width: float, blur: float, pitch: float) -> float:
+    """The first harmonic of a slit image (:func:`_spot_shape`) at the plane pitch: its Fourier
+    transform at ``1/pitch`` over its integral, ``|sinc(2π·half_width/pitch)| · exp(−2π²σ²/pitch²)``.
+
+    A plane sampling a spot every ``pitch`` pixels sums it to its integral × (1 + 2 Σₖ its k-th
+    harmonic × cos(its phase)) (Poisson summation); the first harmonic rules the error. It is
+    small where the blur smooths the spot over the pitch and where the slit image spans a whole
+    number of pitches (every offset then covers the same number of samples): what aliases is the
+    spot's spectrum at the pitch, not its blur alone (decision 0140)."""
+    x = 2.0 * math.pi * half_width / pitch
+    return abs(math.sin(x) / x) * math.exp(-2.0 * math.pi**2 * blur**2 / pitch**2)
 
 
 def _line_spread(
