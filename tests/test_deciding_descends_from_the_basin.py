@@ -1,0 +1,76 @@
+"""Decision 0141: with a broadband lamp alone, the quadratic deciding stage also descends from the
+basin's own point, not only from its local scan's lowest point."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import numpy as np
+
+from calib.core.datasets import colour_science_cameras, find_camera
+from calib.core.lamp_specs import colour_lamp
+from calib.core.mapping import QuadraticMapping
+from calib.core.spectra import DEFAULT_GRID
+from calib.evaluation.synthetic import random_efficiency
+from calib.model.bases import fallback_camera_basis
+from calib.model.forward import render_observation
+from calib.wavelength import profile_search
+
+TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
+
+
+def test_the_deciding_stage_also_descends_from_the_basins_own_point(monkeypatch):
+    """The deciding scan's lowest point is forced to its far corner (+6 nm at both ends): the
+    deciding stage descends from it and then from the basin's own point (the scan's centre)."""
+    prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
+    camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+    observation = render_observation(
+        colour_lamp("D65"),
+        camera,
+        mapping=TRUTH,
+        pixel=800,
+        grating_efficiency=random_efficiency(np.random.default_rng(11)),
+        rng=np.random.default_rng(3),
+        kind="led",
+    ).observation
+
+    scans: list[np.ndarray] = []
+    original_points = profile_search._quadratic_points
+
+    def points(*args: Any) -> Any:
+        out = original_points(*args)
+        if sys._getframe(1).f_code.co_name == "decide":
+            scans.append(out[0])
+        return out
+
+    original_shortlist = profile_search._shortlisted_costs
+
+    def shortlist(grid: np.ndarray, coarse: Any, fine: Any, keep: int) -> Any:
+        costs, count = original_shortlist(grid, coarse, fine, keep)
+        if sys._getframe(1).f_code.co_name == "decide":
+            costs = np.array(costs, dtype=float)
+            costs[-1] = -np.inf  # the scan's lowest point: its far corner
+        return costs, count
+
+    starts: list[np.ndarray] = []
+    original_refine = profile_search.StageFit.refine
+
+    def refine(self: Any, x: np.ndarray, *args: Any, **kwargs: Any) -> Any:
+        starts.append(np.array(x, copy=True))
+        return original_refine(self, x, *args, **kwargs)
+
+    monkeypatch.setattr(profile_search, "_quadratic_points", points)
+    monkeypatch.setattr(profile_search, "_shortlisted_costs", shortlist)
+    monkeypatch.setattr(profile_search.StageFit, "refine", refine)
+    found = profile_search.search_profiles([observation], prior, DEFAULT_GRID)
+    assert scans
+    for grid in scans:
+        corner, centre = grid[-1], grid[grid.shape[0] // 2]
+        assert not np.allclose(corner, centre, rtol=0.0, atol=1.0)
+        (first,) = [i for i, s in enumerate(starts) if np.array_equal(s, corner)]
+        # (The scan's centre is the basin's point up to the mapping's round trip.)
+        np.testing.assert_allclose(starts[first + 1], centre, rtol=0.0, atol=1e-9)
+    pixels = np.arange(800.0)
+    error = np.abs(found.mapping.wavelength_nm(pixels) - TRUTH.wavelength_nm(pixels))
+    assert float(np.max(error)) < 1.0
