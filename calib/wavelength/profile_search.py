@@ -428,6 +428,25 @@ class StageFit:
         edges = self.family.wavelengths(self.edges_px, x)
         return replace(self, models=tuple(model.reference(edges) for model in self.models))
 
+    def sketch(self, x: FloatArray) -> Solution:
+        """The scan refinement's descent from a grid point ``x``: one short round (6
+        iterations, tolerance 1e-4), enough to find which basin the point lies in."""
+        return self.refine(x, max_iterations=6, tolerance=1e-4, rounds=1)
+
+    def descend(self, x: FloatArray) -> Solution:
+        """The deciding stage's descent from ``x`` (one round, 10 iterations, tolerance 1e-5),
+        its cost then taken at its own prior scale (what a second round held there would
+        report), so descents into different basins compare."""
+        outcome = self.refine(x, max_iterations=10, tolerance=1e-5, rounds=1)
+        return replace(outcome, cost=float(self.costs(outcome.x[None])[0]))
+
+    def settle(self, x: FloatArray) -> Solution:
+        """The final stage's descent from ``x``: one round to a tenth of σ
+        (:data:`CONVERGED_DELTA_CHI2`, decision 0124)."""
+        return self.refine(
+            x, max_iterations=10, tolerance=1e-7, rounds=1, gain_tolerance=CONVERGED_DELTA_CHI2
+        )
+
     def refine(
         self,
         x: FloatArray,
@@ -1433,7 +1452,7 @@ def search_profiles(
             if len(kept) == min(SCAN_MINIMA * len(grids), refined_at_most):
                 break
         for point in kept:
-            solution = refining.refine(point, max_iterations=6, tolerance=1e-4, rounds=1)
+            solution = refining.sketch(point)
             leader = min((s for _, s in scanned), key=lambda s: s.cost, default=solution)
             # With a line lamp, a minimum far behind the best one so far is no answer: its
             # local scan is skipped (it stays a candidate as refined).
@@ -1446,9 +1465,7 @@ def search_profiles(
                 count += local.shape[0]
                 best_local = local[int(np.argmin(local_costs))]
                 if float(np.min(local_costs)) < solution.cost:
-                    solution = refining.refine(
-                        best_local, max_iterations=6, tolerance=1e-4, rounds=1
-                    )
+                    solution = refining.sketch(best_local)
             count += solution.evaluations
             scanned.append((family, solution))
         return count
@@ -1515,9 +1532,7 @@ def search_profiles(
             local_costs, costed = _shortlisted_costs(local, ranking, deciding, DECIDING_SHORTLIST)
             count += costed
             start = local[int(np.argmin(local_costs))]
-        outcome = deciding.refine(start, max_iterations=10, tolerance=1e-5, rounds=1)
-        # Compared at their own prior scale (what a second round held there would report).
-        outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
+        outcome = deciding.descend(start)
         count += outcome.evaluations
         if (
             broadband_only
@@ -1528,8 +1543,7 @@ def search_profiles(
             # few nanometres away (Nikon D1x, decision 0139). The descent from the basin's own
             # point is weighed too, and kept when the scan's stands behind it by the search's
             # bar (decision 0141: kept whenever lower, two noisy scenes moved to a wrong one).
-            own = deciding.refine(solution.x, max_iterations=10, tolerance=1e-5, rounds=1)
-            own = replace(own, cost=float(deciding.costs(own.x[None])[0]))
+            own = deciding.descend(solution.x)
             count += own.evaluations
             if _behind(outcome, own) > AMBIGUITY_DELTA_CHI2:
                 outcome = own
@@ -1552,10 +1566,7 @@ def search_profiles(
             DEEPEN_SHORTLIST,
         )
         if np.any(np.isfinite(local_costs)) and float(np.min(local_costs)) < outcome.cost:
-            again = deciding.refine(
-                local[int(np.argmin(local_costs))], max_iterations=10, tolerance=1e-5, rounds=1
-            )
-            again = replace(again, cost=float(deciding.costs(again.x[None])[0]))
+            again = deciding.descend(local[int(np.argmin(local_costs))])
             count += again.evaluations
             if again.cost < outcome.cost and not _stretched(family, again.x, measured[0], prior):
                 outcome = again
@@ -1610,13 +1621,7 @@ def search_profiles(
     # (Its cost continuous where the hats are cut: a fit converging to its last digits stalls
     # on the jump; decision 0124.)
     final_stage = stage(family, FINAL_BIN_NM, FINE_NODES_NM, FLEXIBILITY, 0.0, final=True)
-    final = final_stage.refine(
-        best.x,
-        max_iterations=10,
-        tolerance=1e-7,
-        rounds=1,
-        gain_tolerance=CONVERGED_DELTA_CHI2,
-    )
+    final = final_stage.settle(best.x)
     evaluations += final.evaluations
     exact = family.mapping(final.x)
     # A broadband lamp alone leaves the mapping to the camera prior's shape: a camera unlike the
@@ -1641,10 +1646,7 @@ def search_profiles(
         costs = deciding.costs(points)
         evaluations += points.shape[0]
         if np.any(np.isfinite(costs)):
-            outcome = deciding.refine(
-                points[int(np.argmin(costs))], max_iterations=10, tolerance=1e-5, rounds=1
-            )
-            outcome = replace(outcome, cost=float(deciding.costs(outcome.x[None])[0]))
+            outcome = deciding.descend(points[int(np.argmin(costs))])
             evaluations += outcome.evaluations
             probe9 = np.linspace(pixel_range[0], pixel_range[1], 9)
             if np.isfinite(outcome.cost) and all(
@@ -1654,13 +1656,7 @@ def search_profiles(
             ):
                 taken = None
                 if outcome.cost < decided[0][1].cost:
-                    taken = final_stage.refine(
-                        outcome.x,
-                        max_iterations=10,
-                        tolerance=1e-7,
-                        rounds=1,
-                        gain_tolerance=CONVERGED_DELTA_CHI2,
-                    )
+                    taken = final_stage.settle(outcome.x)
                     evaluations += taken.evaluations
                     # A profile holds the whole first order: a basin short of the grid is no
                     # answer (it stays a candidate).

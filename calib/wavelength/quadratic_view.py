@@ -57,7 +57,6 @@ from calib.wavelength.profile_search import (
     AMBIGUITY_DELTA_CHI2,
     AMBIGUITY_MIN_DISTANCE_NM,
     COARSE_NODES_NM,
-    CONVERGED_DELTA_CHI2,
     FINAL_BIN_NM,
     FINE_NODES_NM,
     FLEXIBILITY,
@@ -158,7 +157,7 @@ def quadratic_coarse_view(
     costs = view.costs(points)
     if not np.any(np.isfinite(costs)):
         return None, points.shape[0]
-    basin = view.refine(points[int(np.argmin(costs))], max_iterations=6, tolerance=1e-4, rounds=1)
+    basin = view.sketch(points[int(np.argmin(costs))])
     evaluations = points.shape[0] + basin.evaluations + 2
     probe = np.linspace(pixel_range[0], pixel_range[1], 64)
     answer_nm = answer.wavelength_nm(probe)
@@ -237,9 +236,7 @@ def final_verdict(
         sigma_floor=0.0,
         cut_ramps=True,
     )
-    solution = final.refine(
-        rival, max_iterations=10, tolerance=1e-7, rounds=1, gain_tolerance=CONVERGED_DELTA_CHI2
-    )
+    solution = final.settle(rival)
     costs = final.costs(np.vstack([solution.x, family.parameters(answer)]))
     evaluations = solution.evaluations + 2
     rival_cost, answer_cost = float(costs[0]), float(costs[1])
