@@ -33,7 +33,7 @@ can hold: a camera with detail finer than the grid, e.g. colour's Nikon 5100 wit
 595 nm between two 10 nm nodes, differs from its point samples there).
 
     python bench/twin_coverage.py [--split validation|test|both] [--floors 0.01]
-        [--data-dir ../shared/data/camera_sensitivities] [--keep DIR]
+        [--data-dir ../shared/data/camera_sensitivities] [--keep DIR [--reuse]]
         [--spectrometer-error on|off] [--stray-light on|off]
         [--shutter-error on|off] [--seed-per-camera]
         [--validation-cameras N] [--validation-seeds K]
@@ -45,7 +45,10 @@ more validation evidence for a choice. ``--direct-reading fit`` reads the direct
 decision 0114 did (the comparison decision 0123 needed; the product reads it as decision 0119 does);
 ``--direct-reading interleaving-everywhere`` reads every spot with the Bayer interleaving, the
 blurred ones too (the product keeps their plain sums): these twins' slit is tilted 0.8°, so this is
-the test of the interleaving's σ under the tilt (decisions 0123, 0134).
+the test of the interleaving's σ under the tilt (decisions 0123, 0134). ``--keep DIR --reuse``
+estimates the sessions an earlier run with the same options kept in ``DIR`` instead of capturing
+them again: a change to the estimator or its σ judged on the very same frames, in a fraction of the
+time (the capture is most of a twin's).
 
 The twin places the direct spot so that the first order of the true curve's longest tabulated
 wavelength is centred on the frame, so the spot's sub-pixel phase on the Bayer mosaic follows from
@@ -369,6 +372,13 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=ROOT / "config.yaml")
     parser.add_argument("--keep", type=Path, default=None, help="keep the sessions here")
     parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="with --keep: estimate a twin's session kept there by an earlier run of the same "
+        "options instead of capturing it again (a change to the estimator judged on the same "
+        "frames; the twin is deterministic, so a fresh capture gives the same session)",
+    )
+    parser.add_argument(
         "--spectrometer-error",
         choices=("on", "off"),
         default="on",
@@ -444,6 +454,8 @@ def main() -> None:
         help="only this camera of the split(s) (repeatable; a quick look, not a table)",
     )
     args = parser.parse_args()
+    if args.reuse and args.keep is None:
+        parser.error("--reuse reads the sessions --keep kept: give --keep")
     floors = [float(item) for item in args.floors.split(",")]
     if args.direct_reading == "fit":
         from calib.image.profiles import extraction
@@ -500,11 +512,16 @@ def main() -> None:
             spot_px = twin_spot_px(config)
             spots.update(direct=0, interleaved=0)
             slug = "".join(c if c.isalnum() else "_" for c in camera) + f"_{seed}"
-            captured = run_capture(config, out_dir=root / slug / "sessions")
-            if captured.exit_status != "success":
-                print(f"{camera}: capture ended {captured.exit_status}; skipped")
-                continue
-            truth_file = write_twin_truth(config, captured.session)
+            kept = sorted((root / slug / "sessions").glob("*/twin-truth.json"))
+            if args.reuse and len(kept) == 1:
+                session, truth_file = kept[0].parent, kept[0]
+            else:
+                captured = run_capture(config, out_dir=root / slug / "sessions")
+                if captured.exit_status != "success":
+                    print(f"{camera}: capture ended {captured.exit_status}; skipped")
+                    continue
+                session = captured.session
+                truth_file = write_twin_truth(config, session)
             drawn = read_twin_truth(truth_file).spectrometer or {}
             drawn_mean_nm: float | None = None
             if (deviation := deviation_from_record(drawn)) is not None:
@@ -531,7 +548,7 @@ def main() -> None:
                 )
             for floor in floors:
                 scored = judge(
-                    captured.session,
+                    session,
                     root / slug / f"estimate-{floor:g}",
                     camera,
                     floor,
