@@ -738,3 +738,31 @@ def test_saved_records_are_judged_without_a_component() -> None:
     assert set(left.components) == {"mapping"}
     np.testing.assert_allclose(left.named(), 0.1)
     np.testing.assert_allclose(record.named(), 0.1 * math.sqrt(2))
+
+
+def test_the_mappings_share_of_eta_is_the_change_of_the_curve_stated_at_maximum_1() -> None:
+    """Decision 0144: η is stated at its maximum 1, so a wavelength error under it moves the
+    normalising node too. For a sinusoidal sheet (first order largest at 400 nm, the twins' own)
+    the mapping's component is the change of η(λ + δ)/η(λ_m + δ) — nil at the normalising node —
+    not δ·η'(λ), which is ≈ 0.0013/nm there and overstated the rest."""
+    from calib.model.gratings import physical_grating
+
+    wavelength = np.arange(400.0, 701.0, 10.0)
+    grating = physical_grating("sinusoidal", 1.2)
+    eta = grating.efficiency(1, wavelength)
+    rms = 0.3
+    mapping = replace(TRUTH, wavelength_rms_nm=rms)
+    result = EstimateResult(
+        "prior",
+        wavelength,
+        np.ones((wavelength.size, 3)),
+        grating_efficiency=eta / eta.max(),
+        grating_efficiency_sigma=np.full(wavelength.size, 1e-3),
+        mapping=mapping,
+    )
+    stated = uncertainty_budget(result, []).efficiency_components["mapping"]
+    shifted = grating.efficiency(1, wavelength + rms)
+    actual = np.abs(shifted / shifted.max() - eta / eta.max())
+    assert stated[0] == pytest.approx(0.0, abs=1e-12)
+    np.testing.assert_allclose(stated[1:], actual[1:], rtol=0.1)
+    assert np.all(np.abs(np.gradient(eta / eta.max(), wavelength)) * rms > 2 * stated)

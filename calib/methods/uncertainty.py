@@ -58,7 +58,8 @@ and channel, on the delivered curves' scale (maximum 1):
 
 The grating efficiency ``η`` (maximum 1) gets its budget the same way, from the same re-solves
 (:attr:`UncertaintyBudget.efficiency_components`): ``statistical`` (the method's σ of ``η``,
-inflated by the same √χ²), ``mapping`` (``|∂η/∂λ| σ_λ``), the two spectrometer components and the
+inflated by the same √χ²), ``mapping`` (``|∂η/∂λ| σ_λ`` less the share the normalisation to
+maximum 1 cancels, :func:`efficiency_mapping_sigma`), the two spectrometer components and the
 η model's, each ``|Δη|`` of the re-solve; ``basis`` has no ``η`` share of its own (a prior solve's
 ``η`` σ already carries the camera prior's spread, through which the basis acts on it). The same
 per-method factor is applied; the share of the twins' true ``η`` inside the band is measured by
@@ -715,14 +716,32 @@ def _efficiency_difference(result: EstimateResult, other: EstimateResult) -> Flo
 
 
 def efficiency_mapping_sigma(result: EstimateResult) -> FloatArray | None:
-    """``|∂η/∂λ| σ_λ`` ``(f,)`` with σ_λ the mapping's ``wavelength_rms_nm`` (``None`` without ``η``
-    or a mapping σ)."""
+    """The mapping's share of ``η``'s σ ``(f,)``: ``|∂η/∂λ(λ) − η(λ) ∂η/∂λ(λ_m)| σ_λ`` with σ_λ the
+    mapping's ``wavelength_rms_nm`` and ``λ_m`` the node of ``η``'s maximum (``None`` without ``η``
+    or a mapping σ).
+
+    ``η`` is stated at its maximum 1 (only its shape is estimated). A wavelength error ``δ`` under
+    the curve moves it to ``η(λ + δ) / η(λ_m + δ)``: the node that sets the scale moves with it, so
+    to first order the stated curve changes by ``δ (η'(λ) − η(λ) η'(λ_m))``, not ``δ η'(λ)``. Where
+    ``η`` peaks inside the grid ``η'(λ_m) ≈ 0`` and the two agree; where it is largest at an end of
+    the grid (a sinusoidal sheet's first order falls all the way from 400 to 700 nm) the curve's
+    slope there is shared by every node and cancels in the ratio: ``δ η'(λ)`` held at the
+    normalising node a σ the stated value 1 cannot have, and overstated the rest (decision 0144).
+    """
     mapping = result.mapping
     rms = mapping.wavelength_rms_nm if isinstance(mapping, QuadraticMapping) else None
     if result.grating_efficiency is None or rms is None or not math.isfinite(rms):
         return None
     eta = np.asarray(result.grating_efficiency, dtype=np.float64)
-    return np.asarray(np.abs(np.gradient(eta, result.wavelength_nm)) * float(rms), dtype=np.float64)
+    peak = float(np.max(eta))
+    if not (math.isfinite(peak) and peak > 0):
+        return None
+    eta = eta / peak
+    # Second-order differences at the ends too: the normalising node is often an end of the grid,
+    # where a one-sided first difference misses a curved η's slope by a third of a step's change.
+    slope = np.gradient(eta, result.wavelength_nm, edge_order=2 if eta.size > 2 else 1)
+    node = int(np.argmax(eta))
+    return np.asarray(np.abs(slope - eta * slope[node]) * float(rms), dtype=np.float64)
 
 
 #: The η models of a physical grating (:mod:`calib.methods.grating_models`); any other recorded
