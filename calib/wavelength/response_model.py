@@ -809,16 +809,28 @@ class ResponseModel:
         else:
             # Formed pixels last (gathering the short last axis of a scan's batch cost 10× more),
             # then laid out (K, n, M): the same products, each bin summed in the same order.
+            # (Written through a pixels-last view of the entries: no temporary and copy.)
             by_column = _last_first(values)  # (w, K, n)
-            factors[..., :pairs] = _first_last(by_column[lows] * by_column[lows + offsets])
-        pair_places = band.first[:, :, None] * width + (lows * width + offsets)
+            np.multiply(
+                by_column[lows], by_column[lows + offsets], out=_last_first(factors[..., :pairs])
+            )
+        # The places, each an integer sum (exact in any order): a row's start (its batch's
+        # offset and its first column) plus each entry's offset, written in place.
+        per_batch = size * width + (size if with_rhs else 0)
+        batch_start = (np.arange(batch) * per_batch)[:, None]  # (K, 1)
         places = np.empty((batch, n, pairs + extra), dtype=np.intp)
-        places[..., :pairs] = pair_places
+        np.add(
+            (band.first * width + batch_start)[:, :, None],
+            lows * width + offsets,
+            out=places[..., :pairs],
+        )
         if with_rhs:
             factors[..., pairs:] = values
-            places[..., pairs:] = (size * width) + band.first[:, :, None] + np.arange(width)
-        per_batch = size * width + (size if with_rhs else 0)
-        places += (np.arange(batch) * per_batch)[:, None, None]
+            np.add(
+                (band.first + batch_start)[:, :, None],
+                (size * width) + np.arange(width),
+                out=places[..., pairs:],
+            )
         flat = places.reshape(-1)
         weights = self._normal_weights(width, with_rhs)  # (3, n, M [+ w])
         sums = np.asarray(
@@ -1156,7 +1168,14 @@ class ResponseModel:
             # One small mapping's normal matrices from the dense A (three small products): the
             # band's bincount and the diagonal-by-diagonal writes cost more than the work itself
             # at this size; the same sums up to rounding.
-            weighted = weights[:, :, None] * matrix  # (3, n, N): W A
+            # W A laid out dense from the band's weighted values, as A is (each entry one band
+            # value, times its weight: the same products; W times the dense A passed over all
+            # n·N entries, the zeros too; decision 0142).
+            weighted = _dense(  # (3, n, N): W A
+                (flat + (n * size) * np.arange(3)[:, None]).ravel(),
+                weights[:, :, None] * band.values[0],
+                (3, n, size),
+            )
             systems = model._held_systems + np.matmul(weighted.transpose(0, 2, 1), weighted)
         else:
             # A large one's from its band (:meth:`_normal`): the dense product's n·N² work is
@@ -1167,8 +1186,11 @@ class ResponseModel:
         rhs = model._weighted_target @ matrix  # (3, N): Aᵀ W y per channel
         pull, border = model._held_pulls
         factors = _cholesky(systems)
-        free, along = _last_first(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)))
-        beta = float(_scale_of(pull, border, free, along, 0.0))
+        right = np.empty((3, size, 2))  # [rhs, pull] side by side (np.stack's numbers, fewer calls)
+        right[..., 0] = rhs
+        right[..., 1] = pull
+        free, along = _last_first(_cholesky_solve(factors, right))
+        beta = _scale_of_one(pull, border, free, along)
         response = free + beta * along  # (3, N)
         fitted = response @ matrix.T  # (3, n)
         data_rows = weights * fitted - model.target.T  # (3, n)
@@ -1333,11 +1355,13 @@ def _bordered_forms(
     solution out (decision 0116; the costs agree with the solve's to ~1e-11 relative). ``None``
     where a system is not positive definite in floating point."""
     size = bordered.shape[-1] - 2
+    potrf = _potrf
     for matrix in bordered.reshape(-1, size + 2, size + 2):
         # M is symmetric: its transposed view is M, Fortran-ordered, so LAPACK factors it in
-        # place; the factor's last rows land in M's last columns.
-        _, info = _potrf(matrix.T, lower=1, clean=0, overwrite_a=1)
-        if info != 0:
+        # place; the factor's last rows land in M's last columns. (The wrapper's arguments by
+        # position — lower, clean, overwrite_a —: by keyword it parsed them at twice the cost,
+        # a tenth of a scan's factorisations at 41 × 41; decision 0142.)
+        if potrf(matrix.T, 1, 0, 1)[1] != 0:
             return None
     free = bordered[..., :size, size]  # L⁻¹r (K, 3, N)
     along = bordered[..., :size, size + 1]  # L⁻¹g
@@ -1349,10 +1373,14 @@ def _bordered_forms(
 
 
 def _cholesky(systems: FloatArray) -> list[FloatArray]:
-    """Lower Cholesky factors of the per-channel systems ``(3, N, N)`` (ridged, SPD)."""
+    """Lower Cholesky factors of the per-channel systems ``(3, N, N)`` (ridged, SPD), each
+    factored in place (``systems`` is overwritten): a symmetric C-ordered matrix is its own
+    Fortran-ordered transpose, so LAPACK reads the same numbers without a copy in, and the
+    factor it returns is that view, read by :func:`_cholesky_solve` without a copy either."""
     factors = []
     for channel in systems:
-        lower, info = _potrf(channel, lower=1, clean=1)
+        # lower, clean, overwrite_a (by position: :func:`_bordered_forms`)
+        lower, info = _potrf(channel.T, 1, 1, 1)
         if info != 0:
             raise np.linalg.LinAlgError("a channel's response system is not positive definite")
         factors.append(lower)
@@ -1364,7 +1392,7 @@ def _cholesky_solve(factors: list[FloatArray], right: FloatArray) -> FloatArray:
     right-hand sides ``(3, N, m)`` → ``(3, N, m)``."""
     out = np.empty_like(right)
     for channel, lower in enumerate(factors):
-        out[channel], info = _potrs(lower, right[channel], lower=1)
+        out[channel], info = _potrs(lower, right[channel], 1)  # lower
         if info != 0:
             raise np.linalg.LinAlgError("the response system's triangular solve failed")
     return out
@@ -1379,6 +1407,23 @@ def _scale_of(
     denominator = gamma - _over_channels_and_nodes(pulls, along)
     denominator = np.where(np.abs(denominator) > 1e-300, denominator, np.inf)
     return (right_beta + _over_channels_and_nodes(pulls, free)) / denominator
+
+
+def _scale_of_one(pulls: FloatArray, gamma: float, free: FloatArray, along: FloatArray) -> float:
+    """:func:`_scale_of` for one mapping (``free``, ``along`` ``(3, N)``, no right-hand side for
+    ``β``) on Python floats: the same products and the same IEEE operations in the same order, so
+    the same number, without the 0-d arrays' and ``np.where``'s per-call cost (decision 0142).
+
+    Examples
+    --------
+    >>> pulls, free, along = np.arange(6.0).reshape(3, 2), np.ones((3, 2)), np.full((3, 2), 0.5)
+    >>> _scale_of_one(pulls, 20.0, free, along) == float(_scale_of(pulls, 20.0, free, along, 0.0))
+    True
+    """
+    denominator = gamma - float(_over_channels_and_nodes(pulls, along))
+    if not abs(denominator) > 1e-300:  # (NaN included, as np.where's test)
+        denominator = math.inf
+    return (0.0 + float(_over_channels_and_nodes(pulls, free))) / denominator
 
 
 def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray:
