@@ -651,23 +651,34 @@ class ResponseModel:
         size = self.n_nodes
         width = max(int((last - first).max()) + 1, 1)
         first = np.minimum(np.maximum(first, 0), max(size - width, 0))
+        # With at least w nodes, first ≤ size − w: every column is a node, so the validity mask
+        # is all ones and the clipped columns are the columns; a rising batch's signs are all
+        # +1. Multiplying by one is exact, so those passes over the band are left out
+        # (decision 0142).
+        every_node = width <= size
+        rising = _rising(edges_nm)
         if self.filter.size > SHARED_EDGES_FROM:
-            column = first[..., None] + np.arange(width)  # (K, n, w)
-            values = self._edge_cumulatives(edges_nm, first, width) * (column < size)
-            return Band(values * _signs(edges_nm), first)
+            values = self._edge_cumulatives(edges_nm, first, width)
+            if not every_node:
+                values = values * (first[..., None] + np.arange(width) < size)  # (K, n, w)
+            return Band(values if rising else values * _signs(edges_nm), first)
         # Laid out (w, L + 1, K, n), pixels last: every elementwise pass runs over whole rows of
         # pixels, not over the short (w, L + 1) axes (the same operations on the same numbers).
         column = first + np.arange(width)[:, None, None]  # (w, K, n)
         count = self.filter.size
         edge_windows = _last_first(windows)  # (L + 1, K, n), a view
         value, slope = self.columns.evaluate(
-            edge_windows[None], np.minimum(column, size - 1)[:, None], derivative=slopes
+            edge_windows[None],
+            (column if every_node else np.minimum(column, size - 1))[:, None],
+            derivative=slopes,
         )  # (w, L + 1, K, n)
         filtered = value[:, 0] * self.filter[0]
         for tap in range(1, count):
             filtered = filtered + value[:, tap] * self.filter[tap]
-        values = _first_last(filtered * (column < size)) * _signs(edges_nm)  # (K, n, w)
-        return Band(values, first, slope=slope)
+        if not every_node:
+            filtered = filtered * (column < size)
+        values = _first_last(filtered)  # (K, n, w), laid out (w, K, n) as the products were
+        return Band(values if rising else values * _signs(edges_nm), first, slope=slope)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
         """``Σ_l f_l C_j`` over each blurred pixel's ``L + 1`` edges for its ``w`` columns
@@ -750,17 +761,22 @@ class ResponseModel:
         assert slope is not None
         index = self._edge_index  # the windows' edges (not their wavelengths: not needed here)
         n = band.first.shape[1]
-        # Validity and sign (w, K, n).
-        mask = (band.first + np.arange(slope.shape[0])[:, None, None] < self.n_nodes) * _signs(
-            edges_nm
-        )[None, :, :, 0]
+        # Validity and sign (w, K, n); none when every column is a node and every mapping rises
+        # (all ones: :meth:`_band_values`).
+        mask = (
+            None
+            if slope.shape[0] <= self.n_nodes and _rising(edges_nm)
+            else (band.first + np.arange(slope.shape[0])[:, None, None] < self.n_nodes)
+            * _signs(edges_nm)[None, :, :, 0]
+        )
         # ∂λ/∂x at each window's edges, (P, K, n + L).
         moving = np.ascontiguousarray(
             _last_first(edge_jacobian if self.filter.size == 2 else edge_jacobian[:, index, :])
         )
         total = None
         for tap in range(self.filter.size):
-            coefficient = slope[:, tap] * (self.filter[tap] * mask)  # (w, K, n)
+            weight = self.filter[tap] if mask is None else self.filter[tap] * mask
+            coefficient = slope[:, tap] * weight  # (w, K, n)
             term = coefficient[None] * moving[:, None, :, tap : tap + n]
             total = term if total is None else total + term
         assert total is not None
@@ -1439,6 +1455,19 @@ def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray
     """
     flat = right.reshape(pulls.size, -1)
     return np.asarray(np.dot(pulls.reshape(1, -1), flat).reshape(right.shape[2:]))
+
+
+def _rising(edges_nm: FloatArray) -> bool:
+    """Every mapping of the batch ``(K, n + 1)`` rises: its :func:`_signs` are all +1.
+
+    Examples
+    --------
+    >>> _rising(np.array([[400.0, 410.0]])), _rising(np.array([[400.0, 410.0], [9.0, 1.0]]))
+    (True, False)
+    """
+    if edges_nm.shape[0] == 1:  # (one mapping: two numbers, not a pass)
+        return bool(edges_nm[0, -1] >= edges_nm[0, 0])
+    return bool(np.all(edges_nm[:, -1] >= edges_nm[:, 0]))
 
 
 def _signs(edges_nm: FloatArray) -> FloatArray:
