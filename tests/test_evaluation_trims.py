@@ -74,3 +74,39 @@ def test_a_descents_residual_and_jacobian_are_those_of_the_plain_steps(monkeypat
     assert np.array_equal(residual, plain_residual)
     assert np.array_equal(found_jacobian, plain_thunk())
     assert parts["beta"] == plain_parts["beta"]
+
+
+def test_a_descents_model_reads_its_models_tables_instead_of_making_them_again():
+    """What :meth:`ResponseModel.reference` does not change is its model's, the same objects
+    (and a width one descent lays out is there for the next)."""
+    model, family, edges_px, truth = unblurred_led()
+    edges = family.wavelengths(edges_px, family.parameters(truth))
+    first, second = model.reference(edges), model.reference(edges + 0.5)
+    for name in response_model._REFERENCE_SHARED:
+        assert getattr(first, name) is getattr(model, name)
+        assert getattr(second, name) is getattr(model, name)
+    first._normal_weights(4, True)
+    assert (4, True) in second._normal_weight_cache
+
+
+def test_a_rising_bands_skipped_mask_and_signs_give_what_a_mixed_batch_gives():
+    """A batch of rising mappings leaves out the all-ones validity mask and signs; a batch with a
+    falling mapping applies them: each mapping's band values and derivative are the same bits
+    either way."""
+    model, family, edges_px, truth = unblurred_led()
+    x = family.parameters(truth)
+    rising = family.wavelengths(edges_px, x + np.array([0.5, -0.3, 0.2]))
+    falling = family.wavelengths(edges_px, x[::-1])
+    assert rising[-1] > rising[0] and falling[-1] < falling[0]
+    jacobian = np.broadcast_to(family.jacobian(edges_px), (2, *family.jacobian(edges_px).shape))
+    mixed_edges = np.stack([rising, falling])
+    mixed = model.band(mixed_edges, np.ascontiguousarray(jacobian), slopes=True)
+    for row, edges in enumerate((rising, falling)):
+        alone = model.band(edges[None], np.ascontiguousarray(jacobian[:1]), slopes=True)
+        width = alone.values.shape[-1]
+        assert np.array_equal(alone.first[0], mixed.first[row])
+        assert np.array_equal(alone.values[0], mixed.values[row, :, :width])
+        assert alone.derivative is not None and mixed.derivative is not None
+        assert np.array_equal(alone.derivative[0], mixed.derivative[row, :, :width])
+    # The falling mapping's light is |ΔC| (its sign applied), the rising one's ΔC.
+    assert mixed.values[0].sum() > 0.0 and mixed.values[1].sum() > 0.0

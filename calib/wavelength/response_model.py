@@ -79,6 +79,20 @@ DENSE_NORMAL = 10000
 
 IntArray = NDArray[np.intp]
 
+#: :class:`ResponseModel`'s cached properties that depend only on what :meth:`ResponseModel.reference`
+#: keeps (the nodes, lamp table, edges, filter, penalty, weights and prior), not on the scale and
+#: penalty weights it holds: a reference model reads its model's.
+_REFERENCE_SHARED = (
+    "_edge_index",
+    "_column_support",
+    "_penalty_reach",
+    "_unit_pulls",
+    "_weighted_target",
+    "_normal_weight_cache",
+    "_mean_pair_cache",
+    "_band_layouts",
+)
+
 _potrf = lapack.dpotrf
 _potrs = lapack.dpotrs
 
@@ -1093,7 +1107,7 @@ class ResponseModel:
         # The normal matrices' trace (what :meth:`_penalty_weight` reads) straight from the band:
         # Σ_n W² Σ_a A_na², without the matrices themselves.
         trace = (band.values[0] ** 2).sum(axis=1) @ self.weights**2 / self.n_nodes  # (3,)
-        return replace(
+        held = replace(
             self,
             scale=float(self._prior_scale(band)[0]),
             penalty_weight=np.asarray(
@@ -1101,6 +1115,12 @@ class ResponseModel:
             ),
             referenced=(np.array(edges_nm, dtype=np.float64), band),
         )
+        # What does not depend on the held scale and penalty weights is this model's: made
+        # once, not again by each descent's model (decision 0142). The per-width tables are
+        # the same dictionaries, so a width one descent laid out serves the next.
+        for name in _REFERENCE_SHARED:
+            held.__dict__[name] = getattr(self, name)
+        return held
 
     # --------------------------------------------------------------------------- evaluate
 
