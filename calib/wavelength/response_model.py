@@ -1392,12 +1392,12 @@ def _bordered_forms(
     where a system is not positive definite in floating point."""
     size = bordered.shape[-1] - 2
     potrf = _potrf
-    for matrix in bordered.reshape(-1, size + 2, size + 2):
-        # M is symmetric: its transposed view is M, Fortran-ordered, so LAPACK factors it in
-        # place; the factor's last rows land in M's last columns. (The wrapper's arguments by
-        # position — lower, clean, overwrite_a —: by keyword it parsed them at twice the cost,
-        # a tenth of a scan's factorisations at 41 × 41; decision 0142.)
-        if potrf(matrix.T, 1, 0, 1)[1] != 0:
+    # M is symmetric: its transposed view is M, Fortran-ordered, so LAPACK factors it in place;
+    # the factor's last rows land in M's last columns. (The views transposed all at once, and
+    # the wrapper's arguments by position — lower, clean, overwrite_a —: by keyword it parsed
+    # them at twice the cost, a tenth of a scan's factorisations at 41 × 41; decision 0142.)
+    for transposed in bordered.reshape(-1, size + 2, size + 2).transpose(0, 2, 1):
+        if potrf(transposed, 1, 0, 1)[1] != 0:
             return None
     free = bordered[..., :size, size]  # L⁻¹r (K, 3, N)
     along = bordered[..., :size, size + 1]  # L⁻¹g
