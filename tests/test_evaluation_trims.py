@@ -64,7 +64,7 @@ def test_a_descents_residual_and_jacobian_are_those_of_the_plain_steps(monkeypat
     def copied(systems: np.ndarray) -> list[np.ndarray]:
         return [lapack.dpotrf(channel, lower=1, clean=1)[0] for channel in systems]
 
-    def on_arrays(pulls, gamma, free, along):  # type: ignore[no-untyped-def]
+    def on_arrays(pulls: np.ndarray, gamma: float, free: np.ndarray, along: np.ndarray) -> float:
         return float(_scale_of(pulls, gamma, free, along, 0.0))
 
     monkeypatch.setattr(response_model, "_cholesky", copied)
