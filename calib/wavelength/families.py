@@ -114,6 +114,14 @@ class QuadraticFamily:
     def _jacobians(self) -> dict[bytes, FloatArray]:
         return {}
 
+    @cached_property
+    def _probe(self) -> FloatArray:
+        """The 9 pixels :meth:`valid` checks, made once (a descent checks every trial point;
+        ``np.linspace`` cost more than the check)."""
+        probe = np.linspace(*self.pixel_range, 9)
+        probe.setflags(write=False)
+        return probe
+
     def batch_jacobian(self, pixel: FloatArray, x: FloatArray) -> FloatArray:
         """``∂λ/∂x`` for a batch ``(K, P)``: shape ``(K, n, P)``."""
         single = self.jacobian(pixel)
@@ -121,9 +129,8 @@ class QuadraticFamily:
 
     def valid(self, x: FloatArray) -> FloatArray:
         """Whether each mapping ``(K, P)`` (or one ``(P,)``) keeps one direction over the range."""
-        probe = np.linspace(*self.pixel_range, 9)
-        wavelengths = self.wavelengths(probe, np.atleast_2d(x))
-        slopes = np.diff(wavelengths, axis=-1)
+        wavelengths = self.wavelengths(self._probe, np.atleast_2d(x))
+        slopes = wavelengths[..., 1:] - wavelengths[..., :-1]  # np.diff's own subtraction
         ok = (np.all(slopes > 0, axis=-1) | np.all(slopes < 0, axis=-1)) & np.all(
             np.isfinite(wavelengths), axis=-1
         )

@@ -79,6 +79,21 @@ DENSE_NORMAL = 10000
 
 IntArray = NDArray[np.intp]
 
+#: :class:`ResponseModel`'s cached properties that depend only on what :meth:`ResponseModel.reference`
+#: keeps (the nodes, lamp table, edges, filter, penalty, weights and prior), not on the scale and
+#: penalty weights it holds: a reference model reads its model's.
+_REFERENCE_SHARED = (
+    "_two_edges",
+    "_edge_index",
+    "_column_support",
+    "_penalty_reach",
+    "_unit_pulls",
+    "_weighted_target",
+    "_normal_weight_cache",
+    "_mean_pair_cache",
+    "_band_layouts",
+)
+
 _potrf = lapack.dpotrf
 _potrs = lapack.dpotrs
 
@@ -605,6 +620,12 @@ class ResponseModel:
         return replace(band, derivative=self.band_derivative(edges_nm, edge_jacobian, band))
 
     @cached_property
+    def _two_edges(self) -> bool:
+        """The profile is not blurred: a pixel is the difference of its two edges' cumulatives
+        (the filter is ``(−1, 1)``)."""
+        return self.filter.size == 2 and self.filter[0] == -1.0 and self.filter[1] == 1.0
+
+    @cached_property
     def _edge_index(self) -> IntArray:
         """The edges of the blurred pixels' windows, the ends repeated (``n + L``)."""
         half = (self.filter.size - 2) // 2
@@ -651,23 +672,38 @@ class ResponseModel:
         size = self.n_nodes
         width = max(int((last - first).max()) + 1, 1)
         first = np.minimum(np.maximum(first, 0), max(size - width, 0))
+        # With at least w nodes, first ≤ size − w: every column is a node, so the validity mask
+        # is all ones and the clipped columns are the columns; a rising batch's signs are all
+        # +1. Multiplying by one is exact, so those passes over the band are left out
+        # (decision 0142).
+        every_node = width <= size
+        rising = _rising(edges_nm)
         if self.filter.size > SHARED_EDGES_FROM:
-            column = first[..., None] + np.arange(width)  # (K, n, w)
-            values = self._edge_cumulatives(edges_nm, first, width) * (column < size)
-            return Band(values * _signs(edges_nm), first)
+            values = self._edge_cumulatives(edges_nm, first, width)
+            if not every_node:
+                values = values * (first[..., None] + np.arange(width) < size)  # (K, n, w)
+            return Band(values if rising else values * _signs(edges_nm), first)
         # Laid out (w, L + 1, K, n), pixels last: every elementwise pass runs over whole rows of
         # pixels, not over the short (w, L + 1) axes (the same operations on the same numbers).
         column = first + np.arange(width)[:, None, None]  # (w, K, n)
         count = self.filter.size
         edge_windows = _last_first(windows)  # (L + 1, K, n), a view
         value, slope = self.columns.evaluate(
-            edge_windows[None], np.minimum(column, size - 1)[:, None], derivative=slopes
+            edge_windows[None],
+            (column if every_node else np.minimum(column, size - 1))[:, None],
+            derivative=slopes,
         )  # (w, L + 1, K, n)
-        filtered = value[:, 0] * self.filter[0]
-        for tap in range(1, count):
-            filtered = filtered + value[:, tap] * self.filter[tap]
-        values = _first_last(filtered * (column < size)) * _signs(edges_nm)  # (K, n, w)
-        return Band(values, first, slope=slope)
+        if self._two_edges:
+            # (−C_lo)·1 + C_hi·1 is C_hi − C_lo exactly: one pass instead of three.
+            filtered = value[:, 1] - value[:, 0]
+        else:
+            filtered = value[:, 0] * self.filter[0]
+            for tap in range(1, count):
+                filtered = filtered + value[:, tap] * self.filter[tap]
+        if not every_node:
+            filtered = filtered * (column < size)
+        values = _first_last(filtered)  # (K, n, w), laid out (w, K, n) as the products were
+        return Band(values if rising else values * _signs(edges_nm), first, slope=slope)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
         """``Σ_l f_l C_j`` over each blurred pixel's ``L + 1`` edges for its ``w`` columns
@@ -750,17 +786,22 @@ class ResponseModel:
         assert slope is not None
         index = self._edge_index  # the windows' edges (not their wavelengths: not needed here)
         n = band.first.shape[1]
-        # Validity and sign (w, K, n).
-        mask = (band.first + np.arange(slope.shape[0])[:, None, None] < self.n_nodes) * _signs(
-            edges_nm
-        )[None, :, :, 0]
+        # Validity and sign (w, K, n); none when every column is a node and every mapping rises
+        # (all ones: :meth:`_band_values`).
+        mask = (
+            None
+            if slope.shape[0] <= self.n_nodes and _rising(edges_nm)
+            else (band.first + np.arange(slope.shape[0])[:, None, None] < self.n_nodes)
+            * _signs(edges_nm)[None, :, :, 0]
+        )
         # ∂λ/∂x at each window's edges, (P, K, n + L).
         moving = np.ascontiguousarray(
             _last_first(edge_jacobian if self.filter.size == 2 else edge_jacobian[:, index, :])
         )
         total = None
         for tap in range(self.filter.size):
-            coefficient = slope[:, tap] * (self.filter[tap] * mask)  # (w, K, n)
+            weight = self.filter[tap] if mask is None else self.filter[tap] * mask
+            coefficient = slope[:, tap] * weight  # (w, K, n)
             term = coefficient[None] * moving[:, None, :, tap : tap + n]
             total = term if total is None else total + term
         assert total is not None
@@ -809,16 +850,28 @@ class ResponseModel:
         else:
             # Formed pixels last (gathering the short last axis of a scan's batch cost 10× more),
             # then laid out (K, n, M): the same products, each bin summed in the same order.
+            # (Written through a pixels-last view of the entries: no temporary and copy.)
             by_column = _last_first(values)  # (w, K, n)
-            factors[..., :pairs] = _first_last(by_column[lows] * by_column[lows + offsets])
-        pair_places = band.first[:, :, None] * width + (lows * width + offsets)
+            np.multiply(
+                by_column[lows], by_column[lows + offsets], out=_last_first(factors[..., :pairs])
+            )
+        # The places, each an integer sum (exact in any order): a row's start (its batch's
+        # offset and its first column) plus each entry's offset, written in place.
+        per_batch = size * width + (size if with_rhs else 0)
+        batch_start = (np.arange(batch) * per_batch)[:, None]  # (K, 1)
         places = np.empty((batch, n, pairs + extra), dtype=np.intp)
-        places[..., :pairs] = pair_places
+        np.add(
+            (band.first * width + batch_start)[:, :, None],
+            lows * width + offsets,
+            out=places[..., :pairs],
+        )
         if with_rhs:
             factors[..., pairs:] = values
-            places[..., pairs:] = (size * width) + band.first[:, :, None] + np.arange(width)
-        per_batch = size * width + (size if with_rhs else 0)
-        places += (np.arange(batch) * per_batch)[:, None, None]
+            np.add(
+                (band.first + batch_start)[:, :, None],
+                (size * width) + np.arange(width),
+                out=places[..., pairs:],
+            )
         flat = places.reshape(-1)
         weights = self._normal_weights(width, with_rhs)  # (3, n, M [+ w])
         sums = np.asarray(
@@ -1065,7 +1118,7 @@ class ResponseModel:
         # The normal matrices' trace (what :meth:`_penalty_weight` reads) straight from the band:
         # Σ_n W² Σ_a A_na², without the matrices themselves.
         trace = (band.values[0] ** 2).sum(axis=1) @ self.weights**2 / self.n_nodes  # (3,)
-        return replace(
+        held = replace(
             self,
             scale=float(self._prior_scale(band)[0]),
             penalty_weight=np.asarray(
@@ -1073,6 +1126,12 @@ class ResponseModel:
             ),
             referenced=(np.array(edges_nm, dtype=np.float64), band),
         )
+        # What does not depend on the held scale and penalty weights is this model's: made
+        # once, not again by each descent's model (decision 0142). The per-width tables are
+        # the same dictionaries, so a width one descent laid out serves the next.
+        for name in _REFERENCE_SHARED:
+            held.__dict__[name] = getattr(self, name)
+        return held
 
     # --------------------------------------------------------------------------- evaluate
 
@@ -1156,7 +1215,14 @@ class ResponseModel:
             # One small mapping's normal matrices from the dense A (three small products): the
             # band's bincount and the diagonal-by-diagonal writes cost more than the work itself
             # at this size; the same sums up to rounding.
-            weighted = weights[:, :, None] * matrix  # (3, n, N): W A
+            # W A laid out dense from the band's weighted values, as A is (each entry one band
+            # value, times its weight: the same products; W times the dense A passed over all
+            # n·N entries, the zeros too; decision 0142).
+            weighted = _dense(  # (3, n, N): W A
+                (flat + (n * size) * np.arange(3)[:, None]).ravel(),
+                weights[:, :, None] * band.values[0],
+                (3, n, size),
+            )
             systems = model._held_systems + np.matmul(weighted.transpose(0, 2, 1), weighted)
         else:
             # A large one's from its band (:meth:`_normal`): the dense product's n·N² work is
@@ -1167,8 +1233,11 @@ class ResponseModel:
         rhs = model._weighted_target @ matrix  # (3, N): Aᵀ W y per channel
         pull, border = model._held_pulls
         factors = _cholesky(systems)
-        free, along = _last_first(_cholesky_solve(factors, np.stack([rhs, pull], axis=-1)))
-        beta = float(_scale_of(pull, border, free, along, 0.0))
+        right = np.empty((3, size, 2))  # [rhs, pull] side by side (np.stack's numbers, fewer calls)
+        right[..., 0] = rhs
+        right[..., 1] = pull
+        free, along = _last_first(_cholesky_solve(factors, right))
+        beta = _scale_of_one(pull, border, free, along)
         response = free + beta * along  # (3, N)
         fitted = response @ matrix.T  # (3, n)
         data_rows = weights * fitted - model.target.T  # (3, n)
@@ -1333,11 +1402,13 @@ def _bordered_forms(
     solution out (decision 0116; the costs agree with the solve's to ~1e-11 relative). ``None``
     where a system is not positive definite in floating point."""
     size = bordered.shape[-1] - 2
-    for matrix in bordered.reshape(-1, size + 2, size + 2):
-        # M is symmetric: its transposed view is M, Fortran-ordered, so LAPACK factors it in
-        # place; the factor's last rows land in M's last columns.
-        _, info = _potrf(matrix.T, lower=1, clean=0, overwrite_a=1)
-        if info != 0:
+    potrf = _potrf
+    # M is symmetric: its transposed view is M, Fortran-ordered, so LAPACK factors it in place;
+    # the factor's last rows land in M's last columns. (The views transposed all at once, and
+    # the wrapper's arguments by position — lower, clean, overwrite_a —: by keyword it parsed
+    # them at twice the cost, a tenth of a scan's factorisations at 41 × 41; decision 0142.)
+    for transposed in bordered.reshape(-1, size + 2, size + 2).transpose(0, 2, 1):
+        if potrf(transposed, 1, 0, 1)[1] != 0:
             return None
     free = bordered[..., :size, size]  # L⁻¹r (K, 3, N)
     along = bordered[..., :size, size + 1]  # L⁻¹g
@@ -1349,10 +1420,14 @@ def _bordered_forms(
 
 
 def _cholesky(systems: FloatArray) -> list[FloatArray]:
-    """Lower Cholesky factors of the per-channel systems ``(3, N, N)`` (ridged, SPD)."""
+    """Lower Cholesky factors of the per-channel systems ``(3, N, N)`` (ridged, SPD), each
+    factored in place (``systems`` is overwritten): a symmetric C-ordered matrix is its own
+    Fortran-ordered transpose, so LAPACK reads the same numbers without a copy in, and the
+    factor it returns is that view, read by :func:`_cholesky_solve` without a copy either."""
     factors = []
     for channel in systems:
-        lower, info = _potrf(channel, lower=1, clean=1)
+        # lower, clean, overwrite_a (by position: :func:`_bordered_forms`)
+        lower, info = _potrf(channel.T, 1, 1, 1)
         if info != 0:
             raise np.linalg.LinAlgError("a channel's response system is not positive definite")
         factors.append(lower)
@@ -1364,7 +1439,7 @@ def _cholesky_solve(factors: list[FloatArray], right: FloatArray) -> FloatArray:
     right-hand sides ``(3, N, m)`` → ``(3, N, m)``."""
     out = np.empty_like(right)
     for channel, lower in enumerate(factors):
-        out[channel], info = _potrs(lower, right[channel], lower=1)
+        out[channel], info = _potrs(lower, right[channel], 1)  # lower
         if info != 0:
             raise np.linalg.LinAlgError("the response system's triangular solve failed")
     return out
@@ -1381,6 +1456,23 @@ def _scale_of(
     return (right_beta + _over_channels_and_nodes(pulls, free)) / denominator
 
 
+def _scale_of_one(pulls: FloatArray, gamma: float, free: FloatArray, along: FloatArray) -> float:
+    """:func:`_scale_of` for one mapping (``free``, ``along`` ``(3, N)``, no right-hand side for
+    ``β``) on Python floats: the same products and the same IEEE operations in the same order, so
+    the same number, without the 0-d arrays' and ``np.where``'s per-call cost (decision 0142).
+
+    Examples
+    --------
+    >>> pulls, free, along = np.arange(6.0).reshape(3, 2), np.ones((3, 2)), np.full((3, 2), 0.5)
+    >>> _scale_of_one(pulls, 20.0, free, along) == float(_scale_of(pulls, 20.0, free, along, 0.0))
+    True
+    """
+    denominator = gamma - float(_over_channels_and_nodes(pulls, along))
+    if not abs(denominator) > 1e-300:  # (NaN included, as np.where's test)
+        denominator = math.inf
+    return (0.0 + float(_over_channels_and_nodes(pulls, free))) / denominator
+
+
 def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray:
     """``Σ_c,i pulls[c, i] right[c, i, …]``: ``np.tensordot(pulls, right, axes=([0, 1], [0, 1]))``
     as the one product it makes (the same ``dot``), without its per-call shape handling.
@@ -1394,6 +1486,19 @@ def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray
     """
     flat = right.reshape(pulls.size, -1)
     return np.asarray(np.dot(pulls.reshape(1, -1), flat).reshape(right.shape[2:]))
+
+
+def _rising(edges_nm: FloatArray) -> bool:
+    """Every mapping of the batch ``(K, n + 1)`` rises: its :func:`_signs` are all +1.
+
+    Examples
+    --------
+    >>> _rising(np.array([[400.0, 410.0]])), _rising(np.array([[400.0, 410.0], [9.0, 1.0]]))
+    (True, False)
+    """
+    if edges_nm.shape[0] == 1:  # (one mapping: two numbers, not a pass)
+        return bool(edges_nm[0, -1] >= edges_nm[0, 0])
+    return bool(np.all(edges_nm[:, -1] >= edges_nm[:, 0]))
 
 
 def _signs(edges_nm: FloatArray) -> FloatArray:
