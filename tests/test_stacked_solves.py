@@ -92,3 +92,22 @@ def test_a_digest_reads_the_same_fields_in_and_out_of_a_scope():
         assert fingerprint(frozen, _Open(values.copy())) == outside
         assert fingerprint(frozen, _Open(values.copy())) == outside  # read from the scope
         assert fingerprint(changed, _Open(values.copy())) != outside
+
+
+def test_a_scalar_is_fed_by_its_type_name_and_repr_whichever_path_reads_it():
+    """Plain scalars are read first (a search's details hold hundreds); a subclass (numpy's
+    ``float64`` is a ``float``) takes the general path: both feed ``v``, the type's name and
+    the ``repr``."""
+    import hashlib
+
+    def expected(*encoded: str) -> bytes:
+        digest = hashlib.blake2b(digest_size=16)
+        for text in encoded:
+            digest.update(text.encode())
+        return digest.digest()
+
+    assert fingerprint(1.5, 2, True, "x", None) == expected(
+        "vfloat1.5", "vint2", "vboolTrue", "vstr'x'", "vNoneTypeNone"
+    )
+    value = np.float64(1.5)
+    assert fingerprint(value) == expected(f"vfloat64{value!r}")

@@ -138,6 +138,11 @@ def _array_digest(value: np.ndarray) -> bytes:
     return digest.digest()
 
 
+#: The scalar types :func:`_feed` reads first (by exact type; a subclass takes the general path,
+#: which feeds the same bytes).
+_PLAIN_SCALARS = frozenset({bool, int, float, str})
+
+
 def _feed(digest: Any, value: object, scope: SolveScope | None = None) -> bool:
     """Add ``value``'s content to ``digest`` (arrays by dtype, shape and bytes; dataclasses by
     their fields; sequences and mappings element by element; scalars by ``repr``; an array's and
@@ -148,6 +153,10 @@ def _feed(digest: Any, value: object, scope: SolveScope | None = None) -> bool:
     In an open ``scope`` an object already in :attr:`SolveScope.digests` is fed by its recorded
     digest, and an array or frozen dataclass whose content cannot change is recorded there the
     first time it is fed: its bytes are read once per scope."""
+    if value is None or type(value) in _PLAIN_SCALARS:
+        # (A scalar first, by its exact type: a search's details hold hundreds of them.)
+        digest.update(f"v{type(value).__name__}{value!r}".encode())
+        return True
     is_array = isinstance(value, np.ndarray)
     shape = None if is_array else _dataclass_shape(type(value))
     if scope is not None and (is_array or shape is not None):
