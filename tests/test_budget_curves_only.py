@@ -13,6 +13,7 @@ from calib.core.observations import LampObservation
 from calib.evaluation.synthetic import random_efficiency
 from calib.methods import estimate, prior_solve
 from calib.methods.prior_solve import PriorOptions, estimate_prior
+from calib.methods.stacked import whitening_stack
 from calib.methods.uncertainty import BudgetSettings, curves_only, reading_curves_only
 from calib.model.bases import CameraBasis, fallback_camera_basis, whitening
 from calib.model.forward import PeakFractionNoise, render_observation
@@ -55,7 +56,7 @@ def test_the_stacked_whitening_is_whitening_of_each_matrix_to_the_bit():
             np.diag(rng.uniform(1e-6, 1.0, size)) + 1e-9 * rng.standard_normal((size, size)),
         ]
     )
-    stacked = prior_solve._whitening_stack(stack)
+    stacked = whitening_stack(stack)
     for matrix, factor in zip(stack, stacked, strict=True):
         assert np.array_equal(factor, whitening(matrix))
 

@@ -32,7 +32,6 @@ from calib.methods.multilamp import (
     _efficiency_jacobians,
     _efficiency_terms_solve,
     _nonlinear_efficiency,
-    _pinv_symmetric_stack,
     bootstrap_sigma,
     calibrate_lamps,
     choose_prior_weight,
@@ -46,6 +45,7 @@ from calib.methods.multilamp import (
     weight_score,
 )
 from calib.methods.prior_solve import PriorOptions, estimate_prior
+from calib.methods.stacked import pinv_symmetric_stack
 from calib.model.bases import CameraBasis, fallback_camera_basis
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 
@@ -656,7 +656,7 @@ def test_the_weights_are_scored_at_once_as_one_by_one() -> None:
     matrices = matrices @ matrices.transpose(0, 2, 1) * np.logspace(-6, 6, 30)[:, None, None]
     matrices[::3, 0, :] = matrices[::3, :, 0] = 0.0  # singular
     matrices[1::3] -= 2.0 * np.eye(8) * np.abs(matrices[1::3]).max()  # indefinite
-    stacked = _pinv_symmetric_stack(matrices)
+    stacked = pinv_symmetric_stack(matrices)
     for matrix, inverse in zip(matrices, stacked, strict=True):
         assert np.array_equal(inverse, pinv_symmetric(matrix))
 

@@ -85,7 +85,8 @@ from calib.methods.responses import (
     prepared_response,
 )
 from calib.methods.solve_scope import fingerprint, recall, remember_start, reuse, warm_start
-from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance, whitening
+from calib.methods.stacked import pinv_symmetric_stack, whitening_stack
+from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance
 from calib.model.gratings import PHYSICAL_KINDS, PHYSICAL_PARAMETER_RANGES, PhysicalKind
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry, find_mapping, lamps_named
@@ -210,11 +211,17 @@ def prior_rows(
     """
     size, b_eta = efficiency_basis.shape
     blocks = []
-    for c in range(3):
-        spread = scale**2 * prior.covariance[c] + (
-            inverse_efficiency[:, None] * reference.covariance[c] * inverse_efficiency[None, :]
+    # The three channels' spreads whitened in one stacked call (the same bits as each alone).
+    factors = whitening_stack(
+        scale**2 * prior.covariance
+        + (
+            inverse_efficiency[None, :, None]
+            * reference.covariance
+            * inverse_efficiency[None, None, :]
         )
-        factor = whitening(spread)
+    )
+    for c in range(3):
+        factor = factors[c]
         block = np.zeros((size, b_eta + 1))
         block[:, :b_eta] = factor @ (reference.response[:, c][:, None] * efficiency_basis)
         block[:, -1] = -(factor @ prior.mean[:, c])
@@ -422,29 +429,6 @@ def _efficiency_terms_solve(
     return x, inverse, data_residual, penalty_residual, current
 
 
-def _pinv_symmetric_stack(matrices: FloatArray) -> FloatArray:
-    """:func:`calib.core.blas.pinv_symmetric` of each matrix of a stack ``(k, n, n)``, to the bit,
-    in one pass: the same ``eigh`` (numpy's stacked call runs LAPACK on each matrix in turn), the
-    same ordering, cutoff and final product per matrix (numpy's stacked ``matmul`` makes each
-    slice's product with the BLAS call a single matrix gets). The weights' scores of one
-    Gauss–Newton pass take one pseudo-inverse of an 8 × 8 matrix each, 41 of them (decision 0107)."""
-    values, vectors = np.linalg.eigh(matrices)
-    signs = np.copysign(1.0, values)
-    values = np.abs(values)
-    order = np.argsort(values, axis=-1)[..., ::-1]
-    signs = np.take_along_axis(signs, order, -1)
-    values = np.take_along_axis(values, order, -1)
-    vectors = np.ascontiguousarray(np.take_along_axis(vectors, order[..., None, :], -1))
-    right = np.swapaxes(vectors * signs[..., None, :], -1, -2)
-    large = values > 1e-15 * values.max(axis=-1, keepdims=True)
-    inverse = np.divide(1, values, where=large, out=values)
-    inverse[~large] = 0
-    return np.asarray(
-        np.matmul(np.swapaxes(right, -1, -2), inverse[..., :, None] * np.swapaxes(vectors, -1, -2)),
-        dtype=np.float64,
-    )
-
-
 def upre_scores(
     weights: FloatArray,
     data_residuals: Sequence[FloatArray],
@@ -453,14 +437,14 @@ def upre_scores(
 ) -> FloatArray:
     """:func:`weight_score`'s ``"upre"`` at each of ``weights``, from each weight's solution
     (residuals and Jacobians of the same shapes), every number the one it gives weight by weight:
-    the normal matrices stacked, their pseudo-inverses in one pass (:func:`_pinv_symmetric_stack`)."""
+    the normal matrices stacked, their pseudo-inverses in one pass (:func:`calib.methods.stacked.pinv_symmetric_stack`)."""
     data = np.stack(data_jacobians)
     penalty = np.stack(penalty_jacobians)
     normal_data = np.matmul(np.swapaxes(data, 1, 2), data)
     normal = normal_data + np.matmul(
         np.asarray(weights, dtype=np.float64)[:, None, None] * np.swapaxes(penalty, 1, 2), penalty
     )
-    product = np.matmul(_pinv_symmetric_stack(normal), normal_data)
+    product = np.matmul(pinv_symmetric_stack(normal), normal_data)
     return np.array(
         [
             float(residual @ residual) + 2.0 * float(product[index].trace())

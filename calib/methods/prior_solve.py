@@ -54,7 +54,6 @@ from calib.methods.grating_models import (
     GratingModelName,
     check_grating_model,
 )
-from calib.methods.multilamp import _pinv_symmetric_stack
 from calib.methods.responses import (
     LampData,
     ResponseEstimate,
@@ -62,6 +61,7 @@ from calib.methods.responses import (
     lamp_data,
     prepared_response,
 )
+from calib.methods.stacked import pinv_symmetric_stack, whitening_stack
 from calib.methods.uncertainty import reading_curves_only
 from calib.model.bases import CameraBasis, CameraPrior
 from calib.model.forward import WavelengthMapping
@@ -69,9 +69,6 @@ from calib.model.linear_model import LampSystem
 
 #: Passes of step 2 (re-weighting by the previous η̂⁻¹ and α̂).
 EFFICIENCY_PASSES = 3
-#: :func:`calib.model.bases.whitening`'s default relative eigenvalue floor, which
-#: :func:`_whitening_stack` applies to each matrix.
-WHITENING_FLOOR = 1e-10
 #: Registry name (and the result's ``method``).
 PRIOR_METHOD = "prior"
 
@@ -211,7 +208,7 @@ def solve_with_prior(
     for _ in range(EFFICIENCY_PASSES):
         blocks = []
         # The three channels' spreads whitened in one stacked call (the same bits as each alone).
-        whitening_factors = _whitening_stack(
+        whitening_factors = whitening_stack(
             scale_hat**2 * prior.covariance
             + (inverse_hat[None, :, None] * response_cov * inverse_hat[None, None, :])
         )
@@ -255,7 +252,7 @@ def solve_with_prior(
     sensitivity = np.empty((size, 3))
     sensitivity_sigma = np.full((size, 3), np.nan)
     # The channels' inverses in stacked calls: LAPACK on each matrix in turn, the same bits.
-    data_precisions = _pinv_symmetric_stack(
+    data_precisions = pinv_symmetric_stack(
         inverse_efficiency[None, :, None] * response_cov * inverse_efficiency[None, None, :]
     )
     prior_precisions = np.linalg.inv(scale_hat**2 * prior.covariance)
@@ -307,16 +304,6 @@ def solve_with_prior(
             + [companion.observation.name for companion in companions],
         },
     )
-
-
-def _whitening_stack(covariances: FloatArray) -> FloatArray:
-    """:func:`calib.model.bases.whitening` of each matrix of a stack ``(k, n, n)``, to the bit, in one
-    pass: the same symmetrisation, ``eigh`` (numpy's stacked call runs LAPACK on each matrix in
-    turn), floor (of each matrix's own largest eigenvalue) and product per matrix."""
-    values, vectors = np.linalg.eigh(0.5 * (covariances + np.swapaxes(covariances, -1, -2)))
-    floor = WHITENING_FLOOR * np.maximum(values.max(axis=-1, keepdims=True), 1e-300)
-    scaled = vectors / np.sqrt(np.maximum(values, floor))[..., None, :]
-    return np.asarray(scaled @ np.swapaxes(vectors, -1, -2), dtype=np.float64)
 
 
 def _null_space(constraint: FloatArray) -> FloatArray:

@@ -21,13 +21,13 @@ from typing import Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.blas import pinv_symmetric
 from calib.core.errors import EstimationError, InputError
 from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
 from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 from calib.methods.closed_form import prepare_matched_lamp
 from calib.methods.solve_scope import reuse
+from calib.methods.stacked import pinv_symmetric_stack
 from calib.model.forward import (
     LampOperators,
     PiecewiseLinearDensity,
@@ -167,13 +167,17 @@ def fit_response(
     difference = _second_differences(size)
     penalty = difference.T @ difference
     responses = np.empty((size, 3))
-    covariances = np.empty((3, size, size))
-    chi2 = 0.0
+    normals = np.empty((3, size, size))
+    weighted_rows = []
     for c in range(3):
         weighted = pixel_matrix * weights[:, c][:, None]
         normal = weighted.T @ weighted
-        normal = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
-        covariances[c] = pinv_symmetric(normal)
+        normals[c] = normal + RESPONSE_SMOOTHNESS * float(np.trace(normal)) / size * penalty
+        weighted_rows.append(weighted)
+    # The three channels' pseudo-inverses in one stacked call (each ``pinv_symmetric``'s bits).
+    covariances = pinv_symmetric_stack(normals)
+    chi2 = 0.0
+    for c, weighted in enumerate(weighted_rows):
         responses[:, c] = covariances[c] @ (weighted.T @ (weights[:, c] * profile[:, c]))
         chi2 += float(np.sum((weights[:, c] * profile[:, c] - weighted @ responses[:, c]) ** 2))
     return ResponseEstimate(

@@ -138,6 +138,11 @@ def _array_digest(value: np.ndarray) -> bytes:
     return digest.digest()
 
 
+#: The scalar types :func:`_feed` reads first (by exact type; a subclass takes the general path,
+#: which feeds the same bytes).
+_PLAIN_SCALARS = frozenset({bool, int, float, str})
+
+
 def _feed(digest: Any, value: object, scope: SolveScope | None = None) -> bool:
     """Add ``value``'s content to ``digest`` (arrays by dtype, shape and bytes; dataclasses by
     their fields; sequences and mappings element by element; scalars by ``repr``; an array's and
@@ -148,7 +153,13 @@ def _feed(digest: Any, value: object, scope: SolveScope | None = None) -> bool:
     In an open ``scope`` an object already in :attr:`SolveScope.digests` is fed by its recorded
     digest, and an array or frozen dataclass whose content cannot change is recorded there the
     first time it is fed: its bytes are read once per scope."""
-    if scope is not None and _kept(value):
+    if value is None or type(value) in _PLAIN_SCALARS:
+        # (A scalar first, by its exact type: a search's details hold hundreds of them.)
+        digest.update(f"v{type(value).__name__}{value!r}".encode())
+        return True
+    is_array = isinstance(value, np.ndarray)
+    shape = None if is_array else _dataclass_shape(type(value))
+    if scope is not None and (is_array or shape is not None):
         known = scope.digests.get(id(value))
         if known is not None and known[0] is value:
             digest.update(b"k")
@@ -157,14 +168,13 @@ def _feed(digest: Any, value: object, scope: SolveScope | None = None) -> bool:
     if isinstance(value, np.ndarray):
         own = _array_digest(value)
         fixed = _unchangeable(value)
-    elif is_dataclass(value) and not isinstance(value, type):
+    elif shape is not None:
         inner = hashlib.blake2b(digest_size=16)
-        inner.update(f"d{type(value).__qualname__}".encode())
-        parameters = getattr(type(value), "__dataclass_params__", None)
-        fixed = parameters is not None and bool(parameters.frozen)
-        for item in fields(value):
-            inner.update(item.name.encode())
-            fixed = _feed(inner, getattr(value, item.name), scope) and fixed
+        inner.update(shape.prefix)
+        fixed = shape.frozen
+        for name, encoded in shape.fields:
+            inner.update(encoded)
+            fixed = _feed(inner, getattr(value, name), scope) and fixed
         own = inner.digest()
     elif isinstance(value, list | tuple):
         digest.update(f"s{len(value)}".encode())
@@ -193,10 +203,46 @@ def _feed(digest: Any, value: object, scope: SolveScope | None = None) -> bool:
     return fixed
 
 
+@dataclass(frozen=True)
+class _DataclassShape:
+    """What :func:`_feed` and :func:`_register` read of a dataclass type: the digest's prefix
+    (``d`` and the qualified name, encoded), whether it is frozen, and its fields' names (each
+    with its encoding)."""
+
+    prefix: bytes
+    frozen: bool
+    fields: tuple[tuple[str, bytes], ...]
+
+
+#: :class:`_DataclassShape` by type, ``None`` for a type that is not a dataclass: the same
+#: answers as ``dataclasses.is_dataclass``, ``fields`` and ``__dataclass_params__`` on each call,
+#: looked up once per type (the digests of one estimate walk ~1000 objects: decision 0146).
+_SHAPES: dict[type, _DataclassShape | None] = {}
+
+
+def _dataclass_shape(kind: type) -> _DataclassShape | None:
+    """:class:`_DataclassShape` of ``kind`` (the type of an object), ``None`` unless it is a
+    dataclass (a class object's type is ``type`` or a metaclass: not a dataclass instance)."""
+    try:
+        return _SHAPES[kind]
+    except KeyError:
+        pass
+    shape = None
+    if is_dataclass(kind):
+        parameters = getattr(kind, "__dataclass_params__", None)
+        shape = _DataclassShape(
+            f"d{kind.__qualname__}".encode(),
+            parameters is not None and bool(parameters.frozen),
+            tuple((item.name, item.name.encode()) for item in fields(kind)),
+        )
+    _SHAPES[kind] = shape
+    return shape
+
+
 def _kept(value: object) -> bool:
     """Whether ``value`` is an object :attr:`SolveScope.digests` may hold: an array or a
     dataclass instance."""
-    return isinstance(value, np.ndarray) or (is_dataclass(value) and not isinstance(value, type))
+    return isinstance(value, np.ndarray) or _dataclass_shape(type(value)) is not None
 
 
 def _register(scope: SolveScope, origin: bytes, value: object) -> bool:
@@ -227,12 +273,12 @@ def _register(scope: SolveScope, origin: bytes, value: object) -> bool:
             for index, part in enumerate(item):  # every part, also after one not recorded
                 done = walk(part, f"{place}/{index}") and done
             return done
-        if is_dataclass(item) and not isinstance(item, type):
-            parameters = getattr(type(item), "__dataclass_params__", None)
+        shape = _dataclass_shape(type(item))
+        if shape is not None:
             inner = True
-            for part in fields(item):
-                inner = walk(getattr(item, part.name), f"{place}.{part.name}") and inner
-            if not (inner and parameters is not None and parameters.frozen):
+            for name, _ in shape.fields:
+                inner = walk(getattr(item, name), f"{place}.{name}") and inner
+            if not (inner and shape.frozen):
                 return False
             token = hashlib.blake2b(origin + place.encode(), digest_size=16).digest()
             scope.digests[id(item)] = (item, token)
