@@ -501,6 +501,23 @@ class TestInterruptController:
             controller._handle(signal.SIGINT, None)
         assert [r.action for r in controller.received] == ["finish-step", "stop-now", "stop-now"]
 
+    def test_once_a_halt_is_under_way_further_signals_are_only_noted(self) -> None:
+        """A third Ctrl-C must not cut the cleanup the second one began (before it reaches
+        :meth:`enter_cleanup`): one ``HaltRequested``, raised at once or at the section's end."""
+        controller = InterruptController()
+        controller._handle(signal.SIGINT, None)
+        with pytest.raises(HaltRequested):
+            controller._handle(signal.SIGINT, None)
+        controller._handle(signal.SIGINT, None)  # noted, not raised
+        held = InterruptController()
+        held._handle(signal.SIGINT, None)
+        with pytest.raises(HaltRequested), held.critical():
+            held._handle(signal.SIGINT, None)
+            held._handle(signal.SIGTERM, None)
+        held._handle(signal.SIGINT, None)
+        assert [r.action for r in controller.received] == ["finish-step", "stop-now", "stop-now"]
+        assert [r.name for r in held.received] == ["SIGINT", "SIGINT", "SIGTERM", "SIGINT"]
+
     def test_handlers_are_not_installed_outside_the_main_thread(self) -> None:
         results: list[bool] = []
         thread = threading.Thread(target=lambda: results.append(InterruptController().install()))

@@ -14,6 +14,7 @@ import pytest
 from rig.records import InterruptionRecord, StepRecord
 from rig.session import Session, find_sessions, read_session
 from tests.rig.fakes import fake_config_data, wait_for, write_config
+from tests.rig.handled_signals import send_one_at_a_time
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -91,9 +92,7 @@ def test_one_signal_finishes_the_step_and_switches_the_lamps_off(
 
 def test_a_second_ctrl_c_stops_at_once(tmp_path: Path) -> None:
     process, state, sessions = start_capture(tmp_path, capture_delay_s=30.0)
-    process.send_signal(signal.SIGINT)
-    time.sleep(0.2)
-    process.send_signal(signal.SIGINT)
+    send_one_at_a_time(process, [signal.SIGINT, signal.SIGINT], tmp_path / "capturing.signals")
     began = time.monotonic()
     code, _, err = finish(process)
     assert time.monotonic() - began < 10.0  # not the 30 s the capture would take
@@ -108,13 +107,19 @@ def test_a_second_ctrl_c_stops_at_once(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("signals", "exit_code"),
-    [([signal.SIGTERM], 143), ([signal.SIGINT], 130), ([signal.SIGINT, signal.SIGINT], 130)],
-    ids=["sigterm", "sigint", "sigint-twice"],
+    ("signals", "exit_code", "ctrl_c_in_release"),
+    [
+        ([signal.SIGTERM], 143, False),
+        ([signal.SIGINT], 130, True),
+        ([signal.SIGINT, signal.SIGINT], 130, True),
+    ],
+    ids=["sigterm", "sigint-and-another-in-release", "sigint-twice-and-another-in-release"],
 )
 def test_a_signal_while_the_devices_open_switches_off_what_opened_and_records_nothing(
-    tmp_path: Path, signals: list[signal.Signals], exit_code: int
+    tmp_path: Path, signals: list[signal.Signals], exit_code: int, ctrl_c_in_release: bool
 ) -> None:
+    """With ``ctrl_c_in_release``, one more Ctrl-C comes while the opened board is switched off:
+    only noted (it once cut the switching off: the lamps stayed on, and a traceback)."""
     config = write_config(tmp_path / "rig.yaml", fake_config_data(tmp_path / "sessions"))
     state, marker = tmp_path / "relays.state", tmp_path / "capturing"
     process = subprocess.Popen(
@@ -123,6 +128,7 @@ def test_a_signal_while_the_devices_open_switches_off_what_opened_and_records_no
             "-m",
             "tests.rig.capture_process",
             *(str(config), str(state), str(marker), "0", "1.5"),
+            *(["ctrl-c-in-release"] if ctrl_c_in_release else []),
         ],
         cwd=ROOT,
         stdout=subprocess.PIPE,
@@ -131,10 +137,7 @@ def test_a_signal_while_the_devices_open_switches_off_what_opened_and_records_no
     )
     wait_for(Path(f"{marker}.opening").exists, timeout_s=60, what="the devices to be opening")
     assert state.read_text() == "10"  # a lamp a killed run left on; the board is open
-    for number, signum in enumerate(signals):
-        if number:
-            time.sleep(0.1)
-        process.send_signal(signum)
+    send_one_at_a_time(process, signals, Path(f"{marker}.signals"))
     code, _, err = finish(process)
     assert code == exit_code, err
     assert state.read_text() == "00"  # switched off, as far as the devices had opened
@@ -321,6 +324,25 @@ def test_a_ctrl_c_a_library_turned_into_its_own_error_still_ends_as_interrupted(
         cli.main([])
     assert ended.value.code == 130
     assert capsys.readouterr().err == "rig: interrupted\n"
+
+
+def test_a_halt_that_escaped_its_cleanup_is_one_line_that_says_to_check_the_lamps(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from rig import cli
+    from rig.interrupts import HaltRequested
+
+    def run(*_args: object, **_kwargs: object) -> int:
+        raise HaltRequested("SIGTERM")
+
+    monkeypatch.setattr(cli, "run_app", run)
+    with pytest.raises(SystemExit) as ended:
+        cli.main([])
+    assert ended.value.code == 143
+    assert capsys.readouterr().err == (
+        "rig: error: stopped at once by a second interrupt (SIGTERM), before the cleanup began: "
+        "the lamps may still be on, check them by hand [halted]\n"
+    )
 
 
 def test_an_error_without_an_interrupt_is_still_an_internal_error(
