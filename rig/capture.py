@@ -130,6 +130,7 @@ def run_on_station(
             session.guard = interrupts.critical
             transcripts.attach(session)
         except BaseException:
+            interrupts.enter_cleanup()
             release_station(station, config)
             raise
         if options.on_session is not None:
@@ -175,6 +176,7 @@ def open_station(
         with interrupts.critical():
             station = builder(config, transcripts)
     except HaltRequested as exc:
+        interrupts.enter_cleanup()
         lamps_off = release_station(station, config) if station is not None else False
         raise OpeningInterrupted(
             interrupts.stop_requested or exc.signal_name, lamps_off=lamps_off
@@ -191,6 +193,7 @@ def open_station(
         raise
     signal_name = interrupts.stop_requested
     if signal_name is not None:
+        interrupts.enter_cleanup()  # a second signal may not cut the switching off
         lamps_off = release_station(station, config)
         raise OpeningInterrupted(signal_name, lamps_off=lamps_off)
     return station

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 from collections.abc import Sequence
 from enum import StrEnum
@@ -43,6 +44,7 @@ from calib.core.errors import CalibError, InputError
 from calib.core.software import current_software
 from drivers.base import DeviceError
 from rig.errors import OpeningInterrupted, RigError, StationOpenFailed
+from rig.interrupts import HaltRequested
 
 if TYPE_CHECKING:
     from calib.pipeline import OfflineOutcome
@@ -696,6 +698,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
         code = 130
+    except HaltRequested as exc:
+        # A second signal in the instant between the first one's stop and the cleanup's start
+        # (from there on every further one is only noted): the cleanup did not run.
+        _fail(
+            f"{exc}, before the cleanup began: the lamps may still be on, check them by hand "
+            "[halted]",
+            128 + int(signal.Signals[exc.signal_name]),
+        )
     except InputError as exc:
         _fail(str(exc), 2)
     except OpeningInterrupted as exc:

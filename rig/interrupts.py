@@ -7,8 +7,11 @@ progress (main thread only; Python delivers signals there):
   stops cleanly (Bluesky's deferred pause, without the in-memory resume);
 * a second signal raises :class:`HaltRequested` at once — except inside a :meth:`critical` section
   (a log write, a file rename), where it is held until the section ends so no record is torn;
-* once cleanup has begun (:meth:`enter_cleanup`: switching lamps off, writing the stop record),
-  further signals are only noted.
+* once a halt is under way (a second signal raised, or held for a section's end) or cleanup has
+  begun (:meth:`enter_cleanup`: switching lamps off, writing the stop record), further signals are
+  only noted: the halt's own cleanup must run to the end (a third Ctrl-C raised inside it, while
+  the lamps of an interrupted opening were being switched off, left them on and printed a
+  traceback).
 
 Device exchanges run in worker threads (:mod:`rig.workers`), which never receive signals, so a
 transaction with a device is never cut in half either: an abandoned exchange finishes in its thread,
@@ -87,6 +90,7 @@ class InterruptController:
         self._critical_depth = 0
         self._halt_pending: str | None = None
         self._cleanup = False
+        self._halting = False
         self._previous: dict[signal.Signals, object] = {}
         self._installs = 0
 
@@ -151,8 +155,9 @@ class InterruptController:
             self.received.append(ReceivedSignal(name, time.monotonic(), "finish-step"))
             return
         self.received.append(ReceivedSignal(name, time.monotonic(), "stop-now"))
-        if self._cleanup:
+        if self._cleanup or self._halting:
             return
+        self._halting = True
         if self._critical_depth > 0:
             self._halt_pending = name
             return

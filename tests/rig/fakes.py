@@ -7,8 +7,11 @@ recording the exposure and which lamps were lit; :class:`FakeAnalyzer` turns tha
 automatic bracketing sees realistic saturation and SNR.
 
 Faults: every fake has ``faults[method]``, a list of exceptions raised (first to last) by the next
-calls of that method (``None`` in the list lets one call through), and ``delay_s[method]``, a real sleep inside the call (to test deadlines and
-interrupts). ``events`` records ``("begin"|"end", device, method)`` in order across all fakes.
+calls of that method (``None`` in the list lets one call through); ``delay_s[method]``, a real sleep
+inside the call (to test deadlines and interrupts); and ``hold[method]``, an event the call waits
+for (at most :data:`HOLD_LIMIT_S`): a call that hangs until the test lets it go, so a test shows
+that the rig did not wait for it without timing anything. ``events`` records
+``("begin"|"end", device, method)`` in order across all fakes.
 """
 
 from __future__ import annotations
@@ -45,6 +48,8 @@ RAW_MAGIC = b"FAKERAW1\n"
 WHITE_LEVEL_DN = 4000.0
 READ_NOISE_DN = 4.0
 WAVELENGTH_NM = np.arange(380.0, 781.0, 4.0)
+#: Longest a held call waits for its test to let it go (tests never hang).
+HOLD_LIMIT_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -62,6 +67,7 @@ class FaultInjector:
         self.name = name
         self.faults: dict[str, list[BaseException | None]] = defaultdict(list)
         self.delay_s: dict[str, float] = {}
+        self.hold: dict[str, threading.Event] = {}
         self.calls: dict[str, int] = defaultdict(int)
         self.events = events
         self.transcript: TranscriptSink | None = None
@@ -73,6 +79,9 @@ class FaultInjector:
         delay = self.delay_s.get(method, 0.0)
         if delay:
             time.sleep(delay)
+        held = self.hold.get(method)
+        if held is not None:
+            held.wait(HOLD_LIMIT_S)
         error = self.faults[method].pop(0) if self.faults[method] else None
         if error is not None:
             self.events.append(("end", self.name, method))

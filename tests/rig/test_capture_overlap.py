@@ -4,9 +4,9 @@ the log in step order, a failure of the storing or a kill during it ends in a us
 from __future__ import annotations
 
 import inspect
+import json
 import signal
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,9 +19,9 @@ from rig.errors import SessionFormatError
 from rig.interrupts import HaltRequested, InterruptController
 from rig.records import FileRecord, StepRecord
 from rig.resume import run_resume
-from rig.runner import RetryPolicy
+from rig.runner import RetryPolicy, Runner
 from rig.session import SessionWriter, read_session
-from tests.rig.fakes import FakeRig, fake_config, make_fake_rig
+from tests.rig.fakes import RAW_MAGIC, FakeRig, fake_config, make_fake_rig, wait_for
 from tests.rig.test_fault_matrix import (
     NO_BACKOFF,
     Uninterrupted,
@@ -41,32 +41,53 @@ def in_journal() -> bool:
     return threading.current_thread().name.startswith("rig-journal")
 
 
-def camera_busy(rig: FakeRig) -> bool:
-    """Whether the fake camera is inside a capture now (its last event began one)."""
-    camera_events = [e for e in rig.events if e[1] == "camera"]
-    return bool(camera_events) and camera_events[-1] == ("begin", "camera", "capture")
+class NextCapture:
+    """Whether the camera began the next capture while the journal stored a frame.
 
+    The journal is held at the frame's acknowledgement until the fake camera has begun the capture
+    after this frame's (the frame is stored while the next is taken) or the runner waits for the
+    journal (it is not), whichever comes first: the order of events, not how soon the next
+    capture comes, which a loaded machine delays (a 0.5 s poll for "the camera is busy now" could
+    miss a 50 ms capture there)."""
 
-def wait_until(condition: Callable[[], bool], timeout_s: float = 0.5) -> bool:
-    """Whether ``condition`` became true within ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.002)
-    return True
+    def __init__(self, rig: FakeRig, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.rig = rig
+        self.settling = threading.Event()
+        settle = Runner._settle
+
+        def settle_noted(runner: Runner) -> None:
+            self.settling.set()
+            try:
+                settle(runner)
+            finally:
+                self.settling.clear()
+
+        monkeypatch.setattr(Runner, "_settle", settle_noted)
+
+    def captures_begun(self) -> int:
+        return self.rig.events.count(("begin", "camera", "capture"))
+
+    def begun_while_stored(self, frame_file: Path) -> bool:
+        """Called in the journal as it acknowledges ``frame_file`` (a fake RAW file)."""
+        number = int(json.loads(frame_file.read_bytes().removeprefix(RAW_MAGIC))["number"])
+        wait_for(
+            lambda: self.captures_begun() > number or self.settling.is_set(),
+            timeout_s=60,
+            what=f"capture {number + 1} or the runner waiting for the journal",
+        )
+        return self.captures_begun() > number
 
 
 def watch_commits(
     monkeypatch: pytest.MonkeyPatch,
-    on_commit: Callable[[SessionWriter, str], None],
+    on_commit: Callable[[SessionWriter, str, Path], None],
 ) -> None:
-    """Call ``on_commit(writer, key)`` before every file the session acknowledges."""
+    """Call ``on_commit(writer, key, temporary)`` before every file the session acknowledges."""
     real: CommitFile = SessionWriter.commit_file
 
-    def commit_file(self: SessionWriter, *args: Any, **kwargs: Any) -> FileRecord:
-        on_commit(self, kwargs["key"])
-        return real(self, *args, **kwargs)
+    def commit_file(self: SessionWriter, temporary: Path, *args: Any, **kwargs: Any) -> FileRecord:
+        on_commit(self, kwargs["key"], temporary)
+        return real(self, temporary, *args, **kwargs)
 
     monkeypatch.setattr(SessionWriter, "commit_file", commit_file)
 
@@ -76,12 +97,13 @@ def test_frames_are_stored_while_the_camera_takes_the_next(
 ) -> None:
     rig = make_fake_rig()
     rig.camera.io.delay_s["capture"] = 0.05
+    next_capture = NextCapture(rig, monkeypatch)
     overlapped: list[str] = []
 
-    def note(writer: SessionWriter, key: str) -> None:
+    def note(writer: SessionWriter, key: str, temporary: Path) -> None:
         # The journal holds the store until the camera takes the next frame: it must not wait.
         frame = "/scene/" in key or "/dark/" in key
-        if frame and in_journal() and wait_until(lambda: camera_busy(rig)):
+        if frame and in_journal() and next_capture.begun_while_stored(temporary):
             overlapped.append(key)
 
     watch_commits(monkeypatch, note)
@@ -118,9 +140,11 @@ def test_a_dark_frame_that_cannot_be_stored_keeps_the_next_frame_and_lamps_go_of
     failing = "lamp/LED-B3/dark/000"
     busy: list[bool] = []
 
-    def refuse(writer: SessionWriter, key: str) -> None:
+    next_capture = NextCapture(rig, monkeypatch)
+
+    def refuse(writer: SessionWriter, key: str, temporary: Path) -> None:
         if key == failing and in_journal():
-            busy.append(wait_until(lambda: camera_busy(rig)))
+            busy.append(next_capture.begun_while_stored(temporary))
             raise SessionFormatError(f"{writer.path}: frames/LED-B3/dark-000.dng refused")
 
     with monkeypatch.context() as patch:
@@ -164,7 +188,7 @@ def test_killed_while_a_dark_frame_is_stored_then_resumed(
     completes the session with the same estimator inputs as an uninterrupted capture."""
     killed: list[str] = []
 
-    def kill(writer: SessionWriter, key: str) -> None:
+    def kill(writer: SessionWriter, key: str, temporary: Path) -> None:
         if key == "lamp/LED-B3/dark/001" and in_journal() and not killed:
             killed.append(key)
             writer.kill()

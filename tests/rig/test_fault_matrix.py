@@ -40,7 +40,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,6 +70,7 @@ from rig.runner import RetryPolicy
 from rig.session import Session, find_sessions, read_session
 from rig.twin import twin_station_builder
 from tests.rig.fakes import wait_for, write_config
+from tests.rig.handled_signals import send_one_at_a_time
 from tests.rig.test_cli import run_cli
 from tests.rig.test_signals import finish
 from tests.rig.twin_setup import twin_config_data
@@ -532,10 +532,7 @@ SIGNALS: dict[str, tuple[list[signal.Signals], int, str]] = {
 def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterrupted) -> None:
     signals, exit_code, reason = SIGNALS[row]
     process = start_twin_capture(tmp_path, slow_capture_s=1.0 if len(signals) == 1 else 30.0)
-    for number, signum in enumerate(signals):
-        if number:
-            time.sleep(0.2)  # let the first be handled (a 30 s capture is still going on)
-        process.send_signal(signum)
+    send_one_at_a_time(process, signals, tmp_path / "rig.yaml.signals")
     code, _, err = finish(process)
     assert code == exit_code, err
     path = the_session(tmp_path)

@@ -12,6 +12,7 @@ frame's storing: ``before-rename`` (the frame is still a temporary) or ``before-
 into place, no ``file`` record yet). ``LAG`` ``start-timeout`` instead makes the spectrometer's
 first exposure setting (``SE``, before any lamp is on) time out as a loaded machine can: the rig
 retries it after its backoff (0.5 s on the twin's clock), so every later step is that much later.
+CONFIG.signals counts the signals the run has handled (:mod:`tests.rig.handled_signals`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from mocks.fake_gphoto2 import CameraFault
 from mocks.faults import Fault, FaultKind, FaultSchedule
 from rig import cli, station
 from rig.twin import twin_station_builder
+from tests.rig.handled_signals import report_handled_signals
 
 #: Longer than any wait for the kill: the held store never finishes.
 HELD_S = 600.0
@@ -58,6 +60,7 @@ def main() -> None:
     slow = CameraFault("slow", call=call, skip=1, delay_s=float(slow_capture_s))
     faults = TwinFaults(camera=[slow], spectrometer=spectrometer)
     station.STATION_BUILDERS["twin"] = twin_station_builder(faults=faults)
+    report_handled_signals(Path(f"{config}.signals"))
     sys.argv = ["rig", "capture", "--config", config, "--quiet"]
     cli.main()
 
