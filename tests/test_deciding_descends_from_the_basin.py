@@ -63,6 +63,8 @@ def test_the_deciding_stage_also_descends_from_the_basins_own_point(monkeypatch)
     monkeypatch.setattr(profile_search, "_quadratic_points", points)
     monkeypatch.setattr(profile_search, "_shortlisted_costs", shortlist)
     monkeypatch.setattr(profile_search.StageFit, "refine", refine)
+    # Every basin, however far behind (decision 0143 skips those hopelessly behind).
+    monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", np.inf)
     found = profile_search.search_profiles([observation], prior, DEFAULT_GRID)
     assert scans
     for grid in scans:
@@ -74,3 +76,57 @@ def test_the_deciding_stage_also_descends_from_the_basins_own_point(monkeypatch)
     pixels = np.arange(800.0)
     error = np.abs(found.mapping.wavelength_nm(pixels) - TRUTH.wavelength_nm(pixels))
     assert float(np.max(error)) < 1.0
+
+
+def test_a_basin_hopelessly_behind_gets_no_descent_from_its_own_point(monkeypatch):
+    """Decision 0143: the own-point descent is skipped for a basin whose descent stands more than
+    ``HOPELESS_DELTA_CHI2`` behind the best deciding descent so far (here every later basin: the
+    bar below zero); the first basin, with nothing ahead of it, still gets one."""
+    prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
+    camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
+    observation = render_observation(
+        colour_lamp("D65"),
+        camera,
+        mapping=TRUTH,
+        pixel=800,
+        grating_efficiency=random_efficiency(np.random.default_rng(11)),
+        rng=np.random.default_rng(3),
+        kind="led",
+    ).observation
+
+    scans: list[np.ndarray] = []
+    original_points = profile_search._quadratic_points
+
+    def points(*args: Any) -> Any:
+        out = original_points(*args)
+        if sys._getframe(1).f_code.co_name == "decide":
+            scans.append(out[0])
+        return out
+
+    original_shortlist = profile_search._shortlisted_costs
+
+    def shortlist(grid: np.ndarray, coarse: Any, fine: Any, keep: int) -> Any:
+        costs, count = original_shortlist(grid, coarse, fine, keep)
+        if sys._getframe(1).f_code.co_name == "decide":
+            costs = np.array(costs, dtype=float)
+            costs[-1] = -np.inf  # the scan's lowest point: its far corner
+        return costs, count
+
+    starts: list[np.ndarray] = []
+    original_refine = profile_search.StageFit.refine
+
+    def refine(self: Any, x: np.ndarray, *args: Any, **kwargs: Any) -> Any:
+        starts.append(np.array(x, copy=True))
+        return original_refine(self, x, *args, **kwargs)
+
+    monkeypatch.setattr(profile_search, "_quadratic_points", points)
+    monkeypatch.setattr(profile_search, "_shortlisted_costs", shortlist)
+    monkeypatch.setattr(profile_search.StageFit, "refine", refine)
+    monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", -1.0)
+    profile_search.search_profiles([observation], prior, DEFAULT_GRID)
+    assert len(scans) >= 2
+    own = [
+        any(np.allclose(s, grid[grid.shape[0] // 2], rtol=0.0, atol=1e-9) for s in starts)
+        for grid in scans
+    ]
+    assert own == [True] + [False] * (len(scans) - 1)

@@ -127,7 +127,8 @@ MAX_BASINS = 3
 #: speed bench's LED + FL2 scenes of 35 training cameras (leave-one-out basis) the 59 basins
 #: beyond it (from 1 571) all stayed ≥ 1 566 behind after the deciding fit; the closest calls
 #: started far lower (92 → 3.5, 308 → 43). Decision 0065. With a broadband lamp alone, a deciding
-#: basin this far behind the best descent gets no scan of the ends about it (decision 0076).
+#: basin this far behind the best descent gets no scan of the ends about it (decision 0076) and
+#: no second descent from its own point (decision 0143).
 HOPELESS_DELTA_CHI2 = 1000.0
 
 #: A competing basin whose tempered Δχ² is below this is an ambiguity: warned about, carried in the
@@ -1517,8 +1518,11 @@ def search_profiles(
         flexibility = local_flexibility if isinstance(family, QuadraticFamily) else FLEXIBILITY
         return stage(family, REFINE_BIN_NM, COARSE_NODES_NM, flexibility, 0.0)
 
-    def decide(family: Family, solution: Solution) -> tuple[Solution, int]:
-        """The deciding stage's descent from a scan basin (without :func:`deepen`)."""
+    def decide(
+        family: Family, solution: Solution, leader: Solution | None = None
+    ) -> tuple[Solution, int]:
+        """The deciding stage's descent from a scan basin (without :func:`deepen`); ``leader``,
+        the best deciding descent so far."""
         deciding = deciding_stage(family)
         start = solution.x
         count = 0
@@ -1538,11 +1542,14 @@ def search_profiles(
             broadband_only
             and isinstance(family, QuadraticFamily)
             and not np.array_equal(start, solution.x)
+            and (leader is None or _behind(outcome, leader) <= HOPELESS_DELTA_CHI2)
         ):
             # A broadband lamp alone: the scan's lowest point may lie in a neighbouring minimum a
             # few nanometres away (Nikon D1x, decision 0139). The descent from the basin's own
             # point is weighed too, and kept when the scan's stands behind it by the search's
             # bar (decision 0141: kept whenever lower, two noisy scenes moved to a wrong one).
+            # Not for a basin whose descent stands hopelessly behind the best one so far, as its
+            # scan about it is skipped (decisions 0076, 0143).
             own = deciding.descend(solution.x)
             count += own.evaluations
             if _behind(outcome, own) > AMBIGUITY_DELTA_CHI2:
@@ -1580,7 +1587,9 @@ def search_profiles(
         if not broadband_only and _behind(solution, basins[0][1]) > HOPELESS_DELTA_CHI2:
             hopeless.append((family, solution))
             continue
-        outcome, count = decide(family, solution)
+        outcome, count = decide(
+            family, solution, min((o for _, o in decided), key=lambda o: o.cost, default=None)
+        )
         evaluations += count
         decided.append((family, outcome))
     # Every basin's descent first, then the scan about each one (:func:`deepen`) unless it is
