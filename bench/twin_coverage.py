@@ -471,7 +471,7 @@ def main() -> None:
             # interleaving, else the plain sums.
             values, note, aliasing = resolved_direct(*resolved_args, **resolved_kwargs)
             if values is None and note is None:
-                return None, extraction.FIT_FAILED, 0.0
+                return None, extraction.FIT_FAILED, None
             return values, note, aliasing
 
         extraction._resolved_direct = everywhere

@@ -42,8 +42,9 @@ from calib.image.profiles.geometry import (
 ALIASING_LIMIT = 0.005
 """Below this first harmonic of the spot's slit image at the plane pitch (its Fourier transform at
 ``1/pitch`` over its integral, :func:`_aliasing`), the plane's plain sum × pitch² is the spot's
-integral to better than ≈ 1 % (the harmonic enters twice, once per side), so the sum is kept, that
-bound in its σ; above it the direct RGB comes from the Bayer interleaving or the slit-image fit."""
+integral to better than ≈ 1 % (the harmonic enters twice, once per side), so the sum is kept, its
+aliasing's RMS over the spot's phase in its σ (:func:`_plain_sum_aliasing`); above it the direct
+RGB comes from the Bayer interleaving or the slit-image fit."""
 
 
 FIT_FAILED = "the slit-image fit failed"
@@ -397,9 +398,16 @@ def _extract_direct(
     # interleaving reads the spot, a bound on that term is in its σ (decision 0134).
     narrow = note is not None and note != FIT_FAILED
     smooth = resolved is None and note is None
-    if smooth:
-        # The plain sums' aliasing bound, ±2 × the harmonic per plane, is in their σ.
-        variance = variance + (2.0 * aliasing * direct) ** 2
+    if smooth and aliasing is not None:
+        # The plain sums' aliasing over the spot's unknown sub-pixel phase is in their σ, as its
+        # RMS over that phase (decision 0148).
+        relative = _plain_sum_aliasing(
+            *aliasing,
+            image.pixel_pitch_px,
+            lengths,
+            _slit_tilt(angle, across_axis),
+        )
+        variance = variance + (relative * direct) ** 2
     interleaved = (
         None
         if narrow or smooth
@@ -435,6 +443,51 @@ def _extract_direct(
             "or widen the slit"
         )
     return direct, np.sqrt(variance), background, spread, note
+
+
+def _plain_sum_aliasing(
+    half_width: float, blur: float, pitch: float, lengths: list[FloatArray], tilt: float
+) -> FloatArray:
+    """Per channel: the RMS, relative to the value, of a plane's plain-sum aliasing error over the
+    spot's unknown sub-pixel phase (decision 0148), for the slit image :func:`_resolved_direct`
+    fitted (``half_width``, ``blur``) at the dispersion's ``tilt`` (:func:`_slit_tilt`);
+    ``lengths``: each plane's sums across the slit per plane line along it.
+
+    A plane sampling the spot every ``pitch`` pixels in both directions sums it to its integral ×
+    (1 + 2 Σ Re[F(k)/F(0) e^{iφ_k}]) over the sampling's reciprocal lattice (Poisson summation in
+    two dimensions); the first harmonics rule:
+
+    - ``(1/pitch, 0)`` across the columns: :func:`_aliasing` of the fitted slit image (the fit is
+      made to the column sums, the slit summed along its length).
+    - ``(0, 1/pitch)`` along the slit: its ends, which fall between the plane lines at a phase of
+      their own (not in the σ before). A length ``L`` (the equivalent length, sum over peak) of
+      rectangle has there ``|sin(π L/pitch)|/(π L/pitch)``, times the blur's factor (the fitted
+      blur: the same lens along the slit as across it).
+
+    Each error is ``2|F| cos φ`` at its own unknown phase; over a uniform phase its RMS is
+    ``√2 |F|`` (a cosine's RMS is 1/√2 of its amplitude), which is what goes into the σ: the
+    bound ``2|F|`` counted as one σ states it √2× too wide, and the error never passes ±√2 σ. The
+    ends' ``|sin(π L/pitch)|`` depends on where the length falls between whole pitches, which the
+    equivalent length does not tell to a fraction of a pitch: over that unknown it has RMS 1/√2
+    too, so their share is ``pitch/(π L)`` × the blur's factor. A Bayer G plane averages two
+    diagonal sites, which cancels both harmonics (the diagonal ones, a product of both factors,
+    are left): the one-site planes' share over-states it, harmlessly. R's and B's sites sit half a
+    period apart, so their errors have opposite signs: a colour ratio of the two errs twice as
+    much, which a σ per channel does not say (as before). Where the slit is tilted against the
+    columns, the fitted blur also holds the tilt's smear across them, so the ends' share is
+    under-stated there (decision 0148)."""
+    cosine = 1.0 / math.hypot(1.0, tilt)
+    across = _aliasing(half_width, blur, pitch)
+    blur_factor = math.exp(-2.0 * math.pi**2 * blur**2 * cosine**2 / pitch**2)
+    relative = np.full(len(lengths), math.sqrt(2.0) * across)  # no length measured: no ends
+    for channel, profile in enumerate(lengths):
+        total = float(profile.sum())
+        peak = float(profile.max()) if profile.size else 0.0
+        if total > 0 and peak > 0:
+            length = pitch * total / peak
+            ends = blur_factor * min(1.0, pitch / (math.pi * length * cosine))
+            relative[channel] = math.hypot(math.sqrt(2.0) * across, ends)
+    return relative
 
 
 def _column_sums(
@@ -670,7 +723,7 @@ def _resolved_direct(
     site_offsets: tuple[float, float, float],
     pitch: float,
     half_size: float,
-) -> tuple[FloatArray | None, str | None, float]:
+) -> tuple[FloatArray | None, str | None, tuple[float, float] | None]:
     """Per channel: the spot's integral from one slit-image shape shared by the channels.
 
     Each colour plane samples the spot every ``pitch`` sensor pixels at its own offset, so the
@@ -688,18 +741,19 @@ def _resolved_direct(
     and blur together) is smaller than :data:`ALIASING_LIMIT`; the fitted slit image narrower than
     one plane pitch (then no channel resolves its edges); the fit failed. The second item says why
     a sharp spot kept its plain sum (its colour may then be off), ``None`` otherwise; the third is
-    the fitted harmonic where the plain sum is kept as exact (its aliasing bound), else 0.
+    the fitted slit image's half-width and blur where the plain sum is kept as exact (for its
+    aliasing's σ, :func:`_plain_sum_aliasing`), else ``None``.
     """
     from scipy.optimize import least_squares  # deferred like the other scipy imports
 
     if pitch <= 1.0:
-        return None, None, 0.0
+        return None, None, None
     u = np.concatenate([column[0] for column in columns])
     total = np.concatenate([column[1] for column in columns])
     sigma = np.sqrt(np.concatenate([column[2] for column in columns]))
     channel = np.concatenate([np.full(column[0].size, k) for k, column in enumerate(columns)])
     if u.size < 8 or not np.all(np.isfinite(total)) or not np.all(sigma > 0):
-        return None, None, 0.0
+        return None, None, None
     weights = 1.0 / sigma
 
     def amplitudes(shape: FloatArray) -> FloatArray:
@@ -727,7 +781,7 @@ def _resolved_direct(
 
     level = np.clip(total, 0.0, None)
     if float(level.sum()) <= 0:
-        return None, None, 0.0
+        return None, None, None
     mean_u = float((u * level).sum() / level.sum())
     spread = math.sqrt(max(float(((u - mean_u) ** 2 * level).sum() / level.sum()), 0.25))
     # A rectangle of half-width h has an RMS width h/√3; start at that with a third of a pitch blur.
@@ -735,15 +789,15 @@ def _resolved_direct(
     try:
         fit = least_squares(residuals, start, method="lm", x_scale=np.array([1.0, 0.3, 0.3]))
     except (ValueError, np.linalg.LinAlgError):
-        return None, FIT_FAILED, 0.0
+        return None, FIT_FAILED, None
     centre, half_width, blur = fit.x[0], math.exp(fit.x[1]), math.exp(fit.x[2])
     if not fit.success or not np.all(np.isfinite(fit.x)) or abs(centre) > half_size:
-        return None, FIT_FAILED, 0.0
+        return None, FIT_FAILED, None
     if 2.0 * half_width > 2.0 * half_size:
-        return None, FIT_FAILED, 0.0
+        return None, FIT_FAILED, None
     aliasing = _aliasing(half_width, blur, pitch)
     if aliasing < ALIASING_LIMIT:
-        return None, None, aliasing
+        return None, None, (half_width, blur)
     if 2.0 * half_width < pitch:
         return (
             None,
@@ -751,10 +805,10 @@ def _resolved_direct(
                 f"the slit image is {2.0 * half_width:.1f} px wide and sharp (blur σ "
                 f"{blur:.2f} px), narrower than the colour planes' {pitch:g} px pitch"
             ),
-            0.0,
+            None,
         )
     shape = seen(centre, half_width, blur)
-    return np.asarray(amplitudes(shape) * 2.0 * half_width * pitch, dtype=np.float64), None, 0.0
+    return np.asarray(amplitudes(shape) * 2.0 * half_width * pitch, dtype=np.float64), None, None
 
 
 def _aliasing(half_width: float, blur: float, pitch: float) -> float:
