@@ -17,12 +17,15 @@ following by half, as the grids move it) that raises the deciding cost by the se
 (:data:`~calib.wavelength.profile_search.AMBIGUITY_DELTA_CHI2`, tempered by the fit's reduced χ²),
 from the descent's curvature ``JᵀJ``. Where that half-width is below half the grid's step, a valley as
 narrow as the answer's fits between two of its points; there the ends are scanned again over the
-same reach at the deciding profile's bin (1 nm: the finest shift that profile resolves), ranked on
-the same flexible response at the scan refinement's bins (the ranking the deciding stage uses), and
-the deciding stage descends from the grid's few lowest local minima that lie outside the answer's
-valley. A valley found that way is the answer when it leads the deciding stage by the search's bar
-(decision 0141's rule for a second descent in that stage); the answer it replaces stays a candidate,
-so the search's ambiguity rule weighs it as any other basin.
+same reach at the deciding profile's bin (1 nm: the finest shift that profile resolves), costed on
+the same flexible response at the scan refinement's bins (the view the deciding stage ranks its
+grid on), and the deciding stage descends from the grid's lowest local minimum outside the answer's
+valley. The valley found is the answer only where the search, had its scan held it, would have
+answered with it unwarned: ahead by the broadband bar
+(:data:`~calib.wavelength.profile_search.BROADBAND_AMBIGUITY_DELTA_CHI2`) on the deciding stage and
+by :data:`~calib.wavelength.profile_search.AMBIGUITY_DELTA_CHI2` on the final one (decision 0139's
+rule for the coarse view's rival). The answer it replaces stays a basin, so the search's own σ and
+warning rules weigh it.
 """
 
 from __future__ import annotations
