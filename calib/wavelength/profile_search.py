@@ -1621,6 +1621,16 @@ def search_profiles(
         decided.append((family, outcome))
     # Basins that the finer fit merged are one.
     decided = _distinct(decided, pixel_range, MAX_BASINS)
+    if broadband_only and isinstance(decided[0][0], QuadraticFamily):
+        # A valley narrower than the deciding scan's step (decision 0145).
+        from calib.wavelength.hidden_valleys import hidden_valleys
+
+        ranking = stage(decided[0][0], GLOBAL_BIN_NM, COARSE_NODES_NM, local_flexibility, 0.0)
+        last = stage(decided[0][0], FINAL_BIN_NM, FINE_NODES_NM, FLEXIBILITY, 0.0, final=True)
+        decided, count = hidden_valleys(
+            decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
+        )
+        evaluations += count
     # A profile holds the whole first order: the best basin that spans the grid is the answer (a
     # test camera's best basin ended at 688 nm and the estimate failed); the others stay
     # candidates, and with none spanning it the check below says so.
