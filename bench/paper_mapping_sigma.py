@@ -1,19 +1,21 @@
 """Where the paper protocol's searched mappings err most, and how many of their stated σ that is.
 
-For every searched mapping of :func:`calib.evaluation.synthetic.run_protocol` (the paper's
-variants, same seeds as ``calib synthetic``), one row: the largest error over the working grid
-(nm), the wavelength and pixel where it is, whether that pixel lies within the reach of the lines
-that hold the mapping (``QuadraticMapping.line_reach``, decision 0127) or past it, the mapping's
-stated per-pixel σ there (``sigma_nm``, what every consumer reads), the error in units of it, the
-largest |error|/σ over the grid, the share of grid pixels within ±2σ, the family, the warning codes
-and the reference wavelengths of the matched lines. The summary counts mappings more than 3 nm off
-and, of them, those neither warned nor covered (|error| > 3σ at the worst pixel): a silent wrong
-answer is one the stated σ does not cover and no warning names.
+For every searched mapping of :func:`calib.evaluation.synthetic.run_protocol`'s scenes (the
+paper's variants, the same seeds as ``calib synthetic``: a subset of cameras or noise levels
+renders the same scenes), one row: the largest error over the working grid (nm), the wavelength
+and pixel where it is, whether that pixel lies within the reach of the lines that hold the
+mapping (``QuadraticMapping.line_reach``, decision 0127) or past it, the mapping's stated
+per-pixel σ there (``sigma_nm``, what every consumer reads), the error in units of it, the
+largest |error|/σ over the grid, the share of grid pixels within ±2σ, the family, the warning
+codes, the matched-line table (reference nm @ pixel, ``x`` when unused, residual nm) and the
+search's profile evaluations. The summary counts mappings more than 3 nm off and, of them, those
+neither warned nor covered (|error| > 3σ at the worst pixel): a silent wrong answer is one the
+stated σ does not cover and no warning names.
 
 Tuning choices may look at ``--split validation`` only; ``--split test`` is for the report.
 
     python bench/paper_mapping_sigma.py --data-dir $D --split validation --variant LED+Flu \\
-        --noise 0.01,0.03 --seed 0 --csv out.csv
+        --run-noise 0.01,0.03 --seed 0 --csv out.csv
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ COVERED_SIGMAS = 3.0
 
 COLUMNS = (
     "camera,variant,noise,worst_nm,worst_at_nm,worst_px,where,sigma_nm,err_over_sigma,"
-    "max_err_over_sigma,within_2sigma,family,codes,reach_nm,curvature,lines"
+    "max_err_over_sigma,within_2sigma,family,codes,reach_nm,curvature,lines,evaluations"
 )
 
 
@@ -86,7 +88,8 @@ def row_of(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> 
         f'"{row.camera}",{row.variant},{row.noise:g},{error[k]:.3f},{truth[inside][k]:.1f},'
         f"{p[k]:.1f},{where},{sigma[k]:.3f},{error[k] / sigma[k]:.2f},"
         f"{np.max(error / sigma):.2f},{np.mean(error <= 2 * sigma):.3f},"
-        f'{details.get("family", "")},"{codes}",{reach_text},{curvature},"{lines}"'
+        f'{details.get("family", "")},"{codes}",{reach_text},{curvature},"{lines}",'
+        f"{details.get('evaluations', '')}"
     )
 
 
