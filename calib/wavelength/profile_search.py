@@ -122,6 +122,10 @@ UNKNOWN_FOCAL_LENGTHS_PX = tuple(float(f) for f in np.geomspace(800.0, 40000.0, 
 #: somewhere) carried to the deciding stage.
 SCAN_MINIMA = 4
 MAX_BASINS = 3
+#: Quadratic family with line lamps that cannot place their lines: the best basin's red end is
+#: moved by these (nm) — the local scan's half width (:data:`LOCAL_SCAN`) and twice it, either
+#: way — and descended from on the deciding profile (decision 0149).
+RED_END_PROBE_NM = (-2 * LOCAL_SCAN[0], -LOCAL_SCAN[0], LOCAL_SCAN[0], 2 * LOCAL_SCAN[0])
 #: With a line lamp, a scan basin whose refined χ² is this far behind the best one (tempered by
 #: the best one's reduced χ²) gets no more descents, only its cost in the deciding stage. On the
 #: speed bench's LED + FL2 scenes of 35 training cameras (leave-one-out basis) the 59 basins
@@ -1356,6 +1360,10 @@ def search_profiles(
     # Before the spectra are matched to the camera's resolution (which drops their bandwidth).
     scale_nm = spectrometer_scale_sigma_nm(lamps)
     measured = lamps
+    line_lamps = [lamp for lamp in lamps if lamp.kind == "fluorescent"]
+    unplaced_lines = bool(line_lamps) and all(
+        lamp.spectrum_bandwidth_nm is None and coarse_spectrum(lamp) for lamp in line_lamps
+    )
     lamps = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
 
     families: list[Family] = []
@@ -1631,6 +1639,22 @@ def search_profiles(
             decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
         )
         evaluations += count
+    if unplaced_lines and isinstance(decided[0][0], QuadraticFamily):
+        # Line lamps whose spectra cannot place their lines (coarse tables, decision 0121) hold
+        # the mapping only to their lines' nodes, and nothing holds the quadratic's red end
+        # past them: the deciding profile has minima there a few nanometres apart that the
+        # scan's basins miss (decision 0149). Descents from the best basin with its red end
+        # moved by the local scan's reach weigh them: kept as candidates, the answer if lower.
+        family, outcome = decided[0]
+        red = int(np.argmax(family.wavelengths(np.array(pixel_range), outcome.x)))
+        red_index = 0 if red == 0 else len(outcome.x) - 1
+        for shift in RED_END_PROBE_NM:
+            start = outcome.x.copy()
+            start[red_index] += shift
+            probed = deciding_stage(family).descend(start)
+            evaluations += probed.evaluations
+            decided.append((family, probed))
+        decided = _distinct(decided, pixel_range, MAX_BASINS)
     # A profile holds the whole first order: the best basin that spans the grid is the answer (a
     # test camera's best basin ended at 688 nm and the estimate failed); the others stay
     # candidates, and with none spanning it the check below says so.
