@@ -1,6 +1,8 @@
 """Shared pieces of the serial driver tests: a small lamp bank and timing constants.
 
-Timeouts are short so that every fault ends quickly; emulators run 100× faster than the instruments.
+A deadline the test expects to pass is short, so that every such fault ends quickly; a deadline a
+reply is due within is long, so that an emulator thread starved on a loaded machine is not taken for a
+fault. Emulators run 100× faster than the instruments.
 """
 
 from __future__ import annotations
@@ -11,12 +13,17 @@ from collections.abc import Callable
 import numpy as np
 
 from calib.core.spectra import Spectrum
+from drivers.base import DeviceTimeout
 from mocks.lamps import LampBank, VirtualLamp
 
 #: Emulated durations are multiplied by this.
 TIME_SCALE = 0.01
-#: Command deadline used against emulators.
+#: Command deadline where the test is about a reply that never comes (or comes too late).
 FAST_TIMEOUT_S = 0.4
+#: Command deadline where a reply is due: a reply that comes is read at once, so this costs nothing,
+#: and a loaded machine (CI, a parallel suite) can starve an emulator thread for longer than
+#: FAST_TIMEOUT_S, which would turn a reply into a spurious timeout.
+REPLY_TIMEOUT_S = 5.0
 #: Per-test ceiling for tests that inject faults (pytest-timeout): none may hang.
 FAULT_TEST_TIMEOUT_S = 15
 
@@ -55,3 +62,8 @@ def settled(condition: Callable[[], bool], deadline_s: float = SETTLE_DEADLINE_S
             return False
         time.sleep(0.005)
     return True
+
+
+def deadline_for(expected: type[Exception]) -> float:
+    """The command deadline for a fault test expecting ``expected``: short only where it is a timeout."""
+    return FAST_TIMEOUT_S if issubclass(expected, DeviceTimeout) else REPLY_TIMEOUT_S

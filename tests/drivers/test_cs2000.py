@@ -35,6 +35,7 @@ from tests.drivers.serial_rig import (
     FAULT_TEST_TIMEOUT_S,
     RED_PEAK_NM,
     TIME_SCALE,
+    deadline_for,
     settled,
     two_lamp_bank,
 )
@@ -283,10 +284,10 @@ def test_bad_options_are_refused(options: dict[str, str], message: str) -> None:
 # ------------------------------------------------------------------------ against the emulator
 
 
-def open_fast(device: PtySerialDevice, **options: str) -> Cs2000:
+def open_fast(device: PtySerialDevice, timeout_s: float = FAST_TIMEOUT_S, **options: str) -> Cs2000:
     return open_cs2000(
         device.path,
-        timeout_s=FAST_TIMEOUT_S,
+        timeout_s=timeout_s,
         completion_margin_s=0.3,
         **options,  # type: ignore[arg-type]
     )
@@ -398,7 +399,7 @@ def test_every_fault_on_a_measurement_ends_in_its_typed_error(
     bank.set_channel(2, True)
     schedule = FaultSchedule.once(fault, match)
     with start_cs2000(bank.radiance, faults=schedule, time_scale=TIME_SCALE) as device:
-        instrument = open_fast(device)
+        instrument = open_fast(device, timeout_s=deadline_for(expected))
         started = time.monotonic()
         try:
             with pytest.raises(expected):

@@ -30,6 +30,7 @@ from tests.drivers.serial_rig import (
     FAULT_TEST_TIMEOUT_S,
     RED_PEAK_NM,
     TIME_SCALE,
+    deadline_for,
     two_lamp_bank,
 )
 from tests.exchange import Exchange, expected_exchange
@@ -170,8 +171,8 @@ def bank() -> LampBank:
     return two_lamp_bank()
 
 
-def open_fast(device: PtySerialDevice) -> LcusRelayBoard:
-    return open_lcus(device.path, 4, timeout_s=FAST_TIMEOUT_S, pacing=NO_PACING)
+def open_fast(device: PtySerialDevice, timeout_s: float = FAST_TIMEOUT_S) -> LcusRelayBoard:
+    return open_lcus(device.path, 4, timeout_s=timeout_s, pacing=NO_PACING)
 
 
 def test_the_relays_decide_what_the_spectrometer_sees(bank: LampBank) -> None:
@@ -237,7 +238,7 @@ def test_every_fault_on_a_switch_ends_in_its_typed_error(
     schedule = FaultSchedule.once(fault, match, nth=nth)
     with (
         start_lcus(4, bank, faults=schedule) as relays,
-        open_fast(relays) as board,
+        open_fast(relays, timeout_s=deadline_for(expected)) as board,
         pytest.raises(expected),
     ):
         board.set(2, True)

@@ -23,7 +23,12 @@ from mocks.emulators import NumatoEmulator, start_numato
 from mocks.faults import Fault, FaultKind, FaultRule, FaultSchedule
 from mocks.lamps import LampBank
 from mocks.pty_serial import PtySerialDevice
-from tests.drivers.serial_rig import FAST_TIMEOUT_S, FAULT_TEST_TIMEOUT_S, two_lamp_bank
+from tests.drivers.serial_rig import (
+    FAST_TIMEOUT_S,
+    FAULT_TEST_TIMEOUT_S,
+    deadline_for,
+    two_lamp_bank,
+)
 from tests.exchange import Exchange, expected_exchange
 
 
@@ -199,8 +204,10 @@ def bank() -> LampBank:
     return two_lamp_bank(8)
 
 
-def open_fast(device: PtySerialDevice, channels: int = 8) -> NumatoRelayBoard:
-    return open_numato(device.path, channels, timeout_s=FAST_TIMEOUT_S)
+def open_fast(
+    device: PtySerialDevice, channels: int = 8, timeout_s: float = FAST_TIMEOUT_S
+) -> NumatoRelayBoard:
+    return open_numato(device.path, channels, timeout_s=timeout_s)
 
 
 def test_the_module_switches_the_lamps(bank: LampBank) -> None:
@@ -251,7 +258,7 @@ def test_every_fault_on_a_switch_ends_in_its_typed_error(
     schedule = FaultSchedule.once(fault, match, nth=nth)
     with (
         start_numato(8, bank, faults=schedule) as device,
-        open_fast(device) as board,
+        open_fast(device, timeout_s=deadline_for(expected)) as board,
         pytest.raises(expected),
     ):
         board.set(1, True)

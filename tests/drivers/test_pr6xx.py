@@ -33,6 +33,7 @@ from tests.drivers.serial_rig import (
     FAULT_TEST_TIMEOUT_S,
     RED_PEAK_NM,
     TIME_SCALE,
+    deadline_for,
     settled,
     two_lamp_bank,
 )
@@ -270,13 +271,17 @@ def test_an_unknown_model_is_refused() -> None:
 
 
 def open_fast(
-    device: PtySerialDevice, model: str = "PR-655", *, measure_timeout_s: float = 1.0
+    device: PtySerialDevice,
+    model: str = "PR-655",
+    *,
+    measure_timeout_s: float = 1.0,
+    timeout_s: float = FAST_TIMEOUT_S,
 ) -> Pr6xx:
     """The driver on an emulator, with short deadlines and no pacing."""
     return open_pr6xx(
         model,
         device.path,
-        timeout_s=FAST_TIMEOUT_S,
+        timeout_s=timeout_s,
         measure_timeout_s=measure_timeout_s,
         pacing=NO_PACING,
     )
@@ -393,7 +398,10 @@ def start_faulty(bank: LampBank, fault: Fault, match: str, nth: int = 1) -> PtyS
 def test_every_fault_on_a_measurement_ends_in_its_typed_error(
     bank: LampBank, fault: Fault, expected: type[DeviceError]
 ) -> None:
-    with start_faulty(bank, fault, "M5") as device, open_fast(device) as instrument:
+    with (
+        start_faulty(bank, fault, "M5") as device,
+        open_fast(device, timeout_s=deadline_for(expected)) as instrument,
+    ):
         started = time.monotonic()
         with pytest.raises(expected):
             instrument.measure()
