@@ -33,6 +33,7 @@ from tests.drivers.serial_rig import (
     FAST_TIMEOUT_S,
     FAULT_TEST_TIMEOUT_S,
     RED_PEAK_NM,
+    REPLY_TIMEOUT_S,
     TIME_SCALE,
     deadline_for,
     settled,
@@ -283,7 +284,9 @@ def test_bad_options_are_refused(options: dict[str, str], message: str) -> None:
 # ------------------------------------------------------------------------ against the emulator
 
 
-def open_fast(device: PtySerialDevice, timeout_s: float = FAST_TIMEOUT_S, **options: str) -> Cs2000:
+def open_fast(
+    device: PtySerialDevice, timeout_s: float = REPLY_TIMEOUT_S, **options: str
+) -> Cs2000:
     return open_cs2000(
         device.path,
         timeout_s=timeout_s,
@@ -431,9 +434,10 @@ def test_a_lost_completion_cancels_the_measurement_on_the_instrument(bank: LampB
 
 @pytest.mark.timeout(FAULT_TEST_TIMEOUT_S)
 def test_an_instrument_slow_to_identify_fails_to_open(bank: LampBank) -> None:
-    schedule = FaultSchedule.once(Fault(FaultKind.LATE_REPLY, delay_s=1.0), "IDDR")
+    # Late by far more than the deadline: a loaded machine cannot stall the driver past it.
+    schedule = FaultSchedule.once(Fault(FaultKind.LATE_REPLY, delay_s=6.0), "IDDR")
     with (
         start_cs2000(bank.radiance, faults=schedule, time_scale=TIME_SCALE) as device,
         pytest.raises(DeviceTimeout),
     ):
-        open_fast(device)
+        open_fast(device, timeout_s=FAST_TIMEOUT_S)

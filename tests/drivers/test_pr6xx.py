@@ -31,6 +31,7 @@ from tests.drivers.serial_rig import (
     FAST_TIMEOUT_S,
     FAULT_TEST_TIMEOUT_S,
     RED_PEAK_NM,
+    REPLY_TIMEOUT_S,
     TIME_SCALE,
     deadline_for,
     settled,
@@ -273,11 +274,11 @@ def open_fast(
     device: PtySerialDevice,
     model: str = "PR-655",
     *,
-    measure_timeout_s: float = 1.0,
-    timeout_s: float = FAST_TIMEOUT_S,
+    measure_timeout_s: float = REPLY_TIMEOUT_S,
+    timeout_s: float = REPLY_TIMEOUT_S,
     transcript: ListTranscript | None = None,
 ) -> Pr6xx:
-    """The driver on an emulator, with short deadlines and no pacing."""
+    """The driver on an emulator, with no pacing (a test expecting a timeout shortens a deadline)."""
     return open_pr6xx(
         model,
         device.path,
@@ -402,7 +403,9 @@ def test_every_fault_on_a_measurement_ends_in_its_typed_error(
 ) -> None:
     with (
         start_faulty(bank, fault, "M5") as device,
-        open_fast(device, timeout_s=deadline_for(expected)) as instrument,
+        open_fast(
+            device, timeout_s=deadline_for(expected), measure_timeout_s=deadline_for(expected)
+        ) as instrument,
         pytest.raises(expected) as caught,
     ):
         instrument.measure()
@@ -424,6 +427,7 @@ def test_a_late_reply_is_discarded_and_the_next_measurement_succeeds(bank: LampB
     ):
         with pytest.raises(DeviceTimeout):
             pr.measure()
+        pr.measure_timeout_s = REPLY_TIMEOUT_S  # the next reply is due
         # The runner backs off before a retry; here the late reply is waited for until it is on the
         # line, so that the next measurement must drop it rather than take it for its own.
         assert settled(lambda: pr._transport._port.in_waiting > 0)  # type: ignore[attr-defined]
@@ -437,10 +441,12 @@ def test_a_late_reply_is_discarded_and_the_next_measurement_succeeds(bank: LampB
 @pytest.mark.timeout(FAULT_TEST_TIMEOUT_S)
 def test_only_the_scheduled_command_fails(bank: LampBank) -> None:
     with start_faulty(bank, Fault(FaultKind.NO_REPLY), "M5", nth=2) as device:
-        with open_fast(device, measure_timeout_s=0.3) as instrument:
+        with open_fast(device) as instrument:
             instrument.measure()
+            instrument.measure_timeout_s = FAST_TIMEOUT_S  # this reply never comes
             with pytest.raises(DeviceTimeout):
                 instrument.measure()
+            instrument.measure_timeout_s = REPLY_TIMEOUT_S
             instrument.measure()
         injected = device.emulator.faults.injected  # type: ignore[attr-defined]
     assert [(fault.label, fault.fault.kind) for fault in injected] == [("M5", FaultKind.NO_REPLY)]
@@ -452,7 +458,7 @@ def test_an_instrument_that_ignores_photo_fails_to_open_and_releases_the_port(
 ) -> None:
     with start_faulty(bank, Fault(FaultKind.NO_REPLY), "PHOTO") as device:
         with pytest.raises(DeviceTimeout):
-            open_fast(device)
+            open_fast(device, timeout_s=FAST_TIMEOUT_S)
         with open_fast(device) as instrument:  # the port was released: it can be opened again
             assert instrument.identify().model == "PR-655"
 
