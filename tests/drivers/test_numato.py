@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
@@ -26,6 +25,7 @@ from mocks.pty_serial import PtySerialDevice
 from tests.drivers.serial_rig import (
     FAST_TIMEOUT_S,
     FAULT_TEST_TIMEOUT_S,
+    REPLY_TIMEOUT_S,
     deadline_for,
     two_lamp_bank,
 )
@@ -205,7 +205,7 @@ def bank() -> LampBank:
 
 
 def open_fast(
-    device: PtySerialDevice, channels: int = 8, timeout_s: float = FAST_TIMEOUT_S
+    device: PtySerialDevice, channels: int = 8, timeout_s: float = REPLY_TIMEOUT_S
 ) -> NumatoRelayBoard:
     return open_numato(device.path, channels, timeout_s=timeout_s)
 
@@ -244,7 +244,8 @@ def test_a_one_relay_module(bank: LampBank) -> None:
     ("fault", "match", "nth", "expected"),
     [
         (Fault(FaultKind.NO_REPLY), "relay on", 1, DeviceTimeout),
-        (Fault(FaultKind.LATE_REPLY, delay_s=1.0), "relay readall", 2, DeviceTimeout),
+        # Late by far more than the deadline: a loaded machine cannot stall the driver past it.
+        (Fault(FaultKind.LATE_REPLY, delay_s=6.0), "relay readall", 2, DeviceTimeout),
         (Fault(FaultKind.GARBLED_REPLY), "relay readall", 2, ProtocolError),
         (Fault(FaultKind.TRUNCATED_REPLY), "relay readall", 2, ReplyTimeout),
         (Fault(FaultKind.ERROR_CODE), "relay on", 1, StateMismatch),
@@ -268,9 +269,10 @@ def test_every_fault_on_a_switch_ends_in_its_typed_error(
 def test_the_module_recovers_after_a_lost_reply(bank: LampBank) -> None:
     schedule = FaultSchedule.once(Fault(FaultKind.NO_REPLY), "relay on")
     with start_numato(8, bank, faults=schedule) as device, open_fast(device) as board:
+        board.timeout_s = FAST_TIMEOUT_S  # this reply never comes
         with pytest.raises(DeviceTimeout):
             board.set(1, True)
-        time.sleep(0.05)
+        board.timeout_s = REPLY_TIMEOUT_S
         assert board.state()[0] is True  # the command was executed, only its reply was lost
         board.set(1, False)
         assert bank.channel_states()[0] is False

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
 import serial
 
 from mocks.pty_serial import DeviceLink, EmulatorCrashed, PtySerialDevice
+from tests.drivers.serial_rig import REPLY_TIMEOUT_S, settled
 
 
 class Echo:
@@ -44,7 +44,8 @@ class Broken:
 
 
 def open_port(path: str) -> serial.Serial:
-    return serial.Serial(path, 9600, timeout=1.0)
+    """A port whose reads wait for replies that come (a loaded machine may starve the emulator)."""
+    return serial.Serial(path, 9600, timeout=REPLY_TIMEOUT_S)
 
 
 def test_a_driver_opens_the_device_path_and_talks_through_it() -> None:
@@ -109,10 +110,7 @@ def test_unplug_drops_the_link_and_the_path(tmp_path: Path) -> None:
     with PtySerialDevice(Echo(), symlink=link) as device:
         port = open_port(device.path)
         device.unplug()
-        deadline = time.monotonic() + 2.0
-        while not device.unplugged and time.monotonic() < deadline:
-            time.sleep(0.005)
-        assert device.unplugged
+        assert settled(lambda: device.unplugged)
         assert not link.exists()
         with pytest.raises(serial.SerialException):
             port.read(1)
@@ -123,9 +121,7 @@ def test_an_emulator_that_raises_is_reported_at_stop() -> None:
     device = PtySerialDevice(Broken()).start()
     port = open_port(device.path)
     port.write(b"x")
-    deadline = time.monotonic() + 2.0
-    while not device.errors and time.monotonic() < deadline:
-        time.sleep(0.005)
+    assert settled(lambda: bool(device.errors))
     port.close()
     with pytest.raises(EmulatorCrashed, match="broken emulator raised 1 error") as caught:
         device.stop()
