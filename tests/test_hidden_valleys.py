@@ -102,6 +102,36 @@ def test_a_valley_wide_enough_for_the_scan_is_left_alone():
     assert decided[0][1] is leader
 
 
+class _ShallowLandscape(_Landscape):
+    """The other valley's floor costs more than the leader's own point on the grid's view."""
+
+    def costs(self, x: np.ndarray) -> np.ndarray:
+        out = super().costs(x)
+        near_hidden = np.max(np.abs(np.atleast_2d(x) - HIDDEN), axis=1)
+        return np.asarray(np.where(near_hidden < 0.75, 2000.0 + 100.0 * near_hidden, out))
+
+
+def test_no_descent_from_a_valley_the_grid_puts_above_the_leader():
+    """Decision 0145's addendum: the fine grid is costed, but its lowest minimum outside the
+    leader's valley costs more than the leader's own point by more than a valley as narrow as the
+    leader's can rise at half a step from its bottom, so no descent is made."""
+    family = QuadraticFamily(PIXELS)
+    landscape = _ShallowLandscape()
+    # Half-width ≈ 0.45 nm (below half the 2 nm step); the reach, 4·(1.25·100)·0.5² = 125, is
+    # short of the other valley's 1 000 above the leader's point.
+    leader = _solution(LEADER, 1000.0, 100.0)
+    decided, count = hidden_valleys(
+        [(family, leader)],
+        landscape,  # type: ignore[arg-type]
+        landscape,  # type: ignore[arg-type]
+        landscape,  # type: ignore[arg-type]
+        PIXELS,
+    )
+    assert count == (2 * int(LOCAL_SCAN[0]) + 1) ** 2
+    assert not landscape.descents
+    assert decided[0][1] is leader
+
+
 @pytest.mark.slow
 @pytest.mark.shared_data
 def test_the_sony_rx1_prediction_paper_scene_is_no_longer_silently_wrong(shared_camera_data):

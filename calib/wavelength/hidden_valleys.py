@@ -20,7 +20,9 @@ narrow as the answer's fits between two of its points; there the ends are scanne
 same reach at the deciding profile's bin (1 nm: the finest shift that profile resolves), costed on
 the same flexible response at the scan refinement's bins (the view the deciding stage ranks its
 grid on), and the deciding stage descends from the grid's lowest local minimum outside the answer's
-valley. The valley found is the answer only where the search, had its scan held it, would have
+valley, when that minimum is within what a valley as narrow as the answer's and deeper could cost
+half a step from its bottom (decision 0145's addendum: ~3 in 4 checks on the validation split's
+paper scenes make no descent). The valley found is the answer only where the search, had its scan held it, would have
 answered with it unwarned: ahead by the broadband bar
 (:data:`~calib.wavelength.profile_search.BROADBAND_AMBIGUITY_DELTA_CHI2`) on the deciding stage and
 by :data:`~calib.wavelength.profile_search.AMBIGUITY_DELTA_CHI2` on the final one (decision 0139's
@@ -52,14 +54,23 @@ def valley_half_width_nm(solution: Solution, delta_chi2: float) -> float:
     profile (the middle following by half) that raises the cost by ``delta_chi2`` times the fit's
     reduced χ² (at least 1), by the fit's curvature ``JᵀJ`` (the quadratic family's parameters are
     the wavelengths at the ends and the middle)."""
-    normal = solution.jacobian.T @ solution.jacobian
     dof = max(solution.residual.size - solution.x.size, 1)
     temper = max(solution.cost / dof, 1.0)
     widths = []
-    for direction in (np.array([1.0, 0.5, 0.0]), np.array([0.0, 0.5, 1.0])):
-        curvature = float(direction @ normal @ direction)
+    for curvature in _end_curvatures(solution):
         widths.append(math.sqrt(delta_chi2 * temper / curvature) if curvature > 0 else math.inf)
     return min(widths)
+
+
+def _end_curvatures(solution: Solution) -> tuple[float, float]:
+    """The cost's curvature (per nm²) for a shift of either end of the profile, the middle
+    following by half, from the fit's ``JᵀJ``."""
+    normal = solution.jacobian.T @ solution.jacobian
+    blue, red = (
+        float(direction @ normal @ direction)
+        for direction in (np.array([1.0, 0.5, 0.0]), np.array([0.0, 0.5, 1.0]))
+    )
+    return blue, red
 
 
 def hidden_valleys(
@@ -101,6 +112,13 @@ def hidden_valleys(
     )
     costs = ranking.costs(points)
     count = points.shape[0]
+    # The grid is centred on the leader: its middle point is the leader's own cost on this view.
+    own = float(costs[points.shape[0] // 2])
+    # A valley as narrow as the leader's and deeper has a grid point at most half a step from its
+    # bottom in each end, which costs at most (√a + √b)²·h² ≤ 4·max(a, b)·h² above that bottom
+    # (a, b the ends' curvatures): a start that costs more than the leader's own point by that
+    # reach cannot be in one (decision 0145, addendum).
+    reach = 4.0 * max(_end_curvatures(leader)) * (0.5 * REFINE_BIN_NM) ** 2
     probe = np.linspace(pixel_range[0], pixel_range[1], 9)
     seen: list[FloatArray] = [family.wavelengths(probe, leader.x)]
     starts: list[FloatArray] = []
@@ -111,6 +129,9 @@ def hidden_valleys(
         if any(np.max(np.abs(placed - other)) <= AMBIGUITY_MIN_DISTANCE_NM for other in seen):
             continue
         seen.append(placed)
+        # The minima are lowest first: none after one beyond the reach is within it.
+        if not costs[index] < own + reach:
+            break
         starts.append(point)
         if len(starts) == EXTRA_DESCENTS:
             break
