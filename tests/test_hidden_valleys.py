@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from calib.wavelength.families import QuadraticFamily
-from calib.wavelength.hidden_valleys import hidden_valleys, valley_half_width_nm
+from calib.wavelength.hidden_valleys import valley_half_width_nm
 from calib.wavelength.least_squares import Solution
-from calib.wavelength.profile_search import AMBIGUITY_DELTA_CHI2, LOCAL_SCAN
+from calib.wavelength.profile_search import AMBIGUITY_DELTA_CHI2, LOCAL_SCAN, hidden_valleys
 
 PIXELS = (0.0, 799.0)
 LEADER = np.array([385.0, 550.0, 715.0])
