@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import os
 from collections import defaultdict
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +50,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.datasets import makabe2025_split
 from calib.core.grating_file import GratingEfficiency
 from calib.core.metrics import relative_error
 from calib.core.result import EstimateResult
@@ -62,11 +60,11 @@ from calib.evaluation.synthetic import (
     SyntheticScene,
     run_protocol,
 )
-from calib.evaluation.synthetic_splits import validation_cameras
+from calib.evaluation.synthetic_splits import paper_split_cameras
 from calib.evaluation.validation.report import MAPPING_FAILURE_NM
 from calib.methods import PriorOptions, estimate
 from calib.methods.uncertainty import BudgetSettings
-from calib.model.bases import CameraBasis, default_camera_basis
+from calib.model.bases import CameraBasis
 
 WIDTH = 2.0
 SPECTROMETER = ("spectrometer scale", "spectrometer bandwidth")
@@ -209,15 +207,7 @@ def main() -> None:
         "--mappings-csv", default=None, help="one row per mapping (with --mappings)"
     )
     args = parser.parse_args()
-    basis: CameraBasis | Callable[[str], CameraBasis]
-    if args.split == "validation":
-        cameras, basis, _source = validation_cameras(args.data_dir)
-    else:
-        _train, test = makabe2025_split(args.data_dir)
-        basis = default_camera_basis(
-            DEFAULT_GRID, data_dir=args.data_dir, exclude=[r.name for r in test]
-        )
-        cameras = [(r.camera, r.sensitivity) for r in test]
+    cameras, basis = paper_split_cameras(args.split, args.data_dir)
     cameras = cameras[: args.cameras] if args.cameras else cameras
     records: list[Record] = []
     experiment: dict[tuple[float, str], list[float]] = defaultdict(list)

@@ -31,7 +31,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from calib.core.datasets import makabe2025_split
 from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import QuadraticMapping
 from calib.core.result import EstimateResult
@@ -43,9 +42,8 @@ from calib.evaluation.synthetic import (
     evaluate_scene,
     render_scene,
 )
-from calib.evaluation.synthetic_splits import validation_cameras
+from calib.evaluation.synthetic_splits import paper_split_cameras
 from calib.evaluation.validation.report import MAPPING_FAILURE_NM
-from calib.model.bases import CameraBasis, default_camera_basis
 
 #: An error within this many stated σ at its worst pixel is covered (a 3σ excursion over a few
 #: hundred correlated pixels is what a right σ shows now and then; beyond it the σ is wrong).
@@ -111,15 +109,7 @@ def main() -> None:
     parser.add_argument("--cameras", default=None, help="comma-separated camera-name substrings")
     parser.add_argument("--csv", default=None)
     args = parser.parse_args()
-    basis: CameraBasis | Callable[[str], CameraBasis]
-    if args.split == "validation":
-        cameras, basis, _source = validation_cameras(args.data_dir)
-    else:
-        _train, test = makabe2025_split(args.data_dir)
-        basis = default_camera_basis(
-            DEFAULT_GRID, data_dir=args.data_dir, exclude=[r.name for r in test]
-        )
-        cameras = [(r.camera, r.sensitivity) for r in test]
+    cameras, basis = paper_split_cameras(args.split, args.data_dir)
     wanted = args.cameras.split(",") if args.cameras else []
     noise_levels = [float(v) for v in args.noise.split(",")]
     run = [float(v) for v in args.run_noise.split(",")] if args.run_noise else noise_levels

@@ -20,9 +20,10 @@ from calib.wavelength import profile_search
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
 
 
-def test_the_deciding_stage_also_descends_from_the_basins_own_point(monkeypatch):
-    """The deciding scan's lowest point is forced to its far corner (+6 nm at both ends): the
-    deciding stage descends from it and then from the basin's own point (the scan's centre)."""
+def _far_corner_scene(monkeypatch: Any) -> tuple[Any, Any, list[np.ndarray], list[np.ndarray]]:
+    """A D65-only scene whose deciding scans' lowest point is forced to their far corner (+6 nm at
+    both ends), with the scans' grids and the descents' starts recorded: (prior, observation,
+    scans, starts)."""
     prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
     camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
     observation = render_observation(
@@ -63,6 +64,13 @@ def test_the_deciding_stage_also_descends_from_the_basins_own_point(monkeypatch)
     monkeypatch.setattr(profile_search, "_quadratic_points", points)
     monkeypatch.setattr(profile_search, "_shortlisted_costs", shortlist)
     monkeypatch.setattr(profile_search.StageFit, "refine", refine)
+    return prior, observation, scans, starts
+
+
+def test_the_deciding_stage_also_descends_from_the_basins_own_point(monkeypatch):
+    """The deciding scan's lowest point is forced to its far corner (+6 nm at both ends): the
+    deciding stage descends from it and then from the basin's own point (the scan's centre)."""
+    prior, observation, scans, starts = _far_corner_scene(monkeypatch)
     # Every basin, however far behind (decision 0143 skips those hopelessly behind).
     monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", np.inf)
     found = profile_search.search_profiles([observation], prior, DEFAULT_GRID)
@@ -82,46 +90,7 @@ def test_a_basin_hopelessly_behind_gets_no_descent_from_its_own_point(monkeypatc
     """Decision 0143: the own-point descent is skipped for a basin whose descent stands more than
     ``HOPELESS_DELTA_CHI2`` behind the best deciding descent so far (here every later basin: the
     bar below zero); the first basin, with nothing ahead of it, still gets one."""
-    prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
-    camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
-    observation = render_observation(
-        colour_lamp("D65"),
-        camera,
-        mapping=TRUTH,
-        pixel=800,
-        grating_efficiency=random_efficiency(np.random.default_rng(11)),
-        rng=np.random.default_rng(3),
-        kind="led",
-    ).observation
-
-    scans: list[np.ndarray] = []
-    original_points = profile_search._quadratic_points
-
-    def points(*args: Any) -> Any:
-        out = original_points(*args)
-        if sys._getframe(1).f_code.co_name == "decide":
-            scans.append(out[0])
-        return out
-
-    original_shortlist = profile_search._shortlisted_costs
-
-    def shortlist(grid: np.ndarray, coarse: Any, fine: Any, keep: int) -> Any:
-        costs, count = original_shortlist(grid, coarse, fine, keep)
-        if sys._getframe(1).f_code.co_name == "decide":
-            costs = np.array(costs, dtype=float)
-            costs[-1] = -np.inf  # the scan's lowest point: its far corner
-        return costs, count
-
-    starts: list[np.ndarray] = []
-    original_refine = profile_search.StageFit.refine
-
-    def refine(self: Any, x: np.ndarray, *args: Any, **kwargs: Any) -> Any:
-        starts.append(np.array(x, copy=True))
-        return original_refine(self, x, *args, **kwargs)
-
-    monkeypatch.setattr(profile_search, "_quadratic_points", points)
-    monkeypatch.setattr(profile_search, "_shortlisted_costs", shortlist)
-    monkeypatch.setattr(profile_search.StageFit, "refine", refine)
+    prior, observation, scans, starts = _far_corner_scene(monkeypatch)
     monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", -1.0)
     profile_search.search_profiles([observation], prior, DEFAULT_GRID)
     assert len(scans) >= 2

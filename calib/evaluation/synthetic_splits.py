@@ -9,9 +9,10 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from calib.core.datasets import makabe2025_split
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum, WavelengthGrid
 from calib.evaluation.validation.splits import load_splits
-from calib.model.bases import CameraBasis, camera_basis
+from calib.model.bases import CameraBasis, camera_basis, default_camera_basis
 
 
 def validation_cameras(
@@ -49,3 +50,18 @@ def validation_cameras(
 
     cameras = [(camera.name, camera.sensitivity) for camera in split.cameras]
     return cameras, basis_for, "training curves, each camera's own body left out of its basis"
+
+
+def paper_split_cameras(
+    split: str, data_dir: str | Path | None = None
+) -> tuple[list[tuple[str, MultiSpectrum]], CameraBasis | Callable[[str], CameraBasis]]:
+    """The paper protocol's cameras of ``split`` and their basis, on the default grid:
+    ``"validation"``, every training curve with its own body left out of its basis
+    (:func:`validation_cameras`); ``"test"``, the paper's 5 test cameras with one basis of the
+    other curves (:func:`calib.core.datasets.makabe2025_split`)."""
+    if split == "validation":
+        cameras, basis_for, _source = validation_cameras(data_dir)
+        return cameras, basis_for
+    _train, test = makabe2025_split(data_dir)
+    basis = default_camera_basis(DEFAULT_GRID, data_dir=data_dir, exclude=[r.name for r in test])
+    return [(r.camera, r.sensitivity) for r in test], basis
