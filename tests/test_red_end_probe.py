@@ -16,12 +16,6 @@ from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import FLUORESCENT_LAMP, evaluate_scene, render_scene
 from calib.evaluation.synthetic_splits import validation_cameras
-from calib.wavelength.profile_search import LOCAL_SCAN, RED_END_PROBE_NM
-
-
-def test_the_red_end_probes_reach_past_the_local_scan_both_ways() -> None:
-    assert min(RED_END_PROBE_NM) < -LOCAL_SCAN[0] + 1e-9
-    assert max(RED_END_PROBE_NM) > LOCAL_SCAN[0] - 1e-9
 
 
 @pytest.mark.slow

@@ -49,13 +49,17 @@ class Solution:
     cost: float
     evaluations: int
 
+    @property
+    def dof(self) -> int:
+        """Residual rows less parameters (at least 1): what the fit's χ² is reduced by."""
+        return max(self.residual.size - self.x.size, 1)
+
     def covariance(self, *, scale_by_fit: bool = True) -> FloatArray:
         """``(JᵀJ)⁻¹``, times the residual variance ``cost / (rows − P)`` when ``scale_by_fit``."""
         normal = self.jacobian.T @ self.jacobian
         covariance = np.linalg.pinv(normal)
         if scale_by_fit:
-            dof = max(self.residual.size - self.x.size, 1)
-            covariance = covariance * self.cost / dof
+            covariance = covariance * self.cost / self.dof
         return np.asarray(covariance, dtype=np.float64)
 
 

@@ -66,6 +66,7 @@ from calib.wavelength.profile_search import (
     basin_sigma,
     coarse_spectrum,
     deciding_shot,
+    lines_unplaced,
     prior_misfit_sigma_nm,
     search_profiles,
     spectrometer_scale_sigma_nm,
@@ -745,7 +746,7 @@ def locate_mapping(
                 # tables) holds its lines at its nodes, not their wavelengths: the fit stands.
                 lamp = fluorescent[0]
                 try:
-                    if lamp.spectrum_bandwidth_nm is None and coarse_spectrum(lamp):
+                    if lines_unplaced(lamp):
                         raise EstimationError(
                             "a coarse tabulated spectrum: the lines are its nodes"
                         )
@@ -1145,11 +1146,10 @@ def _adopted(
         entry["rms_distance_nm"] = distance(candidate.mapping)
         entry["delta_chi2_behind"] = "the search's first answer, on its deciding stage"
         others.append(entry)
-    rows = solution.residual.size
     details.update(
         candidates=[c.to_dict(pixel_range) for c in candidates] + others,
         final_cost=verdict.rival_cost,
-        reduced_chi2=verdict.rival_cost / max(rows - solution.x.size, 1),
+        reduced_chi2=verdict.rival_cost / solution.dof,
         temper=verdict.temper,
         basin_spread_nm=sigma.spread_nm,
         local_rms_nm=local_rms,

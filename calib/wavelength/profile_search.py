@@ -570,14 +570,9 @@ def binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
 # ------------------------------------------------------------------------------- the search
 
 
-def _dof(solution: Solution) -> int:
-    """Residual rows less parameters (at least 1): what a fit's χ² is reduced by."""
-    return max(solution.residual.size - solution.x.size, 1)
-
-
 def _behind(solution: Solution, leader: Solution) -> float:
     """Tempered Δχ² of ``solution`` behind ``leader`` (by the leader's reduced χ²)."""
-    return (solution.cost - leader.cost) / max(leader.cost / _dof(leader), 1.0)
+    return (solution.cost - leader.cost) / max(leader.cost / leader.dof, 1.0)
 
 
 def _distinct(
@@ -1362,9 +1357,7 @@ def search_profiles(
     scale_nm = spectrometer_scale_sigma_nm(lamps)
     measured = lamps
     line_lamps = [lamp for lamp in lamps if lamp.kind == "fluorescent"]
-    unplaced_lines = bool(line_lamps) and all(
-        lamp.spectrum_bandwidth_nm is None and coarse_spectrum(lamp) for lamp in line_lamps
-    )
+    unplaced_lines = bool(line_lamps) and all(map(lines_unplaced, line_lamps))
     lamps = [match_spectrometer(lamp, nm_per_px) for lamp in lamps]
 
     families: list[Family] = []
@@ -1647,10 +1640,11 @@ def search_profiles(
         family, outcome = decided[0]
         red = int(np.argmax(family.wavelengths(np.array(pixel_range), outcome.x)))
         red_index = 0 if red == 0 else len(outcome.x) - 1
+        deciding = deciding_stage(family)
         for shift in RED_END_PROBE_NM:
             start = outcome.x.copy()
             start[red_index] += shift
-            probed = deciding_stage(family).descend(start)
+            probed = deciding.descend(start)
             evaluations += probed.evaluations
             decided.append((family, probed))
         decided = _distinct(decided, pixel_range, MAX_BASINS)
@@ -1718,9 +1712,8 @@ def search_profiles(
     _covers(exact, pixel_range, grid)
 
     # Ambiguity: every basin's profile likelihood, tempered by the misfit of the best one.
-    rows = max(final.residual.size - final.x.size, 1)
     best_cost = decided[0][1].cost
-    temper = max(best_cost / _dof(decided[0][1]), 1.0)
+    temper = max(best_cost / decided[0][1].dof, 1.0)
     probe = np.linspace(pixel_range[0], pixel_range[1], 64)
     exact_probe = exact.wavelength_nm(probe)
     candidates_out = []
@@ -1753,7 +1746,7 @@ def search_profiles(
             stage(family, GLOBAL_BIN_NM, COARSE_NODES_NM, FLEXIBILITY, GLOBAL_SIGMA_FLOOR).costs,
             final.x,
             [
-                (solution.x, _dof(solution))
+                (solution.x, solution.dof)
                 for basin_family, solution in basins
                 if basin_family is family
             ],
@@ -1857,7 +1850,7 @@ def search_profiles(
         "n_starts": len(candidates),
         "evaluations": evaluations,
         "final_cost": final.cost,
-        "reduced_chi2": final.cost / rows,
+        "reduced_chi2": final.cost / final.dof,
         "temper": temper,
         "basin_spread_nm": spread_nm,
         "local_rms_nm": local_rms,
@@ -2117,6 +2110,13 @@ def coarse_spectrum(observation: LampObservation, limit_nm: float = COARSE_SPECT
     return max(step, bandwidth) > limit_nm
 
 
+def lines_unplaced(lamp: LampObservation) -> bool:
+    """A line lamp's spectrum cannot place its lines: a coarse table nobody measured (no stated
+    bandwidth, e.g. colour-science's 5 nm FL tables) holds them at its nodes, not their
+    wavelengths (decisions 0121, 0149)."""
+    return lamp.spectrum_bandwidth_nm is None and coarse_spectrum(lamp)
+
+
 def deciding_shot(lamps: Sequence[LampObservation], *, bandwidth_hint: bool = False) -> str:
     """The advice closing an ambiguity warning: what would decide the mapping, given what was
     shot (decision 0122). Without a line lamp: a fluorescent (line) lamp. With one whose spectrum
@@ -2284,6 +2284,7 @@ def hidden_valleys(
         if len(starts) == EXTRA_DESCENTS:
             break
     found: list[tuple[Any, Solution]] = []
+    held: Solution | None = None  # the leader settled on the final stage, once
     for start in starts:
         outcome = deciding.descend(start)
         count += outcome.evaluations
@@ -2300,8 +2301,10 @@ def hidden_valleys(
         ):
             continue
         settled = final.settle(outcome.x)
-        held = final.settle(leader.x)
-        count += settled.evaluations + held.evaluations
+        count += settled.evaluations
+        if held is None:
+            held = final.settle(leader.x)
+            count += held.evaluations
         if _behind(held, settled) > AMBIGUITY_DELTA_CHI2:
             found.append((family, outcome))
     if not found:

@@ -64,7 +64,6 @@ from calib.wavelength.profile_search import (
     GLOBAL_SIGMA_FLOOR,
     QUADRATIC_SCAN,
     StageFit,
-    _dof,
     _quadratic_points,
     _spans_grid,
     _stage,
@@ -168,7 +167,7 @@ def quadratic_coarse_view(
     verdict = coarse_view(
         view.costs,
         x,
-        [(basin.x, _dof(basin))],
+        [(basin.x, basin.dof)],
         distance,
         min_distance_nm=AMBIGUITY_MIN_DISTANCE_NM,
         threshold=AMBIGUITY_DELTA_CHI2,
@@ -242,7 +241,7 @@ def final_verdict(
     rival_cost, answer_cost = float(costs[0]), float(costs[1])
     if not (math.isfinite(rival_cost) and math.isfinite(answer_cost)):
         return None
-    temper = max(min(rival_cost, answer_cost) / _dof(solution), 1.0)
+    temper = max(min(rival_cost, answer_cost) / solution.dof, 1.0)
     delta = (answer_cost - rival_cost) / temper
     adopts = delta > AMBIGUITY_DELTA_CHI2 and _spans_grid(
         family.mapping(solution.x), pixel_range, grid

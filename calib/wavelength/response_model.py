@@ -902,8 +902,7 @@ class ResponseModel:
             squared = (self.weights**2).T  # (3, n)
             columns = [np.repeat(squared[:, :, None], pairs, axis=2)]
             if with_rhs:
-                weighted_target = (self.weights * self.target).T  # (3, n)
-                columns.append(np.repeat(weighted_target[:, :, None], width, axis=2))
+                columns.append(np.repeat(self._weighted_target[:, :, None], width, axis=2))
             cache[key] = np.ascontiguousarray(np.concatenate(columns, axis=2))
         return cache[key]
 
