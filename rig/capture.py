@@ -130,8 +130,7 @@ def run_on_station(
             session.guard = interrupts.critical
             transcripts.attach(session)
         except BaseException:
-            interrupts.enter_cleanup()
-            release_station(station, config)
+            release_station(station, config, interrupts)
             raise
         if options.on_session is not None:
             options.on_session(session)
@@ -176,8 +175,7 @@ def open_station(
         with interrupts.critical():
             station = builder(config, transcripts)
     except HaltRequested as exc:
-        interrupts.enter_cleanup()
-        lamps_off = release_station(station, config) if station is not None else False
+        lamps_off = release_station(station, config, interrupts)
         raise OpeningInterrupted(
             interrupts.stop_requested or exc.signal_name, lamps_off=lamps_off
         ) from None
@@ -193,15 +191,20 @@ def open_station(
         raise
     signal_name = interrupts.stop_requested
     if signal_name is not None:
-        interrupts.enter_cleanup()  # a second signal may not cut the switching off
-        lamps_off = release_station(station, config)
+        lamps_off = release_station(station, config, interrupts)
         raise OpeningInterrupted(signal_name, lamps_off=lamps_off)
     return station
 
 
-def release_station(station: Station, config: RigConfig) -> bool:
+def release_station(
+    station: Station | None, config: RigConfig, interrupts: InterruptController
+) -> bool:
     """Switch every lamp of an opened station off, read the board back, close the station;
-    return whether the lamps are confirmed off. Nothing of it may raise."""
+    return whether the lamps are confirmed off (``False`` with no station). Nothing of it may
+    raise, and from its start signals are only noted: a second one may not cut the switching off."""
+    interrupts.enter_cleanup()
+    if station is None:
+        return False
     try:
         return switch_off_now(station.relays, StepTimeouts.from_config(config).relays_s)
     finally:

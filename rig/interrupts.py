@@ -90,7 +90,6 @@ class InterruptController:
         self._critical_depth = 0
         self._halt_pending: str | None = None
         self._cleanup = False
-        self._halting = False
         self._previous: dict[signal.Signals, object] = {}
         self._installs = 0
 
@@ -154,10 +153,11 @@ class InterruptController:
         if not self.received:
             self.received.append(ReceivedSignal(name, time.monotonic(), "finish-step"))
             return
+        # A halt is already under way once an earlier signal was a stop-now one.
+        halting = len(self.received) > 1
         self.received.append(ReceivedSignal(name, time.monotonic(), "stop-now"))
-        if self._cleanup or self._halting:
+        if self._cleanup or halting:
             return
-        self._halting = True
         if self._critical_depth > 0:
             self._halt_pending = name
             return
