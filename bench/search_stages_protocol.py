@@ -18,7 +18,6 @@ noise draws than the full protocol's.)
 from __future__ import annotations
 
 import re
-import sys
 import time
 from collections import defaultdict
 
@@ -39,7 +38,6 @@ def stage_of(key: str) -> str:
 
 def main() -> None:
     search_stages.install()
-    sys.argv = [sys.argv[0], *sys.argv[1:]]
     started = time.process_time()
     paper_coverage.main()
     elapsed = time.process_time() - started

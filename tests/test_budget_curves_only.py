@@ -13,9 +13,8 @@ from calib.core.observations import LampObservation
 from calib.evaluation.synthetic import random_efficiency
 from calib.methods import estimate, prior_solve
 from calib.methods.prior_solve import PriorOptions, estimate_prior
-from calib.methods.stacked import whitening_stack
 from calib.methods.uncertainty import BudgetSettings, curves_only, reading_curves_only
-from calib.model.bases import CameraBasis, fallback_camera_basis, whitening
+from calib.model.bases import CameraBasis, fallback_camera_basis, whitening, whitening_stack
 from calib.model.forward import PeakFractionNoise, render_observation
 
 MAPPING = QuadraticMapping(1.5e-5, 0.40, 385.0, pixel_range=(0.0, 849.0))

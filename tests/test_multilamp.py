@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calib.core.blas import pinv_symmetric_stack
 from calib.core.datasets import colour_science_cameras, find_camera
 from calib.core.errors import InputError
 from calib.core.grating_file import read_grating_file, write_grating_file
@@ -45,7 +46,6 @@ from calib.methods.multilamp import (
     weight_score,
 )
 from calib.methods.prior_solve import PriorOptions, estimate_prior
-from calib.methods.stacked import pinv_symmetric_stack
 from calib.model.bases import CameraBasis, fallback_camera_basis
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
 

@@ -9,10 +9,9 @@ from typing import Any, cast
 
 import numpy as np
 
-from calib.core.blas import pinv_symmetric
+from calib.core.blas import pinv_symmetric, pinv_symmetric_stack
 from calib.methods.multilamp import prior_rows
 from calib.methods.solve_scope import _dataclass_shape, fingerprint, solve_scope
-from calib.methods.stacked import pinv_symmetric_stack
 from calib.model.bases import whitening
 
 

@@ -52,7 +52,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from calib.core.arrays import FloatArray
-from calib.core.blas import one_blas_thread, pinv_symmetric
+from calib.core.blas import one_blas_thread, pinv_symmetric, pinv_symmetric_stack
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
@@ -85,8 +85,13 @@ from calib.methods.responses import (
     prepared_response,
 )
 from calib.methods.solve_scope import fingerprint, recall, remember_start, reuse, warm_start
-from calib.methods.stacked import pinv_symmetric_stack, whitening_stack
-from calib.model.bases import CameraBasis, CameraPrior, fourier_basis, prior_distance
+from calib.model.bases import (
+    CameraBasis,
+    CameraPrior,
+    fourier_basis,
+    prior_distance,
+    whitening_stack,
+)
 from calib.model.gratings import PHYSICAL_KINDS, PHYSICAL_PARAMETER_RANGES, PhysicalKind
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry, find_mapping, lamps_named
@@ -437,7 +442,7 @@ def upre_scores(
 ) -> FloatArray:
     """:func:`weight_score`'s ``"upre"`` at each of ``weights``, from each weight's solution
     (residuals and Jacobians of the same shapes), every number the one it gives weight by weight:
-    the normal matrices stacked, their pseudo-inverses in one pass (:func:`calib.methods.stacked.pinv_symmetric_stack`)."""
+    the normal matrices stacked, their pseudo-inverses in one pass (:func:`calib.core.blas.pinv_symmetric_stack`)."""
     data = np.stack(data_jacobians)
     penalty = np.stack(penalty_jacobians)
     normal_data = np.matmul(np.swapaxes(data, 1, 2), data)

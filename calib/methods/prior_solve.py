@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.arrays import FloatArray
-from calib.core.blas import one_blas_thread
+from calib.core.blas import one_blas_thread, pinv_symmetric_stack
 from calib.core.errors import EstimationError, InputError
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
@@ -61,9 +61,8 @@ from calib.methods.responses import (
     lamp_data,
     prepared_response,
 )
-from calib.methods.stacked import pinv_symmetric_stack, whitening_stack
 from calib.methods.uncertainty import reading_curves_only
-from calib.model.bases import CameraBasis, CameraPrior
+from calib.model.bases import CameraBasis, CameraPrior, whitening_stack
 from calib.model.forward import WavelengthMapping
 from calib.model.linear_model import LampSystem
 

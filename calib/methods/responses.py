@@ -21,13 +21,13 @@ from typing import Literal
 import numpy as np
 
 from calib.core.arrays import FloatArray
+from calib.core.blas import pinv_symmetric_stack
 from calib.core.errors import EstimationError, InputError
 from calib.core.observations import LampObservation
 from calib.core.spectra import WavelengthGrid
 from calib.core.spectrometer_tolerance import WAVELENGTH_SCALE_NM
 from calib.methods.closed_form import prepare_matched_lamp
 from calib.methods.solve_scope import reuse
-from calib.methods.stacked import pinv_symmetric_stack
 from calib.model.forward import (
     LampOperators,
     PiecewiseLinearDensity,

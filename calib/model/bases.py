@@ -253,7 +253,11 @@ def typical_distance(
 _VARIANT_NAME = "{camera} variant {index}"
 
 
-def whitening(covariance: FloatArray, relative_floor: float = 1e-10) -> FloatArray:
+#: :func:`whitening`'s relative eigenvalue floor (of the largest eigenvalue).
+WHITENING_FLOOR = 1e-10
+
+
+def whitening(covariance: FloatArray, relative_floor: float = WHITENING_FLOOR) -> FloatArray:
     """Symmetric ``Σ^{-1/2}`` (so ``Lᵀ L = Σ⁻¹``), eigenvalues floored at ``relative_floor · max``.
 
     Robust where a Cholesky factorisation of ``Σ⁻¹`` is not: covariances built from a few curves or
@@ -262,6 +266,16 @@ def whitening(covariance: FloatArray, relative_floor: float = 1e-10) -> FloatArr
     values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
     floor = relative_floor * max(float(values.max()), 1e-300)
     return np.asarray((vectors / np.sqrt(np.maximum(values, floor))) @ vectors.T, dtype=np.float64)
+
+
+def whitening_stack(covariances: FloatArray) -> FloatArray:
+    """:func:`whitening` (its default floor) of each matrix of a stack
+    ``(k, n, n)``, to the bit, in one pass: the same symmetrisation, ``eigh``, floor (of each
+    matrix's own largest eigenvalue) and product per matrix."""
+    values, vectors = np.linalg.eigh(0.5 * (covariances + np.swapaxes(covariances, -1, -2)))
+    floor = WHITENING_FLOOR * np.maximum(values.max(axis=-1, keepdims=True), 1e-300)
+    scaled = vectors / np.sqrt(np.maximum(values, floor))[..., None, :]
+    return np.asarray(scaled @ np.swapaxes(vectors, -1, -2), dtype=np.float64)
 
 
 def ledoit_wolf_shrinkage(samples: FloatArray) -> float:
