@@ -22,26 +22,17 @@ from __future__ import annotations
 
 import argparse
 import os
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from calib.core.lamp_specs import colour_lamp
 from calib.core.mapping import QuadraticMapping
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID
-from calib.evaluation.synthetic import (
-    FLUORESCENT_LAMP,
-    SyntheticRow,
-    SyntheticScene,
-    evaluate_scene,
-    render_scene,
-)
+from calib.evaluation.synthetic import SyntheticRow, SyntheticScene, run_protocol
 from calib.evaluation.synthetic_splits import paper_split_cameras
 from calib.evaluation.validation.report import MAPPING_FAILURE_NM
 
@@ -91,13 +82,6 @@ def row_of(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> 
     )
 
 
-def _collect(into: list[EstimateResult]) -> Callable[[Any, Any, EstimateResult], None]:
-    def hook(_scene: Any, _row: Any, result: EstimateResult) -> None:
-        into.append(result)
-
-    return hook
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default=None)
@@ -113,40 +97,25 @@ def main() -> None:
     wanted = args.cameras.split(",") if args.cameras else []
     noise_levels = [float(v) for v in args.noise.split(",")]
     run = [float(v) for v in args.run_noise.split(",")] if args.run_noise else noise_levels
-    broadband, fluorescent = colour_lamp("D65"), colour_lamp(FLUORESCENT_LAMP)
     rows: list[str] = []
-    # run_protocol's loop and seeds ([seed, camera index, noise index, repeat] over the whole
-    # split and noise list), so a subset of cameras or noise levels renders the same scenes.
-    for camera_index, (name, sensitivity) in enumerate(cameras):
-        if wanted and not any(w in name for w in wanted):
-            continue
-        for noise_index, noise in enumerate(noise_levels):
-            if noise not in run:
-                continue
-            rng = np.random.default_rng([args.seed, camera_index, noise_index, 0])
-            scene = render_scene(
-                name,
-                sensitivity,
-                rng,
-                grid=DEFAULT_GRID,
-                broadband_lamp=broadband,
-                fluorescent_lamp=fluorescent,
-                noise_fraction=noise,
-            )
-            for variant in args.variant or ["LED+Flu"]:
-                captured: list[EstimateResult] = []
-                synthetic_row = evaluate_scene(
-                    scene,
-                    basis(name) if callable(basis) else basis,
-                    variant,
-                    grid=DEFAULT_GRID,
-                    noise=noise,
-                    on_result=_collect(captured),
-                )
-                line = row_of(scene, synthetic_row, captured[0]) if captured else None
-                if line is not None:
-                    rows.append(line)
-                    print(line, flush=True)
+
+    def keep(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> None:
+        line = row_of(scene, row, result)
+        if line is not None:
+            rows.append(line)
+            print(line, flush=True)
+
+    # run_protocol's seeds run over the whole split and noise list; ``only`` renders the subset's
+    # very scenes.
+    run_protocol(
+        cameras,
+        basis,
+        variants=args.variant or ["LED+Flu"],
+        noise_levels=noise_levels,
+        seed=args.seed,
+        on_result=keep,
+        only=lambda name, noise: noise in run and (not wanted or any(w in name for w in wanted)),
+    )
     off = [r for r in rows if float(r.split('",')[1].split(",")[2]) > MAPPING_FAILURE_NM]
     fields = [r.split('",', 1)[1].split(",") for r in off]
     uncovered = [

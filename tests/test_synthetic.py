@@ -106,6 +106,23 @@ def test_multilamp_variants_see_the_same_scene_and_report_coverage(tmp_path):
     assert multi.mapping_relative_error is None and np.isfinite(multi.relative_error)
 
 
+def test_a_subset_of_the_protocol_renders_the_very_scenes_the_whole_one_does(tmp_path):
+    basis, cameras = exact_basis(tmp_path)
+    from tests.synthetic_cameras import as_spectrum
+
+    pairs = [("first", as_spectrum(cameras[0])), ("second", as_spectrum(cameras[1]))]
+    settings = {"variants": ["true mapping"], "noise_levels": [0.0, 0.01], "budget": None}
+    whole = run_protocol(pairs, basis, **settings)
+    subset = run_protocol(
+        pairs, basis, only=lambda name, noise: name == "second" and noise > 0, **settings
+    )
+    assert [(r.camera, r.noise) for r in subset] == [("second", 0.01)]
+    # The scene's seed is its place in the whole protocol, not in the subset: the same noise draw.
+    assert subset[0].relative_error == whole[-1].relative_error
+    first_noisy = next(r for r in whole if r.camera == "first" and r.noise > 0)
+    assert subset[0].relative_error != first_noisy.relative_error
+
+
 def test_cli_rejects_an_unknown_variant():
     result = CliRunner().invoke(
         build_app(), ["synthetic", "--offline", "--variant", "multilamp: 9 lamps"]

@@ -526,6 +526,7 @@ def run_protocol(
     multilamp_options: MultilampOptions = MultilampOptions(),
     budget: BudgetSettings | None = DEFAULT_BUDGET,
     on_result: ResultHook | None = None,
+    only: Callable[[str, float], bool] | None = None,
 ) -> list[SyntheticRow]:
     """Run the protocol over cameras × noise levels × repeats × variants (see module docstring).
 
@@ -566,6 +567,8 @@ def run_protocol(
     rows: list[SyntheticRow] = []
     for camera_index, (name, sensitivity) in enumerate(cameras):
         for noise_index, noise in enumerate(noise_levels):
+            if only is not None and not only(name, noise):
+                continue
             for repeat in range(repeats):
                 rng = np.random.default_rng([seed, camera_index, noise_index, repeat])
                 scene = render_scene(
