@@ -111,10 +111,15 @@ def test_a_subset_of_the_protocol_renders_the_very_scenes_the_whole_one_does(tmp
     from tests.synthetic_cameras import as_spectrum
 
     pairs = [("first", as_spectrum(cameras[0])), ("second", as_spectrum(cameras[1]))]
-    settings = {"variants": ["true mapping"], "noise_levels": [0.0, 0.01], "budget": None}
-    whole = run_protocol(pairs, basis, **settings)
+    noise = [0.0, 0.01]
+    whole = run_protocol(pairs, basis, variants=["true mapping"], noise_levels=noise, budget=None)
     subset = run_protocol(
-        pairs, basis, only=lambda name, noise: name == "second" and noise > 0, **settings
+        pairs,
+        basis,
+        variants=["true mapping"],
+        noise_levels=noise,
+        budget=None,
+        only=lambda name, level: name == "second" and level > 0,
     )
     assert [(r.camera, r.noise) for r in subset] == [("second", 0.01)]
     # The scene's seed is its place in the whole protocol, not in the subset: the same noise draw.
