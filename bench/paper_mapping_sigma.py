@@ -29,6 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
+from calib.core.arrays import FloatArray
 from calib.core.mapping import QuadraticMapping
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID
@@ -46,10 +47,11 @@ COLUMNS = (
 )
 
 
-def row_of(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> str | None:
-    mapping = result.mapping
-    if row.mapping_relative_error is None or not isinstance(mapping, QuadraticMapping):
-        return None
+def mapping_errors(
+    scene: SyntheticScene, mapping: QuadraticMapping
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The pixels whose true wavelength lies on the working grid, that wavelength, the mapping's
+    |error| (nm) there and its stated per-pixel σ (``sigma_nm``; its RMS where it states none)."""
     pixel = scene.broadband.observation.pixel
     truth = scene.mapping.wavelength_nm(pixel)
     inside = (truth >= DEFAULT_GRID.start_nm) & (truth <= DEFAULT_GRID.stop_nm)
@@ -58,6 +60,14 @@ def row_of(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> 
     sigma = mapping.sigma_nm(p)
     if sigma is None:
         sigma = np.full(p.shape, float(mapping.wavelength_rms_nm or np.nan))
+    return p, truth[inside], error, np.asarray(sigma, dtype=np.float64)
+
+
+def row_of(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> str | None:
+    mapping = result.mapping
+    if row.mapping_relative_error is None or not isinstance(mapping, QuadraticMapping):
+        return None
+    p, truth, error, sigma = mapping_errors(scene, mapping)
     k = int(np.argmax(error))
     details = getattr(mapping, "details", None) or {}
     reach = getattr(mapping, "line_reach", None)
@@ -74,7 +84,7 @@ def row_of(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> 
     )
     codes = " ".join(details.get("warning_codes", ()))
     return (
-        f'"{row.camera}",{row.variant},{row.noise:g},{error[k]:.3f},{truth[inside][k]:.1f},'
+        f'"{row.camera}",{row.variant},{row.noise:g},{error[k]:.3f},{truth[k]:.1f},'
         f"{p[k]:.1f},{where},{sigma[k]:.3f},{error[k] / sigma[k]:.2f},"
         f"{np.max(error / sigma):.2f},{np.mean(error <= 2 * sigma):.3f},"
         f'{details.get("family", "")},"{codes}",{reach_text},{curvature},"{lines}",'
