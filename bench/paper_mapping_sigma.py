@@ -100,6 +100,7 @@ def main() -> None:
     parser.add_argument("--noise", default="0,0.003,0.01,0.03")
     parser.add_argument("--run-noise", default=None, help="the noise levels to run (of --noise)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--lamp", default="D65", help="the broadband lamp (a colour-science name)")
     parser.add_argument("--cameras", default=None, help="comma-separated camera-name substrings")
     parser.add_argument("--csv", default=None)
     args = parser.parse_args()
@@ -123,6 +124,7 @@ def main() -> None:
         variants=args.variant or ["LED+Flu"],
         noise_levels=noise_levels,
         seed=args.seed,
+        broadband_lamp=args.lamp,
         on_result=keep,
         only=lambda name, noise: noise in run and (not wanted or any(w in name for w in wanted)),
     )
