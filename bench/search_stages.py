@@ -28,9 +28,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 from wavelength_speed import PROTOCOL_VARIANTS, paper_scene, protocol_estimates
 
+from calib import wavelength
 from calib.core.observations import LampObservation
 from calib.methods import estimate
-from calib import wavelength
 from calib.wavelength import locate, profile_search
 
 BOOK: dict[str, list[float]] = defaultdict(lambda: [0, 0, 0.0])
