@@ -1,5 +1,6 @@
 """Decision 0141: with a broadband lamp alone, the quadratic deciding stage also descends from the
-basin's own point, not only from its local scan's lowest point."""
+basin's own point, not only from its local scan's lowest point; decision 0150: once, when that
+lowest point is the basin's own."""
 
 from __future__ import annotations
 
@@ -20,10 +21,12 @@ from calib.wavelength import profile_search
 TRUTH = QuadraticMapping(-2.2e-5, 0.43, 383.0, pixel_range=(0.0, 799.0))
 
 
-def _far_corner_scene(monkeypatch: Any) -> tuple[Any, Any, list[np.ndarray], list[np.ndarray]]:
+def _far_corner_scene(
+    monkeypatch: Any, at_centre: bool = False
+) -> tuple[Any, Any, list[np.ndarray], list[np.ndarray]]:
     """A D65-only scene whose deciding scans' lowest point is forced to their far corner (+6 nm at
-    both ends), with the scans' grids and the descents' starts recorded: (prior, observation,
-    scans, starts)."""
+    both ends; ``at_centre``: to their centre, the basin's own point), with the scans' grids and
+    the descents' starts recorded: (prior, observation, scans, starts)."""
     prior = fallback_camera_basis(exclude=["Canon EOS 5D Mark II"]).prior()
     camera = find_camera(colour_science_cameras(), "Canon EOS 5D Mark II").sensitivity
     observation = render_observation(
@@ -51,7 +54,8 @@ def _far_corner_scene(monkeypatch: Any) -> tuple[Any, Any, list[np.ndarray], lis
         costs, count = original_shortlist(grid, coarse, fine, keep)
         if sys._getframe(1).f_code.co_name == "decide":
             costs = np.array(costs, dtype=float)
-            costs[-1] = -np.inf  # the scan's lowest point: its far corner
+            # The scan's lowest point: its far corner (or its centre).
+            costs[grid.shape[0] // 2 if at_centre else -1] = -np.inf
         return costs, count
 
     starts: list[np.ndarray] = []
@@ -99,3 +103,17 @@ def test_a_basin_hopelessly_behind_gets_no_descent_from_its_own_point(monkeypatc
         for grid in scans
     ]
     assert own == [True] + [False] * (len(scans) - 1)
+
+
+def test_a_basin_whose_scan_is_lowest_at_its_own_point_descends_once(monkeypatch):
+    """Decision 0150: when the deciding scan's lowest point is its centre (the basin's own point up
+    to the mapping's round trip), the stage descends from it once, not again from the basin."""
+    prior, observation, scans, starts = _far_corner_scene(monkeypatch, at_centre=True)
+    monkeypatch.setattr(profile_search, "HOPELESS_DELTA_CHI2", np.inf)
+    profile_search.search_profiles([observation], prior, DEFAULT_GRID)
+    assert scans
+    for grid in scans:
+        centre = grid[grid.shape[0] // 2]
+        near = [s for s in starts if np.allclose(s, centre, rtol=0.0, atol=1e-9)]
+        assert len(near) == 1
+        np.testing.assert_array_equal(near[0], centre)

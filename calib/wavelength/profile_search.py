@@ -1537,13 +1537,19 @@ def search_profiles(
             ranking = stage(family, GLOBAL_BIN_NM, COARSE_NODES_NM, local_flexibility, 0.0)
             local_costs, costed = _shortlisted_costs(local, ranking, deciding, DECIDING_SHORTLIST)
             count += costed
-            start = local[int(np.argmin(local_costs))]
+            lowest = int(np.argmin(local_costs))
+            start = local[lowest]
+            # The grid's middle point is the basin's own (through the mapping and back: equal
+            # up to rounding, so ``solution.x`` itself is not compared; decision 0150).
+            from_own = lowest == local.shape[0] // 2
+        else:
+            from_own = True
         outcome = deciding.descend(start)
         count += outcome.evaluations
         if (
             broadband_only
             and isinstance(family, QuadraticFamily)
-            and not np.array_equal(start, solution.x)
+            and not from_own
             and (leader is None or _behind(outcome, leader) <= HOPELESS_DELTA_CHI2)
         ):
             # A broadband lamp alone: the scan's lowest point may lie in a neighbouring minimum a
