@@ -64,6 +64,7 @@ interleaving read.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import tempfile
 import time
@@ -79,6 +80,7 @@ from calib.core.spectrometer_tolerance import BANDWIDTH_TOLERANCE, WAVELENGTH_SC
 from calib.evaluation.synthetic import efficiency_coverage
 from calib.methods.uncertainty import MODEL_FLOOR, TOLERANCE_SIGMA, BudgetSettings
 from calib.model.bases import default_camera_basis
+from calib.model.gratings import PHYSICAL_PARAMETER_NAMES
 from mocks.bench.deviation import deviation_from_record
 from rig.capture import run_capture
 from rig.config import RigConfig, load_config
@@ -184,6 +186,15 @@ class Row:
     spot_px: tuple[float, float] | None = None
     direct_spots: int = 0
     interleaved_spots: int = 0
+    #: The station seed's offset the twin was captured with (its spectrometer's and flaws' draw).
+    seed_offset: int = 0
+    #: Where the estimate fitted the twin's own physical family (decision 0151): the fitted
+    #: parameter less the twin's, its stated σ (the fit's, jackknife included) and the direct
+    #: equations' χ² per degree of freedom. η's error is this one parameter's, so η's statistical
+    #: band is honest when ``eta_parameter_error / eta_parameter_sigma`` has RMS ≈ 1 over twins.
+    eta_parameter_error: float = math.nan
+    eta_parameter_sigma: float = math.nan
+    direct_chi2_per_dof: float = math.nan
 
 
 def twin_config(
@@ -272,6 +283,29 @@ def normalisation_diagnosis(
     }
 
 
+def physical_parameter_scores(record: object, grating: object) -> tuple[float, float, float]:
+    """The estimate's physical parameter less the twin's, its stated σ, and the direct equations'
+    χ²/dof (``diagnostics["grating_model"]`` against the twin's ``grating`` record); NaNs where the
+    estimate did not fit the twin's own family."""
+    nan = (math.nan, math.nan, math.nan)
+    if not isinstance(record, dict) or not isinstance(grating, dict):
+        return nan
+    kind = grating.get("kind")
+    if record.get("model") != kind or kind not in PHYSICAL_PARAMETER_NAMES:
+        return nan
+    name = PHYSICAL_PARAMETER_NAMES[kind]
+    parameters = record.get("parameters") or {}
+    if name not in parameters or name not in grating:
+        return nan
+    equations = int(record.get("direct_equations", 0))
+    chi2 = float(record.get("direct_chi2", math.nan))
+    return (
+        float(parameters[name]) - float(grating[name]),
+        float(parameters.get(f"{name}_sigma", math.nan)),
+        chi2 / (equations - 2) if equations > 2 else math.nan,
+    )
+
+
 def judge(
     session: Path,
     out: Path,
@@ -328,6 +362,10 @@ def judge(
         eta_budget = dict(budget.get("grating_efficiency", {}).get("rms", {}))
         eta_components = {name: float(value) / eta_error_rms for name, value in eta_budget.items()}
     eta_record = result.diagnostics.get("grating_model")
+    # The twin's physical sheet as the truth file records it (its ``grating`` entry).
+    parameter_error, parameter_sigma, chi2_per_dof = physical_parameter_scores(
+        eta_record, json.loads((session / "twin-truth.json").read_text()).get("grating")
+    )
     error_rms = float(np.sqrt(np.mean(error**2)))
     on_grid = grid_projection(truth.wavelength_nm, truth.values, wavelength)
     on_grid = on_grid / on_grid.max()
@@ -358,6 +396,9 @@ def judge(
         "eta_sigma_ratio": eta_ratio,
         "eta_components": eta_components,
         "eta_model": eta_record.get("chosen") if isinstance(eta_record, dict) else None,
+        "eta_parameter_error": parameter_error,
+        "eta_parameter_sigma": parameter_sigma,
+        "direct_chi2_per_dof": chi2_per_dof,
         **normalisation_diagnosis(curves.values, sigma, reference, wavelength),
         "re_grid_truth": relative_error(curves.values, on_grid),
         "coverage_grid_truth": float(np.mean(np.abs(curves.values - on_grid) <= 2.0 * sigma)),
@@ -559,6 +600,7 @@ def main() -> None:
                 row = rows[-1]
                 row.spot_px = spot_px
                 row.direct_spots, row.interleaved_spots = spots["direct"], spots["interleaved"]
+                row.seed_offset = seed
                 spots.update(direct=0, interleaved=0)
                 print(
                     f"{split:10s} {camera:24s} floor {floor:<6g} {row.method:9s} "
@@ -610,6 +652,14 @@ def main() -> None:
                         ),
                         flush=True,
                     )
+                if not math.isnan(row.eta_parameter_error):
+                    print(
+                        f"    η's parameter: fitted − twin's {row.eta_parameter_error:+.5f}, "
+                        f"stated σ {row.eta_parameter_sigma:.5f} (error/σ "
+                        f"{row.eta_parameter_error / row.eta_parameter_sigma:+.2f}); direct "
+                        f"equations' χ²/dof {row.direct_chi2_per_dof:.3f}",
+                        flush=True,
+                    )
     print(
         "\n| split | floor | cameras | mean RE ×10⁻² | mean ±2σ coverage | median σ/err | verdicts "
         "| mean η ±2σ coverage | median η σ/err | mean ±2σ at the common scale "
@@ -650,6 +700,8 @@ def main() -> None:
             + ", ".join(medians)
         )
     for split in ("validation", "test"):
+        print_parameter_scores(split, [r for r in rows if r.split == split])
+    for split in ("validation", "test"):
         chosen = [r for r in rows if r.split == split]
         if chosen:
             print(
@@ -658,6 +710,27 @@ def main() -> None:
                 f"{sum(r.interleaved_spots > 0 for r in chosen)} of {len(chosen)} estimates)"
             )
     print(f"estimate CPU {sum(r.cpu_s for r in rows):.0f} s for {len(rows)} estimates")
+
+
+def print_parameter_scores(split: str, rows: list[Row]) -> None:
+    """η's one parameter against the twins' (decision 0151), per station seed (the twins of one
+    seed share its spectrometer and flaws, so their mean error is that draw's): the mean and
+    spread of the fitted − true parameter, the stated σ, RMS(error/σ) (1 if calibrated) and the
+    direct equations' pooled χ²/dof, whose square root times the median σ is the spread the
+    equations' own scatter predicts."""
+    fitted = [r for r in rows if not math.isnan(r.eta_parameter_error)]
+    for seed in sorted({r.seed_offset for r in fitted}):
+        chosen = [r for r in fitted if r.seed_offset == seed]
+        error = np.array([r.eta_parameter_error for r in chosen])
+        sigma = np.array([r.eta_parameter_sigma for r in chosen])
+        chi2 = float(np.mean([r.direct_chi2_per_dof for r in chosen]))
+        print(
+            f"{split}: η's parameter at seed + {seed} ({len(chosen)} twins): fitted − true mean "
+            f"{np.mean(error):+.5f}, SD {np.std(error):.5f}; stated σ median {np.median(sigma):.5f}; "
+            f"RMS(error/σ) {np.sqrt(np.mean((error / sigma) ** 2)):.2f}, within 2σ "
+            f"{100 * np.mean(np.abs(error) <= 2 * sigma):.0f} %; direct χ²/dof pooled {chi2:.3f} "
+            f"(median σ × √ that {np.median(sigma) * math.sqrt(chi2):.5f})"
+        )
 
 
 def _count_direct_readings() -> dict[str, int]:

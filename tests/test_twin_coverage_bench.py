@@ -62,3 +62,21 @@ def test_the_extra_validation_twins_are_other_rawtoaces_bodies_never_a_test_body
     assert "Nikon D5100" not in names and "ARRI D21" not in names
     # a fixed draw: the first N of a longer draw, the same on every run
     assert bench.extra_validation_cameras(5) == drawn[:5]
+
+
+def test_the_physical_parameter_is_scored_against_the_twins_own_sheet() -> None:
+    """Decision 0151: η's one parameter, fitted − true, its σ and the direct χ² per degree of
+    freedom; nothing where the estimate fitted another family than the twin's sheet."""
+    bench = _bench()
+    record = {
+        "model": "sinusoidal",
+        "parameters": {"peak_phase_rad": 1.1987, "peak_phase_rad_sigma": 0.002},
+        "direct_chi2": 0.8,
+        "direct_equations": 6,
+    }
+    sheet = {"kind": "sinusoidal", "peak_phase_rad": 1.2, "reference_nm": 550.0}
+    error, sigma, chi2 = bench.physical_parameter_scores(record, sheet)
+    np.testing.assert_allclose((error, sigma, chi2), (-0.0013, 0.002, 0.2), atol=1e-12)
+    blazed = {**record, "model": "blazed"}
+    assert np.isnan(bench.physical_parameter_scores(blazed, sheet)).all()
+    assert np.isnan(bench.physical_parameter_scores(None, sheet)).all()
