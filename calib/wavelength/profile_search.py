@@ -1631,7 +1631,7 @@ def search_profiles(
             decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
         )
         evaluations += count
-        # A valley a descent from either end's reach finds (decision 0152).
+        # An end too far out, the truth's valley inwards of it (decision 0152).
         decided, count = end_probes(
             decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
         )
