@@ -1637,6 +1637,11 @@ def search_profiles(
             decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
         )
         evaluations += count
+        # An end too far out, the truth's valley inwards of it (decision 0152).
+        decided, count = end_probes(
+            decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
+        )
+        evaluations += count
     if unplaced_lines and isinstance(decided[0][0], QuadraticFamily):
         # Line lamps whose spectra cannot place their lines (coarse tables, decision 0121) hold
         # the mapping only to their lines' nodes, and nothing holds the quadratic's red end
@@ -2316,3 +2321,83 @@ def hidden_valleys(
     if not found:
         return list(decided), count
     return _distinct([*found, *decided], pixel_range, MAX_BASINS + len(found)), count
+
+
+#: At most this many rounds of :func:`end_probes` (a round that moves the leader starts another).
+END_PROBE_ROUNDS = 2
+
+
+def end_probes(
+    decided: Sequence[tuple[Any, Solution]],
+    ranking: StageFit,
+    deciding: StageFit,
+    final: StageFit,
+    pixel_range: tuple[float, float],
+) -> tuple[list[tuple[Any, Solution]], int]:
+    """The deciding stage's basins (``decided``, lowest first) with a valley found by moving
+    either end of the leader inwards to the deciding scan's reach and descending (decision 0152),
+    and the evaluations made.
+
+    With a broadband lamp alone and no 0th order, the deciding profile has minima a few nanometres
+    apart at the ends of the profile, where the lamp's signal through the camera fades and holds
+    an end only weakly; they are narrower than the end grids' step. On the validation split's
+    paper scenes under lamps A and LED-B3 the search's answer put one end 6–13 nm too far out
+    (the red end redder, or the blue end bluer), while the truth's valley inwards of it fitted the
+    deciding profile by Δχ² 60–300 better and no grid point lay in it. Each end is moved inwards
+    (towards the middle's wavelength) by :data:`LOCAL_SCAN`'s half-width, the edge of what the
+    deciding scan reached (the middle following by half, as the grids move it), and sketched on
+    ``ranking`` (the flexible response at the scan refinement's bins, where the deciding scan
+    ranks its grid). The lowest sketch below the leader there, more than
+    :data:`AMBIGUITY_MIN_DISTANCE_NM` from it, is descended on ``deciding``; that valley joins the
+    basins, and leads them, when it is below the leader there and the final stage (``final``)
+    prefers it by :data:`AMBIGUITY_DELTA_CHI2` (tempered; decision 0139's rule for a rival). The
+    old leader stays a basin, so the search's σ and warning rules weigh the two. A round that
+    moved the leader starts another from the new one, at most :data:`END_PROBE_ROUNDS`.
+    """
+    basins = list(decided)
+    count = 0
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+    held: Solution | None = None  # the leader settled on the final stage, once
+    for _ in range(END_PROBE_ROUNDS):
+        family, leader = basins[0]
+        assert isinstance(family, QuadraticFamily)
+        placed = family.wavelengths(probe, leader.x)
+        sketches = []
+        # The parameters are the wavelengths at the profile's first pixel, middle and last.
+        for end in (0, 2):
+            shift = LOCAL_SCAN[0] * float(np.sign(leader.x[1] - leader.x[end]))
+            start = leader.x.copy()
+            start[end] += shift
+            start[1] += 0.5 * shift
+            sketches.append(ranking.sketch(start))
+            count += sketches[-1].evaluations
+        # Costed with the leader in one call, each at its own prior scale (as descents compare).
+        costs = ranking.costs(np.stack([leader.x, *(sketch.x for sketch in sketches)]))
+        count += costs.size
+        lower = [
+            (float(cost), sketch.x)
+            for cost, sketch in zip(costs[1:], sketches, strict=True)
+            if cost < costs[0]
+            and np.max(np.abs(family.wavelengths(probe, sketch.x) - placed))
+            > AMBIGUITY_MIN_DISTANCE_NM
+        ]
+        if not lower:
+            break
+        valley = deciding.descend(min(lower, key=lambda item: item[0])[1])
+        count += valley.evaluations
+        if not (
+            valley.cost < leader.cost
+            and np.max(np.abs(family.wavelengths(probe, valley.x) - placed))
+            > AMBIGUITY_MIN_DISTANCE_NM
+        ):
+            break
+        settled = final.settle(valley.x)
+        count += settled.evaluations
+        if held is None:
+            held = final.settle(leader.x)
+            count += held.evaluations
+        if not _behind(held, settled) > AMBIGUITY_DELTA_CHI2:
+            break
+        held = settled
+        basins = _distinct([(family, valley), *basins], pixel_range, MAX_BASINS + 1)
+    return basins, count
