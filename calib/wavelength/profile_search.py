@@ -2244,6 +2244,27 @@ def _report(
     return mapping, local_rms
 
 
+@dataclass
+class _FinalJudge:
+    """Whether the final stage prefers a valley to the deciding stage's leader by the search's bar
+    (tempered :data:`AMBIGUITY_DELTA_CHI2`, decision 0139's rule for a rival), the leader settled
+    there once (``held``); ``evaluations``, the settles' count so far."""
+
+    final: StageFit
+    leader: Solution
+    held: Solution | None = None
+    evaluations: int = 0
+
+    def prefers(self, x: FloatArray) -> Solution | None:
+        """The valley at ``x`` settled on the final stage when that stage prefers it, else None."""
+        settled = self.final.settle(x)
+        self.evaluations += settled.evaluations
+        if self.held is None:
+            self.held = self.final.settle(self.leader.x)
+            self.evaluations += self.held.evaluations
+        return settled if _behind(self.held, settled) > AMBIGUITY_DELTA_CHI2 else None
+
+
 def hidden_valleys(
     decided: Sequence[tuple[Any, Solution]],
     ranking: StageFit,
@@ -2295,7 +2316,7 @@ def hidden_valleys(
         if len(starts) == EXTRA_DESCENTS:
             break
     found: list[tuple[Any, Solution]] = []
-    held: Solution | None = None  # the leader settled on the final stage, once
+    judge = _FinalJudge(final, leader)
     for start in starts:
         outcome = deciding.descend(start)
         count += outcome.evaluations
@@ -2311,13 +2332,9 @@ def hidden_valleys(
             and _behind(leader, outcome) > BROADBAND_AMBIGUITY_DELTA_CHI2
         ):
             continue
-        settled = final.settle(outcome.x)
-        count += settled.evaluations
-        if held is None:
-            held = final.settle(leader.x)
-            count += held.evaluations
-        if _behind(held, settled) > AMBIGUITY_DELTA_CHI2:
+        if judge.prefers(outcome.x) is not None:
             found.append((family, outcome))
+    count += judge.evaluations
     if not found:
         return list(decided), count
     return _distinct([*found, *decided], pixel_range, MAX_BASINS + len(found)), count
@@ -2357,7 +2374,7 @@ def end_probes(
     basins = list(decided)
     count = 0
     probe = np.linspace(pixel_range[0], pixel_range[1], 9)
-    held: Solution | None = None  # the leader settled on the final stage, once
+    judge = _FinalJudge(final, basins[0][1])
     for _ in range(END_PROBE_ROUNDS):
         family, leader = basins[0]
         assert isinstance(family, QuadraticFamily)
@@ -2391,13 +2408,9 @@ def end_probes(
             > AMBIGUITY_MIN_DISTANCE_NM
         ):
             break
-        settled = final.settle(valley.x)
-        count += settled.evaluations
-        if held is None:
-            held = final.settle(leader.x)
-            count += held.evaluations
-        if not _behind(held, settled) > AMBIGUITY_DELTA_CHI2:
+        settled = judge.prefers(valley.x)
+        if settled is None:
             break
-        held = settled
+        judge = _FinalJudge(final, valley, held=settled, evaluations=judge.evaluations)
         basins = _distinct([(family, valley), *basins], pixel_range, MAX_BASINS + 1)
-    return basins, count
+    return basins, count + judge.evaluations
