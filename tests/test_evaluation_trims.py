@@ -110,3 +110,28 @@ def test_a_rising_bands_skipped_mask_and_signs_give_what_a_mixed_batch_gives():
         assert np.array_equal(alone.derivative[0], mixed.derivative[row, :, :width])
     # The falling mapping's light is |ΔC| (its sign applied), the rising one's ΔC.
     assert mixed.values[0].sum() > 0.0 and mixed.values[1].sum() > 0.0
+
+
+def test_one_points_quadratic_validity_on_floats_is_the_batchs():
+    """:meth:`QuadraticFamily.valid` for one point (Python floats) answers as for a batch of one:
+    rising, falling, folding, flat, infinite and NaN points (decision 0153)."""
+    from calib.wavelength.families import QuadraticFamily
+
+    family = QuadraticFamily((0.0, 600.0))
+    points = np.array(
+        [
+            [400.0, 550.0, 700.0],
+            [700.0, 550.0, 400.0],
+            [400.0, 720.0, 450.0],
+            [500.0, 500.0, 500.0],
+            [400.0, math.inf, 700.0],
+            [400.0, math.nan, 700.0],
+            [400.0, 400.0 + 1e-9, 700.0],
+        ]
+    )
+    batch = family.valid(points)
+    assert batch.tolist() == [True, True, False, False, False, False, False]
+    for point, expected in zip(points, batch, strict=True):
+        one = family.valid(point)
+        assert one.shape == (1,) and one.dtype == np.bool_
+        assert bool(one[0]) == bool(expected)

@@ -1249,7 +1249,13 @@ class ResponseModel:
         model = self if self.penalty_weight is not None else self.reference(edges_nm)
         assert model.penalty_weight is not None
         referenced = model.referenced
-        if referenced is not None and np.array_equal(referenced[0], edges_nm):
+        # (np.array_equal's numbers: the same shape and every entry equal, NaN never; without its
+        # per-call conversions.)
+        if (
+            referenced is not None
+            and referenced[0].shape == edges_nm.shape
+            and bool((referenced[0] == edges_nm).all())
+        ):
             band = referenced[1]
         else:
             band = model.band(edges_nm[None, :], slopes=edge_jacobian is not None)
