@@ -140,10 +140,11 @@ class QuadraticFamily:
             # One point (a descent's trial): the same product, its eight slopes and the tests on
             # Python floats (the same IEEE subtractions and comparisons), without five array
             # reductions on nine numbers (decision 0153).
-            probe = (np.asarray(x, dtype=np.float64)[None] @ self._probe_map)[0].tolist()
-            slopes = [high - low for low, high in itertools.pairwise(probe)]
-            one_way = all(slope > 0 for slope in slopes) or all(slope < 0 for slope in slopes)
-            return np.array([one_way and all(map(math.isfinite, probe))])
+            point = np.asarray(x, dtype=np.float64)[None]
+            probed: list[float] = (point @ self._probe_map)[0].tolist()
+            rises = [high - low for low, high in itertools.pairwise(probed)]
+            one_way = all(rise > 0 for rise in rises) or all(rise < 0 for rise in rises)
+            return np.array([one_way and all(map(math.isfinite, probed))])
         wavelengths = self.wavelengths(self._probe, np.atleast_2d(x))
         slopes = wavelengths[..., 1:] - wavelengths[..., :-1]  # np.diff's own subtraction
         ok = (np.all(slopes > 0, axis=-1) | np.all(slopes < 0, axis=-1)) & np.all(
