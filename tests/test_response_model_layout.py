@@ -288,23 +288,3 @@ def test_bordered_forms_are_the_quadratic_forms_and_refuse_an_indefinite_system(
         np.testing.assert_allclose(got, expected, rtol=1e-10)
     bordered[1, 2, 3, 3] = -1.0  # one system indefinite: the batch falls back to the LU solve
     assert response_model._bordered_forms(bordered) is None
-
-
-def test_one_mappings_banded_normal_in_one_bincount_is_the_diagonals_laid_out(unblurred):
-    """:meth:`ResponseModel._banded_normal`'s one ``bincount`` into the dense matrices (each entry
-    and its mirror a bin of their own) gives, to the last bit, :meth:`_normal_diagonals`' sums
-    laid out at :meth:`_band_layout`'s places — for a rising and a falling mapping (decision
-    0153)."""
-    model, family, edges_px, x = unblurred
-    for edges in _batch(family, edges_px, x)[[0, 2]]:
-        band = model.band(edges[None])
-        diagonals = model._normal_diagonals(band)
-        size, width = diagonals.shape[2:]
-        assert width <= size
-        positions, source, _ = model._band_layout(width)
-        padded = np.concatenate([diagonals.reshape(3, size * width), np.zeros((3, 1))], axis=-1)
-        expected = np.zeros((3, size * size))
-        expected[:, positions] = padded[:, source]
-        normal = model._banded_normal(band)
-        np.testing.assert_array_equal(normal, expected.reshape(3, size, size))
-        np.testing.assert_array_equal(normal, normal.transpose(0, 2, 1))

@@ -92,7 +92,6 @@ _REFERENCE_SHARED = (
     "_normal_weight_cache",
     "_mean_pair_cache",
     "_band_layouts",
-    "_dense_pair_cache",
 )
 
 _potrf = lapack.dpotrf
@@ -1055,56 +1054,9 @@ class ResponseModel:
     def _band_layouts(self) -> dict[int, tuple[IntArray, IntArray, FloatArray]]:
         return {}
 
-    def _dense_pairs(self, width: int) -> tuple[IntArray, IntArray, IntArray, FloatArray]:
-        """:meth:`_banded_normal`'s pairs for a band ``w`` wide: each pair ``(a, d)`` of
-        :func:`_band_pairs` (and, off the diagonal, again for its mirror) — its two band columns
-        ``a`` and ``a + d``, its place in a dense ``N × N`` matrix relative to the row's first
-        column ``f`` (``(f + a)(N + 1) + d`` above, ``(f + a + d) N + f + a`` below, less
-        ``f (N + 1)``) — and the channels' weights ``W²`` ``(3, n, M')``; once per width."""
-        cache: dict[int, tuple[IntArray, IntArray, IntArray, FloatArray]] = self._dense_pair_cache
-        if width not in cache:
-            size = self.n_nodes
-            lows, offsets = _band_pairs(width)
-            mirrored = offsets > 0
-            low = np.concatenate([lows, lows[mirrored]])
-            high = low + np.concatenate([offsets, offsets[mirrored]])
-            places = np.concatenate(
-                [
-                    lows * (size + 1) + offsets,
-                    (lows[mirrored] + offsets[mirrored]) * size + lows[mirrored],
-                ]
-            )
-            squared = (self.weights**2).T  # (3, n)
-            weights = np.ascontiguousarray(np.repeat(squared[:, :, None], low.size, axis=2))
-            cache[width] = (low, high, places.astype(np.intp), weights)
-        return cache[width]
-
-    @cached_property
-    def _dense_pair_cache(self) -> dict[int, tuple[IntArray, IntArray, IntArray, FloatArray]]:
-        return {}
-
     def _banded_normal(self, band: Band) -> FloatArray:
         """``AᵀW²A`` ``(3, N, N)`` of one mapping's band, laid out dense (:meth:`_normal`'s
-        diagonals at :meth:`_band_layout`'s places, without the prior or penalty).
-
-        When every column is a node (``w ≤ N``), one ``bincount`` straight into the dense
-        matrices (:meth:`_dense_pairs`): each entry ``(j, j + d)`` and its mirror ``(j + d, j)``
-        is its own bin, receiving the same products in the same order (row by row) as
-        :meth:`_normal_sums`' bin ``(j, d)`` — ``0 + p₁ + p₂ + …``, so the same sum to the bit
-        — in six calls instead of the sums' twenty and the layout's scatter (decision 0153)."""
-        values = band.values[0]  # (n, w)
-        size = self.n_nodes
-        width = values.shape[-1]
-        if width <= size:
-            lows, highs, offsets, weights = self._dense_pairs(width)
-            places = (band.first[0] * (size + 1))[:, None] + offsets  # (n, M')
-            products = values[:, lows] * values[:, highs]  # (n, M'), the pairs' products
-            total = np.bincount(
-                (places + (size * size) * np.arange(3)[:, None, None]).ravel(),
-                weights=(products * weights).ravel(),
-                minlength=3 * size * size,
-            )
-            return np.asarray(total.reshape(3, size, size), dtype=np.float64)
+        diagonals at :meth:`_band_layout`'s places, without the prior or penalty)."""
         diagonals = self._normal_diagonals(band)  # (1, 3, N, w)
         size, width = diagonals.shape[2:]
         positions, source, _ = self._band_layout(width)
