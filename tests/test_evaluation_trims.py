@@ -9,7 +9,12 @@ import pytest
 from scipy.linalg import lapack
 
 from calib.wavelength import response_model
-from calib.wavelength.response_model import _cholesky, _scale_of, _scale_of_one
+from calib.wavelength.response_model import (
+    _cholesky,
+    _scale_of,
+    _scale_of_columns,
+    _scale_of_one,
+)
 from tests.led_scene import unblurred_led
 
 
@@ -47,6 +52,23 @@ def test_one_mappings_scale_on_floats_is_the_arrays_to_the_bit(gamma):
     found = _scale_of_one(pulls, gamma, free, along)
     assert isinstance(found, float)
     assert np.array_equal(np.float64(found), expected, equal_nan=True)
+
+
+@pytest.mark.parametrize("gamma", [20.0, 7.5, math.nan])
+def test_the_jacobians_scale_columns_on_a_float_denominator_are_the_arrays_to_the_bit(gamma):
+    """:func:`_scale_of_columns` (the Jacobian's ``∂β/∂x``) equals :func:`_scale_of` with a zero
+    ``r_β``, a zero and a NaN denominator included (decision 0153)."""
+    rng = np.random.default_rng(2)
+    pulls, free = rng.normal(size=(3, 9)), rng.normal(size=(3, 9, 4))
+    free[0, :, 1] = 0.0  # a column whose sum is zero: +0, as 0 + (−0) gives
+    along = np.abs(rng.normal(size=(3, 9)))
+    if gamma == 7.5:
+        gamma = float(np.dot(pulls.reshape(1, -1), along.reshape(-1, 1))[0, 0])
+    expected = _scale_of(pulls, gamma, free, along[..., None], np.zeros(4))
+    found = _scale_of_columns(pulls, gamma, free, along)
+    assert found.shape == (4,)
+    assert np.array_equal(found, expected, equal_nan=True)
+    assert np.array_equal(np.signbit(found), np.signbit(expected))
 
 
 def test_a_descents_residual_and_jacobian_are_those_of_the_plain_steps(monkeypatch):
@@ -110,3 +132,28 @@ def test_a_rising_bands_skipped_mask_and_signs_give_what_a_mixed_batch_gives():
         assert np.array_equal(alone.derivative[0], mixed.derivative[row, :, :width])
     # The falling mapping's light is |ΔC| (its sign applied), the rising one's ΔC.
     assert mixed.values[0].sum() > 0.0 and mixed.values[1].sum() > 0.0
+
+
+def test_one_points_quadratic_validity_on_floats_is_the_batchs():
+    """:meth:`QuadraticFamily.valid` for one point (Python floats) answers as for a batch of one:
+    rising, falling, folding, flat, infinite and NaN points (decision 0153)."""
+    from calib.wavelength.families import QuadraticFamily
+
+    family = QuadraticFamily((0.0, 600.0))
+    points = np.array(
+        [
+            [400.0, 550.0, 700.0],
+            [700.0, 550.0, 400.0],
+            [400.0, 720.0, 450.0],
+            [500.0, 500.0, 500.0],
+            [400.0, math.inf, 700.0],
+            [400.0, math.nan, 700.0],
+            [400.0, 400.0 + 1e-9, 700.0],
+        ]
+    )
+    batch = family.valid(points)
+    assert batch.tolist() == [True, True, False, False, False, False, False]
+    for point, expected in zip(points, batch, strict=True):
+        one = family.valid(point)
+        assert one.shape == (1,) and one.dtype == np.bool_
+        assert bool(one[0]) == bool(expected)

@@ -95,3 +95,39 @@ def test_the_step_after_a_cut_is_not_lengthened_at_once() -> None:
     )
     np.testing.assert_allclose(cut.x, [1.0, 1.0], atol=1e-5)
     assert cut.evaluations < 0.85 * plain.evaluations
+
+
+def test_the_stopping_points_jacobian_is_computed_only_when_read():
+    """A deferred Jacobian (a call) at the point where the loop stops is not computed by the loop
+    (decision 0153): the solution computes it when first read, once, and it is the Jacobian the
+    function gives there — the same numbers as an eager loop's."""
+    t = np.linspace(0.0, 4.0, 30)
+    observed = 2.0 * np.exp(-0.7 * t) + 0.01 * np.sin(7.0 * t)
+    calls: list[int] = []
+
+    def model(x, with_jacobian, *, lazy=True):
+        value = x[0] * np.exp(-x[1] * t)
+        residual = value - observed
+
+        def jacobian():
+            calls.append(1)
+            return np.stack([np.exp(-x[1] * t), -t * value], axis=1)
+
+        if not with_jacobian:
+            return residual, None
+        return residual, (jacobian if lazy else jacobian())
+
+    lazy = levenberg_marquardt(model, np.array([1.0, 0.3]), max_iterations=4)
+    # One Jacobian per iteration started (four: the cap), none at the stopping point.
+    assert len(calls) == 4
+    eager = levenberg_marquardt(
+        lambda x, j: model(x, j, lazy=False), np.array([1.0, 0.3]), max_iterations=4
+    )
+    np.testing.assert_array_equal(lazy.x, eager.x)
+    assert lazy.cost == eager.cost and lazy.evaluations == eager.evaluations
+    before = len(calls)
+    first_read = lazy.jacobian
+    assert len(calls) == before + 1  # computed on reading
+    assert lazy.jacobian is first_read and len(calls) == before + 1  # and kept
+    np.testing.assert_array_equal(first_read, eager.jacobian)
+    np.testing.assert_array_equal(lazy.covariance(), eager.covariance())

@@ -338,6 +338,11 @@ def test_the_deferred_jacobian_is_the_eager_one_and_computed_only_for_accepted_p
 
     solution = levenberg_marquardt(watched, x, max_iterations=8, tolerance=1e-9)
     assert 1 < len(computed) < solution.evaluations  # some trials were rejected
+    # The stopping point's Jacobian is computed when the solution's reader asks for it (decision
+    # 0153), once.
+    before = len(computed)
+    assert solution.jacobian is solution.jacobian
+    assert before <= len(computed) <= before + 1
     # Every computed Jacobian belongs to a point that lowered the cost (or the start).
     lowest = accepted[0]
     for cost in computed[1:]:

@@ -22,6 +22,7 @@ Both produce mappings with the same ``wavelength_nm(pixel)`` interface as
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -127,8 +128,23 @@ class QuadraticFamily:
         single = self.jacobian(pixel)
         return np.broadcast_to(single, (np.asarray(x).shape[0], *single.shape))
 
+    @cached_property
+    def _probe_map(self) -> FloatArray:
+        """``∂λ/∂x`` at :attr:`_probe`, transposed ``(3, 9)``: what :meth:`wavelengths` multiplies
+        by there (the same view of the same numbers), made once."""
+        return self.jacobian(self._probe).T
+
     def valid(self, x: FloatArray) -> FloatArray:
         """Whether each mapping ``(K, P)`` (or one ``(P,)``) keeps one direction over the range."""
+        if np.ndim(x) == 1:
+            # One point (a descent's trial): the same product, its eight slopes and the tests on
+            # Python floats (the same IEEE subtractions and comparisons), without five array
+            # reductions on nine numbers (decision 0153).
+            point = np.asarray(x, dtype=np.float64)[None]
+            probed: list[float] = (point @ self._probe_map)[0].tolist()
+            rises = [high - low for low, high in itertools.pairwise(probed)]
+            one_way = all(rise > 0 for rise in rises) or all(rise < 0 for rise in rises)
+            return np.array([one_way and all(map(math.isfinite, probed))])
         wavelengths = self.wavelengths(self._probe, np.atleast_2d(x))
         slopes = wavelengths[..., 1:] - wavelengths[..., :-1]  # np.diff's own subtraction
         ok = (np.all(slopes > 0, axis=-1) | np.all(slopes < 0, axis=-1)) & np.all(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import lapack
@@ -41,13 +41,26 @@ ResidualFunction = Callable[[FloatArray, bool], Evaluation]
 
 @dataclass(frozen=True)
 class Solution:
-    """Where the loop stopped: parameters, residual, Jacobian, cost ``‖r‖²``, evaluations."""
+    """Where the loop stopped: parameters, residual, Jacobian, cost ``‖r‖²``, evaluations.
+
+    The Jacobian may be given as the call that computes it (:data:`Evaluation`'s): it is then
+    computed when first read — a search's descents mostly never read their end's (decision
+    0153) — and kept; the same call gives the same numbers whenever it runs.
+    """
 
     x: FloatArray
     residual: FloatArray
-    jacobian: FloatArray
+    _jacobian: FloatArray | Callable[[], FloatArray] = field(repr=False)
     cost: float
     evaluations: int
+
+    @property
+    def jacobian(self) -> FloatArray:
+        """``∂r/∂x`` at :attr:`x` ``(rows, P)``."""
+        if callable(self._jacobian):
+            object.__setattr__(self, "_jacobian", self._jacobian())
+        assert not callable(self._jacobian)
+        return self._jacobian
 
     @property
     def dof(self) -> int:
@@ -119,7 +132,9 @@ def levenberg_marquardt(
     residual, first_jacobian = first
     if first_jacobian is None:
         raise ValueError("the residual function gave no Jacobian")
-    jacobian = _concrete(first_jacobian)
+    # The accepted point's Jacobian as the function gave it: computed at the next iteration's
+    # start, or by the solution's reader — not when the loop stops there (decision 0153).
+    pending: FloatArray | Callable[[], FloatArray] = first_jacobian
     cost = float(residual @ residual)
     evaluations = 1
     damping = 1e-3
@@ -128,6 +143,8 @@ def levenberg_marquardt(
     # accepted costs no probes.
     bending = False
     for _ in range(max_iterations):
+        jacobian = _concrete(pending)
+        pending = jacobian
         gradient = -(jacobian.T @ residual)
         normal = jacobian.T @ jacobian
         scale = np.maximum(normal.diagonal(), 1e-30)
@@ -164,7 +181,7 @@ def levenberg_marquardt(
                     decrease = cost - trial_cost
                     moved = float(np.max(np.abs(outcome[0] - residual))) if step_tolerance else 1.0
                     x = trial
-                    residual, jacobian = outcome[0], _concrete(outcome[1])
+                    residual, pending = outcome[0], outcome[1]
                     cost = trial_cost
                     if not (shorten and refused):
                         # (A step just cut to the length the cost allows is not lengthened at
@@ -172,7 +189,7 @@ def levenberg_marquardt(
                         damping = max(damping / 5.0, 1e-9)
                     improved = True
                     if decrease <= tolerance * max(cost, 1.0) or moved < step_tolerance:
-                        return Solution(x, residual, jacobian, cost, evaluations)
+                        return Solution(x, residual, pending, cost, evaluations)
                     break
             refused = True
             if shorten:
@@ -182,7 +199,7 @@ def levenberg_marquardt(
             bending = geodesic
         if not improved:
             break
-    return Solution(x, residual, jacobian, cost, evaluations)
+    return Solution(x, residual, pending, cost, evaluations)
 
 
 def _newton_gain(normal: FloatArray, gradient: FloatArray) -> float:

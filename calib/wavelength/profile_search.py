@@ -420,9 +420,14 @@ class StageFit:
             prior_residual, row_jacobian = self.family.prior_rows(x)
             residuals.append(prior_residual)
             rows.append(row_jacobian)
-        residual = np.concatenate(residuals)
+        # One lamp and no prior rows (an LED alone, the quadratic family): its rows are the
+        # residual and its Jacobian the Jacobian, without a copy (decision 0153).
+        alone = len(residuals) == 1
+        residual = residuals[0] if alone else np.concatenate(residuals)
         if not with_jacobian:
             return residual, None
+        if alone and len(thunks) == 1:
+            return residual, thunks[0]
 
         def jacobian() -> FloatArray:
             return np.vstack([thunk() for thunk in thunks] + rows)

@@ -1201,7 +1201,13 @@ class ResponseModel:
         model = self if self.penalty_weight is not None else self.reference(edges_nm)
         assert model.penalty_weight is not None
         referenced = model.referenced
-        if referenced is not None and np.array_equal(referenced[0], edges_nm):
+        # (np.array_equal's numbers: the same shape and every entry equal, NaN never; without its
+        # per-call conversions.)
+        if (
+            referenced is not None
+            and referenced[0].shape == edges_nm.shape
+            and bool((referenced[0] == edges_nm).all())
+        ):
             band = referenced[1]
         else:
             band = model.band(edges_nm[None, :], slopes=edge_jacobian is not None)
@@ -1304,18 +1310,30 @@ class ResponseModel:
             2, 1, 0
         ) + np.matmul(matrix.T, weights[..., None] * moved)  # (3, N, P)
         solved = _cholesky_solve(factors, gathered)  # (3, N, P)
-        change_beta = _scale_of(pulls, gamma, solved, along[..., None], np.zeros(n_parameters))
+        change_beta = _scale_of_columns(pulls, gamma, solved, along)
         change = solved + along[..., None] * change_beta  # (3, N, P)
-        data = moved - weights[..., None] * np.matmul(matrix, change)  # (3, n, P)
-        penalty = -root[:, None, None] * np.matmul(model.layout.difference, change)
-        prior = -np.matmul(factor, change - change_beta * model.prior_mean[..., None])
-        return np.concatenate(
-            [
-                data.reshape(-1, n_parameters),
-                penalty.reshape(-1, n_parameters),
-                prior.reshape(-1, n_parameters),
-            ]
+        # The three blocks written straight into the Jacobian's rows (the same elementwise
+        # operations on the same products; no reshaped copies and concatenation; decision 0153).
+        n = matrix.shape[0]
+        penalty_count = model.layout.difference.shape[0]
+        out = np.empty((3 * (n + penalty_count) + factor.shape[1] * 3, n_parameters))
+        data_end = 3 * n
+        penalty_end = data_end + 3 * penalty_count
+        np.subtract(
+            moved,
+            weights[..., None] * np.matmul(matrix, change),
+            out=out[:data_end].reshape(3, n, n_parameters),
         )
+        np.multiply(
+            -root[:, None, None],
+            np.matmul(model.layout.difference, change),
+            out=out[data_end:penalty_end].reshape(3, penalty_count, n_parameters),
+        )
+        np.negative(
+            np.matmul(factor, change - change_beta * model.prior_mean[..., None]),
+            out=out[penalty_end:].reshape(3, factor.shape[1], n_parameters),
+        )
+        return out
 
 
 def _sliding(padded: FloatArray, count: int) -> FloatArray:
@@ -1470,6 +1488,28 @@ def _scale_of_one(pulls: FloatArray, gamma: float, free: FloatArray, along: Floa
     if not abs(denominator) > 1e-300:  # (NaN included, as np.where's test)
         denominator = math.inf
     return (0.0 + float(_over_channels_and_nodes(pulls, free))) / denominator
+
+
+def _scale_of_columns(
+    pulls: FloatArray, gamma: float, free: FloatArray, along: FloatArray
+) -> FloatArray:
+    """:func:`_scale_of` for ``m`` right-hand sides ``free`` ``(3, N, m)`` with ``along``
+    ``(3, N)`` and a zero ``r_β``: its denominator on Python floats (the same product, the same
+    IEEE operations) and the same division, without ``np.where`` and the zeros' array (decision
+    0153).
+
+    Examples
+    --------
+    >>> pulls, along = np.arange(6.0).reshape(3, 2), np.full((3, 2), 0.5)
+    >>> free = np.arange(12.0).reshape(3, 2, 2)
+    >>> bool(np.array_equal(_scale_of_columns(pulls, 20.0, free, along),
+    ...                     _scale_of(pulls, 20.0, free, along[..., None], np.zeros(2))))
+    True
+    """
+    denominator = gamma - float(_over_channels_and_nodes(pulls, along[..., None])[0])
+    if not abs(denominator) > 1e-300:  # (NaN included, as np.where's test)
+        denominator = math.inf
+    return np.asarray((0.0 + _over_channels_and_nodes(pulls, free)) / denominator)
 
 
 def _over_channels_and_nodes(pulls: FloatArray, right: FloatArray) -> FloatArray:
