@@ -279,6 +279,19 @@ def test_the_phase_sigma_covers_the_truth_and_the_direct_residuals_use_eta0(basi
         assert np.all(np.abs(residual) < 0.01 * direct)
 
 
+@pytest.mark.parametrize("phase", [1.0, 1.2])
+def test_the_phase_from_noise_free_lamps_has_no_bias_of_the_grids_interpolation(basis, phase):
+    """Decision 0154: the profile fits the response ``r = η₁ s`` linear between the grid's nodes,
+    so the direct signal ``∫ e η₀ s`` is ``∫ e (η₀/η₁) r``, ``η₀/η₁`` on the fine axis. Taking
+    ``s = r/η₁`` linear between the nodes instead (the fit before) put the curvature of ``η₁``
+    into the phase: −8.3 ×10⁻⁴ rad at φ₀ = 1.0, −4.5 ×10⁻⁴ at 1.2 on these noise-free lamps."""
+    grating = SinusoidalPhaseGrating(phase)
+    _, observations = _scene(_order(grating, 1), _order(grating, 0))
+    lamps = prepare_lamps(observations, basis=basis, mapping=MAPPING).lamps
+    fit = fit_physical(lamps, "sinusoidal", DEFAULT_GRID.wavelength_nm)
+    assert abs(fit.parameter - phase) < 1e-4
+
+
 def test_the_prior_solve_uses_the_physical_model_with_two_lamps(basis):
     grating = SinusoidalPhaseGrating(1.2)
     truth, observations = _scene(
@@ -391,7 +404,8 @@ def test_a_scan_in_one_pass_equals_the_value_by_value_misfits(basis, kind: Physi
 
 def test_a_fit_evaluates_its_model_once_per_value(basis, monkeypatch):
     """Decision 0107: a physical fit makes the scan's efficiencies once for its passes (one call
-    per order, not one per pass), and evaluates the direct equations once per (parameter, weight)
+    per order and axis, not one per pass: η₁ on the grid, η₀ and η₁ on the fine axis, decision
+    0154), and evaluates the direct equations once per (parameter, weight)
     — a pass reads its refinement's evaluation at the optimum instead of making it again — with
     the same fit as evaluating everything afresh."""
     import calib.methods.grating_models as grating_models
@@ -428,7 +442,7 @@ def test_a_fit_evaluates_its_model_once_per_value(basis, monkeypatch):
     monkeypatch.setattr(grating_models, "physical_efficiencies", counted_efficiencies)
     monkeypatch.setattr(grating_models, "physical_equations", counted_equations)
     fit = fit_physical(lamps, "sinusoidal", wavelength, gain_sigma=0.02)
-    assert sorted(scans) == [0, 1]
+    assert sorted(scans) == [0, 1, 1]
     assert len(set(evaluated)) == len(evaluated)
     assert fit.parameter == reference.parameter
     assert np.array_equal(fit.covariance, reference.covariance)

@@ -332,8 +332,14 @@ def physical_equations(
     """The whitened direct equations at ``parameter`` (whitened at the current ``weight``, ``g``
     up to ``T``): their predicted values for ``T = 1``, targets, and ``g/T`` on the grid ``(f,)``.
 
-    ``η₀`` is integrated inside each lamp's row on the fine axis when the lamps carry their
-    operators (``g = T/η₁``); else it is taken at the grid's nodes (``g = T η₀/η₁``). ``floor``:
+    When the lamps carry their operators, ``η₀/η₁`` is integrated inside each lamp's row on the
+    fine axis, times ``η₁`` at the row's node (``node_factor`` of
+    :func:`calib.methods.responses.direct_rows`), and ``g = T/η₁`` at the nodes: the row of node
+    ``f`` is ``∫ e (η₀/η₁) φ_f`` (``φ_f`` its hat), because the profile fits the response
+    ``r = η₁ s`` linear between the nodes, so that the direct signal ``∫ e η₀ s`` is
+    ``∫ e (η₀/η₁) r``; ``s = r/η₁`` linear between the nodes instead put ``η₁``'s curvature into
+    the phase (−0.0012 rad on the flaw-free twins, decision 0154). Without operators both are taken
+    at the grid's nodes (``g = T η₀/η₁``). ``floor``:
     the relative floor under each equation's σ (:func:`calib.methods.responses.direct_rows`).
     ``checked``: ``wavelength_nm`` and the operators' axis already went through
     :func:`calib.model.gratings.checked_wavelengths` (a fit's repeated evaluations).
@@ -347,9 +353,10 @@ def physical_equations(
             lamps,
             weight,
             gain_sigma=gain_sigma,
-            zeroth_order=physical_efficiency(
-                kind, parameter, 0, axis if checked else checked_wavelengths(axis)
+            zeroth_order=direct_ratio(
+                kind, parameter, axis if checked else checked_wavelengths(axis)
             ),
+            node_factor=first,
             floor=floor,
         )
         shape = 1.0 / first
@@ -359,19 +366,30 @@ def physical_equations(
     return rows @ shape, target, np.asarray(shape, dtype=np.float64)
 
 
+def direct_ratio(kind: PhysicalKind, parameter: float, axis_nm: FloatArray) -> FloatArray:
+    """``η₀/η₁`` on the lamps' fine axis ``axis_nm`` (already checked): what multiplies the
+    first-order response ``r = η₁ s`` in the direct signal (:func:`physical_equations`)."""
+    return np.asarray(
+        physical_efficiency(kind, parameter, 0, axis_nm)
+        / np.maximum(physical_efficiency(kind, parameter, 1, axis_nm), 1e-300),
+        dtype=np.float64,
+    )
+
+
 def scan_efficiencies(
     lamps: Sequence[LampData], kind: PhysicalKind, parameters: FloatArray, wavelength_nm: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """What :func:`physical_misfits` evaluates of the model at ``parameters`` ``(k,)``: ``η₁`` on
-    ``wavelength_nm`` (floored at 1e-300) and ``η₀`` on the lamps' fine axis when every lamp
-    carries its operators (else on ``wavelength_nm``). They depend on the values scanned alone, not
+    ``wavelength_nm`` (floored at 1e-300) and ``η₀/η₁`` on the lamps' fine axis when every lamp
+    carries its operators (:func:`physical_equations`; else ``η₀`` on ``wavelength_nm``). They depend on the values scanned alone, not
     on the rows' weights: a fit's passes, which re-whiten the rows and scan the same values, make
     them once (decision 0107)."""
     first = np.maximum(physical_efficiencies(kind, parameters, 1, wavelength_nm), 1e-300)
     operators = [lamp.operators for lamp in lamps]
     if all(operator is not None for operator in operators):
         axis = operators[0].axis_nm if operators[0] is not None else wavelength_nm
-        return first, physical_efficiencies(kind, parameters, 0, axis)
+        zeroth = physical_efficiencies(kind, parameters, 0, axis)
+        return first, zeroth / np.maximum(physical_efficiencies(kind, parameters, 1, axis), 1e-300)
     return first, physical_efficiencies(kind, parameters, 0, wavelength_nm)
 
 
@@ -399,7 +417,12 @@ def physical_misfits(
     )
     if all(lamp.operators is not None for lamp in lamps):
         rows, target = direct_rows(
-            lamps, weight, gain_sigma=gain_sigma, zeroth_order=zeroth, floor=floor
+            lamps,
+            weight,
+            gain_sigma=gain_sigma,
+            zeroth_order=zeroth,
+            node_factor=first,
+            floor=floor,
         )
         values = np.matmul(rows, (1.0 / first)[:, :, None])[:, :, 0]
     else:

@@ -278,13 +278,16 @@ def direct_rows(
     *,
     gain_sigma: float | None = None,
     zeroth_order: FloatArray | None = None,
+    node_factor: FloatArray | None = None,
     floor: float = MODEL_FLOOR,
 ) -> tuple[FloatArray, FloatArray]:
     """The whitened equations ``(d_l ⊙ q̂_lc)ᵀ g = m_dir,lc`` on the grid's nodes of ``g`` (``η⁻¹``
     for the Fourier model, ``T/η₁`` for a physical one, whose ``η₀`` enters ``d_l`` on the fine
     axis: ``zeroth_order``, :meth:`LampData.zeroth_order_row`): rows ``(3L, f)``, targets ``(3L,)``;
     with ``zeroth_order`` ``(k, n_fine)`` (a scan over η₀'s parameter), ``(k, 3L, f)`` and
-    ``(k, 3L)``, each ``k`` the same numbers as its own call within rounding.
+    ``(k, 3L)``, each ``k`` the same numbers as its own call within rounding. ``node_factor``
+    ``(f,)`` or ``(k, f)``: multiplies the rows made from ``zeroth_order`` node by node (a physical
+    fit's ``η₁`` at the nodes, where ``zeroth_order`` is ``η₀/η₁``; decision 0154).
 
     Each equation's variance is the direct measurement's, the response's covariance propagated
     through the current ``g`` and the model floor; a lamp's three equations also share the error of
@@ -306,6 +309,8 @@ def direct_rows(
         row = np.asarray(zeroth_order @ stack.densities, dtype=np.float64)  # (L, [k,] f)
     else:
         row = np.stack([lamp.zeroth_order_row(zeroth_order) for lamp in lamps])
+    if zeroth_order is not None and node_factor is not None:
+        row = row * node_factor
     spread = row * inverse_efficiency
     if spread.ndim == 2:
         propagated = ((stack.covariance @ spread[:, None, :, None])[..., 0] @ spread[:, :, None])[
