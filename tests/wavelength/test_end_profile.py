@@ -5,7 +5,6 @@ assumes; an end the likelihood does not hold within that step is warned about.""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -71,32 +70,18 @@ def test_the_canon_40d_paper_scene_under_led_bh1_is_warned(shared_camera_data: P
     on base 54ab899 its LED-only mapping was 4.4 nm off at the blue end, σ 0.84 nm there, unwarned;
     the final stage's cost does not rise when the blue end moves by four of its σ."""
     from calib.core.spectra import DEFAULT_GRID
-    from calib.evaluation.synthetic import run_protocol
-    from calib.evaluation.synthetic_splits import paper_split_cameras
     from calib.wavelength.profile_search import search_profiles
 
-    name = "Canon 40D (Mauer-2009)"
-    cameras, basis = paper_split_cameras("validation", shared_camera_data)
-    scenes: list[Any] = []
-    run_protocol(
-        cameras,
-        basis,
-        variants=["true mapping"],
-        noise_levels=[0, 0.003, 0.01, 0.03],
-        broadband_lamp="LED-BH1",
-        seed=0,
-        budget=None,
-        on_result=lambda scene, _row, _result: scenes.append(scene),
-        only=lambda camera, noise: camera == name and noise == 0.01,
+    from .paper_scene import paper_scene
+
+    led, prior, truth = paper_scene(
+        shared_camera_data, "Canon 40D (Mauer-2009)", "LED-BH1", 0, 0.01
     )
-    (scene,) = scenes
-    assert callable(basis)
-    led = scene.broadband.observation
-    found = search_profiles([led], basis(name).prior(), DEFAULT_GRID)
+    found = search_profiles([led], prior, DEFAULT_GRID)
     assert found.ambiguous
     assert any("blue end is not held" in w for w in found.warnings)
-    blue = float(np.min(led.pixel[scene.mapping.wavelength_nm(led.pixel) >= DEFAULT_GRID.start_nm]))
-    error = abs(float(found.mapping.wavelength_nm(blue) - scene.mapping.wavelength_nm(blue)))
+    blue = float(np.min(led.pixel[truth.wavelength_nm(led.pixel) >= DEFAULT_GRID.start_nm]))
+    error = abs(float(found.mapping.wavelength_nm(blue) - truth.wavelength_nm(blue)))
     sigma = found.mapping.sigma_nm(np.array([blue]))
     assert sigma is not None
     assert error < 3.0 * float(sigma[0])
