@@ -8,9 +8,12 @@ mapping (``QuadraticMapping.line_reach``, decision 0127) or past it, the mapping
 per-pixel σ there (``sigma_nm``, what every consumer reads), the error in units of it, the
 largest |error|/σ over the grid, the share of grid pixels within ±2σ, the family, the warning
 codes, the matched-line table (reference nm @ pixel, ``x`` when unused, residual nm) and the
-search's profile evaluations. The summary counts mappings more than 3 nm off and, of them, those
-neither warned nor covered (|error| > 3σ at the worst pixel): a silent wrong answer is one the
-stated σ does not cover and no warning names.
+search's profile evaluations, and the largest |error|/σ within each of three bands of the working
+grid (:data:`BANDS`: its blue end, its middle, its red end; decision 0155). The summary counts
+mappings more than 3 nm off and, of them, those neither warned nor covered (|error| > 3σ at the
+worst pixel): a silent wrong answer is one the stated σ does not cover and no warning names; and,
+over the unwarned mappings, each band's median |error|/σ and how many exceed 3σ there (where along
+the profile the stated σ is too small).
 
 Tuning choices may look at ``--split validation`` only; ``--split test`` is for the report.
 
@@ -41,10 +44,24 @@ from calib.evaluation.validation.report import MAPPING_FAILURE_NM
 #: hundred correlated pixels is what a right σ shows now and then; beyond it the σ is wrong).
 COVERED_SIGMAS = 3.0
 
+#: Bands of the working grid (true wavelength, nm) whose largest |error|/σ each row records: the
+#: first and last 30 nm (where a broadband lamp's signal through the camera fades) and the middle.
+BANDS = {"blue": (400.0, 430.0), "middle": (500.0, 600.0), "red": (670.0, 700.0)}
+
 COLUMNS = (
     "camera,variant,noise,worst_nm,worst_at_nm,worst_px,where,sigma_nm,err_over_sigma,"
-    "max_err_over_sigma,within_2sigma,family,codes,reach_nm,curvature,lines,evaluations"
+    "max_err_over_sigma,within_2sigma,family,codes,reach_nm,curvature,lines,evaluations,"
+    + ",".join(f"{band}_err_over_sigma" for band in BANDS)
 )
+
+
+def band_ratios(truth: FloatArray, error: FloatArray, sigma: FloatArray) -> list[float]:
+    """The largest |error|/σ within each of :data:`BANDS` (NaN where a band holds no pixel)."""
+    ratios = []
+    for low, high in BANDS.values():
+        inside = (truth >= low) & (truth <= high)
+        ratios.append(float(np.max(error[inside] / sigma[inside])) if inside.any() else np.nan)
+    return ratios
 
 
 def mapping_errors(
@@ -88,7 +105,8 @@ def row_of(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> 
         f"{p[k]:.1f},{where},{sigma[k]:.3f},{error[k] / sigma[k]:.2f},"
         f"{np.max(error / sigma):.2f},{np.mean(error <= 2 * sigma):.3f},"
         f'{details.get("family", "")},"{codes}",{reach_text},{curvature},"{lines}",'
-        f"{details.get('evaluations', '')}"
+        f"{details.get('evaluations', '')},"
+        + ",".join(f"{r:.2f}" for r in band_ratios(truth, error, sigma))
     )
 
 
@@ -137,6 +155,16 @@ def main() -> None:
         f"{args.split} split, seed {args.seed}: {len(rows)} mappings, > {MAPPING_FAILURE_NM:g} nm "
         f"{len(off)}, of them beyond {COVERED_SIGMAS:g}σ at the worst pixel {len(uncovered)}"
     )
+    unwarned = [r.split('",', 1)[1].split(",") for r in rows]
+    unwarned = [f for f in unwarned if "mapping_ambiguous" not in f[11]]
+    for index, band in enumerate(BANDS):
+        values = np.array([float(f[len(f) - len(BANDS) + index]) for f in unwarned])
+        values = values[np.isfinite(values)]
+        if values.size:
+            print(
+                f"  {band} band of the grid, {values.size} unwarned: median |error|/σ "
+                f"{np.median(values):.2f}, beyond {COVERED_SIGMAS:g}σ {int(np.sum(values > COVERED_SIGMAS))}"
+            )
     if args.csv:
         Path(args.csv).write_text(COLUMNS + "\n" + "\n".join(rows) + "\n", encoding="utf-8")
 

@@ -1747,6 +1747,12 @@ def search_profiles(
             )
         )
     covariance = final.covariance()
+    ends: tuple[EndProfile, ...] = ()
+    if broadband_only and not isinstance(family, GratingFamily):
+        # The curvature states the ends' valley as a parabola; the likelihood itself says how
+        # far they move (decision 0155).
+        covariance, ends = end_profile(final_stage, final.x, covariance, final.cost / final.dof)
+        evaluations += 3 * len(ends)
     mapping, local_rms = _report(exact, family, final.x, covariance, pixel_range, origin)
     if ambiguity_delta_chi2 is None:
         ambiguity_delta_chi2 = (
@@ -1824,6 +1830,20 @@ def search_profiles(
             f"prior's shape, and the basins' likelihoods cannot be trusted{widened}. "
             + deciding_shot(lamps)
         )
+    for end in ends:
+        if end.delta_chi2 >= END_PROFILE_WARN_DELTA_CHI2:
+            continue
+        # The likelihood does not hold this end within the step: nothing but the camera prior's
+        # shape places it (decision 0155).
+        ambiguous = True
+        colour = "blue" if final.x[end.index] <= final.x[len(final.x) - 1 - end.index] else "red"
+        warnings.append(
+            f"the mapping's {colour} end is not held: moving it by {END_PROFILE_STEP * end.sigma_nm:.1f} "
+            f"nm ({END_PROFILE_STEP:g} of its curvature σ) raises the fit's Δχ² by "
+            f"{max(end.delta_chi2, 0.0):.1f} (below {END_PROFILE_WARN_DELTA_CHI2:g}): with "
+            f"{measured[0].name}'s light fading there the end rests on the camera prior's shape; the "
+            f"stated σ ({stated:.1f} nm) is the likelihood's own there. " + deciding_shot(lamps)
+        )
     if coarse is not None and coarse.rejects:
         cost = float(deciding_stage(family).costs(coarse.x[None])[0])
         delta = (cost - best_cost) / temper
@@ -1882,6 +1902,7 @@ def search_profiles(
             "rejects": coarse.rejects,
         },
         "red_edge_nm": None if edge is None else {"profile": edge[0], "prior_mean": edge[1]},
+        "end_profile": [end.to_dict() for end in ends],
         "candidates": [c.to_dict(pixel_range) for c in candidates_out],
         "flexibility": FLEXIBILITY,
         "local_flexibility": local_flexibility,
@@ -2419,3 +2440,79 @@ def end_probes(
         judge = _FinalJudge(final, valley, held=settled, evaluations=judge.evaluations)
         basins = _distinct([(family, valley), *basins], pixel_range, MAX_BASINS + 1)
     return basins, count + judge.evaluations
+
+
+#: How far (in its own curvature σ) :func:`end_profile` moves each end of a broadband-only mapping
+#: to read the likelihood's rise there: where an error the stated σ should cover would lie (the
+#: benches' 3σ bar and beyond). Within one σ the valley is the parabola the curvature states (a
+#: median rise of 0.7–0.9 on the validation LED-BH1 scenes); it flattens further out (at four σ a
+#: median 2.5–10, not 16). Decision 0155.
+END_PROFILE_STEP = 4.0
+#: An end whose move by :data:`END_PROFILE_STEP` of its σ raises the (Birge-scaled) cost by less
+#: than this — one σ's Δχ² — is not held by the likelihood: the result warns. Chosen on the
+#: validation split only (decision 0155: on LED-BH1 seeds 0/1, 0 leaves one more of the 12 silent
+#: mappings silent and warns 7 fewer of the 352 mappings that are right).
+END_PROFILE_WARN_DELTA_CHI2 = 1.0
+
+
+@dataclass(frozen=True)
+class EndProfile:
+    """The final stage's likelihood along one end of the mapping (decision 0155).
+
+    Attributes
+    ----------
+    index
+        The family's parameter (the end's wavelength) moved.
+    sigma_nm
+        Its curvature σ (nm).
+    delta_chi2
+        The smaller rise of the cost (Birge-scaled) at ±:data:`END_PROFILE_STEP` σ.
+    factor
+        How much wider the end's σ is than its curvature's: the step over √Δχ² (a Gaussian
+        valley's ratio), at least 1, at most the step (an end the likelihood does not hold
+        within the step is stated at the step).
+    """
+
+    index: int
+    sigma_nm: float
+    delta_chi2: float
+    factor: float
+
+    def to_dict(self) -> dict[str, float]:
+        return {"sigma_nm": self.sigma_nm, "delta_chi2": self.delta_chi2, "factor": self.factor}
+
+
+def end_profile(
+    fit: StageFit, x: FloatArray, covariance: FloatArray, scale: float
+) -> tuple[FloatArray, tuple[EndProfile, ...]]:
+    """The covariance of a broadband-only quadratic mapping's parameters ``x`` widened along each
+    end to what the final stage's own likelihood states there, and what was read (decision 0155).
+
+    The curvature (Gauss–Newton) covariance states the valley as a parabola. With a broadband lamp
+    alone the mapping's ends are held only where the lamp's signal through the camera fades (a
+    white LED's narrow blue pump leaves little below 440 nm), and there the cost rises more
+    slowly than the parabola: on the validation LED-BH1 scenes (1 % and 3 % noise) a move of an
+    end by four of its σ raised it by a median Δχ² of 2.5–6, not 16, and for two blue ends 4.4 nm
+    off by nothing at all.
+    Each end is moved by ±:data:`END_PROFILE_STEP` of its σ, the other parameters along their
+    regression on it (the covariance's own direction); the cost (every nuisance re-solved, in
+    units of ``scale``, the fit's Birge factor) at the flatter side gives the end's σ as a
+    Gaussian valley of that rise would, and the covariance gains the difference along that
+    direction (only those two directions widen).
+    """
+    widened = np.array(covariance, dtype=np.float64)
+    read: list[EndProfile] = []
+    for index in (0, len(x) - 1):
+        variance = float(covariance[index, index])
+        if not variance > 0 or not scale > 0:
+            continue
+        sd = math.sqrt(variance)
+        direction = np.asarray(covariance[:, index], dtype=np.float64) / sd
+        step = END_PROFILE_STEP * direction
+        costs = fit.costs(np.array([x, x - step, x + step]))
+        rise = float(min(costs[1], costs[2]) - costs[0]) / scale
+        factor = END_PROFILE_STEP / math.sqrt(max(rise, 1.0)) if math.isfinite(rise) else 1.0
+        factor = max(factor, 1.0)
+        widened += (factor**2 - 1.0) * np.outer(direction, direction)
+        read.append(EndProfile(index, sd, rise, factor))
+    return widened, tuple(read)

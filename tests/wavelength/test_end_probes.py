@@ -102,29 +102,15 @@ def test_the_dmc_lx5_paper_scene_under_lamp_a_is_found(shared_camera_data: Path)
     (Berra): on base f500083 its LED-only mapping was 11.5 nm off at the blue end, unwarned; the
     truth's valley lies 13 nm inwards of the answer's blue end."""
     from calib.core.spectra import DEFAULT_GRID
-    from calib.evaluation.synthetic import run_protocol
-    from calib.evaluation.synthetic_splits import paper_split_cameras
     from calib.wavelength.profile_search import search_profiles
 
-    name = "Panasonic DMCL-X5 (Berra-et-al-2015)"
-    cameras, basis = paper_split_cameras("validation", shared_camera_data)
-    scenes: list[Any] = []
-    run_protocol(
-        cameras,
-        basis,
-        variants=["true mapping"],
-        noise_levels=[0, 0.003, 0.01, 0.03],
-        broadband_lamp="A",
-        seed=2,
-        budget=None,
-        on_result=lambda scene, _row, _result: scenes.append(scene),
-        only=lambda camera, noise: camera == name and noise == 0.003,
+    from .paper_scene import paper_scene
+
+    led, prior, mapping = paper_scene(
+        shared_camera_data, "Panasonic DMCL-X5 (Berra-et-al-2015)", "A", 2, 0.003
     )
-    (scene,) = scenes
-    assert callable(basis)
-    led = scene.broadband.observation
-    found = search_profiles([led], basis(name).prior(), DEFAULT_GRID)
-    truth = scene.mapping.wavelength_nm(led.pixel)
+    found = search_profiles([led], prior, DEFAULT_GRID)
+    truth = mapping.wavelength_nm(led.pixel)
     inside = (truth >= DEFAULT_GRID.start_nm) & (truth <= DEFAULT_GRID.stop_nm)
     worst = float(np.max(np.abs(found.mapping.wavelength_nm(led.pixel) - truth)[inside]))
     assert worst < 1.0

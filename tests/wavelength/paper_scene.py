@@ -1,0 +1,36 @@
+"""One validation paper scene's broadband observation, its camera prior and its true mapping, rendered
+as :func:`calib.evaluation.synthetic.run_protocol` renders it (the same seeds), for the slow tests
+that search it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from calib.core.mapping import QuadraticMapping
+from calib.core.observations import LampObservation
+from calib.evaluation.synthetic import run_protocol
+from calib.evaluation.synthetic_splits import paper_split_cameras
+from calib.model.bases import CameraPrior
+
+
+def paper_scene(
+    data: Path, name: str, lamp: str, seed: int, noise: float
+) -> tuple[LampObservation, CameraPrior, QuadraticMapping]:
+    """The validation split's scene of camera ``name`` under the broadband ``lamp``."""
+    cameras, basis = paper_split_cameras("validation", data)
+    scenes: list[Any] = []
+    run_protocol(
+        cameras,
+        basis,
+        variants=["true mapping"],
+        noise_levels=[0, 0.003, 0.01, 0.03],
+        broadband_lamp=lamp,
+        seed=seed,
+        budget=None,
+        on_result=lambda scene, _row, _result: scenes.append(scene),
+        only=lambda camera, level: camera == name and level == noise,
+    )
+    (scene,) = scenes
+    assert callable(basis)
+    return scene.broadband.observation, basis(name).prior(), scene.mapping
