@@ -4,7 +4,10 @@ The validation protocol's scenes (``calib validate``'s plan for each camera: a s
 drawn per scene, the rig's errors, the mapping found from the lamps), estimated as the registry does
 (the σ budget included) for the protocol's method variants; per estimate: RE (×10⁻²), the grating
 model chosen, the share of grid nodes whose true first-order η (normalised to its maximum, as the
-estimate is) lies inside ±2σ, and the ratio of the stated σ's RMS to the actual error's RMS.
+estimate is) lies inside ±2σ, the ratio of the stated σ's RMS to the actual error's RMS, and,
+where the estimate fitted the scene's own family, its parameter's error over its stated σ and the
+direct equations' χ²/dof (:func:`bench.twin_coverage.physical_parameter_scores`; per variant, the
+RMS of that ratio and the median χ²/dof).
 
     python bench/eta_band.py --data-dir DIR --split validation --cameras 8 [--seed 0]
         [--variants "LED+FL,LED only"]
@@ -15,6 +18,7 @@ Any choice is judged on ``--split validation`` only; ``--split test`` is for rep
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +34,10 @@ from calib.evaluation.validation.protocol import (
 )
 from calib.methods import estimate
 
+# The parameter's scores are the 2-D twins' (bench/twin_coverage.py, beside this script).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from twin_coverage import physical_parameter_scores
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -44,8 +52,10 @@ def main() -> None:
     settings = ProtocolSettings(seed=arguments.seed, variants=variants)
     chosen = spread_tasks(arguments.data_dir, arguments.split, settings, arguments.cameras)
     print(f"split {arguments.split}, seed {arguments.seed}, {len(chosen)} cameras")
-    print("camera | variant | model | RE ×10⁻² | η ±2σ coverage | η σ/err")
-    rows: dict[str, list[tuple[float, float, float]]] = {v.label: [] for v in variants}
+    print("camera | variant | model | RE ×10⁻² | η ±2σ coverage | η σ/err | δp/σ_p | direct χ²/dof")
+    rows: dict[str, list[tuple[float, float, float, float, float]]] = {
+        v.label: [] for v in variants
+    }
     for task in chosen:
         scene = render_task_scene(task)
         wavelength = task.settings.grid.wavelength_nm
@@ -68,23 +78,29 @@ def main() -> None:
                 continue
             coverage, ratio = efficiency_coverage(result, true_eta)
             error = 100.0 * relative_error(result.physical_sensitivity(), scene.truth)
-            rows[variant.label].append((error, coverage, ratio))
-            model = result.diagnostics.get("grating_model", {}).get("chosen", "?")
+            record = result.diagnostics.get("grating_model", {})
+            shift, sigma, chi2_per_dof = physical_parameter_scores(
+                record, scene.plan.grating.to_dict()
+            )
+            rows[variant.label].append((error, coverage, ratio, shift / sigma, chi2_per_dof))
             print(
-                f"{task.camera.name} | {variant.label} | {model} | {error:.2f} | "
-                f"{100 * coverage:.1f} % | {ratio:.2f}",
+                f"{task.camera.name} | {variant.label} | {record.get('chosen', '?')} | "
+                f"{error:.2f} | {100 * coverage:.1f} % | {ratio:.2f} | {shift / sigma:+.2f} | "
+                f"{chi2_per_dof:.3g}",
                 flush=True,
             )
     print(
-        "\n| split | variant | estimates | mean RE ×10⁻² | mean η ±2σ coverage | median η σ/err |"
+        "\n| split | variant | estimates | mean RE ×10⁻² | mean η ±2σ coverage | median η σ/err "
+        "| RMS(δp/σ_p) | median direct χ²/dof |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for label, scored in rows.items():
         if scored:
             values = np.asarray(scored)
             print(
                 f"| {arguments.split} | {label} | {len(scored)} | {values[:, 0].mean():.2f} | "
-                f"{100 * values[:, 1].mean():.1f} % | {np.median(values[:, 2]):.2f} |"
+                f"{100 * values[:, 1].mean():.1f} % | {np.median(values[:, 2]):.2f} | "
+                f"{np.sqrt(np.nanmean(values[:, 3] ** 2)):.2f} | {np.nanmedian(values[:, 4]):.3g} |"
             )
 
 
