@@ -53,6 +53,19 @@ class _Landscape:  # the three stages' costs, descent and settling
     settle = descend
 
 
+def _search(
+    decided: list[tuple[Any, Solution]], landscape: _Landscape
+) -> tuple[list[tuple[Any, Solution]], int]:
+    """:func:`hidden_valleys` with ``landscape`` as its ranking, deciding and final views."""
+    return hidden_valleys(
+        decided,
+        landscape,  # type: ignore[arg-type]
+        landscape,  # type: ignore[arg-type]
+        landscape,  # type: ignore[arg-type]
+        PIXELS,
+    )
+
+
 def test_the_valleys_half_width_follows_the_curvature():
     """Δcost = δᵀJᵀJδ for one end's shift (the middle by half): the half-width at the bar is
     √(bar / (1.25 k)) for a curvature k per nm² on each parameter, tempered by χ²ᵣ above 1."""
@@ -68,13 +81,7 @@ def test_a_valley_between_the_deciding_scans_points_is_found_and_leads():
     landscape = _Landscape()
     leader = _solution(LEADER, 1000.0, 1e4)  # half-width ≈ 0.05 nm: far below a 2 nm step
     other: tuple[Any, Solution] = (family, _solution(LEADER + 20.0, 3000.0, 1e4))
-    decided, count = hidden_valleys(
-        [(family, leader), other],
-        landscape,  # type: ignore[arg-type]
-        landscape,  # type: ignore[arg-type]
-        landscape,  # type: ignore[arg-type]
-        PIXELS,
-    )
+    decided, count = _search([(family, leader), other], landscape)
     # 13 × 13 end grid at 1 nm, one descent from its only minimum outside the leader's valley, and
     # the valley and the leader settled on the final stage.
     assert count == (2 * int(LOCAL_SCAN[0]) + 1) ** 2 + 3 * 10
@@ -91,13 +98,7 @@ def test_a_valley_wide_enough_for_the_scan_is_left_alone():
     # Curvature 1 per nm²: the bar is reached 4.5 nm out, beyond half the 2 nm step.
     leader = _solution(LEADER, 1000.0, 1.0)
     assert valley_half_width_nm(leader, AMBIGUITY_DELTA_CHI2) > 0.5 * LOCAL_SCAN[1]
-    decided, count = hidden_valleys(
-        [(family, leader)],
-        landscape,  # type: ignore[arg-type]
-        landscape,  # type: ignore[arg-type]
-        landscape,  # type: ignore[arg-type]
-        PIXELS,
-    )
+    decided, count = _search([(family, leader)], landscape)
     assert count == 0 and not landscape.descents
     assert decided[0][1] is leader
 
@@ -120,13 +121,7 @@ def test_no_descent_from_a_valley_the_grid_puts_above_the_leader():
     # Half-width ≈ 0.45 nm (below half the 2 nm step); the reach, 4·(1.25·100)·0.5² = 125, is
     # short of the other valley's 1 000 above the leader's point.
     leader = _solution(LEADER, 1000.0, 100.0)
-    decided, count = hidden_valleys(
-        [(family, leader)],
-        landscape,  # type: ignore[arg-type]
-        landscape,  # type: ignore[arg-type]
-        landscape,  # type: ignore[arg-type]
-        PIXELS,
-    )
+    decided, count = _search([(family, leader)], landscape)
     assert count == (2 * int(LOCAL_SCAN[0]) + 1) ** 2
     assert not landscape.descents
     assert decided[0][1] is leader
