@@ -1752,7 +1752,7 @@ def search_profiles(
         # The curvature states the ends' valley as a parabola; the likelihood itself says how
         # far they move (decision 0155).
         covariance, ends = end_profile(final_stage, final.x, covariance, final.cost / final.dof)
-        evaluations += 3 * len(ends)
+        evaluations += 1 + 2 * len(ends) if ends else 0
     mapping, local_rms = _report(exact, family, final.x, covariance, pixel_range, origin)
     if ambiguity_delta_chi2 is None:
         ambiguity_delta_chi2 = (
@@ -2501,16 +2501,22 @@ def end_profile(
     direction (only those two directions widen).
     """
     widened = np.array(covariance, dtype=np.float64)
+    ends = [
+        (index, math.sqrt(float(covariance[index, index])))
+        for index in (0, len(x) - 1)
+        if scale > 0 and float(covariance[index, index]) > 0
+    ]
+    if not ends:
+        return widened, ()
+    directions = [np.asarray(covariance[:, index], dtype=np.float64) / sd for index, sd in ends]
+    # The point and both moves of each end in one batch (the point costed once).
+    moves = [
+        x + sign * END_PROFILE_STEP * direction for direction in directions for sign in (-1, 1)
+    ]
+    costs = fit.costs(np.array([x, *moves]))
     read: list[EndProfile] = []
-    for index in (0, len(x) - 1):
-        variance = float(covariance[index, index])
-        if not variance > 0 or not scale > 0:
-            continue
-        sd = math.sqrt(variance)
-        direction = np.asarray(covariance[:, index], dtype=np.float64) / sd
-        step = END_PROFILE_STEP * direction
-        costs = fit.costs(np.array([x, x - step, x + step]))
-        rise = float(min(costs[1], costs[2]) - costs[0]) / scale
+    for k, ((index, sd), direction) in enumerate(zip(ends, directions, strict=True)):
+        rise = float(min(costs[1 + 2 * k], costs[2 + 2 * k]) - costs[0]) / scale
         factor = END_PROFILE_STEP / math.sqrt(max(rise, 1.0)) if math.isfinite(rise) else 1.0
         factor = max(factor, 1.0)
         widened += (factor**2 - 1.0) * np.outer(direction, direction)
