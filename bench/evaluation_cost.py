@@ -157,9 +157,15 @@ def _methods(module: types.ModuleType) -> dict[tuple[str, str], Callable[..., An
     return found
 
 
-def _install(methods: dict[tuple[str, str], Callable[..., Any]]) -> None:
+def _install(
+    methods: dict[tuple[str, str], Callable[..., Any]], absent: frozenset[tuple[str, str]]
+) -> None:
+    """Put ``methods`` on their classes and take off those named in ``absent``."""
     for (name, key), value in methods.items():
         setattr(getattr(response_model, name), key, value)
+    for name, key in absent:
+        if key in vars(getattr(response_model, name)):
+            delattr(getattr(response_model, name), key)
 
 
 def compare(
@@ -172,21 +178,22 @@ def compare(
     """``--against``: the recorded calls replayed ``repeats`` times a side, the sides alternating
     (which goes first alternating too), after a warm-up of each; medians and ratios printed."""
     own = _methods(response_model)
-    # A method the other checkout lacks stays this checkout's; one only this checkout has is
-    # put back when its side runs.
-    theirs = {**own, **{key: value for key, value in other.items() if key in own}}
+    # A method the other checkout lacks stays this checkout's; one only the other has is taken
+    # off again when this checkout's side runs.
+    theirs = {**own, **other}
     sides = {"this": own, "other": theirs}
+    absent = {"this": frozenset(other) - frozenset(own), "other": frozenset()}
     spent: dict[str, list[dict[str, float]]] = {side: [] for side in sides}
     try:
         for round_ in range(repeats + 1):
             order = list(sides) if round_ % 2 else list(sides)[::-1]
             for side in order:
-                _install(sides[side])
+                _install(sides[side], absent[side])
                 one = replay(costs_calls, residual_calls)
                 if round_:  # the first round warms up both
                     spent[side].append(one)
     finally:
-        _install(own)
+        _install(own, absent["this"])
     medians = {
         side: {key: statistics.median(one[key] for one in spent[side]) for key in spent[side][0]}
         for side in sides
