@@ -35,11 +35,14 @@ def test_the_replay_against_another_checkout_runs_its_methods_and_puts_this_ones
         return theirs(self, *args, **kwargs)
 
     other[("ResponseModel", "costs")] = counting
+    # A method only the other checkout has is there for its side and gone afterwards.
+    other[("ResponseModel", "_only_theirs")] = lambda self: None
     own_costs, own_evaluate = ResponseModel.costs, LampColumns.evaluate
     bench.compare("scene", costs_calls, residual_calls, other, 2)
     assert len(called) == 3  # a warm-up round and two timed rounds, one batch each
     assert ResponseModel.costs is own_costs
     assert LampColumns.evaluate is own_evaluate
+    assert not hasattr(ResponseModel, "_only_theirs")
     printed = capsys.readouterr().out
     assert printed.startswith("scene") and "other → this checkout" in printed
     assert "costs" in printed and "jacobian" in printed
