@@ -72,6 +72,10 @@ SHARED_EDGES_FROM = 3
 #: Up to this many band values (``K·n·w``) the normal matrices' pair products are gathered along
 #: the band's short last axis (one mapping: 3× faster); beyond, pixels last (a scan's batch: 10×).
 SMALL_BAND = 16384
+#: From this many rows (``K·n``) on, a scan's batch holds its band's last column apart
+#: (:attr:`Band.outer`): the band is as wide as its widest rows (a pixel at a junction of the node
+#: pieces meets four hats), and the last column is nonzero in few rows (decision 0157).
+OUTER_FROM = 4096
 #: Up to this many entries (``n·N``) of one mapping's dense matrix its normal matrices are the
 #: dense product ``(WA)ᵀ(WA)`` (fewer calls); beyond, they come from the band (``n·w²`` work
 #: instead of ``n·N²``: at the final stage's 941 pixels × 75 nodes half a residual's time).
@@ -405,6 +409,10 @@ class Band:
     #: lamp axis (:meth:`LampColumns.density_at`), when :meth:`ResponseModel.band` was asked for
     #: it: read by :meth:`ResponseModel.band_derivative` instead of locating the edges again.
     slope: FloatArray | None = None
+    #: The band's last column held apart (``values`` then the others, ``(K, n, w − 1)``): the
+    #: rows (flat in ``K·n``) where it can be nonzero and its values there ``(R,)``; zero in every
+    #: other row (:meth:`ResponseModel._outer_column`).
+    outer: tuple[IntArray, FloatArray] | None = None
 
     @cached_property
     def columns(self) -> IntArray:
@@ -646,8 +654,13 @@ class ResponseModel:
         The search's scan and deciding stages keep the nominal support: their thresholds and
         their basins on the validation split were judged with it, and the broadband quadratic
         family's basins move with any change of their costs (decision 0115)."""
-        if not self.cut_ramps:
-            return self.layout.support
+        return self._ramp_support if self.cut_ramps else self.layout.support
+
+    @cached_property
+    def _ramp_support(self) -> tuple[FloatArray, FloatArray]:
+        """Each node's hat support and one lamp step past a piece's end where the hat is cut
+        there (:meth:`_column_support`'s with :attr:`cut_ramps`): beyond it a column's cumulative
+        is constant, so a pixel outside it has an exact zero in that column."""
         layout = self.layout
         fine = self.columns.step_nm
         return (
@@ -663,7 +676,11 @@ class ResponseModel:
         padded = edges_nm if count == 2 else edges_nm[:, index]
         return _sliding(np.ascontiguousarray(padded), count), index  # (K, n + L)
 
-    def _band_values(self, edges_nm: FloatArray, *, slopes: bool = False) -> Band:
+    def _band_values(
+        self, edges_nm: FloatArray, *, slopes: bool = False, outer: bool = False
+    ) -> Band:
+        """The band of :meth:`band` (``outer``: its last column held apart, :attr:`Band.outer`,
+        for a batch's normal sums; not with ``slopes`` or shared edges)."""
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
         low, high = _reduced(windows, np.minimum), _reduced(windows, np.maximum)
         support_lo, support_hi = self._column_support
@@ -683,27 +700,64 @@ class ResponseModel:
             if not every_node:
                 values = values * (first[..., None] + np.arange(width) < size)  # (K, n, w)
             return Band(values if rising else values * _signs(edges_nm), first)
+        held_apart = outer and every_node and width > 1 and not slopes
+        kept = width - 1 if held_apart else width
         # Laid out (w, L + 1, K, n), pixels last: every elementwise pass runs over whole rows of
         # pixels, not over the short (w, L + 1) axes (the same operations on the same numbers).
-        column = first + np.arange(width)[:, None, None]  # (w, K, n)
-        count = self.filter.size
+        column = first + np.arange(kept)[:, None, None]  # (w, K, n)
         edge_windows = _last_first(windows)  # (L + 1, K, n), a view
         value, slope = self.columns.evaluate(
             edge_windows[None],
             (column if every_node else np.minimum(column, size - 1))[:, None],
             derivative=slopes,
         )  # (w, L + 1, K, n)
-        if self._two_edges:
-            # (−C_lo)·1 + C_hi·1 is C_hi − C_lo exactly: one pass instead of three.
-            filtered = value[:, 1] - value[:, 0]
-        else:
-            filtered = value[:, 0] * self.filter[0]
-            for tap in range(1, count):
-                filtered = filtered + value[:, tap] * self.filter[tap]
+        filtered = self._filtered([value[:, tap] for tap in range(self.filter.size)])
         if not every_node:
             filtered = filtered * (column < size)
         values = _first_last(filtered)  # (K, n, w), laid out (w, K, n) as the products were
-        return Band(values if rising else values * _signs(edges_nm), first, slope=slope)
+        return Band(
+            values if rising else values * _signs(edges_nm),
+            first,
+            slope=slope,
+            outer=(
+                self._outer_column(windows, low, high, first + kept, edges_nm)
+                if held_apart
+                else None
+            ),
+        )
+
+    def _filtered(self, taps: list[FloatArray]) -> FloatArray:
+        """``Σ_l f_l C_l`` of the cumulatives at a blurred pixel's ``L + 1`` edges, tap by tap."""
+        if self._two_edges:
+            # (−C_lo)·1 + C_hi·1 is C_hi − C_lo exactly: one pass instead of three.
+            return np.asarray(taps[1] - taps[0], dtype=np.float64)
+        filtered = taps[0] * self.filter[0]
+        for tap in range(1, len(taps)):
+            filtered = filtered + taps[tap] * self.filter[tap]
+        return np.asarray(filtered, dtype=np.float64)
+
+    def _outer_column(
+        self,
+        windows: FloatArray,
+        low: FloatArray,
+        high: FloatArray,
+        column: IntArray,
+        edges_nm: FloatArray,
+    ) -> tuple[IntArray, FloatArray]:
+        """:attr:`Band.outer`: the band's last column ``column`` ``(K, n)`` in the rows whose
+        pixel (``low``–``high``) meets that node's hat or its ramp (:attr:`_ramp_support`; in
+        every other row the column is an exact zero), the same operations as the band's."""
+        reach_lo, reach_hi = self._ramp_support
+        rows = np.flatnonzero((reach_lo[column] < high) & (reach_hi[column] > low))
+        n = column.shape[1]
+        mapping, pixel = np.divmod(rows, n)
+        value, _ = self.columns.evaluate(
+            _last_first(windows[mapping, pixel]), column.reshape(-1)[rows]
+        )  # (L + 1, R)
+        filtered = self._filtered(list(value))
+        if not _rising(edges_nm):
+            filtered = filtered * _signs(edges_nm)[mapping, 0, 0]
+        return rows, np.asarray(filtered, dtype=np.float64)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
         """``Σ_l f_l C_j`` over each blurred pixel's ``L + 1`` edges for its ``w`` columns
@@ -835,10 +889,16 @@ class ResponseModel:
         row, laid out ``(K, n, M + w)``, the pairs' bins first and the right-hand sides' after
         them. Every bin receives the same entries in the same order as in a ``bincount`` of its
         own (the pairs' and the values' bins are apart): the same sums to the bit, in three
-        calls instead of six (decision 0131)."""
-        values = band.values  # (K, n, w)
+        calls instead of six (decision 0131). A band whose last column is held apart
+        (:attr:`Band.outer`, a scan's batch) gives its ``w − 1`` columns' pairs here and the last
+        column's products in the few rows where it is nonzero through :meth:`_outer_sums`, added
+        after: the same nonzero products, the rest exact zeros left out (up to rounding;
+        decision 0157)."""
+        values = band.values  # (K, n, w), or (K, n, w − 1) with the last column apart
         batch, n, width = values.shape
         size = self.n_nodes
+        # The diagonals' count: the band's width with its last column when held apart.
+        bins = width + (band.outer is not None)
         lows, offsets = _band_pairs(width)
         pairs = lows.size
         extra = width if with_rhs else 0
@@ -857,19 +917,19 @@ class ResponseModel:
             )
         # The places, each an integer sum (exact in any order): a row's start (its batch's
         # offset and its first column) plus each entry's offset, written in place.
-        per_batch = size * width + (size if with_rhs else 0)
+        per_batch = size * bins + (size if with_rhs else 0)
         batch_start = (np.arange(batch) * per_batch)[:, None]  # (K, 1)
         places = np.empty((batch, n, pairs + extra), dtype=np.intp)
         np.add(
-            (band.first * width + batch_start)[:, :, None],
-            lows * width + offsets,
+            (band.first * bins + batch_start)[:, :, None],
+            lows * bins + offsets,
             out=places[..., :pairs],
         )
         if with_rhs:
             factors[..., pairs:] = values
             np.add(
                 (band.first + batch_start)[:, :, None],
-                (size * width) + np.arange(width),
+                (size * bins) + np.arange(width),
                 out=places[..., pairs:],
             )
         flat = places.reshape(-1)
@@ -888,9 +948,49 @@ class ResponseModel:
             ),
             dtype=np.float64,
         )  # (K, 3, N·w [+ N])
-        diagonals = sums[..., : size * width].reshape(batch, 3, size, width)
-        rhs = sums[..., size * width :] if with_rhs else None
+        if band.outer is not None:
+            sums += self._outer_sums(band, per_batch, with_rhs)
+        diagonals = sums[..., : size * bins].reshape(batch, 3, size, bins)
+        rhs = sums[..., size * bins :] if with_rhs else None
         return diagonals, rhs
+
+    def _outer_sums(self, band: Band, per_batch: int, with_rhs: bool) -> FloatArray:
+        """What :attr:`Band.outer`'s entries add to :meth:`_normal_sums`' bins ``(K, 3, per_batch)``:
+        in each of its rows the last column's products with the row's columns (the pairs
+        ``(a, w − 1 − a)``, the low column first, as the band's own pairs are formed) and, with
+        ``rhs``, its value; the same products, summed apart and added (equal up to rounding)."""
+        assert band.outer is not None
+        rows, outer = band.outer
+        batch, n, width = band.values.shape  # width: the columns kept, the last one apart
+        size = self.n_nodes
+        bins = width + 1
+        mapping, pixel = np.divmod(rows, n)
+        first = band.first[mapping, pixel]  # (R,)
+        products = np.empty((rows.size, bins + (1 if with_rhs else 0)))
+        np.multiply(band.values[mapping, pixel], outer[:, None], out=products[:, :width])
+        products[:, width] = outer * outer
+        reach = np.arange(bins)
+        places = np.empty(products.shape, dtype=np.intp)
+        np.add(
+            (mapping * per_batch + first * bins)[:, None],
+            reach * bins + (width - reach),
+            out=places[:, :bins],
+        )
+        weights = np.repeat((self.weights**2).T[:, pixel, None], products.shape[1], axis=2)
+        if with_rhs:
+            products[:, bins] = outer
+            places[:, bins] = mapping * per_batch + size * bins + first + width
+            weights[:, :, bins] = self._weighted_target[:, pixel]
+        flat = places.reshape(-1)
+        return np.stack(
+            [
+                np.bincount(
+                    flat, weights=(products * weights[c]).reshape(-1), minlength=batch * per_batch
+                ).reshape(batch, per_batch)
+                for c in range(3)
+            ],
+            axis=1,
+        )
 
     def _normal_weights(self, width: int, with_rhs: bool) -> FloatArray:
         """The per-channel weights of :meth:`_normal_sums`' entries ``(3, n, M [+ w])``: ``W²``
@@ -1140,7 +1240,10 @@ class ResponseModel:
         ``adaptive`` recomputes ``β̂`` and the penalty weights per mapping (scans over a wide range
         of dispersions); otherwise the reference values are used.
         """
-        band = self.band(np.atleast_2d(edges_nm))
+        edges_nm = np.atleast_2d(edges_nm)
+        band = self._band_values(
+            edges_nm, outer=edges_nm.shape[0] * (edges_nm.shape[1] - 1) >= OUTER_FROM
+        )
         diagonals, rhs = self._normal(band)
         batch = diagonals.shape[0]
         if adaptive or self.penalty_weight is None:
