@@ -76,11 +76,6 @@ SMALL_BAND = 16384
 #: (:attr:`Band.outer`): the band is as wide as its widest rows (a pixel at a junction of the node
 #: pieces meets four hats), and the last column is nonzero in few rows (decision 0157).
 OUTER_FROM = 4096
-#: From this many pixels on, one mapping's band (a descent's) keeps its first ``SINGLE_KEPT``
-#: columns and holds the others apart (:attr:`Band.outer`): at 470 pixels 93 % of its rows need
-#: two of their four columns (decision 0161).
-SINGLE_APART_FROM = 300
-SINGLE_KEPT = 2
 #: Up to this many entries (``n·N``) of one mapping's dense matrix its normal matrices are the
 #: dense product ``(WA)ᵀ(WA)`` (fewer calls); beyond, they come from the band (``n·w²`` work
 #: instead of ``n·N²``: at the final stage's 941 pixels × 75 nodes half a residual's time).
@@ -414,13 +409,10 @@ class Band:
     #: lamp axis (:meth:`LampColumns.density_at`), when :meth:`ResponseModel.band` was asked for
     #: it: read by :meth:`ResponseModel.band_derivative` instead of locating the edges again.
     slope: FloatArray | None = None
-    #: The band's last ``h`` columns held apart (``values`` then the others, ``(K, n, w − h)``):
-    #: the rows (flat in ``K·n``) where one of them can be nonzero and their values there
-    #: ``(R, h)``; zero in every other row (:meth:`ResponseModel._outer_column`).
+    #: The band's last column held apart (``values`` then the others, ``(K, n, w − 1)``): the
+    #: rows (flat in ``K·n``) where it can be nonzero and its values there ``(R,)``; zero in every
+    #: other row (:meth:`ResponseModel._outer_column`).
     outer: tuple[IntArray, FloatArray] | None = None
-    #: With ``slope`` and :attr:`outer`: the held columns' lamp density at their rows' edges
-    #: ``(h, L + 1, R)``.
-    outer_slope: FloatArray | None = None
 
     @cached_property
     def columns(self) -> IntArray:
@@ -626,14 +618,11 @@ class ResponseModel:
         edge_jacobian: FloatArray | None = None,
         *,
         slopes: bool = False,
-        kept: int | None = None,
     ) -> Band:
         """The banded model matrix for edge wavelengths ``(K, n + 1)`` (and ``∂/∂x`` from
         ``edge_jacobian`` ``(K, n + 1, P)``; with ``slopes``, the lamp density at the edges kept
-        for a later :meth:`band_derivative`; ``kept``: :meth:`_band_values`'s, not with
-        ``edge_jacobian``)."""
-        assert kept is None or edge_jacobian is None
-        band = self._band_values(edges_nm, slopes=slopes or edge_jacobian is not None, kept=kept)
+        for a later :meth:`band_derivative`)."""
+        band = self._band_values(edges_nm, slopes=slopes or edge_jacobian is not None)
         if edge_jacobian is None:
             return band
         return replace(band, derivative=self.band_derivative(edges_nm, edge_jacobian, band))
@@ -688,11 +677,10 @@ class ResponseModel:
         return _sliding(np.ascontiguousarray(padded), count), index  # (K, n + L)
 
     def _band_values(
-        self, edges_nm: FloatArray, *, slopes: bool = False, kept: int | None = None
+        self, edges_nm: FloatArray, *, slopes: bool = False, outer: bool = False
     ) -> Band:
-        """The band of :meth:`band` (``kept``: its columns from ``kept`` on held apart, a slice's
-        bound — ``-1`` the last column, ``2`` all but the first two — :attr:`Band.outer`; a
-        scan's batch and a long single mapping; not with shared edges)."""
+        """The band of :meth:`band` (``outer``: its last column held apart, :attr:`Band.outer`,
+        for a batch's normal sums; not with ``slopes`` or shared edges)."""
         windows, _ = self._windows(edges_nm)  # (K, n, L+1)
         low, high = _reduced(windows, np.minimum), _reduced(windows, np.maximum)
         support_lo, support_hi = self._column_support
@@ -712,9 +700,8 @@ class ResponseModel:
             if not every_node:
                 values = values * (first[..., None] + np.arange(width) < size)  # (K, n, w)
             return Band(values if rising else values * _signs(edges_nm), first)
-        columns_kept = len(range(width)[:kept]) if kept is not None else width
-        held_apart = every_node and 0 < columns_kept < width
-        kept = columns_kept if held_apart else width
+        held_apart = outer and every_node and width > 1 and not slopes
+        kept = width - 1 if held_apart else width
         # Laid out (w, L + 1, K, n), pixels last: every elementwise pass runs over whole rows of
         # pixels, not over the short (w, L + 1) axes (the same operations on the same numbers).
         column = first + np.arange(kept)[:, None, None]  # (w, K, n)
@@ -728,19 +715,15 @@ class ResponseModel:
         if not every_node:
             filtered = filtered * (column < size)
         values = _first_last(filtered)  # (K, n, w), laid out (w, K, n) as the products were
-        outer, outer_slope = (
-            self._outer_column(
-                windows, low, high, first + np.arange(kept, width)[:, None, None], edges_nm, slopes
-            )
-            if held_apart
-            else (None, None)
-        )
         return Band(
             values if rising else values * _signs(edges_nm),
             first,
             slope=slope,
-            outer=outer,
-            outer_slope=outer_slope,
+            outer=(
+                self._outer_column(windows, low, high, first + kept, edges_nm)
+                if held_apart
+                else None
+            ),
         )
 
     def _filtered(self, taps: list[FloatArray]) -> FloatArray:
@@ -760,26 +743,21 @@ class ResponseModel:
         high: FloatArray,
         column: IntArray,
         edges_nm: FloatArray,
-        slopes: bool = False,
-    ) -> tuple[tuple[IntArray, FloatArray], FloatArray | None]:
-        """:attr:`Band.outer` (and :attr:`Band.outer_slope` with ``slopes``): the band's last
-        columns ``column`` ``(h, K, n)`` in the rows whose pixel (``low``–``high``) meets one of
-        those nodes' hats or ramps (:attr:`_ramp_support`; in every other row those columns are
-        exact zeros), the same operations as the band's."""
+    ) -> tuple[IntArray, FloatArray]:
+        """:attr:`Band.outer`: the band's last column ``column`` ``(K, n)`` in the rows whose
+        pixel (``low``–``high``) meets that node's hat or its ramp (:attr:`_ramp_support`; in
+        every other row the column is an exact zero), the same operations as the band's."""
         reach_lo, reach_hi = self._ramp_support
-        meets = (reach_lo[column] < high) & (reach_hi[column] > low)  # (h, K, n)
-        rows = np.flatnonzero(meets[0] if column.shape[0] == 1 else meets.any(axis=0))
-        n = column.shape[2]
+        rows = np.flatnonzero((reach_lo[column] < high) & (reach_hi[column] > low))
+        n = column.shape[1]
         mapping, pixel = np.divmod(rows, n)
-        value, slope = self.columns.evaluate(
-            _last_first(windows[mapping, pixel])[None],
-            column.reshape(column.shape[0], 1, -1)[..., rows],
-            derivative=slopes,
-        )  # (h, L + 1, R)
-        filtered = self._filtered([value[:, tap] for tap in range(value.shape[1])])  # (h, R)
+        value, _ = self.columns.evaluate(
+            _last_first(windows[mapping, pixel]), column.reshape(-1)[rows]
+        )  # (L + 1, R)
+        filtered = self._filtered(list(value))
         if not _rising(edges_nm):
             filtered = filtered * _signs(edges_nm)[mapping, 0, 0]
-        return (rows, np.asarray(filtered.T, dtype=np.float64)), slope
+        return rows, np.asarray(filtered, dtype=np.float64)
 
     def _edge_cumulatives(self, edges_nm: FloatArray, first: IntArray, width: int) -> FloatArray:
         """``Σ_l f_l C_j`` over each blurred pixel's ``L + 1`` edges for its ``w`` columns
@@ -920,7 +898,7 @@ class ResponseModel:
         batch, n, width = values.shape
         size = self.n_nodes
         # The diagonals' count: the band's width with its last column when held apart.
-        bins = width + (0 if band.outer is None else band.outer[1].shape[1])
+        bins = width + (band.outer is not None)
         lows, offsets = _band_pairs(width)
         pairs = lows.size
         extra = width if with_rhs else 0
@@ -978,37 +956,31 @@ class ResponseModel:
 
     def _outer_sums(self, band: Band, per_batch: int, with_rhs: bool) -> FloatArray:
         """What :attr:`Band.outer`'s entries add to :meth:`_normal_sums`' bins ``(K, 3, per_batch)``:
-        in each of its rows the held columns' products with the row's columns (the band's pairs
-        ``(a, a + d)`` whose high column is held apart, the low column first, as the band's own
-        pairs are formed) and, with ``rhs``, their values; the same products, summed apart and
-        added (equal up to rounding)."""
+        in each of its rows the last column's products with the row's columns (the pairs
+        ``(a, w − 1 − a)``, the low column first, as the band's own pairs are formed) and, with
+        ``rhs``, its value; the same products, summed apart and added (equal up to rounding)."""
         assert band.outer is not None
-        rows, outer = band.outer  # (R,), (R, h)
-        batch, n, width = band.values.shape  # width: the columns kept, h apart
+        rows, outer = band.outer
+        batch, n, width = band.values.shape  # width: the columns kept, the last one apart
         size = self.n_nodes
-        bins = width + outer.shape[1]
-        lows, offsets = self._outer_pairs(width, bins)
-        pairs = lows.size
+        bins = width + 1
         mapping, pixel = np.divmod(rows, n)
         first = band.first[mapping, pixel]  # (R,)
-        row = np.concatenate([band.values[mapping, pixel], outer], axis=1)  # (R, w)
-        products = np.empty((rows.size, pairs + (outer.shape[1] if with_rhs else 0)))
-        np.multiply(row[:, lows], row[:, lows + offsets], out=products[:, :pairs])
+        products = np.empty((rows.size, bins + (1 if with_rhs else 0)))
+        np.multiply(band.values[mapping, pixel], outer[:, None], out=products[:, :width])
+        products[:, width] = outer * outer
+        reach = np.arange(bins)
         places = np.empty(products.shape, dtype=np.intp)
         np.add(
             (mapping * per_batch + first * bins)[:, None],
-            lows * bins + offsets,
-            out=places[:, :pairs],
+            reach * bins + (width - reach),
+            out=places[:, :bins],
         )
         weights = np.repeat((self.weights**2).T[:, pixel, None], products.shape[1], axis=2)
         if with_rhs:
-            products[:, pairs:] = outer
-            np.add(
-                (mapping * per_batch + size * bins + first)[:, None],
-                np.arange(width, bins),
-                out=places[:, pairs:],
-            )
-            weights[:, :, pairs:] = self._weighted_target[:, pixel, None]
+            products[:, bins] = outer
+            places[:, bins] = mapping * per_batch + size * bins + first + width
+            weights[:, :, bins] = self._weighted_target[:, pixel]
         flat = places.reshape(-1)
         return np.stack(
             [
@@ -1019,14 +991,6 @@ class ResponseModel:
             ],
             axis=1,
         )
-
-    @staticmethod
-    @functools.lru_cache(maxsize=16)
-    def _outer_pairs(kept: int, width: int) -> tuple[IntArray, IntArray]:
-        """:func:`_band_pairs` of a width-``width`` band whose high column is past ``kept``."""
-        lows, offsets = _band_pairs(width)
-        chosen = lows + offsets >= kept
-        return lows[chosen], offsets[chosen]
 
     def _normal_weights(self, width: int, with_rhs: bool) -> FloatArray:
         """The per-channel weights of :meth:`_normal_sums`' entries ``(3, n, M [+ w])``: ``W²``
@@ -1050,14 +1014,7 @@ class ResponseModel:
         """``β̂`` per batch: the mean camera's scale that best explains the profile ``(K,)``."""
         mean = self.prior_mean  # (3, N)
         gathered = mean[:, band.columns]  # (3, K, n, w)
-        predicted = np.einsum("cknw,knw->knc", gathered, band.values)
-        if band.outer is not None:
-            rows, outer = band.outer
-            n, kept = band.values.shape[1:]
-            mapping, pixel = np.divmod(rows, n)
-            held = band.first[mapping, pixel][:, None] + np.arange(kept, kept + outer.shape[1])
-            predicted[mapping, pixel] += np.einsum("crh,rh->rc", mean[:, held], outer)
-        predicted = predicted * self.weights
+        predicted = np.einsum("cknw,knw->knc", gathered, band.values) * self.weights
         numerator = np.einsum("knc,nc->k", predicted, self.target)
         denominator = np.einsum("knc,knc->k", predicted, predicted)
         scale = numerator / np.maximum(denominator, 1e-300)
@@ -1256,14 +1213,10 @@ class ResponseModel:
     def reference(self, edges_nm: FloatArray) -> ResponseModel:
         """This model with ``β̂`` and the penalty weights of the mapping with these edge
         wavelengths ``(n + 1,)`` held fixed (what :meth:`residual` differentiates)."""
-        band = self.band(edges_nm[None, :], slopes=True, kept=self._single_kept(edges_nm))
+        band = self.band(edges_nm[None, :], slopes=True)
         # The normal matrices' trace (what :meth:`_penalty_weight` reads) straight from the band:
         # Σ_n W² Σ_a A_na², without the matrices themselves.
-        squares = (band.values[0] ** 2).sum(axis=1)  # (n,)
-        if band.outer is not None:
-            rows, outer = band.outer
-            squares[rows] += (outer**2).sum(axis=1)
-        trace = squares @ self.weights**2 / self.n_nodes  # (3,)
+        trace = (band.values[0] ** 2).sum(axis=1) @ self.weights**2 / self.n_nodes  # (3,)
         held = replace(
             self,
             scale=float(self._prior_scale(band)[0]),
@@ -1289,7 +1242,7 @@ class ResponseModel:
         """
         edges_nm = np.atleast_2d(edges_nm)
         band = self._band_values(
-            edges_nm, kept=-1 if edges_nm.shape[0] * (edges_nm.shape[1] - 1) >= OUTER_FROM else None
+            edges_nm, outer=edges_nm.shape[0] * (edges_nm.shape[1] - 1) >= OUTER_FROM
         )
         diagonals, rhs = self._normal(band)
         batch = diagonals.shape[0]
@@ -1360,30 +1313,11 @@ class ResponseModel:
         ):
             band = referenced[1]
         else:
-            band = model.band(
-                edges_nm[None, :],
-                slopes=edge_jacobian is not None,
-                kept=model._single_kept(edges_nm),
-            )
+            band = model.band(edges_nm[None, :], slopes=edge_jacobian is not None)
         size = model.n_nodes
         n = band.values.shape[1]
         flat = (np.arange(n)[:, None] * size + np.minimum(band.columns[0], size - 1)).ravel()
-        entries = band.values[0].ravel()
-        rows_of = None  # each entry's pixel, when columns are held apart
-        if band.outer is not None:
-            # The held columns' entries after the band's (their places and values; each place
-            # once, so the dense layout's sums are the entries themselves).
-            rows, outer = band.outer
-            kept = band.values.shape[2]
-            held_flat = (rows * size + band.first[0, rows] + kept)[:, None] + np.arange(
-                outer.shape[1]
-            )  # (R, h)
-            flat = np.concatenate([flat, held_flat.ravel()])
-            entries = np.concatenate([entries, outer.ravel()])
-            rows_of = np.concatenate(
-                [np.repeat(np.arange(n), kept), np.repeat(rows, outer.shape[1])]
-            )
-        matrix = _dense(flat, entries, (n, size))  # A (n, N)
+        matrix = _dense(flat, band.values[0], (n, size))  # A (n, N)
         weights = model.weights.T  # (3, n)
         if n * size <= DENSE_NORMAL:
             # One small mapping's normal matrices from the dense A (three small products): the
@@ -1394,9 +1328,7 @@ class ResponseModel:
             # n·N entries, the zeros too; decision 0142).
             weighted = _dense(  # (3, n, N): W A
                 (flat + (n * size) * np.arange(3)[:, None]).ravel(),
-                weights[:, :, None] * band.values[0]
-                if rows_of is None
-                else weights[:, rows_of] * entries,
+                weights[:, :, None] * band.values[0],
                 (3, n, size),
             )
             systems = model._held_systems + np.matmul(weighted.transpose(0, 2, 1), weighted)
@@ -1429,22 +1361,7 @@ class ResponseModel:
 
         def jacobian() -> FloatArray:
             n_parameters = edge_derivative.shape[-1]
-            if band.outer is not None:
-                # The kept columns' (P, w − h, n) and the held entries' (P, R, h), laid out dense
-                # through their places in the same order.
-                derivative = np.concatenate(
-                    [
-                        model._pixels_last_derivative(
-                            edges_nm[None, :], edge_derivative[None], band
-                        )[:, :, 0]
-                        .transpose(0, 2, 1)
-                        .reshape(n_parameters, -1),
-                        model._outer_derivative(edges_nm, edge_derivative, band),
-                    ],
-                    axis=1,
-                )
-                places = flat
-            elif band.slope is not None:
+            if band.slope is not None:
                 # Pixels last (P, w, n): laid out dense through the band's places read (w, n).
                 derivative = model._pixels_last_derivative(
                     edges_nm[None, :], edge_derivative[None], band
@@ -1465,31 +1382,6 @@ class ResponseModel:
             )
 
         return residual, jacobian, parts
-
-    def _single_kept(self, edges_nm: FloatArray) -> int | None:
-        """:meth:`_band_values`' ``kept`` for one mapping's edges ``(n + 1,)``
-        (:data:`SINGLE_APART_FROM`); not for blurred profiles (their shared edges)."""
-        long = edges_nm.shape[-1] - 1 >= SINGLE_APART_FROM
-        return SINGLE_KEPT if long and self.filter.size <= SHARED_EDGES_FROM else None
-
-    def _outer_derivative(
-        self, edges_nm: FloatArray, edge_jacobian: FloatArray, band: Band
-    ) -> FloatArray:
-        """``∂A/∂x`` at one mapping's held entries ``(P, R·h)`` (:attr:`Band.outer_slope`), the
-        rows' entries in :attr:`Band.outer`'s order: :meth:`_pixels_last_derivative`'s
-        operations tap by tap."""
-        assert band.outer is not None and band.outer_slope is not None
-        rows, _ = band.outer
-        slope = band.outer_slope  # (h, L + 1, R)
-        moving = edge_jacobian if self.filter.size == 2 else edge_jacobian[self._edge_index]
-        sign = 1.0 if _rising(edges_nm[None, :]) else -1.0
-        total = None
-        for tap in range(self.filter.size):
-            coefficient = slope[:, tap] * (self.filter[tap] * sign)  # (h, R)
-            term = coefficient.T[None] * moving[rows + tap].T[:, :, None]  # (P, R, h)
-            total = term if total is None else total + term
-        assert total is not None
-        return np.asarray(total.reshape(total.shape[0], -1), dtype=np.float64)
 
     def _residual_jacobian(
         self,
