@@ -15,7 +15,9 @@ alternately with this checkout's response model and with the one under ``ROOT`` 
 ``ResponseModel``, ``LampColumns`` and ``NodeLayout`` methods put in place of this checkout's on the
 recorded models: the two must share the models' fields), and both medians and their ratio are
 printed: on a loaded machine two processes run one after the other differ by 10–15 % on their
-own, the alternating replay by ~2 % (decision 0157).
+own, the alternating replay by ~2 % (decision 0157). Each side makes the descents' reference bands
+again before its replay (a band one checkout laid out is read as that checkout reads it; decision
+0161).
 
     python bench/evaluation_cost.py --data-dir ../shared/data/camera_sensitivities [--repeats 7] [--protocol] [--against ../base]
 """
@@ -168,6 +170,19 @@ def _install(
             delattr(getattr(response_model, name), key)
 
 
+def rereference(residual_calls: list[tuple[Any, ...]]) -> None:
+    """Each recorded descent model's reference band (:attr:`ResponseModel.referenced`, which a
+    descent's first residual reads) made again by the methods now installed: a band recorded by
+    one checkout is laid out as that checkout's methods read it."""
+    seen: set[int] = set()
+    for model, _, _ in residual_calls:
+        if model.referenced is None or id(model) in seen:
+            continue
+        seen.add(id(model))
+        edges = model.referenced[0]
+        object.__setattr__(model, "referenced", (edges, model.reference(edges).referenced[1]))
+
+
 def compare(
     label: str,
     costs_calls: list[tuple[Any, ...]],
@@ -189,11 +204,13 @@ def compare(
             order = list(sides) if round_ % 2 else list(sides)[::-1]
             for side in order:
                 _install(sides[side], absent[side])
+                rereference(residual_calls)
                 one = replay(costs_calls, residual_calls)
                 if round_:  # the first round warms up both
                     spent[side].append(one)
     finally:
         _install(own, absent["this"])
+        rereference(residual_calls)
     medians = {
         side: {key: statistics.median(one[key] for one in spent[side]) for key in spent[side][0]}
         for side in sides

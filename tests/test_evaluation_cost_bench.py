@@ -35,11 +35,30 @@ def test_the_replay_against_another_checkout_runs_its_methods_and_puts_this_ones
         return theirs(self, *args, **kwargs)
 
     other[("ResponseModel", "costs")] = counting
+    # Each side makes the descent's reference band again with its own methods before it runs.
+    their_band = other[("ResponseModel", "band")]
+    banded: list[int] = []
+
+    def counting_band(self: ResponseModel, *args: Any, **kwargs: Any) -> Any:
+        banded.append(1)
+        return their_band(self, *args, **kwargs)
+
+    other[("ResponseModel", "band")] = counting_band
+    referenced = residual_calls[0][0].referenced
+    assert referenced is not None
+    recorded_band = referenced[1]
     # A method only the other checkout has is there for its side and gone afterwards.
     other[("ResponseModel", "_only_theirs")] = lambda self: None
     own_costs, own_evaluate = ResponseModel.costs, LampColumns.evaluate
     bench.compare("scene", costs_calls, residual_calls, other, 2)
     assert len(called) == 3  # a warm-up round and two timed rounds, one batch each
+    assert len(banded) == 3  # the other side's reference band, once a round
+    # Afterwards the reference band is this checkout's again: a new one, the same numbers.
+    referenced = residual_calls[0][0].referenced
+    assert referenced is not None
+    remade = referenced[1]
+    assert remade is not recorded_band
+    assert (remade.values == recorded_band.values).all()
     assert ResponseModel.costs is own_costs
     assert LampColumns.evaluate is own_evaluate
     assert not hasattr(ResponseModel, "_only_theirs")
