@@ -37,8 +37,10 @@ and channel, on the delivered curves' scale (maximum 1):
     lamp's Hg lines and corrected (:mod:`calib.core.spectrometer_scale`, decision 0069), the scale
     component is the check's σ (``metadata["wavelength_scale_sigma_nm"]``), not the tolerance;
     where that check also measured the slit (:func:`calib.core.spectrometer_scale.measured_slit`),
-    the bandwidth is re-solved toward the measured slit and the component is that slit's one σ,
-    ``hypot(k − 1, σ_k)`` of the stated bandwidth, not the tolerance (decision 0099).
+    the bandwidth is re-solved moved toward the measured slit by that slit's one σ,
+    ``hypot(k − 1, σ_k)`` of the stated bandwidth, not the tolerance (decision 0099), and the
+    change is the component: at that σ itself, not a larger step scaled back, since the solve is not
+    linear in the slit (decision 0159).
 ``efficiency model``
     By perturbation: re-solved with :data:`EFFICIENCY_TERMS_STEP` fewer terms of the grating
     efficiency's Fourier model — how much the answer leans on the η model's form.
@@ -111,6 +113,11 @@ ASSUMED_BANDWIDTH_NM = 5.0
 #: the one the simulations and the mapping's σ share. An assumed bandwidth (none given) keeps the
 #: whole perturbation whatever this is.
 TOLERANCE_SIGMA = IN_SPEC_TOLERANCE_SIGMA
+#: The smallest relative move of a measured slit the bandwidth component re-solves at (decision
+#: 0159): a slit's one σ below it is reached by scaling this step's change back. On the validation
+#: twins a 5 % narrower slit moves the fitted phase by 2–7 ×10⁻⁴ rad, the same to ±1 ×10⁻⁴ on every
+#: twin of one station, well above the fit's own precision.
+MIN_SLIT_STEP = 0.05
 #: Efficiency terms removed for the η-model perturbation.
 EFFICIENCY_TERMS_STEP = 2
 #: The lamp spectrum's precision relative to the signal, as a floor under each profile sample's
@@ -883,10 +890,13 @@ def spectrometer_sigma(
             else math.copysign(math.hypot(slit[0] - 1.0, slit[1]), slit[0] - 1.0)
             for slit in slits
         ]
-        # The largest moved by the tolerance (a change well above the solve's own precision), the
-        # rest in proportion; the change is scaled back to one σ.
+        # Each lamp moved by its own one σ, and that change is the σ (decision 0159): the solve is
+        # not linear in the slit (on the twins the phase moves ever faster as the slit narrows, on
+        # the 1-D protocol ever slower), so the tolerance's step scaled back to one σ misstates it
+        # either way. Only a one σ below :data:`MIN_SLIT_STEP` is reached by scaling that step's
+        # change back (linear over so small a move).
         largest = max(abs(value) for value in relative)
-        ratio = settings.bandwidth_tolerance / largest if largest > 0 else 1.0
+        ratio = max(1.0, MIN_SLIT_STEP / largest) if largest > 0 else 1.0
         widened = [
             replace(
                 lamp,
