@@ -27,7 +27,7 @@ from calib.core.spectrometer_scale import (
     measured_slit,
 )
 from calib.methods import ESTIMATION_METHODS
-from calib.methods.uncertainty import BudgetSettings, spectrometer_sigma
+from calib.methods.uncertainty import MIN_SLIT_STEP, BudgetSettings, spectrometer_sigma
 from calib.wavelength.profile_search import (
     BROADBAND_SCALE_TRANSFER,
     SPECTROMETER_SCALE_SIGMA_NM,
@@ -314,9 +314,11 @@ def test_the_check_measures_the_slit_its_isolated_lines_show():
 
 
 def test_the_budget_s_bandwidth_component_is_the_measured_slit_s():
-    """Decision 0099: where the check measured the slit, the bandwidth re-solve moves toward it and
-    its change is scaled to the measured slit's one σ, ``hypot(k − 1, σ_k)``, whatever the
-    tolerance σ; unmeasured, the tolerance as before."""
+    """Decision 0099: where the check measured the slit, the bandwidth re-solve moves toward it by
+    the measured slit's one σ, ``hypot(k − 1, σ_k)``, whatever the tolerance σ; unmeasured, the
+    tolerance as before. Decision 0159: the move is that one σ itself and its change the component
+    (factor 1), not the tolerance's step scaled back (the solve is not linear in the slit); a one σ
+    below ``MIN_SLIT_STEP`` is reached by scaling that step back."""
     cfl = _measured(_cfl(), offset_nm=0.3, bandwidth_nm=3.0, seed=1)
     plain = _lamp("CFL", cfl, "fluorescent", 3.0)
     grid = np.array([400.0, 700.0])
@@ -340,13 +342,20 @@ def test_the_budget_s_bandwidth_component_is_the_measured_slit_s():
 
     tolerance = BudgetSettings().bandwidth_tolerance
     narrower = factor((0.9, 0.05), 0.5)
-    assert widths[-1] == pytest.approx(3.0 * (1.0 - tolerance))  # toward the measured slit
-    assert narrower * tolerance == pytest.approx(math.hypot(0.1, 0.05))
+    # toward the measured slit, by its one σ
+    assert widths[-1] == pytest.approx(3.0 * (1.0 - math.hypot(0.1, 0.05)))
+    assert narrower == 1.0
     assert factor((0.9, 0.05), 1.0) == narrower  # not a tolerance
     wider = factor((1.0, 0.07), 0.5)
-    assert widths[-1] == pytest.approx(3.0 * (1.0 + tolerance))
-    assert wider * tolerance == pytest.approx(0.07)
+    assert widths[-1] == pytest.approx(3.0 * 1.07)
+    assert wider == 1.0
+    # a one σ smaller than the least step: that step, its change scaled back to the one σ
+    assert MIN_SLIT_STEP < 0.07 < tolerance
+    small = factor((0.99, 0.02), 0.5)
+    assert widths[-1] == pytest.approx(3.0 * (1.0 - MIN_SLIT_STEP))
+    assert small * MIN_SLIT_STEP == pytest.approx(math.hypot(0.01, 0.02))
     assert factor(None, 0.5) == 0.5  # unmeasured: the tolerance as a bound
+    assert widths[-1] == pytest.approx(3.0 * (1.0 + tolerance))
 
 
 def test_every_estimate_takes_the_check(monkeypatch):

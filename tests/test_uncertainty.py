@@ -483,42 +483,6 @@ def test_a_measured_slits_bandwidth_component_is_not_a_tolerance(
     assert f"{paths[0]}: 1 estimates" in printed and f"{paths[1]}: 1 estimates" in printed
 
 
-def test_a_measured_slits_bandwidth_component_is_the_change_at_its_one_sigma(
-    camera: MultiSpectrum, basis: CameraBasis
-) -> None:
-    """Decision 0159: the re-solve moves the slit by its one σ, ``hypot(k − 1, σ_k)``, and books
-    that change as it is (the solve is not linear in the slit, so a larger step scaled back would
-    overstate it); a one σ below ``MIN_SLIT_STEP`` is reached by scaling that step back."""
-    from calib.core.spectrometer_scale import SCALE_CHECK_KEY
-    from calib.methods.uncertainty import MIN_SLIT_STEP, spectrometer_sigma
-
-    stated_nm = 8.0
-    result = estimate(
-        [_lamp("LED-B3", camera, stated_nm)], "prior", basis=basis, mapping=TRUTH, budget=None
-    )
-    for factor, factor_sigma in ((0.886, 0.070), (0.99, 0.02)):
-        lamp = replace(
-            _lamp("LED-B3", camera, stated_nm),
-            metadata={SCALE_CHECK_KEY: {"slit_factor": factor, "slit_factor_sigma": factor_sigma}},
-        )
-        moved: list[float] = []
-
-        def rerun(
-            observations: list[LampObservation], moved: list[float] = moved, **changes: Any
-        ) -> EstimateResult:
-            moved.append(float(observations[0].spectrum_bandwidth_nm or 0.0))
-            return result
-
-        _, factors, _, _ = spectrometer_sigma(result, [lamp], rerun, BudgetSettings())
-        one_sigma = math.hypot(factor - 1.0, factor_sigma)
-        step = max(one_sigma, MIN_SLIT_STEP)
-        # the scale re-solve comes first, at the stated bandwidth; then the bandwidth's
-        assert moved[0] == stated_nm
-        np.testing.assert_allclose(moved[-1], stated_nm * (1.0 - step), rtol=1e-12)
-        np.testing.assert_allclose(factors["spectrometer bandwidth"], one_sigma / step, rtol=1e-12)
-    assert MIN_SLIT_STEP < 0.07 < BudgetSettings().bandwidth_tolerance
-
-
 def test_the_factor_is_judged_per_eta_family() -> None:
     """Decision 0044: a physical η and a Fourier fallback leave different shares unexplained; the
     factor is looked up as ``method:family``, then ``method``, then the largest."""

@@ -115,8 +115,8 @@ ASSUMED_BANDWIDTH_NM = 5.0
 TOLERANCE_SIGMA = IN_SPEC_TOLERANCE_SIGMA
 #: The smallest relative move of a measured slit the bandwidth component re-solves at (decision
 #: 0159): a slit's one σ below it is reached by scaling this step's change back. On the validation
-#: twins a 5 % narrower slit moves the fitted phase by 2–7 ×10⁻⁴ rad, the same to ±1 ×10⁻⁴ on every
-#: twin of one station, well above the fit's own precision.
+#: twins a 5 % narrower slit moves the fitted phase by 2–7 ×10⁻⁴ rad, the same to ±0.4 ×10⁻⁴ on
+#: the twins of one station: well above the fit's own precision.
 MIN_SLIT_STEP = 0.05
 #: Efficiency terms removed for the η-model perturbation.
 EFFICIENCY_TERMS_STEP = 2
