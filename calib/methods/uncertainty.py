@@ -37,10 +37,10 @@ and channel, on the delivered curves' scale (maximum 1):
     lamp's Hg lines and corrected (:mod:`calib.core.spectrometer_scale`, decision 0069), the scale
     component is the check's σ (``metadata["wavelength_scale_sigma_nm"]``), not the tolerance;
     where that check also measured the slit (:func:`calib.core.spectrometer_scale.measured_slit`),
-    the bandwidth is re-solved moved toward the measured slit by that slit's one σ,
-    ``hypot(k − 1, σ_k)`` of the stated bandwidth, not the tolerance (decision 0099), and the
-    change is the component: at that σ itself, not a larger step scaled back, since the solve is not
-    linear in the slit (decision 0159).
+    the bandwidth is moved toward the measured slit by that slit's one σ, ``hypot(k − 1, σ_k)`` of
+    the stated bandwidth, not the tolerance (decision 0099), and the re-solve's change is the
+    component: at that σ itself, not a larger step scaled back, since the solve is not linear in
+    the slit (decision 0159).
 ``efficiency model``
     By perturbation: re-solved with :data:`EFFICIENCY_TERMS_STEP` fewer terms of the grating
     efficiency's Fourier model — how much the answer leans on the η model's form.
@@ -943,7 +943,7 @@ def spectrometer_sigma(
     )
     # A stated tolerance bounds an in-spec instrument: σ = tolerance_sigma × the re-solve's change
     # (an assumed bandwidth is not a tolerance: its change stands as one σ; a measured slit's is
-    # scaled to its own one σ above).
+    # its change at its own one σ above).
     factors = {
         "spectrometer scale": scale_factor,
         "spectrometer bandwidth": bandwidth_factor,
