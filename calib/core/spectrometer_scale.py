@@ -146,9 +146,9 @@ FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 #: bench/spectrometer_scale_check.py --split validation --data-dir DIR``; the protocol's
 #: instrument has the slit it states, so the factor's truth is 1): the 40 measured factors are off
 #: by +0.077…+0.088 at 2.4–2.5 nm slits, +0.02 at 4–5 nm and ≤ +0.010 at 8–10 nm; each scene's
-#: excess read as such a width gives 0.91–1.10 nm at 2–5 nm slits, the least-squares width over
+#: excess read as such a width gives 0.93–1.10 nm at 2–5 nm slits, the least-squares width over
 #: all 40 is 1.01 nm (residual RMS 0.004), and this form at 1.0 nm matches every 2 nm band's RMS
-#: (0.067 / 0.022 / 0.011 / 0.006 against 0.067 / 0.023 / 0.013 / 0.006). Decision 0099's constant
+#: (0.066 / 0.022 / 0.011 / 0.006 against 0.067 / 0.023 / 0.013 / 0.006). Decision 0099's constant
 #: 0.07 was the 2–4 nm band's, 7–10× the error at the twins' 7–8 nm slits.
 SLIT_LINE_WIDTH_NM = 1.0
 
