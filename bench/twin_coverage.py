@@ -171,6 +171,9 @@ class Row:
     #: The spectrometer-scale check's mean offset over the grid and its σ (nm), ``None``: none.
     scale_check: tuple[float, float] | None = None
     scale_check_notes: list[str] = field(default_factory=list)
+    #: The slit factor (true FWHM / stated) and its σ the same check measured, ``None``: not
+    #: measured; with the twin's drawn factor beside it (decision 0159).
+    slit_check: tuple[float, float] | None = None
     #: Where the delivered curves and the truth have their maximum: (channel, nm) each.
     peaks: tuple[tuple[str, float], tuple[str, float]] | None = None
     #: The least-squares common scale of the delivered curves onto the truth and the ±2σ coverage
@@ -306,6 +309,18 @@ def physical_parameter_scores(record: object, grating: object) -> tuple[float, f
     )
 
 
+def measured_slit_factor(check: object) -> tuple[float, float] | None:
+    """The slit factor and its σ the scale check's record (``diagnostics`` ``check``) holds, the
+    bandwidth component's input (:func:`calib.core.spectrometer_scale.measured_slit`); ``None``
+    where the check did not measure the slit."""
+    if not isinstance(check, dict):
+        return None
+    factor, sigma = check.get("slit_factor"), check.get("slit_factor_sigma")
+    if not isinstance(factor, int | float) or not isinstance(sigma, int | float):
+        return None
+    return float(factor), float(sigma)
+
+
 def judge(
     session: Path,
     out: Path,
@@ -383,6 +398,7 @@ def judge(
             else None
         ),
         "scale_check_notes": list(checked.get("notes", [])) if isinstance(checked, dict) else [],
+        "slit_check": measured_slit_factor(check),
         "components": components,
         "method": result.method,
         "re": relative_error(curves.values, reference),
@@ -625,6 +641,22 @@ def main() -> None:
                     print(
                         f"    scale check: mean offset over the grid {offset:+.3f} ± {sigma:.3f} nm"
                         + truth_text,
+                        flush=True,
+                    )
+                if row.slit_check is not None:
+                    # The bandwidth component's one σ, hypot(k − 1, σ_k), against what the
+                    # stated slit is really off by (decision 0159).
+                    factor, factor_sigma = row.slit_check
+                    drawn_text = (
+                        f"; drawn ×{drawn['bandwidth_factor']:.3f}, the stated slit off by "
+                        f"{100 * abs(drawn['bandwidth_factor'] - 1.0):.1f} %"
+                        if "bandwidth_factor" in drawn
+                        else ""
+                    )
+                    print(
+                        f"    slit check: ×{factor:.3f} ± {factor_sigma:.3f}, the bandwidth "
+                        f"component's one σ {100 * math.hypot(factor - 1.0, factor_sigma):.1f} %"
+                        + drawn_text,
                         flush=True,
                     )
                 else:

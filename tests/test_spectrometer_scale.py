@@ -18,16 +18,17 @@ from calib.core.spectra import Spectrum
 from calib.core.spectrometer_scale import (
     SCALE_SIGMA_KEY,
     SEARCH_SHIFT_NM,
-    SLIT_FACTOR_FLOOR,
+    SLIT_LINE_WIDTH_NM,
     ScaleCheck,
     _windows,
     check_spectrometer_scale,
     checked_observations,
     corrected_spectrum,
     measured_slit,
+    slit_factor_floor,
 )
 from calib.methods import ESTIMATION_METHODS
-from calib.methods.uncertainty import BudgetSettings, spectrometer_sigma
+from calib.methods.uncertainty import MIN_SLIT_STEP, BudgetSettings, spectrometer_sigma
 from calib.wavelength.profile_search import (
     BROADBAND_SCALE_TRANSFER,
     SPECTROMETER_SCALE_SIGMA_NM,
@@ -301,22 +302,46 @@ def test_the_budget_re_solves_the_share_of_the_scale_the_mapping_does_not_follow
 
 def test_the_check_measures_the_slit_its_isolated_lines_show():
     """Decision 0099: a slit 20 % wider (narrower) than stated is measured as 1.2 (0.8) × the
-    stated, with the model-error floor in its σ; the record carries it to the budget."""
+    stated, with the model-error floor at the stated slit in its σ (decision 0160); the record
+    carries it to the budget."""
     for true_nm, factor in ((3.6, 1.2), (2.4, 0.8), (3.0, 1.0)):
         cfl = _measured(_cfl(), offset_nm=0.2, bandwidth_nm=true_nm, seed=3)
         lamps, outcome = checked_observations([_lamp("CFL", cfl, "fluorescent", 3.0)])
         assert outcome.check is not None and outcome.check.slit_factor is not None
         measured, sigma = outcome.check.slit_factor
         assert measured == pytest.approx(factor, abs=0.03)
-        assert SLIT_FACTOR_FLOOR <= sigma < SLIT_FACTOR_FLOOR + 0.01
+        assert slit_factor_floor(3.0) <= sigma < slit_factor_floor(3.0) + 0.01
         assert measured_slit(lamps[0]) == (measured, sigma)
     assert measured_slit(_lamp("CFL", cfl, "fluorescent", 3.0)) is None
 
 
+@pytest.mark.parametrize(("bandwidth_nm", "step_nm"), [(2.5, 1.0), (8.0, 2.0)])
+def test_the_slit_factor_s_floor_is_the_widening_a_line_s_own_width_adds(
+    bandwidth_nm: float, step_nm: float
+) -> None:
+    """Decision 0160: Hg lines of 1 nm own width (as the simulations' lamps have them) read as a
+    slit wider than stated by ``√(1 + (w / s)²) − 1`` at slit ``s``: ≈ 8 % at 2.5 nm, < 1 % at 8
+    nm. The stated σ follows the slit: it holds that excess within 2σ at the narrow slit, and at
+    the wide one it is not the narrow slit's (decision 0099's constant 0.07)."""
+    hg = line_spectrum(line_list("hg"), fwhm_nm=SLIT_LINE_WIDTH_NM)
+    axis = hg.wavelength_nm
+    lamp = Spectrum(axis, hg.values + 0.05 * np.exp(-0.5 * ((axis - 560.0) / 80.0) ** 2))
+    spectrum = _measured(lamp, offset_nm=0.1, bandwidth_nm=bandwidth_nm, seed=5, step_nm=step_nm)
+    check = check_spectrometer_scale(spectrum, bandwidth_nm, lamp="CFL")
+    assert not isinstance(check, str) and check.slit_factor is not None
+    factor, sigma = check.slit_factor
+    assert sigma >= slit_factor_floor(bandwidth_nm)
+    assert abs(factor - 1.0) <= 2.0 * sigma
+    assert factor - 1.0 == pytest.approx(slit_factor_floor(bandwidth_nm), abs=0.5 * sigma)
+    assert sigma < 0.02 if bandwidth_nm > 5.0 else sigma > 0.05
+
+
 def test_the_budget_s_bandwidth_component_is_the_measured_slit_s():
-    """Decision 0099: where the check measured the slit, the bandwidth re-solve moves toward it and
-    its change is scaled to the measured slit's one σ, ``hypot(k − 1, σ_k)``, whatever the
-    tolerance σ; unmeasured, the tolerance as before."""
+    """Decision 0099: where the check measured the slit, the bandwidth re-solve moves toward it by
+    the measured slit's one σ, ``hypot(k − 1, σ_k)``, whatever the tolerance σ; unmeasured, the
+    tolerance as before. Decision 0159: the move is that one σ itself and its change the component
+    (factor 1), not the tolerance's step scaled back (the solve is not linear in the slit); a one σ
+    below ``MIN_SLIT_STEP`` is reached by scaling that step back."""
     cfl = _measured(_cfl(), offset_nm=0.3, bandwidth_nm=3.0, seed=1)
     plain = _lamp("CFL", cfl, "fluorescent", 3.0)
     grid = np.array([400.0, 700.0])
@@ -340,13 +365,20 @@ def test_the_budget_s_bandwidth_component_is_the_measured_slit_s():
 
     tolerance = BudgetSettings().bandwidth_tolerance
     narrower = factor((0.9, 0.05), 0.5)
-    assert widths[-1] == pytest.approx(3.0 * (1.0 - tolerance))  # toward the measured slit
-    assert narrower * tolerance == pytest.approx(math.hypot(0.1, 0.05))
+    # toward the measured slit, by its one σ
+    assert widths[-1] == pytest.approx(3.0 * (1.0 - math.hypot(0.1, 0.05)))
+    assert narrower == 1.0
     assert factor((0.9, 0.05), 1.0) == narrower  # not a tolerance
     wider = factor((1.0, 0.07), 0.5)
-    assert widths[-1] == pytest.approx(3.0 * (1.0 + tolerance))
-    assert wider * tolerance == pytest.approx(0.07)
+    assert widths[-1] == pytest.approx(3.0 * 1.07)
+    assert wider == 1.0
+    # a one σ smaller than the least step: that step, its change scaled back to the one σ
+    assert MIN_SLIT_STEP < 0.07 < tolerance
+    small = factor((0.99, 0.02), 0.5)
+    assert widths[-1] == pytest.approx(3.0 * (1.0 - MIN_SLIT_STEP))
+    assert small * MIN_SLIT_STEP == pytest.approx(math.hypot(0.01, 0.02))
     assert factor(None, 0.5) == 0.5  # unmeasured: the tolerance as a bound
+    assert widths[-1] == pytest.approx(3.0 * (1.0 + tolerance))
 
 
 def test_every_estimate_takes_the_check(monkeypatch):

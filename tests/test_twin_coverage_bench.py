@@ -80,3 +80,14 @@ def test_the_physical_parameter_is_scored_against_the_twins_own_sheet() -> None:
     blazed = {**record, "model": "blazed"}
     assert np.isnan(bench.physical_parameter_scores(blazed, sheet)).all()
     assert np.isnan(bench.physical_parameter_scores(None, sheet)).all()
+
+
+def test_the_measured_slit_is_read_from_the_scale_checks_record() -> None:
+    """Decision 0159: the slit factor and σ the bandwidth component starts from, as the check's
+    record holds them (its ``to_dict`` keys); nothing where the check did not measure the slit."""
+    bench = _bench()
+    record = {"mean_offset_nm": -0.11, "slit_factor": 0.8856, "slit_factor_sigma": 0.0701}
+    assert bench.measured_slit_factor(record) == (0.8856, 0.0701)
+    assert bench.measured_slit_factor({**record, "slit_factor": None}) is None
+    assert bench.measured_slit_factor({"mean_offset_nm": -0.11}) is None
+    assert bench.measured_slit_factor(None) is None
