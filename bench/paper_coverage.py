@@ -28,8 +28,10 @@ without a warning (a silent wrong mapping), listed, with how many of those the m
 does not cover either (beyond ``paper_mapping_sigma.COVERED_SIGMAS`` σ at the worst pixel); and
 the count of mappings within 3 nm that carry a warning (false alarms). ``--mappings-csv FILE``
 also writes one row per searched mapping (camera, variant, noise, largest error, warned, whether
-the coarse-view check adopted its rival, the largest error over the stated σ there), to compare
-two runs scene by scene.
+the coarse-view check adopted its rival, the largest error over the stated σ there, the signed
+error at the first, middle and last pixel on the grid — one sign and size throughout is a whole-
+mapping shift —, the largest stated σ on the grid, and whether the warning is decision 0158's
+imprecise end alone), to compare two runs scene by scene.
 
 Tuning choices may look at ``--split validation`` only (the training curves, each camera's own body
 left out of its basis); ``--split test`` (the paper's 5) is for the report.
@@ -218,6 +220,9 @@ def main() -> None:
     mappings: list[tuple[str, str, float, float, bool]] = []
     adopted: list[bool] = []
     over_sigma: list[float] = []
+    ends_error: list[tuple[float, float, float]] = []
+    largest_sigma: list[float] = []
+    imprecise: list[bool] = []
 
     def keep(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> None:
         records.append(record(result, scene, row.variant, row.noise))
@@ -225,10 +230,16 @@ def main() -> None:
         if args.mappings and row.mapping_relative_error is not None and mapping is not None:
             if not isinstance(mapping, QuadraticMapping):
                 raise TypeError(f"{row.camera}, {row.variant}: a searched mapping of {mapping!r}")
-            _, _, error, sigma = mapping_errors(scene, mapping)
+            pixel, truth_nm, error, sigma = mapping_errors(scene, mapping)
             worst = int(np.argmax(error))
+            signed = mapping.wavelength_nm(pixel) - truth_nm
+            ends_error.append(
+                (float(signed[0]), float(signed[len(signed) // 2]), float(signed[-1]))
+            )
+            largest_sigma.append(float(np.max(sigma)))
             over_sigma.append(float(error[worst] / sigma[worst]))
             mapping_details = getattr(result.mapping, "details", None) or {}
+            imprecise.append(mapping_details.get("imprecise_end") is not None)
             codes = mapping_details.get("warning_codes", ())
             view = mapping_details.get("quadratic_coarse_view") or {}
             adopted.append(bool(view.get("adopted", False)))
@@ -282,13 +293,18 @@ def main() -> None:
             )
         if args.mappings_csv:
             with Path(args.mappings_csv).open("w", encoding="utf-8") as handle:
-                handle.write("camera,variant,noise,worst_nm,warned,adopted,err_over_sigma\n")
-                for (camera, variant, noise, worst, warned), taken, ratio in zip(
-                    mappings, adopted, over_sigma, strict=True
+                handle.write(
+                    "camera,variant,noise,worst_nm,warned,adopted,err_over_sigma,"
+                    "first_error_nm,middle_error_nm,last_error_nm,max_sigma_nm,imprecise\n"
+                )
+                for (camera, variant, noise, worst, warned), *more in zip(
+                    mappings, adopted, over_sigma, ends_error, largest_sigma, imprecise, strict=True
                 ):
+                    taken, ratio, ends, most, loose = more
                     handle.write(
                         f'"{camera}",{variant},{noise:g},{worst:.4f},{int(warned)},{int(taken)},'
-                        f"{ratio:.2f}\n"
+                        f"{ratio:.2f},{ends[0]:.3f},{ends[1]:.3f},{ends[2]:.3f},{most:.3f},"
+                        f"{int(loose)}\n"
                     )
     for (noise, label), values in experiment.items():
         print(
