@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import os
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,7 +60,7 @@ from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import relative_error
 from calib.core.result import EstimateResult
-from calib.core.spectra import DEFAULT_GRID
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import (
     PAPER_VARIANTS,
     SyntheticRow,
@@ -68,9 +69,10 @@ from calib.evaluation.synthetic import (
 )
 from calib.evaluation.synthetic_splits import paper_split_cameras
 from calib.evaluation.validation.report import MAPPING_FAILURE_NM
+from calib.evaluation.validation.splits import PREDICTION, load_splits
 from calib.methods import PriorOptions, estimate
 from calib.methods.uncertainty import BudgetSettings
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, camera_basis
 
 WIDTH = 2.0
 SPECTROMETER = ("spectrometer scale", "spectrometer bandwidth")
@@ -198,6 +200,34 @@ def eta_experiment(scene: SyntheticScene, basis: CameraBasis) -> list[tuple[str,
     return out
 
 
+def predicted_cameras(
+    data_dir: str | None, count: int, seed: int
+) -> tuple[list[tuple[str, MultiSpectrum]], Callable[[str], CameraBasis]]:
+    """``count`` of the validation split's predicted curves (:func:`calib.evaluation.validation.
+    splits.load_splits`, drawn with ``seed``), each with a basis of the other bodies' training
+    curves, as :func:`calib.evaluation.synthetic_splits.validation_cameras` gives the measured
+    ones."""
+    splits, _missing = load_splits(data_dir, predictions=count, seed=seed, out_of_basis=False)
+    split = splits.validation
+    chosen = [camera for camera in split.cameras if camera.group == PREDICTION]
+    by_name = {camera.name: camera for camera in chosen}
+    bases: dict[tuple[str, ...], CameraBasis] = {}
+
+    def basis_for(name: str) -> CameraBasis:
+        records = split.basis_records(by_name[name])
+        key = tuple(record.name for record in records)
+        if key not in bases:
+            bases[key] = camera_basis(
+                [record.sensitivity for record in records],
+                grid=DEFAULT_GRID,
+                source=f"validation basis: {len(records)} training curves",
+                camera_names=list(key),
+            )
+        return bases[key]
+
+    return [(camera.name, camera.sensitivity) for camera in chosen], basis_for
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default=None)
@@ -207,13 +237,26 @@ def main() -> None:
     parser.add_argument("--variant", action="append", default=None)
     parser.add_argument("--cameras", type=int, default=None, help="the first N cameras only")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--predictions",
+        type=int,
+        default=0,
+        help="validation only: Solomatov & Akkaynak's predicted curves (N drawn with --seed) as "
+        "the cameras instead of the training curves, each with the basis of the other bodies",
+    )
     parser.add_argument("--eta-experiment", action="store_true")
     parser.add_argument("--mappings", action="store_true")
     parser.add_argument(
         "--mappings-csv", default=None, help="one row per mapping (with --mappings)"
     )
     args = parser.parse_args()
-    cameras, basis = paper_split_cameras(args.split, args.data_dir)
+    basis: CameraBasis | Callable[[str], CameraBasis]
+    if args.predictions:
+        if args.split != "validation":
+            parser.error("--predictions is a validation-split option")
+        cameras, basis = predicted_cameras(args.data_dir, args.predictions, args.seed)
+    else:
+        cameras, basis = paper_split_cameras(args.split, args.data_dir)
     cameras = cameras[: args.cameras] if args.cameras else cameras
     records: list[Record] = []
     experiment: dict[tuple[float, str], list[float]] = defaultdict(list)
