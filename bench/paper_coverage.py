@@ -31,7 +31,8 @@ also writes one row per searched mapping (camera, variant, noise, largest error,
 the coarse-view check adopted its rival, the largest error over the stated σ there, the signed
 error at the first, middle and last pixel on the grid — one sign and size throughout is a whole-
 mapping shift —, the largest stated σ on the grid, and whether the warning is decision 0158's
-imprecise end alone), to compare two runs scene by scene.
+imprecise end alone, the search's evaluations and those of its stalled-basin probe), to compare
+two runs scene by scene.
 
 Tuning choices may look at ``--split validation`` only (the training curves, each camera's own body
 left out of its basis); ``--split test`` (the paper's 5) is for the report.
@@ -266,6 +267,7 @@ def main() -> None:
     ends_error: list[tuple[float, float, float]] = []
     largest_sigma: list[float] = []
     imprecise: list[bool] = []
+    evaluations: list[tuple[int, int]] = []
 
     def keep(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> None:
         records.append(record(result, scene, row.variant, row.noise))
@@ -283,6 +285,12 @@ def main() -> None:
             over_sigma.append(float(error[worst] / sigma[worst]))
             mapping_details = getattr(result.mapping, "details", None) or {}
             imprecise.append(mapping_details.get("imprecise_end") is not None)
+            evaluations.append(
+                (
+                    int(mapping_details.get("evaluations", 0)),
+                    int(mapping_details.get("stalled_probe_evaluations", 0)),
+                )
+            )
             codes = mapping_details.get("warning_codes", ())
             view = mapping_details.get("quadratic_coarse_view") or {}
             adopted.append(bool(view.get("adopted", False)))
@@ -338,16 +346,24 @@ def main() -> None:
             with Path(args.mappings_csv).open("w", encoding="utf-8") as handle:
                 handle.write(
                     "camera,variant,noise,worst_nm,warned,adopted,err_over_sigma,"
-                    "first_error_nm,middle_error_nm,last_error_nm,max_sigma_nm,imprecise\n"
+                    "first_error_nm,middle_error_nm,last_error_nm,max_sigma_nm,imprecise,"
+                    "evaluations,stalled_probe_evaluations\n"
                 )
                 for (camera, variant, noise, worst, warned), *more in zip(
-                    mappings, adopted, over_sigma, ends_error, largest_sigma, imprecise, strict=True
+                    mappings,
+                    adopted,
+                    over_sigma,
+                    ends_error,
+                    largest_sigma,
+                    imprecise,
+                    evaluations,
+                    strict=True,
                 ):
-                    taken, ratio, ends, most, loose = more
+                    taken, ratio, ends, most, loose, (count, stalled) = more
                     handle.write(
                         f'"{camera}",{variant},{noise:g},{worst:.4f},{int(warned)},{int(taken)},'
                         f"{ratio:.2f},{ends[0]:.3f},{ends[1]:.3f},{ends[2]:.3f},{most:.3f},"
-                        f"{int(loose)}\n"
+                        f"{int(loose)},{count},{stalled}\n"
                     )
     for (noise, label), values in experiment.items():
         print(
