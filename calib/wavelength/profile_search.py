@@ -1657,6 +1657,11 @@ def search_profiles(
         )
         evaluations += count
         stalled_evaluations = count
+        # A whole-mapping alias of the leader (decision 0158).
+        decided, count = whole_shift_probe(
+            decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
+        )
+        evaluations += count
     if unplaced_lines and isinstance(decided[0][0], QuadraticFamily):
         # Line lamps whose spectra cannot place their lines (coarse tables, decision 0121) hold
         # the mapping only to their lines' nodes, and nothing holds the quadratic's red end
@@ -2425,6 +2430,20 @@ def end_probes(
     return basins, count + judge.evaluations
 
 
+def _inward_starts(basin: Solution) -> list[FloatArray]:
+    """:func:`end_probes`' moves of ``basin``: each end inwards by :data:`LOCAL_SCAN`'s
+    half-width, the middle by half (the parameters are the wavelengths at the profile's first
+    pixel, middle and last)."""
+    starts = []
+    for end in (0, 2):
+        shift = LOCAL_SCAN[0] * float(np.sign(basin.x[1] - basin.x[end]))
+        start = basin.x.copy()
+        start[end] += shift
+        start[1] += 0.5 * shift
+        starts.append(start)
+    return starts
+
+
 def _inward_valley(
     family: Any,
     basin: Solution,
@@ -2432,23 +2451,19 @@ def _inward_valley(
     ranking: StageFit,
     deciding: StageFit,
     pixel_range: tuple[float, float],
+    starts: Sequence[FloatArray] | None = None,
 ) -> tuple[Solution | None, int]:
-    """One round of :func:`end_probes` about ``basin``: each end moved inwards by
-    :data:`LOCAL_SCAN`'s half-width (the middle by half) and sketched on ``ranking``, the lowest
-    sketch below ``basin`` there (and more than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it)
-    descended on ``deciding``; that valley when it is below ``leader`` there and apart from
-    ``basin``, else ``None``; and the evaluations made."""
+    """One round of :func:`end_probes` about ``basin``: ``starts`` (default: each end moved
+    inwards, :func:`_inward_starts`) sketched on ``ranking``, the lowest sketch below ``basin``
+    there (and more than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it) descended on ``deciding``;
+    that valley when it is below ``leader`` there and apart from ``basin``, else ``None``; and
+    the evaluations made."""
     assert isinstance(family, QuadraticFamily)
     probe = np.linspace(pixel_range[0], pixel_range[1], 9)
     placed = family.wavelengths(probe, basin.x)
     sketches = []
     count = 0
-    # The parameters are the wavelengths at the profile's first pixel, middle and last.
-    for end in (0, 2):
-        shift = LOCAL_SCAN[0] * float(np.sign(basin.x[1] - basin.x[end]))
-        start = basin.x.copy()
-        start[end] += shift
-        start[1] += 0.5 * shift
+    for start in _inward_starts(basin) if starts is None else starts:
         sketches.append(ranking.sketch(start))
         count += sketches[-1].evaluations
     # Costed with the basin in one call, each at its own prior scale (as descents compare).
@@ -2470,6 +2485,39 @@ def _inward_valley(
     ):
         return None, count
     return valley, count
+
+
+#: The spacing (nm) of the whole-mapping aliases of a broadband profile: the deciding and the
+#: scan's response nodes (:data:`COARSE_NODES_NM`); on the validation split's lamp A scenes the
+#: wrong answers shifted as a whole were 9–12 nm off (decision 0158).
+WHOLE_SHIFT_NM = COARSE_NODES_NM
+
+
+def whole_shift_probe(
+    decided: Sequence[tuple[Any, Solution]],
+    ranking: StageFit,
+    deciding: StageFit,
+    final: StageFit,
+    pixel_range: tuple[float, float],
+) -> tuple[list[tuple[Any, Solution]], int]:
+    """The deciding stage's basins (``decided``, lowest first) with a valley found by shifting
+    the whole leader by ± :data:`WHOLE_SHIFT_NM` (decision 0158), and the evaluations made: the
+    two shifted mappings sketched and descended as :func:`end_probes` does its moves, the valley
+    leading under the same rules (below the leader on the deciding stage, preferred by the final
+    stage by :data:`AMBIGUITY_DELTA_CHI2`); the old leader stays a basin."""
+    family, leader = decided[0]
+    starts = [leader.x + shift for shift in (-WHOLE_SHIFT_NM, WHOLE_SHIFT_NM)]
+    valley, count = _inward_valley(
+        family, leader, leader, ranking, deciding, pixel_range, starts=starts
+    )
+    if valley is None:
+        return list(decided), count
+    judge = _FinalJudge(final, leader)
+    settled = judge.prefers(valley.x)
+    count += judge.evaluations
+    if settled is None:
+        return list(decided), count
+    return _distinct([(family, valley), *decided], pixel_range, MAX_BASINS + 1), count
 
 
 def stalled_probe(
