@@ -2493,6 +2493,27 @@ def _inward_valley(
 WHOLE_SHIFT_NM = COARSE_NODES_NM
 
 
+def _led_by(
+    decided: Sequence[tuple[Any, Solution]],
+    valley: Solution | None,
+    final: StageFit,
+    pixel_range: tuple[float, float],
+    count: int,
+) -> tuple[list[tuple[Any, Solution]], int]:
+    """``decided`` with ``valley`` leading when the final stage prefers it to the leader by
+    :data:`AMBIGUITY_DELTA_CHI2` (the old leader stays a basin), and ``count`` with the final
+    stage's evaluations."""
+    if valley is None:
+        return list(decided), count
+    family, leader = decided[0]
+    judge = _FinalJudge(final, leader)
+    settled = judge.prefers(valley.x)
+    count += judge.evaluations
+    if settled is None:
+        return list(decided), count
+    return _distinct([(family, valley), *decided], pixel_range, MAX_BASINS + 1), count
+
+
 def whole_shift_probe(
     decided: Sequence[tuple[Any, Solution]],
     ranking: StageFit,
@@ -2510,14 +2531,7 @@ def whole_shift_probe(
     valley, count = _inward_valley(
         family, leader, leader, ranking, deciding, pixel_range, starts=starts
     )
-    if valley is None:
-        return list(decided), count
-    judge = _FinalJudge(final, leader)
-    settled = judge.prefers(valley.x)
-    count += judge.evaluations
-    if settled is None:
-        return list(decided), count
-    return _distinct([(family, valley), *decided], pixel_range, MAX_BASINS + 1), count
+    return _led_by(decided, valley, final, pixel_range, count)
 
 
 def stalled_probe(
@@ -2546,14 +2560,7 @@ def stalled_probe(
     if _behind(scan_best, leader) <= HOPELESS_DELTA_CHI2:
         return list(decided), 0
     valley, count = _inward_valley(family, scan_best, leader, ranking, deciding, pixel_range)
-    if valley is None:
-        return list(decided), count
-    judge = _FinalJudge(final, leader)
-    settled = judge.prefers(valley.x)
-    count += judge.evaluations
-    if settled is None:
-        return list(decided), count
-    return _distinct([(family, valley), *decided], pixel_range, MAX_BASINS + 1), count
+    return _led_by(decided, valley, final, pixel_range, count)
 
 
 #: How far (in its own curvature σ) :func:`end_profile` moves each end of a broadband-only mapping

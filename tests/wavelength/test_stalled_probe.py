@@ -15,6 +15,8 @@ from calib.wavelength.families import QuadraticFamily
 from calib.wavelength.least_squares import Solution
 from calib.wavelength.profile_search import HOPELESS_DELTA_CHI2, LOCAL_SCAN, stalled_probe
 
+from .landscape import Landscape, solution
+
 PIXELS = (0.0, 799.0)
 #: The deciding leader: an alias 10 nm off in the middle.
 LEADER = np.array([382.0, 551.5, 718.0])
@@ -24,44 +26,17 @@ STALLED = np.array([377.5, 539.0, 710.0])
 TRUTH = STALLED + np.array([6.5, 3.25, 0.0])
 
 
-def _solution(x: np.ndarray, cost: float) -> Solution:
-    """A fit at ``x`` with ``cost`` over 1 000 rows, 10 evaluations."""
-    return Solution(np.asarray(x, float), np.zeros(1000), np.zeros((1000, 3)), cost, 10)
-
-
-class _Landscape:  # a stage's costs, sketch, descent and settling
-    """Three valleys; a start within 1.5 nm of one falls into it, any other stays where it is, on
-    a high floor."""
-
-    def __init__(self, stalled_cost: float, truth_cost: float) -> None:
-        self.valleys = ((TRUTH, truth_cost), (LEADER, 1000.0), (STALLED, stalled_cost))
-        self.starts: list[np.ndarray] = []
-
-    def costs(self, x: np.ndarray) -> np.ndarray:
-        x = np.atleast_2d(x)
-        out = np.full(x.shape[0], 500_000.0)
-        for valley, cost in self.valleys:
-            out = np.where(np.max(np.abs(x - valley), axis=1) < 0.75, cost, out)
-        return np.asarray(out)
-
-    def sketch(self, x: np.ndarray) -> Solution:
-        self.starts.append(np.asarray(x))
-        for valley, cost in self.valleys:
-            if np.max(np.abs(x - valley)) < 1.5:
-                return _solution(valley, cost)
-        return _solution(x, float(self.costs(x)[0]))
-
-    descend = settle = sketch
-
-
 def _probe(
     stalled_cost: float, final_truth_cost: float
-) -> tuple[list[tuple[Any, Solution]], int, _Landscape, Solution]:
+) -> tuple[list[tuple[Any, Solution]], int, Landscape, Solution]:
     family = QuadraticFamily(PIXELS)
-    view = _Landscape(stalled_cost, 100.0)  # the ranking and the deciding view alike
-    final = _Landscape(stalled_cost, final_truth_cost)
-    leader = _solution(LEADER, 1000.0)
-    stalled = _solution(STALLED, stalled_cost)
+    # The ranking and the deciding view alike; the final stage with its own cost of the truth.
+    view = Landscape([(TRUTH, 100.0), (LEADER, 1000.0), (STALLED, stalled_cost)], 500_000.0)
+    final = Landscape(
+        [(TRUTH, final_truth_cost), (LEADER, 1000.0), (STALLED, stalled_cost)], 500_000.0
+    )
+    leader = solution(LEADER, 1000.0)
+    stalled = solution(STALLED, stalled_cost)
     decided, count = stalled_probe(
         [(family, leader), (family, stalled)],
         stalled,

@@ -14,52 +14,26 @@ from calib.wavelength.families import QuadraticFamily
 from calib.wavelength.least_squares import Solution
 from calib.wavelength.profile_search import WHOLE_SHIFT_NM, whole_shift_probe
 
+from .landscape import Landscape, solution
+
 PIXELS = (0.0, 799.0)
 LEADER = np.array([394.0, 552.0, 720.0])
 #: The truth's valley a spacing bluer, a little off the exact shift.
 TRUTH = LEADER - WHOLE_SHIFT_NM + np.array([0.4, -0.3, 0.2])
 
 
-def _solution(x: np.ndarray, cost: float) -> Solution:
-    """A fit at ``x`` with ``cost`` over 1 000 rows, 10 evaluations."""
-    return Solution(np.asarray(x, float), np.zeros(1000), np.zeros((1000, 3)), cost, 10)
-
-
-class _Landscape:  # a stage's costs, sketch, descent and settling
-    """Two valleys; a start within 1.5 nm of one falls into it, any other stays, on a floor."""
-
-    def __init__(self, truth_cost: float) -> None:
-        self.valleys = ((TRUTH, truth_cost), (LEADER, 1000.0))
-        self.starts: list[np.ndarray] = []
-
-    def costs(self, x: np.ndarray) -> np.ndarray:
-        x = np.atleast_2d(x)
-        out = np.full(x.shape[0], 5000.0)
-        for valley, cost in self.valleys:
-            out = np.where(np.max(np.abs(x - valley), axis=1) < 0.75, cost, out)
-        return np.asarray(out)
-
-    def sketch(self, x: np.ndarray) -> Solution:
-        self.starts.append(np.asarray(x))
-        for valley, cost in self.valleys:
-            if np.max(np.abs(x - valley)) < 1.5:
-                return _solution(valley, cost)
-        return _solution(x, float(self.costs(x)[0]))
-
-    descend = settle = sketch
-
-
 def _probe(
     deciding_truth_cost: float, final_truth_cost: float
-) -> tuple[list[tuple[Any, Solution]], int, _Landscape, Solution]:
+) -> tuple[list[tuple[Any, Solution]], int, Landscape, Solution]:
     family = QuadraticFamily(PIXELS)
-    view = _Landscape(deciding_truth_cost)  # the ranking and the deciding view alike
-    leader = _solution(LEADER, 1000.0)
+    # The ranking and the deciding view alike.
+    view = Landscape([(TRUTH, deciding_truth_cost), (LEADER, 1000.0)], 5000.0)
+    leader = solution(LEADER, 1000.0)
     decided, count = whole_shift_probe(
         [(family, leader)],
         view,  # type: ignore[arg-type]
         view,  # type: ignore[arg-type]
-        _Landscape(final_truth_cost),  # type: ignore[arg-type]
+        Landscape([(TRUTH, final_truth_cost), (LEADER, 1000.0)], 5000.0),  # type: ignore[arg-type]
         PIXELS,
     )
     return decided, count, view, leader
