@@ -28,7 +28,10 @@ without a warning (a silent wrong mapping), listed, with how many of those the m
 does not cover either (beyond ``paper_mapping_sigma.COVERED_SIGMAS`` σ at the worst pixel); and
 the count of mappings within 3 nm that carry a warning (false alarms). ``--mappings-csv FILE``
 also writes one row per searched mapping (camera, variant, noise, largest error, warned, whether
-the coarse-view check adopted its rival, the largest error over the stated σ there), to compare
+the coarse-view check adopted its rival, the largest error over the stated σ there, the signed
+error at the first, middle and last pixel on the grid — one sign and size throughout is a whole-
+mapping shift —, the largest stated σ on the grid, and whether the warning is decision 0158's
+imprecise end alone, the search's evaluations and those of its stalled-basin probe), to compare
 two runs scene by scene.
 
 Tuning choices may look at ``--split validation`` only (the training curves, each camera's own body
@@ -43,6 +46,7 @@ from __future__ import annotations
 import argparse
 import os
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,7 +61,7 @@ from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import relative_error
 from calib.core.result import EstimateResult
-from calib.core.spectra import DEFAULT_GRID
+from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import (
     PAPER_VARIANTS,
     SyntheticRow,
@@ -66,9 +70,10 @@ from calib.evaluation.synthetic import (
 )
 from calib.evaluation.synthetic_splits import paper_split_cameras
 from calib.evaluation.validation.report import MAPPING_FAILURE_NM
+from calib.evaluation.validation.splits import PREDICTION, load_splits
 from calib.methods import PriorOptions, estimate
 from calib.methods.uncertainty import BudgetSettings
-from calib.model.bases import CameraBasis
+from calib.model.bases import CameraBasis, camera_basis
 
 WIDTH = 2.0
 SPECTROMETER = ("spectrometer scale", "spectrometer bandwidth")
@@ -196,6 +201,34 @@ def eta_experiment(scene: SyntheticScene, basis: CameraBasis) -> list[tuple[str,
     return out
 
 
+def predicted_cameras(
+    data_dir: str | None, count: int, seed: int
+) -> tuple[list[tuple[str, MultiSpectrum]], Callable[[str], CameraBasis]]:
+    """``count`` of the validation split's predicted curves (:func:`calib.evaluation.validation.
+    splits.load_splits`, drawn with ``seed``), each with a basis of the other bodies' training
+    curves, as :func:`calib.evaluation.synthetic_splits.validation_cameras` gives the measured
+    ones."""
+    splits, _missing = load_splits(data_dir, predictions=count, seed=seed, out_of_basis=False)
+    split = splits.validation
+    chosen = [camera for camera in split.cameras if camera.group == PREDICTION]
+    by_name = {camera.name: camera for camera in chosen}
+    bases: dict[tuple[str, ...], CameraBasis] = {}
+
+    def basis_for(name: str) -> CameraBasis:
+        records = split.basis_records(by_name[name])
+        key = tuple(record.name for record in records)
+        if key not in bases:
+            bases[key] = camera_basis(
+                [record.sensitivity for record in records],
+                grid=DEFAULT_GRID,
+                source=f"validation basis: {len(records)} training curves",
+                camera_names=list(key),
+            )
+        return bases[key]
+
+    return [(camera.name, camera.sensitivity) for camera in chosen], basis_for
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data-dir", default=None)
@@ -205,19 +238,36 @@ def main() -> None:
     parser.add_argument("--variant", action="append", default=None)
     parser.add_argument("--cameras", type=int, default=None, help="the first N cameras only")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--predictions",
+        type=int,
+        default=0,
+        help="validation only: Solomatov & Akkaynak's predicted curves (N drawn with --seed) as "
+        "the cameras instead of the training curves, each with the basis of the other bodies",
+    )
     parser.add_argument("--eta-experiment", action="store_true")
     parser.add_argument("--mappings", action="store_true")
     parser.add_argument(
         "--mappings-csv", default=None, help="one row per mapping (with --mappings)"
     )
     args = parser.parse_args()
-    cameras, basis = paper_split_cameras(args.split, args.data_dir)
+    basis: CameraBasis | Callable[[str], CameraBasis]
+    if args.predictions:
+        if args.split != "validation":
+            parser.error("--predictions is a validation-split option")
+        cameras, basis = predicted_cameras(args.data_dir, args.predictions, args.seed)
+    else:
+        cameras, basis = paper_split_cameras(args.split, args.data_dir)
     cameras = cameras[: args.cameras] if args.cameras else cameras
     records: list[Record] = []
     experiment: dict[tuple[float, str], list[float]] = defaultdict(list)
     mappings: list[tuple[str, str, float, float, bool]] = []
     adopted: list[bool] = []
     over_sigma: list[float] = []
+    ends_error: list[tuple[float, float, float]] = []
+    largest_sigma: list[float] = []
+    imprecise: list[bool] = []
+    evaluations: list[tuple[int, int]] = []
 
     def keep(scene: SyntheticScene, row: SyntheticRow, result: EstimateResult) -> None:
         records.append(record(result, scene, row.variant, row.noise))
@@ -225,10 +275,22 @@ def main() -> None:
         if args.mappings and row.mapping_relative_error is not None and mapping is not None:
             if not isinstance(mapping, QuadraticMapping):
                 raise TypeError(f"{row.camera}, {row.variant}: a searched mapping of {mapping!r}")
-            _, _, error, sigma = mapping_errors(scene, mapping)
+            pixel, truth_nm, error, sigma = mapping_errors(scene, mapping)
             worst = int(np.argmax(error))
+            signed = mapping.wavelength_nm(pixel) - truth_nm
+            ends_error.append(
+                (float(signed[0]), float(signed[len(signed) // 2]), float(signed[-1]))
+            )
+            largest_sigma.append(float(np.max(sigma)))
             over_sigma.append(float(error[worst] / sigma[worst]))
             mapping_details = getattr(result.mapping, "details", None) or {}
+            imprecise.append(mapping_details.get("imprecise_end") is not None)
+            evaluations.append(
+                (
+                    int(mapping_details.get("evaluations", 0)),
+                    int(mapping_details.get("stalled_probe_evaluations", 0)),
+                )
+            )
             codes = mapping_details.get("warning_codes", ())
             view = mapping_details.get("quadratic_coarse_view") or {}
             adopted.append(bool(view.get("adopted", False)))
@@ -282,13 +344,26 @@ def main() -> None:
             )
         if args.mappings_csv:
             with Path(args.mappings_csv).open("w", encoding="utf-8") as handle:
-                handle.write("camera,variant,noise,worst_nm,warned,adopted,err_over_sigma\n")
-                for (camera, variant, noise, worst, warned), taken, ratio in zip(
-                    mappings, adopted, over_sigma, strict=True
+                handle.write(
+                    "camera,variant,noise,worst_nm,warned,adopted,err_over_sigma,"
+                    "first_error_nm,middle_error_nm,last_error_nm,max_sigma_nm,imprecise,"
+                    "evaluations,stalled_probe_evaluations\n"
+                )
+                for (camera, variant, noise, worst, warned), *more in zip(
+                    mappings,
+                    adopted,
+                    over_sigma,
+                    ends_error,
+                    largest_sigma,
+                    imprecise,
+                    evaluations,
+                    strict=True,
                 ):
+                    taken, ratio, ends, most, loose, (count, stalled) = more
                     handle.write(
                         f'"{camera}",{variant},{noise:g},{worst:.4f},{int(warned)},{int(taken)},'
-                        f"{ratio:.2f}\n"
+                        f"{ratio:.2f},{ends[0]:.3f},{ends[1]:.3f},{ends[2]:.3f},{most:.3f},"
+                        f"{int(loose)},{count},{stalled}\n"
                     )
     for (noise, label), values in experiment.items():
         print(

@@ -1632,6 +1632,10 @@ def search_profiles(
             outcome, count = deepen(family, outcome)
             evaluations += count
         decided.append((family, outcome))
+    # The scan's best basin as the deciding stage left it (broadband lamps alone: every basin is
+    # decided, in the scan's order).
+    scan_best = decided[0][1]
+    stalled_evaluations = 0
     # Basins that the finer fit merged are one.
     decided = _distinct(decided, pixel_range, MAX_BASINS)
     if broadband_only and isinstance(decided[0][0], QuadraticFamily):
@@ -1644,6 +1648,17 @@ def search_profiles(
         evaluations += count
         # An end too far out, the truth's valley inwards of it (decision 0152).
         decided, count = end_probes(
+            decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
+        )
+        evaluations += count
+        # The same about the scan's best basin when its deciding descent stalled (decision 0158).
+        decided, count = stalled_probe(
+            decided, scan_best, ranking, deciding_stage(decided[0][0]), last, pixel_range
+        )
+        evaluations += count
+        stalled_evaluations = count
+        # A whole-mapping alias of the leader (decision 0158).
+        decided, count = whole_shift_probe(
             decided, ranking, deciding_stage(decided[0][0]), last, pixel_range
         )
         evaluations += count
@@ -1885,6 +1900,7 @@ def search_profiles(
         "orientation": "rising" if _direction_of(exact, pixel_range) > 0 else "falling",
         "n_starts": len(candidates),
         "evaluations": evaluations,
+        "stalled_probe_evaluations": stalled_evaluations,
         "final_cost": final.cost,
         "reduced_chi2": final.cost / final.dof,
         "temper": temper,
@@ -2399,40 +2415,12 @@ def end_probes(
     """
     basins = list(decided)
     count = 0
-    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
     judge = _FinalJudge(final, basins[0][1])
     for _ in range(END_PROBE_ROUNDS):
         family, leader = basins[0]
-        assert isinstance(family, QuadraticFamily)
-        placed = family.wavelengths(probe, leader.x)
-        sketches = []
-        # The parameters are the wavelengths at the profile's first pixel, middle and last.
-        for end in (0, 2):
-            shift = LOCAL_SCAN[0] * float(np.sign(leader.x[1] - leader.x[end]))
-            start = leader.x.copy()
-            start[end] += shift
-            start[1] += 0.5 * shift
-            sketches.append(ranking.sketch(start))
-            count += sketches[-1].evaluations
-        # Costed with the leader in one call, each at its own prior scale (as descents compare).
-        costs = ranking.costs(np.stack([leader.x, *(sketch.x for sketch in sketches)]))
-        count += costs.size
-        lower = [
-            (float(cost), sketch.x)
-            for cost, sketch in zip(costs[1:], sketches, strict=True)
-            if cost < costs[0]
-            and np.max(np.abs(family.wavelengths(probe, sketch.x) - placed))
-            > AMBIGUITY_MIN_DISTANCE_NM
-        ]
-        if not lower:
-            break
-        valley = deciding.descend(min(lower, key=lambda item: item[0])[1])
-        count += valley.evaluations
-        if not (
-            valley.cost < leader.cost
-            and np.max(np.abs(family.wavelengths(probe, valley.x) - placed))
-            > AMBIGUITY_MIN_DISTANCE_NM
-        ):
+        valley, evaluations = _inward_valley(family, leader, leader, ranking, deciding, pixel_range)
+        count += evaluations
+        if valley is None:
             break
         settled = judge.prefers(valley.x)
         if settled is None:
@@ -2440,6 +2428,139 @@ def end_probes(
         judge = _FinalJudge(final, valley, held=settled, evaluations=judge.evaluations)
         basins = _distinct([(family, valley), *basins], pixel_range, MAX_BASINS + 1)
     return basins, count + judge.evaluations
+
+
+def _inward_starts(basin: Solution) -> list[FloatArray]:
+    """:func:`end_probes`' moves of ``basin``: each end inwards by :data:`LOCAL_SCAN`'s
+    half-width, the middle by half (the parameters are the wavelengths at the profile's first
+    pixel, middle and last)."""
+    starts = []
+    for end in (0, 2):
+        shift = LOCAL_SCAN[0] * float(np.sign(basin.x[1] - basin.x[end]))
+        start = basin.x.copy()
+        start[end] += shift
+        start[1] += 0.5 * shift
+        starts.append(start)
+    return starts
+
+
+def _inward_valley(
+    family: Any,
+    basin: Solution,
+    leader: Solution,
+    ranking: StageFit,
+    deciding: StageFit,
+    pixel_range: tuple[float, float],
+    starts: Sequence[FloatArray] | None = None,
+) -> tuple[Solution | None, int]:
+    """One round of :func:`end_probes` about ``basin``: ``starts`` (default: each end moved
+    inwards, :func:`_inward_starts`) sketched on ``ranking``, the lowest sketch below ``basin``
+    there (and more than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it) descended on ``deciding``;
+    that valley when it is below ``leader`` there and apart from ``basin``, else ``None``; and
+    the evaluations made."""
+    assert isinstance(family, QuadraticFamily)
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+    placed = family.wavelengths(probe, basin.x)
+    sketches = []
+    count = 0
+    for start in _inward_starts(basin) if starts is None else starts:
+        sketches.append(ranking.sketch(start))
+        count += sketches[-1].evaluations
+    # Costed with the basin in one call, each at its own prior scale (as descents compare).
+    costs = ranking.costs(np.stack([basin.x, *(sketch.x for sketch in sketches)]))
+    count += costs.size
+    lower = [
+        (float(cost), sketch.x)
+        for cost, sketch in zip(costs[1:], sketches, strict=True)
+        if cost < costs[0]
+        and np.max(np.abs(family.wavelengths(probe, sketch.x) - placed)) > AMBIGUITY_MIN_DISTANCE_NM
+    ]
+    if not lower:
+        return None, count
+    valley = deciding.descend(min(lower, key=lambda item: item[0])[1])
+    count += valley.evaluations
+    if not (
+        valley.cost < leader.cost
+        and np.max(np.abs(family.wavelengths(probe, valley.x) - placed)) > AMBIGUITY_MIN_DISTANCE_NM
+    ):
+        return None, count
+    return valley, count
+
+
+#: The spacing (nm) of the whole-mapping aliases of a broadband profile: the deciding and the
+#: scan's response nodes (:data:`COARSE_NODES_NM`); on the validation split's lamp A scenes the
+#: wrong answers shifted as a whole were 9–12 nm off (decision 0158).
+WHOLE_SHIFT_NM = COARSE_NODES_NM
+
+
+def _led_by(
+    decided: Sequence[tuple[Any, Solution]],
+    valley: Solution | None,
+    final: StageFit,
+    pixel_range: tuple[float, float],
+    count: int,
+) -> tuple[list[tuple[Any, Solution]], int]:
+    """``decided`` with ``valley`` leading when the final stage prefers it to the leader by
+    :data:`AMBIGUITY_DELTA_CHI2` (the old leader stays a basin), and ``count`` with the final
+    stage's evaluations."""
+    if valley is None:
+        return list(decided), count
+    family, leader = decided[0]
+    judge = _FinalJudge(final, leader)
+    settled = judge.prefers(valley.x)
+    count += judge.evaluations
+    if settled is None:
+        return list(decided), count
+    return _distinct([(family, valley), *decided], pixel_range, MAX_BASINS + 1), count
+
+
+def whole_shift_probe(
+    decided: Sequence[tuple[Any, Solution]],
+    ranking: StageFit,
+    deciding: StageFit,
+    final: StageFit,
+    pixel_range: tuple[float, float],
+) -> tuple[list[tuple[Any, Solution]], int]:
+    """The deciding stage's basins (``decided``, lowest first) with a valley found by shifting
+    the whole leader by ± :data:`WHOLE_SHIFT_NM` (decision 0158), and the evaluations made: the
+    two shifted mappings sketched and descended as :func:`end_probes` does its moves, the valley
+    leading under the same rules (below the leader on the deciding stage, preferred by the final
+    stage by :data:`AMBIGUITY_DELTA_CHI2`); the old leader stays a basin."""
+    family, leader = decided[0]
+    starts = [leader.x + shift for shift in (-WHOLE_SHIFT_NM, WHOLE_SHIFT_NM)]
+    valley, count = _inward_valley(
+        family, leader, leader, ranking, deciding, pixel_range, starts=starts
+    )
+    return _led_by(decided, valley, final, pixel_range, count)
+
+
+def stalled_probe(
+    decided: Sequence[tuple[Any, Solution]],
+    scan_best: Solution,
+    ranking: StageFit,
+    deciding: StageFit,
+    final: StageFit,
+    pixel_range: tuple[float, float],
+) -> tuple[list[tuple[Any, Solution]], int]:
+    """The deciding stage's basins (``decided``, lowest first) with a valley found about the
+    scan's best basin when its deciding descent (``scan_best``) stalled hopelessly behind the
+    leader (decision 0158), and the evaluations made.
+
+    :func:`end_probes` moves the leader's ends only. On the validation split (lamp A, seed 4,
+    Canon 10D (Kawakami), no noise) the scan's best basin was the truth's with its blue end 10 nm
+    too blue, and its deciding descent stopped in a narrow valley of its own at Δχ² ~92 000
+    behind the leader (an alias 10 nm off in the middle); its blue end moved inwards by 6 nm
+    descended to the truth. A scan's best basin that ends more than
+    :data:`HOPELESS_DELTA_CHI2` behind the deciding leader is probed as :func:`end_probes` probes
+    the leader (one round), and the valley found leads when it is below the leader on the
+    deciding stage and the final stage prefers it by :data:`AMBIGUITY_DELTA_CHI2`; the old
+    leader stays a basin.
+    """
+    family, leader = decided[0]
+    if _behind(scan_best, leader) <= HOPELESS_DELTA_CHI2:
+        return list(decided), 0
+    valley, count = _inward_valley(family, scan_best, leader, ranking, deciding, pixel_range)
+    return _led_by(decided, valley, final, pixel_range, count)
 
 
 #: How far (in its own curvature σ) :func:`end_profile` moves each end of a broadband-only mapping
