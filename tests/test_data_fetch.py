@@ -10,7 +10,9 @@ import threading
 from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from types import SimpleNamespace
 
+import pooch.core
 import pytest
 
 from calib.cli.app import main as calib_main
@@ -28,6 +30,9 @@ PAYLOAD = b"wavelength,red,green,blue\n400,0.1,0.2,0.3\n410,0.3,1.0,0.2\n"
 def _pinned(name: str = "a.csv", payload: bytes = PAYLOAD) -> PinnedFile:
     digest = hashlib.sha256(payload).hexdigest()
     return PinnedFile("demo", "owner/repo", "0" * 40, f"data/{name}", digest, len(payload))
+
+
+SHUTDOWN_POLL_S = 0.02
 
 
 class _Server:
@@ -56,12 +61,23 @@ class _Server:
         self.url = f"http://127.0.0.1:{self.http.server_port}"
 
     def __enter__(self) -> _Server:
-        threading.Thread(target=self.http.serve_forever, daemon=True).start()
+        # Polled for shutdown every 20 ms (the default 0.5 s is what each test would wait at its end).
+        serve = {"poll_interval": SHUTDOWN_POLL_S}
+        threading.Thread(target=self.http.serve_forever, kwargs=serve, daemon=True).start()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.http.shutdown()
         self.http.server_close()
+
+
+@pytest.fixture
+def pooch_waits(monkeypatch: pytest.MonkeyPatch) -> list[float]:
+    """The waits pooch asks for between a file's attempts (1 s, then 2 s), recorded, not slept:
+    what is tested is which attempts are made, not how long pooch waits between them."""
+    waits: list[float] = []
+    monkeypatch.setattr(pooch.core, "time", SimpleNamespace(sleep=waits.append))
+    return waits
 
 
 @pytest.fixture
@@ -123,7 +139,7 @@ def test_the_cli_says_offline_in_one_line(
 
 
 def test_a_broken_download_is_retried_and_a_missing_file_is_not(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, pooch_waits: list[float]
 ) -> None:
     files = [_pinned("flaky.csv"), _pinned("gone.csv")]
     monkeypatch.setattr(datasets, "pinned_files", lambda collections=None: files)
@@ -139,10 +155,11 @@ def test_a_broken_download_is_retried_and_a_missing_file_is_not(
     assert caught.value.failures == [
         ("demo/data/gone.csv", f"{server.url}/owner/repo/{'0' * 40}/data/gone.csv: HTTP 404")
     ]
+    assert pooch_waits == [1]  # one wait, before the flaky file's second attempt
 
 
 def test_a_corrupted_download_is_retried_then_refused(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, pooch_waits: list[float]
 ) -> None:
     files = [_pinned("a.csv", PAYLOAD + b"x")]  # the server sends PAYLOAD: the hash differs
     monkeypatch.setattr(datasets, "pinned_files", lambda collections=None: files)
@@ -151,3 +168,4 @@ def test_a_corrupted_download_is_retried_then_refused(
         fetch_datasets(tmp_path / "data", base_url=server.url, retries=1)
     assert len(server.requests) == 2
     assert not list((tmp_path / "data").rglob("a.csv"))
+    assert pooch_waits == [1]

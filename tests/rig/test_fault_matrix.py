@@ -358,6 +358,7 @@ def matrix_rows() -> list[Any]:
     ]
 
 
+@pytest.mark.usefixtures("fast_camera_recovery")
 @pytest.mark.parametrize(("row", "estimate"), matrix_rows())
 def test_fault(
     row: str, estimate: bool, tmp_path: Path, uninterrupted_runs: UninterruptedRuns

@@ -266,6 +266,7 @@ def test_the_devices_are_opened_as_the_users_configuration_says(
     assert [config.devices.spectrometer.timeout_s for config in opened] == [5]
 
 
+@pytest.mark.usefixtures("fast_camera_recovery")
 @pytest.mark.parametrize("field", ["state_file", "data_dir"])
 def test_a_state_file_or_data_directory_named_by_the_session_is_refused(
     tmp_path: Path, outside: Path, monkeypatch: pytest.MonkeyPatch, capsys: Any, field: str

@@ -161,17 +161,25 @@ FAULTS = {
     "camera busy, recovered by its driver": TwinFaults(
         camera=[CameraFault("busy", skip=1, times=2)]
     ),
-    # The driver's measurement deadline (2 s on the small twin) ends it, before the runner's
-    # watchdog; the runner retries. The replay waits the recorded deadline out again.
+    # The driver's measurement deadline (1 s here, as in the fault matrix: the twin measures in
+    # ms) ends it, before the runner's watchdog; the runner retries. The replay waits the
+    # recorded deadline out again.
     "spectrometer silent: the driver times out, retried": TwinFaults(
         spectrometer=FaultSchedule([HUNG_SPECTROMETER])
     ),
 }
 
 
+#: The spectrometer's measurement deadline of the fault rows (the small twin's is 2 s): a silent
+#: spectrometer waits it out twice, in the capture and in the replay; how long does not matter.
+FAULT_MEASURE_TIMEOUT_S = 1.0
+
+
 def _replays_identically(tmp_path: Path, faults: TwinFaults) -> None:
+    data = twin_config_data(tmp_path / "faulty")
+    data["devices"]["spectrometer"]["measure_timeout_s"] = FAULT_MEASURE_TIMEOUT_S
     source = run_capture(
-        twin_config(tmp_path / "faulty"),
+        RigConfig.model_validate(data),
         retry=FAST_RETRY,
         builder=twin_station_builder(faults=faults),
     ).session
@@ -179,6 +187,7 @@ def _replays_identically(tmp_path: Path, faults: TwinFaults) -> None:
     assert outcome.identical, outcome
 
 
+@pytest.mark.usefixtures("fast_camera_recovery")
 @pytest.mark.parametrize("faults", FAULTS.values(), ids=FAULTS.keys())
 def test_a_session_with_faults_replays_identically(tmp_path: Path, faults: TwinFaults) -> None:
     _replays_identically(tmp_path, faults)
@@ -405,6 +414,7 @@ def test_a_replay_into_the_recorded_session_is_refused(
     assert not out.exists()
 
 
+@pytest.mark.usefixtures("fast_camera_recovery")
 @pytest.mark.parametrize("first_run", ["camera unplugged", "interrupted by a signal"])
 def test_a_resumed_session_replays_run_by_run(tmp_path: Path, first_run: str) -> None:
     """Run 1 on its transcripts, then `rig resume` of the replay on run 2's: one identical log."""

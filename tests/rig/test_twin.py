@@ -116,6 +116,7 @@ def test_the_same_seed_gives_the_same_frames_and_spectra(
     assert all(_files(other).get(path) != _files(first)[path] for path in frames)
 
 
+@pytest.mark.usefixtures("fast_camera_recovery")
 def test_a_busy_camera_is_recovered_by_its_driver(tmp_path: Path) -> None:
     opened: list[TwinBench] = []
     faults = TwinFaults(camera=[CameraFault("busy", skip=1, times=2)])
