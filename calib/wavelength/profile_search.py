@@ -2430,17 +2430,25 @@ def end_probes(
     return basins, count + judge.evaluations
 
 
+#: How far :func:`end_probes` moves an end inwards, as shares of :data:`LOCAL_SCAN`'s half-width:
+#: the deciding scan's reach (decision 0152) and half of it, for a valley between the leader and
+#: that reach (decision 0163: a predicted curve's red end 4 nm too far out, whose 6 nm move
+#: sketched into another valley).
+END_PROBE_SHARES = (1.0, 0.5)
+
+
 def _inward_starts(basin: Solution) -> list[FloatArray]:
-    """:func:`end_probes`' moves of ``basin``: each end inwards by :data:`LOCAL_SCAN`'s
-    half-width, the middle by half (the parameters are the wavelengths at the profile's first
-    pixel, middle and last)."""
+    """:func:`end_probes`' moves of ``basin``: each end inwards by :data:`END_PROBE_SHARES` of
+    :data:`LOCAL_SCAN`'s half-width, the middle by half (the parameters are the wavelengths at
+    the profile's first pixel, middle and last)."""
     starts = []
-    for end in (0, 2):
-        shift = LOCAL_SCAN[0] * float(np.sign(basin.x[1] - basin.x[end]))
-        start = basin.x.copy()
-        start[end] += shift
-        start[1] += 0.5 * shift
-        starts.append(start)
+    for share in END_PROBE_SHARES:
+        for end in (0, 2):
+            shift = share * LOCAL_SCAN[0] * float(np.sign(basin.x[1] - basin.x[end]))
+            start = basin.x.copy()
+            start[end] += shift
+            start[1] += 0.5 * shift
+            starts.append(start)
     return starts
 
 

@@ -15,6 +15,8 @@ from calib.wavelength.families import QuadraticFamily
 from calib.wavelength.least_squares import Solution
 from calib.wavelength.profile_search import LOCAL_SCAN, end_probes
 
+from .landscape import Landscape, solution
+
 PIXELS = (0.0, 799.0)
 LEADER = np.array([385.0, 550.0, 715.0])
 #: A deeper valley 5 nm inwards at the red end (the middle following by half).
@@ -73,18 +75,21 @@ def _probe(
 def test_each_end_is_moved_inwards_and_a_valley_both_stages_prefer_leads():
     decided, count, view, leader = _probe(final_inward_cost=900.0)
     half = LOCAL_SCAN[0]
-    # Round one from the leader: the blue end up, the red end down (the middle by half); the red
-    # end's sketch falls into the inward valley, which is descended and settled with the leader.
+    # Round one from the leader: the blue end up, the red end down (the middle by half), by the
+    # scan's reach and by half of it; the red end's first sketch falls into the inward valley,
+    # which is descended and settled with the leader.
     assert view.starts[0] == pytest.approx(LEADER + np.array([half, half / 2, 0.0]))
     assert view.starts[1] == pytest.approx(LEADER + np.array([0.0, -half / 2, -half]))
-    assert view.starts[2] == pytest.approx(INWARD)
+    assert view.starts[2] == pytest.approx(LEADER + np.array([half / 2, half / 4, 0.0]))
+    assert view.starts[3] == pytest.approx(LEADER + np.array([0.0, -half / 4, -half / 2]))
+    assert view.starts[4] == pytest.approx(INWARD)
     assert decided[0][1].x == pytest.approx(INWARD)
     # The leader it replaces stays a basin, as does the other one.
     assert [d[1] for d in decided[1:]] == [leader, decided[2][1]]
     assert decided[2][1].x == pytest.approx(LEADER + 20.0)
-    # Round two from the new leader finds nothing lower: 2 sketches and one costing of 3 each
+    # Round two from the new leader finds nothing lower: 4 sketches and one costing of 5 each
     # round, the descent and two settles in the first.
-    assert count == 2 * (2 * 10 + 3) + 3 * 10
+    assert count == 2 * (4 * 10 + 5) + 3 * 10
 
 
 def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_is_left():
@@ -92,7 +97,26 @@ def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_is_left():
     decided, count, _, leader = _probe(final_inward_cost=990.0)
     assert decided[0][1] is leader
     assert len(decided) == 2
-    assert count == 2 * 10 + 3 + 3 * 10
+    assert count == 4 * 10 + 5 + 3 * 10
+
+
+def test_a_valley_within_half_the_reach_is_found_by_the_half_move():
+    """Decision 0163: the red end 3 nm too far out; the move by the scan's reach sketches beyond
+    the truth's valley (here onto the floor), the move by half of it into the valley."""
+    family = QuadraticFamily(PIXELS)
+    near = LEADER + np.array([0.0, -0.5 * LOCAL_SCAN[0] / 2, -0.5 * LOCAL_SCAN[0]])
+    view = Landscape([(near, 100.0), (LEADER, 1000.0)], 5000.0)
+    final = Landscape([(near, 900.0), (LEADER, 1000.0)], 5000.0)
+    leader = solution(LEADER, 1000.0)
+    decided, _ = end_probes(
+        [(family, leader)],
+        view,  # type: ignore[arg-type]
+        view,  # type: ignore[arg-type]
+        final,  # type: ignore[arg-type]
+        PIXELS,
+    )
+    assert decided[0][1].x == pytest.approx(near)
+    assert decided[1][1] is leader
 
 
 @pytest.mark.slow
