@@ -68,12 +68,12 @@ from calib.evaluation.synthetic import (
     SyntheticScene,
     run_protocol,
 )
-from calib.evaluation.synthetic_splits import paper_split_cameras
+from calib.evaluation.synthetic_splits import paper_split_cameras, validation_cameras
 from calib.evaluation.validation.report import MAPPING_FAILURE_NM
-from calib.evaluation.validation.splits import PREDICTION, load_splits
+from calib.evaluation.validation.splits import PREDICTION
 from calib.methods import PriorOptions, estimate
 from calib.methods.uncertainty import BudgetSettings
-from calib.model.bases import CameraBasis, camera_basis
+from calib.model.bases import CameraBasis
 
 WIDTH = 2.0
 SPECTROMETER = ("spectrometer scale", "spectrometer bandwidth")
@@ -204,29 +204,12 @@ def eta_experiment(scene: SyntheticScene, basis: CameraBasis) -> list[tuple[str,
 def predicted_cameras(
     data_dir: str | None, count: int, seed: int
 ) -> tuple[list[tuple[str, MultiSpectrum]], Callable[[str], CameraBasis]]:
-    """``count`` of the validation split's predicted curves (:func:`calib.evaluation.validation.
-    splits.load_splits`, drawn with ``seed``), each with a basis of the other bodies' training
-    curves, as :func:`calib.evaluation.synthetic_splits.validation_cameras` gives the measured
-    ones."""
-    splits, _missing = load_splits(data_dir, predictions=count, seed=seed, out_of_basis=False)
-    split = splits.validation
-    chosen = [camera for camera in split.cameras if camera.group == PREDICTION]
-    by_name = {camera.name: camera for camera in chosen}
-    bases: dict[tuple[str, ...], CameraBasis] = {}
-
-    def basis_for(name: str) -> CameraBasis:
-        records = split.basis_records(by_name[name])
-        key = tuple(record.name for record in records)
-        if key not in bases:
-            bases[key] = camera_basis(
-                [record.sensitivity for record in records],
-                grid=DEFAULT_GRID,
-                source=f"validation basis: {len(records)} training curves",
-                camera_names=list(key),
-            )
-        return bases[key]
-
-    return [(camera.name, camera.sensitivity) for camera in chosen], basis_for
+    """``count`` of the validation split's predicted curves (drawn with ``seed``), each with a
+    basis of the other bodies' training curves, as the measured ones have theirs."""
+    cameras, basis_for, _source = validation_cameras(
+        data_dir, predictions=count, seed=seed, group=PREDICTION
+    )
+    return cameras, basis_for
 
 
 def main() -> None:

@@ -21,18 +21,27 @@ def validation_cameras(
     grid: WavelengthGrid = DEFAULT_GRID,
     n_vectors: int = 7,
     exclude: Sequence[str] = (),
+    predictions: int = 0,
+    seed: int = 0,
+    group: str | None = None,
 ) -> tuple[list[tuple[str, MultiSpectrum]], Callable[[str], CameraBasis], str]:
     """The validation split's measured cameras for the paper's protocol: every training curve, each
     with a basis of the training curves of the *other* bodies (leave one body out,
     :class:`calib.evaluation.validation.splits.ValidationSplit`), the only cameras a tuning choice
     made on this protocol may look at.
 
+    ``predictions`` of the split's predicted curves join them (drawn with ``seed``); ``group``
+    keeps one group of cameras only (e.g. the predicted curves alone).
+
     Returns ``(name, sensitivity)`` pairs, the basis of a camera by its name (built once per left-out
     body) and a description of the bases.
     """
-    splits, _missing = load_splits(data_dir, out_of_basis=False, exclude=exclude)
+    splits, _missing = load_splits(
+        data_dir, out_of_basis=False, exclude=exclude, predictions=predictions, seed=seed
+    )
     split = splits.validation
-    by_name = {camera.name: camera for camera in split.cameras}
+    chosen = [camera for camera in split.cameras if group is None or camera.group == group]
+    by_name = {camera.name: camera for camera in chosen}
     bases: dict[tuple[str, ...], CameraBasis] = {}
 
     def basis_for(name: str) -> CameraBasis:
@@ -48,7 +57,7 @@ def validation_cameras(
             )
         return bases[key]
 
-    cameras = [(camera.name, camera.sensitivity) for camera in split.cameras]
+    cameras = [(camera.name, camera.sensitivity) for camera in chosen]
     return cameras, basis_for, "training curves, each camera's own body left out of its basis"
 
 
