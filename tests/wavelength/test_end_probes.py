@@ -23,45 +23,16 @@ LEADER = np.array([385.0, 550.0, 715.0])
 INWARD = LEADER + np.array([0.0, -2.5, -5.0])
 
 
-def _solution(x: np.ndarray, cost: float) -> Solution:
-    """A fit at ``x`` with ``cost`` over 1 000 rows, 10 evaluations."""
-    return Solution(np.asarray(x, float), np.zeros(1000), np.zeros((1000, 3)), cost, 10)
-
-
-class _Landscape:  # a stage's costs, sketch, descent and settling
-    """The leader's valley (cost 1 000) and a deeper one inwards at the red end (``inward_cost``);
-    a start within 1.5 nm of a valley falls into it, any other stays where it is, on a high floor."""
-
-    def __init__(self, inward_cost: float) -> None:
-        self.inward_cost = inward_cost
-        self.starts: list[np.ndarray] = []
-
-    def costs(self, x: np.ndarray) -> np.ndarray:
-        x = np.atleast_2d(x)
-        out = np.full(x.shape[0], 5000.0)
-        out = np.where(np.max(np.abs(x - LEADER), axis=1) < 0.75, 1000.0, out)
-        return np.asarray(
-            np.where(np.max(np.abs(x - INWARD), axis=1) < 0.75, self.inward_cost, out)
-        )
-
-    def sketch(self, x: np.ndarray) -> Solution:
-        self.starts.append(np.asarray(x))
-        for valley in (INWARD, LEADER):
-            if np.max(np.abs(x - valley)) < 1.5:
-                return _solution(valley, float(self.costs(valley)[0]))
-        return _solution(x, float(self.costs(x)[0]))
-
-    descend = settle = sketch
-
-
 def _probe(
     final_inward_cost: float,
-) -> tuple[list[tuple[Any, Solution]], int, _Landscape, Solution]:
+) -> tuple[list[tuple[Any, Solution]], int, Landscape, Solution]:
     family = QuadraticFamily(PIXELS)
-    view = _Landscape(100.0)  # the ranking and the deciding view alike
-    final = _Landscape(final_inward_cost)
-    leader = _solution(LEADER, 1000.0)
-    other: tuple[Any, Solution] = (family, _solution(LEADER + 20.0, 3000.0))
+    # The leader's valley and a deeper one inwards at the red end; the ranking and the deciding
+    # view alike, the final stage with its own cost of the inward valley.
+    view = Landscape([(INWARD, 100.0), (LEADER, 1000.0)], 5000.0)
+    final = Landscape([(INWARD, final_inward_cost), (LEADER, 1000.0)], 5000.0)
+    leader = solution(LEADER, 1000.0)
+    other: tuple[Any, Solution] = (family, solution(LEADER + 20.0, 3000.0))
     decided, count = end_probes(
         [(family, leader), other],
         view,  # type: ignore[arg-type]
