@@ -2418,7 +2418,7 @@ def end_probes(
     judge = _FinalJudge(final, basins[0][1])
     for _ in range(END_PROBE_ROUNDS):
         family, leader = basins[0]
-        valley, evaluations = _inward_valley(family, leader, leader, ranking, deciding, pixel_range)
+        valley, evaluations = _probed_valley(family, leader, leader, ranking, deciding, pixel_range)
         count += evaluations
         if valley is None:
             break
@@ -2452,7 +2452,7 @@ def _inward_starts(basin: Solution) -> list[FloatArray]:
     return starts
 
 
-def _inward_valley(
+def _probed_valley(
     family: Any,
     basin: Solution,
     leader: Solution,
@@ -2461,8 +2461,9 @@ def _inward_valley(
     pixel_range: tuple[float, float],
     starts: Sequence[FloatArray] | None = None,
 ) -> tuple[Solution | None, int]:
-    """One round of :func:`end_probes` about ``basin``: ``starts`` (default: each end moved
-    inwards, :func:`_inward_starts`) sketched on ``ranking``, the lowest sketch below ``basin``
+    """One round of the probes about ``basin`` (:func:`end_probes`, :func:`stalled_probe`,
+    :func:`whole_shift_probe`): ``starts`` (default: each end moved inwards,
+    :func:`_inward_starts`) sketched on ``ranking``, the lowest sketch below ``basin``
     there (and more than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it) descended on ``deciding``;
     that valley when it is below ``leader`` there and apart from ``basin``, else ``None``; and
     the evaluations made."""
@@ -2536,7 +2537,7 @@ def whole_shift_probe(
     stage by :data:`AMBIGUITY_DELTA_CHI2`); the old leader stays a basin."""
     family, leader = decided[0]
     starts = [leader.x + shift for shift in (-WHOLE_SHIFT_NM, WHOLE_SHIFT_NM)]
-    valley, count = _inward_valley(
+    valley, count = _probed_valley(
         family, leader, leader, ranking, deciding, pixel_range, starts=starts
     )
     return _led_by(decided, valley, final, pixel_range, count)
@@ -2567,7 +2568,7 @@ def stalled_probe(
     family, leader = decided[0]
     if _behind(scan_best, leader) <= HOPELESS_DELTA_CHI2:
         return list(decided), 0
-    valley, count = _inward_valley(family, scan_best, leader, ranking, deciding, pixel_range)
+    valley, count = _probed_valley(family, scan_best, leader, ranking, deciding, pixel_range)
     return _led_by(decided, valley, final, pixel_range, count)
 
 
