@@ -60,7 +60,7 @@ from calib.core.arrays import FloatArray
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import relative_error
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, mapping_warned
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import (
     PAPER_VARIANTS,
@@ -283,7 +283,7 @@ def main() -> None:
                     row.variant,
                     row.noise,
                     float(np.max(error)),
-                    "mapping_ambiguous" in codes,
+                    mapping_warned(codes),
                 )
             )
         if args.eta_experiment and row.variant == "true mapping":

@@ -34,7 +34,7 @@ import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.mapping import QuadraticMapping
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, mapping_warned
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import SyntheticRow, SyntheticScene, run_protocol
 from calib.evaluation.synthetic_splits import paper_split_cameras
@@ -148,15 +148,13 @@ def main() -> None:
     )
     off = [r for r in rows if float(r.split('",')[1].split(",")[2]) > MAPPING_FAILURE_NM]
     fields = [r.split('",', 1)[1].split(",") for r in off]
-    uncovered = [
-        f for f in fields if float(f[7]) > COVERED_SIGMAS and "mapping_ambiguous" not in f[11]
-    ]
+    uncovered = [f for f in fields if float(f[7]) > COVERED_SIGMAS and not mapping_warned(f[11])]
     print(
         f"{args.split} split, seed {args.seed}: {len(rows)} mappings, > {MAPPING_FAILURE_NM:g} nm "
         f"{len(off)}, of them beyond {COVERED_SIGMAS:g}σ at the worst pixel {len(uncovered)}"
     )
     unwarned = [r.split('",', 1)[1].split(",") for r in rows]
-    unwarned = [f for f in unwarned if "mapping_ambiguous" not in f[11]]
+    unwarned = [f for f in unwarned if not mapping_warned(f[11])]
     for index, band in enumerate(BANDS):
         values = np.array([float(f[len(f) - len(BANDS) + index]) for f in unwarned])
         values = values[np.isfinite(values)]

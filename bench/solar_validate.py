@@ -83,6 +83,7 @@ from calib.core.line_lists import line_list
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.metrics import channel_relative_errors
 from calib.core.observations import LampObservation
+from calib.core.result import mapping_warned
 from calib.core.spectra import Spectrum
 from calib.evaluation.validation.protocol import (
     ProtocolSettings,
@@ -152,10 +153,10 @@ def dip_minimum(profile: np.ndarray, guess: float, window: int) -> float:
 
 def silent(errors: np.ndarray, sigmas: np.ndarray, codes: list[str]) -> bool:
     """A silent wrong mapping (decision 0091): RMS over the six features above 2 nm or above three
-    times its stated σ there, and no ``mapping_ambiguous`` flag."""
+    times its stated σ there, and no mapping warning (``MAPPING_WARNING_CODES``)."""
     rms = float(np.sqrt(np.mean(errors**2)))
     stated = float(np.sqrt(np.nanmean(sigmas**2)))
-    return (rms > 2.0 or rms > 3.0 * stated) and "mapping_ambiguous" not in codes
+    return (rms > 2.0 or rms > 3.0 * stated) and not mapping_warned(codes)
 
 
 def sensitivity(

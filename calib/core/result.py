@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -71,6 +71,8 @@ QUALITY_CODES: dict[str, str] = {
     "uncertainty_unvalidated": "the method's ±2σ band was not judged on the validation split",
     "grating_sigma_missing": "the given grating efficiency states no σ: its error is not in σ",
     "mapping_ambiguous": "the pixel→wavelength mapping has competing solutions (mapping stage)",
+    "mapping_imprecise": "the pixel→wavelength mapping has one solution, but its likelihood holds "
+    "an end looser than ±3 nm at 2σ: add a line lamp (mapping stage)",
     "mapping_nonmonotonic": "the mapping is not monotonic over the profile (mapping stage)",
     "mapping_line_residuals": "known lines sit far from the mapping (mapping stage)",
     "mapping_extrapolated": "the mapping is extrapolated beyond its lamp's lines with a large σ "
@@ -86,6 +88,19 @@ QUALITY_CODES: dict[str, str] = {
     "channel_gains_unknown": "the profile's channel gains are not the raw data's: the channel "
     "balance is the camera population's, its spread in σ",
 }
+
+
+#: The mapping stage's codes that say its answer may be off by more than the issue's 3 nm (competing
+#: basins, or one basin whose end the likelihood holds loosely): a mapping further off than that
+#: without one of them is a silent wrong answer.
+MAPPING_WARNING_CODES: tuple[str, ...] = ("mapping_ambiguous", "mapping_imprecise")
+
+
+def mapping_warned(codes: str | Iterable[str]) -> bool:
+    """Whether a mapping's quality codes (``details["warning_codes"]``, or their text as a CSV
+    field holds them) include one of :data:`MAPPING_WARNING_CODES`."""
+    text = codes if isinstance(codes, str) else " ".join(codes)
+    return any(code in text for code in MAPPING_WARNING_CODES)
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ the result is monotonic or an error.
 The result's :class:`calib.core.mapping.QuadraticMapping` (the report format) carries in its
 ``details``: ``family`` and ``grating`` (the physical parameters), ``matched_lines`` (rows
 ``{line, wavelength_nm, pixel, fitted_nm, residual_nm, weight}``), ``candidates`` (every basin with its
-mapping and likelihood), ``ambiguous``, ``warnings`` (sentences for the user) with their ``warning_codes`` (one quality
+mapping and likelihood), ``ambiguous`` (competing basins, or one held loosely at an end), ``warnings`` (sentences for the user) with their ``warning_codes`` (one quality
 code each), and
 ``rig_prior`` (what the physics rested on).
 """
@@ -803,6 +803,7 @@ def locate_mapping(
 
     extrapolated: list[str] = []
     ambiguity_warnings: list[str] = []
+    imprecise_warnings: list[str] = []
     if features is not None:
         mapping, exact = features.mapping, features.exact
         details.update(features.details)
@@ -936,7 +937,7 @@ def locate_mapping(
                 details["imprecise_end"] = imprecise
                 if imprecise is not None:
                     details["ambiguous"] = True
-                    ambiguity_warnings.append(_imprecise_warning(imprecise, lamps, grid))
+                    imprecise_warnings.append(_imprecise_warning(imprecise, lamps, grid))
     _check_monotonic(exact, lead)
     if reach_nm is not None:
         # One σ past the lines for every consumer: the mapping carries it (decision 0127).
@@ -951,10 +952,15 @@ def locate_mapping(
     warnings += ambiguity_warnings
     ambiguity = set(search.warnings) if search is not None else set()
     ambiguity |= set(ambiguity_warnings)
-    details["warning_codes"] = [
-        "mapping_ambiguous" if text in ambiguity else "mapping_line_residuals" for text in warnings
-    ] + ["mapping_extrapolated"] * len(extrapolated)
-    warnings += extrapolated
+    details["warning_codes"] = (
+        [
+            "mapping_ambiguous" if text in ambiguity else "mapping_line_residuals"
+            for text in warnings
+        ]
+        + ["mapping_imprecise"] * len(imprecise_warnings)
+        + ["mapping_extrapolated"] * len(extrapolated)
+    )
+    warnings += imprecise_warnings + extrapolated
     details["warnings"] = warnings
     mapping = mapping.with_details(details={**dict(mapping.details), **details})
     return MappingSolution(mapping, exact, tuple(warnings), details)
@@ -1097,7 +1103,8 @@ def _quadratic_coarse_check(
 #: A broadband-only mapping whose stated ±2σ exceeds this many nm somewhere on the working grid
 #: is not one a user can take as right: the issue's own bar for a wrong mapping (3 nm, ``calib.
 #: evaluation.validation.report.MAPPING_FAILURE_NM``), read on the σ the mapping states. Such an
-#: answer warns (``mapping_ambiguous``) even when no other basin competes (decision 0158).
+#: answer warns even when no other basin competes (decision 0158), under its own quality code
+#: ``mapping_imprecise`` (decision 0166).
 IMPRECISE_TWO_SIGMA_NM = 3.0
 #: Pixels (over the lead profile) at which the stated σ is read for :func:`_imprecise_end`.
 IMPRECISE_PROBE_PIXELS = 129

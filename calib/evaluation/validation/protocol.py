@@ -46,7 +46,7 @@ from calib.core.lamp_specs import RGB_LEDS, lamp_from_spec
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.metrics import channel_relative_errors, mapping_relative_error
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, mapping_warned
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.evaluation.validation.rig_errors import RigErrors
 from calib.evaluation.validation.scenes import (
@@ -278,7 +278,7 @@ class ValidationRow:
     scene_record: str = ""
     failure: str | None = None
     method_coverage: tuple[float, float, float] | None = None
-    #: The mapping stage warned of competing basins (quality code ``mapping_ambiguous``).
+    #: The mapping stage warned that it may be off (:data:`calib.core.result.MAPPING_WARNING_CODES`).
     mapping_warned: bool | None = None
 
     @property
@@ -529,7 +529,7 @@ def scored_row(
 def _ambiguity_warned(mapping: object) -> bool:
     """Whether the mapping's result carries the ambiguity warning (its quality code)."""
     details = getattr(mapping, "details", None) or {}
-    return "mapping_ambiguous" in details.get("warning_codes", ())
+    return mapping_warned(details.get("warning_codes", ()))
 
 
 def failed_row(identity: dict[str, Any], error: Exception, started: float) -> ValidationRow:
