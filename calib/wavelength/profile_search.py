@@ -439,16 +439,21 @@ class StageFit:
         edges = self.family.wavelengths(self.edges_px, x)
         return replace(self, models=tuple(model.reference(edges) for model in self.models))
 
-    def sketch(self, x: FloatArray) -> Solution:
+    def sketch(self, x: FloatArray, give_up_above: float = math.inf) -> Solution:
         """The scan refinement's descent from a grid point ``x``: one short round (6
-        iterations, tolerance 1e-4), enough to find which basin the point lies in."""
-        return self.refine(x, max_iterations=6, tolerance=1e-4, rounds=1)
+        iterations, tolerance 1e-4), enough to find which basin the point lies in;
+        ``give_up_above``: :meth:`refine`'s."""
+        return self.refine(
+            x, max_iterations=6, tolerance=1e-4, rounds=1, give_up_above=give_up_above
+        )
 
-    def descend(self, x: FloatArray) -> Solution:
+    def descend(self, x: FloatArray, give_up_above: float = math.inf) -> Solution:
         """The deciding stage's descent from ``x`` (one round, 10 iterations, tolerance 1e-5),
         its cost then taken at its own prior scale (what a second round held there would
-        report), so descents into different basins compare."""
-        outcome = self.refine(x, max_iterations=10, tolerance=1e-5, rounds=1)
+        report), so descents into different basins compare; ``give_up_above``: :meth:`refine`'s."""
+        outcome = self.refine(
+            x, max_iterations=10, tolerance=1e-5, rounds=1, give_up_above=give_up_above
+        )
         return replace(outcome, cost=float(self.costs(outcome.x[None])[0]))
 
     def settle(self, x: FloatArray) -> Solution:
@@ -465,6 +470,7 @@ class StageFit:
         tolerance: float = 1e-6,
         rounds: int = 2,
         gain_tolerance: float = 0.0,
+        give_up_above: float = math.inf,
     ) -> Solution:
         """Levenberg–Marquardt from ``x``, the prior scale and penalties held at the start, then
         (``rounds=2``) once more held at the solution: its cost is then :meth:`costs`' at its own
@@ -472,7 +478,9 @@ class StageFit:
         cost along it allows (``shorten``, decision 0096). ``gain_tolerance``: the descent also stops
         once the Gauss–Newton step predicts less decrease than that
         (:func:`calib.wavelength.least_squares.levenberg_marquardt`; the final fit's
-        :data:`CONVERGED_DELTA_CHI2`)."""
+        :data:`CONVERGED_DELTA_CHI2`). ``give_up_above``: the first round also stops once its
+        Gauss–Newton model's minimum is above that cost (a start hopelessly behind a leader:
+        :func:`hopeless_bar`, decision 0165)."""
         first = levenberg_marquardt(
             self.fixed_at(x).function,
             x,
@@ -480,6 +488,7 @@ class StageFit:
             tolerance=tolerance,
             shorten=True,
             gain_tolerance=gain_tolerance,
+            give_up_above=give_up_above,
         )
         if rounds == 1:
             return first
@@ -578,6 +587,13 @@ def binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
 def _behind(solution: Solution, leader: Solution) -> float:
     """Tempered Δχ² of ``solution`` behind ``leader`` (by the leader's reduced χ²)."""
     return (solution.cost - leader.cost) / max(leader.cost / leader.dof, 1.0)
+
+
+def hopeless_bar(cost: float, dof: int) -> float:
+    """The cost :data:`HOPELESS_DELTA_CHI2` behind a leader of ``cost`` with ``dof`` degrees of
+    freedom (tempered by its reduced χ², as :func:`_behind` tempers): a descent whose own
+    Gauss–Newton model ends above it stops there (``give_up_above``, decision 0165)."""
+    return cost + HOPELESS_DELTA_CHI2 * max(cost / dof, 1.0)
 
 
 def _distinct(
@@ -2472,8 +2488,17 @@ def _probed_valley(
     placed = family.wavelengths(probe, basin.x)
     sketches = []
     count = 0
+    # Only a sketch that ends below the basin is read: one whose own model ends hopelessly behind
+    # the basin's own point stops there (decision 0165).
+    own = ranking.function(basin.x, False)
+    count += 1
+    give_up = (
+        math.inf
+        if own is None
+        else hopeless_bar(float(own[0] @ own[0]), max(own[0].size - basin.x.size, 1))
+    )
     for start in _inward_starts(basin) if starts is None else starts:
-        sketches.append(ranking.sketch(start))
+        sketches.append(ranking.sketch(start, give_up))
         count += sketches[-1].evaluations
     # Costed with the basin in one call, each at its own prior scale (as descents compare).
     costs = ranking.costs(np.stack([basin.x, *(sketch.x for sketch in sketches)]))
