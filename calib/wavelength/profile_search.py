@@ -1476,8 +1476,17 @@ def search_profiles(
             if len(kept) == min(SCAN_MINIMA * len(grids), refined_at_most):
                 break
         for point in kept:
-            solution = refining.sketch(point)
-            leader = min((s for _, s in scanned), key=lambda s: s.cost, default=solution)
+            so_far = min((s for _, s in scanned), key=lambda s: s.cost, default=None)
+            # With a line lamp, a sketch whose own model ends hopelessly behind the best minimum
+            # so far stops there: it would be skipped below, and is only costed in the deciding
+            # stage (decision 0165).
+            give_up = (
+                math.inf
+                if broadband_only or so_far is None
+                else hopeless_bar(so_far.cost, so_far.dof)
+            )
+            solution = refining.sketch(point, give_up)
+            leader = solution if so_far is None else so_far
             # With a line lamp, a minimum far behind the best one so far is no answer: its
             # local scan is skipped (it stays a candidate as refined).
             far_behind = not broadband_only and _behind(solution, leader) > HOPELESS_DELTA_CHI2
