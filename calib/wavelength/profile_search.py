@@ -1700,7 +1700,9 @@ def search_profiles(
         for shift in RED_END_PROBE_NM:
             start = outcome.x.copy()
             start[red_index] += shift
-            probed = deciding.descend(start)
+            # A probe whose own model ends hopelessly behind the basin probed stops there: far
+            # behind, it weighs nothing in the result (decision 0165).
+            probed = deciding.descend(start, hopeless_bar(outcome.cost, outcome.dof))
             evaluations += probed.evaluations
             decided.append((family, probed))
         decided = _distinct(decided, pixel_range, MAX_BASINS)
