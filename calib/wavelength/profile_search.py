@@ -1574,7 +1574,12 @@ def search_profiles(
             from_own = lowest == local.shape[0] // 2
         else:
             from_own = True
-        outcome = deciding.descend(start)
+        # A descent whose own model ends hopelessly behind the best one so far stops there: such
+        # a basin gets no deepening scan nor own-point descent (below), and weighs nothing in
+        # the result (decision 0165).
+        outcome = deciding.descend(
+            start, math.inf if leader is None else hopeless_bar(leader.cost, leader.dof)
+        )
         count += outcome.evaluations
         if (
             broadband_only
