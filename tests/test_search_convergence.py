@@ -81,11 +81,11 @@ def test_only_the_search_s_final_fit_reaches_the_ramps_and_stops_at_a_tenth_of_s
     calls: list[tuple[int, bool, float]] = []
     original = profile_search.StageFit.refine
 
-    def spy(self, x, max_iterations, tolerance=1e-6, rounds=2, gain_tolerance=0.0):
+    def spy(self, x, max_iterations, tolerance=1e-6, rounds=2, gain_tolerance=0.0, **kwargs):
         ramps = {m.cut_ramps for m in self.models}
         assert len(ramps) == 1
         calls.append((self.edges_px.size - 1, ramps.pop(), gain_tolerance))
-        return original(self, x, max_iterations, tolerance, rounds, gain_tolerance)
+        return original(self, x, max_iterations, tolerance, rounds, gain_tolerance, **kwargs)
 
     monkeypatch.setattr(profile_search.StageFit, "refine", spy)
     prior = fallback_camera_basis().prior()

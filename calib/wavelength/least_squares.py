@@ -86,6 +86,7 @@ def levenberg_marquardt(
     step_tolerance: float = 0.0,
     shorten: bool = False,
     gain_tolerance: float = 0.0,
+    give_up_above: float = math.inf,
 ) -> Solution:
     """Minimise ``‖r(x)‖²`` from ``x0`` (which must be valid).
 
@@ -97,7 +98,9 @@ def levenberg_marquardt(
     decrease, ``gᵀ(JᵀJ)⁻¹g``, is below it: for residuals in units of their σ that decrease is the
     squared Mahalanobis distance of the model's minimum from ``x``, so 0.01 stops a fit within a
     tenth of its own σ of where it would go (without the trials, mostly refused, that the cost's
-    roughness at that scale costs; decision 0124).
+    roughness at that scale costs; decision 0124). With ``give_up_above``, also before a step when
+    the Gauss–Newton model's minimum, ``‖r‖² − gᵀ(JᵀJ)⁻¹g``, is above it: the descent's own model
+    says it ends there (a start hopelessly behind a leader; decision 0165).
 
     With ``geodesic``, once a plain step has been refused, each step carries its geodesic
     acceleration (Transtrum & Sethna 2012): the residual's second derivative along the step, by
@@ -148,8 +151,10 @@ def levenberg_marquardt(
         gradient = -(jacobian.T @ residual)
         normal = jacobian.T @ jacobian
         scale = np.maximum(normal.diagonal(), 1e-30)
-        if gain_tolerance > 0.0 and _newton_gain(normal, gradient) < gain_tolerance:
-            break
+        if gain_tolerance > 0.0 or give_up_above < math.inf:
+            gain = _newton_gain(normal, gradient)
+            if gain < gain_tolerance or cost - gain > give_up_above:
+                break
         improved = False
         refused = False
         while damping < 1e12:

@@ -439,16 +439,21 @@ class StageFit:
         edges = self.family.wavelengths(self.edges_px, x)
         return replace(self, models=tuple(model.reference(edges) for model in self.models))
 
-    def sketch(self, x: FloatArray) -> Solution:
+    def sketch(self, x: FloatArray, give_up_above: float = math.inf) -> Solution:
         """The scan refinement's descent from a grid point ``x``: one short round (6
-        iterations, tolerance 1e-4), enough to find which basin the point lies in."""
-        return self.refine(x, max_iterations=6, tolerance=1e-4, rounds=1)
+        iterations, tolerance 1e-4), enough to find which basin the point lies in;
+        ``give_up_above``: :meth:`refine`'s."""
+        return self.refine(
+            x, max_iterations=6, tolerance=1e-4, rounds=1, give_up_above=give_up_above
+        )
 
-    def descend(self, x: FloatArray) -> Solution:
+    def descend(self, x: FloatArray, give_up_above: float = math.inf) -> Solution:
         """The deciding stage's descent from ``x`` (one round, 10 iterations, tolerance 1e-5),
         its cost then taken at its own prior scale (what a second round held there would
-        report), so descents into different basins compare."""
-        outcome = self.refine(x, max_iterations=10, tolerance=1e-5, rounds=1)
+        report), so descents into different basins compare; ``give_up_above``: :meth:`refine`'s."""
+        outcome = self.refine(
+            x, max_iterations=10, tolerance=1e-5, rounds=1, give_up_above=give_up_above
+        )
         return replace(outcome, cost=float(self.costs(outcome.x[None])[0]))
 
     def settle(self, x: FloatArray) -> Solution:
@@ -465,6 +470,7 @@ class StageFit:
         tolerance: float = 1e-6,
         rounds: int = 2,
         gain_tolerance: float = 0.0,
+        give_up_above: float = math.inf,
     ) -> Solution:
         """Levenberg–Marquardt from ``x``, the prior scale and penalties held at the start, then
         (``rounds=2``) once more held at the solution: its cost is then :meth:`costs`' at its own
@@ -472,7 +478,9 @@ class StageFit:
         cost along it allows (``shorten``, decision 0096). ``gain_tolerance``: the descent also stops
         once the Gauss–Newton step predicts less decrease than that
         (:func:`calib.wavelength.least_squares.levenberg_marquardt`; the final fit's
-        :data:`CONVERGED_DELTA_CHI2`)."""
+        :data:`CONVERGED_DELTA_CHI2`). ``give_up_above``: the first round also stops once its
+        Gauss–Newton model's minimum is above that cost (a start hopelessly behind a leader:
+        :func:`hopeless_bar`, decision 0165)."""
         first = levenberg_marquardt(
             self.fixed_at(x).function,
             x,
@@ -480,6 +488,7 @@ class StageFit:
             tolerance=tolerance,
             shorten=True,
             gain_tolerance=gain_tolerance,
+            give_up_above=give_up_above,
         )
         if rounds == 1:
             return first
@@ -578,6 +587,13 @@ def binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
 def _behind(solution: Solution, leader: Solution) -> float:
     """Tempered Δχ² of ``solution`` behind ``leader`` (by the leader's reduced χ²)."""
     return (solution.cost - leader.cost) / max(leader.cost / leader.dof, 1.0)
+
+
+def hopeless_bar(cost: float, dof: int) -> float:
+    """The cost :data:`HOPELESS_DELTA_CHI2` behind a leader of ``cost`` with ``dof`` degrees of
+    freedom (tempered by its reduced χ², as :func:`_behind` tempers): a descent whose own
+    Gauss–Newton model ends above it stops there (``give_up_above``, decision 0165)."""
+    return cost + HOPELESS_DELTA_CHI2 * max(cost / dof, 1.0)
 
 
 def _distinct(
@@ -1460,8 +1476,17 @@ def search_profiles(
             if len(kept) == min(SCAN_MINIMA * len(grids), refined_at_most):
                 break
         for point in kept:
-            solution = refining.sketch(point)
-            leader = min((s for _, s in scanned), key=lambda s: s.cost, default=solution)
+            so_far = min((s for _, s in scanned), key=lambda s: s.cost, default=None)
+            # With a line lamp, a sketch whose own model ends hopelessly behind the best minimum
+            # so far stops there: it would be skipped below, and is only costed in the deciding
+            # stage (decision 0165).
+            give_up = (
+                math.inf
+                if broadband_only or so_far is None
+                else hopeless_bar(so_far.cost, so_far.dof)
+            )
+            solution = refining.sketch(point, give_up)
+            leader = solution if so_far is None else so_far
             # With a line lamp, a minimum far behind the best one so far is no answer: its
             # local scan is skipped (it stays a candidate as refined).
             far_behind = not broadband_only and _behind(solution, leader) > HOPELESS_DELTA_CHI2
@@ -1549,7 +1574,12 @@ def search_profiles(
             from_own = lowest == local.shape[0] // 2
         else:
             from_own = True
-        outcome = deciding.descend(start)
+        # A descent whose own model ends hopelessly behind the best one so far stops there: such
+        # a basin gets no deepening scan nor own-point descent (below), and weighs nothing in
+        # the result (decision 0165).
+        outcome = deciding.descend(
+            start, math.inf if leader is None else hopeless_bar(leader.cost, leader.dof)
+        )
         count += outcome.evaluations
         if (
             broadband_only
@@ -1675,7 +1705,9 @@ def search_profiles(
         for shift in RED_END_PROBE_NM:
             start = outcome.x.copy()
             start[red_index] += shift
-            probed = deciding.descend(start)
+            # A probe whose own model ends hopelessly behind the basin probed stops there: far
+            # behind, it weighs nothing in the result (decision 0165).
+            probed = deciding.descend(start, hopeless_bar(outcome.cost, outcome.dof))
             evaluations += probed.evaluations
             decided.append((family, probed))
         decided = _distinct(decided, pixel_range, MAX_BASINS)
@@ -2472,8 +2504,17 @@ def _probed_valley(
     placed = family.wavelengths(probe, basin.x)
     sketches = []
     count = 0
+    # Only a sketch that ends below the basin is read: one whose own model ends hopelessly behind
+    # the basin's own point stops there (decision 0165).
+    own = ranking.function(basin.x, False)
+    count += 1
+    give_up = (
+        math.inf
+        if own is None
+        else hopeless_bar(float(own[0] @ own[0]), max(own[0].size - basin.x.size, 1))
+    )
     for start in _inward_starts(basin) if starts is None else starts:
-        sketches.append(ranking.sketch(start))
+        sketches.append(ranking.sketch(start, give_up))
         count += sketches[-1].evaluations
     # Costed with the basin in one call, each at its own prior scale (as descents compare).
     costs = ranking.costs(np.stack([basin.x, *(sketch.x for sketch in sketches)]))

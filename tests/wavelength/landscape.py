@@ -4,6 +4,7 @@ missed."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -18,12 +19,14 @@ def solution(x: np.ndarray, cost: float) -> Solution:
 
 class Landscape:  # a stage's costs, sketch, descent and settling
     """``valleys`` as (centre, cost); a start within 1.5 nm of one falls into it (the first that
-    holds it), any other stays where it is, on ``floor``. Every start is recorded."""
+    holds it), any other stays where it is, on ``floor``. Every start is recorded, and every
+    sketch's ``give_up_above`` (which the landscape does not act on)."""
 
     def __init__(self, valleys: Sequence[tuple[np.ndarray, float]], floor: float) -> None:
         self.valleys = tuple(valleys)
         self.floor = floor
         self.starts: list[np.ndarray] = []
+        self.bars: list[float] = []
 
     def costs(self, x: np.ndarray) -> np.ndarray:
         x = np.atleast_2d(x)
@@ -32,7 +35,12 @@ class Landscape:  # a stage's costs, sketch, descent and settling
             out = np.where(np.max(np.abs(x - valley), axis=1) < 0.75, cost, out)
         return np.asarray(out)
 
-    def sketch(self, x: np.ndarray) -> Solution:
+    def function(self, x: np.ndarray, with_jacobian: bool) -> tuple[np.ndarray, None]:
+        """1 000 equal residual rows whose squares sum to the cost at ``x`` (no Jacobian)."""
+        return np.full(1000, math.sqrt(float(self.costs(x)[0]) / 1000)), None
+
+    def sketch(self, x: np.ndarray, give_up_above: float = math.inf) -> Solution:
+        self.bars.append(give_up_above)
         self.starts.append(np.asarray(x))
         for valley, cost in self.valleys:
             if np.max(np.abs(x - valley)) < 1.5:
