@@ -336,7 +336,8 @@ class MappingSearch:
         The mapping in its family (a :class:`calib.core.mapping.TiltedGrating` for the physical
         one).
     candidates
-        Every distinct basin, best first.
+        Every distinct basin, the answer first, then lowest first (a probe's valley kept behind
+        the answer can be lower there: decision 0168).
     ambiguous
         A competing basin is within :data:`AMBIGUITY_DELTA_CHI2`.
     warnings
@@ -2456,6 +2457,7 @@ def end_probes(
             break
         settled = judge.prefers(valley.x)
         if settled is None:
+            basins = _kept_behind(basins, valley, pixel_range)
             break
         judge = _FinalJudge(final, valley, held=settled, evaluations=judge.evaluations)
         basins = _distinct([(family, valley), *basins], pixel_range, MAX_BASINS + 1)
@@ -2560,8 +2562,30 @@ def _led_by(
     settled = judge.prefers(valley.x)
     count += judge.evaluations
     if settled is None:
-        return list(decided), count
+        return _kept_behind(decided, valley, pixel_range), count
     return _distinct([(family, valley), *decided], pixel_range, MAX_BASINS + 1), count
+
+
+def _kept_behind(
+    decided: Sequence[tuple[Any, Solution]], valley: Solution, pixel_range: tuple[float, float]
+) -> list[tuple[Any, Solution]]:
+    """``decided`` with a probe's ``valley`` kept as a basin behind the leader: it is below the
+    leader on the deciding stage but the final stage does not prefer it by the bar, so the leader
+    stays the answer and the two stages' disagreement is weighed by the search's σ and warning
+    rules instead of being dropped (decision 0168: a predicted curve's right valley, preferred by
+    the final stage by 12 below the bar of 25, was dropped and the wrong leader answered 4.6 nm
+    off, unwarned)."""
+    family, leader = decided[0]
+    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
+    placed = family.wavelengths(probe, leader.x)
+    others = [
+        (other_family, solution)
+        for other_family, solution in _distinct(
+            [(family, valley), *decided[1:]], pixel_range, MAX_BASINS
+        )
+        if np.max(np.abs(other_family.wavelengths(probe, solution.x) - placed)) > 1.0
+    ]
+    return [(family, leader), *others]
 
 
 def whole_shift_probe(

@@ -4,21 +4,31 @@ that search it."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.evaluation.synthetic import run_protocol
-from calib.evaluation.synthetic_splits import paper_split_cameras
-from calib.model.bases import CameraPrior
+from calib.evaluation.synthetic_splits import paper_split_cameras, validation_cameras
+from calib.evaluation.validation.splits import PREDICTION
+from calib.model.bases import CameraBasis, CameraPrior
 
 
 def paper_scene(
-    data: Path, name: str, lamp: str, seed: int, noise: float
+    data: Path, name: str, lamp: str, seed: int, noise: float, predictions: int = 0
 ) -> tuple[LampObservation, CameraPrior, QuadraticMapping]:
-    """The validation split's scene of camera ``name`` under the broadband ``lamp``."""
-    cameras, basis = paper_split_cameras("validation", data)
+    """The validation split's scene of camera ``name`` under the broadband ``lamp``; with
+    ``predictions``, of that many predicted curves drawn with ``seed`` (``bench/paper_coverage.py
+    --predictions``)."""
+    basis: CameraBasis | Callable[[str], CameraBasis]
+    if predictions:
+        cameras, basis, _ = validation_cameras(
+            data, predictions=predictions, seed=seed, group=PREDICTION
+        )
+    else:
+        cameras, basis = paper_split_cameras("validation", data)
     scenes: list[Any] = []
     run_protocol(
         cameras,

@@ -61,9 +61,12 @@ def test_a_stalled_scan_best_is_probed_and_the_valley_both_stages_prefer_leads()
     assert count == 1 + 4 * 10 + 5 + 3 * 10
 
 
-def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_is_left():
+def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_stays_behind_the_leader():
+    """Decision 0168: the leader stays the answer, the valley (lower on the deciding stage) a
+    basin behind it."""
     decided, _, _, leader = _probe(100_000.0, final_truth_cost=990.0)
     assert decided[0][1] is leader
+    assert decided[1][1].x == pytest.approx(TRUTH)
 
 
 def test_a_scan_best_not_hopelessly_behind_is_not_probed():

@@ -56,7 +56,10 @@ def test_a_valley_behind_the_leader_is_left_whatever_the_final_stage_says():
     assert count == 1 + 2 * 10 + 3
 
 
-def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_is_left():
+def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_stays_behind_the_leader():
+    """Decision 0168: the leader stays the answer, the valley (lower on the deciding stage) a
+    basin behind it."""
     decided, count, _, leader = _probe(900.0, final_truth_cost=990.0)
-    assert [d[1] for d in decided] == [leader]
+    assert decided[0][1] is leader
+    assert [d[1].x for d in decided[1:]] == [pytest.approx(TRUTH)]
     assert count == 1 + 2 * 10 + 3 + 3 * 10
