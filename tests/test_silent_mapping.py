@@ -188,7 +188,8 @@ def test_the_validation_splits_silent_led_only_mappings_are_warned(
 ):
     """Decision 0118: the validation split's LED-only mappings 5–6 nm off at the red end with no
     warning on base f9b561e (seed 0; the S7-Edge prediction without EXIF, the X-A1 prediction with
-    and without) are warned, with their stated σ at least half their error's RMS."""
+    and without) are warned, with their stated σ at least half their error's RMS. Since decision
+    0165 the X-A1's two are right (1.6 and 0.9 nm at worst): each case is right or so warned."""
     from calib.evaluation.validation.protocol import ProtocolSettings, split_tasks
     from calib.evaluation.validation.splits import load_splits
 
@@ -196,7 +197,8 @@ def test_the_validation_splits_silent_led_only_mappings_are_warned(
     (camera,) = (c for c in splits.validation.cameras if c.name == name)
     (task,) = split_tasks(replace(splits.validation, cameras=(camera,)), ProtocolSettings(seed=0))
     error, solution = led_only_errors(task, exif_optics=optics)
-    assert np.max(np.abs(error)) > 3.0  # still wrong: the fix warns, it does not move it
+    if np.max(np.abs(error)) <= 3.0:
+        return
     assert solution.ambiguous
     assert "mapping_ambiguous" in solution.details["warning_codes"]
     stated = solution.mapping.wavelength_rms_nm
