@@ -10,7 +10,11 @@ direct equations' χ²/dof (:func:`bench.twin_coverage.physical_parameter_scores
 RMS of that ratio and the median χ²/dof).
 
     python bench/eta_band.py --data-dir DIR --split validation --cameras 8 [--seed 0]
-        [--variants "LED+FL,LED only"]
+        [--variants "LED+FL,LED only"] [--off spectrometer-offset,stray,...]
+
+``--off`` switches drawn error sources off for a diagnostic (decision 0164): ``exposure``,
+``drift``, ``spectrometer`` (all of it), ``spectrometer-offset``, ``spectrometer-bandwidth``
+(a 0.01 nm slit), ``spectrometer-noise``, ``stray``.
 
 Any choice is judged on ``--split validation`` only; ``--split test`` is for reporting.
 """
@@ -18,6 +22,7 @@ Any choice is judged on ``--split validation`` only; ``--split test`` is for rep
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Any
@@ -32,11 +37,39 @@ from calib.evaluation.validation.protocol import (
     render_task_scene,
     spread_tasks,
 )
+from calib.evaluation.validation.rig_errors import RigErrors
 from calib.methods import estimate
 
 # The parameter's scores are the 2-D twins' (bench/twin_coverage.py, beside this script).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from twin_coverage import physical_parameter_scores
+
+
+def errors_without(sources: list[str]) -> RigErrors:
+    """The protocol's default rig errors with ``sources`` switched off (module docstring)."""
+    errors = RigErrors()
+    spectrometer = errors.spectrometer
+    assert spectrometer is not None
+    for source in sources:
+        if source == "exposure":
+            errors = dataclasses.replace(errors, exposure=None)
+        elif source == "drift":
+            errors = dataclasses.replace(errors, drift=None)
+        elif source == "spectrometer":
+            errors = dataclasses.replace(errors, spectrometer=None)
+        elif source == "stray":
+            errors = dataclasses.replace(errors, stray=None)
+        elif source == "spectrometer-offset":
+            spectrometer = dataclasses.replace(spectrometer, offset_range_nm=(0.0, 0.0))
+        elif source == "spectrometer-bandwidth":
+            spectrometer = dataclasses.replace(spectrometer, bandwidth_range_nm=(0.01, 0.01))
+        elif source == "spectrometer-noise":
+            spectrometer = dataclasses.replace(spectrometer, noise_fraction=0.0, floor_fraction=0.0)
+        else:
+            raise SystemExit(f"--off: unknown source {source!r}")
+    if errors.spectrometer is not None:
+        errors = dataclasses.replace(errors, spectrometer=spectrometer)
+    return errors
 
 
 def main() -> None:
@@ -46,12 +79,15 @@ def main() -> None:
     parser.add_argument("--cameras", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variants", default="LED+FL,LED only")
+    parser.add_argument("--off", default="", help="drawn error sources switched off")
     arguments = parser.parse_args()
     labels = [item.strip() for item in arguments.variants.split(",")]
     variants = tuple(v for v in DEFAULT_VARIANTS if v.label in labels)
-    settings = ProtocolSettings(seed=arguments.seed, variants=variants)
+    errors = errors_without([item.strip() for item in arguments.off.split(",") if item.strip()])
+    settings = ProtocolSettings(seed=arguments.seed, variants=variants, errors=errors)
     chosen = spread_tasks(arguments.data_dir, arguments.split, settings, arguments.cameras)
-    print(f"split {arguments.split}, seed {arguments.seed}, {len(chosen)} cameras")
+    off = arguments.off or "nothing"
+    print(f"split {arguments.split}, seed {arguments.seed}, {len(chosen)} cameras, off: {off}")
     print("camera | variant | model | RE ×10⁻² | η ±2σ coverage | η σ/err | δp/σ_p | direct χ²/dof")
     rows: dict[str, list[tuple[float, float, float, float, float]]] = {
         v.label: [] for v in variants
