@@ -76,8 +76,6 @@ SMALL_BAND = 16384
 #: (:attr:`Band.outer`): the band is as wide as its widest rows (a pixel at a junction of the node
 #: pieces meets four hats), and the last column is nonzero in few rows (decision 0157).
 OUTER_FROM = 4096
-#: :attr:`ResponseModel.band_memo`'s batches held (the oldest dropped first).
-BAND_MEMO_SIZE = 32
 #: Up to this many entries (``n·N``) of one mapping's dense matrix its normal matrices are the
 #: dense product ``(WA)ᵀ(WA)`` (fewer calls); beyond, they come from the band (``n·w²`` work
 #: instead of ``n·N²``: at the final stage's 941 pixels × 75 nodes half a residual's time).
@@ -474,13 +472,6 @@ class ResponseModel:
     referenced: tuple[FloatArray, Band] | None = field(default=None, repr=False)
     #: The band reaches where a cut hat's cumulative still changes (:meth:`_column_support`).
     cut_ramps: bool = False
-    #: :meth:`costs`' recent batches' bands by their edge wavelengths, shared with the models
-    #: :meth:`with_prior` makes (the band depends on the mapping, bins, nodes and lamp table, not
-    #: on the prior nor the weights): a trial point costed again under another prior reuses its
-    #: band, the same bits (decision 0167).
-    band_memo: dict[tuple[bytes, tuple[int, ...], bool], Band] | None = field(
-        default=None, repr=False, compare=False
-    )
 
     @classmethod
     def build(
@@ -567,7 +558,6 @@ class ResponseModel:
             sigma_floor=sigma_floor,
             smoothness=self.smoothness,
             cut_ramps=self.cut_ramps,
-            band_memo=self.band_memo,
         )
 
     @classmethod
@@ -585,7 +575,6 @@ class ResponseModel:
         sigma_floor: float,
         smoothness: float,
         cut_ramps: bool,
-        band_memo: dict[tuple[bytes, tuple[int, ...], bool], Band] | None = None,
     ) -> ResponseModel:
         """:meth:`build` from its layout, lamp table, edges, filter and penalty: the prior's
         terms (:func:`shared_response_prior`) and the weights."""
@@ -615,7 +604,6 @@ class ResponseModel:
             prior_mean=embedded_mean,
             smoothness=smoothness,
             cut_ramps=cut_ramps,
-            band_memo={} if band_memo is None else band_memo,
         )
 
     @property
@@ -1253,7 +1241,9 @@ class ResponseModel:
         of dispersions); otherwise the reference values are used.
         """
         edges_nm = np.atleast_2d(edges_nm)
-        band = self._batch_band(edges_nm)
+        band = self._band_values(
+            edges_nm, outer=edges_nm.shape[0] * (edges_nm.shape[1] - 1) >= OUTER_FROM
+        )
         diagonals, rhs = self._normal(band)
         batch = diagonals.shape[0]
         if adaptive or self.penalty_weight is None:
@@ -1279,22 +1269,6 @@ class ResponseModel:
         beta = pull_free / np.where(np.abs(denominator) > 1e-300, denominator, np.inf)
         explained = explained_free + beta * pull_free
         return np.asarray(float(np.sum(self.target**2)) - explained, dtype=np.float64)
-
-    def _batch_band(self, edges_nm: FloatArray) -> Band:
-        """:meth:`costs`' band of a batch ``(K, n + 1)``, from :attr:`band_memo` when a model on
-        the same bins has costed the same edges lately."""
-        outer = edges_nm.shape[0] * (edges_nm.shape[1] - 1) >= OUTER_FROM
-        memo = self.band_memo
-        if memo is None:
-            return self._band_values(edges_nm, outer=outer)
-        key = (np.ascontiguousarray(edges_nm).tobytes(), edges_nm.shape, outer)
-        band = memo.get(key)
-        if band is None:
-            band = self._band_values(edges_nm, outer=outer)
-            if len(memo) >= BAND_MEMO_SIZE:
-                del memo[next(iter(memo))]
-            memo[key] = band
-        return band
 
     def residual(
         self, edges_nm: FloatArray, edge_jacobian: FloatArray | None = None
