@@ -22,10 +22,10 @@ the result is monotonic or an error.
 
 The result's :class:`calib.core.mapping.QuadraticMapping` (the report format) carries in its
 ``details``: ``family`` and ``grating`` (the physical parameters), ``matched_lines`` (rows
-``{line, wavelength_nm, pixel, fitted_nm, residual_nm, weight}``), ``candidates`` (every basin with its
-mapping and likelihood), ``ambiguous`` (competing basins, or one held loosely at an end), ``warnings`` (sentences for the user) with their ``warning_codes`` (one quality
-code each), and
-``rig_prior`` (what the physics rested on).
+``{line, wavelength_nm, pixel, fitted_nm, residual_nm, weight}``), ``candidates`` (every basin
+with its mapping and likelihood), ``ambiguous`` (competing basins, or one held loosely at an
+end), ``warnings`` (sentences for the user) with their ``warning_codes`` (one quality code each),
+and ``rig_prior`` (what the physics rested on).
 """
 
 from __future__ import annotations

@@ -598,12 +598,19 @@ def hopeless_bar(cost: float, dof: int) -> float:
 
 
 def _distinct(
-    solutions: Sequence[tuple[Family, Solution]], pixel_range: tuple[float, float], count: int
+    solutions: Sequence[tuple[Family, Solution]],
+    pixel_range: tuple[float, float],
+    count: int,
+    answer: tuple[Family, Solution] | None = None,
 ) -> list[tuple[Family, Solution]]:
-    """Lowest cost first, keeping those that differ from every kept one by > 1 nm somewhere."""
+    """Lowest cost first, keeping those that differ from every kept one by > 1 nm somewhere;
+    ``answer`` (one of ``solutions``), when given, first whatever its cost (decision 0168)."""
     probe = np.linspace(pixel_range[0], pixel_range[1], 9)
     chosen: list[tuple[Family, Solution, FloatArray]] = []
-    for family, solution in sorted(solutions, key=lambda item: item[1].cost):
+    ordered = sorted(solutions, key=lambda item: item[1].cost)
+    if answer is not None:
+        ordered = [answer, *(item for item in ordered if item is not answer)]
+    for family, solution in ordered:
         wavelengths = family.wavelengths(probe, solution.x)
         if all(np.max(np.abs(wavelengths - other)) > 1.0 for _, _, other in chosen):
             chosen.append((family, solution, wavelengths))
@@ -2569,17 +2576,10 @@ def _kept_behind(
     rules instead of being dropped (decision 0168: a predicted curve's right valley, preferred by
     the final stage by 12 below the bar of 25, was dropped and the wrong leader answered 4.6 nm
     off, unwarned)."""
-    family, leader = decided[0]
-    probe = np.linspace(pixel_range[0], pixel_range[1], 9)
-    placed = family.wavelengths(probe, leader.x)
-    others = [
-        (other_family, solution)
-        for other_family, solution in _distinct(
-            [(family, valley), *decided[1:]], pixel_range, MAX_BASINS
-        )
-        if np.max(np.abs(other_family.wavelengths(probe, solution.x) - placed)) > 1.0
-    ]
-    return [(family, leader), *others]
+    family, _ = decided[0]
+    return _distinct(
+        [decided[0], (family, valley), *decided[1:]], pixel_range, MAX_BASINS + 1, decided[0]
+    )
 
 
 def whole_shift_probe(

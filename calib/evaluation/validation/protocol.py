@@ -527,7 +527,8 @@ def scored_row(
 
 
 def _ambiguity_warned(mapping: object) -> bool:
-    """Whether the mapping's result carries the ambiguity warning (its quality code)."""
+    """Whether the mapping's result carries a warning that it may be off by more than 3 nm
+    (:func:`calib.core.result.mapping_warned`)."""
     details = getattr(mapping, "details", None) or {}
     return mapping_warned(details.get("warning_codes", ()))
 
