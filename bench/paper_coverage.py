@@ -60,7 +60,7 @@ from calib.core.arrays import FloatArray
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import QuadraticMapping
 from calib.core.metrics import relative_error
-from calib.core.result import EstimateResult, mapping_warned
+from calib.core.result import MAPPING_FAILURE_NM, EstimateResult, mapping_warned
 from calib.core.spectra import DEFAULT_GRID, MultiSpectrum
 from calib.evaluation.synthetic import (
     NOISE_LEVELS,
@@ -70,7 +70,6 @@ from calib.evaluation.synthetic import (
     run_protocol,
 )
 from calib.evaluation.synthetic_splits import paper_split_cameras, validation_cameras
-from calib.evaluation.validation.report import MAPPING_FAILURE_NM
 from calib.evaluation.validation.splits import PREDICTION
 from calib.methods import PriorOptions, estimate
 from calib.methods.uncertainty import BudgetSettings

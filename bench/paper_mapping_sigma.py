@@ -34,11 +34,10 @@ import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.mapping import QuadraticMapping
-from calib.core.result import EstimateResult, mapping_warned
+from calib.core.result import MAPPING_FAILURE_NM, EstimateResult, mapping_warned
 from calib.core.spectra import DEFAULT_GRID
 from calib.evaluation.synthetic import SyntheticRow, SyntheticScene, run_protocol
 from calib.evaluation.synthetic_splits import paper_split_cameras
-from calib.evaluation.validation.report import MAPPING_FAILURE_NM
 
 #: An error within this many stated σ at its worst pixel is covered (a 3σ excursion over a few
 #: hundred correlated pixels is what a right σ shows now and then; beyond it the σ is wrong).

@@ -90,9 +90,12 @@ QUALITY_CODES: dict[str, str] = {
 }
 
 
-#: The mapping stage's codes that say its answer may be off by more than the issue's 3 nm (competing
-#: basins, or one basin whose end the likelihood holds loosely): a mapping further off than that
-#: without one of them is a silent wrong answer.
+#: A mapping further off than this (nm) is a wrong one: issue 16's bar, which the validation tables
+#: count failures by and a broadband-only mapping's stated ±2σ is read against (decision 0158).
+MAPPING_FAILURE_NM = 3.0
+#: The mapping stage's codes that say its answer may be off by more than
+#: :data:`MAPPING_FAILURE_NM` (competing basins, or one basin whose end the likelihood holds
+#: loosely): a mapping further off than that without one of them is a silent wrong answer.
 MAPPING_WARNING_CODES: tuple[str, ...] = ("mapping_ambiguous", "mapping_imprecise")
 
 

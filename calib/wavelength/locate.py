@@ -47,6 +47,7 @@ from calib.core.mapping import (
     wavelength_rms_from_covariance,
 )
 from calib.core.observations import LampObservation
+from calib.core.result import MAPPING_FAILURE_NM
 from calib.core.spectra import WavelengthGrid
 from calib.model.bases import CameraPrior
 from calib.model.resolution import COARSE_SLIT_NM, FWHM_PER_SIGMA, camera_kernel
@@ -1100,12 +1101,10 @@ def _quadratic_coarse_check(
     return mapping, search.exact
 
 
-#: A broadband-only mapping whose stated ±2σ exceeds this many nm somewhere on the working grid
-#: is not one a user can take as right: the issue's own bar for a wrong mapping (3 nm, ``calib.
-#: evaluation.validation.report.MAPPING_FAILURE_NM``), read on the σ the mapping states. Such an
-#: answer warns even when no other basin competes (decision 0158), under its own quality code
-#: ``mapping_imprecise`` (decision 0166).
-IMPRECISE_TWO_SIGMA_NM = 3.0
+#: A broadband-only mapping whose stated ±2σ exceeds the bar for a wrong mapping
+#: (:data:`calib.core.result.MAPPING_FAILURE_NM`) somewhere on the working grid is not one a user
+#: can take as right: it warns even when no other basin competes (decision 0158), under its own
+#: quality code ``mapping_imprecise`` (decision 0166).
 #: Pixels (over the lead profile) at which the stated σ is read for :func:`_imprecise_end`.
 IMPRECISE_PROBE_PIXELS = 129
 
@@ -1114,7 +1113,7 @@ def _imprecise_end(
     mapping: QuadraticMapping, lead: LampObservation, grid: WavelengthGrid
 ) -> dict[str, float] | None:
     """Where on the working grid the mapping's stated ±2σ is widest, when it exceeds
-    :data:`IMPRECISE_TWO_SIGMA_NM`: ``{"wavelength_nm", "sigma_nm", "pixel"}``, else ``None``
+    :data:`MAPPING_FAILURE_NM`: ``{"wavelength_nm", "sigma_nm", "pixel"}``, else ``None``
     (or when the mapping states no per-pixel σ). Only the profile's pixels the mapping puts on
     the grid are read: beyond the profile nothing is measured."""
     pixel = np.linspace(float(lead.pixel[0]), float(lead.pixel[-1]), IMPRECISE_PROBE_PIXELS)
@@ -1126,7 +1125,7 @@ def _imprecise_end(
     if not on_grid.any():
         return None
     k = int(np.argmax(np.where(on_grid, sigma, -np.inf)))
-    if 2.0 * float(sigma[k]) <= IMPRECISE_TWO_SIGMA_NM:
+    if 2.0 * float(sigma[k]) <= MAPPING_FAILURE_NM:
         return None
     return {
         "wavelength_nm": float(wavelength[k]),
@@ -1145,7 +1144,7 @@ def _imprecise_warning(
     return (
         f"the mapping is imprecise at its {where} end: its stated σ there is "
         f"{imprecise['sigma_nm']:.1f} "
-        f"nm (at {wavelength:.0f} nm), so ±2σ spans more than {IMPRECISE_TWO_SIGMA_NM:g} nm either "
+        f"nm (at {wavelength:.0f} nm), so ±2σ spans more than {MAPPING_FAILURE_NM:g} nm either "
         f"way: with {lamps[0].name}'s light alone the likelihood holds that end only loosely, and "
         "the sensitivity's flanks there may be shifted by as much. " + deciding_shot(lamps)
     )

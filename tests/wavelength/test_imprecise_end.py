@@ -11,15 +11,11 @@ import pytest
 
 from calib.core.datasets import RAWTOACES_DATA, colour_science_cameras, find_camera, load_collection
 from calib.core.mapping import QuadraticMapping
-from calib.core.result import mapping_flags, mapping_warned
+from calib.core.result import MAPPING_FAILURE_NM, mapping_flags, mapping_warned
 from calib.core.spectra import DEFAULT_GRID
 from calib.model.bases import camera_basis
 from calib.wavelength import locate
-from calib.wavelength.locate import (
-    IMPRECISE_TWO_SIGMA_NM,
-    _imprecise_end,
-    _imprecise_warning,
-)
+from calib.wavelength.locate import _imprecise_end, _imprecise_warning
 from tests.test_mapping_search import _render as render
 
 #: A profile of 800 pixels mapped to 350–749.5 nm: the grid (400–700 nm) is pixels 100–700.
@@ -33,12 +29,12 @@ def _mapping(sigma_a: float = 0.0, sigma_c: float = 0.0) -> QuadraticMapping:
 
 
 def test_a_uniform_sigma_warns_only_above_the_bar():
-    below = _mapping(sigma_c=0.49 * IMPRECISE_TWO_SIGMA_NM)
-    above = _mapping(sigma_c=0.51 * IMPRECISE_TWO_SIGMA_NM)
+    below = _mapping(sigma_c=0.49 * MAPPING_FAILURE_NM)
+    above = _mapping(sigma_c=0.51 * MAPPING_FAILURE_NM)
     assert _imprecise_end(below, LEAD, DEFAULT_GRID) is None  # type: ignore[arg-type]
     found = _imprecise_end(above, LEAD, DEFAULT_GRID)  # type: ignore[arg-type]
     assert found is not None
-    assert found["sigma_nm"] == pytest.approx(0.51 * IMPRECISE_TWO_SIGMA_NM)
+    assert found["sigma_nm"] == pytest.approx(0.51 * MAPPING_FAILURE_NM)
 
 
 def test_the_widest_point_on_the_grid_is_named_and_beyond_the_grid_is_not_read():

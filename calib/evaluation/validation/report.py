@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.core.result import MAPPING_FAILURE_NM
 from calib.evaluation.validation.protocol import (
     CHANNELS,
     ProtocolSettings,
@@ -35,8 +36,6 @@ from calib.evaluation.validation.protocol import (
 from calib.evaluation.validation.splits import Split
 
 Statistics = tuple[tuple[str, float | None], ...]
-#: An estimate whose mean mapping error exceeds this is a mapping failure in the tables (nm).
-MAPPING_FAILURE_NM = 3.0
 ALL = "all"
 #: An estimate whose ±2σ band holds at least this share of the truth counts as covered.
 WELL_COVERED = 0.85
