@@ -1582,12 +1582,10 @@ def search_profiles(
             from_own = lowest == local.shape[0] // 2
         else:
             from_own = True
-        # A descent whose own model ends hopelessly behind the best one so far stops there: such
-        # a basin gets no deepening scan nor own-point descent (below), and weighs nothing in
-        # the result (decision 0165).
-        outcome = deciding.descend(
-            start, math.inf if leader is None else hopeless_bar(leader.cost, leader.dof)
-        )
+        # The descent runs to its end, however far behind the best one so far it starts: its
+        # Gauss–Newton model at a start far from its minimum does not say where it ends, and a
+        # descent stopped on it dropped the basin the likelihood prefers (decision 0170).
+        outcome = deciding.descend(start)
         count += outcome.evaluations
         if (
             broadband_only
