@@ -2474,8 +2474,10 @@ def end_probes(
 #: How far :func:`end_probes` moves an end inwards, as shares of :data:`LOCAL_SCAN`'s half-width:
 #: the deciding scan's reach (decision 0152) and half of it, for a valley between the leader and
 #: that reach (decision 0163: a predicted curve's red end 4 nm too far out, whose 6 nm move
-#: sketched into another valley).
-END_PROBE_SHARES = (1.0, 0.5)
+#: sketched into another valley), and twice it, as far as the line lamps' red-end probe reaches
+#: (:data:`RED_END_PROBE_NM`; decision 0169: a lamp A scene's blue end 27 nm too blue, whose
+#: 6 nm move sketched uphill on the ranking view and whose 12 nm move sketched into the truth).
+END_PROBE_SHARES = (1.0, 0.5, 2.0)
 
 
 def _inward_starts(basin: Solution) -> list[FloatArray]:

@@ -66,6 +66,6 @@ def test_the_probes_sketches_run_their_whole_round() -> None:
         PIXELS,
     )
     assert valley is None
-    # Four sketches of 10 evaluations, one batch of five costs; no bar passed on.
-    assert view.bars == [math.inf] * 4
-    assert count == 4 * 10 + 5
+    # Six sketches of 10 evaluations, one batch of seven costs; no bar passed on.
+    assert view.bars == [math.inf] * 6
+    assert count == 6 * 10 + 7
