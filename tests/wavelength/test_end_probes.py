@@ -47,22 +47,23 @@ def test_each_end_is_moved_inwards_and_a_valley_both_stages_prefer_leads():
     decided, count, view, leader = _probe(final_inward_cost=900.0)
     half = LOCAL_SCAN[0]
     # Round one from the leader: the blue end up, the red end down (the middle by half), by the
-    # scan's reach, by half of it and by twice it; the red end's first sketch falls into the
-    # inward valley, which is descended and settled with the leader.
+    # scan's reach and by half of it; the red end's first sketch falls into the inward valley,
+    # which is descended and settled with the leader (no move twice as far: a sketch went down).
     assert view.starts[0] == pytest.approx(LEADER + np.array([half, half / 2, 0.0]))
     assert view.starts[1] == pytest.approx(LEADER + np.array([0.0, -half / 2, -half]))
     assert view.starts[2] == pytest.approx(LEADER + np.array([half / 2, half / 4, 0.0]))
     assert view.starts[3] == pytest.approx(LEADER + np.array([0.0, -half / 4, -half / 2]))
-    assert view.starts[4] == pytest.approx(LEADER + np.array([2 * half, half, 0.0]))
-    assert view.starts[5] == pytest.approx(LEADER + np.array([0.0, -half, -2 * half]))
-    assert view.starts[6] == pytest.approx(INWARD)
+    assert view.starts[4] == pytest.approx(INWARD)
     assert decided[0][1].x == pytest.approx(INWARD)
     # The leader it replaces stays a basin, as does the other one.
     assert [d[1] for d in decided[1:]] == [leader, decided[2][1]]
     assert decided[2][1].x == pytest.approx(LEADER + 20.0)
-    # Round two from the new leader finds nothing lower: 6 sketches and one costing of 7 each
-    # round, the descent and two settles in the first.
-    assert count == 2 * (6 * 10 + 7) + 3 * 10
+    # Round two from the new leader finds nothing lower, its four sketches uphill, and moves each
+    # end twice the reach (two sketches, one costing of 3), also uphill; 4 sketches and one
+    # costing of 5 each round, the descent and two settles in the first.
+    assert view.starts[9] == pytest.approx(INWARD + np.array([2 * half, half, 0.0]))
+    assert view.starts[10] == pytest.approx(INWARD + np.array([0.0, -half, -2 * half]))
+    assert count == 2 * (4 * 10 + 5) + 3 * 10 + 2 * 10 + 3
 
 
 def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_stays_behind_the_leader():
@@ -72,7 +73,7 @@ def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_stays_behind_the_le
     decided, count, _, leader = _probe(final_inward_cost=990.0)
     assert decided[0][1] is leader
     assert [d[1].x for d in decided[1:]] == [pytest.approx(INWARD), pytest.approx(LEADER + 20.0)]
-    assert count == 6 * 10 + 7 + 3 * 10
+    assert count == 4 * 10 + 5 + 3 * 10
 
 
 def test_a_valley_within_half_the_reach_is_found_by_the_half_move():
@@ -98,7 +99,8 @@ def test_a_valley_at_twice_the_reach_is_found_by_the_double_move():
     """Decision 0169: the blue end 12 nm too blue (the validation split's Canon 1Ds Mk II (Brady)
     under lamp A, seed 4, 0.3 %, was 27 nm out, unwarned); the moves by the scan's reach and by
     half of it sketch uphill (here onto the floor), the move by twice it into the truth's valley,
-    which both stages prefer."""
+    which both stages prefer. The far moves are sketched only after every near one went uphill.
+    """
     family = QuadraticFamily(PIXELS)
     far = LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0])
     view = Landscape([(far, 100.0), (LEADER, 1000.0)], 5000.0)
@@ -113,6 +115,31 @@ def test_a_valley_at_twice_the_reach_is_found_by_the_double_move():
     )
     assert decided[0][1].x == pytest.approx(far)
     assert decided[1][1] is leader
+    assert len(view.starts) >= 7 and view.starts[6] == pytest.approx(far)
+
+
+def test_the_far_moves_wait_until_every_near_move_went_uphill():
+    """Decision 0169: with a valley within the scan's reach (the red end 6 nm inwards) and a
+    lower one twice as far (the blue end 12 nm inwards), the near valley is descended and the far
+    moves are never sketched (taken with the near ones, a far sketch lower than the right near
+    valley fell into a wrong one on two validation scenes)."""
+    family = QuadraticFamily(PIXELS)
+    far = LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0])
+    near = LEADER + np.array([0.0, -LOCAL_SCAN[0] / 2, -LOCAL_SCAN[0]])
+    view = Landscape([(far, 50.0), (near, 100.0), (LEADER, 1000.0)], 5000.0)
+    final = Landscape([(far, 800.0), (near, 900.0), (LEADER, 1000.0)], 5000.0)
+    decided, _ = end_probes(
+        [(family, solution(LEADER, 1000.0))],
+        view,  # type: ignore[arg-type]
+        view,  # type: ignore[arg-type]
+        final,  # type: ignore[arg-type]
+        PIXELS,
+    )
+    assert decided[0][1].x == pytest.approx(near)
+    assert not any(
+        np.allclose(start, LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0]))
+        for start in view.starts
+    )
 
 
 @pytest.mark.slow

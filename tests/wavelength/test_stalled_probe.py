@@ -57,8 +57,8 @@ def test_a_stalled_scan_best_is_probed_and_the_valley_both_stages_prefer_leads()
     assert view.starts[1] == pytest.approx(STALLED + np.array([0.0, -half / 2, -half]))
     assert decided[0][1].x == pytest.approx(TRUTH)
     assert decided[1][1] is leader
-    # Six sketches (three moves of each end), one costing of 7, the descent, two settles.
-    assert count == 6 * 10 + 7 + 3 * 10
+    # Four sketches (two moves of each end), one costing of 5, the descent, two settles.
+    assert count == 4 * 10 + 5 + 3 * 10
 
 
 def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_stays_behind_the_leader():
