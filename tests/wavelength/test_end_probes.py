@@ -76,21 +76,33 @@ def test_a_valley_the_final_stage_does_not_prefer_by_the_bar_stays_behind_the_le
     assert count == 4 * 10 + 5 + 3 * 10
 
 
-def test_a_valley_within_half_the_reach_is_found_by_the_half_move():
-    """Decision 0163: the red end 3 nm too far out; the move by the scan's reach sketches beyond
-    the truth's valley (here onto the floor), the move by half of it into the valley."""
-    family = QuadraticFamily(PIXELS)
-    near = LEADER + np.array([0.0, -0.5 * LOCAL_SCAN[0] / 2, -0.5 * LOCAL_SCAN[0]])
-    view = Landscape([(near, 100.0), (LEADER, 1000.0)], 5000.0)
-    final = Landscape([(near, 900.0), (LEADER, 1000.0)], 5000.0)
+#: A deeper valley 12 nm inwards at the blue end, twice the scan's reach (decision 0169).
+FAR = LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0])
+
+
+def _probe_alone(
+    valleys: list[tuple[np.ndarray, float]], final_valleys: list[tuple[np.ndarray, float]]
+) -> tuple[list[tuple[Any, Solution]], Landscape, Solution]:
+    """:func:`end_probes` about the leader alone, ``valleys`` added to the ranking and deciding
+    view and ``final_valleys`` to the final stage (the leader's own valley at 1 000 in both)."""
+    view = Landscape([*valleys, (LEADER, 1000.0)], 5000.0)
+    final = Landscape([*final_valleys, (LEADER, 1000.0)], 5000.0)
     leader = solution(LEADER, 1000.0)
     decided, _ = end_probes(
-        [(family, leader)],
+        [(QuadraticFamily(PIXELS), leader)],
         view,  # type: ignore[arg-type]
         view,  # type: ignore[arg-type]
         final,  # type: ignore[arg-type]
         PIXELS,
     )
+    return decided, view, leader
+
+
+def test_a_valley_within_half_the_reach_is_found_by_the_half_move():
+    """Decision 0163: the red end 3 nm too far out; the move by the scan's reach sketches beyond
+    the truth's valley (here onto the floor), the move by half of it into the valley."""
+    near = LEADER + np.array([0.0, -0.5 * LOCAL_SCAN[0] / 2, -0.5 * LOCAL_SCAN[0]])
+    decided, _, leader = _probe_alone([(near, 100.0)], [(near, 900.0)])
     assert decided[0][1].x == pytest.approx(near)
     assert decided[1][1] is leader
 
@@ -101,21 +113,10 @@ def test_a_valley_at_twice_the_reach_is_found_by_the_double_move():
     half of it sketch uphill (here onto the floor), the move by twice it into the truth's valley,
     which both stages prefer. The far moves are sketched only after every near one went uphill.
     """
-    family = QuadraticFamily(PIXELS)
-    far = LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0])
-    view = Landscape([(far, 100.0), (LEADER, 1000.0)], 5000.0)
-    final = Landscape([(far, 900.0), (LEADER, 1000.0)], 5000.0)
-    leader = solution(LEADER, 1000.0)
-    decided, _ = end_probes(
-        [(family, leader)],
-        view,  # type: ignore[arg-type]
-        view,  # type: ignore[arg-type]
-        final,  # type: ignore[arg-type]
-        PIXELS,
-    )
-    assert decided[0][1].x == pytest.approx(far)
+    decided, view, leader = _probe_alone([(FAR, 100.0)], [(FAR, 900.0)])
+    assert decided[0][1].x == pytest.approx(FAR)
     assert decided[1][1] is leader
-    assert len(view.starts) >= 7 and view.starts[6] == pytest.approx(far)
+    assert len(view.starts) >= 7 and view.starts[6] == pytest.approx(FAR)
 
 
 def test_the_far_moves_wait_until_every_near_move_went_uphill():
@@ -123,23 +124,10 @@ def test_the_far_moves_wait_until_every_near_move_went_uphill():
     lower one twice as far (the blue end 12 nm inwards), the near valley is descended and the far
     moves are never sketched (taken with the near ones, a far sketch lower than the right near
     valley fell into a wrong one on two validation scenes)."""
-    family = QuadraticFamily(PIXELS)
-    far = LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0])
     near = LEADER + np.array([0.0, -LOCAL_SCAN[0] / 2, -LOCAL_SCAN[0]])
-    view = Landscape([(far, 50.0), (near, 100.0), (LEADER, 1000.0)], 5000.0)
-    final = Landscape([(far, 800.0), (near, 900.0), (LEADER, 1000.0)], 5000.0)
-    decided, _ = end_probes(
-        [(family, solution(LEADER, 1000.0))],
-        view,  # type: ignore[arg-type]
-        view,  # type: ignore[arg-type]
-        final,  # type: ignore[arg-type]
-        PIXELS,
-    )
+    decided, view, _ = _probe_alone([(FAR, 50.0), (near, 100.0)], [(FAR, 800.0), (near, 900.0)])
     assert decided[0][1].x == pytest.approx(near)
-    assert not any(
-        np.allclose(start, LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0]))
-        for start in view.starts
-    )
+    assert not any(np.allclose(start, FAR) for start in view.starts)
 
 
 @pytest.mark.slow
@@ -148,19 +136,12 @@ def test_the_dmc_lx5_paper_scene_under_lamp_a_is_found(shared_camera_data: Path)
     """The validation split's paper scene (lamp A, seed 2, 0.3 % noise) of the Panasonic DMC-LX5
     (Berra): on base f500083 its LED-only mapping was 11.5 nm off at the blue end, unwarned; the
     truth's valley lies 13 nm inwards of the answer's blue end."""
-    from calib.core.spectra import DEFAULT_GRID
-    from calib.wavelength.profile_search import search_profiles
+    from .paper_scene import searched_worst_nm
 
-    from .paper_scene import paper_scene
-
-    led, prior, mapping = paper_scene(
-        shared_camera_data, "Panasonic DMCL-X5 (Berra-et-al-2015)", "A", 2, 0.003
+    assert (
+        searched_worst_nm(shared_camera_data, "Panasonic DMCL-X5 (Berra-et-al-2015)", "A", 2, 0.003)
+        < 1.0
     )
-    found = search_profiles([led], prior, DEFAULT_GRID)
-    truth = mapping.wavelength_nm(led.pixel)
-    inside = (truth >= DEFAULT_GRID.start_nm) & (truth <= DEFAULT_GRID.stop_nm)
-    worst = float(np.max(np.abs(found.mapping.wavelength_nm(led.pixel) - truth)[inside]))
-    assert worst < 1.0
 
 
 @pytest.mark.slow
@@ -206,16 +187,8 @@ def test_the_1ds_mk_ii_paper_scene_under_lamp_a_is_found(shared_camera_data: Pat
     Canon 1Ds Mk II (Brady): on base 722659f its LED-only mapping was 25 nm off at the blue end,
     unwarned; the blue end moved inwards by twice the scan's reach sketches into the truth's
     valley."""
-    from calib.core.spectra import DEFAULT_GRID
-    from calib.wavelength.profile_search import search_profiles
+    from .paper_scene import searched_worst_nm
 
-    from .paper_scene import paper_scene
-
-    led, prior, mapping = paper_scene(
-        shared_camera_data, "Canon 1Ds-Mk-II (Brady-2009)", "A", 4, 0.003
+    assert (
+        searched_worst_nm(shared_camera_data, "Canon 1Ds-Mk-II (Brady-2009)", "A", 4, 0.003) < 1.0
     )
-    found = search_profiles([led], prior, DEFAULT_GRID)
-    truth = mapping.wavelength_nm(led.pixel)
-    inside = (truth >= DEFAULT_GRID.start_nm) & (truth <= DEFAULT_GRID.stop_nm)
-    worst = float(np.max(np.abs(found.mapping.wavelength_nm(led.pixel) - truth)[inside]))
-    assert worst < 1.0
