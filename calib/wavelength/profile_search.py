@@ -2474,14 +2474,21 @@ def end_probes(
 #: that reach (decision 0163: a predicted curve's red end 4 nm too far out, whose 6 nm move
 #: sketched into another valley).
 END_PROBE_SHARES = (1.0, 0.5)
+#: Where every move by :data:`END_PROBE_SHARES` sketches uphill of the basin (on the ranking view),
+#: each end is moved by this share as well: twice the scan's reach, as far as the line lamps'
+#: red-end probe reaches (:data:`RED_END_PROBE_NM`). Decision 0169: a lamp A scene's blue end was
+#: 27 nm too blue, its 3 and 6 nm moves sketched uphill and its 12 nm move into the truth's valley;
+#: taken with the nearer moves, the 12 nm move sketched lower than their right valley into a wrong
+#: one in two other scenes.
+END_PROBE_FAR_SHARES = (2.0,)
 
 
-def _inward_starts(basin: Solution) -> list[FloatArray]:
-    """:func:`end_probes`' moves of ``basin``: each end inwards by :data:`END_PROBE_SHARES` of
+def _inward_starts(basin: Solution, shares: Sequence[float] = END_PROBE_SHARES) -> list[FloatArray]:
+    """:func:`end_probes`' moves of ``basin``: each end inwards by ``shares`` of
     :data:`LOCAL_SCAN`'s half-width, the middle by half (the parameters are the wavelengths at
     the profile's first pixel, middle and last)."""
     starts = []
-    for share in END_PROBE_SHARES:
+    for share in shares:
         for end in (0, 2):
             shift = share * LOCAL_SCAN[0] * float(np.sign(basin.x[1] - basin.x[end]))
             start = basin.x.copy()
@@ -2502,30 +2509,41 @@ def _probed_valley(
 ) -> tuple[Solution | None, int]:
     """One round of the probes about ``basin`` (:func:`end_probes`, :func:`stalled_probe`,
     :func:`whole_shift_probe`): ``starts`` (default: each end moved inwards,
-    :func:`_inward_starts`) sketched on ``ranking``, the lowest sketch below ``basin``
-    there (and more than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it) descended on ``deciding``;
-    that valley when it is below ``leader`` there and apart from ``basin``, else ``None``; and
-    the evaluations made."""
+    :func:`_inward_starts`, and further, :data:`END_PROBE_FAR_SHARES`, when no nearer sketch is
+    below ``basin``) sketched on ``ranking``, the lowest sketch below ``basin`` there (and more
+    than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it) descended on ``deciding``; that valley when
+    it is below ``leader`` there and apart from ``basin``, else ``None``; and the evaluations
+    made."""
     assert isinstance(family, QuadraticFamily)
     probe = np.linspace(pixel_range[0], pixel_range[1], 9)
     placed = family.wavelengths(probe, basin.x)
-    sketches = []
     count = 0
-    # The sketches run their whole round: stopping those whose own model ends hopelessly behind
-    # the basin's own point moved four predicted-curve mappings, two of them right to 6–7 nm off
-    # (decision 0165, addendum).
-    for start in _inward_starts(basin) if starts is None else starts:
-        sketches.append(ranking.sketch(start))
-        count += sketches[-1].evaluations
-    # Costed with the basin in one call, each at its own prior scale (as descents compare).
-    costs = ranking.costs(np.stack([basin.x, *(sketch.x for sketch in sketches)]))
-    count += costs.size
-    lower = [
-        (float(cost), sketch.x)
-        for cost, sketch in zip(costs[1:], sketches, strict=True)
-        if cost < costs[0]
-        and np.max(np.abs(family.wavelengths(probe, sketch.x) - placed)) > AMBIGUITY_MIN_DISTANCE_NM
-    ]
+    groups = (
+        [_inward_starts(basin), _inward_starts(basin, END_PROBE_FAR_SHARES)]
+        if starts is None
+        else [list(starts)]
+    )
+    lower: list[tuple[float, FloatArray]] = []
+    for group in groups:
+        sketches = []
+        # The sketches run their whole round: stopping those whose own model ends hopelessly
+        # behind the basin's own point moved four predicted-curve mappings, two of them right to
+        # 6–7 nm off (decision 0165, addendum).
+        for start in group:
+            sketches.append(ranking.sketch(start))
+            count += sketches[-1].evaluations
+        # Costed with the basin in one call, each at its own prior scale (as descents compare).
+        costs = ranking.costs(np.stack([basin.x, *(sketch.x for sketch in sketches)]))
+        count += costs.size
+        lower = [
+            (float(cost), sketch.x)
+            for cost, sketch in zip(costs[1:], sketches, strict=True)
+            if cost < costs[0]
+            and np.max(np.abs(family.wavelengths(probe, sketch.x) - placed))
+            > AMBIGUITY_MIN_DISTANCE_NM
+        ]
+        if lower:
+            break
     if not lower:
         return None, count
     valley = deciding.descend(min(lower, key=lambda item: item[0])[1])

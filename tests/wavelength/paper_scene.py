@@ -44,3 +44,18 @@ def paper_scene(
     (scene,) = scenes
     assert callable(basis)
     return scene.broadband.observation, basis(name).prior(), scene.mapping
+
+
+def searched_worst_nm(data: Path, name: str, lamp: str, seed: int, noise: float) -> float:
+    """The LED-only search's worst error (nm, over the pixels whose true wavelength is on the
+    working grid) on the validation split's scene of camera ``name`` (:func:`paper_scene`)."""
+    import numpy as np
+
+    from calib.core.spectra import DEFAULT_GRID
+    from calib.wavelength.profile_search import search_profiles
+
+    led, prior, mapping = paper_scene(data, name, lamp, seed, noise)
+    found = search_profiles([led], prior, DEFAULT_GRID)
+    truth = mapping.wavelength_nm(led.pixel)
+    inside = (truth >= DEFAULT_GRID.start_nm) & (truth <= DEFAULT_GRID.stop_nm)
+    return float(np.max(np.abs(found.mapping.wavelength_nm(led.pixel) - truth)[inside]))
