@@ -81,21 +81,29 @@ FAR = LEADER + np.array([2 * LOCAL_SCAN[0], LOCAL_SCAN[0], 0.0])
 
 
 def _probe_alone(
-    valleys: list[tuple[np.ndarray, float]], final_valleys: list[tuple[np.ndarray, float]]
+    valleys: list[tuple[np.ndarray, float]],
+    final_valleys: list[tuple[np.ndarray, float]],
+    deciding_valleys: list[tuple[np.ndarray, float]] | None = None,
 ) -> tuple[list[tuple[Any, Solution]], Landscape, Solution]:
     """:func:`end_probes` about the leader alone, ``valleys`` added to the ranking and deciding
-    view and ``final_valleys`` to the final stage (the leader's own valley at 1 000 in both)."""
+    view (the deciding stage ``deciding_valleys`` instead, when given) and ``final_valleys`` to
+    the final stage (the leader's own valley at 1 000 in each); the deciding view is returned."""
     view = Landscape([*valleys, (LEADER, 1000.0)], 5000.0)
+    deciding = (
+        view
+        if deciding_valleys is None
+        else Landscape([*deciding_valleys, (LEADER, 1000.0)], 5000.0)
+    )
     final = Landscape([*final_valleys, (LEADER, 1000.0)], 5000.0)
     leader = solution(LEADER, 1000.0)
     decided, _ = end_probes(
         [(QuadraticFamily(PIXELS), leader)],
         view,  # type: ignore[arg-type]
-        view,  # type: ignore[arg-type]
+        deciding,  # type: ignore[arg-type]
         final,  # type: ignore[arg-type]
         PIXELS,
     )
-    return decided, view, leader
+    return decided, deciding, leader
 
 
 def test_a_valley_within_half_the_reach_is_found_by_the_half_move():
@@ -128,6 +136,42 @@ def test_the_far_moves_wait_until_every_near_move_went_uphill():
     decided, view, _ = _probe_alone([(FAR, 50.0), (near, 100.0)], [(FAR, 800.0), (near, 900.0)])
     assert decided[0][1].x == pytest.approx(near)
     assert not any(np.allclose(start, FAR) for start in view.starts)
+
+
+def test_of_two_sketches_below_the_leader_the_one_lower_on_the_deciding_stage_is_kept():
+    """Decision 0171: two moves sketch below the leader on the ranking view; the lower one there
+    (the red end 6 nm inwards) descends to a valley only just below the leader on the deciding
+    stage, the other (the blue end 6 nm inwards) to one far below it, which the final stage
+    prefers as well. Both are descended and the deciding stage's lower valley is kept (descending
+    only the ranking view's lowest kept the leader, the valley the final stage prefers unfound)."""
+    red = LEADER + np.array([0.0, -LOCAL_SCAN[0] / 2, -LOCAL_SCAN[0]])
+    blue = LEADER + np.array([LOCAL_SCAN[0], LOCAL_SCAN[0] / 2, 0.0])
+    decided, deciding, leader = _probe_alone(
+        [(red, 50.0), (blue, 100.0)],
+        [(red, 990.0), (blue, 900.0)],
+        deciding_valleys=[(red, 950.0), (blue, 200.0)],
+    )
+    assert decided[0][1].x == pytest.approx(blue)
+    assert decided[1][1] is leader
+    # Round one descends both sketches below the leader (the ranking view's lowest first).
+    assert list(deciding.starts[:2]) == [pytest.approx(red), pytest.approx(blue)]
+
+
+def test_the_far_moves_follow_when_the_near_valley_is_behind_the_leader_on_the_deciding_stage():
+    """Decision 0171: a near move (the red end 6 nm inwards) sketches below the leader on the
+    ranking view but descends to a valley behind it on the deciding stage, so the near moves found
+    nothing; the far moves are then sketched, and the blue end's, 12 nm inwards, finds the valley
+    both stages prefer (the validation split's Canon 10D (Kawakami) under lamp A, seed 4, 0.3 %:
+    10.3 nm off before, the far moves never sketched)."""
+    near = LEADER + np.array([0.0, -LOCAL_SCAN[0] / 2, -LOCAL_SCAN[0]])
+    decided, deciding, leader = _probe_alone(
+        [(near, 50.0), (FAR, 100.0)],
+        [(near, 1100.0), (FAR, 900.0)],
+        deciding_valleys=[(near, 1100.0), (FAR, 200.0)],
+    )
+    assert decided[0][1].x == pytest.approx(FAR)
+    assert decided[1][1] is leader
+    assert deciding.starts[0] == pytest.approx(near)
 
 
 @pytest.mark.slow
