@@ -2482,9 +2482,10 @@ END_PROBE_SHARES = (1.0, 0.5)
 #: one in two other scenes.
 END_PROBE_FAR_SHARES = (2.0,)
 #: How many of a probe round's sketches below the basin on the ranking view (its lowest first) are
-#: descended on the deciding stage, the valley lowest there taken (decision 0171: on the
-#: validation split, lamp A, seed 4, 0.3 %, the Canon 10D (Kawakami) leader's lowest near sketch
-#: descended to a valley behind the leader on the deciding stage, the next to the truth's).
+#: descended on the deciding stage, the valley lowest there taken (decision 0171: the ranking
+#: view's lowest sketch may descend into a valley the deciding stage puts behind another; on the
+#: validation split the second descent moved one right mapping by 0.08 nm, and the fixes of
+#: decision 0171 came from the far moves following a deciding-stage miss).
 END_PROBE_DESCENTS = 2
 
 
