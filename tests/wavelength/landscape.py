@@ -35,10 +35,6 @@ class Landscape:  # a stage's costs, sketch, descent and settling
             out = np.where(np.max(np.abs(x - valley), axis=1) < 0.75, cost, out)
         return np.asarray(out)
 
-    def function(self, x: np.ndarray, with_jacobian: bool) -> tuple[np.ndarray, None]:
-        """1 000 equal residual rows whose squares sum to the cost at ``x`` (no Jacobian)."""
-        return np.full(1000, math.sqrt(float(self.costs(x)[0]) / 1000)), None
-
     def sketch(self, x: np.ndarray, give_up_above: float = math.inf) -> Solution:
         self.bars.append(give_up_above)
         self.starts.append(np.asarray(x))
