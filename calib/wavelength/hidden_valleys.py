@@ -48,7 +48,7 @@ def valley_half_width_nm(solution: Solution, delta_chi2: float) -> float:
     profile (the middle following by half) that raises the cost by ``delta_chi2`` times the fit's
     reduced χ² (at least 1), by the fit's curvature ``JᵀJ`` (the quadratic family's parameters are
     the wavelengths at the ends and the middle)."""
-    temper = max(solution.cost / solution.dof, 1.0)
+    temper = solution.temper
     widths = []
     for curvature in end_curvatures(solution):
         widths.append(math.sqrt(delta_chi2 * temper / curvature) if curvature > 0 else math.inf)

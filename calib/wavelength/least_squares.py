@@ -67,6 +67,12 @@ class Solution:
         """Residual rows less parameters (at least 1): what the fit's χ² is reduced by."""
         return max(self.residual.size - self.x.size, 1)
 
+    @property
+    def temper(self) -> float:
+        """The reduced χ² ``cost / dof``, at least 1: what a Δχ² against this fit is divided by
+        where its residuals are larger than their σ say (the mapping search's tempering)."""
+        return max(self.cost / self.dof, 1.0)
+
     def covariance(self, *, scale_by_fit: bool = True) -> FloatArray:
         """``(JᵀJ)⁻¹``, times the residual variance ``cost / (rows − P)`` when ``scale_by_fit``."""
         normal = self.jacobian.T @ self.jacobian

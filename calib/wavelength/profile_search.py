@@ -587,14 +587,14 @@ def binned_kernel(kernel: FloatArray, factor: int) -> FloatArray | None:
 
 def _behind(solution: Solution, leader: Solution) -> float:
     """Tempered Δχ² of ``solution`` behind ``leader`` (by the leader's reduced χ²)."""
-    return (solution.cost - leader.cost) / max(leader.cost / leader.dof, 1.0)
+    return (solution.cost - leader.cost) / leader.temper
 
 
-def hopeless_bar(cost: float, dof: int) -> float:
-    """The cost :data:`HOPELESS_DELTA_CHI2` behind a leader of ``cost`` with ``dof`` degrees of
-    freedom (tempered by its reduced χ², as :func:`_behind` tempers): a descent whose own
-    Gauss–Newton model ends above it stops there (``give_up_above``, decision 0165)."""
-    return cost + HOPELESS_DELTA_CHI2 * max(cost / dof, 1.0)
+def hopeless_bar(leader: Solution) -> float:
+    """The cost :data:`HOPELESS_DELTA_CHI2` behind ``leader`` (tempered by its reduced χ², as
+    :func:`_behind` tempers): a descent whose own Gauss–Newton model ends above it stops there
+    (``give_up_above``, decision 0165)."""
+    return leader.cost + HOPELESS_DELTA_CHI2 * leader.temper
 
 
 def _distinct(
@@ -1488,11 +1488,7 @@ def search_profiles(
             # With a line lamp, a sketch whose own model ends hopelessly behind the best minimum
             # so far stops there: it would be skipped below, and is only costed in the deciding
             # stage (decision 0165).
-            give_up = (
-                math.inf
-                if broadband_only or so_far is None
-                else hopeless_bar(so_far.cost, so_far.dof)
-            )
+            give_up = math.inf if broadband_only or so_far is None else hopeless_bar(so_far)
             solution = refining.sketch(point, give_up)
             leader = solution if so_far is None else so_far
             # With a line lamp, a minimum far behind the best one so far is no answer: its
@@ -1713,7 +1709,7 @@ def search_profiles(
             start[red_index] += shift
             # A probe whose own model ends hopelessly behind the basin probed stops there: far
             # behind, it weighs nothing in the result (decision 0165).
-            probed = deciding.descend(start, hopeless_bar(outcome.cost, outcome.dof))
+            probed = deciding.descend(start, hopeless_bar(outcome))
             evaluations += probed.evaluations
             decided.append((family, probed))
         decided = _distinct(decided, pixel_range, MAX_BASINS)
@@ -1782,7 +1778,7 @@ def search_profiles(
 
     # Ambiguity: every basin's profile likelihood, tempered by the misfit of the best one.
     best_cost = decided[0][1].cost
-    temper = max(best_cost / decided[0][1].dof, 1.0)
+    temper = decided[0][1].temper
     probe = np.linspace(pixel_range[0], pixel_range[1], 64)
     exact_probe = exact.wavelength_nm(probe)
     candidates_out = []

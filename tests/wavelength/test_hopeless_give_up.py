@@ -48,8 +48,9 @@ def test_a_descent_whose_model_reaches_below_the_bar_goes_on_as_without_one() ->
 
 
 def test_the_bar_is_the_hopeless_delta_chi2_tempered_by_the_leaders_reduced_chi2() -> None:
-    assert hopeless_bar(50.0, 100) == 50.0 + HOPELESS_DELTA_CHI2  # reduced χ² below 1: untempered
-    assert hopeless_bar(400.0, 100) == 400.0 + 4.0 * HOPELESS_DELTA_CHI2
+    # (:func:`solution`'s fits have 1 000 rows and 3 parameters: 997 degrees of freedom.)
+    assert hopeless_bar(solution(np.zeros(3), 500.0)) == 500.0 + HOPELESS_DELTA_CHI2  # below 1
+    assert hopeless_bar(solution(np.zeros(3), 3988.0)) == 3988.0 + 4.0 * HOPELESS_DELTA_CHI2
 
 
 def test_the_probes_sketches_run_their_whole_round() -> None:
