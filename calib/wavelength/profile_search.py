@@ -2477,12 +2477,6 @@ END_PROBE_SHARES = (1.0, 0.5)
 #: taken with the nearer moves, the 12 nm move sketched lower than their right valley into a wrong
 #: one in two other scenes.
 END_PROBE_FAR_SHARES = (2.0,)
-#: How many of a probe round's sketches below the basin on the ranking view (its lowest first) are
-#: descended on the deciding stage, the valley lowest there taken (decision 0171: the ranking
-#: view's lowest sketch may descend into a valley the deciding stage puts behind another; on the
-#: validation split the second descent moved one right mapping by 0.08 nm, and the fixes of
-#: decision 0171 came from the far moves following a deciding-stage miss).
-END_PROBE_DESCENTS = 2
 
 
 def _inward_starts(basin: Solution, shares: Sequence[float] = END_PROBE_SHARES) -> list[FloatArray]:
@@ -2512,11 +2506,12 @@ def _probed_valley(
     """One round of the probes about ``basin`` (:func:`end_probes`, :func:`stalled_probe`,
     :func:`whole_shift_probe`): ``starts`` (default: each end moved inwards,
     :func:`_inward_starts`, and further, :data:`END_PROBE_FAR_SHARES`, when the nearer moves
-    found no valley) sketched on ``ranking``, the :data:`END_PROBE_DESCENTS` lowest sketches below
-    ``basin`` there (and more than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it) descended on
-    ``deciding`` and the lowest valley there taken; that valley when it is below ``leader`` there
-    and apart from ``basin``, else the next group's (``None`` when none is); and the evaluations
-    made."""
+    found no valley) sketched on ``ranking``, the lowest sketch below ``basin`` there (and more
+    than :data:`AMBIGUITY_MIN_DISTANCE_NM` from it) descended on ``deciding``; that valley when it
+    is below ``leader`` there and apart from ``basin``, else the next group's (``None`` when none
+    is); and the evaluations made. (Descending the two lowest sketches and taking the valley the
+    deciding stage puts lower, decision 0171, moved one validation mapping by 0.08 nm and fixed
+    none: decision 0172.)"""
     assert isinstance(family, QuadraticFamily)
     probe = np.linspace(pixel_range[0], pixel_range[1], 9)
     placed = family.wavelengths(probe, basin.x)
@@ -2526,6 +2521,9 @@ def _probed_valley(
         if starts is None
         else [list(starts)]
     )
+    # The basin's own cost on the ranking view, each point at its own prior scale (as descents
+    # compare): costed once, with the first group's sketches.
+    basin_cost: float | None = None
     for group in groups:
         sketches = []
         # The sketches run their whole round: stopping those whose own model ends hopelessly
@@ -2534,25 +2532,20 @@ def _probed_valley(
         for start in group:
             sketches.append(ranking.sketch(start))
             count += sketches[-1].evaluations
-        # Costed with the basin in one call, each at its own prior scale (as descents compare).
-        costs = ranking.costs(np.stack([basin.x, *(sketch.x for sketch in sketches)]))
+        points = [sketch.x for sketch in sketches]
+        costs = ranking.costs(np.stack(points if basin_cost is not None else [basin.x, *points]))
         count += costs.size
-        lower = sorted(
-            (
-                (float(cost), sketch.x)
-                for cost, sketch in zip(costs[1:], sketches, strict=True)
-                if cost < costs[0]
-                and np.max(np.abs(family.wavelengths(probe, sketch.x) - placed))
-                > AMBIGUITY_MIN_DISTANCE_NM
-            ),
-            key=lambda item: item[0],
-        )
-        valley: Solution | None = None
-        for _, x in lower[:END_PROBE_DESCENTS]:
-            descended = deciding.descend(x)
-            count += descended.evaluations
-            if valley is None or descended.cost < valley.cost:
-                valley = descended
+        if basin_cost is None:
+            basin_cost, costs = float(costs[0]), costs[1:]
+        lower = [
+            (float(cost), x)
+            for cost, x in zip(costs, points, strict=True)
+            if cost < basin_cost
+            and np.max(np.abs(family.wavelengths(probe, x) - placed)) > AMBIGUITY_MIN_DISTANCE_NM
+        ]
+        valley = deciding.descend(min(lower, key=lambda item: item[0])[1]) if lower else None
+        if valley is not None:
+            count += valley.evaluations
         if (
             valley is not None
             and valley.cost < leader.cost
