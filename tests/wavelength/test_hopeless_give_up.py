@@ -68,6 +68,7 @@ def test_the_probes_sketches_run_their_whole_round() -> None:
     )
     assert valley is None
     # Four sketches of 10 evaluations and one batch of five costs, all uphill, then the two moves
-    # twice as far (decision 0169) and one batch of three costs; no bar passed on.
+    # twice as far (decision 0169) and one batch of their two costs (the basin's own cost is
+    # reused, decision 0172); no bar passed on.
     assert view.bars == [math.inf] * 6
-    assert count == 4 * 10 + 5 + 2 * 10 + 3
+    assert count == 4 * 10 + 5 + 2 * 10 + 2
