@@ -276,7 +276,7 @@ def main() -> None:
     )
     print(
         "camera | RE η₀ = J₀² | RE η₀ flat | model chosen | RE 1 LED via grating file | "
-        "its ±2σ coverage % (budget) | the method's own σ's"
+        "its ±2σ coverage % (budget) | the method's own σ's | its verdict: warning codes"
     )
     if arguments.diagnose:
         print(
@@ -290,6 +290,7 @@ def main() -> None:
     diagnosed: list[tuple[float, ...]] = []
     covered: list[float] = []
     covered_own: list[float] = []
+    verdicts: list[str] = []
     ratios: list[FloatArray] = []
     for index, task in enumerate(chosen):
         with_eta0 = scene(task, sheet)
@@ -351,10 +352,13 @@ def main() -> None:
             )
             diagnosed.append(row)
             extra = " | " + " | ".join(f"{value:.2f}" for value in row)
+        warned = list(dict.fromkeys(f.code for f in led.quality.flags if f.severity != "info"))
+        verdicts.append(led.quality.verdict)
         print(
             f"{task.camera.name} | {physical[-1]:.2f} | {flat[-1]:.2f} | "
             f"{result.diagnostics['grating_model']['chosen']} | {through_file[-1]:.2f} | "
-            f"{covered[-1]:.1f} | {covered_own[-1]:.1f}{extra}",
+            f"{covered[-1]:.1f} | {covered_own[-1]:.1f} | {led.quality.verdict}: "
+            f"{', '.join(warned) or '—'}{extra}",
             flush=True,
         )
     if diagnosed:
@@ -364,7 +368,8 @@ def main() -> None:
         f"mean RE ×10⁻²: η₀ = J₀² {np.mean(physical):.2f}, η₀ flat {np.mean(flat):.2f} "
         f"(difference {np.mean(physical) - np.mean(flat):+.2f}); one LED through a grating file "
         f"{np.mean(through_file):.2f} (median {np.median(through_file):.2f}), its ±2σ coverage "
-        f"{np.nanmean(covered):.1f} % (the method's own σ {np.nanmean(covered_own):.1f} %)"
+        f"{np.nanmean(covered):.1f} % (the method's own σ {np.nanmean(covered_own):.1f} %); "
+        f"verdicts: {', '.join(f'{v} {verdicts.count(v)}' for v in sorted(set(verdicts)))}"
     )
 
     if ratios:
