@@ -194,3 +194,34 @@ def test_the_commands_read_any_camera_file(
     monkeypatch.setenv("PATH", str(tmp_path / "empty"))
     code, out, err = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and "dcamprof is not installed" in err
+
+
+@pytest.mark.parametrize(
+    ("change", "channel"),
+    [("zero blue", "B"), ("every sign flipped", "R")],
+)
+def test_a_camera_file_with_a_channel_that_sees_nothing_is_refused_naming_it(
+    nikon: CameraCurves,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    change: str,
+    channel: str,
+) -> None:
+    """A dead or sign-flipped channel gave an identity IDT (or the same matrix as the real
+    camera) and exit 0; now one line names the file and the channel, exit 2."""
+    from calib.core.formats.rgb_csv import write_camera_csv
+
+    values = np.array(nikon.values)
+    if change == "zero blue":
+        values[:, 2] = 0.0
+    else:
+        values = -values
+    camera = write_camera_csv(
+        tmp_path / "camera.csv", CameraCurves(nikon.wavelength_nm, values, name="broken")
+    )
+    for command in ("idt", "ccm"):
+        code, out, err = run_cli([command, str(camera)], monkeypatch, capsys)
+        assert code == 2 and out == "", (out, err)
+        assert f"camera.csv: channel {channel} has no positive value" in err, err
+        assert err.count("\n") == 1, err
