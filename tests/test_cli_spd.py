@@ -212,7 +212,7 @@ def test_bad_files_are_named(
     dark.write_text("wavelength_nm,r,g,b\n400,0,0,0\n700,0,0,0\n")
     arguments[arguments.index("--camera") + 1] = str(dark)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
-    assert code == 2 and "dark_camera.csv" in stderr and "all-zero" in stderr
+    assert code == 2 and "dark_camera.csv: channel R has no positive value" in stderr
     not_raw = tmp_path / "frame.dng"
     not_raw.write_text("not a raw file")
     arguments = base_arguments(scene, tmp_path / "out")

@@ -219,11 +219,9 @@ def _find_mapping(
 
 
 def read_camera(path: Path) -> MultiSpectrum:
-    """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`)."""
-    camera = read_camera_file(path).to_multispectrum()
-    if float(camera.values.max()) <= 0:
-        raise InputError("the sensitivities are all-zero", source=str(path))
-    return camera.normalised()
+    """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`,
+    which refuses a channel with no positive value)."""
+    return read_camera_file(path).to_multispectrum().normalised()
 
 
 def measure_spd(
