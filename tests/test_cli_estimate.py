@@ -560,6 +560,7 @@ def test_profile_in_wavelength_uses_the_identity_mapping(capture: Capture, tmp_p
         ("pixel,r,g,b\n" + "1,1,1,1\n" * 10, "appears twice"),
         ("pixel,r,g,b\n1,1,1,1\n2,1,1,1\n", "at least 8"),
         ("pixel,r,g,b,w\n" + "".join(f"{i},1,1,1,1\n" for i in range(10)), "unknown column"),
+        ("pixel,r,g,b\n" + "".join(f"{i},0,0,0\n" for i in range(10)), "holds no light"),
     ],
 )
 def test_bad_profile_csv_exits_2(tmp_path: Path, content: str, message: str) -> None:

@@ -373,13 +373,22 @@ def read_profile_file(path: Path) -> ProfileTable:
     Raises
     ------
     InputError
-        What the reader of that format refuses (the file and the line or keyword named).
+        What the reader of that format refuses (the file and the line or keyword named); a
+        profile with no value above zero (a blank export: the solve has nothing to fit).
     """
     suffix = Path(path).suffix.lower()
     if suffix not in RAWPROC_SUFFIXES + FITS_SUFFIXES:
-        return read_profile_csv(path)
-    read = read_rawproc_dat(path) if suffix in RAWPROC_SUFFIXES else read_fits_profile(path)
-    return ProfileTable(read.pixel, read.profile, read.profile_sigma, in_wavelength=False)
+        table = read_profile_csv(path)
+    else:
+        read = read_rawproc_dat(path) if suffix in RAWPROC_SUFFIXES else read_fits_profile(path)
+        table = ProfileTable(read.pixel, read.profile, read.profile_sigma, in_wavelength=False)
+    if not np.any(table.profile > 0):
+        raise InputError(
+            "no value above zero in r, g or b: the profile holds no light; export it from the "
+            "frames where the first-order band is lit (lamp on, band inside the crop)",
+            source=str(path),
+        )
+    return table
 
 
 def parse_direct(text: str, source: str = "--direct") -> tuple[float, float, float]:
