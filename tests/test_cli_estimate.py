@@ -742,13 +742,22 @@ def test_exclude_camera_keeps_the_camera_out_of_the_default_basis(
         "Nikon D5100",
         "--exclude-camera",
         "sony*",
+        "--exclude-camera",
+        "Nikon D5010",
         "--json",
         "--no-report",
     ]
     code, stdout, stderr = _call(argv)
     assert code == 0, stderr
     basis = json.loads(stdout)["basis"]
-    assert basis["exclusions"] == ["Nikon D5100", "sony*"]
+    assert basis["exclusions"] == ["Nikon D5100", "sony*", "Nikon D5010"]
+    # a pattern naming no camera (a misspelt camera under test) is said, not silently kept in
+    assert basis["unmatched_exclusions"] == ["Nikon D5010"]
+    assert (
+        "calib: warning: --exclude-camera 'Nikon D5010' names none of the 52 cameras the basis "
+        "draws on and kept nothing out" in stderr
+    )
+    assert "'sony*' names none" not in stderr and "'Nikon D5100' names none" not in stderr
     assert "Nikon D5100 (rawtoaces-data)" in basis["excluded_cameras"]
     assert len(basis["excluded_cameras"]) == 12 and basis["n_cameras"] == 52 - 12
     assert not any("D5100" in name or name.startswith("Sony") for name in basis["cameras"])

@@ -92,6 +92,9 @@ class CameraBasis:
         The name patterns cameras were kept out by (``--exclude-camera``).
     excluded_cameras
         The cameras they kept out.
+    unmatched_exclusions
+        The patterns of ``exclusions`` that named no camera of the basis' source (a misspelt
+        camera under test stays in the basis: the pipeline warns).
     fallback
         Why this is not the default basis and what to fetch (a warning for the result), or
         ``None``.
@@ -109,6 +112,7 @@ class CameraBasis:
     typical_distance: float = float("nan")
     exclusions: tuple[str, ...] = ()
     excluded_cameras: tuple[str, ...] = ()
+    unmatched_exclusions: tuple[str, ...] = ()
     fallback: str | None = None
 
     @property
@@ -159,6 +163,7 @@ class CameraBasis:
             "content_hash": self.content_hash,
             "exclusions": list(self.exclusions),
             "excluded_cameras": list(self.excluded_cameras),
+            "unmatched_exclusions": list(self.unmatched_exclusions),
             "fallback": self.fallback,
         }
 
@@ -714,5 +719,8 @@ def default_camera_basis(
         basis,
         exclusions=tuple(exclude),
         excluded_cameras=tuple(record.name for record in excluded),
+        unmatched_exclusions=tuple(
+            pattern for pattern in exclude if not exclude_cameras(excluded, [pattern])[1]
+        ),
         fallback=reference.fallback,
     )
