@@ -465,6 +465,25 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     assert not (tmp_path / "out" / "grating.json").exists()  # given, not estimated
 
 
+def test_a_clipped_profile_is_a_serious_warning_naming_the_lamp_and_the_pixels(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """A profile exported from saturated frames (its band flat at the clip level) gave a curve
+    too low there without a word; it is now flagged."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    profile = tmp_path / "FL-profile.csv"
+    table = np.loadtxt(profile, delimiter=",", skiprows=1)
+    table[:, 1:4] = np.minimum(table[:, 1:4], 0.8 * table[:, 1:4].max())
+    np.savetxt(
+        profile, table, delimiter=",", header="pixel,r,g,b,r_sigma,g_sigma,b_sigma", comments=""
+    )
+    code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json", "--no-report"])
+    assert code == 0, stderr
+    assert _flag_codes(json.loads(stdout)) == EXPECTED_FLAGS | {"saturated_frames"}
+    assert "SERIOUS: the first-order band is clipped in the profile of FL (" in stderr
+    assert "LED (" not in stderr
+
+
 def test_profile_input_without_direct_or_grating_assumes_flat_and_warns(
     capture: Capture, tmp_path: Path
 ) -> None:

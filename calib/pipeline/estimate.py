@@ -569,11 +569,31 @@ def basis_key(settings: OfflineSettings) -> Hashable:
 
 #: A profile whose peak is below this many σ of its noise carries no first-order signal.
 BLANK_PROFILE_SNR = 5.0
+#: A channel's maximum repeated exactly at this many adjacent samples: the band was clipped (a
+#: noisy or resampled peak repeats its value by chance at two samples at most).
+CLIPPED_RUN = 3
+
+
+def clipped_band(obs: LampObservation) -> str | None:
+    """Where a given profile's channels hold their maximum exactly over :data:`CLIPPED_RUN` or
+    more adjacent samples (a saturated export), e.g. ``"FL (g 0.91 at px 512–530)"``; ``None``
+    when none does."""
+    found = []
+    for label, channel in zip("rgb", obs.profile.T, strict=True):
+        peak = float(channel.max())
+        at_peak = np.flatnonzero(channel == peak)
+        runs = np.split(at_peak, np.flatnonzero(np.diff(at_peak) != 1) + 1)
+        longest = max(runs, key=len)
+        if peak > 0 and longest.size >= CLIPPED_RUN:
+            found.append(
+                f"{label} {peak:g} at px {obs.pixel[longest[0]]:g}–{obs.pixel[longest[-1]]:g}"
+            )
+    return f"{obs.name} ({', '.join(found)})" if found else None
 
 
 def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
     """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
-    order, a line lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the
+    order, a given profile's band clipped, a line lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the
     sensitivity's detail."""
     flags: list[QualityFlag] = []
     saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
@@ -598,6 +618,18 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
                 "blank_frames",
                 f"no first-order signal above the noise for {', '.join(blank)}: blank frames, a "
                 "lamp that was off, or the band outside the crop",
+                "serious",
+            )
+        )
+    clipped = [] if image_input else [what for obs in observations if (what := clipped_band(obs))]
+    if clipped:
+        flags.append(
+            QualityFlag(
+                "saturated_frames",
+                f"the first-order band is clipped in the profile of {'; '.join(clipped)}: a "
+                "channel holds its maximum exactly over adjacent pixels, so the curve is too low "
+                "there; export the profile from frames that do not saturate (or give the RAW "
+                "bracket with --images)",
                 "serious",
             )
         )
