@@ -484,6 +484,28 @@ def test_a_clipped_profile_is_a_serious_warning_naming_the_lamp_and_the_pixels(
     assert "LED (" not in stderr
 
 
+def test_a_bandwidth_option_that_contradicts_the_spectrum_file_is_warned(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """--bandwidth replaced the file's '# bandwidth_nm:' without a word (the σ and the slit
+    model then use the option's); the contradiction is now said, for that lamp only."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    for lamp in ("LED", "FL"):
+        spectrum = tmp_path / f"{lamp}.csv"
+        spectrum.write_text("# bandwidth_nm: 8\n" + spectrum.read_text())
+    second_lamp = argv.index("--lamp", 1)
+    argv[second_lamp:second_lamp] = ["--bandwidth", "2"]
+    argv += ["--bandwidth", "8", "--out", str(tmp_path / "out"), "--json", "--no-report"]
+    code, stdout, stderr = _call(argv)
+    assert code == 0, stderr
+    said = [line for line in json.loads(stdout)["warnings"] if "--bandwidth" in line]
+    assert said == [
+        "lamp 'LED': --bandwidth 2 nm overrides its spectrum file's '# bandwidth_nm: 8'; the "
+        "--bandwidth is used (drop it to use the file's)"
+    ]
+    assert f"calib: warning: {said[0]}" in stderr
+
+
 def test_profile_input_without_direct_or_grating_assumes_flat_and_warns(
     capture: Capture, tmp_path: Path
 ) -> None:

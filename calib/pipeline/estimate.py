@@ -259,6 +259,12 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             if given.spectrum_bandwidth_nm is not None
             else loaded.bandwidth_nm
         )
+        if loaded.bandwidth_nm not in (None, bandwidths[given.name]):
+            warnings.append(
+                f"lamp {given.name!r}: --bandwidth {bandwidths[given.name]:g} nm overrides its "
+                f"spectrum file's '# bandwidth_nm: {loaded.bandwidth_nm:g}'; the --bandwidth "
+                "is used (drop it to use the file's)"
+            )
     profiles = {
         lamp.name: read_profile_file(lamp.profile)
         for lamp in lamps
