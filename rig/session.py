@@ -857,7 +857,9 @@ class Session:
             try:
                 problem = self.file_problem(record)
             except SessionFormatError as exc:
-                problems.append(FileProblem(record.path, str(exc).split(": ", 1)[-1]))
+                # "<session>: <path> does not exist" → "does not exist" (FileProblem names the path)
+                text = str(exc).removeprefix(f"{self.path}: ").removeprefix(f"{record.path} ")
+                problems.append(FileProblem(record.path, text))
                 continue
             if problem is not None:
                 problems.append(FileProblem(record.path, problem))
