@@ -152,6 +152,20 @@ class CameraBasis:
             prior = replace(prior, typical_distance=float(self.typical_distance))
         return prior
 
+    def warnings(self) -> list[str]:
+        """What a result built on this basis says: why it is not the default basis
+        (:attr:`fallback`), and each ``--exclude-camera`` pattern that kept nothing out."""
+        drawn_on = len(self.camera_names) + len(self.excluded_cameras)
+        return [
+            *([self.fallback] if self.fallback is not None else []),
+            *(
+                f"--exclude-camera {pattern!r} names none of the {drawn_on} cameras the basis "
+                "draws on and kept nothing out: if the camera under test is among them, check the "
+                "spelling (result.json's diagnostics.basis.cameras lists them)"
+                for pattern in self.unmatched_exclusions
+            ),
+        ]
+
     def to_dict(self) -> dict[str, object]:
         """A JSON-safe summary (not the vectors: they may derive from unlicensed data)."""
         return {

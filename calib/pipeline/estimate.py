@@ -716,15 +716,7 @@ def _estimate(
 ) -> tuple[EstimateResult, GratingEfficiency | None]:
     grid = settings.grid
     basis = resolve_basis(settings)
-    if basis.fallback is not None:
-        warnings.append(basis.fallback)
-    drawn_on = len(basis.camera_names) + len(basis.excluded_cameras)
-    for pattern in basis.unmatched_exclusions:
-        warnings.append(
-            f"--exclude-camera {pattern!r} names none of the {drawn_on} cameras the basis draws "
-            "on and kept nothing out: if the camera under test is among them, check the "
-            "spelling (result.json's diagnostics.basis.cameras lists them)"
-        )
+    warnings.extend(basis.warnings())
     method = check_method(settings.method, source="--method")
     where: dict[str, Any] = {}
     mapping = _wavelength_mapping(observations)
