@@ -248,14 +248,27 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
                 source=where,
             )
         units = unit_set.pop() if unit_set else None
+        for path, one in zip(paths, spectra, strict=True):
+            _check_covers(one, grid, str(path))
         if len(spectra) == 1:
             spectrum = spectra[0]
         else:
+            # The mean where every file measured: np.interp would hold a narrower file's end
+            # value constant beyond its range.
+            low = max(one.range_nm[0] for one in spectra)
+            high = min(one.range_nm[1] for one in spectra)
             axis = spectra[0].wavelength_nm
+            axis = axis[(axis >= low) & (axis <= high)]
             values = np.mean([np.interp(axis, s.wavelength_nm, s.values) for s in spectra], axis=0)
             spectrum = Spectrum(axis, values, name=f"{lamp} (mean of {len(spectra)} spectra)")
     if not np.any(spectrum.values > 0):
         raise SpectrumError("the spectrum is zero everywhere", source=where)
+    _check_covers(spectrum, grid, where)
+    return LoadedSpectrum(spectrum, warnings, bandwidth, units)
+
+
+def _check_covers(spectrum: Spectrum, grid: WavelengthGrid, where: str) -> None:
+    """A :class:`SpectrumError` naming ``where`` unless ``spectrum`` spans ``grid``."""
     if not spectrum.covers(grid):
         lo, hi = spectrum.range_nm
         raise SpectrumError(
@@ -263,7 +276,6 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
             f"{grid.stop_nm:g} nm; measure a wider range or choose a narrower --grid",
             source=where,
         )
-    return LoadedSpectrum(spectrum, warnings, bandwidth, units)
 
 
 def _column(columns: tuple[str, ...], names: tuple[str, ...]) -> int | None:
