@@ -506,6 +506,25 @@ def test_a_bandwidth_option_that_contradicts_the_spectrum_file_is_warned(
     assert f"calib: warning: {said[0]}" in stderr
 
 
+def test_a_blank_profile_that_fails_the_estimate_is_an_input_error_saying_so(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """A lamp whose profile is noise only (the lamp was off) ended in exit 1 'the best mapping
+    puts the profile at 340–651 nm …': the estimate's failure, not its cause. The inputs'
+    serious finding is now the one-line error, exit 2."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    profile = tmp_path / "FL-profile.csv"
+    table = np.loadtxt(profile, delimiter=",", skiprows=1)
+    table[:, 1:4] = np.random.default_rng(1).normal(size=(table.shape[0], 3)) * table[:, 4:7]
+    np.savetxt(
+        profile, table, delimiter=",", header="pixel,r,g,b,r_sigma,g_sigma,b_sigma", comments=""
+    )
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--no-report"])
+    assert code == 2, stderr
+    assert stderr.startswith("calib: error: no first-order signal above the noise for FL ("), stderr
+    assert "(the estimate then failed: " in stderr and stderr.count("\n") == 1, stderr
+
+
 def test_profile_input_without_direct_or_grating_assumes_flat_and_warns(
     capture: Capture, tmp_path: Path
 ) -> None:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.blas import one_blas_thread
-from calib.core.errors import InputError
+from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency, read_grating_file
 from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
@@ -511,20 +511,28 @@ def estimate_offline(
                 )
         report.stage("estimating")
         step = time.perf_counter()
-        result, grating_used = _estimate(
-            observations,
-            settings,
-            checked,
-            image_input=bool(image_lamps),
-            warnings=warnings,
-            notes=notes,
-        )
+        flags = input_flags(observations, image_input=bool(image_lamps))
+        try:
+            result, grating_used = _estimate(
+                observations,
+                settings,
+                checked,
+                image_input=bool(image_lamps),
+                warnings=warnings,
+                notes=notes,
+            )
+        except EstimationError as exc:
+            # A failure on inputs already found unusable is that finding, said as an input error.
+            serious = [flag for flag in flags if flag.severity == "serious"]
+            if not serious:
+                raise
+            raise InputError(f"{serious[0].message} (the estimate then failed: {exc})") from None
         timings["estimate_s"] = time.perf_counter() - step
         # The spectrometer-scale check against the FL lamp's Hg lines (decision 0069): the report's
         # notes say whether the spectra were corrected, by how much, or why not.
         notes.extend(scale_check_notes(result))
         # The mapping's own flags came with the estimate (calib.methods.estimate).
-        result = result.with_quality(*input_flags(observations, image_input=bool(image_lamps)))
+        result = result.with_quality(*flags)
         warnings.extend(line for line in result.quality.warnings() if line not in warnings)
         inputs = hasher.results()
     timings["total_s"] = time.perf_counter() - started
