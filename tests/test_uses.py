@@ -197,31 +197,37 @@ def test_the_commands_read_any_camera_file(
 
 
 @pytest.mark.parametrize(
-    ("change", "channel"),
-    [("zero blue", "B"), ("every sign flipped", "R")],
+    ("change", "message"),
+    [
+        ("zero blue", "channel B has no positive value"),
+        ("every sign flipped", "channel R has no positive value"),
+        ("in micrometres", "wavelengths run from 0.38 to 0.78, outside 100–3000 nm"),
+    ],
 )
-def test_a_camera_file_with_a_channel_that_sees_nothing_is_refused_naming_it(
+def test_a_camera_file_that_cannot_be_a_camera_is_refused_naming_it(
     nikon: CameraCurves,
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
     change: str,
-    channel: str,
+    message: str,
 ) -> None:
     """A dead or sign-flipped channel gave an identity IDT (or the same matrix as the real
-    camera) and exit 0; now one line names the file and the channel, exit 2."""
+    camera) and exit 0; wavelengths in µm said 'the estimate covers 0.4–0.7 nm'. Now one line
+    names the file and what is wrong, exit 2."""
     from calib.core.formats.rgb_csv import write_camera_csv
 
-    values = np.array(nikon.values)
+    values, wavelength = np.array(nikon.values), np.array(nikon.wavelength_nm)
     if change == "zero blue":
         values[:, 2] = 0.0
-    else:
+    elif change == "every sign flipped":
         values = -values
+    else:
+        wavelength = wavelength / 1000.0
     camera = write_camera_csv(
-        tmp_path / "camera.csv", CameraCurves(nikon.wavelength_nm, values, name="broken")
+        tmp_path / "camera.csv", CameraCurves(wavelength, values, name="broken")
     )
     for command in ("idt", "ccm"):
         code, out, err = run_cli([command, str(camera)], monkeypatch, capsys)
         assert code == 2 and out == "", (out, err)
-        assert f"camera.csv: channel {channel} has no positive value" in err, err
-        assert err.count("\n") == 1, err
+        assert f"camera.csv: {message}" in err and err.count("\n") == 1, err

@@ -18,6 +18,7 @@ from calib.core.formats.json_file import read_json
 from calib.core.formats.result_json import RESULT_SCHEMA, read_result_camera
 from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.formats.vkdt import read_vkdt_txt
+from calib.core.spectra import PLAUSIBLE_WAVELENGTH_NM
 
 RESULT_FILE = "result.json"
 
@@ -81,7 +82,17 @@ def read_camera(source: Any) -> CameraCurves:
 
 
 def _seeing(curves: CameraCurves, source: str) -> CameraCurves:
-    """``curves``, refused when a channel has no positive value (named, with what to check)."""
+    """``curves``, refused when its wavelengths are not nanometres (as a spectrum file's are,
+    :data:`calib.core.spectra.PLAUSIBLE_WAVELENGTH_NM`) or a channel has no positive value (named,
+    with what to check)."""
+    low, high = PLAUSIBLE_WAVELENGTH_NM
+    first, last = curves.range_nm
+    if first < low or last > high:
+        raise InputError(
+            f"wavelengths run from {first:g} to {last:g}, outside {low:g}–{high:g} nm: is the "
+            "first column in nanometres?",
+            source=source,
+        )
     for label, channel in zip(CHANNEL_LABELS, curves.values.T, strict=True):
         if not np.any(channel > 0):
             raise InputError(
