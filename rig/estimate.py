@@ -34,7 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from calib.core.checksums import file_sha256
 from calib.core.errors import InputError, SpectrumError
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid, read_spectrum_csv
@@ -127,14 +126,12 @@ def _done_files(session: Session) -> dict[str, FileRecord]:
 
 def _verify(session: Session, record: FileRecord) -> Path:
     """The file's path once its size and sha256 match the log (a :class:`SessionFormatError` if not)."""
-    path = session.file_path(record.path)
-    size, digest = file_sha256(path)
-    if size != record.size or digest != record.sha256:
-        what = f"{size} bytes, log says {record.size}" if size != record.size else "sha256 differs"
+    problem = session.file_problem(record)
+    if problem is not None:
         raise SessionFormatError(
-            f"{session.path}: {record.path}: {what} from the log; the file changed after capture"
+            f"{session.path}: {record.path}: {problem}; the file changed after capture"
         )
-    return path
+    return session.file_path(record.path)
 
 
 def _collect(session: Session, lamps: Sequence[str]) -> dict[str, _LampFiles]:

@@ -153,7 +153,7 @@ def refine_session_grating(
         if basis is not None
         else default_camera_basis(grid, data_dir=data_dir, exclude=exclude_cameras)
     )
-    warnings: list[str] = [chosen.fallback] if chosen.fallback is not None else []
+    warnings = chosen.warnings()
     cameras: list[list[LampObservation]] = []
     mappings = []
     summaries = []

@@ -855,16 +855,26 @@ class Session:
         problems = []
         for record in self.files():
             try:
-                path = self.file_path(record.path)
+                problem = self.file_problem(record)
             except SessionFormatError as exc:
-                problems.append(FileProblem(record.path, str(exc).split(": ", 1)[-1]))
+                # "<session>: <path> does not exist" → "does not exist" (FileProblem names the path)
+                text = str(exc).removeprefix(f"{self.path}: ").removeprefix(f"{record.path} ")
+                problems.append(FileProblem(record.path, text))
                 continue
-            size, sha256 = file_sha256(path)
-            if size != record.size:
-                problems.append(FileProblem(record.path, f"{size} bytes, log says {record.size}"))
-            elif sha256 != record.sha256:
-                problems.append(FileProblem(record.path, "sha256 differs from the log"))
+            if problem is not None:
+                problems.append(FileProblem(record.path, problem))
         return problems
+
+    def file_problem(self, record: FileRecord) -> str | None:
+        """How an acknowledged file differs from its log record (size first, then sha256), or
+        ``None`` when it verifies; a :class:`SessionFormatError` when it is not a regular file
+        inside the session."""
+        size, sha256 = file_sha256(self.file_path(record.path))
+        if size != record.size:
+            return f"{size} bytes, the log says {record.size}"
+        if sha256 != record.sha256:
+            return "sha256 differs from the log"
+        return None
 
 
 def _is_leftover(name: str) -> bool:

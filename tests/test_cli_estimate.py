@@ -465,6 +465,66 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     assert not (tmp_path / "out" / "grating.json").exists()  # given, not estimated
 
 
+def test_a_clipped_profile_is_a_serious_warning_naming_the_lamp_and_the_pixels(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """A profile exported from saturated frames (its band flat at the clip level) gave a curve
+    too low there without a word; it is now flagged."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    profile = tmp_path / "FL-profile.csv"
+    table = np.loadtxt(profile, delimiter=",", skiprows=1)
+    table[:, 1:4] = np.minimum(table[:, 1:4], 0.8 * table[:, 1:4].max())
+    np.savetxt(
+        profile, table, delimiter=",", header="pixel,r,g,b,r_sigma,g_sigma,b_sigma", comments=""
+    )
+    code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json", "--no-report"])
+    assert code == 0, stderr
+    assert _flag_codes(json.loads(stdout)) == EXPECTED_FLAGS | {"saturated_frames"}
+    assert "SERIOUS: the first-order band is clipped in the profile of FL (" in stderr
+    assert "LED (" not in stderr
+
+
+def test_a_bandwidth_option_that_contradicts_the_spectrum_file_is_warned(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """--bandwidth replaced the file's '# bandwidth_nm:' without a word (the σ and the slit
+    model then use the option's); the contradiction is now said, for that lamp only."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    for lamp in ("LED", "FL"):
+        spectrum = tmp_path / f"{lamp}.csv"
+        spectrum.write_text("# bandwidth_nm: 8\n" + spectrum.read_text())
+    second_lamp = argv.index("--lamp", 1)
+    argv[second_lamp:second_lamp] = ["--bandwidth", "2"]
+    argv += ["--bandwidth", "8", "--out", str(tmp_path / "out"), "--json", "--no-report"]
+    code, stdout, stderr = _call(argv)
+    assert code == 0, stderr
+    said = [line for line in json.loads(stdout)["warnings"] if "--bandwidth" in line]
+    assert said == [
+        "lamp 'LED': --bandwidth 2 nm overrides its spectrum file's '# bandwidth_nm: 8'; the "
+        "--bandwidth is used (drop it to use the file's)"
+    ]
+    assert f"calib: warning: {said[0]}" in stderr
+
+
+def test_a_blank_profile_that_fails_the_estimate_is_an_input_error_saying_so(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """A lamp whose profile is noise only (the lamp was off) ended in exit 1 'the best mapping
+    puts the profile at 340–651 nm …': the estimate's failure, not its cause. The inputs'
+    serious finding is now the one-line error, exit 2."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    profile = tmp_path / "FL-profile.csv"
+    table = np.loadtxt(profile, delimiter=",", skiprows=1)
+    table[:, 1:4] = np.random.default_rng(1).normal(size=(table.shape[0], 3)) * table[:, 4:7]
+    np.savetxt(
+        profile, table, delimiter=",", header="pixel,r,g,b,r_sigma,g_sigma,b_sigma", comments=""
+    )
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--no-report"])
+    assert code == 2, stderr
+    assert stderr.startswith("calib: error: no first-order signal above the noise for FL ("), stderr
+    assert "(the estimate then failed: " in stderr and stderr.count("\n") == 1, stderr
+
+
 def test_profile_input_without_direct_or_grating_assumes_flat_and_warns(
     capture: Capture, tmp_path: Path
 ) -> None:
@@ -560,6 +620,7 @@ def test_profile_in_wavelength_uses_the_identity_mapping(capture: Capture, tmp_p
         ("pixel,r,g,b\n" + "1,1,1,1\n" * 10, "appears twice"),
         ("pixel,r,g,b\n1,1,1,1\n2,1,1,1\n", "at least 8"),
         ("pixel,r,g,b,w\n" + "".join(f"{i},1,1,1,1\n" for i in range(10)), "unknown column"),
+        ("pixel,r,g,b\n" + "".join(f"{i},0,0,0\n" for i in range(10)), "holds no light"),
     ],
 )
 def test_bad_profile_csv_exits_2(tmp_path: Path, content: str, message: str) -> None:
@@ -741,13 +802,22 @@ def test_exclude_camera_keeps_the_camera_out_of_the_default_basis(
         "Nikon D5100",
         "--exclude-camera",
         "sony*",
+        "--exclude-camera",
+        "Nikon D5010",
         "--json",
         "--no-report",
     ]
     code, stdout, stderr = _call(argv)
     assert code == 0, stderr
     basis = json.loads(stdout)["basis"]
-    assert basis["exclusions"] == ["Nikon D5100", "sony*"]
+    assert basis["exclusions"] == ["Nikon D5100", "sony*", "Nikon D5010"]
+    # a pattern naming no camera (a misspelt camera under test) is said, not silently kept in
+    assert basis["unmatched_exclusions"] == ["Nikon D5010"]
+    assert (
+        "calib: warning: --exclude-camera 'Nikon D5010' names none of the 52 cameras the basis "
+        "draws on and kept nothing out" in stderr
+    )
+    assert "'sony*' names none" not in stderr and "'Nikon D5100' names none" not in stderr
     assert "Nikon D5100 (rawtoaces-data)" in basis["excluded_cameras"]
     assert len(basis["excluded_cameras"]) == 12 and basis["n_cameras"] == 52 - 12
     assert not any("D5100" in name or name.startswith("Sony") for name in basis["cameras"])

@@ -212,7 +212,7 @@ def test_bad_files_are_named(
     dark.write_text("wavelength_nm,r,g,b\n400,0,0,0\n700,0,0,0\n")
     arguments[arguments.index("--camera") + 1] = str(dark)
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
-    assert code == 2 and "dark_camera.csv" in stderr and "all-zero" in stderr
+    assert code == 2 and "dark_camera.csv: channel R has no positive value" in stderr
     not_raw = tmp_path / "frame.dng"
     not_raw.write_text("not a raw file")
     arguments = base_arguments(scene, tmp_path / "out")
@@ -284,3 +284,28 @@ def test_a_mapping_lamp_without_lines_exits_1(
     assert code == 1
     lines = [line for line in stderr.splitlines() if line.startswith("calib:")]
     assert len(lines) == 1 and "mapping from the fluorescent lamp failed" in lines[0], stderr
+
+
+def test_the_grating_file_an_estimate_writes_is_the_same_efficiency_as_its_csv(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """calib spd --grating-efficiency read grating.json (calib estimate's, rig grating's) as a
+    CSV: 'line 2: 2 fields but 1 columns'; it now reads the grating file."""
+    from calib.core.grating_file import GratingEfficiency, write_grating_file
+    from calib.spd.pipeline import read_grating_efficiency
+
+    csv = read_spectrum_csv(scene.rig.efficiency)
+    grating = write_grating_file(
+        tmp_path / "grating.json", GratingEfficiency(csv.wavelength_nm, csv.values)
+    )
+    read = read_grating_efficiency(grating)
+    np.testing.assert_array_equal(read.wavelength_nm, csv.wavelength_nm)
+    np.testing.assert_allclose(read.values, csv.values / csv.values.max(), rtol=1e-12)
+    arguments = [*with_mapping_lamp(scene, tmp_path / "out"), "--no-plots", "-q"]
+    arguments[arguments.index("--grating-efficiency") + 1] = str(grating)
+    code, _, stderr = run_cli(arguments, monkeypatch, capsys)
+    assert code == 0 and stderr == "", stderr
+    assert (tmp_path / "out" / "spd.csv").is_file()

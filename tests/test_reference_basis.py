@@ -165,6 +165,21 @@ def test_exclude_camera_really_removes_it_from_the_basis(no_data: Path) -> None:
     assert record["exclusions"] == ["Nikon D5100", "Sony*"]
 
 
+def test_an_exclusion_that_names_no_camera_is_among_the_basis_warnings(no_data: Path) -> None:
+    """A misspelt camera under test ('Nikon D5010') kept nothing out, silently: every result on
+    the basis (rig estimate, calib estimate, rig grating, calib plan-lamps) now says so."""
+    basis = default_camera_basis(exclude=["Nikon D5100", "Nikon D5010", "sony*"])
+    assert basis.unmatched_exclusions == ("Nikon D5010",)
+    assert basis.to_dict()["unmatched_exclusions"] == ["Nikon D5010"]
+    fallback, unmatched = basis.warnings()
+    assert fallback == basis.fallback
+    assert unmatched.startswith(
+        "--exclude-camera 'Nikon D5010' names none of the 52 cameras the basis draws on and "
+        "kept nothing out"
+    )
+    assert default_camera_basis(exclude=["Nikon D5100"]).warnings() == [basis.fallback]
+
+
 def test_an_exclusion_that_leaves_too_few_cameras_is_an_error(no_data: Path) -> None:
     with pytest.raises(InputError, match="--exclude-camera") as caught:
         default_camera_basis(exclude=["*"])

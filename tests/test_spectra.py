@@ -202,3 +202,25 @@ def test_resampling_is_linear_in_the_values(scale: float, seed: int) -> None:
         base = Spectrum(wavelengths, values).resample(DEFAULT_GRID, method=method).values
         scaled = Spectrum(wavelengths, scale * values).resample(DEFAULT_GRID, method=method).values
         np.testing.assert_allclose(scaled, scale * base, rtol=1e-10, atol=1e-300)
+
+
+def test_several_spectra_of_a_lamp_are_averaged_only_where_each_was_measured(
+    tmp_path: Path,
+) -> None:
+    """A second file over 480–620 nm was averaged in over 400–700 nm, its end values held
+    constant beyond its range, without a word; it is now refused by name, and files that do
+    cover the grid are averaged on their common range only."""
+    from calib.core.spectra import DEFAULT_GRID
+    from calib.pipeline.inputs import load_spectrum
+
+    wide = tmp_path / "wide.csv"
+    wide.write_text("wavelength_nm,value\n" + "".join(f"{w},1\n" for w in range(380, 781, 5)))
+    narrow = tmp_path / "narrow.csv"
+    narrow.write_text("wavelength_nm,value\n" + "".join(f"{w},3\n" for w in range(480, 621, 5)))
+    with pytest.raises(SpectrumError, match=r"narrow\.csv: covers 480–620 nm, too narrow"):
+        load_spectrum((wide, narrow), "FL", DEFAULT_GRID)
+    inner = tmp_path / "inner.csv"
+    inner.write_text("wavelength_nm,value\n" + "".join(f"{w},3\n" for w in range(390, 721, 5)))
+    mean = load_spectrum((wide, inner), "FL", DEFAULT_GRID).spectrum
+    assert mean.range_nm == (390.0, 720.0)
+    np.testing.assert_allclose(mean.values, 2.0)

@@ -194,3 +194,40 @@ def test_the_commands_read_any_camera_file(
     monkeypatch.setenv("PATH", str(tmp_path / "empty"))
     code, out, err = run_cli(arguments, monkeypatch, capsys)
     assert code == 2 and "dcamprof is not installed" in err
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("zero blue", "channel B has no positive value"),
+        ("every sign flipped", "channel R has no positive value"),
+        ("in micrometres", "wavelengths run from 0.38 to 0.78, outside 100–3000 nm"),
+    ],
+)
+def test_a_camera_file_that_cannot_be_a_camera_is_refused_naming_it(
+    nikon: CameraCurves,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    change: str,
+    message: str,
+) -> None:
+    """A dead or sign-flipped channel gave an identity IDT (or the same matrix as the real
+    camera) and exit 0; wavelengths in µm said 'the estimate covers 0.4–0.7 nm'. Now one line
+    names the file and what is wrong, exit 2."""
+    from calib.core.formats.rgb_csv import write_camera_csv
+
+    values, wavelength = np.array(nikon.values), np.array(nikon.wavelength_nm)
+    if change == "zero blue":
+        values[:, 2] = 0.0
+    elif change == "every sign flipped":
+        values = -values
+    else:
+        wavelength = wavelength / 1000.0
+    camera = write_camera_csv(
+        tmp_path / "camera.csv", CameraCurves(wavelength, values, name="broken")
+    )
+    for command in ("idt", "ccm"):
+        code, out, err = run_cli([command, str(camera)], monkeypatch, capsys)
+        assert code == 2 and out == "", (out, err)
+        assert f"camera.csv: {message}" in err and err.count("\n") == 1, err

@@ -127,8 +127,8 @@ def register(app: typer.Typer) -> None:
         owned = _lamps(lamp, "--lamp")
         extra = _lamps(list(candidate or RGB_LEDS), "--candidate")
         basis = default_camera_basis(WavelengthGrid(), data_dir=data_dir)
-        if basis.fallback is not None:
-            warn("calib", basis.fallback)
+        for line in basis.warnings():
+            warn("calib", line)
         prior = basis.prior()
         ranked = rank_subsets(
             owned,

@@ -93,9 +93,9 @@ def register(app: typer.Typer) -> None:
         grating_efficiency: Annotated[
             Path | None,
             typer.Option(
-                metavar="CSV",
-                help="The grating's first-order efficiency: wavelength_nm,value (else assumed "
-                "flat).",
+                metavar="CSV|JSON",
+                help="The grating's first-order efficiency: a CSV wavelength_nm,value, or the "
+                "grating.json an estimate or rig grating wrote (else assumed flat).",
             ),
         ] = None,
         mapping_lamp_images: Annotated[

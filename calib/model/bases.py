@@ -92,6 +92,9 @@ class CameraBasis:
         The name patterns cameras were kept out by (``--exclude-camera``).
     excluded_cameras
         The cameras they kept out.
+    unmatched_exclusions
+        The patterns of ``exclusions`` that named no camera of the basis' source (a misspelt
+        camera under test stays in the basis: the pipeline warns).
     fallback
         Why this is not the default basis and what to fetch (a warning for the result), or
         ``None``.
@@ -109,6 +112,7 @@ class CameraBasis:
     typical_distance: float = float("nan")
     exclusions: tuple[str, ...] = ()
     excluded_cameras: tuple[str, ...] = ()
+    unmatched_exclusions: tuple[str, ...] = ()
     fallback: str | None = None
 
     @property
@@ -148,6 +152,20 @@ class CameraBasis:
             prior = replace(prior, typical_distance=float(self.typical_distance))
         return prior
 
+    def warnings(self) -> list[str]:
+        """What a result built on this basis says: why it is not the default basis
+        (:attr:`fallback`), and each ``--exclude-camera`` pattern that kept nothing out."""
+        drawn_on = len(self.camera_names) + len(self.excluded_cameras)
+        return [
+            *([self.fallback] if self.fallback is not None else []),
+            *(
+                f"--exclude-camera {pattern!r} names none of the {drawn_on} cameras the basis "
+                "draws on and kept nothing out: if the camera under test is among them, check the "
+                "spelling (result.json's diagnostics.basis.cameras lists them)"
+                for pattern in self.unmatched_exclusions
+            ),
+        ]
+
     def to_dict(self) -> dict[str, object]:
         """A JSON-safe summary (not the vectors: they may derive from unlicensed data)."""
         return {
@@ -159,6 +177,7 @@ class CameraBasis:
             "content_hash": self.content_hash,
             "exclusions": list(self.exclusions),
             "excluded_cameras": list(self.excluded_cameras),
+            "unmatched_exclusions": list(self.unmatched_exclusions),
             "fallback": self.fallback,
         }
 
@@ -714,5 +733,8 @@ def default_camera_basis(
         basis,
         exclusions=tuple(exclude),
         excluded_cameras=tuple(record.name for record in excluded),
+        unmatched_exclusions=tuple(
+            pattern for pattern in exclude if not exclude_cameras(excluded, [pattern])[1]
+        ),
         fallback=reference.fallback,
     )

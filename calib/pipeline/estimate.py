@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from calib.core.blas import one_blas_thread
-from calib.core.errors import InputError
+from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency, read_grating_file
 from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
@@ -259,6 +259,12 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             if given.spectrum_bandwidth_nm is not None
             else loaded.bandwidth_nm
         )
+        if loaded.bandwidth_nm not in (None, bandwidths[given.name]):
+            warnings.append(
+                f"lamp {given.name!r}: --bandwidth {bandwidths[given.name]:g} nm overrides its "
+                f"spectrum file's '# bandwidth_nm: {loaded.bandwidth_nm:g}'; the --bandwidth "
+                "is used (drop it to use the file's)"
+            )
     profiles = {
         lamp.name: read_profile_file(lamp.profile)
         for lamp in lamps
@@ -505,20 +511,28 @@ def estimate_offline(
                 )
         report.stage("estimating")
         step = time.perf_counter()
-        result, grating_used = _estimate(
-            observations,
-            settings,
-            checked,
-            image_input=bool(image_lamps),
-            warnings=warnings,
-            notes=notes,
-        )
+        flags = input_flags(observations, image_input=bool(image_lamps))
+        try:
+            result, grating_used = _estimate(
+                observations,
+                settings,
+                checked,
+                image_input=bool(image_lamps),
+                warnings=warnings,
+                notes=notes,
+            )
+        except EstimationError as exc:
+            # A failure on inputs already found unusable is that finding, said as an input error.
+            serious = [flag for flag in flags if flag.severity == "serious"]
+            if not serious:
+                raise
+            raise InputError(f"{serious[0].message} (the estimate then failed: {exc})") from None
         timings["estimate_s"] = time.perf_counter() - step
         # The spectrometer-scale check against the FL lamp's Hg lines (decision 0069): the report's
         # notes say whether the spectra were corrected, by how much, or why not.
         notes.extend(scale_check_notes(result))
         # The mapping's own flags came with the estimate (calib.methods.estimate).
-        result = result.with_quality(*input_flags(observations, image_input=bool(image_lamps)))
+        result = result.with_quality(*flags)
         warnings.extend(line for line in result.quality.warnings() if line not in warnings)
         inputs = hasher.results()
     timings["total_s"] = time.perf_counter() - started
@@ -569,11 +583,31 @@ def basis_key(settings: OfflineSettings) -> Hashable:
 
 #: A profile whose peak is below this many σ of its noise carries no first-order signal.
 BLANK_PROFILE_SNR = 5.0
+#: A channel's maximum repeated exactly at this many adjacent samples: the band was clipped (a
+#: noisy or resampled peak repeats its value by chance at two samples at most).
+CLIPPED_RUN = 3
+
+
+def clipped_band(obs: LampObservation) -> str | None:
+    """Where a given profile's channels hold their maximum exactly over :data:`CLIPPED_RUN` or
+    more adjacent samples (a saturated export), e.g. ``"FL (g 0.91 at px 512–530)"``; ``None``
+    when none does."""
+    found = []
+    for label, channel in zip("rgb", obs.profile.T, strict=True):
+        peak = float(channel.max())
+        at_peak = np.flatnonzero(channel == peak)
+        runs = np.split(at_peak, np.flatnonzero(np.diff(at_peak) != 1) + 1)
+        longest = max(runs, key=len)
+        if peak > 0 and longest.size >= CLIPPED_RUN:
+            found.append(
+                f"{label} {peak:g} at px {obs.pixel[longest[0]]:g}–{obs.pixel[longest[-1]]:g}"
+            )
+    return f"{obs.name} ({', '.join(found)})" if found else None
 
 
 def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
     """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
-    order, a line lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the
+    order, a given profile's band clipped, a line lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the
     sensitivity's detail."""
     flags: list[QualityFlag] = []
     saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
@@ -598,6 +632,18 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
                 "blank_frames",
                 f"no first-order signal above the noise for {', '.join(blank)}: blank frames, a "
                 "lamp that was off, or the band outside the crop",
+                "serious",
+            )
+        )
+    clipped = [] if image_input else [what for obs in observations if (what := clipped_band(obs))]
+    if clipped:
+        flags.append(
+            QualityFlag(
+                "saturated_frames",
+                f"the first-order band is clipped in the profile of {'; '.join(clipped)}: a "
+                "channel holds its maximum exactly over adjacent pixels, so the curve is too low "
+                "there; export the profile from frames that do not saturate (or give the RAW "
+                "bracket with --images)",
                 "serious",
             )
         )
@@ -678,8 +724,7 @@ def _estimate(
 ) -> tuple[EstimateResult, GratingEfficiency | None]:
     grid = settings.grid
     basis = resolve_basis(settings)
-    if basis.fallback is not None:
-        warnings.append(basis.fallback)
+    warnings.extend(basis.warnings())
     method = check_method(settings.method, source="--method")
     where: dict[str, Any] = {}
     mapping = _wavelength_mapping(observations)

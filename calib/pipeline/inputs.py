@@ -248,14 +248,27 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
                 source=where,
             )
         units = unit_set.pop() if unit_set else None
+        for path, one in zip(paths, spectra, strict=True):
+            _check_covers(one, grid, str(path))
         if len(spectra) == 1:
             spectrum = spectra[0]
         else:
+            # The mean where every file measured: np.interp would hold a narrower file's end
+            # value constant beyond its range.
+            low = max(one.range_nm[0] for one in spectra)
+            high = min(one.range_nm[1] for one in spectra)
             axis = spectra[0].wavelength_nm
+            axis = axis[(axis >= low) & (axis <= high)]
             values = np.mean([np.interp(axis, s.wavelength_nm, s.values) for s in spectra], axis=0)
             spectrum = Spectrum(axis, values, name=f"{lamp} (mean of {len(spectra)} spectra)")
     if not np.any(spectrum.values > 0):
         raise SpectrumError("the spectrum is zero everywhere", source=where)
+    _check_covers(spectrum, grid, where)
+    return LoadedSpectrum(spectrum, warnings, bandwidth, units)
+
+
+def _check_covers(spectrum: Spectrum, grid: WavelengthGrid, where: str) -> None:
+    """A :class:`SpectrumError` naming ``where`` unless ``spectrum`` spans ``grid``."""
     if not spectrum.covers(grid):
         lo, hi = spectrum.range_nm
         raise SpectrumError(
@@ -263,7 +276,6 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
             f"{grid.stop_nm:g} nm; measure a wider range or choose a narrower --grid",
             source=where,
         )
-    return LoadedSpectrum(spectrum, warnings, bandwidth, units)
 
 
 def _column(columns: tuple[str, ...], names: tuple[str, ...]) -> int | None:
@@ -373,13 +385,22 @@ def read_profile_file(path: Path) -> ProfileTable:
     Raises
     ------
     InputError
-        What the reader of that format refuses (the file and the line or keyword named).
+        What the reader of that format refuses (the file and the line or keyword named); a
+        profile with no value above zero (a blank export: the solve has nothing to fit).
     """
     suffix = Path(path).suffix.lower()
     if suffix not in RAWPROC_SUFFIXES + FITS_SUFFIXES:
-        return read_profile_csv(path)
-    read = read_rawproc_dat(path) if suffix in RAWPROC_SUFFIXES else read_fits_profile(path)
-    return ProfileTable(read.pixel, read.profile, read.profile_sigma, in_wavelength=False)
+        table = read_profile_csv(path)
+    else:
+        read = read_rawproc_dat(path) if suffix in RAWPROC_SUFFIXES else read_fits_profile(path)
+        table = ProfileTable(read.pixel, read.profile, read.profile_sigma, in_wavelength=False)
+    if not np.any(table.profile > 0):
+        raise InputError(
+            "no value above zero in r, g or b: the profile holds no light; export it from the "
+            "frames where the first-order band is lit (lamp on, band inside the crop)",
+            source=str(path),
+        )
+    return table
 
 
 def parse_direct(text: str, source: str = "--direct") -> tuple[float, float, float]:

@@ -28,6 +28,7 @@ from calib.core.checksums import file_sha256
 from calib.core.errors import EstimationError, InputError
 from calib.core.figures import agg_figure, save_png
 from calib.core.formats import read_camera as read_camera_file
+from calib.core.grating_file import read_grating_file
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
 from calib.core.software import current_software
@@ -219,11 +220,19 @@ def _find_mapping(
 
 
 def read_camera(path: Path) -> MultiSpectrum:
-    """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`)."""
-    camera = read_camera_file(path).to_multispectrum()
-    if float(camera.values.max()) <= 0:
-        raise InputError("the sensitivities are all-zero", source=str(path))
-    return camera.normalised()
+    """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`,
+    which refuses a channel with no positive value)."""
+    return read_camera_file(path).to_multispectrum().normalised()
+
+
+def read_grating_efficiency(path: Path) -> Spectrum:
+    """The grating's first-order efficiency: a grating file (``.json``, as ``calib estimate`` and
+    ``rig grating`` write it, :func:`calib.core.grating_file.read_grating_file`) or a CSV
+    ``wavelength_nm,value``."""
+    if path.suffix.lower() == ".json":
+        grating = read_grating_file(path)
+        return Spectrum(grating.wavelength_nm, grating.efficiency, name=path.name)
+    return read_spectrum_csv(path, negative="clip")
 
 
 def measure_spd(
@@ -241,7 +250,7 @@ def measure_spd(
     say = progress or (lambda message: None)
     camera = read_camera(request.camera)
     efficiency = (
-        read_spectrum_csv(request.grating_efficiency, negative="clip")
+        read_grating_efficiency(request.grating_efficiency)
         if request.grating_efficiency is not None
         else None
     )

@@ -203,6 +203,11 @@ def test_a_changed_frame_is_refused(capture: Capture, tmp_path: Path) -> None:
     frame.write_bytes(bytes(data))
     with pytest.raises(SessionFormatError, match=r"scene-002\.dng: sha256 differs"):
         estimate_session(session, settings={"basis": capture.basis})
+    # cut short (a copy that stopped): the sizes, said once ("… from the log from the log" before)
+    frame.write_bytes(bytes(data[:1000]))
+    expected = r"scene-002\.dng: 1000 bytes, the log says \d+; the file changed after capture$"
+    with pytest.raises(SessionFormatError, match=expected):
+        estimate_session(session, settings={"basis": capture.basis})
 
 
 def test_a_symlinked_frame_is_refused(capture: Capture, tmp_path: Path) -> None:

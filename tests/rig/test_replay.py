@@ -378,7 +378,8 @@ def test_a_missing_transcript_is_refused(
 ) -> None:
     (session_copy / "transcripts" / "camera.jsonl").unlink()
     err = refuse(session_copy)
-    assert "transcripts/camera.jsonl does not exist" in err
+    # the path once ("camera.jsonl: transcripts/camera.jsonl does not exist" before)
+    assert f"{session_copy}: transcripts/camera.jsonl: does not exist (1 file problem(s))" in err
 
 
 @pytest.mark.parametrize(

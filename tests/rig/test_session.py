@@ -378,7 +378,7 @@ class TestHostilePaths:
         problems = {p.path: p.problem for p in read_session(writer.path).verify_files()}
         assert problems == {
             record.path: "sha256 differs from the log",
-            csv.path: f"{writer.path}: {csv.path} does not exist".split(": ", 1)[-1],
+            csv.path: "does not exist",
         }
 
 

@@ -8,7 +8,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from calib.core.camera_curves import CameraCurves, as_camera
+import numpy as np
+
+from calib.core.camera_curves import CHANNEL_LABELS, CameraCurves, as_camera
 from calib.core.errors import InputError
 from calib.core.formats.ampas import read_camera_json
 from calib.core.formats.dcamprof import read_ssf_json
@@ -16,6 +18,7 @@ from calib.core.formats.json_file import read_json
 from calib.core.formats.result_json import RESULT_SCHEMA, read_result_camera
 from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.formats.vkdt import read_vkdt_txt
+from calib.core.spectra import PLAUSIBLE_WAVELENGTH_NM
 
 RESULT_FILE = "result.json"
 
@@ -46,10 +49,12 @@ def read_camera(source: Any) -> CameraCurves:
     Raises
     ------
     InputError
-        A file that is none of these, or is malformed (the file is named).
+        A file that is none of these, or is malformed (the file is named); a channel with no
+        positive value (zero or negative everywhere: no camera's, and every use of it would be
+        silently wrong, e.g. an identity IDT).
     """
     if not isinstance(source, str | Path):
-        return as_camera(source)
+        return _seeing(as_camera(source), str(getattr(source, "name", "camera")))
     path = Path(source)
     if path.is_dir():
         if not (path / RESULT_FILE).is_file():
@@ -57,17 +62,42 @@ def read_camera(source: Any) -> CameraCurves:
                 f"no {RESULT_FILE} here: give an estimate's output directory or a camera file",
                 source=str(path),
             )
-        return read_result_camera(path / RESULT_FILE)
+        return _seeing(read_result_camera(path / RESULT_FILE), str(path / RESULT_FILE))
     if not path.exists():
         raise InputError("file not found", source=str(path))
     suffix = path.suffix.lower()
     if suffix == ".json":
         kind = _json_kind(path)
         if kind == "result":
-            return read_result_camera(path)
-        if kind == "ampas":
-            return read_camera_json(path).curves
-        return read_ssf_json(path)
-    if suffix == ".txt":
-        return read_vkdt_txt(path)
-    return read_camera_csv(path)
+            curves = read_result_camera(path)
+        elif kind == "ampas":
+            curves = read_camera_json(path).curves
+        else:
+            curves = read_ssf_json(path)
+    elif suffix == ".txt":
+        curves = read_vkdt_txt(path)
+    else:
+        curves = read_camera_csv(path)
+    return _seeing(curves, str(path))
+
+
+def _seeing(curves: CameraCurves, source: str) -> CameraCurves:
+    """``curves``, refused when its wavelengths are not nanometres (as a spectrum file's are,
+    :data:`calib.core.spectra.PLAUSIBLE_WAVELENGTH_NM`) or a channel has no positive value (named,
+    with what to check)."""
+    low, high = PLAUSIBLE_WAVELENGTH_NM
+    first, last = curves.range_nm
+    if first < low or last > high:
+        raise InputError(
+            f"wavelengths run from {first:g} to {last:g}, outside {low:g}–{high:g} nm: is the "
+            "first column in nanometres?",
+            source=source,
+        )
+    for label, channel in zip(CHANNEL_LABELS, curves.values.T, strict=True):
+        if not np.any(channel > 0):
+            raise InputError(
+                f"channel {label} has no positive value (zero or negative at every wavelength): "
+                "not a camera's sensitivity; check the file's columns and the values' sign",
+                source=source,
+            )
+    return curves
