@@ -607,8 +607,8 @@ def clipped_band(obs: LampObservation) -> str | None:
 
 def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
     """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
-    order, a given profile's band clipped, a line lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the
-    sensitivity's detail."""
+    order, a given profile's band clipped, a line lamp's spectrum too coarse for its lines, a
+    spectrometer slit too broad for the sensitivity's detail."""
     flags: list[QualityFlag] = []
     saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
     if saturated:
