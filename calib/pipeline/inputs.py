@@ -205,8 +205,8 @@ def _read_one(path: Path, lamp: str, warnings: list[str]) -> Spectrum:
 
 
 def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> LoadedSpectrum:
-    """Read a lamp spectrum (several files: their mean on the first one's wavelengths) and check
-    that it covers ``grid``.
+    """Read a lamp spectrum (several files: each must cover ``grid``, and their mean is taken on
+    the first one's wavelengths where every file measured) and check that it covers ``grid``.
 
     Small negative values (noise after dark subtraction, at most
     :data:`NEGATIVE_SPECTRUM_TOLERANCE` of the maximum) are set to zero with a warning.
@@ -248,13 +248,13 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
                 source=where,
             )
         units = unit_set.pop() if unit_set else None
-        for path, one in zip(paths, spectra, strict=True):
-            _check_covers(one, grid, str(path))
         if len(spectra) == 1:
             spectrum = spectra[0]
         else:
-            # The mean where every file measured: np.interp would hold a narrower file's end
-            # value constant beyond its range.
+            # Each file must cover the grid (named if not), and the mean is taken where every
+            # file measured: np.interp would hold a narrower file's end value constant beyond it.
+            for path, one in zip(paths, spectra, strict=True):
+                _check_covers(one, grid, str(path))
             low = max(one.range_nm[0] for one in spectra)
             high = min(one.range_nm[1] for one in spectra)
             axis = spectra[0].wavelength_nm

@@ -54,7 +54,7 @@ def read_camera(source: Any) -> CameraCurves:
         silently wrong, e.g. an identity IDT).
     """
     if not isinstance(source, str | Path):
-        return _seeing(as_camera(source), str(getattr(source, "name", "camera")))
+        return _checked_camera(as_camera(source), str(getattr(source, "name", "camera")))
     path = Path(source)
     if path.is_dir():
         if not (path / RESULT_FILE).is_file():
@@ -62,7 +62,7 @@ def read_camera(source: Any) -> CameraCurves:
                 f"no {RESULT_FILE} here: give an estimate's output directory or a camera file",
                 source=str(path),
             )
-        return _seeing(read_result_camera(path / RESULT_FILE), str(path / RESULT_FILE))
+        return _checked_camera(read_result_camera(path / RESULT_FILE), str(path / RESULT_FILE))
     if not path.exists():
         raise InputError("file not found", source=str(path))
     suffix = path.suffix.lower()
@@ -78,10 +78,10 @@ def read_camera(source: Any) -> CameraCurves:
         curves = read_vkdt_txt(path)
     else:
         curves = read_camera_csv(path)
-    return _seeing(curves, str(path))
+    return _checked_camera(curves, str(path))
 
 
-def _seeing(curves: CameraCurves, source: str) -> CameraCurves:
+def _checked_camera(curves: CameraCurves, source: str) -> CameraCurves:
     """``curves``, refused when its wavelengths are not nanometres (as a spectrum file's are,
     :data:`calib.core.spectra.PLAUSIBLE_WAVELENGTH_NM`) or a channel has no positive value (named,
     with what to check)."""
