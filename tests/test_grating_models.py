@@ -52,9 +52,7 @@ from calib.model.gratings import (
     BlazedGrating,
     PhysicalKind,
     SinusoidalPhaseGrating,
-    checked_wavelengths,
     physical_efficiencies,
-    physical_efficiency,
     physical_grating,
 )
 from tests.synthetic_cameras import as_spectrum, exact_basis, gaussian_camera
@@ -424,7 +422,8 @@ def test_a_fit_evaluates_its_model_once_per_value(basis, monkeypatch):
     def counted_efficiencies(
         kind: PhysicalKind, parameters: np.ndarray, order: int, wavelength_nm: np.ndarray
     ) -> np.ndarray:
-        scans.append(order)
+        if np.size(parameters) > 1:  # a scan's (one value's are the refinement's)
+            scans.append(order)
         return physical_efficiencies(kind, parameters, order, wavelength_nm)
 
     def counted_equations(
@@ -614,23 +613,25 @@ def test_auto_charges_each_parameter_log_n_at_the_rig_s_error_level(basis):
 
 
 def test_the_fits_efficiency_formula_is_the_models_to_the_bit() -> None:
-    """:func:`physical_efficiency` on checked axes (the fit's evaluations, decision 0083) gives
-    each model's ``efficiency`` to the bit, and refuses a parameter no model takes."""
-    axis = checked_wavelengths(np.arange(380.0, 781.0, 1.0))
+    """:func:`physical_efficiencies` (the fit's evaluations, one value or a scan) gives each
+    model's ``efficiency`` to the bit, row by row, and refuses a parameter no model takes and a
+    wavelength that is not finite and positive."""
+    axis = np.arange(380.0, 781.0, 1.0)
     rng = np.random.default_rng(11)
     for _ in range(20):
-        phase, blaze = float(rng.uniform(0.3, 2.5)), float(rng.uniform(350.0, 800.0))
+        phases, blazes = rng.uniform(0.3, 2.5, 2), rng.uniform(350.0, 800.0, 2)
         for order in (0, 1, 2, -1):
-            assert np.array_equal(
-                physical_efficiency("sinusoidal", phase, order, axis),
-                SinusoidalPhaseGrating(phase).efficiency(order, axis),
-            )
-            assert np.array_equal(
-                physical_efficiency("blazed", blaze, order, axis),
-                BlazedGrating(blaze).efficiency(order, axis),
-            )
+            for kind, values, model in (
+                ("sinusoidal", phases, SinusoidalPhaseGrating),
+                ("blazed", blazes, BlazedGrating),
+            ):
+                scan = physical_efficiencies(kind, values, order, axis)
+                single = physical_efficiencies(kind, values[:1], order, axis)
+                for row, value in zip(scan, values, strict=True):
+                    assert np.array_equal(row, model(float(value)).efficiency(order, axis))
+                assert np.array_equal(single[0], scan[0])
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(InputError):
-            physical_efficiency("blazed", bad, 1, axis)
+            physical_efficiencies("blazed", [bad], 1, axis)
     with pytest.raises(InputError):
-        checked_wavelengths([400.0, float("nan")])
+        physical_efficiencies("blazed", [500.0], 1, [400.0, float("nan")])

@@ -85,9 +85,7 @@ from calib.model.gratings import (
     BlazedGrating,
     PhysicalKind,
     SinusoidalPhaseGrating,
-    checked_wavelengths,
     physical_efficiencies,
-    physical_efficiency,
     physical_grating,
 )
 
@@ -326,8 +324,6 @@ def physical_equations(
     gain_sigma: float | None,
     wavelength_nm: FloatArray,
     floor: float = MODEL_FLOOR,
-    *,
-    checked: bool = False,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The whitened direct equations at ``parameter`` (whitened at the current ``weight``, ``g``
     up to ``T``): their predicted values for ``T = 1``, targets, and ``g/T`` on the grid ``(f,)``.
@@ -339,51 +335,26 @@ def physical_equations(
     ``r = η₁ s`` linear between the nodes, so that the direct signal ``∫ e η₀ s`` is
     ``∫ e (η₀/η₁) r``; ``s = r/η₁`` linear between the nodes instead put ``η₁``'s curvature into
     the phase (−0.0012 rad on the flaw-free twins, decision 0154). Without operators both are taken
-    at the grid's nodes (``g = T η₀/η₁``). ``floor``:
-    the relative floor under each equation's σ (:func:`calib.methods.responses.direct_rows`).
-    ``checked``: ``wavelength_nm`` and the operators' axis already went through
-    :func:`calib.model.gratings.checked_wavelengths` (a fit's repeated evaluations).
+    at the grid's nodes (``g = T η₀/η₁``). ``floor``: the relative floor under each equation's σ
+    (:func:`calib.methods.responses.direct_rows`).
+
+    The same numbers as one value of :func:`physical_misfits`' scan (:func:`scan_efficiencies`,
+    :func:`_physical_rows`), the rows made on the one-value path of
+    :func:`calib.methods.responses.direct_rows`.
     """
-    grid_nm = wavelength_nm if checked else checked_wavelengths(wavelength_nm)
-    first = np.maximum(physical_efficiency(kind, parameter, 1, grid_nm), 1e-300)
-    operators = [lamp.operators for lamp in lamps]
-    if all(operator is not None for operator in operators):
-        axis = operators[0].axis_nm if operators[0] is not None else grid_nm
-        rows, target = direct_rows(
-            lamps,
-            weight,
-            gain_sigma=gain_sigma,
-            zeroth_order=direct_ratio(
-                kind, parameter, axis if checked else checked_wavelengths(axis)
-            ),
-            node_factor=first,
-            floor=floor,
-        )
-        shape = 1.0 / first
-    else:
-        rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma, floor=floor)
-        shape = physical_efficiency(kind, parameter, 0, grid_nm) / first
+    first, second = scan_efficiencies(lamps, kind, np.array([parameter]), wavelength_nm)
+    rows, target, shape = _physical_rows(lamps, first[0], second[0], weight, gain_sigma, floor)
     return rows @ shape, target, np.asarray(shape, dtype=np.float64)
-
-
-def direct_ratio(kind: PhysicalKind, parameter: float, axis_nm: FloatArray) -> FloatArray:
-    """``η₀/η₁`` on the lamps' fine axis ``axis_nm`` (already checked): what multiplies the
-    first-order response ``r = η₁ s`` in the direct signal (:func:`physical_equations`)."""
-    return np.asarray(
-        physical_efficiency(kind, parameter, 0, axis_nm)
-        / np.maximum(physical_efficiency(kind, parameter, 1, axis_nm), 1e-300),
-        dtype=np.float64,
-    )
 
 
 def scan_efficiencies(
     lamps: Sequence[LampData], kind: PhysicalKind, parameters: FloatArray, wavelength_nm: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """What :func:`physical_misfits` evaluates of the model at ``parameters`` ``(k,)``: ``η₁`` on
+    """What the direct equations take of the model at ``parameters`` ``(k,)``: ``η₁`` on
     ``wavelength_nm`` (floored at 1e-300) and ``η₀/η₁`` on the lamps' fine axis when every lamp
-    carries its operators (:func:`physical_equations`; else ``η₀`` on ``wavelength_nm``). They depend on the values scanned alone, not
-    on the rows' weights: a fit's passes, which re-whiten the rows and scan the same values, make
-    them once (decision 0107)."""
+    carries its operators (:func:`physical_equations`; else ``η₀`` on ``wavelength_nm``). They
+    depend on the values scanned alone, not on the rows' weights: a fit's passes, which re-whiten
+    the rows and scan the same values, make them once (decision 0107)."""
     first = np.maximum(physical_efficiencies(kind, parameters, 1, wavelength_nm), 1e-300)
     operators = [lamp.operators for lamp in lamps]
     if all(operator is not None for operator in operators):
@@ -391,6 +362,32 @@ def scan_efficiencies(
         zeroth = physical_efficiencies(kind, parameters, 0, axis)
         return first, zeroth / np.maximum(physical_efficiencies(kind, parameters, 1, axis), 1e-300)
     return first, physical_efficiencies(kind, parameters, 0, wavelength_nm)
+
+
+def _physical_rows(
+    lamps: Sequence[LampData],
+    first: FloatArray,
+    second: FloatArray,
+    weight: FloatArray,
+    gain_sigma: float | None,
+    floor: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The whitened direct rows and targets (:func:`calib.methods.responses.direct_rows`) and the
+    factor ``g/T`` they multiply, from :func:`scan_efficiencies`' pair for one value (``(f,)``
+    and ``(n,)`` arrays) or a scan's (``(k, ·)``): ``1/η₁`` with η₀/η₁ inside the rows when every
+    lamp carries its operators, else ``η₀/η₁`` at the nodes."""
+    if all(lamp.operators is not None for lamp in lamps):
+        rows, target = direct_rows(
+            lamps,
+            weight,
+            gain_sigma=gain_sigma,
+            zeroth_order=second,
+            node_factor=first,
+            floor=floor,
+        )
+        return rows, target, 1.0 / first
+    rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma, floor=floor)
+    return rows, target, second / first
 
 
 def physical_misfits(
@@ -410,24 +407,16 @@ def physical_misfits(
     value-by-value χ² within rounding (``inf`` where the throughput is not positive).
     ``efficiencies``: :func:`scan_efficiencies` of the same lamps, kind, values and grid, already
     made."""
-    first, zeroth = (
+    first, second = (
         scan_efficiencies(lamps, kind, parameters, wavelength_nm)
         if efficiencies is None
         else efficiencies
     )
-    if all(lamp.operators is not None for lamp in lamps):
-        rows, target = direct_rows(
-            lamps,
-            weight,
-            gain_sigma=gain_sigma,
-            zeroth_order=zeroth,
-            node_factor=first,
-            floor=floor,
-        )
-        values = np.matmul(rows, (1.0 / first)[:, :, None])[:, :, 0]
+    rows, target, shape = _physical_rows(lamps, first, second, weight, gain_sigma, floor)
+    if rows.ndim == 3:  # one set of rows per value
+        values = np.matmul(rows, shape[:, :, None])[:, :, 0]
     else:
-        rows, target = direct_rows(lamps, weight, gain_sigma=gain_sigma, floor=floor)
-        values = (zeroth / first) @ rows.T
+        values = shape @ rows.T
         target = np.broadcast_to(target, values.shape)
     norm = np.sum(values * values, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -475,16 +464,9 @@ def fit_physical(
     parameter = float("nan")
     throughput = float("nan")
     chi2_scan = np.zeros(0)
-    # The two axes checked once for every evaluation below (physical_equations' ``checked``).
-    wavelength_nm = checked_wavelengths(wavelength_nm)
-    first_operators = lamps[0].operators
-    if first_operators is not None and all(lamp.operators is not None for lamp in lamps):
-        checked_wavelengths(first_operators.axis_nm)
 
     def equations(value: float, weight: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        return physical_equations(
-            lamps, kind, value, weight, gain_sigma, wavelength_nm, checked=True
-        )
+        return physical_equations(lamps, kind, value, weight, gain_sigma, wavelength_nm)
 
     # The equations the pass's refinement evaluated, by parameter value (its weight is the
     # pass's): the refinement returns one of them, which the pass then reads again.

@@ -441,52 +441,6 @@ def physical_grating(
     )
 
 
-def checked_wavelengths(wavelength_nm: ArrayLike, source: str = "wavelength_nm") -> FloatArray:
-    """``wavelength_nm`` as float64 after the check every model's ``efficiency`` makes (finite,
-    > 0 nm), for :func:`physical_efficiency`.
-
-    Raises
-    ------
-    InputError
-        A wavelength not finite or not positive.
-    """
-    return _wavelengths(wavelength_nm, source)
-
-
-def physical_efficiency(
-    kind: PhysicalKind, parameter: float, order: int, wavelength: FloatArray
-) -> FloatArray:
-    """``physical_grating(kind, parameter).efficiency(order, wavelength)``, the same numbers, for
-    wavelengths already through :func:`checked_wavelengths`: the physical grating fit's bounded
-    refinement evaluates it hundreds of times on the same two axes, where building the model and
-    checking the axes again was a fifth of the fit (decision 0083).
-
-    Examples
-    --------
-    >>> axis = checked_wavelengths([450.0, 600.0])
-    >>> bool(np.array_equal(physical_efficiency("blazed", 520.0, 0, axis),
-    ...                     BlazedGrating(520.0).efficiency(0, axis)))
-    True
-
-    Raises
-    ------
-    InputError
-        A parameter not finite and positive, or an unknown family.
-    """
-    if not (math.isfinite(parameter) and parameter > 0):
-        raise InputError(f"must be a positive number, got {parameter}", source=kind)
-    if kind == "sinusoidal":
-        phase = np.asarray(
-            parameter * SinusoidalPhaseGrating.reference_nm / wavelength, dtype=np.float64
-        )
-        return _sinusoidal_efficiency(abs(_order(order, "order")), phase)
-    if kind == "blazed":
-        return _blazed_efficiency(_order(order, "order"), parameter / wavelength)
-    raise InputError(
-        f"unknown physical grating {kind!r}; choose from {PHYSICAL_KINDS}", source="grating_model"
-    )
-
-
 def physical_efficiencies(
     kind: PhysicalKind, parameters: ArrayLike, order: int, wavelength_nm: ArrayLike
 ) -> FloatArray:
