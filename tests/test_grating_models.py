@@ -621,10 +621,11 @@ def test_the_fits_efficiency_formula_is_the_models_to_the_bit() -> None:
     for _ in range(20):
         phases, blazes = rng.uniform(0.3, 2.5, 2), rng.uniform(350.0, 800.0, 2)
         for order in (0, 1, 2, -1):
-            for kind, values, model in (
+            cases: tuple[tuple[PhysicalKind, np.ndarray, type], ...] = (
                 ("sinusoidal", phases, SinusoidalPhaseGrating),
                 ("blazed", blazes, BlazedGrating),
-            ):
+            )
+            for kind, values, model in cases:
                 scan = physical_efficiencies(kind, values, order, axis)
                 single = physical_efficiencies(kind, values[:1], order, axis)
                 for row, value in zip(scan, values, strict=True):
