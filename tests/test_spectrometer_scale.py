@@ -18,6 +18,8 @@ from calib.core.spectra import Spectrum
 from calib.core.spectrometer_scale import (
     SCALE_SIGMA_KEY,
     SEARCH_SHIFT_NM,
+    SLIT_CORRECTION_KEY,
+    SLIT_CORRECTION_SIGMAS,
     SLIT_LINE_WIDTH_NM,
     ScaleCheck,
     _windows,
@@ -302,16 +304,31 @@ def test_the_budget_re_solves_the_share_of_the_scale_the_mapping_does_not_follow
 
 def test_the_check_measures_the_slit_its_isolated_lines_show():
     """Decision 0099: a slit 20 % wider (narrower) than stated is measured as 1.2 (0.8) × the
-    stated, with the model-error floor at the stated slit in its σ (decision 0160); the record
-    carries it to the budget."""
+    stated, with the model-error floor at the stated slit in its σ (decision 0160). Decision 0176:
+    a measured slit more than 2σ from the stated one replaces it for every spectrum of the
+    instrument, which then carries the measurement's σ alone to the budget; one that agrees
+    leaves the stated slit and the record carries the factor."""
     for true_nm, factor in ((3.6, 1.2), (2.4, 0.8), (3.0, 1.0)):
         cfl = _measured(_cfl(), offset_nm=0.2, bandwidth_nm=true_nm, seed=3)
-        lamps, outcome = checked_observations([_lamp("CFL", cfl, "fluorescent", 3.0)])
+        axis = np.arange(380.0, 781.0)
+        led = _lamp("LED", Spectrum(axis, 1.0 + 0.001 * axis), "led", 3.0)
+        lamps, outcome = checked_observations([_lamp("CFL", cfl, "fluorescent", 3.0), led])
         assert outcome.check is not None and outcome.check.slit_factor is not None
         measured, sigma = outcome.check.slit_factor
         assert measured == pytest.approx(factor, abs=0.03)
         assert slit_factor_floor(3.0) <= sigma < slit_factor_floor(3.0) + 0.01
-        assert measured_slit(lamps[0]) == (measured, sigma)
+        if factor == 1.0:
+            assert abs(measured - 1.0) <= SLIT_CORRECTION_SIGMAS * sigma
+            assert [lamp.spectrum_bandwidth_nm for lamp in lamps] == [3.0, 3.0]
+            assert measured_slit(lamps[0]) == (measured, sigma)
+            assert not any("slit measured" in note for note in outcome.notes)
+        else:
+            assert [lamp.spectrum_bandwidth_nm for lamp in lamps] == [3.0 * measured] * 2
+            assert lamps[1].metadata[SLIT_CORRECTION_KEY]["stated_bandwidth_nm"] == 3.0
+            assert measured_slit(lamps[0]) == (1.0, sigma / measured)
+            assert any("slit measured" in note for note in outcome.notes)
+            # Checking again changes nothing (the bandwidth is not corrected twice).
+            assert checked_observations(lamps)[0] == lamps
     assert measured_slit(_lamp("CFL", cfl, "fluorescent", 3.0)) is None
 
 

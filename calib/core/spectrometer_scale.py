@@ -52,7 +52,11 @@ every lamp measured by *the same instrument* is corrected. One estimate's lamp s
 as one instrument's when they state the same bandwidth: a rig session records one spectrometer
 for all its lamps, and ``calib estimate`` states one ``--bandwidth`` (or each CSV its own). A lamp
 whose spectrum states another bandwidth (or ``metadata["spectrometer"]`` another instrument) keeps
-its spectrum and the tolerance.
+its spectrum and the tolerance. Where the isolated lines measured the slit more than
+:data:`SLIT_CORRECTION_SIGMAS` of its σ away from the stated one, every corrected lamp's bandwidth
+becomes the measured slit (the stated one kept under :data:`SLIT_CORRECTION_KEY`), so the mapping
+and the solve match the spectra at the slit the instrument has, and the σ budget's bandwidth
+component is the measurement's own σ (decision 0176).
 
 Examples
 --------
@@ -86,6 +90,13 @@ SCALE_CHECK_KEY = "spectrometer_scale_check"
 #: ``LampObservation.metadata`` key: the one-σ wavelength-scale error (nm) of the lamp's spectrum
 #: after the check, used by the mapping and the budget in place of the tolerance.
 SCALE_SIGMA_KEY = "wavelength_scale_sigma_nm"
+#: ``LampObservation.metadata`` key of a lamp whose stated bandwidth the check corrected to the
+#: measured slit: the stated FWHM (nm), the factor and its σ (:func:`checked_observations`).
+SLIT_CORRECTION_KEY = "slit_correction"
+#: The measured slit replaces the stated one when they differ by more than this many σ of the
+#: measured factor (:attr:`ScaleCheck.slit_factor`): the stated slit is then contradicted by the
+#: instrument's own spectrum (decision 0176). A significance level, not a tuned number.
+SLIT_CORRECTION_SIGMAS = 2.0
 
 #: Search range of the shift (nm): the PR-655's stated ±2 nm and a margin, so an instrument out of
 #: its ±0.5 nm class is still measured (and flagged), not refused.
@@ -749,7 +760,8 @@ def checked_observations(
     observations: Sequence[Any], *, range_nm: tuple[float, float] = (400.0, 700.0)
 ) -> tuple[list[Any], ScaleCheckOutcome]:
     """``observations`` with the lamp spectra of the checked instrument corrected (module
-    docstring), and what was done. Lamps already checked are left as they are."""
+    docstring: the scale, and the bandwidth where the measured slit contradicts the stated one),
+    and what was done. Lamps already checked are left as they are."""
     items = list(observations)
     lamps = [item for item in items if isinstance(item, LampObservation)]
     if any(SCALE_CHECK_KEY in lamp.metadata for lamp in lamps):
@@ -769,20 +781,33 @@ def checked_observations(
             reasons.append(f"{lamp.name}: {outcome}")
             continue
         record = outcome.to_dict()
+        slit = outcome.slit_factor
+        if slit is not None and abs(slit[0] - 1.0) <= SLIT_CORRECTION_SIGMAS * slit[1]:
+            slit = None  # the stated slit agrees with the measured one: it stays
         corrected: list[str] = []
         kept: list[str] = []
         out: list[Any] = []
         for item in items:
             if isinstance(item, LampObservation) and same_instrument(item, lamp):
+                metadata = {
+                    **item.metadata,
+                    SCALE_CHECK_KEY: record,
+                    SCALE_SIGMA_KEY: outcome.sigma_nm,
+                }
+                bandwidth = item.spectrum_bandwidth_nm
+                if slit is not None and bandwidth is not None:
+                    metadata[SLIT_CORRECTION_KEY] = {
+                        "stated_bandwidth_nm": bandwidth,
+                        "factor": slit[0],
+                        "factor_sigma": slit[1],
+                    }
+                    bandwidth = bandwidth * slit[0]
                 out.append(
                     replace(
                         item,
                         spectrum=corrected_spectrum(item.spectrum, outcome),
-                        metadata={
-                            **item.metadata,
-                            SCALE_CHECK_KEY: record,
-                            SCALE_SIGMA_KEY: outcome.sigma_nm,
-                        },
+                        spectrum_bandwidth_nm=bandwidth,
+                        metadata=metadata,
                     )
                 )
                 corrected.append(item.name)
@@ -791,6 +816,12 @@ def checked_observations(
                     kept.append(item.name)
                 out.append(item)
         notes = [outcome.note()]
+        if slit is not None and lamp.spectrum_bandwidth_nm is not None:
+            notes.append(
+                f"spectrometer slit measured ×{slit[0]:.3f} ± {slit[1]:.3f} of the stated "
+                f"{lamp.spectrum_bandwidth_nm:g} nm (the Hg lines' widths): the spectra are taken "
+                f"at {lamp.spectrum_bandwidth_nm * slit[0]:.3g} nm"
+            )
         if kept:
             notes.append(
                 f"{', '.join(kept)}: measured by another instrument (another stated bandwidth): "
@@ -808,11 +839,17 @@ def checked_observations(
 def measured_slit(observation: LampObservation) -> tuple[float, float] | None:
     """The slit factor (true FWHM / stated) and its σ that the Hg-line check of this lamp's
     instrument measured (:attr:`ScaleCheck.slit_factor`), ``None`` when its spectrum was not checked
-    or no isolated line measured the slit."""
+    or no isolated line measured the slit. Of a lamp whose bandwidth :func:`checked_observations`
+    corrected to the measured slit: ``1`` and the factor's σ relative to the corrected bandwidth."""
     record = observation.metadata.get(SCALE_CHECK_KEY)
     if not isinstance(record, Mapping):
         return None
     factor, sigma = record.get("slit_factor"), record.get("slit_factor_sigma")
+    correction = observation.metadata.get(SLIT_CORRECTION_KEY)
+    if isinstance(correction, Mapping) and isinstance(factor, int | float) and factor > 0:
+        # The bandwidth was corrected to the measured slit: what is left of the slit's error is
+        # the measurement's own σ, relative to the corrected bandwidth.
+        factor, sigma = 1.0, sigma / factor if isinstance(sigma, int | float) else sigma
     if not isinstance(factor, int | float) or not isinstance(sigma, int | float):
         return None
     if not (math.isfinite(factor) and factor > 0 and math.isfinite(sigma) and sigma >= 0):

@@ -884,7 +884,8 @@ def spectrometer_sigma(
         )
     # A lamp whose instrument's slit the Hg-line check measured (decision 0099): its stated bandwidth
     # is off by what the check found, ``k − 1`` of it, known to ``σ_k`` — one σ of
-    # ``hypot(k − 1, σ_k)``, toward the measured slit, in place of the tolerance.
+    # ``hypot(k − 1, σ_k)``, toward the measured slit, in place of the tolerance. A bandwidth the
+    # check corrected to the measured slit has ``k = 1`` here: its σ alone (decision 0176).
     slits = [
         None if lamp.spectrum_bandwidth_nm is None else measured_slit(lamp) for lamp in observations
     ]
