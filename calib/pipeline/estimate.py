@@ -59,6 +59,7 @@ from calib.pipeline.inputs import (
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
 from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
+from calib.wavelength.peaks import narrow_line_width_nm, narrow_lines
 
 __all__ = [
     "OfflineEstimate",
@@ -605,10 +606,42 @@ def clipped_band(obs: LampObservation) -> str | None:
     return f"{obs.name} ({', '.join(found)})" if found else None
 
 
+#: Lamp kinds whose spectrum is a broad band (no narrow emission lines to map from).
+BROADBAND_KINDS = ("led", "halogen")
+
+
+def lamp_kind_mismatch(obs: LampObservation) -> str | None:
+    """What to tell the user when ``obs``'s spectrum contradicts its declared kind
+    (:func:`calib.wavelength.peaks.narrow_lines`, the spectrum alone): narrow emission lines in a
+    lamp declared LED or halogen (its lines are then not used for the mapping), or none in one
+    declared fluorescent (the mapping would be anchored on lines it does not have); ``None`` when
+    they agree, or when the spectrometer's slit is too broad to tell."""
+    width_nm = narrow_line_width_nm(obs.spectrum_bandwidth_nm)
+    if width_nm is None or obs.kind not in (*BROADBAND_KINDS, "fluorescent"):
+        return None
+    lines = narrow_lines(obs.spectrum, width_nm=width_nm)
+    if obs.kind in BROADBAND_KINDS and lines:
+        shown = ", ".join(f"{peak.position:.0f} nm" for peak in lines[:4])
+        return (
+            f"lamp {obs.name!r} is declared --kind {obs.kind} but its spectrum has narrow "
+            f"emission lines (at {shown}): it looks fluorescent: declare it --kind fluorescent "
+            "to map from its lines"
+        )
+    if obs.kind == "fluorescent" and not lines:
+        return (
+            f"lamp {obs.name!r} is declared --kind fluorescent but its spectrum has no narrow "
+            f"emission line (no peak under {width_nm:g} nm wide standing above its continuum): "
+            "it looks broadband/LED; its lines cannot anchor the mapping: declare it --kind led "
+            "(or halogen), or check that the spectrum is this lamp's"
+        )
+    return None
+
+
 def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
     """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
-    order, a given profile's band clipped, a line lamp's spectrum too coarse for its lines, a
-    spectrometer slit too broad for the sensitivity's detail."""
+    order, a given profile's band clipped, a lamp whose spectrum contradicts its kind, a line
+    lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the sensitivity's
+    detail."""
     flags: list[QualityFlag] = []
     saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
     if saturated:
@@ -647,6 +680,11 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
                 "serious",
             )
         )
+    flags.extend(
+        QualityFlag("lamp_kind_mismatch", why)
+        for obs in observations
+        if (why := lamp_kind_mismatch(obs))
+    )
     coarse = [why for obs in observations if (why := coarse_line_spectrum(obs))]
     if coarse:
         flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))
