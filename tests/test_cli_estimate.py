@@ -506,6 +506,30 @@ def test_a_bandwidth_option_that_contradicts_the_spectrum_file_is_warned(
     assert f"calib: warning: {said[0]}" in stderr
 
 
+@pytest.mark.parametrize("where", ["option", "header"])
+def test_a_bandwidth_no_spectrometer_has_is_an_input_error_naming_it(
+    capture: Capture, tmp_path: Path, where: str
+) -> None:
+    """--bandwidth 500 (or a file's '# bandwidth_nm: 500') ran the estimate into a mapping
+    failure; it is now refused up front, naming the option or the file and the range."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    if where == "option":
+        argv += ["--bandwidth", "500"]
+        source = "lamp 'FL': --bandwidth 500"
+    else:
+        spectrum = tmp_path / "FL.csv"
+        spectrum.write_text("# bandwidth_nm: 500\n" + spectrum.read_text())
+        source = f"{spectrum}: '# bandwidth_nm: 500'"
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--no-report"])
+    assert code == 2
+    assert stderr == (
+        f"calib: error: {source} is not a spectrometer's bandwidth (the FWHM of its slit "
+        "function, nm): give one above 0 and at most 50 nm (an i1Pro's is 25 nm, a PR-655's "
+        "8 nm)\n"
+    )
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_blank_profile_that_fails_the_estimate_is_an_input_error_saying_so(
     capture: Capture, tmp_path: Path
 ) -> None:

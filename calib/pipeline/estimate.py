@@ -52,6 +52,7 @@ from calib.pipeline.inputs import (
     LampInput,
     LampProfile,
     ProfileTable,
+    check_bandwidth,
     describe_spectrum,
     load_spectrum,
     read_profile_file,
@@ -252,6 +253,12 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     spectra: dict[str, Spectrum] = {}
     bandwidths: dict[str, float | None] = {}
     for given in lamps:
+        if given.spectrum_bandwidth_nm is not None:
+            check_bandwidth(
+                given.spectrum_bandwidth_nm,
+                given_as=f"--bandwidth {given.spectrum_bandwidth_nm:g}",
+                source=f"lamp {given.name!r}",
+            )
         loaded = load_spectrum(given.spectrum, given.name, settings.grid)
         spectra[given.name] = loaded.spectrum
         warnings.extend(loaded.warnings)
