@@ -60,6 +60,7 @@ from calib.pipeline.inputs import (
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
 from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
+from calib.wavelength import lamp_name
 from calib.wavelength.peaks import narrow_line_width_nm, narrow_lines
 
 __all__ = [
@@ -210,11 +211,8 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     if duplicates:
         raise InputError(f"lamp {duplicates[0]!r} is given twice", source="--lamp")
     check_method(settings.method, source="--method")
-    if settings.mapping_lamp is not None and settings.mapping_lamp not in names:
-        raise InputError(
-            f"no lamp named {settings.mapping_lamp!r}; lamps are {', '.join(names)}",
-            source="--mapping-lamp",
-        )
+    if settings.mapping_lamp is not None:
+        lamp_name(names, settings.mapping_lamp, source="--mapping-lamp")
     with_images = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
     if with_images and len(with_images) != len(lamps):
         raise InputError(
