@@ -831,36 +831,36 @@ class Session:
             When the path is not a safe relative name, or any component is a symlink or missing, or
             the file is not a regular file.
         """
+        found = self._locate(relative)
+        if isinstance(found, _Unreadable):
+            raise SessionFormatError(f"{self.path}: {found.message}")
+        return found
+
+    def _locate(self, relative: str) -> Path | _Unreadable:
+        """:meth:`file_path`'s answer: the path, or why the file cannot be read."""
         try:
             check_session_path(relative)
         except ValueError as exc:
-            raise SessionFormatError(f"{self.path}: {exc}") from None
+            return _Unreadable(str(exc), str(exc))
         current = self.path
         for part in relative.split("/"):
             current = current / part
             try:
                 mode = current.lstat().st_mode
             except FileNotFoundError:
-                raise SessionFormatError(f"{self.path}: {relative} does not exist") from None
+                return _Unreadable.of(relative, "does not exist")
             if stat.S_ISLNK(mode):
-                raise SessionFormatError(
-                    f"{self.path}: {relative} goes through a symlink ({current.name}); refused"
-                )
+                return _Unreadable.of(relative, f"goes through a symlink ({current.name}); refused")
         if not stat.S_ISREG(current.lstat().st_mode):
-            raise SessionFormatError(f"{self.path}: {relative} is not a regular file")
+            return _Unreadable.of(relative, "is not a regular file")
         return current
 
     def verify_files(self) -> list[FileProblem]:
         """Check every acknowledged file's size and sha256; return the problems (empty when all verify)."""
         problems = []
         for record in self.files():
-            try:
-                problem = self.file_problem(record)
-            except SessionFormatError as exc:
-                # "<session>: <path> does not exist" → "does not exist" (FileProblem names the path)
-                text = str(exc).removeprefix(f"{self.path}: ").removeprefix(f"{record.path} ")
-                problems.append(FileProblem(record.path, text))
-                continue
+            found = self._locate(record.path)
+            problem = found.problem if isinstance(found, _Unreadable) else _differs(found, record)
             if problem is not None:
                 problems.append(FileProblem(record.path, problem))
         return problems
@@ -869,12 +869,30 @@ class Session:
         """How an acknowledged file differs from its log record (size first, then sha256), or
         ``None`` when it verifies; a :class:`SessionFormatError` when it is not a regular file
         inside the session."""
-        size, sha256 = file_sha256(self.file_path(record.path))
-        if size != record.size:
-            return f"{size} bytes, the log says {record.size}"
-        if sha256 != record.sha256:
-            return "sha256 differs from the log"
-        return None
+        return _differs(self.file_path(record.path), record)
+
+
+@dataclass(frozen=True)
+class _Unreadable:
+    """Why a session file cannot be read: ``problem`` as a :class:`FileProblem` says it (the path
+    named apart), ``message`` as an error says it (the path in it)."""
+
+    problem: str
+    message: str
+
+    @classmethod
+    def of(cls, relative: str, problem: str) -> _Unreadable:
+        return cls(problem, f"{relative} {problem}")
+
+
+def _differs(path: Path, record: FileRecord) -> str | None:
+    """How the file at ``path`` differs from its log record (size first, then sha256), or ``None``."""
+    size, sha256 = file_sha256(path)
+    if size != record.size:
+        return f"{size} bytes, the log says {record.size}"
+    if sha256 != record.sha256:
+        return "sha256 differs from the log"
+    return None
 
 
 def _is_leftover(name: str) -> bool:

@@ -19,11 +19,13 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.formats.rgb_csv import read_camera_csv
 from calib.core.grating_file import GratingEfficiency, read_grating_file, write_grating_file
 from calib.core.metrics import relative_error
+from calib.core.observations import LampObservation
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid, write_csv
 from calib.methods import MultilampOptions
 from calib.model.forward import PeakFractionNoise, render_observation
 from calib.pipeline import LampImages, LampProfile
 from calib.pipeline.estimate import StatedOptics
+from calib.wavelength import lamps_named
 from tests.rendered_capture import (
     GRATING,
     Capture,
@@ -504,6 +506,66 @@ def test_a_bandwidth_option_that_contradicts_the_spectrum_file_is_warned(
         "--bandwidth is used (drop it to use the file's)"
     ]
     assert f"calib: warning: {said[0]}" in stderr
+
+
+@pytest.mark.parametrize("where", ["option", "header"])
+def test_a_bandwidth_no_spectrometer_has_is_an_input_error_naming_it(
+    capture: Capture, tmp_path: Path, where: str
+) -> None:
+    """--bandwidth 500 (or a file's '# bandwidth_nm: 500') ran the estimate into a mapping
+    failure; it is now refused up front, naming the option or the file and the range."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    if where == "option":
+        argv += ["--bandwidth", "500"]
+        source = "lamp 'FL': --bandwidth 500"
+    else:
+        spectrum = tmp_path / "FL.csv"
+        spectrum.write_text("# bandwidth_nm: 500\n" + spectrum.read_text())
+        source = f"{spectrum}: '# bandwidth_nm: 500'"
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--no-report"])
+    assert code == 2
+    assert stderr == (
+        f"calib: error: {source} is not a spectrometer's bandwidth (the FWHM of its slit "
+        "function, nm): give one above 0 and at most 50 nm (an i1Pro's is 25 nm, a PR-655's "
+        "8 nm)\n"
+    )
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_mapping_lamp_is_matched_ignoring_case(
+    capture: Capture, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--mapping-lamp fl was refused when the lamp is FL; it is now that lamp (the estimate is
+    stopped where it receives it)."""
+    received: dict[str, object] = {}
+
+    def stop(observations: object, method: str, **where: object) -> None:
+        received.update(where)
+        raise EstimationError("stopped by the test")
+
+    monkeypatch.setattr("calib.pipeline.estimate.estimate", stop)
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--mapping-lamp", "fl"]
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--no-report"])
+    assert "stopped by the test" in stderr and code != 0
+    assert received["mapping_lamp"] == "fl"
+    # and an estimator, given the name as typed, picks that lamp for its mapping
+    spectrum = colour_lamps()["FL"][1]
+    observations = [
+        LampObservation(name, spectrum, np.arange(4.0), np.ones((4, 3))) for name in ("LED", "FL")
+    ]
+    assert [obs.name for obs in lamps_named(observations, "fl")] == ["FL"]
+
+
+def test_a_mapping_lamp_naming_no_lamp_lists_those_it_can_be(
+    capture: Capture, tmp_path: Path
+) -> None:
+    argv = [*_profile_args(tmp_path, capture, direct=True), "--mapping-lamp", "halogen"]
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--no-report"])
+    assert code == 2
+    assert stderr == (
+        "calib: error: --mapping-lamp: no lamp named 'halogen' (ignoring case); it can be one "
+        "of LED, FL\n"
+    )
 
 
 def test_a_blank_profile_that_fails_the_estimate_is_an_input_error_saying_so(

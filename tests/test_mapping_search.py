@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calib.core.datasets import colour_science_cameras, find_camera
-from calib.core.errors import EstimationError
+from calib.core.errors import EstimationError, InputError
 from calib.core.lamp_specs import colour_lamp, lamp_from_spec
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.metrics import mapping_relative_error
@@ -146,11 +146,20 @@ def test_a_profile_missing_part_of_the_first_order_is_refused(prior, camera):
         find_mapping([cut], camera=prior)
 
 
-def test_lamps_on_different_pixel_axes_are_refused(prior, camera):
-    observation = _render("D65", camera)
+def test_lamps_on_different_pixel_axes_are_refused_naming_each_axis(prior, camera):
+    """The refusal names each lamp's pixels and what to do (it said only 'different pixel
+    axes; extract them with one geometry')."""
+    observation = replace(_render("D65", camera), name="D65")
     shifted = replace(observation, name="other", pixel=observation.pixel + 3.0)
-    with pytest.raises(ValueError, match="different pixel axes"):
+    first, last, size = observation.pixel[0], observation.pixel[-1], observation.n_pixels
+    with pytest.raises(InputError) as raised:
         find_mapping([observation, shifted], camera=prior)
+    assert str(raised.value) == (
+        f"profiles: the lamps' profiles are on different pixel axes (D65: px {first:g}–"
+        f"{last:g}, {size} samples; other: px {first + 3:g}–{last + 3:g}, {size} samples); one "
+        "mapping needs one axis: export every lamp's profile over the same pixels (one crop and "
+        "geometry), or give the profiles in wavelength_nm"
+    )
 
 
 def test_binning_keeps_the_truth_the_best_fit(prior, camera):

@@ -52,6 +52,7 @@ from calib.pipeline.inputs import (
     LampInput,
     LampProfile,
     ProfileTable,
+    check_bandwidth,
     describe_spectrum,
     load_spectrum,
     read_profile_file,
@@ -59,6 +60,8 @@ from calib.pipeline.inputs import (
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
 from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
+from calib.wavelength import lamp_name
+from calib.wavelength.peaks import narrow_line_width_nm, narrow_lines
 
 __all__ = [
     "OfflineEstimate",
@@ -208,11 +211,8 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     if duplicates:
         raise InputError(f"lamp {duplicates[0]!r} is given twice", source="--lamp")
     check_method(settings.method, source="--method")
-    if settings.mapping_lamp is not None and settings.mapping_lamp not in names:
-        raise InputError(
-            f"no lamp named {settings.mapping_lamp!r}; lamps are {', '.join(names)}",
-            source="--mapping-lamp",
-        )
+    if settings.mapping_lamp is not None:
+        lamp_name(names, settings.mapping_lamp, source="--mapping-lamp")
     with_images = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
     if with_images and len(with_images) != len(lamps):
         raise InputError(
@@ -251,6 +251,12 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     spectra: dict[str, Spectrum] = {}
     bandwidths: dict[str, float | None] = {}
     for given in lamps:
+        if given.spectrum_bandwidth_nm is not None:
+            check_bandwidth(
+                given.spectrum_bandwidth_nm,
+                given_as=f"--bandwidth {given.spectrum_bandwidth_nm:g}",
+                source=f"lamp {given.name!r}",
+            )
         loaded = load_spectrum(given.spectrum, given.name, settings.grid)
         spectra[given.name] = loaded.spectrum
         warnings.extend(loaded.warnings)
@@ -605,10 +611,42 @@ def clipped_band(obs: LampObservation) -> str | None:
     return f"{obs.name} ({', '.join(found)})" if found else None
 
 
+#: Lamp kinds whose spectrum is a broad band (no narrow emission lines to map from).
+BROADBAND_KINDS = ("led", "halogen")
+
+
+def lamp_kind_mismatch(obs: LampObservation) -> str | None:
+    """What to tell the user when ``obs``'s spectrum contradicts its declared kind
+    (:func:`calib.wavelength.peaks.narrow_lines`, the spectrum alone): narrow emission lines in a
+    lamp declared LED or halogen (its lines are then not used for the mapping), or none in one
+    declared fluorescent (the mapping would be anchored on lines it does not have); ``None`` when
+    they agree, or when the spectrometer's slit is too broad to tell."""
+    width_nm = narrow_line_width_nm(obs.spectrum_bandwidth_nm)
+    if width_nm is None or obs.kind not in (*BROADBAND_KINDS, "fluorescent"):
+        return None
+    lines = narrow_lines(obs.spectrum, width_nm=width_nm)
+    if obs.kind in BROADBAND_KINDS and lines:
+        shown = ", ".join(f"{peak.position:.0f} nm" for peak in lines[:4])
+        return (
+            f"lamp {obs.name!r} is declared --kind {obs.kind} but its spectrum has narrow "
+            f"emission lines (at {shown}): it looks fluorescent: declare it --kind fluorescent "
+            "to map from its lines"
+        )
+    if obs.kind == "fluorescent" and not lines:
+        return (
+            f"lamp {obs.name!r} is declared --kind fluorescent but its spectrum has no narrow "
+            f"emission line (no peak under {width_nm:g} nm wide standing above its continuum): "
+            "it looks broadband/LED; its lines cannot anchor the mapping: declare it --kind led "
+            "(or halogen), or check that the spectrum is this lamp's"
+        )
+    return None
+
+
 def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -> list[QualityFlag]:
     """The quality flags the inputs raise: a direct spot saturated in every frame, a blank first
-    order, a given profile's band clipped, a line lamp's spectrum too coarse for its lines, a
-    spectrometer slit too broad for the sensitivity's detail."""
+    order, a given profile's band clipped, a lamp whose spectrum contradicts its kind, a line
+    lamp's spectrum too coarse for its lines, a spectrometer slit too broad for the sensitivity's
+    detail."""
     flags: list[QualityFlag] = []
     saturated = [obs.name for obs in observations if image_input and obs.direct_rgb is None]
     if saturated:
@@ -647,6 +685,11 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
                 "serious",
             )
         )
+    flags.extend(
+        QualityFlag("lamp_kind_mismatch", why)
+        for obs in observations
+        if (why := lamp_kind_mismatch(obs))
+    )
     coarse = [why for obs in observations if (why := coarse_line_spectrum(obs))]
     if coarse:
         flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))

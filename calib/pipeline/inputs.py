@@ -35,6 +35,11 @@ from calib.image.profile_files import read_fits_profile, read_rawproc_dat
 #: Negative spectrum values (dark-subtraction noise) up to this fraction of the maximum are set to
 #: zero with a warning; larger ones mean a broken measurement and are refused.
 NEGATIVE_SPECTRUM_TOLERANCE = 0.05
+#: The broadest spectrometer bandwidth (FWHM of the slit function, nm) an estimate takes: twice
+#: the broadest instrument the project models (an i1Pro in its 10 nm bands, 25 nm; a PR-655 is
+#: 8 nm, a CS-2000 5 nm). A broader "slit" blurs the lamp's spectrum over a camera channel's own
+#: width: a typo (a range, a wavelength), which the estimate would turn into a mapping failure.
+MAX_BANDWIDTH_NM = 50.0
 
 _PIXEL_COLUMNS = ("pixel", "pixels", "px", "position_px", "pixel_px")
 _WAVELENGTH_COLUMNS = ("wavelength_nm", "wavelength", "nm", "lambda_nm")
@@ -173,6 +178,25 @@ def check_kind(kind: str, source: str) -> LampKind:
     return lowered
 
 
+def check_bandwidth(value: float, *, given_as: str, source: str) -> float:
+    """``value`` (a spectrometer's bandwidth, nm) when it is one: above 0 and at most
+    :data:`MAX_BANDWIDTH_NM`.
+
+    Raises
+    ------
+    SpectrumError
+        Otherwise, naming ``given_as`` (``"--bandwidth 500"``), ``source`` and the range.
+    """
+    if not (math.isfinite(value) and 0 < value <= MAX_BANDWIDTH_NM):
+        raise SpectrumError(
+            f"{given_as} is not a spectrometer's bandwidth (the FWHM of its slit function, nm): "
+            f"give one above 0 and at most {MAX_BANDWIDTH_NM:g} nm (an i1Pro's is 25 nm, a "
+            "PR-655's 8 nm)",
+            source=source,
+        )
+    return value
+
+
 def _header_bandwidth(path: Path, header: dict[str, str]) -> float | None:
     text = header.get("bandwidth_nm") or header.get("bandwidth")
     if text is None:
@@ -181,9 +205,7 @@ def _header_bandwidth(path: Path, header: dict[str, str]) -> float | None:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise SpectrumError(f"# bandwidth_nm: {text!r} is not a positive number", source=str(path))
-    return value
+    return check_bandwidth(value, given_as=f"'# bandwidth_nm: {text}'", source=str(path))
 
 
 def _read_one(path: Path, lamp: str, warnings: list[str]) -> Spectrum:

@@ -67,21 +67,48 @@ __all__ = [
     "RigGeometry",
     "SpectrometerProfile",
     "find_mapping",
+    "lamp_name",
     "lamps_named",
 ]
+
+
+def lamp_name(names: Sequence[str], wanted: str, *, source: str = "mapping_lamp") -> str:
+    """The one of ``names`` that ``wanted`` names: itself, else the one equal to it ignoring case.
+
+    Raises
+    ------
+    InputError
+        None does (the lamps it could be are listed), or several do ignoring case.
+
+    Examples
+    --------
+    >>> lamp_name(["FL", "LED"], "fl")
+    'FL'
+    """
+    if wanted in names:
+        return wanted
+    folded = [name for name in names if name.casefold() == wanted.casefold()]
+    if len(folded) == 1:
+        return folded[0]
+    if folded:
+        raise InputError(
+            f"{wanted!r} names lamps {', '.join(map(repr, folded))} ignoring case; give one "
+            "exactly as spelt",
+            source=source,
+        )
+    raise InputError(
+        f"no lamp named {wanted!r} (ignoring case); it can be one of {', '.join(names)}",
+        source=source,
+    )
 
 
 def lamps_named(
     observations: Sequence[LampObservation], mapping_lamp: str
 ) -> list[LampObservation]:
-    """The lamp called ``mapping_lamp`` (as a one-element list), else an :class:`InputError`."""
-    chosen = [obs for obs in observations if obs.name == mapping_lamp]
-    if not chosen:
-        raise InputError(
-            f"no lamp named {mapping_lamp!r}; lamps are {[obs.name for obs in observations]}",
-            source="mapping_lamp",
-        )
-    return chosen
+    """The lamp called ``mapping_lamp`` (:func:`lamp_name`: ignoring case when no lamp has that
+    exact name), as a one-element list, else an :class:`InputError`."""
+    name = lamp_name([obs.name for obs in observations], mapping_lamp)
+    return [obs for obs in observations if obs.name == name]
 
 
 def _quadratic_start(

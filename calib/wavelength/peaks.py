@@ -85,6 +85,32 @@ def _line_excess(values: FloatArray, window: int) -> FloatArray:
     )
 
 
+#: The fine axis' step (nm) a lamp's spectrum is interpolated to before its lines are sought.
+_FINE_STEP_NM = 0.25
+
+
+def _fine_spectrum(
+    lamp: Spectrum,
+    range_nm: tuple[float, float],
+    weight: Callable[[FloatArray], FloatArray] | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """``lamp`` (times ``weight``) linearly interpolated every :data:`_FINE_STEP_NM` over
+    ``range_nm`` ∩ its own range: the wavelengths and the values."""
+    wavelength = np.arange(
+        max(range_nm[0], lamp.range_nm[0]), min(range_nm[1], lamp.range_nm[1]), _FINE_STEP_NM
+    )
+    values = lamp.at(wavelength) * (weight(wavelength) if weight is not None else 1.0)
+    return wavelength, np.asarray(values, dtype=np.float64)
+
+
+def _line_label(position_nm: float) -> str | None:
+    """The :data:`FLUORESCENT_LINES_NM` line within 2 nm of ``position_nm``, or ``None``."""
+    label = min(
+        FLUORESCENT_LINES_NM, key=lambda name: abs(FLUORESCENT_LINES_NM[name] - position_nm)
+    )
+    return label if abs(FLUORESCENT_LINES_NM[label] - position_nm) <= 2.0 else None
+
+
 def lamp_lines(
     lamp: Spectrum,
     weight: Callable[[FloatArray], FloatArray] | None = None,
@@ -105,12 +131,8 @@ def lamp_lines(
 
     # Resample to a fine axis (linear interpolation, as the renderer and the solve do) so the line
     # shapes, and hence their centroids, are those the profile shows.
-    step_nm = 0.25
-    wavelength = np.arange(
-        max(range_nm[0], lamp.range_nm[0]), min(range_nm[1], lamp.range_nm[1]), step_nm
-    )
-    values = lamp.at(wavelength) * (weight(wavelength) if weight is not None else 1.0)
-    excess = _line_excess(values, int(np.ceil(line_width_nm / step_nm)))
+    wavelength, values = _fine_spectrum(lamp, range_nm, weight)
+    excess = _line_excess(values, int(np.ceil(line_width_nm / _FINE_STEP_NM)))
     if wavelength.size < 3 or float(excess.max()) <= 0:
         raise EstimationError(f"lamp {lamp.name!r} shows no emission lines in {range_nm} nm")
     indices, properties = signal.find_peaks(excess, prominence=min_prominence * float(excess.max()))
@@ -118,21 +140,111 @@ def lamp_lines(
     peaks: list[Peak] = []
     for k in order:
         index = int(indices[k])
-        half_width = int(np.ceil(line_width_nm / step_nm))
-        position = wavelength[0] + step_nm * _centroid_peak(excess, index, half_width)
-        label = min(
-            FLUORESCENT_LINES_NM, key=lambda name: abs(FLUORESCENT_LINES_NM[name] - position)
-        )
-        known = abs(FLUORESCENT_LINES_NM[label] - position) <= 2.0
+        half_width = int(np.ceil(line_width_nm / _FINE_STEP_NM))
+        position = wavelength[0] + _FINE_STEP_NM * _centroid_peak(excess, index, half_width)
         peaks.append(
             Peak(
                 float(position),
                 float(excess[index]),
                 float(properties["prominences"][k]),
-                label if known else None,
+                _line_label(position),
             )
         )
     return peaks
+
+
+#: A lamp's spectrum shows a *narrow* line where a peak is at most this wide (nm, at half its
+#: height above its surroundings), or 1.5× the spectrometer's bandwidth when that is more. Judged on
+#: colour-science's tables (:func:`narrow_lines`): their Hg lines measure 5–11 nm (one or two 5 nm
+#: samples), the narrowest LED band or daylight ripple 15 nm (LED-V1's 415 nm band, D50's 710 nm).
+NARROW_LINE_NM = 12.0
+#: … standing above its surroundings by at least this multiple of them (the peak at least twice
+#: the continuum under it; the tables' Hg 435.8 nm line stands 6–300× above it) …
+NARROW_LINE_CONTRAST = 1.0
+#: … and by at least this share of the spectrum's maximum (the tables' Hg 435.8 nm line is at least
+#: 0.4 of their maximum), and by :data:`PEAK_NOISE_SIGMA` noise σ.
+NARROW_LINE_SHARE = 0.1
+#: A spectrum measured through a broader slit than this (nm) cannot tell a line from an LED band
+#: (a line then measures about the bandwidth, an LED band ≥ √(15² + bandwidth²)).
+NARROW_LINE_MAX_BANDWIDTH_NM = 10.0
+
+
+def narrow_line_width_nm(bandwidth_nm: float | None) -> float | None:
+    """The widest peak :func:`narrow_lines` counts as a line for a spectrum measured at
+    ``bandwidth_nm`` (``None``: not stated), or ``None`` when the slit is too broad to tell."""
+    if bandwidth_nm is None:
+        return NARROW_LINE_NM
+    if bandwidth_nm > NARROW_LINE_MAX_BANDWIDTH_NM:
+        return None
+    return max(NARROW_LINE_NM, 1.5 * bandwidth_nm)
+
+
+def narrow_lines(
+    lamp: Spectrum,
+    *,
+    width_nm: float = NARROW_LINE_NM,
+    range_nm: tuple[float, float] = (380.0, 780.0),
+) -> list[Peak]:
+    """The narrow emission lines of a lamp's spectrum (a fluorescent or gas-discharge lamp's),
+    strongest first; none for an LED, an incandescent lamp or daylight.
+
+    A line is a peak of the spectrum (interpolated to 0.25 nm) at most ``width_nm`` wide at half
+    its prominence, standing above the higher of the minima beside it by
+    :data:`NARROW_LINE_CONTRAST` of that minimum, by :data:`NARROW_LINE_SHARE` of the
+    spectrum's maximum and by :data:`PEAK_NOISE_SIGMA` of its noise (from its own samples'
+    second differences). An LED's band is at least 15 nm wide, so the rule reads the spectrum
+    alone. Lines within 2 nm of :data:`FLUORESCENT_LINES_NM` are labelled.
+
+    Examples
+    --------
+    >>> from calib.core.lamp_specs import lamp_from_spec
+    >>> [peak.label for peak in narrow_lines(lamp_from_spec("FL2"))][:2]
+    ['Hg 435.8', 'Hg 546.1']
+    >>> narrow_lines(lamp_from_spec("LED-B3"))
+    []
+    """
+    from scipy import signal
+
+    wavelength, values = _fine_spectrum(lamp, range_nm)
+    if wavelength.size < 3 or not float(values.max()) > 0:
+        return []
+    # The noise from the spectrum's own samples (the interpolated ones are correlated).
+    own = (lamp.wavelength_nm >= range_nm[0]) & (lamp.wavelength_nm <= range_nm[1])
+    noise = second_difference_noise(lamp.values[own])
+    threshold = max(NARROW_LINE_SHARE * float(values.max()), PEAK_NOISE_SIGMA * noise)
+    indices, properties = signal.find_peaks(values, prominence=threshold)
+    prominence = properties["prominences"]
+    widths = signal.peak_widths(
+        values,
+        indices,
+        rel_height=0.5,
+        prominence_data=(prominence, properties["left_bases"], properties["right_bases"]),
+    )[0]
+    below = values[indices] - prominence
+    narrow = (widths * _FINE_STEP_NM <= width_nm) & (prominence >= NARROW_LINE_CONTRAST * below)
+    return [
+        Peak(
+            float(wavelength[indices[k]]),
+            float(values[indices[k]]),
+            float(prominence[k]),
+            _line_label(float(wavelength[indices[k]])),
+        )
+        for k in np.argsort(prominence)[::-1]
+        if narrow[k]
+    ]
+
+
+#: A peak must stand this many noise σ above its surroundings to count (noise makes no peaks).
+PEAK_NOISE_SIGMA = 5.0
+
+
+def second_difference_noise(values: FloatArray) -> float:
+    """White noise σ of ``values`` ``(n,)`` from the median absolute deviation of their second
+    differences (a smooth curve and a few sharp peaks hardly move it)."""
+    second = np.diff(np.asarray(values, dtype=np.float64), n=2)
+    if second.size == 0:
+        return 0.0
+    return 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0)
 
 
 def profile_peaks(
@@ -157,11 +269,10 @@ def profile_peaks(
     excess = _line_excess(smooth, int(np.ceil(line_width_px)))
     if float(excess.max()) <= 0:
         return []
-    second = np.diff(smooth, n=2)
-    noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0)
+    noise = second_difference_noise(smooth)
     # Smoothing correlates neighbours; the second differences understate σ by about the kernel width.
     noise *= math.sqrt(max(2.0 * math.sqrt(math.pi) * smoothing, 1.0))
-    threshold = max(min_prominence * float(excess.max()), 5.0 * noise)
+    threshold = max(min_prominence * float(excess.max()), PEAK_NOISE_SIGMA * noise)
     indices, properties = signal.find_peaks(excess, prominence=threshold)
     order = np.argsort(properties["prominences"])[::-1][:max_peaks]
     step = np.gradient(pixel)

@@ -1339,9 +1339,15 @@ def search_profiles(
         raise InputError("no lamp observations to find the mapping with", source="observations")
     frames = {(lamp.pixel[0], lamp.pixel[-1], lamp.n_pixels) for lamp in lamps}
     if len(frames) != 1:
+        axes = "; ".join(
+            f"{lamp.name}: px {lamp.pixel[0]:g}–{lamp.pixel[-1]:g}, {lamp.n_pixels} samples"
+            for lamp in lamps
+        )
         raise InputError(
-            "the lamps' profiles are on different pixel axes; extract them with one geometry",
-            source="observations",
+            f"the lamps' profiles are on different pixel axes ({axes}); one mapping needs one "
+            "axis: export every lamp's profile over the same pixels (one crop and geometry), or "
+            "give the profiles in wavelength_nm",
+            source="profiles",
         )
     lead = next((lamp for lamp in lamps if lamp.kind == "fluorescent"), lamps[0])
     pixel_range = (float(lead.pixel[0]), float(lead.pixel[-1]))

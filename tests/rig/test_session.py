@@ -381,6 +381,36 @@ class TestHostilePaths:
             csv.path: "does not exist",
         }
 
+    def test_each_unreadable_file_is_said_once_by_path_and_by_problem(
+        self, writer: SessionWriter, tmp_path: Path
+    ) -> None:
+        """verify_files names the path apart from the problem, file_path names it in the error:
+        the same words for a missing file, a symlink, a directory in a file's place and an
+        unsafe name."""
+        start(writer)
+        missing, linked, directory = (frame(writer, b"x", f"lamp/A/scene/00{k}") for k in range(3))
+        assert len({missing.path, linked.path, directory.path}) == 3
+        writer.close()
+        (writer.path / missing.path).unlink()
+        (writer.path / linked.path).unlink()
+        (writer.path / linked.path).symlink_to(tmp_path / "elsewhere.dng")
+        (writer.path / directory.path).unlink()
+        (writer.path / directory.path).mkdir()
+        session = read_session(writer.path)
+        said = {
+            missing.path: "does not exist",
+            linked.path: f"goes through a symlink ({Path(linked.path).name}); refused",
+            directory.path: "is not a regular file",
+        }
+        assert {p.path: p.problem for p in session.verify_files()} == said
+        for path, problem in said.items():
+            with pytest.raises(SessionFormatError) as raised:
+                session.file_path(path)
+            assert str(raised.value) == f"{writer.path}: {path} {problem}"
+        with pytest.raises(SessionFormatError) as raised:
+            session.file_path("frames/../log.jsonl")
+        assert str(raised.value).startswith(f"{writer.path}: path 'frames/../log.jsonl' has an ")
+
 
 class TestWriteFailures:
     def test_a_failed_write_is_cut_back_and_stops_all_later_writes_but_the_last(
