@@ -69,7 +69,8 @@ def test_a_fluorescent_spectrum_declared_led_is_warned() -> None:
     message = lamp_kind_mismatch(_observation(lamp_from_spec("FL2"), "led"))
     assert message is not None
     assert message.startswith("lamp 'L1' is declared --kind led but its spectrum has narrow")
-    assert "looks fluorescent: declare it --kind fluorescent to map from its lines" in message
+    assert "looks fluorescent: declare it --kind fluorescent" in message
+    assert "kind: fluorescent in config.yaml) to map from its lines" in message
     assert "435 nm" in message
 
 

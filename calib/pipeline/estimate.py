@@ -630,14 +630,15 @@ def lamp_kind_mismatch(obs: LampObservation) -> str | None:
         return (
             f"lamp {obs.name!r} is declared --kind {obs.kind} but its spectrum has narrow "
             f"emission lines (at {shown}): it looks fluorescent: declare it --kind fluorescent "
-            "to map from its lines"
+            "(in a rig session, kind: fluorescent in config.yaml) to map from its lines"
         )
     if obs.kind == "fluorescent" and not lines:
         return (
             f"lamp {obs.name!r} is declared --kind fluorescent but its spectrum has no narrow "
             f"emission line (no peak under {width_nm:g} nm wide standing above its continuum): "
             "it looks broadband/LED; its lines cannot anchor the mapping: declare it --kind led "
-            "(or halogen), or check that the spectrum is this lamp's"
+            "or halogen (in a rig session, its kind in config.yaml), or check that the spectrum "
+            "is this lamp's"
         )
     return None
 
