@@ -110,10 +110,14 @@ def test_ocean_and_argyll_sessions_estimate_as_the_pr655_does(tmp_path: Path) ->
         truth = checked.truth.sensitivity.resample(DEFAULT_GRID, "interpolate").values
         found[name] = _estimate(checked).result.physical_sensitivity()
         errors[name] = 100 * relative_error(found[name], truth)
-    # bench/spectrometer_equivalence.py --draws 4 (×10⁻²): |ΔRE vs truth| 0.00–0.16 (USB2000+),
-    # 0.00–0.13 (spotread -H); between the estimates 0.46–0.56 and 1.21–1.40.
+    # bench/spectrometer_equivalence.py --draws 4 (×10⁻²), RE vs truth minus the PR-655's: +0.17 to
+    # +0.31 (USB2000+), −0.41 to +0.31 (spotread -H); between the estimates 0.44–0.56 and
+    # 0.83–1.38. Until decision 0176 the PR-655's estimate took its spectra at the stated 8 nm
+    # while the twin's slit is ×0.886 of it (RE 1.26); at the slit its Hg lines measure, 1.15. The
+    # USB2000+'s 1.5 nm slit is not corrected (the check's floor there is 20 %), and its estimate
+    # is the same as before (1.37), so its margin over the PR-655 grew from 0.00–0.16 to this.
     for name in ("usb2000plus", "i1pro-hires"):
-        assert abs(errors[name] - errors["pr655"]) <= 0.2, errors
+        assert errors[name] - errors["pr655"] <= 0.35, errors
     # Between the estimates: the PR-655's 8 nm and the i1Pro's 15 nm slits set floors of their
     # own (0.45 and 1.65 noise-free with the true mapping, decision 0035).
     between = {n: 100 * relative_error(found[n], found["pr655"]) for n in found if n != "pr655"}
