@@ -29,6 +29,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 from calib.core.observations import LampKind
+from calib.core.spectrometer_tolerance import MAX_BANDWIDTH_NM
 from calib.core.validated_yaml import ConfigError as ConfigError
 from calib.core.validated_yaml import ConfigIssue, parse_yaml_model
 from calib.model.gratings import REPLICA_SHEET_PEAK_PHASE_RAD
@@ -140,7 +141,10 @@ class SeabreezeSpectrometerConfig(StrictModel):
     electric_dark: CorrectionChoice = "auto"
     nonlinearity: CorrectionChoice = "auto"
     bandwidth_nm: float | None = Field(
-        None, gt=0, le=100, description="optical resolution (FWHM) of the slit and grating"
+        None,
+        gt=0,
+        le=MAX_BANDWIDTH_NM,
+        description="optical resolution (FWHM) of the slit and grating",
     )
     timeout_s: float = Field(5.0, gt=0, le=600, description="USB deadline beyond a scan's time")
     measure_timeout_s: float | None = Field(None, gt=0, le=3600, description=MEASURE_TIMEOUT_HELP)
@@ -180,7 +184,7 @@ class ArgyllSpectrometerConfig(StrictModel):
     bandwidth_nm: float | None = Field(
         None,
         gt=0,
-        le=100,
+        le=MAX_BANDWIDTH_NM,
         description="optical resolution (FWHM); null: an i1Pro's, 25 nm (15 with -H)",
     )
     timeout_s: float = Field(60.0, gt=0, le=600, description="deadline of one spotread run")
@@ -207,7 +211,7 @@ class FilesSpectrometerConfig(StrictModel):
     format: SpectrumFileFormat = "auto"
     column: str | None = Field(None, min_length=1)
     units: str = Field("relative spectral power", min_length=1)
-    bandwidth_nm: float | None = Field(None, gt=0, le=100)
+    bandwidth_nm: float | None = Field(None, gt=0, le=MAX_BANDWIDTH_NM)
     timeout_s: float = Field(5.0, gt=0, le=600)
     measure_timeout_s: float | None = Field(None, gt=0, le=600)
 

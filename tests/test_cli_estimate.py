@@ -181,6 +181,7 @@ def test_the_same_lamps_from_an_inputs_file(tmp_path: Path) -> None:
         ("lamps: []\n", "lamps.yaml:1: lamps: List should have at least 1 item"),
         ("lamp:\n  - {name: A}\n", "unknown key 'lamp' (did you mean 'lamps'?)"),
         ("lamps:\n  - {name: A, spectrum: a.csv, profile: p.csv, direct_rgb: [1, 2]}\n", "lamps[0].direct_rgb"),
+        ("lamps:\n  - name: A\n    spectrum: a.csv\n    profile: p.csv\n    bandwidth_nm: 500\n", "lamp 'A': --bandwidth 500 (or an --inputs file's bandwidth_nm) is not a spectrometer's bandwidth"),
     ],
 )  # fmt: skip
 def test_an_inputs_file_is_checked_with_one_line_naming_the_field(
@@ -517,7 +518,7 @@ def test_a_bandwidth_no_spectrometer_has_is_an_input_error_naming_it(
     argv = _profile_args(tmp_path, capture, direct=True)
     if where == "option":
         argv += ["--bandwidth", "500"]
-        source = "lamp 'FL': --bandwidth 500"
+        source = "lamp 'FL': --bandwidth 500 (or an --inputs file's bandwidth_nm)"
     else:
         spectrum = tmp_path / "FL.csv"
         spectrum.write_text("# bandwidth_nm: 500\n" + spectrum.read_text())

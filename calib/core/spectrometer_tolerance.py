@@ -21,3 +21,8 @@ BANDWIDTH_TOLERANCE = 0.25
 #: σ per unit of tolerance of an instrument within its specification: anywhere inside ±tolerance,
 #: uniformly (σ = tolerance/√3), as the twin and the validation protocol draw it (decision 0038).
 IN_SPEC_TOLERANCE_SIGMA = 3.0**-0.5
+#: The broadest spectrometer bandwidth (FWHM of the slit function, nm) the project takes: twice the
+#: broadest instrument it models (an i1Pro in its 10 nm bands, 25 nm; a PR-655 is 8 nm, a CS-2000
+#: 5 nm). A broader "slit" blurs a lamp's spectrum over a camera channel's own width: a typo (a
+#: range, a wavelength). The rig's configuration and an estimate's inputs both refuse one.
+MAX_BANDWIDTH_NM = 50.0

@@ -254,7 +254,10 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
         if given.spectrum_bandwidth_nm is not None:
             check_bandwidth(
                 given.spectrum_bandwidth_nm,
-                given_as=f"--bandwidth {given.spectrum_bandwidth_nm:g}",
+                given_as=(
+                    f"--bandwidth {given.spectrum_bandwidth_nm:g} (or an --inputs file's "
+                    "bandwidth_nm)"
+                ),
                 source=f"lamp {given.name!r}",
             )
         loaded = load_spectrum(given.spectrum, given.name, settings.grid)

@@ -30,16 +30,12 @@ from calib.core.spectra import (
     read_spectrum_csv,
     read_table,
 )
+from calib.core.spectrometer_tolerance import MAX_BANDWIDTH_NM
 from calib.image.profile_files import read_fits_profile, read_rawproc_dat
 
 #: Negative spectrum values (dark-subtraction noise) up to this fraction of the maximum are set to
 #: zero with a warning; larger ones mean a broken measurement and are refused.
 NEGATIVE_SPECTRUM_TOLERANCE = 0.05
-#: The broadest spectrometer bandwidth (FWHM of the slit function, nm) an estimate takes: twice
-#: the broadest instrument the project models (an i1Pro in its 10 nm bands, 25 nm; a PR-655 is
-#: 8 nm, a CS-2000 5 nm). A broader "slit" blurs the lamp's spectrum over a camera channel's own
-#: width: a typo (a range, a wavelength), which the estimate would turn into a mapping failure.
-MAX_BANDWIDTH_NM = 50.0
 
 _PIXEL_COLUMNS = ("pixel", "pixels", "px", "position_px", "pixel_px")
 _WAVELENGTH_COLUMNS = ("wavelength_nm", "wavelength", "nm", "lambda_nm")

@@ -79,6 +79,20 @@ class TestReadableErrors:
             "lamps[0].warmup.tolerance: 0 is out of range; must be > 0 and < 1" in i for i in issues
         )
 
+    def test_a_spectrometer_bandwidth_is_bounded_as_an_estimate_bounds_it(self) -> None:
+        """The rig's config took up to 100 nm, which the estimate then refused; one bound now."""
+        data = fake_config_data()
+        data["devices"]["spectrometer"] = {
+            "kind": "files",
+            "directory": "spectra",
+            "bandwidth_nm": 80,
+        }
+        issues = issues_for(data)
+        assert any(
+            "devices.spectrometer.bandwidth_nm: 80 is out of range; must be > 0 and ≤ 50" in i
+            for i in issues
+        ), issues
+
     def test_an_unknown_device_kind_suggests_the_closest(self) -> None:
         data = fake_config_data()
         data["devices"]["spectrometer"] = {"kind": "pr665", "port": "/dev/ttyACM0"}
