@@ -324,7 +324,7 @@ def test_the_check_measures_the_slit_its_isolated_lines_show():
             assert not any("slit measured" in note for note in outcome.notes)
         else:
             assert [lamp.spectrum_bandwidth_nm for lamp in lamps] == [3.0 * measured] * 2
-            assert lamps[1].metadata[SLIT_CORRECTION_KEY]["stated_bandwidth_nm"] == 3.0
+            assert lamps[1].metadata[SLIT_CORRECTION_KEY] == 3.0
             assert measured_slit(lamps[0]) == (1.0, sigma / measured)
             assert any("slit measured" in note for note in outcome.notes)
             # Checking again changes nothing (the bandwidth is not corrected twice).

@@ -91,8 +91,9 @@ SCALE_CHECK_KEY = "spectrometer_scale_check"
 #: after the check, used by the mapping and the budget in place of the tolerance.
 SCALE_SIGMA_KEY = "wavelength_scale_sigma_nm"
 #: ``LampObservation.metadata`` key of a lamp whose stated bandwidth the check corrected to the
-#: measured slit: the stated FWHM (nm), the factor and its σ (:func:`checked_observations`).
-SLIT_CORRECTION_KEY = "slit_correction"
+#: measured slit: the stated FWHM (nm) (:func:`checked_observations`; the factor and its σ are the
+#: check's record's).
+SLIT_CORRECTION_KEY = "stated_bandwidth_nm"
 #: The measured slit replaces the stated one when they differ by more than this many σ of the
 #: measured factor (:attr:`ScaleCheck.slit_factor`): the stated slit is then contradicted by the
 #: instrument's own spectrum (decision 0176). A significance level, not a tuned number.
@@ -796,11 +797,7 @@ def checked_observations(
                 }
                 bandwidth = item.spectrum_bandwidth_nm
                 if slit is not None and bandwidth is not None:
-                    metadata[SLIT_CORRECTION_KEY] = {
-                        "stated_bandwidth_nm": bandwidth,
-                        "factor": slit[0],
-                        "factor_sigma": slit[1],
-                    }
+                    metadata[SLIT_CORRECTION_KEY] = bandwidth
                     bandwidth = bandwidth * slit[0]
                 out.append(
                     replace(
@@ -845,15 +842,14 @@ def measured_slit(observation: LampObservation) -> tuple[float, float] | None:
     if not isinstance(record, Mapping):
         return None
     factor, sigma = record.get("slit_factor"), record.get("slit_factor_sigma")
-    correction = observation.metadata.get(SLIT_CORRECTION_KEY)
-    if isinstance(correction, Mapping) and isinstance(factor, int | float) and factor > 0:
-        # The bandwidth was corrected to the measured slit: what is left of the slit's error is
-        # the measurement's own σ, relative to the corrected bandwidth.
-        factor, sigma = 1.0, sigma / factor if isinstance(sigma, int | float) else sigma
     if not isinstance(factor, int | float) or not isinstance(sigma, int | float):
         return None
     if not (math.isfinite(factor) and factor > 0 and math.isfinite(sigma) and sigma >= 0):
         return None
+    if SLIT_CORRECTION_KEY in observation.metadata:
+        # The bandwidth was corrected to the measured slit: what is left of the slit's error is
+        # the measurement's own σ, relative to the corrected bandwidth.
+        return 1.0, float(sigma) / float(factor)
     return float(factor), float(sigma)
 
 
