@@ -75,7 +75,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.metrics import relative_error
-from calib.core.spectra import DEFAULT_GRID
+from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.core.spectrometer_tolerance import BANDWIDTH_TOLERANCE, WAVELENGTH_SCALE_NM
 from calib.evaluation.synthetic import efficiency_coverage
 from calib.methods.uncertainty import MODEL_FLOOR, TOLERANCE_SIGMA, BudgetSettings
@@ -321,6 +321,21 @@ def measured_slit_factor(check: object) -> tuple[float, float] | None:
     return float(factor), float(sigma)
 
 
+def on_nodes(
+    values: np.ndarray, sigma: np.ndarray, wavelength_nm: np.ndarray, nodes_nm: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Delivered curves ``(n, 3)`` and their σ on a grid read at ``nodes_nm`` (a subset of its
+    nodes: the default grid's), both divided by the curves' maximum there, as a curve delivered on
+    those nodes is normalised; on the same nodes, the curves as they are."""
+    if np.array_equal(wavelength_nm, nodes_nm):
+        return values, sigma
+    rows = np.searchsorted(wavelength_nm, nodes_nm)
+    if rows.max() >= wavelength_nm.size or not np.allclose(wavelength_nm[rows], nodes_nm):
+        raise SystemExit("--grid: its nodes must include every 10 nm node of 400–700 nm")
+    peak = float(values[rows].max())
+    return values[rows] / peak, sigma[rows] / peak
+
+
 def judge(
     session: Path,
     out: Path,
@@ -329,6 +344,7 @@ def judge(
     *,
     named_only: bool = False,
     tolerance_sigma: float = TOLERANCE_SIGMA,
+    grid: WavelengthGrid = DEFAULT_GRID,
 ) -> dict[str, object]:
     """Estimate ``session`` as ``rig demo`` does, with the σ budget's misfit ``floor`` (the tuning
     run's lever; the product uses :data:`MODEL_FLOOR`) and, with ``named_only``, without the
@@ -336,7 +352,7 @@ def judge(
     # The bundled rawtoaces-data basis (as on a machine without camera data), whatever --data-dir,
     # $SPECTRAL_RIG_DATA or the user cache hold: the splits are named against it.
     with tempfile.TemporaryDirectory() as no_data:
-        basis = default_camera_basis(data_dir=no_data, exclude=related_camera_names(camera))
+        basis = default_camera_basis(grid, data_dir=no_data, exclude=related_camera_names(camera))
     assert basis.fallback is not None and "rawtoaces-data" in basis.source, basis.source
     started = time.process_time()
     outcome = estimate_session(
@@ -344,6 +360,7 @@ def judge(
         out,
         settings={
             "basis": basis,
+            "grid": grid,
             "budget": BudgetSettings(
                 model_floor=floor,
                 coverage_scale={} if named_only else None,
@@ -356,21 +373,24 @@ def judge(
     cpu_s = time.process_time() - started
     result = outcome.estimate.result
     truth = read_twin_truth(session / "twin-truth.json").sensitivity
-    wavelength = result.wavelength_nm
+    # Scored at the default grid's nodes whatever grid the estimate was solved on (``--grid``).
+    wavelength = DEFAULT_GRID.wavelength_nm
     reference = np.stack(
         [np.interp(wavelength, truth.wavelength_nm, truth.values[:, k]) for k in range(3)], axis=1
     )
     reference = reference / reference.max()
     # What users get (sensitivity.csv and result.json): negative lobes set to zero, σ alongside.
     curves = result.camera_curves()
-    sigma = curves.sigma
-    assert sigma is not None, "every grating method states a σ through the budget"
-    error = curves.values - reference
+    assert curves.sigma is not None, "every grating method states a σ through the budget"
+    values, sigma = on_nodes(curves.values, curves.sigma, result.wavelength_nm, wavelength)
+    error = values - reference
     budget = result.quality.uncertainty or {}
     eta_coverage, eta_ratio = math.nan, math.nan
     eta_components: dict[str, float] = {}
     if result.grating_efficiency_sigma is not None:
-        true_eta = read_twin_truth(session / "twin-truth.json").grating_efficiency.at(wavelength)
+        true_eta = read_twin_truth(session / "twin-truth.json").grating_efficiency.at(
+            result.wavelength_nm
+        )
         eta_coverage, eta_ratio = efficiency_coverage(result, true_eta)
         eta_error = np.asarray(result.grating_efficiency) - true_eta / float(np.max(true_eta))
         eta_error_rms = max(float(np.sqrt(np.mean(eta_error**2))), 1e-300)
@@ -401,7 +421,7 @@ def judge(
         "slit_check": measured_slit_factor(check),
         "components": components,
         "method": result.method,
-        "re": relative_error(curves.values, reference),
+        "re": relative_error(values, reference),
         "coverage": float(np.mean(np.abs(error) <= 2.0 * sigma)),
         "sigma_ratio": float(np.sqrt(np.mean(sigma**2)) / error_rms),
         "chi2_noise": budget.get("noise_only_reduced_chi2"),
@@ -415,9 +435,9 @@ def judge(
         "eta_parameter_error": parameter_error,
         "eta_parameter_sigma": parameter_sigma,
         "direct_chi2_per_dof": chi2_per_dof,
-        **normalisation_diagnosis(curves.values, sigma, reference, wavelength),
-        "re_grid_truth": relative_error(curves.values, on_grid),
-        "coverage_grid_truth": float(np.mean(np.abs(curves.values - on_grid) <= 2.0 * sigma)),
+        **normalisation_diagnosis(values, sigma, reference, wavelength),
+        "re_grid_truth": relative_error(values, on_grid),
+        "coverage_grid_truth": float(np.mean(np.abs(values - on_grid) <= 2.0 * sigma)),
     }
 
 
@@ -427,6 +447,13 @@ def main() -> None:
     parser.add_argument("--floors", default=str(MODEL_FLOOR), help="comma-separated floors")
     parser.add_argument("--data-dir", type=Path, default=None)
     parser.add_argument("--config", type=Path, default=ROOT / "config.yaml")
+    parser.add_argument(
+        "--grid",
+        type=WavelengthGrid.parse,
+        default=DEFAULT_GRID,
+        help="solve on this grid (START:STOP:STEP nm; the basis on it too), scored at the default "
+        "grid's nodes (400–700 nm every 10 nm, the curves normalised there)",
+    )
     parser.add_argument("--keep", type=Path, default=None, help="keep the sessions here")
     parser.add_argument(
         "--reuse",
@@ -611,6 +638,7 @@ def main() -> None:
                     floor,
                     named_only=args.named_only,
                     tolerance_sigma=args.tolerance_sigma,
+                    grid=args.grid,
                 )
                 rows.append(Row(split, camera + (f" #{seed}" if seed else ""), floor, **scored))  # type: ignore[arg-type]
                 row = rows[-1]

@@ -91,3 +91,25 @@ def test_the_measured_slit_is_read_from_the_scale_checks_record() -> None:
     assert bench.measured_slit_factor({**record, "slit_factor": None}) is None
     assert bench.measured_slit_factor({"mean_offset_nm": -0.11}) is None
     assert bench.measured_slit_factor(None) is None
+
+
+def test_an_estimate_on_a_finer_grid_is_scored_at_the_default_nodes_normalised_there() -> None:
+    bench = _bench()
+    fine = np.arange(400.0, 701.0, 5.0)
+    nodes = np.arange(400.0, 701.0, 10.0)
+    values = np.stack([np.exp(-0.5 * ((fine - centre) / 30.0) ** 2) for centre in (600, 535, 455)])
+    values = values.T.copy()
+    values[fine == 535.0, 1] = 1.25  # the maximum between two 10 nm nodes: not delivered there
+    sigma = np.full_like(values, 0.01)
+    read, read_sigma = bench.on_nodes(values, sigma, fine, nodes)
+    assert read.shape == (nodes.size, 3)
+    assert read.max() == pytest.approx(1.0)
+    scale = float(values[::2].max())
+    np.testing.assert_allclose(read, values[::2] / scale)
+    np.testing.assert_allclose(read_sigma, sigma[::2] / scale)
+    # the default grid itself: unchanged
+    same, same_sigma = bench.on_nodes(values[::2], sigma[::2], nodes, nodes)
+    assert same is values[::2] or np.array_equal(same, values[::2])
+    # a grid whose nodes miss the default ones cannot be scored there
+    with pytest.raises(SystemExit, match="--grid"):
+        bench.on_nodes(values[:-1], sigma[:-1], fine[:-1] + 2.5, nodes)
