@@ -443,6 +443,33 @@ def test_profile_input_with_direct_measurement(capture: Capture, tmp_path: Path)
     assert relative_error(values, capture.truth) < 0.05
 
 
+@pytest.mark.parametrize("fluorescent", ["FL2", "builtin:hg"])
+def test_a_spectrum_given_by_name_is_read_not_opened_as_a_file(
+    capture: Capture, tmp_path: Path, fluorescent: str
+) -> None:
+    """``--spectrum`` takes a colour-science name or a built-in line list (issue 16): no file of
+    that name exists, and none is hashed into the provenance (it once failed there, exit 2,
+    "builtin:hg: No such file or directory")."""
+    argv: list[str] = []
+    for lamp, kind, name in (("LED", "led", "LED-B3"), ("FL", "fluorescent", fluorescent)):
+        profile, rgb = _write_profile(tmp_path / f"{lamp}-profile.csv", capture, lamp)
+        argv += ["--lamp", lamp, "--kind", kind, "--profile", str(profile), "--spectrum", name]
+        argv += ["--direct", ",".join(f"{v:.10g}" for v in rgb)]
+    out = tmp_path / "out"
+    code, _, stderr = _call([*argv, "--out", str(out), "--no-report"])
+    assert code == 0, stderr
+    result = json.loads((out / "result.json").read_text())
+    provenance = result["provenance"]
+    assert [lamp["spectrum"] for lamp in provenance["lamps"]] == ["LED-B3", fluorescent]
+    # A line list says where the lines are, not how bright the lamp is: mapping only, never the
+    # solve (in it, the prior solve fitted Hg lines alone against an FL2 profile: RE 0.35).
+    mapping_only = result["method_choice"]["mapping_only"]
+    assert mapping_only == (["FL"] if fluorescent.startswith("builtin:") else [])
+    assert {record["role"] for record in provenance["inputs"]} == {"profile"}
+    values = read_camera_csv(out / "sensitivity.csv").values
+    assert relative_error(values, capture.truth) < 0.05
+
+
 def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> None:
     wavelength = np.arange(380.0, 721.0, 2.0)
     grating = write_grating_file(

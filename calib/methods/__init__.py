@@ -49,6 +49,7 @@ import numpy as np
 
 from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
+from calib.core.line_lists import is_builtin
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, mapping_flags
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
@@ -149,11 +150,17 @@ def coarse_line_spectrum(observation: LampObservation) -> str | None:
     """Why a line lamp's spectrum cannot be used in the solve (unknown or too coarse), or ``None``.
 
     A spectrum is *unknown* when its lamp's ``metadata["spectrum_known"]`` is ``False`` (a nominal
-    spectrum standing in for one nobody measured)."""
+    spectrum standing in for one nobody measured), or when it is a built-in line list
+    (``builtin:NAME``: where the lines are, not how bright the lamp is between them)."""
     if observation.kind not in LINE_LAMP_KINDS:
         return None
     if observation.metadata.get("spectrum_known") is False:
         return f"lamp {observation.name!r}: its spectrum was not measured"
+    if is_builtin(observation.spectrum.name or ""):
+        return (
+            f"lamp {observation.name!r}: its spectrum is the line list {observation.spectrum.name} "
+            "(where its lines are, not a measurement of the lamp)"
+        )
     wavelength = np.asarray(observation.spectrum.wavelength_nm, dtype=np.float64)
     step = float(np.median(np.diff(wavelength))) if wavelength.size > 1 else math.inf
     bandwidth = observation.spectrum_bandwidth_nm

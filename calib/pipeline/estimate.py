@@ -56,7 +56,7 @@ from calib.pipeline.inputs import (
     describe_spectrum,
     load_spectrum,
     read_profile_file,
-    spectrum_paths,
+    spectrum_files,
 )
 from calib.pipeline.progress import NoProgress, OfflineProgress
 from calib.pipeline.provenance import FileHasher, InputFile, Provenance, repeated_file
@@ -439,7 +439,7 @@ def estimate_offline(
                         hasher.add(path, "dark", lamp.name)
             else:
                 hasher.add(lamp.profile, "profile", lamp.name)
-            for path in spectrum_paths(lamp.spectrum):
+            for path in spectrum_files(lamp.spectrum):
                 if str(path) not in known:
                     hasher.add(path, "spectrum", lamp.name)
         if isinstance(settings.grating, Path):

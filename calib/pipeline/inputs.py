@@ -56,6 +56,15 @@ def spectrum_paths(source: SpectrumSource) -> tuple[Path, ...]:
     return ()
 
 
+def spectrum_files(source: SpectrumSource) -> tuple[Path, ...]:
+    """The files to read behind a spectrum source: none for a :class:`Spectrum` or a named one
+    (a colour-science name, ``builtin:NAME``, ``gauss:CENTRE:FWHM``), which is not a file."""
+    paths = spectrum_paths(source)
+    if len(paths) == 1 and not is_spectrum_file(paths[0]):
+        return ()
+    return paths
+
+
 def describe_spectrum(source: SpectrumSource) -> str:
     """The spectrum source in a record: its path(s) or its name."""
     paths = spectrum_paths(source)
@@ -244,12 +253,12 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
     warnings: list[str] = []
     bandwidth: float | None = None
     units: str | None = None
-    paths = spectrum_paths(source)
-    if not paths:  # a Spectrum, or colour's SpectralDistribution
+    named, paths = spectrum_paths(source), spectrum_files(source)
+    if not named:  # a Spectrum, or colour's SpectralDistribution
         spectrum, where = as_spectrum(source, lamp), f"spectrum of lamp {lamp!r}"
-    elif len(paths) == 1 and not is_spectrum_file(paths[0]):
+    elif not paths:
         # A colour-science name, builtin:NAME or gauss:… — resolved where every lamp spec is.
-        name = str(paths[0])
+        name = str(named[0])
         spectrum, where = lamp_from_spec(name), f"spectrum {name!r} of lamp {lamp!r}"
     else:
         where = ", ".join(str(path) for path in paths)
