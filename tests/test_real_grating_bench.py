@@ -49,3 +49,34 @@ def test_the_unmeasured_cfl_is_used_for_the_mapping_only(d7000_folder: Path) -> 
     assert cfl.metadata["spectrum_known"] is False
     assert "not measured" in (coarse_line_spectrum(cfl) or "")
     assert coarse_line_spectrum(halogen) is None
+
+
+def test_the_command_line_with_the_built_in_line_list_estimates_as_the_bench(
+    d7000_folder: Path, tmp_path: Path
+) -> None:
+    """``calib estimate … --spectrum builtin:cfl-triphosphor`` as a user types it: the list keeps
+    the CFL out of the solve (in it, the RMS against rawtoaces' curve was 0.105, not 0.039–0.041),
+    and the named spectrum is not opened as a file (it was: exit 2)."""
+    from calib.cli.app import main
+    from calib.core.formats.rgb_csv import read_camera_csv
+    from calib.methods import estimate
+    from calib.model.bases import default_camera_basis
+    from tests.conftest import SHARED_CAMERA_DATA
+
+    if not SHARED_CAMERA_DATA.is_dir():
+        pytest.skip(f"reference camera data not found at {SHARED_CAMERA_DATA}")
+    out = tmp_path / "out"
+    argv = ["estimate", "--lamp", "CFL", "--kind", "fluorescent"]
+    argv += ["--profile", str(d7000_folder / "D7000_calibration.dat")]
+    argv += ["--spectrum", "builtin:cfl-triphosphor", "--lamp", "halogen", "--kind", "halogen"]
+    argv += ["--profile", str(d7000_folder / "D7000_spectrum.dat")]
+    argv += ["--spectrum", str(d7000_folder / "Dedolight_5nm.csv")]
+    argv += ["--data-dir", str(SHARED_CAMERA_DATA), "--out", str(out), "--no-report", "-q"]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code in (0, None)
+    bench = _bench()
+    basis = default_camera_basis(bench.GRID, data_dir=SHARED_CAMERA_DATA)
+    expected = estimate(bench.d7000_lamps(d7000_folder), basis=basis, assume_flat_grating=True)
+    found = read_camera_csv(out / "sensitivity.csv").values
+    np.testing.assert_allclose(found, expected.camera_curves().values, atol=1e-6)
