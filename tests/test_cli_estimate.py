@@ -218,6 +218,9 @@ def test_an_inputs_file_is_checked_with_one_line_naming_the_field(
         (["--out", "o"], "no lamps; give --lamp NAME"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--grooves-per-mm", "0"], "--grooves-per-mm"),
         (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--pixel-pitch-um", "x"], "--pixel-pitch-um"),
+        (["--out", "o", "--lamp", "A", "--profile", "a.csv", "b.csv", "--spectrum", "s"], "--profile takes one file, or the R, G and B planes of a FITS export as three files"),
+        (["--out", "o", "--lamp", "A", "--images", "a", "--spectrum", "s", "--channel-gains", "unknown"], "--channel-gains goes with --profile"),
+        (["--out", "o", "--lamp", "A", "--profile", "a.csv", "--spectrum", "s", "--channel-gains", "wb"], "lamp 'a' --channel-gains: 'wb' is not allowed"),
     ],
 )  # fmt: skip
 def test_command_line_mistakes_are_one_line_exit_2(argv: list[str], message: str) -> None:
@@ -493,6 +496,38 @@ def test_profile_input_with_a_grating_file(capture: Capture, tmp_path: Path) -> 
     # the per-wavelength uncertainty is honest: errors mostly within 3 σ
     assert np.mean(np.abs(estimated - truth) <= 3 * sigma + 1e-3) > 0.9
     assert not (tmp_path / "out" / "grating.json").exists()  # given, not estimated
+
+
+def test_a_makers_curve_as_the_grating_and_channel_gains_a_conversion_scaled(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """``--grating`` takes a maker's published curve as a table (per cent, header ``w,
+    efficiency`` as LHires III's): η is the curve, obtained "maker's curve", its missing σ warned;
+    ``--channel-gains unknown`` takes the channel balance from the camera population and says
+    so."""
+    wavelength = np.arange(380.0, 721.0, 5.0)
+    curve = tmp_path / "maker.csv"
+    rows = "".join(
+        f"{w:g}, {100 * e:.4f}\n" for w, e in zip(wavelength, efficiency(wavelength), strict=True)
+    )
+    curve.write_text("w, efficiency\n" + rows)
+    grating = read_grating_file(curve)
+    assert grating.obtained == "maker's curve" and grating.efficiency_sigma is None
+    np.testing.assert_allclose(grating.efficiency.max(), 1.0)
+    argv = [*_profile_args(tmp_path, capture, direct=False), "--grating", str(curve)]
+    argv[argv.index("--spectrum") + 2 : argv.index("--spectrum") + 2] = [
+        "--channel-gains",
+        "unknown",
+    ]
+    code, stdout, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--json", "--no-report"])
+    assert code == 0, stderr
+    summary = json.loads(stdout)
+    assert summary["method"] == "known-grating"
+    assert {"grating_sigma_missing", "channel_gains_unknown"} <= _flag_codes(summary)
+    document = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert [lamp["channel_gains"] for lamp in document["provenance"]["lamps"]] == ["unknown", "raw"]
+    estimated = np.column_stack([document["sensitivity"][c] for c in "RGB"])
+    assert relative_error(estimated, capture.truth) < 0.05
 
 
 def test_a_clipped_profile_is_a_serious_warning_naming_the_lamp_and_the_pixels(

@@ -253,3 +253,22 @@ def test_the_canon_10d_fits_planes(shared_real_grating: Path) -> None:
     assert peaks[2] < peaks[1] < peaks[0]
     snr = profile.profile / profile.profile_sigma
     assert 100 < float(np.max(snr)) < 5000
+
+
+def test_calib_estimate_reads_the_planes_as_three_files_and_nothing_else(tmp_path: Path) -> None:
+    """A FITS export's R, G, B planes as three files (the real Canon 10D data come so): the same
+    profile as the reader's; two files, or three that are not FITS, are refused naming them."""
+    planes, _ = _band_planes(np.random.default_rng(7), 0.01)
+    paths = []
+    for name, plane in zip("RGB", planes, strict=True):
+        paths.append(tmp_path / f"sun {name}.fit")
+        paths[-1].write_bytes(_fits_bytes(plane))
+    table = read_profile_file(tuple(paths))
+    np.testing.assert_array_equal(table.profile, read_fits_profile(paths).profile)
+    assert not table.in_wavelength
+    with pytest.raises(InputError, match="2 files: a profile is one file") as refused:
+        read_profile_file(tuple(paths[:2]))
+    assert "sun R.fit" in str(refused.value) and "sun G.fit" in str(refused.value)
+    csvs = tuple(tmp_path / f"{c}.csv" for c in "rgb")
+    with pytest.raises(InputError, match="R, G and B planes of a FITS export"):
+        read_profile_file(csvs)

@@ -80,3 +80,38 @@ def test_the_command_line_with_the_built_in_line_list_estimates_as_the_bench(
     expected = estimate(bench.d7000_lamps(d7000_folder), basis=basis, assume_flat_grating=True)
     found = read_camera_csv(out / "sensitivity.csv").values
     np.testing.assert_allclose(found, expected.camera_curves().values, atol=1e-6)
+
+
+def test_the_canon_10d_through_the_command_line_estimates_as_the_bench(tmp_path: Path) -> None:
+    """The 10D as its author publishes it: three FITS planes (``--profile R G B``) from a
+    demosaicked conversion (``--channel-gains unknown``) and the LHires III maker's curve as a
+    table (``--grating`` CSV). Before, none of the three had a command-line form."""
+    from calib.cli.app import main
+    from calib.core.formats.rgb_csv import read_camera_csv
+    from calib.core.spectra import write_csv
+    from calib.methods import estimate
+    from tests.conftest import SHARED_CAMERA_DATA
+
+    folder = SHARED_REAL_GRATING / "rrogge-canon-eos-10d"
+    if not folder.is_dir() or not SHARED_CAMERA_DATA.is_dir():
+        pytest.skip("the Canon 10D data or the camera data are absent")
+    bench = _bench()
+    sun = write_csv(tmp_path / "sun.csv", bench.solar_spectrum(folder))
+    planes = [str(folder / f"Solar Spectrum Canon EOS 10D {c}.fit") for c in "RGB"]
+    out = tmp_path / "out"
+    argv = ["estimate", "--lamp", "sun", "--profile", *planes, "--channel-gains", "unknown"]
+    argv += [
+        "--spectrum",
+        str(sun),
+        "--grating",
+        str(folder / "LHires III Grating Efficiency 150.csv"),
+    ]
+    argv += ["--data-dir", str(SHARED_CAMERA_DATA), "--exclude-camera", "Canon 10D*"]
+    argv += ["--out", str(out), "--no-report", "-q"]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code in (0, None)
+    inputs = bench.canon_10d_inputs(folder, SHARED_CAMERA_DATA)
+    expected = estimate([inputs.sun], basis=inputs.basis, grating=inputs.grating)
+    found = read_camera_csv(out / "sensitivity.csv").values
+    np.testing.assert_allclose(found, expected.camera_curves().values, atol=1e-6)

@@ -5,8 +5,8 @@ the command line before click parses the rest: a group starts at ``--lamp NAME``
 after it (:func:`lamp_options`: ``--images``, ``--spectrum`` …) belong to that lamp until the next
 ``--lamp``. The command's own options (``--out``, ``--method`` …) may stand anywhere, also between
 a lamp's options. An option takes its value after it or after ``=`` (``--kind=led``); the list options
-(``--images``, ``--spectrum``, ``--dark``, ``--exposure``, ``--dark-exposure``) take every value up to
-the next option.
+(``--images``, ``--spectrum``, ``--dark``, ``--exposure``, ``--dark-exposure``, ``--profile``) take
+every value up to the next option.
 
 Each group is then validated by the same model as the lamps of an inputs file
 (:class:`calib.pipeline.inputs_file.LampEntry`), so a lamp reads the same from either. Mistakes are
@@ -94,13 +94,23 @@ def _lamp_options(
         typer.Option("--dark-exposure", metavar="S ...", help="The same for the dark frames."),
     ] = None,
     profile: Annotated[
-        str | None,
+        list[str] | None,
         typer.Option(
             "--profile",
-            metavar="FILE",
+            metavar="FILE ...",
             help="Instead of images: a 1-D profile, CSV pixel,r,g,b or wavelength_nm,r,g,b "
-            "(optional r_sigma,g_sigma,b_sigma columns), a rawproc .dat export, or a FITS cube "
-            "of the R, G, B planes.",
+            "(optional r_sigma,g_sigma,b_sigma columns), a rawproc .dat export, a FITS cube "
+            "of the R, G, B planes, or those planes as three FITS files (R G B).",
+        ),
+    ] = None,
+    channel_gains: Annotated[
+        str | None,
+        typer.Option(
+            "--channel-gains",
+            metavar="raw|unknown",
+            help="With --profile: raw (default) when the channels keep the raw data's gains; "
+            "unknown when a conversion scaled them (white balance, a demosaicked RGB export): "
+            "the channel balance is then the camera population's, its spread in σ.",
         ),
     ] = None,
     direct_rgb: Annotated[

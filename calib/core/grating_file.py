@@ -61,7 +61,7 @@ from numpy.typing import ArrayLike
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
-from calib.core.spectra import Spectrum, WavelengthGrid
+from calib.core.spectra import Spectrum, WavelengthGrid, read_spectrum_csv
 
 GRATING_SCHEMA = "spectral-rig/grating-efficiency"
 GRATING_FORMAT_VERSION = 2
@@ -69,10 +69,12 @@ GRATING_FORMAT_VERSION = 2
 __all__ = [
     "GRATING_FORMAT_VERSION",
     "GRATING_SCHEMA",
+    "MAKER_CURVE_SUFFIXES",
     "OBTAINED_KINDS",
     "GratingEfficiency",
     "GratingFileError",
     "read_grating_file",
+    "read_maker_curve",
     "reuse_warnings",
     "write_grating_file",
 ]
@@ -358,8 +360,37 @@ def _check_rig(rig: Any, where: str) -> None:
         raise GratingFileError("must be an object", source=f"{where}.optics")
 
 
+#: Suffixes of a grating file read as a maker's curve table rather than JSON.
+MAKER_CURVE_SUFFIXES = (".csv", ".tsv", ".txt")
+
+
+def read_maker_curve(path: str | os.PathLike[str]) -> GratingEfficiency:
+    """A maker's published efficiency curve as a table ``wavelength_nm,efficiency`` (any scale,
+    e.g. per cent; header optional, as a spectrum CSV): ``obtained = "maker's curve"``, no σ
+    (the estimate then says the grating's error is not in σ, ``grating_sigma_missing``).
+
+    Raises
+    ------
+    InputError
+        What the table reader refuses (file and line named); a curve with no value above zero.
+    """
+    file = Path(path)
+    curve = read_spectrum_csv(file, name=file.name)
+    peak = float(np.max(curve.values))
+    if not peak > 0:
+        raise GratingFileError("no efficiency above zero in the maker's curve", source=str(file))
+    return GratingEfficiency(
+        curve.wavelength_nm,
+        curve.values / peak,
+        provenance={"source": str(file), "method": "maker's curve"},
+        source=str(file),
+        obtained="maker's curve",
+    )
+
+
 def read_grating_file(path: str | os.PathLike[str]) -> GratingEfficiency:
-    """Read and validate a grating efficiency file.
+    """Read and validate a grating efficiency file: the JSON an estimate writes, or a maker's
+    curve as a table (:func:`read_maker_curve`, by its suffix: :data:`MAKER_CURVE_SUFFIXES`).
 
     Raises
     ------
@@ -367,6 +398,8 @@ def read_grating_file(path: str | os.PathLike[str]) -> GratingEfficiency:
         Missing or unreadable file, invalid JSON (with the line), or a schema violation.
     """
     file = Path(path)
+    if file.suffix.lower() in MAKER_CURVE_SUFFIXES:
+        return read_maker_curve(file)
     try:
         text = file.read_text(encoding="utf-8")
     except FileNotFoundError:

@@ -525,6 +525,7 @@ WAVELENGTH_COLUMNS: tuple[str, ...] = (
     "wavelength_nm",
     "wavelength",
     "wavelengths",
+    "w",
     "wl",
     "wl_nm",
     "nm",
@@ -620,7 +621,7 @@ class CsvTable:
         if index is None:
             raise SpectrumError(
                 f"no wavelength column among {', '.join(self.columns)}; name it wavelength_nm "
-                "(or wavelength, wl, nm, lambda)",
+                "(or wavelength, w, wl, nm, lambda)",
                 source=str(self.path),
             )
         return index

@@ -226,10 +226,11 @@ def choose_method(
     prefix = "".join(f"{reasons[name]}: used for the mapping only; " for name in mapping_only)
     if grating is not None:
         source = getattr(grating, "source", "the grating file")
+        stated = getattr(grating, "efficiency_sigma", None) is not None
         return MethodChoice(
             KNOWN_GRATING_METHOD,
             prefix + f"a grating efficiency was given ({source}): the known-grating solve uses it "
-            "with its σ",
+            + ("with its σ" if stated else "(it states no σ)"),
             mapping_only,
         )
     direct = [

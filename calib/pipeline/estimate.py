@@ -43,7 +43,12 @@ from calib.methods import (
 from calib.methods.grating_models import AssumedGrating
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
-from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings, assumed_grating_flag
+from calib.methods.uncertainty import (
+    CHANNEL_GAINS_KEY,
+    DEFAULT_BUDGET,
+    BudgetSettings,
+    assumed_grating_flag,
+)
 from calib.model.bases import CameraBasis, default_camera_basis
 from calib.model.resolution import COARSE_SLIT_NM, coarse_slit
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
@@ -53,8 +58,10 @@ from calib.pipeline.inputs import (
     LampProfile,
     ProfileTable,
     check_bandwidth,
+    describe_profile,
     describe_spectrum,
     load_spectrum,
+    profile_files,
     read_profile_file,
     spectrum_files,
 )
@@ -313,8 +320,10 @@ def _profile_observation(
         kind=lamp.kind,
         profile_wavelength_nm=table.axis if table.in_wavelength else None,
         metadata={
-            "profile_file": str(lamp.profile),
+            "profile_file": describe_profile(lamp.profile),
             "axis": "wavelength_nm" if table.in_wavelength else "pixel",
+            # A conversion scaled the channels: the balance is the camera population's.
+            **({CHANNEL_GAINS_KEY: "unknown"} if lamp.channel_gains == "unknown" else {}),
         },
     )
 
@@ -438,7 +447,8 @@ def estimate_offline(
                     if str(path) not in known:
                         hasher.add(path, "dark", lamp.name)
             else:
-                hasher.add(lamp.profile, "profile", lamp.name)
+                for path in profile_files(lamp.profile):
+                    hasher.add(path, "profile", lamp.name)
             for path in spectrum_files(lamp.spectrum):
                 if str(path) not in known:
                     hasher.add(path, "spectrum", lamp.name)
@@ -512,7 +522,8 @@ def estimate_offline(
                         "name": given.name,
                         "kind": given.kind,
                         "input": "profile",
-                        "profile": str(given.profile),
+                        "profile": describe_profile(given.profile),
+                        "channel_gains": given.channel_gains,
                         "axis": "wavelength_nm" if table.in_wavelength else "pixel",
                         "direct_rgb": None if given.direct_rgb is None else list(given.direct_rgb),
                         "spectrum": describe_spectrum(given.spectrum),

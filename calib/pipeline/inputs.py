@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -74,6 +75,11 @@ def describe_spectrum(source: SpectrumSource) -> str:
     return source.name
 
 
+#: Whether a profile's channels keep the raw data's gains (:attr:`LampProfile.channel_gains`).
+ChannelGains = Literal["raw", "unknown"]
+CHANNEL_GAINS: tuple[ChannelGains, ...] = ("raw", "unknown")
+
+
 @dataclass(frozen=True)
 class LampImages:
     """A lamp captured as RAW files.
@@ -120,23 +126,39 @@ class LampProfile:
         As for :class:`LampImages`.
     profile
         CSV ``pixel,r,g,b`` or ``wavelength_nm,r,g,b`` (header required; optional
-        ``r_sigma,g_sigma,b_sigma``), a rawproc ``.dat`` export, or a FITS cube of the R, G and B
-        planes (``.fit``/``.fits``/``.fts``): see :func:`read_profile_file`.
+        ``r_sigma,g_sigma,b_sigma``), a rawproc ``.dat`` export, a FITS cube of the R, G and B
+        planes (``.fit``/``.fits``/``.fts``), or those planes as three FITS files, R, G, B: see
+        :func:`read_profile_file`.
     direct_rgb
         The direct (0th-order) RGB in the profile's units times pixels, or ``None``.
     spectrum_bandwidth_nm
         As for :class:`LampImages`.
+    channel_gains
+        ``"raw"``: the profile's channels keep the raw data's gains (a raw export); ``"unknown"``:
+        a conversion scaled them (white balance, a demosaicked RGB export), so the estimate takes
+        the channel balance from the camera population, with its spread in σ (decision 0050).
     """
 
     name: str
     kind: LampKind
     spectrum: SpectrumSource
-    profile: Path
+    profile: Path | tuple[Path, ...]
     direct_rgb: tuple[float, float, float] | None = None
     spectrum_bandwidth_nm: float | None = None
+    channel_gains: ChannelGains = "raw"
 
 
 LampInput = LampImages | LampProfile
+
+
+def profile_files(profile: Path | tuple[Path, ...]) -> tuple[Path, ...]:
+    """The files of a lamp's profile (one, or a FITS export's three planes)."""
+    return profile if isinstance(profile, tuple) else (profile,)
+
+
+def describe_profile(profile: Path | tuple[Path, ...]) -> str:
+    """The profile's file(s) in a record."""
+    return ", ".join(str(path) for path in profile_files(profile))
 
 
 @dataclass(frozen=True, eq=False)
@@ -400,32 +422,44 @@ RAWPROC_SUFFIXES = (".dat",)
 FITS_SUFFIXES = (".fit", ".fits", ".fts")
 
 
-def read_profile_file(path: Path) -> ProfileTable:
-    """A lamp's 1-D profile from the file a user has: CSV, rawproc ``.dat`` or a FITS cube.
+def read_profile_file(profile: Path | tuple[Path, ...]) -> ProfileTable:
+    """A lamp's 1-D profile from the file(s) a user has: CSV, rawproc ``.dat``, a FITS cube, or
+    the R, G and B planes as three FITS files.
 
     The CSV is read by :func:`read_profile_csv`; a rawproc export by
     :func:`calib.image.profile_files.read_rawproc_dat` (its own pixel axis, any mirroring undone);
-    a FITS cube of R, G and B planes by :func:`calib.image.profile_files.read_fits_profile` (the
-    spectrum's band found in the planes, dispersion along x). The result is in pixels, with
-    the σ the reader could give.
+    FITS planes by :func:`calib.image.profile_files.read_fits_profile` (the spectrum's band found
+    in the planes, dispersion along x). The result is in pixels, with the σ the reader could give.
 
     Raises
     ------
     InputError
-        What the reader of that format refuses (the file and the line or keyword named); a
-        profile with no value above zero (a blank export: the solve has nothing to fit).
+        What the reader of that format refuses (the file and the line or keyword named); several
+        files that are not three FITS planes; a profile with no value above zero (a blank export:
+        the solve has nothing to fit).
     """
-    suffix = Path(path).suffix.lower()
-    if suffix not in RAWPROC_SUFFIXES + FITS_SUFFIXES:
-        table = read_profile_csv(path)
+    files = profile_files(profile)
+    where = describe_profile(profile)
+    suffixes = {Path(path).suffix.lower() for path in files}
+    if len(files) > 1 and (len(files) != 3 or not suffixes <= set(FITS_SUFFIXES)):
+        raise InputError(
+            f"{len(files)} files: a profile is one file (CSV, rawproc .dat, a FITS cube), or "
+            "the R, G and B planes of a FITS export as three files, in that order",
+            source=where,
+        )
+    suffix = suffixes.pop() if len(suffixes) == 1 else ""
+    if len(files) == 1 and suffix not in RAWPROC_SUFFIXES + FITS_SUFFIXES:
+        table = read_profile_csv(files[0])
     else:
-        read = read_rawproc_dat(path) if suffix in RAWPROC_SUFFIXES else read_fits_profile(path)
+        read = (
+            read_rawproc_dat(files[0]) if suffix in RAWPROC_SUFFIXES else read_fits_profile(files)
+        )
         table = ProfileTable(read.pixel, read.profile, read.profile_sigma, in_wavelength=False)
     if not np.any(table.profile > 0):
         raise InputError(
             "no value above zero in r, g or b: the profile holds no light; export it from the "
             "frames where the first-order band is lit (lamp on, band inside the crop)",
-            source=str(path),
+            source=where,
         )
     return table
 

@@ -17,7 +17,10 @@
 
 Relative paths are relative to the file's own directory. The keys are the command line's per-lamp
 options, with their units in the name (``--exposure`` is ``exposure_s``, ``--dark`` is ``darks``,
-``--direct`` is ``direct_rgb``, ``--bandwidth`` is ``bandwidth_nm``). One pydantic model,
+``--direct`` is ``direct_rgb``, ``--bandwidth`` is ``bandwidth_nm``, ``--channel-gains`` is
+``channel_gains``). A profile may be a FITS export's R, G and B planes as three files
+(``profile: [sun-R.fit, sun-G.fit, sun-B.fit]``); ``channel_gains: unknown`` says a conversion
+(white balance, a demosaicked RGB export) scaled its channels. One pydantic model,
 :class:`LampEntry`, validates both the file and the command line's ``--lamp`` groups, so a lamp
 reads the same from either; a problem names the file, its line and the field
 (``lamps.yaml:7: lamps[1].images: required key is missing``), or on the command line the lamp and
@@ -44,7 +47,7 @@ from pydantic import (
 from calib.core.errors import InputError
 from calib.core.observations import LampKind
 from calib.core.validated_yaml import issues_from_validation, parse_yaml_model
-from calib.pipeline.inputs import LampImages, LampInput, LampProfile
+from calib.pipeline.inputs import FITS_SUFFIXES, ChannelGains, LampImages, LampInput, LampProfile
 
 __all__ = ["EstimateInputs", "LampEntry", "lamp_from_options", "read_inputs_file"]
 
@@ -71,9 +74,10 @@ class LampEntry(BaseModel):
     darks: list[Path] = Field(default_factory=list)
     exposure_s: Annotated[list[PositiveFloat], Field(min_length=1)] | None = None
     dark_exposure_s: Annotated[list[PositiveFloat], Field(min_length=1)] | None = None
-    profile: Path | None = None
+    profile: Path | Annotated[list[Path], Field(min_length=1)] | None = None
     direct_rgb: tuple[NonNegativeFloat, NonNegativeFloat, NonNegativeFloat] | None = None
     bandwidth_nm: PositiveFloat | None = None
+    channel_gains: ChannelGains = "raw"
 
     @field_validator("name")
     @classmethod
@@ -108,6 +112,14 @@ class LampEntry(BaseModel):
                 + (", not both" if both else "")
             )
         if self.profile is not None:
+            files = self.profile if isinstance(self.profile, list) else [self.profile]
+            if len(files) not in (1, 3) or (
+                len(files) == 3 and any(p.suffix.lower() not in FITS_SUFFIXES for p in files)
+            ):
+                raise ValueError(
+                    f"{_named(info, 'profile')} takes one file, or the R, G and B planes of a "
+                    f"FITS export as three files ({', '.join(FITS_SUFFIXES)}); got {len(files)}"
+                )
             for key in ("darks", "exposure_s", "dark_exposure_s"):
                 if getattr(self, key):
                     raise ValueError(f"{_named(info, key)} goes with {images}, not {profile}")
@@ -115,6 +127,11 @@ class LampEntry(BaseModel):
                 math.isfinite(value) and value > 0 for value in self.direct_rgb
             ):
                 raise ValueError(f"{_named(info, 'direct_rgb')} must not be all zero")
+        elif self.channel_gains != "raw":
+            raise ValueError(
+                f"{_named(info, 'channel_gains')} goes with {profile}; RAW images keep the "
+                "raw data's gains"
+            )
         elif self.direct_rgb is not None:
             raise ValueError(
                 f"{_named(info, 'direct_rgb')} goes with {profile}; with images the direct spot "
@@ -138,13 +155,15 @@ class LampEntry(BaseModel):
         )
 
         if self.profile is not None:
+            planes = self.profile if isinstance(self.profile, list) else [self.profile]
             return LampProfile(
                 name=self.name,
                 kind=self.kind,
                 spectrum=spectrum,
-                profile=path(self.profile),
+                profile=path(planes[0]) if len(planes) == 1 else tuple(map(path, planes)),
                 direct_rgb=self.direct_rgb,
                 spectrum_bandwidth_nm=self.bandwidth_nm,
+                channel_gains=self.channel_gains,
             )
         assert self.images is not None  # checked by the model
         return LampImages(
