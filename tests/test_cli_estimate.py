@@ -171,6 +171,27 @@ def test_the_same_lamps_from_an_inputs_file(tmp_path: Path) -> None:
     assert {**_settings_of(request), "lamps": relative} == expected
 
 
+def test_an_inputs_file_names_spectra_and_fits_planes_relative_to_itself(tmp_path: Path) -> None:
+    """A spectrum's name (FL2, builtin:NAME, gauss:…) stays a name: the file's directory prefixed
+    it ('dir/builtin:hg is not a spectrum file'); files, FITS planes among them, are relative to the
+    file; ``channel_gains`` reaches the lamp."""
+    (tmp_path / "a.csv").write_text("wavelength_nm,value\n380,1\n780,1\n")
+    (tmp_path / "lamps.yaml").write_text(
+        "lamps:\n"
+        "  - {name: A, kind: led, profile: a-profile.csv, spectrum: a.csv}\n"
+        "  - {name: B, kind: fluorescent, profile: b-profile.csv, spectrum: builtin:hg}\n"
+        "  - {name: C, profile: [c R.fit, c G.fit, c B.fit], spectrum: FL2,\n"
+        "     channel_gains: unknown}\n"
+    )
+    request = parse_estimate_command(["--inputs", str(tmp_path / "lamps.yaml"), "--out", "out"])
+    a, b, c = request.lamps
+    assert isinstance(a, LampProfile) and isinstance(b, LampProfile) and isinstance(c, LampProfile)
+    assert a.spectrum == tmp_path / "a.csv" and a.profile == tmp_path / "a-profile.csv"
+    assert b.spectrum == Path("builtin:hg") and c.spectrum == Path("FL2")
+    assert c.profile == tuple(tmp_path / f"c {plane}.fit" for plane in "RGB")
+    assert (a.channel_gains, c.channel_gains) == ("raw", "unknown")
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [

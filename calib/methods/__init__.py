@@ -229,7 +229,8 @@ def choose_method(
         stated = getattr(grating, "efficiency_sigma", None) is not None
         return MethodChoice(
             KNOWN_GRATING_METHOD,
-            prefix + f"a grating efficiency was given ({source}): the known-grating solve uses it "
+            prefix
+            + f"a grating efficiency was given ({source}): the known-grating solve uses it "
             + ("with its σ" if stated else "(it states no σ)"),
             mapping_only,
         )

@@ -707,7 +707,13 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
     )
     coarse = [why for obs in observations if (why := coarse_line_spectrum(obs))]
     if coarse:
-        flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))
+        flags.append(
+            QualityFlag(
+                "coarse_lamp_spectrum",
+                "; ".join(coarse) + ": such a lamp places the wavelengths (the mapping) and stays "
+                "out of the solve; measure its spectrum (≤ 5 nm sampling) to use it there too",
+            )
+        )
     broad = [what for obs in observations if (what := coarse_slit(obs))]
     if broad:
         flags.append(

@@ -45,6 +45,7 @@ from pydantic import (
 )
 
 from calib.core.errors import InputError
+from calib.core.lamp_specs import is_spectrum_file
 from calib.core.observations import LampKind
 from calib.core.validated_yaml import issues_from_validation, parse_yaml_model
 from calib.pipeline.inputs import FITS_SUFFIXES, ChannelGains, LampImages, LampInput, LampProfile
@@ -149,9 +150,13 @@ class LampEntry(BaseModel):
             return value if base_dir is None or value.is_absolute() else base_dir / value
 
         # Several spectrum files of one lamp are averaged (calib.pipeline.inputs.load_spectrum).
+        # One value that is no file is a spectrum's name (FL2, builtin:NAME, gauss:…), which the
+        # file's directory must not prefix.
         files = [self.spectrum] if isinstance(self.spectrum, Path) else self.spectrum
         spectrum: Path | tuple[Path, ...] = (
-            path(files[0]) if len(files) == 1 else tuple(path(file) for file in files)
+            (path(files[0]) if is_spectrum_file(path(files[0])) else files[0])
+            if len(files) == 1
+            else tuple(path(file) for file in files)
         )
 
         if self.profile is not None:
