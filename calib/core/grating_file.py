@@ -366,8 +366,9 @@ MAKER_CURVE_SUFFIXES = (".csv", ".tsv", ".txt")
 
 def read_maker_curve(path: str | os.PathLike[str]) -> GratingEfficiency:
     """A maker's published efficiency curve as a table ``wavelength_nm,efficiency`` (any scale,
-    e.g. per cent; header optional, as a spectrum CSV): ``obtained = "maker's curve"``, no σ
-    (the estimate then says the grating's error is not in σ, ``grating_sigma_missing``).
+    e.g. per cent; header optional, as a spectrum CSV; small negative values of a measured curve
+    set to zero): ``obtained = "maker's curve"``, no σ (the estimate then says the grating's
+    error is not in σ, ``grating_sigma_missing``).
 
     Raises
     ------
@@ -375,7 +376,7 @@ def read_maker_curve(path: str | os.PathLike[str]) -> GratingEfficiency:
         What the table reader refuses (file and line named); a curve with no value above zero.
     """
     file = Path(path)
-    curve = read_spectrum_csv(file, name=file.name)
+    curve = read_spectrum_csv(file, name=file.name, negative="clip")
     peak = float(np.max(curve.values))
     if not peak > 0:
         raise GratingFileError("no efficiency above zero in the maker's curve", source=str(file))

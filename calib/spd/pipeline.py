@@ -227,12 +227,10 @@ def read_camera(path: Path) -> MultiSpectrum:
 
 def read_grating_efficiency(path: Path) -> Spectrum:
     """The grating's first-order efficiency: a grating file (``.json``, as ``calib estimate`` and
-    ``rig grating`` write it, :func:`calib.core.grating_file.read_grating_file`) or a CSV
-    ``wavelength_nm,value``."""
-    if path.suffix.lower() == ".json":
-        grating = read_grating_file(path)
-        return Spectrum(grating.wavelength_nm, grating.efficiency, name=path.name)
-    return read_spectrum_csv(path, negative="clip")
+    ``rig grating`` write it) or a table ``wavelength_nm,value`` (a maker's curve, or one measured),
+    both through :func:`calib.core.grating_file.read_grating_file`."""
+    grating = read_grating_file(path)
+    return Spectrum(grating.wavelength_nm, grating.efficiency, name=path.name)
 
 
 def measure_spd(
