@@ -196,6 +196,30 @@ def test_bad_input_exits_2_with_one_line(
     assert len(lines) == 1 and message in lines[0], stderr
 
 
+def test_the_mapping_lamp_spectrum_by_name_is_the_table_itself(
+    scene: Scene,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``--mapping-lamp-spectrum FL2`` (the scene's lamp is colour's FL2): the same recovery as
+    its CSV, the name recorded instead of a file's hash (issue 16: names wherever a lamp spectrum
+    is)."""
+    results = {}
+    for label, given in (("file", str(scene.fluorescent_spectrum)), ("name", "FL2")):
+        arguments = with_mapping_lamp(scene, tmp_path / label)
+        arguments[arguments.index("--mapping-lamp-spectrum") + 1] = given
+        code, _, stderr = run_cli([*arguments, "--no-plots", "-q"], monkeypatch, capsys)
+        assert code == 0, stderr
+        results[label] = json.loads((tmp_path / label / "spd.json").read_text())
+    assert results["name"]["inputs"]["mapping_spectrum"] == {"name": "FL2"}
+    assert "sha256" in results["file"]["inputs"]["mapping_spectrum"]
+    assert results["name"]["mapping"]["b"] == pytest.approx(results["file"]["mapping"]["b"], 1e-6)
+    file_spd = read_spectrum_csv(tmp_path / "file" / "spd.csv").values
+    name_spd = read_spectrum_csv(tmp_path / "name" / "spd.csv").values
+    np.testing.assert_allclose(name_spd, file_spd, rtol=1e-3, atol=1e-3 * file_spd.max())
+
+
 def test_bad_files_are_named(
     scene: Scene,
     tmp_path: Path,

@@ -111,9 +111,10 @@ def register(app: typer.Typer) -> None:
         mapping_lamp_spectrum: Annotated[
             Path | None,
             typer.Option(
-                metavar="CSV",
-                help="Its measured spectrum (else its lines are taken from a reference list: a "
-                "few nm less accurate).",
+                metavar="CSV|NAME",
+                help="Its spectrum: a measured CSV, or a name (a colour-science light source such "
+                "as FL11, builtin:NAME for a line list such as builtin:cfl-triphosphor). Without "
+                "it the lines come from a reference list, a few nm less accurate.",
             ),
         ] = None,
         mapping: Annotated[

@@ -29,6 +29,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.figures import agg_figure, save_png
 from calib.core.formats import read_camera as read_camera_file
 from calib.core.grating_file import read_grating_file
+from calib.core.lamp_specs import is_spectrum_file, lamp_from_spec
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
 from calib.core.software import current_software
@@ -182,7 +183,7 @@ def _find_mapping(
         origin = f"file {request.mapping_file}"
         return mapping, widened_geometry(geometry, mapping, RECOVERY_RANGE_NM), origin
     lamp_spectrum = (
-        read_spectrum_csv(request.mapping_spectrum, negative="clip")
+        mapping_lamp_spectrum(request.mapping_spectrum)
         if request.mapping_spectrum is not None
         else None
     )
@@ -223,6 +224,14 @@ def read_camera(path: Path) -> MultiSpectrum:
     """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`,
     which refuses a channel with no positive value)."""
     return read_camera_file(path).to_multispectrum().normalised()
+
+
+def mapping_lamp_spectrum(source: Path) -> Spectrum:
+    """The mapping lamp's spectrum: a measured CSV, or a named one (a colour-science light source
+    such as FL11, ``builtin:NAME`` for a line list, as ``calib estimate --spectrum`` takes them)."""
+    if is_spectrum_file(source):
+        return read_spectrum_csv(source, negative="clip")
+    return lamp_from_spec(str(source))
 
 
 def read_grating_efficiency(path: Path) -> Spectrum:
@@ -388,6 +397,12 @@ def _inputs(request: SpdRequest) -> dict[str, Any]:
     def record(paths: Sequence[Path]) -> list[dict[str, str]]:
         return [{"path": str(path), "sha256": file_sha256(path)[1]} for path in paths]
 
+    def one(path: Path | None) -> dict[str, str] | None:
+        if path is None:
+            return None
+        # A named spectrum (FL11, builtin:NAME) is no file: recorded by its name.
+        return record([path])[0] if is_spectrum_file(path) else {"name": str(path)}
+
     optional = {
         "grating_efficiency": request.grating_efficiency,
         "mapping_spectrum": request.mapping_spectrum,
@@ -399,7 +414,7 @@ def _inputs(request: SpdRequest) -> dict[str, Any]:
         "camera": record([request.camera])[0],
         "mapping_images": record(request.mapping_images),
         "mapping_darks": record(request.mapping_darks),
-        **{key: record([path])[0] if path else None for key, path in optional.items()},
+        **{key: one(path) for key, path in optional.items()},
     }
 
 
