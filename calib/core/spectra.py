@@ -521,11 +521,12 @@ def _to_float(text: str, delimiter: str | None, where: str) -> float:
 
 
 #: Header names that mean the wavelength column (compared after :func:`column_key`).
+#: A wavelength column's name only when no :data:`WAVELENGTH_COLUMNS` name is there.
+FALLBACK_WAVELENGTH_COLUMNS: tuple[str, ...] = ("w",)
 WAVELENGTH_COLUMNS: tuple[str, ...] = (
     "wavelength_nm",
     "wavelength",
     "wavelengths",
-    "w",
     "wl",
     "wl_nm",
     "nm",
@@ -619,9 +620,13 @@ class CsvTable:
             return 0
         index = self.find(WAVELENGTH_COLUMNS, "wavelength")
         if index is None:
+            # R's data frames name it "w" (the LHires III curve, Wehrli's table); never over a
+            # proper name, as "W" is also a unit of the values (nm, W).
+            index = self.find(FALLBACK_WAVELENGTH_COLUMNS, "wavelength")
+        if index is None:
             raise SpectrumError(
                 f"no wavelength column among {', '.join(self.columns)}; name it wavelength_nm "
-                "(or wavelength, w, wl, nm, lambda)",
+                "(or wavelength, wl, nm, lambda)",
                 source=str(self.path),
             )
         return index
