@@ -520,9 +520,9 @@ def _to_float(text: str, delimiter: str | None, where: str) -> float:
         raise SpectrumError(f"{cleaned!r} is not a number", source=where) from None
 
 
-#: Header names that mean the wavelength column (compared after :func:`column_key`).
 #: A wavelength column's name only when no :data:`WAVELENGTH_COLUMNS` name is there.
 FALLBACK_WAVELENGTH_COLUMNS: tuple[str, ...] = ("w",)
+#: Header names that mean the wavelength column (compared after :func:`column_key`).
 WAVELENGTH_COLUMNS: tuple[str, ...] = (
     "wavelength_nm",
     "wavelength",

@@ -77,7 +77,6 @@ def describe_spectrum(source: SpectrumSource) -> str:
 
 #: Whether a profile's channels keep the raw data's gains (:attr:`LampProfile.channel_gains`).
 ChannelGains = Literal["raw", "unknown"]
-CHANNEL_GAINS: tuple[ChannelGains, ...] = ("raw", "unknown")
 
 
 @dataclass(frozen=True)
