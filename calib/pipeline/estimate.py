@@ -24,7 +24,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
+from calib.core.arrays import FloatArray
 from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency, read_grating_file
@@ -606,22 +608,56 @@ BLANK_PROFILE_SNR = 5.0
 #: A channel's maximum repeated exactly at this many adjacent samples: the band was clipped (a
 #: noisy or resampled peak repeats its value by chance at two samples at most).
 CLIPPED_RUN = 3
+#: A quantised (integer) channel repeats its maximum by chance over a flat top. There a run counts
+#: as clipped only where the band's shoulders, fitted by a parabola, rise above it by more than
+#: this many σ of that fit's prediction (plus one count): a clipped top is cut below the peak its
+#: shoulders point to, a whole one is where they point.
+CLIPPED_SHOULDER_SIGMAS = 4.0
+#: The shoulders: the samples from this fraction of the maximum up, the run itself left out.
+SHOULDER_FRACTION = 0.6
+
+
+def _cut_below_its_shoulders(channel: FloatArray, run: NDArray[np.intp]) -> bool:
+    """Whether a quantised channel's run of equal maxima lies below the peak its shoulders'
+    parabola predicts at the run's centre (:data:`CLIPPED_SHOULDER_SIGMAS`)."""
+    peak = float(channel[run[0]])
+    top = np.flatnonzero(channel >= SHOULDER_FRACTION * peak)
+    low, high = int(top.min()), int(top.max())
+    index = np.arange(low, high + 1)
+    shoulders = index[(index < run[0]) | (index > run[-1])]
+    if shoulders.size < 6 or not (shoulders < run[0]).any() or not (shoulders > run[-1]).any():
+        return True  # no shoulders to judge by: keep the exact-repeat verdict
+    centre = 0.5 * (run[0] + run[-1])
+    x = (shoulders - centre).astype(np.float64)
+    design = np.stack([np.ones_like(x), x, x**2], axis=1)
+    coefficients, *_ = np.linalg.lstsq(design, channel[shoulders], rcond=None)
+    residual = channel[shoulders] - design @ coefficients
+    dof = max(shoulders.size - 3, 1)
+    noise = float(np.sqrt(np.sum(residual**2) / dof))
+    covariance = noise**2 * np.linalg.pinv(design.T @ design)
+    predicted_sigma = float(np.sqrt(max(covariance[0, 0], 0.0)))
+    overshoot = float(coefficients[0]) - peak
+    return overshoot > CLIPPED_SHOULDER_SIGMAS * predicted_sigma + 1.0
 
 
 def clipped_band(obs: LampObservation) -> str | None:
     """Where a given profile's channels hold their maximum exactly over :data:`CLIPPED_RUN` or
     more adjacent samples (a saturated export), e.g. ``"FL (g 0.91 at px 512–530)"``; ``None``
-    when none does."""
+    when none does. A quantised (integer) channel's run counts only when its shoulders point to
+    a peak above it (:func:`_cut_below_its_shoulders`): an 8-bit export's flat top repeats its
+    maximum by chance."""
     found = []
     for label, channel in zip("rgb", obs.profile.T, strict=True):
         peak = float(channel.max())
         at_peak = np.flatnonzero(channel == peak)
         runs = np.split(at_peak, np.flatnonzero(np.diff(at_peak) != 1) + 1)
         longest = max(runs, key=len)
-        if peak > 0 and longest.size >= CLIPPED_RUN:
-            found.append(
-                f"{label} {peak:g} at px {obs.pixel[longest[0]]:g}–{obs.pixel[longest[-1]]:g}"
-            )
+        if peak <= 0 or longest.size < CLIPPED_RUN:
+            continue
+        quantised = bool(np.all(channel == np.round(channel)))
+        if quantised and not _cut_below_its_shoulders(channel, longest):
+            continue
+        found.append(f"{label} {peak:g} at px {obs.pixel[longest[0]]:g}–{obs.pixel[longest[-1]]:g}")
     return f"{obs.name} ({', '.join(found)})" if found else None
 
 
