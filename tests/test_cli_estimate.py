@@ -535,6 +535,10 @@ def test_a_makers_curve_as_the_grating_and_channel_gains_a_conversion_scaled(
     grating = read_grating_file(curve)
     assert grating.obtained == "maker's curve" and grating.efficiency_sigma is None
     np.testing.assert_allclose(grating.efficiency.max(), 1.0)
+    dark = tmp_path / "dark.csv"
+    dark.write_text("w, efficiency\n400, 0\n700, 0\n")
+    with pytest.raises(InputError, match="no efficiency above zero"):
+        read_grating_file(dark)
     argv = [*_profile_args(tmp_path, capture, direct=False), "--grating", str(curve)]
     argv[argv.index("--spectrum") + 2 : argv.index("--spectrum") + 2] = [
         "--channel-gains",
