@@ -489,6 +489,9 @@ def test_a_spectrum_given_by_name_is_read_not_opened_as_a_file(
     # solve (in it, the prior solve fitted Hg lines alone against an FL2 profile: RE 0.35).
     mapping_only = result["method_choice"]["mapping_only"]
     assert mapping_only == (["FL"] if fluorescent.startswith("builtin:") else [])
+    codes = {flag["code"] for flag in result["quality"]["flags"]}
+    assert ("line_lamp_unmeasured" in codes) == fluorescent.startswith("builtin:")
+    assert "coarse_lamp_spectrum" not in codes  # a line list is not a coarse measurement
     assert {record["role"] for record in provenance["inputs"]} == {"profile"}
     values = read_camera_csv(out / "sensitivity.csv").values
     assert relative_error(values, capture.truth) < 0.05

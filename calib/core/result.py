@@ -63,6 +63,8 @@ QUALITY_CODES: dict[str, str] = {
     "grid_beyond_basis": "part of the grid lies outside the camera basis' range",
     "no_spectrometer_bandwidth": "no spectrometer bandwidth given: a typical one is assumed in σ",
     "coarse_lamp_spectrum": "a lamp spectrum is sampled too coarsely for its emission lines",
+    "line_lamp_unmeasured": "a line lamp's spectrum is not a measurement of it (a nominal spectrum "
+    "or a built-in line list): it places the mapping and stays out of the solve",
     "lamp_kind_mismatch": "a lamp's spectrum contradicts its declared kind: narrow emission lines "
     "in a lamp declared LED or halogen, or none in one declared fluorescent",
     "coarse_spectrometer": "a lamp spectrum comes through a slit broader than the sensitivity's "

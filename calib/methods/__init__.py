@@ -101,6 +101,7 @@ __all__ = [
     "coarse_line_spectrum",
     "estimate",
     "method_names",
+    "unmeasured_line_spectrum",
 ]
 
 #: Type of a registered method: ``(observations, **declared keywords) -> EstimateResult``.
@@ -146,12 +147,11 @@ COARSE_LINE_SPECTRUM_NM = 5.0
 LINE_LAMP_KINDS = ("fluorescent", "narrowband")
 
 
-def coarse_line_spectrum(observation: LampObservation) -> str | None:
-    """Why a line lamp's spectrum cannot be used in the solve (unknown or too coarse), or ``None``.
-
-    A spectrum is *unknown* when its lamp's ``metadata["spectrum_known"]`` is ``False`` (a nominal
-    spectrum standing in for one nobody measured), or when it is a built-in line list
-    (``builtin:NAME``: where the lines are, not how bright the lamp is between them)."""
+def unmeasured_line_spectrum(observation: LampObservation) -> str | None:
+    """Why a line lamp's spectrum is not a measurement of it, or ``None``: its lamp's
+    ``metadata["spectrum_known"]`` is ``False`` (a nominal spectrum standing in for one nobody
+    measured), or it is a built-in line list (``builtin:NAME``: where the lines are, not how bright
+    the lamp is between them)."""
     if observation.kind not in LINE_LAMP_KINDS:
         return None
     if observation.metadata.get("spectrum_known") is False:
@@ -161,6 +161,17 @@ def coarse_line_spectrum(observation: LampObservation) -> str | None:
             f"lamp {observation.name!r}: its spectrum is the line list {observation.spectrum.name} "
             "(where its lines are, not a measurement of the lamp)"
         )
+    return None
+
+
+def coarse_line_spectrum(observation: LampObservation) -> str | None:
+    """Why a line lamp's spectrum cannot be used in the solve (not a measurement,
+    :func:`unmeasured_line_spectrum`, or too coarse), or ``None``."""
+    if observation.kind not in LINE_LAMP_KINDS:
+        return None
+    unmeasured = unmeasured_line_spectrum(observation)
+    if unmeasured is not None:
+        return unmeasured
     wavelength = np.asarray(observation.spectrum.wavelength_nm, dtype=np.float64)
     step = float(np.median(np.diff(wavelength))) if wavelength.size > 1 else math.inf
     bandwidth = observation.spectrum_bandwidth_nm

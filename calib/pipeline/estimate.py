@@ -41,6 +41,7 @@ from calib.methods import (
     check_method,
     coarse_line_spectrum,
     estimate,
+    unmeasured_line_spectrum,
 )
 from calib.methods.grating_models import AssumedGrating
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
@@ -741,15 +742,22 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
         for obs in observations
         if (why := lamp_kind_mismatch(obs))
     )
-    coarse = [why for obs in observations if (why := coarse_line_spectrum(obs))]
-    if coarse:
+    unmeasured = [why for obs in observations if (why := unmeasured_line_spectrum(obs))]
+    if unmeasured:
         flags.append(
             QualityFlag(
-                "coarse_lamp_spectrum",
-                "; ".join(coarse) + ": such a lamp places the wavelengths (the mapping) and stays "
-                "out of the solve; measure its spectrum (≤ 5 nm sampling) to use it there too",
+                "line_lamp_unmeasured",
+                "; ".join(unmeasured) + ": it places the wavelengths (the mapping) and stays out "
+                "of the solve; measure its spectrum to use it there too",
             )
         )
+    coarse = [
+        why
+        for obs in observations
+        if not unmeasured_line_spectrum(obs) and (why := coarse_line_spectrum(obs))
+    ]
+    if coarse:
+        flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))
     broad = [what for obs in observations if (what := coarse_slit(obs))]
     if broad:
         flags.append(
