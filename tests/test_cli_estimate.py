@@ -192,6 +192,41 @@ def test_an_inputs_file_names_spectra_and_fits_planes_relative_to_itself(tmp_pat
     assert (a.channel_gains, c.channel_gains) == ("raw", "unknown")
 
 
+def test_inputs_files_run_as_a_batch_as_each_runs_alone(capture: Capture, tmp_path: Path) -> None:
+    """``calib batch`` takes inputs files (the ``inputs`` reader), named by folder and stem so
+    one ``lamps.yaml`` per camera folder stays apart; each set's curves are those of
+    ``calib estimate --inputs`` on the same file."""
+    files = []
+    for folder, seed in (("cam-a", 3), ("cam-b", 4)):
+        (tmp_path / folder).mkdir()
+        rows = []
+        for lamp, kind in (("LED", "led"), ("FL", "fluorescent")):
+            write_csv(tmp_path / folder / f"{lamp}.csv", colour_lamps()[lamp][1])
+            _, rgb = _write_profile(
+                tmp_path / folder / f"{lamp}.prof.csv", capture, lamp, seed=seed
+            )
+            direct = ", ".join(f"{v:.10g}" for v in rgb)
+            rows.append(
+                f"  - {{name: {lamp}, kind: {kind}, profile: {lamp}.prof.csv, spectrum: {lamp}.csv,"
+                f" direct_rgb: [{direct}]}}\n"
+            )
+        files.append(tmp_path / folder / "lamps.yaml")
+        files[-1].write_text("lamps:\n" + "".join(rows))
+    out = tmp_path / "batch"
+    argv = ["batch", *map(str, files), "--out", str(out), "--jobs", "1", "--no-report", "-q"]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code in (0, None)
+    summary = (out / "summary.csv").read_text()
+    assert "cam-a-lamps" in summary and "cam-b-lamps" in summary
+    for file in files:
+        alone = tmp_path / f"{file.parent.name}-alone"
+        code, _, stderr = _call(["--inputs", str(file), "--out", str(alone), "--no-report"])
+        assert code == 0, stderr
+        batched = read_camera_csv(out / f"{file.parent.name}-lamps" / "sensitivity.csv").values
+        np.testing.assert_array_equal(batched, read_camera_csv(alone / "sensitivity.csv").values)
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [

@@ -1,7 +1,8 @@
 """``calib batch``: estimate many input sets at once, and the batch front end ``rig estimate`` shares.
 
 Input sets are what the installed readers recognise (:mod:`calib.pipeline.input_sets`): session
-directories (``rig`` declares their reader); a directory that is none of them stands for the input
+directories (``rig`` declares their reader) and inputs files (``calib estimate --inputs``'s YAML,
+named ``<folder>-<stem>`` in the summary); a directory that is none of them stands for the input
 sets directly inside it. They run on a local process pool (``--jobs``, default the CPUs) or on a
 Dask cluster (``--scheduler``), see :mod:`calib.pipeline.batch`. A failed set is named with its
 reason and the batch goes on. At the end a summary table is printed, and written as Markdown and
@@ -162,7 +163,8 @@ def register(app: typer.Typer) -> None:
         inputs: Annotated[
             list[Path],
             typer.Argument(
-                help="Input sets: session directories, or directories holding them.",
+                help="Input sets: session directories, inputs files (calib estimate --inputs's "
+                "YAML), or directories holding them.",
                 show_default=False,
             ),
         ],

@@ -7,7 +7,8 @@ truth). Running an input set is :func:`calib.pipeline.run_offline` with them, so
 in a batch gives what it gives on its own.
 
 calib reads no session itself (it imports nothing of ``rig``): ``rig`` declares its reader of
-session directories as the ``spectral_rig.inputs`` entry point ``session``, and
+session directories as the ``spectral_rig.inputs`` entry point ``session``, calib its reader of
+inputs files (``calib estimate --inputs``'s YAML) as ``inputs`` (:data:`INPUTS_FILES`), and
 :func:`input_set_readers` finds every reader installed.
 """
 
@@ -24,6 +25,8 @@ from calib.core.errors import InputError
 from calib.pipeline.context import EstimateContext
 from calib.pipeline.estimate import OfflineSettings
 from calib.pipeline.inputs import LampInput
+from calib.pipeline.inputs_file import read_inputs_file
+from calib.pipeline.outputs import check_out_dir
 from calib.pipeline.progress import OfflineProgress
 from calib.pipeline.provenance import InputFile
 from calib.pipeline.run import OfflineOutcome, run_offline
@@ -163,3 +166,50 @@ def reader_for(path: Path, readers: Sequence[InputSetReader]) -> InputSetReader:
         raise InputError("no such file or directory", source=str(path))
     accepted = " or ".join(reader.description for reader in readers) or "(no reader installed)"
     raise InputError(f"not {accepted}", source=str(path))
+
+
+#: The suffixes of an inputs file.
+INPUTS_FILE_SUFFIXES = (".yaml", ".yml")
+
+
+class InputsFiles:
+    """Inputs files (``calib estimate --inputs``'s YAML, :mod:`calib.pipeline.inputs_file`) as
+    batch input sets: the ``spectral_rig.inputs`` entry point ``inputs``. A set's name is its
+    folder's and the file's, ``<folder>-<stem>`` (one folder per camera, each with its
+    ``lamps.yaml``, or several files in one folder: the names stay apart); without a batch
+    ``--out`` its outputs go beside it, to ``<stem>-estimate/``."""
+
+    kind = "inputs"
+    description = "an inputs file (YAML with lamps:, as calib estimate --inputs reads)"
+
+    def recognises(self, path: Path) -> bool:
+        """A file named ``*.yaml`` or ``*.yml``."""
+        return Path(path).suffix.lower() in INPUTS_FILE_SUFFIXES and Path(path).is_file()
+
+    def default_out_name(self, path: Path) -> str:
+        file = Path(path)
+        return f"{file.parent.name}-{file.stem}" if file.parent.name else file.stem
+
+    def read(self, path: Path, out_dir: Path | None, *, force: bool) -> InputSet:
+        """The file's lamps (paths relative to it); where the estimate goes checked first.
+
+        Raises
+        ------
+        calib.core.errors.InputError
+            An invalid inputs file (its line and field named); earlier results without
+            ``force``; an output directory that cannot be written.
+        """
+        file = Path(path)
+        destination = out_dir if out_dir is not None else file.with_name(f"{file.stem}-estimate")
+        check_out_dir(destination, force)
+        lamps = read_inputs_file(file)
+        return InputSet(
+            name=self.default_out_name(file),
+            lamps=lamps,
+            out_dir=destination,
+            notes=(f"inputs file {file}",),
+        )
+
+
+#: The reader of inputs files (the ``spectral_rig.inputs`` entry point ``inputs``).
+INPUTS_FILES = InputsFiles()
