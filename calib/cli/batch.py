@@ -68,8 +68,11 @@ def expand_inputs(paths: Sequence[Path], readers: Sequence[InputSetReader]) -> l
                 if any(reader.recognises(child) for reader in readers)
             )
             if not inside:
-                accepted = " or ".join(reader.description for reader in readers)
-                raise InputError(f"neither {accepted} nor a directory of them", source=str(path))
+                accepted = ", ".join(reader.description for reader in readers)
+                raise InputError(
+                    f"holds no input set: neither {accepted}, nor a directory of them",
+                    source=str(path),
+                )
             expanded.extend(inside)
         else:
             expanded.append(path)

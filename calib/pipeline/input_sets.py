@@ -180,7 +180,7 @@ class InputsFiles:
     ``--out`` its outputs go beside it, to ``<stem>-estimate/``."""
 
     kind = "inputs"
-    description = "an inputs file (YAML with lamps:, as calib estimate --inputs reads)"
+    description = "an inputs file (YAML with lamps:)"
 
     def recognises(self, path: Path) -> bool:
         """A file named ``*.yaml`` or ``*.yml``."""

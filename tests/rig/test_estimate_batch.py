@@ -212,6 +212,7 @@ def test_calib_batch_estimates_a_directory_of_sessions(
     empty.mkdir()
     result = CliRunner().invoke(build_app(), ["batch", str(empty)])
     assert result.exit_code != 0
-    assert "neither a session directory (with log.jsonl) nor a directory of them" in str(
-        result.exception
+    assert (
+        "holds no input set: neither an inputs file (YAML with lamps:), a session directory "
+        "(with log.jsonl), nor a directory of them" in str(result.exception)
     )
