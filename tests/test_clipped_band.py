@@ -50,3 +50,19 @@ def test_a_float_export_repeating_its_maximum_is_clipped_whatever_its_shoulders(
     profile = _bands(70.0) * 0.8
     profile[495:506, 0] = profile[500, 0]
     assert clipped_band(_observation(profile)) == "L (r 0.8 at px 495–505)"
+
+
+def test_an_8_bit_band_clipped_beside_another_band_of_its_channel_is_found() -> None:
+    """The shoulders are the clipped band's own: a second band of the channel above 60 % of the
+    clip level (a CFL's lines, an LED's two humps) once joined the parabola's fit, which then
+    missed every one of these clipped profiles."""
+    rng = np.random.default_rng(13)
+    for _ in range(10):
+        channel = 255.0 * (
+            1.3 * np.exp(-0.5 * ((PIXEL - 300) / 40) ** 2)
+            + 0.75 * np.exp(-0.5 * ((PIXEL - 600) / 15) ** 2)
+        )
+        profile = np.stack([channel, 0.3 * channel, 0.2 * channel], 1)
+        noisy = np.minimum(np.round(profile + rng.normal(0.0, 1.0, profile.shape)), 255.0)
+        found = clipped_band(_observation(noisy))
+        assert found is not None and found.startswith("L (r 255 at px "), found

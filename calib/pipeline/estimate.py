@@ -622,8 +622,11 @@ def _cut_below_its_shoulders(channel: FloatArray, run: NDArray[np.intp]) -> bool
     """Whether a quantised channel's run of equal maxima lies below the peak its shoulders'
     parabola predicts at the run's centre (:data:`CLIPPED_SHOULDER_SIGMAS`)."""
     peak = float(channel[run[0]])
-    top = np.flatnonzero(channel >= SHOULDER_FRACTION * peak)
-    low, high = int(top.min()), int(top.max())
+    # The band around the run down to SHOULDER_FRACTION of it, not other bands of the channel.
+    below = np.flatnonzero(channel < SHOULDER_FRACTION * peak)
+    before, after = below[below < run[0]], below[below > run[-1]]
+    low = int(before.max()) + 1 if before.size else 0
+    high = int(after.min()) - 1 if after.size else channel.size - 1
     index = np.arange(low, high + 1)
     shoulders = index[(index < run[0]) | (index > run[-1])]
     if shoulders.size < 6 or not (shoulders < run[0]).any() or not (shoulders > run[-1]).any():
@@ -742,7 +745,13 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
         for obs in observations
         if (why := lamp_kind_mismatch(obs))
     )
-    unmeasured = [why for obs in observations if (why := unmeasured_line_spectrum(obs))]
+    unmeasured: list[str] = []
+    coarse: list[str] = []
+    for obs in observations:
+        if why := unmeasured_line_spectrum(obs):
+            unmeasured.append(why)
+        elif why := coarse_line_spectrum(obs):
+            coarse.append(why)
     if unmeasured:
         flags.append(
             QualityFlag(
@@ -751,11 +760,6 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
                 "of the solve; measure its spectrum to use it there too",
             )
         )
-    coarse = [
-        why
-        for obs in observations
-        if not unmeasured_line_spectrum(obs) and (why := coarse_line_spectrum(obs))
-    ]
     if coarse:
         flags.append(QualityFlag("coarse_lamp_spectrum", "; ".join(coarse)))
     broad = [what for obs in observations if (what := coarse_slit(obs))]
