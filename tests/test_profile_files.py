@@ -15,7 +15,8 @@ from calib.image.profile_files import (
     read_fits_profile,
     read_rawproc_dat,
 )
-from calib.pipeline.inputs import read_profile_csv, read_profile_file
+from calib.pipeline.estimate import OfflineSettings, _check_inputs
+from calib.pipeline.inputs import ChannelGains, LampProfile, read_profile_csv, read_profile_file
 
 COMMAND = (
     "rawproc-0.9.1Dev DSG_0001.NEF:rawdata=crop;  demosaic:half rotate:hmirror "
@@ -272,3 +273,21 @@ def test_calib_estimate_reads_the_planes_as_three_files_and_nothing_else(tmp_pat
     csvs = tuple(tmp_path / f"{c}.csv" for c in "rgb")
     with pytest.raises(InputError, match="R, G and B planes of a FITS export"):
         read_profile_file(csvs)
+
+
+@pytest.mark.parametrize(("gains", "warned"), [("raw", True), ("unknown", False)])
+def test_fits_planes_taken_with_raw_gains_are_warned(
+    tmp_path: Path, gains: ChannelGains, warned: bool
+) -> None:
+    """FITS R, G, B planes are an RGB image's: taken as raw when a conversion balanced them, the
+    channels' balance is silently wrong (the real Canon 10D's by 30 % of the peak), so the
+    estimate says how to declare them unless the user did."""
+    planes, _ = _band_planes(np.random.default_rng(8), 0.01)
+    paths = []
+    for name, plane in zip("RGB", planes, strict=True):
+        paths.append(tmp_path / f"sun {name}.fit")
+        paths[-1].write_bytes(_fits_bytes(plane))
+    lamp = LampProfile("sun", "other", Path("D65"), tuple(paths), channel_gains=gains)
+    warnings = _check_inputs([lamp], OfflineSettings()).warnings
+    said = [text for text in warnings if "--channel-gains unknown" in text]
+    assert bool(said) is warned, warnings

@@ -56,6 +56,7 @@ from calib.model.bases import CameraBasis, default_camera_basis
 from calib.model.resolution import COARSE_SLIT_NM, coarse_slit
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
 from calib.pipeline.inputs import (
+    FITS_SUFFIXES,
     LampImages,
     LampInput,
     LampProfile,
@@ -289,6 +290,23 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
         for lamp in lamps
         if isinstance(lamp, LampProfile)
     }
+    rgb_planes = [
+        lamp.name
+        for lamp in lamps
+        if isinstance(lamp, LampProfile)
+        and lamp.channel_gains == "raw"
+        and profile_files(lamp.profile)[0].suffix.lower() in FITS_SUFFIXES
+    ]
+    if rgb_planes:
+        # FITS R, G, B planes are an RGB image's: raw gains only if nothing balanced them. Taken
+        # as raw when they were white-balanced, the channels' balance is silently wrong (the
+        # Canon 10D's planes: 30 % of the peak).
+        warnings.append(
+            f"the FITS profile of {', '.join(map(repr, rgb_planes))} is taken with the raw data's "
+            "channel gains; FITS R, G, B planes usually come from a converted RGB image: if white "
+            "balance or a colour conversion scaled them, give --channel-gains unknown (an inputs "
+            "file's channel_gains: unknown)"
+        )
     axes = {table.in_wavelength for table in profiles.values()}
     if len(axes) > 1:
         raise InputError(
