@@ -14,6 +14,7 @@ from calib.core.checksums import file_sha256
 from calib.core.lamp_specs import colour_lamp
 from calib.core.software import current_software
 from calib.core.spectra import WavelengthGrid, read_spectrum_csv, write_csv
+from calib.spd.pipeline import mapping_spectrum_label
 from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
 
 
@@ -213,6 +214,8 @@ def test_the_mapping_lamp_spectrum_by_name_is_the_table_itself(
         assert code == 0, stderr
         results[label] = json.loads((tmp_path / label / "spd.json").read_text())
     assert results["name"]["inputs"]["mapping_spectrum"] == {"name": "FL2"}
+    assert results["file"]["mapping"]["details"]["lines"] == "measured spectrum"
+    assert results["name"]["mapping"]["details"]["lines"].startswith("named spectrum FL2 (")
     assert "sha256" in results["file"]["inputs"]["mapping_spectrum"]
     assert results["name"]["mapping"]["b"] == pytest.approx(results["file"]["mapping"]["b"], 1e-6)
     file_spd = read_spectrum_csv(tmp_path / "file" / "spd.csv").values
@@ -333,3 +336,12 @@ def test_the_grating_file_an_estimate_writes_is_the_same_efficiency_as_its_csv(
     code, _, stderr = run_cli(arguments, monkeypatch, capsys)
     assert code == 0 and stderr == "", stderr
     assert (tmp_path / "out" / "spd.csv").is_file()
+
+
+def test_the_mapping_spectrum_label_says_whether_it_was_measured(tmp_path: Path) -> None:
+    """A CSV is a measurement; a colour table or a built-in line list is named as what it is."""
+    csv = tmp_path / "fl.csv"
+    csv.write_text("wavelength_nm,value\n400,1\n700,1\n")
+    assert mapping_spectrum_label(csv) == "measured spectrum"
+    assert mapping_spectrum_label(Path("builtin:hg")).startswith("built-in line list builtin:hg")
+    assert "not a measurement" in mapping_spectrum_label(Path("FL11"))

@@ -30,6 +30,7 @@ from calib.core.figures import agg_figure, save_png
 from calib.core.formats import read_camera as read_camera_file
 from calib.core.grating_file import read_grating_file
 from calib.core.lamp_specs import is_spectrum_file, lamp_from_spec
+from calib.core.line_lists import is_builtin
 from calib.core.mapping import GratingGeometry, QuadraticMapping, mapping_from_dict
 from calib.core.result import json_safe
 from calib.core.software import current_software
@@ -208,6 +209,13 @@ def _find_mapping(
                 start=mapping,
             )
             wide = widened_geometry(geometry, mapping, RECOVERY_RANGE_NM)
+            if request.mapping_spectrum is not None:
+                mapping = mapping.with_details(
+                    details={
+                        **dict(mapping.details),
+                        "lines": mapping_spectrum_label(request.mapping_spectrum),
+                    }
+                )
     except EstimationError as exc:
         if mapping_image is None:
             raise InputError(
@@ -224,6 +232,17 @@ def read_camera(path: Path) -> MultiSpectrum:
     """The camera's R, G, B sensitivity, channels by name (any camera file, :func:`read_camera_file`,
     which refuses a channel with no positive value)."""
     return read_camera_file(path).to_multispectrum().normalised()
+
+
+def mapping_spectrum_label(source: Path) -> str:
+    """What the mapping lamp's spectrum is, as the result's ``mapping.details.lines`` says it: a
+    measured spectrum (a CSV), or the name it was given (a colour-science table or a built-in line
+    list is not a measurement of this lamp)."""
+    if is_spectrum_file(source):
+        return "measured spectrum"
+    if is_builtin(str(source)):
+        return f"built-in line list {source} (not a measurement of the lamp)"
+    return f"named spectrum {source} (a reference table, not a measurement of the lamp)"
 
 
 def mapping_lamp_spectrum(source: Path) -> Spectrum:
