@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import itertools
 import re
 import subprocess
 import sys
@@ -101,6 +102,35 @@ def test_the_help_names_every_option_in_full_at_80_columns(
         for flag in [*parameter.opts, *parameter.secondary_opts]:
             if flag.startswith("--"):
                 assert flag in stdout, f"{flag} is cut short in {program} {' '.join(path)} -h"
+
+
+@pytest.mark.parametrize("program", ["calib", "rig"])
+def test_a_group_lists_each_command_s_first_paragraph_unbroken(
+    program: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The list of commands shows each one's first paragraph as one flowing text: a docstring's
+    own line breaks would end a line mid-sentence there ("…, with a" / "summary table.")."""
+    monkeypatch.setenv("COLUMNS", "100")
+    command = click_command(calib_app.build_app() if program == "calib" else rig_cli.app)
+    _, stdout, _ = _run(program, ["-h"])
+    listed: dict[str, list[str]] = {}
+    box = stdout.split("Commands", 1)[1].splitlines()[1:]
+    for line in box:
+        if not line.startswith("│"):
+            break
+        text = line.strip("│").rstrip()
+        if not text.startswith("  "):  # a command's name starts the row; else a continuation
+            name, _, text = text.strip().partition(" ")
+            listed[name] = []
+        listed[name].append(text.strip())
+    width = max(len(row) for rows in listed.values() for row in rows)
+    for name, child in subcommands(command).items():
+        first = " ".join((child.help or "").split("\n\n", 1)[0].split())
+        rows = listed[name]
+        assert " ".join(rows) == first, name
+        for row, following in itertools.pairwise(rows):
+            # a row ends early only where the next word would not have fitted
+            assert len(row) + 1 + len(following.split()[0]) > width, (name, row)
 
 
 @pytest.mark.parametrize(

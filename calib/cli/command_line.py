@@ -232,6 +232,10 @@ def click_command(app: typer.Typer) -> ClickCommand:
     for each in _every_command(command):
         if not any("--version" in parameter.opts for parameter in each.params):
             each.params.append(version)
+        if each.short_help is None and each.help:
+            # The group's list shows a command's first paragraph; its docstring's line breaks
+            # would break it mid-sentence there.
+            each.short_help = " ".join(each.help.split("\n\n", 1)[0].split())
     return command
 
 
