@@ -1013,3 +1013,51 @@ def test_exclude_camera_keeps_the_camera_out_of_the_default_basis(
     assert "calib: warning: the camera basis comes from the 52 rawtoaces-data cameras" in stderr
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     assert any("rawtoaces-data" in w for w in document["provenance"]["warnings"])
+
+
+def test_a_spectrum_in_photons_is_converted_to_power_and_raw_counts_are_serious(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """A spectrum's '# units:' was read and dropped: one in photons per nm gave the per-photon
+    sensitivity (tilted by λ across the grid) and raw spectrometer counts went into the solve
+    without a word. Photons are now converted to power; counts are a serious flag."""
+    runs = {}
+    for label, header in (
+        ("power", None),
+        ("photons", "# units: photons/s/nm"),
+        ("photons unsaid", ""),
+        ("counts", "# units: counts/ms (uncalibrated)"),
+    ):
+        folder = tmp_path / label.replace(" ", "-")
+        folder.mkdir()
+        argv = _profile_args(folder, capture, direct=True)
+        if header is not None:
+            spectrum = folder / "LED.csv"
+            table = np.loadtxt(spectrum, delimiter=",", skiprows=1)
+            if "photons" in label:
+                table[:, 1] *= table[:, 0] / 555.0  # the same light, counted in photons
+            lines = [header] if header else []
+            lines.append("wavelength_nm,value")
+            lines += [f"{w:.10g},{v:.10g}" for w, v in table]
+            spectrum.write_text("\n".join(lines) + "\n")
+        code, stdout, stderr = _call([*argv, "--out", str(folder / "out"), "--json", "--no-report"])
+        assert code == 0, stderr
+        runs[label] = (
+            json.loads(stdout),
+            stderr,
+            read_camera_csv(folder / "out" / "sensitivity.csv").values,
+        )
+    power, photons, unsaid = (runs[k][2] for k in ("power", "photons", "photons unsaid"))
+    assert relative_error(photons, power) < 1e-6
+    assert relative_error(unsaid, power) > 5 * relative_error(power, capture.truth)
+    assert (
+        "lamp 'LED': its spectrum is in 'photons/s/nm' (photons): converted" in runs["photons"][1]
+    )
+    converted = [line for line in runs["photons"][0]["warnings"] if "converted" in line]
+    assert _flag_codes(runs["photons"][0]) == EXPECTED_FLAGS | set(converted)
+    counts_summary, counts_stderr, _ = runs["counts"]
+    assert _flag_codes(counts_summary) == EXPECTED_FLAGS | {"lamp_spectrum_uncalibrated"}
+    assert (
+        "SERIOUS: the spectrum of lamp 'LED' (counts/ms (uncalibrated)) is in a spectrometer's raw counts"
+        in counts_stderr
+    )

@@ -224,3 +224,37 @@ def test_several_spectra_of_a_lamp_are_averaged_only_where_each_was_measured(
     mean = load_spectrum((wide, inner), "FL", DEFAULT_GRID).spectrum
     assert mean.range_nm == (390.0, 720.0)
     np.testing.assert_allclose(mean.values, 2.0)
+
+
+@pytest.mark.parametrize(
+    ("first_lines", "kind", "warned"),
+    [
+        ("wavelength_nm,value", None, None),
+        ("# units: W/(sr·m²·nm)\nwavelength_nm,value", "energy", None),
+        ("# units: relative spectral irradiance\nwavelength_nm,value", "relative", None),
+        ("wavelength_nm,counts", "counts", None),
+        ("wavelength_nm,irradiance", None, None),
+        ("# units: reflectance\nwavelength_nm,value", "ratio", None),
+        ("# units: µmol/m²/s/nm\nwavelength_nm,value", "photon", "converted to power per nm"),
+        ("# units: furlongs\nwavelength_nm,value", "unknown", "are not recognised"),
+    ],
+)
+def test_a_lamp_spectrum_says_what_its_units_measure(
+    tmp_path: Path, first_lines: str, kind: str | None, warned: str | None
+) -> None:
+    """The units of a spectrum file (its '# units:' line, or a value column named for them) are
+    read as a quantity; photons are turned into power per nm (÷ λ), units nobody knows warned."""
+    from calib.pipeline.inputs import load_spectrum
+
+    wavelength = np.arange(380.0, 781.0, 5.0)
+    path = tmp_path / "lamp.csv"
+    rows = "\n".join(f"{w:g},1" for w in wavelength)
+    path.write_text(f"{first_lines}\n{rows}\n")
+    loaded = load_spectrum(path, "L", DEFAULT_GRID)
+    assert loaded.units_kind == kind
+    if warned is None:
+        assert loaded.warnings == []
+    else:
+        assert len(loaded.warnings) == 1 and warned in loaded.warnings[0]
+    expected = 555.0 / wavelength if kind == "photon" else np.ones_like(wavelength)
+    np.testing.assert_allclose(loaded.spectrum.at(wavelength), expected, rtol=1e-12)

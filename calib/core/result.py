@@ -91,6 +91,8 @@ QUALITY_CODES: dict[str, str] = {
     "beyond its tolerance: the spectra were corrected by the lines; recalibrate the instrument",
     "channel_gains_unknown": "the profile's channel gains are not the raw data's: the channel "
     "balance is the camera population's, its spread in σ",
+    "lamp_spectrum_uncalibrated": "a lamp's spectrum is, by its own units, not its emission as "
+    "power per nm: a spectrometer's raw counts or a reflectance; the sensitivity carries it",
 }
 
 

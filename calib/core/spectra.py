@@ -851,6 +851,49 @@ def read_multispectrum_csv(
         raise SpectrumError(str(exc).removeprefix(f"{label}: "), source=str(table.path)) from None
 
 
+#: What a spectrum's ``# units:`` says of its quantity (:func:`spectral_units_kind`).
+UnitsKind = Literal["energy", "photon", "counts", "ratio", "relative", "unknown"]
+
+#: Words that mark each kind, tried in this order on the lower-cased text ("photon counts
+#: (uncalibrated)" is counts: an uncalibrated instrument's response is the graver fault).
+_UNITS_WORDS: tuple[tuple[UnitsKind, re.Pattern[str]], ...] = (
+    ("counts", re.compile(r"uncalibrated|\braw\b")),
+    ("photon", re.compile(r"photon|quant[au]|\b[µμu]?mol\b|einstein")),
+    ("counts", re.compile(r"\bcounts?\b|\badu\b|\bdn\b|\bdigital numbers?\b")),
+    ("ratio", re.compile(r"reflectan|transmittan|absorban")),
+    ("energy", re.compile(r"\b[fpnµμumk]?w\b|watt|\b[mµμu]?j\b|joule|\berg")),
+    ("relative", re.compile(r"relative|arbitrary|a\.\s?u\.|\bau\b|normali[sz]ed|unitless")),
+)
+
+
+def spectral_units_kind(units: str) -> UnitsKind:
+    """What a spectrum's units (``# units:`` of its CSV) measure: ``"energy"`` (power or energy
+    per nm: W, mW/(sr m² nm), J, erg), ``"photon"`` (photons or moles of them per nm: what a PAR
+    meter or a quantum-calibrated spectrometer gives), ``"counts"`` (a spectrometer's raw counts,
+    or anything marked uncalibrated: its own spectral response is still in them), ``"ratio"`` (a
+    reflectance or transmittance: a sample's, not a lamp's emission), ``"relative"`` (no unit:
+    taken as energy), else ``"unknown"``.
+
+    >>> [spectral_units_kind(u) for u in ("W/(sr m² nm)", "µmol/m²/s/nm", "counts/ms (uncalibrated)")]
+    ['energy', 'photon', 'counts']
+    >>> spectral_units_kind("relative"), spectral_units_kind("furlongs")
+    ('relative', 'unknown')
+    """
+    text = units.strip().lower()
+    for kind, words in _UNITS_WORDS:
+        if words.search(text):
+            return kind
+    return "unknown"
+
+
+def photon_to_energy(spectrum: Spectrum, reference_nm: float = 555.0) -> Spectrum:
+    """A spectrum in photons per nm as relative power per nm: each photon carries ``hc/λ``, so the
+    values are divided by ``λ`` (scaled by ``reference_nm`` so that the magnitude stays near the
+    original's; the scale is arbitrary to the estimate)."""
+    wavelength = spectrum.wavelength_nm
+    return Spectrum(wavelength, spectrum.values * (reference_nm / wavelength), name=spectrum.name)
+
+
 def csv_header(path: str | Path) -> dict[str, str]:
     """The ``# key: value`` comment lines before a CSV's data (keys lower-cased), e.g. a spectrum's
     ``# units: W/(sr m² nm)`` and ``# bandwidth_nm: 8`` (what :func:`write_csv` writes)."""

@@ -33,7 +33,7 @@ from calib.core.grating_file import GratingEfficiency, read_grating_file
 from calib.core.mapping import QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag
-from calib.core.spectra import DEFAULT_GRID, Spectrum, WavelengthGrid
+from calib.core.spectra import DEFAULT_GRID, Spectrum, UnitsKind, WavelengthGrid
 from calib.image.raw import read_raw_metadata
 from calib.methods import (
     AUTO,
@@ -209,6 +209,8 @@ class _Checked:
     grating: GratingEfficiency | None
     warnings: list[str]
     bandwidths: dict[str, float | None] = field(default_factory=dict)
+    #: Each lamp's spectrum units and what they measure, where its files say.
+    units: dict[str, tuple[str, UnitsKind]] = field(default_factory=dict)
 
 
 def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Checked:
@@ -261,6 +263,7 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
     warnings: list[str] = []
     spectra: dict[str, Spectrum] = {}
     bandwidths: dict[str, float | None] = {}
+    units: dict[str, tuple[str, UnitsKind]] = {}
     for given in lamps:
         if given.spectrum_bandwidth_nm is not None:
             check_bandwidth(
@@ -274,6 +277,8 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
         loaded = load_spectrum(given.spectrum, given.name, settings.grid)
         spectra[given.name] = loaded.spectrum
         warnings.extend(loaded.warnings)
+        if loaded.units is not None and loaded.units_kind is not None:
+            units[given.name] = (loaded.units, loaded.units_kind)
         bandwidths[given.name] = (
             given.spectrum_bandwidth_nm
             if given.spectrum_bandwidth_nm is not None
@@ -325,7 +330,7 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             f"{settings.grid.start_nm:g}–{settings.grid.stop_nm:g} nm",
             source=grating.source,
         )
-    return _Checked(spectra, profiles, grating, warnings, bandwidths)
+    return _Checked(spectra, profiles, grating, warnings, bandwidths, units)
 
 
 def _profile_observation(
@@ -553,6 +558,7 @@ def estimate_offline(
         report.stage("estimating")
         step = time.perf_counter()
         flags = input_flags(observations, image_input=bool(image_lamps))
+        flags.extend(spectrum_units_flags(checked.units))
         try:
             result, grating_used = _estimate(
                 observations,
@@ -791,6 +797,36 @@ def input_flags(observations: Sequence[LampObservation], *, image_input: bool) -
                 "prior: expect it to differ from an 8 nm spectroradiometer's by 1–3 ×10⁻² RE; "
                 "measure the lamps with a spectroradiometer or a USB spectrometer (≤ 10 nm) for "
                 "a reference-grade curve",
+            )
+        )
+    return flags
+
+
+def spectrum_units_flags(units: Mapping[str, tuple[str, UnitsKind]]) -> list[QualityFlag]:
+    """A serious flag for the lamps whose spectrum is not the lamp's emission by its own units: a
+    spectrometer's raw counts (its spectral response is in them, and so in the sensitivity), or a
+    reflectance/transmittance (a sample's ratio, not a light)."""
+    raw = [f"{lamp!r} ({text})" for lamp, (text, kind) in units.items() if kind == "counts"]
+    ratio = [f"{lamp!r} ({text})" for lamp, (text, kind) in units.items() if kind == "ratio"]
+    flags = []
+    if raw:
+        flags.append(
+            QualityFlag(
+                "lamp_spectrum_uncalibrated",
+                f"the spectrum of lamp {', '.join(raw)} is in a spectrometer's raw counts: its "
+                "spectral response is in them, so the sensitivity carries it too; give the lamp's "
+                "irradiance-calibrated spectrum (rig calibrate-spectrometer makes an Ocean "
+                "spectrometer's calibration)",
+                "serious",
+            )
+        )
+    if ratio:
+        flags.append(
+            QualityFlag(
+                "lamp_spectrum_uncalibrated",
+                f"the spectrum of lamp {', '.join(ratio)} is a reflectance or transmittance, not "
+                "the lamp's emission: measure the lamp itself (emission, or irradiance mode)",
+                "serious",
             )
         )
     return flags

@@ -25,11 +25,14 @@ from calib.core.lamp_specs import is_spectrum_file, lamp_from_spec
 from calib.core.observations import LAMP_KINDS, LampKind
 from calib.core.spectra import (
     Spectrum,
+    UnitsKind,
     WavelengthGrid,
     as_spectrum,
     csv_header,
+    photon_to_energy,
     read_spectrum_csv,
     read_table,
+    spectral_units_kind,
 )
 from calib.core.spectrometer_tolerance import MAX_BANDWIDTH_NM
 from calib.image.profile_files import read_fits_profile, read_rawproc_dat
@@ -185,13 +188,17 @@ class LoadedSpectrum:
     """A lamp spectrum and what was done to it on reading.
 
     ``bandwidth_nm`` and ``units`` are the files' ``# bandwidth_nm:``/``# units:`` header lines
-    (the largest bandwidth when averaged files differ), ``None`` when they have none.
+    (the largest bandwidth when averaged files differ; the units also from a value column named
+    ``counts``, ``photons`` …), ``None`` when they have none; ``units_kind`` is what the units
+    measure (:func:`calib.core.spectra.spectral_units_kind`). A spectrum in photons is converted
+    to power per nm.
     """
 
     spectrum: Spectrum
     warnings: list[str] = field(default_factory=list)
     bandwidth_nm: float | None = None
     units: str | None = None
+    units_kind: UnitsKind | None = None
 
 
 def check_kind(kind: str, source: str) -> LampKind:
@@ -234,7 +241,8 @@ def _header_bandwidth(path: Path, header: dict[str, str]) -> float | None:
     return check_bandwidth(value, given_as=f"'# bandwidth_nm: {text}'", source=str(path))
 
 
-def _read_one(path: Path, lamp: str, warnings: list[str]) -> Spectrum:
+def _read_one(path: Path, lamp: str, warnings: list[str]) -> tuple[Spectrum, str]:
+    """The spectrum in ``path`` and its value column's name."""
     table = read_table(path)
     if len(table.columns) != 2:
         raise SpectrumError(
@@ -248,8 +256,8 @@ def _read_one(path: Path, lamp: str, warnings: list[str]) -> Spectrum:
     negative = values < 0
     if negative.any() and np.all(values[negative] >= -NEGATIVE_SPECTRUM_TOLERANCE * peak):
         warnings.append(f"{path.name}: {int(negative.sum())} small negative value(s) set to zero")
-        return read_spectrum_csv(path, name=lamp, negative="clip")
-    return read_spectrum_csv(path, name=lamp)
+        return read_spectrum_csv(path, name=lamp, negative="clip"), table.columns[1]
+    return read_spectrum_csv(path, name=lamp), table.columns[1]
 
 
 def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> LoadedSpectrum:
@@ -283,7 +291,8 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
         spectrum, where = lamp_from_spec(name), f"spectrum {name!r} of lamp {lamp!r}"
     else:
         where = ", ".join(str(path) for path in paths)
-        spectra = [_read_one(path, lamp, warnings) for path in paths]
+        read = [_read_one(path, lamp, warnings) for path in paths]
+        spectra = [spectrum for spectrum, _ in read]
         headers = [csv_header(path) for path in paths]
         widths = [_header_bandwidth(p, h) for p, h in zip(paths, headers, strict=True)]
         known = [w for w in widths if w is not None]
@@ -295,7 +304,7 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
                 "; give spectra of one kind",
                 source=where,
             )
-        units = unit_set.pop() if unit_set else None
+        units = unit_set.pop() if unit_set else _column_units(read[0][1])
         if len(spectra) == 1:
             spectrum = spectra[0]
         else:
@@ -312,7 +321,30 @@ def load_spectrum(source: SpectrumSource, lamp: str, grid: WavelengthGrid) -> Lo
     if not np.any(spectrum.values > 0):
         raise SpectrumError("the spectrum is zero everywhere", source=where)
     _check_covers(spectrum, grid, where)
-    return LoadedSpectrum(spectrum, warnings, bandwidth, units)
+    kind = None if units is None else spectral_units_kind(units)
+    if kind == "photon":
+        # The estimate's sensitivity is per unit power (as the camera databases' curves are).
+        spectrum = photon_to_energy(spectrum)
+        warnings.append(
+            f"lamp {lamp!r}: its spectrum is in {units!r} (photons): converted to power per nm "
+            "(× 1/λ) for the estimate"
+        )
+    elif kind == "unknown":
+        warnings.append(
+            f"lamp {lamp!r}: its spectrum's units {units!r} are not recognised: taken as power per "
+            "nm; if they count photons, say so in its '# units:' line (e.g. photons/s/nm)"
+        )
+    return LoadedSpectrum(spectrum, warnings, bandwidth, units, kind)
+
+
+#: Value-column names that say what a spectrum without a ``# units:`` line measures.
+_COLUMN_UNIT_KINDS = ("photon", "counts", "ratio")
+
+
+def _column_units(column: str) -> str | None:
+    """A value column's name as the spectrum's units where it says photons, raw counts or a
+    ratio (``wavelength_nm,counts``); else ``None`` (``value``, ``irradiance``: no unit said)."""
+    return column if spectral_units_kind(column) in _COLUMN_UNIT_KINDS else None
 
 
 def _check_covers(spectrum: Spectrum, grid: WavelengthGrid, where: str) -> None:
