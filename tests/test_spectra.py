@@ -237,6 +237,8 @@ def test_several_spectra_of_a_lamp_are_averaged_only_where_each_was_measured(
         ("# units: reflectance\nwavelength_nm,value", "ratio", None),
         ("# units: µmol/m²/s/nm\nwavelength_nm,value", "photon", "converted to power per nm"),
         ("# units: furlongs\nwavelength_nm,value", "unknown", "are not recognised"),
+        ("# units: irradiance\nwavelength_nm,value", "energy", None),  # IES TM-27-14's words
+        ("# units: photonIrradiance\nwavelength_nm,value", "photon", "converted to power"),
     ],
 )
 def test_a_lamp_spectrum_says_what_its_units_measure(

@@ -860,15 +860,22 @@ _UNITS_WORDS: tuple[tuple[UnitsKind, re.Pattern[str]], ...] = (
     ("counts", re.compile(r"uncalibrated|\braw\b")),
     ("photon", re.compile(r"photon|quant[au]|\b[µμu]?mol\b|einstein")),
     ("counts", re.compile(r"\bcounts?\b|\badu\b|\bdn\b|\bdigital numbers?\b")),
-    ("ratio", re.compile(r"reflectan|transmittan|absorban")),
-    ("energy", re.compile(r"\b[fpnµμumk]?w\b|watt|\b[mµμu]?j\b|joule|\berg")),
+    ("ratio", re.compile(r"reflectan|transmittan|absorp?tan|\b[rt]-factor")),
+    # units, or the quantity a format names (IES TM-27-14: flux, irradiance, radiance …)
+    (
+        "energy",
+        re.compile(
+            r"\b[fpnµμumk]?w\b|watt|\b[mµμu]?j\b|joule|\berg|flux|irradiance|radiance|"
+            r"intensity|exitance|power"
+        ),
+    ),
     ("relative", re.compile(r"relative|arbitrary|a\.\s?u\.|\bau\b|normali[sz]ed|unitless")),
 )
 
 
 def spectral_units_kind(units: str) -> UnitsKind:
-    """What a spectrum's units (``# units:`` of its CSV) measure: ``"energy"`` (power or energy
-    per nm: W, mW/(sr m² nm), J, erg), ``"photon"`` (photons or moles of them per nm: what a PAR
+    """What a spectrum's units (``# units:`` of its CSV, or a format's spectral quantity) measure:
+    ``"energy"`` (power or energy per nm: W, mW/(sr m² nm), J, erg, an irradiance), ``"photon"`` (photons or moles of them per nm: what a PAR
     meter or a quantum-calibrated spectrometer gives), ``"counts"`` (a spectrometer's raw counts,
     or anything marked uncalibrated: its own spectral response is still in them), ``"ratio"`` (a
     reflectance or transmittance: a sample's, not a lamp's emission), ``"relative"`` (no unit:
