@@ -231,7 +231,8 @@ def test_several_spectra_of_a_lamp_are_averaged_only_where_each_was_measured(
     [
         ("wavelength_nm,value", None, None),
         ("# units: W/(sr·m²·nm)\nwavelength_nm,value", "energy", None),
-        ("# units: relative spectral irradiance\nwavelength_nm,value", "relative", None),
+        ("# units: relative spectral irradiance\nwavelength_nm,value", "energy", None),
+        ("# units: relative\nwavelength_nm,value", "relative", None),
         ("wavelength_nm,counts", "counts", None),
         ("wavelength_nm,irradiance", None, None),
         ("# units: reflectance\nwavelength_nm,value", "ratio", None),
