@@ -754,14 +754,15 @@ def test_assume_grating_physical_marginalises_the_families_and_is_named_where_it
     assert code == 2 and stderr.count("\n") == 1 and "--assume-grating" in stderr, stderr
 
 
-def _as_rawproc_dat(csv_path: Path) -> Path:
-    """The CSV profile written as rawproc's text export (columns 0 … width−1, no σ), unmirrored."""
+def _as_rawproc_dat(csv_path: Path, operations: str = "") -> Path:
+    """The CSV profile written as rawproc's text export (columns 0 … width−1, no σ), unmirrored;
+    ``operations`` are put in its command after the demosaic."""
     table = np.loadtxt(csv_path, delimiter=",", skiprows=1)
     width = table.shape[0]
     rows = [
         f"width: {width}",
         "height: 9",
-        "rawproc-0.9.1Dev lamp.NEF:rawdata=crop;  demosaic:half crop:0,0.4,1,0.5 ",
+        f"rawproc-0.9.1Dev lamp.NEF:rawdata=crop;  demosaic:half {operations} crop:0,0.4,1,0.5 ",
         "x," + ",".join(str(k) for k in range(width)),
         *(
             f"{name}," + ",".join(f"{v:.8g}" for v in table[:, 1 + index])
@@ -785,6 +786,32 @@ def test_profile_input_as_rawproc_export(capture: Capture, tmp_path: Path) -> No
     document = json.loads((tmp_path / "out" / "result.json").read_text())
     estimated = np.column_stack([document["sensitivity"][c] for c in "RGB"])
     assert relative_error(estimated, capture.truth) < 0.05
+    # The provenance shows the rawproc command's operations as read.
+    for lamp in document["provenance"]["lamps"]:
+        operations = lamp["profile_metadata"]["rawproc"]["operations"]
+        assert [op["name"] for op in operations] == ["demosaic", "crop"], lamp
+        assert lamp["channel_gains"] == "raw"
+
+
+def test_a_rawproc_export_made_non_linear_is_one_line_exit_2(
+    capture: Capture, tmp_path: Path
+) -> None:
+    """A gamma in the rawproc command: the data are not the camera's linear channels, refused
+    before anything is estimated, naming the file and the operation."""
+    argv = _profile_args(tmp_path, capture, direct=True)
+    argv = [
+        str(_as_rawproc_dat(Path(value), "gamma:2.2" if "FL" in value else ""))
+        if value.endswith("-profile.csv")
+        else value
+        for value in argv
+    ]
+    code, _, stderr = _call([*argv, "--out", str(tmp_path / "out"), "--no-report"])
+    assert code == 2 and stderr.count("\n") == 1, stderr
+    assert (
+        "FL-profile.dat: the rawproc command applies gamma:2.2, which makes the profile " in stderr
+    )
+    assert "export the data again without it" in stderr
+    assert not (tmp_path / "out").exists()
 
 
 def test_profile_in_wavelength_uses_the_identity_mapping(capture: Capture, tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ import pytest
 from calib.core.errors import InputError
 from calib.core.spectra import Spectrum
 from calib.image.profile_files import (
+    parse_rawproc_command,
     read_fits_planes,
     read_fits_profile,
     read_rawproc_dat,
@@ -25,13 +26,18 @@ COMMAND = (
 
 
 def _dat_bytes(
-    red: list[float], green: list[float], blue: list[float], *, height: int = 7
+    red: list[float],
+    green: list[float],
+    blue: list[float],
+    *,
+    height: int = 7,
+    command: str = COMMAND,
 ) -> bytes:
     width = len(red)
     rows = [
         f"width: {width}",
         f"height: {height}",
-        COMMAND,
+        command,
         "x," + ",".join(str(k) for k in range(width)),
         *(
             f"{name}," + ",".join(f"{v:.6f}" for v in values)
@@ -231,9 +237,25 @@ def test_the_d7000_rawproc_exports(shared_real_grating: Path) -> None:
     folder = shared_real_grating / "butcher-nikon-d7000-2020-08"
     cfl = read_rawproc_dat(folder / "D7000_calibration.dat")
     halogen = read_rawproc_dat(folder / "D7000_spectrum.dat")
-    for profile in (cfl, halogen):
+    for name, profile in (("D7000_calibration.dat", cfl), ("D7000_spectrum.dat", halogen)):
         assert profile.profile.shape == (2474, 3)
         assert profile.metadata["mirrored"] is True and profile.metadata["rows_averaged"] == 115
+        # The command is read, and a raw export's passes: nothing warned, undone or unknown.
+        rawproc = profile.metadata["rawproc"]
+        assert rawproc["input_options"] == {"rawdata": "crop"}
+        assert [op["name"] for op in rawproc["operations"]] == ["demosaic", "rotate", "crop"]
+        assert {finding["effect"] for finding in rawproc["findings"]} == {"keeps"}
+        assert profile.warnings == () and profile.notes == ()
+        assert profile.channel_gains_unknown is None
+        # The same profile as the file's rows, value for value (no scaling).
+        rows = {
+            line.split(",", 1)[0]: np.array(line.split(",")[1:], dtype=float)
+            for line in (folder / name).read_text().splitlines()
+            if line.startswith(("red,", "green,", "blue,"))
+        }
+        np.testing.assert_array_equal(
+            profile.profile, np.column_stack([rows["red"], rows["green"], rows["blue"]])
+        )
     # In the file's (mirrored) order blue peaks first and red last: wavelength rises with x.
     peaks = cfl.profile.argmax(axis=0)
     assert peaks[2] < peaks[1] < peaks[0]
@@ -291,3 +313,158 @@ def test_fits_planes_taken_with_raw_gains_are_warned(
     warnings = _check_inputs([lamp], OfflineSettings()).warnings
     said = [text for text in warnings if "--channel-gains unknown" in text]
     assert bool(said) is warned, warnings
+
+
+# ------------------------------------------------------------------------- the rawproc command
+
+
+def _command(*operations: str, source: str = "DSG_0001.NEF:rawdata=crop;") -> str:
+    return " ".join(["rawproc-0.9.1Dev", source, "demosaic:half", *operations, "crop:0,0.4,1,0.5"])
+
+
+def _write_dat(path: Path, command: str, scale: tuple[float, float, float] = (1, 1, 1)) -> Path:
+    red, green, blue = (
+        [v * k for v in values] for values, k in zip((RED, GREEN, BLUE), scale, strict=True)
+    )
+    path.write_bytes(_dat_bytes(red, green, blue, command=command))
+    return path
+
+
+def test_the_rawproc_command_is_read_into_its_input_and_operations() -> None:
+    command = parse_rawproc_command(
+        "rawproc-0.9.1Dev DSG_4683.NEF:rawdata=crop;  demosaic:half rotate:hmirror "
+        'whitebalance:{"mode": "camera"} crop:0.000000,0.427027,1.000000,0.497297 '
+    )
+    assert command.program == "rawproc-0.9.1Dev" and command.input_file == "DSG_4683.NEF"
+    assert command.input_options == {"rawdata": "crop"}
+    assert [op.label for op in command.operations] == [
+        "demosaic:half",
+        "rotate:hmirror",
+        'whitebalance:{"mode": "camera"}',  # a JSON block kept whole across its space
+        "crop:0.000000,0.427027,1.000000,0.497297",
+    ]
+    assert command.operations[2].named() == {"mode": "camera"}
+    assert command.operations[3].positional()[1] == "0.427027"
+
+
+@pytest.mark.parametrize(
+    ("operation", "source"),
+    [
+        ("gamma:2.2", "DSG_0001.NEF:rawdata=crop;"),
+        ("tone:filmic", "DSG_0001.NEF:rawdata=crop;"),
+        ("curve:rgb,0,0,128,160,255,255", "DSG_0001.NEF:rawdata=crop;"),
+        ("saturation:1.3", "DSG_0001.NEF:rawdata=crop;"),
+        ("colorspace:srgb,convert,perceptual", "DSG_0001.NEF:rawdata=crop;"),
+        ("gray", "DSG_0001.NEF:rawdata=crop;"),
+        ("hlrecover", "DSG_0001.NEF:rawdata=crop;"),
+        ("whitebalance:bluethreshold,2,1,1.5,0.2", "DSG_0001.NEF:rawdata=crop;"),
+        ("input DSG_0001.jpg", "DSG_0001.jpg"),
+    ],
+)
+def test_a_non_linear_or_channel_mixing_rawproc_command_is_refused_naming_file_and_operation(
+    tmp_path: Path, operation: str, source: str
+) -> None:
+    command = _command(*([] if operation.startswith("input") else [operation]), source=source)
+    path = _write_dat(tmp_path / "D7000.dat", command)
+    with pytest.raises(InputError) as refused:
+        read_rawproc_dat(path)
+    message = str(refused.value)
+    assert message.startswith(f"{path}: the rawproc command applies {operation}, which "), message
+    assert "export the data again without it" in message and "\n" not in message
+    with pytest.raises(InputError, match="applies"):
+        read_profile_file(path)
+
+
+@pytest.mark.parametrize(
+    "operation",
+    [
+        "gamma:1.0",
+        "tone:gamma,1",
+        "curve:rgb,0,0,255,255",
+        "colorspace:camera,assign",
+        "exposure:0.5",
+        "subtract:dark.tif",
+        "blackwhitepoint:rgb,0,255",
+        "rotate:90",
+        "denoise:nlmeans,1",
+    ],
+)
+def test_a_linear_rawproc_operation_passes_and_is_listed(tmp_path: Path, operation: str) -> None:
+    path = _write_dat(tmp_path / "band.dat", _command(operation))
+    profile = read_rawproc_dat(path)
+    np.testing.assert_array_equal(profile.profile, np.column_stack([RED, GREEN, BLUE]))
+    assert profile.warnings == () and profile.notes == () and profile.channel_gains_unknown is None
+    findings = {
+        item["operation"]: item["effect"] for item in profile.metadata["rawproc"]["findings"]
+    }
+    assert findings[operation] == "keeps"
+
+
+@pytest.mark.parametrize(
+    ("operations", "multipliers"),
+    [
+        (["whitebalance:2,1,4"], (2.0, 1.0, 4.0)),
+        (
+            ["whitebalance:mode=multipliers;redmultiplier=4;greenmultiplier=1;bluemultiplier=2"],
+            (4.0, 1.0, 2.0),
+        ),
+        (["whitebalance:2,1,1", "exposure:1", "whitebalance:1,1,4"], (2.0, 1.0, 4.0)),
+    ],
+)
+def test_stated_white_balance_multipliers_are_undone_to_the_raw_values(
+    tmp_path: Path, operations: list[str], multipliers: tuple[float, float, float]
+) -> None:
+    path = _write_dat(tmp_path / "balanced.dat", _command(*operations), scale=multipliers)
+    profile = read_rawproc_dat(path)
+    # Powers of two: the division is exact, so the raw values come back bit for bit.
+    np.testing.assert_array_equal(profile.profile, np.column_stack([RED, GREEN, BLUE]))
+    assert profile.metadata["rawproc"]["undone_multipliers"] == list(multipliers)
+    assert profile.channel_gains_unknown is None and profile.warnings == ()
+    (note,) = profile.notes
+    assert "balanced.dat" in note and operations[0] in note and "divided out" in note
+    assert "channel_gains" not in profile.to_observation("A", Spectrum([380, 780], [1, 1])).metadata
+
+
+@pytest.mark.parametrize(
+    ("operation", "source", "said"),
+    [
+        ("whitebalance:camera", "DSG_0001.NEF:rawdata=crop;", "as-shot multipliers"),
+        ("whitebalance:auto", "DSG_0001.NEF:rawdata=crop;", "gray-world"),
+        ("blackwhitepoint:red,0,200", "DSG_0001.NEF:rawdata=crop;", "red channel's black"),
+        ("", "DSG_0001.NEF", "opened without rawdata=crop"),
+    ],
+)
+@pytest.mark.parametrize("gains", ["raw", "unknown"])
+def test_unstated_channel_gains_are_taken_as_unknown_with_a_warning(
+    tmp_path: Path, operation: str, source: str, said: str, gains: ChannelGains
+) -> None:
+    """A file that says its gains are not raw overrides the default "raw", warning why; the user
+    who already said "unknown" hears nothing more."""
+    path = _write_dat(tmp_path / "wb.dat", _command(*filter(None, [operation]), source=source))
+    profile = read_rawproc_dat(path)
+    assert profile.channel_gains_unknown is not None and said in profile.channel_gains_unknown
+    np.testing.assert_array_equal(profile.profile, np.column_stack([RED, GREEN, BLUE]))
+    observation = profile.to_observation("A", Spectrum([380, 780], [1, 1]))
+    assert observation.metadata["channel_gains"] == "unknown"
+    lamp = LampProfile("sun", "other", Path("D65"), path, channel_gains=gains)
+    checked = _check_inputs([lamp], OfflineSettings())
+    assert checked.channel_gains == {"sun": "unknown"}
+    said_lines = [line for line in checked.warnings if "channel gains unknown" in line]
+    if gains == "raw":
+        (line,) = said_lines
+        assert line.startswith("lamp 'sun': the rawproc command's ") and said in line, line
+    else:
+        assert said_lines == [], checked.warnings
+
+
+@pytest.mark.parametrize("operation", ["frobnicate:3", "group:steps.txt", "gmic:blur.gmic"])
+def test_an_operation_that_cannot_be_checked_is_warned_and_the_data_kept(
+    tmp_path: Path, operation: str
+) -> None:
+    path = _write_dat(tmp_path / "odd.dat", _command(operation))
+    profile = read_rawproc_dat(path)
+    np.testing.assert_array_equal(profile.profile, np.column_stack([RED, GREEN, BLUE]))
+    (warning,) = profile.warnings
+    assert warning.startswith(f"odd.dat: the rawproc command's {operation} "), warning
+    lamp = LampProfile("sun", "other", Path("D65"), path)
+    assert warning in _check_inputs([lamp], OfflineSettings()).warnings

@@ -13,6 +13,14 @@ rawproc ``.dat`` (Glenn Butcher's raw processor, "data" export of a cropped imag
     columns run mirrored with respect to the sensor; the profile keeps the file's order (where the
     wavelength usually increases with ``x``) unless ``sensor_orientation=True``. The file holds
     means only, so the profile has no σ (the estimators then use a robust noise estimate).
+
+    The command is read (:func:`parse_rawproc_command`, :func:`rawproc_findings`): the estimate
+    needs the camera's linear channels at its raw gains. An operation that makes the data
+    non-linear or mixes the channels (gamma, a tone curve, saturation, a colour conversion, gray,
+    highlight recovery) is refused; a white balance by stated multipliers is undone exactly; one
+    whose multipliers are not stated (camera, auto, patch), or an input opened without
+    ``rawdata``, leaves the gains unknown (:attr:`RgbProfile.channel_gains_unknown`); a tool whose
+    steps the command does not show, or that this reader does not know, is warned about.
 FITS (through astropy, an optional dependency: ``pip install 'spectral-rig[fits]'``)
     One 2-D image per colour plane (three files R, G, B) or one cube with three planes. The
     spectral axis runs along the image's x (``NAXIS1``) by default. The profile is the *sum* over
@@ -26,6 +34,8 @@ FITS (through astropy, an optional dependency: ``pip install 'spectral-rig[fits]
 
 from __future__ import annotations
 
+import json
+import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -69,8 +79,14 @@ class RgbProfile:
     source
         The file(s) read.
     metadata
-        What the file says about how it was made (JSON-safe): the processing command, rows
-        averaged or summed, mirroring, header keywords.
+        What the file says about how it was made (JSON-safe): the processing command and its
+        operations, rows averaged or summed, mirroring, header keywords.
+    channel_gains_unknown
+        Why the file's channels are not at the raw data's gains by amounts it states (e.g. a
+        rawproc ``whitebalance:camera``), or ``None`` when it says nothing of the kind.
+    warnings, notes
+        What reading found that the user should hear (an operation that could not be checked) or
+        may want to know (white-balance multipliers undone).
     """
 
     pixel: FloatArray
@@ -78,6 +94,9 @@ class RgbProfile:
     profile_sigma: FloatArray | None
     source: str
     metadata: Mapping[str, Any] = field(default_factory=dict)
+    channel_gains_unknown: str | None = None
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         pixel = np.array(self.pixel, dtype=np.float64)
@@ -104,7 +123,11 @@ class RgbProfile:
         direct_rgb: Sequence[float] | None = None,
         spectrum_bandwidth_nm: float | None = None,
     ) -> LampObservation:
-        """The estimators' input: this profile with the lamp's spectrum (pixel origin arbitrary)."""
+        """The estimators' input: this profile with the lamp's spectrum (pixel origin arbitrary);
+        a profile whose gains are unknown is marked so (``channel_gains: unknown``)."""
+        from calib.methods.uncertainty import CHANNEL_GAINS_KEY  # deferred: the estimators' side
+
+        gains = {} if self.channel_gains_unknown is None else {CHANNEL_GAINS_KEY: "unknown"}
         return LampObservation(
             name=name,
             spectrum=spectrum,
@@ -113,7 +136,7 @@ class RgbProfile:
             direct_rgb=None if direct_rgb is None else np.asarray(direct_rgb, dtype=np.float64),
             profile_sigma=self.profile_sigma,
             kind=kind,
-            metadata={"profile_file": self.source, **dict(self.metadata)},
+            metadata={"profile_file": self.source, **dict(self.metadata), **gains},
             spectrum_bandwidth_nm=spectrum_bandwidth_nm,
         )
 
@@ -143,6 +166,364 @@ def _is_number(text: str) -> bool:
 _MAX_LINE = re.compile(
     r"^(?P<channel>[rgb])max:\s*(?P<value>\S+)(?:\s+\wmaxcolumn:\s*(?P<column>\d+))?"
 )
+
+
+# The rawproc command (the .dat header's third line): the program and version, the input file and
+# its options (``DSG_4683.NEF:rawdata=crop;``), then one token per tool, ``name:params`` with
+# positional ``a,b,c``, ``name=val;…`` or JSON parameters (rawproc's gimage_parse.cpp).
+
+#: Input options that mean "raw data, no LibRaw processing" (``rawdata=crop`` or ``rawdata=1``).
+_RAWDATA_OFF = ("", "0", "false", "no")
+#: Inputs that cannot hold linear data: 8-bit, gamma-encoded images.
+_ENCODED_INPUTS = (".jpg", ".jpeg", ".png")
+#: Tools that keep each channel linear and its gain: geometry, resampling, smoothing, a common
+#: scale (exposure, banding) or offset (add, subtract — a dark frame is good practice).
+_RAWPROC_KEEPS = frozenset(
+    {
+        "add",
+        "banding",
+        "cacorrect",
+        "crop",
+        "cropspectrum",
+        "demosaic",
+        "denoise",
+        "exposure",
+        "lenscorrection",
+        "lensdistortion",
+        "lensvignetting",
+        "resize",
+        "rotate",
+        "sharpen",
+        "spot",
+        "subtract",
+    }
+)
+#: Tools that are non-linear or mix the channels, whatever their parameters, and why.
+_RAWPROC_BREAKS = {
+    "bright": "applies a brightness curve, which makes the profile non-linear",
+    "contrast": "applies a contrast curve, which makes the profile non-linear",
+    "gray": "mixes the three channels into one gray",
+    "grayscale": "mixes the three channels into one gray",
+    "highlight": "applies a highlight tone curve, which makes the profile non-linear",
+    "hlrecover": "rebuilds clipped channels from the others, which mixes the channels",
+    "lut": "applies a look-up table, which makes the profile non-linear",
+    "ocio": "applies a colour transform, which mixes the channels",
+    "redeye": "desaturates red patches, which mixes the channels",
+    "shadow": "applies a shadow tone curve, which makes the profile non-linear",
+    "tonemask": "applies a tone mask, which makes the profile non-linear",
+}
+#: Tools whose steps the command does not show (a file of commands, a script, a G'MIC line).
+_RAWPROC_HIDES = frozenset({"gmic", "group", "script"})
+_CHANNEL_NAMES = ("rgb", "red", "green", "blue")
+
+
+@dataclass(frozen=True)
+class RawprocOperation:
+    """One tool of a rawproc command: ``name`` (lower case) and its parameter text as written."""
+
+    name: str
+    params: str = ""
+
+    @property
+    def label(self) -> str:
+        """The operation as the command wrote it (``gamma:2.2``)."""
+        return f"{self.name}:{self.params}" if self.params else self.name
+
+    def positional(self) -> list[str]:
+        """The comma-separated parameters, stripped and lower-cased (``[]`` when none)."""
+        return [part.strip().lower() for part in self.params.split(",")] if self.params else []
+
+    def named(self) -> dict[str, str]:
+        """The ``name=val;…`` or JSON parameters (keys lower-cased), ``{}`` for positional ones."""
+        text = self.params.strip()
+        if text.startswith("{"):
+            try:
+                loaded = json.loads(text)
+            except json.JSONDecodeError:
+                return {}
+            return (
+                {str(k).lower(): str(v) for k, v in loaded.items()}
+                if isinstance(loaded, dict)
+                else {}
+            )
+        if "=" not in text:
+            return {}
+        pairs = (item.split("=", 1) for item in text.split(";") if "=" in item)
+        return {key.strip().lower(): value.strip() for key, value in pairs}
+
+
+@dataclass(frozen=True)
+class RawprocCommand:
+    """A rawproc command read by :func:`parse_rawproc_command`.
+
+    Attributes
+    ----------
+    program
+        ``rawproc-0.9.1Dev``: the program and its version.
+    input_file
+        The image rawproc opened.
+    input_options
+        Its input options (``{"rawdata": "crop"}``).
+    operations
+        The tools, in the order applied.
+    """
+
+    program: str
+    input_file: str
+    input_options: Mapping[str, str]
+    operations: tuple[RawprocOperation, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form (for the profile's metadata and the result's provenance)."""
+        return {
+            "program": self.program,
+            "input_file": self.input_file,
+            "input_options": dict(self.input_options),
+            "operations": [{"name": op.name, "params": op.params} for op in self.operations],
+        }
+
+
+def _command_tokens(text: str) -> list[str]:
+    """Whitespace-separated tokens, a JSON parameter block kept whole across its spaces."""
+    tokens: list[str] = []
+    depth = 0
+    for word in text.split():
+        if depth > 0:
+            tokens[-1] += " " + word
+        else:
+            tokens.append(word)
+        depth = max(depth + word.count("{") - word.count("}"), 0)
+    return tokens
+
+
+def parse_rawproc_command(line: str) -> RawprocCommand:
+    """Read a rawproc command line into its input and its ordered operations.
+
+    ``"rawproc-0.9.1Dev DSG_4683.NEF:rawdata=crop;  demosaic:half rotate:hmirror crop:0,0.4,1,0.5"``
+    gives the input ``DSG_4683.NEF`` with ``{"rawdata": "crop"}`` and three operations. A file name
+    with spaces is read as far as its first space (the rest then shows as an unknown operation).
+    """
+    tokens = _command_tokens(line)
+    program = tokens[0] if tokens else ""
+    input_file, _, options_text = tokens[1].partition(":") if len(tokens) > 1 else ("", "", "")
+    options: dict[str, str] = {}
+    for item in options_text.split(";"):
+        key, _, value = item.partition("=")
+        if key.strip():
+            options[key.strip().lower()] = value.strip()
+    operations = []
+    for token in tokens[2:]:
+        name, _, params = token.partition(":")
+        operations.append(RawprocOperation(name.strip().lower(), params.strip()))
+    return RawprocCommand(program, input_file, options, tuple(operations))
+
+
+RawprocEffect = Literal["keeps", "undone", "gains_unknown", "refused", "unchecked"]
+
+
+@dataclass(frozen=True)
+class RawprocFinding:
+    """What one step of a rawproc command does to the channels.
+
+    ``effect``: ``keeps`` (linear, the raw gains kept), ``undone`` (channel multipliers stated in
+    ``multipliers``, divided out on reading), ``gains_unknown`` (channels scaled by amounts the
+    command does not state), ``refused`` (non-linear or channel-mixing), ``unchecked`` (a tool
+    whose steps are hidden, or unknown to this reader). ``reason`` completes "the command's
+    ``label`` …".
+    """
+
+    label: str
+    effect: RawprocEffect
+    reason: str = ""
+    multipliers: tuple[float, float, float] | None = None
+
+
+def _floats(texts: Sequence[str]) -> list[float] | None:
+    try:
+        values = [float(text) for text in texts]
+    except ValueError:
+        return None
+    return values if all(math.isfinite(v) for v in values) else None
+
+
+def _whitebalance(op: RawprocOperation) -> RawprocFinding:
+    named, positional = op.named(), op.positional()
+    keys = ("redmultiplier", "greenmultiplier", "bluemultiplier")
+    if named:
+        mode = named.get("mode", "multipliers").lower()
+        stated = [named.get(key, "") for key in keys]
+    else:
+        first = positional[0] if positional else ""
+        mode = "multipliers" if _floats([first]) is not None else first
+        stated = positional[:3]
+    if mode == "bluethreshold":
+        return RawprocFinding(
+            op.label,
+            "refused",
+            "scales the channels only where blue passes a threshold, which makes the profile "
+            "non-linear",
+        )
+    if mode == "multipliers":
+        multipliers = _floats(stated) if len(stated) == 3 else None
+        if multipliers is None or min(multipliers) <= 0:
+            return RawprocFinding(op.label, "refused", "states no three multipliers above 0")
+        red, green, blue = multipliers
+        return RawprocFinding(op.label, "undone", "multiplied the channels", (red, green, blue))
+    said = {
+        "camera": "the camera's as-shot multipliers",
+        "auto": "gray-world multipliers computed from the image",
+        "patch": "multipliers computed from a patch of the image",
+    }.get(mode, "multipliers it does not state")
+    return RawprocFinding(op.label, "gains_unknown", f"scaled the channels by {said}")
+
+
+def _blackwhitepoint(op: RawprocOperation) -> RawprocFinding:
+    named, positional = op.named(), op.positional()
+    channel = named.get("channel", "rgb").lower() if named else "rgb"
+    if positional and positional[0] in _CHANNEL_NAMES:
+        channel = positional[0]
+    if channel == "rgb":
+        return RawprocFinding(op.label, "keeps", "one black and one white point for all channels")
+    return RawprocFinding(
+        op.label,
+        "gains_unknown",
+        f"set the {channel} channel's black and white points alone, which rescaled that channel "
+        "(by a factor rawproc versions compute differently)",
+    )
+
+
+def _is_one(texts: Sequence[str]) -> bool:
+    values = _floats(texts)
+    return values is not None and len(values) == 1 and values[0] == 1.0
+
+
+def _identity_curve(coordinates: list[str]) -> bool:
+    """A ``curve`` whose control points all lie on y = x (rawproc's default curve)."""
+    values = _floats(coordinates)
+    if not values or len(values) % 2:
+        return False
+    return all(x == y for x, y in zip(values[::2], values[1::2], strict=True))
+
+
+def _operation_finding(op: RawprocOperation) -> RawprocFinding:
+    """The effect of one tool on the channels (module docstring; rawproc's tool list)."""
+    name, positional, named = op.name, op.positional(), op.named()
+    if name in _RAWPROC_KEEPS:
+        if name == "demosaic" and positional[:1] == ["color"]:
+            return RawprocFinding(op.label, "refused", "paints the mosaic in the pattern's colours")
+        return RawprocFinding(op.label, "keeps")
+    if name == "whitebalance":
+        return _whitebalance(op)
+    if name == "blackwhitepoint":
+        return _blackwhitepoint(op)
+    after_channel = positional[1:] if positional[:1] and positional[0] in _CHANNEL_NAMES else None
+    linear = {
+        "gamma": lambda: _is_one(positional[:1]) or _is_one([named.get("gamma", "")]),
+        "tone": lambda: positional[:1] == ["gamma"] and _is_one(positional[1:2]),
+        "curve": lambda: _identity_curve(positional if after_channel is None else after_channel),
+        "saturation": lambda: _is_one(
+            [named.get("saturation", "")] if named else (after_channel or positional)[:1]
+        ),
+    }
+    if name in linear:
+        if linear[name]():
+            return RawprocFinding(op.label, "keeps")
+        why = "mixes the channels" if name == "saturation" else "makes the profile non-linear"
+        return RawprocFinding(op.label, "refused", why)
+    if name == "colorspace":
+        assigned = named.get("op", "").lower() == "assign" or "assign" in positional
+        if assigned:
+            return RawprocFinding(op.label, "keeps", "assigns a profile and changes no pixel")
+        return RawprocFinding(
+            op.label, "refused", "converts the colours through a matrix, which mixes the channels"
+        )
+    if name in _RAWPROC_BREAKS:
+        return RawprocFinding(op.label, "refused", _RAWPROC_BREAKS[name])
+    if name in _RAWPROC_HIDES:
+        return RawprocFinding(op.label, "unchecked", "runs steps the command does not show")
+    return RawprocFinding(op.label, "unchecked", "is not a rawproc tool this reader knows")
+
+
+def rawproc_findings(command: RawprocCommand) -> list[RawprocFinding]:
+    """What the input and each operation of ``command`` do to the channels, in order.
+
+    The input comes first: opened without ``rawdata`` LibRaw processed it as then configured
+    (white balance, colour conversion unknown), and a JPEG or PNG is gamma-encoded.
+    """
+    rawdata = command.input_options.get("rawdata")
+    label = f"input {command.input_file}" + (
+        f":{';'.join(f'{k}={v}' for k, v in command.input_options.items())}"
+        if command.input_options
+        else ""
+    )
+    if Path(command.input_file).suffix.lower() in _ENCODED_INPUTS:
+        first = RawprocFinding(label, "refused", "is a gamma-encoded 8-bit image")
+    elif rawdata is None or rawdata.lower() in _RAWDATA_OFF:
+        first = RawprocFinding(
+            label,
+            "gains_unknown",
+            "was opened without rawdata=crop, so LibRaw's white balance and colour conversion "
+            "(unknown here) were applied",
+        )
+    else:
+        first = RawprocFinding(label, "keeps")
+    return [first, *(_operation_finding(op) for op in command.operations)]
+
+
+def _undo_command(
+    profile: FloatArray, command: RawprocCommand | None, path: Path
+) -> tuple[FloatArray, dict[str, Any], str | None, list[str], list[str]]:
+    """Apply the command's findings to ``profile``: refuse (InputError naming the file and the
+    operation), divide stated multipliers out, and say what is unknown or unchecked.
+
+    Returns the profile, the command's metadata, why the gains are unknown (or ``None``), the
+    warnings and the notes."""
+    if command is None:
+        warning = (
+            f"{path.name}: the file holds no rawproc command line, so its processing cannot be "
+            "checked; the profile is taken as raw, linear data"
+        )
+        return profile, {}, None, [warning], []
+    findings = rawproc_findings(command)
+    for finding in findings:
+        if finding.effect == "refused":
+            raise InputError(
+                f"the rawproc command applies {finding.label}, which {finding.reason}; export the "
+                "data again without it (raw data, demosaic:half, crop, rotate)",
+                source=str(path),
+            )
+    undone = [f for f in findings if f.effect == "undone"]
+    stated = [f.multipliers for f in undone if f.multipliers is not None]
+    total = np.prod(np.array(stated), axis=0) if stated else np.ones(3)
+    notes = []
+    if undone:
+        profile = profile / total
+        notes.append(
+            f"{path.name}: the rawproc command's {', '.join(f.label for f in undone)} multiplied "
+            f"R, G, B by {', '.join(f'{v:g}' for v in total)}; divided out, so the profile is at "
+            "the raw data's gains"
+        )
+    unknown = [f for f in findings if f.effect == "gains_unknown"]
+    reason = (
+        "; ".join(f"the rawproc command's {f.label} {f.reason}" for f in unknown)
+        if unknown
+        else None
+    )
+    warnings = [
+        f"{path.name}: the rawproc command's {f.label} {f.reason}; it cannot be checked that it "
+        "keeps the channels linear at their raw gains"
+        for f in findings
+        if f.effect == "unchecked"
+    ]
+    metadata = {
+        **command.to_dict(),
+        "findings": [
+            {"operation": f.label, "effect": f.effect, **({"reason": f.reason} if f.reason else {})}
+            for f in findings
+        ],
+        **({"undone_multipliers": [float(v) for v in total]} if undone else {}),
+    }
+    return profile, metadata, reason, warnings, notes
 
 
 def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> RgbProfile:
@@ -244,13 +625,17 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
                 f"{letter}maxcolumn {column} does not hold the {CHANNELS[channel]} row's maximum",
                 source=f"{path} line {number}",
             )
-    mirrored = "hmirror" in command
+    parsed = parse_rawproc_command(command) if command else None
+    profile, processing, unknown, warnings, notes = _undo_command(profile, parsed, path)
+    mirrors = [] if parsed is None else [op for op in parsed.operations if op.name == "rotate"]
+    mirrored = sum(op.positional()[:1] == ["hmirror"] for op in mirrors) % 2 == 1
     flipped = sensor_orientation and mirrored
     if flipped:
         profile = profile[::-1]
     metadata: dict[str, Any] = {
         "format": "rawproc data export",
         "command": command,
+        "rawproc": processing,
         "rows_averaged": header["height"],
         "width": width,
         "mirrored": mirrored,
@@ -259,7 +644,16 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
         else "mirrored columns of the crop (rawproc hmirror)",
         "units": "linear, 0-1 (column means)",
     }
-    return RgbProfile(np.arange(width, dtype=np.float64), profile, None, str(path), metadata)
+    return RgbProfile(
+        np.arange(width, dtype=np.float64),
+        profile,
+        None,
+        str(path),
+        metadata,
+        channel_gains_unknown=unknown,
+        warnings=tuple(warnings),
+        notes=tuple(notes),
+    )
 
 
 # -------------------------------------------------------------------------------------- FITS

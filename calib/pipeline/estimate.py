@@ -57,6 +57,7 @@ from calib.model.resolution import COARSE_SLIT_NM, coarse_slit
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
 from calib.pipeline.inputs import (
     FITS_SUFFIXES,
+    ChannelGains,
     LampImages,
     LampInput,
     LampProfile,
@@ -209,6 +210,9 @@ class _Checked:
     grating: GratingEfficiency | None
     warnings: list[str]
     bandwidths: dict[str, float | None] = field(default_factory=dict)
+    #: Per profile lamp: the user's ``channel_gains``, or ``unknown`` where the file says so.
+    channel_gains: dict[str, ChannelGains] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
     #: Each lamp's spectrum units and what they measure, where its files say.
     units: dict[str, tuple[str, UnitsKind]] = field(default_factory=dict)
 
@@ -295,11 +299,30 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
         for lamp in lamps
         if isinstance(lamp, LampProfile)
     }
+    channel_gains: dict[str, ChannelGains] = {}
+    notes: list[str] = []
+    for given in lamps:
+        if not isinstance(given, LampProfile):
+            continue
+        table = profiles[given.name]
+        warnings.extend(table.warnings)
+        notes.extend(table.notes)
+        channel_gains[given.name] = given.channel_gains
+        if table.channel_gains_unknown is not None and given.channel_gains == "raw":
+            # The file says its gains are not the raw data's (a rawproc whitebalance:camera, an
+            # input LibRaw processed): taken as raw the channels' balance would be silently wrong.
+            channel_gains[given.name] = "unknown"
+            warnings.append(
+                f"lamp {given.name!r}: {table.channel_gains_unknown}, so the profile is taken with "
+                "channel gains unknown (the channels' balance from the camera population, its "
+                "spread in σ); to keep the raw gains, export with rawdata=crop and no white "
+                "balance, or a whitebalance with stated multipliers (undone on reading)"
+            )
     rgb_planes = [
         lamp.name
         for lamp in lamps
         if isinstance(lamp, LampProfile)
-        and lamp.channel_gains == "raw"
+        and channel_gains[lamp.name] == "raw"
         and profile_files(lamp.profile)[0].suffix.lower() in FITS_SUFFIXES
     ]
     if rgb_planes:
@@ -330,11 +353,11 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
             f"{settings.grid.start_nm:g}–{settings.grid.stop_nm:g} nm",
             source=grating.source,
         )
-    return _Checked(spectra, profiles, grating, warnings, bandwidths, units)
+    return _Checked(spectra, profiles, grating, warnings, bandwidths, channel_gains, notes, units)
 
 
 def _profile_observation(
-    lamp: LampProfile, spectrum: Spectrum, table: ProfileTable
+    lamp: LampProfile, spectrum: Spectrum, table: ProfileTable, channel_gains: ChannelGains
 ) -> LampObservation:
     return LampObservation(
         name=lamp.name,
@@ -349,7 +372,7 @@ def _profile_observation(
             "profile_file": describe_profile(lamp.profile),
             "axis": "wavelength_nm" if table.in_wavelength else "pixel",
             # A conversion scaled the channels: the balance is the camera population's.
-            **({CHANNEL_GAINS_KEY: "unknown"} if lamp.channel_gains == "unknown" else {}),
+            **({CHANNEL_GAINS_KEY: "unknown"} if channel_gains == "unknown" else {}),
         },
     )
 
@@ -456,7 +479,7 @@ def estimate_offline(
     started = time.perf_counter()
     checked = _check_inputs(lamps, settings)
     warnings = [*settings.warnings, *checked.warnings]
-    notes = list(settings.notes)
+    notes = [*settings.notes, *checked.notes]
     timings["checks_s"] = time.perf_counter() - started
     known = {record.path for record in known_inputs}
     image_lamps = [lamp for lamp in lamps if isinstance(lamp, LampImages)]
@@ -539,7 +562,12 @@ def estimate_offline(
                 table = checked.profiles[given.name]
                 observations.append(
                     replace(
-                        _profile_observation(given, checked.spectra[given.name], table),
+                        _profile_observation(
+                            given,
+                            checked.spectra[given.name],
+                            table,
+                            checked.channel_gains[given.name],
+                        ),
                         spectrum_bandwidth_nm=checked.bandwidths[given.name],
                     )
                 )
@@ -549,7 +577,9 @@ def estimate_offline(
                         "kind": given.kind,
                         "input": "profile",
                         "profile": describe_profile(given.profile),
-                        "channel_gains": given.channel_gains,
+                        "channel_gains": checked.channel_gains[given.name],
+                        # What the file's reader read of its making (a rawproc command's steps).
+                        **({"profile_metadata": dict(table.metadata)} if table.metadata else {}),
                         "axis": "wavelength_nm" if table.in_wavelength else "pixel",
                         "direct_rgb": None if given.direct_rgb is None else list(given.direct_rgb),
                         "spectrum": describe_spectrum(given.spectrum),

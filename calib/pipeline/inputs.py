@@ -13,9 +13,10 @@ Everything here is checked before any RAW file is decoded, so a typo costs a sec
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -138,7 +139,9 @@ class LampProfile:
     channel_gains
         ``"raw"``: the profile's channels keep the raw data's gains (a raw export); ``"unknown"``:
         a conversion scaled them (white balance, a demosaicked RGB export), so the estimate takes
-        the channel balance from the camera population, with its spread in σ (decision 0050).
+        the channel balance from the camera population, with its spread in σ (decision 0050). A
+        file that says its gains are not raw (a rawproc ``whitebalance:camera``, an input opened
+        without ``rawdata``) is taken as ``"unknown"`` with a warning (decision 0178).
     """
 
     name: str
@@ -175,12 +178,21 @@ class ProfileTable:
         Shape ``(n, 3)``; ``profile_sigma`` is ``None`` when the file has no sigma columns.
     in_wavelength
         The first column was ``wavelength_nm``: the profile is already mapped.
+    channel_gains_unknown
+        Why the file says its channels are not at the raw data's gains (a rawproc
+        ``whitebalance:camera``), or ``None``: see :attr:`RgbProfile.channel_gains_unknown`.
+    metadata, warnings, notes
+        What the file's reader recorded, warned and noted (:class:`RgbProfile`); empty for a CSV.
     """
 
     axis: FloatArray
     profile: FloatArray
     profile_sigma: FloatArray | None
     in_wavelength: bool
+    channel_gains_unknown: str | None = None
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
 
 @dataclass
@@ -458,7 +470,9 @@ def read_profile_file(profile: Path | tuple[Path, ...]) -> ProfileTable:
     the R, G and B planes as three FITS files.
 
     The CSV is read by :func:`read_profile_csv`; a rawproc export by
-    :func:`calib.image.profile_files.read_rawproc_dat` (its own pixel axis, any mirroring undone);
+    :func:`calib.image.profile_files.read_rawproc_dat` (its own pixel axis in the file's column
+    order; its command read: non-linear or channel-mixing operations refused, stated white-balance
+    multipliers divided out, unstated ones reported in ``channel_gains_unknown``);
     FITS planes by :func:`calib.image.profile_files.read_fits_profile` (the spectrum's band found
     in the planes, dispersion along x). The result is in pixels, with the σ the reader could give.
 
@@ -485,7 +499,16 @@ def read_profile_file(profile: Path | tuple[Path, ...]) -> ProfileTable:
         read = (
             read_rawproc_dat(files[0]) if suffix in RAWPROC_SUFFIXES else read_fits_profile(files)
         )
-        table = ProfileTable(read.pixel, read.profile, read.profile_sigma, in_wavelength=False)
+        table = ProfileTable(
+            read.pixel,
+            read.profile,
+            read.profile_sigma,
+            in_wavelength=False,
+            channel_gains_unknown=read.channel_gains_unknown,
+            metadata=read.metadata,
+            warnings=read.warnings,
+            notes=read.notes,
+        )
     if not np.any(table.profile > 0):
         raise InputError(
             "no value above zero in r, g or b: the profile holds no light; export it from the "
