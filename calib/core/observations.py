@@ -22,6 +22,11 @@ from calib.core.lamp_kinds import LAMP_KINDS as LAMP_KINDS  # re-exported
 from calib.core.lamp_kinds import LampKind as LampKind
 from calib.core.spectra import MultiSpectrum, Spectrum
 
+#: ``LampObservation.metadata[CHANNEL_GAINS_KEY] == "unknown"``: the profile's relative channel gains
+#: are not the raw data's (a demosaicked, white-balanced conversion such as the Canon 10D's FITS
+#: planes), so the channel balance cannot come from the data.
+CHANNEL_GAINS_KEY = "channel_gains"
+
 
 def _readonly_float(value: ArrayLike, shape_hint: str, name: str, ndim: int) -> FloatArray:
     array = np.array(value, dtype=np.float64)

@@ -46,7 +46,7 @@ import numpy as np
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
-from calib.core.observations import LampKind, LampObservation
+from calib.core.observations import CHANNEL_GAINS_KEY, LampKind, LampObservation
 from calib.core.spectra import Spectrum
 
 CHANNELS: tuple[str, str, str] = ("red", "green", "blue")
@@ -125,8 +125,6 @@ class RgbProfile:
     ) -> LampObservation:
         """The estimators' input: this profile with the lamp's spectrum (pixel origin arbitrary);
         a profile whose gains are unknown is marked so (``channel_gains: unknown``)."""
-        from calib.methods.uncertainty import CHANNEL_GAINS_KEY  # deferred: the estimators' side
-
         gains = {} if self.channel_gains_unknown is None else {CHANNEL_GAINS_KEY: "unknown"}
         return LampObservation(
             name=name,

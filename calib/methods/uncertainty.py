@@ -91,6 +91,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.mapping import QuadraticMapping
+from calib.core.observations import CHANNEL_GAINS_KEY as CHANNEL_GAINS_KEY  # re-exported
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag, Severity
 from calib.core.spectra import Spectrum
@@ -1267,12 +1268,6 @@ def uncertainty_budget(
         noise_only_reduced_chi2=noise_only,
         efficiency_components=eta_components,
     )
-
-
-#: ``LampObservation.metadata[CHANNEL_GAINS_KEY] == "unknown"``: the profile's relative channel gains
-#: are not the raw data's (a demosaicked, white-balanced conversion such as the Canon 10D's FITS
-#: planes), so the channel balance cannot come from the data.
-CHANNEL_GAINS_KEY = "channel_gains"
 
 
 def channel_gains_unknown(observations: Sequence[object]) -> bool:
