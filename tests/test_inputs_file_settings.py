@@ -133,27 +133,6 @@ def test_a_typed_option_beats_the_file_with_a_warning_naming_both(tmp_path: Path
     assert rule.settings.method == "multilamp" and rule.settings.method_options is not None
 
 
-@pytest.mark.parametrize(
-    ("block", "message"),
-    [
-        ("estimate:\n  method: prior\n  grid: 400:700:0\n", "lamps.yaml:5: estimate.grid: step must be > 0 nm"),
-        ("estimate:\n  grid: 400-700\n", "lamps.yaml:4: estimate.grid: expected START:STOP:STEP"),
-        ("estimate:\n  method: magic\n", "lamps.yaml:4: estimate.method: unknown method 'magic'"),
-        ("estimate:\n  grids: 400:700:5\n", "lamps.yaml:4: estimate.grids: unknown key 'grids' (did you mean 'grid'?)"),
-        ("estimate:\n  grooves_per_mm: 0.5\n", "lamps.yaml:4: estimate.grooves_per_mm: 0.5 is out of range"),
-        ("estimate:\n  assumed_grating: wavy\n", "lamps.yaml:4: estimate.assumed_grating: 'wavy' is not allowed"),
-    ],
-)  # fmt: skip
-def test_a_bad_setting_names_the_file_line_and_field(
-    tmp_path: Path, block: str, message: str
-) -> None:
-    file = tmp_path / "lamps.yaml"
-    file.write_text("lamps:\n  - {name: A, profile: a.csv, spectrum: FL2}\n" + block)
-    code, _, stderr = _call(["--inputs", str(file), "--out", str(tmp_path / "out")])
-    assert code == 2 and stderr.count("\n") == 1, stderr
-    assert message in stderr, stderr
-
-
 def test_the_optics_ranges_are_the_options() -> None:
     """A value means the same in the file as on the command line: the options' ends are taken,
     a little beyond them refused."""

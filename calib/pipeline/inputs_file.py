@@ -46,9 +46,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -79,6 +79,7 @@ __all__ = [
     "read_inputs_file",
 ]
 
+T = TypeVar("T")
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 #: Validation context key: how a field is called where the data came from (an option's name).
@@ -231,6 +232,15 @@ ESTIMATE_KEYS: dict[str, tuple[str, str]] = {
 }
 
 
+def _as_value_error(check: Callable[[str], T], value: str) -> T:
+    """``check(value)``, its :class:`InputError` as the ``ValueError`` pydantic reports with the
+    file's line and key (the option's own message, without the option's name)."""
+    try:
+        return check(value)
+    except InputError as exc:
+        raise ValueError(str(exc).removeprefix(f"{exc.source}: ")) from None
+
+
 class EstimateBlock(BaseModel):
     """An inputs file's ``estimate:`` block: ``calib estimate``'s options for this file's lamps,
     each checked as the option is (:func:`calib.methods.check_method`,
@@ -253,12 +263,7 @@ class EstimateBlock(BaseModel):
     def _registered_method(cls, value: str | None) -> str | None:
         from calib.methods import check_method
 
-        if value is None:
-            return None
-        try:
-            return check_method(value, source="method")
-        except InputError as exc:
-            raise ValueError(str(exc).removeprefix(f"{exc.source}: ")) from None
+        return None if value is None else _as_value_error(check_method, value)
 
     @field_validator("grid")
     @classmethod
@@ -267,10 +272,7 @@ class EstimateBlock(BaseModel):
 
         if value is None:
             return None
-        try:
-            WavelengthGrid.parse(value)
-        except InputError as exc:
-            raise ValueError(str(exc).removeprefix(f"{exc.source}: ")) from None
+        _as_value_error(WavelengthGrid.parse, value)
         return value.strip()
 
     @field_validator("exclude_camera", mode="before")
