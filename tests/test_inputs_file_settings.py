@@ -108,6 +108,13 @@ def test_a_relative_grating_path_is_the_files_folder(tmp_path: Path) -> None:
     assert settings.exclude_cameras == ("Sony*",)
     assert (settings.assumed_grating, settings.mapping_lamp) == ("physical", "A")
     assert settings.warnings == ()
+    # The same file typed is no contradiction; another one is.
+    same = tmp_path / "gratings" / "sheet.json"
+    other = tmp_path / "gratings" / "other.json"
+    for typed, warned in ((same, False), (other, True)):
+        argv = ["--inputs", str(file), "--out", "o", "--grating", str(typed)]
+        settings = parse_estimate_command(argv).settings
+        assert settings.grating == typed and bool(settings.warnings) == warned
 
 
 def test_a_typed_option_beats_the_file_with_a_warning_naming_both(tmp_path: Path) -> None:

@@ -430,7 +430,8 @@ def own_settings_over(
                 if name.startswith("optics.")
                 else getattr(settings, name)
             )
-            if typed != value:
+            same_file = isinstance(typed, Path) and isinstance(value, Path)
+            if (typed.resolve() != value.resolve()) if same_file else (typed != value):
                 warnings.append(
                     f"{option} {_shown(typed)} overrides {source}'s estimate.{key} {_shown(value)}"
                 )
