@@ -227,6 +227,10 @@ def test_inputs_files_run_as_a_batch_as_each_runs_alone(capture: Capture, tmp_pa
         np.testing.assert_array_equal(batched, read_camera_csv(alone / "sensitivity.csv").values)
 
 
+#: An inputs file's one lamp, for the mistakes after it.
+ONE_LAMP = "lamps:\n  - {name: A, profile: a.csv, spectrum: FL2}\n"
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [
@@ -238,6 +242,13 @@ def test_inputs_files_run_as_a_batch_as_each_runs_alone(capture: Capture, tmp_pa
         ("lamp:\n  - {name: A}\n", "unknown key 'lamp' (did you mean 'lamps'?)"),
         ("lamps:\n  - {name: A, spectrum: a.csv, profile: p.csv, direct_rgb: [1, 2]}\n", "lamps[0].direct_rgb"),
         ("lamps:\n  - name: A\n    spectrum: a.csv\n    profile: p.csv\n    bandwidth_nm: 500\n", "lamp 'A': --bandwidth 500 (or an --inputs file's bandwidth_nm) is not a spectrometer's bandwidth"),
+        # the estimate: block (decision 0179), checked as the options are
+        (f"{ONE_LAMP}estimate:\n  method: prior\n  grid: 400:700:0\n", "lamps.yaml:5: estimate.grid: step must be > 0 nm"),
+        (f"{ONE_LAMP}estimate:\n  grid: 400-700\n", "lamps.yaml:4: estimate.grid: expected START:STOP:STEP"),
+        (f"{ONE_LAMP}estimate:\n  method: magic\n", "lamps.yaml:4: estimate.method: unknown method 'magic'"),
+        (f"{ONE_LAMP}estimate:\n  grids: 400:700:5\n", "lamps.yaml:4: estimate.grids: unknown key 'grids' (did you mean 'grid'?)"),
+        (f"{ONE_LAMP}estimate:\n  grooves_per_mm: 0.5\n", "lamps.yaml:4: estimate.grooves_per_mm: 0.5 is out of range"),
+        (f"{ONE_LAMP}estimate:\n  assumed_grating: wavy\n", "lamps.yaml:4: estimate.assumed_grating: 'wavy' is not allowed"),
     ],
 )  # fmt: skip
 def test_an_inputs_file_is_checked_with_one_line_naming_the_field(

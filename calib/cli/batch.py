@@ -194,6 +194,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Estimate many input sets (sessions …) on local workers or a Dask cluster, with a
         summary table."""
+        from calib.cli.estimate import typed_options
         from calib.methods.multilamp import weight_rule_option
         from calib.pipeline.estimate import OfflineSettings
         from calib.pipeline.input_sets import input_set_readers
@@ -207,6 +208,7 @@ def register(app: typer.Typer) -> None:
             method_options=weight_rule_option(method, weight_rule),
             exclude_cameras=tuple(exclude_camera or ()),
             command_line=("calib", "batch", *ctx.meta.get(ARGUMENTS, ())),
+            typed_options=typed_options(ctx),
         )
         code = run_batch_command(
             expand_inputs(inputs, readers),

@@ -164,12 +164,26 @@ def print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
             print(f"{key:>11}: {record['files'][key]}", file=stream)
 
 
-def _lamps(inputs: Path | None, groups: Sequence[LampGroup]) -> tuple[LampInput, ...]:
-    # Deferred: pydantic and PyYAML, which `calib --help` need not load.
-    from calib.pipeline.inputs_file import lamp_from_options, read_inputs_file
+def typed_options(ctx: ClickContext) -> frozenset[str]:
+    """The inputs-file ``estimate:`` keys whose option the command line typed (click's parameter
+    source): they beat an inputs file's, which beat the defaults (decision 0179)."""
+    from typer._click.core import ParameterSource
 
-    lamps = read_inputs_file(inputs) if inputs is not None else ()
-    lamps += tuple(lamp_from_options(group.entry(), option_names()) for group in groups)
+    from calib.pipeline.inputs_file import ESTIMATE_KEYS
+
+    return frozenset(
+        key
+        for key, (_, option) in ESTIMATE_KEYS.items()
+        if ctx.get_parameter_source(option.removeprefix("--").replace("-", "_"))
+        is ParameterSource.COMMANDLINE
+    )
+
+
+def _lamps(file_lamps: tuple[LampInput, ...], groups: Sequence[LampGroup]) -> tuple[LampInput, ...]:
+    # Deferred: pydantic and PyYAML, which `calib --help` need not load.
+    from calib.pipeline.inputs_file import lamp_from_options
+
+    lamps = file_lamps + tuple(lamp_from_options(group.entry(), option_names()) for group in groups)
     if not lamps:
         raise InputError(
             "no lamps; give --lamp NAME --images RAW ... --spectrum CSV for every lamp, or "
@@ -200,14 +214,29 @@ def estimate_request(
     json_output: bool = False,
     no_report: bool = False,
 ) -> EstimateRequest:
-    """The request of a parsed ``calib estimate`` (its options, and the lamp groups in ``ctx``)."""
+    """The request of a parsed ``calib estimate`` (its options, and the lamp groups in ``ctx``):
+    an inputs file's ``estimate:`` settings where no option was typed
+    (:func:`calib.pipeline.inputs_file.own_settings_over`)."""
     from calib.methods.multilamp import weight_rule_option
     from calib.pipeline.estimate import OfflineSettings, StatedOptics
+    from calib.pipeline.inputs_file import (
+        InputsFileContents,
+        own_settings_over,
+        read_estimate_inputs,
+    )
 
     method = checked_method(method)
+    typed = typed_options(ctx)
+    contents = (
+        read_estimate_inputs(inputs)
+        if inputs is not None
+        else InputsFileContents(lamps=(), settings={}, notes=())
+    )
+    # --weight-rule goes with the method the estimate will use: the file's, unless typed.
+    chosen_method = method if "method" in typed else contents.settings.get("method", method)
     settings = OfflineSettings(
         method=method,
-        method_options=weight_rule_option(method, weight_rule),
+        method_options=weight_rule_option(chosen_method, weight_rule),
         grid=checked_grid(grid),
         mapping_lamp=mapping_lamp,
         data_dir=data_dir,
@@ -216,9 +245,12 @@ def estimate_request(
         exclude_cameras=tuple(exclude_camera or ()),
         optics=StatedOptics(grooves_per_mm, focal_length_mm, pixel_pitch_um),
         command_line=("calib", "estimate", *ctx.meta.get(ARGUMENTS, ())),
+        typed_options=typed,
+        notes=contents.notes,
     )
+    settings = own_settings_over(settings, contents.settings, str(inputs))
     return EstimateRequest(
-        lamps=_lamps(inputs, ctx.meta.get(LAMP_GROUPS, [])),
+        lamps=_lamps(contents.lamps, ctx.meta.get(LAMP_GROUPS, [])),
         out_dir=out,
         settings=settings,
         force=force,
@@ -307,7 +339,9 @@ def register(app: typer.Typer) -> None:
                 "--inputs",
                 metavar="YAML",
                 help="The lamps as a YAML file (lamps: a list of name, kind, images or profile, "
-                "spectrum …; paths relative to the file), instead of or before --lamp groups.",
+                "spectrum …; paths relative to the file), instead of or before --lamp groups; its "
+                "optional estimate: block sets options (method, grid, optics …) that a typed "
+                "option overrides.",
             ),
         ] = None,
         method: MethodOption = "auto",

@@ -148,6 +148,10 @@ class OfflineSettings:
         ``model_floor`` for a validation-split tuning run); ``None``: the method's own σ only.
     command_line
         The command as typed, recorded in the result.
+    typed_options
+        The options the command line typed, by their inputs-file ``estimate:`` key (``grid``,
+        ``method``, ``exclude_camera`` …): an input set's own settings do not override them
+        (:func:`calib.pipeline.inputs_file.own_settings_over`, decision 0179).
     warnings, notes
         The caller's own warnings and notes (an incomplete session …), recorded with the result.
     """
@@ -165,6 +169,7 @@ class OfflineSettings:
     budget: BudgetSettings | None = DEFAULT_BUDGET
     assumed_grating: AssumedGrating | None = None
     command_line: tuple[str, ...] | None = None
+    typed_options: frozenset[str] = frozenset()
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
 

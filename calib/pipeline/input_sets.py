@@ -23,9 +23,9 @@ from typing import Any, Protocol, runtime_checkable
 
 from calib.core.errors import InputError
 from calib.pipeline.context import EstimateContext
-from calib.pipeline.estimate import OfflineSettings
+from calib.pipeline.estimate import OfflineSettings, basis_key
 from calib.pipeline.inputs import LampInput
-from calib.pipeline.inputs_file import read_inputs_file
+from calib.pipeline.inputs_file import own_settings_over, read_estimate_inputs
 from calib.pipeline.outputs import check_out_dir
 from calib.pipeline.progress import OfflineProgress
 from calib.pipeline.provenance import InputFile
@@ -55,7 +55,11 @@ class InputSet:
         The known truth and warm-up records, for the outputs and the report.
     settings
         :class:`~calib.pipeline.OfflineSettings` fields the set itself fixes (an inputs file's
-        method or grid); they override the batch's.
+        ``estimate:`` block: its method, grid, optics …); they override the batch's, except the
+        options its command line typed (:func:`calib.pipeline.inputs_file.own_settings_over`).
+    settings_source
+        Where ``settings`` come from, for the warning when a typed option overrides one (the
+        inputs file); default the set's name.
     """
 
     name: str
@@ -66,6 +70,7 @@ class InputSet:
     notes: tuple[str, ...] = ()
     context: EstimateContext = field(default_factory=EstimateContext)
     settings: Mapping[str, Any] = field(default_factory=dict)
+    settings_source: str | None = None
 
     def run(
         self,
@@ -74,14 +79,21 @@ class InputSet:
         progress: OfflineProgress | None = None,
         report: bool = True,
     ) -> OfflineOutcome:
-        """Estimate and write the outputs: ``settings`` with the set's own fields, warnings and
-        notes (the set's first)."""
-        merged = dataclasses.replace(
-            settings,
-            **dict(self.settings),
-            warnings=(*settings.warnings, *self.warnings),
-            notes=(*settings.notes, *self.notes),
+        """Estimate and write the outputs: ``settings`` with the set's own fields (where the
+        command line did not type them), warnings and notes (the set's first)."""
+        merged = own_settings_over(
+            dataclasses.replace(
+                settings,
+                warnings=(*settings.warnings, *self.warnings),
+                notes=(*settings.notes, *self.notes),
+            ),
+            self.settings,
+            self.settings_source or self.name,
         )
+        if merged.basis is not None and basis_key(merged) != basis_key(settings):
+            # A batch worker's basis is resolved for the batch's grid and excluded cameras; a set
+            # with its own resolves its own.
+            merged = dataclasses.replace(merged, basis=None)
         return run_offline(
             self.lamps,
             self.out_dir,
@@ -191,7 +203,8 @@ class InputsFiles:
         return f"{file.parent.name}-{file.stem}" if file.parent.name else file.stem
 
     def read(self, path: Path, out_dir: Path | None, *, force: bool) -> InputSet:
-        """The file's lamps (paths relative to it); where the estimate goes checked first.
+        """The file's lamps (paths relative to it) and its ``estimate:`` block's settings; where
+        the estimate goes checked first.
 
         Raises
         ------
@@ -202,12 +215,14 @@ class InputsFiles:
         file = Path(path)
         destination = out_dir if out_dir is not None else file.with_name(f"{file.stem}-estimate")
         check_out_dir(destination, force)
-        lamps = read_inputs_file(file)
+        contents = read_estimate_inputs(file)
         return InputSet(
             name=self.default_out_name(file),
-            lamps=lamps,
+            lamps=contents.lamps,
             out_dir=destination,
-            notes=(f"inputs file {file}",),
+            notes=contents.notes,
+            settings=contents.settings,
+            settings_source=str(file),
         )
 
 

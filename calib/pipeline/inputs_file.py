@@ -14,6 +14,10 @@
         profile: fl-profile.csv
         direct_rgb: [1200.0, 2100.0, 900.0]
         spectrum: fl.csv
+    estimate:                    # optional: this file's settings
+      method: prior
+      grid: "400:700:5"
+      pixel_pitch_um: 4.3
 
 Relative paths are relative to the file's own directory. The keys are the command line's per-lamp
 options, with their units in the name (``--exposure`` is ``exposure_s``, ``--dark`` is ``darks``,
@@ -25,14 +29,26 @@ options, with their units in the name (``--exposure`` is ``exposure_s``, ``--dar
 reads the same from either; a problem names the file, its line and the field
 (``lamps.yaml:7: lamps[1].images: required key is missing``), or on the command line the lamp and
 the option (:func:`lamp_from_options`).
+
+The optional ``estimate:`` block (:class:`EstimateBlock`) holds the estimate's options for these
+lamps, named as ``calib estimate``'s: ``method``, ``grid`` (``"START:STOP:STEP"``),
+``mapping_lamp``, ``grating`` (a path, relative to the file), ``assumed_grating`` (``flat`` or
+``physical``, ``--assume-grating``), ``exclude_camera`` (a pattern or a list), and the optics
+``grooves_per_mm``, ``focal_length_mm``, ``pixel_pitch_um``. Each is checked as its option is,
+and a mistake is named the same way (``lamps.yaml:9: estimate.grid: step must be > 0 nm``). An
+option typed on the command line beats the file, the file beats the defaults, in ``calib
+estimate`` and in each set of ``calib batch`` alike (:func:`own_settings_over`): a typed option
+that contradicts the file is said in a warning naming both, and the block as read is recorded in
+the result's notes.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -50,8 +66,20 @@ from calib.core.observations import LampKind
 from calib.core.validated_yaml import issues_from_validation, parse_yaml_model
 from calib.pipeline.inputs import FITS_SUFFIXES, ChannelGains, LampImages, LampInput, LampProfile
 
-__all__ = ["EstimateInputs", "LampEntry", "lamp_from_options", "read_inputs_file"]
+if TYPE_CHECKING:
+    from calib.pipeline.estimate import OfflineSettings
 
+__all__ = [
+    "EstimateBlock",
+    "EstimateInputs",
+    "LampEntry",
+    "lamp_from_options",
+    "own_settings_over",
+    "read_estimate_inputs",
+    "read_inputs_file",
+]
+
+T = TypeVar("T")
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 #: Validation context key: how a field is called where the data came from (an option's name).
@@ -183,12 +211,163 @@ class LampEntry(BaseModel):
         )
 
 
+#: The optics as ``--grooves-per-mm``, ``--focal-length-mm`` and ``--pixel-pitch-um`` take them
+#: (their ranges are calib.cli.options'; tests/test_inputs_file_settings.py checks they agree).
+GroovesPerMm = Annotated[float, Field(ge=1.0, le=10000.0, allow_inf_nan=False)]
+FocalLengthMm = Annotated[float, Field(ge=0.1, le=5000.0, allow_inf_nan=False)]
+PixelPitchUm = Annotated[float, Field(ge=0.1, le=100.0, allow_inf_nan=False)]
+#: An ``estimate:`` key → the :class:`~calib.pipeline.OfflineSettings` field it sets (the optics'
+#: as ``optics.<name>``, a field of :class:`~calib.pipeline.estimate.StatedOptics`) and the
+#: command-line option that sets the same.
+ESTIMATE_KEYS: dict[str, tuple[str, str]] = {
+    "method": ("method", "--method"),
+    "grid": ("grid", "--grid"),
+    "mapping_lamp": ("mapping_lamp", "--mapping-lamp"),
+    "grating": ("grating", "--grating"),
+    "assumed_grating": ("assumed_grating", "--assume-grating"),
+    "exclude_camera": ("exclude_cameras", "--exclude-camera"),
+    "grooves_per_mm": ("optics.grooves_per_mm", "--grooves-per-mm"),
+    "focal_length_mm": ("optics.focal_length_mm", "--focal-length-mm"),
+    "pixel_pitch_um": ("optics.pixel_pitch_um", "--pixel-pitch-um"),
+}
+
+
+def _as_value_error(check: Callable[[str], T], value: str) -> T:
+    """``check(value)``, its :class:`InputError` as the ``ValueError`` pydantic reports with the
+    file's line and key (the option's own message, without the option's name)."""
+    try:
+        return check(value)
+    except InputError as exc:
+        raise ValueError(str(exc).removeprefix(f"{exc.source}: ")) from None
+
+
+class EstimateBlock(BaseModel):
+    """An inputs file's ``estimate:`` block: ``calib estimate``'s options for this file's lamps,
+    each checked as the option is (:func:`calib.methods.check_method`,
+    :meth:`calib.core.spectra.WavelengthGrid.parse`, the optics' ranges)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    method: str | None = None
+    grid: str | None = None
+    mapping_lamp: Annotated[str, Field(min_length=1)] | None = None
+    grating: Path | None = None
+    assumed_grating: Literal["flat", "physical"] | None = None
+    exclude_camera: list[Annotated[str, Field(min_length=1)]] | None = None
+    grooves_per_mm: GroovesPerMm | None = None
+    focal_length_mm: FocalLengthMm | None = None
+    pixel_pitch_um: PixelPitchUm | None = None
+
+    @field_validator("method")
+    @classmethod
+    def _registered_method(cls, value: str | None) -> str | None:
+        from calib.methods import check_method
+
+        return None if value is None else _as_value_error(check_method, value)
+
+    @field_validator("grid")
+    @classmethod
+    def _parsed_grid(cls, value: str | None) -> str | None:
+        from calib.core.spectra import WavelengthGrid
+
+        if value is None:
+            return None
+        _as_value_error(WavelengthGrid.parse, value)
+        return value.strip()
+
+    @field_validator("exclude_camera", mode="before")
+    @classmethod
+    def _one_pattern_as_list(cls, value: object) -> object:
+        return [value] if isinstance(value, str) else value
+
+    def fields(self, base_dir: Path) -> dict[str, Any]:
+        """The keys the block gives, as :class:`~calib.pipeline.OfflineSettings` fields
+        (:data:`ESTIMATE_KEYS`), the grating's path relative to ``base_dir``."""
+        from calib.core.spectra import WavelengthGrid
+
+        out: dict[str, Any] = {}
+        for key in ESTIMATE_KEYS:
+            value = getattr(self, key)
+            if value is None:
+                continue
+            if key == "grid":
+                value = WavelengthGrid.parse(value)
+            elif key == "grating":
+                value = value.expanduser()
+                value = value if value.is_absolute() else base_dir / value
+            elif key == "exclude_camera":
+                value = tuple(value)
+            out[ESTIMATE_KEYS[key][0]] = value
+        return out
+
+    def as_read(self) -> str:
+        """The block as the file gives it, for the record: ``grid: 400:700:5, method: prior``."""
+        given = self.model_dump(mode="json", exclude_none=True, exclude_unset=True)
+        return ", ".join(f"{key}: {value}" for key, value in sorted(given.items()))
+
+
 class EstimateInputs(BaseModel):
-    """An inputs file: the lamps of one estimate."""
+    """An inputs file: the lamps of one estimate, and optionally its settings (``estimate:``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     lamps: Annotated[list[LampEntry], Field(min_length=1)]
+    estimate: EstimateBlock | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class InputsFileContents:
+    """What an inputs file gives: its lamps, its ``estimate:`` block's settings and a note.
+
+    Attributes
+    ----------
+    lamps
+        The lamps, paths relative to the file's directory.
+    settings
+        The ``estimate:`` block as :class:`~calib.pipeline.OfflineSettings` fields
+        (:meth:`EstimateBlock.fields`; the optics as a :class:`StatedOptics` of the values given):
+        what :meth:`calib.pipeline.input_sets.InputSet.run` and :func:`own_settings_over` take.
+    notes
+        For the result's record: the file, and its ``estimate:`` block as read.
+    """
+
+    lamps: tuple[LampInput, ...]
+    settings: Mapping[str, Any]
+    notes: tuple[str, ...]
+
+
+def read_estimate_inputs(path: str | Path) -> InputsFileContents:
+    """An inputs file's lamps and settings (see the module docstring).
+
+    Raises
+    ------
+    calib.core.validated_yaml.ConfigError
+        The file is missing, not YAML, or not a valid inputs file: every problem with its line and
+        field (``lamps.yaml:3: estimate.grid: …``).
+    """
+    from calib.pipeline.estimate import StatedOptics
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", source=str(path)) from None
+    inputs = parse_yaml_model(text, EstimateInputs, str(path))
+    lamps = tuple(entry.to_input(path.parent) for entry in inputs.lamps)
+    notes = [f"inputs file {path}"]
+    settings: dict[str, Any] = {}
+    if inputs.estimate is not None:
+        fields = inputs.estimate.fields(path.parent)
+        settings = {key: value for key, value in fields.items() if not key.startswith("optics.")}
+        optics = {
+            key.removeprefix("optics."): value
+            for key, value in fields.items()
+            if key.startswith("optics.")
+        }
+        if optics:
+            settings["optics"] = StatedOptics(**optics)
+        notes.append(f"{path}'s estimate: {{{inputs.estimate.as_read()}}}")
+    return InputsFileContents(lamps, settings, tuple(notes))
 
 
 def read_inputs_file(path: str | Path) -> tuple[LampInput, ...]:
@@ -200,13 +379,69 @@ def read_inputs_file(path: str | Path) -> tuple[LampInput, ...]:
         The file is missing, not YAML, or not a valid inputs file: every problem with its line and
         field.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", source=str(path)) from None
-    inputs = parse_yaml_model(text, EstimateInputs, str(path))
-    return tuple(entry.to_input(path.parent) for entry in inputs.lamps)
+    return read_estimate_inputs(path).lamps
+
+
+def _shown(value: Any) -> str:
+    from calib.core.spectra import WavelengthGrid
+
+    if isinstance(value, WavelengthGrid):
+        return f"{value.start_nm:g}:{value.stop_nm:g}:{value.step_nm:g}"
+    if isinstance(value, tuple):
+        return ",".join(map(str, value)) or "(none)"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
+def own_settings_over(
+    settings: OfflineSettings, own: Mapping[str, Any], source: str
+) -> OfflineSettings:
+    """``settings`` with an input set's own fields (``own``, e.g. an inputs file's ``estimate:``
+    block, :attr:`InputsFileContents.settings`) in, except where the command line typed the
+    option (``settings.typed_options``): a typed option beats the file, the file beats the
+    defaults. A typed option that contradicts the file is said in a warning naming both
+    (``--grid 400:700:5 overrides lamps.yaml's estimate.grid 400:700:10``).
+
+    ``own`` keys are :class:`~calib.pipeline.OfflineSettings` fields; ``optics`` is a
+    :class:`~calib.pipeline.estimate.StatedOptics` whose ``None`` values are not given.
+    """
+    flat: dict[str, Any] = {}
+    for name, value in own.items():
+        if name == "optics":
+            flat.update(
+                {
+                    f"optics.{key}": stated
+                    for key, stated in dataclasses.asdict(value).items()
+                    if stated is not None
+                }
+            )
+        else:
+            flat[name] = value
+    by_field = {field: (key, option) for key, (field, option) in ESTIMATE_KEYS.items()}
+    changes: dict[str, Any] = {}
+    optics: dict[str, Any] = {}
+    warnings: list[str] = []
+    for name, value in flat.items():
+        key, option = by_field.get(name, (name, name))
+        if key in settings.typed_options:
+            typed = (
+                getattr(settings.optics, name.removeprefix("optics."))
+                if name.startswith("optics.")
+                else getattr(settings, name)
+            )
+            same_file = isinstance(typed, Path) and isinstance(value, Path)
+            if (typed.resolve() != value.resolve()) if same_file else (typed != value):
+                warnings.append(
+                    f"{option} {_shown(typed)} overrides {source}'s estimate.{key} {_shown(value)}"
+                )
+        elif name.startswith("optics."):
+            optics[name.removeprefix("optics.")] = value
+        else:
+            changes[name] = value
+    if optics:
+        changes["optics"] = dataclasses.replace(settings.optics, **optics)
+    return dataclasses.replace(settings, **changes, warnings=(*settings.warnings, *warnings))
 
 
 def lamp_from_options(entry: Mapping[str, Any], option_names: Mapping[str, str]) -> LampInput:
