@@ -1093,6 +1093,9 @@ def test_a_spectrum_in_photons_is_converted_to_power_and_raw_counts_are_serious(
     )
     converted = [line for line in runs["photons"][0]["warnings"] if "converted" in line]
     assert _flag_codes(runs["photons"][0]) == EXPECTED_FLAGS | set(converted)
+    recorded = json.loads((tmp_path / "photons" / "out" / "result.json").read_text())
+    led = next(lamp for lamp in recorded["provenance"]["lamps"] if lamp["name"] == "LED")
+    assert led["spectrum_units"] == {"units": "photons/s/nm", "measures": "photon"}
     counts_summary, counts_stderr, _ = runs["counts"]
     assert _flag_codes(counts_summary) == EXPECTED_FLAGS | {"lamp_spectrum_uncalibrated"}
     assert (
