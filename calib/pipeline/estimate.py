@@ -590,11 +590,11 @@ def estimate_offline(
                         "spectrum": describe_spectrum(given.spectrum),
                     }
                 )
-        for record in lamp_records:
-            if record["name"] in checked.units:
-                text, kind = checked.units[record["name"]]
+        for lamp_record in lamp_records:
+            if lamp_record["name"] in checked.units:
+                text, kind = checked.units[lamp_record["name"]]
                 # What the spectrum's file said it measures (one in photons was converted).
-                record["spectrum_units"] = {"units": text, "measures": kind}
+                lamp_record["spectrum_units"] = {"units": text, "measures": kind}
         report.stage("estimating")
         step = time.perf_counter()
         flags = input_flags(observations, image_input=bool(image_lamps))
