@@ -109,7 +109,12 @@ def test_a_budget_without_perturbations_keeps_the_analytic_components(
         mapping=TRUTH,
         budget=BudgetSettings(perturb=False, coverage_scale={}),
     )
-    assert set(result.quality.uncertainty["rms"]) == {"statistical", "basis", "mapping"}
+    assert set(result.quality.uncertainty["rms"]) == {
+        "statistical",
+        "basis",
+        "mapping",
+        "normalisation",
+    }
 
 
 def test_the_spectrometer_perturbation_moves_with_the_stated_scale(
