@@ -14,7 +14,7 @@ from calib.core.checksums import file_sha256
 from calib.core.lamp_specs import colour_lamp
 from calib.core.software import current_software
 from calib.core.spectra import WavelengthGrid, read_spectrum_csv, write_csv
-from calib.spd.pipeline import mapping_spectrum_label
+from calib.spd.pipeline import mapping_lamp_spectrum
 from tests.spd_scenes import CalibratedRig, calibrated_rig, render_twin_lamp
 
 
@@ -342,6 +342,6 @@ def test_the_mapping_spectrum_label_says_whether_it_was_measured(tmp_path: Path)
     """A CSV is a measurement; a colour table or a built-in line list is named as what it is."""
     csv = tmp_path / "fl.csv"
     csv.write_text("wavelength_nm,value\n400,1\n700,1\n")
-    assert mapping_spectrum_label(csv) == "measured spectrum"
-    assert mapping_spectrum_label(Path("builtin:hg")).startswith("built-in line list builtin:hg")
-    assert "not a measurement" in mapping_spectrum_label(Path("FL11"))
+    assert mapping_lamp_spectrum(csv)[1] == "measured spectrum"
+    assert mapping_lamp_spectrum(Path("builtin:hg"))[1].startswith("built-in line list builtin:hg")
+    assert "not a measurement" in mapping_lamp_spectrum(Path("FL11"))[1]

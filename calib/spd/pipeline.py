@@ -183,10 +183,10 @@ def _find_mapping(
         mapping = _read_mapping_file(request.mapping_file)
         origin = f"file {request.mapping_file}"
         return mapping, widened_geometry(geometry, mapping, RECOVERY_RANGE_NM), origin
-    lamp_spectrum = (
+    lamp_spectrum, lines = (
         mapping_lamp_spectrum(request.mapping_spectrum)
         if request.mapping_spectrum is not None
-        else None
+        else (None, None)
     )
     source_image, origin = (
         (mapping_image, "mapping lamp")
@@ -209,13 +209,7 @@ def _find_mapping(
                 start=mapping,
             )
             wide = widened_geometry(geometry, mapping, RECOVERY_RANGE_NM)
-            if request.mapping_spectrum is not None:
-                mapping = mapping.with_details(
-                    details={
-                        **dict(mapping.details),
-                        "lines": mapping_spectrum_label(request.mapping_spectrum),
-                    }
-                )
+            mapping = mapping.with_details(details={**dict(mapping.details), "lines": lines})
     except EstimationError as exc:
         if mapping_image is None:
             raise InputError(
@@ -234,23 +228,18 @@ def read_camera(path: Path) -> MultiSpectrum:
     return read_camera_file(path).to_multispectrum().normalised()
 
 
-def mapping_spectrum_label(source: Path) -> str:
-    """What the mapping lamp's spectrum is, as the result's ``mapping.details.lines`` says it: a
-    measured spectrum (a CSV), or the name it was given (a colour-science table or a built-in line
-    list is not a measurement of this lamp)."""
+def mapping_lamp_spectrum(source: Path) -> tuple[Spectrum, str]:
+    """The mapping lamp's spectrum and what it is, as the result's ``mapping.details.lines`` says:
+    a measured CSV (``"measured spectrum"``), or a named one (a colour-science light source such
+    as FL11, ``builtin:NAME`` for a line list, as ``calib estimate --spectrum`` takes them), which
+    is not a measurement of this lamp."""
     if is_spectrum_file(source):
-        return "measured spectrum"
+        return read_spectrum_csv(source, negative="clip"), "measured spectrum"
     if is_builtin(str(source)):
-        return f"built-in line list {source} (not a measurement of the lamp)"
-    return f"named spectrum {source} (a reference table, not a measurement of the lamp)"
-
-
-def mapping_lamp_spectrum(source: Path) -> Spectrum:
-    """The mapping lamp's spectrum: a measured CSV, or a named one (a colour-science light source
-    such as FL11, ``builtin:NAME`` for a line list, as ``calib estimate --spectrum`` takes them)."""
-    if is_spectrum_file(source):
-        return read_spectrum_csv(source, negative="clip")
-    return lamp_from_spec(str(source))
+        label = f"built-in line list {source} (not a measurement of the lamp)"
+    else:
+        label = f"named spectrum {source} (a reference table, not a measurement of the lamp)"
+    return lamp_from_spec(str(source)), label
 
 
 def read_grating_efficiency(path: Path) -> Spectrum:
