@@ -213,6 +213,12 @@ def _version_option(
     """Declares ``--version`` (:func:`click_command` adds it to every command)."""
 
 
+def typed_on_command_line(ctx: ClickContext, parameter: str) -> bool:
+    """Whether ``parameter`` (its Python name, ``grooves_per_mm``) was typed on the command line,
+    not left at its default (click's parameter source)."""
+    return ctx.get_parameter_source(parameter) is _click.core.ParameterSource.COMMANDLINE
+
+
 def subcommands(command: ClickCommand) -> dict[str, ClickCommand]:
     """A group's commands by name (``{}`` for a command)."""
     return dict(getattr(command, "commands", {}))

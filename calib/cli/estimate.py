@@ -25,6 +25,7 @@ from calib.cli.command_line import (
     error_code_and_line,
     new_app,
     subcommands,
+    typed_on_command_line,
     warn,
 )
 from calib.cli.lamp_groups import LAMP_GROUPS, LampGroup, LampGroupsCommand, option_names
@@ -167,15 +168,12 @@ def print_summary(outcome: OfflineOutcome, stream: TextIO) -> None:
 def typed_options(ctx: ClickContext) -> frozenset[str]:
     """The inputs-file ``estimate:`` keys whose option the command line typed (click's parameter
     source): they beat an inputs file's, which beat the defaults (decision 0179)."""
-    from typer._click.core import ParameterSource
-
     from calib.pipeline.inputs_file import ESTIMATE_KEYS
 
     return frozenset(
         key
         for key, (_, option) in ESTIMATE_KEYS.items()
-        if ctx.get_parameter_source(option.removeprefix("--").replace("-", "_"))
-        is ParameterSource.COMMANDLINE
+        if typed_on_command_line(ctx, option.removeprefix("--").replace("-", "_"))
     )
 
 
