@@ -141,8 +141,8 @@ def test_a_typed_option_beats_the_file_with_a_warning_naming_both(tmp_path: Path
 
 
 def test_the_optics_ranges_are_the_options() -> None:
-    """A value means the same in the file as on the command line: the options' ends are taken,
-    a little beyond them refused."""
+    """A value means the same in the file as on the command line (one range for both,
+    calib.core.optics_ranges): the options' ends are taken, a little beyond them refused."""
     for key, option in (
         ("grooves_per_mm", GroovesPerMmOption),
         ("focal_length_mm", FocalLengthOption),

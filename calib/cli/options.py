@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 import typer
 
 from calib.cli.command_line import help_choices
+from calib.core.optics_ranges import FOCAL_LENGTH_MM, GROOVES_PER_MM, PIXEL_PITCH_UM
 
 if TYPE_CHECKING:
     from calib.core.spectra import WavelengthGrid
@@ -169,8 +170,8 @@ GroovesPerMmOption = Annotated[
     typer.Option(
         "--grooves-per-mm",
         metavar="N",
-        min=1.0,
-        max=10000.0,
+        min=GROOVES_PER_MM[0],
+        max=GROOVES_PER_MM[1],
         help="The grating's nominal line density (lines/mm, taken as ±2 %): the pixel→wavelength "
         "mapping's physics then holds the grating's spacing, which pins its red end beyond the "
         "lamp's last line.",
@@ -181,8 +182,8 @@ FocalLengthOption = Annotated[
     typer.Option(
         "--focal-length-mm",
         metavar="MM",
-        min=0.1,
-        max=5000.0,
+        min=FOCAL_LENGTH_MM[0],
+        max=FOCAL_LENGTH_MM[1],
         help="The lens' focal length (mm), when the RAW files do not record it (with the pixel "
         "pitch: the mapping's focal length in pixels). Overrides EXIF.",
     ),
@@ -192,8 +193,8 @@ PixelPitchOption = Annotated[
     typer.Option(
         "--pixel-pitch-um",
         metavar="UM",
-        min=0.1,
-        max=100.0,
+        min=PIXEL_PITCH_UM[0],
+        max=PIXEL_PITCH_UM[1],
         help="The sensor's pixel pitch (µm), when the RAW files and the built-in table of bodies "
         "do not give it. Overrides them.",
     ),

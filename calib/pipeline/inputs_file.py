@@ -63,6 +63,7 @@ from pydantic import (
 from calib.core.errors import InputError
 from calib.core.lamp_specs import is_spectrum_file
 from calib.core.observations import LampKind
+from calib.core.optics_ranges import FOCAL_LENGTH_MM, GROOVES_PER_MM, PIXEL_PITCH_UM
 from calib.core.validated_yaml import issues_from_validation, parse_yaml_model
 from calib.pipeline.inputs import FITS_SUFFIXES, ChannelGains, LampImages, LampInput, LampProfile
 
@@ -212,10 +213,16 @@ class LampEntry(BaseModel):
 
 
 #: The optics as ``--grooves-per-mm``, ``--focal-length-mm`` and ``--pixel-pitch-um`` take them
-#: (their ranges are calib.cli.options'; tests/test_inputs_file_settings.py checks they agree).
-GroovesPerMm = Annotated[float, Field(ge=1.0, le=10000.0, allow_inf_nan=False)]
-FocalLengthMm = Annotated[float, Field(ge=0.1, le=5000.0, allow_inf_nan=False)]
-PixelPitchUm = Annotated[float, Field(ge=0.1, le=100.0, allow_inf_nan=False)]
+#: (one range for both: :mod:`calib.core.optics_ranges`).
+GroovesPerMm = Annotated[
+    float, Field(ge=GROOVES_PER_MM[0], le=GROOVES_PER_MM[1], allow_inf_nan=False)
+]
+FocalLengthMm = Annotated[
+    float, Field(ge=FOCAL_LENGTH_MM[0], le=FOCAL_LENGTH_MM[1], allow_inf_nan=False)
+]
+PixelPitchUm = Annotated[
+    float, Field(ge=PIXEL_PITCH_UM[0], le=PIXEL_PITCH_UM[1], allow_inf_nan=False)
+]
 #: An ``estimate:`` key → the :class:`~calib.pipeline.OfflineSettings` field it sets (the optics'
 #: as ``optics.<name>``, a field of :class:`~calib.pipeline.estimate.StatedOptics`) and the
 #: command-line option that sets the same.
