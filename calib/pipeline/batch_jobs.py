@@ -201,7 +201,7 @@ def estimate_job(job: BatchJob, plan: BatchPlan, index: int = -1) -> BatchRow:
     worker = f"{socket.gethostname()}:{os.getpid()}"
     try:
         inputs = job.reader.read(job.path, job.out_dir, force=plan.force)
-        outcome = inputs.run(worker_settings(plan.settings), report=plan.report)
+        outcome = inputs.run(plan.settings, report=plan.report, prepare=worker_settings)
     except Exception as exc:
         debug = any(os.environ.get(name) for name in DEBUG_VARIABLES)
         return BatchRow(

@@ -15,7 +15,7 @@ inputs files (``calib estimate --inputs``'s YAML) as ``inputs`` (:data:`INPUTS_F
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -23,7 +23,7 @@ from typing import Any, Protocol, runtime_checkable
 
 from calib.core.errors import InputError
 from calib.pipeline.context import EstimateContext
-from calib.pipeline.estimate import OfflineSettings, basis_key
+from calib.pipeline.estimate import OfflineSettings
 from calib.pipeline.inputs import LampInput
 from calib.pipeline.inputs_file import own_settings_over, read_estimate_inputs
 from calib.pipeline.outputs import check_out_dir
@@ -78,9 +78,12 @@ class InputSet:
         *,
         progress: OfflineProgress | None = None,
         report: bool = True,
+        prepare: Callable[[OfflineSettings], OfflineSettings] | None = None,
     ) -> OfflineOutcome:
         """Estimate and write the outputs: ``settings`` with the set's own fields (where the
-        command line did not type them), warnings and notes (the set's first)."""
+        command line did not type them), warnings and notes (the set's first); ``prepare`` then
+        completes them (a batch worker's basis for their grid and excluded cameras, resolved
+        once per process: :func:`calib.pipeline.batch_jobs.worker_settings`)."""
         merged = own_settings_over(
             dataclasses.replace(
                 settings,
@@ -90,10 +93,8 @@ class InputSet:
             self.settings,
             self.settings_source or self.name,
         )
-        if merged.basis is not None and basis_key(merged) != basis_key(settings):
-            # A batch worker's basis is resolved for the batch's grid and excluded cameras; a set
-            # with its own resolves its own.
-            merged = dataclasses.replace(merged, basis=None)
+        if prepare is not None:
+            merged = prepare(merged)
         return run_offline(
             self.lamps,
             self.out_dir,
