@@ -41,13 +41,12 @@ from calib.core.arrays import FloatArray
 from calib.core.datasets import find_camera, load_collection
 from calib.core.grating_file import GratingEfficiency
 from calib.core.lamp_specs import lamp_from_spec
-from calib.core.observations import LampObservation
+from calib.core.observations import CHANNEL_GAINS_KEY, LampObservation
 from calib.core.result import EstimateResult
 from calib.core.spectra import DEFAULT_GRID, Spectrum, read_spectrum_csv, read_table
 from calib.image.profile_files import read_fits_profile, read_rawproc_dat
 from calib.methods import estimate
 from calib.methods.known_grating import KnownGratingOptions
-from calib.methods.uncertainty import CHANNEL_GAINS_KEY
 from calib.model.bases import CameraBasis, camera_basis, default_camera_basis
 
 GRID = DEFAULT_GRID

@@ -82,7 +82,7 @@ from calib.core.grating_file import GratingEfficiency
 from calib.core.line_lists import line_list
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.metrics import channel_relative_errors
-from calib.core.observations import LampObservation
+from calib.core.observations import CHANNEL_GAINS_KEY, LampObservation
 from calib.core.result import mapping_warned
 from calib.core.spectra import Spectrum
 from calib.evaluation.validation.protocol import (
@@ -101,7 +101,6 @@ from calib.evaluation.validation.solar import (
 )
 from calib.evaluation.validation.splits import load_splits
 from calib.methods import estimate
-from calib.methods.uncertainty import CHANNEL_GAINS_KEY
 from calib.model import forward
 from calib.wavelength.locate import fwhm_px, locate_mapping
 

@@ -99,8 +99,7 @@ import numpy as np
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
 from calib.core.mapping import QuadraticMapping
-from calib.core.observations import CHANNEL_GAINS_KEY as CHANNEL_GAINS_KEY  # re-exported
-from calib.core.observations import LampObservation
+from calib.core.observations import CHANNEL_GAINS_KEY, LampObservation
 from calib.core.result import EstimateResult, QualityFlag, Severity
 from calib.core.spectra import Spectrum
 from calib.core.spectrometer_scale import measured_slit, scale_sigma_nm

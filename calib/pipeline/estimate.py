@@ -31,7 +31,7 @@ from calib.core.blas import one_blas_thread
 from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency, read_grating_file
 from calib.core.mapping import QuadraticMapping
-from calib.core.observations import LampObservation
+from calib.core.observations import CHANNEL_GAINS_KEY, LampObservation
 from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, Spectrum, UnitsKind, WavelengthGrid
 from calib.image.raw import read_raw_metadata
@@ -46,12 +46,7 @@ from calib.methods import (
 from calib.methods.grating_models import AssumedGrating
 from calib.methods.known_grating import KNOWN_GRATING_METHOD, KnownGratingOptions
 from calib.methods.multilamp import MULTILAMP_METHOD
-from calib.methods.uncertainty import (
-    CHANNEL_GAINS_KEY,
-    DEFAULT_BUDGET,
-    BudgetSettings,
-    assumed_grating_flag,
-)
+from calib.methods.uncertainty import DEFAULT_BUDGET, BudgetSettings, assumed_grating_flag
 from calib.model.bases import CameraBasis, default_camera_basis
 from calib.model.resolution import COARSE_SLIT_NM, coarse_slit
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
