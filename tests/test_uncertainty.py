@@ -33,6 +33,7 @@ from calib.methods import choose_method, estimate
 from calib.methods.uncertainty import (
     COMPONENTS,
     DEFAULT_BUDGET,
+    NORMALISATION_SHARE,
     PROFILE_ROWS_KEY,
     TOLERANCE_SIGMA,
     BudgetSettings,
@@ -45,6 +46,7 @@ from calib.methods.uncertainty import (
     floored_reduced_chi2,
     lamp_spread_sigma,
     misfit_flag,
+    normalisation_sigma,
     prior_sigma_at_scale,
     reduced_chi2,
     uncertainty_budget,
@@ -771,3 +773,25 @@ def test_the_mappings_share_of_eta_is_the_change_of_the_curve_stated_at_maximum_
     assert stated[0] == pytest.approx(0.0, abs=1e-12)
     np.testing.assert_allclose(stated[1:], actual[1:], rtol=0.1)
     assert np.all(np.abs(np.gradient(eta / eta.max(), wavelength)) * rms > 2 * stated)
+
+
+def test_the_normalisation_component_follows_the_peak_node_s_bend() -> None:
+    """The maximum node's discretisation moves every cell in proportion (decision 0181): a curve
+    that bends sharply at its peak gets a wider band than one that bends gently, by the ratio of
+    their second differences there; a peak at the grid's end, where there is no second
+    difference, gets none. The delivered curves' scale does not matter."""
+    wavelength = np.arange(400.0, 701.0, 10.0)
+
+    def result(width_nm: float, centre_nm: float = 550.0, scale: float = 1.0) -> EstimateResult:
+        curve = scale * np.exp(-0.5 * ((wavelength - centre_nm) / width_nm) ** 2)
+        return EstimateResult("test", wavelength, np.stack([curve, 0.5 * curve, 0.2 * curve], 1))
+
+    sharp, gentle = normalisation_sigma(result(12.0)), normalisation_sigma(result(60.0))
+    peak = int(np.argmax(result(12.0).sensitivity[:, 0]))
+    curve = result(12.0).sensitivity[:, 0]
+    bend = abs(curve[peak - 1] - 2 * curve[peak] + curve[peak + 1])
+    np.testing.assert_allclose(sharp[:, 0], curve * NORMALISATION_SHARE * bend / 12.0)
+    np.testing.assert_allclose(sharp[:, 1], 0.5 * sharp[:, 0])  # every cell, in proportion
+    assert sharp.max() > 10 * gentle.max() > 0
+    np.testing.assert_allclose(normalisation_sigma(result(12.0, scale=7.0)), sharp)
+    assert not normalisation_sigma(result(30.0, centre_nm=700.0)).any()
