@@ -50,7 +50,8 @@ def test_building_calib_imports_no_stage() -> None:
     # The command modules import their stages inside the commands: --help, and the parsing of any
     # command, load typer and rich, not numpy or a pipeline stage (about 0.3 s of CPU).
     loaded, numpy_loaded = _loaded_after("import calib.cli.app\ncalib.cli.app.build_app()")
-    assert loaded == str(["calib.core", "calib.core.errors"])
+    # calib.core.optics_ranges: the stated optics' ranges (numbers, no imports), the options' own.
+    assert loaded == str(["calib.core", "calib.core.errors", "calib.core.optics_ranges"])
     assert numpy_loaded == "False"
 
 
@@ -117,6 +118,7 @@ def test_the_shared_options_do_not_load_the_calib_commands() -> None:
             "calib.cli.options",
             "calib.core",
             "calib.core.errors",
+            "calib.core.optics_ranges",
         ]
     )
     assert numpy_loaded == "False"
