@@ -385,7 +385,7 @@ def test_a_non_linear_or_channel_mixing_rawproc_command_is_refused_naming_file_a
         "exposure:0.5",
         "subtract:dark.tif",
         "blackwhitepoint:rgb,0,255",
-        "rotate:90",
+        "rotate:1.5",
         "denoise:nlmeans,1",
     ],
 )
@@ -468,3 +468,111 @@ def test_an_operation_that_cannot_be_checked_is_warned_and_the_data_kept(
     assert warning.startswith(f"odd.dat: the rawproc command's {operation} "), warning
     lamp = LampProfile("sun", "other", Path("D65"), path)
     assert warning in _check_inputs([lamp], OfflineSettings()).warnings
+
+
+@pytest.mark.parametrize(
+    ("operations", "reversed_columns"),
+    [
+        (["rotate:hmirror"], True),
+        (["rotate:180"], True),
+        (["rotate:angle=180"], True),
+        (['rotate:{"hmirror": "true"}'], True),
+        (["rotate:vmirror"], False),
+        (["rotate:1.5"], False),
+        (["rotate:hmirror", "rotate:vmirror"], True),
+        (["rotate:hmirror", "rotate:hmirror"], False),
+        (["rotate:hmirror", "rotate:180"], False),
+        (["rotate:90", "rotate:90"], True),
+        (["rotate:90", "rotate:270"], False),
+    ],
+)
+def test_every_rotation_that_reverses_the_columns_is_undone_and_two_reversals_cancel(
+    tmp_path: Path, operations: list[str], reversed_columns: bool
+) -> None:
+    """rawproc's rotate takes hmirror, vmirror and angles: a half turn reverses the columns as a
+    hmirror does, a vmirror only the rows (which a column mean ignores)."""
+    path = _write_dat(tmp_path / "turned.dat", _command(*operations))
+    as_filed = read_rawproc_dat(path)
+    as_sensor = read_rawproc_dat(path, sensor_orientation=True)
+    assert as_filed.metadata["mirrored"] is reversed_columns
+    assert as_filed.warnings == () and as_sensor.warnings == ()
+    np.testing.assert_array_equal(as_filed.profile, np.column_stack([RED, GREEN, BLUE]))
+    expected = as_filed.profile[::-1] if reversed_columns else as_filed.profile
+    np.testing.assert_array_equal(as_sensor.profile, expected)
+    assert as_sensor.metadata["pixel_axis"] == "sensor columns of the crop"
+
+
+@pytest.mark.parametrize("operations", [["rotate:90"], ["rotate:270"], ["rotate:angle=90"]])
+def test_a_quarter_turn_is_warned_and_refused_for_the_sensor_order(
+    tmp_path: Path, operations: list[str]
+) -> None:
+    """After a quarter turn the file's columns are the sensor's rows: read in the file's order with
+    a warning naming the step; no sensor column order to restore, so that is refused in one line."""
+    path = _write_dat(tmp_path / "quarter.dat", _command(*operations))
+    profile = read_rawproc_dat(path)
+    np.testing.assert_array_equal(profile.profile, np.column_stack([RED, GREEN, BLUE]))
+    (warning,) = profile.warnings
+    assert warning.startswith(f"quarter.dat: the rawproc command's {operations[0]} "), warning
+    assert "quarter turn" in warning and profile.metadata["quarter_turn"] is True
+    with pytest.raises(InputError) as refused:
+        read_rawproc_dat(path, sensor_orientation=True)
+    message = str(refused.value)
+    assert message.startswith(f"{path}: the rawproc command's {operations[0]} "), message
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize(
+    ("line", "input_file", "options", "labels"),
+    [
+        (
+            "rawproc-0.9.1Dev My Shot 01.NEF:rawdata=crop;  demosaic:half rotate:hmirror crop:0,1",
+            "My Shot 01.NEF",
+            {"rawdata": "crop"},
+            ["demosaic:half", "rotate:hmirror", "crop:0,1"],
+        ),
+        (
+            "rawproc-0.9.1Dev My crop v1.2 shot.NEF:rawdata=crop; demosaic:half",
+            "My crop v1.2 shot.NEF",
+            {"rawdata": "crop"},
+            ["demosaic:half"],
+        ),
+        (
+            "rawproc-0.9 My Shot.NEF demosaic:half rotate:180",
+            "My Shot.NEF",
+            {},
+            ["demosaic:half", "rotate:180"],
+        ),
+        (
+            r"rawproc-img C:\raw\My Shot.NEF:rawdata=1 demosaic:half",
+            r"C:\raw\My Shot.NEF",
+            {"rawdata": "1"},
+            ["demosaic:half"],
+        ),
+    ],
+)
+def test_an_input_file_name_with_spaces_is_read_whole(
+    line: str, input_file: str, options: dict[str, str], labels: list[str]
+) -> None:
+    command = parse_rawproc_command(line)
+    assert command.input_file == input_file and command.input_options == options
+    assert [op.label for op in command.operations] == labels
+    assert command.parse_warning is None
+
+
+def test_a_dat_whose_input_has_spaces_reads_as_raw_and_one_whose_input_cannot_be_told_is_warned(
+    tmp_path: Path,
+) -> None:
+    path = _write_dat(
+        tmp_path / "spaced.dat", _command("rotate:180", source="My Shot 01.NEF:rawdata=crop;")
+    )
+    profile = read_rawproc_dat(path)
+    assert profile.warnings == () and profile.channel_gains_unknown is None
+    assert profile.metadata["rawproc"]["input_file"] == "My Shot 01.NEF"
+    assert profile.metadata["mirrored"] is True
+    # No word ends in an extension: the name cannot be told from the tools, and that is said.
+    path = _write_dat(tmp_path / "odd.dat", _command(source="shot one:rawdata=crop;"))
+    profile = read_rawproc_dat(path)
+    assert any(
+        text.startswith("odd.dat: where the rawproc command's input 'shot' ends cannot be told")
+        for text in profile.warnings
+    ), profile.warnings

@@ -9,10 +9,13 @@ rawproc ``.dat`` (Glenn Butcher's raw processor, "data" export of a cropped imag
     (e.g. ``rawproc-0.9.1Dev DSG_4683.NEF:rawdata=crop; demosaic:half rotate:hmirror crop:…``),
     then a row ``x,0,1,…,N−1``, rows ``red,…``, ``green,…``, ``blue,…`` holding the *column means*
     of the ``M`` rows of the crop (linear 0–1), and trailing ``rmax: V rmaxcolumn: C`` lines (also
-    ``gmax``, ``bmax``) that are checked against the rows. A ``hmirror`` in the command means the
-    columns run mirrored with respect to the sensor; the profile keeps the file's order (where the
-    wavelength usually increases with ``x``) unless ``sensor_orientation=True``. The file holds
-    means only, so the profile has no σ (the estimators then use a robust noise estimate).
+    ``gmax``, ``bmax``) that are checked against the rows. The command's ``rotate`` steps say how
+    the columns run with respect to the sensor's: a ``hmirror`` or a half turn (``rotate:180``)
+    reverses them, a ``vmirror`` keeps them, two reversals cancel. The profile keeps the file's
+    order (where the wavelength usually increases with ``x``) unless ``sensor_orientation=True``.
+    A net quarter turn (``rotate:90``, ``rotate:270``) makes the file's columns the sensor's rows:
+    warned, and refused with ``sensor_orientation=True``. The file holds means only, so the
+    profile has no σ (the estimators then use a robust noise estimate).
 
     The command is read (:func:`parse_rawproc_command`, :func:`rawproc_findings`): the estimate
     needs the camera's linear channels at its raw gains. An operation that makes the data
@@ -43,6 +46,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
@@ -264,12 +268,16 @@ class RawprocCommand:
         Its input options (``{"rawdata": "crop"}``).
     operations
         The tools, in the order applied.
+    parse_warning
+        Why where the input's name ends could not be told from the operations (the name is then
+        read as far as its first space), or ``None``.
     """
 
     program: str
     input_file: str
     input_options: Mapping[str, str]
     operations: tuple[RawprocOperation, ...]
+    parse_warning: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form (for the profile's metadata and the result's provenance)."""
@@ -294,26 +302,84 @@ def _command_tokens(text: str) -> list[str]:
     return tokens
 
 
+#: The word that ends the input's name: ``….NEF`` or ``….NEF:rawdata=crop;`` (the first colon
+#: after an extension, so a Windows drive's colon is no end).
+_INPUT_END = re.compile(r"^(?P<name>.*?\.[A-Za-z][A-Za-z0-9]*)(?::(?P<options>.*))?$")
+
+
+def _rawproc_tools() -> frozenset[str]:
+    """Every tool name this reader knows (their effects: :func:`_operation_finding`)."""
+    named = {
+        "blackwhitepoint",
+        "colorspace",
+        "curve",
+        "gamma",
+        "saturation",
+        "tone",
+        "whitebalance",
+    }
+    return _RAWPROC_KEEPS | _RAWPROC_HIDES | frozenset(_RAWPROC_BREAKS) | named
+
+
+def _split_input(text: str) -> tuple[str, str, str] | None:
+    """``text`` (the command after the program) as the input's name, its options and the rest.
+
+    rawproc writes the input as ``name:options`` (``name`` alone when it has none) and then each
+    tool, all separated by spaces, so a name with spaces has no delimiter of its own. The name
+    ends at the first word that ends in an extension and either carries the input's options or is
+    followed by a tool's name (or nothing); ``None`` when no word does.
+    """
+    words = list(re.finditer(r"\S+", text))
+    tools = _rawproc_tools()
+    for index, word in enumerate(words):
+        match = _INPUT_END.match(word.group())
+        if match is None:
+            continue
+        following = words[index + 1].group() if index + 1 < len(words) else ""
+        next_tool = following.partition(":")[0].lower()
+        if match["options"] is not None or not following or next_tool in tools:
+            name = text[words[0].start() : word.start()] + match["name"]
+            return name, match["options"] or "", text[word.end() :]
+    return None
+
+
 def parse_rawproc_command(line: str) -> RawprocCommand:
     """Read a rawproc command line into its input and its ordered operations.
 
     ``"rawproc-0.9.1Dev DSG_4683.NEF:rawdata=crop;  demosaic:half rotate:hmirror crop:0,0.4,1,0.5"``
-    gives the input ``DSG_4683.NEF`` with ``{"rawdata": "crop"}`` and three operations. A file name
-    with spaces is read as far as its first space (the rest then shows as an unknown operation).
+    gives the input ``DSG_4683.NEF`` with ``{"rawdata": "crop"}`` and three operations; so does
+    ``My Shot 01.NEF:rawdata=crop; …`` with the input ``My Shot 01.NEF`` (:func:`_split_input`).
+    When the input's end cannot be told, its name is read as far as its first space (the rest
+    then shows as unknown operations) and :attr:`RawprocCommand.parse_warning` says so.
+
+    Examples
+    --------
+    >>> command = parse_rawproc_command("rawproc-0.9 My Shot.NEF:rawdata=crop; rotate:180")
+    >>> command.input_file, [op.label for op in command.operations]
+    ('My Shot.NEF', ['rotate:180'])
     """
-    tokens = _command_tokens(line)
-    program = tokens[0] if tokens else ""
-    input_file, _, options_text = tokens[1].partition(":") if len(tokens) > 1 else ("", "", "")
+    program, _, rest = line.strip().partition(" ")
+    split = _split_input(rest)
+    warning = None
+    if split is None:
+        first, _, after = rest.strip().partition(" ")
+        name, _, options_text = first.partition(":")
+        warning = (
+            f"where the rawproc command's input {name!r} ends cannot be told (no word ending in "
+            "an extension before a rawproc tool); its name is read as far as its first space"
+        )
+        split = (name, options_text, after)
+    input_file, options_text, operations_text = split
     options: dict[str, str] = {}
     for item in options_text.split(";"):
         key, _, value = item.partition("=")
         if key.strip():
             options[key.strip().lower()] = value.strip()
     operations = []
-    for token in tokens[2:]:
+    for token in _command_tokens(operations_text):
         name, _, params = token.partition(":")
         operations.append(RawprocOperation(name.strip().lower(), params.strip()))
-    return RawprocCommand(program, input_file, options, tuple(operations))
+    return RawprocCommand(program, input_file, options, tuple(operations), warning)
 
 
 RawprocEffect = Literal["keeps", "undone", "gains_unknown", "refused", "unchecked"]
@@ -507,7 +573,8 @@ def _undo_command(
         if unknown
         else None
     )
-    warnings = [
+    warnings = [f"{path.name}: {command.parse_warning}"] if command.parse_warning else []
+    warnings += [
         f"{path.name}: the rawproc command's {f.label} {f.reason}; it cannot be checked that it "
         "keeps the channels linear at their raw gains"
         for f in findings
@@ -524,6 +591,64 @@ def _undo_command(
     return profile, metadata, reason, warnings, notes
 
 
+#: rawproc's mirrors as matrices on an image's (column, row) directions; its quarter turn.
+_MIRRORS = {"hmirror": np.diag([-1, 1]), "vmirror": np.diag([1, -1])}
+_QUARTER_TURN = np.array([[0, -1], [1, 0]], dtype=np.int64)
+
+
+def _rotate_matrix(op: RawprocOperation) -> NDArray[np.int64] | None:
+    """How a rawproc ``rotate`` moves the image's (column, row) directions, or ``None`` when its
+    parameters name no rotation.
+
+    As rawproc reads them (its ``parse_rotate``/``process_rotate``): ``hmirror`` or ``vmirror``
+    (positional, or a named key), else an angle in degrees: 90, 180 and 270 are exact turns, any
+    other turns freely (a straightening within ±45°); taken as the nearest quarter turn.
+    """
+    named = op.named()
+    positional = [] if named else op.positional()
+    for mirror, matrix in _MIRRORS.items():
+        if mirror in named or positional[:1] == [mirror]:
+            return matrix
+    angle = _floats([named.get("angle", "")] if named else positional[:1])
+    if angle is None:
+        return None
+    return np.linalg.matrix_power(_QUARTER_TURN, round(angle[0] / 90) % 4)
+
+
+@dataclass(frozen=True)
+class _Orientation:
+    """The file's columns against the crop's sensor columns, from the command's ``rotate`` steps.
+
+    ``reversed``: they run the other way (net hmirror or half turn); ``quarter_turn``: they are
+    the sensor's rows; ``steps``: the rotate labels that moved them; ``unknown``: rotate labels
+    that name no rotation (taken as none).
+    """
+
+    reversed: bool
+    quarter_turn: bool
+    steps: tuple[str, ...]
+    unknown: tuple[str, ...]
+
+
+def _orientation(command: RawprocCommand | None) -> _Orientation:
+    total = np.eye(2, dtype=np.int64)
+    steps: list[str] = []
+    unknown: list[str] = []
+    for op in () if command is None else command.operations:
+        if op.name != "rotate":
+            continue
+        matrix = _rotate_matrix(op)
+        if matrix is None:
+            unknown.append(op.label)
+            continue
+        if matrix[0, 0] != 1:  # a vmirror or a straightening keeps the columns' direction
+            steps.append(op.label)
+        total = matrix @ total
+    return _Orientation(
+        bool(total[0, 0] == -1), bool(total[0, 0] == 0), tuple(steps), tuple(unknown)
+    )
+
+
 def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> RgbProfile:
     """Read a rawproc ``.dat`` export (see the module docstring) into a profile.
 
@@ -532,15 +657,17 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
     path
         The ``.dat`` file.
     sensor_orientation
-        Undo a ``hmirror`` of the rawproc command, so that the pixel axis runs as the sensor's
-        columns (and the profile's order follows); by default the file's order is kept.
+        Undo the rawproc command's reversal of the columns (a net ``hmirror`` or half turn), so
+        that the pixel axis runs as the sensor's columns (and the profile's order follows); by
+        default the file's order is kept.
 
     Raises
     ------
     InputError
         A missing or unreadable file, a missing ``width:``/``x``/``red``/``green``/``blue`` line,
         rows of the wrong length, text or NaN in a row, an ``x`` row that is not ``0 … width−1``,
-        or an ``rmax:``-style line that disagrees with its row (the file and line are named).
+        an ``rmax:``-style line that disagrees with its row (the file and line are named), or
+        ``sensor_orientation`` asked of a file the command turned a quarter turn.
 
     Examples
     --------
@@ -625,8 +752,27 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
             )
     parsed = parse_rawproc_command(command) if command else None
     profile, processing, unknown, warnings, notes = _undo_command(profile, parsed, path)
-    mirrors = [] if parsed is None else [op for op in parsed.operations if op.name == "rotate"]
-    mirrored = sum(op.positional()[:1] == ["hmirror"] for op in mirrors) % 2 == 1
+    orientation = _orientation(parsed)
+    moved = ", ".join(orientation.steps)
+    warnings += [
+        f"{path.name}: the rawproc command's {label} names no rotation rawproc knows; the "
+        "columns are taken in the file's order"
+        for label in orientation.unknown
+    ]
+    if orientation.quarter_turn:
+        if sensor_orientation:
+            raise InputError(
+                f"the rawproc command's {moved} turn(s) the image a quarter turn, so the file's "
+                "columns are the sensor's rows: there is no sensor column order to restore; read "
+                "it in the file's order",
+                source=str(path),
+            )
+        warnings.append(
+            f"{path.name}: the rawproc command's {moved} turn(s) the image a quarter turn, so the "
+            "profile runs along the sensor's rows: it is a spectrum only if the grating dispersed "
+            "along them"
+        )
+    mirrored = orientation.reversed
     flipped = sensor_orientation and mirrored
     if flipped:
         profile = profile[::-1]
@@ -637,9 +783,8 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
         "rows_averaged": header["height"],
         "width": width,
         "mirrored": mirrored,
-        "pixel_axis": "sensor columns of the crop"
-        if flipped or not mirrored
-        else "mirrored columns of the crop (rawproc hmirror)",
+        "quarter_turn": orientation.quarter_turn,
+        "pixel_axis": _pixel_axis(orientation, flipped),
         "units": "linear, 0-1 (column means)",
     }
     return RgbProfile(
@@ -652,6 +797,16 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
         warnings=tuple(warnings),
         notes=tuple(notes),
     )
+
+
+def _pixel_axis(orientation: _Orientation, flipped: bool) -> str:
+    """What the profile's pixel axis is, for its metadata."""
+    said = ", ".join(step.removeprefix("rotate:") for step in orientation.steps)
+    if orientation.quarter_turn:
+        return f"sensor rows of the crop (rawproc {said})"
+    if flipped or not orientation.reversed:
+        return "sensor columns of the crop"
+    return f"mirrored columns of the crop (rawproc {said})"
 
 
 # -------------------------------------------------------------------------------------- FITS
