@@ -177,6 +177,36 @@ def test_calib_estimate_reads_each_profile_format_by_its_suffix(tmp_path: Path) 
     np.testing.assert_array_equal(read_profile_file(csv).profile, read_profile_csv(csv).profile)
 
 
+def test_a_profile_file_is_read_by_what_it_holds_and_the_fits_gains_warning_follows_the_reader(
+    tmp_path: Path,
+) -> None:
+    """FITS planes named .dat are read as FITS and warned about as image planes; a CSV named .fit
+    is read as a CSV, with no FITS warning (the warning comes from what was read, not the name)."""
+    planes, _ = _band_planes(np.random.default_rng(11), 0.01)
+    renamed = []
+    for name, plane in zip("RGB", planes, strict=True):
+        renamed.append(tmp_path / f"sun {name}.dat")
+        renamed[-1].write_bytes(_fits_bytes(plane))
+    table = read_profile_file(tuple(renamed))
+    np.testing.assert_array_equal(table.profile, read_fits_profile(renamed).profile)
+    assert table.image_planes and table.profile_sigma is not None
+    csv_named_fit = tmp_path / "band.fit"
+    csv_named_fit.write_text(
+        "pixel,r,g,b\n" + "".join(f"{k},{k},{2 * k},{3 * k}\n" for k in range(9))
+    )
+    from_csv = read_profile_file(csv_named_fit)
+    np.testing.assert_array_equal(from_csv.profile, read_profile_csv(csv_named_fit).profile)
+    assert not from_csv.image_planes
+    for profile, warned in ((tuple(renamed), True), (csv_named_fit, False)):
+        lamp = LampProfile("sun", "other", Path("D65"), profile)
+        warnings = _check_inputs([lamp], OfflineSettings()).warnings
+        said = [text for text in warnings if "--channel-gains unknown" in text]
+        assert bool(said) is warned, warnings
+    # Three files of which one is not FITS are refused, naming it.
+    with pytest.raises(InputError, match=r"band\.fit: not FITS"):
+        read_profile_file((renamed[0], renamed[1], csv_named_fit))
+
+
 def test_fits_sigma_of_a_sum_of_correlated_rows(tmp_path: Path) -> None:
     rng = np.random.default_rng(9)
     rows, columns, sigma = 60, 40, 0.01

@@ -88,6 +88,9 @@ class RgbProfile:
     channel_gains_unknown
         Why the file's channels are not at the raw data's gains by amounts it states (e.g. a
         rawproc ``whitebalance:camera``), or ``None`` when it says nothing of the kind.
+    image_planes
+        The profile was reduced from an RGB image's colour planes (a FITS export): a conversion
+        may have balanced its channels, and the file cannot say whether one did.
     warnings, notes
         What reading found that the user should hear (an operation that could not be checked) or
         may want to know (white-balance multipliers undone).
@@ -99,6 +102,7 @@ class RgbProfile:
     source: str
     metadata: Mapping[str, Any] = field(default_factory=dict)
     channel_gains_unknown: str | None = None
+    image_planes: bool = False
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
 
@@ -1035,7 +1039,7 @@ def profile_from_planes(
         },
     }
     pixel = np.arange(profile.shape[0], dtype=np.float64)
-    return RgbProfile(pixel, profile, sigma, planes.source, metadata)
+    return RgbProfile(pixel, profile, sigma, planes.source, metadata, image_planes=True)
 
 
 def read_fits_profile(

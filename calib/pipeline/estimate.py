@@ -51,7 +51,6 @@ from calib.model.bases import CameraBasis, default_camera_basis
 from calib.model.resolution import COARSE_SLIT_NM, coarse_slit
 from calib.pipeline.brackets import BracketProfiles, bracket_profiles
 from calib.pipeline.inputs import (
-    FITS_SUFFIXES,
     ChannelGains,
     LampImages,
     LampInput,
@@ -323,7 +322,7 @@ def _check_inputs(lamps: Sequence[LampInput], settings: OfflineSettings) -> _Che
         for lamp in lamps
         if isinstance(lamp, LampProfile)
         and channel_gains[lamp.name] == "raw"
-        and profile_files(lamp.profile)[0].suffix.lower() in FITS_SUFFIXES
+        and profiles[lamp.name].image_planes
     ]
     if rgb_planes:
         # FITS R, G, B planes are an RGB image's: raw gains only if nothing balanced them. Taken

@@ -181,6 +181,9 @@ class ProfileTable:
     channel_gains_unknown
         Why the file says its channels are not at the raw data's gains (a rawproc
         ``whitebalance:camera``), or ``None``: see :attr:`RgbProfile.channel_gains_unknown`.
+    image_planes
+        Read from an RGB image's colour planes (FITS), whose channel gains a conversion may
+        have changed: see :attr:`RgbProfile.image_planes`.
     metadata, warnings, notes
         What the file's reader recorded, warned and noted (:class:`RgbProfile`); empty for a CSV.
     """
@@ -190,6 +193,7 @@ class ProfileTable:
     profile_sigma: FloatArray | None
     in_wavelength: bool
     channel_gains_unknown: str | None = None
+    image_planes: bool = False
     metadata: Mapping[str, Any] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
@@ -460,21 +464,44 @@ def read_profile_csv(path: Path) -> ProfileTable:
     return ProfileTable(axis, profile, sigma, in_wavelength)
 
 
-#: Profile file suffixes read by another reader than the CSV one.
+#: Profile file suffixes of the other readers than the CSV one: what a file that cannot be opened
+#: is taken for (the reader then says why); a readable file is known by its first bytes.
 RAWPROC_SUFFIXES = (".dat",)
 FITS_SUFFIXES = (".fit", ".fits", ".fts")
+ProfileFormat = Literal["csv", "rawproc", "fits"]
+
+
+def profile_format(path: Path) -> ProfileFormat:
+    """Which reader a profile file needs, from what it holds: FITS when its first card is
+    ``SIMPLE  =`` (the standard's), a rawproc export when its first line is ``width:`` or it is
+    named ``.dat``, else CSV. A file that cannot be opened goes by its suffix."""
+    suffix = path.suffix.lower()
+    try:
+        with path.open("rb") as stream:
+            head = stream.read(80)
+    except OSError:
+        if suffix in FITS_SUFFIXES:
+            return "fits"
+        return "rawproc" if suffix in RAWPROC_SUFFIXES else "csv"
+    if head.startswith(b"SIMPLE  ="):
+        return "fits"
+    if suffix in RAWPROC_SUFFIXES or head.lstrip().lower().startswith(b"width:"):
+        return "rawproc"
+    return "csv"
 
 
 def read_profile_file(profile: Path | tuple[Path, ...]) -> ProfileTable:
     """A lamp's 1-D profile from the file(s) a user has: CSV, rawproc ``.dat``, a FITS cube, or
-    the R, G and B planes as three FITS files.
+    the R, G and B planes as three FITS files, each known by what it holds
+    (:func:`profile_format`), whatever its name.
 
     The CSV is read by :func:`read_profile_csv`; a rawproc export by
     :func:`calib.image.profile_files.read_rawproc_dat` (its own pixel axis in the file's column
     order; its command read: non-linear or channel-mixing operations refused, stated white-balance
     multipliers divided out, unstated ones reported in ``channel_gains_unknown``);
     FITS planes by :func:`calib.image.profile_files.read_fits_profile` (the spectrum's band found
-    in the planes, dispersion along x). The result is in pixels, with the σ the reader could give.
+    in the planes, dispersion along x; ``image_planes`` set). The result is in pixels, with the σ
+    the reader could give.
 
     Raises
     ------
@@ -485,26 +512,26 @@ def read_profile_file(profile: Path | tuple[Path, ...]) -> ProfileTable:
     """
     files = profile_files(profile)
     where = describe_profile(profile)
-    suffixes = {Path(path).suffix.lower() for path in files}
-    if len(files) > 1 and (len(files) != 3 or not suffixes <= set(FITS_SUFFIXES)):
+    formats = [profile_format(Path(path)) for path in files]
+    if len(files) > 1 and (len(files) != 3 or set(formats) != {"fits"}):
+        not_fits = [str(path) for path, kind in zip(files, formats, strict=True) if kind != "fits"]
         raise InputError(
             f"{len(files)} files: a profile is one file (CSV, rawproc .dat, a FITS cube), or "
-            "the R, G and B planes of a FITS export as three files, in that order",
+            "the R, G and B planes of a FITS export as three files, in that order"
+            + (f" ({', '.join(not_fits)}: not FITS)" if len(files) == 3 else ""),
             source=where,
         )
-    suffix = suffixes.pop() if len(suffixes) == 1 else ""
-    if len(files) == 1 and suffix not in RAWPROC_SUFFIXES + FITS_SUFFIXES:
+    if formats[0] == "csv":
         table = read_profile_csv(files[0])
     else:
-        read = (
-            read_rawproc_dat(files[0]) if suffix in RAWPROC_SUFFIXES else read_fits_profile(files)
-        )
+        read = read_rawproc_dat(files[0]) if formats[0] == "rawproc" else read_fits_profile(files)
         table = ProfileTable(
             read.pixel,
             read.profile,
             read.profile_sigma,
             in_wavelength=False,
             channel_gains_unknown=read.channel_gains_unknown,
+            image_planes=read.image_planes,
             metadata=read.metadata,
             warnings=read.warnings,
             notes=read.notes,

@@ -65,7 +65,7 @@ from calib.core.lamp_specs import is_spectrum_file
 from calib.core.observations import LampKind
 from calib.core.optics_ranges import FOCAL_LENGTH_MM, GROOVES_PER_MM, PIXEL_PITCH_UM
 from calib.core.validated_yaml import issues_from_validation, parse_yaml_model
-from calib.pipeline.inputs import FITS_SUFFIXES, ChannelGains, LampImages, LampInput, LampProfile
+from calib.pipeline.inputs import ChannelGains, LampImages, LampInput, LampProfile
 
 if TYPE_CHECKING:
     from calib.pipeline.estimate import OfflineSettings
@@ -143,12 +143,11 @@ class LampEntry(BaseModel):
             )
         if self.profile is not None:
             files = self.profile if isinstance(self.profile, list) else [self.profile]
-            if len(files) not in (1, 3) or (
-                len(files) == 3 and any(p.suffix.lower() not in FITS_SUFFIXES for p in files)
-            ):
+            if len(files) not in (1, 3):
+                # Whether three files are FITS planes is known from what they hold, on reading.
                 raise ValueError(
                     f"{_named(info, 'profile')} takes one file, or the R, G and B planes of a "
-                    f"FITS export as three files ({', '.join(FITS_SUFFIXES)}); got {len(files)}"
+                    f"FITS export as three files; got {len(files)}"
                 )
             for key in ("darks", "exposure_s", "dark_exposure_s"):
                 if getattr(self, key):
