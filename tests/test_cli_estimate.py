@@ -249,6 +249,7 @@ ONE_LAMP = "lamps:\n  - {name: A, profile: a.csv, spectrum: FL2}\n"
         (f"{ONE_LAMP}estimate:\n  grids: 400:700:5\n", "lamps.yaml:4: estimate.grids: unknown key 'grids' (did you mean 'grid'?)"),
         (f"{ONE_LAMP}estimate:\n  grooves_per_mm: 0.5\n", "lamps.yaml:4: estimate.grooves_per_mm: 0.5 is out of range"),
         (f"{ONE_LAMP}estimate:\n  assumed_grating: wavy\n", "lamps.yaml:4: estimate.assumed_grating: 'wavy' is not allowed"),
+        (f"{ONE_LAMP}estimate:\n  weight_rule: guess\n", "lamps.yaml:4: estimate.weight_rule: 'guess' is not a rule"),
     ],
 )  # fmt: skip
 def test_an_inputs_file_is_checked_with_one_line_naming_the_field(

@@ -187,3 +187,68 @@ def test_a_batch_runs_each_file_as_it_says(capture: Capture, tmp_path: Path) -> 
     assert _curves(typed / "cam-a-lamps").shape[0] == 31
     second = json.loads((typed / "cam-b-lamps" / "result.json").read_text())
     assert "overrides" not in json.dumps(second)
+
+
+def test_the_weight_rule_is_a_key_under_the_same_rule(tmp_path: Path) -> None:
+    """``weight_rule`` as ``--weight-rule``: the file beats the default, a typed rule beats the
+    file with a warning naming both, and with a method that takes none it is the option's error."""
+    from calib.core.errors import InputError
+    from calib.methods.multilamp import MultilampOptions
+
+    file = tmp_path / "lamps.yaml"
+    file.write_text(
+        "lamps:\n  - {name: A, profile: a.csv, spectrum: FL2}\n"
+        "estimate:\n  method: multilamp\n  weight_rule: typicality\n"
+    )
+    base = ["--inputs", str(file), "--out", "o"]
+    settings = parse_estimate_command(base).settings
+    assert settings.method_options == MultilampOptions(weight_rule="typicality")
+    assert settings.warnings == ()
+    typed = parse_estimate_command([*base, "--weight-rule", "evidence"]).settings
+    assert typed.method_options == MultilampOptions(weight_rule="evidence")
+    assert typed.warnings == (
+        f"--weight-rule evidence overrides {file}'s estimate.weight_rule typicality",
+    )
+    same = parse_estimate_command([*base, "--weight-rule", "typicality"]).settings
+    assert same.warnings == () and same.method_options == settings.method_options
+    # The file's rule with a method that takes none: the command line's error, from the file.
+    for argv, method in ((["--method", "prior"], "prior"), ([], "auto")):
+        if not argv:
+            file.write_text(file.read_text().replace("  method: multilamp\n", ""))
+        with pytest.raises(InputError) as refused:
+            parse_estimate_command([*base, *argv])
+        assert str(refused.value) == (
+            f"{file}'s estimate.weight_rule: applies to --method multilamp only "
+            f"(the method is {method!r})"
+        )
+    # Without a method of its own, the file's rule goes with a typed --method multilamp.
+    typed_method = parse_estimate_command([*base, "--method", "multilamp"]).settings
+    assert typed_method.method_options == MultilampOptions(weight_rule="typicality")
+    with pytest.raises(ValidationError, match="'guess' is not a rule"):
+        EstimateBlock.model_validate({"weight_rule": "guess"})
+
+
+def test_a_batch_weight_rule_goes_with_each_files_method(capture: Capture, tmp_path: Path) -> None:
+    """``calib batch --weight-rule`` without ``--method``: each file's multilamp takes the typed
+    rule (over one file's own, with the warning); the file's own rule is used where none is typed."""
+    files = [
+        _inputs_file(
+            tmp_path / "cam-a", capture, "estimate: {method: multilamp, weight_rule: typicality}\n"
+        ),
+        _inputs_file(tmp_path / "cam-b", capture, "estimate: {method: multilamp}\n", seed=4),
+    ]
+    out = tmp_path / "batch"
+    argv = ["batch", *map(str, files), "--out", str(out), "--jobs", "1", "--no-report", "-q"]
+    with pytest.raises(SystemExit) as exit_:
+        main([*argv, "--weight-rule", "evidence"])
+    assert exit_.value.code in (0, None)
+    for file in files:
+        document = json.loads((out / f"{file.parent.name}-lamps" / "result.json").read_text())
+        assert document["diagnostics"]["prior_weight_rule"] == "evidence"
+        overridden = f"--weight-rule evidence overrides {file}'s estimate.weight_rule typicality"
+        assert (overridden in json.dumps(document)) is (file == files[0])
+    alone = tmp_path / "alone"
+    code, _, stderr = _call(["--inputs", str(files[0]), "--out", str(alone), "--no-report"])
+    assert code == 0, stderr
+    document = json.loads((alone / "result.json").read_text())
+    assert document["diagnostics"]["prior_weight_rule"] == "typicality"

@@ -195,20 +195,25 @@ def register(app: typer.Typer) -> None:
         """Estimate many input sets (sessions …) on local workers or a Dask cluster, with a
         summary table."""
         from calib.cli.estimate import typed_options
-        from calib.methods.multilamp import weight_rule_option
+        from calib.methods.multilamp import MULTILAMP_METHOD, weight_rule_option
         from calib.pipeline.estimate import OfflineSettings
         from calib.pipeline.input_sets import input_set_readers
 
         method = checked_method(method)
         readers = input_set_readers()
+        typed = typed_options(ctx)
+        # A typed --weight-rule goes with each set's method (an inputs file's, unless --method
+        # is typed): the rule is checked here, its method once each set's settings are merged.
         settings = OfflineSettings(
             method=method,
             data_dir=data_dir,
             grid=checked_grid(grid),
-            method_options=weight_rule_option(method, weight_rule),
+            method_options=weight_rule_option(
+                method if "method" in typed else MULTILAMP_METHOD, weight_rule
+            ),
             exclude_cameras=tuple(exclude_camera or ()),
             command_line=("calib", "batch", *ctx.meta.get(ARGUMENTS, ())),
-            typed_options=typed_options(ctx),
+            typed_options=typed,
         )
         code = run_batch_command(
             expand_inputs(inputs, readers),

@@ -33,7 +33,8 @@ the option (:func:`lamp_from_options`).
 The optional ``estimate:`` block (:class:`EstimateBlock`) holds the estimate's options for these
 lamps, named as ``calib estimate``'s: ``method``, ``grid`` (``"START:STOP:STEP"``),
 ``mapping_lamp``, ``grating`` (a path, relative to the file), ``assumed_grating`` (``flat`` or
-``physical``, ``--assume-grating``), ``exclude_camera`` (a pattern or a list), and the optics
+``physical``, ``--assume-grating``), ``exclude_camera`` (a pattern or a list), ``weight_rule``
+(the multilamp prior's, ``--weight-rule``: only with the method ``multilamp``), and the optics
 ``grooves_per_mm``, ``focal_length_mm``, ``pixel_pitch_um``. Each is checked as its option is,
 and a mistake is named the same way (``lamps.yaml:9: estimate.grid: step must be > 0 nm``). An
 option typed on the command line beats the file, the file beats the defaults, in ``calib
@@ -68,6 +69,7 @@ from calib.core.validated_yaml import issues_from_validation, parse_yaml_model
 from calib.pipeline.inputs import ChannelGains, LampImages, LampInput, LampProfile
 
 if TYPE_CHECKING:
+    from calib.methods.multilamp import MultilampOptions
     from calib.pipeline.estimate import OfflineSettings
 
 __all__ = [
@@ -232,6 +234,7 @@ ESTIMATE_KEYS: dict[str, tuple[str, str]] = {
     "grating": ("grating", "--grating"),
     "assumed_grating": ("assumed_grating", "--assume-grating"),
     "exclude_camera": ("exclude_cameras", "--exclude-camera"),
+    "weight_rule": ("method_options.weight_rule", "--weight-rule"),
     "grooves_per_mm": ("optics.grooves_per_mm", "--grooves-per-mm"),
     "focal_length_mm": ("optics.focal_length_mm", "--focal-length-mm"),
     "pixel_pitch_um": ("optics.pixel_pitch_um", "--pixel-pitch-um"),
@@ -260,6 +263,7 @@ class EstimateBlock(BaseModel):
     grating: Path | None = None
     assumed_grating: Literal["flat", "physical"] | None = None
     exclude_camera: list[Annotated[str, Field(min_length=1)]] | None = None
+    weight_rule: str | None = None
     grooves_per_mm: GroovesPerMm | None = None
     focal_length_mm: FocalLengthMm | None = None
     pixel_pitch_um: PixelPitchUm | None = None
@@ -280,6 +284,15 @@ class EstimateBlock(BaseModel):
             return None
         _as_value_error(WavelengthGrid.parse, value)
         return value.strip()
+
+    @field_validator("weight_rule")
+    @classmethod
+    def _known_weight_rule(cls, value: str | None) -> str | None:
+        from calib.methods.multilamp import MULTILAMP_METHOD, weight_rule_option
+
+        if value is not None:  # the method is checked once merged (own_settings_over)
+            _as_value_error(lambda rule: weight_rule_option(MULTILAMP_METHOD, rule), value)
+        return value
 
     @field_validator("exclude_camera", mode="before")
     @classmethod
@@ -410,7 +423,14 @@ def own_settings_over(
     (``--grid 400:700:5 overrides lamps.yaml's estimate.grid 400:700:10``).
 
     ``own`` keys are :class:`~calib.pipeline.OfflineSettings` fields; ``optics`` is a
-    :class:`~calib.pipeline.estimate.StatedOptics` whose ``None`` values are not given.
+    :class:`~calib.pipeline.estimate.StatedOptics` whose ``None`` values are not given;
+    ``method_options.weight_rule`` is the multilamp prior's weight rule.
+
+    Raises
+    ------
+    InputError
+        A weight rule (typed, or the file's) with a method other than ``multilamp``: the
+        command line's message, from ``--weight-rule`` or ``{source}'s estimate.weight_rule``.
     """
     flat: dict[str, Any] = {}
     for name, value in own.items():
@@ -426,28 +446,50 @@ def own_settings_over(
             flat[name] = value
     by_field = {field: (key, option) for key, (field, option) in ESTIMATE_KEYS.items()}
     changes: dict[str, Any] = {}
-    optics: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {"optics": {}, "method_options": {}}
     warnings: list[str] = []
     for name, value in flat.items():
         key, option = by_field.get(name, (name, name))
+        group, _, attribute = name.rpartition(".")
         if key in settings.typed_options:
-            typed = (
-                getattr(settings.optics, name.removeprefix("optics."))
-                if name.startswith("optics.")
-                else getattr(settings, name)
-            )
+            typed = getattr(getattr(settings, group) if group else settings, attribute)
             same_file = isinstance(typed, Path) and isinstance(value, Path)
             if (typed.resolve() != value.resolve()) if same_file else (typed != value):
                 warnings.append(
                     f"{option} {_shown(typed)} overrides {source}'s estimate.{key} {_shown(value)}"
                 )
-        elif name.startswith("optics."):
-            optics[name.removeprefix("optics.")] = value
+        elif group:
+            nested[group][attribute] = value
         else:
             changes[name] = value
-    if optics:
-        changes["optics"] = dataclasses.replace(settings.optics, **optics)
+    if nested["optics"]:
+        changes["optics"] = dataclasses.replace(settings.optics, **nested["optics"])
+    method = changes.get("method", settings.method)
+    rule = nested["method_options"].get("weight_rule")
+    if rule is not None:
+        options = _weight_rule_options(method, rule, f"{source}'s estimate.weight_rule")
+        current = settings.method_options  # other multilamp options a caller set are kept
+        changes["method_options"] = (
+            dataclasses.replace(current, weight_rule=rule)
+            if current is not None and hasattr(current, "weight_rule")
+            else options
+        )
+    elif "weight_rule" in settings.typed_options and settings.method_options is not None:
+        # The typed rule goes with the method the set will use (a batch's sets differ).
+        _weight_rule_options(
+            method, getattr(settings.method_options, "weight_rule", ""), "--weight-rule"
+        )
     return dataclasses.replace(settings, **changes, warnings=(*settings.warnings, *warnings))
+
+
+def _weight_rule_options(method: str, rule: str, source: str) -> MultilampOptions | None:
+    """:func:`calib.methods.multilamp.weight_rule_option`, its error from ``source``."""
+    from calib.methods.multilamp import weight_rule_option
+
+    try:
+        return weight_rule_option(method, rule)
+    except InputError as exc:
+        raise InputError(str(exc).removeprefix(f"{exc.source}: "), source=source) from None
 
 
 def lamp_from_options(entry: Mapping[str, Any], option_names: Mapping[str, str]) -> LampInput:
