@@ -139,6 +139,16 @@ def _band_planes(rng: np.random.Generator, noise: float) -> tuple[np.ndarray, np
     return clean + noise * rng.standard_normal(clean.shape), spectra
 
 
+def _write_planes(folder: Path, seed: int, suffix: str = ".fit") -> list[Path]:
+    """A band's R, G, B planes as three FITS files ``sun R{suffix}`` … in ``folder``."""
+    planes, _ = _band_planes(np.random.default_rng(seed), 0.01)
+    paths = []
+    for name, plane in zip("RGB", planes, strict=True):
+        paths.append(folder / f"sun {name}{suffix}")
+        paths[-1].write_bytes(_fits_bytes(plane))
+    return paths
+
+
 def test_fits_planes_written_byte_by_byte_give_the_band_sum_with_sigma(tmp_path: Path) -> None:
     rng = np.random.default_rng(5)
     noise = 0.01
@@ -182,11 +192,7 @@ def test_a_profile_file_is_read_by_what_it_holds_and_the_fits_gains_warning_foll
 ) -> None:
     """FITS planes named .dat are read as FITS and warned about as image planes; a CSV named .fit
     is read as a CSV, with no FITS warning (the warning comes from what was read, not the name)."""
-    planes, _ = _band_planes(np.random.default_rng(11), 0.01)
-    renamed = []
-    for name, plane in zip("RGB", planes, strict=True):
-        renamed.append(tmp_path / f"sun {name}.dat")
-        renamed[-1].write_bytes(_fits_bytes(plane))
+    renamed = _write_planes(tmp_path, 11, ".dat")
     table = read_profile_file(tuple(renamed))
     np.testing.assert_array_equal(table.profile, read_fits_profile(renamed).profile)
     assert table.image_planes and table.profile_sigma is not None
@@ -311,11 +317,7 @@ def test_the_canon_10d_fits_planes(shared_real_grating: Path) -> None:
 def test_calib_estimate_reads_the_planes_as_three_files_and_nothing_else(tmp_path: Path) -> None:
     """A FITS export's R, G, B planes as three files (the real Canon 10D data come so): the same
     profile as the reader's; two files, or three that are not FITS, are refused naming them."""
-    planes, _ = _band_planes(np.random.default_rng(7), 0.01)
-    paths = []
-    for name, plane in zip("RGB", planes, strict=True):
-        paths.append(tmp_path / f"sun {name}.fit")
-        paths[-1].write_bytes(_fits_bytes(plane))
+    paths = _write_planes(tmp_path, 7)
     table = read_profile_file(tuple(paths))
     np.testing.assert_array_equal(table.profile, read_fits_profile(paths).profile)
     assert not table.in_wavelength
@@ -334,11 +336,7 @@ def test_fits_planes_taken_with_raw_gains_are_warned(
     """FITS R, G, B planes are an RGB image's: taken as raw when a conversion balanced them, the
     channels' balance is silently wrong (the real Canon 10D's by 30 % of the peak), so the
     estimate says how to declare them unless the user did."""
-    planes, _ = _band_planes(np.random.default_rng(8), 0.01)
-    paths = []
-    for name, plane in zip("RGB", planes, strict=True):
-        paths.append(tmp_path / f"sun {name}.fit")
-        paths[-1].write_bytes(_fits_bytes(plane))
+    paths = _write_planes(tmp_path, 8)
     lamp = LampProfile("sun", "other", Path("D65"), tuple(paths), channel_gains=gains)
     warnings = _check_inputs([lamp], OfflineSettings()).warnings
     said = [text for text in warnings if "--channel-gains unknown" in text]

@@ -787,7 +787,7 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
         "rows_averaged": header["height"],
         "width": width,
         "mirrored": mirrored,
-        "quarter_turn": orientation.quarter_turn,
+        **({"quarter_turn": True} if orientation.quarter_turn else {}),
         "pixel_axis": _pixel_axis(orientation, flipped),
         "units": "linear, 0-1 (column means)",
     }
