@@ -65,7 +65,6 @@ def test_a_bracket_already_at_max_frames_says_so() -> None:
     budget = replace(PhotonBudget(), max_frames=1)
     profile, direct = _bright_band()
     gain, factors = budget.bracket(profile, direct, SENSOR, SLIT.spot_px, FILL)
-    with pytest.raises(InputError, match="saturated in every frame.*max_frames 1"):
-        capture_lamp(
-            profile, direct, SLIT, budget, SENSOR, gain, factors, [LONG_BY], np.random.default_rng(2)
-        )
+    rng = np.random.default_rng(2)
+    with pytest.raises(InputError, match=r"saturated in every frame.*max_frames 1"):
+        capture_lamp(profile, direct, SLIT, budget, SENSOR, gain, factors, [LONG_BY], rng)
