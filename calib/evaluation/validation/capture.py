@@ -24,7 +24,10 @@ the sensor sees it:
   :func:`calib.image.raw.read_raw` flags them. The dark frames' subtraction is carried as read
   noise of ``σ √(1 + 1/dark_frames)``: without dark current a master dark adds exactly that
   variance to a sample (:func:`calib.image.hdr.merge_bracket`'s ``Var(dark)``), so the merge
-  gets the same variances without rendering the dark frames.
+  gets the same variances without rendering the dark frames. The bracket puts its brightest
+  pixel below the merge's ceiling before the shutter's error; where that error (or the noise)
+  lifts a sample of the shortest frame over it, no frame measures the sample, and the capture
+  adds a shorter frame as the rig's auto-bracketing does (:func:`capture_lamp`).
 - **The merge**: :func:`calib.image.hdr.merge_planes`, the rig's merge (decision 0006) with its
   neighbour-predicted weights and exclusions and each frame's estimated gain (decision 0089;
   :attr:`~.rig_errors.PhotonBudget.merge_gains` off trusts the recorded times), told the sensor's
@@ -40,6 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from calib.core.arrays import FloatArray
 from calib.core.errors import InputError
@@ -111,6 +115,9 @@ class CapturedLamp:
         Shape ``(3,)``.
     profile, profile_sigma
         Shape ``(n, 3)``.
+    factors
+        The frames' exposures relative to the bracket's first (shortest) frame, shortest first:
+        the bracket's, with the shorter frames :func:`capture_lamp` added to it.
     frame_gains, frame_gain_sigmas
         Each frame's exposure as the merge estimated it (1 where it kept the recorded time) and
         the estimate's σ (0 for the first merged frame, ``None`` where the recorded time was kept
@@ -121,6 +128,7 @@ class CapturedLamp:
     direct_sigma: FloatArray
     profile: FloatArray
     profile_sigma: FloatArray
+    factors: tuple[float, ...]
     frame_gains: tuple[float, ...]
     frame_gain_sigmas: tuple[float | None, ...]
 
@@ -139,69 +147,119 @@ def capture_lamp(
     """The bracket of ``profile`` ``(n, 3)`` and ``direct`` ``(3,)`` through ``budget``'s sensor
     and merge (module docstring), merged.
 
-    ``electrons_per_unit`` is the shortest frame's recorded electrons per unit of the signals and
-    ``factors`` the frames' exposures relative to it (:meth:`~.rig_errors.PhotonBudget.bracket`),
-    ``exposure_errors`` the frames' ``ε`` (at least one per frame; the first ``len(factors)`` are
-    used).
+    ``electrons_per_unit`` is the recorded electrons per unit of the signals at factor 1 (the
+    bracket's shortest frame) and ``factors`` the frames' exposures relative to it
+    (:meth:`~.rig_errors.PhotonBudget.bracket`), ``exposure_errors`` the ``ε`` of the frames in the
+    order they are captured (at least one per frame).
+
+    Where the merge finds a sample that no frame measured (the shortest frame's is at or above
+    the merge's ``clip_fraction`` of the clipping level: a spot fill near 1 exposed a few percent
+    long by the shutter), the bracket is extended as the rig extends it
+    (``rig.plan.auto_bracket``): a frame ``step_stops`` shorter is captured after the others,
+    with the next exposure error, and the bracket merged again, up to ``budget.max_frames``
+    frames. The frames already captured keep their noise (the generator is rewound to redraw
+    it), so a bracket that needed no extension is rendered exactly as before.
     """
     if len(exposure_errors) < len(factors):
         raise ValueError(f"{len(factors)} frames but {len(exposure_errors)} exposure errors")
     image = slit.image(profile, direct).astype(np.float32)
-    dn_per_electron = (WHITE_DN - BLACK_DN) / sensor.full_well_e
-    clip_dn = float(WHITE_DN - BLACK_DN)
-    read_dn = dn_per_electron * math.sqrt(budget.read_variance_e2(sensor))
-    sites = np.asarray(SITES_PER_SAMPLE, dtype=np.float32)[:, None, None]
-    flagged = np.float32(DEFAULT_SATURATION_FRACTION * clip_dn)
-    frames: list[RawPlanes] = []
-    for index, factor in enumerate(factors):
-        error = float(exposure_errors[index])
-        level = image * np.float32(dn_per_electron * electrons_per_unit * factor * (1.0 + error))
-        # in place (a frame's temporaries are most of the scene's rendering cost):
-        # signal = level + √((g·level + σ²) / sites) · N(0, 1), clipped
-        sigma = np.multiply(level, np.float32(dn_per_electron))
-        sigma += np.float32(read_dn**2)
-        np.divide(sigma, sites, out=sigma)
-        np.sqrt(sigma, out=sigma)
-        signal = rng.standard_normal(image.shape, dtype=np.float32)
-        signal *= sigma
-        signal += level
-        np.minimum(signal, np.float32(clip_dn), out=signal)
-        meta = RawMetadata(
-            Path(f"frame_{index}"), SHORTEST_S * factor, "override", None, None, None, None, None
-        )
-        frames.append(
-            RawPlanes(
-                meta,
-                signal,
-                signal >= flagged,
-                "RGGB",
-                (float(BLACK_DN),) * 3,
-                (clip_dn,) * 3,
-                _ORIGINS,
+    sensor_dn = _SensorDn.of(budget, sensor)
+    captured = list(factors)
+    start = rng.bit_generator.state
+    while True:
+        frames = [
+            sensor_dn.frame(
+                image, electrons_per_unit, factor, float(exposure_errors[index]), index, rng
             )
+            for index, factor in enumerate(captured)
+        ]
+        merged = merge_planes(
+            frames,
+            noise_model=NoiseModel(
+                sensor_dn.dn_per_electron, (sensor_dn.read_dn,) * 3, source="the scene's sensor"
+            ),
+            prediction_fraction=budget.clip_fraction,
+            estimate_gains=budget.merge_gains,
         )
-    merged = merge_planes(
-        frames,
-        noise_model=NoiseModel(dn_per_electron, (read_dn,) * 3, source="the scene's sensor"),
-        prediction_fraction=budget.clip_fraction,
-        estimate_gains=budget.merge_gains,
-    )
-    if merged.saturated.any():
-        raise InputError(
-            "a sample is saturated in every frame of the bracket", source="photon budget"
-        )
-    scale = SHORTEST_S / (dn_per_electron * electrons_per_unit)
+        if not merged.saturated.any():
+            break
+        if len(captured) >= min(budget.max_frames, len(exposure_errors)):
+            raise InputError(
+                "a sample is saturated in every frame of the bracket, and the bracket has "
+                f"{len(captured)} frames (max_frames {budget.max_frames})",
+                source="photon budget",
+            )
+        rng.bit_generator.state = start
+        captured.append(min(captured) / 2.0**budget.step_stops)
+    shortest_first = sorted(captured)
+    scale = SHORTEST_S / (sensor_dn.dn_per_electron * electrons_per_unit)
     radiance = merged.radiance.astype(np.float64) * scale
     variance = merged.variance.astype(np.float64) * scale**2
     spot = slice(0, slit.along.size)
     band = slice(slit.along.size + GAP_COLUMNS, None)
     records = {record.exposure_s: record for record in merged.frames}
-    shortest_first = [records[SHORTEST_S * factor] for factor in factors]
+    frame_records = [records[SHORTEST_S * factor] for factor in shortest_first]
     return CapturedLamp(
         direct=radiance[:, :, spot].sum(axis=(1, 2)),
         direct_sigma=np.sqrt(variance[:, :, spot].sum(axis=(1, 2))),
         profile=radiance[:, :, band].sum(axis=1).T,
         profile_sigma=np.sqrt(variance[:, :, band].sum(axis=1).T),
-        frame_gains=tuple(record.gain for record in shortest_first),
-        frame_gain_sigmas=tuple(record.gain_sigma for record in shortest_first),
+        factors=tuple(shortest_first),
+        frame_gains=tuple(record.gain for record in frame_records),
+        frame_gain_sigmas=tuple(record.gain_sigma for record in frame_records),
     )
+
+
+@dataclass(frozen=True)
+class _SensorDn:
+    """The scene's sensor in DN above black: its gain, read noise and levels (module docstring)."""
+
+    dn_per_electron: float
+    read_dn: float
+    clip_dn: float
+
+    @classmethod
+    def of(cls, budget: PhotonBudget, sensor: SensorDraw) -> _SensorDn:
+        dn_per_electron = (WHITE_DN - BLACK_DN) / sensor.full_well_e
+        return cls(
+            dn_per_electron,
+            dn_per_electron * math.sqrt(budget.read_variance_e2(sensor)),
+            float(WHITE_DN - BLACK_DN),
+        )
+
+    def frame(
+        self,
+        image: NDArray[np.float32],
+        electrons_per_unit: float,
+        factor: float,
+        exposure_error: float,
+        index: int,
+        rng: np.random.Generator,
+    ) -> RawPlanes:
+        """Capture ``index`` of ``image`` ``(3, rows, columns)``, recorded at ``factor`` times the
+        shortest exposure and exposed ``1 + exposure_error`` times that."""
+        level = image * np.float32(
+            self.dn_per_electron * electrons_per_unit * factor * (1.0 + exposure_error)
+        )
+        # in place (a frame's temporaries are most of the scene's rendering cost):
+        # signal = level + √((g·level + σ²) / sites) · N(0, 1), clipped
+        sigma = np.multiply(level, np.float32(self.dn_per_electron))
+        sigma += np.float32(self.read_dn**2)
+        np.divide(sigma, np.asarray(SITES_PER_SAMPLE, dtype=np.float32)[:, None, None], out=sigma)
+        np.sqrt(sigma, out=sigma)
+        signal = rng.standard_normal(image.shape, dtype=np.float32)
+        signal *= sigma
+        signal += level
+        np.minimum(signal, np.float32(self.clip_dn), out=signal)
+        meta = RawMetadata(
+            Path(f"frame_{index}"), SHORTEST_S * factor, "override", None, None, None, None, None
+        )
+        return RawPlanes(
+            meta,
+            signal,
+            signal >= np.float32(DEFAULT_SATURATION_FRACTION * self.clip_dn),
+            "RGGB",
+            (float(BLACK_DN),) * 3,
+            (self.clip_dn,) * 3,
+            _ORIGINS,
+        )

@@ -36,7 +36,9 @@ source may be switched off (``None``). The defaults and why:
     grow by ``step_stops`` until the band's median SNR reaches ``min_band_snr`` (at most
     ``max_frames``). The frames are rendered as the sensor sees the slit's image, soft edges and
     all, and merged by the rig's own merge (:mod:`calib.image.hdr`; a sample is used below
-    ``clip_fraction`` of the clipping level): :mod:`~calib.evaluation.validation.capture`.
+    ``clip_fraction`` of the clipping level): :mod:`~calib.evaluation.validation.capture`, which
+    adds a frame ``step_stops`` shorter where the shortest frame's exposure error lifts a sample
+    over that level, as the rig extends a bracket whose shortest frame saturates.
 """
 
 from __future__ import annotations

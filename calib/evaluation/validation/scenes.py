@@ -432,7 +432,7 @@ def render_scene(
             kind=kind,
             metadata={
                 "rendered": "validation scene",
-                "frames": len(factors),
+                "frames": len(captured.factors),
                 "frame_gains": list(captured.frame_gains),
             },
             spectrum_bandwidth_nm=bandwidth,
