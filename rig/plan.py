@@ -210,8 +210,8 @@ def _check_raw(frame: FrameCaptured, camera: CameraSettings, key: str) -> None:
         )
 
 
-def _too_bright(stats: FrameStats, hdr: HdrPolicy) -> str | None:
-    """What in the shortest frame asks for a shorter one, or ``None`` when nothing does.
+def _too_bright(stats: FrameStats, hdr: HdrPolicy) -> tuple[str, str] | None:
+    """What in the shortest frame asks for a shorter one, and its allowance; ``None`` if nothing.
 
     The direct spot's saturated fraction (``hdr.max_direct_saturated_fraction``), and the spot's
     and the band's pixels the HDR merge cannot use (``hdr.max_unmergeable_fraction``): the
@@ -220,8 +220,8 @@ def _too_bright(stats: FrameStats, hdr: HdrPolicy) -> str | None:
     allowed = hdr.max_unmergeable_fraction
     if stats.direct_saturated_fraction > hdr.max_direct_saturated_fraction:
         return (
-            f"{stats.direct_saturated_fraction:.2%} of the direct spot is saturated (allowed: "
-            f"hdr.max_direct_saturated_fraction = {hdr.max_direct_saturated_fraction:.2%})"
+            f"{stats.direct_saturated_fraction:.2%} of the direct spot is saturated",
+            f"hdr.max_direct_saturated_fraction = {hdr.max_direct_saturated_fraction:.2%}",
         )
     for part, fraction in (
         ("direct spot", stats.direct_unmergeable_fraction),
@@ -230,7 +230,8 @@ def _too_bright(stats: FrameStats, hdr: HdrPolicy) -> str | None:
         if fraction > allowed:
             return (
                 f"{fraction:.2%} of the {part} is saturated or too near clipping for the HDR "
-                f"merge to use (allowed: hdr.max_unmergeable_fraction = {allowed:.2%})"
+                "merge to use",
+                f"hdr.max_unmergeable_fraction = {allowed:.2%}",
             )
     return None
 
@@ -250,7 +251,7 @@ def _next_exposure(
     if not need_shorter and not need_longer:
         return None
     if len(frames) >= hdr.max_frames:
-        state = too_bright or "neither spot nor band too bright"
+        state = too_bright[0] if too_bright else "neither spot nor band too bright"
         raise BracketImpossible(
             f"{lamp}: the bracket needs more than hdr.max_frames = {hdr.max_frames} frames "
             f"(shortest {format_exposure(shortest.exposure_s)}: {state}; "
@@ -261,9 +262,9 @@ def _next_exposure(
     if too_bright is not None:
         if shortest.exposure_s <= low * (1 + SAME_EXPOSURE_RTOL):
             raise BracketImpossible(
-                f"{lamp}: {too_bright} even at the shortest allowed exposure "
-                f"{format_exposure(low)}; dim the lamp, stop the aperture down, narrow the slit or "
-                "add a neutral-density filter"
+                f"{lamp}: {too_bright[0]} even at the shortest allowed exposure "
+                f"{format_exposure(low)} (allowed: {too_bright[1]}); dim the lamp, stop the "
+                "aperture down, narrow the slit or add a neutral-density filter"
             )
         return max(low, shortest.exposure_s / step_factor)
     if longest.exposure_s >= high * (1 - SAME_EXPOSURE_RTOL):
