@@ -2,9 +2,9 @@
 
 After each scene frame the runner asks a :class:`FrameAnalyzer` for the frame's :class:`FrameStats`
 and sends them to the plan, which extends the bracket until its shortest frame leaves the direct
-(0th-order) spot unsaturated and its longest frame gives the first-order band enough signal. The
-real analyser decodes the RAW file and finds the spot and the band (``calib.image.raw``,
-``calib.image.profiles``); tests and the dry run use modelled statistics.
+(0th-order) spot unsaturated and every pixel of the spot and the band usable to the HDR merge,
+and its longest frame gives the first-order band enough signal. The real analyser decodes the RAW
+file and finds the spot and the band (``calib.image.raw``, ``calib.image.profiles``); tests and the dry run use modelled statistics.
 """
 
 from __future__ import annotations
@@ -30,15 +30,28 @@ class FrameStats:
         Mean signal of the band above the black level, in digital numbers.
     band_saturated_fraction
         Fraction (0–1) of the band's pixels at or above the white level.
+    direct_unmergeable_fraction, band_unmergeable_fraction
+        Fraction (0–1) of the direct spot's and of the band's pixels that the HDR merge cannot take
+        from this frame (:func:`calib.image.hdr.merge_bracket`: saturated, or the mean of its
+        neighbours above the merge's ``prediction_fraction`` of the clipping level). The estimator's
+        extraction refuses a spot or a band with such a pixel in every frame of the bracket, so the
+        shortest frame must have none. 0 where not measured (modelled statistics, older logs).
     """
 
     direct_saturated_fraction: float
     band_snr: float
     band_signal_dn: float
     band_saturated_fraction: float = 0.0
+    direct_unmergeable_fraction: float = 0.0
+    band_unmergeable_fraction: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("direct_saturated_fraction", "band_saturated_fraction"):
+        for name in (
+            "direct_saturated_fraction",
+            "band_saturated_fraction",
+            "direct_unmergeable_fraction",
+            "band_unmergeable_fraction",
+        ):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"{name} must lie in 0..1, got {value!r}")

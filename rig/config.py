@@ -594,8 +594,15 @@ class HdrPolicy(StrictModel):
 
     The bracket starts at ``start_exposure_s`` (default: the geometric mean of the allowed range)
     and grows by at most ``step_stops`` at a time until its shortest frame leaves at most
-    ``max_direct_saturated_fraction`` of the direct spot saturated and its longest frame reaches
-    ``min_band_snr`` on the first-order band.
+    ``max_direct_saturated_fraction`` of the direct spot saturated and at most
+    ``max_unmergeable_fraction`` of the direct spot's and of the first-order band's pixels
+    unmergeable, and its longest frame reaches ``min_band_snr`` on the first-order band.
+
+    Unmergeable is the HDR merge's own rule (``calib.image.hdr.merge_bracket``): a pixel saturated,
+    or whose neighbours average above 90 % of the clipping level, is not taken from that frame. The
+    estimator refuses a lamp whose spot or band has a pixel that no frame of the bracket gives the
+    merge ("saturated in every frame"), so the default 0 asks for a shorter frame while any such
+    pixel remains in the shortest one (decision 0186).
     """
 
     min_exposure_s: ExposureSeconds = 1 / 4000
@@ -603,6 +610,13 @@ class HdrPolicy(StrictModel):
     start_exposure_s: ExposureSeconds | None = None
     step_stops: float = Field(2.0, gt=0, le=6)
     max_direct_saturated_fraction: float = Field(0.001, ge=0, lt=1)
+    max_unmergeable_fraction: float = Field(
+        0.0,
+        ge=0,
+        lt=1,
+        description="of the shortest frame's direct-spot and first-order-band pixels, the fraction "
+        "the HDR merge may not be able to use (saturated or near clipping); 0: none",
+    )
     min_band_snr: float = Field(50.0, gt=0, le=100000)
     max_frames: int = Field(8, ge=1, le=30)
 

@@ -4,9 +4,14 @@ Automatic bracketing needs, after every scene frame, how much of the direct spot
 much signal the first-order band has (:class:`rig.analysis.FrameStats`). :class:`RawFrameAnalyzer`
 decodes the frame with :func:`calib.image.raw.read_raw` (black-subtracted R, G, B planes at half
 resolution, with a saturation mask) and measures in the geometry :func:`calib.image.profiles.detect_geometry`
-finds — once per lamp, on the frame binned to at most 400 plane samples a side: the first frame of
-a lamp in which the band is detected fixes the geometry for that lamp's later frames. Frames are grouped by their directory, which the session layout
-(``frames/<lamp>/scene-000.dng``) makes the lamp.
+finds, per lamp, on the frame binned to at most 400 plane samples a side: the first frame of a lamp
+in which the band is detected fixes the geometry for that lamp's later frames, until a shorter
+frame comes while the geometry's own frame had saturated cells — the geometry is then detected
+again on the shorter frame (when it shows the band). A clipped frame can misplace the spot: where
+a strong first order clips over a wide stretch and the direct spot is weaker, detection took the
+clipped band for the spot, and the spot's true pixels went unmeasured (decision 0186). Frames are
+grouped by their directory, which the session layout (``frames/<lamp>/scene-000.dng``) makes the
+lamp.
 
 What is measured, per 2×2 cell of the sensor (one plane sample of each channel):
 
@@ -17,7 +22,14 @@ What is measured, per 2×2 cell of the sensor (one plane sample of each channel)
   percentile; a lamp's dim ends do not dilute it);
 * **band SNR** — that signal over the noise of one cell, measured on the frame itself from the
   differences of neighbouring cells across the band (robust MAD; no noise model needed);
-* **band saturated fraction** — of the band's cells, those saturated in any channel.
+* **band saturated fraction** — of the band's cells, those saturated in any channel;
+* **direct and band unmergeable fractions** — of the spot's and the band's cells, grown by one
+  cell on every side (the estimator finds its own geometry on the merged image, and samples each
+  channel at its own position), those the HDR merge cannot take from this frame in some channel:
+  saturated, or the mean of the sample's eight neighbours above the merge's own
+  ``prediction_fraction`` of the clipping level (:func:`calib.image.hdr.merge_bracket`,
+  :data:`MERGE_PREDICTION_FRACTION`). A spot or band pixel that no frame of the bracket gives the
+  merge makes the estimator's extraction refuse the lamp ("saturated in every frame").
 
 A frame whose band cannot be found (an exposure too short to show it) gets a band SNR of 0 and its
 spot found as the region above half the frame's peak, so bracketing extends towards longer
@@ -27,6 +39,7 @@ raises :class:`rig.errors.FrameAnalysisError` with what to change at the rig.
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,10 +50,11 @@ from scipy import ndimage
 
 from calib.core.arrays import BoolArray, FloatArray
 from calib.core.errors import InputError
-from calib.image.hdr import FrameRecord, HdrImage
+from calib.image.hdr import FrameRecord, HdrImage, merge_bracket
 from calib.image.profiles import DetectionError, DiffractionGeometry, detect_geometry
 from calib.image.profiles.geometry import rectangle_window, sample_positions, to_uv
 from calib.image.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw, read_raw_metadata
+from calib.image.sensor_noise import leave_one_out_mean
 from rig.analysis import FrameStats
 from rig.errors import FrameAnalysisError
 
@@ -55,6 +69,15 @@ _MAD_TO_SIGMA = 1.4826
 MIN_SPOT_SNR = 20.0
 #: Frames are binned for detection until their planes are at most this many samples long.
 DETECTION_SIZE = 400
+#: The HDR merge's own default: a sample whose neighbours average above this fraction of the
+#: clipping level is not taken from that frame (read from :func:`calib.image.hdr.merge_bracket`).
+MERGE_PREDICTION_FRACTION: float = float(
+    inspect.signature(merge_bracket).parameters["prediction_fraction"].default
+)
+#: The spot's and the band's rectangles grow by this many cells for the unmergeable fractions.
+UNMERGEABLE_MARGIN_CELLS = 1
+#: A frame is shorter than another when its exposure is below the other's by this fraction.
+SHORTER_FRAME_RTOL = 0.02
 #: Detection failures that mean "expose longer", not "the set-up is wrong".
 _BAND_TOO_DIM = ("no_band",)
 
@@ -182,44 +205,87 @@ def _robust_sigma(values: FloatArray) -> float:
     return _MAD_TO_SIGMA * float(np.median(np.abs(values - np.median(values))))
 
 
-def _direct_saturated_fraction(frame: _Frame, geometry: DiffractionGeometry) -> float:
+def _unmergeable(
+    frame: _Frame, window: tuple[slice, slice], prediction_fraction: float
+) -> BoolArray:
+    """Cells of ``window`` the HDR merge cannot take from this frame in some channel.
+
+    As :func:`calib.image.hdr.merge_bracket` decides: a sample is left out when it is saturated or
+    the mean of its eight neighbours (:func:`calib.image.sensor_noise.leave_one_out_mean`, on the
+    whole frame's planes: one cell of context is taken around the window) exceeds
+    ``prediction_fraction`` of its channel's clipping level.
+    """
+    rows, columns = window
+    height, width = frame.saturated.shape
+    row_lo, row_hi = max(rows.start - 1, 0), min(rows.stop + 1, height)
+    column_lo, column_hi = max(columns.start - 1, 0), min(columns.stop + 1, width)
+    signal = frame.planes.signal_dn[:, row_lo:row_hi, column_lo:column_hi]
+    level = leave_one_out_mean(signal, out=np.empty_like(signal))
+    clip_level = np.asarray(frame.planes.clip_level_dn, dtype=np.float32)
+    above: BoolArray = np.any(level > prediction_fraction * clip_level[:, None, None], axis=0)
+    inner = (
+        slice(rows.start - row_lo, rows.stop - row_lo),
+        slice(columns.start - column_lo, columns.stop - column_lo),
+    )
+    result: BoolArray = above[inner] | frame.saturated[window]
+    return result
+
+
+def _direct_fractions(
+    frame: _Frame, geometry: DiffractionGeometry, prediction_fraction: float
+) -> tuple[float, float]:
+    """``(saturated_fraction, unmergeable_fraction)`` of the direct spot's cells."""
     along, across = geometry.spot_half_size_px
+    margin = UNMERGEABLE_MARGIN_CELLS * frame.image.pixel_pitch_px
     cells = _cells_in(
         frame,
         geometry.spot_centre_px,
         geometry.primary.angle_deg,
-        (-along, along),
-        (-across, across),
+        (-along - margin, along + margin),
+        (-across - margin, across + margin),
     )
     if cells is None:
         raise FrameAnalysisError(
             str(frame.planes.metadata.path), "the direct spot is off the frame"
         )
-    window, _, _, inside = cells
+    window, u, v, grown = cells
+    inside = grown & (np.abs(u) <= along) & (np.abs(v) <= across)
     count = int(inside.sum())
-    return float(frame.saturated[window][inside].sum()) / count if count else 0.0
+    saturated = float(frame.saturated[window][inside].sum()) / count if count else 0.0
+    unmergeable = _unmergeable(frame, window, prediction_fraction)[grown]
+    return saturated, float(unmergeable.mean()) if unmergeable.size else 0.0
 
 
-def _band_stats(frame: _Frame, geometry: DiffractionGeometry) -> tuple[float, float, float]:
-    """``(signal_dn, snr, saturated_fraction)`` of the primary first order."""
+def _band_stats(
+    frame: _Frame, geometry: DiffractionGeometry, prediction_fraction: float
+) -> tuple[float, float, float, float]:
+    """``(signal_dn, snr, saturated_fraction, unmergeable_fraction)`` of the primary first order."""
     band = geometry.primary
     centre, angle = geometry.spot_centre_px, band.angle_deg
     offset = band.centre_offset_px
     inner = band.band_half_width_px + geometry.background_gap_px
     outer = inner + geometry.background_width_px
+    margin = UNMERGEABLE_MARGIN_CELLS * frame.image.pixel_pitch_px
     cells = _cells_in(
-        frame, centre, angle, (band.start_px, band.stop_px), (offset - outer, offset + outer)
+        frame,
+        centre,
+        angle,
+        (band.start_px - margin, band.stop_px + margin),
+        (offset - outer, offset + outer),
     )
     if cells is None:
-        return 0.0, 0.0, 0.0
-    window, u, v, along_band = cells
+        return 0.0, 0.0, 0.0, 0.0
+    window, u, v, grown = cells
+    along_band = grown & (u >= band.start_px) & (u <= band.stop_px)
     values = frame.mean_dn[window].astype(np.float64)
     saturated = frame.saturated[window]
     across = np.abs(v - offset)
     in_band = along_band & (across <= band.half_width_px)
     in_strips = along_band & (across >= inner) & ~saturated
     if not in_band.any():
-        return 0.0, 0.0, 0.0
+        return 0.0, 0.0, 0.0, 0.0
+    grown_band = grown & (across <= band.half_width_px + margin)
+    unmergeable = float(_unmergeable(frame, window, prediction_fraction)[grown_band].mean())
     background = float(np.median(values[in_strips])) if in_strips.any() else 0.0
     net = values - background
     bins = np.floor((u - band.start_px) / BAND_BIN_PX).astype(np.int64)
@@ -232,7 +298,8 @@ def _band_stats(frame: _Frame, geometry: DiffractionGeometry) -> tuple[float, fl
     bright = in_band & bright_bins[np.clip(bins, 0, n_bins - 1)]
     signal = float(net[bright].mean())
     saturated_fraction = float(saturated[in_band].mean())
-    return signal, _snr(net, bright & ~saturated, signal, angle), saturated_fraction
+    snr = _snr(net, bright & ~saturated, signal, angle)
+    return signal, snr, saturated_fraction, unmergeable
 
 
 def _snr(net: FloatArray, usable: BoolArray, signal: float, angle_deg: float) -> float:
@@ -256,7 +323,7 @@ def _snr(net: FloatArray, usable: BoolArray, signal: float, angle_deg: float) ->
     return signal / sigma if sigma > 0 else math.sqrt(signal)
 
 
-def _spot_only_stats(frame: _Frame) -> FrameStats:
+def _spot_only_stats(frame: _Frame, prediction_fraction: float) -> FrameStats:
     """Stats of a frame without a detectable band: the spot is the region above half the peak."""
     values = frame.mean_dn
     background = float(np.median(values))
@@ -272,11 +339,14 @@ def _spot_only_stats(frame: _Frame) -> FrameStats:
         )
     labels, _ = ndimage.label(values >= background + 0.5 * (peak - background))
     spot = labels == labels[peak_index]
+    rows, columns = ndimage.find_objects(spot.astype(np.int32))[0]
+    unmergeable = _unmergeable(frame, (rows, columns), prediction_fraction)[spot[rows, columns]]
     return FrameStats(
         direct_saturated_fraction=float(frame.saturated[spot].mean()),
         band_snr=0.0,
         band_signal_dn=0.0,
         band_saturated_fraction=0.0,
+        direct_unmergeable_fraction=float(unmergeable.mean()),
     )
 
 
@@ -296,12 +366,30 @@ class RawFrameAnalyzer:
     saturation_fraction
         A sample is saturated from this fraction of the way from black to the clipping level
         (:func:`calib.image.raw.read_raw`).
+    prediction_fraction
+        The HDR merge's: a sample whose neighbours average above this fraction of the clipping
+        level is unmergeable (default: the merge's own, :data:`MERGE_PREDICTION_FRACTION`).
     """
 
-    def __init__(self, *, saturation_fraction: float = DEFAULT_SATURATION_FRACTION) -> None:
+    def __init__(
+        self,
+        *,
+        saturation_fraction: float = DEFAULT_SATURATION_FRACTION,
+        prediction_fraction: float = MERGE_PREDICTION_FRACTION,
+    ) -> None:
         self.saturation_fraction = saturation_fraction
+        self.prediction_fraction = prediction_fraction
         self.geometries: dict[str, DiffractionGeometry] = {}
         """The geometry used for each lamp (frame directory), once detected."""
+        self._geometry_frames: dict[str, tuple[float, bool]] = {}
+        """Per lamp: the exposure (s) of the frame its geometry came from, and whether that frame
+        had saturated cells."""
+
+    def _detect_again(self, lamp: str, exposure_s: float) -> bool:
+        """Whether a frame of ``exposure_s`` should replace the lamp's geometry: it is shorter than
+        the geometry's frame, which had saturated cells."""
+        geometry_exposure_s, clipped = self._geometry_frames[lamp]
+        return clipped and exposure_s < geometry_exposure_s * (1 - SHORTER_FRAME_RTOL)
 
     def analyse(self, frame: Path) -> FrameStats:
         """The frame's statistics; :class:`FrameAnalysisError` when it cannot be measured."""
@@ -309,18 +397,30 @@ class RawFrameAnalyzer:
         decoded = _decode(path, self.saturation_fraction)
         lamp = path.parent.name
         geometry = self.geometries.get(lamp)
-        if geometry is None:
+        exposure_s = float(decoded.planes.metadata.exposure_s)
+        if geometry is None or self._detect_again(lamp, exposure_s):
             try:
-                geometry = detect_geometry(_detection_image(decoded.image))
+                found = detect_geometry(_detection_image(decoded.image))
             except DetectionError as exc:
-                if exc.reason in _BAND_TOO_DIM:
-                    return _spot_only_stats(decoded)
-                raise FrameAnalysisError(str(path), str(exc)) from None
-            self.geometries[lamp] = geometry
-        signal, snr, band_saturated = _band_stats(decoded, geometry)
+                if geometry is None:
+                    if exc.reason in _BAND_TOO_DIM:
+                        return _spot_only_stats(decoded, self.prediction_fraction)
+                    raise FrameAnalysisError(str(path), str(exc)) from None
+                # the longer frame's geometry stands where the shorter frame cannot place the band
+            else:
+                geometry = self.geometries[lamp] = found
+                self._geometry_frames[lamp] = (exposure_s, bool(decoded.saturated.any()))
+        signal, snr, band_saturated, band_unmergeable = _band_stats(
+            decoded, geometry, self.prediction_fraction
+        )
+        direct_saturated, direct_unmergeable = _direct_fractions(
+            decoded, geometry, self.prediction_fraction
+        )
         return FrameStats(
-            direct_saturated_fraction=_direct_saturated_fraction(decoded, geometry),
+            direct_saturated_fraction=direct_saturated,
             band_snr=max(snr, 0.0),
             band_signal_dn=signal,
             band_saturated_fraction=band_saturated,
+            direct_unmergeable_fraction=direct_unmergeable,
+            band_unmergeable_fraction=band_unmergeable,
         )

@@ -30,6 +30,7 @@ from typing import Any, TypeVar
 import numpy as np
 from pydantic import Field
 
+from rig.analysis import FrameStats
 from rig.config import (
     CameraSettings,
     GratingMeasurement,
@@ -209,6 +210,32 @@ def _check_raw(frame: FrameCaptured, camera: CameraSettings, key: str) -> None:
         )
 
 
+def _too_bright(stats: FrameStats, hdr: HdrPolicy) -> tuple[str, str] | None:
+    """What in the shortest frame asks for a shorter one, and its allowance; ``None`` if nothing.
+
+    The direct spot's saturated fraction (``hdr.max_direct_saturated_fraction``), and the spot's
+    and the band's pixels the HDR merge cannot use (``hdr.max_unmergeable_fraction``): the
+    estimator refuses a spot or a band with a pixel no frame of the bracket gives the merge.
+    """
+    allowed = hdr.max_unmergeable_fraction
+    if stats.direct_saturated_fraction > hdr.max_direct_saturated_fraction:
+        return (
+            f"{stats.direct_saturated_fraction:.2%} of the direct spot is saturated",
+            f"hdr.max_direct_saturated_fraction = {hdr.max_direct_saturated_fraction:.2%}",
+        )
+    for part, fraction in (
+        ("direct spot", stats.direct_unmergeable_fraction),
+        ("first-order band", stats.band_unmergeable_fraction),
+    ):
+        if fraction > allowed:
+            return (
+                f"{fraction:.2%} of the {part} is saturated or too near clipping for the HDR "
+                "merge to use",
+                f"hdr.max_unmergeable_fraction = {allowed:.2%}",
+            )
+    return None
+
+
 def _next_exposure(
     frames: list[FrameCaptured], hdr: HdrPolicy, limits: tuple[float, float], lamp: str
 ) -> float | None:
@@ -217,27 +244,27 @@ def _next_exposure(
     by_exposure = sorted(frames, key=lambda f: f.exposure_s)
     shortest, longest = by_exposure[0], by_exposure[-1]
     assert shortest.stats is not None and longest.stats is not None
-    saturated = shortest.stats.direct_saturated_fraction
+    too_bright = _too_bright(shortest.stats, hdr)
     snr = longest.stats.band_snr
-    need_shorter = saturated > hdr.max_direct_saturated_fraction
+    need_shorter = too_bright is not None
     need_longer = snr < hdr.min_band_snr
     if not need_shorter and not need_longer:
         return None
     if len(frames) >= hdr.max_frames:
+        state = too_bright[0] if too_bright else "neither spot nor band too bright"
         raise BracketImpossible(
             f"{lamp}: the bracket needs more than hdr.max_frames = {hdr.max_frames} frames "
-            f"(shortest {format_exposure(shortest.exposure_s)}: {saturated:.2%} of the direct spot "
-            f"saturated; longest {format_exposure(longest.exposure_s)}: band SNR {snr:.3g}); "
+            f"(shortest {format_exposure(shortest.exposure_s)}: {state}; "
+            f"longest {format_exposure(longest.exposure_s)}: band SNR {snr:.3g}); "
             "raise hdr.max_frames or hdr.step_stops"
         )
     step_factor: float = 2.0**hdr.step_stops
-    if need_shorter:
+    if too_bright is not None:
         if shortest.exposure_s <= low * (1 + SAME_EXPOSURE_RTOL):
             raise BracketImpossible(
-                f"{lamp}: {saturated:.2%} of the direct spot is saturated even at the shortest "
-                f"allowed exposure {format_exposure(low)} (allowed: "
-                f"{hdr.max_direct_saturated_fraction:.2%}); dim the lamp, stop the aperture down, "
-                "narrow the slit or add a neutral-density filter"
+                f"{lamp}: {too_bright[0]} even at the shortest allowed exposure "
+                f"{format_exposure(low)} (allowed: {too_bright[1]}); dim the lamp, stop the "
+                "aperture down, narrow the slit or add a neutral-density filter"
             )
         return max(low, shortest.exposure_s / step_factor)
     if longest.exposure_s >= high * (1 - SAME_EXPOSURE_RTOL):
@@ -260,7 +287,8 @@ def auto_bracket(
     """Capture frames until the bracket satisfies the HDR policy; return them by increasing exposure.
 
     Starts at ``hdr.start_exposure_s`` (default: the geometric mean of ``limits``). While the shortest
-    frame saturates the direct spot beyond ``hdr.max_direct_saturated_fraction`` it adds a frame
+    frame saturates the direct spot beyond ``hdr.max_direct_saturated_fraction``, or leaves more than
+    ``hdr.max_unmergeable_fraction`` of the spot or the band unusable to the HDR merge, it adds a frame
     ``hdr.step_stops`` shorter; then, while the longest frame's band SNR is below
     ``hdr.min_band_snr``, a longer one (the exposure predicted to reach the target, at most one step
     longer). Bounded by ``limits`` (s) and ``hdr.max_frames``.
