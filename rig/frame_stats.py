@@ -28,7 +28,7 @@ What is measured, per 2×2 cell of the sensor (one plane sample of each channel)
   channel at its own position), those the HDR merge cannot take from this frame in some channel:
   saturated, or the mean of the sample's eight neighbours above the merge's own
   ``prediction_fraction`` of the clipping level (:func:`calib.image.hdr.merge_bracket`,
-  :data:`MERGE_PREDICTION_FRACTION`). A spot or band pixel that no frame of the bracket gives the
+  :data:`calib.image.hdr.PREDICTION_FRACTION`). A spot or band pixel that no frame of the bracket gives the
   merge makes the estimator's extraction refuse the lamp ("saturated in every frame").
 
 A frame whose band cannot be found (an exposure too short to show it) gets a band SNR of 0 and its
@@ -39,7 +39,6 @@ raises :class:`rig.errors.FrameAnalysisError` with what to change at the rig.
 
 from __future__ import annotations
 
-import inspect
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,7 +49,7 @@ from scipy import ndimage
 
 from calib.core.arrays import BoolArray, FloatArray
 from calib.core.errors import InputError
-from calib.image.hdr import FrameRecord, HdrImage, merge_bracket
+from calib.image.hdr import PREDICTION_FRACTION, FrameRecord, HdrImage
 from calib.image.profiles import DetectionError, DiffractionGeometry, detect_geometry
 from calib.image.profiles.geometry import rectangle_window, sample_positions, to_uv
 from calib.image.raw import DEFAULT_SATURATION_FRACTION, RawPlanes, read_raw, read_raw_metadata
@@ -69,11 +68,6 @@ _MAD_TO_SIGMA = 1.4826
 MIN_SPOT_SNR = 20.0
 #: Frames are binned for detection until their planes are at most this many samples long.
 DETECTION_SIZE = 400
-#: The HDR merge's own default: a sample whose neighbours average above this fraction of the
-#: clipping level is not taken from that frame (read from :func:`calib.image.hdr.merge_bracket`).
-MERGE_PREDICTION_FRACTION: float = float(
-    inspect.signature(merge_bracket).parameters["prediction_fraction"].default
-)
 #: The spot's and the band's rectangles grow by this many cells for the unmergeable fractions.
 UNMERGEABLE_MARGIN_CELLS = 1
 #: A frame is shorter than another when its exposure is below the other's by this fraction.
@@ -368,14 +362,14 @@ class RawFrameAnalyzer:
         (:func:`calib.image.raw.read_raw`).
     prediction_fraction
         The HDR merge's: a sample whose neighbours average above this fraction of the clipping
-        level is unmergeable (default: the merge's own, :data:`MERGE_PREDICTION_FRACTION`).
+        level is unmergeable (default: the merge's own, :data:`calib.image.hdr.PREDICTION_FRACTION`).
     """
 
     def __init__(
         self,
         *,
         saturation_fraction: float = DEFAULT_SATURATION_FRACTION,
-        prediction_fraction: float = MERGE_PREDICTION_FRACTION,
+        prediction_fraction: float = PREDICTION_FRACTION,
     ) -> None:
         self.saturation_fraction = saturation_fraction
         self.prediction_fraction = prediction_fraction

@@ -134,6 +134,11 @@ GAIN_MAX_SIGMA = 0.002
 #: in 10⁶ frames (at three, one 16-seed test bracket of exact times moved its profile by 0.4 of its
 #: σ), where a real shutter's 1–3 % is 15–100 σ.
 GAIN_SIGNIFICANCE = 5.0
+#: A sample is taken from a frame only when its neighbours average at most this fraction of the
+#: clipping level (the default ``prediction_fraction``): nearer to clipping, the pixel's own
+#: response is no longer linear enough to merge. The rig brackets until every spot and band pixel
+#: passes it in the shortest frame (:mod:`rig.frame_stats`, decision 0186).
+PREDICTION_FRACTION = 0.9
 
 
 @dataclass(frozen=True)
@@ -738,7 +743,7 @@ def merge_bracket(
     dark_exposure_s: Sequence[float] | None = None,
     noise_model: NoiseModel | None = None,
     saturation_fraction: float = DEFAULT_SATURATION_FRACTION,
-    prediction_fraction: float = 0.9,
+    prediction_fraction: float = PREDICTION_FRACTION,
     near_black_sigma: float = 3.0,
     progress: ProgressCallback | None = None,
     region: PlaneRegion | RegionChooser | None = None,
@@ -870,7 +875,7 @@ def merge_planes(
     *,
     darks: Sequence[RawPlanes] = (),
     noise_model: NoiseModel | None = None,
-    prediction_fraction: float = 0.9,
+    prediction_fraction: float = PREDICTION_FRACTION,
     near_black_sigma: float = 3.0,
     estimate_gains: bool = True,
 ) -> HdrImage:

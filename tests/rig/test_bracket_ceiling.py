@@ -15,13 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.image.raw import read_raw
+from calib.image.hdr import PREDICTION_FRACTION
+from calib.image.raw import DEFAULT_SATURATION_FRACTION, read_raw
 from calib.image.sensor_noise import leave_one_out_mean
 from mocks.bench import TwinOptics
 from rig.analysis import FrameStats
 from rig.config import HdrPolicy
 from rig.errors import BracketImpossible
-from rig.frame_stats import MERGE_PREDICTION_FRACTION, RawFrameAnalyzer
+from rig.frame_stats import RawFrameAnalyzer
 from rig.plan import _next_exposure
 from rig.session import read_session
 from rig.steps import FrameCaptured
@@ -114,7 +115,7 @@ def test_a_band_at_93_percent_of_clipping_is_unmergeable(band_brighter: Camera) 
     # ... but the merge cannot use the band's brightest stretch from it.
     assert 0.0 < stats.band_unmergeable_fraction < 0.2
     assert stats.band_unmergeable_fraction > stats.band_saturated_fraction
-    assert MERGE_PREDICTION_FRACTION == 0.9  # merge_bracket's own default
+    assert PREDICTION_FRACTION < 0.93 < DEFAULT_SATURATION_FRACTION  # the case's premise
 
 
 def test_a_shorter_frame_redetects_a_geometry_found_on_a_clipped_frame(tmp_path: Path) -> None:
