@@ -4,7 +4,8 @@ After each scene frame the runner asks a :class:`FrameAnalyzer` for the frame's 
 and sends them to the plan, which extends the bracket until its shortest frame leaves the direct
 (0th-order) spot unsaturated and every pixel of the spot and the band usable to the HDR merge,
 and its longest frame gives the first-order band enough signal. The real analyser decodes the RAW
-file and finds the spot and the band (``calib.image.raw``, ``calib.image.profiles``); tests and the dry run use modelled statistics.
+file and finds the spot and the band (``calib.image.raw``, ``calib.image.profiles``); tests and the
+dry run use modelled statistics.
 """
 
 from __future__ import annotations

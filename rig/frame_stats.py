@@ -28,8 +28,9 @@ What is measured, per 2×2 cell of the sensor (one plane sample of each channel)
   channel at its own position), those the HDR merge cannot take from this frame in some channel:
   saturated, or the mean of the sample's eight neighbours above the merge's own
   ``prediction_fraction`` of the clipping level (:func:`calib.image.hdr.merge_bracket`,
-  :data:`calib.image.hdr.PREDICTION_FRACTION`). A spot or band pixel that no frame of the bracket gives the
-  merge makes the estimator's extraction refuse the lamp ("saturated in every frame").
+  :data:`calib.image.hdr.PREDICTION_FRACTION`). A spot or band pixel that no frame of the
+  bracket gives the merge makes the estimator's extraction refuse the lamp ("saturated in every
+  frame").
 
 A frame whose band cannot be found (an exposure too short to show it) gets a band SNR of 0 and its
 spot found as the region above half the frame's peak, so bracketing extends towards longer
