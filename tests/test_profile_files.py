@@ -604,3 +604,18 @@ def test_a_dat_whose_input_has_spaces_reads_as_raw_and_one_whose_input_cannot_be
         text.startswith("odd.dat: where the rawproc command's input 'shot' ends cannot be told")
         for text in profile.warnings
     ), profile.warnings
+
+
+def test_every_tool_the_input_name_ends_before_is_one_the_reader_judges() -> None:
+    # The list that ends an input's name with spaces and the tools judged are one list: a tool
+    # added to one and not the other fails here.
+    from calib.image.profile_files import _RAWPROC_TOOLS, RawprocOperation, _operation_finding
+
+    unknown = "is not a rawproc tool this reader knows"
+    assert all(
+        _operation_finding(RawprocOperation(name, "")).reason != unknown for name in _RAWPROC_TOOLS
+    )
+    assert _operation_finding(RawprocOperation("frobnicate", "")).reason == unknown
+    command = parse_rawproc_command("rawproc-0.9 My Shot.NEF gamma:1.0 tone:gamma,1.0")
+    assert command.input_file == "My Shot.NEF"
+    assert [op.name for op in command.operations] == ["gamma", "tone"]

@@ -220,6 +220,14 @@ _RAWPROC_BREAKS = {
 }
 #: Tools whose steps the command does not show (a file of commands, a script, a G'MIC line).
 _RAWPROC_HIDES = frozenset({"gmic", "group", "script"})
+#: Tools whose effect depends on their parameters (each read in :func:`_operation_finding`).
+_RAWPROC_BY_PARAMETERS = frozenset(
+    {"blackwhitepoint", "colorspace", "curve", "gamma", "saturation", "tone", "whitebalance"}
+)
+#: Every tool name this reader knows: the end of an input's name is found before one.
+_RAWPROC_TOOLS = (
+    _RAWPROC_KEEPS | _RAWPROC_HIDES | frozenset(_RAWPROC_BREAKS) | _RAWPROC_BY_PARAMETERS
+)
 _CHANNEL_NAMES = ("rgb", "red", "green", "blue")
 
 
@@ -311,20 +319,6 @@ def _command_tokens(text: str) -> list[str]:
 _INPUT_END = re.compile(r"^(?P<name>.*?\.[A-Za-z][A-Za-z0-9]*)(?::(?P<options>.*))?$")
 
 
-def _rawproc_tools() -> frozenset[str]:
-    """Every tool name this reader knows (their effects: :func:`_operation_finding`)."""
-    named = {
-        "blackwhitepoint",
-        "colorspace",
-        "curve",
-        "gamma",
-        "saturation",
-        "tone",
-        "whitebalance",
-    }
-    return _RAWPROC_KEEPS | _RAWPROC_HIDES | frozenset(_RAWPROC_BREAKS) | named
-
-
 def _split_input(text: str) -> tuple[str, str, str] | None:
     """``text`` (the command after the program) as the input's name, its options and the rest.
 
@@ -334,14 +328,13 @@ def _split_input(text: str) -> tuple[str, str, str] | None:
     followed by a tool's name (or nothing); ``None`` when no word does.
     """
     words = list(re.finditer(r"\S+", text))
-    tools = _rawproc_tools()
     for index, word in enumerate(words):
         match = _INPUT_END.match(word.group())
         if match is None:
             continue
         following = words[index + 1].group() if index + 1 < len(words) else ""
         next_tool = following.partition(":")[0].lower()
-        if match["options"] is not None or not following or next_tool in tools:
+        if match["options"] is not None or not following or next_tool in _RAWPROC_TOOLS:
             name = text[words[0].start() : word.start()] + match["name"]
             return name, match["options"] or "", text[word.end() :]
     return None
