@@ -32,9 +32,12 @@ class MappedScene:
         return np.asarray(self.found.exact.wavelength_nm(pixel) - truth, dtype=np.float64)
 
 
-def mapped_fl_paper_scene(data_dir: Path, camera_prefix: str, seed: int) -> MappedScene:
+def mapped_fl_paper_scene(
+    data_dir: Path, camera_prefix: str, seed: int, noise_fraction: float = 0.01
+) -> MappedScene:
     """The training camera whose name starts with ``camera_prefix``, held out of the basis, rendered
-    with the bench's seed ``[seed, index]`` and mapped from its D65 and FL2 profiles."""
+    with the bench's seed ``[seed, index]`` (noise ``noise_fraction`` of the peak) and mapped from
+    its D65 and FL2 profiles."""
     from calib.core.datasets import makabe2025_split
     from calib.core.lamp_specs import lamp_from_spec
     from calib.core.spectra import DEFAULT_GRID
@@ -53,7 +56,7 @@ def mapped_fl_paper_scene(data_dir: Path, camera_prefix: str, seed: int) -> Mapp
         np.random.default_rng([seed, index]),
         broadband_lamp=lamp_from_spec("D65"),
         fluorescent_lamp=lamp_from_spec("FL2"),
-        noise_fraction=0.01,
+        noise_fraction=noise_fraction,
     )
     lamps = [scene.broadband.observation, scene.fluorescent.observation]
     return MappedScene(scene, lamps, locate_mapping(lamps, prior, DEFAULT_GRID))

@@ -11,7 +11,7 @@ import pytest
 
 from calib.core.mapping import QuadraticMapping
 from calib.wavelength.peaks import Peak, match_peak_hypotheses
-from calib.wavelength.profile_search import _with_linear_companions
+from calib.wavelength.profile_search import _second_match_scanned, _with_linear_companions
 from tests.paper_scenes import mapped_fl_paper_scene
 
 # The validation split's Nikon D200 (Jiang) paper scene, seed 12: FL2's lines as a typical camera
@@ -74,3 +74,28 @@ def test_the_fl2_paper_scene_with_a_broadband_lead_lands_right(shared_camera_dat
     error = mapped_fl_paper_scene(shared_camera_data, "Nikon D200 (Jiang", 12).error_nm()
     # Base 404c247: 52 nm RMS off, stated 0.25 nm, no warning.
     assert float(np.sqrt(np.mean(error**2))) < 1.0
+
+
+def _matched(a: float, b: float, c: float, score: float) -> QuadraticMapping:
+    return QuadraticMapping(a, b, c, pixel_range=(0.0, 900.0), details={"score": score})
+
+
+def test_a_second_line_match_beyond_the_first_ones_scan_is_scanned_when_it_scores_close() -> None:
+    first = _matched(0.0, 0.38, 342.0, 3.69)  # 342–684 nm: the Canon 20D scene's wrong match
+    far = _matched(0.0, 0.36, 394.0, 3.59)  # 394–718 nm: beyond ±24 nm at the blue end
+    assert _second_match_scanned([first, far], (0.0, 900.0))
+    # Scoring well below the first, or inside its scan's reach, or alone: not scanned.
+    assert not _second_match_scanned([first, _matched(0.0, 0.36, 394.0, 3.0)], (0.0, 900.0))
+    assert not _second_match_scanned([first, _matched(0.0, 0.37, 360.0, 3.69)], (0.0, 900.0))
+    assert not _second_match_scanned([first], (0.0, 900.0))
+
+
+@pytest.mark.slow
+def test_a_close_second_line_match_holds_the_answer_the_first_misses(
+    shared_camera_data: Path,
+) -> None:
+    # The validation split's Canon 20D (Jiang) D65 + FL2 paper scene, seed 11, 3 % noise: FL2's
+    # best line match puts the profile at 344–702 nm (the truth 394–719); before decision 0188
+    # the estimate failed ("the best mapping puts the profile at 341–682 nm").
+    error = mapped_fl_paper_scene(shared_camera_data, "Canon 20D (Jiang", 11, 0.03).error_nm()
+    assert float(np.max(np.abs(error))) < 1.0

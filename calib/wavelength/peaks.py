@@ -435,7 +435,12 @@ def match_peak_hypotheses(
             for i, j in inliers(mapping, tolerance_nm)
         ]
         return mapping.with_details(
-            details={"matched": matched, "n_lines": len(lines), "n_peaks": len(peaks)}
+            details={
+                "matched": matched,
+                "n_lines": len(lines),
+                "n_peaks": len(peaks),
+                "score": score(mapping),
+            }
         )
 
     # Every pair and triple of the strongest lines through every ordered pair or triple of the
