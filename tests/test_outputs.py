@@ -189,6 +189,28 @@ def test_result_json_and_sensitivity_csv_carry_the_same_curve_and_sigma(
     )
 
 
+def test_the_camera_files_say_what_result_json_holds_of_a_clipped_solve(
+    outcome: OfflineOutcome, tmp_path: Path
+) -> None:
+    """The files' comment on negative lobes agrees with result.json, which holds the clipped curve
+    too (decision 0038): it used to say that result.json kept the negative values."""
+    from dataclasses import replace
+
+    from calib.pipeline.outputs import deliver, write_result_json
+
+    result = outcome.estimate.result
+    lobed = result.sensitivity.copy()
+    lobed[:3, 2] = [-0.04, -0.02, -0.01]
+    estimate = replace(outcome.estimate, result=replace(result, sensitivity=lobed))
+    document = json.loads(write_result_json(tmp_path / "result.json", estimate).read_text())
+    assert min(min(document["sensitivity"][c]) for c in "RGB") == 0.0
+    [line] = [line for line in deliver(estimate).comments(estimate.result) if "negative" in line]
+    negative = int(np.count_nonzero(lobed < 0))
+    assert line.startswith(f"{negative} negative value(s) of the solve set to zero")
+    assert document["sensitivity_clipping"].startswith(f"{negative} negative value(s)")
+    assert "result.json too" in line and "keeps" not in line
+
+
 def test_grating_json_round_trips_with_its_geometry(outcome: OfflineOutcome) -> None:
     grating = read_grating_file(outcome.files["grating"])
     result = outcome.estimate.result

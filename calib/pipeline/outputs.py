@@ -91,7 +91,7 @@ class DeliveredCamera:
     curves
         On the estimate's grid: negative values set to zero, maximum 1, σ on the same scale.
     negative_values
-        How many values of the solve were negative (set to zero in the files, kept in result.json).
+        How many values of the solve were negative (set to zero in the files and in result.json).
     extension
         On 380–780 nm at 5 nm (:func:`calib.model.extension.extend`).
     identity
@@ -134,7 +134,7 @@ class DeliveredCamera:
         if self.negative_values:
             lines.append(
                 f"{self.negative_values} negative value(s) of the solve set to zero "
-                "(result.json keeps them)"
+                "(in result.json too)"
             )
         if result.sensitivity_sigma is None:
             lines.append(f"method {result.method} gives no per-wavelength sigma")
