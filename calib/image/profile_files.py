@@ -657,10 +657,10 @@ def read_rawproc_dat(path: str | Path, *, sensor_orientation: bool = False) -> R
         Undo the rawproc command's reversal of the columns (a net ``hmirror`` or half turn), so
         that the pixel axis runs as the sensor's columns (and the profile's order follows); by
         default the file's order is kept. Only the command's ``rotate`` steps are read: rawproc
-        can also turn an image by its EXIF orientation through its own configuration, which the
-        file does not record, so with that setting on the sensor's order is not recoverable
-        from the file (export with it off, or keep the file's order: the mapping search tries
-        both directions).
+        can also turn an image by its EXIF orientation through its own configuration
+        (``output.orient``), which the file does not record, so with that setting on the
+        sensor's order is not recoverable from the file (export with it off, or keep the file's
+        order: the mapping search tries both directions).
 
     Raises
     ------
