@@ -34,20 +34,54 @@ def _distorted(camera: CameraCurves, shift_nm: float) -> CameraCurves:
     )
 
 
+@pytest.mark.parametrize(
+    ("camera", "atol"),
+    # colour's default steps on finite differences; the Foveon's matrix is the harder optimum
+    [("Nikon 5100 (NPL)", 1e-6), ("Sigma SDMerill (NPL)", 2e-5)],
+)
 @pytest.mark.parametrize("illuminant", ["D55", "D65", "A"])
-def test_the_idt_is_colours_matrix_idt(nikon: CameraCurves, illuminant: str) -> None:
+def test_the_idt_is_colours_matrix_idt(camera: str, atol: float, illuminant: str) -> None:
+    """The exact-gradient objective lands where colour's default optimisation does."""
     import colour
 
     from calib.core.colour_data import use_illuminant as illuminant_spd
 
-    spd = illuminant_spd(illuminant).resample(WavelengthGrid(380.0, 780.0, 5.0))
+    curves = as_camera(colour.MSDS_CAMERA_SENSITIVITIES[camera]).normalised()
+    grid = WavelengthGrid(380.0, 780.0, 5.0)
+    curves = CameraCurves(grid.wavelength_nm, curves.at(grid.wavelength_nm), name=camera)
+    spd = illuminant_spd(illuminant).resample(grid)
     expected, white = colour.matrix_idt(
-        nikon.to_colour(), colour.SpectralDistribution(spd.values, spd.wavelength_nm)
+        curves.to_colour(), colour.SpectralDistribution(spd.values, spd.wavelength_nm)
     )
-    idt = aces_idt(nikon, illuminant)
-    np.testing.assert_allclose(idt.matrix, expected, atol=1e-6)
+    idt = aces_idt(curves, illuminant)
+    np.testing.assert_allclose(idt.matrix, expected, atol=atol)
     np.testing.assert_allclose(idt.white_balance, white, rtol=1e-9)
     assert min(idt.white_balance) == pytest.approx(1.0)
+
+
+def test_the_idt_objectives_gradient_is_its_derivative() -> None:
+    """The objective handed to colour.matrix_idt is colour's rawtoaces v1 objective, and its gradient
+    is the objective's derivative (finite differences), on both branches of CIELAB's f."""
+    import colour
+    from scipy.optimize import approx_fprime
+
+    from calib.core.colour_data import _rawtoaces_v1_with_gradient
+
+    x_0, objective, to_lab, finaliser = _rawtoaces_v1_with_gradient()
+    _, colours_objective, colours_lab, colours_finaliser = (
+        colour.characterisation.optimisation_factory_rawtoaces_v1()
+    )
+    rng = np.random.default_rng(3)
+    rgb = rng.uniform(0.0, 1.0, (190, 3)) ** 3  # dark samples too: the linear branch of f
+    xyz = rng.uniform(0.0, 1.0, (190, 3)) ** 3
+    np.testing.assert_allclose(to_lab(xyz), colours_lab(xyz), atol=1e-9)
+    lab = to_lab(xyz)
+    for m in (x_0, np.array([0.9, 0.2, -0.1, 1.1, 0.05, -0.03])):
+        np.testing.assert_allclose(finaliser(m), colours_finaliser(m.copy()), atol=1e-15)
+        value, gradient = objective(m, rgb, lab)
+        assert value == pytest.approx(colours_objective(m, rgb, lab), rel=1e-12)
+        numeric = approx_fprime(m, lambda v: objective(v, rgb, lab)[0], 1e-7)
+        np.testing.assert_allclose(gradient, numeric, rtol=1e-4, atol=1e-4)
 
 
 def test_the_colour_correction_keeps_white_and_predicts_the_colorchecker(
