@@ -192,6 +192,9 @@ def test_an_inputs_file_names_spectra_and_fits_planes_relative_to_itself(tmp_pat
     assert (a.channel_gains, c.channel_gains) == ("raw", "unknown")
 
 
+# The default suite runs the same batch-against-alone comparison, with settings in the files, in
+# tests/test_inputs_file_settings.py::test_a_batch_runs_each_file_as_it_says.
+@pytest.mark.slow
 def test_inputs_files_run_as_a_batch_as_each_runs_alone(capture: Capture, tmp_path: Path) -> None:
     """``calib batch`` takes inputs files (the ``inputs`` reader), named by folder and stem so
     one ``lamps.yaml`` per camera folder stays apart; each set's curves are those of

@@ -186,13 +186,16 @@ def uninterrupted(uninterrupted_runs: UninterruptedRuns) -> Uninterrupted:
     return uninterrupted_runs("pr655")
 
 
-def with_estimate(rows: Iterable[str], always: set[str]) -> list[Any]:
+def with_estimate(
+    rows: Iterable[str], always: set[str], slow: frozenset[str] = frozenset()
+) -> list[Any]:
     """``(row, estimate)`` parameters: each row once, checked by its estimator inputs, or by
     running ``rig estimate`` for the rows in ``always``; every other row again with the estimate,
-    marked slow (``make test-all``)."""
+    marked slow (``make test-all``), as are the rows in ``slow`` themselves."""
     params = []
     for row in rows:
-        params.append(pytest.param(row, row in always, id=row))
+        marks = [pytest.mark.slow] if row in slow else []
+        params.append(pytest.param(row, row in always, id=row, marks=marks))
         if row not in always:
             params.append(pytest.param(row, True, id=f"{row}+estimate", marks=pytest.mark.slow))
     return params
@@ -529,7 +532,13 @@ SIGNALS: dict[str, tuple[list[signal.Signals], int, str]] = {
 }
 
 
-@pytest.mark.parametrize(("row", "estimate"), with_estimate(SIGNALS, set()))
+#: One Ctrl-C takes the SIGTERM row's path (finish the step, stop interrupted, resume), so its row
+#: runs in ``make test-all``; the default suite checks its exit 130 and finished step in
+#: ``tests/rig/test_signals.py``.
+SLOW_SIGNALS = frozenset({"sigint-once"})
+
+
+@pytest.mark.parametrize(("row", "estimate"), with_estimate(SIGNALS, set(), SLOW_SIGNALS))
 def test_signals(row: str, estimate: bool, tmp_path: Path, uninterrupted: Uninterrupted) -> None:
     signals, exit_code, reason = SIGNALS[row]
     process = start_twin_capture(tmp_path, slow_capture_s=1.0 if len(signals) == 1 else 30.0)
