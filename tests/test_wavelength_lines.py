@@ -754,3 +754,40 @@ def test_a_line_missed_by_more_than_its_width_is_found_when_restarted(miss_px):
     )
     assert len(found) == 1
     assert abs(found[0].centroid_px - (435.83 + miss_px)) < 0.05
+
+
+def test_a_line_narrower_than_three_samples_is_fitted_over_enough_samples(monkeypatch):
+    """Decision 0192: a mosaic's profile comes in 2 px cells, and a 3 px slit image is then 1.5
+    samples wide: ±2 FWHM held 7 samples, too few for a quadratic background with the line's
+    height, shift and width, and the line was dropped (the twin's Canon 300D: 1 of 5 Hg features
+    found, the mapping left 0.6 nm off). The window holds at least 5 samples a side."""
+    from scipy.special import erf
+
+    import calib.wavelength.features as features_module
+
+    hg = [line for line in line_list("hg") if abs(line.wavelength_nm - 435.83) < 0.1]
+    pixel = np.arange(380.0, 500.0, 2.0)
+    identity = QuadraticMapping(0.0, 1.0, 0.0, pixel_range=(380.0, 498.0))
+    fwhm = 3.0
+    sigma = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    centre = 435.83 + 0.4
+    # each cell's mean over its 2 px, as a sensor's cell integrates the line
+    cell = 0.5 * (
+        erf((pixel + 1.0 - centre) / (math.sqrt(2.0) * sigma))
+        - erf((pixel - 1.0 - centre) / (math.sqrt(2.0) * sigma))
+    )
+    band = 5.0 * (1.0 + 0.002 * (pixel - 440.0) - 0.0005 * (pixel - 440.0) ** 2)
+    signal = band + 10.0 * cell
+    features = blends(hg, fwhm)
+    found = fit_features(
+        pixel, signal, 0.02, features, identity, fwhm, background_order=2, restart=True
+    )
+    assert len(found) == 1
+    assert abs(found[0].centroid_px - centre) < 0.1
+    monkeypatch.setattr(features_module, "WINDOW_MIN_SAMPLES", 0.0)  # ±2 FWHM alone, as before
+    assert (
+        fit_features(
+            pixel, signal, 0.02, features, identity, fwhm, background_order=2, restart=True
+        )
+        == []
+    )

@@ -58,8 +58,12 @@ MATCH_TRIPLE_PEAKS = 10
 MATCH_TRIPLE_FEATURES = 12
 #: Strongest peaks and features considered when matching without a start.
 MATCH_PEAKS = 14
-#: A feature's fit window reaches this many FWHM beyond its outermost components.
+#: A feature's fit window reaches this many FWHM beyond its outermost components …
 WINDOW_FWHM = 2.0
+#: … and at least this many profile samples: a line under 2.5 samples wide (a 3 px slit image in
+#: the 2 px cells of a mosaic's profile) leaves ±2 FWHM too few samples for a quadratic
+#: background with the line's height, shift and width, and the feature was dropped (decision 0192).
+WINDOW_MIN_SAMPLES = 5.0
 #: Position error (nm) the mapping fit adds to every feature (the line model's own approximation).
 MODEL_ERROR_NM = 0.01
 #: A feature this much weaker than a close neighbour is not fitted (:func:`_measurable`).
@@ -440,8 +444,9 @@ def _fit_group(
         at = _pixel_of(mapping, np.array([line.wavelength_nm for line in blend.lines]))
         ref_px = float(_pixel_of(mapping, np.array([blend.reference.wavelength_nm]))[0])
         placed.append((blend, ref_px, at - ref_px))
-    lo = min(r + float(o.min()) for _, r, o in placed) - WINDOW_FWHM * fwhm_px
-    hi = max(r + float(o.max()) for _, r, o in placed) + WINDOW_FWHM * fwhm_px
+    reach = _window_px(pixel, fwhm_px)
+    lo = min(r + float(o.min()) for _, r, o in placed) - reach
+    hi = max(r + float(o.max()) for _, r, o in placed) + reach
     inside = (pixel >= lo) & (pixel <= hi)
     n_blends = len(placed)
     n_lines = sum(offsets.size for _, _, offsets in placed)
@@ -837,6 +842,13 @@ def _measurable(features: Sequence[Blend], resolution_nm: float) -> list[Blend]:
     return kept
 
 
+def _window_px(pixel: FloatArray, fwhm_px: float) -> float:
+    """How far (pixel units) a feature's fit window reaches beyond its outermost components:
+    :data:`WINDOW_FWHM` FWHM, at least :data:`WINDOW_MIN_SAMPLES` of the profile's samples."""
+    spacing = float(np.median(np.diff(pixel))) if pixel.size > 1 else 1.0
+    return max(WINDOW_FWHM * fwhm_px, WINDOW_MIN_SAMPLES * abs(spacing))
+
+
 def fit_features(
     pixel: FloatArray,
     signal: FloatArray,
@@ -851,6 +863,7 @@ def fit_features(
     """Every feature the mapping puts inside the profile, fitted (overlapping ones together;
     ``background_order``, ``restart``: :func:`_fit_group`'s)."""
     lo, hi = float(pixel[0]), float(pixel[-1])
+    reach = _window_px(pixel, fwhm_px)
     located = []
     for blend in features:
         try:
@@ -862,7 +875,7 @@ def fit_features(
     located.sort(key=lambda item: item[0])
     groups: list[list[tuple[float, float, Blend]]] = []
     for item in located:
-        near = groups and item[0] - groups[-1][-1][1] < 2 * WINDOW_FWHM * fwhm_px
+        near = groups and item[0] - groups[-1][-1][1] < 2 * reach
         if near and len(groups[-1]) < MAX_GROUP:
             groups[-1].append(item)
         else:
