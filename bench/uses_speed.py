@@ -20,16 +20,14 @@ import argparse
 import os
 import statistics
 import time
-from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-import calib
 from calib.core.camera_curves import CameraCurves
-from calib.core.formats import read_camera
+from calib.core.formats.ampas import reference_cameras
 from calib.use import camera_uses
 from calib.use.idt import IDT_ILLUMINANTS, aces_idt
 
@@ -39,11 +37,10 @@ NOISE = 0.03
 
 def cameras(count: int) -> list[CameraCurves]:
     """The first ``count`` bundled cameras (by file name), each as measured and with noise."""
-    folder = Path(calib.__file__).parent / "core" / "data" / "rawtoaces-data" / "data" / "camera"
     rng = np.random.default_rng(0)
     found: list[CameraCurves] = []
-    for path in sorted(folder.glob("*.json"))[:count]:
-        camera = read_camera(path).normalised()
+    for reference in reference_cameras()[:count]:
+        camera = reference.curves.normalised()
         noisy = camera.values * (1.0 + NOISE * rng.standard_normal(camera.values.shape))
         found += [
             camera,

@@ -606,7 +606,7 @@ def test_a_line_groups_fit_jacobian_equals_finite_differences(monkeypatch):
         * np.exp(-0.5 * ((pixel - (line.wavelength_nm - 400.0) / 0.5 - 0.3) / sigma) ** 2)
         for line in lines
     )
-    fitted = features._fit_group(pixel, signal + 0.01, 0.01, group, mapping, 2.5)
+    fitted = features._fit_group(pixel, signal + 0.01, 0.01, group, mapping, 2.5, 1.0)
     assert fitted and captured
     function, x0 = captured[0]
     x = x0 + 0.05  # away from the start: nonzero shifts, another width and heights

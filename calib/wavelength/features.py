@@ -419,11 +419,13 @@ def _fit_group(
     group: Sequence[Blend],
     mapping: ExactMapping,
     fwhm_px: float,
+    spacing_px: float,
     *,
     background_order: int = 1,
     restart: bool = False,
 ) -> list[_Fitted]:
-    """Fit overlapping features together (see the module docstring, step 4).
+    """Fit overlapping features together (see the module docstring, step 4); ``spacing_px``, the
+    profile's sample spacing, sets the window's least reach (:func:`_window_px`).
 
     Background (a polynomial of ``background_order``), one height per component, one shift per
     feature and a shared width, fitted jointly by Levenberg–Marquardt with the closed-form
@@ -444,7 +446,7 @@ def _fit_group(
         at = _pixel_of(mapping, np.array([line.wavelength_nm for line in blend.lines]))
         ref_px = float(_pixel_of(mapping, np.array([blend.reference.wavelength_nm]))[0])
         placed.append((blend, ref_px, at - ref_px))
-    reach = _window_px(pixel, fwhm_px)
+    reach = _window_px(spacing_px, fwhm_px)
     lo = min(r + float(o.min()) for _, r, o in placed) - reach
     hi = max(r + float(o.max()) for _, r, o in placed) + reach
     inside = (pixel >= lo) & (pixel <= hi)
@@ -842,11 +844,10 @@ def _measurable(features: Sequence[Blend], resolution_nm: float) -> list[Blend]:
     return kept
 
 
-def _window_px(pixel: FloatArray, fwhm_px: float) -> float:
+def _window_px(spacing_px: float, fwhm_px: float) -> float:
     """How far (pixel units) a feature's fit window reaches beyond its outermost components:
-    :data:`WINDOW_FWHM` FWHM, at least :data:`WINDOW_MIN_SAMPLES` of the profile's samples."""
-    spacing = float(np.median(np.diff(pixel))) if pixel.size > 1 else 1.0
-    return max(WINDOW_FWHM * fwhm_px, WINDOW_MIN_SAMPLES * abs(spacing))
+    :data:`WINDOW_FWHM` FWHM, at least :data:`WINDOW_MIN_SAMPLES` samples ``spacing_px`` apart."""
+    return max(WINDOW_FWHM * fwhm_px, WINDOW_MIN_SAMPLES * spacing_px)
 
 
 def fit_features(
@@ -863,7 +864,8 @@ def fit_features(
     """Every feature the mapping puts inside the profile, fitted (overlapping ones together;
     ``background_order``, ``restart``: :func:`_fit_group`'s)."""
     lo, hi = float(pixel[0]), float(pixel[-1])
-    reach = _window_px(pixel, fwhm_px)
+    spacing = abs(float(np.median(np.diff(pixel)))) if pixel.size > 1 else 1.0
+    reach = _window_px(spacing, fwhm_px)
     located = []
     for blend in features:
         try:
@@ -889,6 +891,7 @@ def fit_features(
             [b for _, _, b in group],
             mapping,
             fwhm_px,
+            spacing,
             background_order=background_order,
             restart=restart,
         )
