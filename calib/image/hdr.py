@@ -40,6 +40,10 @@ their recorded time are in :attr:`FrameRecord.gain` and ``metadata["frame_gains"
 not added to the per-sample variance: it is one error shared by all of a frame's samples (a scale, not
 noise), and 10⁻⁴–10⁻³ for a real bracket's overlap, far below the shutter error it removes (decision
 0098: added to the direct RGB's σ as an upper bound, it moved the validation coverage by < 0.1 point).
+A short frame that alone measures the direct spot shares only dim samples with the others, and its
+gain's σ is 0.2–0.5 %: still five times better than its recorded time (decision 0193). What is left
+of a lamp's spot-to-band ratio is in the estimators' own σ of it
+(:data:`calib.methods.responses.DIRECT_GAIN_SIGMA`).
 
 Frames are streamed: the next ones are decoded (in background threads) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.
@@ -124,9 +128,13 @@ EXPOSURE_MATCH_TOLERANCE = 0.02
 GAIN_MIN_SAMPLES = 100
 #: ... and only when the estimate's σ is at most this: a shutter's actual exposure is off its
 #: recorded time by ~1–3 % (focal-plane curtain timing, third-stop labels rounding 2^(n/3) by up to
-#: 3 %; decision 0087), so an estimate five times better than 1 % improves on the recorded time;
-#: a poorer one could make the merge worse than the label it replaces.
-GAIN_MAX_SIGMA = 0.002
+#: 3 %; decision 0087), so an estimate better than 1 % improves on the recorded time; a poorer one
+#: could make the merge worse than the label it replaces. (At 0.2 % the bracket's shortest frame,
+#: which alone measures the direct spot and shares with the others only the spot's edges and the
+#: band's brightest part, kept its recorded time on a third of the validation twins' lamps, with
+#: estimates of σ 0.3 % that were right to 0.1 %: the spot's level then carried that frame's 1–4 %
+#: against the band's; decision 0193.)
+GAIN_MAX_SIGMA = 0.01
 #: ... and only when it departs from the recorded time by more than this many of its σ: the gain is
 #: one error shared by all of a frame's samples, which the per-sample variance does not carry, so a
 #: gain the data cannot tell from 1 would add its own σ (10⁻⁴-size, the size of a wide band's
