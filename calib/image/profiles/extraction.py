@@ -339,8 +339,7 @@ def _extract_direct(
     positions: list[FloatArray] = []
     weights: list[FloatArray] = []
     columns: list[tuple[FloatArray, FloatArray, FloatArray]] = []
-    cells: list[tuple[FloatArray, FloatArray]] = []
-    lengths: list[FloatArray] = []
+    spots: list[tuple[FloatArray, FloatArray]] = []
     across_axis = (
         0 if abs(math.cos(math.radians(angle))) >= abs(math.sin(math.radians(angle))) else 1
     )
@@ -372,23 +371,21 @@ def _extract_direct(
                 across_axis,
             )
         )
-        spot = np.where(inside, image.radiance[channel][window] - background[channel], 0.0)
-        cells.append(
+        spots.append(
             (
-                spot.sum(axis=across_axis, dtype=np.float64),
-                np.where(inside, image.variance[channel][window], 0.0).sum(
-                    axis=across_axis, dtype=np.float64
-                ),
+                np.where(inside, image.radiance[channel][window] - background[channel], 0.0),
+                np.where(inside, image.variance[channel][window], 0.0),
             )
         )
-        lengths.append(spot.sum(axis=1 - across_axis, dtype=np.float64))
+    cells, lengths = _cells(spots, across_axis)
     spread = _line_spread(
         np.concatenate(positions), np.concatenate(weights), geometry.bin_px, along
     )
     resolved, note, aliasing = _resolved_direct(
         columns, _site_offsets(image, angle), image.pixel_pitch_px, along
     )
-    # A slit image narrower than the plane pitch lights too few cells to fit the interleaving. A
+    # A slit image narrower than the plane pitch lights too few cells to check the interleaving
+    # (below: its value, with its difference from the plain sums in its σ). A
     # spot whose slit image has (almost) no first harmonic at the plane pitch, blurred or as wide
     # as a whole number of pitches (``_resolved_direct`` returns neither a fit nor a note), keeps
     # its plain sums, off by at most twice that harmonic (decision 0140): the interleaving would
@@ -408,19 +405,42 @@ def _extract_direct(
             _slit_tilt(angle, across_axis),
         )
         variance = variance + (relative * direct) ** 2
+    tilt = _slit_tilt(angle, across_axis)
     interleaved = (
         None
-        if narrow or smooth
+        if smooth
         else _interleaved_direct(
-            cells,
-            lengths,
-            image.cfa_pattern,
-            image.pixel_pitch_px,
-            _slit_tilt(angle, across_axis),
-            across_axis,
+            cells, lengths, image.cfa_pattern, image.pixel_pitch_px, tilt, across_axis
         )
     )
-    if interleaved is not None:
+    if narrow and interleaved is not None and _holds_green(interleaved, direct):
+        # A slit image narrower than the plane pitch lights one or two columns of each one-site
+        # plane: the interleaving then rests on two cells, whose fit has nothing left over to
+        # check its one shape against. The slit's two halves along its length are two such
+        # readings (at two phases where the slit is tilted against the columns): what they
+        # disagree by in colour beyond their noise goes into the σ (decision 0193).
+        direct, sigma_interleaved = interleaved
+        variance = sigma_interleaved**2 + _split_half_variance(
+            spots, across_axis, image.cfa_pattern, image.pixel_pitch_px, tilt, direct
+        )
+        note = (
+            f"{note}: the direct RGB is the Bayer cells' interleaving of one or two columns "
+            f"(R {_percent(direct, variance, 0)}, B {_percent(direct, variance, 2)}, from its two "
+            "halves' agreement); defocus the slit image slightly or widen the slit"
+        )
+    elif narrow:
+        # No interleaving that holds: the plain sums, with their aliasing over the spot's unknown
+        # phase for the fitted slit image in their σ — for a slit image this narrow, tens of per
+        # cent (decision 0193).
+        if aliasing is not None:
+            relative = _plain_sum_aliasing(*aliasing, image.pixel_pitch_px, lengths, tilt)
+            variance = variance + (relative * direct) ** 2
+        note = (
+            f"{note}: the direct RGB is each colour plane's plain sum, which a sharp spot "
+            f"aliases (R {_percent(direct, variance, 0)}, B {_percent(direct, variance, 2)}); "
+            "defocus the slit image slightly or widen the slit"
+        )
+    elif interleaved is not None:
         # The spot's integral from the Bayer cells' interleaving, which needs no model of the
         # spot's edge (decision 0119), where the spot is sharp enough for the plane sampling to
         # alias it. (Keeping the plain sums where the two agree within 2σ was tried and made the
@@ -436,13 +456,98 @@ def _extract_direct(
         # residuals cannot show it). Their difference goes into the value's σ.
         variance = variance + (resolved - direct) ** 2
         direct = resolved
-    if note is not None:
+    elif note is not None:
         note = (
             f"{note}: the direct RGB is each colour plane's plain sum, which a sharp spot "
             "aliases (its colour may be off by tens of per cent); defocus the slit image slightly "
             "or widen the slit"
         )
     return direct, np.sqrt(variance), background, spread, note
+
+
+#: Where a narrow slit image's interleaving is kept (decision 0193): its G total within this
+#: (and 3 of its σ) of the G plane's plain sum, which holds both of each cell's sensor columns and
+#: so is near exact for any spot. On slit images 1.2 px wide (and narrower) the two cells' fit
+#: breaks down and its G total is 5–13 % off; at 1.5–1.9 px it is within 0.2 %.
+INTERLEAVED_GREEN_TOLERANCE = 0.01
+
+
+def _holds_green(interleaved: tuple[FloatArray, FloatArray], plain: FloatArray) -> bool:
+    """Whether an interleaving's G total agrees with the G plane's plain sum
+    (:data:`INTERLEAVED_GREEN_TOLERANCE`)."""
+    values, sigma = interleaved
+    if not (plain[1] > 0 and values[1] > 0):
+        return False
+    return bool(
+        abs(values[1] / plain[1] - 1.0) <= INTERLEAVED_GREEN_TOLERANCE + 3.0 * sigma[1] / values[1]
+    )
+
+
+def _cells(
+    spots: list[tuple[FloatArray, FloatArray]], across_axis: int, lines: slice = slice(None)
+) -> tuple[list[tuple[FloatArray, FloatArray]], list[FloatArray]]:
+    """Per channel, from its spot window's values and variances (zero outside the spot), over the
+    plane lines ``lines`` along the slit: each plane column's sum along the slit and the sum's
+    variance (:func:`_interleaved_direct`'s ``cells``), and each plane line's sum across it
+    (its ``lengths``). ``across_axis``: the axis the slit runs along."""
+    cells = []
+    lengths = []
+    for values, variances in spots:
+        part = values[lines] if across_axis == 0 else values[:, lines]
+        part_variance = variances[lines] if across_axis == 0 else variances[:, lines]
+        cells.append(
+            (
+                np.asarray(part.sum(axis=across_axis, dtype=np.float64), dtype=np.float64),
+                np.asarray(part_variance.sum(axis=across_axis, dtype=np.float64), dtype=np.float64),
+            )
+        )
+        lengths.append(
+            np.asarray(part.sum(axis=1 - across_axis, dtype=np.float64), dtype=np.float64)
+        )
+    return cells, lengths
+
+
+def _split_half_variance(
+    spots: list[tuple[FloatArray, FloatArray]],
+    across_axis: int,
+    cfa_pattern: str,
+    pitch: float,
+    tilt: float,
+    direct: FloatArray,
+) -> FloatArray:
+    """Per channel: the variance a narrow slit image's interleaving (``direct``) is given from the
+    slit's two halves along its length, each interleaved alone (decision 0193).
+
+    The halves' colours (each channel over G) differ by ``Δ``; their noise alone makes
+    ``E[Δ²]`` the sum of their colours' variances, and what exceeds it is the model's error, at
+    different phases in the two halves. The whole's colour errs by about half of it (the mean of
+    the two halves'): ``(Δ² − noise) / 4``, times the value squared. G, the reference, gets none.
+    A half without an interleaving (too few cells, a fit that is not positive) gives the whole's
+    difference from nothing to compare: the value itself as its σ."""
+    lines = spots[0][0].shape[across_axis]
+    halves = [
+        _interleaved_direct(
+            *_cells(spots, across_axis, part), cfa_pattern, pitch, tilt, across_axis
+        )
+        for part in (slice(None, lines // 2), slice(lines // 2, None))
+    ]
+    if any(half is None for half in halves):
+        return np.asarray(direct**2, dtype=np.float64)
+    (first, first_sigma), (second, second_sigma) = halves  # type: ignore[misc]
+    colour_first, colour_second = first / first[1], second / second[1]
+    difference = (colour_first - colour_second) / (direct / direct[1])
+    noise = (first_sigma / first) ** 2 + (second_sigma / second) ** 2
+    excess = np.clip(difference**2 - noise, 0.0, None) / 4.0
+    excess[1] = 0.0
+    return np.asarray(excess * direct**2, dtype=np.float64)
+
+
+def _percent(direct: FloatArray, variance: FloatArray, channel: int) -> str:
+    """A channel's σ as a percentage of its value, for a note."""
+    value = abs(float(direct[channel]))
+    if value <= 0:
+        return "σ unknown"
+    return f"σ {100.0 * math.sqrt(max(float(variance[channel]), 0.0)) / value:.1f} %"
 
 
 def _plain_sum_aliasing(
@@ -741,8 +846,9 @@ def _resolved_direct(
     and blur together) is smaller than :data:`ALIASING_LIMIT`; the fitted slit image narrower than
     one plane pitch (then no channel resolves its edges); the fit failed. The second item says why
     a sharp spot kept its plain sum (its colour may then be off), ``None`` otherwise; the third is
-    the fitted slit image's half-width and blur where the plain sum is kept as exact (for its
-    aliasing's σ, :func:`_plain_sum_aliasing`), else ``None``.
+    the fitted slit image's half-width and blur where the plain sum is kept as exact or the slit
+    image is narrower than the pitch (for the plain sums' aliasing σ,
+    :func:`_plain_sum_aliasing`), else ``None``.
     """
     from scipy.optimize import least_squares  # deferred like the other scipy imports
 
@@ -805,7 +911,7 @@ def _resolved_direct(
                 f"the slit image is {2.0 * half_width:.1f} px wide and sharp (blur σ "
                 f"{blur:.2f} px), narrower than the colour planes' {pitch:g} px pitch"
             ),
-            None,
+            (half_width, blur),
         )
     shape = seen(centre, half_width, blur)
     return np.asarray(amplitudes(shape) * 2.0 * half_width * pitch, dtype=np.float64), None, None
