@@ -41,9 +41,7 @@ not added to the per-sample variance: it is one error shared by all of a frame's
 noise), and 10⁻⁴–10⁻³ for a real bracket's overlap, far below the shutter error it removes (decision
 0098: added to the direct RGB's σ as an upper bound, it moved the validation coverage by < 0.1 point).
 A short frame that alone measures the direct spot shares only dim samples with the others, and its
-gain's σ is 0.2–0.5 %: still five times better than its recorded time (decision 0193). What is left
-of a lamp's spot-to-band ratio is in the estimators' own σ of it
-(:data:`calib.methods.responses.DIRECT_GAIN_SIGMA`).
+gain's σ is 0.2–0.5 %: still better than its recorded time's 1–3 % (decision 0193).
 
 Frames are streamed: the next ones are decoded (in background threads) while one is merged, so the
 peak memory is a few frames' planes plus the float32 accumulators, whatever the bracket's length.

@@ -385,7 +385,7 @@ def _extract_direct(
         columns, _site_offsets(image, angle), image.pixel_pitch_px, along
     )
     # A slit image narrower than the plane pitch lights too few cells to check the interleaving
-    # (below: its value, with its difference from the plain sums in its σ). A
+    # by its fit (below: its G against the G plane's sum, its colour against its two halves'). A
     # spot whose slit image has (almost) no first harmonic at the plane pitch, blurred or as wide
     # as a whole number of pitches (``_resolved_direct`` returns neither a fit nor a note), keeps
     # its plain sums, off by at most twice that harmonic (decision 0140): the interleaving would
@@ -413,25 +413,30 @@ def _extract_direct(
             cells, lengths, image.cfa_pattern, image.pixel_pitch_px, tilt, across_axis
         )
     )
-    if narrow and interleaved is not None and _holds_green(interleaved, direct):
+    halves = (
+        _split_half_variance(
+            spots, across_axis, image.cfa_pattern, image.pixel_pitch_px, tilt, interleaved[0]
+        )
+        if narrow and interleaved is not None and _holds_green(interleaved, direct)
+        else None
+    )
+    if narrow and interleaved is not None and halves is not None:
         # A slit image narrower than the plane pitch lights one or two columns of each one-site
         # plane: the interleaving then rests on two cells, whose fit has nothing left over to
         # check its one shape against. The slit's two halves along its length are two such
         # readings (at two phases where the slit is tilted against the columns): what they
         # disagree by in colour beyond their noise goes into the σ (decision 0193).
         direct, sigma_interleaved = interleaved
-        variance = sigma_interleaved**2 + _split_half_variance(
-            spots, across_axis, image.cfa_pattern, image.pixel_pitch_px, tilt, direct
-        )
+        variance = sigma_interleaved**2 + halves
         note = (
             f"{note}: the direct RGB is the Bayer cells' interleaving of one or two columns "
             f"(R {_percent(direct, variance, 0)}, B {_percent(direct, variance, 2)}, from its two "
             "halves' agreement); defocus the slit image slightly or widen the slit"
         )
     elif narrow:
-        # No interleaving that holds: the plain sums, with their aliasing over the spot's unknown
-        # phase for the fitted slit image in their σ — for a slit image this narrow, tens of per
-        # cent (decision 0193).
+        # No interleaving that holds (none, its G off the G plane's sum, or a half without one):
+        # the plain sums, with their aliasing over the spot's unknown phase for the fitted slit
+        # image in their σ — for a slit image this narrow, tens of per cent (decision 0193).
         if aliasing is not None:
             relative = _plain_sum_aliasing(*aliasing, image.pixel_pitch_px, lengths, tilt)
             variance = variance + (relative * direct) ** 2
@@ -514,7 +519,7 @@ def _split_half_variance(
     pitch: float,
     tilt: float,
     direct: FloatArray,
-) -> FloatArray:
+) -> FloatArray | None:
     """Per channel: the variance a narrow slit image's interleaving (``direct``) is given from the
     slit's two halves along its length, each interleaved alone (decision 0193).
 
@@ -522,8 +527,8 @@ def _split_half_variance(
     ``E[Δ²]`` the sum of their colours' variances, and what exceeds it is the model's error, at
     different phases in the two halves. The whole's colour errs by about half of it (the mean of
     the two halves'): ``(Δ² − noise) / 4``, times the value squared. G, the reference, gets none.
-    A half without an interleaving (too few cells, a fit that is not positive) gives the whole's
-    difference from nothing to compare: the value itself as its σ."""
+    ``None`` where a half has no interleaving (too few cells, a fit that is not positive): then
+    nothing checks the whole's."""
     lines = spots[0][0].shape[across_axis]
     halves = [
         _interleaved_direct(
@@ -531,9 +536,10 @@ def _split_half_variance(
         )
         for part in (slice(None, lines // 2), slice(lines // 2, None))
     ]
-    if any(half is None for half in halves):
-        return np.asarray(direct**2, dtype=np.float64)
-    (first, first_sigma), (second, second_sigma) = halves  # type: ignore[misc]
+    first_half, second_half = halves
+    if first_half is None or second_half is None:
+        return None
+    (first, first_sigma), (second, second_sigma) = first_half, second_half
     colour_first, colour_second = first / first[1], second / second[1]
     difference = (colour_first - colour_second) / (direct / direct[1])
     noise = (first_sigma / first) ** 2 + (second_sigma / second) ** 2
