@@ -476,9 +476,11 @@ def _rawtoaces_v1_with_gradient() -> tuple[FloatArray, Any, Any, Any]:
 
     colour's objective goes through its checked colour-model functions and its gradient through
     finite differences: 7 evaluations per BFGS step, 70–100 ms per IDT (``bench/uses_speed.py``),
-    three IDTs per estimate's outputs; here one evaluation per step, 8–11 ms per IDT. The objective is ‖Lab(A·M·rgb) − Lab_training‖ over the 190 training
-    reflectances, M the 3×3 matrix whose rows sum to 1 (its first two columns are the 6 unknowns),
-    A the ACES2065-1 primaries' RGB → XYZ and Lab against the ACES white.
+    three IDTs per estimate's outputs; here one evaluation per step, 8–11 ms per IDT.
+
+    The objective is ‖Lab(A·M·rgb) − Lab_training‖ over the 190 training reflectances, M the 3×3
+    matrix whose rows sum to 1 (its first two columns are the 6 unknowns), A the ACES2065-1
+    primaries' RGB → XYZ and Lab against the ACES white.
     """
     colour = _colour()
     aces = colour.models.RGB_COLOURSPACE_ACES2065_1

@@ -395,17 +395,16 @@ def _extract_direct(
     # interleaving reads the spot, a bound on that term is in its σ (decision 0134).
     narrow = note is not None and note != FIT_FAILED
     smooth = resolved is None and note is None
-    if smooth and aliasing is not None:
-        # The plain sums' aliasing over the spot's unknown sub-pixel phase is in their σ, as its
-        # RMS over that phase (decision 0148).
-        relative = _plain_sum_aliasing(
-            *aliasing,
-            image.pixel_pitch_px,
-            lengths,
-            _slit_tilt(angle, across_axis),
-        )
-        variance = variance + (relative * direct) ** 2
     tilt = _slit_tilt(angle, across_axis)
+    # Where the plain sums are kept (a smooth spot, or a narrow one no interleaving reads), their
+    # aliasing over the spot's unknown sub-pixel phase is in their σ, as its RMS over that phase
+    # (decision 0148).
+    plain_variance = variance
+    if aliasing is not None:
+        relative = _plain_sum_aliasing(*aliasing, image.pixel_pitch_px, lengths, tilt)
+        plain_variance = variance + (relative * direct) ** 2
+    if smooth:
+        variance = plain_variance
     interleaved = (
         None
         if smooth
@@ -435,11 +434,9 @@ def _extract_direct(
         )
     elif narrow:
         # No interleaving that holds (none, its G off the G plane's sum, or a half without one):
-        # the plain sums, with their aliasing over the spot's unknown phase for the fitted slit
-        # image in their σ — for a slit image this narrow, tens of per cent (decision 0193).
-        if aliasing is not None:
-            relative = _plain_sum_aliasing(*aliasing, image.pixel_pitch_px, lengths, tilt)
-            variance = variance + (relative * direct) ** 2
+        # the plain sums, with their aliasing for the fitted slit image in their σ — for a slit
+        # image this narrow, tens of per cent (decision 0193).
+        variance = plain_variance
         note = (
             f"{note}: the direct RGB is each colour plane's plain sum, which a sharp spot "
             f"aliases (R {_percent(direct, variance, 0)}, B {_percent(direct, variance, 2)}); "
@@ -524,8 +521,8 @@ def _split_half_variance(
     slit's two halves along its length, each interleaved alone (decision 0193).
 
     The halves' colours (each channel over G) differ by ``Δ``; their noise alone makes
-    ``E[Δ²]`` the sum of their colours' variances, and what exceeds it is the model's error, at
-    different phases in the two halves. The whole's colour errs by about half of it (the mean of
+    ``E[Δ²]`` about the sum of the channel's relative variances in the two halves, and what
+    exceeds it is the model's error, at different phases in the two halves. The whole's colour errs by about half of it (the mean of
     the two halves'): ``(Δ² − noise) / 4``, times the value squared. G, the reference, gets none.
     ``None`` where a half has no interleaving (too few cells, a fit that is not positive): then
     nothing checks the whole's."""
