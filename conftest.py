@@ -16,6 +16,22 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _children_keep_their_temporary_files_in_this_run(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> Iterator[None]:
+    """Child processes make their temporary files under this run's own directory.
+
+    The crash tests kill ``rig`` children with SIGKILL, which leaves the twin camera's scratch
+    directory behind (a killed process removes nothing). Under the run's directory, pytest prunes
+    it with the run's other files instead of it staying in the system's temporary directory.
+    """
+    scratch = tmp_path_factory.mktemp("children-tmp", numbered=False)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("TMPDIR", str(scratch))
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _numpy_prints_as_documented() -> Iterator[None]:
     """NumPy's current print style for every test and docstring example.
