@@ -551,6 +551,27 @@ def test_mapping_failures_are_counted_with_and_without_an_ambiguity_warning() ->
     assert dict(whole.statistics)["≤ 3 nm warned"] == 1.0
 
 
+def test_the_mapping_sigma_ratio_is_also_given_without_and_with_a_warning() -> None:
+    """A warned mapping's σ spans its competing basins: its ratio is told apart from the others'."""
+    rows = [
+        replace(_row(name, "LED only", 0.005), mapping_warned=False, mapping_sigma_ratio=ratio)
+        for name, ratio in (("A", 0.6), ("B", 0.8), ("C", 1.0))
+    ] + [
+        replace(_row(name, "LED only", 0.005), mapping_warned=True, mapping_sigma_ratio=ratio)
+        for name, ratio in (("D", 0.1), ("E", 0.2), ("F", 0.3))
+    ]
+    stats = dict(
+        next(r for r in summarise(rows) if r.table == "mapping" and r.group == "all").statistics
+    )
+    assert stats["σ ratio (median)"] == pytest.approx(0.45)
+    assert stats["σ ratio unwarned (median)"] == pytest.approx(0.8)
+    assert stats["σ ratio warned (median)"] == pytest.approx(0.2)
+    unwarned_only = dict(
+        next(r for r in summarise(rows[:3]) if r.table == "mapping" and r.group == "all").statistics
+    )
+    assert unwarned_only["σ ratio warned (median)"] is None
+
+
 @pytest.mark.parametrize(
     ("arguments", "message"),
     [

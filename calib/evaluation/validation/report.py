@@ -14,7 +14,11 @@ Statistics (over the estimates of a cell; failed estimates are counted, not aver
 - σ ratio: the median over estimates of RMS(actual error) / RMS(stated σ) (1 when honest);
 - mapping: mean and median of the mean ``|Δλ|`` over the profile (nm), the number of estimates
   off by more than 3 nm and how many of them carried no ambiguity warning, how many within 3 nm
-  carried one (false alarms), mapping RE (%), coverage and σ ratio of the stated σ_λ.
+  carried one (false alarms), mapping RE (%), coverage and σ ratio of the stated σ_λ — the
+  ratio also over the estimates without and with an ambiguity warning apart: a warned mapping's
+  σ spans its competing basins (:mod:`calib.wavelength.profile_search`), so where the chosen basin
+  is the right one its ratio is small by design, and a split where many mappings are warned has a
+  small median ratio whatever the unwarned σ does.
 """
 
 from __future__ import annotations
@@ -130,6 +134,14 @@ def _mapping_statistics(rows: Sequence[ValidationRow]) -> Statistics:
             None if (m := _mean(r.mapping_coverage for r in mapped)) is None else 100 * m,
         ),
         ("σ ratio (median)", _median(r.mapping_sigma_ratio for r in mapped)),
+        (
+            "σ ratio unwarned (median)",
+            _median(r.mapping_sigma_ratio for r in mapped if not r.mapping_warned),
+        ),
+        (
+            "σ ratio warned (median)",
+            _median(r.mapping_sigma_ratio for r in mapped if r.mapping_warned),
+        ),
     )
 
 
