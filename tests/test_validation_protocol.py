@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -524,6 +525,10 @@ def test_report_tables_and_csvs(tmp_path: Path) -> None:
     report = markdown_report([splits.test], rows, ProtocolSettings(), command="calib validate")
     assert "## Split: test" in report and "### test: mapping" in report
     assert "LED+FL on C (scene 0): EstimationError: no" in report
+    # Every row of the mapping table has as many cells as its heading ("mean |Δλ| nm" is one).
+    table = report.split("### test: mapping")[1].split("\n\n")[1].splitlines()
+    assert len(table) >= 3 and "mean \\|Δλ\\| nm" in table[0]
+    assert len({len(re.split(r"(?<!\\)\|", line)) for line in table}) == 1, table
     with write_summary_csv(tmp_path / "summary.csv", rows).open() as handle:
         lines = list(csv.DictReader(handle))
     assert {line["split"] for line in lines} == {"test"}

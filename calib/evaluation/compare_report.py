@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.core.markdown import table_row, table_rule
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.evaluation.compare import CompareRow, GratingAdapter, SyntheticAdapter
 
@@ -65,18 +66,12 @@ def _table_lines(
     cells: dict[tuple[str, str], list[CompareRow]] = defaultdict(list)
     for row in rows:
         cells[(row.camera, row.label)].append(row)
-    lines = ["| camera | " + " | ".join(labels) + " |", "|---|" + "---:|" * len(labels)]
+    lines = [table_row(["camera", *labels]), table_rule(1 + len(labels), right_aligned_from=1)]
     for camera in cameras:
-        lines.append(
-            f"| {camera} | " + " | ".join(_cell(cells[(camera, label)]) for label in labels) + " |"
-        )
+        lines.append(table_row([camera, *(_cell(cells[(camera, label)]) for label in labels)]))
     by_label = {label: [r for r in rows if r.label == label] for label in labels}
-    lines.append(
-        "| **mean** | " + " | ".join(f"**{_cell(by_label[label])}**" for label in labels) + " |"
-    )
-    lines.append(
-        "| time / estimate | " + " | ".join(_time_cell(by_label[label]) for label in labels) + " |"
-    )
+    lines.append(table_row(["**mean**", *(f"**{_cell(by_label[label])}**" for label in labels)]))
+    lines.append(table_row(["time / estimate", *(_time_cell(by_label[label]) for label in labels)]))
     return lines
 
 

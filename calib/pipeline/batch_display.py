@@ -21,6 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from calib.core.errors import InputError
+from calib.core.markdown import table_row, table_rule
 from calib.pipeline.batch_jobs import BatchRow
 from calib.pipeline.progress import RichFrameProgress
 
@@ -79,12 +80,9 @@ def summary_table(rows: Sequence[BatchRow], *, label: str = "session") -> Table:
 def summary_markdown(rows: Sequence[BatchRow], *, label: str = "session") -> str:
     """The summary as a Markdown table, then the failures' reasons and every warning."""
 
-    def line(cells: Sequence[str]) -> str:
-        return "| " + " | ".join(cell.replace("|", "\\|") for cell in cells) + " |"
-
     headings = _headings(label)
-    lines = [line(headings), "|" + "|".join("---" for _ in headings) + "|"]
-    lines.extend(line(_cells(row)) for row in rows)
+    lines = [table_row(headings), table_rule(len(headings))]
+    lines.extend(table_row(_cells(row)) for row in rows)
     failed = [row for row in rows if row.error]
     if failed:
         lines += ["", "## Not estimated", ""]

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.core.markdown import table_row, table_rule
 from calib.core.result import MAPPING_FAILURE_NM
 from calib.evaluation.validation.protocol import (
     CHANNELS,
@@ -186,7 +187,7 @@ def _cell(value: float | None, digits: int = 2) -> str:
 def _markdown_table(rows: Sequence[SummaryRow], key_columns: Sequence[str]) -> list[str]:
     names = [name for name, _ in rows[0].statistics]
     header = [*key_columns, "n", "failed", *names]
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines = [table_row(header), table_rule(len(header))]
     for row in rows:
         keys = {
             "method": row.variant,
@@ -196,11 +197,7 @@ def _markdown_table(rows: Sequence[SummaryRow], key_columns: Sequence[str]) -> l
         }
         values = [_cell(v, 0 if name.startswith(">") else 2) for name, v in row.statistics]
         lines.append(
-            "| "
-            + " | ".join(
-                [*(keys[k] for k in key_columns), str(row.estimates), str(row.failures), *values]
-            )
-            + " |"
+            table_row([*(keys[k] for k in key_columns), row.estimates, row.failures, *values])
         )
     return lines
 
