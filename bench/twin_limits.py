@@ -327,7 +327,7 @@ def main() -> None:
                         )
             print(f"task {index} {task.camera.name} done", file=sys.stderr, flush=True)
     print("validation split, seed 0, 2-D twin; RE ×10⁻² mean / median, ±2σ coverage %")
-    print("| ablation | variant | n | mean RE | median RE | ±2σ | |Δλ| nm |")
+    print("| ablation | variant | n | mean RE | median RE | ±2σ | \\|Δλ\\| nm |")
     print("|---|---|---|---|---|---|---|")
     for (name, label), rows in table.items():
         re = np.array([r.relative_error for r in rows], dtype=np.float64) * 100

@@ -283,7 +283,7 @@ def main() -> None:
                 rows_1d += evaluate_task(task)
                 rows_2d += evaluate_2d(task, root / split.role / f"task_{index:03d}")
     print(
-        "| split | camera | method | RE 1-D | RE 2-D | |Δλ| 1-D nm | |Δλ| 2-D nm | cov 1-D % | cov 2-D % |"
+        "| split | camera | method | RE 1-D | RE 2-D | \\|Δλ\\| 1-D nm | \\|Δλ\\| 2-D nm | cov 1-D % | cov 2-D % |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for one, two in zip(rows_1d, rows_2d, strict=True):
