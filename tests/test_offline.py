@@ -244,6 +244,10 @@ def test_both_first_orders_in_frame_use_the_stronger(tmp_path: Path) -> None:
     geometry = _profiles(result).geometry
     assert [band.side for band in geometry.orders] == [1, -1]
     assert geometry.primary.angle_deg == pytest.approx(3.0, abs=0.1)
+    # The result says the other order was seen and left out (its flux share measured: 0.4 drawn).
+    (note,) = [n for n in result.provenance.notes if "other first order" in n]
+    share = float(note.split("side -1, ")[1].split("%")[0]) / 100
+    assert share == pytest.approx(0.4, abs=0.08) and "+1 order alone" in note, note
     relative, mapping = capture.errors(result.result, result.observations[0].pixel)
     assert relative < RE_TARGET and mapping < MAPPING_RE_TARGET, (relative, mapping)
 

@@ -596,6 +596,7 @@ def bracket_profiles(
         dark_reach=dark_reach(local, reference.sensor_shape_px, extract_all),
     )
     geometry = to_sensor(extended, reference)
+    notes.extend(geometry.notes)  # what the detection decided (the other first order …)
     notes.extend(extension_notes)
     extractions = tuple(
         LampExtraction(

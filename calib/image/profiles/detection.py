@@ -625,7 +625,12 @@ def detect_geometry(
         except DetectionError as exc:
             notes.append(f"the other first order (side -1) was left out: {exc}")
         else:
-            orders.append(replace(other, relative_flux=opposite[0].flux / primary_candidate.flux))
+            ratio = opposite[0].flux / primary_candidate.flux
+            orders.append(replace(other, relative_flux=ratio))
+            notes.append(
+                f"the other first order (side -1, {ratio:.0%} of the +1 order's flux) is in the "
+                "frame too; the profiles are read from the +1 order alone"
+            )
     along, across = _spot_half_size(small, spot, primary)
     gap = max(0.25 * primary.band_half_width_px, 2 * small.pitch_px, 10.0)
     return DiffractionGeometry(
