@@ -419,7 +419,7 @@ def _extract_direct(
         if narrow and interleaved is not None and _holds_green(interleaved, direct)
         else None
     )
-    if narrow and interleaved is not None and halves is not None:
+    if interleaved is not None and halves is not None:
         # A slit image narrower than the plane pitch lights one or two columns of each one-site
         # plane: the interleaving then rests on two cells, whose fit has nothing left over to
         # check its one shape against. The slit's two halves along its length are two such
@@ -432,17 +432,7 @@ def _extract_direct(
             f"(R {_percent(direct, variance, 0)}, B {_percent(direct, variance, 2)}, from its two "
             "halves' agreement); defocus the slit image slightly or widen the slit"
         )
-    elif narrow:
-        # No interleaving that holds (none, its G off the G plane's sum, or a half without one):
-        # the plain sums, with their aliasing for the fitted slit image in their σ — for a slit
-        # image this narrow, tens of per cent (decision 0193).
-        variance = plain_variance
-        note = (
-            f"{note}: the direct RGB is each colour plane's plain sum, which a sharp spot "
-            f"aliases (R {_percent(direct, variance, 0)}, B {_percent(direct, variance, 2)}); "
-            "defocus the slit image slightly or widen the slit"
-        )
-    elif interleaved is not None:
+    elif interleaved is not None and not narrow:
         # The spot's integral from the Bayer cells' interleaving, which needs no model of the
         # spot's edge (decision 0119), where the spot is sharp enough for the plane sampling to
         # alias it. (Keeping the plain sums where the two agree within 2σ was tried and made the
@@ -459,10 +449,19 @@ def _extract_direct(
         variance = variance + (resolved - direct) ** 2
         direct = resolved
     elif note is not None:
+        # The plain sums, which a sharp spot aliases: a narrow slit image no interleaving holds
+        # (none, its G off the G plane's sum, or a half without one), their aliasing for the
+        # fitted slit image in their σ — tens of per cent this narrow (decision 0193); or a slit
+        # image whose fit failed, with no such σ.
+        variance = plain_variance
+        size = (
+            f"R {_percent(direct, variance, 0)}, B {_percent(direct, variance, 2)}"
+            if narrow
+            else "its colour may be off by tens of per cent"
+        )
         note = (
             f"{note}: the direct RGB is each colour plane's plain sum, which a sharp spot "
-            "aliases (its colour may be off by tens of per cent); defocus the slit image slightly "
-            "or widen the slit"
+            f"aliases ({size}); defocus the slit image slightly or widen the slit"
         )
     return direct, np.sqrt(variance), background, spread, note
 
