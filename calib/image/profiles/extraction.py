@@ -520,9 +520,10 @@ def _split_half_variance(
     slit's two halves along its length, each interleaved alone (decision 0193).
 
     The halves' colours (each channel over G) differ by ``Δ``; their noise alone makes
-    ``E[Δ²]`` about the sum of the channel's relative variances in the two halves, and what
-    exceeds it is the model's error, at different phases in the two halves. The whole's colour errs by about half of it (the mean of
-    the two halves'): ``(Δ² − noise) / 4``, times the value squared. G, the reference, gets none.
+    ``E[Δ²]`` about the sum, over the two halves, of the channel's and G's relative variances (a
+    ratio's), and what exceeds it is the model's error, at different phases in the two halves. The
+    whole's colour errs by about half of it (the mean of the two halves'): ``(Δ² − noise) / 4``,
+    times the value squared. G, the reference, gets none.
     ``None`` where a half has no interleaving (too few cells, a fit that is not positive): then
     nothing checks the whole's."""
     lines = spots[0][0].shape[across_axis]
@@ -538,7 +539,8 @@ def _split_half_variance(
     (first, first_sigma), (second, second_sigma) = first_half, second_half
     colour_first, colour_second = first / first[1], second / second[1]
     difference = (colour_first - colour_second) / (direct / direct[1])
-    noise = (first_sigma / first) ** 2 + (second_sigma / second) ** 2
+    relative_first, relative_second = (first_sigma / first) ** 2, (second_sigma / second) ** 2
+    noise = relative_first + relative_first[1] + relative_second + relative_second[1]
     excess = np.clip(difference**2 - noise, 0.0, None) / 4.0
     excess[1] = 0.0
     return np.asarray(excess * direct**2, dtype=np.float64)
