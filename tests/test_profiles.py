@@ -722,7 +722,7 @@ def test_a_slit_image_too_narrow_to_interleave_keeps_its_plain_sums_with_their_a
     assert np.abs(scores).max() < 3.0
     assert all(note is not None and "widen the slit" in note for note in notes)
     # where the slit image straddles two columns evenly the interleaving's G holds, and its
-    # halves disagree (σ 17–24 %): kept with that σ
+    # halves disagree (σ 16–22 %): kept with that σ
     assert sum("plain sum" in str(note) for note in notes) >= 4
     resolved = extract(*_slit_image(2.5, 0.3, 0.4)[:2], subtract_background=False)
     assert resolved.direct_note is None
