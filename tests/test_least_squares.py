@@ -1,4 +1,5 @@
-"""calib.wavelength.least_squares: the refused step shortened (``shorten``, decision 0096)."""
+"""calib.wavelength.least_squares: the refused step shortened (``shorten``, decision 0096); the
+convergence bar in units of the fit's own σ and the stop at a bound (decision 0195)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import numpy as np
 import pytest
 
 from calib.wavelength.least_squares import (
+    CONVERGED_DELTA_CHI2,
     SHORTEN_FRACTION,
     Evaluation,
     ResidualFunction,
@@ -131,3 +133,69 @@ def test_the_stopping_points_jacobian_is_computed_only_when_read():
     assert lazy.jacobian is first_read and len(calls) == before + 1  # and kept
     np.testing.assert_array_equal(first_read, eager.jacobian)
     np.testing.assert_array_equal(lazy.covariance(), eager.covariance())
+
+
+T = np.arange(1.0, 11.0)
+
+
+def _beyond_the_bound(x: np.ndarray, with_jacobian: bool) -> Evaluation:
+    """A slope the data put at 2 in a family valid up to 1 only: the minimum lies beyond the bound."""
+    if x[0] > 1.0:
+        return None
+    return (x[0] - 2.0) * T / 0.1, (T[:, None] / 0.1) if with_jacobian else None
+
+
+def test_a_fit_pressing_on_a_bound_stops_once_its_steps_no_longer_tell():
+    """Its Gauss–Newton gain never falls (the model's minimum is beyond the bound): without
+    ``stop_at_bound`` the fit crawls to the bound by ever smaller steps; with it, it stops within a
+    small part of its own σ of the bound, in a fraction of the evaluations."""
+
+    def fit(gain: float = 0.0, at_bound: bool = False) -> Solution:
+        return levenberg_marquardt(
+            _beyond_the_bound,
+            np.zeros(1),
+            max_iterations=200,
+            tolerance=1e-12,
+            gain_tolerance=gain,
+            tempered=True,
+            stop_at_bound=at_bound,
+        )
+
+    crawled = fit()
+    tempered = fit(CONVERGED_DELTA_CHI2)
+    stopped = fit(CONVERGED_DELTA_CHI2, at_bound=True)
+    assert crawled.x[0] == pytest.approx(1.0, abs=1e-6)
+    assert tempered.evaluations == crawled.evaluations  # the gain alone never stops it
+    assert stopped.evaluations <= crawled.evaluations / 3
+    own_sigma = float(np.sqrt(stopped.covariance()[0, 0]))
+    assert 0.0 < 1.0 - stopped.x[0] < 0.1 * own_sigma
+
+
+def test_the_tempered_bar_is_a_tenth_of_the_fits_own_sigma():
+    """A model that cannot pass through its data (reduced χ² ~ 10³): the tempered bar stops the fit
+    sooner than the bar in stated σ, and still within a tenth of its own σ of the minimum."""
+    data = np.exp(-0.3 * T) + 0.05 * np.sin(T)
+
+    def decay(x: np.ndarray, with_jacobian: bool) -> Evaluation:
+        falling = np.exp(-x[1] * T)
+        residual = (x[0] * falling - data) / 1e-3
+        jacobian = np.stack([falling, -x[0] * T * falling], axis=1) / 1e-3
+        return residual, jacobian if with_jacobian else None
+
+    start = np.array([2.0, 1.0])
+    best = levenberg_marquardt(decay, start, max_iterations=500, tolerance=0.0)
+    assert best.temper > 100.0
+    stated = levenberg_marquardt(
+        decay, start, max_iterations=500, tolerance=0.0, gain_tolerance=CONVERGED_DELTA_CHI2
+    )
+    own = levenberg_marquardt(
+        decay,
+        start,
+        max_iterations=500,
+        tolerance=0.0,
+        gain_tolerance=CONVERGED_DELTA_CHI2,
+        tempered=True,
+    )
+    assert own.evaluations < stated.evaluations < best.evaluations
+    apart = own.x - best.x
+    assert 0.0 < float(np.sqrt(apart @ np.linalg.solve(best.covariance(), apart))) < 0.1

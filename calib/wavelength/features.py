@@ -41,7 +41,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.line_lists import Blend, Line, LineKind, blends
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.wavelength.families import GratingFamily, QuadraticFamily
-from calib.wavelength.least_squares import Evaluation, levenberg_marquardt
+from calib.wavelength.least_squares import CONVERGED_DELTA_CHI2, Evaluation, levenberg_marquardt
 
 Family = QuadraticFamily | GratingFamily
 ExactMapping = QuadraticMapping | TiltedGrating
@@ -500,7 +500,15 @@ def _fit_group(
 
     start = np.concatenate([np.zeros(n_blends), [sigma_px], linear])
     try:
-        solution = levenberg_marquardt(function, start, max_iterations=25, tolerance=1e-8)
+        solution = levenberg_marquardt(
+            function,
+            start,
+            max_iterations=25,
+            tolerance=1e-8,
+            gain_tolerance=CONVERGED_DELTA_CHI2,
+            tempered=True,
+            stop_at_bound=True,
+        )
     except (ValueError, np.linalg.LinAlgError):
         return []
     heights = solution.x[n_shape + n_base :]
@@ -518,6 +526,9 @@ def _fit_group(
                     np.concatenate([shifted, [sigma_px], moved]),
                     max_iterations=25,
                     tolerance=1e-8,
+                    gain_tolerance=CONVERGED_DELTA_CHI2,
+                    tempered=True,
+                    stop_at_bound=True,
                 )
             except (ValueError, np.linalg.LinAlgError):
                 continue
@@ -1071,6 +1082,7 @@ def fit_mapping_to_points(
         tolerance=FIT_TOLERANCE,
         geodesic=True,
         step_tolerance=STEP_TOLERANCE,
+        gain_tolerance=CONVERGED_DELTA_CHI2,
     )
     data_rows = pixels.size + (0 if anchor is None else anchor.rows)
     chi2 = float(np.sum(solution.residual[:data_rows] ** 2))

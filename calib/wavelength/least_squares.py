@@ -35,6 +35,13 @@ GEODESIC_RATIO = 0.75
 #: allows: Rosenbrock's took 1013 evaluations against 597 with ×4 alone and 469 halved (decision
 #: 0096).
 SHORTEN_FRACTION = 0.5
+#: A fit has converged once the Gauss–Newton step's predicted decrease of χ² is below this
+#: (``gain_tolerance``): with residuals in units of their σ, that decrease is the squared distance
+#: (in σ) of the local model's minimum from where the fit stands, and 0.01 puts it within a tenth
+#: of the fit's own σ (a statistical bar, not a tuned one; decision 0124). Where the residuals
+#: are larger than their σ say, the fit's own σ is wider by √(reduced χ²), and so is the bar
+#: (``tempered``; decision 0195).
+CONVERGED_DELTA_CHI2 = 0.01
 #: ``function(x, with_jacobian)`` → :data:`Evaluation`.
 ResidualFunction = Callable[[FloatArray, bool], Evaluation]
 
@@ -92,6 +99,8 @@ def levenberg_marquardt(
     step_tolerance: float = 0.0,
     shorten: bool = False,
     gain_tolerance: float = 0.0,
+    tempered: bool = False,
+    stop_at_bound: bool = False,
     give_up_above: float = math.inf,
 ) -> Solution:
     """Minimise ``‖r(x)‖²`` from ``x0`` (which must be valid).
@@ -104,7 +113,14 @@ def levenberg_marquardt(
     decrease, ``gᵀ(JᵀJ)⁻¹g``, is below it: for residuals in units of their σ that decrease is the
     squared Mahalanobis distance of the model's minimum from ``x``, so 0.01 stops a fit within a
     tenth of its own σ of where it would go (without the trials, mostly refused, that the cost's
-    roughness at that scale costs; decision 0124). With ``give_up_above``, also before a step when
+    roughness at that scale costs; decision 0124). With ``tempered`` that bar is in units of the
+    fit's own σ: scaled by the reduced χ² ``cost / (rows − P)`` where it exceeds 1, the factor a
+    fit's covariance is scaled by (decision 0195). With ``stop_at_bound``, an accepted step that
+    lowers the cost by less than that bar also stops the fit: where the model's minimum lies
+    beyond a bound of the valid region, its predicted gain never falls, and the fit crawls along
+    the bound by ever smaller steps (a line fit whose width or shift presses on its limits). Not
+    for a fit along a flat valley that a soft prior settles: there many such steps add up to a
+    move its σ tells (decision 0195). With ``give_up_above``, also before a step when
     the Gauss–Newton model's minimum, ``‖r‖² − gᵀ(JᵀJ)⁻¹g``, is above it: the descent's own model
     says it ends there (a start hopelessly behind a leader; decision 0165).
 
@@ -147,6 +163,12 @@ def levenberg_marquardt(
     cost = float(residual @ residual)
     evaluations = 1
     damping = 1e-3
+    dof = max(residual.size - x.size, 1)
+
+    def bar(at_cost: float) -> float:
+        """``gain_tolerance``, in units of the fit's own σ when ``tempered``."""
+        return gain_tolerance * (max(at_cost / dof, 1.0) if tempered else 1.0)
+
     stride = x.size + 1
     # Steps bend only once a plain step has been refused: a fit that converges with every step
     # accepted costs no probes.
@@ -159,7 +181,7 @@ def levenberg_marquardt(
         scale = np.maximum(normal.diagonal(), 1e-30)
         if gain_tolerance > 0.0 or give_up_above < math.inf:
             gain = _newton_gain(normal, gradient)
-            if gain < gain_tolerance or cost - gain > give_up_above:
+            if gain < bar(cost) or cost - gain > give_up_above:
                 break
         improved = False
         refused = False
@@ -199,7 +221,8 @@ def levenberg_marquardt(
                         # once: straight back into the refused one.)
                         damping = max(damping / 5.0, 1e-9)
                     improved = True
-                    if decrease <= tolerance * max(cost, 1.0) or moved < step_tolerance:
+                    crawled = stop_at_bound and decrease < bar(cost)
+                    if decrease <= tolerance * max(cost, 1.0) or moved < step_tolerance or crawled:
                         return Solution(x, residual, pending, cost, evaluations)
                     break
             refused = True

@@ -52,7 +52,12 @@ from calib.model.resolution import camera_kernel, match_spectrometer
 from calib.wavelength.coarse_check import coarse_view
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.hidden_valleys import EXTRA_DESCENTS, end_curvatures, valley_half_width_nm
-from calib.wavelength.least_squares import Evaluation, Solution, levenberg_marquardt
+from calib.wavelength.least_squares import (
+    CONVERGED_DELTA_CHI2,
+    Evaluation,
+    Solution,
+    levenberg_marquardt,
+)
 from calib.wavelength.peaks import Peak, fluorescent_starts, lines_and_peaks
 from calib.wavelength.response_model import ResponseModel, fine_step_for
 from calib.wavelength.rig_prior import default_prior
@@ -88,14 +93,11 @@ FLEXIBILITY = 0.05
 LOCAL_FLEXIBILITY = 2.0
 #: The scan and its refinement treat noise below this fraction of the profile's peak as this large.
 GLOBAL_SIGMA_FLOOR = 0.005
-#: The final fit stops once the Gauss–Newton step's predicted decrease of χ² is below this: the
-#: residuals are in units of their σ, so that decrease is the squared distance (in σ) of the local
-#: model's minimum from where the fit stands, and 0.01 puts it within a tenth of the fit's own σ
-#: (a statistical bar, not a tuned one). With its stop at 1e-7 of the cost alone, the speed
-#: bench's final fits spent 11–12 of their 14–17 evaluations beyond that point, most of them
-#: refused steps (decision 0124). The earlier stages' descents keep their stops: their end points choose the basins, and
-#: on the validation split's broadband paper scenes any change of them moved answers.
-CONVERGED_DELTA_CHI2 = 0.01
+# The final fit stops at the statistical bar :data:`~calib.wavelength.least_squares.CONVERGED_DELTA_CHI2`.
+# With its stop at 1e-7 of the cost alone, the speed bench's final fits spent 11–12 of their
+# 14–17 evaluations beyond that point, most of them refused steps (decision 0124). The earlier
+# stages' descents keep their stops: their end points choose the basins, and on the validation
+# split's broadband paper scenes any change of them moved answers.
 #: Quadratic family: the scan shifts the wavelengths at both ends of the profile by this half width
 #: and step (nm) around each start (the middle follows): the correlation search's linear starts are
 #: 2–25 nm off at the ends on the training cameras (a camera unlike the mean, the mapping's
