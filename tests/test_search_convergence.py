@@ -8,7 +8,7 @@ import pytest
 
 from calib.core.spectra import DEFAULT_GRID
 from calib.model.bases import fallback_camera_basis
-from calib.wavelength.least_squares import levenberg_marquardt
+from calib.wavelength.least_squares import CONVERGED_DELTA_CHI2, levenberg_marquardt
 from tests.led_scene import unblurred_led
 
 
@@ -92,5 +92,5 @@ def test_only_the_search_s_final_fit_reaches_the_ramps_and_stops_at_a_tenth_of_s
     profile_search.search_profiles(model.observation, prior, DEFAULT_GRID, orientation="rising")
     # The final fit is the search's last descent (no red-end pull-in in the quadratic family).
     *others, final = [(ramps, gain) for _, ramps, gain in calls]
-    assert final == (True, profile_search.CONVERGED_DELTA_CHI2)
+    assert final == (True, CONVERGED_DELTA_CHI2)
     assert others and all(other == (False, 0.0) for other in others)
