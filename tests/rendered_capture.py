@@ -114,6 +114,7 @@ def render_capture(
     dark_frames: bool = False,
     dark_current_dn_per_s: float = 0.0,
     minus_first_strength: float = 0.0,
+    spot_shift_px: float = 0.0,
     direct_throughput: float = 0.5,
     padding_px: int = 0,
     seed: int = 2025,
@@ -124,8 +125,10 @@ def render_capture(
 
     The spot sits so that the first order (and the −1 order when ``minus_first_strength`` > 0)
     falls inside the frame with a margin; the sensor is the bounding box of all that, plus
-    ``padding_px`` on every side. With ``direct_throughput`` 5 (instead of 0.5) the direct spot
-    clips in the bracket's longest frame.
+    ``padding_px`` on every side; ``spot_shift_px`` then moves the spot (and the orders with it)
+    that far towards the +1 order, which runs off the frame once the shift passes the 40 px
+    margin. With ``direct_throughput`` 5 (instead of 0.5) the direct spot clips in the bracket's
+    longest frame.
     """
     reach = ORDER_RANGE_PX[1] + 40.0
     angle = math.radians(angle_deg)
@@ -137,6 +140,8 @@ def render_capture(
     height = 2 * math.ceil(((2 if both else 1) * extent_y + 2 * half_across + 40) / 2 + padding_px)
     centre_x = width / 2 if both else (width / 2 - math.cos(angle) * reach / 2)
     centre_y = height / 2 if both else (height / 2 - math.sin(angle) * reach / 2)
+    centre_x += math.cos(angle) * spot_shift_px
+    centre_y += math.sin(angle) * spot_shift_px
     sensor = SensorModel(
         height_px=height,
         width_px=width,

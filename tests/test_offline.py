@@ -252,6 +252,30 @@ def test_both_first_orders_in_frame_use_the_stronger(tmp_path: Path) -> None:
     assert relative < RE_TARGET and mapping < MAPPING_RE_TARGET, (relative, mapping)
 
 
+@pytest.mark.slow  # detection's choice is tested on its own by tests/test_profiles.py (make test-all)
+def test_a_stronger_order_off_the_frame_gives_way_to_the_whole_other(tmp_path: Path) -> None:
+    """The +1 order's lit band runs about 110 px past the frame's edge, the −1 order (0.6 of its
+    strength) is whole: the estimate reads the −1 order, says so in its notes, and meets the
+    targets a whole +1 order meets (at this seed, with the spot centred: RE 1.2 %, mapping 0.08 %;
+    here 0.95 % and 0.09 %)."""
+    capture = render_capture(
+        tmp_path / "capture",
+        tmp_path / "basis",
+        lamps=("LED",),
+        minus_first_strength=0.6,
+        spot_shift_px=350.0,
+        seed=8,
+    )
+    result = estimate_offline(_inputs(capture), OfflineSettings(basis=capture.basis))
+    geometry = _profiles(result).geometry
+    assert [band.side for band in geometry.orders] == [1]
+    assert geometry.primary.angle_deg == pytest.approx(-177.0, abs=0.1)
+    (note,) = [n for n in result.provenance.notes if "stronger first order was left out" in n]
+    assert "runs off" in note and "other first order" in note, note
+    relative, mapping = capture.errors(result.result, result.observations[0].pixel)
+    assert relative < RE_TARGET and mapping < MAPPING_RE_TARGET, (relative, mapping)
+
+
 def test_every_frame_saturating_the_spot_is_refused_with_advice(tmp_path: Path) -> None:
     capture = render_capture(
         tmp_path / "capture",

@@ -192,6 +192,33 @@ def test_an_other_order_leaving_the_frame_is_noted_not_fatal() -> None:
     assert caught.value.reason == "no_band"
 
 
+def test_a_stronger_order_leaving_the_frame_gives_way_to_the_whole_other_one() -> None:
+    """The +1 order runs off the frame, the weaker −1 order is whole: the −1 order is read (as
+    ``side = +1``), its profile is the true one at its strength, and a note names the order left
+    out. With no other order the same frame is refused, as before."""
+    sensor = SensorModel(height_px=700, width_px=1500, cfa_pattern="RGGB")
+    # Cut at 84 % of its peak, the +1 order still has more light in the frame than the −1 order.
+    layout = _layout_through_centre(sensor, 0.0, along_shift_px=-200.0, minus_first_strength=0.6)
+    image = _noisy_image(
+        render_mosaic_radiance(layout, SIGNAL, sensor), "RGGB", np.random.default_rng(4)
+    )
+    geometry = detect_geometry(image)
+    assert [order.side for order in geometry.orders] == [1]
+    assert _angle_error(geometry.primary.angle_deg, 180.0) < 0.05
+    (note,) = [n for n in geometry.notes if "stronger first order was left out" in n]
+    assert "runs off" in note and "76% of its flux" in note
+    extraction = extract(image, geometry)
+    _assert_agrees(extraction, _truth_at(SIGNAL, extraction.pixel, 0.6), direct=SIGNAL.direct_rgb)
+
+    alone = _layout_through_centre(sensor, 0.0, along_shift_px=-200.0)
+    image = _noisy_image(
+        render_mosaic_radiance(alone, SIGNAL, sensor), "RGGB", np.random.default_rng(4)
+    )
+    with pytest.raises(DetectionError, match="runs off") as caught:
+        detect_geometry(image)
+    assert caught.value.reason == "band_off_frame"
+
+
 def test_the_band_stops_before_the_second_order() -> None:
     signal = smooth_signal(start_px=380, stop_px=720)  # pixel ∝ wavelength: 2nd order from 760
     sensor = SensorModel(height_px=600, width_px=1700, cfa_pattern="GBRG")

@@ -7,7 +7,7 @@ the dispersion direction. :func:`detect_geometry` finds both automatically, at a
 1. the spot is the brightest feature; its centre is the intensity-weighted centroid (sub-pixel);
 2. bands are the significant regions outside the spot; the one with most flux is the first order, and
    a region on the opposite side is the other first order (both are reported; the stronger is
-   ``side = +1``);
+   ``side = +1``, unless it runs off the frame and the other is whole: the other is then read);
 3. the direction is refined by fitting a line to the band's across-centroids, then the band's
    extent along (where its signal exceeds ``extent_fraction`` of its maximum, plus a margin, cut
    before a 2nd order) and across (its half-maximum width) is measured.

@@ -4,7 +4,8 @@
    intensity-weighted centroid of all channels at full resolution, each sample at its sensor position.
 2. Bands are the regions outside the spot that rise clearly above the noise; the one with most flux is
    the first order (``side = +1``), and a region on the opposite side with at least 5 % of its flux is
-   the other first order (``side = -1``).
+   the other first order (``side = -1``). When the stronger one runs off the frame and the other is
+   whole, the other is read as ``side = +1`` and the note says so.
 3. An order's direction and across-offset come from a line fitted to its across-centroids; its width is
    the half-maximum width of the across-profile; its extent is where the along-profile exceeds
    ``extent_fraction`` of its maximum, plus a margin, cut at the valley before a 2nd order.
@@ -616,9 +617,25 @@ def detect_geometry(
         and c.flux >= _MIN_ORDER_FLUX_RATIO * primary_candidate.flux
     ]
     settings = _Settings(across_fraction, extent_fraction, margin_fraction, source)
-    primary = _measure_order(image, small, spot, primary_candidate, 1, settings)
-    orders = [primary]
     notes: list[str] = []
+    try:
+        primary = _measure_order(image, small, spot, primary_candidate, 1, settings)
+    except DetectionError as exc:
+        # The stronger first order leaves the frame; the other one, whole, is the same grating
+        # seen at the opposite angles: it is read instead, and the band left out is named.
+        if exc.reason != "band_off_frame" or not opposite:
+            raise
+        ratio = opposite[0].flux / primary_candidate.flux
+        try:
+            primary = _measure_order(image, small, spot, opposite[0], 1, settings)
+        except DetectionError:
+            raise exc from None
+        notes.append(
+            f"the stronger first order was left out: {exc} — the profiles are read from the other "
+            f"first order ({ratio:.0%} of its flux in the frame), which is whole"
+        )
+        opposite = []
+    orders = [primary]
     if opposite:
         try:
             other = _measure_order(image, small, spot, opposite[0], -1, settings)
