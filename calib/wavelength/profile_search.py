@@ -93,11 +93,11 @@ FLEXIBILITY = 0.05
 LOCAL_FLEXIBILITY = 2.0
 #: The scan and its refinement treat noise below this fraction of the profile's peak as this large.
 GLOBAL_SIGMA_FLOOR = 0.005
-# The final fit stops at the statistical bar :data:`~calib.wavelength.least_squares.CONVERGED_DELTA_CHI2`.
-# With its stop at 1e-7 of the cost alone, the speed bench's final fits spent 11–12 of their
-# 14–17 evaluations beyond that point, most of them refused steps (decision 0124). The earlier
-# stages' descents keep their stops: their end points choose the basins, and on the validation
-# split's broadband paper scenes any change of them moved answers.
+# The final fit stops at the statistical bar ``CONVERGED_DELTA_CHI2`` (least_squares). With its
+# stop at 1e-7 of the cost alone, the speed bench's final fits spent 11–12 of their 14–17
+# evaluations beyond that point, most of them refused steps (decision 0124). The earlier stages'
+# descents keep their stops: their end points choose the basins, and on the validation split's
+# broadband paper scenes any change of them moved answers.
 #: Quadratic family: the scan shifts the wavelengths at both ends of the profile by this half width
 #: and step (nm) around each start (the middle follows): the correlation search's linear starts are
 #: 2–25 nm off at the ends on the training cameras (a camera unlike the mean, the mapping's
