@@ -34,6 +34,11 @@ training curves); ``--only-predicted`` runs those alone. ``--no-optics`` measure
 offset forced to ±NM and states how much of it the mapping takes up (decision 0108). The ``led``
 summary says what σ scale would give the median ratio a calibrated σ of the rows' own shape gives
 (~0.67–0.9, not 1) and what scale would cover 95 %.
+For scenes whose two best basins are both gratings, the ``led`` rows also say how far apart the two
+put the other first order's counterpart of a +1 pixel (``other_order_apart_px``: the largest
+``|Δu|`` over the pixels both put inside the grid; that correspondence depends on the focal
+length, the incidence and the axis offset, not on the groove spacing), and the summary counts
+them: what a −1 order in the frame could settle (decision 0196).
 
     python bench/wavelength_validate.py --data-dir ../shared/data/camera_sensitivities --split test --scenario led
 """
@@ -201,6 +206,30 @@ def candidate_mapping(record: dict[str, Any]) -> QuadraticMapping | TiltedGratin
     return QuadraticMapping.from_dict(record)
 
 
+def other_order_apart_px(candidates: list[dict[str, Any]], pixel: np.ndarray) -> float | None:
+    """How far apart the two best basins put the other first order's counterpart of a +1 pixel:
+    the largest ``|Δu|`` over the pixels both put inside 400–700 nm (``None`` unless both are
+    gratings). The ±1 orders share the focal length, the incidence (with its sign turned) and the
+    axis offset; the groove spacing cancels, so basins that differ only in it are not told apart."""
+    if len(candidates) < 2:
+        return None
+    best, runner_up = (candidate_mapping(c["mapping"]) for c in candidates[:2])
+    if not (isinstance(best, TiltedGrating) and isinstance(runner_up, TiltedGrating)):
+        return None
+    probe = np.linspace(float(pixel[0]), float(pixel[-1]), 200)
+    first, second = best.wavelength_nm(probe), runner_up.wavelength_nm(probe)
+    inside = (first > 400.0) & (first < 700.0) & (second > 400.0) & (second < 700.0)
+    if not inside.any():
+        return None
+    try:
+        apart = best.other_order().pixel_at(first[inside]) - runner_up.other_order().pixel_at(
+            second[inside]
+        )
+    except InputError:
+        return None
+    return float(np.max(np.abs(apart)))
+
+
 def nominal_grooves(scene: RenderedScene, rng: np.random.Generator) -> float:
     """The sheet's line density as a rig's configuration states it: the true one within ±2 %."""
     return scene.plan.geometry.grooves_per_mm * float(1.0 + rng.uniform(-0.02, 0.02))
@@ -264,6 +293,7 @@ def led_row(
         "true_first_nm": float(scene.true_wavelength_nm[0]),
         "true_last_nm": float(scene.true_wavelength_nm[-1]),
         "runner_up_distance_nm": runner_up.get("rms_distance_nm", 0.0),
+        "other_order_apart_px": other_order_apart_px(candidates, led.pixel),
         "nearest_basin": nearest[1],
         "nearest_basin_mean_abs_nm": nearest[0],
         "reduced_chi2": solution.details.get("reduced_chi2", float("nan")),
@@ -678,6 +708,25 @@ def main() -> None:
             f"; warned with mean|Δλ| < 1 nm {int(np.sum(flagged & (mean_abs < 1)))} (max|Δλ| < 1 "
             f"nm {int(np.sum(flagged & (worst < 1)))})"
         )
+        apart = np.array(
+            [
+                np.nan if r["other_order_apart_px"] is None else r["other_order_apart_px"]
+                for r in done
+            ]
+        )
+        paired = ~np.isnan(apart)
+        if paired.any():
+            warned_apart = apart[paired & flagged]
+            summary += (
+                f"; two grating basins in {int(paired.sum())} scenes: the other first order's "
+                f"counterpart of a +1 pixel {np.median(apart[paired]):.0f} px apart (median; least "
+                f"{np.min(apart[paired]):.1f} px, {int(np.sum(apart[paired] < 5))} below 5 px)"
+            )
+            if warned_apart.size:
+                summary += (
+                    f", in the {warned_apart.size} warned {np.median(warned_apart):.0f} px "
+                    f"(least {np.min(warned_apart):.1f} px)"
+                )
     else:
         re = np.array([row["re_x100"] for row in done])
         exact = np.array([row["re_true_eta_x100"] for row in done])
