@@ -553,6 +553,35 @@ def _along_extent(
     return start, stop
 
 
+#: The other first order starts within this factor of the stronger one's distance from the spot
+#: (the same grating: the incidence that tells the two apart moves them by far less).
+_MIRROR_START_FACTOR = 1.6
+#: A first order over 400–700 nm ends about 1.75× as far from the spot as it starts; a region
+#: shorter than this fraction of its start is no first order.
+_MIN_ORDER_LENGTH_FRACTION = 0.3
+
+
+def _mirrors(
+    small: _Downsampled, spot: _Spot, stronger: _Candidate, other: _Candidate, measured: OrderBand
+) -> bool:
+    """Whether ``other`` (measured as ``measured``) can be the other first order of ``stronger``:
+    opposite to it as measured, starting about as far from the spot, and as long as a first order
+    is for where it starts. Stray light or a reflection that only happens to lie on the other
+    side is not read in the stronger order's place."""
+    if abs(_angle_difference(measured.angle_deg, stronger.angle_deg + 180.0)) > (
+        _OPPOSITE_TOLERANCE_DEG
+    ):
+        return False
+    starts = []
+    for candidate in (stronger, other):
+        u, _ = small.grid_uv(spot.centre_px, candidate.angle_deg)
+        starts.append(float(u[candidate.mask].min()))
+    near, far = sorted(max(start, small.pitch_px) for start in starts)
+    if far > _MIRROR_START_FACTOR * near:
+        return False
+    return measured.stop_px - measured.start_px >= _MIN_ORDER_LENGTH_FRACTION * measured.start_px
+
+
 def _spot_half_size(small: _Downsampled, spot: _Spot, primary: OrderBand) -> tuple[float, float]:
     u, v = small.grid_uv(spot.centre_px, primary.angle_deg)
     pitch = small.pitch_px
@@ -629,6 +658,8 @@ def detect_geometry(
         try:
             primary = _measure_order(image, small, spot, opposite[0], 1, settings)
         except DetectionError:
+            raise exc from None
+        if not _mirrors(small, spot, primary_candidate, opposite[0], primary):
             raise exc from None
         notes.append(
             f"the stronger first order was left out: {exc} — the profiles are read from the other "
