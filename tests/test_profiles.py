@@ -195,7 +195,7 @@ def test_an_other_order_leaving_the_frame_is_noted_not_fatal() -> None:
 def test_a_stronger_order_leaving_the_frame_gives_way_to_the_whole_other_one() -> None:
     """The +1 order runs off the frame, the weaker −1 order is whole: the −1 order is read (as
     ``side = +1``), its profile is the true one at its strength, and a note names the order left
-    out. With no other order the same frame is refused, as before."""
+    out. Without an other order, or with stray light in its place, the frame is refused."""
     sensor = SensorModel(height_px=700, width_px=1500, cfa_pattern="RGGB")
     # Cut at 84 % of its peak, the +1 order still has more light in the frame than the −1 order.
     layout = _layout_through_centre(sensor, 0.0, along_shift_px=-200.0, minus_first_strength=0.6)
@@ -210,13 +210,17 @@ def test_a_stronger_order_leaving_the_frame_gives_way_to_the_whole_other_one() -
     extraction = extract(image, geometry)
     _assert_agrees(extraction, _truth_at(SIGNAL, extraction.pixel, 0.6), direct=SIGNAL.direct_rgb)
 
-    alone = _layout_through_centre(sensor, 0.0, along_shift_px=-200.0)
-    image = _noisy_image(
-        render_mosaic_radiance(alone, SIGNAL, sensor), "RGGB", np.random.default_rng(4)
-    )
-    with pytest.raises(DetectionError, match="runs off") as caught:
-        detect_geometry(image)
-    assert caught.value.reason == "band_off_frame"
+    # With no other order, the same frame is refused; so it is when the light on the other side
+    # is stray light around the spot (a wing of a fifth of the spot's light): it is no mirror
+    # image of the order, though it is opposite and above detection's 5 % of its flux.
+    for fields in ({}, {"stray_fraction": 0.2, "stray_wing_px": 60.0}):
+        alone = _layout_through_centre(sensor, 0.0, along_shift_px=-200.0, **fields)
+        image = _noisy_image(
+            render_mosaic_radiance(alone, SIGNAL, sensor), "RGGB", np.random.default_rng(4)
+        )
+        with pytest.raises(DetectionError, match="runs off") as caught:
+            detect_geometry(image)
+        assert caught.value.reason == "band_off_frame"
 
 
 def test_the_band_stops_before_the_second_order() -> None:

@@ -553,9 +553,11 @@ def _along_extent(
     return start, stop
 
 
-#: The other first order starts within this factor of the stronger one's distance from the spot
-#: (the same grating: the incidence that tells the two apart moves them by far less).
-_MIRROR_START_FACTOR = 1.6
+#: The other first order's light lies, on average, at least this fraction of the stronger one's
+#: in-frame light's distance from the spot. The two are the same grating's orders, so whole they
+#: lie equally far (the incidence moves them by a few %); the stronger one, cut by the frame, lies
+#: nearer. Stray light around the spot (a Lorentzian wing on both sides) lies much nearer still.
+_MIRROR_DISTANCE_FRACTION = 0.7
 #: A first order over 400–700 nm ends about 1.75× as far from the spot as it starts; a region
 #: shorter than this fraction of its start is no first order.
 _MIN_ORDER_LENGTH_FRACTION = 0.3
@@ -565,19 +567,22 @@ def _mirrors(
     small: _Downsampled, spot: _Spot, stronger: _Candidate, other: _Candidate, measured: OrderBand
 ) -> bool:
     """Whether ``other`` (measured as ``measured``) can be the other first order of ``stronger``:
-    opposite to it as measured, starting about as far from the spot, and as long as a first order
+    opposite to it as measured, its light about as far from the spot, and as long as a first order
     is for where it starts. Stray light or a reflection that only happens to lie on the other
     side is not read in the stronger order's place."""
     if abs(_angle_difference(measured.angle_deg, stronger.angle_deg + 180.0)) > (
         _OPPOSITE_TOLERANCE_DEG
     ):
         return False
-    starts = []
+    distances = []
     for candidate in (stronger, other):
         u, _ = small.grid_uv(spot.centre_px, candidate.angle_deg)
-        starts.append(float(u[candidate.mask].min()))
-    near, far = sorted(max(start, small.pitch_px) for start in starts)
-    if far > _MIRROR_START_FACTOR * near:
+        light = np.clip(small.luminance[candidate.mask] - small.background, 0.0, None)
+        total = float(light.sum())
+        if not total > 0:
+            return False
+        distances.append(float(np.sum(light * u[candidate.mask])) / total)
+    if distances[1] < _MIRROR_DISTANCE_FRACTION * distances[0]:
         return False
     return measured.stop_px - measured.start_px >= _MIN_ORDER_LENGTH_FRACTION * measured.start_px
 
