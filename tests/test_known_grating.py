@@ -372,3 +372,36 @@ def test_the_pipeline_keeps_the_multilamp_options_it_can_use_through_a_grating_f
         options=KnownGratingOptions(prior_shrinkage=0.9),
     )
     np.testing.assert_allclose(outcome.result.sensitivity, direct.sensitivity, atol=1e-12)
+
+
+def test_a_first_order_opposite_to_the_grating_files_is_flagged(basis):
+    """A grating file measured on an order running at 3° on the sensor, a capture whose order runs
+    at 183°: the camera was turned round or this is the other first order (read where the
+    stronger one leaves the frame, decision 0196), whose efficiency a blazed grating makes
+    different. The result says so; an order in the file's direction says nothing."""
+    from calib.core.mapping import TiltedGrating
+    from calib.wavelength import RigGeometry
+    from calib.wavelength.rig_prior import RigOptics
+
+    _, mapping, efficiency, grating = _scene()
+    rig = RigGeometry(TiltedGrating(0.5, 3000.0), RigOptics(order_angle_deg=3.0)).to_dict()
+    grating = replace(grating, geometry={"rig": rig})
+
+    def led_at(angle_deg: float) -> LampObservation:
+        order = {"side": 1, "angle_deg": angle_deg, "start_px": 400.0, "stop_px": 900.0}
+        geometry = {"sensor_shape_px": (1000, 3000), "spot_centre_px": (1500.0, 500.0)}
+        led = _lamp("LED-B3", "led", mapping, efficiency, np.random.default_rng(3))
+        return replace(led, metadata={"geometry": {**geometry, "orders": [order]}})
+
+    flags = {
+        angle: {
+            flag.code: flag.message
+            for flag in estimate(
+                [led_at(angle)], "known-grating", basis=basis, mapping=mapping, grating=grating
+            ).quality.flags
+        }
+        for angle in (3.5, 183.0)
+    }
+    assert "grating_other_order" not in flags[3.5]
+    message = flags[183.0]["grating_other_order"]
+    assert "183°" in message and "turned round" in message

@@ -85,6 +85,8 @@ QUALITY_CODES: dict[str, str] = {
     "grating_assumed": "the grating efficiency was not measured: marginalised over the physical "
     "grating families, their spread in σ (grating stage)",
     "assumed_grating_reused": "a grating file holding an assumed η is reused (grating stage)",
+    "grating_other_order": "the first order runs opposite to the one the grating file was "
+    "measured on: the camera turned round, or the other first order (grating stage)",
     "grating_family_unresolved": "the direct signals do not tell the physical grating families "
     "apart: measure the 2nd order or η with the rig's spectrometer (grating stage)",
     "spectrometer_out_of_spec": "the lamp's own Hg lines put the spectrometer's wavelength scale "

@@ -41,7 +41,7 @@ from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
-from calib.core.result import EstimateResult
+from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
 from calib.methods.closed_form import GratingMethodOptions, check_lamps, prepare_matched_lamp
 from calib.methods.grating_models import (
@@ -68,9 +68,14 @@ from calib.methods.responses import LampData, fit_response
 from calib.model.bases import CameraBasis, CameraPrior
 from calib.model.resolution import camera_kernel
 from calib.wavelength import RigGeometry
+from calib.wavelength.rig_prior import optics_from_observation
 
 #: Registry name (and the result's ``method``).
 KNOWN_GRATING_METHOD = "known-grating"
+#: A capture's first order runs opposite to the grating file's when their directions on the
+#: sensor differ by more than 180° less this (the 20° that pairs a band with the other first
+#: order in detection).
+OPPOSITE_ORDER_TOLERANCE_DEG = 20.0
 #: ``diagnostics["grating"]["source"]`` of an efficiency marginalised over the physical families.
 ASSUMED_PHYSICAL_SOURCE = "assumed: physical grating families"
 #: ``diagnostics["efficiency_model"]`` of a solve through an assumed-physical η: the σ budget
@@ -156,6 +161,33 @@ class KnownGratingOptions(GratingMethodOptions):
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "assumed_families", check_assumed_families(self.assumed_families))
+
+
+def other_order_flag(
+    grating: GratingEfficiency | None, observations: Sequence[LampObservation]
+) -> QualityFlag | None:
+    """``grating_other_order`` when this capture's first order runs opposite, on the sensor, to
+    the one the grating file's efficiency was measured on (the file's rig record). Either the
+    camera was turned round, or this is the other first order, whose efficiency a blazed grating
+    makes different (detection reads the other order where the stronger leaves the frame,
+    decision 0196); nothing in the images tells the two apart."""
+    if grating is None or grating.rig is None or not observations:
+        return None
+    stored = RigGeometry.from_dict(grating.rig).optics.order_angle_deg
+    new = optics_from_observation(observations[0]).order_angle_deg
+    if stored is None or new is None:
+        return None
+    turn = abs((new - stored + 180.0) % 360.0 - 180.0)
+    if turn < 180.0 - OPPOSITE_ORDER_TOLERANCE_DEG:
+        return None
+    return QualityFlag(
+        "grating_other_order",
+        f"this capture's first order runs at {new:.0f}° on the sensor, opposite to the {stored:.0f}° "
+        f"of the order the grating file {grating.source!r} was measured on: either the camera was "
+        "turned round, or this is the other first order, whose efficiency differs for a blazed "
+        "grating (a thin sinusoidal sheet's two orders are alike); measure this order with the "
+        "rig, or keep the order the file was measured on in the frame",
+    )
 
 
 @one_blas_thread
@@ -320,7 +352,7 @@ def estimate_known_grating(
     )
     peak = float(eta.max())
     total_s = time.perf_counter() - started
-    return multilamp_result(
+    result = multilamp_result(
         lamps,
         solution,
         (eta / peak, None if eta_sigma is None else eta_sigma / peak),
@@ -336,3 +368,5 @@ def estimate_known_grating(
         {"mapping_s": mapping_s, "solve_s": total_s - mapping_s, "total_s": total_s},
         method=KNOWN_GRATING_METHOD,
     )
+    flag = other_order_flag(grating, observations)
+    return result if flag is None else result.with_quality(flag)
