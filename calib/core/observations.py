@@ -39,6 +39,41 @@ def _readonly_float(value: ArrayLike, shape_hint: str, name: str, ndim: int) -> 
 
 
 @dataclass(frozen=True, eq=False)
+class OrderProfile:
+    """The other first order's profile (−1), measured away from the direct spot on its side.
+
+    Attributes
+    ----------
+    pixel
+        Shape ``(n,)``: distance from the direct spot's centre along that order (sensor pixels,
+        strictly increasing away from the spot).
+    profile, profile_sigma
+        Shape ``(n, 3)``: the band's mean radiance (R, G, B) and its standard deviation, in the
+        units of the lamp's own profile.
+    """
+
+    pixel: FloatArray
+    profile: FloatArray
+    profile_sigma: FloatArray
+
+    def __post_init__(self) -> None:
+        label = "the other first order"
+        pixel = _readonly_float(self.pixel, "pixel coordinates (n,)", label, 1)
+        profile = _readonly_float(self.profile, "profile (n, 3)", label, 2)
+        sigma = _readonly_float(self.profile_sigma, "profile sigma (n, 3)", label, 2)
+        if profile.shape != (pixel.size, 3) or sigma.shape != profile.shape:
+            raise InputError(
+                f"profile {profile.shape} and σ {sigma.shape} must both be ({pixel.size}, 3)",
+                source=label,
+            )
+        if pixel.size > 1 and not np.all(np.diff(pixel) > 0):
+            raise InputError("pixel coordinates must be strictly increasing", source=label)
+        object.__setattr__(self, "pixel", pixel)
+        object.__setattr__(self, "profile", profile)
+        object.__setattr__(self, "profile_sigma", sigma)
+
+
+@dataclass(frozen=True, eq=False)
 class LampObservation:
     """One lamp seen through the grating: its spectrum, direct (0th-order) RGB and 1st-order profile.
 
@@ -75,6 +110,10 @@ class LampObservation:
         ``"direct_spot"`` when ``pixel`` is the distance from the 0th-order spot along the first
         order (as :mod:`calib.image.profiles` measures it): the 0th order is where λ = 0, which pins the
         mapping's grating physics. ``"arbitrary"`` otherwise.
+    other_order
+        The other first order (−1) of the same frames, when it was in the frame too (profiles
+        measured from the direct spot only): a witness between an LED-only mapping's basins
+        (:mod:`calib.wavelength.other_order`). ``None`` otherwise.
     """
 
     name: str
@@ -90,6 +129,7 @@ class LampObservation:
     spectrum_bandwidth_nm: float | None = None
     line_spread: FloatArray | None = None
     pixel_origin: Literal["arbitrary", "direct_spot"] = "arbitrary"
+    other_order: OrderProfile | None = None
 
     def __post_init__(self) -> None:
         label = f"lamp {self.name!r}"
@@ -160,6 +200,12 @@ class LampObservation:
             )
         if self.kind not in LAMP_KINDS:
             raise InputError(f"kind {self.kind!r} is not one of {LAMP_KINDS}", source=label)
+        if self.other_order is not None and self.pixel_origin != "direct_spot":
+            raise InputError(
+                "the other first order needs a profile measured from the direct spot "
+                "(pixel_origin 'direct_spot')",
+                source=label,
+            )
 
     @property
     def n_pixels(self) -> int:

@@ -526,6 +526,12 @@ def estimate_offline(
                 for item in profiles.extractions
                 if item.extraction.direct_note is not None
             )
+            # The other first order in the frame but unread (decision 0197).
+            notes.extend(
+                f"{item.merged.lamp.name}: {item.extraction.other_order_note}"
+                for item in profiles.extractions
+                if item.extraction.other_order_note is not None
+            )
             notes.append(f"geometry detected on {profiles.geometry_lamp}")
             camera = _camera_record(profiles)
             # What the RAW files say of the optics: the mapping's physics starts from it.

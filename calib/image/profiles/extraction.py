@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.core.arrays import FloatArray
-from calib.core.observations import LampKind, LampObservation
+from calib.core.observations import LampKind, LampObservation, OrderProfile
 from calib.core.spectra import Spectrum
 from calib.image.hdr import HdrImage
 from calib.image.profiles.geometry import (
@@ -80,6 +80,11 @@ class Extraction:
     direct_note
         Why a sharp direct spot's colour rests on the colour planes' plain sums (it may be
         aliased: decision 0114); ``None`` when the spot is resolved or blurred enough.
+    other_order
+        The other first order's profile (side −1) when the geometry holds it whole and it could
+        be read (a witness of the lens and the grating's tilt: decision 0197); else ``None``.
+    other_order_note
+        Why the geometry's other first order was not read, or ``None``.
     geometry
         The geometry used.
     source
@@ -100,6 +105,8 @@ class Extraction:
     frames: tuple[str, ...] = field(default_factory=tuple)
     line_spread: FloatArray | None = None
     direct_note: str | None = None
+    other_order: OrderProfile | None = None
+    other_order_note: str | None = None
 
     def to_observation(
         self,
@@ -149,6 +156,7 @@ class Extraction:
             metadata=record,
             line_spread=self.line_spread,
             pixel_origin="direct_spot",
+            other_order=self.other_order,
         )
 
 
@@ -1009,6 +1017,7 @@ def extract(
             geometry.background_width_px,
         )
     pixel, profile, sigma, counts = _extract_profile(image, geometry, band, background, source)
+    other, other_note = _other_order(image, geometry, side, subtract_background, source)
     direct, direct_sigma, direct_background, line_spread, direct_note = _extract_direct(
         image, geometry, allow_saturated_direct, source, subtract_background
     )
@@ -1027,4 +1036,36 @@ def extract(
         frames=tuple(str(record.path) for record in image.frames),
         line_spread=line_spread,
         direct_note=direct_note,
+        other_order=other,
+        other_order_note=other_note,
     )
+
+
+def _other_order(
+    image: HdrImage,
+    geometry: DiffractionGeometry,
+    side: Side,
+    subtract_background: bool,
+    source: str,
+) -> tuple[OrderProfile | None, str | None]:
+    """The other first order's profile when ``geometry`` holds it (the +1 order read), as the +1
+    one is read; ``None`` and why not when it is saturated or leaves the frame."""
+    if side != 1 or not any(band.side == -1 for band in geometry.orders):
+        return None, None
+    band = geometry.order(-1)
+    background = np.zeros(3)
+    if subtract_background:
+        inner = band.band_half_width_px + geometry.background_gap_px
+        background = _strip_background(
+            image,
+            geometry.spot_centre_px,
+            band.angle_deg,
+            (band.start_px, band.stop_px),
+            (band.centre_offset_px - inner, band.centre_offset_px + inner),
+            geometry.background_width_px,
+        )
+    try:
+        pixel, profile, sigma, _ = _extract_profile(image, geometry, band, background, source)
+    except DetectionError as exc:
+        return None, f"the other first order is not read: {exc}"
+    return OrderProfile(pixel, profile, sigma), None
