@@ -250,6 +250,14 @@ def test_both_first_orders_in_frame_use_the_stronger(tmp_path: Path) -> None:
     assert share == pytest.approx(0.4, abs=0.08) and "+1 order alone" in note, note
     relative, mapping = capture.errors(result.result, result.observations[0].pixel)
     assert relative < RE_TARGET and mapping < MAPPING_RE_TARGET, (relative, mapping)
+    # With the LED alone, the other order measured the grating's tilt (decision 0197): the
+    # rendered grating is at normal incidence.
+    assert result.observations[0].other_order is not None
+    found = result.result.mapping
+    assert isinstance(found, QuadraticMapping)
+    measured = found.details["other_order"]
+    assert measured["refused"] is None
+    assert abs(measured["incidence_deg"]) < 3 * 3.4 * measured["incidence_sigma_deg"], measured
 
 
 @pytest.mark.slow  # detection's choice is tested on its own by tests/test_profiles.py (make test-all)
