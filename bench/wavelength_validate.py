@@ -38,7 +38,12 @@ For scenes whose two best basins are both gratings, the ``led`` rows also say ho
 put the other first order's counterpart of a +1 pixel (``other_order_apart_px``: the largest
 ``|Δu|`` over the pixels both put inside the grid; that correspondence depends on the focal
 length, the incidence and the axis offset, not on the groove spacing), and the summary counts
-them: what a −1 order in the frame could settle (decision 0196).
+them: what a −1 order in the frame could settle (decision 0196). ``--other-order`` (``led``) puts
+the LED's −1 order in the frame: rendered in the same bracket through the true grating's other order
+with the grating's own −1 and −2 efficiencies (:func:`calib.evaluation.validation.scenes.
+render_other_order`), so the mapping measures the incidence and the focal length from both orders
+(:mod:`calib.wavelength.other_order`, decision 0197); the rows say how far that measurement lies
+from the truth in its own σ and whether it was refused, and the summary counts them.
 
     python bench/wavelength_validate.py --data-dir ../shared/data/camera_sensitivities --split test --scenario led
 """
@@ -48,6 +53,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import multiprocessing
 import os
 import sys
@@ -66,7 +72,7 @@ from calib.core.errors import EstimationError, InputError
 from calib.core.grating_file import GratingEfficiency
 from calib.core.mapping import QuadraticMapping, TiltedGrating
 from calib.core.metrics import channel_relative_errors
-from calib.core.observations import LampObservation
+from calib.core.observations import LampObservation, OrderProfile
 from calib.evaluation.validation.protocol import (
     FIVE_LAMPS,
     MethodVariant,
@@ -79,10 +85,11 @@ from calib.evaluation.validation.protocol import (
     split_tasks,
     variant_observations,
 )
-from calib.evaluation.validation.scenes import RenderedScene, render_scene
+from calib.evaluation.validation.scenes import RenderedScene, render_other_order, render_scene
 from calib.evaluation.validation.splits import PREDICTION, TRANSFORMED, load_splits
 from calib.methods import estimate
 from calib.wavelength.locate import locate_mapping
+from calib.wavelength.other_order import other_order_geometry
 from calib.wavelength.rig_prior import rig_geometry
 
 LED = "LED-B3"
@@ -230,6 +237,33 @@ def other_order_apart_px(candidates: list[dict[str, Any]], pixel: np.ndarray) ->
     return float(np.max(np.abs(apart)))
 
 
+def with_other_order(
+    task: Task, scene: RenderedScene, led: LampObservation
+) -> tuple[LampObservation, dict[str, Any]]:
+    """The LED's observation with its −1 order, rendered in the same bracket
+    (:func:`render_other_order`, noise from its own child of the scene's seed), and what the two
+    orders measure of the geometry against the truth (:func:`other_order_geometry`)."""
+    rng = np.random.default_rng([task.settings.seed, task.camera.stable_id, task.scene, 7])
+    profile, sigma = render_other_order(scene.plan, task.camera.sensitivity, LED, rng)
+    led = replace(led, other_order=OrderProfile(led.pixel, profile, sigma))
+    measured = other_order_geometry(led)
+    truth = scene.plan.geometry.mapping
+    if measured is None:
+        return led, {"other_measured": False}
+    return led, {
+        "other_measured": True,
+        "other_refused": measured.refused or "",
+        "other_incidence_error_sigmas": (measured.incidence_deg - truth.incidence_deg)
+        / measured.incidence_sigma_deg,
+        "other_focal_error_sigmas": (measured.log_focal - math.log(truth.focal_length_px))
+        / measured.log_focal_sigma,
+        "other_incidence_sigma_deg": measured.incidence_sigma_deg,
+        "other_log_focal_sigma": measured.log_focal_sigma,
+        "other_reduced_chi2": measured.reduced_chi2,
+        "other_runner_up_delta_chi2": None if measured.runner_up is None else measured.runner_up[1],
+    }
+
+
 def nominal_grooves(scene: RenderedScene, rng: np.random.Generator) -> float:
     """The sheet's line density as a rig's configuration states it: the true one within ±2 %."""
     return scene.plan.geometry.grooves_per_mm * float(1.0 + rng.uniform(-0.02, 0.02))
@@ -240,9 +274,13 @@ def led_row(
     scene: RenderedScene,
     lamps: dict[str, LampObservation],
     grooves_per_mm: float | None = None,
+    other_order: bool = False,
 ) -> dict[str, Any]:
     grid = task.settings.grid
     led = lamps[LED]
+    other_columns: dict[str, Any] = {}
+    if other_order:
+        led, other_columns = with_other_order(task, scene, led)
     if grooves_per_mm is not None:
         # Where the rig's configuration puts it: the capture's optics record.
         given = led.metadata.get("optics")
@@ -281,6 +319,7 @@ def led_row(
     )
     return {
         **scores,
+        **other_columns,
         "ambiguous": solution.ambiguous,
         "n_basins": len(candidates),
         "runner_up_delta_chi2": runner_up.get("delta_chi2", float("inf")),
@@ -505,10 +544,10 @@ def transfer_row(task: Task, shift_nm: float, optics: bool) -> dict[str, Any]:
 
 
 def run_one(
-    job: tuple[Task, Task, int, str, bool, bool, float | None],
+    job: tuple[Task, Task, int, str, bool, bool, float | None, bool],
 ) -> dict[str, Any] | None:
     """One camera's row (``None``: the calibration camera itself in the grating-file scenario)."""
-    task, calibration, seed, scenario, grooves, optics, transfer = job
+    task, calibration, seed, scenario, grooves, optics, transfer, other_order = job
     name = task.camera.name
     try:
         if transfer is not None:
@@ -530,7 +569,7 @@ def run_one(
                 if grooves
                 else None
             )
-            row = led_row(task, scene, lamps, nominal)
+            row = led_row(task, scene, lamps, nominal, other_order)
         else:
             if task.camera.name == calibration.camera.name:
                 return None
@@ -631,6 +670,12 @@ def main() -> None:
         "+NM and −NM (the same seed otherwise) and report how much of it the mapping takes up "
         "(k = −Δmapping/Δoffset, per camera)",
     )
+    parser.add_argument(
+        "--other-order",
+        action="store_true",
+        help="led: the LED's −1 order in the frame too, rendered in the same bracket through the "
+        "true grating's other order (decision 0197)",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--csv", default=None)
     args = parser.parse_args()
@@ -669,6 +714,7 @@ def main() -> None:
             args.grooves,
             not args.no_optics,
             args.scale_transfer,
+            args.other_order,
         )
         for task in tasks
     ]
@@ -740,6 +786,8 @@ def main() -> None:
         f"CPU {np.median([row['cpu_s'] for row in done]):.2f} s"
     )
     print(summary, file=sys.stderr)
+    if args.scenario == "led" and args.other_order:
+        print(other_order_summary(done), file=sys.stderr)
     if args.scenario == "led" and len({row["group"] for row in done}) > 1:
         print("\n".join(group_summaries(done)), file=sys.stderr)
     if args.csv:
@@ -748,6 +796,35 @@ def main() -> None:
             writer = csv.DictWriter(handle, fieldnames=fields)
             writer.writeheader()
             writer.writerows(rows)
+
+
+def other_order_summary(done: list[dict[str, Any]]) -> str:
+    """What both first orders measured of the geometry: how often, how often refused and why,
+    and the measured incidence's and focal length's errors in their own σ (unwidened)."""
+    measured = [row for row in done if row.get("other_measured")]
+    used = [row for row in measured if not row.get("other_refused")]
+    refused = [
+        row["other_refused"].split(":")[0].split("(")[0].strip()
+        for row in measured
+        if row.get("other_refused")
+    ]
+    reasons = ", ".join(f"{refused.count(r)} {r}" for r in sorted(set(refused)))
+    parts = [
+        f"both orders: geometry measured in {len(measured)} of {len(done)} scenes, used in "
+        f"{len(used)}" + (f" (refused: {reasons})" if reasons else "")
+    ]
+    for key, label in (
+        ("other_incidence_error_sigmas", "incidence"),
+        ("other_focal_error_sigmas", "focal length"),
+    ):
+        errors = np.abs([float(row[key]) for row in used if row.get(key) is not None])
+        errors = errors[np.isfinite(errors)]
+        if errors.size:
+            parts.append(
+                f"{label} |error|/σ median {np.median(errors):.2f}, 95th percentile "
+                f"{np.percentile(errors, 95):.2f}"
+            )
+    return "; ".join(parts)
 
 
 def transfer_summary(

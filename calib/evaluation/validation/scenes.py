@@ -364,6 +364,72 @@ def clean_signals(
     return profile, direct
 
 
+def other_order_signals(
+    plan: ScenePlan, lamp: Spectrum, camera: MultiSpectrum
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`clean_signals` for the other first order (−1, with −2 over it) on the profile's
+    pixels measured away from the spot on the other side: the true grating's
+    :meth:`~calib.core.mapping.TiltedGrating.other_order` and the grating's own efficiencies of
+    those orders (a blazed grating's −1 order is weak and differently shaped). Stray light as on
+    the +1 side."""
+    shape = plan.geometry
+    other = shape.mapping.other_order()
+    common: dict[str, Any] = {
+        "pixel": shape.pixel,
+        "slit_width_px": shape.slit_width_px,
+        "psf_sigma_px": shape.psf_sigma_px,
+    }
+    first = render_observation(
+        lamp,
+        camera,
+        mapping=other,
+        grating_efficiency=_efficiency(plan.grating, -1),
+        zeroth_order_efficiency=_efficiency(plan.grating, 0),
+        **common,
+    )
+    second = render_observation(
+        lamp,
+        camera,
+        mapping=OrderMapping(other, 2),
+        grating_efficiency=_efficiency(plan.grating, -2),
+        **common,
+    )
+    profile = first.clean_profile + second.clean_profile
+    direct = first.clean_direct
+    if plan.stray is not None:
+        profile = plan.stray.added(profile, direct, shape.pixel)
+    return profile, direct
+
+
+def render_other_order(
+    plan: ScenePlan, camera: MultiSpectrum, spec: str, rng: np.random.Generator
+) -> tuple[FloatArray, FloatArray]:
+    """The −1 profile of lamp ``spec`` and its σ, ``(n, 3)`` each, captured in the same bracket
+    (the same frames, gains and exposure errors) as :func:`render_scene` captures its +1 order,
+    with noise from ``rng``."""
+    draw = plan.lamps[spec]
+    seen = drifted(true_lamp(spec), draw.drift_gain, draw.drift_tilt_per_100nm)
+    profile, direct = clean_signals(plan, seen, camera)
+    other, _ = other_order_signals(plan, seen, camera)
+    shape = plan.geometry
+    slit = SlitImage.of(shape.line_spread, plan.sensor.band_rows, shape.psf_sigma_px)
+    gain, factors = plan.errors.photons.bracket(
+        profile, direct, plan.sensor, slit.spot_px, draw.spot_fill
+    )
+    captured = capture_lamp(
+        other,
+        direct,
+        slit,
+        plan.errors.photons,
+        plan.sensor,
+        gain,
+        factors,
+        draw.exposure_errors,
+        rng,
+    )
+    return captured.profile, captured.profile_sigma
+
+
 def true_lamp(spec: str) -> Spectrum:
     """The lamp ``spec`` names as it really shines: a fluorescent lamp tabulated in 5 nm bins (the
     CIE FL tables colour-science holds) with its mercury lines restored as narrow lines at their
