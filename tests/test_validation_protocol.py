@@ -60,6 +60,7 @@ from calib.evaluation.validation.scenes import (
     clean_signals,
     draw_geometry,
     draw_scene_plan,
+    other_order_signals,
 )
 from calib.evaluation.validation.splits import (
     LEAVE_ONE_OUT,
@@ -301,6 +302,30 @@ def test_the_second_order_lands_where_the_first_has_twice_the_wavelength() -> No
     if beyond.any():
         first_only = grating.efficiency(1, first_nm[beyond]) * dispersion[beyond]
         assert np.all(profile[beyond, 0] > first_only * ratio.mean() * 1.001)
+
+
+def test_the_other_order_is_the_gratings_minus_one_with_its_own_efficiency() -> None:
+    """Decision 0197: the −1 order lands where the true grating's other order puts each
+    wavelength (the incidence's sign turned), through the grating's own −1 efficiency."""
+    grating = BlazedGrating(450.0)
+    lamp = Spectrum(np.arange(360.0, 831.0), np.ones(471))
+    plan = _plan(grating)
+    pixel = plan.geometry.pixel
+    assert plan.geometry.incidence_deg != 0.0
+    profile, direct = other_order_signals(plan, lamp, _flat_camera())
+    _, plus_direct = clean_signals(plan, lamp, _flat_camera())
+    np.testing.assert_allclose(direct, plus_direct)
+    other_nm = plan.geometry.mapping.other_order().wavelength_nm(pixel)
+    dispersion = np.gradient(other_nm, pixel)
+    efficiency = grating.efficiency(-1, other_nm)
+    # Away from the −1 efficiency's zero (sinc²(λ_B/λ + 1) vanishes at 450 nm; the slit's blur
+    # fills it), where the second order adds nothing.
+    inside = (other_nm > 420.0) & (other_nm < 700.0) & (efficiency > 0.2 * efficiency.max())
+    ratio = profile[inside, 0] / (efficiency[inside] * dispersion[inside])
+    np.testing.assert_allclose(ratio, np.median(ratio), rtol=0.01)
+    # A blazed grating's −1 order is weak: far below the +1 order at the same pixels.
+    plus, _ = clean_signals(plan, lamp, _flat_camera())
+    assert float(profile[inside, 0].sum()) < 0.1 * float(plus[inside, 0].sum())
 
 
 def test_stray_light_is_a_lorentzian_wing_of_the_direct_spot() -> None:
