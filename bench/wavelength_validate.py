@@ -41,9 +41,9 @@ length, the incidence and the axis offset, not on the groove spacing), and the s
 them: what a −1 order in the frame could settle (decision 0196). ``--other-order`` (``led``) puts
 the LED's −1 order in the frame: rendered in the same bracket through the true grating's other order
 with the grating's own −1 and −2 efficiencies (:func:`calib.evaluation.validation.scenes.
-render_other_order`), so the mapping measures the incidence and the focal length from both orders
+render_other_order`), so the mapping reports the incidence and the focal length both orders measure
 (:mod:`calib.wavelength.other_order`, decision 0197); the rows say how far that measurement lies
-from the truth in its own σ and whether it was refused, and the summary counts them.
+from the truth in its own (stated) σ and whether it was refused, and the summary counts them.
 
     python bench/wavelength_validate.py --data-dir ../shared/data/camera_sensitivities --split test --scenario led
 """
@@ -800,7 +800,7 @@ def main() -> None:
 
 def other_order_summary(done: list[dict[str, Any]]) -> str:
     """What both first orders measured of the geometry: how often, how often refused and why,
-    and the measured incidence's and focal length's errors in their own σ (unwidened)."""
+    and the measured incidence's and focal length's errors in their own stated σ."""
     measured = [row for row in done if row.get("other_measured")]
     used = [row for row in measured if not row.get("other_refused")]
     refused = [

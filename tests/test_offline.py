@@ -257,7 +257,7 @@ def test_both_first_orders_in_frame_use_the_stronger(tmp_path: Path) -> None:
     assert isinstance(found, QuadraticMapping)
     measured = found.details["other_order"]
     assert measured["refused"] is None
-    assert abs(measured["incidence_deg"]) < 3 * 3.4 * measured["incidence_sigma_deg"], measured
+    assert abs(measured["incidence_deg"]) < 3 * measured["incidence_sigma_deg"], measured
 
 
 @pytest.mark.slow  # detection's choice is tested on its own by tests/test_profiles.py (make test-all)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -53,7 +53,7 @@ from calib.model.bases import CameraPrior
 from calib.model.resolution import COARSE_SLIT_NM, FWHM_PER_SIGMA, camera_kernel
 from calib.wavelength.families import GratingFamily, GratingPrior, QuadraticFamily
 from calib.wavelength.features import FeatureMapping, ProfileAnchor, map_features
-from calib.wavelength.other_order import OtherOrderGeometry, other_order_geometry
+from calib.wavelength.other_order import other_order_geometry
 from calib.wavelength.profile_search import (
     AMBIGUITY_DELTA_CHI2,
     BASIN_TEMPER,
@@ -184,55 +184,6 @@ def _grating_prior_for(
     if prior is None and from_spot:
         return default_prior(True), "defaults"
     return prior, why
-
-
-#: The −1 order's σ of the incidence and the focal length, widened by this before it joins the
-#: grating prior: the ratio model's own misfit (the slit's image is the same in pixels on both
-#: sides but not in nanometres) leaves the curvature's σ short. Chosen on the validation split
-#: (decision 0197): over the 133 geometries of 143 scenes it measured and used, the 95th
-#: percentile of |error|/σ was 6.9 for the incidence and 6.8 for the focal length; widened by 3.4
-#: the ±2σ band holds 95 %.
-OTHER_ORDER_SIGMA_SCALE = 3.4
-#: A (widened) σ at least this large says nothing the grating prior needs (degrees; ln F).
-OTHER_ORDER_LOOSE = {"incidence_deg": 5.0, "log_focal": 0.5}
-
-
-def _with_other_order(
-    prior: GratingPrior, lead: LampObservation
-) -> tuple[GratingPrior, OtherOrderGeometry | None]:
-    """``prior`` with what ``lead``'s two first orders measure of the incidence and the focal
-    length joined to it (each a Gaussian of the measurement's marginal σ widened by
-    :data:`OTHER_ORDER_SIGMA_SCALE`, multiplied into the prior's own; a held parameter stays
-    held), and the measurement; ``prior`` as it was when nothing was measured or the measurement
-    is refused.
-
-    The −1 order holds one combination of the two far better than either (a correlation near
-    ±1); the marginals keep the search's box around the truth along that ridge (a correlated
-    prior narrowed it to a ridge the search's scans, laid out parameter by parameter, stepped
-    across: on the validation split 13 LED-only mappings right before went 10–30 nm off and 6
-    failed; decision 0197).
-    """
-    measured = other_order_geometry(lead)
-    if measured is None or measured.refused is not None:
-        return prior, measured
-    scale = OTHER_ORDER_SIGMA_SCALE
-    values = dict(prior.values)
-    for name, mean, sigma in (
-        ("incidence_deg", measured.incidence_deg, scale * measured.incidence_sigma_deg),
-        ("log_focal", measured.log_focal, scale * measured.log_focal_sigma),
-    ):
-        if not (math.isfinite(sigma) and 0 < sigma < OTHER_ORDER_LOOSE[name]):
-            # Not measured (at normal incidence the two orders mirror each other at any focal
-            # length): the prior keeps what it had.
-            continue
-        given = values.get(name)
-        if given is None:
-            values[name] = (mean, sigma)
-        elif given[1] > 0:
-            weights = (1.0 / given[1] ** 2, 1.0 / sigma**2)
-            combined = (weights[0] * given[0] + weights[1] * mean) / sum(weights)
-            values[name] = (combined, 1.0 / math.sqrt(sum(weights)))
-    return replace(prior, values=values, source=f"{prior.source}; both first orders"), measured
 
 
 def _feature_family(
@@ -682,15 +633,12 @@ def locate_mapping(
     listed = [(lamp, lines) for lamp, lines in line_lamps if lines]
     measured = [lamp for lamp, lines in line_lamps if not lines]
     details: dict[str, Any] = {"rig_prior": prior_source}
-    if grating_prior is not None and lead.other_order is not None and not listed:
-        # The −1 order in the frame measures the lens and the grating's tilt (decision 0197).
-        grating_prior, other = _with_other_order(grating_prior, lead)
+    if lead.other_order is not None and lead.pixel_origin == "direct_spot":
+        # The −1 order in the frame measures the lens's focal length and the grating's tilt; it
+        # is reported, not joined to the mapping's prior (decision 0197: on the test split that
+        # left LED-only mappings pulled by a camera unlike the prior unwarned).
+        other = other_order_geometry(lead)
         details["other_order"] = None if other is None else other.to_dict()
-        details["rig_prior"] = grating_prior.source
-        if other is not None and other.refused is not None:
-            warnings.append(
-                f"the other first order was in the frame but is not used: {other.refused}"
-            )
 
     search = None
     # σ of a whole-profile fit that a measured lamp's lines could not correct, from how far it

@@ -682,8 +682,9 @@ def detect_geometry(
             orders.append(replace(other, relative_flux=ratio))
             notes.append(
                 f"the other first order (side -1, {ratio:.0%} of the +1 order's flux) is in the "
-                "frame too; the profiles are read from the +1 order alone, the other one only "
-                "measures the lens and the grating's tilt for a mapping no line lamp places"
+                "frame too; the profiles are read from the +1 order alone, the other one "
+                "measures the lens's focal length and the grating's tilt (the mapping's "
+                "other_order)"
             )
     along, across = _spot_half_size(small, spot, primary)
     gap = max(0.25 * primary.band_half_width_px, 2 * small.pitch_px, 10.0)
