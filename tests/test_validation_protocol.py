@@ -60,7 +60,6 @@ from calib.evaluation.validation.scenes import (
     clean_signals,
     draw_geometry,
     draw_scene_plan,
-    other_order_signals,
 )
 from calib.evaluation.validation.splits import (
     LEAVE_ONE_OUT,
@@ -312,7 +311,7 @@ def test_the_other_order_is_the_gratings_minus_one_with_its_own_efficiency() -> 
     plan = _plan(grating)
     pixel = plan.geometry.pixel
     assert plan.geometry.incidence_deg != 0.0
-    profile, direct = other_order_signals(plan, lamp, _flat_camera())
+    profile, direct = clean_signals(plan, lamp, _flat_camera(), side=-1)
     _, plus_direct = clean_signals(plan, lamp, _flat_camera())
     np.testing.assert_allclose(direct, plus_direct)
     other_nm = plan.geometry.mapping.other_order().wavelength_nm(pixel)

@@ -156,12 +156,13 @@ def _misfit(
     carried: FloatArray,
     degree: int,
     lit: NDArray[np.bool_],
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """For each row of ``carried`` ``(K, n)`` (the +1 pixel of each −1 sample; NaN: unused): the
     χ² of the −1 profile about ``r(u₊) × (+1 profile there)`` with ``r`` a Legendre polynomial of
     ``degree`` in the +1 pixel over ``first``'s range (weighted least squares, the +1 profile's σ
-    carried through a first pass's ratio), and the samples used. Rows with too few samples, or
-    that leave more than 1 − :data:`LIT_SHARE` of the ``lit`` samples out: ∞."""
+    carried through a first pass's ratio), the samples used and the weighted residuals
+    ``(K, n, 3)`` (0 where unused). Rows with too few samples, or that leave more than
+    1 − :data:`LIT_SHARE` of the ``lit`` samples out: χ² ∞."""
     carried = np.atleast_2d(carried)
     low, high = float(first.pixel[0]), float(first.pixel[-1])
     used = np.isfinite(carried) & (carried >= low) & (carried <= high)
@@ -192,7 +193,7 @@ def _misfit(
     count = used.sum(axis=1)
     covered = (used & lit).sum(axis=1) >= LIT_SHARE * max(int(np.count_nonzero(lit)), 1)
     chi2 = np.where((count >= SAMPLES_PER_TERM * (degree + 1)) & covered, chi2, np.inf)
-    return chi2, count
+    return chi2, count, residual
 
 
 def other_order_geometry(
@@ -222,7 +223,7 @@ def other_order_geometry(
     chi2 = np.empty(theta.shape[0])
     for rows in np.array_split(np.arange(theta.shape[0]), max(1, theta.shape[0] // 512)):
         carried = corresponding_pixel(thinned.pixel, np.exp(log_focal[rows]), theta[rows])
-        chi2[rows], _ = _misfit(blurred[0], thinned, carried, degree, lit[::every])
+        chi2[rows], _, _ = _misfit(blurred[0], thinned, carried, degree, lit[::every])
     if not np.any(np.isfinite(chi2)):
         return None
     surface = chi2.reshape(logs.size, incidences.size)
@@ -316,24 +317,9 @@ def _residuals(
     used: NDArray[np.bool_],
     degree: int,
 ) -> FloatArray:
-    """The weighted residuals of :func:`_misfit` for one ``carried`` over the ``used`` samples."""
-    low, high = float(first.pixel[0]), float(first.pixel[-1])
-    at = np.clip(carried[used], low, high)
-    plus = np.stack([np.interp(at, first.pixel, first.profile[:, c]) for c in range(3)], axis=1)
-    plus_sigma = np.stack(
-        [np.interp(at, first.pixel, first.profile_sigma[:, c]) for c in range(3)], axis=1
-    )
-    minus = np.asarray(other.profile)[used]
-    minus_sigma = np.asarray(other.profile_sigma)[used]
-    basis = legendre.legvander((2.0 * at - (low + high)) / (high - low), degree)
-    design = (basis[:, None, :] * plus[:, :, None]).reshape(-1, degree + 1)
-    ratio = np.zeros(at.size)
-    for _ in range(2):
-        variance = minus_sigma**2 + (ratio[:, None] * plus_sigma) ** 2
-        weight = 1.0 / np.sqrt(np.maximum(variance.reshape(-1), 1e-300))
-        coefficients = np.linalg.lstsq(
-            design * weight[:, None], minus.reshape(-1) * weight, rcond=None
-        )[0]
-        ratio = basis @ coefficients
-    variance = minus_sigma**2 + (ratio[:, None] * plus_sigma) ** 2
-    return np.asarray(((minus - ratio[:, None] * plus) / np.sqrt(variance)).reshape(-1))
+    """:func:`_misfit`'s weighted residuals for one ``carried`` over the ``used`` samples (a fixed
+    set, so a refinement's residual vector keeps its length; one that leaves the +1 profile's
+    reach counts 0)."""
+    kept = np.where(used, carried, np.nan)
+    _, _, residual = _misfit(first, other, kept, degree, np.zeros(used.shape, dtype=bool))
+    return np.asarray(residual[0][used].reshape(-1))

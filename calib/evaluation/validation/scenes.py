@@ -332,48 +332,17 @@ def _efficiency(grating: Grating, order: int) -> Any:
 
 
 def clean_signals(
-    plan: ScenePlan, lamp: Spectrum, camera: MultiSpectrum
+    plan: ScenePlan, lamp: Spectrum, camera: MultiSpectrum, side: int = 1
 ) -> tuple[FloatArray, FloatArray]:
     """Noise-free profile ``(n, 3)`` (first + second order, blurred, with stray light) and direct
-    ``(3,)`` of ``lamp`` (as the camera sees it) for ``camera`` in ``plan``."""
-    shape = plan.geometry
-    common: dict[str, Any] = {
-        "pixel": shape.pixel,
-        "slit_width_px": shape.slit_width_px,
-        "psf_sigma_px": shape.psf_sigma_px,
-    }
-    first = render_observation(
-        lamp,
-        camera,
-        mapping=shape.mapping,
-        grating_efficiency=_efficiency(plan.grating, 1),
-        zeroth_order_efficiency=_efficiency(plan.grating, 0),
-        **common,
-    )
-    second = render_observation(
-        lamp,
-        camera,
-        mapping=OrderMapping(shape.mapping, 2),
-        grating_efficiency=_efficiency(plan.grating, 2),
-        **common,
-    )
-    profile = first.clean_profile + second.clean_profile
-    direct = first.clean_direct
-    if plan.stray is not None:
-        profile = plan.stray.added(profile, direct, shape.pixel)
-    return profile, direct
+    ``(3,)`` of ``lamp`` (as the camera sees it) for ``camera`` in ``plan``.
 
-
-def other_order_signals(
-    plan: ScenePlan, lamp: Spectrum, camera: MultiSpectrum
-) -> tuple[FloatArray, FloatArray]:
-    """:func:`clean_signals` for the other first order (−1, with −2 over it) on the profile's
-    pixels measured away from the spot on the other side: the true grating's
+    ``side=-1``: the other first order (−1, with −2 over it) on the profile's pixels measured
+    away from the spot on the other side — the true grating's
     :meth:`~calib.core.mapping.TiltedGrating.other_order` and the grating's own efficiencies of
-    those orders (a blazed grating's −1 order is weak and differently shaped). Stray light as on
-    the +1 side."""
+    those orders (a blazed grating's −1 order is weak and differently shaped; decision 0197)."""
     shape = plan.geometry
-    other = shape.mapping.other_order()
+    mapping = shape.mapping if side == 1 else shape.mapping.other_order()
     common: dict[str, Any] = {
         "pixel": shape.pixel,
         "slit_width_px": shape.slit_width_px,
@@ -382,16 +351,16 @@ def other_order_signals(
     first = render_observation(
         lamp,
         camera,
-        mapping=other,
-        grating_efficiency=_efficiency(plan.grating, -1),
+        mapping=mapping,
+        grating_efficiency=_efficiency(plan.grating, side),
         zeroth_order_efficiency=_efficiency(plan.grating, 0),
         **common,
     )
     second = render_observation(
         lamp,
         camera,
-        mapping=OrderMapping(other, 2),
-        grating_efficiency=_efficiency(plan.grating, -2),
+        mapping=OrderMapping(mapping, 2),
+        grating_efficiency=_efficiency(plan.grating, 2 * side),
         **common,
     )
     profile = first.clean_profile + second.clean_profile
@@ -410,7 +379,7 @@ def render_other_order(
     draw = plan.lamps[spec]
     seen = drifted(true_lamp(spec), draw.drift_gain, draw.drift_tilt_per_100nm)
     profile, direct = clean_signals(plan, seen, camera)
-    other, _ = other_order_signals(plan, seen, camera)
+    other, _ = clean_signals(plan, seen, camera, side=-1)
     shape = plan.geometry
     slit = SlitImage.of(shape.line_spread, plan.sensor.band_rows, shape.psf_sigma_px)
     gain, factors = plan.errors.photons.bracket(

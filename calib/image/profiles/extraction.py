@@ -1005,17 +1005,7 @@ def extract(
             source=source,
         )
     band = geometry.order(side)
-    background = np.zeros(3)
-    if subtract_background:
-        inner = band.band_half_width_px + geometry.background_gap_px
-        background = _strip_background(
-            image,
-            geometry.spot_centre_px,
-            band.angle_deg,
-            (band.start_px, band.stop_px),
-            (band.centre_offset_px - inner, band.centre_offset_px + inner),
-            geometry.background_width_px,
-        )
+    background = _band_background(image, geometry, band, subtract_background)
     pixel, profile, sigma, counts = _extract_profile(image, geometry, band, background, source)
     other, other_note = _other_order(image, geometry, side, subtract_background, source)
     direct, direct_sigma, direct_background, line_spread, direct_note = _extract_direct(
@@ -1041,6 +1031,23 @@ def extract(
     )
 
 
+def _band_background(
+    image: HdrImage, geometry: DiffractionGeometry, band: OrderBand, subtract: bool
+) -> FloatArray:
+    """The per-channel background beside ``band`` (the strips past its gap), or zeros."""
+    if not subtract:
+        return np.zeros(3)
+    inner = band.band_half_width_px + geometry.background_gap_px
+    return _strip_background(
+        image,
+        geometry.spot_centre_px,
+        band.angle_deg,
+        (band.start_px, band.stop_px),
+        (band.centre_offset_px - inner, band.centre_offset_px + inner),
+        geometry.background_width_px,
+    )
+
+
 def _other_order(
     image: HdrImage,
     geometry: DiffractionGeometry,
@@ -1053,17 +1060,7 @@ def _other_order(
     if side != 1 or not any(band.side == -1 for band in geometry.orders):
         return None, None
     band = geometry.order(-1)
-    background = np.zeros(3)
-    if subtract_background:
-        inner = band.band_half_width_px + geometry.background_gap_px
-        background = _strip_background(
-            image,
-            geometry.spot_centre_px,
-            band.angle_deg,
-            (band.start_px, band.stop_px),
-            (band.centre_offset_px - inner, band.centre_offset_px + inner),
-            geometry.background_width_px,
-        )
+    background = _band_background(image, geometry, band, subtract_background)
     try:
         pixel, profile, sigma, _ = _extract_profile(image, geometry, band, background, source)
     except DetectionError as exc:
