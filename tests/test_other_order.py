@@ -99,3 +99,15 @@ def test_without_the_other_order_nothing_is_measured() -> None:
     assert other_order_geometry(replace(lamp, other_order=None)) is None
     with pytest.raises(InputError, match="direct spot"):
         replace(lamp, pixel_origin="arbitrary")
+
+
+def test_a_flat_valleys_sigma_reaches_the_result_as_none_not_infinity() -> None:
+    import json
+
+    from calib.wavelength.other_order import OtherOrderGeometry
+
+    flat = OtherOrderGeometry(
+        0.01, math.inf, 8.0, math.inf, 0.9, 300, ((math.inf, 0.0), (0.0, math.inf)), None
+    )
+    record = json.loads(json.dumps(flat.to_dict(), allow_nan=False))
+    assert record["incidence_sigma_deg"] is None and record["correlation"] is None

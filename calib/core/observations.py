@@ -112,8 +112,8 @@ class LampObservation:
         mapping's grating physics. ``"arbitrary"`` otherwise.
     other_order
         The other first order (−1) of the same frames, when it was in the frame too (profiles
-        measured from the direct spot only): a witness between an LED-only mapping's basins
-        (:mod:`calib.wavelength.other_order`). ``None`` otherwise.
+        measured from the direct spot only): with the first order it measures the lens's focal
+        length and the grating's tilt (:mod:`calib.wavelength.other_order`). ``None`` otherwise.
     """
 
     name: str

@@ -633,7 +633,7 @@ def locate_mapping(
     listed = [(lamp, lines) for lamp, lines in line_lamps if lines]
     measured = [lamp for lamp, lines in line_lamps if not lines]
     details: dict[str, Any] = {"rig_prior": prior_source}
-    if lead.other_order is not None and lead.pixel_origin == "direct_spot":
+    if lead.other_order is not None:
         # The −1 order in the frame measures the lens's focal length and the grating's tilt; it
         # is reported, not joined to the mapping's prior (decision 0197: on the test split that
         # left LED-only mappings pulled by a camera unlike the prior unwarned).

@@ -108,15 +108,22 @@ class OtherOrderGeometry:
     refused: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """For ``result.json``: a σ the fit could not state (a flat valley) is ``None``."""
+
+        def finite(value: float) -> float | None:
+            return value if math.isfinite(value) else None
+
+        spread = self.covariance[0][0] * self.covariance[1][1]
         return {
             "incidence_deg": self.incidence_deg,
-            "incidence_sigma_deg": self.incidence_sigma_deg,
+            "incidence_sigma_deg": finite(self.incidence_sigma_deg),
             "focal_length_px": math.exp(self.log_focal),
-            "log_focal_sigma": self.log_focal_sigma,
+            "log_focal_sigma": finite(self.log_focal_sigma),
+            "correlation": finite(self.covariance[0][1] / math.sqrt(spread))
+            if math.isfinite(spread) and spread > 0
+            else None,
             "reduced_chi2": self.reduced_chi2,
             "samples": self.samples,
-            "correlation": self.covariance[0][1]
-            / math.sqrt(max(self.covariance[0][0] * self.covariance[1][1], 1e-300)),
             "runner_up": None
             if self.runner_up is None
             else {"incidence_deg": self.runner_up[0], "delta_chi2": self.runner_up[1]},

@@ -82,7 +82,8 @@ class Extraction:
         aliased: decision 0114); ``None`` when the spot is resolved or blurred enough.
     other_order
         The other first order's profile (side −1) when the geometry holds it whole and it could
-        be read (a witness of the lens and the grating's tilt: decision 0197); else ``None``.
+        be read (it measures the lens's focal length and the grating's tilt: decision 0197); else
+        ``None``.
     other_order_note
         Why the geometry's other first order was not read, or ``None``.
     geometry
