@@ -186,14 +186,16 @@ def _misfit(
     for _ in range(2):
         variance = minus_sigma**2 + (ratio[..., None] * plus_sigma) ** 2
         weight = np.where(mask, 1.0 / np.maximum(variance, 1e-300), 0.0)  # (K, n, 3)
-        # Normal equations of Σ_c w (m − (B·c) p)²: (K, T, T) and (K, T).
-        normal = np.einsum("knt,kns,knc->kts", basis, basis, weight * plus**2)
-        right = np.einsum("knt,knc->kt", basis, weight * plus * minus)
+        # Normal equations of Σ_c w (m − (B·c) p)²: (K, T, T) and (K, T), the channels summed
+        # first and the rest as batched products.
+        transposed = basis.transpose(0, 2, 1)
+        normal = transposed @ (basis * np.sum(weight * plus**2, axis=-1)[..., None])
+        right = (transposed @ np.sum(weight * plus * minus, axis=-1)[..., None])[..., 0]
         # A row without samples (or nearly so) stays solvable; its χ² is set to ∞ below.
         trace = np.trace(normal, axis1=1, axis2=2)[:, None, None]
         normal += (1e-12 * trace + (trace == 0)) * np.eye(degree + 1)
         coefficients = np.linalg.solve(normal, right[..., None])[..., 0]
-        ratio = np.einsum("knt,kt->kn", basis, coefficients)
+        ratio = (basis @ coefficients[..., None])[..., 0]
     variance = minus_sigma**2 + (ratio[..., None] * plus_sigma) ** 2
     residual = np.where(mask, (minus - ratio[..., None] * plus) / np.sqrt(variance), 0.0)
     chi2 = np.sum(residual**2, axis=(1, 2))
