@@ -182,7 +182,7 @@ def _misfit(
     minus_sigma = np.broadcast_to(other.profile_sigma, plus.shape)
     basis = legendre.legvander((2.0 * at - (low + high)) / (high - low), degree)  # (K, n, T)
     mask = used[..., None]
-    ratio = np.zeros(at.shape)
+    ratio: FloatArray = np.zeros(at.shape)
     for _ in range(2):
         variance = minus_sigma**2 + (ratio[..., None] * plus_sigma) ** 2
         weight = np.where(mask, 1.0 / np.maximum(variance, 1e-300), 0.0)  # (K, n, 3)
@@ -195,7 +195,7 @@ def _misfit(
         trace = np.trace(normal, axis1=1, axis2=2)[:, None, None]
         normal += (1e-12 * trace + (trace == 0)) * np.eye(degree + 1)
         coefficients = np.linalg.solve(normal, right[..., None])[..., 0]
-        ratio = (basis @ coefficients[..., None])[..., 0]
+        ratio = np.asarray((basis @ coefficients[..., None])[..., 0], dtype=np.float64)
     variance = minus_sigma**2 + (ratio[..., None] * plus_sigma) ** 2
     residual = np.where(mask, (minus - ratio[..., None] * plus) / np.sqrt(variance), 0.0)
     chi2 = np.sum(residual**2, axis=(1, 2))
