@@ -28,6 +28,7 @@ from calib.pipeline.brackets import (
     extend_orders,
     shift_geometry,
 )
+from calib.pipeline.report import write_report
 from tests.rendered_capture import GRATING, Capture, render_capture, shared_capture
 
 #: The estimator's own target at 1 % noise with the mapping estimated (issue 2: LED+Flu ≤ 3.5 ×10⁻²);
@@ -258,6 +259,9 @@ def test_both_first_orders_in_frame_use_the_stronger(tmp_path: Path) -> None:
     measured = found.details["other_order"]
     assert measured["refused"] is None
     assert abs(measured["incidence_deg"]) < 3 * measured["incidence_sigma_deg"], measured
+    # The report says what both orders measured.
+    page = write_report(tmp_path / "out", result)["report"].read_text()
+    assert "both first orders measure" in page and "reported, not used by the mapping" in page
 
 
 @pytest.mark.slow  # detection's choice is tested on its own by tests/test_profiles.py (make test-all)

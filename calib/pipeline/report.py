@@ -194,6 +194,9 @@ def _summary_rows(
     if estimate.profiles is not None:
         rows.append(("geometry detected on", estimate.profiles.geometry_lamp))
         rows.append(("dispersion angle", f"{estimate.profiles.geometry.primary.angle_deg:.3f}°"))
+    measured = _both_orders(mapping)
+    if measured is not None:
+        rows.append(("both first orders measure", measured))
     rows.append(("uncertainty", _uncertainty_row(estimate)))
     choice = diagnostics.get("method_choice")
     if isinstance(choice, Mapping):
@@ -204,6 +207,38 @@ def _summary_rows(
             ("time", ", ".join(f"{k.removesuffix('_s')} {v:.2f} s" for k, v in timings.items()))
         )
     return rows
+
+
+#: A σ at least this large (degrees; ln F) says the two orders do not hold that quantity: at
+#: normal incidence they mirror each other at any focal length.
+_NOT_HELD = {"incidence_sigma_deg": 5.0, "log_focal_sigma": 0.5}
+
+
+def _both_orders(mapping: object) -> str | None:
+    """What the two first orders measured of the lens and the grating's tilt (decision 0197), as
+    a sentence; ``None`` when the −1 order was not in the frame."""
+    details = getattr(mapping, "details", None)
+    measured = details.get("other_order") if isinstance(details, Mapping) else None
+    if not isinstance(measured, Mapping):
+        return None
+
+    def held(key: str) -> float | None:
+        value = measured.get(key)
+        return float(value) if isinstance(value, int | float) and value < _NOT_HELD[key] else None
+
+    focal = float(measured["focal_length_px"])
+    focal_sigma, tilt_sigma = held("log_focal_sigma"), held("incidence_sigma_deg")
+    parts = [
+        "focal length not held"
+        if focal_sigma is None
+        else f"focal length {focal:.0f} ± {focal * focal_sigma:.0f} px",
+        "grating tilt not held"
+        if tilt_sigma is None
+        else f"grating tilt (incidence) {float(measured['incidence_deg']):+.2f} ± {tilt_sigma:.2g}°",
+    ]
+    text = ", ".join(parts) + "; reported, not used by the mapping"
+    refused = measured.get("refused")
+    return text if refused is None else f"{text}; not trusted: {refused}"
 
 
 def _quality_banner(estimate: OfflineEstimate) -> str:
