@@ -111,3 +111,30 @@ def test_a_flat_valleys_sigma_reaches_the_result_as_none_not_infinity() -> None:
     )
     record = json.loads(json.dumps(flat.to_dict(), allow_nan=False))
     assert record["incidence_sigma_deg"] is None and record["correlation"] is None
+
+
+def test_the_report_says_what_both_orders_hold_and_why_not() -> None:
+    from types import SimpleNamespace
+
+    from calib.pipeline.report import _both_orders
+
+    def row(record: object) -> str | None:
+        return _both_orders(SimpleNamespace(details={"other_order": record}))
+
+    held = {
+        "focal_length_px": 3216.0,
+        "log_focal_sigma": 0.033,
+        "incidence_deg": -4.9,
+        "incidence_sigma_deg": 0.17,
+        "refused": None,
+    }
+    assert row(held) == (
+        "focal length 3216 ± 106 px, grating tilt (incidence) -4.90 ± 0.17°; reported, not used "
+        "by the mapping"
+    )
+    mirrored = {**held, "log_focal_sigma": None, "incidence_sigma_deg": 140.0}
+    assert row(mirrored) is not None and row(mirrored).startswith(  # type: ignore[union-attr]
+        "focal length not held, grating tilt not held"
+    )
+    assert row({"refused": "too few lit samples"}) == "not measured: too few lit samples"
+    assert _both_orders(SimpleNamespace(details={})) is None

@@ -170,7 +170,8 @@ def test_both_first_orders_are_found_and_the_stronger_leads() -> None:
     _assert_agrees(weaker, _truth_at(SIGNAL, weaker.pixel, 0.4), direct=SIGNAL.direct_rgb)
     # The +1 order's extraction carries the other one as read on its own (decision 0197), and
     # its observation hands it to the mapping.
-    stronger = extract(image, geometry)
+    assert extract(image, geometry).other_order is None  # only when asked for
+    stronger = extract(image, geometry, other_order=True)
     assert stronger.other_order is not None and stronger.other_order_note is None
     np.testing.assert_array_equal(stronger.other_order.pixel, weaker.pixel)
     np.testing.assert_allclose(stronger.other_order.profile, weaker.profile)
@@ -196,7 +197,7 @@ def test_an_other_order_leaving_the_frame_is_noted_not_fatal() -> None:
     geometry = detect_geometry(image)
     assert [order.side for order in geometry.orders] == [1]
     assert any("side -1" in note and "runs off" in note for note in geometry.notes)
-    assert extract(image, geometry).other_order is None
+    assert extract(image, geometry, other_order=True).other_order is None
     with pytest.raises(DetectionError, match="no first order on side -1") as caught:
         extract(image, geometry, side=-1)
     assert caught.value.reason == "no_band"

@@ -52,6 +52,7 @@ from calib.evaluation.validation.rig_errors import (
     SpectrometerError,
     SpectrometerReading,
     StrayDraw,
+    drifted,
 )
 from calib.evaluation.validation.scenes import (
     GeometryRanges,
@@ -60,6 +61,9 @@ from calib.evaluation.validation.scenes import (
     clean_signals,
     draw_geometry,
     draw_scene_plan,
+    render_other_order,
+    render_scene,
+    true_lamp,
 )
 from calib.evaluation.validation.splits import (
     LEAVE_ONE_OUT,
@@ -325,6 +329,25 @@ def test_the_other_order_is_the_gratings_minus_one_with_its_own_efficiency() -> 
     # A blazed grating's −1 order is weak: far below the +1 order at the same pixels.
     plus, _ = clean_signals(plan, lamp, _flat_camera())
     assert float(profile[inside, 0].sum()) < 0.1 * float(plus[inside, 0].sum())
+
+
+def test_the_other_order_is_captured_in_the_first_orders_bracket() -> None:
+    """``render_other_order``: the −1 clean signal through the bracket the +1 order's was laid
+    out for, its σ the noise it carries (noise-only rig errors: no exposure or gain error)."""
+    grating = SinusoidalPhaseGrating(1.5)
+    plan = _plan(grating)
+    camera = _flat_camera()
+    scene = render_scene(plan, camera, ("A",), np.random.default_rng(5))
+    profile, sigma = render_other_order(scene, camera, "A", np.random.default_rng(6))
+    assert profile.shape == sigma.shape == scene.observations["A"].profile.shape
+    draw = plan.lamps["A"]
+    seen = drifted(true_lamp("A"), draw.drift_gain, draw.drift_tilt_per_100nm)
+    expected, _ = clean_signals(plan, seen, camera, side=-1)
+    # The captured profile is in the +1 profile's units: the same scale as its clean signal.
+    plus_scale = float(np.median(scene.observations["A"].profile / scene.clean["A"][0]))
+    lit = expected[:, 1] > 0.2 * expected[:, 1].max()
+    z = (profile[lit, 1] - plus_scale * expected[lit, 1]) / sigma[lit, 1]
+    assert abs(float(np.mean(z))) < 0.5 and 0.5 < float(np.std(z)) < 1.5
 
 
 def test_stray_light_is_a_lorentzian_wing_of_the_direct_spot() -> None:

@@ -447,6 +447,12 @@ class GratingGeometry:
             raise InputError(f"not a grating geometry record ({exc})", source="grating") from None
 
 
+#: Two first orders' directions on the sensor count as opposite (the two sides of one grating, or
+#: a camera turned round) within this many degrees of 180°: detection pairs a band with the other
+#: first order by it, and a grating file's order is told from a capture's by it.
+OPPOSITE_ORDER_TOLERANCE_DEG = 20.0
+
+
 @dataclass(frozen=True)
 class TiltedGrating:
     """The first order of a transmission grating in front of a lens: the grating equation seen

@@ -39,7 +39,7 @@ from calib.core.arrays import FloatArray
 from calib.core.blas import one_blas_thread
 from calib.core.errors import InputError
 from calib.core.grating_file import GratingEfficiency
-from calib.core.mapping import GratingGeometry, QuadraticMapping
+from calib.core.mapping import OPPOSITE_ORDER_TOLERANCE_DEG, GratingGeometry, QuadraticMapping
 from calib.core.observations import LampObservation
 from calib.core.result import EstimateResult, QualityFlag
 from calib.core.spectra import DEFAULT_GRID, WavelengthGrid
@@ -72,10 +72,6 @@ from calib.wavelength.rig_prior import optics_from_observation
 
 #: Registry name (and the result's ``method``).
 KNOWN_GRATING_METHOD = "known-grating"
-#: A capture's first order runs opposite to the grating file's when their directions on the
-#: sensor differ by more than 180° less this (the 20° that pairs a band with the other first
-#: order in detection).
-OPPOSITE_ORDER_TOLERANCE_DEG = 20.0
 #: ``diagnostics["grating"]["source"]`` of an efficiency marginalised over the physical families.
 ASSUMED_PHYSICAL_SOURCE = "assumed: physical grating families"
 #: ``diagnostics["efficiency_model"]`` of a solve through an assumed-physical η: the σ budget

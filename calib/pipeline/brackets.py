@@ -605,6 +605,7 @@ def bracket_profiles(
                 merged[lamp.name].image,
                 shift_geometry(geometry, merged[lamp.name].image),
                 allow_saturated_direct=True,
+                other_order=True,
             ),
         )
         for lamp in lamps

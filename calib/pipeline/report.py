@@ -221,6 +221,8 @@ def _both_orders(mapping: object) -> str | None:
     measured = details.get("other_order") if isinstance(details, Mapping) else None
     if not isinstance(measured, Mapping):
         return None
+    if "focal_length_px" not in measured:
+        return f"not measured: {measured.get('refused')}"
 
     def held(key: str) -> float | None:
         value = measured.get(key)

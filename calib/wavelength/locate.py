@@ -638,7 +638,11 @@ def locate_mapping(
         # is reported, not joined to the mapping's prior (decision 0197: on the test split that
         # left LED-only mappings pulled by a camera unlike the prior unwarned).
         other = other_order_geometry(lead)
-        details["other_order"] = None if other is None else other.to_dict()
+        details["other_order"] = (
+            {"refused": "the two first orders share too few lit samples to measure them"}
+            if other is None
+            else other.to_dict()
+        )
 
     search = None
     # σ of a whole-profile fit that a measured lamp's lines could not correct, from how far it

@@ -230,9 +230,10 @@ def other_order_geometry(
     )
     lit = np.any(np.asarray(other.profile) > LIT_SIGMAS * np.asarray(other.profile_sigma), axis=1)
     chi2 = np.empty(theta.shape[0])
+    shared = np.empty(theta.shape[0])
     for rows in np.array_split(np.arange(theta.shape[0]), max(1, theta.shape[0] // 512)):
         carried = corresponding_pixel(thinned.pixel, np.exp(log_focal[rows]), theta[rows])
-        chi2[rows], _, _ = _misfit(blurred[0], thinned, carried, degree, lit[::every])
+        chi2[rows], shared[rows], _ = _misfit(blurred[0], thinned, carried, degree, lit[::every])
     if not np.any(np.isfinite(chi2)):
         return None
     surface = chi2.reshape(logs.size, incidences.size)
@@ -255,6 +256,8 @@ def other_order_geometry(
     with np.errstate(invalid="ignore"):
         used = np.isfinite(at_start) & (at_start >= first.pixel[0]) & (at_start <= first.pixel[-1])
     count = int(used.sum())
+    if count < SAMPLES_PER_TERM * (degree + 1):
+        return None
 
     def residuals(x: FloatArray) -> FloatArray:
         carried = corresponding_pixel(other.pixel, np.exp(x[1]), x[0])
@@ -262,8 +265,6 @@ def other_order_geometry(
             return np.full(3 * count, 1e3)
         return _residuals(first, other, carried, used, degree)
 
-    if count < SAMPLES_PER_TERM * (degree + 1):
-        return None
     # Within the scan's ranges: at normal incidence the two orders are mirror images for every
     # focal length, and a free fit walks along that flat valley to focal lengths where the
     # incidence too stops mattering.
@@ -288,8 +289,10 @@ def other_order_geometry(
     runner_up = None
     refused = None
     if second is not None and math.isfinite(by_incidence[second]):
-        # On the smoothed scan, in the refined fit's own units.
-        scan_temper = max(1.0, float(chi2[best]) / max(3 * count // 2 - degree - 3, 1))
+        # On the smoothed scan, tempered by its best point's own reduced χ² (over the thinned
+        # samples that point shares).
+        scan_dof = max(3 * int(shared[best]) - (degree + 1) - 2, 1)
+        scan_temper = max(1.0, float(chi2[best]) / scan_dof)
         delta = (float(by_incidence[second]) - float(chi2[best])) / scan_temper
         runner_up = (float(incidences[second]), delta)
         if delta < AMBIGUITY_DELTA_CHI2:

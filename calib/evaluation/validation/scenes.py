@@ -371,14 +371,16 @@ def clean_signals(
 
 
 def render_other_order(
-    plan: ScenePlan, camera: MultiSpectrum, spec: str, rng: np.random.Generator
+    scene: RenderedScene, camera: MultiSpectrum, spec: str, rng: np.random.Generator
 ) -> tuple[FloatArray, FloatArray]:
-    """The −1 profile of lamp ``spec`` and its σ, ``(n, 3)`` each, captured in the same bracket
-    (the same frames, gains and exposure errors) as :func:`render_scene` captures its +1 order,
-    with noise from ``rng``."""
+    """The −1 profile of lamp ``spec`` of ``scene`` (by ``camera``, the scene's) and its σ,
+    ``(n, 3)`` each, captured in the bracket :func:`render_scene` captured its +1 order in (the
+    same frames, gains and exposure errors: the bracket is laid out on the +1 order's clean
+    signals, kept in ``scene.clean``), with noise from ``rng``."""
+    plan = scene.plan
     draw = plan.lamps[spec]
+    profile, direct = scene.clean[spec]
     seen = drifted(true_lamp(spec), draw.drift_gain, draw.drift_tilt_per_100nm)
-    profile, direct = clean_signals(plan, seen, camera)
     other, _ = clean_signals(plan, seen, camera, side=-1)
     shape = plan.geometry
     slit = SlitImage.of(shape.line_spread, plan.sensor.band_rows, shape.psf_sigma_px)

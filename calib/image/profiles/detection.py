@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.core.arrays import BoolArray, FloatArray
+from calib.core.mapping import OPPOSITE_ORDER_TOLERANCE_DEG
 from calib.image.blocks import DETECTION_MAX_SIZE, block_factor, block_mean
 from calib.image.hdr import HdrImage
 from calib.image.profiles.geometry import (
@@ -45,8 +46,6 @@ _BAND_SNR = 8.0
 EXTENT_FRACTION = 0.01
 #: A region on the other side counts as the other first order above this fraction of the flux.
 _MIN_ORDER_FLUX_RATIO = 0.05
-#: Centroid directions within this angle (degrees) count as "opposite".
-_OPPOSITE_TOLERANCE_DEG = 20.0
 _MAD_TO_SIGMA = 1.4826
 
 
@@ -571,7 +570,7 @@ def _mirrors(
     is for where it starts. Stray light or a reflection that only happens to lie on the other
     side is not read in the stronger order's place."""
     if abs(_angle_difference(measured.angle_deg, stronger.angle_deg + 180.0)) > (
-        _OPPOSITE_TOLERANCE_DEG
+        OPPOSITE_ORDER_TOLERANCE_DEG
     ):
         return False
     distances = []
@@ -647,7 +646,7 @@ def detect_geometry(
         c
         for c in candidates[1:]
         if abs(_angle_difference(c.angle_deg, primary_candidate.angle_deg + 180.0))
-        <= _OPPOSITE_TOLERANCE_DEG
+        <= OPPOSITE_ORDER_TOLERANCE_DEG
         and c.flux >= _MIN_ORDER_FLUX_RATIO * primary_candidate.flux
     ]
     settings = _Settings(across_fraction, extent_fraction, margin_fraction, source)

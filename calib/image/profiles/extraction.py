@@ -971,6 +971,7 @@ def extract(
     side: Side = 1,
     subtract_background: bool = True,
     allow_saturated_direct: bool = False,
+    other_order: bool = False,
 ) -> Extraction:
     """Direct RGB and first-order profile of ``image`` in a fixed ``geometry``.
 
@@ -986,6 +987,9 @@ def extract(
         Subtract the per-channel median of strips beside the band / the spot.
     allow_saturated_direct
         Return ``direct_rgb = None`` instead of raising when the spot is saturated in every frame.
+    other_order
+        Also read the other first order, when the geometry holds it and ``side`` is ``+1``
+        (:attr:`Extraction.other_order`; the observations the estimators get: decision 0197).
 
     Returns
     -------
@@ -1008,7 +1012,11 @@ def extract(
     band = geometry.order(side)
     background = _band_background(image, geometry, band, subtract_background)
     pixel, profile, sigma, counts = _extract_profile(image, geometry, band, background, source)
-    other, other_note = _other_order(image, geometry, side, subtract_background, source)
+    other, other_note = (
+        _other_order(image, geometry, side, subtract_background, source)
+        if other_order
+        else (None, None)
+    )
     direct, direct_sigma, direct_background, line_spread, direct_note = _extract_direct(
         image, geometry, allow_saturated_direct, source, subtract_background
     )
